@@ -1,0 +1,106 @@
+"""Command line: ``pe-drake optimize | view | simulate | identify | validate | diagnose``.
+
+Each sub-command parses its arguments here and calls one ``*_command(args) -> int`` function
+in the module that owns the work (imported lazily so ``pe-drake --help`` is instant). Every
+:class:`~pe_drake.exceptions.PeDrakeError` becomes a one-line message and exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from pe_drake import __version__
+
+_COMMANDS = {
+    "optimize": ("pe_drake.commands", "optimize_command"),
+    "view": ("pe_drake.viewer", "view_command"),
+    "simulate": ("pe_drake.simulation", "simulate_command"),
+    "identify": ("pe_drake.identification", "identify_command"),
+    "validate": ("pe_drake.identification", "validate_command"),
+    "diagnose": ("pe_drake.diagnosis", "diagnose_command"),
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="pe-drake",
+        description="Exciting trajectories, identification and model diagnosis on Drake.",
+    )
+    parser.add_argument("--version", action="version", version=f"pe_drake {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    p = sub.add_parser("optimize", help="optimize an exciting trajectory (min cond of the regressor)")
+    p.add_argument("--robot", required=True, help="built-in name (panda, ur5, g1) or URDF/SDF path")
+    p.add_argument("--config", help="YAML config overriding the robot's defaults")
+    p.add_argument("--solver", choices=["ipopt", "nlopt"], help="optimizer (default: from config, ipopt)")
+    p.add_argument("--criterion", choices=["cond", "log_cond", "dopt"], help="excitation criterion")
+    p.add_argument("--prior", action="append", default=[], metavar="TRAJECTORY_JSON",
+                   help="earlier trajectory whose data is reused as C0 (repeatable)")
+    p.add_argument("--max-iterations", type=int, help="solver iteration limit")
+    p.add_argument("--seed", type=int, help="seed of the random initial point")
+    p.add_argument("--csv-rate", type=float, default=1000.0, help="rate of trajectory.csv [Hz]")
+    p.add_argument("--no-html", action="store_true", help="do not write the Meshcat HTML playback")
+    p.add_argument("--quiet", action="store_true", help="no progress output")
+    p.add_argument("--out", required=True, help="output folder")
+
+    p = sub.add_parser("view", help="play a trajectory in Meshcat")
+    p.add_argument("trajectory", help="trajectory.json")
+    p.add_argument("--robot", help="override the robot named in the trajectory file")
+    p.add_argument("--config", help="YAML config of the robot")
+    p.add_argument("--html", help="write a self-contained HTML playback here and exit")
+    p.add_argument("--no-capsules", action="store_true", help="hide the collision capsules")
+    p.add_argument("--rate", type=float, default=30.0, help="frames per second")
+
+    p = sub.add_parser("simulate", help="simulate a measured run on a perturbed 'true' robot")
+    p.add_argument("--robot", required=True)
+    p.add_argument("--config", help="YAML config of the robot")
+    p.add_argument("--trajectory", required=True, help="trajectory.json to track")
+    p.add_argument("--truth", required=True, help="TRUTH.yaml: perturbation, effects, noise")
+    p.add_argument("--out", required=True, help="output CSV")
+    p.add_argument("--duration", type=float, help="simulated time [s] (default: one period)")
+
+    p = sub.add_parser("identify", help="identify the base parameters from measured data")
+    p.add_argument("--robot", required=True)
+    p.add_argument("--config", help="YAML config of the robot")
+    p.add_argument("--data", required=True, help="measurement CSV")
+    p.add_argument("--method", choices=["ols", "wls", "physical"], default="ols")
+    p.add_argument("--cutoff", type=float, help="low-pass cut-off [Hz] (default: from the data)")
+    p.add_argument("--out", required=True, help="output folder")
+
+    p = sub.add_parser("validate", help="predict torques of another run with an identified model")
+    p.add_argument("--robot", required=True)
+    p.add_argument("--config", help="YAML config of the robot")
+    p.add_argument("--model", required=True, help="identified.json")
+    p.add_argument("--data", required=True, help="measurement CSV of another run")
+    p.add_argument("--json", help="write per-joint errors here")
+    p.add_argument("--plot", help="write measured vs predicted torque plot here (PNG)")
+
+    p = sub.add_parser("diagnose", help="name the effects missing from the model")
+    p.add_argument("--robot", required=True)
+    p.add_argument("--config", help="YAML config of the robot")
+    p.add_argument("--data", required=True, help="measurement CSV")
+    p.add_argument("--validation", help="held-out CSV (default: a held-out part of --data)")
+    p.add_argument("--out", required=True, help="output folder")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    from pe_drake.exceptions import PeDrakeError
+
+    args = build_parser().parse_args(argv)
+    module_name, function_name = _COMMANDS[args.command]
+    try:
+        function = getattr(importlib.import_module(module_name), function_name)
+        return int(function(args) or 0)
+    except PeDrakeError as err:
+        print(f"pe-drake {args.command}: error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"pe-drake {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

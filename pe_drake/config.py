@@ -1,0 +1,252 @@
+"""Configuration dataclasses and their YAML loader.
+
+A config file maps onto :class:`Config` through Drake's ``yaml_load_typed`` (unknown keys are
+refused). Drake fills dataclasses by attribute assignment, so these are plain dataclasses
+validated by :func:`validate_config` right after loading (and by every public entry point).
+Units are SI and written next to each field.
+"""
+
+
+
+import dataclasses
+import math
+from pathlib import Path
+from typing import Any
+
+from pe_drake.exceptions import ConfigError
+
+
+@dataclasses.dataclass
+class RobotConfig:
+    """Which model to load, which joints to excite, how to hold the rest.
+
+    Attributes:
+        model: URDF/SDF path, or ``package://example-robot-data/...``. Relative paths are
+            resolved against the config file's folder.
+        joints: the excited joints; empty means every movable joint of the model.
+        locked_positions: posture of the joints that are not excited, {joint: value} [rad or
+            m]; joints not listed are locked at 0 (or the nearest limit).
+        root_link: the link welded to the world; empty means the model's root link.
+        base_position: position of the root link's origin in world [m].
+        base_quaternion_wxyz: orientation of the root link in world (w, x, y, z).
+        position_limits: {joint: [lower, upper]} [rad or m], tightens the model's limits.
+        velocity_limits: {joint: limit} [rad/s or m/s], tightens the model's limits.
+        acceleration_limits: {joint: limit} [rad/s² or m/s²]; unlisted joints get
+            ``default_acceleration_limit``.
+        default_acceleration_limit: [rad/s² or m/s²].
+        effort_limits: {joint: limit} [N·m or N], tightens the model's limits.
+        position_margin: kept away from each position limit [rad or m].
+        velocity_scale: fraction (0, 1] of the velocity limit used.
+        acceleration_scale: fraction (0, 1] of the acceleration limit used.
+        effort_scale: fraction (0, 1] of the effort limit used (torque constraint).
+        capsules: capsule file for self-collision (relative to the config file), or empty.
+        support_points: contact points of the feet for the balance constraint, as
+            {link: [[x, y, z], ...]} in the link frame [m]; empty means no balance
+            constraint is available.
+    """
+
+    model: str = ""
+    joints: list[str] = dataclasses.field(default_factory=list)
+    locked_positions: dict[str, float] = dataclasses.field(default_factory=dict)
+    root_link: str = ""
+    base_position: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
+    base_quaternion_wxyz: list[float] = dataclasses.field(
+        default_factory=lambda: [1.0, 0.0, 0.0, 0.0]
+    )
+    position_limits: dict[str, list[float]] = dataclasses.field(default_factory=dict)
+    velocity_limits: dict[str, float] = dataclasses.field(default_factory=dict)
+    acceleration_limits: dict[str, float] = dataclasses.field(default_factory=dict)
+    default_acceleration_limit: float = 10.0
+    effort_limits: dict[str, float] = dataclasses.field(default_factory=dict)
+    position_margin: float = 0.0
+    velocity_scale: float = 1.0
+    acceleration_scale: float = 1.0
+    effort_scale: float = 1.0
+    capsules: str = ""
+    support_points: dict[str, list[list[float]]] = dataclasses.field(default_factory=dict)
+
+
+@dataclasses.dataclass
+class ExcitationConfig:
+    """The trajectory and the optimization problem (paper, section IV-A).
+
+    Attributes:
+        harmonics: N in Eq. (50).
+        omega: base angular frequency ω [rad/s]; the period is 2π/ω.
+        cost_samples: T, samples of the regressor stacked in C (Eq. 3), evenly spread over
+            one period.
+        constraint_samples: K, samples where the limits are imposed (Eq. 51).
+        criterion: "cond" (Eq. 5), "log_cond", or "dopt" (-log det CᵀC).
+        rest_at_ends: start and end with zero velocity and acceleration.
+        amplitude: scale of the random initial coefficients [rad].
+        balance_radius: r of Eq. (52) [m]; 0 disables the balance constraint.
+        collision_margin: minimum distance between capsules (Eq. 53) [m]; negative disables.
+        torque_limits: impose |τ| ≤ effort limit × effort_scale along the trajectory.
+        seed: random seed of the initial point.
+    """
+
+    harmonics: int = 10
+    omega: float = math.pi / 4
+    cost_samples: int = 40
+    constraint_samples: int = 400
+    criterion: str = "cond"
+    rest_at_ends: bool = False
+    amplitude: float = 0.05
+    balance_radius: float = 0.0
+    collision_margin: float = -1.0
+    torque_limits: bool = False
+    seed: int = 0
+
+
+@dataclasses.dataclass
+class SolverConfig:
+    """Which solver and its options.
+
+    Attributes:
+        name: "ipopt" or "nlopt".
+        algorithm: NLopt algorithm ("LD_SLSQP" or "LD_MMA"); ignored by IPOPT.
+        max_iterations: iteration limit (IPOPT) or evaluation limit (NLopt).
+        tolerance: relative tolerance.
+        max_time: wall-time limit [s]; 0 means none.
+        verbose: print progress (iteration, cost, worst constraint violation).
+    """
+
+    name: str = "ipopt"
+    algorithm: str = "LD_SLSQP"
+    max_iterations: int = 200
+    tolerance: float = 1e-6
+    max_time: float = 0.0
+    verbose: bool = True
+
+
+@dataclasses.dataclass
+class Config:
+    """A whole pe_drake configuration file."""
+
+    robot: RobotConfig = dataclasses.field(default_factory=RobotConfig)
+    excitation: ExcitationConfig = dataclasses.field(default_factory=ExcitationConfig)
+    solver: SolverConfig = dataclasses.field(default_factory=SolverConfig)
+
+
+CRITERIA = ("cond", "log_cond", "dopt")
+SOLVERS = ("ipopt", "nlopt")
+NLOPT_ALGORITHMS = ("LD_SLSQP", "LD_MMA", "LD_CCSAQ")
+
+
+def _finite(name: str, value: float, *, positive: bool = False, nonneg: bool = False) -> None:
+    if not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ConfigError(f"{name} must be a finite number, got {value!r}")
+    if positive and value <= 0:
+        raise ConfigError(f"{name} must be positive, got {value!r}")
+    if nonneg and value < 0:
+        raise ConfigError(f"{name} must be non-negative, got {value!r}")
+
+
+def _fraction(name: str, value: float) -> None:
+    _finite(name, value, positive=True)
+    if value > 1:
+        raise ConfigError(f"{name} must lie in (0, 1], got {value!r}")
+
+
+def validate_config(config: Config) -> Config:
+    """Checks every number and choice of a config; returns it unchanged.
+
+    Raises:
+        ConfigError: naming the field and the bad value.
+    """
+    r, e, s = config.robot, config.excitation, config.solver
+    for name, table in (
+        ("robot.velocity_limits", r.velocity_limits),
+        ("robot.acceleration_limits", r.acceleration_limits),
+        ("robot.effort_limits", r.effort_limits),
+    ):
+        for joint, value in table.items():
+            _finite(f"{name}['{joint}']", value, positive=True)
+    for joint, pair in r.position_limits.items():
+        if len(pair) != 2:
+            raise ConfigError(f"robot.position_limits['{joint}'] must be [lower, upper]")
+        for v in pair:
+            _finite(f"robot.position_limits['{joint}']", v)
+        if pair[0] >= pair[1]:
+            raise ConfigError(f"robot.position_limits['{joint}']: lower {pair[0]} >= upper {pair[1]}")
+    for joint, value in r.locked_positions.items():
+        _finite(f"robot.locked_positions['{joint}']", value)
+    _finite("robot.default_acceleration_limit", r.default_acceleration_limit, positive=True)
+    _finite("robot.position_margin", r.position_margin, nonneg=True)
+    for name in ("velocity_scale", "acceleration_scale", "effort_scale"):
+        _fraction(f"robot.{name}", getattr(r, name))
+    if len(r.base_position) != 3:
+        raise ConfigError(f"robot.base_position must have 3 numbers, got {r.base_position}")
+    if len(r.base_quaternion_wxyz) != 4:
+        raise ConfigError(f"robot.base_quaternion_wxyz must have 4 numbers, got {r.base_quaternion_wxyz}")
+    for v in list(r.base_position) + list(r.base_quaternion_wxyz):
+        _finite("robot.base_pose", v)
+    if math.sqrt(sum(v * v for v in r.base_quaternion_wxyz)) < 1e-9:
+        raise ConfigError("robot.base_quaternion_wxyz must not be zero")
+
+    if not isinstance(e.harmonics, int) or e.harmonics < 1:
+        raise ConfigError(f"excitation.harmonics must be a positive integer, got {e.harmonics!r}")
+    _finite("excitation.omega", e.omega, positive=True)
+    if not isinstance(e.cost_samples, int) or e.cost_samples < 1:
+        raise ConfigError(f"excitation.cost_samples must be a positive integer, got {e.cost_samples!r}")
+    if not isinstance(e.constraint_samples, int) or e.constraint_samples < 2:
+        raise ConfigError(
+            f"excitation.constraint_samples must be an integer >= 2, got {e.constraint_samples!r}"
+        )
+    if e.criterion not in CRITERIA:
+        raise ConfigError(f"excitation.criterion '{e.criterion}' is not one of {', '.join(CRITERIA)}")
+    _finite("excitation.amplitude", e.amplitude, positive=True)
+    _finite("excitation.balance_radius", e.balance_radius, nonneg=True)
+    _finite("excitation.collision_margin", e.collision_margin)
+
+    if s.name not in SOLVERS:
+        raise ConfigError(f"solver.name '{s.name}' is not one of {', '.join(SOLVERS)}")
+    if s.algorithm not in NLOPT_ALGORITHMS:
+        raise ConfigError(
+            f"solver.algorithm '{s.algorithm}' is not one of {', '.join(NLOPT_ALGORITHMS)}"
+        )
+    if not isinstance(s.max_iterations, int) or s.max_iterations < 1:
+        raise ConfigError(f"solver.max_iterations must be a positive integer, got {s.max_iterations!r}")
+    _finite("solver.tolerance", s.tolerance, positive=True)
+    _finite("solver.max_time", s.max_time, nonneg=True)
+    return config
+
+
+def load_config(path: str | Path, base: Config | None = None) -> Config:
+    """Reads a YAML config file onto :class:`Config` and validates it.
+
+    Args:
+        path: the YAML file.
+        base: defaults to start from (e.g. a built-in robot's config); keys in the file
+            override them.
+
+    Raises:
+        ConfigError: missing file, unknown key, wrong type, or invalid value.
+    """
+    from pydrake.common.yaml import yaml_load_typed
+
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"config file '{path}' does not exist")
+    try:
+        config = yaml_load_typed(
+            schema=Config,
+            filename=str(path),
+            defaults=base if base is not None else Config(),
+        )
+    except (RuntimeError, ValueError, TypeError) as err:
+        raise ConfigError(f"config file '{path}': {err}") from err
+    _resolve_paths(config.robot, path.parent)
+    return validate_config(config)
+
+
+def _resolve_paths(robot: RobotConfig, folder: Path) -> None:
+    for attr in ("model", "capsules"):
+        value = getattr(robot, attr)
+        if value and "://" not in value and not Path(value).is_absolute():
+            setattr(robot, attr, str((folder / value).resolve()))
+
+
+def to_dict(obj: Any) -> Any:
+    """A dataclass as plain dicts/lists (for JSON reports)."""
+    return dataclasses.asdict(obj)

@@ -1,0 +1,72 @@
+"""The sampled-constraint interface every trajectory constraint implements.
+
+A :class:`SampledConstraint` maps joint states at K sample times to m values per sample with
+lower ≤ value ≤ upper, and gives their analytic derivatives with respect to q (and v, vdot
+when it depends on them). :mod:`pe_drake.excitation` chains these through the Fourier map
+(Eq. 49) into a Drake constraint on alpha; the members (balance, collision, torque) never see
+alpha.
+"""
+
+from __future__ import annotations
+
+import abc
+import dataclasses
+
+import numpy as np
+
+
+@dataclasses.dataclass(frozen=True)
+class SampledValues:
+    """Values and derivatives of a sampled constraint.
+
+    Attributes:
+        value: shape (K, m).
+        d_q: ∂value/∂q, shape (K, m, n).
+        d_v: ∂value/∂v, shape (K, m, n), or None when independent of v.
+        d_vd: ∂value/∂vdot, shape (K, m, n), or None when independent of vdot.
+    """
+
+    value: np.ndarray
+    d_q: np.ndarray
+    d_v: np.ndarray | None = None
+    d_vd: np.ndarray | None = None
+
+
+class SampledConstraint(abc.ABC):
+    """lower ≤ g(q(t), v(t), vdot(t)) ≤ upper at each sample time.
+
+    Attributes:
+        name: short name used in reports ("balance", "collision", "torque").
+        labels: one label per value row (e.g. the capsule pair), length m.
+        lower: shape (m,).
+        upper: shape (m,).
+        unit: unit of the values, for reports ("m", "N·m").
+    """
+
+    name: str = "constraint"
+    unit: str = ""
+
+    def __init__(self, labels: list[str], lower: np.ndarray, upper: np.ndarray):
+        self.labels = list(labels)
+        self.lower = np.asarray(lower, float).reshape(-1)
+        self.upper = np.asarray(upper, float).reshape(-1)
+
+    @property
+    def size(self) -> int:
+        """m, values per sample."""
+        return len(self.labels)
+
+    @abc.abstractmethod
+    def evaluate(self, q: np.ndarray, v: np.ndarray, vd: np.ndarray, derivatives: bool = True) -> SampledValues:
+        """Values (and derivatives unless ``derivatives`` is False) at K samples.
+
+        Args:
+            q, v, vd: joint positions, velocities, accelerations, each (K, n).
+            derivatives: compute d_q/d_v/d_vd (else they may be empty arrays).
+        """
+
+    def margins(self, q: np.ndarray, v: np.ndarray, vd: np.ndarray) -> np.ndarray:
+        """Signed distance to the nearest bound at each sample, shape (K, m); < 0 is a
+        violation (in the constraint's unit)."""
+        g = self.evaluate(q, v, vd, derivatives=False).value
+        return np.minimum(g - self.lower, self.upper - g)

@@ -1,0 +1,97 @@
+"""Exceptions raised by pe_drake.
+
+Every error a user can cause derives from :class:`PeDrakeError`, so a caller (or the CLI)
+can catch one type. Subclasses carry the offending values as attributes.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+
+class PeDrakeError(Exception):
+    """Root of every pe_drake error."""
+
+
+class ConfigError(PeDrakeError, ValueError):
+    """A configuration value is missing, malformed or out of range."""
+
+
+class UnknownNameError(ConfigError):
+    """A robot, joint, link or option name is not one of the valid choices.
+
+    Attributes:
+        kind: what was looked up ("robot", "joint", "link", ...).
+        name: the name given.
+        choices: the valid names.
+    """
+
+    def __init__(self, kind: str, name: str, choices: Sequence[str], where: str = ""):
+        self.kind = kind
+        self.name = name
+        self.choices = tuple(choices)
+        place = f" in {where}" if where else ""
+        shown = ", ".join(self.choices[:60]) + (" ..." if len(self.choices) > 60 else "")
+        super().__init__(f"unknown {kind} '{name}'{place}; valid {kind}s: {shown}")
+
+
+class NotWithinLimitsError(ConfigError):
+    """A value lies outside a joint's limits.
+
+    Attributes:
+        joint: joint name.
+        value: the offending value.
+        lower: lower bound.
+        upper: upper bound.
+    """
+
+    def __init__(self, joint: str, value: float, lower: float, upper: float, what: str = "position"):
+        self.joint = joint
+        self.value = value
+        self.lower = lower
+        self.upper = upper
+        super().__init__(
+            f"joint '{joint}': {what} {value:.6g} is outside its limits [{lower:.6g}, {upper:.6g}]"
+        )
+
+
+class InfeasibleError(PeDrakeError):
+    """The limits or constraints leave no feasible trajectory."""
+
+
+class DataError(PeDrakeError, ValueError):
+    """Measured data is malformed: names the file, column and row where it can."""
+
+    def __init__(self, message: str, *, file: str = "", column: str = "", row: int | None = None):
+        self.file = file
+        self.column = column
+        self.row = row
+        where = []
+        if file:
+            where.append(f"file '{file}'")
+        if column:
+            where.append(f"column '{column}'")
+        if row is not None:
+            where.append(f"row {row}")
+        prefix = (", ".join(where) + ": ") if where else ""
+        super().__init__(prefix + message)
+
+
+class NoSolutionFound(PeDrakeError):
+    """The solver did not find a solution that satisfies every constraint.
+
+    Attributes:
+        result: the :class:`~pe_drake.excitation.ExcitationResult` (or solver result) kept
+            for inspection.
+    """
+
+    def __init__(self, message: str, result: Any = None):
+        self.result = result
+        super().__init__(message)
+
+
+class MissingDependencyError(PeDrakeError, ImportError):
+    """An optional package is needed for this feature."""
+
+    def __init__(self, package: str, feature: str):
+        super().__init__(f"{feature} needs the package '{package}': pip install {package}")

@@ -1,0 +1,91 @@
+"""Reading and writing ``trajectory.json`` and ``trajectory.csv``.
+
+trajectory.json keys: ``robot``, ``joints``, ``omega`` [rad/s], ``harmonics``, ``a`` and ``b``
+(n × N), ``q0`` (n), ``duration`` [s], ``locked_positions`` {joint: value},
+``base_pose`` {``position``, ``quaternion_wxyz``} of the root link in world, ``root_link``,
+``cond``; q_j(t) = Σ_k a_jk sin(kωt) + b_jk cos(kωt) + q0_j exactly as Eq. (50).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pe_drake.exceptions import DataError
+from pe_drake.fourier import FourierTrajectory
+from pe_drake.io_utils import atomic_write_text
+
+
+def trajectory_to_dict(robot, trajectory: FourierTrajectory, **extra: Any) -> dict[str, Any]:
+    """The JSON-ready description of a trajectory on a robot."""
+    pose = robot.base_pose
+    return {
+        "robot": robot.name,
+        "model": str(robot.model_path),
+        "joints": list(robot.joint_names),
+        "omega": trajectory.omega,
+        "harmonics": trajectory.harmonics,
+        "a": trajectory.a.tolist(),
+        "b": trajectory.b.tolist(),
+        "q0": trajectory.q0.tolist(),
+        "duration": trajectory.period,
+        "locked_positions": dict(robot.locked_positions),
+        "root_link": robot.root_link,
+        "base_pose": {
+            "position": np.asarray(pose.translation()).tolist(),
+            "quaternion_wxyz": np.asarray(pose.rotation().ToQuaternion().wxyz()).tolist(),
+        },
+        **extra,
+    }
+
+
+def save_trajectory(path: str | Path, robot, trajectory: FourierTrajectory, **extra: Any) -> None:
+    """Writes trajectory.json atomically."""
+    atomic_write_text(path, json.dumps(trajectory_to_dict(robot, trajectory, **extra), indent=2))
+
+
+def load_trajectory(path: str | Path) -> tuple[FourierTrajectory, dict[str, Any]]:
+    """Reads trajectory.json.
+
+    Returns:
+        The trajectory and the whole JSON dict (robot, joints, locked posture, ...).
+
+    Raises:
+        DataError: missing file, missing key, or inconsistent shapes.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise DataError("trajectory file does not exist", file=str(path))
+    try:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError as err:
+        raise DataError(f"not valid JSON: {err}", file=str(path)) from err
+    for key in ("joints", "omega", "a", "b", "q0"):
+        if key not in data:
+            raise DataError(f"missing key '{key}'", file=str(path))
+    a, b, q0 = (np.asarray(data[k], float) for k in ("a", "b", "q0"))
+    n = len(data["joints"])
+    if a.ndim != 2 or a.shape[0] != n or b.shape != a.shape or q0.shape != (n,):
+        raise DataError(
+            f"a {a.shape}, b {b.shape}, q0 {q0.shape} do not match {n} joints", file=str(path)
+        )
+    if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b)) and np.all(np.isfinite(q0))):
+        raise DataError("coefficients contain NaN or inf", file=str(path))
+    return FourierTrajectory(a, b, q0, float(data["omega"])), data
+
+
+def write_trajectory_csv(
+    path: str | Path, joints: tuple[str, ...] | list[str], trajectory: FourierTrajectory, rate: float
+) -> None:
+    """Writes t, q.<joint>, v.<joint>, vdot.<joint> sampled at ``rate`` [Hz] over one period."""
+    if not rate > 0:
+        raise ValueError(f"sample rate must be positive, got {rate}")
+    t = np.arange(0.0, trajectory.period + 0.5 / rate, 1.0 / rate)
+    q, v, vd = trajectory.evaluate(t)
+    header = ["t"] + [f"q.{j}" for j in joints] + [f"v.{j}" for j in joints] + [f"vdot.{j}" for j in joints]
+    table = np.column_stack([t, q, v, vd])
+    lines = [",".join(header)] + [",".join(f"{x:.9g}" for x in row) for row in table]
+    atomic_write_text(path, "\n".join(lines) + "\n")
