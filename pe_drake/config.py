@@ -39,6 +39,8 @@ class RobotConfig:
         velocity_scale: fraction (0, 1] of the velocity limit used.
         acceleration_scale: fraction (0, 1] of the acceleration limit used.
         effort_scale: fraction (0, 1] of the effort limit used (torque constraint).
+        nominal_positions: {joint: value} posture of the excited joints the optimizer starts
+            from (q0 of Eq. 50) [rad or m]; unlisted joints start mid-range.
         capsules: capsule file for self-collision (relative to the config file), or empty.
         support_points: contact points of the feet for the balance constraint, as
             {link: [[x, y, z], ...]} in the link frame [m]; empty means no balance
@@ -62,6 +64,7 @@ class RobotConfig:
     velocity_scale: float = 1.0
     acceleration_scale: float = 1.0
     effort_scale: float = 1.0
+    nominal_positions: dict[str, float] = dataclasses.field(default_factory=dict)
     capsules: str = ""
     support_points: dict[str, list[list[float]]] = dataclasses.field(default_factory=dict)
 
@@ -169,8 +172,9 @@ def validate_config(config: Config) -> Config:
             _finite(f"robot.position_limits['{joint}']", v)
         if pair[0] >= pair[1]:
             raise ConfigError(f"robot.position_limits['{joint}']: lower {pair[0]} >= upper {pair[1]}")
-    for joint, value in r.locked_positions.items():
-        _finite(f"robot.locked_positions['{joint}']", value)
+    for table in ("locked_positions", "nominal_positions"):
+        for joint, value in getattr(r, table).items():
+            _finite(f"robot.{table}['{joint}']", value)
     _finite("robot.default_acceleration_limit", r.default_acceleration_limit, positive=True)
     _finite("robot.position_margin", r.position_margin, nonneg=True)
     for name in ("velocity_scale", "acceleration_scale", "effort_scale"):

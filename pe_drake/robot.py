@@ -13,6 +13,7 @@ import logging
 import re
 import sys
 import sysconfig
+from collections.abc import Callable
 from functools import cached_property
 from pathlib import Path
 
@@ -148,9 +149,20 @@ class Robot:
         body_names: bodies moved by at least one excited joint (the regressor's bodies).
     """
 
-    def __init__(self, name: str, config: RobotConfig):
+    def __init__(
+        self,
+        name: str,
+        config: RobotConfig,
+        *,
+        time_step: float = 0.0,
+        obj_visuals: bool = False,
+        before_finalize: Callable | None = None,
+    ):
         self.name = name
         self.config = config
+        self.time_step = float(time_step)
+        self._obj_visuals = obj_visuals
+        self._before_finalize = before_finalize
         self._build()
 
     # ---- construction -------------------------------------------------------------------
@@ -169,9 +181,13 @@ class Robot:
             # collision is our own capsules. Mimic tags would couple joints we may lock.
             text = re.sub(r"<collision\b.*?</collision>", "", text, flags=re.S)
             text = re.sub(r"<mimic\b[^>]*/>", "", text)
+            if self._obj_visuals:
+                from pe_drake.meshes import stl_visuals_to_obj
+
+                text = stl_visuals_to_obj(text, model_path)
 
         builder = DiagramBuilder()
-        plant, scene_graph = AddMultibodyPlantSceneGraph(builder, time_step=0.0)
+        plant, scene_graph = AddMultibodyPlantSceneGraph(builder, time_step=self.time_step)
         parser = Parser(plant)
         try:
             parser.package_map().Add("example-robot-data", str(example_robot_data_dir()))
@@ -251,6 +267,8 @@ class Robot:
         self.root_link = root.name()
         self.base_pose = pose
         self._scene_graph_builder_hook(plant, scene_graph)
+        if self._before_finalize is not None:
+            self._before_finalize(plant, scene_graph)
         plant.Finalize()
         del RollPitchYaw
 
@@ -453,8 +471,13 @@ class Robot:
         return tau
 
     def nominal_posture(self) -> np.ndarray:
-        """Mid-range posture of the excited joints, shape (n,) [rad or m]."""
-        return 0.5 * (self.limits.q_lower + self.limits.q_upper)
+        """Posture the optimizer starts from, shape (n,) [rad or m]: ``nominal_positions``
+        of the config where given, else mid-range."""
+        q = 0.5 * (self.limits.q_lower + self.limits.q_upper)
+        for k, name in enumerate(self.joint_names):
+            if name in self.config.nominal_positions:
+                q[k] = self.config.nominal_positions[name]
+        return q
 
     def __repr__(self) -> str:
         return f"Robot('{self.name}', {self.n} joints, {self.num_bodies} moving bodies)"
@@ -525,12 +548,17 @@ def _resolve_model_path(model: str) -> Path:
     return path
 
 
-def load_robot(robot: str | Config | RobotConfig, config_file: str | Path | None = None) -> Robot:
+def load_robot(
+    robot: str | Config | RobotConfig, config_file: str | Path | None = None, **options
+) -> Robot:
     """Loads a robot by built-in name, model path or config.
 
     Args:
         robot: ``"panda"``, ``"ur5"``, ``"g1"``, a URDF/SDF path, or a config object.
         config_file: optional YAML file overriding the defaults (see :class:`Config`).
+        **options: passed to :class:`Robot`: ``time_step`` [s] (0: continuous plant),
+            ``obj_visuals`` (convert STL visuals to OBJ for Meshcat), ``before_finalize``
+            (callback ``f(plant, scene_graph)`` to add bodies, e.g. a payload).
 
     Returns:
         The :class:`Robot`.
@@ -542,10 +570,10 @@ def load_robot(robot: str | Config | RobotConfig, config_file: str | Path | None
     """
     if isinstance(robot, Config):
         validate_config(robot)
-        return Robot(Path(robot.robot.model).stem, robot.robot)
+        return Robot(Path(robot.robot.model).stem, robot.robot, **options)
     if isinstance(robot, RobotConfig):
         validate_config(Config(robot=robot))
-        return Robot(Path(robot.model).stem, robot)
+        return Robot(Path(robot.model).stem, robot, **options)
     config = resolve_robot_config(robot, config_file)
     name = robot if robot in builtin_robots() else Path(robot).stem
-    return Robot(name, config.robot)
+    return Robot(name, config.robot, **options)
