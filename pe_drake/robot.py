@@ -157,12 +157,14 @@ class Robot:
         time_step: float = 0.0,
         obj_visuals: bool = False,
         before_finalize: Callable | None = None,
+        builder_hook: Callable | None = None,
     ):
         self.name = name
         self.config = config
         self.time_step = float(time_step)
         self._obj_visuals = obj_visuals
         self._before_finalize = before_finalize
+        self._builder_hook = builder_hook
         self._build()
 
     # ---- construction -------------------------------------------------------------------
@@ -277,6 +279,8 @@ class Robot:
                 f"after locking, the plant has {plant.num_positions()} positions but "
                 f"{len(excited)} excited joints: is the root link '{self.root_link}' free?"
             )
+        if self._builder_hook is not None:  # e.g. Meshcat visualizers (pe_drake.viewer)
+            self._builder_hook(builder, plant, scene_graph)
         self.diagram = builder.Build()
         self.plant = plant
         self.scene_graph = scene_graph
@@ -558,7 +562,9 @@ def load_robot(
         config_file: optional YAML file overriding the defaults (see :class:`Config`).
         **options: passed to :class:`Robot`: ``time_step`` [s] (0: continuous plant),
             ``obj_visuals`` (convert STL visuals to OBJ for Meshcat), ``before_finalize``
-            (callback ``f(plant, scene_graph)`` to add bodies, e.g. a payload).
+            (callback ``f(plant, scene_graph)`` to add bodies, e.g. a payload),
+            ``builder_hook`` (callback ``f(builder, plant, scene_graph)`` after Finalize and
+            before the diagram is built, e.g. to add visualizers).
 
     Returns:
         The :class:`Robot`.

@@ -1,0 +1,242 @@
+"""STL → OBJ conversion of URDF visuals, so that Drake's Meshcat can draw them.
+
+Drake's Meshcat draws .obj/.gltf/.dae visuals only; STL visuals are skipped (DRAKE_NOTES.md,
+"Robot descriptions"). :func:`stl_visuals_to_obj` rewrites the ``<visual>`` STL mesh filenames
+of a URDF to OBJ files converted once into a cache folder and reused afterwards; collision
+geometry is left untouched. The reader handles binary and ASCII STL; the writer emits shared
+vertices and triangular faces, without normals (three.js computes flat normals).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import os
+import re
+import tempfile
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from pe_drake.exceptions import DataError
+
+#: Environment variable naming the folder of converted meshes (overrides the default cache).
+CACHE_ENV = "PE_DRAKE_MESH_CACHE"
+
+_BINARY_DTYPE = np.dtype(
+    [("normal", "<f4", (3,)), ("vertices", "<f4", (3, 3)), ("attribute", "<u2")]
+)
+_VISUAL = re.compile(r"<visual\b.*?</visual>", re.S)
+_MESH_FILENAME = re.compile(r"(<mesh\b[^>]*?\bfilename\s*=\s*)([\"'])(.*?)\2", re.S)
+_FLOAT = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
+_ASCII_VERTEX = re.compile(rb"vertex\s+(" + _FLOAT.encode() + rb")\s+(" + _FLOAT.encode()
+                           + rb")\s+(" + _FLOAT.encode() + rb")")
+
+
+class TriangleMesh(NamedTuple):
+    """An indexed triangle mesh.
+
+    Attributes:
+        vertices: shape (V, 3) [model units, usually m].
+        faces: vertex indices of each triangle, shape (F, 3), counter-clockwise seen from
+            outside.
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+
+
+def read_stl(path: str | Path) -> TriangleMesh:
+    """Reads a binary or ASCII STL file, merging identical vertices.
+
+    Args:
+        path: the .stl file.
+
+    Returns:
+        The :class:`TriangleMesh`; degenerate triangles (two equal corners) are dropped.
+
+    Raises:
+        DataError: missing file, or a file that is neither binary nor ASCII STL.
+    """
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except OSError as err:
+        raise DataError(f"cannot read STL file: {err}", file=str(path)) from err
+    corners = _stl_corners(data, path)
+    return _index_corners(corners)
+
+
+def _stl_corners(data: bytes, path: Path) -> np.ndarray:
+    """Triangle corners of an STL file, shape (F, 3, 3)."""
+    if len(data) >= 84:
+        count = int(np.frombuffer(data, "<u4", 1, 80)[0])
+        if len(data) == 84 + 50 * count:
+            facets = np.frombuffer(data, _BINARY_DTYPE, count, 84)
+            return facets["vertices"].astype(float)
+    # ASCII STL starts with "solid"; binary files may too, so the size test above comes first.
+    if data.lstrip()[:5].lower() == b"solid":
+        values = np.array(_ASCII_VERTEX.findall(data), float)
+        if values.size == 0 and b"facet" in data:
+            raise DataError("ASCII STL without readable 'vertex x y z' lines", file=str(path))
+        if len(values) % 3:
+            raise DataError(
+                f"ASCII STL has {len(values)} vertices, not a multiple of 3", file=str(path)
+            )
+        return values.reshape(-1, 3, 3)
+    raise DataError(
+        f"not an STL file: {len(data)} bytes, neither binary (84 + 50·n bytes) nor ASCII "
+        "('solid ...')",
+        file=str(path),
+    )
+
+
+def _index_corners(corners: np.ndarray) -> TriangleMesh:
+    if corners.size == 0:
+        return TriangleMesh(np.zeros((0, 3)), np.zeros((0, 3), np.int64))
+    vertices, inverse = np.unique(corners.reshape(-1, 3), axis=0, return_inverse=True)
+    faces = inverse.reshape(-1, 3)
+    keep = (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])
+    return TriangleMesh(vertices, faces[keep])
+
+
+def obj_text(mesh: TriangleMesh, comment: str = "") -> str:
+    """Wavefront OBJ text of a mesh: ``v`` lines (6 significant digits) and ``f`` lines."""
+    v = np.asarray(mesh.vertices, float)
+    f = np.asarray(mesh.faces, np.int64) + 1  # OBJ indices start at 1
+    head = f"# {comment}\n" if comment else ""
+    return (
+        head
+        + ("v %.6g %.6g %.6g\n" * len(v)) % tuple(v.ravel())
+        + ("f %d %d %d\n" * len(f)) % tuple(f.ravel())
+    )
+
+
+def write_obj(path: str | Path, mesh: TriangleMesh, comment: str = "") -> Path:
+    """Writes a mesh as OBJ atomically (temporary file, then rename).
+
+    Returns:
+        The path written.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w") as out:
+            out.write(obj_text(mesh, comment))
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+    return path
+
+
+def default_cache_dir() -> Path:
+    """Folder of converted meshes: ``$PE_DRAKE_MESH_CACHE``, else
+    ``$XDG_CACHE_HOME/pe_drake/meshes``, else ``~/.cache/pe_drake/meshes``."""
+    if os.environ.get(CACHE_ENV):
+        return Path(os.environ[CACHE_ENV]).expanduser()
+    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    return Path(base) / "pe_drake" / "meshes"
+
+
+def stl_to_obj(stl_path: str | Path, cache_dir: str | Path | None = None) -> Path:
+    """The OBJ conversion of an STL file, converted on first use and reused afterwards.
+
+    The cached file is ``<cache_dir>/<content hash>/<stem>.obj``: a changed STL gets a new
+    entry, and identical files shared by several models are converted once.
+
+    Args:
+        stl_path: the STL file.
+        cache_dir: where converted meshes live (default: :func:`default_cache_dir`).
+
+    Returns:
+        Path of the OBJ file.
+
+    Raises:
+        DataError: unreadable or malformed STL.
+    """
+    stl_path = Path(stl_path)
+    try:
+        data = stl_path.read_bytes()
+    except OSError as err:
+        raise DataError(f"cannot read STL file: {err}", file=str(stl_path)) from err
+    digest = hashlib.blake2b(data, digest_size=8).hexdigest()
+    target = Path(cache_dir or default_cache_dir()) / digest / f"{stl_path.stem}.obj"
+    if not target.is_file():
+        mesh = _index_corners(_stl_corners(data, stl_path))
+        write_obj(target, mesh, comment=f"converted by pe_drake from {stl_path.name}")
+    return target
+
+
+def stl_visuals_to_obj(
+    urdf_text: str, model_path: str | Path, cache_dir: str | Path | None = None
+) -> str:
+    """Rewrites the STL meshes of a URDF's ``<visual>`` elements to cached OBJ conversions.
+
+    Only the ``filename`` attribute of ``<mesh>`` inside ``<visual>`` changes (to an absolute
+    path); ``scale``, origins, materials and every ``<collision>`` stay as they are. Mesh
+    names may be ``package://<pkg>/...`` (``example-robot-data``, or a package whose folder
+    or ``package.xml`` lies above the model), ``file://`` URIs, or paths relative to the
+    model's folder. Meshes that cannot be found are left untouched for Drake to report.
+
+    Args:
+        urdf_text: the URDF's text.
+        model_path: the URDF's path (resolves relative names and package folders).
+        cache_dir: where converted meshes live (default: :func:`default_cache_dir`).
+
+    Returns:
+        The rewritten URDF text.
+
+    Raises:
+        DataError: an STL file that exists but is malformed.
+    """
+    model_path = Path(model_path)
+    converted: dict[str, str] = {}
+
+    def mesh(match: re.Match) -> str:
+        name = match.group(3)
+        if not name.lower().endswith(".stl"):
+            return match.group(0)
+        if name not in converted:
+            source = _resolve_mesh(name, model_path)
+            converted[name] = str(stl_to_obj(source, cache_dir)) if source is not None else name
+        return f"{match.group(1)}{match.group(2)}{converted[name]}{match.group(2)}"
+
+    return _VISUAL.sub(lambda visual: _MESH_FILENAME.sub(mesh, visual.group(0)), urdf_text)
+
+
+def _resolve_mesh(name: str, model_path: Path) -> Path | None:
+    """The file a URDF mesh name points to, or None."""
+    if name.startswith("package://"):
+        package, _, rest = name[len("package://"):].partition("/")
+        for root in _package_roots(package, model_path):
+            if (root / rest).is_file():
+                return root / rest
+        return None
+    if name.startswith("file://"):
+        name = name[len("file://"):]
+    path = Path(name)
+    if not path.is_absolute():
+        path = model_path.parent / path
+    return path if path.is_file() else None
+
+
+def _package_roots(package: str, model_path: Path) -> list[Path]:
+    roots = []
+    if package == "example-robot-data":
+        from pe_drake.robot import example_robot_data_dir
+
+        with contextlib.suppress(Exception):
+            roots.append(example_robot_data_dir())
+    for folder in model_path.resolve().parents:
+        manifest = folder / "package.xml"
+        if folder.name == package:
+            roots.append(folder)
+        elif manifest.is_file() and re.search(
+            rf"<name>\s*{re.escape(package)}\s*</name>", manifest.read_text(errors="replace")
+        ):
+            roots.append(folder)
+    return roots
