@@ -1,0 +1,417 @@
+"""Meshcat playback of an exciting trajectory: robot, collision geometry, CoM and support area.
+
+:func:`play_trajectory` loads the robot named in a ``trajectory.json`` with OBJ visuals
+(:mod:`pe_drake.meshes`), adds Drake's ``MeshcatVisualizer`` for the illustration geometry
+(Meshcat path ``/drake/visual``) and a second one for the proximity geometry, i.e. the
+collision capsules (``/drake/capsules``, toggled in the Meshcat tree), and records one period
+of the Fourier series (Eq. 50) as a Meshcat animation. The ground projection of the
+whole-body CoM (``/drake/com_projection``) is animated with it; the support area, the convex
+hull of the feet's support points (``/drake/support_area``), is drawn when the robot config
+has ``support_points``. :func:`write_playback_html` saves the recording as a self-contained
+HTML file that plays offline (Drake's ``Meshcat.StaticHtml``).
+
+This module imports pydrake's geometry (Meshcat) and is imported lazily by the CLI, so
+``import pe_drake`` stays headless.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pe_drake.exceptions import ConfigError, DataError, UnknownNameError
+
+#: Meshcat paths (under ``/drake``) of what this module draws.
+VISUAL_PREFIX = "visual"
+CAPSULES_PREFIX = "capsules"
+COM_PATH = "com_projection"
+SUPPORT_PATH = "support_area"
+
+_COM_RADIUS = 0.03  # [m] radius of the CoM ground marker (a flat disc)
+_GROUND_OFFSET = 1e-3  # [m] above z = 0, so the markers do not flicker with the grid
+_CAPSULE_RGBA = (1.0, 0.55, 0.0, 0.35)
+_COM_RGBA = (0.9, 0.1, 0.1, 1.0)
+_SUPPORT_RGBA = (0.1, 0.7, 0.2, 0.35)
+
+
+@dataclasses.dataclass(frozen=True)
+class Playback:
+    """A recorded trajectory playback.
+
+    Attributes:
+        meshcat: the Meshcat instance holding the scene and recording (keep a reference to
+            keep its server alive).
+        url: Meshcat's web URL.
+        html: path of the HTML file written, or None.
+        num_frames: recorded frames, one period including both ends.
+        duration: length of the recording, one period 2π/ω [s].
+        frames_per_second: recording rate (``num_frames - 1`` frames per period) [1/s].
+        robot: the :class:`~pe_drake.robot.Robot` shown.
+        com_xy: ground projection of the whole-body CoM at each frame, shape (num_frames, 2)
+            [m].
+        support_polygon: corners of the support area in world (x, y), counter-clockwise,
+            shape (m, 2) [m]; empty (0, 2) when the robot has no support points.
+        paths: Meshcat paths of the drawn layers: visual, capsules (None when there is no
+            proximity geometry), com, support (None without support points).
+    """
+
+    meshcat: Any
+    url: str
+    html: Path | None
+    num_frames: int
+    duration: float
+    frames_per_second: float
+    robot: Any
+    com_xy: np.ndarray
+    support_polygon: np.ndarray
+    paths: dict[str, str | None]
+
+
+def play_trajectory(
+    trajectory_json: str | Path,
+    *,
+    robot: str | None = None,
+    config: str | Path | None = None,
+    html: str | Path | None = None,
+    show_capsules: bool = True,
+    rate: float = 30.0,
+    meshcat: Any = None,
+) -> Playback:
+    """Records one period of a trajectory in Meshcat and optionally writes it as HTML.
+
+    Never blocks: the Meshcat server lives as long as the returned ``Playback.meshcat``
+    (``pe-drake view`` keeps it until Ctrl-C).
+
+    Args:
+        trajectory_json: a ``trajectory.json`` written by ``pe-drake optimize`` or
+            :func:`pe_drake.trajectory_file.save_trajectory`.
+        robot: built-in name or URDF/SDF path; default: the robot named in the file.
+        config: YAML config of the robot. Without it, the locked posture and base pose
+            recorded in the trajectory file are used, so the playback shows the posture the
+            trajectory was optimized for.
+        html: write a self-contained offline HTML playback here (atomically).
+        show_capsules: show the collision (proximity) geometry at start; it stays in the
+            Meshcat tree either way and can be toggled there.
+        rate: frames per second of the recording [1/s].
+        meshcat: an existing ``pydrake.geometry.Meshcat`` to draw into; default: a new one.
+
+    Returns:
+        The :class:`Playback`.
+
+    Raises:
+        DataError: missing or malformed trajectory file.
+        ConfigError: the robot does not excite the trajectory's joints (both lists are
+            named), an invalid rate, or a robot that cannot be loaded.
+    """
+    from pydrake.geometry import Meshcat, MeshcatAnimation, MeshcatParams
+
+    from pe_drake.io_utils import atomic_write_text
+    from pe_drake.trajectory_file import load_trajectory
+
+    if not (isinstance(rate, (int, float)) and math.isfinite(rate) and rate > 0):
+        raise ConfigError(f"playback rate must be a positive number of frames per second, got {rate!r}")
+    trajectory, data = load_trajectory(trajectory_json)
+    period = trajectory.period
+    num_intervals = max(2, int(round(period * rate)))
+    # The recording rate makes frame k fall exactly at t_k = k·T/K, so the clip ends on the
+    # pose it starts with and loops seamlessly.
+    fps = num_intervals / period
+    times = np.arange(num_intervals + 1) * (period / num_intervals)
+
+    if meshcat is None:
+        drake_logger = logging.getLogger("drake")
+        level = drake_logger.level
+        drake_logger.setLevel(logging.WARNING)  # no "Meshcat listening ..." line from Drake
+        try:
+            meshcat = Meshcat(MeshcatParams(show_stats_plot=False))
+        finally:
+            drake_logger.setLevel(level)
+    else:  # a reused instance: drop our earlier layers and recording (recordings merge)
+        for path in (VISUAL_PREFIX, CAPSULES_PREFIX, COM_PATH, SUPPORT_PATH):
+            meshcat.Delete(path)
+        meshcat.DeleteRecording()
+    layers: dict[str, Any] = {}
+    rob = _load_robot_with_visualizers(
+        trajectory_json, data, robot, config, meshcat, layers, fps=fps, show_capsules=show_capsules
+    )
+    order = _joint_order(trajectory_json, data, rob)
+    q = trajectory.evaluate(times)[0][:, order]
+
+    plant, diagram = rob.plant, rob.diagram
+    context = diagram.CreateDefaultContext()
+    plant_context = plant.GetMyMutableContextFromRoot(context)
+
+    support = _support_polygon(rob, plant, plant_context, q[0])
+    _draw_markers(meshcat, support)
+
+    meshcat.StartRecording(frames_per_second=fps, set_visualizations_while_recording=False)
+    com_xy = np.empty((len(times), 2))
+    for k in range(len(times)):
+        # Meshcat files a keyframe at floor(time·fps): stamp mid-frame so rounding of k·T/K
+        # cannot drop frame k onto k - 1.
+        t_record = (k + 0.5) / fps
+        context.SetTime(t_record)
+        plant.SetPositions(plant_context, q[k])
+        diagram.ForcedPublish(context)
+        p_WCcm = plant.CalcCenterOfMassPositionInWorld(plant_context)
+        com_xy[k] = p_WCcm[:2]
+        meshcat.SetTransform(COM_PATH, _translation(com_xy[k], _GROUND_OFFSET), t_record)
+    meshcat.StopRecording()
+    animation = meshcat.get_mutable_recording()
+    animation.set_loop_mode(MeshcatAnimation.LoopMode.kLoopRepeat)
+    animation.set_repetitions(1_000_000)  # "forever": an exciting trajectory is periodic
+    meshcat.PublishRecording()
+    # The still scene (before the animation starts, or when it is paused) shows t = 0.
+    context.SetTime(0.0)
+    plant.SetPositions(plant_context, q[0])
+    diagram.ForcedPublish(context)
+    meshcat.SetTransform(COM_PATH, _translation(com_xy[0], _GROUND_OFFSET))
+
+    html_path = None
+    if html is not None:
+        html_path = Path(html)
+        atomic_write_text(html_path, meshcat.StaticHtml())
+    return Playback(
+        meshcat=meshcat,
+        url=meshcat.web_url(),
+        html=html_path,
+        num_frames=len(times),
+        duration=period,
+        frames_per_second=fps,
+        robot=rob,
+        com_xy=com_xy,
+        support_polygon=support,
+        paths={
+            "visual": f"/drake/{VISUAL_PREFIX}",
+            "capsules": f"/drake/{CAPSULES_PREFIX}" if layers.get("capsules") else None,
+            "com": f"/drake/{COM_PATH}",
+            "support": f"/drake/{SUPPORT_PATH}" if len(support) else None,
+        },
+    )
+
+
+def write_playback_html(trajectory_json: str | Path, html_path: str | Path, **kw: Any) -> Path:
+    """Writes a self-contained HTML playback of a trajectory (used by ``pe-drake optimize``).
+
+    Args:
+        trajectory_json: the ``trajectory.json``.
+        html_path: the HTML file to write (atomically).
+        **kw: keyword arguments of :func:`play_trajectory` (``robot``, ``config``,
+            ``show_capsules``, ``rate``, ``meshcat``).
+
+    Returns:
+        The path written.
+
+    Raises:
+        DataError, ConfigError: as :func:`play_trajectory`.
+    """
+    return play_trajectory(trajectory_json, html=html_path, **kw).html
+
+
+def view_command(args) -> int:
+    """``pe-drake view``: writes the HTML playback, or serves Meshcat until Ctrl-C."""
+    start = time.perf_counter()
+    playback = play_trajectory(
+        args.trajectory,
+        robot=args.robot,
+        config=args.config,
+        html=args.html,
+        show_capsules=not args.no_capsules,
+        rate=args.rate,
+    )
+    summary = (
+        f"{playback.robot.name}: {playback.num_frames} frames over {playback.duration:.3g} s "
+        f"({playback.frames_per_second:.3g} fps)"
+    )
+    if playback.html is not None:
+        size = playback.html.stat().st_size / 1e6
+        print(
+            f"wrote {playback.html} ({size:.1f} MB; {summary}) in "
+            f"{time.perf_counter() - start:.1f} s"
+        )
+        return 0
+    print(f"Meshcat: {playback.url}  ({summary}; the animation loops; Ctrl-C to quit)", flush=True)
+    try:
+        while True:
+            time.sleep(1.0)
+    except KeyboardInterrupt:
+        return 0
+
+
+# ---- helpers ------------------------------------------------------------------------------
+def _load_robot_with_visualizers(
+    path, data, robot, config, meshcat, layers, *, fps: float, show_capsules: bool
+):
+    """The robot of a trajectory file, with Meshcat visualizers in its diagram."""
+    from pydrake.geometry import MeshcatVisualizer, MeshcatVisualizerParams, Rgba, Role
+
+    from pe_drake.robot import Robot, builtin_robots, resolve_robot_config
+
+    recorded = data.get("robot")
+    name = robot or recorded
+    if not name:
+        raise DataError("the file names no robot: pass --robot", file=str(path))
+    source = name
+    if robot is None and name not in builtin_robots() and data.get("model"):
+        source = data["model"]  # a robot loaded from a model file: its stem is not a name
+    cfg = resolve_robot_config(source, config).robot
+    from_file = config is None and (robot is None or robot == recorded)
+    if from_file:
+        cfg = _config_from_file(cfg, data)
+
+    def add_visualizers(builder, plant, scene_graph) -> None:
+        common = {"publish_period": 1.0 / fps, "delete_on_initialization_event": False}
+        MeshcatVisualizer.AddToBuilder(
+            builder,
+            scene_graph,
+            meshcat,
+            MeshcatVisualizerParams(role=Role.kIllustration, prefix=VISUAL_PREFIX, **common),
+        )
+        if scene_graph.model_inspector().NumGeometriesWithRole(Role.kProximity) > 0:
+            MeshcatVisualizer.AddToBuilder(
+                builder,
+                scene_graph,
+                meshcat,
+                MeshcatVisualizerParams(
+                    role=Role.kProximity,
+                    prefix=CAPSULES_PREFIX,
+                    default_color=Rgba(*_CAPSULE_RGBA),
+                    visible_by_default=show_capsules,
+                    **common,
+                ),
+            )
+            layers["capsules"] = True
+
+    display = name if name in builtin_robots() else Path(name).stem
+    try:
+        return Robot(display, cfg, obj_visuals=True, builder_hook=add_visualizers)
+    except UnknownNameError as err:
+        if not from_file or err.kind != "joint":
+            raise
+        raise ConfigError(
+            f"trajectory '{path}' names joint '{err.name}', which robot "
+            f"'{display}' does not have; its joints: {', '.join(err.choices)}. Pass the --robot "
+            "the trajectory was optimized for."
+        ) from err
+
+
+def _config_from_file(cfg, data: dict):
+    """The robot config set to what the trajectory file records: its excited joints, locked
+    posture, root link and base pose (limit tables are kept for those joints only)."""
+    joints = [str(j) for j in data["joints"]]
+    keep = set(joints)
+    changes: dict[str, Any] = {"joints": joints}
+    for table in (
+        "position_limits",
+        "velocity_limits",
+        "acceleration_limits",
+        "effort_limits",
+        "nominal_positions",
+    ):
+        changes[table] = {j: v for j, v in getattr(cfg, table).items() if j in keep}
+    locked = {j: v for j, v in cfg.locked_positions.items() if j not in keep}
+    locked.update(
+        {j: float(v) for j, v in (data.get("locked_positions") or {}).items() if j not in keep}
+    )
+    changes["locked_positions"] = locked
+    pose = data.get("base_pose") or {}
+    if len(pose.get("position", ())) == 3 and len(pose.get("quaternion_wxyz", ())) == 4:
+        changes["base_position"] = [float(x) for x in pose["position"]]
+        changes["base_quaternion_wxyz"] = [float(x) for x in pose["quaternion_wxyz"]]
+    if data.get("root_link"):
+        changes["root_link"] = str(data["root_link"])
+    return dataclasses.replace(cfg, **changes)
+
+
+def _joint_order(path, data: dict, rob) -> np.ndarray:
+    """Column of the trajectory for each plant position; ConfigError on a joint mismatch."""
+    joints = [str(j) for j in data["joints"]]
+    missing = [j for j in joints if j not in rob.joint_names]
+    extra = [j for j in rob.joint_names if j not in joints]
+    if missing or extra:
+        parts = []
+        if missing:
+            parts.append(f"the trajectory moves {missing}, which robot '{rob.name}' does not excite")
+        if extra:
+            parts.append(f"robot '{rob.name}' excites {extra}, which the trajectory does not move")
+        raise ConfigError(
+            f"trajectory '{path}' does not match the robot: " + "; ".join(parts)
+            + f". Trajectory joints: {joints}; robot joints: {list(rob.joint_names)}. "
+            "Pass the --robot/--config the trajectory was optimized with."
+        )
+    return np.array([joints.index(j) for j in rob.joint_names])
+
+
+def _support_polygon(rob, plant, plant_context, q0: np.ndarray) -> np.ndarray:
+    """Convex hull (x, y) of the support points in world at q0, shape (m, 2) [m].
+
+    The feet are welded in every built-in config; if an excited joint moves a foot, the area
+    drawn is the one at t = 0.
+    """
+    points = rob.config.support_points or {}
+    if not points:
+        return np.zeros((0, 2))
+    plant.SetPositions(plant_context, q0)
+    p_W = []
+    for link, p_L in points.items():
+        if not plant.HasBodyNamed(link):
+            raise UnknownNameError("link", link, rob.body_names_all, where="robot.support_points")
+        X_WL = plant.EvalBodyPoseInWorld(plant_context, plant.GetBodyByName(link))
+        p_W.append((X_WL.GetAsMatrix4() @ np.c_[np.asarray(p_L, float), np.ones(len(p_L))].T)[:3].T)
+    return convex_hull_2d(np.concatenate(p_W)[:, :2])
+
+
+def convex_hull_2d(points: np.ndarray) -> np.ndarray:
+    """Convex hull of planar points (Andrew's monotone chain).
+
+    Args:
+        points: shape (N, 2).
+
+    Returns:
+        Hull corners counter-clockwise without repetition, shape (m, 2).
+    """
+    pts = np.unique(np.asarray(points, float).reshape(-1, 2), axis=0)  # sorted by x, then y
+    if len(pts) <= 2:
+        return pts
+
+    def half(seq):
+        chain: list[np.ndarray] = []
+        for p in seq:
+            while len(chain) >= 2 and np.cross(chain[-1] - chain[-2], p - chain[-2]) <= 0:
+                chain.pop()
+            chain.append(p)
+        return chain[:-1]
+
+    return np.array(half(pts) + half(pts[::-1]))
+
+
+def _draw_markers(meshcat, support: np.ndarray) -> None:
+    from pydrake.geometry import Cylinder, Rgba
+
+    meshcat.Delete(COM_PATH)
+    meshcat.Delete(SUPPORT_PATH)
+    meshcat.SetObject(f"{COM_PATH}/disc", Cylinder(_COM_RADIUS, 0.002), Rgba(*_COM_RGBA))
+    if len(support) >= 3:
+        m = len(support)
+        vertices = np.c_[support, np.full(m, _GROUND_OFFSET / 2)].T
+        faces = np.array([[0, k, k + 1] for k in range(1, m - 1)], np.int32).T
+        meshcat.SetTriangleMesh(
+            f"{SUPPORT_PATH}/area",
+            np.asfortranarray(vertices),
+            np.asfortranarray(faces),
+            Rgba(*_SUPPORT_RGBA),
+        )
+        outline = np.c_[vertices, vertices[:, :1]]
+        meshcat.SetLine(f"{SUPPORT_PATH}/outline", np.asfortranarray(outline), 2.0, Rgba(0.1, 0.5, 0.1, 1.0))
+
+
+def _translation(xy: np.ndarray, z: float):
+    from pydrake.math import RigidTransform
+
+    return RigidTransform([float(xy[0]), float(xy[1]), z])
