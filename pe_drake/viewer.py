@@ -383,12 +383,17 @@ def convex_hull_2d(points: np.ndarray) -> np.ndarray:
     def half(seq):
         chain: list[np.ndarray] = []
         for p in seq:
-            while len(chain) >= 2 and np.cross(chain[-1] - chain[-2], p - chain[-2]) <= 0:
+            while len(chain) >= 2 and _cross(chain[-1] - chain[-2], p - chain[-2]) <= 0:
                 chain.pop()
             chain.append(p)
         return chain[:-1]
 
     return np.array(half(pts) + half(pts[::-1]))
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> float:
+    """z of the cross product of two planar vectors."""
+    return float(a[0] * b[1] - a[1] * b[0])
 
 
 def _draw_markers(meshcat, support: np.ndarray) -> None:
