@@ -129,7 +129,9 @@ def play_trajectory(
         level = drake_logger.level
         drake_logger.setLevel(logging.WARNING)  # no "Meshcat listening ..." line from Drake
         try:
-            meshcat = Meshcat(MeshcatParams(show_stats_plot=False))
+            # An HTML export needs no outside connection: listen on localhost only.
+            host = "localhost" if html is not None else "*"
+            meshcat = Meshcat(MeshcatParams(host=host, show_stats_plot=False))
         finally:
             drake_logger.setLevel(level)
     else:  # a reused instance: drop our earlier layers and recording (recordings merge)
@@ -337,13 +339,12 @@ def _joint_order(path, data: dict, rob) -> np.ndarray:
     if missing or extra:
         parts = []
         if missing:
-            parts.append(f"the trajectory moves {missing}, which robot '{rob.name}' does not excite")
+            parts.append(f"trajectory joints the robot does not excite: {missing}")
         if extra:
-            parts.append(f"robot '{rob.name}' excites {extra}, which the trajectory does not move")
+            parts.append(f"robot joints the trajectory does not move: {extra}")
         raise ConfigError(
-            f"trajectory '{path}' does not match the robot: " + "; ".join(parts)
-            + f". Trajectory joints: {joints}; robot joints: {list(rob.joint_names)}. "
-            "Pass the --robot/--config the trajectory was optimized with."
+            f"trajectory '{path}' does not match robot '{rob.name}': " + "; ".join(parts)
+            + ". Pass the --robot/--config the trajectory was optimized with."
         )
     return np.array([joints.index(j) for j in rob.joint_names])
 
