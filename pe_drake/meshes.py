@@ -176,8 +176,9 @@ def stl_visuals_to_obj(
 ) -> str:
     """Rewrites the STL meshes of a URDF's ``<visual>`` elements to cached OBJ conversions.
 
-    Only the ``filename`` attribute of ``<mesh>`` inside ``<visual>`` changes (to an absolute
-    path); ``scale``, origins, materials and every ``<collision>`` stay as they are. Mesh
+    Only the ``filename`` attribute of ``<mesh>`` inside ``<visual>`` changes, to a
+    ``file://`` URI (Drake refuses bare absolute paths in a URDF parsed from a string);
+    ``scale``, origins, materials and every ``<collision>`` stay as they are. Mesh
     names may be ``package://<pkg>/...`` (``example-robot-data``, or a package whose folder
     or ``package.xml`` lies above the model), ``file://`` URIs, or paths relative to the
     model's folder. Meshes that cannot be found are left untouched for Drake to report.
@@ -202,7 +203,8 @@ def stl_visuals_to_obj(
             return match.group(0)
         if name not in converted:
             source = _resolve_mesh(name, model_path)
-            converted[name] = str(stl_to_obj(source, cache_dir)) if source is not None else name
+            obj = stl_to_obj(source, cache_dir) if source is not None else None
+            converted[name] = obj.resolve().as_uri() if obj is not None else name
         return f"{match.group(1)}{match.group(2)}{converted[name]}{match.group(2)}"
 
     return _VISUAL.sub(lambda visual: _MESH_FILENAME.sub(mesh, visual.group(0)), urdf_text)
