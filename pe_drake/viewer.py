@@ -92,9 +92,10 @@ def play_trajectory(
         trajectory_json: a ``trajectory.json`` written by ``pe-drake optimize`` or
             :func:`pe_drake.trajectory_file.save_trajectory`.
         robot: built-in name or URDF/SDF path; default: the robot named in the file.
-        config: YAML config of the robot. Without it, the locked posture and base pose
-            recorded in the trajectory file are used, so the playback shows the posture the
-            trajectory was optimized for.
+        config: YAML config of the robot. Without it (and unless ``robot`` names another
+            robot), the excited joints, locked posture, root link and base pose recorded in
+            the trajectory file are used, so the playback shows the posture the trajectory
+            was optimized for.
         html: write a self-contained offline HTML playback here (atomically).
         show_capsules: show the collision (proximity) geometry at start; it stays in the
             Meshcat tree either way and can be toggled there.
@@ -106,8 +107,8 @@ def play_trajectory(
 
     Raises:
         DataError: missing or malformed trajectory file.
-        ConfigError: the robot does not excite the trajectory's joints (both lists are
-            named), an invalid rate, or a robot that cannot be loaded.
+        ConfigError: the robot does not excite the trajectory's joints, or has none of that
+            name (the joints are named), an invalid rate, or a robot that cannot be loaded.
     """
     from pydrake.geometry import Meshcat, MeshcatAnimation, MeshcatParams
 
