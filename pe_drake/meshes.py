@@ -24,14 +24,13 @@ from pe_drake.exceptions import DataError
 #: Environment variable naming the folder of converted meshes (overrides the default cache).
 CACHE_ENV = "PE_DRAKE_MESH_CACHE"
 
-_BINARY_DTYPE = np.dtype(
-    [("normal", "<f4", (3,)), ("vertices", "<f4", (3, 3)), ("attribute", "<u2")]
-)
+_BINARY_DTYPE = np.dtype([("normal", "<f4", (3,)), ("vertices", "<f4", (3, 3)), ("attribute", "<u2")])
 _VISUAL = re.compile(r"<visual\b.*?</visual>", re.S)
 _MESH_FILENAME = re.compile(r"(<mesh\b[^>]*?\bfilename\s*=\s*)([\"'])(.*?)\2", re.S)
 _FLOAT = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
-_ASCII_VERTEX = re.compile(rb"vertex\s+(" + _FLOAT.encode() + rb")\s+(" + _FLOAT.encode()
-                           + rb")\s+(" + _FLOAT.encode() + rb")")
+_ASCII_VERTEX = re.compile(
+    rb"vertex\s+(" + _FLOAT.encode() + rb")\s+(" + _FLOAT.encode() + rb")\s+(" + _FLOAT.encode() + rb")"
+)
 
 
 class TriangleMesh(NamedTuple):
@@ -81,13 +80,10 @@ def _stl_corners(data: bytes, path: Path) -> np.ndarray:
         if values.size == 0 and b"facet" in data:
             raise DataError("ASCII STL without readable 'vertex x y z' lines", file=str(path))
         if len(values) % 3:
-            raise DataError(
-                f"ASCII STL has {len(values)} vertices, not a multiple of 3", file=str(path)
-            )
+            raise DataError(f"ASCII STL has {len(values)} vertices, not a multiple of 3", file=str(path))
         return values.reshape(-1, 3, 3)
     raise DataError(
-        f"not an STL file: {len(data)} bytes, neither binary (84 + 50·n bytes) nor ASCII "
-        "('solid ...')",
+        f"not an STL file: {len(data)} bytes, neither binary (84 + 50·n bytes) nor ASCII ('solid ...')",
         file=str(path),
     )
 
@@ -171,9 +167,7 @@ def stl_to_obj(stl_path: str | Path, cache_dir: str | Path | None = None) -> Pat
     return target
 
 
-def stl_visuals_to_obj(
-    urdf_text: str, model_path: str | Path, cache_dir: str | Path | None = None
-) -> str:
+def stl_visuals_to_obj(urdf_text: str, model_path: str | Path, cache_dir: str | Path | None = None) -> str:
     """Rewrites the STL meshes of a URDF's ``<visual>`` elements to cached OBJ conversions.
 
     Only the ``filename`` attribute of ``<mesh>`` inside ``<visual>`` changes, to a
@@ -213,13 +207,13 @@ def stl_visuals_to_obj(
 def _resolve_mesh(name: str, model_path: Path) -> Path | None:
     """The file a URDF mesh name points to, or None."""
     if name.startswith("package://"):
-        package, _, rest = name[len("package://"):].partition("/")
+        package, _, rest = name[len("package://") :].partition("/")
         for root in _package_roots(package, model_path):
             if (root / rest).is_file():
                 return root / rest
         return None
     if name.startswith("file://"):
-        name = name[len("file://"):]
+        name = name[len("file://") :]
     path = Path(name)
     if not path.is_absolute():
         path = model_path.parent / path

@@ -234,10 +234,7 @@ def view_command(args) -> int:
     )
     if playback.html is not None:
         size = playback.html.stat().st_size / 1e6
-        print(
-            f"wrote {playback.html} ({size:.1f} MB; {summary}) in "
-            f"{time.perf_counter() - start:.1f} s"
-        )
+        print(f"wrote {playback.html} ({size:.1f} MB; {summary}) in {time.perf_counter() - start:.1f} s")
         return 0
     print(f"Meshcat: {playback.url}  ({summary}; the animation loops; Ctrl-C to quit)", flush=True)
     try:
@@ -319,9 +316,7 @@ def _config_from_file(cfg, data: dict):
     ):
         changes[table] = {j: v for j, v in getattr(cfg, table).items() if j in keep}
     locked = {j: v for j, v in cfg.locked_positions.items() if j not in keep}
-    locked.update(
-        {j: float(v) for j, v in (data.get("locked_positions") or {}).items() if j not in keep}
-    )
+    locked.update({j: float(v) for j, v in (data.get("locked_positions") or {}).items() if j not in keep})
     changes["locked_positions"] = locked
     pose = data.get("base_pose") or {}
     if len(pose.get("position", ())) == 3 and len(pose.get("quaternion_wxyz", ())) == 4:
@@ -344,7 +339,8 @@ def _joint_order(path, data: dict, rob) -> np.ndarray:
         if extra:
             parts.append(f"robot joints the trajectory does not move: {extra}")
         raise ConfigError(
-            f"trajectory '{path}' does not match robot '{rob.name}': " + "; ".join(parts)
+            f"trajectory '{path}' does not match robot '{rob.name}': "
+            + "; ".join(parts)
             + ". Pass the --robot/--config the trajectory was optimized with."
         )
     return np.array([joints.index(j) for j in rob.joint_names])

@@ -156,7 +156,7 @@ def test_urdf_visuals_rewritten_collisions_untouched(tmp_path, cache):
     assert names[3] == "../meshes/missing.stl"  # not found: left for Drake to report
     collision = re.search(r"<collision>.*?</collision>", out, re.S).group(0)
     assert 'filename="../meshes/part.stl"' in collision
-    assert Path(names[0][len("file://"):]).is_file()
+    assert Path(names[0][len("file://") :]).is_file()
 
 
 def test_g1_visuals_convert_and_parse(cache):
@@ -177,9 +177,11 @@ def test_g1_visuals_convert_and_parse(cache):
     assert visuals and all(".obj" in v and ".STL" not in v for v in visuals)
     assert out.count(".STL") == text.count(".STL") - len(visuals)  # collisions keep their STL
     objs = sorted(cache.rglob("*.obj"))
-    print(f"\nG1: {len(visuals)} visuals, {len(objs)} OBJ files, "
-          f"{sum(p.stat().st_size for p in objs) / 1e6:.1f} MB; convert {first:.2f} s, "
-          f"cached {again:.3f} s")
+    print(
+        f"\nG1: {len(visuals)} visuals, {len(objs)} OBJ files, "
+        f"{sum(p.stat().st_size for p in objs) / 1e6:.1f} MB; convert {first:.2f} s, "
+        f"cached {again:.3f} s"
+    )
 
     # One mesh checked against its STL: same bounding box to the OBJ's 6 digits.
     pelvis = next(p for p in objs if p.name == "pelvis.obj")

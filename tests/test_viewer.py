@@ -60,14 +60,35 @@ def _unpack(b, i):
         return str(b[i : i + n], "utf-8"), i + n
     if c in (0xC0, 0xC2, 0xC3):
         return {0xC0: None, 0xC2: False, 0xC3: True}[c], i
-    scalars = {0xCA: ">f", 0xCB: ">d", 0xCC: ">B", 0xCD: ">H", 0xCE: ">I", 0xCF: ">Q",
-               0xD0: ">b", 0xD1: ">h", 0xD2: ">i", 0xD3: ">q"}
+    scalars = {
+        0xCA: ">f",
+        0xCB: ">d",
+        0xCC: ">B",
+        0xCD: ">H",
+        0xCE: ">I",
+        0xCF: ">Q",
+        0xD0: ">b",
+        0xD1: ">h",
+        0xD2: ">i",
+        0xD3: ">q",
+    }
     if c in scalars:
         return struct.unpack_from(scalars[c], b, i)[0], i + struct.calcsize(scalars[c])
-    sized = {0xC4: (">B", "bin"), 0xC5: (">H", "bin"), 0xC6: (">I", "bin"),
-             0xD9: (">B", "str"), 0xDA: (">H", "str"), 0xDB: (">I", "str"),
-             0xDC: (">H", "array"), 0xDD: (">I", "array"), 0xDE: (">H", "map"), 0xDF: (">I", "map"),
-             0xC7: (">B", "ext"), 0xC8: (">H", "ext"), 0xC9: (">I", "ext")}
+    sized = {
+        0xC4: (">B", "bin"),
+        0xC5: (">H", "bin"),
+        0xC6: (">I", "bin"),
+        0xD9: (">B", "str"),
+        0xDA: (">H", "str"),
+        0xDB: (">I", "str"),
+        0xDC: (">H", "array"),
+        0xDD: (">I", "array"),
+        0xDE: (">H", "map"),
+        0xDF: (">I", "map"),
+        0xC7: (">B", "ext"),
+        0xC8: (">H", "ext"),
+        0xC9: (">I", "ext"),
+    }
     if c in sized:
         fmt, kind = sized[c]
         n = struct.unpack_from(fmt, b, i)[0]
@@ -156,8 +177,10 @@ def panda_html(panda_traj, tmp_path_factory):
     path = tmp_path_factory.mktemp("panda-html") / "panda.html"
     start = time.perf_counter()
     playback = play_trajectory(panda_traj[0], html=path, rate=20.0)
-    print(f"\npanda HTML: {path.stat().st_size / 1e6:.1f} MB, {playback.num_frames} frames, "
-          f"{time.perf_counter() - start:.2f} s")
+    print(
+        f"\npanda HTML: {path.stat().st_size / 1e6:.1f} MB, {playback.num_frames} frames, "
+        f"{time.perf_counter() - start:.2f} s"
+    )
     return playback, html_commands(path)
 
 
@@ -168,8 +191,10 @@ def g1_html(tmp_path_factory):
     path = folder / "g1.html"
     start = time.perf_counter()
     playback = play_trajectory(path_json, html=path, rate=30.0)
-    print(f"\nG1 HTML: {path.stat().st_size / 1e6:.1f} MB, {playback.num_frames} frames, "
-          f"{time.perf_counter() - start:.2f} s (meshes converted on first use)")
+    print(
+        f"\nG1 HTML: {path.stat().st_size / 1e6:.1f} MB, {playback.num_frames} frames, "
+        f"{time.perf_counter() - start:.2f} s (meshes converted on first use)"
+    )
     return playback, html_commands(path), traj
 
 
@@ -283,7 +308,10 @@ def test_capsule_layer_drawn_and_toggleable(panda_traj, tmp_path, monkeypatch):
     def register(self, plant, scene_graph):
         for link in ("panda_link3", "panda_link5"):
             plant.RegisterCollisionGeometry(
-                plant.GetBodyByName(link), RigidTransform(), Capsule(0.06, 0.2), f"{link}_capsule",
+                plant.GetBodyByName(link),
+                RigidTransform(),
+                Capsule(0.06, 0.2),
+                f"{link}_capsule",
                 CoulombFriction(0.5, 0.5),
             )
         self.capsules = ()
