@@ -267,8 +267,24 @@ def test_panda_html_embeds_the_meshes(panda_html):
         (geometry,) = [g for p, g in meshes.items() if f"/panda_link{k}/" in p]
         assert geometry["type"] == "_meshfile_geometry" and geometry["format"] == "dae"
         assert len(geometry["data"]) > 1000
-    assert playback.paths["capsules"] is None and playback.paths["support"] is None
-    assert not any("/drake/capsules" in c.get("path", "") for c in commands)
+    assert playback.paths["support"] is None  # an arm has no support points
+
+
+def proximity_count(robot) -> int:
+    from pydrake.geometry import Role
+
+    return robot.scene_graph.model_inspector().NumGeometriesWithRole(Role.kProximity)
+
+
+@pytest.mark.parametrize("fixture", ["panda_html", "g1_html"])
+def test_capsule_layer_matches_the_scene_graph(fixture, request):
+    """Every proximity geometry of the robot (its capsule file, if any) is drawn, none else."""
+    playback, commands = request.getfixturevalue(fixture)[:2]
+    drawn = [
+        c["path"] for c in commands if c["type"] == "set_object" and c["path"].startswith("/drake/capsules/")
+    ]
+    assert len(drawn) == proximity_count(playback.robot)
+    assert (playback.paths["capsules"] is not None) == bool(drawn)
 
 
 def test_g1_html_has_obj_meshes_support_area_and_com(g1_html):
