@@ -1,0 +1,214 @@
+"""Balance: the ground projection of the centre of mass stays near the support centre (Eq. 52).
+
+The paper keeps the estimated centre of total mass, computed from the a-priori (CAD) model,
+within 1 cm of the centre of the support area in the horizontal plane. Here the centre of
+mass is Drake's ``CalcCenterOfMassPositionInWorld`` over every body of the plant (locked
+ones included) and the support centre p_WSc is the centroid of the feet's contact points
+(``robot.support_points``, in world). Per sample the constraint is
+
+    g(q) = sqrt(|e(q)|² + ε²) <= r,   e(q) = [p_WCcm(q) - p_WSc]_xy,
+
+a distance in metres (well scaled for the solver's absolute constraint tolerance, unlike
+|e|² whose tolerance of 1e-4 m² would be a centimetre); ε = ``smoothing`` keeps it smooth
+at e = 0 and makes it conservative by < ε²/(2r). The Jacobian is
+∂g/∂q = eᵀ·J_xy/g with J = ``CalcJacobianCenterOfMassTranslationalVelocity`` (q̇ = v for
+the revolute and prismatic joints excited here).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from pe_drake.constraints.base import SampledConstraint, SampledValues
+from pe_drake.exceptions import ConfigError, InfeasibleError, UnknownNameError
+
+
+class OutOfBalanceError(InfeasibleError):
+    """The centre of mass projects too far from the support centre.
+
+    Attributes:
+        sample: index of the worst sample.
+        time: its time [s], or None when no times were given.
+        offset: horizontal CoM offset from the support centre (x, y) at that sample [m].
+        distance: its norm [m].
+        radius: the allowed radius [m].
+        violations: number of samples outside the radius.
+    """
+
+    def __init__(self, sample, time, offset, radius, violations):
+        self.sample = int(sample)
+        self.time = time
+        self.offset = np.asarray(offset, float)
+        self.distance = float(np.linalg.norm(offset))
+        self.radius = float(radius)
+        self.violations = int(violations)
+        when = f"sample {sample}" + (f" (t = {time:.3f} s)" if time is not None else "")
+        super().__init__(
+            f"out of balance at {when}: the centre of mass is {self.distance * 1e3:.1f} mm from the "
+            f"support centre (x {self.offset[0] * 1e3:+.1f} mm, y {self.offset[1] * 1e3:+.1f} mm), "
+            f"beyond the balance radius of {self.radius * 1e3:.1f} mm ({violations} sample(s) "
+            "violate it); start from a balanced posture (robot.nominal_positions) or increase "
+            "excitation.balance_radius"
+        )
+
+
+def support_center(robot) -> np.ndarray:
+    """p_WSc: centroid of the support (contact) points in world, shape (3,) [m].
+
+    Args:
+        robot: a :class:`~pe_drake.robot.Robot` whose config has ``support_points``.
+
+    Raises:
+        ConfigError: no support points, or a support link moved by an excited joint (the
+            feet must stay on the ground).
+        UnknownNameError: a support link that is not a body of the plant.
+    """
+    points = robot.config.support_points
+    if not points:
+        raise ConfigError(
+            f"robot '{robot.name}' has no support points: the balance constraint needs "
+            "robot.support_points ({link: [[x, y, z], ...]} in the link frame [m]) in its config"
+        )
+    plant, ctx = robot.plant, robot.plant.CreateDefaultContext()
+    all_names = list(robot.body_names_all[1:])  # [0] is the world
+    p_W = []
+    for link, pts in points.items():
+        if link not in all_names:
+            raise UnknownNameError("link", link, all_names, where="robot.support_points")
+        if link in robot.body_names:
+            k = robot.body_names.index(link)
+            joints = [robot.joint_names[j] for j in np.flatnonzero(robot.joint_moves_body[:, k])]
+            raise ConfigError(
+                f"support link '{link}' is moved by the excited joint(s) {', '.join(joints)}; "
+                "the balance constraint needs feet that stay on the ground"
+            )
+        P = np.asarray(pts, float).reshape(-1, 3)
+        X = plant.EvalBodyPoseInWorld(ctx, plant.GetBodyByName(link)).GetAsMatrix4()
+        p_W.append(P @ X[:3, :3].T + X[:3, 3])
+    return np.vstack(p_W).mean(axis=0)
+
+
+class BalanceConstraint(SampledConstraint):
+    """Horizontal CoM offset from the support centre within ``radius`` (Eq. 52).
+
+    Attributes:
+        radius: r [m].
+        smoothing: ε [m].
+        p_WSc: support centre in world, shape (3,) [m].
+    """
+
+    name = "balance"
+    unit = "m"
+
+    def __init__(self, robot, radius: float = 0.01, *, smoothing: float = 1e-4):
+        """
+        Args:
+            robot: a :class:`~pe_drake.robot.Robot` with ``support_points``.
+            radius: allowed horizontal distance r [m], > smoothing (the paper: 0.01).
+            smoothing: ε [m], > 0.
+
+        Raises:
+            ConfigError: see :func:`support_center`; or a radius/smoothing that is not a
+                positive number, or radius <= smoothing.
+        """
+        for label, value in (("radius", radius), ("smoothing", smoothing)):
+            if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+                raise ConfigError(f"balance {label} must be a positive number [m], got {value!r}")
+        if radius <= smoothing:
+            raise ConfigError(f"balance radius {radius} m must exceed the smoothing {smoothing} m")
+        self.robot = robot
+        self.radius = float(radius)
+        self.smoothing = float(smoothing)
+        self.p_WSc = support_center(robot)
+        self._plant = robot.plant
+        self._context = robot.plant.CreateDefaultContext()  # ours: other constraints keep their caches
+        super().__init__(["CoM distance from support centre"], [-np.inf], [self.radius])
+
+    def _com(self, q: np.ndarray, jacobian: bool):
+        from pydrake.multibody.tree import JacobianWrtVariable
+
+        plant, ctx = self._plant, self._context
+        W = plant.world_frame()
+        K = q.shape[0]
+        p = np.empty((K, 3))
+        J = np.empty((K, 3, q.shape[1])) if jacobian else None
+        for k in range(K):
+            plant.SetPositions(ctx, q[k])
+            p[k] = plant.CalcCenterOfMassPositionInWorld(ctx)
+            if jacobian:
+                J[k] = plant.CalcJacobianCenterOfMassTranslationalVelocity(ctx, JacobianWrtVariable.kV, W, W)
+        return p, J
+
+    def com_offset(self, q: np.ndarray) -> np.ndarray:
+        """Horizontal offset of the whole-robot CoM from the support centre.
+
+        Args:
+            q: joint positions, shape (K, n) or (n,) [rad or m].
+
+        Returns:
+            e = (x, y) offsets, shape (K, 2) [m].
+        """
+        q = self._check_q(q)
+        p, _ = self._com(q, jacobian=False)
+        return p[:, :2] - self.p_WSc[:2]
+
+    def evaluate(
+        self, q: np.ndarray, v: np.ndarray, vd: np.ndarray, derivatives: bool = True
+    ) -> SampledValues:
+        """g = sqrt(|e|² + ε²) per sample and ∂g/∂q.
+
+        Args:
+            q: joint positions, shape (K, n) [rad or m]; v, vd are not used.
+            derivatives: also compute ∂g/∂q.
+
+        Returns:
+            value (K, 1) [m]; d_q (K, 1, n) [m/rad], empty (K, 1, 0) when ``derivatives`` is
+            False; d_v = d_vd = None.
+        """
+        q = self._check_q(q)
+        p, J = self._com(q, jacobian=derivatives)
+        e = p[:, :2] - self.p_WSc[:2]
+        g = np.sqrt(np.einsum("ki,ki->k", e, e) + self.smoothing**2)
+        value = g[:, None]
+        if not derivatives:
+            return SampledValues(value=value, d_q=np.empty((q.shape[0], 1, 0)))
+        d_q = (np.einsum("ki,kin->kn", e, J[:, :2]) / g[:, None])[:, None, :]
+        return SampledValues(value=value, d_q=d_q)
+
+    def margins(self, q: np.ndarray, v: np.ndarray, vd: np.ndarray) -> np.ndarray:
+        """r - |e| per sample, shape (K, 1) [m]; < 0 is a violation."""
+        return self.radius - np.linalg.norm(self.com_offset(q), axis=1, keepdims=True)
+
+    def check_posture(self, q: np.ndarray, t: np.ndarray | None = None) -> None:
+        """Refuses postures whose CoM projects farther than ``radius`` from the support centre.
+
+        Args:
+            q: joint positions, shape (n,) or (K, n) [rad or m].
+            t: sample times, shape (K,) [s], for the message (optional).
+
+        Raises:
+            OutOfBalanceError: with the worst sample (and time) and its offset in mm.
+        """
+        e = self.com_offset(q)
+        dist = np.linalg.norm(e, axis=1)
+        bad = dist > self.radius
+        if not bad.any():
+            return
+        k = int(np.argmax(dist))
+        time = None if t is None else float(np.asarray(t, float).reshape(-1)[k])
+        raise OutOfBalanceError(k, time, e[k], self.radius, int(bad.sum()))
+
+    def _check_q(self, q: np.ndarray) -> np.ndarray:
+        q = np.asarray(q, float)
+        if q.ndim == 1:
+            q = q[None, :]
+        if q.ndim != 2 or q.shape[1] != self.robot.n:
+            raise ConfigError(
+                f"balance constraint: q must have shape (K, {self.robot.n}) for the joints "
+                f"{', '.join(self.robot.joint_names)}; got {np.shape(q)}"
+            )
+        if not np.isfinite(q).all():
+            raise ConfigError("balance constraint: q contains NaN or infinity")
+        return q

@@ -1,0 +1,335 @@
+"""Self-collision avoidance between capsules (paper, Eq. 53).
+
+Every capsule pair left after filtering (:func:`pe_drake.capsules.capsule_pairs`) keeps at
+least ``margin`` between its surfaces at every sample:
+
+    d_ij(q) = d_line(p_Li^(s), p_Li^(e), p_Lj^(s), p_Lj^(e)) - r_i - r_j >= margin.
+
+Distances are exact segment-segment distances computed from Drake's body poses; their
+gradients come from the joint twists. With the closest points c_i, c_j and the unit normal
+n = (c_i - c_j)/|c_i - c_j|, the envelope theorem gives, for an excited joint k with world
+axis ω_k through o_k (Plücker moment m_k = o_k × ω_k),
+
+    ∂d_ij/∂q_k = [k moves i]·(ω_k·(c_i × n) + n·m_k) - [k moves j]·(ω_k·(c_j × n) + n·m_k)
+
+(for a prismatic joint, ω_k = 0 and m_k is its world axis). Drake's own capsule distance is
+accurate to ~2e-6 m only, which shows in finite differences (DRAKE_NOTES.md); this one is
+exact to rounding.
+
+Form of the constraint. By default each sample contributes ONE row, a smooth lower bound of
+the minimum pair distance (soft-min, ``h`` = ``smoothing``):
+
+    g(q) = -h·log Σ_ij exp(-d_ij(q)/h) <= min_ij d_ij(q),   g(q) >= margin.
+
+Because g never exceeds the true minimum, g >= margin implies every pair is at least
+``margin`` apart; g underestimates the minimum by at most h·log(#pairs within a few h of
+it) (≤ h·log P; 1.4 mm for two pairs at h = 2 mm). The alternative, one row per pair per
+sample, gives IPOPT K·P rows (400 × 47 = 18 800 for G1), each dense in all Fourier
+coefficients (the Fourier map couples every sample to every coefficient): a 18 800 × 294
+Jacobian per evaluation, marshalled through AutoDiff, and a KKT system to match, for rows
+that are almost all inactive. The aggregate keeps K rows (400 × 294) and stays C¹ when the
+closest pair changes. ``aggregate=False`` gives the per-pair rows (exact, for small K or
+for diagnosis).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from pe_drake.constraints.base import SampledConstraint, SampledValues
+from pe_drake.exceptions import ConfigError, InfeasibleError
+
+
+class PostureInCollisionError(InfeasibleError):
+    """Two capsules are closer than the collision margin.
+
+    Attributes:
+        pair: the two capsule names.
+        sample: index of the worst sample.
+        time: its time [s], or None when no times were given.
+        distance: their distance at that sample [m] (negative: penetration).
+        margin: the required distance [m].
+        violations: number of samples closer than the margin.
+    """
+
+    def __init__(self, pair, sample, time, distance, margin, violations):
+        self.pair = tuple(pair)
+        self.sample = int(sample)
+        self.time = time
+        self.distance = float(distance)
+        self.margin = float(margin)
+        self.violations = int(violations)
+        when = f"sample {sample}" + (f" (t = {time:.3f} s)" if time is not None else "")
+        state = "penetrate by" if distance < 0 else "are"
+        amount = f"{abs(distance) * 1e3:.1f} mm" + ("" if distance < 0 else " apart")
+        super().__init__(
+            f"capsules '{pair[0]}' and '{pair[1]}' {state} {amount} at {when}, "
+            f"{(margin - distance) * 1e3:.1f} mm inside the collision margin of {margin * 1e3:.1f} mm "
+            f"({violations} sample(s) violate it); move the posture away from the contact or "
+            "reduce excitation.collision_margin"
+        )
+
+
+class CollisionConstraint(SampledConstraint):
+    """Capsule pairs at least ``margin`` apart at every sample (Eq. 53).
+
+    Attributes:
+        pairs: index pairs (i, j) into ``robot.capsules`` that are checked.
+        pair_names: their names, "capsule_i/capsule_j".
+        margin: required distance between capsule surfaces [m].
+        aggregate: one soft-min row per sample (True) or one row per pair (False).
+        smoothing: soft-min length scale h [m].
+    """
+
+    name = "collision"
+    unit = "m"
+
+    def __init__(self, robot, margin: float, *, aggregate: bool = True, smoothing: float = 0.002):
+        """
+        Args:
+            robot: a :class:`~pe_drake.robot.Robot` loaded with a capsule file.
+            margin: minimum distance between capsule surfaces [m], >= 0.
+            aggregate: one soft-min row per sample (default) or one row per pair.
+            smoothing: soft-min length scale h [m], > 0 (used when ``aggregate``).
+
+        Raises:
+            ConfigError: no capsules, no pair left to check, or a bad margin/smoothing.
+        """
+        from pe_drake.capsules import capsule_pairs
+
+        if not isinstance(margin, (int, float)) or not math.isfinite(margin) or margin < 0:
+            raise ConfigError(f"collision margin must be a finite number >= 0 [m], got {margin!r}")
+        if aggregate and (not math.isfinite(smoothing) or smoothing <= 0):
+            raise ConfigError(f"collision smoothing must be a positive number [m], got {smoothing!r}")
+        capsules = tuple(getattr(robot, "capsules", ()) or ())
+        if not capsules:
+            raise ConfigError(
+                f"robot '{robot.name}' has no collision capsules: set robot.capsules to a capsule "
+                "file in its config (format: pe_drake/capsules.py)"
+            )
+        self.robot = robot
+        self.capsules = capsules
+        self.margin = float(margin)
+        self.aggregate = bool(aggregate)
+        self.smoothing = float(smoothing)
+        self.pairs = capsule_pairs(robot.scene_graph, capsules)
+        if not self.pairs:
+            raise ConfigError(
+                f"robot '{robot.name}': every capsule pair is filtered (welded, adjacent or ignored); "
+                "nothing to check"
+            )
+        self.pair_names = [f"{capsules[a].name}/{capsules[b].name}" for a, b in self.pairs]
+        self._setup()
+        if self.aggregate:
+            super().__init__(["min capsule distance"], [self.margin], [np.inf])
+        else:
+            P = len(self.pairs)
+            super().__init__(self.pair_names, np.full(P, self.margin), np.full(P, np.inf))
+
+    # ---- set-up -------------------------------------------------------------------------
+    def _setup(self) -> None:
+        from pydrake.multibody.tree import BodyIndex
+
+        robot = self.robot
+        plant = robot.plant
+        self._plant = plant
+        self._context = plant.CreateDefaultContext()  # ours: other constraints keep their caches
+        moving_bodies = [int(b) for b in robot.body_indices]
+        joint_bodies = [j.child_body for j in robot.joints]
+        poses = plant.get_body_poses_output_port().Eval(self._context)  # once, at set-up
+
+        # Each moving capsule is re-expressed in the child body H of the nearest excited joint
+        # upstream (welded to its own body B), so a sample needs the n joint bodies' poses
+        # only. Static capsules (welded to the world) get their world ends once and for all.
+        C = len(self.capsules)
+        moves = np.zeros((C, robot.n), bool)  # moves[c, k]: joint k moves capsule c
+        host = np.full(C, -1)
+        p_HS = np.zeros((C, 2, 3))
+        for c, cap in enumerate(self.capsules):
+            X_WB = poses[cap.body_index].GetAsMatrix4()
+            if cap.body_index in moving_bodies:
+                col = moving_bodies.index(cap.body_index)
+                moves[c] = robot.joint_moves_body[:, col]
+                host[c] = robot.joint_of_body[col]
+                X_HB = np.linalg.solve(poses[joint_bodies[host[c]]].GetAsMatrix4(), X_WB)
+            else:
+                X_HB = X_WB  # H = world
+            p_HS[c] = cap.p_BS @ X_HB[:3, :3].T + X_HB[:3, 3]
+        self._host, self._p_HS = host, p_HS
+        self._moving_caps = np.flatnonzero(host >= 0)
+        self._static_caps = np.flatnonzero(host < 0)
+        self._joint_bodies = joint_bodies
+        self._joint_body_index = [BodyIndex(b) for b in joint_bodies]
+        self._host_joints = sorted(set(host[self._moving_caps].tolist()))
+        self._X_CM = np.array([j.X_CM for j in robot.joints])  # (n, 4, 4)
+        self._axis_M = np.array([j.axis_M for j in robot.joints])  # (n, 3)
+        self._prismatic = np.array([j.kind == "prismatic" for j in robot.joints])
+        pa = np.array([a for a, _ in self.pairs])
+        pb = np.array([b for _, b in self.pairs])
+        self._pa, self._pb = pa, pb
+        self._radii = np.array([self.capsules[a].radius + self.capsules[b].radius for a, b in self.pairs])
+        self._mask_a = moves[pa].astype(float)  # (P, n)
+        self._mask_b = moves[pb].astype(float)
+
+    # ---- kinematics ---------------------------------------------------------------------
+    def _joint_body_poses(self, q: np.ndarray, all_joints: bool) -> np.ndarray:
+        """X_WH (K, n, 4, 4) of the joints' child bodies; with ``all_joints`` False only
+        those hosting capsules are filled. One forward-kinematics pass per sample (the
+        per-body reads hit Drake's cache; cheaper than the body-poses port, which copies
+        every body's pose)."""
+        plant, ctx = self._plant, self._context
+        K = q.shape[0]
+        which = range(len(self._joint_bodies)) if all_joints else self._host_joints
+        bodies = [(i, plant.get_body(self._joint_body_index[i])) for i in which]
+        X = np.zeros((K, len(self._joint_bodies), 4, 4))
+        for k in range(K):
+            plant.SetPositions(ctx, q[k])
+            for i, body in bodies:
+                X[k, i] = plant.EvalBodyPoseInWorld(ctx, body).GetAsMatrix4()
+        return X
+
+    def _capsule_ends(self, X_WH: np.ndarray) -> np.ndarray:
+        """p_WS of every capsule's segment ends, shape (K, C, 2, 3) [m]."""
+        K = X_WH.shape[0]
+        p_WS = np.empty((K, len(self.capsules), 2, 3))
+        p_WS[:, self._static_caps] = self._p_HS[self._static_caps]
+        m = self._moving_caps
+        X = X_WH[:, self._host[m]]  # (K, Cm, 4, 4)
+        p_WS[:, m] = np.einsum("kcij,csj->kcsi", X[..., :3, :3], self._p_HS[m]) + X[:, :, None, :3, 3]
+        return p_WS
+
+    def _pair_geometry(self, q: np.ndarray, joints: bool):
+        from pe_drake.capsules import segment_closest_points
+
+        X_WH = self._joint_body_poses(q, all_joints=joints)
+        p_WS = self._capsule_ends(X_WH)
+        a0, a1 = p_WS[:, self._pa, 0], p_WS[:, self._pa, 1]  # (K, P, 3)
+        b0, b1 = p_WS[:, self._pb, 0], p_WS[:, self._pb, 1]
+        s, t = segment_closest_points(a0, a1, b0, b1)
+        c_a = a0 + s[..., None] * (a1 - a0)
+        c_b = b0 + t[..., None] * (b1 - b0)
+        diff = c_a - c_b
+        centre_distance = np.sqrt(np.einsum("kpi,kpi->kp", diff, diff))
+        d = centre_distance - self._radii
+        return d, c_a, c_b, diff, centre_distance, X_WH
+
+    def _joint_twists(self, X_WH: np.ndarray):
+        """World axis ω (K, n, 3) and moment m = o × ω (K, n, 3) of each excited joint; a
+        point c moved by joint k has ∂c/∂q_k = ω_k × c + m_k."""
+        X_WM = X_WH @ self._X_CM  # (K, n, 4, 4)
+        axis_W = np.einsum("knij,nj->kni", X_WM[:, :, :3, :3], self._axis_M)
+        o_W = X_WM[:, :, :3, 3]
+        omega = np.where(self._prismatic[None, :, None], 0.0, axis_W)
+        moment = np.where(self._prismatic[None, :, None], axis_W, np.cross(o_W, axis_W))
+        return omega, moment
+
+    # ---- public -------------------------------------------------------------------------
+    def distances(self, q: np.ndarray) -> np.ndarray:
+        """Exact distance between the surfaces of each checked capsule pair.
+
+        Args:
+            q: joint positions, shape (K, n) or (n,) [rad or m].
+
+        Returns:
+            shape (K, P) [m], negative when the capsules overlap; columns follow ``pairs``.
+        """
+        q = self._check_q(q)
+        return self._pair_geometry(q, joints=False)[0]
+
+    def evaluate(
+        self, q: np.ndarray, v: np.ndarray, vd: np.ndarray, derivatives: bool = True
+    ) -> SampledValues:
+        """Soft-min distance per sample (or every pair distance), and ∂/∂q.
+
+        Args:
+            q: joint positions, shape (K, n) [rad or m]; v, vd are not used.
+            derivatives: also compute ∂value/∂q.
+
+        Returns:
+            value (K, 1) or (K, P) [m]; d_q (K, 1, n) or (K, P, n) [m/rad], empty (K, m, 0)
+            when ``derivatives`` is False; d_v = d_vd = None.
+        """
+        q = self._check_q(q)
+        K, n = q.shape
+        d, c_a, c_b, diff, centre_distance, X_WH = self._pair_geometry(q, joints=derivatives)
+        if self.aggregate:
+            h = self.smoothing
+            d_min = d.min(axis=1, keepdims=True)
+            w = np.exp(-(d - d_min) / h)
+            total = w.sum(axis=1, keepdims=True)
+            value = d_min - h * np.log(total)  # (K, 1)
+            weights = w / total  # (K, P): ∂value/∂d
+        else:
+            value = d
+        if not derivatives:
+            return SampledValues(value=value, d_q=np.empty((K, value.shape[1], 0)))
+
+        omega, moment = self._joint_twists(X_WH)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            normal = np.where(centre_distance[..., None] > 1e-12, diff / centre_distance[..., None], 0.0)
+        # ∂d/∂q_k = mask_a·(ω_k·(c_a × n) + n·m_k) - mask_b·(ω_k·(c_b × n) + n·m_k)
+        ca_n, cb_n = np.cross(c_a, normal), np.cross(c_b, normal)  # (K, P, 3)
+        mask_a, mask_b = self._mask_a, self._mask_b  # (P, n)
+        if self.aggregate:
+            # Σ_p w_p ∂d_p/∂q without (K, P, n) temporaries: contract over pairs first.
+            w = weights[..., None]
+            A = np.swapaxes(w * ca_n, 1, 2) @ mask_a - np.swapaxes(w * cb_n, 1, 2) @ mask_b  # (K, 3, n)
+            B = np.swapaxes(w * normal, 1, 2) @ (mask_a - mask_b)  # (K, 3, n)
+            d_q = np.einsum("knx,kxn->kn", omega, A) + np.einsum("knx,kxn->kn", moment, B)
+            return SampledValues(value=value, d_q=d_q[:, None, :])
+        omega_T = np.swapaxes(omega, 1, 2)  # (K, 3, n)
+        n_dot_m = normal @ np.swapaxes(moment, 1, 2)  # (K, P, n)
+        d_q = (ca_n @ omega_T + n_dot_m) * mask_a - (cb_n @ omega_T + n_dot_m) * mask_b
+        return SampledValues(value=value, d_q=d_q)
+
+    def margins(self, q: np.ndarray, v: np.ndarray, vd: np.ndarray) -> np.ndarray:
+        """Exact clearance beyond the margin, min over pairs (aggregate) or per pair.
+
+        Returns:
+            shape (K, 1) or (K, P) [m]; < 0 is a violation. For the aggregate this is the
+            true minimum distance minus ``margin`` (the soft-min constraint is stricter).
+        """
+        d = self.distances(q)
+        return (d.min(axis=1, keepdims=True) if self.aggregate else d) - self.margin
+
+    def check_posture(self, q: np.ndarray, t: np.ndarray | None = None) -> None:
+        """Refuses postures where a capsule pair is closer than ``margin``.
+
+        Args:
+            q: joint positions, shape (n,) or (K, n) [rad or m].
+            t: sample times, shape (K,) [s], for the message (optional).
+
+        Raises:
+            PostureInCollisionError: naming the worst pair, its sample (and time), the
+                distance and how far inside the margin it is.
+        """
+        d = self.distances(q)
+        bad = d < self.margin
+        if not bad.any():
+            return
+        k, p = np.unravel_index(np.argmin(d), d.shape)
+        a, b = self.pairs[p]
+        time = None if t is None else float(np.asarray(t, float).reshape(-1)[k])
+        raise PostureInCollisionError(
+            (self.capsules[a].name, self.capsules[b].name),
+            k,
+            time,
+            d[k, p],
+            self.margin,
+            int(bad.any(axis=1).sum()),
+        )
+
+    def _check_q(self, q: np.ndarray) -> np.ndarray:
+        q = np.asarray(q, float)
+        if q.ndim == 1:
+            q = q[None, :]
+        if q.ndim != 2 or q.shape[1] != self.robot.n:
+            raise ConfigError(
+                f"collision constraint: q must have shape (K, {self.robot.n}) for the joints "
+                f"{', '.join(self.robot.joint_names)}; got {np.shape(q)}"
+            )
+        if not np.isfinite(q).all():
+            raise ConfigError("collision constraint: q contains NaN or infinity")
+        return q
