@@ -458,8 +458,21 @@ class Robot:
                 out[t, b] = X.GetAsMatrix4()
         return out
 
-    def inverse_dynamics(self, q: np.ndarray, v: np.ndarray, vd: np.ndarray) -> np.ndarray:
-        """Drake's inverse dynamics with gravity, shape (T, n) [N·m or N]."""
+    @cached_property
+    def joint_damping(self) -> np.ndarray:
+        """Viscous damping of each excited joint in the model, shape (n,) [N·m·s/rad]."""
+        return np.array([j.default_damping_vector()[0] for j in self._joints], float)
+
+    def inverse_dynamics(
+        self, q: np.ndarray, v: np.ndarray, vd: np.ndarray, include_damping: bool = False
+    ) -> np.ndarray:
+        """Drake's inverse dynamics with gravity, shape (T, n) [N·m or N].
+
+        Args:
+            q, v, vd: each (T, n).
+            include_damping: keep the model's joint damping (a friction term, not part of the
+                rigid-body regressor); by default it is removed.
+        """
         from pydrake.multibody.tree import MultibodyForces
 
         plant, ctx = self.plant, self.plant_context
@@ -472,6 +485,8 @@ class Robot:
             forces.SetZero()
             plant.CalcForceElementsContribution(ctx, forces)
             tau[t] = plant.CalcInverseDynamics(ctx, vd[t], forces)
+        if not include_damping:
+            tau -= v * self.joint_damping  # Drake's damping force is -d·v
         return tau
 
     def nominal_posture(self) -> np.ndarray:

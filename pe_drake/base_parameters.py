@@ -1,0 +1,128 @@
+"""Base inertial parameters, computed numerically (Gautier & Khalil 1990; Eq. 2).
+
+The regressor Y of random states is stacked and factored by QR with column pivoting:
+Y P = Q [R1 R2]. The first b pivoted columns are independent; the rest are combinations of
+them: Y_dep = Y_ind β with β = R1⁻¹ R2. Hence
+
+    Y φ = Y_ind (φ_ind + β φ_dep) = Y_B φ_B,  Y_B = Y X (X selects the independent columns),
+    φ_B = K φ with K = [I β] Pᵀ.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import scipy.linalg
+
+from pe_drake.regressor import RegressorModel
+
+
+@dataclasses.dataclass(frozen=True)
+class BaseParameters:
+    """The base-parameter composition of a robot.
+
+    Attributes:
+        independent: indices of the standard parameters kept as base columns, shape (b,).
+        K: φ_B = K φ, shape (b, p).
+        names: standard parameter names, length p.
+        base_names: a readable composition of each base parameter, e.g.
+            ``"Izz.link1 + 1 Iyy.link2 + 0.09 m.link3"``.
+        rank_tolerance: relative tolerance used on R's diagonal.
+        diag_R: |R_ii| of the pivoted QR (for diagnostics), shape (p,).
+    """
+
+    independent: np.ndarray
+    K: np.ndarray
+    names: tuple[str, ...]
+    base_names: tuple[str, ...]
+    rank_tolerance: float
+    diag_R: np.ndarray
+
+    @property
+    def count(self) -> int:
+        """b, the number of base parameters."""
+        return len(self.independent)
+
+    @property
+    def X(self) -> np.ndarray:
+        """Composition matrix of Eq. (2): Y_B = Y X, shape (p, b)."""
+        X = np.zeros((self.K.shape[1], self.count))
+        X[self.independent, np.arange(self.count)] = 1.0
+        return X
+
+    def reduce(self, Y: np.ndarray) -> np.ndarray:
+        """Y_B from Y (any leading shape, last axis p)."""
+        return Y[..., self.independent]
+
+    def base_values(self, phi: np.ndarray) -> np.ndarray:
+        """φ_B = K φ."""
+        return self.K @ phi
+
+
+def compute_base_parameters(
+    robot,
+    *,
+    samples: int | None = None,
+    seed: int = 0,
+    rank_tolerance: float = 1e-8,
+    model: RegressorModel | None = None,
+) -> BaseParameters:
+    """Numerical base parameters of ``robot`` from random states within its limits.
+
+    Args:
+        robot: a :class:`~pe_drake.robot.Robot`.
+        samples: number of random states (default: enough for 4× as many rows as params).
+        seed: random seed (the result does not depend on it for generic samples).
+        rank_tolerance: |R_ii| ≤ tol·|R_00| counts as zero.
+        model: an existing :class:`RegressorModel` to reuse.
+
+    Returns:
+        The :class:`BaseParameters`.
+    """
+    model = model or RegressorModel(robot)
+    p = model.num_params
+    samples = samples or max(20, int(np.ceil(4 * p / robot.n)))
+    rng = np.random.default_rng(seed)
+    lo, hi = robot.limits.q_lower, robot.limits.q_upper
+    q = rng.uniform(lo, hi, (samples, robot.n))
+    v = rng.uniform(-1, 1, (samples, robot.n)) * np.minimum(robot.limits.v_max, 3.0)
+    vd = rng.uniform(-1, 1, (samples, robot.n)) * np.minimum(robot.limits.vd_max, 10.0)
+    W = model(q, v, vd).reshape(-1, p)
+    # Columns that never affect a torque (e.g. the mass of a body whose origin lies on every
+    # axis above it) are exactly zero up to rounding: drop them before equilibrating, or the
+    # scaling would turn their rounding noise into an "independent" column.
+    norms = np.linalg.norm(W, axis=0)
+    live = np.flatnonzero(norms > 1e-9 * norms.max())
+    scale = norms[live]
+    # Equilibrate columns so that the pivot order is not driven by units alone.
+    _, R, perm_live = scipy.linalg.qr(W[:, live] / scale, mode="economic", pivoting=True)
+    d = np.abs(np.diag(R))
+    b = int(np.sum(d > rank_tolerance * d[0]))
+    ind, dep_live = live[perm_live[:b]], live[perm_live[b:]]
+    # β from the unscaled columns: Y_dep = Y_ind β.
+    beta_scaled = scipy.linalg.solve_triangular(R[:b, :b], R[:b, b:])
+    beta = beta_scaled * scale[perm_live[b:]][None, :] / scale[perm_live[:b]][:, None]
+    dep = dep_live
+    beta[np.abs(beta) < 1e-10] = 0.0
+    order = np.argsort(ind)  # keep base parameters in body order
+    ind, beta = ind[order], beta[order]
+    K = np.zeros((b, p))
+    K[np.arange(b), ind] = 1.0
+    K[:, dep] = beta
+    names = robot.parameter_names
+    return BaseParameters(ind, K, names, _compose_names(K, names), rank_tolerance, d)
+
+
+def _compose_names(K: np.ndarray, names: tuple[str, ...]) -> tuple[str, ...]:
+    out = []
+    for row in K:
+        terms = []
+        for k in np.flatnonzero(row):
+            c = row[k]
+            if abs(c - 1) < 1e-12:
+                terms.append(names[k])
+            else:
+                terms.append(f"{c:+.4g} {names[k]}")
+        out.append(" + ".join(terms).replace("+ +", "+ ").replace("+ -", "- "))
+    return tuple(out)

@@ -1,0 +1,215 @@
+"""The joint-torque regressor Y(q, v, vdot) (Eq. 1) and its analytic derivative (Eqs. 45–47).
+
+τ = Y(q, v, vdot) φ, with φ the 10 inertial parameters of every body moved by an excited
+joint (order of :data:`pe_drake.robot.PARAMETER_NAMES`, bodies in ``Robot.body_names``),
+gravity included.
+
+Drake supplies the kinematics: body poses X_WB at each sample, from which the joint motion
+axes S_i (the columns of the spatial-velocity Jacobian, in world coordinates at the world
+origin) follow. Everything after that is batched numpy over the samples: spatial velocities
+and accelerations, the per-body regressor blocks, and — for the gradient — the reverse
+(adjoint) pass of the same computation. In world-origin coordinates every derivative with
+respect to q_l is a spatial cross product with S_l, which keeps the adjoint short; the
+derivation, and how it maps onto the paper's Eqs. (25)–(40), is in docs/derivations.md.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from pe_drake.spatial import (
+    body_regressor,
+    cross_force,
+    cross3,
+    cross_motion,
+    force_to_world,
+    inertia_times,
+    inertia_times_diagonal,
+    motion_to_body,
+)
+
+GRAVITY = 9.81  # [m/s²], overwritten by the plant's gravity field in Kinematics
+
+
+@dataclasses.dataclass
+class Kinematics:
+    """Kinematic quantities of one batch of samples (world coordinates at the world origin).
+
+    Attributes:
+        q, v, vd: joint states, (T, n).
+        S: joint motion axes S_i, (T, n, 6).
+        R, p: body rotations R_WB (T, nb, 3, 3) and origins p_WBo (T, nb, 3).
+        VJ, AJ: spatial velocity and acceleration of each joint's child body, (T, n, 6);
+            AJ includes gravity as a base acceleration.
+        VB, AB: the same per body in body coordinates at Bo, (T, nb, 6).
+        F_B: per-body regressor blocks in body coordinates, (T, nb, 6, 10).
+        F_W: the same in world coordinates at the world origin, (T, nb, 6, 10).
+    """
+
+    q: np.ndarray
+    v: np.ndarray
+    vd: np.ndarray
+    S: np.ndarray
+    R: np.ndarray
+    p: np.ndarray
+    VJ: np.ndarray
+    AJ: np.ndarray
+    VB: np.ndarray
+    AB: np.ndarray
+    F_B: np.ndarray
+    F_W: np.ndarray
+
+
+class RegressorModel:
+    """Batched regressor of a :class:`~pe_drake.robot.Robot` and its adjoint.
+
+    Args:
+        robot: the robot (its plant supplies body poses).
+    """
+
+    def __init__(self, robot):
+        self.robot = robot
+        self.n = robot.n
+        self.nb = robot.num_bodies
+        self.num_params = 10 * self.nb
+        self.moves = robot.joint_moves_body.astype(float)  # (n, nb): joint i moves body j
+        self.strict_anc = robot.joint_strict_ancestors.astype(float)  # (n, n): l before i
+        self.anc_incl = self.strict_anc + np.eye(self.n)
+        self.joint_of_body = robot.joint_of_body
+        # owner[i, j] = 1 if body j is rigidly attached to joint i's child body.
+        self.owner = np.zeros((self.n, self.nb))
+        self.owner[self.joint_of_body, np.arange(self.nb)] = 1.0
+        self._mask = np.repeat(self.moves, 10, axis=1)  # (n, 10·nb)
+        self.prismatic = np.array([j.kind == "prismatic" for j in robot.joints])
+        self.axis_M = np.array([j.axis_M for j in robot.joints])  # (n, 3)
+        self.X_CM = np.array([j.X_CM for j in robot.joints])  # (n, 4, 4)
+        self._joint_child = [j.child_body for j in robot.joints]
+        plant = robot.plant
+        self._bodies_needed = sorted(set(self._joint_child) | set(int(b) for b in robot.body_indices))
+        self._slot = {b: k for k, b in enumerate(self._bodies_needed)}
+        self._body_objs = [plant.get_body(_body_index(b)) for b in self._bodies_needed]
+        g = np.asarray(plant.gravity_field().gravity_vector())
+        self.A0 = np.concatenate([np.zeros(3), -g])  # base acceleration = -gravity
+
+    # ---- forward ------------------------------------------------------------------------
+    def _poses(self, q: np.ndarray) -> np.ndarray:
+        """X_WB of the needed bodies, (T, len(bodies_needed), 4, 4), from Drake."""
+        plant, ctx = self.robot.plant, self.robot.plant_context
+        out = np.empty((q.shape[0], len(self._body_objs), 4, 4))
+        for t in range(q.shape[0]):
+            plant.SetPositions(ctx, q[t])
+            for k, body in enumerate(self._body_objs):
+                out[t, k] = plant.EvalBodyPoseInWorld(ctx, body).GetAsMatrix4()
+        return out
+
+    def kinematics(self, q: np.ndarray, v: np.ndarray, vd: np.ndarray) -> Kinematics:
+        """Everything the regressor and its derivative need, for T samples.
+
+        Args:
+            q, v, vd: joint positions, velocities, accelerations, each (T, n).
+        """
+        q, v, vd = (np.atleast_2d(np.asarray(x, float)) for x in (q, v, vd))
+        X = self._poses(q)
+        # Joint frames M in world: X_WM = X_WC X_CM.
+        X_WC = X[:, [self._slot[c] for c in self._joint_child]]
+        X_WM = X_WC @ self.X_CM
+        u = (X_WM[..., :3, :3] @ self.axis_M[..., None])[..., 0]  # axis in world
+        o = X_WM[..., :3, 3]
+        S = np.where(
+            self.prismatic[None, :, None],
+            np.concatenate([np.zeros_like(u), u], axis=-1),
+            np.concatenate([u, cross3(o, u)], axis=-1),
+        )
+        Xb = X[:, [self._slot[int(b)] for b in self.robot.body_indices]]
+        R, p = Xb[..., :3, :3], Xb[..., :3, 3]
+
+        # Velocity of each joint's child body: VJ_i = Σ_{k ≤ i} S_k v_k.
+        Sv = S * v[..., None]
+        VJ = self.anc_incl.T @ Sv
+        # Acceleration: AJ_i = A0 + Σ_{k ≤ i} (S_k vd_k + v_k VJ_k ×m S_k).
+        dA = S * vd[..., None] + cross_motion(VJ, Sv)
+        AJ = self.A0 + self.anc_incl.T @ dA
+
+        VB = motion_to_body(R, p, VJ[:, self.joint_of_body])
+        AB = motion_to_body(R, p, AJ[:, self.joint_of_body])
+        F_B = body_regressor(VB, AB)  # (T, nb, 6, 10)
+        F_W = np.moveaxis(force_to_world(R[:, :, None], p[:, :, None], np.moveaxis(F_B, -1, -2)), -1, -2)
+        return Kinematics(q, v, vd, S, R, p, VJ, AJ, VB, AB, F_B, F_W)
+
+    def regressor(self, kin: Kinematics) -> np.ndarray:
+        """Y, shape (T, n, 10·nb): Y[t, i, 10j+k] = [joint i moves body j] S_i · F_jk."""
+        T = kin.S.shape[0]
+        F = kin.F_W.transpose(0, 2, 1, 3).reshape(T, 6, self.num_params)
+        return (kin.S @ F) * self._mask
+
+    def __call__(self, q: np.ndarray, v: np.ndarray, vd: np.ndarray) -> np.ndarray:
+        """Y(q, v, vdot), shape (T, n, 10·nb)."""
+        return self.regressor(self.kinematics(q, v, vd))
+
+    # ---- adjoint ------------------------------------------------------------------------
+    def pullback(self, kin: Kinematics, Z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Gradient of f = Σ_t Z^(t) : Y^(t) with respect to q, v and vdot (Eq. 47).
+
+        Args:
+            kin: from :meth:`kinematics`.
+            Z: weights, shape (T, n, 10·nb) (Eq. 46).
+
+        Returns:
+            (∂f/∂q, ∂f/∂v, ∂f/∂vdot), each (T, n).
+        """
+        T, n, nb = Z.shape[0], self.n, self.nb
+        S, v, vd, VJ = kin.S, kin.v, kin.vd, kin.VJ
+        R, p = kin.R[:, :, None], kin.p[:, :, None]
+
+        # f = Σ_j Σ_k w_jk · F_jk, with w_jk = Σ_i [i moves j] Z_ijk S_i (a motion vector).
+        Zm = Z.reshape(T, n, self.num_params) * self._mask
+        w = (Zm.transpose(0, 2, 1) @ S).reshape(T, nb, 10, 6)
+        F_W = kin.F_W.transpose(0, 1, 3, 2).reshape(T, self.num_params, 6)
+        S_bar = Zm @ F_W  # ∂f/∂S_i through w
+
+        # Body-coordinate adjoints of A_j and V_j (F = Γ(A)φ + V ×* Γ(V)φ, φ = e_k).
+        wB = motion_to_body(R, p, w)  # (T, nb, 10, 6)
+        a_bar_B = inertia_times_diagonal(wB)
+        VB = kin.VB[:, :, None, :]
+        G_V = np.moveaxis(inertia_times(kin.VB), -1, -2)  # (T, nb, 10, 6): M_k V
+        v_bar_B = inertia_times_diagonal(cross_motion(wB, VB)) - cross_force(wB, G_V).sum(axis=2)
+        # Rotating body j with joint l leaves f invariant if w, V, A and M all rotate: the
+        # derivative through M is minus that through w, V and A (docs/derivations.md, §4).
+        Q_B = (
+            cross_force(wB, np.moveaxis(kin.F_B, -1, -2)).sum(axis=2)
+            + cross_force(kin.VB, v_bar_B)
+            + cross_force(kin.AB, a_bar_B)
+        )
+        Rb, pb = kin.R, kin.p
+        a_bar = force_to_world(Rb, pb, a_bar_B)
+        v_bar_body = force_to_world(Rb, pb, v_bar_B)
+        Q = force_to_world(Rb, pb, Q_B)
+        q_bar = -np.sum(S * (self.moves @ Q), axis=-1)
+
+        # Bodies → the joint whose child body carries them.
+        AJ_bar = self.owner @ a_bar
+        VJ_bar = self.owner @ v_bar_body
+
+        # AJ_i = A0 + Σ_{k ≤ i} (S_k vd_k + v_k VJ_k ×m S_k)
+        c_bar = self.anc_incl @ AJ_bar
+        vd_bar = np.sum(S * c_bar, axis=-1)
+        v_bar = np.sum(cross_motion(VJ, S) * c_bar, axis=-1)
+        S_bar += vd[..., None] * c_bar - v[..., None] * cross_force(VJ, c_bar)
+        VJ_bar += v[..., None] * cross_force(S, c_bar)
+
+        # VJ_i = Σ_{k ≤ i} S_k v_k
+        VJ_agg = self.anc_incl @ VJ_bar
+        v_bar += np.sum(S * VJ_agg, axis=-1)
+        S_bar += v[..., None] * VJ_agg
+
+        # S_i(q): ∂S_i/∂q_l = S_l ×m S_i for l strictly before i.
+        q_bar += np.sum(S * (self.strict_anc @ cross_force(S, S_bar)), axis=-1)
+        return q_bar, v_bar, vd_bar
+
+
+def _body_index(b: int):
+    from pydrake.multibody.tree import BodyIndex
+
+    return BodyIndex(int(b))

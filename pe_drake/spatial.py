@@ -1,0 +1,142 @@
+"""Batched spatial-vector algebra in Drake's ordering [rotational; translational].
+
+Every function works on arrays whose last axis has length 6 (or 6 × 10 for regressor
+blocks) and broadcasts over the leading axes (samples, bodies, parameters). Motion vectors
+m = [ω; v], force vectors f = [n; f]. See docs/derivations.md.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a × b over the last axis (3,), broadcasting; faster than np.cross on small arrays."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    shape = np.broadcast_shapes(a.shape, b.shape)
+    out = np.empty(shape)
+    out[..., 0] = a1 * b2 - a2 * b1
+    out[..., 1] = a2 * b0 - a0 * b2
+    out[..., 2] = a0 * b1 - a1 * b0
+    return out
+
+
+def cross_motion(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a ×m b for motion vectors: [aω × bω; aω × bv + av × bω]."""
+    aw, av, bw, bv = a[..., :3], a[..., 3:], b[..., :3], b[..., 3:]
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[..., :3] = cross3(aw, bw)
+    out[..., 3:] = cross3(aw, bv) + cross3(av, bw)
+    return out
+
+
+def cross_force(a: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """a ×* f for a motion a and a force f: [aω × n + av × f; aω × f]."""
+    aw, av, n, ff = a[..., :3], a[..., 3:], f[..., :3], f[..., 3:]
+    out = np.empty(np.broadcast_shapes(a.shape, f.shape))
+    out[..., :3] = cross3(aw, n) + cross3(av, ff)
+    out[..., 3:] = cross3(aw, ff)
+    return out
+
+
+def motion_to_body(R: np.ndarray, p: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """World-origin motion vector → body coordinates at Bo.
+
+    Args:
+        R: R_WB, shape (..., 3, 3); p: p_WBo, shape (..., 3); m: shape (..., 6) or with an
+            extra axis before the last (then R, p broadcast with ``[..., None, :, :]``).
+    """
+    w, v = m[..., :3], m[..., 3:]
+    v_Bo = v - cross3(p, w)  # velocity of Bo = v_O + ω × p_WBo
+    out = np.empty(np.broadcast_shapes(m.shape, p.shape[:-1] + (6,)))
+    out[..., :3] = (R.swapaxes(-1, -2) @ w[..., None])[..., 0]
+    out[..., 3:] = (R.swapaxes(-1, -2) @ v_Bo[..., None])[..., 0]
+    return out
+
+
+def force_to_world(R: np.ndarray, p: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """Body-coordinate force at Bo → world coordinates at the world origin."""
+    f_W = (R @ f[..., 3:, None])[..., 0]
+    out = np.empty(np.broadcast_shapes(f.shape, p.shape[:-1] + (6,)))
+    out[..., :3] = (R @ f[..., :3, None])[..., 0] + cross3(p, f_W)
+    out[..., 3:] = f_W
+    return out
+
+
+def inertia_times(x: np.ndarray) -> np.ndarray:
+    """Γ(x): the (6, 10) matrix with M(φ) x = Γ(x) φ for a body-frame spatial inertia M(φ).
+
+    φ = [m, hx, hy, hz, Ixx, Iyy, Izz, Ixy, Ixz, Iyz] (pe_drake.robot.PARAMETER_NAMES) and
+    M(φ) = [[I, [h]×], [-[h]×, m·1]], so M x = [I xω + h × xv; m xv - h × xω].
+
+    Args:
+        x: shape (..., 6).
+
+    Returns:
+        shape (..., 6, 10).
+    """
+    xw, xv = x[..., :3], x[..., 3:]
+    out = np.zeros(x.shape[:-1] + (6, 10))
+    # h × xv = -[xv]× h
+    out[..., 0:3, 1:4] = -_skew(xv)
+    # I xω with I = [[Ixx, Ixy, Ixz], [Ixy, Iyy, Iyz], [Ixz, Iyz, Izz]]
+    w1, w2, w3 = xw[..., 0], xw[..., 1], xw[..., 2]
+    out[..., 0, 4], out[..., 0, 7], out[..., 0, 8] = w1, w2, w3
+    out[..., 1, 5], out[..., 1, 7], out[..., 1, 9] = w2, w1, w3
+    out[..., 2, 6], out[..., 2, 8], out[..., 2, 9] = w3, w1, w2
+    # m xv - h × xω = m xv + [xω]× h
+    out[..., 3:6, 0] = xv
+    out[..., 3:6, 1:4] = _skew(xw)
+    return out
+
+
+def inertia_times_diagonal(x: np.ndarray) -> np.ndarray:
+    """Σ_k Γ(x_k)[:, k]: the inertia of unit parameter k applied to its own vector x_k.
+
+    Args:
+        x: shape (..., 10, 6), one motion vector per parameter.
+
+    Returns:
+        shape (..., 6).
+    """
+    out = np.zeros(x.shape[:-2] + (6,))
+    # m: [0; x_v]
+    out[..., 3:] = x[..., 0, 3:]
+    # h_c (c = 0, 1, 2): [-(x_v × e_c); x_ω × e_c]
+    for c in range(3):
+        xc = x[..., 1 + c, :]
+        e = np.zeros(3)
+        e[c] = 1.0
+        out[..., :3] -= cross3(xc[..., 3:], e)
+        out[..., 3:] += cross3(xc[..., :3], e)
+    # Ixx, Iyy, Izz, Ixy, Ixz, Iyz acting on the angular part.
+    w = x[..., 4:10, :3]
+    out[..., 0] += w[..., 0, 0] + w[..., 3, 1] + w[..., 4, 2]
+    out[..., 1] += w[..., 1, 1] + w[..., 3, 0] + w[..., 5, 2]
+    out[..., 2] += w[..., 2, 2] + w[..., 4, 0] + w[..., 5, 1]
+    return out
+
+
+def body_regressor(V: np.ndarray, A: np.ndarray) -> np.ndarray:
+    """Net spatial force on a body as a linear map of its 10 parameters (body coordinates).
+
+    F = M(φ) A + V ×* M(φ) V = [Γ(A) + crf(V) Γ(V)] φ, with V the spatial velocity and A the
+    spatial (Featherstone) acceleration of the body, gravity included as a base acceleration.
+
+    Args:
+        V, A: shape (..., 6).
+
+    Returns:
+        shape (..., 6, 10).
+    """
+    G_V = inertia_times(V)
+    return inertia_times(A) + np.moveaxis(cross_force(V[..., None, :], np.moveaxis(G_V, -1, -2)), -1, -2)
+
+
+def _skew(x: np.ndarray) -> np.ndarray:
+    out = np.zeros(x.shape[:-1] + (3, 3))
+    out[..., 0, 1], out[..., 0, 2] = -x[..., 2], x[..., 1]
+    out[..., 1, 0], out[..., 1, 2] = x[..., 2], -x[..., 0]
+    out[..., 2, 0], out[..., 2, 1] = -x[..., 1], x[..., 0]
+    return out
