@@ -11,7 +11,7 @@ capsule file (YAML) lists the capsules fixed to links and the pairs never to che
         length: 0.142                # [m], between the centres of the two end spheres
         xyz: [0.044, -0.022, 0.008]  # [m], centre of the capsule in the link frame
         rpy: [0.0, 1.5708, 0.0]      # [rad], capsule frame G in the link frame B
-    ignored_pairs:                   # capsule or link names; always touching by design
+    ignored_pairs:                   # capsule names, or link names (all its capsules)
       - [left_forearm, left_hand]
 
 As in Drake's ``Capsule``, the axis of a capsule is the z axis of its frame G and the capsule
@@ -246,25 +246,23 @@ def capsule_pairs(scene_graph, capsules: tuple[CapsuleInfo, ...]) -> tuple[tuple
 
 
 def _resolve_ignored_pairs(data: CapsuleFile, infos: list[CapsuleInfo], path) -> set[frozenset[int]]:
-    """ignored_pairs entries (capsule names, or link names meaning all their capsules) →
-    index pairs."""
-    by_capsule = {c.name: [k] for k, c in enumerate(infos)}
-    by_link: dict[str, list[int]] = {}
+    """ignored_pairs entries → index pairs. A name stands for the capsule of that name and
+    every capsule on the link of that name (a default capsule name is its link's name)."""
+    members: dict[str, set[int]] = {}
     for k, c in enumerate(infos):
-        by_link.setdefault(c.link, []).append(k)
+        members.setdefault(c.name, set()).add(k)
+        members.setdefault(c.link, set()).add(k)
     out: set[frozenset[int]] = set()
     for pair in data.ignored_pairs:
-        sides = []
         for name in pair:
-            if name in by_capsule:
-                sides.append(by_capsule[name])
-            elif name in by_link:
-                sides.append(by_link[name])
-            else:
+            if name not in members:
                 raise UnknownNameError(
-                    "capsule", name, list(by_capsule) + sorted(by_link), where=f"ignored_pairs of '{path}'"
+                    "capsule",
+                    name,
+                    sorted(members),
+                    where=f"ignored_pairs of '{path}' (capsule or link names)",
                 )
-        out.update(frozenset((a, b)) for a in sides[0] for b in sides[1] if a != b)
+        out.update(frozenset((a, b)) for a in members[pair[0]] for b in members[pair[1]] if a != b)
     return out
 
 
