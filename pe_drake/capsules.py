@@ -176,14 +176,13 @@ def register_capsules(plant, scene_graph, path: str | Path) -> tuple[CapsuleInfo
     from pydrake.geometry import Capsule, CollisionFilterDeclaration, GeometrySet
     from pydrake.math import RigidTransform, RollPitchYaw
     from pydrake.multibody.plant import CoulombFriction
+    from pydrake.multibody.tree import BodyIndex
 
     data = load_capsule_file(path)
     if plant.is_finalized():
         raise ConfigError("register_capsules must be called before plant.Finalize()")
     if not plant.geometry_source_is_registered():
         raise ConfigError("the plant has no SceneGraph: build it with AddMultibodyPlantSceneGraph")
-
-    from pydrake.multibody.tree import BodyIndex
 
     bodies = [plant.get_body(BodyIndex(b)) for b in range(1, plant.num_bodies())]
     by_name = {}
