@@ -116,7 +116,7 @@ class SolverConfig:
 
     name: str = "ipopt"
     algorithm: str = "LD_SLSQP"
-    max_iterations: int = 200
+    max_iterations: int = 300
     tolerance: float = 1e-6
     max_time: float = 0.0
     verbose: bool = True

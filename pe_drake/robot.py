@@ -38,7 +38,14 @@ _MODELS_PACKAGE = "pe_drake.models"
 
 def builtin_robots() -> tuple[str, ...]:
     """Names of the built-in robot configs (``models/<name>.yaml``)."""
-    return tuple(sorted(p.stem for p in _models_dir().glob("*.yaml") if not p.stem.startswith("_")))
+    # A robot config has a top-level "robot:" section; capsule and truth files do not.
+    return tuple(
+        sorted(
+            p.stem
+            for p in _models_dir().glob("*.yaml")
+            if re.search(r"^robot:", p.read_text(), flags=re.M)
+        )
+    )
 
 
 def _models_dir() -> Path:

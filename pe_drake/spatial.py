@@ -103,13 +103,15 @@ def inertia_times_diagonal(x: np.ndarray) -> np.ndarray:
     out = np.zeros(x.shape[:-2] + (6,))
     # m: [0; x_v]
     out[..., 3:] = x[..., 0, 3:]
-    # h_c (c = 0, 1, 2): [-(x_v × e_c); x_ω × e_c]
-    for c in range(3):
-        xc = x[..., 1 + c, :]
-        e = np.zeros(3)
-        e[c] = 1.0
-        out[..., :3] -= cross3(xc[..., 3:], e)
-        out[..., 3:] += cross3(xc[..., :3], e)
+    # h_c (c = x, y, z), with x_c = x[..., 1 + c, :]: [-(x_c,v × e_c); x_c,ω × e_c], using
+    # a × e_x = (0, a_z, -a_y), a × e_y = (-a_z, 0, a_x), a × e_z = (a_y, -a_x, 0).
+    hx, hy, hz = x[..., 1, :], x[..., 2, :], x[..., 3, :]
+    out[..., 0] += hy[..., 5] - hz[..., 4]
+    out[..., 1] += hz[..., 3] - hx[..., 5]
+    out[..., 2] += hx[..., 4] - hy[..., 3]
+    out[..., 3] += hz[..., 1] - hy[..., 2]
+    out[..., 4] += hx[..., 2] - hz[..., 0]
+    out[..., 5] += hy[..., 0] - hx[..., 1]
     # Ixx, Iyy, Izz, Ixy, Ixz, Iyz acting on the angular part.
     w = x[..., 4:10, :3]
     out[..., 0] += w[..., 0, 0] + w[..., 3, 1] + w[..., 4, 2]

@@ -1,0 +1,43 @@
+"""Sampled trajectory constraints (one file per member) and their assembly from a config."""
+
+from __future__ import annotations
+
+from pe_drake.constraints.base import SampledConstraint, SampledValues
+
+__all__ = ["SampledConstraint", "SampledValues", "constraints_from_config"]
+
+
+def constraints_from_config(robot, excitation) -> list[SampledConstraint]:
+    """The sampled constraints an :class:`~pe_drake.config.ExcitationConfig` asks for.
+
+    ``balance_radius > 0`` adds the balance constraint (Eq. 52), ``collision_margin >= 0``
+    the capsule self-collision constraint (Eq. 53). Each is checked at the nominal posture
+    first, so a posture already out of balance or in collision is refused before solving.
+
+    Raises:
+        ConfigError: a constraint is requested but the robot lacks what it needs
+            (support points, a capsule file).
+        InfeasibleError: the nominal posture already violates a constraint.
+    """
+    from pe_drake.exceptions import ConfigError
+
+    out: list[SampledConstraint] = []
+    q0 = robot.nominal_posture()[None, :]
+    if excitation.balance_radius > 0:
+        from pe_drake.constraints.balance import BalanceConstraint
+
+        balance = BalanceConstraint(robot, excitation.balance_radius)
+        balance.check_posture(q0)
+        out.append(balance)
+    if excitation.collision_margin >= 0:
+        if not robot.capsules:
+            raise ConfigError(
+                f"excitation.collision_margin is set but robot '{robot.name}' has no capsule file "
+                "(robot.capsules)"
+            )
+        from pe_drake.constraints.collision import CollisionConstraint
+
+        collision = CollisionConstraint(robot, excitation.collision_margin)
+        collision.check_posture(q0)
+        out.append(collision)
+    return out

@@ -1,0 +1,152 @@
+"""``pe-drake optimize``: from a robot to an optimized exciting trajectory on disk."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from pe_drake.config import Config, validate_config
+from pe_drake.exceptions import ConfigError, DataError
+from pe_drake.io_utils import staged_output_dir
+
+
+def prior_regressor(problem, trajectory_json: str | Path) -> np.ndarray:
+    """Stacked base regressor of an earlier motion (for C0, Eq. 41), at the problem's number
+    of cost samples over that motion's own period.
+
+    Raises:
+        DataError: the file's joints differ from the robot's.
+    """
+    from pe_drake.fourier import FourierBasis, sample_times
+    from pe_drake.trajectory_file import load_trajectory
+
+    trajectory, data = load_trajectory(trajectory_json)
+    joints = tuple(data["joints"])
+    if joints != problem.robot.joint_names:
+        raise DataError(
+            f"its joints {list(joints)} differ from the robot's {list(problem.robot.joint_names)}",
+            file=str(trajectory_json),
+        )
+    basis = FourierBasis(trajectory.harmonics, trajectory.omega, sample_times(trajectory.period, problem.config.cost_samples))
+    q, v, vd = basis.q(trajectory.a, trajectory.b, trajectory.q0), basis.v(trajectory.a, trajectory.b), basis.vd(
+        trajectory.a, trajectory.b
+    )
+    Y = problem.model(q, v, vd)
+    return problem.base.reduce(Y).reshape(-1, problem.base.count)
+
+
+def _apply_arguments(config: Config, args: argparse.Namespace) -> Config:
+    if args.solver:
+        config.solver.name = args.solver
+    if args.criterion:
+        config.excitation.criterion = args.criterion
+    if args.max_iterations is not None:
+        config.solver.max_iterations = args.max_iterations
+    if args.seed is not None:
+        config.excitation.seed = args.seed
+    if args.quiet:
+        config.solver.verbose = False
+    return validate_config(config)
+
+
+def optimize_command(args: argparse.Namespace) -> int:
+    """Runs ``pe-drake optimize``; returns 0 on success, 1 if no valid trajectory was found."""
+    from pe_drake.constraints import constraints_from_config
+    from pe_drake.excitation import ExcitationProblem, build_excitation_program, solve_excitation
+    from pe_drake.robot import Robot, builtin_robots, resolve_robot_config
+
+    if not args.csv_rate > 0 or not math.isfinite(args.csv_rate):
+        raise ConfigError(f"--csv-rate must be a positive number [Hz], got {args.csv_rate}")
+    config = _apply_arguments(resolve_robot_config(args.robot, args.config), args)
+    name = args.robot if args.robot in builtin_robots() else Path(args.robot).stem
+    say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, flush=True))
+    start = time.perf_counter()
+    robot = Robot(name, config.robot)
+    say(f"robot {robot.name}: {robot.n} excited joints, {robot.num_bodies} moving bodies")
+    problem = ExcitationProblem(robot, config.excitation)
+    if args.prior:
+        blocks = [prior_regressor(problem, p) for p in args.prior]
+        problem = ExcitationProblem(robot, config.excitation, C0=np.vstack(blocks), base=problem.base, model=problem.model)
+        say(f"prior data: {len(args.prior)} motion(s), {problem.C0.shape[0]} rows, cond(C0) = {np.linalg.cond(problem.C0):.4g}")
+    say(
+        f"{problem.base.count} base parameters; {problem.num_variables} variables "
+        f"(N = {problem.harmonics}, ω = {problem.omega:.4g} rad/s, period {problem.period:.3g} s); "
+        f"T = {config.excitation.cost_samples} cost samples, K = {config.excitation.constraint_samples} constraint samples"
+    )
+    constraints = constraints_from_config(robot, config.excitation)
+    if constraints:
+        say("constraints: joint limits, " + ", ".join(c.name for c in constraints))
+    program = build_excitation_program(problem, constraints, progress=config.solver.verbose)
+    say(f"solving with {config.solver.name} (max {config.solver.max_iterations} iterations) ...")
+    result = solve_excitation(program, config.solver)
+    say(
+        f"{'success' if result.success else 'FAILED'}: {result.message}; cond {result.cond:.5g} "
+        f"(this motion alone {result.cond_motion:.5g}), {result.nit if result.nit is not None else '-'} iterations, "
+        f"{result.nfev} evaluations, {result.wall_time:.1f} s"
+    )
+    say("minimum margins at 1 kHz: " + ", ".join(f"{k} {m:.4g}" for k, m in result.margins.items()))
+
+    report = {
+        "robot": robot.name,
+        "success": result.success,
+        "message": result.message,
+        "status": result.status,
+        "solver": result.solver,
+        "criterion": config.excitation.criterion,
+        "cond": result.cond,
+        "cond_motion": result.cond_motion,
+        "criterion_value": result.fun,
+        "iterations": result.nit,
+        "evaluations": result.nfev,
+        "solve_time_s": result.wall_time,
+        "total_time_s": time.perf_counter() - start,
+        "margins_1khz": result.margins,
+        "base_parameters": problem.base.count,
+        "base_parameter_names": list(problem.base.base_names),
+        "singular_values": result.singular_values.tolist(),
+        "prior": [str(p) for p in args.prior],
+        "config": dataclasses.asdict(config),
+    }
+    out = Path(args.out)
+    with staged_output_dir(out) as tmp:
+        if result.success:
+            _write_success_outputs(tmp, robot, result, args, say)
+        (tmp / "report.json").write_text(json.dumps(report, indent=2, default=float))
+    if not result.success:
+        print(
+            f"pe-drake optimize: no valid trajectory: {result.message}. Only {out / 'report.json'} was "
+            "written. Try more iterations (--max-iterations), another seed (--seed), or looser margins.",
+            file=sys.stderr,
+        )
+        return 1
+    say(f"wrote {out}/trajectory.json, trajectory.csv, report.json, trajectory.png" + ("" if args.no_html else ", playback.html"))
+    return 0
+
+
+def _write_success_outputs(tmp: Path, robot, result, args, say) -> None:
+    from pe_drake.plots import plot_trajectory
+    from pe_drake.trajectory_file import save_trajectory, write_trajectory_csv
+
+    save_trajectory(tmp / "trajectory.json", robot, result.trajectory, cond=result.cond, cond_motion=result.cond_motion)
+    write_trajectory_csv(tmp / "trajectory.csv", robot.joint_names, result.trajectory, args.csv_rate)
+    plot_trajectory(
+        tmp / "trajectory.png",
+        robot,
+        result.trajectory,
+        result.singular_values,
+        title=f"{robot.name}: cond {result.cond:.4g}",
+    )
+    if not args.no_html:
+        try:
+            from pe_drake.viewer import write_playback_html
+
+            write_playback_html(tmp / "trajectory.json", tmp / "playback.html", config=args.config)
+        except Exception as err:  # the playback is a convenience: never lose the trajectory over it
+            say(f"warning: could not write the HTML playback: {err}")
