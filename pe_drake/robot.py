@@ -522,9 +522,13 @@ def phi_to_spatial_inertia(phi: np.ndarray, skip_validity_check: bool = True):
     from pydrake.multibody.tree import SpatialInertia, UnitInertia
 
     m = float(phi[0])
-    p = np.asarray(phi[1:4]) / m if m != 0 else np.zeros(3)
+    if m == 0:
+        if np.any(np.asarray(phi[1:]) != 0):
+            raise ValueError("a massless body must have zero first moment and inertia")
+        return SpatialInertia.Zero()  # Drake's default UnitInertia() is NaN, not zero
+    p = np.asarray(phi[1:4]) / m
     Ixx, Iyy, Izz, Ixy, Ixz, Iyz = phi[4:10]
-    G = UnitInertia(Ixx / m, Iyy / m, Izz / m, Ixy / m, Ixz / m, Iyz / m) if m != 0 else UnitInertia()
+    G = UnitInertia(Ixx / m, Iyy / m, Izz / m, Ixy / m, Ixz / m, Iyz / m)
     return SpatialInertia(m, p, G, skip_validity_check)
 
 

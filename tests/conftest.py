@@ -1,0 +1,51 @@
+"""Shared fixtures: robots (built once per session) and seeded random states."""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import pytest
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _quiet_drake():
+    import pydrake.common  # noqa: F401  (pydrake resets the logger level at import)
+
+    logging.getLogger("drake").setLevel(logging.ERROR)
+
+
+_ROBOTS: dict = {}
+
+
+def get_robot(name: str):
+    """A built-in robot, loaded once per test session."""
+    from pe_drake.robot import load_robot
+
+    if name not in _ROBOTS:
+        _ROBOTS[name] = load_robot(name)
+    return _ROBOTS[name]
+
+
+@pytest.fixture(scope="session")
+def panda():
+    return get_robot("panda")
+
+
+@pytest.fixture(scope="session")
+def ur5():
+    return get_robot("ur5")
+
+
+@pytest.fixture(scope="session")
+def g1():
+    return get_robot("g1")
+
+
+def random_states(robot, count: int, seed: int = 0):
+    """q within limits, v and vdot of a few rad/s, each (count, n)."""
+    rng = np.random.default_rng(seed)
+    q = rng.uniform(robot.limits.q_lower, robot.limits.q_upper, (count, robot.n))
+    v = rng.uniform(-2, 2, (count, robot.n))
+    vd = rng.uniform(-5, 5, (count, robot.n))
+    return q, v, vd

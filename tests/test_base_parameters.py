@@ -1,0 +1,51 @@
+"""Numerical base parameters: Y_B φ_B = Y φ, and the counts are right."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from conftest import get_robot, random_states
+
+from pe_drake.base_parameters import compute_base_parameters
+from pe_drake.regressor import RegressorModel
+
+
+@pytest.mark.parametrize("name,count", [("panda", 43), ("ur5", 36), ("g1", 90)])
+def test_base_parameter_count(name, count):
+    """Panda: 43 (Gaz et al. 2019 report 43 for its 7 links); G1 arms: 90 (DRAKE_NOTES)."""
+    robot = get_robot(name)
+    base = compute_base_parameters(robot)
+    assert base.count == count
+
+
+@pytest.mark.parametrize("name", ["panda", "ur5", "g1"])
+def test_base_regressor_reproduces_torques(name):
+    robot = get_robot(name)
+    model = RegressorModel(robot)
+    base = compute_base_parameters(robot, model=model)
+    q, v, vd = random_states(robot, 20, seed=11)  # states not used to find the base
+    Y = model(q, v, vd)
+    tau = Y @ robot.phi_model
+    tau_base = base.reduce(Y) @ base.base_values(robot.phi_model)
+    assert np.abs(tau_base - tau).max() / np.abs(tau).max() < 1e-9
+    # Y_B = Y X (Eq. 2)
+    np.testing.assert_array_equal(Y @ base.X, base.reduce(Y))
+    # Any φ: the torques depend on φ only through φ_B.
+    phi = np.random.default_rng(12).normal(size=robot.phi_model.shape)
+    assert np.allclose(Y @ phi, base.reduce(Y) @ base.base_values(phi), atol=1e-9 * np.abs(Y @ phi).max())
+
+
+def test_base_regressor_has_full_column_rank(panda):
+    model = RegressorModel(panda)
+    base = compute_base_parameters(panda, model=model)
+    q, v, vd = random_states(panda, 30, seed=13)
+    YB = base.reduce(model(q, v, vd)).reshape(-1, base.count)
+    assert np.linalg.matrix_rank(YB) == base.count
+
+
+def test_base_names_are_compositions(panda):
+    base = compute_base_parameters(panda)
+    assert len(base.base_names) == base.count
+    assert any("+" in n or " - " in n for n in base.base_names)
+    # m.panda_link1 never moves a torque (its origin lies on joint 1's axis): not a base column.
+    assert "m.panda_link1" not in base.base_names
