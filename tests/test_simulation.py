@@ -1,0 +1,371 @@
+"""Simulated measurements: the true robot's torque equals its inverse dynamics plus each effect."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pe_drake.exceptions import ConfigError, UnknownNameError
+from pe_drake.fourier import FourierTrajectory
+from pe_drake.measurements import read_measurement_csv
+from pe_drake.robot import load_robot, phi_to_spatial_inertia
+from pe_drake.simulation import (
+    PayloadTruth,
+    Truth,
+    build_true_robot,
+    load_truth,
+    perturb_inertias,
+    rigid_body_torque,
+    simulate,
+    truth_path_for,
+)
+from pe_drake.trajectory_file import save_trajectory
+
+DURATION = 1.5  # [s]
+SETTLED = 0.2  # [s] compare after the PD transient (the start is on the trajectory already)
+EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "truth_example.yaml"
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_robot("panda")
+
+
+@pytest.fixture(scope="module")
+def trajectory(robot):
+    rng = np.random.default_rng(4)
+    n, harmonics = robot.n, 3
+    # Mid-range posture has joint 2 at 0, where joints 1 and 3 share an axis: keep away from it.
+    q0 = robot.nominal_posture() + np.array([0.0, 0.6, 0.0, 0.0, 0.0, 0.0, 0.0])
+    return FourierTrajectory(
+        rng.uniform(-0.12, 0.12, (n, harmonics)), rng.uniform(-0.12, 0.12, (n, harmonics)),
+        q0, 2 * np.pi / 3.0,
+    )
+
+
+def _run(robot, trajectory, truth=None, duration=DURATION):
+    return simulate(robot, trajectory, truth or Truth(), duration)
+
+
+@pytest.fixture(scope="module")
+def baseline(robot, trajectory):
+    return _run(robot, trajectory)
+
+
+def _desired(trajectory, t):
+    return trajectory.evaluate(t)
+
+
+def _settled(m):
+    return m.t >= SETTLED
+
+
+def test_effect_free_torque_is_inverse_dynamics(robot, trajectory, baseline):
+    m, truth = baseline
+    assert m.num_samples == int(DURATION * 1000) + 1 and m.v is None and m.vd is None
+    np.testing.assert_allclose(np.diff(m.t), 1e-3)
+    q, v, vd = _desired(trajectory, m.t)
+    assert np.abs(m.q - q).max() < 1e-4  # tracking converged from the first sample
+    tau_id = robot.inverse_dynamics(q, v, vd)
+    k = _settled(m)
+    err = np.abs(m.tau[k] - tau_id[k])
+    scale = np.abs(tau_id).max(axis=0)
+    assert np.all(err.max(axis=0) < 2e-3 * scale + 5e-3), err.max(axis=0)
+    for b, name in enumerate(robot.body_names):
+        np.testing.assert_array_equal(truth["phi_true"][name], robot.phi_model[10 * b : 10 * b + 10])
+    effects = {"viscous", "coulomb", "armature", "torque_offset", "torque_delay", "payload"}
+    assert set(truth["effects"]) == effects
+
+
+def test_viscous_friction_adds_b_v(robot, trajectory, baseline):
+    truth = Truth()
+    truth.effects.viscous = {"all": 0.3, "panda_joint7": 0.05}
+    m, d = _run(robot, trajectory, truth)
+    b = np.array([0.3] * 6 + [0.05])
+    assert d["effects"]["viscous"]["values"]["panda_joint7"] == 0.05
+    _, v, _ = _desired(trajectory, m.t)
+    k = _settled(m)
+    diff = m.tau[k] - baseline[0].tau[k]
+    # The controller leaves each effect to its feedback: the small tracking error it causes
+    # moves the other joints' torques a little too.
+    np.testing.assert_allclose(diff, b * v[k], atol=0.05 * np.abs(b * v).max())
+
+
+def test_coulomb_friction_adds_smoothed_sign(robot, trajectory, baseline):
+    truth = Truth()
+    truth.effects.coulomb = {"all": 0.8}
+    truth.effects.coulomb_velocity_scale = 0.02
+    truth.record_velocity = True  # friction follows the actual velocity, not the desired one
+    m, _ = _run(robot, trajectory, truth)
+    k = _settled(m)
+    expected = 0.8 * np.tanh(m.v[k] / 0.02)
+    error = np.abs(m.tau[k] - baseline[0].tau[k] - expected)
+    # Away from velocity reversals (where the feedback needs ~10 ms to follow the jump)
+    # the torque rises by f_c·sign(v).
+    assert np.all(np.median(error, axis=0) < 0.05 * 0.8), np.median(error, axis=0)
+    assert np.all(np.percentile(error, 90, axis=0) < 0.25 * 0.8)
+
+
+def test_armature_adds_inertia_times_acceleration(robot, trajectory, baseline):
+    truth = Truth()
+    truth.effects.armature = {"panda_joint1": 0.4, "panda_joint6": 0.1}
+    m, _ = _run(robot, trajectory, truth)
+    _, _, vd = _desired(trajectory, m.t)
+    k = _settled(m)
+    diff = m.tau[k] - baseline[0].tau[k]
+    expected = np.zeros_like(diff)
+    expected[:, 0], expected[:, 5] = 0.4 * vd[k, 0], 0.1 * vd[k, 5]
+    np.testing.assert_allclose(diff, expected, atol=0.05 * np.abs(expected).max())
+
+
+def test_offset_adds_a_constant(robot, trajectory, baseline):
+    truth = Truth()
+    truth.effects.torque_offset = {"panda_joint2": 1.5, "panda_joint5": -0.4}
+    m, d = _run(robot, trajectory, truth)
+    k = _settled(m)
+    diff = m.tau[k] - baseline[0].tau[k]
+    expected = np.zeros(7)
+    expected[1], expected[4] = 1.5, -0.4
+    np.testing.assert_allclose(diff, np.broadcast_to(expected, diff.shape), atol=0.03)
+    assert d["effects"]["torque_offset"]["values"]["panda_joint2"] == 1.5
+
+
+def test_torque_is_true_dynamics_at_the_actual_motion(robot, trajectory):
+    """Every effect at once: recorded tau = true rigid-body ID + friction + offset, evaluated
+    at the simulated motion (v recorded without noise, vd by central differences)."""
+    truth = Truth()
+    truth.seed = 5
+    truth.inertia_perturbation = 0.1
+    truth.effects.viscous = {"all": 0.2}
+    truth.effects.coulomb = {"all": 0.3}
+    truth.effects.armature = {"all": 0.05}
+    truth.effects.torque_offset = {"panda_joint4": -0.5}
+    truth.effects.payload = PayloadTruth("panda_link8", 0.5, [0.0, 0.0, 0.05], [4e-4, 4e-4, 2e-4, 0, 0, 0])
+    truth.record_velocity = True
+    m, _ = _run(robot, trajectory, truth)
+    true = build_true_robot(robot, truth)
+    plant = true.robot.plant
+    vd = np.gradient(m.v, m.t, axis=0)
+    s = truth.effects.coulomb_velocity_scale
+    expected = rigid_body_torque(plant, true.robot.plant_context, m.q, m.v, vd)
+    expected += true.viscous * m.v + true.coulomb * np.tanh(m.v / s) + true.torque_offset
+    error = np.abs(m.tau - expected)[1:-1]  # np.gradient is one-sided at the ends
+    assert np.all(np.median(error, axis=0) < 1e-3), np.median(error, axis=0)
+    assert np.all(np.percentile(error, 95, axis=0) < 1e-2)
+
+
+def test_payload_changes_torque_like_a_welded_body(robot, trajectory, baseline):
+    truth = Truth()
+    truth.effects.payload = PayloadTruth("panda_link7", 1.2, [0.0, 0.02, 0.15], [2e-3, 2e-3, 1e-3, 0, 0, 0])
+    truth.record_velocity = True
+    m, d = _run(robot, trajectory, truth)
+
+    def add_payload(plant, scene_graph):  # independent of pe_drake.simulation
+        from pydrake.math import RigidTransform
+        from pydrake.multibody.tree import RotationalInertia, SpatialInertia
+
+        link = plant.GetBodyByName("panda_link7")
+        M = SpatialInertia.MakeFromCentralInertia(1.2, [0.0, 0.02, 0.15], RotationalInertia(2e-3, 2e-3, 1e-3))
+        body = plant.AddRigidBody("box", link.model_instance(), M)
+        plant.WeldFrames(link.body_frame(), body.body_frame(), RigidTransform())
+
+    loaded = load_robot("panda", before_finalize=add_payload)
+    k = _settled(m)
+    assert np.abs(m.tau[k] - baseline[0].tau[k]).max() > 1.0  # gravity of 1.2 kg at ~0.5 m
+    q, v, vd = _desired(trajectory, m.t)
+    np.testing.assert_allclose(m.tau[k], loaded.inverse_dynamics(q, v, vd)[k], atol=0.1)
+    # Exactly, at the actual motion (the prior-model controller lags a little).
+    tau_id = loaded.inverse_dynamics(m.q, m.v, np.gradient(m.v, m.t, axis=0))
+    np.testing.assert_allclose(m.tau[1:-1], tau_id[1:-1], atol=5e-3)
+    # truth.json lumps the payload into its link.
+    b = robot.body_names.index("panda_link7")
+    phi = np.asarray(d["phi_true"]["panda_link7"])
+    assert phi[0] == pytest.approx(robot.phi_model[10 * b] + 1.2)
+
+
+def test_perturbed_run_matches_true_parameters_of_truth_json(robot, trajectory, baseline):
+    truth = Truth()
+    truth.inertia_perturbation = 0.1
+    truth.seed = 7
+    truth.record_velocity = True
+    m, d = _run(robot, trajectory, truth)
+    check = load_robot("panda")
+    for name, phi in d["phi_true"].items():
+        if phi[0] > 0:
+            body = check.plant.GetBodyByName(name)
+            body.SetSpatialInertiaInBodyFrame(check.plant_context, phi_to_spatial_inertia(np.asarray(phi)))
+    # The prior-model controller tracks with a small error: evaluate at the actual motion.
+    vd = np.gradient(m.v, m.t, axis=0)
+    tau_true = check.inverse_dynamics(m.q, m.v, vd)
+    error = np.abs(m.tau - tau_true)[1:-1]
+    assert np.all(np.max(error, axis=0) < 5e-3), np.max(error, axis=0)
+    k = _settled(m)
+    assert np.abs(m.tau[k] - baseline[0].tau[k]).max() > 0.1  # the perturbation shows
+
+
+def test_controller_with_the_true_model_tracks_better(robot, trajectory):
+    truth = Truth()
+    truth.inertia_perturbation = 0.2
+    truth.effects.payload = PayloadTruth("panda_link8", 1.0, [0.0, 0.0, 0.05], [0.0] * 6)
+    errors = {}
+    for model in ("prior", "true"):
+        truth.control.model = model
+        _, d = _run(robot, trajectory, truth, duration=0.5)
+        errors[model] = max(d["simulation"]["tracking_error_rms"].values())
+    assert errors["true"] < 0.05 * errors["prior"], errors
+
+
+def test_perturbation_is_valid_bounded_and_reproducible(robot):
+    phi = robot.phi_model
+    a = perturb_inertias(phi, 0.1, 3)
+    np.testing.assert_array_equal(a, perturb_inertias(phi, 0.1, 3))
+    assert not np.allclose(a, perturb_inertias(phi, 0.1, 4))
+    np.testing.assert_array_equal(perturb_inertias(phi, 0.0, 3), phi)
+    for b in range(robot.num_bodies):
+        p0, p1 = phi[10 * b : 10 * b + 10], a[10 * b : 10 * b + 10]
+        if p0[0] == 0:
+            np.testing.assert_array_equal(p1, p0)  # massless frames untouched
+            continue
+        assert phi_to_spatial_inertia(p1).IsPhysicallyValid()
+        assert abs(p1[0] / p0[0] - 1) <= 0.1 + 1e-12
+        assert not np.allclose(p1, p0)
+    with pytest.raises(ConfigError, match="inertia_perturbation"):
+        perturb_inertias(phi, 0.7, 0)
+
+
+def test_truth_seed_reproduces_parameters(robot):
+    truth = Truth()
+    truth.inertia_perturbation = 0.1
+    truth.seed = 11
+    a, b = build_true_robot(robot, truth), build_true_robot(robot, truth)
+    np.testing.assert_array_equal(a.phi, b.phi)
+
+
+def test_delay_and_noise(robot, trajectory, baseline):
+    truth = Truth()
+    truth.effects.torque_delay = 0.004
+    truth.noise.encoder_counts_per_rev = 2**16
+    truth.noise.tau_std = 0.05
+    truth.record_velocity = True
+    m, d = _run(robot, trajectory, truth)
+    m2, _ = _run(robot, trajectory, truth)
+    np.testing.assert_array_equal(m.tau, m2.tau)  # noise reproducible from the seed
+    step = 2 * np.pi / 2**16
+    np.testing.assert_allclose(m.q / step, np.round(m.q / step), atol=1e-6)
+    assert np.abs(m.q - baseline[0].q).max() <= step / 2 + 1e-12
+    delayed = np.vstack([np.repeat(baseline[0].tau[:1], 4, axis=0), baseline[0].tau[:-4]])
+    noise = m.tau - delayed
+    assert np.std(noise) == pytest.approx(0.05, rel=0.05)
+    assert abs(np.mean(noise)) < 0.01
+    assert m.v is not None and d["noise"]["tau_std"] == 0.05
+
+
+# ---- truth files and the command line ------------------------------------------------------
+
+
+def _truth_file(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "truth.yaml"
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.parametrize(
+    "text, match",
+    [
+        ("effects: {viscous: {all: -0.1}}", "non-negative"),
+        ("effects: {coulomb: {panda_joint1: .nan}}", "finite"),
+        ("effects: {armature: {all: .inf}}", "finite"),
+        ("inertia_perturbation: 2.0", r"\[0, 0.5\]"),
+        ("seed: -1", "seed"),
+        ("bogus: 1", "bogus"),
+        ("effects: {viscous: 0.1}", "truth file"),
+        ("effects: {payload: {mass: 1.0}}", "no link"),
+        ("effects: {payload: {link: panda_link7, mass: 0.0}}", "positive"),
+        ("effects: {payload: {link: panda_link7, mass: 1.0, inertia: [1, 0.1, 0.1, 0, 0, 0]}}",
+         "not physically valid"),
+        ("control: {model: perfect}", "prior, true"),
+        ("control: {rate_hz: 0}", "positive"),
+        ("noise: {tau_std: -1}", "non-negative"),
+        ("effects: {coulomb_velocity_scale: 0}", "positive"),
+    ],
+)
+def test_bad_truth_file(tmp_path, text, match):
+    with pytest.raises(ConfigError, match=match):
+        load_truth(_truth_file(tmp_path, text))
+
+
+def test_missing_truth_file(tmp_path):
+    with pytest.raises(ConfigError, match="does not exist"):
+        load_truth(tmp_path / "none.yaml")
+
+
+@pytest.mark.parametrize(
+    "text, kind, listed",
+    [
+        ("effects: {viscous: {panda_joint9: 0.1}}", "joint", "panda_joint7, all"),
+        ("effects: {payload: {link: gripper, mass: 1.0}}", "link", "panda_link7"),
+    ],
+)
+def test_truth_names_checked_against_robot(tmp_path, robot, trajectory, text, kind, listed):
+    truth = load_truth(_truth_file(tmp_path, text))
+    with pytest.raises(UnknownNameError, match=listed) as err:
+        simulate(robot, trajectory, truth, 0.1)
+    assert err.value.kind == kind
+
+
+def test_example_truth_file_is_valid(robot):
+    truth = load_truth(EXAMPLE)
+    true = build_true_robot(robot, truth)
+    assert truth.inertia_perturbation == pytest.approx(0.1)
+    assert np.all(true.viscous > 0) and np.all(true.coulomb > 0)
+
+
+def test_command_writes_csv_and_truth(tmp_path, robot, trajectory, capsys):
+    from pe_drake.cli import main
+
+    save_trajectory(tmp_path / "trajectory.json", robot, trajectory)
+    truth = _truth_file(tmp_path, "effects: {viscous: {all: 0.1}}\nnoise: {tau_std: 0.01}\n")
+    out = tmp_path / "run" / "data.csv"
+    code = main(["simulate", "--robot", "panda", "--trajectory", str(tmp_path / "trajectory.json"),
+                 "--truth", str(truth), "--out", str(out), "--duration", "0.3"])
+    assert code == 0
+    printed = capsys.readouterr().out
+    assert "301 samples" in printed and "tracking error RMS" in printed
+    m = read_measurement_csv(out, robot.joint_names)
+    assert m.num_samples == 301
+    data = json.loads(truth_path_for(out).read_text())
+    assert truth_path_for(out).name == "data.truth.json"
+    assert data["effects"]["viscous"]["values"]["panda_joint3"] == 0.1
+    assert data["bodies"] == list(robot.body_names) and data["data_file"] == "data.csv"
+
+
+def test_command_error_writes_nothing(tmp_path, robot, trajectory, capsys):
+    from pe_drake.cli import main
+
+    save_trajectory(tmp_path / "trajectory.json", robot, trajectory)
+    truth = _truth_file(tmp_path, "effects: {coulomb: {joint_x: 0.1}}\n")
+    out = tmp_path / "run" / "data.csv"
+    code = main(["simulate", "--robot", "panda", "--trajectory", str(tmp_path / "trajectory.json"),
+                 "--truth", str(truth), "--out", str(out), "--duration", "0.3"])
+    assert code != 0
+    err = capsys.readouterr().err
+    assert "unknown joint 'joint_x'" in err and "panda_joint1" in err
+    assert not out.exists() and not truth_path_for(out).exists()
+
+
+def test_command_refuses_trajectory_of_other_joints(tmp_path, robot, trajectory, capsys):
+    from pe_drake.cli import main
+
+    path = tmp_path / "trajectory.json"
+    save_trajectory(path, robot, trajectory)
+    data = json.loads(path.read_text())
+    data["joints"] = list(reversed(data["joints"]))
+    path.write_text(json.dumps(data))
+    out = tmp_path / "data.csv"
+    code = main(["simulate", "--robot", "panda", "--trajectory", str(path), "--truth", str(EXAMPLE),
+                 "--out", str(out), "--duration", "0.3"])
+    assert code == 2 and "differ from robot" in capsys.readouterr().err
+    assert not out.exists()
