@@ -91,9 +91,12 @@ def main(argv: list[str] | None = None) -> int:
 
     args = build_parser().parse_args(argv)
     module_name, function_name = _COMMANDS[args.command]
+    from pe_drake.threads import single_threaded_blas
+
     try:
         function = getattr(importlib.import_module(module_name), function_name)
-        return int(function(args) or 0)
+        with single_threaded_blas():
+            return int(function(args) or 0)
     except PeDrakeError as err:
         print(f"pe-drake {args.command}: error: {err}", file=sys.stderr)
         return 2

@@ -9,6 +9,15 @@ import pytest
 
 
 @pytest.fixture(scope="session", autouse=True)
+def _single_threaded_blas():
+    """Small matrices: BLAS threads only add contention (pe_drake.threads)."""
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=1, user_api="blas"):
+        yield
+
+
+@pytest.fixture(scope="session", autouse=True)
 def _quiet_drake():
     import pydrake.common  # noqa: F401  (pydrake resets the logger level at import)
 

@@ -1,0 +1,196 @@
+"""The excitation cost's analytic gradient (Eqs. 17, 45–47, 49) and the Drake program."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from conftest import get_robot
+
+from pe_drake.config import ExcitationConfig, SolverConfig
+from pe_drake.criteria import evaluate_criterion
+from pe_drake.excitation import (
+    ExcitationProblem,
+    add_excitation_cost,
+    add_joint_limit_constraints,
+    build_excitation_program,
+    check_margins,
+    intersample_allowance,
+    solve_excitation,
+)
+from pe_drake.exceptions import ConfigError
+
+PAPER = ExcitationConfig(harmonics=10, omega=math.pi / 4, cost_samples=40)
+
+
+def _problem(name, config=PAPER, **kw):
+    return ExcitationProblem(get_robot(name), config, **kw)
+
+
+def _central_gradient(f, x, idx, h=1e-6):
+    out = []
+    for i in idx:
+        e = np.zeros_like(x)
+        e[i] = h
+        out.append((f(x + e) - f(x - e)) / (2 * h))
+    return np.array(out)
+
+
+@pytest.mark.parametrize(
+    "name,criterion",
+    [("panda", "cond"), ("panda", "log_cond"), ("panda", "dopt"), ("g1", "cond"), ("g1", "dopt")],
+)
+def test_cost_gradient_matches_central_differences(name, criterion):
+    import dataclasses
+
+    problem = _problem(name, dataclasses.replace(PAPER, criterion=criterion))
+    rng = np.random.default_rng(0)
+    for seed in range(2):
+        alpha = problem.initial_guess(seed=seed, amplitude=0.3)
+        grad = problem.evaluate(alpha).grad
+        idx = rng.choice(len(alpha), 25, replace=False)
+        numeric = _central_gradient(problem.value, alpha, idx)
+        rel = np.linalg.norm(grad[idx] - numeric) / np.linalg.norm(numeric)
+        assert rel < 1e-6, f"seed {seed}: relative error {rel:.2e}"
+
+
+def _directional(f, x, d, h):
+    """Richardson-extrapolated central difference along d (error O(h⁴))."""
+
+    def c(step):
+        return (f(x + step * d) - f(x - step * d)) / (2 * step)
+
+    return (4 * c(h / 2) - c(h)) / 3
+
+
+@pytest.mark.parametrize("name", ["panda", "g1"])
+def test_cond_gradient_stays_correct_when_ill_conditioned(name):
+    """A peer dropped cond because its gradient broke above 1e8: ours must not."""
+    base = _problem(name)
+    alpha = base.initial_guess(seed=1, amplitude=0.3)
+    block = base.regressor_block(alpha)
+    s = np.linalg.svd(block, compute_uv=False)
+    # Prior data with one huge direction makes C ill-conditioned but well defined.
+    C0 = np.zeros((1, base.base.count))
+    C0[0, 0] = 3e8 * s[-1]
+    problem = ExcitationProblem(base.robot, PAPER, C0=C0, base=base.base, model=base.model)
+    out = problem.evaluate(alpha)
+    assert out.value > 1e8
+    rng = np.random.default_rng(2)
+    for _ in range(3):
+        d = rng.normal(size=alpha.shape)
+        d /= np.linalg.norm(d)
+        numeric = _directional(problem.value, alpha, d, h=1e-3)
+        analytic = out.grad @ d
+        assert abs(analytic - numeric) <= 1e-6 * np.linalg.norm(out.grad), (analytic, numeric)
+
+
+def test_criterion_gradients_of_a_matrix():
+    """Eq. (16)/(17) directly on a random C, against central differences in C."""
+    rng = np.random.default_rng(3)
+    C = rng.normal(size=(30, 6)) @ np.diag([1, 2, 3, 5, 8, 13.0])
+    for criterion in ("cond", "log_cond", "dopt"):
+        out = evaluate_criterion(C, criterion)
+        for _ in range(5):
+            E = rng.normal(size=C.shape)
+            h = 1e-6
+            numeric = (
+                evaluate_criterion(C + h * E, criterion, gradient=False).value
+                - evaluate_criterion(C - h * E, criterion, gradient=False).value
+            ) / (2 * h)
+            assert abs(np.sum(out.grad * E) - numeric) < 1e-7 * max(1, abs(numeric))
+    np.testing.assert_allclose(evaluate_criterion(C, "cond").value, np.linalg.cond(C), rtol=1e-12)
+
+
+def test_rank_deficient_C_gives_inf_not_nan():
+    C = np.ones((10, 3))
+    out = evaluate_criterion(C, "cond")
+    assert out.value == np.inf and np.all(out.grad == 0)
+
+
+def test_stacked_uses_prior_rows(panda):
+    problem = ExcitationProblem(panda, ExcitationConfig(harmonics=3, cost_samples=20))
+    a1, a2 = problem.initial_guess(seed=1), problem.initial_guess(seed=2)
+    C1 = problem.regressor_block(a1)
+    with_prior = ExcitationProblem(
+        panda, ExcitationConfig(harmonics=3, cost_samples=20), C0=C1, base=problem.base, model=problem.model
+    )
+    C = with_prior.stacked(a2)
+    np.testing.assert_array_equal(C[: C1.shape[0]], C1)
+    assert with_prior.value(a2) == pytest.approx(np.linalg.cond(np.vstack([C1, problem.regressor_block(a2)])))
+    with pytest.raises(ConfigError, match="columns"):
+        ExcitationProblem(panda, ExcitationConfig(harmonics=3), C0=np.ones((3, 5)), base=problem.base)
+
+
+def test_initial_guess_within_limits(g1):
+    problem = ExcitationProblem(g1, PAPER)
+    margins = check_margins(problem, problem.initial_guess(seed=3, amplitude=2.0))
+    assert min(margins.values()) > 0
+
+
+def test_intersample_allowance_bounds_the_overshoot(panda):
+    """Between two samples q, v, vdot never exceed the samples' max by more than the allowance."""
+    problem = ExcitationProblem(panda, ExcitationConfig(harmonics=5, constraint_samples=50))
+    alpha = problem.initial_guess(seed=4, amplitude=1.0)
+    dq, dv, dvd = intersample_allowance(problem)
+    from pe_drake.fourier import FourierBasis
+
+    sampled = problem.constraint_basis.evaluate_alpha(alpha, problem.n)
+    dense = FourierBasis(5, problem.omega, np.linspace(0, problem.period, 20001)).evaluate_alpha(alpha, problem.n)
+    for s, d, allowance in zip(sampled, dense, (dq, dv, dvd)):
+        assert np.all(d.max(axis=0) <= s.max(axis=0) + allowance + 1e-12)
+        assert np.all(d.min(axis=0) >= s.min(axis=0) - allowance - 1e-12)
+
+
+@pytest.mark.parametrize("solver", ["ipopt", "nlopt"])
+def test_solve_small_panda_problem(panda, solver):
+    config = ExcitationConfig(harmonics=3, omega=2 * math.pi / 8, cost_samples=24, constraint_samples=96)
+    problem = ExcitationProblem(panda, config)
+    program = build_excitation_program(problem)
+    x0 = problem.initial_guess(seed=0)
+    result = solve_excitation(program, SolverConfig(name=solver, max_iterations=60 if solver == "ipopt" else 150), x0)
+    assert result.success, result.message
+    assert result.cond < 0.5 * problem.value(x0)
+    assert min(result.margins.values()) >= -1e-6
+    assert result.nfev > 0 and result.wall_time > 0
+    assert result.cond == pytest.approx(np.linalg.cond(problem.stacked(result.x)), rel=1e-9)
+
+
+def test_pieces_in_a_user_program_with_a_drake_constraint(panda):
+    """pe_drake is a plugin: its cost and limits go into the user's own program next to a
+    Drake constraint (here a bound on the first coefficients)."""
+    from pydrake.solvers import IpoptSolver, MathematicalProgram
+
+    config = ExcitationConfig(harmonics=2, cost_samples=16, constraint_samples=64)
+    problem = ExcitationProblem(panda, config)
+    prog = MathematicalProgram()
+    alpha = prog.NewContinuousVariables(problem.num_variables, "alpha")
+    add_excitation_cost(prog, alpha, problem)
+    add_joint_limit_constraints(prog, alpha, problem)
+    prog.AddBoundingBoxConstraint(-0.05, 0.05, alpha[:2])
+    x0 = problem.initial_guess(seed=1)
+    x0[:2] = np.clip(x0[:2], -0.05, 0.05)
+    result = IpoptSolver().Solve(prog, x0)
+    x = result.GetSolution(alpha)
+    assert np.all(np.abs(x[:2]) <= 0.05 + 1e-8)
+    assert problem.value(x) < problem.value(x0)
+
+
+def test_wrong_variable_count_is_refused(panda):
+    from pydrake.solvers import MathematicalProgram
+
+    problem = ExcitationProblem(panda, ExcitationConfig(harmonics=2))
+    prog = MathematicalProgram()
+    alpha = prog.NewContinuousVariables(problem.num_variables - 1)
+    with pytest.raises(ConfigError, match="variables"):
+        add_excitation_cost(prog, alpha, problem)
+
+
+def test_rest_at_ends(panda):
+    config = ExcitationConfig(harmonics=3, cost_samples=24, constraint_samples=96, rest_at_ends=True)
+    problem = ExcitationProblem(panda, config)
+    result = solve_excitation(build_excitation_program(problem), SolverConfig(max_iterations=40))
+    assert result.success, result.message
+    _, v, vd = result.trajectory.evaluate(np.array([0.0, problem.period]))
+    assert np.abs(v).max() < 1e-6 and np.abs(vd).max() < 1e-6
