@@ -290,6 +290,7 @@ def _truth_file(tmp_path: Path, text: str) -> Path:
         ("control: {rate_hz: 0}", "positive"),
         ("noise: {tau_std: -1}", "non-negative"),
         ("effects: {coulomb_velocity_scale: 0}", "positive"),
+        ("integrator: euler_forward", "runge_kutta3"),
     ],
 )
 def test_bad_truth_file(tmp_path, text, match):
