@@ -572,6 +572,7 @@ def simulate(
         UnknownNameError: a truth names a joint or link the robot does not have.
         DataError: a trajectory for a different number of joints.
     """
+    from pydrake.multibody.tree import MultibodyForces
     from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
 
     from pe_drake.robot import PARAMETER_NAMES, Robot, load_robot
@@ -599,8 +600,6 @@ def simulate(
         for b in robot.body_names:  # the default context lacks the perturbed inertias
             body = plant.GetBodyByName(b)
             body.SetSpatialInertiaInBodyFrame(ctl_ctx, body.CalcSpatialInertiaInBodyFrame(ctx))
-    from pydrake.multibody.tree import MultibodyForces
-
     forces = MultibodyForces(ctl_plant)
     rate = truth.control.rate_hz
     h = 1.0 / rate
@@ -693,8 +692,8 @@ def _truth_dict(robot, truth, true, duration, count, tracking_rms, wall, paramet
         "seed": truth.seed,
         "inertia_perturbation": truth.inertia_perturbation,
         "torque_equation": (
-            "tau(t - torque_delay) = ID_rigid_body_true(q, v, vd) + viscous*v "
-            "+ coulomb*tanh(v/coulomb_velocity_scale) + armature*vd + torque_offset, plus noise"
+            "tau_recorded(t) = [ID_rigid_body_true(q, v, vd) + viscous*v + coulomb*tanh(v/"
+            "coulomb_velocity_scale) + armature*vd + torque_offset](t - torque_delay) + noise"
         ),
         "effects": {
             "viscous": {"unit": "N·m·s/rad", "values": per_joint(true.viscous),
