@@ -1,3 +1,69 @@
-"""pe_drake: persistently exciting trajectories, identification and diagnosis on Drake."""
+"""pe_drake: persistently exciting trajectories, identification and diagnosis on Drake.
+
+The public API is re-exported here and imported on first use, so ``import pe_drake`` stays
+fast and does not load pydrake.
+"""
+
+from __future__ import annotations
+
+import importlib
 
 __version__ = "0.1.0"
+
+_EXPORTS = {
+    # robots and configuration
+    "load_robot": "pe_drake.robot",
+    "Robot": "pe_drake.robot",
+    "builtin_robots": "pe_drake.robot",
+    "Config": "pe_drake.config",
+    "RobotConfig": "pe_drake.config",
+    "ExcitationConfig": "pe_drake.config",
+    "SolverConfig": "pe_drake.config",
+    "load_config": "pe_drake.config",
+    # trajectories, regressor, base parameters, criteria
+    "FourierTrajectory": "pe_drake.fourier",
+    "RegressorModel": "pe_drake.regressor",
+    "BaseParameters": "pe_drake.base_parameters",
+    "compute_base_parameters": "pe_drake.base_parameters",
+    "evaluate_criterion": "pe_drake.criteria",
+    # the excitation program (build / solve, and pieces for your own program)
+    "ExcitationProblem": "pe_drake.excitation",
+    "ExcitationProgram": "pe_drake.excitation",
+    "ExcitationResult": "pe_drake.excitation",
+    "build_excitation_program": "pe_drake.excitation",
+    "solve_excitation": "pe_drake.excitation",
+    "optimize_excitation": "pe_drake.excitation",
+    "add_excitation_cost": "pe_drake.excitation",
+    "add_joint_limit_constraints": "pe_drake.excitation",
+    "add_rest_constraints": "pe_drake.excitation",
+    "add_sampled_constraint": "pe_drake.excitation",
+    "check_margins": "pe_drake.excitation",
+    # constraints
+    "SampledConstraint": "pe_drake.constraints.base",
+    "BalanceConstraint": "pe_drake.constraints.balance",
+    "CollisionConstraint": "pe_drake.constraints.collision",
+    "constraints_from_config": "pe_drake.constraints",
+    # files
+    "load_trajectory": "pe_drake.trajectory_file",
+    "save_trajectory": "pe_drake.trajectory_file",
+    # errors
+    "PeDrakeError": "pe_drake.exceptions",
+    "ConfigError": "pe_drake.exceptions",
+    "DataError": "pe_drake.exceptions",
+    "InfeasibleError": "pe_drake.exceptions",
+    "NoSolutionFound": "pe_drake.exceptions",
+    "UnknownNameError": "pe_drake.exceptions",
+    "NotWithinLimitsError": "pe_drake.exceptions",
+}
+
+__all__ = sorted(_EXPORTS) + ["__version__"]
+
+
+def __getattr__(name: str):
+    if name in _EXPORTS:
+        return getattr(importlib.import_module(_EXPORTS[name]), name)
+    raise AttributeError(f"module 'pe_drake' has no attribute '{name}'")
+
+
+def __dir__():
+    return __all__

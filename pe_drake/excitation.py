@@ -33,7 +33,7 @@ from pe_drake.base_parameters import BaseParameters, compute_base_parameters
 from pe_drake.config import ExcitationConfig, SolverConfig, validate_config
 from pe_drake.constraints.base import SampledConstraint
 from pe_drake.criteria import evaluate_criterion
-from pe_drake.exceptions import ConfigError, InfeasibleError
+from pe_drake.exceptions import ConfigError, InfeasibleError, NoSolutionFound
 from pe_drake.fourier import FourierBasis, FourierTrajectory, sample_times
 from pe_drake.regressor import RegressorModel
 from pe_drake.threads import single_threaded_blas
@@ -856,8 +856,17 @@ def optimize_excitation(
     constraints: list[SampledConstraint] | None = None,
     initial_guess: np.ndarray | None = None,
     progress: bool = False,
+    raise_on_failure: bool = False,
 ) -> ExcitationResult:
-    """Builds and solves in one call (see :func:`build_excitation_program`)."""
+    """Builds and solves in one call (see :func:`build_excitation_program`).
+
+    Raises:
+        NoSolutionFound: with ``raise_on_failure``, when no valid trajectory was found (the
+            result is kept in the exception's ``result``).
+    """
     problem = ExcitationProblem(robot, config, C0=C0)
     program = build_excitation_program(problem, constraints, progress=progress)
-    return solve_excitation(program, solver, initial_guess)
+    result = solve_excitation(program, solver, initial_guess)
+    if raise_on_failure and not result.success:
+        raise NoSolutionFound(result.message, result)
+    return result
