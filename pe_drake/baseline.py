@@ -1,0 +1,436 @@
+"""The conventional baseline: random feasible motions and a greedy selection (reference [16]).
+
+Before optimization-based methods, exciting motions for humanoids were chosen from motions
+generated in advance (Jovic et al., IROS 2015, reference [16] of the paper): draw many random
+trajectories that satisfy the physical conditions, then select the best set of a given size.
+The paper compares its optimized motions with this approach (section IV-B, Table II); this
+module reproduces it on the same robot, Fourier series (N, ω), cost samples and constraints:
+
+1. Rejection sampling (:func:`generate_candidates`): draw random Fourier coefficients and
+   scale them into the joint limits at the K constraint samples exactly as the optimizer's
+   initial point (:meth:`ExcitationProblem.initial_guess`, coefficients ~ N(0, (amplitude/k)²)
+   around the nominal posture, scaled to use at most 90 % of each limit), then reject the
+   draw if any sampled constraint (balance Eq. 52, collision Eq. 53, ...) has a negative
+   margin at the K samples.
+2. Greedy selection (:func:`greedy_select`): the candidate with the lowest cond alone first,
+   then repeatedly the one that minimizes cond of the concatenated C (Eq. 41), up to the
+   motion count.
+
+cond of a concatenation only needs each block's R factor: for C = [C_1; C_2],
+CᵀC = R_1ᵀR_1 + R_2ᵀR_2, so C and [R_1; R_2] have the same singular values. Candidates keep
+their b×b R instead of their (T·n)×b regressor (13 MB instead of 80 MB for 200 G1 motions).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+import scipy.linalg
+
+from pe_drake.config import ExcitationConfig
+from pe_drake.exceptions import ConfigError, InfeasibleError
+
+
+@dataclasses.dataclass(frozen=True)
+class Candidate:
+    """One random motion that satisfies every constraint at the K samples.
+
+    Attributes:
+        seed: seed of the draw (``problem.initial_guess(seed, amplitude)`` reproduces alpha).
+        alpha: its Fourier coefficients, shape ((2N+1)·n,).
+        cond: cond of its own base regressor Ŷ_B at the T cost samples.
+        margins: minimum margin per constraint at the K samples ("position", "velocity",
+            "acceleration" [rad, rad/s, rad/s²] and each sampled constraint in its unit).
+    """
+
+    seed: int
+    alpha: np.ndarray
+    cond: float
+    margins: dict[str, float]
+
+
+@dataclasses.dataclass
+class CandidateSet:
+    """The accepted random motions and what it took to find them.
+
+    Attributes:
+        candidates: accepted motions, in draw order.
+        R: their regressors' R factors, shape (M, b, b) (see the module docstring).
+        draws: random draws made (accepted + rejected).
+        rejected: {reason: count}; the reason is the first constraint a draw violated
+            ("joint limits", or a sampled constraint's name).
+        amplitude: scale of the random coefficients [rad].
+        wall_time: [s].
+        workers: processes used.
+    """
+
+    candidates: list[Candidate]
+    R: np.ndarray
+    draws: int
+    rejected: dict[str, int]
+    amplitude: float
+    wall_time: float
+    workers: int
+
+    @property
+    def acceptance(self) -> float:
+        """Accepted fraction of the draws."""
+        return len(self.candidates) / self.draws if self.draws else 0.0
+
+
+@dataclasses.dataclass(frozen=True)
+class Selection:
+    """A greedy selection (Table II).
+
+    Attributes:
+        indices: selected candidates, in selection order.
+        cond_each: cond(C^(i)) of each selected block alone.
+        cond_total: cond of the concatenated C after each selection (C0 included if given).
+    """
+
+    indices: list[int]
+    cond_each: list[float]
+    cond_total: list[float]
+
+
+@dataclasses.dataclass
+class BaselineResult:
+    """Outcome of :func:`random_baseline`.
+
+    Attributes:
+        candidate_set: the accepted random motions.
+        selection: the greedy selection over them.
+        selected: the selected :class:`Candidate` objects, in selection order.
+        generation_time: time to draw and check the candidates [s].
+        selection_time: time of the greedy selection [s].
+    """
+
+    candidate_set: CandidateSet
+    selection: Selection
+    selected: list[Candidate]
+    generation_time: float
+    selection_time: float
+
+    @property
+    def wall_time(self) -> float:
+        return self.generation_time + self.selection_time
+
+
+@dataclasses.dataclass(frozen=True)
+class DrawEvent:
+    """Progress of :func:`generate_candidates` (after each chunk of draws).
+
+    Attributes:
+        drawn: draws made so far.
+        accepted: of which accepted.
+        wanted: accepted candidates asked for.
+        elapsed: [s].
+    """
+
+    drawn: int
+    accepted: int
+    wanted: int
+    elapsed: float
+
+    def __str__(self) -> str:
+        rate = self.accepted / self.drawn if self.drawn else 0.0
+        return (
+            f"  random candidates: {self.accepted} accepted of {self.drawn} drawn ({100 * rate:.0f} %, "
+            f"{self.wanted} wanted)  {self.elapsed:6.1f} s"
+        )
+
+
+# ---- greedy selection -----------------------------------------------------------------------------
+def _cond(s: np.ndarray) -> float:
+    return float(s[0] / s[-1]) if s[-1] > 0 else math.inf
+
+
+def _r_factor(block: np.ndarray) -> np.ndarray:
+    """An upper-triangular factor with the singular values of ``block`` (itself if short)."""
+    block = np.asarray(block, float)
+    if block.shape[0] <= block.shape[1]:
+        return block
+    return scipy.linalg.qr(block, mode="r", check_finite=False)[0][: block.shape[1]]
+
+
+def stacked_cond(blocks: Sequence[np.ndarray]) -> float:
+    """cond of the vertical concatenation of ``blocks`` (each (m_i, b))."""
+    s = np.linalg.svd(np.vstack([_r_factor(b) for b in blocks]), compute_uv=False)
+    return _cond(s)
+
+
+def greedy_select(blocks: Sequence[np.ndarray], motions: int, C0: np.ndarray | None = None) -> Selection:
+    """Greedy choice of ``motions`` blocks minimizing cond of their concatenation.
+
+    The first pick has the lowest cond alone (or, with ``C0``, the lowest cond of [C0; block]);
+    each next pick minimizes cond of [C0; picks so far; block]. Ties go to the lower index.
+
+    Args:
+        blocks: candidate regressors (or their R factors), each (m_i, b).
+        motions: how many to select (at most ``len(blocks)``).
+        C0: prior data, shape (m0, b), or None.
+
+    Returns:
+        The :class:`Selection`.
+
+    Raises:
+        ConfigError: fewer blocks than motions, a motion count below 1, or column counts
+            that differ.
+    """
+    if not isinstance(motions, int) or motions < 1:
+        raise ConfigError(f"motions must be a positive integer, got {motions!r}")
+    if len(blocks) < motions:
+        raise ConfigError(f"cannot select {motions} motions from {len(blocks)} candidates")
+    R = [_r_factor(b) for b in blocks]
+    b = R[0].shape[1]
+    if any(r.shape[1] != b for r in R) or (C0 is not None and np.shape(C0)[1] != b):
+        raise ConfigError("every block (and C0) must have the same number of columns")
+    alone = [_cond(np.linalg.svd(r, compute_uv=False)) for r in R]
+    current = None if C0 is None else _r_factor(C0)
+    chosen: list[int] = []
+    totals: list[float] = []
+    for _ in range(motions):
+        best, best_cond = -1, math.inf
+        for k, r in enumerate(R):
+            if k in chosen:
+                continue
+            stack = r if current is None else np.vstack([current, r])
+            c = _cond(np.linalg.svd(stack, compute_uv=False))
+            if best < 0 or c < best_cond:
+                best, best_cond = k, c
+        chosen.append(best)
+        totals.append(best_cond)
+        stack = R[best] if current is None else np.vstack([current, R[best]])
+        current = _r_factor(stack)
+    return Selection(chosen, [alone[k] for k in chosen], totals)
+
+
+# ---- rejection sampling ---------------------------------------------------------------------------
+def sample_margins(problem, alpha: np.ndarray, constraints: Sequence[Any] = ()) -> dict[str, float]:
+    """Minimum margin of the joint limits and of each constraint at the K constraint samples.
+
+    Returns:
+        {"position", "velocity", "acceleration", <constraint name>: margin}; < 0 is a violation.
+    """
+    q, v, vd = problem.constraint_basis.evaluate_alpha(np.asarray(alpha, float), problem.n)
+    out = _joint_margins(problem.robot.limits, q, v, vd)
+    for c in constraints:
+        out[c.name] = float(np.min(c.margins(q, v, vd)))
+    return out
+
+
+def _joint_margins(lim, q: np.ndarray, v: np.ndarray, vd: np.ndarray) -> dict[str, float]:
+    return {
+        "position": float(np.min(np.minimum(q - lim.q_lower, lim.q_upper - q))),
+        "velocity": float(np.min(lim.v_max - np.abs(v))),
+        "acceleration": float(np.min(lim.vd_max - np.abs(vd))),
+    }
+
+
+def _draw(
+    problem, constraints, seed: int, amplitude: float
+) -> tuple[str, Candidate | None, np.ndarray | None]:
+    """One draw: ("", candidate, R) if accepted, else (reason, None, None)."""
+    alpha = problem.initial_guess(seed, amplitude)
+    q, v, vd = problem.constraint_basis.evaluate_alpha(alpha, problem.n)
+    margins = _joint_margins(problem.robot.limits, q, v, vd)
+    if min(margins.values()) < 0:
+        return "joint limits", None, None
+    for c in constraints:  # in order: a violated one stops the checks (cheap ones first)
+        margins[c.name] = float(np.min(c.margins(q, v, vd)))
+        if margins[c.name] < 0:
+            return c.name, None, None
+    block = problem.regressor_block(alpha)
+    R = _r_factor(block)
+    cond = _cond(np.linalg.svd(R, compute_uv=False))
+    return "", Candidate(int(seed), alpha, cond, margins), R
+
+
+@dataclasses.dataclass
+class _DrawChunk:
+    config: ExcitationConfig
+    seeds: list[int]
+    amplitude: float
+
+
+def _draw_chunk(state, chunk: _DrawChunk) -> list[tuple[str, Candidate | None, np.ndarray | None]]:
+    """Worker task: a chunk of draws (see :class:`pe_drake.multistart.WorkerPool`)."""
+    problem = state.problem(chunk.config, None)
+    constraints = state.constraints(chunk.config)
+    out = [_draw(problem, constraints, s, chunk.amplitude) for s in chunk.seeds]
+    state.emit(("chunk", len(out), sum(1 for reason, _, _ in out if not reason)))
+    return out
+
+
+def generate_candidates(
+    robot,
+    config: ExcitationConfig | None = None,
+    count: int = 200,
+    *,
+    constraints_factory: Callable | None = None,
+    seed: int = 0,
+    amplitude: float | None = None,
+    max_draws: int | None = None,
+    workers: int = 1,
+    pool=None,
+    progress: Callable[[DrawEvent], None] | None = None,
+    chunk_size: int = 16,
+) -> CandidateSet:
+    """Random motions satisfying every constraint at the K samples (rejection sampling).
+
+    Draw d uses seed ``seed + d``; accepted draws are kept in draw order and the first
+    ``count`` are returned, so the set does not depend on ``workers``.
+
+    Args:
+        robot: the :class:`~pe_drake.robot.Robot` (ignored when ``pool`` is given).
+        config: N, ω, T, K and the amplitude (default :class:`ExcitationConfig`).
+        count: accepted candidates wanted.
+        constraints_factory: ``f(robot, config) -> [SampledConstraint, ...]`` (default
+            :func:`pe_drake.constraints.constraints_from_config`); ignored with ``pool``.
+        seed: seed of the first draw.
+        amplitude: scale of the random coefficients [rad] (default ``config.amplitude``).
+        max_draws: give up after this many draws (default 50 × count).
+        workers: processes (see :class:`~pe_drake.multistart.WorkerPool`).
+        pool: an open :class:`~pe_drake.multistart.WorkerPool` to reuse.
+        progress: callback receiving a :class:`DrawEvent` after each chunk of draws.
+        chunk_size: draws per task sent to a worker.
+
+    Returns:
+        The :class:`CandidateSet`.
+
+    Raises:
+        ConfigError: a count, amplitude, max_draws or chunk size that is not positive.
+        InfeasibleError: fewer than ``count`` draws accepted within ``max_draws`` (the
+            acceptance rate is in the message: lower the amplitude or loosen the constraints).
+    """
+    from pe_drake.config import Config, validate_config
+    from pe_drake.multistart import WorkerPool
+
+    begin = time.perf_counter()
+    config = config or ExcitationConfig()
+    validate_config(Config(excitation=config))
+    amplitude = config.amplitude if amplitude is None else amplitude
+    max_draws = 50 * count if max_draws is None else max_draws
+    for name, value in (("count", count), ("max_draws", max_draws), ("chunk_size", chunk_size)):
+        if not isinstance(value, int) or value < 1:
+            raise ConfigError(f"{name} must be a positive integer, got {value!r}")
+    if not isinstance(amplitude, (int, float)) or not math.isfinite(amplitude) or amplitude <= 0:
+        raise ConfigError(f"amplitude must be a positive number [rad], got {amplitude!r}")
+    own = pool is None
+    if own:
+        from pe_drake.constraints import constraints_from_config
+
+        pool = WorkerPool(robot, workers, constraints_factory=constraints_factory or constraints_from_config)
+    drawn = accepted = 0
+
+    def on_event(event) -> None:
+        nonlocal drawn, accepted
+        if isinstance(event, tuple) and event and event[0] == "chunk":
+            drawn += event[1]
+            accepted += event[2]
+            if progress is not None:
+                progress(DrawEvent(drawn, accepted, count, time.perf_counter() - begin))
+
+    outcomes: list = []
+    used_processes = 1
+    try:
+        next_draw = 0
+        while next_draw < max_draws:
+            done = sum(1 for reason, _, _ in outcomes if not reason)
+            if done >= count:
+                break
+            # Enough draws for the rest at the acceptance seen so far (all at once at first).
+            rate = done / len(outcomes) if outcomes else 1.0
+            size = math.ceil(1.1 * (count - done) / max(rate, 0.02))
+            size = min(max(size, pool.workers * chunk_size), max_draws - next_draw)
+            seeds = [seed + d for d in range(next_draw, next_draw + size)]
+            chunks = [
+                _DrawChunk(config, seeds[k : k + chunk_size], float(amplitude))
+                for k in range(0, len(seeds), chunk_size)
+            ]
+            for part in pool.map(_draw_chunk, chunks, on_event):
+                outcomes.extend(part)
+            used_processes = max(used_processes, pool.last_processes)
+            next_draw += size
+    finally:
+        if own:
+            pool.close()
+    kept, R, rejected, draws = [], [], {}, 0
+    for reason, cand, r in outcomes:
+        if len(kept) == count:
+            break
+        draws += 1
+        if reason:
+            rejected[reason] = rejected.get(reason, 0) + 1
+        else:
+            kept.append(cand)
+            R.append(r)
+    if len(kept) < count:
+        raise InfeasibleError(
+            f"only {len(kept)} of {draws} random draws met every constraint (wanted {count}; rejected: "
+            + ", ".join(f"{k} {v}" for k, v in rejected.items())
+            + f"); lower the amplitude ({amplitude} rad), raise max_draws, or loosen the constraints"
+        )
+    return CandidateSet(
+        kept, np.array(R), draws, rejected, float(amplitude), time.perf_counter() - begin, used_processes
+    )
+
+
+def random_baseline(
+    robot,
+    config: ExcitationConfig | None = None,
+    motions: int = 3,
+    candidates: int = 200,
+    *,
+    constraints_factory: Callable | None = None,
+    seed: int = 0,
+    amplitude: float | None = None,
+    max_draws: int | None = None,
+    C0: np.ndarray | None = None,
+    workers: int = 1,
+    pool=None,
+    progress: Callable[[DrawEvent], None] | None = None,
+) -> BaselineResult:
+    """Random feasible candidates, then the greedy selection of ``motions`` of them.
+
+    Args:
+        robot, config, constraints_factory, seed, amplitude, max_draws, workers, pool,
+        progress: see :func:`generate_candidates`.
+        motions: how many motions to select (the paper: 3).
+        candidates: accepted random motions to select from.
+        C0: prior data the selection starts from, shape (m0, b), or None.
+
+    Returns:
+        The :class:`BaselineResult`.
+    """
+    if not isinstance(motions, int) or motions < 1:
+        raise ConfigError(f"motions must be a positive integer, got {motions!r}")
+    if isinstance(candidates, int) and candidates < motions:
+        raise ConfigError(f"{candidates} candidates cannot supply {motions} motions")
+    cset = generate_candidates(
+        robot,
+        config,
+        candidates,
+        constraints_factory=constraints_factory,
+        seed=seed,
+        amplitude=amplitude,
+        max_draws=max_draws,
+        workers=workers,
+        pool=pool,
+        progress=progress,
+    )
+    begin = time.perf_counter()
+    selection = greedy_select(list(cset.R), motions, C0)
+    selection_time = time.perf_counter() - begin
+    return BaselineResult(
+        candidate_set=cset,
+        selection=selection,
+        selected=[cset.candidates[k] for k in selection.indices],
+        generation_time=cset.wall_time,
+        selection_time=selection_time,
+    )

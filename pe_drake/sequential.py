@@ -1,0 +1,279 @@
+"""Sequential generation of exciting motions (paper, section IV-B, Table I).
+
+Motion 1 is optimized without prior data (C0 = O in Eq. 41); motion i > 1 is optimized with
+the regressors of the motions before it as prior data,
+
+    C0 = [C^(1); ...; C^(i-1)],   C^(i) = Ŷ_B of motion i at the T cost samples,
+
+so each new motion excites what the earlier ones left poorly excited, and cond of the
+concatenated C falls with each motion even when cond(C^(i)) alone grows. Each motion starts
+from its own seeded random initial point(s); with ``starts > 1`` they are solved in parallel
+processes (:mod:`pe_drake.multistart`) and the best feasible one is kept.
+
+Use it like::
+
+    result = optimize_sequence(robot, config.excitation, config.solver, motions=3)
+    for m in result.motions:
+        print(m.index, m.cond_motion, m.cond_total, m.wall_time)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+
+from pe_drake.config import ExcitationConfig, SolverConfig
+from pe_drake.exceptions import ConfigError, NoSolutionFound
+
+#: Seeds of motion i (1-based) are ``seed + SEED_STRIDE·(i-1) + s`` for start s = 0, 1, ...:
+#: fresh for every motion, and the same for motion i whatever the number of starts.
+SEED_STRIDE = 1000
+
+
+@dataclasses.dataclass
+class SequenceMotion:
+    """One motion of the sequence (a column of Table I).
+
+    Attributes:
+        index: i, from 1.
+        result: the kept :class:`~pe_drake.excitation.ExcitationResult` (``cond`` is that of
+            [C0; C^(i)]).
+        block: C^(i), this motion's base regressor at the T cost samples, shape (T·n, b).
+        cond_motion: cond(C^(i)), the motion alone (Table I, first row).
+        cond_total: cond of the concatenated C = [prior C0; C^(1); ...; C^(i)] (second row).
+        seed: seed of the kept start.
+        seeds: seeds of every start of this motion.
+        starts: one :class:`~pe_drake.multistart.StartSummary` per start.
+        wall_time: time spent on this motion, all starts included [s].
+    """
+
+    index: int
+    result: Any
+    block: np.ndarray
+    cond_motion: float
+    cond_total: float
+    seed: int
+    seeds: list[int]
+    starts: list
+    wall_time: float
+
+    @property
+    def success(self) -> bool:
+        return bool(self.result.success)
+
+
+@dataclasses.dataclass
+class SequenceResult:
+    """Outcome of :func:`optimize_sequence`.
+
+    Attributes:
+        motions: one :class:`SequenceMotion` per motion, in order.
+        C: the concatenated regressor [prior C0; C^(1); ...], shape (m, b).
+        cond: cond(C).
+        base: the :class:`~pe_drake.base_parameters.BaseParameters` the columns follow.
+        workers: processes used per motion (1: solved in this process).
+        wall_time: whole run [s].
+    """
+
+    motions: list[SequenceMotion]
+    C: np.ndarray
+    cond: float
+    base: Any
+    workers: int
+    wall_time: float
+
+    @property
+    def success(self) -> bool:
+        """Every motion holds every constraint (at 1 kHz)."""
+        return bool(self.motions) and all(m.success for m in self.motions)
+
+    def table(self) -> list[tuple[int, float, float]]:
+        """Rows (i, cond(C^(i)), cond(C) after motion i): Table I."""
+        return [(m.index, m.cond_motion, m.cond_total) for m in self.motions]
+
+
+@dataclasses.dataclass(frozen=True)
+class MotionEvent:
+    """Sent to the ``progress`` callback when a motion starts and when it is done.
+
+    Attributes:
+        index: motion i, from 1.
+        motions: motions in the sequence.
+        kind: "started" or "finished".
+        seeds: seeds of its starts.
+        motion: the :class:`SequenceMotion` ("finished" only).
+    """
+
+    index: int
+    motions: int
+    kind: str
+    seeds: tuple[int, ...]
+    motion: SequenceMotion | None = None
+
+    def __str__(self) -> str:
+        if self.kind == "started":
+            seeds = ", ".join(str(s) for s in self.seeds)
+            return f"motion {self.index}/{self.motions}: {len(self.seeds)} start(s), seeds {seeds}"
+        m = self.motion
+        state = "ok" if m.success else "FAILED"
+        return (
+            f"motion {self.index}/{self.motions} {state}: cond(C^({m.index})) {m.cond_motion:.4g}, "
+            f"cond(C) {m.cond_total:.4g}, seed {m.seed}, {m.wall_time:.1f} s; {m.result.message}"
+        )
+
+
+def motion_seeds(seed: int, motion: int, starts: int) -> list[int]:
+    """Seeds of the starts of motion ``motion`` (from 1); see :data:`SEED_STRIDE`."""
+    return [seed + SEED_STRIDE * (motion - 1) + s for s in range(starts)]
+
+
+def _cond(C: np.ndarray) -> float:
+    s = np.linalg.svd(C, compute_uv=False)
+    return float(s[0] / s[-1]) if s[-1] > 0 else math.inf
+
+
+def optimize_sequence(
+    robot,
+    config: ExcitationConfig | None = None,
+    solver: str | SolverConfig = "ipopt",
+    motions: int = 3,
+    *,
+    constraints_factory: Callable | None = None,
+    C0: np.ndarray | None = None,
+    starts: int = 1,
+    workers: int | None = None,
+    seed: int | None = None,
+    seeds: Sequence[Sequence[int]] | None = None,
+    amplitude: float | None = None,
+    pool=None,
+    progress: Callable[[Any], None] | None = None,
+    progress_interval: float = 2.0,
+    stop_on_failure: bool = True,
+) -> SequenceResult:
+    """Optimizes ``motions`` exciting motions one after the other (section IV-B).
+
+    Motion i minimizes the criterion of [C0; C^(1); ...; C^(i-1); C^(i)] over its own
+    Fourier coefficients; the earlier blocks are fixed prior data (Eq. 41).
+
+    Args:
+        robot: the :class:`~pe_drake.robot.Robot` (ignored when ``pool`` is given).
+        config: the excitation problem (default :class:`ExcitationConfig`).
+        solver: "ipopt", "nlopt" or a :class:`SolverConfig`.
+        motions: number of motions (the paper: 3).
+        constraints_factory: ``f(robot, config) -> [SampledConstraint, ...]`` (default
+            :func:`pe_drake.constraints.constraints_from_config`: balance and collision as
+            the config asks); ignored when ``pool`` is given.
+        C0: prior data from earlier experiments, shape (m0, b), or None (the paper: O).
+        starts: random initial points per motion; the best feasible one is kept.
+        workers: processes for the starts (default os.cpu_count(), capped at ``starts``).
+        seed: first seed (default ``config.seed``); see :func:`motion_seeds`.
+        seeds: explicit seeds, one list per motion (overrides ``seed`` and ``starts``).
+        amplitude: scale of the random initial coefficients [rad] (default
+            ``config.amplitude``).
+        pool: an open :class:`~pe_drake.multistart.WorkerPool` to reuse.
+        progress: callback receiving :class:`MotionEvent` and
+            :class:`~pe_drake.multistart.StartEvent` objects.
+        progress_interval: seconds between progress events of a start.
+        stop_on_failure: raise when a motion has no feasible start (else keep its best
+            infeasible start and go on).
+
+    Returns:
+        The :class:`SequenceResult`.
+
+    Raises:
+        ConfigError: a motion or start count below 1, seeds that do not match ``motions``,
+            or a C0 with the wrong number of columns.
+        NoSolutionFound: a motion has no start that meets every constraint (with
+            ``stop_on_failure``); its ``result`` is the :class:`SequenceResult` so far,
+            the failed motion included.
+        WorkerError: a worker process failed.
+    """
+    from pe_drake.multistart import WorkerPool, default_workers, solve_multistart
+
+    begin = time.perf_counter()
+    config = config or ExcitationConfig()
+    for name, value in (("motions", motions), ("starts", starts)):
+        if not isinstance(value, int) or value < 1:
+            raise ConfigError(f"{name} must be a positive integer, got {value!r}")
+    if seeds is not None:
+        seeds = [[int(s) for s in row] for row in seeds]
+        if len(seeds) != motions or any(not row for row in seeds):
+            raise ConfigError(f"seeds must give a non-empty list for each of the {motions} motions")
+    else:
+        first = config.seed if seed is None else int(seed)
+        seeds = [motion_seeds(first, i, starts) for i in range(1, motions + 1)]
+    own = pool is None
+    if own:
+        from pe_drake.constraints import constraints_from_config
+
+        most = max(len(row) for row in seeds)
+        n = min(default_workers() if workers is None else workers, most)
+        pool = WorkerPool(robot, n, constraints_factory=constraints_factory or constraints_from_config)
+    say = progress or (lambda event: None)
+    blocks: list[np.ndarray] = []
+    prior = None
+    if C0 is not None:
+        prior = np.asarray(C0, float)
+        if prior.ndim != 2 or prior.shape[1] != pool.base.count:
+            raise ConfigError(
+                f"prior data C0 has shape {prior.shape}; it needs {pool.base.count} columns "
+                "(the robot's base parameters)"
+            )
+    done: list[SequenceMotion] = []
+    used = 1
+
+    def partial() -> SequenceResult:
+        C = np.vstack(([prior] if prior is not None else []) + blocks)
+        return SequenceResult(done, C, _cond(C), pool.base, used, time.perf_counter() - begin)
+
+    try:
+        for i in range(1, motions + 1):
+            start = time.perf_counter()
+            say(MotionEvent(i, motions, "started", tuple(seeds[i - 1])))
+            parts = ([prior] if prior is not None else []) + blocks
+            C0_i = np.vstack(parts) if parts else None  # Eq. (41): [C^(1); ...; C^(i-1)]
+            ms = solve_multistart(
+                None,
+                config,
+                solver,
+                seeds[i - 1],
+                C0=C0_i,
+                amplitude=amplitude,
+                pool=pool,
+                progress=say,
+                progress_interval=progress_interval,
+                label=f"motion {i}",
+            )
+            used = max(used, ms.workers)
+            problem = pool.problem(config)
+            block = problem.regressor_block(ms.best.x)
+            total = block if C0_i is None else np.vstack([C0_i, block])
+            motion = SequenceMotion(
+                index=i,
+                result=ms.best,
+                block=block,
+                cond_motion=_cond(block),
+                cond_total=_cond(total),
+                seed=ms.seed,
+                seeds=list(seeds[i - 1]),
+                starts=ms.starts,
+                wall_time=time.perf_counter() - start,
+            )
+            blocks.append(block)
+            done.append(motion)
+            say(MotionEvent(i, motions, "finished", tuple(seeds[i - 1]), motion))
+            if stop_on_failure and not motion.success:
+                raise NoSolutionFound(
+                    f"motion {i}: none of the {len(seeds[i - 1])} start(s) met every constraint "
+                    f"({motion.result.message}); try more starts, more iterations or other seeds",
+                    result=partial(),
+                )
+    finally:
+        if own:
+            pool.close()
+    return partial()
