@@ -38,8 +38,9 @@ def robot():
 def trajectory(robot):
     rng = np.random.default_rng(4)
     n, harmonics = robot.n, 3
-    # Mid-range posture has joint 2 at 0, where joints 1 and 3 share an axis: keep away from it.
-    q0 = robot.nominal_posture() + np.array([0.0, 0.6, 0.0, 0.0, 0.0, 0.0, 0.0])
+    # The Panda's nominal posture is Franka's ready pose (joint 2 at -0.785), away from
+    # q2 = 0 where joints 1 and 3 share an axis.
+    q0 = robot.nominal_posture()
     return FourierTrajectory(
         rng.uniform(-0.12, 0.12, (n, harmonics)), rng.uniform(-0.12, 0.12, (n, harmonics)),
         q0, 2 * np.pi / 3.0,
