@@ -1,0 +1,222 @@
+"""Sequential generation (section IV-B) and the multi-start process pool.
+
+Small problems on the Panda (N = 3, a 1 s period, few samples and iterations): these tests
+check the mechanics (what C0 each motion sees, which start is kept, what the processes do),
+not the quality of the optimum.
+"""
+
+from __future__ import annotations
+
+import math
+import multiprocessing
+import os
+
+import numpy as np
+import pytest
+
+from pe_drake.config import ExcitationConfig, SolverConfig
+from pe_drake.constraints.base import SampledConstraint, SampledValues
+from pe_drake.exceptions import ConfigError, NoSolutionFound
+from pe_drake.excitation import ExcitationProblem
+from pe_drake.multistart import StartEvent, WorkerError, WorkerPool, best_index, solve_multistart
+from pe_drake.sequential import MotionEvent, motion_seeds, optimize_sequence
+
+CONFIG = ExcitationConfig(
+    harmonics=3,
+    omega=2 * math.pi,  # 1 s period: the 1 kHz re-check of the result has 1000 samples
+    cost_samples=12,
+    constraint_samples=40,
+    criterion="log_cond",
+    amplitude=0.3,
+)
+SOLVER = SolverConfig(max_iterations=8, verbose=False)
+
+
+def no_constraints(robot, config):
+    return []
+
+
+class _Unreachable(SampledConstraint):
+    """q_1 >= 100 rad: no trajectory satisfies it."""
+
+    name = "unreachable"
+
+    def __init__(self, n: int):
+        self.n = n
+        super().__init__(["q1"], [100.0], [np.inf])
+
+    def evaluate(self, q, v, vd, derivatives=True):
+        d_q = np.zeros((q.shape[0], 1, self.n))
+        d_q[:, 0, 0] = 1.0
+        return SampledValues(value=q[:, :1], d_q=d_q)
+
+
+def unreachable_constraints(robot, config):
+    return [_Unreachable(robot.n)]
+
+
+def failing_constraints(robot, config):
+    raise ConfigError("constraint factory failed on purpose")
+
+
+def _exit_task(state, payload):
+    os._exit(3)
+
+
+def _square_task(state, payload):
+    state.emit(("seen", payload))
+    return payload * payload
+
+
+def _cond(C):
+    return float(np.linalg.cond(C))
+
+
+@pytest.fixture(scope="module")
+def sequence(panda):
+    events = []
+    result = optimize_sequence(
+        panda,
+        CONFIG,
+        SOLVER,
+        motions=3,
+        starts=1,
+        workers=1,
+        constraints_factory=no_constraints,
+        progress=events.append,
+    )
+    return result, events
+
+
+def test_each_motion_is_optimized_on_the_stacked_earlier_blocks(panda, sequence):
+    result, _ = sequence
+    problem = ExcitationProblem(panda, CONFIG, base=result.base)
+    blocks = [problem.regressor_block(m.result.x) for m in result.motions]
+    for i, m in enumerate(result.motions):
+        np.testing.assert_allclose(m.block, blocks[i], rtol=1e-12, atol=1e-12)
+        stacked = np.vstack(blocks[: i + 1])
+        # cond of [C^(1); ...; C^(i)] computed here, and the solver's own cond(C), which it
+        # computed with its C0: they agree only if C0 was exactly the earlier blocks.
+        assert m.cond_total == pytest.approx(_cond(stacked), rel=1e-9)
+        assert m.result.cond == pytest.approx(_cond(stacked), rel=1e-9)
+        assert m.cond_motion == pytest.approx(_cond(blocks[i]), rel=1e-9)
+        assert m.result.cond_motion == pytest.approx(m.cond_motion, rel=1e-9)
+    np.testing.assert_allclose(result.C, np.vstack(blocks), rtol=1e-12, atol=1e-12)
+    assert result.cond == pytest.approx(result.motions[-1].cond_total)
+    assert result.table() == [(m.index, m.cond_motion, m.cond_total) for m in result.motions]
+
+
+def test_each_motion_starts_from_its_own_seed(panda, sequence):
+    result, events = sequence
+    assert [m.seeds for m in result.motions] == [motion_seeds(CONFIG.seed, i, 1) for i in (1, 2, 3)]
+    assert len({m.seed for m in result.motions}) == 3
+    starts = [e for e in events if isinstance(e, StartEvent) and e.kind == "started"]
+    assert [(e.label, e.seed) for e in starts] == [
+        (f"motion {i}", m.seed) for i, m in zip((1, 2, 3), result.motions)
+    ]
+    finished = [e for e in events if isinstance(e, MotionEvent) and e.kind == "finished"]
+    assert [e.motion for e in finished] == result.motions
+    assert all(str(e) for e in events)
+
+
+def test_prior_data_is_the_first_block_of_C(panda, sequence):
+    first, _ = sequence
+    C0 = first.motions[0].block
+    result = optimize_sequence(
+        panda,
+        CONFIG,
+        SOLVER,
+        motions=1,
+        workers=1,
+        seed=first.motions[1].seed,
+        C0=C0,
+        constraints_factory=no_constraints,
+    )
+    # Same prior, same seed, same solver: motion 2 of the first run again.
+    np.testing.assert_allclose(result.motions[0].result.x, first.motions[1].result.x, rtol=0, atol=1e-10)
+    np.testing.assert_allclose(result.C[: len(C0)], C0)
+    assert result.cond == pytest.approx(first.motions[1].cond_total, rel=1e-9)
+
+
+def test_multistart_in_two_processes_keeps_the_best_and_equals_serial(panda):
+    seeds = [3, 4, 5]
+    events = []
+    parallel = solve_multistart(
+        panda, CONFIG, SOLVER, seeds, workers=2, constraints_factory=no_constraints, progress=events.append
+    )
+    serial = solve_multistart(panda, CONFIG, SOLVER, seeds, workers=1, constraints_factory=no_constraints)
+    assert parallel.workers == 2 and parallel.start_method in ("fork", "spawn")
+    assert serial.workers == 1
+    for a, b in zip(parallel.results, serial.results):
+        np.testing.assert_allclose(a.x, b.x, rtol=0, atol=1e-12)
+        assert a.fun == pytest.approx(b.fun, rel=1e-12)
+    funs = [r.fun for r in serial.results]
+    assert all(r.success for r in serial.results)
+    assert parallel.seed == serial.seed == seeds[int(np.argmin(funs))]
+    assert parallel.best.fun == min(funs)
+    assert [s.seed for s in parallel.starts] == seeds
+    assert {(e.seed, e.kind) for e in events} >= {(s, k) for s in seeds for k in ("started", "finished")}
+    assert not multiprocessing.active_children()
+
+
+def test_best_index_prefers_feasible_starts():
+    class R:
+        def __init__(self, fun, success):
+            self.fun, self.success = fun, success
+
+    assert best_index([R(1.0, False), R(3.0, True), R(2.0, True)]) == 2
+    assert best_index([R(5.0, False), R(4.0, False)]) == 1
+    assert best_index([R(2.0, True), R(2.0, True)]) == 0
+
+
+def test_worker_errors_reach_the_caller_and_leave_no_process(panda):
+    with pytest.raises(ConfigError, match="on purpose"):
+        solve_multistart(panda, CONFIG, SOLVER, [0, 1], workers=2, constraints_factory=failing_constraints)
+    assert not multiprocessing.active_children()
+    with WorkerPool(panda, 2) as pool:
+        seen = []
+        assert pool.map(_square_task, [1, 2, 3], seen.append) == [1, 4, 9]
+        assert sorted(seen) == [("seen", 1), ("seen", 2), ("seen", 3)]
+        with pytest.raises(WorkerError, match="exited unexpectedly"):
+            pool.map(_exit_task, [0, 1])
+        assert not multiprocessing.active_children()
+        assert pool.map(_square_task, [4, 5]) == [16, 25]  # restarts its workers
+    assert not multiprocessing.active_children()
+
+
+def test_a_motion_without_a_feasible_start_raises_with_the_partial_result(panda):
+    with pytest.raises(NoSolutionFound) as info:
+        optimize_sequence(
+            panda,
+            CONFIG,
+            SolverConfig(max_iterations=3, verbose=False),
+            motions=2,
+            workers=1,
+            constraints_factory=unreachable_constraints,
+        )
+    partial = info.value.result
+    assert len(partial.motions) == 1 and not partial.success
+    assert partial.motions[0].result.margins["unreachable"] < 0
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"motions": 0}, "motions"),
+        ({"starts": 0}, "starts"),
+        ({"motions": 2, "seeds": [[1]]}, "seeds"),
+        ({"C0": np.zeros((5, 3))}, "columns"),
+    ],
+)
+def test_bad_arguments_are_refused(panda, kwargs, match):
+    with pytest.raises(ConfigError, match=match):
+        optimize_sequence(panda, CONFIG, SOLVER, workers=1, constraints_factory=no_constraints, **kwargs)
+
+
+def test_multistart_refuses_bad_seeds(panda):
+    with pytest.raises(ConfigError, match="differ"):
+        solve_multistart(panda, CONFIG, SOLVER, [1, 1], workers=1)
+    with pytest.raises(ConfigError, match="at least one"):
+        solve_multistart(panda, CONFIG, SOLVER, [], workers=1)
+    with pytest.raises(ConfigError, match="workers"):
+        WorkerPool(panda, 0)
