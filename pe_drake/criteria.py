@@ -49,14 +49,10 @@ def evaluate_criterion(C: np.ndarray, criterion: str = "cond", gradient: bool = 
         A :class:`CriterionValue` (value inf/gradient 0 when C is rank deficient).
     """
     m, b = C.shape
-    # C = Q R is backward stable, so R has C's singular values and right vectors; a tall
-    # C costs one QR (no Q) plus a b×b SVD, ~25 % less than the SVD of C.
-    R = scipy.linalg.qr(C, mode="r", check_finite=False)[0][:b] if m > 2 * b else C
-    if not gradient:
-        s = np.linalg.svd(R, compute_uv=False)
-        return CriterionValue(_value(s, criterion), np.zeros(0), s)
-    _, s, Vt = np.linalg.svd(R, full_matrices=False)
+    s, Vt = _singular_values_and_vectors(C, vectors=gradient)
     value = _value(s, criterion)
+    if not gradient:
+        return CriterionValue(value, np.zeros(0), s)
     if s[-1] <= 0 or not np.isfinite(value):
         return CriterionValue(np.inf, np.zeros_like(C), s)
     # Left singular vectors u_i = C v_i / σ_i (relative error ~ ε·cond: fine up to 1e10).
@@ -73,6 +69,22 @@ def evaluate_criterion(C: np.ndarray, criterion: str = "cond", gradient: bool = 
     else:
         raise ValueError(f"unknown criterion '{criterion}'; valid: cond, log_cond, dopt")
     return CriterionValue(value, grad, s)
+
+
+def _singular_values_and_vectors(C: np.ndarray, vectors: bool) -> tuple[np.ndarray, np.ndarray | None]:
+    """σ (descending) and Vᵀ of C.
+
+    C = QR is backward stable, so the b×b factor R has C's singular values and right
+    vectors: one QR (without Q) and a small SVD, ~25 % cheaper than the SVD of a tall C.
+    (The Gram matrix CᵀC would be cheaper still but squares the conditioning: its σ_min
+    carries a relative error ε·cond², enough to spoil finite-difference checks of cond.)
+    """
+    m, b = C.shape
+    R = scipy.linalg.qr(C, mode="r", check_finite=False)[0][:b] if m > 2 * b else C
+    if not vectors:
+        return np.linalg.svd(R, compute_uv=False), None
+    _, s, Vt = np.linalg.svd(R, full_matrices=False)
+    return s, Vt
 
 
 def _value(s: np.ndarray, criterion: str) -> float:

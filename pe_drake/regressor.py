@@ -20,7 +20,6 @@ import dataclasses
 import numpy as np
 
 from pe_drake.spatial import (
-    body_regressor,
     cross_force,
     cross3,
     cross_motion,
@@ -44,8 +43,10 @@ class Kinematics:
         VJ, AJ: spatial velocity and acceleration of each joint's child body, (T, n, 6);
             AJ includes gravity as a base acceleration.
         VB, AB: the same per body in body coordinates at Bo, (T, nb, 6).
-        F_B: per-body regressor blocks in body coordinates, (T, nb, 6, 10).
+        F_B: per-body regressor blocks in body coordinates, (T, nb, 6, 10):
+            F = Γ(A) + V ×* Γ(V) (:func:`pe_drake.spatial.body_regressor`).
         F_W: the same in world coordinates at the world origin, (T, nb, 6, 10).
+        G_V: Γ(V), the unit-parameter inertias times V, (T, nb, 6, 10).
     """
 
     q: np.ndarray
@@ -60,6 +61,7 @@ class Kinematics:
     AB: np.ndarray
     F_B: np.ndarray
     F_W: np.ndarray
+    G_V: np.ndarray
 
 
 class RegressorModel:
@@ -134,9 +136,10 @@ class RegressorModel:
 
         VB = motion_to_body(R, p, VJ[:, self.joint_of_body])
         AB = motion_to_body(R, p, AJ[:, self.joint_of_body])
-        F_B = body_regressor(VB, AB)  # (T, nb, 6, 10)
+        G_V = inertia_times(VB)  # M_k V for each unit parameter k, (T, nb, 6, 10)
+        F_B = inertia_times(AB) + np.moveaxis(cross_force(VB[..., None, :], np.moveaxis(G_V, -1, -2)), -1, -2)
         F_W = np.moveaxis(force_to_world(R[:, :, None], p[:, :, None], np.moveaxis(F_B, -1, -2)), -1, -2)
-        return Kinematics(q, v, vd, S, R, p, VJ, AJ, VB, AB, F_B, F_W)
+        return Kinematics(q, v, vd, S, R, p, VJ, AJ, VB, AB, F_B, F_W, G_V)
 
     def regressor(self, kin: Kinematics) -> np.ndarray:
         """Y, shape (T, n, 10·nb): Y[t, i, 10j+k] = [joint i moves body j] S_i · F_jk."""
@@ -173,7 +176,7 @@ class RegressorModel:
         wB = motion_to_body(R, p, w)  # (T, nb, 10, 6)
         a_bar_B = inertia_times_diagonal(wB)
         VB = kin.VB[:, :, None, :]
-        G_V = np.moveaxis(inertia_times(kin.VB), -1, -2)  # (T, nb, 10, 6): M_k V
+        G_V = np.moveaxis(kin.G_V, -1, -2)  # (T, nb, 10, 6): M_k V
         v_bar_B = inertia_times_diagonal(cross_motion(wB, VB)) - cross_force(wB, G_V).sum(axis=2)
         # Rotating body j with joint l leaves f invariant if w, V, A and M all rotate: the
         # derivative through M is minus that through w, V and A (docs/derivations.md, §4).
