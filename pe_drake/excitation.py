@@ -787,6 +787,17 @@ def solve_excitation(
     start = time.perf_counter()
     with single_threaded_blas():
         result = backend.Solve(program.prog, x0, options)
+        stalled = ""
+        if cfg.name == "nlopt" and cfg.algorithm == "LD_SLSQP" and problem.num_evaluations <= 2:
+            # NLopt's SLSQP sometimes reports success after a single evaluation when its QP
+            # subproblem fails on the many (nearly parallel) sampled limit rows; that is not
+            # a local optimum. Fall back to MMA, which handles such constraint sets.
+            stalled = (
+                f"; LD_SLSQP stopped after {problem.num_evaluations} evaluation(s) without progress, "
+                "solved again with LD_MMA"
+            )
+            options.SetOption(sid, "algorithm", "LD_MMA")
+            result = backend.Solve(program.prog, x0, options)
     wall = time.perf_counter() - start
     x = np.asarray(result.GetSolution(program.alpha), float)
     nit = None
@@ -827,6 +838,7 @@ def solve_excitation(
         message += fallback
     else:
         message = f"{cfg.name}: {status}"
+    message += stalled
     return ExcitationResult(
         x=x,
         trajectory=problem.trajectory(x),

@@ -1,0 +1,323 @@
+"""Writing an identified robot model: the original URDF with new ``<inertial>`` elements.
+
+Identified standard parameters belong one-to-one to Drake bodies, and Drake keeps one body
+per URDF link (links joined by fixed joints are welded, not merged), so each link moved by an
+excited joint gets its own inertial rewritten from its 10 parameters
+(:data:`pe_drake.robot.PARAMETER_NAMES`, about the link origin in the link frame):
+
+- ``<mass value="m"/>``;
+- ``<origin xyz="p_LoLcm" rpy="0 0 0"/>`` with p_LoLcm = h / m;
+- ``<inertia .../>``: the rotational inertia about the centre of mass in the link axes,
+  I_LLcm = I_LLo − m (|p|² 1 − p pᵀ) (parallel-axis theorem).
+
+Everything else (joints, limits, visuals, collisions, transmissions, comments) is kept.
+``package://`` URIs stay as they are when Drake's loader knows the package
+(``example-robot-data``) and become ``file://`` URIs otherwise, as do relative mesh paths, so
+the file works from any folder. Only physically valid parameters are written: every body is
+checked with Drake's ``SpatialInertia`` validity test before writing, and the written text is
+parsed back by Drake and compared with the parameters before it is moved into place.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import xml.etree.ElementTree as ET
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from pe_drake.exceptions import ConfigError, PeDrakeError
+from pe_drake.io_utils import atomic_write_text
+
+#: Packages the pe_drake loader always registers; their URIs are kept as they are.
+KNOWN_PACKAGES = ("example-robot-data",)
+
+
+class PhysicallyInvalidError(PeDrakeError, ValueError):
+    """Inertial parameters that Drake refuses as a rigid body.
+
+    Attributes:
+        bodies: {body name: Drake's reason}.
+    """
+
+    def __init__(self, bodies: dict[str, str]):
+        self.bodies = dict(bodies)
+        names = ", ".join(self.bodies)
+        first = next(iter(self.bodies.values()), "")
+        super().__init__(
+            f"the inertial parameters of {len(self.bodies)} body(ies) are not physically valid: "
+            f"{names} (first: {first}); write a physically consistent estimate (method 'physical') "
+            "instead"
+        )
+
+
+def central_inertia(phi_b: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """Mass, centre of mass and rotational inertia about the centre of mass of one body.
+
+    Args:
+        phi_b: the body's 10 parameters [m, hx, hy, hz, Ixx, Iyy, Izz, Ixy, Ixz, Iyz]
+            (about the body origin Bo, body frame B) [kg, kg·m, kg·m²].
+
+    Returns:
+        (m [kg], p_BoBcm_B shape (3,) [m], I_BBcm_B shape (3, 3) [kg·m²]). A massless body
+        gives a zero centre of mass and its (then required zero) inertia about Bo.
+    """
+    phi_b = np.asarray(phi_b, float)
+    m = float(phi_b[0])
+    Ixx, Iyy, Izz, Ixy, Ixz, Iyz = phi_b[4:10]
+    I_Bo = np.array([[Ixx, Ixy, Ixz], [Ixy, Iyy, Iyz], [Ixz, Iyz, Izz]])
+    if m == 0.0:
+        return 0.0, np.zeros(3), I_Bo
+    p = phi_b[1:4] / m
+    I_cm = I_Bo - m * (float(p @ p) * np.eye(3) - np.outer(p, p))
+    return m, p, I_cm
+
+
+def validity_problems(body_names: Sequence[str], phi: np.ndarray) -> dict[str, str]:
+    """Bodies whose parameters Drake does not accept, with the reason.
+
+    A body is valid when ``SpatialInertia(m, p, G, skip_validity_check=False)`` can be built
+    (mass ≥ 0, inertia about the centre of mass with non-negative principal moments that
+    satisfy the triangle inequality), or when all its parameters are zero (a massless frame).
+
+    Args:
+        body_names: names of the bodies, length nb.
+        phi: parameters, shape (10·nb,).
+
+    Returns:
+        {body: reason}; empty when every body is valid.
+    """
+    from pe_drake.robot import phi_to_spatial_inertia
+
+    phi = np.asarray(phi, float)
+    problems: dict[str, str] = {}
+    if phi.shape != (10 * len(body_names),):
+        raise ConfigError(f"phi has shape {phi.shape}, expected ({10 * len(body_names)},)")
+    for b, name in enumerate(body_names):
+        phi_b = phi[10 * b : 10 * b + 10]
+        if not np.all(np.isfinite(phi_b)):
+            problems[name] = "a parameter is NaN or infinite"
+            continue
+        if phi_b[0] == 0.0:
+            if np.any(phi_b[1:] != 0.0):
+                problems[name] = "zero mass with a non-zero first moment or inertia"
+            continue
+        if phi_b[0] < 0.0:
+            problems[name] = f"negative mass {phi_b[0]:.6g} kg"
+            continue
+        try:
+            M = phi_to_spatial_inertia(phi_b, skip_validity_check=True)
+            if not M.IsPhysicallyValid():
+                m, _, I_cm = central_inertia(phi_b)
+                moments = np.linalg.eigvalsh(I_cm)
+                problems[name] = (
+                    f"principal moments about the centre of mass {np.array2string(moments, precision=4)} "
+                    "kg·m² are negative or violate the triangle inequality"
+                )
+        except (RuntimeError, ValueError) as err:
+            problems[name] = str(err).splitlines()[0]
+    return problems
+
+
+def check_physically_valid(body_names: Sequence[str], phi: np.ndarray) -> None:
+    """Raises :class:`PhysicallyInvalidError` listing every invalid body (see
+    :func:`validity_problems`)."""
+    problems = validity_problems(body_names, phi)
+    if problems:
+        raise PhysicallyInvalidError(problems)
+
+
+def _fmt(x: float) -> str:
+    return repr(float(x)) if x != 0 else "0"
+
+
+def _inertial_element(phi_b: np.ndarray, indent: str) -> ET.Element:
+    m, p, I = central_inertia(phi_b)
+    inertial = ET.Element("inertial")
+    inertial.text = "\n" + indent + "  "
+    origin = ET.SubElement(inertial, "origin", {"xyz": " ".join(_fmt(x) for x in p), "rpy": "0 0 0"})
+    origin.tail = "\n" + indent + "  "
+    mass = ET.SubElement(inertial, "mass", {"value": _fmt(m)})
+    mass.tail = "\n" + indent + "  "
+    inertia = ET.SubElement(
+        inertial,
+        "inertia",
+        {
+            "ixx": _fmt(I[0, 0]), "ixy": _fmt(I[0, 1]), "ixz": _fmt(I[0, 2]),
+            "iyy": _fmt(I[1, 1]), "iyz": _fmt(I[1, 2]), "izz": _fmt(I[2, 2]),
+        },
+    )
+    inertia.tail = "\n" + indent
+    return inertial
+
+
+def _resolve_uri(uri: str, model_dir: Path, package_map) -> str:
+    """A mesh URI that works from any folder (see the module docstring)."""
+    if uri.startswith("package://"):
+        package = uri[len("package://") :].split("/", 1)[0]
+        if package in KNOWN_PACKAGES or package_map is None:
+            return uri
+        try:
+            return "file://" + str(Path(package_map.ResolveUrl(uri)).resolve())
+        except Exception:  # unknown package: keep the URI (the caller's package path may know it)
+            return uri
+    if "://" in uri:
+        return uri
+    path = Path(uri)
+    if not path.is_absolute():
+        path = model_dir / path
+    return "file://" + str(path.resolve())
+
+
+def urdf_with_inertias(
+    source: str | Path, body_names: Sequence[str], phi: np.ndarray, *, check: bool = True
+) -> str:
+    """The text of a URDF with the inertial of every listed link replaced.
+
+    Args:
+        source: the original URDF file.
+        body_names: links to rewrite (Drake body names = URDF link names), length nb.
+        phi: their parameters, shape (10·nb,), about each link origin in the link frame
+            [kg, kg·m, kg·m²].
+        check: refuse physically invalid parameters (Drake's test) before writing.
+
+    Returns:
+        The new URDF text.
+
+    Raises:
+        PhysicallyInvalidError: a body's parameters are not physically valid.
+        ConfigError: the file is not a URDF, cannot be parsed, or lacks a listed link.
+    """
+    source = Path(source)
+    if source.suffix.lower() != ".urdf":
+        raise ConfigError(
+            f"model export writes URDF files; '{source.name}' is not a .urdf (load the robot from "
+            "its URDF to export an identified model)"
+        )
+    phi = np.asarray(phi, float)
+    if check:
+        check_physically_valid(body_names, phi)
+    try:
+        parser = ET.XMLParser(target=ET.TreeBuilder(insert_comments=True))
+        root = ET.fromstring(source.read_text(), parser=parser)
+    except (OSError, ET.ParseError) as err:
+        raise ConfigError(f"cannot read the URDF '{source}': {err}") from err
+    links = {link.get("name"): link for link in root.iter("link")}
+    missing = [b for b in body_names if b not in links]
+    if missing:
+        raise ConfigError(
+            f"the URDF '{source.name}' has no link(s) {', '.join(missing)}; bodies added outside the "
+            "file (e.g. a payload) cannot be exported to it"
+        )
+    for b, name in enumerate(body_names):
+        link = links[name]
+        children = list(link)
+        old = link.find("inertial")
+        position = children.index(old) if old is not None else 0
+        # Indent like the element it replaces (or the link's first child).
+        before = (children[position - 1].tail if position > 0 else link.text) or ""
+        indent = before.rsplit("\n", 1)[-1] if "\n" in before else "    "
+        if old is not None:
+            tail = old.tail
+            link.remove(old)
+        else:
+            tail = "\n" + indent
+            if not before.strip() and "\n" not in before:
+                link.text = "\n" + indent
+        new = _inertial_element(phi[10 * b : 10 * b + 10], indent)
+        new.tail = tail
+        link.insert(position, new)
+    package_map = None
+    try:
+        from pydrake.multibody.parsing import PackageMap
+
+        package_map = PackageMap()
+        with contextlib.suppress(Exception):
+            package_map.PopulateFromFolder(str(source.parent))
+    except ImportError:  # pragma: no cover - drake is a dependency
+        package_map = None
+    for mesh in root.iter("mesh"):
+        if mesh.get("filename"):
+            mesh.set("filename", _resolve_uri(mesh.get("filename"), source.parent, package_map))
+    text = ET.tostring(root, encoding="unicode")
+    header = (
+        '<?xml version="1.0"?>\n'
+        f"<!-- {source.name} with identified inertial parameters (pe_drake) -->\n"
+    )
+    return header + text + "\n"
+
+
+def verify_urdf_text(text: str, body_names: Sequence[str], phi: np.ndarray, tolerance: float = 1e-9) -> None:
+    """Parses URDF text with Drake (no scene graph) and compares each body's spatial inertia.
+
+    Raises:
+        ConfigError: Drake refuses the text, or a body's parameters differ by more than
+            ``tolerance`` relative to the largest parameter of that body.
+    """
+    from pydrake.multibody.parsing import Parser
+    from pydrake.multibody.plant import MultibodyPlant
+
+    from pe_drake.robot import example_robot_data_dir, spatial_inertia_to_phi
+
+    plant = MultibodyPlant(0.0)
+    parser = Parser(plant)
+    with contextlib.suppress(ConfigError):
+        parser.package_map().Add("example-robot-data", str(example_robot_data_dir()))
+    drake_logger = logging.getLogger("drake")
+    level = drake_logger.level
+    drake_logger.setLevel(logging.ERROR)
+    try:
+        parser.AddModelsFromString(text, "urdf")
+    except Exception as err:
+        raise ConfigError(f"Drake refuses the exported URDF: {err}") from err
+    finally:
+        drake_logger.setLevel(level)
+    phi = np.asarray(phi, float)
+    for b, name in enumerate(body_names):
+        got = spatial_inertia_to_phi(plant.GetBodyByName(name).default_spatial_inertia())
+        want = phi[10 * b : 10 * b + 10]
+        scale = max(float(np.max(np.abs(want))), 1e-12)
+        if float(np.max(np.abs(got - want))) > tolerance * scale:
+            raise ConfigError(
+                f"the exported URDF does not reproduce body '{name}': Drake reads {got.tolist()}, "
+                f"expected {want.tolist()}"
+            )
+
+
+def write_urdf(
+    path: str | Path, source: str | Path, body_names: Sequence[str], phi: np.ndarray, *, verify: bool = True
+) -> Path:
+    """Writes the URDF with identified inertias atomically (see :func:`urdf_with_inertias`).
+
+    Args:
+        path: output file.
+        source: the original URDF.
+        body_names: bodies (links) to rewrite, length nb.
+        phi: their parameters, shape (10·nb,).
+        verify: parse the text with Drake and compare before moving it into place.
+
+    Returns:
+        The path written.
+
+    Raises:
+        PhysicallyInvalidError, ConfigError: nothing is written then.
+    """
+    text = urdf_with_inertias(source, body_names, phi)
+    if verify:
+        verify_urdf_text(text, body_names, phi)
+    path = Path(path)
+    atomic_write_text(path, text)
+    return path
+
+
+def write_robot_urdf(path: str | Path, robot, phi: np.ndarray, *, verify: bool = True) -> Path:
+    """:func:`write_urdf` for a :class:`~pe_drake.robot.Robot`: its model file, its bodies.
+
+    Args:
+        path: output file.
+        robot: the robot the parameters were identified for.
+        phi: standard parameters, shape (10·nb,) in ``robot.body_names`` order.
+    """
+    return write_urdf(path, robot.model_path, robot.body_names, phi, verify=verify)
