@@ -1,4 +1,4 @@
-"""Benchmarks that print numbers: ``python -m pe_drake.bench {gradient,identify,diagnose,simulate}``.
+"""Benchmarks that print numbers: ``python -m pe_drake.bench {gradient,identify,diagnose}``.
 
 Each benchmark prints its measurements and ends with one line ``BENCH key=value ...`` so
 scripts can collect it. Timings are wall-clock medians of repeated runs on this machine.
@@ -19,9 +19,8 @@ import numpy as np
 # name -> (module, function): each function takes the parsed args and prints its results.
 _BENCHMARKS = {
     "gradient": ("pe_drake.bench", "bench_gradient"),
-    "identify": ("pe_drake.identification", "bench_identify"),
+    "identify": ("pe_drake.identify_commands", "bench_identify"),
     "diagnose": ("pe_drake.diagnosis", "bench_diagnose"),
-    "simulate": ("pe_drake.simulation", "bench_simulate"),
 }
 
 

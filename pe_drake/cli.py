@@ -17,8 +17,8 @@ _COMMANDS = {
     "optimize": ("pe_drake.commands", "optimize_command"),
     "view": ("pe_drake.viewer", "view_command"),
     "simulate": ("pe_drake.simulation", "simulate_command"),
-    "identify": ("pe_drake.identification", "identify_command"),
-    "validate": ("pe_drake.identification", "validate_command"),
+    "identify": ("pe_drake.identify_commands", "identify_command"),
+    "validate": ("pe_drake.identify_commands", "validate_command"),
     "diagnose": ("pe_drake.diagnosis", "diagnose_command"),
 }
 
@@ -66,7 +66,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--config", help="YAML config of the robot")
     p.add_argument("--data", required=True, help="measurement CSV")
     p.add_argument("--method", choices=["ols", "wls", "physical"], default="ols")
-    p.add_argument("--cutoff", type=float, help="low-pass cut-off [Hz] (default: from the data)")
+    p.add_argument("--cutoff", type=float, help="low-pass cut-off [Hz] (default: from --trajectory or the data)")
+    p.add_argument("--trajectory", help="trajectory.json that was run (its harmonics set the cut-off)")
+    p.add_argument("--no-filter", action="store_true",
+                   help="use the data as it is (exact data with v.* and vdot.* columns)")
     p.add_argument("--out", required=True, help="output folder")
 
     p = sub.add_parser("validate", help="predict torques of another run with an identified model")
@@ -74,6 +77,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--config", help="YAML config of the robot")
     p.add_argument("--model", required=True, help="identified.json")
     p.add_argument("--data", required=True, help="measurement CSV of another run")
+    p.add_argument("--cutoff", type=float, help="low-pass cut-off [Hz] (default: from the data)")
     p.add_argument("--json", help="write per-joint errors here")
     p.add_argument("--plot", help="write measured vs predicted torque plot here (PNG)")
 

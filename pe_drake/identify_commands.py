@@ -1,0 +1,269 @@
+"""``pe-drake identify`` and ``pe-drake validate``: from measured data to a model and back."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from pe_drake.exceptions import ConfigError
+from pe_drake.io_utils import atomic_write_text, staged_output_dir
+
+
+def _load(args: argparse.Namespace):
+    from pe_drake.robot import Robot, builtin_robots, resolve_robot_config
+
+    config = resolve_robot_config(args.robot, args.config)
+    name = args.robot if args.robot in builtin_robots() else Path(args.robot).stem
+    return Robot(name, config.robot)
+
+
+def _trajectory_band(path: str | None) -> tuple[float | None, int | None]:
+    """(fundamental [Hz], harmonics) of a trajectory.json, to choose the filter cut-off."""
+    if not path:
+        return None, None
+    from pe_drake.trajectory_file import load_trajectory
+
+    trajectory, _ = load_trajectory(path)
+    return trajectory.omega / (2 * math.pi), trajectory.harmonics
+
+
+def _check_cutoff(cutoff: float | None) -> None:
+    if cutoff is not None and not (math.isfinite(cutoff) and cutoff > 0):
+        raise ConfigError(f"--cutoff must be a positive frequency [Hz], got {cutoff}")
+
+
+def identify_command(args: argparse.Namespace) -> int:
+    """Runs ``pe-drake identify``: identified.json, model.urdf (when physically valid),
+    residual plot; nothing is written on error."""
+    from pe_drake.identification import (
+        identify,
+        prepare_measurement,
+        read_robot_measurement,
+        result_to_dict,
+        standard_from_base,
+    )
+    from pe_drake.model_export import PhysicallyInvalidError, validity_problems, write_robot_urdf
+
+    _check_cutoff(args.cutoff)
+    start = time.perf_counter()
+    robot = _load(args)
+    raw = read_robot_measurement(robot, args.data)
+    f0, harmonics = _trajectory_band(getattr(args, "trajectory", None))
+    data = prepare_measurement(
+        robot,
+        raw,
+        cutoff_hz=args.cutoff,
+        fundamental_hz=f0,
+        harmonics=harmonics,
+        filtering=not getattr(args, "no_filter", False),
+    )
+    p = data.preprocessing
+    print(
+        f"robot {robot.name}: {robot.n} joints; data {args.data}: {raw.num_samples} samples, "
+        f"{raw.duration:.2f} s at {raw.rate_hz:.0f} Hz",
+        flush=True,
+    )
+    if p is not None:
+        print(
+            f"preprocessing: low-pass {p.cutoff_hz:.2f} Hz ({p.cutoff_source}), "
+            f"{p.samples_out} samples at {p.rate_hz:.0f} Hz, {p.trim_s:.2f} s trimmed at each end, "
+            f"v {p.velocity_source}, vdot {p.acceleration_source}",
+            flush=True,
+        )
+    result = identify(robot, data, args.method)
+    print(
+        f"{args.method}: {result.base.count} base parameters, cond(W) = {result.cond:.4g}, "
+        f"{result.wall_time:.2f} s",
+        flush=True,
+    )
+    order = np.argsort(result.sigma_percent)
+    worst = order[-min(5, len(order)) :][::-1]
+    print(
+        "least determined base parameters (%σ): "
+        + ", ".join(f"{_short_name(result.base, i)} {result.sigma_percent[i]:.3g}%" for i in worst)
+    )
+    print(
+        "residual RMS [N·m]: "
+        + ", ".join(f"{j} {r:.4g}" for j, r in zip(robot.joint_names, result.residual_rms))
+    )
+
+    phi = result.phi
+    note = ""
+    if phi is None:
+        candidate = standard_from_base(robot, result)
+        if not validity_problems(robot.body_names, candidate):
+            phi, note = (
+                candidate,
+                "standard parameters: the a-priori model moved to the identified base parameters",
+            )
+        else:
+            note = (
+                "model.urdf not written: the least-squares estimate has no physically valid standard "
+                "parameters near the a-priori model; use --method physical"
+            )
+    out = Path(args.out)
+    with staged_output_dir(out) as tmp:
+        model_file = None
+        if phi is not None:
+            try:
+                write_robot_urdf(tmp / "model.urdf", robot, phi)
+                model_file = "model.urdf"
+            except (PhysicallyInvalidError, ConfigError) as err:
+                note = f"model.urdf not written: {err}"
+        d = result_to_dict(result, robot, model_file)
+        if result.phi is None and phi is not None:
+            names = ("m", "hx", "hy", "hz", "Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")
+            d["standard_parameters"] = {
+                body: dict(zip(names, map(float, phi[10 * b : 10 * b + 10])))
+                for b, body in enumerate(robot.body_names)
+            }
+            d["physically_valid"] = True
+        if note:
+            d["note"] = note
+        d["total_time_s"] = time.perf_counter() - start
+        (tmp / "identified.json").write_text(json.dumps(d, indent=2))
+        _plot_residuals(tmp / "residuals.png", robot, data, result)
+    if note:
+        print(note)
+    written = ["identified.json", "residuals.png"] + ([model_file] if model_file else [])
+    print(f"wrote {out}/" + ", ".join(written))
+    return 0
+
+
+def _short_name(base, i: int) -> str:
+    """The standard parameter a base parameter is built on, '+…' when others are lumped in."""
+    name = base.names[base.independent[i]]
+    return name if base.base_names[i] == name else name + "+…"
+
+
+def validate_command(args: argparse.Namespace) -> int:
+    """Runs ``pe-drake validate``: per-joint RMS and relative torque error on another run."""
+    from pe_drake.identification import (
+        load_identified,
+        predict,
+        prepare_measurement,
+        read_robot_measurement,
+        torque_errors,
+    )
+
+    robot = _load(args)
+    result = load_identified(args.model, robot)
+    raw = read_robot_measurement(robot, args.data)
+    data = prepare_measurement(robot, raw, cutoff_hz=getattr(args, "cutoff", None))
+    tau_pred = predict(robot, result, data)
+    rms, rel = torque_errors(data.tau, tau_pred)
+    total = float(100 * np.linalg.norm(data.tau - tau_pred) / max(np.linalg.norm(data.tau), 1e-300))
+    width = max(len(j) for j in robot.joint_names)
+    print(f"{'joint':<{width}}  {'RMS [N·m]':>10}  {'relative [%]':>12}")
+    for j, r, e in zip(robot.joint_names, rms, rel):
+        print(f"{j:<{width}}  {r:>10.4f}  {e:>12.2f}")
+    print(f"{'all':<{width}}  {float(np.sqrt(np.mean(rms**2))):>10.4f}  {total:>12.2f}")
+    report = {
+        "robot": robot.name,
+        "model": str(args.model),
+        "data": str(args.data),
+        "rms": dict(zip(robot.joint_names, map(float, rms))),
+        "relative_error": dict(zip(robot.joint_names, map(float, rel))),
+        "relative_error_total": total,
+        "samples": data.num_samples,
+    }
+    if args.json:
+        atomic_write_text(args.json, json.dumps(report, indent=2))
+        print(f"wrote {args.json}")
+    if args.plot:
+        _plot_prediction(Path(args.plot), robot, data, tau_pred, rel)
+        print(f"wrote {args.plot}")
+    return 0
+
+
+def _plot_residuals(path: Path, robot, data, result) -> None:
+    """Measured torque and the model's fit per joint on the identification data."""
+    from pe_drake.identification import predict
+
+    _plot_prediction(
+        path,
+        robot,
+        data,
+        predict(robot, result, data),
+        result.relative_error,
+        title=f"{robot.name}: {result.method} fit on the identification data",
+    )
+
+
+def _plot_prediction(path: Path, robot, data, tau_pred: np.ndarray, rel: np.ndarray, title: str = "") -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    n = robot.n
+    fig, axes = plt.subplots(n, 1, figsize=(11, 1.7 * n + 1), sharex=True, constrained_layout=True)
+    axes = np.atleast_1d(axes)
+    for j, ax in enumerate(axes):
+        ax.plot(data.t, data.tau[:, j], "k", lw=1, label="measured")
+        ax.plot(data.t, tau_pred[:, j], "C1", lw=1, label="model")
+        ax.plot(data.t, data.tau[:, j] - tau_pred[:, j], "C3", lw=0.7, alpha=0.7, label="error")
+        ax.set_ylabel(f"{robot.joint_names[j]}\n[N·m]", fontsize=7)
+        ax.set_title(f"relative error {rel[j]:.1f} %", fontsize=8, loc="right")
+    axes[0].legend(fontsize=7, ncol=3, loc="upper left")
+    axes[-1].set_xlabel("t [s]")
+    fig.suptitle(title or f"{robot.name}: measured vs predicted torque")
+    tmp = path.with_name(f".{path.name}.tmp.png")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(tmp, dpi=80)
+    plt.close(fig)
+    tmp.replace(path)
+
+
+def bench_identify(args: argparse.Namespace) -> None:
+    """Times the identification of 20 s of 1 kHz data of a 7-dof arm (CSV to estimate)."""
+    import tempfile
+
+    from pe_drake.identification import identify, prepare_measurement, read_robot_measurement
+    from pe_drake.measurements import write_measurement_csv
+    from pe_drake.robot import load_robot
+    from pe_drake.synthetic import model_measurement
+    from pe_drake.trajectory_file import load_trajectory
+
+    robot = load_robot(args.robot)
+    trajectory_file = Path(__file__).resolve().parent.parent / "tests" / "data" / "panda_optimized.json"
+    if robot.name == "panda" and trajectory_file.is_file():
+        trajectory, _ = load_trajectory(trajectory_file)
+    else:
+        from pe_drake.excitation import ExcitationProblem
+
+        problem = ExcitationProblem(robot)
+        trajectory = problem.trajectory(problem.initial_guess(seed=args.seed))
+    sim = model_measurement(
+        robot, trajectory, rate_hz=1000.0, duration=20.0, tau_noise_std=0.05, seed=args.seed
+    )
+    raw_rows = sim.num_samples
+    # Drop v, vd: the user's CSV normally has only q and tau.
+    sim = sim.replace(v=None, vd=None)
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "data.csv"
+        write_measurement_csv(path, sim)
+        print(f"robot {robot.name}: {robot.n} joints; {raw_rows} samples (20 s at 1 kHz), q and tau only")
+        for method in ("ols", "wls", "physical"):
+            times = []
+            for _ in range(max(1, min(args.repeats, 3))):
+                t0 = time.perf_counter()
+                raw = read_robot_measurement(robot, path)
+                t1 = time.perf_counter()
+                data = prepare_measurement(robot, raw)
+                t2 = time.perf_counter()
+                result = identify(robot, data, method)
+                t3 = time.perf_counter()
+                times.append((t3 - t0, t1 - t0, t2 - t1, t3 - t2))
+            total, read, prep, est = np.median(np.array(times), axis=0)
+            print(
+                f"{method:9s} total {total:6.2f} s (read {read:.2f}, preprocess {prep:.2f}, "
+                f"regressor + estimate {est:.2f}); {result.samples} samples, cond(W) {result.cond:.4g}"
+            )
+            print(f"BENCH identify_{method}_s={total:.3f}")
+    print("target: OLS under 5 s on 2 cores")
