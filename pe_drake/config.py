@@ -84,6 +84,8 @@ class ExcitationConfig:
         amplitude: scale of the random initial coefficients [rad].
         balance_radius: r of Eq. (52) [m]; 0 disables the balance constraint.
         collision_margin: minimum distance between capsules (Eq. 53) [m]; negative disables.
+        torque_limits: also keep the a-priori model's joint torques within the effort
+            limits (``robot.limits.effort_max``: the model's, scaled by ``effort_scale``).
         seed: random seed of the initial point.
     """
 
@@ -96,6 +98,7 @@ class ExcitationConfig:
     amplitude: float = 0.05
     balance_radius: float = 0.0
     collision_margin: float = -1.0
+    torque_limits: bool = False
     seed: int = 0
 
 

@@ -11,7 +11,8 @@ def constraints_from_config(robot, excitation) -> list[SampledConstraint]:
     """The sampled constraints an :class:`~pe_drake.config.ExcitationConfig` asks for.
 
     ``balance_radius > 0`` adds the balance constraint (Eq. 52), ``collision_margin >= 0``
-    the capsule self-collision constraint (Eq. 53). Each is checked at the nominal posture
+    the capsule self-collision constraint (Eq. 53), ``torque_limits`` the joint torque limits
+    of the a-priori model. Each is checked at the nominal posture
     first, so a posture already out of balance or in collision is refused before solving.
 
     Raises:
@@ -40,4 +41,10 @@ def constraints_from_config(robot, excitation) -> list[SampledConstraint]:
         collision = CollisionConstraint(robot, excitation.collision_margin)
         collision.check_posture(q0)
         out.append(collision)
+    if excitation.torque_limits:
+        from pe_drake.constraints.torque import TorqueConstraint
+
+        torque = TorqueConstraint(robot)
+        torque.check_posture(q0)
+        out.append(torque)
     return out
