@@ -1,0 +1,353 @@
+"""The diagnosis report: report.md and its figures (matplotlib, Agg backend, imported lazily).
+
+Figures:
+
+- ``torque_heldout.png``: measured torque on the held-out data against the a-priori model,
+  the re-identified rigid-body model and the augmented model, per joint;
+- ``residual_effects.png``: for each named effect, the held-out residual of its joint
+  against the regime that exposes it (v for friction, v̇ for armature, time for an offset,
+  time for a payload) before the effect was added and after; with no effect named, the
+  rigid-body residual against v for every joint;
+- ``regimes.png``: mean nominal residual per joint and regime (step 1);
+- ``gap.png``: held-out RMS per joint, nominal → rigid → augmented;
+- ``unexplained.png`` (when a joint is unexplained): its residual against time and dτ/dt.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pe_drake.io_utils import atomic_write_text
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _short(name: str) -> str:
+    return name.replace("panda_", "")
+
+
+def write_report(folder: str | Path, result, model_files: list[Path]) -> list[Path]:
+    """Writes report.md and the figures into ``folder``; returns the figure paths."""
+    folder = Path(folder)
+    figures = [
+        plot_torques(folder / "torque_heldout.png", result),
+        plot_effect_residuals(folder / "residual_effects.png", result),
+        plot_regimes(folder / "regimes.png", result),
+        plot_gap(folder / "gap.png", result),
+    ]
+    if result.unexplained:
+        figures.append(plot_unexplained(folder / "unexplained.png", result))
+    atomic_write_text(folder / "report.md", report_markdown(result, [p.name for p in figures],
+                                                            [Path(p).name for p in model_files]))
+    return figures
+
+
+def _save(fig, path: Path) -> Path:
+    import os
+    import tempfile
+
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".png")
+    os.close(fd)
+    try:
+        fig.savefig(tmp, dpi=80)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        _plt().close(fig)
+    return path
+
+
+def plot_torques(path: Path, result) -> Path:
+    plt = _plt()
+    p = result.predictions
+    n = len(result.joints)
+    fig, axes = plt.subplots(n, 1, figsize=(11, 1.7 * n + 0.8), sharex=True, constrained_layout=True)
+    axes = np.atleast_1d(axes)
+    for j, ax in enumerate(axes):
+        ax.plot(p["t"], p["measured"][:, j], "k", lw=1.6, label="measured")
+        ax.plot(p["t"], p["nominal"][:, j], "r--", lw=1, label="a-priori model")
+        ax.plot(p["t"], p["rigid"][:, j], color="orange", lw=1, label="rigid re-identified")
+        ax.plot(p["t"], p["after"][:, j], "b", lw=1, label="augmented (Drake)")
+        ax.set_ylabel(f"{_short(result.joints[j])}\n[N·m]", fontsize=8)
+        ax.tick_params(labelsize=7)
+    axes[0].legend(fontsize=7, ncol=4, loc="upper right")
+    axes[-1].set_xlabel("t [s] (held-out data)")
+    fig.suptitle("Measured vs model torque on the held-out data")
+    return _save(fig, path)
+
+
+def _regime_signal(result, regime: str, joint: int) -> tuple[np.ndarray, str]:
+    seg = result.held_out
+    if regime == "v":
+        return seg.v[:, joint], "v [rad/s]"
+    if regime == "vd":
+        return seg.vd[:, joint], "v̇ [rad/s²]"
+    if regime == "q":
+        return seg.q[:, joint], "q [rad]"
+    return seg.t, "t [s]"
+
+
+def plot_effect_residuals(path: Path, result) -> Path:
+    plt = _plt()
+    rs = result.residual_series
+    panels: list[tuple[str, np.ndarray, np.ndarray, np.ndarray, str, str, str]] = []
+    for e in rs["effects"]:
+        x, xl = _regime_signal(result, e["regime"], e["joint"])
+        panels.append((e["label"], x, e["before"], e["after"], xl, "without this effect", "with all named"))
+    payload = [e for e in result.effects if e.effect == "payload"]
+    if payload:
+        j = int(np.argmax(result.rms_nominal - result.rms_rigid))
+        panels.append((f"payload on {payload[0].link} ({_short(result.joints[j])})", result.held_out.t,
+                       rs["nominal"][:, j], rs["rigid"][:, j], "t [s]", "a-priori model", "re-identified"))
+    if not panels:
+        for j, name in enumerate(result.joints):
+            panels.append((f"{_short(name)}: no effect named", result.held_out.v[:, j], rs["rigid"][:, j],
+                           rs["after"][:, j], "v [rad/s]", "rigid re-identified", "augmented"))
+    cols = min(3, len(panels))
+    rows = int(np.ceil(len(panels) / cols))
+    fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 3.0 * rows), constrained_layout=True, squeeze=False)
+    for ax in axes.ravel()[len(panels):]:
+        ax.axis("off")
+    for ax, (title, x, before, after, xl, lb, la) in zip(axes.ravel(), panels):
+        ax.plot(x, before, ".", ms=1.5, color="0.6", label=lb)
+        ax.plot(x, after, ".", ms=1.5, color="b", label=la)
+        ax.axhline(0, color="k", lw=0.5)
+        ax.set_title(title, fontsize=8)
+        ax.set_xlabel(xl, fontsize=8)
+        ax.set_ylabel("held-out residual [N·m]", fontsize=8)
+        ax.tick_params(labelsize=7)
+        ax.legend(fontsize=6, markerscale=5)
+    fig.suptitle("Residual against the regime that exposes each effect: before and after")
+    return _save(fig, path)
+
+
+def plot_regimes(path: Path, result) -> Path:
+    plt = _plt()
+    joints = result.joints
+    labels = [f"{b['regime']}: {b['bin']}" for b in result.regimes[joints[0]]["regimes"]]
+    M = np.array([[b["mean"] for b in result.regimes[j]["regimes"]] for j in joints])
+    scale = np.maximum(np.array([result.regimes[j]["overall"]["rms"] for j in joints]), 1e-12)
+    fig, ax = plt.subplots(figsize=(11, 0.45 * len(joints) + 2.6), constrained_layout=True)
+    im = ax.imshow(M / scale[:, None], cmap="coolwarm", vmin=-1.5, vmax=1.5, aspect="auto")
+    ax.set_xticks(range(len(labels)))
+    ax.set_xticklabels(labels, rotation=60, ha="right", fontsize=7)
+    ax.set_yticks(range(len(joints)))
+    ax.set_yticklabels([_short(j) for j in joints], fontsize=8)
+    for j in range(len(joints)):
+        for k in range(len(labels)):
+            ax.text(k, j, f"{M[j, k]:.2g}", ha="center", va="center", fontsize=5)
+    fig.colorbar(im, ax=ax, label="mean residual / RMS residual of the joint")
+    ax.set_title("Step 1: a-priori model residual (measured - model) per regime, mean [N·m]")
+    return _save(fig, path)
+
+
+def plot_gap(path: Path, result) -> Path:
+    plt = _plt()
+    n = len(result.joints)
+    x = np.arange(n)
+    fig, ax = plt.subplots(figsize=(max(6, 1.1 * n + 2), 3.6), constrained_layout=True)
+    for k, (label, values, color) in enumerate((("a-priori", result.rms_nominal, "r"),
+                                                ("rigid re-identified", result.rms_rigid, "orange"),
+                                                ("augmented", result.rms_after, "b"))):
+        ax.bar(x + (k - 1) * 0.27, values, 0.27, label=label, color=color)
+    ax.plot(x, result.noise_floor, "k_", ms=18, label="noise floor")
+    ax.set_yscale("log")
+    ax.set_xticks(x)
+    ax.set_xticklabels([_short(j) for j in result.joints], fontsize=8)
+    ax.set_ylabel("held-out RMS [N·m]")
+    ax.legend(fontsize=7)
+    ax.set_title("Held-out gap per joint")
+    return _save(fig, path)
+
+
+def plot_unexplained(path: Path, result) -> Path:
+    plt = _plt()
+    names = list(result.unexplained)
+    fig, axes = plt.subplots(len(names), 2, figsize=(10, 2.4 * len(names) + 0.6), constrained_layout=True,
+                             squeeze=False)
+    seg = result.held_out
+    for row, name in zip(axes, names):
+        j = result.joints.index(name)
+        r = result.residual_series["after"][:, j]
+        row[0].plot(seg.t, r, "b", lw=0.8)
+        row[0].set_xlabel("t [s]", fontsize=8)
+        row[0].set_ylabel(f"{_short(name)} residual [N·m]", fontsize=8)
+        row[1].plot(seg.dtau[:, j], r, ".", ms=1.5)
+        row[1].set_xlabel("dτ/dt [N·m/s]", fontsize=8)
+        for ax in row:
+            ax.tick_params(labelsize=7)
+            ax.axhline(0, color="k", lw=0.5)
+    fig.suptitle("Unexplained residual (augmented model) against time and dτ/dt")
+    return _save(fig, path)
+
+
+# ---- markdown ---------------------------------------------------------------------------------
+
+
+def _table(header: list[str], rows: list[list[Any]]) -> str:
+    out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for r in rows:
+        out.append("| " + " | ".join(str(x) for x in r) + " |")
+    return "\n".join(out)
+
+
+def _g(x: float, digits: int = 3) -> str:
+    return f"{x:.{digits}g}"
+
+
+def report_markdown(result, figures: list[str], model_files: list[str]) -> str:
+    """The text of report.md."""
+    r = result
+    J = r.joints
+    tr, ho = r.training, r.held_out
+    rec = tr.record
+    lines = [f"# Diagnosis of `{r.robot}`", ""]
+    lines += [
+        f"- data: `{rec.source}`, {rec.rate_hz:.4g} Hz, zero-phase low-pass at {rec.cutoff_hz:.3g} Hz, "
+        f"fitted at {rec.rate_hz / rec.step:.4g} Hz",
+        f"- training: {tr.t[0]:.2f}–{tr.t[-1]:.2f} s ({tr.num_samples} samples); held-out: "
+        f"{ho.t[0]:.2f}–{ho.t[-1]:.2f} s ({ho.num_samples} samples)"
+        + (f" of `{ho.record.source}`" if ho.record is not rec else " (the end of the same record)"),
+        "- all RMS values are on the held-out data [N·m]; the noise floor is the raw torque's white noise "
+        "after the filter",
+        "",
+        "## Summary",
+        "",
+    ]
+    if r.effects:
+        lines.append("Named effects:")
+        lines.append("")
+        lines.append(_table(["effect", "joint / link", "value", "± std", "unit", "z"],
+                            [[e.effect, e.joint or e.link, _g(e.value, 4), _g(e.std, 2), e.unit, _g(e.z, 3)]
+                             for e in r.effects]))
+    else:
+        lines.append("No effect of the library is named: what the a-priori model misses is explained by the "
+                     "rigid-body re-identification" + (" or left unexplained." if r.unexplained else "."))
+    lines.append("")
+    for ns in r.not_separable:
+        if abs(ns.get("z_vs_prior", 0.0)) >= 5:
+            lines.append(f"Not separable but notable: {ns['effect']} of `{ns['joint']}` cannot be told apart from "
+                         f"the rigid-body terms; the base parameter(s) it merges with changed as much as "
+                         f"{_g(ns['implied_value_if_all'])} {ns['unit']} of it would ({_g(ns['z_vs_prior'])} × the "
+                         "a-priori uncertainty). See section 3.")
+            lines.append("")
+    if r.unexplained:
+        lines.append("Unexplained: " + "; ".join(f"`{j}` {u['rms']:.3g} N·m ({u['hint']})"
+                                                 for j, u in r.unexplained.items()))
+        lines.append("")
+    lines += ["![held-out gap](gap.png)", "", "## Cumulative held-out RMS per joint [N·m]", ""]
+    header = ["step"] + [_short(j) for j in J]
+    rows = [[s] + [_g(v) for v in rms] for s, rms in r.cumulative]
+    rows.append(["augmented Drake model"] + [_g(v) for v in r.rms_after])
+    rows.append(["noise floor"] + [_g(v) for v in r.noise_floor])
+    lines += [_table(header, rows), ""]
+    lines += ["## 1. A-priori model along the measured motion", "",
+              "Measured minus model torque, all samples (training and held-out): overall RMS and mean, the "
+              "regime whose mean departs most, and the correlation with sign(v).", ""]
+    rows = []
+    for j in J:
+        g = r.regimes[j]
+        s = g["strongest"]
+        rows.append([_short(j), _g(g["overall"]["rms"]), _g(g["overall"]["mean"]),
+                     f"{s['regime']}: {s['bin']} (mean {_g(s['mean'])})", _g(g["correlation_sign_v"], 2),
+                     _g(g["correlation_vd"], 2)])
+    lines += [_table(["joint", "RMS", "mean", "strongest regime", "corr sign(v)", "corr v̇"], rows), "",
+              "![regimes](regimes.png)", "", "## 2. Rigid-body re-identification", ""]
+    lines.append(f"{r.rigid['count']} base parameters re-identified by weighted least squares. The largest "
+                 "changes from the a-priori model, in standard deviations of the a-priori uncertainty "
+                 f"({100 * r.config.prior_uncertainty:g} % per parameter) plus the estimate's:")
+    lines.append("")
+    lines.append(_table(["base parameter", "a-priori", "identified", "± std", "z vs prior"],
+                        [[f"`{p['name'][:90]}`", _g(p["prior"], 4), _g(p["identified"], 4), _g(p["std"], 2),
+                          _g(p["z_vs_prior"], 3)] for p in r.rigid["base_parameters"][:8]]))
+    lines.append("")
+    pt = r.payload_test
+    if pt.get("searched"):
+        lines.append(f"Payload search: χ² of the change vs the a-priori uncertainty {pt['chi2_before']:.3g} "
+                     f"({pt['dof']} dof); {pt.get('decision', '')}.")
+        lines.append("")
+    lines += ["## 3. Effects", ""]
+    if r.effects:
+        rows = []
+        for e in r.effects:
+            before = e.heldout_rms_before.get(e.joint) if e.joint else None
+            after = e.heldout_rms_after.get(e.joint) if e.joint else None
+            rows.append([e.effect, e.joint or e.link, f"{_g(e.value, 4)} ± {_g(e.std, 2)} {e.unit}", _g(e.z),
+                         f"{_g(before)} → {_g(after)}" if before is not None else "(within the rigid step)"])
+        lines += [_table(["effect", "joint / link", "value", "z", "held-out RMS of its joint"], rows), ""]
+    lines.append("Selection: forward stepwise on the training data, each effect physically plausible, "
+                 "significant after correcting for correlated samples, lowering its joint's held-out RMS "
+                 f"by ≥ {100 * r.config.min_heldout_gain:g} % and larger than "
+                 f"max({r.config.noise_factor:g} × noise floor, {100 * r.config.min_effect_fraction:g} % of the "
+                 "joint's torque spread).")
+    lines.append("")
+    if r.not_separable:
+        lines.append("Not separable from the rigid-body terms (not named; only their sum with a base parameter "
+                     "is identifiable):")
+        lines.append("")
+        for ns in r.not_separable:
+            merged = ", ".join(f"`{k}`" for k in ns["merged_with"])
+            extra = ""
+            if "implied_value_if_all" in ns:
+                extra = (f": all of the re-identified change of {'that' if len(ns['merged_with']) == 1 else 'those'}"
+                         f" base parameter(s) as {ns['effect']} would be {_g(ns['implied_value_if_all'])} "
+                         f"{ns['unit']} (a-priori uncertainty of that sum {_g(ns['implied_value_prior_std'])})")
+            lines.append(f"- {ns['effect']} of `{ns['joint']}` merges with {merged}{extra}")
+        lines.append("")
+    if r.rejected:
+        lines.append("Strongest candidates not named:")
+        lines.append("")
+        lines.append(_table(["effect", "joint", "value", "z", "reason"],
+                            [[x["effect"], x["joint"], f"{_g(x['value'])} {x['unit']}", _g(x["z"], 2), x["reason"]]
+                             for x in r.rejected[:6]]))
+        lines.append("")
+    lines += ["![residuals](residual_effects.png)", "", "## 4. Augmented model in Drake", ""]
+    lines.append("The re-identified rigid-body parameters and the named effects, added to the Drake model (joint "
+                 "damping, rotor inertia, welded payload body, Coulomb friction as a `DoorHinge` force element, "
+                 "offsets as a generalized force); its inverse dynamics along the held-out motion:")
+    lines.append("")
+    lines.append(_table(["joint", "a-priori", "rigid", "augmented", "gap closed"],
+                        [[_short(j), _g(a), _g(b), _g(c), f"{100 * (1 - (c / a) ** 2):.1f} %" if a > 0 else "–"]
+                         for j, a, b, c in zip(J, r.rms_nominal, r.rms_rigid, r.rms_after)]))
+    lines.append("")
+    lines.append("(gap closed: share of the a-priori model's held-out mean-square error removed.) Drake vs the "
+                 "least-squares prediction: max " + _g(float(np.max(r.drake_check)), 2) + " N·m.")
+    for note in r.augmented.notes:
+        lines.append(f"- note: {note}")
+    lines.append("")
+    if model_files:
+        lines.append("Files: " + ", ".join(f"`{f}`" for f in model_files)
+                     + " (the URDF holds inertias, damping, rotor inertia and the payload; the YAML the Coulomb "
+                       "friction and offsets, in the schema of `pe-drake simulate --truth`).")
+        lines.append("")
+    lines += ["![torques](torque_heldout.png)", "", "## 5. Unexplained", ""]
+    if r.unexplained:
+        rows = [[_short(j), _g(u["rms"]), _g(u["threshold"]), _g(u["noise_floor"]),
+                 f"{100 * u['fraction_of_nominal_rms']:.0f} %", u["hint"]] for j, u in r.unexplained.items()]
+        lines += [_table(["joint", "RMS", "threshold", "noise floor", "of nominal RMS", "signature"], rows), ""]
+        if "unexplained.png" in figures:
+            lines += ["![unexplained](unexplained.png)", ""]
+    else:
+        lines.append("Every joint's held-out residual is below max("
+                     f"{r.config.noise_factor:g} × noise floor, {100 * r.config.unexplained_fraction:g} % of its "
+                     "torque spread).")
+        lines.append("")
+    t = r.timing
+    if t.get("checked"):
+        state = "needed" if t.get("needed") else "not needed"
+        lines.append(f"Timing check: a torque/position offset of {1e3 * t['offset_s']:+.3g} ± {1e3 * t['std_s']:.2g} ms "
+                     f"fits the data ({state}; a logging issue, never named as an effect).")
+        lines.append("")
+    return "\n".join(lines) + "\n"

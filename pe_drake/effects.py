@@ -1,0 +1,383 @@
+"""The library of candidate effects that a rigid-body model can miss, each with a physical name.
+
+Per-joint effects are linear in their value θ, so each is one column c(q, v, v̇) appended to
+the base-parameter regressor (τ = Y_B φ_B + Σ_k θ_k c_k):
+
+=====================  ====================  =================  ==================  ==========
+effect                 column c_j             unit (revolute)    unit (prismatic)    sign of θ
+=====================  ====================  =================  ==================  ==========
+``coulomb_friction``   tanh(v_j / v_s)        N·m                N                   θ ≥ 0
+``viscous_friction``   v_j                    N·m·s/rad          N·s/m               θ ≥ 0
+``armature``           v̇_j                   kg·m²              kg                  θ ≥ 0
+``torque_offset``      1                      N·m                N                   any
+=====================  ====================  =================  ==================  ==========
+
+The columns carry the sign convention of :mod:`pe_drake.simulation`: τ is the torque the
+actuator applies, so a resistive load adds to it. ``coulomb_friction`` uses the same smoothed
+sign as the simulator's Drake ``DoorHinge`` (v_s = 0.01 rad/s by default); the data are
+low-pass filtered, so the columns are filtered in parallel with the torque (Gautier 1997,
+"parallel filtering") by the caller.
+
+Whether an effect can be told apart from the rigid-body terms at all is a property of the
+robot, not of the data: :func:`separability` projects each column onto the span of Y_B over
+random states. An armature on a first, vertical joint gives the column v̇_1, which is exactly
+the column of the base parameter that holds that link's inertia about the axis, so the two
+are one base parameter and only their sum is identifiable.
+
+``payload``, an unmodelled mass on one link, changes that link's 10 inertial parameters, whose
+columns lie inside span(Y_B): it is not a column but a pattern in the re-identified base
+parameters, Δφ_B = φ_B - K φ_prior ≈ K_L Δφ_L (Eq. 2), large and localized on one link
+compared with the a-priori uncertainty of every link (:func:`fit_payload`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+#: Per-joint effects of the library, in the order they are listed in reports.
+JOINT_EFFECTS = ("coulomb_friction", "viscous_friction", "armature", "torque_offset")
+#: All effect names (``payload`` is a link effect).
+EFFECT_NAMES = (*JOINT_EFFECTS, "payload")
+
+#: Default smoothing velocity of the Coulomb column tanh(v / v_s) [rad/s or m/s].
+COULOMB_VELOCITY_SCALE = 0.01
+#: Default relative a-priori uncertainty of every inertial parameter (CAD-level accuracy).
+PRIOR_RELATIVE_UNCERTAINTY = 0.10
+
+_UNITS = {  # effect: (revolute, prismatic)
+    "coulomb_friction": ("N·m", "N"),
+    "viscous_friction": ("N·m·s/rad", "N·s/m"),
+    "armature": ("kg·m²", "kg"),
+    "torque_offset": ("N·m", "N"),
+}
+_NONNEGATIVE = {"coulomb_friction": True, "viscous_friction": True, "armature": True, "torque_offset": False}
+#: The signal against which each effect's residual is plotted (the regime that exposes it).
+EXPOSING_REGIME = {
+    "coulomb_friction": "v",
+    "viscous_friction": "v",
+    "armature": "vd",
+    "torque_offset": "t",
+    "payload": "q",
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class Candidate:
+    """One per-joint effect of the library on one joint.
+
+    Attributes:
+        effect: one of :data:`JOINT_EFFECTS`.
+        joint: index of the joint in the robot's order.
+        joint_name: its name.
+        unit: unit of the value θ.
+        nonnegative: a physically meaningful value is ≥ 0 (friction, armature).
+    """
+
+    effect: str
+    joint: int
+    joint_name: str
+    unit: str
+    nonnegative: bool
+
+    @property
+    def label(self) -> str:
+        return f"{self.effect}[{self.joint_name}]"
+
+
+def joint_candidates(robot, effects: Sequence[str] = JOINT_EFFECTS) -> list[Candidate]:
+    """Every per-joint effect on every excited joint.
+
+    Args:
+        robot: a :class:`~pe_drake.robot.Robot`.
+        effects: names from :data:`JOINT_EFFECTS`.
+    """
+    out = []
+    for effect in effects:
+        if effect not in JOINT_EFFECTS:
+            from pe_drake.exceptions import UnknownNameError
+
+            raise UnknownNameError("effect", effect, JOINT_EFFECTS)
+        for j, info in enumerate(robot.joints):
+            unit = _UNITS[effect][0 if info.kind == "revolute" else 1]
+            out.append(Candidate(effect, j, info.name, unit, _NONNEGATIVE[effect]))
+    return out
+
+
+def effect_column(effect: str, q: np.ndarray, v: np.ndarray, vd: np.ndarray, joint: int,
+                  velocity_scale: float = COULOMB_VELOCITY_SCALE) -> np.ndarray:
+    """The torque per unit value of one effect on one joint, over samples.
+
+    Args:
+        effect: one of :data:`JOINT_EFFECTS`.
+        q, v, vd: joint positions, velocities, accelerations, each (T, n).
+        joint: joint index.
+        velocity_scale: v_s of the Coulomb column [rad/s].
+
+    Returns:
+        Shape (T,): the effect's torque on ``joint`` per unit θ (other joints get none).
+    """
+    if effect == "coulomb_friction":
+        return np.tanh(v[:, joint] / velocity_scale)
+    if effect == "viscous_friction":
+        return v[:, joint].copy()
+    if effect == "armature":
+        return vd[:, joint].copy()
+    if effect == "torque_offset":
+        return np.ones(q.shape[0])
+    raise ValueError(f"unknown effect '{effect}'")
+
+
+def candidate_columns(candidates: Sequence[Candidate], q, v, vd,
+                      velocity_scale: float = COULOMB_VELOCITY_SCALE) -> np.ndarray:
+    """Columns of several candidates as a regressor block, shape (T, n, len(candidates))."""
+    T, n = q.shape
+    out = np.zeros((T, n, len(candidates)))
+    for k, c in enumerate(candidates):
+        out[:, c.joint, k] = effect_column(c.effect, q, v, vd, c.joint, velocity_scale)
+    return out
+
+
+@dataclasses.dataclass(frozen=True)
+class Separability:
+    """How far a candidate's column lies from the span of the base regressor.
+
+    Attributes:
+        candidate: the candidate.
+        residual: ‖(I - P_B) c‖ / ‖c‖ over random states: 0 when the column is a combination
+            of the base-parameter columns, 1 when orthogonal to all of them.
+        separable: residual above the tolerance.
+        merged_with: when not separable, the base parameters the column is made of
+            {name: coefficient}; the value then only adds to those base parameters.
+    """
+
+    candidate: Candidate
+    residual: float
+    separable: bool
+    merged_with: dict[str, float]
+
+
+def separability(robot, base, candidates: Sequence[Candidate], *, model=None, samples: int = 200,
+                 seed: int = 1, tolerance: float = 1e-6) -> list[Separability]:
+    """Whether each candidate can be told apart from the rigid-body terms (structural test).
+
+    The test uses random states within the robot's limits (as the base parameters do), so it
+    says whether *any* motion can separate the effect, independently of the recorded one.
+
+    Args:
+        robot: a :class:`~pe_drake.robot.Robot`.
+        base: its :class:`~pe_drake.base_parameters.BaseParameters`.
+        candidates: the candidates to test.
+        model: an existing :class:`~pe_drake.regressor.RegressorModel`.
+        samples: random states.
+        seed: their seed.
+        tolerance: relative residual below which a column counts as inside span(Y_B).
+    """
+    from pe_drake.regressor import RegressorModel
+
+    model = model or RegressorModel(robot)
+    rng = np.random.default_rng(seed)
+    lo, hi = robot.limits.q_lower, robot.limits.q_upper
+    q = rng.uniform(lo, hi, (samples, robot.n))
+    v = rng.uniform(-1, 1, (samples, robot.n)) * np.minimum(robot.limits.v_max, 3.0)
+    vd = rng.uniform(-1, 1, (samples, robot.n)) * np.minimum(robot.limits.vd_max, 10.0)
+    Y_B = base.reduce(model(q, v, vd)).reshape(-1, base.count)
+    # Scale columns so the projection is not dominated by units.
+    scale = np.linalg.norm(Y_B, axis=0)
+    scale[scale == 0] = 1.0
+    A = Y_B / scale
+    out = []
+    for c in candidates:
+        col = np.zeros((samples, robot.n))
+        col[:, c.joint] = effect_column(c.effect, q, v, vd, c.joint, velocity_scale=1.0)
+        col = col.ravel()
+        beta, *_ = np.linalg.lstsq(A, col, rcond=None)
+        residual = float(np.linalg.norm(col - A @ beta) / max(np.linalg.norm(col), 1e-300))
+        separable = residual > tolerance
+        merged = {}
+        if not separable:
+            coef = beta / scale
+            for k in np.flatnonzero(np.abs(coef) > 1e-6 * np.abs(coef).max()):
+                merged[base.base_names[k]] = float(coef[k])
+        out.append(Separability(c, residual, separable, merged))
+    return out
+
+
+# ---- a-priori uncertainty and the payload pattern --------------------------------------------
+
+
+def prior_parameter_covariance(robot, relative: float = PRIOR_RELATIVE_UNCERTAINTY, *,
+                               samples: int = 400, seed: int = 0) -> np.ndarray:
+    """Covariance of the standard parameters of an a-priori model accurate to ``relative``.
+
+    The model is the one of :func:`pe_drake.simulation.perturb_inertias`: every body's mass,
+    principal moments and centre of mass (relative to max(|p|, radius of gyration)) uniformly
+    within ±``relative``, its principal axes rotated by up to ``relative`` rad about a random
+    axis, draws that break the triangle inequality redrawn. Bodies are independent; each
+    body's 10×10 block is estimated from ``samples`` vectorized draws (the map to the
+    parameters about the body origin is not linear).
+
+    Args:
+        robot: a :class:`~pe_drake.robot.Robot` (its ``phi_model`` is the a-priori model).
+        relative: ε in (0, 0.5].
+        samples: number of draws per body.
+        seed: their seed.
+
+    Returns:
+        Σ_φ, shape (10·nb, 10·nb), block diagonal.
+    """
+    rng = np.random.default_rng(seed)
+    phi = np.asarray(robot.phi_model, float)
+    nb = phi.size // 10
+    Sigma = np.zeros((phi.size, phi.size))
+    for b in range(nb):
+        phi_b = phi[10 * b : 10 * b + 10]
+        if phi_b[0] <= 0:
+            continue
+        d = _perturbation_draws(phi_b, relative, samples, rng) - phi_b
+        Sigma[10 * b : 10 * b + 10, 10 * b : 10 * b + 10] = d.T @ d / samples
+    return Sigma
+
+
+def _perturbation_draws(phi_b: np.ndarray, eps: float, count: int, rng: np.random.Generator) -> np.ndarray:
+    """``count`` perturbed copies of one body's parameters, shape (count, 10) (vectorized
+    form of the perturbation of :func:`pe_drake.simulation.perturb_inertias`)."""
+    m, h = phi_b[0], phi_b[1:4]
+    Ixx, Iyy, Izz, Ixy, Ixz, Iyz = phi_b[4:10]
+    I_Bo = np.array([[Ixx, Ixy, Ixz], [Ixy, Iyy, Iyz], [Ixz, Iyz, Izz]])
+    p = h / m
+    I_cm = I_Bo - m * (p @ p * np.eye(3) - np.outer(p, p))
+    lam, R = np.linalg.eigh(I_cm)
+    lam = np.maximum(lam, 0.0)
+    r_gyr = math.sqrt(max(np.trace(I_cm), 0.0) / (2 * m))
+    lam2 = np.empty((0, 3))
+    while lam2.shape[0] < count:  # redraw principal moments that break the triangle inequality
+        x = lam * (1 + eps * rng.uniform(-1, 1, (2 * count, 3)))
+        lam2 = np.concatenate([lam2, x[x.max(axis=1) <= x.sum(axis=1) - x.max(axis=1)]])
+    lam2 = lam2[:count]
+    m2 = m * (1 + eps * rng.uniform(-1, 1, count))
+    p2 = p + eps * rng.uniform(-1, 1, (count, 3)) * max(np.linalg.norm(p), r_gyr)
+    axis = rng.normal(size=(count, 3))
+    axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+    angle = eps * rng.uniform(-1, 1, count)
+    Kx = np.zeros((count, 3, 3))
+    Kx[:, 0, 1], Kx[:, 0, 2], Kx[:, 1, 2] = -axis[:, 2], axis[:, 1], -axis[:, 0]
+    Kx -= np.transpose(Kx, (0, 2, 1))
+    s, c = np.sin(angle)[:, None, None], np.cos(angle)[:, None, None]
+    dR = np.eye(3) + s * Kx + (1 - c) * Kx @ Kx  # Rodrigues
+    R2 = dR @ R
+    I_cm2 = np.einsum("kij,kj,klj->kil", R2, lam2, R2)
+    pp = np.einsum("ki,ki->k", p2, p2)
+    I_o2 = I_cm2 + m2[:, None, None] * (pp[:, None, None] * np.eye(3) - np.einsum("ki,kj->kij", p2, p2))
+    return np.column_stack([m2, m2[:, None] * p2, I_o2[:, 0, 0], I_o2[:, 1, 1], I_o2[:, 2, 2],
+                            I_o2[:, 0, 1], I_o2[:, 0, 2], I_o2[:, 1, 2]])
+
+
+@dataclasses.dataclass(frozen=True)
+class PayloadFit:
+    """The best explanation of a base-parameter change by one link's parameters.
+
+    Attributes:
+        link: the joint's child link (the first body of the group).
+        group: bodies rigidly attached to that link (a payload on any of them is the same).
+        joint: the joint that moves the group.
+        delta_phi: Δφ_L, the link's 10 parameter changes about its origin, in its frame.
+        mass: Δm [kg].
+        mass_std: standard deviation of Δm [kg] (from the covariance used in the fit).
+        com: centre of mass of the added mass in the link frame [m] (Δh / Δm).
+        chi2_before: Δφ_Bᵀ C⁻¹ Δφ_B before (b degrees of freedom).
+        chi2_after: the same after removing K_L Δφ_L.
+        rank: rank of K_L (degrees of freedom the link explains).
+        mass_prior_std: a-priori standard deviation of the group's mass [kg].
+    """
+
+    link: str
+    group: tuple[str, ...]
+    joint: str
+    delta_phi: np.ndarray
+    mass: float
+    mass_std: float
+    com: np.ndarray
+    chi2_before: float
+    chi2_after: float
+    rank: int
+    mass_prior_std: float
+
+    @property
+    def gain(self) -> float:
+        return self.chi2_before - self.chi2_after
+
+
+def payload_groups(robot, base) -> list[tuple[int, int, tuple[str, ...]]]:
+    """Link groups where an added mass is identifiable from the base parameters.
+
+    A group is every body rigidly attached to one joint's child link. The payload's mass must
+    be separable from the group's other parameters in K (its column is not a combination of
+    the link's other 9 columns), else it would only be an inertia change.
+
+    Returns:
+        [(joint index, body index of the child link, names of the group's bodies)].
+    """
+    out = []
+    K = base.K
+    for j in range(robot.n):
+        bodies = [b for b in range(robot.num_bodies) if robot.joint_of_body[b] == j]
+        if not bodies:
+            continue
+        child = robot.joints[j].child_body
+        lead = next((b for b in bodies if int(robot.body_indices[b]) == child), bodies[0])
+        K_L = K[:, 10 * lead : 10 * lead + 10]
+        rank = np.linalg.matrix_rank(K_L, 1e-9)
+        if rank == 0 or np.linalg.matrix_rank(K_L[:, 1:], 1e-9) == rank:
+            continue
+        out.append((j, lead, tuple(robot.body_names[b] for b in bodies)))
+    return out
+
+
+def fit_payload(delta_B: np.ndarray, C: np.ndarray, K_L: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """Generalized least squares Δφ_B ≈ K_L x with covariance C (Eq. 2 restricted to a link).
+
+    Args:
+        delta_B: Δφ_B, shape (b,).
+        C: its covariance under "no payload" (a-priori uncertainty + estimation), (b, b).
+        K_L: the link's columns of K, (b, 10).
+
+    Returns:
+        (x shape (10,), its covariance (10, 10) (pseudo-inverse where K_L is rank deficient),
+        the residual χ² (Δφ_B - K_L x)ᵀ C⁻¹ (Δφ_B - K_L x)).
+    """
+    L = _whitener(C)
+    A = L @ K_L
+    y = L @ delta_B
+    info = A.T @ A
+    cov = np.linalg.pinv(info, rcond=1e-10)
+    x = cov @ A.T @ y
+    r = y - A @ x
+    return x, cov, float(r @ r)
+
+
+def chi2(delta_B: np.ndarray, C: np.ndarray) -> float:
+    """Δφ_Bᵀ C⁻¹ Δφ_B."""
+    y = _whitener(C) @ delta_B
+    return float(y @ y)
+
+
+def _whitener(C: np.ndarray) -> np.ndarray:
+    """W with Wᵀ W = C⁻¹ (eigen-decomposition; directions of zero variance get a floor)."""
+    w, V = np.linalg.eigh(0.5 * (C + C.T))
+    floor = max(w.max(), 1e-300) * 1e-12
+    return (V / np.sqrt(np.maximum(w, floor))).T
+
+
+def chi2_quantile(p: float, dof: int) -> float:
+    """Quantile of the χ² distribution (scipy.special, lighter to import than scipy.stats)."""
+    from scipy.special import chdtri
+
+    return float(chdtri(max(int(dof), 1), 1.0 - p))
+
+
+def sqrt_or_zero(x: float) -> float:
+    return math.sqrt(x) if x > 0 else 0.0
