@@ -1012,6 +1012,7 @@ def _payload_search(robot, base, delta_B, C, Sigma_phi, config, joints, reg, fit
     report: dict[str, Any] = {"searched": True, "chi2_before": chi2_0, "dof": int(base.count),
                               "prior_uncertainty": config.prior_uncertainty, "links": []}
     best = None
+    fits = []
     for j, lead, group in groups:
         K_L = base.K[:, 10 * lead : 10 * lead + 10]
         x, cov, chi2_after = fit_payload(delta_B, C, K_L)
@@ -1023,12 +1024,20 @@ def _payload_search(robot, base, delta_B, C, Sigma_phi, config, joints, reg, fit
                  "gain": chi2_0 - chi2_after, "rank": rank, "mass": m, "mass_std": m_std,
                  "mass_prior_std": m_prior_std}
         report["links"].append(entry)
+        fits.append((entry, x, cov, lead, group, j))
         if best is None or entry["gain"] > best[0]["gain"]:
-            best = (entry, x, cov, lead, group, j)
+            best = fits[-1]
     if best is None:
         report["decision"] = "no link where an added mass is identifiable"
         return report, None, None
+    # Links whose fit is as good within χ²₁(95 %) explain the change equally well (a mass on
+    # the axis of joint k moves the same whether it rides on link k or on the link before):
+    # name the most distal one, where payloads are carried, and list the others.
+    tie = best[0]["gain"] - chi2_quantile(0.95, 1)
+    equivalent = [c for c in fits if c[0]["gain"] >= tie]
+    best = max(equivalent, key=lambda c: c[5])
     entry, x, cov, lead, group, j = best
+    report["equivalent_links"] = [c[0]["link"] for c in equivalent if c is not best]
     gain_needed = chi2_quantile(1 - config.payload_alpha, entry["rank"])
     rest_allowed = chi2_quantile(0.999, base.count - entry["rank"])
     report.update(best_link=entry["link"], gain_needed=gain_needed, rest_allowed=rest_allowed,
@@ -1054,6 +1063,7 @@ def _payload_search(robot, base, delta_B, C, Sigma_phi, config, joints, reg, fit
         "payload", "", entry["link"], m, "kg", entry["mass_std"], abs(m) / max(entry["mass_std"], 1e-300),
         _pj(joints, fit_last.rms_held), _pj(joints, fit_last.rms_held),
         {"com": com, "com_unit": "m, in the link frame", "rigidly_attached": list(group),
+         "equally_well_on": report["equivalent_links"],
          "delta_phi": x.tolist(), "chi2_before": report["chi2_before"], "chi2_after": entry["chi2_after"],
          "mass_prior_std": entry["mass_prior_std"],
          "note": ("a negative mass: the a-priori model carries more mass on this link than measured "

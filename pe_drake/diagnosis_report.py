@@ -276,7 +276,11 @@ def report_markdown(result, figures: list[str], model_files: list[str]) -> str:
     pt = r.payload_test
     if pt.get("searched"):
         lines.append(f"Payload search: χ² of the change vs the a-priori uncertainty {pt['chi2_before']:.3g} "
-                     f"({pt['dof']} dof); {pt.get('decision', '')}.")
+                     f"({pt['dof']} dof); {pt.get('decision', '')}"
+                     + (f" (best link {pt['best_link']})" if pt.get("best_link") and "no payload" in
+                        pt.get("decision", "") else "")
+                     + (f"; explained as well on {', '.join(pt['equivalent_links'])} (a mass on a joint's "
+                        "axis moves the same on either link)" if pt.get("equivalent_links") else "") + ".")
         lines.append("")
     lines += ["## 3. Effects", ""]
     if r.effects:
