@@ -43,6 +43,10 @@ _EXPORTS = {
     "BalanceConstraint": "pe_drake.constraints.balance",
     "CollisionConstraint": "pe_drake.constraints.collision",
     "constraints_from_config": "pe_drake.constraints",
+    # diagnosis: which effects the model misses
+    "diagnose": "pe_drake.diagnosis",
+    "DiagnosisConfig": "pe_drake.diagnosis",
+    "DiagnosisResult": "pe_drake.diagnosis",
     # files
     "load_trajectory": "pe_drake.trajectory_file",
     "save_trajectory": "pe_drake.trajectory_file",

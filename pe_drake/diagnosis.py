@@ -25,7 +25,7 @@
    parameters: Δφ_B = φ_B - K φ_prior explained by one link's 10 parameters (GLS with the
    covariance C = K Σ_φ Kᵀ + Cov(φ_B), Σ_φ the a-priori uncertainty, default 10 %), named
    when the χ² gain passes ``payload_alpha``, the mass change exceeds
-   ``payload_min_prior_sigmas`` a-priori standard deviations of the link's mass and 5 of its
+   ``payload_min_prior_sigmas`` a-priori standard deviations of the link's mass and 3 of its
    own, and what is left is consistent with the a-priori uncertainty (localized).
    A timing offset between the torque and position logs (a common logging fault, not a
    physical effect) enters the selection as a nuisance column -dτ/dt (τ_rec(t) ≈ τ(t) - d τ̇):
@@ -1048,7 +1048,7 @@ def _payload_search(robot, base, delta_B, C, Sigma_phi, config, joints, reg, fit
     if abs(entry["mass"]) < config.payload_min_prior_sigmas * entry["mass_prior_std"]:
         reasons.append(f"mass change {entry['mass']:+.3g} kg within {config.payload_min_prior_sigmas:g} "
                        f"a-priori σ ({entry['mass_prior_std']:.3g} kg)")
-    if abs(entry["mass"]) < 5 * entry["mass_std"]:
+    if abs(entry["mass"]) < 3 * entry["mass_std"]:  # detection is the χ² test; this says it is a mass
         reasons.append(f"mass change {entry['mass']:+.3g} ± {entry['mass_std']:.2g} kg not significant")
     if entry["chi2_after"] > rest_allowed:
         reasons.append(f"not localized: χ² left {entry['chi2_after']:.3g} > {rest_allowed:.3g} (the "
