@@ -218,17 +218,43 @@ class ExcitationCost:
     def __init__(self, problem: ExcitationProblem, on_evaluate: Callable | None = None):
         self.problem = problem
         self.on_evaluate = on_evaluate
-        #: (value, alpha) of the best points that met the joint limits at the samples,
-        #: best first; a fallback when the solver stops at an infeasible iterate.
-        self.candidates: list[tuple[float, np.ndarray]] = []
+        #: The program's sampled-constraint evaluators (set by build_excitation_program);
+        #: each records its violation per evaluated alpha.
+        self.evaluators: list = []
+        # (value, alpha) of every evaluated point that met the joint limits at the samples,
+        # and the 8 best of them.
+        self._evaluated: list[tuple[float, np.ndarray]] = []
+        self._best: list[tuple[float, np.ndarray]] = []
+
+    @property
+    def candidates(self) -> list[tuple[float, np.ndarray]]:
+        """Fallback points when the solver stops at an infeasible iterate, to try in order.
+
+        First the 8 best evaluated points that met the joint limits and every sampled
+        constraint at the samples, then the 8 best that met the joint limits. Ranking by value
+        alone missed the feasible points whenever lower-valued infeasible ones crowded them
+        out (a feasible start, then cheaper iterates in collision).
+        """
+        feasible = []
+        for value, alpha in self._evaluated:
+            key = alpha.tobytes()
+            seen = [ev.violations.get(key) for ev in self.evaluators]
+            if all(v is not None and v <= 0.0 for v in seen):
+                feasible.append((value, alpha))
+        feasible.sort(key=lambda c: c[0])
+        picked = feasible[:8]
+        ids = {id(alpha) for _, alpha in picked}
+        return picked + [c for c in self._best if id(c[1]) not in ids]
 
     def _remember(self, alpha: np.ndarray, value: float) -> None:
         if not np.isfinite(value) or joint_limit_violation(self.problem, alpha) > 1e-9:
             return
-        if len(self.candidates) < 8 or value < self.candidates[-1][0]:
-            self.candidates.append((value, alpha.copy()))
-            self.candidates.sort(key=lambda c: c[0])
-            del self.candidates[8:]
+        entry = (value, alpha.copy())
+        self._evaluated.append(entry)
+        if len(self._best) < 8 or value < self._best[-1][0]:
+            self._best.append(entry)
+            self._best.sort(key=lambda c: c[0])
+            del self._best[8:]
 
     def __call__(self, x):
         from pydrake.autodiffutils import AutoDiffXd, ExtractGradient, ExtractValue
@@ -441,6 +467,9 @@ class _SampledConstraintEvaluator:
         if group > 1 and not np.all(np.isfinite(lo) ^ np.isfinite(hi)):
             raise ConfigError(f"constraint '{constraint.name}': grouping needs one-sided bounds")
         self.last_violation = 0.0
+        #: worst violation at the samples per evaluated alpha (alpha.tobytes() → value), for
+        #: the solver's fallback to a feasible point (ExcitationCost.candidates)
+        self.violations: dict[bytes, float] = {}
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         rows = len(self.basis.t) // self.group
@@ -468,6 +497,7 @@ class _SampledConstraintEvaluator:
         g = out.value
         lo, hi = self.constraint.lower, self.constraint.upper
         self.last_violation = float(max(0.0, np.max(lo - g), np.max(g - hi)))
+        self.violations[np.asarray(alpha, float).tobytes()] = self.last_violation
         if self.group > 1:
             G, tau = self.group, self.tau
             bound = np.where(self.upper_side, hi, lo)
@@ -600,6 +630,7 @@ def build_excitation_program(
         add_rest_constraints(prog, alpha, problem)
     for c in program.constraints:
         program._evaluators.append(_add_sampled(prog, alpha, problem, c)[1])
+    program._cost.evaluators = program._evaluators
     return program
 
 

@@ -194,3 +194,48 @@ def test_rest_at_ends(panda):
     assert result.success, result.message
     _, v, vd = result.trajectory.evaluate(np.array([0.0, problem.period]))
     assert np.abs(v).max() < 1e-6 and np.abs(vd).max() < 1e-6
+
+
+
+def test_fallback_points_put_those_meeting_the_sampled_constraints_first(panda):
+    """When the solver stops at an infeasible iterate, solve_excitation tries
+    ``program._cost.candidates`` in order. Points that met every sampled constraint come
+    first, however many cheaper points violated one (here: the start inside a band, then ten
+    cheaper points just outside it)."""
+    from pe_drake.constraints.base import SampledConstraint, SampledValues
+
+    config = ExcitationConfig(harmonics=3, omega=2 * math.pi / 8, cost_samples=24, constraint_samples=96)
+    problem = ExcitationProblem(panda, config)
+    x0 = problem.initial_guess(seed=0)
+    q0 = x0[-problem.n :]
+    q, _, _ = problem.constraint_basis.evaluate_alpha(x0, problem.n)
+    radius = 1.001 * np.abs(q - q0).max(axis=0)
+
+    class Band(SampledConstraint):
+        """|q_j(t) − q0_j| ≤ radius_j at the samples: x0 fits, 2 % larger motions do not."""
+
+        name = "band"
+
+        def __init__(self):
+            super().__init__([f"q{j}" for j in range(problem.n)], -radius, radius)
+
+        def evaluate(self, q, v, vd, derivatives=True):
+            d_q = np.broadcast_to(np.eye(problem.n), (len(q), problem.n, problem.n)).copy()
+            return SampledValues(value=q - q0, d_q=d_q)
+
+    program = build_excitation_program(problem, [Band()])
+    cost, (band,) = program._cost, program._evaluators
+    points = [(100.0, x0)]
+    for k in range(10):
+        x = x0.copy()
+        x[: -problem.n] *= 1.02 + 0.001 * k  # within the joint limits, outside the band
+        points.append((50.0 - k, x))
+    for value, x in points:  # what the solver's callbacks do at each evaluated point
+        band.values_and_jacobian(x)
+        cost._remember(x, value)
+    assert band.violations[x0.tobytes()] == 0.0
+    assert all(band.violations[x.tobytes()] > 0 for _, x in points[1:])
+    value, first = cost.candidates[0]
+    assert value == 100.0 and np.array_equal(first, x0)
+    # Then the cheapest points that met the joint limits, as before.
+    assert [v for v, _ in cost.candidates[1:]] == sorted(v for v, _ in points[1:])[:8]
