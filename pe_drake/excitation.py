@@ -246,6 +246,13 @@ class ExcitationCost:
         ids = {id(alpha) for _, alpha in picked}
         return picked + [c for c in self._best if id(c[1]) not in ids]
 
+    def reset(self) -> None:
+        """Forgets the points of earlier solves (each solve falls back to its own points)."""
+        self._evaluated.clear()
+        self._best.clear()
+        for ev in self.evaluators:
+            ev.violations.clear()
+
     def _remember(self, alpha: np.ndarray, value: float) -> None:
         if not np.isfinite(value) or joint_limit_violation(self.problem, alpha) > 1e-9:
             return
@@ -815,20 +822,27 @@ def solve_excitation(
         raise ConfigError(f"solver '{cfg.name}' is not available in this Drake build")
 
     problem.num_evaluations = 0
+    if program._cost is not None:
+        program._cost.reset()
     start = time.perf_counter()
     with single_threaded_blas():
         result = backend.Solve(program.prog, x0, options)
         stalled = ""
         if cfg.name == "nlopt" and cfg.algorithm == "LD_SLSQP" and problem.num_evaluations <= 2:
-            # NLopt's SLSQP sometimes reports success after a single evaluation when its QP
-            # subproblem fails on the many (nearly parallel) sampled limit rows; that is not
-            # a local optimum. Fall back to MMA, which handles such constraint sets.
-            stalled = (
-                f"; LD_SLSQP stopped after {problem.num_evaluations} evaluation(s) without progress, "
-                "solved again with LD_MMA"
-            )
-            options.SetOption(sid, "algorithm", "LD_MMA")
-            result = backend.Solve(program.prog, x0, options)
+            # NLopt's SLSQP sometimes stops after one evaluation with XTOL_REACHED: its first
+            # QP step came back zero (seen at starts with gradients of ~1e6). Not a local
+            # optimum: start again from the motion shrunk by 5 % toward its offsets (still
+            # feasible: the limits are linear in alpha), then, if that stalls too, with MMA
+            # (robust but slow with thousands of rows).
+            nq0 = problem.n
+            retry = x0.copy()
+            retry[:-nq0] *= 0.95
+            result = backend.Solve(program.prog, retry, options)
+            stalled = "; LD_SLSQP stalled at the start, restarted from the motion shrunk by 5 %"
+            if problem.num_evaluations <= 4:
+                options.SetOption(sid, "algorithm", "LD_MMA")
+                result = backend.Solve(program.prog, x0, options)
+                stalled = "; LD_SLSQP stalled twice at the start, solved with LD_MMA"
     wall = time.perf_counter() - start
     x = np.asarray(result.GetSolution(program.alpha), float)
     nit = None
