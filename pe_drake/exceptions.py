@@ -6,7 +6,8 @@ can catch one type. Subclasses carry the offending values as attributes.
 
 from __future__ import annotations
 
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 
 class PeDrakeError(Exception):

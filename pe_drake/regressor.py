@@ -20,8 +20,8 @@ import dataclasses
 import numpy as np
 
 from pe_drake.spatial import (
-    cross_force,
     cross3,
+    cross_force,
     cross_motion,
     force_to_world,
     inertia_times,

@@ -65,7 +65,7 @@ def test_joint_axes_are_drake_jacobian_columns(g1):
     kin = model.kinematics(q, v, vd)
     plant, ctx = g1.plant, g1.plant_context
     plant.SetPositions(ctx, q[0])
-    for j, body_index in enumerate(g1.body_indices):
+    for j in range(len(g1.body_indices)):
         body = plant.get_body(g1._bodies[j].index())
         # Spatial velocity Jacobian of the body-fixed point at the world origin.
         X_WB = plant.EvalBodyPoseInWorld(ctx, body)
