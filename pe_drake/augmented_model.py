@@ -287,13 +287,9 @@ def physical_parameters(K: np.ndarray, phi_prior: np.ndarray, Sigma_phi: np.ndar
 
 
 def _pseudo_inertia(phi_b: np.ndarray) -> np.ndarray:
-    m, hx, hy, hz, Ixx, Iyy, Izz, Ixy, Ixz, Iyz = np.asarray(phi_b, float)
-    I = np.array([[Ixx, Ixy, Ixz], [Ixy, Iyy, Iyz], [Ixz, Iyz, Izz]])
-    J = np.zeros((4, 4))
-    J[:3, :3] = 0.5 * np.trace(I) * np.eye(3) - I
-    J[:3, 3] = J[3, :3] = [hx, hy, hz]
-    J[3, 3] = m
-    return J
+    from pe_drake.identification import pseudo_inertia
+
+    return pseudo_inertia(phi_b)
 
 
 def physically_consistent(body_names, phi: np.ndarray, margin: float = 1e-9) -> tuple[np.ndarray, list[str]]:
