@@ -95,8 +95,20 @@ class RegressorModel:
         g = np.asarray(plant.gravity_field().gravity_vector())
         self.A0 = np.concatenate([np.zeros(3), -g])  # base acceleration = -gravity
 
+        self._fk = _ForwardKinematics.build(robot, self._bodies_needed)
+
     # ---- forward ------------------------------------------------------------------------
     def _poses(self, q: np.ndarray) -> np.ndarray:
+        """X_WB of the needed bodies, (T, len(bodies_needed), 4, 4).
+
+        Batched over samples from the joints' fixed frames (Drake's X_PF, X_FM(q), X_MC);
+        falls back to Drake's per-sample queries for joint types it does not handle.
+        """
+        if self._fk is not None:
+            return self._fk(q)
+        return self._drake_poses(q)
+
+    def _drake_poses(self, q: np.ndarray) -> np.ndarray:
         """X_WB of the needed bodies, (T, len(bodies_needed), 4, 4), from Drake."""
         plant, ctx = self.robot.plant, self.robot.plant_context
         out = np.empty((q.shape[0], len(self._body_objs), 4, 4))
@@ -210,6 +222,97 @@ class RegressorModel:
         # S_i(q): ∂S_i/∂q_l = S_l ×m S_i for l strictly before i.
         q_bar += np.sum(S * (self.strict_anc @ cross_force(S, S_bar)), axis=-1)
         return q_bar, v_bar, vd_bar
+
+
+class _ForwardKinematics:
+    """World poses of chosen bodies for T configurations at once.
+
+    Each joint gives X_PC(q) = X_PF · X_FM(q) · X_MC (Drake's joint frames F on the parent,
+    M on the child): a rotation about the joint axis for revolute joints, a translation along
+    it for prismatic ones, a constant for welds. Bodies whose path from the world has no
+    excited joint have a constant pose, computed once.
+    """
+
+    def __init__(self, steps, outputs):
+        #: per moving step: (parent: ("const", X_WP) or ("var", step), X_PF, kind, axis, q index, X_MC)
+        self.steps = steps
+        #: per requested body: ("const", X_WB) or ("var", step)
+        self.outputs = outputs
+
+    @staticmethod
+    def build(robot, bodies):
+        from pydrake.multibody.tree import ModelInstanceIndex, PrismaticJoint, RevoluteJoint, WeldJoint
+
+        plant = robot.plant
+        child_joint = {}
+        for m in range(plant.num_model_instances()):
+            for k in plant.GetJointIndices(ModelInstanceIndex(m)):  # skips removed joints
+                joint = plant.get_joint(k)
+                child_joint[int(joint.child_body().index())] = joint
+        steps, memo = [], {}
+
+        def visit(b: int):
+            """('const', X_WB) or ('var', slot) of body b."""
+            if b in memo:
+                return memo[b]
+            joint = child_joint.get(b)
+            if joint is None:  # the world (or a free body: not in our fixed-base robots)
+                if b != 0:
+                    raise NotImplementedError
+                memo[b] = ("const", np.eye(4))
+                return memo[b]
+            parent = visit(int(joint.parent_body().index()))
+            X_PF = joint.frame_on_parent().GetFixedPoseInBodyFrame().GetAsMatrix4()
+            X_MC = joint.frame_on_child().GetFixedPoseInBodyFrame().inverse().GetAsMatrix4()
+            if isinstance(joint, WeldJoint):
+                X = X_PF @ joint.X_FM().GetAsMatrix4() @ X_MC
+                if parent[0] == "const":
+                    memo[b] = ("const", parent[1] @ X)
+                else:
+                    steps.append((parent, X, "weld", None, -1, np.eye(4)))
+                    memo[b] = ("var", len(steps) - 1)
+                return memo[b]
+            if isinstance(joint, RevoluteJoint):
+                kind, axis = "revolute", np.asarray(joint.revolute_axis(), float)
+            elif isinstance(joint, PrismaticJoint):
+                kind, axis = "prismatic", np.asarray(joint.translation_axis(), float)
+            else:
+                raise NotImplementedError
+            steps.append((parent, X_PF, kind, axis / np.linalg.norm(axis), joint.position_start(), X_MC))
+            memo[b] = ("var", len(steps) - 1)
+            return memo[b]
+
+        try:
+            outputs = [visit(int(b)) for b in bodies]
+        except NotImplementedError:
+            return None
+        return _ForwardKinematics(steps, outputs)
+
+    def __call__(self, q: np.ndarray) -> np.ndarray:
+        T = q.shape[0]
+        X = []
+        for parent, X_PF, kind, axis, iq, X_MC in self.steps:
+            X_WP = parent[1] if parent[0] == "const" else X[parent[1]]
+            if kind == "weld":
+                X.append(X_WP @ X_PF)
+                continue
+            X_FM = np.zeros((T, 4, 4))
+            X_FM[:, 3, 3] = 1.0
+            if kind == "revolute":
+                c, s = np.cos(q[:, iq]), np.sin(q[:, iq])
+                a = axis
+                K = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+                X_FM[:, :3, :3] = (
+                    c[:, None, None] * np.eye(3) + s[:, None, None] * K + (1 - c)[:, None, None] * np.outer(a, a)
+                )
+            else:
+                X_FM[:, :3, :3] = np.eye(3)
+                X_FM[:, :3, 3] = q[:, iq, None] * axis
+            X.append(X_WP @ X_PF @ X_FM @ X_MC)
+        out = np.empty((T, len(self.outputs), 4, 4))
+        for k, (kind, value) in enumerate(self.outputs):
+            out[:, k] = value if kind == "const" else X[value]
+        return out
 
 
 def _body_index(b: int):

@@ -127,3 +127,12 @@ def test_adjoint_of_prismatic_joint():
     numeric = _finite_difference(model, Z, q, v, vd)
     for a, n in zip(analytic, numeric):
         assert np.abs(a - n).max() / np.abs(n).max() < 1e-6
+
+
+@pytest.mark.parametrize("name", ["panda", "ur5", "g1"])
+def test_batched_body_poses_equal_drake(name):
+    robot = get_robot(name)
+    model = RegressorModel(robot)
+    assert model._fk is not None  # every built-in robot uses the batched path
+    q, _, _ = random_states(robot, 30, seed=4)
+    np.testing.assert_allclose(model._poses(q), model._drake_poses(q), atol=1e-12)
