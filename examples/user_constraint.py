@@ -2,7 +2,7 @@
 
 The excitation program is an ordinary Drake MathematicalProgram. Here we add a constraint
 written by the user next to pe_drake's cost and limits: the Panda's flange (panda_link8)
-must stay above a table at z = 0.25 m. The height comes from one of Drake's kinematic
+must stay above a table at z = 0.45 m. The height comes from one of Drake's kinematic
 constraints (PositionConstraint) evaluated at every configuration sample; its gradient with
 respect to q is chained through the Fourier map by pe_drake's add_sampled_constraint.
 
@@ -16,6 +16,7 @@ import math
 import numpy as np
 
 from pe_drake.config import ExcitationConfig, SolverConfig
+from pe_drake.constraints import constraints_from_config
 from pe_drake.constraints.base import SampledConstraint, SampledValues
 from pe_drake.excitation import (
     ExcitationProblem,
@@ -26,7 +27,7 @@ from pe_drake.excitation import (
 )
 from pe_drake.robot import load_robot
 
-TABLE_HEIGHT = 0.25  # [m]
+TABLE_HEIGHT = 0.45  # [m]
 
 
 class FlangeAboveTable(SampledConstraint):
@@ -66,9 +67,12 @@ class FlangeAboveTable(SampledConstraint):
 
 def main() -> None:
     robot = load_robot("panda")
-    config = ExcitationConfig(harmonics=4, omega=2 * math.pi / 10, cost_samples=40, constraint_samples=200)
+    config = ExcitationConfig(
+        harmonics=4, omega=2 * math.pi / 10, cost_samples=40, constraint_samples=200, collision_margin=0.01
+    )
     problem = ExcitationProblem(robot, config)
-    program = build_excitation_program(problem)
+    # pe_drake's own constraints first (the capsules 1 cm apart), then ours.
+    program = build_excitation_program(problem, constraints_from_config(robot, config))
     table = FlangeAboveTable(robot)
     add_sampled_constraint(program.prog, program.alpha, problem, table, group=1)
     program.constraints.append(table)  # re-checked at 1 kHz with the others

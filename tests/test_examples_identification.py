@@ -33,3 +33,11 @@ def test_real_panda_example(tmp_path, capsys):
     assert module.main(["--out", str(tmp_path)]) == 0
     assert "a-priori URDF" in capsys.readouterr().out
     assert (tmp_path / "model.urdf").is_file() and (tmp_path / "identified.json").is_file()
+
+
+def test_user_constraint_example(capsys):
+    load("user_constraint").main()
+    out = capsys.readouterr().out
+    assert "success: True" in out
+    height = float(out.split("lowest flange height over the period:")[1].split()[0])
+    assert height >= 0.45 - 1e-3  # the user's table, checked at 2000 samples
