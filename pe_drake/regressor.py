@@ -22,8 +22,11 @@ import numpy as np
 from pe_drake.spatial import (
     cross3,
     cross_force,
+    cross_force_matrix,
     cross_motion,
+    cross_motion_matrix,
     force_to_world,
+    force_transform_matrix,
     inertia_times,
     inertia_times_diagonal,
     motion_to_body,
@@ -149,8 +152,10 @@ class RegressorModel:
         VB = motion_to_body(R, p, VJ[:, self.joint_of_body])
         AB = motion_to_body(R, p, AJ[:, self.joint_of_body])
         G_V = inertia_times(VB)  # M_k V for each unit parameter k, (T, nb, 6, 10)
-        F_B = inertia_times(AB) + np.moveaxis(cross_force(VB[..., None, :], np.moveaxis(G_V, -1, -2)), -1, -2)
-        F_W = np.moveaxis(force_to_world(R[:, :, None], p[:, :, None], np.moveaxis(F_B, -1, -2)), -1, -2)
+        # One 6 × 6 matrix per body applied to its 10 parameter columns (a batched matmul is
+        # several times faster than the vector formulas on (T, nb, 10, 6) arrays).
+        F_B = inertia_times(AB) + cross_force_matrix(VB) @ G_V
+        F_W = force_transform_matrix(R, p) @ F_B
         return Kinematics(q, v, vd, S, R, p, VJ, AJ, VB, AB, F_B, F_W, G_V)
 
     def regressor(self, kin: Kinematics) -> np.ndarray:
@@ -176,7 +181,6 @@ class RegressorModel:
         """
         T, n, nb = Z.shape[0], self.n, self.nb
         S, v, vd, VJ = kin.S, kin.v, kin.vd, kin.VJ
-        R, p = kin.R[:, :, None], kin.p[:, :, None]
 
         # f = Σ_j Σ_k w_jk · F_jk, with w_jk = Σ_i [i moves j] Z_ijk S_i (a motion vector).
         Zm = Z.reshape(T, n, self.num_params) * self._mask
@@ -185,11 +189,13 @@ class RegressorModel:
         S_bar = Zm @ F_W  # ∂f/∂S_i through w
 
         # Body-coordinate adjoints of A_j and V_j (F = Γ(A)φ + V ×* Γ(V)φ, φ = e_k).
-        wB = motion_to_body(R, p, w)  # (T, nb, 10, 6)
+        # motion_to_body is the transpose of force_to_world's matrix.
+        X_motion = force_transform_matrix(kin.R, kin.p).swapaxes(-1, -2)
+        wB = (X_motion @ w.swapaxes(-1, -2)).swapaxes(-1, -2)  # (T, nb, 10, 6)
         a_bar_B = inertia_times_diagonal(wB)
-        VB = kin.VB[:, :, None, :]
         G_V = np.moveaxis(kin.G_V, -1, -2)  # (T, nb, 10, 6): M_k V
-        v_bar_B = inertia_times_diagonal(cross_motion(wB, VB)) - cross_force(wB, G_V).sum(axis=2)
+        wB_x_V = -(cross_motion_matrix(kin.VB) @ wB.swapaxes(-1, -2)).swapaxes(-1, -2)  # w ×m V = -V ×m w
+        v_bar_B = inertia_times_diagonal(wB_x_V) - cross_force(wB, G_V).sum(axis=2)
         # Rotating body j with joint l leaves f invariant if w, V, A and M all rotate: the
         # derivative through M is minus that through w, V and A (docs/derivations.md, §4).
         Q_B = (

@@ -142,3 +142,45 @@ def _skew(x: np.ndarray) -> np.ndarray:
     out[..., 1, 0], out[..., 1, 2] = x[..., 2], -x[..., 0]
     out[..., 2, 0], out[..., 2, 1] = -x[..., 1], x[..., 0]
     return out
+
+
+# ---- 6 × 6 matrices: one batched matmul applies them to many vectors of the same body ----------
+
+
+def force_transform_matrix(R: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """X* with X* f = :func:`force_to_world` (R, p, f): [[R, [p]× R], [0, R]], (..., 6, 6)."""
+    X = np.zeros(R.shape[:-2] + (6, 6))
+    X[..., :3, :3] = R
+    X[..., 3:, 3:] = R
+    X[..., :3, 3:] = _skew(p) @ R
+    return X
+
+
+def motion_to_body_matrix(R: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """X with X m = :func:`motion_to_body` (R, p, m): [[Rᵀ, 0], [-Rᵀ [p]×, Rᵀ]], (..., 6, 6)."""
+    Rt = R.swapaxes(-1, -2)
+    X = np.zeros(R.shape[:-2] + (6, 6))
+    X[..., :3, :3] = Rt
+    X[..., 3:, 3:] = Rt
+    X[..., 3:, :3] = -Rt @ _skew(p)
+    return X
+
+
+def cross_force_matrix(a: np.ndarray) -> np.ndarray:
+    """[a ×*] with [a ×*] f = :func:`cross_force` (a, f): [[ω×, v×], [0, ω×]], (..., 6, 6)."""
+    X = np.zeros(a.shape[:-1] + (6, 6))
+    W = _skew(a[..., :3])
+    X[..., :3, :3] = W
+    X[..., 3:, 3:] = W
+    X[..., :3, 3:] = _skew(a[..., 3:])
+    return X
+
+
+def cross_motion_matrix(a: np.ndarray) -> np.ndarray:
+    """[a ×m] with [a ×m] m = :func:`cross_motion` (a, m): [[ω×, 0], [v×, ω×]], (..., 6, 6)."""
+    X = np.zeros(a.shape[:-1] + (6, 6))
+    W = _skew(a[..., :3])
+    X[..., :3, :3] = W
+    X[..., 3:, 3:] = W
+    X[..., 3:, :3] = _skew(a[..., 3:])
+    return X
