@@ -349,18 +349,8 @@ def augmented_torque(true, model: AugmentedModel, q: np.ndarray, v: np.ndarray, 
     """Torque the augmented model needs along a motion: Drake's inverse dynamics with its force
     elements (gravity, damping, Coulomb ``DoorHinge``), rotor inertia and payload, plus the
     offsets. Shape (T, n) [N·m]."""
-    from pydrake.multibody.tree import MultibodyForces
-
-    plant, ctx = true.robot.plant, true.robot.plant_context
-    forces = MultibodyForces(plant)
-    out = np.empty_like(np.asarray(q, float))
-    for k in range(q.shape[0]):
-        plant.SetPositions(ctx, q[k])
-        plant.SetVelocities(ctx, v[k])
-        forces.SetZero()
-        plant.CalcForceElementsContribution(ctx, forces)
-        out[k] = plant.CalcInverseDynamics(ctx, vd[k], forces)
-    return out + model.torque_offset
+    q, v, vd = (np.atleast_2d(np.asarray(x, float)) for x in (q, v, vd))
+    return true.robot.inverse_dynamics(q, v, vd, include_damping=True) + model.torque_offset
 
 
 # ---- files ----------------------------------------------------------------------------------
