@@ -450,15 +450,21 @@ def result_to_dict(result: IdentificationResult, robot, model_file: str | None =
     if result.preprocessing is not None:
         out["preprocessing"] = dataclasses.asdict(result.preprocessing)
     if result.phi is not None:
-        names = ("m", "hx", "hy", "hz", "Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")
-        out["standard_parameters"] = {
-            body: dict(zip(names, map(float, result.phi[10 * b : 10 * b + 10])))
-            for b, body in enumerate(robot.body_names)
-        }
+        out["standard_parameters"] = standard_parameters_dict(robot, result.phi)
         out["physically_valid"] = not validity_problems(robot.body_names, result.phi)
     if model_file:
         out["model_file"] = model_file
     return out
+
+
+def standard_parameters_dict(robot, phi: np.ndarray) -> dict[str, dict[str, float]]:
+    """{body: {parameter name: value}} (names of ``pe_drake.robot.PARAMETER_NAMES``)."""
+    from pe_drake.robot import PARAMETER_NAMES
+
+    return {
+        body: dict(zip(PARAMETER_NAMES, map(float, phi[10 * b : 10 * b + 10])))
+        for b, body in enumerate(robot.body_names)
+    }
 
 
 def load_identified(path: str | Path, robot) -> IdentificationResult:
@@ -478,7 +484,6 @@ def load_identified(path: str | Path, robot) -> IdentificationResult:
     try:
         joints = tuple(d["joints"])
         entries = d["base_parameters"]
-        names = tuple(e["name"] for e in entries)
         phi_B = np.array([float(e["value"]) for e in entries])
         columns = np.array([int(e["column"]) for e in entries])
         sigma = np.array(
@@ -504,17 +509,13 @@ def load_identified(path: str | Path, robot) -> IdentificationResult:
         )
     phi = None
     if "standard_parameters" in d:
-        phi = np.concatenate(
-            [
-                [
-                    float(d["standard_parameters"][b][k])
-                    for k in ("m", "hx", "hy", "hz", "Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")
-                ]
-                for b in robot.body_names
-            ]
-        )
-    del names
-    n = len(joints)
+        from pe_drake.robot import PARAMETER_NAMES
+
+        try:
+            table = d["standard_parameters"]
+            phi = np.array([float(table[b][k]) for b in robot.body_names for k in PARAMETER_NAMES])
+        except (KeyError, TypeError, ValueError) as err:
+            raise DataError(f"standard_parameters: {err!r} missing or malformed", file=str(path)) from err
     return IdentificationResult(
         robot=d.get("robot", robot.name),
         method=d.get("method", "ols"),
@@ -526,7 +527,7 @@ def load_identified(path: str | Path, robot) -> IdentificationResult:
         cond=float(d.get("cond", float("nan"))),
         residual_rms=np.array([d.get("residual_rms", {}).get(j, np.nan) for j in joints]),
         relative_error=np.array([d.get("relative_error", {}).get(j, np.nan) for j in joints]),
-        noise_std=np.array([d.get("noise_std", {}).get(j, np.nan) for j in joints]) if n else np.zeros(0),
+        noise_std=np.array([d.get("noise_std", {}).get(j, np.nan) for j in joints]),
         samples=int(d.get("samples", 0)),
         source=d.get("data", ""),
     )

@@ -46,6 +46,7 @@ def identify_command(args: argparse.Namespace) -> int:
         read_robot_measurement,
         result_to_dict,
         standard_from_base,
+        standard_parameters_dict,
     )
     from pe_drake.model_export import PhysicallyInvalidError, validity_problems, write_robot_urdf
 
@@ -117,11 +118,7 @@ def identify_command(args: argparse.Namespace) -> int:
                 note = f"model.urdf not written: {err}"
         d = result_to_dict(result, robot, model_file)
         if result.phi is None and phi is not None:
-            names = ("m", "hx", "hy", "hz", "Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")
-            d["standard_parameters"] = {
-                body: dict(zip(names, map(float, phi[10 * b : 10 * b + 10])))
-                for b, body in enumerate(robot.body_names)
-            }
+            d["standard_parameters"] = standard_parameters_dict(robot, phi)
             d["physically_valid"] = True
         if note:
             d["note"] = note
