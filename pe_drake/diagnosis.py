@@ -1337,7 +1337,7 @@ def bench_diagnose(args) -> None:
             write_outputs(tmp, robot, result)
 
     repeats = max(1, min(int(args.repeats), 3))
-    seconds = median_time(run, repeats=repeats, warmup=0)
+    seconds = median_time(run, repeats=repeats, warmup=0, warmup_seconds=0.0)
     print("named: " + (", ".join(f"{e.effect}[{e.joint or e.link}] {e.value:.3g} {e.unit}" for e in result.effects)
                        or "nothing"))
     print("steps [s]: " + ", ".join(f"{k} {v:.2f}" for k, v in result.timings.items()))

@@ -30,6 +30,7 @@ from pe_drake.spatial import (
     inertia_times,
     inertia_times_diagonal,
     motion_to_body,
+    summed_cross_force,
 )
 
 GRAVITY = 9.81  # [m/s²], overwritten by the plant's gravity field in Kinematics
@@ -195,11 +196,11 @@ class RegressorModel:
         a_bar_B = inertia_times_diagonal(wB)
         G_V = np.moveaxis(kin.G_V, -1, -2)  # (T, nb, 10, 6): M_k V
         wB_x_V = -(cross_motion_matrix(kin.VB) @ wB.swapaxes(-1, -2)).swapaxes(-1, -2)  # w ×m V = -V ×m w
-        v_bar_B = inertia_times_diagonal(wB_x_V) - cross_force(wB, G_V).sum(axis=2)
+        v_bar_B = inertia_times_diagonal(wB_x_V) - summed_cross_force(wB, G_V)
         # Rotating body j with joint l leaves f invariant if w, V, A and M all rotate: the
         # derivative through M is minus that through w, V and A (docs/derivations.md, §4).
         Q_B = (
-            cross_force(wB, np.moveaxis(kin.F_B, -1, -2)).sum(axis=2)
+            summed_cross_force(wB, np.moveaxis(kin.F_B, -1, -2))
             + cross_force(kin.VB, v_bar_B)
             + cross_force(kin.AB, a_bar_B)
         )

@@ -184,3 +184,20 @@ def cross_motion_matrix(a: np.ndarray) -> np.ndarray:
     X[..., 3:, 3:] = W
     X[..., 3:, :3] = _skew(a[..., 3:])
     return X
+
+
+def summed_cross_force(a: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """Σ_k a_k ×* f_k over the second-to-last axis, (..., K, 6) × (..., K, 6) → (..., 6).
+
+    Σ_k x_k × y_k is the axial vector of M - Mᵀ with M = Σ_k x_k y_kᵀ, so the whole sum
+    is one batched matmul M = aᵀ f (6 × 6) instead of K cross products.
+    """
+    M = a.swapaxes(-1, -2) @ f
+
+    def axial(B):
+        return np.stack([B[..., 1, 2] - B[..., 2, 1], B[..., 2, 0] - B[..., 0, 2], B[..., 0, 1] - B[..., 1, 0]], -1)
+
+    out = np.empty(M.shape[:-2] + (6,))
+    out[..., :3] = axial(M[..., :3, :3]) + axial(M[..., 3:, 3:])
+    out[..., 3:] = axial(M[..., :3, 3:])
+    return out
