@@ -57,22 +57,29 @@ def test_missing_effort_limit_and_posture_beyond_it_are_refused():
         TorqueConstraint(weak)
 
 
+def _solve_panda(robot, torque_limits):
+    excitation = ExcitationConfig(harmonics=3, omega=2 * math.pi / 8, cost_samples=24, constraint_samples=96,
+                                  torque_limits=torque_limits)
+    problem = ExcitationProblem(robot, excitation)
+    program = build_excitation_program(problem, constraints_from_config(robot, excitation))
+    result = solve_excitation(program, SolverConfig(name="ipopt", max_iterations=80), problem.initial_guess(seed=0))
+    t = np.arange(0, result.trajectory.period, 1e-3)
+    tau = TorqueConstraint(robot).evaluate(*result.trajectory.evaluate(t), derivatives=False).value
+    return result, np.abs(tau).max(axis=0)
+
+
 def test_optimized_trajectory_respects_tightened_torque_limits():
     panda = get_robot("panda")
     config = dataclasses.replace(panda.config, effort_scale=0.3)  # 26 N·m on joints 1-4, 3.6 N·m on 5-7
     robot = Robot("panda", config)
-    excitation = ExcitationConfig(harmonics=3, omega=2 * math.pi / 8, cost_samples=24, constraint_samples=96,
-                                  torque_limits=True)
-    problem = ExcitationProblem(robot, excitation)
-    constraints = constraints_from_config(robot, excitation)
-    program = build_excitation_program(problem, constraints)
-    result = solve_excitation(program, SolverConfig(name="ipopt", max_iterations=80), problem.initial_guess(seed=0))
+    # The limit matters: from the same start, the optimum without it exceeds it on some joint
+    # (joint 2, about 1.6x, when measured).
+    free, free_peak = _solve_panda(robot, torque_limits=False)
+    assert free.success, free.message
+    assert np.any(free_peak > robot.limits.effort_max)
+    result, peak = _solve_panda(robot, torque_limits=True)
     assert "torque" in result.margins
     assert result.success, result.message
     assert result.margins["torque"] >= -1e-6
-    t = np.arange(0, result.trajectory.period, 1e-3)
-    q, v, vd = result.trajectory.evaluate(t)
-    tau = TorqueConstraint(robot).evaluate(q, v, vd, derivatives=False).value
-    # The limit is active: some joint comes within 2 % of it.
-    assert np.min(robot.limits.effort_max - np.abs(tau).max(axis=0)) < 0.02 * robot.limits.effort_max.max()
-    assert np.all(np.abs(tau) <= robot.limits.effort_max + 1e-6)
+    # Checked at 1 kHz, not only at the 96 constraint samples.
+    assert np.all(peak <= robot.limits.effort_max + 1e-6)
