@@ -16,8 +16,11 @@ amplitudes (:mod:`pe_drake.baseline`), then greedy selection of 3.
     python examples/humanoid_g1_arms.py --out results/g1_tables            # ~7 min on 2 cores
     python examples/humanoid_g1_arms.py --quick --out /tmp/g1_quick        # smoke test, < 1 min
 
-Each motion: 2 seeded random starts solved in 2 worker processes (IPOPT ≤ 150 iterations
-each), the lower cond kept. Progress lines go to stdout; the tables are printed at the end.
+Each motion: 2 starts solved in 2 worker processes (IPOPT ≤ 150 iterations each), the lower
+cond kept. Motion 1 starts from 2 seeded random points; motions 2 and 3 from one random point
+and one warm start, the earlier motion with the lowest cond on the current prior
+(:func:`pe_drake.sequential.optimize_sequence`). Progress lines go to stdout; the tables are
+printed at the end.
 
 Outputs in --out: tables.md, tables.json, motion_<i>/trajectory.json (optimized) and
 baseline_<i>/trajectory.json (selected random motions); view one with
@@ -566,6 +569,14 @@ def format_console(t: dict) -> str:
         + ("met" if max(t1["wall_time_s"]) <= TIME_TARGET else "MISSED")
         + ")",
     ]
+    totals = t1["cond_total"]
+    if len(totals) > 1:
+        falls = all(b < a for a, b in zip(totals, totals[1:]))
+        out.append(
+            "cond(C) after each motion: "
+            + " -> ".join(f"{x:.4g}" for x in totals)
+            + f" (target: falls with each motion: {'met' if falls else 'MISSED'})"
+        )
     if not all(t1["success"]):
         out.append(
             "WARNING: motions "

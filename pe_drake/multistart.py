@@ -96,6 +96,8 @@ class StartEvent:
         criterion: "cond", "log_cond" or "dopt".
         label: a tag set by the caller (e.g. "motion 2").
         message: the solver's message ("finished" only).
+        origin: where the start began when not at its seed's random point (e.g. "from
+            motion 1"); empty otherwise.
     """
 
     seed: int
@@ -108,11 +110,13 @@ class StartEvent:
     criterion: str = "cond"
     label: str = ""
     message: str = ""
+    origin: str = ""
 
     def __str__(self) -> str:
         tag = f"{self.label} " if self.label else ""
         if self.kind == "started":
-            return f"  {tag}start seed {self.seed}: started"
+            origin = f" ({self.origin})" if self.origin else ""
+            return f"  {tag}start seed {self.seed}: started{origin}"
         text = (
             f"  {tag}start seed {self.seed}: eval {self.evaluations:5d}  "
             f"{self.criterion} {self.value:10.5g}  best feasible {self.best_feasible:10.5g}  "
@@ -467,6 +471,7 @@ class _StartTask:
     amplitude: float | None
     label: str
     interval: float
+    origin: str = ""
 
 
 class _Reporter:
@@ -494,6 +499,7 @@ class _Reporter:
             criterion=self.task.config.criterion,
             label=self.task.label,
             message=message,
+            origin=self.task.origin,
         )
 
     def __call__(self, alpha: np.ndarray, value: float) -> None:
@@ -569,6 +575,7 @@ def solve_multistart(
     progress: Callable[[StartEvent], None] | None = None,
     progress_interval: float = 2.0,
     label: str = "",
+    origins: Sequence[str] | None = None,
 ) -> MultiStartResult:
     """Solves the excitation problem from several random initial points, keeps the best.
 
@@ -582,13 +589,16 @@ def solve_multistart(
         constraints_factory: ``f(robot, config) -> [SampledConstraint, ...]``, called once
             per worker (e.g. :func:`pe_drake.constraints.constraints_from_config`); ignored
             when ``pool`` is given (the pool's factory is used).
-        initial_guesses: explicit initial alphas, one per seed.
+        initial_guesses: explicit initial alphas, one per seed; a None entry keeps that
+            seed's random point.
         amplitude: scale of the random initial coefficients [rad] (default config.amplitude).
         workers: processes (default os.cpu_count(); capped at the number of seeds).
         pool: an open :class:`WorkerPool` to reuse (its workers keep their robot).
         progress: callback receiving :class:`StartEvent` objects (in this process).
         progress_interval: seconds between "progress" events of a start.
         label: copied into the events (e.g. "motion 2").
+        origins: one note per seed saying where an explicit initial guess comes from (e.g.
+            "from motion 1"), copied into its events.
 
     Returns:
         A :class:`MultiStartResult`.
@@ -610,6 +620,8 @@ def solve_multistart(
         raise ConfigError(f"multi-start seeds must differ, got {seeds}")
     if initial_guesses is not None and len(initial_guesses) != len(seeds):
         raise ConfigError(f"{len(initial_guesses)} initial guesses for {len(seeds)} seeds")
+    if origins is not None and len(origins) != len(seeds):
+        raise ConfigError(f"{len(origins)} origins for {len(seeds)} seeds")
     if not progress_interval > 0:
         raise ConfigError(f"progress_interval must be positive [s], got {progress_interval!r}")
     C0 = None if C0 is None else np.asarray(C0, float)
@@ -619,10 +631,11 @@ def solve_multistart(
             config=config,
             solver=solver_cfg,
             C0=C0,
-            x0=None if initial_guesses is None else np.asarray(initial_guesses[k], float),
+            x0=None if initial_guesses is None or initial_guesses[k] is None else np.asarray(initial_guesses[k], float),
             amplitude=amplitude,
             label=label,
             interval=progress_interval,
+            origin="" if origins is None else str(origins[k]),
         )
         for k, s in enumerate(seeds)
     ]

@@ -84,6 +84,7 @@ def sequence(panda):
         workers=1,
         constraints_factory=no_constraints,
         progress=events.append,
+        warm_start=False,  # every start at its seed's random point (see the warm-start test)
     )
     return result, events
 
@@ -136,6 +137,27 @@ def test_prior_data_is_the_first_block_of_C(panda, sequence):
     np.testing.assert_allclose(result.motions[0].result.x, first.motions[1].result.x, rtol=0, atol=1e-10)
     np.testing.assert_allclose(result.C[: len(C0)], C0)
     assert result.cond == pytest.approx(first.motions[1].cond_total, rel=1e-9)
+
+
+def test_warm_start_begins_at_the_best_earlier_motion(panda):
+    events = []
+    result = optimize_sequence(
+        panda, CONFIG, SOLVER, motions=3, starts=2, workers=1, constraints_factory=no_constraints,
+        progress=events.append,
+    )
+    started = [e for e in events if isinstance(e, StartEvent) and e.kind == "started"]
+    # Motion 1: two random starts; motions 2 and 3: a random start, then the warm start.
+    assert [e.origin.split(",")[0] for e in started[:2]] == ["", ""]
+    m1, m2, m3 = result.motions
+    assert started[3].origin.startswith("from motion 1") and started[3].seed == m2.seeds[1]
+    problem = ExcitationProblem(panda, CONFIG, C0=np.vstack([m1.block, m2.block]), base=result.base)
+    best = int(np.argmin([problem.value(m.result.x) for m in (m1, m2)]))
+    assert started[5].origin.startswith(f"from motion {best + 1}")
+    assert "from motion" in str(started[5])
+    # Repeating motion 1 leaves cond unchanged (cond is scale-free), so motion 2 starts at
+    # cond(C^(1)) and the solver (no constraints here) can only improve on it.
+    assert _cond(np.vstack([m1.block, m1.block])) == pytest.approx(m1.cond_total, rel=1e-9)
+    assert m2.cond_total <= m1.cond_total * (1 + 1e-9)
 
 
 def test_multistart_in_two_processes_keeps_the_best_and_equals_serial(panda):
@@ -220,3 +242,5 @@ def test_multistart_refuses_bad_seeds(panda):
         solve_multistart(panda, CONFIG, SOLVER, [], workers=1)
     with pytest.raises(ConfigError, match="workers"):
         WorkerPool(panda, 0)
+    with pytest.raises(ConfigError, match="1 origins for 2 seeds"):
+        solve_multistart(panda, CONFIG, SOLVER, [1, 2], workers=1, origins=["from motion 1"])
