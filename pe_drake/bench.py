@@ -49,11 +49,16 @@ def median_time(
 def bench_gradient(args: argparse.Namespace) -> None:
     """The paper's problem size: G1's 14 arm joints, N = 10, ω = π/4, T = 40 samples 0.2 s
     apart (294 variables). Times one cost evaluation, one analytic gradient (value and
-    gradient from scratch), one forward finite-difference gradient, and their difference."""
+    gradient from scratch), one forward finite-difference gradient, and their difference.
+    Runs as the solvers do: one BLAS thread, freed memory kept for reuse
+    (:mod:`pe_drake.memory`; ``--default-malloc`` leaves glibc's defaults)."""
     from pe_drake.config import ExcitationConfig
     from pe_drake.excitation import ExcitationProblem
+    from pe_drake.memory import reuse_freed_memory
     from pe_drake.robot import load_robot
     from pe_drake.threads import single_threaded_blas
+
+    reused = False if args.default_malloc else reuse_freed_memory()
 
     robot = load_robot(args.robot)
     config = ExcitationConfig(harmonics=10, omega=math.pi / 4, cost_samples=40)
@@ -93,7 +98,8 @@ def bench_gradient(args: argparse.Namespace) -> None:
             central[i] = (problem.value(x1) - problem.value(x2)) / (2 * step)
     rel_err = float(np.linalg.norm(grad - central) / np.linalg.norm(central))
     print(f"robot {robot.name}: n = {robot.n}, N = 10, T = 40, variables = {problem.num_variables}, "
-          f"base parameters = {problem.base.count}, cond = {problem.value(alpha):.4g}")
+          f"base parameters = {problem.base.count}, cond = {problem.value(alpha):.4g}; "
+          f"freed memory {'reused' if reused else 'returned (glibc defaults)'}")
     print(f"one cost evaluation            {cost_s * 1e3:9.2f} ms")
     print(f"one analytic gradient          {grad_s * 1e3:9.2f} ms  (value + gradient, = {grad_s / cost_s:.2f} cost evaluations)")
     print(f"one forward-difference gradient {fd_s * 1e3:8.1f} ms  ({problem.num_variables + 1} cost evaluations)")
@@ -107,7 +113,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("benchmark", choices=sorted(_BENCHMARKS))
     parser.add_argument("--robot", default=None, help="robot (default: g1 for gradient, panda otherwise)")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--repeats", type=int, default=11)
+    parser.add_argument("--repeats", type=int, default=51, help="timed runs per median (default: %(default)s)")
+    parser.add_argument(
+        "--default-malloc", action="store_true", help="gradient: keep glibc's malloc thresholds (see pe_drake.memory)"
+    )
     args = parser.parse_args(argv)
     if args.robot is None:
         args.robot = "g1" if args.benchmark == "gradient" else "panda"

@@ -58,11 +58,12 @@ def evaluate_criterion(C: np.ndarray, criterion: str = "cond", gradient: bool = 
     # Left singular vectors u_i = C v_i / σ_i (relative error ~ ε·cond: fine up to 1e10).
     v_max, v_min = Vt[0], Vt[-1]
     u_max, u_min = C @ v_max / s[0], C @ v_min / s[-1]
+    # Both are rank 2, a u_max v_maxᵀ + c u_min v_minᵀ: one (m, 2) × (2, b) product.
     if criterion == "cond":
         # Eq. (17), transposed to C's shape.
-        grad = np.outer(u_max, v_max) / s[-1] - (s[0] / s[-1] ** 2) * np.outer(u_min, v_min)
+        grad = np.column_stack([u_max, u_min]) @ np.vstack([v_max / s[-1], -(s[0] / s[-1] ** 2) * v_min])
     elif criterion == "log_cond":
-        grad = np.outer(u_max, v_max) / s[0] - np.outer(u_min, v_min) / s[-1]
+        grad = np.column_stack([u_max, u_min]) @ np.vstack([v_max / s[0], -v_min / s[-1]])
     elif criterion == "dopt":
         U = (C @ Vt.T) / s
         grad = -2.0 * (U / s) @ Vt

@@ -25,11 +25,9 @@ from pe_drake.spatial import (
     cross_force_matrix,
     cross_motion,
     cross_motion_matrix,
-    force_to_world,
     force_transform_matrix,
     inertia_times,
     inertia_times_diagonal,
-    motion_to_body,
     summed_cross_force,
 )
 
@@ -51,6 +49,8 @@ class Kinematics:
             F = Γ(A) + V ×* Γ(V) (:func:`pe_drake.spatial.body_regressor`).
         F_W: the same in world coordinates at the world origin, (T, nb, 6, 10).
         G_V: Γ(V), the unit-parameter inertias times V, (T, nb, 6, 10).
+        X_force: per-body force transforms X* (body at Bo → world at the origin), (T, nb, 6, 6);
+            their transposes take world-origin motion vectors to the body.
     """
 
     q: np.ndarray
@@ -66,6 +66,7 @@ class Kinematics:
     F_B: np.ndarray
     F_W: np.ndarray
     G_V: np.ndarray
+    X_force: np.ndarray
 
 
 class RegressorModel:
@@ -150,14 +151,16 @@ class RegressorModel:
         dA = S * vd[..., None] + cross_motion(VJ, Sv)
         AJ = self.A0 + self.anc_incl.T @ dA
 
-        VB = motion_to_body(R, p, VJ[:, self.joint_of_body])
-        AB = motion_to_body(R, p, AJ[:, self.joint_of_body])
+        # motion_to_body(R, p, ·) is X*ᵀ; V and A of each body in one batched matmul.
+        X_force = force_transform_matrix(R, p)
+        VAB = X_force.swapaxes(-1, -2) @ np.stack([VJ[:, self.joint_of_body], AJ[:, self.joint_of_body]], -1)
+        VB, AB = VAB[..., 0], VAB[..., 1]
         G_V = inertia_times(VB)  # M_k V for each unit parameter k, (T, nb, 6, 10)
         # One 6 × 6 matrix per body applied to its 10 parameter columns (a batched matmul is
         # several times faster than the vector formulas on (T, nb, 10, 6) arrays).
         F_B = inertia_times(AB) + cross_force_matrix(VB) @ G_V
-        F_W = force_transform_matrix(R, p) @ F_B
-        return Kinematics(q, v, vd, S, R, p, VJ, AJ, VB, AB, F_B, F_W, G_V)
+        F_W = X_force @ F_B
+        return Kinematics(q, v, vd, S, R, p, VJ, AJ, VB, AB, F_B, F_W, G_V, X_force)
 
     def regressor(self, kin: Kinematics) -> np.ndarray:
         """Y, shape (T, n, 10·nb): Y[t, i, 10j+k] = [joint i moves body j] S_i · F_jk."""
@@ -191,8 +194,7 @@ class RegressorModel:
 
         # Body-coordinate adjoints of A_j and V_j (F = Γ(A)φ + V ×* Γ(V)φ, φ = e_k).
         # motion_to_body is the transpose of force_to_world's matrix.
-        X_motion = force_transform_matrix(kin.R, kin.p).swapaxes(-1, -2)
-        wB = (X_motion @ w.swapaxes(-1, -2)).swapaxes(-1, -2)  # (T, nb, 10, 6)
+        wB = (kin.X_force.swapaxes(-1, -2) @ w.swapaxes(-1, -2)).swapaxes(-1, -2)  # (T, nb, 10, 6)
         a_bar_B = inertia_times_diagonal(wB)
         G_V = np.moveaxis(kin.G_V, -1, -2)  # (T, nb, 10, 6): M_k V
         wB_x_V = -(cross_motion_matrix(kin.VB) @ wB.swapaxes(-1, -2)).swapaxes(-1, -2)  # w ×m V = -V ×m w
@@ -204,10 +206,9 @@ class RegressorModel:
             + cross_force(kin.VB, v_bar_B)
             + cross_force(kin.AB, a_bar_B)
         )
-        Rb, pb = kin.R, kin.p
-        a_bar = force_to_world(Rb, pb, a_bar_B)
-        v_bar_body = force_to_world(Rb, pb, v_bar_B)
-        Q = force_to_world(Rb, pb, Q_B)
+        # The three body forces to world coordinates in one batched matmul.
+        world = kin.X_force @ np.stack([a_bar_B, v_bar_B, Q_B], -1)
+        a_bar, v_bar_body, Q = world[..., 0], world[..., 1], world[..., 2]
         q_bar = -np.sum(S * (self.moves @ Q), axis=-1)
 
         # Bodies → the joint whose child body carries them.
@@ -245,6 +246,22 @@ class _ForwardKinematics:
         self.steps = steps
         #: per requested body: ("const", X_WB) or ("var", step)
         self.outputs = outputs
+        # Every step's local pose X_PF · X_FM(q) · X_MC is computed for all steps at once:
+        # X_FM = [R(θ) p; 0 1] with R = c I + s [a]× + (1 − c) a aᵀ (Rodrigues; θ = 0 for
+        # welds and prismatic joints) and p = d a (d = 0 for welds and revolute joints).
+        axes = np.array([a if a is not None else np.zeros(3) for _, _, _, a, _, _ in steps]).reshape(-1, 3)
+        kinds = [k for _, _, k, _, _, _ in steps]
+        self._revolute = np.array([k == "revolute" for k in kinds])
+        self._prismatic = np.array([k == "prismatic" for k in kinds])
+        self._q_index = np.array([max(iq, 0) for _, _, _, _, iq, _ in steps], dtype=int)
+        self._axes = axes
+        self._skews = np.zeros((len(steps), 3, 3))
+        self._skews[:, 0, 1], self._skews[:, 0, 2] = -axes[:, 2], axes[:, 1]
+        self._skews[:, 1, 0], self._skews[:, 1, 2] = axes[:, 2], -axes[:, 0]
+        self._skews[:, 2, 0], self._skews[:, 2, 1] = -axes[:, 1], axes[:, 0]
+        self._outer = axes[:, :, None] * axes[:, None, :]
+        self._X_PF = np.array([X_PF for _, X_PF, _, _, _, _ in steps]).reshape(-1, 4, 4)
+        self._X_MC = np.array([X_MC for _, _, _, _, _, X_MC in steps]).reshape(-1, 4, 4)
 
     @staticmethod
     def build(robot, bodies):
@@ -296,26 +313,19 @@ class _ForwardKinematics:
         return _ForwardKinematics(steps, outputs)
 
     def __call__(self, q: np.ndarray) -> np.ndarray:
-        T = q.shape[0]
+        T, ns = q.shape[0], len(self.steps)
+        angle = np.where(self._revolute, q[:, self._q_index], 0.0)[..., None, None]  # (T, ns, 1, 1)
+        shift = np.where(self._prismatic, q[:, self._q_index], 0.0)[..., None]  # (T, ns, 1)
+        X_FM = np.zeros((T, ns, 4, 4))
+        c = np.cos(angle)
+        X_FM[..., :3, :3] = c * np.eye(3) + np.sin(angle) * self._skews + (1.0 - c) * self._outer
+        X_FM[..., :3, 3] = shift * self._axes
+        X_FM[..., 3, 3] = 1.0
+        local = self._X_PF @ X_FM @ self._X_MC
         X = []
-        for parent, X_PF, kind, axis, iq, X_MC in self.steps:
+        for k, (parent, *_rest) in enumerate(self.steps):
             X_WP = parent[1] if parent[0] == "const" else X[parent[1]]
-            if kind == "weld":
-                X.append(X_WP @ X_PF)
-                continue
-            X_FM = np.zeros((T, 4, 4))
-            X_FM[:, 3, 3] = 1.0
-            if kind == "revolute":
-                c, s = np.cos(q[:, iq]), np.sin(q[:, iq])
-                a = axis
-                K = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
-                X_FM[:, :3, :3] = (
-                    c[:, None, None] * np.eye(3) + s[:, None, None] * K + (1 - c)[:, None, None] * np.outer(a, a)
-                )
-            else:
-                X_FM[:, :3, :3] = np.eye(3)
-                X_FM[:, :3, 3] = q[:, iq, None] * axis
-            X.append(X_WP @ X_PF @ X_FM @ X_MC)
+            X.append(X_WP @ local[:, k])
         out = np.empty((T, len(self.outputs), 4, 4))
         for k, (kind, value) in enumerate(self.outputs):
             out[:, k] = value if kind == "const" else X[value]
