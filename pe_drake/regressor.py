@@ -28,6 +28,7 @@ from pe_drake.spatial import (
     force_transform_matrix,
     inertia_times,
     inertia_times_diagonal,
+    skew,
     summed_cross_force,
 )
 
@@ -151,7 +152,7 @@ class RegressorModel:
         dA = S * vd[..., None] + cross_motion(VJ, Sv)
         AJ = self.A0 + self.anc_incl.T @ dA
 
-        # motion_to_body(R, p, ·) is X*ᵀ; V and A of each body in one batched matmul.
+        # Motion vectors to the body are X*ᵀ; V and A of each body in one batched matmul.
         X_force = force_transform_matrix(R, p)
         VAB = X_force.swapaxes(-1, -2) @ np.stack([VJ[:, self.joint_of_body], AJ[:, self.joint_of_body]], -1)
         VB, AB = VAB[..., 0], VAB[..., 1]
@@ -193,7 +194,7 @@ class RegressorModel:
         S_bar = Zm @ F_W  # ∂f/∂S_i through w
 
         # Body-coordinate adjoints of A_j and V_j (F = Γ(A)φ + V ×* Γ(V)φ, φ = e_k).
-        # motion_to_body is the transpose of force_to_world's matrix.
+        # The adjoint of "motion to the body" (X*ᵀ) is X* itself.
         wB = (kin.X_force.swapaxes(-1, -2) @ w.swapaxes(-1, -2)).swapaxes(-1, -2)  # (T, nb, 10, 6)
         a_bar_B = inertia_times_diagonal(wB)
         G_V = np.moveaxis(kin.G_V, -1, -2)  # (T, nb, 10, 6): M_k V
@@ -255,10 +256,7 @@ class _ForwardKinematics:
         self._prismatic = np.array([k == "prismatic" for k in kinds])
         self._q_index = np.array([max(iq, 0) for _, _, _, _, iq, _ in steps], dtype=int)
         self._axes = axes
-        self._skews = np.zeros((len(steps), 3, 3))
-        self._skews[:, 0, 1], self._skews[:, 0, 2] = -axes[:, 2], axes[:, 1]
-        self._skews[:, 1, 0], self._skews[:, 1, 2] = axes[:, 2], -axes[:, 0]
-        self._skews[:, 2, 0], self._skews[:, 2, 1] = -axes[:, 1], axes[:, 0]
+        self._skews = skew(axes)
         self._outer = axes[:, :, None] * axes[:, None, :]
         self._X_PF = np.array([X_PF for _, X_PF, _, _, _, _ in steps]).reshape(-1, 4, 4)
         self._X_MC = np.array([X_MC for _, _, _, _, _, X_MC in steps]).reshape(-1, 4, 4)

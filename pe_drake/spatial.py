@@ -40,30 +40,6 @@ def cross_force(a: np.ndarray, f: np.ndarray) -> np.ndarray:
     return out
 
 
-def motion_to_body(R: np.ndarray, p: np.ndarray, m: np.ndarray) -> np.ndarray:
-    """World-origin motion vector → body coordinates at Bo.
-
-    Args:
-        R: R_WB, shape (..., 3, 3); p: p_WBo, shape (..., 3); m: shape (..., 6) or with an
-            extra axis before the last (then R, p broadcast with ``[..., None, :, :]``).
-    """
-    w, v = m[..., :3], m[..., 3:]
-    v_Bo = v - cross3(p, w)  # velocity of Bo = v_O + ω × p_WBo
-    out = np.empty(np.broadcast_shapes(m.shape, p.shape[:-1] + (6,)))
-    out[..., :3] = (R.swapaxes(-1, -2) @ w[..., None])[..., 0]
-    out[..., 3:] = (R.swapaxes(-1, -2) @ v_Bo[..., None])[..., 0]
-    return out
-
-
-def force_to_world(R: np.ndarray, p: np.ndarray, f: np.ndarray) -> np.ndarray:
-    """Body-coordinate force at Bo → world coordinates at the world origin."""
-    f_W = (R @ f[..., 3:, None])[..., 0]
-    out = np.empty(np.broadcast_shapes(f.shape, p.shape[:-1] + (6,)))
-    out[..., :3] = (R @ f[..., :3, None])[..., 0] + cross3(p, f_W)
-    out[..., 3:] = f_W
-    return out
-
-
 def inertia_times(x: np.ndarray) -> np.ndarray:
     """Γ(x): the (6, 10) matrix with M(φ) x = Γ(x) φ for a body-frame spatial inertia M(φ).
 
@@ -79,7 +55,7 @@ def inertia_times(x: np.ndarray) -> np.ndarray:
     xw, xv = x[..., :3], x[..., 3:]
     out = np.zeros(x.shape[:-1] + (6, 10))
     # h × xv = -[xv]× h
-    out[..., 0:3, 1:4] = -_skew(xv)
+    out[..., 0:3, 1:4] = -skew(xv)
     # I xω with I = [[Ixx, Ixy, Ixz], [Ixy, Iyy, Iyz], [Ixz, Iyz, Izz]]
     w1, w2, w3 = xw[..., 0], xw[..., 1], xw[..., 2]
     out[..., 0, 4], out[..., 0, 7], out[..., 0, 8] = w1, w2, w3
@@ -87,7 +63,7 @@ def inertia_times(x: np.ndarray) -> np.ndarray:
     out[..., 2, 6], out[..., 2, 8], out[..., 2, 9] = w3, w1, w2
     # m xv - h × xω = m xv + [xω]× h
     out[..., 3:6, 0] = xv
-    out[..., 3:6, 1:4] = _skew(xw)
+    out[..., 3:6, 1:4] = skew(xw)
     return out
 
 
@@ -136,7 +112,8 @@ def body_regressor(V: np.ndarray, A: np.ndarray) -> np.ndarray:
     return inertia_times(A) + np.moveaxis(cross_force(V[..., None, :], np.moveaxis(G_V, -1, -2)), -1, -2)
 
 
-def _skew(x: np.ndarray) -> np.ndarray:
+def skew(x: np.ndarray) -> np.ndarray:
+    """[x]×, the (..., 3, 3) matrix with [x]× y = x × y."""
     out = np.zeros(x.shape[:-1] + (3, 3))
     out[..., 0, 1], out[..., 0, 2] = -x[..., 2], x[..., 1]
     out[..., 1, 0], out[..., 1, 2] = x[..., 2], -x[..., 0]
@@ -148,41 +125,33 @@ def _skew(x: np.ndarray) -> np.ndarray:
 
 
 def force_transform_matrix(R: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """X* with X* f = :func:`force_to_world` (R, p, f): [[R, [p]× R], [0, R]], (..., 6, 6)."""
+    """X* = [[R, [p]× R], [0, R]], (..., 6, 6): a force [n; f] at a body's origin in body
+    coordinates (R = R_WB, p = p_WBo) to world coordinates at the world origin. Its transpose
+    takes a world-origin motion vector to the body: [Rᵀ ω; Rᵀ (v − p × ω)]."""
     X = np.zeros(R.shape[:-2] + (6, 6))
     X[..., :3, :3] = R
     X[..., 3:, 3:] = R
-    X[..., :3, 3:] = _skew(p) @ R
-    return X
-
-
-def motion_to_body_matrix(R: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """X with X m = :func:`motion_to_body` (R, p, m): [[Rᵀ, 0], [-Rᵀ [p]×, Rᵀ]], (..., 6, 6)."""
-    Rt = R.swapaxes(-1, -2)
-    X = np.zeros(R.shape[:-2] + (6, 6))
-    X[..., :3, :3] = Rt
-    X[..., 3:, 3:] = Rt
-    X[..., 3:, :3] = -Rt @ _skew(p)
+    X[..., :3, 3:] = skew(p) @ R
     return X
 
 
 def cross_force_matrix(a: np.ndarray) -> np.ndarray:
     """[a ×*] with [a ×*] f = :func:`cross_force` (a, f): [[ω×, v×], [0, ω×]], (..., 6, 6)."""
     X = np.zeros(a.shape[:-1] + (6, 6))
-    W = _skew(a[..., :3])
+    W = skew(a[..., :3])
     X[..., :3, :3] = W
     X[..., 3:, 3:] = W
-    X[..., :3, 3:] = _skew(a[..., 3:])
+    X[..., :3, 3:] = skew(a[..., 3:])
     return X
 
 
 def cross_motion_matrix(a: np.ndarray) -> np.ndarray:
     """[a ×m] with [a ×m] m = :func:`cross_motion` (a, m): [[ω×, 0], [v×, ω×]], (..., 6, 6)."""
     X = np.zeros(a.shape[:-1] + (6, 6))
-    W = _skew(a[..., :3])
+    W = skew(a[..., :3])
     X[..., :3, :3] = W
     X[..., 3:, 3:] = W
-    X[..., 3:, :3] = _skew(a[..., 3:])
+    X[..., 3:, :3] = skew(a[..., 3:])
     return X
 
 
