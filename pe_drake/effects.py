@@ -245,14 +245,9 @@ def prior_parameter_covariance(robot, relative: float = PRIOR_RELATIVE_UNCERTAIN
 def _perturbation_draws(phi_b: np.ndarray, eps: float, count: int, rng: np.random.Generator) -> np.ndarray:
     """``count`` perturbed copies of one body's parameters, shape (count, 10) (vectorized
     form of the perturbation of :func:`pe_drake.simulation.perturb_inertias`)."""
-    m, h = phi_b[0], phi_b[1:4]
-    Ixx, Iyy, Izz, Ixy, Ixz, Iyz = phi_b[4:10]
-    I_Bo = np.array([[Ixx, Ixy, Ixz], [Ixy, Iyy, Iyz], [Ixz, Iyz, Izz]])
-    p = h / m
-    I_cm = I_Bo - m * (p @ p * np.eye(3) - np.outer(p, p))
-    lam, R = np.linalg.eigh(I_cm)
-    lam = np.maximum(lam, 0.0)
-    r_gyr = math.sqrt(max(np.trace(I_cm), 0.0) / (2 * m))
+    from pe_drake.simulation import principal_inertia
+
+    m, p, lam, R, r_gyr = principal_inertia(phi_b)
     lam2 = np.empty((0, 3))
     while lam2.shape[0] < count:  # redraw principal moments that break the triangle inequality
         x = lam * (1 + eps * rng.uniform(-1, 1, (2 * count, 3)))

@@ -389,15 +389,21 @@ def perturb_inertias(
     return out
 
 
-def _perturb_body(phi_b: np.ndarray, eps: float, rng: np.random.Generator) -> np.ndarray | None:
+def principal_inertia(phi_b: np.ndarray) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, float]:
+    """One body's 10 parameters as (m, p, λ, R, r): mass, centre of mass p = h/m, principal
+    moments λ ≥ 0 and axes R of the inertia about the centre of mass (I_cm = R diag(λ) Rᵀ),
+    and the radius of gyration r = sqrt(tr I_cm / 2m). What the perturbations act on."""
     m, h = phi_b[0], phi_b[1:4]
     Ixx, Iyy, Izz, Ixy, Ixz, Iyz = phi_b[4:10]
     I_Bo = np.array([[Ixx, Ixy, Ixz], [Ixy, Iyy, Iyz], [Ixz, Iyz, Izz]])
     p = h / m
     I_cm = I_Bo - m * (p @ p * np.eye(3) - np.outer(p, p))
     lam, R = np.linalg.eigh(I_cm)
-    lam = np.maximum(lam, 0.0)
-    r_gyr = math.sqrt(max(np.trace(I_cm), 0.0) / (2 * m))
+    return m, p, np.maximum(lam, 0.0), R, math.sqrt(max(np.trace(I_cm), 0.0) / (2 * m))
+
+
+def _perturb_body(phi_b: np.ndarray, eps: float, rng: np.random.Generator) -> np.ndarray | None:
+    m, p, lam, R, r_gyr = principal_inertia(phi_b)
     m2 = m * (1 + eps * rng.uniform(-1, 1))
     p2 = p + eps * rng.uniform(-1, 1, 3) * max(np.linalg.norm(p), r_gyr)
     lam2 = lam * (1 + eps * rng.uniform(-1, 1, 3))
