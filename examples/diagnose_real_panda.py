@@ -29,10 +29,10 @@ def main(argv: list[str] | None = None) -> int:
               "project (see ../shared/datasets/panda_gaz2019/README.md)")
         return 0
 
-    from pe_drake.diagnosis import diagnose, write_outputs
+    from pe_drake.diagnosis.workflow import diagnose, write_outputs
+    from pe_drake.identification.measurements import read_measurement_csv
     from pe_drake.io_utils import staged_output_dir
-    from pe_drake.measurements import read_measurement_csv
-    from pe_drake.robot import load_robot
+    from pe_drake.multibody.robot import load_robot
     from pe_drake.threads import single_threaded_blas
 
     robot = load_robot("panda")

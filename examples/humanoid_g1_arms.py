@@ -11,7 +11,7 @@ N = 10, ω = π/4 (period 8 s), T = 40 cost samples 0.2 s apart, K = 400 constra
 0.02 s apart, joint limits (Eq. 51), balance within r = 1 cm (Eq. 52), capsule
 self-collision with a 2 cm margin (Eq. 53). The baseline uses the same robot, Fourier
 series, samples and constraints: rejection sampling of random coefficients at a few
-amplitudes (:mod:`pe_drake.baseline`), then greedy selection of 3.
+amplitudes (:mod:`pe_drake.excitation.baseline`), then greedy selection of 3.
 
     python examples/humanoid_g1_arms.py --out results/g1_tables            # ~7 min on 2 cores
     python examples/humanoid_g1_arms.py --quick --out /tmp/g1_quick        # smoke test, < 1 min
@@ -19,7 +19,7 @@ amplitudes (:mod:`pe_drake.baseline`), then greedy selection of 3.
 Each motion: 2 starts solved in 2 worker processes (IPOPT ≤ 150 iterations each), the lower
 cond kept. Motion 1 starts from 2 seeded random points; motions 2 and 3 from one random point
 and one warm start, the earlier motion with the lowest cond on the current prior
-(:func:`pe_drake.sequential.optimize_sequence`). Progress lines go to stdout; the tables are
+(:func:`pe_drake.excitation.sequential.optimize_sequence`). Progress lines go to stdout; the tables are
 printed at the end.
 
 Outputs in --out: tables.md, tables.json, motion_<i>/trajectory.json (optimized) and
@@ -259,11 +259,11 @@ def run(settings: Settings) -> dict:
             posture violates a constraint.
         WorkerError: a worker process failed.
     """
-    from pe_drake.baseline import generate_candidates, greedy_select
-    from pe_drake.constraints import constraints_from_config
-    from pe_drake.multistart import WorkerPool
-    from pe_drake.robot import Robot, resolve_robot_config
-    from pe_drake.sequential import optimize_sequence
+    from pe_drake.excitation.baseline import generate_candidates, greedy_select
+    from pe_drake.excitation.constraints import constraints_from_config
+    from pe_drake.excitation.multistart import WorkerPool
+    from pe_drake.excitation.sequential import optimize_sequence
+    from pe_drake.multibody.robot import Robot, resolve_robot_config
 
     say = _Printer(settings.quiet)
     begin = time.perf_counter()
@@ -440,8 +440,8 @@ def _tables(settings, excitation, solver, robot, base, sequence, selection, cand
 
 def _write_outputs(out: Path, robot, problem, sequence, selection, candidates, tables: dict) -> None:
     """Trajectories first, the tables last (each file written atomically)."""
+    from pe_drake.excitation.trajectory_file import save_trajectory
     from pe_drake.io_utils import atomic_write_text
-    from pe_drake.trajectory_file import save_trajectory
 
     files = []
     for m in sequence.motions:

@@ -39,7 +39,7 @@ def main(argv: list[str] | None = None) -> int:
         )
         return 0
 
-    from pe_drake.identification import (
+    from pe_drake.identification.estimators import (
         identify,
         predict,
         prepare_measurement,
@@ -49,8 +49,8 @@ def main(argv: list[str] | None = None) -> int:
         torque_errors,
     )
     from pe_drake.io_utils import staged_output_dir
-    from pe_drake.model_export import write_robot_urdf
-    from pe_drake.robot import load_robot
+    from pe_drake.multibody.robot import load_robot
+    from pe_drake.multibody.urdf import write_robot_urdf
     from pe_drake.threads import single_threaded_blas
 
     robot = load_robot("panda")

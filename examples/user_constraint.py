@@ -21,16 +21,16 @@ import math
 import numpy as np
 
 from pe_drake.config import ExcitationConfig, SolverConfig
-from pe_drake.constraints import constraints_from_config
-from pe_drake.constraints.base import SampledConstraint, SampledValues
-from pe_drake.excitation import (
+from pe_drake.excitation.constraints import constraints_from_config
+from pe_drake.excitation.constraints.base import SampledConstraint, SampledValues
+from pe_drake.excitation.program import (
     ExcitationProblem,
     add_sampled_constraint,
     build_excitation_program,
     check_margins,
     solve_excitation,
 )
-from pe_drake.robot import load_robot
+from pe_drake.multibody.robot import load_robot
 
 TABLE_HEIGHT = 0.45  # [m]
 SAMPLE_ALLOWANCE = 0.002  # [m] kept at the samples for the dips between them

@@ -12,8 +12,8 @@ def plot_trajectory(path: str | Path, robot, trajectory, singular_values: np.nda
 
     Args:
         path: PNG file to write.
-        robot: the :class:`~pe_drake.robot.Robot` (limits, joint names).
-        trajectory: the :class:`~pe_drake.fourier.FourierTrajectory`.
+        robot: the :class:`~pe_drake.multibody.robot.Robot` (limits, joint names).
+        trajectory: the :class:`~pe_drake.excitation.fourier.FourierTrajectory`.
         singular_values: σ of the stacked base regressor, descending.
         title: figure title.
     """

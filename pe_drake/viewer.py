@@ -1,7 +1,7 @@
 """Meshcat playback of an exciting trajectory: robot, collision geometry, CoM and support area.
 
 :func:`play_trajectory` loads the robot named in a ``trajectory.json`` with OBJ visuals
-(:mod:`pe_drake.meshes`), adds Drake's ``MeshcatVisualizer`` for the illustration geometry
+(:mod:`pe_drake.multibody.meshes`), adds Drake's ``MeshcatVisualizer`` for the illustration geometry
 (Meshcat path ``/drake/visual``) and a second one for the proximity geometry, i.e. the
 collision capsules (``/drake/capsules``, toggled in the Meshcat tree), and records one period
 of the Fourier series (Eq. 50) as a Meshcat animation. The ground projection of the
@@ -19,7 +19,6 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
-import time
 from pathlib import Path
 from typing import Any
 
@@ -52,7 +51,7 @@ class Playback:
         num_frames: recorded frames, one period including both ends.
         duration: length of the recording, one period 2π/ω [s].
         frames_per_second: recording rate (``num_frames - 1`` frames per period) [1/s].
-        robot: the :class:`~pe_drake.robot.Robot` shown.
+        robot: the :class:`~pe_drake.multibody.robot.Robot` shown.
         com_xy: ground projection of the whole-body CoM at each frame, shape (num_frames, 2)
             [m].
         support_polygon: corners of the support area in world (x, y), counter-clockwise,
@@ -90,7 +89,7 @@ def play_trajectory(
 
     Args:
         trajectory_json: a ``trajectory.json`` written by ``pe-drake optimize`` or
-            :func:`pe_drake.trajectory_file.save_trajectory`.
+            :func:`pe_drake.excitation.trajectory_file.save_trajectory`.
         robot: built-in name or URDF/SDF path; default: the robot named in the file.
         config: YAML config of the robot. Without it (and unless ``robot`` names another
             robot), the excited joints, locked posture, root link and base pose recorded in
@@ -112,8 +111,8 @@ def play_trajectory(
     """
     from pydrake.geometry import Meshcat, MeshcatAnimation, MeshcatParams
 
+    from pe_drake.excitation.trajectory_file import load_trajectory
     from pe_drake.io_utils import atomic_write_text
-    from pe_drake.trajectory_file import load_trajectory
 
     if not (isinstance(rate, (int, float)) and math.isfinite(rate) and rate > 0):
         raise ConfigError(f"playback rate must be a positive number of frames per second, got {rate!r}")
@@ -217,31 +216,6 @@ def write_playback_html(trajectory_json: str | Path, html_path: str | Path, **kw
     return play_trajectory(trajectory_json, html=html_path, **kw).html
 
 
-def view_command(args) -> int:
-    """``pe-drake view``: writes the HTML playback, or serves Meshcat until Ctrl-C."""
-    start = time.perf_counter()
-    playback = play_trajectory(
-        args.trajectory,
-        robot=args.robot,
-        config=args.config,
-        html=args.html,
-        show_capsules=not args.no_capsules,
-        rate=args.rate,
-    )
-    summary = (
-        f"{playback.robot.name}: {playback.num_frames} frames over {playback.duration:.3g} s "
-        f"({playback.frames_per_second:.3g} fps)"
-    )
-    if playback.html is not None:
-        size = playback.html.stat().st_size / 1e6
-        print(f"wrote {playback.html} ({size:.1f} MB; {summary}) in {time.perf_counter() - start:.1f} s")
-        return 0
-    print(f"Meshcat: {playback.url}  ({summary}; the animation loops; Ctrl-C to quit)", flush=True)
-    try:
-        while True:
-            time.sleep(1.0)
-    except KeyboardInterrupt:
-        return 0
 
 
 # ---- helpers ------------------------------------------------------------------------------
@@ -251,7 +225,7 @@ def _load_robot_with_visualizers(
     """The robot of a trajectory file, with Meshcat visualizers in its diagram."""
     from pydrake.geometry import MeshcatVisualizer, MeshcatVisualizerParams, Rgba, Role
 
-    from pe_drake.robot import Robot, builtin_robots, resolve_robot_config
+    from pe_drake.multibody.robot import Robot, builtin_robots, resolve_robot_config
 
     recorded = data.get("robot")
     name = robot or recorded

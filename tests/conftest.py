@@ -29,7 +29,7 @@ _ROBOTS: dict = {}
 
 def get_robot(name: str):
     """A built-in robot, loaded once per test session."""
-    from pe_drake.robot import load_robot
+    from pe_drake.multibody.robot import load_robot
 
     if name not in _ROBOTS:
         _ROBOTS[name] = load_robot(name)

@@ -5,9 +5,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from pe_drake.constraints.balance import BalanceConstraint, OutOfBalanceError, support_center
 from pe_drake.exceptions import ConfigError, InfeasibleError, UnknownNameError
-from pe_drake.robot import load_robot, resolve_robot_config
+from pe_drake.excitation.constraints.balance import BalanceConstraint, OutOfBalanceError, support_center
+from pe_drake.multibody.robot import load_robot, resolve_robot_config
 
 
 @pytest.fixture(scope="module")

@@ -7,8 +7,8 @@ import pytest
 import scipy.linalg
 from conftest import get_robot, random_states
 
-from pe_drake.base_parameters import compute_base_parameters, pivoted_qr_r
-from pe_drake.regressor import RegressorModel
+from pe_drake.multibody.base_parameters import compute_base_parameters, pivoted_qr_r
+from pe_drake.multibody.regressor import RegressorModel
 
 
 @pytest.mark.parametrize("name,count", [("panda", 43), ("ur5", 36), ("g1", 90)])

@@ -9,7 +9,9 @@ import multiprocessing
 import numpy as np
 import pytest
 
-from pe_drake.baseline import (
+from pe_drake.config import ExcitationConfig
+from pe_drake.exceptions import ConfigError, InfeasibleError
+from pe_drake.excitation.baseline import (
     Candidate,
     generate_candidates,
     greedy_select,
@@ -17,10 +19,8 @@ from pe_drake.baseline import (
     sample_margins,
     stacked_cond,
 )
-from pe_drake.config import ExcitationConfig
-from pe_drake.constraints import constraints_from_config
-from pe_drake.exceptions import ConfigError, InfeasibleError
-from pe_drake.excitation import ExcitationProblem
+from pe_drake.excitation.constraints import constraints_from_config
+from pe_drake.excitation.program import ExcitationProblem
 
 # Panda with capsule self-collision over a 10 s period: a quarter of the draws collide.
 CONFIG = ExcitationConfig(

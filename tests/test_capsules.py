@@ -7,15 +7,15 @@ import math
 import numpy as np
 import pytest
 
-from pe_drake.capsules import (
+from pe_drake.exceptions import ConfigError, UnknownNameError
+from pe_drake.multibody.capsules import (
     capsule_pairs,
     capsule_pose,
     fit_capsule,
     load_capsule_file,
     segment_closest_points,
 )
-from pe_drake.exceptions import ConfigError, UnknownNameError
-from pe_drake.robot import load_robot, resolve_robot_config
+from pe_drake.multibody.robot import load_robot, resolve_robot_config
 
 
 @pytest.fixture(scope="module")
@@ -251,7 +251,7 @@ def test_default_names_and_link_names_in_ignored_pairs(tmp_path):
 
 
 def test_register_after_finalize_is_refused(panda):
-    from pe_drake.capsules import register_capsules
+    from pe_drake.multibody.capsules import register_capsules
 
     with pytest.raises(ConfigError, match="before plant.Finalize"):
         register_capsules(panda.plant, panda.scene_graph, panda.config.capsules)

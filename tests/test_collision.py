@@ -5,9 +5,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from pe_drake.constraints.collision import CollisionConstraint, PostureInCollisionError
 from pe_drake.exceptions import ConfigError, InfeasibleError
-from pe_drake.robot import load_robot, resolve_robot_config
+from pe_drake.excitation.constraints.collision import CollisionConstraint, PostureInCollisionError
+from pe_drake.multibody.robot import load_robot, resolve_robot_config
 
 
 @pytest.fixture(scope="module")
@@ -60,7 +60,7 @@ def test_distances_match_drake_geometry(name, g1, panda):
     postures (its witness points lie 1-2 mm inside the capsules), so it is only compared
     where |d| < 1 cm; DRAKE_NOTES.md measured ~2e-6 m there.
     """
-    from pe_drake.capsules import segment_closest_points
+    from pe_drake.multibody.capsules import segment_closest_points
 
     robot = {"g1": g1, "panda": panda}[name]
     constraint = CollisionConstraint(robot, 0.0, aggregate=False)

@@ -2,7 +2,7 @@
 data with inertial errors, a timing delay outside the library, a non-separable armature; the
 command's outputs, the augmented model, errors, and the real Panda recording.
 
-The data are simulated by pe_drake.simulation on an optimized trajectory; the test knows the
+The data are simulated by pe_drake.identification.simulation on an optimized trajectory; the test knows the
 truth, the diagnosis does not.
 """
 
@@ -16,16 +16,17 @@ import numpy as np
 import pytest
 
 from pe_drake.cli import main as cli
-from pe_drake.diagnosis import DiagnosisConfig, diagnose
-from pe_drake.effects import (
+from pe_drake.diagnosis.effects import (
     joint_candidates,
     payload_groups,
     prior_parameter_covariance,
     separability,
 )
+from pe_drake.diagnosis.workflow import DiagnosisConfig, diagnose
 from pe_drake.exceptions import ConfigError, DataError
-from pe_drake.measurements import Measurement, write_measurement_csv
-from pe_drake.simulation import (
+from pe_drake.excitation.trajectory_file import load_trajectory
+from pe_drake.identification.measurements import Measurement, write_measurement_csv
+from pe_drake.identification.simulation import (
     ControlTruth,
     EffectsTruth,
     NoiseTruth,
@@ -34,7 +35,6 @@ from pe_drake.simulation import (
     perturb_inertias,
     simulate,
 )
-from pe_drake.trajectory_file import load_trajectory
 from tests.conftest import get_robot
 
 DATA = Path(__file__).parent / "data"
@@ -209,7 +209,7 @@ def test_command_writes_every_output_and_the_augmented_model_loads(robot, trajec
     # the URDF carries the rotor inertia: loading it gives the augmented torque (checked on
     # writing against build_augmented_robot; here against the diagnosis' own prediction)
     from pe_drake.config import RobotConfig
-    from pe_drake.robot import load_robot
+    from pe_drake.multibody.robot import load_robot
 
     loaded = load_robot(dataclasses.replace(robot.config, model=str(out / "augmented_model.urdf"), capsules=""))
     assert isinstance(loaded.config, RobotConfig)
@@ -255,7 +255,7 @@ def test_errors(robot, trajectory, tmp_path):
 
 
 def test_separability_follows_the_kinematics(robot):
-    from pe_drake.base_parameters import compute_base_parameters
+    from pe_drake.multibody.base_parameters import compute_base_parameters
 
     base = compute_base_parameters(robot)
     result = {(s.candidate.effect, s.candidate.joint_name): s for s in
@@ -285,7 +285,7 @@ def test_prior_covariance_matches_the_simulators_perturbation(robot):
 
 @pytest.mark.skipif(not REAL.is_file(), reason="real Panda recording not available (../shared/datasets)")
 def test_real_panda_recording(robot):
-    from pe_drake.measurements import read_measurement_csv
+    from pe_drake.identification.measurements import read_measurement_csv
 
     result = diagnose(robot, read_measurement_csv(REAL, robot))
     found = named(result)

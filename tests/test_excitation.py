@@ -9,9 +9,9 @@ import pytest
 from conftest import get_robot
 
 from pe_drake.config import ExcitationConfig, SolverConfig
-from pe_drake.criteria import evaluate_criterion
 from pe_drake.exceptions import ConfigError
-from pe_drake.excitation import (
+from pe_drake.excitation.criteria import evaluate_criterion
+from pe_drake.excitation.program import (
     ExcitationProblem,
     add_excitation_cost,
     add_joint_limit_constraints,
@@ -134,7 +134,7 @@ def test_intersample_allowance_bounds_the_overshoot(panda):
     problem = ExcitationProblem(panda, ExcitationConfig(harmonics=5, constraint_samples=50))
     alpha = problem.initial_guess(seed=4, amplitude=1.0)
     dq, dv, dvd = intersample_allowance(problem)
-    from pe_drake.fourier import FourierBasis
+    from pe_drake.excitation.fourier import FourierBasis
 
     sampled = problem.constraint_basis.evaluate_alpha(alpha, problem.n)
     dense = FourierBasis(5, problem.omega, np.linspace(0, problem.period, 20001)).evaluate_alpha(alpha, problem.n)
@@ -212,7 +212,7 @@ def test_fallback_points_put_those_meeting_the_sampled_constraints_first(panda):
     ``program._cost.candidates`` in order. Points that met every sampled constraint come
     first, however many cheaper points violated one (here: the start inside a band, then ten
     cheaper points just outside it)."""
-    from pe_drake.constraints.base import SampledConstraint, SampledValues
+    from pe_drake.excitation.constraints.base import SampledConstraint, SampledValues
 
     config = ExcitationConfig(harmonics=3, omega=2 * math.pi / 8, cost_samples=24, constraint_samples=96)
     problem = ExcitationProblem(panda, config)

@@ -12,8 +12,9 @@ import pytest
 
 from pe_drake.cli import main as cli
 from pe_drake.config import ExcitationConfig
-from pe_drake.excitation import ExcitationProblem, _scale_into_limits
-from pe_drake.identification import (
+from pe_drake.excitation.program import ExcitationProblem, _scale_into_limits
+from pe_drake.excitation.trajectory_file import load_trajectory, save_trajectory
+from pe_drake.identification.estimators import (
     identify,
     load_identified,
     predict,
@@ -21,11 +22,10 @@ from pe_drake.identification import (
     pseudo_inertia,
     torque_errors,
 )
-from pe_drake.measurements import write_measurement_csv
-from pe_drake.model_export import validity_problems
-from pe_drake.simulation import perturb_inertias
-from pe_drake.synthetic import model_measurement
-from pe_drake.trajectory_file import load_trajectory, save_trajectory
+from pe_drake.identification.measurements import write_measurement_csv
+from pe_drake.identification.simulation import perturb_inertias
+from pe_drake.identification.synthetic import model_measurement
+from pe_drake.multibody.urdf import validity_problems
 from tests.conftest import get_robot
 
 DATA = Path(__file__).parent / "data"
@@ -130,7 +130,7 @@ def test_optimized_trajectory_gives_smaller_parameter_errors_than_random_ones(op
 def simulated_runs(optimized, tmp_path_factory):
     """Identification run (optimized trajectory) and validation run (another, random one) of
     a true Panda with ±10 % inertias, encoder quantization and torque noise."""
-    from pe_drake.simulation import Truth, simulate
+    from pe_drake.identification.simulation import Truth, simulate
 
     robot = get_robot("panda")
     truth = Truth(seed=2, inertia_perturbation=0.1)
@@ -150,7 +150,7 @@ def simulated_runs(optimized, tmp_path_factory):
 
 def test_simulated_run_validation_error_is_at_the_noise_floor(simulated_runs):
     robot = get_robot("panda")
-    from pe_drake.identification import read_robot_measurement
+    from pe_drake.identification.estimators import read_robot_measurement
 
     ident = prepare_measurement(robot, read_robot_measurement(robot, simulated_runs["ident"]))
     valid = prepare_measurement(robot, read_robot_measurement(robot, simulated_runs["valid"]))
@@ -180,7 +180,7 @@ def test_simulated_run_validation_error_is_at_the_noise_floor(simulated_runs):
 
 
 def predict_true(robot, data, phi):
-    from pe_drake.identification import robot_torques
+    from pe_drake.identification.estimators import robot_torques
 
     return robot_torques(robot, data, phi)
 
@@ -189,7 +189,7 @@ def test_identify_and_validate_commands_write_a_loadable_model(simulated_runs, t
     from pydrake.multibody.parsing import Parser
     from pydrake.multibody.plant import MultibodyPlant
 
-    from pe_drake.robot import example_robot_data_dir
+    from pe_drake.multibody.robot import example_robot_data_dir
 
     out = tmp_path / "ident"
     code = cli(
@@ -372,7 +372,7 @@ def test_unknown_method_and_bad_cutoff_are_refused(tmp_path, optimized, capsys):
 
 @pytest.mark.skipif(not REAL.is_file(), reason=f"real data not present ({REAL})")
 def test_real_panda_recording_identifies_a_valid_model():
-    from pe_drake.identification import read_robot_measurement
+    from pe_drake.identification.estimators import read_robot_measurement
 
     robot = get_robot("panda")
     raw = read_robot_measurement(robot, REAL)

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from pe_drake.exceptions import ConfigError, DataError
-from pe_drake.fourier import FourierTrajectory
-from pe_drake.measurements import (
+from pe_drake.excitation.fourier import FourierTrajectory
+from pe_drake.identification.measurements import (
     Measurement,
     check_torque_units,
     motion_bandwidth_hz,
@@ -342,7 +342,7 @@ def test_real_recording_preprocess(gaz):
 
 
 def test_real_recording_units_against_panda_model(gaz):
-    from pe_drake.robot import load_robot
+    from pe_drake.multibody.robot import load_robot
 
     panda = load_robot("panda")
     p = preprocess(gaz)

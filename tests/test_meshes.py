@@ -1,4 +1,4 @@
-"""STL reading, OBJ writing and the URDF visual rewrite of pe_drake.meshes."""
+"""STL reading, OBJ writing and the URDF visual rewrite of pe_drake.multibody.meshes."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from pe_drake.exceptions import DataError
-from pe_drake.meshes import (
+from pe_drake.multibody.meshes import (
     CACHE_ENV,
     TriangleMesh,
     obj_text,
@@ -163,7 +163,7 @@ def test_g1_visuals_convert_and_parse(cache):
     """Every STL visual of G1 becomes an OBJ that Drake parses and Meshcat can draw."""
     from pydrake.geometry import Mesh, Role
 
-    from pe_drake.robot import example_robot_data_dir, load_robot
+    from pe_drake.multibody.robot import example_robot_data_dir, load_robot
 
     urdf = example_robot_data_dir() / "robots/g1_description/urdf/g1_29dof_rev_1_0.urdf"
     text = urdf.read_text()

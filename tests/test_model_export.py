@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pe_drake.model_export import (
+from pe_drake.identification.simulation import perturb_inertias
+from pe_drake.multibody.urdf import (
     PhysicallyInvalidError,
     central_inertia,
     urdf_with_inertias,
@@ -13,7 +14,6 @@ from pe_drake.model_export import (
     verify_urdf_text,
     write_robot_urdf,
 )
-from pe_drake.simulation import perturb_inertias
 from tests.conftest import get_robot
 
 

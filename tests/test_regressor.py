@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from conftest import get_robot, random_states
 
-from pe_drake.regressor import RegressorModel
-from pe_drake.robot import PARAMETER_NAMES, phi_to_spatial_inertia
+from pe_drake.multibody.regressor import RegressorModel
+from pe_drake.multibody.robot import PARAMETER_NAMES, phi_to_spatial_inertia
 
 ROBOTS = ["panda", "ur5", "g1"]
 
@@ -109,7 +109,7 @@ def test_adjoint_matches_central_differences(name):
 def test_adjoint_of_prismatic_joint():
     """A prismatic joint (Panda finger unlocked) follows the same algebra."""
     from pe_drake.config import RobotConfig
-    from pe_drake.robot import load_robot
+    from pe_drake.multibody.robot import load_robot
 
     cfg = RobotConfig(
         model="package://example-robot-data/robots/panda_description/urdf/panda.urdf",

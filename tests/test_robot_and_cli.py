@@ -11,8 +11,8 @@ import pytest
 from pe_drake.cli import main
 from pe_drake.config import Config, ExcitationConfig, RobotConfig
 from pe_drake.exceptions import ConfigError, InfeasibleError, NotWithinLimitsError, UnknownNameError
-from pe_drake.fourier import FourierBasis, FourierTrajectory, sample_times
-from pe_drake.robot import builtin_robots, load_robot
+from pe_drake.excitation.fourier import FourierBasis, FourierTrajectory, sample_times
+from pe_drake.multibody.robot import builtin_robots, load_robot
 
 PANDA_URDF = "package://example-robot-data/robots/panda_description/urdf/panda.urdf"
 
@@ -125,7 +125,7 @@ def test_cli_optimize_writes_everything(tmp_path):
     t = 1.234
     k = np.arange(1, data["harmonics"] + 1)
     q = (a * np.sin(k * w * t)).sum(1) + (b * np.cos(k * w * t)).sum(1) + q0
-    from pe_drake.trajectory_file import load_trajectory
+    from pe_drake.excitation.trajectory_file import load_trajectory
 
     np.testing.assert_allclose(load_trajectory(out / "trajectory.json")[0].evaluate(np.array([t]))[0][0], q)
 

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from pe_drake.exceptions import ConfigError, UnknownNameError
-from pe_drake.fourier import FourierTrajectory
-from pe_drake.measurements import read_measurement_csv
-from pe_drake.robot import load_robot, phi_to_spatial_inertia
-from pe_drake.simulation import (
+from pe_drake.excitation.fourier import FourierTrajectory
+from pe_drake.excitation.trajectory_file import save_trajectory
+from pe_drake.identification.measurements import read_measurement_csv
+from pe_drake.identification.simulation import (
     PayloadTruth,
     Truth,
     build_true_robot,
@@ -22,7 +22,7 @@ from pe_drake.simulation import (
     simulate,
     truth_path_for,
 )
-from pe_drake.trajectory_file import save_trajectory
+from pe_drake.multibody.robot import load_robot, phi_to_spatial_inertia
 
 DURATION = 1.5  # [s]
 SETTLED = 0.2  # [s] compare after the PD transient (the start is on the trajectory already)
@@ -164,7 +164,7 @@ def test_payload_changes_torque_like_a_welded_body(robot, trajectory, baseline):
     truth.record_velocity = True
     m, d = _run(robot, trajectory, truth)
 
-    def add_payload(plant, scene_graph):  # independent of pe_drake.simulation
+    def add_payload(plant, scene_graph):  # independent of pe_drake.identification.simulation
         from pydrake.math import RigidTransform
         from pydrake.multibody.tree import RotationalInertia, SpatialInertia
 

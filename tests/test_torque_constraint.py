@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 from pe_drake.config import ExcitationConfig, SolverConfig
-from pe_drake.constraints import constraints_from_config
-from pe_drake.constraints.torque import TorqueConstraint, TorqueLimitError
 from pe_drake.exceptions import ConfigError
-from pe_drake.excitation import ExcitationProblem, build_excitation_program, solve_excitation
-from pe_drake.robot import Robot
+from pe_drake.excitation.constraints import constraints_from_config
+from pe_drake.excitation.constraints.torque import TorqueConstraint, TorqueLimitError
+from pe_drake.excitation.program import ExcitationProblem, build_excitation_program, solve_excitation
+from pe_drake.multibody.robot import Robot
 from tests.conftest import get_robot, random_states
 
 

@@ -22,10 +22,10 @@ import numpy as np
 import pytest
 
 from pe_drake.exceptions import ConfigError, DataError
-from pe_drake.fourier import FourierTrajectory
-from pe_drake.meshes import CACHE_ENV
-from pe_drake.robot import load_robot
-from pe_drake.trajectory_file import save_trajectory
+from pe_drake.excitation.fourier import FourierTrajectory
+from pe_drake.excitation.trajectory_file import save_trajectory
+from pe_drake.multibody.meshes import CACHE_ENV
+from pe_drake.multibody.robot import load_robot
 from pe_drake.viewer import (
     COM_PATH,
     convex_hull_2d,
@@ -319,7 +319,7 @@ def test_capsule_layer_drawn_and_toggleable(panda_traj, tmp_path, monkeypatch):
     from pydrake.math import RigidTransform
     from pydrake.multibody.plant import CoulombFriction
 
-    from pe_drake.robot import Robot
+    from pe_drake.multibody.robot import Robot
 
     def register(self, plant, scene_graph):
         for link in ("panda_link3", "panda_link5"):
@@ -431,7 +431,7 @@ def test_bad_rate_raises_config_error(panda_traj):
 
 def test_import_pe_drake_stays_headless():
     code = (
-        "import sys, pe_drake, pe_drake.viewer, pe_drake.meshes; "
+        "import sys, pe_drake, pe_drake.viewer, pe_drake.multibody.meshes; "
         "bad = [m for m in sys.modules if m.startswith('pydrake')]; "
         "assert not bad, bad"
     )

@@ -23,7 +23,7 @@ Use it like::
     for s in result.starts:
         print(s.seed, s.cond, s.wall_time)
 
-or keep one :class:`WorkerPool` open for several calls (:func:`pe_drake.sequential.optimize_sequence`
+or keep one :class:`WorkerPool` open for several calls (:func:`pe_drake.excitation.sequential.optimize_sequence`
 does that for its motions).
 """
 
@@ -47,7 +47,7 @@ from pe_drake.config import ExcitationConfig, SolverConfig
 from pe_drake.exceptions import ConfigError, PeDrakeError
 
 #: Builds the sampled constraints (balance, collision, ...) for a robot and an excitation
-#: config; e.g. :func:`pe_drake.constraints.constraints_from_config`.
+#: config; e.g. :func:`pe_drake.excitation.constraints.constraints_from_config`.
 ConstraintsFactory = Callable[[Any, ExcitationConfig], list]
 
 
@@ -159,7 +159,7 @@ class MultiStartResult:
     """Outcome of :func:`solve_multistart`.
 
     Attributes:
-        best: the kept :class:`~pe_drake.excitation.ExcitationResult`: the lowest criterion
+        best: the kept :class:`~pe_drake.excitation.program.ExcitationResult`: the lowest criterion
             among the feasible starts, else the lowest among all (then ``success`` is False).
         seed: seed of ``best``.
         starts: one summary per start, in the order of the seeds.
@@ -210,7 +210,7 @@ class _WorkerState:
         emit: Callable[[Any], None],
         model=None,
     ):
-        from pe_drake.regressor import RegressorModel
+        from pe_drake.multibody.regressor import RegressorModel
 
         self.robot = robot
         self.model = model if model is not None else RegressorModel(robot)
@@ -230,7 +230,7 @@ class _WorkerState:
         return self._constraints[key]
 
     def problem(self, config: ExcitationConfig, C0: np.ndarray | None):
-        from pe_drake.excitation import ExcitationProblem
+        from pe_drake.excitation.program import ExcitationProblem
 
         return ExcitationProblem(self.robot, config, C0=C0, base=self.base, model=self.model)
 
@@ -243,7 +243,7 @@ def _worker_main(spec: _RobotSpec, tasks, results) -> None:
         import pydrake.common  # noqa: F401  (pydrake resets the logger level at import)
 
         logging.getLogger("drake").setLevel(logging.ERROR)
-        from pe_drake.robot import Robot
+        from pe_drake.multibody.robot import Robot
 
         robot = Robot(spec.name, spec.config)
         state = _WorkerState(
@@ -301,7 +301,7 @@ class WorkerPool:
     With ``workers == 1`` nothing is started: tasks run in this process on the given robot.
 
     Args:
-        robot: the :class:`~pe_drake.robot.Robot`; workers rebuild it from ``robot.name`` and
+        robot: the :class:`~pe_drake.multibody.robot.Robot`; workers rebuild it from ``robot.name`` and
             ``robot.config`` (construction hooks of the parent's robot are not reproduced).
         workers: number of processes (default :func:`default_workers`).
         base: the base parameters every task uses (default: computed here once).
@@ -322,8 +322,8 @@ class WorkerPool:
         constraints_factory: ConstraintsFactory | None = None,
         start_method: str | None = None,
     ):
-        from pe_drake.base_parameters import compute_base_parameters
-        from pe_drake.regressor import RegressorModel
+        from pe_drake.multibody.base_parameters import compute_base_parameters
+        from pe_drake.multibody.regressor import RegressorModel
 
         workers = default_workers() if workers is None else workers
         if not isinstance(workers, int) or workers < 1:
@@ -347,7 +347,7 @@ class WorkerPool:
         self.last_processes = 1
 
     def problem(self, config: ExcitationConfig, C0: np.ndarray | None = None):
-        """An :class:`~pe_drake.excitation.ExcitationProblem` on this process's robot, with
+        """An :class:`~pe_drake.excitation.program.ExcitationProblem` on this process's robot, with
         the pool's base parameters."""
         return self._local.problem(config, C0)
 
@@ -503,7 +503,7 @@ class _Reporter:
         )
 
     def __call__(self, alpha: np.ndarray, value: float) -> None:
-        from pe_drake.excitation import joint_limit_violation
+        from pe_drake.excitation.program import joint_limit_violation
 
         self.count += 1
         self.value = float(value)
@@ -523,7 +523,7 @@ class _Reporter:
 
 def _solve_start(state: _WorkerState, task: _StartTask):
     """Builds and solves one start in the current process."""
-    from pe_drake.excitation import build_excitation_program, solve_excitation
+    from pe_drake.excitation.program import build_excitation_program, solve_excitation
 
     problem = state.problem(task.config, task.C0)
     reporter = _Reporter(task, state.emit)
@@ -580,14 +580,14 @@ def solve_multistart(
     """Solves the excitation problem from several random initial points, keeps the best.
 
     Args:
-        robot: the :class:`~pe_drake.robot.Robot` (ignored when ``pool`` is given).
+        robot: the :class:`~pe_drake.multibody.robot.Robot` (ignored when ``pool`` is given).
         config: the excitation problem (default :class:`ExcitationConfig`).
         solver: "ipopt", "nlopt" or a :class:`SolverConfig`.
         seeds: one start per seed; start k begins at ``problem.initial_guess(seeds[k],
             amplitude)`` unless ``initial_guesses`` is given.
         C0: prior data (Eq. 41), shape (m1, b), in the pool's base parameters.
         constraints_factory: ``f(robot, config) -> [SampledConstraint, ...]``, called once
-            per worker (e.g. :func:`pe_drake.constraints.constraints_from_config`); ignored
+            per worker (e.g. :func:`pe_drake.excitation.constraints.constraints_from_config`); ignored
             when ``pool`` is given (the pool's factory is used).
         initial_guesses: explicit initial alphas, one per seed; a None entry keeps that
             seed's random point.

@@ -259,7 +259,7 @@ class _DrawChunk:
 
 
 def _draw_chunk(state, chunk: _DrawChunk) -> list[tuple[str, Candidate | None, np.ndarray | None]]:
-    """Worker task: a chunk of draws (see :class:`pe_drake.multistart.WorkerPool`)."""
+    """Worker task: a chunk of draws (see :class:`pe_drake.excitation.multistart.WorkerPool`)."""
     problem = state.problem(chunk.config, None)
     constraints = state.constraints(chunk.config)
     out = [_draw(problem, constraints, s, chunk.amplitude) for s in chunk.seeds]
@@ -287,16 +287,16 @@ def generate_candidates(
     ``count`` are returned, so the set does not depend on ``workers``.
 
     Args:
-        robot: the :class:`~pe_drake.robot.Robot` (ignored when ``pool`` is given).
+        robot: the :class:`~pe_drake.multibody.robot.Robot` (ignored when ``pool`` is given).
         config: N, ω, T, K and the amplitude (default :class:`ExcitationConfig`).
         count: accepted candidates wanted.
         constraints_factory: ``f(robot, config) -> [SampledConstraint, ...]`` (default
-            :func:`pe_drake.constraints.constraints_from_config`); ignored with ``pool``.
+            :func:`pe_drake.excitation.constraints.constraints_from_config`); ignored with ``pool``.
         seed: seed of the first draw.
         amplitude: scale of the random coefficients [rad] (default ``config.amplitude``).
         max_draws: give up after this many draws (default 50 × count).
-        workers: processes (see :class:`~pe_drake.multistart.WorkerPool`).
-        pool: an open :class:`~pe_drake.multistart.WorkerPool` to reuse.
+        workers: processes (see :class:`~pe_drake.excitation.multistart.WorkerPool`).
+        pool: an open :class:`~pe_drake.excitation.multistart.WorkerPool` to reuse.
         progress: callback receiving a :class:`DrawEvent` after each chunk of draws.
         chunk_size: draws per task sent to a worker.
 
@@ -309,7 +309,7 @@ def generate_candidates(
             acceptance rate is in the message: lower the amplitude or loosen the constraints).
     """
     from pe_drake.config import Config, validate_config
-    from pe_drake.multistart import WorkerPool
+    from pe_drake.excitation.multistart import WorkerPool
 
     begin = time.perf_counter()
     config = config or ExcitationConfig()
@@ -323,7 +323,7 @@ def generate_candidates(
         raise ConfigError(f"amplitude must be a positive number [rad], got {amplitude!r}")
     own = pool is None
     if own:
-        from pe_drake.constraints import constraints_from_config
+        from pe_drake.excitation.constraints import constraints_from_config
 
         pool = WorkerPool(robot, workers, constraints_factory=constraints_factory or constraints_from_config)
     drawn = accepted = 0

@@ -21,8 +21,8 @@ import math
 
 import numpy as np
 
-from pe_drake.constraints.base import SampledConstraint, SampledValues
 from pe_drake.exceptions import ConfigError, InfeasibleError, UnknownNameError
+from pe_drake.excitation.constraints.base import SampledConstraint, SampledValues
 
 
 class OutOfBalanceError(InfeasibleError):
@@ -58,7 +58,7 @@ def support_center(robot) -> np.ndarray:
     """p_WSc: centroid of the support (contact) points in world, shape (3,) [m].
 
     Args:
-        robot: a :class:`~pe_drake.robot.Robot` whose config has ``support_points``.
+        robot: a :class:`~pe_drake.multibody.robot.Robot` whose config has ``support_points``.
 
     Raises:
         ConfigError: no support points, or a support link moved by an excited joint (the
@@ -105,7 +105,7 @@ class BalanceConstraint(SampledConstraint):
     def __init__(self, robot, radius: float = 0.01, *, smoothing: float = 1e-4):
         """
         Args:
-            robot: a :class:`~pe_drake.robot.Robot` with ``support_points``.
+            robot: a :class:`~pe_drake.multibody.robot.Robot` with ``support_points``.
             radius: allowed horizontal distance r [m], > smoothing (the paper: 0.01).
             smoothing: ε [m], > 0.
 

@@ -1,7 +1,7 @@
 """The joint-torque regressor Y(q, v, vdot) (Eq. 1) and its analytic derivative (Eqs. 45–47).
 
 τ = Y(q, v, vdot) φ, with φ the 10 inertial parameters of every body moved by an excited
-joint (order of :data:`pe_drake.robot.PARAMETER_NAMES`, bodies in ``Robot.body_names``),
+joint (order of :data:`pe_drake.multibody.robot.PARAMETER_NAMES`, bodies in ``Robot.body_names``),
 gravity included.
 
 Drake supplies the kinematics: body poses X_WB at each sample, from which the joint motion
@@ -19,7 +19,7 @@ import dataclasses
 
 import numpy as np
 
-from pe_drake.spatial import (
+from pe_drake.multibody.spatial import (
     cross3,
     cross_force,
     cross_force_matrix,
@@ -47,7 +47,7 @@ class Kinematics:
             AJ includes gravity as a base acceleration.
         VB, AB: the same per body in body coordinates at Bo, (T, nb, 6).
         F_B: per-body regressor blocks in body coordinates, (T, nb, 6, 10):
-            F = Γ(A) + V ×* Γ(V) (:func:`pe_drake.spatial.body_regressor`).
+            F = Γ(A) + V ×* Γ(V) (:func:`pe_drake.multibody.spatial.body_regressor`).
         F_W: the same in world coordinates at the world origin, (T, nb, 6, 10).
         G_V: Γ(V), the unit-parameter inertias times V, (T, nb, 6, 10).
         X_force: per-body force transforms X* (body at Bo → world at the origin), (T, nb, 6, 6);
@@ -71,7 +71,7 @@ class Kinematics:
 
 
 class RegressorModel:
-    """Batched regressor of a :class:`~pe_drake.robot.Robot` and its adjoint.
+    """Batched regressor of a :class:`~pe_drake.multibody.robot.Robot` and its adjoint.
 
     Args:
         robot: the robot (its plant supplies body poses).

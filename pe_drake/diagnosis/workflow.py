@@ -7,7 +7,7 @@
    torque, per joint and per regime (velocity sign, speed, acceleration, position, time).
 2. **Rigid-body re-identification** of the base parameters alone (WLS, Gautier's per-joint
    weights), reported as its own step: inertial errors are not a missing effect.
-3. **Effects.** Candidate columns of :mod:`pe_drake.effects` are appended to the base
+3. **Effects.** Candidate columns of :mod:`pe_drake.diagnosis.effects` are appended to the base
    regressor and selected by forward stepwise regression. A candidate is named only if, fitted
    with the rigid-body parameters on the training data, (a) its value is physically plausible
    (friction, armature ≥ 0), (b) it is significant: |θ| / σ_θ ≥ z, with σ_θ from the sandwich
@@ -32,14 +32,14 @@
    it keeps the library from absorbing it, and is reported under ``unexplained``, never named.
 4. **Augmented model.** The selected effects are added to the model in Drake (joint damping,
    rotor inertia, a welded payload body, Coulomb friction as a ``DoorHinge`` force element,
-   offsets as a generalized force; :mod:`pe_drake.augmented_model`), the held-out torque is
+   offsets as a generalized force; :mod:`pe_drake.diagnosis.augmented_model`), the held-out torque is
    recomputed with Drake's inverse dynamics, and the gap before and after is reported.
 5. **Unexplained.** Joints whose held-out residual stays above max(``noise_factor`` × noise
    floor, ``unexplained_fraction`` × the joint's torque spread, ``resolution_fraction`` × the
    largest joint's spread) are listed with the signals their residual correlates with.
 
 Data preparation: the measurement is brought to a uniform grid and low-pass filtered with a
-zero-phase Butterworth (:func:`pe_drake.measurements.preprocess`, same filter on q and τ);
+zero-phase Butterworth (:func:`pe_drake.identification.measurements.preprocess`, same filter on q and τ);
 v, v̇ by central differences; then decimated to about ``decimate_to_hz``. The Coulomb column
 tanh(v/v_s) has content far above the cut-off, so it is computed at the full rate and filtered
 with the same filter as τ before decimation (parallel filtering, Gautier 1997), as is the
@@ -61,7 +61,7 @@ from typing import Any
 
 import numpy as np
 
-from pe_drake.effects import (
+from pe_drake.diagnosis.effects import (
     COULOMB_VELOCITY_SCALE,
     EXPOSING_REGIME,
     JOINT_EFFECTS,
@@ -69,7 +69,7 @@ from pe_drake.effects import (
     Candidate,
 )
 from pe_drake.exceptions import ConfigError, DataError
-from pe_drake.measurements import Measurement
+from pe_drake.identification.measurements import Measurement
 
 #: The nuisance column of a torque/position timing offset.
 TIMING = "timing_offset"
@@ -176,7 +176,7 @@ class Record:
         trim_s: time dropped at each end [s].
         raw_noise: white-noise level of the raw torque per joint [N·m].
         noise_gain: noise power gain of the zero-phase filter.
-        preprocessing: the choices made, as :class:`~pe_drake.measurements.Preprocessing`.
+        preprocessing: the choices made, as :class:`~pe_drake.identification.measurements.Preprocessing`.
         padlen: samples of odd extension at each end of the filter.
     """
 
@@ -218,7 +218,7 @@ class Record:
 def prepare_record(measurement: Measurement, config: DiagnosisConfig) -> Record:
     """Uniform grid, zero-phase filter, derivatives at the full rate (module docstring).
 
-    The cut-off follows :func:`pe_drake.measurements.preprocess` (``CUTOFF_FACTOR`` × the
+    The cut-off follows :func:`pe_drake.identification.measurements.preprocess` (``CUTOFF_FACTOR`` × the
     motion bandwidth, at least ``MIN_CUTOFF_HZ``, at most 0.4 × the rate). The filter runs
     forward and backward with an odd extension of 3 / cut-off at each end: a short extension
     leaves edge transients in the twice-differentiated acceleration that reach past the
@@ -230,7 +230,7 @@ def prepare_record(measurement: Measurement, config: DiagnosisConfig) -> Record:
     """
     from scipy.signal import butter, sosfiltfilt
 
-    from pe_drake.measurements import (
+    from pe_drake.identification.measurements import (
         CUTOFF_FACTOR,
         MIN_CUTOFF_HZ,
         UNIFORM_TOLERANCE,
@@ -586,7 +586,7 @@ class DiagnosisResult:
         timing: the timing-offset nuisance (estimated offset [s], whether it was needed).
         predictions: held-out torques {"measured", "nominal", "rigid", "after"}, each (S, n).
         residual_series: held-out residuals before/after each named effect, for plots.
-        augmented: the :class:`~pe_drake.augmented_model.AugmentedModel`.
+        augmented: the :class:`~pe_drake.diagnosis.augmented_model.AugmentedModel`.
         drake_check: max |Drake augmented torque - least-squares prediction| per joint [N·m].
         timings: wall time per step [s].
     """
@@ -684,9 +684,9 @@ def diagnose(
     """Runs the five steps of the module docstring.
 
     Args:
-        robot: the a-priori :class:`~pe_drake.robot.Robot`.
+        robot: the a-priori :class:`~pe_drake.multibody.robot.Robot`.
         data: the measured run (raw, as read by
-            :func:`~pe_drake.measurements.read_measurement_csv`).
+            :func:`~pe_drake.identification.measurements.read_measurement_csv`).
         validation: another run to hold out; None: the last ``holdout_fraction`` of ``data``.
         config: options (:class:`DiagnosisConfig`).
         progress: called with one line per step (e.g. ``print``).
@@ -698,11 +698,11 @@ def diagnose(
         DataError: joints that differ from the robot's, a run too short, torques in the
             wrong units (naming the file and column).
     """
-    from pe_drake.augmented_model import AugmentedModel, augmented_torque, build_augmented_robot
-    from pe_drake.base_parameters import compute_base_parameters
-    from pe_drake.effects import joint_candidates, separability
-    from pe_drake.measurements import check_torque_units
-    from pe_drake.regressor import RegressorModel
+    from pe_drake.diagnosis.augmented_model import AugmentedModel, augmented_torque, build_augmented_robot
+    from pe_drake.diagnosis.effects import joint_candidates, separability
+    from pe_drake.identification.measurements import check_torque_units
+    from pe_drake.multibody.base_parameters import compute_base_parameters
+    from pe_drake.multibody.regressor import RegressorModel
 
     config = config or DiagnosisConfig()
     say = progress or (lambda _msg: None)
@@ -769,7 +769,7 @@ def diagnose(
             if c.effect == "coulomb_friction":
                 cols[:, c.joint, k] = seg.coulomb[:, c.joint]
             else:
-                from pe_drake.effects import effect_column
+                from pe_drake.diagnosis.effects import effect_column
 
                 cols[:, c.joint, k] = effect_column(c.effect, seg.q, seg.v, seg.vd, c.joint)
         cols[:, :, -1] = -seg.dtau  # timing nuisance: tau_rec(t) ≈ tau(t) - d·dtau/dt
@@ -904,7 +904,7 @@ def diagnose(
     rejected_list = rejected_list[:12]
 
     # -- payload and the rigid-body report (from the final fit's base parameters)
-    from pe_drake.effects import prior_parameter_covariance
+    from pe_drake.diagnosis.effects import prior_parameter_covariance
 
     phi_B = final.x[:b]
     cov_B = final.cov[:b, :b]
@@ -1005,7 +1005,7 @@ def _accept(col, fit: Fit, current: Fit, reg: _Regression, cand_of, timing_col, 
 
 def _payload_search(robot, base, delta_B, C, Sigma_phi, config, joints, reg, fit_last, b):
     """The payload test of the module docstring. Returns (report, NamedEffect or None, Δφ_L)."""
-    from pe_drake.effects import chi2, chi2_quantile, fit_payload, payload_groups
+    from pe_drake.diagnosis.effects import chi2, chi2_quantile, fit_payload, payload_groups
 
     chi2_0 = chi2(delta_B, C)
     groups = payload_groups(robot, base)
@@ -1216,30 +1216,12 @@ def _z_two_sided(p: float) -> float:
 # ---- command and benchmark ------------------------------------------------------------------
 
 
-def diagnose_command(args) -> int:
-    """``pe-drake diagnose``: writes diagnosis.json, report.md, figures and the augmented model."""
-    from pe_drake.io_utils import staged_output_dir
-    from pe_drake.measurements import read_measurement_csv
-    from pe_drake.robot import load_robot
-
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise ConfigError(f"--out '{out}' exists and is not a folder")
-    robot = load_robot(args.robot, getattr(args, "config", None))
-    data = read_measurement_csv(args.data, robot)
-    validation = read_measurement_csv(args.validation, robot) if getattr(args, "validation", None) else None
-    print(f"robot {robot.name}: {robot.n} joints ({', '.join(robot.joint_names)})", flush=True)
-    result = diagnose(robot, data, validation, progress=lambda s: print(s, flush=True))
-    with staged_output_dir(out) as tmp:
-        written = write_outputs(tmp, robot, result)
-    print(f"wrote {', '.join(str(out / Path(w).name) for w in written)}")
-    return 0
 
 
 def write_outputs(folder: str | Path, robot, result: DiagnosisResult) -> list[Path]:
     """diagnosis.json, report.md, the figures and the augmented model files into ``folder``."""
-    from pe_drake.augmented_model import write_augmented_model
-    from pe_drake.diagnosis_report import write_report
+    from pe_drake.diagnosis.augmented_model import write_augmented_model
+    from pe_drake.diagnosis.report import write_report
     from pe_drake.io_utils import atomic_write_text
 
     folder = Path(folder)
@@ -1268,79 +1250,7 @@ def _jsonable(x):
     return x
 
 
-def _bench_trajectory(robot, seed: int, harmonics: int = 5, period: float = 10.0):
-    """A random Fourier trajectory about the nominal posture, as large as the joint limits and
-    self-collision (capsule distance ≥ 2 cm) allow: the simulated robot has the capsules as
-    contact geometry."""
-    from pe_drake.fourier import FourierTrajectory
-
-    rng = np.random.default_rng(seed)
-    n = robot.n
-    a, b = rng.uniform(-1, 1, (2, n, harmonics)) / harmonics
-    q0 = robot.nominal_posture()
-    half = 0.5 * (robot.limits.q_upper - robot.limits.q_lower)
-    t = np.linspace(0.0, period, 400, endpoint=False)
-    scale = 1.0
-    for _ in range(30):
-        trajectory = FourierTrajectory(a * scale, b * scale, q0, 2 * math.pi / period)
-        q, _, _ = trajectory.evaluate(t)
-        inside = np.all((q > robot.limits.q_lower) & (q < robot.limits.q_upper))
-        if inside and np.all(np.abs(q - q0).max(axis=0) <= 0.8 * half) and _capsule_clearance(robot, q) >= 0.02:
-            return trajectory
-        scale *= 0.85
-    return trajectory
 
 
-def _capsule_clearance(robot, q: np.ndarray) -> float:
-    """Smallest distance between the robot's collision capsules over configurations [m]."""
-    if not getattr(robot, "capsules", ()):
-        return math.inf
-    plant, sg = robot.plant, robot.scene_graph
-    sg_ctx = sg.GetMyContextFromRoot(robot.context)
-    best = math.inf
-    for qk in q:
-        plant.SetPositions(robot.plant_context, qk)
-        query = sg.get_query_output_port().Eval(sg_ctx)
-        for pair in query.ComputeSignedDistancePairwiseClosestPoints(0.05):
-            best = min(best, pair.distance)
-    return best
 
 
-def bench_diagnose(args) -> None:
-    """Diagnosis of 20 s of 1 kHz data on a 7-dof arm (simulated Coulomb + viscous friction
-    on every joint, 3 % inertial error, noise, on a random collision-free trajectory), outputs
-    included; prints the wall time."""
-    import tempfile
-
-    from pe_drake.bench import median_time
-    from pe_drake.robot import load_robot
-    from pe_drake.simulation import ControlTruth, EffectsTruth, NoiseTruth, Truth, simulate
-    from pe_drake.threads import single_threaded_blas
-
-    robot = load_robot(args.robot)
-    trajectory = _bench_trajectory(robot, args.seed)
-    n = robot.n
-    truth = Truth(seed=args.seed, inertia_perturbation=0.03,
-                  effects=EffectsTruth(viscous={"all": 0.1}, coulomb={"all": 0.3}),
-                  noise=NoiseTruth(encoder_counts_per_rev=524288, tau_std=0.02),
-                  control=ControlTruth(rate_hz=1000.0))
-    start = time.perf_counter()
-    data, _ = simulate(robot, trajectory, truth, 20.0)
-    sim_s = time.perf_counter() - start
-    print(f"robot {robot.name}: {n} joints; simulated 20 s at 1 kHz ({data.num_samples} samples) in {sim_s:.1f} s")
-    result = None
-
-    def run():
-        nonlocal result
-        with single_threaded_blas(), tempfile.TemporaryDirectory() as tmp:
-            result = diagnose(robot, data)
-            write_outputs(tmp, robot, result)
-
-    repeats = max(1, min(int(args.repeats), 3))
-    seconds = median_time(run, repeats=repeats, warmup=0, warmup_seconds=0.0)
-    print("named: " + (", ".join(f"{e.effect}[{e.joint or e.link}] {e.value:.3g} {e.unit}" for e in result.effects)
-                       or "nothing"))
-    print("steps [s]: " + ", ".join(f"{k} {v:.2f}" for k, v in result.timings.items()))
-    print(f"diagnosis of 20 s at 1 kHz incl. report and model files: {seconds:.2f} s (median of {repeats}; "
-          "target < 30 s)")
-    print(f"BENCH diagnose_s={seconds:.3f} samples={data.num_samples} joints={n}")

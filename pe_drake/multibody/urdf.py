@@ -3,7 +3,7 @@
 Identified standard parameters belong one-to-one to Drake bodies, and Drake keeps one body
 per URDF link (links joined by fixed joints are welded, not merged), so each link moved by an
 excited joint gets its own inertial rewritten from its 10 parameters
-(:data:`pe_drake.robot.PARAMETER_NAMES`, about the link origin in the link frame):
+(:data:`pe_drake.multibody.robot.PARAMETER_NAMES`, about the link origin in the link frame):
 
 - ``<mass value="m"/>``;
 - ``<origin xyz="p_LoLcm" rpy="0 0 0"/>`` with p_LoLcm = h / m;
@@ -89,7 +89,7 @@ def validity_problems(body_names: Sequence[str], phi: np.ndarray) -> dict[str, s
     Returns:
         {body: reason}; empty when every body is valid.
     """
-    from pe_drake.robot import phi_to_spatial_inertia
+    from pe_drake.multibody.robot import phi_to_spatial_inertia
 
     phi = np.asarray(phi, float)
     problems: dict[str, str] = {}
@@ -259,7 +259,7 @@ def verify_urdf_text(text: str, body_names: Sequence[str], phi: np.ndarray, tole
     from pydrake.multibody.parsing import Parser
     from pydrake.multibody.plant import MultibodyPlant
 
-    from pe_drake.robot import example_robot_data_dir, spatial_inertia_to_phi
+    from pe_drake.multibody.robot import example_robot_data_dir, spatial_inertia_to_phi
 
     plant = MultibodyPlant(0.0)
     parser = Parser(plant)
@@ -313,7 +313,7 @@ def write_urdf(
 
 
 def write_robot_urdf(path: str | Path, robot, phi: np.ndarray, *, verify: bool = True) -> Path:
-    """:func:`write_urdf` for a :class:`~pe_drake.robot.Robot`: its model file, its bodies.
+    """:func:`write_urdf` for a :class:`~pe_drake.multibody.robot.Robot`: its model file, its bodies.
 
     Args:
         path: output file.

@@ -14,9 +14,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from pe_drake.constraints.base import SampledConstraint, SampledValues
 from pe_drake.exceptions import ConfigError, InfeasibleError
-from pe_drake.regressor import RegressorModel
+from pe_drake.excitation.constraints.base import SampledConstraint, SampledValues
+from pe_drake.multibody.regressor import RegressorModel
 
 
 class TorqueLimitError(InfeasibleError):

@@ -15,7 +15,7 @@ from pe_drake.io_utils import atomic_write_text, staged_output_dir
 
 
 def _load(args: argparse.Namespace):
-    from pe_drake.robot import Robot, builtin_robots, resolve_robot_config
+    from pe_drake.multibody.robot import Robot, builtin_robots, resolve_robot_config
 
     config = resolve_robot_config(args.robot, args.config)
     name = args.robot if args.robot in builtin_robots() else Path(args.robot).stem
@@ -26,7 +26,7 @@ def _trajectory_band(path: str | None) -> tuple[float | None, int | None]:
     """(fundamental [Hz], harmonics) of a trajectory.json, to choose the filter cut-off."""
     if not path:
         return None, None
-    from pe_drake.trajectory_file import load_trajectory
+    from pe_drake.excitation.trajectory_file import load_trajectory
 
     trajectory, _ = load_trajectory(path)
     return trajectory.omega / (2 * math.pi), trajectory.harmonics
@@ -40,7 +40,7 @@ def _check_cutoff(cutoff: float | None) -> None:
 def identify_command(args: argparse.Namespace) -> int:
     """Runs ``pe-drake identify``: identified.json, model.urdf (when physically valid),
     residual plot; nothing is written on error."""
-    from pe_drake.identification import (
+    from pe_drake.identification.estimators import (
         identify,
         prepare_measurement,
         read_robot_measurement,
@@ -48,7 +48,7 @@ def identify_command(args: argparse.Namespace) -> int:
         standard_from_base,
         standard_parameters_dict,
     )
-    from pe_drake.model_export import PhysicallyInvalidError, validity_problems, write_robot_urdf
+    from pe_drake.multibody.urdf import PhysicallyInvalidError, validity_problems, write_robot_urdf
 
     _check_cutoff(args.cutoff)
     start = time.perf_counter()
@@ -140,7 +140,7 @@ def _short_name(base, i: int) -> str:
 
 def validate_command(args: argparse.Namespace) -> int:
     """Runs ``pe-drake validate``: per-joint RMS and relative torque error on another run."""
-    from pe_drake.identification import (
+    from pe_drake.identification.estimators import (
         load_identified,
         predict,
         prepare_measurement,
@@ -180,7 +180,7 @@ def validate_command(args: argparse.Namespace) -> int:
 
 def _plot_residuals(path: Path, robot, data, result) -> None:
     """Measured torque and the model's fit per joint on the identification data."""
-    from pe_drake.identification import predict
+    from pe_drake.identification.estimators import predict
 
     _plot_prediction(
         path,
@@ -217,50 +217,3 @@ def _plot_prediction(path: Path, robot, data, tau_pred: np.ndarray, rel: np.ndar
     tmp.replace(path)
 
 
-def bench_identify(args: argparse.Namespace) -> None:
-    """Times the identification of 20 s of 1 kHz data of a 7-dof arm (CSV to estimate)."""
-    import tempfile
-
-    from pe_drake.identification import identify, prepare_measurement, read_robot_measurement
-    from pe_drake.measurements import write_measurement_csv
-    from pe_drake.robot import load_robot
-    from pe_drake.synthetic import model_measurement
-    from pe_drake.trajectory_file import load_trajectory
-
-    robot = load_robot(args.robot)
-    trajectory_file = Path(__file__).resolve().parent.parent / "tests" / "data" / "panda_optimized.json"
-    if robot.name == "panda" and trajectory_file.is_file():
-        trajectory, _ = load_trajectory(trajectory_file)
-    else:
-        from pe_drake.excitation import ExcitationProblem
-
-        problem = ExcitationProblem(robot)
-        trajectory = problem.trajectory(problem.initial_guess(seed=args.seed))
-    sim = model_measurement(
-        robot, trajectory, rate_hz=1000.0, duration=20.0, tau_noise_std=0.05, seed=args.seed
-    )
-    raw_rows = sim.num_samples
-    # Drop v, vd: the user's CSV normally has only q and tau.
-    sim = sim.replace(v=None, vd=None)
-    with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "data.csv"
-        write_measurement_csv(path, sim)
-        print(f"robot {robot.name}: {robot.n} joints; {raw_rows} samples (20 s at 1 kHz), q and tau only")
-        for method in ("ols", "wls", "physical"):
-            times = []
-            for _ in range(max(1, min(args.repeats, 3))):
-                t0 = time.perf_counter()
-                raw = read_robot_measurement(robot, path)
-                t1 = time.perf_counter()
-                data = prepare_measurement(robot, raw)
-                t2 = time.perf_counter()
-                result = identify(robot, data, method)
-                t3 = time.perf_counter()
-                times.append((t3 - t0, t1 - t0, t2 - t1, t3 - t2))
-            total, read, prep, est = np.median(np.array(times), axis=0)
-            print(
-                f"{method:9s} total {total:6.2f} s (read {read:.2f}, preprocess {prep:.2f}, "
-                f"regressor + estimate {est:.2f}); {result.samples} samples, cond(W) {result.cond:.4g}"
-            )
-            print(f"BENCH identify_{method}_s={total:.3f}")
-    print("target: OLS under 5 s on 2 cores")

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from pe_drake.exceptions import DataError
-from pe_drake.fourier import FourierTrajectory
+from pe_drake.excitation.fourier import FourierTrajectory
 from pe_drake.io_utils import atomic_write_text
 
 

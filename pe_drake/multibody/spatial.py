@@ -43,7 +43,7 @@ def cross_force(a: np.ndarray, f: np.ndarray) -> np.ndarray:
 def inertia_times(x: np.ndarray) -> np.ndarray:
     """Γ(x): the (6, 10) matrix with M(φ) x = Γ(x) φ for a body-frame spatial inertia M(φ).
 
-    φ = [m, hx, hy, hz, Ixx, Iyy, Izz, Ixy, Ixz, Iyz] (pe_drake.robot.PARAMETER_NAMES) and
+    φ = [m, hx, hy, hz, Ixx, Iyy, Izz, Ixy, Ixz, Iyz] (pe_drake.multibody.robot.PARAMETER_NAMES) and
     M(φ) = [[I, [h]×], [-[h]×, m·1]], so M x = [I xω + h × xv; m xv - h × xω].
 
     Args:

@@ -32,10 +32,10 @@ from typing import Any
 
 import numpy as np
 
-from pe_drake.base_parameters import BaseParameters, compute_base_parameters
 from pe_drake.exceptions import ConfigError, DataError
-from pe_drake.measurements import Measurement, check_torque_units, preprocess, read_measurement_csv
-from pe_drake.regressor import RegressorModel
+from pe_drake.identification.measurements import Measurement, check_torque_units, preprocess, read_measurement_csv
+from pe_drake.multibody.base_parameters import BaseParameters, compute_base_parameters
+from pe_drake.multibody.regressor import RegressorModel
 
 METHODS = ("ols", "wls", "physical")
 #: Weight of the pull toward the a-priori parameters in the physical fit, relative to the
@@ -70,7 +70,7 @@ class IdentificationResult:
         relative_error: per-joint 100·‖ρ_j‖/‖τ_j‖ [%].
         noise_std: per-joint residual standard deviation σ_j [N·m] (WLS weights).
         samples: S, samples used (after preprocessing).
-        preprocessing: what :func:`pe_drake.measurements.preprocess` did (or None).
+        preprocessing: what :func:`pe_drake.identification.measurements.preprocess` did (or None).
         wall_time: seconds spent in the estimator (regressor included).
         source: the data file.
     """
@@ -117,9 +117,9 @@ def prepare_measurement(
         robot: the robot the data belongs to.
         measurement: raw data.
         cutoff_hz, fundamental_hz, harmonics, rate_hz: see
-            :func:`pe_drake.measurements.preprocess` (``rate_hz`` = ``decimate_to_hz``).
+            :func:`pe_drake.identification.measurements.preprocess` (``rate_hz`` = ``decimate_to_hz``).
         filtering: False uses the data as it is; it must then hold v and vdot (exact,
-            noise-free data, e.g. from :func:`pe_drake.synthetic.model_measurement`).
+            noise-free data, e.g. from :func:`pe_drake.identification.synthetic.model_measurement`).
         check_units: compare the torques with the a-priori model (refuses N·mm or kN·m).
 
     Raises:
@@ -422,7 +422,7 @@ def _finite_or_none(x: float) -> float | None:
 
 def result_to_dict(result: IdentificationResult, robot, model_file: str | None = None) -> dict[str, Any]:
     """The content of identified.json."""
-    from pe_drake.model_export import validity_problems
+    from pe_drake.multibody.urdf import validity_problems
 
     out: dict[str, Any] = {
         "robot": result.robot,
@@ -458,8 +458,8 @@ def result_to_dict(result: IdentificationResult, robot, model_file: str | None =
 
 
 def standard_parameters_dict(robot, phi: np.ndarray) -> dict[str, dict[str, float]]:
-    """{body: {parameter name: value}} (names of ``pe_drake.robot.PARAMETER_NAMES``)."""
-    from pe_drake.robot import PARAMETER_NAMES
+    """{body: {parameter name: value}} (names of ``pe_drake.multibody.robot.PARAMETER_NAMES``)."""
+    from pe_drake.multibody.robot import PARAMETER_NAMES
 
     return {
         body: dict(zip(PARAMETER_NAMES, map(float, phi[10 * b : 10 * b + 10])))
@@ -509,7 +509,7 @@ def load_identified(path: str | Path, robot) -> IdentificationResult:
         )
     phi = None
     if "standard_parameters" in d:
-        from pe_drake.robot import PARAMETER_NAMES
+        from pe_drake.multibody.robot import PARAMETER_NAMES
 
         try:
             table = d["standard_parameters"]

@@ -1,6 +1,6 @@
 """The a-priori model with the diagnosed effects added, in Drake and as files.
 
-In Drake (:func:`build_augmented_robot`, on :func:`pe_drake.simulation.build_true_robot`):
+In Drake (:func:`build_augmented_robot`, on :func:`pe_drake.identification.simulation.build_true_robot`):
 viscous friction is the joint damping, Coulomb friction a ``DoorHinge`` force element
 (f_c·tanh(v/v_s)), armature the rotor inertia of a joint actuator (gear ratio 1), a payload a
 body welded to its link; the rigid-body parameters are the re-identified ones. Torque offsets
@@ -9,7 +9,7 @@ Drake system feeding the applied-generalized-force port does the same in a simul
 
 The re-identified base parameters φ_B fix only K φ. The standard parameters written are the
 a-priori ones moved as little as the a-priori uncertainty allows (the conditional mean of a
-Gaussian prior, Σ_φ from :func:`pe_drake.effects.prior_parameter_covariance`):
+Gaussian prior, Σ_φ from :func:`pe_drake.diagnosis.effects.prior_parameter_covariance`):
 
     φ = φ_prior + Σ_φ Kᵀ (K Σ_φ Kᵀ)⁺ (φ_B - K φ_prior - K_L φ_payload)
 
@@ -89,13 +89,13 @@ class AugmentedModel:
             payload_phi: Δφ_L of a named payload about its link's origin (10,), or None.
             effects: {label: (Candidate, value)} of the named per-joint effects. The viscous
                 friction replaces the model file's joint damping (0 where none is named, as
-                in :mod:`pe_drake.simulation`).
+                in :mod:`pe_drake.identification.simulation`).
             velocity_scale: v_s of the Coulomb friction [rad/s].
             payload_link: the link whose frame ``payload_phi`` is expressed in.
             cov_B: covariance of φ_B, (b, b): weighs the base parameters when the conditional
                 parameters are not physically valid and a physically consistent fit is needed.
         """
-        from pe_drake.model_export import central_inertia
+        from pe_drake.multibody.urdf import central_inertia
 
         n = robot.n
         viscous, coulomb, armature, offset = np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n)
@@ -135,7 +135,7 @@ class AugmentedModel:
                              "parameters (a body cannot have negative mass)")
         target = phi_B - base.K @ phi_payload_full
         phi = conditional_parameters(base.K, robot.phi_model, Sigma_phi, target)
-        from pe_drake.model_export import validity_problems
+        from pe_drake.multibody.urdf import validity_problems
 
         invalid = validity_problems(robot.body_names, phi)
         if invalid:
@@ -151,8 +151,8 @@ class AugmentedModel:
                    np.asarray(inertia, float), tuple(notes))
 
     def truth(self):
-        """The :class:`~pe_drake.simulation.Truth` that builds this model's effects."""
-        from pe_drake.simulation import EffectsTruth, PayloadTruth, Truth
+        """The :class:`~pe_drake.identification.simulation.Truth` that builds this model's effects."""
+        from pe_drake.identification.simulation import EffectsTruth, PayloadTruth, Truth
 
         payload = PayloadTruth()
         if self.payload_link:
@@ -169,7 +169,7 @@ class AugmentedModel:
         return Truth(effects=effects)
 
     def as_dict(self) -> dict[str, Any]:
-        from pe_drake.robot import PARAMETER_NAMES
+        from pe_drake.multibody.robot import PARAMETER_NAMES
 
         def per_joint(x):
             return {j: float(v) for j, v in zip(self.joints, x)}
@@ -287,7 +287,7 @@ def physical_parameters(K: np.ndarray, phi_prior: np.ndarray, Sigma_phi: np.ndar
 
 
 def _pseudo_inertia(phi_b: np.ndarray) -> np.ndarray:
-    from pe_drake.identification import pseudo_inertia
+    from pe_drake.identification.estimators import pseudo_inertia
 
     return pseudo_inertia(phi_b)
 
@@ -303,7 +303,7 @@ def physically_consistent(body_names, phi: np.ndarray, margin: float = 1e-9) -> 
     Returns:
         (φ, names of the projected bodies).
     """
-    from pe_drake.model_export import validity_problems
+    from pe_drake.multibody.urdf import validity_problems
 
     phi = np.array(phi, float)
     problems = validity_problems(body_names, phi)
@@ -326,14 +326,14 @@ def physically_consistent(body_names, phi: np.ndarray, margin: float = 1e-9) -> 
 
 
 def build_augmented_robot(robot, model: AugmentedModel):
-    """The augmented model as a Drake plant (a :class:`~pe_drake.simulation.TrueRobot` whose
+    """The augmented model as a Drake plant (a :class:`~pe_drake.identification.simulation.TrueRobot` whose
     context holds the re-identified inertias).
 
     Raises:
         ConfigError: an effect value the simulator's schema refuses (named in the message).
     """
-    from pe_drake.robot import phi_to_spatial_inertia
-    from pe_drake.simulation import build_true_robot
+    from pe_drake.identification.simulation import build_true_robot
+    from pe_drake.multibody.robot import phi_to_spatial_inertia
 
     true = build_true_robot(robot, model.truth())
     plant, ctx = true.robot.plant, true.robot.plant_context
@@ -363,7 +363,7 @@ def augmented_urdf_text(robot, model: AugmentedModel) -> str:
         ConfigError: the robot was not loaded from a URDF.
         PhysicallyInvalidError: an invalid body (cannot happen after :func:`physically_consistent`).
     """
-    from pe_drake.model_export import central_inertia, urdf_with_inertias
+    from pe_drake.multibody.urdf import central_inertia, urdf_with_inertias
 
     text = urdf_with_inertias(robot.model_path, model.body_names, model.phi)
     for j, name in enumerate(model.joints):
@@ -453,7 +453,7 @@ def effects_yaml_text(model: AugmentedModel) -> str:
 def write_augmented_model(folder: str | Path, robot, model: AugmentedModel, *, verify: bool = True) -> list[Path]:
     """Writes the augmented model's files into ``folder`` (module docstring).
 
-    With ``verify``, the URDF is loaded back with :func:`~pe_drake.robot.load_robot` and its
+    With ``verify``, the URDF is loaded back with :func:`~pe_drake.multibody.robot.load_robot` and its
     inverse dynamics compared with :func:`build_augmented_robot` (Coulomb and offsets aside).
 
     Returns:
@@ -482,7 +482,7 @@ def verify_augmented_urdf(path: Path, robot, model: AugmentedModel, samples: int
                           tolerance: float = 1e-6) -> float:
     """Max |τ_urdf - τ_model| over random states [N·m] (raises above ``tolerance`` relative)."""
     from pe_drake.exceptions import ConfigError
-    from pe_drake.robot import load_robot
+    from pe_drake.multibody.robot import load_robot
 
     config = dataclasses.replace(robot.config, model=str(Path(path).resolve()), capsules="")
     loaded = load_robot(config)

@@ -2,7 +2,7 @@
 
 ``pe-drake simulate --robot ROBOT --trajectory DIR/trajectory.json --truth TRUTH.yaml
 --out data.csv`` writes what a real robot would log (q and the actuator torque, at the control
-rate, in the format of :mod:`pe_drake.measurements`) and, beside it, ``data.truth.json`` with
+rate, in the format of :mod:`pe_drake.identification.measurements`) and, beside it, ``data.truth.json`` with
 every true value (inertial parameters, effects, noise) so tests can check what identification
 recovers.
 
@@ -48,7 +48,6 @@ the stiff tanh of Coulomb friction would need a much smaller time step in a disc
 # types at run time and cannot resolve string annotations.
 
 import dataclasses
-import json
 import math
 import time
 from pathlib import Path
@@ -57,9 +56,8 @@ from typing import Any
 import numpy as np
 
 from pe_drake.exceptions import ConfigError, DataError, PeDrakeError, UnknownNameError
-from pe_drake.fourier import FourierTrajectory
-from pe_drake.io_utils import atomic_write_text
-from pe_drake.measurements import Measurement, measurement_to_csv_text
+from pe_drake.excitation.fourier import FourierTrajectory
+from pe_drake.identification.measurements import Measurement
 
 #: Key of a per-joint table that sets every joint not listed by name.
 ALL_JOINTS = "all"
@@ -350,7 +348,7 @@ def perturb_inertias(
       ``SpatialInertia.IsPhysicallyValid``.
 
     Args:
-        phi: parameters, shape (10·nb,) in :data:`pe_drake.robot.PARAMETER_NAMES` order.
+        phi: parameters, shape (10·nb,) in :data:`pe_drake.multibody.robot.PARAMETER_NAMES` order.
         size: ε, relative size in [0, 0.5].
         rng: seed or numpy Generator.
         max_tries: redraws per body before giving up.
@@ -362,7 +360,7 @@ def perturb_inertias(
         ConfigError: a bad size, or a body whose inertia cannot be made valid (an invalid
             a-priori inertia).
     """
-    from pe_drake.robot import phi_to_spatial_inertia
+    from pe_drake.multibody.robot import phi_to_spatial_inertia
 
     size = _finite("inertia_perturbation", size, nonneg=True)
     if size > 0.5:
@@ -429,7 +427,7 @@ class TrueRobot:
     """The simulated robot and the true values it was built with.
 
     Attributes:
-        robot: the :class:`~pe_drake.robot.Robot` (continuous plant) with every effect.
+        robot: the :class:`~pe_drake.multibody.robot.Robot` (continuous plant) with every effect.
         phi: true parameters of the a-priori robot's bodies, payload lumped into its link,
             shape (10·nb,).
         phi_bodies: true parameters of the bodies alone (without payload), (10·nb,).
@@ -453,7 +451,7 @@ def build_true_robot(robot, truth: Truth) -> TrueRobot:
     """Builds the true robot of a truth on top of an a-priori robot.
 
     Args:
-        robot: the a-priori :class:`~pe_drake.robot.Robot` (its config is reloaded; bodies
+        robot: the a-priori :class:`~pe_drake.multibody.robot.Robot` (its config is reloaded; bodies
             added by its own ``before_finalize`` are not carried over).
         truth: a validated :class:`Truth`.
 
@@ -463,7 +461,7 @@ def build_true_robot(robot, truth: Truth) -> TrueRobot:
     from pydrake.math import RigidTransform
     from pydrake.multibody.tree import DoorHinge, DoorHingeConfig
 
-    from pe_drake.robot import load_robot, phi_to_spatial_inertia, spatial_inertia_to_phi
+    from pe_drake.multibody.robot import load_robot, phi_to_spatial_inertia, spatial_inertia_to_phi
 
     validate_truth(truth, robot)
     joints = robot.joint_names
@@ -563,13 +561,13 @@ def simulate(
     """Simulates a run of the true robot tracking a trajectory; returns what it logs.
 
     Args:
-        robot_or_name: the a-priori :class:`~pe_drake.robot.Robot` or a built-in name.
+        robot_or_name: the a-priori :class:`~pe_drake.multibody.robot.Robot` or a built-in name.
         trajectory: the trajectory to track (joints in the robot's order).
         truth: a :class:`Truth` or the path of a TRUTH.yaml.
         duration: simulated time [s]; default one period of the trajectory.
 
     Returns:
-        The :class:`~pe_drake.measurements.Measurement` (t, q, tau at ``control.rate_hz``;
+        The :class:`~pe_drake.identification.measurements.Measurement` (t, q, tau at ``control.rate_hz``;
         v when ``record_velocity``) and the JSON-ready truth dict (true parameters per body,
         effects with units, noise, control, tracking error, wall time).
 
@@ -581,7 +579,7 @@ def simulate(
     from pydrake.multibody.tree import MultibodyForces
     from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
 
-    from pe_drake.robot import PARAMETER_NAMES, Robot, load_robot
+    from pe_drake.multibody.robot import PARAMETER_NAMES, Robot, load_robot
 
     robot = robot_or_name if isinstance(robot_or_name, Robot) else load_robot(robot_or_name)
     if not isinstance(truth, Truth):
@@ -742,43 +740,3 @@ def truth_path_for(out: str | Path) -> Path:
     return out.parent / f"{out.stem}.truth.json"
 
 
-def simulate_command(args) -> int:
-    """``pe-drake simulate``: writes the CSV and its ``.truth.json``; prints a summary."""
-    from pe_drake.robot import load_robot
-    from pe_drake.trajectory_file import load_trajectory
-
-    out = Path(args.out)
-    if out.is_dir():
-        raise ConfigError(f"--out '{out}' is a folder; give the CSV file to write")
-    truth = load_truth(args.truth)
-    robot = load_robot(args.robot, getattr(args, "config", None))
-    trajectory, data = load_trajectory(args.trajectory)
-    if list(data["joints"]) != list(robot.joint_names):
-        raise DataError(
-            f"trajectory joints {', '.join(data['joints'])} differ from robot '{robot.name}''s "
-            f"excited joints {', '.join(robot.joint_names)}",
-            file=str(args.trajectory),
-        )
-    duration = args.duration if getattr(args, "duration", None) is not None else data.get("duration")
-    measurement, truth_dict = simulate(robot, trajectory, truth, duration)
-    measurement = measurement.replace(source=str(out))
-
-    csv_text = measurement_to_csv_text(measurement)
-    truth_file = truth_path_for(out)
-    truth_dict["data_file"] = out.name
-    atomic_write_text(truth_file, json.dumps(truth_dict, indent=2) + "\n")
-    try:
-        atomic_write_text(out, csv_text)
-    except BaseException:
-        truth_file.unlink(missing_ok=True)  # nothing half-written
-        raise
-
-    sim = truth_dict["simulation"]
-    print(
-        f"simulated {sim['duration']:.3g} s of '{robot.name}' at {sim['rate_hz']:g} Hz: "
-        f"{sim['samples']} samples in {sim['wall_time_s']:.2f} s wall time"
-    )
-    print("tracking error RMS [mrad]: " + ", ".join(
-        f"{j} {1e3 * e:.3g}" for j, e in sim["tracking_error_rms"].items()))
-    print(f"wrote {out} and {truth_file}")
-    return 0

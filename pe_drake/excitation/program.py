@@ -29,14 +29,14 @@ from pathlib import Path
 
 import numpy as np
 
-from pe_drake.base_parameters import BaseParameters, compute_base_parameters
 from pe_drake.config import ExcitationConfig, SolverConfig, validate_config
-from pe_drake.constraints.base import SampledConstraint
-from pe_drake.criteria import evaluate_criterion
 from pe_drake.exceptions import ConfigError, InfeasibleError, NoSolutionFound
-from pe_drake.fourier import FourierBasis, FourierTrajectory, sample_times
+from pe_drake.excitation.constraints.base import SampledConstraint
+from pe_drake.excitation.criteria import evaluate_criterion
+from pe_drake.excitation.fourier import FourierBasis, FourierTrajectory, sample_times
 from pe_drake.memory import reuse_freed_memory
-from pe_drake.regressor import RegressorModel
+from pe_drake.multibody.base_parameters import BaseParameters, compute_base_parameters
+from pe_drake.multibody.regressor import RegressorModel
 from pe_drake.threads import single_threaded_blas
 
 
@@ -53,7 +53,7 @@ class ExcitationProblem:
     """The excitation cost of Eq. (41) for a robot, with its analytic gradient (Eq. 49).
 
     Args:
-        robot: the :class:`~pe_drake.robot.Robot`.
+        robot: the :class:`~pe_drake.multibody.robot.Robot`.
         config: harmonics, ω, sample counts, criterion (:class:`ExcitationConfig`).
         C0: prior data, the stacked base regressor of earlier motions, shape (m1, b).
         base: base parameters to use (computed if not given).

@@ -191,7 +191,7 @@ class Robot:
             text = re.sub(r"<collision\b.*?</collision>", "", text, flags=re.S)
             text = re.sub(r"<mimic\b[^>]*/>", "", text)
             if self._obj_visuals:
-                from pe_drake.meshes import stl_visuals_to_obj
+                from pe_drake.multibody.meshes import stl_visuals_to_obj
 
                 text = stl_visuals_to_obj(text, model_path)
 
@@ -305,7 +305,7 @@ class Robot:
     def _scene_graph_builder_hook(self, plant, scene_graph) -> None:
         """Registers extra geometry before Finalize (capsules; see constraints.collision)."""
         if self.config.capsules:
-            from pe_drake.capsules import register_capsules
+            from pe_drake.multibody.capsules import register_capsules
 
             self.capsules = register_capsules(plant, scene_graph, self.config.capsules)
         else:

@@ -223,7 +223,7 @@ def _resolve_mesh(name: str, model_path: Path) -> Path | None:
 def _package_roots(package: str, model_path: Path) -> list[Path]:
     roots = []
     if package == "example-robot-data":
-        from pe_drake.robot import example_robot_data_dir
+        from pe_drake.multibody.robot import example_robot_data_dir
 
         with contextlib.suppress(Exception):
             roots.append(example_robot_data_dir())

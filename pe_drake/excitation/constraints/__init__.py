@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from pe_drake.constraints.base import SampledConstraint, SampledValues
+from pe_drake.excitation.constraints.base import SampledConstraint, SampledValues
 
 __all__ = ["SampledConstraint", "SampledValues", "constraints_from_config"]
 
@@ -25,7 +25,7 @@ def constraints_from_config(robot, excitation) -> list[SampledConstraint]:
     out: list[SampledConstraint] = []
     q0 = robot.nominal_posture()[None, :]
     if excitation.balance_radius > 0:
-        from pe_drake.constraints.balance import BalanceConstraint
+        from pe_drake.excitation.constraints.balance import BalanceConstraint
 
         balance = BalanceConstraint(robot, excitation.balance_radius)
         balance.check_posture(q0)
@@ -36,13 +36,13 @@ def constraints_from_config(robot, excitation) -> list[SampledConstraint]:
                 f"excitation.collision_margin is set but robot '{robot.name}' has no capsule file "
                 "(robot.capsules)"
             )
-        from pe_drake.constraints.collision import CollisionConstraint
+        from pe_drake.excitation.constraints.collision import CollisionConstraint
 
         collision = CollisionConstraint(robot, excitation.collision_margin)
         collision.check_posture(q0)
         out.append(collision)
     if excitation.torque_limits:
-        from pe_drake.constraints.torque import TorqueConstraint
+        from pe_drake.excitation.constraints.torque import TorqueConstraint
 
         torque = TorqueConstraint(robot)
         torque.check_posture(q0)

@@ -8,7 +8,7 @@ the regressors of the motions before it as prior data,
 so each new motion excites what the earlier ones left poorly excited, and cond of the
 concatenated C falls with each motion even when cond(C^(i)) alone grows. Each motion starts
 from its own seeded random initial point(s); with ``starts > 1`` they are solved in parallel
-processes (:mod:`pe_drake.multistart`) and the best feasible one is kept.
+processes (:mod:`pe_drake.excitation.multistart`) and the best feasible one is kept.
 
 Warm start (on by default): the last start of motion i > 1 begins from the earlier motion of
 the sequence whose coefficients give the lowest criterion with the current prior, instead of
@@ -48,14 +48,14 @@ class SequenceMotion:
 
     Attributes:
         index: i, from 1.
-        result: the kept :class:`~pe_drake.excitation.ExcitationResult` (``cond`` is that of
+        result: the kept :class:`~pe_drake.excitation.program.ExcitationResult` (``cond`` is that of
             [C0; C^(i)]).
         block: C^(i), this motion's base regressor at the T cost samples, shape (T·n, b).
         cond_motion: cond(C^(i)), the motion alone (Table I, first row).
         cond_total: cond of the concatenated C = [prior C0; C^(1); ...; C^(i)] (second row).
         seed: seed of the kept start.
         seeds: seeds of every start of this motion.
-        starts: one :class:`~pe_drake.multistart.StartSummary` per start.
+        starts: one :class:`~pe_drake.excitation.multistart.StartSummary` per start.
         wall_time: time spent on this motion, all starts included [s].
     """
 
@@ -82,7 +82,7 @@ class SequenceResult:
         motions: one :class:`SequenceMotion` per motion, in order.
         C: the concatenated regressor [prior C0; C^(1); ...], shape (m, b).
         cond: cond(C).
-        base: the :class:`~pe_drake.base_parameters.BaseParameters` the columns follow.
+        base: the :class:`~pe_drake.multibody.base_parameters.BaseParameters` the columns follow.
         workers: processes used per motion (1: solved in this process).
         wall_time: whole run [s].
     """
@@ -169,12 +169,12 @@ def optimize_sequence(
     Fourier coefficients; the earlier blocks are fixed prior data (Eq. 41).
 
     Args:
-        robot: the :class:`~pe_drake.robot.Robot` (ignored when ``pool`` is given).
+        robot: the :class:`~pe_drake.multibody.robot.Robot` (ignored when ``pool`` is given).
         config: the excitation problem (default :class:`ExcitationConfig`).
         solver: "ipopt", "nlopt" or a :class:`SolverConfig`.
         motions: number of motions (the paper: 3).
         constraints_factory: ``f(robot, config) -> [SampledConstraint, ...]`` (default
-            :func:`pe_drake.constraints.constraints_from_config`: balance and collision as
+            :func:`pe_drake.excitation.constraints.constraints_from_config`: balance and collision as
             the config asks); ignored when ``pool`` is given.
         C0: prior data from earlier experiments, shape (m0, b), or None (the paper: O).
         starts: random initial points per motion; the best feasible one is kept.
@@ -183,9 +183,9 @@ def optimize_sequence(
         seeds: explicit seeds, one list per motion (overrides ``seed`` and ``starts``).
         amplitude: scale of the random initial coefficients [rad] (default
             ``config.amplitude``).
-        pool: an open :class:`~pe_drake.multistart.WorkerPool` to reuse.
+        pool: an open :class:`~pe_drake.excitation.multistart.WorkerPool` to reuse.
         progress: callback receiving :class:`MotionEvent` and
-            :class:`~pe_drake.multistart.StartEvent` objects.
+            :class:`~pe_drake.excitation.multistart.StartEvent` objects.
         progress_interval: seconds between progress events of a start.
         stop_on_failure: raise when a motion has no feasible start (else keep its best
             infeasible start and go on).
@@ -204,7 +204,7 @@ def optimize_sequence(
             the failed motion included.
         WorkerError: a worker process failed.
     """
-    from pe_drake.multistart import WorkerPool, default_workers, solve_multistart
+    from pe_drake.excitation.multistart import WorkerPool, default_workers, solve_multistart
 
     begin = time.perf_counter()
     config = config or ExcitationConfig()
@@ -220,7 +220,7 @@ def optimize_sequence(
         seeds = [motion_seeds(first, i, starts) for i in range(1, motions + 1)]
     own = pool is None
     if own:
-        from pe_drake.constraints import constraints_from_config
+        from pe_drake.excitation.constraints import constraints_from_config
 
         most = max(len(row) for row in seeds)
         n = min(default_workers() if workers is None else workers, most)

@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from pe_drake.fourier import FourierTrajectory
-from pe_drake.measurements import Measurement
-from pe_drake.regressor import RegressorModel
+from pe_drake.excitation.fourier import FourierTrajectory
+from pe_drake.identification.measurements import Measurement
+from pe_drake.multibody.regressor import RegressorModel
 
 
 def model_measurement(

@@ -1,6 +1,6 @@
 """Self-collision avoidance between capsules (paper, Eq. 53).
 
-Every capsule pair left after filtering (:func:`pe_drake.capsules.capsule_pairs`) keeps at
+Every capsule pair left after filtering (:func:`pe_drake.multibody.capsules.capsule_pairs`) keeps at
 least ``margin`` between its surfaces at every sample:
 
     d_ij(q) = d_line(p_Li^(s), p_Li^(e), p_Lj^(s), p_Lj^(e)) - r_i - r_j >= margin.
@@ -38,8 +38,8 @@ import math
 
 import numpy as np
 
-from pe_drake.constraints.base import SampledConstraint, SampledValues
 from pe_drake.exceptions import ConfigError, InfeasibleError
+from pe_drake.excitation.constraints.base import SampledConstraint, SampledValues
 
 
 class PostureInCollisionError(InfeasibleError):
@@ -89,7 +89,7 @@ class CollisionConstraint(SampledConstraint):
     def __init__(self, robot, margin: float, *, aggregate: bool = True, smoothing: float = 0.002):
         """
         Args:
-            robot: a :class:`~pe_drake.robot.Robot` loaded with a capsule file.
+            robot: a :class:`~pe_drake.multibody.robot.Robot` loaded with a capsule file.
             margin: minimum distance between capsule surfaces [m], >= 0.
             aggregate: one soft-min row per sample (default) or one row per pair.
             smoothing: soft-min length scale h [m], > 0 (used when ``aggregate``).
@@ -97,7 +97,7 @@ class CollisionConstraint(SampledConstraint):
         Raises:
             ConfigError: no capsules, no pair left to check, or a bad margin/smoothing.
         """
-        from pe_drake.capsules import capsule_pairs
+        from pe_drake.multibody.capsules import capsule_pairs
 
         if not isinstance(margin, (int, float)) or not math.isfinite(margin) or margin < 0:
             raise ConfigError(f"collision margin must be a finite number >= 0 [m], got {margin!r}")
@@ -107,7 +107,7 @@ class CollisionConstraint(SampledConstraint):
         if not capsules:
             raise ConfigError(
                 f"robot '{robot.name}' has no collision capsules: set robot.capsules to a capsule "
-                "file in its config (format: pe_drake/capsules.py)"
+                "file in its config (format: pe_drake/multibody/capsules.py)"
             )
         self.robot = robot
         self.capsules = capsules
@@ -201,7 +201,7 @@ class CollisionConstraint(SampledConstraint):
         return p_WS
 
     def _pair_geometry(self, q: np.ndarray, joints: bool):
-        from pe_drake.capsules import segment_closest_points
+        from pe_drake.multibody.capsules import segment_closest_points
 
         X_WH = self._joint_body_poses(q, all_joints=joints)
         p_WS = self._capsule_ends(X_WH)

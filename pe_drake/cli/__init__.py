@@ -14,12 +14,12 @@ import sys
 from pe_drake import __version__
 
 _COMMANDS = {
-    "optimize": ("pe_drake.commands", "optimize_command"),
-    "view": ("pe_drake.viewer", "view_command"),
-    "simulate": ("pe_drake.simulation", "simulate_command"),
-    "identify": ("pe_drake.identify_commands", "identify_command"),
-    "validate": ("pe_drake.identify_commands", "validate_command"),
-    "diagnose": ("pe_drake.diagnosis", "diagnose_command"),
+    "optimize": ("pe_drake.cli.optimize", "optimize_command"),
+    "view": ("pe_drake.cli.view", "view_command"),
+    "simulate": ("pe_drake.cli.simulate", "simulate_command"),
+    "identify": ("pe_drake.cli.identify", "identify_command"),
+    "validate": ("pe_drake.cli.identify", "validate_command"),
+    "diagnose": ("pe_drake.cli.diagnose", "diagnose_command"),
 }
 
 

@@ -24,8 +24,8 @@ def prior_regressor(problem, trajectory_json: str | Path) -> np.ndarray:
     Raises:
         DataError: the file's joints differ from the robot's.
     """
-    from pe_drake.fourier import FourierBasis, sample_times
-    from pe_drake.trajectory_file import load_trajectory
+    from pe_drake.excitation.fourier import FourierBasis, sample_times
+    from pe_drake.excitation.trajectory_file import load_trajectory
 
     trajectory, data = load_trajectory(trajectory_json)
     joints = tuple(data["joints"])
@@ -58,9 +58,9 @@ def _apply_arguments(config: Config, args: argparse.Namespace) -> Config:
 
 def optimize_command(args: argparse.Namespace) -> int:
     """Runs ``pe-drake optimize``; returns 0 on success, 1 if no valid trajectory was found."""
-    from pe_drake.constraints import constraints_from_config
-    from pe_drake.excitation import ExcitationProblem, build_excitation_program, solve_excitation
-    from pe_drake.robot import Robot, builtin_robots, resolve_robot_config
+    from pe_drake.excitation.constraints import constraints_from_config
+    from pe_drake.excitation.program import ExcitationProblem, build_excitation_program, solve_excitation
+    from pe_drake.multibody.robot import Robot, builtin_robots, resolve_robot_config
 
     if not args.csv_rate > 0 or not math.isfinite(args.csv_rate):
         raise ConfigError(f"--csv-rate must be a positive number [Hz], got {args.csv_rate}")
@@ -131,8 +131,8 @@ def optimize_command(args: argparse.Namespace) -> int:
 
 
 def _write_success_outputs(tmp: Path, robot, result, args, say) -> None:
+    from pe_drake.excitation.trajectory_file import save_trajectory, write_trajectory_csv
     from pe_drake.plots import plot_trajectory
-    from pe_drake.trajectory_file import save_trajectory, write_trajectory_csv
 
     save_trajectory(tmp / "trajectory.json", robot, result.trajectory, cond=result.cond, cond_motion=result.cond_motion)
     write_trajectory_csv(tmp / "trajectory.csv", robot.joint_names, result.trajectory, args.csv_rate)

@@ -12,7 +12,7 @@ effect                 column c_j             unit (revolute)    unit (prismatic
 ``torque_offset``      1                      N·m                N                   any
 =====================  ====================  =================  ==================  ==========
 
-The columns carry the sign convention of :mod:`pe_drake.simulation`: τ is the torque the
+The columns carry the sign convention of :mod:`pe_drake.identification.simulation`: τ is the torque the
 actuator applies, so a resistive load adds to it. ``coulomb_friction`` uses the same smoothed
 sign as the simulator's Drake ``DoorHinge`` (v_s = 0.01 rad/s by default); the data are
 low-pass filtered, so the columns are filtered in parallel with the torque (Gautier 1997,
@@ -92,7 +92,7 @@ def joint_candidates(robot, effects: Sequence[str] = JOINT_EFFECTS) -> list[Cand
     """Every per-joint effect on every excited joint.
 
     Args:
-        robot: a :class:`~pe_drake.robot.Robot`.
+        robot: a :class:`~pe_drake.multibody.robot.Robot`.
         effects: names from :data:`JOINT_EFFECTS`.
     """
     out = []
@@ -168,15 +168,15 @@ def separability(robot, base, candidates: Sequence[Candidate], *, model=None, sa
     says whether *any* motion can separate the effect, independently of the recorded one.
 
     Args:
-        robot: a :class:`~pe_drake.robot.Robot`.
-        base: its :class:`~pe_drake.base_parameters.BaseParameters`.
+        robot: a :class:`~pe_drake.multibody.robot.Robot`.
+        base: its :class:`~pe_drake.multibody.base_parameters.BaseParameters`.
         candidates: the candidates to test.
-        model: an existing :class:`~pe_drake.regressor.RegressorModel`.
+        model: an existing :class:`~pe_drake.multibody.regressor.RegressorModel`.
         samples: random states.
         seed: their seed.
         tolerance: relative residual below which a column counts as inside span(Y_B).
     """
-    from pe_drake.regressor import RegressorModel
+    from pe_drake.multibody.regressor import RegressorModel
 
     model = model or RegressorModel(robot)
     rng = np.random.default_rng(seed)
@@ -213,7 +213,7 @@ def prior_parameter_covariance(robot, relative: float = PRIOR_RELATIVE_UNCERTAIN
                                samples: int = 400, seed: int = 0) -> np.ndarray:
     """Covariance of the standard parameters of an a-priori model accurate to ``relative``.
 
-    The model is the one of :func:`pe_drake.simulation.perturb_inertias`: every body's mass,
+    The model is the one of :func:`pe_drake.identification.simulation.perturb_inertias`: every body's mass,
     principal moments and centre of mass (relative to max(|p|, radius of gyration)) uniformly
     within ±``relative``, its principal axes rotated by up to ``relative`` rad about a random
     axis, draws that break the triangle inequality redrawn. Bodies are independent; each
@@ -221,7 +221,7 @@ def prior_parameter_covariance(robot, relative: float = PRIOR_RELATIVE_UNCERTAIN
     parameters about the body origin is not linear).
 
     Args:
-        robot: a :class:`~pe_drake.robot.Robot` (its ``phi_model`` is the a-priori model).
+        robot: a :class:`~pe_drake.multibody.robot.Robot` (its ``phi_model`` is the a-priori model).
         relative: ε in (0, 0.5].
         samples: number of draws per body.
         seed: their seed.
@@ -244,8 +244,8 @@ def prior_parameter_covariance(robot, relative: float = PRIOR_RELATIVE_UNCERTAIN
 
 def _perturbation_draws(phi_b: np.ndarray, eps: float, count: int, rng: np.random.Generator) -> np.ndarray:
     """``count`` perturbed copies of one body's parameters, shape (count, 10) (vectorized
-    form of the perturbation of :func:`pe_drake.simulation.perturb_inertias`)."""
-    from pe_drake.simulation import principal_inertia
+    form of the perturbation of :func:`pe_drake.identification.simulation.perturb_inertias`)."""
+    from pe_drake.identification.simulation import principal_inertia
 
     m, p, lam, R, r_gyr = principal_inertia(phi_b)
     lam2 = np.empty((0, 3))

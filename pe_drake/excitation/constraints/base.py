@@ -2,7 +2,7 @@
 
 A :class:`SampledConstraint` maps joint states at K sample times to m values per sample with
 lower ≤ value ≤ upper, and gives their analytic derivatives with respect to q (and v, vdot
-when it depends on them). :mod:`pe_drake.excitation` chains these through the Fourier map
+when it depends on them). :mod:`pe_drake.excitation.program` chains these through the Fourier map
 (Eq. 49) into a Drake constraint on alpha; the members (balance, collision, torque) never see
 alpha.
 """

@@ -15,7 +15,7 @@ import dataclasses
 import numpy as np
 import scipy.linalg
 
-from pe_drake.regressor import RegressorModel
+from pe_drake.multibody.regressor import RegressorModel
 
 
 @dataclasses.dataclass(frozen=True)
@@ -71,7 +71,7 @@ def compute_base_parameters(
     """Numerical base parameters of ``robot`` from random states within its limits.
 
     Args:
-        robot: a :class:`~pe_drake.robot.Robot`.
+        robot: a :class:`~pe_drake.multibody.robot.Robot`.
         samples: number of random states (default: enough for 4× as many rows as params).
         seed: random seed (the result does not depend on it for generic samples).
         rank_tolerance: |R_ii| ≤ tol·|R_00| counts as zero.

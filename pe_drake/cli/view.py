@@ -1,0 +1,34 @@
+"""``pe-drake view``: Meshcat playback of a trajectory, served or written as HTML."""
+
+from __future__ import annotations
+
+import time
+
+from pe_drake.viewer import play_trajectory
+
+
+def view_command(args) -> int:
+    """``pe-drake view``: writes the HTML playback, or serves Meshcat until Ctrl-C."""
+    start = time.perf_counter()
+    playback = play_trajectory(
+        args.trajectory,
+        robot=args.robot,
+        config=args.config,
+        html=args.html,
+        show_capsules=not args.no_capsules,
+        rate=args.rate,
+    )
+    summary = (
+        f"{playback.robot.name}: {playback.num_frames} frames over {playback.duration:.3g} s "
+        f"({playback.frames_per_second:.3g} fps)"
+    )
+    if playback.html is not None:
+        size = playback.html.stat().st_size / 1e6
+        print(f"wrote {playback.html} ({size:.1f} MB; {summary}) in {time.perf_counter() - start:.1f} s")
+        return 0
+    print(f"Meshcat: {playback.url}  ({summary}; the animation loops; Ctrl-C to quit)", flush=True)
+    try:
+        while True:
+            time.sleep(1.0)
+    except KeyboardInterrupt:
+        return 0

@@ -1,0 +1,27 @@
+"""From measured data to parameters (Eq. 4): measurements, preprocessing, estimators, simulated runs.
+
+Imports only ``excitation``, ``multibody`` and the base layer. Re-exports the names that
+``pe_drake.identification`` offered as a single module.
+"""
+
+from pe_drake.identification.estimators import (
+    IdentificationResult,
+    identify,
+    load_identified,
+    predict,
+    prepare_measurement,
+    read_robot_measurement,
+    robot_torques,
+    torque_errors,
+)
+
+__all__ = [
+    "IdentificationResult",
+    "identify",
+    "load_identified",
+    "predict",
+    "prepare_measurement",
+    "read_robot_measurement",
+    "robot_torques",
+    "torque_errors",
+]
