@@ -19,13 +19,12 @@ from pe_drake.identification.estimators import (
     load_identified,
     predict,
     prepare_measurement,
-    pseudo_inertia,
     torque_errors,
 )
 from pe_drake.identification.measurements import write_measurement_csv
 from pe_drake.identification.simulation import perturb_inertias
 from pe_drake.identification.synthetic import model_measurement
-from pe_drake.multibody.urdf import validity_problems
+from pe_drake.multibody.inertia import pseudo_inertia, validity_problems
 from tests.conftest import get_robot
 
 DATA = Path(__file__).parent / "data"

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from conftest import get_robot, random_states
 
+from pe_drake.multibody.inertia import PARAMETER_NAMES, phi_to_spatial_inertia
 from pe_drake.multibody.regressor import RegressorModel
-from pe_drake.multibody.robot import PARAMETER_NAMES, phi_to_spatial_inertia
 
 ROBOTS = ["panda", "ur5", "g1"]
 

@@ -22,7 +22,8 @@ from pe_drake.identification.simulation import (
     simulate,
     truth_path_for,
 )
-from pe_drake.multibody.robot import load_robot, phi_to_spatial_inertia
+from pe_drake.multibody.inertia import phi_to_spatial_inertia
+from pe_drake.multibody.robot import load_robot
 
 DURATION = 1.5  # [s]
 SETTLED = 0.2  # [s] compare after the PD transient (the start is on the trajectory already)

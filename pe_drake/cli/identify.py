@@ -48,7 +48,8 @@ def identify_command(args: argparse.Namespace) -> int:
         standard_from_base,
         standard_parameters_dict,
     )
-    from pe_drake.multibody.urdf import PhysicallyInvalidError, validity_problems, write_robot_urdf
+    from pe_drake.multibody.inertia import PhysicallyInvalidError, validity_problems
+    from pe_drake.multibody.urdf import write_robot_urdf
 
     _check_cutoff(args.cutoff)
     start = time.perf_counter()

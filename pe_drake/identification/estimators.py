@@ -35,6 +35,7 @@ import numpy as np
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.identification.measurements import Measurement, check_torque_units, preprocess, read_measurement_csv
 from pe_drake.multibody.base_parameters import BaseParameters, compute_base_parameters
+from pe_drake.multibody.inertia import PARAMETER_NAMES, pseudo_inertia_basis, validity_problems
 from pe_drake.multibody.regressor import RegressorModel
 
 METHODS = ("ols", "wls", "physical")
@@ -296,27 +297,6 @@ def identify(
     )
 
 
-def pseudo_inertia(phi_b: np.ndarray) -> np.ndarray:
-    """J(φ_b) = [[½tr(I)·1 − I, h], [hᵀ, m]] (Wensing et al. 2017), shape (4, 4).
-
-    J ⪰ 0 exactly when a non-negative mass density produces the body's mass, first moment
-    and inertia about the origin; that is Drake's physical validity (with the triangle
-    inequality of the principal moments).
-    """
-    m, hx, hy, hz, Ixx, Iyy, Izz, Ixy, Ixz, Iyz = np.asarray(phi_b, float)
-    I = np.array([[Ixx, Ixy, Ixz], [Ixy, Iyy, Iyz], [Ixz, Iyz, Izz]])
-    J = np.zeros((4, 4))
-    J[:3, :3] = 0.5 * np.trace(I) * np.eye(3) - I
-    J[:3, 3] = J[3, :3] = [hx, hy, hz]
-    J[3, 3] = m
-    return J
-
-
-def _pseudo_inertia_basis() -> list[np.ndarray]:
-    """F_i with J(φ_b) = Σ_i φ_b,i F_i (J is linear in φ_b)."""
-    return [pseudo_inertia(e) for e in np.eye(10)]
-
-
 def physical_fit(
     A: np.ndarray,
     y: np.ndarray,
@@ -370,7 +350,7 @@ def physical_fit(
     c = -2.0 * (Rs.T @ z) - 2.0 * lam * (D**2) * x_prior
     norm = float(np.max(np.abs(np.diag(Q))))
     prog.AddQuadraticCost(Q / norm, c / norm, x, is_convex=True)
-    F = _pseudo_inertia_basis()
+    F = pseudo_inertia_basis()
     for k, b in enumerate(active):
         xs = x[10 * k : 10 * k + 10]
         d = D[10 * k : 10 * k + 10]
@@ -422,8 +402,6 @@ def _finite_or_none(x: float) -> float | None:
 
 def result_to_dict(result: IdentificationResult, robot, model_file: str | None = None) -> dict[str, Any]:
     """The content of identified.json."""
-    from pe_drake.multibody.urdf import validity_problems
-
     out: dict[str, Any] = {
         "robot": result.robot,
         "method": result.method,
@@ -459,8 +437,6 @@ def result_to_dict(result: IdentificationResult, robot, model_file: str | None =
 
 def standard_parameters_dict(robot, phi: np.ndarray) -> dict[str, dict[str, float]]:
     """{body: {parameter name: value}} (names of ``pe_drake.multibody.robot.PARAMETER_NAMES``)."""
-    from pe_drake.multibody.robot import PARAMETER_NAMES
-
     return {
         body: dict(zip(PARAMETER_NAMES, map(float, phi[10 * b : 10 * b + 10])))
         for b, body in enumerate(robot.body_names)
@@ -509,8 +485,6 @@ def load_identified(path: str | Path, robot) -> IdentificationResult:
         )
     phi = None
     if "standard_parameters" in d:
-        from pe_drake.multibody.robot import PARAMETER_NAMES
-
         try:
             table = d["standard_parameters"]
             phi = np.array([float(table[b][k]) for b in robot.body_names for k in PARAMETER_NAMES])

@@ -58,6 +58,13 @@ import numpy as np
 from pe_drake.exceptions import ConfigError, DataError, PeDrakeError, UnknownNameError
 from pe_drake.excitation.fourier import FourierTrajectory
 from pe_drake.identification.measurements import Measurement
+from pe_drake.multibody.inertia import (
+    PARAMETER_NAMES,
+    phi_from_com,
+    phi_to_spatial_inertia,
+    principal_inertia,
+    spatial_inertia_to_phi,
+)
 
 #: Key of a per-joint table that sets every joint not listed by name.
 ALL_JOINTS = "all"
@@ -360,8 +367,6 @@ def perturb_inertias(
         ConfigError: a bad size, or a body whose inertia cannot be made valid (an invalid
             a-priori inertia).
     """
-    from pe_drake.multibody.robot import phi_to_spatial_inertia
-
     size = _finite("inertia_perturbation", size, nonneg=True)
     if size > 0.5:
         raise ConfigError(f"inertia_perturbation must lie in [0, 0.5], got {size}")
@@ -387,19 +392,6 @@ def perturb_inertias(
     return out
 
 
-def principal_inertia(phi_b: np.ndarray) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, float]:
-    """One body's 10 parameters as (m, p, λ, R, r): mass, centre of mass p = h/m, principal
-    moments λ ≥ 0 and axes R of the inertia about the centre of mass (I_cm = R diag(λ) Rᵀ),
-    and the radius of gyration r = sqrt(tr I_cm / 2m). What the perturbations act on."""
-    m, h = phi_b[0], phi_b[1:4]
-    Ixx, Iyy, Izz, Ixy, Ixz, Iyz = phi_b[4:10]
-    I_Bo = np.array([[Ixx, Ixy, Ixz], [Ixy, Iyy, Iyz], [Ixz, Iyz, Izz]])
-    p = h / m
-    I_cm = I_Bo - m * (p @ p * np.eye(3) - np.outer(p, p))
-    lam, R = np.linalg.eigh(I_cm)
-    return m, p, np.maximum(lam, 0.0), R, math.sqrt(max(np.trace(I_cm), 0.0) / (2 * m))
-
-
 def _perturb_body(phi_b: np.ndarray, eps: float, rng: np.random.Generator) -> np.ndarray | None:
     m, p, lam, R, r_gyr = principal_inertia(phi_b)
     m2 = m * (1 + eps * rng.uniform(-1, 1))
@@ -413,10 +405,7 @@ def _perturb_body(phi_b: np.ndarray, eps: float, rng: np.random.Generator) -> np
     K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
     dR = np.eye(3) + math.sin(angle) * K + (1 - math.cos(angle)) * K @ K  # Rodrigues
     R2 = dR @ R
-    I_cm2 = R2 @ np.diag(lam2) @ R2.T
-    I_Bo2 = I_cm2 + m2 * (p2 @ p2 * np.eye(3) - np.outer(p2, p2))
-    return np.array([m2, *(m2 * p2), I_Bo2[0, 0], I_Bo2[1, 1], I_Bo2[2, 2],
-                     I_Bo2[0, 1], I_Bo2[0, 2], I_Bo2[1, 2]])
+    return phi_from_com(m2, p2, R2 @ np.diag(lam2) @ R2.T)
 
 
 # ---- the true robot --------------------------------------------------------------------------
@@ -461,7 +450,7 @@ def build_true_robot(robot, truth: Truth) -> TrueRobot:
     from pydrake.math import RigidTransform
     from pydrake.multibody.tree import DoorHinge, DoorHingeConfig
 
-    from pe_drake.multibody.robot import load_robot, phi_to_spatial_inertia, spatial_inertia_to_phi
+    from pe_drake.multibody.robot import load_robot
 
     validate_truth(truth, robot)
     joints = robot.joint_names
@@ -579,7 +568,7 @@ def simulate(
     from pydrake.multibody.tree import MultibodyForces
     from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
 
-    from pe_drake.multibody.robot import PARAMETER_NAMES, Robot, load_robot
+    from pe_drake.multibody.robot import Robot, load_robot
 
     robot = robot_or_name if isinstance(robot_or_name, Robot) else load_robot(robot_or_name)
     if not isinstance(truth, Truth):

@@ -26,12 +26,7 @@ from pe_drake.exceptions import (
     NotWithinLimitsError,
     UnknownNameError,
 )
-
-#: Number of inertial parameters per body: [m, hx, hy, hz, Ixx, Iyy, Izz, Ixy, Ixz, Iyz]
-#: with h = m·p_BoBcm_B the first moment and I = I_BBo_B the rotational inertia about the
-#: body origin Bo, both expressed in the body frame B.
-PARAMS_PER_BODY = 10
-PARAMETER_NAMES = ("m", "hx", "hy", "hz", "Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")
+from pe_drake.multibody.inertia import PARAMETER_NAMES, spatial_inertia_to_phi
 
 _MODELS_PACKAGE = "pe_drake.models"
 
@@ -507,29 +502,6 @@ class Robot:
 
     def __repr__(self) -> str:
         return f"Robot('{self.name}', {self.n} joints, {self.num_bodies} moving bodies)"
-
-
-def spatial_inertia_to_phi(M) -> np.ndarray:
-    """Drake SpatialInertia about Bo in B → the 10 parameters of :data:`PARAMETER_NAMES`."""
-    m = M.get_mass()
-    h = m * np.asarray(M.get_com())
-    I = M.CalcRotationalInertia().CopyToFullMatrix3()
-    return np.array([m, *h, I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2]])
-
-
-def phi_to_spatial_inertia(phi: np.ndarray, skip_validity_check: bool = True):
-    """The 10 parameters → Drake SpatialInertia about Bo in B."""
-    from pydrake.multibody.tree import SpatialInertia, UnitInertia
-
-    m = float(phi[0])
-    if m == 0:
-        if np.any(np.asarray(phi[1:]) != 0):
-            raise ValueError("a massless body must have zero first moment and inertia")
-        return SpatialInertia.Zero()  # Drake's default UnitInertia() is NaN, not zero
-    p = np.asarray(phi[1:4]) / m
-    Ixx, Iyy, Izz, Ixy, Ixz, Iyz = phi[4:10]
-    G = UnitInertia(Ixx / m, Iyy / m, Izz / m, Ixy / m, Ixz / m, Iyz / m)
-    return SpatialInertia(m, p, G, skip_validity_check)
 
 
 def _urdf_effort_limits(path: Path) -> dict[str, float]:
