@@ -1,0 +1,321 @@
+"""Start and end at rest: the controller motion = ramp-in + N periods + ramp-out.
+
+The optimized path q_F (Eq. 50) is periodic and moves at full speed at t = 0; a robot cannot
+jump to that velocity. The motion sent to the controller is a time scaling of that same path,
+
+    q(t) = q_F(s(t)),   v = q_F'(s)·ṡ,   v̇ = q_F''(s)·ṡ² + q_F'(s)·s̈,
+
+with the path speed ṡ rising from 0 to 1 over the ramp duration T_r by the quintic
+smootherstep σ(x) = 6x⁵ − 15x⁴ + 10x³ (x = t/T_r). Because σ(0) = σ'(0) = σ''(0) = 0 and
+σ(1) = 1, σ'(1) = σ''(1) = 0, the motion starts exactly at rest (v = v̇ = 0), and q, v, v̇
+and even the jerk are continuous where the ramp joins the periodic part. ∫₀¹σ = 1/2, so the
+ramp-in covers s ∈ [−T_r/2, 0] of the (periodic) path and starts at rest at q_F(−T_r/2);
+the ramp-out mirrors it and ends at rest at q_F(N·P + T_r/2).
+
+Every posture of a ramp lies on the optimized path, so position limits, capsule distances,
+the floor and the (quasi-static) balance already hold there; velocities are scaled down by
+ṡ ≤ 1. What is new is the acceleration term q_F'·s̈ (|s̈| ≤ 1.875/T_r) and the torque it
+needs: :func:`choose_ramp_duration` takes the shortest T_r of a short list for which every
+limit and sampled constraint holds at 1 kHz over both ramps, and refuses with the reason
+otherwise.
+
+Layout on the time axis (``RampedMotion.layout``)::
+
+    [0, T_r]               ramp-in  (s from −T_r/2 to 0)
+    [T_r, T_r + N·P]       N periods of the optimized path (s = t − T_r)
+    [T_r + N·P, 2T_r + N·P] ramp-out (s from N·P to N·P + T_r/2)
+
+Before 0 and after the end the motion is at rest at its first / last posture.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from pe_drake.exceptions import ConfigError, InfeasibleError
+from pe_drake.excitation.fourier import FourierTrajectory
+
+#: Ramp durations tried in order by :func:`choose_ramp_duration` [s].
+RAMP_DURATIONS = (1.0, 2.0, 3.0, 5.0, 8.0, 13.0)
+#: max |σ'(x)| = 30x²(1−x)² at x = 1/2: the path acceleration is at most this / T_r.
+MAX_SMOOTHERSTEP_SLOPE = 1.875
+
+
+def smootherstep(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """σ(x) = 6x⁵ − 15x⁴ + 10x³ on [0, 1] (clipped outside), its integral S and two derivatives.
+
+    Returns:
+        (S, σ, σ', σ'') at x, each the shape of x; S(x) = ∫₀ˣ σ = x⁶ − 3x⁵ + 5x⁴/2.
+    """
+    x = np.clip(np.asarray(x, float), 0.0, 1.0)
+    x2 = x * x
+    S = x2 * x2 * (x2 - 3.0 * x + 2.5)
+    sigma = x2 * x * (6.0 * x2 - 15.0 * x + 10.0)
+    d_sigma = 30.0 * x2 * (1.0 - x) ** 2
+    dd_sigma = 60.0 * x * (1.0 - x) * (1.0 - 2.0 * x)
+    return S, sigma, d_sigma, dd_sigma
+
+
+def _check_positive(name: str, value, *, allow_zero: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
+        raise ConfigError(f"{name} must be a number, got {value!r}")
+    value = float(value)
+    if not math.isfinite(value) or value < 0 or (value == 0 and not allow_zero):
+        bound = ">= 0" if allow_zero else "> 0"
+        raise ConfigError(f"{name} must be a finite number {bound}, got {value!r}")
+    return value
+
+
+def check_periods(periods) -> int:
+    """Validates a number of periods (a positive integer, at most 1000).
+
+    Raises:
+        ConfigError: naming the value.
+    """
+    if isinstance(periods, bool) or not isinstance(periods, (int, np.integer)) or not 1 <= periods <= 1000:
+        raise ConfigError(f"periods must be an integer from 1 to 1000, got {periods!r}")
+    return int(periods)
+
+
+@dataclasses.dataclass(frozen=True)
+class PathTiming:
+    """The time scaling s(t) at some times: s, ṡ, s̈ (each shape (T,))."""
+
+    s: np.ndarray
+    s_dot: np.ndarray
+    s_ddot: np.ndarray
+
+
+@dataclasses.dataclass(frozen=True)
+class RampedMotion:
+    """Ramp-in + ``periods`` periods of ``path`` + ramp-out (module docstring).
+
+    Attributes:
+        path: the optimized periodic trajectory q_F.
+        periods: N, whole periods at full speed, >= 1.
+        ramp_duration: T_r [s]; 0 means no ramps (the motion is N periods of the path, which
+            does not start at rest).
+        phase: path time φ at which the periodic part starts [s], in [0, P): the periodic
+            part is q_F(t − T_r + φ), and both joins sit at the path's phase φ.
+    """
+
+    path: FourierTrajectory
+    periods: int = 1
+    ramp_duration: float = 0.0
+    phase: float = 0.0
+
+    def __post_init__(self):
+        check_periods(self.periods)
+        _check_positive("ramp_duration", self.ramp_duration, allow_zero=True)
+        _check_positive("omega", self.path.omega)
+        if not 0.0 <= _check_positive("phase", self.phase, allow_zero=True) < self.path.period:
+            raise ConfigError(f"phase must lie in [0, period = {self.path.period:.6g}) [s], got {self.phase!r}")
+
+    @property
+    def periodic_start(self) -> float:
+        """Time at which the periodic part starts (= T_r) [s]."""
+        return float(self.ramp_duration)
+
+    @property
+    def periodic_end(self) -> float:
+        """Time at which the periodic part ends (= T_r + N·P) [s]."""
+        return self.ramp_duration + self.periods * self.path.period
+
+    @property
+    def duration(self) -> float:
+        """Whole motion, 2·T_r + N·P [s]."""
+        return self.periodic_end + self.ramp_duration
+
+    @property
+    def layout(self) -> dict[str, list[float]]:
+        """{part: [start, end]} [s]: ``ramp_in``, ``periodic``, ``ramp_out``."""
+        return {
+            "ramp_in": [0.0, self.periodic_start],
+            "periodic": [self.periodic_start, self.periodic_end],
+            "ramp_out": [self.periodic_end, self.duration],
+        }
+
+    def timing(self, t: np.ndarray) -> PathTiming:
+        """s(t), ṡ(t), s̈(t) of the time scaling (constant rest outside [0, duration])."""
+        t = np.asarray(t, float).reshape(-1)
+        Tr, t1, t2 = self.ramp_duration, self.periodic_start, self.periodic_end
+        s = t - t1
+        s_dot = np.ones_like(t)
+        s_ddot = np.zeros_like(t)
+        if Tr > 0:
+            half = 0.5 * Tr
+            into = t < t1
+            S, sig, dsig, _ = smootherstep(t[into] / Tr)
+            s[into] = -half + Tr * S
+            s_dot[into] = sig
+            s_ddot[into] = dsig / Tr
+            out = t > t2
+            y = (t[out] - t2) / Tr
+            S1, sig1, dsig1, _ = smootherstep(1.0 - y)
+            s[out] = (t2 - t1) + half - Tr * S1
+            s_dot[out] = sig1
+            s_ddot[out] = -dsig1 / Tr
+        else:
+            s = np.clip(s, 0.0, t2 - t1)
+            outside = (t < t1) | (t > t2)
+            s_dot[outside] = 0.0
+        return PathTiming(s + self.phase, s_dot, s_ddot)
+
+    def evaluate(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """q, v, v̇ at times t, each shape (T, n) [rad, rad/s, rad/s²]."""
+        timing = self.timing(t)
+        q, dq, ddq = self.path.evaluate(timing.s)  # path derivatives with respect to s
+        sd, sdd = timing.s_dot[:, None], timing.s_ddot[:, None]
+        return q, dq * sd, ddq * sd * sd + dq * sdd
+
+    def sample_times(self, rate: float) -> np.ndarray:
+        """Times 0, 1/rate, ... covering the whole motion; the last is at or just after the
+        end (the motion rests there), so the grid stays uniform."""
+        rate = _check_positive("sample rate", rate)
+        count = int(math.ceil(self.duration * rate - 1e-6)) + 1
+        return np.arange(count) / rate
+
+    def to_dict(self) -> dict:
+        """The keys trajectory.json records for the ramp (see :func:`ramped_motion_from_dict`)."""
+        return {
+            "periods": self.periods,
+            "ramp_duration": self.ramp_duration,
+            "phase": self.phase,
+            "motion_duration": self.duration,
+            "layout": self.layout,
+        }
+
+
+def ramped_motion_from_dict(path: FourierTrajectory, data: dict, *, source: str = "trajectory.json") -> RampedMotion:
+    """The motion a trajectory.json describes: its ``periods`` and ``ramp_duration`` (an older
+    file without them is one period without ramps). ``view`` and ``simulate`` replay this,
+    which is exactly what ``optimize`` wrote to trajectory.csv.
+
+    Raises:
+        ConfigError: a bad ``periods`` or ``ramp_duration`` value, naming the file.
+    """
+    periods = data.get("periods", 1)
+    ramp = data.get("ramp_duration", 0.0)
+    phase = data.get("phase", 0.0)
+    try:
+        return RampedMotion(
+            path,
+            check_periods(periods),
+            _check_positive("ramp_duration", ramp, allow_zero=True),
+            _check_positive("phase", phase, allow_zero=True),
+        )
+    except ConfigError as err:
+        raise ConfigError(f"{source}: {err}") from err
+
+
+@dataclasses.dataclass(frozen=True)
+class RampCheck:
+    """Outcome of checking one ramp duration.
+
+    Attributes:
+        ramp_duration: T_r [s].
+        phase: join phase φ [s].
+        margins: {limit or constraint: minimum margin over both ramps at the check rate}.
+        worst: name of the most violated (or tightest) entry.
+    """
+
+    ramp_duration: float
+    phase: float
+    margins: dict[str, float]
+    worst: str
+
+    @property
+    def ok(self) -> bool:
+        return self.margins[self.worst] >= 0.0
+
+
+def ramp_margins(motion: RampedMotion, limits, constraints: Sequence = (), rate: float = 1000.0) -> dict[str, float]:
+    """Minimum margin of the joint limits and each sampled constraint over the two ramps.
+
+    Args:
+        motion: the ramped motion.
+        limits: the robot's ``limits`` (q_lower, q_upper, v_max, vd_max arrays of shape (n,)).
+        constraints: :class:`~pe_drake.excitation.constraints.SampledConstraint` objects.
+        rate: check rate [Hz].
+
+    Returns:
+        {"position", "velocity", "acceleration", constraint.name...: minimum margin} in each
+        one's unit; negative is a violation.
+    """
+    t = motion.sample_times(rate)
+    in_ramp = (t <= motion.periodic_start) | (t >= motion.periodic_end)
+    q, v, vd = motion.evaluate(t[in_ramp])
+    margins = {
+        "position": float(np.min(np.minimum(q - limits.q_lower, limits.q_upper - q))),
+        "velocity": float(np.min(limits.v_max - np.abs(v))),
+        "acceleration": float(np.min(limits.vd_max - np.abs(vd))),
+    }
+    for c in constraints:
+        margins[c.name] = float(np.min(c.margins(q, v, vd)))
+    return margins
+
+
+def phase_candidates(path: FourierTrajectory, limits, count: int = 3, window: float = 0.25, rate: float = 1000.0) -> list[float]:
+    """Path phases where a ramp may join best: 0 first, then the ``count`` phases (of 16 evenly
+    spread) with the most acceleration headroom within ±``window`` [s].
+
+    Near a join ṡ → 1 while s̈ → 0 more slowly than 1 − ṡ, so v̇ = q_F''ṡ² + q_F's̈ exceeds
+    |q_F''| slightly whenever both have the same sign: a path whose acceleration limit is
+    active at the join cannot be ramped at any T_r (the excess falls like T_r⁻³). Joining
+    at a phase where the path has headroom avoids that.
+    """
+    P = path.period
+    t = np.arange(0.0, P, 1.0 / rate)
+    _, _, vd = path.evaluate(t)
+    headroom = np.min(1.0 - np.abs(vd) / limits.vd_max, axis=1)  # (T,), fraction of the limit
+    phases = np.arange(16) * (P / 16)
+    scores = []
+    for phi in phases:
+        gap = np.abs((t - phi + 0.5 * P) % P - 0.5 * P)  # circular distance to phi
+        scores.append(float(np.min(headroom[gap <= window])))
+    order = [float(phases[k]) for k in np.argsort(scores)[::-1] if phases[k] > 0]
+    return [0.0] + order[:count]
+
+
+def choose_ramp_duration(
+    path: FourierTrajectory,
+    limits,
+    constraints: Sequence = (),
+    *,
+    periods: int = 1,
+    durations: Sequence[float] = RAMP_DURATIONS,
+    rate: float = 1000.0,
+    tolerance: float = 1e-6,
+) -> tuple[RampedMotion, list[RampCheck]]:
+    """The shortest ramp duration of ``durations`` for which every limit and constraint holds
+    on both ramps at ``rate``; at each duration the join phase 0 is tried first, then the
+    phases of :func:`phase_candidates`.
+
+    Returns:
+        The :class:`RampedMotion` and the checks made (for the report).
+
+    Raises:
+        InfeasibleError: no duration works; names the longest one tried and what it
+            violates by how much.
+    """
+    checks = []
+    phases = phase_candidates(path, limits, rate=rate)
+    for Tr in durations:
+        for phase in phases:
+            motion = RampedMotion(path, periods, float(Tr), phase)
+            margins = ramp_margins(motion, limits, constraints, rate)
+            worst = min(margins, key=margins.get)
+            checks.append(RampCheck(float(Tr), phase, margins, worst))
+            if margins[worst] >= -tolerance:
+                return motion, checks
+    last = max(checks[-len(phases):], key=lambda c: c.margins[c.worst])
+    raise InfeasibleError(
+        f"no ramp from rest within the limits: with the longest ramp tried ({last.ramp_duration:g} s) "
+        f"the {last.worst} margin is {last.margins[last.worst]:.4g} on the ramps (negative: violated); "
+        "lower robot.acceleration_scale or robot.velocity_scale for more headroom, allow longer "
+        "ramps, or set excitation.ramp: false (the motion then does not start at rest)"
+    )
