@@ -1,0 +1,290 @@
+"""The robot's surroundings: a floor under a fixed-base arm and box obstacles.
+
+Every checked capsule (a segment [p0, p1] swept by a sphere of radius r) keeps ``margin``
+from the floor plane z = h and from each axis-aligned box:
+
+    floor:  z(p_e) − r − h >= margin   for both segment ends e (a segment's lowest point is
+            an end, so this is exact and smooth);
+    box:    min_s sd_box(p0 + s·(p1 − p0)) − r >= margin,
+
+with sd_box the signed distance of a point to the box (negative inside). sd_box is convex
+in the point and the segment is affine in s, so the minimum over s ∈ [0, 1] is found by a
+golden-section search; by the envelope theorem its derivative is n·∂p(s*)/∂q, n the box's
+outward normal at the closest point. ∂p/∂q comes from Drake's translational Jacobians of
+the segment ends (q̇ = v for the revolute and prismatic joints excited here).
+
+A capsule whose height never changes with q (the base, and a shoulder turning about a
+vertical axis) gets no floor row: it sits where it is mounted. Capsules welded to the world
+get no row at all.
+
+As in :mod:`pe_drake.excitation.constraints.collision`, each sample contributes one row by
+default, a smooth lower bound of the minimum clearance (soft-min with length scale h_s):
+g = −h_s·log Σ exp(−d_i/h_s) <= min_i d_i, so g >= margin implies every row holds.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from pe_drake.exceptions import ConfigError, InfeasibleError
+from pe_drake.excitation.constraints.base import SampledConstraint, SampledValues
+
+_GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
+
+
+@dataclasses.dataclass(frozen=True)
+class Box:
+    """An axis-aligned box obstacle in world.
+
+    Attributes:
+        center: shape (3,) [m].
+        size: full edge lengths (x, y, z), shape (3,) [m], each > 0.
+        name: for reports.
+    """
+
+    center: np.ndarray
+    size: np.ndarray
+    name: str = "box"
+
+    @staticmethod
+    def from_spec(spec, index: int = 0) -> Box:
+        """A box from a config entry {center: [x, y, z], size: [sx, sy, sz]} (or an object
+        with those attributes).
+
+        Raises:
+            ConfigError: naming the entry and the bad value.
+        """
+        get = spec.get if isinstance(spec, dict) else (lambda k, d=None: getattr(spec, k, d))
+        where = f"environment.boxes[{index}]"
+        values = {}
+        for key in ("center", "size"):
+            value = get(key)
+            try:
+                arr = np.asarray(value, float).reshape(-1)
+            except (TypeError, ValueError):
+                raise ConfigError(f"{where}.{key} must be 3 numbers [m], got {value!r}") from None
+            if arr.shape != (3,) or not np.isfinite(arr).all():
+                raise ConfigError(f"{where}.{key} must be 3 finite numbers [m], got {value!r}")
+            values[key] = arr
+        if np.any(values["size"] <= 0):
+            raise ConfigError(f"{where}.size must be 3 positive edge lengths [m], got {list(values['size'])}")
+        return Box(values["center"], values["size"], str(get("name", "") or f"box{index}"))
+
+
+def box_signed_distance(p: np.ndarray, center: np.ndarray, half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Signed distance of points to an axis-aligned box (negative inside) and its gradient.
+
+    Args:
+        p: points, shape (..., 3) [m].
+        center, half: box centre and half sizes, broadcastable to p [m].
+
+    Returns:
+        sd shape (...), and the unit outward normal ∂sd/∂p shape (..., 3).
+    """
+    rel = p - center
+    sign = np.where(rel >= 0, 1.0, -1.0)
+    over = np.abs(rel) - half  # (..., 3)
+    pos = np.maximum(over, 0.0)
+    outside = np.sqrt(np.einsum("...i,...i->...", pos, pos))
+    deepest = over.max(axis=-1)
+    sd = np.where(outside > 0, outside, np.minimum(deepest, 0.0))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        n_out = sign * pos / np.where(outside > 0, outside, 1.0)[..., None]
+    face = np.argmax(over, axis=-1)
+    n_in = sign * (np.arange(3) == face[..., None])
+    normal = np.where((outside > 0)[..., None], n_out, n_in)
+    return sd, normal
+
+
+def segment_box_distance(p0: np.ndarray, p1: np.ndarray, center: np.ndarray, half: np.ndarray, iterations: int = 60):
+    """min over s ∈ [0, 1] of the box signed distance of p0 + s(p1 − p0), batched.
+
+    Returns:
+        (distance, s*, normal at the closest point), shapes (...), (...), (..., 3).
+    """
+    lo = np.zeros(p0.shape[:-1])
+    hi = np.ones_like(lo)
+
+    def f(s):
+        return box_signed_distance(p0 + s[..., None] * (p1 - p0), center, half)[0]
+
+    for _ in range(iterations):  # the bracket shrinks by 0.618 per step: 3e-13 after 60
+        a = hi - _GOLDEN * (hi - lo)
+        b = lo + _GOLDEN * (hi - lo)
+        left = f(a) <= f(b)
+        hi = np.where(left, b, hi)
+        lo = np.where(left, lo, a)
+    s = 0.5 * (lo + hi)
+    # the ends may be better than the bracket's interior (minimum at a boundary)
+    for end in (np.zeros_like(s), np.ones_like(s)):
+        s = np.where(f(end) < f(s), end, s)
+    d, normal = box_signed_distance(p0 + s[..., None] * (p1 - p0), center, half)
+    return d, s, normal
+
+
+class EnvironmentConstraint(SampledConstraint):
+    """Capsules at least ``margin`` above the floor and outside each box, at every sample.
+
+    Args:
+        robot: a :class:`~pe_drake.multibody.robot.Robot` with capsules.
+        margin: required clearance [m], >= 0.
+        floor_height: z of the floor in world [m], or None for no floor.
+        boxes: :class:`Box` obstacles.
+        aggregate: one soft-min row per sample (default) or one row per capsule end / box.
+        smoothing: soft-min length scale [m].
+
+    Raises:
+        ConfigError: no capsules, nothing to check, or bad numbers.
+    """
+
+    name = "environment"
+    unit = "m"
+
+    def __init__(
+        self,
+        robot,
+        margin: float,
+        floor_height: float | None = None,
+        boxes: Sequence[Box] = (),
+        *,
+        aggregate: bool = True,
+        smoothing: float = 0.002,
+    ):
+        if not isinstance(margin, (int, float)) or not math.isfinite(margin) or margin < 0:
+            raise ConfigError(f"environment margin must be a finite number >= 0 [m], got {margin!r}")
+        if floor_height is not None and not math.isfinite(floor_height):
+            raise ConfigError(f"environment.floor_height must be a finite number [m], got {floor_height!r}")
+        capsules = tuple(getattr(robot, "capsules", ()) or ())
+        if not capsules:
+            raise ConfigError(
+                f"robot '{robot.name}' has no collision capsules for the floor/box check: set "
+                "robot.capsules, or environment: {floor: false} and no boxes"
+            )
+        self.robot, self.margin, self.floor_height = robot, float(margin), floor_height
+        self.boxes = tuple(boxes)
+        self.aggregate, self.smoothing = bool(aggregate), float(smoothing)
+        moving = {int(b) for b in robot.body_indices}
+        self.capsules = [c for c in capsules if c.body_index in moving]
+        self._setup_bodies()
+        self.floor_capsules = [k for k in range(len(self.capsules)) if floor_height is not None and self._height_varies(k)]
+        labels = [f"{self.capsules[k].name}.{e}/floor" for k in self.floor_capsules for e in ("start", "end")]
+        labels += [f"{c.name}/{b.name}" for b in self.boxes for c in self.capsules]
+        if not labels:
+            raise ConfigError(f"robot '{robot.name}': no capsule can reach the floor or a box; nothing to check")
+        self.row_labels = labels
+        if self.aggregate:
+            super().__init__(["min environment clearance"], [self.margin], [np.inf])
+        else:
+            super().__init__(labels, np.full(len(labels), self.margin), np.full(len(labels), np.inf))
+
+    def _setup_bodies(self) -> None:
+        plant = self.robot.plant
+        self._plant, self._context = plant, plant.CreateDefaultContext()
+        self._bodies = sorted({c.body_index for c in self.capsules})
+        self._frames = [plant.get_body(_body_index(b)).body_frame() for b in self._bodies]
+        self._slot = [self._bodies.index(c.body_index) for c in self.capsules]
+
+    def _height_varies(self, k: int) -> bool:
+        rng = np.random.default_rng(0)
+        lim = self.robot.limits
+        lo = np.where(np.isfinite(lim.q_lower), lim.q_lower, -np.pi)
+        hi = np.where(np.isfinite(lim.q_upper), lim.q_upper, np.pi)
+        q = rng.uniform(lo, hi, (4, self.robot.n))
+        _, J = self._ends(q, jacobian=True)
+        return bool(np.abs(J[:, k, :, 2, :]).max() > 1e-9)
+
+    def _ends(self, q: np.ndarray, jacobian: bool):
+        """p_W of every capsule's ends (K, C, 2, 3) and, with ``jacobian``, ∂p/∂q (K, C, 2, 3, n)."""
+        from pydrake.multibody.tree import JacobianWrtVariable
+
+        plant, ctx = self._plant, self._context
+        world = plant.world_frame()
+        K, C = q.shape[0], len(self.capsules)
+        p = np.empty((K, C, 2, 3))
+        J = np.empty((K, C, 2, 3, self.robot.n)) if jacobian else None
+        for k in range(K):
+            plant.SetPositions(ctx, q[k])
+            for c, cap in enumerate(self.capsules):
+                frame = self._frames[self._slot[c]]
+                p_BS = cap.p_BS.T  # (3, 2)
+                p[k, c] = plant.CalcPointsPositions(ctx, frame, p_BS, world).T
+                if jacobian:
+                    Jc = plant.CalcJacobianTranslationalVelocity(
+                        ctx, JacobianWrtVariable.kQDot, frame, p_BS, world, world
+                    )  # (6, n): the two ends' rows stacked
+                    J[k, c] = Jc.reshape(2, 3, -1)
+        return p, J
+
+    def clearances(self, q: np.ndarray, derivatives: bool = False):
+        """Clearance of every row (capsule end above the floor, capsule outside a box) [m].
+
+        Args:
+            q: shape (K, n) or (n,) [rad or m].
+
+        Returns:
+            d (K, R) and, with ``derivatives``, ∂d/∂q (K, R, n) (else None).
+        """
+        q = np.atleast_2d(np.asarray(q, float))
+        if q.shape[1] != self.robot.n or not np.isfinite(q).all():
+            raise ConfigError(f"environment constraint: q must be finite with shape (K, {self.robot.n}); got {q.shape}")
+        p, J = self._ends(q, derivatives)
+        radii = np.array([c.radius for c in self.capsules])
+        d_rows, g_rows = [], []
+        if self.floor_capsules:
+            fc = self.floor_capsules
+            z = p[:, fc][..., 2]  # (K, F, 2)
+            d_rows.append((z - radii[fc][None, :, None] - self.floor_height).reshape(q.shape[0], -1))
+            if derivatives:
+                g_rows.append(J[:, fc][:, :, :, 2, :].reshape(q.shape[0], -1, self.robot.n))
+        for box in self.boxes:
+            d, s, normal = segment_box_distance(p[:, :, 0], p[:, :, 1], box.center, 0.5 * box.size)
+            d_rows.append(d - radii[None, :])
+            if derivatives:
+                dp = (1.0 - s)[..., None, None] * J[:, :, 0] + s[..., None, None] * J[:, :, 1]  # (K, C, 3, n)
+                g_rows.append(np.einsum("kci,kcin->kcn", normal, dp))
+        d = np.concatenate(d_rows, axis=1)
+        return d, (np.concatenate(g_rows, axis=1) if derivatives else None)
+
+    def evaluate(self, q: np.ndarray, v: np.ndarray, vd: np.ndarray, derivatives: bool = True) -> SampledValues:
+        d, g = self.clearances(q, derivatives)
+        K = d.shape[0]
+        if not self.aggregate:
+            return SampledValues(d, g if derivatives else np.empty((K, d.shape[1], 0)))
+        h = self.smoothing
+        d_min = d.min(axis=1, keepdims=True)
+        w = np.exp(-(d - d_min) / h)
+        total = w.sum(axis=1, keepdims=True)
+        value = d_min - h * np.log(total)
+        if not derivatives:
+            return SampledValues(value, np.empty((K, 1, 0)))
+        return SampledValues(value, np.einsum("kr,krn->kn", w / total, g)[:, None, :])
+
+    def margins(self, q: np.ndarray, v: np.ndarray, vd: np.ndarray) -> np.ndarray:
+        """Exact clearance beyond the margin: min over rows (aggregate) or per row, (K, 1|R) [m]."""
+        d = self.clearances(q)[0]
+        return (d.min(axis=1, keepdims=True) if self.aggregate else d) - self.margin
+
+    def check_posture(self, q: np.ndarray) -> None:
+        """Refuses a (nominal) posture already closer than ``margin`` to the floor or a box.
+
+        Raises:
+            InfeasibleError: naming the capsule, the obstacle and the clearance.
+        """
+        d = self.clearances(q)[0]
+        k, r = np.unravel_index(int(np.argmin(d)), d.shape)
+        if d[k, r] < self.margin:
+            raise InfeasibleError(
+                f"the nominal posture puts '{self.row_labels[r]}' {d[k, r] * 1e3:.1f} mm apart, inside the "
+                f"environment margin of {self.margin * 1e3:.1f} mm; choose another robot.nominal_positions, "
+                "move the obstacle (environment.floor_height / boxes) or set environment: {floor: false}"
+            )
+
+
+def _body_index(b: int):
+    from pydrake.multibody.tree import BodyIndex
+
+    return BodyIndex(int(b))
