@@ -87,6 +87,9 @@ class ExcitationConfig:
         torque_limits: also keep the a-priori model's joint torques within the effort
             limits (``robot.limits.effort_max``: the model's, scaled by ``effort_scale``).
         seed: random seed of the initial point.
+        periods: N, periods of the optimized path in trajectory.csv (the cost uses one).
+        ramp: trajectory.csv starts and ends at rest: a ramp-in and a ramp-out that are a
+            time scaling of the path (pe_drake/excitation/ramp.py).
     """
 
     harmonics: int = 10
@@ -100,6 +103,8 @@ class ExcitationConfig:
     collision_margin: float = -1.0
     torque_limits: bool = False
     seed: int = 0
+    periods: int = 1
+    ramp: bool = True
 
 
 @dataclasses.dataclass
@@ -124,12 +129,46 @@ class SolverConfig:
 
 
 @dataclasses.dataclass
+class BoxConfig:
+    """An axis-aligned box obstacle (a table, a wall) in world.
+
+    Attributes:
+        center: [x, y, z] [m].
+        size: full edge lengths [sx, sy, sz] [m].
+        name: for reports.
+    """
+
+    center: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
+    size: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
+    name: str = ""
+
+
+@dataclasses.dataclass
+class EnvironmentConfig:
+    """The robot's surroundings, kept ``max(excitation.collision_margin, 0)`` away from every
+    capsule (pe_drake/excitation/constraints/environment.py).
+
+    Attributes:
+        floor: a floor under a fixed-base arm (a robot without ``robot.support_points``);
+            a humanoid's floor is its soles' plane and balance keeps it there.
+        floor_height: z of the floor in world [m]; null (the default) means the base's
+            support plane, the z of the root link's origin (``robot.base_position``).
+        boxes: obstacles.
+    """
+
+    floor: bool = True
+    floor_height: float | None = None
+    boxes: list[BoxConfig] = dataclasses.field(default_factory=list)
+
+
+@dataclasses.dataclass
 class Config:
     """A whole pe_drake configuration file."""
 
     robot: RobotConfig = dataclasses.field(default_factory=RobotConfig)
     excitation: ExcitationConfig = dataclasses.field(default_factory=ExcitationConfig)
     solver: SolverConfig = dataclasses.field(default_factory=SolverConfig)
+    environment: EnvironmentConfig = dataclasses.field(default_factory=EnvironmentConfig)
 
 
 CRITERIA = ("cond", "log_cond", "dopt")
@@ -214,7 +253,32 @@ def validate_config(config: Config) -> Config:
         raise ConfigError(f"solver.max_iterations must be a positive integer, got {s.max_iterations!r}")
     _finite("solver.tolerance", s.tolerance, positive=True)
     _finite("solver.max_time", s.max_time, nonneg=True)
+    _validate_safety(config)
     return config
+
+
+def _validate_safety(config: Config) -> None:
+    """Periods, ramp and environment (issue 10)."""
+    e, env = config.excitation, config.environment
+    if isinstance(e.periods, bool) or not isinstance(e.periods, int) or not 1 <= e.periods <= 1000:
+        raise ConfigError(f"excitation.periods must be an integer from 1 to 1000, got {e.periods!r}")
+    if not isinstance(e.ramp, bool):
+        raise ConfigError(f"excitation.ramp must be true or false, got {e.ramp!r}")
+    if not isinstance(env.floor, bool):
+        raise ConfigError(f"environment.floor must be true or false, got {env.floor!r}")
+    if env.floor_height is not None and (
+        isinstance(env.floor_height, bool)
+        or not isinstance(env.floor_height, (int, float))
+        or not math.isfinite(env.floor_height)
+    ):
+        raise ConfigError(f"environment.floor_height must be a finite number [m], got {env.floor_height!r}")
+    for k, box in enumerate(env.boxes):
+        for key in ("center", "size"):
+            value = getattr(box, key)
+            if len(value) != 3 or not all(isinstance(x, (int, float)) and math.isfinite(x) for x in value):
+                raise ConfigError(f"environment.boxes[{k}].{key} must be 3 finite numbers [m], got {value!r}")
+        if any(x <= 0 for x in box.size):
+            raise ConfigError(f"environment.boxes[{k}].size must be 3 positive edge lengths [m], got {box.size!r}")
 
 
 def load_config(path: str | Path, base: Config | None = None) -> Config:

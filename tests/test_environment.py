@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from conftest import random_states
+
 from pe_drake.exceptions import ConfigError, InfeasibleError
 from pe_drake.excitation.constraints.environment import (
     Box,
@@ -71,10 +71,11 @@ def test_floor_rows_are_end_heights_minus_radius(panda):
     q = panda.nominal_posture()[None]
     d = c.clearances(q)[0][0]
     poses = panda.body_poses(q)[0]  # indexed by Drake body index
-    cap = c.capsules[c.floor_capsules[0]]
-    X = poses[cap.body_index]
-    z = (cap.p_BS @ X[:3, :3].T + X[:3, 3])[:, 2]
-    np.testing.assert_allclose(d[:2], z - cap.radius - 0.1, atol=1e-12)
+    for r, (k, e) in enumerate(c.floor_ends):
+        cap = c.capsules[k]
+        X = poses[cap.body_index]
+        z = (cap.p_BS[e] @ X[:3, :3].T + X[:3, 3])[2]
+        assert d[r] == pytest.approx(z - cap.radius - 0.1, abs=1e-12)
 
 
 def test_posture_below_the_floor_is_refused(panda):

@@ -41,6 +41,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-iterations", type=int, help="solver iteration limit")
     p.add_argument("--seed", type=int, help="seed of the random initial point")
     p.add_argument("--csv-rate", type=float, default=1000.0, help="rate of trajectory.csv [Hz]")
+    p.add_argument("--periods", type=int,
+                   help="periods of the path in trajectory.csv (default: excitation.periods, 1)")
+    p.add_argument("--no-ramp", action="store_true",
+                   help="no ramp from/to rest: trajectory.csv then starts at full speed (unsafe on hardware)")
     p.add_argument("--no-html", action="store_true", help="do not write the Meshcat HTML playback")
     p.add_argument("--quiet", action="store_true", help="no progress output")
     p.add_argument("--out", required=True, help="output folder")

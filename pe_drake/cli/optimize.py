@@ -6,7 +6,9 @@ import argparse
 import dataclasses
 import json
 import math
+import shutil
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -53,6 +55,10 @@ def _apply_arguments(config: Config, args: argparse.Namespace) -> Config:
         config.excitation.seed = args.seed
     if args.quiet:
         config.solver.verbose = False
+    if getattr(args, "periods", None) is not None:
+        config.excitation.periods = args.periods
+    if getattr(args, "no_ramp", False):
+        config.excitation.ramp = False
     return validate_config(config)
 
 
@@ -60,6 +66,7 @@ def optimize_command(args: argparse.Namespace) -> int:
     """Runs ``pe-drake optimize``; returns 0 on success, 1 if no valid trajectory was found."""
     from pe_drake.excitation.constraints import constraints_from_config
     from pe_drake.excitation.program import ExcitationProblem, build_excitation_program, solve_excitation
+    from pe_drake.multibody.capsule_fitting import ensure_capsules
     from pe_drake.multibody.robot import Robot, builtin_robots, resolve_robot_config
 
     if not args.csv_rate > 0 or not math.isfinite(args.csv_rate):
@@ -68,8 +75,17 @@ def optimize_command(args: argparse.Namespace) -> int:
     name = args.robot if args.robot in builtin_robots() else Path(args.robot).stem
     say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, flush=True))
     start = time.perf_counter()
+    fit_dir = Path(tempfile.mkdtemp(prefix="pe_drake_capsules_"))
+    fitted = ensure_capsules(config, fit_dir)
+    if fitted is not None:
+        say(
+            f"no capsule file for {name}: fitted {len(fitted.links)} capsules to its meshes "
+            f"({', '.join(fitted.links)}); written to {Path(args.out) / fitted.path.name}"
+        )
     robot = Robot(name, config.robot)
     say(f"robot {robot.name}: {robot.n} excited joints, {robot.num_bodies} moving bodies")
+    for note in assumed_defaults(config):
+        say(f"note: {note}")
     problem = ExcitationProblem(robot, config.excitation)
     if args.prior:
         blocks = [prior_regressor(problem, p) for p in args.prior]
@@ -80,7 +96,7 @@ def optimize_command(args: argparse.Namespace) -> int:
         f"(N = {problem.harmonics}, ω = {problem.omega:.4g} rad/s, period {problem.period:.3g} s); "
         f"T = {config.excitation.cost_samples} cost samples, K = {config.excitation.constraint_samples} constraint samples"
     )
-    constraints = constraints_from_config(robot, config.excitation)
+    constraints = constraints_from_config(robot, config.excitation, config.environment)
     if constraints:
         say("constraints: joint limits, " + ", ".join(c.name for c in constraints))
     program = build_excitation_program(problem, constraints, progress=config.solver.verbose)
@@ -92,6 +108,7 @@ def optimize_command(args: argparse.Namespace) -> int:
         f"{result.nfev} evaluations, {result.wall_time:.1f} s"
     )
     say("minimum margins at 1 kHz: " + ", ".join(f"{k} {m:.4g}" for k, m in result.margins.items()))
+    motion = _ramped_motion(result, robot, constraints, config, say) if result.success else None
 
     report = {
         "robot": robot.name,
@@ -112,13 +129,19 @@ def optimize_command(args: argparse.Namespace) -> int:
         "base_parameter_names": list(problem.base.base_names),
         "singular_values": result.singular_values.tolist(),
         "prior": [str(p) for p in args.prior],
+        "assumed_defaults": assumed_defaults(config),
+        "fitted_capsules": str(Path(args.out) / fitted.path.name) if fitted is not None else None,
+        "motion": motion.to_dict() if motion is not None else None,
         "config": dataclasses.asdict(config),
     }
     out = Path(args.out)
     with staged_output_dir(out) as tmp:
         if result.success:
-            _write_success_outputs(tmp, robot, result, args, say)
+            _write_success_outputs(tmp, robot, result, motion, args, say)
+        if fitted is not None:
+            shutil.copyfile(fitted.path, tmp / fitted.path.name)
         (tmp / "report.json").write_text(json.dumps(report, indent=2, default=float))
+    shutil.rmtree(fit_dir, ignore_errors=True)
     if not result.success:
         print(
             f"pe-drake optimize: no valid trajectory: {result.message}. Only {out / 'report.json'} was "
@@ -130,12 +153,48 @@ def optimize_command(args: argparse.Namespace) -> int:
     return 0
 
 
-def _write_success_outputs(tmp: Path, robot, result, args, say) -> None:
-    from pe_drake.excitation.trajectory_file import save_trajectory, write_trajectory_csv
+def assumed_defaults(config: Config) -> list[str]:
+    """Limits pe_drake assumed because neither the model nor the config gives them."""
+    r = config.robot
+    if not r.joints:
+        return []
+    missing = [j for j in r.joints if j not in r.acceleration_limits]
+    if not missing:
+        return []
+    return [
+        f"acceleration limit {r.default_acceleration_limit:g} rad/s² assumed for {', '.join(missing)} "
+        "(robot.default_acceleration_limit; set robot.acceleration_limits from the robot's datasheet)"
+    ]
+
+
+def _ramped_motion(result, robot, constraints, config, say):
+    """The controller motion: ramp-in + N periods + ramp-out (or N periods without ramps)."""
+    from pe_drake.excitation.ramp import RampedMotion, choose_ramp_duration
+
+    periods = config.excitation.periods
+    if not config.excitation.ramp:
+        say(f"ramps off (excitation.ramp: false): trajectory.csv is {periods} period(s) and does NOT start at rest")
+        return RampedMotion(result.trajectory, periods, 0.0)
+    motion, checks = choose_ramp_duration(result.trajectory, robot.limits, constraints, periods=periods)
+    last = checks[-1]
+    say(
+        f"ramps from and to rest: {motion.ramp_duration:g} s each (join phase {motion.phase:.3g} s), "
+        f"{periods} period(s); trajectory.csv spans {motion.duration:.4g} s, the periodic part "
+        f"[{motion.periodic_start:.4g}, {motion.periodic_end:.4g}] s; ramp margins at 1 kHz: "
+        + ", ".join(f"{k} {m:.4g}" for k, m in last.margins.items())
+    )
+    return motion
+
+
+def _write_success_outputs(tmp: Path, robot, result, motion, args, say) -> None:
+    from pe_drake.excitation.trajectory_file import save_trajectory, write_motion_csv
     from pe_drake.plots import plot_trajectory
 
-    save_trajectory(tmp / "trajectory.json", robot, result.trajectory, cond=result.cond, cond_motion=result.cond_motion)
-    write_trajectory_csv(tmp / "trajectory.csv", robot.joint_names, result.trajectory, args.csv_rate)
+    save_trajectory(
+        tmp / "trajectory.json", robot, result.trajectory, cond=result.cond, cond_motion=result.cond_motion,
+        **motion.to_dict(),
+    )
+    write_motion_csv(tmp / "trajectory.csv", robot.joint_names, motion, args.csv_rate)
     plot_trajectory(
         tmp / "trajectory.png",
         robot,

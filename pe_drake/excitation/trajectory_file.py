@@ -4,6 +4,9 @@ trajectory.json keys: ``robot``, ``joints``, ``omega`` [rad/s], ``harmonics``, `
 (n × N), ``q0`` (n), ``duration`` [s], ``locked_positions`` {joint: value},
 ``base_pose`` {``position``, ``quaternion_wxyz``} of the root link in world, ``root_link``,
 ``cond``; q_j(t) = Σ_k a_jk sin(kωt) + b_jk cos(kωt) + q0_j exactly as Eq. (50).
+Written by ``optimize`` since issue 10: ``periods``, ``ramp_duration``, ``phase``,
+``motion_duration`` and ``layout`` (time spans of ramp-in, periodic part and ramp-out in
+trajectory.csv; pe_drake/excitation/ramp.py). A file without them is one period, no ramps.
 """
 
 from __future__ import annotations
@@ -14,9 +17,13 @@ from typing import Any
 
 import numpy as np
 
-from pe_drake.exceptions import DataError
+from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.excitation.fourier import FourierTrajectory
+from pe_drake.excitation.ramp import RampedMotion, ramped_motion_from_dict
 from pe_drake.io_utils import atomic_write_text
+
+#: Physical range of ω [rad/s]: periods from 0.1 s to 10 minutes.
+OMEGA_RANGE = (2 * np.pi / 600.0, 2 * np.pi / 0.1)
 
 
 def trajectory_to_dict(robot, trajectory: FourierTrajectory, **extra: Any) -> dict[str, Any]:
@@ -63,10 +70,29 @@ def load_trajectory(path: str | Path) -> tuple[FourierTrajectory, dict[str, Any]
         data = json.loads(path.read_text())
     except json.JSONDecodeError as err:
         raise DataError(f"not valid JSON: {err}", file=str(path)) from err
+    if not isinstance(data, dict):
+        raise DataError("expected a JSON object with joints, omega, a, b, q0", file=str(path))
     for key in ("joints", "omega", "a", "b", "q0"):
         if key not in data:
             raise DataError(f"missing key '{key}'", file=str(path))
-    a, b, q0 = (np.asarray(data[k], float) for k in ("a", "b", "q0"))
+    omega = data["omega"]
+    if isinstance(omega, bool) or not isinstance(omega, (int, float)) or not np.isfinite(omega):
+        raise DataError(f"'omega' must be a finite number [rad/s], got {omega!r}", file=str(path))
+    if not OMEGA_RANGE[0] <= omega <= OMEGA_RANGE[1]:
+        raise DataError(
+            f"'omega' = {omega!r} rad/s is outside [{OMEGA_RANGE[0]:.4g}, {OMEGA_RANGE[1]:.4g}] "
+            "(periods from 0.1 s to 600 s)",
+            file=str(path),
+        )
+    if not isinstance(data["joints"], list) or not all(isinstance(j, str) for j in data["joints"]):
+        raise DataError("'joints' must be a list of joint names", file=str(path))
+    arrays = {}
+    for key in ("a", "b", "q0"):
+        try:
+            arrays[key] = np.asarray(data[key], float)
+        except (TypeError, ValueError):
+            raise DataError(f"'{key}' must hold numbers only", file=str(path)) from None
+    a, b, q0 = arrays["a"], arrays["b"], arrays["q0"]
     n = len(data["joints"])
     if a.ndim != 2 or a.shape[0] != n or b.shape != a.shape or q0.shape != (n,):
         raise DataError(
@@ -74,7 +100,7 @@ def load_trajectory(path: str | Path) -> tuple[FourierTrajectory, dict[str, Any]
         )
     if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b)) and np.all(np.isfinite(q0))):
         raise DataError("coefficients contain NaN or inf", file=str(path))
-    return FourierTrajectory(a, b, q0, float(data["omega"])), data
+    return FourierTrajectory(a, b, q0, float(omega)), data
 
 
 def write_trajectory_csv(
@@ -89,3 +115,30 @@ def write_trajectory_csv(
     table = np.column_stack([t, q, v, vd])
     lines = [",".join(header)] + [",".join(f"{x:.9g}" for x in row) for row in table]
     atomic_write_text(path, "\n".join(lines) + "\n")
+
+
+def write_motion_csv(path: str | Path, joints: tuple[str, ...] | list[str], motion: RampedMotion, rate: float) -> None:
+    """Writes t, q.<joint>, v.<joint>, vdot.<joint> of the whole motion (ramp-in, N periods,
+    ramp-out) sampled at ``rate`` [Hz] from t = 0 (at rest) to the end (at rest)."""
+    if not rate > 0:
+        raise ValueError(f"sample rate must be positive, got {rate}")
+    t = motion.sample_times(rate)
+    q, v, vd = motion.evaluate(t)
+    header = ["t"] + [f"q.{j}" for j in joints] + [f"v.{j}" for j in joints] + [f"vdot.{j}" for j in joints]
+    table = np.column_stack([t, q, v, vd])
+    lines = [",".join(header)] + [",".join(f"{x:.9g}" for x in row) for row in table]
+    atomic_write_text(path, "\n".join(lines) + "\n")
+
+
+def load_motion(path: str | Path) -> tuple[RampedMotion, dict[str, Any]]:
+    """Reads trajectory.json as the motion trajectory.csv holds (ramps and periods included):
+    what ``view`` and ``simulate`` replay.
+
+    Raises:
+        DataError: see :func:`load_trajectory`; or bad ``periods``/``ramp_duration``/``phase``.
+    """
+    trajectory, data = load_trajectory(path)
+    try:
+        return ramped_motion_from_dict(trajectory, data, source=str(path)), data
+    except ConfigError as err:
+        raise DataError(str(err).split(": ", 1)[-1], file=str(path)) from err

@@ -204,6 +204,12 @@ def stl_visuals_to_obj(urdf_text: str, model_path: str | Path, cache_dir: str | 
     return _VISUAL.sub(lambda visual: _MESH_FILENAME.sub(mesh, visual.group(0)), urdf_text)
 
 
+def resolve_mesh_path(name: str, model_path: str | Path) -> Path | None:
+    """The file a URDF mesh filename points to (``package://``, ``file://``, absolute, or
+    relative to the model file's folder), or None when it does not exist."""
+    return _resolve_mesh(name, Path(model_path))
+
+
 def _resolve_mesh(name: str, model_path: Path) -> Path | None:
     """The file a URDF mesh name points to, or None."""
     if name.startswith("package://"):

@@ -7,12 +7,13 @@ from pe_drake.excitation.constraints.base import SampledConstraint, SampledValue
 __all__ = ["SampledConstraint", "SampledValues", "constraints_from_config"]
 
 
-def constraints_from_config(robot, excitation) -> list[SampledConstraint]:
+def constraints_from_config(robot, excitation, environment=None) -> list[SampledConstraint]:
     """The sampled constraints an :class:`~pe_drake.config.ExcitationConfig` asks for.
 
     ``balance_radius > 0`` adds the balance constraint (Eq. 52), ``collision_margin >= 0``
     the capsule self-collision constraint (Eq. 53), ``torque_limits`` the joint torque limits
-    of the a-priori model. Each is checked at the nominal posture
+    of the a-priori model, ``environment`` (an EnvironmentConfig) the floor under a fixed-base
+    arm and box obstacles. Each is checked at the nominal posture
     first, so a posture already out of balance or in collision is refused before solving.
 
     Raises:
@@ -47,4 +48,11 @@ def constraints_from_config(robot, excitation) -> list[SampledConstraint]:
         torque = TorqueConstraint(robot)
         torque.check_posture(q0)
         out.append(torque)
+    if environment is not None:
+        from pe_drake.excitation.constraints.environment import environment_from_config
+
+        env = environment_from_config(robot, excitation, environment)
+        if env is not None:
+            env.check_posture(q0)
+            out.append(env)
     return out

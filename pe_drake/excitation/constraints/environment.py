@@ -170,8 +170,8 @@ class EnvironmentConstraint(SampledConstraint):
         moving = {int(b) for b in robot.body_indices}
         self.capsules = [c for c in capsules if c.body_index in moving]
         self._setup_bodies()
-        self.floor_capsules = [k for k in range(len(self.capsules)) if floor_height is not None and self._height_varies(k)]
-        labels = [f"{self.capsules[k].name}.{e}/floor" for k in self.floor_capsules for e in ("start", "end")]
+        self.floor_ends = self._floor_ends() if floor_height is not None else []
+        labels = [f"{self.capsules[c].name}.{('start', 'end')[e]}/floor" for c, e in self.floor_ends]
         labels += [f"{c.name}/{b.name}" for b in self.boxes for c in self.capsules]
         if not labels:
             raise ConfigError(f"robot '{robot.name}': no capsule can reach the floor or a box; nothing to check")
@@ -188,14 +188,19 @@ class EnvironmentConstraint(SampledConstraint):
         self._frames = [plant.get_body(_body_index(b)).body_frame() for b in self._bodies]
         self._slot = [self._bodies.index(c.body_index) for c in self.capsules]
 
-    def _height_varies(self, k: int) -> bool:
+    def _floor_ends(self) -> list[tuple[int, int]]:
+        """(capsule, end) pairs that get a floor row: ends whose height varies by more than
+        the capsule's radius over the joint ranges. An end that stays within a radius of its
+        mounting height is a joint housing turning in place (the base, a shoulder): it sits
+        where it is mounted and cannot be moved off the floor."""
         rng = np.random.default_rng(0)
         lim = self.robot.limits
         lo = np.where(np.isfinite(lim.q_lower), lim.q_lower, -np.pi)
         hi = np.where(np.isfinite(lim.q_upper), lim.q_upper, np.pi)
-        q = rng.uniform(lo, hi, (4, self.robot.n))
-        _, J = self._ends(q, jacobian=True)
-        return bool(np.abs(J[:, k, :, 2, :]).max() > 1e-9)
+        q = rng.uniform(lo, hi, (64, self.robot.n))
+        z = self._ends(q, jacobian=False)[0][..., 2]  # (64, C, 2)
+        span = z.max(axis=0) - z.min(axis=0)
+        return [(c, e) for c in range(len(self.capsules)) for e in range(2) if span[c, e] > self.capsules[c].radius]
 
     def _ends(self, q: np.ndarray, jacobian: bool):
         """p_W of every capsule's ends (K, C, 2, 3) and, with ``jacobian``, ∂p/∂q (K, C, 2, 3, n)."""
@@ -234,12 +239,11 @@ class EnvironmentConstraint(SampledConstraint):
         p, J = self._ends(q, derivatives)
         radii = np.array([c.radius for c in self.capsules])
         d_rows, g_rows = [], []
-        if self.floor_capsules:
-            fc = self.floor_capsules
-            z = p[:, fc][..., 2]  # (K, F, 2)
-            d_rows.append((z - radii[fc][None, :, None] - self.floor_height).reshape(q.shape[0], -1))
+        if self.floor_ends:
+            cs, es = np.array(self.floor_ends).T
+            d_rows.append(p[:, cs, es, 2] - radii[cs] - self.floor_height)  # (K, F)
             if derivatives:
-                g_rows.append(J[:, fc][:, :, :, 2, :].reshape(q.shape[0], -1, self.robot.n))
+                g_rows.append(J[:, cs, es, 2, :])  # (K, F, n)
         for box in self.boxes:
             d, s, normal = segment_box_distance(p[:, :, 0], p[:, :, 1], box.center, 0.5 * box.size)
             d_rows.append(d - radii[None, :])
@@ -288,3 +292,31 @@ def _body_index(b: int):
     from pydrake.multibody.tree import BodyIndex
 
     return BodyIndex(int(b))
+
+
+def environment_from_config(robot, excitation, environment) -> EnvironmentConstraint | None:
+    """The floor/box constraint a config asks for, or None.
+
+    The floor applies to a fixed-base arm (no ``robot.support_points``) when
+    ``environment.floor`` is true, at ``environment.floor_height`` or, when that is null,
+    at the base's support plane (the z of the root link's origin). The clearance is
+    ``max(excitation.collision_margin, 0)``.
+
+    Args:
+        robot: the :class:`~pe_drake.multibody.robot.Robot`.
+        excitation: its :class:`~pe_drake.config.ExcitationConfig`.
+        environment: an :class:`~pe_drake.config.EnvironmentConfig`.
+
+    Raises:
+        ConfigError: a floor or boxes are asked for but the robot has no capsules.
+    """
+    fixed_base = not getattr(robot.config, "support_points", None)
+    floor = None
+    if environment.floor and fixed_base:
+        floor = environment.floor_height
+        if floor is None:
+            floor = float(np.asarray(robot.base_pose.translation())[2])
+    boxes = [Box.from_spec(b, k) for k, b in enumerate(environment.boxes)]
+    if floor is None and not boxes:
+        return None
+    return EnvironmentConstraint(robot, max(float(excitation.collision_margin), 0.0), floor, boxes)
