@@ -81,8 +81,10 @@ def play_trajectory(
     show_capsules: bool = True,
     rate: float = 30.0,
     meshcat: Any = None,
+    host: str = "localhost",
 ) -> Playback:
-    """Records one period of a trajectory in Meshcat and optionally writes it as HTML.
+    """Records the motion of trajectory.csv (ramp-in, periods, ramp-out as recorded in the
+    file) in Meshcat and optionally writes it as HTML.
 
     Never blocks: the Meshcat server lives as long as the returned ``Playback.meshcat``
     (``pe-drake view`` keeps it until Ctrl-C).
@@ -100,6 +102,8 @@ def play_trajectory(
             Meshcat tree either way and can be toggled there.
         rate: frames per second of the recording [1/s].
         meshcat: an existing ``pydrake.geometry.Meshcat`` to draw into; default: a new one.
+        host: interface a new Meshcat server listens on: "localhost" (default) or "*" for
+            every interface (others on the network can then watch).
 
     Returns:
         The :class:`Playback`.
@@ -111,13 +115,13 @@ def play_trajectory(
     """
     from pydrake.geometry import Meshcat, MeshcatAnimation, MeshcatParams
 
-    from pe_drake.excitation.trajectory_file import load_trajectory
+    from pe_drake.excitation.trajectory_file import load_motion
     from pe_drake.io_utils import atomic_write_text
 
-    if not (isinstance(rate, (int, float)) and math.isfinite(rate) and rate > 0):
-        raise ConfigError(f"playback rate must be a positive number of frames per second, got {rate!r}")
-    trajectory, data = load_trajectory(trajectory_json)
-    period = trajectory.period
+    if not (isinstance(rate, (int, float)) and math.isfinite(rate) and 0 < rate <= 1000):
+        raise ConfigError(f"playback rate must be a number of frames per second in (0, 1000], got {rate!r}")
+    motion, data = load_motion(trajectory_json)
+    period = motion.duration  # the whole motion of trajectory.csv
     num_intervals = max(2, int(round(period * rate)))
     # The recording rate makes frame k fall exactly at t_k = k·T/K, so the clip ends on the
     # pose it starts with and loops seamlessly.
@@ -129,9 +133,8 @@ def play_trajectory(
         level = drake_logger.level
         drake_logger.setLevel(logging.WARNING)  # no "Meshcat listening ..." line from Drake
         try:
-            # An HTML export needs no outside connection: listen on localhost only.
-            host = "localhost" if html is not None else "*"
-            meshcat = Meshcat(MeshcatParams(host=host, show_stats_plot=False))
+            # localhost unless asked otherwise: a served playback is not for the whole network.
+            meshcat = Meshcat(MeshcatParams(host="localhost" if html is not None else host, show_stats_plot=False))
         finally:
             drake_logger.setLevel(level)
     else:  # a reused instance: drop our earlier layers and recording (recordings merge)
@@ -143,7 +146,7 @@ def play_trajectory(
         trajectory_json, data, robot, config, meshcat, layers, fps=fps, show_capsules=show_capsules
     )
     order = _joint_order(trajectory_json, data, rob)
-    q = trajectory.evaluate(times)[0][:, order]
+    q = motion.evaluate(times)[0][:, order]
 
     plant, diagram = rob.plant, rob.diagram
     context = diagram.CreateDefaultContext()

@@ -56,6 +56,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--html", help="write a self-contained HTML playback here and exit")
     p.add_argument("--no-capsules", action="store_true", help="hide the collision capsules")
     p.add_argument("--rate", type=float, default=30.0, help="frames per second")
+    p.add_argument("--host", default="localhost",
+                   help="interface Meshcat listens on (default localhost; '*' for every interface)")
 
     p = sub.add_parser("simulate", help="simulate a measured run on a perturbed 'true' robot")
     p.add_argument("--robot", required=True)
@@ -63,7 +65,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--trajectory", required=True, help="trajectory.json to track")
     p.add_argument("--truth", required=True, help="TRUTH.yaml: perturbation, effects, noise")
     p.add_argument("--out", required=True, help="output CSV")
-    p.add_argument("--duration", type=float, help="simulated time [s] (default: one period)")
+    p.add_argument("--duration", type=float,
+                   help="simulated time [s] (default: the whole motion of trajectory.csv, ramps included)")
 
     p = sub.add_parser("identify", help="identify the base parameters from measured data")
     p.add_argument("--robot", required=True)

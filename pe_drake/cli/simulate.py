@@ -6,7 +6,8 @@ import json
 from pathlib import Path
 
 from pe_drake.exceptions import ConfigError, DataError
-from pe_drake.excitation.trajectory_file import load_trajectory
+from pe_drake.excitation.ramp import check_within_limits
+from pe_drake.excitation.trajectory_file import load_motion
 from pe_drake.identification.measurements import measurement_to_csv_text
 from pe_drake.identification.simulation import load_truth, simulate, truth_path_for
 from pe_drake.io_utils import atomic_write_text
@@ -18,17 +19,21 @@ def simulate_command(args) -> int:
     out = Path(args.out)
     if out.is_dir():
         raise ConfigError(f"--out '{out}' is a folder; give the CSV file to write")
+    motion, data = load_motion(args.trajectory)  # validated before any work
     truth = load_truth(args.truth)
     robot = load_robot(args.robot, getattr(args, "config", None))
-    trajectory, data = load_trajectory(args.trajectory)
     if list(data["joints"]) != list(robot.joint_names):
         raise DataError(
             f"trajectory joints {', '.join(data['joints'])} differ from robot '{robot.name}''s "
             f"excited joints {', '.join(robot.joint_names)}",
             file=str(args.trajectory),
         )
-    duration = args.duration if getattr(args, "duration", None) is not None else data.get("duration")
-    measurement, truth_dict = simulate(robot, trajectory, truth, duration)
+    check_within_limits(motion, robot.limits, robot.joint_names, source=str(args.trajectory))
+    # The motion of trajectory.csv (ramps and periods included); after its end the robot rests.
+    duration = args.duration if getattr(args, "duration", None) is not None else motion.duration
+    if not 0 < duration <= 3600:
+        raise ConfigError(f"--duration must be in (0, 3600] s, got {duration!r}")
+    measurement, truth_dict = simulate(robot, motion, truth, duration)
     measurement = measurement.replace(source=str(out))
 
     csv_text = measurement_to_csv_text(measurement)

@@ -17,6 +17,7 @@ def view_command(args) -> int:
         html=args.html,
         show_capsules=not args.no_capsules,
         rate=args.rate,
+        host=getattr(args, "host", "localhost"),
     )
     summary = (
         f"{playback.robot.name}: {playback.num_frames} frames over {playback.duration:.3g} s "

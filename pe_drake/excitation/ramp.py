@@ -116,6 +116,16 @@ class RampedMotion:
             raise ConfigError(f"phase must lie in [0, period = {self.path.period:.6g}) [s], got {self.phase!r}")
 
     @property
+    def num_joints(self) -> int:
+        return self.path.num_joints
+
+    @property
+    def period(self) -> float:
+        """The whole motion's duration (so that code written for one period of a
+        :class:`FourierTrajectory` replays the whole motion) [s]."""
+        return self.duration
+
+    @property
     def periodic_start(self) -> float:
         """Time at which the periodic part starts (= T_r) [s]."""
         return float(self.ramp_duration)
@@ -231,6 +241,33 @@ class RampCheck:
     @property
     def ok(self) -> bool:
         return self.margins[self.worst] >= 0.0
+
+
+def check_within_limits(
+    motion: RampedMotion, limits, joint_names: Sequence[str], *, source: str = "", rate: float = 200.0, slack: float = 1e-3
+) -> None:
+    """Refuses a motion (e.g. from a hand-edited trajectory.json) that leaves the robot's position
+    or velocity limits, before any work is done with it.
+
+    Raises:
+        NotWithinLimitsError: naming the joint, the quantity, the worst value and the limits.
+    """
+    from pe_drake.exceptions import NotWithinLimitsError
+
+    t = motion.sample_times(min(rate, 1e5 / max(motion.duration, 1e-9)))
+    q, v, _ = motion.evaluate(t)
+    for what, x, lo, hi in (
+        ("position", q, limits.q_lower - slack, limits.q_upper + slack),
+        ("velocity", v, -limits.v_max - slack, limits.v_max + slack),
+    ):
+        over = np.maximum(lo - x, x - hi)
+        if np.any(over > 0):
+            k, j = np.unravel_index(int(np.argmax(over)), over.shape)
+            of = f" of {source}" if source else ""
+            raise NotWithinLimitsError(
+                joint_names[j], float(x[k, j]), float(lo[j] + slack), float(hi[j] - slack),
+                f"{what} at t = {t[k]:.3f} s{of}",
+            )
 
 
 def ramp_margins(motion: RampedMotion, limits, constraints: Sequence = (), rate: float = 1000.0) -> dict[str, float]:
