@@ -29,8 +29,10 @@ class RobotConfig:
         root_link: the link welded to the world; empty means the model's root link.
         base_position: position of the root link's origin in world [m].
         base_quaternion_wxyz: orientation of the root link in world (w, x, y, z).
-        position_limits: {joint: [lower, upper]} [rad or m], tightens the model's limits.
-        velocity_limits: {joint: limit} [rad/s or m/s], tightens the model's limits.
+        position_limits: {joint: [lower, upper]} [rad or m]: tightens the model's limits, or
+            replaces a zero-width placeholder (lower == upper); a wider range is refused.
+        velocity_limits: {joint: limit} [rad/s or m/s]: tightens the model's limit, or
+            replaces a zero placeholder; a higher value is refused.
         acceleration_limits: {joint: limit} [rad/s² or m/s²]; unlisted joints get
             ``default_acceleration_limit``.
         default_acceleration_limit: [rad/s² or m/s²].

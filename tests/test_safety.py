@@ -206,3 +206,30 @@ def _two_link_robot(folder: Path) -> Path:
     path = folder / "two_link.urdf"
     path.write_text(text)
     return path
+
+
+def test_user_robot_with_relative_mesh_paths_and_placeholder_limits(tmp_path):
+    """A robot folder made here: relative mesh paths load; zero-width URDF limits are replaced
+    by the config's; a real limit can only be tightened."""
+    from pe_drake.config import RobotConfig
+    from pe_drake.exceptions import ConfigError, InfeasibleError
+    from pe_drake.multibody.robot import load_robot
+
+    urdf = _two_link_robot(tmp_path)
+    robot = load_robot(RobotConfig(model=str(urdf)))
+    assert robot.n == 2 and robot.limits.q_upper[0] == pytest.approx(2.0)
+    placeholder = tmp_path / "placeholder.urdf"
+    placeholder.write_text(urdf.read_text().replace('lower="-2" upper="2" velocity="2"', 'lower="0" upper="0" velocity="0"'))
+    with pytest.raises(ConfigError, match=r"no velocity limit: set robot.velocity_limits\['j1'\]"):
+        load_robot(RobotConfig(model=str(placeholder)))
+    with pytest.raises(InfeasibleError, match=r"give a real range in robot.position_limits\['j1'\]"):
+        load_robot(RobotConfig(model=str(placeholder), velocity_limits={"j1": 4.0, "j2": 4.0}))
+    robot = load_robot(RobotConfig(model=str(placeholder), position_limits={"j1": [-3, 3], "j2": [-1, 1]},
+                                   velocity_limits={"j1": 4.0, "j2": 4.0}))
+    assert robot.limits.q_lower[0] == pytest.approx(-3) and robot.limits.v_max[1] == pytest.approx(4.0)
+    with pytest.raises(ConfigError, match=r"wider than the limits \[-2, 2\] in two_link.urdf"):
+        load_robot(RobotConfig(model=str(urdf), position_limits={"j1": [-3, 3]}))
+    with pytest.raises(ConfigError, match="above the limit 2 in two_link.urdf"):
+        load_robot(RobotConfig(model=str(urdf), velocity_limits={"j1": 3.0}))
+    tight = load_robot(RobotConfig(model=str(urdf), position_limits={"j1": [-1, 1]}, velocity_limits={"j1": 1.0}))
+    assert tight.limits.q_upper[0] == pytest.approx(1.0) and tight.limits.v_max[0] == pytest.approx(1.0)

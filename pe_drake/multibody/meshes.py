@@ -204,6 +204,22 @@ def stl_visuals_to_obj(urdf_text: str, model_path: str | Path, cache_dir: str | 
     return _VISUAL.sub(lambda visual: _MESH_FILENAME.sub(mesh, visual.group(0)), urdf_text)
 
 
+def absolute_mesh_paths(urdf_text: str, model_path: str | Path) -> str:
+    """Rewrites relative mesh filenames (``meshes/base.stl``) of a URDF to absolute
+    ``file://`` URIs against the model file's folder: Drake parses our rewritten text from a
+    string, where a relative URI has no folder to resolve against. ``package://``, ``file://``
+    and absolute names are left as they are."""
+    folder = Path(model_path).resolve().parent
+
+    def absolute(match: re.Match) -> str:
+        name = match.group(3)
+        if "://" in name or Path(name).is_absolute():
+            return match.group(0)
+        return f"{match.group(1)}{match.group(2)}{(folder / name).resolve().as_uri()}{match.group(2)}"
+
+    return _MESH_FILENAME.sub(absolute, urdf_text)
+
+
 def resolve_mesh_path(name: str, model_path: str | Path) -> Path | None:
     """The file a URDF mesh filename points to (``package://``, ``file://``, absolute, or
     relative to the model file's folder), or None when it does not exist."""

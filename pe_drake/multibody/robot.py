@@ -185,6 +185,9 @@ class Robot:
             # collision is our own capsules. Mimic tags would couple joints we may lock.
             text = re.sub(r"<collision\b.*?</collision>", "", text, flags=re.S)
             text = re.sub(r"<mimic\b[^>]*/>", "", text)
+            from pe_drake.multibody.meshes import absolute_mesh_paths
+
+            text = absolute_mesh_paths(text, model_path)  # parsed from a string below
             if self._obj_visuals:
                 from pe_drake.multibody.meshes import stl_visuals_to_obj
 
@@ -400,10 +403,7 @@ class Robot:
                 effort[k] = urdf_effort[name]
         vd = np.full(self.n, float(cfg.default_acceleration_limit))
         for k, name in enumerate(self.joint_names):
-            if name in cfg.position_limits:
-                lo[k] = max(lo[k], cfg.position_limits[name][0])
-                hi[k] = min(hi[k], cfg.position_limits[name][1])
-            v[k] = min(v[k], cfg.velocity_limits.get(name, np.inf))
+            lo[k], hi[k], v[k] = merge_limits(name, (lo[k], hi[k]), v[k], cfg, self.model_path.name)
             vd[k] = cfg.acceleration_limits.get(name, vd[k])
             effort[k] = min(effort[k], cfg.effort_limits.get(name, np.inf))
         lo = lo + cfg.position_margin
@@ -418,9 +418,14 @@ class Robot:
                     f"joint '{name}' has no velocity limit: set robot.velocity_limits['{name}']"
                 )
             if lo[k] >= hi[k]:
+                fix = (
+                    "reduce robot.position_margin"
+                    if cfg.position_margin > 0
+                    else f"give a real range in robot.position_limits['{name}']"
+                )
                 raise InfeasibleError(
                     f"joint '{name}': position range [{lo[k]:.4g}, {hi[k]:.4g}] is empty after a "
-                    f"margin of {cfg.position_margin} rad; reduce robot.position_margin"
+                    f"margin of {cfg.position_margin} rad; {fix}"
                 )
         return Limits(lo, hi, v * cfg.velocity_scale, vd * cfg.acceleration_scale, effort * cfg.effort_scale)
 
@@ -502,6 +507,43 @@ class Robot:
 
     def __repr__(self) -> str:
         return f"Robot('{self.name}', {self.n} joints, {self.num_bodies} moving bodies)"
+
+
+def merge_limits(name: str, model_range, model_velocity: float, cfg, model_file: str = "the model"):
+    """A joint's position range and velocity limit from the model file and the config.
+
+    A zero-width model range (lower == upper, a placeholder as in example-robot-data's
+    double pendulum) or a zero velocity limit is replaced by the config's value; a real
+    model limit can only be tightened, and a wider config value is refused.
+
+    Returns:
+        (lower, upper, velocity) [rad or m, rad/s or m/s].
+
+    Raises:
+        ConfigError: the config widens a real model limit (naming both values).
+    """
+    lo, hi = float(model_range[0]), float(model_range[1])
+    v = float(model_velocity)
+    if name in cfg.position_limits:
+        c_lo, c_hi = (float(x) for x in cfg.position_limits[name])
+        if hi - lo > 0 and (c_lo < lo - 1e-12 or c_hi > hi + 1e-12):
+            raise ConfigError(
+                f"robot.position_limits['{name}'] = [{c_lo:g}, {c_hi:g}] is wider than the limits "
+                f"[{lo:g}, {hi:g}] in {model_file}; a config can only tighten a real model limit "
+                "(it replaces zero-width placeholders)"
+            )
+        lo, hi = c_lo, c_hi
+    if name in cfg.velocity_limits:
+        c_v = float(cfg.velocity_limits[name])
+        if v > 0 and c_v > v + 1e-12:
+            raise ConfigError(
+                f"robot.velocity_limits['{name}'] = {c_v:g} is above the limit {v:g} in {model_file}; "
+                "a config can only tighten a real model limit (it replaces zero placeholders)"
+            )
+        v = c_v
+    elif v == 0:
+        v = np.inf  # a placeholder: refused below as "no velocity limit" unless the config gives one
+    return lo, hi, v
 
 
 def _urdf_effort_limits(path: Path) -> dict[str, float]:
