@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from pe_drake.exceptions import ConfigError
+from pe_drake.yaml_check import check_yaml_file
 
 
 @dataclasses.dataclass
@@ -260,10 +261,23 @@ def validate_config(config: Config) -> Config:
 
 
 def _validate_safety(config: Config) -> None:
-    """Periods, ramp and environment (issue 10)."""
+    """Periods, ramp, environment and physically sensible sampling (issue 10)."""
     e, env = config.excitation, config.environment
+    period = 2 * math.pi / e.omega
+    if not 0.1 <= period <= 600:
+        raise ConfigError(
+            f"excitation.omega = {e.omega!r} rad/s gives a period of {period:.4g} s; use a period from "
+            "0.1 s to 600 s (omega from 0.0105 to 62.8 rad/s)"
+        )
+    if e.constraint_samples < 8 * e.harmonics:
+        raise ConfigError(
+            f"excitation.constraint_samples = {e.constraint_samples} is too few for {e.harmonics} harmonics: "
+            f"the limits need at least 8 samples per period of the highest harmonic ({8 * e.harmonics})"
+        )
     if isinstance(e.periods, bool) or not isinstance(e.periods, int) or not 1 <= e.periods <= 1000:
         raise ConfigError(f"excitation.periods must be an integer from 1 to 1000, got {e.periods!r}")
+    if isinstance(e.seed, bool) or not isinstance(e.seed, int) or not 0 <= e.seed < 2**32:
+        raise ConfigError(f"excitation.seed must be an integer from 0 to 2^32 - 1, got {e.seed!r}")
     if not isinstance(e.ramp, bool):
         raise ConfigError(f"excitation.ramp must be true or false, got {e.ramp!r}")
     if not isinstance(env.floor, bool):
@@ -299,6 +313,7 @@ def load_config(path: str | Path, base: Config | None = None) -> Config:
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"config file '{path}' does not exist")
+    check_yaml_file(path, Config)  # syntax and shape, with line numbers
     try:
         config = yaml_load_typed(
             schema=Config,

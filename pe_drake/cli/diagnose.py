@@ -5,17 +5,15 @@ from __future__ import annotations
 from pathlib import Path
 
 from pe_drake.diagnosis.workflow import diagnose, write_outputs
-from pe_drake.exceptions import ConfigError
 from pe_drake.identification.measurements import read_measurement_csv
 from pe_drake.io_utils import staged_output_dir
 from pe_drake.multibody.robot import load_robot
+from pe_drake.output_paths import check_output_dir
 
 
 def diagnose_command(args) -> int:
     """``pe-drake diagnose``: writes diagnosis.json, report.md, figures and the augmented model."""
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise ConfigError(f"--out '{out}' exists and is not a folder")
+    out = check_output_dir(args.out)  # before any work
     robot = load_robot(args.robot, getattr(args, "config", None))
     data = read_measurement_csv(args.data, robot)
     validation = read_measurement_csv(args.validation, robot) if getattr(args, "validation", None) else None

@@ -49,6 +49,9 @@ def identify_command(args: argparse.Namespace) -> int:
         standard_parameters_dict,
     )
     from pe_drake.multibody.inertia import PhysicallyInvalidError, validity_problems
+    from pe_drake.output_paths import IDENTIFY_OUTPUTS, check_output_dir, remove_stale_outputs
+
+    check_output_dir(args.out)  # before any work
     from pe_drake.multibody.urdf import write_robot_urdf
 
     _check_cutoff(args.cutoff)
@@ -129,6 +132,7 @@ def identify_command(args: argparse.Namespace) -> int:
     if note:
         print(note)
     written = ["identified.json", "residuals.png"] + ([model_file] if model_file else [])
+    remove_stale_outputs(out, IDENTIFY_OUTPUTS, written)  # e.g. an earlier run's model.urdf
     print(f"wrote {out}/" + ", ".join(written))
     return 0
 
@@ -148,7 +152,12 @@ def validate_command(args: argparse.Namespace) -> int:
         read_robot_measurement,
         torque_errors,
     )
+    from pe_drake.output_paths import check_output_file
 
+    if args.json:
+        check_output_file(args.json, "--json", (".json",))
+    if args.plot:
+        check_output_file(args.plot, "--plot", (".png", ".pdf", ".svg"))
     robot = _load(args)
     result = load_identified(args.model, robot)
     raw = read_robot_measurement(robot, args.data)

@@ -16,7 +16,9 @@ import numpy as np
 
 from pe_drake.config import Config, validate_config
 from pe_drake.exceptions import ConfigError, DataError
+from pe_drake.excitation.trajectory_file import load_trajectory
 from pe_drake.io_utils import staged_output_dir
+from pe_drake.output_paths import OPTIMIZE_OUTPUTS, check_output_dir, remove_stale_outputs
 
 
 def prior_regressor(problem, trajectory_json: str | Path) -> np.ndarray:
@@ -69,8 +71,15 @@ def optimize_command(args: argparse.Namespace) -> int:
     from pe_drake.multibody.capsule_fitting import ensure_capsules
     from pe_drake.multibody.robot import Robot, builtin_robots, resolve_robot_config
 
-    if not args.csv_rate > 0 or not math.isfinite(args.csv_rate):
-        raise ConfigError(f"--csv-rate must be a positive number [Hz], got {args.csv_rate}")
+    check_output_dir(args.out)  # before any work
+    if not (math.isfinite(args.csv_rate) and 1.0 <= args.csv_rate <= 10_000.0):
+        raise ConfigError(f"--csv-rate must be from 1 to 10000 Hz, got {args.csv_rate:g}")
+    if args.seed is not None and not 0 <= args.seed < 2**32:
+        raise ConfigError(f"--seed must be an integer from 0 to 2^32 - 1, got {args.seed}")
+    if args.periods is not None and not 1 <= args.periods <= 1000:
+        raise ConfigError(f"--periods must be an integer from 1 to 1000, got {args.periods}")
+    for prior in args.prior:  # validated before any work
+        load_trajectory(prior)
     config = _apply_arguments(resolve_robot_config(args.robot, args.config), args)
     name = args.robot if args.robot in builtin_robots() else Path(args.robot).stem
     say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, flush=True))
@@ -91,6 +100,7 @@ def optimize_command(args: argparse.Namespace) -> int:
         blocks = [prior_regressor(problem, p) for p in args.prior]
         problem = ExcitationProblem(robot, config.excitation, C0=np.vstack(blocks), base=problem.base, model=problem.model)
         say(f"prior data: {len(args.prior)} motion(s), {problem.C0.shape[0]} rows, cond(C0) = {np.linalg.cond(problem.C0):.4g}")
+    check_cost_samples(problem)
     say(
         f"{problem.base.count} base parameters; {problem.num_variables} variables "
         f"(N = {problem.harmonics}, ω = {problem.omega:.4g} rad/s, period {problem.period:.3g} s); "
@@ -141,7 +151,9 @@ def optimize_command(args: argparse.Namespace) -> int:
         if fitted is not None:
             shutil.copyfile(fitted.path, tmp / fitted.path.name)
         (tmp / "report.json").write_text(json.dumps(report, indent=2, default=float))
+        written = [p.name for p in tmp.iterdir()]
     shutil.rmtree(fit_dir, ignore_errors=True)
+    remove_stale_outputs(out, OPTIMIZE_OUTPUTS, written)  # a reused --out never mixes runs
     if not result.success:
         print(
             f"pe-drake optimize: no valid trajectory: {result.message}. Only {out / 'report.json'} was "
@@ -151,6 +163,24 @@ def optimize_command(args: argparse.Namespace) -> int:
         return 1
     say(f"wrote {out}/trajectory.json, trajectory.csv, report.json, trajectory.png" + ("" if args.no_html else ", playback.html"))
     return 0
+
+
+def check_cost_samples(problem) -> None:
+    """Refuses too few cost samples: C needs at least as many rows as base parameters
+    (T·n + prior rows >= b), else cond(C) comes from a rank-deficient matrix.
+
+    Raises:
+        ConfigError: naming the counts and the smallest cost_samples that works.
+    """
+    n, b, T = problem.n, problem.base.count, problem.config.cost_samples
+    prior = 0 if problem.C0 is None else problem.C0.shape[0]
+    if T * n + prior < b:
+        need = math.ceil(max(b - prior, 0) / n)
+        raise ConfigError(
+            f"excitation.cost_samples = {T} gives {T * n + prior} rows of C for {b} base parameters: "
+            f"cond(C) would be that of a rank-deficient matrix; use cost_samples >= {need} "
+            f"(a few times more is better, e.g. {max(need * 2, 20)})"
+        )
 
 
 def assumed_defaults(config: Config) -> list[str]:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.excitation.ramp import check_within_limits
@@ -12,13 +11,12 @@ from pe_drake.identification.measurements import measurement_to_csv_text
 from pe_drake.identification.simulation import load_truth, simulate, truth_path_for
 from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.robot import load_robot
+from pe_drake.output_paths import check_output_file
 
 
 def simulate_command(args) -> int:
     """``pe-drake simulate``: writes the CSV and its ``.truth.json``; prints a summary."""
-    out = Path(args.out)
-    if out.is_dir():
-        raise ConfigError(f"--out '{out}' is a folder; give the CSV file to write")
+    out = check_output_file(args.out, "--out", (".csv",))  # before any work
     motion, data = load_motion(args.trajectory)  # validated before any work
     truth = load_truth(args.truth)
     robot = load_robot(args.robot, getattr(args, "config", None))

@@ -4,12 +4,15 @@ from __future__ import annotations
 
 import time
 
+from pe_drake.output_paths import check_output_file
 from pe_drake.viewer import play_trajectory
 
 
 def view_command(args) -> int:
     """``pe-drake view``: writes the HTML playback, or serves Meshcat until Ctrl-C."""
     start = time.perf_counter()
+    if args.html:
+        check_output_file(args.html, "--html", (".html", ".htm"))  # before any work
     playback = play_trajectory(
         args.trajectory,
         robot=args.robot,

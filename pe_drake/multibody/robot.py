@@ -233,7 +233,7 @@ class Robot:
                 raise UnknownNameError("joint", j, movable_names, where="robot.locked_positions")
             if j in excited:
                 raise ConfigError(f"joint '{j}' is both excited and in robot.locked_positions")
-        for table in ("position_limits", "velocity_limits", "acceleration_limits", "effort_limits"):
+        for table in ("position_limits", "velocity_limits", "acceleration_limits", "effort_limits", "nominal_positions"):
             for j in getattr(cfg, table):
                 if j not in excited:
                     raise UnknownNameError("joint", j, excited, where=f"robot.{table} (excited joints)")

@@ -1,0 +1,107 @@
+"""Output paths checked before any work, and a reused output folder kept consistent.
+
+Every command checks the paths it will write first (a solve of minutes must not end in a
+traceback because ``--out`` was read-only), the same way: :func:`check_output_dir` for a
+folder, :func:`check_output_file` for a file. :func:`remove_stale_outputs` deletes the files
+a command writes itself (its own names only, never a user's other files) that the current run
+did not produce, so a reused folder never mixes runs.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+from collections.abc import Iterable
+from pathlib import Path
+
+from pe_drake.exceptions import ConfigError
+
+#: Files ``pe-drake optimize`` writes into its output folder.
+OPTIMIZE_OUTPUTS = (
+    "trajectory.json",
+    "trajectory.csv",
+    "trajectory.png",
+    "playback.html",
+    "report.json",
+    "fitted_capsules.yaml",
+)
+
+
+#: Files ``pe-drake identify`` writes into its output folder.
+IDENTIFY_OUTPUTS = ("identified.json", "residuals.png", "model.urdf")
+
+
+def _nearest_existing(path: Path) -> Path:
+    for parent in (path, *path.parents):
+        if parent.exists():
+            return parent
+    return Path(".")
+
+
+def _check_writable_folder(folder: Path, flag: str, target: Path) -> None:
+    existing = _nearest_existing(folder)
+    if not existing.is_dir():
+        raise ConfigError(f"{flag} '{target}': '{existing}' is a file, not a folder")
+    try:  # os.access says yes to root even on a read-only file system: try it
+        fd, probe = tempfile.mkstemp(dir=existing, prefix=".pe_drake-write-test-")
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as err:
+        raise ConfigError(f"{flag} '{target}': cannot write in the folder '{existing}' ({err.strerror})") from None
+
+
+def check_output_dir(path: str | Path, flag: str = "--out") -> Path:
+    """Refuses an output folder that is an existing file or cannot be created/written.
+
+    Raises:
+        ConfigError: naming the flag, the path and what is wrong.
+    """
+    path = Path(path)
+    if str(path) == "":
+        raise ConfigError(f"{flag} is empty")
+    if path.exists() and not path.is_dir():
+        raise ConfigError(f"{flag} '{path}' exists and is a file; give a folder")
+    _check_writable_folder(path, flag, path)
+    return path
+
+
+def check_output_file(path: str | Path, flag: str, suffixes: Iterable[str] = ()) -> Path:
+    """Refuses an output file that is a folder, has the wrong suffix, or cannot be written.
+
+    Raises:
+        ConfigError: naming the flag, the path and what is wrong.
+    """
+    path = Path(path)
+    if path.is_dir() or str(path).endswith(("/", os.sep)):
+        raise ConfigError(f"{flag} '{path}' is a folder; give a file name")
+    suffixes = tuple(suffixes)
+    if suffixes and path.suffix.lower() not in suffixes:
+        raise ConfigError(f"{flag} '{path}' must end in {' or '.join(suffixes)}")
+    if path.exists() and not os.access(path, os.W_OK):
+        raise ConfigError(f"{flag} '{path}' exists and is not writable")
+    _check_writable_folder(path.parent, flag, path)
+    return path
+
+
+def remove_stale_outputs(folder: str | Path, own_names: Iterable[str], written: Iterable[str]) -> list[str]:
+    """Deletes the command's own output files in ``folder`` that this run did not write.
+
+    Args:
+        folder: the output folder.
+        own_names: every file name the command may write (e.g. :data:`OPTIMIZE_OUTPUTS`).
+        written: the names written by this run.
+
+    Returns:
+        The names removed.
+    """
+    folder = Path(folder)
+    keep = set(written)
+    removed = []
+    for name in own_names:
+        path = folder / name
+        if name not in keep and path.is_file():
+            with contextlib.suppress(OSError):
+                path.unlink()
+                removed.append(name)
+    return removed

@@ -1,0 +1,138 @@
+"""Checks a YAML file against a dataclass schema before Drake's ``yaml_load_typed`` reads it.
+
+Drake's loader reports a list where a mapping belongs with a bare ``AssertionError`` and a
+syntax error with the YAML library's traceback, and neither names the line of the key. This
+walks the YAML node tree (which keeps line numbers) beside the dataclass fields and refuses,
+with file, line and dotted key: syntax errors, unknown keys, a mapping/list/scalar in the
+wrong place, and scalars that are not of the field's type (``harmonics: three``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import types
+import typing
+from pathlib import Path
+
+from pe_drake.exceptions import ConfigError
+
+_NULLS = ("null", "Null", "NULL", "~", "")
+_BOOLS = ("true", "True", "TRUE", "false", "False", "FALSE")
+
+
+def _where(path: Path, node, key: str) -> str:
+    line = f", line {node.start_mark.line + 1}" if node is not None else ""
+    return f"config file '{path}'{line}, key '{key or '(top level)'}'"
+
+
+def _strip_optional(tp):
+    origin = typing.get_origin(tp)
+    if origin in (typing.Union, types.UnionType):
+        args = [a for a in typing.get_args(tp) if a is not type(None)]
+        return (args[0] if len(args) == 1 else tp), True
+    return tp, False
+
+
+def _check_scalar(node, tp, optional: bool, path: Path, key: str) -> None:
+    import yaml
+
+    if not isinstance(node, yaml.ScalarNode):
+        kind = "a list" if isinstance(node, yaml.SequenceNode) else "a mapping"
+        raise ConfigError(f"{_where(path, node, key)}: expected {_kind(tp)}, got {kind}")
+    value = node.value
+    if optional and node.tag.endswith(":null") or (optional and value in _NULLS and node.style is None):
+        return
+    ok = True
+    if tp is bool:
+        ok = value in _BOOLS
+    elif tp is int:
+        try:
+            int(value)
+        except ValueError:
+            ok = False
+    elif tp is float:
+        try:
+            float(value)
+        except ValueError:
+            ok = value in (".nan", ".inf", "-.inf", ".NaN", ".Inf", "-.Inf")
+    if not ok:
+        raise ConfigError(f"{_where(path, node, key)}: expected {_kind(tp)}, got '{value}'")
+
+
+def _kind(tp) -> str:
+    tp, _ = _strip_optional(tp)
+    origin = typing.get_origin(tp)
+    if dataclasses.is_dataclass(tp) or origin is dict:
+        return "a mapping"
+    if origin is list:
+        return "a list"
+    return {bool: "true or false", int: "an integer", float: "a number", str: "a string"}.get(tp, str(tp))
+
+
+def _check_node(node, tp, path: Path, key: str) -> None:
+    import yaml
+
+    tp, optional = _strip_optional(tp)
+    origin = typing.get_origin(tp)
+    if dataclasses.is_dataclass(tp):
+        if not isinstance(node, yaml.MappingNode):
+            raise ConfigError(f"{_where(path, node, key)}: expected a mapping of {tp.__name__} keys, got {_shape(node)}")
+        hints = typing.get_type_hints(tp)
+        for k_node, v_node in node.value:
+            name = k_node.value
+            sub = f"{key}.{name}" if key else name
+            if name not in hints:
+                raise ConfigError(
+                    f"{_where(path, k_node, sub)}: unknown key; valid keys here: {', '.join(sorted(hints))}"
+                )
+            _check_node(v_node, hints[name], path, sub)
+    elif origin is list:
+        if optional and isinstance(node, yaml.ScalarNode) and node.value in _NULLS:
+            return
+        if not isinstance(node, yaml.SequenceNode):
+            raise ConfigError(f"{_where(path, node, key)}: expected a list, got {_shape(node)}")
+        (item,) = typing.get_args(tp)
+        for k, child in enumerate(node.value):
+            _check_node(child, item, path, f"{key}[{k}]")
+    elif origin is dict:
+        if not isinstance(node, yaml.MappingNode):
+            raise ConfigError(f"{_where(path, node, key)}: expected a mapping, got {_shape(node)}")
+        _, value_type = typing.get_args(tp)
+        for k_node, v_node in node.value:
+            _check_node(v_node, value_type, path, f"{key}['{k_node.value}']")
+    elif tp in (bool, int, float, str):
+        if tp is str and isinstance(node, yaml.ScalarNode):
+            return
+        _check_scalar(node, tp, optional, path, key)
+
+
+def _shape(node) -> str:
+    import yaml
+
+    if isinstance(node, yaml.SequenceNode):
+        return "a list"
+    if isinstance(node, yaml.MappingNode):
+        return "a mapping"
+    return f"'{node.value}'"
+
+
+def check_yaml_file(path: str | Path, schema: type) -> None:
+    """Refuses a YAML file whose syntax or shape does not fit ``schema`` (a dataclass).
+
+    Raises:
+        ConfigError: naming the file, the line and the dotted key.
+    """
+    import yaml  # PyYAML, a dependency of pydrake.common.yaml
+
+    path = Path(path)
+    try:
+        root = yaml.compose(path.read_text(errors="replace"), Loader=yaml.SafeLoader)
+    except yaml.MarkedYAMLError as err:
+        mark = err.problem_mark or err.context_mark
+        line = f", line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        raise ConfigError(f"config file '{path}'{line}: YAML syntax error: {err.problem or err}") from None
+    except yaml.YAMLError as err:
+        raise ConfigError(f"config file '{path}': YAML syntax error: {err}") from None
+    if root is None:
+        return
+    _check_node(root, schema, path, "")
