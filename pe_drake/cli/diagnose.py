@@ -5,6 +5,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from pe_drake.diagnosis.workflow import diagnose, write_outputs
+from pe_drake.identification.data_checks import check_against_model, check_raw_measurement
+from pe_drake.identification.estimators import prepare_measurement
 from pe_drake.identification.measurements import read_measurement_csv
 from pe_drake.io_utils import staged_output_dir
 from pe_drake.multibody.robot import load_robot
@@ -17,6 +19,10 @@ def diagnose_command(args) -> int:
     robot = load_robot(args.robot, getattr(args, "config", None))
     data = read_measurement_csv(args.data, robot)
     validation = read_measurement_csv(args.validation, robot) if getattr(args, "validation", None) else None
+    for run in (data, validation):  # units, gaps, degrees, sign flips: before any work
+        if run is not None:
+            check_raw_measurement(robot, run)
+            check_against_model(robot, prepare_measurement(robot, run))
     print(f"robot {robot.name}: {robot.n} joints ({', '.join(robot.joint_names)})", flush=True)
     result = diagnose(robot, data, validation, progress=lambda s: print(s, flush=True))
     with staged_output_dir(out) as tmp:

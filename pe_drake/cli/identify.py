@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from pe_drake.exceptions import ConfigError
+from pe_drake.identification.data_checks import check_against_model, check_raw_measurement
 from pe_drake.io_utils import atomic_write_text, staged_output_dir
 
 
@@ -58,6 +59,7 @@ def identify_command(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     robot = _load(args)
     raw = read_robot_measurement(robot, args.data)
+    check_raw_measurement(robot, raw)  # time units, gaps, positions (degrees)
     f0, harmonics = _trajectory_band(getattr(args, "trajectory", None))
     data = prepare_measurement(
         robot,
@@ -67,6 +69,7 @@ def identify_command(args: argparse.Namespace) -> int:
         harmonics=harmonics,
         filtering=not getattr(args, "no_filter", False),
     )
+    check_against_model(robot, data)  # sign-flipped torque columns
     p = data.preprocessing
     print(
         f"robot {robot.name}: {robot.n} joints; data {args.data}: {raw.num_samples} samples, "
@@ -161,7 +164,9 @@ def validate_command(args: argparse.Namespace) -> int:
     robot = _load(args)
     result = load_identified(args.model, robot)
     raw = read_robot_measurement(robot, args.data)
+    check_raw_measurement(robot, raw)
     data = prepare_measurement(robot, raw, cutoff_hz=getattr(args, "cutoff", None))
+    check_against_model(robot, data)
     tau_pred = predict(robot, result, data)
     rms, rel = torque_errors(data.tau, tau_pred)
     total = float(100 * np.linalg.norm(data.tau - tau_pred) / max(np.linalg.norm(data.tau), 1e-300))

@@ -1,0 +1,166 @@
+"""Checks of measured data against the robot and its a-priori model, before identification.
+
+Each refuses with the file, the column and the row, and the likely fix:
+
+- time in milliseconds (a "1 Hz" log of a 1 kHz controller) or a rate too low to identify;
+- gaps in the time column longer than a few samples (interpolating across them invents data);
+- joint positions far outside the robot's limits, with a degrees hint when q·π/180 fits;
+- a torque column whose sign is flipped against the a-priori model (cosine similarity of the
+  measured and predicted torques near −1).
+
+Row numbers are those of the CSV file: the header is row 1, the first sample row 2.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from pe_drake.exceptions import DataError
+from pe_drake.identification.estimators import robot_torques
+
+#: Lowest sample rate accepted [Hz].
+MIN_RATE_HZ = 10.0
+#: A time step longer than this many median steps is a gap.
+MAX_GAP_STEPS = 5.0
+#: Slack beyond the position limits before data is refused [rad or m].
+POSITION_SLACK = 0.1
+#: Cosine similarity of measured and model torque below which a column is called flipped.
+FLIP_SIMILARITY = -0.3
+
+
+def _row(index: int) -> int:
+    return int(index) + 2  # header is row 1
+
+
+def check_time_column(t: np.ndarray, source: str = "") -> None:
+    """Refuses time in milliseconds, too low a rate, and gaps of more than a few samples.
+
+    Raises:
+        DataError: naming the file, column 't' and the row.
+    """
+    t = np.asarray(t, float)
+    if len(t) < 3:
+        return
+    dt = np.diff(t)
+    step = float(np.median(dt))
+    if step <= 0:
+        return  # unsorted time: the reader refuses it with its own message
+    rate = 1.0 / step
+    if rate < MIN_RATE_HZ:
+        hint = (
+            "; the time column looks like milliseconds: divide it by 1000 to get seconds"
+            if 0.5 <= step <= 20 and t[-1] - t[0] > 100
+            else ""
+        )
+        raise DataError(
+            f"median time step {step:.4g} s ({rate:.3g} Hz) is too slow for identification "
+            f"(at least {MIN_RATE_HZ:g} Hz expected){hint}",
+            file=source,
+            column="t",
+        )
+    gaps = np.flatnonzero(dt > MAX_GAP_STEPS * step)
+    if len(gaps):
+        k = int(gaps[np.argmax(dt[gaps])])
+        raise DataError(
+            f"a gap of {dt[k]:.4g} s ({dt[k] / step:.0f} samples at {rate:.4g} Hz) between t = {t[k]:.6g} s "
+            f"and t = {t[k + 1]:.6g} s ({len(gaps)} gap(s) longer than {MAX_GAP_STEPS:g} samples); "
+            "interpolating across it would invent data: split the run there into two files",
+            file=source,
+            column="t",
+            row=_row(k + 1),
+        )
+
+
+def check_positions(robot, q: np.ndarray, source: str = "") -> None:
+    """Refuses positions far outside the robot's limits; says so when they look like degrees.
+
+    Raises:
+        DataError: naming the file, the column q.<joint> and the row.
+    """
+    q = np.asarray(q, float)
+    lim = robot.limits
+    slack = POSITION_SLACK + float(getattr(robot.config, "position_margin", 0.0))
+    lo, hi = lim.q_lower - slack, lim.q_upper + slack
+    over = np.maximum(lo - q, q - hi)
+    if not np.any(over > 0):
+        return
+    k, j = np.unravel_index(int(np.argmax(over)), over.shape)
+    name = robot.joint_names[j]
+    in_rad = q[:, j] * math.pi / 180
+    degrees = bool(np.all((in_rad >= lo[j]) & (in_rad <= hi[j]))) and np.abs(q[:, j]).max() > 2 * math.pi
+    hint = (
+        "; the column looks like degrees: multiply by π/180 to get rad"
+        if degrees
+        else "; check the units (rad or m) and the joint order of the columns"
+    )
+    raise DataError(
+        f"position {q[k, j]:.6g} is outside the limits [{lim.q_lower[j]:.4g}, {lim.q_upper[j]:.4g}] of "
+        f"joint '{name}'{hint}",
+        file=source,
+        column=f"q.{name}",
+        row=_row(k),
+    )
+
+
+def check_raw_measurement(robot, measurement) -> None:
+    """Time column and positions of a raw measurement (see the module docstring).
+
+    Raises:
+        DataError: see :func:`check_time_column` and :func:`check_positions`.
+    """
+    check_time_column(measurement.t, measurement.source)
+    check_positions(robot, measurement.q, measurement.source)
+
+
+def check_torque_signs(measured, predicted: np.ndarray, joints, source: str = "", relevant: float = 0.05) -> np.ndarray:
+    """Refuses a torque column whose sign is flipped against the a-priori model.
+
+    The uncentred cosine similarity s_j = Σ τ_m τ_p / (|τ_m| |τ_p|) keeps gravity (the bulk of
+    a slow run's torque) in the comparison: a correct column gives s near +1, a flipped one
+    near −1. Joints whose predicted RMS is below ``relevant`` × the largest are skipped
+    (friction-dominated, the model says little there).
+
+    Args:
+        measured: measured torques, shape (T, n) [N·m].
+        predicted: the a-priori model's torques at the same samples, shape (T, n) [N·m].
+        joints: joint names, length n.
+
+    Returns:
+        s per joint, shape (n,) (NaN where skipped).
+
+    Raises:
+        DataError: naming the file and the column, with the similarity.
+    """
+    m, p = np.asarray(measured, float), np.asarray(predicted, float)
+    rms_p = np.sqrt(np.mean(p**2, axis=0))
+    rms_m = np.sqrt(np.mean(m**2, axis=0))
+    s = np.full(m.shape[1], np.nan)
+    ok = (rms_p >= relevant * rms_p.max()) & (rms_m > 0) if rms_p.max() > 0 else np.zeros(m.shape[1], bool)
+    s[ok] = np.sum(m[:, ok] * p[:, ok], axis=0) / (len(m) * rms_m[ok] * rms_p[ok])
+    flipped = np.flatnonzero(ok & (s < FLIP_SIMILARITY))
+    if len(flipped):
+        j = int(flipped[np.argmin(s[flipped])])
+        raise DataError(
+            f"the torque looks sign-flipped: its similarity with the a-priori model's torque is {s[j]:+.2f} "
+            "(about +1 expected); negate the column, or check the joint's sign convention and the column order",
+            file=source,
+            column=f"tau.{joints[j]}",
+        )
+    return s
+
+
+def check_against_model(robot, prepared) -> np.ndarray:
+    """:func:`check_torque_signs` of preprocessed data against the robot's a-priori model.
+
+    Args:
+        robot: the robot.
+        prepared: a preprocessed :class:`~pe_drake.identification.measurements.Measurement`
+            (v and vdot filled in).
+
+    Returns:
+        The similarity per joint.
+    """
+    return check_torque_signs(prepared.tau, robot_torques(robot, prepared, robot.phi_model), prepared.joints,
+                              prepared.source)

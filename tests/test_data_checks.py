@@ -1,0 +1,69 @@
+"""Issue 10: measured data checked against the robot and its a-priori model (file, column, row)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pe_drake.cli import main
+from pe_drake.exceptions import DataError
+from pe_drake.excitation.trajectory_file import load_trajectory
+from pe_drake.identification.data_checks import check_against_model, check_raw_measurement
+from pe_drake.identification.estimators import prepare_measurement
+from pe_drake.identification.measurements import write_measurement_csv
+from pe_drake.identification.synthetic import model_measurement
+
+
+@pytest.fixture(scope="module")
+def run(panda):
+    from pathlib import Path
+
+    trajectory, _ = load_trajectory(Path(__file__).parent / "data" / "panda_optimized.json")
+    m = model_measurement(panda, trajectory, rate_hz=500.0, tau_noise_std=0.05, seed=1)
+    return m.replace(v=None, vd=None, source="run.csv")
+
+
+def test_good_run_passes(panda, run):
+    check_raw_measurement(panda, run)
+    s = check_against_model(panda, prepare_measurement(panda, run))
+    assert np.nanmin(s) > 0.5
+
+
+def test_sign_flipped_torque_column_is_named(panda, run):
+    tau = run.tau.copy()
+    tau[:, 1] *= -1
+    with pytest.raises(DataError, match=r"column 'tau.panda_joint2'.*sign-flipped"):
+        check_against_model(panda, prepare_measurement(panda, run.replace(tau=tau)))
+
+
+def test_positions_in_degrees_are_named(panda, run):
+    q = run.q.copy()
+    q[:, 3] = np.degrees(q[:, 3])
+    with pytest.raises(DataError, match=r"column 'q.panda_joint4', row \d+: .*looks like degrees"):
+        check_raw_measurement(panda, run.replace(q=q))
+
+
+def test_time_in_milliseconds_is_named(panda, run):
+    with pytest.raises(DataError, match=r"column 't'.*looks like milliseconds"):
+        check_raw_measurement(panda, run.replace(t=run.t * 1000))  # 500 Hz logged in ms: steps of 2 "s"
+    t = np.arange(len(run.t)) * 1.0  # 1 kHz logged in ms
+    with pytest.raises(DataError, match="divide it by 1000"):
+        check_raw_measurement(panda, run.replace(t=t))
+
+
+def test_gap_in_time_is_refused_with_its_row(panda, run):
+    t = run.t.copy()
+    t[1000:] += 2.0  # a 2 s hole
+    with pytest.raises(DataError, match=r"column 't', row 1002: a gap of 2\.002 s"):
+        check_raw_measurement(panda, run.replace(t=t))
+
+
+def test_cli_identify_refuses_a_flipped_column(tmp_path, capsys, panda, run):
+    tau = run.tau.copy()
+    tau[:, 0] *= -1
+    data = tmp_path / "run.csv"
+    write_measurement_csv(data, run.replace(tau=tau, source=str(data)))
+    out = tmp_path / "ident"
+    assert main(["identify", "--robot", "panda", "--data", str(data), "--out", str(out)]) == 2
+    assert "tau.panda_joint1" in capsys.readouterr().err
+    assert not out.exists()
