@@ -233,3 +233,16 @@ def test_user_robot_with_relative_mesh_paths_and_placeholder_limits(tmp_path):
         load_robot(RobotConfig(model=str(urdf), velocity_limits={"j1": 3.0}))
     tight = load_robot(RobotConfig(model=str(urdf), position_limits={"j1": [-1, 1]}, velocity_limits={"j1": 1.0}))
     assert tight.limits.q_upper[0] == pytest.approx(1.0) and tight.limits.v_max[0] == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize("kind, message", [
+    ("floating", "joint 'j1' has type 'floating'; pe_drake supports revolute"),
+    ("ball", "joint 'j1' has type 'ball'; pe_drake supports revolute"),
+])
+def test_floating_and_ball_joints_are_named(tmp_path, capsys, kind, message):
+    urdf = _two_link_robot(tmp_path)
+    bad = tmp_path / f"{kind}.urdf"
+    bad.write_text(urdf.read_text().replace('<joint name="j1" type="revolute">', f'<joint name="j1" type="{kind}">'))
+    assert main(["optimize", "--robot", str(bad), "--out", str(tmp_path / "o")]) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()

@@ -27,6 +27,7 @@ from pe_drake.exceptions import (
     UnknownNameError,
 )
 from pe_drake.multibody.inertia import PARAMETER_NAMES, spatial_inertia_to_phi
+from pe_drake.multibody.urdf_checks import check_joint_types
 
 _MODELS_PACKAGE = "pe_drake.models"
 
@@ -181,6 +182,7 @@ class Robot:
         model_path = _resolve_model_path(cfg.model)
         text = model_path.read_text()
         if model_path.suffix.lower() == ".urdf":
+            check_joint_types(text, model_path)  # floating/ball joints: name them
             # Drake cannot build convex hulls of STL/DAE collision meshes (DRAKE_NOTES.md);
             # collision is our own capsules. Mimic tags would couple joints we may lock.
             text = re.sub(r"<collision\b.*?</collision>", "", text, flags=re.S)
