@@ -93,6 +93,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--config", help="YAML config of the robot")
     p.add_argument("--data", required=True, help="measurement CSV")
     p.add_argument("--validation", help="held-out CSV (default: a held-out part of --data)")
+    p.add_argument("--held-out-fraction", type=float, default=None,
+                   help="fraction of --data held out at its end when no --validation is given "
+                        "(default 0.3, from 0.05 to 0.8)")
     p.add_argument("--out", required=True, help="output folder")
     return parser
 

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
-from pe_drake.diagnosis.workflow import diagnose, write_outputs
+from pe_drake.diagnosis.workflow import DiagnosisConfig, diagnose, write_outputs
+from pe_drake.exceptions import ConfigError
 from pe_drake.identification.data_checks import check_against_model, check_raw_measurement
 from pe_drake.identification.estimators import prepare_measurement
 from pe_drake.identification.measurements import read_measurement_csv
@@ -16,6 +18,10 @@ from pe_drake.output_paths import check_output_dir
 def diagnose_command(args) -> int:
     """``pe-drake diagnose``: writes diagnosis.json, report.md, figures and the augmented model."""
     out = check_output_dir(args.out)  # before any work
+    fraction = getattr(args, "held_out_fraction", None)
+    if fraction is not None and not (math.isfinite(fraction) and 0.05 <= fraction <= 0.8):
+        raise ConfigError(f"--held-out-fraction must be from 0.05 to 0.8, got {fraction:g}")
+    config = DiagnosisConfig() if fraction is None else DiagnosisConfig(holdout_fraction=fraction)
     robot = load_robot(args.robot, getattr(args, "config", None))
     data = read_measurement_csv(args.data, robot)
     validation = read_measurement_csv(args.validation, robot) if getattr(args, "validation", None) else None
@@ -24,7 +30,7 @@ def diagnose_command(args) -> int:
             check_raw_measurement(robot, run)
             check_against_model(robot, prepare_measurement(robot, run))
     print(f"robot {robot.name}: {robot.n} joints ({', '.join(robot.joint_names)})", flush=True)
-    result = diagnose(robot, data, validation, progress=lambda s: print(s, flush=True))
+    result = diagnose(robot, data, validation, config, progress=lambda s: print(s, flush=True))
     with staged_output_dir(out) as tmp:
         written = write_outputs(tmp, robot, result)
     print(f"wrote {', '.join(str(out / Path(w).name) for w in written)}")
