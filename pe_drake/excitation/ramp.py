@@ -263,10 +263,10 @@ def check_within_limits(
         over = np.maximum(lo - x, x - hi)
         if np.any(over > 0):
             k, j = np.unravel_index(int(np.argmax(over)), over.shape)
-            of = f" of {source}" if source else ""
+            where = f"{source}, " if source else ""
             raise NotWithinLimitsError(
                 joint_names[j], float(x[k, j]), float(lo[j] + slack), float(hi[j] - slack),
-                f"{what} at t = {t[k]:.3f} s{of}",
+                f"{what} ({where}t = {t[k]:.3f} s of the motion)",
             )
 
 
