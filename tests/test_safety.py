@@ -246,3 +246,9 @@ def test_floating_and_ball_joints_are_named(tmp_path, capsys, kind, message):
     assert main(["optimize", "--robot", str(bad), "--out", str(tmp_path / "o")]) == 2
     assert message in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+
+
+def test_joint_types_in_comments_are_ignored():
+    from pe_drake.multibody.urdf_checks import check_joint_types
+
+    check_joint_types('<robot><!-- <joint name="f" type="floating">\n --><joint name="j" type="revolute"/></robot>', "r.urdf")

@@ -16,9 +16,17 @@ import numpy as np
 
 from pe_drake.config import Config, validate_config
 from pe_drake.exceptions import ConfigError, DataError
-from pe_drake.excitation.trajectory_file import load_trajectory
+from pe_drake.excitation.constraints import constraints_from_config
+from pe_drake.excitation.fourier import FourierBasis, sample_times
+from pe_drake.excitation.program import ExcitationProblem, build_excitation_program, solve_excitation
+from pe_drake.excitation.ramp import RampedMotion, choose_ramp_duration
+from pe_drake.excitation.trajectory_file import load_trajectory, save_trajectory, write_motion_csv
 from pe_drake.io_utils import staged_output_dir
+from pe_drake.multibody.capsule_fitting import ensure_capsules
+from pe_drake.multibody.robot import Robot, builtin_robots, resolve_robot_config
 from pe_drake.output_paths import OPTIMIZE_OUTPUTS, check_output_dir, remove_stale_outputs
+from pe_drake.plots import plot_trajectory
+from pe_drake.viewer import write_playback_html
 
 
 def prior_regressor(problem, trajectory_json: str | Path) -> np.ndarray:
@@ -28,9 +36,6 @@ def prior_regressor(problem, trajectory_json: str | Path) -> np.ndarray:
     Raises:
         DataError: the file's joints differ from the robot's.
     """
-    from pe_drake.excitation.fourier import FourierBasis, sample_times
-    from pe_drake.excitation.trajectory_file import load_trajectory
-
     trajectory, data = load_trajectory(trajectory_json)
     joints = tuple(data["joints"])
     if joints != problem.robot.joint_names:
@@ -66,25 +71,62 @@ def _apply_arguments(config: Config, args: argparse.Namespace) -> Config:
 
 def optimize_command(args: argparse.Namespace) -> int:
     """Runs ``pe-drake optimize``; returns 0 on success, 1 if no valid trajectory was found."""
-    from pe_drake.excitation.constraints import constraints_from_config
-    from pe_drake.excitation.program import ExcitationProblem, build_excitation_program, solve_excitation
-    from pe_drake.multibody.capsule_fitting import ensure_capsules
-    from pe_drake.multibody.robot import Robot, builtin_robots, resolve_robot_config
+    _check_arguments(args)  # and every output path and --prior file: before any work
+    config = _apply_arguments(resolve_robot_config(args.robot, args.config), args)
+    say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, flush=True))
+    start = time.perf_counter()
+    out = Path(args.out)
+    with tempfile.TemporaryDirectory(prefix="pe_drake_capsules_") as fit_dir:
+        robot, fitted = _load_robot(args, config, Path(fit_dir), say)
+        problem = _build_problem(robot, config, args, say)
+        constraints = constraints_from_config(robot, config.excitation, config.environment)
+        if constraints:
+            say("constraints: joint limits, " + ", ".join(c.name for c in constraints))
+        program = build_excitation_program(problem, constraints, progress=config.solver.verbose)
+        say(f"solving with {config.solver.name} (max {config.solver.max_iterations} iterations) ...")
+        result = solve_excitation(program, config.solver)
+        say(
+            f"{'success' if result.success else 'FAILED'}: {result.message}; cond {result.cond:.5g} "
+            f"(this motion alone {result.cond_motion:.5g}), {result.nit if result.nit is not None else '-'} "
+            f"iterations, {result.nfev} evaluations, {result.wall_time:.1f} s"
+        )
+        say("minimum margins at 1 kHz: " + ", ".join(f"{k} {m:.4g}" for k, m in result.margins.items()))
+        motion = _ramped_motion(result, robot, constraints, config, say) if result.success else None
+        report = _report(robot, problem, result, motion, config, args, fitted, start)
+        with staged_output_dir(out) as tmp:
+            if result.success:
+                _write_success_outputs(tmp, robot, result, motion, args, say)
+            if fitted is not None:
+                shutil.copyfile(fitted.path, tmp / fitted.path.name)
+            (tmp / "report.json").write_text(json.dumps(report, indent=2, default=float))
+            written = [p.name for p in tmp.iterdir()]
+    remove_stale_outputs(out, OPTIMIZE_OUTPUTS, written)  # a reused --out never mixes runs
+    if not result.success:
+        print(
+            f"pe-drake optimize: no valid trajectory: {result.message}. Only {out / 'report.json'} was "
+            "written. Try more iterations (--max-iterations), another seed (--seed), or looser margins.",
+            file=sys.stderr,
+        )
+        return 1
+    say(f"wrote {out}/" + ", ".join(sorted(written)))
+    return 0
 
-    check_output_dir(args.out)  # before any work
+
+def _check_arguments(args: argparse.Namespace) -> None:
+    check_output_dir(args.out)
     if not (math.isfinite(args.csv_rate) and 1.0 <= args.csv_rate <= 10_000.0):
         raise ConfigError(f"--csv-rate must be from 1 to 10000 Hz, got {args.csv_rate:g}")
     if args.seed is not None and not 0 <= args.seed < 2**32:
         raise ConfigError(f"--seed must be an integer from 0 to 2^32 - 1, got {args.seed}")
     if args.periods is not None and not 1 <= args.periods <= 1000:
         raise ConfigError(f"--periods must be an integer from 1 to 1000, got {args.periods}")
-    for prior in args.prior:  # validated before any work
+    for prior in args.prior:
         load_trajectory(prior)
-    config = _apply_arguments(resolve_robot_config(args.robot, args.config), args)
+
+
+def _load_robot(args, config: Config, fit_dir: Path, say):
+    """The robot, with capsules fitted to its meshes when it has none (and needs them)."""
     name = args.robot if args.robot in builtin_robots() else Path(args.robot).stem
-    say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, flush=True))
-    start = time.perf_counter()
-    fit_dir = Path(tempfile.mkdtemp(prefix="pe_drake_capsules_"))
     fitted = ensure_capsules(config, fit_dir)
     if fitted is not None:
         say(
@@ -93,8 +135,12 @@ def optimize_command(args: argparse.Namespace) -> int:
         )
     robot = Robot(name, config.robot)
     say(f"robot {robot.name}: {robot.n} excited joints, {robot.num_bodies} moving bodies")
-    for note in assumed_defaults(config):
+    for note in assumed_defaults(config, robot.joint_names):
         say(f"note: {note}")
+    return robot, fitted
+
+
+def _build_problem(robot, config: Config, args, say):
     problem = ExcitationProblem(robot, config.excitation)
     if args.prior:
         blocks = [prior_regressor(problem, p) for p in args.prior]
@@ -106,21 +152,11 @@ def optimize_command(args: argparse.Namespace) -> int:
         f"(N = {problem.harmonics}, ω = {problem.omega:.4g} rad/s, period {problem.period:.3g} s); "
         f"T = {config.excitation.cost_samples} cost samples, K = {config.excitation.constraint_samples} constraint samples"
     )
-    constraints = constraints_from_config(robot, config.excitation, config.environment)
-    if constraints:
-        say("constraints: joint limits, " + ", ".join(c.name for c in constraints))
-    program = build_excitation_program(problem, constraints, progress=config.solver.verbose)
-    say(f"solving with {config.solver.name} (max {config.solver.max_iterations} iterations) ...")
-    result = solve_excitation(program, config.solver)
-    say(
-        f"{'success' if result.success else 'FAILED'}: {result.message}; cond {result.cond:.5g} "
-        f"(this motion alone {result.cond_motion:.5g}), {result.nit if result.nit is not None else '-'} iterations, "
-        f"{result.nfev} evaluations, {result.wall_time:.1f} s"
-    )
-    say("minimum margins at 1 kHz: " + ", ".join(f"{k} {m:.4g}" for k, m in result.margins.items()))
-    motion = _ramped_motion(result, robot, constraints, config, say) if result.success else None
+    return problem
 
-    report = {
+
+def _report(robot, problem, result, motion, config: Config, args, fitted, start: float) -> dict:
+    return {
         "robot": robot.name,
         "success": result.success,
         "message": result.message,
@@ -139,30 +175,11 @@ def optimize_command(args: argparse.Namespace) -> int:
         "base_parameter_names": list(problem.base.base_names),
         "singular_values": result.singular_values.tolist(),
         "prior": [str(p) for p in args.prior],
-        "assumed_defaults": assumed_defaults(config),
+        "assumed_defaults": assumed_defaults(config, robot.joint_names),
         "fitted_capsules": str(Path(args.out) / fitted.path.name) if fitted is not None else None,
         "motion": motion.to_dict() if motion is not None else None,
         "config": dataclasses.asdict(config),
     }
-    out = Path(args.out)
-    with staged_output_dir(out) as tmp:
-        if result.success:
-            _write_success_outputs(tmp, robot, result, motion, args, say)
-        if fitted is not None:
-            shutil.copyfile(fitted.path, tmp / fitted.path.name)
-        (tmp / "report.json").write_text(json.dumps(report, indent=2, default=float))
-        written = [p.name for p in tmp.iterdir()]
-    shutil.rmtree(fit_dir, ignore_errors=True)
-    remove_stale_outputs(out, OPTIMIZE_OUTPUTS, written)  # a reused --out never mixes runs
-    if not result.success:
-        print(
-            f"pe-drake optimize: no valid trajectory: {result.message}. Only {out / 'report.json'} was "
-            "written. Try more iterations (--max-iterations), another seed (--seed), or looser margins.",
-            file=sys.stderr,
-        )
-        return 1
-    say(f"wrote {out}/trajectory.json, trajectory.csv, report.json, trajectory.png" + ("" if args.no_html else ", playback.html"))
-    return 0
 
 
 def check_cost_samples(problem) -> None:
@@ -183,12 +200,10 @@ def check_cost_samples(problem) -> None:
         )
 
 
-def assumed_defaults(config: Config) -> list[str]:
+def assumed_defaults(config: Config, joint_names) -> list[str]:
     """Limits pe_drake assumed because neither the model nor the config gives them."""
     r = config.robot
-    if not r.joints:
-        return []
-    missing = [j for j in r.joints if j not in r.acceleration_limits]
+    missing = [j for j in joint_names if j not in r.acceleration_limits]
     if not missing:
         return []
     return [
@@ -199,8 +214,6 @@ def assumed_defaults(config: Config) -> list[str]:
 
 def _ramped_motion(result, robot, constraints, config, say):
     """The controller motion: ramp-in + N periods + ramp-out (or N periods without ramps)."""
-    from pe_drake.excitation.ramp import RampedMotion, choose_ramp_duration
-
     periods = config.excitation.periods
     if not config.excitation.ramp:
         say(f"ramps off (excitation.ramp: false): trajectory.csv is {periods} period(s) and does NOT start at rest")
@@ -217,9 +230,6 @@ def _ramped_motion(result, robot, constraints, config, say):
 
 
 def _write_success_outputs(tmp: Path, robot, result, motion, args, say) -> None:
-    from pe_drake.excitation.trajectory_file import save_trajectory, write_motion_csv
-    from pe_drake.plots import plot_trajectory
-
     save_trajectory(
         tmp / "trajectory.json", robot, result.trajectory, cond=result.cond, cond_motion=result.cond_motion,
         **motion.to_dict(),
@@ -234,8 +244,6 @@ def _write_success_outputs(tmp: Path, robot, result, motion, args, say) -> None:
     )
     if not args.no_html:
         try:
-            from pe_drake.viewer import write_playback_html
-
             write_playback_html(tmp / "trajectory.json", tmp / "playback.html", config=args.config)
         except Exception as err:  # the playback is a convenience: never lose the trajectory over it
             say(f"warning: could not write the HTML playback: {err}")

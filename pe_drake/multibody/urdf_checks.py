@@ -20,6 +20,8 @@ def check_joint_types(urdf_text: str, model_path: str | Path) -> None:
     Raises:
         ConfigError: naming the joint, its type and what is supported.
     """
+    # comments out, newlines kept (line numbers stay right): G1's URDF comments out a floating joint
+    urdf_text = re.sub(r"<!--.*?-->", lambda m: "\n" * m.group(0).count("\n"), urdf_text, flags=re.S)
     for match in _JOINT.finditer(urdf_text):
         attrs = {m.group(1): m.group(3) for m in _ATTR.finditer(match.group(0))}
         kind = attrs.get("type", "")
