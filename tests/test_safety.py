@@ -252,3 +252,18 @@ def test_joint_types_in_comments_are_ignored():
     from pe_drake.multibody.urdf_checks import check_joint_types
 
     check_joint_types('<robot><!-- <joint name="f" type="floating">\n --><joint name="j" type="revolute"/></robot>', "r.urdf")
+
+
+def test_fitted_capsules_of_a_urdf_path_switch_self_collision_on_and_skip_pairs_touching_by_design(tmp_path):
+    """The UR10 through its URDF path came within 5-7 mm mesh to mesh: it now gets capsules."""
+    from pe_drake.multibody.capsule_fitting import FITTED_COLLISION_MARGIN, ensure_capsules
+    from pe_drake.multibody.robot import example_robot_data_dir, resolve_robot_config
+
+    config = resolve_robot_config(str(example_robot_data_dir() / "robots/ur_description/urdf/ur10_robot.urdf"))
+    assert config.excitation.collision_margin < 0
+    fitted = ensure_capsules(config, tmp_path)
+    assert config.excitation.collision_margin == FITTED_COLLISION_MARGIN
+    assert len(fitted.links) == 7
+    pairs = {frozenset(p[:2]) for p in fitted.ignored_pairs}
+    assert frozenset(("base_link", "upper_arm_link")) in pairs
+    assert "ignored_pairs:" in fitted.path.read_text()

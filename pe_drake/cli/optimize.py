@@ -127,11 +127,19 @@ def _check_arguments(args: argparse.Namespace) -> None:
 def _load_robot(args, config: Config, fit_dir: Path, say):
     """The robot, with capsules fitted to its meshes when it has none (and needs them)."""
     name = args.robot if args.robot in builtin_robots() else Path(args.robot).stem
-    fitted = ensure_capsules(config, fit_dir)
+    try:
+        fitted = ensure_capsules(config, fit_dir)
+    except ConfigError as err:
+        if config.excitation.collision_margin >= 0 or config.environment.boxes:
+            raise
+        say(f"warning: {err}; the floor is NOT checked (environment.floor turned off)")
+        config.environment.floor, fitted = False, None
     if fitted is not None:
         say(
             f"no capsule file for {name}: fitted {len(fitted.links)} capsules to its meshes "
-            f"({', '.join(fitted.links)}); written to {Path(args.out) / fitted.path.name}"
+            f"({', '.join(fitted.links)}); written to {Path(args.out) / fitted.path.name}; "
+            f"self-collision margin {config.excitation.collision_margin:g} m"
+            + (f", {len(fitted.ignored_pairs)} pair(s) touching by design ignored" if fitted.ignored_pairs else "")
         )
     robot = Robot(name, config.robot)
     say(f"robot {robot.name}: {robot.n} excited joints, {robot.num_bodies} moving bodies")

@@ -22,11 +22,13 @@ import numpy as np
 
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.io_utils import atomic_write_text
-from pe_drake.multibody.capsules import capsule_pose, fit_capsule
+from pe_drake.multibody.capsules import capsule_pairs, capsule_pose, fit_capsule, segment_closest_points
 from pe_drake.multibody.meshes import read_stl, resolve_mesh_path
 
 #: Name of the fitted capsule file written to a command's output folder.
 FITTED_CAPSULES_NAME = "fitted_capsules.yaml"
+#: Self-collision margin used with fitted capsules when the config sets none [m].
+FITTED_COLLISION_MARGIN = 0.01
 
 
 @dataclasses.dataclass(frozen=True)
@@ -37,11 +39,13 @@ class FittedCapsules:
         path: the capsule file.
         links: links that got a capsule.
         skipped: {link: reason} for links with geometry but no capsule.
+        ignored_pairs: pairs touching by design, (capsule, capsule, reason).
     """
 
     path: Path
     links: tuple[str, ...]
     skipped: dict[str, str]
+    ignored_pairs: tuple = ()
 
 
 def read_mesh_vertices(path: str | Path) -> np.ndarray:
@@ -190,7 +194,9 @@ def _radial_distance(points: np.ndarray, p0: np.ndarray, p1: np.ndarray) -> np.n
 def ensure_capsules(config, folder: str | Path) -> FittedCapsules | None:
     """Fits capsules when a config needs them (self-collision, the floor, boxes) but names no
     capsule file: writes ``folder/fitted_capsules.yaml`` and points ``config.robot.capsules``
-    at it. Does nothing when the robot has a capsule file or nothing needs one.
+    at it; pairs touching by design are ignored (:func:`ignore_touching_pairs`), and
+    self-collision is switched on at ``FITTED_COLLISION_MARGIN`` when the config leaves it
+    off. Does nothing when the robot has a capsule file or nothing needs one.
 
     Args:
         config: a :class:`~pe_drake.config.Config` (changed in place).
@@ -211,4 +217,54 @@ def ensure_capsules(config, folder: str | Path) -> FittedCapsules | None:
         raise ConfigError(f"cannot find the model '{robot.model}' to fit capsules to; give robot.capsules")
     fitted = fit_capsule_file(model, Path(folder) / FITTED_CAPSULES_NAME)
     robot.capsules = str(fitted.path)
-    return fitted
+    if config.excitation.collision_margin < 0:
+        config.excitation.collision_margin = FITTED_COLLISION_MARGIN
+    ignored = ignore_touching_pairs(config, fitted.path, config.excitation.collision_margin)
+    return dataclasses.replace(fitted, ignored_pairs=tuple(ignored))
+
+
+def ignore_touching_pairs(config, path: Path, margin: float, samples: int = 200, share: float = 0.95) -> list:
+    """Adds to a capsule file's ``ignored_pairs`` the pairs that touch by design: closer than
+    ``margin`` at the nominal posture, or in ``share`` of random postures within the limits
+    (as MoveIt's set-up assistant disables "default" and "always" colliding pairs). Pairs on
+    adjacent or welded links are filtered anyway (:func:`register_capsules`).
+
+    Returns:
+        The pairs added, as [capsule, capsule, reason].
+    """
+    from pe_drake.multibody.robot import Robot
+
+    robot = Robot("fit", config.robot)
+    pairs = capsule_pairs(robot.scene_graph, robot.capsules)
+    if not pairs:
+        return []
+    rng = np.random.default_rng(0)
+    lim = robot.limits
+    q = np.vstack([robot.nominal_posture(), rng.uniform(lim.q_lower, lim.q_upper, (samples, robot.n))])
+    d = _pair_distances(robot, pairs, q)  # (1 + samples, P)
+    added = []
+    for p, (a, b) in enumerate(pairs):
+        nominal, always = d[0, p] < margin, np.mean(d[1:, p] < margin) >= share
+        if nominal or always:
+            reason = "closer than the margin at the nominal posture" if nominal else (
+                f"closer than the margin in {np.mean(d[1:, p] < margin):.0%} of random postures")
+            added.append([robot.capsules[a].name, robot.capsules[b].name, reason])
+    if added:
+        lines = ["ignored_pairs:", "  # touching by design (pe_drake.multibody.capsule_fitting.ignore_touching_pairs)"]
+        lines += [f"  - [{a}, {b}]  # {why}" for a, b, why in added]
+        path.write_text(path.read_text() + "\n".join(lines) + "\n")
+    return added
+
+
+def _pair_distances(robot, pairs, q: np.ndarray) -> np.ndarray:
+    """Surface distance of capsule pairs at postures q (K, n), shape (K, P) [m]."""
+    caps = robot.capsules
+    X = robot.body_poses(q)  # (K, bodies, 4, 4)
+    ends = np.stack([X[:, c.body_index, None, :3, :3] @ c.p_BS[..., None] for c in caps], axis=1)[..., 0]
+    ends = ends + np.stack([X[:, c.body_index, None, :3, 3] for c in caps], axis=1)  # (K, C, 2, 3)
+    ia, ib = np.array(pairs).T
+    a0, a1, b0, b1 = ends[:, ia, 0], ends[:, ia, 1], ends[:, ib, 0], ends[:, ib, 1]
+    s, t = segment_closest_points(a0, a1, b0, b1)
+    gap = (a0 + s[..., None] * (a1 - a0)) - (b0 + t[..., None] * (b1 - b0))
+    radii = np.array([caps[i].radius + caps[j].radius for i, j in pairs])
+    return np.linalg.norm(gap, axis=-1) - radii
