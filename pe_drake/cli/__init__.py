@@ -12,6 +12,8 @@ import importlib
 import sys
 
 from pe_drake import __version__
+from pe_drake.exceptions import PeDrakeError
+from pe_drake.threads import single_threaded_blas
 
 _COMMANDS = {
     "optimize": ("pe_drake.cli.optimize", "optimize_command"),
@@ -91,12 +93,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from pe_drake.exceptions import PeDrakeError
-
     args = build_parser().parse_args(argv)
     module_name, function_name = _COMMANDS[args.command]
-    from pe_drake.threads import single_threaded_blas
-
     try:
         function = getattr(importlib.import_module(module_name), function_name)
         with single_threaded_blas():

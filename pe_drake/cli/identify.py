@@ -10,24 +10,29 @@ from pathlib import Path
 
 import numpy as np
 
+from pe_drake.cli.common import robot_from_args
 from pe_drake.exceptions import ConfigError
+from pe_drake.excitation.trajectory_file import load_trajectory
+from pe_drake.identification.estimators import (
+    identify,
+    load_identified,
+    predict,
+    prepare_measurement,
+    read_robot_measurement,
+    result_to_dict,
+    standard_from_base,
+    standard_parameters_dict,
+    torque_errors,
+)
 from pe_drake.io_utils import atomic_write_text, staged_output_dir
-
-
-def _load(args: argparse.Namespace):
-    from pe_drake.multibody.robot import Robot, builtin_robots, resolve_robot_config
-
-    config = resolve_robot_config(args.robot, args.config)
-    name = args.robot if args.robot in builtin_robots() else Path(args.robot).stem
-    return Robot(name, config.robot)
+from pe_drake.multibody.inertia import PhysicallyInvalidError, validity_problems
+from pe_drake.multibody.urdf import write_robot_urdf
 
 
 def _trajectory_band(path: str | None) -> tuple[float | None, int | None]:
     """(fundamental [Hz], harmonics) of a trajectory.json, to choose the filter cut-off."""
     if not path:
         return None, None
-    from pe_drake.excitation.trajectory_file import load_trajectory
-
     trajectory, _ = load_trajectory(path)
     return trajectory.omega / (2 * math.pi), trajectory.harmonics
 
@@ -40,20 +45,9 @@ def _check_cutoff(cutoff: float | None) -> None:
 def identify_command(args: argparse.Namespace) -> int:
     """Runs ``pe-drake identify``: identified.json, model.urdf (when physically valid),
     residual plot; nothing is written on error."""
-    from pe_drake.identification.estimators import (
-        identify,
-        prepare_measurement,
-        read_robot_measurement,
-        result_to_dict,
-        standard_from_base,
-        standard_parameters_dict,
-    )
-    from pe_drake.multibody.inertia import PhysicallyInvalidError, validity_problems
-    from pe_drake.multibody.urdf import write_robot_urdf
-
     _check_cutoff(args.cutoff)
     start = time.perf_counter()
-    robot = _load(args)
+    robot = robot_from_args(args)
     raw = read_robot_measurement(robot, args.data)
     f0, harmonics = _trajectory_band(getattr(args, "trajectory", None))
     data = prepare_measurement(
@@ -141,15 +135,7 @@ def _short_name(base, i: int) -> str:
 
 def validate_command(args: argparse.Namespace) -> int:
     """Runs ``pe-drake validate``: per-joint RMS and relative torque error on another run."""
-    from pe_drake.identification.estimators import (
-        load_identified,
-        predict,
-        prepare_measurement,
-        read_robot_measurement,
-        torque_errors,
-    )
-
-    robot = _load(args)
+    robot = robot_from_args(args)
     result = load_identified(args.model, robot)
     raw = read_robot_measurement(robot, args.data)
     data = prepare_measurement(robot, raw, cutoff_hz=getattr(args, "cutoff", None))
@@ -181,8 +167,6 @@ def validate_command(args: argparse.Namespace) -> int:
 
 def _plot_residuals(path: Path, robot, data, result) -> None:
     """Measured torque and the model's fit per joint on the identification data."""
-    from pe_drake.identification.estimators import predict
-
     _plot_prediction(
         path,
         robot,
@@ -194,7 +178,7 @@ def _plot_residuals(path: Path, robot, data, result) -> None:
 
 
 def _plot_prediction(path: Path, robot, data, tau_pred: np.ndarray, rel: np.ndarray, title: str = "") -> None:
-    import matplotlib
+    import matplotlib  # lazy: matplotlib is heavy and only needed for the plot
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
