@@ -58,50 +58,10 @@ def identify_command(args: argparse.Namespace) -> int:
         harmonics=harmonics,
         filtering=not getattr(args, "no_filter", False),
     )
-    p = data.preprocessing
-    print(
-        f"robot {robot.name}: {robot.n} joints; data {args.data}: {raw.num_samples} samples, "
-        f"{raw.duration:.2f} s at {raw.rate_hz:.0f} Hz",
-        flush=True,
-    )
-    if p is not None:
-        print(
-            f"preprocessing: low-pass {p.cutoff_hz:.2f} Hz ({p.cutoff_source}), "
-            f"{p.samples_out} samples at {p.rate_hz:.0f} Hz, {p.trim_s:.2f} s trimmed at each end, "
-            f"v {p.velocity_source}, vdot {p.acceleration_source}",
-            flush=True,
-        )
+    _print_data_summary(args, robot, raw, data)
     result = identify(robot, data, args.method)
-    print(
-        f"{args.method}: {result.base.count} base parameters, cond(W) = {result.cond:.4g}, "
-        f"{result.wall_time:.2f} s",
-        flush=True,
-    )
-    order = np.argsort(result.sigma_percent)
-    worst = order[-min(5, len(order)) :][::-1]
-    print(
-        "least determined base parameters (%σ): "
-        + ", ".join(f"{_short_name(result.base, i)} {result.sigma_percent[i]:.3g}%" for i in worst)
-    )
-    print(
-        "residual RMS [N·m]: "
-        + ", ".join(f"{j} {r:.4g}" for j, r in zip(robot.joint_names, result.residual_rms))
-    )
-
-    phi = result.phi
-    note = ""
-    if phi is None:
-        candidate = standard_from_base(robot, result)
-        if not validity_problems(robot.body_names, candidate):
-            phi, note = (
-                candidate,
-                "standard parameters: the a-priori model moved to the identified base parameters",
-            )
-        else:
-            note = (
-                "model.urdf not written: the least-squares estimate has no physically valid standard "
-                "parameters near the a-priori model; use --method physical"
-            )
+    _print_fit_summary(args.method, robot, result)
+    phi, note = _model_parameters(robot, result)
     out = Path(args.out)
     with staged_output_dir(out) as tmp:
         model_file = None
@@ -125,6 +85,59 @@ def identify_command(args: argparse.Namespace) -> int:
     written = ["identified.json", "residuals.png"] + ([model_file] if model_file else [])
     print(f"wrote {out}/" + ", ".join(written))
     return 0
+
+
+def _print_data_summary(args: argparse.Namespace, robot, raw, data) -> None:
+    """The robot, the raw data and what preprocessing did to it."""
+    p = data.preprocessing
+    print(
+        f"robot {robot.name}: {robot.n} joints; data {args.data}: {raw.num_samples} samples, "
+        f"{raw.duration:.2f} s at {raw.rate_hz:.0f} Hz",
+        flush=True,
+    )
+    if p is not None:
+        print(
+            f"preprocessing: low-pass {p.cutoff_hz:.2f} Hz ({p.cutoff_source}), "
+            f"{p.samples_out} samples at {p.rate_hz:.0f} Hz, {p.trim_s:.2f} s trimmed at each end, "
+            f"v {p.velocity_source}, vdot {p.acceleration_source}",
+            flush=True,
+        )
+
+
+def _print_fit_summary(method: str, robot, result) -> None:
+    """Conditioning, the least determined base parameters and the residual per joint."""
+    print(
+        f"{method}: {result.base.count} base parameters, cond(W) = {result.cond:.4g}, "
+        f"{result.wall_time:.2f} s",
+        flush=True,
+    )
+    order = np.argsort(result.sigma_percent)
+    worst = order[-min(5, len(order)) :][::-1]
+    print(
+        "least determined base parameters (%σ): "
+        + ", ".join(f"{_short_name(result.base, i)} {result.sigma_percent[i]:.3g}%" for i in worst)
+    )
+    print(
+        "residual RMS [N·m]: "
+        + ", ".join(f"{j} {r:.4g}" for j, r in zip(robot.joint_names, result.residual_rms))
+    )
+
+
+def _model_parameters(robot, result) -> tuple[np.ndarray | None, str]:
+    """Standard parameters for model.urdf (None: none physically valid) and a note on them.
+
+    The physical method gives them; for least squares the a-priori model is moved to the
+    identified base parameters, and kept only when that is physically valid.
+    """
+    if result.phi is not None:
+        return result.phi, ""
+    candidate = standard_from_base(robot, result)
+    if not validity_problems(robot.body_names, candidate):
+        return candidate, "standard parameters: the a-priori model moved to the identified base parameters"
+    return None, (
+        "model.urdf not written: the least-squares estimate has no physically valid standard "
+        "parameters near the a-priori model; use --method physical"
+    )
 
 
 def _short_name(base, i: int) -> str:

@@ -92,27 +92,7 @@ def optimize_command(args: argparse.Namespace) -> int:
     )
     say("minimum margins at 1 kHz: " + ", ".join(f"{k} {m:.4g}" for k, m in result.margins.items()))
 
-    report = {
-        "robot": robot.name,
-        "success": result.success,
-        "message": result.message,
-        "status": result.status,
-        "solver": result.solver,
-        "criterion": config.excitation.criterion,
-        "cond": result.cond,
-        "cond_motion": result.cond_motion,
-        "criterion_value": result.fun,
-        "iterations": result.nit,
-        "evaluations": result.nfev,
-        "solve_time_s": result.wall_time,
-        "total_time_s": time.perf_counter() - start,
-        "margins_1khz": result.margins,
-        "base_parameters": problem.base.count,
-        "base_parameter_names": list(problem.base.base_names),
-        "singular_values": result.singular_values.tolist(),
-        "prior": [str(p) for p in args.prior],
-        "config": dataclasses.asdict(config),
-    }
+    report = _report(robot, config, problem, result, args.prior, time.perf_counter() - start)
     out = Path(args.out)
     with staged_output_dir(out) as tmp:
         if result.success:
@@ -127,6 +107,31 @@ def optimize_command(args: argparse.Namespace) -> int:
         return 1
     say(f"wrote {out}/trajectory.json, trajectory.csv, report.json, trajectory.png" + ("" if args.no_html else ", playback.html"))
     return 0
+
+
+def _report(robot, config: Config, problem, result, prior: list[str], total_time_s: float) -> dict:
+    """The content of report.json: the solver's outcome, the conditioning, the config."""
+    return {
+        "robot": robot.name,
+        "success": result.success,
+        "message": result.message,
+        "status": result.status,
+        "solver": result.solver,
+        "criterion": config.excitation.criterion,
+        "cond": result.cond,
+        "cond_motion": result.cond_motion,
+        "criterion_value": result.fun,
+        "iterations": result.nit,
+        "evaluations": result.nfev,
+        "solve_time_s": result.wall_time,
+        "total_time_s": total_time_s,
+        "margins_1khz": result.margins,
+        "base_parameters": problem.base.count,
+        "base_parameter_names": list(problem.base.base_names),
+        "singular_values": result.singular_values.tolist(),
+        "prior": [str(p) for p in prior],
+        "config": dataclasses.asdict(config),
+    }
 
 
 def _write_success_outputs(tmp: Path, robot, result, args, say) -> None:

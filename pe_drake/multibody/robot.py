@@ -238,22 +238,7 @@ class Robot:
             moves[anc[:, k], j] = True
         self.joint_moves_body = moves
 
-        infos = []
-        for joint in self._joints:
-            X_CM = joint.frame_on_child().GetFixedPoseInBodyFrame().GetAsMatrix4()
-            if joint.type_name() == "revolute":
-                kind, axis = "revolute", np.asarray(joint.revolute_axis(), float)
-            elif joint.type_name() == "prismatic":
-                kind, axis = "prismatic", np.asarray(joint.translation_axis(), float)
-            else:
-                raise ConfigError(
-                    f"joint '{joint.name()}' is a {joint.type_name()} joint; only revolute and "
-                    "prismatic joints can be excited"
-                )
-            infos.append(
-                JointInfo(joint.name(), kind, int(joint.child_body().index()), X_CM, axis / np.linalg.norm(axis))
-            )
-        self.joints = tuple(infos)
+        self.joints = tuple(_joint_info(joint) for joint in self._joints)
 
     def _limits(self) -> Limits:
         cfg = self.config
@@ -395,6 +380,25 @@ def _urdf_effort_limits(path: Path) -> dict[str, float]:
         if limit is not None and limit.get("effort") and float(limit.get("effort")) > 0:
             out[joint.get("name")] = float(limit.get("effort"))
     return out
+
+
+def _joint_info(joint) -> JointInfo:
+    """The :class:`JointInfo` of an excited Drake joint.
+
+    Raises:
+        ConfigError: a joint that is neither revolute nor prismatic.
+    """
+    X_CM = joint.frame_on_child().GetFixedPoseInBodyFrame().GetAsMatrix4()
+    if joint.type_name() == "revolute":
+        kind, axis = "revolute", np.asarray(joint.revolute_axis(), float)
+    elif joint.type_name() == "prismatic":
+        kind, axis = "prismatic", np.asarray(joint.translation_axis(), float)
+    else:
+        raise ConfigError(
+            f"joint '{joint.name()}' is a {joint.type_name()} joint; only revolute and "
+            "prismatic joints can be excited"
+        )
+    return JointInfo(joint.name(), kind, int(joint.child_body().index()), X_CM, axis / np.linalg.norm(axis))
 
 
 def _inboard_joint(plant, body):
