@@ -124,9 +124,8 @@ def play_trajectory(
     times = np.arange(num_intervals + 1) * (period / num_intervals)
 
     meshcat = _prepare_meshcat(meshcat, headless=html is not None)
-    layers: dict[str, Any] = {}
     rob = _load_robot_with_visualizers(
-        trajectory_json, data, robot, config, meshcat, layers, fps=fps, show_capsules=show_capsules
+        trajectory_json, data, robot, config, meshcat, fps=fps, show_capsules=show_capsules
     )
     order = _joint_order(trajectory_json, data, rob)
     q = trajectory.evaluate(times)[0][:, order]
@@ -148,7 +147,7 @@ def play_trajectory(
         support_polygon=support,
         paths={
             "visual": f"/drake/{VISUAL_PREFIX}",
-            "capsules": f"/drake/{CAPSULES_PREFIX}" if layers.get("capsules") else None,
+            "capsules": f"/drake/{CAPSULES_PREFIX}" if _has_proximity_geometry(rob.scene_graph) else None,
             "com": f"/drake/{COM_PATH}",
             "support": f"/drake/{SUPPORT_PATH}" if len(support) else None,
         },
@@ -235,12 +234,8 @@ def _record_period(meshcat, rob, q: np.ndarray, fps: float) -> tuple[np.ndarray,
     return com_xy, support
 
 
-def _load_robot_with_visualizers(
-    path, data, robot, config, meshcat, layers, *, fps: float, show_capsules: bool
-):
+def _load_robot_with_visualizers(path, data, robot, config, meshcat, *, fps: float, show_capsules: bool):
     """The robot of a trajectory file, with Meshcat visualizers in its diagram."""
-    from pydrake.geometry import MeshcatVisualizer, MeshcatVisualizerParams, Rgba, Role  # lazy: pydrake is heavy
-
     recorded = data.get("robot")
     name = robot or recorded
     if not name:
@@ -253,6 +248,25 @@ def _load_robot_with_visualizers(
     if from_file:
         cfg = _config_from_file(cfg, data)
 
+    display = robot_display_name(name)
+    hook = _visualizer_hook(meshcat, fps, show_capsules)
+    try:
+        return Robot(display, cfg, obj_visuals=True, builder_hook=hook)
+    except UnknownNameError as err:
+        if not from_file or err.kind != "joint":
+            raise
+        raise ConfigError(
+            f"trajectory '{path}' names joint '{err.name}', which robot "
+            f"'{display}' does not have; its joints: {', '.join(err.choices)}. Pass the --robot "
+            "the trajectory was optimized for."
+        ) from err
+
+
+def _visualizer_hook(meshcat, fps: float, show_capsules: bool):
+    """A ``Robot`` builder hook adding Meshcat visualizers: the illustration geometry, and the
+    proximity geometry (capsules) when there is any."""
+    from pydrake.geometry import MeshcatVisualizer, MeshcatVisualizerParams, Rgba, Role  # lazy: pydrake is heavy
+
     def add_visualizers(builder, plant, scene_graph) -> None:
         common = {"publish_period": 1.0 / fps, "delete_on_initialization_event": False}
         MeshcatVisualizer.AddToBuilder(
@@ -261,7 +275,7 @@ def _load_robot_with_visualizers(
             meshcat,
             MeshcatVisualizerParams(role=Role.kIllustration, prefix=VISUAL_PREFIX, **common),
         )
-        if scene_graph.model_inspector().NumGeometriesWithRole(Role.kProximity) > 0:
+        if _has_proximity_geometry(scene_graph):
             MeshcatVisualizer.AddToBuilder(
                 builder,
                 scene_graph,
@@ -274,19 +288,15 @@ def _load_robot_with_visualizers(
                     **common,
                 ),
             )
-            layers["capsules"] = True
 
-    display = robot_display_name(name)
-    try:
-        return Robot(display, cfg, obj_visuals=True, builder_hook=add_visualizers)
-    except UnknownNameError as err:
-        if not from_file or err.kind != "joint":
-            raise
-        raise ConfigError(
-            f"trajectory '{path}' names joint '{err.name}', which robot "
-            f"'{display}' does not have; its joints: {', '.join(err.choices)}. Pass the --robot "
-            "the trajectory was optimized for."
-        ) from err
+    return add_visualizers
+
+
+def _has_proximity_geometry(scene_graph) -> bool:
+    """Whether the scene has collision (proximity) geometry: the capsules layer is drawn."""
+    from pydrake.geometry import Role  # lazy: pydrake is heavy
+
+    return scene_graph.model_inspector().NumGeometriesWithRole(Role.kProximity) > 0
 
 
 def _config_from_file(cfg, data: dict):
