@@ -14,7 +14,7 @@ _EXPORTS = {
     # robots and configuration
     "load_robot": "pe_drake.multibody.robot",
     "Robot": "pe_drake.multibody.robot",
-    "builtin_robots": "pe_drake.multibody.robot",
+    "builtin_robots": "pe_drake.multibody.registry",
     "Config": "pe_drake.config",
     "RobotConfig": "pe_drake.config",
     "ExcitationConfig": "pe_drake.config",

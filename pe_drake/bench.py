@@ -80,7 +80,7 @@ def bench_gradient(args: argparse.Namespace) -> None:
         cost_s = median_time(lambda: problem.value(alpha), repeats=args.repeats)
 
         def analytic():
-            problem._cache_key = None  # no caching: value + gradient from scratch
+            problem.clear_cache()  # no caching: value + gradient from scratch
             return problem.evaluate(alpha).grad
 
         grad_s = median_time(analytic, repeats=args.repeats)

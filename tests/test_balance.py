@@ -7,7 +7,8 @@ import pytest
 
 from pe_drake.exceptions import ConfigError, InfeasibleError, UnknownNameError
 from pe_drake.excitation.constraints.balance import BalanceConstraint, OutOfBalanceError, support_center
-from pe_drake.multibody.robot import load_robot, resolve_robot_config
+from pe_drake.multibody.registry import resolve_robot_config
+from pe_drake.multibody.robot import load_robot
 
 
 @pytest.fixture(scope="module")

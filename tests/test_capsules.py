@@ -15,7 +15,8 @@ from pe_drake.multibody.capsules import (
     load_capsule_file,
     segment_closest_points,
 )
-from pe_drake.multibody.robot import load_robot, resolve_robot_config
+from pe_drake.multibody.registry import resolve_robot_config
+from pe_drake.multibody.robot import load_robot
 
 
 @pytest.fixture(scope="module")

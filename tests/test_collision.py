@@ -7,7 +7,8 @@ import pytest
 
 from pe_drake.exceptions import ConfigError, InfeasibleError
 from pe_drake.excitation.constraints.collision import CollisionConstraint, PostureInCollisionError
-from pe_drake.multibody.robot import load_robot, resolve_robot_config
+from pe_drake.multibody.registry import resolve_robot_config
+from pe_drake.multibody.robot import load_robot
 
 
 @pytest.fixture(scope="module")

@@ -188,7 +188,7 @@ def test_identify_and_validate_commands_write_a_loadable_model(simulated_runs, t
     from pydrake.multibody.parsing import Parser
     from pydrake.multibody.plant import MultibodyPlant
 
-    from pe_drake.multibody.robot import example_robot_data_dir
+    from pe_drake.multibody.registry import example_robot_data_dir
 
     out = tmp_path / "ident"
     code = cli(

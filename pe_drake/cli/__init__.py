@@ -12,6 +12,8 @@ import importlib
 import sys
 
 from pe_drake import __version__
+from pe_drake.exceptions import PeDrakeError
+from pe_drake.threads import single_threaded_blas
 
 _COMMANDS = {
     "optimize": ("pe_drake.cli.optimize", "optimize_command"),
@@ -30,7 +32,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"pe_drake {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    _add_trajectory_commands(sub)
+    _add_identification_commands(sub)
+    return parser
 
+
+def _add_trajectory_commands(sub) -> None:
+    """``optimize``, ``view`` and ``simulate``: making, showing and running a trajectory."""
     p = sub.add_parser("optimize", help="optimize an exciting trajectory (min cond of the regressor)")
     p.add_argument("--robot", required=True, help="built-in name (panda, ur5, g1) or URDF/SDF path")
     p.add_argument("--config", help="YAML config overriding the robot's defaults")
@@ -61,6 +69,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="output CSV")
     p.add_argument("--duration", type=float, help="simulated time [s] (default: one period)")
 
+
+def _add_identification_commands(sub) -> None:
+    """``identify``, ``validate`` and ``diagnose``: from measured data to a model and its faults."""
     p = sub.add_parser("identify", help="identify the base parameters from measured data")
     p.add_argument("--robot", required=True)
     p.add_argument("--config", help="YAML config of the robot")
@@ -87,16 +98,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--data", required=True, help="measurement CSV")
     p.add_argument("--validation", help="held-out CSV (default: a held-out part of --data)")
     p.add_argument("--out", required=True, help="output folder")
-    return parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    from pe_drake.exceptions import PeDrakeError
-
     args = build_parser().parse_args(argv)
     module_name, function_name = _COMMANDS[args.command]
-    from pe_drake.threads import single_threaded_blas
-
     try:
         function = getattr(importlib.import_module(module_name), function_name)
         with single_threaded_blas():
