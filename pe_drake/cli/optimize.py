@@ -59,7 +59,9 @@ def _apply_arguments(config: Config, args: argparse.Namespace) -> Config:
 def optimize_command(args: argparse.Namespace) -> int:
     """Runs ``pe-drake optimize``; returns 0 on success, 1 if no valid trajectory was found."""
     from pe_drake.excitation.constraints import constraints_from_config
-    from pe_drake.excitation.program import ExcitationProblem, build_excitation_program, solve_excitation
+    from pe_drake.excitation.problem import ExcitationProblem
+    from pe_drake.excitation.program import build_excitation_program
+    from pe_drake.excitation.solve import solve_excitation
     from pe_drake.multibody.robot import Robot, builtin_robots, resolve_robot_config
 
     if not args.csv_rate > 0 or not math.isfinite(args.csv_rate):
