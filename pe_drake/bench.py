@@ -21,7 +21,7 @@ import numpy as np
 from pe_drake.config import ExcitationConfig
 from pe_drake.diagnosis.workflow import diagnose, write_outputs
 from pe_drake.excitation.fourier import FourierTrajectory
-from pe_drake.excitation.program import ExcitationProblem
+from pe_drake.excitation.problem import ExcitationProblem
 from pe_drake.excitation.trajectory_file import load_trajectory
 from pe_drake.identification.estimators import identify, prepare_measurement, read_robot_measurement
 from pe_drake.identification.measurements import write_measurement_csv

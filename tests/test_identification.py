@@ -12,7 +12,7 @@ import pytest
 
 from pe_drake.cli import main as cli
 from pe_drake.config import ExcitationConfig
-from pe_drake.excitation.program import ExcitationProblem, _scale_into_limits
+from pe_drake.excitation.problem import ExcitationProblem, scale_into_limits
 from pe_drake.excitation.trajectory_file import load_trajectory, save_trajectory
 from pe_drake.identification.estimators import (
     identify,
@@ -45,7 +45,7 @@ def random_trajectory(robot, like, seed: int):
     config = ExcitationConfig(harmonics=like.harmonics, omega=like.omega, constraint_samples=400)
     problem = ExcitationProblem(robot, config)
     alpha = problem.initial_guess(seed=seed, amplitude=2.0)
-    return problem.trajectory(_scale_into_limits(problem, alpha, 0.9))
+    return problem.trajectory(scale_into_limits(problem, alpha, 0.9))
 
 
 def relative_error(estimate, truth):
