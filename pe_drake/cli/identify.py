@@ -40,10 +40,8 @@ def _check_cutoff(cutoff: float | None) -> None:
 def identify_command(args: argparse.Namespace) -> int:
     """Runs ``pe-drake identify``: identified.json, model.urdf (when physically valid),
     residual plot; nothing is written on error."""
-    from pe_drake.identification.estimators import (
-        identify,
-        prepare_measurement,
-        read_robot_measurement,
+    from pe_drake.identification.estimators import identify, prepare_measurement, read_robot_measurement
+    from pe_drake.identification.identified_file import (
         result_to_dict,
         standard_from_base,
         standard_parameters_dict,
@@ -142,12 +140,12 @@ def _short_name(base, i: int) -> str:
 def validate_command(args: argparse.Namespace) -> int:
     """Runs ``pe-drake validate``: per-joint RMS and relative torque error on another run."""
     from pe_drake.identification.estimators import (
-        load_identified,
         predict,
         prepare_measurement,
         read_robot_measurement,
         torque_errors,
     )
+    from pe_drake.identification.identified_file import load_identified
 
     robot = _load(args)
     result = load_identified(args.model, robot)
