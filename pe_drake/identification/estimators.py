@@ -355,14 +355,7 @@ def physical_fit(
     lam = prior_weight * float(rank_s[-1]) ** 2
     active = [b for b in range(len(body_names)) if prior[10 * b] > 0]
     cols = np.concatenate([np.arange(10 * b, 10 * b + 10) for b in active])
-    # Scale the variables so that the prior is 1 in magnitude per body block: better numerics.
-    scale = np.ones(p)
-    for b in active:
-        m = prior[10 * b]
-        scale[10 * b] = m
-        scale[10 * b + 1 : 10 * b + 4] = max(np.max(np.abs(prior[10 * b + 1 : 10 * b + 4])), 1e-3 * m)
-        scale[10 * b + 4 :] = max(np.max(np.abs(prior[10 * b + 4 : 10 * b + 10])), 1e-6 * m)
-    D = scale[cols]
+    D = _variable_scale(prior, active)[cols]
     Rs = Ra[:, cols] * D  # φ = D x on the active columns
     prog = MathematicalProgram()
     x = prog.NewContinuousVariables(len(cols), "x")
@@ -393,6 +386,18 @@ def physical_fit(
     phi = np.zeros(p)
     phi[cols] = D * result.GetSolution(x)
     return phi
+
+
+def _variable_scale(prior: np.ndarray, active: list[int]) -> np.ndarray:
+    """Per-variable scale, shape (10·nb,), that makes the prior about 1 in magnitude per body
+    block (mass; first moments; inertia): better numerics for the SDP."""
+    scale = np.ones(prior.size)
+    for b in active:
+        m = prior[10 * b]
+        scale[10 * b] = m
+        scale[10 * b + 1 : 10 * b + 4] = max(np.max(np.abs(prior[10 * b + 1 : 10 * b + 4])), 1e-3 * m)
+        scale[10 * b + 4 : 10 * b + 10] = max(np.max(np.abs(prior[10 * b + 4 : 10 * b + 10])), 1e-6 * m)
+    return scale
 
 
 # ---- prediction and validation ----------------------------------------------------------------

@@ -173,15 +173,7 @@ def read_measurement_csv(path: str | Path, joints, *, min_rows: int = 10) -> Mea
     path = Path(path)
     joints = _joint_names(joints)
     file = str(path)
-    if not path.is_file():
-        raise DataError("measurement file does not exist", file=file)
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except (OSError, UnicodeDecodeError) as err:
-        raise DataError(f"cannot read the file: {err}", file=file) from err
-    lines = text.splitlines()
-    # Keep the line number of every non-blank line so errors point into the file.
-    numbered = [(k + 1, line) for k, line in enumerate(lines) if line.strip()]
+    numbered = _numbered_lines(path)
     if not numbered:
         raise DataError("the file is empty; expected a header line " + ",".join(_expected_columns(joints)),
                         file=file)
@@ -201,6 +193,32 @@ def read_measurement_csv(path: str | Path, joints, *, min_rows: int = 10) -> Mea
     if len(data) < min_rows:
         raise DataError(f"only {len(data)} data rows; at least {min_rows} are needed", file=file)
 
+    table = _parse_table(data, columns, wanted, index, file)
+    t = table[:, 0]
+    _check_time(t, data, file)
+    n = len(joints)
+    blocks = [table[:, 1 + k * n : 1 + (k + 1) * n] for k in range((len(wanted) - 1) // n)]
+    q, tau = blocks[0], blocks[1]
+    v = blocks[2] if has_v else None
+    vd = blocks[2 + has_v] if has_vd else None
+    return Measurement(t.copy(), q.copy(), tau.copy(), None if v is None else v.copy(),
+                       None if vd is None else vd.copy(), joints, file)
+
+
+def _numbered_lines(path: Path) -> list[tuple[int, str]]:
+    """(line number, text) of every non-blank line, so errors point into the file."""
+    file = str(path)
+    if not path.is_file():
+        raise DataError("measurement file does not exist", file=file)
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except (OSError, UnicodeDecodeError) as err:
+        raise DataError(f"cannot read the file: {err}", file=file) from err
+    return [(k + 1, line) for k, line in enumerate(text.splitlines()) if line.strip()]
+
+
+def _parse_table(data, columns: list[str], wanted: list[str], index: dict[str, int], file: str) -> np.ndarray:
+    """The ``wanted`` columns of the data rows as floats, shape (rows, len(wanted)); all finite."""
     usecols = [index[c] for c in wanted]
     try:
         # np.loadtxt's C parser: ~0.1 s for 21k rows x 22 columns.
@@ -214,7 +232,6 @@ def read_measurement_csv(path: str | Path, joints, *, min_rows: int = 10) -> Mea
     except ValueError:
         _locate_parse_error(data, columns, wanted, index, file)
         raise  # pragma: no cover - _locate_parse_error always raises
-
     bad = ~np.isfinite(table)
     if bad.any():
         r, c = np.argwhere(bad)[0]
@@ -222,7 +239,11 @@ def read_measurement_csv(path: str | Path, joints, *, min_rows: int = 10) -> Mea
             f"value '{table[r, c]}' is not a finite number (line {data[r][0]} of the file)",
             file=file, column=wanted[c], row=int(r) + 1,
         )
-    t = table[:, 0]
+    return table
+
+
+def _check_time(t: np.ndarray, data, file: str) -> None:
+    """Refuses duplicated or decreasing time, naming the data row and the file's line."""
     steps = np.diff(t)
     if (steps <= 0).any():
         r = int(np.argmax(steps <= 0)) + 1
@@ -232,13 +253,6 @@ def read_measurement_csv(path: str | Path, joints, *, min_rows: int = 10) -> Mea
             f"t = {t[r - 1]:.9g} s (line {data[r][0]} of the file); time must strictly increase",
             file=file, column="t", row=r + 1,
         )
-    n = len(joints)
-    blocks = [table[:, 1 + k * n : 1 + (k + 1) * n] for k in range((len(wanted) - 1) // n)]
-    q, tau = blocks[0], blocks[1]
-    v = blocks[2] if has_v else None
-    vd = blocks[2 + has_v] if has_vd else None
-    return Measurement(t.copy(), q.copy(), tau.copy(), None if v is None else v.copy(),
-                       None if vd is None else vd.copy(), joints, file)
 
 
 def _column_index(columns: list[str], joints: tuple[str, ...], file: str) -> dict[str, int]:

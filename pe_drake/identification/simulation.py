@@ -195,7 +195,6 @@ def build_true_robot(robot, truth: Truth) -> TrueRobot:
         ConfigError, UnknownNameError: from :func:`validate_truth`.
     """
     from pydrake.math import RigidTransform  # lazy: pydrake stays out of `import pe_drake`
-    from pydrake.multibody.tree import DoorHinge, DoorHingeConfig
 
     validate_truth(truth, robot)
     joints = robot.joint_names
@@ -214,27 +213,9 @@ def build_true_robot(robot, truth: Truth) -> TrueRobot:
             joint = plant.GetJointByName(name)
             joint.set_default_damping_vector([viscous[k]])
             if coulomb[k] > 0:
-                config = DoorHingeConfig()
-                config.spring_constant = 0.0
-                config.catch_torque = 0.0
-                config.static_friction_torque = 0.0
-                config.viscous_friction = 0.0
-                config.dynamic_friction_torque = float(coulomb[k])
-                config.motion_threshold = float(e.coulomb_velocity_scale)
-                plant.AddForceElement(DoorHinge(joint, config))
+                _add_coulomb_friction(plant, joint, float(coulomb[k]), float(e.coulomb_velocity_scale))
             if armature[k] > 0:
-                actuators = [
-                    plant.get_joint_actuator(a)
-                    for a in plant.GetJointActuatorIndices()
-                    if plant.get_joint_actuator(a).joint().index() == joint.index()
-                ]
-                if actuators:
-                    gear = actuators[0].default_gear_ratio() or 1.0
-                    actuators[0].set_default_rotor_inertia(float(armature[k]) / gear**2)
-                else:
-                    actuator = plant.AddJointActuator(f"pe_drake_armature_{name}", joint)
-                    actuator.set_default_gear_ratio(1.0)
-                    actuator.set_default_rotor_inertia(float(armature[k]))
+                _set_armature(plant, joint, float(armature[k]))
         if payload_M is not None:
             link = plant.GetBodyByName(e.payload.link)
             body = plant.AddRigidBody(PAYLOAD_BODY_NAME, link.model_instance(), payload_M)
@@ -257,6 +238,36 @@ def build_true_robot(robot, truth: Truth) -> TrueRobot:
         b = robot.body_names.index(e.payload.link)
         phi[10 * b : 10 * b + 10] += phi_payload
     return TrueRobot(true, phi, phi_bodies, phi_payload, viscous, coulomb, armature, offset, model_damping)
+
+
+def _add_coulomb_friction(plant, joint, f_c: float, v_s: float) -> None:
+    """f_c·tanh(v/v_s) as a Drake DoorHinge whose only non-zero term is its dynamic friction."""
+    from pydrake.multibody.tree import DoorHinge, DoorHingeConfig  # lazy: pydrake stays out of `import pe_drake`
+
+    config = DoorHingeConfig()
+    config.spring_constant = 0.0
+    config.catch_torque = 0.0
+    config.static_friction_torque = 0.0
+    config.viscous_friction = 0.0
+    config.dynamic_friction_torque = f_c
+    config.motion_threshold = v_s
+    plant.AddForceElement(DoorHinge(joint, config))
+
+
+def _set_armature(plant, joint, armature: float) -> None:
+    """Reflected rotor inertia on the joint's actuator (gear² taken out), or a new actuator."""
+    actuators = [
+        plant.get_joint_actuator(a)
+        for a in plant.GetJointActuatorIndices()
+        if plant.get_joint_actuator(a).joint().index() == joint.index()
+    ]
+    if actuators:
+        gear = actuators[0].default_gear_ratio() or 1.0
+        actuators[0].set_default_rotor_inertia(armature / gear**2)
+    else:
+        actuator = plant.AddJointActuator(f"pe_drake_armature_{joint.name()}", joint)
+        actuator.set_default_gear_ratio(1.0)
+        actuator.set_default_rotor_inertia(armature)
 
 
 # ---- simulation ------------------------------------------------------------------------------
@@ -350,10 +361,7 @@ def simulate(
     true = build_true_robot(robot, truth)
     log = track_trajectory(robot, true, trajectory, truth, duration)
     measurement = record_log(robot, truth, log)
-    tracking_rms = np.sqrt(np.mean((log.q - log.q_d) ** 2, axis=0))
-    truth_dict = _truth_dict(robot, truth, true, duration, len(log.t), tracking_rms, log.wall_time,
-                             PARAMETER_NAMES)
-    return SimulatedRun(measurement, truth_dict)
+    return SimulatedRun(measurement, _truth_dict(robot, truth, true, duration, log))
 
 
 def _check_run(robot, trajectory: FourierTrajectory, truth: Truth, duration: float | None) -> float:
@@ -494,9 +502,12 @@ def record_log(robot, truth: Truth, log: TrackingLog) -> Measurement:
     return Measurement(log.t, q_rec, tau_rec, v_rec, None, robot.joint_names, "")
 
 
-def _truth_dict(robot, truth, true, duration, count, tracking_rms, wall, parameter_names) -> dict[str, Any]:
+def _truth_dict(robot, truth: Truth, true: TrueRobot, duration: float, log: TrackingLog) -> dict[str, Any]:
+    """The JSON-ready record of every true value of a run (``<out>.truth.json``)."""
     joints = list(robot.joint_names)
     bodies = robot.body_names
+    tracking_rms = np.sqrt(np.mean((log.q - log.q_d) ** 2, axis=0))
+    count, wall, parameter_names = len(log.t), log.wall_time, PARAMETER_NAMES
 
     def per_joint(values):
         return {j: float(x) for j, x in zip(joints, values)}
