@@ -37,7 +37,8 @@ def main(argv: list[str] | None = None) -> int:
     from pe_drake.excitation.problem import ExcitationProblem, scale_into_limits
     from pe_drake.excitation.trajectory_file import load_trajectory
     from pe_drake.identification.estimators import identify, predict, prepare_measurement, robot_torques, torque_errors
-    from pe_drake.identification.simulation import Truth, simulate
+    from pe_drake.identification.simulation import simulate
+    from pe_drake.identification.truth import Truth
     from pe_drake.multibody.robot import load_robot
     from pe_drake.multibody.urdf import write_robot_urdf
     from pe_drake.threads import single_threaded_blas

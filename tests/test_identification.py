@@ -16,11 +16,11 @@ from pe_drake.excitation.problem import ExcitationProblem, scale_into_limits
 from pe_drake.excitation.trajectory_file import load_trajectory, save_trajectory
 from pe_drake.identification.estimators import (
     identify,
-    load_identified,
     predict,
     prepare_measurement,
     torque_errors,
 )
+from pe_drake.identification.identified_file import load_identified
 from pe_drake.identification.measurements import write_measurement_csv
 from pe_drake.identification.simulation import perturb_inertias
 from pe_drake.identification.synthetic import model_measurement
@@ -129,7 +129,8 @@ def test_optimized_trajectory_gives_smaller_parameter_errors_than_random_ones(op
 def simulated_runs(optimized, tmp_path_factory):
     """Identification run (optimized trajectory) and validation run (another, random one) of
     a true Panda with ±10 % inertias, encoder quantization and torque noise."""
-    from pe_drake.identification.simulation import Truth, simulate
+    from pe_drake.identification.simulation import simulate
+    from pe_drake.identification.truth import Truth
 
     robot = get_robot("panda")
     truth = Truth(seed=2, inertia_perturbation=0.1)
