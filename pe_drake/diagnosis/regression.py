@@ -99,6 +99,7 @@ class Regression:
         self.scale = np.ones(train.gram.shape[1])
 
     def set_weights(self, weights: np.ndarray) -> None:
+        """Per-joint weights of the WLS, (n,)."""
         self.weights = np.asarray(weights, float)
 
     def fit(self, extra: Sequence[int]) -> Fit:
@@ -194,6 +195,7 @@ class Library:
 
     @property
     def timing_col(self) -> int:
+        """The timing nuisance's column."""
         return self.num_base + len(self.candidates)
 
     @functools.cached_property
@@ -277,6 +279,7 @@ class Selection:
         order: the same in the order they were added.
         final: the fit with ``selected``.
         rejected: {column: reason} of the columns tried and not kept.
+        thresholds: what the columns were held to.
         steps: ("+" or "-", column, the fit after an addition or None) per addition or
             removal, in order, for the progress report.
     """
@@ -285,6 +288,7 @@ class Selection:
     order: list[int]
     final: Fit
     rejected: dict[int, str]
+    thresholds: Thresholds
     steps: list[tuple[str, int, Fit | None]]
 
 
@@ -324,7 +328,7 @@ def select_effects(reg: Regression, library: Library, rigid: Fit, thresholds: Th
         reg.inflation = integrated_autocorrelation(reg.residual("training", current))
         steps.append(("+", best, current))
     current = _backward_check(reg, library, selected, current, thresholds.z_min, rejected, steps)
-    return Selection(selected, [c for c in order if c in selected], current, rejected, steps)
+    return Selection(selected, [c for c in order if c in selected], current, rejected, thresholds, steps)
 
 
 def _backward_check(reg: Regression, library: Library, selected: list[int], current: Fit, z_min: float,

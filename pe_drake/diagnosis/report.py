@@ -24,6 +24,7 @@ from pe_drake.io_utils import atomic_write_text
 
 
 def _plt():
+    # matplotlib imported here: keeps `import pe_drake` light and headless.
     import matplotlib
 
     matplotlib.use("Agg")
@@ -70,6 +71,7 @@ def _save(fig, path: Path) -> Path:
 
 
 def plot_torques(path: Path, result) -> Path:
+    """torque_heldout.png: measured and model torques on the held-out data, per joint."""
     plt = _plt()
     p = result.predictions
     n = len(result.joints)
@@ -100,6 +102,7 @@ def _regime_signal(result, regime: str, joint: int) -> tuple[np.ndarray, str]:
 
 
 def plot_effect_residuals(path: Path, result) -> Path:
+    """residual_effects.png: each named effect's residual against its exposing regime."""
     plt = _plt()
     rs = result.residual_series
     panels: list[tuple[str, np.ndarray, np.ndarray, np.ndarray, str, str, str]] = []
@@ -134,6 +137,7 @@ def plot_effect_residuals(path: Path, result) -> Path:
 
 
 def plot_regimes(path: Path, result) -> Path:
+    """regimes.png: mean nominal residual per joint and regime."""
     plt = _plt()
     joints = result.joints
     labels = [f"{b['regime']}: {b['bin']}" for b in result.regimes[joints[0]]["regimes"]]
@@ -154,6 +158,7 @@ def plot_regimes(path: Path, result) -> Path:
 
 
 def plot_gap(path: Path, result) -> Path:
+    """gap.png: held-out RMS per joint, nominal → rigid → augmented, and the noise floor."""
     plt = _plt()
     n = len(result.joints)
     x = np.arange(n)
@@ -173,6 +178,7 @@ def plot_gap(path: Path, result) -> Path:
 
 
 def plot_unexplained(path: Path, result) -> Path:
+    """unexplained.png: each unexplained joint's residual against time and dτ/dt."""
     plt = _plt()
     names = list(result.unexplained)
     fig, axes = plt.subplots(len(names), 2, figsize=(10, 2.4 * len(names) + 0.6), constrained_layout=True,

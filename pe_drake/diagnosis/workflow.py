@@ -268,12 +268,11 @@ def rigid_reidentification(reg: Regression, training: Segment) -> Fit:
 # ---- 3. effects ------------------------------------------------------------------------------
 
 
-def select(lib: CandidateLibrary, rigid: Fit, held: Segment, config: DiagnosisConfig,
-           ) -> tuple[Thresholds, Selection]:
+def select(lib: CandidateLibrary, rigid: Fit, held: Segment, config: DiagnosisConfig) -> Selection:
     """The thresholds of the held-out data, then forward selection and backward check."""
     thresholds = Thresholds.from_data(config, held.record.noise_floor, np.std(held.tau, axis=0),
                                       len(lib.library.candidates) + 1)
-    return thresholds, select_effects(lib.regression, lib.library, rigid, thresholds, config)
+    return select_effects(lib.regression, lib.library, rigid, thresholds, config)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -297,12 +296,12 @@ class Naming:
     rejected: list[dict[str, Any]]
 
 
-def name_effects(lib: CandidateLibrary, sel: Selection, rigid: Fit, rms_nominal: np.ndarray, robot,
+def name_effects(robot, lib: CandidateLibrary, sel: Selection, rigid: Fit, nom: Nominal,
                  config: DiagnosisConfig) -> Naming:
     """The cumulative table, each selected effect as a NamedEffect, the rejected candidates."""
     reg, library = lib.regression, lib.library
     # cumulative table (without the timing nuisance: it is not part of the model)
-    cumulative = [("nominal", rms_nominal), ("rigid", rigid.rms_held)]
+    cumulative = [("nominal", nom.rms), ("rigid", rigid.rms_held)]
     effect_cols = [c for c in sel.order if c != library.timing_col]
     fits_cum = [rigid]
     for k in range(len(effect_cols)):
@@ -376,14 +375,14 @@ class PayloadStep:
     not_separable: list[dict[str, Any]]
 
 
-def payload_step(robot, prep: Prepared, lib: CandidateLibrary, final: Fit, last_fit: Fit,
+def payload_step(robot, prep: Prepared, lib: CandidateLibrary, sel: Selection, naming: Naming,
                  config: DiagnosisConfig) -> PayloadStep:
     """Payload search and rigid-body report from the final fit's base parameters."""
-    base = prep.base
+    base, final = prep.base, sel.final
     b = base.count
     Sigma_phi = prior_parameter_covariance(robot, config.prior_uncertainty)
     change = BaseChange.from_fit(base.K, final.x[:b], prep.phi_B_prior, final.cov[:b, :b], Sigma_phi)
-    outcome = (payload_search(robot, base, change, config, last_fit.rms_held) if config.payload
+    outcome = (payload_search(robot, base, change, config, naming.last_fit.rms_held) if config.payload
                else PayloadOutcome({"searched": False}, None, None))
     return PayloadStep(change, outcome, rigid_report(base, change),
                        not_separable_report(lib.separability, base, change))
@@ -409,10 +408,10 @@ class Augmentation:
     drake_check: np.ndarray
 
 
-def augment(robot, prep: Prepared, lib: CandidateLibrary, naming: Naming, final: Fit, pay: PayloadStep,
+def augment(robot, prep: Prepared, lib: CandidateLibrary, sel: Selection, naming: Naming, pay: PayloadStep,
             config: DiagnosisConfig) -> Augmentation:
     """The named effects added to the model in Drake, its held-out torque and the gap."""
-    held, library = prep.held, lib.library
+    held, library, final = prep.held, lib.library, sel.final
     values = {col: final.value(col) for col in naming.effect_cols}
     effect = pay.outcome.effect
     augmented = AugmentedModel.from_fit(robot, prep.base, pay.change.phi_B, pay.change.Sigma_phi,
@@ -463,12 +462,13 @@ class Unexplained:
     joints: dict[str, dict[str, Any]]
 
 
-def unexplained(robot, prep: Prepared, lib: CandidateLibrary, sel: Selection, thresholds: Thresholds,
-                residual_after: np.ndarray, rms_nominal: np.ndarray, config: DiagnosisConfig) -> Unexplained:
+def unexplained(robot, prep: Prepared, lib: CandidateLibrary, sel: Selection, nom: Nominal, aug: Augmentation,
+                config: DiagnosisConfig) -> Unexplained:
     """Joints whose held-out residual stays above their threshold, with their signature."""
     timing = timing_report(lib, sel, config)
-    found = unexplained_joints(residual_after, prep.held, thresholds.unexplained, prep.held.record.noise_floor,
-                               rms_nominal, robot.joint_names, timing)
+    held = prep.held
+    found = unexplained_joints(held.tau - aug.tau, held, sel.thresholds.unexplained, held.record.noise_floor,
+                               nom.rms, robot.joint_names, timing)
     return Unexplained(timing, found)
 
 
@@ -513,19 +513,19 @@ def diagnose(
     rigid = rigid_reidentification(lib.regression, prep.training)
     say("2. rigid-body parameters re-identified, held-out RMS [N·m]: " + _fmt_joints(joints, rigid.rms_held))
     lap("rigid")
-    thresholds, sel = select(lib, rigid, prep.held, config)
+    sel = select(lib, rigid, prep.held, config)
     _say_selection(say, sel, lib.library, joints)
     lap("effects")
-    naming = name_effects(lib, sel, rigid, nom.rms, robot, config)
-    pay = payload_step(robot, prep, lib, sel.final, naming.last_fit, config)
+    naming = name_effects(robot, lib, sel, rigid, nom, config)
+    pay = payload_step(robot, prep, lib, sel, naming, config)
     if pay.outcome.effect is not None:
         say(f"3. payload on {pay.outcome.effect.link}: {pay.outcome.effect.value:+.3g} kg "
             f"(χ² {pay.outcome.report['chi2_before']:.3g} → {pay.outcome.report['chi2_after']:.3g})")
     lap("payload")
-    aug = augment(robot, prep, lib, naming, sel.final, pay, config)
+    aug = augment(robot, prep, lib, sel, naming, pay, config)
     say("4. augmented Drake model, held-out RMS [N·m]: " + _fmt_joints(joints, aug.rms))
     lap("augmented")
-    left = unexplained(robot, prep, lib, sel, thresholds, prep.held.tau - aug.tau, nom.rms, config)
+    left = unexplained(robot, prep, lib, sel, nom, aug, config)
     if left.joints:
         say("5. unexplained: " + ", ".join(f"{j} {u['rms']:.3g} N·m" for j, u in left.joints.items()))
     else:
@@ -542,7 +542,7 @@ def diagnose(
         robot.name, joints, config, prep.training, held, named, nom.rms, rigid.rms_held, aug.rms,
         naming.cumulative, left.joints, pay.not_separable, naming.rejected, nom.regimes, pay.rigid,
         pay.outcome.report, left.timing, predictions, residual_series, aug.model, aug.drake_check,
-        lap.timings, held.record.noise_floor, thresholds.unexplained)
+        lap.timings, held.record.noise_floor, sel.thresholds.unexplained)
 
 
 def _say_selection(say: Callable[[str], None], sel: Selection, library: Library, joints: Sequence[str]) -> None:
