@@ -45,7 +45,7 @@ def test_distances_match_drake_geometry(name, g1, panda):
 
     Away from contact Drake's capsule-capsule distance (GJK) is off by up to ~7 mm at these
     postures (its witness points lie 1-2 mm inside the capsules), so it is only compared
-    where |d| < 1 cm; DRAKE_NOTES.md measured ~2e-6 m there.
+    where |d| < 1 cm; BUILD_NOTES.md measured ~2e-6 m there.
     """
     from pe_drake.multibody.capsules import segment_closest_points
 

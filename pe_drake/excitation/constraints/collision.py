@@ -13,7 +13,7 @@ axis ω_k through o_k (Plücker moment m_k = o_k × ω_k),
     ∂d_ij/∂q_k = [k moves i]·(ω_k·(c_i × n) + n·m_k) - [k moves j]·(ω_k·(c_j × n) + n·m_k)
 
 (for a prismatic joint, ω_k = 0 and m_k is its world axis). Drake's own capsule distance is
-accurate to ~2e-6 m only, which shows in finite differences (DRAKE_NOTES.md); this one is
+accurate to ~2e-6 m only, which shows in finite differences (BUILD_NOTES.md); this one is
 exact to rounding.
 
 Form of the constraint. By default each sample contributes ONE row, a smooth lower bound of
