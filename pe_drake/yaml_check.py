@@ -20,9 +20,9 @@ _NULLS = ("null", "Null", "NULL", "~", "")
 _BOOLS = ("true", "True", "TRUE", "false", "False", "FALSE")
 
 
-def _where(path: Path, node, key: str) -> str:
+def _where(source: str, node, key: str) -> str:
     line = f", line {node.start_mark.line + 1}" if node is not None else ""
-    return f"config file '{path}'{line}, key '{key or '(top level)'}'"
+    return f"{source}{line}, key '{key or '(top level)'}'"
 
 
 def _strip_optional(tp):
@@ -33,12 +33,12 @@ def _strip_optional(tp):
     return tp, False
 
 
-def _check_scalar(node, tp, optional: bool, path: Path, key: str) -> None:
+def _check_scalar(node, tp, optional: bool, source: str, key: str) -> None:
     import yaml
 
     if not isinstance(node, yaml.ScalarNode):
         kind = "a list" if isinstance(node, yaml.SequenceNode) else "a mapping"
-        raise ConfigError(f"{_where(path, node, key)}: expected {_kind(tp)}, got {kind}")
+        raise ConfigError(f"{_where(source, node, key)}: expected {_kind(tp)}, got {kind}")
     value = node.value
     if optional and node.tag.endswith(":null") or (optional and value in _NULLS and node.style is None):
         return
@@ -56,7 +56,7 @@ def _check_scalar(node, tp, optional: bool, path: Path, key: str) -> None:
         except ValueError:
             ok = value in (".nan", ".inf", "-.inf", ".NaN", ".Inf", "-.Inf")
     if not ok:
-        raise ConfigError(f"{_where(path, node, key)}: expected {_kind(tp)}, got '{value}'")
+        raise ConfigError(f"{_where(source, node, key)}: expected {_kind(tp)}, got '{value}'")
 
 
 def _kind(tp) -> str:
@@ -69,41 +69,41 @@ def _kind(tp) -> str:
     return {bool: "true or false", int: "an integer", float: "a number", str: "a string"}.get(tp, str(tp))
 
 
-def _check_node(node, tp, path: Path, key: str) -> None:
+def _check_node(node, tp, source: str, key: str) -> None:
     import yaml
 
     tp, optional = _strip_optional(tp)
     origin = typing.get_origin(tp)
     if dataclasses.is_dataclass(tp):
         if not isinstance(node, yaml.MappingNode):
-            raise ConfigError(f"{_where(path, node, key)}: expected a mapping of {tp.__name__} keys, got {_shape(node)}")
+            raise ConfigError(f"{_where(source, node, key)}: expected a mapping of {tp.__name__} keys, got {_shape(node)}")
         hints = typing.get_type_hints(tp)
         for k_node, v_node in node.value:
             name = k_node.value
             sub = f"{key}.{name}" if key else name
             if name not in hints:
                 raise ConfigError(
-                    f"{_where(path, k_node, sub)}: unknown key; valid keys here: {', '.join(sorted(hints))}"
+                    f"{_where(source, k_node, sub)}: unknown key; valid keys here: {', '.join(sorted(hints))}"
                 )
-            _check_node(v_node, hints[name], path, sub)
+            _check_node(v_node, hints[name], source, sub)
     elif origin is list:
         if optional and isinstance(node, yaml.ScalarNode) and node.value in _NULLS:
             return
         if not isinstance(node, yaml.SequenceNode):
-            raise ConfigError(f"{_where(path, node, key)}: expected a list, got {_shape(node)}")
+            raise ConfigError(f"{_where(source, node, key)}: expected a list, got {_shape(node)}")
         (item,) = typing.get_args(tp)
         for k, child in enumerate(node.value):
-            _check_node(child, item, path, f"{key}[{k}]")
+            _check_node(child, item, source, f"{key}[{k}]")
     elif origin is dict:
         if not isinstance(node, yaml.MappingNode):
-            raise ConfigError(f"{_where(path, node, key)}: expected a mapping, got {_shape(node)}")
+            raise ConfigError(f"{_where(source, node, key)}: expected a mapping, got {_shape(node)}")
         _, value_type = typing.get_args(tp)
         for k_node, v_node in node.value:
-            _check_node(v_node, value_type, path, f"{key}['{k_node.value}']")
+            _check_node(v_node, value_type, source, f"{key}['{k_node.value}']")
     elif tp in (bool, int, float, str):
         if tp is str and isinstance(node, yaml.ScalarNode):
             return
-        _check_scalar(node, tp, optional, path, key)
+        _check_scalar(node, tp, optional, source, key)
 
 
 def _shape(node) -> str:
@@ -116,13 +116,18 @@ def _shape(node) -> str:
     return f"'{node.value}'"
 
 
-def check_yaml_file(path: str | Path, schema: type) -> None:
+def check_yaml_file(path: str | Path, schema: type, what: str = "config") -> None:
     """Refuses a YAML file whose syntax or shape does not fit ``schema`` (a dataclass).
+
+    Args:
+        path: the file.
+        schema: the dataclass it maps onto.
+        what: what the file is, for messages ("config", "truth", "capsule").
 
     Raises:
         ConfigError: naming the file, the line and the dotted key.
     """
-    import yaml  # PyYAML, a dependency of pydrake.common.yaml
+    import yaml  # PyYAML, a dependency of pydrake.common.yaml; lazy like pydrake
 
     path = Path(path)
     try:
@@ -130,9 +135,9 @@ def check_yaml_file(path: str | Path, schema: type) -> None:
     except yaml.MarkedYAMLError as err:
         mark = err.problem_mark or err.context_mark
         line = f", line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
-        raise ConfigError(f"config file '{path}'{line}: YAML syntax error: {err.problem or err}") from None
+        raise ConfigError(f"{what} file '{path}'{line}: YAML syntax error: {err.problem or err}") from None
     except yaml.YAMLError as err:
-        raise ConfigError(f"config file '{path}': YAML syntax error: {err}") from None
+        raise ConfigError(f"{what} file '{path}': YAML syntax error: {err}") from None
     if root is None:
         return
-    _check_node(root, schema, path, "")
+    _check_node(root, schema, f"{what} file '{path}'", "")

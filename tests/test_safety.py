@@ -137,7 +137,7 @@ def test_view_listens_on_localhost_by_default():
 def test_ur5_ships_capsules_and_fitting_reproduces_them(tmp_path, ur5):
     from pe_drake.multibody.capsule_fitting import fit_capsule_file
     from pe_drake.multibody.capsules import load_capsule_file
-    from pe_drake.multibody.robot import example_robot_data_dir
+    from pe_drake.multibody.registry import example_robot_data_dir
 
     assert len(ur5.capsules) == 7
     fitted = fit_capsule_file(example_robot_data_dir() / "robots/ur_description/urdf/ur5_robot.urdf", tmp_path / "c.yaml")
@@ -257,7 +257,7 @@ def test_joint_types_in_comments_are_ignored():
 def test_fitted_capsules_of_a_urdf_path_switch_self_collision_on_and_skip_pairs_touching_by_design(tmp_path):
     """The UR10 through its URDF path came within 5-7 mm mesh to mesh: it now gets capsules."""
     from pe_drake.multibody.capsule_fitting import FITTED_COLLISION_MARGIN, ensure_capsules
-    from pe_drake.multibody.robot import example_robot_data_dir, resolve_robot_config
+    from pe_drake.multibody.registry import example_robot_data_dir, resolve_robot_config
 
     config = resolve_robot_config(str(example_robot_data_dir() / "robots/ur_description/urdf/ur10_robot.urdf"))
     assert config.excitation.collision_margin < 0

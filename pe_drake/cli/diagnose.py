@@ -5,13 +5,13 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from pe_drake.diagnosis.workflow import DiagnosisConfig, diagnose, write_outputs
+from pe_drake.cli.common import robot_from_args
+from pe_drake.diagnosis import DiagnosisConfig, diagnose, write_outputs
 from pe_drake.exceptions import ConfigError
 from pe_drake.identification.data_checks import check_against_model, check_raw_measurement
 from pe_drake.identification.estimators import prepare_measurement
 from pe_drake.identification.measurements import read_measurement_csv
 from pe_drake.io_utils import staged_output_dir
-from pe_drake.multibody.robot import load_robot
 from pe_drake.output_paths import check_output_dir
 
 
@@ -22,7 +22,7 @@ def diagnose_command(args) -> int:
     if fraction is not None and not (math.isfinite(fraction) and 0.05 <= fraction <= 0.8):
         raise ConfigError(f"--held-out-fraction must be from 0.05 to 0.8, got {fraction:g}")
     config = DiagnosisConfig() if fraction is None else DiagnosisConfig(holdout_fraction=fraction)
-    robot = load_robot(args.robot, getattr(args, "config", None))
+    robot = robot_from_args(args)
     data = read_measurement_csv(args.data, robot)
     validation = read_measurement_csv(args.validation, robot) if getattr(args, "validation", None) else None
     for run in (data, validation):  # units, gaps, degrees, sign flips: before any work

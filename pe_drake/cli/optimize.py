@@ -14,16 +14,19 @@ from pathlib import Path
 
 import numpy as np
 
+from pe_drake.cli.common import config_from_args, robot_from_args
 from pe_drake.config import Config, validate_config
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.excitation.constraints import constraints_from_config
 from pe_drake.excitation.fourier import FourierBasis, sample_times
-from pe_drake.excitation.program import ExcitationProblem, build_excitation_program, solve_excitation
+from pe_drake.excitation.problem import ExcitationProblem
+from pe_drake.excitation.program import build_excitation_program
 from pe_drake.excitation.ramp import RampedMotion, choose_ramp_duration
+from pe_drake.excitation.solve import solve_excitation
 from pe_drake.excitation.trajectory_file import load_trajectory, save_trajectory, write_motion_csv
 from pe_drake.io_utils import staged_output_dir
 from pe_drake.multibody.capsule_fitting import ensure_capsules
-from pe_drake.multibody.robot import Robot, builtin_robots, resolve_robot_config
+from pe_drake.multibody.registry import robot_display_name
 from pe_drake.output_paths import OPTIMIZE_OUTPUTS, check_output_dir, remove_stale_outputs
 from pe_drake.plots import plot_trajectory
 from pe_drake.viewer import write_playback_html
@@ -72,7 +75,7 @@ def _apply_arguments(config: Config, args: argparse.Namespace) -> Config:
 def optimize_command(args: argparse.Namespace) -> int:
     """Runs ``pe-drake optimize``; returns 0 on success, 1 if no valid trajectory was found."""
     _check_arguments(args)  # and every output path and --prior file: before any work
-    config = _apply_arguments(resolve_robot_config(args.robot, args.config), args)
+    config = config_from_args(args, lambda c: _apply_arguments(c, args))
     say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, flush=True))
     start = time.perf_counter()
     out = Path(args.out)
@@ -126,7 +129,7 @@ def _check_arguments(args: argparse.Namespace) -> None:
 
 def _load_robot(args, config: Config, fit_dir: Path, say):
     """The robot, with capsules fitted to its meshes when it has none (and needs them)."""
-    name = args.robot if args.robot in builtin_robots() else Path(args.robot).stem
+    name = robot_display_name(args.robot)
     try:
         fitted = ensure_capsules(config, fit_dir)
     except ConfigError as err:
@@ -141,7 +144,7 @@ def _load_robot(args, config: Config, fit_dir: Path, say):
             f"self-collision margin {config.excitation.collision_margin:g} m"
             + (f", {len(fitted.ignored_pairs)} pair(s) touching by design ignored" if fitted.ignored_pairs else "")
         )
-    robot = Robot(name, config.robot)
+    robot = robot_from_args(args, config)  # after the capsules are fitted
     say(f"robot {robot.name}: {robot.n} excited joints, {robot.num_bodies} moving bodies")
     for note in assumed_defaults(config, robot.joint_names):
         say(f"note: {note}")

@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import json
 
+from pe_drake.cli.common import robot_from_args
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.excitation.ramp import check_within_limits
 from pe_drake.excitation.trajectory_file import load_motion
 from pe_drake.identification.measurements import measurement_to_csv_text
-from pe_drake.identification.simulation import load_truth, simulate, truth_path_for
+from pe_drake.identification.simulation import simulate, truth_path_for
+from pe_drake.identification.truth import load_truth
 from pe_drake.io_utils import atomic_write_text
-from pe_drake.multibody.robot import load_robot
 from pe_drake.output_paths import check_output_file
 
 
@@ -19,7 +20,7 @@ def simulate_command(args) -> int:
     out = check_output_file(args.out, "--out", (".csv",))  # before any work
     motion, data = load_motion(args.trajectory)  # validated before any work
     truth = load_truth(args.truth)
-    robot = load_robot(args.robot, getattr(args, "config", None))
+    robot = robot_from_args(args)
     if list(data["joints"]) != list(robot.joint_names):
         raise DataError(
             f"trajectory joints {', '.join(data['joints'])} differ from robot '{robot.name}''s "

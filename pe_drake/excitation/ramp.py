@@ -36,7 +36,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from pe_drake.exceptions import ConfigError, InfeasibleError
+from pe_drake.exceptions import ConfigError, InfeasibleError, NotWithinLimitsError
 from pe_drake.excitation.fourier import FourierTrajectory
 
 #: Ramp durations tried in order by :func:`choose_ramp_duration` [s].
@@ -252,8 +252,6 @@ def check_within_limits(
     Raises:
         NotWithinLimitsError: naming the joint, the quantity, the worst value and the limits.
     """
-    from pe_drake.exceptions import NotWithinLimitsError
-
     t = motion.sample_times(min(rate, 1e5 / max(motion.duration, 1e-9)))
     q, v, _ = motion.evaluate(t)
     for what, x, lo, hi in (

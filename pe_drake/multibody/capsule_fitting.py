@@ -24,6 +24,7 @@ from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.capsules import capsule_pairs, capsule_pose, fit_capsule, segment_closest_points
 from pe_drake.multibody.meshes import read_stl, resolve_mesh_path
+from pe_drake.multibody.robot import Robot
 
 #: Name of the fitted capsule file written to a command's output folder.
 FITTED_CAPSULES_NAME = "fitted_capsules.yaml"
@@ -232,8 +233,6 @@ def ignore_touching_pairs(config, path: Path, margin: float, samples: int = 200,
     Returns:
         The pairs added, as [capsule, capsule, reason].
     """
-    from pe_drake.multibody.robot import Robot
-
     robot = Robot("fit", config.robot)
     pairs = capsule_pairs(robot.scene_graph, robot.capsules)
     if not pairs:

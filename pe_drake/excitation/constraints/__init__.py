@@ -2,9 +2,14 @@
 
 from __future__ import annotations
 
+from pe_drake.exceptions import ConfigError
+from pe_drake.excitation.constraints.balance import BalanceConstraint
 from pe_drake.excitation.constraints.base import SampledConstraint, SampledValues
+from pe_drake.excitation.constraints.collision import CollisionConstraint
+from pe_drake.excitation.constraints.environment import EnvironmentConstraint, environment_from_config
+from pe_drake.excitation.constraints.torque import TorqueConstraint
 
-__all__ = ["SampledConstraint", "SampledValues", "constraints_from_config"]
+__all__ = ["EnvironmentConstraint", "SampledConstraint", "SampledValues", "constraints_from_config"]
 
 
 def constraints_from_config(robot, excitation, environment=None) -> list[SampledConstraint]:
@@ -21,13 +26,9 @@ def constraints_from_config(robot, excitation, environment=None) -> list[Sampled
             (support points, a capsule file).
         InfeasibleError: the nominal posture already violates a constraint.
     """
-    from pe_drake.exceptions import ConfigError
-
     out: list[SampledConstraint] = []
     q0 = robot.nominal_posture()[None, :]
     if excitation.balance_radius > 0:
-        from pe_drake.excitation.constraints.balance import BalanceConstraint
-
         balance = BalanceConstraint(robot, excitation.balance_radius)
         balance.check_posture(q0)
         out.append(balance)
@@ -37,20 +38,14 @@ def constraints_from_config(robot, excitation, environment=None) -> list[Sampled
                 f"excitation.collision_margin is set but robot '{robot.name}' has no capsule file "
                 "(robot.capsules)"
             )
-        from pe_drake.excitation.constraints.collision import CollisionConstraint
-
         collision = CollisionConstraint(robot, excitation.collision_margin)
         collision.check_posture(q0)
         out.append(collision)
     if excitation.torque_limits:
-        from pe_drake.excitation.constraints.torque import TorqueConstraint
-
         torque = TorqueConstraint(robot)
         torque.check_posture(q0)
         out.append(torque)
     if environment is not None:
-        from pe_drake.excitation.constraints.environment import environment_from_config
-
         env = environment_from_config(robot, excitation, environment)
         if env is not None:
             env.check_posture(q0)

@@ -31,7 +31,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from pe_drake.exceptions import ConfigError, InfeasibleError
-from pe_drake.excitation.constraints.base import SampledConstraint, SampledValues
+from pe_drake.excitation.constraints.base import SampledConstraint, SampledValues, check_postures
 
 _GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
 
@@ -233,9 +233,7 @@ class EnvironmentConstraint(SampledConstraint):
         Returns:
             d (K, R) and, with ``derivatives``, ∂d/∂q (K, R, n) (else None).
         """
-        q = np.atleast_2d(np.asarray(q, float))
-        if q.shape[1] != self.robot.n or not np.isfinite(q).all():
-            raise ConfigError(f"environment constraint: q must be finite with shape (K, {self.robot.n}); got {q.shape}")
+        q = check_postures(q, self.robot, "environment constraint")
         p, J = self._ends(q, derivatives)
         radii = np.array([c.radius for c in self.capsules])
         d_rows, g_rows = [], []

@@ -1,0 +1,45 @@
+"""A joint's limits from the model file and the config: placeholders replaced, real limits only
+tightened (issue 10)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pe_drake.exceptions import ConfigError
+
+
+def merge_limits(name: str, model_range, model_velocity: float, cfg, model_file: str = "the model"):
+    """A joint's position range and velocity limit from the model file and the config.
+
+    A zero-width model range (lower == upper, a placeholder as in example-robot-data's
+    double pendulum) or a zero velocity limit is replaced by the config's value; a real
+    model limit can only be tightened, and a wider config value is refused.
+
+    Returns:
+        (lower, upper, velocity) [rad or m, rad/s or m/s].
+
+    Raises:
+        ConfigError: the config widens a real model limit (naming both values).
+    """
+    lo, hi = float(model_range[0]), float(model_range[1])
+    v = float(model_velocity)
+    if name in cfg.position_limits:
+        c_lo, c_hi = (float(x) for x in cfg.position_limits[name])
+        if hi - lo > 0 and (c_lo < lo - 1e-12 or c_hi > hi + 1e-12):
+            raise ConfigError(
+                f"robot.position_limits['{name}'] = [{c_lo:g}, {c_hi:g}] is wider than the limits "
+                f"[{lo:g}, {hi:g}] in {model_file}; a config can only tighten a real model limit "
+                "(it replaces zero-width placeholders)"
+            )
+        lo, hi = c_lo, c_hi
+    if name in cfg.velocity_limits:
+        c_v = float(cfg.velocity_limits[name])
+        if v > 0 and c_v > v + 1e-12:
+            raise ConfigError(
+                f"robot.velocity_limits['{name}'] = {c_v:g} is above the limit {v:g} in {model_file}; "
+                "a config can only tighten a real model limit (it replaces zero placeholders)"
+            )
+        v = c_v
+    elif v == 0:
+        v = np.inf  # a placeholder: refused below as "no velocity limit" unless the config gives one
+    return lo, hi, v
