@@ -67,3 +67,29 @@ def test_cli_identify_refuses_a_flipped_column(tmp_path, capsys, panda, run):
     assert main(["identify", "--robot", "panda", "--data", str(data), "--out", str(out)]) == 2
     assert "tau.panda_joint1" in capsys.readouterr().err
     assert not out.exists()
+
+
+def _run_csv(tmp_path, panda, duration):
+    from pathlib import Path
+
+    trajectory, _ = load_trajectory(Path(__file__).parent / "data" / "panda_optimized.json")
+    m = model_measurement(panda, trajectory, rate_hz=500.0, duration=duration, tau_noise_std=0.05, seed=2)
+    path = tmp_path / f"run{duration:g}.csv"
+    write_measurement_csv(path, m.replace(v=None, vd=None, source=str(path)))
+    return path
+
+
+@pytest.mark.slow
+def test_diagnose_splits_a_10_s_run(tmp_path, capsys, panda):
+    """The README's sequence: a 10 s simulated run (one period) diagnosed without --validation."""
+    data = _run_csv(tmp_path, panda, 10.0)
+    assert main(["diagnose", "--robot", "panda", "--data", str(data), "--out", str(tmp_path / "d")]) == 0
+    assert "held-out" in capsys.readouterr().out
+
+
+def test_diagnose_says_which_part_is_short_and_what_to_change(tmp_path, capsys, panda):
+    data = _run_csv(tmp_path, panda, 5.0)
+    assert main(["diagnose", "--robot", "panda", "--data", str(data), "--out", str(tmp_path / "d")]) == 2
+    err = capsys.readouterr().err
+    assert "the held-out part is" in err and "record a run of at least" in err and "lower the held-out" not in err
+    assert not (tmp_path / "d").exists()

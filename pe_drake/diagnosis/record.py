@@ -198,8 +198,8 @@ def split_segments(record: Record, config: DiagnosisConfig, validation: Record |
     usable = record.usable()
     if validation is None:
         t = record.t
-        split = t[0] + (1.0 - config.holdout_fraction) * (t[-1] - t[0])
         gap = record.trim_s / 2
+        split = _split_time(record, usable, config.holdout_fraction, gap)
         train = usable[t[usable] < split - gap]
         held = usable[t[usable] > split + gap]
         training = _segment("training", record, train, *columns[id(record)])
@@ -207,14 +207,47 @@ def split_segments(record: Record, config: DiagnosisConfig, validation: Record |
     else:
         training = _segment("training", record, usable, *columns[id(record)])
         held_out = _segment("held-out", validation, validation.usable(), *columns[id(validation)])
-    for seg in (training, held_out):
-        if seg.num_samples < 20 or seg.duration < MIN_PERIODS / seg.record.cutoff_hz:
+    for seg, other in ((training, held_out), (held_out, training)):
+        need = MIN_PERIODS / seg.record.cutoff_hz
+        if seg.num_samples < 20 or seg.duration < need:
             raise DataError(
                 f"the {seg.name} part is {seg.duration:.3g} s long ({seg.num_samples} samples) after "
                 f"filtering and trimming {seg.record.trim_s:.3g} s at each end; it needs at least "
-                f"{MIN_PERIODS / seg.record.cutoff_hz:.3g} s ({MIN_PERIODS:g} periods of the "
-                f"{seg.record.cutoff_hz:.3g} Hz cut-off): record a longer run"
-                + (" or lower the held-out fraction" if validation is None else ""),
+                f"{need:.3g} s ({MIN_PERIODS:g} periods of the {seg.record.cutoff_hz:.3g} Hz cut-off): "
+                + _short_part_advice(seg, other, need, config, validation is None),
                 file=seg.record.source,
             )
     return training, held_out
+
+
+def _split_time(record: Record, usable: np.ndarray, fraction: float, gap: float) -> float:
+    """Where the held-out part starts: the last ``fraction`` of the record, moved (when the
+    record is long enough for both parts) so that neither part is shorter than it needs
+    (MIN_PERIODS periods of the cut-off, 2 % to spare). A short run such as the README's
+    simulated 12 s Panda run then still splits."""
+    t = record.t
+    split = t[0] + (1.0 - fraction) * (t[-1] - t[0])
+    if len(usable) < 2:
+        return split
+    need = MIN_PERIODS / record.cutoff_hz
+    u0, u1 = t[usable[0]], t[usable[-1]]
+    step = 1.0 / record.rate_hz
+    if min(split - gap - u0, u1 - split - gap) >= need + 2 * step:
+        return split  # both parts long enough: the configured fraction as it is
+    need *= 1.02
+    if u1 - u0 < 2 * (need + gap) + 2 * step:
+        return split  # too short for both parts: the caller says which and what to change
+    return min(max(split, u0 + gap + need), u1 - gap - need)
+
+
+def _short_part_advice(seg: Segment, other: Segment, need: float, config: DiagnosisConfig, own_split: bool) -> str:
+    """What to change when ``seg`` is too short (``other`` is the other part)."""
+    if not own_split:
+        return f"record a longer {'validation ' if seg.name == 'held-out' else ''}run"
+    record = seg.record
+    whole = 2 * (need + record.trim_s) + record.trim_s
+    advice = f"record a run of at least {whole:.3g} s (now {record.t[-1] - record.t[0]:.3g} s), or give --validation"
+    if other.duration >= 2 * need:  # the other part has room to spare
+        verb = "raise" if seg.name == "held-out" else "lower"
+        advice += f", or {verb} --held-out-fraction (now {config.holdout_fraction:g})"
+    return advice
