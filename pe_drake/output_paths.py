@@ -31,6 +31,20 @@ OPTIMIZE_OUTPUTS = (
 #: Files ``pe-drake identify`` writes into its output folder.
 IDENTIFY_OUTPUTS = ("identified.json", "residuals.png", "model.urdf")
 
+#: Files ``pe-drake diagnose`` writes into its output folder.
+DIAGNOSE_OUTPUTS = (
+    "diagnosis.json",
+    "report.md",
+    "torque_heldout.png",
+    "residual_effects.png",
+    "regimes.png",
+    "gap.png",
+    "unexplained.png",
+    "augmented_model.urdf",
+    "augmented_effects.yaml",
+    "augmented_model.json",
+)
+
 
 def _nearest_existing(path: Path) -> Path:
     for parent in (path, *path.parents):

@@ -19,12 +19,14 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+import types
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from pe_drake.exceptions import ConfigError, DataError, UnknownNameError
+from pe_drake.excitation.ramp import check_within_limits
 from pe_drake.excitation.trajectory_file import load_motion
 from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.registry import builtin_robots, resolve_robot_config, robot_display_name
@@ -132,6 +134,7 @@ def play_trajectory(
         trajectory_json, data, robot, config, meshcat, fps=fps, show_capsules=show_capsules
     )
     order = _joint_order(trajectory_json, data, rob)
+    check_within_limits(motion, _limits_in_file_order(rob.limits, order), data["joints"], source=str(trajectory_json))
     q = motion.evaluate(times)[0][:, order]
     com_xy, support = _record_period(meshcat, rob, q, fps)
 
@@ -327,6 +330,17 @@ def _config_from_file(cfg, data: dict):
     if data.get("root_link"):
         changes["root_link"] = str(data["root_link"])
     return dataclasses.replace(cfg, **changes)
+
+
+def _limits_in_file_order(limits, order: np.ndarray):
+    """The robot's limits rearranged to the trajectory file's joint order (``order[k]`` is the
+    file column of robot joint k)."""
+    out = {}
+    for name in ("q_lower", "q_upper", "v_max", "vd_max"):
+        values = np.empty(len(order))
+        values[order] = getattr(limits, name)
+        out[name] = values
+    return types.SimpleNamespace(**out)
 
 
 def _joint_order(path, data: dict, rob) -> np.ndarray:

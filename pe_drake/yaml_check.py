@@ -21,8 +21,8 @@ _BOOLS = ("true", "True", "TRUE", "false", "False", "FALSE")
 
 
 def _where(source: str, node, key: str) -> str:
-    line = f", line {node.start_mark.line + 1}" if node is not None else ""
-    return f"{source}{line}, key '{key or '(top level)'}'"
+    line = f"line {node.start_mark.line + 1}, " if node is not None else ""
+    return f"{source}: {line}key '{key or '(top level)'}'"
 
 
 def _strip_optional(tp):
@@ -130,14 +130,15 @@ def check_yaml_file(path: str | Path, schema: type, what: str = "config") -> Non
     import yaml  # PyYAML, a dependency of pydrake.common.yaml; lazy like pydrake
 
     path = Path(path)
+    source = f"{what} file '{path}' does not match the {what} format"
     try:
         root = yaml.compose(path.read_text(errors="replace"), Loader=yaml.SafeLoader)
     except yaml.MarkedYAMLError as err:
         mark = err.problem_mark or err.context_mark
-        line = f", line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
-        raise ConfigError(f"{what} file '{path}'{line}: YAML syntax error: {err.problem or err}") from None
+        line = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
+        raise ConfigError(f"{source}: {line}YAML syntax error: {err.problem or err}") from None
     except yaml.YAMLError as err:
-        raise ConfigError(f"{what} file '{path}': YAML syntax error: {err}") from None
+        raise ConfigError(f"{source}: YAML syntax error: {err}") from None
     if root is None:
         return
-    _check_node(root, schema, f"{what} file '{path}'", "")
+    _check_node(root, schema, source, "")

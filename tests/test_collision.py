@@ -142,7 +142,7 @@ def test_colliding_posture_names_the_pair(g1, change, pair):
 
 def test_errors(g1):
     with pytest.raises(ConfigError, match="no collision capsules"):
-        CollisionConstraint(load_robot("ur5"), 0.02)
+        CollisionConstraint(load_robot(dataclasses.replace(resolve_robot_config("ur5").robot, capsules="")), 0.02)
     for margin in (-0.01, float("nan")):
         with pytest.raises(ConfigError, match="collision margin"):
             CollisionConstraint(g1, margin)

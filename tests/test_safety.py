@@ -109,11 +109,13 @@ def test_simulate_and_view_refuse_bad_trajectory_values_before_any_work(tmp_path
     err = capsys.readouterr().err
     assert message in err and "bad.json" in err
     assert not out.exists()
-    if "q0" not in changes:  # view has no limits to check against: the file's values only
-        html = tmp_path / "v.html"
-        assert main(["view", str(path), "--html", str(html)]) == 2
-        assert message in capsys.readouterr().err
-        assert not html.exists()
+    html = tmp_path / "v.html"
+    assert main(["view", str(path), "--html", str(html)]) == 2
+    assert message in capsys.readouterr().err
+    assert not html.exists()
+    assert main(["optimize", "--robot", "panda", "--prior", str(path), "--out", str(tmp_path / "o"), "--quiet"]) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
 
 
 def test_huge_amplitude_trajectory_is_refused_by_simulate(tmp_path, capsys):

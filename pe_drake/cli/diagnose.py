@@ -12,7 +12,7 @@ from pe_drake.identification.data_checks import check_against_model, check_raw_m
 from pe_drake.identification.estimators import prepare_measurement
 from pe_drake.identification.measurements import read_measurement_csv
 from pe_drake.io_utils import staged_output_dir
-from pe_drake.output_paths import check_output_dir
+from pe_drake.output_paths import DIAGNOSE_OUTPUTS, check_output_dir, remove_stale_outputs
 
 
 def diagnose_command(args) -> int:
@@ -33,5 +33,6 @@ def diagnose_command(args) -> int:
     result = diagnose(robot, data, validation, config, progress=lambda s: print(s, flush=True))
     with staged_output_dir(out) as tmp:
         written = write_outputs(tmp, robot, result)
+    remove_stale_outputs(out, DIAGNOSE_OUTPUTS, [Path(w).name for w in written])  # e.g. an old unexplained.png
     print(f"wrote {', '.join(str(out / Path(w).name) for w in written)}")
     return 0

@@ -21,9 +21,9 @@ from pe_drake.excitation.constraints import constraints_from_config
 from pe_drake.excitation.fourier import FourierBasis, sample_times
 from pe_drake.excitation.problem import ExcitationProblem
 from pe_drake.excitation.program import build_excitation_program
-from pe_drake.excitation.ramp import RampedMotion, choose_ramp_duration
+from pe_drake.excitation.ramp import RampedMotion, check_within_limits, choose_ramp_duration
 from pe_drake.excitation.solve import solve_excitation
-from pe_drake.excitation.trajectory_file import load_trajectory, save_trajectory, write_motion_csv
+from pe_drake.excitation.trajectory_file import load_motion, load_trajectory, save_trajectory, write_motion_csv
 from pe_drake.io_utils import staged_output_dir
 from pe_drake.multibody.capsule_fitting import ensure_capsules
 from pe_drake.multibody.registry import robot_display_name
@@ -46,6 +46,7 @@ def prior_regressor(problem, trajectory_json: str | Path) -> np.ndarray:
             f"its joints {list(joints)} differ from the robot's {list(problem.robot.joint_names)}",
             file=str(trajectory_json),
         )
+    check_within_limits(RampedMotion(trajectory), problem.robot.limits, joints, source=str(trajectory_json))
     basis = FourierBasis(trajectory.harmonics, trajectory.omega, sample_times(trajectory.period, problem.config.cost_samples))
     q, v, vd = basis.q(trajectory.a, trajectory.b, trajectory.q0), basis.v(trajectory.a, trajectory.b), basis.vd(
         trajectory.a, trajectory.b
@@ -124,7 +125,7 @@ def _check_arguments(args: argparse.Namespace) -> None:
     if args.periods is not None and not 1 <= args.periods <= 1000:
         raise ConfigError(f"--periods must be an integer from 1 to 1000, got {args.periods}")
     for prior in args.prior:
-        load_trajectory(prior)
+        load_motion(prior)  # every value of the file, ramps included
 
 
 def _load_robot(args, config: Config, fit_dir: Path, say):
