@@ -45,6 +45,8 @@ def test_bad_config_files(tmp_path, capsys, text, message):
     (["optimize", "--robot", "panda", "--out", "{tmp}/o", "--seed", "-1"], "--seed must be an integer from 0"),
     (["optimize", "--robot", "panda", "--out", "{tmp}/o", "--csv-rate", "1e6"], "--csv-rate must be from 1 to 10000 Hz"),
     (["optimize", "--robot", "panda", "--out", "{tmp}/o", "--periods", "0"], "--periods must be an integer from 1"),
+    (["optimize", "--robot", "panda", "--out", "{tmp}/o", "--periods", "1000", "--csv-rate", "10000"],
+     "trajectory.csv would hold up to 1e+08 rows"),
     (["optimize", "--robot", "panda", "--out", "{tmp}/o", "--prior", "{bad_json}"], "'omega' = 0"),
     (["view", TRAJ, "--html", "{tmp}"], "--html '{tmp}' is a folder"),
     (["simulate", "--robot", "panda", "--trajectory", TRAJ, "--truth", "t.yaml", "--out", "{tmp}"], "is a folder"),

@@ -21,7 +21,7 @@ from pe_drake.excitation.constraints import constraints_from_config
 from pe_drake.excitation.fourier import FourierBasis, sample_times
 from pe_drake.excitation.problem import ExcitationProblem
 from pe_drake.excitation.program import build_excitation_program
-from pe_drake.excitation.ramp import RampedMotion, check_within_limits, choose_ramp_duration
+from pe_drake.excitation.ramp import RAMP_DURATIONS, RampedMotion, check_within_limits, choose_ramp_duration
 from pe_drake.excitation.solve import solve_excitation
 from pe_drake.excitation.trajectory_file import load_motion, load_trajectory, save_trajectory, write_motion_csv
 from pe_drake.io_utils import staged_output_dir
@@ -77,6 +77,7 @@ def optimize_command(args: argparse.Namespace) -> int:
     """Runs ``pe-drake optimize``; returns 0 on success, 1 if no valid trajectory was found."""
     _check_arguments(args)  # and every output path and --prior file: before any work
     config = config_from_args(args, lambda c: _apply_arguments(c, args))
+    _check_csv_size(config, args.csv_rate)
     say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, flush=True))
     start = time.perf_counter()
     out = Path(args.out)
@@ -126,6 +127,18 @@ def _check_arguments(args: argparse.Namespace) -> None:
         raise ConfigError(f"--periods must be an integer from 1 to 1000, got {args.periods}")
     for prior in args.prior:
         load_motion(prior)  # every value of the file, ramps included
+
+
+def _check_csv_size(config: Config, rate: float, max_rows: int = 10_000_000) -> None:
+    """Refuses a trajectory.csv too large to write (periods × period × rate, ramps included)."""
+    e = config.excitation
+    duration = e.periods * 2 * math.pi / e.omega + (2 * max(RAMP_DURATIONS) if e.ramp else 0.0)
+    if duration * rate > max_rows:
+        raise ConfigError(
+            f"trajectory.csv would hold up to {duration * rate:.3g} rows ({e.periods} period(s) of "
+            f"{2 * math.pi / e.omega:.4g} s at {rate:g} Hz); use fewer --periods or a lower --csv-rate "
+            f"(at most {max_rows:.0e} rows)"
+        )
 
 
 def _load_robot(args, config: Config, fit_dir: Path, say):
