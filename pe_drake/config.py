@@ -70,6 +70,23 @@ class RobotConfig:
 
 
 @dataclasses.dataclass
+class NoiseStdConfig:
+    """Sensor noise σ of each measured quantity: the row weights of C (issue 14).
+
+    Rows divided by their σ make cond(C) independent of units and of the sensor mix.
+
+    Attributes:
+        torque: joint-torque noise [N·m or N] (used by ``measurement: both``).
+        force: force noise of the ground-wrench sensor [N].
+        moment: moment noise of the ground-wrench sensor [N·m].
+    """
+
+    torque: float = 1.0
+    force: float = 0.5
+    moment: float = 0.05
+
+
+@dataclasses.dataclass
 class ExcitationConfig:
     """The trajectory and the optimization problem (paper, section IV-A).
 
@@ -87,6 +104,11 @@ class ExcitationConfig:
         torque_limits: also keep the a-priori model's joint torques within the effort
             limits (``robot.limits.effort_max``: the model's, scaled by ``effort_scale``).
         seed: random seed of the initial point.
+        measurement: what the identification will measure, the rows of C:
+            "joint_torque" (Eq. 1), "base_wrench" (the ground wrench on a robot whose
+            root link stands on the ground: foot force/torque sensors or a force plate) or
+            "both".
+        noise_std: the sensors' noise, :class:`NoiseStdConfig` (row weights).
     """
 
     harmonics: int = 10
@@ -100,6 +122,8 @@ class ExcitationConfig:
     collision_margin: float = -1.0
     torque_limits: bool = False
     seed: int = 0
+    measurement: str = "joint_torque"
+    noise_std: NoiseStdConfig = dataclasses.field(default_factory=NoiseStdConfig)
 
 
 @dataclasses.dataclass
@@ -133,6 +157,7 @@ class Config:
 
 
 CRITERIA = ("cond", "log_cond", "dopt")
+MEASUREMENTS = ("joint_torque", "base_wrench", "both")
 SOLVERS = ("ipopt", "nlopt")
 NLOPT_ALGORITHMS = ("LD_SLSQP", "LD_MMA", "LD_CCSAQ")
 
@@ -203,6 +228,10 @@ def validate_config(config: Config) -> Config:
     _finite("excitation.amplitude", e.amplitude, positive=True)
     _finite("excitation.balance_radius", e.balance_radius, nonneg=True)
     _finite("excitation.collision_margin", e.collision_margin)
+    if e.measurement not in MEASUREMENTS:
+        raise ConfigError(f"excitation.measurement '{e.measurement}' is not one of {', '.join(MEASUREMENTS)}")
+    for name in ("torque", "force", "moment"):
+        _finite(f"excitation.noise_std.{name}", getattr(e.noise_std, name), positive=True)
 
     if s.name not in SOLVERS:
         raise ConfigError(f"solver.name '{s.name}' is not one of {', '.join(SOLVERS)}")

@@ -136,3 +136,21 @@ def test_rows_are_scaled_by_the_sensor_noise(g1):
 def test_bad_measurement_types_are_refused(kwargs, match):
     with pytest.raises(ConfigError, match=match):
         MeasurementType(**kwargs)
+
+
+def test_config_measurement_and_noise(tmp_path):
+    from pe_drake.config import load_config
+    from pe_drake.multibody.sensors import measurement_type
+
+    path = tmp_path / "c.yaml"
+    path.write_text("excitation: {measurement: base_wrench, noise_std: {force: 0.2, moment: 0.02}}\n")
+    config = load_config(path)
+    m = measurement_type(config.excitation)
+    assert (m.kind, m.force_std, m.moment_std, m.torque_std) == ("base_wrench", 0.2, 0.02, 1.0)
+    assert measurement_type(config.excitation, "both").kind == "both"
+    path.write_text("excitation: {measurement: force_plate}\n")
+    with pytest.raises(ConfigError, match="excitation.measurement 'force_plate'"):
+        load_config(path)
+    path.write_text("excitation: {noise_std: {moment: -1}}\n")
+    with pytest.raises(ConfigError, match="excitation.noise_std.moment"):
+        load_config(path)

@@ -20,13 +20,13 @@ import math
 
 import numpy as np
 
+from pe_drake.config import MEASUREMENTS, ExcitationConfig
 from pe_drake.exceptions import ConfigError
 from pe_drake.multibody.base_parameters import BaseParameters, compute_base_parameters
 from pe_drake.multibody.regressor import Kinematics, RegressorModel
 from pe_drake.multibody.wrench import WRENCH_COLUMNS
 
-#: The measurement types, for configs and command lines.
-MEASUREMENTS = ("joint_torque", "base_wrench", "both")
+__all__ = ["MEASUREMENTS", "MeasurementType", "SensorRows", "measurement_type"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -73,6 +73,13 @@ class MeasurementType:
         if self.wrench:
             parts.append(np.repeat([self.force_std, self.moment_std], 3))
         return np.concatenate(parts)
+
+
+def measurement_type(config: ExcitationConfig, kind: str | None = None) -> MeasurementType:
+    """The :class:`MeasurementType` of an excitation config (``kind`` overrides its
+    ``measurement``, as ``--measurement`` does)."""
+    noise = config.noise_std
+    return MeasurementType(kind or config.measurement, noise.torque, noise.force, noise.moment)
 
 
 class SensorRows:
