@@ -154,3 +154,26 @@ def test_config_measurement_and_noise(tmp_path):
     path.write_text("excitation: {noise_std: {moment: -1}}\n")
     with pytest.raises(ConfigError, match="excitation.noise_std.moment"):
         load_config(path)
+
+
+def test_channels_of_a_run(g1):
+    """Rows and values of each measurement type; a run without wrench is refused by name."""
+    import types
+
+    from pe_drake.exceptions import DataError
+    from pe_drake.identification.channels import channel_names, measured_rows, measured_values, predicted_wrench
+
+    q, v, vd = random_states(g1, 4, seed=2)
+    model = RegressorModel(g1)
+    wrench = predicted_wrench(g1, g1.phi_model, q, v, vd, model)
+    tau = model(q, v, vd) @ g1.phi_model
+    data = types.SimpleNamespace(q=q, v=v, vd=vd, tau=tau, wrench=wrench, num_samples=4, source="run.csv")
+    for kind in MEASUREMENTS:
+        A, y = measured_rows(g1, data, kind, model), measured_values(g1, data, kind)
+        assert A.shape[:2] == y.shape == (4, len(channel_names(g1, kind)))
+        assert np.allclose(A @ g1.phi_model, y, rtol=0, atol=1e-9)
+    assert channel_names(g1, "both")[-6:] == WRENCH_COLUMNS
+    with pytest.raises(DataError, match=r"run.csv.*wrench.fx"):
+        measured_values(g1, types.SimpleNamespace(**{**vars(data), "wrench": None}), "base_wrench")
+    with pytest.raises(DataError, match="tau"):
+        measured_values(g1, types.SimpleNamespace(**{**vars(data), "tau": None}), "both")

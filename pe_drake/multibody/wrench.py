@@ -93,12 +93,48 @@ def reaction_to_ground_wrench(robot, reactions) -> np.ndarray:
     return np.concatenate([force, moment])
 
 
+def weld_reaction(robot, q: np.ndarray, v: np.ndarray, applied: np.ndarray, centred: bool = False) -> np.ndarray:
+    """Drake's reaction at the root weld at states (q, v) under applied joint forces, (T, 6).
+
+    Uses ``robot.plant_context`` (a simulated robot's context keeps its true inertias).
+
+    Args:
+        robot: a :class:`~pe_drake.multibody.robot.Robot`.
+        q, v: each (T, n).
+        applied: generalized forces applied at the joints, (T, n) [N·m or N] (held over the
+            sample period that starts at each sample, as a zero-order-hold controller does).
+        centred: average, at sample k, the reactions under applied[k − 1] and applied[k]
+            (the acceleration jumps at t_k when the command changes; the average is the one
+            centred on t_k, like the logged torque of ``simulate``).
+
+    Returns:
+        Ground wrench per sample, (T, 6), :data:`WRENCH_COLUMNS` order [N, N·m].
+    """
+    plant, ctx = robot.plant, robot.plant_context
+    q, v, applied = (np.atleast_2d(np.asarray(x, float)) for x in (q, v, applied))
+    port = plant.get_applied_generalized_force_input_port()
+    reaction = plant.get_reaction_forces_output_port()
+    saved = port.Eval(ctx).copy() if port.HasValue(ctx) else np.zeros(plant.num_velocities())
+    out = np.empty((q.shape[0], 6))
+    for t in range(q.shape[0]):
+        plant.SetPositions(ctx, q[t])
+        plant.SetVelocities(ctx, v[t])
+        port.FixValue(ctx, applied[t])
+        out[t] = reaction_to_ground_wrench(robot, reaction.Eval(ctx))
+        if centred and t > 0:
+            port.FixValue(ctx, applied[t - 1])
+            out[t] = 0.5 * (out[t] + reaction_to_ground_wrench(robot, reaction.Eval(ctx)))
+    port.FixValue(ctx, saved)
+    return out
+
+
 def weld_reaction_wrench(robot, q: np.ndarray, v: np.ndarray, vd: np.ndarray) -> np.ndarray:
     """Drake's reaction at the root weld while the robot moves with (q, v, vdot), (T, 6).
 
     The joints are driven by the inverse-dynamics torques (joint damping included), so that
     Drake's forward dynamics reproduces vdot; the reaction output of the weld is then the
-    ground wrench. An independent oracle for the wrench rows and what ``simulate`` records.
+    ground wrench. An independent oracle for the wrench rows. Collision geometry in contact
+    adds contact forces to Drake's forward dynamics: use states where none touches.
 
     Args:
         robot: a :class:`~pe_drake.multibody.robot.Robot` (its own plant and context are used).
@@ -107,19 +143,8 @@ def weld_reaction_wrench(robot, q: np.ndarray, v: np.ndarray, vd: np.ndarray) ->
     Returns:
         Ground wrench per sample, (T, 6), :data:`WRENCH_COLUMNS` order [N, N·m].
     """
-    plant = robot.plant
-    ctx = robot.plant_context
     q, v, vd = (np.atleast_2d(np.asarray(x, float)) for x in (q, v, vd))
-    tau = robot.inverse_dynamics(q, v, vd, include_damping=True)
-    port = plant.get_applied_generalized_force_input_port()
-    out = np.empty((q.shape[0], 6))
-    for t in range(q.shape[0]):
-        plant.SetPositions(ctx, q[t])
-        plant.SetVelocities(ctx, v[t])
-        port.FixValue(ctx, tau[t])
-        out[t] = reaction_to_ground_wrench(robot, plant.get_reaction_forces_output_port().Eval(ctx))
-    port.FixValue(ctx, np.zeros(plant.num_velocities()))
-    return out
+    return weld_reaction(robot, q, v, robot.inverse_dynamics(q, v, vd, include_damping=True))
 
 
 def _body_index(b: int):
