@@ -10,7 +10,7 @@ from conftest import random_states
 
 from pe_drake.exceptions import ConfigError
 from pe_drake.multibody.regressor import RegressorModel
-from pe_drake.multibody.sensors import MEASUREMENTS, MeasurementType, SensorRows
+from pe_drake.multibody.sensors import MEASUREMENTS, WRENCH_RANK_TOLERANCE, MeasurementType, SensorRows
 from pe_drake.multibody.wrench import WRENCH_COLUMNS, static_wrench, weld_reaction_wrench
 
 WAIST = ["waist_yaw_joint", "waist_roll_joint", "waist_pitch_joint"]
@@ -57,38 +57,48 @@ def test_wrench_rows_of_arbitrary_parameters_are_newton_euler_sums(g1):
     assert np.allclose(rows @ phi, np.concatenate([F[:, 3:], F[:, :3]], axis=1), rtol=0, atol=1e-12)
 
 
-@pytest.mark.parametrize("waist, expected", [(False, (90, 97)), (True, (113, 118))], ids=["arms", "arms+waist"])
+@pytest.mark.parametrize("waist, expected", [(False, (90, 96)), (True, (113, 118))], ids=["arms", "arms+waist"])
 def test_rank_of_wrench_rows(waist, expected):
     """The wrench identifies every torque-identifiable parameter and some the torques miss.
 
-    Issue 14 quoted 97 (arms) and 120 (arms + waist); measured here: 97 and 118, with a clean
-    gap (σ_118/σ_max ≈ 5e-2, σ_119/σ_max ≈ 1e-15).
+    Issue 14 quoted 97 (arms) and 120 (arms + waist). Measured here at the joint-torque
+    tolerance: 97 and 118; the arms' 97th direction is 1.5e-4 of the strongest on R's
+    diagonal (WRENCH_RANK_TOLERANCE drops it), the next one 0.39.
     """
     robot = g1_variant(waist)
     model = RegressorModel(robot)
     counts = [SensorRows(model, MeasurementType(kind)).base_parameters().count for kind in MEASUREMENTS]
     assert tuple(counts[:2]) == expected
     assert counts[2] == expected[1]  # both = the union; the wrench already covers the torques
+    exact = SensorRows(model, MeasurementType("base_wrench")).base_parameters(rank_tolerance=1e-8)
+    assert exact.count == expected[1] + (0 if waist else 1)
+    d = np.sort(exact.diag_R)[::-1] / exact.diag_R.max()
+    if not waist:
+        assert d[95] > 0.1 and 1e-5 < d[96] < WRENCH_RANK_TOLERANCE
 
 
-def test_noise_free_identification_from_the_wrench(g1):
+@pytest.mark.parametrize("tolerance", [1e-8, None], ids=["numerical rank 97", "default 96"])
+def test_noise_free_identification_from_the_wrench(g1, tolerance):
     model = RegressorModel(g1)
     rows = SensorRows(model, MeasurementType("base_wrench"))
-    base = rows.base_parameters()
+    base = rows.base_parameters(rank_tolerance=tolerance)
     q, v, vd = random_states(g1, 40, seed=7)
     W = model.wrench_regressor(model.kinematics(q, v, vd))
     phi = g1.phi_model * np.random.default_rng(2).uniform(0.8, 1.2, model.num_params)
     w = W @ phi  # the measured wrench minus the static bodies' weight
     phi_B = np.linalg.lstsq(base.reduce(W).reshape(-1, base.count), w.ravel(), rcond=None)[0]
     truth = base.base_values(phi)
-    assert np.abs(phi_B - truth).max() < 1e-8 * np.abs(truth).max()
+    # Exact with every numerically independent direction; without the nearly unobservable
+    # 97th, what it does to the wrench (~1e-4 of the largest term) lands in the others.
+    tol = 1e-8 if tolerance else 1e-4
+    assert np.abs(phi_B - truth).max() < tol * np.abs(truth).max()
     # The base parameters predict the wrench of any other motion: K X = I and W X K = W.
     q2, v2, vd2 = random_states(g1, 5, seed=8)
     W2 = model.wrench_regressor(model.kinematics(q2, v2, vd2))
-    assert np.allclose(base.reduce(W2) @ phi_B, W2 @ phi, rtol=0, atol=1e-8)
+    assert np.abs(base.reduce(W2) @ phi_B - W2 @ phi).max() < tol * np.abs(W2 @ phi).max()
     # ... and the joint torques: what the torques identify, the wrench identifies too.
     Y2 = model(q2, v2, vd2)
-    assert np.allclose(Y2 @ (base.X @ phi_B), Y2 @ phi, rtol=0, atol=1e-8)
+    assert np.abs(Y2 @ (base.X @ phi_B) - Y2 @ phi).max() < tol * np.abs(Y2 @ phi).max()
 
 
 @pytest.mark.parametrize("kind", ["base_wrench", "both"])

@@ -26,7 +26,16 @@ from pe_drake.multibody.base_parameters import BaseParameters, compute_base_para
 from pe_drake.multibody.regressor import Kinematics, RegressorModel
 from pe_drake.multibody.wrench import WRENCH_COLUMNS
 
-__all__ = ["MEASUREMENTS", "MeasurementType", "SensorRows", "measurement_type"]
+__all__ = ["MEASUREMENTS", "WRENCH_RANK_TOLERANCE", "MeasurementType", "SensorRows", "measurement_type"]
+
+#: Relative tolerance on the pivoted-QR diagonal for rows that include the ground wrench.
+#: On G1's arms the wrench rows have numerical rank 97 at the joint-torque tolerance (1e-8),
+#: but the 97th direction (hy of the right minus the left shoulder-pitch link: their axes are
+#: nearly horizontal, so h along them barely moves the wrench) has |R_ii|/|R_00| = 1.5e-4 and
+#: σ/σ_max = 3.5e-5: its largest effect is ~1e-5 N·m for the model's values, far below any
+#: force/torque sensor, and kept in C it would pin cond(C) above 1e4 for every motion. The next
+#: one is at 0.39, so 1e-3 drops it alone (96 base parameters; 118 with the waist excited).
+WRENCH_RANK_TOLERANCE = 1e-3
 
 
 @dataclasses.dataclass(frozen=True)
@@ -135,13 +144,19 @@ class SensorRows:
         Z_wrench = Z[:, n:] if self.measurement.wrench else None
         return self.model.pullback(kin, Z_tau, Z_wrench)
 
-    def base_parameters(self, *, seed: int = 0, rank_tolerance: float = 1e-8) -> BaseParameters:
+    def base_parameters(self, *, seed: int = 0, rank_tolerance: float | None = None) -> BaseParameters:
         """The base parameters of these rows (their own pivoted QR, Eq. 2).
 
-        The ground wrench identifies more than the joint torques (on G1's arms 97 instead of
-        90: the shoulder links' parameters that only load the pelvis); ``both`` gives the
-        union.
+        The ground wrench identifies more than the joint torques (on G1's arms 96 instead of
+        90: shoulder-link parameters that only load the pelvis); ``both`` gives the union.
+
+        Args:
+            seed: seed of the random states.
+            rank_tolerance: relative tolerance on R's diagonal (default 1e-8 for joint
+                torques, :data:`WRENCH_RANK_TOLERANCE` with the wrench).
         """
+        if rank_tolerance is None:
+            rank_tolerance = WRENCH_RANK_TOLERANCE if self.measurement.wrench else 1e-8
         robot = self.model.robot
         samples = max(20, int(np.ceil(4 * self.num_params / self.num_rows)))
         return compute_base_parameters(
