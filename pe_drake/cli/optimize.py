@@ -38,7 +38,7 @@ def prior_regressor(problem, trajectory_json: str | Path) -> np.ndarray:
     q, v, vd = basis.q(trajectory.a, trajectory.b, trajectory.q0), basis.v(trajectory.a, trajectory.b), basis.vd(
         trajectory.a, trajectory.b
     )
-    Y = problem.model(q, v, vd)
+    Y = problem.rows(q, v, vd)  # the measurement's rows (joint torques, ground wrench or both)
     return problem.base.reduce(Y).reshape(-1, problem.base.count)
 
 
