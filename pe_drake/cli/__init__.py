@@ -12,6 +12,7 @@ import importlib
 import sys
 
 from pe_drake import __version__
+from pe_drake.config import MEASUREMENTS
 
 _COMMANDS = {
     "optimize": ("pe_drake.cli.optimize", "optimize_command"),
@@ -21,6 +22,8 @@ _COMMANDS = {
     "validate": ("pe_drake.cli.identify", "validate_command"),
     "diagnose": ("pe_drake.cli.diagnose", "diagnose_command"),
 }
+
+_MEASUREMENT_DEFAULT = "(default: the config's excitation.measurement, joint_torque)"
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -40,6 +43,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="earlier trajectory whose data is reused as C0 (repeatable)")
     p.add_argument("--max-iterations", type=int, help="solver iteration limit")
     p.add_argument("--seed", type=int, help="seed of the random initial point")
+    p.add_argument("--measurement", choices=MEASUREMENTS,
+                   help="rows of C: joint torques, the ground wrench (foot F/T sensors), or both "
+                   + _MEASUREMENT_DEFAULT)
     p.add_argument("--csv-rate", type=float, default=1000.0, help="rate of trajectory.csv [Hz]")
     p.add_argument("--no-html", action="store_true", help="do not write the Meshcat HTML playback")
     p.add_argument("--quiet", action="store_true", help="no progress output")
@@ -60,6 +66,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--truth", required=True, help="TRUTH.yaml: perturbation, effects, noise")
     p.add_argument("--out", required=True, help="output CSV")
     p.add_argument("--duration", type=float, help="simulated time [s] (default: one period)")
+    p.add_argument("--measurement", choices=MEASUREMENTS,
+                   help="what the robot records: tau columns, wrench.* columns (the root link's weld "
+                   "reaction), or both " + _MEASUREMENT_DEFAULT)
 
     p = sub.add_parser("identify", help="identify the base parameters from measured data")
     p.add_argument("--robot", required=True)
@@ -70,6 +79,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--trajectory", help="trajectory.json that was run (its harmonics set the cut-off)")
     p.add_argument("--no-filter", action="store_true",
                    help="use the data as it is (exact data with v.* and vdot.* columns)")
+    p.add_argument("--measurement", choices=MEASUREMENTS,
+                   help="channels to identify from: joint torques, the ground wrench alone, or both "
+                   + _MEASUREMENT_DEFAULT)
     p.add_argument("--out", required=True, help="output folder")
 
     p = sub.add_parser("validate", help="predict torques of another run with an identified model")
@@ -80,6 +92,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--cutoff", type=float, help="low-pass cut-off [Hz] (default: from the data)")
     p.add_argument("--json", help="write per-joint errors here")
     p.add_argument("--plot", help="write measured vs predicted torque plot here (PNG)")
+    p.add_argument("--measurement", choices=MEASUREMENTS,
+                   help="channels to predict (from any identified model): joint torques, the ground "
+                   "wrench, or both " + _MEASUREMENT_DEFAULT)
 
     p = sub.add_parser("diagnose", help="name the effects missing from the model")
     p.add_argument("--robot", required=True)

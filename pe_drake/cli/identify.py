@@ -11,15 +11,18 @@ from pathlib import Path
 import numpy as np
 
 from pe_drake.exceptions import ConfigError
+from pe_drake.identification.channels import measured_values
 from pe_drake.io_utils import atomic_write_text, staged_output_dir
+from pe_drake.multibody.sensors import MeasurementType
 
 
 def _load(args: argparse.Namespace):
+    """(robot, measurement): ``--measurement`` or the config's ``excitation.measurement``."""
     from pe_drake.multibody.robot import Robot, builtin_robots, resolve_robot_config
 
     config = resolve_robot_config(args.robot, args.config)
     name = args.robot if args.robot in builtin_robots() else Path(args.robot).stem
-    return Robot(name, config.robot)
+    return Robot(name, config.robot), getattr(args, "measurement", None) or config.excitation.measurement
 
 
 def _trajectory_band(path: str | None) -> tuple[float | None, int | None]:
@@ -53,7 +56,7 @@ def identify_command(args: argparse.Namespace) -> int:
 
     _check_cutoff(args.cutoff)
     start = time.perf_counter()
-    robot = _load(args)
+    robot, measurement = _load(args)
     raw = read_robot_measurement(robot, args.data)
     f0, harmonics = _trajectory_band(getattr(args, "trajectory", None))
     data = prepare_measurement(
@@ -77,9 +80,9 @@ def identify_command(args: argparse.Namespace) -> int:
             f"v {p.velocity_source}, vdot {p.acceleration_source}",
             flush=True,
         )
-    result = identify(robot, data, args.method)
+    result = identify(robot, data, args.method, measurement=measurement)
     print(
-        f"{args.method}: {result.base.count} base parameters, cond(W) = {result.cond:.4g}, "
+        f"{args.method} from {measurement}: {result.base.count} base parameters, cond(W) = {result.cond:.4g}, "
         f"{result.wall_time:.2f} s",
         flush=True,
     )
@@ -90,8 +93,8 @@ def identify_command(args: argparse.Namespace) -> int:
         + ", ".join(f"{_short_name(result.base, i)} {result.sigma_percent[i]:.3g}%" for i in worst)
     )
     print(
-        "residual RMS [N·m]: "
-        + ", ".join(f"{j} {r:.4g}" for j, r in zip(robot.joint_names, result.residual_rms))
+        "residual RMS [N·m, N]: "
+        + ", ".join(f"{c} {r:.4g}" for c, r in zip(result.channels, result.residual_rms))
     )
 
     phi = result.phi
@@ -143,30 +146,35 @@ def validate_command(args: argparse.Namespace) -> int:
     """Runs ``pe-drake validate``: per-joint RMS and relative torque error on another run."""
     from pe_drake.identification.estimators import (
         load_identified,
-        predict,
         prepare_measurement,
         read_robot_measurement,
         torque_errors,
     )
 
-    robot = _load(args)
+    robot, measurement = _load(args)
     result = load_identified(args.model, robot)
     raw = read_robot_measurement(robot, args.data)
     data = prepare_measurement(robot, raw, cutoff_hz=getattr(args, "cutoff", None))
-    tau_pred = predict(robot, result, data)
-    rms, rel = torque_errors(data.tau, tau_pred)
-    total = float(100 * np.linalg.norm(data.tau - tau_pred) / max(np.linalg.norm(data.tau), 1e-300))
-    width = max(len(j) for j in robot.joint_names)
-    print(f"{'joint':<{width}}  {'RMS [N·m]':>10}  {'relative [%]':>12}")
-    for j, r, e in zip(robot.joint_names, rms, rel):
-        print(f"{j:<{width}}  {r:>10.4f}  {e:>12.2f}")
-    print(f"{'all':<{width}}  {float(np.sqrt(np.mean(rms**2))):>10.4f}  {total:>12.2f}")
+    kind = MeasurementType(measurement)
+    # Any model predicts any channel: a wrench-identified one the joint torques too (issue 14).
+    measured, predicted = _validation_channels(robot, result, data, kind)
+    names = kind.row_names(robot.joint_names)
+    rms, rel = torque_errors(measured, predicted)
+    total = float(100 * np.linalg.norm(measured - predicted) / max(np.linalg.norm(measured), 1e-300))
+    width = max(len(j) for j in names)
+    print(f"model identified from {result.measurement}; predicting {measurement}")
+    print(f"{'channel':<{width}}  {'RMS [N·m, N]':>12}  {'relative [%]':>12}")
+    for j, r, e in zip(names, rms, rel):
+        print(f"{j:<{width}}  {r:>12.4f}  {e:>12.2f}")
+    print(f"{'all':<{width}}  {float(np.sqrt(np.mean(rms**2))):>12.4f}  {total:>12.2f}")
     report = {
         "robot": robot.name,
         "model": str(args.model),
+        "model_measurement": result.measurement,
+        "measurement": measurement,
         "data": str(args.data),
-        "rms": dict(zip(robot.joint_names, map(float, rms))),
-        "relative_error": dict(zip(robot.joint_names, map(float, rel))),
+        "rms": dict(zip(names, map(float, rms))),
+        "relative_error": dict(zip(names, map(float, rel))),
         "relative_error_total": total,
         "samples": data.num_samples,
     }
@@ -174,43 +182,60 @@ def validate_command(args: argparse.Namespace) -> int:
         atomic_write_text(args.json, json.dumps(report, indent=2))
         print(f"wrote {args.json}")
     if args.plot:
-        _plot_prediction(Path(args.plot), robot, data, tau_pred, rel)
+        _plot_prediction(Path(args.plot), robot, data.t, measured, predicted, rel, names)
         print(f"wrote {args.plot}")
     return 0
 
 
-def _plot_residuals(path: Path, robot, data, result) -> None:
-    """Measured torque and the model's fit per joint on the identification data."""
-    from pe_drake.identification.estimators import predict
+def _validation_channels(robot, result, data, kind) -> tuple[np.ndarray, np.ndarray]:
+    """(measured, predicted), each (S, r): joint torques then the ground wrench."""
+    from pe_drake.identification.estimators import predict, predict_wrench
 
+    measured_values(robot, data, kind.kind)  # refuses data without the channels, by name
+    measured, predicted = [], []
+    if kind.torques:
+        measured.append(data.tau)
+        predicted.append(predict(robot, result, data))
+    if kind.wrench:
+        measured.append(data.wrench)
+        predicted.append(predict_wrench(robot, result, data))
+    return np.hstack(measured), np.hstack(predicted)
+
+
+def _plot_residuals(path: Path, robot, data, result) -> None:
+    """Measured channels and the model's fit on the identification data."""
+    measured, predicted = _validation_channels(robot, result, data, MeasurementType(result.measurement))
     _plot_prediction(
         path,
         robot,
-        data,
-        predict(robot, result, data),
+        data.t,
+        measured,
+        predicted,
         result.relative_error,
+        result.channels,
         title=f"{robot.name}: {result.method} fit on the identification data",
     )
 
 
-def _plot_prediction(path: Path, robot, data, tau_pred: np.ndarray, rel: np.ndarray, title: str = "") -> None:
+def _plot_prediction(path: Path, robot, t, measured, predicted, rel, names, title: str = "") -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    n = robot.n
+    n = measured.shape[1]
     fig, axes = plt.subplots(n, 1, figsize=(11, 1.7 * n + 1), sharex=True, constrained_layout=True)
     axes = np.atleast_1d(axes)
     for j, ax in enumerate(axes):
-        ax.plot(data.t, data.tau[:, j], "k", lw=1, label="measured")
-        ax.plot(data.t, tau_pred[:, j], "C1", lw=1, label="model")
-        ax.plot(data.t, data.tau[:, j] - tau_pred[:, j], "C3", lw=0.7, alpha=0.7, label="error")
-        ax.set_ylabel(f"{robot.joint_names[j]}\n[N·m]", fontsize=7)
+        ax.plot(t, measured[:, j], "k", lw=1, label="measured")
+        ax.plot(t, predicted[:, j], "C1", lw=1, label="model")
+        ax.plot(t, measured[:, j] - predicted[:, j], "C3", lw=0.7, alpha=0.7, label="error")
+        unit = "N" if names[j].startswith("wrench.f") else "N·m"
+        ax.set_ylabel(f"{names[j]}\n[{unit}]", fontsize=7)
         ax.set_title(f"relative error {rel[j]:.1f} %", fontsize=8, loc="right")
     axes[0].legend(fontsize=7, ncol=3, loc="upper left")
     axes[-1].set_xlabel("t [s]")
-    fig.suptitle(title or f"{robot.name}: measured vs predicted torque")
+    fig.suptitle(title or f"{robot.name}: measured vs predicted")
     tmp = path.with_name(f".{path.name}.tmp.png")
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(tmp, dpi=80)

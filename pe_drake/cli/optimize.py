@@ -51,6 +51,8 @@ def _apply_arguments(config: Config, args: argparse.Namespace) -> Config:
         config.solver.max_iterations = args.max_iterations
     if args.seed is not None:
         config.excitation.seed = args.seed
+    if getattr(args, "measurement", None):
+        config.excitation.measurement = args.measurement
     if args.quiet:
         config.solver.verbose = False
     return validate_config(config)
@@ -76,7 +78,7 @@ def optimize_command(args: argparse.Namespace) -> int:
         problem = ExcitationProblem(robot, config.excitation, C0=np.vstack(blocks), base=problem.base, model=problem.model)
         say(f"prior data: {len(args.prior)} motion(s), {problem.C0.shape[0]} rows, cond(C0) = {np.linalg.cond(problem.C0):.4g}")
     say(
-        f"{problem.base.count} base parameters; {problem.num_variables} variables "
+        f"{problem.base.count} base parameters of the {config.excitation.measurement} rows; {problem.num_variables} variables "
         f"(N = {problem.harmonics}, ω = {problem.omega:.4g} rad/s, period {problem.period:.3g} s); "
         f"T = {config.excitation.cost_samples} cost samples, K = {config.excitation.constraint_samples} constraint samples"
     )
@@ -100,6 +102,7 @@ def optimize_command(args: argparse.Namespace) -> int:
         "status": result.status,
         "solver": result.solver,
         "criterion": config.excitation.criterion,
+        "measurement": config.excitation.measurement,
         "cond": result.cond,
         "cond_motion": result.cond_motion,
         "criterion_value": result.fun,

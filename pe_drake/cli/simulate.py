@@ -10,7 +10,7 @@ from pe_drake.excitation.trajectory_file import load_trajectory
 from pe_drake.identification.measurements import measurement_to_csv_text
 from pe_drake.identification.simulation import load_truth, simulate, truth_path_for
 from pe_drake.io_utils import atomic_write_text
-from pe_drake.multibody.robot import load_robot
+from pe_drake.multibody.robot import load_robot, resolve_robot_config
 
 
 def simulate_command(args) -> int:
@@ -19,6 +19,8 @@ def simulate_command(args) -> int:
     if out.is_dir():
         raise ConfigError(f"--out '{out}' is a folder; give the CSV file to write")
     truth = load_truth(args.truth)
+    config = resolve_robot_config(args.robot, getattr(args, "config", None))
+    measurement = getattr(args, "measurement", None) or config.excitation.measurement
     robot = load_robot(args.robot, getattr(args, "config", None))
     trajectory, data = load_trajectory(args.trajectory)
     if list(data["joints"]) != list(robot.joint_names):
@@ -28,10 +30,10 @@ def simulate_command(args) -> int:
             file=str(args.trajectory),
         )
     duration = args.duration if getattr(args, "duration", None) is not None else data.get("duration")
-    measurement, truth_dict = simulate(robot, trajectory, truth, duration)
-    measurement = measurement.replace(source=str(out))
+    data, truth_dict = simulate(robot, trajectory, truth, duration, measurement=measurement)
+    data = data.replace(source=str(out))
 
-    csv_text = measurement_to_csv_text(measurement)
+    csv_text = measurement_to_csv_text(data)
     truth_file = truth_path_for(out)
     truth_dict["data_file"] = out.name
     atomic_write_text(truth_file, json.dumps(truth_dict, indent=2) + "\n")
@@ -48,5 +50,6 @@ def simulate_command(args) -> int:
     )
     print("tracking error RMS [mrad]: " + ", ".join(
         f"{j} {1e3 * e:.3g}" for j, e in sim["tracking_error_rms"].items()))
-    print(f"wrote {out} and {truth_file}")
+    recorded = {"joint_torque": "tau", "base_wrench": "wrench", "both": "tau and wrench"}[measurement]
+    print(f"wrote {out} ({recorded} columns) and {truth_file}")
     return 0

@@ -29,9 +29,8 @@ CHUNK = 2000
 
 
 def channel_names(robot, measurement: str) -> tuple[str, ...]:
-    """Names of the channels of one sample: ``tau.<joint>`` then :data:`WRENCH_COLUMNS`."""
-    kind = MeasurementType(measurement)
-    return tuple(f"tau.{j}" for j in robot.joint_names if kind.torques) + (WRENCH_COLUMNS if kind.wrench else ())
+    """Names of the channels of one sample: the joints (their torques), then :data:`WRENCH_COLUMNS`."""
+    return MeasurementType(measurement).row_names(robot.joint_names)
 
 
 def measured_values(robot, data, measurement: str) -> np.ndarray:

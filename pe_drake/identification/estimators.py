@@ -1,6 +1,8 @@
 """Identification of the inertial parameters from measured joint data.
 
-The measured torques of S samples of n joints are stacked into the linear model of Eq. (4),
+The measured torques of S samples of n joints (or the ground wrench, or both: the
+``measurement`` of :mod:`pe_drake.identification.channels`, issue 14) are stacked into the
+linear model of Eq. (4),
 
     τ = Y_B(q, v, v̇) φ_B + ρ,          W = [Y_B(1); …; Y_B(S)]  (S·n × b),
 
@@ -32,11 +34,15 @@ from typing import Any
 
 import numpy as np
 
+from pe_drake.config import MEASUREMENTS
 from pe_drake.exceptions import ConfigError, DataError
+from pe_drake.identification.channels import channel_names, measured_rows, measured_values
 from pe_drake.identification.measurements import Measurement, check_torque_units, preprocess, read_measurement_csv
 from pe_drake.multibody.base_parameters import BaseParameters, compute_base_parameters
 from pe_drake.multibody.inertia import PARAMETER_NAMES, pseudo_inertia_basis, validity_problems
 from pe_drake.multibody.regressor import RegressorModel
+from pe_drake.multibody.sensors import MeasurementType, SensorRows
+from pe_drake.multibody.wrench import static_wrench
 
 METHODS = ("ols", "wls", "physical")
 #: Weight of the pull toward the a-priori parameters in the physical fit, relative to the
@@ -67,13 +73,16 @@ class IdentificationResult:
         phi: identified standard parameters (10 per body, about each body origin) for
             ``physical``, else None.
         cond: cond(W) of the (unweighted) stacked data regressor.
-        residual_rms: per-joint RMS of τ − W φ_B on the identification data [N·m].
-        relative_error: per-joint 100·‖ρ_j‖/‖τ_j‖ [%].
-        noise_std: per-joint residual standard deviation σ_j [N·m] (WLS weights).
+        residual_rms: per-channel RMS of y − W φ_B on the identification data [N·m, N].
+        relative_error: per-channel 100·‖ρ_c‖/‖y_c‖ [%].
+        noise_std: per-channel residual standard deviation σ_c (WLS weights).
         samples: S, samples used (after preprocessing).
         preprocessing: what :func:`pe_drake.identification.measurements.preprocess` did (or None).
         wall_time: seconds spent in the estimator (regressor included).
         source: the data file.
+        measurement: "joint_torque", "base_wrench" or "both": the channels identified from.
+        channels: the channel of each entry of residual_rms, relative_error and noise_std:
+            joint names (torques), then :data:`~pe_drake.multibody.wrench.WRENCH_COLUMNS`.
     """
 
     robot: str
@@ -91,6 +100,8 @@ class IdentificationResult:
     preprocessing: Any = None
     wall_time: float = 0.0
     source: str = ""
+    measurement: str = "joint_torque"
+    channels: tuple[str, ...] = ()
 
 
 # ---- data ------------------------------------------------------------------------------------
@@ -148,7 +159,7 @@ def prepare_measurement(
                 file=measurement.source,
             )
         data = measurement
-    if check_units:
+    if check_units and data.tau is not None:
         check_torque_units(data, robot_torques(robot, data, robot.phi_model))
     return data
 
@@ -185,16 +196,24 @@ def regressor_matrices(
 # ---- estimators ------------------------------------------------------------------------------
 
 
-def _check_rows(data: Measurement, base: BaseParameters) -> None:
-    rows = data.num_samples * data.num_joints
+def _check_rows(data: Measurement, base: BaseParameters, channels: int) -> None:
+    rows = data.num_samples * channels
     need = MIN_ROWS_PER_PARAMETER * base.count
     if rows < need:
         raise DataError(
-            f"{data.num_samples} samples × {data.num_joints} joints = {rows} equations after "
+            f"{data.num_samples} samples × {channels} channels = {rows} equations after "
             f"preprocessing; identifying {base.count} base parameters needs at least {need} "
-            f"({math.ceil(need / data.num_joints)} samples): record a longer run",
+            f"({math.ceil(need / channels)} samples): record a longer run",
             file=data.source,
         )
+
+
+def measurement_base_parameters(robot, measurement: str = "joint_torque", model: RegressorModel | None = None):
+    """The base parameters a measurement identifies (:mod:`pe_drake.multibody.sensors`)."""
+    model = model or RegressorModel(robot)
+    if measurement == "joint_torque":
+        return compute_base_parameters(robot, model=model)
+    return SensorRows(model, MeasurementType(measurement)).base_parameters()
 
 
 def _lstsq(W: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -227,6 +246,7 @@ def identify(
     base: BaseParameters | None = None,
     prior: np.ndarray | None = None,
     model: RegressorModel | None = None,
+    measurement: str = "joint_torque",
 ) -> IdentificationResult:
     """Identifies the base parameters (and, for ``physical``, the standard ones).
 
@@ -234,13 +254,16 @@ def identify(
         robot: the robot.
         data: preprocessed data (:func:`prepare_measurement`), with v and vd.
         method: "ols", "wls" or "physical".
-        base: the base composition (default: computed for the robot).
+        base: the base composition (default: the measurement's, :func:`measurement_base_parameters`).
         prior: a-priori standard parameters for ``physical`` (default: the robot's model).
         model: a :class:`RegressorModel` to reuse.
+        measurement: the channels to fit: "joint_torque" (tau), "base_wrench" (the ground
+            wrench alone) or "both" (WLS weighs them by their residuals).
 
     Raises:
-        ConfigError: unknown method.
-        DataError: too few samples, a data set that does not excite every base parameter.
+        ConfigError: unknown method or measurement.
+        DataError: too few samples, a data set that does not excite every base parameter,
+            data without the measurement's channels.
     """
     if method not in METHODS:
         raise ConfigError(f"unknown identification method '{method}'; valid: {', '.join(METHODS)}")
@@ -248,9 +271,12 @@ def identify(
         raise DataError("the data has no velocities/accelerations; preprocess it first", file=data.source)
     start = time.perf_counter()
     model = model or RegressorModel(robot)
-    base = base or compute_base_parameters(robot, model=model)
-    _check_rows(data, base)
-    YB, tau, base, Y = regressor_matrices(robot, data, base, model)
+    base = base or measurement_base_parameters(robot, measurement, model)
+    channels = channel_names(robot, measurement)
+    _check_rows(data, base, len(channels))
+    tau = measured_values(robot, data, measurement)  # (S, r): one column per channel
+    Y = measured_rows(robot, data, measurement, model)
+    YB = base.reduce(Y)
     S, n, b = YB.shape
     W = YB.reshape(S * n, b)
     y = tau.reshape(S * n)
@@ -294,6 +320,8 @@ def identify(
         preprocessing=data.preprocessing,
         wall_time=time.perf_counter() - start,
         source=data.source,
+        measurement=measurement,
+        channels=channels,
     )
 
 
@@ -385,6 +413,18 @@ def predict(
     return YB @ result.phi_B
 
 
+def predict_wrench(
+    robot, result: IdentificationResult, data: Measurement, model: RegressorModel | None = None
+) -> np.ndarray:
+    """The ground wrench the identified model predicts at the samples of ``data``, (S, 6) [N, N·m]
+    (static bodies' weight from the a-priori model included; no sensor offset)."""
+    model = model or RegressorModel(robot)
+    W = np.concatenate(
+        [model.wrench_regressor(model.kinematics(data.q[r], data.v[r], data.vd[r])) for r in _chunks(data.num_samples)]
+    )
+    return result.base.reduce(W) @ result.phi_B + static_wrench(robot)
+
+
 def torque_errors(tau_measured: np.ndarray, tau_predicted: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per-joint RMS error [N·m] and relative error 100·‖τ_meas − τ_pred‖/‖τ_meas‖ [%]."""
     e = np.asarray(tau_measured) - np.asarray(tau_predicted)
@@ -405,6 +445,7 @@ def result_to_dict(result: IdentificationResult, robot, model_file: str | None =
     out: dict[str, Any] = {
         "robot": result.robot,
         "method": result.method,
+        "measurement": result.measurement,
         "joints": list(result.joints),
         "data": result.source,
         "samples": result.samples,
@@ -420,9 +461,9 @@ def result_to_dict(result: IdentificationResult, robot, model_file: str | None =
                 result.base.base_names, result.phi_B, result.sigma_percent, result.base.independent
             )
         ],
-        "residual_rms": dict(zip(result.joints, map(float, result.residual_rms))),
-        "relative_error": dict(zip(result.joints, map(float, result.relative_error))),
-        "noise_std": dict(zip(result.joints, map(float, result.noise_std))),
+        "residual_rms": dict(zip(result.channels or result.joints, map(float, result.residual_rms))),
+        "relative_error": dict(zip(result.channels or result.joints, map(float, result.relative_error))),
+        "noise_std": dict(zip(result.channels or result.joints, map(float, result.noise_std))),
         "wall_time": result.wall_time,
     }
     if result.preprocessing is not None:
@@ -476,7 +517,11 @@ def load_identified(path: str | Path, robot) -> IdentificationResult:
             f"excites {', '.join(robot.joint_names)}",
             file=str(path),
         )
-    base = compute_base_parameters(robot)
+    measurement = d.get("measurement", "joint_torque")
+    if measurement not in MEASUREMENTS:
+        raise DataError(f"measurement '{measurement}' is not one of {', '.join(MEASUREMENTS)}", file=str(path))
+    base = measurement_base_parameters(robot, measurement)
+    channels = channel_names(robot, measurement)
     if not np.array_equal(columns, base.independent):
         raise DataError(
             f"the base parameters in the file ({len(columns)}) do not match robot '{robot.name}' "
@@ -499,11 +544,13 @@ def load_identified(path: str | Path, robot) -> IdentificationResult:
         sigma_percent=sigma,
         phi=phi,
         cond=float(d.get("cond", float("nan"))),
-        residual_rms=np.array([d.get("residual_rms", {}).get(j, np.nan) for j in joints]),
-        relative_error=np.array([d.get("relative_error", {}).get(j, np.nan) for j in joints]),
-        noise_std=np.array([d.get("noise_std", {}).get(j, np.nan) for j in joints]),
+        residual_rms=np.array([d.get("residual_rms", {}).get(c, np.nan) for c in channels]),
+        relative_error=np.array([d.get("relative_error", {}).get(c, np.nan) for c in channels]),
+        noise_std=np.array([d.get("noise_std", {}).get(c, np.nan) for c in channels]),
         samples=int(d.get("samples", 0)),
         source=d.get("data", ""),
+        measurement=measurement,
+        channels=channels,
     )
 
 

@@ -65,6 +65,8 @@ from pe_drake.multibody.inertia import (
     principal_inertia,
     spatial_inertia_to_phi,
 )
+from pe_drake.multibody.sensors import MeasurementType
+from pe_drake.multibody.wrench import WRENCH_COLUMNS, weld_reaction
 
 #: Key of a per-joint table that sets every joint not listed by name.
 ALL_JOINTS = "all"
@@ -133,12 +135,20 @@ class NoiseTruth:
         q_std: white noise on q [rad].
         v_std: white noise on v [rad/s] (only with ``record_velocity``).
         tau_std: white noise on tau [N·m].
+        force_std: white noise on the ground wrench's force [N] (``wrench.f*`` columns).
+        moment_std: white noise on the ground wrench's moment [N·m] (``wrench.m*``).
+        wrench_offset: constant offset of the force/torque sensor, [fx, fy, fz, mx, my, mz]
+            [N, N·m]; empty means none. Its fz, mx, my cannot be told from the total mass and
+            horizontal centre of mass of the moving bodies (:mod:`pe_drake.identification.channels`).
     """
 
     encoder_counts_per_rev: int = 0
     q_std: float = 0.0
     v_std: float = 0.0
     tau_std: float = 0.0
+    force_std: float = 0.0
+    moment_std: float = 0.0
+    wrench_offset: list[float] = dataclasses.field(default_factory=list)
 
 
 @dataclasses.dataclass
@@ -284,8 +294,14 @@ def validate_truth(truth: Truth, robot=None) -> Truth:
         raise ConfigError(
             f"noise.encoder_counts_per_rev must be a non-negative integer, got {n.encoder_counts_per_rev!r}"
         )
-    for name in ("q_std", "v_std", "tau_std"):
+    for name in ("q_std", "v_std", "tau_std", "force_std", "moment_std"):
         _finite(f"noise.{name}", getattr(n, name), nonneg=True)
+    if len(n.wrench_offset) not in (0, 6):
+        raise ConfigError(
+            f"noise.wrench_offset must be [fx, fy, fz, mx, my, mz] [N, N·m] (or empty), got {n.wrench_offset!r}"
+        )
+    for k, value in enumerate(n.wrench_offset):
+        _finite(f"noise.wrench_offset[{k}] ({WRENCH_COLUMNS[k]})", value)
     c = truth.control
     rate = _finite("control.rate_hz [Hz]", c.rate_hz, positive=True)
     if rate > 1e5:
@@ -546,6 +562,7 @@ def simulate(
     trajectory: FourierTrajectory,
     truth: "Truth | str | Path",
     duration: float | None = None,
+    measurement: str = "joint_torque",
 ) -> tuple[Measurement, dict[str, Any]]:
     """Simulates a run of the true robot tracking a trajectory; returns what it logs.
 
@@ -554,11 +571,16 @@ def simulate(
         trajectory: the trajectory to track (joints in the robot's order).
         truth: a :class:`Truth` or the path of a TRUTH.yaml.
         duration: simulated time [s]; default one period of the trajectory.
+        measurement: what the robot records: "joint_torque" (tau), "base_wrench" (the ground
+            wrench only: a robot without joint-torque sensors) or "both". The ground wrench
+            is Drake's reaction at the root link's weld, plus ``noise.force_std`` /
+            ``moment_std`` and the constant ``noise.wrench_offset``.
 
     Returns:
-        The :class:`~pe_drake.identification.measurements.Measurement` (t, q, tau at ``control.rate_hz``;
-        v when ``record_velocity``) and the JSON-ready truth dict (true parameters per body,
-        effects with units, noise, control, tracking error, wall time).
+        The :class:`~pe_drake.identification.measurements.Measurement` (t, q, tau and/or the
+        wrench at ``control.rate_hz``; v when ``record_velocity``) and the JSON-ready truth
+        dict (true parameters per body, effects with units, noise, control, tracking error,
+        wall time).
 
     Raises:
         ConfigError: a bad truth or duration.
@@ -573,6 +595,7 @@ def simulate(
     robot = robot_or_name if isinstance(robot_or_name, Robot) else load_robot(robot_or_name)
     if not isinstance(truth, Truth):
         truth = load_truth(truth)
+    sensors = MeasurementType(measurement)
     if trajectory.num_joints != robot.n:
         raise DataError(
             f"the trajectory has {trajectory.num_joints} joints, robot '{robot.name}' has {robot.n} "
@@ -660,10 +683,29 @@ def simulate(
     v_rec = None
     if truth.record_velocity:
         v_rec = v_log + (rng.normal(0.0, noise.v_std, v_log.shape) if noise.v_std > 0 else 0.0)
-    measurement = Measurement(t, q_rec, tau_rec, v_rec, None, robot.joint_names, "")
+    wrench = None
+    if sensors.wrench:
+        # The reaction under the command held after t_k (and, centred, the one before it).
+        applied = tau_log - true.torque_offset
+        wrench = weld_reaction(true.robot, q_log, v_log, applied, centred=not truth.record_command)
+        wrench = wrench + _wrench_noise(truth, wrench.shape)
+    data = Measurement(
+        t, q_rec, tau_rec if sensors.torques else None, v_rec, None, robot.joint_names, "", wrench=wrench
+    )
 
     truth_dict = _truth_dict(robot, truth, true, duration, count, tracking_rms, wall, PARAMETER_NAMES)
-    return measurement, truth_dict
+    truth_dict["measurement"] = sensors.kind
+    return data, truth_dict
+
+
+def _wrench_noise(truth: Truth, shape: tuple[int, int]) -> np.ndarray:
+    """Force/torque sensor noise and offset, (T, 6), from its own random stream (the other
+    streams, and so earlier simulated files, stay as they were)."""
+    noise = truth.noise
+    rng = np.random.default_rng(np.random.SeedSequence(truth.seed).spawn(3)[2])
+    std = np.repeat([noise.force_std, noise.moment_std], 3)
+    offset = np.asarray(noise.wrench_offset, float) if noise.wrench_offset else np.zeros(6)
+    return offset + rng.normal(size=shape) * std
 
 
 def _truth_dict(robot, truth, true, duration, count, tracking_rms, wall, parameter_names) -> dict[str, Any]:
@@ -709,7 +751,12 @@ def _truth_dict(robot, truth, true, duration, count, tracking_rms, wall, paramet
             },
         },
         "noise": {**dataclasses.asdict(truth.noise),
-                  "units": {"q_std": "rad", "v_std": "rad/s", "tau_std": "N·m"}},
+                  "units": {"q_std": "rad", "v_std": "rad/s", "tau_std": "N·m", "force_std": "N",
+                            "moment_std": "N·m", "wrench_offset": "N, N·m"}},
+        "wrench_equation": (
+            "wrench_recorded = reaction of the root link's weld on the robot (force; moment about the "
+            "world origin; world frame) + wrench_offset + noise"
+        ),
         "control": {**dataclasses.asdict(truth.control), "law": "computed torque + PD, zero-order hold",
                     "units": {"rate_hz": "Hz", "kp": "1/s²", "kd": "1/s"}},
         "record_velocity": truth.record_velocity,
