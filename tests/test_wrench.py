@@ -9,7 +9,9 @@ import pytest
 from conftest import random_states
 
 from pe_drake.exceptions import ConfigError
+from pe_drake.multibody.registry import builtin_config
 from pe_drake.multibody.regressor import RegressorModel
+from pe_drake.multibody.robot import load_robot
 from pe_drake.multibody.sensors import MEASUREMENTS, WRENCH_RANK_TOLERANCE, MeasurementType, SensorRows
 from pe_drake.multibody.wrench import WRENCH_COLUMNS, static_wrench, weld_reaction_wrench
 
@@ -23,8 +25,6 @@ def g1_variant(waist: bool):
     The capsules are collision geometry: Drake's forward dynamics (used for the weld
     reaction) adds contact forces where random states make them overlap.
     """
-    from pe_drake.multibody.robot import builtin_config, load_robot
-
     if waist not in _ROBOTS:
         cfg = builtin_config("g1").robot
         joints = (WAIST if waist else []) + list(cfg.joints)

@@ -11,7 +11,7 @@ from conftest import get_robot
 
 from pe_drake.config import ExcitationConfig, NoiseStdConfig
 from pe_drake.exceptions import ConfigError
-from pe_drake.excitation.program import ExcitationProblem
+from pe_drake.excitation.problem import ExcitationProblem
 
 PAPER = ExcitationConfig(harmonics=10, omega=math.pi / 4, cost_samples=40)
 

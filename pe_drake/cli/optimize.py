@@ -12,9 +12,18 @@ from pathlib import Path
 
 import numpy as np
 
+from pe_drake.cli.common import config_from_args, robot_from_args
 from pe_drake.config import Config, validate_config
 from pe_drake.exceptions import ConfigError, DataError
+from pe_drake.excitation.constraints import constraints_from_config
+from pe_drake.excitation.fourier import FourierBasis, sample_times
+from pe_drake.excitation.problem import ExcitationProblem
+from pe_drake.excitation.program import build_excitation_program
+from pe_drake.excitation.solve import solve_excitation
+from pe_drake.excitation.trajectory_file import load_trajectory, save_trajectory, write_trajectory_csv
 from pe_drake.io_utils import staged_output_dir
+from pe_drake.plots import plot_trajectory
+from pe_drake.viewer import write_playback_html
 
 
 def prior_regressor(problem, trajectory_json: str | Path) -> np.ndarray:
@@ -24,9 +33,6 @@ def prior_regressor(problem, trajectory_json: str | Path) -> np.ndarray:
     Raises:
         DataError: the file's joints differ from the robot's.
     """
-    from pe_drake.excitation.fourier import FourierBasis, sample_times
-    from pe_drake.excitation.trajectory_file import load_trajectory
-
     trajectory, data = load_trajectory(trajectory_json)
     joints = tuple(data["joints"])
     if joints != problem.robot.joint_names:
@@ -60,17 +66,12 @@ def _apply_arguments(config: Config, args: argparse.Namespace) -> Config:
 
 def optimize_command(args: argparse.Namespace) -> int:
     """Runs ``pe-drake optimize``; returns 0 on success, 1 if no valid trajectory was found."""
-    from pe_drake.excitation.constraints import constraints_from_config
-    from pe_drake.excitation.program import ExcitationProblem, build_excitation_program, solve_excitation
-    from pe_drake.multibody.robot import Robot, builtin_robots, resolve_robot_config
-
     if not args.csv_rate > 0 or not math.isfinite(args.csv_rate):
         raise ConfigError(f"--csv-rate must be a positive number [Hz], got {args.csv_rate}")
-    config = _apply_arguments(resolve_robot_config(args.robot, args.config), args)
-    name = args.robot if args.robot in builtin_robots() else Path(args.robot).stem
+    config = config_from_args(args, lambda c: _apply_arguments(c, args))
     say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, flush=True))
     start = time.perf_counter()
-    robot = Robot(name, config.robot)
+    robot = robot_from_args(args, config)
     say(f"robot {robot.name}: {robot.n} excited joints, {robot.num_bodies} moving bodies")
     problem = ExcitationProblem(robot, config.excitation)
     if args.prior:
@@ -95,28 +96,7 @@ def optimize_command(args: argparse.Namespace) -> int:
     )
     say("minimum margins at 1 kHz: " + ", ".join(f"{k} {m:.4g}" for k, m in result.margins.items()))
 
-    report = {
-        "robot": robot.name,
-        "success": result.success,
-        "message": result.message,
-        "status": result.status,
-        "solver": result.solver,
-        "criterion": config.excitation.criterion,
-        "measurement": config.excitation.measurement,
-        "cond": result.cond,
-        "cond_motion": result.cond_motion,
-        "criterion_value": result.fun,
-        "iterations": result.nit,
-        "evaluations": result.nfev,
-        "solve_time_s": result.wall_time,
-        "total_time_s": time.perf_counter() - start,
-        "margins_1khz": result.margins,
-        "base_parameters": problem.base.count,
-        "base_parameter_names": list(problem.base.base_names),
-        "singular_values": result.singular_values.tolist(),
-        "prior": [str(p) for p in args.prior],
-        "config": dataclasses.asdict(config),
-    }
+    report = _report(robot, config, problem, result, args.prior, time.perf_counter() - start)
     out = Path(args.out)
     with staged_output_dir(out) as tmp:
         if result.success:
@@ -133,10 +113,33 @@ def optimize_command(args: argparse.Namespace) -> int:
     return 0
 
 
-def _write_success_outputs(tmp: Path, robot, result, args, say) -> None:
-    from pe_drake.excitation.trajectory_file import save_trajectory, write_trajectory_csv
-    from pe_drake.plots import plot_trajectory
+def _report(robot, config: Config, problem, result, prior: list[str], total_time_s: float) -> dict:
+    """The content of report.json: the solver's outcome, the conditioning, the config."""
+    return {
+        "robot": robot.name,
+        "success": result.success,
+        "message": result.message,
+        "status": result.status,
+        "solver": result.solver,
+        "criterion": config.excitation.criterion,
+        "measurement": config.excitation.measurement,
+        "cond": result.cond,
+        "cond_motion": result.cond_motion,
+        "criterion_value": result.fun,
+        "iterations": result.nit,
+        "evaluations": result.nfev,
+        "solve_time_s": result.wall_time,
+        "total_time_s": total_time_s,
+        "margins_1khz": result.margins,
+        "base_parameters": problem.base.count,
+        "base_parameter_names": list(problem.base.base_names),
+        "singular_values": result.singular_values.tolist(),
+        "prior": [str(p) for p in prior],
+        "config": dataclasses.asdict(config),
+    }
 
+
+def _write_success_outputs(tmp: Path, robot, result, args, say) -> None:
     save_trajectory(tmp / "trajectory.json", robot, result.trajectory, cond=result.cond, cond_motion=result.cond_motion)
     write_trajectory_csv(tmp / "trajectory.csv", robot.joint_names, result.trajectory, args.csv_rate)
     plot_trajectory(
@@ -148,8 +151,6 @@ def _write_success_outputs(tmp: Path, robot, result, args, say) -> None:
     )
     if not args.no_html:
         try:
-            from pe_drake.viewer import write_playback_html
-
             write_playback_html(tmp / "trajectory.json", tmp / "playback.html", config=args.config)
         except Exception as err:  # the playback is a convenience: never lose the trajectory over it
             say(f"warning: could not write the HTML playback: {err}")

@@ -31,6 +31,7 @@ import numpy as np
 from pe_drake.exceptions import ConfigError
 from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.inertia import central_inertia, check_physically_valid, spatial_inertia_to_phi
+from pe_drake.multibody.registry import example_robot_data_dir
 
 #: Packages the pe_drake loader always registers; their URIs are kept as they are.
 KNOWN_PACKAGES = ("example-robot-data",)
@@ -138,7 +139,7 @@ def urdf_with_inertias(
         link.insert(position, new)
     package_map = None
     try:
-        from pydrake.multibody.parsing import PackageMap
+        from pydrake.multibody.parsing import PackageMap  # lazy: pydrake is heavy
 
         package_map = PackageMap()
         with contextlib.suppress(Exception):
@@ -163,10 +164,8 @@ def verify_urdf_text(text: str, body_names: Sequence[str], phi: np.ndarray, tole
         ConfigError: Drake refuses the text, or a body's parameters differ by more than
             ``tolerance`` relative to the largest parameter of that body.
     """
-    from pydrake.multibody.parsing import Parser
+    from pydrake.multibody.parsing import Parser  # lazy: pydrake is heavy
     from pydrake.multibody.plant import MultibodyPlant
-
-    from pe_drake.multibody.robot import example_robot_data_dir
 
     plant = MultibodyPlant(0.0)
     parser = Parser(plant)
