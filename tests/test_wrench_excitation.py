@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,6 +14,7 @@ from pe_drake.config import ExcitationConfig, NoiseStdConfig
 from pe_drake.exceptions import ConfigError
 from pe_drake.excitation.problem import ExcitationProblem
 
+DATA = Path(__file__).parent / "data"
 PAPER = ExcitationConfig(harmonics=10, omega=math.pi / 4, cost_samples=40)
 
 
@@ -73,3 +75,25 @@ def test_too_few_cost_samples_for_the_wrench_is_refused():
     message = "cost_samples = 12 gives 72 rows of base_wrench for 96 base parameters: use at least 16"
     with pytest.raises(ConfigError, match=message):
         ExcitationProblem(get_robot("g1"), config)
+
+
+def test_wrench_optimized_motion_is_better_conditioned_on_the_wrench_rows():
+    """tests/data/g1_base_wrench_optimized.json (``optimize --robot g1 --measurement base_wrench``,
+    150 IPOPT iterations, balance and capsules as in the paper) against the joint-torque-optimized
+    motion of the same start and random motions that keep balance and collision."""
+    from pe_drake.excitation.baseline import generate_candidates
+    from pe_drake.excitation.trajectory_file import load_trajectory
+    from pe_drake.multibody.registry import builtin_config
+
+    g1 = get_robot("g1")
+    excitation = dataclasses.replace(builtin_config("g1").excitation, measurement="base_wrench")
+    problem = ExcitationProblem(g1, excitation)
+    conds = {}
+    for name in ("base_wrench", "joint_torque"):
+        trajectory, _ = load_trajectory(DATA / f"g1_{name}_optimized.json")
+        conds[name] = problem.value(trajectory.alpha)
+    randoms = generate_candidates(g1, excitation, 3, seed=5, amplitude=0.1).candidates
+    conds["random"] = min(c.cond for c in randoms)
+    assert conds["base_wrench"] < 60  # 50.9 when written
+    assert 3 * conds["base_wrench"] < conds["joint_torque"]  # 978
+    assert 3 * conds["base_wrench"] < conds["random"]
