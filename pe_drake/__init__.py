@@ -26,6 +26,11 @@ _EXPORTS = {
     "BaseParameters": "pe_drake.multibody.base_parameters",
     "compute_base_parameters": "pe_drake.multibody.base_parameters",
     "evaluate_criterion": "pe_drake.excitation.criteria",
+    # what is measured: joint torques, the ground wrench (issue 14), or both
+    "MeasurementType": "pe_drake.multibody.sensors",
+    "SensorRows": "pe_drake.multibody.sensors",
+    "static_wrench": "pe_drake.multibody.wrench",
+    "weld_reaction_wrench": "pe_drake.multibody.wrench",
     # the excitation program (build / solve, and pieces for your own program)
     "ExcitationProblem": "pe_drake.excitation.problem",
     "ExcitationProgram": "pe_drake.excitation.program",
