@@ -62,3 +62,37 @@ def test_wrench_identification_predicts_held_out_arm_torques(g1):
     assert np.all(error < 0.05 * rms), 100 * error / rms
     wrench_error = np.sqrt(np.mean((predict_wrench(g1, result, held_out) - held_out.wrench) ** 2, axis=0))
     assert np.all(wrench_error[:3] < 0.05) and np.all(wrench_error[3:] < 0.02)  # [N], [N·m]
+
+
+@pytest.mark.slow
+def test_cli_simulate_identify_validate_with_the_wrench(tmp_path, capsys):
+    """The --measurement flags end to end on a short G1 run (mechanics, not accuracy)."""
+    import json
+
+    from pe_drake.cli import main
+
+    traj = str(DATA / "g1_base_wrench_optimized.json")
+    truth = tmp_path / "truth.yaml"
+    truth.write_text("seed: 2\ninertia_perturbation: 0.1\nnoise: {force_std: 0.5, moment_std: 0.05}\n")
+    run = tmp_path / "run.csv"
+    assert main(["simulate", "--robot", "g1", "--trajectory", traj, "--truth", str(truth), "--out", str(run),
+                 "--duration", "2", "--measurement", "base_wrench"]) == 0
+    header = run.read_text().splitlines()[0].split(",")
+    assert header[-6:] == ["wrench.fx", "wrench.fy", "wrench.fz", "wrench.mx", "wrench.my", "wrench.mz"]
+    assert not any(c.startswith("tau.") for c in header)
+    out = tmp_path / "ident"
+    assert main(["identify", "--robot", "g1", "--data", str(run), "--measurement", "base_wrench", "--method", "wls",
+                 "--trajectory", traj, "--out", str(out)]) == 0
+    identified = json.loads((out / "identified.json").read_text())
+    assert identified["measurement"] == "base_wrench" and len(identified["base_parameters"]) == 96
+    assert set(identified["residual_rms"]) == {"wrench.fx", "wrench.fy", "wrench.fz", "wrench.mx", "wrench.my", "wrench.mz"}
+    report = tmp_path / "validation.json"
+    assert main(["validate", "--robot", "g1", "--model", str(out / "identified.json"), "--data", str(run),
+                 "--measurement", "base_wrench", "--json", str(report)]) == 0
+    assert json.loads(report.read_text())["model_measurement"] == "base_wrench"
+    capsys.readouterr()
+    # A run without torque columns cannot validate torques, nor identify from them.
+    assert main(["validate", "--robot", "g1", "--model", str(out / "identified.json"), "--data", str(run)]) == 2
+    assert "tau.<joint>" in capsys.readouterr().err
+    assert main(["identify", "--robot", "g1", "--data", str(run), "--out", str(tmp_path / "no")]) == 2
+    assert not (tmp_path / "no").exists()
