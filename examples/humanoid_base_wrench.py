@@ -52,35 +52,60 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--candidates", type=int, help="random balanced motions drawn (default 20; quick 3)")
     parser.add_argument("--duration", type=float, help="simulated time per run [s] (default 8; quick 2)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the optimizer's start and of the truth")
+    parser.add_argument("--trajectories", nargs=2, metavar=("WRENCH_JSON", "TORQUE_JSON"),
+                        help="reuse two optimized motions instead of optimizing (e.g. tests/data/"
+                             "g1_base_wrench_optimized.json tests/data/g1_joint_torque_optimized.json)")
     return parser
 
 
-def optimize_both(robot, config, iterations: int, say) -> dict:
-    """The wrench-optimized and the torque-optimized motion, from the same start."""
+def optimize_both(robot, config, iterations: int, out: Path, say) -> dict:
+    """The wrench-optimized and the torque-optimized motion from the same start, saved in out."""
     from pe_drake.excitation.constraints import constraints_from_config
     from pe_drake.excitation.solve import optimize_excitation
+    from pe_drake.excitation.trajectory_file import save_trajectory
 
     solver = dataclasses.replace(config.solver, max_iterations=iterations, verbose=False)
-    out = {}
-    for kind in ("base_wrench", "joint_torque"):
+    motions = {}
+    for kind, name in (("base_wrench", "wrench-optimized"), ("joint_torque", "torque-optimized")):
         excitation = dataclasses.replace(config.excitation, measurement=kind)
         start = time.perf_counter()
         result = optimize_excitation(robot, excitation, solver, constraints=constraints_from_config(robot, excitation))
         say(f"optimized for {kind}: cond {result.cond:.4g}, {result.message}, {time.perf_counter() - start:.0f} s")
-        out[kind] = result
-    return out
+        path = out / f"{kind}_trajectory.json"
+        save_trajectory(path, robot, result.trajectory, cond=result.cond, cond_motion=result.cond_motion)
+        motions[name] = result.trajectory
+    return motions
+
+
+def load_motions(paths: Sequence[str], robot) -> dict:
+    """The two optimized motions of an earlier run (``--trajectories``)."""
+    from pe_drake.excitation.trajectory_file import load_trajectory
+
+    motions = {}
+    for name, path in zip(("wrench-optimized", "torque-optimized"), paths):
+        trajectory, data = load_trajectory(path)
+        if tuple(data["joints"]) != robot.joint_names:
+            raise SystemExit(f"{path}: joints {data['joints']} are not G1's arm joints")
+        motions[name] = trajectory
+    return motions
 
 
 def wrench_conds(robot, config, alphas: dict, candidates: int, seed: int, say) -> tuple[dict, object]:
     """cond of the wrench rows of each motion, and the best of the random balanced motions."""
     from pe_drake.excitation.baseline import generate_candidates
+    from pe_drake.excitation.constraints import constraints_from_config
+    from pe_drake.excitation.multistart import WorkerPool
     from pe_drake.excitation.problem import ExcitationProblem
 
     excitation = dataclasses.replace(config.excitation, measurement="base_wrench")
     problem = ExcitationProblem(robot, excitation)
     conds = {name: problem.value(alpha) for name, alpha in alphas.items()}
     start = time.perf_counter()
-    cset = generate_candidates(robot, excitation, candidates, seed=1_000_000 + seed, amplitude=RANDOM_AMPLITUDE)
+    # The pool's base parameters must be the wrench rows' (its default is the torques').
+    with WorkerPool(robot, 1, base=problem.base, constraints_factory=constraints_from_config) as pool:
+        cset = generate_candidates(
+            robot, excitation, candidates, seed=1_000_000 + seed, amplitude=RANDOM_AMPLITUDE, pool=pool
+        )
     best = min(cset.candidates, key=lambda c: c.cond)
     conds["random balanced (best)"] = best.cond
     took = time.perf_counter() - start
@@ -172,13 +197,17 @@ def plot(out: Path, robot, conds: dict, problem, alphas: dict, runs: dict, model
     fig.savefig(out / "wrench_singular_values.png", dpi=110)
     plt.close(fig)
 
+    from pe_drake.identification.estimators import robot_torques
+
     held_out = runs["validation"]
     predicted = predict(robot, models["base_wrench wls"], held_out)
+    prior = robot_torques(robot, held_out, robot.phi_model)
     joints = [0, 3, 7, 10]  # shoulder pitch and elbow of each arm
     fig, axes = plt.subplots(len(joints), 1, figsize=(6.4, 6.4), sharex=True)
     for ax, j in zip(axes, joints):
         ax.plot(held_out.t, held_out.tau[:, j], "k", lw=1.0, label="measured (simulated)")
-        ax.plot(held_out.t, predicted[:, j], "C1--", lw=1.0, label="predicted from the wrench model")
+        ax.plot(held_out.t, prior[:, j], color="0.6", lw=0.8, label="a-priori model (URDF)")
+        ax.plot(held_out.t, predicted[:, j], "C1--", lw=1.0, label="predicted from the wrench model (WLS)")
         ax.set_ylabel(f"{robot.joint_names[j].replace('_joint', '')}\n[N·m]", fontsize=7)
     axes[0].legend(fontsize=7, loc="upper right")
     axes[-1].set_xlabel("t [s]")
@@ -190,8 +219,8 @@ def plot(out: Path, robot, conds: dict, problem, alphas: dict, runs: dict, model
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    from pe_drake.excitation.trajectory_file import save_trajectory
-    from pe_drake.multibody.robot import load_robot, resolve_robot_config
+    from pe_drake.multibody.registry import resolve_robot_config
+    from pe_drake.multibody.robot import load_robot
     from pe_drake.threads import single_threaded_blas
 
     iterations = args.max_iterations or (10 if args.quick else 150)
@@ -206,20 +235,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     robot = load_robot(config)
     start = time.perf_counter()
     with single_threaded_blas():
-        results = optimize_both(robot, config, iterations, say)
-        alphas = {"wrench-optimized": results["base_wrench"].x, "torque-optimized": results["joint_torque"].x}
+        if args.trajectories:
+            motions = load_motions(args.trajectories, robot)
+        else:
+            motions = optimize_both(robot, config, iterations, out, say)
+        alphas = {name: trajectory.alpha for name, trajectory in motions.items()}
         conds, random_run, problem = wrench_conds(robot, config, alphas, candidates, args.seed, say)
-        trajectories = {
-            "wrench-optimized": results["base_wrench"].trajectory,
-            "torque-optimized": results["joint_torque"].trajectory,
-            "validation": random_run,
-        }
-        runs, phi_true = simulate_runs(robot, trajectories, duration, args.seed, say)
+        runs, phi_true = simulate_runs(robot, {**motions, "validation": random_run}, duration, args.seed, say)
         found = identify_and_predict(robot, runs, phi_true, say)
         plot(out, robot, conds, problem, alphas, runs, found["models"])
-    for kind, result in results.items():
-        path = out / f"{kind}_trajectory.json"
-        save_trajectory(path, robot, result.trajectory, cond=result.cond, cond_motion=result.cond_motion)
     ratio_torque = conds["torque-optimized"] / conds["wrench-optimized"]
     ratio_random = conds["random balanced (best)"] / conds["wrench-optimized"]
     summary = {
@@ -227,7 +251,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         "ratio_torque_optimized": ratio_torque,
         "ratio_random_best": ratio_random,
         "held_out": found["rows"],
-        "settings": {"iterations": iterations, "candidates": candidates, "duration_s": duration, "seed": args.seed,
+        "settings": {"iterations": None if args.trajectories else iterations, "trajectories": args.trajectories,
+                     "candidates": candidates, "duration_s": duration, "seed": args.seed,
                      "force_std": FORCE_STD, "moment_std": MOMENT_STD, "torque_std": TORQUE_STD},
         "wall_time_s": time.perf_counter() - start,
     }

@@ -63,6 +63,12 @@ class ExcitationProblem:
         if base is None and self.config.measurement == "joint_torque":
             base = compute_base_parameters(robot, model=self.model)
         self.base = base or self.rows.base_parameters()
+        if self.base.measurement != self.config.measurement:
+            raise ConfigError(
+                f"the base parameters given are those of the {self.base.measurement} rows, the problem's "
+                f"measurement is {self.config.measurement}: pass base=ExcitationProblem(robot, config).base "
+                "(also to a WorkerPool)"
+            )
         self.n = robot.n
         _check_cost_rows(self)
         self.harmonics = self.config.harmonics

@@ -31,6 +31,8 @@ class BaseParameters:
             ``"Izz.link1 + 1 Iyy.link2 + 0.09 m.link3"``.
         rank_tolerance: relative tolerance used on R's diagonal.
         diag_R: |R_ii| of the pivoted QR (for diagnostics), shape (p,).
+        measurement: the rows they were computed from: "joint_torque" (Eq. 1), or
+            "base_wrench"/"both" (:class:`pe_drake.multibody.sensors.SensorRows`).
     """
 
     independent: np.ndarray
@@ -39,6 +41,7 @@ class BaseParameters:
     base_names: tuple[str, ...]
     rank_tolerance: float
     diag_R: np.ndarray
+    measurement: str = "joint_torque"
 
     @property
     def count(self) -> int:
@@ -69,6 +72,7 @@ def compute_base_parameters(
     rank_tolerance: float = 1e-8,
     model: RegressorModel | None = None,
     rows: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray] | None = None,
+    measurement: str = "joint_torque",
 ) -> BaseParameters:
     """Numerical base parameters of ``robot`` from random states within its limits.
 
@@ -81,6 +85,7 @@ def compute_base_parameters(
         rows: the measured rows as a function of (q, v, vdot), shape (T, r, 10·nb); default
             the joint torques, ``model(q, v, vd)``. The ground wrench has its own base
             parameters (:class:`pe_drake.multibody.sensors.SensorRows`).
+        measurement: the name of those rows, kept in the result.
 
     Returns:
         The :class:`BaseParameters`.
@@ -116,7 +121,7 @@ def compute_base_parameters(
     K[np.arange(b), ind] = 1.0
     K[:, dep] = beta
     names = robot.parameter_names
-    return BaseParameters(ind, K, names, _compose_names(K, names), rank_tolerance, d)
+    return BaseParameters(ind, K, names, _compose_names(K, names), rank_tolerance, d, measurement)
 
 
 #: Remaining column norms within this relative distance of the largest count as tied; ties go

@@ -160,5 +160,11 @@ class SensorRows:
         robot = self.model.robot
         samples = max(20, int(np.ceil(4 * self.num_params / self.num_rows)))
         return compute_base_parameters(
-            robot, samples=samples, seed=seed, rank_tolerance=rank_tolerance, model=self.model, rows=self
+            robot,
+            samples=samples,
+            seed=seed,
+            rank_tolerance=rank_tolerance,
+            model=self.model,
+            rows=self,
+            measurement=self.measurement.kind,
         )
