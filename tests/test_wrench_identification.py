@@ -96,3 +96,23 @@ def test_cli_simulate_identify_validate_with_the_wrench(tmp_path, capsys):
     assert "tau.<joint>" in capsys.readouterr().err
     assert main(["identify", "--robot", "g1", "--data", str(run), "--out", str(tmp_path / "no")]) == 2
     assert not (tmp_path / "no").exists()
+
+
+@pytest.mark.slow
+def test_humanoid_base_wrench_example_runs(tmp_path, capsys):
+    """examples/humanoid_base_wrench.py end to end on the stored motions, short runs."""
+    import importlib.util
+    import json
+
+    path = Path(__file__).resolve().parents[1] / "examples" / "humanoid_base_wrench.py"
+    spec = importlib.util.spec_from_file_location("humanoid_base_wrench", path)
+    example = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(example)
+    motions = [str(DATA / "g1_base_wrench_optimized.json"), str(DATA / "g1_joint_torque_optimized.json")]
+    argv = ["--trajectories", *motions, "--candidates", "2", "--duration", "2", "--out", str(tmp_path)]
+    assert example.main(argv) == 0
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["ratio_torque_optimized"] > 3 and summary["ratio_random_best"] > 3
+    assert {"base_wrench wls", "joint_torque physical", "a-priori model"} <= set(summary["held_out"])
+    assert (tmp_path / "wrench_singular_values.png").is_file() and (tmp_path / "wrench_torque_prediction.png").is_file()
+    assert "held-out arm torques" in capsys.readouterr().out
