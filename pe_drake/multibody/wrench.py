@@ -35,11 +35,11 @@ def static_wrench(robot) -> np.ndarray:
     Args:
         robot: a :class:`~pe_drake.multibody.robot.Robot`.
     """
-    plant, ctx = robot.plant, robot.plant_context
+    plant = robot.plant
+    ctx = plant.CreateDefaultContext()  # the static bodies' poses do not depend on q
     g = np.asarray(plant.gravity_field().gravity_vector(), float)
     moving = {int(b) for b in robot.body_indices}
     total = np.zeros(6)
-    plant.SetPositions(ctx, np.zeros(plant.num_positions()))  # static bodies do not move
     for k in range(1, plant.num_bodies()):
         if k in moving:
             continue
