@@ -30,11 +30,12 @@ __all__ = ["MEASUREMENTS", "WRENCH_RANK_TOLERANCE", "MeasurementType", "SensorRo
 
 #: Relative tolerance on the pivoted-QR diagonal for rows that include the ground wrench.
 #: On G1's arms the wrench rows have numerical rank 97 at the joint-torque tolerance (1e-8),
-#: but the 97th direction (hy of the right minus the left shoulder-pitch link: their axes are
-#: nearly horizontal, so h along them barely moves the wrench) has |R_ii|/|R_00| = 1.5e-4 and
-#: σ/σ_max = 3.5e-5: its largest effect is ~1e-5 N·m for the model's values, far below any
-#: force/torque sensor, and kept in C it would pin cond(C) above 1e4 for every motion. The next
-#: one is at 0.39, so 1e-3 drops it alone (96 base parameters; 118 with the waist excited).
+#: but the 97th direction (hy of the right minus the left shoulder-pitch link: a first moment
+#: along a pitch axis turns with the link only about that axis, so it adds a nearly constant
+#: moment, nearly the same from either side) has |R_ii|/|R_00| = 1.5e-4 and σ/σ_max = 3.5e-5:
+#: its effect is ~1e-5 N·m for the model's values, far below any force/torque sensor, and kept
+#: in C it pinned cond(C) above 1e5 for every motion tried. The next one is at 0.39, so 1e-3
+#: drops it alone (96 base parameters; 118 with the waist excited).
 WRENCH_RANK_TOLERANCE = 1e-3
 
 
