@@ -12,15 +12,15 @@ import pytest
 
 from pe_drake.cli import main as cli
 from pe_drake.config import ExcitationConfig
-from pe_drake.excitation.program import ExcitationProblem, _scale_into_limits
+from pe_drake.excitation.problem import ExcitationProblem, scale_into_limits
 from pe_drake.excitation.trajectory_file import load_trajectory, save_trajectory
 from pe_drake.identification.estimators import (
     identify,
-    load_identified,
     predict,
     prepare_measurement,
     torque_errors,
 )
+from pe_drake.identification.identified_file import load_identified
 from pe_drake.identification.measurements import write_measurement_csv
 from pe_drake.identification.simulation import perturb_inertias
 from pe_drake.identification.synthetic import model_measurement
@@ -45,7 +45,7 @@ def random_trajectory(robot, like, seed: int):
     config = ExcitationConfig(harmonics=like.harmonics, omega=like.omega, constraint_samples=400)
     problem = ExcitationProblem(robot, config)
     alpha = problem.initial_guess(seed=seed, amplitude=2.0)
-    return problem.trajectory(_scale_into_limits(problem, alpha, 0.9))
+    return problem.trajectory(scale_into_limits(problem, alpha, 0.9))
 
 
 def relative_error(estimate, truth):
@@ -129,7 +129,8 @@ def test_optimized_trajectory_gives_smaller_parameter_errors_than_random_ones(op
 def simulated_runs(optimized, tmp_path_factory):
     """Identification run (optimized trajectory) and validation run (another, random one) of
     a true Panda with ±10 % inertias, encoder quantization and torque noise."""
-    from pe_drake.identification.simulation import Truth, simulate
+    from pe_drake.identification.simulation import simulate
+    from pe_drake.identification.truth import Truth
 
     robot = get_robot("panda")
     truth = Truth(seed=2, inertia_perturbation=0.1)

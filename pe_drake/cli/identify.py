@@ -15,14 +15,16 @@ from pe_drake.exceptions import ConfigError
 from pe_drake.excitation.trajectory_file import load_trajectory
 from pe_drake.identification.estimators import (
     identify,
-    load_identified,
     predict,
     prepare_measurement,
     read_robot_measurement,
+    torque_errors,
+)
+from pe_drake.identification.identified_file import (
+    load_identified,
     result_to_dict,
     standard_from_base,
     standard_parameters_dict,
-    torque_errors,
 )
 from pe_drake.io_utils import atomic_write_text, staged_output_dir
 from pe_drake.multibody.inertia import PhysicallyInvalidError, validity_problems

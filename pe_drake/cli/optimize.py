@@ -17,7 +17,9 @@ from pe_drake.config import Config, validate_config
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.excitation.constraints import constraints_from_config
 from pe_drake.excitation.fourier import FourierBasis, sample_times
-from pe_drake.excitation.program import ExcitationProblem, build_excitation_program, solve_excitation
+from pe_drake.excitation.problem import ExcitationProblem
+from pe_drake.excitation.program import build_excitation_program
+from pe_drake.excitation.solve import solve_excitation
 from pe_drake.excitation.trajectory_file import load_trajectory, save_trajectory, write_trajectory_csv
 from pe_drake.io_utils import staged_output_dir
 from pe_drake.plots import plot_trajectory

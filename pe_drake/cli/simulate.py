@@ -9,7 +9,8 @@ from pe_drake.cli.common import robot_from_args
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.excitation.trajectory_file import load_trajectory
 from pe_drake.identification.measurements import measurement_to_csv_text
-from pe_drake.identification.simulation import load_truth, simulate, truth_path_for
+from pe_drake.identification.simulation import simulate, truth_path_for
+from pe_drake.identification.truth import load_truth
 from pe_drake.io_utils import atomic_write_text
 
 

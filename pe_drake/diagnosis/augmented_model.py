@@ -158,8 +158,8 @@ class AugmentedModel:
                    np.asarray(inertia, float), tuple(notes))
 
     def truth(self):
-        """The :class:`~pe_drake.identification.simulation.Truth` that builds this model's effects."""
-        from pe_drake.identification.simulation import EffectsTruth, PayloadTruth, Truth
+        """The :class:`~pe_drake.identification.truth.Truth` that builds this model's effects."""
+        from pe_drake.identification.truth import EffectsTruth, PayloadTruth, Truth
 
         payload = PayloadTruth()
         if self.payload_link:

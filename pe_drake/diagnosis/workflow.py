@@ -230,11 +230,11 @@ def prepare_record(measurement: Measurement, config: DiagnosisConfig) -> Record:
     """
     from scipy.signal import butter, sosfiltfilt
 
-    from pe_drake.identification.measurements import (
+    from pe_drake.identification.measurements import Preprocessing
+    from pe_drake.identification.preprocessing import (
         CUTOFF_FACTOR,
         MIN_CUTOFF_HZ,
         UNIFORM_TOLERANCE,
-        Preprocessing,
         motion_bandwidth_hz,
     )
 

@@ -230,7 +230,7 @@ class _WorkerState:
         return self._constraints[key]
 
     def problem(self, config: ExcitationConfig, C0: np.ndarray | None):
-        from pe_drake.excitation.program import ExcitationProblem
+        from pe_drake.excitation.problem import ExcitationProblem
 
         return ExcitationProblem(self.robot, config, C0=C0, base=self.base, model=self.model)
 
@@ -503,14 +503,14 @@ class _Reporter:
         )
 
     def __call__(self, alpha: np.ndarray, value: float) -> None:
-        from pe_drake.excitation.program import joint_limit_violation
+        from pe_drake.excitation.limits import joint_limit_violation
 
         self.count += 1
         self.value = float(value)
         violation = joint_limit_violation(self.program.problem, alpha)
         # The sampled constraints were evaluated at this alpha just before the cost (Drake
         # evaluates constraints and cost together); their last violation is kept there.
-        for ev in getattr(self.program, "_evaluators", []):
+        for ev in getattr(self.program, "evaluators", []):
             violation = max(violation, getattr(ev, "last_violation", 0.0))
         self.violation = violation
         if violation < 1e-6:
@@ -523,7 +523,8 @@ class _Reporter:
 
 def _solve_start(state: _WorkerState, task: _StartTask):
     """Builds and solves one start in the current process."""
-    from pe_drake.excitation.program import build_excitation_program, solve_excitation
+    from pe_drake.excitation.program import build_excitation_program
+    from pe_drake.excitation.solve import solve_excitation
 
     problem = state.problem(task.config, task.C0)
     reporter = _Reporter(task, state.emit)

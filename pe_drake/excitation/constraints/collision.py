@@ -40,6 +40,7 @@ import numpy as np
 
 from pe_drake.exceptions import ConfigError, InfeasibleError
 from pe_drake.excitation.constraints.base import SampledConstraint, SampledValues
+from pe_drake.multibody.capsules import capsule_pairs, segment_closest_points
 
 
 class PostureInCollisionError(InfeasibleError):
@@ -97,8 +98,6 @@ class CollisionConstraint(SampledConstraint):
         Raises:
             ConfigError: no capsules, no pair left to check, or a bad margin/smoothing.
         """
-        from pe_drake.multibody.capsules import capsule_pairs
-
         if not isinstance(margin, (int, float)) or not math.isfinite(margin) or margin < 0:
             raise ConfigError(f"collision margin must be a finite number >= 0 [m], got {margin!r}")
         if aggregate and (not math.isfinite(smoothing) or smoothing <= 0):
@@ -201,8 +200,6 @@ class CollisionConstraint(SampledConstraint):
         return p_WS
 
     def _pair_geometry(self, q: np.ndarray, joints: bool):
-        from pe_drake.multibody.capsules import segment_closest_points
-
         X_WH = self._joint_body_poses(q, all_joints=joints)
         p_WS = self._capsule_ends(X_WH)
         a0, a1 = p_WS[:, self._pa, 0], p_WS[:, self._pa, 1]  # (K, P, 3)
