@@ -82,6 +82,10 @@ class ExcitationConfig:
             one period.
         constraint_samples: K, samples where the limits are imposed (Eq. 51).
         criterion: "cond" (Eq. 5), "log_cond", or "dopt" (-log det CᵀC).
+        noise_std: torque noise σ for the quality figures ``optimize`` reports [N·m or N]:
+            one value for every joint, or {joint: value} (``all`` for the joints not named);
+            the standard deviation of the samples the identification fits (identified.json's
+            ``noise_std``); see :mod:`pe_drake.excitation.quality`.
         rest_at_ends: start and end with zero velocity and acceleration.
         amplitude: scale of the random initial coefficients [rad].
         balance_radius: r of Eq. (52) [m]; 0 disables the balance constraint.
@@ -96,6 +100,7 @@ class ExcitationConfig:
     cost_samples: int = 40
     constraint_samples: int = 400
     criterion: str = "cond"
+    noise_std: dict[str, float] | float = 0.05  # [N·m]; a Drake yaml union: container type first
     rest_at_ends: bool = False
     amplitude: float = 0.05
     balance_radius: float = 0.0
@@ -257,6 +262,8 @@ def validate_config(config: Config) -> Config:
     if e.criterion not in CRITERIA:
         raise ConfigError(f"excitation.criterion '{e.criterion}' is not one of {', '.join(CRITERIA)}")
     check_finite("excitation.amplitude", e.amplitude, positive=True)
+    for joint, value in (e.noise_std.items() if isinstance(e.noise_std, dict) else [("all", e.noise_std)]):
+        check_finite(f"excitation.noise_std['{joint}'] [N·m]", value, positive=True)
     check_finite("excitation.balance_radius", e.balance_radius, nonneg=True)
     check_finite("excitation.collision_margin", e.collision_margin)
 

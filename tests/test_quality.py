@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import numpy as np
 import pytest
 import scipy.linalg
 
+from pe_drake.cli import main
 from pe_drake.config import ExcitationConfig
 from pe_drake.exceptions import ConfigError
 from pe_drake.excitation import ExcitationProblem
@@ -154,6 +156,7 @@ def test_report_of_a_motion(small_problem, motion):
 def test_random_motions_pass_the_constraints(small_problem):
     torque = TorqueConstraint(small_problem.robot)
     draws, _ = random_feasible_motions(small_problem, [torque], count=2, seed=3)
+    assert len(draws) == 2
     for _, alpha in draws:
         q, v, vd = small_problem.constraint_basis.evaluate_alpha(alpha, small_problem.n)
         assert np.min(torque.margins(q, v, vd)) >= 0
@@ -172,6 +175,10 @@ def test_noise_vector_errors():
         noise_vector([0.1, -1.0, 0.3], joints)
     with pytest.raises(ConfigError, match="2 values"):
         noise_vector([0.1, 0.2], joints)
+    np.testing.assert_array_equal(noise_vector({"all": 0.2, "b": 0.5}, joints), [0.2, 0.5, 0.2])
+    np.testing.assert_array_equal(noise_vector({"c": 0.5}, joints), [DEFAULT_NOISE_STD, DEFAULT_NOISE_STD, 0.5])
+    with pytest.raises(ConfigError, match="unknown joint 'd'; valid: all, a, b, c"):
+        noise_vector({"d": 0.1}, joints)
     with pytest.raises(ConfigError, match="joint 'a'"):
         noise_vector("x", joints)
 
@@ -181,3 +188,31 @@ def test_bad_periods_and_rate(small_problem, motion):
         excitation_quality(small_problem, motion, periods=0, random_motions=0)
     with pytest.raises(ConfigError, match="rate_hz"):
         excitation_quality(small_problem, motion, rate_hz=float("nan"), random_motions=0)
+
+
+def test_optimize_reports_the_quality(tmp_path, capsys):
+    cfg = tmp_path / "small.yaml"
+    cfg.write_text(
+        "excitation: {harmonics: 3, cost_samples: 24, constraint_samples: 96, "
+        "noise_std: {all: 0.05, panda_joint2: 0.2}}\nsolver: {max_iterations: 20}\n"
+    )
+    out = tmp_path / "out"
+    assert main(["optimize", "--robot", "panda", "--config", str(cfg), "--out", str(out), "--no-html"]) == 0
+    printed = capsys.readouterr().out
+    assert "expected quality for torque noise σ = 0.05, 0.2 N·m" in printed and "better" in printed
+    quality = json.loads((out / "report.json").read_text())["quality"]
+    assert quality["assumptions"]["noise_std"]["panda_joint2"] == 0.2
+    assert quality["assumptions"]["periods"] == 1 and quality["assumptions"]["rate_hz"] == DATA_RATE_HZ
+    assert len(quality["random"]) == 5 and quality["prediction_ratio_vs_best_random"] > 0
+    assert len(quality["base_parameter_std"]) == len(json.loads((out / "report.json").read_text())["base_parameter_names"])
+
+
+def test_optimize_refuses_a_bad_noise_std_before_solving(tmp_path, capsys):
+    cfg = tmp_path / "bad.yaml"
+    cfg.write_text("excitation: {noise_std: {panda_joint9: 0.1}}\n")
+    assert main(["optimize", "--robot", "panda", "--config", str(cfg), "--out", str(tmp_path / "o")]) == 2
+    assert "unknown joint 'panda_joint9'" in capsys.readouterr().err
+    cfg.write_text("excitation: {noise_std: 0.0}\n")
+    assert main(["optimize", "--robot", "panda", "--config", str(cfg), "--out", str(tmp_path / "o")]) == 2
+    assert "excitation.noise_std['all'] [N·m] must be positive" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
