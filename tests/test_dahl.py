@@ -6,7 +6,13 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
+from pe_drake.exceptions import ConfigError
+from pe_drake.excitation.trajectory_file import load_trajectory
 from pe_drake.identification.dahl import dahl_friction_system, dahl_state
+from pe_drake.identification.simulation import simulate
+from pe_drake.identification.truth import ControlTruth, EffectsTruth, Truth, validate_truth
+from tests.conftest import get_robot
+from tests.test_diagnosis import TRAJECTORY
 
 
 def _path(t):
@@ -56,3 +62,26 @@ def test_drake_system_derivative_and_output():
     system.CalcTimeDerivatives(ctx, d)
     np.testing.assert_allclose(d.CopyToVector(), [(0.5 - 0.5 * 0.25) / 0.02, (-0.3 - 0.3 * -0.5) / 0.05])
     np.testing.assert_allclose(system.get_output_port(0).Eval(ctx), [-0.8 * 0.25, 0.0])
+
+
+def test_simulated_robot_carries_the_dahl_torque():
+    """simulate: the recorded torque of a joint with pre-sliding friction is the effect-free
+    one plus F_c·z(q) (the controller supplies the friction); the truth file names it."""
+    robot = get_robot("panda")
+    trajectory, _ = load_trajectory(TRAJECTORY)
+    control = ControlTruth(rate_hz=500.0)
+    fc, x_p = 0.5, 0.02
+    effects = EffectsTruth(presliding_friction={"panda_joint3": fc}, presliding_stiffness={"panda_joint3": fc / x_p})
+    with_dahl, truth = simulate(robot, trajectory, Truth(control=control, effects=effects), 3.0)
+    without, _ = simulate(robot, trajectory, Truth(control=control), 3.0)
+    extra = with_dahl.tau[:, 2] - without.tau[:, 2]
+    z = dahl_state(with_dahl.q[:, 2], x_p)
+    assert np.sqrt(np.mean((extra - fc * z) ** 2)) < 0.03 * fc
+    assert truth["effects"]["presliding_friction"]["values"]["panda_joint3"] == fc
+    assert truth["effects"]["presliding_friction"]["stiffness"]["panda_joint3"] == pytest.approx(fc / x_p)
+
+
+def test_presliding_friction_needs_a_stiffness():
+    truth = Truth(effects=EffectsTruth(presliding_friction={"panda_joint2": 0.3}))
+    with pytest.raises(ConfigError, match=r"presliding_stiffness\['panda_joint2'\]"):
+        validate_truth(truth, get_robot("panda"))
