@@ -28,7 +28,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", default="results/diagnose_simulated", help="output folder")
     args = parser.parse_args(argv)
 
-    from pe_drake.diagnosis.workflow import diagnose, write_outputs
+    from pe_drake.diagnosis import diagnose, write_outputs
     from pe_drake.excitation.trajectory_file import load_trajectory
     from pe_drake.identification.simulation import simulate
     from pe_drake.identification.truth import ControlTruth, EffectsTruth, NoiseTruth, PayloadTruth, Truth

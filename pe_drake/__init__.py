@@ -45,8 +45,8 @@ _EXPORTS = {
     "constraints_from_config": "pe_drake.excitation.constraints",
     # diagnosis: which effects the model misses
     "diagnose": "pe_drake.diagnosis.workflow",
-    "DiagnosisConfig": "pe_drake.diagnosis.workflow",
-    "DiagnosisResult": "pe_drake.diagnosis.workflow",
+    "DiagnosisConfig": "pe_drake.diagnosis.options",
+    "DiagnosisResult": "pe_drake.diagnosis.result",
     # files
     "load_trajectory": "pe_drake.excitation.trajectory_file",
     "save_trajectory": "pe_drake.excitation.trajectory_file",

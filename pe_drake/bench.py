@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from pe_drake.config import ExcitationConfig
-from pe_drake.diagnosis.workflow import diagnose, write_outputs
+from pe_drake.diagnosis import diagnose, write_outputs
 from pe_drake.excitation.fourier import FourierTrajectory
 from pe_drake.excitation.problem import ExcitationProblem
 from pe_drake.excitation.trajectory_file import load_trajectory

@@ -19,16 +19,6 @@ from pe_drake.multibody.registry import resolve_robot_config
 from pe_drake.multibody.robot import load_robot
 
 
-@pytest.fixture(scope="module")
-def g1():
-    return load_robot("g1")
-
-
-@pytest.fixture(scope="module")
-def panda():
-    return load_robot("panda")
-
-
 def _names(robot, pairs):
     return {frozenset((robot.capsules[a].name, robot.capsules[b].name)) for a, b in pairs}
 

@@ -16,13 +16,13 @@ import numpy as np
 import pytest
 
 from pe_drake.cli import main as cli
+from pe_drake.diagnosis import DiagnosisConfig, diagnose
 from pe_drake.diagnosis.effects import (
     joint_candidates,
     payload_groups,
     prior_parameter_covariance,
     separability,
 )
-from pe_drake.diagnosis.workflow import DiagnosisConfig, diagnose
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.excitation.trajectory_file import load_trajectory
 from pe_drake.identification.measurements import Measurement, write_measurement_csv

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from pe_drake.cli.common import robot_from_args
-from pe_drake.diagnosis.workflow import diagnose, write_outputs
+from pe_drake.diagnosis import diagnose, write_outputs
 from pe_drake.exceptions import ConfigError
 from pe_drake.identification.measurements import read_measurement_csv
 from pe_drake.io_utils import staged_output_dir

@@ -36,6 +36,9 @@ from typing import Any
 
 import numpy as np
 
+from pe_drake.exceptions import ConfigError, PeDrakeError
+from pe_drake.identification.simulation import build_true_robot
+from pe_drake.identification.truth import EffectsTruth, PayloadTruth, Truth
 from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.inertia import (
     PARAMETER_NAMES,
@@ -48,6 +51,8 @@ from pe_drake.multibody.inertia import (
     pseudo_inertia,
     validity_problems,
 )
+from pe_drake.multibody.robot import load_robot
+from pe_drake.multibody.urdf import urdf_with_inertias
 
 PAYLOAD_LINK = "pe_drake_payload"
 
@@ -158,9 +163,7 @@ class AugmentedModel:
                    np.asarray(inertia, float), tuple(notes))
 
     def truth(self):
-        """The :class:`~pe_drake.identification.truth.Truth` that builds this model's effects."""
-        from pe_drake.identification.truth import EffectsTruth, PayloadTruth, Truth
-
+        """The :class:`~pe_drake.identification.simulation.Truth` that builds this model's effects."""
         payload = PayloadTruth()
         if self.payload_link:
             payload = PayloadTruth(self.payload_link, float(self.payload_mass),
@@ -247,9 +250,8 @@ def physical_parameters(K: np.ndarray, phi_prior: np.ndarray, Sigma_phi: np.ndar
     Raises:
         PeDrakeError: the solver failed.
     """
+    # pydrake imported here: keeps `import pe_drake` light.
     from pydrake.solvers import ClarabelSolver, MathematicalProgram
-
-    from pe_drake.exceptions import PeDrakeError
 
     nb = len(phi_prior) // 10
     active = [b for b in range(nb) if phi_prior[10 * b] > 0]
@@ -322,7 +324,6 @@ def build_augmented_robot(robot, model: AugmentedModel):
     Raises:
         ConfigError: an effect value the simulator's schema refuses (named in the message).
     """
-    from pe_drake.identification.simulation import build_true_robot
     true = build_true_robot(robot, model.truth())
     plant, ctx = true.robot.plant, true.robot.plant_context
     for b, name in enumerate(model.body_names):
@@ -351,8 +352,6 @@ def augmented_urdf_text(robot, model: AugmentedModel) -> str:
         ConfigError: the robot was not loaded from a URDF.
         PhysicallyInvalidError: an invalid body (cannot happen after :func:`physically_consistent`).
     """
-    from pe_drake.multibody.urdf import urdf_with_inertias
-
     text = urdf_with_inertias(robot.model_path, model.body_names, model.phi)
     for j, name in enumerate(model.joints):
         text = _set_joint_damping(text, name, float(model.viscous[j]))
@@ -464,9 +463,6 @@ def write_augmented_model(folder: str | Path, robot, model: AugmentedModel, *, v
 def verify_augmented_urdf(path: Path, robot, model: AugmentedModel, samples: int = 20,
                           tolerance: float = 1e-6) -> float:
     """Max |τ_urdf - τ_model| over random states [N·m] (raises above ``tolerance`` relative)."""
-    from pe_drake.exceptions import ConfigError
-    from pe_drake.multibody.robot import load_robot
-
     config = dataclasses.replace(robot.config, model=str(Path(path).resolve()), capsules="")
     loaded = load_robot(config)
     rng = np.random.default_rng(0)

@@ -38,7 +38,9 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from pe_drake.exceptions import UnknownNameError
 from pe_drake.multibody.inertia import phi_from_com, principal_inertia
+from pe_drake.multibody.regressor import RegressorModel
 
 #: Per-joint effects of the library, in the order they are listed in reports.
 JOINT_EFFECTS = ("coulomb_friction", "viscous_friction", "armature", "torque_offset")
@@ -100,8 +102,6 @@ def joint_candidates(robot, effects: Sequence[str] = JOINT_EFFECTS) -> list[Cand
     out = []
     for effect in effects:
         if effect not in JOINT_EFFECTS:
-            from pe_drake.exceptions import UnknownNameError
-
             raise UnknownNameError("effect", effect, JOINT_EFFECTS)
         for j, info in enumerate(robot.joints):
             unit = _UNITS[effect][0 if info.kind == "revolute" else 1]
@@ -178,8 +178,6 @@ def separability(robot, base, candidates: Sequence[Candidate], *, model=None, sa
         seed: their seed.
         tolerance: relative residual below which a column counts as inside span(Y_B).
     """
-    from pe_drake.multibody.regressor import RegressorModel
-
     model = model or RegressorModel(robot)
     rng = np.random.default_rng(seed)
     lo, hi = robot.limits.q_lower, robot.limits.q_upper

@@ -38,7 +38,7 @@ from pe_drake.excitation.problem import ExcitationProblem, check_variables
 
 
 class ExcitationCost:
-    """A callable Drake cost: the criterion with our gradient (DRAKE_NOTES.md pattern).
+    """A callable Drake cost: the criterion with our gradient (BUILD_NOTES.md, "Drake facts").
 
     Args:
         problem: the :class:`ExcitationProblem`.

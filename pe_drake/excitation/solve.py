@@ -121,7 +121,7 @@ def _ipopt_backend(cfg: SolverConfig) -> _Backend:
         options.SetOption(sid, key, value)
     if cfg.max_time > 0:
         options.SetOption(sid, "max_wall_time", float(cfg.max_time))
-    # IPOPT reports no iteration count through Drake: its log file does (DRAKE_NOTES.md).
+    # IPOPT reports no iteration count through Drake: its log file does (BUILD_NOTES.md).
     log_file = Path(tempfile.mkstemp(prefix="pe_drake_ipopt_", suffix=".log")[1])
     options.SetOption(CommonSolverOption.kPrintFileName, str(log_file))
     return _Backend(solver, options, log_file)

@@ -1,6 +1,6 @@
 """STL → OBJ conversion of URDF visuals, so that Drake's Meshcat can draw them.
 
-Drake's Meshcat draws .obj/.gltf/.dae visuals only; STL visuals are skipped (DRAKE_NOTES.md,
+Drake's Meshcat draws .obj/.gltf/.dae visuals only; STL visuals are skipped (BUILD_NOTES.md,
 "Robot descriptions"). :func:`stl_visuals_to_obj` rewrites the ``<visual>`` STL mesh filenames
 of a URDF to OBJ files converted once into a cache folder and reused afterwards; collision
 geometry is left untouched. The reader handles binary and ASCII STL; the writer emits shared

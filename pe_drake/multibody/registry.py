@@ -2,7 +2,7 @@
 
 A robot is named either by a built-in name (a ``models/<name>.yaml`` config shipped with
 pe_drake: ``panda``, ``ur5``, ``g1``) or by a URDF/SDF path. Built-in models live in the
-``example-robot-data`` wheel (DRAKE_NOTES.md, "Robot descriptions") and are referred to as
+``example-robot-data`` wheel (BUILD_NOTES.md, "Why each dependency") and are referred to as
 ``package://example-robot-data/...``.
 """
 

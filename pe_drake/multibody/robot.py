@@ -420,7 +420,7 @@ def _model_text(model_path: Path, obj_visuals: bool) -> str:
     """The model file's text as Drake parses it."""
     text = model_path.read_text()
     if model_path.suffix.lower() == ".urdf":
-        # Drake cannot build convex hulls of STL/DAE collision meshes (DRAKE_NOTES.md);
+        # Drake cannot build convex hulls of STL/DAE collision meshes (BUILD_NOTES.md);
         # collision is our own capsules. Mimic tags would couple joints we may lock.
         text = re.sub(r"<collision\b.*?</collision>", "", text, flags=re.S)
         text = re.sub(r"<mimic\b[^>]*/>", "", text)
