@@ -96,3 +96,31 @@ def dahl_friction_system(coulomb: np.ndarray, displacement: np.ndarray):
     system = DahlFriction()
     system.set_name("pe_drake_dahl_friction")
     return system
+
+
+def dahl_builder_hook(coulomb: np.ndarray, stiffness: np.ndarray, port_name: str):
+    """A ``load_robot`` builder hook that adds :func:`dahl_friction_system` to a robot's diagram.
+
+    The plant's applied generalized force becomes the diagram's exported input ``port_name``
+    (the controller's torque) plus the friction torque −F_c·z.
+
+    Args:
+        coulomb: F_c per joint, shape (n,) [N·m]; joints with 0 carry no friction.
+        stiffness: σ0 per joint, shape (n,) [N·m/rad], > 0 where F_c > 0.
+        port_name: name of the exported input port.
+    """
+    coulomb = np.asarray(coulomb, float)
+    stiffness = np.asarray(stiffness, float)
+
+    def hook(builder, plant, scene_graph):
+        from pydrake.systems.primitives import Adder  # lazy: pydrake stays out of `import pe_drake`
+
+        x_p = np.where(coulomb > 0, coulomb / np.where(stiffness > 0, stiffness, 1.0), 1.0)
+        dahl = builder.AddSystem(dahl_friction_system(coulomb, x_p))
+        adder = builder.AddSystem(Adder(2, len(coulomb)))
+        builder.Connect(plant.get_state_output_port(), dahl.get_input_port(0))
+        builder.Connect(dahl.get_output_port(0), adder.get_input_port(1))
+        builder.Connect(adder.get_output_port(0), plant.get_applied_generalized_force_input_port())
+        builder.ExportInput(adder.get_input_port(0), port_name)
+
+    return hook

@@ -60,7 +60,7 @@ import numpy as np
 from pe_drake.config import check_finite
 from pe_drake.exceptions import ConfigError, DataError, PeDrakeError
 from pe_drake.excitation.fourier import FourierTrajectory
-from pe_drake.identification.dahl import dahl_friction_system
+from pe_drake.identification.dahl import dahl_builder_hook
 from pe_drake.identification.measurements import Measurement
 from pe_drake.identification.truth import (
     Truth,
@@ -244,7 +244,7 @@ def build_true_robot(robot, truth: Truth) -> TrueRobot:
     phi_bodies = perturb_inertias(robot.phi_model, truth.inertia_perturbation, rng)
     fc = per_joint_values(e.presliding_friction, joints)
     sigma0 = per_joint_values(e.presliding_stiffness, joints)
-    hook = _dahl_hook(fc, sigma0) if np.any(fc > 0) else None
+    hook = dahl_builder_hook(fc, sigma0, APPLIED_FORCE_PORT) if np.any(fc > 0) else None
     true = load_robot(robot.config, time_step=0.0, before_finalize=before_finalize, builder_hook=hook)
     for b, name in enumerate(robot.body_names):
         phi_b = phi_bodies[10 * b : 10 * b + 10]
@@ -260,24 +260,6 @@ def build_true_robot(robot, truth: Truth) -> TrueRobot:
         phi[10 * b : 10 * b + 10] += phi_payload
     return TrueRobot(true, phi, phi_bodies, phi_payload, viscous, coulomb, armature, offset, model_damping,
                      fc, sigma0)
-
-
-def _dahl_hook(fc: np.ndarray, sigma0: np.ndarray):
-    """A builder hook adding the Dahl friction system: the plant's applied generalized force is
-    the exported input ``applied_generalized_force`` plus the friction torque −F_c·z."""
-
-    def hook(builder, plant, scene_graph):
-        from pydrake.systems.primitives import Adder  # lazy: pydrake stays out of `import pe_drake`
-
-        x_p = np.where(fc > 0, fc / np.where(sigma0 > 0, sigma0, 1.0), 1.0)
-        dahl = builder.AddSystem(dahl_friction_system(fc, x_p))
-        adder = builder.AddSystem(Adder(2, len(fc)))
-        builder.Connect(plant.get_state_output_port(), dahl.get_input_port(0))
-        builder.Connect(dahl.get_output_port(0), adder.get_input_port(1))
-        builder.Connect(adder.get_output_port(0), plant.get_applied_generalized_force_input_port())
-        builder.ExportInput(adder.get_input_port(0), APPLIED_FORCE_PORT)
-
-    return hook
 
 
 def _add_coulomb_friction(plant, joint, f_c: float, v_s: float) -> None:
