@@ -1,0 +1,242 @@
+"""Pre-sliding friction in the diagnosis: a search over the pre-sliding displacement.
+
+The Dahl model (:mod:`pe_drake.identification.dahl`) gives the friction torque F_c·z(q; x_p):
+linear in F_c, nonlinear in x_p = F_c/σ0. Where the selection named ``coulomb_friction`` on
+a joint, its column tanh(v/v_s) is replaced by the parallel-filtered Dahl column z(q; x_p)
+for every x_p of :data:`DISPLACEMENT_GRID`, the whole model is refitted (base parameters and
+every named effect: the linear fit inside the search), and the x_p with the lowest weighted
+training residual wins. The Coulomb model is the x_p → 0 limit, so the two are nested: the
+workflow names ``presliding_friction`` instead of ``coulomb_friction`` when the residual drop
+is significant (a likelihood-ratio test with the autocorrelation-inflated noise of the joint)
+and the held-out residual of the joint drops too.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from pe_drake.diagnosis.result import NamedEffect, per_joint
+from pe_drake.identification.dahl import dahl_state
+
+#: Name of the effect.
+PRESLIDING = "presliding_friction"
+#: Pre-sliding displacements x_p = F_c/σ0 tried [rad]: 2 to 160 mrad, log-spaced (ratio
+#: 1.25), around the range a joint shows (10 to 50 mrad).
+DISPLACEMENT_GRID = 0.002 * 1.25 ** np.arange(20)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class PreslidingFit:
+    """The best pre-sliding model of one joint.
+
+    Attributes:
+        joint: joint index.
+        column: the library column (the joint's Coulomb column) it replaces.
+        displacement: x_p [rad] of the best fit.
+        coulomb: F_c [N·m] there.
+        coulomb_std: its standard deviation [N·m].
+        stiffness: σ0 = F_c / x_p [N·m/rad].
+        rss: weighted training residual of the joint over the grid, shape (G,).
+        rss_coulomb: the same with the Coulomb column.
+        fit: the refit with the best Dahl column (a ``Fit`` of the workflow's regression).
+        regression: the regression holding the Dahl column in place of the Coulomb one.
+    """
+
+    joint: int
+    column: int
+    displacement: float
+    coulomb: float
+    coulomb_std: float
+    stiffness: float
+    rss: np.ndarray
+    rss_coulomb: float
+    fit: object
+    regression: object
+
+
+def dahl_columns(record, joint: int, grid: np.ndarray = DISPLACEMENT_GRID) -> np.ndarray:
+    """The normalized Dahl state of one joint at the record's full rate for every x_p of
+    ``grid``, filtered like the torque (parallel filtering), shape (T, G).
+
+    The state follows the record's filtered q (a noisy q would reverse at every sample).
+    """
+    z = dahl_state(record.q[:, joint], np.asarray(grid, float))
+    return record.filtered(z)
+
+
+def replace_column(columns, index: int, joint: int, values: np.ndarray):
+    """A copy of a segment's columns whose column ``index`` is ``values`` on ``joint`` (zero
+    on the other joints), with its Gram entries updated (the others are unchanged)."""
+    A = columns.A.copy()
+    A[:, :, index] = 0.0
+    A[:, joint, index] = values
+    gram = columns.gram.copy()
+    row = np.einsum("sjp,sj->jp", A, A[:, :, index])
+    gram[:, index, :] = row
+    gram[:, :, index] = row
+    rhs = columns.rhs.copy()
+    rhs[:, index] = np.einsum("sj,sj->j", A[:, :, index], columns.y)
+    return dataclasses.replace(columns, A=A, gram=gram, rhs=rhs)
+
+
+def search_presliding(regression, extra: list[int], column: int, joint: int, train_dahl: np.ndarray,
+                      held_dahl: np.ndarray, grid: np.ndarray = DISPLACEMENT_GRID) -> PreslidingFit:
+    """The x_p that fits best when the joint's Coulomb column becomes the Dahl column.
+
+    Args:
+        regression: the workflow's regression (``train``/``held`` columns, ``weights``,
+            ``inflation``, ``fit(extra)``).
+        extra: the named columns (``column`` among them).
+        column: the joint's Coulomb column.
+        joint: joint index.
+        train_dahl, held_dahl: :func:`dahl_columns` at the training / held-out samples,
+            (S, G) each.
+        grid: x_p values [rad], (G,).
+
+    Returns:
+        The :class:`PreslidingFit`.
+    """
+    base_fit = regression.fit(extra)
+    rss_coulomb = float(base_fit.rms_train[joint] ** 2 * regression.train.count)
+    best = None
+    rss = np.empty(len(grid))
+    for g in range(len(grid)):
+        reg = _with_dahl(regression, column, joint, train_dahl[:, g], held_dahl[:, g])
+        fit = reg.fit(extra)
+        rss[g] = fit.rms_train[joint] ** 2 * reg.train.count
+        if best is None or rss[g] < rss[best[0]]:
+            best = (g, fit, reg)
+    g, fit, reg = best
+    fc, sd = fit.value(column), fit.std(column)
+    return PreslidingFit(joint, column, float(grid[g]), float(fc), float(sd), float(fc / grid[g]), rss,
+                         rss_coulomb, fit, reg)
+
+
+def _with_dahl(regression, column: int, joint: int, train_values: np.ndarray, held_values: np.ndarray):
+    reg = type(regression)(replace_column(regression.train, column, joint, train_values),
+                           replace_column(regression.held, column, joint, held_values), regression.num_base)
+    reg.set_weights(regression.weights)
+    reg.inflation = regression.inflation
+    return reg
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class PreslidingStep:
+    """The pre-sliding test of every joint where Coulomb friction was named.
+
+    Attributes:
+        fits: the accepted :class:`PreslidingFit`, one per joint.
+        report: per tested joint {joint, displacement, coulomb, stiffness, statistic,
+            threshold, heldout_rms_coulomb, heldout_rms_presliding, named, reason}.
+        regression: the regression with the accepted Dahl columns in place of the Coulomb ones.
+        final: its fit with every selected column.
+        held_torque: the accepted Dahl torques F_c·z on the held-out samples, (S, n) [N·m].
+        dropped: selected columns dropped because the Dahl column took their place.
+    """
+
+    fits: list[PreslidingFit]
+    report: list[dict[str, Any]]
+    regression: object
+    final: object
+    held_torque: np.ndarray
+    dropped: tuple[int, ...] = ()
+
+
+def presliding_step(prep, lib, sel, config) -> PreslidingStep:
+    """Tries the Dahl column in each joint's Coulomb slot (replacing a named Coulomb column, or
+    added) and keeps it when the joint's weighted training residual drops significantly
+    (likelihood ratio ≥ z_min², the selection's Bonferroni bound squared, with the joint's
+    autocorrelation-inflated noise), its held-out RMS drops by ``min_heldout_gain``, and x_p
+    is not the grid's smallest value (the Coulomb limit). Effects of that joint that are no
+    longer significant with it (e.g. a viscous friction that stood in for it) are dropped."""
+    reg, library, extra = lib.regression, lib.library, list(sel.selected)
+    cache: dict = {}  # id(record) -> {joint: full-rate filtered Dahl columns}
+    report, fits = [], []
+    held_torque = np.zeros_like(prep.held.tau)
+    slots = [c for c in library.cand_of if library.cand_of[c].effect == "coulomb_friction"]
+    for col in slots:
+        j = library.cand_of[col].joint
+        trial = extra if col in extra else extra + [col]
+        tr, ho = (_dahl_at(cache, seg, j) for seg in (prep.training, prep.held))
+        before = reg.fit(extra)
+        fit = search_presliding(reg, trial, col, j, tr, ho)
+        rss_before = float(before.rms_train[j] ** 2 * reg.train.count)
+        decision = _decide(fit, before, rss_before, reg, j, sel.thresholds, config)
+        report.append({"joint": library.cand_of[col].joint_name, "displacement": fit.displacement,
+                       "coulomb": fit.coulomb, "stiffness": fit.stiffness, **decision,
+                       "heldout_rms_all_before": [float(x) for x in before.rms_held]})
+        if decision["named"]:
+            fits.append(fit)
+            reg, extra = fit.regression, _drop_stand_ins(fit.regression, trial, col, j, library, sel.thresholds)
+            held_torque[:, j] = ho[:, int(np.argmin(fit.rss))]
+    final = reg.fit(extra) if fits else sel.final
+    for f in fits:  # the Dahl torques with the final values
+        held_torque[:, f.joint] *= final.value(f.column)
+    return PreslidingStep(fits, report, reg, final, held_torque, tuple(c for c in sel.selected if c not in extra))
+
+
+def _decide(fit: PreslidingFit, before, rss_before: float, reg, j: int, thresholds, config) -> dict[str, Any]:
+    """The acceptance tests of :func:`presliding_step` for one joint."""
+    best = int(np.argmin(fit.rss))
+    sigma2 = fit.rss[best] / reg.train.count
+    statistic = float((rss_before - fit.rss[best]) / max(sigma2 * reg.inflation[j], 1e-300))
+    reasons = []
+    if best == 0:
+        reasons.append("the smallest pre-sliding displacement fits best (the Coulomb limit)")
+    if statistic < thresholds.z_min**2:
+        reasons.append(f"residual drop not significant ({statistic:.3g} < {thresholds.z_min ** 2:.3g})")
+    if fit.fit.rms_held[j] > (1 - config.min_heldout_gain) * before.rms_held[j]:
+        reasons.append(f"held-out RMS only {before.rms_held[j]:.4g} → {fit.fit.rms_held[j]:.4g} N·m")
+    if fit.coulomb <= 0:
+        reasons.append("non-positive friction level")
+    return {"statistic": statistic, "threshold": thresholds.z_min**2, "heldout_rms_before": float(before.rms_held[j]),
+            "heldout_rms_presliding": float(fit.fit.rms_held[j]), "named": not reasons, "reason": "; ".join(reasons)}
+
+
+def _drop_stand_ins(reg, extra: list[int], col: int, joint: int, library, thresholds) -> list[int]:
+    """``extra`` without the joint's other effects that are no longer significant (weakest first)."""
+    extra = list(extra)
+    while True:
+        fit = reg.fit(extra)
+        own = [c for c in extra if c != col and c in library.cand_of and library.cand_of[c].joint == joint]
+        z = {c: abs(fit.value(c)) / max(fit.std(c), 1e-300) for c in own}
+        weak = [c for c in own if z[c] < thresholds.z_min]
+        if not weak:
+            return extra
+        extra.remove(min(weak, key=lambda c: z[c]))
+
+
+def _dahl_at(cache: dict, seg, joint: int) -> np.ndarray:
+    """:func:`dahl_columns` of a segment's record (once per record and joint) at its samples."""
+    table = cache.setdefault(id(seg.record), {})
+    if joint not in table:
+        table[joint] = dahl_columns(seg.record, joint)
+    return table[joint][seg.idx]
+
+
+def presliding_effects(effects: Sequence[NamedEffect], step: PreslidingStep, library,
+                       joints: Sequence[str]) -> list[NamedEffect]:
+    """The named effects with each accepted joint's pre-sliding friction (value F_c [N·m]; σ0
+    and x_p in the details) in place of its ``coulomb_friction``, or added; the effects it
+    stood in for are left out."""
+    dropped = {library.cand_of[c].label for c in step.dropped if c in library.cand_of}
+    out = [e for e in effects if f"{e.effect}[{e.joint}]" not in dropped]
+    for f in step.fits:
+        name = joints[f.joint]
+        old = [e for e in out if e.effect == "coulomb_friction" and e.joint == name]
+        out = [e for e in out if e not in old]
+        fc, sd = step.final.value(f.column), step.final.std(f.column)
+        details = {"stiffness": fc / f.displacement, "stiffness_unit": "N·m/rad",
+                   "presliding_displacement": f.displacement, "presliding_displacement_unit": "rad",
+                   "model": "Dahl: dF/dt = stiffness·v·(1 − F/value·sgn v)",
+                   "replaces": "coulomb_friction" if old else "",
+                   "displacement_grid": [float(x) for x in DISPLACEMENT_GRID]}
+        tested = next(r for r in step.report if r["joint"] == name)
+        before = old[0].heldout_rms_before if old else per_joint(joints, tested["heldout_rms_all_before"])
+        out.append(NamedEffect(PRESLIDING, name, "", float(fc), "N·m", float(sd), float(abs(fc) / max(sd, 1e-300)),
+                               before, per_joint(joints, step.final.rms_held), details))
+    return out
