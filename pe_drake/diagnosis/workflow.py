@@ -539,6 +539,8 @@ def diagnose(
                                  cumulative=naming.cumulative + [(f"+ {PRESLIDING}", pre.final.rms_held)] * bool(pre.fits),
                                  rejected=naming.rejected + [_not_presliding(r) for r in pre.report
                                                              if not r["named"] and r["statistic"] >= 4.0])
+    for f in pre.fits:
+        say(f"3. {PRESLIDING}[{joints[f.joint]}] (x_p {1e3 * f.displacement:.3g} mrad) in its Coulomb slot")
     lap("presliding")
     pay = payload_step(robot, prep, lib, sel, naming, config)
     if pay.outcome.effect is not None:
