@@ -145,6 +145,14 @@ class PreslidingStep:
     held_torque: np.ndarray
     dropped: tuple[int, ...] = ()
 
+    def not_named(self, min_statistic: float = 4.0) -> list[dict[str, Any]]:
+        """The tested joints that came close (statistic ≥ ``min_statistic``), as entries of the
+        diagnosis's ``rejected`` list."""
+        return [{"effect": PRESLIDING, "joint": r["joint"], "value": r["coulomb"], "unit": "N·m",
+                 "z": float(np.sqrt(max(r["statistic"], 0.0))), "reason": r["reason"],
+                 "presliding_displacement": r["displacement"]}
+                for r in self.report if not r["named"] and r["statistic"] >= min_statistic]
+
 
 def presliding_step(prep, lib, sel, config) -> PreslidingStep:
     """Tries the Dahl column in each joint's Coulomb slot (replacing a named Coulomb column, or

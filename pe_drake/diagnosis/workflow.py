@@ -537,8 +537,7 @@ def diagnose(
     pre = presliding_step(prep, lib, sel, config)
     naming = dataclasses.replace(naming, effects=presliding_effects(naming.effects, pre, lib.library, joints),
                                  cumulative=naming.cumulative + [(f"+ {PRESLIDING}", pre.final.rms_held)] * bool(pre.fits),
-                                 rejected=naming.rejected + [_not_presliding(r) for r in pre.report
-                                                             if not r["named"] and r["statistic"] >= 4.0])
+                                 rejected=naming.rejected + pre.not_named())
     for f in pre.fits:
         say(f"3. {PRESLIDING}[{joints[f.joint]}] (x_p {1e3 * f.displacement:.3g} mrad) in its Coulomb slot")
     lap("presliding")
@@ -576,11 +575,6 @@ def _say_selection(say: Callable[[str], None], sel: Selection, library: Library,
             say(f"3. + {library.label(col)}: held-out RMS [N·m] " + _fmt_joints(joints, fit.rms_held))
         else:
             say(f"3. - {library.label(col)} (no longer significant)")
-
-
-def _not_presliding(r: dict[str, Any]) -> dict[str, Any]:
-    return {"effect": PRESLIDING, "joint": r["joint"], "value": r["coulomb"], "unit": "N·m",
-            "z": float(np.sqrt(max(r["statistic"], 0.0))), "reason": r["reason"], "presliding_displacement": r["displacement"]}
 
 
 class _Laps:
