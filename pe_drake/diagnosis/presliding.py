@@ -58,28 +58,40 @@ class PreslidingFit:
     regression: object
 
 
-def dahl_columns(record, joint: int, grid: np.ndarray = DISPLACEMENT_GRID) -> np.ndarray:
-    """The normalized Dahl state of one joint at the record's full rate for every x_p of
-    ``grid``, filtered like the torque (parallel filtering), shape (T, G).
+def dahl_columns(record, grid: np.ndarray = DISPLACEMENT_GRID) -> np.ndarray:
+    """The normalized Dahl state of every joint at the record's full rate for every x_p of
+    ``grid``, filtered like the torque (parallel filtering), shape (T, G, n).
 
     The state follows the record's filtered q (a noisy q would reverse at every sample).
     """
-    z = dahl_state(record.q[:, joint], np.asarray(grid, float))
-    return record.filtered(z)
+    grid = np.asarray(grid, float)
+    T, n = record.q.shape
+    z = dahl_state(record.q, np.repeat(grid[:, None], n, axis=1))
+    return record.filtered(z.reshape(T, -1)).reshape(T, len(grid), n)
 
 
-def replace_column(columns, index: int, joint: int, values: np.ndarray):
+def replace_column(columns, index: int, joint: int, values: np.ndarray, *, with_A: bool = True):
     """A copy of a segment's columns whose column ``index`` is ``values`` on ``joint`` (zero
-    on the other joints), with its Gram entries updated (the others are unchanged)."""
-    A = columns.A.copy()
-    A[:, :, index] = 0.0
-    A[:, joint, index] = values
+    on the other joints), with its Gram entries updated (the others are unchanged).
+
+    ``with_A=False`` skips the copy of the (S, n, P) columns: the result then fits (Gram
+    matrices) but its ``A`` still holds the old column (no residuals from it).
+    """
+    values = np.asarray(values, float)
+    row = np.zeros(columns.rhs.shape)
+    row[joint] = values @ columns.A[:, joint, :]
+    row[joint, index] = values @ values
     gram = columns.gram.copy()
-    row = np.einsum("sjp,sj->jp", A, A[:, :, index])
     gram[:, index, :] = row
     gram[:, :, index] = row
     rhs = columns.rhs.copy()
-    rhs[:, index] = np.einsum("sj,sj->j", A[:, :, index], columns.y)
+    rhs[:, index] = 0.0
+    rhs[joint, index] = values @ columns.y[:, joint]
+    if not with_A:
+        return dataclasses.replace(columns, gram=gram, rhs=rhs)
+    A = columns.A.copy()
+    A[:, :, index] = 0.0
+    A[:, joint, index] = values
     return dataclasses.replace(columns, A=A, gram=gram, rhs=rhs)
 
 
@@ -90,35 +102,35 @@ def search_presliding(regression, extra: list[int], column: int, joint: int, tra
     Args:
         regression: the workflow's regression (``train``/``held`` columns, ``weights``,
             ``inflation``, ``fit(extra)``).
-        extra: the named columns (``column`` among them).
-        column: the joint's Coulomb column.
+        extra: the fitted columns besides the base parameters (``column`` among them).
+        column: the joint's Coulomb column (its slot).
         joint: joint index.
-        train_dahl, held_dahl: :func:`dahl_columns` at the training / held-out samples,
+        train_dahl, held_dahl: the joint's Dahl columns at the training / held-out samples,
             (S, G) each.
         grid: x_p values [rad], (G,).
 
     Returns:
-        The :class:`PreslidingFit`.
+        The :class:`PreslidingFit` (its regression holds the best column, A included).
     """
     base_fit = regression.fit(extra)
     rss_coulomb = float(base_fit.rms_train[joint] ** 2 * regression.train.count)
-    best = None
     rss = np.empty(len(grid))
     for g in range(len(grid)):
-        reg = _with_dahl(regression, column, joint, train_dahl[:, g], held_dahl[:, g])
-        fit = reg.fit(extra)
-        rss[g] = fit.rms_train[joint] ** 2 * reg.train.count
-        if best is None or rss[g] < rss[best[0]]:
-            best = (g, fit, reg)
-    g, fit, reg = best
+        fit = _with_dahl(regression, column, joint, train_dahl[:, g], held_dahl[:, g], with_A=False).fit(extra)
+        rss[g] = fit.rms_train[joint] ** 2 * regression.train.count
+    g = int(np.argmin(rss))
+    reg = _with_dahl(regression, column, joint, train_dahl[:, g], held_dahl[:, g])
+    fit = reg.fit(extra)
     fc, sd = fit.value(column), fit.std(column)
     return PreslidingFit(joint, column, float(grid[g]), float(fc), float(sd), float(fc / grid[g]), rss,
                          rss_coulomb, fit, reg)
 
 
-def _with_dahl(regression, column: int, joint: int, train_values: np.ndarray, held_values: np.ndarray):
-    reg = type(regression)(replace_column(regression.train, column, joint, train_values),
-                           replace_column(regression.held, column, joint, held_values), regression.num_base)
+def _with_dahl(regression, column: int, joint: int, train_values: np.ndarray, held_values: np.ndarray,
+               *, with_A: bool = True):
+    reg = type(regression)(replace_column(regression.train, column, joint, train_values, with_A=with_A),
+                           replace_column(regression.held, column, joint, held_values, with_A=with_A),
+                           regression.num_base)
     reg.set_weights(regression.weights)
     reg.inflation = regression.inflation
     return reg
@@ -162,7 +174,7 @@ def presliding_step(prep, lib, sel, config) -> PreslidingStep:
     is not the grid's smallest value (the Coulomb limit). Effects of that joint that are no
     longer significant with it (e.g. a viscous friction that stood in for it) are dropped."""
     reg, library, extra = lib.regression, lib.library, list(sel.selected)
-    cache: dict = {}  # id(record) -> {joint: full-rate filtered Dahl columns}
+    cache: dict = {}  # id(record) -> full-rate filtered Dahl columns, (T, G, n)
     report, fits = [], []
     held_torque = np.zeros_like(prep.held.tau)
     slots = [c for c in library.cand_of if library.cand_of[c].effect == "coulomb_friction"]
@@ -219,11 +231,10 @@ def _drop_stand_ins(reg, extra: list[int], col: int, joint: int, library, thresh
 
 
 def _dahl_at(cache: dict, seg, joint: int) -> np.ndarray:
-    """:func:`dahl_columns` of a segment's record (once per record and joint) at its samples."""
-    table = cache.setdefault(id(seg.record), {})
-    if joint not in table:
-        table[joint] = dahl_columns(seg.record, joint)
-    return table[joint][seg.idx]
+    """:func:`dahl_columns` of a segment's record (once per record) at its samples, (S, G)."""
+    if id(seg.record) not in cache:
+        cache[id(seg.record)] = dahl_columns(seg.record)
+    return cache[id(seg.record)][seg.idx, :, joint]
 
 
 def presliding_effects(effects: Sequence[NamedEffect], step: PreslidingStep, library,
