@@ -14,7 +14,7 @@ and the held-out residual of the joint drops too.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -40,8 +40,10 @@ class PreslidingFit:
         coulomb: F_c [N·m] there.
         coulomb_std: its standard deviation [N·m].
         stiffness: σ0 = F_c / x_p [N·m/rad].
-        rss: weighted training residual of the joint over the grid, shape (G,).
+        rss: training residual sum of squares of the joint over the grid, shape (G,).
         rss_coulomb: the same with the Coulomb column.
+        rss_best: the same at ``displacement`` (refined between grid points).
+        held_values: the Dahl column at ``displacement`` on the held-out samples, (S,).
         fit: the refit with the best Dahl column (a ``Fit`` of the workflow's regression).
         regression: the regression holding the Dahl column in place of the Coulomb one.
     """
@@ -56,6 +58,8 @@ class PreslidingFit:
     rss_coulomb: float
     fit: object
     regression: object
+    rss_best: float = np.inf
+    held_values: np.ndarray | None = None
 
 
 def dahl_columns(record, grid: np.ndarray = DISPLACEMENT_GRID) -> np.ndarray:
@@ -96,7 +100,8 @@ def replace_column(columns, index: int, joint: int, values: np.ndarray, *, with_
 
 
 def search_presliding(regression, extra: list[int], column: int, joint: int, train_dahl: np.ndarray,
-                      held_dahl: np.ndarray, grid: np.ndarray = DISPLACEMENT_GRID) -> PreslidingFit:
+                      held_dahl: np.ndarray, grid: np.ndarray = DISPLACEMENT_GRID,
+                      column_at: Callable[[float], tuple[np.ndarray, np.ndarray]] | None = None) -> PreslidingFit:
     """The x_p that fits best when the joint's Coulomb column becomes the Dahl column.
 
     Args:
@@ -108,6 +113,8 @@ def search_presliding(regression, extra: list[int], column: int, joint: int, tra
         train_dahl, held_dahl: the joint's Dahl columns at the training / held-out samples,
             (S, G) each.
         grid: x_p values [rad], (G,).
+        column_at: x_p → (training, held-out) Dahl columns; when given, the best grid point
+            is refined by the vertex of a parabola through it and its neighbours (in log x_p).
 
     Returns:
         The :class:`PreslidingFit` (its regression holds the best column, A included).
@@ -119,11 +126,26 @@ def search_presliding(regression, extra: list[int], column: int, joint: int, tra
         fit = _with_dahl(regression, column, joint, train_dahl[:, g], held_dahl[:, g], with_A=False).fit(extra)
         rss[g] = fit.rms_train[joint] ** 2 * regression.train.count
     g = int(np.argmin(rss))
-    reg = _with_dahl(regression, column, joint, train_dahl[:, g], held_dahl[:, g])
+    x_p, tr, ho = float(grid[g]), train_dahl[:, g], held_dahl[:, g]
+    if column_at is not None and 0 < g < len(grid) - 1:
+        x_ref = _parabola_vertex(np.log(grid[g - 1 : g + 2]), rss[g - 1 : g + 2])
+        tr_ref, ho_ref = column_at(x_ref)
+        fit = _with_dahl(regression, column, joint, tr_ref, ho_ref, with_A=False).fit(extra)
+        if fit.rms_train[joint] ** 2 * regression.train.count < rss[g]:
+            x_p, tr, ho = x_ref, tr_ref, ho_ref
+    reg = _with_dahl(regression, column, joint, tr, ho)
     fit = reg.fit(extra)
     fc, sd = fit.value(column), fit.std(column)
-    return PreslidingFit(joint, column, float(grid[g]), float(fc), float(sd), float(fc / grid[g]), rss,
-                         rss_coulomb, fit, reg)
+    return PreslidingFit(joint, column, x_p, float(fc), float(sd), float(fc / x_p), rss, rss_coulomb, fit, reg,
+                         float(fit.rms_train[joint] ** 2 * reg.train.count), ho)
+
+
+def _parabola_vertex(u: np.ndarray, f: np.ndarray) -> float:
+    """exp of the vertex of the parabola through (u_k, f_k), k = 0..2 (u = log x_p), kept
+    within [u_0, u_2]."""
+    c2, c1, _ = np.polyfit(u, f, 2)
+    vertex = -c1 / (2 * c2) if c2 > 0 else u[1]
+    return float(np.exp(np.clip(vertex, u[0], u[2])))
 
 
 def _with_dahl(regression, column: int, joint: int, train_values: np.ndarray, held_values: np.ndarray,
@@ -183,7 +205,7 @@ def presliding_step(prep, lib, sel, config) -> PreslidingStep:
         trial = extra if col in extra else extra + [col]
         tr, ho = (_dahl_at(cache, seg, j) for seg in (prep.training, prep.held))
         before = reg.fit(extra)
-        fit = search_presliding(reg, trial, col, j, tr, ho)
+        fit = search_presliding(reg, trial, col, j, tr, ho, column_at=_column_at(prep, j))
         rss_before = float(before.rms_train[j] ** 2 * reg.train.count)
         decision = _decide(fit, before, rss_before, reg, j, sel.thresholds, config)
         report.append({"joint": library.cand_of[col].joint_name, "displacement": fit.displacement,
@@ -192,7 +214,7 @@ def presliding_step(prep, lib, sel, config) -> PreslidingStep:
         if decision["named"]:
             fits.append(fit)
             reg, extra = fit.regression, _drop_stand_ins(fit.regression, trial, col, j, library, sel.thresholds)
-            held_torque[:, j] = ho[:, int(np.argmin(fit.rss))]
+            held_torque[:, j] = fit.held_values
     final = reg.fit(extra) if fits else sel.final
     for f in fits:  # the Dahl torques with the final values
         held_torque[:, f.joint] *= final.value(f.column)
@@ -202,8 +224,8 @@ def presliding_step(prep, lib, sel, config) -> PreslidingStep:
 def _decide(fit: PreslidingFit, before, rss_before: float, reg, j: int, thresholds, config) -> dict[str, Any]:
     """The acceptance tests of :func:`presliding_step` for one joint."""
     best = int(np.argmin(fit.rss))
-    sigma2 = fit.rss[best] / reg.train.count
-    statistic = float((rss_before - fit.rss[best]) / max(sigma2 * reg.inflation[j], 1e-300))
+    sigma2 = fit.rss_best / reg.train.count
+    statistic = float((rss_before - fit.rss_best) / max(sigma2 * reg.inflation[j], 1e-300))
     reasons = []
     if best == 0:
         reasons.append("the smallest pre-sliding displacement fits best (the Coulomb limit)")
@@ -230,6 +252,19 @@ def _drop_stand_ins(reg, extra: list[int], col: int, joint: int, library, thresh
         extra.remove(min(weak, key=lambda c: z[c]))
 
 
+def _column_at(prep, joint: int) -> Callable[[float], tuple[np.ndarray, np.ndarray]]:
+    """x_p → the joint's filtered Dahl column on the training and held-out samples."""
+
+    def at(x_p: float) -> tuple[np.ndarray, np.ndarray]:
+        out = []
+        for seg in (prep.training, prep.held):
+            z = seg.record.filtered(dahl_state(seg.record.q[:, joint], x_p)[:, None])[:, 0]
+            out.append(z[seg.idx])
+        return out[0], out[1]
+
+    return at
+
+
 def _dahl_at(cache: dict, seg, joint: int) -> np.ndarray:
     """:func:`dahl_columns` of a segment's record (once per record) at its samples, (S, G)."""
     if id(seg.record) not in cache:
@@ -243,7 +278,7 @@ def presliding_effects(effects: Sequence[NamedEffect], step: PreslidingStep, lib
     and x_p in the details) in place of its ``coulomb_friction``, or added; the effects it
     stood in for are left out."""
     dropped = {library.cand_of[c].label for c in step.dropped if c in library.cand_of}
-    out = [e for e in effects if f"{e.effect}[{e.joint}]" not in dropped]
+    out = [_refitted(e, step, library) for e in effects if f"{e.effect}[{e.joint}]" not in dropped]
     for f in step.fits:
         name = joints[f.joint]
         old = [e for e in out if e.effect == "coulomb_friction" and e.joint == name]
@@ -259,3 +294,12 @@ def presliding_effects(effects: Sequence[NamedEffect], step: PreslidingStep, lib
         out.append(NamedEffect(PRESLIDING, name, "", float(fc), "N·m", float(sd), float(abs(fc) / max(sd, 1e-300)),
                                before, per_joint(joints, step.final.rms_held), details))
     return out
+
+
+def _refitted(e: NamedEffect, step: PreslidingStep, library) -> NamedEffect:
+    """An effect with its value and std from the fit with the Dahl columns (when any)."""
+    col = library.timing_col if e.effect == "time_delay" else library.col_of.get(f"{e.effect}[{e.joint}]")
+    if not step.fits or col is None or col not in step.final.columns:
+        return e
+    value, std = step.final.value(col), step.final.std(col)
+    return dataclasses.replace(e, value=float(value), std=float(std), z=float(abs(value) / max(std, 1e-300)))
