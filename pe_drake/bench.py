@@ -237,10 +237,10 @@ def bench_diagnose(args) -> None:
 def bench_sensitivity(args) -> None:
     """The diagnosis's false alarms and its smallest effect (issue 13): 20 clean simulated runs
     (14 s at 500 Hz, 5 % inertial errors, 0.05 N·m torque noise, 19-bit encoders, seeds
-    seed..seed+19) on a random collision-free trajectory, how many name anything; then a
-    0.1 N·m offset on every joint in the same conditions, how many are named."""
+    seed..seed+19) on ``--trajectory`` (default: a random collision-free one), how many name
+    anything; then a 0.1 N·m offset on every joint in the same conditions, how many are named."""
     robot = load_robot(args.robot)
-    trajectory = _bench_trajectory(robot, args.seed)
+    trajectory = load_trajectory(args.trajectory)[0] if args.trajectory else _bench_trajectory(robot, args.seed)
     noise = NoiseTruth(encoder_counts_per_rev=524288, tau_std=0.05)
     control = ControlTruth(rate_hz=500.0)
     alarms = []
@@ -266,6 +266,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("benchmark", choices=sorted(_BENCHMARKS))
     parser.add_argument("--robot", default=None, help="robot (default: g1 for gradient, panda otherwise)")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--trajectory", default="", help="sensitivity: trajectory.json to simulate (default: random)")
     parser.add_argument("--repeats", type=int, default=51, help="timed runs per median (default: %(default)s)")
     parser.add_argument(
         "--default-malloc", action="store_true", help="gradient: keep glibc's malloc thresholds (see pe_drake.memory)"
