@@ -190,7 +190,7 @@ class PreslidingStep:
 
 def presliding_step(prep, lib, sel, config) -> PreslidingStep:
     """Tries the Dahl column in each joint's Coulomb slot (replacing a named Coulomb column, or
-    added) and keeps it when the joint's weighted training residual drops significantly
+    added) and keeps it when the joint's training residual drops significantly
     (likelihood ratio ≥ z_min², the selection's Bonferroni bound squared, with the joint's
     autocorrelation-inflated noise), its held-out RMS drops by ``min_heldout_gain``, and x_p
     is not the grid's smallest value (the Coulomb limit). Effects of that joint that are no
@@ -205,9 +205,13 @@ def presliding_step(prep, lib, sel, config) -> PreslidingStep:
         trial = extra if col in extra else extra + [col]
         tr, ho = (_dahl_at(cache, seg, j) for seg in (prep.training, prep.held))
         before = reg.fit(extra)
-        fit = search_presliding(reg, trial, col, j, tr, ho, column_at=_column_at(prep, j))
+        fit = search_presliding(reg, trial, col, j, tr, ho)
         rss_before = float(before.rms_train[j] ** 2 * reg.train.count)
         decision = _decide(fit, before, rss_before, reg, j, sel.thresholds, config)
+        if decision["named"]:  # refine x_p between grid points (only here: each column costs a pass)
+            refined = search_presliding(reg, trial, col, j, tr, ho, column_at=_column_at(prep, j))
+            decision = _decide(refined, before, rss_before, reg, j, sel.thresholds, config)
+            fit = refined
         report.append({"joint": library.cand_of[col].joint_name, "displacement": fit.displacement,
                        "coulomb": fit.coulomb, "stiffness": fit.stiffness, **decision,
                        "heldout_rms_all_before": [float(x) for x in before.rms_held]})
