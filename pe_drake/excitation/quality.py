@@ -56,6 +56,14 @@ REFERENCE_HARMONICS = 5
 REFERENCE_PERIOD_S = 10.0
 REFERENCE_SAMPLES = 100
 REFERENCE_LIMIT_FRACTION = 0.9
+#: The regressors are sampled at most this fast [Hz] and their information scaled to the data
+#: rate: a motion of N harmonics of ω/2π (well below 5 Hz here) is a band-limited periodic
+#: signal, so CᵀC over one period is proportional to the sample count beyond a few samples per
+#: period of its highest frequency (4× cheaper than 200 Hz for G1).
+SAMPLE_RATE_HZ = 50.0
+#: A base parameter whose a-priori value is below this fraction of the largest one gets no %
+#: (a zero or rounding-level product of inertia would show as 1e8 %).
+PERCENT_FLOOR = 1e-6
 #: Random motions compared with the optimized one, and the seed of the first.
 RANDOM_MOTIONS = 5
 RANDOM_SEED = 1000
@@ -98,7 +106,8 @@ class QualityReport:
         noise_std: σ_j per joint [N·m or N].
         periods: P, periods recorded.
         rate_hz: rate of the samples assumed [Hz].
-        samples_per_period: samples of one period in C.
+        samples_per_period: samples of one period at ``rate_hz`` (the regressors are evaluated
+            at up to :data:`SAMPLE_RATE_HZ` and their information scaled to it).
         base_names: pe_drake's base parameters, length b.
         prior: their a-priori values (the model's), shape (b,).
         std_percent: the motion's std in % of |prior| (inf where the prior is ~0), shape (b,).
@@ -264,13 +273,13 @@ def whitened(C: np.ndarray, noise_std: np.ndarray) -> np.ndarray:
     return C / np.tile(noise_std, C.shape[0] // n)[:, None]
 
 
-def parameter_covariance(C: np.ndarray, noise_std: np.ndarray, periods: int = 1) -> np.ndarray:
+def parameter_covariance(C: np.ndarray, noise_std: np.ndarray, periods: float = 1) -> np.ndarray:
     """Expected covariance of the weighted least-squares base parameters, (CᵀΣ⁻¹C)⁻¹ / P.
 
     Args:
         C: base regressor of one period, shape (S·n, b), rows sample-major.
         noise_std: σ_j, shape (n,).
-        periods: P.
+        periods: P, the recorded information in units of CᵀΣ⁻¹C (may be fractional).
 
     Returns:
         Shape (b, b); infinite when C is rank deficient.
@@ -282,7 +291,7 @@ def parameter_covariance(C: np.ndarray, noise_std: np.ndarray, periods: int = 1)
 
 
 def prediction_rms(
-    C: np.ndarray, C_ref: np.ndarray, noise_std: np.ndarray, periods: int = 1
+    C: np.ndarray, C_ref: np.ndarray, noise_std: np.ndarray, periods: float = 1
 ) -> tuple[np.ndarray, float]:
     """Expected RMS error of the torques predicted with the identified parameters.
 
@@ -293,7 +302,7 @@ def prediction_rms(
         C: the motion's base regressor of one period, (S·n, b).
         C_ref: the reference motions' base regressor, (S_ref·n, b), rows sample-major.
         noise_std: σ_j, (n,).
-        periods: P.
+        periods: P, as in :func:`parameter_covariance`.
 
     Returns:
         (per joint, shape (n,); over all joints).
@@ -307,7 +316,7 @@ def prediction_rms(
     return np.sqrt(var.mean(axis=0)), float(np.sqrt(var.mean()))
 
 
-def d_efficiency(C: np.ndarray, noise_std: np.ndarray, periods: int = 1) -> float:
+def d_efficiency(C: np.ndarray, noise_std: np.ndarray, periods: float = 1) -> float:
     """det(P·CᵀΣ⁻¹C)^(1/2b): the geometric mean of the singular values of √P·Σ^(-1/2)C."""
     s = np.linalg.svd(whitened(C, noise_std), compute_uv=False)
     if s[-1] <= 0:
@@ -411,7 +420,7 @@ def random_feasible_motions(
 
 
 # ---- the report ------------------------------------------------------------------------------------------
-def _figures(label: str, C: np.ndarray, C_ref: np.ndarray, noise: np.ndarray, periods: int) -> MotionQuality:
+def _figures(label: str, C: np.ndarray, C_ref: np.ndarray, noise: np.ndarray, periods: float) -> MotionQuality:
     s = np.linalg.svd(C, compute_uv=False)
     rms, total = prediction_rms(C, C_ref, noise, periods)
     std = np.sqrt(np.maximum(np.diag(parameter_covariance(C, noise, periods)), 0.0))
@@ -454,16 +463,19 @@ def excitation_quality(
     if not (isinstance(rate_hz, (int, float)) and math.isfinite(rate_hz) and rate_hz > 0):
         raise ConfigError(f"rate_hz must be a positive number [Hz], got {rate_hz!r}")
     C_ref = reference_regressor(problem)
-    C = motion_regressor(problem, alpha, rate_hz)
-    motion = _figures("optimized", C, C_ref, noise, periods)
+    sample_hz = min(float(rate_hz), SAMPLE_RATE_HZ)
+    weight = periods * rate_hz / sample_hz  # periods, in units of the sampled period's information
+    C = motion_regressor(problem, alpha, sample_hz)
+    motion = _figures("optimized", C, C_ref, noise, weight)
     random, rejected = [], 0
     if random_motions > 0:
         draws, rejected = random_feasible_motions(problem, constraints, random_motions, seed)
         for s, a in draws:
-            random.append(_figures(f"random {s}", motion_regressor(problem, a, rate_hz), C_ref, noise, periods))
+            random.append(_figures(f"random {s}", motion_regressor(problem, a, sample_hz), C_ref, noise, weight))
     prior = problem.base.base_values(problem.robot.phi_model)
+    floor = PERCENT_FLOOR * float(np.max(np.abs(prior))) if prior.size else 0.0
     with np.errstate(divide="ignore", invalid="ignore"):
-        percent = np.where(np.abs(prior) > 1e-12, 100.0 * motion.std / np.abs(prior), np.inf)
+        percent = np.where(np.abs(prior) > max(floor, 1e-300), 100.0 * motion.std / np.abs(prior), np.inf)
     best_rms = min((m.prediction_rms_total for m in random), default=math.nan)
     best_d = max((m.d_efficiency for m in random), default=math.nan)
     return QualityReport(
@@ -471,7 +483,7 @@ def excitation_quality(
         noise_std=noise,
         periods=int(periods),
         rate_hz=float(rate_hz),
-        samples_per_period=C.shape[0] // problem.n,
+        samples_per_period=max(int(round(problem.period * rate_hz)), 1),
         base_names=tuple(problem.base.base_names),
         prior=prior,
         std_percent=percent,
