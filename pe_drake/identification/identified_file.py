@@ -29,13 +29,15 @@ def _finite_or_none(x: float) -> float | None:
 
 def data_used(p: Preprocessing, samples: int) -> dict[str, Any]:
     """How much of the recording the fit used (identified.json's ``data_used``)."""
+    # A fit on part of the preprocessed samples (e.g. the first half) used samples / rate of it.
+    fitted_s = p.duration_out_s if samples == p.samples_out else samples / p.rate_hz
     return {
         "samples_fitted": int(samples),
         "samples_recorded": int(p.samples_in),
-        "time_fitted_s": p.duration_out_s,
+        "time_fitted_s": fitted_s,
         "time_recorded_s": p.duration_in_s,
         "trimmed_at_each_end_s": p.trim_s,
-        "fraction_of_record_time": p.duration_out_s / p.duration_in_s if p.duration_in_s > 0 else None,
+        "fraction_of_record_time": fitted_s / p.duration_in_s if p.duration_in_s > 0 else None,
         "why_trimmed": "the low-pass filter's edge transient (odd extension) on the accelerations",
     }
 
