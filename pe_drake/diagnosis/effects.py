@@ -67,6 +67,7 @@ EXPOSING_REGIME = {
     "torque_offset": "t",
     "payload": "q",
     "time_delay": "dtau",
+    "presliding_friction": "v",
 }
 
 

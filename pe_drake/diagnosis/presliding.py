@@ -179,6 +179,27 @@ class PreslidingStep:
     held_torque: np.ndarray
     dropped: tuple[int, ...] = ()
 
+    def series(self, series: list[dict[str, Any]], joints: Sequence[str]) -> list[dict[str, Any]]:
+        """The residual-plot entries with each accepted joint's Coulomb entry turned into its
+        pre-sliding one (residual after: with the Dahl column), or one added."""
+        if not self.fits:
+            return series
+        after = self.regression.residual("held-out", self.final)
+        out = [dict(e) for e in series]
+        for f in self.fits:
+            label = f"{PRESLIDING}[{joints[f.joint]}]"
+            entry = next((e for e in out if e["effect"] == "coulomb_friction" and e["joint"] == f.joint), None)
+            if entry is None:
+                before = np.asarray(self.report_entry(joints[f.joint])["heldout_residual_before"])
+                entry = {"joint": f.joint, "regime": "v", "before": before}
+                out.append(entry)
+            entry.update(label=label, effect=PRESLIDING, after=after[:, f.joint])
+        return out
+
+    def report_entry(self, joint: str) -> dict[str, Any]:
+        """The test of one joint (by name)."""
+        return next(r for r in self.report if r["joint"] == joint)
+
     def not_named(self, min_statistic: float = 4.0) -> list[dict[str, Any]]:
         """The tested joints that came close (statistic ≥ ``min_statistic``), as entries of the
         diagnosis's ``rejected`` list."""
@@ -214,7 +235,8 @@ def presliding_step(prep, lib, sel, config) -> PreslidingStep:
             fit = refined
         report.append({"joint": library.cand_of[col].joint_name, "displacement": fit.displacement,
                        "coulomb": fit.coulomb, "stiffness": fit.stiffness, **decision,
-                       "heldout_rms_all_before": [float(x) for x in before.rms_held]})
+                       "heldout_rms_all_before": [float(x) for x in before.rms_held],
+                       "heldout_residual_before": reg.residual("held-out", before)[:, j] if decision["named"] else None})
         if decision["named"]:
             fits.append(fit)
             reg, extra = fit.regression, _drop_stand_ins(fit.regression, trial, col, j, library, sel.thresholds)

@@ -536,8 +536,8 @@ def diagnose(
     naming = name_effects(robot, lib, sel, rigid, nom, config)
     pre = presliding_step(prep, lib, sel, config)
     naming = dataclasses.replace(naming, effects=presliding_effects(naming.effects, pre, lib.library, joints),
-                                 cumulative=naming.cumulative + [(f"+ {PRESLIDING}", pre.final.rms_held)] * bool(pre.fits),
-                                 rejected=naming.rejected + pre.not_named())
+                                 series=pre.series(naming.series, joints), rejected=naming.rejected + pre.not_named(),
+                                 cumulative=naming.cumulative + [(f"+ {PRESLIDING}", pre.final.rms_held)] * bool(pre.fits))
     for f in pre.fits:
         say(f"3. {PRESLIDING}[{joints[f.joint]}] (x_p {1e3 * f.displacement:.3g} mrad) in its Coulomb slot")
     lap("presliding")
