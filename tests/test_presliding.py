@@ -13,21 +13,9 @@ import pytest
 from pe_drake.diagnosis.presliding import DISPLACEMENT_GRID, replace_column
 from pe_drake.diagnosis.regression import Columns
 from pe_drake.diagnosis.workflow import diagnose
-from pe_drake.excitation.trajectory_file import load_trajectory
 from pe_drake.identification.simulation import simulate
 from pe_drake.identification.truth import EffectsTruth, Truth
-from tests.conftest import get_robot
-from tests.test_diagnosis import CONTROL, DURATION, NOISE, TRAJECTORY, named
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return get_robot("panda")
-
-
-@pytest.fixture(scope="module")
-def trajectory():
-    return load_trajectory(TRAJECTORY)[0]
+from tests.test_diagnosis import CONTROL, DURATION, NOISE, named
 
 
 def _dahl(fc: dict, x_p: dict) -> dict:
@@ -57,35 +45,37 @@ def test_replace_column_updates_the_gram_entries():
     "joint, fc, x_p, noise",
     [("panda_joint3", 0.5, 0.010, False), ("panda_joint5", 0.3, 0.050, True)],
 )
-def test_presliding_friction_alone_is_named(robot, trajectory, joint, fc, x_p, noise):
+def test_presliding_friction_alone_is_named(panda, diagnosis_trajectory, joint, fc, x_p, noise):
     truth = Truth(control=CONTROL, noise=NOISE if noise else Truth().noise,
                   effects=EffectsTruth(**_dahl({joint: fc}, {joint: x_p})))
-    measurement, _ = simulate(robot, trajectory, truth, DURATION)
-    result = diagnose(robot, measurement)
+    measurement, _ = simulate(panda, diagnosis_trajectory, truth, DURATION)
+    result = diagnose(panda, measurement)
     found = named(result)
     assert set(found) == {("presliding_friction", joint)}, found
     effect = found[("presliding_friction", joint)]
     assert abs(effect.value - fc) <= 0.1 * fc
     assert 0.5 < effect.details["stiffness"] / (fc / x_p) < 2.0
-    assert result.augmented.presliding[robot.joint_names.index(joint)] == pytest.approx(effect.value)
+    assert result.augmented.presliding[panda.joint_names.index(joint)] == pytest.approx(effect.value)
     assert result.augmented.truth().effects.presliding_friction == {joint: pytest.approx(effect.value)}
     assert not result.unexplained
-    j = robot.joint_names.index(joint)
+    j = panda.joint_names.index(joint)
     assert result.rms_after[j] < 0.1 * result.rms_rigid[j]  # the gap closes in the augmented model
 
 
-def test_presliding_friction_in_a_mix(robot, trajectory):
+def test_presliding_friction_in_a_mix(panda, diagnosis_trajectory):
     """Dahl friction on two joints among viscous friction everywhere and Coulomb friction on
     another joint, with noise and inertial errors."""
     effects = EffectsTruth(viscous={"all": 0.1}, coulomb={"panda_joint1": 0.4},
                            **_dahl({"panda_joint2": 0.6, "panda_joint4": 0.4}, {"panda_joint2": 0.02, "panda_joint4": 0.03}))
     truth = Truth(seed=7, inertia_perturbation=0.03, noise=NOISE, control=CONTROL, effects=effects)
-    measurement, _ = simulate(robot, trajectory, truth, DURATION)
-    result = diagnose(robot, measurement)
+    measurement, _ = simulate(panda, diagnosis_trajectory, truth, DURATION)
+    result = diagnose(panda, measurement)
     found = named(result)
     for joint, fc, x_p in (("panda_joint2", 0.6, 0.02), ("panda_joint4", 0.4, 0.03)):
         effect = found[("presliding_friction", joint)]
         assert abs(effect.value - fc) <= 0.1 * fc, (joint, effect.value)
         assert 0.5 < effect.details["stiffness"] / (fc / x_p) < 2.0
     assert abs(found[("coulomb_friction", "panda_joint1")].value - 0.4) <= 0.04
+    viscous = {j: e.value for (effect, j), e in found.items() if effect == "viscous_friction"}
+    assert viscous and all(abs(v - 0.1) <= 0.01 for v in viscous.values()), viscous  # refitted with Dahl
     assert {e for e, _ in found} <= {"presliding_friction", "coulomb_friction", "viscous_friction"}
