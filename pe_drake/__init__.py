@@ -43,6 +43,9 @@ _EXPORTS = {
     "add_rest_constraints": "pe_drake.excitation.limits",
     "add_sampled_constraint": "pe_drake.excitation.program",
     "check_margins": "pe_drake.excitation.solve",
+    # what a motion will tell you (issue 13)
+    "excitation_quality": "pe_drake.excitation.quality",
+    "QualityReport": "pe_drake.excitation.quality",
     # constraints
     "SampledConstraint": "pe_drake.excitation.constraints.base",
     "BalanceConstraint": "pe_drake.excitation.constraints.balance",

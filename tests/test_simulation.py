@@ -76,7 +76,7 @@ def test_effect_free_torque_is_inverse_dynamics(robot, trajectory, baseline):
     assert np.all(err.max(axis=0) < 2e-3 * scale + 5e-3), err.max(axis=0)
     for b, name in enumerate(robot.body_names):
         np.testing.assert_array_equal(truth["phi_true"][name], robot.phi_model[10 * b : 10 * b + 10])
-    effects = {"viscous", "coulomb", "armature", "torque_offset", "torque_delay", "payload"}
+    effects = {"viscous", "coulomb", "armature", "torque_offset", "torque_delay", "payload", "presliding_friction"}
     assert set(truth["effects"]) == effects
 
 

@@ -156,7 +156,7 @@ def test_config_measurement_and_noise(tmp_path):
     path.write_text("excitation: {measurement: base_wrench, noise_std: {force: 0.2, moment: 0.02}}\n")
     config = load_config(path)
     m = measurement_type(config.excitation)
-    assert (m.kind, m.force_std, m.moment_std, m.torque_std) == ("base_wrench", 0.2, 0.02, 1.0)
+    assert (m.kind, m.force_std, m.moment_std, m.torque_std) == ("base_wrench", 0.2, 0.02, 0.05)
     assert measurement_type(config.excitation, "both").kind == "both"
     path.write_text("excitation: {measurement: force_plate}\n")
     with pytest.raises(ConfigError, match="excitation.measurement 'force_plate'"):
@@ -164,6 +164,11 @@ def test_config_measurement_and_noise(tmp_path):
     path.write_text("excitation: {noise_std: {moment: -1}}\n")
     with pytest.raises(ConfigError, match="excitation.noise_std.moment"):
         load_config(path)
+    # One torque noise table for the row weights (issue 14) and the quality figures (issue 13).
+    path.write_text("excitation: {measurement: both, noise_std: {torque: {all: 0.1, panda_joint2: 0.4}}}\n")
+    m = measurement_type(load_config(path).excitation, joint_names=["panda_joint1", "panda_joint2"])
+    assert m.torque_std == (0.1, 0.4)
+    assert list(m.row_std(2)) == [0.1, 0.4, 0.5, 0.5, 0.5, 0.05, 0.05, 0.05]
 
 
 def test_channels_of_a_run(g1):

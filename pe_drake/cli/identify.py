@@ -105,7 +105,8 @@ def _print_data_summary(args: argparse.Namespace, robot, raw, data) -> None:
     if p is not None:
         print(
             f"preprocessing: low-pass {p.cutoff_hz:.2f} Hz ({p.cutoff_source}), "
-            f"{p.samples_out} samples at {p.rate_hz:.0f} Hz, {p.trim_s:.2f} s trimmed at each end, "
+            f"{p.samples_out} samples at {p.rate_hz:.0f} Hz, {p.trim_s:.2f} s trimmed at each end "
+            f"({p.duration_out_s:.2f} of {p.duration_in_s:.2f} s used), "
             f"v {p.velocity_source}, vdot {p.acceleration_source}",
             flush=True,
         )

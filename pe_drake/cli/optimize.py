@@ -13,12 +13,13 @@ from pathlib import Path
 import numpy as np
 
 from pe_drake.cli.common import config_from_args, robot_from_args
-from pe_drake.config import Config, validate_config
+from pe_drake.config import Config, noise_vector, validate_config
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.excitation.constraints import constraints_from_config
 from pe_drake.excitation.fourier import FourierBasis, sample_times
 from pe_drake.excitation.problem import ExcitationProblem
 from pe_drake.excitation.program import build_excitation_program
+from pe_drake.excitation.quality import QualityReport, excitation_quality
 from pe_drake.excitation.solve import solve_excitation
 from pe_drake.excitation.trajectory_file import load_trajectory, save_trajectory, write_trajectory_csv
 from pe_drake.io_utils import staged_output_dir
@@ -72,6 +73,7 @@ def optimize_command(args: argparse.Namespace) -> int:
     say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, flush=True))
     start = time.perf_counter()
     robot = robot_from_args(args, config)
+    noise_vector(config.excitation.noise_std.torque, robot.joint_names)  # refuse a bad noise_std before solving
     say(f"robot {robot.name}: {robot.n} excited joints, {robot.num_bodies} moving bodies")
     problem = ExcitationProblem(robot, config.excitation)
     if args.prior:
@@ -95,12 +97,16 @@ def optimize_command(args: argparse.Namespace) -> int:
         f"{result.nfev} evaluations, {result.wall_time:.1f} s"
     )
     say("minimum margins at 1 kHz: " + ", ".join(f"{k} {m:.4g}" for k, m in result.margins.items()))
+    quality = _quality(problem, result, constraints, config) if result.success else None
+    for line in quality.summary_lines() if quality is not None else []:
+        say(line)
 
     report = _report(robot, config, problem, result, args.prior, time.perf_counter() - start)
+    report["quality"] = quality.to_dict() if quality is not None else None
     out = Path(args.out)
     with staged_output_dir(out) as tmp:
         if result.success:
-            _write_success_outputs(tmp, robot, result, args, say)
+            _write_success_outputs(tmp, robot, result, args, say, quality)
         (tmp / "report.json").write_text(json.dumps(report, indent=2, default=float))
     if not result.success:
         print(
@@ -111,6 +117,13 @@ def optimize_command(args: argparse.Namespace) -> int:
         return 1
     say(f"wrote {out}/trajectory.json, trajectory.csv, report.json, trajectory.png" + ("" if args.no_html else ", playback.html"))
     return 0
+
+
+def _quality(problem, result, constraints, config: Config) -> QualityReport:
+    """The quality figures of the optimized motion (issue 13), for ``excitation.periods``
+    periods when the config has that setting (else one)."""
+    periods = int(getattr(config.excitation, "periods", 1))
+    return excitation_quality(problem, result.x, constraints, noise_std=config.excitation.noise_std.torque, periods=periods)
 
 
 def _report(robot, config: Config, problem, result, prior: list[str], total_time_s: float) -> dict:
@@ -139,7 +152,7 @@ def _report(robot, config: Config, problem, result, prior: list[str], total_time
     }
 
 
-def _write_success_outputs(tmp: Path, robot, result, args, say) -> None:
+def _write_success_outputs(tmp: Path, robot, result, args, say, quality: QualityReport | None = None) -> None:
     save_trajectory(tmp / "trajectory.json", robot, result.trajectory, cond=result.cond, cond_motion=result.cond_motion)
     write_trajectory_csv(tmp / "trajectory.csv", robot.joint_names, result.trajectory, args.csv_rate)
     plot_trajectory(
@@ -148,6 +161,7 @@ def _write_success_outputs(tmp: Path, robot, result, args, say) -> None:
         result.trajectory,
         result.singular_values,
         title=f"{robot.name}: cond {result.cond:.4g}",
+        note=quality.figure_note() if quality is not None else "",
     )
     if not args.no_html:
         try:

@@ -45,7 +45,7 @@ from pe_drake.multibody.regressor import RegressorModel
 #: Per-joint effects of the library, in the order they are listed in reports.
 JOINT_EFFECTS = ("coulomb_friction", "viscous_friction", "armature", "torque_offset")
 #: All effect names (``payload`` is a link effect).
-EFFECT_NAMES = (*JOINT_EFFECTS, "payload")
+EFFECT_NAMES = (*JOINT_EFFECTS, "payload", "time_delay")
 
 #: Default smoothing velocity of the Coulomb column tanh(v / v_s) [rad/s or m/s].
 COULOMB_VELOCITY_SCALE = 0.01
@@ -66,6 +66,8 @@ EXPOSING_REGIME = {
     "armature": "vd",
     "torque_offset": "t",
     "payload": "q",
+    "time_delay": "dtau",
+    "presliding_friction": "v",
 }
 
 

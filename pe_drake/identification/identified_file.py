@@ -20,11 +20,27 @@ from pe_drake.config import MEASUREMENTS
 from pe_drake.exceptions import DataError
 from pe_drake.identification.channels import channel_names
 from pe_drake.identification.estimators import IdentificationResult, measurement_base_parameters
+from pe_drake.identification.measurements import Preprocessing
 from pe_drake.multibody.inertia import PARAMETER_NAMES, validity_problems
 
 
 def _finite_or_none(x: float) -> float | None:
     return float(x) if math.isfinite(x) else None
+
+
+def data_used(p: Preprocessing, samples: int) -> dict[str, Any]:
+    """How much of the recording the fit used (identified.json's ``data_used``)."""
+    # A fit on part of the preprocessed samples (e.g. the first half) used samples / rate of it.
+    fitted_s = p.duration_out_s if samples == p.samples_out else samples / p.rate_hz
+    return {
+        "samples_fitted": int(samples),
+        "samples_recorded": int(p.samples_in),
+        "time_fitted_s": fitted_s,
+        "time_recorded_s": p.duration_in_s,
+        "trimmed_at_each_end_s": p.trim_s,
+        "fraction_of_record_time": fitted_s / p.duration_in_s if p.duration_in_s > 0 else None,
+        "why_trimmed": "the low-pass filter's edge transient (odd extension) on the accelerations",
+    }
 
 
 def result_to_dict(result: IdentificationResult, robot, model_file: str | None = None) -> dict[str, Any]:
@@ -56,6 +72,7 @@ def result_to_dict(result: IdentificationResult, robot, model_file: str | None =
     }
     if result.preprocessing is not None:
         out["preprocessing"] = dataclasses.asdict(result.preprocessing)
+        out["data_used"] = data_used(result.preprocessing, result.samples)
     if result.phi is not None:
         out["standard_parameters"] = standard_parameters_dict(robot, result.phi)
         out["physically_valid"] = not validity_problems(robot.body_names, result.phi)

@@ -57,6 +57,8 @@ class Preprocessing:
         acceleration_source: "measured" (filtered ``vdot.*`` columns) or "differentiated".
         samples_in: raw samples.
         samples_out: output samples.
+        duration_in_s: time span of the raw record [s].
+        duration_out_s: time span of the output (after trimming) [s].
     """
 
     cutoff_hz: float
@@ -70,6 +72,8 @@ class Preprocessing:
     acceleration_source: str
     samples_in: int
     samples_out: int
+    duration_in_s: float = 0.0
+    duration_out_s: float = 0.0
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

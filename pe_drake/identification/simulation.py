@@ -18,12 +18,14 @@ The true robot is the a-priori model with:
 - armature (reflected rotor inertia) as the rotor inertia of a Drake ``JointActuator``
   (gear ratio 1), added when the joint has none;
 - constant torque offsets as a constant generalized force on the joint;
+- pre-sliding (Dahl) friction F_c·z as a small Drake system with one state per joint
+  (:mod:`pe_drake.identification.dahl`) whose torque adds to the controller's;
 - a payload body welded to a link.
 
 **Sign convention of the recorded torque.** ``tau`` is the torque the actuator applies. The
 effects are resistive loads the actuator must overcome, so once tracking has converged::
 
-    tau(t) = ID_rb(q, v, vd) + viscous·v + coulomb·tanh(v/v_s) + armature·vd + offset
+    tau(t) = ID_rb(q, v, vd) + viscous·v + coulomb·tanh(v/v_s) + F_c·z + armature·vd + offset
 
 with ``ID_rb`` the true rigid-body inverse dynamics (payload and perturbed inertias included).
 An offset o is thus a constant torque -o acting on the joint (a spring or cable preload);
@@ -58,6 +60,7 @@ import numpy as np
 from pe_drake.config import check_finite
 from pe_drake.exceptions import ConfigError, DataError, PeDrakeError
 from pe_drake.excitation.fourier import FourierTrajectory
+from pe_drake.identification.dahl import dahl_builder_hook
 from pe_drake.identification.measurements import Measurement
 from pe_drake.identification.truth import (
     Truth,
@@ -78,6 +81,9 @@ from pe_drake.multibody.robot import Robot, load_robot
 from pe_drake.multibody.sensors import MeasurementType
 
 PAYLOAD_BODY_NAME = "pe_drake_payload"
+#: Input port of the true robot's diagram that takes the controller's torque when a Dahl
+#: friction system shares the plant's applied-generalized-force input.
+APPLIED_FORCE_PORT = "applied_generalized_force"
 
 
 class SimulationError(PeDrakeError):
@@ -172,6 +178,9 @@ class TrueRobot:
         phi_payload: payload parameters about the link origin in the link frame, (10,).
         viscous, coulomb, armature, torque_offset: per joint, shape (n,).
         model_damping: the model file's joint damping (replaced by ``viscous``), (n,).
+        presliding, presliding_stiffness: Dahl F_c [N·m] and σ0 [N·m/rad] per joint, (n,);
+            when any F_c > 0 the diagram holds the Dahl system and exports the input port
+            ``applied_generalized_force`` that the controller drives.
     """
 
     robot: Any
@@ -183,6 +192,15 @@ class TrueRobot:
     armature: np.ndarray
     torque_offset: np.ndarray
     model_damping: np.ndarray
+    presliding: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
+    presliding_stiffness: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
+
+    def force_input(self):
+        """(port, context) of the applied generalized force the controller sets: the
+        plant's, or the diagram's exported input when the Dahl system adds its torque."""
+        if np.any(self.presliding > 0):
+            return self.robot.diagram.GetInputPort(APPLIED_FORCE_PORT), self.robot.context
+        return self.robot.plant.get_applied_generalized_force_input_port(), self.robot.plant_context
 
 
 def build_true_robot(robot, truth: Truth) -> TrueRobot:
@@ -226,7 +244,10 @@ def build_true_robot(robot, truth: Truth) -> TrueRobot:
     seeds = np.random.SeedSequence(truth.seed).spawn(2)
     rng = np.random.default_rng(seeds[0])
     phi_bodies = perturb_inertias(robot.phi_model, truth.inertia_perturbation, rng)
-    true = load_robot(robot.config, time_step=0.0, before_finalize=before_finalize)
+    fc = per_joint_values(e.presliding_friction, joints)
+    sigma0 = per_joint_values(e.presliding_stiffness, joints)
+    hook = dahl_builder_hook(fc, sigma0, APPLIED_FORCE_PORT) if np.any(fc > 0) else None
+    true = load_robot(robot.config, time_step=0.0, before_finalize=before_finalize, builder_hook=hook)
     for b, name in enumerate(robot.body_names):
         phi_b = phi_bodies[10 * b : 10 * b + 10]
         if phi_b[0] <= 0:  # massless frames are not perturbed; keep the model's value
@@ -239,7 +260,8 @@ def build_true_robot(robot, truth: Truth) -> TrueRobot:
         phi_payload = spatial_inertia_to_phi(payload_M)
         b = robot.body_names.index(e.payload.link)
         phi[10 * b : 10 * b + 10] += phi_payload
-    return TrueRobot(true, phi, phi_bodies, phi_payload, viscous, coulomb, armature, offset, model_damping)
+    return TrueRobot(true, phi, phi_bodies, phi_payload, viscous, coulomb, armature, offset, model_damping,
+                     fc, sigma0)
 
 
 def _add_coulomb_friction(plant, joint, f_c: float, v_s: float) -> None:
@@ -406,7 +428,8 @@ def _start_simulator(true: TrueRobot, truth: Truth, q0: np.ndarray, v0: np.ndarr
     plant, ctx = true.robot.plant, true.robot.plant_context
     plant.SetPositions(ctx, q0)
     plant.SetVelocities(ctx, v0)
-    plant.get_applied_generalized_force_input_port().FixValue(ctx, np.zeros(len(q0)))
+    port, port_context = true.force_input()
+    port.FixValue(port_context, np.zeros(len(q0)))
     simulator = Simulator(true.robot.diagram, true.robot.context)
     integrator = ResetIntegratorFromFlags(simulator, truth.integrator, h)
     if not integrator.get_fixed_step_mode():  # fixed-step schemes step at 1 / rate_hz
@@ -442,7 +465,7 @@ def track_trajectory(
     q_d, v_d, vd_d = trajectory.evaluate(t)
     kp, kd = truth.control.kp, truth.control.kd
     simulator = _start_simulator(true, truth, q_d[0], v_d[0], h)
-    port = plant.get_applied_generalized_force_input_port()
+    port, port_context = true.force_input()
     q_log, v_log, tau_log = (np.empty((count, robot.n)) for _ in range(3))
     wall = time.perf_counter()
     for k in range(count):
@@ -456,7 +479,7 @@ def track_trajectory(
         q_log[k], v_log[k], tau_log[k] = q, v, tau
         if k + 1 < count:
             # The offset is a constant load the actuator must overcome (module docstring).
-            port.FixValue(ctx, tau - true.torque_offset)
+            port.FixValue(port_context, tau - true.torque_offset)
             simulator.AdvanceTo(t[k + 1])
             if not np.isfinite(plant.GetPositionsAndVelocities(ctx)).all():
                 raise SimulationError(
@@ -533,7 +556,7 @@ def _truth_dict(robot, truth: Truth, true: TrueRobot, duration: float, log: Trac
         "inertia_perturbation": truth.inertia_perturbation,
         "torque_equation": (
             "tau_recorded(t) = [ID_rigid_body_true(q, v, vd) + viscous*v + coulomb*tanh(v/"
-            "coulomb_velocity_scale) + armature*vd + torque_offset](t - torque_delay) + noise"
+            "coulomb_velocity_scale) + presliding*z + armature*vd + torque_offset](t - torque_delay) + noise"
         ),
         "effects": {
             "viscous": {"unit": "N·m·s/rad", "values": per_joint(true.viscous),
@@ -543,6 +566,11 @@ def _truth_dict(robot, truth: Truth, true: TrueRobot, duration: float, log: Trac
                         "velocity_scale": e.coulomb_velocity_scale, "velocity_scale_unit": "rad/s",
                         "model": "coulomb * tanh(v / velocity_scale)"},
             "armature": {"unit": "kg·m²", "values": per_joint(true.armature)},
+            "presliding_friction": {"unit": "N·m", "values": per_joint(true.presliding),
+                                    "stiffness": per_joint(true.presliding_stiffness),
+                                    "stiffness_unit": "N·m/rad",
+                                    "model": "Dahl: dz/dt = v (1 - z sgn v) * stiffness / presliding, "
+                                             "torque presliding * z"},
             "torque_offset": {"unit": "N·m", "values": per_joint(true.torque_offset),
                               "convention": "added to the recorded torque (a constant load -offset "
                                             "acts on the joint)"},

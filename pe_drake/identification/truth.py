@@ -59,6 +59,10 @@ class EffectsTruth:
             :mod:`pe_drake.identification.simulation`).
         torque_delay: recorded torque lags the positions by this [s] (negative: leads).
         payload: see :class:`PayloadTruth`.
+        presliding_friction: Dahl friction level F_c [N·m] (:mod:`pe_drake.identification.dahl`,
+            a Drake system with one state per joint).
+        presliding_stiffness: its stiffness at rest σ0 [N·m/rad]; the pre-sliding
+            displacement is F_c/σ0. Needed for every joint with ``presliding_friction``.
     """
 
     viscous: dict[str, float] = dataclasses.field(default_factory=dict)
@@ -68,6 +72,8 @@ class EffectsTruth:
     torque_offset: dict[str, float] = dataclasses.field(default_factory=dict)
     torque_delay: float = 0.0
     payload: PayloadTruth = dataclasses.field(default_factory=PayloadTruth)
+    presliding_friction: dict[str, float] = dataclasses.field(default_factory=dict)
+    presliding_stiffness: dict[str, float] = dataclasses.field(default_factory=dict)
 
 
 @dataclasses.dataclass
@@ -162,6 +168,8 @@ _JOINT_TABLES = {  # field: (unit, non-negative)
     "coulomb": ("N·m", True),
     "armature": ("kg·m²", True),
     "torque_offset": ("N·m", False),
+    "presliding_friction": ("N·m", True),
+    "presliding_stiffness": ("N·m/rad", True),
 }
 
 
@@ -257,6 +265,14 @@ def _check_names(e: EffectsTruth, robot) -> None:
     p = e.payload
     if p.link and p.link not in robot.body_names:
         raise UnknownNameError("link", p.link, robot.body_names, where="effects.payload.link")
+    fc = per_joint_values(e.presliding_friction, robot.joint_names)
+    sigma0 = per_joint_values(e.presliding_stiffness, robot.joint_names)
+    for k, name in enumerate(robot.joint_names):
+        if fc[k] > 0 and not sigma0[k] > 0:
+            raise ConfigError(
+                f"effects.presliding_friction['{name}'] = {fc[k]:g} N·m needs a positive "
+                f"effects.presliding_stiffness['{name}'] [N·m/rad] (σ0 of the Dahl model)"
+            )
     coulomb = per_joint_values(e.coulomb, robot.joint_names)
     for k, info in enumerate(robot.joints):
         if coulomb[k] > 0 and info.kind != "revolute":

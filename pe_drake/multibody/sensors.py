@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 
-from pe_drake.config import MEASUREMENTS, ExcitationConfig
+from pe_drake.config import MEASUREMENTS, ExcitationConfig, noise_vector
 from pe_drake.exceptions import ConfigError
 from pe_drake.multibody.base_parameters import BaseParameters, compute_base_parameters
 from pe_drake.multibody.regressor import Kinematics, RegressorModel
@@ -45,13 +45,13 @@ class MeasurementType:
 
     Attributes:
         kind: one of :data:`MEASUREMENTS`.
-        torque_std: joint-torque noise σ_τ [N·m or N].
+        torque_std: joint-torque noise σ_τ [N·m or N], one value or one per joint.
         force_std: force noise of the ground-wrench sensor σ_f [N].
         moment_std: moment noise of the ground-wrench sensor σ_m [N·m].
     """
 
     kind: str = "joint_torque"
-    torque_std: float = 1.0  # [N·m]
+    torque_std: float | tuple[float, ...] = 1.0  # [N·m]
     force_std: float = 0.5  # [N]
     moment_std: float = 0.05  # [N·m]
 
@@ -59,9 +59,10 @@ class MeasurementType:
         if self.kind not in MEASUREMENTS:
             raise ConfigError(f"measurement '{self.kind}' is not one of {', '.join(MEASUREMENTS)}")
         for name in ("torque_std", "force_std", "moment_std"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
-                raise ConfigError(f"measurement {name} must be a positive number, got {value!r}")
+            values = getattr(self, name)
+            for value in values if isinstance(values, tuple) else (values,):
+                if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+                    raise ConfigError(f"measurement {name} must be a positive number, got {value!r}")
 
     @property
     def torques(self) -> bool:
@@ -79,17 +80,22 @@ class MeasurementType:
 
     def row_std(self, n: int) -> np.ndarray:
         """σ of each row of one sample, shape (r,)."""
-        parts = [np.full(n, self.torque_std)] if self.torques else []
+        parts = [np.broadcast_to(np.asarray(self.torque_std, float), (n,))] if self.torques else []
         if self.wrench:
             parts.append(np.repeat([self.force_std, self.moment_std], 3))
         return np.concatenate(parts)
 
 
-def measurement_type(config: ExcitationConfig, kind: str | None = None) -> MeasurementType:
+def measurement_type(config: ExcitationConfig, kind: str | None = None, joint_names=None) -> MeasurementType:
     """The :class:`MeasurementType` of an excitation config (``kind`` overrides its
-    ``measurement``, as ``--measurement`` does)."""
+    ``measurement``, as ``--measurement`` does); ``joint_names`` resolve a per-joint torque
+    noise table (without them a table needs its ``all`` entry)."""
     noise = config.noise_std
-    return MeasurementType(kind or config.measurement, noise.torque, noise.force, noise.moment)
+    torque = noise.torque
+    if isinstance(torque, dict):
+        names = tuple(joint_names) if joint_names is not None else tuple(k for k in torque if k != "all")
+        torque = tuple(noise_vector(torque, names)) if names else noise_vector(torque, ["all"])[0]
+    return MeasurementType(kind or config.measurement, torque, noise.force, noise.moment)
 
 
 class SensorRows:
