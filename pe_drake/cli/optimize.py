@@ -53,13 +53,22 @@ def _apply_arguments(config: Config, args: argparse.Namespace) -> Config:
         config.excitation.seed = args.seed
     if args.quiet:
         config.solver.verbose = False
+    if args.starts is not None:
+        config.parallel.starts = args.starts
+    if args.workers is not None:
+        if args.workers < 1:
+            raise ConfigError(f"--workers must be a positive integer, got {args.workers}")
+        config.parallel.workers = args.workers
+    if args.executor:
+        config.parallel.executor = args.executor
+    if args.ray_address:
+        config.parallel.executor = args.executor or "ray"
+        config.parallel.address = args.ray_address
     return validate_config(config)
 
 
 def optimize_command(args: argparse.Namespace) -> int:
     """Runs ``pe-drake optimize``; returns 0 on success, 1 if no valid trajectory was found."""
-    from pe_drake.excitation.constraints import constraints_from_config
-    from pe_drake.excitation.program import ExcitationProblem, build_excitation_program, solve_excitation
     from pe_drake.multibody.robot import Robot, builtin_robots, resolve_robot_config
 
     if not args.csv_rate > 0 or not math.isfinite(args.csv_rate):
@@ -70,30 +79,89 @@ def optimize_command(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     robot = Robot(name, config.robot)
     say(f"robot {robot.name}: {robot.n} excited joints, {robot.num_bodies} moving bodies")
+    problem = _problem(robot, config, args.prior, say)
+    ms = _solve_starts(robot, problem, config, say)
+    result = ms.best
+    say(
+        f"{'success' if result.success else 'FAILED'}: {result.message}; cond {result.cond:.5g} "
+        f"(this motion alone {result.cond_motion:.5g}), seed {ms.seed}, "
+        f"{result.nit if result.nit is not None else '-'} iterations, {result.nfev} evaluations, {result.wall_time:.1f} s"
+    )
+    say("minimum margins at 1 kHz: " + ", ".join(f"{k} {m:.4g}" for k, m in result.margins.items()))
+    report = _report(robot, problem, config, ms, args.prior, time.perf_counter() - start)
+    out = Path(args.out)
+    with staged_output_dir(out) as tmp:
+        if result.success:
+            _write_success_outputs(tmp, robot, result, args, say)
+        (tmp / "report.json").write_text(json.dumps(report, indent=2, default=float))
+    if not result.success:
+        print(
+            f"pe-drake optimize: no valid trajectory: {result.message}. Only {out / 'report.json'} was "
+            "written. Try more iterations (--max-iterations), more starts (--starts), another seed (--seed), "
+            "or looser margins.",
+            file=sys.stderr,
+        )
+        return 1
+    say(f"wrote {out}/trajectory.json, trajectory.csv, report.json, trajectory.png" + ("" if args.no_html else ", playback.html"))
+    return 0
+
+
+def _problem(robot, config: Config, priors: list[str], say):
+    """The excitation problem, with the prior motions' regressors as C0 (Eq. 41)."""
+    from pe_drake.excitation.program import ExcitationProblem
+
     problem = ExcitationProblem(robot, config.excitation)
-    if args.prior:
-        blocks = [prior_regressor(problem, p) for p in args.prior]
+    if priors:
+        blocks = [prior_regressor(problem, p) for p in priors]
         problem = ExcitationProblem(robot, config.excitation, C0=np.vstack(blocks), base=problem.base, model=problem.model)
-        say(f"prior data: {len(args.prior)} motion(s), {problem.C0.shape[0]} rows, cond(C0) = {np.linalg.cond(problem.C0):.4g}")
+        say(f"prior data: {len(priors)} motion(s), {problem.C0.shape[0]} rows, cond(C0) = {np.linalg.cond(problem.C0):.4g}")
     say(
         f"{problem.base.count} base parameters; {problem.num_variables} variables "
         f"(N = {problem.harmonics}, ω = {problem.omega:.4g} rad/s, period {problem.period:.3g} s); "
         f"T = {config.excitation.cost_samples} cost samples, K = {config.excitation.constraint_samples} constraint samples"
     )
+    return problem
+
+
+def _solve_starts(robot, problem, config: Config, say):
+    """Multi-start (start k: seed + k) on the configured executor; the best feasible start is kept."""
+    from pe_drake.excitation.constraints import constraints_from_config
+    from pe_drake.excitation.multistart import solve_multistart
+    from pe_drake.excitation.parallel import open_executor
+
     constraints = constraints_from_config(robot, config.excitation)
     if constraints:
         say("constraints: joint limits, " + ", ".join(c.name for c in constraints))
-    program = build_excitation_program(problem, constraints, progress=config.solver.verbose)
-    say(f"solving with {config.solver.name} (max {config.solver.max_iterations} iterations) ...")
-    result = solve_excitation(program, config.solver)
-    say(
-        f"{'success' if result.success else 'FAILED'}: {result.message}; cond {result.cond:.5g} "
-        f"(this motion alone {result.cond_motion:.5g}), {result.nit if result.nit is not None else '-'} iterations, "
-        f"{result.nfev} evaluations, {result.wall_time:.1f} s"
+    par = config.parallel
+    seeds = [config.excitation.seed + k for k in range(par.starts)]
+    executor = open_executor(
+        robot,
+        par.executor,
+        par.workers or None,
+        tasks=par.starts,
+        address=par.address,
+        base=problem.base,
+        constraints_factory=constraints_from_config,
     )
-    say("minimum margins at 1 kHz: " + ", ".join(f"{k} {m:.4g}" for k, m in result.margins.items()))
+    with executor:
+        where = "in this process" if executor.name == "main" else f"on {executor.workers} {executor.name} worker(s)"
+        say(
+            f"solving {par.starts} start(s) (seeds {seeds[0]}..{seeds[-1]}) {where} with {config.solver.name} "
+            f"(max {config.solver.max_iterations} iterations) ..."
+        )
 
-    report = {
+        def progress(event) -> None:
+            if event.kind != "progress" or config.solver.verbose:
+                say(str(event))
+
+        return solve_multistart(
+            None, config.excitation, config.solver, seeds, C0=problem.C0, executor=executor, progress=progress
+        )
+
+
+def _report(robot, problem, config: Config, ms, priors: list[str], total_time: float) -> dict:
+    result = ms.best
+    return {
         "robot": robot.name,
         "success": result.success,
         "message": result.message,
@@ -105,29 +173,23 @@ def optimize_command(args: argparse.Namespace) -> int:
         "criterion_value": result.fun,
         "iterations": result.nit,
         "evaluations": result.nfev,
+        "seed": ms.seed,
         "solve_time_s": result.wall_time,
-        "total_time_s": time.perf_counter() - start,
+        "multistart_time_s": ms.wall_time,
+        "total_time_s": total_time,
+        "executor": {"name": ms.executor, "workers": ms.workers, "address": config.parallel.address},
+        "starts": [
+            {"seed": s.seed, "cond": s.cond, "success": s.success, "time_s": s.wall_time, "task_time_s": s.task_time,
+             "worker": s.worker, "criterion_value": s.fun, "message": s.message}
+            for s in ms.starts
+        ],
         "margins_1khz": result.margins,
         "base_parameters": problem.base.count,
         "base_parameter_names": list(problem.base.base_names),
         "singular_values": result.singular_values.tolist(),
-        "prior": [str(p) for p in args.prior],
+        "prior": [str(p) for p in priors],
         "config": dataclasses.asdict(config),
     }
-    out = Path(args.out)
-    with staged_output_dir(out) as tmp:
-        if result.success:
-            _write_success_outputs(tmp, robot, result, args, say)
-        (tmp / "report.json").write_text(json.dumps(report, indent=2, default=float))
-    if not result.success:
-        print(
-            f"pe-drake optimize: no valid trajectory: {result.message}. Only {out / 'report.json'} was "
-            "written. Try more iterations (--max-iterations), another seed (--seed), or looser margins.",
-            file=sys.stderr,
-        )
-        return 1
-    say(f"wrote {out}/trajectory.json, trajectory.csv, report.json, trajectory.png" + ("" if args.no_html else ", playback.html"))
-    return 0
 
 
 def _write_success_outputs(tmp: Path, robot, result, args, say) -> None:
