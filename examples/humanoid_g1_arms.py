@@ -15,9 +15,11 @@ amplitudes (:mod:`pe_drake.excitation.baseline`), then greedy selection of 3.
 
     python examples/humanoid_g1_arms.py --out results/g1_tables            # ~7 min on 2 cores
     python examples/humanoid_g1_arms.py --quick --out /tmp/g1_quick        # smoke test, < 1 min
+    python examples/humanoid_g1_arms.py --starts 16 --workers 16 --executor ray --ray-address HEAD:6379
 
 Each motion: 2 starts solved in 2 worker processes (IPOPT ≤ 150 iterations each), the lower
-cond kept. Motion 1 starts from 2 seeded random points; motions 2 and 3 from one random point
+cond kept; ``--executor ray`` runs the starts and the baseline's draws on a Ray cluster
+(README, "Running on a cluster"). Motion 1 starts from 2 seeded random points; motions 2 and 3 from one random point
 and one warm start, the earlier motion with the lowest cond on the current prior
 (:func:`pe_drake.excitation.sequential.optimize_sequence`). Progress lines go to stdout; the tables are
 printed at the end.
@@ -66,7 +68,9 @@ class Settings:
     config: Path | None
     motions: int
     starts: int  # random initial points per motion
-    workers: int  # processes
+    workers: int  # starts (and chunks of baseline draws) at once
+    executor: str  # "local" (process pool) or "ray"
+    ray_address: str  # Ray cluster ("": ray.init()'s default)
     max_iterations: int | None  # IPOPT iterations per start (None: the config's)
     max_time: float  # wall-time limit per start [s]; 0: none
     criterion: str | None  # None: the config's (cond)
@@ -132,6 +136,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--motions", type=_positive_int, default=3, help="sequential motions (default: 3)")
     p.add_argument("--starts", type=_positive_int, help=f"random starts per motion (default: {FULL['starts']}, quick 1)")
     p.add_argument("--workers", type=_positive_int, help=f"processes (default: {FULL['workers']}, quick 1)")
+    p.add_argument("--executor", choices=("local", "ray"), default="local", help="where the starts and draws run")
+    p.add_argument("--ray-address", default="", metavar="ADDR", help="join this Ray cluster (--executor ray)")
     p.add_argument(
         "--max-iterations",
         type=_positive_int,
@@ -171,6 +177,8 @@ def parse_args(argv: Sequence[str] | None = None) -> Settings:
         motions=args.motions,
         starts=args.starts or defaults["starts"],
         workers=args.workers or defaults["workers"],
+        executor="ray" if args.ray_address else args.executor,
+        ray_address=args.ray_address,
         max_iterations=args.max_iterations or defaults.get("max_iterations"),
         max_time=args.max_time,
         criterion=args.criterion,
@@ -257,11 +265,11 @@ def run(settings: Settings) -> dict:
         ConfigError, UnknownNameError: a bad config file or value.
         InfeasibleError: the baseline found too few feasible random motions, or the nominal
             posture violates a constraint.
-        WorkerError: a worker process failed.
+        WorkerError: a start or a chunk of draws failed in a worker, or its worker died.
     """
     from pe_drake.excitation.baseline import generate_candidates, greedy_select
     from pe_drake.excitation.constraints import constraints_from_config
-    from pe_drake.excitation.multistart import WorkerPool
+    from pe_drake.excitation.parallel import open_executor
     from pe_drake.excitation.sequential import optimize_sequence
     from pe_drake.multibody.robot import Robot, resolve_robot_config
 
@@ -279,8 +287,10 @@ def run(settings: Settings) -> dict:
     )
     robot = Robot("g1", config.robot)
     workers = settings.workers
-    pool = WorkerPool(robot, workers, constraints_factory=constraints_from_config)
-    base = pool.base
+    executor = open_executor(
+        robot, settings.executor, workers, address=settings.ray_address, constraints_factory=constraints_from_config
+    )
+    base = executor.base
     period = 2 * math.pi / excitation.omega
     say(
         f"G1: {robot.n} arm joints, {base.count} base parameters; N = {excitation.harmonics}, "
@@ -290,7 +300,7 @@ def run(settings: Settings) -> dict:
         f"criterion {excitation.criterion}"
     )
     say(
-        f"{settings.motions} motions × {settings.starts} start(s) in {workers} process(es), "
+        f"{settings.motions} motions × {settings.starts} start(s) on {workers} {settings.executor} worker(s), "
         f"{solver.name} ≤ {solver.max_iterations} iterations per start" + ("  [quick]" if settings.quick else "")
     )
     try:
@@ -309,7 +319,7 @@ def run(settings: Settings) -> dict:
                 seed=BASELINE_SEED + k * BASELINE_SEED_BLOCK + settings.seed,
                 amplitude=amplitude,
                 max_draws=400 * settings.candidates,
-                pool=pool,
+                executor=executor,
                 progress=say.draws,
             )
             conds = np.array([c.cond for c in cset.candidates])
@@ -333,15 +343,15 @@ def run(settings: Settings) -> dict:
             starts=settings.starts,
             seed=settings.seed,
             amplitude=settings.amplitude,
-            pool=pool,
+            executor=executor,
             progress=say.event,
             progress_interval=10.0 if not settings.quick else 5.0,
             stop_on_failure=False,
         )
     finally:
-        pool.close()
+        executor.close()
 
-    problem = pool.problem(excitation)
+    problem = executor.problem(excitation)
     baseline_blocks = [problem.regressor_block(candidates[k][1].alpha) for k in selection.indices]
     tables = _tables(settings, excitation, solver, robot, base, sequence, selection, candidates, sets, baseline_blocks)
     tables["timing"]["baseline_generation_s"] = baseline_time
@@ -385,6 +395,7 @@ def _tables(settings, excitation, solver, robot, base, sequence, selection, cand
             "motions": settings.motions,
             "starts": settings.starts,
             "workers": sequence.workers,
+            "executor": settings.executor,
             "seed": settings.seed,
         },
         "table1": {
@@ -606,7 +617,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except InfeasibleError as err:
         print(f"humanoid_g1_arms.py: no feasible motion: {err}", file=sys.stderr)
         return 1
-    except PeDrakeError as err:  # e.g. WorkerError: a worker process died
+    except PeDrakeError as err:  # e.g. WorkerError: a worker died
         print(f"humanoid_g1_arms.py: {type(err).__name__}: {err}", file=sys.stderr)
         return 1
     print(format_console(tables), flush=True)

@@ -245,7 +245,9 @@ def test_parallel_config_section(tmp_path):
 
 def test_cli_multistart_reports_every_start_and_keeps_the_best(tmp_path, capsys):
     cfg = tmp_path / "small.yaml"
-    cfg.write_text("excitation: {harmonics: 3, cost_samples: 24, constraint_samples: 96, seed: 10}\nsolver: {max_iterations: 8}\n")
+    cfg.write_text(
+        "excitation: {harmonics: 3, cost_samples: 24, constraint_samples: 96, seed: 10}\nsolver: {max_iterations: 8}\n"
+    )
     out = tmp_path / "out"
     code = main(
         ["optimize", "--robot", "panda", "--config", str(cfg), "--starts", "3", "--workers", "2", "--no-html",
@@ -266,3 +268,16 @@ def test_cli_multistart_reports_every_start_and_keeps_the_best(tmp_path, capsys)
     with pytest.raises(SystemExit):
         main(["optimize", "--robot", "panda", "--executor", "dask", "--out", str(out)])
     assert main(["optimize", "--robot", "panda", "--workers", "0", "--out", str(tmp_path / "o2")]) == 2
+
+
+def test_baseline_candidates_on_ray_equal_the_serial_ones(panda, ray_session):
+    from pe_drake.excitation.baseline import generate_candidates
+
+    serial = generate_candidates(panda, CONFIG, 6, seed=100, workers=1)
+    events = []
+    remote = generate_candidates(panda, CONFIG, 6, seed=100, workers=2, executor="ray", chunk_size=4, progress=events.append)
+    assert remote.workers == 2
+    assert [c.seed for c in remote.candidates] == [c.seed for c in serial.candidates]
+    assert remote.draws == serial.draws and remote.rejected == serial.rejected
+    np.testing.assert_array_equal(remote.R, serial.R)
+    assert events and events[-1].drawn >= remote.draws
