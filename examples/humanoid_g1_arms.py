@@ -96,34 +96,24 @@ FULL = {
 QUICK = {"starts": 1, "workers": 1, "candidates": 8, "baseline_amplitudes": (0.05, 0.1), "max_iterations": 15}
 
 
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got '{text}'") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
-    return value
+def _number(kind: type, what: str, ok):
+    """An argparse type: ``kind(text)`` that must pass ``ok`` (e.g. be positive)."""
+
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {what}, got '{text}'") from None
+        if not math.isfinite(value) or not ok(value):
+            raise argparse.ArgumentTypeError(f"expected {what}, got {text}")
+        return value
+
+    return parse
 
 
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got '{text}'") from None
-    if not math.isfinite(value) or value <= 0:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text}")
-    return value
-
-
-def _nonnegative_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, got '{text}'") from None
-    if not math.isfinite(value) or value < 0:
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text}")
-    return value
+_positive_int = _number(int, "a positive integer", lambda v: v >= 1)
+_positive_float = _number(float, "a positive number", lambda v: v > 0)
+_nonnegative_float = _number(float, "a number >= 0", lambda v: v >= 0)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -204,24 +194,14 @@ def parse_args(argv: Sequence[str] | None = None) -> Settings:
 
 
 # ---- the run ---------------------------------------------------------------------------------------
-def _svd_range(blocks: Sequence[np.ndarray]) -> tuple[float, float]:
-    """(σ_min, σ_max) of the vertical concatenation of ``blocks``."""
-    s = np.linalg.svd(np.vstack(blocks), compute_uv=False)
-    return float(s[-1]), float(s[0])
-
-
 def _running_sigmas(blocks: Sequence[np.ndarray]) -> tuple[list[float], list[float]]:
     """σ_min and σ_max of [B_1; ...; B_i] for i = 1, 2, ...
 
     Both are non-decreasing in i: CᵀC = Σ B_kᵀB_k (Eq. 41) only gains a positive
     semidefinite term, so no eigenvalue of it falls (Weyl). cond = σ_max/σ_min may still rise.
     """
-    lo, hi = [], []
-    for i in range(1, len(blocks) + 1):
-        s_min, s_max = _svd_range(blocks[:i])
-        lo.append(s_min)
-        hi.append(s_max)
-    return lo, hi
+    s = [np.linalg.svd(np.vstack(blocks[:i]), compute_uv=False) for i in range(1, len(blocks) + 1)]
+    return [float(x[-1]) for x in s], [float(x[0]) for x in s]
 
 
 class _Printer:
@@ -267,7 +247,6 @@ def run(settings: Settings) -> dict:
             posture violates a constraint.
         WorkerError: a start or a chunk of draws failed in a worker, or its worker died.
     """
-    from pe_drake.excitation.baseline import generate_candidates, greedy_select
     from pe_drake.excitation.constraints import constraints_from_config
     from pe_drake.excitation.parallel import open_executor
     from pe_drake.excitation.sequential import optimize_sequence
@@ -304,34 +283,7 @@ def run(settings: Settings) -> dict:
         f"{solver.name} ≤ {solver.max_iterations} iterations per start" + ("  [quick]" if settings.quick else "")
     )
     try:
-        # ---- Table II: random motions under the same constraints, greedy selection ([16]).
-        say(
-            f"baseline: {settings.candidates} feasible random motions at each amplitude "
-            + ", ".join(f"{a:g}" for a in settings.baseline_amplitudes)
-            + " rad"
-        )
-        sets = []
-        for k, amplitude in enumerate(settings.baseline_amplitudes):
-            cset = generate_candidates(
-                robot,
-                excitation,
-                settings.candidates,
-                seed=BASELINE_SEED + k * BASELINE_SEED_BLOCK + settings.seed,
-                amplitude=amplitude,
-                max_draws=400 * settings.candidates,
-                executor=executor,
-                progress=say.draws,
-            )
-            conds = np.array([c.cond for c in cset.candidates])
-            say(
-                f"  amplitude {amplitude:g} rad: {len(conds)} accepted of {cset.draws} draws, "
-                f"cond min {conds.min():.4g}, median {np.median(conds):.4g}, {cset.wall_time:.1f} s"
-            )
-            sets.append((amplitude, cset))
-        candidates = [(a, c) for a, cset in sets for c in cset.candidates]
-        R = [r for _, cset in sets for r in cset.R]
-        selection = greedy_select(R, settings.motions)
-        baseline_time = sum(cset.wall_time for _, cset in sets)
+        sets, candidates, selection, baseline_time = _baseline(settings, robot, excitation, executor, say)
 
         # ---- Table I: sequential optimization (section IV-B): motion i minimizes cond of
         # [C^(1); ...; C^(i-1); C^(i)], the earlier blocks being fixed prior data C0 (Eq. 41).
@@ -360,6 +312,38 @@ def run(settings: Settings) -> dict:
     tables["timing"]["cpu_count"] = os.cpu_count()
     _write_outputs(settings.out, robot, problem, sequence, selection, candidates, tables)
     return tables
+
+
+def _baseline(settings: Settings, robot, excitation, executor, say):
+    """Table II: random motions under the same constraints, greedy selection ([16])."""
+    from pe_drake.excitation.baseline import generate_candidates, greedy_select
+
+    say(
+        f"baseline: {settings.candidates} feasible random motions at each amplitude "
+        + ", ".join(f"{a:g}" for a in settings.baseline_amplitudes)
+        + " rad"
+    )
+    sets = []  # (amplitude, CandidateSet)
+    for k, amplitude in enumerate(settings.baseline_amplitudes):
+        cset = generate_candidates(
+            robot,
+            excitation,
+            settings.candidates,
+            seed=BASELINE_SEED + k * BASELINE_SEED_BLOCK + settings.seed,
+            amplitude=amplitude,
+            max_draws=400 * settings.candidates,
+            executor=executor,
+            progress=say.draws,
+        )
+        conds = np.array([c.cond for c in cset.candidates])
+        say(
+            f"  amplitude {amplitude:g} rad: {len(conds)} accepted of {cset.draws} draws, "
+            f"cond min {conds.min():.4g}, median {np.median(conds):.4g}, {cset.wall_time:.1f} s"
+        )
+        sets.append((amplitude, cset))
+    candidates = [(a, c) for a, cset in sets for c in cset.candidates]
+    selection = greedy_select([r for _, cset in sets for r in cset.R], settings.motions)
+    return sets, candidates, selection, sum(cset.wall_time for _, cset in sets)
 
 
 def _tables(settings, excitation, solver, robot, base, sequence, selection, candidates, sets, baseline_blocks) -> dict:
@@ -421,30 +405,16 @@ def _tables(settings, excitation, solver, robot, base, sequence, selection, cand
             "amplitude": [candidates[k][0] for k in selection.indices],
             "candidates": len(candidates),
             "per_amplitude": [
-                {
-                    "amplitude": a,
-                    "accepted": len(cset.candidates),
-                    "draws": cset.draws,
-                    "rejected": cset.rejected,
-                    "cond_min": float(min(c.cond for c in cset.candidates)),
-                    "cond_median": float(np.median([c.cond for c in cset.candidates])),
-                    "wall_time_s": cset.wall_time,
-                }
+                {"amplitude": a, "accepted": len(cset.candidates), "draws": cset.draws, "rejected": cset.rejected,
+                 "cond_min": float(min(c.cond for c in cset.candidates)),
+                 "cond_median": float(np.median([c.cond for c in cset.candidates])), "wall_time_s": cset.wall_time}
                 for a, cset in sets
             ],
             "paper_hrp4": PAPER_TABLE_II,
         },
-        "ratio_first_motion": {
-            "baseline": first_base,
-            "optimized": first_opt,
-            "ratio": first_base / first_opt,
-            "target": RATIO_TARGET,
-            "paper": PAPER_RATIO,
-        },
-        "timing": {
-            "wall_time_per_motion_s": times,
-            "target_per_motion_s": TIME_TARGET,
-        },
+        "ratio_first_motion": {"baseline": first_base, "optimized": first_opt, "ratio": first_base / first_opt,
+                               "target": RATIO_TARGET, "paper": PAPER_RATIO},
+        "timing": {"wall_time_per_motion_s": times, "target_per_motion_s": TIME_TARGET},
         "success": sequence.success,
     }
 
@@ -500,7 +470,7 @@ def format_markdown(t: dict) -> str:
         f"{s['cost_sample_spacing_s']:.3g} s apart, K = {s['constraint_samples']} constraint samples "
         f"{s['constraint_sample_spacing_s']:.3g} s apart; {s['constraints']}; criterion {s['criterion']}, "
         f"{s['solver']} ≤ {s['max_iterations']} iterations, {s['starts']} start(s) per motion in "
-        f"{s['workers']} process(es), seed {s['seed']}.",
+        f"{s['workers']} {s.get('executor', 'local')} worker(s), seed {s['seed']}.",
         "",
         "## Table I: optimized motions (motion i optimized with C0 = motions 1..i-1)",
         "",

@@ -14,7 +14,14 @@ import numpy as np
 
 from pe_drake.config import Config, validate_config
 from pe_drake.exceptions import ConfigError, DataError
+from pe_drake.excitation.constraints import constraints_from_config
+from pe_drake.excitation.fourier import FourierBasis, sample_times
+from pe_drake.excitation.multistart import solve_multistart
+from pe_drake.excitation.parallel import open_executor
+from pe_drake.excitation.program import ExcitationProblem
+from pe_drake.excitation.trajectory_file import load_trajectory, save_trajectory, write_trajectory_csv
 from pe_drake.io_utils import staged_output_dir
+from pe_drake.multibody.robot import Robot, builtin_robots, resolve_robot_config
 
 
 def prior_regressor(problem, trajectory_json: str | Path) -> np.ndarray:
@@ -24,9 +31,6 @@ def prior_regressor(problem, trajectory_json: str | Path) -> np.ndarray:
     Raises:
         DataError: the file's joints differ from the robot's.
     """
-    from pe_drake.excitation.fourier import FourierBasis, sample_times
-    from pe_drake.excitation.trajectory_file import load_trajectory
-
     trajectory, data = load_trajectory(trajectory_json)
     joints = tuple(data["joints"])
     if joints != problem.robot.joint_names:
@@ -69,8 +73,6 @@ def _apply_arguments(config: Config, args: argparse.Namespace) -> Config:
 
 def optimize_command(args: argparse.Namespace) -> int:
     """Runs ``pe-drake optimize``; returns 0 on success, 1 if no valid trajectory was found."""
-    from pe_drake.multibody.robot import Robot, builtin_robots, resolve_robot_config
-
     if not args.csv_rate > 0 or not math.isfinite(args.csv_rate):
         raise ConfigError(f"--csv-rate must be a positive number [Hz], got {args.csv_rate}")
     config = _apply_arguments(resolve_robot_config(args.robot, args.config), args)
@@ -108,8 +110,6 @@ def optimize_command(args: argparse.Namespace) -> int:
 
 def _problem(robot, config: Config, priors: list[str], say):
     """The excitation problem, with the prior motions' regressors as C0 (Eq. 41)."""
-    from pe_drake.excitation.program import ExcitationProblem
-
     problem = ExcitationProblem(robot, config.excitation)
     if priors:
         blocks = [prior_regressor(problem, p) for p in priors]
@@ -125,10 +125,6 @@ def _problem(robot, config: Config, priors: list[str], say):
 
 def _solve_starts(robot, problem, config: Config, say):
     """Multi-start (start k: seed + k) on the configured executor; the best feasible start is kept."""
-    from pe_drake.excitation.constraints import constraints_from_config
-    from pe_drake.excitation.multistart import solve_multistart
-    from pe_drake.excitation.parallel import open_executor
-
     constraints = constraints_from_config(robot, config.excitation)
     if constraints:
         say("constraints: joint limits, " + ", ".join(c.name for c in constraints))
@@ -193,7 +189,6 @@ def _report(robot, problem, config: Config, ms, priors: list[str], total_time: f
 
 
 def _write_success_outputs(tmp: Path, robot, result, args, say) -> None:
-    from pe_drake.excitation.trajectory_file import save_trajectory, write_trajectory_csv
     from pe_drake.plots import plot_trajectory
 
     save_trajectory(tmp / "trajectory.json", robot, result.trajectory, cond=result.cond, cond_motion=result.cond_motion)

@@ -282,6 +282,31 @@ class _DrawProgress:
                 self.progress(DrawEvent(self.drawn, self.accepted, self.wanted, time.perf_counter() - self.begin))
 
 
+def _draw_rounds(executor: Executor, config, count, seed, amplitude, max_draws, chunk_size, on_event) -> list:
+    """Draws in rounds until ``count`` are accepted or ``max_draws`` are made; outcomes in draw order.
+
+    Draw d has seed ``seed + d`` whatever chunk or worker runs it, so the accepted set does
+    not depend on scheduling.
+    """
+    outcomes: list = []
+    next_draw = 0
+    while next_draw < max_draws:
+        accepted = sum(1 for reason, _, _ in outcomes if not reason)
+        if accepted >= count:
+            break
+        # Enough draws for the rest at the acceptance seen so far (all at once at first).
+        rate = accepted / len(outcomes) if outcomes else 1.0
+        size = math.ceil(1.1 * (count - accepted) / max(rate, 0.02))
+        size = min(max(size, executor.workers * chunk_size), max_draws - next_draw)
+        seeds = [seed + d for d in range(next_draw, next_draw + size)]
+        chunks = [_DrawChunk(config, seeds[k : k + chunk_size], amplitude) for k in range(0, len(seeds), chunk_size)]
+        labels = [f"draws from seed {c.seeds[0]}" for c in chunks]
+        for finished in executor.map(_draw_chunk, chunks, on_event, labels):
+            outcomes.extend(finished.value)
+        next_draw += size
+    return outcomes
+
+
 def generate_candidates(
     robot,
     config: ExcitationConfig | None = None,
@@ -341,27 +366,10 @@ def generate_candidates(
         executor = open_executor(
             robot, executor, workers, address=address, constraints_factory=constraints_factory or constraints_from_config
         )
-    on_event = _DrawProgress(count, begin, progress)
-    outcomes: list = []
     try:
-        next_draw = 0
-        while next_draw < max_draws:
-            done = sum(1 for reason, _, _ in outcomes if not reason)
-            if done >= count:
-                break
-            # Enough draws for the rest at the acceptance seen so far (all at once at first).
-            rate = done / len(outcomes) if outcomes else 1.0
-            size = math.ceil(1.1 * (count - done) / max(rate, 0.02))
-            size = min(max(size, executor.workers * chunk_size), max_draws - next_draw)
-            seeds = [seed + d for d in range(next_draw, next_draw + size)]
-            chunks = [
-                _DrawChunk(config, seeds[k : k + chunk_size], float(amplitude))
-                for k in range(0, len(seeds), chunk_size)
-            ]
-            labels = [f"draws from seed {c.seeds[0]}" for c in chunks]
-            for done in executor.map(_draw_chunk, chunks, on_event, labels):
-                outcomes.extend(done.value)
-            next_draw += size
+        outcomes = _draw_rounds(
+            executor, config, count, seed, float(amplitude), max_draws, chunk_size, _DrawProgress(count, begin, progress)
+        )
     finally:
         if own:
             executor.close()

@@ -40,6 +40,7 @@ from pe_drake.excitation.parallel import (
     WorkerState,
     open_executor,
 )
+from pe_drake.excitation.program import build_excitation_program, joint_limit_violation, solve_excitation
 
 __all__ = [
     "MultiStartResult",
@@ -213,8 +214,6 @@ class _Reporter:
 
 def _violation(program, alpha: np.ndarray) -> float:
     """Worst violation of the joint limits and the sampled constraints at the K samples."""
-    from pe_drake.excitation.program import joint_limit_violation
-
     problem = program.problem
     violation = joint_limit_violation(problem, alpha)
     if program.constraints:
@@ -233,8 +232,6 @@ def _event(task: _StartTask, kind: str, evaluations=0, value=math.inf, best=math
 
 def _solve_start(state: WorkerState, task: _StartTask):
     """Builds and solves one start in the current process (an executor task)."""
-    from pe_drake.excitation.program import build_excitation_program, solve_excitation
-
     problem = state.problem(task.config, task.C0)
     reporter = _Reporter(task, state.emit)
     program = build_excitation_program(problem, state.constraints(task.config), progress=reporter)

@@ -26,6 +26,8 @@ from pe_drake.excitation.parallel.base import (
 )
 from pe_drake.excitation.parallel.local import LocalExecutor, default_start_method
 from pe_drake.excitation.parallel.ray import RayExecutor, cluster_cpus
+from pe_drake.multibody.base_parameters import compute_base_parameters
+from pe_drake.multibody.regressor import RegressorModel
 
 EXECUTORS = ("local", "ray")
 
@@ -77,9 +79,6 @@ def open_executor(
     Raises:
         ConfigError: an unknown executor, a bad worker count, Ray missing or unreachable.
     """
-    from pe_drake.multibody.base_parameters import compute_base_parameters
-    from pe_drake.multibody.regressor import RegressorModel
-
     if executor not in EXECUTORS:
         raise ConfigError(f"executor '{executor}' is not one of {', '.join(EXECUTORS)}")
     if address and executor != "ray":

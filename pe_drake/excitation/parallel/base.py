@@ -26,6 +26,9 @@ import numpy as np
 
 from pe_drake.config import ExcitationConfig
 from pe_drake.exceptions import ConfigError, PeDrakeError
+from pe_drake.excitation.program import ExcitationProblem
+from pe_drake.multibody.regressor import RegressorModel
+from pe_drake.multibody.robot import Robot
 from pe_drake.threads import single_threaded_blas
 
 #: Builds the sampled constraints (balance, collision, ...) for a robot and an excitation
@@ -120,8 +123,6 @@ class RobotSpec:
         import pydrake.common  # noqa: F401  (lazy: pydrake resets the logger level at import)
 
         logging.getLogger("drake").setLevel(logging.ERROR)
-        from pe_drake.multibody.robot import Robot
-
         return WorkerState(Robot(self.name, self.config), self.base, self.constraints_factory, emit)
 
 
@@ -136,8 +137,6 @@ class WorkerState:
     """
 
     def __init__(self, robot, base, constraints_factory=None, emit=None, model=None):
-        from pe_drake.multibody.regressor import RegressorModel
-
         self.robot = robot
         self.model = model if model is not None else RegressorModel(robot)
         self.base = base
@@ -156,8 +155,6 @@ class WorkerState:
 
     def problem(self, config: ExcitationConfig, C0: np.ndarray | None = None):
         """An :class:`~pe_drake.excitation.program.ExcitationProblem` on this robot and base."""
-        from pe_drake.excitation.program import ExcitationProblem
-
         return ExcitationProblem(self.robot, config, C0=C0, base=self.base, model=self.model)
 
 
