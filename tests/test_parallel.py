@@ -281,3 +281,8 @@ def test_baseline_candidates_on_ray_equal_the_serial_ones(panda, ray_session):
     assert remote.draws == serial.draws and remote.rejected == serial.rejected
     np.testing.assert_array_equal(remote.R, serial.R)
     assert events and events[-1].drawn >= remote.draws
+
+
+def test_more_ray_workers_than_cluster_cpus_is_refused(panda, ray_session):
+    with pytest.raises(ConfigError, match="3 Ray workers need 3 CPUs; the cluster has 2"):
+        open_executor(panda, "ray", 3)

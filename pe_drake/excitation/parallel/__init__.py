@@ -77,16 +77,19 @@ def open_executor(
         start_method: for "local"; see :func:`default_start_method`.
 
     Raises:
-        ConfigError: an unknown executor, a bad worker count, Ray missing or unreachable.
+        ConfigError: an unknown executor, a bad worker count, more Ray workers than the
+            cluster's CPUs, Ray missing or unreachable.
     """
     if executor not in EXECUTORS:
         raise ConfigError(f"executor '{executor}' is not one of {', '.join(EXECUTORS)}")
     if address and executor != "ray":
         raise ConfigError(f"an address ({address}) is only used by the ray executor, not '{executor}'")
+    cores = cluster_cpus(address) if executor == "ray" else default_workers()
     if workers is None:
-        workers = cluster_cpus(address) if executor == "ray" else default_workers()
-        workers = workers if tasks is None else max(1, min(workers, tasks))
+        workers = cores if tasks is None else max(1, min(cores, tasks))
     check_workers(workers)
+    if executor == "ray" and workers > cores:  # an actor without a free CPU would wait forever
+        raise ConfigError(f"{workers} Ray workers need {workers} CPUs; the cluster has {cores}: lower workers or add nodes")
     model = RegressorModel(robot)
     base = base if base is not None else compute_base_parameters(robot, model=model)
     local = WorkerState(robot, base, constraints_factory, model=model)
