@@ -2,11 +2,12 @@
 
 Solves ``--starts`` seeded starts of a Panda problem (the built-in config: N = 10, T = 40,
 K = 400 with capsule self-collision) at a small IPOPT budget, once per executor setting, and
-prints the wall time of each run, the speed-up over one worker, the best cond, and whether
-every start's trajectory is identical to the one-worker run.
+prints the wall time of each run, the speed-up over the last one-worker run, the best cond,
+and how far each start's coefficients are from the first run's (0: bit-identical).
 
     python examples/multistart_scaling.py --starts 8 --max-iterations 20
     python examples/multistart_scaling.py --starts 8 --max-iterations 20 --ray    # also on a local Ray
+    python examples/multistart_scaling.py --repeat 3     # alternate 1 and 2 workers (a shared machine)
 """
 
 from __future__ import annotations
@@ -40,11 +41,11 @@ def run(robot_name: str, starts: int, max_iterations: int, settings: list[tuple[
         )
         wall = time.perf_counter() - begin
         reference = reference or ms
-        same = all(np.array_equal(a.x, b.x) for a, b in zip(ms.results, reference.results))
+        diff = max(float(np.max(np.abs(a.x - b.x))) for a, b in zip(ms.results, reference.results))
         rows.append(
             {
                 "executor": ms.executor, "workers": workers, "wall_time_s": wall, "solve_time_s": ms.solve_time,
-                "best_cond": ms.best.cond, "best_seed": ms.seed, "identical_to_first": same,
+                "best_cond": ms.best.cond, "best_seed": ms.seed, "max_diff": diff,
                 "load_1min": os.getloadavg()[0],
             }
         )
@@ -64,25 +65,30 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--starts", type=int, default=8)
     p.add_argument("--max-iterations", type=int, default=20)
     p.add_argument("--ray", action="store_true", help="also run on a local Ray instance with 2 workers")
+    p.add_argument("--repeat", type=int, default=1, help="alternate the 1- and 2-worker runs this many times")
     args = p.parse_args(argv)
-    settings = [("local", 1), ("local", 2)] + ([("ray", 2)] if args.ray else [])
+    settings = [("local", 1), ("local", 2)] * args.repeat + ([("ray", 2)] if args.ray else [])
     if args.ray:
         import ray
 
         ray.init(num_cpus=2, include_dashboard=False, logging_level="error", log_to_driver=False)
     with single_threaded_blas():
         rows = run(args.robot, args.starts, args.max_iterations, settings)
-    first = rows[0]["wall_time_s"]
     print(f"{args.starts} {args.robot} starts, IPOPT <= {args.max_iterations} iterations, {os.cpu_count()} CPUs")
-    print("| executor | workers | wall time [s] | speed-up | sum of solve times [s] | best cond (seed) | identical | load |")
+    print(
+        "| executor | workers | wall time [s] | speed-up | sum of solve times [s] | best cond (seed) "
+        "| max Δalpha vs run 1 [rad] | load |"
+    )
     print("|---|---|---|---|---|---|---|---|")
+    one = rows[0]["wall_time_s"]
     for r in rows:
+        one = r["wall_time_s"] if r["workers"] == 1 else one  # speed-up over the last one-worker run
         print(
-            f"| {r['executor']} | {r['workers']} | {r['wall_time_s']:.1f} | {first / r['wall_time_s']:.2f}× | "
-            f"{r['solve_time_s']:.1f} | {r['best_cond']:.4g} ({r['best_seed']}) | {r['identical_to_first']} | "
+            f"| {r['executor']} | {r['workers']} | {r['wall_time_s']:.1f} | {one / r['wall_time_s']:.2f}× | "
+            f"{r['solve_time_s']:.1f} | {r['best_cond']:.4g} ({r['best_seed']}) | {r['max_diff']:.1e} | "
             f"{r['load_1min']:.1f} |"
         )
-    return 0 if all(r["identical_to_first"] for r in rows) else 1
+    return 0 if all(r["max_diff"] == 0 for r in rows if r["executor"] != "ray") else 1
 
 
 if __name__ == "__main__":

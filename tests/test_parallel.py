@@ -96,12 +96,12 @@ def serial(panda):
     return solve_multistart(panda, CONFIG, SOLVER, SEEDS, workers=1, constraints_factory=no_constraints)
 
 
-def _assert_same_starts(a, b):
+def _assert_same_starts(a, b, atol=0.0):
     assert a.seed == b.seed
     assert [s.seed for s in a.starts] == [s.seed for s in b.starts]
     for x, y in zip(a.results, b.results):
-        np.testing.assert_array_equal(x.x, y.x)
-        assert x.fun == y.fun
+        np.testing.assert_allclose(x.x, y.x, rtol=0, atol=atol)
+        assert x.fun == pytest.approx(y.fun, rel=atol, abs=0)
 
 
 def test_local_pool_gives_the_serial_trajectories_whatever_the_worker_count(panda, serial):
@@ -129,7 +129,9 @@ def test_ray_gives_the_serial_trajectories(panda, serial, ray_session):
         panda, CONFIG, SOLVER, SEEDS, workers=2, executor="ray", constraints_factory=no_constraints
     )
     assert result.executor == "ray" and result.workers == 2
-    _assert_same_starts(result, serial)
+    # Bit-identical in the runs here, but Ray workers are not always: on a larger Panda problem
+    # 3 of 16 starts differed from the local ones by up to 4.6e-10 rad (README, cluster section).
+    _assert_same_starts(result, serial, atol=1e-8)
     assert all(" pid " in s.worker for s in result.starts)  # "<node ip> pid N"
 
 
