@@ -116,9 +116,13 @@ class LocalExecutor(Executor):
 
         def submit_next() -> None:
             k = next(pending, None)
-            if k is not None:
+            if k is None:
+                return
+            try:
                 running[pool.submit(_run_in_worker, fn, payloads[k])] = k
-                say(TaskStarted(k))
+            except BrokenProcessPool as err:  # a worker died while idle (e.g. killed between calls)
+                raise self._died(err, [k, *running.values()], labels) from err
+            say(TaskStarted(k))
 
         for _ in range(self.workers):  # never more in flight than workers: in flight = running
             submit_next()
