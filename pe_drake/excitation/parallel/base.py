@@ -9,7 +9,8 @@ points and C0 arrays.
 
 Results come back in payload order whatever the number of workers and the order in which
 tasks finish; BLAS runs single-threaded inside each task, so a task's result depends only on
-its payload.
+its payload: bit for bit in this process and the local pool; on Ray a start's coefficients
+differed, rarely, by up to ~5e-10 rad (README, "Running on a cluster"; cause not found).
 """
 
 from __future__ import annotations
