@@ -29,7 +29,7 @@ def main(argv: list[str] | None = None) -> int:
               "project (see ../shared/datasets/panda_gaz2019/README.md)")
         return 0
 
-    from pe_drake.diagnosis.workflow import diagnose, write_outputs
+    from pe_drake.diagnosis import diagnose, write_outputs
     from pe_drake.identification.measurements import read_measurement_csv
     from pe_drake.io_utils import staged_output_dir
     from pe_drake.multibody.robot import load_robot

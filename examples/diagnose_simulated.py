@@ -28,9 +28,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", default="results/diagnose_simulated", help="output folder")
     args = parser.parse_args(argv)
 
-    from pe_drake.diagnosis.workflow import diagnose, write_outputs
+    from pe_drake.diagnosis import diagnose, write_outputs
     from pe_drake.excitation.trajectory_file import load_trajectory
-    from pe_drake.identification.simulation import ControlTruth, EffectsTruth, NoiseTruth, PayloadTruth, Truth, simulate
+    from pe_drake.identification.simulation import simulate
+    from pe_drake.identification.truth import ControlTruth, EffectsTruth, NoiseTruth, PayloadTruth, Truth
     from pe_drake.io_utils import staged_output_dir
     from pe_drake.multibody.robot import load_robot
     from pe_drake.threads import single_threaded_blas

@@ -250,7 +250,8 @@ def run(settings: Settings) -> dict:
     from pe_drake.excitation.constraints import constraints_from_config
     from pe_drake.excitation.parallel import open_executor
     from pe_drake.excitation.sequential import optimize_sequence
-    from pe_drake.multibody.robot import Robot, resolve_robot_config
+    from pe_drake.multibody.registry import resolve_robot_config
+    from pe_drake.multibody.robot import Robot
 
     say = _Printer(settings.quiet)
     begin = time.perf_counter()

@@ -34,10 +34,11 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--duration must be positive, got {args.duration}")
 
     from pe_drake.config import ExcitationConfig
-    from pe_drake.excitation.program import ExcitationProblem, _scale_into_limits
+    from pe_drake.excitation.problem import ExcitationProblem, scale_into_limits
     from pe_drake.excitation.trajectory_file import load_trajectory
     from pe_drake.identification.estimators import identify, predict, prepare_measurement, robot_torques, torque_errors
-    from pe_drake.identification.simulation import Truth, simulate
+    from pe_drake.identification.simulation import simulate
+    from pe_drake.identification.truth import Truth
     from pe_drake.multibody.robot import load_robot
     from pe_drake.multibody.urdf import write_robot_urdf
     from pe_drake.threads import single_threaded_blas
@@ -47,7 +48,7 @@ def main(argv: list[str] | None = None) -> int:
     optimized, _ = load_trajectory(ROOT / "tests" / "data" / "panda_optimized.json")
     problem = ExcitationProblem(robot, ExcitationConfig(harmonics=optimized.harmonics, omega=optimized.omega))
     alpha = problem.initial_guess(seed=7, amplitude=2.0)
-    random_run = problem.trajectory(_scale_into_limits(problem, alpha, 0.9))
+    random_run = problem.trajectory(scale_into_limits(problem, alpha, 0.9))
 
     truth = Truth(seed=2, inertia_perturbation=0.1)
     truth.noise.encoder_counts_per_rev = 524288

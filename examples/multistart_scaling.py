@@ -26,7 +26,8 @@ def run(robot_name: str, starts: int, max_iterations: int, settings: list[tuple[
     """One multi-start per (executor, workers) setting; returns a row per setting."""
     from pe_drake.excitation.constraints import constraints_from_config
     from pe_drake.excitation.multistart import solve_multistart
-    from pe_drake.multibody.robot import Robot, resolve_robot_config
+    from pe_drake.multibody.registry import resolve_robot_config
+    from pe_drake.multibody.robot import Robot
 
     config = resolve_robot_config(robot_name)
     solver = dataclasses.replace(config.solver, max_iterations=max_iterations, verbose=False)

@@ -44,10 +44,10 @@ def main(argv: list[str] | None = None) -> int:
         predict,
         prepare_measurement,
         read_robot_measurement,
-        result_to_dict,
         robot_torques,
         torque_errors,
     )
+    from pe_drake.identification.identified_file import result_to_dict
     from pe_drake.io_utils import staged_output_dir
     from pe_drake.multibody.robot import load_robot
     from pe_drake.multibody.urdf import write_robot_urdf

@@ -23,13 +23,9 @@ import numpy as np
 from pe_drake.config import ExcitationConfig, SolverConfig
 from pe_drake.excitation.constraints import constraints_from_config
 from pe_drake.excitation.constraints.base import SampledConstraint, SampledValues
-from pe_drake.excitation.program import (
-    ExcitationProblem,
-    add_sampled_constraint,
-    build_excitation_program,
-    check_margins,
-    solve_excitation,
-)
+from pe_drake.excitation.problem import ExcitationProblem
+from pe_drake.excitation.program import add_sampled_constraint, build_excitation_program
+from pe_drake.excitation.solve import check_margins, solve_excitation
 from pe_drake.multibody.robot import load_robot
 
 TABLE_HEIGHT = 0.45  # [m]

@@ -19,14 +19,15 @@ from pathlib import Path
 import numpy as np
 
 from pe_drake.config import ExcitationConfig
-from pe_drake.diagnosis.workflow import diagnose, write_outputs
+from pe_drake.diagnosis import diagnose, write_outputs
 from pe_drake.excitation.fourier import FourierTrajectory
-from pe_drake.excitation.program import ExcitationProblem
+from pe_drake.excitation.problem import ExcitationProblem
 from pe_drake.excitation.trajectory_file import load_trajectory
 from pe_drake.identification.estimators import identify, prepare_measurement, read_robot_measurement
 from pe_drake.identification.measurements import write_measurement_csv
-from pe_drake.identification.simulation import ControlTruth, EffectsTruth, NoiseTruth, Truth, simulate
+from pe_drake.identification.simulation import simulate
 from pe_drake.identification.synthetic import model_measurement
+from pe_drake.identification.truth import ControlTruth, EffectsTruth, NoiseTruth, Truth
 from pe_drake.memory import reuse_freed_memory
 from pe_drake.multibody.robot import load_robot
 from pe_drake.threads import single_threaded_blas
@@ -80,7 +81,7 @@ def bench_gradient(args: argparse.Namespace) -> None:
         cost_s = median_time(lambda: problem.value(alpha), repeats=args.repeats)
 
         def analytic():
-            problem._cache_key = None  # no caching: value + gradient from scratch
+            problem.clear_cache()  # no caching: value + gradient from scratch
             return problem.evaluate(alpha).grad
 
         grad_s = median_time(analytic, repeats=args.repeats)

@@ -13,6 +13,8 @@ import math
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from pe_drake.exceptions import ConfigError
 
 
@@ -161,19 +163,73 @@ NLOPT_ALGORITHMS = ("LD_SLSQP", "LD_MMA", "LD_CCSAQ")
 EXECUTORS = ("local", "ray")
 
 
-def _finite(name: str, value: float, *, positive: bool = False, nonneg: bool = False) -> None:
-    if not isinstance(value, (int, float)) or not math.isfinite(value):
+def check_finite(name: str, value: Any, *, positive: bool = False, nonneg: bool = False) -> float:
+    """Checks that a configuration value is a finite number (not a bool).
+
+    Args:
+        name: the field as the user wrote it (e.g. ``excitation.omega`` or ``cutoff_hz``),
+            with its unit when it helps.
+        value: the value to check.
+        positive: also require value > 0.
+        nonneg: also require value >= 0.
+
+    Returns:
+        The value as a float.
+
+    Raises:
+        ConfigError: naming the field and the bad value.
+    """
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
+        raise ConfigError(f"{name} must be a number, got {value!r}")
+    if not math.isfinite(value):
         raise ConfigError(f"{name} must be a finite number, got {value!r}")
     if positive and value <= 0:
         raise ConfigError(f"{name} must be positive, got {value!r}")
     if nonneg and value < 0:
         raise ConfigError(f"{name} must be non-negative, got {value!r}")
+    return float(value)
 
 
-def _fraction(name: str, value: float) -> None:
-    _finite(name, value, positive=True)
+def check_fraction(name: str, value: Any) -> float:
+    """Checks that a configuration value lies in (0, 1]; returns it as a float.
+
+    Raises:
+        ConfigError: naming the field and the bad value.
+    """
+    value = check_finite(name, value, positive=True)
     if value > 1:
         raise ConfigError(f"{name} must lie in (0, 1], got {value!r}")
+    return value
+
+
+def load_yaml_typed(path: str | Path, schema: type, defaults: Any = None, what: str = "config") -> Any:
+    """Reads a YAML file onto a dataclass with Drake's ``yaml_load_typed`` (unknown keys refused).
+
+    Args:
+        path: the YAML file.
+        schema: the dataclass type the file maps onto.
+        defaults: an instance whose values the file's keys override (None: ``schema()``).
+        what: what the file is, for messages ("config", "truth", "capsule").
+
+    Returns:
+        The loaded ``schema`` instance (not validated further).
+
+    Raises:
+        ConfigError: a missing file, or a file that does not parse or does not match the
+            schema (unknown key, wrong type); the message names the file.
+    """
+    import yaml  # lazy, with pydrake: keeps `import pe_drake` light
+    from pydrake.common.yaml import yaml_load_typed
+
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"{what} file '{path}' does not exist")
+    try:
+        return yaml_load_typed(schema=schema, filename=str(path),
+                               defaults=defaults if defaults is not None else schema())
+    except (yaml.YAMLError, RuntimeError, ValueError, TypeError, AttributeError, AssertionError) as err:
+        # Drake asserts on a list where it expects a mapping (and vice versa).
+        raise ConfigError(f"{what} file '{path}' does not match the {what} format: {err}") from err
 
 
 def validate_config(config: Config) -> Config:
@@ -189,33 +245,33 @@ def validate_config(config: Config) -> Config:
         ("robot.effort_limits", r.effort_limits),
     ):
         for joint, value in table.items():
-            _finite(f"{name}['{joint}']", value, positive=True)
+            check_finite(f"{name}['{joint}']", value, positive=True)
     for joint, pair in r.position_limits.items():
         if len(pair) != 2:
             raise ConfigError(f"robot.position_limits['{joint}'] must be [lower, upper]")
         for v in pair:
-            _finite(f"robot.position_limits['{joint}']", v)
+            check_finite(f"robot.position_limits['{joint}']", v)
         if pair[0] >= pair[1]:
             raise ConfigError(f"robot.position_limits['{joint}']: lower {pair[0]} >= upper {pair[1]}")
     for table in ("locked_positions", "nominal_positions"):
         for joint, value in getattr(r, table).items():
-            _finite(f"robot.{table}['{joint}']", value)
-    _finite("robot.default_acceleration_limit", r.default_acceleration_limit, positive=True)
-    _finite("robot.position_margin", r.position_margin, nonneg=True)
+            check_finite(f"robot.{table}['{joint}']", value)
+    check_finite("robot.default_acceleration_limit", r.default_acceleration_limit, positive=True)
+    check_finite("robot.position_margin", r.position_margin, nonneg=True)
     for name in ("velocity_scale", "acceleration_scale", "effort_scale"):
-        _fraction(f"robot.{name}", getattr(r, name))
+        check_fraction(f"robot.{name}", getattr(r, name))
     if len(r.base_position) != 3:
         raise ConfigError(f"robot.base_position must have 3 numbers, got {r.base_position}")
     if len(r.base_quaternion_wxyz) != 4:
         raise ConfigError(f"robot.base_quaternion_wxyz must have 4 numbers, got {r.base_quaternion_wxyz}")
     for v in list(r.base_position) + list(r.base_quaternion_wxyz):
-        _finite("robot.base_pose", v)
+        check_finite("robot.base_pose", v)
     if math.sqrt(sum(v * v for v in r.base_quaternion_wxyz)) < 1e-9:
         raise ConfigError("robot.base_quaternion_wxyz must not be zero")
 
     if not isinstance(e.harmonics, int) or e.harmonics < 1:
         raise ConfigError(f"excitation.harmonics must be a positive integer, got {e.harmonics!r}")
-    _finite("excitation.omega", e.omega, positive=True)
+    check_finite("excitation.omega", e.omega, positive=True)
     if not isinstance(e.cost_samples, int) or e.cost_samples < 1:
         raise ConfigError(f"excitation.cost_samples must be a positive integer, got {e.cost_samples!r}")
     if not isinstance(e.constraint_samples, int) or e.constraint_samples < 2:
@@ -224,9 +280,9 @@ def validate_config(config: Config) -> Config:
         )
     if e.criterion not in CRITERIA:
         raise ConfigError(f"excitation.criterion '{e.criterion}' is not one of {', '.join(CRITERIA)}")
-    _finite("excitation.amplitude", e.amplitude, positive=True)
-    _finite("excitation.balance_radius", e.balance_radius, nonneg=True)
-    _finite("excitation.collision_margin", e.collision_margin)
+    check_finite("excitation.amplitude", e.amplitude, positive=True)
+    check_finite("excitation.balance_radius", e.balance_radius, nonneg=True)
+    check_finite("excitation.collision_margin", e.collision_margin)
 
     if s.name not in SOLVERS:
         raise ConfigError(f"solver.name '{s.name}' is not one of {', '.join(SOLVERS)}")
@@ -236,8 +292,8 @@ def validate_config(config: Config) -> Config:
         )
     if not isinstance(s.max_iterations, int) or s.max_iterations < 1:
         raise ConfigError(f"solver.max_iterations must be a positive integer, got {s.max_iterations!r}")
-    _finite("solver.tolerance", s.tolerance, positive=True)
-    _finite("solver.max_time", s.max_time, nonneg=True)
+    check_finite("solver.tolerance", s.tolerance, positive=True)
+    check_finite("solver.max_time", s.max_time, nonneg=True)
     _validate_parallel(config.parallel)
     return config
 
@@ -264,19 +320,8 @@ def load_config(path: str | Path, base: Config | None = None) -> Config:
     Raises:
         ConfigError: missing file, unknown key, wrong type, or invalid value.
     """
-    from pydrake.common.yaml import yaml_load_typed
-
     path = Path(path)
-    if not path.is_file():
-        raise ConfigError(f"config file '{path}' does not exist")
-    try:
-        config = yaml_load_typed(
-            schema=Config,
-            filename=str(path),
-            defaults=base if base is not None else Config(),
-        )
-    except (RuntimeError, ValueError, TypeError) as err:
-        raise ConfigError(f"config file '{path}': {err}") from err
+    config = load_yaml_typed(path, Config, base, "config")
     _resolve_paths(config.robot, path.parent)
     return validate_config(config)
 

@@ -82,7 +82,7 @@ class NoSolutionFound(PeDrakeError):
     """The solver did not find a solution that satisfies every constraint.
 
     Attributes:
-        result: the :class:`~pe_drake.excitation.program.ExcitationResult` (or solver result) kept
+        result: the :class:`~pe_drake.excitation.solve.ExcitationResult` (or solver result) kept
             for inspection.
     """
 

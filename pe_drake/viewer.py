@@ -25,6 +25,10 @@ from typing import Any
 import numpy as np
 
 from pe_drake.exceptions import ConfigError, DataError, UnknownNameError
+from pe_drake.excitation.trajectory_file import load_trajectory
+from pe_drake.io_utils import atomic_write_text
+from pe_drake.multibody.registry import builtin_robots, resolve_robot_config, robot_display_name
+from pe_drake.multibody.robot import Robot
 
 #: Meshcat paths (under ``/drake``) of what this module draws.
 VISUAL_PREFIX = "visual"
@@ -109,11 +113,6 @@ def play_trajectory(
         ConfigError: the robot does not excite the trajectory's joints, or has none of that
             name (the joints are named), an invalid rate, or a robot that cannot be loaded.
     """
-    from pydrake.geometry import Meshcat, MeshcatAnimation, MeshcatParams
-
-    from pe_drake.excitation.trajectory_file import load_trajectory
-    from pe_drake.io_utils import atomic_write_text
-
     if not (isinstance(rate, (int, float)) and math.isfinite(rate) and rate > 0):
         raise ConfigError(f"playback rate must be a positive number of frames per second, got {rate!r}")
     trajectory, data = load_trajectory(trajectory_json)
@@ -124,56 +123,13 @@ def play_trajectory(
     fps = num_intervals / period
     times = np.arange(num_intervals + 1) * (period / num_intervals)
 
-    if meshcat is None:
-        drake_logger = logging.getLogger("drake")
-        level = drake_logger.level
-        drake_logger.setLevel(logging.WARNING)  # no "Meshcat listening ..." line from Drake
-        try:
-            # An HTML export needs no outside connection: listen on localhost only.
-            host = "localhost" if html is not None else "*"
-            meshcat = Meshcat(MeshcatParams(host=host, show_stats_plot=False))
-        finally:
-            drake_logger.setLevel(level)
-    else:  # a reused instance: drop our earlier layers and recording (recordings merge)
-        for path in (VISUAL_PREFIX, CAPSULES_PREFIX, COM_PATH, SUPPORT_PATH):
-            meshcat.Delete(path)
-        meshcat.DeleteRecording()
-    layers: dict[str, Any] = {}
+    meshcat = _prepare_meshcat(meshcat, headless=html is not None)
     rob = _load_robot_with_visualizers(
-        trajectory_json, data, robot, config, meshcat, layers, fps=fps, show_capsules=show_capsules
+        trajectory_json, data, robot, config, meshcat, fps=fps, show_capsules=show_capsules
     )
     order = _joint_order(trajectory_json, data, rob)
     q = trajectory.evaluate(times)[0][:, order]
-
-    plant, diagram = rob.plant, rob.diagram
-    context = diagram.CreateDefaultContext()
-    plant_context = plant.GetMyMutableContextFromRoot(context)
-
-    support = _support_polygon(rob, plant, plant_context, q[0])
-    _draw_markers(meshcat, support)
-
-    meshcat.StartRecording(frames_per_second=fps, set_visualizations_while_recording=False)
-    com_xy = np.empty((len(times), 2))
-    for k in range(len(times)):
-        # Meshcat files a keyframe at floor(time·fps): stamp mid-frame so rounding of k·T/K
-        # cannot drop frame k onto k - 1.
-        t_record = (k + 0.5) / fps
-        context.SetTime(t_record)
-        plant.SetPositions(plant_context, q[k])
-        diagram.ForcedPublish(context)
-        p_WCcm = plant.CalcCenterOfMassPositionInWorld(plant_context)
-        com_xy[k] = p_WCcm[:2]
-        meshcat.SetTransform(COM_PATH, _translation(com_xy[k], _GROUND_OFFSET), t_record)
-    meshcat.StopRecording()
-    animation = meshcat.get_mutable_recording()
-    animation.set_loop_mode(MeshcatAnimation.LoopMode.kLoopRepeat)
-    animation.set_repetitions(1_000_000)  # "forever": an exciting trajectory is periodic
-    meshcat.PublishRecording()
-    # The still scene (before the animation starts, or when it is paused) shows t = 0.
-    context.SetTime(0.0)
-    plant.SetPositions(plant_context, q[0])
-    diagram.ForcedPublish(context)
-    meshcat.SetTransform(COM_PATH, _translation(com_xy[0], _GROUND_OFFSET))
+    com_xy, support = _record_period(meshcat, rob, q, fps)
 
     html_path = None
     if html is not None:
@@ -191,7 +147,7 @@ def play_trajectory(
         support_polygon=support,
         paths={
             "visual": f"/drake/{VISUAL_PREFIX}",
-            "capsules": f"/drake/{CAPSULES_PREFIX}" if layers.get("capsules") else None,
+            "capsules": f"/drake/{CAPSULES_PREFIX}" if _has_proximity_geometry(rob.scene_graph) else None,
             "com": f"/drake/{COM_PATH}",
             "support": f"/drake/{SUPPORT_PATH}" if len(support) else None,
         },
@@ -215,18 +171,71 @@ def write_playback_html(trajectory_json: str | Path, html_path: str | Path, **kw
     """
     return play_trajectory(trajectory_json, html=html_path, **kw).html
 
-
-
-
 # ---- helpers ------------------------------------------------------------------------------
-def _load_robot_with_visualizers(
-    path, data, robot, config, meshcat, layers, *, fps: float, show_capsules: bool
-):
+def _prepare_meshcat(meshcat: Any, headless: bool) -> Any:
+    """A new Meshcat (localhost only when ``headless``: an HTML export needs no outside
+    connection), or the given one with our earlier layers and recording deleted."""
+    from pydrake.geometry import Meshcat, MeshcatParams  # lazy: pydrake is heavy
+
+    if meshcat is None:
+        drake_logger = logging.getLogger("drake")
+        level = drake_logger.level
+        drake_logger.setLevel(logging.WARNING)  # no "Meshcat listening ..." line from Drake
+        try:
+            host = "localhost" if headless else "*"
+            return Meshcat(MeshcatParams(host=host, show_stats_plot=False))
+        finally:
+            drake_logger.setLevel(level)
+    # A reused instance: drop our earlier layers and recording (recordings merge).
+    for path in (VISUAL_PREFIX, CAPSULES_PREFIX, COM_PATH, SUPPORT_PATH):
+        meshcat.Delete(path)
+    meshcat.DeleteRecording()
+    return meshcat
+
+
+def _record_period(meshcat, rob, q: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray]:
+    """Records the frames q (one period) as a looping Meshcat animation with the CoM marker;
+    leaves the still scene at frame 0.
+
+    Returns:
+        (CoM ground projection per frame, shape (len(q), 2) [m]; support polygon, shape (m, 2) [m]).
+    """
+    from pydrake.geometry import MeshcatAnimation  # lazy: pydrake is heavy
+
+    plant, diagram = rob.plant, rob.diagram
+    context = diagram.CreateDefaultContext()
+    plant_context = plant.GetMyMutableContextFromRoot(context)
+
+    support = _support_polygon(rob, plant, plant_context, q[0])
+    _draw_markers(meshcat, support)
+
+    meshcat.StartRecording(frames_per_second=fps, set_visualizations_while_recording=False)
+    com_xy = np.empty((len(q), 2))
+    for k in range(len(q)):
+        # Meshcat files a keyframe at floor(time·fps): stamp mid-frame so rounding of k·T/K
+        # cannot drop frame k onto k - 1.
+        t_record = (k + 0.5) / fps
+        context.SetTime(t_record)
+        plant.SetPositions(plant_context, q[k])
+        diagram.ForcedPublish(context)
+        p_WCcm = plant.CalcCenterOfMassPositionInWorld(plant_context)
+        com_xy[k] = p_WCcm[:2]
+        meshcat.SetTransform(COM_PATH, _translation(com_xy[k], _GROUND_OFFSET), t_record)
+    meshcat.StopRecording()
+    animation = meshcat.get_mutable_recording()
+    animation.set_loop_mode(MeshcatAnimation.LoopMode.kLoopRepeat)
+    animation.set_repetitions(1_000_000)  # "forever": an exciting trajectory is periodic
+    meshcat.PublishRecording()
+    # The still scene (before the animation starts, or when it is paused) shows t = 0.
+    context.SetTime(0.0)
+    plant.SetPositions(plant_context, q[0])
+    diagram.ForcedPublish(context)
+    meshcat.SetTransform(COM_PATH, _translation(com_xy[0], _GROUND_OFFSET))
+    return com_xy, support
+
+
+def _load_robot_with_visualizers(path, data, robot, config, meshcat, *, fps: float, show_capsules: bool):
     """The robot of a trajectory file, with Meshcat visualizers in its diagram."""
-    from pydrake.geometry import MeshcatVisualizer, MeshcatVisualizerParams, Rgba, Role
-
-    from pe_drake.multibody.robot import Robot, builtin_robots, resolve_robot_config
-
     recorded = data.get("robot")
     name = robot or recorded
     if not name:
@@ -239,6 +248,25 @@ def _load_robot_with_visualizers(
     if from_file:
         cfg = _config_from_file(cfg, data)
 
+    display = robot_display_name(name)
+    hook = _visualizer_hook(meshcat, fps, show_capsules)
+    try:
+        return Robot(display, cfg, obj_visuals=True, builder_hook=hook)
+    except UnknownNameError as err:
+        if not from_file or err.kind != "joint":
+            raise
+        raise ConfigError(
+            f"trajectory '{path}' names joint '{err.name}', which robot "
+            f"'{display}' does not have; its joints: {', '.join(err.choices)}. Pass the --robot "
+            "the trajectory was optimized for."
+        ) from err
+
+
+def _visualizer_hook(meshcat, fps: float, show_capsules: bool):
+    """A ``Robot`` builder hook adding Meshcat visualizers: the illustration geometry, and the
+    proximity geometry (capsules) when there is any."""
+    from pydrake.geometry import MeshcatVisualizer, MeshcatVisualizerParams, Rgba, Role  # lazy: pydrake is heavy
+
     def add_visualizers(builder, plant, scene_graph) -> None:
         common = {"publish_period": 1.0 / fps, "delete_on_initialization_event": False}
         MeshcatVisualizer.AddToBuilder(
@@ -247,7 +275,7 @@ def _load_robot_with_visualizers(
             meshcat,
             MeshcatVisualizerParams(role=Role.kIllustration, prefix=VISUAL_PREFIX, **common),
         )
-        if scene_graph.model_inspector().NumGeometriesWithRole(Role.kProximity) > 0:
+        if _has_proximity_geometry(scene_graph):
             MeshcatVisualizer.AddToBuilder(
                 builder,
                 scene_graph,
@@ -260,19 +288,15 @@ def _load_robot_with_visualizers(
                     **common,
                 ),
             )
-            layers["capsules"] = True
 
-    display = name if name in builtin_robots() else Path(name).stem
-    try:
-        return Robot(display, cfg, obj_visuals=True, builder_hook=add_visualizers)
-    except UnknownNameError as err:
-        if not from_file or err.kind != "joint":
-            raise
-        raise ConfigError(
-            f"trajectory '{path}' names joint '{err.name}', which robot "
-            f"'{display}' does not have; its joints: {', '.join(err.choices)}. Pass the --robot "
-            "the trajectory was optimized for."
-        ) from err
+    return add_visualizers
+
+
+def _has_proximity_geometry(scene_graph) -> bool:
+    """Whether the scene has collision (proximity) geometry: the capsules layer is drawn."""
+    from pydrake.geometry import Role  # lazy: pydrake is heavy
+
+    return scene_graph.model_inspector().NumGeometriesWithRole(Role.kProximity) > 0
 
 
 def _config_from_file(cfg, data: dict):
@@ -369,7 +393,7 @@ def _cross(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def _draw_markers(meshcat, support: np.ndarray) -> None:
-    from pydrake.geometry import Cylinder, Rgba
+    from pydrake.geometry import Cylinder, Rgba  # lazy: pydrake is heavy
 
     meshcat.Delete(COM_PATH)
     meshcat.Delete(SUPPORT_PATH)
@@ -389,6 +413,6 @@ def _draw_markers(meshcat, support: np.ndarray) -> None:
 
 
 def _translation(xy: np.ndarray, z: float):
-    from pydrake.math import RigidTransform
+    from pydrake.math import RigidTransform  # lazy: pydrake is heavy
 
     return RigidTransform([float(xy[0]), float(xy[1]), z])

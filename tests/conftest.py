@@ -51,6 +51,12 @@ def g1():
     return get_robot("g1")
 
 
+def random_postures(robot, count: int, seed: int) -> np.ndarray:
+    """``count`` postures drawn uniformly within the joint limits, shape (count, n)."""
+    rng = np.random.default_rng(seed)
+    return rng.uniform(robot.limits.q_lower, robot.limits.q_upper, (count, robot.n))
+
+
 def random_states(robot, count: int, seed: int = 0):
     """q within limits, v and vdot of a few rad/s, each (count, n)."""
     rng = np.random.default_rng(seed)

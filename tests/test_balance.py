@@ -7,17 +7,9 @@ import pytest
 
 from pe_drake.exceptions import ConfigError, InfeasibleError, UnknownNameError
 from pe_drake.excitation.constraints.balance import BalanceConstraint, OutOfBalanceError, support_center
-from pe_drake.multibody.robot import load_robot, resolve_robot_config
-
-
-@pytest.fixture(scope="module")
-def g1():
-    return load_robot("g1")
-
-
-def _random_postures(robot, K, seed):
-    rng = np.random.default_rng(seed)
-    return rng.uniform(robot.limits.q_lower, robot.limits.q_upper, (K, robot.n))
+from pe_drake.multibody.registry import resolve_robot_config
+from pe_drake.multibody.robot import load_robot
+from tests.conftest import random_postures
 
 
 def test_support_center_is_the_centroid_of_the_contact_points(g1):
@@ -35,7 +27,7 @@ def test_support_center_is_the_centroid_of_the_contact_points(g1):
 def test_com_includes_every_body(g1):
     """Drake's CoM equals the mass-weighted mean over all bodies, locked ones included."""
     constraint = BalanceConstraint(g1)
-    q = _random_postures(g1, 3, seed=4)
+    q = random_postures(g1, 3, seed=4)
     plant = g1.plant
     context = plant.CreateDefaultContext()
     for k in range(len(q)):
@@ -53,7 +45,7 @@ def test_com_includes_every_body(g1):
 
 def test_jacobian_matches_finite_differences(g1):
     constraint = BalanceConstraint(g1)
-    q = _random_postures(g1, 15, seed=11)
+    q = random_postures(g1, 15, seed=11)
     values = constraint.evaluate(q, None, None)
     h = 1e-6
     fd = np.empty_like(values.d_q)
@@ -69,7 +61,7 @@ def test_jacobian_matches_finite_differences(g1):
 
 def test_value_is_the_smoothed_distance(g1):
     constraint = BalanceConstraint(g1, radius=0.01, smoothing=1e-4)
-    q = _random_postures(g1, 5, seed=2)
+    q = random_postures(g1, 5, seed=2)
     e = constraint.com_offset(q)
     values = constraint.evaluate(q, None, None, derivatives=False)
     assert values.value.shape == (5, 1) and values.d_q.shape == (5, 1, 0) and values.d_v is None

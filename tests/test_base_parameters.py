@@ -13,7 +13,7 @@ from pe_drake.multibody.regressor import RegressorModel
 
 @pytest.mark.parametrize("name,count", [("panda", 43), ("ur5", 36), ("g1", 90)])
 def test_base_parameter_count(name, count):
-    """Panda: 43 (Gaz et al. 2019 report 43 for its 7 links); G1 arms: 90 (DRAKE_NOTES)."""
+    """Panda: 43 (Gaz et al. 2019 report 43 for its 7 links); G1 arms: 90 (BUILD_NOTES.md)."""
     robot = get_robot(name)
     base = compute_base_parameters(robot)
     assert base.count == count

@@ -20,7 +20,7 @@ from pe_drake.excitation.baseline import (
     stacked_cond,
 )
 from pe_drake.excitation.constraints import constraints_from_config
-from pe_drake.excitation.program import ExcitationProblem
+from pe_drake.excitation.problem import ExcitationProblem
 
 # Panda with capsule self-collision over a 10 s period: a quarter of the draws collide.
 CONFIG = ExcitationConfig(

@@ -15,17 +15,8 @@ from pe_drake.multibody.capsules import (
     load_capsule_file,
     segment_closest_points,
 )
-from pe_drake.multibody.robot import load_robot, resolve_robot_config
-
-
-@pytest.fixture(scope="module")
-def g1():
-    return load_robot("g1")
-
-
-@pytest.fixture(scope="module")
-def panda():
-    return load_robot("panda")
+from pe_drake.multibody.registry import resolve_robot_config
+from pe_drake.multibody.robot import load_robot
 
 
 def _names(robot, pairs):

@@ -7,22 +7,9 @@ import pytest
 
 from pe_drake.exceptions import ConfigError, InfeasibleError
 from pe_drake.excitation.constraints.collision import CollisionConstraint, PostureInCollisionError
-from pe_drake.multibody.robot import load_robot, resolve_robot_config
-
-
-@pytest.fixture(scope="module")
-def g1():
-    return load_robot("g1")
-
-
-@pytest.fixture(scope="module")
-def panda():
-    return load_robot("panda")
-
-
-def _random_postures(robot, K, seed):
-    rng = np.random.default_rng(seed)
-    return rng.uniform(robot.limits.q_lower, robot.limits.q_upper, (K, robot.n))
+from pe_drake.multibody.registry import resolve_robot_config
+from pe_drake.multibody.robot import load_robot
+from tests.conftest import random_postures
 
 
 def _central_differences(constraint, q, h=1e-6):
@@ -42,7 +29,7 @@ def _central_differences(constraint, q, h=1e-6):
 def test_jacobian_matches_finite_differences(name, aggregate, g1, panda):
     robot = {"g1": g1, "panda": panda}[name]
     constraint = CollisionConstraint(robot, 0.02, aggregate=aggregate)
-    q = _random_postures(robot, 12, seed=7)
+    q = random_postures(robot, 12, seed=7)
     values = constraint.evaluate(q, None, None)
     fd = _central_differences(constraint, q)
     # Exact segment distances: central differences agree to rounding (~1e-10 m/rad seen);
@@ -58,13 +45,13 @@ def test_distances_match_drake_geometry(name, g1, panda):
 
     Away from contact Drake's capsule-capsule distance (GJK) is off by up to ~7 mm at these
     postures (its witness points lie 1-2 mm inside the capsules), so it is only compared
-    where |d| < 1 cm; DRAKE_NOTES.md measured ~2e-6 m there.
+    where |d| < 1 cm; BUILD_NOTES.md measured ~2e-6 m there.
     """
     from pe_drake.multibody.capsules import segment_closest_points
 
     robot = {"g1": g1, "panda": panda}[name]
     constraint = CollisionConstraint(robot, 0.0, aggregate=False)
-    q = _random_postures(robot, 20, seed=3)
+    q = random_postures(robot, 20, seed=3)
     ours = constraint.distances(q)
     by_id = {c.geometry_id: k for k, c in enumerate(robot.capsules)}
     column = {frozenset(p): k for k, p in enumerate(constraint.pairs)}
@@ -96,7 +83,7 @@ def test_distances_match_drake_geometry(name, g1, panda):
 
 
 def test_aggregate_is_a_tight_lower_bound_of_the_minimum(g1):
-    q = _random_postures(g1, 30, seed=5)
+    q = random_postures(g1, 30, seed=5)
     aggregate = CollisionConstraint(g1, 0.02, smoothing=0.002)
     d = aggregate.distances(q)
     g = aggregate.evaluate(q, None, None, derivatives=False).value[:, 0]
@@ -107,7 +94,7 @@ def test_aggregate_is_a_tight_lower_bound_of_the_minimum(g1):
 
 
 def test_shapes_labels_and_bounds(g1):
-    q = _random_postures(g1, 4, seed=1)
+    q = random_postures(g1, 4, seed=1)
     aggregate = CollisionConstraint(g1, 0.03)
     per_pair = CollisionConstraint(g1, 0.03, aggregate=False)
     P = len(per_pair.pairs)

@@ -16,25 +16,18 @@ import numpy as np
 import pytest
 
 from pe_drake.cli import main as cli
+from pe_drake.diagnosis import DiagnosisConfig, diagnose
 from pe_drake.diagnosis.effects import (
     joint_candidates,
     payload_groups,
     prior_parameter_covariance,
     separability,
 )
-from pe_drake.diagnosis.workflow import DiagnosisConfig, diagnose
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.excitation.trajectory_file import load_trajectory
 from pe_drake.identification.measurements import Measurement, write_measurement_csv
-from pe_drake.identification.simulation import (
-    ControlTruth,
-    EffectsTruth,
-    NoiseTruth,
-    PayloadTruth,
-    Truth,
-    perturb_inertias,
-    simulate,
-)
+from pe_drake.identification.simulation import perturb_inertias, simulate
+from pe_drake.identification.truth import ControlTruth, EffectsTruth, NoiseTruth, PayloadTruth, Truth
 from tests.conftest import get_robot
 
 DATA = Path(__file__).parent / "data"

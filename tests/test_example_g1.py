@@ -105,7 +105,7 @@ def test_greedy_baseline_picks_the_best_candidate_first(quick_run):
 def test_tables_match_the_written_trajectories(g1, quick_run):
     """Recompute cond(C^(i)) and cond(C) from the trajectory.json files."""
     from pe_drake.config import ExcitationConfig
-    from pe_drake.excitation.program import ExcitationProblem
+    from pe_drake.excitation.problem import ExcitationProblem
     from pe_drake.excitation.trajectory_file import load_trajectory
 
     _, out, t = quick_run

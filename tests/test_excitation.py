@@ -11,15 +11,10 @@ from conftest import get_robot
 from pe_drake.config import ExcitationConfig, SolverConfig
 from pe_drake.exceptions import ConfigError
 from pe_drake.excitation.criteria import evaluate_criterion
-from pe_drake.excitation.program import (
-    ExcitationProblem,
-    add_excitation_cost,
-    add_joint_limit_constraints,
-    build_excitation_program,
-    check_margins,
-    intersample_allowance,
-    solve_excitation,
-)
+from pe_drake.excitation.limits import add_joint_limit_constraints, intersample_allowance
+from pe_drake.excitation.problem import ExcitationProblem
+from pe_drake.excitation.program import add_excitation_cost, build_excitation_program
+from pe_drake.excitation.solve import check_margins, solve_excitation
 
 PAPER = ExcitationConfig(harmonics=10, omega=math.pi / 4, cost_samples=40)
 
@@ -209,7 +204,7 @@ def test_rest_at_ends(panda):
 
 def test_fallback_points_put_those_meeting_the_sampled_constraints_first(panda):
     """When the solver stops at an infeasible iterate, solve_excitation tries
-    ``program._cost.candidates`` in order. Points that met every sampled constraint come
+    ``program.cost.candidates`` in order. Points that met every sampled constraint come
     first, however many cheaper points violated one (here: the start inside a band, then ten
     cheaper points just outside it)."""
     from pe_drake.excitation.constraints.base import SampledConstraint, SampledValues
@@ -234,7 +229,7 @@ def test_fallback_points_put_those_meeting_the_sampled_constraints_first(panda):
             return SampledValues(value=q - q0, d_q=d_q)
 
     program = build_excitation_program(problem, [Band()])
-    cost, (band,) = program._cost, program._evaluators
+    cost, (band,) = program.cost, program.evaluators
     points = [(100.0, x0)]
     for k in range(10):
         x = x0.copy()
@@ -242,7 +237,7 @@ def test_fallback_points_put_those_meeting_the_sampled_constraints_first(panda):
         points.append((50.0 - k, x))
     for value, x in points:  # what the solver's callbacks do at each evaluated point
         band.values_and_jacobian(x)
-        cost._remember(x, value)
+        cost.remember(x, value)
     assert band.violations[x0.tobytes()] == 0.0
     assert all(band.violations[x.tobytes()] > 0 for _, x in points[1:])
     value, first = cost.candidates[0]

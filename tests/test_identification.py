@@ -12,20 +12,19 @@ import pytest
 
 from pe_drake.cli import main as cli
 from pe_drake.config import ExcitationConfig
-from pe_drake.excitation.program import ExcitationProblem, _scale_into_limits
+from pe_drake.excitation.problem import ExcitationProblem, scale_into_limits
 from pe_drake.excitation.trajectory_file import load_trajectory, save_trajectory
 from pe_drake.identification.estimators import (
     identify,
-    load_identified,
     predict,
     prepare_measurement,
-    pseudo_inertia,
     torque_errors,
 )
+from pe_drake.identification.identified_file import load_identified
 from pe_drake.identification.measurements import write_measurement_csv
 from pe_drake.identification.simulation import perturb_inertias
 from pe_drake.identification.synthetic import model_measurement
-from pe_drake.multibody.urdf import validity_problems
+from pe_drake.multibody.inertia import pseudo_inertia, validity_problems
 from tests.conftest import get_robot
 
 DATA = Path(__file__).parent / "data"
@@ -46,7 +45,7 @@ def random_trajectory(robot, like, seed: int):
     config = ExcitationConfig(harmonics=like.harmonics, omega=like.omega, constraint_samples=400)
     problem = ExcitationProblem(robot, config)
     alpha = problem.initial_guess(seed=seed, amplitude=2.0)
-    return problem.trajectory(_scale_into_limits(problem, alpha, 0.9))
+    return problem.trajectory(scale_into_limits(problem, alpha, 0.9))
 
 
 def relative_error(estimate, truth):
@@ -130,7 +129,8 @@ def test_optimized_trajectory_gives_smaller_parameter_errors_than_random_ones(op
 def simulated_runs(optimized, tmp_path_factory):
     """Identification run (optimized trajectory) and validation run (another, random one) of
     a true Panda with ±10 % inertias, encoder quantization and torque noise."""
-    from pe_drake.identification.simulation import Truth, simulate
+    from pe_drake.identification.simulation import simulate
+    from pe_drake.identification.truth import Truth
 
     robot = get_robot("panda")
     truth = Truth(seed=2, inertia_perturbation=0.1)
@@ -189,7 +189,7 @@ def test_identify_and_validate_commands_write_a_loadable_model(simulated_runs, t
     from pydrake.multibody.parsing import Parser
     from pydrake.multibody.plant import MultibodyPlant
 
-    from pe_drake.multibody.robot import example_robot_data_dir
+    from pe_drake.multibody.registry import example_robot_data_dir
 
     out = tmp_path / "ident"
     code = cli(

@@ -12,14 +12,23 @@ from pe_drake.excitation.fourier import FourierTrajectory
 from pe_drake.identification.measurements import (
     Measurement,
     check_torque_units,
-    motion_bandwidth_hz,
-    preprocess,
     read_measurement_csv,
     write_measurement_csv,
 )
+from pe_drake.identification.preprocessing import (
+    PreprocessOptions,
+    choose_cutoff,
+    decimation_step,
+    design_lowpass,
+    fill_derivatives,
+    motion_bandwidth_hz,
+    preprocess,
+    resample_uniform,
+    trim_indices,
+)
 
 JOINTS = ("j1", "j2", "j3")
-GAZ = Path("/work/shared/datasets/panda_gaz2019/excitation_1.csv")
+GAZ = Path(__file__).resolve().parents[1].parent / "shared" / "datasets" / "panda_gaz2019" / "excitation_1.csv"
 PANDA_JOINTS = tuple(f"panda_joint{i}" for i in range(1, 8))
 
 
@@ -288,10 +297,51 @@ def test_preprocess_keeps_measured_velocity_and_never_aliases():
     assert 0.5 * p.preprocessing.rate_hz >= 1.25 * 40.0  # decimation reduced to stay alias-free
 
 
+def test_step_functions_chain_to_preprocess():
+    """The public steps, chained by hand, give exactly what preprocess gives."""
+    m, traj = _synthetic()
+    f0 = traj.omega / (2 * np.pi)
+    p = preprocess(m, PreprocessOptions(fundamental_hz=f0, harmonics=traj.harmonics))
+    grid = resample_uniform(m.t, {"q": m.q, "tau": m.tau})
+    assert grid.resampled and np.allclose(np.diff(grid.t), grid.dt)
+    cutoff = choose_cutoff(grid.t, grid.signals["q"], grid.rate_hz, fundamental_hz=f0, harmonics=traj.harmonics)
+    assert cutoff.source == "trajectory"
+    lowpass = design_lowpass(cutoff.hz, grid.rate_hz, len(grid.t))
+    q, tau = lowpass.apply(grid.signals["q"]), lowpass.apply(grid.signals["tau"])
+    d = fill_derivatives(q, grid.dt)
+    step = decimation_step(grid.rate_hz, 200.0, cutoff.hz)
+    idx = trim_indices(grid.t, 2.0 / cutoff.hz, step)
+    for name, x in (("t", grid.t), ("q", q), ("tau", tau), ("v", d.v), ("vd", d.vd)):
+        np.testing.assert_array_equal(getattr(p, name), x[idx], err_msg=name)
+    assert (d.velocity_source, d.acceleration_source) == ("differentiated", "differentiated")
+
+
+def test_lowpass_white_noise_gain_matches_filtered_noise():
+    lowpass = design_lowpass(10.0, 1000.0, 200000)
+    noise = np.random.default_rng(0).normal(size=200000)
+    assert np.var(lowpass.apply(noise)) == pytest.approx(lowpass.white_noise_gain(), rel=0.05)
+    assert lowpass.padlen == 300  # three periods of the cut-off
+    with pytest.raises(DataError, match="the filter needs more than 15"):
+        design_lowpass(10.0, 1000.0, 15, file="x.csv")
+
+
+def test_decimation_step_stays_alias_free():
+    assert decimation_step(1000.0, None, 10.0) == 1
+    assert decimation_step(1000.0, 200.0, 10.0) == 5
+    assert decimation_step(1000.0, 50.0, 40.0) == 10  # 0.5·1000/10 = 50 ≥ 1.25·40
+    assert decimation_step(1000.0, 20.0, 40.0) == 10
+
+
+def test_preprocess_refuses_options_and_fields_together():
+    m, _ = _synthetic(duration=4.0, jitter=0.0)
+    with pytest.raises(ConfigError, match="not both"):
+        preprocess(m, PreprocessOptions(), cutoff_hz=10.0)
+
+
 @pytest.mark.parametrize(
     "kwargs, error, match",
     [
-        (dict(cutoff_hz=-1.0), ConfigError, "cutoff_hz must be a positive"),
+        (dict(cutoff_hz=-1.0), ConfigError, "cutoff_hz must be positive"),
         (dict(cutoff_hz=600.0), ConfigError, "Nyquist"),
         (dict(fundamental_hz=0.2), ConfigError, "both fundamental_hz and harmonics"),
         (dict(fundamental_hz=0.2, harmonics=0), ConfigError, "harmonics must be a positive integer"),

@@ -163,7 +163,8 @@ def test_g1_visuals_convert_and_parse(cache):
     """Every STL visual of G1 becomes an OBJ that Drake parses and Meshcat can draw."""
     from pydrake.geometry import Mesh, Role
 
-    from pe_drake.multibody.robot import example_robot_data_dir, load_robot
+    from pe_drake.multibody.registry import example_robot_data_dir
+    from pe_drake.multibody.robot import load_robot
 
     urdf = example_robot_data_dir() / "robots/g1_description/urdf/g1_29dof_rev_1_0.urdf"
     text = urdf.read_text()

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from conftest import get_robot, random_states
 
+from pe_drake.multibody.inertia import PARAMETER_NAMES, phi_to_spatial_inertia
 from pe_drake.multibody.regressor import RegressorModel
-from pe_drake.multibody.robot import PARAMETER_NAMES, phi_to_spatial_inertia
 
 ROBOTS = ["panda", "ur5", "g1"]
 
@@ -33,7 +33,7 @@ def test_regressor_is_linear_in_arbitrary_parameters(name):
     phi = robot.phi_model * (1 + 0.3 * rng.uniform(-1, 1, robot.phi_model.shape))
     ctx = robot.plant.CreateDefaultContext()
     for j, body_index in enumerate(robot.body_indices):
-        body = robot.plant.get_body(robot._bodies[j].index())
+        body = robot.plant.get_body(robot.bodies[j].index())
         assert int(body.index()) == int(body_index)
         body.SetSpatialInertiaInBodyFrame(ctx, phi_to_spatial_inertia(phi[10 * j : 10 * j + 10]))
     q, v, vd = random_states(robot, 5, seed=3)
@@ -66,7 +66,7 @@ def test_joint_axes_are_drake_jacobian_columns(g1):
     plant, ctx = g1.plant, g1.plant_context
     plant.SetPositions(ctx, q[0])
     for j in range(len(g1.body_indices)):
-        body = plant.get_body(g1._bodies[j].index())
+        body = plant.get_body(g1.bodies[j].index())
         # Spatial velocity Jacobian of the body-fixed point at the world origin.
         X_WB = plant.EvalBodyPoseInWorld(ctx, body)
         p_BoO_B = X_WB.inverse().translation()
@@ -133,6 +133,6 @@ def test_adjoint_of_prismatic_joint():
 def test_batched_body_poses_equal_drake(name):
     robot = get_robot(name)
     model = RegressorModel(robot)
-    assert model._fk is not None  # every built-in robot uses the batched path
+    assert model.batched_kinematics  # every built-in robot uses the batched path
     q, _, _ = random_states(robot, 30, seed=4)
-    np.testing.assert_allclose(model._poses(q), model._drake_poses(q), atol=1e-12)
+    np.testing.assert_allclose(model.poses(q), model.drake_poses(q), atol=1e-12)

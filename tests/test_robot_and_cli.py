@@ -12,7 +12,8 @@ from pe_drake.cli import main
 from pe_drake.config import Config, ExcitationConfig, RobotConfig
 from pe_drake.exceptions import ConfigError, InfeasibleError, NotWithinLimitsError, UnknownNameError
 from pe_drake.excitation.fourier import FourierBasis, FourierTrajectory, sample_times
-from pe_drake.multibody.robot import builtin_robots, load_robot
+from pe_drake.multibody.registry import builtin_robots
+from pe_drake.multibody.robot import load_robot
 
 PANDA_URDF = "package://example-robot-data/robots/panda_description/urdf/panda.urdf"
 

@@ -18,7 +18,7 @@ from pe_drake.exceptions import ConfigError, NoSolutionFound
 from pe_drake.excitation.constraints.base import SampledConstraint, SampledValues
 from pe_drake.excitation.multistart import StartEvent, WorkerError, best_index, solve_multistart
 from pe_drake.excitation.parallel import open_executor
-from pe_drake.excitation.program import ExcitationProblem
+from pe_drake.excitation.problem import ExcitationProblem
 from pe_drake.excitation.sequential import MotionEvent, motion_seeds, optimize_sequence
 
 CONFIG = ExcitationConfig(

@@ -13,7 +13,9 @@ from pe_drake.config import ExcitationConfig, SolverConfig
 from pe_drake.exceptions import ConfigError
 from pe_drake.excitation.constraints import constraints_from_config
 from pe_drake.excitation.constraints.torque import TorqueConstraint, TorqueLimitError
-from pe_drake.excitation.program import ExcitationProblem, build_excitation_program, solve_excitation
+from pe_drake.excitation.problem import ExcitationProblem
+from pe_drake.excitation.program import build_excitation_program
+from pe_drake.excitation.solve import solve_excitation
 from pe_drake.multibody.robot import Robot
 from tests.conftest import get_robot, random_states
 

@@ -387,13 +387,13 @@ def test_view_command_writes_html(panda_traj, tmp_path, capsys):
 
 
 def test_view_command_serves_until_ctrl_c(panda_traj, monkeypatch, capsys):
-    import pe_drake.viewer as viewer
+    import pe_drake.cli.view as view
     from pe_drake.cli import main
 
     def interrupt(_):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(viewer.time, "sleep", interrupt)
+    monkeypatch.setattr(view.time, "sleep", interrupt)
     assert main(["view", str(panda_traj[0]), "--rate", "5"]) == 0
     assert "http://" in capsys.readouterr().out
 

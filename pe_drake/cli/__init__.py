@@ -12,6 +12,8 @@ import importlib
 import sys
 
 from pe_drake import __version__
+from pe_drake.exceptions import PeDrakeError
+from pe_drake.threads import single_threaded_blas
 
 _COMMANDS = {
     "optimize": ("pe_drake.cli.optimize", "optimize_command"),
@@ -23,6 +25,12 @@ _COMMANDS = {
 }
 
 
+def add_robot_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--robot`` (required) and ``--config``: what every command that loads a robot takes."""
+    parser.add_argument("--robot", required=True, help="built-in name (panda, ur5, g1) or URDF/SDF path")
+    parser.add_argument("--config", help="YAML config overriding the robot's defaults")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="pe-drake",
@@ -30,10 +38,15 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"pe_drake {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    _add_trajectory_commands(sub)
+    _add_identification_commands(sub)
+    return parser
 
+
+def _add_trajectory_commands(sub) -> None:
+    """``optimize``, ``view`` and ``simulate``: making, showing and running a trajectory."""
     p = sub.add_parser("optimize", help="optimize an exciting trajectory (min cond of the regressor)")
-    p.add_argument("--robot", required=True, help="built-in name (panda, ur5, g1) or URDF/SDF path")
-    p.add_argument("--config", help="YAML config overriding the robot's defaults")
+    add_robot_arguments(p)
     p.add_argument("--solver", choices=["ipopt", "nlopt"], help="optimizer (default: from config, ipopt)")
     p.add_argument("--criterion", choices=["cond", "log_cond", "dopt"], help="excitation criterion")
     p.add_argument("--prior", action="append", default=[], metavar="TRAJECTORY_JSON",
@@ -61,16 +74,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rate", type=float, default=30.0, help="frames per second")
 
     p = sub.add_parser("simulate", help="simulate a measured run on a perturbed 'true' robot")
-    p.add_argument("--robot", required=True)
-    p.add_argument("--config", help="YAML config of the robot")
+    add_robot_arguments(p)
     p.add_argument("--trajectory", required=True, help="trajectory.json to track")
     p.add_argument("--truth", required=True, help="TRUTH.yaml: perturbation, effects, noise")
     p.add_argument("--out", required=True, help="output CSV")
     p.add_argument("--duration", type=float, help="simulated time [s] (default: one period)")
 
+
+def _add_identification_commands(sub) -> None:
+    """``identify``, ``validate`` and ``diagnose``: from measured data to a model and its faults."""
     p = sub.add_parser("identify", help="identify the base parameters from measured data")
-    p.add_argument("--robot", required=True)
-    p.add_argument("--config", help="YAML config of the robot")
+    add_robot_arguments(p)
     p.add_argument("--data", required=True, help="measurement CSV")
     p.add_argument("--method", choices=["ols", "wls", "physical"], default="ols")
     p.add_argument("--cutoff", type=float, help="low-pass cut-off [Hz] (default: from --trajectory or the data)")
@@ -80,8 +94,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="output folder")
 
     p = sub.add_parser("validate", help="predict torques of another run with an identified model")
-    p.add_argument("--robot", required=True)
-    p.add_argument("--config", help="YAML config of the robot")
+    add_robot_arguments(p)
     p.add_argument("--model", required=True, help="identified.json")
     p.add_argument("--data", required=True, help="measurement CSV of another run")
     p.add_argument("--cutoff", type=float, help="low-pass cut-off [Hz] (default: from the data)")
@@ -89,21 +102,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plot", help="write measured vs predicted torque plot here (PNG)")
 
     p = sub.add_parser("diagnose", help="name the effects missing from the model")
-    p.add_argument("--robot", required=True)
-    p.add_argument("--config", help="YAML config of the robot")
+    add_robot_arguments(p)
     p.add_argument("--data", required=True, help="measurement CSV")
     p.add_argument("--validation", help="held-out CSV (default: a held-out part of --data)")
     p.add_argument("--out", required=True, help="output folder")
-    return parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    from pe_drake.exceptions import PeDrakeError
-
     args = build_parser().parse_args(argv)
     module_name, function_name = _COMMANDS[args.command]
-    from pe_drake.threads import single_threaded_blas
-
     try:
         function = getattr(importlib.import_module(module_name), function_name)
         with single_threaded_blas():

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from pe_drake.diagnosis.workflow import diagnose, write_outputs
+from pe_drake.cli.common import robot_from_args
+from pe_drake.diagnosis import diagnose, write_outputs
 from pe_drake.exceptions import ConfigError
 from pe_drake.identification.measurements import read_measurement_csv
 from pe_drake.io_utils import staged_output_dir
-from pe_drake.multibody.robot import load_robot
 
 
 def diagnose_command(args) -> int:
@@ -16,7 +16,7 @@ def diagnose_command(args) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out '{out}' exists and is not a folder")
-    robot = load_robot(args.robot, getattr(args, "config", None))
+    robot = robot_from_args(args)
     data = read_measurement_csv(args.data, robot)
     validation = read_measurement_csv(args.validation, robot) if getattr(args, "validation", None) else None
     print(f"robot {robot.name}: {robot.n} joints ({', '.join(robot.joint_names)})", flush=True)

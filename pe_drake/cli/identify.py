@@ -10,24 +10,31 @@ from pathlib import Path
 
 import numpy as np
 
+from pe_drake.cli.common import robot_from_args
 from pe_drake.exceptions import ConfigError
+from pe_drake.excitation.trajectory_file import load_trajectory
+from pe_drake.identification.estimators import (
+    identify,
+    predict,
+    prepare_measurement,
+    read_robot_measurement,
+    torque_errors,
+)
+from pe_drake.identification.identified_file import (
+    load_identified,
+    result_to_dict,
+    standard_from_base,
+    standard_parameters_dict,
+)
 from pe_drake.io_utils import atomic_write_text, staged_output_dir
-
-
-def _load(args: argparse.Namespace):
-    from pe_drake.multibody.robot import Robot, builtin_robots, resolve_robot_config
-
-    config = resolve_robot_config(args.robot, args.config)
-    name = args.robot if args.robot in builtin_robots() else Path(args.robot).stem
-    return Robot(name, config.robot)
+from pe_drake.multibody.inertia import PhysicallyInvalidError, validity_problems
+from pe_drake.multibody.urdf import write_robot_urdf
 
 
 def _trajectory_band(path: str | None) -> tuple[float | None, int | None]:
     """(fundamental [Hz], harmonics) of a trajectory.json, to choose the filter cut-off."""
     if not path:
         return None, None
-    from pe_drake.excitation.trajectory_file import load_trajectory
-
     trajectory, _ = load_trajectory(path)
     return trajectory.omega / (2 * math.pi), trajectory.harmonics
 
@@ -40,19 +47,9 @@ def _check_cutoff(cutoff: float | None) -> None:
 def identify_command(args: argparse.Namespace) -> int:
     """Runs ``pe-drake identify``: identified.json, model.urdf (when physically valid),
     residual plot; nothing is written on error."""
-    from pe_drake.identification.estimators import (
-        identify,
-        prepare_measurement,
-        read_robot_measurement,
-        result_to_dict,
-        standard_from_base,
-        standard_parameters_dict,
-    )
-    from pe_drake.multibody.urdf import PhysicallyInvalidError, validity_problems, write_robot_urdf
-
     _check_cutoff(args.cutoff)
     start = time.perf_counter()
-    robot = _load(args)
+    robot = robot_from_args(args)
     raw = read_robot_measurement(robot, args.data)
     f0, harmonics = _trajectory_band(getattr(args, "trajectory", None))
     data = prepare_measurement(
@@ -63,50 +60,10 @@ def identify_command(args: argparse.Namespace) -> int:
         harmonics=harmonics,
         filtering=not getattr(args, "no_filter", False),
     )
-    p = data.preprocessing
-    print(
-        f"robot {robot.name}: {robot.n} joints; data {args.data}: {raw.num_samples} samples, "
-        f"{raw.duration:.2f} s at {raw.rate_hz:.0f} Hz",
-        flush=True,
-    )
-    if p is not None:
-        print(
-            f"preprocessing: low-pass {p.cutoff_hz:.2f} Hz ({p.cutoff_source}), "
-            f"{p.samples_out} samples at {p.rate_hz:.0f} Hz, {p.trim_s:.2f} s trimmed at each end, "
-            f"v {p.velocity_source}, vdot {p.acceleration_source}",
-            flush=True,
-        )
+    _print_data_summary(args, robot, raw, data)
     result = identify(robot, data, args.method)
-    print(
-        f"{args.method}: {result.base.count} base parameters, cond(W) = {result.cond:.4g}, "
-        f"{result.wall_time:.2f} s",
-        flush=True,
-    )
-    order = np.argsort(result.sigma_percent)
-    worst = order[-min(5, len(order)) :][::-1]
-    print(
-        "least determined base parameters (%σ): "
-        + ", ".join(f"{_short_name(result.base, i)} {result.sigma_percent[i]:.3g}%" for i in worst)
-    )
-    print(
-        "residual RMS [N·m]: "
-        + ", ".join(f"{j} {r:.4g}" for j, r in zip(robot.joint_names, result.residual_rms))
-    )
-
-    phi = result.phi
-    note = ""
-    if phi is None:
-        candidate = standard_from_base(robot, result)
-        if not validity_problems(robot.body_names, candidate):
-            phi, note = (
-                candidate,
-                "standard parameters: the a-priori model moved to the identified base parameters",
-            )
-        else:
-            note = (
-                "model.urdf not written: the least-squares estimate has no physically valid standard "
-                "parameters near the a-priori model; use --method physical"
-            )
+    _print_fit_summary(args.method, robot, result)
+    phi, note = _model_parameters(robot, result)
     out = Path(args.out)
     with staged_output_dir(out) as tmp:
         model_file = None
@@ -132,6 +89,59 @@ def identify_command(args: argparse.Namespace) -> int:
     return 0
 
 
+def _print_data_summary(args: argparse.Namespace, robot, raw, data) -> None:
+    """The robot, the raw data and what preprocessing did to it."""
+    p = data.preprocessing
+    print(
+        f"robot {robot.name}: {robot.n} joints; data {args.data}: {raw.num_samples} samples, "
+        f"{raw.duration:.2f} s at {raw.rate_hz:.0f} Hz",
+        flush=True,
+    )
+    if p is not None:
+        print(
+            f"preprocessing: low-pass {p.cutoff_hz:.2f} Hz ({p.cutoff_source}), "
+            f"{p.samples_out} samples at {p.rate_hz:.0f} Hz, {p.trim_s:.2f} s trimmed at each end, "
+            f"v {p.velocity_source}, vdot {p.acceleration_source}",
+            flush=True,
+        )
+
+
+def _print_fit_summary(method: str, robot, result) -> None:
+    """Conditioning, the least determined base parameters and the residual per joint."""
+    print(
+        f"{method}: {result.base.count} base parameters, cond(W) = {result.cond:.4g}, "
+        f"{result.wall_time:.2f} s",
+        flush=True,
+    )
+    order = np.argsort(result.sigma_percent)
+    worst = order[-min(5, len(order)) :][::-1]
+    print(
+        "least determined base parameters (%σ): "
+        + ", ".join(f"{_short_name(result.base, i)} {result.sigma_percent[i]:.3g}%" for i in worst)
+    )
+    print(
+        "residual RMS [N·m]: "
+        + ", ".join(f"{j} {r:.4g}" for j, r in zip(robot.joint_names, result.residual_rms))
+    )
+
+
+def _model_parameters(robot, result) -> tuple[np.ndarray | None, str]:
+    """Standard parameters for model.urdf (None: none physically valid) and a note on them.
+
+    The physical method gives them; for least squares the a-priori model is moved to the
+    identified base parameters, and kept only when that is physically valid.
+    """
+    if result.phi is not None:
+        return result.phi, ""
+    candidate = standard_from_base(robot, result)
+    if not validity_problems(robot.body_names, candidate):
+        return candidate, "standard parameters: the a-priori model moved to the identified base parameters"
+    return None, (
+        "model.urdf not written: the least-squares estimate has no physically valid standard "
+        "parameters near the a-priori model; use --method physical"
+    )
+
+
 def _short_name(base, i: int) -> str:
     """The standard parameter a base parameter is built on, '+…' when others are lumped in."""
     name = base.names[base.independent[i]]
@@ -140,15 +150,7 @@ def _short_name(base, i: int) -> str:
 
 def validate_command(args: argparse.Namespace) -> int:
     """Runs ``pe-drake validate``: per-joint RMS and relative torque error on another run."""
-    from pe_drake.identification.estimators import (
-        load_identified,
-        predict,
-        prepare_measurement,
-        read_robot_measurement,
-        torque_errors,
-    )
-
-    robot = _load(args)
+    robot = robot_from_args(args)
     result = load_identified(args.model, robot)
     raw = read_robot_measurement(robot, args.data)
     data = prepare_measurement(robot, raw, cutoff_hz=getattr(args, "cutoff", None))
@@ -180,8 +182,6 @@ def validate_command(args: argparse.Namespace) -> int:
 
 def _plot_residuals(path: Path, robot, data, result) -> None:
     """Measured torque and the model's fit per joint on the identification data."""
-    from pe_drake.identification.estimators import predict
-
     _plot_prediction(
         path,
         robot,
@@ -193,7 +193,7 @@ def _plot_residuals(path: Path, robot, data, result) -> None:
 
 
 def _plot_prediction(path: Path, robot, data, tau_pred: np.ndarray, rel: np.ndarray, title: str = "") -> None:
-    import matplotlib
+    import matplotlib  # lazy: matplotlib is heavy and only needed for the plot
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

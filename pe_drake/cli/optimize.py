@@ -12,16 +12,18 @@ from pathlib import Path
 
 import numpy as np
 
+from pe_drake.cli.common import config_from_args, robot_from_args
 from pe_drake.config import Config, validate_config
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.excitation.constraints import constraints_from_config
 from pe_drake.excitation.fourier import FourierBasis, sample_times
 from pe_drake.excitation.multistart import solve_multistart
 from pe_drake.excitation.parallel import open_executor
-from pe_drake.excitation.program import ExcitationProblem
+from pe_drake.excitation.problem import ExcitationProblem
 from pe_drake.excitation.trajectory_file import load_trajectory, save_trajectory, write_trajectory_csv
 from pe_drake.io_utils import staged_output_dir
-from pe_drake.multibody.robot import Robot, builtin_robots, resolve_robot_config
+from pe_drake.plots import plot_trajectory
+from pe_drake.viewer import write_playback_html
 
 
 def prior_regressor(problem, trajectory_json: str | Path) -> np.ndarray:
@@ -75,11 +77,10 @@ def optimize_command(args: argparse.Namespace) -> int:
     """Runs ``pe-drake optimize``; returns 0 on success, 1 if no valid trajectory was found."""
     if not args.csv_rate > 0 or not math.isfinite(args.csv_rate):
         raise ConfigError(f"--csv-rate must be a positive number [Hz], got {args.csv_rate}")
-    config = _apply_arguments(resolve_robot_config(args.robot, args.config), args)
-    name = args.robot if args.robot in builtin_robots() else Path(args.robot).stem
+    config = config_from_args(args, lambda c: _apply_arguments(c, args))
     say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, flush=True))
     start = time.perf_counter()
-    robot = Robot(name, config.robot)
+    robot = robot_from_args(args, config)
     say(f"robot {robot.name}: {robot.n} excited joints, {robot.num_bodies} moving bodies")
     problem = _problem(robot, config, args.prior, say)
     ms = _solve_starts(robot, problem, config, say)
@@ -189,8 +190,6 @@ def _report(robot, problem, config: Config, ms, priors: list[str], total_time: f
 
 
 def _write_success_outputs(tmp: Path, robot, result, args, say) -> None:
-    from pe_drake.plots import plot_trajectory
-
     save_trajectory(tmp / "trajectory.json", robot, result.trajectory, cond=result.cond, cond_motion=result.cond_motion)
     write_trajectory_csv(tmp / "trajectory.csv", robot.joint_names, result.trajectory, args.csv_rate)
     plot_trajectory(
@@ -202,8 +201,6 @@ def _write_success_outputs(tmp: Path, robot, result, args, say) -> None:
     )
     if not args.no_html:
         try:
-            from pe_drake.viewer import write_playback_html
-
             write_playback_html(tmp / "trajectory.json", tmp / "playback.html", config=args.config)
         except Exception as err:  # the playback is a convenience: never lose the trajectory over it
             say(f"warning: could not write the HTML playback: {err}")

@@ -5,12 +5,13 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from pe_drake.cli.common import robot_from_args
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.excitation.trajectory_file import load_trajectory
 from pe_drake.identification.measurements import measurement_to_csv_text
-from pe_drake.identification.simulation import load_truth, simulate, truth_path_for
+from pe_drake.identification.simulation import simulate, truth_path_for
+from pe_drake.identification.truth import load_truth
 from pe_drake.io_utils import atomic_write_text
-from pe_drake.multibody.robot import load_robot
 
 
 def simulate_command(args) -> int:
@@ -19,7 +20,7 @@ def simulate_command(args) -> int:
     if out.is_dir():
         raise ConfigError(f"--out '{out}' is a folder; give the CSV file to write")
     truth = load_truth(args.truth)
-    robot = load_robot(args.robot, getattr(args, "config", None))
+    robot = robot_from_args(args)
     trajectory, data = load_trajectory(args.trajectory)
     if list(data["joints"]) != list(robot.joint_names):
         raise DataError(

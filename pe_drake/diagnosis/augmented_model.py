@@ -36,7 +36,23 @@ from typing import Any
 
 import numpy as np
 
+from pe_drake.exceptions import ConfigError, PeDrakeError
+from pe_drake.identification.simulation import build_true_robot
+from pe_drake.identification.truth import EffectsTruth, PayloadTruth, Truth
 from pe_drake.io_utils import atomic_write_text
+from pe_drake.multibody.inertia import (
+    PARAMETER_NAMES,
+    central_inertia,
+    inertia_matrix,
+    inertia_vector,
+    phi_from_com,
+    phi_from_pseudo_inertia,
+    phi_to_spatial_inertia,
+    pseudo_inertia,
+    validity_problems,
+)
+from pe_drake.multibody.robot import load_robot
+from pe_drake.multibody.urdf import urdf_with_inertias
 
 PAYLOAD_LINK = "pe_drake_payload"
 
@@ -95,8 +111,6 @@ class AugmentedModel:
             cov_B: covariance of φ_B, (b, b): weighs the base parameters when the conditional
                 parameters are not physically valid and a physically consistent fit is needed.
         """
-        from pe_drake.multibody.urdf import central_inertia
-
         n = robot.n
         viscous, coulomb, armature, offset = np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n)
         for cand, value in effects.values():
@@ -127,16 +141,14 @@ class AugmentedModel:
                     notes.append("payload: the identified rotational inertia is not physically valid; "
                                  "the payload body is a point mass, the rest goes to the link")
                 link, mass, com = robot.body_names[lead], m, p
-                inertia = np.array([I_cm[0, 0], I_cm[1, 1], I_cm[2, 2], I_cm[0, 1], I_cm[0, 2], I_cm[1, 2]])
-                phi_payload_full[10 * lead : 10 * lead + 10] = _phi_from(m, p, I_cm)
+                inertia = inertia_vector(I_cm)
+                phi_payload_full[10 * lead : 10 * lead + 10] = phi_from_com(m, p, I_cm)
             else:
                 phi_payload_full[:] = 0.0
                 notes.append(f"payload: negative mass {m:.3g} kg folded into {robot.body_names[lead]}'s "
                              "parameters (a body cannot have negative mass)")
         target = phi_B - base.K @ phi_payload_full
         phi = conditional_parameters(base.K, robot.phi_model, Sigma_phi, target)
-        from pe_drake.multibody.urdf import validity_problems
-
         invalid = validity_problems(robot.body_names, phi)
         if invalid:
             H = np.linalg.pinv(cov_B) if cov_B is not None else np.eye(len(phi_B))
@@ -152,8 +164,6 @@ class AugmentedModel:
 
     def truth(self):
         """The :class:`~pe_drake.identification.simulation.Truth` that builds this model's effects."""
-        from pe_drake.identification.simulation import EffectsTruth, PayloadTruth, Truth
-
         payload = PayloadTruth()
         if self.payload_link:
             payload = PayloadTruth(self.payload_link, float(self.payload_mass),
@@ -169,8 +179,6 @@ class AugmentedModel:
         return Truth(effects=effects)
 
     def as_dict(self) -> dict[str, Any]:
-        from pe_drake.multibody.robot import PARAMETER_NAMES
-
         def per_joint(x):
             return {j: float(v) for j, v in zip(self.joints, x)}
 
@@ -189,11 +197,6 @@ class AugmentedModel:
             "torque_equation": "tau = ID(q, v, vd) + viscous*v + coulomb*tanh(v/v_s) + armature*vd + offset",
             "notes": list(self.notes),
         }
-
-
-def _phi_from(m: float, p: np.ndarray, I_cm: np.ndarray) -> np.ndarray:
-    I_o = I_cm + m * (float(p @ p) * np.eye(3) - np.outer(p, p))
-    return np.array([m, *(m * p), I_o[0, 0], I_o[1, 1], I_o[2, 2], I_o[0, 1], I_o[0, 2], I_o[1, 2]])
 
 
 def conditional_parameters(K: np.ndarray, phi_prior: np.ndarray, Sigma_phi: np.ndarray,
@@ -247,9 +250,8 @@ def physical_parameters(K: np.ndarray, phi_prior: np.ndarray, Sigma_phi: np.ndar
     Raises:
         PeDrakeError: the solver failed.
     """
+    # pydrake imported here: keeps `import pe_drake` light.
     from pydrake.solvers import ClarabelSolver, MathematicalProgram
-
-    from pe_drake.exceptions import PeDrakeError
 
     nb = len(phi_prior) // 10
     active = [b for b in range(nb) if phi_prior[10 * b] > 0]
@@ -271,9 +273,9 @@ def physical_parameters(K: np.ndarray, phi_prior: np.ndarray, Sigma_phi: np.ndar
     prog = MathematicalProgram()
     x = prog.NewContinuousVariables(len(cols), "x")
     prog.AddQuadraticCost(Q / norm, c / norm, x, is_convex=True)
-    basis = [_pseudo_inertia(e) for e in np.eye(10)]
+    basis = [pseudo_inertia(e) for e in np.eye(10)]
     for k, b in enumerate(active):
-        J0 = _pseudo_inertia(phi_prior[10 * b : 10 * b + 10]) - margin * phi_prior[10 * b] * np.eye(4)
+        J0 = pseudo_inertia(phi_prior[10 * b : 10 * b + 10]) - margin * phi_prior[10 * b] * np.eye(4)
         dk = D[10 * k : 10 * k + 10]
         prog.AddLinearMatrixInequalityConstraint([J0] + [basis[i] * dk[i] for i in range(10)], x[10 * k : 10 * k + 10])
     result = ClarabelSolver().Solve(prog, np.zeros(len(cols)), None)
@@ -284,12 +286,6 @@ def physical_parameters(K: np.ndarray, phi_prior: np.ndarray, Sigma_phi: np.ndar
     phi[~np.isin(np.arange(len(phi)), cols)] = 0.0
     phi[cols] = phi_prior[cols] + D * result.GetSolution(x)
     return phi
-
-
-def _pseudo_inertia(phi_b: np.ndarray) -> np.ndarray:
-    from pe_drake.identification.estimators import pseudo_inertia
-
-    return pseudo_inertia(phi_b)
 
 
 def physically_consistent(body_names, phi: np.ndarray, margin: float = 1e-9) -> tuple[np.ndarray, list[str]]:
@@ -303,21 +299,17 @@ def physically_consistent(body_names, phi: np.ndarray, margin: float = 1e-9) -> 
     Returns:
         (φ, names of the projected bodies).
     """
-    from pe_drake.multibody.urdf import validity_problems
-
     phi = np.array(phi, float)
     problems = validity_problems(body_names, phi)
     projected = []
     for b, name in enumerate(body_names):
         if name not in problems:
             continue
-        J = _pseudo_inertia(phi[10 * b : 10 * b + 10])
+        J = pseudo_inertia(phi[10 * b : 10 * b + 10])
         w, V = np.linalg.eigh(J)
         w = np.maximum(w, margin * max(w.max(), 1e-12))
         J = (V * w) @ V.T
-        Sig = J[:3, :3]
-        I = np.trace(Sig) * np.eye(3) - Sig
-        phi[10 * b : 10 * b + 10] = [J[3, 3], *J[:3, 3], I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2]]
+        phi[10 * b : 10 * b + 10] = phi_from_pseudo_inertia(J)
         projected.append(name)
     return phi, projected
 
@@ -332,9 +324,6 @@ def build_augmented_robot(robot, model: AugmentedModel):
     Raises:
         ConfigError: an effect value the simulator's schema refuses (named in the message).
     """
-    from pe_drake.identification.simulation import build_true_robot
-    from pe_drake.multibody.robot import phi_to_spatial_inertia
-
     true = build_true_robot(robot, model.truth())
     plant, ctx = true.robot.plant, true.robot.plant_context
     for b, name in enumerate(model.body_names):
@@ -363,8 +352,6 @@ def augmented_urdf_text(robot, model: AugmentedModel) -> str:
         ConfigError: the robot was not loaded from a URDF.
         PhysicallyInvalidError: an invalid body (cannot happen after :func:`physically_consistent`).
     """
-    from pe_drake.multibody.urdf import central_inertia, urdf_with_inertias
-
     text = urdf_with_inertias(robot.model_path, model.body_names, model.phi)
     for j, name in enumerate(model.joints):
         text = _set_joint_damping(text, name, float(model.viscous[j]))
@@ -381,7 +368,7 @@ def augmented_urdf_text(robot, model: AugmentedModel) -> str:
                 '      <drake:gear_ratio value="1.0"/>\n'
                 "    </actuator>\n  </transmission>\n")
     if model.payload_link:
-        phi_p = _phi_from(model.payload_mass, model.payload_com, _inertia_matrix(model.payload_inertia))
+        phi_p = phi_from_com(model.payload_mass, model.payload_com, inertia_matrix(model.payload_inertia))
         m, p, I = central_inertia(phi_p)
         extra.append(
             f'  <link name="{PAYLOAD_LINK}">\n    <inertial>\n'
@@ -403,11 +390,6 @@ def augmented_urdf_text(robot, model: AugmentedModel) -> str:
 
 def _num(x) -> str:
     return repr(float(x))
-
-
-def _inertia_matrix(i6: np.ndarray) -> np.ndarray:
-    Ixx, Iyy, Izz, Ixy, Ixz, Iyz = i6
-    return np.array([[Ixx, Ixy, Ixz], [Ixy, Iyy, Iyz], [Ixz, Iyz, Izz]])
 
 
 def _set_joint_damping(text: str, joint: str, damping: float) -> str:
@@ -481,9 +463,6 @@ def write_augmented_model(folder: str | Path, robot, model: AugmentedModel, *, v
 def verify_augmented_urdf(path: Path, robot, model: AugmentedModel, samples: int = 20,
                           tolerance: float = 1e-6) -> float:
     """Max |τ_urdf - τ_model| over random states [N·m] (raises above ``tolerance`` relative)."""
-    from pe_drake.exceptions import ConfigError
-    from pe_drake.multibody.robot import load_robot
-
     config = dataclasses.replace(robot.config, model=str(Path(path).resolve()), capsules="")
     loaded = load_robot(config)
     rng = np.random.default_rng(0)

@@ -38,6 +38,10 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from pe_drake.exceptions import UnknownNameError
+from pe_drake.multibody.inertia import phi_from_com, principal_inertia
+from pe_drake.multibody.regressor import RegressorModel
+
 #: Per-joint effects of the library, in the order they are listed in reports.
 JOINT_EFFECTS = ("coulomb_friction", "viscous_friction", "armature", "torque_offset")
 #: All effect names (``payload`` is a link effect).
@@ -98,8 +102,6 @@ def joint_candidates(robot, effects: Sequence[str] = JOINT_EFFECTS) -> list[Cand
     out = []
     for effect in effects:
         if effect not in JOINT_EFFECTS:
-            from pe_drake.exceptions import UnknownNameError
-
             raise UnknownNameError("effect", effect, JOINT_EFFECTS)
         for j, info in enumerate(robot.joints):
             unit = _UNITS[effect][0 if info.kind == "revolute" else 1]
@@ -176,8 +178,6 @@ def separability(robot, base, candidates: Sequence[Candidate], *, model=None, sa
         seed: their seed.
         tolerance: relative residual below which a column counts as inside span(Y_B).
     """
-    from pe_drake.multibody.regressor import RegressorModel
-
     model = model or RegressorModel(robot)
     rng = np.random.default_rng(seed)
     lo, hi = robot.limits.q_lower, robot.limits.q_upper
@@ -245,8 +245,6 @@ def prior_parameter_covariance(robot, relative: float = PRIOR_RELATIVE_UNCERTAIN
 def _perturbation_draws(phi_b: np.ndarray, eps: float, count: int, rng: np.random.Generator) -> np.ndarray:
     """``count`` perturbed copies of one body's parameters, shape (count, 10) (vectorized
     form of the perturbation of :func:`pe_drake.identification.simulation.perturb_inertias`)."""
-    from pe_drake.identification.simulation import principal_inertia
-
     m, p, lam, R, r_gyr = principal_inertia(phi_b)
     lam2 = np.empty((0, 3))
     while lam2.shape[0] < count:  # redraw principal moments that break the triangle inequality
@@ -264,11 +262,7 @@ def _perturbation_draws(phi_b: np.ndarray, eps: float, count: int, rng: np.rando
     s, c = np.sin(angle)[:, None, None], np.cos(angle)[:, None, None]
     dR = np.eye(3) + s * Kx + (1 - c) * Kx @ Kx  # Rodrigues
     R2 = dR @ R
-    I_cm2 = np.einsum("kij,kj,klj->kil", R2, lam2, R2)
-    pp = np.einsum("ki,ki->k", p2, p2)
-    I_o2 = I_cm2 + m2[:, None, None] * (pp[:, None, None] * np.eye(3) - np.einsum("ki,kj->kij", p2, p2))
-    return np.column_stack([m2, m2[:, None] * p2, I_o2[:, 0, 0], I_o2[:, 1, 1], I_o2[:, 2, 2],
-                            I_o2[:, 0, 1], I_o2[:, 0, 2], I_o2[:, 1, 2]])
+    return phi_from_com(m2, p2, np.einsum("kij,kj,klj->kil", R2, lam2, R2))
 
 
 @dataclasses.dataclass(frozen=True)

@@ -24,6 +24,7 @@ from pe_drake.io_utils import atomic_write_text
 
 
 def _plt():
+    # matplotlib imported here: keeps `import pe_drake` light and headless.
     import matplotlib
 
     matplotlib.use("Agg")
@@ -70,6 +71,7 @@ def _save(fig, path: Path) -> Path:
 
 
 def plot_torques(path: Path, result) -> Path:
+    """torque_heldout.png: measured and model torques on the held-out data, per joint."""
     plt = _plt()
     p = result.predictions
     n = len(result.joints)
@@ -100,6 +102,7 @@ def _regime_signal(result, regime: str, joint: int) -> tuple[np.ndarray, str]:
 
 
 def plot_effect_residuals(path: Path, result) -> Path:
+    """residual_effects.png: each named effect's residual against its exposing regime."""
     plt = _plt()
     rs = result.residual_series
     panels: list[tuple[str, np.ndarray, np.ndarray, np.ndarray, str, str, str]] = []
@@ -134,6 +137,7 @@ def plot_effect_residuals(path: Path, result) -> Path:
 
 
 def plot_regimes(path: Path, result) -> Path:
+    """regimes.png: mean nominal residual per joint and regime."""
     plt = _plt()
     joints = result.joints
     labels = [f"{b['regime']}: {b['bin']}" for b in result.regimes[joints[0]]["regimes"]]
@@ -154,6 +158,7 @@ def plot_regimes(path: Path, result) -> Path:
 
 
 def plot_gap(path: Path, result) -> Path:
+    """gap.png: held-out RMS per joint, nominal → rigid → augmented, and the noise floor."""
     plt = _plt()
     n = len(result.joints)
     x = np.arange(n)
@@ -173,6 +178,7 @@ def plot_gap(path: Path, result) -> Path:
 
 
 def plot_unexplained(path: Path, result) -> Path:
+    """unexplained.png: each unexplained joint's residual against time and dτ/dt."""
     plt = _plt()
     names = list(result.unexplained)
     fig, axes = plt.subplots(len(names), 2, figsize=(10, 2.4 * len(names) + 0.6), constrained_layout=True,
@@ -208,13 +214,19 @@ def _g(x: float, digits: int = 3) -> str:
 
 
 def report_markdown(result, figures: list[str], model_files: list[str]) -> str:
-    """The text of report.md."""
-    r = result
-    J = r.joints
+    """The text of report.md: header and summary, then one section per step."""
+    lines = _header(result) + _summary(result) + _cumulative(result) + _nominal_section(result)
+    lines += _rigid_section(result) + _effects_section(result) + _augmented_section(result, model_files)
+    lines += _unexplained_section(result, figures)
+    return "\n".join(lines) + "\n"
+
+
+def _header(r) -> list[str]:
     tr, ho = r.training, r.held_out
     rec = tr.record
-    lines = [f"# Diagnosis of `{r.robot}`", ""]
-    lines += [
+    return [
+        f"# Diagnosis of `{r.robot}`",
+        "",
         f"- data: `{rec.source}`, {rec.rate_hz:.4g} Hz, zero-phase low-pass at {rec.cutoff_hz:.3g} Hz, "
         f"fitted at {rec.rate_hz / rec.step:.4g} Hz",
         f"- training: {tr.t[0]:.2f}–{tr.t[-1]:.2f} s ({tr.num_samples} samples); held-out: "
@@ -226,6 +238,10 @@ def report_markdown(result, figures: list[str], model_files: list[str]) -> str:
         "## Summary",
         "",
     ]
+
+
+def _summary(r) -> list[str]:
+    lines = []
     if r.effects:
         lines.append("Named effects:")
         lines.append("")
@@ -247,24 +263,35 @@ def report_markdown(result, figures: list[str], model_files: list[str]) -> str:
         lines.append("Unexplained: " + "; ".join(f"`{j}` {u['rms']:.3g} N·m ({u['hint']})"
                                                  for j, u in r.unexplained.items()))
         lines.append("")
-    lines += ["![held-out gap](gap.png)", "", "## Cumulative held-out RMS per joint [N·m]", ""]
-    header = ["step"] + [_short(j) for j in J]
+    return lines
+
+
+def _cumulative(r) -> list[str]:
+    lines = ["![held-out gap](gap.png)", "", "## Cumulative held-out RMS per joint [N·m]", ""]
+    header = ["step"] + [_short(j) for j in r.joints]
     rows = [[s] + [_g(v) for v in rms] for s, rms in r.cumulative]
     rows.append(["augmented Drake model"] + [_g(v) for v in r.rms_after])
     rows.append(["noise floor"] + [_g(v) for v in r.noise_floor])
-    lines += [_table(header, rows), ""]
-    lines += ["## 1. A-priori model along the measured motion", "",
-              "Measured minus model torque, all samples (training and held-out): overall RMS and mean, the "
-              "regime whose mean departs most, and the correlation with sign(v).", ""]
+    return lines + [_table(header, rows), ""]
+
+
+def _nominal_section(r) -> list[str]:
+    lines = ["## 1. A-priori model along the measured motion", "",
+             "Measured minus model torque, all samples (training and held-out): overall RMS and mean, the "
+             "regime whose mean departs most, and the correlation with sign(v).", ""]
     rows = []
-    for j in J:
+    for j in r.joints:
         g = r.regimes[j]
         s = g["strongest"]
         rows.append([_short(j), _g(g["overall"]["rms"]), _g(g["overall"]["mean"]),
                      f"{s['regime']}: {s['bin']} (mean {_g(s['mean'])})", _g(g["correlation_sign_v"], 2),
                      _g(g["correlation_vd"], 2)])
-    lines += [_table(["joint", "RMS", "mean", "strongest regime", "corr sign(v)", "corr v̇"], rows), "",
-              "![regimes](regimes.png)", "", "## 2. Rigid-body re-identification", ""]
+    return lines + [_table(["joint", "RMS", "mean", "strongest regime", "corr sign(v)", "corr v̇"], rows), "",
+                    "![regimes](regimes.png)", ""]
+
+
+def _rigid_section(r) -> list[str]:
+    lines = ["## 2. Rigid-body re-identification", ""]
     lines.append(f"{r.rigid['count']} base parameters re-identified by weighted least squares. The largest "
                  "changes from the a-priori model, in standard deviations of the a-priori uncertainty "
                  f"({100 * r.config.prior_uncertainty:g} % per parameter) plus the estimate's:")
@@ -282,7 +309,11 @@ def report_markdown(result, figures: list[str], model_files: list[str]) -> str:
                      + (f"; explained as well on {', '.join(pt['equivalent_links'])} (a mass on a joint's "
                         "axis moves the same on either link)" if pt.get("equivalent_links") else "") + ".")
         lines.append("")
-    lines += ["## 3. Effects", ""]
+    return lines
+
+
+def _effects_section(r) -> list[str]:
+    lines = ["## 3. Effects", ""]
     if r.effects:
         rows = []
         for e in r.effects:
@@ -317,14 +348,18 @@ def report_markdown(result, figures: list[str], model_files: list[str]) -> str:
                             [[x["effect"], x["joint"], f"{_g(x['value'])} {x['unit']}", _g(x["z"], 2), x["reason"]]
                              for x in r.rejected[:6]]))
         lines.append("")
-    lines += ["![residuals](residual_effects.png)", "", "## 4. Augmented model in Drake", ""]
+    return lines + ["![residuals](residual_effects.png)", ""]
+
+
+def _augmented_section(r, model_files: list[str]) -> list[str]:
+    lines = ["## 4. Augmented model in Drake", ""]
     lines.append("The re-identified rigid-body parameters and the named effects, added to the Drake model (joint "
                  "damping, rotor inertia, welded payload body, Coulomb friction as a `DoorHinge` force element, "
                  "offsets as a generalized force); its inverse dynamics along the held-out motion:")
     lines.append("")
     lines.append(_table(["joint", "a-priori", "rigid", "augmented", "gap closed"],
                         [[_short(j), _g(a), _g(b), _g(c), f"{100 * (1 - (c / a) ** 2):.1f} %" if a > 0 else "–"]
-                         for j, a, b, c in zip(J, r.rms_nominal, r.rms_rigid, r.rms_after)]))
+                         for j, a, b, c in zip(r.joints, r.rms_nominal, r.rms_rigid, r.rms_after)]))
     lines.append("")
     lines.append("(gap closed: share of the a-priori model's held-out mean-square error removed.) Drake vs the "
                  "least-squares prediction: max " + _g(float(np.max(r.drake_check)), 2) + " N·m.")
@@ -336,7 +371,11 @@ def report_markdown(result, figures: list[str], model_files: list[str]) -> str:
                      + " (the URDF holds inertias, damping, rotor inertia and the payload; the YAML the Coulomb "
                        "friction and offsets, in the schema of `pe-drake simulate --truth`).")
         lines.append("")
-    lines += ["![torques](torque_heldout.png)", "", "## 5. Unexplained", ""]
+    return lines + ["![torques](torque_heldout.png)", ""]
+
+
+def _unexplained_section(r, figures: list[str]) -> list[str]:
+    lines = ["## 5. Unexplained", ""]
     if r.unexplained:
         rows = [[_short(j), _g(u["rms"]), _g(u["threshold"]), _g(u["noise_floor"]),
                  f"{100 * u['fraction_of_nominal_rms']:.0f} %", u["hint"]] for j, u in r.unexplained.items()]
@@ -354,4 +393,4 @@ def report_markdown(result, figures: list[str], model_files: list[str]) -> str:
         lines.append(f"Timing check: a torque/position offset of {1e3 * t['offset_s']:+.3g} ± {1e3 * t['std_s']:.2g} ms "
                      f"fits the data ({state}; a logging issue, never named as an effect).")
         lines.append("")
-    return "\n".join(lines) + "\n"
+    return lines

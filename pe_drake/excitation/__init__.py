@@ -4,15 +4,16 @@ Imports only ``multibody`` and the base layer. Re-exports the names that ``pe_dr
 offered as a single module.
 """
 
+from pe_drake.excitation.limits import add_joint_limit_constraints, add_rest_constraints
+from pe_drake.excitation.problem import ExcitationProblem
 from pe_drake.excitation.program import (
-    ExcitationProblem,
     ExcitationProgram,
-    ExcitationResult,
     add_excitation_cost,
-    add_joint_limit_constraints,
-    add_rest_constraints,
     add_sampled_constraint,
     build_excitation_program,
+)
+from pe_drake.excitation.solve import (
+    ExcitationResult,
     check_margins,
     optimize_excitation,
     solve_excitation,

@@ -31,6 +31,7 @@ import numpy as np
 
 from pe_drake.config import Config, ExcitationConfig, SolverConfig, validate_config
 from pe_drake.exceptions import ConfigError
+from pe_drake.excitation.limits import joint_limit_violation
 from pe_drake.excitation.parallel import (
     ConstraintsFactory,
     Executor,
@@ -40,7 +41,8 @@ from pe_drake.excitation.parallel import (
     WorkerState,
     open_executor,
 )
-from pe_drake.excitation.program import build_excitation_program, joint_limit_violation, solve_excitation
+from pe_drake.excitation.program import build_excitation_program
+from pe_drake.excitation.solve import solve_excitation
 
 __all__ = [
     "MultiStartResult",
@@ -144,7 +146,7 @@ class MultiStartResult:
     """Outcome of :func:`solve_multistart`.
 
     Attributes:
-        best: the kept :class:`~pe_drake.excitation.program.ExcitationResult`: the lowest criterion
+        best: the kept :class:`~pe_drake.excitation.solve.ExcitationResult`: the lowest criterion
             among the feasible starts, else the lowest among all (then ``success`` is False).
         seed: seed of ``best``.
         starts: one summary per start, in the order of the seeds.

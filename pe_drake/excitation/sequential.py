@@ -52,7 +52,7 @@ class SequenceMotion:
 
     Attributes:
         index: i, from 1.
-        result: the kept :class:`~pe_drake.excitation.program.ExcitationResult` (``cond`` is that of
+        result: the kept :class:`~pe_drake.excitation.solve.ExcitationResult` (``cond`` is that of
             [C0; C^(i)]).
         block: C^(i), this motion's base regressor at the T cost samples, shape (T·n, b).
         cond_motion: cond(C^(i)), the motion alone (Table I, first row).

@@ -7,13 +7,13 @@ Imports only ``excitation``, ``multibody`` and the base layer. Re-exports the na
 from pe_drake.identification.estimators import (
     IdentificationResult,
     identify,
-    load_identified,
     predict,
     prepare_measurement,
     read_robot_measurement,
     robot_torques,
     torque_errors,
 )
+from pe_drake.identification.identified_file import load_identified
 
 __all__ = [
     "IdentificationResult",

@@ -23,18 +23,19 @@ The relative standard deviation of each base parameter, %σ = 100·√(Σ_ii)/|�
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import NamedTuple
 
 import numpy as np
 
 from pe_drake.exceptions import ConfigError, DataError
-from pe_drake.identification.measurements import Measurement, check_torque_units, preprocess, read_measurement_csv
+from pe_drake.identification.measurements import Measurement, Preprocessing, check_torque_units, read_measurement_csv
+from pe_drake.identification.preprocessing import preprocess
 from pe_drake.multibody.base_parameters import BaseParameters, compute_base_parameters
+from pe_drake.multibody.inertia import pseudo_inertia_basis
 from pe_drake.multibody.regressor import RegressorModel
 
 METHODS = ("ols", "wls", "physical")
@@ -70,7 +71,7 @@ class IdentificationResult:
         relative_error: per-joint 100·‖ρ_j‖/‖τ_j‖ [%].
         noise_std: per-joint residual standard deviation σ_j [N·m] (WLS weights).
         samples: S, samples used (after preprocessing).
-        preprocessing: what :func:`pe_drake.identification.measurements.preprocess` did (or None).
+        preprocessing: what :func:`pe_drake.identification.preprocessing.preprocess` did (or None).
         wall_time: seconds spent in the estimator (regressor included).
         source: the data file.
     """
@@ -87,7 +88,7 @@ class IdentificationResult:
     relative_error: np.ndarray
     noise_std: np.ndarray
     samples: int
-    preprocessing: Any = None
+    preprocessing: Preprocessing | None = None
     wall_time: float = 0.0
     source: str = ""
 
@@ -117,7 +118,7 @@ def prepare_measurement(
         robot: the robot the data belongs to.
         measurement: raw data.
         cutoff_hz, fundamental_hz, harmonics, rate_hz: see
-            :func:`pe_drake.identification.measurements.preprocess` (``rate_hz`` = ``decimate_to_hz``).
+            :func:`pe_drake.identification.preprocessing.preprocess` (``rate_hz`` = ``decimate_to_hz``).
         filtering: False uses the data as it is; it must then hold v and vdot (exact,
             noise-free data, e.g. from :func:`pe_drake.identification.synthetic.model_measurement`).
         check_units: compare the torques with the a-priori model (refuses N·mm or kN·m).
@@ -167,18 +168,30 @@ def _chunks(count: int, size: int = 2000) -> list[slice]:
     return [slice(s, min(s + size, count)) for s in range(0, count, size)]
 
 
+class RegressorMatrices(NamedTuple):
+    """The regressors of a data set (:func:`regressor_matrices`).
+
+    Attributes:
+        YB: base regressor Y_B, shape (S, n, b).
+        tau: measured torques τ, shape (S, n) [N·m].
+        base: the base composition (Eq. 2).
+        Y: standard regressor Y, shape (S, n, 10·nb).
+    """
+
+    YB: np.ndarray
+    tau: np.ndarray
+    base: BaseParameters
+    Y: np.ndarray
+
+
 def regressor_matrices(
     robot, data: Measurement, base: BaseParameters | None = None, model: RegressorModel | None = None
-) -> tuple[np.ndarray, np.ndarray, BaseParameters, np.ndarray]:
-    """The data's regressors.
-
-    Returns:
-        (Y_B shape (S, n, b), τ shape (S, n), the base composition, Y shape (S, n, p)).
-    """
+) -> RegressorMatrices:
+    """The data's regressors (:class:`RegressorMatrices`; unpacks as (Y_B, τ, base, Y))."""
     model = model or RegressorModel(robot)
     base = base or compute_base_parameters(robot, model=model)
     Y = np.concatenate([model(data.q[r], data.v[r], data.vd[r]) for r in _chunks(data.num_samples)])
-    return base.reduce(Y), np.asarray(data.tau, float), base, Y
+    return RegressorMatrices(base.reduce(Y), np.asarray(data.tau, float), base, Y)
 
 
 # ---- estimators ------------------------------------------------------------------------------
@@ -250,33 +263,21 @@ def identify(
     base = base or compute_base_parameters(robot, model=model)
     _check_rows(data, base)
     YB, tau, base, Y = regressor_matrices(robot, data, base, model)
-    S, n, b = YB.shape
-    W = YB.reshape(S * n, b)
-    y = tau.reshape(S * n)
-    # Eq. (4): ordinary least squares.
-    phi_B, cov_unit, s = _lstsq(W, y)
-    cond = float(s[0] / s[-1])
-    rho = (y - W @ phi_B).reshape(S, n)
-    dof = max(S - b / n, 1.0)
-    noise_std = np.sqrt(np.sum(rho**2, axis=0) / dof)
-    sigma2 = float(np.sum(rho**2)) / max(S * n - b, 1)
-    cov = sigma2 * cov_unit
-    phi = None
+    ols = _ordinary_fit(YB, tau)
+    phi_B, cov, phi = ols.phi_B, ols.cov, None
     if method in ("wls", "physical"):
         # Gautier: rows of joint j weighted by 1/σ_j.
+        noise_std = ols.noise_std
         w = 1.0 / np.maximum(noise_std, 1e-9 * max(float(noise_std.max()), 1e-12))
-        Ww = (YB * w[None, :, None]).reshape(S * n, b)
+        S, n, b = YB.shape
         yw = (tau * w).reshape(S * n)
-        phi_B, cov, _ = _lstsq(Ww, yw)
+        phi_B, cov, _ = _lstsq((YB * w[None, :, None]).reshape(S * n, b), yw)
         if method == "physical":
             Yw = (Y * w[None, :, None]).reshape(S * n, -1)
             prior = robot.phi_model if prior is None else np.asarray(prior, float)
             phi = physical_fit(Yw, yw, prior, robot.body_names)
             phi_B = base.base_values(phi)
-    rho = tau - (YB @ phi_B)
-    residual_rms = np.sqrt(np.mean(rho**2, axis=0))
-    tau_norm = np.linalg.norm(tau, axis=0)
-    relative_error = 100.0 * np.linalg.norm(rho, axis=0) / np.maximum(tau_norm, 1e-300)
+    residual_rms, relative_error = torque_errors(tau, YB @ phi_B)
     return IdentificationResult(
         robot=robot.name,
         method=method,
@@ -285,36 +286,35 @@ def identify(
         phi_B=phi_B,
         sigma_percent=_sigma_percent(phi_B, cov),
         phi=phi,
-        cond=cond,
+        cond=ols.cond,
         residual_rms=residual_rms,
         relative_error=relative_error,
-        noise_std=noise_std,
-        samples=S,
+        noise_std=ols.noise_std,
+        samples=YB.shape[0],
         preprocessing=data.preprocessing,
         wall_time=time.perf_counter() - start,
         source=data.source,
     )
 
 
-def pseudo_inertia(phi_b: np.ndarray) -> np.ndarray:
-    """J(φ_b) = [[½tr(I)·1 − I, h], [hᵀ, m]] (Wensing et al. 2017), shape (4, 4).
-
-    J ⪰ 0 exactly when a non-negative mass density produces the body's mass, first moment
-    and inertia about the origin; that is Drake's physical validity (with the triangle
-    inequality of the principal moments).
-    """
-    m, hx, hy, hz, Ixx, Iyy, Izz, Ixy, Ixz, Iyz = np.asarray(phi_b, float)
-    I = np.array([[Ixx, Ixy, Ixz], [Ixy, Iyy, Iyz], [Ixz, Iyz, Izz]])
-    J = np.zeros((4, 4))
-    J[:3, :3] = 0.5 * np.trace(I) * np.eye(3) - I
-    J[:3, 3] = J[3, :3] = [hx, hy, hz]
-    J[3, 3] = m
-    return J
+class _OrdinaryFit(NamedTuple):
+    phi_B: np.ndarray  # (b,)
+    cov: np.ndarray  # σ² (WᵀW)⁻¹, (b, b)
+    cond: float  # cond(W)
+    noise_std: np.ndarray  # per-joint residual standard deviation σ_j, (n,) [N·m]
 
 
-def _pseudo_inertia_basis() -> list[np.ndarray]:
-    """F_i with J(φ_b) = Σ_i φ_b,i F_i (J is linear in φ_b)."""
-    return [pseudo_inertia(e) for e in np.eye(10)]
+def _ordinary_fit(YB: np.ndarray, tau: np.ndarray) -> _OrdinaryFit:
+    """Eq. (4): ordinary least squares on Y_B (S, n, b) and τ (S, n), with its statistics."""
+    S, n, b = YB.shape
+    W = YB.reshape(S * n, b)
+    y = tau.reshape(S * n)
+    phi_B, cov_unit, s = _lstsq(W, y)
+    rho = (y - W @ phi_B).reshape(S, n)
+    dof = max(S - b / n, 1.0)
+    noise_std = np.sqrt(np.sum(rho**2, axis=0) / dof)
+    sigma2 = float(np.sum(rho**2)) / max(S * n - b, 1)
+    return _OrdinaryFit(phi_B, sigma2 * cov_unit, float(s[0] / s[-1]), noise_std)
 
 
 def physical_fit(
@@ -343,6 +343,7 @@ def physical_fit(
     Raises:
         DataError: the solver failed.
     """
+    # lazy: pydrake stays out of `import pe_drake`
     from pydrake.solvers import ClarabelSolver, MathematicalProgram, ScsSolver, SolverOptions
 
     p = A.shape[1]
@@ -354,14 +355,7 @@ def physical_fit(
     lam = prior_weight * float(rank_s[-1]) ** 2
     active = [b for b in range(len(body_names)) if prior[10 * b] > 0]
     cols = np.concatenate([np.arange(10 * b, 10 * b + 10) for b in active])
-    # Scale the variables so that the prior is 1 in magnitude per body block: better numerics.
-    scale = np.ones(p)
-    for b in active:
-        m = prior[10 * b]
-        scale[10 * b] = m
-        scale[10 * b + 1 : 10 * b + 4] = max(np.max(np.abs(prior[10 * b + 1 : 10 * b + 4])), 1e-3 * m)
-        scale[10 * b + 4 :] = max(np.max(np.abs(prior[10 * b + 4 : 10 * b + 10])), 1e-6 * m)
-    D = scale[cols]
+    D = _variable_scale(prior, active)[cols]
     Rs = Ra[:, cols] * D  # φ = D x on the active columns
     prog = MathematicalProgram()
     x = prog.NewContinuousVariables(len(cols), "x")
@@ -370,7 +364,7 @@ def physical_fit(
     c = -2.0 * (Rs.T @ z) - 2.0 * lam * (D**2) * x_prior
     norm = float(np.max(np.abs(np.diag(Q))))
     prog.AddQuadraticCost(Q / norm, c / norm, x, is_convex=True)
-    F = _pseudo_inertia_basis()
+    F = pseudo_inertia_basis()
     for k, b in enumerate(active):
         xs = x[10 * k : 10 * k + 10]
         d = D[10 * k : 10 * k + 10]
@@ -394,6 +388,18 @@ def physical_fit(
     return phi
 
 
+def _variable_scale(prior: np.ndarray, active: list[int]) -> np.ndarray:
+    """Per-variable scale, shape (10·nb,), that makes the prior about 1 in magnitude per body
+    block (mass; first moments; inertia): better numerics for the SDP."""
+    scale = np.ones(prior.size)
+    for b in active:
+        m = prior[10 * b]
+        scale[10 * b] = m
+        scale[10 * b + 1 : 10 * b + 4] = max(np.max(np.abs(prior[10 * b + 1 : 10 * b + 4])), 1e-3 * m)
+        scale[10 * b + 4 : 10 * b + 10] = max(np.max(np.abs(prior[10 * b + 4 : 10 * b + 10])), 1e-6 * m)
+    return scale
+
+
 # ---- prediction and validation ----------------------------------------------------------------
 
 
@@ -405,137 +411,22 @@ def predict(
     return YB @ result.phi_B
 
 
-def torque_errors(tau_measured: np.ndarray, tau_predicted: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per-joint RMS error [N·m] and relative error 100·‖τ_meas − τ_pred‖/‖τ_meas‖ [%]."""
+class TorqueErrors(NamedTuple):
+    """Per-joint torque errors (:func:`torque_errors`).
+
+    Attributes:
+        rms: RMS of τ_meas − τ_pred, shape (n,) [N·m].
+        relative: 100·‖τ_meas − τ_pred‖/‖τ_meas‖, shape (n,) [%].
+    """
+
+    rms: np.ndarray
+    relative: np.ndarray
+
+
+def torque_errors(tau_measured: np.ndarray, tau_predicted: np.ndarray) -> TorqueErrors:
+    """Per-joint RMS error [N·m] and relative error 100·‖τ_meas − τ_pred‖/‖τ_meas‖ [%]
+    (:class:`TorqueErrors`; unpacks as (rms, relative))."""
     e = np.asarray(tau_measured) - np.asarray(tau_predicted)
     rms = np.sqrt(np.mean(e**2, axis=0))
     rel = 100.0 * np.linalg.norm(e, axis=0) / np.maximum(np.linalg.norm(tau_measured, axis=0), 1e-300)
-    return rms, rel
-
-
-# ---- files -----------------------------------------------------------------------------------
-
-
-def _finite_or_none(x: float) -> float | None:
-    return float(x) if math.isfinite(x) else None
-
-
-def result_to_dict(result: IdentificationResult, robot, model_file: str | None = None) -> dict[str, Any]:
-    """The content of identified.json."""
-    from pe_drake.multibody.urdf import validity_problems
-
-    out: dict[str, Any] = {
-        "robot": result.robot,
-        "method": result.method,
-        "joints": list(result.joints),
-        "data": result.source,
-        "samples": result.samples,
-        "cond": result.cond,
-        "base_parameters": [
-            {
-                "name": name,
-                "value": float(v),
-                "sigma_percent": _finite_or_none(float(sp)),
-                "column": int(col),
-            }
-            for name, v, sp, col in zip(
-                result.base.base_names, result.phi_B, result.sigma_percent, result.base.independent
-            )
-        ],
-        "residual_rms": dict(zip(result.joints, map(float, result.residual_rms))),
-        "relative_error": dict(zip(result.joints, map(float, result.relative_error))),
-        "noise_std": dict(zip(result.joints, map(float, result.noise_std))),
-        "wall_time": result.wall_time,
-    }
-    if result.preprocessing is not None:
-        out["preprocessing"] = dataclasses.asdict(result.preprocessing)
-    if result.phi is not None:
-        out["standard_parameters"] = standard_parameters_dict(robot, result.phi)
-        out["physically_valid"] = not validity_problems(robot.body_names, result.phi)
-    if model_file:
-        out["model_file"] = model_file
-    return out
-
-
-def standard_parameters_dict(robot, phi: np.ndarray) -> dict[str, dict[str, float]]:
-    """{body: {parameter name: value}} (names of ``pe_drake.multibody.robot.PARAMETER_NAMES``)."""
-    from pe_drake.multibody.robot import PARAMETER_NAMES
-
-    return {
-        body: dict(zip(PARAMETER_NAMES, map(float, phi[10 * b : 10 * b + 10])))
-        for b, body in enumerate(robot.body_names)
-    }
-
-
-def load_identified(path: str | Path, robot) -> IdentificationResult:
-    """Reads identified.json and checks it belongs to ``robot``.
-
-    Raises:
-        DataError: missing/unreadable file, other robot or joints, base parameters that do
-            not match the robot's composition.
-    """
-    path = Path(path)
-    try:
-        d = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise DataError("identified model file does not exist", file=str(path)) from None
-    except (OSError, json.JSONDecodeError) as err:
-        raise DataError(f"cannot read the identified model: {err}", file=str(path)) from err
-    try:
-        joints = tuple(d["joints"])
-        entries = d["base_parameters"]
-        phi_B = np.array([float(e["value"]) for e in entries])
-        columns = np.array([int(e["column"]) for e in entries])
-        sigma = np.array(
-            [np.inf if e.get("sigma_percent") is None else float(e["sigma_percent"]) for e in entries]
-        )
-    except (KeyError, TypeError, ValueError) as err:
-        raise DataError(
-            f"not an identified.json written by pe-drake identify ({err!r} missing or malformed)",
-            file=str(path),
-        ) from err
-    if joints != tuple(robot.joint_names):
-        raise DataError(
-            f"the model was identified for joints {', '.join(joints)}; robot '{robot.name}' "
-            f"excites {', '.join(robot.joint_names)}",
-            file=str(path),
-        )
-    base = compute_base_parameters(robot)
-    if not np.array_equal(columns, base.independent):
-        raise DataError(
-            f"the base parameters in the file ({len(columns)}) do not match robot '{robot.name}' "
-            f"({base.count}); was it identified with another model or config?",
-            file=str(path),
-        )
-    phi = None
-    if "standard_parameters" in d:
-        from pe_drake.multibody.robot import PARAMETER_NAMES
-
-        try:
-            table = d["standard_parameters"]
-            phi = np.array([float(table[b][k]) for b in robot.body_names for k in PARAMETER_NAMES])
-        except (KeyError, TypeError, ValueError) as err:
-            raise DataError(f"standard_parameters: {err!r} missing or malformed", file=str(path)) from err
-    return IdentificationResult(
-        robot=d.get("robot", robot.name),
-        method=d.get("method", "ols"),
-        joints=joints,
-        base=base,
-        phi_B=phi_B,
-        sigma_percent=sigma,
-        phi=phi,
-        cond=float(d.get("cond", float("nan"))),
-        residual_rms=np.array([d.get("residual_rms", {}).get(j, np.nan) for j in joints]),
-        relative_error=np.array([d.get("relative_error", {}).get(j, np.nan) for j in joints]),
-        noise_std=np.array([d.get("noise_std", {}).get(j, np.nan) for j in joints]),
-        samples=int(d.get("samples", 0)),
-        source=d.get("data", ""),
-    )
-
-
-def standard_from_base(robot, result: IdentificationResult) -> np.ndarray:
-    """Standard parameters closest to the a-priori model that reproduce φ_B:
-    φ = φ0 + K⁺(φ_B − K φ0). Not necessarily physically valid."""
-    K = result.base.K
-    phi0 = robot.phi_model
-    return phi0 + np.linalg.pinv(K) @ (result.phi_B - K @ phi0)
+    return TorqueErrors(rms, rel)

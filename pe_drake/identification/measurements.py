@@ -1,4 +1,4 @@
-"""Measured joint data: the CSV format every data-reading command uses, and its preprocessing.
+"""Measured joint data: the CSV format every data-reading command uses, and its unit check.
 
 File format (SI units, one row per sample, comma separated, one header line):
 
@@ -12,10 +12,9 @@ Columns may come in any order; columns whose name has none of the prefixes above
 Rows are reported as **data rows counted from 1** (the first line after the header is data row
 1); messages also give the line number in the file (data row + 1 when there are no blank lines).
 
-:func:`preprocess` turns a raw recording into what identification needs: a uniform time grid,
-zero-phase low-pass filtered q and tau (the same filter on both, so their phases match),
-velocities and accelerations by central differences of the filtered signals, decimation and
-trimmed ends.
+:func:`pe_drake.identification.preprocessing.preprocess` turns a raw recording into what
+identification needs (uniform grid, zero-phase low-pass, derivatives, decimation, trimmed ends);
+:class:`Preprocessing` records what it chose.
 """
 
 from __future__ import annotations
@@ -34,24 +33,16 @@ from pe_drake.io_utils import atomic_write_text
 #: Column prefixes of the format, in the order written.
 PREFIXES = ("q", "v", "vdot", "tau")
 
-#: Cut-off = CUTOFF_FACTOR × highest motion frequency (harmonic N·f0, or spectral estimate).
-CUTOFF_FACTOR = 5.0
-#: Lower bound of an automatically chosen cut-off [Hz].
-MIN_CUTOFF_HZ = 4.0
-#: Fraction of the (detrended, windowed) energy of q below the estimated motion bandwidth.
-ENERGY_FRACTION = 0.999
-#: Relative spread of the time steps above which the data is resampled to a uniform grid.
-UNIFORM_TOLERANCE = 1e-3
-
 
 @dataclasses.dataclass(frozen=True)
 class Preprocessing:
-    """What :func:`preprocess` chose, for reports.
+    """What :func:`~pe_drake.identification.preprocessing.preprocess` chose, for reports.
 
     Attributes:
         cutoff_hz: low-pass cut-off frequency [Hz].
-        cutoff_source: "argument", "trajectory" (CUTOFF_FACTOR × N·f0) or "spectrum"
-            (CUTOFF_FACTOR × the frequency below which ENERGY_FRACTION of q's energy lies).
+        cutoff_source: "argument", "trajectory" (``CUTOFF_FACTOR`` × N·f0) or "spectrum"
+            (``CUTOFF_FACTOR`` × the frequency below which ``ENERGY_FRACTION`` of q's energy
+            lies); constants of :mod:`pe_drake.identification.preprocessing`.
         filter_order: Butterworth order (the zero-phase filter doubles it).
         input_rate_hz: median sample rate of the raw data [Hz].
         resampled: the raw time was not uniform and was linearly interpolated onto a grid.
@@ -88,7 +79,8 @@ class Measurement:
         vd: joint accelerations, shape (T, n) [rad/s² or m/s²], or None.
         joints: joint names, length n, in column order of q/tau/v/vd.
         source: file the data came from ("" when built in memory).
-        preprocessing: what :func:`preprocess` did, or None for raw data.
+        preprocessing: what :func:`~pe_drake.identification.preprocessing.preprocess` did, or
+            None for raw data.
     """
 
     t: np.ndarray
@@ -181,15 +173,7 @@ def read_measurement_csv(path: str | Path, joints, *, min_rows: int = 10) -> Mea
     path = Path(path)
     joints = _joint_names(joints)
     file = str(path)
-    if not path.is_file():
-        raise DataError("measurement file does not exist", file=file)
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except (OSError, UnicodeDecodeError) as err:
-        raise DataError(f"cannot read the file: {err}", file=file) from err
-    lines = text.splitlines()
-    # Keep the line number of every non-blank line so errors point into the file.
-    numbered = [(k + 1, line) for k, line in enumerate(lines) if line.strip()]
+    numbered = _numbered_lines(path)
     if not numbered:
         raise DataError("the file is empty; expected a header line " + ",".join(_expected_columns(joints)),
                         file=file)
@@ -209,6 +193,32 @@ def read_measurement_csv(path: str | Path, joints, *, min_rows: int = 10) -> Mea
     if len(data) < min_rows:
         raise DataError(f"only {len(data)} data rows; at least {min_rows} are needed", file=file)
 
+    table = _parse_table(data, columns, wanted, index, file)
+    t = table[:, 0]
+    _check_time(t, data, file)
+    n = len(joints)
+    blocks = [table[:, 1 + k * n : 1 + (k + 1) * n] for k in range((len(wanted) - 1) // n)]
+    q, tau = blocks[0], blocks[1]
+    v = blocks[2] if has_v else None
+    vd = blocks[2 + has_v] if has_vd else None
+    return Measurement(t.copy(), q.copy(), tau.copy(), None if v is None else v.copy(),
+                       None if vd is None else vd.copy(), joints, file)
+
+
+def _numbered_lines(path: Path) -> list[tuple[int, str]]:
+    """(line number, text) of every non-blank line, so errors point into the file."""
+    file = str(path)
+    if not path.is_file():
+        raise DataError("measurement file does not exist", file=file)
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except (OSError, UnicodeDecodeError) as err:
+        raise DataError(f"cannot read the file: {err}", file=file) from err
+    return [(k + 1, line) for k, line in enumerate(text.splitlines()) if line.strip()]
+
+
+def _parse_table(data, columns: list[str], wanted: list[str], index: dict[str, int], file: str) -> np.ndarray:
+    """The ``wanted`` columns of the data rows as floats, shape (rows, len(wanted)); all finite."""
     usecols = [index[c] for c in wanted]
     try:
         # np.loadtxt's C parser: ~0.1 s for 21k rows x 22 columns.
@@ -222,7 +232,6 @@ def read_measurement_csv(path: str | Path, joints, *, min_rows: int = 10) -> Mea
     except ValueError:
         _locate_parse_error(data, columns, wanted, index, file)
         raise  # pragma: no cover - _locate_parse_error always raises
-
     bad = ~np.isfinite(table)
     if bad.any():
         r, c = np.argwhere(bad)[0]
@@ -230,7 +239,11 @@ def read_measurement_csv(path: str | Path, joints, *, min_rows: int = 10) -> Mea
             f"value '{table[r, c]}' is not a finite number (line {data[r][0]} of the file)",
             file=file, column=wanted[c], row=int(r) + 1,
         )
-    t = table[:, 0]
+    return table
+
+
+def _check_time(t: np.ndarray, data, file: str) -> None:
+    """Refuses duplicated or decreasing time, naming the data row and the file's line."""
     steps = np.diff(t)
     if (steps <= 0).any():
         r = int(np.argmax(steps <= 0)) + 1
@@ -240,13 +253,6 @@ def read_measurement_csv(path: str | Path, joints, *, min_rows: int = 10) -> Mea
             f"t = {t[r - 1]:.9g} s (line {data[r][0]} of the file); time must strictly increase",
             file=file, column="t", row=r + 1,
         )
-    n = len(joints)
-    blocks = [table[:, 1 + k * n : 1 + (k + 1) * n] for k in range((len(wanted) - 1) // n)]
-    q, tau = blocks[0], blocks[1]
-    v = blocks[2] if has_v else None
-    vd = blocks[2 + has_v] if has_vd else None
-    return Measurement(t.copy(), q.copy(), tau.copy(), None if v is None else v.copy(),
-                       None if vd is None else vd.copy(), joints, file)
 
 
 def _column_index(columns: list[str], joints: tuple[str, ...], file: str) -> dict[str, int]:
@@ -425,199 +431,3 @@ def _unit_hint(ratio: float) -> str:
     if abs(exponent + 3) < 0.7:
         return "the file is probably in kN·m: multiply the torques by 1000 to get N·m"
     return "check the torque units (N·m expected) and the sign/joint order of the columns"
-
-
-# ---- preprocessing -------------------------------------------------------------------------
-
-
-def motion_bandwidth_hz(t: np.ndarray, q: np.ndarray, energy_fraction: float = ENERGY_FRACTION) -> float:
-    """Frequency below which ``energy_fraction`` of the motion's energy lies, worst joint.
-
-    Each joint's q is detrended (linear) and Hann-windowed first: a non-periodic record
-    otherwise leaks energy to high frequencies through its end discontinuity.
-
-    Args:
-        t: uniform time grid, shape (T,) [s].
-        q: positions, shape (T, n) [rad].
-        energy_fraction: in (0, 1).
-
-    Returns:
-        The frequency [Hz] (max over joints; 0 for a motionless record).
-    """
-    from scipy.signal import detrend, get_window
-
-    T = q.shape[0]
-    dt = (t[-1] - t[0]) / (T - 1)
-    x = detrend(q, axis=0, type="linear") * get_window("hann", T)[:, None]
-    power = np.abs(np.fft.rfft(x, axis=0)) ** 2
-    freqs = np.fft.rfftfreq(T, dt)
-    power, freqs = power[1:], freqs[1:]  # DC holds the (removed) mean
-    total = power.sum(axis=0)
-    moving = total > 0
-    if not moving.any():
-        return 0.0
-    cumulative = np.cumsum(power[:, moving], axis=0) / total[moving]
-    idx = [int(np.searchsorted(cumulative[:, j], energy_fraction)) for j in range(cumulative.shape[1])]
-    return float(freqs[min(max(idx), len(freqs) - 1)])
-
-
-def preprocess(
-    measurement: Measurement,
-    cutoff_hz: float | None = None,
-    fundamental_hz: float | None = None,
-    harmonics: int | None = None,
-    decimate_to_hz: float | None = 200.0,
-    trim_s: float | None = None,
-    filter_order: int = 4,
-) -> Measurement:
-    """Uniform grid, zero-phase low-pass, derivatives, decimation and trimmed ends.
-
-    Steps: (1) if the time steps vary by more than ``UNIFORM_TOLERANCE`` (relative), linear
-    interpolation onto a uniform grid at the median rate; (2) Butterworth low-pass of order
-    ``filter_order`` run forward and backward (``scipy.signal.sosfiltfilt``: zero phase; the
-    second-order-section form stays accurate at cut-offs of a few Hz at 1 kHz where the
-    transfer-function form of ``filtfilt`` loses precision) on q and tau, and on v/vd when
-    the file has them, so torque and motion keep the same phase; (3) v and vd by central
-    differences (``np.gradient``) of the filtered q (and v) when not measured; (4) keep every
-    k-th sample to get close to ``decimate_to_hz`` (alias-free: k is reduced so that the
-    output Nyquist frequency stays ≥ 1.25 × cut-off); (5) drop ``trim_s`` at each end, where
-    the filter and the differences see the record's edges.
-
-    The cut-off is, in order of precedence: ``cutoff_hz``; ``CUTOFF_FACTOR`` ×
-    ``harmonics`` × ``fundamental_hz`` (at least ``MIN_CUTOFF_HZ``); else ``CUTOFF_FACTOR`` ×
-    :func:`motion_bandwidth_hz` of q (at least ``MIN_CUTOFF_HZ``). An automatic cut-off is
-    capped at 0.4 × the input rate.
-
-    Args:
-        measurement: raw data (T ≥ 30 samples).
-        cutoff_hz: low-pass cut-off [Hz], below the input Nyquist frequency.
-        fundamental_hz: trajectory's base frequency ω/2π [Hz] (with ``harmonics``).
-        harmonics: number of harmonics N of the trajectory (with ``fundamental_hz``).
-        decimate_to_hz: wanted output rate [Hz]; None keeps the input rate.
-        trim_s: time dropped at each end [s]; None: 2 / cut-off (two periods of the
-            cut-off frequency, where the filter's edge transient has died out).
-        filter_order: Butterworth order.
-
-    Returns:
-        The processed :class:`Measurement` with v and vd filled and ``preprocessing`` set
-        (cut-off, rates, trim; see :class:`Preprocessing`).
-
-    Raises:
-        ConfigError: a bad argument (non-positive or above-Nyquist cut-off, only one of
-            fundamental_hz/harmonics, negative trim, ...).
-        DataError: too few samples, or nothing left after trimming.
-    """
-    from scipy.signal import butter, sosfiltfilt
-
-    m = measurement
-    file = m.source
-    _check_positive("decimate_to_hz", decimate_to_hz, allow_none=True)
-    _check_positive("cutoff_hz", cutoff_hz, allow_none=True)
-    _check_positive("fundamental_hz", fundamental_hz, allow_none=True)
-    if (fundamental_hz is None) != (harmonics is None):
-        raise ConfigError("give both fundamental_hz and harmonics (or neither)")
-    if harmonics is not None and (not isinstance(harmonics, (int, np.integer)) or harmonics < 1):
-        raise ConfigError(f"harmonics must be a positive integer, got {harmonics!r}")
-    if trim_s is not None and not (math.isfinite(trim_s) and trim_s >= 0):
-        raise ConfigError(f"trim_s must be a non-negative number of seconds, got {trim_s!r}")
-    if not isinstance(filter_order, (int, np.integer)) or not 1 <= filter_order <= 10:
-        raise ConfigError(f"filter_order must be an integer in [1, 10], got {filter_order!r}")
-    if m.num_samples < 30:
-        raise DataError(f"only {m.num_samples} samples; preprocessing needs at least 30", file=file)
-
-    # (1) uniform grid
-    dt_all = np.diff(m.t)
-    dt = float(np.median(dt_all))
-    input_rate = 1.0 / dt
-    resampled = float(np.max(np.abs(dt_all - dt))) > UNIFORM_TOLERANCE * dt
-    signals = {"q": m.q, "tau": m.tau, "v": m.v, "vd": m.vd}
-    if resampled:
-        count = int(math.floor((m.t[-1] - m.t[0]) / dt + 1e-9)) + 1
-        t = m.t[0] + dt * np.arange(count)
-        signals = {k: None if x is None else _interp_rows(t, m.t, x) for k, x in signals.items()}
-    else:
-        t = m.t
-        dt = float((t[-1] - t[0]) / (len(t) - 1))
-        input_rate = 1.0 / dt
-    nyquist = 0.5 * input_rate
-
-    # cut-off
-    if cutoff_hz is not None:
-        source = "argument"
-        if cutoff_hz >= nyquist:
-            raise ConfigError(
-                f"cutoff_hz = {cutoff_hz:g} Hz is not below the Nyquist frequency {nyquist:.4g} Hz "
-                f"of the data in '{file}'"
-            )
-        cutoff = float(cutoff_hz)
-    else:
-        if fundamental_hz is not None:
-            source, highest = "trajectory", harmonics * fundamental_hz
-        else:
-            source, highest = "spectrum", motion_bandwidth_hz(t, signals["q"])
-        cutoff = min(max(CUTOFF_FACTOR * highest, MIN_CUTOFF_HZ), 0.4 * input_rate)
-
-    # (2) zero-phase low-pass
-    sos = butter(filter_order, cutoff, btype="low", fs=input_rate, output="sos")
-    padlen = 3 * (2 * len(sos) + 1)
-    if len(t) <= padlen:
-        raise DataError(f"only {len(t)} samples; the filter needs more than {padlen}", file=file)
-    # Odd extension over three periods of the cut-off (not scipy's default 27 samples): the
-    # edge transient of the second derivative then dies out within the trimmed ends (10×
-    # smaller acceleration errors 0.5 s from the end of 500 Hz data at a 4 Hz cut-off).
-    edge = int(min(len(t) - 1, max(padlen, round(3 * input_rate / cutoff))))
-    filtered = {
-        k: None if x is None else sosfiltfilt(sos, x, axis=0, padtype="odd", padlen=edge)
-        for k, x in signals.items()
-    }
-
-    # (3) derivatives
-    velocity_source = "measured" if filtered["v"] is not None else "differentiated"
-    acceleration_source = "measured" if filtered["vd"] is not None else "differentiated"
-    v = filtered["v"] if filtered["v"] is not None else np.gradient(filtered["q"], dt, axis=0)
-    vd = filtered["vd"] if filtered["vd"] is not None else np.gradient(v, dt, axis=0)
-
-    # (4) decimation
-    step = 1
-    if decimate_to_hz is not None and decimate_to_hz < input_rate:
-        step = max(1, int(round(input_rate / decimate_to_hz)))
-        while step > 1 and 0.5 * input_rate / step < 1.25 * cutoff:
-            step -= 1
-    rate = input_rate / step
-
-    # (5) trim
-    trim = 2.0 / cutoff if trim_s is None else float(trim_s)
-    keep = (t >= t[0] + trim - 1e-12) & (t <= t[-1] - trim + 1e-12)
-    keep &= (np.arange(len(t)) % step) == 0
-    idx = np.nonzero(keep)[0]
-    if idx.size < 2:
-        raise DataError(
-            f"nothing left after trimming {trim:g} s at each end of a {t[-1] - t[0]:.4g} s record; "
-            "pass a smaller trim_s",
-            file=file,
-        )
-    info = Preprocessing(
-        cutoff_hz=cutoff, cutoff_source=source, filter_order=int(filter_order),
-        input_rate_hz=input_rate, resampled=bool(resampled), rate_hz=rate, trim_s=trim,
-        velocity_source=velocity_source, acceleration_source=acceleration_source,
-        samples_in=m.num_samples, samples_out=int(idx.size),
-    )
-    return Measurement(
-        t[idx], filtered["q"][idx], filtered["tau"][idx], v[idx], vd[idx], m.joints, m.source, info
-    )
-
-
-def _interp_rows(t_new: np.ndarray, t: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """Linear interpolation of every column of x (T, n) from times t onto t_new."""
-    k = np.clip(np.searchsorted(t, t_new, side="right") - 1, 0, len(t) - 2)
-    w = ((t_new - t[k]) / (t[k + 1] - t[k]))[:, None]
-    return x[k] * (1 - w) + x[k + 1] * w
-
-
-def _check_positive(name: str, value, allow_none: bool = False) -> None:
-    if value is None and allow_none:
-        return
-    if not isinstance(value, (int, float, np.floating, np.integer)) or not (
-        math.isfinite(value) and value > 0
-    ):
-        raise ConfigError(f"{name} must be a positive number, got {value!r}")

@@ -44,288 +44,42 @@ the true state (noise only affects the log). The controller runs between
 input. The plant is continuous (Drake's error-controlled RK3 by default, Radau3 on request):
 the stiff tanh of Coulomb friction would need a much smaller time step in a discrete plant.
 """
-# No ``from __future__ import annotations`` here: yaml_load_typed reads the dataclass field
-# types at run time and cannot resolve string annotations.
+
+from __future__ import annotations
 
 import dataclasses
 import math
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
-from pe_drake.exceptions import ConfigError, DataError, PeDrakeError, UnknownNameError
+from pe_drake.config import check_finite
+from pe_drake.exceptions import ConfigError, DataError, PeDrakeError
 from pe_drake.excitation.fourier import FourierTrajectory
 from pe_drake.identification.measurements import Measurement
+from pe_drake.identification.truth import (
+    Truth,
+    load_truth,
+    payload_spatial_inertia,
+    per_joint_values,
+    validate_truth,
+)
+from pe_drake.multibody.inertia import (
+    PARAMETER_NAMES,
+    phi_from_com,
+    phi_to_spatial_inertia,
+    principal_inertia,
+    spatial_inertia_to_phi,
+)
+from pe_drake.multibody.robot import Robot, load_robot
 
-#: Key of a per-joint table that sets every joint not listed by name.
-ALL_JOINTS = "all"
-CONTROL_MODELS = ("prior", "true")
 PAYLOAD_BODY_NAME = "pe_drake_payload"
 
 
 class SimulationError(PeDrakeError):
     """The simulation diverged (NaN or infinite state)."""
-
-
-# ---- TRUTH.yaml schema -----------------------------------------------------------------------
-
-
-@dataclasses.dataclass
-class PayloadTruth:
-    """A rigid payload welded to a link.
-
-    Attributes:
-        link: link it is welded to (a body moved by the excited joints); empty: no payload.
-        mass: [kg], > 0 when ``link`` is set.
-        com: centre of mass in the link frame, p_LoPcm_L [m].
-        inertia: rotational inertia about its centre of mass in the link axes, I_PPcm_L, as
-            [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] [kg·m²]; zeros give a point mass.
-    """
-
-    link: str = ""
-    mass: float = 0.0
-    com: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
-    inertia: list[float] = dataclasses.field(default_factory=lambda: [0.0] * 6)
-
-
-@dataclasses.dataclass
-class EffectsTruth:
-    """Effects of the true robot beyond its rigid-body dynamics.
-
-    Per-joint tables map a joint name to a value; the key ``all`` sets every joint not named.
-    Joints absent from a table get 0.
-
-    Attributes:
-        viscous: viscous friction f_v [N·m·s/rad] (Drake joint damping; replaces the model
-            file's damping).
-        coulomb: Coulomb friction f_c [N·m], smoothed as f_c·tanh(v/v_s) (revolute joints).
-        coulomb_velocity_scale: v_s [rad/s].
-        armature: reflected rotor inertia I_a [kg·m²], adds I_a·vd.
-        torque_offset: constant torque o [N·m] the actuator must supply (module docstring).
-        torque_delay: recorded torque lags the positions by this [s] (negative: leads).
-        payload: see :class:`PayloadTruth`.
-    """
-
-    viscous: dict[str, float] = dataclasses.field(default_factory=dict)
-    coulomb: dict[str, float] = dataclasses.field(default_factory=dict)
-    coulomb_velocity_scale: float = 0.01
-    armature: dict[str, float] = dataclasses.field(default_factory=dict)
-    torque_offset: dict[str, float] = dataclasses.field(default_factory=dict)
-    torque_delay: float = 0.0
-    payload: PayloadTruth = dataclasses.field(default_factory=PayloadTruth)
-
-
-@dataclasses.dataclass
-class NoiseTruth:
-    """Sensor imperfections of the log (the controller sees the true state).
-
-    Attributes:
-        encoder_counts_per_rev: q of revolute joints quantized to 2π/counts [rad]; 0: none.
-        q_std: white noise on q [rad].
-        v_std: white noise on v [rad/s] (only with ``record_velocity``).
-        tau_std: white noise on tau [N·m].
-    """
-
-    encoder_counts_per_rev: int = 0
-    q_std: float = 0.0
-    v_std: float = 0.0
-    tau_std: float = 0.0
-
-
-@dataclasses.dataclass
-class ControlTruth:
-    """The tracking controller (computed torque + PD, zero-order hold).
-
-    Attributes:
-        rate_hz: control and logging rate [Hz].
-        kp: position gain [1/s²] (multiplies the model's mass matrix).
-        kd: velocity gain [1/s].
-        model: "prior" (a-priori rigid-body model, realistic) or "true" (true rigid-body
-            model incl. payload and armature; friction is still left to the feedback).
-    """
-
-    rate_hz: float = 1000.0
-    kp: float = 6400.0
-    kd: float = 160.0
-    model: str = "prior"
-
-
-@dataclasses.dataclass
-class Truth:
-    """A whole TRUTH.yaml.
-
-    Attributes:
-        seed: seeds the inertial perturbation and, independently, the noise.
-        inertia_perturbation: relative size ε in [0, 0.5] (:func:`perturb_inertias`).
-        effects: see :class:`EffectsTruth`.
-        noise: see :class:`NoiseTruth`.
-        control: see :class:`ControlTruth`.
-        record_velocity: also write ``v.<joint>`` columns (true v + noise.v_std).
-        record_command: write the raw command tau_k (held over [t_k, t_k + h), so it leads the
-            positions by half a sample) instead of the centred average (tau_{k-1} + tau_k)/2.
-        integration_accuracy: relative accuracy of Drake's error-controlled integrator.
-        integrator: Drake integration scheme (``GetIntegrationSchemes()``): "runge_kutta3"
-            (fastest for arms), or "radau3" when light joints with Coulomb friction make the
-            dynamics stiff (G1 wrists, 4e-4 kg·m²: 4× faster than runge_kutta3).
-    """
-
-    seed: int = 0
-    inertia_perturbation: float = 0.0
-    effects: EffectsTruth = dataclasses.field(default_factory=EffectsTruth)
-    noise: NoiseTruth = dataclasses.field(default_factory=NoiseTruth)
-    control: ControlTruth = dataclasses.field(default_factory=ControlTruth)
-    record_velocity: bool = False
-    record_command: bool = False
-    integration_accuracy: float = 1e-4
-    integrator: str = "runge_kutta3"
-
-
-def load_truth(path: str | Path) -> Truth:
-    """Reads a TRUTH.yaml onto :class:`Truth` (robot-independent checks included).
-
-    Raises:
-        ConfigError: missing file, unknown key, wrong type or bad value (the field is named).
-    """
-    from pydrake.common.yaml import yaml_load_typed
-
-    path = Path(path)
-    if not path.is_file():
-        raise ConfigError(f"truth file '{path}' does not exist")
-    try:
-        truth = yaml_load_typed(schema=Truth, filename=str(path), defaults=Truth())
-    except (RuntimeError, ValueError, TypeError, AttributeError) as err:
-        raise ConfigError(f"truth file '{path}': {err}") from err
-    try:
-        return validate_truth(truth)
-    except ConfigError as err:
-        raise ConfigError(f"truth file '{path}': {err}") from err
-
-
-def _finite(name: str, value: Any, *, nonneg: bool = False, positive: bool = False) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
-        raise ConfigError(f"{name} must be a number, got {value!r}")
-    if not math.isfinite(value):
-        raise ConfigError(f"{name} must be a finite number, got {value!r}")
-    if positive and value <= 0:
-        raise ConfigError(f"{name} must be positive, got {value!r}")
-    if nonneg and value < 0:
-        raise ConfigError(f"{name} must be non-negative, got {value!r}")
-    return float(value)
-
-
-_JOINT_TABLES = {  # field: (unit, non-negative)
-    "viscous": ("N·m·s/rad", True),
-    "coulomb": ("N·m", True),
-    "armature": ("kg·m²", True),
-    "torque_offset": ("N·m", False),
-}
-
-
-def validate_truth(truth: Truth, robot=None) -> Truth:
-    """Checks a :class:`Truth`; with a robot, also its joint and link names.
-
-    Raises:
-        ConfigError: naming the field and the bad value.
-        UnknownNameError: a joint or link the robot does not have (valid names listed).
-    """
-    if isinstance(truth.seed, bool) or not isinstance(truth.seed, int) or truth.seed < 0:
-        raise ConfigError(f"seed must be a non-negative integer, got {truth.seed!r}")
-    eps = _finite("inertia_perturbation", truth.inertia_perturbation, nonneg=True)
-    if eps > 0.5:
-        raise ConfigError(f"inertia_perturbation must lie in [0, 0.5] (relative), got {eps}")
-    _finite("integration_accuracy", truth.integration_accuracy, positive=True)
-    if truth.integration_accuracy > 1e-2:
-        raise ConfigError(f"integration_accuracy must be at most 1e-2, got {truth.integration_accuracy}")
-    from pydrake.systems.analysis import GetIntegrationSchemes
-
-    if truth.integrator not in GetIntegrationSchemes():
-        raise ConfigError(
-            f"integrator '{truth.integrator}' is not one of Drake's schemes: "
-            f"{', '.join(GetIntegrationSchemes())}"
-        )
-    e = truth.effects
-    for field, (unit, nonneg) in _JOINT_TABLES.items():
-        table = getattr(e, field)
-        for joint, value in table.items():
-            _finite(f"effects.{field}['{joint}'] [{unit}]", value, nonneg=nonneg)
-    _finite("effects.coulomb_velocity_scale [rad/s]", e.coulomb_velocity_scale, positive=True)
-    _finite("effects.torque_delay [s]", e.torque_delay)
-    p = e.payload
-    if len(p.com) != 3:
-        raise ConfigError(f"effects.payload.com must have 3 numbers [m], got {p.com}")
-    if len(p.inertia) != 6:
-        raise ConfigError(
-            f"effects.payload.inertia must be [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] [kg·m²], got {p.inertia}"
-        )
-    for k, value in enumerate(list(p.com) + list(p.inertia)):
-        _finite("effects.payload.com" if k < 3 else "effects.payload.inertia", value)
-    _finite("effects.payload.mass [kg]", p.mass, nonneg=True)
-    if p.link and p.mass <= 0:
-        raise ConfigError(f"effects.payload.mass must be positive for a payload on '{p.link}', got {p.mass}")
-    if not p.link and (p.mass != 0 or any(p.inertia)):
-        raise ConfigError("effects.payload has a mass or inertia but no link: set effects.payload.link")
-    if p.link:
-        _payload_spatial_inertia(p)  # raises when not physically valid
-    n = truth.noise
-    if (
-        isinstance(n.encoder_counts_per_rev, bool)
-        or not isinstance(n.encoder_counts_per_rev, int)
-        or n.encoder_counts_per_rev < 0
-    ):
-        raise ConfigError(
-            f"noise.encoder_counts_per_rev must be a non-negative integer, got {n.encoder_counts_per_rev!r}"
-        )
-    for name in ("q_std", "v_std", "tau_std"):
-        _finite(f"noise.{name}", getattr(n, name), nonneg=True)
-    c = truth.control
-    rate = _finite("control.rate_hz [Hz]", c.rate_hz, positive=True)
-    if rate > 1e5:
-        raise ConfigError(f"control.rate_hz must be at most 100 kHz, got {rate}")
-    _finite("control.kp [1/s²]", c.kp, nonneg=True)
-    _finite("control.kd [1/s]", c.kd, nonneg=True)
-    if c.model not in CONTROL_MODELS:
-        raise ConfigError(f"control.model '{c.model}' is not one of {', '.join(CONTROL_MODELS)}")
-    if robot is not None:
-        for field in _JOINT_TABLES:
-            for joint in getattr(e, field):
-                if joint != ALL_JOINTS and joint not in robot.joint_names:
-                    raise UnknownNameError(
-                        "joint", joint, (*robot.joint_names, ALL_JOINTS), where=f"effects.{field}"
-                    )
-        if p.link and p.link not in robot.body_names:
-            raise UnknownNameError("link", p.link, robot.body_names, where="effects.payload.link")
-        coulomb = _per_joint(e.coulomb, robot.joint_names)
-        for k, info in enumerate(robot.joints):
-            if coulomb[k] > 0 and info.kind != "revolute":
-                raise ConfigError(
-                    f"effects.coulomb['{info.name}']: Coulomb friction is simulated on revolute "
-                    f"joints only; '{info.name}' is {info.kind}"
-                )
-    return truth
-
-
-def _per_joint(table: dict[str, float], joints: tuple[str, ...]) -> np.ndarray:
-    """Per-joint table (with the ``all`` key) → values in joint order, shape (n,)."""
-    default = float(table.get(ALL_JOINTS, 0.0))
-    return np.array([float(table.get(j, default)) for j in joints])
-
-
-def _payload_spatial_inertia(p: PayloadTruth):
-    from pydrake.multibody.tree import RotationalInertia, SpatialInertia
-
-    Ixx, Iyy, Izz, Ixy, Ixz, Iyz = (float(x) for x in p.inertia)
-    I_PPcm = RotationalInertia(Ixx, Iyy, Izz, Ixy, Ixz, Iyz)
-    if not I_PPcm.CouldBePhysicallyValid():
-        raise ConfigError(
-            f"effects.payload.inertia {list(p.inertia)} is not physically valid (moments must be "
-            "non-negative and satisfy the triangle inequality)"
-        )
-    try:
-        return SpatialInertia.MakeFromCentralInertia(float(p.mass), np.asarray(p.com, float), I_PPcm)
-    except RuntimeError as err:
-        raise ConfigError(f"effects.payload is not physically valid: {err}") from err
 
 
 # ---- inertial perturbation -------------------------------------------------------------------
@@ -360,9 +114,7 @@ def perturb_inertias(
         ConfigError: a bad size, or a body whose inertia cannot be made valid (an invalid
             a-priori inertia).
     """
-    from pe_drake.multibody.robot import phi_to_spatial_inertia
-
-    size = _finite("inertia_perturbation", size, nonneg=True)
+    size = check_finite("inertia_perturbation", size, nonneg=True)
     if size > 0.5:
         raise ConfigError(f"inertia_perturbation must lie in [0, 0.5], got {size}")
     rng = np.random.default_rng(rng) if not isinstance(rng, np.random.Generator) else rng
@@ -387,19 +139,6 @@ def perturb_inertias(
     return out
 
 
-def principal_inertia(phi_b: np.ndarray) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, float]:
-    """One body's 10 parameters as (m, p, λ, R, r): mass, centre of mass p = h/m, principal
-    moments λ ≥ 0 and axes R of the inertia about the centre of mass (I_cm = R diag(λ) Rᵀ),
-    and the radius of gyration r = sqrt(tr I_cm / 2m). What the perturbations act on."""
-    m, h = phi_b[0], phi_b[1:4]
-    Ixx, Iyy, Izz, Ixy, Ixz, Iyz = phi_b[4:10]
-    I_Bo = np.array([[Ixx, Ixy, Ixz], [Ixy, Iyy, Iyz], [Ixz, Iyz, Izz]])
-    p = h / m
-    I_cm = I_Bo - m * (p @ p * np.eye(3) - np.outer(p, p))
-    lam, R = np.linalg.eigh(I_cm)
-    return m, p, np.maximum(lam, 0.0), R, math.sqrt(max(np.trace(I_cm), 0.0) / (2 * m))
-
-
 def _perturb_body(phi_b: np.ndarray, eps: float, rng: np.random.Generator) -> np.ndarray | None:
     m, p, lam, R, r_gyr = principal_inertia(phi_b)
     m2 = m * (1 + eps * rng.uniform(-1, 1))
@@ -413,10 +152,7 @@ def _perturb_body(phi_b: np.ndarray, eps: float, rng: np.random.Generator) -> np
     K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
     dR = np.eye(3) + math.sin(angle) * K + (1 - math.cos(angle)) * K @ K  # Rodrigues
     R2 = dR @ R
-    I_cm2 = R2 @ np.diag(lam2) @ R2.T
-    I_Bo2 = I_cm2 + m2 * (p2 @ p2 * np.eye(3) - np.outer(p2, p2))
-    return np.array([m2, *(m2 * p2), I_Bo2[0, 0], I_Bo2[1, 1], I_Bo2[2, 2],
-                     I_Bo2[0, 1], I_Bo2[0, 2], I_Bo2[1, 2]])
+    return phi_from_com(m2, p2, R2 @ np.diag(lam2) @ R2.T)
 
 
 # ---- the true robot --------------------------------------------------------------------------
@@ -458,49 +194,28 @@ def build_true_robot(robot, truth: Truth) -> TrueRobot:
     Raises:
         ConfigError, UnknownNameError: from :func:`validate_truth`.
     """
-    from pydrake.math import RigidTransform
-    from pydrake.multibody.tree import DoorHinge, DoorHingeConfig
-
-    from pe_drake.multibody.robot import load_robot, phi_to_spatial_inertia, spatial_inertia_to_phi
+    from pydrake.math import RigidTransform  # lazy: pydrake stays out of `import pe_drake`
 
     validate_truth(truth, robot)
     joints = robot.joint_names
     e = truth.effects
-    viscous = _per_joint(e.viscous, joints)
-    coulomb = _per_joint(e.coulomb, joints)
-    armature = _per_joint(e.armature, joints)
-    offset = _per_joint(e.torque_offset, joints)
+    viscous = per_joint_values(e.viscous, joints)
+    coulomb = per_joint_values(e.coulomb, joints)
+    armature = per_joint_values(e.armature, joints)
+    offset = per_joint_values(e.torque_offset, joints)
     model_damping = np.array(
         [robot.plant.GetJointByName(j).default_damping_vector()[0] for j in joints], float
     )
-    payload_M = _payload_spatial_inertia(e.payload) if e.payload.link else None
+    payload_M = payload_spatial_inertia(e.payload) if e.payload.link else None
 
     def before_finalize(plant, scene_graph):
         for k, name in enumerate(joints):
             joint = plant.GetJointByName(name)
             joint.set_default_damping_vector([viscous[k]])
             if coulomb[k] > 0:
-                config = DoorHingeConfig()
-                config.spring_constant = 0.0
-                config.catch_torque = 0.0
-                config.static_friction_torque = 0.0
-                config.viscous_friction = 0.0
-                config.dynamic_friction_torque = float(coulomb[k])
-                config.motion_threshold = float(e.coulomb_velocity_scale)
-                plant.AddForceElement(DoorHinge(joint, config))
+                _add_coulomb_friction(plant, joint, float(coulomb[k]), float(e.coulomb_velocity_scale))
             if armature[k] > 0:
-                actuators = [
-                    plant.get_joint_actuator(a)
-                    for a in plant.GetJointActuatorIndices()
-                    if plant.get_joint_actuator(a).joint().index() == joint.index()
-                ]
-                if actuators:
-                    gear = actuators[0].default_gear_ratio() or 1.0
-                    actuators[0].set_default_rotor_inertia(float(armature[k]) / gear**2)
-                else:
-                    actuator = plant.AddJointActuator(f"pe_drake_armature_{name}", joint)
-                    actuator.set_default_gear_ratio(1.0)
-                    actuator.set_default_rotor_inertia(float(armature[k]))
+                _set_armature(plant, joint, float(armature[k]))
         if payload_M is not None:
             link = plant.GetBodyByName(e.payload.link)
             body = plant.AddRigidBody(PAYLOAD_BODY_NAME, link.model_instance(), payload_M)
@@ -525,6 +240,36 @@ def build_true_robot(robot, truth: Truth) -> TrueRobot:
     return TrueRobot(true, phi, phi_bodies, phi_payload, viscous, coulomb, armature, offset, model_damping)
 
 
+def _add_coulomb_friction(plant, joint, f_c: float, v_s: float) -> None:
+    """f_c·tanh(v/v_s) as a Drake DoorHinge whose only non-zero term is its dynamic friction."""
+    from pydrake.multibody.tree import DoorHinge, DoorHingeConfig  # lazy: pydrake stays out of `import pe_drake`
+
+    config = DoorHingeConfig()
+    config.spring_constant = 0.0
+    config.catch_torque = 0.0
+    config.static_friction_torque = 0.0
+    config.viscous_friction = 0.0
+    config.dynamic_friction_torque = f_c
+    config.motion_threshold = v_s
+    plant.AddForceElement(DoorHinge(joint, config))
+
+
+def _set_armature(plant, joint, armature: float) -> None:
+    """Reflected rotor inertia on the joint's actuator (gear² taken out), or a new actuator."""
+    actuators = [
+        plant.get_joint_actuator(a)
+        for a in plant.GetJointActuatorIndices()
+        if plant.get_joint_actuator(a).joint().index() == joint.index()
+    ]
+    if actuators:
+        gear = actuators[0].default_gear_ratio() or 1.0
+        actuators[0].set_default_rotor_inertia(armature / gear**2)
+    else:
+        actuator = plant.AddJointActuator(f"pe_drake_armature_{joint.name()}", joint)
+        actuator.set_default_gear_ratio(1.0)
+        actuator.set_default_rotor_inertia(armature)
+
+
 # ---- simulation ------------------------------------------------------------------------------
 
 
@@ -539,7 +284,7 @@ def rigid_body_torque(plant, context, q: np.ndarray, v: np.ndarray, vd: np.ndarr
     Returns:
         Torques, shape (T, n) [N·m or N].
     """
-    from pydrake.multibody.tree import MultibodyForces
+    from pydrake.multibody.tree import MultibodyForces  # lazy: pydrake stays out of `import pe_drake`
 
     q, v, vd = np.atleast_2d(q), np.atleast_2d(v), np.atleast_2d(vd)
     forces = MultibodyForces(plant)
@@ -552,58 +297,135 @@ def rigid_body_torque(plant, context, q: np.ndarray, v: np.ndarray, vd: np.ndarr
     return out
 
 
+class SimulatedRun(NamedTuple):
+    """What :func:`simulate` returns (unpacks as ``measurement, truth = simulate(...)``).
+
+    Attributes:
+        measurement: the log (t, q, tau at ``control.rate_hz``; v when ``record_velocity``).
+        truth: the JSON-ready truth dict (true parameters per body, effects with units,
+            noise, control, tracking error, wall time).
+    """
+
+    measurement: Measurement
+    truth: dict[str, Any]
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class TrackingLog:
+    """The true state and the controller's commands at the control instants
+    (:func:`track_trajectory`).
+
+    Attributes:
+        t: control instants, shape (K,) [s].
+        q_d: desired positions, shape (K, n) [rad].
+        q, v: true positions and velocities, shape (K, n) [rad, rad/s].
+        tau: commands tau_k, each held over [t_k, t_k + h), shape (K, n) [N·m].
+        wall_time: seconds spent simulating.
+    """
+
+    t: np.ndarray
+    q_d: np.ndarray
+    q: np.ndarray
+    v: np.ndarray
+    tau: np.ndarray
+    wall_time: float
+
+
 def simulate(
     robot_or_name,
     trajectory: FourierTrajectory,
-    truth: "Truth | str | Path",
+    truth: Truth | str | Path,
     duration: float | None = None,
-) -> tuple[Measurement, dict[str, Any]]:
+) -> SimulatedRun:
     """Simulates a run of the true robot tracking a trajectory; returns what it logs.
 
     Args:
         robot_or_name: the a-priori :class:`~pe_drake.multibody.robot.Robot` or a built-in name.
         trajectory: the trajectory to track (joints in the robot's order).
-        truth: a :class:`Truth` or the path of a TRUTH.yaml.
+        truth: a :class:`~pe_drake.identification.truth.Truth` or the path of a TRUTH.yaml.
         duration: simulated time [s]; default one period of the trajectory.
 
     Returns:
-        The :class:`~pe_drake.identification.measurements.Measurement` (t, q, tau at ``control.rate_hz``;
-        v when ``record_velocity``) and the JSON-ready truth dict (true parameters per body,
-        effects with units, noise, control, tracking error, wall time).
+        The :class:`SimulatedRun`: the :class:`~pe_drake.identification.measurements.Measurement`
+        and the truth dict.
 
     Raises:
         ConfigError: a bad truth or duration.
         UnknownNameError: a truth names a joint or link the robot does not have.
         DataError: a trajectory for a different number of joints.
     """
-    from pydrake.multibody.tree import MultibodyForces
-    from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
-
-    from pe_drake.multibody.robot import PARAMETER_NAMES, Robot, load_robot
-
     robot = robot_or_name if isinstance(robot_or_name, Robot) else load_robot(robot_or_name)
     if not isinstance(truth, Truth):
         truth = load_truth(truth)
+    duration = _check_run(robot, trajectory, truth, duration)
+    true = build_true_robot(robot, truth)
+    log = track_trajectory(robot, true, trajectory, truth, duration)
+    measurement = record_log(robot, truth, log)
+    return SimulatedRun(measurement, _truth_dict(robot, truth, true, duration, log))
+
+
+def _check_run(robot, trajectory: FourierTrajectory, truth: Truth, duration: float | None) -> float:
+    """The duration [s] after checking the trajectory's joints and the torque delay."""
     if trajectory.num_joints != robot.n:
         raise DataError(
             f"the trajectory has {trajectory.num_joints} joints, robot '{robot.name}' has {robot.n} "
             f"excited joints ({', '.join(robot.joint_names)})"
         )
     duration = trajectory.period if duration is None else duration
-    duration = _finite("duration [s]", duration, positive=True)
+    duration = check_finite("duration [s]", duration, positive=True)
     delay = truth.effects.torque_delay
     if abs(delay) >= duration:
         raise ConfigError(f"effects.torque_delay {delay} s is not shorter than the duration {duration} s")
+    return duration
 
-    true = build_true_robot(robot, truth)
+
+def _controller_plant(robot, true: TrueRobot, model: str):
+    """(plant, context) the computed-torque law evaluates: the a-priori or the true model."""
+    if model == "prior":
+        return robot.plant, robot.plant.CreateDefaultContext()
     plant, ctx = true.robot.plant, true.robot.plant_context
-    if truth.control.model == "prior":
-        ctl_plant, ctl_ctx = robot.plant, robot.plant.CreateDefaultContext()
-    else:
-        ctl_plant, ctl_ctx = plant, plant.CreateDefaultContext()
-        for b in robot.body_names:  # the default context lacks the perturbed inertias
-            body = plant.GetBodyByName(b)
-            body.SetSpatialInertiaInBodyFrame(ctl_ctx, body.CalcSpatialInertiaInBodyFrame(ctx))
+    ctl_ctx = plant.CreateDefaultContext()
+    for b in robot.body_names:  # the default context lacks the perturbed inertias
+        body = plant.GetBodyByName(b)
+        body.SetSpatialInertiaInBodyFrame(ctl_ctx, body.CalcSpatialInertiaInBodyFrame(ctx))
+    return plant, ctl_ctx
+
+
+def _start_simulator(true: TrueRobot, truth: Truth, q0: np.ndarray, v0: np.ndarray, h: float):
+    """A Drake Simulator of the true robot at (q0, v0) with the truth's integrator."""
+    from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator  # lazy: pydrake stays out of `import pe_drake`
+
+    plant, ctx = true.robot.plant, true.robot.plant_context
+    plant.SetPositions(ctx, q0)
+    plant.SetVelocities(ctx, v0)
+    plant.get_applied_generalized_force_input_port().FixValue(ctx, np.zeros(len(q0)))
+    simulator = Simulator(true.robot.diagram, true.robot.context)
+    integrator = ResetIntegratorFromFlags(simulator, truth.integrator, h)
+    if not integrator.get_fixed_step_mode():  # fixed-step schemes step at 1 / rate_hz
+        integrator.set_target_accuracy(truth.integration_accuracy)
+    simulator.Initialize()
+    return simulator
+
+
+def track_trajectory(
+    robot, true: TrueRobot, trajectory: FourierTrajectory, truth: Truth, duration: float
+) -> TrackingLog:
+    """Runs the computed-torque controller on the true robot (module docstring).
+
+    Args:
+        robot: the a-priori robot (the controller's model with ``control.model: prior``).
+        true: the true robot (:func:`build_true_robot`).
+        trajectory: the desired motion.
+        truth: a validated truth (control, integrator).
+        duration: simulated time [s].
+
+    Raises:
+        SimulationError: the state became NaN or infinite.
+    """
+    from pydrake.multibody.tree import MultibodyForces  # lazy: pydrake stays out of `import pe_drake`
+
+    plant, ctx = true.robot.plant, true.robot.plant_context
+    ctl_plant, ctl_ctx = _controller_plant(robot, true, truth.control.model)
     forces = MultibodyForces(ctl_plant)
     rate = truth.control.rate_hz
     h = 1.0 / rate
@@ -611,21 +433,9 @@ def simulate(
     t = np.arange(count) * h
     q_d, v_d, vd_d = trajectory.evaluate(t)
     kp, kd = truth.control.kp, truth.control.kd
-
-    plant.SetPositions(ctx, q_d[0])
-    plant.SetVelocities(ctx, v_d[0])
+    simulator = _start_simulator(true, truth, q_d[0], v_d[0], h)
     port = plant.get_applied_generalized_force_input_port()
-    port.FixValue(ctx, np.zeros(robot.n))
-    simulator = Simulator(true.robot.diagram, true.robot.context)
-    integrator = ResetIntegratorFromFlags(simulator, truth.integrator, h)
-    if not integrator.get_fixed_step_mode():  # fixed-step schemes step at 1 / rate_hz
-        integrator.set_target_accuracy(truth.integration_accuracy)
-    simulator.Initialize()
-
-    n = robot.n
-    q_log = np.empty((count, n))
-    v_log = np.empty((count, n))
-    tau_log = np.empty((count, n))
+    q_log, v_log, tau_log = (np.empty((count, robot.n)) for _ in range(3))
     wall = time.perf_counter()
     for k in range(count):
         q = plant.GetPositions(ctx)
@@ -645,21 +455,39 @@ def simulate(
                     f"the simulated state became NaN/inf at t = {t[k + 1]:.4g} s; check the truth "
                     "file's values (gains, friction, payload) and the model's inertias"
                 )
-    wall = time.perf_counter() - wall
+    return TrackingLog(t, q_d, q_log, v_log, tau_log, time.perf_counter() - wall)
 
-    tracking_rms = np.sqrt(np.mean((q_log - q_d) ** 2, axis=0))
-    rng = np.random.default_rng(np.random.SeedSequence(truth.seed).spawn(2)[1])
+
+def recorded_torque(log: TrackingLog, truth: Truth) -> np.ndarray:
+    """The torque the log records, before noise: centred average (or raw command), delayed.
+
+    Returns:
+        Shape (K, n) [N·m].
+    """
     if truth.record_command:
-        tau_rec = tau_log
+        tau_rec = log.tau
     else:
         # Torque averaged over the sample period centred on t_k: the command tau_k is held over
         # [t_k, t_k+h), so on its own it leads the positions by h/2 (see the module docstring).
-        tau_rec = tau_log.copy()
-        tau_rec[1:] = 0.5 * (tau_log[:-1] + tau_log[1:])
+        tau_rec = log.tau.copy()
+        tau_rec[1:] = 0.5 * (log.tau[:-1] + log.tau[1:])
+    delay = truth.effects.torque_delay
     if delay != 0:
-        tau_rec = np.column_stack([np.interp(t - delay, t, tau_rec[:, j]) for j in range(n)])
+        t = log.t
+        tau_rec = np.column_stack([np.interp(t - delay, t, tau_rec[:, j]) for j in range(tau_rec.shape[1])])
+    return tau_rec
+
+
+def record_log(robot, truth: Truth, log: TrackingLog) -> Measurement:
+    """What the sensors log: recorded torque, encoder quantization and white noise.
+
+    The noise generator is seeded by the truth's seed (independently of the inertial
+    perturbation); q, tau and v noise are drawn in that order.
+    """
+    tau_rec = recorded_torque(log, truth)
+    rng = np.random.default_rng(np.random.SeedSequence(truth.seed).spawn(2)[1])
     noise = truth.noise
-    q_rec = q_log.copy()
+    q_rec = log.q.copy()
     if noise.encoder_counts_per_rev > 0:
         step = 2 * math.pi / noise.encoder_counts_per_rev
         revolute = np.array([info.kind == "revolute" for info in robot.joints])
@@ -670,16 +498,16 @@ def simulate(
         tau_rec = tau_rec + rng.normal(0.0, noise.tau_std, tau_rec.shape)
     v_rec = None
     if truth.record_velocity:
-        v_rec = v_log + (rng.normal(0.0, noise.v_std, v_log.shape) if noise.v_std > 0 else 0.0)
-    measurement = Measurement(t, q_rec, tau_rec, v_rec, None, robot.joint_names, "")
-
-    truth_dict = _truth_dict(robot, truth, true, duration, count, tracking_rms, wall, PARAMETER_NAMES)
-    return measurement, truth_dict
+        v_rec = log.v + (rng.normal(0.0, noise.v_std, log.v.shape) if noise.v_std > 0 else 0.0)
+    return Measurement(log.t, q_rec, tau_rec, v_rec, None, robot.joint_names, "")
 
 
-def _truth_dict(robot, truth, true, duration, count, tracking_rms, wall, parameter_names) -> dict[str, Any]:
+def _truth_dict(robot, truth: Truth, true: TrueRobot, duration: float, log: TrackingLog) -> dict[str, Any]:
+    """The JSON-ready record of every true value of a run (``<out>.truth.json``)."""
     joints = list(robot.joint_names)
     bodies = robot.body_names
+    tracking_rms = np.sqrt(np.mean((log.q - log.q_d) ** 2, axis=0))
+    count, wall, parameter_names = len(log.t), log.wall_time, PARAMETER_NAMES
 
     def per_joint(values):
         return {j: float(x) for j, x in zip(joints, values)}

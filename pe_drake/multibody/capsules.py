@@ -33,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pe_drake.config import load_yaml_typed
 from pe_drake.exceptions import ConfigError, UnknownNameError
 
 
@@ -107,16 +108,8 @@ def load_capsule_file(path: str | Path) -> CapsuleFile:
             finite number, a pose that is not 3 finite numbers, a duplicate name, or an
             ignored pair that is not two names. The message names the file and the capsule.
     """
-    from pydrake.common.yaml import yaml_load_typed
-
     path = Path(path)
-    if not path.is_file():
-        raise ConfigError(f"capsule file '{path}' does not exist")
-    try:
-        data = yaml_load_typed(schema=CapsuleFile, filename=str(path))
-    except (RuntimeError, ValueError, TypeError, AssertionError) as err:
-        # Drake asserts on a list where it expects a mapping (and vice versa).
-        raise ConfigError(f"capsule file '{path}' does not match the capsule format: {err}") from err
+    data = load_yaml_typed(path, CapsuleFile, what="capsule")
     if not data.capsules:
         raise ConfigError(f"capsule file '{path}' lists no capsules")
 

@@ -1,6 +1,6 @@
 """STL → OBJ conversion of URDF visuals, so that Drake's Meshcat can draw them.
 
-Drake's Meshcat draws .obj/.gltf/.dae visuals only; STL visuals are skipped (DRAKE_NOTES.md,
+Drake's Meshcat draws .obj/.gltf/.dae visuals only; STL visuals are skipped (BUILD_NOTES.md,
 "Robot descriptions"). :func:`stl_visuals_to_obj` rewrites the ``<visual>`` STL mesh filenames
 of a URDF to OBJ files converted once into a cache folder and reused afterwards; collision
 geometry is left untouched. The reader handles binary and ASCII STL; the writer emits shared
@@ -20,6 +20,7 @@ from typing import NamedTuple
 import numpy as np
 
 from pe_drake.exceptions import DataError
+from pe_drake.multibody.registry import example_robot_data_dir
 
 #: Environment variable naming the folder of converted meshes (overrides the default cache).
 CACHE_ENV = "PE_DRAKE_MESH_CACHE"
@@ -223,8 +224,6 @@ def _resolve_mesh(name: str, model_path: Path) -> Path | None:
 def _package_roots(package: str, model_path: Path) -> list[Path]:
     roots = []
     if package == "example-robot-data":
-        from pe_drake.multibody.robot import example_robot_data_dir
-
         with contextlib.suppress(Exception):
             roots.append(example_robot_data_dir())
     for folder in model_path.resolve().parents:

@@ -104,7 +104,13 @@ class RegressorModel:
         self._fk = _ForwardKinematics.build(robot, self._bodies_needed)
 
     # ---- forward ------------------------------------------------------------------------
-    def _poses(self, q: np.ndarray) -> np.ndarray:
+    @property
+    def batched_kinematics(self) -> bool:
+        """True when :meth:`poses` uses the batched forward kinematics (every joint type of
+        the robot handled), False when it falls back to Drake's per-sample queries."""
+        return self._fk is not None
+
+    def poses(self, q: np.ndarray) -> np.ndarray:
         """X_WB of the needed bodies, (T, len(bodies_needed), 4, 4).
 
         Batched over samples from the joints' fixed frames (Drake's X_PF, X_FM(q), X_MC);
@@ -112,9 +118,9 @@ class RegressorModel:
         """
         if self._fk is not None:
             return self._fk(q)
-        return self._drake_poses(q)
+        return self.drake_poses(q)
 
-    def _drake_poses(self, q: np.ndarray) -> np.ndarray:
+    def drake_poses(self, q: np.ndarray) -> np.ndarray:
         """X_WB of the needed bodies, (T, len(bodies_needed), 4, 4), from Drake."""
         plant, ctx = self.robot.plant, self.robot.plant_context
         out = np.empty((q.shape[0], len(self._body_objs), 4, 4))
@@ -131,7 +137,7 @@ class RegressorModel:
             q, v, vd: joint positions, velocities, accelerations, each (T, n).
         """
         q, v, vd = (np.atleast_2d(np.asarray(x, float)) for x in (q, v, vd))
-        X = self._poses(q)
+        X = self.poses(q)
         # Joint frames M in world: X_WM = X_WC X_CM.
         X_WC = X[:, [self._slot[c] for c in self._joint_child]]
         X_WM = X_WC @ self.X_CM

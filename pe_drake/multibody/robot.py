@@ -11,100 +11,29 @@ from __future__ import annotations
 import dataclasses
 import logging
 import re
-import sys
-import sysconfig
+import xml.etree.ElementTree as ET
 from collections.abc import Callable
 from functools import cached_property
 from pathlib import Path
 
 import numpy as np
 
-from pe_drake.config import Config, RobotConfig, load_config, validate_config
+from pe_drake.config import Config, RobotConfig, validate_config
 from pe_drake.exceptions import (
     ConfigError,
     InfeasibleError,
     NotWithinLimitsError,
     UnknownNameError,
 )
-
-#: Number of inertial parameters per body: [m, hx, hy, hz, Ixx, Iyy, Izz, Ixy, Ixz, Iyz]
-#: with h = m·p_BoBcm_B the first moment and I = I_BBo_B the rotational inertia about the
-#: body origin Bo, both expressed in the body frame B.
-PARAMS_PER_BODY = 10
-PARAMETER_NAMES = ("m", "hx", "hy", "hz", "Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")
-
-_MODELS_PACKAGE = "pe_drake.models"
-
-
-def builtin_robots() -> tuple[str, ...]:
-    """Names of the built-in robot configs (``models/<name>.yaml``)."""
-    # A robot config has a top-level "robot:" section; capsule and truth files do not.
-    return tuple(
-        sorted(
-            p.stem
-            for p in _models_dir().glob("*.yaml")
-            if re.search(r"^robot:", p.read_text(), flags=re.M)
-        )
-    )
-
-
-def _models_dir() -> Path:
-    from importlib.resources import files
-
-    return Path(str(files(_MODELS_PACKAGE)))
-
-
-def example_robot_data_dir() -> Path:
-    """The ``share/example-robot-data`` folder of the installed ``example-robot-data`` wheel.
-
-    Raises:
-        ConfigError: when the package is not installed.
-    """
-    roots = [sysconfig.get_paths()["purelib"], *sys.path]
-    for root in roots:
-        candidate = Path(root) / "cmeel.prefix" / "share" / "example-robot-data"
-        if candidate.is_dir():
-            return candidate
-    raise ConfigError(
-        "the robot models of 'example-robot-data' are not installed: pip install example-robot-data"
-    )
-
-
-def builtin_config(name: str) -> Config:
-    """The config of a built-in robot.
-
-    Raises:
-        UnknownNameError: listing the built-in names.
-    """
-    path = _models_dir() / f"{name}.yaml"
-    if not path.is_file():
-        raise UnknownNameError("robot", name, builtin_robots())
-    return load_config(path)
-
-
-def resolve_robot_config(robot: str, config_file: str | Path | None = None) -> Config:
-    """Config for a robot given by built-in name or model path, with a user file on top.
-
-    Args:
-        robot: built-in name, or a URDF/SDF path.
-        config_file: optional YAML file whose keys override the defaults.
-
-    Raises:
-        UnknownNameError: an unknown built-in name that is not a file either.
-        ConfigError: a missing model file or a bad config.
-    """
-    if robot in builtin_robots():
-        base = builtin_config(robot)
-    else:
-        path = Path(robot)
-        if path.suffix.lower() not in (".urdf", ".sdf", ".xml"):
-            raise UnknownNameError("robot", robot, builtin_robots() + ("<path to .urdf/.sdf>",))
-        if not path.is_file():
-            raise ConfigError(f"robot model file '{robot}' does not exist")
-        base = Config(robot=RobotConfig(model=str(path.resolve())))
-    if config_file is not None:
-        return load_config(config_file, base=base)
-    return validate_config(base)
+from pe_drake.multibody.capsules import register_capsules
+from pe_drake.multibody.inertia import PARAMETER_NAMES, spatial_inertia_to_phi
+from pe_drake.multibody.meshes import stl_visuals_to_obj
+from pe_drake.multibody.registry import (
+    example_robot_data_dir,
+    resolve_model_path,
+    resolve_robot_config,
+    robot_display_name,
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -176,45 +105,17 @@ class Robot:
 
     # ---- construction -------------------------------------------------------------------
     def _build(self) -> None:
-        from pydrake.math import RigidTransform, RollPitchYaw
-        from pydrake.multibody.parsing import Parser
-        from pydrake.multibody.plant import AddMultibodyPlantSceneGraph
-        from pydrake.multibody.tree import PrismaticJoint, RevoluteJoint
+        """Parses the model, welds every non-excited joint and the root, finalizes the plant,
+        builds the diagram and reads the kinematic structure and limits."""
+        from pydrake.multibody.plant import AddMultibodyPlantSceneGraph  # lazy: pydrake is heavy
         from pydrake.systems.framework import DiagramBuilder
 
         cfg = self.config
-        model_path = _resolve_model_path(cfg.model)
-        text = model_path.read_text()
-        if model_path.suffix.lower() == ".urdf":
-            # Drake cannot build convex hulls of STL/DAE collision meshes (DRAKE_NOTES.md);
-            # collision is our own capsules. Mimic tags would couple joints we may lock.
-            text = re.sub(r"<collision\b.*?</collision>", "", text, flags=re.S)
-            text = re.sub(r"<mimic\b[^>]*/>", "", text)
-            if self._obj_visuals:
-                from pe_drake.multibody.meshes import stl_visuals_to_obj
-
-                text = stl_visuals_to_obj(text, model_path)
-
+        model_path = resolve_model_path(cfg.model)
+        text = _model_text(model_path, self._obj_visuals)
         builder = DiagramBuilder()
         plant, scene_graph = AddMultibodyPlantSceneGraph(builder, time_step=self.time_step)
-        parser = Parser(plant)
-        try:
-            parser.package_map().Add("example-robot-data", str(example_robot_data_dir()))
-        except ConfigError:
-            pass
-        try:  # user models may ship a package.xml next to them
-            parser.package_map().PopulateFromFolder(str(model_path.parent))
-        except Exception:
-            pass
-        drake_logger = logging.getLogger("drake")
-        level = drake_logger.level
-        drake_logger.setLevel(logging.ERROR)  # unsupported ROS tags (gazebo, transmission)
-        try:
-            models = parser.AddModelsFromString(text, model_path.suffix.lstrip(".").lower())
-        except Exception as err:  # Drake raises RuntimeError with its parser message
-            raise ConfigError(f"Drake could not parse '{model_path}': {err}") from err
-        finally:
-            drake_logger.setLevel(level)
+        models = _parse_models(plant, text, model_path)
         self.model_path = model_path
 
         movable = [
@@ -223,50 +124,28 @@ class Robot:
             for j in plant.GetJointIndices(m)
             if plant.get_joint(j).num_positions() == 1
         ]
-        movable_names = [j.name() for j in movable]
-        excited = list(cfg.joints) if cfg.joints else list(movable_names)
-        for j in excited:
-            if j not in movable_names:
-                raise UnknownNameError("joint", j, movable_names, where=str(model_path.name))
-        if len(set(excited)) != len(excited):
-            raise ConfigError(f"robot.joints lists a joint twice: {excited}")
-        for j in cfg.locked_positions:
-            if j not in movable_names:
-                raise UnknownNameError("joint", j, movable_names, where="robot.locked_positions")
-            if j in excited:
-                raise ConfigError(f"joint '{j}' is both excited and in robot.locked_positions")
-        for table in ("position_limits", "velocity_limits", "acceleration_limits", "effort_limits"):
-            for j in getattr(cfg, table):
-                if j not in excited:
-                    raise UnknownNameError("joint", j, excited, where=f"robot.{table} (excited joints)")
+        excited = _excited_joint_names(cfg, [j.name() for j in movable], model_path)
+        self.locked_positions = _weld_locked_joints(plant, movable, excited, cfg.locked_positions)
+        self._weld_root(plant, models)
+        self._scene_graph_builder_hook(plant, scene_graph)
+        if self._before_finalize is not None:
+            self._before_finalize(plant, scene_graph)
+        plant.Finalize()
+        self._build_diagram(builder, plant, scene_graph, excited)
 
-        # Weld every non-excited joint at its locked position.
-        locked: dict[str, float] = {}
-        for joint in movable:
-            if joint.name() in excited:
-                continue
-            lo, hi = joint.position_lower_limits()[0], joint.position_upper_limits()[0]
-            value = cfg.locked_positions.get(joint.name(), float(np.clip(0.0, lo, hi)))
-            if not lo - 1e-9 <= value <= hi + 1e-9:
-                raise NotWithinLimitsError(joint.name(), value, lo, hi, what="locked position")
-            locked[joint.name()] = float(value)
-            if isinstance(joint, RevoluteJoint):
-                from pydrake.common.eigen_geometry import AngleAxis
+        joints = [plant.GetJointByName(j) for j in excited]
+        joints.sort(key=lambda j: j.position_start())
+        self.joint_names = tuple(j.name() for j in joints)
+        self.n = len(joints)
+        self._joints = joints
+        self._structure()
+        self.limits = self._limits()
 
-                X_FM = RigidTransform(AngleAxis(value, joint.revolute_axis()), np.zeros(3))
-            elif isinstance(joint, PrismaticJoint):
-                X_FM = RigidTransform(joint.translation_axis() * value)
-            else:
-                raise ConfigError(f"cannot lock joint '{joint.name()}' of type {joint.type_name()}")
-            frame_F, frame_M = joint.frame_on_parent(), joint.frame_on_child()
-            for actuator_index in plant.GetJointActuatorIndices():
-                if plant.get_joint_actuator(actuator_index).joint().index() == joint.index():
-                    plant.RemoveJointActuator(plant.get_joint_actuator(actuator_index))
-            plant.RemoveJoint(joint)
-            plant.WeldFrames(frame_F, frame_M, X_FM)
-        self.locked_positions = locked
+    def _weld_root(self, plant, models) -> None:
+        """Welds the root link to the world at the config's base pose (unless already welded)."""
+        from pydrake.math import RigidTransform  # lazy: pydrake is heavy
 
-        # Weld the root link to the world.
+        cfg = self.config
         root = self._root_body(plant, models)
         pose = RigidTransform(
             _quaternion(cfg.base_quaternion_wxyz), np.asarray(cfg.base_position, float)
@@ -275,12 +154,9 @@ class Robot:
             plant.WeldFrames(plant.world_frame(), root.body_frame(), pose)
         self.root_link = root.name()
         self.base_pose = pose
-        self._scene_graph_builder_hook(plant, scene_graph)
-        if self._before_finalize is not None:
-            self._before_finalize(plant, scene_graph)
-        plant.Finalize()
-        del RollPitchYaw
 
+    def _build_diagram(self, builder, plant, scene_graph, excited: list[str]) -> None:
+        """Checks that q is exactly the excited joints, then builds the diagram and contexts."""
         if plant.num_positions() != len(excited) or plant.num_velocities() != len(excited):
             raise ConfigError(
                 f"after locking, the plant has {plant.num_positions()} positions but "
@@ -294,19 +170,9 @@ class Robot:
         self.context = self.diagram.CreateDefaultContext()
         self.plant_context = plant.GetMyMutableContextFromRoot(self.context)
 
-        joints = [plant.GetJointByName(j) for j in excited]
-        joints.sort(key=lambda j: j.position_start())
-        self.joint_names = tuple(j.name() for j in joints)
-        self.n = len(joints)
-        self._joints = joints
-        self._structure()
-        self.limits = self._limits()
-
     def _scene_graph_builder_hook(self, plant, scene_graph) -> None:
         """Registers extra geometry before Finalize (capsules; see constraints.collision)."""
         if self.config.capsules:
-            from pe_drake.multibody.capsules import register_capsules
-
             self.capsules = register_capsules(plant, scene_graph, self.config.capsules)
         else:
             self.capsules = ()
@@ -342,7 +208,7 @@ class Robot:
                 body = joint.parent_body()
             return -1
 
-        from pydrake.multibody.tree import BodyIndex
+        from pydrake.multibody.tree import BodyIndex  # lazy: pydrake is heavy
 
         all_bodies = [plant.get_body(BodyIndex(b)) for b in range(plant.num_bodies())]
         self.body_names_all = tuple(b.name() for b in all_bodies)
@@ -372,22 +238,7 @@ class Robot:
             moves[anc[:, k], j] = True
         self.joint_moves_body = moves
 
-        infos = []
-        for joint in self._joints:
-            X_CM = joint.frame_on_child().GetFixedPoseInBodyFrame().GetAsMatrix4()
-            if joint.type_name() == "revolute":
-                kind, axis = "revolute", np.asarray(joint.revolute_axis(), float)
-            elif joint.type_name() == "prismatic":
-                kind, axis = "prismatic", np.asarray(joint.translation_axis(), float)
-            else:
-                raise ConfigError(
-                    f"joint '{joint.name()}' is a {joint.type_name()} joint; only revolute and "
-                    "prismatic joints can be excited"
-                )
-            infos.append(
-                JointInfo(joint.name(), kind, int(joint.child_body().index()), X_CM, axis / np.linalg.norm(axis))
-            )
-        self.joints = tuple(infos)
+        self.joints = tuple(_joint_info(joint) for joint in self._joints)
 
     def _limits(self) -> Limits:
         cfg = self.config
@@ -442,7 +293,13 @@ class Robot:
 
     @property
     def num_bodies(self) -> int:
+        """Number nb of bodies moved by the excited joints."""
         return len(self.body_names)
+
+    @property
+    def bodies(self) -> tuple:
+        """The Drake bodies moved by the excited joints, in :attr:`body_names` order (read-only)."""
+        return tuple(self._bodies)
 
     # ---- evaluation helpers ---------------------------------------------------------------
     def body_poses(self, q: np.ndarray) -> np.ndarray:
@@ -480,7 +337,7 @@ class Robot:
             include_damping: keep the model's joint damping (a friction term, not part of the
                 rigid-body regressor); by default it is removed.
         """
-        from pydrake.multibody.tree import MultibodyForces
+        from pydrake.multibody.tree import MultibodyForces  # lazy: pydrake is heavy
 
         plant, ctx = self.plant, self.plant_context
         q, v, vd = np.atleast_2d(q), np.atleast_2d(v), np.atleast_2d(vd)
@@ -509,35 +366,10 @@ class Robot:
         return f"Robot('{self.name}', {self.n} joints, {self.num_bodies} moving bodies)"
 
 
-def spatial_inertia_to_phi(M) -> np.ndarray:
-    """Drake SpatialInertia about Bo in B → the 10 parameters of :data:`PARAMETER_NAMES`."""
-    m = M.get_mass()
-    h = m * np.asarray(M.get_com())
-    I = M.CalcRotationalInertia().CopyToFullMatrix3()
-    return np.array([m, *h, I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2]])
-
-
-def phi_to_spatial_inertia(phi: np.ndarray, skip_validity_check: bool = True):
-    """The 10 parameters → Drake SpatialInertia about Bo in B."""
-    from pydrake.multibody.tree import SpatialInertia, UnitInertia
-
-    m = float(phi[0])
-    if m == 0:
-        if np.any(np.asarray(phi[1:]) != 0):
-            raise ValueError("a massless body must have zero first moment and inertia")
-        return SpatialInertia.Zero()  # Drake's default UnitInertia() is NaN, not zero
-    p = np.asarray(phi[1:4]) / m
-    Ixx, Iyy, Izz, Ixy, Ixz, Iyz = phi[4:10]
-    G = UnitInertia(Ixx / m, Iyy / m, Izz / m, Ixy / m, Ixz / m, Iyz / m)
-    return SpatialInertia(m, p, G, skip_validity_check)
-
-
 def _urdf_effort_limits(path: Path) -> dict[str, float]:
     """{joint: effort} from a URDF's <limit effort=...> (Drake keeps them only with actuators)."""
     if path.suffix.lower() != ".urdf":
         return {}
-    import xml.etree.ElementTree as ET
-
     out = {}
     try:
         root = ET.parse(path).getroot()
@@ -550,6 +382,25 @@ def _urdf_effort_limits(path: Path) -> dict[str, float]:
     return out
 
 
+def _joint_info(joint) -> JointInfo:
+    """The :class:`JointInfo` of an excited Drake joint.
+
+    Raises:
+        ConfigError: a joint that is neither revolute nor prismatic.
+    """
+    X_CM = joint.frame_on_child().GetFixedPoseInBodyFrame().GetAsMatrix4()
+    if joint.type_name() == "revolute":
+        kind, axis = "revolute", np.asarray(joint.revolute_axis(), float)
+    elif joint.type_name() == "prismatic":
+        kind, axis = "prismatic", np.asarray(joint.translation_axis(), float)
+    else:
+        raise ConfigError(
+            f"joint '{joint.name()}' is a {joint.type_name()} joint; only revolute and "
+            "prismatic joints can be excited"
+        )
+    return JointInfo(joint.name(), kind, int(joint.child_body().index()), X_CM, axis / np.linalg.norm(axis))
+
+
 def _inboard_joint(plant, body):
     for j in plant.GetJointIndices():
         joint = plant.get_joint(j)
@@ -559,23 +410,115 @@ def _inboard_joint(plant, body):
 
 
 def _quaternion(wxyz):
-    from pydrake.common.eigen_geometry import Quaternion
+    from pydrake.common.eigen_geometry import Quaternion  # lazy: pydrake is heavy
 
     q = np.asarray(wxyz, float)
     return Quaternion(q / np.linalg.norm(q))
 
 
-def _resolve_model_path(model: str) -> Path:
-    if not model:
-        raise ConfigError("robot.model is empty: give a URDF/SDF path or a built-in robot name")
-    prefix = "package://example-robot-data/"
-    if model.startswith(prefix):
-        path = example_robot_data_dir() / model[len(prefix):]
-    else:
-        path = Path(model)
-    if not path.is_file():
-        raise ConfigError(f"robot model file '{path}' does not exist")
-    return path
+def _model_text(model_path: Path, obj_visuals: bool) -> str:
+    """The model file's text as Drake parses it."""
+    text = model_path.read_text()
+    if model_path.suffix.lower() == ".urdf":
+        # Drake cannot build convex hulls of STL/DAE collision meshes (BUILD_NOTES.md);
+        # collision is our own capsules. Mimic tags would couple joints we may lock.
+        text = re.sub(r"<collision\b.*?</collision>", "", text, flags=re.S)
+        text = re.sub(r"<mimic\b[^>]*/>", "", text)
+        if obj_visuals:
+            text = stl_visuals_to_obj(text, model_path)
+    return text
+
+
+def _parse_models(plant, text: str, model_path: Path) -> list:
+    """Adds the model to the plant; returns its model instances.
+
+    Raises:
+        ConfigError: Drake cannot parse it (Drake's message is kept).
+    """
+    from pydrake.multibody.parsing import Parser  # lazy: pydrake is heavy
+
+    parser = Parser(plant)
+    try:
+        parser.package_map().Add("example-robot-data", str(example_robot_data_dir()))
+    except ConfigError:
+        pass
+    try:  # user models may ship a package.xml next to them
+        parser.package_map().PopulateFromFolder(str(model_path.parent))
+    except Exception:
+        pass
+    drake_logger = logging.getLogger("drake")
+    level = drake_logger.level
+    drake_logger.setLevel(logging.ERROR)  # unsupported ROS tags (gazebo, transmission)
+    try:
+        return parser.AddModelsFromString(text, model_path.suffix.lstrip(".").lower())
+    except Exception as err:  # Drake raises RuntimeError with its parser message
+        raise ConfigError(f"Drake could not parse '{model_path}': {err}") from err
+    finally:
+        drake_logger.setLevel(level)
+
+
+def _excited_joint_names(cfg: RobotConfig, movable_names: list[str], model_path: Path) -> list[str]:
+    """The excited joints (default: every 1-dof joint), after checking every joint name the
+    config uses.
+
+    Raises:
+        UnknownNameError: a joint the model (or the excited set) does not have.
+        ConfigError: a joint listed twice, or both excited and locked.
+    """
+    excited = list(cfg.joints) if cfg.joints else list(movable_names)
+    for j in excited:
+        if j not in movable_names:
+            raise UnknownNameError("joint", j, movable_names, where=str(model_path.name))
+    if len(set(excited)) != len(excited):
+        raise ConfigError(f"robot.joints lists a joint twice: {excited}")
+    for j in cfg.locked_positions:
+        if j not in movable_names:
+            raise UnknownNameError("joint", j, movable_names, where="robot.locked_positions")
+        if j in excited:
+            raise ConfigError(f"joint '{j}' is both excited and in robot.locked_positions")
+    for table in ("position_limits", "velocity_limits", "acceleration_limits", "effort_limits"):
+        for j in getattr(cfg, table):
+            if j not in excited:
+                raise UnknownNameError("joint", j, excited, where=f"robot.{table} (excited joints)")
+    return excited
+
+
+def _weld_locked_joints(plant, movable: list, excited: list[str], positions: dict[str, float]) -> dict[str, float]:
+    """Welds every non-excited joint at its locked position (default: 0 clipped to its limits).
+
+    Returns:
+        {joint: locked position} [rad or m].
+
+    Raises:
+        NotWithinLimitsError: a locked position outside the joint's limits.
+        ConfigError: a joint type that cannot be locked.
+    """
+    from pydrake.common.eigen_geometry import AngleAxis  # lazy: pydrake is heavy
+    from pydrake.math import RigidTransform
+    from pydrake.multibody.tree import PrismaticJoint, RevoluteJoint
+
+    locked: dict[str, float] = {}
+    for joint in movable:
+        if joint.name() in excited:
+            continue
+        lo, hi = joint.position_lower_limits()[0], joint.position_upper_limits()[0]
+        value = positions.get(joint.name(), float(np.clip(0.0, lo, hi)))
+        if not lo - 1e-9 <= value <= hi + 1e-9:
+            raise NotWithinLimitsError(joint.name(), value, lo, hi, what="locked position")
+        locked[joint.name()] = float(value)
+        if isinstance(joint, RevoluteJoint):
+            X_FM = RigidTransform(AngleAxis(value, joint.revolute_axis()), np.zeros(3))
+        elif isinstance(joint, PrismaticJoint):
+            X_FM = RigidTransform(joint.translation_axis() * value)
+        else:
+            raise ConfigError(f"cannot lock joint '{joint.name()}' of type {joint.type_name()}")
+        frame_F, frame_M = joint.frame_on_parent(), joint.frame_on_child()
+        for actuator_index in plant.GetJointActuatorIndices():
+            if plant.get_joint_actuator(actuator_index).joint().index() == joint.index():
+                plant.RemoveJointActuator(plant.get_joint_actuator(actuator_index))
+        plant.RemoveJoint(joint)
+        plant.WeldFrames(frame_F, frame_M, X_FM)
+    return locked
 
 
 def load_robot(
@@ -607,5 +550,4 @@ def load_robot(
         validate_config(Config(robot=robot))
         return Robot(Path(robot.model).stem, robot, **options)
     config = resolve_robot_config(robot, config_file)
-    name = robot if robot in builtin_robots() else Path(robot).stem
-    return Robot(name, config.robot, **options)
+    return Robot(robot_display_name(robot), config.robot, **options)

@@ -28,105 +28,13 @@ from pathlib import Path
 
 import numpy as np
 
-from pe_drake.exceptions import ConfigError, PeDrakeError
+from pe_drake.exceptions import ConfigError
 from pe_drake.io_utils import atomic_write_text
+from pe_drake.multibody.inertia import central_inertia, check_physically_valid, spatial_inertia_to_phi
+from pe_drake.multibody.registry import example_robot_data_dir
 
 #: Packages the pe_drake loader always registers; their URIs are kept as they are.
 KNOWN_PACKAGES = ("example-robot-data",)
-
-
-class PhysicallyInvalidError(PeDrakeError, ValueError):
-    """Inertial parameters that Drake refuses as a rigid body.
-
-    Attributes:
-        bodies: {body name: Drake's reason}.
-    """
-
-    def __init__(self, bodies: dict[str, str]):
-        self.bodies = dict(bodies)
-        names = ", ".join(self.bodies)
-        first = next(iter(self.bodies.values()), "")
-        super().__init__(
-            f"the inertial parameters of {len(self.bodies)} body(ies) are not physically valid: "
-            f"{names} (first: {first}); write a physically consistent estimate (method 'physical') "
-            "instead"
-        )
-
-
-def central_inertia(phi_b: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
-    """Mass, centre of mass and rotational inertia about the centre of mass of one body.
-
-    Args:
-        phi_b: the body's 10 parameters [m, hx, hy, hz, Ixx, Iyy, Izz, Ixy, Ixz, Iyz]
-            (about the body origin Bo, body frame B) [kg, kg·m, kg·m²].
-
-    Returns:
-        (m [kg], p_BoBcm_B shape (3,) [m], I_BBcm_B shape (3, 3) [kg·m²]). A massless body
-        gives a zero centre of mass and its (then required zero) inertia about Bo.
-    """
-    phi_b = np.asarray(phi_b, float)
-    m = float(phi_b[0])
-    Ixx, Iyy, Izz, Ixy, Ixz, Iyz = phi_b[4:10]
-    I_Bo = np.array([[Ixx, Ixy, Ixz], [Ixy, Iyy, Iyz], [Ixz, Iyz, Izz]])
-    if m == 0.0:
-        return 0.0, np.zeros(3), I_Bo
-    p = phi_b[1:4] / m
-    I_cm = I_Bo - m * (float(p @ p) * np.eye(3) - np.outer(p, p))
-    return m, p, I_cm
-
-
-def validity_problems(body_names: Sequence[str], phi: np.ndarray) -> dict[str, str]:
-    """Bodies whose parameters Drake does not accept, with the reason.
-
-    A body is valid when ``SpatialInertia(m, p, G, skip_validity_check=False)`` can be built
-    (mass ≥ 0, inertia about the centre of mass with non-negative principal moments that
-    satisfy the triangle inequality), or when all its parameters are zero (a massless frame).
-
-    Args:
-        body_names: names of the bodies, length nb.
-        phi: parameters, shape (10·nb,).
-
-    Returns:
-        {body: reason}; empty when every body is valid.
-    """
-    from pe_drake.multibody.robot import phi_to_spatial_inertia
-
-    phi = np.asarray(phi, float)
-    problems: dict[str, str] = {}
-    if phi.shape != (10 * len(body_names),):
-        raise ConfigError(f"phi has shape {phi.shape}, expected ({10 * len(body_names)},)")
-    for b, name in enumerate(body_names):
-        phi_b = phi[10 * b : 10 * b + 10]
-        if not np.all(np.isfinite(phi_b)):
-            problems[name] = "a parameter is NaN or infinite"
-            continue
-        if phi_b[0] == 0.0:
-            if np.any(phi_b[1:] != 0.0):
-                problems[name] = "zero mass with a non-zero first moment or inertia"
-            continue
-        if phi_b[0] < 0.0:
-            problems[name] = f"negative mass {phi_b[0]:.6g} kg"
-            continue
-        try:
-            M = phi_to_spatial_inertia(phi_b, skip_validity_check=True)
-            if not M.IsPhysicallyValid():
-                m, _, I_cm = central_inertia(phi_b)
-                moments = np.linalg.eigvalsh(I_cm)
-                problems[name] = (
-                    f"principal moments about the centre of mass {np.array2string(moments, precision=4)} "
-                    "kg·m² are negative or violate the triangle inequality"
-                )
-        except (RuntimeError, ValueError) as err:
-            problems[name] = str(err).splitlines()[0]
-    return problems
-
-
-def check_physically_valid(body_names: Sequence[str], phi: np.ndarray) -> None:
-    """Raises :class:`PhysicallyInvalidError` listing every invalid body (see
-    :func:`validity_problems`)."""
-    problems = validity_problems(body_names, phi)
-    if problems:
-        raise PhysicallyInvalidError(problems)
 
 
 def _fmt(x: float) -> str:
@@ -231,7 +139,7 @@ def urdf_with_inertias(
         link.insert(position, new)
     package_map = None
     try:
-        from pydrake.multibody.parsing import PackageMap
+        from pydrake.multibody.parsing import PackageMap  # lazy: pydrake is heavy
 
         package_map = PackageMap()
         with contextlib.suppress(Exception):
@@ -256,10 +164,8 @@ def verify_urdf_text(text: str, body_names: Sequence[str], phi: np.ndarray, tole
         ConfigError: Drake refuses the text, or a body's parameters differ by more than
             ``tolerance`` relative to the largest parameter of that body.
     """
-    from pydrake.multibody.parsing import Parser
+    from pydrake.multibody.parsing import Parser  # lazy: pydrake is heavy
     from pydrake.multibody.plant import MultibodyPlant
-
-    from pe_drake.multibody.robot import example_robot_data_dir, spatial_inertia_to_phi
 
     plant = MultibodyPlant(0.0)
     parser = Parser(plant)

@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+from pe_drake.exceptions import ConfigError
+from pe_drake.excitation.constraints.balance import BalanceConstraint
 from pe_drake.excitation.constraints.base import SampledConstraint, SampledValues
+from pe_drake.excitation.constraints.collision import CollisionConstraint
+from pe_drake.excitation.constraints.torque import TorqueConstraint
 
 __all__ = ["SampledConstraint", "SampledValues", "constraints_from_config"]
 
@@ -20,13 +24,9 @@ def constraints_from_config(robot, excitation) -> list[SampledConstraint]:
             (support points, a capsule file).
         InfeasibleError: the nominal posture already violates a constraint.
     """
-    from pe_drake.exceptions import ConfigError
-
     out: list[SampledConstraint] = []
     q0 = robot.nominal_posture()[None, :]
     if excitation.balance_radius > 0:
-        from pe_drake.excitation.constraints.balance import BalanceConstraint
-
         balance = BalanceConstraint(robot, excitation.balance_radius)
         balance.check_posture(q0)
         out.append(balance)
@@ -36,14 +36,10 @@ def constraints_from_config(robot, excitation) -> list[SampledConstraint]:
                 f"excitation.collision_margin is set but robot '{robot.name}' has no capsule file "
                 "(robot.capsules)"
             )
-        from pe_drake.excitation.constraints.collision import CollisionConstraint
-
         collision = CollisionConstraint(robot, excitation.collision_margin)
         collision.check_posture(q0)
         out.append(collision)
     if excitation.torque_limits:
-        from pe_drake.excitation.constraints.torque import TorqueConstraint
-
         torque = TorqueConstraint(robot)
         torque.check_posture(q0)
         out.append(torque)

@@ -22,7 +22,7 @@ import math
 import numpy as np
 
 from pe_drake.exceptions import ConfigError, InfeasibleError, UnknownNameError
-from pe_drake.excitation.constraints.base import SampledConstraint, SampledValues
+from pe_drake.excitation.constraints.base import SampledConstraint, SampledValues, check_postures
 
 
 class OutOfBalanceError(InfeasibleError):
@@ -150,7 +150,7 @@ class BalanceConstraint(SampledConstraint):
         Returns:
             e = (x, y) offsets, shape (K, 2) [m].
         """
-        q = self._check_q(q)
+        q = check_postures(q, self.robot, "balance constraint")
         p, _ = self._com(q, jacobian=False)
         return p[:, :2] - self.p_WSc[:2]
 
@@ -167,7 +167,7 @@ class BalanceConstraint(SampledConstraint):
             value (K, 1) [m]; d_q (K, 1, n) [m/rad], empty (K, 1, 0) when ``derivatives`` is
             False; d_v = d_vd = None.
         """
-        q = self._check_q(q)
+        q = check_postures(q, self.robot, "balance constraint")
         p, J = self._com(q, jacobian=derivatives)
         e = p[:, :2] - self.p_WSc[:2]
         g = np.sqrt(np.einsum("ki,ki->k", e, e) + self.smoothing**2)
@@ -200,15 +200,3 @@ class BalanceConstraint(SampledConstraint):
         time = None if t is None else float(np.asarray(t, float).reshape(-1)[k])
         raise OutOfBalanceError(k, time, e[k], self.radius, int(bad.sum()))
 
-    def _check_q(self, q: np.ndarray) -> np.ndarray:
-        q = np.asarray(q, float)
-        if q.ndim == 1:
-            q = q[None, :]
-        if q.ndim != 2 or q.shape[1] != self.robot.n:
-            raise ConfigError(
-                f"balance constraint: q must have shape (K, {self.robot.n}) for the joints "
-                f"{', '.join(self.robot.joint_names)}; got {np.shape(q)}"
-            )
-        if not np.isfinite(q).all():
-            raise ConfigError("balance constraint: q contains NaN or infinity")
-        return q

@@ -14,6 +14,28 @@ import dataclasses
 
 import numpy as np
 
+from pe_drake.exceptions import ConfigError
+
+
+def check_postures(q: np.ndarray, robot, what: str) -> np.ndarray:
+    """q as finite postures of the robot's excited joints, shape (K, n) (a single posture (n,)
+    becomes (1, n)).
+
+    Raises:
+        ConfigError: another shape, or NaN/infinity; ``what`` names the constraint.
+    """
+    q = np.asarray(q, float)
+    if q.ndim == 1:
+        q = q[None, :]
+    if q.ndim != 2 or q.shape[1] != robot.n:
+        raise ConfigError(
+            f"{what}: q must have shape (K, {robot.n}) for the joints "
+            f"{', '.join(robot.joint_names)}; got {np.shape(q)}"
+        )
+    if not np.isfinite(q).all():
+        raise ConfigError(f"{what}: q contains NaN or infinity")
+    return q
+
 
 @dataclasses.dataclass(frozen=True)
 class SampledValues:

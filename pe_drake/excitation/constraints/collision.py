@@ -13,7 +13,7 @@ axis ω_k through o_k (Plücker moment m_k = o_k × ω_k),
     ∂d_ij/∂q_k = [k moves i]·(ω_k·(c_i × n) + n·m_k) - [k moves j]·(ω_k·(c_j × n) + n·m_k)
 
 (for a prismatic joint, ω_k = 0 and m_k is its world axis). Drake's own capsule distance is
-accurate to ~2e-6 m only, which shows in finite differences (DRAKE_NOTES.md); this one is
+accurate to ~2e-6 m only, which shows in finite differences (BUILD_NOTES.md); this one is
 exact to rounding.
 
 Form of the constraint. By default each sample contributes ONE row, a smooth lower bound of
@@ -39,7 +39,8 @@ import math
 import numpy as np
 
 from pe_drake.exceptions import ConfigError, InfeasibleError
-from pe_drake.excitation.constraints.base import SampledConstraint, SampledValues
+from pe_drake.excitation.constraints.base import SampledConstraint, SampledValues, check_postures
+from pe_drake.multibody.capsules import capsule_pairs, segment_closest_points
 
 
 class PostureInCollisionError(InfeasibleError):
@@ -97,8 +98,6 @@ class CollisionConstraint(SampledConstraint):
         Raises:
             ConfigError: no capsules, no pair left to check, or a bad margin/smoothing.
         """
-        from pe_drake.multibody.capsules import capsule_pairs
-
         if not isinstance(margin, (int, float)) or not math.isfinite(margin) or margin < 0:
             raise ConfigError(f"collision margin must be a finite number >= 0 [m], got {margin!r}")
         if aggregate and (not math.isfinite(smoothing) or smoothing <= 0):
@@ -201,8 +200,6 @@ class CollisionConstraint(SampledConstraint):
         return p_WS
 
     def _pair_geometry(self, q: np.ndarray, joints: bool):
-        from pe_drake.multibody.capsules import segment_closest_points
-
         X_WH = self._joint_body_poses(q, all_joints=joints)
         p_WS = self._capsule_ends(X_WH)
         a0, a1 = p_WS[:, self._pa, 0], p_WS[:, self._pa, 1]  # (K, P, 3)
@@ -235,7 +232,7 @@ class CollisionConstraint(SampledConstraint):
         Returns:
             shape (K, P) [m], negative when the capsules overlap; columns follow ``pairs``.
         """
-        q = self._check_q(q)
+        q = check_postures(q, self.robot, "collision constraint")
         return self._pair_geometry(q, joints=False)[0]
 
     def evaluate(
@@ -251,7 +248,7 @@ class CollisionConstraint(SampledConstraint):
             value (K, 1) or (K, P) [m]; d_q (K, 1, n) or (K, P, n) [m/rad], empty (K, m, 0)
             when ``derivatives`` is False; d_v = d_vd = None.
         """
-        q = self._check_q(q)
+        q = check_postures(q, self.robot, "collision constraint")
         K, n = q.shape
         d, c_a, c_b, diff, centre_distance, X_WH = self._pair_geometry(q, joints=derivatives)
         if self.aggregate:
@@ -321,15 +318,3 @@ class CollisionConstraint(SampledConstraint):
             int(bad.any(axis=1).sum()),
         )
 
-    def _check_q(self, q: np.ndarray) -> np.ndarray:
-        q = np.asarray(q, float)
-        if q.ndim == 1:
-            q = q[None, :]
-        if q.ndim != 2 or q.shape[1] != self.robot.n:
-            raise ConfigError(
-                f"collision constraint: q must have shape (K, {self.robot.n}) for the joints "
-                f"{', '.join(self.robot.joint_names)}; got {np.shape(q)}"
-            )
-        if not np.isfinite(q).all():
-            raise ConfigError("collision constraint: q contains NaN or infinity")
-        return q

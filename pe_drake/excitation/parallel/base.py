@@ -27,7 +27,7 @@ import numpy as np
 
 from pe_drake.config import ExcitationConfig
 from pe_drake.exceptions import ConfigError, PeDrakeError
-from pe_drake.excitation.program import ExcitationProblem
+from pe_drake.excitation.problem import ExcitationProblem
 from pe_drake.multibody.regressor import RegressorModel
 from pe_drake.multibody.robot import Robot
 from pe_drake.threads import single_threaded_blas
@@ -155,7 +155,7 @@ class WorkerState:
         return self._constraints[key]
 
     def problem(self, config: ExcitationConfig, C0: np.ndarray | None = None):
-        """An :class:`~pe_drake.excitation.program.ExcitationProblem` on this robot and base."""
+        """An :class:`~pe_drake.excitation.problem.ExcitationProblem` on this robot and base."""
         return ExcitationProblem(self.robot, config, C0=C0, base=self.base, model=self.model)
 
 
@@ -237,7 +237,7 @@ class Executor:
         self.workers = workers
 
     def problem(self, config: ExcitationConfig, C0: np.ndarray | None = None):
-        """An :class:`~pe_drake.excitation.program.ExcitationProblem` in this process, with the
+        """An :class:`~pe_drake.excitation.problem.ExcitationProblem` in this process, with the
         executor's base parameters."""
         return self.local.problem(config, C0)
 

@@ -1,0 +1,36 @@
+"""What the commands share: the robot named by ``--robot`` (and ``--config``)."""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Callable
+
+from pe_drake.config import Config
+from pe_drake.multibody.registry import resolve_robot_config, robot_display_name
+from pe_drake.multibody.robot import Robot
+
+
+def config_from_args(args: argparse.Namespace, adjust: Callable[[Config], Config] | None = None) -> Config:
+    """The config of ``--robot`` with ``--config`` on top, then ``adjust`` (other flags) applied.
+
+    Raises:
+        UnknownNameError, ConfigError: as :func:`~pe_drake.multibody.registry.resolve_robot_config`.
+    """
+    config = resolve_robot_config(args.robot, getattr(args, "config", None))
+    return adjust(config) if adjust is not None else config
+
+
+def robot_from_args(args: argparse.Namespace, config: Config | None = None) -> Robot:
+    """The :class:`~pe_drake.multibody.robot.Robot` of ``--robot``/``--config``.
+
+    Args:
+        args: parsed arguments with ``robot`` (built-in name or model path) and optionally
+            ``config`` (YAML file).
+        config: the config to build it from, when the command has already resolved (and
+            adjusted) it with :func:`config_from_args`.
+
+    Raises:
+        UnknownNameError, ConfigError, NotWithinLimitsError: as :func:`~pe_drake.multibody.robot.load_robot`.
+    """
+    config = config if config is not None else config_from_args(args)
+    return Robot(robot_display_name(args.robot), config.robot)

@@ -1,0 +1,220 @@
+"""Data preparation of the diagnosis: one filtered full-rate record per file, then its parts.
+
+The measurement is brought to a uniform grid and low-pass filtered with a zero-phase
+Butterworth (same filter on q and τ, as :func:`pe_drake.identification.measurements.preprocess`);
+v, v̇ by central differences; then decimated to about ``decimate_to_hz``. The noise floor of
+each joint is the raw torque's white-noise level (median absolute second difference / √6 ·
+1.4826) times the filter's noise gain. Without a validation record the last
+``holdout_fraction`` is held out, with a gap of 2 / cut-off between the two parts so the
+zero-phase filter does not leak across (:func:`split_segments`).
+
+:func:`prepare_record` is built from identification's preprocessing steps
+(:mod:`pe_drake.identification.preprocessing`: the uniform grid, the cut-off, the one
+Butterworth design, the decimation step), so both stages filter alike.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import numpy as np
+
+from pe_drake.diagnosis.options import MIN_PERIODS, DiagnosisConfig
+from pe_drake.exceptions import DataError
+from pe_drake.identification.measurements import Measurement, Preprocessing
+from pe_drake.identification.preprocessing import (
+    LowPassFilter,
+    choose_cutoff,
+    decimation_step,
+    design_lowpass,
+    resample_uniform,
+)
+
+#: Order of the Butterworth low-pass (the zero-phase filter doubles it).
+FILTER_ORDER = 4
+#: Odd extension of the filter at each end, in periods of the cut-off: a short extension
+#: leaves edge transients in the twice-differentiated acceleration that reach past the
+#: 2 / cut-off trimmed at each end.
+EDGE_PERIODS = 3.0
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Record:
+    """One measurement file at its full (uniform) rate after zero-phase filtering.
+
+    Attributes:
+        source: file name.
+        t, q, v, vd, tau: filtered full-rate signals, (T,) and (T, n).
+        lowpass: the zero-phase Butterworth filter applied to q and tau.
+        rate_hz: full rate [Hz].
+        cutoff_hz: cut-off [Hz].
+        step: decimation step.
+        trim_s: time dropped at each end [s].
+        raw_noise: white-noise level of the raw torque per joint [N·m].
+        noise_gain: noise power gain of the zero-phase filter.
+        preprocessing: the choices made, as :class:`~pe_drake.identification.measurements.Preprocessing`.
+    """
+
+    source: str
+    t: np.ndarray
+    q: np.ndarray
+    v: np.ndarray
+    vd: np.ndarray
+    tau: np.ndarray
+    lowpass: LowPassFilter
+    rate_hz: float
+    cutoff_hz: float
+    step: int
+    trim_s: float
+    raw_noise: np.ndarray
+    noise_gain: float
+    preprocessing: Any
+
+    def filtered(self, x: np.ndarray) -> np.ndarray:
+        """The same zero-phase filter as the torque, along time (parallel filtering)."""
+        return self.lowpass.apply(x)
+
+    def usable(self) -> np.ndarray:
+        """Indices of the decimated samples away from the filter's edge transients."""
+        t = self.t
+        keep = (t >= t[0] + self.trim_s - 1e-12) & (t <= t[-1] - self.trim_s + 1e-12)
+        keep &= (np.arange(len(t)) % self.step) == 0
+        return np.flatnonzero(keep)
+
+    @property
+    def noise_floor(self) -> np.ndarray:
+        """Standard deviation of white torque noise after the filter, per joint [N·m]."""
+        return self.raw_noise * math.sqrt(self.noise_gain)
+
+
+def raw_noise_level(tau: np.ndarray) -> np.ndarray:
+    """White-noise level of a raw torque per joint [N·m]: second differences remove the smooth
+    motion (median absolute deviation · 1.4826 / √6)."""
+    d2 = np.diff(tau, n=2, axis=0)
+    return 1.4826 * np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0) / math.sqrt(6.0)
+
+
+def prepare_record(measurement: Measurement, config: DiagnosisConfig) -> Record:
+    """Uniform grid, zero-phase filter, derivatives at the full rate (module docstring).
+
+    Raises:
+        DataError: too few samples for the filter, from the file named.
+        ConfigError: a cut-off at or above the Nyquist frequency.
+    """
+    m = measurement
+    if m.num_samples < 30:
+        raise DataError(f"only {m.num_samples} samples; the diagnosis needs at least 30", file=m.source)
+    grid = resample_uniform(m.t, {"q": m.q, "tau": m.tau, "v": m.v})
+    t, signals, dt, rate = grid.t, grid.signals, grid.dt, grid.rate_hz
+    cutoff, cutoff_source = choose_cutoff(t, signals["q"], rate, cutoff_hz=config.cutoff_hz, file=m.source)
+    lowpass = design_lowpass(cutoff, rate, len(t), FILTER_ORDER, edge_periods=EDGE_PERIODS, file=m.source)
+    if len(t) < 4 * lowpass.padlen:
+        raise DataError(f"only {len(t)} samples at {rate:.4g} Hz: the record is too short for a "
+                        f"{cutoff:.3g} Hz low-pass filter (at least {4 * lowpass.padlen / rate:.3g} s)", file=m.source)
+    q, tau = lowpass.apply(signals["q"]), lowpass.apply(signals["tau"])
+    v = lowpass.apply(signals["v"]) if signals["v"] is not None else np.gradient(q, dt, axis=0)
+    vd = np.gradient(v, dt, axis=0)
+    step = decimation_step(rate, config.decimate_to_hz, cutoff)
+    trim = 2.0 / cutoff
+    raw = raw_noise_level(m.tau)
+    gain = lowpass.white_noise_gain()
+    info = Preprocessing(
+        cutoff_hz=cutoff, cutoff_source=cutoff_source, filter_order=FILTER_ORDER,
+        input_rate_hz=1.0 / float(np.median(np.diff(m.t))), resampled=grid.resampled, rate_hz=rate / step,
+        trim_s=trim, velocity_source="measured" if m.v is not None else "differentiated",
+        acceleration_source="differentiated", samples_in=m.num_samples, samples_out=0)
+    return Record(m.source, t, q, v, vd, tau, lowpass, rate, cutoff, step, trim, raw, gain, info)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Segment:
+    """Decimated samples of one record used for fitting or for held-out evaluation.
+
+    Attributes:
+        name: "training" or "held-out".
+        record: the :class:`Record` the samples come from.
+        idx: their indices into the record's full-rate arrays, (S,).
+        coulomb: parallel-filtered Coulomb columns tanh(v/v_s) per joint, (S, n).
+        dtau: time derivative of the filtered measured torque, (S, n) [N·m/s].
+    """
+
+    name: str
+    record: Record
+    idx: np.ndarray
+    coulomb: np.ndarray
+    dtau: np.ndarray
+
+    @property
+    def t(self) -> np.ndarray:
+        return self.record.t[self.idx]
+
+    @property
+    def q(self) -> np.ndarray:
+        return self.record.q[self.idx]
+
+    @property
+    def v(self) -> np.ndarray:
+        return self.record.v[self.idx]
+
+    @property
+    def vd(self) -> np.ndarray:
+        return self.record.vd[self.idx]
+
+    @property
+    def tau(self) -> np.ndarray:
+        return self.record.tau[self.idx]
+
+    @property
+    def num_samples(self) -> int:
+        return len(self.idx)
+
+    @property
+    def duration(self) -> float:
+        t = self.t
+        return float(t[-1] - t[0]) if len(t) else 0.0
+
+
+def _segment(name: str, record: Record, idx: np.ndarray, coulomb_full: np.ndarray,
+             dtau_full: np.ndarray) -> Segment:
+    return Segment(name, record, idx, coulomb_full[idx], dtau_full[idx])
+
+
+def split_segments(record: Record, config: DiagnosisConfig, validation: Record | None = None,
+                   ) -> tuple[Segment, Segment]:
+    """Training and held-out segments (module docstring).
+
+    Raises:
+        DataError: a part too short to be used.
+    """
+    columns = {}
+    for rec in (record, validation):
+        if rec is None:
+            continue
+        coulomb = rec.filtered(np.tanh(rec.v / config.coulomb_velocity_scale))
+        dtau = np.gradient(rec.tau, 1.0 / rec.rate_hz, axis=0)
+        columns[id(rec)] = (coulomb, dtau)
+    usable = record.usable()
+    if validation is None:
+        t = record.t
+        split = t[0] + (1.0 - config.holdout_fraction) * (t[-1] - t[0])
+        gap = record.trim_s / 2
+        train = usable[t[usable] < split - gap]
+        held = usable[t[usable] > split + gap]
+        training = _segment("training", record, train, *columns[id(record)])
+        held_out = _segment("held-out", record, held, *columns[id(record)])
+    else:
+        training = _segment("training", record, usable, *columns[id(record)])
+        held_out = _segment("held-out", validation, validation.usable(), *columns[id(validation)])
+    for seg in (training, held_out):
+        if seg.num_samples < 20 or seg.duration < MIN_PERIODS / seg.record.cutoff_hz:
+            raise DataError(
+                f"the {seg.name} part is {seg.duration:.3g} s long ({seg.num_samples} samples) after "
+                f"filtering and trimming {seg.record.trim_s:.3g} s at each end; it needs at least "
+                f"{MIN_PERIODS / seg.record.cutoff_hz:.3g} s ({MIN_PERIODS:g} periods of the "
+                f"{seg.record.cutoff_hz:.3g} Hz cut-off): record a longer run"
+                + (" or lower the held-out fraction" if validation is None else ""),
+                file=seg.record.source,
+            )
+    return training, held_out

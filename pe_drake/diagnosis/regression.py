@@ -1,0 +1,441 @@
+"""The regression of the measured torque on the base regressor and the library's columns.
+
+The candidate columns of :mod:`pe_drake.diagnosis.effects` and the timing nuisance -dτ/dt are
+appended to the base regressor (:class:`Library`); :class:`Regression` refits any subset of
+them from per-joint Gram matrices (WLS with Gautier's per-joint weights, sandwich covariance
+inflated by the :func:`integrated_autocorrelation` time of each joint's residual);
+:func:`select_effects` runs the forward stepwise selection and the backward check of the
+workflow's criteria (a)-(d) (:func:`accept`). The residual analysis of steps 1 and 5
+(:func:`regime_analysis`, :func:`unexplained_joints`) closes the module.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from pe_drake.diagnosis.effects import Candidate, effect_column
+from pe_drake.diagnosis.options import TIMING, DiagnosisConfig, Thresholds
+from pe_drake.diagnosis.record import Segment
+
+# ---- columns and fits ------------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Columns:
+    """Every column of one segment: base regressor, candidates, timing nuisance.
+
+    Attributes:
+        A: the columns, (S, n, P).
+        y: the target, the measured torque, (S, n).
+        gram: per-joint A_jᵀ A_j, (n, P, P).
+        rhs: per-joint A_jᵀ y_j, (n, P).
+        yy: per-joint y_jᵀ y_j, (n,).
+        count: S.
+    """
+
+    A: np.ndarray
+    y: np.ndarray
+    gram: np.ndarray
+    rhs: np.ndarray
+    yy: np.ndarray
+    count: int
+
+    @classmethod
+    def stack(cls, Y_B: np.ndarray, extra: np.ndarray, y: np.ndarray) -> Columns:
+        """The base regressor (S, n, b) and the extra columns (S, n, E) against the torque y."""
+        A = np.concatenate([Y_B, extra], axis=2)
+        gram = np.einsum("sjp,sjq->jpq", A, A, optimize=True)
+        rhs = np.einsum("sjp,sj->jp", A, y, optimize=True)
+        yy = np.einsum("sj,sj->j", y, y)
+        return cls(A, y, gram, rhs, yy, y.shape[0])
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Fit:
+    """A weighted least-squares fit of the base parameters and some library columns.
+
+    Attributes:
+        columns: indices of the fitted columns (base parameters first).
+        x: their values, shape (len(columns),).
+        cov: their covariance (sandwich, autocorrelation-inflated).
+        rms_train: per-joint RMS residual on the training segment.
+        rms_held: per-joint RMS residual on the held-out segment.
+        wrss_held: held-out residual sum of squares weighted like the fit.
+    """
+
+    columns: tuple[int, ...]
+    x: np.ndarray
+    cov: np.ndarray
+    rms_train: np.ndarray
+    rms_held: np.ndarray
+    wrss_held: float
+
+    def value(self, column: int) -> float:
+        """The fitted value of one column."""
+        return float(self.x[self.columns.index(column)])
+
+    def std(self, column: int) -> float:
+        """The standard deviation of one column's value."""
+        k = self.columns.index(column)
+        return math.sqrt(max(float(self.cov[k, k]), 0.0))
+
+
+class Regression:
+    """Fits of subsets of columns from per-joint Gram matrices (fast repeated refits)."""
+
+    def __init__(self, train: Columns, held: Columns, num_base: int):
+        self.train = train
+        self.held = held
+        self.num_base = num_base
+        n = train.gram.shape[0]
+        self.weights = np.ones(n)
+        self.inflation = np.ones(n)  # integrated autocorrelation time per joint
+        self.scale = np.ones(train.gram.shape[1])
+
+    def set_weights(self, weights: np.ndarray) -> None:
+        """Per-joint weights of the WLS, (n,)."""
+        self.weights = np.asarray(weights, float)
+
+    def fit(self, extra: Sequence[int]) -> Fit:
+        """The base parameters and the ``extra`` columns, fitted on the training segment."""
+        cols = list(range(self.num_base)) + [int(c) for c in extra]
+        w2 = self.weights**2
+        Gj = self.train.gram[:, cols][:, :, cols]
+        G = np.einsum("j,jpq->pq", w2, Gj)
+        g = np.einsum("j,jp->p", w2, self.train.rhs[:, cols])
+        d = np.sqrt(np.maximum(np.diag(G), 1e-300))
+        Gs = G / np.outer(d, d)
+        try:
+            Hinv = np.linalg.inv(Gs)
+        except np.linalg.LinAlgError:
+            Hinv = np.linalg.pinv(Gs)
+        x = (Hinv @ (g / d)) / d
+        Hinv = Hinv / np.outer(d, d)
+        rss_tr = self._rss(self.train, cols, x)
+        rss_ho = self._rss(self.held, cols, x)
+        S_tr, S_ho = self.train.count, self.held.count
+        var_j = np.maximum(rss_tr, 0.0) / max(S_tr - len(cols) / len(w2), 1.0)
+        # Sandwich: Var x = H⁻¹ (Σ_j w_j⁴ s_j τ_j G_j) H⁻¹ with s_j the joint's residual variance.
+        meat = np.einsum("j,jpq->pq", w2**2 * var_j * self.inflation, Gj)
+        cov = Hinv @ meat @ Hinv
+        return Fit(tuple(cols), x, cov, np.sqrt(np.maximum(rss_tr, 0) / S_tr),
+                   np.sqrt(np.maximum(rss_ho, 0) / S_ho), float(np.sum(w2 * rss_ho)))
+
+    @staticmethod
+    def _rss(c: Columns, cols: list[int], x: np.ndarray) -> np.ndarray:
+        G = c.gram[:, cols][:, :, cols]
+        r = c.rhs[:, cols]
+        return c.yy - 2 * r @ x + np.einsum("p,jpq,q->j", x, G, x)
+
+    def residual(self, which: str, fit: Fit) -> np.ndarray:
+        """Measured minus fitted torque on "training" or "held-out", (S, n)."""
+        c = self.train if which == "training" else self.held
+        return c.y - c.A[:, :, list(fit.columns)] @ fit.x
+
+    def contribution_rms(self, which: str, fit: Fit, column: int) -> np.ndarray:
+        """Per-joint RMS of one column's torque θ·c in a segment."""
+        c = self.train if which == "training" else self.held
+        k = fit.columns.index(column)
+        return np.abs(fit.x[k]) * np.sqrt(c.gram[:, column, column] / c.count)
+
+
+def integrated_autocorrelation(r: np.ndarray, max_lag_fraction: float = 0.1) -> np.ndarray:
+    """τ_int = 1 + 2 Σ ρ_k per column, summed while ρ_k > 0 (initial positive sequence).
+
+    Args:
+        r: residuals, (S, n).
+
+    Returns:
+        (n,), ≥ 1: the factor by which correlated samples inflate a variance.
+    """
+    S = r.shape[0]
+    x = r - r.mean(axis=0)
+    f = np.fft.rfft(x, n=2 * S, axis=0)
+    ac = np.fft.irfft(f * np.conj(f), axis=0)[:S]
+    out = np.ones(r.shape[1])
+    max_lag = max(1, int(max_lag_fraction * S))
+    for j in range(r.shape[1]):
+        if ac[0, j] <= 0:
+            continue
+        rho = ac[1 : max_lag + 1, j] / ac[0, j]
+        neg = np.flatnonzero(rho <= 0)
+        stop = neg[0] if neg.size else len(rho)
+        out[j] = 1.0 + 2.0 * float(np.sum(rho[:stop]))
+    return np.clip(out, 1.0, S / 2.0)
+
+
+def condition_number(G: np.ndarray) -> float:
+    """cond of A with column-equilibrated A from its Gram matrix G = AᵀA."""
+    d = np.sqrt(np.maximum(np.diag(G), 1e-300))
+    w = np.linalg.eigvalsh(G / np.outer(d, d))
+    return float(np.sqrt(w.max() / w.min())) if w.min() > 0 else float("inf")
+
+
+# ---- the library's columns -------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class Library:
+    """Where the separable candidates and the timing nuisance sit among the columns.
+
+    Attributes:
+        num_base: b, the base-parameter columns come first.
+        candidates: the separable candidates, columns b … b + len - 1.
+        timing_col: the timing nuisance's column, b + len(candidates).
+    """
+
+    num_base: int
+    candidates: tuple[Candidate, ...]
+
+    @property
+    def timing_col(self) -> int:
+        """The timing nuisance's column."""
+        return self.num_base + len(self.candidates)
+
+    @functools.cached_property
+    def col_of(self) -> dict[str, int]:
+        """{candidate label: column}."""
+        return {c.label: self.num_base + k for k, c in enumerate(self.candidates)}
+
+    @functools.cached_property
+    def cand_of(self) -> dict[int, Candidate]:
+        """{column: candidate}."""
+        return {self.num_base + k: c for k, c in enumerate(self.candidates)}
+
+    def label(self, col: int) -> str:
+        """The candidate's label, or ``timing_offset`` for the nuisance column."""
+        return TIMING if col == self.timing_col else self.cand_of[col].label
+
+    def extra_columns(self, seg: Segment) -> np.ndarray:
+        """The candidates' columns and the timing nuisance on a segment, (S, n, len + 1)."""
+        n = seg.q.shape[1]
+        cols = np.zeros((seg.num_samples, n, len(self.candidates) + 1))
+        for k, c in enumerate(self.candidates):
+            if c.effect == "coulomb_friction":
+                cols[:, c.joint, k] = seg.coulomb[:, c.joint]
+            else:
+                cols[:, c.joint, k] = effect_column(c.effect, seg.q, seg.v, seg.vd, c.joint)
+        cols[:, :, -1] = -seg.dtau  # timing nuisance: tau_rec(t) ≈ tau(t) - d·dtau/dt
+        return cols
+
+
+# ---- stepwise selection ----------------------------------------------------------------------
+
+
+def accept(col: int, fit: Fit, current: Fit, library: Library, thresholds: Thresholds) -> tuple[bool, str]:
+    """Criteria (a)-(d) of the workflow's module docstring for adding one column.
+
+    Args:
+        col: the column tried.
+        fit: the fit with it.
+        current: the fit without it.
+        library: the columns' meaning.
+        thresholds: significance, held-out gain and relevance to reach.
+
+    Returns:
+        (accepted, the reason when not).
+    """
+    value, std = fit.value(col), fit.std(col)
+    z = abs(value) / max(std, 1e-300)
+    z_min, relevance = thresholds.z_min, thresholds.relevance
+    if col == library.timing_col:
+        if z < z_min:
+            return False, f"not significant (z = {z:.2g} < {z_min:.2g})"
+        if fit.wrss_held > (1 - thresholds.min_heldout_gain) ** 2 * current.wrss_held:
+            return False, "held-out gain too small"
+        explained = np.sqrt(np.maximum(current.rms_held**2 - fit.rms_held**2, 0.0))
+        if not np.any(explained >= relevance):
+            return False, "explains too little on every joint"
+        return True, ""
+    c: Candidate = library.cand_of[col]
+    j = c.joint
+    if c.nonnegative and value < 0:
+        return False, f"physically implausible sign ({value:.3g} {c.unit})"
+    if z < z_min:
+        return False, f"not significant (z = {z:.2g} < {z_min:.2g})"
+    if fit.rms_held[j] > (1 - thresholds.min_heldout_gain) * current.rms_held[j]:
+        return False, (f"held-out RMS of {c.joint_name} only {current.rms_held[j]:.4g} → "
+                       f"{fit.rms_held[j]:.4g} N·m")
+    if fit.wrss_held >= current.wrss_held:
+        return False, "held-out residual of the other joints grows"
+    explained = math.sqrt(max(current.rms_held[j] ** 2 - fit.rms_held[j] ** 2, 0.0))
+    if explained < relevance[j]:
+        return False, f"explains too little ({explained:.3g} < {relevance[j]:.3g} N·m RMS on held-out data)"
+    return True, ""
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Selection:
+    """The outcome of the stepwise selection.
+
+    Attributes:
+        selected: the columns kept (effects and possibly the timing nuisance).
+        order: the same in the order they were added.
+        final: the fit with ``selected``.
+        rejected: {column: reason} of the columns tried and not kept.
+        thresholds: what the columns were held to.
+        steps: ("+" or "-", column, the fit after an addition or None) per addition or
+            removal, in order, for the progress report.
+    """
+
+    selected: list[int]
+    order: list[int]
+    final: Fit
+    rejected: dict[int, str]
+    thresholds: Thresholds
+    steps: list[tuple[str, int, Fit | None]]
+
+
+def select_effects(reg: Regression, library: Library, rigid: Fit, thresholds: Thresholds,
+                   config: DiagnosisConfig) -> Selection:
+    """Forward stepwise selection, then a backward check (workflow step 3).
+
+    Each accepted column re-estimates the autocorrelation inflation of ``reg`` from the new
+    residual (the regression keeps it for the fits that follow).
+    """
+    selected: list[int] = []
+    order: list[int] = []
+    rejected: dict[int, str] = {}
+    steps: list[tuple[str, int, Fit | None]] = []
+    current = rigid
+    timing_col = library.timing_col
+    pool = list(library.col_of.values()) + ([timing_col] if config.timing_check else [])
+    while len([c for c in selected if c != timing_col]) < config.max_effects:
+        best, best_fit, best_gain = None, None, 0.0
+        for col in pool:
+            if col in selected:
+                continue
+            fit = reg.fit(selected + [col])
+            ok, reason = accept(col, fit, current, library, thresholds)
+            if not ok:
+                rejected[col] = reason
+                continue
+            gain = current.wrss_held - fit.wrss_held
+            if gain > best_gain:
+                best, best_fit, best_gain = col, fit, gain
+        if best is None:
+            break
+        selected.append(best)
+        order.append(best)
+        rejected.pop(best, None)
+        current = best_fit
+        reg.inflation = integrated_autocorrelation(reg.residual("training", current))
+        steps.append(("+", best, current))
+    current = _backward_check(reg, library, selected, current, thresholds.z_min, rejected, steps)
+    return Selection(selected, [c for c in order if c in selected], current, rejected, thresholds, steps)
+
+
+def _backward_check(reg: Regression, library: Library, selected: list[int], current: Fit, z_min: float,
+                    rejected: dict[int, str], steps: list) -> Fit:
+    """Drops, one at a time, the columns no longer plausible and significant with the others
+    (updates ``selected``, ``rejected`` and ``steps`` in place); returns the last fit."""
+    cand_of = library.cand_of
+    while selected:
+        worst, worst_z = None, np.inf
+        for col in selected:
+            value = current.value(col)
+            z = abs(value) / max(current.std(col), 1e-300)
+            if col in cand_of and cand_of[col].nonnegative and value < 0:
+                z = -1.0
+            if z < z_min and z < worst_z:
+                worst, worst_z = col, z
+        if worst is None:
+            break
+        selected.remove(worst)
+        rejected[worst] = f"dropped in the backward check (z = {worst_z:.2g} < {z_min:.2g} with the others)"
+        current = reg.fit(selected)
+        steps.append(("-", worst, None))
+    return current
+
+
+# ---- residual analysis (steps 1 and 5) -------------------------------------------------------
+
+
+def rms(x: np.ndarray) -> np.ndarray:
+    """Root mean square along the first axis."""
+    return np.sqrt(np.mean(np.asarray(x) ** 2, axis=0))
+
+
+def corr(a: np.ndarray, b: np.ndarray) -> float:
+    """Pearson correlation of two series (0 when either is constant)."""
+    a = a - a.mean()
+    b = b - b.mean()
+    d = math.sqrt(float(a @ a) * float(b @ b))
+    return float(a @ b / d) if d > 0 else 0.0
+
+
+def regime_analysis(residual, q, v, vd, t, joints) -> dict[str, Any]:
+    """Mean and RMS of a residual per joint in each regime (step 1).
+
+    Regimes: velocity sign (v < 0, |v| ≤ 5 % of max |v|, v > 0), speed (|v| terciles),
+    acceleration (v̇ terciles), position (q terciles), time (quarters of the record).
+
+    Returns:
+        {joint: {"overall": {...}, "regimes": [{"regime", "bin", "count", "mean", "rms"}],
+        "strongest": the bin whose mean departs most from the overall mean}}.
+    """
+    out = {}
+    for j, name in enumerate(joints):
+        r = residual[:, j]
+        bins = []
+        for regime, label, mask in _regime_masks(q[:, j], v[:, j], vd[:, j], t):
+            if mask.sum() == 0:
+                continue
+            bins.append({"regime": regime, "bin": label, "count": int(mask.sum()),
+                         "mean": float(r[mask].mean()), "rms": float(np.sqrt(np.mean(r[mask] ** 2)))})
+        overall = {"mean": float(r.mean()), "rms": float(np.sqrt(np.mean(r**2)))}
+        strongest = max(bins, key=lambda e: abs(e["mean"] - overall["mean"]))
+        out[name] = {"overall": overall, "regimes": bins, "strongest": strongest,
+                     "correlation_sign_v": corr(r, np.sign(v[:, j])), "correlation_v": corr(r, v[:, j]),
+                     "correlation_vd": corr(r, vd[:, j])}
+    return out
+
+
+def _regime_masks(q: np.ndarray, v: np.ndarray, vd: np.ndarray, t: np.ndarray) -> list[tuple[str, str, np.ndarray]]:
+    """(regime, bin, sample mask) of one joint's samples, in the order of the report."""
+    vmax = float(np.max(np.abs(v))) or 1.0
+    still = np.abs(v) <= 0.05 * vmax
+    masks = [("velocity sign", "v < 0", (v < 0) & ~still), ("velocity sign", "v ≈ 0", still),
+             ("velocity sign", "v > 0", (v > 0) & ~still)]
+    for regime, x, names in (("speed", np.abs(v), ("slow", "medium", "fast")),
+                             ("acceleration", vd, ("vd low", "vd mid", "vd high")),
+                             ("position", q, ("q low", "q mid", "q high"))):
+        e1, e2 = np.quantile(x, [1 / 3, 2 / 3])
+        masks += [(regime, names[0], x <= e1), (regime, names[1], (x > e1) & (x <= e2)),
+                  (regime, names[2], x > e2)]
+    edges = np.quantile(t, [0.25, 0.5, 0.75])
+    quarter = np.searchsorted(edges, t)
+    masks += [("time", f"quarter {k + 1}", quarter == k) for k in range(4)]
+    return masks
+
+
+def unexplained_joints(residual: np.ndarray, held: Segment, thresholds: np.ndarray, noise_floor: np.ndarray,
+                       rms_nominal: np.ndarray, joints: Sequence[str], timing: dict[str, Any]) -> dict[str, Any]:
+    """Joints whose held-out residual stays above their threshold, with the signals it
+    correlates with (step 5)."""
+    out = {}
+    rms_j = rms(residual)
+    t = held.t
+    signals = {"sign(v)": np.sign(held.v), "v": held.v, "vd": held.vd, "q": held.q,
+               "dtau/dt": held.dtau, "t": np.repeat((t - t.mean())[:, None], len(joints), axis=1)}
+    for j, name in enumerate(joints):
+        if rms_j[j] <= thresholds[j]:
+            continue
+        r = residual[:, j]
+        correlations = {k: corr(r, x[:, j]) for k, x in signals.items()}
+        top = max(correlations, key=lambda k: abs(correlations[k]))
+        hint = f"residual correlates most with {top} ({correlations[top]:+.2f})"
+        if timing.get("needed"):
+            hint += (f"; the data fit a timing offset of {1e3 * timing['offset_s']:+.3g} ms between the torque "
+                     "and position logs (torque lags when positive): check the logging, this is not a "
+                     "model effect")
+        out[name] = {"rms": float(rms_j[j]), "threshold": float(thresholds[j]), "noise_floor": float(noise_floor[j]),
+                     "fraction_of_nominal_rms": float(rms_j[j] / rms_nominal[j]) if rms_nominal[j] > 0 else 0.0,
+                     "correlations": correlations, "hint": hint}
+    return out

@@ -1,0 +1,205 @@
+"""What the diagnosis returns and writes: :class:`NamedEffect`, :class:`DiagnosisResult`, and
+:func:`write_outputs` (diagnosis.json, report.md, figures, the augmented model files)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pe_drake.diagnosis.augmented_model import write_augmented_model
+from pe_drake.diagnosis.options import DiagnosisConfig
+from pe_drake.diagnosis.record import Segment
+from pe_drake.diagnosis.report import write_report
+from pe_drake.io_utils import atomic_write_text
+
+
+def per_joint(joints: Sequence[str], x) -> dict[str, float]:
+    """{joint: value} of a per-joint array."""
+    return {j: float(v) for j, v in zip(joints, x)}
+
+
+@dataclasses.dataclass(frozen=True)
+class NamedEffect:
+    """An effect the diagnosis names.
+
+    Attributes:
+        effect: ``coulomb_friction``, ``viscous_friction``, ``armature``, ``torque_offset`` or
+            ``payload``.
+        joint: the joint (per-joint effects) or "" (payload).
+        link: the link (payload) or "".
+        value: identified value in ``unit`` (payload: the added mass).
+        unit: unit of ``value``.
+        std: its standard deviation (autocorrelation-inflated).
+        z: |value| / std of the fitted increment (per-joint effects) or the mass (payload).
+        heldout_rms_before: per-joint held-out RMS before the effect was added [N·m].
+        heldout_rms_after: the same after.
+        details: effect-specific extras (payload centre of mass, welded bodies, χ² values).
+    """
+
+    effect: str
+    joint: str
+    link: str
+    value: float
+    unit: str
+    std: float
+    z: float
+    heldout_rms_before: dict[str, float]
+    heldout_rms_after: dict[str, float]
+    details: dict[str, Any]
+
+    def as_dict(self) -> dict[str, Any]:
+        """The effect's entry in diagnosis.json."""
+        out = {"effect": self.effect}
+        if self.joint:
+            out["joint"] = self.joint
+        if self.link:
+            out["link"] = self.link
+        out.update(value=self.value, unit=self.unit, std=self.std, z=self.z,
+                   heldout_rms_before=self.heldout_rms_before, heldout_rms_after=self.heldout_rms_after,
+                   **self.details)
+        return out
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class DiagnosisResult:
+    """Everything the diagnosis found (JSON via :meth:`to_json_dict`).
+
+    Attributes:
+        robot: robot name.
+        joints: excited joints.
+        config: the :class:`~pe_drake.diagnosis.options.DiagnosisConfig` used.
+        training, held_out: the two :class:`~pe_drake.diagnosis.record.Segment`s.
+        effects: the :class:`NamedEffect`s, in the order they were selected (payload last).
+        rms_nominal, rms_rigid, rms_after: per-joint held-out RMS [N·m] of the a-priori model,
+            after rigid-body re-identification, and of the augmented Drake model.
+        cumulative: [(step label, per-joint held-out RMS)] nominal → rigid → each effect.
+        unexplained: {joint: details} of joints the effects do not explain.
+        not_separable: effects that cannot be told apart from rigid-body terms.
+        rejected: the strongest candidates that were not named, with the reason.
+        regimes: nominal residual per joint and regime.
+        rigid: the rigid-body step's base parameters against the a-priori model.
+        payload_test: the payload search (best link, χ² values, decision).
+        timing: the timing-offset nuisance (estimated offset [s], whether it was needed).
+        predictions: held-out torques {"measured", "nominal", "rigid", "after"}, each (S, n).
+        residual_series: held-out residuals before/after each named effect, for plots.
+        augmented: the :class:`~pe_drake.diagnosis.augmented_model.AugmentedModel`.
+        drake_check: max |Drake augmented torque - least-squares prediction| per joint [N·m].
+        timings: wall time per step [s].
+        noise_floor: filtered white-noise level of the held-out torque per joint [N·m].
+        thresholds: held-out residual RMS above which a joint is unexplained [N·m].
+    """
+
+    robot: str
+    joints: tuple[str, ...]
+    config: DiagnosisConfig
+    training: Segment
+    held_out: Segment
+    effects: list[NamedEffect]
+    rms_nominal: np.ndarray
+    rms_rigid: np.ndarray
+    rms_after: np.ndarray
+    cumulative: list[tuple[str, np.ndarray]]
+    unexplained: dict[str, dict[str, Any]]
+    not_separable: list[dict[str, Any]]
+    rejected: list[dict[str, Any]]
+    regimes: dict[str, Any]
+    rigid: dict[str, Any]
+    payload_test: dict[str, Any]
+    timing: dict[str, Any]
+    predictions: dict[str, np.ndarray]
+    residual_series: dict[str, Any]
+    augmented: Any
+    drake_check: np.ndarray
+    timings: dict[str, float]
+    noise_floor: np.ndarray
+    thresholds: np.ndarray
+
+    def per_joint(self, x: np.ndarray) -> dict[str, float]:
+        """{joint: value} of a per-joint array."""
+        return per_joint(self.joints, x)
+
+    def to_json_dict(self) -> dict[str, Any]:
+        """The content of diagnosis.json."""
+        rec_tr, rec_ho = self.training.record, self.held_out.record
+        return {
+            "robot": self.robot,
+            "joints": list(self.joints),
+            "units": {"torque": "N·m (N for prismatic joints)", "rms": "N·m"},
+            "data": {
+                "training": _segment_info(self.training),
+                "held_out": _segment_info(self.held_out),
+                "validation_file": rec_ho.source if rec_ho is not rec_tr else None,
+                "cutoff_hz": rec_tr.cutoff_hz,
+                "full_rate_hz": rec_tr.rate_hz,
+                "fitted_rate_hz": rec_tr.rate_hz / rec_tr.step,
+            },
+            "effects": [e.as_dict() for e in self.effects],
+            "rms_nominal": self.per_joint(self.rms_nominal),
+            "rms_rigid": self.per_joint(self.rms_rigid),
+            "rms_after": self.per_joint(self.rms_after),
+            "gap_closed": {
+                j: _closed(a, b, c) for j, a, b, c in zip(self.joints, self.rms_nominal, self.rms_rigid,
+                                                           self.rms_after)
+            },
+            "cumulative": [{"step": s, "rms": self.per_joint(r)} for s, r in self.cumulative],
+            "unexplained": self.unexplained,
+            "noise_floor": self.per_joint(self.noise_floor),
+            "unexplained_threshold": self.per_joint(self.thresholds),
+            "not_separable": self.not_separable,
+            "rejected": self.rejected,
+            "regimes": self.regimes,
+            "rigid": self.rigid,
+            "payload_test": self.payload_test,
+            "timing": self.timing,
+            "drake_check_max_abs": self.per_joint(self.drake_check),
+            "config": {k: (list(v) if isinstance(v, tuple) else v)
+                       for k, v in dataclasses.asdict(self.config).items()},
+            "timings_s": self.timings,
+        }
+
+
+def _closed(nominal: float, rigid: float, after: float) -> dict[str, float]:
+    """Fractions of the nominal held-out mean-square gap closed by each stage."""
+    if nominal <= 0:
+        return {"rigid": 0.0, "total": 0.0}
+    return {"rigid": float(1 - (rigid / nominal) ** 2), "total": float(1 - (after / nominal) ** 2)}
+
+
+def _segment_info(seg: Segment) -> dict[str, Any]:
+    return {"file": seg.record.source, "t_start": float(seg.t[0]), "t_end": float(seg.t[-1]),
+            "samples": seg.num_samples}
+
+
+def write_outputs(folder: str | Path, robot, result: DiagnosisResult) -> list[Path]:
+    """diagnosis.json, report.md, the figures and the augmented model files into ``folder``."""
+    folder = Path(folder)
+    model_files = write_augmented_model(folder, robot, result.augmented)
+    figures = write_report(folder, result, model_files)
+    data = result.to_json_dict()
+    data["model_files"] = [Path(p).name for p in model_files]
+    data["figures"] = [Path(p).name for p in figures]
+    atomic_write_text(folder / "diagnosis.json", json.dumps(_jsonable(data), indent=2) + "\n")
+    return [folder / "diagnosis.json", folder / "report.md", *figures, *model_files]
+
+
+def _jsonable(x):
+    """``x`` with numpy scalars and arrays as Python values, non-finite floats as None."""
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _jsonable(x.tolist())
+    if isinstance(x, (np.floating, float)):
+        return float(x) if math.isfinite(x) else None
+    if isinstance(x, (np.integer,)):
+        return int(x)
+    if isinstance(x, np.bool_):
+        return bool(x)
+    return x

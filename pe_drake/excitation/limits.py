@@ -1,0 +1,178 @@
+"""Joint limits (Eq. 51) and rest at the ends as Drake constraints on the Fourier coefficients.
+
+The limits are linear in alpha: :func:`add_joint_limit_constraints` adds them as linear rows on
+every ``stride``-th constraint sample, tightened by :func:`intersample_allowance` so that they
+hold at every instant; :func:`add_smooth_joint_limit_constraints` aggregates them into 6
+smooth-max rows per joint. :func:`joint_limit_violation` measures a point against them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pe_drake.excitation.fourier import FourierBasis
+from pe_drake.excitation.problem import ExcitationProblem, check_variables, rest_constraint_matrix
+
+
+def add_joint_limit_constraints(
+    prog, alpha, problem: ExcitationProblem, stride: int | None = None, max_conservatism: float = 0.02
+) -> list:
+    """Eq. (51): q, v, vdot within the robot's limits at the K constraint samples (and between).
+
+    Linear in alpha, so added as linear constraints, one per joint and quantity (each touches
+    only that joint's 2N+1 coefficients). IPOPT's cost per iteration grows quickly with the
+    row count (0.5 s at 6K = 2400 rows per joint on G1), so rows are imposed on every
+    ``stride``-th sample with the bound tightened by the largest possible overshoot between
+    rows (:func:`intersample_allowance`): that implies the limits at all K samples and at
+    every instant. The default stride is the largest (≤ 8) whose tightening stays within
+    ``max_conservatism`` of each velocity and acceleration limit.
+
+    Returns:
+        The bindings.
+    """
+    check_variables(alpha, problem)
+    lim = problem.robot.limits
+    K = len(problem.constraint_basis.t)
+    if stride is None:
+        stride = 1
+        for s in (2, 4, 8):
+            dq, dv, dvd = intersample_allowance(problem, s)
+            if K % s == 0 and np.all(dv <= max_conservatism * lim.v_max) and np.all(dvd <= max_conservatism * lim.vd_max):
+                stride = s
+    dq, dv, dvd = intersample_allowance(problem, stride)
+    rows = np.arange(0, K, stride)
+    bindings = []
+    for j, name in enumerate(problem.robot.joint_names):
+        A_q, A_v, A_vd, idx = problem.constraint_basis.matrices(problem.n, j)
+        for A, lo, hi, what in (
+            (A_q, lim.q_lower[j] + dq[j], lim.q_upper[j] - dq[j], "position"),
+            (A_v, -lim.v_max[j] + dv[j], lim.v_max[j] - dv[j], "velocity"),
+            (A_vd, -lim.vd_max[j] + dvd[j], lim.vd_max[j] - dvd[j], "acceleration"),
+        ):
+            b = prog.AddLinearConstraint(A[rows], np.full(len(rows), lo), np.full(len(rows), hi), alpha[idx])
+            b.evaluator().set_description(f"{what} limit {name}")
+            bindings.append(b)
+    return bindings
+
+
+class _SmoothMaxLimits:
+    """Every sampled joint limit of Eq. (51), aggregated per joint and bound by a smooth max.
+
+    For joint j and each of q, v, vdot, the K sampled values x_k must stay within
+    [lower, upper]. Instead of 2K linear rows (which make IPOPT's limited-memory steps cost
+    ~0.5 s per iteration at K = 400 on G1), each side becomes one row
+    g = (1/ρ) log Σ_k exp(ρ·(x_k − bound)/s) ≤ 0, with s the limit's scale. Log-sum-exp is
+    convex and never below the maximum, so g ≤ 0 implies every sample is within its limit;
+    it overestimates the maximum by at most log(K)/ρ·s, which ``conservatism`` sets
+    (fraction of s).
+    """
+
+    def __init__(self, problem: ExcitationProblem, conservatism: float = 0.005):
+        lim = problem.robot.limits
+        dq, dv, dvd = intersample_allowance(problem)
+        self.problem = problem
+        basis = problem.constraint_basis
+        K = len(basis.t)
+        self.rho = np.log(2 * K) / conservatism
+        half = 0.5 * (lim.q_upper - lim.q_lower)
+        mid = 0.5 * (lim.q_upper + lim.q_lower)
+        # Normalized quantities y = (x - centre)/scale must satisfy |y| ≤ 1.
+        self.centre = np.stack([mid, np.zeros(problem.n), np.zeros(problem.n)])  # (3, n)
+        self.scale = np.stack([half - dq, lim.v_max - dv, lim.vd_max - dvd])  # (3, n)
+        self.basis = basis
+        self.labels = [
+            f"{what} {side} {name}"
+            for name in problem.robot.joint_names
+            for what in ("position", "velocity", "acceleration")
+            for side in ("upper", "lower")
+        ]
+
+    def values_and_jacobian(self, alpha: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        p, b = self.problem, self.basis
+        n, N = p.n, p.harmonics
+        x = np.stack(b.evaluate_alpha(alpha, n))  # (3, K, n)
+        y = (x - self.centre[:, None, :]) / self.scale[:, None, :]
+        y = np.stack([y, -y], axis=1)  # (3, 2, K, n): upper side, lower side
+        z = self.rho * (y - 1.0)
+        zmax = z.max(axis=2, keepdims=True)
+        e = np.exp(z - zmax)
+        total = e.sum(axis=2, keepdims=True)
+        g = ((zmax + np.log(total)) / self.rho)[:, :, 0, :]  # (3, 2, n)
+        w = e / total  # softmax weights, (3, 2, K, n)
+        sign = np.array([1.0, -1.0])[None, :, None]
+        dg_dx = w * (sign[..., None] / self.scale[:, None, None, :])  # (3, 2, K, n)
+        # ∂x/∂(a, b, q0) of joint j at sample k: rows of the Fourier bases.
+        Sa = np.stack([b.S_q, b.S_v, b.S_vd])  # (3, K, N)
+        Cb = np.stack([b.C_q, b.C_v, b.C_vd])
+        Ja = np.einsum("csKn,cKN->csnN", dg_dx, Sa)
+        Jb = np.einsum("csKn,cKN->csnN", dg_dx, Cb)
+        Jq0 = dg_dx[0].sum(axis=1)  # (2, n): only q depends on q0
+        rows = 6 * n
+        J = np.zeros((n, 3, 2, (2 * N + 1) * n))
+        for j in range(n):
+            J[j, :, :, j * N : (j + 1) * N] = Ja[:, :, j]
+            J[j, :, :, n * N + j * N : n * N + (j + 1) * N] = Jb[:, :, j]
+            J[j, 0, :, 2 * n * N + j] = Jq0[:, j]
+        return g.transpose(2, 0, 1).reshape(rows), J.reshape(rows, -1)
+
+    def __call__(self, x):
+        # pydrake is imported lazily so that `import pe_drake` stays light.
+        from pydrake.autodiffutils import ExtractGradient, ExtractValue, InitializeAutoDiff
+
+        if x.dtype == object:
+            g, J = self.values_and_jacobian(ExtractValue(x).reshape(-1))
+            return InitializeAutoDiff(g, J @ ExtractGradient(x)).reshape(-1)
+        return self.values_and_jacobian(np.asarray(x, float))[0]
+
+
+def add_smooth_joint_limit_constraints(prog, alpha, problem: ExcitationProblem, conservatism: float = 0.005):
+    """Eq. (51) at the K samples as 6 smooth rows per joint (see :class:`_SmoothMaxLimits`).
+
+    Much faster for IPOPT than :func:`add_joint_limit_constraints` at large K, at the price
+    of keeping ``conservatism`` (fraction of each limit) away from the limits.
+    """
+    check_variables(alpha, problem)
+    evaluator = _SmoothMaxLimits(problem, conservatism)
+    rows = len(evaluator.labels)
+    return prog.AddConstraint(evaluator, np.full(rows, -np.inf), np.zeros(rows), vars=alpha, description="joint limits")
+
+
+def intersample_allowance(problem: ExcitationProblem, stride: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """How far q, v, vdot can overshoot their sampled values between two samples.
+
+    A smooth f sampled every h exceeds the larger neighbouring sample by at most
+    max|f''|·h²/8. With |vdot| ≤ a_max and Bernstein's inequality for a trigonometric
+    polynomial of degree N (|f'| ≤ Nω·max|f|), the bounds are a_max·h²/8 for q,
+    Nω·a_max·h²/8 for v and (Nω)²·a_max·h²/8 for vdot. The sampled limits are tightened by
+    these, so the limits then hold at every instant, not only at the samples. ``stride``:
+    rows on every stride-th constraint sample (spacing stride·h).
+    """
+    h = stride * problem.period / problem.config.constraint_samples
+    w_max = problem.harmonics * problem.omega
+    base = problem.robot.limits.vd_max * h**2 / 8
+    return base, w_max * base, w_max**2 * base
+
+
+def add_rest_constraints(prog, alpha, problem: ExcitationProblem):
+    """Start (and, the series being periodic, end) at rest: v = vdot = 0 at t = 0."""
+    check_variables(alpha, problem)
+    A, b = rest_constraint_matrix(problem)
+    binding = prog.AddLinearEqualityConstraint(A, b, alpha)
+    binding.evaluator().set_description("rest at ends")
+    return binding
+
+
+def joint_limit_violation(problem: ExcitationProblem, alpha: np.ndarray, basis: FourierBasis | None = None) -> float:
+    """Worst violation of the joint limits (Eq. 51) at the given samples, in limit units."""
+    basis = basis or problem.constraint_basis
+    q, v, vd = basis.evaluate_alpha(np.asarray(alpha, float), problem.n)
+    lim = problem.robot.limits
+    return float(
+        max(
+            0.0,
+            np.max(lim.q_lower - q),
+            np.max(q - lim.q_upper),
+            np.max(np.abs(v) - lim.v_max),
+            np.max(np.abs(vd) - lim.vd_max),
+        )
+    )

@@ -1,0 +1,232 @@
+"""The excitation problem: the cost of Eq. (41) over the Fourier coefficients and its gradient.
+
+:class:`ExcitationProblem` holds what the cost is built from (robot, Fourier bases at the T
+cost and K constraint samples, base parameters, prior data C0) and evaluates cond(C) with its
+analytic gradient (Eq. 49). The Drake program around it is in
+:mod:`pe_drake.excitation.program`, the solve in :mod:`pe_drake.excitation.solve`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from pe_drake.config import Config, ExcitationConfig, validate_config
+from pe_drake.exceptions import ConfigError, InfeasibleError
+from pe_drake.excitation.criteria import evaluate_criterion
+from pe_drake.excitation.fourier import FourierBasis, FourierTrajectory, sample_times
+from pe_drake.multibody.base_parameters import BaseParameters, compute_base_parameters
+from pe_drake.multibody.regressor import RegressorModel
+
+
+@dataclasses.dataclass(frozen=True)
+class CostValue:
+    """Value and gradient of the excitation cost at one alpha."""
+
+    value: float
+    grad: np.ndarray
+    singular_values: np.ndarray
+
+
+class ExcitationProblem:
+    """The excitation cost of Eq. (41) for a robot, with its analytic gradient (Eq. 49).
+
+    Args:
+        robot: the :class:`~pe_drake.multibody.robot.Robot`.
+        config: harmonics, ω, sample counts, criterion (:class:`ExcitationConfig`).
+        C0: prior data, the stacked base regressor of earlier motions, shape (m1, b).
+        base: base parameters to use (computed if not given).
+
+    Attributes:
+        num_variables: (2N+1)·n.
+        cost_basis / constraint_basis: Fourier bases at the T cost / K constraint samples.
+    """
+
+    def __init__(
+        self,
+        robot,
+        config: ExcitationConfig | None = None,
+        *,
+        C0: np.ndarray | None = None,
+        base: BaseParameters | None = None,
+        model: RegressorModel | None = None,
+    ):
+        self.robot = robot
+        self.config = config or ExcitationConfig()
+        validate_config(Config(excitation=self.config))
+        self.model = model or RegressorModel(robot)
+        self.base = base or compute_base_parameters(robot, model=self.model)
+        self.n = robot.n
+        self.harmonics = self.config.harmonics
+        self.omega = self.config.omega
+        self.period = 2 * math.pi / self.omega
+        self.num_variables = (2 * self.harmonics + 1) * self.n
+        self.cost_basis = FourierBasis(
+            self.harmonics, self.omega, sample_times(self.period, self.config.cost_samples)
+        )
+        self.constraint_basis = FourierBasis(
+            self.harmonics, self.omega, sample_times(self.period, self.config.constraint_samples)
+        )
+        if C0 is not None:
+            C0 = np.asarray(C0, float)
+            if C0.ndim != 2 or C0.shape[1] != self.base.count:
+                raise ConfigError(
+                    f"prior data C0 has shape {C0.shape}; it needs {self.base.count} columns "
+                    "(the robot's base parameters)"
+                )
+        self.C0 = C0
+        self._cache_key: bytes | None = None
+        self._cache: CostValue | None = None
+        self.num_evaluations = 0
+
+    def clear_cache(self) -> None:
+        """Forgets the cached evaluation, so the next :meth:`evaluate` computes from scratch."""
+        self._cache_key = None
+        self._cache = None
+
+    # ---- cost ---------------------------------------------------------------------------
+    def trajectory(self, alpha: np.ndarray) -> FourierTrajectory:
+        return FourierTrajectory.from_alpha(alpha, self.n, self.harmonics, self.omega)
+
+    def regressor_block(self, alpha: np.ndarray) -> np.ndarray:
+        """Ŷ_B of one motion at the T cost samples (Eq. 3), shape (T·n, b)."""
+        q, v, vd = self.cost_basis.evaluate_alpha(np.asarray(alpha, float), self.n)
+        Y = self.model(q, v, vd)
+        return self.base.reduce(Y).reshape(-1, self.base.count)
+
+    def stacked(self, alpha: np.ndarray) -> np.ndarray:
+        """C = [C0; Ŷ_B] (Eq. 41)."""
+        block = self.regressor_block(alpha)
+        return block if self.C0 is None else np.vstack([self.C0, block])
+
+    def value(self, alpha: np.ndarray) -> float:
+        """The criterion at alpha (no gradient)."""
+        return evaluate_criterion(self.stacked(alpha), self.config.criterion, gradient=False).value
+
+    def evaluate(self, alpha: np.ndarray) -> CostValue:
+        """Criterion and its analytic gradient with respect to alpha.
+
+        The chain: Eq. (17) gives dc/dC; its rows for sample t times Xᵀ give Z^(t)
+        (Eqs. 45–46); the regressor's adjoint turns Z into dc/d(q, v, vdot) (Eq. 47); the
+        Fourier map pulls that back to alpha (Eq. 49). Cached on alpha, because Drake's
+        solvers ask for the same point more than once.
+        """
+        alpha = np.asarray(alpha, float)
+        key = alpha.tobytes()
+        if key == self._cache_key and self._cache is not None:
+            return self._cache
+        self.num_evaluations += 1
+        q, v, vd = self.cost_basis.evaluate_alpha(alpha, self.n)
+        kin = self.model.kinematics(q, v, vd)
+        Y = self.model.regressor(kin)
+        T, b = Y.shape[0], self.base.count
+        block = self.base.reduce(Y).reshape(T * self.n, b)
+        C = block if self.C0 is None else np.vstack([self.C0, block])
+        crit = evaluate_criterion(C, self.config.criterion)  # Eq. (17)
+        if not np.isfinite(crit.value):
+            out = CostValue(np.inf, np.zeros_like(alpha), crit.singular_values)
+        else:
+            G = crit.grad[C.shape[0] - T * self.n :].reshape(T, self.n, b)
+            Z = np.zeros_like(Y)
+            Z[..., self.base.independent] = G  # Eq. (46): Z = X C(C) S^T
+            q_bar, v_bar, vd_bar = self.model.pullback(kin, Z)  # Eq. (47)
+            grad = self.cost_basis.pullback(q_bar, v_bar, vd_bar)  # Eq. (49)
+            out = CostValue(crit.value, grad, crit.singular_values)
+        self._cache_key, self._cache = key, out
+        return out
+
+    # ---- initial point --------------------------------------------------------------------
+    def initial_guess(self, seed: int | None = None, amplitude: float | None = None) -> np.ndarray:
+        """A random alpha within the joint limits at the constraint samples.
+
+        Coefficients ~ N(0, (amplitude/k)²) around the nominal posture, scaled down as needed
+        (q, v, vdot are linear in the coefficients) to use at most 90 % of each limit.
+        """
+        rng = np.random.default_rng(self.config.seed if seed is None else seed)
+        amplitude = self.config.amplitude if amplitude is None else amplitude
+        n, N = self.n, self.harmonics
+        k = np.arange(1, N + 1)
+        a = rng.normal(size=(n, N)) * amplitude / k
+        b = rng.normal(size=(n, N)) * amplitude / k
+        q0 = self.robot.nominal_posture().copy()
+        alpha = np.concatenate([a.ravel(), b.ravel(), q0])
+        if self.config.rest_at_ends:
+            alpha = _project_rest(self, alpha)
+        return scale_into_limits(self, alpha, 0.9)
+
+
+def _project_rest(problem: ExcitationProblem, alpha: np.ndarray) -> np.ndarray:
+    A, _ = rest_constraint_matrix(problem)
+    # Minimal change of alpha with A alpha = 0 (q0 does not enter A).
+    return alpha - np.linalg.pinv(A) @ (A @ alpha)
+
+
+def scale_into_limits(problem: ExcitationProblem, alpha: np.ndarray, fraction: float) -> np.ndarray:
+    """Shrinks the motion of alpha to use at most ``fraction`` of each joint limit.
+
+    Checked at the K constraint samples. q, v and vdot are linear in the sine/cosine coefficients, so one common scale factor
+    (never above 1) keeps the motion's shape; the offsets q0 are kept as they are.
+
+    Args:
+        problem: the :class:`ExcitationProblem` (its robot limits and constraint samples).
+        alpha: Fourier coefficients, shape ((2N+1)·n,).
+        fraction: share of each limit the motion may use, in (0, 1].
+
+    Returns:
+        The scaled alpha, shape ((2N+1)·n,).
+
+    Raises:
+        InfeasibleError: an offset q0 is not strictly inside its joint's position limits.
+    """
+    basis, lim, n = problem.constraint_basis, problem.robot.limits, problem.n
+    nN = n * problem.harmonics
+    q0 = alpha[2 * nN :]
+    dyn = alpha.copy()
+    dyn[2 * nN :] = 0.0
+    q, v, vd = basis.evaluate_alpha(dyn, n)
+    room_up = fraction * (lim.q_upper - q0)
+    room_lo = fraction * (q0 - lim.q_lower)
+    if np.any(room_up <= 0) or np.any(room_lo <= 0):
+        bad = int(np.argmin(np.minimum(room_up, room_lo)))
+        name = problem.robot.joint_names[bad]
+        raise InfeasibleError(
+            f"nominal position {q0[bad]:.4g} of joint '{name}' is not inside its limits "
+            f"[{lim.q_lower[bad]:.4g}, {lim.q_upper[bad]:.4g}]"
+        )
+    ratios = [
+        np.max(np.maximum(q, 0) / room_up[None, :]),
+        np.max(np.maximum(-q, 0) / room_lo[None, :]),
+        np.max(np.abs(v) / (fraction * lim.v_max)),
+        np.max(np.abs(vd) / (fraction * lim.vd_max)),
+    ]
+    scale = 1.0 / max(1.0, max(ratios))
+    out = dyn * scale
+    out[2 * nN :] = q0
+    return out
+
+
+def rest_constraint_matrix(problem: ExcitationProblem) -> tuple[np.ndarray, np.ndarray]:
+    """A with A·alpha = 0 ⇔ v(0) = vdot(0) = 0 for every joint (so also at the period's end)."""
+    basis = FourierBasis(problem.harmonics, problem.omega, np.zeros(1))
+    n, P = problem.n, problem.num_variables
+    A = np.zeros((2 * n, P))
+    for j in range(n):
+        _, A_v, A_vd, idx = basis.matrices(n, j)
+        A[j, idx] = A_v[0]
+        A[n + j, idx] = A_vd[0]
+    return A, np.zeros(2 * n)
+
+
+def check_variables(alpha, problem: ExcitationProblem) -> None:
+    """Refuses decision variables that do not match the problem's (2N+1)·n coefficients.
+
+    Raises:
+        ConfigError: ``alpha`` has the wrong length.
+    """
+    if len(alpha) != problem.num_variables:
+        raise ConfigError(
+            f"alpha has {len(alpha)} variables; the problem needs {problem.num_variables} "
+            f"((2N+1)·n = (2·{problem.harmonics}+1)·{problem.n})"
+        )

@@ -1,0 +1,322 @@
+"""Solving a built excitation program with IPOPT or NLopt, and checking the result at 1 kHz.
+
+:func:`solve_excitation` runs the solver (with a restart when NLopt's SLSQP stalls at its
+start), re-checks every constraint between the samples, falls back to the best feasible
+point evaluated when the solver stops at an infeasible iterate, and reports it all in an
+:class:`ExcitationResult`. :func:`optimize_excitation` builds and solves in one call.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+import tempfile
+import time
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from pe_drake.config import Config, ExcitationConfig, SolverConfig, validate_config
+from pe_drake.exceptions import ConfigError, NoSolutionFound
+from pe_drake.excitation.constraints.base import SampledConstraint
+from pe_drake.excitation.fourier import FourierBasis, FourierTrajectory
+from pe_drake.excitation.problem import ExcitationProblem
+from pe_drake.excitation.program import ExcitationProgram, build_excitation_program
+from pe_drake.memory import reuse_freed_memory
+from pe_drake.threads import single_threaded_blas
+
+#: Extra IPOPT options (name → value), e.g. for experiments.
+IPOPT_EXTRA_OPTIONS: dict = {}
+
+
+@dataclasses.dataclass
+class ExcitationResult:
+    """Outcome of :func:`solve_excitation`.
+
+    Attributes:
+        x: optimal alpha, shape ((2N+1)·n,).
+        trajectory: the :class:`FourierTrajectory` of x.
+        fun: criterion value at x.
+        cond: cond(C) at x (C includes C0).
+        cond_motion: cond of this motion's own Ŷ_B.
+        success: x is a valid trajectory: every constraint holds at 1 kHz. When the solver
+            stops early (iteration/time limit) at an infeasible iterate, x is the best
+            feasible point it evaluated, if any.
+        converged: the solver reported convergence to a local optimum.
+        message: solver status, which constraint fails by how much, or the fallback used.
+        status: Drake's solution result name.
+        nit: solver iterations (IPOPT: from its log; NLopt: None).
+        nfev: cost evaluations.
+        wall_time: [s].
+        margins: {constraint: minimum margin at 1 kHz} (negative = violated), in the
+            constraint's units (rad, rad/s, rad/s², m, N·m).
+        singular_values: σ of C.
+        solver: "ipopt" or "nlopt".
+        raw: Drake's MathematicalProgramResult.
+    """
+
+    x: np.ndarray
+    trajectory: FourierTrajectory
+    fun: float
+    cond: float
+    cond_motion: float
+    success: bool
+    converged: bool
+    message: str
+    status: str
+    nit: int | None
+    nfev: int
+    wall_time: float
+    margins: dict[str, float]
+    singular_values: np.ndarray
+    solver: str
+    raw: object = None
+
+
+def check_margins(
+    problem: ExcitationProblem, alpha: np.ndarray, constraints: list[SampledConstraint] = (), rate: float = 1000.0
+) -> dict[str, float]:
+    """Minimum margin of each constraint over one period sampled at ``rate`` [Hz].
+
+    Joint limits are reported per quantity (``position``, ``velocity``, ``acceleration``),
+    the worst joint; negative means violated.
+    """
+    t = np.arange(0.0, problem.period, 1.0 / rate)
+    basis = FourierBasis(problem.harmonics, problem.omega, t)
+    q, v, vd = basis.evaluate_alpha(np.asarray(alpha, float), problem.n)
+    lim = problem.robot.limits
+    margins = {
+        "position": float(np.min(np.minimum(q - lim.q_lower, lim.q_upper - q))),
+        "velocity": float(np.min(lim.v_max - np.abs(v))),
+        "acceleration": float(np.min(lim.vd_max - np.abs(vd))),
+    }
+    for c in constraints:
+        margins[c.name] = float(np.min(c.margins(q, v, vd)))
+    return margins
+
+
+
+class _Backend(NamedTuple):
+    """A Drake solver with its options for one solve."""
+
+    solver: object  # IpoptSolver or NloptSolver
+    options: object  # SolverOptions
+    log_file: Path | None  # IPOPT's log, read for the iteration count
+
+
+def _ipopt_backend(cfg: SolverConfig) -> _Backend:
+    # pydrake is imported lazily so that `import pe_drake` stays light.
+    from pydrake.solvers import CommonSolverOption, IpoptSolver, SolverOptions
+
+    solver, options = IpoptSolver(), SolverOptions()
+    sid = solver.solver_id()
+    options.SetOption(sid, "max_iter", int(cfg.max_iterations))
+    options.SetOption(sid, "tol", float(cfg.tolerance))
+    options.SetOption(sid, "acceptable_tol", float(cfg.tolerance) * 100)
+    options.SetOption(sid, "print_level", 0)
+    options.SetOption(sid, "file_print_level", 5)
+    options.SetOption(sid, "hessian_approximation", "limited-memory")
+    for key, value in IPOPT_EXTRA_OPTIONS.items():
+        options.SetOption(sid, key, value)
+    if cfg.max_time > 0:
+        options.SetOption(sid, "max_wall_time", float(cfg.max_time))
+    # IPOPT reports no iteration count through Drake: its log file does (BUILD_NOTES.md).
+    log_file = Path(tempfile.mkstemp(prefix="pe_drake_ipopt_", suffix=".log")[1])
+    options.SetOption(CommonSolverOption.kPrintFileName, str(log_file))
+    return _Backend(solver, options, log_file)
+
+
+def _nlopt_backend(cfg: SolverConfig) -> _Backend:
+    # pydrake is imported lazily so that `import pe_drake` stays light.
+    from pydrake.solvers import NloptSolver, SolverOptions
+
+    solver, options = NloptSolver(), SolverOptions()
+    sid = solver.solver_id()
+    options.SetOption(sid, "algorithm", cfg.algorithm)
+    options.SetOption(sid, "max_eval", int(cfg.max_iterations))
+    options.SetOption(sid, "xtol_rel", float(cfg.tolerance))
+    options.SetOption(sid, "constraint_tol", 1e-6)
+    if cfg.max_time > 0:
+        options.SetOption(sid, "max_time", float(cfg.max_time))
+    return _Backend(solver, options, None)
+
+
+def _backend(cfg: SolverConfig) -> _Backend:
+    """The Drake solver named by ``cfg`` with its options, refused if this Drake lacks it."""
+    if cfg.name == "ipopt":
+        backend = _ipopt_backend(cfg)
+    elif cfg.name == "nlopt":
+        backend = _nlopt_backend(cfg)
+    else:
+        raise ConfigError(f"unknown solver '{cfg.name}'; valid: ipopt, nlopt")
+    if not backend.solver.available() or not backend.solver.enabled():
+        raise ConfigError(f"solver '{cfg.name}' is not available in this Drake build")
+    return backend
+
+
+def _solve_with_restarts(program: ExcitationProgram, backend: _Backend, cfg: SolverConfig, x0: np.ndarray):
+    """Runs the solver from x0; returns Drake's result and a note on any restart ("" if none)."""
+    problem = program.problem
+    result = backend.solver.Solve(program.prog, x0, backend.options)
+    stalled = ""
+    if cfg.name == "nlopt" and cfg.algorithm == "LD_SLSQP" and problem.num_evaluations <= 2:
+        # NLopt's SLSQP sometimes stops after one evaluation with XTOL_REACHED: its first
+        # QP step came back zero (seen at starts with gradients of ~1e6). Not a local
+        # optimum: start again from the motion shrunk by 5 % toward its offsets (still
+        # feasible: the limits are linear in alpha), then, if that stalls too, with MMA
+        # (robust but slow with thousands of rows).
+        nq0 = problem.n
+        retry = x0.copy()
+        retry[:-nq0] *= 0.95
+        result = backend.solver.Solve(program.prog, retry, backend.options)
+        stalled = "; LD_SLSQP stalled at the start, restarted from the motion shrunk by 5 %"
+        if problem.num_evaluations <= 4:
+            backend.options.SetOption(backend.solver.solver_id(), "algorithm", "LD_MMA")
+            result = backend.solver.Solve(program.prog, x0, backend.options)
+            stalled = "; LD_SLSQP stalled twice at the start, solved with LD_MMA"
+    return result, stalled
+
+
+def _iterations_from_log(log_file: Path | None) -> int | None:
+    """IPOPT's iteration count from its log (which is then deleted); None without a log."""
+    if log_file is None:
+        return None
+    text = log_file.read_text(errors="replace") if log_file.exists() else ""
+    m = re.search(r"Number of Iterations\.*:\s*(\d+)", text)
+    log_file.unlink(missing_ok=True)
+    return int(m.group(1)) if m else None
+
+
+class _Check(NamedTuple):
+    """How the solution is re-checked between the samples."""
+
+    rate: float  # [Hz]
+    tolerance: float  # a margin below -tolerance is a violation, in the constraint's units
+
+
+def _feasible_fallback(program: ExcitationProgram, x: np.ndarray, solved: bool, check: _Check):
+    """The solution, its margins at ``check.rate`` and a note on the fallback used ("" if none).
+
+    When the solver stopped at an infeasible or unconverged iterate, the best point it
+    evaluated that holds every constraint at ``check.rate`` replaces it.
+    """
+    problem = program.problem
+    margins = check_margins(problem, x, program.constraints, rate=check.rate)
+    if (solved and min(margins.values()) >= -check.tolerance) or program.cost is None:
+        return x, margins, ""
+    for value, candidate in program.cost.candidates:
+        if solved and value >= problem.evaluate(x).value:
+            break
+        m = check_margins(problem, candidate, program.constraints, rate=check.rate)
+        if min(m.values()) >= -check.tolerance:
+            return candidate, m, f"; returned the best feasible point evaluated ({problem.config.criterion} {value:.5g})"
+    return x, margins, ""
+
+
+def _message(cfg: SolverConfig, result, violated: dict[str, float], fallback: str, stalled: str) -> str:
+    """What happened: the violated constraints, the solver status, the fallback, the restart."""
+    status = result.get_solution_result().name
+    if violated:
+        message = "solution violates between samples: " + ", ".join(f"{k} by {-m:.3g}" for k, m in violated.items())
+    elif not result.is_success():
+        message = f"{cfg.name} did not converge: {status}"
+        if cfg.name == "ipopt":
+            message += f" ({result.get_solver_details().ConvertStatusToString()})"
+        message += fallback
+    else:
+        message = f"{cfg.name}: {status}"
+    return message + stalled
+
+
+def _cond(singular_values: np.ndarray) -> float:
+    return float(singular_values[0] / singular_values[-1]) if singular_values[-1] > 0 else np.inf
+
+
+def solve_excitation(
+    program: ExcitationProgram,
+    solver: str | SolverConfig = "ipopt",
+    initial_guess: np.ndarray | None = None,
+    *,
+    check_rate: float = 1000.0,
+    tolerance: float = 1e-6,
+) -> ExcitationResult:
+    """Solves a built excitation program with IPOPT or NLopt.
+
+    Args:
+        program: from :func:`build_excitation_program` (possibly with user additions).
+        solver: "ipopt", "nlopt", or a :class:`SolverConfig` with options.
+        initial_guess: alpha to start from (default: ``problem.initial_guess()``).
+        check_rate: rate [Hz] at which the constraints are re-checked after solving.
+        tolerance: margin below −tolerance counts as a violation in the re-check.
+
+    Returns:
+        An :class:`ExcitationResult`; ``success`` is False if the solver failed or any
+        constraint is violated between the samples (``message`` says which and by how much).
+    """
+    cfg = solver if isinstance(solver, SolverConfig) else SolverConfig(name=solver)
+    validate_config(Config(solver=cfg))
+    problem = program.problem
+    x0 = problem.initial_guess() if initial_guess is None else np.asarray(initial_guess, float)
+    if x0.shape != (problem.num_variables,):
+        raise ConfigError(f"initial guess has shape {x0.shape}, expected ({problem.num_variables},)")
+    backend = _backend(cfg)
+
+    problem.num_evaluations = 0
+    if program.cost is not None:
+        program.cost.reset()
+    reuse_freed_memory()  # a third of each evaluation went to faulting in fresh pages
+    start = time.perf_counter()
+    with single_threaded_blas():
+        result, stalled = _solve_with_restarts(program, backend, cfg, x0)
+    wall = time.perf_counter() - start
+    nit = _iterations_from_log(backend.log_file)
+
+    solved = result.is_success()
+    x = np.asarray(result.GetSolution(program.alpha), float)
+    x, margins, fallback = _feasible_fallback(program, x, solved, _Check(check_rate, tolerance))
+    cost = problem.evaluate(x)
+    violated = {k: m for k, m in margins.items() if m < -tolerance}
+    return ExcitationResult(
+        x=x,
+        trajectory=problem.trajectory(x),
+        fun=float(cost.value),
+        cond=_cond(cost.singular_values),
+        cond_motion=_cond(np.linalg.svd(problem.regressor_block(x), compute_uv=False)),
+        success=not violated,
+        converged=bool(solved),
+        message=_message(cfg, result, violated, fallback, stalled),
+        status=result.get_solution_result().name,
+        nit=nit,
+        nfev=problem.num_evaluations,
+        wall_time=wall,
+        margins=margins,
+        singular_values=cost.singular_values,
+        solver=cfg.name,
+        raw=result,
+    )
+
+
+def optimize_excitation(
+    robot,
+    config: ExcitationConfig | None = None,
+    solver: str | SolverConfig = "ipopt",
+    *,
+    C0: np.ndarray | None = None,
+    constraints: list[SampledConstraint] | None = None,
+    initial_guess: np.ndarray | None = None,
+    progress: bool = False,
+    raise_on_failure: bool = False,
+) -> ExcitationResult:
+    """Builds and solves in one call (see :func:`build_excitation_program`).
+
+    Raises:
+        NoSolutionFound: with ``raise_on_failure``, when no valid trajectory was found (the
+            result is kept in the exception's ``result``).
+    """
+    problem = ExcitationProblem(robot, config, C0=C0)
+    program = build_excitation_program(problem, constraints, progress=progress)
+    result = solve_excitation(program, solver, initial_guess)
+    if raise_on_failure and not result.success:
+        raise NoSolutionFound(result.message, result)
+    return result

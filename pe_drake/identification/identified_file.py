@@ -1,0 +1,141 @@
+"""The identified.json format: an :class:`IdentificationResult` written and read back.
+
+``pe-drake identify`` writes the base parameters (value, relative standard deviation, column
+of the standard parameters each one stands for), the per-joint errors, the preprocessing and,
+for the physical fit, the standard parameters per body; ``pe-drake validate`` and the
+diagnosis read it back with :func:`load_identified`, which checks it belongs to the robot.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pe_drake.exceptions import DataError
+from pe_drake.identification.estimators import IdentificationResult
+from pe_drake.multibody.base_parameters import compute_base_parameters
+from pe_drake.multibody.inertia import PARAMETER_NAMES, validity_problems
+
+
+def _finite_or_none(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
+
+
+def result_to_dict(result: IdentificationResult, robot, model_file: str | None = None) -> dict[str, Any]:
+    """The content of identified.json."""
+    out: dict[str, Any] = {
+        "robot": result.robot,
+        "method": result.method,
+        "joints": list(result.joints),
+        "data": result.source,
+        "samples": result.samples,
+        "cond": result.cond,
+        "base_parameters": [
+            {
+                "name": name,
+                "value": float(v),
+                "sigma_percent": _finite_or_none(float(sp)),
+                "column": int(col),
+            }
+            for name, v, sp, col in zip(
+                result.base.base_names, result.phi_B, result.sigma_percent, result.base.independent
+            )
+        ],
+        "residual_rms": dict(zip(result.joints, map(float, result.residual_rms))),
+        "relative_error": dict(zip(result.joints, map(float, result.relative_error))),
+        "noise_std": dict(zip(result.joints, map(float, result.noise_std))),
+        "wall_time": result.wall_time,
+    }
+    if result.preprocessing is not None:
+        out["preprocessing"] = dataclasses.asdict(result.preprocessing)
+    if result.phi is not None:
+        out["standard_parameters"] = standard_parameters_dict(robot, result.phi)
+        out["physically_valid"] = not validity_problems(robot.body_names, result.phi)
+    if model_file:
+        out["model_file"] = model_file
+    return out
+
+
+def standard_parameters_dict(robot, phi: np.ndarray) -> dict[str, dict[str, float]]:
+    """{body: {parameter name: value}} (names of ``pe_drake.multibody.robot.PARAMETER_NAMES``)."""
+    return {
+        body: dict(zip(PARAMETER_NAMES, map(float, phi[10 * b : 10 * b + 10])))
+        for b, body in enumerate(robot.body_names)
+    }
+
+
+def load_identified(path: str | Path, robot) -> IdentificationResult:
+    """Reads identified.json and checks it belongs to ``robot``.
+
+    Raises:
+        DataError: missing/unreadable file, other robot or joints, base parameters that do
+            not match the robot's composition.
+    """
+    path = Path(path)
+    try:
+        d = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise DataError("identified model file does not exist", file=str(path)) from None
+    except (OSError, json.JSONDecodeError) as err:
+        raise DataError(f"cannot read the identified model: {err}", file=str(path)) from err
+    try:
+        joints = tuple(d["joints"])
+        entries = d["base_parameters"]
+        phi_B = np.array([float(e["value"]) for e in entries])
+        columns = np.array([int(e["column"]) for e in entries])
+        sigma = np.array(
+            [np.inf if e.get("sigma_percent") is None else float(e["sigma_percent"]) for e in entries]
+        )
+    except (KeyError, TypeError, ValueError) as err:
+        raise DataError(
+            f"not an identified.json written by pe-drake identify ({err!r} missing or malformed)",
+            file=str(path),
+        ) from err
+    if joints != tuple(robot.joint_names):
+        raise DataError(
+            f"the model was identified for joints {', '.join(joints)}; robot '{robot.name}' "
+            f"excites {', '.join(robot.joint_names)}",
+            file=str(path),
+        )
+    base = compute_base_parameters(robot)
+    if not np.array_equal(columns, base.independent):
+        raise DataError(
+            f"the base parameters in the file ({len(columns)}) do not match robot '{robot.name}' "
+            f"({base.count}); was it identified with another model or config?",
+            file=str(path),
+        )
+    phi = None
+    if "standard_parameters" in d:
+        try:
+            table = d["standard_parameters"]
+            phi = np.array([float(table[b][k]) for b in robot.body_names for k in PARAMETER_NAMES])
+        except (KeyError, TypeError, ValueError) as err:
+            raise DataError(f"standard_parameters: {err!r} missing or malformed", file=str(path)) from err
+    return IdentificationResult(
+        robot=d.get("robot", robot.name),
+        method=d.get("method", "ols"),
+        joints=joints,
+        base=base,
+        phi_B=phi_B,
+        sigma_percent=sigma,
+        phi=phi,
+        cond=float(d.get("cond", float("nan"))),
+        residual_rms=np.array([d.get("residual_rms", {}).get(j, np.nan) for j in joints]),
+        relative_error=np.array([d.get("relative_error", {}).get(j, np.nan) for j in joints]),
+        noise_std=np.array([d.get("noise_std", {}).get(j, np.nan) for j in joints]),
+        samples=int(d.get("samples", 0)),
+        source=d.get("data", ""),
+    )
+
+
+def standard_from_base(robot, result: IdentificationResult) -> np.ndarray:
+    """Standard parameters closest to the a-priori model that reproduce φ_B:
+    φ = φ0 + K⁺(φ_B − K φ0). Not necessarily physically valid."""
+    K = result.base.K
+    phi0 = robot.phi_model
+    return phi0 + np.linalg.pinv(K) @ (result.phi_B - K @ phi0)

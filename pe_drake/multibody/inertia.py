@@ -1,0 +1,206 @@
+"""A body's 10 inertial parameters: names, packing, the parallel-axis theorem, validity.
+
+φ_b = [m, hx, hy, hz, Ixx, Iyy, Izz, Ixy, Ixz, Iyz] with h = m·p_BoBcm_B the first moment and
+I = I_BBo_B the rotational inertia about the body origin Bo, both expressed in the body frame
+B. Every conversion between this vector, 3×3 matrices, Drake's ``SpatialInertia``, the
+centre-of-mass form and the pseudo-inertia lives here, once.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from pe_drake.exceptions import ConfigError, PeDrakeError
+
+#: Number of inertial parameters per body, in the order of :data:`PARAMETER_NAMES`.
+PARAMS_PER_BODY = 10
+PARAMETER_NAMES = ("m", "hx", "hy", "hz", "Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")
+
+
+class PhysicallyInvalidError(PeDrakeError, ValueError):
+    """Inertial parameters that Drake refuses as a rigid body.
+
+    Attributes:
+        bodies: {body name: Drake's reason}.
+    """
+
+    def __init__(self, bodies: dict[str, str]):
+        self.bodies = dict(bodies)
+        names = ", ".join(self.bodies)
+        first = next(iter(self.bodies.values()), "")
+        super().__init__(
+            f"the inertial parameters of {len(self.bodies)} body(ies) are not physically valid: "
+            f"{names} (first: {first}); write a physically consistent estimate (method 'physical') "
+            "instead"
+        )
+
+
+# ---- packing --------------------------------------------------------------------------------
+
+
+def inertia_matrix(i6: np.ndarray) -> np.ndarray:
+    """[Ixx, Iyy, Izz, Ixy, Ixz, Iyz] → the symmetric 3×3 matrix; shape (..., 6) → (..., 3, 3)."""
+    i6 = np.asarray(i6, float)
+    Ixx, Iyy, Izz, Ixy, Ixz, Iyz = np.moveaxis(i6, -1, 0)
+    rows = [np.stack([Ixx, Ixy, Ixz], -1), np.stack([Ixy, Iyy, Iyz], -1), np.stack([Ixz, Iyz, Izz], -1)]
+    return np.stack(rows, -2)
+
+
+def inertia_vector(I: np.ndarray) -> np.ndarray:
+    """The symmetric 3×3 matrix → [Ixx, Iyy, Izz, Ixy, Ixz, Iyz]; shape (..., 3, 3) → (..., 6)."""
+    I = np.asarray(I, float)
+    return np.stack([I[..., 0, 0], I[..., 1, 1], I[..., 2, 2], I[..., 0, 1], I[..., 0, 2], I[..., 1, 2]], -1)
+
+
+def parallel_axis(m: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """m (|p|² 1 − p pᵀ): the inertia of a point mass m at p about the origin (parallel-axis
+    theorem, I_Bo = I_Bcm + this); m shape (...), p shape (..., 3) → (..., 3, 3)."""
+    m, p = np.asarray(m, float), np.asarray(p, float)
+    pp = np.einsum("...i,...i->...", p, p)
+    return m[..., None, None] * (pp[..., None, None] * np.eye(3) - p[..., :, None] * p[..., None, :])
+
+
+def phi_from_com(m: np.ndarray, p: np.ndarray, I_cm: np.ndarray) -> np.ndarray:
+    """φ_b from mass, centre of mass p_BoBcm_B and inertia about the centre of mass I_BBcm_B;
+    batched over leading axes: (...), (..., 3), (..., 3, 3) → (..., 10)."""
+    m = np.asarray(m, float)
+    I_Bo = np.asarray(I_cm, float) + parallel_axis(m, p)
+    return np.concatenate([m[..., None], m[..., None] * np.asarray(p, float), inertia_vector(I_Bo)], -1)
+
+
+def central_inertia(phi_b: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """Mass, centre of mass and rotational inertia about the centre of mass of one body.
+
+    Args:
+        phi_b: the body's 10 parameters (about Bo, in B) [kg, kg·m, kg·m²].
+
+    Returns:
+        (m [kg], p_BoBcm_B shape (3,) [m], I_BBcm_B shape (3, 3) [kg·m²]). A massless body
+        gives a zero centre of mass and its (then required zero) inertia about Bo.
+    """
+    phi_b = np.asarray(phi_b, float)
+    m = float(phi_b[0])
+    I_Bo = inertia_matrix(phi_b[4:10])
+    if m == 0.0:
+        return 0.0, np.zeros(3), I_Bo
+    p = phi_b[1:4] / m
+    return m, p, I_Bo - parallel_axis(m, p)
+
+
+def principal_inertia(phi_b: np.ndarray) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, float]:
+    """One body's 10 parameters as (m, p, λ, R, r): mass, centre of mass p = h/m, principal
+    moments λ ≥ 0 and axes R of the inertia about the centre of mass (I_cm = R diag(λ) Rᵀ),
+    and the radius of gyration r = sqrt(tr I_cm / 2m). What inertia perturbations act on."""
+    m, p, I_cm = central_inertia(phi_b)
+    lam, R = np.linalg.eigh(I_cm)
+    return m, p, np.maximum(lam, 0.0), R, math.sqrt(max(np.trace(I_cm), 0.0) / (2 * m))
+
+
+# ---- pseudo-inertia (Wensing et al. 2017) ---------------------------------------------------
+
+
+def pseudo_inertia(phi_b: np.ndarray) -> np.ndarray:
+    """J(φ_b) = [[½tr(I)·1 − I, h], [hᵀ, m]] (Wensing et al. 2017), shape (4, 4).
+
+    J ⪰ 0 exactly when a non-negative mass density produces the body's mass, first moment
+    and inertia about the origin; that is Drake's physical validity (with the triangle
+    inequality of the principal moments).
+    """
+    phi_b = np.asarray(phi_b, float)
+    I = inertia_matrix(phi_b[4:10])
+    J = np.zeros((4, 4))
+    J[:3, :3] = 0.5 * np.trace(I) * np.eye(3) - I
+    J[:3, 3] = J[3, :3] = phi_b[1:4]
+    J[3, 3] = phi_b[0]
+    return J
+
+
+def pseudo_inertia_basis() -> list[np.ndarray]:
+    """F_i with J(φ_b) = Σ_i φ_b,i F_i (J is linear in φ_b)."""
+    return [pseudo_inertia(e) for e in np.eye(PARAMS_PER_BODY)]
+
+
+def phi_from_pseudo_inertia(J: np.ndarray) -> np.ndarray:
+    """The inverse of :func:`pseudo_inertia`: Σ = J[:3, :3] gives I = tr(Σ)·1 − Σ."""
+    Sigma = J[:3, :3]
+    I = np.trace(Sigma) * np.eye(3) - Sigma
+    return np.concatenate([[J[3, 3]], J[:3, 3], inertia_vector(I)])
+
+
+# ---- Drake ----------------------------------------------------------------------------------
+
+
+def spatial_inertia_to_phi(M) -> np.ndarray:
+    """Drake SpatialInertia about Bo in B → the 10 parameters of :data:`PARAMETER_NAMES`."""
+    m = M.get_mass()
+    I = M.CalcRotationalInertia().CopyToFullMatrix3()
+    return np.concatenate([[m], m * np.asarray(M.get_com()), inertia_vector(I)])
+
+
+def phi_to_spatial_inertia(phi: np.ndarray, skip_validity_check: bool = True):
+    """The 10 parameters → Drake SpatialInertia about Bo in B."""
+    from pydrake.multibody.tree import SpatialInertia, UnitInertia  # lazy: keeps import light
+
+    m = float(phi[0])
+    if m == 0:
+        if np.any(np.asarray(phi[1:]) != 0):
+            raise ValueError("a massless body must have zero first moment and inertia")
+        return SpatialInertia.Zero()  # Drake's default UnitInertia() is NaN, not zero
+    p = np.asarray(phi[1:4]) / m
+    Ixx, Iyy, Izz, Ixy, Ixz, Iyz = phi[4:10]
+    G = UnitInertia(Ixx / m, Iyy / m, Izz / m, Ixy / m, Ixz / m, Iyz / m)
+    return SpatialInertia(m, p, G, skip_validity_check)
+
+
+def validity_problems(body_names: Sequence[str], phi: np.ndarray) -> dict[str, str]:
+    """Bodies whose parameters Drake does not accept, with the reason.
+
+    A body is valid when ``SpatialInertia(m, p, G, skip_validity_check=False)`` can be built
+    (mass ≥ 0, inertia about the centre of mass with non-negative principal moments that
+    satisfy the triangle inequality), or when all its parameters are zero (a massless frame).
+
+    Args:
+        body_names: names of the bodies, length nb.
+        phi: parameters, shape (10·nb,).
+
+    Returns:
+        {body: reason}; empty when every body is valid.
+    """
+    phi = np.asarray(phi, float)
+    problems: dict[str, str] = {}
+    if phi.shape != (PARAMS_PER_BODY * len(body_names),):
+        raise ConfigError(f"phi has shape {phi.shape}, expected ({PARAMS_PER_BODY * len(body_names)},)")
+    for b, name in enumerate(body_names):
+        phi_b = phi[10 * b : 10 * b + 10]
+        if not np.all(np.isfinite(phi_b)):
+            problems[name] = "a parameter is NaN or infinite"
+            continue
+        if phi_b[0] == 0.0:
+            if np.any(phi_b[1:] != 0.0):
+                problems[name] = "zero mass with a non-zero first moment or inertia"
+            continue
+        if phi_b[0] < 0.0:
+            problems[name] = f"negative mass {phi_b[0]:.6g} kg"
+            continue
+        try:
+            M = phi_to_spatial_inertia(phi_b, skip_validity_check=True)
+            if not M.IsPhysicallyValid():
+                moments = np.linalg.eigvalsh(central_inertia(phi_b)[2])
+                problems[name] = (
+                    f"principal moments about the centre of mass {np.array2string(moments, precision=4)} "
+                    "kg·m² are negative or violate the triangle inequality"
+                )
+        except (RuntimeError, ValueError) as err:
+            problems[name] = str(err).splitlines()[0]
+    return problems
+
+
+def check_physically_valid(body_names: Sequence[str], phi: np.ndarray) -> None:
+    """Raises :class:`PhysicallyInvalidError` listing every invalid body (see
+    :func:`validity_problems`)."""
+    problems = validity_problems(body_names, phi)
+    if problems:
+        raise PhysicallyInvalidError(problems)

@@ -1,0 +1,115 @@
+"""Where robots come from: the built-in robot configs and the model files they point to.
+
+A robot is named either by a built-in name (a ``models/<name>.yaml`` config shipped with
+pe_drake: ``panda``, ``ur5``, ``g1``) or by a URDF/SDF path. Built-in models live in the
+``example-robot-data`` wheel (BUILD_NOTES.md, "Why each dependency") and are referred to as
+``package://example-robot-data/...``.
+"""
+
+from __future__ import annotations
+
+import re
+import sys
+import sysconfig
+from importlib.resources import files
+from pathlib import Path
+
+from pe_drake.config import Config, RobotConfig, load_config, validate_config
+from pe_drake.exceptions import ConfigError, UnknownNameError
+
+#: Package holding the built-in robot configs (``<name>.yaml``).
+MODELS_PACKAGE = "pe_drake.models"
+#: URI prefix of the models of the ``example-robot-data`` wheel.
+EXAMPLE_ROBOT_DATA_URI = "package://example-robot-data/"
+
+
+def models_dir() -> Path:
+    """The folder of the built-in robot, capsule and truth files."""
+    return Path(str(files(MODELS_PACKAGE)))
+
+
+def builtin_robots() -> tuple[str, ...]:
+    """Names of the built-in robot configs (``models/<name>.yaml``)."""
+    # A robot config has a top-level "robot:" section; capsule and truth files do not.
+    return tuple(
+        sorted(
+            p.stem
+            for p in models_dir().glob("*.yaml")
+            if re.search(r"^robot:", p.read_text(), flags=re.M)
+        )
+    )
+
+
+def robot_display_name(robot: str) -> str:
+    """The name a robot is shown by: its built-in name, else its model file's stem."""
+    return robot if robot in builtin_robots() else Path(robot).stem
+
+
+def example_robot_data_dir() -> Path:
+    """The ``share/example-robot-data`` folder of the installed ``example-robot-data`` wheel.
+
+    Raises:
+        ConfigError: when the package is not installed.
+    """
+    roots = [sysconfig.get_paths()["purelib"], *sys.path]
+    for root in roots:
+        candidate = Path(root) / "cmeel.prefix" / "share" / "example-robot-data"
+        if candidate.is_dir():
+            return candidate
+    raise ConfigError(
+        "the robot models of 'example-robot-data' are not installed: pip install example-robot-data"
+    )
+
+
+def builtin_config(name: str) -> Config:
+    """The config of a built-in robot.
+
+    Raises:
+        UnknownNameError: listing the built-in names.
+    """
+    path = models_dir() / f"{name}.yaml"
+    if not path.is_file():
+        raise UnknownNameError("robot", name, builtin_robots())
+    return load_config(path)
+
+
+def resolve_robot_config(robot: str, config_file: str | Path | None = None) -> Config:
+    """Config for a robot given by built-in name or model path, with a user file on top.
+
+    Args:
+        robot: built-in name, or a URDF/SDF path.
+        config_file: optional YAML file whose keys override the defaults.
+
+    Raises:
+        UnknownNameError: an unknown built-in name that is not a file either.
+        ConfigError: a missing model file or a bad config.
+    """
+    if robot in builtin_robots():
+        base = builtin_config(robot)
+    else:
+        path = Path(robot)
+        if path.suffix.lower() not in (".urdf", ".sdf", ".xml"):
+            raise UnknownNameError("robot", robot, builtin_robots() + ("<path to .urdf/.sdf>",))
+        if not path.is_file():
+            raise ConfigError(f"robot model file '{robot}' does not exist")
+        base = Config(robot=RobotConfig(model=str(path.resolve())))
+    if config_file is not None:
+        return load_config(config_file, base=base)
+    return validate_config(base)
+
+
+def resolve_model_path(model: str) -> Path:
+    """The model file of ``robot.model``: a path, or a ``package://example-robot-data/`` URI.
+
+    Raises:
+        ConfigError: an empty name or a missing file (the path is named).
+    """
+    if not model:
+        raise ConfigError("robot.model is empty: give a URDF/SDF path or a built-in robot name")
+    if model.startswith(EXAMPLE_ROBOT_DATA_URI):
+        path = example_robot_data_dir() / model[len(EXAMPLE_ROBOT_DATA_URI):]
+    else:
+        path = Path(model)
+    if not path.is_file():
+        raise ConfigError(f"robot model file '{path}' does not exist")
+    return path

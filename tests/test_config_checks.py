@@ -1,0 +1,56 @@
+"""The shared configuration checks of pe_drake.config: finite numbers, fractions, YAML loading."""
+
+# No ``from __future__ import annotations``: yaml_load_typed reads the schema's field types.
+import dataclasses
+
+import numpy as np
+import pytest
+
+from pe_drake.config import check_finite, check_fraction, load_yaml_typed
+from pe_drake.exceptions import ConfigError
+
+
+@dataclasses.dataclass
+class _Schema:
+    rate_hz: float = 1.0
+    names: list[str] = dataclasses.field(default_factory=list)
+
+
+@pytest.mark.parametrize(
+    "value, kwargs, match",
+    [
+        ("a", {}, "x must be a number, got 'a'"),
+        (True, {}, "x must be a number"),
+        (float("nan"), {}, "x must be a finite number"),
+        (np.inf, {}, "x must be a finite number"),
+        (0.0, {"positive": True}, "x must be positive, got 0.0"),
+        (-1, {"nonneg": True}, "x must be non-negative, got -1"),
+    ],
+)
+def test_check_finite_refuses(value, kwargs, match):
+    with pytest.raises(ConfigError, match=match):
+        check_finite("x", value, **kwargs)
+
+
+def test_check_finite_and_fraction_accept_and_return_floats():
+    assert check_finite("x", np.int64(3), positive=True) == 3.0
+    assert isinstance(check_finite("x", np.float32(0.5)), float)
+    assert check_finite("x", 0, nonneg=True) == 0.0
+    assert check_fraction("f", 1) == 1.0
+    for bad in (0.0, 1.5):
+        with pytest.raises(ConfigError, match="f must"):
+            check_fraction("f", bad)
+
+
+def test_load_yaml_typed(tmp_path):
+    good = tmp_path / "good.yaml"
+    good.write_text("rate_hz: 2.5\n")
+    assert load_yaml_typed(good, _Schema) == _Schema(rate_hz=2.5)
+    assert load_yaml_typed(good, _Schema, _Schema(names=["a"])) == _Schema(rate_hz=2.5, names=["a"])
+    with pytest.raises(ConfigError, match=r"widget file '.*none.yaml' does not exist"):
+        load_yaml_typed(tmp_path / "none.yaml", _Schema, what="widget")
+    for text in ("bogus: 1\n", "rate_hz: [1, 2]\n", "rate_hz: [1, 2\n", "- a\n"):
+        bad = tmp_path / "bad.yaml"
+        bad.write_text(text)
+        with pytest.raises(ConfigError, match=r"widget file '.*bad.yaml' does not match the widget format"):
+            load_yaml_typed(bad, _Schema, what="widget")
