@@ -3,7 +3,7 @@
 An executor runs ``fn(state, payload)`` for many payloads, where ``fn`` is a module-level
 function and ``state`` a :class:`WorkerState`: a robot, its regressor model, the base
 parameters and the constraint sets, built once per worker. Drake plants and contexts do not
-pickle (DRAKE_NOTES.md), so a worker rebuilds the robot from a :class:`RobotSpec` (name,
+pickle (BUILD_NOTES.md), so a worker rebuilds the robot from a :class:`RobotSpec` (name,
 config, base parameters, constraint factory); tasks carry only seeds, configs, starting
 points and C0 arrays.
 
