@@ -15,7 +15,6 @@ inherited threads. "spawn" (the default elsewhere) re-imports everything per wor
 from __future__ import annotations
 
 import multiprocessing
-import queue as queue_module
 import sys
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
@@ -92,7 +91,9 @@ class LocalExecutor(Executor):
 
     def _ensure_pool(self) -> ProcessPoolExecutor:
         if self._pool is None:
-            self._events = self._ctx.Queue()
+            # A SimpleQueue writes synchronously (no feeder thread): a task's events are in the
+            # pipe before its result reaches the pool, so a drain after the result sees them all.
+            self._events = self._ctx.SimpleQueue()
             self._pool = ProcessPoolExecutor(
                 self.workers, mp_context=self._ctx, initializer=_init_worker, initargs=(self._spec, self._events)
             )
@@ -146,8 +147,10 @@ class LocalExecutor(Executor):
         """Forwards the events the workers sent; raises if a worker could not build its robot."""
         while True:
             try:
-                kind, data = self._events.get_nowait()
-            except (queue_module.Empty, OSError, ValueError):
+                if self._events.empty():
+                    return
+                kind, data = self._events.get()
+            except (OSError, ValueError, EOFError):  # closed
                 return
             if kind == "init_error":
                 exc, type_name, tb, worker = data
@@ -192,6 +195,5 @@ class LocalExecutor(Executor):
         if pool is not None:
             pool.shutdown(wait=True, cancel_futures=True)
         if self._events is not None:
-            self._events.cancel_join_thread()  # never block on events nobody will read
             self._events.close()
             self._events = None
