@@ -159,18 +159,42 @@ class SolverConfig:
 
 
 @dataclasses.dataclass
+class ParallelConfig:
+    """Where the independent solves of a multi-start run (``pe-drake optimize``).
+
+    Not frozen: Drake's ``yaml_load_typed`` fills dataclasses by attribute assignment.
+
+    Attributes:
+        executor: "local" (a process pool on this machine) or "ray" (a Ray cluster).
+        address: Ray cluster address, e.g. "10.0.0.1:6379" or "ray://head:10001"; empty:
+            ``ray.init()``'s default (the cluster started on this machine with ``ray start``,
+            else a new local instance).
+        starts: random starts; start k uses seed ``excitation.seed + k``.
+        workers: starts at once; 0: the cores available (the cluster's CPUs on Ray), at most
+            ``starts``.
+    """
+
+    executor: str = "local"
+    address: str = ""
+    starts: int = 1
+    workers: int = 0
+
+
+@dataclasses.dataclass
 class Config:
     """A whole pe_drake configuration file."""
 
     robot: RobotConfig = dataclasses.field(default_factory=RobotConfig)
     excitation: ExcitationConfig = dataclasses.field(default_factory=ExcitationConfig)
     solver: SolverConfig = dataclasses.field(default_factory=SolverConfig)
+    parallel: ParallelConfig = dataclasses.field(default_factory=ParallelConfig)
 
 
 CRITERIA = ("cond", "log_cond", "dopt")
 MEASUREMENTS = ("joint_torque", "base_wrench", "both")
 SOLVERS = ("ipopt", "nlopt")
 NLOPT_ALGORITHMS = ("LD_SLSQP", "LD_MMA", "LD_CCSAQ")
+EXECUTORS = ("local", "ray")
 
 
 def check_finite(name: str, value: Any, *, positive: bool = False, nonneg: bool = False) -> float:
@@ -311,7 +335,19 @@ def validate_config(config: Config) -> Config:
         raise ConfigError(f"solver.max_iterations must be a positive integer, got {s.max_iterations!r}")
     check_finite("solver.tolerance", s.tolerance, positive=True)
     check_finite("solver.max_time", s.max_time, nonneg=True)
+    _validate_parallel(config.parallel)
     return config
+
+
+def _validate_parallel(p: ParallelConfig) -> None:
+    if p.executor not in EXECUTORS:
+        raise ConfigError(f"parallel.executor '{p.executor}' is not one of {', '.join(EXECUTORS)}")
+    if p.address and p.executor != "ray":
+        raise ConfigError(f"parallel.address '{p.address}' needs parallel.executor: ray (it is '{p.executor}')")
+    if isinstance(p.starts, bool) or not isinstance(p.starts, int) or p.starts < 1:
+        raise ConfigError(f"parallel.starts must be a positive integer, got {p.starts!r}")
+    if isinstance(p.workers, bool) or not isinstance(p.workers, int) or p.workers < 0:
+        raise ConfigError(f"parallel.workers must be a positive integer (0: the cores available), got {p.workers!r}")
 
 
 def load_config(path: str | Path, base: Config | None = None) -> Config:

@@ -62,7 +62,14 @@ def _add_trajectory_commands(sub) -> None:
     p.add_argument("--prior", action="append", default=[], metavar="TRAJECTORY_JSON",
                    help="earlier trajectory whose data is reused as C0 (repeatable)")
     p.add_argument("--max-iterations", type=int, help="solver iteration limit")
-    p.add_argument("--seed", type=int, help="seed of the random initial point")
+    p.add_argument("--seed", type=int, help="seed of the random initial point (start k: seed + k)")
+    p.add_argument("--starts", type=int, help="random starts; the feasible one with the lowest criterion is kept "
+                   "(default: config parallel.starts, 1)")
+    p.add_argument("--workers", type=int, help="starts solved at once (default: the cores available, at most --starts)")
+    p.add_argument("--executor", choices=["local", "ray"], help="where the starts run: local processes or a Ray "
+                   "cluster (default: config parallel.executor, local)")
+    p.add_argument("--ray-address", metavar="ADDR", help="join this Ray cluster (default: ray.init()'s: the cluster "
+                   "started here with `ray start`, else a new local instance)")
     add_measurement_argument(p, "rows of C: joint torques, the ground wrench (foot F/T sensors), or both")
     p.add_argument("--csv-rate", type=float, default=1000.0, help="rate of trajectory.csv [Hz]")
     p.add_argument("--no-html", action="store_true", help="do not write the Meshcat HTML playback")
