@@ -26,8 +26,9 @@ from pe_drake.diagnosis.effects import (
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.excitation.trajectory_file import load_trajectory
 from pe_drake.identification.measurements import Measurement, write_measurement_csv
-from pe_drake.identification.simulation import perturb_inertias, simulate
+from pe_drake.identification.simulation import simulate
 from pe_drake.identification.truth import ControlTruth, EffectsTruth, NoiseTruth, PayloadTruth, Truth
+from pe_drake.multibody.inertia import perturb_inertias
 from tests.conftest import get_robot
 
 DATA = Path(__file__).parent / "data"

@@ -14,13 +14,12 @@ from pe_drake.excitation.trajectory_file import save_trajectory
 from pe_drake.identification.measurements import read_measurement_csv
 from pe_drake.identification.simulation import (
     build_true_robot,
-    perturb_inertias,
     rigid_body_torque,
     simulate,
     truth_path_for,
 )
 from pe_drake.identification.truth import PayloadTruth, Truth, load_truth
-from pe_drake.multibody.inertia import phi_to_spatial_inertia
+from pe_drake.multibody.inertia import perturb_inertias, phi_to_spatial_inertia
 from pe_drake.multibody.robot import load_robot
 
 DURATION = 1.5  # [s]

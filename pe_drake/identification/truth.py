@@ -125,7 +125,7 @@ class Truth:
 
     Attributes:
         seed: seeds the inertial perturbation and, independently, the noise.
-        inertia_perturbation: relative size ε in [0, 0.5] (:func:`perturb_inertias`).
+        inertia_perturbation: relative size ε in [0, 0.5] (:func:`pe_drake.multibody.inertia.perturb_inertias`).
         effects: see :class:`EffectsTruth`.
         noise: see :class:`NoiseTruth`.
         control: see :class:`ControlTruth`.
