@@ -15,9 +15,11 @@ amplitudes (:mod:`pe_drake.excitation.baseline`), then greedy selection of 3.
 
     python examples/humanoid_g1_arms.py --out results/g1_tables            # ~7 min on 2 cores
     python examples/humanoid_g1_arms.py --quick --out /tmp/g1_quick        # smoke test, < 1 min
+    python examples/humanoid_g1_arms.py --starts 16 --workers 16 --executor ray --ray-address HEAD:6379
 
 Each motion: 2 starts solved in 2 worker processes (IPOPT ≤ 150 iterations each), the lower
-cond kept. Motion 1 starts from 2 seeded random points; motions 2 and 3 from one random point
+cond kept; ``--executor ray`` runs the starts and the baseline's draws on a Ray cluster
+(README, "Running on a cluster"). Motion 1 starts from 2 seeded random points; motions 2 and 3 from one random point
 and one warm start, the earlier motion with the lowest cond on the current prior
 (:func:`pe_drake.excitation.sequential.optimize_sequence`). Progress lines go to stdout; the tables are
 printed at the end.
@@ -66,7 +68,9 @@ class Settings:
     config: Path | None
     motions: int
     starts: int  # random initial points per motion
-    workers: int  # processes
+    workers: int  # starts (and chunks of baseline draws) at once
+    executor: str  # "local" (process pool) or "ray"
+    ray_address: str  # Ray cluster ("": ray.init()'s default)
     max_iterations: int | None  # IPOPT iterations per start (None: the config's)
     max_time: float  # wall-time limit per start [s]; 0: none
     criterion: str | None  # None: the config's (cond)
@@ -92,34 +96,24 @@ FULL = {
 QUICK = {"starts": 1, "workers": 1, "candidates": 8, "baseline_amplitudes": (0.05, 0.1), "max_iterations": 15}
 
 
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got '{text}'") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
-    return value
+def _number(kind: type, what: str, ok):
+    """An argparse type: ``kind(text)`` that must pass ``ok`` (e.g. be positive)."""
+
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {what}, got '{text}'") from None
+        if not math.isfinite(value) or not ok(value):
+            raise argparse.ArgumentTypeError(f"expected {what}, got {text}")
+        return value
+
+    return parse
 
 
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got '{text}'") from None
-    if not math.isfinite(value) or value <= 0:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text}")
-    return value
-
-
-def _nonnegative_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, got '{text}'") from None
-    if not math.isfinite(value) or value < 0:
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text}")
-    return value
+_positive_int = _number(int, "a positive integer", lambda v: v >= 1)
+_positive_float = _number(float, "a positive number", lambda v: v > 0)
+_nonnegative_float = _number(float, "a number >= 0", lambda v: v >= 0)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -132,6 +126,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--motions", type=_positive_int, default=3, help="sequential motions (default: 3)")
     p.add_argument("--starts", type=_positive_int, help=f"random starts per motion (default: {FULL['starts']}, quick 1)")
     p.add_argument("--workers", type=_positive_int, help=f"processes (default: {FULL['workers']}, quick 1)")
+    p.add_argument("--executor", choices=("local", "ray"), default="local", help="where the starts and draws run")
+    p.add_argument("--ray-address", default="", metavar="ADDR", help="join this Ray cluster (--executor ray)")
     p.add_argument(
         "--max-iterations",
         type=_positive_int,
@@ -171,6 +167,8 @@ def parse_args(argv: Sequence[str] | None = None) -> Settings:
         motions=args.motions,
         starts=args.starts or defaults["starts"],
         workers=args.workers or defaults["workers"],
+        executor="ray" if args.ray_address else args.executor,
+        ray_address=args.ray_address,
         max_iterations=args.max_iterations or defaults.get("max_iterations"),
         max_time=args.max_time,
         criterion=args.criterion,
@@ -196,24 +194,14 @@ def parse_args(argv: Sequence[str] | None = None) -> Settings:
 
 
 # ---- the run ---------------------------------------------------------------------------------------
-def _svd_range(blocks: Sequence[np.ndarray]) -> tuple[float, float]:
-    """(σ_min, σ_max) of the vertical concatenation of ``blocks``."""
-    s = np.linalg.svd(np.vstack(blocks), compute_uv=False)
-    return float(s[-1]), float(s[0])
-
-
 def _running_sigmas(blocks: Sequence[np.ndarray]) -> tuple[list[float], list[float]]:
     """σ_min and σ_max of [B_1; ...; B_i] for i = 1, 2, ...
 
     Both are non-decreasing in i: CᵀC = Σ B_kᵀB_k (Eq. 41) only gains a positive
     semidefinite term, so no eigenvalue of it falls (Weyl). cond = σ_max/σ_min may still rise.
     """
-    lo, hi = [], []
-    for i in range(1, len(blocks) + 1):
-        s_min, s_max = _svd_range(blocks[:i])
-        lo.append(s_min)
-        hi.append(s_max)
-    return lo, hi
+    s = [np.linalg.svd(np.vstack(blocks[:i]), compute_uv=False) for i in range(1, len(blocks) + 1)]
+    return [float(x[-1]) for x in s], [float(x[0]) for x in s]
 
 
 class _Printer:
@@ -257,11 +245,10 @@ def run(settings: Settings) -> dict:
         ConfigError, UnknownNameError: a bad config file or value.
         InfeasibleError: the baseline found too few feasible random motions, or the nominal
             posture violates a constraint.
-        WorkerError: a worker process failed.
+        WorkerError: a start or a chunk of draws failed in a worker, or its worker died.
     """
-    from pe_drake.excitation.baseline import generate_candidates, greedy_select
     from pe_drake.excitation.constraints import constraints_from_config
-    from pe_drake.excitation.multistart import WorkerPool
+    from pe_drake.excitation.parallel import open_executor
     from pe_drake.excitation.sequential import optimize_sequence
     from pe_drake.multibody.registry import resolve_robot_config
     from pe_drake.multibody.robot import Robot
@@ -280,8 +267,10 @@ def run(settings: Settings) -> dict:
     )
     robot = Robot("g1", config.robot)
     workers = settings.workers
-    pool = WorkerPool(robot, workers, constraints_factory=constraints_from_config)
-    base = pool.base
+    executor = open_executor(
+        robot, settings.executor, workers, address=settings.ray_address, constraints_factory=constraints_from_config
+    )
+    base = executor.base
     period = 2 * math.pi / excitation.omega
     say(
         f"G1: {robot.n} arm joints, {base.count} base parameters; N = {excitation.harmonics}, "
@@ -291,38 +280,11 @@ def run(settings: Settings) -> dict:
         f"criterion {excitation.criterion}"
     )
     say(
-        f"{settings.motions} motions × {settings.starts} start(s) in {workers} process(es), "
+        f"{settings.motions} motions × {settings.starts} start(s) on {workers} {settings.executor} worker(s), "
         f"{solver.name} ≤ {solver.max_iterations} iterations per start" + ("  [quick]" if settings.quick else "")
     )
     try:
-        # ---- Table II: random motions under the same constraints, greedy selection ([16]).
-        say(
-            f"baseline: {settings.candidates} feasible random motions at each amplitude "
-            + ", ".join(f"{a:g}" for a in settings.baseline_amplitudes)
-            + " rad"
-        )
-        sets = []
-        for k, amplitude in enumerate(settings.baseline_amplitudes):
-            cset = generate_candidates(
-                robot,
-                excitation,
-                settings.candidates,
-                seed=BASELINE_SEED + k * BASELINE_SEED_BLOCK + settings.seed,
-                amplitude=amplitude,
-                max_draws=400 * settings.candidates,
-                pool=pool,
-                progress=say.draws,
-            )
-            conds = np.array([c.cond for c in cset.candidates])
-            say(
-                f"  amplitude {amplitude:g} rad: {len(conds)} accepted of {cset.draws} draws, "
-                f"cond min {conds.min():.4g}, median {np.median(conds):.4g}, {cset.wall_time:.1f} s"
-            )
-            sets.append((amplitude, cset))
-        candidates = [(a, c) for a, cset in sets for c in cset.candidates]
-        R = [r for _, cset in sets for r in cset.R]
-        selection = greedy_select(R, settings.motions)
-        baseline_time = sum(cset.wall_time for _, cset in sets)
+        sets, candidates, selection, baseline_time = _baseline(settings, robot, excitation, executor, say)
 
         # ---- Table I: sequential optimization (section IV-B): motion i minimizes cond of
         # [C^(1); ...; C^(i-1); C^(i)], the earlier blocks being fixed prior data C0 (Eq. 41).
@@ -334,15 +296,15 @@ def run(settings: Settings) -> dict:
             starts=settings.starts,
             seed=settings.seed,
             amplitude=settings.amplitude,
-            pool=pool,
+            executor=executor,
             progress=say.event,
             progress_interval=10.0 if not settings.quick else 5.0,
             stop_on_failure=False,
         )
     finally:
-        pool.close()
+        executor.close()
 
-    problem = pool.problem(excitation)
+    problem = executor.problem(excitation)
     baseline_blocks = [problem.regressor_block(candidates[k][1].alpha) for k in selection.indices]
     tables = _tables(settings, excitation, solver, robot, base, sequence, selection, candidates, sets, baseline_blocks)
     tables["timing"]["baseline_generation_s"] = baseline_time
@@ -351,6 +313,38 @@ def run(settings: Settings) -> dict:
     tables["timing"]["cpu_count"] = os.cpu_count()
     _write_outputs(settings.out, robot, problem, sequence, selection, candidates, tables)
     return tables
+
+
+def _baseline(settings: Settings, robot, excitation, executor, say):
+    """Table II: random motions under the same constraints, greedy selection ([16])."""
+    from pe_drake.excitation.baseline import generate_candidates, greedy_select
+
+    say(
+        f"baseline: {settings.candidates} feasible random motions at each amplitude "
+        + ", ".join(f"{a:g}" for a in settings.baseline_amplitudes)
+        + " rad"
+    )
+    sets = []  # (amplitude, CandidateSet)
+    for k, amplitude in enumerate(settings.baseline_amplitudes):
+        cset = generate_candidates(
+            robot,
+            excitation,
+            settings.candidates,
+            seed=BASELINE_SEED + k * BASELINE_SEED_BLOCK + settings.seed,
+            amplitude=amplitude,
+            max_draws=400 * settings.candidates,
+            executor=executor,
+            progress=say.draws,
+        )
+        conds = np.array([c.cond for c in cset.candidates])
+        say(
+            f"  amplitude {amplitude:g} rad: {len(conds)} accepted of {cset.draws} draws, "
+            f"cond min {conds.min():.4g}, median {np.median(conds):.4g}, {cset.wall_time:.1f} s"
+        )
+        sets.append((amplitude, cset))
+    candidates = [(a, c) for a, cset in sets for c in cset.candidates]
+    selection = greedy_select([r for _, cset in sets for r in cset.R], settings.motions)
+    return sets, candidates, selection, sum(cset.wall_time for _, cset in sets)
 
 
 def _tables(settings, excitation, solver, robot, base, sequence, selection, candidates, sets, baseline_blocks) -> dict:
@@ -386,6 +380,7 @@ def _tables(settings, excitation, solver, robot, base, sequence, selection, cand
             "motions": settings.motions,
             "starts": settings.starts,
             "workers": sequence.workers,
+            "executor": settings.executor,
             "seed": settings.seed,
         },
         "table1": {
@@ -411,30 +406,16 @@ def _tables(settings, excitation, solver, robot, base, sequence, selection, cand
             "amplitude": [candidates[k][0] for k in selection.indices],
             "candidates": len(candidates),
             "per_amplitude": [
-                {
-                    "amplitude": a,
-                    "accepted": len(cset.candidates),
-                    "draws": cset.draws,
-                    "rejected": cset.rejected,
-                    "cond_min": float(min(c.cond for c in cset.candidates)),
-                    "cond_median": float(np.median([c.cond for c in cset.candidates])),
-                    "wall_time_s": cset.wall_time,
-                }
+                {"amplitude": a, "accepted": len(cset.candidates), "draws": cset.draws, "rejected": cset.rejected,
+                 "cond_min": float(min(c.cond for c in cset.candidates)),
+                 "cond_median": float(np.median([c.cond for c in cset.candidates])), "wall_time_s": cset.wall_time}
                 for a, cset in sets
             ],
             "paper_hrp4": PAPER_TABLE_II,
         },
-        "ratio_first_motion": {
-            "baseline": first_base,
-            "optimized": first_opt,
-            "ratio": first_base / first_opt,
-            "target": RATIO_TARGET,
-            "paper": PAPER_RATIO,
-        },
-        "timing": {
-            "wall_time_per_motion_s": times,
-            "target_per_motion_s": TIME_TARGET,
-        },
+        "ratio_first_motion": {"baseline": first_base, "optimized": first_opt, "ratio": first_base / first_opt,
+                               "target": RATIO_TARGET, "paper": PAPER_RATIO},
+        "timing": {"wall_time_per_motion_s": times, "target_per_motion_s": TIME_TARGET},
         "success": sequence.success,
     }
 
@@ -490,7 +471,7 @@ def format_markdown(t: dict) -> str:
         f"{s['cost_sample_spacing_s']:.3g} s apart, K = {s['constraint_samples']} constraint samples "
         f"{s['constraint_sample_spacing_s']:.3g} s apart; {s['constraints']}; criterion {s['criterion']}, "
         f"{s['solver']} ≤ {s['max_iterations']} iterations, {s['starts']} start(s) per motion in "
-        f"{s['workers']} process(es), seed {s['seed']}.",
+        f"{s['workers']} {s.get('executor', 'local')} worker(s), seed {s['seed']}.",
         "",
         "## Table I: optimized motions (motion i optimized with C0 = motions 1..i-1)",
         "",
@@ -607,7 +588,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except InfeasibleError as err:
         print(f"humanoid_g1_arms.py: no feasible motion: {err}", file=sys.stderr)
         return 1
-    except PeDrakeError as err:  # e.g. WorkerError: a worker process died
+    except PeDrakeError as err:  # e.g. WorkerError: a worker died
         print(f"humanoid_g1_arms.py: {type(err).__name__}: {err}", file=sys.stderr)
         return 1
     print(format_console(tables), flush=True)

@@ -26,6 +26,11 @@ _EXPORTS = {
     "BaseParameters": "pe_drake.multibody.base_parameters",
     "compute_base_parameters": "pe_drake.multibody.base_parameters",
     "evaluate_criterion": "pe_drake.excitation.criteria",
+    # what is measured: joint torques, the ground wrench (issue 14), or both
+    "MeasurementType": "pe_drake.multibody.sensors",
+    "SensorRows": "pe_drake.multibody.sensors",
+    "static_wrench": "pe_drake.multibody.wrench",
+    "weld_reaction_wrench": "pe_drake.multibody.wrench",
     # the excitation program (build / solve, and pieces for your own program)
     "ExcitationProblem": "pe_drake.excitation.problem",
     "ExcitationProgram": "pe_drake.excitation.program",
@@ -38,6 +43,9 @@ _EXPORTS = {
     "add_rest_constraints": "pe_drake.excitation.limits",
     "add_sampled_constraint": "pe_drake.excitation.program",
     "check_margins": "pe_drake.excitation.solve",
+    # what a motion will tell you (issue 13)
+    "excitation_quality": "pe_drake.excitation.quality",
+    "QualityReport": "pe_drake.excitation.quality",
     # constraints
     "SampledConstraint": "pe_drake.excitation.constraints.base",
     "BalanceConstraint": "pe_drake.excitation.constraints.balance",

@@ -10,6 +10,7 @@ Units are SI and written next to each field.
 
 import dataclasses
 import math
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -74,6 +75,31 @@ class RobotConfig:
     support_points: dict[str, list[list[float]]] = dataclasses.field(default_factory=dict)
 
 
+#: Default joint-torque noise σ [N·m], every joint: the order of a joint-torque sensor's
+#: noise after the identification's low-pass filter.
+DEFAULT_NOISE_STD = 0.05
+
+
+@dataclasses.dataclass
+class NoiseStdConfig:
+    """Sensor noise σ of each measured quantity: the row weights of C (issue 14).
+
+    Rows divided by their σ make cond(C) independent of units and of the sensor mix.
+
+    Attributes:
+        torque: joint-torque noise [N·m or N]: one value for every joint, or {joint: value}
+            (``all`` for the joints not named). It weighs the torque rows against the wrench
+            rows (``measurement: both``), weighs joints against each other, and sets the
+            quality figures ``optimize`` reports (:mod:`pe_drake.excitation.quality`).
+        force: force noise of the ground-wrench sensor [N].
+        moment: moment noise of the ground-wrench sensor [N·m].
+    """
+
+    torque: dict[str, float] | float = DEFAULT_NOISE_STD  # [N·m]; a Drake yaml union: container type first
+    force: float = 0.5
+    moment: float = 0.05
+
+
 @dataclasses.dataclass
 class ExcitationConfig:
     """The trajectory and the optimization problem (paper, section IV-A).
@@ -95,6 +121,11 @@ class ExcitationConfig:
         periods: N, periods of the optimized path in trajectory.csv (the cost uses one).
         ramp: trajectory.csv starts and ends at rest: a ramp-in and a ramp-out that are a
             time scaling of the path (pe_drake/excitation/ramp.py).
+        measurement: what the identification will measure, the rows of C:
+            "joint_torque" (Eq. 1), "base_wrench" (the ground wrench on a robot whose
+            root link stands on the ground: foot force/torque sensors or a force plate) or
+            "both".
+        noise_std: the sensors' noise, :class:`NoiseStdConfig` (row weights).
     """
 
     harmonics: int = 10
@@ -110,6 +141,8 @@ class ExcitationConfig:
     seed: int = 0
     periods: int = 1
     ramp: bool = True
+    measurement: str = "joint_torque"
+    noise_std: NoiseStdConfig = dataclasses.field(default_factory=NoiseStdConfig)
 
 
 @dataclasses.dataclass
@@ -167,6 +200,28 @@ class EnvironmentConfig:
 
 
 @dataclasses.dataclass
+class ParallelConfig:
+    """Where the independent solves of a multi-start run (``pe-drake optimize``).
+
+    Not frozen: Drake's ``yaml_load_typed`` fills dataclasses by attribute assignment.
+
+    Attributes:
+        executor: "local" (a process pool on this machine) or "ray" (a Ray cluster).
+        address: Ray cluster address, e.g. "10.0.0.1:6379" or "ray://head:10001"; empty:
+            ``ray.init()``'s default (the cluster started on this machine with ``ray start``,
+            else a new local instance).
+        starts: random starts; start k uses seed ``excitation.seed + k``.
+        workers: starts at once; 0: the cores available (the cluster's CPUs on Ray), at most
+            ``starts``.
+    """
+
+    executor: str = "local"
+    address: str = ""
+    starts: int = 1
+    workers: int = 0
+
+
+@dataclasses.dataclass
 class Config:
     """A whole pe_drake configuration file."""
 
@@ -174,11 +229,14 @@ class Config:
     excitation: ExcitationConfig = dataclasses.field(default_factory=ExcitationConfig)
     solver: SolverConfig = dataclasses.field(default_factory=SolverConfig)
     environment: EnvironmentConfig = dataclasses.field(default_factory=EnvironmentConfig)
+    parallel: ParallelConfig = dataclasses.field(default_factory=ParallelConfig)
 
 
 CRITERIA = ("cond", "log_cond", "dopt")
+MEASUREMENTS = ("joint_torque", "base_wrench", "both")
 SOLVERS = ("ipopt", "nlopt")
 NLOPT_ALGORITHMS = ("LD_SLSQP", "LD_MMA", "LD_CCSAQ")
+EXECUTORS = ("local", "ray")
 
 
 def check_finite(name: str, value: Any, *, positive: bool = False, nonneg: bool = False) -> float:
@@ -302,6 +360,13 @@ def validate_config(config: Config) -> Config:
     check_finite("excitation.amplitude", e.amplitude, positive=True)
     check_finite("excitation.balance_radius", e.balance_radius, nonneg=True)
     check_finite("excitation.collision_margin", e.collision_margin)
+    if e.measurement not in MEASUREMENTS:
+        raise ConfigError(f"excitation.measurement '{e.measurement}' is not one of {', '.join(MEASUREMENTS)}")
+    torque = e.noise_std.torque
+    for joint, value in (torque.items() if isinstance(torque, dict) else [("all", torque)]):
+        check_finite(f"excitation.noise_std.torque['{joint}'] [N·m]", value, positive=True)
+    for name in ("force", "moment"):
+        check_finite(f"excitation.noise_std.{name}", getattr(e.noise_std, name), positive=True)
 
     if s.name not in SOLVERS:
         raise ConfigError(f"solver.name '{s.name}' is not one of {', '.join(SOLVERS)}")
@@ -314,6 +379,7 @@ def validate_config(config: Config) -> Config:
     check_finite("solver.tolerance", s.tolerance, positive=True)
     check_finite("solver.max_time", s.max_time, nonneg=True)
     _validate_safety(config)
+    _validate_parallel(config.parallel)
     return config
 
 
@@ -354,6 +420,17 @@ def _validate_safety(config: Config) -> None:
             raise ConfigError(f"environment.boxes[{k}].size must be 3 positive edge lengths [m], got {box.size!r}")
 
 
+def _validate_parallel(p: ParallelConfig) -> None:
+    if p.executor not in EXECUTORS:
+        raise ConfigError(f"parallel.executor '{p.executor}' is not one of {', '.join(EXECUTORS)}")
+    if p.address and p.executor != "ray":
+        raise ConfigError(f"parallel.address '{p.address}' needs parallel.executor: ray (it is '{p.executor}')")
+    if isinstance(p.starts, bool) or not isinstance(p.starts, int) or p.starts < 1:
+        raise ConfigError(f"parallel.starts must be a positive integer, got {p.starts!r}")
+    if isinstance(p.workers, bool) or not isinstance(p.workers, int) or p.workers < 0:
+        raise ConfigError(f"parallel.workers must be a positive integer (0: the cores available), got {p.workers!r}")
+
+
 def load_config(path: str | Path, base: Config | None = None) -> Config:
     """Reads a YAML config file onto :class:`Config` and validates it.
 
@@ -381,3 +458,48 @@ def _resolve_paths(robot: RobotConfig, folder: Path) -> None:
 def to_dict(obj: Any) -> Any:
     """A dataclass as plain dicts/lists (for JSON reports)."""
     return dataclasses.asdict(obj)
+
+
+def noise_vector(noise_std, joint_names: Sequence[str]) -> np.ndarray:
+    """σ_j per joint from the config's ``excitation.noise_std.torque``.
+
+    Args:
+        noise_std: one value for every joint; a {joint: value} table (the key ``all`` sets
+            the joints not named); a sequence with one value per joint; or None
+            (:data:`DEFAULT_NOISE_STD`) [N·m or N].
+        joint_names: the excited joints, length n.
+
+    Raises:
+        ConfigError: an unknown joint, a sequence whose length is not n, or a value that is not
+            a positive finite number (naming the joint).
+    """
+    joints = list(joint_names)
+    n = len(joints)
+    if noise_std is None:
+        return np.full(n, DEFAULT_NOISE_STD)
+    if isinstance(noise_std, dict):
+        unknown = [k for k in noise_std if k != "all" and k not in joints]
+        if unknown:
+            raise ConfigError(
+                f"excitation.noise_std.torque names unknown joint '{unknown[0]}'; valid: all, {', '.join(joints)}"
+            )
+        default = noise_std.get("all", DEFAULT_NOISE_STD)
+        values = [noise_std.get(j, default) for j in joints]
+    elif isinstance(noise_std, (str, bytes)) or not hasattr(noise_std, "__len__"):
+        values = [noise_std] * n
+    else:
+        values = list(noise_std)
+        if len(values) != n:
+            raise ConfigError(
+                f"excitation.noise_std.torque has {len(values)} values; give one value, or one per joint ({n}: "
+                f"{', '.join(joints)}), or a {{joint: value}} table"
+            )
+    out = np.empty(n)
+    for j, value in enumerate(values):
+        ok = isinstance(value, (int, float, np.floating, np.integer)) and not isinstance(value, bool)
+        if not ok or not math.isfinite(float(value)) or float(value) <= 0:
+            raise ConfigError(
+                f"excitation.noise_std.torque of joint '{joints[j]}' must be a positive number [N·m], got {value!r}"
+            )
+        out[j] = float(value)
+    return out

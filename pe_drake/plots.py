@@ -7,7 +7,9 @@ from pathlib import Path
 import numpy as np
 
 
-def plot_trajectory(path: str | Path, robot, trajectory, singular_values: np.ndarray, title: str = "") -> Path:
+def plot_trajectory(
+    path: str | Path, robot, trajectory, singular_values: np.ndarray, title: str = "", note: str = ""
+) -> Path:
     """q, v, vdot of every joint against its limits, and the singular-value spectrum of C.
 
     Args:
@@ -16,6 +18,7 @@ def plot_trajectory(path: str | Path, robot, trajectory, singular_values: np.nda
         trajectory: the :class:`~pe_drake.excitation.fourier.FourierTrajectory`.
         singular_values: σ of the stacked base regressor, descending.
         title: figure title.
+        note: text printed in the singular-value panel (e.g. the quality figures).
     """
     import matplotlib
 
@@ -45,6 +48,9 @@ def plot_trajectory(path: str | Path, robot, trajectory, singular_values: np.nda
     ax.set_title(f"singular values of C (cond = {s[0] / s[-1]:.4g})")
     ax.set_xlabel("index")
     ax.grid(True, which="both", alpha=0.3)
+    if note:
+        ax.text(0.98, 0.98, note, transform=ax.transAxes, fontsize=7, va="top", ha="right",
+                bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "0.8"})
     if title:
         fig.suptitle(title)
     path = Path(path)

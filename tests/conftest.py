@@ -64,3 +64,13 @@ def random_states(robot, count: int, seed: int = 0):
     v = rng.uniform(-2, 2, (count, robot.n))
     vd = rng.uniform(-5, 5, (count, robot.n))
     return q, v, vd
+
+
+@pytest.fixture(scope="session")
+def diagnosis_trajectory():
+    """The optimized Panda trajectory the diagnosis tests simulate (tests/data)."""
+    from pathlib import Path
+
+    from pe_drake.excitation.trajectory_file import load_trajectory
+
+    return load_trajectory(Path(__file__).parent / "data" / "diagnosis_panda_trajectory.json")[0]

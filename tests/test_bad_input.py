@@ -20,7 +20,7 @@ TRAJ = str(DATA / "panda_optimized.json")
     ("robot: [1, 2]\n", "line 1, key 'robot': expected a mapping"),
     ("- a\n- b\n", "key '(top level)': expected a mapping"),
     ("excitation:\n  harmonics: 3\n  omeg: 2\n", "line 3, key 'excitation.omeg': unknown key"),
-    ("excitation:\n  cost_samples: 1\n", "cost_samples = 1 gives 7 rows of C for 43 base parameters"),
+    ("excitation:\n  cost_samples: 1\n", "cost_samples = 1 gives 7 rows of joint_torque for 43 base parameters"),
     ("excitation:\n  omega: 1.0e6\n", "gives a period of 6.283e-06 s"),
     ("robot:\n  nominal_positions: {elbow: 0.3}\n", "unknown joint 'elbow' in robot.nominal_positions"),
     ("excitation:\n  constraint_samples: 3\n", "constraint_samples = 3 is too few for 5 harmonics"),

@@ -1,5 +1,5 @@
 """Diagnosis on data in which the effect is hidden: each effect alone, a realistic mix, clean
-data with inertial errors, a timing delay outside the library, a non-separable armature; the
+data with inertial errors, a timing delay (named time_delay), a non-separable armature; the
 command's outputs, the augmented model, errors, and the real Panda recording.
 
 The data are simulated by pe_drake.identification.simulation on an optimized trajectory; the test knows the
@@ -26,8 +26,9 @@ from pe_drake.diagnosis.effects import (
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.excitation.trajectory_file import load_trajectory
 from pe_drake.identification.measurements import Measurement, write_measurement_csv
-from pe_drake.identification.simulation import perturb_inertias, simulate
+from pe_drake.identification.simulation import simulate
 from pe_drake.identification.truth import ControlTruth, EffectsTruth, NoiseTruth, PayloadTruth, Truth
+from pe_drake.multibody.inertia import perturb_inertias
 from tests.conftest import get_robot
 
 DATA = Path(__file__).parent / "data"
@@ -160,14 +161,39 @@ def test_clean_data_with_inertial_errors_names_nothing(robot, trajectory):
     assert np.all(result.rms_rigid[:4] < 0.2 * result.rms_nominal[:4])
 
 
-def test_timing_delay_is_unexplained_not_mislabelled(robot, trajectory):
+def test_timing_delay_is_named_and_corrected(robot, trajectory):
+    """Issue 13: a 10 ms lag of the torque log is named ``time_delay`` in seconds (the unit of
+    simulate's torque_delay), nothing else is named, and the augmented model, which pairs
+    each torque sample with the motion 10 ms earlier, closes the gap."""
     result = diagnosed(robot, trajectory, "delay")
-    assert result.effects == []
-    assert result.unexplained  # the heavily loaded joints at least
-    assert {"panda_joint1", "panda_joint2", "panda_joint4"} <= set(result.unexplained)
-    assert result.timing["needed"]
-    assert_close(result.timing["offset_s"], 0.010)
-    assert all("timing offset" in u["hint"] for u in result.unexplained.values())
+    found = named(result)
+    assert set(found) == {("time_delay", "")}, found
+    effect = found[("time_delay", "")]
+    assert effect.unit == "s"
+    assert_close(effect.value, 0.010)
+    assert result.timing["needed"] and result.timing["named"]
+    assert result.cumulative[-1][0] == "+ time_delay"
+    assert not result.unexplained
+    loaded = [0, 1, 3]  # joints 1, 2, 4 carry the largest torques
+    assert np.all(result.rms_after[loaded] < 0.1 * result.rms_rigid[loaded])
+    assert result.augmented.time_delay == pytest.approx(effect.value)
+    assert result.augmented.truth().effects.torque_delay == pytest.approx(effect.value)
+
+
+def test_timing_delay_in_a_mix(robot, trajectory):
+    """A 5 ms lead of the torque log among Coulomb friction and an offset, with noise and
+    inertial errors: all three named within 10 %, nothing else."""
+    truth = Truth(seed=4, inertia_perturbation=0.03, noise=NOISE, control=CONTROL, effects=EffectsTruth(
+        torque_delay=-0.005, torque_offset={"panda_joint4": -0.8}, coulomb={"panda_joint3": 0.5}))
+    measurement, _ = simulate(robot, trajectory, truth, DURATION)
+    result = diagnose(robot, measurement)
+    found = named(result)
+    assert set(found) == {("time_delay", ""), ("coulomb_friction", "panda_joint3"),
+                          ("torque_offset", "panda_joint4")}, found
+    assert_close(found[("time_delay", "")].value, -0.005)
+    assert_close(found[("coulomb_friction", "panda_joint3")].value, 0.5)
+    assert_close(found[("torque_offset", "panda_joint4")].value, -0.8)
+    assert not result.unexplained
 
 
 def test_armature_of_the_first_joint_is_reported_as_not_separable(robot, trajectory):

@@ -22,9 +22,8 @@ from pe_drake.identification.estimators import (
 )
 from pe_drake.identification.identified_file import load_identified
 from pe_drake.identification.measurements import write_measurement_csv
-from pe_drake.identification.simulation import perturb_inertias
 from pe_drake.identification.synthetic import model_measurement
-from pe_drake.multibody.inertia import pseudo_inertia, validity_problems
+from pe_drake.multibody.inertia import perturb_inertias, pseudo_inertia, validity_problems
 from tests.conftest import get_robot
 
 DATA = Path(__file__).parent / "data"
@@ -213,6 +212,9 @@ def test_identify_and_validate_commands_write_a_loadable_model(simulated_runs, t
     d = json.loads((out / "identified.json").read_text())
     assert d["method"] == "physical" and d["physically_valid"] is True
     assert d["preprocessing"]["cutoff_source"] == "trajectory"
+    used = d["data_used"]  # issue 13: how much of the run the fit used
+    assert used["samples_fitted"] == d["samples"] and 0.85 < used["fraction_of_record_time"] < 1.0
+    assert "used)" in printed
     assert len(d["base_parameters"]) == 43
     assert all(e["sigma_percent"] is None or e["sigma_percent"] >= 0 for e in d["base_parameters"])
     assert set(d["residual_rms"]) == set(get_robot("panda").joint_names)

@@ -310,10 +310,29 @@ def test_step_functions_chain_to_preprocess():
     q, tau = lowpass.apply(grid.signals["q"]), lowpass.apply(grid.signals["tau"])
     d = fill_derivatives(q, grid.dt)
     step = decimation_step(grid.rate_hz, 200.0, cutoff.hz)
-    idx = trim_indices(grid.t, 2.0 / cutoff.hz, step)
+    idx = trim_indices(grid.t, lowpass.edge_transient_s(), step)
     for name, x in (("t", grid.t), ("q", q), ("tau", tau), ("v", d.v), ("vd", d.vd)):
         np.testing.assert_array_equal(getattr(p, name), x[idx], err_msg=name)
     assert (d.velocity_source, d.acceleration_source) == ("differentiated", "differentiated")
+
+
+def test_default_trim_is_what_the_filter_needs():
+    """Issue 13: the default trim drops the samples where the edge transient spoils the
+    accelerations (5 % of the end acceleration), about 0.7 / cut-off instead of 2 / cut-off;
+    a record's accelerations beyond it are right, within it they are not."""
+    m, traj = _synthetic(jitter=0.0, noise=0.0)
+    f0 = traj.omega / (2 * np.pi)
+    p = preprocess(m, fundamental_hz=f0, harmonics=traj.harmonics, decimate_to_hz=None)
+    info = p.preprocessing
+    assert 0.6 / info.cutoff_hz < info.trim_s < 0.8 / info.cutoff_hz
+    assert info.duration_in_s == pytest.approx(m.t[-1] - m.t[0])
+    assert info.duration_out_s == pytest.approx(info.duration_in_s - 2 * info.trim_s, abs=2e-3)
+    _, _, vd = traj.evaluate(p.t)
+    end_acc = np.abs(traj.evaluate(m.t[[0, -1]])[2]).max()
+    assert np.abs(p.vd - vd).max() < 0.05 * end_acc + 0.01 * np.abs(vd).max()
+    full = preprocess(m, fundamental_hz=f0, harmonics=traj.harmonics, decimate_to_hz=None, trim_s=0.0)
+    _, _, vd_all = traj.evaluate(full.t)
+    assert np.abs(full.vd - vd_all).max() > 0.2 * end_acc  # the ends do need trimming
 
 
 def test_lowpass_white_noise_gain_matches_filtered_noise():

@@ -5,8 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pe_drake.identification.simulation import perturb_inertias
-from pe_drake.multibody.inertia import PhysicallyInvalidError, central_inertia, validity_problems
+from pe_drake.multibody.inertia import PhysicallyInvalidError, central_inertia, perturb_inertias, validity_problems
 from pe_drake.multibody.urdf import urdf_with_inertias, verify_urdf_text, write_robot_urdf
 from tests.conftest import get_robot
 

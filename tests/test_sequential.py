@@ -1,15 +1,14 @@
-"""Sequential generation (section IV-B) and the multi-start process pool.
+"""Sequential generation (section IV-B) and multi-start.
 
 Small problems on the Panda (N = 3, a 1 s period, few samples and iterations): these tests
 check the mechanics (what C0 each motion sees, which start is kept, what the processes do),
-not the quality of the optimum.
+not the quality of the optimum. The executors themselves are tested in test_parallel.py.
 """
 
 from __future__ import annotations
 
 import math
 import multiprocessing
-import os
 
 import numpy as np
 import pytest
@@ -17,7 +16,8 @@ import pytest
 from pe_drake.config import ExcitationConfig, SolverConfig
 from pe_drake.exceptions import ConfigError, NoSolutionFound
 from pe_drake.excitation.constraints.base import SampledConstraint, SampledValues
-from pe_drake.excitation.multistart import StartEvent, WorkerError, WorkerPool, best_index, solve_multistart
+from pe_drake.excitation.multistart import StartEvent, WorkerError, best_index, solve_multistart
+from pe_drake.excitation.parallel import open_executor
 from pe_drake.excitation.problem import ExcitationProblem
 from pe_drake.excitation.sequential import MotionEvent, motion_seeds, optimize_sequence
 
@@ -57,15 +57,6 @@ def unreachable_constraints(robot, config):
 
 def failing_constraints(robot, config):
     raise ConfigError("constraint factory failed on purpose")
-
-
-def _exit_task(state, payload):
-    os._exit(3)
-
-
-def _square_task(state, payload):
-    state.emit(("seen", payload))
-    return payload * payload
 
 
 def _cond(C):
@@ -167,8 +158,8 @@ def test_multistart_in_two_processes_keeps_the_best_and_equals_serial(panda):
         panda, CONFIG, SOLVER, seeds, workers=2, constraints_factory=no_constraints, progress=events.append
     )
     serial = solve_multistart(panda, CONFIG, SOLVER, seeds, workers=1, constraints_factory=no_constraints)
-    assert parallel.workers == 2 and parallel.start_method in ("fork", "spawn")
-    assert serial.workers == 1
+    assert parallel.workers == 2 and parallel.executor == "local"
+    assert serial.workers == 1 and serial.executor == "main"
     for a, b in zip(parallel.results, serial.results):
         np.testing.assert_allclose(a.x, b.x, rtol=0, atol=1e-12)
         assert a.fun == pytest.approx(b.fun, rel=1e-12)
@@ -192,17 +183,23 @@ def test_best_index_prefers_feasible_starts():
 
 
 def test_worker_errors_reach_the_caller_and_leave_no_process(panda):
-    with pytest.raises(ConfigError, match="on purpose"):
+    with pytest.raises(WorkerError, match="on purpose") as info:
         solve_multistart(panda, CONFIG, SOLVER, [0, 1], workers=2, constraints_factory=failing_constraints)
+    assert info.value.exception_type == "ConfigError" and info.value.task in (0, 1)
     assert not multiprocessing.active_children()
-    with WorkerPool(panda, 2) as pool:
-        seen = []
-        assert pool.map(_square_task, [1, 2, 3], seen.append) == [1, 4, 9]
-        assert sorted(seen) == [("seen", 1), ("seen", 2), ("seen", 3)]
-        with pytest.raises(WorkerError, match="exited unexpectedly"):
-            pool.map(_exit_task, [0, 1])
-        assert not multiprocessing.active_children()
-        assert pool.map(_square_task, [4, 5]) == [16, 25]  # restarts its workers
+    # In this process (one worker) the exception itself propagates.
+    with pytest.raises(ConfigError, match="on purpose"):
+        solve_multistart(panda, CONFIG, SOLVER, [0, 1], workers=1, constraints_factory=failing_constraints)
+
+
+def test_sequence_in_two_processes_equals_serial(panda, sequence):
+    serial, _ = sequence
+    with open_executor(panda, "local", 2, constraints_factory=no_constraints) as ex:
+        parallel = optimize_sequence(panda, CONFIG, SOLVER, motions=3, executor=ex, warm_start=False)
+    assert parallel.workers == 1  # one start per motion: one at a time
+    for a, b in zip(parallel.motions, serial.motions):
+        np.testing.assert_array_equal(a.result.x, b.result.x)
+        assert a.starts[0].worker.startswith("pid ")
     assert not multiprocessing.active_children()
 
 
@@ -241,6 +238,6 @@ def test_multistart_refuses_bad_seeds(panda):
     with pytest.raises(ConfigError, match="at least one"):
         solve_multistart(panda, CONFIG, SOLVER, [], workers=1)
     with pytest.raises(ConfigError, match="workers"):
-        WorkerPool(panda, 0)
+        solve_multistart(panda, CONFIG, SOLVER, [1, 2], workers=0)
     with pytest.raises(ConfigError, match="1 origins for 2 seeds"):
         solve_multistart(panda, CONFIG, SOLVER, [1, 2], workers=1, origins=["from motion 1"])

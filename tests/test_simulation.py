@@ -14,13 +14,12 @@ from pe_drake.excitation.trajectory_file import save_trajectory
 from pe_drake.identification.measurements import read_measurement_csv
 from pe_drake.identification.simulation import (
     build_true_robot,
-    perturb_inertias,
     rigid_body_torque,
     simulate,
     truth_path_for,
 )
 from pe_drake.identification.truth import PayloadTruth, Truth, load_truth
-from pe_drake.multibody.inertia import phi_to_spatial_inertia
+from pe_drake.multibody.inertia import perturb_inertias, phi_to_spatial_inertia
 from pe_drake.multibody.robot import load_robot
 
 DURATION = 1.5  # [s]
@@ -76,7 +75,7 @@ def test_effect_free_torque_is_inverse_dynamics(robot, trajectory, baseline):
     assert np.all(err.max(axis=0) < 2e-3 * scale + 5e-3), err.max(axis=0)
     for b, name in enumerate(robot.body_names):
         np.testing.assert_array_equal(truth["phi_true"][name], robot.phi_model[10 * b : 10 * b + 10])
-    effects = {"viscous", "coulomb", "armature", "torque_offset", "torque_delay", "payload"}
+    effects = {"viscous", "coulomb", "armature", "torque_offset", "torque_delay", "payload", "presliding_friction"}
     assert set(truth["effects"]) == effects
 
 

@@ -12,6 +12,7 @@ import importlib
 import sys
 
 from pe_drake import __version__
+from pe_drake.config import MEASUREMENTS
 from pe_drake.exceptions import PeDrakeError
 from pe_drake.threads import single_threaded_blas
 
@@ -29,6 +30,15 @@ def add_robot_arguments(parser: argparse.ArgumentParser) -> None:
     """``--robot`` (required) and ``--config``: what every command that loads a robot takes."""
     parser.add_argument("--robot", required=True, help="built-in name (panda, ur5, g1) or URDF/SDF path")
     parser.add_argument("--config", help="YAML config overriding the robot's defaults")
+
+
+def add_measurement_argument(parser: argparse.ArgumentParser, what: str) -> None:
+    """``--measurement joint_torque | base_wrench | both`` (issue 14); overrides the config's."""
+    parser.add_argument(
+        "--measurement",
+        choices=MEASUREMENTS,
+        help=f"{what} (default: the config's excitation.measurement, joint_torque)",
+    )
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -52,7 +62,15 @@ def _add_trajectory_commands(sub) -> None:
     p.add_argument("--prior", action="append", default=[], metavar="TRAJECTORY_JSON",
                    help="earlier trajectory whose data is reused as C0 (repeatable)")
     p.add_argument("--max-iterations", type=int, help="solver iteration limit")
-    p.add_argument("--seed", type=int, help="seed of the random initial point")
+    p.add_argument("--seed", type=int, help="seed of the random initial point (start k: seed + k)")
+    p.add_argument("--starts", type=int, help="random starts; the feasible one with the lowest criterion is kept "
+                   "(default: config parallel.starts, 1)")
+    p.add_argument("--workers", type=int, help="starts solved at once (default: the cores available, at most --starts)")
+    p.add_argument("--executor", choices=["local", "ray"], help="where the starts run: local processes or a Ray "
+                   "cluster (default: config parallel.executor, local)")
+    p.add_argument("--ray-address", metavar="ADDR", help="join this Ray cluster (default: ray.init()'s: the cluster "
+                   "started here with `ray start`, else a new local instance)")
+    add_measurement_argument(p, "rows of C: joint torques, the ground wrench (foot F/T sensors), or both")
     p.add_argument("--csv-rate", type=float, default=1000.0, help="rate of trajectory.csv [Hz]")
     p.add_argument("--periods", type=int,
                    help="periods of the path in trajectory.csv (default: excitation.periods, 1)")
@@ -79,6 +97,7 @@ def _add_trajectory_commands(sub) -> None:
     p.add_argument("--out", required=True, help="output CSV")
     p.add_argument("--duration", type=float,
                    help="simulated time [s] (default: the whole motion of trajectory.csv, ramps included)")
+    add_measurement_argument(p, "what the robot records: tau columns, wrench.* columns (the root link's weld reaction), or both")
 
 
 def _add_identification_commands(sub) -> None:
@@ -91,6 +110,7 @@ def _add_identification_commands(sub) -> None:
     p.add_argument("--trajectory", help="trajectory.json that was run (its harmonics set the cut-off)")
     p.add_argument("--no-filter", action="store_true",
                    help="use the data as it is (exact data with v.* and vdot.* columns)")
+    add_measurement_argument(p, "channels to identify from: joint torques, the ground wrench alone, or both")
     p.add_argument("--out", required=True, help="output folder")
 
     p = sub.add_parser("validate", help="predict torques of another run with an identified model")
@@ -100,6 +120,7 @@ def _add_identification_commands(sub) -> None:
     p.add_argument("--cutoff", type=float, help="low-pass cut-off [Hz] (default: from the data)")
     p.add_argument("--json", help="write per-joint errors here")
     p.add_argument("--plot", help="write measured vs predicted torque plot here (PNG)")
+    add_measurement_argument(p, "channels to predict (from any identified model): joint torques, the ground wrench, or both")
 
     p = sub.add_parser("diagnose", help="name the effects missing from the model")
     add_robot_arguments(p)

@@ -34,3 +34,8 @@ def robot_from_args(args: argparse.Namespace, config: Config | None = None) -> R
     """
     config = config if config is not None else config_from_args(args)
     return Robot(robot_display_name(args.robot), config.robot)
+
+
+def measurement_from_args(args: argparse.Namespace, config: Config) -> str:
+    """``--measurement`` if given, else the config's ``excitation.measurement`` (issue 14)."""
+    return getattr(args, "measurement", None) or config.excitation.measurement

@@ -10,13 +10,15 @@ from pathlib import Path
 
 import numpy as np
 
-from pe_drake.cli.common import robot_from_args
+from pe_drake.cli.common import config_from_args, measurement_from_args, robot_from_args
 from pe_drake.exceptions import ConfigError
 from pe_drake.excitation.trajectory_file import load_trajectory
+from pe_drake.identification.channels import measured_values
 from pe_drake.identification.data_checks import check_against_model, check_raw_measurement
 from pe_drake.identification.estimators import (
     identify,
     predict,
+    predict_wrench,
     prepare_measurement,
     read_robot_measurement,
     torque_errors,
@@ -29,6 +31,7 @@ from pe_drake.identification.identified_file import (
 )
 from pe_drake.io_utils import atomic_write_text, staged_output_dir
 from pe_drake.multibody.inertia import PhysicallyInvalidError, validity_problems
+from pe_drake.multibody.sensors import MeasurementType
 from pe_drake.multibody.urdf import write_robot_urdf
 from pe_drake.output_paths import IDENTIFY_OUTPUTS, check_output_dir, check_output_file, remove_stale_outputs
 
@@ -52,7 +55,9 @@ def identify_command(args: argparse.Namespace) -> int:
     check_output_dir(args.out)  # before any work
     _check_cutoff(args.cutoff)
     start = time.perf_counter()
-    robot = robot_from_args(args)
+    config = config_from_args(args)
+    measurement = measurement_from_args(args, config)
+    robot = robot_from_args(args, config)
     raw = read_robot_measurement(robot, args.data)
     check_raw_measurement(robot, raw)  # time units, gaps, positions (degrees)
     f0, harmonics = _trajectory_band(getattr(args, "trajectory", None))
@@ -66,7 +71,7 @@ def identify_command(args: argparse.Namespace) -> int:
     )
     check_against_model(robot, data)  # sign-flipped torque columns
     _print_data_summary(args, robot, raw, data)
-    result = identify(robot, data, args.method)
+    result = identify(robot, data, args.method, measurement=measurement)
     _print_fit_summary(args.method, robot, result)
     phi, note = _model_parameters(robot, result)
     out = Path(args.out)
@@ -106,7 +111,8 @@ def _print_data_summary(args: argparse.Namespace, robot, raw, data) -> None:
     if p is not None:
         print(
             f"preprocessing: low-pass {p.cutoff_hz:.2f} Hz ({p.cutoff_source}), "
-            f"{p.samples_out} samples at {p.rate_hz:.0f} Hz, {p.trim_s:.2f} s trimmed at each end, "
+            f"{p.samples_out} samples at {p.rate_hz:.0f} Hz, {p.trim_s:.2f} s trimmed at each end "
+            f"({p.duration_out_s:.2f} of {p.duration_in_s:.2f} s used), "
             f"v {p.velocity_source}, vdot {p.acceleration_source}",
             flush=True,
         )
@@ -115,8 +121,8 @@ def _print_data_summary(args: argparse.Namespace, robot, raw, data) -> None:
 def _print_fit_summary(method: str, robot, result) -> None:
     """Conditioning, the least determined base parameters and the residual per joint."""
     print(
-        f"{method}: {result.base.count} base parameters, cond(W) = {result.cond:.4g}, "
-        f"{result.wall_time:.2f} s",
+        f"{method} from {result.measurement}: {result.base.count} base parameters, "
+        f"cond(W) = {result.cond:.4g}, {result.wall_time:.2f} s",
         flush=True,
     )
     order = np.argsort(result.sigma_percent)
@@ -126,8 +132,8 @@ def _print_fit_summary(method: str, robot, result) -> None:
         + ", ".join(f"{_short_name(result.base, i)} {result.sigma_percent[i]:.3g}%" for i in worst)
     )
     print(
-        "residual RMS [N·m]: "
-        + ", ".join(f"{j} {r:.4g}" for j, r in zip(robot.joint_names, result.residual_rms))
+        "residual RMS [N·m, N]: "
+        + ", ".join(f"{c} {r:.4g}" for c, r in zip(result.channels, result.residual_rms))
     )
 
 
@@ -155,31 +161,42 @@ def _short_name(base, i: int) -> str:
 
 
 def validate_command(args: argparse.Namespace) -> int:
-    """Runs ``pe-drake validate``: per-joint RMS and relative torque error on another run."""
+    """Runs ``pe-drake validate``: per-channel RMS and relative error on another run.
+
+    Any identified model predicts any channel: one identified from the ground wrench alone
+    predicts the joint torques too (issue 14).
+    """
     if args.json:  # before any work
         check_output_file(args.json, "--json", (".json",))
     if args.plot:
         check_output_file(args.plot, "--plot", (".png", ".pdf", ".svg"))
-    robot = robot_from_args(args)
+    config = config_from_args(args)
+    measurement = measurement_from_args(args, config)
+    robot = robot_from_args(args, config)
     result = load_identified(args.model, robot)
     raw = read_robot_measurement(robot, args.data)
     check_raw_measurement(robot, raw)
     data = prepare_measurement(robot, raw, cutoff_hz=getattr(args, "cutoff", None))
     check_against_model(robot, data)
-    tau_pred = predict(robot, result, data)
-    rms, rel = torque_errors(data.tau, tau_pred)
-    total = float(100 * np.linalg.norm(data.tau - tau_pred) / max(np.linalg.norm(data.tau), 1e-300))
-    width = max(len(j) for j in robot.joint_names)
-    print(f"{'joint':<{width}}  {'RMS [N·m]':>10}  {'relative [%]':>12}")
-    for j, r, e in zip(robot.joint_names, rms, rel):
-        print(f"{j:<{width}}  {r:>10.4f}  {e:>12.2f}")
-    print(f"{'all':<{width}}  {float(np.sqrt(np.mean(rms**2))):>10.4f}  {total:>12.2f}")
+    kind = MeasurementType(measurement)
+    names = kind.row_names(robot.joint_names)
+    measured, predicted = _channels(robot, result, data, kind)
+    rms, rel = torque_errors(measured, predicted)
+    total = float(100 * np.linalg.norm(measured - predicted) / max(np.linalg.norm(measured), 1e-300))
+    width = max(len(j) for j in names)
+    print(f"model identified from {result.measurement}; predicting {measurement}")
+    print(f"{'channel':<{width}}  {'RMS [N·m, N]':>12}  {'relative [%]':>12}")
+    for j, r, e in zip(names, rms, rel):
+        print(f"{j:<{width}}  {r:>12.4f}  {e:>12.2f}")
+    print(f"{'all':<{width}}  {float(np.sqrt(np.mean(rms**2))):>12.4f}  {total:>12.2f}")
     report = {
         "robot": robot.name,
         "model": str(args.model),
+        "model_measurement": result.measurement,
+        "measurement": measurement,
         "data": str(args.data),
-        "rms": dict(zip(robot.joint_names, map(float, rms))),
-        "relative_error": dict(zip(robot.joint_names, map(float, rel))),
+        "rms": dict(zip(names, map(float, rms))),
+        "relative_error": dict(zip(names, map(float, rel))),
         "relative_error_total": total,
         "samples": data.num_samples,
     }
@@ -187,41 +204,50 @@ def validate_command(args: argparse.Namespace) -> int:
         atomic_write_text(args.json, json.dumps(report, indent=2))
         print(f"wrote {args.json}")
     if args.plot:
-        _plot_prediction(Path(args.plot), robot, data, tau_pred, rel)
+        _plot_prediction(Path(args.plot), robot, data.t, measured, predicted, rel, names)
         print(f"wrote {args.plot}")
     return 0
 
 
+def _channels(robot, result, data, kind: MeasurementType) -> tuple[np.ndarray, np.ndarray]:
+    """(measured, predicted), each (S, r): the joint torques, then the ground wrench."""
+    measured_values(robot, data, kind.kind)  # refuses data without the channels, naming them
+    measured, predicted = [], []
+    if kind.torques:
+        measured.append(data.tau)
+        predicted.append(predict(robot, result, data))
+    if kind.wrench:
+        measured.append(data.wrench)
+        predicted.append(predict_wrench(robot, result, data))
+    return np.hstack(measured), np.hstack(predicted)
+
+
 def _plot_residuals(path: Path, robot, data, result) -> None:
-    """Measured torque and the model's fit per joint on the identification data."""
-    _plot_prediction(
-        path,
-        robot,
-        data,
-        predict(robot, result, data),
-        result.relative_error,
-        title=f"{robot.name}: {result.method} fit on the identification data",
-    )
+    """Measured channels and the model's fit on the identification data."""
+    measured, predicted = _channels(robot, result, data, MeasurementType(result.measurement))
+    title = f"{robot.name}: {result.method} fit on the identification data"
+    _plot_prediction(path, robot, data.t, measured, predicted, result.relative_error, result.channels, title)
 
 
-def _plot_prediction(path: Path, robot, data, tau_pred: np.ndarray, rel: np.ndarray, title: str = "") -> None:
+def _plot_prediction(path: Path, robot, t, measured, predicted, rel, names, title: str = "") -> None:
     import matplotlib  # lazy: matplotlib is heavy and only needed for the plot
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    n = robot.n
+    n = measured.shape[1]
     fig, axes = plt.subplots(n, 1, figsize=(11, 1.7 * n + 1), sharex=True, constrained_layout=True)
     axes = np.atleast_1d(axes)
     for j, ax in enumerate(axes):
-        ax.plot(data.t, data.tau[:, j], "k", lw=1, label="measured")
-        ax.plot(data.t, tau_pred[:, j], "C1", lw=1, label="model")
-        ax.plot(data.t, data.tau[:, j] - tau_pred[:, j], "C3", lw=0.7, alpha=0.7, label="error")
-        ax.set_ylabel(f"{robot.joint_names[j]}\n[N·m]", fontsize=7)
+        ax.plot(t, measured[:, j], "k", lw=1, label="measured")
+        ax.plot(t, predicted[:, j], "C1", lw=1, label="model")
+        ax.plot(t, measured[:, j] - predicted[:, j], "C3", lw=0.7, alpha=0.7, label="error")
+        unit = "N" if names[j].startswith("wrench.f") else "N·m"
+        ax.set_ylabel(f"{names[j]}\n[{unit}]", fontsize=7)
         ax.set_title(f"relative error {rel[j]:.1f} %", fontsize=8, loc="right")
     axes[0].legend(fontsize=7, ncol=3, loc="upper left")
     axes[-1].set_xlabel("t [s]")
-    fig.suptitle(title or f"{robot.name}: measured vs predicted torque")
+    fig.suptitle(title or f"{robot.name}: measured vs predicted")
     tmp = path.with_name(f".{path.name}.tmp.png")
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(tmp, dpi=80)

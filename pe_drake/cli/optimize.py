@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import json
 import math
 import shutil
@@ -15,14 +16,15 @@ from pathlib import Path
 import numpy as np
 
 from pe_drake.cli.common import config_from_args, robot_from_args
-from pe_drake.config import Config, validate_config
+from pe_drake.config import Config, noise_vector, validate_config
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.excitation.constraints import constraints_from_config
 from pe_drake.excitation.fourier import FourierBasis, sample_times
+from pe_drake.excitation.multistart import solve_multistart
+from pe_drake.excitation.parallel import open_executor
 from pe_drake.excitation.problem import ExcitationProblem
-from pe_drake.excitation.program import build_excitation_program
+from pe_drake.excitation.quality import QualityReport, excitation_quality
 from pe_drake.excitation.ramp import RAMP_DURATIONS, RampedMotion, check_within_limits, choose_ramp_duration
-from pe_drake.excitation.solve import solve_excitation
 from pe_drake.excitation.trajectory_file import load_motion, load_trajectory, save_trajectory, write_motion_csv
 from pe_drake.io_utils import staged_output_dir
 from pe_drake.multibody.capsule_fitting import ensure_capsules
@@ -51,7 +53,7 @@ def prior_regressor(problem, trajectory_json: str | Path) -> np.ndarray:
     q, v, vd = basis.q(trajectory.a, trajectory.b, trajectory.q0), basis.v(trajectory.a, trajectory.b), basis.vd(
         trajectory.a, trajectory.b
     )
-    Y = problem.model(q, v, vd)
+    Y = problem.rows(q, v, vd)  # the measurement's rows (joint torques, ground wrench or both)
     return problem.base.reduce(Y).reshape(-1, problem.base.count)
 
 
@@ -64,12 +66,25 @@ def _apply_arguments(config: Config, args: argparse.Namespace) -> Config:
         config.solver.max_iterations = args.max_iterations
     if args.seed is not None:
         config.excitation.seed = args.seed
+    if getattr(args, "measurement", None):
+        config.excitation.measurement = args.measurement
     if args.quiet:
         config.solver.verbose = False
     if getattr(args, "periods", None) is not None:
         config.excitation.periods = args.periods
     if getattr(args, "no_ramp", False):
         config.excitation.ramp = False
+    if args.starts is not None:
+        config.parallel.starts = args.starts
+    if args.workers is not None:
+        if args.workers < 1:
+            raise ConfigError(f"--workers must be a positive integer, got {args.workers}")
+        config.parallel.workers = args.workers
+    if args.executor:
+        config.parallel.executor = args.executor
+    if args.ray_address:
+        config.parallel.executor = args.executor or "ray"
+        config.parallel.address = args.ray_address
     return validate_config(config)
 
 
@@ -83,24 +98,29 @@ def optimize_command(args: argparse.Namespace) -> int:
     out = Path(args.out)
     with tempfile.TemporaryDirectory(prefix="pe_drake_capsules_") as fit_dir:
         robot, fitted = _load_robot(args, config, Path(fit_dir), say)
-        problem = _build_problem(robot, config, args, say)
+        noise_vector(config.excitation.noise_std.torque, robot.joint_names)  # refuse a bad noise_std before solving
+        problem = _problem(robot, config, args.prior, say)
         constraints = constraints_from_config(robot, config.excitation, config.environment)
         if constraints:
             say("constraints: joint limits, " + ", ".join(c.name for c in constraints))
-        program = build_excitation_program(problem, constraints, progress=config.solver.verbose)
-        say(f"solving with {config.solver.name} (max {config.solver.max_iterations} iterations) ...")
-        result = solve_excitation(program, config.solver)
+        ms = _solve_starts(robot, problem, config, say)
+        result = ms.best
         say(
             f"{'success' if result.success else 'FAILED'}: {result.message}; cond {result.cond:.5g} "
-            f"(this motion alone {result.cond_motion:.5g}), {result.nit if result.nit is not None else '-'} "
-            f"iterations, {result.nfev} evaluations, {result.wall_time:.1f} s"
+            f"(this motion alone {result.cond_motion:.5g}), seed {ms.seed}, "
+            f"{result.nit if result.nit is not None else '-'} iterations, {result.nfev} evaluations, {result.wall_time:.1f} s"
         )
         say("minimum margins at 1 kHz: " + ", ".join(f"{k} {m:.4g}" for k, m in result.margins.items()))
         motion = _ramped_motion(result, robot, constraints, config, say) if result.success else None
-        report = _report(robot, problem, result, motion, config, args, fitted, start)
+        quality = _quality(problem, result, constraints, config) if result.success else None
+        for line in quality.summary_lines() if quality is not None else []:
+            say(line)
+        report = _report(robot, problem, config, ms, args.prior, time.perf_counter() - start)
+        report.update(_safety_report(robot, config, motion, fitted, args.out))
+        report["quality"] = quality.to_dict() if quality is not None else None
         with staged_output_dir(out) as tmp:
             if result.success:
-                _write_success_outputs(tmp, robot, result, motion, args, say)
+                _write_success_outputs(tmp, robot, result, motion, args, say, quality)
             if fitted is not None:
                 shutil.copyfile(fitted.path, tmp / fitted.path.name)
             (tmp / "report.json").write_text(json.dumps(report, indent=2, default=float))
@@ -109,7 +129,8 @@ def optimize_command(args: argparse.Namespace) -> int:
     if not result.success:
         print(
             f"pe-drake optimize: no valid trajectory: {result.message}. Only {out / 'report.json'} was "
-            "written. Try more iterations (--max-iterations), another seed (--seed), or looser margins.",
+            "written. Try more iterations (--max-iterations), more starts (--starts), another seed (--seed), "
+            "or looser margins.",
             file=sys.stderr,
         )
         return 1
@@ -165,22 +186,59 @@ def _load_robot(args, config: Config, fit_dir: Path, say):
     return robot, fitted
 
 
-def _build_problem(robot, config: Config, args, say):
+def _quality(problem, result, constraints, config: Config) -> QualityReport:
+    """The quality figures of the optimized motion (issue 13), for ``excitation.periods``
+    periods when the config has that setting (else one)."""
+    periods = int(getattr(config.excitation, "periods", 1))
+    return excitation_quality(problem, result.x, constraints, noise_std=config.excitation.noise_std.torque, periods=periods)
+
+
+def _problem(robot, config: Config, priors: list[str], say):
+    """The excitation problem, with the prior motions' regressors as C0 (Eq. 41)."""
     problem = ExcitationProblem(robot, config.excitation)
-    if args.prior:
-        blocks = [prior_regressor(problem, p) for p in args.prior]
+    if priors:
+        blocks = [prior_regressor(problem, p) for p in priors]
         problem = ExcitationProblem(robot, config.excitation, C0=np.vstack(blocks), base=problem.base, model=problem.model)
-        say(f"prior data: {len(args.prior)} motion(s), {problem.C0.shape[0]} rows, cond(C0) = {np.linalg.cond(problem.C0):.4g}")
-    check_cost_samples(problem)
+        say(f"prior data: {len(priors)} motion(s), {problem.C0.shape[0]} rows, cond(C0) = {np.linalg.cond(problem.C0):.4g}")
     say(
-        f"{problem.base.count} base parameters; {problem.num_variables} variables "
+        f"{problem.base.count} base parameters of the {config.excitation.measurement} rows; {problem.num_variables} variables "
         f"(N = {problem.harmonics}, ω = {problem.omega:.4g} rad/s, period {problem.period:.3g} s); "
         f"T = {config.excitation.cost_samples} cost samples, K = {config.excitation.constraint_samples} constraint samples"
     )
     return problem
 
 
-def _report(robot, problem, result, motion, config: Config, args, fitted, start: float) -> dict:
+def _solve_starts(robot, problem, config: Config, say):
+    """Multi-start (start k: seed + k) on the configured executor; the best feasible start is kept."""
+    par = config.parallel
+    seeds = [config.excitation.seed + k for k in range(par.starts)]
+    executor = open_executor(
+        robot,
+        par.executor,
+        par.workers or None,
+        tasks=par.starts,
+        address=par.address,
+        base=problem.base,
+        constraints_factory=functools.partial(constraints_from_config, environment=config.environment),
+    )
+    with executor:
+        where = "in this process" if executor.name == "main" else f"on {executor.workers} {executor.name} worker(s)"
+        say(
+            f"solving {par.starts} start(s) (seeds {seeds[0]}..{seeds[-1]}) {where} with {config.solver.name} "
+            f"(max {config.solver.max_iterations} iterations) ..."
+        )
+
+        def progress(event) -> None:
+            if event.kind != "progress" or config.solver.verbose:
+                say(str(event))
+
+        return solve_multistart(
+            None, config.excitation, config.solver, seeds, C0=problem.C0, executor=executor, progress=progress
+        )
+
+
+def _report(robot, problem, config: Config, ms, priors: list[str], total_time: float) -> dict:
+    result = ms.best
     return {
         "robot": robot.name,
         "success": result.success,
@@ -188,41 +246,50 @@ def _report(robot, problem, result, motion, config: Config, args, fitted, start:
         "status": result.status,
         "solver": result.solver,
         "criterion": config.excitation.criterion,
+        "measurement": config.excitation.measurement,
         "cond": result.cond,
         "cond_motion": result.cond_motion,
         "criterion_value": result.fun,
         "iterations": result.nit,
         "evaluations": result.nfev,
+        "seed": ms.seed,
         "solve_time_s": result.wall_time,
-        "total_time_s": time.perf_counter() - start,
+        "multistart_time_s": ms.wall_time,
+        "total_time_s": total_time,
+        "executor": {"name": ms.executor, "workers": ms.workers, "address": config.parallel.address},
+        "starts": [
+            {"seed": s.seed, "cond": s.cond, "success": s.success, "time_s": s.wall_time, "task_time_s": s.task_time,
+             "worker": s.worker, "criterion_value": s.fun, "message": s.message}
+            for s in ms.starts
+        ],
         "margins_1khz": result.margins,
         "base_parameters": problem.base.count,
         "base_parameter_names": list(problem.base.base_names),
         "singular_values": result.singular_values.tolist(),
-        "prior": [str(p) for p in args.prior],
-        "assumed_defaults": assumed_defaults(config, robot.joint_names),
-        "fitted_capsules": str(Path(args.out) / fitted.path.name) if fitted is not None else None,
-        "motion": motion.to_dict() if motion is not None else None,
+        "prior": [str(p) for p in priors],
         "config": dataclasses.asdict(config),
     }
 
 
-def check_cost_samples(problem) -> None:
-    """Refuses too few cost samples: C needs at least as many rows as base parameters
-    (T·n + prior rows >= b), else cond(C) comes from a rank-deficient matrix.
-
-    Raises:
-        ConfigError: naming the counts and the smallest cost_samples that works.
-    """
-    n, b, T = problem.n, problem.base.count, problem.config.cost_samples
-    prior = 0 if problem.C0 is None else problem.C0.shape[0]
-    if T * n + prior < b:
-        need = math.ceil(max(b - prior, 0) / n)
-        raise ConfigError(
-            f"excitation.cost_samples = {T} gives {T * n + prior} rows of C for {b} base parameters: "
-            f"cond(C) would be that of a rank-deficient matrix; use cost_samples >= {need} "
-            f"(a few times more is better, e.g. {max(need * 2, 20)})"
-        )
+def _write_success_outputs(tmp: Path, robot, result, motion, args, say, quality: QualityReport | None = None) -> None:
+    save_trajectory(
+        tmp / "trajectory.json", robot, result.trajectory, cond=result.cond, cond_motion=result.cond_motion,
+        **motion.to_dict(),
+    )
+    write_motion_csv(tmp / "trajectory.csv", robot.joint_names, motion, args.csv_rate)
+    plot_trajectory(
+        tmp / "trajectory.png",
+        robot,
+        result.trajectory,
+        result.singular_values,
+        title=f"{robot.name}: cond {result.cond:.4g}",
+        note=quality.figure_note() if quality is not None else "",
+    )
+    if not args.no_html:
+        try:
+            write_playback_html(tmp / "trajectory.json", tmp / "playback.html", config=args.config)
+        except Exception as err:  # the playback is a convenience: never lose the trajectory over it
+            say(f"warning: could not write the HTML playback: {err}")
 
 
 def assumed_defaults(config: Config, joint_names) -> list[str]:
@@ -254,21 +321,10 @@ def _ramped_motion(result, robot, constraints, config, say):
     return motion
 
 
-def _write_success_outputs(tmp: Path, robot, result, motion, args, say) -> None:
-    save_trajectory(
-        tmp / "trajectory.json", robot, result.trajectory, cond=result.cond, cond_motion=result.cond_motion,
-        **motion.to_dict(),
-    )
-    write_motion_csv(tmp / "trajectory.csv", robot.joint_names, motion, args.csv_rate)
-    plot_trajectory(
-        tmp / "trajectory.png",
-        robot,
-        result.trajectory,
-        result.singular_values,
-        title=f"{robot.name}: cond {result.cond:.4g}",
-    )
-    if not args.no_html:
-        try:
-            write_playback_html(tmp / "trajectory.json", tmp / "playback.html", config=args.config)
-        except Exception as err:  # the playback is a convenience: never lose the trajectory over it
-            say(f"warning: could not write the HTML playback: {err}")
+def _safety_report(robot, config: Config, motion, fitted, out) -> dict:
+    """report.json's issue-10 entries: assumed limits, fitted capsules, the controller motion."""
+    return {
+        "assumed_defaults": assumed_defaults(config, robot.joint_names),
+        "fitted_capsules": str(Path(out) / fitted.path.name) if fitted is not None else None,
+        "motion": motion.to_dict() if motion is not None else None,
+    }

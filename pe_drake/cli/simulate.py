@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 
-from pe_drake.cli.common import robot_from_args
+from pe_drake.cli.common import config_from_args, measurement_from_args, robot_from_args
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.excitation.ramp import check_within_limits
 from pe_drake.excitation.trajectory_file import load_motion
@@ -20,7 +20,9 @@ def simulate_command(args) -> int:
     out = check_output_file(args.out, "--out", (".csv",))  # before any work
     motion, data = load_motion(args.trajectory)  # validated before any work
     truth = load_truth(args.truth)
-    robot = robot_from_args(args)
+    config = config_from_args(args)
+    measurement = measurement_from_args(args, config)
+    robot = robot_from_args(args, config)
     if list(data["joints"]) != list(robot.joint_names):
         raise DataError(
             f"trajectory joints {', '.join(data['joints'])} differ from robot '{robot.name}''s "
@@ -32,10 +34,10 @@ def simulate_command(args) -> int:
     duration = args.duration if getattr(args, "duration", None) is not None else motion.duration
     if not 0 < duration <= 3600:
         raise ConfigError(f"--duration must be in (0, 3600] s, got {duration!r}")
-    measurement, truth_dict = simulate(robot, motion, truth, duration)
-    measurement = measurement.replace(source=str(out))
+    data, truth_dict = simulate(robot, motion, truth, duration, measurement=measurement)
+    data = data.replace(source=str(out))
 
-    csv_text = measurement_to_csv_text(measurement)
+    csv_text = measurement_to_csv_text(data)
     truth_file = truth_path_for(out)
     truth_dict["data_file"] = out.name
     atomic_write_text(truth_file, json.dumps(truth_dict, indent=2) + "\n")
@@ -52,5 +54,6 @@ def simulate_command(args) -> int:
     )
     print("tracking error RMS [mrad]: " + ", ".join(
         f"{j} {1e3 * e:.3g}" for j, e in sim["tracking_error_rms"].items()))
-    print(f"wrote {out} and {truth_file}")
+    recorded = {"joint_torque": "tau", "base_wrench": "wrench", "both": "tau and wrench"}[measurement]
+    print(f"wrote {out} ({recorded} columns) and {truth_file}")
     return 0

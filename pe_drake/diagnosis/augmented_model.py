@@ -75,6 +75,10 @@ class AugmentedModel:
         payload_com: centre of mass in the link frame [m], (3,).
         payload_inertia: about its centre of mass, link axes, [Ixx, Iyy, Izz, Ixy, Ixz, Iyz].
         notes: what was adjusted (physical projection, payload folded into the link).
+        time_delay: the torque log lags the positions by this [s] (``time_delay``): the model
+            predicts the recorded torque at t from the motion at t − time_delay.
+        presliding, presliding_stiffness: Dahl friction F_c [N·m] and σ0 [N·m/rad] per joint
+            (empty or 0: none); a Drake system in the simulator, not in the URDF.
     """
 
     joints: tuple[str, ...]
@@ -90,11 +94,16 @@ class AugmentedModel:
     payload_com: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(3))
     payload_inertia: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(6))
     notes: tuple[str, ...] = ()
+    time_delay: float = 0.0
+    presliding: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
+    presliding_stiffness: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
 
     @classmethod
     def from_fit(cls, robot, base, phi_B: np.ndarray, Sigma_phi: np.ndarray, payload_phi: np.ndarray | None,
                  effects: dict[str, tuple[Any, float]], velocity_scale: float,
-                 payload_link: str | None = None, cov_B: np.ndarray | None = None) -> AugmentedModel:
+                 payload_link: str | None = None, cov_B: np.ndarray | None = None,
+                 time_delay: float = 0.0,
+                 presliding: dict[int, tuple[float, float]] | None = None) -> AugmentedModel:
         """The model of a diagnosis fit.
 
         Args:
@@ -110,6 +119,8 @@ class AugmentedModel:
             payload_link: the link whose frame ``payload_phi`` is expressed in.
             cov_B: covariance of φ_B, (b, b): weighs the base parameters when the conditional
                 parameters are not physically valid and a physically consistent fit is needed.
+            time_delay: a named ``time_delay`` [s] (0: none).
+            presliding: {joint index: (F_c [N·m], σ0 [N·m/rad])} of the named pre-sliding friction.
         """
         n = robot.n
         viscous, coulomb, armature, offset = np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n)
@@ -160,7 +171,8 @@ class AugmentedModel:
                 f"(largest base-parameter change {float(np.max(np.abs(base.K @ phi - target))):.3g})")
         return cls(tuple(robot.joint_names), tuple(robot.body_names), phi, viscous, coulomb,
                    float(velocity_scale), armature, offset, link, mass, np.asarray(com, float),
-                   np.asarray(inertia, float), tuple(notes))
+                   np.asarray(inertia, float), tuple(notes), float(time_delay),
+                   *_presliding_arrays(presliding or {}, n))
 
     def truth(self):
         """The :class:`~pe_drake.identification.simulation.Truth` that builds this model's effects."""
@@ -174,6 +186,10 @@ class AugmentedModel:
             coulomb_velocity_scale=float(self.coulomb_velocity_scale),
             armature={j: float(x) for j, x in zip(self.joints, self.armature) if x > 0},
             torque_offset={j: float(x) for j, x in zip(self.joints, self.torque_offset) if x != 0},
+            torque_delay=float(self.time_delay),
+            presliding_friction={j: float(x) for j, x in zip(self.joints, self.presliding) if x > 0},
+            presliding_stiffness={j: float(s) for j, x, s in zip(self.joints, self.presliding,
+                                                                 self.presliding_stiffness) if x > 0},
             payload=payload,
         )
         return Truth(effects=effects)
@@ -194,9 +210,20 @@ class AugmentedModel:
             "torque_offset": per_joint(self.torque_offset), "torque_offset_unit": "N·m",
             "payload": {"link": self.payload_link, "mass": self.payload_mass, "com": self.payload_com.tolist(),
                         "inertia_about_com": self.payload_inertia.tolist()} if self.payload_link else None,
-            "torque_equation": "tau = ID(q, v, vd) + viscous*v + coulomb*tanh(v/v_s) + armature*vd + offset",
+            "time_delay": self.time_delay, "time_delay_unit": "s",
+            "presliding_friction": per_joint(self.presliding), "presliding_stiffness": per_joint(self.presliding_stiffness),
+            "presliding_units": "N·m, N·m/rad (Dahl model)",
+            "torque_equation": "tau_recorded(t) = [ID(q, v, vd) + viscous*v + coulomb*tanh(v/v_s) + armature*vd "
+                               "+ offset](t - time_delay)",
             "notes": list(self.notes),
         }
+
+
+def _presliding_arrays(presliding: dict[int, tuple[float, float]], n: int) -> tuple[np.ndarray, np.ndarray]:
+    fc, sigma0 = np.zeros(n), np.zeros(n)
+    for j, (f, s) in presliding.items():
+        fc[j], sigma0[j] = f, s
+    return fc, sigma0
 
 
 def conditional_parameters(K: np.ndarray, phi_prior: np.ndarray, Sigma_phi: np.ndarray,
@@ -429,6 +456,9 @@ def effects_yaml_text(model: AugmentedModel) -> str:
         f"  coulomb_velocity_scale: {model.coulomb_velocity_scale!r}   # v_s [rad/s]\n"
         f"  armature: {table(model.armature)}          # [kg·m²]\n"
         f"  torque_offset: {table(model.torque_offset)}   # [N·m]\n"
+        f"  torque_delay: {float(model.time_delay)!r}   # [s], the torque log lags the positions (time_delay)\n"
+        f"  presliding_friction: {table(model.presliding)}   # Dahl F_c [N·m]\n"
+        f"  presliding_stiffness: {table(model.presliding_stiffness)}   # Dahl σ0 [N·m/rad]\n"
     )
 
 

@@ -45,7 +45,7 @@ from pe_drake.multibody.regressor import RegressorModel
 #: Per-joint effects of the library, in the order they are listed in reports.
 JOINT_EFFECTS = ("coulomb_friction", "viscous_friction", "armature", "torque_offset")
 #: All effect names (``payload`` is a link effect).
-EFFECT_NAMES = (*JOINT_EFFECTS, "payload")
+EFFECT_NAMES = (*JOINT_EFFECTS, "payload", "time_delay")
 
 #: Default smoothing velocity of the Coulomb column tanh(v / v_s) [rad/s or m/s].
 COULOMB_VELOCITY_SCALE = 0.01
@@ -66,6 +66,8 @@ EXPOSING_REGIME = {
     "armature": "vd",
     "torque_offset": "t",
     "payload": "q",
+    "time_delay": "dtau",
+    "presliding_friction": "v",
 }
 
 
@@ -213,7 +215,7 @@ def prior_parameter_covariance(robot, relative: float = PRIOR_RELATIVE_UNCERTAIN
                                samples: int = 400, seed: int = 0) -> np.ndarray:
     """Covariance of the standard parameters of an a-priori model accurate to ``relative``.
 
-    The model is the one of :func:`pe_drake.identification.simulation.perturb_inertias`: every body's mass,
+    The model is the one of :func:`pe_drake.multibody.inertia.perturb_inertias`: every body's mass,
     principal moments and centre of mass (relative to max(|p|, radius of gyration)) uniformly
     within ±``relative``, its principal axes rotated by up to ``relative`` rad about a random
     axis, draws that break the triangle inequality redrawn. Bodies are independent; each
@@ -244,7 +246,7 @@ def prior_parameter_covariance(robot, relative: float = PRIOR_RELATIVE_UNCERTAIN
 
 def _perturbation_draws(phi_b: np.ndarray, eps: float, count: int, rng: np.random.Generator) -> np.ndarray:
     """``count`` perturbed copies of one body's parameters, shape (count, 10) (vectorized
-    form of the perturbation of :func:`pe_drake.identification.simulation.perturb_inertias`)."""
+    form of the perturbation of :func:`pe_drake.multibody.inertia.perturb_inertias`)."""
     m, p, lam, R, r_gyr = principal_inertia(phi_b)
     lam2 = np.empty((0, 3))
     while lam2.shape[0] < count:  # redraw principal moments that break the triangle inequality

@@ -16,8 +16,8 @@ import numpy as np
 from pe_drake.diagnosis.effects import COULOMB_VELOCITY_SCALE, JOINT_EFFECTS, PRIOR_RELATIVE_UNCERTAINTY
 from pe_drake.exceptions import ConfigError, UnknownNameError
 
-#: The nuisance column of a torque/position timing offset.
-TIMING = "timing_offset"
+#: The effect (and column -dτ/dt) of a timing offset between the torque and position logs.
+TIMING = "time_delay"
 #: Largest condition number of the (column-scaled) training regressor the diagnosis accepts
 #: (optimized trajectories give about 10; above this some base parameters are barely excited
 #: and effects cannot be told apart from them reliably).

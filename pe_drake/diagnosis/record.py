@@ -181,6 +181,23 @@ def _segment(name: str, record: Record, idx: np.ndarray, coulomb_full: np.ndarra
     return Segment(name, record, idx, coulomb_full[idx], dtau_full[idx])
 
 
+def delayed_states(seg: Segment, delay: float, velocity_scale: float) -> tuple[np.ndarray, ...]:
+    """The motion a torque log lagging by ``delay`` [s] pairs with each sample (``time_delay``).
+
+    Returns:
+        q, v, vd and the parallel-filtered Coulomb column tanh(v/v_s) at t − delay, each
+        (S, n), interpolated from the record's full-rate filtered signals.
+    """
+    rec = seg.record
+    t = seg.t - delay
+    coulomb = rec.filtered(np.tanh(rec.v / velocity_scale))
+
+    def at(x: np.ndarray) -> np.ndarray:
+        return np.column_stack([np.interp(t, rec.t, x[:, j]) for j in range(x.shape[1])])
+
+    return at(rec.q), at(rec.v), at(rec.vd), at(coulomb)
+
+
 def split_segments(record: Record, config: DiagnosisConfig, validation: Record | None = None,
                    ) -> tuple[Segment, Segment]:
     """Training and held-out segments (module docstring).

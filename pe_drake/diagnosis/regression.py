@@ -209,7 +209,7 @@ class Library:
         return {self.num_base + k: c for k, c in enumerate(self.candidates)}
 
     def label(self, col: int) -> str:
-        """The candidate's label, or ``timing_offset`` for the nuisance column."""
+        """The candidate's label, or ``time_delay`` for the timing column."""
         return TIMING if col == self.timing_col else self.cand_of[col].label
 
     def extra_columns(self, seg: Segment) -> np.ndarray:
@@ -432,9 +432,8 @@ def unexplained_joints(residual: np.ndarray, held: Segment, thresholds: np.ndarr
         top = max(correlations, key=lambda k: abs(correlations[k]))
         hint = f"residual correlates most with {top} ({correlations[top]:+.2f})"
         if timing.get("needed"):
-            hint += (f"; the data fit a timing offset of {1e3 * timing['offset_s']:+.3g} ms between the torque "
-                     "and position logs (torque lags when positive): check the logging, this is not a "
-                     "model effect")
+            hint += (f"; a time delay of {1e3 * timing['offset_s']:+.3g} ms between the torque and position logs "
+                     "is named and corrected for")
         out[name] = {"rms": float(rms_j[j]), "threshold": float(thresholds[j]), "noise_floor": float(noise_floor[j]),
                      "fraction_of_nominal_rms": float(rms_j[j] / rms_nominal[j]) if rms_nominal[j] > 0 else 0.0,
                      "correlations": correlations, "hint": hint}

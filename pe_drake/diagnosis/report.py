@@ -98,6 +98,8 @@ def _regime_signal(result, regime: str, joint: int) -> tuple[np.ndarray, str]:
         return seg.vd[:, joint], "v̇ [rad/s²]"
     if regime == "q":
         return seg.q[:, joint], "q [rad]"
+    if regime == "dtau":
+        return seg.dtau[:, joint], "dτ/dt [N·m/s]"
     return seg.t, "t [s]"
 
 
@@ -246,7 +248,7 @@ def _summary(r) -> list[str]:
         lines.append("Named effects:")
         lines.append("")
         lines.append(_table(["effect", "joint / link", "value", "± std", "unit", "z"],
-                            [[e.effect, e.joint or e.link, _g(e.value, 4), _g(e.std, 2), e.unit, _g(e.z, 3)]
+                            [[e.effect, e.joint or e.link or "all joints", _g(e.value, 4), _g(e.std, 2), e.unit, _g(e.z, 3)]
                              for e in r.effects]))
     else:
         lines.append("No effect of the library is named: what the a-priori model misses is explained by the "
@@ -319,7 +321,7 @@ def _effects_section(r) -> list[str]:
         for e in r.effects:
             before = e.heldout_rms_before.get(e.joint) if e.joint else None
             after = e.heldout_rms_after.get(e.joint) if e.joint else None
-            rows.append([e.effect, e.joint or e.link, f"{_g(e.value, 4)} ± {_g(e.std, 2)} {e.unit}", _g(e.z),
+            rows.append([e.effect, e.joint or e.link or "all joints", f"{_g(e.value, 4)} ± {_g(e.std, 2)} {e.unit}", _g(e.z),
                          f"{_g(before)} → {_g(after)}" if before is not None else "(within the rigid step)"])
         lines += [_table(["effect", "joint / link", "value", "z", "held-out RMS of its joint"], rows), ""]
     lines.append("Selection: forward stepwise on the training data, each effect physically plausible, "
@@ -389,8 +391,8 @@ def _unexplained_section(r, figures: list[str]) -> list[str]:
         lines.append("")
     t = r.timing
     if t.get("checked"):
-        state = "needed" if t.get("needed") else "not needed"
+        state = "named as time_delay" if t.get("needed") else "not named"
         lines.append(f"Timing check: a torque/position offset of {1e3 * t['offset_s']:+.3g} ± {1e3 * t['std_s']:.2g} ms "
-                     f"fits the data ({state}; a logging issue, never named as an effect).")
+                     f"fits the data ({state}; a logging offset, corrected for in the augmented model).")
         lines.append("")
     return lines

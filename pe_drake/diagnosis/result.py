@@ -24,6 +24,24 @@ def per_joint(joints: Sequence[str], x) -> dict[str, float]:
     return {j: float(v) for j, v in zip(joints, x)}
 
 
+def time_delay_effect(value: float, std: float, contribution_rms: dict[str, float], before: dict[str, float],
+                      after: dict[str, float]) -> NamedEffect:
+    """The named ``time_delay``: d [s] of τ_rec(t) = τ(t − d) (positive: the torque log lags).
+
+    Args:
+        value, std: d and its standard deviation [s].
+        contribution_rms: held-out RMS of the −d·dτ/dt term per joint [N·m].
+        before, after: held-out RMS per joint before and after it was added [N·m].
+    """
+    details = {"convention": "tau_recorded(t) = tau(t - time_delay): positive when the torque log lags "
+                             "the positions",
+               "contribution_rms": contribution_rms,
+               "note": "a logging offset between the torque and position streams, not a physical effect: "
+                       "fix the logging, or keep it in the model (augmented_effects.yaml torque_delay)"}
+    return NamedEffect("time_delay", "", "", float(value), "s", float(std), float(abs(value) / max(std, 1e-300)),
+                       before, after, details)
+
+
 @dataclasses.dataclass(frozen=True)
 class NamedEffect:
     """An effect the diagnosis names.

@@ -27,12 +27,15 @@
    when the χ² gain passes ``payload_alpha``, the mass change exceeds
    ``payload_min_prior_sigmas`` a-priori standard deviations of the link's mass and 3 of its
    own, and what is left is consistent with the a-priori uncertainty (localized).
-   A timing offset between the torque and position logs (a common logging fault, not a
-   physical effect) enters the selection as a nuisance column -dτ/dt (τ_rec(t) ≈ τ(t) - d τ̇):
-   it keeps the library from absorbing it, and is reported under ``unexplained``, never named.
+   A timing offset between the torque and position logs enters the selection as the column
+   -dτ/dt (τ_rec(t) ≈ τ(t) - d τ̇) with the same criteria (b)-(d) over all joints; when it
+   passes it is named ``time_delay`` (d in seconds, the unit of ``simulate``'s
+   ``torque_delay``) and the augmented model pairs each torque sample with the motion d
+   earlier. Without the column the library would absorb a delay into other effects.
 4. **Augmented model.** The selected effects are added to the model in Drake (joint damping,
    rotor inertia, a welded payload body, Coulomb friction as a ``DoorHinge`` force element,
-   offsets as a generalized force; :mod:`pe_drake.diagnosis.augmented_model`), the held-out torque is
+   offsets as a generalized force, a time delay as the motion interpolated at t − d;
+   :mod:`pe_drake.diagnosis.augmented_model`), the held-out torque is
    recomputed with Drake's inverse dynamics, and the gap before and after is reported.
 5. **Unexplained.** Joints whose held-out residual stays above max(``noise_factor`` × noise
    floor, ``unexplained_fraction`` × the joint's torque spread, ``resolution_fraction`` × the
@@ -72,7 +75,7 @@ from pe_drake.diagnosis.effects import (
     prior_parameter_covariance,
     separability,
 )
-from pe_drake.diagnosis.options import MAX_COND, DiagnosisConfig, Thresholds
+from pe_drake.diagnosis.options import MAX_COND, TIMING, DiagnosisConfig, Thresholds
 from pe_drake.diagnosis.payload import (
     BaseChange,
     PayloadOutcome,
@@ -80,7 +83,8 @@ from pe_drake.diagnosis.payload import (
     payload_search,
     rigid_report,
 )
-from pe_drake.diagnosis.record import Record, Segment, prepare_record, split_segments
+from pe_drake.diagnosis.presliding import PRESLIDING, PreslidingStep, presliding_effects, presliding_step
+from pe_drake.diagnosis.record import Record, Segment, delayed_states, prepare_record, split_segments
 from pe_drake.diagnosis.regression import (
     Columns,
     Fit,
@@ -94,7 +98,7 @@ from pe_drake.diagnosis.regression import (
     select_effects,
     unexplained_joints,
 )
-from pe_drake.diagnosis.result import DiagnosisResult, NamedEffect, per_joint
+from pe_drake.diagnosis.result import DiagnosisResult, NamedEffect, per_joint, time_delay_effect
 from pe_drake.exceptions import DataError
 from pe_drake.identification.measurements import Measurement, check_torque_units
 from pe_drake.multibody.base_parameters import BaseParameters, compute_base_parameters
@@ -280,7 +284,7 @@ class Naming:
     """The named per-joint effects and what the selection left out.
 
     Attributes:
-        effect_cols: the selected columns without the timing nuisance, in selection order.
+        effect_cols: the selected columns (``time_delay`` included), in selection order.
         cumulative: [(step label, per-joint held-out RMS)] nominal → rigid → each effect.
         last_fit: the fit with every named effect (the last cumulative step).
         effects: the :class:`~pe_drake.diagnosis.result.NamedEffect`s.
@@ -300,9 +304,8 @@ def name_effects(robot, lib: CandidateLibrary, sel: Selection, rigid: Fit, nom: 
                  config: DiagnosisConfig) -> Naming:
     """The cumulative table, each selected effect as a NamedEffect, the rejected candidates."""
     reg, library = lib.regression, lib.library
-    # cumulative table (without the timing nuisance: it is not part of the model)
     cumulative = [("nominal", nom.rms), ("rigid", rigid.rms_held)]
-    effect_cols = [c for c in sel.order if c != library.timing_col]
+    effect_cols = list(sel.order)
     fits_cum = [rigid]
     for k in range(len(effect_cols)):
         f = reg.fit(effect_cols[: k + 1])
@@ -320,10 +323,18 @@ def _named(reg: Regression, library: Library, final: Fit, effect_cols: list[int]
     series: list[dict[str, Any]] = []
     res_final = reg.residual("held-out", reg.fit(effect_cols))
     for k, col in enumerate(effect_cols):
-        c = library.cand_of[col]
         without = reg.fit([x for x in effect_cols if x != col])
         value = final.value(col)
         std = final.std(col)
+        if col == library.timing_col:
+            named.append(time_delay_effect(value, std, per_joint(joints, reg.contribution_rms("held-out", final, col)),
+                                           per_joint(joints, fits_cum[k].rms_held),
+                                           per_joint(joints, fits_cum[k + 1].rms_held)))
+            j = int(np.argmax(fits_cum[k].rms_held - fits_cum[k + 1].rms_held))
+            series.append({"label": TIMING, "effect": TIMING, "joint": j, "regime": EXPOSING_REGIME[TIMING],
+                           "before": reg.residual("held-out", without)[:, j], "after": res_final[:, j]})
+            continue
+        c = library.cand_of[col]
         details: dict[str, Any] = {"contribution_rms": float(reg.contribution_rms("held-out", final, col)[c.joint])}
         if c.effect == "viscous_friction":
             details["model_file_damping"] = float(damping[c.joint])
@@ -408,26 +419,32 @@ class Augmentation:
     drake_check: np.ndarray
 
 
-def augment(robot, prep: Prepared, lib: CandidateLibrary, sel: Selection, naming: Naming, pay: PayloadStep,
+def augment(robot, prep: Prepared, lib: CandidateLibrary, pre: PreslidingStep, naming: Naming, pay: PayloadStep,
             config: DiagnosisConfig) -> Augmentation:
     """The named effects added to the model in Drake, its held-out torque and the gap."""
-    held, library, final = prep.held, lib.library, sel.final
-    values = {col: final.value(col) for col in naming.effect_cols}
+    held, library, final = prep.held, lib.library, pre.final
+    dahl = {f.column: f for f in pre.fits}  # Coulomb slots holding pre-sliding friction
+    values = {col: final.value(col) for col in naming.effect_cols
+              if col != library.timing_col and col not in dahl and col not in pre.dropped}
+    presliding = {f.joint: (final.value(c), final.value(c) / f.displacement) for c, f in dahl.items()}
+    delay = final.value(library.timing_col) if library.timing_col in naming.effect_cols else 0.0
     effect = pay.outcome.effect
     augmented = AugmentedModel.from_fit(robot, prep.base, pay.change.phi_B, pay.change.Sigma_phi,
                                         pay.outcome.delta_phi,
                                         {library.cand_of[c].label: (library.cand_of[c], v) for c, v in values.items()},
                                         config.coulomb_velocity_scale,
                                         effect.link if effect is not None else None,
-                                        cov_B=pay.change.cov_B)
+                                        cov_B=pay.change.cov_B, time_delay=delay, presliding=presliding)
     true = build_augmented_robot(robot, augmented)
-    # Drake's torque at the held-out samples, its Coulomb term filtered like the measured torque
-    # (the parallel-filtered column; the rest of the torque is smooth within the pass band).
-    tau_after = augmented_torque(true, augmented, held.q, held.v, held.vd)
-    tau_after += augmented.coulomb * (held.coulomb - np.tanh(held.v / config.coulomb_velocity_scale))
-    # the least-squares prediction with the final values (timing nuisance left out)
-    keep = [k for k, c in enumerate(final.columns) if c != library.timing_col]
-    ls_pred = lib.regression.held.A[:, :, [final.columns[k] for k in keep]] @ final.x[keep]
+    # Drake's torque at the held-out samples (along the motion `delay` earlier when a time delay
+    # is named), its Coulomb term filtered like the measured torque (the parallel-filtered
+    # column; the rest of the torque is smooth within the pass band).
+    q, v, vd, coulomb = (delayed_states(held, delay, config.coulomb_velocity_scale) if delay
+                         else (held.q, held.v, held.vd, held.coulomb))
+    tau_after = augmented_torque(true, augmented, q, v, vd)
+    tau_after += augmented.coulomb * (coulomb - np.tanh(v / config.coulomb_velocity_scale)) + pre.held_torque
+    # the least-squares prediction with the final values (a delay by its linearization -d·dτ/dt)
+    ls_pred = pre.regression.held.A[:, :, list(final.columns)] @ final.x
     return Augmentation(augmented, tau_after, rms(held.tau - tau_after),
                         np.max(np.abs(tau_after - ls_pred), axis=0))
 
@@ -441,7 +458,7 @@ def timing_report(lib: CandidateLibrary, sel: Selection, config: DiagnosisConfig
     timing: dict[str, Any] = {"checked": config.timing_check}
     if timing_col in sel.selected:
         timing.update(offset_s=sel.final.value(timing_col), std_s=sel.final.std(timing_col), needed=True,
-                      convention="positive: the torque log lags the positions")
+                      named=True, convention="positive: the torque log lags the positions")
     else:
         f = lib.regression.fit(sel.selected + [timing_col])
         timing.update(offset_s=f.value(timing_col), std_s=f.std(timing_col), needed=False,
@@ -517,12 +534,19 @@ def diagnose(
     _say_selection(say, sel, lib.library, joints)
     lap("effects")
     naming = name_effects(robot, lib, sel, rigid, nom, config)
+    pre = presliding_step(prep, lib, sel, config)
+    naming = dataclasses.replace(naming, effects=presliding_effects(naming.effects, pre, lib.library, joints),
+                                 series=pre.series(naming.series, joints), rejected=naming.rejected + pre.not_named(),
+                                 cumulative=naming.cumulative + [(f"+ {PRESLIDING}", pre.final.rms_held)] * bool(pre.fits))
+    for f in pre.fits:
+        say(f"3. {PRESLIDING}[{joints[f.joint]}] (x_p {1e3 * f.displacement:.3g} mrad) in its Coulomb slot")
+    lap("presliding")
     pay = payload_step(robot, prep, lib, sel, naming, config)
     if pay.outcome.effect is not None:
         say(f"3. payload on {pay.outcome.effect.link}: {pay.outcome.effect.value:+.3g} kg "
             f"(χ² {pay.outcome.report['chi2_before']:.3g} → {pay.outcome.report['chi2_after']:.3g})")
     lap("payload")
-    aug = augment(robot, prep, lib, sel, naming, pay, config)
+    aug = augment(robot, prep, lib, pre, naming, pay, config)
     say("4. augmented Drake model, held-out RMS [N·m]: " + _fmt_joints(joints, aug.rms))
     lap("augmented")
     left = unexplained(robot, prep, lib, sel, nom, aug, config)

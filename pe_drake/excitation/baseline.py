@@ -32,8 +32,10 @@ from typing import Any
 import numpy as np
 import scipy.linalg
 
-from pe_drake.config import ExcitationConfig
+from pe_drake.config import Config, ExcitationConfig, validate_config
 from pe_drake.exceptions import ConfigError, InfeasibleError
+from pe_drake.excitation.constraints import constraints_from_config
+from pe_drake.excitation.parallel import Executor, TaskFinished, open_executor
 
 
 @dataclasses.dataclass(frozen=True)
@@ -66,7 +68,7 @@ class CandidateSet:
             ("joint limits", or a sampled constraint's name).
         amplitude: scale of the random coefficients [rad].
         wall_time: [s].
-        workers: processes used.
+        workers: chunks of draws run at once (1: one after the other).
     """
 
     candidates: list[Candidate]
@@ -259,12 +261,50 @@ class _DrawChunk:
 
 
 def _draw_chunk(state, chunk: _DrawChunk) -> list[tuple[str, Candidate | None, np.ndarray | None]]:
-    """Worker task: a chunk of draws (see :class:`pe_drake.excitation.multistart.WorkerPool`)."""
+    """Executor task: a chunk of draws (see :mod:`pe_drake.excitation.parallel`)."""
     problem = state.problem(chunk.config, None)
     constraints = state.constraints(chunk.config)
-    out = [_draw(problem, constraints, s, chunk.amplitude) for s in chunk.seeds]
-    state.emit(("chunk", len(out), sum(1 for reason, _, _ in out if not reason)))
-    return out
+    return [_draw(problem, constraints, s, chunk.amplitude) for s in chunk.seeds]
+
+
+class _DrawProgress:
+    """Counts draws as chunks finish; sends :class:`DrawEvent` objects to ``progress``."""
+
+    def __init__(self, wanted: int, begin: float, progress: Callable[[DrawEvent], None] | None):
+        self.wanted, self.begin, self.progress = wanted, begin, progress
+        self.drawn = self.accepted = 0
+
+    def __call__(self, event) -> None:
+        if isinstance(event, TaskFinished):
+            self.drawn += len(event.value)
+            self.accepted += sum(1 for reason, _, _ in event.value if not reason)
+            if self.progress is not None:
+                self.progress(DrawEvent(self.drawn, self.accepted, self.wanted, time.perf_counter() - self.begin))
+
+
+def _draw_rounds(executor: Executor, config, count, seed, amplitude, max_draws, chunk_size, on_event) -> list:
+    """Draws in rounds until ``count`` are accepted or ``max_draws`` are made; outcomes in draw order.
+
+    Draw d has seed ``seed + d`` whatever chunk or worker runs it, so the accepted set does
+    not depend on scheduling.
+    """
+    outcomes: list = []
+    next_draw = 0
+    while next_draw < max_draws:
+        accepted = sum(1 for reason, _, _ in outcomes if not reason)
+        if accepted >= count:
+            break
+        # Enough draws for the rest at the acceptance seen so far (all at once at first).
+        rate = accepted / len(outcomes) if outcomes else 1.0
+        size = math.ceil(1.1 * (count - accepted) / max(rate, 0.02))
+        size = min(max(size, executor.workers * chunk_size), max_draws - next_draw)
+        seeds = [seed + d for d in range(next_draw, next_draw + size)]
+        chunks = [_DrawChunk(config, seeds[k : k + chunk_size], amplitude) for k in range(0, len(seeds), chunk_size)]
+        labels = [f"draws from seed {c.seeds[0]}" for c in chunks]
+        for finished in executor.map(_draw_chunk, chunks, on_event, labels):
+            outcomes.extend(finished.value)
+        next_draw += size
+    return outcomes
 
 
 def generate_candidates(
@@ -277,7 +317,8 @@ def generate_candidates(
     amplitude: float | None = None,
     max_draws: int | None = None,
     workers: int = 1,
-    pool=None,
+    executor: str | Executor = "local",
+    address: str = "",
     progress: Callable[[DrawEvent], None] | None = None,
     chunk_size: int = 16,
 ) -> CandidateSet:
@@ -287,16 +328,18 @@ def generate_candidates(
     ``count`` are returned, so the set does not depend on ``workers``.
 
     Args:
-        robot: the :class:`~pe_drake.multibody.robot.Robot` (ignored when ``pool`` is given).
+        robot: the :class:`~pe_drake.multibody.robot.Robot` (ignored with an open executor).
         config: N, ω, T, K and the amplitude (default :class:`ExcitationConfig`).
         count: accepted candidates wanted.
         constraints_factory: ``f(robot, config) -> [SampledConstraint, ...]`` (default
-            :func:`pe_drake.excitation.constraints.constraints_from_config`); ignored with ``pool``.
+            :func:`pe_drake.excitation.constraints.constraints_from_config`); ignored with an
+            open executor.
         seed: seed of the first draw.
         amplitude: scale of the random coefficients [rad] (default ``config.amplitude``).
         max_draws: give up after this many draws (default 50 × count).
-        workers: processes (see :class:`~pe_drake.excitation.multistart.WorkerPool`).
-        pool: an open :class:`~pe_drake.excitation.multistart.WorkerPool` to reuse.
+        workers: chunks at once (1: in this process with the "local" executor).
+        executor: "local", "ray", or an open :class:`~pe_drake.excitation.parallel.Executor`.
+        address: Ray cluster address (``executor="ray"``).
         progress: callback receiving a :class:`DrawEvent` after each chunk of draws.
         chunk_size: draws per task sent to a worker.
 
@@ -308,9 +351,6 @@ def generate_candidates(
         InfeasibleError: fewer than ``count`` draws accepted within ``max_draws`` (the
             acceptance rate is in the message: lower the amplitude or loosen the constraints).
     """
-    from pe_drake.config import Config, validate_config
-    from pe_drake.excitation.multistart import WorkerPool
-
     begin = time.perf_counter()
     config = config or ExcitationConfig()
     validate_config(Config(excitation=config))
@@ -321,45 +361,18 @@ def generate_candidates(
             raise ConfigError(f"{name} must be a positive integer, got {value!r}")
     if not isinstance(amplitude, (int, float)) or not math.isfinite(amplitude) or amplitude <= 0:
         raise ConfigError(f"amplitude must be a positive number [rad], got {amplitude!r}")
-    own = pool is None
+    own = not isinstance(executor, Executor)
     if own:
-        from pe_drake.excitation.constraints import constraints_from_config
-
-        pool = WorkerPool(robot, workers, constraints_factory=constraints_factory or constraints_from_config)
-    drawn = accepted = 0
-
-    def on_event(event) -> None:
-        nonlocal drawn, accepted
-        if isinstance(event, tuple) and event and event[0] == "chunk":
-            drawn += event[1]
-            accepted += event[2]
-            if progress is not None:
-                progress(DrawEvent(drawn, accepted, count, time.perf_counter() - begin))
-
-    outcomes: list = []
-    used_processes = 1
+        executor = open_executor(
+            robot, executor, workers, address=address, constraints_factory=constraints_factory or constraints_from_config
+        )
     try:
-        next_draw = 0
-        while next_draw < max_draws:
-            done = sum(1 for reason, _, _ in outcomes if not reason)
-            if done >= count:
-                break
-            # Enough draws for the rest at the acceptance seen so far (all at once at first).
-            rate = done / len(outcomes) if outcomes else 1.0
-            size = math.ceil(1.1 * (count - done) / max(rate, 0.02))
-            size = min(max(size, pool.workers * chunk_size), max_draws - next_draw)
-            seeds = [seed + d for d in range(next_draw, next_draw + size)]
-            chunks = [
-                _DrawChunk(config, seeds[k : k + chunk_size], float(amplitude))
-                for k in range(0, len(seeds), chunk_size)
-            ]
-            for part in pool.map(_draw_chunk, chunks, on_event):
-                outcomes.extend(part)
-            used_processes = max(used_processes, pool.last_processes)
-            next_draw += size
+        outcomes = _draw_rounds(
+            executor, config, count, seed, float(amplitude), max_draws, chunk_size, _DrawProgress(count, begin, progress)
+        )
     finally:
         if own:
-            pool.close()
+            executor.close()
     kept, R, rejected, draws = [], [], {}, 0
     for reason, cand, r in outcomes:
         if len(kept) == count:
@@ -376,9 +389,7 @@ def generate_candidates(
             + ", ".join(f"{k} {v}" for k, v in rejected.items())
             + f"); lower the amplitude ({amplitude} rad), raise max_draws, or loosen the constraints"
         )
-    return CandidateSet(
-        kept, np.array(R), draws, rejected, float(amplitude), time.perf_counter() - begin, used_processes
-    )
+    return CandidateSet(kept, np.array(R), draws, rejected, float(amplitude), time.perf_counter() - begin, executor.workers)
 
 
 def random_baseline(
@@ -393,14 +404,15 @@ def random_baseline(
     max_draws: int | None = None,
     C0: np.ndarray | None = None,
     workers: int = 1,
-    pool=None,
+    executor: str | Executor = "local",
+    address: str = "",
     progress: Callable[[DrawEvent], None] | None = None,
 ) -> BaselineResult:
     """Random feasible candidates, then the greedy selection of ``motions`` of them.
 
     Args:
-        robot, config, constraints_factory, seed, amplitude, max_draws, workers, pool,
-        progress: see :func:`generate_candidates`.
+        robot, config, constraints_factory, seed, amplitude, max_draws, workers, executor,
+        address, progress: see :func:`generate_candidates`.
         motions: how many motions to select (the paper: 3).
         candidates: accepted random motions to select from.
         C0: prior data the selection starts from, shape (m0, b), or None.
@@ -421,7 +433,8 @@ def random_baseline(
         amplitude=amplitude,
         max_draws=max_draws,
         workers=workers,
-        pool=pool,
+        executor=executor,
+        address=address,
         progress=progress,
     )
     begin = time.perf_counter()

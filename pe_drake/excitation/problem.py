@@ -19,6 +19,7 @@ from pe_drake.excitation.criteria import evaluate_criterion
 from pe_drake.excitation.fourier import FourierBasis, FourierTrajectory, sample_times
 from pe_drake.multibody.base_parameters import BaseParameters, compute_base_parameters
 from pe_drake.multibody.regressor import RegressorModel
+from pe_drake.multibody.sensors import SensorRows, measurement_type
 
 
 @dataclasses.dataclass(frozen=True)
@@ -57,8 +58,19 @@ class ExcitationProblem:
         self.config = config or ExcitationConfig()
         validate_config(Config(excitation=self.config))
         self.model = model or RegressorModel(robot)
-        self.base = base or compute_base_parameters(robot, model=self.model)
+        # The rows of C: joint torques (Eq. 1), the ground wrench, or both (issue 14).
+        self.rows = SensorRows(self.model, measurement_type(self.config, joint_names=robot.joint_names))
+        if base is None and self.config.measurement == "joint_torque":
+            base = compute_base_parameters(robot, model=self.model)
+        self.base = base or self.rows.base_parameters()
+        if self.base.measurement != self.config.measurement:
+            raise ConfigError(
+                f"the base parameters given are those of the {self.base.measurement} rows, the problem's "
+                f"measurement is {self.config.measurement}: pass base=ExcitationProblem(robot, config).base "
+                "(also to a WorkerPool)"
+            )
         self.n = robot.n
+        _check_cost_rows(self)
         self.harmonics = self.config.harmonics
         self.omega = self.config.omega
         self.period = 2 * math.pi / self.omega
@@ -91,9 +103,9 @@ class ExcitationProblem:
         return FourierTrajectory.from_alpha(alpha, self.n, self.harmonics, self.omega)
 
     def regressor_block(self, alpha: np.ndarray) -> np.ndarray:
-        """Ŷ_B of one motion at the T cost samples (Eq. 3), shape (T·n, b)."""
+        """Ŷ_B of one motion at the T cost samples (Eq. 3), shape (T·r, b) (r rows per sample)."""
         q, v, vd = self.cost_basis.evaluate_alpha(np.asarray(alpha, float), self.n)
-        Y = self.model(q, v, vd)
+        Y = self.rows(q, v, vd)
         return self.base.reduce(Y).reshape(-1, self.base.count)
 
     def stacked(self, alpha: np.ndarray) -> np.ndarray:
@@ -120,18 +132,18 @@ class ExcitationProblem:
         self.num_evaluations += 1
         q, v, vd = self.cost_basis.evaluate_alpha(alpha, self.n)
         kin = self.model.kinematics(q, v, vd)
-        Y = self.model.regressor(kin)
-        T, b = Y.shape[0], self.base.count
-        block = self.base.reduce(Y).reshape(T * self.n, b)
+        Y = self.rows.rows(kin)
+        T, r, b = Y.shape[0], Y.shape[1], self.base.count
+        block = self.base.reduce(Y).reshape(T * r, b)
         C = block if self.C0 is None else np.vstack([self.C0, block])
         crit = evaluate_criterion(C, self.config.criterion)  # Eq. (17)
         if not np.isfinite(crit.value):
             out = CostValue(np.inf, np.zeros_like(alpha), crit.singular_values)
         else:
-            G = crit.grad[C.shape[0] - T * self.n :].reshape(T, self.n, b)
+            G = crit.grad[C.shape[0] - T * r :].reshape(T, r, b)
             Z = np.zeros_like(Y)
             Z[..., self.base.independent] = G  # Eq. (46): Z = X C(C) S^T
-            q_bar, v_bar, vd_bar = self.model.pullback(kin, Z)  # Eq. (47)
+            q_bar, v_bar, vd_bar = self.rows.pullback(kin, Z)  # Eq. (47); docs/derivations.md §4a
             grad = self.cost_basis.pullback(q_bar, v_bar, vd_bar)  # Eq. (49)
             out = CostValue(crit.value, grad, crit.singular_values)
         self._cache_key, self._cache = key, out
@@ -155,6 +167,17 @@ class ExcitationProblem:
         if self.config.rest_at_ends:
             alpha = _project_rest(self, alpha)
         return scale_into_limits(self, alpha, 0.9)
+
+
+def _check_cost_rows(problem: ExcitationProblem) -> None:
+    """C needs at least as many rows as base parameters (the wrench gives 6 per sample)."""
+    rows = problem.config.cost_samples * problem.rows.num_rows
+    if rows < problem.base.count:
+        need = math.ceil(problem.base.count / problem.rows.num_rows)
+        raise ConfigError(
+            f"excitation.cost_samples = {problem.config.cost_samples} gives {rows} rows of "
+            f"{problem.config.measurement} for {problem.base.count} base parameters: use at least {need}"
+        )
 
 
 def _project_rest(problem: ExcitationProblem, alpha: np.ndarray) -> np.ndarray:

@@ -8,7 +8,8 @@ the regressors of the motions before it as prior data,
 so each new motion excites what the earlier ones left poorly excited, and cond of the
 concatenated C falls with each motion even when cond(C^(i)) alone grows. Each motion starts
 from its own seeded random initial point(s); with ``starts > 1`` they are solved in parallel
-processes (:mod:`pe_drake.excitation.multistart`) and the best feasible one is kept.
+(:mod:`pe_drake.excitation.multistart`, on a local process pool or Ray) and the best feasible
+one is kept.
 
 Warm start (on by default): the last start of motion i > 1 begins from the earlier motion of
 the sequence whose coefficients give the lowest criterion with the current prior, instead of
@@ -36,6 +37,9 @@ import numpy as np
 
 from pe_drake.config import ExcitationConfig, SolverConfig
 from pe_drake.exceptions import ConfigError, NoSolutionFound
+from pe_drake.excitation.constraints import constraints_from_config
+from pe_drake.excitation.multistart import solve_multistart
+from pe_drake.excitation.parallel import Executor, open_executor
 
 #: Seeds of motion i (1-based) are ``seed + SEED_STRIDE·(i-1) + s`` for start s = 0, 1, ...:
 #: fresh for every motion, and the same for motion i whatever the number of starts.
@@ -48,7 +52,7 @@ class SequenceMotion:
 
     Attributes:
         index: i, from 1.
-        result: the kept :class:`~pe_drake.excitation.program.ExcitationResult` (``cond`` is that of
+        result: the kept :class:`~pe_drake.excitation.solve.ExcitationResult` (``cond`` is that of
             [C0; C^(i)]).
         block: C^(i), this motion's base regressor at the T cost samples, shape (T·n, b).
         cond_motion: cond(C^(i)), the motion alone (Table I, first row).
@@ -83,7 +87,7 @@ class SequenceResult:
         C: the concatenated regressor [prior C0; C^(1); ...], shape (m, b).
         cond: cond(C).
         base: the :class:`~pe_drake.multibody.base_parameters.BaseParameters` the columns follow.
-        workers: processes used per motion (1: solved in this process).
+        workers: starts run at once per motion (1: one after the other).
         wall_time: whole run [s].
     """
 
@@ -154,10 +158,11 @@ def optimize_sequence(
     C0: np.ndarray | None = None,
     starts: int = 1,
     workers: int | None = None,
+    executor: str | Executor = "local",
+    address: str = "",
     seed: int | None = None,
     seeds: Sequence[Sequence[int]] | None = None,
     amplitude: float | None = None,
-    pool=None,
     progress: Callable[[Any], None] | None = None,
     progress_interval: float = 2.0,
     stop_on_failure: bool = True,
@@ -169,21 +174,24 @@ def optimize_sequence(
     Fourier coefficients; the earlier blocks are fixed prior data (Eq. 41).
 
     Args:
-        robot: the :class:`~pe_drake.multibody.robot.Robot` (ignored when ``pool`` is given).
+        robot: the :class:`~pe_drake.multibody.robot.Robot` (ignored with an open executor).
         config: the excitation problem (default :class:`ExcitationConfig`).
         solver: "ipopt", "nlopt" or a :class:`SolverConfig`.
         motions: number of motions (the paper: 3).
         constraints_factory: ``f(robot, config) -> [SampledConstraint, ...]`` (default
             :func:`pe_drake.excitation.constraints.constraints_from_config`: balance and collision as
-            the config asks); ignored when ``pool`` is given.
+            the config asks); a module-level function; ignored with an open executor.
         C0: prior data from earlier experiments, shape (m0, b), or None (the paper: O).
         starts: random initial points per motion; the best feasible one is kept.
-        workers: processes for the starts (default os.cpu_count(), capped at ``starts``).
+        workers: starts at once (default: the cores available, or the Ray cluster's CPUs;
+            capped at the starts per motion).
+        executor: "local", "ray", or an open
+            :class:`~pe_drake.excitation.parallel.Executor` to reuse.
+        address: Ray cluster address (``executor="ray"``).
         seed: first seed (default ``config.seed``); see :func:`motion_seeds`.
         seeds: explicit seeds, one list per motion (overrides ``seed`` and ``starts``).
         amplitude: scale of the random initial coefficients [rad] (default
             ``config.amplitude``).
-        pool: an open :class:`~pe_drake.excitation.multistart.WorkerPool` to reuse.
         progress: callback receiving :class:`MotionEvent` and
             :class:`~pe_drake.excitation.multistart.StartEvent` objects.
         progress_interval: seconds between progress events of a start.
@@ -202,12 +210,39 @@ def optimize_sequence(
         NoSolutionFound: a motion has no start that meets every constraint (with
             ``stop_on_failure``); its ``result`` is the :class:`SequenceResult` so far,
             the failed motion included.
-        WorkerError: a worker process failed.
+        WorkerError: a start failed in a worker, or its worker died.
     """
-    from pe_drake.excitation.multistart import WorkerPool, default_workers, solve_multistart
 
     begin = time.perf_counter()
     config = config or ExcitationConfig()
+    seeds = _sequence_seeds(config, motions, starts, seed, seeds)
+    own = not isinstance(executor, Executor)
+    if own:
+        executor = open_executor(
+            robot,
+            executor,
+            workers,
+            tasks=max(len(row) for row in seeds),
+            address=address,
+            constraints_factory=constraints_factory or constraints_from_config,
+        )
+    try:
+        run = _SequenceRun(executor, config, solver, _prior(C0, executor.base.count), progress or (lambda event: None))
+        for i in range(1, motions + 1):
+            motion = run.motion(i, motions, seeds[i - 1], amplitude, progress_interval, warm_start)
+            if stop_on_failure and not motion.success:
+                raise NoSolutionFound(
+                    f"motion {i}: none of the {len(seeds[i - 1])} start(s) met every constraint "
+                    f"({motion.result.message}); try more starts, more iterations or other seeds",
+                    result=run.result(begin),
+                )
+    finally:
+        if own:
+            executor.close()
+    return run.result(begin)
+
+
+def _sequence_seeds(config, motions, starts, seed, seeds) -> list[list[int]]:
     for name, value in (("motions", motions), ("starts", starts)):
         if not isinstance(value, int) or value < 1:
             raise ConfigError(f"{name} must be a positive integer, got {value!r}")
@@ -215,86 +250,81 @@ def optimize_sequence(
         seeds = [[int(s) for s in row] for row in seeds]
         if len(seeds) != motions or any(not row for row in seeds):
             raise ConfigError(f"seeds must give a non-empty list for each of the {motions} motions")
-    else:
-        first = config.seed if seed is None else int(seed)
-        seeds = [motion_seeds(first, i, starts) for i in range(1, motions + 1)]
-    own = pool is None
-    if own:
-        from pe_drake.excitation.constraints import constraints_from_config
+        return seeds
+    first = config.seed if seed is None else int(seed)
+    return [motion_seeds(first, i, starts) for i in range(1, motions + 1)]
 
-        most = max(len(row) for row in seeds)
-        n = min(default_workers() if workers is None else workers, most)
-        pool = WorkerPool(robot, n, constraints_factory=constraints_factory or constraints_from_config)
-    say = progress or (lambda event: None)
-    blocks: list[np.ndarray] = []
-    prior = None
-    if C0 is not None:
-        prior = np.asarray(C0, float)
-        if prior.ndim != 2 or prior.shape[1] != pool.base.count:
-            raise ConfigError(
-                f"prior data C0 has shape {prior.shape}; it needs {pool.base.count} columns "
-                "(the robot's base parameters)"
-            )
-    done: list[SequenceMotion] = []
-    used = 1
 
-    def partial() -> SequenceResult:
-        C = np.vstack(([prior] if prior is not None else []) + blocks)
-        return SequenceResult(done, C, _cond(C), pool.base, used, time.perf_counter() - begin)
+def _prior(C0, count: int) -> np.ndarray | None:
+    if C0 is None:
+        return None
+    prior = np.asarray(C0, float)
+    if prior.ndim != 2 or prior.shape[1] != count:
+        raise ConfigError(
+            f"prior data C0 has shape {prior.shape}; it needs {count} columns (the robot's base parameters)"
+        )
+    return prior
 
-    try:
-        for i in range(1, motions + 1):
-            start = time.perf_counter()
-            say(MotionEvent(i, motions, "started", tuple(seeds[i - 1])))
-            parts = ([prior] if prior is not None else []) + blocks
-            C0_i = np.vstack(parts) if parts else None  # Eq. (41): [C^(1); ...; C^(i-1)]
-            guesses, origins = None, None
-            if warm_start and done:
-                current = pool.problem(config, C0_i)
-                values = [current.value(m.result.x) for m in done]
-                j = int(np.argmin(values))
-                count = len(seeds[i - 1])
-                guesses = [None] * (count - 1) + [done[j].result.x]
-                origins = [""] * (count - 1) + [f"from motion {j + 1}, {config.criterion} {values[j]:.5g}"]
-            ms = solve_multistart(
-                None,
-                config,
-                solver,
-                seeds[i - 1],
-                C0=C0_i,
-                amplitude=amplitude,
-                pool=pool,
-                progress=say,
-                progress_interval=progress_interval,
-                label=f"motion {i}",
-                initial_guesses=guesses,
-                origins=origins,
-            )
-            used = max(used, ms.workers)
-            problem = pool.problem(config)
-            block = problem.regressor_block(ms.best.x)
-            total = block if C0_i is None else np.vstack([C0_i, block])
-            motion = SequenceMotion(
-                index=i,
-                result=ms.best,
-                block=block,
-                cond_motion=_cond(block),
-                cond_total=_cond(total),
-                seed=ms.seed,
-                seeds=list(seeds[i - 1]),
-                starts=ms.starts,
-                wall_time=time.perf_counter() - start,
-            )
-            blocks.append(block)
-            done.append(motion)
-            say(MotionEvent(i, motions, "finished", tuple(seeds[i - 1]), motion))
-            if stop_on_failure and not motion.success:
-                raise NoSolutionFound(
-                    f"motion {i}: none of the {len(seeds[i - 1])} start(s) met every constraint "
-                    f"({motion.result.message}); try more starts, more iterations or other seeds",
-                    result=partial(),
-                )
-    finally:
-        if own:
-            pool.close()
-    return partial()
+
+class _SequenceRun:
+    """The motions so far and how to add the next one."""
+
+    def __init__(self, executor: Executor, config, solver, prior, say):
+        self.executor, self.config, self.solver, self.prior, self.say = executor, config, solver, prior, say
+        self.blocks: list[np.ndarray] = []
+        self.done: list[SequenceMotion] = []
+        self.used = 1
+
+    def result(self, begin: float) -> SequenceResult:
+        C = np.vstack(([self.prior] if self.prior is not None else []) + self.blocks)
+        return SequenceResult(self.done, C, _cond(C), self.executor.base, self.used, time.perf_counter() - begin)
+
+    def _warm_start(self, C0_i, count: int):
+        """Initial guesses and their origins: the last start from the best earlier motion."""
+        if not self.done:
+            return None, None
+        current = self.executor.problem(self.config, C0_i)
+        values = [current.value(m.result.x) for m in self.done]
+        j = int(np.argmin(values))
+        guesses = [None] * (count - 1) + [self.done[j].result.x]
+        origins = [""] * (count - 1) + [f"from motion {j + 1}, {self.config.criterion} {values[j]:.5g}"]
+        return guesses, origins
+
+    def motion(self, i, motions, seeds, amplitude, interval, warm_start) -> SequenceMotion:
+        start = time.perf_counter()
+        self.say(MotionEvent(i, motions, "started", tuple(seeds)))
+        parts = ([self.prior] if self.prior is not None else []) + self.blocks
+        C0_i = np.vstack(parts) if parts else None  # Eq. (41): [C^(1); ...; C^(i-1)]
+        guesses, origins = self._warm_start(C0_i, len(seeds)) if warm_start else (None, None)
+        ms = solve_multistart(
+            None,
+            self.config,
+            self.solver,
+            seeds,
+            C0=C0_i,
+            amplitude=amplitude,
+            executor=self.executor,
+            progress=self.say,
+            progress_interval=interval,
+            label=f"motion {i}",
+            initial_guesses=guesses,
+            origins=origins,
+        )
+        self.used = max(self.used, ms.workers)
+        block = self.executor.problem(self.config).regressor_block(ms.best.x)
+        total = block if C0_i is None else np.vstack([C0_i, block])
+        motion = SequenceMotion(
+            index=i,
+            result=ms.best,
+            block=block,
+            cond_motion=_cond(block),
+            cond_total=_cond(total),
+            seed=ms.seed,
+            seeds=list(seeds),
+            starts=ms.starts,
+            wall_time=time.perf_counter() - start,
+        )
+        self.blocks.append(block)
+        self.done.append(motion)
+        self.say(MotionEvent(i, motions, "finished", tuple(seeds), motion))
+        return motion

@@ -160,7 +160,9 @@ def check_against_model(robot, prepared) -> np.ndarray:
             (v and vdot filled in).
 
     Returns:
-        The similarity per joint.
+        The similarity per joint (empty when the data has no torque columns, only a wrench).
     """
+    if prepared.tau is None:
+        return np.empty(0)
     return check_torque_signs(prepared.tau, robot_torques(robot, prepared, robot.phi_model), prepared.joints,
                               prepared.source)

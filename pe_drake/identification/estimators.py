@@ -1,6 +1,8 @@
 """Identification of the inertial parameters from measured joint data.
 
-The measured torques of S samples of n joints are stacked into the linear model of Eq. (4),
+The measured torques of S samples of n joints (or the ground wrench, or both: the
+``measurement`` of :mod:`pe_drake.identification.channels`, issue 14) are stacked into the
+linear model of Eq. (4),
 
     τ = Y_B(q, v, v̇) φ_B + ρ,          W = [Y_B(1); …; Y_B(S)]  (S·n × b),
 
@@ -32,11 +34,14 @@ from typing import NamedTuple
 import numpy as np
 
 from pe_drake.exceptions import ConfigError, DataError
+from pe_drake.identification.channels import channel_names, measured_rows, measured_values
 from pe_drake.identification.measurements import Measurement, Preprocessing, check_torque_units, read_measurement_csv
 from pe_drake.identification.preprocessing import preprocess
 from pe_drake.multibody.base_parameters import BaseParameters, compute_base_parameters
 from pe_drake.multibody.inertia import pseudo_inertia_basis
 from pe_drake.multibody.regressor import RegressorModel
+from pe_drake.multibody.sensors import MeasurementType, SensorRows
+from pe_drake.multibody.wrench import static_wrench
 
 METHODS = ("ols", "wls", "physical")
 #: Weight of the pull toward the a-priori parameters in the physical fit, relative to the
@@ -67,13 +72,16 @@ class IdentificationResult:
         phi: identified standard parameters (10 per body, about each body origin) for
             ``physical``, else None.
         cond: cond(W) of the (unweighted) stacked data regressor.
-        residual_rms: per-joint RMS of τ − W φ_B on the identification data [N·m].
-        relative_error: per-joint 100·‖ρ_j‖/‖τ_j‖ [%].
-        noise_std: per-joint residual standard deviation σ_j [N·m] (WLS weights).
+        residual_rms: per-channel RMS of y − W φ_B on the identification data [N·m, N].
+        relative_error: per-channel 100·‖ρ_c‖/‖y_c‖ [%].
+        noise_std: per-channel residual standard deviation σ_c (WLS weights).
         samples: S, samples used (after preprocessing).
         preprocessing: what :func:`pe_drake.identification.preprocessing.preprocess` did (or None).
         wall_time: seconds spent in the estimator (regressor included).
         source: the data file.
+        measurement: "joint_torque", "base_wrench" or "both": the channels identified from.
+        channels: the channel of each entry of residual_rms, relative_error and noise_std:
+            joint names (torques), then :data:`~pe_drake.multibody.wrench.WRENCH_COLUMNS`.
     """
 
     robot: str
@@ -91,6 +99,8 @@ class IdentificationResult:
     preprocessing: Preprocessing | None = None
     wall_time: float = 0.0
     source: str = ""
+    measurement: str = "joint_torque"
+    channels: tuple[str, ...] = ()
 
 
 # ---- data ------------------------------------------------------------------------------------
@@ -148,7 +158,7 @@ def prepare_measurement(
                 file=measurement.source,
             )
         data = measurement
-    if check_units:
+    if check_units and data.tau is not None:
         check_torque_units(data, robot_torques(robot, data, robot.phi_model))
     return data
 
@@ -197,16 +207,26 @@ def regressor_matrices(
 # ---- estimators ------------------------------------------------------------------------------
 
 
-def _check_rows(data: Measurement, base: BaseParameters) -> None:
-    rows = data.num_samples * data.num_joints
+def _check_rows(data: Measurement, base: BaseParameters, channels: int) -> None:
+    rows = data.num_samples * channels
     need = MIN_ROWS_PER_PARAMETER * base.count
     if rows < need:
         raise DataError(
-            f"{data.num_samples} samples × {data.num_joints} joints = {rows} equations after "
+            f"{data.num_samples} samples × {channels} channels = {rows} equations after "
             f"preprocessing; identifying {base.count} base parameters needs at least {need} "
-            f"({math.ceil(need / data.num_joints)} samples): record a longer run",
+            f"({math.ceil(need / channels)} samples): record a longer run",
             file=data.source,
         )
+
+
+def measurement_base_parameters(
+    robot, measurement: str = "joint_torque", model: RegressorModel | None = None
+) -> BaseParameters:
+    """The base parameters a measurement identifies (:class:`~pe_drake.multibody.sensors.SensorRows`)."""
+    model = model or RegressorModel(robot)
+    if measurement == "joint_torque":
+        return compute_base_parameters(robot, model=model)
+    return SensorRows(model, MeasurementType(measurement)).base_parameters()
 
 
 def _lstsq(W: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -239,6 +259,7 @@ def identify(
     base: BaseParameters | None = None,
     prior: np.ndarray | None = None,
     model: RegressorModel | None = None,
+    measurement: str = "joint_torque",
 ) -> IdentificationResult:
     """Identifies the base parameters (and, for ``physical``, the standard ones).
 
@@ -246,13 +267,17 @@ def identify(
         robot: the robot.
         data: preprocessed data (:func:`prepare_measurement`), with v and vd.
         method: "ols", "wls" or "physical".
-        base: the base composition (default: computed for the robot).
+        base: the base composition (default: the measurement's, :func:`measurement_base_parameters`).
         prior: a-priori standard parameters for ``physical`` (default: the robot's model).
         model: a :class:`RegressorModel` to reuse.
+        measurement: the channels to fit (:mod:`pe_drake.identification.channels`):
+            "joint_torque", "base_wrench" (the ground wrench alone) or "both" (WLS weighs
+            every channel by its residual).
 
     Raises:
-        ConfigError: unknown method.
-        DataError: too few samples, a data set that does not excite every base parameter.
+        ConfigError: unknown method or measurement.
+        DataError: too few samples, a data set that does not excite every base parameter,
+            data without the measurement's channels.
     """
     if method not in METHODS:
         raise ConfigError(f"unknown identification method '{method}'; valid: {', '.join(METHODS)}")
@@ -260,13 +285,16 @@ def identify(
         raise DataError("the data has no velocities/accelerations; preprocess it first", file=data.source)
     start = time.perf_counter()
     model = model or RegressorModel(robot)
-    base = base or compute_base_parameters(robot, model=model)
-    _check_rows(data, base)
-    YB, tau, base, Y = regressor_matrices(robot, data, base, model)
+    base = base or measurement_base_parameters(robot, measurement, model)
+    channels = channel_names(robot, measurement)
+    _check_rows(data, base, len(channels))
+    tau = measured_values(robot, data, measurement)  # (S, r): torques and/or wrench, per channel
+    Y = measured_rows(robot, data, measurement, model)
+    YB = base.reduce(Y)
     ols = _ordinary_fit(YB, tau)
     phi_B, cov, phi = ols.phi_B, ols.cov, None
     if method in ("wls", "physical"):
-        # Gautier: rows of joint j weighted by 1/σ_j.
+        # Gautier: rows of channel j weighted by 1/σ_j.
         noise_std = ols.noise_std
         w = 1.0 / np.maximum(noise_std, 1e-9 * max(float(noise_std.max()), 1e-12))
         S, n, b = YB.shape
@@ -294,6 +322,8 @@ def identify(
         preprocessing=data.preprocessing,
         wall_time=time.perf_counter() - start,
         source=data.source,
+        measurement=measurement,
+        channels=channels,
     )
 
 
@@ -409,6 +439,18 @@ def predict(
     """Torques the identified model predicts at the samples of ``data``, shape (S, n)."""
     YB, _, _, _ = regressor_matrices(robot, data, result.base, model)
     return YB @ result.phi_B
+
+
+def predict_wrench(
+    robot, result: IdentificationResult, data: Measurement, model: RegressorModel | None = None
+) -> np.ndarray:
+    """The ground wrench the identified model predicts at the samples of ``data``, (S, 6)
+    [N, N·m] (the a-priori weight of the bodies no excited joint moves included; no offset)."""
+    model = model or RegressorModel(robot)
+    W = np.concatenate(
+        [model.wrench_regressor(model.kinematics(data.q[r], data.v[r], data.vd[r])) for r in _chunks(data.num_samples)]
+    )
+    return result.base.reduce(W) @ result.phi_B + static_wrench(robot)
 
 
 class TorqueErrors(NamedTuple):

@@ -16,9 +16,11 @@ from typing import Any
 
 import numpy as np
 
+from pe_drake.config import MEASUREMENTS
 from pe_drake.exceptions import DataError
-from pe_drake.identification.estimators import IdentificationResult
-from pe_drake.multibody.base_parameters import compute_base_parameters
+from pe_drake.identification.channels import channel_names
+from pe_drake.identification.estimators import IdentificationResult, measurement_base_parameters
+from pe_drake.identification.measurements import Preprocessing
 from pe_drake.multibody.inertia import PARAMETER_NAMES, validity_problems
 
 
@@ -26,11 +28,27 @@ def _finite_or_none(x: float) -> float | None:
     return float(x) if math.isfinite(x) else None
 
 
+def data_used(p: Preprocessing, samples: int) -> dict[str, Any]:
+    """How much of the recording the fit used (identified.json's ``data_used``)."""
+    # A fit on part of the preprocessed samples (e.g. the first half) used samples / rate of it.
+    fitted_s = p.duration_out_s if samples == p.samples_out else samples / p.rate_hz
+    return {
+        "samples_fitted": int(samples),
+        "samples_recorded": int(p.samples_in),
+        "time_fitted_s": fitted_s,
+        "time_recorded_s": p.duration_in_s,
+        "trimmed_at_each_end_s": p.trim_s,
+        "fraction_of_record_time": fitted_s / p.duration_in_s if p.duration_in_s > 0 else None,
+        "why_trimmed": "the low-pass filter's edge transient (odd extension) on the accelerations",
+    }
+
+
 def result_to_dict(result: IdentificationResult, robot, model_file: str | None = None) -> dict[str, Any]:
     """The content of identified.json."""
     out: dict[str, Any] = {
         "robot": result.robot,
         "method": result.method,
+        "measurement": result.measurement,
         "joints": list(result.joints),
         "data": result.source,
         "samples": result.samples,
@@ -46,13 +64,15 @@ def result_to_dict(result: IdentificationResult, robot, model_file: str | None =
                 result.base.base_names, result.phi_B, result.sigma_percent, result.base.independent
             )
         ],
-        "residual_rms": dict(zip(result.joints, map(float, result.residual_rms))),
-        "relative_error": dict(zip(result.joints, map(float, result.relative_error))),
-        "noise_std": dict(zip(result.joints, map(float, result.noise_std))),
+        # Per channel: joint names (torques), then wrench.fx ... wrench.mz.
+        "residual_rms": dict(zip(result.channels or result.joints, map(float, result.residual_rms))),
+        "relative_error": dict(zip(result.channels or result.joints, map(float, result.relative_error))),
+        "noise_std": dict(zip(result.channels or result.joints, map(float, result.noise_std))),
         "wall_time": result.wall_time,
     }
     if result.preprocessing is not None:
         out["preprocessing"] = dataclasses.asdict(result.preprocessing)
+        out["data_used"] = data_used(result.preprocessing, result.samples)
     if result.phi is not None:
         out["standard_parameters"] = standard_parameters_dict(robot, result.phi)
         out["physically_valid"] = not validity_problems(robot.body_names, result.phi)
@@ -102,7 +122,11 @@ def load_identified(path: str | Path, robot) -> IdentificationResult:
             f"excites {', '.join(robot.joint_names)}",
             file=str(path),
         )
-    base = compute_base_parameters(robot)
+    measurement = d.get("measurement", "joint_torque")
+    if measurement not in MEASUREMENTS:
+        raise DataError(f"measurement '{measurement}' is not one of {', '.join(MEASUREMENTS)}", file=str(path))
+    base = measurement_base_parameters(robot, measurement)
+    channels = channel_names(robot, measurement)
     if not np.array_equal(columns, base.independent):
         raise DataError(
             f"the base parameters in the file ({len(columns)}) do not match robot '{robot.name}' "
@@ -125,11 +149,13 @@ def load_identified(path: str | Path, robot) -> IdentificationResult:
         sigma_percent=sigma,
         phi=phi,
         cond=float(d.get("cond", float("nan"))),
-        residual_rms=np.array([d.get("residual_rms", {}).get(j, np.nan) for j in joints]),
-        relative_error=np.array([d.get("relative_error", {}).get(j, np.nan) for j in joints]),
-        noise_std=np.array([d.get("noise_std", {}).get(j, np.nan) for j in joints]),
+        residual_rms=np.array([d.get("residual_rms", {}).get(c, np.nan) for c in channels]),
+        relative_error=np.array([d.get("relative_error", {}).get(c, np.nan) for c in channels]),
+        noise_std=np.array([d.get("noise_std", {}).get(c, np.nan) for c in channels]),
         samples=int(d.get("samples", 0)),
         source=d.get("data", ""),
+        measurement=measurement,
+        channels=channels,
     )
 
 

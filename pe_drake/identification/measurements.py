@@ -6,7 +6,11 @@ File format (SI units, one row per sample, comma separated, one header line):
 - ``q.<joint>``: joint position [rad or m], for every excited joint;
 - ``tau.<joint>``: joint torque [N·m or N] the actuator applies, for every excited joint;
 - ``v.<joint>``: joint velocity [rad/s or m/s], optional (all joints or none);
-- ``vdot.<joint>``: joint acceleration [rad/s² or m/s²], optional (all joints or none).
+- ``vdot.<joint>``: joint acceleration [rad/s² or m/s²], optional (all joints or none);
+- ``wrench.fx, wrench.fy, wrench.fz, wrench.mx, wrench.my, wrench.mz``: the wrench the ground
+  applies to the robot [N, N·m] (world frame, moment about the world origin), optional (all
+  six or none); with them the ``tau.<joint>`` columns may be left out (a robot without
+  joint-torque sensors, identified from its feet's force/torque sensors: issue 14).
 
 Columns may come in any order; columns whose name has none of the prefixes above are ignored.
 Rows are reported as **data rows counted from 1** (the first line after the header is data row
@@ -29,6 +33,7 @@ import numpy as np
 
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.io_utils import atomic_write_text
+from pe_drake.multibody.wrench import WRENCH_COLUMNS
 
 #: Column prefixes of the format, in the order written.
 PREFIXES = ("q", "v", "vdot", "tau")
@@ -52,6 +57,8 @@ class Preprocessing:
         acceleration_source: "measured" (filtered ``vdot.*`` columns) or "differentiated".
         samples_in: raw samples.
         samples_out: output samples.
+        duration_in_s: time span of the raw record [s].
+        duration_out_s: time span of the output (after trimming) [s].
     """
 
     cutoff_hz: float
@@ -65,6 +72,8 @@ class Preprocessing:
     acceleration_source: str
     samples_in: int
     samples_out: int
+    duration_in_s: float = 0.0
+    duration_out_s: float = 0.0
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -74,23 +83,27 @@ class Measurement:
     Attributes:
         t: time, shape (T,) [s], strictly increasing.
         q: joint positions, shape (T, n) [rad or m].
-        tau: joint torques the actuators apply, shape (T, n) [N·m or N].
+        tau: joint torques the actuators apply, shape (T, n) [N·m or N], or None when only
+            the ground wrench was measured.
         v: joint velocities, shape (T, n) [rad/s or m/s], or None when not measured.
         vd: joint accelerations, shape (T, n) [rad/s² or m/s²], or None.
         joints: joint names, length n, in column order of q/tau/v/vd.
         source: file the data came from ("" when built in memory).
         preprocessing: what :func:`~pe_drake.identification.preprocessing.preprocess` did, or
             None for raw data.
+        wrench: the ground wrench, shape (T, 6) [N, N·m] (columns :data:`WRENCH_COLUMNS`),
+            or None.
     """
 
     t: np.ndarray
     q: np.ndarray
-    tau: np.ndarray
+    tau: np.ndarray | None
     v: np.ndarray | None = None
     vd: np.ndarray | None = None
     joints: tuple[str, ...] = ()
     source: str = ""
     preprocessing: Preprocessing | None = None
+    wrench: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         t = np.asarray(self.t, float)
@@ -99,11 +112,17 @@ class Measurement:
         object.__setattr__(self, "t", t)
         object.__setattr__(self, "joints", tuple(self.joints))
         n = len(self.joints)
+        if self.wrench is not None:
+            wrench = np.asarray(self.wrench, float)
+            if wrench.shape != (t.shape[0], 6):
+                raise DataError(f"wrench has shape {wrench.shape}, expected ({t.shape[0]}, 6)", file=self.source)
+            object.__setattr__(self, "wrench", wrench)
         for name in ("q", "tau", "v", "vd"):
             value = getattr(self, name)
             if value is None:
-                if name in ("q", "tau"):
-                    raise DataError(f"{name} is required", file=self.source)
+                if name == "q" or (name == "tau" and self.wrench is None):
+                    raise DataError(f"{name} is required" + (" (or the wrench)" if name == "tau" else ""),
+                                    file=self.source)
                 continue
             value = np.asarray(value, float)
             if value.shape != (t.shape[0], n):
@@ -181,14 +200,17 @@ def read_measurement_csv(path: str | Path, joints, *, min_rows: int = 10) -> Mea
     columns = [c.strip().strip('"').strip("'") for c in header.split(",")]
     data = numbered[1:]
 
-    index = _column_index(columns, joints, file)
+    has_wrench = _wrench_block(columns, file)
+    index = _column_index(columns, joints, file, tau_required=not has_wrench)
+    has_tau = _optional_block(index, "tau", joints, file)
     has_v = _optional_block(index, "v", joints, file)
     has_vd = _optional_block(index, "vdot", joints, file)
-    wanted = ["t"] + [f"q.{j}" for j in joints] + [f"tau.{j}" for j in joints]
-    if has_v:
-        wanted += [f"v.{j}" for j in joints]
-    if has_vd:
-        wanted += [f"vdot.{j}" for j in joints]
+    wanted = ["t"] + [f"q.{j}" for j in joints]
+    for prefix, present in (("tau", has_tau), ("v", has_v), ("vdot", has_vd)):
+        if present:
+            wanted += [f"{prefix}.{j}" for j in joints]
+    if has_wrench:
+        wanted += list(WRENCH_COLUMNS)
 
     if len(data) < min_rows:
         raise DataError(f"only {len(data)} data rows; at least {min_rows} are needed", file=file)
@@ -197,12 +219,24 @@ def read_measurement_csv(path: str | Path, joints, *, min_rows: int = 10) -> Mea
     t = table[:, 0]
     _check_time(t, data, file)
     n = len(joints)
-    blocks = [table[:, 1 + k * n : 1 + (k + 1) * n] for k in range((len(wanted) - 1) // n)]
-    q, tau = blocks[0], blocks[1]
-    v = blocks[2] if has_v else None
-    vd = blocks[2 + has_v] if has_vd else None
-    return Measurement(t.copy(), q.copy(), tau.copy(), None if v is None else v.copy(),
-                       None if vd is None else vd.copy(), joints, file)
+    wrench = table[:, -6:].copy() if has_wrench else None
+    blocks = iter(table[:, 1 + k * n : 1 + (k + 1) * n].copy() for k in range(1 + has_tau + has_v + has_vd))
+    q = next(blocks)
+    tau, v, vd = (next(blocks) if present else None for present in (has_tau, has_v, has_vd))
+    return Measurement(t.copy(), q, tau, v, vd, joints, file, wrench=wrench)
+
+
+def _wrench_block(columns: list[str], file: str) -> bool:
+    """Whether the file has the ground-wrench columns (all six; some of them is an error)."""
+    present = [c in columns for c in WRENCH_COLUMNS]
+    if any(present) and not all(present):
+        missing = [c for c, p in zip(WRENCH_COLUMNS, present) if not p]
+        raise DataError(
+            f"ground-wrench columns are incomplete: {', '.join(missing)} missing; give all of "
+            f"{', '.join(WRENCH_COLUMNS)} [N, N·m] or none",
+            file=file, column=missing[0],
+        )
+    return all(present)
 
 
 def _numbered_lines(path: Path) -> list[tuple[int, str]]:
@@ -255,7 +289,7 @@ def _check_time(t: np.ndarray, data, file: str) -> None:
         )
 
 
-def _column_index(columns: list[str], joints: tuple[str, ...], file: str) -> dict[str, int]:
+def _column_index(columns: list[str], joints: tuple[str, ...], file: str, tau_required: bool = True) -> dict[str, int]:
     index: dict[str, int] = {}
     for k, name in enumerate(columns):
         if name in index:
@@ -269,11 +303,13 @@ def _column_index(columns: list[str], joints: tuple[str, ...], file: str) -> dic
                 f"{', '.join(joints)} (rename or drop the column)",
                 file=file, column=name,
             )
-    missing = [c for c in _expected_columns(joints) if c not in index]
+    required = [c for c in _expected_columns(joints) if tau_required or not c.startswith("tau.")]
+    missing = [c for c in required if c not in index]
     if missing:
         raise DataError(
             f"missing column(s) {', '.join(missing)}; expected columns: "
-            f"{', '.join(_expected_columns(joints))} (optional: v.<joint>, vdot.<joint>)",
+            f"{', '.join(_expected_columns(joints))} (optional: v.<joint>, vdot.<joint>; "
+            f"{', '.join(WRENCH_COLUMNS)}, which make tau.<joint> optional)",
             file=file, column=missing[0],
         )
     return index
@@ -333,8 +369,12 @@ def measurement_to_csv_text(measurement: Measurement) -> str:
     if m.vd is not None:
         header += [f"vdot.{j}" for j in m.joints]
         blocks.append(m.vd)
-    header += [f"tau.{j}" for j in m.joints]
-    blocks.append(m.tau)
+    if m.tau is not None:
+        header += [f"tau.{j}" for j in m.joints]
+        blocks.append(m.tau)
+    if m.wrench is not None:
+        header += list(WRENCH_COLUMNS)
+        blocks.append(m.wrench)
     table = np.hstack(blocks)
     bad = ~np.isfinite(table)
     if bad.any():

@@ -8,7 +8,7 @@ recovers.
 
 The true robot is the a-priori model with:
 
-- inertial parameters perturbed per body (:func:`perturb_inertias`), each body kept
+- inertial parameters perturbed per body (:func:`pe_drake.multibody.inertia.perturb_inertias`), each body kept
   physically valid;
 - viscous friction as Drake joint damping (it *replaces* the model file's damping, so an
   effect-free truth has none);
@@ -18,12 +18,14 @@ The true robot is the a-priori model with:
 - armature (reflected rotor inertia) as the rotor inertia of a Drake ``JointActuator``
   (gear ratio 1), added when the joint has none;
 - constant torque offsets as a constant generalized force on the joint;
+- pre-sliding (Dahl) friction F_c·z as a small Drake system with one state per joint
+  (:mod:`pe_drake.identification.dahl`) whose torque adds to the controller's;
 - a payload body welded to a link.
 
 **Sign convention of the recorded torque.** ``tau`` is the torque the actuator applies. The
 effects are resistive loads the actuator must overcome, so once tracking has converged::
 
-    tau(t) = ID_rb(q, v, vd) + viscous·v + coulomb·tanh(v/v_s) + armature·vd + offset
+    tau(t) = ID_rb(q, v, vd) + viscous·v + coulomb·tanh(v/v_s) + F_c·z + armature·vd + offset
 
 with ``ID_rb`` the true rigid-body inverse dynamics (payload and perturbed inertias included).
 An offset o is thus a constant torque -o acting on the joint (a spring or cable preload);
@@ -58,6 +60,7 @@ import numpy as np
 from pe_drake.config import check_finite
 from pe_drake.exceptions import ConfigError, DataError, PeDrakeError
 from pe_drake.excitation.fourier import FourierTrajectory
+from pe_drake.identification.dahl import dahl_builder_hook
 from pe_drake.identification.measurements import Measurement
 from pe_drake.identification.truth import (
     Truth,
@@ -66,93 +69,24 @@ from pe_drake.identification.truth import (
     per_joint_values,
     validate_truth,
 )
+from pe_drake.identification.wrench_log import recorded_wrench
 from pe_drake.multibody.inertia import (
     PARAMETER_NAMES,
-    phi_from_com,
+    perturb_inertias,
     phi_to_spatial_inertia,
-    principal_inertia,
     spatial_inertia_to_phi,
 )
 from pe_drake.multibody.robot import Robot, load_robot
+from pe_drake.multibody.sensors import MeasurementType
 
 PAYLOAD_BODY_NAME = "pe_drake_payload"
+#: Input port of the true robot's diagram that takes the controller's torque when a Dahl
+#: friction system shares the plant's applied-generalized-force input.
+APPLIED_FORCE_PORT = "applied_generalized_force"
 
 
 class SimulationError(PeDrakeError):
     """The simulation diverged (NaN or infinite state)."""
-
-
-# ---- inertial perturbation -------------------------------------------------------------------
-
-
-def perturb_inertias(
-    phi: np.ndarray, size: float, rng: int | np.random.Generator = 0, max_tries: int = 100
-) -> np.ndarray:
-    """Random, physically valid perturbation of every body's inertial parameters.
-
-    Per body with mass m > 0 (massless frames are left alone), with U uniform in [-1, 1]
-    drawn independently for each number:
-
-    - m' = m (1 + ε U);
-    - centre of mass p' = p + ε U₃ max(|p|, r), r = √(tr I_cm / 2m) the radius of gyration;
-    - principal moments of the central inertia λ' = λ (1 + ε U₃), redrawn until they satisfy
-      the triangle inequality; principal axes rotated by an angle ε U [rad] about a random
-      axis;
-    - rebuilt about the body origin (parallel-axis theorem) and checked with Drake's
-      ``SpatialInertia.IsPhysicallyValid``.
-
-    Args:
-        phi: parameters, shape (10·nb,) in :data:`pe_drake.multibody.robot.PARAMETER_NAMES` order.
-        size: ε, relative size in [0, 0.5].
-        rng: seed or numpy Generator.
-        max_tries: redraws per body before giving up.
-
-    Returns:
-        Perturbed parameters, shape (10·nb,); equal to phi when size is 0.
-
-    Raises:
-        ConfigError: a bad size, or a body whose inertia cannot be made valid (an invalid
-            a-priori inertia).
-    """
-    size = check_finite("inertia_perturbation", size, nonneg=True)
-    if size > 0.5:
-        raise ConfigError(f"inertia_perturbation must lie in [0, 0.5], got {size}")
-    rng = np.random.default_rng(rng) if not isinstance(rng, np.random.Generator) else rng
-    phi = np.asarray(phi, float)
-    out = phi.copy()
-    if size == 0:
-        return out
-    for b in range(phi.size // 10):
-        m = phi[10 * b]
-        if m <= 0:
-            continue
-        for _ in range(max_tries):
-            new = _perturb_body(phi[10 * b : 10 * b + 10], size, rng)
-            if new is not None and phi_to_spatial_inertia(new).IsPhysicallyValid():
-                out[10 * b : 10 * b + 10] = new
-                break
-        else:
-            raise ConfigError(
-                f"body {b}: could not perturb its inertia into a physically valid one in "
-                f"{max_tries} tries; is the model's inertia valid?"
-            )
-    return out
-
-
-def _perturb_body(phi_b: np.ndarray, eps: float, rng: np.random.Generator) -> np.ndarray | None:
-    m, p, lam, R, r_gyr = principal_inertia(phi_b)
-    m2 = m * (1 + eps * rng.uniform(-1, 1))
-    p2 = p + eps * rng.uniform(-1, 1, 3) * max(np.linalg.norm(p), r_gyr)
-    lam2 = lam * (1 + eps * rng.uniform(-1, 1, 3))
-    axis = rng.normal(size=3)
-    axis /= np.linalg.norm(axis)
-    angle = eps * rng.uniform(-1, 1)
-    if lam2.max() > lam2.sum() - lam2.max():  # triangle inequality
-        return None
-    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    dR = np.eye(3) + math.sin(angle) * K + (1 - math.cos(angle)) * K @ K  # Rodrigues
-    R2 = dR @ R
-    return phi_from_com(m2, p2, R2 @ np.diag(lam2) @ R2.T)
 
 
 # ---- the true robot --------------------------------------------------------------------------
@@ -170,6 +104,9 @@ class TrueRobot:
         phi_payload: payload parameters about the link origin in the link frame, (10,).
         viscous, coulomb, armature, torque_offset: per joint, shape (n,).
         model_damping: the model file's joint damping (replaced by ``viscous``), (n,).
+        presliding, presliding_stiffness: Dahl F_c [N·m] and σ0 [N·m/rad] per joint, (n,);
+            when any F_c > 0 the diagram holds the Dahl system and exports the input port
+            ``applied_generalized_force`` that the controller drives.
     """
 
     robot: Any
@@ -181,6 +118,15 @@ class TrueRobot:
     armature: np.ndarray
     torque_offset: np.ndarray
     model_damping: np.ndarray
+    presliding: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
+    presliding_stiffness: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
+
+    def force_input(self):
+        """(port, context) of the applied generalized force the controller sets: the
+        plant's, or the diagram's exported input when the Dahl system adds its torque."""
+        if np.any(self.presliding > 0):
+            return self.robot.diagram.GetInputPort(APPLIED_FORCE_PORT), self.robot.context
+        return self.robot.plant.get_applied_generalized_force_input_port(), self.robot.plant_context
 
 
 def build_true_robot(robot, truth: Truth) -> TrueRobot:
@@ -224,7 +170,10 @@ def build_true_robot(robot, truth: Truth) -> TrueRobot:
     seeds = np.random.SeedSequence(truth.seed).spawn(2)
     rng = np.random.default_rng(seeds[0])
     phi_bodies = perturb_inertias(robot.phi_model, truth.inertia_perturbation, rng)
-    true = load_robot(robot.config, time_step=0.0, before_finalize=before_finalize)
+    fc = per_joint_values(e.presliding_friction, joints)
+    sigma0 = per_joint_values(e.presliding_stiffness, joints)
+    hook = dahl_builder_hook(fc, sigma0, APPLIED_FORCE_PORT) if np.any(fc > 0) else None
+    true = load_robot(robot.config, time_step=0.0, before_finalize=before_finalize, builder_hook=hook)
     for b, name in enumerate(robot.body_names):
         phi_b = phi_bodies[10 * b : 10 * b + 10]
         if phi_b[0] <= 0:  # massless frames are not perturbed; keep the model's value
@@ -237,7 +186,8 @@ def build_true_robot(robot, truth: Truth) -> TrueRobot:
         phi_payload = spatial_inertia_to_phi(payload_M)
         b = robot.body_names.index(e.payload.link)
         phi[10 * b : 10 * b + 10] += phi_payload
-    return TrueRobot(true, phi, phi_bodies, phi_payload, viscous, coulomb, armature, offset, model_damping)
+    return TrueRobot(true, phi, phi_bodies, phi_payload, viscous, coulomb, armature, offset, model_damping,
+                     fc, sigma0)
 
 
 def _add_coulomb_friction(plant, joint, f_c: float, v_s: float) -> None:
@@ -336,6 +286,7 @@ def simulate(
     trajectory: FourierTrajectory,
     truth: Truth | str | Path,
     duration: float | None = None,
+    measurement: str = "joint_torque",
 ) -> SimulatedRun:
     """Simulates a run of the true robot tracking a trajectory; returns what it logs.
 
@@ -344,6 +295,8 @@ def simulate(
         trajectory: the trajectory to track (joints in the robot's order).
         truth: a :class:`~pe_drake.identification.truth.Truth` or the path of a TRUTH.yaml.
         duration: simulated time [s]; default one period of the trajectory.
+        measurement: what the robot logs: "joint_torque" (tau), "base_wrench" (the ground
+            wrench alone, :mod:`pe_drake.identification.wrench_log`) or "both".
 
     Returns:
         The :class:`SimulatedRun`: the :class:`~pe_drake.identification.measurements.Measurement`
@@ -360,8 +313,11 @@ def simulate(
     duration = _check_run(robot, trajectory, truth, duration)
     true = build_true_robot(robot, truth)
     log = track_trajectory(robot, true, trajectory, truth, duration)
-    measurement = record_log(robot, truth, log)
-    return SimulatedRun(measurement, _truth_dict(robot, truth, true, duration, log))
+    sensors = MeasurementType(measurement)
+    data = record_log(robot, truth, log)
+    wrench = recorded_wrench(true.robot, truth, log.q, log.v, log.tau - true.torque_offset) if sensors.wrench else None
+    data = data.replace(tau=data.tau if sensors.torques else None, wrench=wrench)
+    return SimulatedRun(data, {**_truth_dict(robot, truth, true, duration, log), "measurement": sensors.kind})
 
 
 def _check_run(robot, trajectory: FourierTrajectory, truth: Truth, duration: float | None) -> float:
@@ -398,7 +354,8 @@ def _start_simulator(true: TrueRobot, truth: Truth, q0: np.ndarray, v0: np.ndarr
     plant, ctx = true.robot.plant, true.robot.plant_context
     plant.SetPositions(ctx, q0)
     plant.SetVelocities(ctx, v0)
-    plant.get_applied_generalized_force_input_port().FixValue(ctx, np.zeros(len(q0)))
+    port, port_context = true.force_input()
+    port.FixValue(port_context, np.zeros(len(q0)))
     simulator = Simulator(true.robot.diagram, true.robot.context)
     integrator = ResetIntegratorFromFlags(simulator, truth.integrator, h)
     if not integrator.get_fixed_step_mode():  # fixed-step schemes step at 1 / rate_hz
@@ -434,7 +391,7 @@ def track_trajectory(
     q_d, v_d, vd_d = trajectory.evaluate(t)
     kp, kd = truth.control.kp, truth.control.kd
     simulator = _start_simulator(true, truth, q_d[0], v_d[0], h)
-    port = plant.get_applied_generalized_force_input_port()
+    port, port_context = true.force_input()
     q_log, v_log, tau_log = (np.empty((count, robot.n)) for _ in range(3))
     wall = time.perf_counter()
     for k in range(count):
@@ -448,7 +405,7 @@ def track_trajectory(
         q_log[k], v_log[k], tau_log[k] = q, v, tau
         if k + 1 < count:
             # The offset is a constant load the actuator must overcome (module docstring).
-            port.FixValue(ctx, tau - true.torque_offset)
+            port.FixValue(port_context, tau - true.torque_offset)
             simulator.AdvanceTo(t[k + 1])
             if not np.isfinite(plant.GetPositionsAndVelocities(ctx)).all():
                 raise SimulationError(
@@ -525,7 +482,7 @@ def _truth_dict(robot, truth: Truth, true: TrueRobot, duration: float, log: Trac
         "inertia_perturbation": truth.inertia_perturbation,
         "torque_equation": (
             "tau_recorded(t) = [ID_rigid_body_true(q, v, vd) + viscous*v + coulomb*tanh(v/"
-            "coulomb_velocity_scale) + armature*vd + torque_offset](t - torque_delay) + noise"
+            "coulomb_velocity_scale) + presliding*z + armature*vd + torque_offset](t - torque_delay) + noise"
         ),
         "effects": {
             "viscous": {"unit": "N·m·s/rad", "values": per_joint(true.viscous),
@@ -535,6 +492,11 @@ def _truth_dict(robot, truth: Truth, true: TrueRobot, duration: float, log: Trac
                         "velocity_scale": e.coulomb_velocity_scale, "velocity_scale_unit": "rad/s",
                         "model": "coulomb * tanh(v / velocity_scale)"},
             "armature": {"unit": "kg·m²", "values": per_joint(true.armature)},
+            "presliding_friction": {"unit": "N·m", "values": per_joint(true.presliding),
+                                    "stiffness": per_joint(true.presliding_stiffness),
+                                    "stiffness_unit": "N·m/rad",
+                                    "model": "Dahl: dz/dt = v (1 - z sgn v) * stiffness / presliding, "
+                                             "torque presliding * z"},
             "torque_offset": {"unit": "N·m", "values": per_joint(true.torque_offset),
                               "convention": "added to the recorded torque (a constant load -offset "
                                             "acts on the joint)"},
@@ -548,7 +510,8 @@ def _truth_dict(robot, truth: Truth, true: TrueRobot, duration: float, log: Trac
             },
         },
         "noise": {**dataclasses.asdict(truth.noise),
-                  "units": {"q_std": "rad", "v_std": "rad/s", "tau_std": "N·m"}},
+                  "units": {"q_std": "rad", "v_std": "rad/s", "tau_std": "N·m", "force_std": "N",
+                            "moment_std": "N·m", "wrench_offset": "N, N·m (fx, fy, fz, mx, my, mz)"}},
         "control": {**dataclasses.asdict(truth.control), "law": "computed torque + PD, zero-order hold",
                     "units": {"rate_hz": "Hz", "kp": "1/s²", "kd": "1/s"}},
         "record_velocity": truth.record_velocity,

@@ -17,6 +17,7 @@ import numpy as np
 
 from pe_drake.config import check_finite, load_yaml_typed
 from pe_drake.exceptions import ConfigError, UnknownNameError
+from pe_drake.multibody.wrench import WRENCH_COLUMNS
 
 #: Key of a per-joint table that sets every joint not listed by name.
 ALL_JOINTS = "all"
@@ -58,6 +59,10 @@ class EffectsTruth:
             :mod:`pe_drake.identification.simulation`).
         torque_delay: recorded torque lags the positions by this [s] (negative: leads).
         payload: see :class:`PayloadTruth`.
+        presliding_friction: Dahl friction level F_c [N·m] (:mod:`pe_drake.identification.dahl`,
+            a Drake system with one state per joint).
+        presliding_stiffness: its stiffness at rest σ0 [N·m/rad]; the pre-sliding
+            displacement is F_c/σ0. Needed for every joint with ``presliding_friction``.
     """
 
     viscous: dict[str, float] = dataclasses.field(default_factory=dict)
@@ -67,6 +72,8 @@ class EffectsTruth:
     torque_offset: dict[str, float] = dataclasses.field(default_factory=dict)
     torque_delay: float = 0.0
     payload: PayloadTruth = dataclasses.field(default_factory=PayloadTruth)
+    presliding_friction: dict[str, float] = dataclasses.field(default_factory=dict)
+    presliding_stiffness: dict[str, float] = dataclasses.field(default_factory=dict)
 
 
 @dataclasses.dataclass
@@ -78,12 +85,20 @@ class NoiseTruth:
         q_std: white noise on q [rad].
         v_std: white noise on v [rad/s] (only with ``record_velocity``).
         tau_std: white noise on tau [N·m].
+        force_std: white noise on the ground wrench's force [N] (``wrench.f*`` columns).
+        moment_std: white noise on the ground wrench's moment [N·m] (``wrench.m*``).
+        wrench_offset: constant offset of the force/torque sensor, [fx, fy, fz, mx, my, mz]
+            [N, N·m]; empty means none. Its fz, mx, my cannot be told from the total mass and
+            horizontal centre of mass of the moving bodies (:mod:`pe_drake.identification.channels`).
     """
 
     encoder_counts_per_rev: int = 0
     q_std: float = 0.0
     v_std: float = 0.0
     tau_std: float = 0.0
+    force_std: float = 0.0
+    moment_std: float = 0.0
+    wrench_offset: list[float] = dataclasses.field(default_factory=list)
 
 
 @dataclasses.dataclass
@@ -110,7 +125,7 @@ class Truth:
 
     Attributes:
         seed: seeds the inertial perturbation and, independently, the noise.
-        inertia_perturbation: relative size ε in [0, 0.5] (:func:`perturb_inertias`).
+        inertia_perturbation: relative size ε in [0, 0.5] (:func:`pe_drake.multibody.inertia.perturb_inertias`).
         effects: see :class:`EffectsTruth`.
         noise: see :class:`NoiseTruth`.
         control: see :class:`ControlTruth`.
@@ -153,6 +168,8 @@ _JOINT_TABLES = {  # field: (unit, non-negative)
     "coulomb": ("N·m", True),
     "armature": ("kg·m²", True),
     "torque_offset": ("N·m", False),
+    "presliding_friction": ("N·m", True),
+    "presliding_stiffness": ("N·m/rad", True),
 }
 
 
@@ -220,8 +237,14 @@ def _check_noise_and_control(n: NoiseTruth, c: ControlTruth) -> None:
     counts = n.encoder_counts_per_rev
     if isinstance(counts, bool) or not isinstance(counts, int) or counts < 0:
         raise ConfigError(f"noise.encoder_counts_per_rev must be a non-negative integer, got {counts!r}")
-    for name in ("q_std", "v_std", "tau_std"):
+    for name in ("q_std", "v_std", "tau_std", "force_std", "moment_std"):
         check_finite(f"noise.{name}", getattr(n, name), nonneg=True)
+    if len(n.wrench_offset) not in (0, 6):
+        raise ConfigError(
+            f"noise.wrench_offset must be [fx, fy, fz, mx, my, mz] [N, N·m] (or empty), got {n.wrench_offset!r}"
+        )
+    for k, value in enumerate(n.wrench_offset):
+        check_finite(f"noise.wrench_offset[{k}] ({WRENCH_COLUMNS[k]})", value)
     rate = check_finite("control.rate_hz [Hz]", c.rate_hz, positive=True)
     if rate > 1e5:
         raise ConfigError(f"control.rate_hz must be at most 100 kHz, got {rate}")
@@ -242,6 +265,14 @@ def _check_names(e: EffectsTruth, robot) -> None:
     p = e.payload
     if p.link and p.link not in robot.body_names:
         raise UnknownNameError("link", p.link, robot.body_names, where="effects.payload.link")
+    fc = per_joint_values(e.presliding_friction, robot.joint_names)
+    sigma0 = per_joint_values(e.presliding_stiffness, robot.joint_names)
+    for k, name in enumerate(robot.joint_names):
+        if fc[k] > 0 and not sigma0[k] > 0:
+            raise ConfigError(
+                f"effects.presliding_friction['{name}'] = {fc[k]:g} N·m needs a positive "
+                f"effects.presliding_stiffness['{name}'] [N·m/rad] (σ0 of the Dahl model)"
+            )
     coulomb = per_joint_values(e.coulomb, robot.joint_names)
     for k, info in enumerate(robot.joints):
         if coulomb[k] > 0 and info.kind != "revolute":

@@ -11,6 +11,7 @@ them: Y_dep = Y_ind β with β = R1⁻¹ R2. Hence
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 
 import numpy as np
 import scipy.linalg
@@ -30,6 +31,8 @@ class BaseParameters:
             ``"Izz.link1 + 1 Iyy.link2 + 0.09 m.link3"``.
         rank_tolerance: relative tolerance used on R's diagonal.
         diag_R: |R_ii| of the pivoted QR (for diagnostics), shape (p,).
+        measurement: the rows they were computed from: "joint_torque" (Eq. 1), or
+            "base_wrench"/"both" (:class:`pe_drake.multibody.sensors.SensorRows`).
     """
 
     independent: np.ndarray
@@ -38,6 +41,7 @@ class BaseParameters:
     base_names: tuple[str, ...]
     rank_tolerance: float
     diag_R: np.ndarray
+    measurement: str = "joint_torque"
 
     @property
     def count(self) -> int:
@@ -67,6 +71,8 @@ def compute_base_parameters(
     seed: int = 0,
     rank_tolerance: float = 1e-8,
     model: RegressorModel | None = None,
+    rows: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray] | None = None,
+    measurement: str = "joint_torque",
 ) -> BaseParameters:
     """Numerical base parameters of ``robot`` from random states within its limits.
 
@@ -76,6 +82,10 @@ def compute_base_parameters(
         seed: random seed (the result does not depend on it for generic samples).
         rank_tolerance: |R_ii| ≤ tol·|R_00| counts as zero.
         model: an existing :class:`RegressorModel` to reuse.
+        rows: the measured rows as a function of (q, v, vdot), shape (T, r, 10·nb); default
+            the joint torques, ``model(q, v, vd)``. The ground wrench has its own base
+            parameters (:class:`pe_drake.multibody.sensors.SensorRows`).
+        measurement: the name of those rows, kept in the result.
 
     Returns:
         The :class:`BaseParameters`.
@@ -88,7 +98,7 @@ def compute_base_parameters(
     q = rng.uniform(lo, hi, (samples, robot.n))
     v = rng.uniform(-1, 1, (samples, robot.n)) * np.minimum(robot.limits.v_max, 3.0)
     vd = rng.uniform(-1, 1, (samples, robot.n)) * np.minimum(robot.limits.vd_max, 10.0)
-    W = model(q, v, vd).reshape(-1, p)
+    W = (rows or model)(q, v, vd).reshape(-1, p)
     # Columns that never affect a torque (e.g. the mass of a body whose origin lies on every
     # axis above it) are exactly zero up to rounding: drop them before equilibrating, or the
     # scaling would turn their rounding noise into an "independent" column.
@@ -111,7 +121,7 @@ def compute_base_parameters(
     K[np.arange(b), ind] = 1.0
     K[:, dep] = beta
     names = robot.parameter_names
-    return BaseParameters(ind, K, names, _compose_names(K, names), rank_tolerance, d)
+    return BaseParameters(ind, K, names, _compose_names(K, names), rank_tolerance, d, measurement)
 
 
 #: Remaining column norms within this relative distance of the largest count as tied; ties go

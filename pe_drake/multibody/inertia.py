@@ -13,6 +13,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from pe_drake.config import check_finite
 from pe_drake.exceptions import ConfigError, PeDrakeError
 
 #: Number of inertial parameters per body, in the order of :data:`PARAMETER_NAMES`.
@@ -204,3 +205,76 @@ def check_physically_valid(body_names: Sequence[str], phi: np.ndarray) -> None:
     problems = validity_problems(body_names, phi)
     if problems:
         raise PhysicallyInvalidError(problems)
+
+
+# ---- random perturbation (the 'true' robot of simulated runs) --------------------------------
+
+
+def perturb_inertias(
+    phi: np.ndarray, size: float, rng: int | np.random.Generator = 0, max_tries: int = 100
+) -> np.ndarray:
+    """Random, physically valid perturbation of every body's inertial parameters.
+
+    Per body with mass m > 0 (massless frames are left alone), with U uniform in [-1, 1]
+    drawn independently for each number:
+
+    - m' = m (1 + ε U);
+    - centre of mass p' = p + ε U₃ max(|p|, r), r = √(tr I_cm / 2m) the radius of gyration;
+    - principal moments of the central inertia λ' = λ (1 + ε U₃), redrawn until they satisfy
+      the triangle inequality; principal axes rotated by an angle ε U [rad] about a random
+      axis;
+    - rebuilt about the body origin (parallel-axis theorem) and checked with Drake's
+      ``SpatialInertia.IsPhysicallyValid``.
+
+    Args:
+        phi: parameters, shape (10·nb,) in :data:`PARAMETER_NAMES` order.
+        size: ε, relative size in [0, 0.5].
+        rng: seed or numpy Generator.
+        max_tries: redraws per body before giving up.
+
+    Returns:
+        Perturbed parameters, shape (10·nb,); equal to phi when size is 0.
+
+    Raises:
+        ConfigError: a bad size, or a body whose inertia cannot be made valid (an invalid
+            a-priori inertia).
+    """
+    size = check_finite("inertia_perturbation", size, nonneg=True)
+    if size > 0.5:
+        raise ConfigError(f"inertia_perturbation must lie in [0, 0.5], got {size}")
+    rng = np.random.default_rng(rng) if not isinstance(rng, np.random.Generator) else rng
+    phi = np.asarray(phi, float)
+    out = phi.copy()
+    if size == 0:
+        return out
+    for b in range(phi.size // 10):
+        m = phi[10 * b]
+        if m <= 0:
+            continue
+        for _ in range(max_tries):
+            new = _perturb_body(phi[10 * b : 10 * b + 10], size, rng)
+            if new is not None and phi_to_spatial_inertia(new).IsPhysicallyValid():
+                out[10 * b : 10 * b + 10] = new
+                break
+        else:
+            raise ConfigError(
+                f"body {b}: could not perturb its inertia into a physically valid one in "
+                f"{max_tries} tries; is the model's inertia valid?"
+            )
+    return out
+
+
+def _perturb_body(phi_b: np.ndarray, eps: float, rng: np.random.Generator) -> np.ndarray | None:
+    m, p, lam, R, r_gyr = principal_inertia(phi_b)
+    m2 = m * (1 + eps * rng.uniform(-1, 1))
+    p2 = p + eps * rng.uniform(-1, 1, 3) * max(np.linalg.norm(p), r_gyr)
+    lam2 = lam * (1 + eps * rng.uniform(-1, 1, 3))
+    axis = rng.normal(size=3)
+    axis /= np.linalg.norm(axis)
+    angle = eps * rng.uniform(-1, 1)
+    if lam2.max() > lam2.sum() - lam2.max():  # triangle inequality
+        return None
+    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    dR = np.eye(3) + math.sin(angle) * K + (1 - math.cos(angle)) * K @ K  # Rodrigues
+    R2 = dR @ R
+    return phi_from_com(m2, p2, R2 @ np.diag(lam2) @ R2.T)

@@ -34,6 +34,11 @@ from pe_drake.multibody.spatial import (
 
 GRAVITY = 9.81  # [m/s²], overwritten by the plant's gravity field in Kinematics
 
+#: Rows of the ground-wrench regressor, in the order of a spatial force [n; f] (Drake's):
+#: fx, fy, fz, mx, my, mz (the CSV order) are its entries 3, 4, 5, 0, 1, 2. A swap of the
+#: halves, so the permutation is its own inverse.
+WRENCH_FROM_SPATIAL = np.array([3, 4, 5, 0, 1, 2])
+
 
 @dataclasses.dataclass
 class Kinematics:
@@ -175,29 +180,65 @@ class RegressorModel:
         F = kin.F_W.transpose(0, 2, 1, 3).reshape(T, 6, self.num_params)
         return (kin.S @ F) * self._mask
 
+    def wrench_regressor(self, kin: Kinematics) -> np.ndarray:
+        """Ground-wrench rows Y_0, shape (T, 6, 10·nb): the per-body Newton–Euler blocks side by side.
+
+        Y_0[t, :, 10j:10j+10] is body j's world-frame force block F_j (moment about the world
+        origin), rows fx, fy, fz, mx, my, mz (:data:`WRENCH_FROM_SPATIAL`). Y_0 φ is the wrench
+        the ground (the weld of the root link) applies to the moving bodies, gravity included;
+        the bodies no excited joint moves add a constant (:func:`pe_drake.multibody.wrench.static_wrench`).
+        No joint torque and no joint friction enters these rows.
+        """
+        T = kin.F_W.shape[0]
+        F = kin.F_W[:, :, WRENCH_FROM_SPATIAL, :]  # (T, nb, 6, 10)
+        return F.transpose(0, 2, 1, 3).reshape(T, 6, self.num_params)
+
     def __call__(self, q: np.ndarray, v: np.ndarray, vd: np.ndarray) -> np.ndarray:
         """Y(q, v, vdot), shape (T, n, 10·nb)."""
         return self.regressor(self.kinematics(q, v, vd))
 
     # ---- adjoint ------------------------------------------------------------------------
-    def pullback(self, kin: Kinematics, Z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Gradient of f = Σ_t Z^(t) : Y^(t) with respect to q, v and vdot (Eq. 47).
+    def pullback(
+        self, kin: Kinematics, Z: np.ndarray | None, Z_wrench: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Gradient of f = Σ_t Z^(t) : Y^(t) + Z_0^(t) : Y_0^(t) with respect to q, v and vdot (Eq. 47).
 
         Args:
             kin: from :meth:`kinematics`.
-            Z: weights, shape (T, n, 10·nb) (Eq. 46).
+            Z: weights of the joint-torque rows, shape (T, n, 10·nb) (Eq. 46), or None.
+            Z_wrench: weights of the ground-wrench rows (:meth:`wrench_regressor`), shape
+                (T, 6, 10·nb), or None.
 
         Returns:
             (∂f/∂q, ∂f/∂v, ∂f/∂vdot), each (T, n).
         """
-        T, n, nb = Z.shape[0], self.n, self.nb
-        S, v, vd, VJ = kin.S, kin.v, kin.vd, kin.VJ
+        T, n, nb = kin.S.shape[0], self.n, self.nb
+        S = kin.S
 
         # f = Σ_j Σ_k w_jk · F_jk, with w_jk = Σ_i [i moves j] Z_ijk S_i (a motion vector).
-        Zm = Z.reshape(T, n, self.num_params) * self._mask
-        w = (Zm.transpose(0, 2, 1) @ S).reshape(T, nb, 10, 6)
-        F_W = kin.F_W.transpose(0, 1, 3, 2).reshape(T, self.num_params, 6)
-        S_bar = Zm @ F_W  # ∂f/∂S_i through w
+        if Z is not None:
+            Zm = Z.reshape(T, n, self.num_params) * self._mask
+            w = (Zm.transpose(0, 2, 1) @ S).reshape(T, nb, 10, 6)
+            F_W = kin.F_W.transpose(0, 1, 3, 2).reshape(T, self.num_params, 6)
+            S_bar = Zm @ F_W  # ∂f/∂S_i through w
+        else:
+            w, S_bar = np.zeros((T, nb, 10, 6)), np.zeros((T, n, 6))
+        if Z_wrench is not None:
+            # The wrench rows weigh F_jk directly: w_jk is the row weights, in [n; f] order.
+            w = w + Z_wrench.reshape(T, 6, nb, 10).transpose(0, 2, 3, 1)[..., WRENCH_FROM_SPATIAL]
+        return self._pullback_forces(kin, w, S_bar)
+
+    def _pullback_forces(
+        self, kin: Kinematics, w: np.ndarray, S_bar: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Gradient of f = Σ_jk w_jk · F_jk (+ the part already in S_bar) with respect to q, v, vdot.
+
+        Args:
+            kin: from :meth:`kinematics`.
+            w: weights of the world-frame force blocks, (T, nb, 10, 6) (motion vectors).
+            S_bar: ∂f/∂S_i collected so far, (T, n, 6).
+        """
+        S, v, vd, VJ = kin.S, kin.v, kin.vd, kin.VJ
 
         # Body-coordinate adjoints of A_j and V_j (F = Γ(A)φ + V ×* Γ(V)φ, φ = e_k).
         # The adjoint of "motion to the body" (X*ᵀ) is X* itself.

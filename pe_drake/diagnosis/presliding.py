@@ -1,0 +1,331 @@
+"""Pre-sliding friction in the diagnosis: a search over the pre-sliding displacement.
+
+The Dahl model (:mod:`pe_drake.identification.dahl`) gives the friction torque F_c·z(q; x_p):
+linear in F_c, nonlinear in x_p = F_c/σ0. Where the selection named ``coulomb_friction`` on
+a joint, its column tanh(v/v_s) is replaced by the parallel-filtered Dahl column z(q; x_p)
+for every x_p of :data:`DISPLACEMENT_GRID`, the whole model is refitted (base parameters and
+every named effect: the linear fit inside the search), and the x_p with the lowest weighted
+training residual wins. The Coulomb model is the x_p → 0 limit, so the two are nested: the
+workflow names ``presliding_friction`` instead of ``coulomb_friction`` when the residual drop
+is significant (a likelihood-ratio test with the autocorrelation-inflated noise of the joint)
+and the held-out residual of the joint drops too.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+
+from pe_drake.diagnosis.result import NamedEffect, per_joint
+from pe_drake.identification.dahl import dahl_state
+
+#: Name of the effect.
+PRESLIDING = "presliding_friction"
+#: Pre-sliding displacements x_p = F_c/σ0 tried [rad]: 2 to 160 mrad, log-spaced (ratio
+#: 1.25), around the range a joint shows (10 to 50 mrad).
+DISPLACEMENT_GRID = 0.002 * 1.25 ** np.arange(20)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class PreslidingFit:
+    """The best pre-sliding model of one joint.
+
+    Attributes:
+        joint: joint index.
+        column: the library column (the joint's Coulomb column) it replaces.
+        displacement: x_p [rad] of the best fit.
+        coulomb: F_c [N·m] there.
+        coulomb_std: its standard deviation [N·m].
+        stiffness: σ0 = F_c / x_p [N·m/rad].
+        rss: training residual sum of squares of the joint over the grid, shape (G,).
+        rss_coulomb: the same with the Coulomb column.
+        rss_best: the same at ``displacement`` (refined between grid points).
+        held_values: the Dahl column at ``displacement`` on the held-out samples, (S,).
+        fit: the refit with the best Dahl column (a ``Fit`` of the workflow's regression).
+        regression: the regression holding the Dahl column in place of the Coulomb one.
+    """
+
+    joint: int
+    column: int
+    displacement: float
+    coulomb: float
+    coulomb_std: float
+    stiffness: float
+    rss: np.ndarray
+    rss_coulomb: float
+    fit: object
+    regression: object
+    rss_best: float = np.inf
+    held_values: np.ndarray | None = None
+
+
+def dahl_columns(record, grid: np.ndarray = DISPLACEMENT_GRID) -> np.ndarray:
+    """The normalized Dahl state of every joint at the record's full rate for every x_p of
+    ``grid``, filtered like the torque (parallel filtering), shape (T, G, n).
+
+    The state follows the record's filtered q (a noisy q would reverse at every sample).
+    """
+    grid = np.asarray(grid, float)
+    T, n = record.q.shape
+    z = dahl_state(record.q, np.repeat(grid[:, None], n, axis=1))
+    return record.filtered(z.reshape(T, -1)).reshape(T, len(grid), n)
+
+
+def replace_column(columns, index: int, joint: int, values: np.ndarray, *, with_A: bool = True):
+    """A copy of a segment's columns whose column ``index`` is ``values`` on ``joint`` (zero
+    on the other joints), with its Gram entries updated (the others are unchanged).
+
+    ``with_A=False`` skips the copy of the (S, n, P) columns: the result then fits (Gram
+    matrices) but its ``A`` still holds the old column (no residuals from it).
+    """
+    values = np.asarray(values, float)
+    row = np.zeros(columns.rhs.shape)
+    row[joint] = values @ columns.A[:, joint, :]
+    row[joint, index] = values @ values
+    gram = columns.gram.copy()
+    gram[:, index, :] = row
+    gram[:, :, index] = row
+    rhs = columns.rhs.copy()
+    rhs[:, index] = 0.0
+    rhs[joint, index] = values @ columns.y[:, joint]
+    if not with_A:
+        return dataclasses.replace(columns, gram=gram, rhs=rhs)
+    A = columns.A.copy()
+    A[:, :, index] = 0.0
+    A[:, joint, index] = values
+    return dataclasses.replace(columns, A=A, gram=gram, rhs=rhs)
+
+
+def search_presliding(regression, extra: list[int], column: int, joint: int, train_dahl: np.ndarray,
+                      held_dahl: np.ndarray, grid: np.ndarray = DISPLACEMENT_GRID,
+                      column_at: Callable[[float], tuple[np.ndarray, np.ndarray]] | None = None) -> PreslidingFit:
+    """The x_p that fits best when the joint's Coulomb column becomes the Dahl column.
+
+    Args:
+        regression: the workflow's regression (``train``/``held`` columns, ``weights``,
+            ``inflation``, ``fit(extra)``).
+        extra: the fitted columns besides the base parameters (``column`` among them).
+        column: the joint's Coulomb column (its slot).
+        joint: joint index.
+        train_dahl, held_dahl: the joint's Dahl columns at the training / held-out samples,
+            (S, G) each.
+        grid: x_p values [rad], (G,).
+        column_at: x_p → (training, held-out) Dahl columns; when given, the best grid point
+            is refined by the vertex of a parabola through it and its neighbours (in log x_p).
+
+    Returns:
+        The :class:`PreslidingFit` (its regression holds the best column, A included).
+    """
+    base_fit = regression.fit(extra)
+    rss_coulomb = float(base_fit.rms_train[joint] ** 2 * regression.train.count)
+    rss = np.empty(len(grid))
+    for g in range(len(grid)):
+        fit = _with_dahl(regression, column, joint, train_dahl[:, g], held_dahl[:, g], with_A=False).fit(extra)
+        rss[g] = fit.rms_train[joint] ** 2 * regression.train.count
+    g = int(np.argmin(rss))
+    x_p, tr, ho = float(grid[g]), train_dahl[:, g], held_dahl[:, g]
+    if column_at is not None and 0 < g < len(grid) - 1:
+        x_ref = _parabola_vertex(np.log(grid[g - 1 : g + 2]), rss[g - 1 : g + 2])
+        tr_ref, ho_ref = column_at(x_ref)
+        fit = _with_dahl(regression, column, joint, tr_ref, ho_ref, with_A=False).fit(extra)
+        if fit.rms_train[joint] ** 2 * regression.train.count < rss[g]:
+            x_p, tr, ho = x_ref, tr_ref, ho_ref
+    reg = _with_dahl(regression, column, joint, tr, ho)
+    fit = reg.fit(extra)
+    fc, sd = fit.value(column), fit.std(column)
+    return PreslidingFit(joint, column, x_p, float(fc), float(sd), float(fc / x_p), rss, rss_coulomb, fit, reg,
+                         float(fit.rms_train[joint] ** 2 * reg.train.count), ho)
+
+
+def _parabola_vertex(u: np.ndarray, f: np.ndarray) -> float:
+    """exp of the vertex of the parabola through (u_k, f_k), k = 0..2 (u = log x_p), kept
+    within [u_0, u_2]."""
+    c2, c1, _ = np.polyfit(u, f, 2)
+    vertex = -c1 / (2 * c2) if c2 > 0 else u[1]
+    return float(np.exp(np.clip(vertex, u[0], u[2])))
+
+
+def _with_dahl(regression, column: int, joint: int, train_values: np.ndarray, held_values: np.ndarray,
+               *, with_A: bool = True):
+    reg = type(regression)(replace_column(regression.train, column, joint, train_values, with_A=with_A),
+                           replace_column(regression.held, column, joint, held_values, with_A=with_A),
+                           regression.num_base)
+    reg.set_weights(regression.weights)
+    reg.inflation = regression.inflation
+    return reg
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class PreslidingStep:
+    """The pre-sliding test of every joint where Coulomb friction was named.
+
+    Attributes:
+        fits: the accepted :class:`PreslidingFit`, one per joint.
+        report: per tested joint {joint, displacement, coulomb, stiffness, statistic,
+            threshold, heldout_rms_coulomb, heldout_rms_presliding, named, reason}.
+        regression: the regression with the accepted Dahl columns in place of the Coulomb ones.
+        final: its fit with every selected column.
+        held_torque: the accepted Dahl torques F_c·z on the held-out samples, (S, n) [N·m].
+        dropped: selected columns dropped because the Dahl column took their place.
+    """
+
+    fits: list[PreslidingFit]
+    report: list[dict[str, Any]]
+    regression: object
+    final: object
+    held_torque: np.ndarray
+    dropped: tuple[int, ...] = ()
+
+    def series(self, series: list[dict[str, Any]], joints: Sequence[str]) -> list[dict[str, Any]]:
+        """The residual-plot entries with each accepted joint's Coulomb entry turned into its
+        pre-sliding one (residual after: with the Dahl column), or one added."""
+        if not self.fits:
+            return series
+        after = self.regression.residual("held-out", self.final)
+        out = [dict(e) for e in series]
+        for f in self.fits:
+            label = f"{PRESLIDING}[{joints[f.joint]}]"
+            entry = next((e for e in out if e["effect"] == "coulomb_friction" and e["joint"] == f.joint), None)
+            if entry is None:
+                before = np.asarray(self.report_entry(joints[f.joint])["heldout_residual_before"])
+                entry = {"joint": f.joint, "regime": "v", "before": before}
+                out.append(entry)
+            entry.update(label=label, effect=PRESLIDING, after=after[:, f.joint])
+        return out
+
+    def report_entry(self, joint: str) -> dict[str, Any]:
+        """The test of one joint (by name)."""
+        return next(r for r in self.report if r["joint"] == joint)
+
+    def not_named(self, min_statistic: float = 4.0) -> list[dict[str, Any]]:
+        """The tested joints that came close (statistic ≥ ``min_statistic``), as entries of the
+        diagnosis's ``rejected`` list."""
+        return [{"effect": PRESLIDING, "joint": r["joint"], "value": r["coulomb"], "unit": "N·m",
+                 "z": float(np.sqrt(max(r["statistic"], 0.0))), "reason": r["reason"],
+                 "presliding_displacement": r["displacement"]}
+                for r in self.report if not r["named"] and r["statistic"] >= min_statistic]
+
+
+def presliding_step(prep, lib, sel, config) -> PreslidingStep:
+    """Tries the Dahl column in each joint's Coulomb slot (replacing a named Coulomb column, or
+    added) and keeps it when the joint's training residual drops significantly
+    (likelihood ratio ≥ z_min², the selection's Bonferroni bound squared, with the joint's
+    autocorrelation-inflated noise), its held-out RMS drops by ``min_heldout_gain``, and x_p
+    is not the grid's smallest value (the Coulomb limit). Effects of that joint that are no
+    longer significant with it (e.g. a viscous friction that stood in for it) are dropped."""
+    reg, library, extra = lib.regression, lib.library, list(sel.selected)
+    cache: dict = {}  # id(record) -> full-rate filtered Dahl columns, (T, G, n)
+    report, fits = [], []
+    held_torque = np.zeros_like(prep.held.tau)
+    slots = [c for c in library.cand_of if library.cand_of[c].effect == "coulomb_friction"]
+    for col in slots:
+        j = library.cand_of[col].joint
+        trial = extra if col in extra else extra + [col]
+        tr, ho = (_dahl_at(cache, seg, j) for seg in (prep.training, prep.held))
+        before = reg.fit(extra)
+        fit = search_presliding(reg, trial, col, j, tr, ho)
+        rss_before = float(before.rms_train[j] ** 2 * reg.train.count)
+        decision = _decide(fit, before, rss_before, reg, j, sel.thresholds, config)
+        if decision["named"]:  # refine x_p between grid points (only here: each column costs a pass)
+            refined = search_presliding(reg, trial, col, j, tr, ho, column_at=_column_at(prep, j))
+            decision = _decide(refined, before, rss_before, reg, j, sel.thresholds, config)
+            fit = refined
+        report.append({"joint": library.cand_of[col].joint_name, "displacement": fit.displacement,
+                       "coulomb": fit.coulomb, "stiffness": fit.stiffness, **decision,
+                       "heldout_rms_all_before": [float(x) for x in before.rms_held],
+                       "heldout_residual_before": reg.residual("held-out", before)[:, j] if decision["named"] else None})
+        if decision["named"]:
+            fits.append(fit)
+            reg, extra = fit.regression, _drop_stand_ins(fit.regression, trial, col, j, library, sel.thresholds)
+            held_torque[:, j] = fit.held_values
+    final = reg.fit(extra) if fits else sel.final
+    for f in fits:  # the Dahl torques with the final values
+        held_torque[:, f.joint] *= final.value(f.column)
+    return PreslidingStep(fits, report, reg, final, held_torque, tuple(c for c in sel.selected if c not in extra))
+
+
+def _decide(fit: PreslidingFit, before, rss_before: float, reg, j: int, thresholds, config) -> dict[str, Any]:
+    """The acceptance tests of :func:`presliding_step` for one joint."""
+    best = int(np.argmin(fit.rss))
+    sigma2 = fit.rss_best / reg.train.count
+    statistic = float((rss_before - fit.rss_best) / max(sigma2 * reg.inflation[j], 1e-300))
+    reasons = []
+    if best == 0:
+        reasons.append("the smallest pre-sliding displacement fits best (the Coulomb limit)")
+    if statistic < thresholds.z_min**2:
+        reasons.append(f"residual drop not significant ({statistic:.3g} < {thresholds.z_min ** 2:.3g})")
+    if fit.fit.rms_held[j] > (1 - config.min_heldout_gain) * before.rms_held[j]:
+        reasons.append(f"held-out RMS only {before.rms_held[j]:.4g} → {fit.fit.rms_held[j]:.4g} N·m")
+    if fit.coulomb <= 0:
+        reasons.append("non-positive friction level")
+    return {"statistic": statistic, "threshold": thresholds.z_min**2, "heldout_rms_before": float(before.rms_held[j]),
+            "heldout_rms_presliding": float(fit.fit.rms_held[j]), "named": not reasons, "reason": "; ".join(reasons)}
+
+
+def _drop_stand_ins(reg, extra: list[int], col: int, joint: int, library, thresholds) -> list[int]:
+    """``extra`` without the joint's other effects that are no longer significant (weakest first)."""
+    extra = list(extra)
+    while True:
+        fit = reg.fit(extra)
+        own = [c for c in extra if c != col and c in library.cand_of and library.cand_of[c].joint == joint]
+        z = {c: abs(fit.value(c)) / max(fit.std(c), 1e-300) for c in own}
+        weak = [c for c in own if z[c] < thresholds.z_min]
+        if not weak:
+            return extra
+        extra.remove(min(weak, key=lambda c: z[c]))
+
+
+def _column_at(prep, joint: int) -> Callable[[float], tuple[np.ndarray, np.ndarray]]:
+    """x_p → the joint's filtered Dahl column on the training and held-out samples."""
+
+    def at(x_p: float) -> tuple[np.ndarray, np.ndarray]:
+        out = []
+        for seg in (prep.training, prep.held):
+            z = seg.record.filtered(dahl_state(seg.record.q[:, joint], x_p)[:, None])[:, 0]
+            out.append(z[seg.idx])
+        return out[0], out[1]
+
+    return at
+
+
+def _dahl_at(cache: dict, seg, joint: int) -> np.ndarray:
+    """:func:`dahl_columns` of a segment's record (once per record) at its samples, (S, G)."""
+    if id(seg.record) not in cache:
+        cache[id(seg.record)] = dahl_columns(seg.record)
+    return cache[id(seg.record)][seg.idx, :, joint]
+
+
+def presliding_effects(effects: Sequence[NamedEffect], step: PreslidingStep, library,
+                       joints: Sequence[str]) -> list[NamedEffect]:
+    """The named effects with each accepted joint's pre-sliding friction (value F_c [N·m]; σ0
+    and x_p in the details) in place of its ``coulomb_friction``, or added; the effects it
+    stood in for are left out."""
+    dropped = {library.cand_of[c].label for c in step.dropped if c in library.cand_of}
+    out = [_refitted(e, step, library) for e in effects if f"{e.effect}[{e.joint}]" not in dropped]
+    for f in step.fits:
+        name = joints[f.joint]
+        old = [e for e in out if e.effect == "coulomb_friction" and e.joint == name]
+        out = [e for e in out if e not in old]
+        fc, sd = step.final.value(f.column), step.final.std(f.column)
+        details = {"stiffness": fc / f.displacement, "stiffness_unit": "N·m/rad",
+                   "presliding_displacement": f.displacement, "presliding_displacement_unit": "rad",
+                   "model": "Dahl: dF/dt = stiffness·v·(1 − F/value·sgn v)",
+                   "replaces": "coulomb_friction" if old else "",
+                   "displacement_grid": [float(x) for x in DISPLACEMENT_GRID]}
+        tested = next(r for r in step.report if r["joint"] == name)
+        before = old[0].heldout_rms_before if old else per_joint(joints, tested["heldout_rms_all_before"])
+        out.append(NamedEffect(PRESLIDING, name, "", float(fc), "N·m", float(sd), float(abs(fc) / max(sd, 1e-300)),
+                               before, per_joint(joints, step.final.rms_held), details))
+    return out
+
+
+def _refitted(e: NamedEffect, step: PreslidingStep, library) -> NamedEffect:
+    """An effect with its value and std from the fit with the Dahl columns (when any)."""
+    col = library.timing_col if e.effect == "time_delay" else library.col_of.get(f"{e.effect}[{e.joint}]")
+    if not step.fits or col is None or col not in step.final.columns:
+        return e
+    value, std = step.final.value(col), step.final.std(col)
+    return dataclasses.replace(e, value=float(value), std=float(std), z=float(abs(value) / max(std, 1e-300)))

@@ -1,0 +1,101 @@
+"""Executors for many independent solves: this process, a local process pool, or Ray.
+
+Multi-start (:mod:`pe_drake.excitation.multistart`), the sequential motions' starts and the
+random baseline's draws all run as tasks ``fn(state, payload)`` on an :class:`Executor` made
+by :func:`open_executor`::
+
+    with open_executor(robot, "local", workers=2, constraints_factory=constraints_from_config) as ex:
+        done = ex.map(task_function, payloads)     # TaskFinished objects, in payload order
+"""
+
+from __future__ import annotations
+
+from pe_drake.exceptions import ConfigError
+from pe_drake.excitation.parallel.base import (
+    ConstraintsFactory,
+    Executor,
+    InProcessExecutor,
+    RemoteTraceback,
+    RobotSpec,
+    TaskFinished,
+    TaskStarted,
+    WorkerError,
+    WorkerState,
+    check_workers,
+    default_workers,
+)
+from pe_drake.excitation.parallel.local import LocalExecutor, default_start_method
+from pe_drake.excitation.parallel.ray import RayExecutor, cluster_cpus
+from pe_drake.multibody.base_parameters import compute_base_parameters
+from pe_drake.multibody.regressor import RegressorModel
+
+EXECUTORS = ("local", "ray")
+
+__all__ = [
+    "EXECUTORS",
+    "ConstraintsFactory",
+    "Executor",
+    "InProcessExecutor",
+    "LocalExecutor",
+    "RayExecutor",
+    "RemoteTraceback",
+    "RobotSpec",
+    "TaskFinished",
+    "TaskStarted",
+    "WorkerError",
+    "WorkerState",
+    "default_start_method",
+    "default_workers",
+    "open_executor",
+]
+
+
+def open_executor(
+    robot,
+    executor: str = "local",
+    workers: int | None = None,
+    *,
+    tasks: int | None = None,
+    address: str = "",
+    base=None,
+    constraints_factory: ConstraintsFactory | None = None,
+    start_method: str | None = None,
+) -> Executor:
+    """An executor whose workers each hold a copy of ``robot``.
+
+    Args:
+        robot: the :class:`~pe_drake.multibody.robot.Robot`; workers rebuild it from its name
+            and config (construction hooks of this instance are not reproduced).
+        executor: "local" (process pool on this machine) or "ray".
+        workers: tasks at once (default: the cores available, or the Ray cluster's CPUs),
+            capped at ``tasks``. "local" with one worker runs in this process.
+        tasks: the most tasks one :meth:`Executor.map` will get (caps the default workers).
+        address: the Ray cluster ("ray" only; "" : ``ray.init()``'s default).
+        base: the base parameters every task uses (default: computed here once).
+        constraints_factory: ``f(robot, excitation_config) -> [SampledConstraint, ...]``;
+            a module-level function (it is pickled by name).
+        start_method: for "local"; see :func:`default_start_method`.
+
+    Raises:
+        ConfigError: an unknown executor, a bad worker count, more Ray workers than the
+            cluster's CPUs, Ray missing or unreachable.
+    """
+    if executor not in EXECUTORS:
+        raise ConfigError(f"executor '{executor}' is not one of {', '.join(EXECUTORS)}")
+    if address and executor != "ray":
+        raise ConfigError(f"an address ({address}) is only used by the ray executor, not '{executor}'")
+    cores = cluster_cpus(address) if executor == "ray" else default_workers()
+    if workers is None:
+        workers = cores if tasks is None else max(1, min(cores, tasks))
+    check_workers(workers)
+    if executor == "ray" and workers > cores:  # an actor without a free CPU would wait forever
+        raise ConfigError(f"{workers} Ray workers need {workers} CPUs; the cluster has {cores}: lower workers or add nodes")
+    model = RegressorModel(robot)
+    base = base if base is not None else compute_base_parameters(robot, model=model)
+    local = WorkerState(robot, base, constraints_factory, model=model)
+    spec = RobotSpec(robot.name, robot.config, base, constraints_factory)
+    if executor == "ray":
+        return RayExecutor(spec, local, workers, address)
+    if workers == 1:
+        return InProcessExecutor(local)
+    return LocalExecutor(spec, local, workers, start_method)

@@ -1,0 +1,306 @@
+"""What every executor shares: the worker's state, the task wrapper, errors and events.
+
+An executor runs ``fn(state, payload)`` for many payloads, where ``fn`` is a module-level
+function and ``state`` a :class:`WorkerState`: a robot, its regressor model, the base
+parameters and the constraint sets, built once per worker. Drake plants and contexts do not
+pickle (BUILD_NOTES.md), so a worker rebuilds the robot from a :class:`RobotSpec` (name,
+config, base parameters, constraint factory); tasks carry only seeds, configs, starting
+points and C0 arrays.
+
+Results come back in payload order whatever the number of workers and the order in which
+tasks finish; BLAS runs single-threaded inside each task, so a task's result depends only on
+its payload: bit for bit in this process and the local pool; on Ray a start's coefficients
+differed, rarely, by up to ~5e-10 rad (README, "Running on a cluster"; cause not found).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import pickle
+import time
+import traceback
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+
+from pe_drake.config import ExcitationConfig
+from pe_drake.exceptions import ConfigError, PeDrakeError
+from pe_drake.excitation.problem import ExcitationProblem
+from pe_drake.multibody.regressor import RegressorModel
+from pe_drake.multibody.robot import Robot
+from pe_drake.threads import single_threaded_blas
+
+#: Builds the sampled constraints (balance, collision, ...) for a robot and an excitation
+#: config; e.g. :func:`pe_drake.excitation.constraints.constraints_from_config`.
+ConstraintsFactory = Callable[[Any, ExcitationConfig], list]
+#: Receives :class:`TaskStarted`, :class:`TaskFinished` and the events tasks emit.
+Progress = Callable[[Any], None]
+
+
+class WorkerError(PeDrakeError):
+    """A task failed in a worker, or the worker running it died.
+
+    Attributes:
+        task: index of the failed task (the first one when several were running in a pool
+            that broke), or None when a worker failed before running any task.
+        tasks: every task that was running when the worker failed.
+        exception_type: name of the exception raised in the worker ("" when it died).
+        remote_traceback: the worker's formatted traceback ("" when it died).
+    """
+
+    def __init__(
+        self,
+        message: str,
+        task: int | None = None,
+        exception_type: str = "",
+        remote_traceback: str = "",
+        tasks: Sequence[int] = (),
+    ):
+        self.task = task
+        self.tasks = tuple(tasks) or (() if task is None else (task,))
+        self.exception_type = exception_type
+        self.remote_traceback = remote_traceback
+        super().__init__(message)
+
+
+class RemoteTraceback(Exception):
+    """Carries a worker's traceback as the cause of a :class:`WorkerError`."""
+
+    def __init__(self, tb: str):
+        super().__init__(tb)
+        self.tb = tb
+
+    def __str__(self) -> str:
+        return "\n" + self.tb
+
+
+@dataclasses.dataclass(frozen=True)
+class TaskStarted:
+    """Task ``index`` was handed to a worker."""
+
+    index: int
+
+
+@dataclasses.dataclass(frozen=True)
+class TaskFinished:
+    """Task ``index`` finished.
+
+    Attributes:
+        index: the task.
+        value: what it returned.
+        worker: where it ran ("main", "pid 1234", or "10.0.0.2 pid 1234" on Ray).
+        wall_time: its run time in the worker [s].
+    """
+
+    index: int
+    value: Any
+    worker: str
+    wall_time: float
+
+
+@dataclasses.dataclass(frozen=True)
+class RobotSpec:
+    """What a worker needs to rebuild the robot (all picklable).
+
+    Attributes:
+        name: the robot's name.
+        config: its :class:`~pe_drake.config.RobotConfig`.
+        base: the :class:`~pe_drake.multibody.base_parameters.BaseParameters` every task uses
+            (computed once in the parent, so C0 and every result use the same columns).
+        constraints_factory: see :data:`ConstraintsFactory`, or None.
+    """
+
+    name: str
+    config: Any
+    base: Any
+    constraints_factory: ConstraintsFactory | None = None
+
+    def build(self, emit: Callable[[Any], None] | None = None) -> WorkerState:
+        """The robot and its state, built in the calling process."""
+        import logging
+
+        import pydrake.common  # noqa: F401  (lazy: pydrake resets the logger level at import)
+
+        logging.getLogger("drake").setLevel(logging.ERROR)
+        return WorkerState(Robot(self.name, self.config), self.base, self.constraints_factory, emit)
+
+
+class WorkerState:
+    """A robot, its regressor model and constraint sets, living in one process.
+
+    Attributes:
+        robot: the :class:`~pe_drake.multibody.robot.Robot`.
+        model: its :class:`~pe_drake.multibody.regressor.RegressorModel`.
+        base: the base parameters every task uses.
+        emit: sends an event to the caller's progress callback (dropped on Ray).
+    """
+
+    def __init__(self, robot, base, constraints_factory=None, emit=None, model=None):
+        self.robot = robot
+        self.model = model if model is not None else RegressorModel(robot)
+        self.base = base
+        self.constraints_factory = constraints_factory
+        self.emit = emit or (lambda event: None)
+        self._constraints: dict[str, list] = {}
+
+    def constraints(self, config: ExcitationConfig) -> list:
+        """The factory's constraints for ``config``, built once per distinct config."""
+        if self.constraints_factory is None:
+            return []
+        key = repr(config)
+        if key not in self._constraints:
+            self._constraints[key] = list(self.constraints_factory(self.robot, config))
+        return self._constraints[key]
+
+    def problem(self, config: ExcitationConfig, C0: np.ndarray | None = None):
+        """An :class:`~pe_drake.excitation.problem.ExcitationProblem` on this robot and base."""
+        return ExcitationProblem(self.robot, config, C0=C0, base=self.base, model=self.model)
+
+
+def worker_name(host: str = "") -> str:
+    """This process, as reported per task: "pid N", or "<host> pid N" on a cluster node."""
+    return f"{host} pid {os.getpid()}" if host else f"pid {os.getpid()}"
+
+
+def run_task(state: WorkerState, fn: Callable, payload: Any, worker: str) -> tuple:
+    """Runs one task in a worker; never raises (a failure is returned, packed).
+
+    Returns:
+        ("ok", value, worker, wall_time) or ("error", exception, type name, traceback, worker).
+    """
+    begin = time.perf_counter()
+    try:
+        # One BLAS thread: the matrices are small, and a task's result must not depend on
+        # how many tasks share the machine.
+        with single_threaded_blas():
+            value = fn(state, payload)
+    except BaseException as err:  # reported to the caller, who stops the other workers
+        return ("error", *pack_error(err), worker)
+    return ("ok", value, worker, time.perf_counter() - begin)
+
+
+def pack_error(err: BaseException) -> tuple[Any, str, str]:
+    """(the exception if it pickles else None, its type name, its formatted traceback)."""
+    tb = "".join(traceback.format_exception(type(err), err, err.__traceback__))
+    try:
+        exc = pickle.loads(pickle.dumps(err))
+    except Exception:
+        exc = None
+    return exc, type(err).__name__, tb
+
+
+def task_error(packed: tuple, index: int, label: str) -> WorkerError:
+    """A :class:`WorkerError` for a task that raised in a worker, its traceback as the cause."""
+    exc, type_name, tb, worker = packed
+    text = str(exc) if exc is not None else tb.strip().splitlines()[-1]
+    err = WorkerError(f"{label} failed in worker {worker}: {type_name}: {text}", index, type_name, tb)
+    err.__cause__ = RemoteTraceback(tb)
+    return err
+
+
+def default_workers() -> int:
+    """The cores this process may use (at least 1)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - not on Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def check_workers(workers: Any) -> int:
+    """``workers`` as a positive int.
+
+    Raises:
+        ConfigError: not a positive integer.
+    """
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ConfigError(f"workers must be a positive integer, got {workers!r}")
+    return workers
+
+
+class Executor:
+    """Runs tasks on workers that each hold a robot; a context manager.
+
+    Attributes:
+        name: "main" (this process), "local" (a process pool) or "ray".
+        workers: how many tasks run at once.
+        base: the base parameters every task uses.
+        local: a :class:`WorkerState` in this process (for building problems here).
+    """
+
+    name = "main"
+
+    def __init__(self, local: WorkerState, workers: int):
+        self.local = local
+        self.base = local.base
+        self.workers = workers
+
+    def problem(self, config: ExcitationConfig, C0: np.ndarray | None = None):
+        """An :class:`~pe_drake.excitation.problem.ExcitationProblem` in this process, with the
+        executor's base parameters."""
+        return self.local.problem(config, C0)
+
+    def map(
+        self,
+        fn: Callable,
+        payloads: Sequence[Any],
+        progress: Progress | None = None,
+        labels: Sequence[str] | None = None,
+    ) -> list[TaskFinished]:
+        """``fn(state, p)`` for every payload, spread over the workers.
+
+        Args:
+            fn: a module-level function ``fn(state: WorkerState, payload) -> value``.
+            payloads: one per task.
+            progress: receives :class:`TaskStarted`, :class:`TaskFinished` and whatever the
+                tasks emit (``state.emit``), in this process.
+            labels: names of the tasks in error messages (default "task k").
+
+        Returns:
+            One :class:`TaskFinished` per payload, in payload order.
+
+        Raises:
+            WorkerError: a task raised, or a worker died (naming the task(s) it ran). Every
+                worker is stopped first, as on Ctrl-C (KeyboardInterrupt is re-raised).
+        """
+        raise NotImplementedError
+
+    def close(self) -> None:
+        """Stops every worker (idempotent)."""
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def task_labels(count: int, labels: Sequence[str] | None) -> list[str]:
+    return [f"task {k}" for k in range(count)] if labels is None else [str(s) for s in labels]
+
+
+class InProcessExecutor(Executor):
+    """Runs the tasks one after the other in this process (one worker, nothing to start).
+
+    A task's exception propagates unchanged.
+    """
+
+    name = "main"
+
+    def __init__(self, local: WorkerState):
+        super().__init__(local, 1)
+
+    def map(self, fn, payloads, progress=None, labels=None) -> list[TaskFinished]:
+        say = progress or (lambda event: None)
+        self.local.emit = say
+        out = []
+        for k, payload in enumerate(payloads):
+            say(TaskStarted(k))
+            begin = time.perf_counter()
+            with single_threaded_blas():
+                value = fn(self.local, payload)
+            done = TaskFinished(k, value, "main", time.perf_counter() - begin)
+            say(done)
+            out.append(done)
+        return out

@@ -1,0 +1,447 @@
+"""What a motion will tell you before you record it: expected parameter and torque errors.
+
+cond(C) depends on which valid set of base parameters is chosen and on their units (the
+same motion has another cond in another QR-pivoted set), so it cannot be compared between
+tools, and it says nothing about what the motion buys. For a torque noise σ_j per joint and
+P recorded periods this module gives figures a user can act on:
+
+- the expected standard deviation of every base parameter, Cov = (CᵀΣ⁻¹C)⁻¹ / P, absolute
+  and in % of its a-priori value. This is the weighted least-squares covariance of
+  ``pe-drake identify --method wls`` (with one σ for every joint it is σ²(CᵀC)⁻¹, the OLS
+  one). It depends on the basis (in pe_drake's base parameters, named as such).
+- figures that are the same in every basis and unit system:
+  * the expected RMS error of the predicted torques on a fixed, seeded reference set of
+    validation motions (:func:`reference_regressor`): for a validation row c_v the error
+    c_v(φ̂ − φ) has variance c_v Cov c_vᵀ, invariant under φ_B → Tφ_B (C → C T⁻¹).
+    (The same error on the motion itself is σ²·b/m for any full-rank motion, so it says
+    nothing.)
+  * ratios of the D-efficiency, the geometric mean of the singular values of Σ^(-1/2)C
+    (det(CᵀΣ⁻¹C)^(1/2b)): a change of basis scales every motion's value by the same
+    |det T|^(-1/b), so their ratio is invariant.
+- the same figures for a few random motions that pass the same constraints (period,
+  harmonics, joint limits at the K samples, and the sampled constraints: balance,
+  collision, torque), and the ratios: "this motion predicts torques k× better than random
+  motions under the same constraints".
+
+Assumptions (stated in every report): C is the base regressor of one period sampled at
+``rate_hz`` (default :data:`DATA_RATE_HZ`, the identification's output rate), the noise is
+independent between those samples with standard deviation σ_j (the ``noise_std`` that
+identified.json reports is that figure), and a periodic motion recorded for P periods gives
+P times the information of one.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from pe_drake.config import noise_vector
+from pe_drake.exceptions import ConfigError
+from pe_drake.excitation.fourier import FourierBasis, sample_times
+
+#: Rate of the samples the identification fits [Hz] (its preprocessing decimates to it:
+#: ``pe_drake.identification.estimators.DEFAULT_RATE_HZ``; a test keeps the two equal).
+DATA_RATE_HZ = 200.0
+#: The fixed reference set of validation motions: count, seed, harmonics, period [s],
+#: samples per motion, fraction of the binding joint limit used.
+REFERENCE_MOTIONS = 8
+REFERENCE_SEED = 2017
+REFERENCE_HARMONICS = 5
+REFERENCE_PERIOD_S = 10.0
+REFERENCE_SAMPLES = 100
+REFERENCE_LIMIT_FRACTION = 0.9
+#: The regressors are sampled at most this fast [Hz] and their information scaled to the data
+#: rate: a motion of N harmonics of ω/2π (well below 5 Hz here) is a band-limited periodic
+#: signal, so CᵀC over one period is proportional to the sample count beyond a few samples per
+#: period of its highest frequency (4× cheaper than 200 Hz for G1).
+SAMPLE_RATE_HZ = 50.0
+#: A base parameter whose a-priori value is below this fraction of the largest one gets no %
+#: (a zero or rounding-level product of inertia would show as 1e8 %).
+PERCENT_FLOOR = 1e-6
+#: Random motions compared with the optimized one, and the seed of the first.
+RANDOM_MOTIONS = 5
+RANDOM_SEED = 1000
+#: A random draw that violates a sampled constraint is shrunk by this factor toward its
+#: offsets, at most RANDOM_SHRINK_STEPS times, before it is rejected.
+RANDOM_SHRINK = 0.8
+RANDOM_SHRINK_STEPS = 10
+
+
+@dataclasses.dataclass(frozen=True)
+class MotionQuality:
+    """The figures of one motion.
+
+    Attributes:
+        label: "optimized" or "random <seed>".
+        cond: cond(C) in pe_drake's base parameters (depends on the basis and units).
+        d_efficiency: geometric mean of the singular values of Σ^(-1/2)C over P periods
+            (its ratios between motions are basis-free; the value itself is not).
+        std: expected standard deviation of each base parameter, shape (b,) [SI units of
+            each base parameter].
+        prediction_rms: expected RMS error of the predicted torques on the reference set,
+            per joint, shape (n,) [N·m or N].
+        prediction_rms_total: the same over all joints [N·m or N].
+    """
+
+    label: str
+    cond: float
+    d_efficiency: float
+    std: np.ndarray
+    prediction_rms: np.ndarray
+    prediction_rms_total: float
+
+
+@dataclasses.dataclass(frozen=True)
+class QualityReport:
+    """Quality figures of a motion, of random motions under the same constraints, and ratios.
+
+    Attributes:
+        joints: joint names, length n.
+        noise_std: σ_j per joint [N·m or N].
+        periods: P, periods recorded.
+        rate_hz: rate of the samples assumed [Hz].
+        samples_per_period: samples of one period at ``rate_hz`` (the regressors are evaluated
+            at up to :data:`SAMPLE_RATE_HZ` and their information scaled to it).
+        base_names: pe_drake's base parameters, length b.
+        prior: their a-priori values (the model's), shape (b,).
+        std_percent: the motion's std in % of |prior| (inf where the prior is ~0), shape (b,).
+        motion: the optimized motion's :class:`MotionQuality`.
+        random: the random motions' figures.
+        random_rejected: random draws that failed the constraints even when shrunk.
+        prediction_ratio: best random prediction RMS / the motion's ("k× better"; nan
+            without random motions).
+        d_efficiency_ratio: the motion's D-efficiency / the best random one's.
+    """
+
+    joints: tuple[str, ...]
+    noise_std: np.ndarray
+    periods: int
+    rate_hz: float
+    samples_per_period: int
+    base_names: tuple[str, ...]
+    prior: np.ndarray
+    std_percent: np.ndarray
+    motion: MotionQuality
+    random: list[MotionQuality]
+    random_rejected: int
+    prediction_ratio: float
+    d_efficiency_ratio: float
+
+    def to_dict(self) -> dict:
+        """JSON-ready content (report.json's ``quality`` section)."""
+
+        def num(x: float) -> float | None:
+            return float(x) if math.isfinite(x) else None
+
+        def motion(m: MotionQuality) -> dict:
+            return {
+                "label": m.label,
+                "cond_pe_drake_basis": num(m.cond),
+                "d_efficiency": num(m.d_efficiency),
+                "prediction_rms": dict(zip(self.joints, map(float, m.prediction_rms))),
+                "prediction_rms_total": float(m.prediction_rms_total),
+            }
+
+        return {
+            "assumptions": {
+                "noise_std": dict(zip(self.joints, map(float, self.noise_std))),
+                "periods": self.periods,
+                "rate_hz": self.rate_hz,
+                "samples_per_period": self.samples_per_period,
+                "estimator": "weighted least squares, noise independent between samples",
+                "data": "this motion alone (earlier motions given as prior data are not included)",
+                "reference_set": {
+                    "motions": REFERENCE_MOTIONS,
+                    "seed": REFERENCE_SEED,
+                    "harmonics": REFERENCE_HARMONICS,
+                    "period_s": REFERENCE_PERIOD_S,
+                    "limit_fraction": REFERENCE_LIMIT_FRACTION,
+                },
+            },
+            "base_parameter_std": [
+                {"name": n, "prior": float(p), "std": float(s), "std_percent": num(pc)}
+                for n, p, s, pc in zip(self.base_names, self.prior, self.motion.std, self.std_percent)
+            ],
+            "motion": motion(self.motion),
+            "random": [motion(m) for m in self.random],
+            "random_rejected": self.random_rejected,
+            "prediction_ratio_vs_best_random": num(self.prediction_ratio),
+            "d_efficiency_ratio_vs_best_random": num(self.d_efficiency_ratio),
+        }
+
+    def figure_note(self) -> str:
+        """A few short lines for the trajectory figure."""
+        sigma = "/".join(f"{s:.3g}" for s in np.unique(self.noise_std))
+        lines = [
+            f"noise σ {sigma} N·m, {self.periods} period(s) at {self.rate_hz:g} Hz:",
+            f"torque-prediction RMS {self.motion.prediction_rms_total:.3g} N·m (reference motions)",
+        ]
+        if self.random:
+            lines.append(f"{self.prediction_ratio:.3g}× better than {len(self.random)} random motions")
+            lines.append(f"D-efficiency {self.d_efficiency_ratio:.3g}× theirs")
+        finite = np.where(np.isfinite(self.std_percent), self.std_percent, -np.inf)
+        k = int(np.argmax(finite))
+        if np.isfinite(finite[k]):
+            lines.append(f"largest base-parameter std {self.std_percent[k]:.3g} %")
+        return "\n".join(lines)
+
+    def summary_lines(self, worst: int = 3) -> list[str]:
+        """A few lines for the printed summary (the ``worst`` base parameters by % std)."""
+        sigma = ", ".join(f"{s:.3g}" for s in np.unique(self.noise_std))
+        lines = [
+            f"expected quality for torque noise σ = {sigma} N·m, {self.periods} period(s) at "
+            f"{self.rate_hz:g} Hz (weighted least squares):",
+            f"  torque prediction RMS on the reference motions: {self.motion.prediction_rms_total:.3g} N·m",
+        ]
+        finite = np.where(np.isfinite(self.std_percent), self.std_percent, -np.inf)
+        order = np.argsort(-finite)[:worst]
+        lines.append(
+            "  largest base-parameter std (pe_drake's base parameters): "
+            + "; ".join(f"{self.base_names[k]} {self.std_percent[k]:.3g} %" for k in order if np.isfinite(finite[k]))
+        )
+        if self.random:
+            best = min(m.prediction_rms_total for m in self.random)
+            lines.append(
+                f"  vs the best of {len(self.random)} random motions under the same constraints "
+                f"(RMS {best:.3g} N·m): predicts torques {self.prediction_ratio:.3g}× better, "
+                f"D-efficiency {self.d_efficiency_ratio:.3g}×"
+            )
+        return lines
+
+
+# ---- inputs ----------------------------------------------------------------------------------------
+def _check_periods(periods: int) -> None:
+    if isinstance(periods, bool) or not isinstance(periods, (int, np.integer)) or periods < 1:
+        raise ConfigError(f"periods must be a positive integer, got {periods!r}")
+
+
+# ---- the math ----------------------------------------------------------------------------------------
+def whitened(C: np.ndarray, noise_std: np.ndarray) -> np.ndarray:
+    """Σ^(-1/2)C: rows of joint j (row index t·n + j) divided by σ_j."""
+    n = len(noise_std)
+    return C / np.tile(noise_std, C.shape[0] // n)[:, None]
+
+
+def parameter_covariance(C: np.ndarray, noise_std: np.ndarray, periods: float = 1) -> np.ndarray:
+    """Expected covariance of the weighted least-squares base parameters, (CᵀΣ⁻¹C)⁻¹ / P.
+
+    Args:
+        C: base regressor of one period, shape (S·n, b), rows sample-major.
+        noise_std: σ_j, shape (n,).
+        periods: P, the recorded information in units of CᵀΣ⁻¹C (may be fractional).
+
+    Returns:
+        Shape (b, b); infinite when C is rank deficient.
+    """
+    _, s, Vt = np.linalg.svd(whitened(C, noise_std), full_matrices=False)
+    if s[-1] <= s[0] * 1e-12:
+        return np.full((C.shape[1], C.shape[1]), np.inf)
+    return (Vt.T / s**2) @ Vt / periods
+
+
+def prediction_rms(
+    C: np.ndarray, C_ref: np.ndarray, noise_std: np.ndarray, periods: float = 1
+) -> tuple[np.ndarray, float]:
+    """Expected RMS error of the torques predicted with the identified parameters.
+
+    The error of row c_v is c_v(φ̂ − φ) with variance c_v Cov c_vᵀ (the identified model
+    against the true one: the noise of a new measurement is not included).
+
+    Args:
+        C: the motion's base regressor of one period, (S·n, b).
+        C_ref: the reference motions' base regressor, (S_ref·n, b), rows sample-major.
+        noise_std: σ_j, (n,).
+        periods: P, as in :func:`parameter_covariance`.
+
+    Returns:
+        (per joint, shape (n,); over all joints).
+    """
+    n = len(noise_std)
+    _, s, Vt = np.linalg.svd(whitened(C, noise_std), full_matrices=False)
+    if s[-1] <= s[0] * 1e-12:
+        return np.full(n, np.inf), math.inf
+    A = (C_ref @ Vt.T) / s  # C_ref V S⁻¹: row sums of squares are c_v (CᵀΣ⁻¹C)⁻¹ c_vᵀ
+    var = np.sum(A**2, axis=1).reshape(-1, n) / periods
+    return np.sqrt(var.mean(axis=0)), float(np.sqrt(var.mean()))
+
+
+def d_efficiency(C: np.ndarray, noise_std: np.ndarray, periods: float = 1) -> float:
+    """det(P·CᵀΣ⁻¹C)^(1/2b): the geometric mean of the singular values of √P·Σ^(-1/2)C."""
+    s = np.linalg.svd(whitened(C, noise_std), compute_uv=False)
+    if s[-1] <= 0:
+        return 0.0
+    return float(math.sqrt(periods) * np.exp(np.mean(np.log(s))))
+
+
+# ---- motions -----------------------------------------------------------------------------------------
+def motion_regressor(problem, alpha: np.ndarray, rate_hz: float = DATA_RATE_HZ) -> np.ndarray:
+    """Base regressor of one period of the problem's motion ``alpha`` sampled at ``rate_hz``.
+
+    Returns:
+        Shape (S·n, b) with S = round(period·rate_hz) samples, rows sample-major.
+    """
+    samples = max(int(round(problem.period * rate_hz)), 1)
+    basis = FourierBasis(problem.harmonics, problem.omega, sample_times(problem.period, samples))
+    q, v, vd = basis.evaluate_alpha(np.asarray(alpha, float), problem.n)
+    return problem.base.reduce(problem.model(q, v, vd)).reshape(-1, problem.base.count)
+
+
+def reference_states(robot, count: int = REFERENCE_MOTIONS, seed: int = REFERENCE_SEED):
+    """The fixed reference set: ``count`` random Fourier motions within the robot's limits.
+
+    Motion k draws coefficients a, b ~ N(0, 1/k_h²) (harmonic k_h = 1..REFERENCE_HARMONICS,
+    period REFERENCE_PERIOD_S) from ``default_rng([seed, k])`` around the nominal posture
+    and scales them so that the binding limit (position, velocity or acceleration) is used
+    to REFERENCE_LIMIT_FRACTION. It depends on the robot only (not on the excitation
+    config), so two configs of a robot are judged on the same motions. The sampled
+    constraints (balance, collision) are not imposed: the set covers the joint space.
+
+    Returns:
+        (q, v, vd), each (count·REFERENCE_SAMPLES, n).
+    """
+    omega = 2 * math.pi / REFERENCE_PERIOD_S
+    basis = FourierBasis(REFERENCE_HARMONICS, omega, sample_times(REFERENCE_PERIOD_S, REFERENCE_SAMPLES))
+    lim, q0 = robot.limits, robot.nominal_posture()
+    harm = np.arange(1, REFERENCE_HARMONICS + 1)
+    out = []
+    for k in range(count):
+        rng = np.random.default_rng([seed, k])
+        a = rng.normal(size=(robot.n, REFERENCE_HARMONICS)) / harm
+        b = rng.normal(size=(robot.n, REFERENCE_HARMONICS)) / harm
+        dq, v, vd = basis.q(a, b, np.zeros(robot.n)), basis.v(a, b), basis.vd(a, b)
+        room_up = REFERENCE_LIMIT_FRACTION * (lim.q_upper - q0)
+        room_lo = REFERENCE_LIMIT_FRACTION * (q0 - lim.q_lower)
+        use = max(
+            np.max(np.maximum(dq, 0) / room_up),
+            np.max(np.maximum(-dq, 0) / room_lo),
+            np.max(np.abs(v) / (REFERENCE_LIMIT_FRACTION * lim.v_max)),
+            np.max(np.abs(vd) / (REFERENCE_LIMIT_FRACTION * lim.vd_max)),
+        )
+        out.append((q0 + dq / use, v / use, vd / use))
+    return tuple(np.concatenate(parts) for parts in zip(*out))
+
+
+def reference_regressor(problem) -> np.ndarray:
+    """Base regressor of :func:`reference_states` for the problem's robot, (S_ref·n, b)."""
+    q, v, vd = reference_states(problem.robot)
+    return problem.base.reduce(problem.model(q, v, vd)).reshape(-1, problem.base.count)
+
+
+def _margin_ok(problem, alpha: np.ndarray, constraints: Sequence) -> bool:
+    q, v, vd = problem.constraint_basis.evaluate_alpha(alpha, problem.n)
+    lim, tol = problem.robot.limits, 1e-9
+    if np.any(q < lim.q_lower - tol) or np.any(q > lim.q_upper + tol):
+        return False
+    if np.any(np.abs(v) > lim.v_max + tol) or np.any(np.abs(vd) > lim.vd_max + tol):
+        return False
+    return all(np.min(c.margins(q, v, vd)) >= 0 for c in constraints)
+
+
+def random_feasible_motions(
+    problem, constraints: Sequence = (), count: int = RANDOM_MOTIONS, seed: int = RANDOM_SEED
+) -> tuple[list[tuple[int, np.ndarray]], int]:
+    """Random motions of the problem's Fourier series that pass the same constraints.
+
+    Draw ``seed + d`` is the optimizer's random start (``problem.initial_guess``: same
+    harmonics, period, nominal posture and rest conditions), scaled to use the binding
+    joint limit fully at the K constraint samples, as the optimized motion may; if a
+    sampled constraint (balance, collision, torque) fails at the K samples it is shrunk
+    toward its offsets by RANDOM_SHRINK until it passes, else rejected. At most 4·count
+    draws are made.
+
+    Returns:
+        ([(seed, alpha), ...] of at most ``count`` motions, number of rejected draws).
+    """
+    found, rejected, n = [], 0, problem.n
+    for d in range(4 * count):
+        if len(found) == count:
+            break
+        alpha = np.array(problem.initial_guess(seed + d, amplitude=10.0), float)
+        alpha[:-n] /= 0.9  # initial_guess uses 90 % of the binding limit
+        for _ in range(RANDOM_SHRINK_STEPS):
+            if _margin_ok(problem, alpha, constraints):
+                found.append((seed + d, alpha))
+                break
+            alpha[:-n] *= RANDOM_SHRINK
+        else:
+            rejected += 1
+    return found, rejected
+
+
+# ---- the report ------------------------------------------------------------------------------------------
+def _figures(label: str, C: np.ndarray, C_ref: np.ndarray, noise: np.ndarray, periods: float) -> MotionQuality:
+    s = np.linalg.svd(C, compute_uv=False)
+    rms, total = prediction_rms(C, C_ref, noise, periods)
+    std = np.sqrt(np.maximum(np.diag(parameter_covariance(C, noise, periods)), 0.0))
+    cond = float(s[0] / s[-1]) if s[-1] > 0 else math.inf
+    return MotionQuality(label, cond, d_efficiency(C, noise, periods), std, rms, total)
+
+
+def excitation_quality(
+    problem,
+    alpha: np.ndarray,
+    constraints: Sequence = (),
+    *,
+    noise_std: float | Sequence[float] | None = None,
+    periods: int = 1,
+    rate_hz: float = DATA_RATE_HZ,
+    random_motions: int = RANDOM_MOTIONS,
+    seed: int = RANDOM_SEED,
+) -> QualityReport:
+    """The quality figures of motion ``alpha`` and of random motions under the same constraints.
+
+    Args:
+        problem: the :class:`~pe_drake.excitation.problem.ExcitationProblem` (robot, Fourier
+            series, base parameters, regressor).
+        alpha: the motion's coefficients, shape ((2N+1)·n,).
+        constraints: the sampled constraints the random motions must pass (the optimizer's).
+        noise_std: σ [N·m], one value or one per joint (default :data:`DEFAULT_NOISE_STD`).
+        periods: P, periods to be recorded.
+        rate_hz: rate of the fitted samples [Hz].
+        random_motions: random motions to compare with (0: none).
+        seed: seed of the first random draw.
+
+    Returns:
+        The :class:`QualityReport`.
+
+    Raises:
+        ConfigError: a bad noise_std, periods or rate.
+    """
+    noise = noise_vector(noise_std, problem.robot.joint_names)
+    _check_periods(periods)
+    if not (isinstance(rate_hz, (int, float)) and math.isfinite(rate_hz) and rate_hz > 0):
+        raise ConfigError(f"rate_hz must be a positive number [Hz], got {rate_hz!r}")
+    C_ref = reference_regressor(problem)
+    sample_hz = min(float(rate_hz), SAMPLE_RATE_HZ)
+    weight = periods * rate_hz / sample_hz  # periods, in units of the sampled period's information
+    C = motion_regressor(problem, alpha, sample_hz)
+    motion = _figures("optimized", C, C_ref, noise, weight)
+    random, rejected = [], 0
+    if random_motions > 0:
+        draws, rejected = random_feasible_motions(problem, constraints, random_motions, seed)
+        for s, a in draws:
+            random.append(_figures(f"random {s}", motion_regressor(problem, a, sample_hz), C_ref, noise, weight))
+    prior = problem.base.base_values(problem.robot.phi_model)
+    floor = PERCENT_FLOOR * float(np.max(np.abs(prior))) if prior.size else 0.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        percent = np.where(np.abs(prior) > max(floor, 1e-300), 100.0 * motion.std / np.abs(prior), np.inf)
+    best_rms = min((m.prediction_rms_total for m in random), default=math.nan)
+    best_d = max((m.d_efficiency for m in random), default=math.nan)
+    return QualityReport(
+        joints=tuple(problem.robot.joint_names),
+        noise_std=noise,
+        periods=int(periods),
+        rate_hz=float(rate_hz),
+        samples_per_period=max(int(round(problem.period * rate_hz)), 1),
+        base_names=tuple(problem.base.base_names),
+        prior=prior,
+        std_percent=percent,
+        motion=motion,
+        random=random,
+        random_rejected=rejected,
+        prediction_ratio=best_rms / motion.prediction_rms_total if random else math.nan,
+        d_efficiency_ratio=motion.d_efficiency / best_d if random and best_d > 0 else math.nan,
+    )

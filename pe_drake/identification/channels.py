@@ -1,0 +1,82 @@
+"""The measured channels of a run as rows of the identification model (issue 14).
+
+A run measures joint torques, the ground wrench, or both (``measurement`` of
+:mod:`pe_drake.multibody.sensors`). Each channel c of each sample gives one equation
+y_c = A_c(q, v, vdot) φ + ρ_c:
+
+- joint torque j: y = τ_j, A = row j of Y (Eq. 1);
+- ground-wrench component (:data:`~pe_drake.multibody.wrench.WRENCH_COLUMNS`):
+  y = w − w_static, A = the row of Y_0, where w_static is the a-priori model's weight of the
+  bodies no excited joint moves (:func:`~pe_drake.multibody.wrench.static_wrench`).
+
+A constant offset of the force/torque sensor adds to w_static: it cannot be told from the
+total mass and the horizontal centre of mass of the moving bodies (the fz, mx, my offsets
+lie in the span of Y_0), so zero the sensors with the feet unloaded, or measure the offset
+in a static pose and subtract it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pe_drake.exceptions import DataError
+from pe_drake.multibody.regressor import RegressorModel
+from pe_drake.multibody.sensors import MeasurementType, SensorRows
+from pe_drake.multibody.wrench import WRENCH_COLUMNS, static_wrench
+
+#: Samples per regressor evaluation (bounds the memory of (S, r, 10·nb) arrays).
+CHUNK = 2000
+
+
+def channel_names(robot, measurement: str) -> tuple[str, ...]:
+    """Names of the channels of one sample: the joints (their torques), then :data:`WRENCH_COLUMNS`."""
+    return MeasurementType(measurement).row_names(robot.joint_names)
+
+
+def measured_values(robot, data, measurement: str) -> np.ndarray:
+    """y of every sample, shape (S, r): torques, then the wrench minus the static bodies' weight.
+
+    Raises:
+        DataError: the data lacks the channels the measurement needs (naming the columns).
+    """
+    kind = MeasurementType(measurement)
+    parts = []
+    if kind.torques:
+        if data.tau is None:
+            raise DataError(
+                f"measurement '{measurement}' needs the joint torques (tau.<joint> columns); this run "
+                "has none: use --measurement base_wrench",
+                file=data.source,
+            )
+        parts.append(np.asarray(data.tau, float))
+    if kind.wrench:
+        wrench = getattr(data, "wrench", None)
+        if wrench is None:
+            raise DataError(
+                f"measurement '{measurement}' needs the ground wrench (columns {', '.join(WRENCH_COLUMNS)}); "
+                "this run has none: use --measurement joint_torque",
+                file=data.source,
+            )
+        parts.append(np.asarray(wrench, float) - static_wrench(robot))
+    return np.concatenate(parts, axis=1)
+
+
+def measured_rows(robot, data, measurement: str, model: RegressorModel | None = None) -> np.ndarray:
+    """A of every sample, shape (S, r, 10·nb), unscaled (rows in :func:`channel_names` order)."""
+    model = model or RegressorModel(robot)
+    rows = SensorRows(model, MeasurementType(measurement))
+    out = []
+    for s in range(0, data.num_samples, CHUNK):
+        k = slice(s, min(s + CHUNK, data.num_samples))
+        out.append(rows.rows(model.kinematics(data.q[k], data.v[k], data.vd[k]), scaled=False))
+    return np.concatenate(out)
+
+
+def predicted_wrench(robot, phi: np.ndarray, q: np.ndarray, v: np.ndarray, vd: np.ndarray, model=None) -> np.ndarray:
+    """The ground wrench a model φ predicts, shape (S, 6) [N, N·m] (static bodies included)."""
+    model = model or RegressorModel(robot)
+    out = np.empty((q.shape[0], 6))
+    for s in range(0, q.shape[0], CHUNK):
+        k = slice(s, min(s + CHUNK, q.shape[0]))
+        out[k] = model.wrench_regressor(model.kinematics(q[k], v[k], vd[k])) @ phi
+    return out + static_wrench(robot)

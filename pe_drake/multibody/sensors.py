@@ -1,0 +1,177 @@
+"""What the robot measures: joint torques, the ground wrench, or both (issue 14).
+
+Each measurement type gives the rows of the identification model y = A(q, v, vdot) φ:
+
+- ``joint_torque``: τ = Y φ (Eq. 1), n rows per sample;
+- ``base_wrench``: the ground wrench w = Y_0 φ + w_static (:mod:`pe_drake.multibody.wrench`),
+  6 rows per sample, no joint torque and no joint friction in them: a humanoid without
+  joint-torque sensors identified from foot force/torque sensors or a force plate;
+- ``both``: the two stacked, n + 6 rows.
+
+Rows are divided by their sensor noise σ (``torque_std``, ``force_std``, ``moment_std``), so
+that the excitation criterion cond(C) does not depend on units, and least squares on the
+scaled rows is the weighted (Gauss–Markov) estimate.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from pe_drake.config import MEASUREMENTS, ExcitationConfig, noise_vector
+from pe_drake.exceptions import ConfigError
+from pe_drake.multibody.base_parameters import BaseParameters, compute_base_parameters
+from pe_drake.multibody.regressor import Kinematics, RegressorModel
+from pe_drake.multibody.wrench import WRENCH_COLUMNS
+
+__all__ = ["MEASUREMENTS", "WRENCH_RANK_TOLERANCE", "MeasurementType", "SensorRows", "measurement_type"]
+
+#: Relative tolerance on the pivoted-QR diagonal for rows that include the ground wrench.
+#: On G1's arms the wrench rows have numerical rank 97 at the joint-torque tolerance (1e-8),
+#: but the 97th direction (hy of the right minus the left shoulder-pitch link: a first moment
+#: along a pitch axis turns with the link only about that axis, so it adds a nearly constant
+#: moment, nearly the same from either side) has |R_ii|/|R_00| = 1.5e-4 and σ/σ_max = 3.5e-5:
+#: its effect is ~1e-5 N·m for the model's values, far below any force/torque sensor, and kept
+#: in C it pinned cond(C) above 1e5 for every motion tried. The next one is at 0.39, so 1e-3
+#: drops it alone (96 base parameters; 118 with the waist excited).
+WRENCH_RANK_TOLERANCE = 1e-3
+
+
+@dataclasses.dataclass(frozen=True)
+class MeasurementType:
+    """A measurement type and its sensor noise (the row weights).
+
+    Attributes:
+        kind: one of :data:`MEASUREMENTS`.
+        torque_std: joint-torque noise σ_τ [N·m or N], one value or one per joint.
+        force_std: force noise of the ground-wrench sensor σ_f [N].
+        moment_std: moment noise of the ground-wrench sensor σ_m [N·m].
+    """
+
+    kind: str = "joint_torque"
+    torque_std: float | tuple[float, ...] = 1.0  # [N·m]
+    force_std: float = 0.5  # [N]
+    moment_std: float = 0.05  # [N·m]
+
+    def __post_init__(self):
+        if self.kind not in MEASUREMENTS:
+            raise ConfigError(f"measurement '{self.kind}' is not one of {', '.join(MEASUREMENTS)}")
+        for name in ("torque_std", "force_std", "moment_std"):
+            values = getattr(self, name)
+            for value in values if isinstance(values, tuple) else (values,):
+                if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+                    raise ConfigError(f"measurement {name} must be a positive number, got {value!r}")
+
+    @property
+    def torques(self) -> bool:
+        """Whether the joint torques are measured."""
+        return self.kind in ("joint_torque", "both")
+
+    @property
+    def wrench(self) -> bool:
+        """Whether the ground wrench is measured."""
+        return self.kind in ("base_wrench", "both")
+
+    def row_names(self, joint_names) -> tuple[str, ...]:
+        """Names of the rows of one sample: the joints' torques, then :data:`WRENCH_COLUMNS`."""
+        return (tuple(joint_names) if self.torques else ()) + (WRENCH_COLUMNS if self.wrench else ())
+
+    def row_std(self, n: int) -> np.ndarray:
+        """σ of each row of one sample, shape (r,)."""
+        parts = [np.broadcast_to(np.asarray(self.torque_std, float), (n,))] if self.torques else []
+        if self.wrench:
+            parts.append(np.repeat([self.force_std, self.moment_std], 3))
+        return np.concatenate(parts)
+
+
+def measurement_type(config: ExcitationConfig, kind: str | None = None, joint_names=None) -> MeasurementType:
+    """The :class:`MeasurementType` of an excitation config (``kind`` overrides its
+    ``measurement``, as ``--measurement`` does); ``joint_names`` resolve a per-joint torque
+    noise table (without them a table needs its ``all`` entry)."""
+    noise = config.noise_std
+    torque = noise.torque
+    if isinstance(torque, dict):
+        names = tuple(joint_names) if joint_names is not None else tuple(k for k in torque if k != "all")
+        torque = tuple(noise_vector(torque, names)) if names else noise_vector(torque, ["all"])[0]
+    return MeasurementType(kind or config.measurement, torque, noise.force, noise.moment)
+
+
+class SensorRows:
+    """The (noise-scaled) rows of a measurement type and their adjoint.
+
+    Used in place of the joint-torque regressor by the excitation criterion: the rows of
+    sample t are A^(t) = diag(1/σ) [Y^(t); Y_0^(t)] (the parts the measurement has).
+
+    Args:
+        model: the robot's :class:`RegressorModel`.
+        measurement: the :class:`MeasurementType` (default: joint torques, σ = 1).
+    """
+
+    def __init__(self, model: RegressorModel, measurement: MeasurementType | None = None):
+        self.model = model
+        self.measurement = measurement or MeasurementType()
+        self.n = model.n
+        self.num_params = model.num_params
+        self.scale = 1.0 / self.measurement.row_std(model.n)  # (r,)
+        self.num_rows = len(self.scale)
+
+    def kinematics(self, q: np.ndarray, v: np.ndarray, vd: np.ndarray) -> Kinematics:
+        """:meth:`RegressorModel.kinematics`."""
+        return self.model.kinematics(q, v, vd)
+
+    def rows(self, kin: Kinematics, scaled: bool = True) -> np.ndarray:
+        """A, shape (T, r, 10·nb): joint-torque rows then wrench rows, divided by σ if ``scaled``."""
+        parts = []
+        if self.measurement.torques:
+            parts.append(self.model.regressor(kin))
+        if self.measurement.wrench:
+            parts.append(self.model.wrench_regressor(kin))
+        A = parts[0] if len(parts) == 1 else np.concatenate(parts, axis=1)
+        return A * self.scale[:, None] if scaled else A
+
+    def __call__(self, q: np.ndarray, v: np.ndarray, vd: np.ndarray) -> np.ndarray:
+        """The scaled rows at (q, v, vdot), shape (T, r, 10·nb)."""
+        return self.rows(self.kinematics(q, v, vd))
+
+    def pullback(self, kin: Kinematics, Z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Gradient of Σ_t Z^(t) : A^(t) (scaled rows) with respect to q, v and vdot.
+
+        Args:
+            kin: from :meth:`kinematics`.
+            Z: weights, shape (T, r, 10·nb).
+
+        Returns:
+            (∂f/∂q, ∂f/∂v, ∂f/∂vdot), each (T, n).
+        """
+        Z = Z * self.scale[:, None]
+        n = self.n if self.measurement.torques else 0
+        Z_tau = Z[:, :n] if self.measurement.torques else None
+        Z_wrench = Z[:, n:] if self.measurement.wrench else None
+        return self.model.pullback(kin, Z_tau, Z_wrench)
+
+    def base_parameters(self, *, seed: int = 0, rank_tolerance: float | None = None) -> BaseParameters:
+        """The base parameters of these rows (their own pivoted QR, Eq. 2).
+
+        The ground wrench identifies more than the joint torques (on G1's arms 96 instead of
+        90: shoulder-link parameters that only load the pelvis); ``both`` gives the union.
+
+        Args:
+            seed: seed of the random states.
+            rank_tolerance: relative tolerance on R's diagonal (default 1e-8 for joint
+                torques, :data:`WRENCH_RANK_TOLERANCE` with the wrench).
+        """
+        if rank_tolerance is None:
+            rank_tolerance = WRENCH_RANK_TOLERANCE if self.measurement.wrench else 1e-8
+        robot = self.model.robot
+        samples = max(20, int(np.ceil(4 * self.num_params / self.num_rows)))
+        return compute_base_parameters(
+            robot,
+            samples=samples,
+            seed=seed,
+            rank_tolerance=rank_tolerance,
+            model=self.model,
+            rows=self,
+            measurement=self.measurement.kind,
+        )
