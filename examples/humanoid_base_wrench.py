@@ -94,18 +94,17 @@ def wrench_conds(robot, config, alphas: dict, candidates: int, seed: int, say) -
     """cond of the wrench rows of each motion, and the best of the random balanced motions."""
     from pe_drake.excitation.baseline import generate_candidates
     from pe_drake.excitation.constraints import constraints_from_config
-    from pe_drake.excitation.multistart import WorkerPool
     from pe_drake.excitation.problem import ExcitationProblem
 
     excitation = dataclasses.replace(config.excitation, measurement="base_wrench")
     problem = ExcitationProblem(robot, excitation)
     conds = {name: problem.value(alpha) for name, alpha in alphas.items()}
     start = time.perf_counter()
-    # The pool's base parameters must be the wrench rows' (its default is the torques').
-    with WorkerPool(robot, 1, base=problem.base, constraints_factory=constraints_from_config) as pool:
-        cset = generate_candidates(
-            robot, excitation, candidates, seed=1_000_000 + seed, amplitude=RANDOM_AMPLITUDE, pool=pool
-        )
+    # The draws are scored on the wrench rows' own base parameters (excitation.measurement).
+    cset = generate_candidates(
+        robot, excitation, candidates, seed=1_000_000 + seed, amplitude=RANDOM_AMPLITUDE,
+        constraints_factory=constraints_from_config,
+    )
     best = min(cset.candidates, key=lambda c: c.cond)
     conds["random balanced (best)"] = best.cond
     took = time.perf_counter() - start

@@ -82,8 +82,6 @@ def test_wrench_optimized_motion_is_better_conditioned_on_the_wrench_rows():
     150 IPOPT iterations, balance and capsules as in the paper) against the joint-torque-optimized
     motion of the same start and random motions that keep balance and collision."""
     from pe_drake.excitation.baseline import generate_candidates
-    from pe_drake.excitation.constraints import constraints_from_config
-    from pe_drake.excitation.multistart import WorkerPool
     from pe_drake.excitation.trajectory_file import load_trajectory
     from pe_drake.multibody.registry import builtin_config
 
@@ -94,8 +92,7 @@ def test_wrench_optimized_motion_is_better_conditioned_on_the_wrench_rows():
     for name in ("base_wrench", "joint_torque"):
         trajectory, _ = load_trajectory(DATA / f"g1_{name}_optimized.json")
         conds[name] = problem.value(trajectory.alpha)
-    with WorkerPool(g1, 1, base=problem.base, constraints_factory=constraints_from_config) as pool:
-        randoms = generate_candidates(g1, excitation, 3, seed=5, amplitude=0.1, pool=pool).candidates
+    randoms = generate_candidates(g1, excitation, 3, seed=5, amplitude=0.1).candidates
     conds["random"] = min(c.cond for c in randoms)
     assert conds["base_wrench"] < 60  # 50.9 when written
     assert 3 * conds["base_wrench"] < conds["joint_torque"]  # 978

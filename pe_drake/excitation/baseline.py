@@ -364,7 +364,8 @@ def generate_candidates(
     own = not isinstance(executor, Executor)
     if own:
         executor = open_executor(
-            robot, executor, workers, address=address, constraints_factory=constraints_factory or constraints_from_config
+            robot, executor, workers, address=address, measurement=config.measurement,
+            constraints_factory=constraints_factory or constraints_from_config,
         )
     try:
         outcomes = _draw_rounds(

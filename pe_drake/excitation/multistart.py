@@ -383,7 +383,8 @@ def solve_multistart(
     own = not isinstance(executor, Executor)
     if own:
         executor = open_executor(
-            robot, executor, workers, tasks=len(tasks), address=address, constraints_factory=constraints_factory
+            robot, executor, workers, tasks=len(tasks), address=address, measurement=config.measurement,
+            constraints_factory=constraints_factory,
         )
     try:
         _check_guesses(executor.problem(config, tasks[0].C0), tasks)  # C0 is checked here too

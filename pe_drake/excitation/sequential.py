@@ -224,6 +224,7 @@ def optimize_sequence(
             workers,
             tasks=max(len(row) for row in seeds),
             address=address,
+            measurement=config.measurement,
             constraints_factory=constraints_factory or constraints_from_config,
         )
     try:

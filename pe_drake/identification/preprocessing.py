@@ -38,8 +38,8 @@ ENERGY_FRACTION = 0.999
 UNIFORM_TOLERANCE = 1e-3
 #: Odd extension at each end of the filtered record, in periods of the cut-off.
 EDGE_PERIODS = 3.0
-#: Time trimmed at each end before issue 13, in periods of the cut-off (kept for callers that
-#: want the old, conservative trim: ``trim_s=TRIM_PERIODS / cutoff``).
+#: Time trimmed at each end of a ground-wrench record, in periods of the cut-off (and of every
+#: record before issue 13): :func:`default_trim_s`.
 TRIM_PERIODS = 2.0
 #: The default trim drops the samples where the filter's edge transient on the acceleration
 #: exceeds this fraction of the acceleration at the end (:meth:`LowPassFilter.edge_transient_s`).
@@ -409,6 +409,18 @@ def decimation_step(rate_hz: float, target_hz: float | None, cutoff_hz: float) -
     return step
 
 
+def default_trim_s(lowpass: LowPassFilter, wrench: bool) -> float:
+    """Time dropped at each end when the caller gives none [s].
+
+    Joint torques: what the filter needs (:meth:`LowPassFilter.edge_transient_s`, 5 % of the
+    end acceleration). A ground wrench keeps the conservative ``TRIM_PERIODS`` / cut-off:
+    the arms move it by 1-3 N·m on top of a 300 N weight, and whole-body accelerations
+    at 5 % error put 0.25 N of edge transient into it (G1, 1 s run; 0.014 N with this trim),
+    more than the arm signal can afford.
+    """
+    return TRIM_PERIODS / lowpass.cutoff_hz if wrench else lowpass.edge_transient_s()
+
+
 def trim_indices(t: np.ndarray, trim_s: float, step: int = 1, *, file: str = "") -> np.ndarray:
     """Indices of the samples kept: every ``step``-th one, ``trim_s`` away from both ends.
 
@@ -474,7 +486,7 @@ def preprocess(measurement: Measurement, options: PreprocessOptions | None = Non
     filtered = {k: None if x is None else lowpass.apply(x) for k, x in grid.signals.items()}
     derivatives = fill_derivatives(filtered["q"], grid.dt, filtered["v"], filtered["vd"])
     step = decimation_step(grid.rate_hz, opts.decimate_to_hz, cutoff.hz)
-    trim = lowpass.edge_transient_s() if opts.trim_s is None else float(opts.trim_s)
+    trim = default_trim_s(lowpass, m.wrench is not None) if opts.trim_s is None else float(opts.trim_s)
     idx = trim_indices(grid.t, trim, step, file=m.source)
     info = Preprocessing(
         cutoff_hz=cutoff.hz, cutoff_source=cutoff.source, filter_order=int(opts.filter_order),

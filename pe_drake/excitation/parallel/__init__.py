@@ -28,6 +28,7 @@ from pe_drake.excitation.parallel.local import LocalExecutor, default_start_meth
 from pe_drake.excitation.parallel.ray import RayExecutor, cluster_cpus
 from pe_drake.multibody.base_parameters import compute_base_parameters
 from pe_drake.multibody.regressor import RegressorModel
+from pe_drake.multibody.sensors import MeasurementType, SensorRows
 
 EXECUTORS = ("local", "ray")
 
@@ -58,6 +59,7 @@ def open_executor(
     tasks: int | None = None,
     address: str = "",
     base=None,
+    measurement: str = "joint_torque",
     constraints_factory: ConstraintsFactory | None = None,
     start_method: str | None = None,
 ) -> Executor:
@@ -71,7 +73,9 @@ def open_executor(
             capped at ``tasks``. "local" with one worker runs in this process.
         tasks: the most tasks one :meth:`Executor.map` will get (caps the default workers).
         address: the Ray cluster ("ray" only; "" : ``ray.init()``'s default).
-        base: the base parameters every task uses (default: computed here once).
+        base: the base parameters every task uses (default: computed here once, for the
+            rows of ``measurement``).
+        measurement: the rows of C (``excitation.measurement``) the default base is for.
         constraints_factory: ``f(robot, excitation_config) -> [SampledConstraint, ...]``;
             a module-level function (it is pickled by name).
         start_method: for "local"; see :func:`default_start_method`.
@@ -91,7 +95,9 @@ def open_executor(
     if executor == "ray" and workers > cores:  # an actor without a free CPU would wait forever
         raise ConfigError(f"{workers} Ray workers need {workers} CPUs; the cluster has {cores}: lower workers or add nodes")
     model = RegressorModel(robot)
-    base = base if base is not None else compute_base_parameters(robot, model=model)
+    if base is None:  # the rows' own base parameters: the torques' would select wrong columns
+        base = (compute_base_parameters(robot, model=model) if measurement == "joint_torque"
+                else SensorRows(model, MeasurementType(measurement)).base_parameters())
     local = WorkerState(robot, base, constraints_factory, model=model)
     spec = RobotSpec(robot.name, robot.config, base, constraints_factory)
     if executor == "ray":
