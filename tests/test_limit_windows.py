@@ -147,7 +147,7 @@ def test_exchange_rounds_add_the_violated_instants(panda):
             g, _ = ev.values_and_jacobian(x)
             assert np.all(g.reshape(-1, 2).max(axis=1) > ev.constraint.upper[0])
     assert margins[0] < -1e-6  # the 8 grouped samples alone let the band be crossed
-    assert min(margins[-2:]) > 0.1 * margins[0], margins
+    assert margins[-1] > 0.5 * margins[0], margins
 
 
 def test_solve_runs_the_exchange_step_within_its_budget(panda):
