@@ -299,7 +299,7 @@ class ExcitationProgram:
     evaluators: list[SampledConstraintEvaluator] = dataclasses.field(default_factory=list)
     progress: Callable | None = None
     cost: ExcitationCost | None = None
-    limits: str = "sampled"
+    limits: str = "windows"
     limit_bindings: list = dataclasses.field(default_factory=list)
     exchange_bindings: list = dataclasses.field(default_factory=list)
     exchange_evaluators: list[SampledConstraintEvaluator] = dataclasses.field(default_factory=list)
@@ -318,7 +318,7 @@ def build_excitation_program(
     constraints: list[SampledConstraint] | None = None,
     *,
     progress: bool | Callable = False,
-    limits: str = "sampled",
+    limits: str = "windows",
     sample_stride: int | None = None,
     smooth_limits: bool = False,
 ) -> ExcitationProgram:
@@ -330,13 +330,12 @@ def build_excitation_program(
             and (if configured) rest at the ends are always added.
         progress: True to print a progress line every few evaluations, or a callable
             ``f(alpha, value)``.
-        limits: how the joint limits (Eq. 51) enter: "sampled" (default; linear rows at
-            every stride-th constraint sample, tightened for the overshoot between them),
-            "windows" (one exact window-maximum row per joint, quantity, side and window,
-            :mod:`pe_drake.excitation.limit_windows`: 5× fewer rows and 3–4× cheaper IPOPT
-            iterations, but on G1 less progress per iteration, so a higher cond within the
-            same iteration budget; BUILD_NOTES.md) or "smooth" (6 smooth-max rows per joint;
-            cheap iterations but many more of them).
+        limits: how the joint limits (Eq. 51) enter: "windows" (default; one exact
+            window-maximum row per joint, quantity, side and window,
+            :mod:`pe_drake.excitation.limit_windows`: 5× fewer rows than "sampled" and 3–4×
+            cheaper IPOPT iterations), "sampled" (linear rows at every stride-th constraint
+            sample, tightened for the overshoot between them: the formulation before issue
+            11) or "smooth" (6 smooth-max rows per joint; cheap iterations but many more).
         sample_stride: the sampled constraints (balance, collision, ...) are imposed at every
             ``sample_stride``-th constraint sample. Default 2 with "windows": their dense rows
             and per-sample callbacks are most of an iteration's cost, and the exchange step of
