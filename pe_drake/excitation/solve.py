@@ -251,8 +251,11 @@ def _solve_with_exchange(program, backend: _Backend, cfg: SolverConfig, x0: np.n
         added += new
         rerun = _ipopt_backend(dataclasses.replace(cfg, max_iterations=cfg.max_iterations - nit))
         result = rerun.solver.Solve(program.prog, x, rerun.options)
-        nit += _iterations_from_log(rerun.log_file) or 0
+        ran = _iterations_from_log(rerun.log_file) or 0
+        nit += ran
         solves += 1
+        if ran == 0:  # IPOPT stopped at once (e.g. its time limit): no progress to wait for
+            break
     if added:
         note += f"; exchange: {added} instant(s) added, {solves} solves"
     return _Run(result, note, nit, solves, added)
