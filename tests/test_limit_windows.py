@@ -167,3 +167,20 @@ def test_add_violated_samples_adds_nothing_at_a_valid_point(panda):
     problem, program, x0 = _band_program(panda)
     assert add_violated_samples(program, x0) == 0
     assert program.exchange_bindings == []
+
+
+def test_shrink_into_limits_scales_an_overshooting_motion_back(panda):
+    from pe_drake.excitation.solve import shrink_into_limits
+
+    problem = ExcitationProblem(panda, ExcitationConfig(harmonics=3, cost_samples=24, constraint_samples=48))
+    x = problem.initial_guess(seed=0)
+    big = x.copy()
+    big[: -problem.n] *= 50.0  # far over the velocity and acceleration limits
+    assert min(check_margins(problem, big).values()) < 0
+    shrunk = shrink_into_limits(problem, big)
+    margins = check_margins(problem, shrunk)
+    assert min(margins.values()) >= 0 and min(margins.values()) < 1e-6  # on a limit, not inside
+    assert np.array_equal(shrunk[-problem.n :], x[-problem.n :])
+    assert np.allclose(shrunk[: -problem.n] / big[: -problem.n], shrunk[0] / big[0])
+    # a valid motion is left as it is
+    assert np.array_equal(shrink_into_limits(problem, x), x)
