@@ -1,4 +1,4 @@
-"""Benchmarks that print numbers: ``python -m pe_drake.bench {gradient,identify,diagnose,sensitivity}``.
+"""Benchmarks that print numbers: ``python -m pe_drake.bench {gradient,identify,diagnose,sensitivity,solve}``.
 
 Each benchmark prints its measurements and ends with one line ``BENCH key=value ...`` so
 scripts can collect it. Timings are wall-clock medians of repeated runs on this machine.
@@ -7,6 +7,7 @@ scripts can collect it. Timings are wall-clock medians of repeated runs on this 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import importlib
 import math
 import statistics
@@ -20,8 +21,11 @@ import numpy as np
 
 from pe_drake.config import ExcitationConfig
 from pe_drake.diagnosis import diagnose, write_outputs
+from pe_drake.excitation.constraints import constraints_from_config
 from pe_drake.excitation.fourier import FourierTrajectory
 from pe_drake.excitation.problem import ExcitationProblem
+from pe_drake.excitation.program import build_excitation_program
+from pe_drake.excitation.solve import IPOPT_EXTRA_OPTIONS, solve_excitation
 from pe_drake.excitation.trajectory_file import load_trajectory
 from pe_drake.identification.estimators import identify, prepare_measurement, read_robot_measurement
 from pe_drake.identification.measurements import write_measurement_csv
@@ -29,7 +33,8 @@ from pe_drake.identification.simulation import simulate
 from pe_drake.identification.synthetic import model_measurement
 from pe_drake.identification.truth import ControlTruth, EffectsTruth, NoiseTruth, Truth
 from pe_drake.memory import reuse_freed_memory
-from pe_drake.multibody.robot import load_robot
+from pe_drake.multibody.registry import resolve_robot_config
+from pe_drake.multibody.robot import Robot, load_robot
 from pe_drake.threads import single_threaded_blas
 
 # name -> (module, function): each function takes the parsed args and prints its results.
@@ -38,6 +43,7 @@ _BENCHMARKS = {
     "identify": ("pe_drake.bench", "bench_identify"),
     "diagnose": ("pe_drake.bench", "bench_diagnose"),
     "sensitivity": ("pe_drake.bench", "bench_sensitivity"),
+    "solve": ("pe_drake.bench", "bench_solve"),
 }
 
 
@@ -259,6 +265,51 @@ def bench_sensitivity(args) -> None:
     false_alarms = sum(1 for found in alarms if found)
     print(f"false alarms: {false_alarms} of 20 clean runs named something; offsets named on {len(offsets)} of {robot.n} joints")
     print(f"BENCH false_alarms={false_alarms} clean_runs=20 offsets_named={len(offsets)} joints={robot.n}")
+
+
+def bench_solve(args: argparse.Namespace) -> None:
+    """One excitation solve of the robot's own problem (as ``pe-drake optimize --robot``:
+    its config's limits, balance, collision, 300 IPOPT iterations at most), from the same
+    start, with the formulation before issue 11 (joint limits as linear rows at sampled
+    instants, SPRAL's default scaling, no exchange) and with the default one (window rows,
+    exchange, 30 quasi-Newton pairs). Times are wall clock in this process; ``grad_ms`` (one
+    analytic gradient, measured just before) lets runs on a busy machine be compared."""
+    config = resolve_robot_config(args.robot, None)
+    robot = Robot(args.robot, config.robot)
+    problem = ExcitationProblem(robot, config.excitation)
+    constraints = constraints_from_config(robot, config.excitation)
+    x0 = problem.initial_guess(seed=args.seed)
+    solver = dataclasses.replace(config.solver, verbose=False)
+    reuse_freed_memory()
+    with single_threaded_blas():
+        def gradient():
+            problem.clear_cache()
+            return problem.evaluate(x0).grad
+
+        grad_s = median_time(gradient, repeats=args.repeats)
+
+    old_program = build_excitation_program(problem, constraints, limits="sampled")
+    # IPOPT's defaults, as before issue 11
+    IPOPT_EXTRA_OPTIONS.update(spral_scaling="matching", limited_memory_max_history=6)
+    try:
+        old = solve_excitation(old_program, solver, x0, exchange=False)
+    finally:
+        del IPOPT_EXTRA_OPTIONS["spral_scaling"], IPOPT_EXTRA_OPTIONS["limited_memory_max_history"]
+    new_program = build_excitation_program(problem, constraints)
+    new = solve_excitation(new_program, solver, x0)
+    for label, r in (("before issue 11", old), ("default", new)):
+        print(
+            f"{label:26s} {r.wall_time:7.2f} s  cond {r.cond:9.4f}  {r.nit} iterations  {r.nfev} evaluations  "
+            f"{r.solves} solve(s)  callbacks {r.callback_seconds:6.2f} s  "
+            f"{'valid at 1 kHz' if r.success else 'INVALID'}: {r.message}"
+        )
+    print(f"in gradient evaluations: {new.wall_time / grad_s:.0f} ({old.wall_time / grad_s:.0f} before)")
+    print(
+        f"BENCH robot={robot.name} old_s={old.wall_time:.2f} new_s={new.wall_time:.2f} "
+        f"speedup={old.wall_time / new.wall_time:.2f} old_cond={old.cond:.4f} new_cond={new.cond:.4f} "
+        f"old_iterations={old.nit} new_iterations={new.nit} new_callbacks_s={new.callback_seconds:.2f} "
+        f"new_solver_s={new.wall_time - new.callback_seconds:.2f} grad_ms={grad_s * 1e3:.3f}"
+    )
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,7 +1,9 @@
 """Solving a built excitation program with IPOPT or NLopt, and checking the result at 1 kHz.
 
 :func:`solve_excitation` runs the solver (with a restart when NLopt's SLSQP stalls at its
-start), re-checks every constraint between the samples, falls back to the best feasible
+start), re-checks every constraint between the samples and, where a sampled constraint is
+violated there, adds those instants and solves again from that point within the same
+iteration budget (:mod:`pe_drake.excitation.exchange`), falls back to the best feasible
 point evaluated when the solver stops at an infeasible iterate, and reports it all in an
 :class:`ExcitationResult`. :func:`optimize_excitation` builds and solves in one call.
 """
@@ -20,11 +22,15 @@ import numpy as np
 from pe_drake.config import Config, ExcitationConfig, SolverConfig, validate_config
 from pe_drake.exceptions import ConfigError, NoSolutionFound
 from pe_drake.excitation.constraints.base import SampledConstraint
+from pe_drake.excitation.exchange import add_violated_samples
 from pe_drake.excitation.fourier import FourierBasis, FourierTrajectory
 from pe_drake.excitation.problem import ExcitationProblem
 from pe_drake.excitation.program import ExcitationProgram, build_excitation_program
 from pe_drake.memory import reuse_freed_memory
 from pe_drake.threads import single_threaded_blas
+
+#: Quasi-Newton pairs IPOPT keeps (its limited-memory Hessian; IPOPT's default is 6).
+LBFGS_PAIRS = 30
 
 #: Extra IPOPT options (name → value), e.g. for experiments.
 IPOPT_EXTRA_OPTIONS: dict = {}
@@ -54,6 +60,10 @@ class ExcitationResult:
         singular_values: σ of C.
         solver: "ipopt" or "nlopt".
         raw: Drake's MathematicalProgramResult.
+        solves: solver runs (1 + the exchange step's re-solves); ``nit`` sums them.
+        exchange_samples: instants the exchange step added to the program.
+        callback_seconds: time in the program's own callbacks (cost, limits, sampled
+            constraints) during the solve [s]; the rest of ``wall_time`` is the solver's.
     """
 
     x: np.ndarray
@@ -72,6 +82,9 @@ class ExcitationResult:
     singular_values: np.ndarray
     solver: str
     raw: object = None
+    solves: int = 1
+    exchange_samples: int = 0
+    callback_seconds: float = 0.0
 
 
 def check_margins(
@@ -117,6 +130,13 @@ def _ipopt_backend(cfg: SolverConfig) -> _Backend:
     options.SetOption(sid, "print_level", 0)
     options.SetOption(sid, "file_print_level", 5)
     options.SetOption(sid, "hessian_approximation", "limited-memory")
+    # SPRAL's default scaling (matching) redoes the symbolic analysis at every factorization;
+    # without it IPOPT took the same iterates with ~40 % less linear-algebra time (issue 11).
+    options.SetOption(sid, "spral_scaling", "none")
+    # 30 quasi-Newton pairs instead of IPOPT's 6: with the window rows of the joint limits
+    # G1 ended 300 iterations at cond 254 (6 pairs), 226 (20), 205 (30), 200 (50; 40 % more
+    # time per iteration than 30); the former sampled rows reached 209 with 6 (issue 11).
+    options.SetOption(sid, "limited_memory_max_history", LBFGS_PAIRS)
     for key, value in IPOPT_EXTRA_OPTIONS.items():
         options.SetOption(sid, key, value)
     if cfg.max_time > 0:
@@ -195,22 +215,105 @@ class _Check(NamedTuple):
     tolerance: float  # a margin below -tolerance is a violation, in the constraint's units
 
 
+class _Run(NamedTuple):
+    """The solver runs of one solve."""
+
+    result: object  # Drake's result of the last run
+    note: str  # restarts and exchange steps, for the message ("" if none)
+    nit: int | None  # iterations summed over the runs (IPOPT), None for NLopt
+    solves: int
+    added: int  # instants added by the exchange step
+
+
+#: Share of the iteration budget the first IPOPT run may use; the rest is kept for the
+#: exchange step's re-solves (which otherwise would find no budget left whenever the first
+#: run stops at its iteration limit, as it mostly does on G1 and Panda).
+FIRST_SOLVE_SHARE = 0.9
+
+
+def _solve_with_exchange(program, backend: _Backend, cfg: SolverConfig, x0: np.ndarray, check: _Check) -> _Run:
+    """Solves, then, while the budget of ``cfg.max_iterations`` IPOPT iterations lasts, adds
+    the instants where a sampled constraint is violated at ``check.rate``
+    (:func:`~pe_drake.excitation.exchange.add_violated_samples`) and solves again from the
+    last point; an unconverged run is also continued. Stops when a run converges with
+    nothing violated, or when the budget is spent."""
+    if cfg.name == "ipopt":
+        first = max(1, int(FIRST_SOLVE_SHARE * cfg.max_iterations))
+        backend.options.SetOption(backend.solver.solver_id(), "max_iter", first)
+    result, note = _solve_with_restarts(program, backend, cfg, x0)
+    nit = _iterations_from_log(backend.log_file)
+    solves, added = 1, 0
+    while cfg.name == "ipopt" and nit is not None and nit < cfg.max_iterations:
+        x = np.asarray(result.GetSolution(program.alpha), float)
+        new = add_violated_samples(program, x, check.rate, check.tolerance)
+        if not new and result.is_success():
+            break
+        added += new
+        rerun = _ipopt_backend(dataclasses.replace(cfg, max_iterations=cfg.max_iterations - nit))
+        result = rerun.solver.Solve(program.prog, x, rerun.options)
+        ran = _iterations_from_log(rerun.log_file) or 0
+        nit += ran
+        solves += 1
+        if ran == 0:  # IPOPT stopped at once (e.g. its time limit): no progress to wait for
+            break
+    if added:
+        note += f"; exchange: {added} instant(s) added, {solves} solves"
+    return _Run(result, note, nit, solves, added)
+
+
+def shrink_into_limits(problem: ExcitationProblem, alpha: np.ndarray, rate: float = 1000.0) -> np.ndarray:
+    """alpha with its motion about the offsets q0 scaled by the largest s ≤ 1 that keeps q, v
+    and vdot within the joint limits at ``rate`` [Hz] (they are linear in the motion).
+
+    An iterate that overshoots a limit by a little (IPOPT stops at its iteration limit
+    between two feasible points) becomes valid at almost the same cond.
+    """
+    alpha = np.asarray(alpha, float)
+    t = np.arange(0.0, problem.period, 1.0 / rate)
+    q, v, vd = FourierBasis(problem.harmonics, problem.omega, t).evaluate_alpha(alpha, problem.n)
+    lim, q0 = problem.robot.limits, alpha[-problem.n :]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratios = np.concatenate(
+            [
+                np.where(q.max(0) > q0, (lim.q_upper - q0) / (q.max(0) - q0), np.inf),
+                np.where(q.min(0) < q0, (q0 - lim.q_lower) / (q0 - q.min(0)), np.inf),
+                lim.v_max / np.abs(v).max(0),
+                lim.vd_max / np.abs(vd).max(0),
+            ]
+        )
+    scale = min(1.0, float(np.min(ratios)) * (1 - 1e-9))
+    out = alpha * scale
+    out[-problem.n :] = q0
+    return out
+
+
 def _feasible_fallback(program: ExcitationProgram, x: np.ndarray, solved: bool, check: _Check):
     """The solution, its margins at ``check.rate`` and a note on the fallback used ("" if none).
 
-    When the solver stopped at an infeasible or unconverged iterate, the best point it
-    evaluated that holds every constraint at ``check.rate`` replaces it.
+    When the solver stopped at an infeasible or unconverged iterate, the first valid point of:
+    the iterate shrunk into the joint limits (:func:`shrink_into_limits`) when that keeps
+    it valid, and the best points it evaluated that hold every constraint at ``check.rate``,
+    replaces it (whichever has the lower criterion).
     """
     problem = program.problem
     margins = check_margins(problem, x, program.constraints, rate=check.rate)
     if (solved and min(margins.values()) >= -check.tolerance) or program.cost is None:
         return x, margins, ""
+    shrunk = shrink_into_limits(problem, x, check.rate)
+    m = check_margins(problem, shrunk, program.constraints, rate=check.rate)
+    best = None
+    if min(m.values()) >= -check.tolerance:
+        value = problem.evaluate(shrunk).value
+        note = f"; returned the last iterate shrunk into the joint limits ({problem.config.criterion} {value:.5g})"
+        best = (value, shrunk, m, note)
     for value, candidate in program.cost.candidates:
-        if solved and value >= problem.evaluate(x).value:
+        if (solved and value >= problem.evaluate(x).value) or (best is not None and value >= best[0]):
             break
         m = check_margins(problem, candidate, program.constraints, rate=check.rate)
         if min(m.values()) >= -check.tolerance:
             return candidate, m, f"; returned the best feasible point evaluated ({problem.config.criterion} {value:.5g})"
+    if best is not None:
+        return best[1:]
     return x, margins, ""
 
 
@@ -240,6 +343,7 @@ def solve_excitation(
     *,
     check_rate: float = 1000.0,
     tolerance: float = 1e-6,
+    exchange: bool = True,
 ) -> ExcitationResult:
     """Solves a built excitation program with IPOPT or NLopt.
 
@@ -249,6 +353,8 @@ def solve_excitation(
         initial_guess: alpha to start from (default: ``problem.initial_guess()``).
         check_rate: rate [Hz] at which the constraints are re-checked after solving.
         tolerance: margin below −tolerance counts as a violation in the re-check.
+        exchange: with IPOPT, add the instants where a sampled constraint is violated at
+            ``check_rate`` and solve again, within the same total of iterations.
 
     Returns:
         An :class:`ExcitationResult`; ``success`` is False if the solver failed or any
@@ -265,16 +371,22 @@ def solve_excitation(
     problem.num_evaluations = 0
     if program.cost is not None:
         program.cost.reset()
+    check = _Check(check_rate, tolerance)
     reuse_freed_memory()  # a third of each evaluation went to faulting in fresh pages
+    callbacks_before = program.callback_seconds()
     start = time.perf_counter()
     with single_threaded_blas():
-        result, stalled = _solve_with_restarts(program, backend, cfg, x0)
+        if exchange:
+            run = _solve_with_exchange(program, backend, cfg, x0, check)
+        else:
+            result, note = _solve_with_restarts(program, backend, cfg, x0)
+            run = _Run(result, note, _iterations_from_log(backend.log_file), 1, 0)
     wall = time.perf_counter() - start
-    nit = _iterations_from_log(backend.log_file)
+    result, stalled, nit = run.result, run.note, run.nit
 
     solved = result.is_success()
     x = np.asarray(result.GetSolution(program.alpha), float)
-    x, margins, fallback = _feasible_fallback(program, x, solved, _Check(check_rate, tolerance))
+    x, margins, fallback = _feasible_fallback(program, x, solved, check)
     cost = problem.evaluate(x)
     violated = {k: m for k, m in margins.items() if m < -tolerance}
     return ExcitationResult(
@@ -294,6 +406,9 @@ def solve_excitation(
         singular_values=cost.singular_values,
         solver=cfg.name,
         raw=result,
+        solves=run.solves,
+        exchange_samples=run.added,
+        callback_seconds=program.callback_seconds() - callbacks_before,
     )
 
 

@@ -115,6 +115,12 @@ class RegressorModel:
         the robot handled), False when it falls back to Drake's per-sample queries."""
         return self._fk is not None
 
+    @property
+    def pose_bodies(self) -> list[int]:
+        """Body indices whose poses :meth:`poses` returns, in its order (the moving bodies
+        and the excited joints' child bodies)."""
+        return list(self._bodies_needed)
+
     def poses(self, q: np.ndarray) -> np.ndarray:
         """X_WB of the needed bodies, (T, len(bodies_needed), 4, 4).
 

@@ -41,6 +41,7 @@ import numpy as np
 from pe_drake.exceptions import ConfigError, InfeasibleError
 from pe_drake.excitation.constraints.base import SampledConstraint, SampledValues, check_postures
 from pe_drake.multibody.capsules import capsule_pairs, segment_closest_points
+from pe_drake.multibody.regressor import RegressorModel
 
 
 class PostureInCollisionError(InfeasibleError):
@@ -161,6 +162,11 @@ class CollisionConstraint(SampledConstraint):
         self._static_caps = np.flatnonzero(host < 0)
         self._joint_bodies = joint_bodies
         self._joint_body_index = [BodyIndex(b) for b in joint_bodies]
+        # Poses of all samples at once from the regressor's batched forward kinematics
+        # (~10× faster than Drake's per-sample queries, issue 11), when it handles the robot.
+        self._kinematics = RegressorModel(robot)
+        slots = {b: k for k, b in enumerate(self._kinematics.pose_bodies)}
+        self._joint_slots = [slots[int(b)] for b in joint_bodies]
         self._host_joints = sorted(set(host[self._moving_caps].tolist()))
         self._X_CM = np.array([j.X_CM for j in robot.joints])  # (n, 4, 4)
         self._axis_M = np.array([j.axis_M for j in robot.joints])  # (n, 3)
@@ -178,6 +184,8 @@ class CollisionConstraint(SampledConstraint):
         those hosting capsules are filled. One forward-kinematics pass per sample (the
         per-body reads hit Drake's cache; cheaper than the body-poses port, which copies
         every body's pose)."""
+        if self._kinematics.batched_kinematics:
+            return self._kinematics.poses(q)[:, self._joint_slots]
         plant, ctx = self._plant, self._context
         K = q.shape[0]
         which = range(len(self._joint_bodies)) if all_joints else self._host_joints
