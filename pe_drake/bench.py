@@ -277,7 +277,7 @@ def bench_solve(args: argparse.Namespace) -> None:
     config = resolve_robot_config(args.robot, None)
     robot = Robot(args.robot, config.robot)
     problem = ExcitationProblem(robot, config.excitation)
-    constraints = constraints_from_config(robot, config.excitation)
+    constraints = constraints_from_config(robot, config.excitation, config.environment)
     x0 = problem.initial_guess(seed=args.seed)
     solver = dataclasses.replace(config.solver, verbose=False)
     reuse_freed_memory()
