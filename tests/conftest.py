@@ -51,6 +51,16 @@ def g1():
     return get_robot("g1")
 
 
+def central_gradient(f, x, idx, h=1e-6) -> np.ndarray:
+    """Central differences of the scalar f at x along the coordinates idx."""
+    out = []
+    for i in idx:
+        e = np.zeros_like(x)
+        e[i] = h
+        out.append((f(x + e) - f(x - e)) / (2 * h))
+    return np.array(out)
+
+
 def random_postures(robot, count: int, seed: int) -> np.ndarray:
     """``count`` postures drawn uniformly within the joint limits, shape (count, n)."""
     rng = np.random.default_rng(seed)

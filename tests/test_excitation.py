@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from conftest import get_robot
+from conftest import central_gradient, get_robot
 
 from pe_drake.config import ExcitationConfig, SolverConfig
 from pe_drake.exceptions import ConfigError
@@ -23,15 +23,6 @@ def _problem(name, config=PAPER, **kw):
     return ExcitationProblem(get_robot(name), config, **kw)
 
 
-def _central_gradient(f, x, idx, h=1e-6):
-    out = []
-    for i in idx:
-        e = np.zeros_like(x)
-        e[i] = h
-        out.append((f(x + e) - f(x - e)) / (2 * h))
-    return np.array(out)
-
-
 @pytest.mark.parametrize(
     "name,criterion",
     [("panda", "cond"), ("panda", "log_cond"), ("panda", "dopt"), ("g1", "cond"), ("g1", "dopt")],
@@ -45,7 +36,7 @@ def test_cost_gradient_matches_central_differences(name, criterion):
         alpha = problem.initial_guess(seed=seed, amplitude=0.3)
         grad = problem.evaluate(alpha).grad
         idx = rng.choice(len(alpha), 25, replace=False)
-        numeric = _central_gradient(problem.value, alpha, idx)
+        numeric = central_gradient(problem.value, alpha, idx)
         rel = np.linalg.norm(grad[idx] - numeric) / np.linalg.norm(numeric)
         assert rel < 1e-6, f"seed {seed}: relative error {rel:.2e}"
 

@@ -335,37 +335,11 @@ def test_bad_data_gives_a_clear_error_and_writes_nothing(case, expected, tmp_pat
 
 def test_unknown_method_and_bad_cutoff_are_refused(tmp_path, optimized, capsys):
     path = _csv(tmp_path, optimized)
+    args = ["identify", "--robot", "panda", "--data", str(path), "--out", str(tmp_path / "o")]
     with pytest.raises(SystemExit):
-        cli(
-            [
-                "identify",
-                "--robot",
-                "panda",
-                "--data",
-                str(path),
-                "--method",
-                "magic",
-                "--out",
-                str(tmp_path / "o"),
-            ]
-        )
+        cli(args + ["--method", "magic"])
     assert "physical" in capsys.readouterr().err
-    assert (
-        cli(
-            [
-                "identify",
-                "--robot",
-                "panda",
-                "--data",
-                str(path),
-                "--cutoff",
-                "-3",
-                "--out",
-                str(tmp_path / "o"),
-            ]
-        )
-        == 2
-    )
+    assert cli(args + ["--cutoff", "-3"]) == 2
     assert "--cutoff" in capsys.readouterr().err
 
 

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import get_robot
+from conftest import central_gradient, get_robot
 
 from pe_drake.config import ExcitationConfig, NoiseStdConfig
 from pe_drake.exceptions import ConfigError
@@ -16,15 +16,6 @@ from pe_drake.excitation.problem import ExcitationProblem
 
 DATA = Path(__file__).parent / "data"
 PAPER = ExcitationConfig(harmonics=10, omega=math.pi / 4, cost_samples=40)
-
-
-def _central_gradient(f, x, idx, h=1e-6):
-    out = []
-    for i in idx:
-        e = np.zeros_like(x)
-        e[i] = h
-        out.append((f(x + e) - f(x - e)) / (2 * h))
-    return np.array(out)
 
 
 @pytest.mark.parametrize("measurement, criterion", [("base_wrench", "cond"), ("both", "cond"), ("base_wrench", "log_cond")])
@@ -38,7 +29,7 @@ def test_wrench_criterion_gradient_matches_central_differences(measurement, crit
     alpha = problem.initial_guess(seed=1, amplitude=0.3)
     grad = problem.evaluate(alpha).grad
     idx = rng.choice(len(alpha), 20, replace=False)
-    numeric = _central_gradient(problem.value, alpha, idx)
+    numeric = central_gradient(problem.value, alpha, idx)
     rel = np.linalg.norm(grad[idx] - numeric) / np.linalg.norm(numeric)
     assert rel < 1e-6, f"relative error {rel:.2e}"
 

@@ -37,6 +37,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from pe_drake.exceptions import ConfigError, InfeasibleError, NotWithinLimitsError
+from pe_drake.excitation.constraints.base import state_margins
 from pe_drake.excitation.fourier import FourierTrajectory
 
 #: Ramp durations tried in order by :func:`choose_ramp_duration` [s].
@@ -283,15 +284,7 @@ def ramp_margins(motion: RampedMotion, limits, constraints: Sequence = (), rate:
     """
     t = motion.sample_times(rate)
     in_ramp = (t <= motion.periodic_start) | (t >= motion.periodic_end)
-    q, v, vd = motion.evaluate(t[in_ramp])
-    margins = {
-        "position": float(np.min(np.minimum(q - limits.q_lower, limits.q_upper - q))),
-        "velocity": float(np.min(limits.v_max - np.abs(v))),
-        "acceleration": float(np.min(limits.vd_max - np.abs(vd))),
-    }
-    for c in constraints:
-        margins[c.name] = float(np.min(c.margins(q, v, vd)))
-    return margins
+    return state_margins(limits, constraints, *motion.evaluate(t[in_ramp]))
 
 
 def phase_candidates(path: FourierTrajectory, limits, count: int = 3, window: float = 0.25, rate: float = 1000.0) -> list[float]:

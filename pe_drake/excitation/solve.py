@@ -21,7 +21,7 @@ import numpy as np
 
 from pe_drake.config import Config, ExcitationConfig, SolverConfig, validate_config
 from pe_drake.exceptions import ConfigError, NoSolutionFound
-from pe_drake.excitation.constraints.base import SampledConstraint
+from pe_drake.excitation.constraints.base import SampledConstraint, state_margins
 from pe_drake.excitation.exchange import add_violated_samples
 from pe_drake.excitation.fourier import FourierBasis, FourierTrajectory
 from pe_drake.excitation.problem import ExcitationProblem
@@ -97,16 +97,7 @@ def check_margins(
     """
     t = np.arange(0.0, problem.period, 1.0 / rate)
     basis = FourierBasis(problem.harmonics, problem.omega, t)
-    q, v, vd = basis.evaluate_alpha(np.asarray(alpha, float), problem.n)
-    lim = problem.robot.limits
-    margins = {
-        "position": float(np.min(np.minimum(q - lim.q_lower, lim.q_upper - q))),
-        "velocity": float(np.min(lim.v_max - np.abs(v))),
-        "acceleration": float(np.min(lim.vd_max - np.abs(vd))),
-    }
-    for c in constraints:
-        margins[c.name] = float(np.min(c.margins(q, v, vd)))
-    return margins
+    return state_margins(problem.robot.limits, constraints, *basis.evaluate_alpha(np.asarray(alpha, float), problem.n))
 
 
 

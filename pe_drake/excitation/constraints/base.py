@@ -37,6 +37,25 @@ def check_postures(q: np.ndarray, robot, what: str) -> np.ndarray:
     return q
 
 
+def state_margins(limits, constraints, q: np.ndarray, v: np.ndarray, vd: np.ndarray) -> dict[str, float]:
+    """Smallest margin of the joint limits (per quantity, the worst joint) and of each sampled
+    constraint over the states given; negative is a violation.
+
+    Args:
+        limits: the robot's ``limits`` (q_lower, q_upper, v_max, vd_max, shape (n,)).
+        constraints: :class:`SampledConstraint` objects.
+        q, v, vd: states, shape (K, n).
+    """
+    margins = {
+        "position": float(np.min(np.minimum(q - limits.q_lower, limits.q_upper - q))),
+        "velocity": float(np.min(limits.v_max - np.abs(v))),
+        "acceleration": float(np.min(limits.vd_max - np.abs(vd))),
+    }
+    for c in constraints:
+        margins[c.name] = float(np.min(c.margins(q, v, vd)))
+    return margins
+
+
 @dataclasses.dataclass(frozen=True)
 class SampledValues:
     """Values and derivatives of a sampled constraint.

@@ -276,6 +276,34 @@ class Executor:
         self.close()
 
 
+class RemoteExecutor(Executor):
+    """An executor whose workers live elsewhere (processes, actors): :meth:`map` runs
+    :meth:`run` on :meth:`targets` and stops every worker on an error or Ctrl-C."""
+
+    def targets(self):
+        """What :meth:`run` sends the tasks to (the pool, the actors), created on first use."""
+        raise NotImplementedError
+
+    def run(self, targets, fn, payloads, say, labels) -> list[TaskFinished]:
+        """The tasks on ``targets``: one :class:`TaskFinished` per payload, in payload order."""
+        raise NotImplementedError
+
+    def terminate(self) -> None:
+        """Stops every worker now, running tasks included."""
+        raise NotImplementedError
+
+    def map(self, fn, payloads, progress=None, labels=None) -> list[TaskFinished]:
+        payloads = list(payloads)
+        if not payloads:
+            return []
+        say = progress or (lambda event: None)
+        try:
+            return self.run(self.targets(), fn, payloads, say, task_labels(len(payloads), labels))
+        except BaseException:
+            self.terminate()  # nothing keeps running after an error or Ctrl-C
+            raise
+
+
 def task_labels(count: int, labels: Sequence[str] | None) -> list[str]:
     return [f"task {k}" for k in range(count)] if labels is None else [str(s) for s in labels]
 

@@ -22,7 +22,7 @@ from typing import Any
 
 from pe_drake.exceptions import ConfigError
 from pe_drake.excitation.parallel.base import (
-    Executor,
+    RemoteExecutor,
     RemoteTraceback,
     RobotSpec,
     TaskFinished,
@@ -32,7 +32,6 @@ from pe_drake.excitation.parallel.base import (
     pack_error,
     run_task,
     task_error,
-    task_labels,
     worker_name,
 )
 
@@ -59,7 +58,7 @@ def default_start_method() -> str:
     return "forkserver" if "forkserver" in methods and sys.platform != "win32" else "spawn"
 
 
-class LocalExecutor(Executor):
+class LocalExecutor(RemoteExecutor):
     """Worker processes on this machine (started at the first :meth:`map`, kept until close).
 
     Args:
@@ -89,7 +88,7 @@ class LocalExecutor(Executor):
         self._pool: ProcessPoolExecutor | None = None
         self._events = None
 
-    def _ensure_pool(self) -> ProcessPoolExecutor:
+    def targets(self) -> ProcessPoolExecutor:
         if self._pool is None:
             # A SimpleQueue writes synchronously (no feeder thread): a task's events are in the
             # pipe before its result reaches the pool, so a drain after the result sees them all.
@@ -99,18 +98,8 @@ class LocalExecutor(Executor):
             )
         return self._pool
 
-    def map(self, fn, payloads, progress=None, labels=None) -> list[TaskFinished]:
-        payloads = list(payloads)
-        if not payloads:
-            return []
-        say = progress or (lambda event: None)
-        try:
-            return self._run(self._ensure_pool(), fn, payloads, say, task_labels(len(payloads), labels))
-        except BaseException:
-            self.terminate()  # nothing keeps running after an error or Ctrl-C
-            raise
 
-    def _run(self, pool, fn, payloads, say, labels) -> list[TaskFinished]:
+    def run(self, pool, fn, payloads, say, labels) -> list[TaskFinished]:
         out: dict[int, TaskFinished] = {}
         running: dict[Any, int] = {}  # future -> task index
         pending = iter(range(len(payloads)))

@@ -18,7 +18,7 @@ from typing import Any
 
 from pe_drake.exceptions import ConfigError
 from pe_drake.excitation.parallel.base import (
-    Executor,
+    RemoteExecutor,
     RobotSpec,
     TaskFinished,
     TaskStarted,
@@ -26,7 +26,6 @@ from pe_drake.excitation.parallel.base import (
     WorkerState,
     run_task,
     task_error,
-    task_labels,
     worker_name,
 )
 
@@ -83,7 +82,7 @@ def connect(address: str = "") -> bool:
     return True
 
 
-class RayExecutor(Executor):
+class RayExecutor(RemoteExecutor):
     """One Ray actor per worker, each holding its robot (created at the first :meth:`map`).
 
     Args:
@@ -106,25 +105,15 @@ class RayExecutor(Executor):
         self._spec = spec
         self._actors: list = []
 
-    def actors(self) -> list:
+    def targets(self) -> list:
         """The actors (created on first use)."""
         if not self._actors:
             cls = self._ray.remote(num_cpus=1, max_restarts=0)(RobotActor)
             self._actors = [cls.remote(self._spec) for _ in range(self.workers)]
         return self._actors
 
-    def map(self, fn, payloads, progress=None, labels=None) -> list[TaskFinished]:
-        payloads = list(payloads)
-        if not payloads:
-            return []
-        say = progress or (lambda event: None)
-        try:
-            return self._run(self.actors(), fn, payloads, say, task_labels(len(payloads), labels))
-        except BaseException:
-            self.terminate()  # kill the actors: their running tasks die with them
-            raise
 
-    def _run(self, actors, fn, payloads, say, labels) -> list[TaskFinished]:
+    def run(self, actors, fn, payloads, say, labels) -> list[TaskFinished]:
         ray = self._ray
         out: dict[int, TaskFinished] = {}
         running: dict[Any, tuple[int, Any]] = {}  # object ref -> (task index, actor)
