@@ -127,3 +127,14 @@ def test_static_support_on_a_fixed_base():
     constraint = BalanceConstraint(robot, radius=0.5)
     assert np.allclose(constraint.p_WSc, 0.0)
     constraint.check_posture(robot.nominal_posture())
+
+
+def test_batched_com_and_jacobian_equal_drakes(g1):
+    """The batched CoM and CoM Jacobian (issue 11) against Drake's per-sample queries."""
+    constraint = BalanceConstraint(g1)
+    q = random_postures(g1, 12, seed=21)
+    p, J = constraint.com(q, jacobian=True)
+    p_drake, J_drake = constraint.drake_com(q, jacobian=True)
+    assert np.abs(p - p_drake).max() < 1e-13
+    assert np.abs(J - J_drake).max() < 1e-13
+    assert np.abs(J).max() > 1e-2  # the arms do move the CoM

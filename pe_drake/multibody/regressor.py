@@ -16,6 +16,7 @@ derivation, and how it maps onto the paper's Eqs. (25)–(40), is in docs/deriva
 from __future__ import annotations
 
 import dataclasses
+import weakref
 
 import numpy as np
 
@@ -107,6 +108,8 @@ class RegressorModel:
         self.A0 = np.concatenate([np.zeros(3), -g])  # base acceleration = -gravity
 
         self._fk = _ForwardKinematics.build(robot, self._bodies_needed)
+        self._poses_key: tuple | None = None
+        self._poses: np.ndarray | None = None
 
     # ---- forward ------------------------------------------------------------------------
     @property
@@ -125,11 +128,37 @@ class RegressorModel:
         """X_WB of the needed bodies, (T, len(bodies_needed), 4, 4).
 
         Batched over samples from the joints' fixed frames (Drake's X_PF, X_FM(q), X_MC);
-        falls back to Drake's per-sample queries for joint types it does not handle.
+        falls back to Drake's per-sample queries for joint types it does not handle. The
+        last result is kept: the balance and collision constraints share one model
+        (:func:`shared_model`) and ask for the same samples in each evaluation. Do not modify
+        the returned array.
         """
-        if self._fk is not None:
-            return self._fk(q)
-        return self.drake_poses(q)
+        key = (q.shape, q.tobytes())
+        if key != self._poses_key:
+            self._poses = self._fk(q) if self._fk is not None else self.drake_poses(q)
+            self._poses_key = key
+        return self._poses
+
+    def slots(self, bodies) -> list[int]:
+        """Positions of the given body indices in the output of :meth:`poses`."""
+        return [self._slot[int(b)] for b in bodies]
+
+    def joint_twists(self, X_WC: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """World axis ω and moment m = o × ω of each excited joint, each (K, n, 3).
+
+        A point c moved by joint k has ∂c/∂q_k = ω_k × c + m_k (a prismatic joint: ω = 0,
+        m = its axis).
+
+        Args:
+            X_WC: poses of the joints' child bodies, (K, n, 4, 4) (``poses(q)`` at
+                ``slots(joint child bodies)``).
+        """
+        X_WM = X_WC @ self.X_CM  # (K, n, 4, 4)
+        axis_W = np.einsum("knij,nj->kni", X_WM[:, :, :3, :3], self.axis_M)
+        o_W = X_WM[:, :, :3, 3]
+        omega = np.where(self.prismatic[None, :, None], 0.0, axis_W)
+        moment = np.where(self.prismatic[None, :, None], axis_W, np.cross(o_W, axis_W))
+        return omega, moment
 
     def drake_poses(self, q: np.ndarray) -> np.ndarray:
         """X_WB of the needed bodies, (T, len(bodies_needed), 4, 4), from Drake."""
@@ -284,6 +313,19 @@ class RegressorModel:
         # S_i(q): ∂S_i/∂q_l = S_l ×m S_i for l strictly before i.
         q_bar += np.sum(S * (self.strict_anc @ cross_force(S, S_bar)), axis=-1)
         return q_bar, v_bar, vd_bar
+
+
+_SHARED: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def shared_model(robot) -> RegressorModel:
+    """One :class:`RegressorModel` per robot, for the sampled constraints (balance,
+    collision, environment) that evaluate the same postures: its forward kinematics runs once
+    per evaluation instead of once per constraint."""
+    model = _SHARED.get(robot)
+    if model is None:
+        model = _SHARED[robot] = RegressorModel(robot)
+    return model
 
 
 class _ForwardKinematics:

@@ -41,7 +41,7 @@ import numpy as np
 from pe_drake.exceptions import ConfigError, InfeasibleError
 from pe_drake.excitation.constraints.base import SampledConstraint, SampledValues, check_postures
 from pe_drake.multibody.capsules import capsule_pairs, segment_closest_points
-from pe_drake.multibody.regressor import RegressorModel
+from pe_drake.multibody.regressor import shared_model
 
 
 class PostureInCollisionError(InfeasibleError):
@@ -164,13 +164,9 @@ class CollisionConstraint(SampledConstraint):
         self._joint_body_index = [BodyIndex(b) for b in joint_bodies]
         # Poses of all samples at once from the regressor's batched forward kinematics
         # (~10× faster than Drake's per-sample queries, issue 11), when it handles the robot.
-        self._kinematics = RegressorModel(robot)
-        slots = {b: k for k, b in enumerate(self._kinematics.pose_bodies)}
-        self._joint_slots = [slots[int(b)] for b in joint_bodies]
+        self._kinematics = shared_model(robot)
+        self._joint_slots = self._kinematics.slots(joint_bodies)
         self._host_joints = sorted(set(host[self._moving_caps].tolist()))
-        self._X_CM = np.array([j.X_CM for j in robot.joints])  # (n, 4, 4)
-        self._axis_M = np.array([j.axis_M for j in robot.joints])  # (n, 3)
-        self._prismatic = np.array([j.kind == "prismatic" for j in robot.joints])
         pa = np.array([a for a, _ in self.pairs])
         pb = np.array([b for _, b in self.pairs])
         self._pa, self._pb = pa, pb
@@ -220,16 +216,6 @@ class CollisionConstraint(SampledConstraint):
         d = centre_distance - self._radii
         return d, c_a, c_b, diff, centre_distance, X_WH
 
-    def _joint_twists(self, X_WH: np.ndarray):
-        """World axis ω (K, n, 3) and moment m = o × ω (K, n, 3) of each excited joint; a
-        point c moved by joint k has ∂c/∂q_k = ω_k × c + m_k."""
-        X_WM = X_WH @ self._X_CM  # (K, n, 4, 4)
-        axis_W = np.einsum("knij,nj->kni", X_WM[:, :, :3, :3], self._axis_M)
-        o_W = X_WM[:, :, :3, 3]
-        omega = np.where(self._prismatic[None, :, None], 0.0, axis_W)
-        moment = np.where(self._prismatic[None, :, None], axis_W, np.cross(o_W, axis_W))
-        return omega, moment
-
     # ---- public -------------------------------------------------------------------------
     def distances(self, q: np.ndarray) -> np.ndarray:
         """Exact distance between the surfaces of each checked capsule pair.
@@ -271,7 +257,7 @@ class CollisionConstraint(SampledConstraint):
         if not derivatives:
             return SampledValues(value=value, d_q=np.empty((K, value.shape[1], 0)))
 
-        omega, moment = self._joint_twists(X_WH)
+        omega, moment = self._kinematics.joint_twists(X_WH)
         with np.errstate(invalid="ignore", divide="ignore"):
             normal = np.where(centre_distance[..., None] > 1e-12, diff / centre_distance[..., None], 0.0)
         # ∂d/∂q_k = mask_a·(ω_k·(c_a × n) + n·m_k) - mask_b·(ω_k·(c_b × n) + n·m_k)
