@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import random_states
+from conftest import random_postures, random_states
 
 from pe_drake.exceptions import ConfigError, InfeasibleError
 from pe_drake.excitation.constraints.environment import (
@@ -93,3 +93,13 @@ def test_posture_below_the_floor_is_refused(panda):
 def test_bad_boxes_are_refused(spec, match):
     with pytest.raises(ConfigError, match=match):
         Box.from_spec(spec, 2)
+
+
+def test_batched_capsule_ends_and_jacobians_equal_drakes(panda_env, panda):
+    """The batched ends and their Jacobians (issue 11) against Drake's per-sample queries."""
+    q = random_postures(panda, 10, seed=5)
+    p, J = panda_env.ends(q, jacobian=True)
+    p_drake, J_drake = panda_env.drake_ends(q, jacobian=True)
+    assert np.abs(p - p_drake).max() < 1e-13
+    assert np.abs(J - J_drake).max() < 1e-13
+    assert np.abs(J).max() > 0.1

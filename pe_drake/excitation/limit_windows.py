@@ -48,12 +48,12 @@ def trig_rows(k_omega: np.ndarray, t: np.ndarray, order: np.ndarray) -> np.ndarr
         shape S + (2N+1,); the last column is 1 for order 0 (the offset q0), else 0.
     """
     order = np.broadcast_to(np.asarray(order), t.shape)[..., None]
-    phase = t[..., None] * k_omega
-    s, c = np.sin(phase), np.cos(phase)
+    # d/dt shifts the phase by a quarter turn: the m-th derivative of sin(kωt) is
+    # (kω)^m sin(kωt + mπ/2), and likewise for cos (one sin and one cos per entry).
+    phase = t[..., None] * k_omega + order * (0.5 * np.pi)
     power = k_omega**order
-    cycle = order % 4  # d/dt: sin → cos → −sin → −cos → sin
-    S = np.choose(cycle, [s, c, -s, -c]) * power
-    C = np.choose(cycle, [c, -s, -c, s]) * power
+    S = np.sin(phase) * power
+    C = np.cos(phase) * power
     one = (order == 0).astype(float)
     return np.concatenate([S, C, one], axis=-1)
 
@@ -87,6 +87,7 @@ class WindowMaxRows:
         self.t_grid = self.start[:, None] + np.arange(grid) * self.spacing[:, None]  # (R, grid)
         self.grid_rows = trig_rows(self.k_omega, self.t_grid, self.order[:, None]) * self.gain[:, None, None]
         self.newton_steps = newton_steps
+        self.power1 = self.k_omega ** (self.order[:, None] + 1)  # (kω)^(m+1) per row, (R, N)
         self.seconds = 0.0
         self._key: bytes | None = None
         self._value: tuple[np.ndarray, np.ndarray] | None = None
@@ -102,9 +103,15 @@ class WindowMaxRows:
         rows = np.arange(self.num_rows)
         t = self.t_grid[rows, np.argmax(y, axis=1)]
         lo, hi = t - self.spacing, t + self.spacing
+        N = len(self.k_omega)
+        a_sin, a_cos = a[:N] * self.power1, a[N : 2 * N] * self.power1  # (R, N)
         for _ in range(self.newton_steps):
-            d1 = (trig_rows(self.k_omega, t, self.order + 1) @ a) * self.gain
-            d2 = (trig_rows(self.k_omega, t, self.order + 2) @ a) * self.gain
+            # x^(m+1) and x^(m+2) at t from one sin and cos of the row's phase (trig_rows)
+            phase = t[:, None] * self.k_omega + self.order[:, None] * (0.5 * np.pi)
+            sin, cos = np.sin(phase), np.cos(phase)
+            d1 = np.einsum("rk,rk->r", a_sin, cos) - np.einsum("rk,rk->r", a_cos, sin)
+            d2 = -(np.einsum("rk,rk->r", a_sin * self.k_omega, sin) + np.einsum("rk,rk->r", a_cos * self.k_omega, cos))
+            d1, d2 = d1 * self.gain, d2 * self.gain
             concave = d2 < 0
             step = np.where(concave, -d1 / np.where(concave, d2, -1.0), 0.0)
             t = np.clip(t + step, np.maximum(lo, self.start), np.minimum(hi, self.stop))
@@ -163,7 +170,14 @@ def joint_window_rows(
 
 
 def add_window_limit_constraints(
-    prog, alpha, problem: ExcitationProblem, windows: int | None = None, *, grid: int = 24, backoff: float = 1e-4
+    prog,
+    alpha,
+    problem: ExcitationProblem,
+    windows: int | None = None,
+    *,
+    grid: int = 24,
+    backoff: float = 1e-4,
+    evaluators: list | None = None,
 ) -> list:
     """Eq. (51) at every instant: one window-maximum row per joint, quantity, side and window.
 
@@ -173,6 +187,8 @@ def add_window_limit_constraints(
         windows: windows per period W (default 2N, :func:`default_windows`).
         grid: search points per window before the Newton refinement.
         backoff: rows stay this fraction of each limit's scale inside it.
+        evaluators: if given, the :class:`WindowMaxRows` of each joint are appended to it
+            (Drake's bindings hide the Python object; its ``seconds`` times the callbacks).
 
     Returns:
         The bindings, one per joint (6·W rows on that joint's 2N+1 coefficients).
@@ -194,4 +210,6 @@ def add_window_limit_constraints(
         b = prog.AddConstraint(rows, np.full(R, -np.inf), np.zeros(R), vars=alpha[idx])
         b.evaluator().set_description(f"joint limits {name} ({windows} windows)")
         bindings.append(b)
+        if evaluators is not None:
+            evaluators.append(rows)
     return bindings

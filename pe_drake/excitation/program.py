@@ -38,6 +38,13 @@ from pe_drake.excitation.limits import (
 from pe_drake.excitation.problem import ExcitationProblem, check_variables
 
 
+#: Samples per row of a one-sided sampled constraint (balance, collision, environment): each
+#: run of this many samples becomes one log-sum-exp row. These rows are dense in every
+#: coefficient and dominate IPOPT's linear algebra; 16 instead of 8 took a G1 solve from
+#: 63 to 50 s at an equal cond (40 was faster again but ended 13 % worse), issue 11.
+SAMPLES_PER_ROW = 16
+
+
 class ExcitationCost:
     """A callable Drake cost: the criterion with our gradient (BUILD_NOTES.md, "Drake facts").
 
@@ -239,10 +246,11 @@ def add_sampled_constraint(
     evenly spaced ones) as a Drake constraint on alpha with an analytic Jacobian.
 
     Args:
-        group: samples per row (see :class:`SampledConstraintEvaluator`); default 8 for
-            one-sided constraints when it divides the sample count, else 1.
+        group: samples per row (see :class:`SampledConstraintEvaluator`); default
+            :data:`SAMPLES_PER_ROW` for one-sided constraints when it divides the sample
+            count, else 1.
         tau: smoothing of the grouped rows, in the constraint's unit (default 0.2 mm for
-            metres: conservative by at most τ·log(group) ≈ 0.4 mm).
+            metres: conservative by at most τ·log(group) ≈ 0.55 mm).
 
     Returns:
         The binding; its evaluator's description is the constraint's name.
@@ -258,7 +266,7 @@ def _add_sampled(prog, alpha, problem, constraint, samples=None, group=None, tau
     K = len(basis.t)
     one_sided = np.all(np.isfinite(constraint.lower) ^ np.isfinite(constraint.upper))
     if group is None:
-        group = 8 if one_sided and K % 8 == 0 else 1
+        group = SAMPLES_PER_ROW if one_sided and K % SAMPLES_PER_ROW == 0 else 1
     if K % group:
         raise ConfigError(f"constraint '{constraint.name}': group {group} does not divide {K} samples")
     evaluator = SampledConstraintEvaluator(problem, constraint, basis, group, tau)
@@ -283,6 +291,9 @@ class ExcitationProgram:
         cost: the program's :class:`ExcitationCost` (its fallback ``candidates``).
         limits: how the joint limits were added ("windows", "sampled" or "smooth").
         limit_bindings: their Drake bindings.
+        limit_evaluators: the Python evaluators behind them ("windows": one
+            :class:`~pe_drake.excitation.limit_windows.WindowMaxRows` per joint; empty for
+            "sampled", whose rows are Drake's linear constraints, and "smooth", not timed).
         exchange_bindings / exchange_evaluators: rows added by the exchange step
             (:func:`pe_drake.excitation.exchange.add_violated_samples`) at instants where a
             sampled constraint was violated between the samples.
@@ -297,6 +308,7 @@ class ExcitationProgram:
     cost: ExcitationCost | None = None
     limits: str = "windows"
     limit_bindings: list = dataclasses.field(default_factory=list)
+    limit_evaluators: list = dataclasses.field(default_factory=list)
     exchange_bindings: list = dataclasses.field(default_factory=list)
     exchange_evaluators: list[SampledConstraintEvaluator] = dataclasses.field(default_factory=list)
 
@@ -304,8 +316,7 @@ class ExcitationProgram:
         """Time spent so far in this program's own callbacks (cost, joint-limit windows,
         sampled constraints) [s]; the rest of a solve is the solver's own work."""
         total = self.cost.seconds if self.cost is not None else 0.0
-        for b in self.limit_bindings:
-            total += getattr(b.evaluator(), "seconds", 0.0)
+        total += sum(ev.seconds for ev in self.limit_evaluators)
         return total + sum(ev.seconds for ev in self.evaluators + self.exchange_evaluators)
 
 
@@ -368,7 +379,10 @@ def build_excitation_program(
     reporter = _ProgressPrinter(program) if progress is True else progress or None
     program.progress = reporter
     program.cost = _add_cost(prog, alpha, problem, on_evaluate=reporter)[1]
-    bindings = adders[limits](prog, alpha, problem)
+    if limits == "windows":
+        bindings = add_window_limit_constraints(prog, alpha, problem, evaluators=program.limit_evaluators)
+    else:
+        bindings = adders[limits](prog, alpha, problem)
     program.limit_bindings = bindings if isinstance(bindings, list) else [bindings]
     if problem.config.rest_at_ends:
         add_rest_constraints(prog, alpha, problem)

@@ -10,8 +10,10 @@ from the floor plane z = h and from each axis-aligned box:
 with sd_box the signed distance of a point to the box (negative inside). sd_box is convex
 in the point and the segment is affine in s, so the minimum over s ∈ [0, 1] is found by a
 golden-section search; by the envelope theorem its derivative is n·∂p(s*)/∂q, n the box's
-outward normal at the closest point. ∂p/∂q comes from Drake's translational Jacobians of
-the segment ends (q̇ = v for the revolute and prismatic joints excited here).
+outward normal at the closest point. The segment ends and ∂p/∂q come from the batched
+forward kinematics and joint twists of :func:`~pe_drake.multibody.regressor.shared_model`
+(Drake's point positions and translational Jacobians per sample where that does not apply;
+q̇ = v for the revolute and prismatic joints excited here).
 
 A capsule whose height never changes with q (the base, and a shoulder turning about a
 vertical axis) gets no floor row: it sits where it is mounted. Capsules welded to the world
@@ -32,6 +34,7 @@ import numpy as np
 
 from pe_drake.exceptions import ConfigError, InfeasibleError
 from pe_drake.excitation.constraints.base import SampledConstraint, SampledValues, check_postures
+from pe_drake.multibody.regressor import shared_model
 
 _GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
 
@@ -182,11 +185,23 @@ class EnvironmentConstraint(SampledConstraint):
             super().__init__(labels, np.full(len(labels), self.margin), np.full(len(labels), np.inf))
 
     def _setup_bodies(self) -> None:
-        plant = self.robot.plant
+        robot, plant = self.robot, self.robot.plant
         self._plant, self._context = plant, plant.CreateDefaultContext()
         self._bodies = sorted({c.body_index for c in self.capsules})
         self._frames = [plant.get_body(_body_index(b)).body_frame() for b in self._bodies]
         self._slot = [self._bodies.index(c.body_index) for c in self.capsules]
+        # The batched path (issue 11: Drake's per-sample point Jacobians took half of a
+        # Panda solve): capsule ends from the shared forward kinematics, their Jacobians from
+        # the joint twists.
+        model = shared_model(robot)
+        self._model = model if model.batched_kinematics else None
+        if self._model is not None:
+            moving = [int(b) for b in robot.body_indices]
+            self._capsule_slots = model.slots([c.body_index for c in self.capsules])
+            self._joint_slots = model.slots([j.child_body for j in robot.joints])
+            self._p_BS = np.array([c.p_BS for c in self.capsules])  # (C, 2, 3)
+            cols = [moving.index(c.body_index) for c in self.capsules]
+            self._moves = robot.joint_moves_body[:, cols].T.astype(float)  # (C, n)
 
     def _floor_ends(self) -> list[tuple[int, int]]:
         """(capsule, end) pairs that get a floor row: ends whose height varies by more than
@@ -198,12 +213,28 @@ class EnvironmentConstraint(SampledConstraint):
         lo = np.where(np.isfinite(lim.q_lower), lim.q_lower, -np.pi)
         hi = np.where(np.isfinite(lim.q_upper), lim.q_upper, np.pi)
         q = rng.uniform(lo, hi, (64, self.robot.n))
-        z = self._ends(q, jacobian=False)[0][..., 2]  # (64, C, 2)
+        z = self.ends(q, jacobian=False)[0][..., 2]  # (64, C, 2)
         span = z.max(axis=0) - z.min(axis=0)
         return [(c, e) for c in range(len(self.capsules)) for e in range(2) if span[c, e] > self.capsules[c].radius]
 
-    def _ends(self, q: np.ndarray, jacobian: bool):
+    def ends(self, q: np.ndarray, jacobian: bool):
         """p_W of every capsule's ends (K, C, 2, 3) and, with ``jacobian``, ∂p/∂q (K, C, 2, 3, n)."""
+        if self._model is None:
+            return self.drake_ends(q, jacobian)
+        X = self._model.poses(q)
+        Xc = X[:, self._capsule_slots]  # (K, C, 4, 4)
+        p = np.einsum("kcij,csj->kcsi", Xc[..., :3, :3], self._p_BS) + Xc[:, :, None, :3, 3]
+        if not jacobian:
+            return p, None
+        # ∂p/∂q_k = ω_k × p + m_k for the joints k that move the capsule's body.
+        omega, moment = self._model.joint_twists(X[:, self._joint_slots])  # (K, n, 3)
+        dp = np.cross(omega[:, None, None], p[:, :, :, None]) + moment[:, None, None]  # (K, C, 2, n, 3)
+        J = np.swapaxes(dp, -1, -2) * self._moves[None, :, None, None, :]
+        return p, J
+
+    def drake_ends(self, q: np.ndarray, jacobian: bool):
+        """:meth:`ends` from Drake's per-sample queries (joint types the batched forward
+        kinematics does not handle; also the tests' reference)."""
         from pydrake.multibody.tree import JacobianWrtVariable
 
         plant, ctx = self._plant, self._context
@@ -234,7 +265,7 @@ class EnvironmentConstraint(SampledConstraint):
             d (K, R) and, with ``derivatives``, ∂d/∂q (K, R, n) (else None).
         """
         q = check_postures(q, self.robot, "environment constraint")
-        p, J = self._ends(q, derivatives)
+        p, J = self.ends(q, derivatives)
         radii = np.array([c.radius for c in self.capsules])
         d_rows, g_rows = [], []
         if self.floor_ends:
