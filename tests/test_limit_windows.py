@@ -185,3 +185,42 @@ def test_shrink_into_limits_scales_an_overshooting_motion_back(panda):
     assert np.allclose(shrunk[: -problem.n] / big[: -problem.n], shrunk[0] / big[0])
     # a valid motion is left as it is
     assert np.array_equal(shrink_into_limits(problem, x), x)
+
+
+def _two_sided_rows(N=5, windows=10, period=10.0):
+    """One two-sided row per quantity and window: |x − c| ≤ half-width, scaled."""
+    omega = 2 * math.pi / period
+    order, w = np.meshgrid(np.arange(3), np.arange(windows), indexing="ij")
+    order, w = order.ravel(), w.ravel()
+    center = np.array([0.3, 0.0, 0.0])[order]
+    scale = np.array([0.7, 1.3, 2.0])[order]
+    width = period / windows
+    rows = WindowMaxRows(
+        np.arange(1, N + 1) * omega, order, np.ones(len(order)), scale, center + 0.5, w * width, (w + 1) * width,
+        center=center,
+    )
+    return rows, center, scale
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_two_sided_rows_bound_the_largest_deviation_with_an_exact_jacobian(seed):
+    rows, center, scale = _two_sided_rows()
+    N = len(rows.k_omega)
+    a = np.random.default_rng(seed).normal(size=2 * N + 1) / np.r_[np.arange(1, N + 1), np.arange(1, N + 1), 1.0]
+    g, J = rows.values_and_jacobian(a)
+    sides = set()
+    for r in range(rows.num_rows):
+        t = np.linspace(rows.start[r], rows.stop[r], 20001)
+        x = trig_rows(rows.k_omega, t, rows.order[r]) @ a
+        deviation = x - center[r]
+        sides.add(np.sign(deviation[np.argmax(np.abs(deviation))]))
+        dense = (np.abs(deviation).max() - 0.5) / scale[r]
+        assert dense - 1e-9 <= g[r] <= dense + 1e-7, (r, g[r], dense)
+    assert sides == {-1.0, 1.0}  # both limits are the active side somewhere
+    h = 1e-6
+    fd = np.empty_like(J)
+    for i in range(len(a)):
+        e = np.zeros_like(a)
+        e[i] = h
+        fd[:, i] = (rows.values_and_jacobian(a + e)[0] - rows.values_and_jacobian(a - e)[0]) / (2 * h)
+    assert np.allclose(J, fd, atol=1e-6 * max(1.0, np.abs(J).max()))

@@ -2,10 +2,11 @@
 
 The paper keeps the estimated centre of total mass, computed from the a-priori (CAD) model,
 within 1 cm of the centre of the support area in the horizontal plane. Here the centre of
-mass is taken over every body of the plant (locked ones included): the moving bodies' CoMs
+mass is taken over every body of the plant (locked ones included), the moving bodies' CoMs
 from the batched forward kinematics of :class:`~pe_drake.multibody.regressor.RegressorModel`
-(Drake's ``CalcCenterOfMassPositionInWorld`` per sample where that does not apply) and the support centre p_WSc is the centroid of the feet's contact points
-(``robot.support_points``, in world). Per sample the constraint is
+(Drake's ``CalcCenterOfMassPositionInWorld`` per sample where that does not apply), and the
+support centre p_WSc is the centroid of the feet's contact points (``robot.support_points``,
+in world). Per sample the constraint is
 
     g(q) = sqrt(|e(q)|² + ε²) <= r,   e(q) = [p_WCcm(q) - p_WSc]_xy,
 
@@ -162,7 +163,8 @@ class BalanceConstraint(SampledConstraint):
         self._mass_moved = self._moves @ self._body_mass  # (n,): mass each joint moves
 
     def com(self, q: np.ndarray, jacobian: bool):
-        """p_WCcm (K, 3) and, with ``jacobian``, ∂p_WCcm/∂q (K, 3, n)."""
+        """Centre of mass p_WCcm (K, 3) [m] of postures q (K, n) and, with ``jacobian``,
+        ∂p_WCcm/∂q (K, 3, n) [m/rad] (else None)."""
         if self._model is None:
             return self.drake_com(q, jacobian)
         X = self._model.poses(q)  # (K, bodies, 4, 4)
