@@ -54,9 +54,12 @@ class Playback:
             keep its server alive).
         url: Meshcat's web URL.
         html: path of the HTML file written, or None.
-        num_frames: recorded frames, one period including both ends.
-        duration: length of the recording, one period 2π/ω [s].
-        frames_per_second: recording rate (``num_frames - 1`` frames per period) [1/s].
+        num_frames: recorded frames, the whole motion including both ends.
+        duration: length of the recording: the motion of trajectory.csv (ramps and periods),
+            or one period 2π/ω for a file without ramps [s].
+        frames_per_second: recording rate (``num_frames - 1`` frames per motion) [1/s].
+        loops: the animation repeats (a periodic motion without ramps); a motion with ramps
+            plays once and stays at its final rest posture.
         robot: the :class:`~pe_drake.multibody.robot.Robot` shown.
         com_xy: ground projection of the whole-body CoM at each frame, shape (num_frames, 2)
             [m].
@@ -72,6 +75,7 @@ class Playback:
     num_frames: int
     duration: float
     frames_per_second: float
+    loops: bool
     robot: Any
     com_xy: np.ndarray
     support_polygon: np.ndarray
@@ -124,8 +128,8 @@ def play_trajectory(
     motion, data = load_motion(trajectory_json)
     period = motion.duration  # the whole motion of trajectory.csv (ramps and periods)
     num_intervals = max(2, int(round(period * rate)))
-    # The recording rate makes frame k fall exactly at t_k = k·T/K, so the clip ends on the
-    # pose it starts with and loops seamlessly.
+    # The recording rate makes frame k fall exactly at t_k = k·T/K, so the clip of a
+    # periodic motion ends on the pose it starts with and loops seamlessly.
     fps = num_intervals / period
     times = np.arange(num_intervals + 1) * (period / num_intervals)
 
@@ -136,7 +140,10 @@ def play_trajectory(
     order = _joint_order(trajectory_json, data, rob)
     check_within_limits(motion, _limits_in_file_order(rob.limits, order), data["joints"], source=str(trajectory_json))
     q = motion.evaluate(times)[0][:, order]
-    com_xy, support = _record_period(meshcat, rob, q, fps)
+    # With ramps the motion starts and ends at rest at two different postures of the path:
+    # looping would jump between them, so it plays once and stays at the final rest.
+    loop = motion.ramp_duration == 0.0
+    com_xy, support = _record_period(meshcat, rob, q, fps, loop=loop)
 
     html_path = None
     if html is not None:
@@ -149,6 +156,7 @@ def play_trajectory(
         num_frames=len(times),
         duration=period,
         frames_per_second=fps,
+        loops=loop,
         robot=rob,
         com_xy=com_xy,
         support_polygon=support,
@@ -200,9 +208,9 @@ def _prepare_meshcat(meshcat: Any, host: str) -> Any:
     return meshcat
 
 
-def _record_period(meshcat, rob, q: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray]:
-    """Records the frames q (one period) as a looping Meshcat animation with the CoM marker;
-    leaves the still scene at frame 0.
+def _record_period(meshcat, rob, q: np.ndarray, fps: float, loop: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Records the frames q as a Meshcat animation with the CoM marker, looping (``loop``)
+    or played once and held at its last frame; leaves the still scene at frame 0.
 
     Returns:
         (CoM ground projection per frame, shape (len(q), 2) [m]; support polygon, shape (m, 2) [m]).
@@ -230,8 +238,12 @@ def _record_period(meshcat, rob, q: np.ndarray, fps: float) -> tuple[np.ndarray,
         meshcat.SetTransform(COM_PATH, _translation(com_xy[k], _GROUND_OFFSET), t_record)
     meshcat.StopRecording()
     animation = meshcat.get_mutable_recording()
-    animation.set_loop_mode(MeshcatAnimation.LoopMode.kLoopRepeat)
-    animation.set_repetitions(1_000_000)  # "forever": an exciting trajectory is periodic
+    if loop:
+        animation.set_loop_mode(MeshcatAnimation.LoopMode.kLoopRepeat)
+        animation.set_repetitions(1_000_000)  # "forever": the periodic part of the motion
+    else:
+        animation.set_loop_mode(MeshcatAnimation.LoopMode.kLoopOnce)
+        animation.set_clamp_when_finished(True)
     meshcat.PublishRecording()
     # The still scene (before the animation starts, or when it is paused) shows t = 0.
     context.SetTime(0.0)

@@ -23,6 +23,7 @@ import pytest
 
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.excitation.fourier import FourierTrajectory
+from pe_drake.excitation.ramp import RampedMotion
 from pe_drake.excitation.trajectory_file import save_trajectory
 from pe_drake.multibody.meshes import CACHE_ENV
 from pe_drake.multibody.robot import load_robot
@@ -436,3 +437,18 @@ def test_import_pe_drake_stays_headless():
         "assert not bad, bad"
     )
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_ramped_motion_plays_once_and_holds_its_final_rest(panda_traj, tmp_path):
+    """A motion with ramps starts and ends at rest at two different postures: looping it would
+    jump from the last to the first, so it plays once and stays at its last frame."""
+    _, robot, traj = panda_traj
+    path = tmp_path / "ramped.json"
+    motion = RampedMotion(traj, periods=1, ramp_duration=1.0, phase=0.3)
+    save_trajectory(path, robot, traj, **motion.to_dict())
+    playback = play_trajectory(path, html=tmp_path / "ramped.html", rate=20.0)
+    _, options = animation_clips(html_commands(tmp_path / "ramped.html"))
+    assert not playback.loops and playback.duration == pytest.approx(motion.duration)
+    assert options["loopMode"] == 2200 and options["clampWhenFinished"]  # THREE.LoopOnce
+    q_start, q_end = motion.evaluate(np.array([0.0, motion.duration]))[0]
+    assert np.abs(q_start - q_end).max() > 1e-3  # the two rest postures differ

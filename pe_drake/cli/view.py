@@ -30,7 +30,8 @@ def view_command(args) -> int:
         size = playback.html.stat().st_size / 1e6
         print(f"wrote {playback.html} ({size:.1f} MB; {summary}) in {time.perf_counter() - start:.1f} s")
         return 0
-    print(f"Meshcat: {playback.url}  ({summary}; the animation loops; Ctrl-C to quit)", flush=True)
+    plays = "the animation loops" if playback.loops else "the animation plays once, from rest to rest"
+    print(f"Meshcat: {playback.url}  ({summary}; {plays}; Ctrl-C to quit)", flush=True)
     try:
         while True:
             time.sleep(1.0)
