@@ -288,3 +288,24 @@ def test_baseline_candidates_on_ray_equal_the_serial_ones(panda, ray_session):
 def test_more_ray_workers_than_cluster_cpus_is_refused(panda, ray_session):
     with pytest.raises(ConfigError, match="3 Ray workers need 3 CPUs; the cluster has 2"):
         open_executor(panda, "ray", 3)
+
+
+def test_worker_on_another_machine_gets_the_capsule_file_with_the_spec(panda, tmp_path):
+    """Capsules fitted to the meshes live in a folder of the machine where the run started: the
+    robot spec carries the file's text, and a worker without that file rebuilds it."""
+    import dataclasses
+
+    from pe_drake.excitation.parallel.base import RobotSpec
+
+    copy = tmp_path / "fitted_capsules.yaml"
+    copy.write_text(Path(panda.config.capsules).read_text())
+    config = dataclasses.replace(panda.config, capsules=str(copy))
+    spec = RobotSpec(panda.name, config, base=None).with_capsule_text()
+    assert spec.capsules_text == copy.read_text()
+    copy.unlink()  # as seen from another node
+    state = spec.build()
+    assert [c.name for c in state.robot.capsules] == [c.name for c in panda.capsules]
+    assert state.robot.config.capsules != str(copy) and Path(state.robot.config.capsules).is_file()
+    # nothing to carry when the robot has no capsule file
+    no_caps = RobotSpec(panda.name, dataclasses.replace(panda.config, capsules=""), base=None).with_capsule_text()
+    assert no_caps.capsules_text == ""

@@ -99,7 +99,7 @@ def open_executor(
         base = (compute_base_parameters(robot, model=model) if measurement == "joint_torque"
                 else SensorRows(model, MeasurementType(measurement)).base_parameters())
     local = WorkerState(robot, base, constraints_factory, model=model)
-    spec = RobotSpec(robot.name, robot.config, base, constraints_factory)
+    spec = RobotSpec(robot.name, robot.config, base, constraints_factory).with_capsule_text()
     if executor == "ray":
         return RayExecutor(spec, local, workers, address)
     if workers == 1:

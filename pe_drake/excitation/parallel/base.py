@@ -18,9 +18,11 @@ from __future__ import annotations
 import dataclasses
 import os
 import pickle
+import tempfile
 import time
 import traceback
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -110,12 +112,22 @@ class RobotSpec:
         base: the :class:`~pe_drake.multibody.base_parameters.BaseParameters` every task uses
             (computed once in the parent, so C0 and every result use the same columns).
         constraints_factory: see :data:`ConstraintsFactory`, or None.
+        capsules_text: the capsule file's content (see :meth:`with_capsule_text`), or "".
     """
 
     name: str
     config: Any
     base: Any
     constraints_factory: ConstraintsFactory | None = None
+    capsules_text: str = ""
+
+    def with_capsule_text(self) -> RobotSpec:
+        """This spec carrying its capsule file's content, for workers on other machines:
+        capsules fitted to the meshes are written to a folder of this machine only."""
+        path = Path(self.config.capsules) if self.config.capsules else None
+        if path is None or not path.is_file():
+            return self
+        return dataclasses.replace(self, capsules_text=path.read_text())
 
     def build(self, emit: Callable[[Any], None] | None = None) -> WorkerState:
         """The robot and its state, built in the calling process."""
@@ -124,7 +136,14 @@ class RobotSpec:
         import pydrake.common  # noqa: F401  (lazy: pydrake resets the logger level at import)
 
         logging.getLogger("drake").setLevel(logging.ERROR)
-        return WorkerState(Robot(self.name, self.config), self.base, self.constraints_factory, emit)
+        config = self.config
+        if self.capsules_text and not Path(config.capsules).is_file():
+            # another machine: the capsule file exists only where the run started
+            fd, local = tempfile.mkstemp(prefix="pe_drake_capsules_", suffix=".yaml")
+            with os.fdopen(fd, "w") as f:
+                f.write(self.capsules_text)
+            config = dataclasses.replace(config, capsules=local)
+        return WorkerState(Robot(self.name, config), self.base, self.constraints_factory, emit)
 
 
 class WorkerState:
