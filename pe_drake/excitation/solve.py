@@ -128,6 +128,11 @@ def _ipopt_backend(cfg: SolverConfig) -> _Backend:
     # G1 ended 300 iterations at cond 254 (6 pairs), 226 (20), 205 (30), 200 (50; 40 % more
     # time per iteration than 30); the former sampled rows reached 209 with 6 (issue 11).
     options.SetOption(sid, "limited_memory_max_history", LBFGS_PAIRS)
+    # The quasi-Newton pairs enter the augmented system as extra rows instead of through
+    # Sherman-Morrison, which needs two back-solves per pair after every factorization
+    # (60 of ~1 ms each per G1 iteration). The same steps in exact arithmetic; one G1 start
+    # 47 → 34 s, the Panda 25 → 19 s (issue 11).
+    options.SetOption(sid, "limited_memory_aug_solver", "extended")
     for key, value in IPOPT_EXTRA_OPTIONS.items():
         options.SetOption(sid, key, value)
     if cfg.max_time > 0:

@@ -110,6 +110,9 @@ class RegressorModel:
         self._fk = _ForwardKinematics.build(robot, self._bodies_needed)
         self._poses_key: tuple | None = None
         self._poses: np.ndarray | None = None
+        self._joint_child_slots = [self._slot[int(b)] for b in self._joint_child]
+        self._twists_key: tuple | None = None
+        self._twists: tuple[np.ndarray, np.ndarray] | None = None
 
     # ---- forward ------------------------------------------------------------------------
     @property
@@ -159,6 +162,15 @@ class RegressorModel:
         omega = np.where(self.prismatic[None, :, None], 0.0, axis_W)
         moment = np.where(self.prismatic[None, :, None], axis_W, np.cross(o_W, axis_W))
         return omega, moment
+
+    def twists(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`joint_twists` at postures q (K, n), from :meth:`poses`; kept with the
+        poses, for the constraints sharing this model."""
+        X = self.poses(q)
+        if self._twists_key != self._poses_key:
+            self._twists = self.joint_twists(X[:, self._joint_child_slots])
+            self._twists_key = self._poses_key
+        return self._twists
 
     def drake_poses(self, q: np.ndarray) -> np.ndarray:
         """X_WB of the needed bodies, (T, len(bodies_needed), 4, 4), from Drake."""

@@ -157,7 +157,6 @@ class BalanceConstraint(SampledConstraint):
         self._body_mass = np.array([b.default_mass() for b in moving_bodies])  # (nb,)
         self._body_com = np.array([b.default_com() for b in moving_bodies])  # (nb, 3) in B
         self._body_slots = model.slots(robot.body_indices)
-        self._joint_slots = model.slots([j.child_body for j in robot.joints])
         self._moves = robot.joint_moves_body.astype(float)  # (n, nb)
         self._moved_mass = self._moves * self._body_mass  # (n, nb): m_b where joint k moves b
         self._mass_moved = self._moves @ self._body_mass  # (n,): mass each joint moves
@@ -175,7 +174,7 @@ class BalanceConstraint(SampledConstraint):
             return p, None
         # ∂c_b/∂q_k = ω_k × c_b + m_k for the bodies joint k moves, so the CoM's column k is
         # (ω_k × Σ_b m_b c_b + M_k m_k) / M over those bodies (M_k: their mass).
-        omega, moment = self._model.joint_twists(X[:, self._joint_slots])  # (K, n, 3)
+        omega, moment = self._model.twists(q)  # (K, n, 3) each
         first_moment = self._moved_mass @ c  # (K, n, 3)
         J = (np.cross(omega, first_moment) + self._mass_moved[None, :, None] * moment) / self._mass
         return p, np.swapaxes(J, 1, 2)

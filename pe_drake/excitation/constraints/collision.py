@@ -257,7 +257,10 @@ class CollisionConstraint(SampledConstraint):
         if not derivatives:
             return SampledValues(value=value, d_q=np.empty((K, value.shape[1], 0)))
 
-        omega, moment = self._kinematics.joint_twists(X_WH)
+        if self._kinematics.batched_kinematics:  # shared with balance and the floor rows
+            omega, moment = self._kinematics.twists(q)
+        else:
+            omega, moment = self._kinematics.joint_twists(X_WH)
         with np.errstate(invalid="ignore", divide="ignore"):
             normal = np.where(centre_distance[..., None] > 1e-12, diff / centre_distance[..., None], 0.0)
         # ∂d/∂q_k = mask_a·(ω_k·(c_a × n) + n·m_k) - mask_b·(ω_k·(c_b × n) + n·m_k)

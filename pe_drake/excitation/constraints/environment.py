@@ -198,7 +198,6 @@ class EnvironmentConstraint(SampledConstraint):
         if self._model is not None:
             moving = [int(b) for b in robot.body_indices]
             self._capsule_slots = model.slots([c.body_index for c in self.capsules])
-            self._joint_slots = model.slots([j.child_body for j in robot.joints])
             self._p_BS = np.array([c.p_BS for c in self.capsules])  # (C, 2, 3)
             cols = [moving.index(c.body_index) for c in self.capsules]
             self._moves = robot.joint_moves_body[:, cols].T.astype(float)  # (C, n)
@@ -227,7 +226,7 @@ class EnvironmentConstraint(SampledConstraint):
         if not jacobian:
             return p, None
         # ∂p/∂q_k = ω_k × p + m_k for the joints k that move the capsule's body.
-        omega, moment = self._model.joint_twists(X[:, self._joint_slots])  # (K, n, 3)
+        omega, moment = self._model.twists(q)  # (K, n, 3) each
         dp = np.cross(omega[:, None, None], p[:, :, :, None]) + moment[:, None, None]  # (K, C, 2, n, 3)
         J = np.swapaxes(dp, -1, -2) * self._moves[None, :, None, None, :]
         return p, J
