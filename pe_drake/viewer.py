@@ -55,8 +55,8 @@ class Playback:
         url: Meshcat's web URL.
         html: path of the HTML file written, or None.
         num_frames: recorded frames, the whole motion including both ends.
-        duration: length of the recording: the motion of trajectory.csv (ramps and periods),
-            or one period 2π/ω for a file without ramps [s].
+        duration: length of the recording: the motion of trajectory.csv (ramps and
+            ``periods`` periods of 2π/ω) [s].
         frames_per_second: recording rate (``num_frames - 1`` frames per motion) [1/s].
         loops: the animation repeats (a periodic motion without ramps); a motion with ramps
             plays once and stays at its final rest posture.
@@ -143,7 +143,7 @@ def play_trajectory(
     # With ramps the motion starts and ends at rest at two different postures of the path:
     # looping would jump between them, so it plays once and stays at the final rest.
     loop = motion.ramp_duration == 0.0
-    com_xy, support = _record_period(meshcat, rob, q, fps, loop=loop)
+    com_xy, support = _record_motion(meshcat, rob, q, fps, loop=loop)
 
     html_path = None
     if html is not None:
@@ -208,7 +208,7 @@ def _prepare_meshcat(meshcat: Any, host: str) -> Any:
     return meshcat
 
 
-def _record_period(meshcat, rob, q: np.ndarray, fps: float, loop: bool = True) -> tuple[np.ndarray, np.ndarray]:
+def _record_motion(meshcat, rob, q: np.ndarray, fps: float, loop: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Records the frames q as a Meshcat animation with the CoM marker, looping (``loop``)
     or played once and held at its last frame; leaves the still scene at frame 0.
 

@@ -7,12 +7,16 @@ import pytest
 from conftest import random_postures, random_states
 
 from pe_drake.exceptions import ConfigError, InfeasibleError
+from pe_drake.excitation.constraints.balance import BalanceConstraint
+from pe_drake.excitation.constraints.collision import CollisionConstraint
 from pe_drake.excitation.constraints.environment import (
     Box,
     EnvironmentConstraint,
     box_signed_distance,
     segment_box_distance,
 )
+from pe_drake.multibody.regressor import RegressorModel
+from pe_drake.multibody.robot import load_robot
 
 
 def test_box_signed_distance_values_and_gradient():
@@ -103,3 +107,28 @@ def test_batched_capsule_ends_and_jacobians_equal_drakes(panda_env, panda):
     assert np.abs(p - p_drake).max() < 1e-13
     assert np.abs(J - J_drake).max() < 1e-13
     assert np.abs(J).max() > 0.1
+
+
+@pytest.mark.parametrize("robot_name", ["panda", "g1"])
+def test_constraints_on_drakes_per_sample_queries_equal_the_batched_ones(robot_name):
+    """The fallback for joint types the batched forward kinematics does not handle: the
+    balance, collision and floor constraints on Drake's per-sample queries (a robot whose
+    shared kinematics model is not batched) give the batched values and Jacobians."""
+    batched_robot, drake_robot = load_robot(robot_name), load_robot(robot_name)
+    drake_robot.shared_kinematics = RegressorModel(drake_robot, batched=False, keep_last_poses=True)
+    constraints = []
+    for robot in (batched_robot, drake_robot):
+        made = [CollisionConstraint(robot, 0.01)]
+        if robot_name == "panda":
+            boxes = [Box(np.array([0.5, 0.0, 0.2]), np.array([0.3, 0.6, 0.4]), "table")]
+            made.append(EnvironmentConstraint(robot, 0.01, floor_height=0.0, boxes=boxes, aggregate=False))
+        else:
+            made.append(BalanceConstraint(robot, 0.05))
+        constraints.append(made)
+    assert not drake_robot.shared_kinematics.batched_kinematics
+    q = random_postures(batched_robot, 6, seed=9)
+    for fast, slow in zip(*constraints):
+        a, b = fast.evaluate(q, q, q), slow.evaluate(q, q, q)
+        np.testing.assert_allclose(a.value, b.value, atol=1e-12)
+        np.testing.assert_allclose(a.d_q, b.d_q, atol=1e-11)
+        assert np.abs(a.d_q).max() > 1e-3

@@ -9,6 +9,7 @@ are skipped when Ray is not installed (the ``test`` extra installs it).
 from __future__ import annotations
 
 import _thread
+import dataclasses
 import json
 import math
 import multiprocessing
@@ -25,7 +26,7 @@ from pe_drake.cli import main
 from pe_drake.config import Config, ExcitationConfig, ParallelConfig, SolverConfig, load_config, validate_config
 from pe_drake.exceptions import ConfigError
 from pe_drake.excitation.multistart import solve_multistart
-from pe_drake.excitation.parallel import WorkerError, open_executor
+from pe_drake.excitation.parallel import RobotSpec, WorkerError, open_executor
 
 CONFIG = ExcitationConfig(
     harmonics=3,
@@ -292,20 +293,27 @@ def test_more_ray_workers_than_cluster_cpus_is_refused(panda, ray_session):
 
 def test_worker_on_another_machine_gets_the_capsule_file_with_the_spec(panda, tmp_path):
     """Capsules fitted to the meshes live in a folder of the machine where the run started: the
-    robot spec carries the file's text, and a worker without that file rebuilds it."""
-    import dataclasses
-
-    from pe_drake.excitation.parallel.base import RobotSpec
-
+    robot spec carries the file's text, and a worker without that file, or with a stale one
+    at the same path, rebuilds it from the text."""
+    original = Path(panda.config.capsules).read_text()
     copy = tmp_path / "fitted_capsules.yaml"
-    copy.write_text(Path(panda.config.capsules).read_text())
-    config = dataclasses.replace(panda.config, capsules=str(copy))
-    spec = RobotSpec(panda.name, config, base=None).with_capsule_text()
-    assert spec.capsules_text == copy.read_text()
-    copy.unlink()  # as seen from another node
-    state = spec.build()
-    assert [c.name for c in state.robot.capsules] == [c.name for c in panda.capsules]
-    assert state.robot.config.capsules != str(copy) and Path(state.robot.config.capsules).is_file()
+    copy.write_text(original)
+    spec = RobotSpec(panda.name, dataclasses.replace(panda.config, capsules=str(copy)), base=None).with_capsule_text()
+    assert spec.capsules_text == original
+    # the file's own machine: used as it is
+    assert spec.build().robot.config.capsules == str(copy)
+    names = [c.name for c in panda.capsules]
+    for remote in ("missing", "stale"):
+        if remote == "missing":
+            copy.unlink()
+        else:  # an earlier run's file, with a capsule named otherwise
+            stale = original.replace(f"name: {names[-1]},", f"name: {names[-1]}_old,", 1)
+            assert stale != original
+            copy.write_text(stale)
+        state = spec.build()
+        assert [c.name for c in state.robot.capsules] == names, remote
+        assert state.robot.config.capsules != str(copy)
+        assert Path(state.robot.config.capsules).read_text() == original
     # nothing to carry when the robot has no capsule file
     no_caps = RobotSpec(panda.name, dataclasses.replace(panda.config, capsules=""), base=None).with_capsule_text()
     assert no_caps.capsules_text == ""

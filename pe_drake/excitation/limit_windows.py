@@ -22,6 +22,10 @@ On G1 (N = 10, 14 joints) that is 6·20 = 120 rows per joint instead of 600 samp
 each on the joint's own 2N+1 coefficients. The rows are nonlinear but convex (a maximum of
 functions linear in alpha) with modest curvature, unlike the smooth-max aggregate whose
 sharp log-sum-exp curvature stalled IPOPT's quasi-Newton steps.
+
+Optionally (``two_sided``) one row per quantity and window bounds max |x(t) − c| by the
+half-range around the limits' centre c: half the rows, but its side can switch between
+evaluations (a kink where both limits are near), and it ended worse (BUILD_NOTES.md).
 """
 
 from __future__ import annotations
@@ -85,9 +89,9 @@ class WindowMaxRows:
         self.gain = np.asarray(sign, float) / np.asarray(scale, float)  # s/scale per row
         self.offset = -self.gain * np.asarray(bound, float)
         # Two-sided rows bound max |x − c| (one row for both limits): the side is picked per
-        # evaluation, at the window's largest deviation from the centre c.
-        self.center = None if center is None else np.asarray(center, float) * self.gain
-        if self.center is not None and np.any(self.gain <= 0):
+        # evaluation, at the window's largest deviation from the centre c (kept as c/scale).
+        self.scaled_center = None if center is None else np.asarray(center, float) * self.gain
+        if self.scaled_center is not None and np.any(self.gain <= 0):
             raise ValueError("two-sided window rows take sign +1")
         self.start, self.stop = np.asarray(start, float), np.asarray(stop, float)
         width = self.stop - self.start
@@ -96,7 +100,7 @@ class WindowMaxRows:
         self.t_grid = self.start[:, None] + np.arange(grid) * self.spacing[:, None]  # (R, grid)
         self.grid_rows = trig_rows(self.k_omega, self.t_grid, self.order[:, None]) * self.gain[:, None, None]
         self.newton_steps = newton_steps
-        self.power1 = self.k_omega ** (self.order[:, None] + 1)  # (kω)^(m+1) per row, (R, N)
+        self.derivative_power = self.k_omega ** (self.order[:, None] + 1)  # (kω)^(m+1) per row, (R, N)
         self.seconds = 0.0
         self._key: bytes | None = None
         self._value: tuple[np.ndarray, np.ndarray] | None = None
@@ -106,7 +110,8 @@ class WindowMaxRows:
         return len(self.order)
 
     def maximizers(self, coefficients: np.ndarray) -> np.ndarray:
-        """t* of each row: the window's maximizing instant of s·x(t), shape (R,) [s]."""
+        """t* of each row: the window's maximizing instant of s·x(t) (of |x(t) − c| for
+        two-sided rows), shape (R,) [s]."""
         return self._search(np.asarray(coefficients, float))[0]
 
     def _search(self, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -114,8 +119,8 @@ class WindowMaxRows:
         y = self.grid_rows @ a  # (R, grid)
         rows = np.arange(self.num_rows)
         side = np.ones(self.num_rows)
-        if self.center is not None:
-            y = y - self.center[:, None]
+        if self.scaled_center is not None:
+            y = y - self.scaled_center[:, None]
             best = np.argmax(np.abs(y), axis=1)
             side = np.where(y[rows, best] < 0, -1.0, 1.0)
         else:
@@ -124,7 +129,7 @@ class WindowMaxRows:
         gain = self.gain * side
         lo, hi = t - self.spacing, t + self.spacing
         N = len(self.k_omega)
-        a_sin, a_cos = a[:N] * self.power1, a[N : 2 * N] * self.power1  # (R, N)
+        a_sin, a_cos = a[:N] * self.derivative_power, a[N : 2 * N] * self.derivative_power  # (R, N)
         for _ in range(self.newton_steps):
             # x^(m+1) and x^(m+2) at t from one sin and cos of the row's phase (trig_rows)
             phase = t[:, None] * self.k_omega + self.order[:, None] * (0.5 * np.pi)
@@ -147,8 +152,8 @@ class WindowMaxRows:
         t, side = self._search(a)
         J = trig_rows(self.k_omega, t, self.order) * (self.gain * side)[:, None]
         g = J @ a + self.offset
-        if self.center is not None:  # s·(x − c)/scale − (bound − c)/scale
-            g += (1.0 - side) * self.center
+        if self.scaled_center is not None:  # s·(x − c)/scale − (bound − c)/scale
+            g += (1.0 - side) * self.scaled_center
         self._key, self._value = key, (g, J)
         self.seconds += time.perf_counter() - start
         return g, J
@@ -214,7 +219,8 @@ def add_window_limit_constraints(
     evaluators: list | None = None,
     two_sided: bool = False,
 ) -> list:
-    """Eq. (51) at every instant: one window-maximum row per joint, quantity, side and window.
+    """Eq. (51) at every instant: one window-maximum row per joint, quantity, side and window
+    (per joint, quantity and window with ``two_sided``).
 
     Args:
         prog, alpha: the Drake program and its Fourier coefficients.
@@ -224,12 +230,13 @@ def add_window_limit_constraints(
         backoff: rows stay this fraction of each limit's scale inside it.
         evaluators: if given, the :class:`WindowMaxRows` of each joint are appended to it
             (Drake's bindings hide the Python object; its ``seconds`` times the callbacks).
-        two_sided: one row per quantity and window for both limits (half the rows: a G1
-            solve took 20 % less CPU time but ended at cond 245.8 instead of 205.8 from the
-            same start, BUILD_NOTES.md; not the default).
+        two_sided: one row per quantity and window for both limits (3·W rows per joint
+            instead of 6·W). Not the default: on G1 it saved no time with IPOPT's extended
+            augmented system and ended 10–20 % higher on three starts (BUILD_NOTES.md).
 
     Returns:
-        The bindings, one per joint (6·W rows on that joint's 2N+1 coefficients).
+        The bindings, one per joint (6·W rows, or 3·W two-sided, on that joint's 2N+1
+        coefficients).
 
     Raises:
         ConfigError: windows or grid not a positive integer.

@@ -19,6 +19,7 @@ or add the pieces to a program of your own with :func:`add_excitation_cost`,
 from __future__ import annotations
 
 import dataclasses
+import math
 import sys
 import time
 from collections.abc import Callable
@@ -246,9 +247,9 @@ def add_sampled_constraint(
     evenly spaced ones) as a Drake constraint on alpha with an analytic Jacobian.
 
     Args:
-        group: samples per row (see :class:`SampledConstraintEvaluator`); default
-            :data:`SAMPLES_PER_ROW` for one-sided constraints when it divides the sample
-            count, else 1.
+        group: samples per row (see :class:`SampledConstraintEvaluator`); default for
+            one-sided constraints gcd(K, :data:`SAMPLES_PER_ROW`) (16 for K = 400, 8 for
+            K = 200), else 1.
         tau: smoothing of the grouped rows, in the constraint's unit (default 0.2 mm for
             metres: conservative by at most τ·log(group) ≈ 0.55 mm).
 
@@ -265,8 +266,8 @@ def _add_sampled(prog, alpha, problem, constraint, samples=None, group=None, tau
         basis = FourierBasis(problem.harmonics, problem.omega, sample_times(problem.period, samples))
     K = len(basis.t)
     one_sided = np.all(np.isfinite(constraint.lower) ^ np.isfinite(constraint.upper))
-    if group is None:
-        group = SAMPLES_PER_ROW if one_sided and K % SAMPLES_PER_ROW == 0 else 1
+    if group is None:  # the largest run of at most SAMPLES_PER_ROW that divides K
+        group = math.gcd(K, SAMPLES_PER_ROW) if one_sided else 1
     if K % group:
         raise ConfigError(f"constraint '{constraint.name}': group {group} does not divide {K} samples")
     evaluator = SampledConstraintEvaluator(problem, constraint, basis, group, tau)

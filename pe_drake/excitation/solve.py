@@ -131,7 +131,7 @@ def _ipopt_backend(cfg: SolverConfig) -> _Backend:
     # The quasi-Newton pairs enter the augmented system as extra rows instead of through
     # Sherman-Morrison, which needs two back-solves per pair after every factorization
     # (60 of ~1 ms each per G1 iteration). The same steps in exact arithmetic; one G1 start
-    # 47 → 34 s, the Panda 25 → 19 s (issue 11).
+    # 47 → 32–34 s, the Panda 25 → 19 s (issue 11; BUILD_NOTES.md).
     options.SetOption(sid, "limited_memory_aug_solver", "extended")
     for key, value in IPOPT_EXTRA_OPTIONS.items():
         options.SetOption(sid, key, value)

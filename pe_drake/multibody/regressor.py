@@ -16,7 +16,6 @@ derivation, and how it maps onto the paper's Eqs. (25)–(40), is in docs/deriva
 from __future__ import annotations
 
 import dataclasses
-import weakref
 
 import numpy as np
 
@@ -81,9 +80,13 @@ class RegressorModel:
 
     Args:
         robot: the robot (its plant supplies body poses).
+        batched: use the batched forward kinematics where the joint types allow (False:
+            Drake's per-sample queries, e.g. as a reference in tests).
+        keep_last_poses: keep the last :meth:`poses` and :meth:`twists` (see
+            :func:`shared_model`).
     """
 
-    def __init__(self, robot):
+    def __init__(self, robot, *, batched: bool = True, keep_last_poses: bool = False):
         self.robot = robot
         self.n = robot.n
         self.nb = robot.num_bodies
@@ -107,7 +110,8 @@ class RegressorModel:
         g = np.asarray(plant.gravity_field().gravity_vector())
         self.A0 = np.concatenate([np.zeros(3), -g])  # base acceleration = -gravity
 
-        self._fk = _ForwardKinematics.build(robot, self._bodies_needed)
+        self._fk = _ForwardKinematics.build(robot, self._bodies_needed) if batched else None
+        self._keep = keep_last_poses
         self._poses_key: tuple | None = None
         self._poses: np.ndarray | None = None
         self._joint_child_slots = [self._slot[int(b)] for b in self._joint_child]
@@ -131,14 +135,18 @@ class RegressorModel:
         """X_WB of the needed bodies, (T, len(bodies_needed), 4, 4).
 
         Batched over samples from the joints' fixed frames (Drake's X_PF, X_FM(q), X_MC);
-        falls back to Drake's per-sample queries for joint types it does not handle. The
-        last result is kept: the balance and collision constraints share one model
-        (:func:`shared_model`) and ask for the same samples in each evaluation. Do not modify
-        the returned array.
+        falls back to Drake's per-sample queries for joint types it does not handle (or
+        when built with ``batched=False``). With ``keep_last_poses`` (the model of
+        :func:`shared_model`, which the balance, collision and environment constraints
+        share, asking for the same samples in each evaluation) the last result is kept and
+        returned read-only.
         """
+        if not self._keep:
+            return self._fk(q) if self._fk is not None else self.drake_poses(q)
         key = (q.shape, q.tobytes())
         if key != self._poses_key:
             self._poses = self._fk(q) if self._fk is not None else self.drake_poses(q)
+            self._poses.setflags(write=False)  # shared by the constraints: read only
             self._poses_key = key
         return self._poses
 
@@ -164,11 +172,15 @@ class RegressorModel:
         return omega, moment
 
     def twists(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`joint_twists` at postures q (K, n), from :meth:`poses`; kept with the
-        poses, for the constraints sharing this model."""
+        """:meth:`joint_twists` at postures q (K, n), from :meth:`poses`; kept (read-only)
+        with the poses when the model keeps them."""
         X = self.poses(q)
+        if not self._keep:
+            return self.joint_twists(X[:, self._joint_child_slots])
         if self._twists_key != self._poses_key:
             self._twists = self.joint_twists(X[:, self._joint_child_slots])
+            for array in self._twists:
+                array.setflags(write=False)
             self._twists_key = self._poses_key
         return self._twists
 
@@ -327,16 +339,17 @@ class RegressorModel:
         return q_bar, v_bar, vd_bar
 
 
-_SHARED: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
-
-
 def shared_model(robot) -> RegressorModel:
-    """One :class:`RegressorModel` per robot, for the sampled constraints (balance,
-    collision, environment) that evaluate the same postures: its forward kinematics runs once
-    per evaluation instead of once per constraint."""
-    model = _SHARED.get(robot)
+    """One :class:`RegressorModel` per robot that keeps its last poses, for the sampled
+    constraints (balance, collision, environment) that evaluate the same postures: the
+    forward kinematics runs once per evaluation instead of once per constraint.
+
+    It is stored on the robot as ``robot.shared_kinematics`` (set that attribute before
+    building the constraints to use another model, e.g. ``RegressorModel(robot,
+    batched=False, keep_last_poses=True)`` for Drake's per-sample queries)."""
+    model = getattr(robot, "shared_kinematics", None)
     if model is None:
-        model = _SHARED[robot] = RegressorModel(robot)
+        model = robot.shared_kinematics = RegressorModel(robot, keep_last_poses=True)
     return model
 
 

@@ -85,6 +85,8 @@ class Robot:
         limits: the :class:`Limits` the optimizer uses.
         locked_positions: {joint: value} of every welded (non-excited) joint.
         body_names: bodies moved by at least one excited joint (the regressor's bodies).
+        shared_kinematics: the kinematics model the sampled constraints share (None until
+            :func:`~pe_drake.multibody.regressor.shared_model` makes it).
     """
 
     def __init__(
@@ -99,6 +101,7 @@ class Robot:
     ):
         self.name = name
         self.config = config
+        self.shared_kinematics = None
         self.time_step = float(time_step)
         self._obj_visuals = obj_visuals
         self._before_finalize = before_finalize

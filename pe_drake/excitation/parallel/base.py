@@ -16,6 +16,7 @@ differed, rarely, by up to ~5e-10 rad (README, "Running on a cluster"; cause not
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import os
 import pickle
 import tempfile
@@ -30,6 +31,7 @@ import numpy as np
 from pe_drake.config import ExcitationConfig
 from pe_drake.exceptions import ConfigError, PeDrakeError
 from pe_drake.excitation.problem import ExcitationProblem
+from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.regressor import RegressorModel
 from pe_drake.multibody.robot import Robot
 from pe_drake.threads import single_threaded_blas
@@ -137,12 +139,15 @@ class RobotSpec:
 
         logging.getLogger("drake").setLevel(logging.ERROR)
         config = self.config
-        if self.capsules_text and not Path(config.capsules).is_file():
-            # another machine: the capsule file exists only where the run started
-            fd, local = tempfile.mkstemp(prefix="pe_drake_capsules_", suffix=".yaml")
-            with os.fdopen(fd, "w") as f:
-                f.write(self.capsules_text)
-            config = dataclasses.replace(config, capsules=local)
+        path = Path(config.capsules) if config.capsules else None
+        if self.capsules_text and not (path.is_file() and path.read_text() == self.capsules_text):
+            # Another machine: the file is missing there, or a stale one from an earlier run
+            # sits at the same path. One file per content, shared by the node's workers.
+            digest = hashlib.sha256(self.capsules_text.encode()).hexdigest()[:16]
+            local = Path(tempfile.gettempdir()) / f"pe_drake_capsules_{digest}.yaml"
+            if not local.is_file():
+                atomic_write_text(local, self.capsules_text)
+            config = dataclasses.replace(config, capsules=str(local))
         return WorkerState(Robot(self.name, config), self.base, self.constraints_factory, emit)
 
 
