@@ -15,6 +15,7 @@ from pe_drake.excitation.limit_windows import WindowMaxRows, joint_window_rows, 
 from pe_drake.excitation.problem import ExcitationProblem
 from pe_drake.excitation.program import build_excitation_program
 from pe_drake.excitation.solve import check_margins, solve_excitation
+from tests.conftest import central_gradient
 
 
 def _rows(N=5, windows=10, period=10.0, seed=0):
@@ -56,12 +57,7 @@ def test_window_rows_equal_the_maximum_over_every_instant(seed):
 def test_window_rows_jacobian_matches_central_differences(seed):
     rows, a, _ = _rows(seed=seed)
     _, J = rows.values_and_jacobian(a)
-    h = 1e-6
-    fd = np.empty_like(J)
-    for i in range(len(a)):
-        e = np.zeros_like(a)
-        e[i] = h
-        fd[:, i] = (rows.values_and_jacobian(a + e)[0] - rows.values_and_jacobian(a - e)[0]) / (2 * h)
+    fd = central_gradient(lambda x: rows.values_and_jacobian(x)[0], a, range(len(a))).T
     assert np.allclose(J, fd, atol=1e-6 * max(1.0, np.abs(J).max()))
 
 
@@ -216,12 +212,7 @@ def test_two_sided_rows_bound_the_largest_deviation_with_an_exact_jacobian(seed)
         dense = (np.abs(deviation).max() - 0.5) / scale[r]
         assert dense - 1e-9 <= g[r] <= dense + 1e-7, (r, g[r], dense)
     assert sides == {-1.0, 1.0}  # both limits are the active side somewhere
-    h = 1e-6
-    fd = np.empty_like(J)
-    for i in range(len(a)):
-        e = np.zeros_like(a)
-        e[i] = h
-        fd[:, i] = (rows.values_and_jacobian(a + e)[0] - rows.values_and_jacobian(a - e)[0]) / (2 * h)
+    fd = central_gradient(lambda x: rows.values_and_jacobian(x)[0], a, range(len(a))).T
     assert np.allclose(J, fd, atol=1e-6 * max(1.0, np.abs(J).max()))
 
 
