@@ -31,6 +31,11 @@ def _rows(N=5, windows=10, period=10.0, seed=0):
     return rows, a, omega
 
 
+def _assert_matches_central_differences(rows, a, J):
+    fd = central_gradient(lambda x: rows.values_and_jacobian(x)[0], a, range(len(a))).T
+    assert np.allclose(J, fd, atol=1e-6 * max(1.0, np.abs(J).max()))
+
+
 def test_trig_rows_are_the_time_derivatives():
     k_omega = np.arange(1, 4) * 0.7
     t = np.linspace(0.0, 5.0, 7)
@@ -57,8 +62,7 @@ def test_window_rows_equal_the_maximum_over_every_instant(seed):
 def test_window_rows_jacobian_matches_central_differences(seed):
     rows, a, _ = _rows(seed=seed)
     _, J = rows.values_and_jacobian(a)
-    fd = central_gradient(lambda x: rows.values_and_jacobian(x)[0], a, range(len(a))).T
-    assert np.allclose(J, fd, atol=1e-6 * max(1.0, np.abs(J).max()))
+    _assert_matches_central_differences(rows, a, J)
 
 
 def test_joint_window_rows_bound_the_limits(panda):
@@ -212,8 +216,7 @@ def test_two_sided_rows_bound_the_largest_deviation_with_an_exact_jacobian(seed)
         dense = (np.abs(deviation).max() - 0.5) / scale[r]
         assert dense - 1e-9 <= g[r] <= dense + 1e-7, (r, g[r], dense)
     assert sides == {-1.0, 1.0}  # both limits are the active side somewhere
-    fd = central_gradient(lambda x: rows.values_and_jacobian(x)[0], a, range(len(a))).T
-    assert np.allclose(J, fd, atol=1e-6 * max(1.0, np.abs(J).max()))
+    _assert_matches_central_differences(rows, a, J)
 
 
 def test_two_sided_joint_rows_bound_the_largest_deviation_from_the_limits_centre(panda):
