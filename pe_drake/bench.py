@@ -295,6 +295,7 @@ def bench_solve(args: argparse.Namespace) -> None:
     # IPOPT's defaults, as before issue 11
     before = {
         "spral_scaling": "matching", "limited_memory_max_history": 6, "limited_memory_aug_solver": "sherman-morrison",
+        "spral_nemin": 32, "max_soc": 4,
     }
     IPOPT_EXTRA_OPTIONS.update(before)
     try:

@@ -28,6 +28,7 @@ from pe_drake.multibody.spatial import (
     force_transform_matrix,
     inertia_times,
     inertia_times_diagonal,
+    rotate,
     skew,
     summed_cross_force,
 )
@@ -165,10 +166,10 @@ class RegressorModel:
                 ``slots(joint child bodies)``).
         """
         X_WM = X_WC @ self.X_CM  # (K, n, 4, 4)
-        axis_W = np.einsum("knij,nj->kni", X_WM[:, :, :3, :3], self.axis_M)
+        axis_W = rotate(X_WM[:, :, :3, :3], self.axis_M)
         o_W = X_WM[:, :, :3, 3]
         omega = np.where(self.prismatic[None, :, None], 0.0, axis_W)
-        moment = np.where(self.prismatic[None, :, None], axis_W, np.cross(o_W, axis_W))
+        moment = np.where(self.prismatic[None, :, None], axis_W, cross3(o_W, axis_W))
         return omega, moment
 
     def twists(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -376,10 +377,24 @@ class _ForwardKinematics:
         self._prismatic = np.array([k == "prismatic" for k in kinds])
         self._q_index = np.array([max(iq, 0) for _, _, _, _, iq, _ in steps], dtype=int)
         self._axes = axes
-        self._skews = skew(axes)
-        self._outer = axes[:, :, None] * axes[:, None, :]
-        self._X_PF = np.array([X_PF for _, X_PF, _, _, _, _ in steps]).reshape(-1, 4, 4)
-        self._X_MC = np.array([X_MC for _, _, _, _, _, X_MC in steps]).reshape(-1, 4, 4)
+        # X_FM is linear in (1, c, s, d): E0 + c·E1 + s·E2 + d·E3, so the local pose is
+        # L0 + c·L1 + s·L2 + d·L3 with L_i = X_PF · E_i · X_MC computed once (4× faster than
+        # building X_FM and multiplying per sample, issue 11).
+        ns = len(steps)
+        E = np.zeros((4, ns, 4, 4))
+        outer = axes[:, :, None] * axes[:, None, :]
+        E[0, :, :3, :3] = outer
+        E[0, :, 3, 3] = 1.0
+        E[1, :, :3, :3] = np.eye(3) - outer
+        E[2, :, :3, :3] = skew(axes)
+        E[3, :, :3, 3] = axes
+        X_PF = np.array([X_PF for _, X_PF, _, _, _, _ in steps]).reshape(-1, 4, 4)
+        X_MC = np.array([X_MC for _, _, _, _, _, X_MC in steps]).reshape(-1, 4, 4)
+        self._L = X_PF @ E @ X_MC  # (4, ns, 4, 4)
+        self._parents = [None if parent[0] == "const" else parent[1] for parent, *_ in steps]
+        self._X_WP = [parent[1] if parent[0] == "const" else None for parent, *_ in steps]
+        self._var_outputs = [k for k, (kind, _) in enumerate(outputs) if kind == "var"]
+        self._var_steps = [value for kind, value in outputs if kind == "var"]
 
     @staticmethod
     def build(robot, bodies):
@@ -433,20 +448,22 @@ class _ForwardKinematics:
     def __call__(self, q: np.ndarray) -> np.ndarray:
         T, ns = q.shape[0], len(self.steps)
         angle = np.where(self._revolute, q[:, self._q_index], 0.0)[..., None, None]  # (T, ns, 1, 1)
-        shift = np.where(self._prismatic, q[:, self._q_index], 0.0)[..., None]  # (T, ns, 1)
-        X_FM = np.zeros((T, ns, 4, 4))
-        c = np.cos(angle)
-        X_FM[..., :3, :3] = c * np.eye(3) + np.sin(angle) * self._skews + (1.0 - c) * self._outer
-        X_FM[..., :3, 3] = shift * self._axes
-        X_FM[..., 3, 3] = 1.0
-        local = self._X_PF @ X_FM @ self._X_MC
-        X = []
-        for k, (parent, *_rest) in enumerate(self.steps):
-            X_WP = parent[1] if parent[0] == "const" else X[parent[1]]
-            X.append(X_WP @ local[:, k])
+        shift = np.where(self._prismatic, q[:, self._q_index], 0.0)[..., None, None]
+        L0, L1, L2, L3 = self._L
+        local = L0 + np.cos(angle) * L1
+        local += np.sin(angle) * L2
+        local += shift * L3  # (T, ns, 4, 4)
+        X = np.empty((T, ns, 4, 4))
+        for k, parent in enumerate(self._parents):
+            X_WP = self._X_WP[k] if parent is None else X[:, parent]
+            np.matmul(X_WP, local[:, k], out=X[:, k])
+        if self._var_steps == list(range(ns)) == self._var_outputs:
+            return X  # the outputs are the steps, in order
         out = np.empty((T, len(self.outputs), 4, 4))
         for k, (kind, value) in enumerate(self.outputs):
-            out[:, k] = value if kind == "const" else X[value]
+            if kind == "const":
+                out[:, k] = value
+        out[:, self._var_outputs] = X[:, self._var_steps]
         return out
 
 

@@ -27,6 +27,7 @@ import numpy as np
 from pe_drake.exceptions import ConfigError, InfeasibleError, UnknownNameError
 from pe_drake.excitation.constraints.base import SampledConstraint, SampledValues, check_postures
 from pe_drake.multibody.regressor import shared_model
+from pe_drake.multibody.spatial import cross3, rotate
 
 
 class OutOfBalanceError(InfeasibleError):
@@ -168,7 +169,7 @@ class BalanceConstraint(SampledConstraint):
             return self.drake_com(q, jacobian)
         X = self._model.poses(q)  # (K, bodies, 4, 4)
         Xb = X[:, self._body_slots]
-        c = (Xb[..., :3, :3] @ self._body_com[:, :, None])[..., 0] + Xb[..., :3, 3]  # (K, nb, 3)
+        c = rotate(Xb[..., :3, :3], self._body_com) + Xb[..., :3, 3]  # (K, nb, 3)
         p = (self._static_moment + self._body_mass @ c) / self._mass
         if not jacobian:
             return p, None
@@ -176,7 +177,7 @@ class BalanceConstraint(SampledConstraint):
         # (ω_k × Σ_b m_b c_b + M_k m_k) / M over those bodies (M_k: their mass).
         omega, moment = self._model.twists(q)  # (K, n, 3) each
         first_moment = self._moved_mass @ c  # (K, n, 3)
-        J = (np.cross(omega, first_moment) + self._mass_moved[None, :, None] * moment) / self._mass
+        J = (cross3(omega, first_moment) + self._mass_moved[None, :, None] * moment) / self._mass
         return p, np.swapaxes(J, 1, 2)
 
     def drake_com(self, q: np.ndarray, jacobian: bool):

@@ -35,6 +35,7 @@ import numpy as np
 from pe_drake.exceptions import ConfigError, InfeasibleError
 from pe_drake.excitation.constraints.base import SampledConstraint, SampledValues, check_postures
 from pe_drake.multibody.regressor import shared_model
+from pe_drake.multibody.spatial import rotate
 
 _GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
 
@@ -222,7 +223,7 @@ class EnvironmentConstraint(SampledConstraint):
             return self.drake_ends(q, jacobian)
         X = self._model.poses(q)
         Xc = X[:, self._capsule_slots]  # (K, C, 4, 4)
-        p = np.einsum("kcij,csj->kcsi", Xc[..., :3, :3], self._p_BS) + Xc[:, :, None, :3, 3]
+        p = rotate(Xc[:, :, None, :3, :3], self._p_BS) + Xc[:, :, None, :3, 3]
         if not jacobian:
             return p, None
         # ∂p/∂q_k = ω_k × p + m_k for the joints k that move the capsule's body.
@@ -264,13 +265,20 @@ class EnvironmentConstraint(SampledConstraint):
             d (K, R) and, with ``derivatives``, ∂d/∂q (K, R, n) (else None).
         """
         q = check_postures(q, self.robot, "environment constraint")
-        p, J = self.ends(q, derivatives)
+        # The floor rows need only ∂z/∂q; the full Jacobian of every end is built for boxes.
+        floor_only = derivatives and not self.boxes and self._model is not None
+        p, J = self.ends(q, derivatives and not floor_only)
         radii = np.array([c.radius for c in self.capsules])
         d_rows, g_rows = [], []
         if self.floor_ends:
             cs, es = np.array(self.floor_ends).T
             d_rows.append(p[:, cs, es, 2] - radii[cs] - self.floor_height)  # (K, F)
-            if derivatives:
+            if floor_only:  # ∂z/∂q_k = (ω_k × p)_z + m_k,z for the joints k that move the end
+                omega, moment = self._model.twists(q)  # (K, n, 3)
+                x, y = p[:, cs, es, 0, None], p[:, cs, es, 1, None]  # (K, F, 1)
+                dz = omega[:, None, :, 0] * y - omega[:, None, :, 1] * x + moment[:, None, :, 2]
+                g_rows.append(dz * self._moves[cs])  # (K, F, n)
+            elif derivatives:
                 g_rows.append(J[:, cs, es, 2, :])  # (K, F, n)
         for box in self.boxes:
             d, s, normal = segment_box_distance(p[:, :, 0], p[:, :, 1], box.center, 0.5 * box.size)
