@@ -235,3 +235,46 @@ def test_fallback_points_put_those_meeting_the_sampled_constraints_first(panda):
     assert value == 100.0 and np.array_equal(first, x0)
     # Then the cheapest points that met the joint limits, as before.
     assert [v for v, _ in cost.candidates[1:]] == sorted(v for v, _ in points[1:])[:8]
+
+
+def test_last_resort_moves_the_best_point_toward_the_valid_start(panda):
+    """When no evaluated point holds every constraint at 1 kHz (capsules a hair inside the
+    margin between samples, budget spent), the best one moved toward the valid start by the
+    first share of BLEND_STEPS that clears it is returned, and said so."""
+    from pe_drake.excitation.constraints.base import SampledConstraint, SampledValues
+    from pe_drake.excitation.solve import BLEND_STEPS, _Check, _blend_toward_start, _feasible_fallback
+
+    config = ExcitationConfig(harmonics=3, omega=2 * math.pi / 8, cost_samples=24, constraint_samples=96)
+    problem = ExcitationProblem(panda, config)
+    x0 = problem.initial_guess(seed=0)
+    q0 = x0[-problem.n :]
+    t = np.arange(0.0, problem.period, 1e-3)
+    q = problem.trajectory(x0).evaluate(t)[0]
+    radius = 1.01 * np.abs(q - q0).max(axis=0)  # the start's motion fits at 1 kHz, 1 % to spare
+
+    class Band(SampledConstraint):
+        name = "band"
+
+        def __init__(self):
+            super().__init__([f"q{j}" for j in range(problem.n)], -radius, radius)
+
+        def evaluate(self, q, v, vd, derivatives=True):
+            d_q = np.broadcast_to(np.eye(problem.n), (len(q), problem.n, problem.n)).copy()
+            return SampledValues(value=q - q0, d_q=d_q)
+
+    program = build_excitation_program(problem, [Band()])
+    target = x0.copy()
+    target[: -problem.n] *= 1.02  # 2 % more motion: outside the band; half-way back fits
+    program.cost.remember(target, 1.0)
+    check = _Check(1000.0, 1e-6)
+
+    share, point, margins = _blend_toward_start(program, x0, target, check)
+    assert share == 0.5 and 0.25 in BLEND_STEPS  # 0.25 of the way leaves 1.5 % > 1 %
+    np.testing.assert_allclose(point, target + 0.5 * (x0 - target))
+    assert min(margins.values()) >= -1e-6
+    assert _blend_toward_start(program, target, x0, check) is None  # an invalid start: nothing
+
+    x, margins, note = _feasible_fallback(program, target, False, check, x0)
+    np.testing.assert_allclose(x, point)
+    assert min(margins.values()) >= -1e-6
+    assert "moved 50.0% toward the start" in note

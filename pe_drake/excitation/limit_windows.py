@@ -101,6 +101,7 @@ class WindowMaxRows:
         self.grid_rows = trig_rows(self.k_omega, self.t_grid, self.order[:, None]) * self.gain[:, None, None]
         self.newton_steps = newton_steps
         self.derivative_power = self.k_omega ** (self.order[:, None] + 1)  # (kω)^(m+1) per row, (R, N)
+        self.phase_shift = self.order[:, None] * (0.5 * np.pi)  # d^m/dt^m shifts by mπ/2, (R, 1)
         self.seconds = 0.0
         self._key: bytes | None = None
         self._value: tuple[np.ndarray, np.ndarray] | None = None
@@ -126,20 +127,21 @@ class WindowMaxRows:
         else:
             best = np.argmax(y, axis=1)
         t = self.t_grid[rows, best]
-        gain = self.gain * side
-        lo, hi = t - self.spacing, t + self.spacing
+        lo, hi = np.maximum(t - self.spacing, self.start), np.minimum(t + self.spacing, self.stop)
         N = len(self.k_omega)
-        a_sin, a_cos = a[:N] * self.derivative_power, a[N : 2 * N] * self.derivative_power  # (R, N)
+        # The row's derivative coefficients, its side's sign folded in (d1 = s·x^(m+1), d2 = s·x^(m+2))
+        gain = ((self.gain * side)[:, None]) * self.derivative_power  # (R, N)
+        a_sin, a_cos = a[:N] * gain, a[N : 2 * N] * gain
+        b_sin, b_cos = a_sin * self.k_omega, a_cos * self.k_omega
         for _ in range(self.newton_steps):
             # x^(m+1) and x^(m+2) at t from one sin and cos of the row's phase (trig_rows)
-            phase = t[:, None] * self.k_omega + self.order[:, None] * (0.5 * np.pi)
+            phase = t[:, None] * self.k_omega + self.phase_shift
             sin, cos = np.sin(phase), np.cos(phase)
-            d1 = np.einsum("rk,rk->r", a_sin, cos) - np.einsum("rk,rk->r", a_cos, sin)
-            d2 = -(np.einsum("rk,rk->r", a_sin * self.k_omega, sin) + np.einsum("rk,rk->r", a_cos * self.k_omega, cos))
-            d1, d2 = d1 * gain, d2 * gain
+            d1 = (a_sin * cos - a_cos * sin).sum(axis=1)
+            d2 = -(b_sin * sin + b_cos * cos).sum(axis=1)
             concave = d2 < 0
             step = np.where(concave, -d1 / np.where(concave, d2, -1.0), 0.0)
-            t = np.clip(t + step, np.maximum(lo, self.start), np.minimum(hi, self.stop))
+            t = np.clip(t + step, lo, hi)
         return t, side
 
     def values_and_jacobian(self, coefficients: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -292,13 +292,39 @@ def shrink_into_limits(problem: ExcitationProblem, alpha: np.ndarray, rate: floa
     return out
 
 
-def _feasible_fallback(program: ExcitationProgram, x: np.ndarray, solved: bool, check: _Check):
+#: How far :func:`_blend_toward_start` moves a nearly valid point toward the start, in the
+#: order tried (the first valid blend is kept).
+BLEND_STEPS = (0.001, 0.01, 0.05, 0.1, 0.25, 0.5, 0.75)
+
+
+def _blend_toward_start(program: ExcitationProgram, start: np.ndarray, target: np.ndarray, check: _Check):
+    """(share, point, margins) of the first valid ``target + share·(start − target)`` for the
+    shares of :data:`BLEND_STEPS`, or None when none is valid or the start itself is not.
+
+    The last resort when every point the solver evaluated crosses a sampled constraint
+    between the samples by a little (e.g. capsules 0.1 mm inside the margin, iteration
+    budget spent): the joint limits hold on the whole segment (they are linear in alpha),
+    and a point a little closer to the valid start usually clears the rest."""
+    problem, constraints = program.problem, program.constraints
+    if min(check_margins(problem, start, constraints, rate=check.rate).values()) < -check.tolerance:
+        return None
+    for share in BLEND_STEPS:
+        point = target + share * (start - target)
+        margins = check_margins(problem, point, constraints, rate=check.rate)
+        if min(margins.values()) >= -check.tolerance:
+            return share, point, margins
+    return None
+
+
+def _feasible_fallback(program: ExcitationProgram, x: np.ndarray, solved: bool, check: _Check, start: np.ndarray):
     """The solution, its margins at ``check.rate`` and a note on the fallback used ("" if none).
 
     When the solver stopped at an infeasible or unconverged iterate, the first valid point of:
     the iterate shrunk into the joint limits (:func:`shrink_into_limits`) when that keeps
     it valid, and the best points it evaluated that hold every constraint at ``check.rate``,
-    replaces it (whichever has the lower criterion).
+    replaces it (whichever has the lower criterion). When none of them is valid, the best
+    point evaluated (or the iterate) moved a little toward the valid ``start``
+    (:func:`_blend_toward_start`) does.
     """
     problem = program.problem
     margins = check_margins(problem, x, program.constraints, rate=check.rate)
@@ -319,6 +345,16 @@ def _feasible_fallback(program: ExcitationProgram, x: np.ndarray, solved: bool, 
             return candidate, m, f"; returned the best feasible point evaluated ({problem.config.criterion} {value:.5g})"
     if best is not None:
         return best[1:]
+    candidates = program.cost.candidates
+    blend = _blend_toward_start(program, start, candidates[0][1] if candidates else x, check)
+    if blend is not None:
+        share, point, m = blend
+        value = problem.evaluate(point).value
+        note = (
+            f"; no point evaluated was valid at {check.rate:g} Hz: returned the best one moved {share:.1%} "
+            f"toward the start ({problem.config.criterion} {value:.5g})"
+        )
+        return point, m, note
     return x, margins, ""
 
 
@@ -391,7 +427,7 @@ def solve_excitation(
 
     solved = result.is_success()
     x = np.asarray(result.GetSolution(program.alpha), float)
-    x, margins, fallback = _feasible_fallback(program, x, solved, check)
+    x, margins, fallback = _feasible_fallback(program, x, solved, check, x0)
     cost = problem.evaluate(x)
     violated = {k: m for k, m in margins.items() if m < -tolerance}
     return ExcitationResult(
