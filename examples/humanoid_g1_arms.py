@@ -47,6 +47,8 @@ from pathlib import Path
 
 import numpy as np
 
+from pe_drake.config import CRITERIA
+
 # HRP-4 figures of the paper (Tables I and II).
 PAPER_TABLE_I = {"cond_motion": [47.6, 114.2, 125.5], "cond_total": [47.6, 35.7, 33.9]}
 PAPER_TABLE_II = {"cond_motion": [274.1, 332.0, 436.2], "cond_total": [274.1, 156.3, 124.7]}
@@ -73,7 +75,7 @@ class Settings:
     ray_address: str  # Ray cluster ("": ray.init()'s default)
     max_iterations: int | None  # IPOPT iterations per start (None: the config's)
     max_time: float  # wall-time limit per start [s]; 0: none
-    criterion: str | None  # None: the config's (cond)
+    criterion: str | None  # None: the config's (soft_cond)
     amplitude: float | None  # scale of the optimizer's random initial points [rad]
     candidates: int  # accepted random motions per baseline amplitude
     baseline_amplitudes: tuple[float, ...]  # [rad]
@@ -134,7 +136,7 @@ def build_parser() -> argparse.ArgumentParser:
         help=f"IPOPT iterations per start (default: {FULL['max_iterations']}, quick {QUICK['max_iterations']})",
     )
     p.add_argument("--max-time", type=_nonnegative_float, default=0.0, help="wall-time limit per start [s] (0: none)")
-    p.add_argument("--criterion", choices=("cond", "log_cond", "dopt"), help="criterion (default: the config's, cond)")
+    p.add_argument("--criterion", choices=CRITERIA, help="criterion (default: the config's, soft_cond)")
     p.add_argument("--amplitude", type=_positive_float, help="scale of the random initial points [rad]")
     p.add_argument(
         "--candidates",

@@ -270,12 +270,13 @@ def bench_sensitivity(args) -> None:
 def bench_solve(args: argparse.Namespace) -> None:
     """One excitation solve of the robot's own problem (as ``pe-drake optimize --robot``:
     its config's limits, balance, collision, 300 IPOPT iterations at most), from the same
-    start, with the formulation before issue 11 (joint limits as linear rows at sampled
-    instants, IPOPT's default scaling, quasi-Newton pairs and augmented-system solver, no
-    exchange) and with the default one (window rows, exchange, 30 quasi-Newton pairs in an
-    extended augmented system). Both share the constraint callbacks as they are now
-    (batched kinematics, 16 samples per grouped row), so "old" is faster than the code
-    before issue 11 was. Times are wall clock in this process; ``grad_ms`` (one
+    start, with the formulation before issue 11 (cond itself as the criterion, joint limits
+    as linear rows at sampled instants, IPOPT's default scaling, quasi-Newton pairs,
+    augmented-system solver, supernodes and second-order corrections, no exchange) and with
+    the default one (soft_cond, window rows, exchange, 30 quasi-Newton pairs in an extended
+    augmented system). Both share the constraint callbacks as they are now (batched
+    kinematics, pruned capsule pairs, 16 samples per grouped row), so "old" is faster than
+    the code before issue 11 was. Both report cond(C). Times are wall clock in this process; ``grad_ms`` (one
     analytic gradient, measured just before) lets runs on a busy machine be compared."""
     config = resolve_robot_config(args.robot, None)
     robot = Robot(args.robot, config.robot)
@@ -291,7 +292,9 @@ def bench_solve(args: argparse.Namespace) -> None:
 
         grad_s = median_time(gradient, repeats=args.repeats)
 
-    old_program = build_excitation_program(problem, constraints, limits="sampled")
+    # The formulation before issue 11 minimized cond itself (Eq. 17).
+    old_problem = ExcitationProblem(robot, dataclasses.replace(config.excitation, criterion="cond"))
+    old_program = build_excitation_program(old_problem, constraints, limits="sampled")
     # IPOPT's defaults, as before issue 11
     before = {
         "spral_scaling": "matching", "limited_memory_max_history": 6, "limited_memory_aug_solver": "sherman-morrison",

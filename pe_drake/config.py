@@ -110,7 +110,10 @@ class ExcitationConfig:
         cost_samples: T, samples of the regressor stacked in C (Eq. 3), evenly spread over
             one period.
         constraint_samples: K, samples where the limits are imposed (Eq. 51).
-        criterion: "cond" (Eq. 5), "log_cond", or "dopt" (-log det CᵀC).
+        criterion: "soft_cond" (default: a smooth upper bound of cond(C) whose minimizer
+            has a lower cond, reached in fewer iterations), "cond" (Eq. 5 exactly, the
+            paper's), "log_cond", or "dopt" (-log det CᵀC); see
+            :mod:`pe_drake.excitation.criteria`. cond(C) is reported whichever is minimized.
         rest_at_ends: start and end with zero velocity and acceleration.
         amplitude: scale of the random initial coefficients [rad].
         balance_radius: r of Eq. (52) [m]; 0 disables the balance constraint.
@@ -132,7 +135,7 @@ class ExcitationConfig:
     omega: float = math.pi / 4
     cost_samples: int = 40
     constraint_samples: int = 400
-    criterion: str = "cond"
+    criterion: str = "soft_cond"
     rest_at_ends: bool = False
     amplitude: float = 0.05
     balance_radius: float = 0.0
@@ -232,7 +235,7 @@ class Config:
     parallel: ParallelConfig = dataclasses.field(default_factory=ParallelConfig)
 
 
-CRITERIA = ("cond", "log_cond", "dopt")
+CRITERIA = ("cond", "soft_cond", "log_cond", "dopt")
 MEASUREMENTS = ("joint_torque", "base_wrench", "both")
 SOLVERS = ("ipopt", "nlopt")
 NLOPT_ALGORITHMS = ("LD_SLSQP", "LD_MMA", "LD_CCSAQ")

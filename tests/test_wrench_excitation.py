@@ -15,7 +15,7 @@ from pe_drake.exceptions import ConfigError
 from pe_drake.excitation.problem import ExcitationProblem
 
 DATA = Path(__file__).parent / "data"
-PAPER = ExcitationConfig(harmonics=10, omega=math.pi / 4, cost_samples=40)
+PAPER = ExcitationConfig(harmonics=10, omega=math.pi / 4, cost_samples=40, criterion="cond")
 
 
 @pytest.mark.parametrize("measurement, criterion", [("base_wrench", "cond"), ("both", "cond"), ("base_wrench", "log_cond")])

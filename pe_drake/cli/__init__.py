@@ -12,7 +12,7 @@ import importlib
 import sys
 
 from pe_drake import __version__
-from pe_drake.config import MEASUREMENTS
+from pe_drake.config import CRITERIA, MEASUREMENTS
 from pe_drake.exceptions import PeDrakeError
 from pe_drake.threads import single_threaded_blas
 
@@ -58,7 +58,7 @@ def _add_trajectory_commands(sub) -> None:
     p = sub.add_parser("optimize", help="optimize an exciting trajectory (min cond of the regressor)")
     add_robot_arguments(p)
     p.add_argument("--solver", choices=["ipopt", "nlopt"], help="optimizer (default: from config, ipopt)")
-    p.add_argument("--criterion", choices=["cond", "log_cond", "dopt"], help="excitation criterion")
+    p.add_argument("--criterion", choices=CRITERIA, help="excitation criterion")
     p.add_argument("--prior", action="append", default=[], metavar="TRAJECTORY_JSON",
                    help="earlier trajectory whose data is reused as C0 (repeatable)")
     p.add_argument("--max-iterations", type=int, help="solver iteration limit")

@@ -292,26 +292,30 @@ def shrink_into_limits(problem: ExcitationProblem, alpha: np.ndarray, rate: floa
     return out
 
 
-#: How far :func:`_blend_toward_start` moves a nearly valid point toward the start, in the
+#: How far :func:`blend_toward_start` moves a nearly valid point toward the start, in the
 #: order tried (the first valid blend is kept).
 BLEND_STEPS = (0.001, 0.01, 0.05, 0.1, 0.25, 0.5, 0.75)
 
 
-def _blend_toward_start(program: ExcitationProgram, start: np.ndarray, target: np.ndarray, check: _Check):
-    """(share, point, margins) of the first valid ``target + share·(start − target)`` for the
-    shares of :data:`BLEND_STEPS`, or None when none is valid or the start itself is not.
+def blend_toward_start(
+    program: ExcitationProgram, start: np.ndarray, target: np.ndarray, rate: float = 1000.0, tolerance: float = 1e-6
+):
+    """(share, point, margins) of the first ``target + share·(start − target)``, for the
+    shares of :data:`BLEND_STEPS` in order, that holds every constraint at ``rate`` [Hz]
+    (margins ≥ −``tolerance``), or None when none does or the start itself does not.
 
-    The last resort when every point the solver evaluated crosses a sampled constraint
-    between the samples by a little (e.g. capsules 0.1 mm inside the margin, iteration
-    budget spent): the joint limits hold on the whole segment (they are linear in alpha),
-    and a point a little closer to the valid start usually clears the rest."""
+    The last resort of :func:`solve_excitation` when every point the solver evaluated
+    crosses a sampled constraint between the samples by a little (e.g. capsules 0.1 mm
+    inside the margin, iteration budget spent): the joint limits and the rest at the ends
+    hold on the whole segment (they are linear in alpha), and a point a little closer to the
+    valid start usually clears the rest."""
     problem, constraints = program.problem, program.constraints
-    if min(check_margins(problem, start, constraints, rate=check.rate).values()) < -check.tolerance:
+    if min(check_margins(problem, start, constraints, rate=rate).values()) < -tolerance:
         return None
     for share in BLEND_STEPS:
         point = target + share * (start - target)
-        margins = check_margins(problem, point, constraints, rate=check.rate)
-        if min(margins.values()) >= -check.tolerance:
+        margins = check_margins(problem, point, constraints, rate=rate)
+        if min(margins.values()) >= -tolerance:
             return share, point, margins
     return None
 
@@ -324,7 +328,7 @@ def _feasible_fallback(program: ExcitationProgram, x: np.ndarray, solved: bool, 
     it valid, and the best points it evaluated that hold every constraint at ``check.rate``,
     replaces it (whichever has the lower criterion). When none of them is valid, the best
     point evaluated (or the iterate) moved a little toward the valid ``start``
-    (:func:`_blend_toward_start`) does.
+    (:func:`blend_toward_start`) does.
     """
     problem = program.problem
     margins = check_margins(problem, x, program.constraints, rate=check.rate)
@@ -346,7 +350,7 @@ def _feasible_fallback(program: ExcitationProgram, x: np.ndarray, solved: bool, 
     if best is not None:
         return best[1:]
     candidates = program.cost.candidates
-    blend = _blend_toward_start(program, start, candidates[0][1] if candidates else x, check)
+    blend = blend_toward_start(program, start, candidates[0][1] if candidates else x, check.rate, check.tolerance)
     if blend is not None:
         share, point, m = blend
         value = problem.evaluate(point).value
