@@ -98,7 +98,7 @@ def wrench_conds(robot, config, alphas: dict, candidates: int, seed: int, say) -
 
     excitation = dataclasses.replace(config.excitation, measurement="base_wrench")
     problem = ExcitationProblem(robot, excitation)
-    conds = {name: problem.value(alpha) for name, alpha in alphas.items()}
+    conds = {name: float(np.linalg.cond(problem.stacked(alpha))) for name, alpha in alphas.items()}
     start = time.perf_counter()
     # The draws are scored on the wrench rows' own base parameters (excitation.measurement).
     cset = generate_candidates(
