@@ -335,17 +335,23 @@ def bench_solve(args: argparse.Namespace) -> None:
             match = r
             break
     if match is None:
-        match = new
-    print(
-        f"old cond + 3 % reached in {match.wall_time:.2f} s ({match.nit} iterations, cond {match.cond:.4f}): "
-        f"{old.wall_time / match.wall_time:.2f}x faster, {match.wall_time / grad_s:.0f} gradient evaluations"
+        print(f"old cond + 3 % not reached below {solver.max_iterations} iterations")
+    else:
+        print(
+            f"old cond + 3 % reached in {match.wall_time:.2f} s ({match.nit} iterations, cond {match.cond:.4f}): "
+            f"{old.wall_time / match.wall_time:.2f}x faster, {match.wall_time / grad_s:.0f} gradient evaluations"
+        )
+    matched = (
+        f"{matched}"
+        if match is not None
+        else "match_s=nan match_iterations=nan match_cond=nan"
     )
     print(
         f"BENCH robot={robot.name} old_s={old.wall_time:.2f} new_s={new.wall_time:.2f} "
         f"speedup={old.wall_time / new.wall_time:.2f} old_cond={old.cond:.4f} new_cond={new.cond:.4f} "
         f"old_iterations={old.nit} new_iterations={new.nit} new_callbacks_s={new.callback_seconds:.2f} "
         f"new_solver_s={new.wall_time - new.callback_seconds:.2f} grad_ms={grad_s * 1e3:.3f} "
-        f"match_s={match.wall_time:.2f} match_iterations={match.nit} match_cond={match.cond:.4f}"
+        f"{matched}"
     )
 
 

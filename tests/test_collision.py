@@ -82,6 +82,36 @@ def test_distances_match_drake_geometry(name, g1, panda):
     assert near > 0
 
 
+@pytest.mark.parametrize("name", ["g1", "panda"])
+def test_pruned_soft_min_equals_the_soft_min_over_every_pair(name, g1, panda):
+    """The aggregate skips pairs whose bounding spheres put them more than 30 h beyond the
+    closest pair; value and gradient must equal the log-sum-exp over all pairs (the per-pair
+    rows give every d_p and ∂d_p/∂q). Postures near the clap and random ones, where several
+    pairs are within a few h of the closest, and none at all (K = 0)."""
+    robot = {"g1": g1, "panda": panda}[name]
+    aggregate = CollisionConstraint(robot, 0.0)
+    every_pair = CollisionConstraint(robot, 0.0, aggregate=False)
+    q = random_postures(robot, 40, seed=11)
+    if name == "g1":
+        q[:10] = robot.nominal_posture()
+        for j, value in {0: -1.3, 7: -1.3, 1: -0.25, 8: 0.25}.items():
+            q[:10, j] = value
+        q[:10, 3] = q[:10, 10] = np.linspace(0.0, 0.5, 10)  # elbows: hands from touching to apart
+    pruned = aggregate.evaluate(q, None, None)
+    full = every_pair.evaluate(q, None, None)
+    h = aggregate.smoothing
+    d_min = full.value.min(axis=1, keepdims=True)
+    w = np.exp(-(full.value - d_min) / h)
+    value = d_min - h * np.log(w.sum(axis=1, keepdims=True))
+    d_q = np.einsum("kp,kpn->kn", w / w.sum(axis=1, keepdims=True), full.d_q)
+    assert np.sum(w > 1e-3) > len(q)  # some samples do have several pairs near the closest
+    np.testing.assert_allclose(pruned.value, value, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(pruned.d_q[:, 0], d_q, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(aggregate.margins(q, None, None), d_min, rtol=0, atol=1e-15)
+    empty = aggregate.evaluate(q[:0], None, None)
+    assert empty.value.shape == (0, 1) and empty.d_q.shape == (0, 1, robot.n)
+
+
 def test_aggregate_is_a_tight_lower_bound_of_the_minimum(g1):
     q = random_postures(g1, 30, seed=5)
     aggregate = CollisionConstraint(g1, 0.02, smoothing=0.002)

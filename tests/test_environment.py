@@ -57,8 +57,9 @@ def test_panda_rows_skip_capsules_that_cannot_move_up_or_down(panda_env):
 
 
 @pytest.mark.parametrize("aggregate", [False, True])
-def test_jacobian_matches_central_differences(panda, aggregate):
-    boxes = [Box(np.array([0.5, 0.0, 0.2]), np.array([0.3, 0.6, 0.4]), "table")]
+@pytest.mark.parametrize("with_box", [True, False])  # floor alone: its rows take only ∂z/∂q
+def test_jacobian_matches_central_differences(panda, aggregate, with_box):
+    boxes = [Box(np.array([0.5, 0.0, 0.2]), np.array([0.3, 0.6, 0.4]), "table")] if with_box else []
     c = EnvironmentConstraint(panda, 0.01, floor_height=0.0, boxes=boxes, aggregate=aggregate, smoothing=0.05)
     q, v, vd = random_states(panda, 5, seed=3)
     out = c.evaluate(q, v, vd)
@@ -68,6 +69,7 @@ def test_jacobian_matches_central_differences(panda, aggregate):
         dq[:, j] = eps
         fd = (c.evaluate(q + dq, v, vd, False).value - c.evaluate(q - dq, v, vd, False).value) / (2 * eps)
         np.testing.assert_allclose(out.d_q[:, :, j], fd, atol=1e-6, rtol=1e-5)
+    assert np.abs(out.d_q).max() > 0.01
 
 
 def test_floor_rows_are_end_heights_minus_radius(panda):

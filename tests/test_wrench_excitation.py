@@ -77,7 +77,7 @@ def test_wrench_optimized_motion_is_better_conditioned_on_the_wrench_rows():
     from pe_drake.multibody.registry import builtin_config
 
     g1 = get_robot("g1")
-    excitation = dataclasses.replace(builtin_config("g1").excitation, measurement="base_wrench")
+    excitation = dataclasses.replace(builtin_config("g1").excitation, measurement="base_wrench", criterion="cond")
     problem = ExcitationProblem(g1, excitation)
     conds = {}
     for name in ("base_wrench", "joint_torque"):

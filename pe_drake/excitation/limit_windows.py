@@ -130,8 +130,8 @@ class WindowMaxRows:
         lo, hi = np.maximum(t - self.spacing, self.start), np.minimum(t + self.spacing, self.stop)
         N = len(self.k_omega)
         # The row's derivative coefficients, its side's sign folded in (d1 = s·x^(m+1), d2 = s·x^(m+2))
-        gain = ((self.gain * side)[:, None]) * self.derivative_power  # (R, N)
-        a_sin, a_cos = a[:N] * gain, a[N : 2 * N] * gain
+        row_scale = ((self.gain * side)[:, None]) * self.derivative_power  # (R, N)
+        a_sin, a_cos = a[:N] * row_scale, a[N : 2 * N] * row_scale
         b_sin, b_cos = a_sin * self.k_omega, a_cos * self.k_omega
         for _ in range(self.newton_steps):
             # x^(m+1) and x^(m+2) at t from one sin and cos of the row's phase (trig_rows)

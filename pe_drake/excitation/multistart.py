@@ -73,7 +73,7 @@ class StartEvent:
         violation: worst constraint violation at the last checked point, in the
             constraint's unit.
         elapsed: time since the start began [s].
-        criterion: "cond", "log_cond" or "dopt".
+        criterion: the criterion minimized (one of :data:`pe_drake.config.CRITERIA`).
         label: a tag set by the caller (e.g. "motion 2").
         message: the solver's message ("finished" only).
         origin: where the start began when not at its seed's random point (e.g. "from
@@ -88,7 +88,7 @@ class StartEvent:
     best_feasible: float
     violation: float
     elapsed: float
-    criterion: str = "cond"
+    criterion: str = "soft_cond"
     label: str = ""
     message: str = ""
     origin: str = ""

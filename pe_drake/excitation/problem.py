@@ -120,7 +120,7 @@ class ExcitationProblem:
     def evaluate(self, alpha: np.ndarray) -> CostValue:
         """Criterion and its analytic gradient with respect to alpha.
 
-        The chain: Eq. (17) gives dc/dC; its rows for sample t times Xᵀ give Z^(t)
+        The chain: Eq. (17) (or Eq. (16) for the smooth bound) gives dc/dC; its rows for sample t times Xᵀ give Z^(t)
         (Eqs. 45–46); the regressor's adjoint turns Z into dc/d(q, v, vdot) (Eq. 47); the
         Fourier map pulls that back to alpha (Eq. 49). Cached on alpha, because Drake's
         solvers ask for the same point more than once.
@@ -136,7 +136,7 @@ class ExcitationProblem:
         T, r, b = Y.shape[0], Y.shape[1], self.base.count
         block = self.base.reduce(Y).reshape(T * r, b)
         C = block if self.C0 is None else np.vstack([self.C0, block])
-        crit = evaluate_criterion(C, self.config.criterion)  # Eq. (17)
+        crit = evaluate_criterion(C, self.config.criterion)  # Eq. (17) for cond, (16) for soft_cond
         if not np.isfinite(crit.value):
             out = CostValue(np.inf, np.zeros_like(alpha), crit.singular_values)
         else:

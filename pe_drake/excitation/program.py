@@ -1,6 +1,7 @@
 """Exciting-trajectory optimization as pieces of a Drake MathematicalProgram.
 
-The problem (Eq. 7): minimize cond(C), C = [C0; Y_B at T samples] (Eq. 41), over the
+The problem (Eq. 7): minimize cond(C) (by default through its smooth upper bound
+``soft_cond``, :mod:`pe_drake.excitation.criteria`), C = [C0; Y_B at T samples] (Eq. 41), over the
 Fourier coefficients alpha (Eq. 50), subject to joint limits at K samples (Eq. 51) and any
 sampled constraint (balance Eq. 52, self-collision Eq. 53, ...).
 

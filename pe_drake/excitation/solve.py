@@ -137,10 +137,10 @@ def _ipopt_backend(cfg: SolverConfig) -> _Backend:
     # a few hundred dense columns and thousands of nearly empty rows, and 4 halved the
     # factorization time (G1: 2.4 → 1.2 s per 90 iterations; issue 11).
     options.SetOption(sid, "spral_nemin", 4)
-    # No second-order corrections: on this nonsmooth criterion they cost a constraint
-    # evaluation each and rarely rescued a step. Without them, from three starts, G1 ended
-    # at cond 209–211 instead of 227–232 with 10–20 % fewer evaluations, and the Panda at
-    # 11.3–12.6 instead of 12.3–12.9 (issue 11).
+    # No second-order corrections: they cost a constraint evaluation each and rarely rescued
+    # a step. Measured with the cond criterion (before soft_cond became the default): from
+    # three starts G1 ended at cond 209–211 instead of 227–232 with 10–20 % fewer
+    # evaluations, and the Panda at 11.3–12.6 instead of 12.3–12.9 (issue 11).
     options.SetOption(sid, "max_soc", 0)
     for key, value in IPOPT_EXTRA_OPTIONS.items():
         options.SetOption(sid, key, value)
@@ -292,16 +292,16 @@ def shrink_into_limits(problem: ExcitationProblem, alpha: np.ndarray, rate: floa
     return out
 
 
-#: How far :func:`blend_toward_start` moves a nearly valid point toward the start, in the
-#: order tried (the first valid blend is kept).
-BLEND_STEPS = (0.001, 0.01, 0.05, 0.1, 0.25, 0.5, 0.75)
+#: How far :func:`blend_toward_start` moves a nearly valid point toward the start (shares of
+#: the way), in the order tried: the first valid blend is kept.
+BLEND_SHARES = (0.001, 0.01, 0.05, 0.1, 0.25, 0.5, 0.75)
 
 
 def blend_toward_start(
     program: ExcitationProgram, start: np.ndarray, target: np.ndarray, rate: float = 1000.0, tolerance: float = 1e-6
 ):
     """(share, point, margins) of the first ``target + share·(start − target)``, for the
-    shares of :data:`BLEND_STEPS` in order, that holds every constraint at ``rate`` [Hz]
+    shares of :data:`BLEND_SHARES` in order, that holds every constraint at ``rate`` [Hz]
     (margins ≥ −``tolerance``), or None when none does or the start itself does not.
 
     The last resort of :func:`solve_excitation` when every point the solver evaluated
@@ -312,7 +312,7 @@ def blend_toward_start(
     problem, constraints = program.problem, program.constraints
     if min(check_margins(problem, start, constraints, rate=rate).values()) < -tolerance:
         return None
-    for share in BLEND_STEPS:
+    for share in BLEND_SHARES:
         point = target + share * (start - target)
         margins = check_margins(problem, point, constraints, rate=rate)
         if min(margins.values()) >= -tolerance:
@@ -350,12 +350,13 @@ def _feasible_fallback(program: ExcitationProgram, x: np.ndarray, solved: bool, 
     if best is not None:
         return best[1:]
     candidates = program.cost.candidates
-    blend = blend_toward_start(program, start, candidates[0][1] if candidates else x, check.rate, check.tolerance)
+    target, which = (candidates[0][1], "the best one") if candidates else (x, "the last iterate")
+    blend = blend_toward_start(program, start, target, check.rate, check.tolerance)
     if blend is not None:
         share, point, m = blend
         value = problem.evaluate(point).value
         note = (
-            f"; no point evaluated was valid at {check.rate:g} Hz: returned the best one moved {share:.1%} "
+            f"; no point evaluated was valid at {check.rate:g} Hz: returned {which} moved {share:.1%} "
             f"toward the start ({problem.config.criterion} {value:.5g})"
         )
         return point, m, note
@@ -372,8 +373,8 @@ def _message(cfg: SolverConfig, result, violated: dict[str, float], fallback: st
         if cfg.name == "ipopt":
             message += f" ({result.get_solver_details().ConvertStatusToString()})"
         message += fallback
-    else:
-        message = f"{cfg.name}: {status}"
+    else:  # converged, yet its point may have failed the re-check and been replaced
+        message = f"{cfg.name}: {status}" + fallback
     return message + stalled
 
 

@@ -395,6 +395,9 @@ class _ForwardKinematics:
         self._X_WP = [parent[1] if parent[0] == "const" else None for parent, *_ in steps]
         self._var_outputs = [k for k, (kind, _) in enumerate(outputs) if kind == "var"]
         self._var_steps = [value for kind, value in outputs if kind == "var"]
+        self._outputs_are_steps = len(outputs) == ns and all(
+            kind == "var" and value == k for k, (kind, value) in enumerate(outputs)
+        )
 
     @staticmethod
     def build(robot, bodies):
@@ -457,8 +460,8 @@ class _ForwardKinematics:
         for k, parent in enumerate(self._parents):
             X_WP = self._X_WP[k] if parent is None else X[:, parent]
             np.matmul(X_WP, local[:, k], out=X[:, k])
-        if self._var_steps == list(range(ns)) == self._var_outputs:
-            return X  # the outputs are the steps, in order
+        if self._outputs_are_steps:
+            return X
         out = np.empty((T, len(self.outputs), 4, 4))
         for k, (kind, value) in enumerate(self.outputs):
             if kind == "const":

@@ -57,7 +57,7 @@ from pe_drake.multibody.regressor import shared_model
 from pe_drake.multibody.spatial import cross3, rotate
 
 #: Pairs farther than this many smoothing lengths h beyond the closest pair of their sample
-#: are left out of the soft-min: their weight is below e^-30 ≈ 1e-13.
+#: are left out of the soft-min: their weight exp(-(d - d_min)/h) is below e^-30 ≈ 1e-13.
 PRUNE_SMOOTHINGS = 30.0
 
 
@@ -189,7 +189,7 @@ class CollisionConstraint(SampledConstraint):
         self._pa, self._pb = pa, pb
         self._radii = np.array([self.capsules[a].radius + self.capsules[b].radius for a, b in self.pairs])
         half = np.array([0.5 * np.linalg.norm(c.p_BS[1] - c.p_BS[0]) for c in self.capsules])
-        self._sphere_slack = half[pa] + half[pb]  # l_i + l_j of the bounding spheres
+        self._half_length_sum = half[pa] + half[pb]  # l_i + l_j of the bounding spheres
         self._mask_a = moves[pa].astype(float)  # (P, n)
         self._mask_b = moves[pb].astype(float)
 
@@ -235,21 +235,23 @@ class CollisionConstraint(SampledConstraint):
         d = centre_distance - self._radii
         return d, c_a, c_b, diff, centre_distance, X_WH
 
-    def _near_pair_geometry(self, q: np.ndarray, slack: float, joints: bool):
-        """Exact distances of the pair-samples that may lie within ``slack`` of their
+    def _near_pair_geometry(self, q: np.ndarray, tolerance: float, joints: bool):
+        """Exact distances of the pair-samples that may lie within ``tolerance`` of their
         sample's closest pair (the bounding-sphere test of the module docstring).
 
         Returns:
             k, p: sample and pair of each kept entry (sorted by sample; every sample keeps
-            at least its closest pair); starts: the first entry of each sample; then d,
-            c_a, c_b, diff, centre_distance per entry as in :meth:`_pair_geometry`.
+            at least the pair with its smallest upper bound); starts: the first entry of
+            each sample; then d, c_a, c_b, diff, centre_distance per entry as in
+            :meth:`_pair_geometry`; and X_WH, the joint bodies' poses.
         """
-        p_WS = self._capsule_ends(self._joint_body_poses(q, all_joints=joints))
+        X_WH = self._joint_body_poses(q, all_joints=joints)
+        p_WS = self._capsule_ends(X_WH)
         mid = 0.5 * (p_WS[:, :, 0] + p_WS[:, :, 1])  # (K, C, 3)
         gap = mid[:, self._pa] - mid[:, self._pb]
         upper = np.sqrt(np.einsum("kpi,kpi->kp", gap, gap)) - self._radii  # >= d (K, P)
-        near = upper - self._sphere_slack <= upper.min(axis=1, keepdims=True) + slack
-        k, p = np.nonzero(near)
+        lower = upper - self._half_length_sum  # <= d
+        k, p = np.nonzero(lower <= upper.min(axis=1, keepdims=True) + tolerance)
         a, b = p_WS[k, self._pa[p]], p_WS[k, self._pb[p]]  # (M, 2, 3)
         s, t = segment_closest_points(a[:, 0], a[:, 1], b[:, 0], b[:, 1])
         c_a = a[:, 0] + s[:, None] * (a[:, 1] - a[:, 0])
@@ -257,13 +259,15 @@ class CollisionConstraint(SampledConstraint):
         diff = c_a - c_b
         centre_distance = np.sqrt(np.einsum("mi,mi->m", diff, diff))
         starts = np.flatnonzero(np.r_[True, k[1:] != k[:-1]])
-        return k, p, starts, centre_distance - self._radii[p], c_a, c_b, diff, centre_distance
+        return k, p, starts, centre_distance - self._radii[p], c_a, c_b, diff, centre_distance, X_WH
 
     def _soft_min(self, q: np.ndarray, derivatives: bool) -> SampledValues:
         """The aggregate row over the pairs kept by the bounding-sphere test."""
         K = q.shape[0]
+        if K == 0:
+            return SampledValues(value=np.empty((0, 1)), d_q=np.empty((0, 1, q.shape[1] if derivatives else 0)))
         h = self.smoothing
-        k, p, starts, d, c_a, c_b, diff, centre_distance = self._near_pair_geometry(
+        k, p, starts, d, c_a, c_b, diff, centre_distance, X_WH = self._near_pair_geometry(
             q, PRUNE_SMOOTHINGS * h, derivatives
         )
         d_min = np.minimum.reduceat(d, starts)  # (K,)
@@ -272,9 +276,10 @@ class CollisionConstraint(SampledConstraint):
         value = (d_min - h * np.log(total))[:, None]  # (K, 1)
         if not derivatives:
             return SampledValues(value=value, d_q=np.empty((K, 1, 0)))
-        omega, moment = self._kinematics.twists(q) if self._kinematics.batched_kinematics else (
-            self._kinematics.joint_twists(self._joint_body_poses(q, all_joints=True))
-        )
+        if self._kinematics.batched_kinematics:  # shared with balance and the floor rows
+            omega, moment = self._kinematics.twists(q)
+        else:
+            omega, moment = self._kinematics.joint_twists(X_WH)
         with np.errstate(invalid="ignore", divide="ignore"):
             normal = np.where(centre_distance[:, None] > 1e-12, diff / centre_distance[:, None], 0.0)
         # Σ_p w_p ∂d_p/∂q_j = ω_j·A_j + m_j·B_j per sample: the weighted vectors go back to
@@ -348,6 +353,8 @@ class CollisionConstraint(SampledConstraint):
         if not self.aggregate:
             return self.distances(q) - self.margin
         q = check_postures(q, self.robot, "collision constraint")
+        if q.shape[0] == 0:
+            return np.empty((0, 1))
         _, _, starts, d = self._near_pair_geometry(q, 0.0, False)[:4]  # exact minimum
         return np.minimum.reduceat(d, starts)[:, None] - self.margin
 

@@ -35,7 +35,7 @@ import numpy as np
 from pe_drake.exceptions import ConfigError, InfeasibleError
 from pe_drake.excitation.constraints.base import SampledConstraint, SampledValues, check_postures
 from pe_drake.multibody.regressor import shared_model
-from pe_drake.multibody.spatial import rotate
+from pe_drake.multibody.spatial import cross3, rotate
 
 _GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
 
@@ -228,7 +228,7 @@ class EnvironmentConstraint(SampledConstraint):
             return p, None
         # ∂p/∂q_k = ω_k × p + m_k for the joints k that move the capsule's body.
         omega, moment = self._model.twists(q)  # (K, n, 3) each
-        dp = np.cross(omega[:, None, None], p[:, :, :, None]) + moment[:, None, None]  # (K, C, 2, n, 3)
+        dp = cross3(omega[:, None, None], p[:, :, :, None]) + moment[:, None, None]  # (K, C, 2, n, 3)
         J = np.swapaxes(dp, -1, -2) * self._moves[None, :, None, None, :]
         return p, J
 
@@ -266,14 +266,14 @@ class EnvironmentConstraint(SampledConstraint):
         """
         q = check_postures(q, self.robot, "environment constraint")
         # The floor rows need only ∂z/∂q; the full Jacobian of every end is built for boxes.
-        floor_only = derivatives and not self.boxes and self._model is not None
-        p, J = self.ends(q, derivatives and not floor_only)
+        z_gradient_only = derivatives and not self.boxes and self._model is not None
+        p, J = self.ends(q, derivatives and not z_gradient_only)
         radii = np.array([c.radius for c in self.capsules])
         d_rows, g_rows = [], []
         if self.floor_ends:
             cs, es = np.array(self.floor_ends).T
             d_rows.append(p[:, cs, es, 2] - radii[cs] - self.floor_height)  # (K, F)
-            if floor_only:  # ∂z/∂q_k = (ω_k × p)_z + m_k,z for the joints k that move the end
+            if z_gradient_only:  # ∂z/∂q_k = (ω_k × p)_z + m_k,z for the joints k that move the end
                 omega, moment = self._model.twists(q)  # (K, n, 3)
                 x, y = p[:, cs, es, 0, None], p[:, cs, es, 1, None]  # (K, F, 1)
                 dz = omega[:, None, :, 0] * y - omega[:, None, :, 1] * x + moment[:, None, :, 2]
