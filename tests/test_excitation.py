@@ -211,23 +211,11 @@ def test_rest_at_ends(panda):
 
 
 
-def test_fallback_points_put_those_meeting_the_sampled_constraints_first(panda):
-    """When the solver stops at an infeasible iterate, solve_excitation tries
-    ``program.cost.candidates`` in order. Points that met every sampled constraint come
-    first, however many cheaper points violated one (here: the start inside a band, then ten
-    cheaper points just outside it)."""
+def _band(problem, q0, radius):
+    """A sampled constraint |q_j(t) − q0_j| ≤ radius_j with its exact Jacobian (a test double)."""
     from pe_drake.excitation.constraints.base import SampledConstraint, SampledValues
 
-    config = ExcitationConfig(harmonics=3, omega=2 * math.pi / 8, cost_samples=24, constraint_samples=96)
-    problem = ExcitationProblem(panda, config)
-    x0 = problem.initial_guess(seed=0)
-    q0 = x0[-problem.n :]
-    q, _, _ = problem.constraint_basis.evaluate_alpha(x0, problem.n)
-    radius = 1.001 * np.abs(q - q0).max(axis=0)
-
     class Band(SampledConstraint):
-        """|q_j(t) − q0_j| ≤ radius_j at the samples: x0 fits, 2 % larger motions do not."""
-
         name = "band"
 
         def __init__(self):
@@ -237,7 +225,24 @@ def test_fallback_points_put_those_meeting_the_sampled_constraints_first(panda):
             d_q = np.broadcast_to(np.eye(problem.n), (len(q), problem.n, problem.n)).copy()
             return SampledValues(value=q - q0, d_q=d_q)
 
-    program = build_excitation_program(problem, [Band()])
+    return Band()
+
+
+def test_fallback_points_put_those_meeting_the_sampled_constraints_first(panda):
+    """When the solver stops at an infeasible iterate, solve_excitation tries
+    ``program.cost.candidates`` in order. Points that met every sampled constraint come
+    first, however many cheaper points violated one (here: the start inside a band, then ten
+    cheaper points just outside it)."""
+
+    config = ExcitationConfig(harmonics=3, omega=2 * math.pi / 8, cost_samples=24, constraint_samples=96)
+    problem = ExcitationProblem(panda, config)
+    x0 = problem.initial_guess(seed=0)
+    q0 = x0[-problem.n :]
+    q, _, _ = problem.constraint_basis.evaluate_alpha(x0, problem.n)
+    radius = 1.001 * np.abs(q - q0).max(axis=0)
+
+    # x0 fits the band at the samples, 2 % larger motions do not.
+    program = build_excitation_program(problem, [_band(problem, q0, radius)])
     cost, (band,) = program.cost, program.evaluators
     points = [(100.0, x0)]
     for k in range(10):
@@ -259,7 +264,6 @@ def test_last_resort_moves_the_best_point_toward_the_valid_start(panda):
     """When no evaluated point holds every constraint at 1 kHz (capsules a hair inside the
     margin between samples, budget spent), the best one moved toward the valid start by the
     first share of BLEND_SHARES that clears it is returned."""
-    from pe_drake.excitation.constraints.base import SampledConstraint, SampledValues
     from pe_drake.excitation.solve import BLEND_SHARES, blend_toward_start
 
     config = ExcitationConfig(harmonics=3, omega=2 * math.pi / 8, cost_samples=24, constraint_samples=96)
@@ -270,17 +274,7 @@ def test_last_resort_moves_the_best_point_toward_the_valid_start(panda):
     q = problem.trajectory(x0).evaluate(t)[0]
     radius = 1.01 * np.abs(q - q0).max(axis=0)  # the start's motion fits at 1 kHz, 1 % to spare
 
-    class Band(SampledConstraint):
-        name = "band"
-
-        def __init__(self):
-            super().__init__([f"q{j}" for j in range(problem.n)], -radius, radius)
-
-        def evaluate(self, q, v, vd, derivatives=True):
-            d_q = np.broadcast_to(np.eye(problem.n), (len(q), problem.n, problem.n)).copy()
-            return SampledValues(value=q - q0, d_q=d_q)
-
-    program = build_excitation_program(problem, [Band()])
+    program = build_excitation_program(problem, [_band(problem, q0, radius)])
     target = x0.copy()
     target[: -problem.n] *= 1.018  # 1.8 % more motion: outside the band; half-way back fits
 
