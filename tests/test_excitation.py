@@ -233,7 +233,6 @@ def test_fallback_points_put_those_meeting_the_sampled_constraints_first(panda):
     ``program.cost.candidates`` in order. Points that met every sampled constraint come
     first, however many cheaper points violated one (here: the start inside a band, then ten
     cheaper points just outside it)."""
-
     config = ExcitationConfig(harmonics=3, omega=2 * math.pi / 8, cost_samples=24, constraint_samples=96)
     problem = ExcitationProblem(panda, config)
     x0 = problem.initial_guess(seed=0)
