@@ -9,7 +9,9 @@ Units are SI and written next to each field.
 
 
 import dataclasses
+import difflib
 import math
+import re
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -17,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from pe_drake.exceptions import ConfigError
-from pe_drake.yaml_check import check_yaml_file
+from pe_drake.yaml_check import check_yaml_file, key_line
 
 
 @dataclasses.dataclass
@@ -359,7 +361,9 @@ def validate_config(config: Config) -> Config:
             f"excitation.constraint_samples must be an integer >= 2, got {e.constraint_samples!r}"
         )
     if e.criterion not in CRITERIA:
-        raise ConfigError(f"excitation.criterion '{e.criterion}' is not one of {', '.join(CRITERIA)}")
+        close = difflib.get_close_matches(str(e.criterion), CRITERIA, n=1)
+        hint = f" (did you mean '{close[0]}'?)" if close else ""
+        raise ConfigError(f"excitation.criterion '{e.criterion}' is not one of {', '.join(CRITERIA)}{hint}")
     check_finite("excitation.amplitude", e.amplitude, positive=True)
     check_finite("excitation.balance_radius", e.balance_radius, nonneg=True)
     check_finite("excitation.collision_margin", e.collision_margin)
@@ -448,7 +452,15 @@ def load_config(path: str | Path, base: Config | None = None) -> Config:
     path = Path(path)
     config = load_yaml_typed(path, Config, base, "config")
     _resolve_paths(config.robot, path.parent)
-    return validate_config(config)
+    try:
+        return validate_config(config)
+    except ConfigError as err:
+        # The value checks name the dotted key first ("excitation.criterion '…' is …"):
+        # point at its line when this file sets it.
+        key = re.match(r"[a-z_]+(\.[a-z_]+)+", str(err))
+        line = key_line(path, key.group(0)) if key else None
+        where = f", line {line}" if line is not None else ""
+        raise ConfigError(f"config file '{path}'{where}: {err}") from None
 
 
 def _resolve_paths(robot: RobotConfig, folder: Path) -> None:

@@ -142,3 +142,22 @@ def check_yaml_file(path: str | Path, schema: type, what: str = "config") -> Non
     if root is None:
         return
     _check_node(root, schema, source, "")
+
+
+def key_line(path: str | Path, dotted_key: str) -> int | None:
+    """The 1-based line of ``dotted_key`` (e.g. "excitation.criterion") in a YAML file, or
+    None when the file does not set it (or does not parse)."""
+    import yaml
+
+    try:
+        node = yaml.compose(Path(path).read_text(errors="replace"), Loader=yaml.SafeLoader)
+    except (OSError, yaml.YAMLError):
+        return None
+    for part in dotted_key.split("."):
+        if not isinstance(node, yaml.MappingNode):
+            return None
+        match = [(k, v) for k, v in node.value if getattr(k, "value", None) == part]
+        if not match:
+            return None
+        key_node, node = match[0]
+    return key_node.start_mark.line + 1

@@ -54,3 +54,19 @@ def test_load_yaml_typed(tmp_path):
         bad.write_text(text)
         with pytest.raises(ConfigError, match=r"widget file '.*bad.yaml' does not match the widget format"):
             load_yaml_typed(bad, _Schema, what="widget")
+
+
+def test_a_bad_value_in_a_config_file_names_the_file_and_line(tmp_path):
+    """Value checks run after loading; the error still points at the file and the key's line."""
+    from pe_drake.config import load_config
+
+    path = tmp_path / "mine.yaml"
+    path.write_text("solver: {max_iterations: 100}\nexcitation:\n  harmonics: 5\n  criterion: softcond\n")
+    with pytest.raises(ConfigError) as err:
+        load_config(path)
+    message = str(err.value)
+    assert f"config file '{path}', line 4: excitation.criterion 'softcond'" in message
+    assert "did you mean 'soft_cond'?" in message
+    path.write_text("excitation:\n  amplitude: -1\n")
+    with pytest.raises(ConfigError, match=r"mine.yaml', line 2: excitation.amplitude"):
+        load_config(path)

@@ -284,3 +284,16 @@ def test_last_resort_moves_the_best_point_toward_the_valid_start(panda):
     np.testing.assert_allclose(point, target + 0.5 * (x0 - target))
     assert min(margins.values()) > 0
     assert blend_toward_start(program, target, x0) is None  # an invalid start: nothing
+
+
+def test_drakes_iteration_limit_warning_is_dropped_and_other_drake_messages_kept(panda, caplog):
+    """Drake warns on every IPOPT run that hits max_iter, with a hint about unbounded
+    variables that misleads here; the solve's own message says kIterationLimit instead."""
+    import logging
+
+    problem = ExcitationProblem(panda, ExcitationConfig(harmonics=2, cost_samples=16, constraint_samples=64))
+    with caplog.at_level(logging.WARNING, logger="drake"):  # conftest quiets Drake to ERROR
+        result = solve_excitation(build_excitation_program(problem), SolverConfig(max_iterations=3), exchange=False)
+        logging.getLogger("drake").warning("another Drake warning")
+    assert "kIterationLimit" in result.message
+    assert [r.getMessage() for r in caplog.records if r.name == "drake"] == ["another Drake warning"]

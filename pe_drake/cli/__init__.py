@@ -58,7 +58,9 @@ def _add_trajectory_commands(sub) -> None:
     p = sub.add_parser("optimize", help="optimize an exciting trajectory (min cond of the regressor)")
     add_robot_arguments(p)
     p.add_argument("--solver", choices=["ipopt", "nlopt"], help="optimizer (default: from config, ipopt)")
-    p.add_argument("--criterion", choices=CRITERIA, help="excitation criterion")
+    p.add_argument(
+        "--criterion", choices=CRITERIA, help="excitation criterion (default: the config's, soft_cond: a smooth bound of cond)"
+    )
     p.add_argument("--prior", action="append", default=[], metavar="TRAJECTORY_JSON",
                    help="earlier trajectory whose data is reused as C0 (repeatable)")
     p.add_argument("--max-iterations", type=int, help="solver iteration limit")

@@ -11,6 +11,7 @@ point evaluated when the solver stops at an infeasible iterate, and reports it a
 from __future__ import annotations
 
 import dataclasses
+import logging
 import re
 import tempfile
 import time
@@ -101,6 +102,22 @@ def check_margins(
 
 
 
+class _IterationLimitWarningFilter(logging.Filter):
+    """Drops Drake's warning on every IPOPT run that stops at ``max_iter``: its hint (IPOPT
+    "performs badly if any variables are unbounded") does not apply to our coefficients,
+    which the joint-limit rows bound, and :func:`solve_excitation` reports the iteration
+    limit itself (``kIterationLimit`` in the message). Every other Drake message passes."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not record.getMessage().startswith("IPOPT terminated after exceeding the maximum iteration limit")
+
+
+def _quiet_iteration_limit_warning() -> None:
+    drake_logger = logging.getLogger("drake")
+    if not any(isinstance(f, _IterationLimitWarningFilter) for f in drake_logger.filters):
+        drake_logger.addFilter(_IterationLimitWarningFilter())
+
+
 class _Backend(NamedTuple):
     """A Drake solver with its options for one solve."""
 
@@ -113,6 +130,7 @@ def _ipopt_backend(cfg: SolverConfig) -> _Backend:
     # pydrake is imported lazily so that `import pe_drake` stays light.
     from pydrake.solvers import CommonSolverOption, IpoptSolver, SolverOptions
 
+    _quiet_iteration_limit_warning()
     solver, options = IpoptSolver(), SolverOptions()
     sid = solver.solver_id()
     options.SetOption(sid, "max_iter", int(cfg.max_iterations))
