@@ -292,6 +292,8 @@ def bench_solve(args: argparse.Namespace) -> None:
     constraints = constraints_from_config(robot, config.excitation, config.environment)
     x0 = problem.initial_guess(seed=args.seed)
     solver = dataclasses.replace(config.solver, verbose=False)
+    if args.max_iterations is not None:
+        solver = dataclasses.replace(solver, max_iterations=args.max_iterations)
     reuse_freed_memory()
     with single_threaded_blas():
         def gradient():
@@ -342,7 +344,7 @@ def bench_solve(args: argparse.Namespace) -> None:
             f"{old.wall_time / match.wall_time:.2f}x faster, {match.wall_time / grad_s:.0f} gradient evaluations"
         )
     matched = (
-        f"{matched}"
+        f"match_s={match.wall_time:.2f} match_iterations={match.nit} match_cond={match.cond:.4f}"
         if match is not None
         else "match_s=nan match_iterations=nan match_cond=nan"
     )
@@ -364,6 +366,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=51, help="timed runs per median (default: %(default)s)")
     parser.add_argument(
         "--default-malloc", action="store_true", help="gradient: keep glibc's malloc thresholds (see pe_drake.memory)"
+    )
+    parser.add_argument(
+        "--max-iterations", type=int, default=None, help="solve: IPOPT budget (default: the robot's config, 300)"
     )
     args = parser.parse_args(argv)
     if args.robot is None:
