@@ -258,13 +258,8 @@ def _solve_with_exchange(program, backend: _Backend, cfg: SolverConfig, x0: np.n
     """Solves, then, while the budget of ``cfg.max_iterations`` IPOPT iterations lasts, adds
     the instants where a sampled constraint is violated at ``check.rate``
     (:func:`~pe_drake.excitation.exchange.add_violated_samples`) and solves again from the
-    last point; a run that failed for another reason than its iteration limit is also
-    continued. Stops when nothing is violated and the run converged or spent its iterations
-    (continuing such a run with a fresh IPOPT, whose barrier starts over, only cost time:
-    the same cond on five G1 and two Panda starts, 10 % slower; issue 11), or when the
-    budget is spent."""
-    from pydrake.solvers import SolutionResult  # lazy: keeps `import pe_drake` light
-
+    last point; an unconverged run is also continued. Stops when a run converges with
+    nothing violated, or when the budget is spent."""
     if cfg.name == "ipopt":
         first = max(1, int(FIRST_SOLVE_SHARE * cfg.max_iterations))
         backend.options.SetOption(backend.solver.solver_id(), "max_iter", first)
@@ -274,7 +269,7 @@ def _solve_with_exchange(program, backend: _Backend, cfg: SolverConfig, x0: np.n
     while cfg.name == "ipopt" and nit is not None and nit < cfg.max_iterations:
         x = np.asarray(result.GetSolution(program.alpha), float)
         new = add_violated_samples(program, x, check.rate, check.tolerance)
-        if not new and (result.is_success() or result.get_solution_result() == SolutionResult.kIterationLimit):
+        if not new and result.is_success():
             break
         added += new
         rerun = _ipopt_backend(dataclasses.replace(cfg, max_iterations=cfg.max_iterations - nit))
