@@ -7,16 +7,21 @@ BIN := $(VENV)/bin
 
 .PHONY: demo test bench clean
 
+# pe_drake alone for the demo; its test tools (pytest, Ray) only for the tests.
 $(BIN)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e .
+	touch $@
+
+$(BIN)/.installed-test: $(BIN)/.installed
 	$(BIN)/python -m pip install --quiet -e ".[test]"
 	touch $@
 
 demo: $(BIN)/.installed
 	$(BIN)/pe-drake optimize --robot panda --out results/panda
 
-test: $(BIN)/.installed
+test: $(BIN)/.installed-test
 	$(BIN)/python -m pytest -q
 
 bench: $(BIN)/.installed
