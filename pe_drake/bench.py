@@ -332,7 +332,8 @@ def bench_solve(args: argparse.Namespace) -> None:
         r = solve_excitation(
             build_excitation_program(problem, constraints), dataclasses.replace(solver, max_iterations=budget), x0
         )
-        print(f"budget {budget:3d} iterations     {r.wall_time:7.2f} s  cond {r.cond:9.4f}  {'valid' if r.success else 'INVALID'}")
+        state = "valid" if r.success else "INVALID"
+        print(f"budget {budget:3d} iterations     {r.wall_time:7.2f} s  cond {r.cond:9.4f}  {state}")
         if r.success and r.cond <= 1.03 * old.cond:
             match = r
             break

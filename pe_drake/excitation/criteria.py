@@ -29,7 +29,6 @@ import scipy.linalg
 
 from pe_drake.config import CRITERIA
 
-
 #: p of ``soft_cond``: large enough that only the singular values within a few percent of the
 #: extremes weigh (σ_i/σ_max = 0.9 counts 0.9^32 ≈ 3 %), small enough to stay smooth. From
 #: the same G1 start (300 iterations) p = 16 ended at cond 190–208, 32 at 187–188.
