@@ -61,6 +61,16 @@ from pe_drake.multibody.spatial import cross3, rotate
 PRUNE_SMOOTHINGS = 30.0
 
 
+def _closest_points(a: np.ndarray, b: np.ndarray):
+    """Closest points c_a, c_b of segments a and b (ends on axis -2: shape (..., 2, 3)), their
+    difference c_a − c_b and its length (the distance between the capsules' axes)."""
+    s, t = segment_closest_points(a[..., 0, :], a[..., 1, :], b[..., 0, :], b[..., 1, :])
+    c_a = a[..., 0, :] + s[..., None] * (a[..., 1, :] - a[..., 0, :])
+    c_b = b[..., 0, :] + t[..., None] * (b[..., 1, :] - b[..., 0, :])
+    diff = c_a - c_b
+    return c_a, c_b, diff, np.sqrt(np.einsum("...i,...i->...", diff, diff))
+
+
 class PostureInCollisionError(InfeasibleError):
     """Two capsules are closer than the collision margin.
 
@@ -225,15 +235,8 @@ class CollisionConstraint(SampledConstraint):
     def _pair_geometry(self, q: np.ndarray, joints: bool):
         X_WH = self._joint_body_poses(q, all_joints=joints)
         p_WS = self._capsule_ends(X_WH)
-        a0, a1 = p_WS[:, self._pa, 0], p_WS[:, self._pa, 1]  # (K, P, 3)
-        b0, b1 = p_WS[:, self._pb, 0], p_WS[:, self._pb, 1]
-        s, t = segment_closest_points(a0, a1, b0, b1)
-        c_a = a0 + s[..., None] * (a1 - a0)
-        c_b = b0 + t[..., None] * (b1 - b0)
-        diff = c_a - c_b
-        centre_distance = np.sqrt(np.einsum("kpi,kpi->kp", diff, diff))
-        d = centre_distance - self._radii
-        return d, c_a, c_b, diff, centre_distance, X_WH
+        c_a, c_b, diff, centre_distance = _closest_points(p_WS[:, self._pa], p_WS[:, self._pb])  # (K, P, ...)
+        return centre_distance - self._radii, c_a, c_b, diff, centre_distance, X_WH
 
     def _near_pair_geometry(self, q: np.ndarray, tolerance: float, joints: bool):
         """Exact distances of the pair-samples that may lie within ``tolerance`` of their
@@ -252,12 +255,7 @@ class CollisionConstraint(SampledConstraint):
         upper = np.sqrt(np.einsum("kpi,kpi->kp", gap, gap)) - self._radii  # >= d (K, P)
         lower = upper - self._half_length_sum  # <= d
         k, p = np.nonzero(lower <= upper.min(axis=1, keepdims=True) + tolerance)
-        a, b = p_WS[k, self._pa[p]], p_WS[k, self._pb[p]]  # (M, 2, 3)
-        s, t = segment_closest_points(a[:, 0], a[:, 1], b[:, 0], b[:, 1])
-        c_a = a[:, 0] + s[:, None] * (a[:, 1] - a[:, 0])
-        c_b = b[:, 0] + t[:, None] * (b[:, 1] - b[:, 0])
-        diff = c_a - c_b
-        centre_distance = np.sqrt(np.einsum("mi,mi->m", diff, diff))
+        c_a, c_b, diff, centre_distance = _closest_points(p_WS[k, self._pa[p]], p_WS[k, self._pb[p]])  # (M, ...)
         starts = np.flatnonzero(np.r_[True, k[1:] != k[:-1]])
         return k, p, starts, centre_distance - self._radii[p], c_a, c_b, diff, centre_distance, X_WH
 
