@@ -33,8 +33,11 @@ class RobotConfig:
         locked_positions: posture of the joints that are not excited, {joint: value} [rad or
             m]; joints not listed are locked at 0 (or the nearest limit).
         root_link: the link welded to the world; empty means the model's root link.
-        base_position: position of the root link's origin in world [m].
-        base_quaternion_wxyz: orientation of the root link in world (w, x, y, z).
+        base_position: position of the root link's origin in world [m]. It replaces the
+            origin of a URDF's fixed joint to a ``world`` link (a URDF that is already
+            welded to the world is mounted here too; a movable world joint is refused).
+        base_quaternion_wxyz: orientation of the root link in world (w, x, y, z), e.g.
+            [0, 1, 0, 0] for a ceiling mount; replaces a fixed world joint's rpy likewise.
         position_limits: {joint: [lower, upper]} [rad or m]: tightens the model's limits, or
             replaces a zero-width placeholder (lower == upper); a wider range is refused.
         velocity_limits: {joint: limit} [rad/s or m/s]: tightens the model's limit, or
@@ -50,6 +53,10 @@ class RobotConfig:
         nominal_positions: {joint: value} posture of the excited joints the optimizer starts
             from (q0 of Eq. 50) [rad or m]; unlisted joints start mid-range.
         capsules: capsule file for self-collision (relative to the config file), or empty.
+        packages: {package: folder} of the ``package://`` URIs (and xacro ``$(find)``) of
+            the model, relative to the config file; packages not listed are found above the
+            model file, in ROS_PACKAGE_PATH and in AMENT_PREFIX_PATH
+            (pe_drake/multibody/packages.py).
         support_points: contact points of the feet for the balance constraint, as
             {link: [[x, y, z], ...]} in the link frame [m]; empty means no balance
             constraint is available.
@@ -75,6 +82,7 @@ class RobotConfig:
     nominal_positions: dict[str, float] = dataclasses.field(default_factory=dict)
     capsules: str = ""
     support_points: dict[str, list[list[float]]] = dataclasses.field(default_factory=dict)
+    packages: dict[str, str] = dataclasses.field(default_factory=dict)
 
 
 #: Default joint-torque noise σ [N·m], every joint: the order of a joint-torque sensor's
@@ -350,6 +358,9 @@ def validate_config(config: Config) -> Config:
         check_finite("robot.base_pose", v)
     if math.sqrt(sum(v * v for v in r.base_quaternion_wxyz)) < 1e-9:
         raise ConfigError("robot.base_quaternion_wxyz must not be zero")
+    for package, folder in r.packages.items():
+        if not Path(str(folder)).expanduser().is_dir():
+            raise ConfigError(f"robot.packages['{package}']: folder '{folder}' does not exist")
 
     if not isinstance(e.harmonics, int) or e.harmonics < 1:
         raise ConfigError(f"excitation.harmonics must be a positive integer, got {e.harmonics!r}")
@@ -468,6 +479,9 @@ def _resolve_paths(robot: RobotConfig, folder: Path) -> None:
         value = getattr(robot, attr)
         if value and "://" not in value and not Path(value).is_absolute():
             setattr(robot, attr, str((folder / value).resolve()))
+    robot.packages = {
+        name: str((folder / Path(value).expanduser()).resolve()) for name, value in robot.packages.items()
+    }
 
 
 def to_dict(obj: Any) -> Any:

@@ -20,7 +20,7 @@ from typing import NamedTuple
 import numpy as np
 
 from pe_drake.exceptions import DataError
-from pe_drake.multibody.registry import example_robot_data_dir
+from pe_drake.multibody.packages import package_roots
 
 #: Environment variable naming the folder of converted meshes (overrides the default cache).
 CACHE_ENV = "PE_DRAKE_MESH_CACHE"
@@ -168,7 +168,9 @@ def stl_to_obj(stl_path: str | Path, cache_dir: str | Path | None = None) -> Pat
     return target
 
 
-def stl_visuals_to_obj(urdf_text: str, model_path: str | Path, cache_dir: str | Path | None = None) -> str:
+def stl_visuals_to_obj(
+    urdf_text: str, model_path: str | Path, cache_dir: str | Path | None = None, packages: dict | None = None
+) -> str:
     """Rewrites the STL meshes of a URDF's ``<visual>`` elements to cached OBJ conversions.
 
     Only the ``filename`` attribute of ``<mesh>`` inside ``<visual>`` changes, to a
@@ -176,12 +178,14 @@ def stl_visuals_to_obj(urdf_text: str, model_path: str | Path, cache_dir: str | 
     ``scale``, origins, materials and every ``<collision>`` stay as they are. Mesh
     names may be ``package://<pkg>/...`` (``example-robot-data``, or a package whose folder
     or ``package.xml`` lies above the model), ``file://`` URIs, or paths relative to the
-    model's folder. Meshes that cannot be found are left untouched for Drake to report.
+    model's folder (packages are found by :mod:`pe_drake.multibody.packages`). Meshes that
+    cannot be found are left untouched for Drake to report.
 
     Args:
         urdf_text: the URDF's text.
         model_path: the URDF's path (resolves relative names and package folders).
         cache_dir: where converted meshes live (default: :func:`default_cache_dir`).
+        packages: the config's ``robot.packages`` map, or None.
 
     Returns:
         The rewritten URDF text.
@@ -197,7 +201,7 @@ def stl_visuals_to_obj(urdf_text: str, model_path: str | Path, cache_dir: str | 
         if not name.lower().endswith(".stl"):
             return match.group(0)
         if name not in converted:
-            source = _resolve_mesh(name, model_path)
+            source = _resolve_mesh(name, model_path, packages)
             obj = stl_to_obj(source, cache_dir) if source is not None else None
             converted[name] = obj.resolve().as_uri() if obj is not None else name
         return f"{match.group(1)}{match.group(2)}{converted[name]}{match.group(2)}"
@@ -206,32 +210,41 @@ def stl_visuals_to_obj(urdf_text: str, model_path: str | Path, cache_dir: str | 
 
 
 def absolute_mesh_paths(urdf_text: str, model_path: str | Path) -> str:
-    """Rewrites relative mesh filenames (``meshes/base.stl``) of a URDF to absolute
-    ``file://`` URIs against the model file's folder: Drake parses our rewritten text from a
-    string, where a relative URI has no folder to resolve against. ``package://``, ``file://``
-    and absolute names are left as they are."""
+    """Rewrites relative and absolute mesh filenames (``meshes/base.stl``,
+    ``/opt/meshes/base.stl``) of a URDF to absolute ``file://`` URIs, relative ones against
+    the model file's folder: Drake parses our rewritten text from a string, where a relative
+    name has no folder to resolve against and a bare absolute path is refused ("invalid when
+    parsing a string"). ``package://`` and ``file://`` URIs are left as they are."""
     folder = Path(model_path).resolve().parent
 
     def absolute(match: re.Match) -> str:
         name = match.group(3)
-        if "://" in name or Path(name).is_absolute():
+        if "://" in name:
             return match.group(0)
-        return f"{match.group(1)}{match.group(2)}{(folder / name).resolve().as_uri()}{match.group(2)}"
+        path = Path(name) if Path(name).is_absolute() else folder / name
+        return f"{match.group(1)}{match.group(2)}{path.resolve().as_uri()}{match.group(2)}"
 
     return _MESH_FILENAME.sub(absolute, urdf_text)
 
 
-def resolve_mesh_path(name: str, model_path: str | Path) -> Path | None:
+def resolve_mesh_path(name: str, model_path: str | Path, packages: dict | None = None) -> Path | None:
     """The file a URDF mesh filename points to (``package://``, ``file://``, absolute, or
-    relative to the model file's folder), or None when it does not exist."""
-    return _resolve_mesh(name, Path(model_path))
+    relative to the model file's folder), or None when it does not exist.
+
+    Args:
+        name: the ``filename`` attribute.
+        model_path: the URDF it appears in.
+        packages: the config's ``robot.packages`` map, or None (see
+            :func:`~pe_drake.multibody.packages.package_roots`).
+    """
+    return _resolve_mesh(name, Path(model_path), packages)
 
 
-def _resolve_mesh(name: str, model_path: Path) -> Path | None:
+def _resolve_mesh(name: str, model_path: Path, packages: dict | None = None) -> Path | None:
     """The file a URDF mesh name points to, or None."""
     if name.startswith("package://"):
         package, _, rest = name[len("package://") :].partition("/")
-        for root in _package_roots(package, model_path):
+        for root in package_roots(package, model_path, packages):
             if (root / rest).is_file():
                 return root / rest
         return None
@@ -242,18 +255,3 @@ def _resolve_mesh(name: str, model_path: Path) -> Path | None:
         path = model_path.parent / path
     return path if path.is_file() else None
 
-
-def _package_roots(package: str, model_path: Path) -> list[Path]:
-    roots = []
-    if package == "example-robot-data":
-        with contextlib.suppress(Exception):
-            roots.append(example_robot_data_dir())
-    for folder in model_path.resolve().parents:
-        manifest = folder / "package.xml"
-        if folder.name == package:
-            roots.append(folder)
-        elif manifest.is_file() and re.search(
-            rf"<name>\s*{re.escape(package)}\s*</name>", manifest.read_text(errors="replace")
-        ):
-            roots.append(folder)
-    return roots

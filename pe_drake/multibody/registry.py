@@ -42,7 +42,13 @@ def builtin_robots() -> tuple[str, ...]:
 
 def robot_display_name(robot: str) -> str:
     """The name a robot is shown by: its built-in name, else its model file's stem."""
-    return robot if robot in builtin_robots() else Path(robot).stem
+    if robot in builtin_robots():
+        return robot
+    name = Path(robot).name  # my_arm.urdf.xacro -> my_arm
+    for suffix in (".urdf.xacro", ".xacro"):
+        if name.lower().endswith(suffix):
+            return name[: -len(suffix)]
+    return Path(robot).stem
 
 
 def example_robot_data_dir() -> Path:
@@ -88,8 +94,8 @@ def resolve_robot_config(robot: str, config_file: str | Path | None = None) -> C
         base = builtin_config(robot)
     else:
         path = Path(robot)
-        if path.suffix.lower() not in (".urdf", ".sdf", ".xml"):
-            raise UnknownNameError("robot", robot, builtin_robots() + ("<path to .urdf/.sdf>",))
+        if path.suffix.lower() not in (".urdf", ".sdf", ".xml", ".xacro"):
+            raise UnknownNameError("robot", robot, builtin_robots() + ("<path to .urdf/.sdf/.urdf.xacro>",))
         if not path.is_file():
             raise ConfigError(f"robot model file '{robot}' does not exist")
         base = Config(robot=RobotConfig(model=str(path.resolve())))

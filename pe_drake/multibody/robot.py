@@ -29,8 +29,9 @@ from pe_drake.multibody.capsules import register_capsules
 from pe_drake.multibody.inertia import PARAMETER_NAMES, spatial_inertia_to_phi
 from pe_drake.multibody.joint_limits import merge_limits
 from pe_drake.multibody.meshes import absolute_mesh_paths, stl_visuals_to_obj
+from pe_drake.multibody.model_files import loadable_model_path, model_stem, single_material_definitions, without_mimic
+from pe_drake.multibody.packages import register_packages, unknown_package_message
 from pe_drake.multibody.registry import (
-    example_robot_data_dir,
     resolve_model_path,
     resolve_robot_config,
     robot_display_name,
@@ -116,11 +117,11 @@ class Robot:
         from pydrake.systems.framework import DiagramBuilder
 
         cfg = self.config
-        model_path = resolve_model_path(cfg.model)
-        text = _model_text(model_path, self._obj_visuals)
+        model_path = loadable_model_path(resolve_model_path(cfg.model), cfg.packages)
+        text, self.notes = _model_text(model_path, self._obj_visuals, cfg.packages)
         builder = DiagramBuilder()
         plant, scene_graph = AddMultibodyPlantSceneGraph(builder, time_step=self.time_step)
-        models = _parse_models(plant, text, model_path)
+        models = _parse_models(plant, text, model_path, cfg.packages)
         self.model_path = model_path
 
         movable = [
@@ -129,6 +130,7 @@ class Robot:
             for j in plant.GetJointIndices(m)
             if plant.get_joint(j).num_positions() == 1
         ]
+        _check_world_joints(plant, models, model_path)
         excited = _excited_joint_names(cfg, [j.name() for j in movable], model_path)
         self.locked_positions = _weld_locked_joints(plant, movable, excited, cfg.locked_positions)
         self._weld_root(plant, models)
@@ -147,7 +149,13 @@ class Robot:
         self.limits = self._limits()
 
     def _weld_root(self, plant, models) -> None:
-        """Welds the root link to the world at the config's base pose (unless already welded)."""
+        """Welds the root link to the world at the config's base pose.
+
+        A model that already welds its root to the world (a URDF ``world`` link and a fixed
+        joint) is mounted at the base pose too: that weld is replaced, so
+        ``robot.base_position`` / ``base_quaternion_wxyz`` always are the root link's pose in
+        the world and the world joint's own origin is not used.
+        """
         from pydrake.math import RigidTransform  # lazy: pydrake is heavy
 
         cfg = self.config
@@ -155,8 +163,12 @@ class Robot:
         pose = RigidTransform(
             _quaternion(cfg.base_quaternion_wxyz), np.asarray(cfg.base_position, float)
         )
-        if not plant.GetBodiesWeldedTo(plant.world_body()).__contains__(root):
-            plant.WeldFrames(plant.world_frame(), root.body_frame(), pose)
+        world = plant.world_body().index()
+        for index in list(plant.GetJointIndices()):
+            joint = plant.get_joint(index)
+            if joint.parent_body().index() == world and joint.child_body().index() == root.index():
+                plant.RemoveJoint(joint)  # a weld (_check_world_joints refused movable ones)
+        plant.WeldFrames(plant.world_frame(), root.body_frame(), pose)
         self.root_link = root.name()
         self.base_pose = pose
 
@@ -423,45 +435,68 @@ def _quaternion(wxyz):
     return Quaternion(q / np.linalg.norm(q))
 
 
-def _model_text(model_path: Path, obj_visuals: bool) -> str:
-    """The model file's text as Drake parses it."""
+def _model_text(model_path: Path, obj_visuals: bool, packages: dict | None = None) -> tuple[str, list[str]]:
+    """The model file's text as Drake parses it, and notes of what was changed for Drake."""
     text = model_path.read_text()
+    notes: list[str] = []
     if model_path.suffix.lower() == ".urdf":
         check_joint_types(text, model_path)  # floating/ball joints: named, with what is supported
         # Drake cannot build convex hulls of STL/DAE collision meshes (BUILD_NOTES.md);
         # collision is our own capsules. Mimic tags would couple joints we may lock.
         text = re.sub(r"<collision\b.*?</collision>", "", text, flags=re.S)
-        text = re.sub(r"<mimic\b[^>]*/>", "", text)
+        text, mimic_notes = without_mimic(text)
+        text, material_notes = single_material_definitions(text)  # Kinova JACO2 (issue 21)
+        notes += mimic_notes + material_notes
         text = absolute_mesh_paths(text, model_path)  # parsed from a string: no folder to resolve against
         if obj_visuals:
-            text = stl_visuals_to_obj(text, model_path)
-    return text
+            text = stl_visuals_to_obj(text, model_path, packages=packages)
+    return text, notes
 
 
-def _parse_models(plant, text: str, model_path: Path) -> list:
-    """Adds the model to the plant; returns its model instances.
+def _check_world_joints(plant, models, model_path: Path) -> None:
+    """Refuses a movable joint from the world (a root on a prismatic or revolute joint):
+    pe_drake welds the root link to the world at ``robot.base_position`` /
+    ``base_quaternion_wxyz``.
 
     Raises:
-        ConfigError: Drake cannot parse it (Drake's message is kept).
+        ConfigError: naming the joint and what is supported.
+    """
+    world = plant.world_body().index()
+    for m in models:
+        for index in plant.GetJointIndices(m):
+            joint = plant.get_joint(index)
+            if joint.parent_body().index() == world and joint.num_positions() > 0:
+                raise ConfigError(
+                    f"'{model_path.name}': joint '{joint.name()}' connects the world to link "
+                    f"'{joint.child_body().name()}' as a {joint.type_name()} joint; pe_drake supports fixed-base "
+                    "robots whose root link is welded to the world (by a fixed world joint or by pe_drake, at "
+                    "robot.base_position / robot.base_quaternion_wxyz) with revolute and prismatic joints in a "
+                    "tree. Make that joint fixed or delete it, and mount the root link with robot.base_position"
+                )
+
+
+def _parse_models(plant, text: str, model_path: Path, packages: dict | None = None) -> list:
+    """Adds the model to the plant; returns its model instances.
+
+    Every ``package://`` the text uses is registered in the parser's package map through
+    :mod:`pe_drake.multibody.packages` (config map, upward search for ``package.xml``,
+    ``ROS_PACKAGE_PATH``, ``AMENT_PREFIX_PATH``, example-robot-data).
+
+    Raises:
+        ConfigError: an unknown package, or Drake cannot parse it (Drake's message is kept).
     """
     from pydrake.multibody.parsing import Parser  # lazy: pydrake is heavy
 
     parser = Parser(plant)
-    try:
-        parser.package_map().Add("example-robot-data", str(example_robot_data_dir()))
-    except ConfigError:
-        pass
-    try:  # user models may ship a package.xml next to them
-        parser.package_map().PopulateFromFolder(str(model_path.parent))
-    except Exception:
-        pass
+    unknown = register_packages(parser.package_map(), text, model_path, packages)
     drake_logger = logging.getLogger("drake")
     level = drake_logger.level
     drake_logger.setLevel(logging.ERROR)  # unsupported ROS tags (gazebo, transmission)
     try:
         return parser.AddModelsFromString(text, model_path.suffix.lstrip(".").lower())
     except Exception as err:  # Drake raises RuntimeError with its parser message
-        raise ConfigError(f"Drake could not parse '{model_path}': {err}") from err
+        hint = "".join(f"; {unknown_package_message(p, model_path)}" for p in unknown if p in str(err))
+        raise ConfigError(f"Drake could not parse '{model_path}': {err}{hint}") from err
     finally:
         drake_logger.setLevel(level)
 
@@ -554,9 +589,9 @@ def load_robot(
     """
     if isinstance(robot, Config):
         validate_config(robot)
-        return Robot(Path(robot.robot.model).stem, robot.robot, **options)
+        return Robot(model_stem(robot.robot.model), robot.robot, **options)
     if isinstance(robot, RobotConfig):
         validate_config(Config(robot=robot))
-        return Robot(Path(robot.model).stem, robot, **options)
+        return Robot(model_stem(robot.model), robot, **options)
     config = resolve_robot_config(robot, config_file)
     return Robot(robot_display_name(robot), config.robot, **options)

@@ -1,0 +1,191 @@
+"""Model files as Drake and pe_drake read them: xacro expanded, package URIs resolved, and the
+URDF constructs Drake refuses pre-processed.
+
+:func:`loadable_model_path` is the one place that turns ``robot.model`` into a file every
+later step (Drake's parser, capsule fitting, effort limits, model export) reads the same way:
+
+- ``.xacro`` files (``my_arm.urdf.xacro``) are expanded with the ``xacro`` package, its
+  ``$(find pkg)`` resolved by :mod:`pe_drake.multibody.packages`;
+- a URDF using packages of the config's ``robot.packages`` map, and every expanded xacro,
+  is written to the cache with its mesh names as absolute ``file://`` URIs (a copy in the
+  cache has no folders above it to search);
+- any other file is used where it is.
+
+:func:`drake_urdf_text` then prepares a URDF's text for Drake's parser, returning notes of
+what it changed.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import re
+import threading
+from collections.abc import Mapping
+from pathlib import Path
+
+from pe_drake.exceptions import ConfigError
+from pe_drake.io_utils import atomic_write_text
+from pe_drake.multibody.meshes import default_cache_dir
+from pe_drake.multibody.packages import find_package, resolve_package_uri, used_packages
+
+#: Suffixes of model files pe_drake reads.
+MODEL_SUFFIXES = (".urdf", ".sdf", ".xml", ".xacro")
+
+_MESH_FILENAME = re.compile(r"(<mesh\b[^>]*?\bfilename\s*=\s*)([\"'])(.*?)\2", re.S)
+_MATERIAL = re.compile(r"<material\b([^>]*?)(/>|>(.*?)</material\s*>)", re.S)
+_NAME_ATTR = re.compile(r"""\bname\s*=\s*(["'])(.*?)\1""", re.S)
+_MIMIC = re.compile(r"<mimic\b[^>]*/>|<mimic\b[^>]*>.*?</mimic\s*>", re.S)
+_XACRO_LOCK = threading.Lock()  # xacro keeps its state in module globals
+
+
+def is_xacro(path: str | Path) -> bool:
+    """Whether a model file is a xacro file (``.xacro``, e.g. ``arm.urdf.xacro``)."""
+    return Path(path).suffix.lower() == ".xacro"
+
+
+def model_stem(path: str | Path) -> str:
+    """A model's name from its file: ``my_arm`` for ``my_arm.urdf`` and ``my_arm.urdf.xacro``."""
+    name = Path(path).name
+    for suffix in (".urdf.xacro", ".xacro", *MODEL_SUFFIXES):
+        if name.lower().endswith(suffix):
+            return name[: -len(suffix)]
+    return Path(path).stem
+
+
+def expand_xacro(path: str | Path, packages: Mapping[str, str] | None = None, mappings: Mapping[str, str] | None = None) -> str:
+    """The URDF text of a xacro file.
+
+    ``$(find pkg)`` goes through :func:`~pe_drake.multibody.packages.find_package` (the
+    ``robot.packages`` map, ``package.xml`` above the file, ``ROS_PACKAGE_PATH``,
+    ``AMENT_PREFIX_PATH``) instead of xacro's own ``ament_index`` look-up.
+
+    Args:
+        path: the .xacro file.
+        packages: the config's ``robot.packages`` map, or None.
+        mappings: xacro arguments {name: value} (``xacro file.xacro name:=value``).
+
+    Raises:
+        ConfigError: xacro is missing, a package is unknown, or xacro refuses the file.
+    """
+    try:
+        import xacro  # lazy: only xacro models need it
+        from xacro import substitution_args
+    except ImportError as err:  # pragma: no cover - xacro is a dependency
+        raise ConfigError(f"reading '{Path(path).name}' needs the xacro package: pip install xacro") from err
+    path = Path(path).resolve()
+
+    def find(package: str) -> str:
+        return str(find_package(package, path, packages))
+
+    with _XACRO_LOCK:
+        saved = substitution_args._eval_find, substitution_args._eval_dict.get("find")
+        substitution_args._eval_find = find  # used by $(find ...) and by $(eval find(...))
+        substitution_args._eval_dict["find"] = find
+        try:
+            doc = xacro.process_file(str(path), mappings=dict(mappings or {}))
+            return doc.toprettyxml(indent="  ")
+        except ConfigError:
+            raise
+        except Exception as err:  # xacro raises XacroException, SubstitutionException, XML errors
+            raise ConfigError(f"xacro could not expand '{path}': {err}") from err
+        finally:
+            substitution_args._eval_find, substitution_args._eval_dict["find"] = saved
+
+
+def resolved_mesh_uris(text: str, model_path: str | Path, packages: Mapping[str, str] | None = None) -> str:
+    """Every mesh name of a URDF as an absolute ``file://`` URI where the file is found
+    (``package://`` through the resolver, relative names against the model's folder);
+    names that cannot be found stay for Drake to report."""
+    model_path = Path(model_path).resolve()
+
+    def absolute(match: re.Match) -> str:
+        name = match.group(3)
+        if name.startswith("package://"):
+            found = resolve_package_uri(name, model_path, packages)
+        elif name.startswith("file://"):
+            return match.group(0)
+        else:
+            found = Path(name) if Path(name).is_absolute() else model_path.parent / name
+            found = found if found.exists() else None
+        if found is None:
+            return match.group(0)
+        return f"{match.group(1)}{match.group(2)}{found.resolve().as_uri()}{match.group(2)}"
+
+    return _MESH_FILENAME.sub(absolute, text)
+
+
+def loadable_model_path(model_path: str | Path, packages: Mapping[str, str] | None = None) -> Path:
+    """The file later steps read for a model (see the module docstring).
+
+    Args:
+        model_path: the model file (URDF, SDF or xacro).
+        packages: the config's ``robot.packages`` map, or None.
+
+    Returns:
+        ``model_path`` itself, or a URDF in ``<mesh cache>/models/<hash>/<name>.urdf``.
+
+    Raises:
+        ConfigError: a xacro file that cannot be expanded.
+    """
+    model_path = Path(model_path)
+    packages = dict(packages or {})
+    if is_xacro(model_path):
+        text = expand_xacro(model_path, packages)
+    elif model_path.suffix.lower() == ".urdf" and set(used_packages(model_path.read_text(errors="replace"))) & set(packages):
+        text = model_path.read_text()
+    else:
+        return model_path
+    text = resolved_mesh_uris(text, model_path, packages)
+    digest = hashlib.blake2b(f"{model_path.resolve()}\n{text}".encode(), digest_size=8).hexdigest()
+    target = default_cache_dir() / "models" / digest / f"{model_stem(model_path)}.urdf"
+    if not target.is_file() or target.read_text() != text:
+        atomic_write_text(target, text)
+    return target
+
+
+def without_mimic(text: str) -> tuple[str, list[str]]:
+    """URDF text without ``<mimic>`` tags, and a note naming the joints that had one.
+
+    Drake refuses a mimic joint whose driver is a 0-dof joint (TALOS's grippers), and a
+    mimic couples joints pe_drake may lock; the joints become independent.
+    """
+    joints = []
+    for match in re.finditer(r"<joint\b[^>]*?\bname\s*=\s*([\"'])(.*?)\1[^>]*>(.*?)</joint\s*>", text, re.S):
+        if _MIMIC.search(match.group(3)):
+            joints.append(match.group(2))
+    if not joints:
+        return text, []
+    shown = ", ".join(joints[:6]) + (f" and {len(joints) - 6} more" if len(joints) > 6 else "")
+    return _MIMIC.sub("", text), [f"mimic tags of {len(joints)} joint(s) ignored ({shown}): each is an independent joint"]
+
+
+def single_material_definitions(text: str) -> tuple[str, list[str]]:
+    """URDF text in which each named material is defined once (its first definition); later
+    definitions of the same name become references ``<material name="..."/>``.
+
+    Drake refuses a repeated definition ("Material 'carbon_fiber' was previously defined",
+    example-robot-data's Kinova JACO2), which ROS tools accept.
+
+    Returns:
+        The text and a note naming the materials whose later definitions were dropped.
+    """
+    defined: set[str] = set()
+    repeated: dict[str, int] = {}
+
+    def one(match: re.Match) -> str:
+        name_match = _NAME_ATTR.search(match.group(1))
+        body = match.group(3)
+        if name_match is None or body is None or not body.strip():
+            return match.group(0)
+        name = name_match.group(2)
+        if name not in defined:
+            defined.add(name)
+            return match.group(0)
+        repeated[name] = repeated.get(name, 0) + 1
+        return f"<material{match.group(1).rstrip()}/>"
+
+    out = _MATERIAL.sub(one, text)
+    if not repeated:
+        return text, []
+    listed = ", ".join(f"'{k}' ({v}×)" for k, v in repeated.items())
+    return out, [f"repeated material definitions kept once (the first; Drake refuses repeats): {listed}"]

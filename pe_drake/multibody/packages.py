@@ -1,0 +1,164 @@
+"""Where ``package://<name>/...`` URIs point: one resolver for Drake's parser, xacro's
+``$(find <name>)``, capsule fitting and the STL → OBJ visuals.
+
+A package's folder is looked up, first match wins, in:
+
+1. the config's ``robot.packages`` map {name: folder};
+2. the folders above the model file: a folder holding a ``package.xml`` whose ``<name>`` is
+   the package, or a folder named like the package (a ROS source layout,
+   ``my_arm_description/urdf/my_arm.urdf``; Drake 1.51.1 has no upward search);
+3. ``ROS_PACKAGE_PATH`` (ROS 1): each entry is a package or is searched downwards for
+   ``package.xml`` files, as ``rospack`` does;
+4. ``AMENT_PREFIX_PATH`` (ROS 2): ``<prefix>/share/<name>`` of each install prefix;
+5. ``example-robot-data``: the installed wheel's share folder.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import re
+from collections.abc import Iterator, Mapping
+from functools import lru_cache
+from pathlib import Path
+
+from pe_drake.exceptions import ConfigError
+from pe_drake.multibody.registry import example_robot_data_dir
+
+#: Folder levels searched below each ``ROS_PACKAGE_PATH`` entry.
+ROS_PACKAGE_PATH_DEPTH = 6
+
+_PACKAGE_URI = re.compile(r"package://([^/\"'\s]+)/")
+_NAME = re.compile(r"<name>\s*([^<\s]+)\s*</name>")
+
+
+def manifest_name(folder: Path) -> str | None:
+    """The ``<name>`` of ``folder/package.xml``, or None without a readable manifest."""
+    manifest = folder / "package.xml"
+    if not manifest.is_file():
+        return None
+    try:
+        match = _NAME.search(manifest.read_text(errors="replace"))
+    except OSError:
+        return None
+    return match.group(1) if match else None
+
+
+def package_roots(package: str, model_path: str | Path, packages: Mapping[str, str] | None = None) -> list[Path]:
+    """Candidate folders of a package, best first (see the module docstring for the order).
+
+    Args:
+        package: the package name of a ``package://<package>/...`` URI.
+        model_path: the model file the URI appears in (the upward search starts there).
+        packages: the config's ``robot.packages`` map {name: folder}, or None.
+
+    Returns:
+        Existing folders; empty when the package is unknown.
+    """
+    return list(dict.fromkeys(_candidates(package, Path(model_path), packages or {})))
+
+
+def _candidates(package: str, model_path: Path, packages: Mapping[str, str]) -> Iterator[Path]:
+    if package in packages:
+        yield Path(packages[package]).expanduser().resolve()
+    for folder in model_path.resolve().parents:
+        if folder.name == package or manifest_name(folder) == package:
+            yield folder
+    for entry in _env_paths("ROS_PACKAGE_PATH"):
+        found = _ros_package_path_index(str(entry)).get(package)
+        if found is not None:
+            yield Path(found)
+    for prefix in _env_paths("AMENT_PREFIX_PATH"):
+        share = prefix / "share" / package
+        if share.is_dir():
+            yield share.resolve()
+    if package == "example-robot-data":
+        with contextlib.suppress(ConfigError):
+            yield example_robot_data_dir()
+
+
+def find_package(package: str, model_path: str | Path, packages: Mapping[str, str] | None = None) -> Path:
+    """The folder of a package (xacro's ``$(find <package>)``).
+
+    Raises:
+        ConfigError: an unknown package, saying where it was looked for.
+    """
+    roots = package_roots(package, model_path, packages)
+    if not roots:
+        raise ConfigError(unknown_package_message(package, model_path))
+    return roots[0]
+
+
+def unknown_package_message(package: str, model_path: str | Path) -> str:
+    """What to do about a package that none of the places knows."""
+    return (
+        f"package '{package}' (used by '{Path(model_path).name}') was not found: looked in robot.packages, "
+        f"for a package.xml named '{package}' (or a folder of that name) above the model, in "
+        "ROS_PACKAGE_PATH and in AMENT_PREFIX_PATH/share; set robot.packages: "
+        f"{{{package}: /path/to/{package}}} in the config, or source the ROS workspace"
+    )
+
+
+def resolve_package_uri(uri: str, model_path: str | Path, packages: Mapping[str, str] | None = None) -> Path | None:
+    """The existing file of a ``package://<name>/<rest>`` URI, or None."""
+    package, _, rest = uri[len("package://") :].partition("/")
+    for root in package_roots(package, model_path, packages):
+        if (root / rest).exists():
+            return root / rest
+    return None
+
+
+def used_packages(text: str) -> list[str]:
+    """Names of the packages a model's text refers to by ``package://`` URIs, in order."""
+    return list(dict.fromkeys(_PACKAGE_URI.findall(text)))
+
+
+def register_packages(package_map, text: str, model_path: str | Path, packages: Mapping[str, str] | None = None) -> list[str]:
+    """Adds every package the text uses to a Drake ``PackageMap`` (the parser's).
+
+    Packages Drake already knows keep their folder. Unknown ones are left for Drake to report.
+
+    Returns:
+        The packages none of the places knows.
+    """
+    unknown = []
+    for package in used_packages(text):
+        if package_map.Contains(package):
+            continue
+        roots = package_roots(package, model_path, packages)
+        if roots:
+            package_map.Add(package, str(roots[0]))
+        else:
+            unknown.append(package)
+    return unknown
+
+
+def _env_paths(variable: str) -> list[Path]:
+    return [Path(p).expanduser() for p in os.environ.get(variable, "").split(os.pathsep) if p.strip()]
+
+
+@lru_cache(maxsize=32)
+def _ros_package_path_index(entry: str) -> dict[str, str]:
+    """{package name: folder} below one ``ROS_PACKAGE_PATH`` entry (not below a package,
+    nor into hidden folders or folders holding a ``CATKIN_IGNORE`` / ``COLCON_IGNORE``)."""
+    found: dict[str, str] = {}
+
+    def walk(folder: Path, depth: int) -> None:
+        name = manifest_name(folder)
+        if name is not None:
+            found.setdefault(name, str(folder.resolve()))
+            return
+        if depth >= ROS_PACKAGE_PATH_DEPTH or (folder / "CATKIN_IGNORE").exists() or (folder / "COLCON_IGNORE").exists():
+            return
+        with contextlib.suppress(OSError):
+            for child in sorted(folder.iterdir()):
+                if child.is_dir() and not child.name.startswith("."):
+                    walk(child, depth + 1)
+
+    walk(Path(entry), 0)
+    return found
+
+
+def clear_cache() -> None:
+    """Forgets the ``ROS_PACKAGE_PATH`` folders already searched (after packages move)."""
+    _ros_package_path_index.cache_clear()
