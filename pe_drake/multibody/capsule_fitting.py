@@ -24,6 +24,7 @@ from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.capsules import capsule_pairs, capsule_pose, fit_capsule, segment_closest_points
 from pe_drake.multibody.meshes import read_stl, resolve_mesh_path
+from pe_drake.multibody.model_files import loadable_model_path
 from pe_drake.multibody.robot import Robot
 
 #: Name of the fitted capsule file written to a command's output folder.
@@ -216,6 +217,7 @@ def ensure_capsules(config, folder: str | Path) -> FittedCapsules | None:
     model = resolve_mesh_path(robot.model, Path(robot.model))
     if model is None:
         raise ConfigError(f"cannot find the model '{robot.model}' to fit capsules to; give robot.capsules")
+    model = loadable_model_path(model, robot.packages)  # xacro expanded, robot.packages resolved
     fitted = fit_capsule_file(model, Path(folder) / FITTED_CAPSULES_NAME)
     robot.capsules = str(fitted.path)
     if config.excitation.collision_margin < 0:
