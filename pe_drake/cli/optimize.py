@@ -27,6 +27,7 @@ from pe_drake.excitation.quality import QualityReport, excitation_quality
 from pe_drake.excitation.ramp import RAMP_DURATIONS, RampedMotion, check_within_limits, choose_ramp_duration
 from pe_drake.excitation.trajectory_file import load_motion, load_trajectory, save_trajectory, write_motion_csv
 from pe_drake.io_utils import staged_output_dir
+from pe_drake.excitation.nominal import choose_nominal_posture
 from pe_drake.multibody.capsule_fitting import ensure_capsules
 from pe_drake.multibody.registry import robot_display_name
 from pe_drake.output_paths import OPTIMIZE_OUTPUTS, check_output_dir, remove_stale_outputs
@@ -183,6 +184,11 @@ def _load_robot(args, config: Config, fit_dir: Path, say):
     say(f"robot {robot.name}: {robot.n} excited joints, {robot.num_bodies} moving bodies")
     for note in assumed_defaults(config, robot.joint_names):
         say(f"note: {note}")
+    for note in robot.notes:  # what the model needed for Drake (mimic, repeated materials)
+        say(f"note: {note}")
+    nominal = choose_nominal_posture(robot, config.excitation, config.environment)
+    if nominal is not None:
+        say(f"note: {nominal}")
     return robot, fitted
 
 
