@@ -31,6 +31,7 @@ import numpy as np
 from pe_drake.exceptions import ConfigError
 from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.inertia import central_inertia, check_physically_valid, spatial_inertia_to_phi
+from pe_drake.multibody.model_files import single_material_definitions
 from pe_drake.multibody.registry import example_robot_data_dir
 
 #: Packages the pe_drake loader always registers; their URIs are kept as they are.
@@ -137,6 +138,7 @@ def urdf_with_inertias(
         new = _inertial_element(phi[10 * b : 10 * b + 10], indent)
         new.tail = tail
         link.insert(position, new)
+    _drop_zero_dof_mimics(root)
     package_map = None
     try:
         from pydrake.multibody.parsing import PackageMap  # lazy: pydrake is heavy
@@ -157,6 +159,20 @@ def urdf_with_inertias(
     return header + text + "\n"
 
 
+def _drop_zero_dof_mimics(root: ET.Element) -> None:
+    """Removes ``<mimic>`` from fixed joints and from joints mimicking a fixed joint.
+
+    A mimic on a 0-dof joint means nothing, and Drake refuses it ("Joint ... which has 0 DOF
+    cannot mimic ..."): TALOS's grippers, whose joints its reduced model fixes (issue 21).
+    The other mimic tags are kept for ROS tools.
+    """
+    kinds = {j.get("name"): j.get("type") for j in root.iter("joint")}
+    for joint in root.iter("joint"):
+        for mimic in joint.findall("mimic"):
+            if joint.get("type") == "fixed" or kinds.get(mimic.get("joint")) in ("fixed", None):
+                joint.remove(mimic)
+
+
 def verify_urdf_text(text: str, body_names: Sequence[str], phi: np.ndarray, tolerance: float = 1e-9) -> None:
     """Parses URDF text with Drake (no scene graph) and compares each body's spatial inertia.
 
@@ -174,6 +190,8 @@ def verify_urdf_text(text: str, body_names: Sequence[str], phi: np.ndarray, tole
     drake_logger = logging.getLogger("drake")
     level = drake_logger.level
     drake_logger.setLevel(logging.ERROR)
+    # as pe_drake loads it (pe_drake.multibody.model_files): repeated materials kept once
+    text = single_material_definitions(text)[0]
     try:
         parser.AddModelsFromString(text, "urdf")
     except Exception as err:
