@@ -1,9 +1,10 @@
 """The robot's surroundings: a floor under a fixed-base arm and box obstacles.
 
 Every checked capsule (a segment [p0, p1] swept by a sphere of radius r) keeps ``margin``
-from the floor plane z = h and from each axis-aligned box:
+from the floor plane n·p = h (n the unit normal; n = ẑ for an upright base, the base's z
+axis for a wall or ceiling mount: the floor is the mounting plane) and from each box:
 
-    floor:  z(p_e) − r − h >= margin   for both segment ends e (a segment's lowest point is
+    floor:  n·p_e − r − h >= margin   for both segment ends e (a segment's lowest point is
             an end, so this is exact and smooth);
     box:    min_s sd_box(p0 + s·(p1 − p0)) − r >= margin,
 
@@ -136,10 +137,13 @@ class EnvironmentConstraint(SampledConstraint):
     Args:
         robot: a :class:`~pe_drake.multibody.robot.Robot` with capsules.
         margin: required clearance [m], >= 0.
-        floor_height: z of the floor in world [m], or None for no floor.
+        floor_height: offset h of the floor plane n·p = h in world [m] (its z for an
+            upright floor), or None for no floor.
         boxes: :class:`Box` obstacles.
         aggregate: one soft-min row per sample (default) or one row per capsule end / box.
         smoothing: soft-min length scale [m].
+        floor_normal: unit normal n of the floor plane in world, pointing to the robot's side
+            (default +z).
 
     Raises:
         ConfigError: no capsules, nothing to check, or bad numbers.
@@ -157,6 +161,7 @@ class EnvironmentConstraint(SampledConstraint):
         *,
         aggregate: bool = True,
         smoothing: float = 0.002,
+        floor_normal: Sequence[float] = (0.0, 0.0, 1.0),
     ):
         if not isinstance(margin, (int, float)) or not math.isfinite(margin) or margin < 0:
             raise ConfigError(f"environment margin must be a finite number >= 0 [m], got {margin!r}")
@@ -169,6 +174,10 @@ class EnvironmentConstraint(SampledConstraint):
                 "robot.capsules, or environment: {floor: false} and no boxes"
             )
         self.robot, self.margin, self.floor_height = robot, float(margin), floor_height
+        normal = np.asarray(floor_normal, float).reshape(3)
+        if not np.isfinite(normal).all() or np.linalg.norm(normal) < 1e-9:
+            raise ConfigError(f"the floor normal must be a nonzero 3-vector, got {floor_normal!r}")
+        self.floor_normal = normal / np.linalg.norm(normal)
         self.boxes = tuple(boxes)
         self.aggregate, self.smoothing = bool(aggregate), float(smoothing)
         moving = {int(b) for b in robot.body_indices}
@@ -213,7 +222,7 @@ class EnvironmentConstraint(SampledConstraint):
         lo = np.where(np.isfinite(lim.q_lower), lim.q_lower, -np.pi)
         hi = np.where(np.isfinite(lim.q_upper), lim.q_upper, np.pi)
         q = rng.uniform(lo, hi, (64, self.robot.n))
-        z = self.ends(q, jacobian=False)[0][..., 2]  # (64, C, 2)
+        z = self.ends(q, jacobian=False)[0] @ self.floor_normal  # heights above the floor, (64, C, 2)
         span = z.max(axis=0) - z.min(axis=0)
         return [(c, e) for c in range(len(self.capsules)) for e in range(2) if span[c, e] > self.capsules[c].radius]
 
@@ -272,14 +281,15 @@ class EnvironmentConstraint(SampledConstraint):
         d_rows, g_rows = [], []
         if self.floor_ends:
             cs, es = np.array(self.floor_ends).T
-            d_rows.append(p[:, cs, es, 2] - radii[cs] - self.floor_height)  # (K, F)
-            if z_gradient_only:  # ∂z/∂q_k = (ω_k × p)_z + m_k,z for the joints k that move the end
+            nf = self.floor_normal
+            d_rows.append(p[:, cs, es] @ nf - radii[cs] - self.floor_height)  # (K, F)
+            if z_gradient_only:  # ∂(n·p)/∂q_k = n·(ω_k × p + m_k) = ω_k·(p × n) + m_k·n
                 omega, moment = self._model.twists(q)  # (K, n, 3)
-                x, y = p[:, cs, es, 0, None], p[:, cs, es, 1, None]  # (K, F, 1)
-                dz = omega[:, None, :, 0] * y - omega[:, None, :, 1] * x + moment[:, None, :, 2]
+                pxn = np.cross(p[:, cs, es], nf)  # (K, F, 3)
+                dz = np.einsum("kfi,kji->kfj", pxn, omega) + (moment @ nf)[:, None, :]
                 g_rows.append(dz * self._moves[cs])  # (K, F, n)
             elif derivatives:
-                g_rows.append(J[:, cs, es, 2, :])  # (K, F, n)
+                g_rows.append(np.einsum("kfin,i->kfn", J[:, cs, es], nf))  # (K, F, n)
         for box in self.boxes:
             d, s, normal = segment_box_distance(p[:, :, 0], p[:, :, 1], box.center, 0.5 * box.size)
             d_rows.append(d - radii[None, :])
@@ -334,8 +344,11 @@ def environment_from_config(robot, excitation, environment) -> EnvironmentConstr
     """The floor/box constraint a config asks for, or None.
 
     The floor applies to a fixed-base arm (no ``robot.support_points``) when
-    ``environment.floor`` is true, at ``environment.floor_height`` or, when that is null,
-    at the base's support plane (the z of the root link's origin). The clearance is
+    ``environment.floor`` is true. It is the mounting plane: normal to the base's z axis
+    (n = R_WB ẑ: up for an upright base, down for a ceiling mount, horizontal on a wall),
+    through the root link's origin p_WBo shifted along n by ``environment.floor_height −
+    p_WBo,z`` (0 when null). For an upright base that is the plane z = floor_height (or the
+    base's z); a ceiling-mounted arm stays below its ceiling. The clearance is
     ``max(excitation.collision_margin, 0)``.
 
     Args:
@@ -348,11 +361,13 @@ def environment_from_config(robot, excitation, environment) -> EnvironmentConstr
     """
     fixed_base = not getattr(robot.config, "support_points", None)
     floor = None
+    X_WB = robot.base_pose.GetAsMatrix4()
+    normal, p_WBo = X_WB[:3, 2], X_WB[:3, 3]
     if environment.floor and fixed_base:
-        floor = environment.floor_height
-        if floor is None:
-            floor = float(np.asarray(robot.base_pose.translation())[2])
+        offset = 0.0 if environment.floor_height is None else float(environment.floor_height) - p_WBo[2]
+        floor = float(normal @ p_WBo) + offset
     boxes = [Box.from_spec(b, k) for k, b in enumerate(environment.boxes)]
     if floor is None and not boxes:
         return None
-    return EnvironmentConstraint(robot, max(float(excitation.collision_margin), 0.0), floor, boxes)
+    margin = max(float(excitation.collision_margin), 0.0)
+    return EnvironmentConstraint(robot, margin, floor, boxes, floor_normal=normal)
