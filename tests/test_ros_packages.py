@@ -141,7 +141,7 @@ def test_absolute_mesh_paths(tmp_path):
     write_package(tmp_path / "pkg", urdf=False)
     urdf = tmp_path / "abs.urdf"
     urdf.write_text(ur5_text(str(tmp_path / "pkg" / "meshes") + "/{name}.stl"))
-    check_arm(load_robot(str(urdf), obj_visuals=True))
+    check_arm(load_robot(str(urdf)))
 
 
 XACRO = """<?xml version="1.0"?>
@@ -244,3 +244,26 @@ def test_kinova_identified_model_reloads(tmp_path):
     robot = load_robot(str(example_robot_data_dir() / "robots/kinova_description/robots/kinova.urdf"))
     path = write_robot_urdf(tmp_path / "model.urdf", robot, robot.phi_model)
     np.testing.assert_allclose(load_robot(str(path)).phi_model, robot.phi_model, rtol=1e-9, atol=1e-12)
+
+
+def test_nominal_posture_found_for_a_user_ur_arm(tmp_path):
+    """UR5 as a user URDF, no config: its mid-range (zero) posture has the wrist below the
+    base plane; a posture that clears the floor and the capsules is chosen and named."""
+    from pe_drake.config import Config, RobotConfig
+    from pe_drake.excitation.constraints import constraints_from_config
+    from pe_drake.excitation.nominal import choose_nominal_posture
+    from pe_drake.multibody.capsule_fitting import ensure_capsules
+
+    urdf = write_package(tmp_path / "ws" / "src" / PKG)
+    config = Config(robot=RobotConfig(model=str(urdf)))
+    ensure_capsules(config, tmp_path / "fit")
+    robot = load_robot(config)
+    from pe_drake.exceptions import InfeasibleError
+
+    with pytest.raises(InfeasibleError, match="floor"):
+        constraints_from_config(robot, config.excitation, config.environment)
+    note = choose_nominal_posture(robot, config.excitation, config.environment)
+    assert note is not None and "joint" in note
+    constraints = constraints_from_config(robot, config.excitation, config.environment)
+    assert {c.name for c in constraints} >= {"environment"}
+    assert choose_nominal_posture(robot, config.excitation, config.environment) is None  # config now has one
