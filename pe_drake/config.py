@@ -202,8 +202,10 @@ class EnvironmentConfig:
     Attributes:
         floor: a floor under a fixed-base arm (a robot without ``robot.support_points``);
             a humanoid's floor is its soles' plane and balance keeps it there.
-        floor_height: z of the floor in world [m]; null (the default) means the base's
-            support plane, the z of the root link's origin (``robot.base_position``).
+        floor_height: z of the floor in world for an upright base [m]; null (the default)
+            means the base's support plane, through the root link's origin. The floor is
+            the mounting plane: normal to the base's z axis (a ceiling for an upside-down
+            base), shifted along that axis by floor_height − base_position z.
         boxes: obstacles.
     """
 

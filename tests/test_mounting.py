@@ -122,7 +122,8 @@ def test_trajectory_file_records_the_mount(tmp_path):
     data = json.loads((out / "trajectory.json").read_text())
     assert data["base_pose"]["position"] == pytest.approx([0.2, -0.1, 2.5])
     assert data["base_pose"]["quaternion_wxyz"] == pytest.approx([0, 1, 0, 0])
-    robot = load_robot(Config(robot=dataclasses.replace(builtin_config("ur5").robot, base_position=[0.2, -0.1, 2.5], base_quaternion_wxyz=[0, 1, 0, 0])))
+    ceiling = dataclasses.replace(builtin_config("ur5").robot, base_position=[0.2, -0.1, 2.5], base_quaternion_wxyz=[0, 1, 0, 0])
+    robot = load_robot(Config(robot=ceiling))
     # the playback replays the robot's own plant: the root hangs upside down
     X = robot.body_poses(np.zeros((1, robot.n)))[0, robot.plant.GetBodyByName(robot.root_link).index()]
     assert X[2, 2] == pytest.approx(-1.0)

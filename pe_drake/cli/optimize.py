@@ -21,13 +21,13 @@ from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.excitation.constraints import constraints_from_config
 from pe_drake.excitation.fourier import FourierBasis, sample_times
 from pe_drake.excitation.multistart import solve_multistart
+from pe_drake.excitation.nominal import choose_nominal_posture
 from pe_drake.excitation.parallel import open_executor
 from pe_drake.excitation.problem import ExcitationProblem
 from pe_drake.excitation.quality import QualityReport, excitation_quality
 from pe_drake.excitation.ramp import RAMP_DURATIONS, RampedMotion, check_within_limits, choose_ramp_duration
 from pe_drake.excitation.trajectory_file import load_motion, load_trajectory, save_trajectory, write_motion_csv
 from pe_drake.io_utils import staged_output_dir
-from pe_drake.excitation.nominal import choose_nominal_posture
 from pe_drake.multibody.capsule_fitting import ensure_capsules
 from pe_drake.multibody.registry import robot_display_name
 from pe_drake.output_paths import OPTIMIZE_OUTPUTS, check_output_dir, remove_stale_outputs
