@@ -267,3 +267,29 @@ def test_nominal_posture_found_for_a_user_ur_arm(tmp_path):
     constraints = constraints_from_config(robot, config.excitation, config.environment)
     assert {c.name for c in constraints} >= {"environment"}
     assert choose_nominal_posture(robot, config.excitation, config.environment) is None  # config now has one
+
+
+LOOP_SDF = """<?xml version="1.0"?>
+<sdf version="1.7">
+<model name="loop">
+  <link name="base"><inertial><mass>1</mass></inertial></link>
+  <link name="a"><pose>0 0 1 0 0 0</pose><inertial><mass>1</mass></inertial></link>
+  <link name="b"><pose>1 0 1 0 0 0</pose><inertial><mass>1</mass></inertial></link>
+  JOINTS
+</model>
+</sdf>
+"""
+_JOINT = ('<joint name="{}" type="revolute"><parent>{}</parent><child>{}</child><axis><xyz>0 1 0</xyz>'
+          "<limit><lower>-1</lower><upper>1</upper><velocity>1</velocity></limit></axis></joint>")
+
+
+def test_closed_loop_is_refused(tmp_path, capsys):
+    """A four-bar-like SDF: Drake's loop error becomes exit 2 saying what is supported."""
+    from pe_drake.cli import main
+
+    joints = "".join(_JOINT.format(*j) for j in (("j1", "base", "a"), ("j2", "a", "b"), ("j3", "base", "b")))
+    sdf = tmp_path / "loop.sdf"
+    sdf.write_text(LOOP_SDF.replace("JOINTS", joints))
+    with pytest.raises(ConfigError, match=r"closed kinematic loop.*kinematic trees"):
+        load_robot(str(sdf))
+    assert main(["optimize", "--robot", str(sdf), "--out", str(tmp_path / "o"), "--quiet"]) == 2

@@ -137,7 +137,7 @@ class Robot:
         self._scene_graph_builder_hook(plant, scene_graph)
         if self._before_finalize is not None:
             self._before_finalize(plant, scene_graph)
-        plant.Finalize()
+        _finalize(plant, model_path)
         self._build_diagram(builder, plant, scene_graph, excited)
 
         joints = [plant.GetJointByName(j) for j in excited]
@@ -451,6 +451,24 @@ def _model_text(model_path: Path, obj_visuals: bool, packages: dict | None = Non
         if obj_visuals:
             text = stl_visuals_to_obj(text, model_path, packages=packages)
     return text, notes
+
+
+def _finalize(plant, model_path: Path) -> None:
+    """``plant.Finalize()``, with Drake's refusals of structures outside the supported set.
+
+    Raises:
+        ConfigError: a closed kinematic loop, or another structure Drake cannot model.
+    """
+    try:
+        plant.Finalize()
+    except RuntimeError as err:
+        loop = "loops in the system graph" in str(err)
+        what = "a closed kinematic loop (e.g. a four-bar or a parallel linkage)" if loop else "a structure Drake refuses"
+        raise ConfigError(
+            f"'{model_path.name}' has {what}: {str(err).splitlines()[0][:300]}. pe_drake supports kinematic trees of "
+            "revolute, continuous and prismatic joints (fixed joints welded), one root link welded to the world; "
+            "cut a loop by deleting one of its joints (or making it fixed), or lock the loop's joints"
+        ) from err
 
 
 def _check_world_joints(plant, models, model_path: Path) -> None:
