@@ -11,13 +11,16 @@ later step (Drake's parser, capsule fitting, effort limits, model export) reads 
   cache has no folders above it to search);
 - any other file is used where it is.
 
-:func:`drake_urdf_text` then prepares a URDF's text for Drake's parser, returning notes of
-what it changed.
+:func:`drake_model_text` then prepares the text for Drake's parser (notes say what it changed:
+mimic tags, repeated materials), :func:`parse_models` registers every package the text uses
+in the parser's package map, and :func:`check_world_joints` / :func:`finalize_plant` turn
+structures outside the supported set into a :class:`~pe_drake.exceptions.ConfigError`.
 """
 
 from __future__ import annotations
 
 import hashlib
+import logging
 import re
 import threading
 from collections.abc import Mapping
@@ -25,8 +28,15 @@ from pathlib import Path
 
 from pe_drake.exceptions import ConfigError
 from pe_drake.io_utils import atomic_write_text
-from pe_drake.multibody.meshes import default_cache_dir
-from pe_drake.multibody.packages import find_package, resolve_package_uri, used_packages
+from pe_drake.multibody.meshes import absolute_mesh_paths, default_cache_dir, stl_visuals_to_obj
+from pe_drake.multibody.packages import (
+    find_package,
+    register_packages,
+    resolve_package_uri,
+    unknown_package_message,
+    used_packages,
+)
+from pe_drake.multibody.urdf_checks import check_joint_types
 
 #: Suffixes of model files pe_drake reads.
 MODEL_SUFFIXES = (".urdf", ".sdf", ".xml", ".xacro")
@@ -189,3 +199,87 @@ def single_material_definitions(text: str) -> tuple[str, list[str]]:
         return text, []
     listed = ", ".join(f"'{k}' ({v}×)" for k, v in repeated.items())
     return out, [f"repeated material definitions kept once (the first; Drake refuses repeats): {listed}"]
+
+
+def drake_model_text(model_path: Path, obj_visuals: bool, packages: dict | None = None) -> tuple[str, list[str]]:
+    """The model file's text as Drake parses it, and notes of what was changed for Drake."""
+    text = model_path.read_text()
+    notes: list[str] = []
+    if model_path.suffix.lower() == ".urdf":
+        check_joint_types(text, model_path)  # floating/ball joints: named, with what is supported
+        # Drake cannot build convex hulls of STL/DAE collision meshes (BUILD_NOTES.md);
+        # collision is our own capsules. Mimic tags would couple joints we may lock.
+        text = re.sub(r"<collision\b.*?</collision>", "", text, flags=re.S)
+        text, mimic_notes = without_mimic(text)
+        text, material_notes = single_material_definitions(text)  # Kinova JACO2 (issue 21)
+        notes += mimic_notes + material_notes
+        text = absolute_mesh_paths(text, model_path)  # parsed from a string: no folder to resolve against
+        if obj_visuals:
+            text = stl_visuals_to_obj(text, model_path, packages=packages)
+    return text, notes
+
+
+def finalize_plant(plant, model_path: Path) -> None:
+    """``plant.Finalize()``, with Drake's refusals of structures outside the supported set.
+
+    Raises:
+        ConfigError: a closed kinematic loop, or another structure Drake cannot model.
+    """
+    try:
+        plant.Finalize()
+    except RuntimeError as err:
+        loop = "loops in the system graph" in str(err)
+        what = "a closed kinematic loop (e.g. a four-bar or a parallel linkage)" if loop else "a structure Drake refuses"
+        raise ConfigError(
+            f"'{model_path.name}' has {what}: {str(err).splitlines()[0][:300]}. pe_drake supports kinematic trees of "
+            "revolute, continuous and prismatic joints (fixed joints welded), one root link welded to the world; "
+            "cut a loop by deleting one of its joints (or making it fixed), or lock the loop's joints"
+        ) from err
+
+
+def check_world_joints(plant, models, model_path: Path) -> None:
+    """Refuses a movable joint from the world (a root on a prismatic or revolute joint):
+    pe_drake welds the root link to the world at ``robot.base_position`` /
+    ``base_quaternion_wxyz``.
+
+    Raises:
+        ConfigError: naming the joint and what is supported.
+    """
+    world = plant.world_body().index()
+    for m in models:
+        for index in plant.GetJointIndices(m):
+            joint = plant.get_joint(index)
+            if joint.parent_body().index() == world and joint.num_positions() > 0:
+                raise ConfigError(
+                    f"'{model_path.name}': joint '{joint.name()}' connects the world to link "
+                    f"'{joint.child_body().name()}' as a {joint.type_name()} joint; pe_drake supports fixed-base "
+                    "robots whose root link is welded to the world (by a fixed world joint or by pe_drake, at "
+                    "robot.base_position / robot.base_quaternion_wxyz) with revolute and prismatic joints in a "
+                    "tree. Make that joint fixed or delete it, and mount the root link with robot.base_position"
+                )
+
+
+def parse_models(plant, text: str, model_path: Path, packages: dict | None = None) -> list:
+    """Adds the model to the plant; returns its model instances.
+
+    Every ``package://`` the text uses is registered in the parser's package map through
+    :mod:`pe_drake.multibody.packages` (config map, upward search for ``package.xml``,
+    ``ROS_PACKAGE_PATH``, ``AMENT_PREFIX_PATH``, example-robot-data).
+
+    Raises:
+        ConfigError: an unknown package, or Drake cannot parse it (Drake's message is kept).
+    """
+    from pydrake.multibody.parsing import Parser  # lazy: pydrake is heavy
+
+    parser = Parser(plant)
+    unknown = register_packages(parser.package_map(), text, model_path, packages)
+    drake_logger = logging.getLogger("drake")
+    level = drake_logger.level
+    drake_logger.setLevel(logging.ERROR)  # unsupported ROS tags (gazebo, transmission)
+    try:
+        return parser.AddModelsFromString(text, model_path.suffix.lstrip(".").lower())
+    except Exception as err:  # Drake raises RuntimeError with its parser message
+        hint = "".join(f"; {unknown_package_message(p, model_path)}" for p in unknown if p in str(err))
+        raise ConfigError(f"Drake could not parse '{model_path}': {err}{hint}") from err
+    finally:
+        drake_logger.setLevel(level)

@@ -9,8 +9,6 @@ the joint limits the optimizer uses, and the tree structure the regressor needs.
 from __future__ import annotations
 
 import dataclasses
-import logging
-import re
 import xml.etree.ElementTree as ET
 from collections.abc import Callable
 from functools import cached_property
@@ -28,15 +26,19 @@ from pe_drake.exceptions import (
 from pe_drake.multibody.capsules import register_capsules
 from pe_drake.multibody.inertia import PARAMETER_NAMES, spatial_inertia_to_phi
 from pe_drake.multibody.joint_limits import merge_limits
-from pe_drake.multibody.meshes import absolute_mesh_paths, stl_visuals_to_obj
-from pe_drake.multibody.model_files import loadable_model_path, model_stem, single_material_definitions, without_mimic
-from pe_drake.multibody.packages import register_packages, unknown_package_message
+from pe_drake.multibody.model_files import (
+    check_world_joints,
+    drake_model_text,
+    finalize_plant,
+    loadable_model_path,
+    model_stem,
+    parse_models,
+)
 from pe_drake.multibody.registry import (
     resolve_model_path,
     resolve_robot_config,
     robot_display_name,
 )
-from pe_drake.multibody.urdf_checks import check_joint_types
 
 
 @dataclasses.dataclass(frozen=True)
@@ -118,10 +120,10 @@ class Robot:
 
         cfg = self.config
         model_path = loadable_model_path(resolve_model_path(cfg.model), cfg.packages)
-        text, self.notes = _model_text(model_path, self._obj_visuals, cfg.packages)
+        text, self.notes = drake_model_text(model_path, self._obj_visuals, cfg.packages)
         builder = DiagramBuilder()
         plant, scene_graph = AddMultibodyPlantSceneGraph(builder, time_step=self.time_step)
-        models = _parse_models(plant, text, model_path, cfg.packages)
+        models = parse_models(plant, text, model_path, cfg.packages)
         self.model_path = model_path
 
         movable = [
@@ -130,14 +132,14 @@ class Robot:
             for j in plant.GetJointIndices(m)
             if plant.get_joint(j).num_positions() == 1
         ]
-        _check_world_joints(plant, models, model_path)
+        check_world_joints(plant, models, model_path)
         excited = _excited_joint_names(cfg, [j.name() for j in movable], model_path)
         self.locked_positions = _weld_locked_joints(plant, movable, excited, cfg.locked_positions)
         self._weld_root(plant, models)
         self._scene_graph_builder_hook(plant, scene_graph)
         if self._before_finalize is not None:
-            self._before_finalize(plant, scene_graph)
-        _finalize(plant, model_path)
+            self._beforefinalize_plant(plant, scene_graph)
+        finalize_plant(plant, model_path)
         self._build_diagram(builder, plant, scene_graph, excited)
 
         joints = [plant.GetJointByName(j) for j in excited]
@@ -167,7 +169,7 @@ class Robot:
         for index in list(plant.GetJointIndices()):
             joint = plant.get_joint(index)
             if joint.parent_body().index() == world and joint.child_body().index() == root.index():
-                plant.RemoveJoint(joint)  # a weld (_check_world_joints refused movable ones)
+                plant.RemoveJoint(joint)  # a weld (check_world_joints refused movable ones)
         plant.WeldFrames(plant.world_frame(), root.body_frame(), pose)
         self.root_link = root.name()
         self.base_pose = pose
@@ -433,90 +435,6 @@ def _quaternion(wxyz):
 
     q = np.asarray(wxyz, float)
     return Quaternion(q / np.linalg.norm(q))
-
-
-def _model_text(model_path: Path, obj_visuals: bool, packages: dict | None = None) -> tuple[str, list[str]]:
-    """The model file's text as Drake parses it, and notes of what was changed for Drake."""
-    text = model_path.read_text()
-    notes: list[str] = []
-    if model_path.suffix.lower() == ".urdf":
-        check_joint_types(text, model_path)  # floating/ball joints: named, with what is supported
-        # Drake cannot build convex hulls of STL/DAE collision meshes (BUILD_NOTES.md);
-        # collision is our own capsules. Mimic tags would couple joints we may lock.
-        text = re.sub(r"<collision\b.*?</collision>", "", text, flags=re.S)
-        text, mimic_notes = without_mimic(text)
-        text, material_notes = single_material_definitions(text)  # Kinova JACO2 (issue 21)
-        notes += mimic_notes + material_notes
-        text = absolute_mesh_paths(text, model_path)  # parsed from a string: no folder to resolve against
-        if obj_visuals:
-            text = stl_visuals_to_obj(text, model_path, packages=packages)
-    return text, notes
-
-
-def _finalize(plant, model_path: Path) -> None:
-    """``plant.Finalize()``, with Drake's refusals of structures outside the supported set.
-
-    Raises:
-        ConfigError: a closed kinematic loop, or another structure Drake cannot model.
-    """
-    try:
-        plant.Finalize()
-    except RuntimeError as err:
-        loop = "loops in the system graph" in str(err)
-        what = "a closed kinematic loop (e.g. a four-bar or a parallel linkage)" if loop else "a structure Drake refuses"
-        raise ConfigError(
-            f"'{model_path.name}' has {what}: {str(err).splitlines()[0][:300]}. pe_drake supports kinematic trees of "
-            "revolute, continuous and prismatic joints (fixed joints welded), one root link welded to the world; "
-            "cut a loop by deleting one of its joints (or making it fixed), or lock the loop's joints"
-        ) from err
-
-
-def _check_world_joints(plant, models, model_path: Path) -> None:
-    """Refuses a movable joint from the world (a root on a prismatic or revolute joint):
-    pe_drake welds the root link to the world at ``robot.base_position`` /
-    ``base_quaternion_wxyz``.
-
-    Raises:
-        ConfigError: naming the joint and what is supported.
-    """
-    world = plant.world_body().index()
-    for m in models:
-        for index in plant.GetJointIndices(m):
-            joint = plant.get_joint(index)
-            if joint.parent_body().index() == world and joint.num_positions() > 0:
-                raise ConfigError(
-                    f"'{model_path.name}': joint '{joint.name()}' connects the world to link "
-                    f"'{joint.child_body().name()}' as a {joint.type_name()} joint; pe_drake supports fixed-base "
-                    "robots whose root link is welded to the world (by a fixed world joint or by pe_drake, at "
-                    "robot.base_position / robot.base_quaternion_wxyz) with revolute and prismatic joints in a "
-                    "tree. Make that joint fixed or delete it, and mount the root link with robot.base_position"
-                )
-
-
-def _parse_models(plant, text: str, model_path: Path, packages: dict | None = None) -> list:
-    """Adds the model to the plant; returns its model instances.
-
-    Every ``package://`` the text uses is registered in the parser's package map through
-    :mod:`pe_drake.multibody.packages` (config map, upward search for ``package.xml``,
-    ``ROS_PACKAGE_PATH``, ``AMENT_PREFIX_PATH``, example-robot-data).
-
-    Raises:
-        ConfigError: an unknown package, or Drake cannot parse it (Drake's message is kept).
-    """
-    from pydrake.multibody.parsing import Parser  # lazy: pydrake is heavy
-
-    parser = Parser(plant)
-    unknown = register_packages(parser.package_map(), text, model_path, packages)
-    drake_logger = logging.getLogger("drake")
-    level = drake_logger.level
-    drake_logger.setLevel(logging.ERROR)  # unsupported ROS tags (gazebo, transmission)
-    try:
-        return parser.AddModelsFromString(text, model_path.suffix.lstrip(".").lower())
-    except Exception as err:  # Drake raises RuntimeError with its parser message
-        hint = "".join(f"; {unknown_package_message(p, model_path)}" for p in unknown if p in str(err))
-        raise ConfigError(f"Drake could not parse '{model_path}': {err}{hint}") from err
-    finally:
-        drake_logger.setLevel(level)
 
 
 def _excited_joint_names(cfg: RobotConfig, movable_names: list[str], model_path: Path) -> list[str]:
