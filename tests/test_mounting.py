@@ -67,6 +67,7 @@ def test_mount_changes_gravity_torques(mount):
     # and not the upright robot's torques
     assert np.abs(tau - upright.inverse_dynamics(q, zeros, zeros)).max() > 1.0
     X = robot.body_poses(q[:1])[0, robot.plant.GetBodyByName(robot.root_link).index()]
+    assert any("world_joint" in note for note in robot.notes) and not upright.notes
     np.testing.assert_allclose(X[:3, :3], R_WB, atol=1e-12)
     np.testing.assert_allclose(X[:3, 3], mount[0], atol=1e-12)
 

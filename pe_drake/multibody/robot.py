@@ -138,7 +138,7 @@ class Robot:
         self._weld_root(plant, models)
         self._scene_graph_builder_hook(plant, scene_graph)
         if self._before_finalize is not None:
-            self._beforefinalize_plant(plant, scene_graph)
+            self._before_finalize(plant, scene_graph)
         finalize_plant(plant, model_path)
         self._build_diagram(builder, plant, scene_graph, excited)
 
@@ -158,7 +158,7 @@ class Robot:
         ``robot.base_position`` / ``base_quaternion_wxyz`` always are the root link's pose in
         the world and the world joint's own origin is not used.
         """
-        from pydrake.math import RigidTransform  # lazy: pydrake is heavy
+        from pydrake.math import RigidTransform, RollPitchYaw  # lazy: pydrake is heavy
 
         cfg = self.config
         root = self._root_body(plant, models)
@@ -169,6 +169,16 @@ class Robot:
         for index in list(plant.GetJointIndices()):
             joint = plant.get_joint(index)
             if joint.parent_body().index() == world and joint.child_body().index() == root.index():
+                X_WR = joint.frame_on_parent().GetFixedPoseInBodyFrame().multiply(
+                    joint.frame_on_child().GetFixedPoseInBodyFrame().inverse()
+                )
+                if not X_WR.IsNearlyEqualTo(pose, 1e-9):
+                    xyz = " ".join(f"{v:.4g}" for v in X_WR.translation())
+                    rpy = " ".join(f"{v:.4g}" for v in RollPitchYaw(X_WR.rotation()).vector())
+                    self.notes.append(
+                        f"the origin of the model's world joint '{joint.name()}' (xyz {xyz}, rpy {rpy}) is replaced by "
+                        "robot.base_position / base_quaternion_wxyz, the pose of the root link in the world"
+                    )
                 plant.RemoveJoint(joint)  # a weld (check_world_joints refused movable ones)
         plant.WeldFrames(plant.world_frame(), root.body_frame(), pose)
         self.root_link = root.name()
