@@ -53,6 +53,10 @@ class RobotConfig:
         support_points: contact points of the feet for the balance constraint, as
             {link: [[x, y, z], ...]} in the link frame [m]; empty means no balance
             constraint is available.
+        drive_gains: {joint: k} [N·m/A or N/A]: joint torque per motor current, τ = k·i, for
+            logs with ``current.<joint>`` columns (issue 22).
+        jerk_limits: {joint: limit} [rad/s³ or m/s³]: checked on the exported controller goal
+            (Franka refuses 3750-10000 rad/s³); empty: not checked.
     """
 
     model: str = ""
@@ -75,6 +79,8 @@ class RobotConfig:
     nominal_positions: dict[str, float] = dataclasses.field(default_factory=dict)
     capsules: str = ""
     support_points: dict[str, list[list[float]]] = dataclasses.field(default_factory=dict)
+    drive_gains: dict[str, float] = dataclasses.field(default_factory=dict)
+    jerk_limits: dict[str, float] = dataclasses.field(default_factory=dict)
 
 
 #: Default joint-torque noise σ [N·m], every joint: the order of a joint-torque sensor's
@@ -227,6 +233,76 @@ class ParallelConfig:
 
 
 @dataclasses.dataclass
+class JointMapConfig:
+    """How a log's joint names and values become the robot's (issue 22).
+
+    A logged joint named ``strip_prefix + x`` is read as ``x``, then ``rename`` maps it to
+    the URDF name; its position is then ``sign · q_logged + offset`` (velocity, acceleration
+    and torque are multiplied by the sign).
+
+    Attributes:
+        strip_prefix: prefix drivers add (``tf_prefix``, ``arm_``); removed when present.
+        rename: {logged name (after stripping): URDF joint name}.
+        sign: {URDF joint: +1 or -1}.
+        offset: {URDF joint: offset} [rad or m] added to the position.
+    """
+
+    strip_prefix: str = ""
+    rename: dict[str, str] = dataclasses.field(default_factory=dict)
+    sign: dict[str, float] = dataclasses.field(default_factory=dict)
+    offset: dict[str, float] = dataclasses.field(default_factory=dict)
+
+
+#: Formats of measured logs (:mod:`pe_drake.identification.readers`).
+DATA_FORMATS = ("auto", "pe_drake", "rosbag", "rtde", "columns")
+#: What a ROS bag's JointState ``effort`` holds.
+EFFORT_KINDS = ("torque", "current")
+
+
+@dataclasses.dataclass
+class DataConfig:
+    """How measured logs are read (issue 22).
+
+    Attributes:
+        format: one of :data:`DATA_FORMATS`; ``auto`` recognises a ROS 2 bag (folder,
+            ``.db3``, ``.mcap``), a UR RTDE CSV by its column names, ``columns`` when
+            ``columns`` is given, else pe_drake's CSV.
+        topic: the bag's ``sensor_msgs/msg/JointState`` topic; empty: the only one.
+        effort: what a bag's ``effort`` holds: ``torque`` [N·m] or ``current`` [A] (then
+            ``robot.drive_gains`` convert it).
+        max_gap_s: longest hole in the time column that is interpolated [s]; a longer one
+            splits the run into segments, each filtered on its own.
+        joint_map: joint names and signs of the log (:class:`JointMapConfig`).
+        columns: {``q.<joint>`` | ``v.<joint>`` | ``tau.<joint>`` | ``current.<joint>`` | ``t``:
+            column name} for a CSV with other column names.
+    """
+
+    format: str = "auto"
+    topic: str = ""
+    effort: str = "torque"
+    max_gap_s: float = 0.02
+    joint_map: JointMapConfig = dataclasses.field(default_factory=JointMapConfig)
+    columns: dict[str, str] = dataclasses.field(default_factory=dict)
+
+
+@dataclasses.dataclass
+class ControllerConfig:
+    """The trajectory goal ``optimize`` writes for a ros2_control controller (issue 22).
+
+    Attributes:
+        goal_rate_hz: waypoint rate of ``trajectory_goal.yaml`` [Hz].
+        lead_in_s: time added to every waypoint's ``time_from_start`` [s] (> 0: no point at 0).
+        topic: the JointTrajectory topic of the MCAP bag.
+        joint_names: {URDF joint: the driver's joint name} for drivers whose names differ.
+    """
+
+    goal_rate_hz: float = 50.0
+    lead_in_s: float = 1.0
+    topic: str = "/joint_trajectory_controller/joint_trajectory"
+    joint_names: dict[str, str] = dataclasses.field(default_factory=dict)
+
+
+@dataclasses.dataclass
 class Config:
     """A whole pe_drake configuration file."""
 
@@ -235,6 +311,8 @@ class Config:
     solver: SolverConfig = dataclasses.field(default_factory=SolverConfig)
     environment: EnvironmentConfig = dataclasses.field(default_factory=EnvironmentConfig)
     parallel: ParallelConfig = dataclasses.field(default_factory=ParallelConfig)
+    data: DataConfig = dataclasses.field(default_factory=DataConfig)
+    controller: ControllerConfig = dataclasses.field(default_factory=ControllerConfig)
 
 
 CRITERIA = ("cond", "soft_cond", "log_cond", "dopt")
@@ -387,7 +465,30 @@ def validate_config(config: Config) -> Config:
     check_finite("solver.max_time", s.max_time, nonneg=True)
     _validate_safety(config)
     _validate_parallel(config.parallel)
+    _validate_logs(config)
     return config
+
+
+def _validate_logs(config: Config) -> None:
+    """Drive gains, jerk limits, the data and controller sections (issue 22)."""
+    r, d, c = config.robot, config.data, config.controller
+    for name in ("drive_gains", "jerk_limits"):
+        for joint, value in getattr(r, name).items():
+            check_finite(f"robot.{name}['{joint}']", value, positive=True)
+    if d.format not in DATA_FORMATS:
+        raise ConfigError(f"data.format '{d.format}' is not one of {', '.join(DATA_FORMATS)}")
+    if d.effort not in EFFORT_KINDS:
+        raise ConfigError(f"data.effort '{d.effort}' is not one of {', '.join(EFFORT_KINDS)}")
+    check_finite("data.max_gap_s [s]", d.max_gap_s, nonneg=True)
+    for joint, value in d.joint_map.sign.items():
+        if value not in (1, -1):
+            raise ConfigError(f"data.joint_map.sign['{joint}'] must be 1 or -1, got {value!r}")
+    for joint, value in d.joint_map.offset.items():
+        check_finite(f"data.joint_map.offset['{joint}']", value)
+    check_finite("controller.goal_rate_hz [Hz]", c.goal_rate_hz, positive=True)
+    check_finite("controller.lead_in_s [s]", c.lead_in_s, positive=True)
+    if not c.topic.startswith("/"):
+        raise ConfigError(f"controller.topic must start with '/', got '{c.topic}'")
 
 
 def _validate_safety(config: Config) -> None:
