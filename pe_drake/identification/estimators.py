@@ -35,6 +35,7 @@ import numpy as np
 
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.identification.channels import channel_names, measured_rows, measured_values
+from pe_drake.identification.gaps import MAX_GAP_S, preprocess_segments
 from pe_drake.identification.measurements import (
     Measurement,
     Preprocessing,
@@ -42,7 +43,6 @@ from pe_drake.identification.measurements import (
     check_torque_units,
     read_measurement_csv,
 )
-from pe_drake.identification.gaps import MAX_GAP_S, preprocess_segments
 from pe_drake.identification.preprocessing import PreprocessOptions
 from pe_drake.multibody.base_parameters import BaseParameters, compute_base_parameters
 from pe_drake.multibody.inertia import pseudo_inertia_basis
