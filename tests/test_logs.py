@@ -36,15 +36,21 @@ def panda_run(panda):
     return model_measurement(panda, trajectory, rate_hz=500.0, duration=14.0, tau_noise_std=NOISE, seed=3)
 
 
-def assert_noise_floor(robot, raw, max_gap_s: float = 0.02) -> None:
-    """OLS on the prepared log predicts the noise-free torques to well below the noise."""
+def prediction_error(robot, raw, max_gap_s: float = 0.02) -> tuple[np.ndarray, np.ndarray]:
+    """(RMS of the OLS model's prediction minus the noise-free torque, residual RMS) per joint [N·m]."""
     data = prepare_measurement(robot, raw, max_gap_s=max_gap_s)
     result = identify(robot, data, "ols")
     error = predict(robot, result, data) - robot_torques(robot, data, robot.phi_model)
-    rms = np.sqrt(np.mean(error**2, axis=0))
-    print("prediction error RMS vs truth [N·m]:", rms.round(4), "noise", NOISE)
+    return np.sqrt(np.mean(error**2, axis=0)), result.residual_rms
+
+
+def assert_noise_floor(robot, raw, max_gap_s: float = 0.02) -> None:
+    """OLS on the prepared log predicts the noise-free torques to well below the noise, and its
+    residual is the filtered noise only: the torque noise σ = NOISE, up to 10 %."""
+    rms, residual = prediction_error(robot, raw, max_gap_s)
+    print("prediction error RMS vs truth [N·m]:", rms.round(4), "residual", residual.round(4), "noise", NOISE)
     assert rms.max() < 0.25 * NOISE
-    assert np.all(result.residual_rms < NOISE)  # the filtered noise, nothing systematic left
+    assert np.all(residual < 1.1 * NOISE)
 
 
 # ---- pauses and dropped packets ----------------------------------------------------------------
@@ -109,7 +115,7 @@ def write_joint_state_bag(path: Path, m, storage: str, *, prefix: str = "", seed
             v = np.append(m.v[k], 0.0)[order] if velocity else []
             data = ts.serialize_cdr(message(stamp, np.array(names)[order], q, v, tau), JointState.__msgtype__)
             writer.write(conn, stamp + 300_000, data)
-            if k % 97 == 5:  # the same stamp again
+            if k % 97 == 5 and not zero_stamps:  # the same stamp again
                 writer.write(conn, stamp + 400_000, data)
             if k % 50 == 0:  # the gripper alone, and a partial arm message
                 grip = message(stamp, ["panda_finger_joint1"], [0.04], [], [1.0])
