@@ -234,18 +234,9 @@ class ParallelConfig:
 
 @dataclasses.dataclass
 class JointMapConfig:
-    """How a log's joint names and values become the robot's (issue 22).
-
-    A logged joint named ``strip_prefix + x`` is read as ``x``, then ``rename`` maps it to
-    the URDF name; its position is then ``sign · q_logged + offset`` (velocity, acceleration
-    and torque are multiplied by the sign).
-
-    Attributes:
-        strip_prefix: prefix drivers add (``tf_prefix``, ``arm_``); removed when present.
-        rename: {logged name (after stripping): URDF joint name}.
-        sign: {URDF joint: +1 or -1}.
-        offset: {URDF joint: offset} [rad or m] added to the position.
-    """
+    """A log's joint names and signs → the robot's (issue 22): ``strip_prefix`` (``tf_prefix``,
+    ``arm_``) is removed, then ``rename`` {logged: URDF name} applies; the position becomes
+    ``sign·q + offset`` [rad or m] per URDF joint (v, v̇, τ are multiplied by the sign)."""
 
     strip_prefix: str = ""
     rename: dict[str, str] = dataclasses.field(default_factory=dict)
@@ -253,10 +244,8 @@ class JointMapConfig:
     offset: dict[str, float] = dataclasses.field(default_factory=dict)
 
 
-#: Formats of measured logs (:mod:`pe_drake.identification.readers`).
-DATA_FORMATS = ("auto", "pe_drake", "rosbag", "rtde", "columns")
-#: What a ROS bag's JointState ``effort`` holds.
-EFFORT_KINDS = ("torque", "current")
+DATA_FORMATS = ("auto", "pe_drake", "rosbag", "rtde", "columns")  # pe_drake.identification.readers
+EFFORT_KINDS = ("torque", "current")  # what a ROS bag's JointState effort holds
 
 
 @dataclasses.dataclass
@@ -264,17 +253,13 @@ class DataConfig:
     """How measured logs are read (issue 22).
 
     Attributes:
-        format: one of :data:`DATA_FORMATS`; ``auto`` recognises a ROS 2 bag (folder,
-            ``.db3``, ``.mcap``), a UR RTDE CSV by its column names, ``columns`` when
-            ``columns`` is given, else pe_drake's CSV.
-        topic: the bag's ``sensor_msgs/msg/JointState`` topic; empty: the only one.
-        effort: what a bag's ``effort`` holds: ``torque`` [N·m] or ``current`` [A] (then
-            ``robot.drive_gains`` convert it).
-        max_gap_s: longest hole in the time column that is interpolated [s]; a longer one
-            splits the run into segments, each filtered on its own.
-        joint_map: joint names and signs of the log (:class:`JointMapConfig`).
-        columns: {``q.<joint>`` | ``v.<joint>`` | ``tau.<joint>`` | ``current.<joint>`` | ``t``:
-            column name} for a CSV with other column names.
+        format: one of :data:`DATA_FORMATS` (``auto``: a bag, an RTDE CSV by its columns,
+            ``columns`` when given, else pe_drake's CSV).
+        topic: the bag's JointState topic; empty: the only one.
+        effort: a bag's ``effort`` is ``torque`` [N·m] or ``current`` [A] (× robot.drive_gains).
+        max_gap_s: longest hole in t interpolated [s]; a longer one splits the run.
+        joint_map: :class:`JointMapConfig`.
+        columns: {``t`` | ``q|v|vdot|tau|current.<joint>``: column} for other CSVs.
     """
 
     format: str = "auto"
@@ -287,14 +272,9 @@ class DataConfig:
 
 @dataclasses.dataclass
 class ControllerConfig:
-    """The trajectory goal ``optimize`` writes for a ros2_control controller (issue 22).
-
-    Attributes:
-        goal_rate_hz: waypoint rate of ``trajectory_goal.yaml`` [Hz].
-        lead_in_s: time added to every waypoint's ``time_from_start`` [s] (> 0: no point at 0).
-        topic: the JointTrajectory topic of the MCAP bag.
-        joint_names: {URDF joint: the driver's joint name} for drivers whose names differ.
-    """
+    """The goal ``optimize`` writes for a ros2_control controller (issue 22): waypoints at
+    ``goal_rate_hz`` [Hz], ``lead_in_s`` [s] added to every ``time_from_start``, the MCAP bag's
+    JointTrajectory ``topic``, ``joint_names`` {URDF joint: the driver's name}."""
 
     goal_rate_hz: float = 50.0
     lead_in_s: float = 1.0
@@ -475,10 +455,9 @@ def _validate_logs(config: Config) -> None:
     for name in ("drive_gains", "jerk_limits"):
         for joint, value in getattr(r, name).items():
             check_finite(f"robot.{name}['{joint}']", value, positive=True)
-    if d.format not in DATA_FORMATS:
-        raise ConfigError(f"data.format '{d.format}' is not one of {', '.join(DATA_FORMATS)}")
-    if d.effort not in EFFORT_KINDS:
-        raise ConfigError(f"data.effort '{d.effort}' is not one of {', '.join(EFFORT_KINDS)}")
+    for name, value, choices in (("format", d.format, DATA_FORMATS), ("effort", d.effort, EFFORT_KINDS)):
+        if value not in choices:
+            raise ConfigError(f"data.{name} '{value}' is not one of {', '.join(choices)}")
     check_finite("data.max_gap_s [s]", d.max_gap_s, nonneg=True)
     for joint, value in d.joint_map.sign.items():
         if value not in (1, -1):

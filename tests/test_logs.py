@@ -263,3 +263,23 @@ def test_real_panda_recording_runs_through_identify_and_diagnose(tmp_path, capsy
     assert "4 hole(s) in the time column of up to 8.81 ms" in out
     assert cli(["diagnose", "--robot", "panda", "--data", str(REAL), "--out", str(tmp_path / "diag")]) == 0
     assert (tmp_path / "diag" / "diagnosis.json").is_file()
+
+
+def test_rtde_log_through_the_cli_with_gains_from_the_config(ur5, tmp_path, capsys):
+    from pe_drake.exceptions import ConfigError
+    from pe_drake.multibody.registry import resolve_robot_config
+
+    path = tmp_path / "robot_data.csv"
+    write_rtde(path, ur5_run(ur5), UR_GAINS)
+    gains = ", ".join(f"{j}: {k}" for j, k in zip(ur5.joint_names, UR_GAINS))
+    config = tmp_path / "ur5.yaml"
+    config.write_text(f"robot:\n  drive_gains: {{{gains}}}\ndata:\n  max_gap_s: 0.05\n")
+    assert cli(["identify", "--robot", "ur5", "--config", str(config), "--data", str(path),
+                "--out", str(tmp_path / "id")]) == 0
+    assert "multiplied by robot.drive_gains" in capsys.readouterr().out
+    assert cli(["identify", "--robot", "ur5", "--data", str(path), "--out", str(tmp_path / "id2")]) == 2
+    assert "robot.drive_gains has no gain for shoulder_pan_joint" in capsys.readouterr().err
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("data:\n  effort: amps\n")
+    with pytest.raises(ConfigError, match="line 2: data.effort 'amps' is not one of torque, current"):
+        resolve_robot_config("ur5", str(bad))

@@ -12,7 +12,7 @@ import importlib
 import sys
 
 from pe_drake import __version__
-from pe_drake.config import CRITERIA, MEASUREMENTS
+from pe_drake.config import CRITERIA, DATA_FORMATS, EFFORT_KINDS, MEASUREMENTS
 from pe_drake.exceptions import PeDrakeError
 from pe_drake.threads import single_threaded_blas
 
@@ -43,8 +43,6 @@ def add_measurement_argument(parser: argparse.ArgumentParser, what: str) -> None
 
 def add_log_arguments(parser: argparse.ArgumentParser) -> None:
     """``--format``, ``--topic``, ``--effort``: how a measured log is read (issue 22); override ``data.*``."""
-    from pe_drake.config import DATA_FORMATS, EFFORT_KINDS
-
     parser.add_argument("--format", choices=DATA_FORMATS, help="format of --data (default: data.format, auto)")
     parser.add_argument("--topic", help="JointState topic of a ROS 2 bag (default: the only one)")
     parser.add_argument("--effort", choices=EFFORT_KINDS,
