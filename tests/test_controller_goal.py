@@ -93,3 +93,20 @@ def test_jerk_limit_is_checked_and_the_bag_holds_the_same_trajectory(tmp_path):
 
 def test_the_hardware_example_compiles():
     py_compile.compile(str(Path(__file__).resolve().parents[1] / "examples" / "ur_rtde_replay.py"), doraise=True)
+
+
+def test_panda_goal_points_hold_the_robot_limits(panda, tmp_path):
+    from pe_drake.excitation.ramp import choose_ramp_duration
+    from pe_drake.excitation.trajectory_file import load_trajectory
+
+    path, _ = load_trajectory(Path(__file__).parent / "data" / "panda_optimized.json")
+    motion, _ = choose_ramp_duration(path, panda.limits)  # as optimize builds it
+    goal = tmp_path / "trajectory_goal.yaml"
+    write_goal_yaml(goal, motion, panda.joint_names, GoalOptions(jerk_limits=dict.fromkeys(panda.joint_names, 3750.0)))
+    points = yaml.safe_load(goal.read_text())["trajectory"]["points"]
+    P, V, A = (np.array([p[k] for p in points]) for k in ("positions", "velocities", "accelerations"))
+    lim = panda.limits
+    assert np.all(P >= lim.q_lower) and np.all(P <= lim.q_upper)
+    assert np.all(np.abs(V) <= lim.v_max) and np.all(np.abs(A) <= lim.vd_max + 1e-9)
+    assert np.abs(V[[0, -1]]).max() < 1e-9 and np.abs(A[[0, -1]]).max() < 1e-9
+    assert min(p["time_from_start"]["sec"] + p["time_from_start"]["nanosec"] for p in points) > 0
