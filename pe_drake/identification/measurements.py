@@ -481,8 +481,8 @@ def amps_hint(measurement: Measurement, ratios: np.ndarray) -> str:
         return ""
     return (
         f"the torques of {', '.join(low)} are {_factor_text(float(np.median(ratios)))} the model's: if the "
-        "file holds motor currents [A], name the columns current.<joint> and give robot.drive_gains "
-        "{joint: k [N·m/A]} (τ = k·i)"
+        "file holds motor currents [A], name the columns current.<joint> (a ROS bag: --effort current) and "
+        "give robot.drive_gains {joint: k [N·m/A]} (τ = k·i)"
     )
 
 
