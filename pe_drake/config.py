@@ -60,6 +60,10 @@ class RobotConfig:
         support_points: contact points of the feet for the balance constraint, as
             {link: [[x, y, z], ...]} in the link frame [m]; empty means no balance
             constraint is available.
+        drive_gains: {joint: k} [N·m/A or N/A]: joint torque per motor current, τ = k·i, for
+            logs with ``current.<joint>`` columns (issue 22).
+        jerk_limits: {joint: limit} [rad/s³ or m/s³]: checked on the exported controller goal
+            (Franka refuses 3750-10000 rad/s³); empty: not checked.
     """
 
     model: str = ""
@@ -83,6 +87,8 @@ class RobotConfig:
     capsules: str = ""
     support_points: dict[str, list[list[float]]] = dataclasses.field(default_factory=dict)
     packages: dict[str, str] = dataclasses.field(default_factory=dict)
+    drive_gains: dict[str, float] = dataclasses.field(default_factory=dict)
+    jerk_limits: dict[str, float] = dataclasses.field(default_factory=dict)
 
 
 #: Default joint-torque noise σ [N·m], every joint: the order of a joint-torque sensor's
@@ -237,6 +243,56 @@ class ParallelConfig:
 
 
 @dataclasses.dataclass
+class JointMapConfig:
+    """A log's joint names and signs → the robot's (issue 22): ``strip_prefix`` (``tf_prefix``,
+    ``arm_``) is removed, then ``rename`` {logged: URDF name} applies; the position becomes
+    ``sign·q + offset`` [rad or m] per URDF joint (v, v̇, τ are multiplied by the sign)."""
+
+    strip_prefix: str = ""
+    rename: dict[str, str] = dataclasses.field(default_factory=dict)
+    sign: dict[str, float] = dataclasses.field(default_factory=dict)
+    offset: dict[str, float] = dataclasses.field(default_factory=dict)
+
+
+DATA_FORMATS = ("auto", "pe_drake", "rosbag", "rtde", "columns")  # pe_drake.identification.readers
+EFFORT_KINDS = ("torque", "current")  # what a ROS bag's JointState effort holds
+
+
+@dataclasses.dataclass
+class DataConfig:
+    """How measured logs are read (issue 22).
+
+    Attributes:
+        format: one of :data:`DATA_FORMATS` (``auto``: a bag, an RTDE CSV by its columns,
+            ``columns`` when given, else pe_drake's CSV).
+        topic: the bag's JointState topic; empty: the only one.
+        effort: a bag's ``effort`` is ``torque`` [N·m] or ``current`` [A] (× robot.drive_gains).
+        max_gap_s: longest hole in t interpolated [s]; a longer one splits the run.
+        joint_map: :class:`JointMapConfig`.
+        columns: {``t`` | ``q|v|vdot|tau|current.<joint>``: column} for other CSVs.
+    """
+
+    format: str = "auto"
+    topic: str = ""
+    effort: str = "torque"
+    max_gap_s: float = 0.02
+    joint_map: JointMapConfig = dataclasses.field(default_factory=JointMapConfig)
+    columns: dict[str, str] = dataclasses.field(default_factory=dict)
+
+
+@dataclasses.dataclass
+class ControllerConfig:
+    """The goal ``optimize`` writes for a ros2_control controller (issue 22): waypoints at
+    ``goal_rate_hz`` [Hz], ``lead_in_s`` [s] added to every ``time_from_start``, the MCAP bag's
+    JointTrajectory ``topic``, ``joint_names`` {URDF joint: the driver's name}."""
+
+    goal_rate_hz: float = 50.0
+    lead_in_s: float = 1.0
+    topic: str = "/joint_trajectory_controller/joint_trajectory"
+    joint_names: dict[str, str] = dataclasses.field(default_factory=dict)
+
+
+@dataclasses.dataclass
 class Config:
     """A whole pe_drake configuration file."""
 
@@ -245,6 +301,8 @@ class Config:
     solver: SolverConfig = dataclasses.field(default_factory=SolverConfig)
     environment: EnvironmentConfig = dataclasses.field(default_factory=EnvironmentConfig)
     parallel: ParallelConfig = dataclasses.field(default_factory=ParallelConfig)
+    data: DataConfig = dataclasses.field(default_factory=DataConfig)
+    controller: ControllerConfig = dataclasses.field(default_factory=ControllerConfig)
 
 
 CRITERIA = ("cond", "soft_cond", "log_cond", "dopt")
@@ -400,7 +458,29 @@ def validate_config(config: Config) -> Config:
     check_finite("solver.max_time", s.max_time, nonneg=True)
     _validate_safety(config)
     _validate_parallel(config.parallel)
+    _validate_logs(config)
     return config
+
+
+def _validate_logs(config: Config) -> None:
+    """Drive gains, jerk limits, the data and controller sections (issue 22)."""
+    r, d, c = config.robot, config.data, config.controller
+    for name in ("drive_gains", "jerk_limits"):
+        for joint, value in getattr(r, name).items():
+            check_finite(f"robot.{name}['{joint}']", value, positive=True)
+    for name, value, choices in (("format", d.format, DATA_FORMATS), ("effort", d.effort, EFFORT_KINDS)):
+        if value not in choices:
+            raise ConfigError(f"data.{name} '{value}' is not one of {', '.join(choices)}")
+    check_finite("data.max_gap_s [s]", d.max_gap_s, nonneg=True)
+    for joint, value in d.joint_map.sign.items():
+        if value not in (1, -1):
+            raise ConfigError(f"data.joint_map.sign['{joint}'] must be 1 or -1, got {value!r}")
+    for joint, value in d.joint_map.offset.items():
+        check_finite(f"data.joint_map.offset['{joint}']", value)
+    check_finite("controller.goal_rate_hz [Hz]", c.goal_rate_hz, positive=True)
+    check_finite("controller.lead_in_s [s]", c.lead_in_s, positive=True)
+    if not c.topic.startswith("/"):
+        raise ConfigError(f"controller.topic must start with '/', got '{c.topic}'")
 
 
 def _validate_safety(config: Config) -> None:

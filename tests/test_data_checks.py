@@ -51,11 +51,15 @@ def test_time_in_milliseconds_is_named(panda, run):
         check_raw_measurement(panda, run.replace(t=t))
 
 
-def test_gap_in_time_is_refused_with_its_row(panda, run):
+def test_gap_in_time_splits_the_run_instead_of_being_refused(panda, run):
+    """Issue 22: a pause no longer refuses the file; it splits the run (tests/test_logs.py)."""
+    from pe_drake.identification.gaps import split_at_pauses
+
     t = run.t.copy()
     t[1000:] += 2.0  # a 2 s hole
-    with pytest.raises(DataError, match=r"column 't', row 1002: a gap of 2\.002 s"):
-        check_raw_measurement(panda, run.replace(t=t))
+    check_raw_measurement(panda, run.replace(t=t))
+    segments, notes = split_at_pauses(run.replace(t=t))
+    assert [s.num_samples for s in segments] == [1000, run.num_samples - 1000] and "2.002 s" in notes[-1]
 
 
 def test_cli_identify_refuses_a_flipped_column(tmp_path, capsys, panda, run):

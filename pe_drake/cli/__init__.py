@@ -12,7 +12,7 @@ import importlib
 import sys
 
 from pe_drake import __version__
-from pe_drake.config import CRITERIA, MEASUREMENTS
+from pe_drake.config import CRITERIA, DATA_FORMATS, EFFORT_KINDS, MEASUREMENTS
 from pe_drake.exceptions import PeDrakeError
 from pe_drake.threads import single_threaded_blas
 
@@ -39,6 +39,14 @@ def add_measurement_argument(parser: argparse.ArgumentParser, what: str) -> None
         choices=MEASUREMENTS,
         help=f"{what} (default: the config's excitation.measurement, joint_torque)",
     )
+
+
+def add_log_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--format``, ``--topic``, ``--effort``: how a measured log is read (issue 22); override ``data.*``."""
+    parser.add_argument("--format", choices=DATA_FORMATS, help="format of --data (default: data.format, auto)")
+    parser.add_argument("--topic", help="JointState topic of a ROS 2 bag (default: the only one)")
+    parser.add_argument("--effort", choices=EFFORT_KINDS,
+                        help="what a bag's effort holds: torque [N·m] or current [A] (robot.drive_gains)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -106,7 +114,8 @@ def _add_identification_commands(sub) -> None:
     """``identify``, ``validate`` and ``diagnose``: from measured data to a model and its faults."""
     p = sub.add_parser("identify", help="identify the base parameters from measured data")
     add_robot_arguments(p)
-    p.add_argument("--data", required=True, help="measurement CSV")
+    p.add_argument("--data", required=True, help="measurement CSV, ROS 2 bag (folder, .db3, .mcap) or RTDE log")
+    add_log_arguments(p)
     p.add_argument("--method", choices=["ols", "wls", "physical"], default="ols")
     p.add_argument("--cutoff", type=float, help="low-pass cut-off [Hz] (default: from --trajectory or the data)")
     p.add_argument("--trajectory", help="trajectory.json that was run (its harmonics set the cut-off)")
@@ -118,7 +127,8 @@ def _add_identification_commands(sub) -> None:
     p = sub.add_parser("validate", help="predict torques of another run with an identified model")
     add_robot_arguments(p)
     p.add_argument("--model", required=True, help="identified.json")
-    p.add_argument("--data", required=True, help="measurement CSV of another run")
+    p.add_argument("--data", required=True, help="measurement CSV (or bag, RTDE log) of another run")
+    add_log_arguments(p)
     p.add_argument("--cutoff", type=float, help="low-pass cut-off [Hz] (default: from the data)")
     p.add_argument("--json", help="write per-joint errors here")
     p.add_argument("--plot", help="write measured vs predicted torque plot here (PNG)")
@@ -126,7 +136,8 @@ def _add_identification_commands(sub) -> None:
 
     p = sub.add_parser("diagnose", help="name the effects missing from the model")
     add_robot_arguments(p)
-    p.add_argument("--data", required=True, help="measurement CSV")
+    p.add_argument("--data", required=True, help="measurement CSV, ROS 2 bag (folder, .db3, .mcap) or RTDE log")
+    add_log_arguments(p)
     p.add_argument("--validation", help="held-out CSV (default: a held-out part of --data)")
     p.add_argument("--held-out-fraction", type=float, default=None,
                    help="fraction of --data held out at its end when no --validation is given "

@@ -6,6 +6,7 @@ import argparse
 from collections.abc import Callable
 
 from pe_drake.config import Config
+from pe_drake.identification.readers import read_log
 from pe_drake.multibody.registry import resolve_robot_config, robot_display_name
 from pe_drake.multibody.robot import Robot
 
@@ -39,3 +40,16 @@ def robot_from_args(args: argparse.Namespace, config: Config | None = None) -> R
 def measurement_from_args(args: argparse.Namespace, config: Config) -> str:
     """``--measurement`` if given, else the config's ``excitation.measurement`` (issue 14)."""
     return getattr(args, "measurement", None) or config.excitation.measurement
+
+
+def read_log_from_args(args: argparse.Namespace, robot: Robot, config: Config | None, path=None):
+    """The measured log ``--data`` (or ``path``) read with the config's ``data`` section and the log flags."""
+    options = config.data if config is not None else None
+    return read_log(path or args.data, robot, options, format=getattr(args, "format", None),
+                    topic=getattr(args, "topic", None), effort=getattr(args, "effort", None))
+
+
+def print_notes(measurement) -> None:
+    """The notes reading and preprocessing left on a measurement, one line each."""
+    for note in getattr(measurement, "notes", ()):
+        print(f"note: {note}", flush=True)

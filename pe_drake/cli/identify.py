@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pe_drake.cli.common import config_from_args, measurement_from_args, robot_from_args
+from pe_drake.cli.common import config_from_args, measurement_from_args, print_notes, read_log_from_args, robot_from_args
 from pe_drake.exceptions import ConfigError
 from pe_drake.excitation.trajectory_file import load_trajectory
 from pe_drake.identification.channels import measured_values
@@ -20,7 +20,6 @@ from pe_drake.identification.estimators import (
     predict,
     predict_wrench,
     prepare_measurement,
-    read_robot_measurement,
     torque_errors,
 )
 from pe_drake.identification.identified_file import (
@@ -58,8 +57,8 @@ def identify_command(args: argparse.Namespace) -> int:
     config = config_from_args(args)
     measurement = measurement_from_args(args, config)
     robot = robot_from_args(args, config)
-    raw = read_robot_measurement(robot, args.data)
-    check_raw_measurement(robot, raw)  # time units, gaps, positions (degrees)
+    raw = read_log_from_args(args, robot, config)
+    check_raw_measurement(robot, raw)  # time units, positions (degrees)
     f0, harmonics = _trajectory_band(getattr(args, "trajectory", None))
     data = prepare_measurement(
         robot,
@@ -68,9 +67,11 @@ def identify_command(args: argparse.Namespace) -> int:
         fundamental_hz=f0,
         harmonics=harmonics,
         filtering=not getattr(args, "no_filter", False),
+        max_gap_s=config.data.max_gap_s,
     )
     check_against_model(robot, data)  # sign-flipped torque columns
     _print_data_summary(args, robot, raw, data)
+    print_notes(data)
     result = identify(robot, data, args.method, measurement=measurement)
     _print_fit_summary(args.method, robot, result)
     phi, note = _model_parameters(robot, result)
@@ -174,9 +175,10 @@ def validate_command(args: argparse.Namespace) -> int:
     measurement = measurement_from_args(args, config)
     robot = robot_from_args(args, config)
     result = load_identified(args.model, robot)
-    raw = read_robot_measurement(robot, args.data)
+    raw = read_log_from_args(args, robot, config)
     check_raw_measurement(robot, raw)
-    data = prepare_measurement(robot, raw, cutoff_hz=getattr(args, "cutoff", None))
+    data = prepare_measurement(robot, raw, cutoff_hz=getattr(args, "cutoff", None), max_gap_s=config.data.max_gap_s)
+    print_notes(data)
     check_against_model(robot, data)
     kind = MeasurementType(measurement)
     names = kind.row_names(robot.joint_names)

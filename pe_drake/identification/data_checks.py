@@ -3,7 +3,8 @@
 Each refuses with the file, the column and the row, and the likely fix:
 
 - time in milliseconds (a "1 Hz" log of a 1 kHz controller) or a rate too low to identify;
-- gaps in the time column longer than a few samples (interpolating across them invents data);
+- (holes in the time column are not refused: short ones are interpolated and pauses split
+  the run into segments, :mod:`pe_drake.identification.gaps`, issue 22);
 - joint positions far outside the robot's limits, with a degrees hint when q·π/180 fits;
 - a torque column whose sign is flipped against the a-priori model (cosine similarity of the
   measured and predicted torques near −1).
@@ -22,7 +23,7 @@ from pe_drake.identification.estimators import robot_torques
 
 #: Lowest sample rate accepted [Hz].
 MIN_RATE_HZ = 10.0
-#: A time step longer than this many median steps is a gap.
+#: A time step longer than this many median steps is a hole (see pe_drake.identification.gaps).
 MAX_GAP_STEPS = 5.0
 #: Slack beyond the position limits before data is refused [rad or m].
 POSITION_SLACK = 0.1
@@ -35,7 +36,10 @@ def _row(index: int) -> int:
 
 
 def check_time_column(t: np.ndarray, source: str = "") -> None:
-    """Refuses time in milliseconds, too low a rate, and gaps of more than a few samples.
+    """Refuses time in milliseconds and too low a rate.
+
+    Holes and pauses are not refused: :func:`pe_drake.identification.gaps.preprocess_segments`
+    interpolates the short ones and splits the run at the long ones.
 
     Raises:
         DataError: naming the file, column 't' and the row.
@@ -59,17 +63,6 @@ def check_time_column(t: np.ndarray, source: str = "") -> None:
             f"(at least {MIN_RATE_HZ:g} Hz expected){hint}",
             file=source,
             column="t",
-        )
-    gaps = np.flatnonzero(dt > MAX_GAP_STEPS * step)
-    if len(gaps):
-        k = int(gaps[np.argmax(dt[gaps])])
-        raise DataError(
-            f"a gap of {dt[k]:.4g} s ({dt[k] / step:.0f} samples at {rate:.4g} Hz) between t = {t[k]:.6g} s "
-            f"and t = {t[k + 1]:.6g} s ({len(gaps)} gap(s) longer than {MAX_GAP_STEPS:g} samples); "
-            "interpolating across it would invent data: split the run there into two files",
-            file=source,
-            column="t",
-            row=_row(k + 1),
         )
 
 

@@ -35,8 +35,15 @@ import numpy as np
 
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.identification.channels import channel_names, measured_rows, measured_values
-from pe_drake.identification.measurements import Measurement, Preprocessing, check_torque_units, read_measurement_csv
-from pe_drake.identification.preprocessing import preprocess
+from pe_drake.identification.gaps import MAX_GAP_S, preprocess_segments
+from pe_drake.identification.measurements import (
+    Measurement,
+    Preprocessing,
+    amps_hint,
+    check_torque_units,
+    read_measurement_csv,
+)
+from pe_drake.identification.preprocessing import PreprocessOptions
 from pe_drake.multibody.base_parameters import BaseParameters, compute_base_parameters
 from pe_drake.multibody.inertia import pseudo_inertia_basis
 from pe_drake.multibody.regressor import RegressorModel
@@ -121,6 +128,7 @@ def prepare_measurement(
     rate_hz: float | None = DEFAULT_RATE_HZ,
     filtering: bool = True,
     check_units: bool = True,
+    max_gap_s: float = MAX_GAP_S,
 ) -> Measurement:
     """Checks the joints and torque units and preprocesses for identification.
 
@@ -131,7 +139,11 @@ def prepare_measurement(
             :func:`pe_drake.identification.preprocessing.preprocess` (``rate_hz`` = ``decimate_to_hz``).
         filtering: False uses the data as it is; it must then hold v and vdot (exact,
             noise-free data, e.g. from :func:`pe_drake.identification.synthetic.model_measurement`).
-        check_units: compare the torques with the a-priori model (refuses N·mm or kN·m).
+        check_units: compare the torques with the a-priori model (refuses N·mm or kN·m; a
+            note when they look like motor currents).
+        max_gap_s: longest hole in the time column interpolated [s]; longer ones split the
+            run into segments filtered on their own and stacked
+            (:func:`~pe_drake.identification.gaps.preprocess_segments`).
 
     Raises:
         DataError: other joints than the robot's, missing v/vdot without filtering, torques
@@ -144,13 +156,9 @@ def prepare_measurement(
             file=measurement.source,
         )
     if filtering:
-        data = preprocess(
-            measurement,
-            cutoff_hz=cutoff_hz,
-            fundamental_hz=fundamental_hz,
-            harmonics=harmonics,
-            decimate_to_hz=rate_hz,
-        )
+        options = PreprocessOptions(cutoff_hz=cutoff_hz, fundamental_hz=fundamental_hz, harmonics=harmonics,
+                                    decimate_to_hz=rate_hz)
+        data = preprocess_segments(measurement, options, max_gap_s)
     else:
         if measurement.v is None or measurement.vd is None:
             raise DataError(
@@ -159,7 +167,10 @@ def prepare_measurement(
             )
         data = measurement
     if check_units and data.tau is not None:
-        check_torque_units(data, robot_torques(robot, data, robot.phi_model))
+        ratios = check_torque_units(data, robot_torques(robot, data, robot.phi_model))
+        hint = amps_hint(data, ratios)
+        if hint:
+            data = data.replace(notes=data.notes + (hint,))
     return data
 
 

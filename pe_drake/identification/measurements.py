@@ -59,6 +59,8 @@ class Preprocessing:
         samples_out: output samples.
         duration_in_s: time span of the raw record [s].
         duration_out_s: time span of the output (after trimming) [s].
+        segments: records filtered on their own and stacked (a run split at its pauses,
+            :mod:`pe_drake.identification.gaps`).
     """
 
     cutoff_hz: float
@@ -74,6 +76,7 @@ class Preprocessing:
     samples_out: int
     duration_in_s: float = 0.0
     duration_out_s: float = 0.0
+    segments: int = 1
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -93,6 +96,8 @@ class Measurement:
             None for raw data.
         wrench: the ground wrench, shape (T, 6) [N, N·m] (columns :data:`WRENCH_COLUMNS`),
             or None.
+        notes: what reading and preprocessing did that a user should know (interpolated
+            gaps, dropped duplicate stamps, currents converted), one sentence each.
     """
 
     t: np.ndarray
@@ -104,6 +109,7 @@ class Measurement:
     source: str = ""
     preprocessing: Preprocessing | None = None
     wrench: np.ndarray | None = None
+    notes: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         t = np.asarray(self.t, float)
@@ -111,6 +117,7 @@ class Measurement:
             raise DataError(f"t must have shape (T,), got {t.shape}", file=self.source)
         object.__setattr__(self, "t", t)
         object.__setattr__(self, "joints", tuple(self.joints))
+        object.__setattr__(self, "notes", tuple(self.notes))
         n = len(self.joints)
         if self.wrench is not None:
             wrench = np.asarray(self.wrench, float)
@@ -454,6 +461,29 @@ def check_torque_units(
                 file=measurement.source, column=f"tau.{measurement.joints[k]}",
             )
     return ratios
+
+
+#: Measured/model torque ratios in this range look like motor currents [A] taken for torques:
+#: τ = k·i with drive gains k of a few to a few tens of N·m/A (issue 22).
+AMPS_RATIO = (1 / 30, 0.3)
+
+
+def amps_hint(measurement: Measurement, ratios: np.ndarray) -> str:
+    """A hint when the torques look like motor currents (RMS 1/30-0.3× the model's), else "".
+
+    Args:
+        measurement: the data the ratios belong to.
+        ratios: RMS(measured) / RMS(model) per joint (:func:`check_torque_units`).
+    """
+    lo, hi = AMPS_RATIO
+    low = [j for j, r in zip(measurement.joints, np.asarray(ratios, float)) if lo <= r <= hi]
+    if not low or len(low) < max(1, len(measurement.joints) // 2):
+        return ""
+    return (
+        f"the torques of {', '.join(low)} are {_factor_text(float(np.median(ratios)))} the model's: if the "
+        "file holds motor currents [A], name the columns current.<joint> (a ROS bag: --effort current) and "
+        "give robot.drive_gains {joint: k [N·m/A]} (τ = k·i)"
+    )
 
 
 def _factor_text(ratio: float) -> str:

@@ -497,4 +497,4 @@ def preprocess(measurement: Measurement, options: PreprocessOptions | None = Non
     )
     tau, wrench = (None if filtered[k] is None else filtered[k][idx] for k in ("tau", "wrench"))
     return Measurement(grid.t[idx], filtered["q"][idx], tau, derivatives.v[idx], derivatives.vd[idx],
-                       m.joints, m.source, info, wrench=wrench)
+                       m.joints, m.source, info, wrench=wrench, notes=m.notes)

@@ -1,0 +1,197 @@
+"""Holes in a recording's time column: dropped packets are interpolated, pauses split the run.
+
+A real log is rarely one clean uniform record: a 1 kHz controller's logger drops packets
+(the real Panda recording has four 8-9 ms holes in 20 s), and a lab pauses or restarts
+logging between two parts of a run. A *hole* is a time step longer than
+:data:`~pe_drake.identification.data_checks.MAX_GAP_STEPS` median steps;
+
+- a hole of at most ``max_gap_s`` (:data:`MAX_GAP_S`, config ``data.max_gap_s``) is
+  interpolated linearly by the uniform grid of
+  :func:`~pe_drake.identification.preprocessing.resample_uniform`, with a note: at a
+  cut-off of a few Hz, 20 ms of straight line stays far below the filter's own smoothing;
+- a longer one is a pause: the run is split there into *segments*, each filtered,
+  differentiated and trimmed on its own (:func:`preprocess_segments`), and their samples are
+  stacked (the rows of Eq. 4 do not need to be contiguous in time). Interpolating across a
+  pause would invent the motion in between.
+
+The diagnosis assumes one contiguous record (its held-out split, delay and pre-sliding
+terms follow the time axis): :func:`longest_segment` gives it the longest one, with a note.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import NamedTuple
+
+import numpy as np
+
+from pe_drake.exceptions import DataError
+from pe_drake.identification.measurements import Measurement
+from pe_drake.identification.preprocessing import (
+    PreprocessOptions,
+    choose_cutoff,
+    preprocess,
+    resample_uniform,
+)
+
+#: Longest hole interpolated [s]; longer ones split the run (config ``data.max_gap_s``).
+MAX_GAP_S = 0.02
+#: A time step longer than this many median steps is a hole (as in data_checks).
+HOLE_STEPS = 5.0
+
+_FIELDS = ("t", "q", "tau", "v", "vd", "wrench")
+
+
+class Gaps(NamedTuple):
+    """The holes of a time column (:func:`find_gaps`).
+
+    Attributes:
+        step: median time step [s].
+        interpolated: indices k of the holes t[k] → t[k+1] short enough to interpolate.
+        splits: indices k of the pauses t[k] → t[k+1] where the run is split.
+    """
+
+    step: float
+    interpolated: np.ndarray
+    splits: np.ndarray
+
+
+def find_gaps(t: np.ndarray, max_gap_s: float = MAX_GAP_S) -> Gaps:
+    """The holes of ``t`` (module docstring): interpolated ones and pauses.
+
+    Args:
+        t: strictly increasing time, shape (T,) [s].
+        max_gap_s: longest hole interpolated [s]; at least ``HOLE_STEPS`` median steps are
+            always interpolated.
+    """
+    t = np.asarray(t, float)
+    if len(t) < 3:
+        return Gaps(0.0, np.empty(0, int), np.empty(0, int))
+    dt = np.diff(t)
+    step = float(np.median(dt))
+    holes = np.flatnonzero(dt > HOLE_STEPS * step)
+    limit = max(float(max_gap_s), HOLE_STEPS * step)
+    long = dt[holes] > limit + 1e-12
+    return Gaps(step, holes[~long], holes[long])
+
+
+def _gap_notes(t: np.ndarray, gaps: Gaps, max_gap_s: float) -> list[str]:
+    notes = []
+    dt = np.diff(t)
+    if gaps.interpolated.size:
+        longest = float(dt[gaps.interpolated].max())
+        notes.append(
+            f"{gaps.interpolated.size} hole(s) in the time column of up to {longest * 1e3:.3g} ms "
+            f"(≤ data.max_gap_s = {max_gap_s * 1e3:.3g} ms) interpolated linearly"
+        )
+    if gaps.splits.size:
+        where = ", ".join(f"{dt[k]:.4g} s at t = {t[k]:.6g} s" for k in gaps.splits[:5])
+        more = f" and {gaps.splits.size - 5} more" if gaps.splits.size > 5 else ""
+        notes.append(
+            f"{gaps.splits.size} pause(s) longer than data.max_gap_s = {max_gap_s * 1e3:.3g} ms ({where}{more}): "
+            f"the run is split into {gaps.splits.size + 1} segments, each filtered on its own"
+        )
+    return notes
+
+
+def _rows(m: Measurement, rows: slice | np.ndarray) -> Measurement:
+    return m.replace(**{f: None if getattr(m, f) is None else getattr(m, f)[rows] for f in _FIELDS})
+
+
+def split_at_pauses(measurement: Measurement, max_gap_s: float = MAX_GAP_S) -> tuple[list[Measurement], list[str]]:
+    """The segments between the pauses of a raw measurement, and notes on the holes.
+
+    Args:
+        measurement: raw data (strictly increasing t).
+        max_gap_s: longest hole interpolated [s] (:func:`find_gaps`).
+
+    Returns:
+        (segments in time order, notes); one segment (the measurement itself) without pauses.
+    """
+    gaps = find_gaps(measurement.t, max_gap_s)
+    notes = _gap_notes(measurement.t, gaps, max_gap_s)
+    bounds = [0, *(int(k) + 1 for k in gaps.splits), measurement.num_samples]
+    if len(bounds) == 2:
+        return [measurement], notes
+    return [_rows(measurement, slice(a, b)) for a, b in zip(bounds[:-1], bounds[1:])], notes
+
+
+def _common_options(segments: list[Measurement], options: PreprocessOptions) -> tuple[PreprocessOptions, str | None]:
+    """Options with one cut-off for every segment (chosen on the longest one when automatic)."""
+    if options.cutoff_hz is not None:
+        return options, None
+    longest = max(segments, key=lambda s: s.num_samples)
+    grid = resample_uniform(longest.t, {"q": longest.q})
+    cutoff = choose_cutoff(grid.t, grid.signals["q"], grid.rate_hz, fundamental_hz=options.fundamental_hz,
+                           harmonics=options.harmonics, file=longest.source)
+    return dataclasses.replace(options, cutoff_hz=cutoff.hz, fundamental_hz=None, harmonics=None), cutoff.source
+
+
+def preprocess_segments(
+    measurement: Measurement, options: PreprocessOptions | None = None, max_gap_s: float = MAX_GAP_S
+) -> Measurement:
+    """:func:`~pe_drake.identification.preprocessing.preprocess` of each segment, stacked.
+
+    Every segment gets the same cut-off (the automatic one is chosen on the longest segment)
+    and its own filter, derivatives and trimmed ends. A segment too short for the filter is
+    left out with a note.
+
+    Args:
+        measurement: raw data.
+        options: the preprocessing choices.
+        max_gap_s: longest hole interpolated [s] (:func:`find_gaps`).
+
+    Returns:
+        The processed samples of every segment in time order, with ``notes`` on the holes and
+        ``preprocessing.segments`` set; sample counts and durations are summed over segments.
+
+    Raises:
+        DataError: no segment is long enough; as ``preprocess``.
+    """
+    options = options or PreprocessOptions()
+    segments, notes = split_at_pauses(measurement, max_gap_s)
+    notes = list(measurement.notes) + notes
+    if len(segments) == 1:
+        out = preprocess(measurement, options)
+        return out.replace(notes=tuple(notes))
+    common, source = _common_options(segments, options)
+    done, dropped = [], []
+    for k, seg in enumerate(segments):
+        try:
+            done.append(preprocess(seg, common))
+        except DataError:
+            dropped.append(f"{k + 1} ({seg.duration:.3g} s from t = {seg.t[0]:.6g} s)")
+    if not done:
+        raise DataError(f"none of the {len(segments)} segments between the pauses is long enough to filter; "
+                        "record longer stretches or raise data.max_gap_s", file=measurement.source)
+    if dropped:
+        notes.append(f"segment(s) {', '.join(dropped)} too short for the filter: left out")
+    info = done[0].preprocessing
+    info = dataclasses.replace(
+        info, cutoff_source=source or info.cutoff_source, segments=len(done),
+        samples_in=measurement.num_samples, samples_out=sum(d.num_samples for d in done),
+        duration_in_s=sum(s.duration for s in segments),
+        duration_out_s=sum(d.preprocessing.duration_out_s for d in done),
+        resampled=any(d.preprocessing.resampled for d in done),
+    )
+    stacked = {f: None if getattr(done[0], f) is None else np.concatenate([getattr(d, f) for d in done])
+               for f in _FIELDS}
+    return measurement.replace(**stacked, preprocessing=info, notes=tuple(notes))
+
+
+def longest_segment(measurement: Measurement, max_gap_s: float = MAX_GAP_S) -> Measurement:
+    """The longest segment between pauses (for the diagnosis), with notes on what was left out.
+
+    Args:
+        measurement: raw data.
+        max_gap_s: longest hole interpolated [s].
+    """
+    segments, notes = split_at_pauses(measurement, max_gap_s)
+    notes = list(measurement.notes) + notes
+    best = max(segments, key=lambda s: s.duration)
+    if len(segments) > 1:
+        notes.append(
+            f"the diagnosis uses one contiguous record: the longest segment, {best.duration:.4g} s from "
+            f"t = {best.t[0]:.6g} s, of {len(segments)} (its held-out split, delay and pre-sliding terms follow time)"
+        )
+    return best.replace(notes=tuple(notes))
