@@ -1,8 +1,10 @@
 """The identified.json format: an :class:`IdentificationResult` written and read back.
 
 ``pe-drake identify`` writes the base parameters (value, relative standard deviation, column
-of the standard parameters each one stands for), the per-joint errors, the preprocessing and,
-for the physical fit, the standard parameters per body; ``pe-drake validate`` and the
+of the standard parameters each one stands for), the drive terms in their own block
+(``drive_terms``: per joint, Coulomb/viscous friction, offset, armature with value, σ and %σ;
+absent in files of before issue 23, which load as models without them), the per-joint errors,
+the preprocessing and, for the physical fit, the standard parameters per body; ``pe-drake validate`` and the
 diagnosis read it back with :func:`load_identified`, which checks it belongs to the robot.
 """
 
@@ -19,6 +21,7 @@ import numpy as np
 from pe_drake.config import MEASUREMENTS
 from pe_drake.exceptions import DataError
 from pe_drake.identification.channels import channel_names
+from pe_drake.identification.drive_terms import DriveFit
 from pe_drake.identification.estimators import IdentificationResult, measurement_base_parameters
 from pe_drake.identification.measurements import Preprocessing
 from pe_drake.multibody.inertia import PARAMETER_NAMES, validity_problems
@@ -73,6 +76,10 @@ def result_to_dict(result: IdentificationResult, robot, model_file: str | None =
     if result.preprocessing is not None:
         out["preprocessing"] = dataclasses.asdict(result.preprocessing)
         out["data_used"] = data_used(result.preprocessing, result.samples)
+    if result.drive is not None:
+        out["drive_terms"] = result.drive.as_dict()
+    if result.physical_notes:
+        out["physical_fit_notes"] = list(result.physical_notes)
     if result.phi is not None:
         out["standard_parameters"] = standard_parameters_dict(robot, result.phi)
         out["physically_valid"] = not validity_problems(robot.body_names, result.phi)
@@ -140,6 +147,12 @@ def load_identified(path: str | Path, robot) -> IdentificationResult:
             phi = np.array([float(table[b][k]) for b in robot.body_names for k in PARAMETER_NAMES])
         except (KeyError, TypeError, ValueError) as err:
             raise DataError(f"standard_parameters: {err!r} missing or malformed", file=str(path)) from err
+    drive = None
+    if d.get("drive_terms") is not None:  # files written before issue 23 have none
+        try:
+            drive = DriveFit.from_dict(d["drive_terms"], robot.joint_names)
+        except (KeyError, TypeError, ValueError, AttributeError) as err:
+            raise DataError(f"drive_terms: {err!r} missing or malformed", file=str(path)) from err
     return IdentificationResult(
         robot=d.get("robot", robot.name),
         method=d.get("method", "ols"),
@@ -156,6 +169,8 @@ def load_identified(path: str | Path, robot) -> IdentificationResult:
         source=d.get("data", ""),
         measurement=measurement,
         channels=channels,
+        drive=drive,
+        physical_notes=tuple(d.get("physical_fit_notes", ())),
     )
 
 

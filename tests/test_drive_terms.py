@@ -1,0 +1,160 @@
+"""Drive terms in identify (issue 23): friction, offsets and armature recovered within their σ,
+zero without them, the identified.json block, old files, the physical fit with bounds."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from pe_drake.exceptions import ConfigError, UnknownNameError
+from pe_drake.excitation.trajectory_file import load_trajectory
+from pe_drake.identification.drive_terms import (
+    COULOMB_VELOCITY_SCALE,
+    DriveTermOptions,
+    drive_layout,
+    format_percent,
+)
+from pe_drake.identification.estimators import identify, predict, prepare_measurement
+from pe_drake.identification.identified_file import load_identified, result_to_dict
+from pe_drake.identification.physical_fit import LinkBox, PhysicalBounds
+from pe_drake.identification.synthetic import model_measurement
+from pe_drake.multibody.base_parameters import compute_base_parameters
+from tests.conftest import get_robot
+from tests.test_identification import OPTIMIZED, random_trajectory
+
+NOISE = 0.05  # [N·m]
+
+
+@pytest.fixture(scope="module")
+def optimized():
+    trajectory, _ = load_trajectory(OPTIMIZED)
+    return trajectory
+
+
+def drive_truth(robot, seed: int) -> dict[str, np.ndarray]:
+    """Friction, offsets and armature of the size real arms have (N·m, N·m·s/rad, kg·m²)."""
+    rng = np.random.default_rng(seed)
+    n = robot.n
+    return {"coulomb": rng.uniform(0.5, 3.0, n), "viscous": rng.uniform(0.2, 1.5, n),
+            "offset": rng.uniform(-0.8, 0.8, n), "armature": rng.uniform(0.05, 0.4, n)}
+
+
+def with_drive(robot, trajectory, truth, *, duration=None, seed=0, noise=NOISE):
+    """Inverse-dynamics data + the drive torques + white noise (exact v and v̇)."""
+    m = model_measurement(robot, trajectory, rate_hz=100, duration=duration, tau_noise_std=noise, seed=seed)
+    tau = m.tau + truth["coulomb"] * np.tanh(m.v / COULOMB_VELOCITY_SCALE) + truth["viscous"] * m.v
+    tau = tau + truth["offset"] + truth["armature"] * m.vd
+    return prepare_measurement(robot, m.replace(tau=tau), filtering=False, check_units=False)
+
+
+def trajectories(name, optimized):
+    robot = get_robot(name)
+    if name == "panda":
+        return robot, optimized, random_trajectory(robot, optimized, seed=7)
+    return robot, random_trajectory(robot, optimized, seed=1), random_trajectory(robot, optimized, seed=7)
+
+
+@pytest.mark.parametrize("name", ["panda", "ur5"])
+def test_known_drive_terms_are_recovered_within_their_sigma(name, optimized, tmp_path):
+    robot, train_traj, test_traj = trajectories(name, optimized)
+    truth = drive_truth(robot, seed=3)
+    train = with_drive(robot, train_traj, truth, duration=2 * train_traj.period)
+    result = identify(robot, train, "wls")
+    drive = result.drive
+    layout = drive.layout
+    # the first joint's axis is fixed in the world: its armature is one base parameter with the link inertia
+    assert robot.joint_names[0] in layout.merged
+    for label, t, j, value, sigma in zip(layout.labels, layout.terms, layout.joints, drive.theta, drive.sigma):
+        assert sigma > 0
+        assert abs(value - truth[t][j]) < 3 * sigma, (label, value, truth[t][j], sigma)
+        if t != "armature":
+            assert sigma < 0.05 * abs(truth[t][j]) + 0.02, (label, sigma)
+    # the exported model (identified.json) reproduces a held-out run at the noise floor
+    (tmp_path / "identified.json").write_text(json.dumps(result_to_dict(result, robot)))
+    loaded = load_identified(tmp_path / "identified.json", robot)
+    held = with_drive(robot, test_traj, truth, seed=5)
+    rms = np.sqrt(np.mean((held.tau - predict(robot, loaded, held)) ** 2, axis=0))
+    assert np.all(rms < 1.15 * NOISE), rms
+    # without the drive terms the same data is far off
+    rigid = identify(robot, train, "wls", drive_terms="none")
+    assert rigid.drive.layout.count == 0
+    assert np.all(rigid.residual_rms[1:] > 5 * NOISE)
+
+
+@pytest.mark.parametrize("name", ["panda", "ur5"])
+def test_without_friction_the_drive_terms_are_zero_within_sigma(name, optimized):
+    robot, train_traj, _ = trajectories(name, optimized)
+    zero = {k: np.zeros(robot.n) for k in ("coulomb", "viscous", "offset", "armature")}
+    data = with_drive(robot, train_traj, zero, seed=2)
+    drive = identify(robot, data, "ols").drive
+    z = np.abs(drive.theta) / drive.sigma
+    assert np.all(z < 4.0), dict(zip(drive.layout.labels, z))  # 4σ over ~27 terms: p ≈ 2e-3 per run
+    assert np.mean(z**2) < 2.0  # the σ are calibrated: E[z²] = 1
+
+
+def test_friction_choice_has_no_armature_and_none_has_nothing(panda):
+    base = compute_base_parameters(panda)
+    assert drive_layout(panda, base, DriveTermOptions("friction")).terms == ("coulomb", "viscous", "offset") * panda.n
+    assert drive_layout(panda, None, DriveTermOptions("none")).count == 0
+    with pytest.raises(ConfigError, match="none, friction, all"):
+        DriveTermOptions("coulomb")
+
+
+def test_base_wrench_rows_get_no_drive_terms():
+    g1 = get_robot("g1")
+    from pe_drake.identification.drive_terms import drive_columns
+
+    base = None
+    layout = drive_layout(g1, base, DriveTermOptions("friction"))
+    v = np.ones((4, g1.n))
+    D = drive_columns(v, v, layout, rows=g1.n + 6)
+    assert np.all(D[:, g1.n :, :] == 0)
+
+
+def test_old_identified_json_loads_without_drive_terms(optimized, tmp_path):
+    """A file in the format of the main branch before issue 23 (no drive_terms block)."""
+    robot = get_robot("panda")
+    data = prepare_measurement(robot, model_measurement(robot, optimized, rate_hz=100), filtering=False)
+    result = identify(robot, data, "ols", drive_terms="none")
+    d = result_to_dict(result, robot)
+    del d["drive_terms"]
+    path = tmp_path / "old.json"
+    path.write_text(json.dumps(d))
+    loaded = load_identified(path, robot)
+    assert loaded.drive is None
+    np.testing.assert_allclose(predict(robot, loaded, data), data.tau, atol=1e-8)
+
+
+def test_sigma_percent_is_printed_sensibly():
+    assert format_percent(2.37e4) == ">1000 % (undetermined)"
+    assert format_percent(None) == "undetermined"
+    assert format_percent(3.21) == "3.21 %"
+
+
+def test_physical_fit_with_drive_terms_and_bounds(optimized):
+    robot = get_robot("panda")
+    truth = drive_truth(robot, seed=4)
+    data = with_drive(robot, optimized, truth, duration=optimized.period)
+    result = identify(robot, data, "physical")
+    d = result.drive
+    for t in ("coulomb", "viscous"):
+        assert np.all(d.per_joint(t) >= 0)
+        np.testing.assert_allclose(d.per_joint(t), truth[t], rtol=0.1, atol=0.05)
+    assert np.all(d.per_joint("armature") >= 0)
+    assert np.all(result.residual_rms < 1.2 * NOISE)
+    # user bounds: a link's mass held in a tight range and its CoM in a box
+    link = robot.body_names[3]
+    m0 = robot.phi_model[30]
+    c0 = robot.phi_model[31:34] / m0
+    bounds = PhysicalBounds(total_mass=(0.0, 100.0), mass_bounds={link: (1.1 * m0, 1.2 * m0)},
+                            boxes={link: LinkBox(tuple(c0), (0.02, 0.02, 0.02))})
+    bounded = identify(robot, data, "physical", bounds=bounds)
+    phi = bounded.phi
+    assert 1.1 * m0 - 1e-6 <= phi[30] <= 1.2 * m0 + 1e-6
+    com = phi[31:34] / phi[30]
+    assert np.all(np.abs(com - c0) <= 0.01 + 1e-6)
+    assert any(link in note and "lower bound" in note for note in bounded.physical_notes), bounded.physical_notes
+    with pytest.raises(UnknownNameError, match="valid links"):
+        identify(robot, data, "physical", bounds=PhysicalBounds(mass_bounds={"nope": (0.0, 1.0)}))
