@@ -61,6 +61,9 @@ METHODS = ("ols", "wls", "physical")
 #: Rows per base parameter needed at least (S·n ≥ MIN_ROWS_PER_PARAMETER · b): fewer leave
 #: the noise nothing to average over.
 MIN_ROWS_PER_PARAMETER = 10
+#: A rigid-body-only fit warns when friction and offsets would explain more than this fraction
+#: of its residual energy (by chance, 3n extra columns explain ~3n/(S·n), < 1 %).
+FRICTION_SHARE_WARNING = 0.5
 #: Output rate of the preprocessing [Hz]: the regressor is smooth, 200 Hz is plenty.
 DEFAULT_RATE_HZ = 200.0
 
@@ -93,6 +96,8 @@ class IdentificationResult:
             without them, e.g. an identified.json of before issue 23).
         physical_notes: what the physical fit says about its result (parameters on a bound,
             far from the a-priori model).
+        friction_share: for a fit without drive terms, the fraction of its residual energy
+            that Coulomb + viscous friction and offsets would explain (None otherwise).
     """
 
     robot: str
@@ -114,6 +119,7 @@ class IdentificationResult:
     channels: tuple[str, ...] = ()
     drive: DriveFit | None = None
     physical_notes: tuple[str, ...] = ()
+    friction_share: float | None = None
 
 
 # ---- data ------------------------------------------------------------------------------------
@@ -356,7 +362,25 @@ def identify(
         channels=channels,
         drive=DriveFit(layout, x[b:], np.sqrt(np.maximum(np.diag(cov)[b:], 0.0))),
         physical_notes=physical.notes if physical is not None else (),
+        friction_share=_friction_share(robot, data, measurement, YB, tau, W @ x, layout, coulomb),
     )
+
+
+def _friction_share(robot, data: Measurement, measurement: str, YB: np.ndarray, tau: np.ndarray,
+                    fitted: np.ndarray, layout: DriveLayout, coulomb: np.ndarray | None) -> float | None:
+    """For a rigid-body-only fit: the fraction of its residual energy that friction and offsets
+    would explain (None when the fit has drive terms or measures no torques)."""
+    if layout.count or measurement == "base_wrench":
+        return None
+    friction = drive_layout(robot, None, DriveTermOptions("friction", layout.velocity_scale))
+    S, r, b = YB.shape
+    D = drive_columns(data.v, data.vd, friction, coulomb, rows=r)
+    friction, keep = separable_on_data(YB.reshape(S * r, b), D.reshape(S * r, -1), friction)
+    W = np.concatenate([YB, D[:, :, keep]], axis=2).reshape(S * r, -1)
+    x = np.linalg.lstsq(W, tau.reshape(S * r), rcond=None)[0]
+    before = float(np.sum((tau - fitted) ** 2))
+    after = float(np.sum((tau.reshape(S * r) - W @ x) ** 2))
+    return 1.0 - after / before if before > 0 else 0.0
 
 
 def _drive_block(robot, data: Measurement, measurement: str, options: DriveTermOptions, YB: np.ndarray,
@@ -370,6 +394,19 @@ def _drive_block(robot, data: Measurement, measurement: str, options: DriveTermO
     D = drive_columns(data.v, data.vd, layout, coulomb, rows=r)
     layout, keep = separable_on_data(YB.reshape(S * r, b), D.reshape(S * r, -1), layout)
     return layout, D[:, :, keep]
+
+
+def fit_warnings(result: IdentificationResult) -> list[str]:
+    """What a reader of the fit must know: the physical fit's bounds and moves, and a
+    rigid-body-only fit of data whose residual is mostly friction."""
+    out = [f"physical fit: {note}" for note in result.physical_notes]
+    share = result.friction_share
+    if share is not None and share > FRICTION_SHARE_WARNING:
+        out.append(
+            f"warning: this rigid-body-only fit leaves a residual of which {100 * share:.0f} % is joint friction "
+            "and offsets: the link parameters absorb what they can of it and the model is not finished; "
+            "identify with --drive-terms friction or all")
+    return out
 
 
 class _OrdinaryFit(NamedTuple):

@@ -22,7 +22,7 @@ from pe_drake.config import MEASUREMENTS
 from pe_drake.exceptions import DataError
 from pe_drake.identification.channels import channel_names
 from pe_drake.identification.drive_terms import DriveFit
-from pe_drake.identification.estimators import IdentificationResult, measurement_base_parameters
+from pe_drake.identification.estimators import IdentificationResult, fit_warnings, measurement_base_parameters
 from pe_drake.identification.measurements import Preprocessing
 from pe_drake.multibody.inertia import PARAMETER_NAMES, validity_problems
 
@@ -80,6 +80,11 @@ def result_to_dict(result: IdentificationResult, robot, model_file: str | None =
         out["drive_terms"] = result.drive.as_dict()
     if result.physical_notes:
         out["physical_fit_notes"] = list(result.physical_notes)
+    if result.friction_share is not None:
+        out["friction_share_of_residual"] = result.friction_share
+    warnings = fit_warnings(result)
+    if warnings:
+        out["warnings"] = warnings
     if result.phi is not None:
         out["standard_parameters"] = standard_parameters_dict(robot, result.phi)
         out["physically_valid"] = not validity_problems(robot.body_names, result.phi)

@@ -14,7 +14,8 @@ the data term is flat along them, so the pull picks the point nearest the a-prio
 the data's best fits, and where the constraints tie a null direction to the data (a body that
 must grow to stay physical) a move of one a-priori unit costs only 1e-4 of a unit move along
 the least determined identifiable direction, so the data wins. λ = ``prior_weight`` × μ
-(1e-6) only makes the problem strictly convex; it does not bias what the data determines. Bodies whose a-priori mass is zero stay at zero.
+(1e-6) only makes the problem strictly convex; it does not bias what the data determines.
+Bodies whose a-priori mass is zero stay at zero.
 
 The CoM box of a link is a linear constraint on its first moments h = m c (in the link frame,
 about its origin, [m]): box_lo·m ≤ h ≤ box_hi·m keeps c in the box for any m > 0.
@@ -319,3 +320,12 @@ def _variable_scale(prior: np.ndarray, active: list[int]) -> np.ndarray:
         scale[10 * b + 1 : 10 * b + 4] = max(np.max(np.abs(prior[10 * b + 1 : 10 * b + 4])), 1e-3 * m)
         scale[10 * b + 4 : 10 * b + 10] = max(np.max(np.abs(prior[10 * b + 4 : 10 * b + 10])), 1e-6 * m)
     return scale
+
+
+def bounds_from_config(config) -> PhysicalBounds:
+    """The bounds of a config's ``identification`` section (:class:`~pe_drake.config.IdentificationConfig`)."""
+    return PhysicalBounds(
+        total_mass=tuple(config.total_mass) if config.total_mass else None,
+        mass_bounds={k: (float(v[0]), float(v[1])) for k, v in config.mass_bounds.items()},
+        boxes={k: LinkBox(tuple(map(float, b.center)), tuple(map(float, b.size))) for k, b in config.boxes.items()},
+    )
