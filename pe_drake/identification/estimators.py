@@ -332,14 +332,9 @@ def identify(
         yw = (tau * w).reshape(S * n)
         x, cov, _ = _lstsq((W * w[None, :, None]).reshape(S * n, p), yw)
         if method == "physical":
-            Yw = (Y * w[None, :, None]).reshape(S * n, -1)
-            Dw = (D * w[None, :, None]).reshape(S * n, -1)
             prior = robot.phi_model if prior is None else np.asarray(prior, float)
-            physical = physical_fit(Yw, yw, prior, robot.body_names, extra=Dw,
-                                    extra_lower=layout.lower_bounds(), extra_names=layout.labels,
-                                    bounds=bounds, base_K=base.K)
-            phi = physical.phi
-            x = np.concatenate([base.base_values(phi), physical.theta])
+            physical = _physical(robot, base, data, layout, Y, D, w, yw, prior, bounds)
+            phi, x = physical.phi, physical.x
     b = base.count
     residual_rms, relative_error = torque_errors(tau, W @ x)
     return IdentificationResult(
@@ -381,6 +376,38 @@ def _friction_share(robot, data: Measurement, measurement: str, YB: np.ndarray, 
     before = float(np.sum((tau - fitted) ** 2))
     after = float(np.sum((tau.reshape(S * r) - W @ x) ** 2))
     return 1.0 - after / before if before > 0 else 0.0
+
+
+class _Physical(NamedTuple):
+    phi: np.ndarray  # standard parameters (10·nb,)
+    x: np.ndarray  # base parameters (merged armatures included), then drive terms
+    notes: tuple[str, ...]
+
+
+def _physical(robot, base: BaseParameters, data: Measurement, layout: DriveLayout, Y: np.ndarray, D: np.ndarray,
+              w: np.ndarray, yw: np.ndarray, prior: np.ndarray, bounds: PhysicalBounds | None) -> _Physical:
+    """The physical fit with the drive terms; the armatures that merge into base parameters
+    are variables ≥ 0 of the fit too, so the part of a merged base parameter above what a
+    physical link near its a-priori model holds goes to the rotor, not into link masses."""
+    S, r, _ = Y.shape
+    merged = [robot.joint_names.index(j) for j in layout.merged]
+    extra = DriveLayout(("armature",) * len(merged), tuple(merged), layout.joint_names,
+                        tuple("kg·m²" for _ in merged), layout.velocity_scale)
+    E = np.concatenate([D, drive_columns(data.v, data.vd, extra, rows=r)], axis=2)
+    fit = physical_fit((Y * w[None, :, None]).reshape(S * r, -1), yw, prior, robot.body_names,
+                       extra=(E * w[None, :, None]).reshape(S * r, -1),
+                       extra_lower=np.r_[layout.lower_bounds(), np.zeros(len(merged))],
+                       extra_names=layout.labels + extra.labels, bounds=bounds, base_K=base.K)
+    phi_B = base.base_values(fit.phi)
+    notes = list(fit.notes)
+    for j, a in zip(merged, fit.theta[layout.count :]):
+        name = robot.joint_names[j]
+        for base_name, coef in layout.merged[name].items():  # v̇_j = Σ coef_k · (column k of Y_B)
+            phi_B[base.base_names.index(base_name)] += a * coef
+        if a > 0:
+            notes.append(f"armature[{name}] {a:.4g} kg·m² (not separately identifiable) holds the part of "
+                         f"{', '.join(layout.merged[name])} above what links near the a-priori model hold")
+    return _Physical(fit.phi, np.concatenate([phi_B, fit.theta[: layout.count]]), tuple(notes))
 
 
 def _drive_block(robot, data: Measurement, measurement: str, options: DriveTermOptions, YB: np.ndarray,
