@@ -185,7 +185,9 @@ def validate_command(args: argparse.Namespace) -> int:
     config = config_from_args(args)
     measurement = measurement_from_args(args, config)
     robot = robot_from_args(args, config)
-    result = load_identified(args.model, robot)
+    result = load_identified(args.model, robot)  # identified.json or the diagnosis's augmented_model.json
+    for note in result.physical_notes if result.method == "diagnose" else ():
+        print(f"note: {note}")
     raw = read_robot_measurement(robot, args.data)
     check_raw_measurement(robot, raw)
     data = prepare_measurement(robot, raw, cutoff_hz=getattr(args, "cutoff", None))
