@@ -158,3 +158,73 @@ def test_physical_fit_with_drive_terms_and_bounds(optimized):
     assert any(link in note and "lower bound" in note for note in bounded.physical_notes), bounded.physical_notes
     with pytest.raises(UnknownNameError, match="valid links"):
         identify(robot, data, "physical", bounds=PhysicalBounds(mass_bounds={"nope": (0.0, 1.0)}))
+
+
+def write_run(path, robot, trajectory, truth, seed):
+    """A 500 Hz CSV without v/vdot columns (so identify filters and differentiates)."""
+    from pe_drake.identification.measurements import write_measurement_csv
+
+    m = model_measurement(robot, trajectory, rate_hz=500, duration=trajectory.period, tau_noise_std=NOISE, seed=seed)
+    tau = m.tau + truth["coulomb"] * np.tanh(m.v / COULOMB_VELOCITY_SCALE) + truth["viscous"] * m.v
+    write_measurement_csv(path, m.replace(tau=tau + truth["offset"] + truth["armature"] * m.vd, v=None, vd=None))
+
+
+def test_identify_and_validate_commands_model_drive_terms_of_filtered_data(optimized, tmp_path, capsys):
+    """Through the CLI: filtered data needs the parallel-filtered Coulomb column to reach the noise floor."""
+    from pe_drake.cli import main as cli
+
+    robot = get_robot("panda")
+    truth = drive_truth(robot, seed=3)
+    write_run(tmp_path / "a.csv", robot, optimized, truth, seed=0)
+    write_run(tmp_path / "b.csv", robot, random_trajectory(robot, optimized, seed=7), truth, seed=1)
+    rms = {}
+    for terms in ("all", "none"):
+        out = tmp_path / terms
+        assert cli(["identify", "--robot", "panda", "--data", str(tmp_path / "a.csv"), "--method", "wls",
+                    "--drive-terms", terms, "--out", str(out)]) == 0
+        text = capsys.readouterr().out
+        d = json.loads((out / "identified.json").read_text())
+        assert [e["column"] for e in d["base_parameters"]] == list(compute_base_parameters(robot).independent)
+        assert cli(["validate", "--robot", "panda", "--model", str(out / "identified.json"),
+                    "--data", str(tmp_path / "b.csv"), "--json", str(out / "v.json")]) == 0
+        rms[terms] = np.array(list(json.loads((out / "v.json").read_text())["rms"].values()))
+        if terms == "all":
+            assert "drive terms (value ± σ)" in text
+            block = d["drive_terms"]["joints"]
+            assert block["panda_joint1"]["armature"]["identifiable"] is False
+            for j, name in enumerate(robot.joint_names):
+                for t in ("coulomb", "viscous", "offset"):
+                    assert block[name][t]["value"] == pytest.approx(truth[t][j], abs=0.03 + 0.02 * abs(truth[t][j]))
+        else:
+            assert "warning: this rigid-body-only fit" in text
+    assert np.all(rms["all"] < NOISE), rms["all"]  # the filtered noise floor is below the raw 0.05 N·m
+    assert np.all(rms["none"] > 10 * rms["all"])
+
+
+def test_validate_accepts_the_diagnosis_augmented_model(tmp_path):
+    """augmented_model.json with friction, armature, offsets and a payload predicts like its torque equation."""
+    from pe_drake.diagnosis.augmented_model import AugmentedModel
+    from pe_drake.identification.measurements import Measurement
+    from pe_drake.multibody.inertia import phi_from_com
+    from tests.conftest import random_states
+
+    robot = get_robot("panda")
+    n = robot.n
+    rng = np.random.default_rng(0)
+    model = AugmentedModel(tuple(robot.joint_names), tuple(robot.body_names), robot.phi_model.copy(),
+                           rng.uniform(0, 1, n), rng.uniform(0, 2, n), COULOMB_VELOCITY_SCALE, rng.uniform(0, 0.3, n),
+                           rng.uniform(-1, 1, n), "panda_link7", 0.8, np.array([0.0, 0.01, 0.05]),
+                           np.array([1e-3, 1e-3, 2e-3, 0, 0, 0]))
+    path = tmp_path / "augmented_model.json"
+    path.write_text(json.dumps(model.as_dict()))
+    loaded = load_identified(path, robot)
+    q, v, vd = random_states(robot, 30, seed=2)
+    phi = robot.phi_model.copy()
+    b = robot.body_names.index("panda_link7")
+    phi[10 * b : 10 * b + 10] += phi_from_com(0.8, np.array([0.0, 0.01, 0.05]), np.diag([1e-3, 1e-3, 2e-3]))
+    from pe_drake.multibody.regressor import RegressorModel
+
+    want = RegressorModel(robot)(q, v, vd) @ phi + model.viscous * v + model.armature * vd + model.torque_offset
+    want += model.coulomb * np.tanh(v / COULOMB_VELOCITY_SCALE)
+    data = Measurement(np.arange(30.0), q, want, v, vd, robot.joint_names)
+    np.testing.assert_allclose(predict(robot, loaded, data), want, atol=1e-9)

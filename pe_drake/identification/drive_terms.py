@@ -36,6 +36,8 @@ from typing import Any
 import numpy as np
 
 from pe_drake.exceptions import ConfigError
+from pe_drake.identification.preprocessing import design_lowpass, differentiate, resample_uniform
+from pe_drake.multibody.regressor import RegressorModel
 
 #: The ``--drive-terms`` choices: no drive terms, Coulomb + viscous + offset, and those with
 #: the armature where the robot's kinematics let it be told from the link inertias.
@@ -159,8 +161,6 @@ def armature_merges(robot, base, model=None, *, samples: int = 200, seed: int = 
     Random states within the robot's limits (as the base parameters use) decide whether
     *any* motion separates the column v̇_j from the rigid-body columns.
     """
-    from pe_drake.multibody.regressor import RegressorModel  # the regressor pulls in pydrake
-
     model = model or RegressorModel(robot)
     rng = np.random.default_rng(seed)
     q = rng.uniform(robot.limits.q_lower, robot.limits.q_upper, (samples, robot.n))
@@ -384,8 +384,6 @@ def filtered_coulomb(raw, data, velocity_scale: float = COULOMB_VELOCITY_SCALE) 
         The columns at data's samples, or None when ``data`` was not preprocessed (exact data:
         tanh(v/v_s) of its v is the column).
     """
-    from pe_drake.identification.preprocessing import design_lowpass, differentiate, resample_uniform
-
     p = data.preprocessing
     if p is None:
         return None

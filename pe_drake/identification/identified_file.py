@@ -24,7 +24,7 @@ from pe_drake.identification.channels import channel_names
 from pe_drake.identification.drive_terms import DriveFit, DriveLayout
 from pe_drake.identification.estimators import IdentificationResult, fit_warnings, measurement_base_parameters
 from pe_drake.identification.measurements import Preprocessing
-from pe_drake.multibody.inertia import PARAMETER_NAMES, validity_problems
+from pe_drake.multibody.inertia import PARAMETER_NAMES, inertia_matrix, phi_from_com, validity_problems
 
 
 def _finite_or_none(x: float) -> float | None:
@@ -198,8 +198,6 @@ def augmented_as_result(d: dict[str, Any], robot, path: str = "") -> Identificat
     Raises:
         DataError: other joints, a malformed file.
     """
-    from pe_drake.multibody.inertia import inertia_matrix, phi_from_com  # the inertia helpers
-
     try:
         joints = tuple(d["joints"])
         if joints != tuple(robot.joint_names):

@@ -35,7 +35,7 @@ from typing import NamedTuple
 import numpy as np
 
 from pe_drake.exceptions import ConfigError, NoSolutionFound, UnknownNameError
-from pe_drake.multibody.inertia import pseudo_inertia_basis
+from pe_drake.multibody.inertia import pseudo_inertia, pseudo_inertia_basis
 
 #: μ, the pull toward the a-priori parameters in the unidentifiable directions, relative to
 #: the smallest non-zero eigenvalue of the data term's Hessian (module docstring).
@@ -138,6 +138,7 @@ def physical_fit(
     extra_names: Sequence[str] = (),
     bounds: PhysicalBounds | None = None,
     base_K: np.ndarray | None = None,
+    scale: np.ndarray | None = None,
     prior_weight: float = PRIOR_WEIGHT,
     null_weight: float = NULL_WEIGHT,
     margin: float = PSD_MARGIN,
@@ -155,6 +156,8 @@ def physical_fit(
         bounds: the user's bounds.
         base_K: the base composition K (b, 10·nb) whose null space gets the a-priori pull;
             None: the numerical null space of A.
+        scale: per-variable scale D of φ, shape (10·nb,) (the pull is measured in units of
+            D); default the a-priori magnitudes per body block.
         prior_weight: λ / μ.
         null_weight: μ / (the smallest non-zero eigenvalue of the data term's Hessian).
         margin: ε of the pseudo-inertia constraint.
@@ -174,7 +177,7 @@ def physical_fit(
     lower = np.full(d, -np.inf) if extra_lower is None else np.asarray(extra_lower, float)
     active = [b for b in range(len(body_names)) if prior[10 * b] > 0]
     cols = np.concatenate([np.arange(10 * b, 10 * b + 10) for b in active])
-    D = _variable_scale(prior, active)[cols]
+    D = (_variable_scale(prior, active) if scale is None else np.asarray(scale, float))[cols]
     s_e = np.linalg.norm(y) / np.maximum(np.linalg.norm(E, axis=0), 1e-300) / max(np.sqrt(A.shape[0]), 1.0)
     s_e = np.where(np.linalg.norm(E, axis=0) > 0, s_e, 1.0)
     k = len(cols) + d
@@ -275,8 +278,6 @@ def _add_bounds(prog, x, D: np.ndarray, active: list[int], names: list[str], bou
 def fit_notes(phi: np.ndarray, prior: np.ndarray, theta: np.ndarray, lower: np.ndarray, extra_names: list[str],
               body_names: list[str], bounds: PhysicalBounds, margin: float = PSD_MARGIN) -> list[str]:
     """Parameters of a physical fit on a bound or far from the a-priori model, in words."""
-    from pe_drake.multibody.inertia import pseudo_inertia  # light; local to keep the import list short
-
     notes = []
     masses = phi[0::10]
     total = float(masses.sum())
