@@ -194,7 +194,9 @@ def test_identify_and_validate_commands_model_drive_terms_of_filtered_data(optim
             assert block["panda_joint1"]["armature"]["identifiable"] is False
             for j, name in enumerate(robot.joint_names):
                 for t in ("coulomb", "viscous", "offset"):
-                    assert block[name][t]["value"] == pytest.approx(truth[t][j], abs=0.03 + 0.02 * abs(truth[t][j]))
+                    entry = block[name][t]  # σ inflated by the filtered residual's correlation time
+                    assert abs(entry["value"] - truth[t][j]) < 3 * entry["sigma"], (name, t, entry, truth[t][j])
+                    assert entry["sigma"] < 0.02 * abs(truth[t][j]) + 0.01
         else:
             assert "warning: this rigid-body-only fit" in text
     assert np.all(rms["all"] < NOISE), rms["all"]  # the filtered noise floor is below the raw 0.05 N·m

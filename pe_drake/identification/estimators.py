@@ -23,8 +23,10 @@ torque offset per joint, and the rotor inertia (armature) where it is separable 
 inertias, W = [Y_B | D] (:mod:`pe_drake.identification.drive_terms`); the ground-wrench rows
 of D are zero.
 
-The relative standard deviation of each base parameter, %σ = 100·√(Σ_ii)/|φ_B,i| with
-Σ = σ² (WᵀW)⁻¹ (weighted: (WᵀΣ_ρ⁻¹W)⁻¹), tells how well the data determined it.
+The relative standard deviation of each base parameter, %σ = 100·√(Σ_ii)/|φ_B,i|, tells how
+well the data determined it. Σ is σ² (WᵀW)⁻¹ with each channel's contribution inflated by the
+integrated autocorrelation time of its residual (filtered samples are not independent;
+:func:`pe_drake.identification.statistics.sandwich_covariance`), weighted rows for WLS.
 """
 
 from __future__ import annotations
@@ -52,6 +54,7 @@ from pe_drake.identification.drive_terms import (
 from pe_drake.identification.measurements import Measurement, Preprocessing, check_torque_units, read_measurement_csv
 from pe_drake.identification.physical_fit import PhysicalBounds, physical_fit
 from pe_drake.identification.preprocessing import preprocess
+from pe_drake.identification.statistics import sandwich_covariance
 from pe_drake.multibody.base_parameters import BaseParameters, compute_base_parameters
 from pe_drake.multibody.regressor import RegressorModel
 from pe_drake.multibody.sensors import MeasurementType, SensorRows
@@ -330,7 +333,9 @@ def identify(
         w = 1.0 / np.maximum(noise_std, 1e-9 * max(float(noise_std.max()), 1e-12))
         S, n, p = W.shape
         yw = (tau * w).reshape(S * n)
-        x, cov, _ = _lstsq((W * w[None, :, None]).reshape(S * n, p), yw)
+        Ww = W * w[None, :, None]
+        x, cov_unit, _ = _lstsq(Ww.reshape(S * n, p), yw)
+        cov = sandwich_covariance(Ww, (yw - Ww.reshape(S * n, p) @ x).reshape(S, n), cov_unit)
         if method == "physical":
             prior = robot.phi_model if prior is None else np.asarray(prior, float)
             physical = _physical(robot, base, data, layout, Y, D, w, yw, prior, bounds)
@@ -438,7 +443,7 @@ def fit_warnings(result: IdentificationResult) -> list[str]:
 
 class _OrdinaryFit(NamedTuple):
     phi_B: np.ndarray  # (b,) (base parameters, then drive terms)
-    cov: np.ndarray  # σ² (WᵀW)⁻¹, (b, b)
+    cov: np.ndarray  # (WᵀW)⁻¹ (Σ_j τ_j σ_j² W_jᵀW_j) (WᵀW)⁻¹, (b, b): statistics.sandwich_covariance
     cond: float  # cond(W)
     noise_std: np.ndarray  # per-joint residual standard deviation σ_j, (n,) [N·m]
 
@@ -452,8 +457,8 @@ def _ordinary_fit(YB: np.ndarray, tau: np.ndarray) -> _OrdinaryFit:
     rho = (y - W @ phi_B).reshape(S, n)
     dof = max(S - b / n, 1.0)
     noise_std = np.sqrt(np.sum(rho**2, axis=0) / dof)
-    sigma2 = float(np.sum(rho**2)) / max(S * n - b, 1)
-    return _OrdinaryFit(phi_B, sigma2 * cov_unit, float(s[0] / s[-1]), noise_std)
+    cov = sandwich_covariance(YB, rho, cov_unit)
+    return _OrdinaryFit(phi_B, cov, float(s[0] / s[-1]), noise_std)
 
 
 # ---- prediction and validation ----------------------------------------------------------------
