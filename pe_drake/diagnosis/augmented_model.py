@@ -30,7 +30,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import re
 from pathlib import Path
 from typing import Any
 
@@ -39,6 +38,7 @@ import numpy as np
 from pe_drake.exceptions import ConfigError
 from pe_drake.identification.physical_fit import physical_fit
 from pe_drake.identification.simulation import build_true_robot
+from pe_drake.identification.statistics import confidence_chi2
 from pe_drake.identification.truth import EffectsTruth, PayloadTruth, Truth
 from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.inertia import (
@@ -53,7 +53,7 @@ from pe_drake.multibody.inertia import (
     validity_problems,
 )
 from pe_drake.multibody.robot import load_robot
-from pe_drake.multibody.urdf import urdf_with_inertias
+from pe_drake.multibody.urdf import joint_dynamics, urdf_with_inertias
 
 PAYLOAD_LINK = "pe_drake_payload"
 
@@ -287,8 +287,10 @@ def physical_parameters(K: np.ndarray, phi_prior: np.ndarray, Sigma_phi: np.ndar
     w, V = np.linalg.eigh(0.5 * (H + H.T))
     L = (V * np.sqrt(np.maximum(w, 0.0))).T  # LᵀL = H
     names = [f"body{b}" for b in range(nb)]
+    # H is the information matrix of φ_B: the misfit is a χ² of b degrees of freedom, and the
+    # pull toward the prior stays within the 95 % confidence region of φ_B.
     fit = physical_fit(L @ K, L @ phi_B, np.asarray(phi_prior, float), names, base_K=K, scale=d,
-                       prior_weight=prior_weight, margin=margin)
+                       prior_weight=prior_weight, margin=margin, chi2_tolerance=confidence_chi2(len(phi_B)))
     return fit.phi
 
 
@@ -357,20 +359,9 @@ def augmented_urdf_text(robot, model: AugmentedModel) -> str:
         PhysicallyInvalidError: an invalid body (cannot happen after :func:`physically_consistent`).
     """
     text = urdf_with_inertias(robot.model_path, model.body_names, model.phi)
-    for j, name in enumerate(model.joints):
-        text = _set_joint_damping(text, name, float(model.viscous[j]))
+    text = joint_dynamics(text, dict(zip(model.joints, map(float, model.viscous))),
+                          {j: float(a) for j, a in zip(model.joints, model.armature) if a > 0})
     extra = []
-    for j, name in enumerate(model.joints):
-        if model.armature[j] > 0:
-            extra.append(
-                f'  <transmission name="pe_drake_armature_{name}">\n'
-                "    <type>transmission_interface/SimpleTransmission</type>\n"
-                f'    <joint name="{name}"><hardwareInterface>EffortJointInterface</hardwareInterface></joint>\n'
-                f'    <actuator name="pe_drake_actuator_{name}">\n'
-                "      <mechanicalReduction>1</mechanicalReduction>\n"
-                f'      <drake:rotor_inertia value="{_num(model.armature[j])}"/>\n'
-                '      <drake:gear_ratio value="1.0"/>\n'
-                "    </actuator>\n  </transmission>\n")
     if model.payload_link:
         phi_p = phi_from_com(model.payload_mass, model.payload_com, inertia_matrix(model.payload_inertia))
         m, p, I = central_inertia(phi_p)
@@ -386,34 +377,12 @@ def augmented_urdf_text(robot, model: AugmentedModel) -> str:
     if extra:
         head, sep, tail = text.rpartition("</robot>")
         text = head + "".join(extra) + sep + tail
-    if "xmlns:drake" not in text:
-        text = re.sub(r"<robot\b", '<robot xmlns:drake="http://drake.mit.edu"', text, count=1)
     return text.replace("with identified inertial parameters (pe_drake)",
                         "augmented by pe-drake diagnose: re-identified inertias, damping, rotor inertia, payload")
 
 
 def _num(x) -> str:
     return repr(float(x))
-
-
-def _set_joint_damping(text: str, joint: str, damping: float) -> str:
-    """Sets ``damping`` in the joint's <dynamics> element (added when missing)."""
-    pattern = re.compile(r'(<joint\b[^>]*\bname="' + re.escape(joint) + r'"[^>]*>)(.*?)(</joint>)', re.S)
-    match = pattern.search(text)
-    if match is None:
-        return text
-    body = match.group(2)
-    dyn = re.search(r"<dynamics\b[^>]*/>", body)
-    if dyn:
-        element = dyn.group(0)
-        if re.search(r'\bdamping="[^"]*"', element):
-            new = re.sub(r'\bdamping="[^"]*"', f'damping="{_num(damping)}"', element)
-        else:
-            new = element.replace("<dynamics", f'<dynamics damping="{_num(damping)}"', 1)
-        body = body.replace(element, new, 1)
-    else:
-        body = body.rstrip() + f'\n    <dynamics damping="{_num(damping)}"/>\n  '
-    return text[: match.start(2)] + body + text[match.end(2) :]
 
 
 def effects_yaml_text(model: AugmentedModel) -> str:

@@ -54,7 +54,7 @@ from pe_drake.identification.drive_terms import (
 from pe_drake.identification.measurements import Measurement, Preprocessing, check_torque_units, read_measurement_csv
 from pe_drake.identification.physical_fit import PhysicalBounds, physical_fit
 from pe_drake.identification.preprocessing import preprocess
-from pe_drake.identification.statistics import sandwich_covariance
+from pe_drake.identification.statistics import integrated_autocorrelation, sandwich_covariance
 from pe_drake.multibody.base_parameters import BaseParameters, compute_base_parameters
 from pe_drake.multibody.regressor import RegressorModel
 from pe_drake.multibody.sensors import MeasurementType, SensorRows
@@ -67,6 +67,9 @@ MIN_ROWS_PER_PARAMETER = 10
 #: A rigid-body-only fit warns when friction and offsets would explain more than this fraction
 #: of its residual energy (by chance, 3n extra columns explain ~3n/(S·n), < 1 %).
 FRICTION_SHARE_WARNING = 0.5
+#: The physical fit's pull toward the a-priori model may raise the (correlation-corrected) χ²
+#: of the data by at most this over the unconstrained optimum (physical_fit's stage 2).
+PHYSICAL_DELTA_CHI2 = 4.0
 #: Output rate of the preprocessing [Hz]: the regressor is smooth, 200 Hz is plenty.
 DEFAULT_RATE_HZ = 200.0
 
@@ -338,7 +341,11 @@ def identify(
         cov = sandwich_covariance(Ww, (yw - Ww.reshape(S * n, p) @ x).reshape(S, n), cov_unit)
         if method == "physical":
             prior = robot.phi_model if prior is None else np.asarray(prior, float)
-            physical = _physical(robot, base, data, layout, Y, D, w, yw, prior, bounds)
+            # Stage 2 of the fit stays in the 95 % confidence region of this estimate: whitened
+            # rows count τ̄ times for correlated samples (statistics.sandwich_covariance).
+            tau_bar = float(np.mean(integrated_autocorrelation((yw - Ww.reshape(S * n, p) @ x).reshape(S, n))))
+            physical = _physical(robot, base, data, layout, Y, D, w, yw, prior, bounds,
+                                 tau_bar * PHYSICAL_DELTA_CHI2)
             phi, x = physical.phi, physical.x
     b = base.count
     residual_rms, relative_error = torque_errors(tau, W @ x)
@@ -390,7 +397,8 @@ class _Physical(NamedTuple):
 
 
 def _physical(robot, base: BaseParameters, data: Measurement, layout: DriveLayout, Y: np.ndarray, D: np.ndarray,
-              w: np.ndarray, yw: np.ndarray, prior: np.ndarray, bounds: PhysicalBounds | None) -> _Physical:
+              w: np.ndarray, yw: np.ndarray, prior: np.ndarray, bounds: PhysicalBounds | None,
+              chi2_tolerance: float) -> _Physical:
     """The physical fit with the drive terms; the armatures that merge into base parameters
     are variables ≥ 0 of the fit too, so the part of a merged base parameter above what a
     physical link near its a-priori model holds goes to the rotor, not into link masses."""
@@ -402,7 +410,10 @@ def _physical(robot, base: BaseParameters, data: Measurement, layout: DriveLayou
     fit = physical_fit((Y * w[None, :, None]).reshape(S * r, -1), yw, prior, robot.body_names,
                        extra=(E * w[None, :, None]).reshape(S * r, -1),
                        extra_lower=np.r_[layout.lower_bounds(), np.zeros(len(merged))],
-                       extra_names=layout.labels + extra.labels, bounds=bounds, base_K=base.K)
+                       extra_names=layout.labels + extra.labels, bounds=bounds, base_K=base.K,
+                       chi2_tolerance=chi2_tolerance,
+                       extra_in_base={layout.count + i: _in_base(base, layout.merged[robot.joint_names[j]])
+                                      for i, j in enumerate(merged)})
     phi_B = base.base_values(fit.phi)
     notes = list(fit.notes)
     for j, a in zip(merged, fit.theta[layout.count :]):
@@ -413,6 +424,14 @@ def _physical(robot, base: BaseParameters, data: Measurement, layout: DriveLayou
             notes.append(f"armature[{name}] {a:.4g} kg·m² (not separately identifiable) holds the part of "
                          f"{', '.join(layout.merged[name])} above what links near the a-priori model hold")
     return _Physical(fit.phi, np.concatenate([phi_B, fit.theta[: layout.count]]), tuple(notes))
+
+
+def _in_base(base: BaseParameters, coef: dict[str, float]) -> np.ndarray:
+    """{base parameter name: coefficient} as a vector over the base parameters, shape (b,)."""
+    out = np.zeros(base.count)
+    for name, c in coef.items():
+        out[base.base_names.index(name)] = c
+    return out
 
 
 def _drive_block(robot, data: Measurement, measurement: str, options: DriveTermOptions, YB: np.ndarray,

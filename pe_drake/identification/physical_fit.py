@@ -37,9 +37,12 @@ import numpy as np
 from pe_drake.exceptions import ConfigError, NoSolutionFound, UnknownNameError
 from pe_drake.multibody.inertia import pseudo_inertia, pseudo_inertia_basis
 
-#: μ, the pull toward the a-priori parameters in the unidentifiable directions, relative to
-#: the smallest non-zero eigenvalue of the data term's Hessian (module docstring).
-NULL_WEIGHT = 1.0
+#: Stage 1's pull toward the a-priori parameters in the unidentifiable directions, relative to
+#: μ = the smallest non-zero eigenvalue of the data term's Hessian (module docstring).
+NULL_WEIGHT = 1e-4
+#: Stage 2's default misfit budget Δχ² over the unconstrained optimum (identify passes the 95 %
+#: confidence region of its estimate instead, module docstring).
+CHI2_TOLERANCE = 1.0
 #: Weight of the isotropic pull toward the a-priori parameters, relative to μ (module docstring).
 PRIOR_WEIGHT = 1e-6
 #: The fit keeps J(φ_b) ⪰ PSD_MARGIN · m_b,prior · I so that the result passes Drake's
@@ -138,9 +141,11 @@ def physical_fit(
     extra_names: Sequence[str] = (),
     bounds: PhysicalBounds | None = None,
     base_K: np.ndarray | None = None,
+    extra_in_base: dict[int, np.ndarray] | None = None,
     scale: np.ndarray | None = None,
     prior_weight: float = PRIOR_WEIGHT,
     null_weight: float = NULL_WEIGHT,
+    chi2_tolerance: float = CHI2_TOLERANCE,
     margin: float = PSD_MARGIN,
 ) -> PhysicalFit:
     """The SDP of the module docstring.
@@ -156,19 +161,21 @@ def physical_fit(
         bounds: the user's bounds.
         base_K: the base composition K (b, 10·nb) whose null space gets the a-priori pull;
             None: the numerical null space of A.
+        extra_in_base: {k: c_k} for drive columns inside span(Y_B): column k = Y_B c_k
+            (a merged armature). The φ-part of the directions along which such a column
+            trades against φ gets the a-priori pull too, so a merged combination's excess over
+            the a-priori links goes to the drive term (≥ 0), not into the links.
         scale: per-variable scale D of φ, shape (10·nb,) (the pull is measured in units of
             D); default the a-priori magnitudes per body block.
         prior_weight: λ / μ.
-        null_weight: μ / (the smallest non-zero eigenvalue of the data term's Hessian).
+        null_weight: stage 1's pull / μ (module docstring).
+        chi2_tolerance: Δχ² of stage 2; 0 skips it.
         margin: ε of the pseudo-inertia constraint.
 
     Raises:
         NoSolutionFound: the solver failed (e.g. bounds that contradict each other or the data).
         UnknownNameError: a bound on an unknown body.
     """
-    # lazy: pydrake stays out of `import pe_drake`
-    from pydrake.solvers import ClarabelSolver, MathematicalProgram, ScsSolver, SolverOptions
-
     bounds = bounds or PhysicalBounds()
     bounds.check(body_names)
     p = A.shape[1]
@@ -186,27 +193,70 @@ def physical_fit(
     Rs, z = R[:k, :k], R[:k, k]
     H = Rs.T @ Rs
     x_prior = np.concatenate([prior[cols] / D, np.zeros(d)])
-    P_null, mu = _null_pull(H, None if base_K is None else base_K[:, cols] * D, len(cols), null_weight)
+    KD = None
+    if base_K is not None:
+        inside = sorted((extra_in_base or {}).items())
+        KD = np.column_stack([base_K[:, cols] * D] + [np.asarray(c, float) * s_e[k] for k, c in inside])
+    P_null, mu = _null_pull(H, KD, len(cols), 1.0)
     # The data term as (x − x0)ᵀ H (x − x0) about its minimizer nearest the prior, x0: the
     # objective is then ~0 where the constraints are inactive, so the solver's relative
-    # tolerance resolves the small pull μ (about −‖z‖² it would drown in the signal energy).
+    # tolerance resolves the small pulls (about −‖z‖² they would drown in the signal energy).
     x0 = x_prior + np.linalg.lstsq(Rs, z - Rs @ x_prior, rcond=1e-13)[0]
-    Q = 2.0 * (H + mu * P_null + prior_weight * mu * np.diag(np.r_[np.ones(len(cols)), np.zeros(d)]))
-    c = -2.0 * H @ x0 - (Q - 2.0 * H) @ x_prior
-    norm = mu / null_weight  # the least determined direction's curvature: 1
+    iso = np.diag(np.r_[np.ones(len(cols)), np.zeros(d)])
+    pull = P_null + prior_weight * iso  # in units of μ, the least determined direction's curvature
+    # Stage 1: the best physically valid fit of the data (a pull of null_weight·μ only
+    # selects among equally good fits).
+    Q = 2.0 * (H + null_weight * mu * pull)
+    c = -2.0 * H @ x0 - 2.0 * null_weight * mu * pull @ x_prior
+    prog, x = _program(Q / mu, c / mu, k, D, active, prior, lower, s_e, len(cols), body_names, bounds, margin)
+    sol = _solve(prog, x, x_prior, bounds)
+    stage2_failed = False
+    if chi2_tolerance > 0:
+        # Stage 2: the parameters nearest the a-priori model (in the null-space metric) among
+        # those whose whitened misfit exceeds stage 1's by at most chi2_tolerance.
+        e = sol - x0
+        bound = float(e @ H @ e) + chi2_tolerance
+        prog, x = _program(2.0 * pull, -2.0 * pull @ x_prior, k, D, active, prior, lower, s_e, len(cols),
+                           body_names, bounds, margin)
+        # ‖Rs (x − x0)‖ ≤ √bound as a Lorentz cone [√bound; Rs x − Rs x0]
+        prog.AddLorentzConeConstraint(np.vstack([np.zeros((1, k)), Rs]), np.r_[np.sqrt(bound), -Rs @ x0], x)
+        try:
+            sol = _solve(prog, x, sol, bounds)
+        except NoSolutionFound:  # e.g. noise-free data: whitened rows of 1e9; keep stage 1
+            stage2_failed = True
+    phi = np.zeros(p)
+    phi[cols] = D * sol[: len(cols)]
+    theta = s_e * sol[len(cols) :]
+    notes = fit_notes(phi, prior, theta, lower, list(extra_names), list(body_names), bounds, margin)
+    if stage2_failed:
+        notes.append("the solver failed on the pull toward the a-priori model within the confidence region; "
+                     "the best physically valid fit is kept")
+    return PhysicalFit(phi, theta, tuple(notes))
+
+
+def _program(Q, c, k, D, active, prior, lower, s_e, ncols, body_names, bounds, margin):
+    """The SDP with cost ½xᵀQx + cᵀx: pseudo-inertias ⪰ margin·m_prior·1, drive bounds, user bounds."""
+    from pydrake.solvers import MathematicalProgram  # lazy: pydrake stays out of `import pe_drake`
+
     prog = MathematicalProgram()
     x = prog.NewContinuousVariables(k, "x")
-    prog.AddQuadraticCost(Q / norm, c / norm, x, is_convex=True)
+    prog.AddQuadraticCost(Q, c, x, is_convex=True)
     F = pseudo_inertia_basis()
     for i, b in enumerate(active):
-        xs = x[10 * i : 10 * i + 10]
         dk = D[10 * i : 10 * i + 10]
         F0 = -margin * prior[10 * b] * np.eye(4)
-        prog.AddLinearMatrixInequalityConstraint([F0] + [F[j] * dk[j] for j in range(10)], xs)
-    for j in range(d):
+        prog.AddLinearMatrixInequalityConstraint([F0] + [F[j] * dk[j] for j in range(10)], x[10 * i : 10 * i + 10])
+    for j in range(k - ncols):
         if np.isfinite(lower[j]):
-            prog.AddBoundingBoxConstraint(lower[j] / s_e[j], np.inf, x[len(cols) + j])
+            prog.AddBoundingBoxConstraint(lower[j] / s_e[j], np.inf, x[ncols + j])
     _add_bounds(prog, x, D, active, list(body_names), bounds)
+    return prog, x
+
+
+def _solve(prog, x, guess: np.ndarray, bounds: PhysicalBounds) -> np.ndarray:
+    """Clarabel (SCS when unavailable) at tolerance 1e-10; NoSolutionFound on failure."""
+    from pydrake.solvers import ClarabelSolver, ScsSolver, SolverOptions  # lazy, as above
+
     solver = ClarabelSolver()
     if not solver.available():  # pragma: no cover - the drake wheel ships Clarabel
         solver = ScsSolver()
@@ -214,18 +264,13 @@ def physical_fit(
     if solver.solver_id() == ClarabelSolver.id():
         for key in ("tol_gap_abs", "tol_gap_rel", "tol_feas"):
             options.SetOption(solver.solver_id(), key, 1e-10)
-    result = solver.Solve(prog, x_prior, options)
+    result = solver.Solve(prog, guess, options)
     if not result.is_success():
         hint = " or relax the identification bounds" if not bounds.empty else ""
         raise NoSolutionFound(
             f"the physically consistent fit failed ({solver.solver_id().name()}: "
             f"{result.get_solution_result().name}); try --method wls{hint}", result)
-    sol = result.GetSolution(x)
-    phi = np.zeros(p)
-    phi[cols] = D * sol[: len(cols)]
-    theta = s_e * sol[len(cols) :]
-    notes = fit_notes(phi, prior, theta, lower, list(extra_names), list(body_names), bounds, margin)
-    return PhysicalFit(phi, theta, tuple(notes))
+    return result.GetSolution(x)
 
 
 def _null_pull(H: np.ndarray, KD: np.ndarray | None, p: int, weight: float) -> tuple[np.ndarray, float]:
@@ -237,10 +282,11 @@ def _null_pull(H: np.ndarray, KD: np.ndarray | None, p: int, weight: float) -> t
     if KD is None:
         w, V = np.linalg.eigh(H[:p, :p])
         N = V[:, w <= tol]
-    else:
+    else:  # the φ-part of the null space of [K D | c_k s_k]: orthonormal basis of its span
         _, s, Vt = np.linalg.svd(KD)
         rank = int(np.sum(s > 1e-10 * max(s.max(), 1e-300)))
-        N = Vt[rank:].T
+        U, s2, _ = np.linalg.svd(Vt[rank:, :p].T, full_matrices=False)
+        N = U[:, s2 > 1e-8 * max(s2.max(), 1e-300)] if s2.size else U[:, :0]
     P = np.zeros_like(H)
     P[:p, :p] = N @ N.T
     return P, mu

@@ -56,3 +56,11 @@ def sandwich_covariance(W: np.ndarray, residual: np.ndarray, cov_unit: np.ndarra
     for c in range(r):
         M += tau[c] * s2[c] * (W[:, c, :].T @ W[:, c, :])
     return cov_unit @ M @ cov_unit
+
+
+def confidence_chi2(count: int, level: float = 0.95) -> float:
+    """The χ² quantile of ``count`` degrees of freedom: the boundary of the ``level``
+    confidence region {x : (x − x̂)ᵀ Cov⁻¹ (x − x̂) ≤ q} of a ``count``-parameter estimate."""
+    from scipy.special import chdtri  # lazy: scipy.special is only needed here
+
+    return float(chdtri(max(int(count), 1), 1.0 - level))
