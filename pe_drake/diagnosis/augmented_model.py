@@ -38,7 +38,6 @@ import numpy as np
 from pe_drake.exceptions import ConfigError
 from pe_drake.identification.physical_fit import physical_fit
 from pe_drake.identification.simulation import build_true_robot
-from pe_drake.identification.statistics import confidence_chi2
 from pe_drake.identification.truth import EffectsTruth, PayloadTruth, Truth
 from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.inertia import (
@@ -287,10 +286,10 @@ def physical_parameters(K: np.ndarray, phi_prior: np.ndarray, Sigma_phi: np.ndar
     w, V = np.linalg.eigh(0.5 * (H + H.T))
     L = (V * np.sqrt(np.maximum(w, 0.0))).T  # LᵀL = H
     names = [f"body{b}" for b in range(nb)]
-    # H is the information matrix of φ_B: the misfit is a χ² of b degrees of freedom, and the
-    # pull toward the prior stays within the 95 % confidence region of φ_B.
+    # H is the information matrix of φ_B, so the misfit is a χ²: the pull toward the prior may
+    # raise it by 1 (a one-σ move), the augmented model's torque stays the fit's.
     fit = physical_fit(L @ K, L @ phi_B, np.asarray(phi_prior, float), names, base_K=K, scale=d,
-                       prior_weight=prior_weight, margin=margin, chi2_tolerance=confidence_chi2(len(phi_B)))
+                       prior_weight=prior_weight, margin=margin, chi2_tolerance=1.0)
     return fit.phi
 
 
