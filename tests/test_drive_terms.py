@@ -230,3 +230,30 @@ def test_validate_accepts_the_diagnosis_augmented_model(tmp_path):
     want += model.coulomb * np.tanh(v / COULOMB_VELOCITY_SCALE)
     data = Measurement(np.arange(30.0), q, want, v, vd, robot.joint_names)
     np.testing.assert_allclose(predict(robot, loaded, data), want, atol=1e-9)
+
+
+def test_model_urdf_holds_the_viscous_friction_and_armature(optimized, tmp_path):
+    """Drake reads the URDF's damping and drake:rotor_inertia: its inverse dynamics is the identified
+    model's torque minus Coulomb friction and offsets (which a URDF cannot hold)."""
+    import dataclasses
+
+    from pe_drake.identification.drive_terms import urdf_dynamics
+    from pe_drake.multibody.robot import load_robot
+    from pe_drake.multibody.urdf import write_robot_urdf
+    from tests.conftest import random_states
+
+    robot = get_robot("panda")
+    truth = drive_truth(robot, seed=4)
+    result = identify(robot, with_drive(robot, optimized, truth, duration=optimized.period), "physical")
+    damping, rotor, notes = urdf_dynamics(result.drive)
+    assert set(rotor) == set(robot.joint_names)  # the merged armatures of joints 1-2 too
+    path = write_robot_urdf(tmp_path / "model.urdf", robot, result.phi, damping=damping, rotor_inertia=rotor)
+    loaded = load_robot(dataclasses.replace(robot.config, model=str(path), capsules=""))
+    q, v, vd = random_states(robot, 20, seed=3)
+    from pe_drake.identification.measurements import Measurement
+
+    data = Measurement(np.arange(20.0), q, np.zeros_like(q), v, vd, robot.joint_names)
+    # φ_B holds the merged armatures already; the URDF's rotor inertias hold them too
+    want = predict(robot, result, data) - result.drive.torque(v, vd)
+    want += result.drive.per_joint("viscous") * v + result.drive.per_joint("armature") * vd
+    np.testing.assert_allclose(loaded.inverse_dynamics(q, v, vd, include_damping=True), want, atol=1e-6)

@@ -15,7 +15,13 @@ from pe_drake.exceptions import ConfigError
 from pe_drake.excitation.trajectory_file import load_trajectory
 from pe_drake.identification.channels import measured_values
 from pe_drake.identification.data_checks import check_against_model, check_raw_measurement
-from pe_drake.identification.drive_terms import DriveTermOptions, drive_summary, filtered_coulomb, format_percent
+from pe_drake.identification.drive_terms import (
+    DriveTermOptions,
+    drive_summary,
+    filtered_coulomb,
+    format_percent,
+    urdf_dynamics,
+)
 from pe_drake.identification.estimators import (
     fit_warnings,
     identify,
@@ -88,8 +94,10 @@ def identify_command(args: argparse.Namespace) -> int:
         model_file = None
         if phi is not None:
             try:
-                write_robot_urdf(tmp / "model.urdf", robot, phi)
+                damping, rotor, urdf_notes = urdf_dynamics(result.drive)
+                write_robot_urdf(tmp / "model.urdf", robot, phi, damping=damping, rotor_inertia=rotor)
                 model_file = "model.urdf"
+                note = "; ".join([note] * bool(note) + urdf_notes)
             except (PhysicallyInvalidError, ConfigError) as err:
                 note = f"model.urdf not written: {err}"
         d = result_to_dict(result, robot, model_file)

@@ -223,11 +223,14 @@ class DriveFit:
         layout: the columns.
         theta: values, shape (d,) (units of ``layout.units``).
         sigma: their standard deviations, shape (d,).
+        merged_armature: {joint: value [kg·m²]} the physical fit gave the armatures that are
+            not separable (already inside the base parameters; the URDF's rotor inertia).
     """
 
     layout: DriveLayout
     theta: np.ndarray
     sigma: np.ndarray
+    merged_armature: dict[str, float] = dataclasses.field(default_factory=dict)
 
     def torque(self, v: np.ndarray, vd: np.ndarray, coulomb: np.ndarray | None = None) -> np.ndarray:
         """D θ at the samples, shape (S, n) [N·m]."""
@@ -251,6 +254,8 @@ class DriveFit:
             table[name]["armature"] = {"value": None, "identifiable": False, "merged_into": coef,
                                        "note": "in the span of the rigid-body base columns: only the sum with "
                                                "these base parameters is identifiable"}
+            if name in self.merged_armature:  # included in the base parameters
+                table[name]["armature"]["physical_fit_value"] = self.merged_armature[name]
         return {
             "joints": table,
             "velocity_scale": self.layout.velocity_scale,
@@ -271,13 +276,15 @@ class DriveFit:
         unknown = set(table) - set(names)
         if unknown:
             raise ValueError(f"drive terms for joints {', '.join(sorted(unknown))} not in {', '.join(names)}")
-        terms, joints, units, theta, sigma, merged = [], [], [], [], [], {}
+        terms, joints, units, theta, sigma, merged, merged_values = [], [], [], [], [], {}, {}
         for j, name in enumerate(names):
             for t, entry in table.get(name, {}).items():
                 if t not in _UNITS:
                     raise ValueError(f"unknown drive term '{t}' (valid: {', '.join(_UNITS)})")
                 if entry.get("value") is None:
                     merged[name] = dict(entry.get("merged_into", {}))
+                    if entry.get("physical_fit_value") is not None:
+                        merged_values[name] = float(entry["physical_fit_value"])
                     continue
                 terms.append(t)
                 joints.append(j)
@@ -287,7 +294,7 @@ class DriveFit:
         layout = DriveLayout(tuple(terms), tuple(joints), names, tuple(units),
                              float(d.get("velocity_scale", COULOMB_VELOCITY_SCALE)), merged,
                              dict(d.get("dropped", {})))
-        return cls(layout, np.array(theta, float), np.array(sigma, float))
+        return cls(layout, np.array(theta, float), np.array(sigma, float), merged_values)
 
 
 def percent_or_none(value: float, sigma: float) -> float | None:
@@ -394,3 +401,28 @@ def filtered_coulomb(raw, data, velocity_scale: float = COULOMB_VELOCITY_SCALE) 
     column = lowpass.apply(coulomb_column(v, velocity_scale))
     idx = np.clip(np.rint((data.t - grid.t[0]) / grid.dt).astype(int), 0, len(grid.t) - 1)
     return column[idx]
+
+
+def urdf_dynamics(fit: DriveFit | None) -> tuple[dict[str, float], dict[str, float], list[str]]:
+    """What of the drive terms a URDF can hold: ({joint: damping}, {joint: rotor inertia}, notes).
+
+    Viscous friction becomes the joint's ``<dynamics damping>`` and the armature Drake's
+    ``drake:rotor_inertia`` (gear ratio 1); negative values (a WLS fit is unconstrained) are
+    left out. Drake ignores ``<dynamics friction>``, so Coulomb friction and offsets stay in
+    identified.json.
+    """
+    if fit is None or fit.layout.count == 0:
+        return {}, {}, []
+    damping, rotor, notes = {}, {}, []
+    for t, j, x in zip(fit.layout.terms, fit.layout.joints, fit.theta):
+        name = fit.layout.joint_names[j]
+        if t not in ("viscous", "armature"):
+            continue
+        if x < 0:
+            notes.append(f"{t}[{name}] = {x:.3g} < 0 is not written to the URDF")
+            continue
+        (damping if t == "viscous" else rotor)[name] = float(x)
+    rotor.update({name: x for name, x in fit.merged_armature.items() if x > 0})
+    notes.append("Coulomb friction and torque offsets are in identified.json only (Drake's URDF parser ignores "
+                 "<dynamics friction>)")
+    return damping, rotor, notes

@@ -367,7 +367,8 @@ def identify(
         source=data.source,
         measurement=measurement,
         channels=channels,
-        drive=DriveFit(layout, x[b:], np.sqrt(np.maximum(np.diag(cov)[b:], 0.0))),
+        drive=DriveFit(layout, x[b:], np.sqrt(np.maximum(np.diag(cov)[b:], 0.0)),
+                       physical.merged_armature if physical is not None else {}),
         physical_notes=physical.notes if physical is not None else (),
         friction_share=_friction_share(robot, data, measurement, YB, tau, W @ x, layout, coulomb),
     )
@@ -394,6 +395,7 @@ class _Physical(NamedTuple):
     phi: np.ndarray  # standard parameters (10·nb,)
     x: np.ndarray  # base parameters (merged armatures included), then drive terms
     notes: tuple[str, ...]
+    merged_armature: dict[str, float]  # {joint: value} of the merged armatures
 
 
 def _physical(robot, base: BaseParameters, data: Measurement, layout: DriveLayout, Y: np.ndarray, D: np.ndarray,
@@ -423,7 +425,8 @@ def _physical(robot, base: BaseParameters, data: Measurement, layout: DriveLayou
         if a > 0:
             notes.append(f"armature[{name}] {a:.4g} kg·m² (not separately identifiable) holds the part of "
                          f"{', '.join(layout.merged[name])} above what links near the a-priori model hold")
-    return _Physical(fit.phi, np.concatenate([phi_B, fit.theta[: layout.count]]), tuple(notes))
+    values = {robot.joint_names[j]: float(a) for j, a in zip(merged, fit.theta[layout.count :])}
+    return _Physical(fit.phi, np.concatenate([phi_B, fit.theta[: layout.count]]), tuple(notes), values)
 
 
 def _in_base(base: BaseParameters, coef: dict[str, float]) -> np.ndarray:
