@@ -1,23 +1,25 @@
 """The physically consistent fit: an SDP over the standard parameters and the drive terms.
 
-    min ‖A φ + E θ − y‖² + μ ‖Nᵀ D⁻¹(φ − φ_prior)‖² + λ ‖D⁻¹(φ − φ_prior)‖²
-    s.t. J(φ_b) ⪰ ε m_b,prior 1 for every body (Wensing, Kim & Slotine 2017),
-         θ_k ≥ 0 for friction and armature, and the user's bounds:
-         m_lo ≤ Σ_b m_b ≤ m_hi, m_b ∈ [lo_b, hi_b], m_b·box_lo ≤ h_b ≤ m_b·box_hi.
+Constraints: J(φ_b) ⪰ ε m_b,prior 1 for every body (Wensing, Kim & Slotine 2017), θ_k ≥ 0
+for friction and armature, and the user's bounds m_lo ≤ Σ_b m_b ≤ m_hi, m_b ∈ [lo_b, hi_b],
+m_b·box_lo ≤ h_b ≤ m_b·box_hi. Data term f(φ, θ) = ‖A φ + E θ − y‖² (A, E: the whitened
+standard-parameter regressor and drive columns). In two stages:
 
-A and E are the (weighted) standard-parameter regressor and drive columns, D a per-variable
-scale (the a-priori magnitudes per body block: mass, first moments, inertias), N an
-orthonormal basis of the null space of K·D (K: the base composition, φ_B = K φ), i.e. the
-directions of φ no motion can identify. The a-priori pull μ acts only in those directions,
-with μ = ``NULL_WEIGHT`` (1) × the smallest non-zero eigenvalue of the data term's Hessian:
-the data term is flat along them, so the pull picks the point nearest the a-priori model among
-the data's best fits; where the constraints tie a null direction to the data (a body that must
-grow to stay physical), moving one a-priori unit (e.g. 100 % of a link's mass) along it costs
-as much as one unit along the least determined identifiable direction. On the real Panda
-recording a weight of 1e-4 let the masses drift to 31 kg for a 16.8 kg CAD arm for a 0.7 %
-lower held-out RMS (BUILD_NOTES.md). λ = ``prior_weight`` × μ (1e-6) only makes the problem
-strictly convex; it does not bias what the data determines.
-Bodies whose a-priori mass is zero stay at zero.
+1. min f + μ_1 ‖N_D(φ − φ_prior)‖²: the best physically valid fit (μ_1 = ``NULL_WEIGHT``
+   (1e-4) × μ only chooses among equally good fits);
+2. min ‖N_D(φ − φ_prior)‖² + λ‖D⁻¹(φ − φ_prior)‖² s.t. f ≤ f_1 + Δχ²: among the fits that the
+   data cannot tell from stage 1's (identify passes Δχ² = 4 in correlation-corrected units,
+   a two-σ move), the one nearest the a-priori model.
+
+D is a per-variable scale (the a-priori magnitudes per body block: mass, first moments,
+inertias), N_D the projector onto the φ-part of the null space of [K·D | c_k] (K: the base
+composition, φ_B = K φ; c_k: the base-parameter expression of a merged armature): the
+directions of φ no motion can identify, where the prior decides. μ is the smallest non-zero
+eigenvalue of f's Hessian and λ = ``prior_weight`` (1e-6) only makes stage 2 strictly convex.
+A single stage with the pull in the objective either lets masses drift where constraints tie
+null directions to the data (weight 1e-4: 31 kg for the real Panda's 16.8 kg CAD) or biases
+what the data determines (weight 1: 5e-5 relative base-parameter error on noise-free data of
+a Panda with ±10 % inertias, against 3e-8); BUILD_NOTES.md has the figures. Bodies whose a-priori mass is zero stay at zero.
 
 The CoM box of a link is a linear constraint on its first moments h = m c (in the link frame,
 about its origin, [m]): box_lo·m ≤ h ≤ box_hi·m keeps c in the box for any m > 0.
@@ -185,19 +187,10 @@ def physical_fit(
     active = [b for b in range(len(body_names)) if prior[10 * b] > 0]
     cols = np.concatenate([np.arange(10 * b, 10 * b + 10) for b in active])
     D = (_variable_scale(prior, active) if scale is None else np.asarray(scale, float))[cols]
-    s_e = np.linalg.norm(y) / np.maximum(np.linalg.norm(E, axis=0), 1e-300) / max(np.sqrt(A.shape[0]), 1.0)
-    s_e = np.where(np.linalg.norm(E, axis=0) > 0, s_e, 1.0)
+    s_e, Rs, z, P_null, mu = _data_term(A[:, cols] * D, E, y, base_K, cols, D, extra_in_base)
     k = len(cols) + d
-    # Compress the data term with a QR: ‖[A_s E_s] x − y‖² = ‖R x − z‖² + const.
-    R = np.linalg.qr(np.column_stack([A[:, cols] * D, E * s_e, y]), mode="r")
-    Rs, z = R[:k, :k], R[:k, k]
     H = Rs.T @ Rs
     x_prior = np.concatenate([prior[cols] / D, np.zeros(d)])
-    KD = None
-    if base_K is not None:
-        inside = sorted((extra_in_base or {}).items())
-        KD = np.column_stack([base_K[:, cols] * D] + [np.asarray(c, float) * s_e[k] for k, c in inside])
-    P_null, mu = _null_pull(H, KD, len(cols), 1.0)
     # The data term as (x − x0)ᵀ H (x − x0) about its minimizer nearest the prior, x0: the
     # objective is then ~0 where the constraints are inactive, so the solver's relative
     # tolerance resolves the small pulls (about −‖z‖² they would drown in the signal energy).
@@ -232,6 +225,22 @@ def physical_fit(
         notes.append("the solver failed on the pull toward the a-priori model within the confidence region; "
                      "the best physically valid fit is kept")
     return PhysicalFit(phi, theta, tuple(notes))
+
+
+def _data_term(AD: np.ndarray, E: np.ndarray, y: np.ndarray, base_K, cols, D, extra_in_base):
+    """(drive scales s_e, R, z with ‖[A D | E s_e] x − y‖² = ‖R x − z‖² + const (QR), the
+    null-space projector, μ)."""
+    norms = np.linalg.norm(E, axis=0)
+    s_e = np.where(norms > 0, np.linalg.norm(y) / np.maximum(norms, 1e-300) / max(np.sqrt(len(y)), 1.0), 1.0)
+    k = AD.shape[1] + E.shape[1]
+    R = np.linalg.qr(np.column_stack([AD, E * s_e, y]), mode="r")
+    Rs, z = R[:k, :k], R[:k, k]
+    KD = None
+    if base_K is not None:
+        inside = sorted((extra_in_base or {}).items())
+        KD = np.column_stack([base_K[:, cols] * D] + [np.asarray(c, float) * s_e[i] for i, c in inside])
+    P_null, mu = _null_pull(Rs.T @ Rs, KD, AD.shape[1], 1.0)
+    return s_e, Rs, z, P_null, mu
 
 
 def _program(Q, c, k, D, active, prior, lower, s_e, ncols, body_names, bounds, margin):
