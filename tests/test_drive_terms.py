@@ -296,3 +296,18 @@ def test_real_panda_drive_terms_beat_the_rigid_fit_and_masses_stay_plausible():
     assert np.all(rms["all", "physical"] < 1.5 * rms["all", "wls"])  # measured 0.98-1.39
     total, cad = r.phi[0::10].sum(), robot.phi_model[0::10].sum()
     assert 0.8 * cad < total < 1.25 * cad  # measured 17.0 kg against 16.8
+
+
+def test_drive_effects_yaml_is_a_truth_file_for_simulate(optimized, tmp_path):
+    from pe_drake.identification.drive_terms import drive_effects_yaml
+    from pe_drake.identification.truth import load_truth
+
+    robot = get_robot("panda")
+    truth = drive_truth(robot, seed=4)
+    result = identify(robot, with_drive(robot, optimized, truth, duration=optimized.period), "physical")
+    (tmp_path / "drive_effects.yaml").write_text(drive_effects_yaml(result.drive))
+    effects = load_truth(tmp_path / "drive_effects.yaml").effects
+    for j, name in enumerate(robot.joint_names):
+        assert effects.coulomb[name] == pytest.approx(result.drive.per_joint("coulomb")[j])
+        assert effects.torque_offset[name] == pytest.approx(result.drive.per_joint("offset")[j])
+    assert set(effects.armature) == set(robot.joint_names)  # merged ones from the physical fit

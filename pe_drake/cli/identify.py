@@ -17,6 +17,7 @@ from pe_drake.identification.channels import measured_values
 from pe_drake.identification.data_checks import check_against_model, check_raw_measurement
 from pe_drake.identification.drive_terms import (
     DriveTermOptions,
+    drive_effects_yaml,
     drive_summary,
     filtered_coulomb,
     format_percent,
@@ -109,9 +110,14 @@ def identify_command(args: argparse.Namespace) -> int:
         d["total_time_s"] = time.perf_counter() - start
         (tmp / "identified.json").write_text(json.dumps(d, indent=2))
         _plot_residuals(tmp / "residuals.png", robot, data, result, coulomb)
+        if model_file and result.drive is not None and result.drive.layout.count:
+            (tmp / "drive_effects.yaml").write_text(drive_effects_yaml(result.drive))
+            model_file_extra = ["drive_effects.yaml"]
+        else:
+            model_file_extra = []
     if note:
         print(note)
-    written = ["identified.json", "residuals.png"] + ([model_file] if model_file else [])
+    written = ["identified.json", "residuals.png"] + ([model_file] if model_file else []) + model_file_extra
     remove_stale_outputs(out, IDENTIFY_OUTPUTS, written)  # e.g. an earlier run's model.urdf
     print(f"wrote {out}/" + ", ".join(written))
     return 0

@@ -426,3 +426,27 @@ def urdf_dynamics(fit: DriveFit | None) -> tuple[dict[str, float], dict[str, flo
     notes.append("Coulomb friction and torque offsets are in identified.json only (Drake's URDF parser ignores "
                  "<dynamics friction>)")
     return damping, rotor, notes
+
+
+def drive_effects_yaml(fit: DriveFit) -> str:
+    """The drive terms as a TRUTH.yaml ``effects`` section, so that
+    ``pe-drake simulate --robot model.urdf --truth drive_effects.yaml`` runs the identified model
+    (viscous and armature repeat model.urdf's damping and rotor inertia; negative values, which
+    the simulator refuses, are left out)."""
+    def table(term: str, nonnegative: bool) -> str:
+        values = {fit.layout.joint_names[j]: float(x) for t, j, x in zip(fit.layout.terms, fit.layout.joints, fit.theta)
+                  if t == term and x != 0 and not (nonnegative and x < 0)}
+        if term == "armature":
+            values.update({k: v for k, v in fit.merged_armature.items() if v > 0})
+        return "{" + ", ".join(f"{j}: {v!r}" for j, v in values.items()) + "}"
+
+    return (
+        "# Drive terms identified by pe-drake identify (TRUTH.yaml schema of pe-drake simulate):\n"
+        "#   pe-drake simulate --robot model.urdf --truth drive_effects.yaml ...\n"
+        "effects:\n"
+        f"  viscous: {table('viscous', True)}   # [N·m·s/rad]\n"
+        f"  coulomb: {table('coulomb', True)}   # [N·m], f_c·tanh(v / v_s)\n"
+        f"  coulomb_velocity_scale: {fit.layout.velocity_scale!r}   # v_s [rad/s]\n"
+        f"  armature: {table('armature', True)}   # [kg·m²]\n"
+        f"  torque_offset: {table('offset', False)}   # [N·m]\n"
+    )
