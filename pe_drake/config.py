@@ -290,6 +290,37 @@ class ControllerConfig:
     lead_in_s: float = 1.0
     topic: str = "/joint_trajectory_controller/joint_trajectory"
     joint_names: dict[str, str] = dataclasses.field(default_factory=dict)
+class CoMBoxConfig:
+    """Where a link's centre of mass may be, in the link's frame (``identification.boxes``).
+
+    Attributes:
+        center: [x, y, z] [m].
+        size: full edge lengths [sx, sy, sz] [m].
+    """
+
+    center: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
+    size: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
+
+
+@dataclasses.dataclass
+class IdentificationConfig:
+    """What ``pe-drake identify`` models and the bounds of its physical fit (issue 23).
+
+    Attributes:
+        drive_terms: "all" (default: Coulomb and viscous friction and a torque offset per
+            joint, and the armature where the kinematics separate it from the link inertias),
+            "friction" (no armature) or "none" (rigid body only); ``--drive-terms`` overrides.
+        coulomb_velocity_scale: v_s of the Coulomb column tanh(v/v_s) [rad/s], the diagnosis's.
+        total_mass: [lo, hi] of the summed mass of the moving links [kg]; empty: no bound.
+        mass_bounds: {link: [lo, hi]} [kg].
+        boxes: {link: CoM box in the link's frame [m]}: the CoM stays inside.
+    """
+
+    drive_terms: str = "all"
+    coulomb_velocity_scale: float = 0.01
+    total_mass: list[float] = dataclasses.field(default_factory=list)
+    mass_bounds: dict[str, list[float]] = dataclasses.field(default_factory=dict)
+    boxes: dict[str, CoMBoxConfig] = dataclasses.field(default_factory=dict)
 
 
 @dataclasses.dataclass
@@ -303,6 +334,7 @@ class Config:
     parallel: ParallelConfig = dataclasses.field(default_factory=ParallelConfig)
     data: DataConfig = dataclasses.field(default_factory=DataConfig)
     controller: ControllerConfig = dataclasses.field(default_factory=ControllerConfig)
+    identification: IdentificationConfig = dataclasses.field(default_factory=IdentificationConfig)
 
 
 CRITERIA = ("cond", "soft_cond", "log_cond", "dopt")
@@ -459,6 +491,7 @@ def validate_config(config: Config) -> Config:
     _validate_safety(config)
     _validate_parallel(config.parallel)
     _validate_logs(config)
+    _validate_identification(config.identification)
     return config
 
 
@@ -481,6 +514,29 @@ def _validate_logs(config: Config) -> None:
     check_finite("controller.lead_in_s [s]", c.lead_in_s, positive=True)
     if not c.topic.startswith("/"):
         raise ConfigError(f"controller.topic must start with '/', got '{c.topic}'")
+
+
+def _validate_identification(c: IdentificationConfig) -> None:
+    """Drive-term choice and the physical fit's bounds (issue 23)."""
+    choices = ("none", "friction", "all")
+    if c.drive_terms not in choices:
+        raise ConfigError(f"identification.drive_terms '{c.drive_terms}' is not one of {', '.join(choices)}")
+    check_finite("identification.coulomb_velocity_scale", c.coulomb_velocity_scale, positive=True)
+    pairs = [("identification.total_mass", c.total_mass)] if c.total_mass else []
+    pairs += [(f"identification.mass_bounds['{k}']", v) for k, v in c.mass_bounds.items()]
+    for name, pair in pairs:
+        if len(pair) != 2:
+            raise ConfigError(f"{name} must be [lo, hi] [kg], got {pair}")
+        lo, hi = (check_finite(name, v, nonneg=True) for v in pair)
+        if lo > hi:
+            raise ConfigError(f"{name}: lower {lo} > upper {hi} [kg]")
+    for link, box in c.boxes.items():
+        if len(box.center) != 3 or len(box.size) != 3:
+            raise ConfigError(f"identification.boxes['{link}'] needs center [x, y, z] and size [sx, sy, sz] [m]")
+        for v in box.center:
+            check_finite(f"identification.boxes['{link}'].center", v)
+        for v in box.size:
+            check_finite(f"identification.boxes['{link}'].size", v, nonneg=True)
 
 
 def _validate_safety(config: Config) -> None:

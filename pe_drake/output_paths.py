@@ -29,7 +29,7 @@ OPTIMIZE_OUTPUTS = (
 
 
 #: Files ``pe-drake identify`` writes into its output folder.
-IDENTIFY_OUTPUTS = ("identified.json", "residuals.png", "model.urdf")
+IDENTIFY_OUTPUTS = ("identified.json", "residuals.png", "model.urdf", "drive_effects.yaml")
 
 #: Files ``pe-drake diagnose`` writes into its output folder.
 DIAGNOSE_OUTPUTS = (

@@ -312,3 +312,15 @@ def test_real_panda_recording(robot):
     assert ("coulomb_friction", "panda_joint7") in found
     assert np.all(result.rms_after < 0.5 * result.rms_nominal)
     assert result.regimes["panda_joint7"]["correlation_sign_v"] > 0.9
+
+
+def test_every_candidate_gets_a_decision_with_its_statistic(robot, trajectory):
+    """Issue 23: each per-joint candidate is named, rejected (with z and a reason) or not separable."""
+    from pe_drake.diagnosis.effects import JOINT_EFFECTS
+
+    result = diagnosed(robot, trajectory, "mix")
+    named_ = {(e.effect, e.joint) for e in result.effects if e.effect in JOINT_EFFECTS}
+    rejected = {(r["effect"], r["joint"]) for r in result.rejected if r["effect"] in JOINT_EFFECTS}
+    assert all("z" in r and r["reason"] for r in result.rejected)
+    assert not named_ & rejected
+    assert len(named_) + len(rejected) + len(result.not_separable) == len(JOINT_EFFECTS) * robot.n

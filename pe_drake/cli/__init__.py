@@ -122,6 +122,9 @@ def _add_identification_commands(sub) -> None:
     p.add_argument("--no-filter", action="store_true",
                    help="use the data as it is (exact data with v.* and vdot.* columns)")
     add_measurement_argument(p, "channels to identify from: joint torques, the ground wrench alone, or both")
+    p.add_argument("--drive-terms", choices=["none", "friction", "all"],
+                   help="joint friction (Coulomb + viscous), torque offsets and, with 'all', the armature where "
+                        "separable (default: the config's identification.drive_terms, all)")
     p.add_argument("--out", required=True, help="output folder")
 
     p = sub.add_parser("validate", help="predict torques of another run with an identified model")

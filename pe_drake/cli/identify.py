@@ -15,7 +15,16 @@ from pe_drake.exceptions import ConfigError
 from pe_drake.excitation.trajectory_file import load_trajectory
 from pe_drake.identification.channels import measured_values
 from pe_drake.identification.data_checks import check_against_model, check_raw_measurement
+from pe_drake.identification.drive_terms import (
+    DriveTermOptions,
+    drive_effects_yaml,
+    drive_summary,
+    filtered_coulomb,
+    format_percent,
+    urdf_dynamics,
+)
 from pe_drake.identification.estimators import (
+    fit_warnings,
     identify,
     predict,
     predict_wrench,
@@ -28,6 +37,7 @@ from pe_drake.identification.identified_file import (
     standard_from_base,
     standard_parameters_dict,
 )
+from pe_drake.identification.physical_fit import bounds_from_config
 from pe_drake.io_utils import atomic_write_text, staged_output_dir
 from pe_drake.multibody.inertia import PhysicallyInvalidError, validity_problems
 from pe_drake.multibody.sensors import MeasurementType
@@ -72,16 +82,24 @@ def identify_command(args: argparse.Namespace) -> int:
     check_against_model(robot, data)  # sign-flipped torque columns
     _print_data_summary(args, robot, raw, data)
     print_notes(data)
-    result = identify(robot, data, args.method, measurement=measurement)
+    choice = config.identification
+    drive = DriveTermOptions(getattr(args, "drive_terms", None) or choice.drive_terms, choice.coulomb_velocity_scale)
+    coulomb = filtered_coulomb(raw, data, drive.velocity_scale) if data is not raw else None
+    result = identify(robot, data, args.method, measurement=measurement, drive_terms=drive,
+                      bounds=bounds_from_config(choice), coulomb=coulomb)
     _print_fit_summary(args.method, robot, result)
+    for line in drive_summary(result.drive) + fit_warnings(result):
+        print(line)
     phi, note = _model_parameters(robot, result)
     out = Path(args.out)
     with staged_output_dir(out) as tmp:
         model_file = None
         if phi is not None:
             try:
-                write_robot_urdf(tmp / "model.urdf", robot, phi)
+                damping, rotor, urdf_notes = urdf_dynamics(result.drive)
+                write_robot_urdf(tmp / "model.urdf", robot, phi, damping=damping, rotor_inertia=rotor)
                 model_file = "model.urdf"
+                note = "; ".join([note] * bool(note) + urdf_notes)
             except (PhysicallyInvalidError, ConfigError) as err:
                 note = f"model.urdf not written: {err}"
         d = result_to_dict(result, robot, model_file)
@@ -92,10 +110,15 @@ def identify_command(args: argparse.Namespace) -> int:
             d["note"] = note
         d["total_time_s"] = time.perf_counter() - start
         (tmp / "identified.json").write_text(json.dumps(d, indent=2))
-        _plot_residuals(tmp / "residuals.png", robot, data, result)
+        _plot_residuals(tmp / "residuals.png", robot, data, result, coulomb)
+        if model_file and result.drive is not None and result.drive.layout.count:
+            (tmp / "drive_effects.yaml").write_text(drive_effects_yaml(result.drive))
+            model_file_extra = ["drive_effects.yaml"]
+        else:
+            model_file_extra = []
     if note:
         print(note)
-    written = ["identified.json", "residuals.png"] + ([model_file] if model_file else [])
+    written = ["identified.json", "residuals.png"] + ([model_file] if model_file else []) + model_file_extra
     remove_stale_outputs(out, IDENTIFY_OUTPUTS, written)  # e.g. an earlier run's model.urdf
     print(f"wrote {out}/" + ", ".join(written))
     return 0
@@ -110,9 +133,12 @@ def _print_data_summary(args: argparse.Namespace, robot, raw, data) -> None:
         flush=True,
     )
     if p is not None:
+        grid = (f"resampled onto a uniform {p.input_rate_hz:.0f} Hz grid (the raw time steps vary), "
+                if p.resampled else "")
         print(
-            f"preprocessing: low-pass {p.cutoff_hz:.2f} Hz ({p.cutoff_source}), "
-            f"{p.samples_out} samples at {p.rate_hz:.0f} Hz, {p.trim_s:.2f} s trimmed at each end "
+            f"preprocessing: {grid}low-pass {p.cutoff_hz:.2f} Hz ({p.cutoff_source}), "
+            f"{p.samples_out} samples at {p.rate_hz:.0f} Hz from {p.samples_in} raw rows, "
+            f"{p.trim_s:.2f} s trimmed at each end "
             f"({p.duration_out_s:.2f} of {p.duration_in_s:.2f} s used), "
             f"v {p.velocity_source}, vdot {p.acceleration_source}",
             flush=True,
@@ -130,7 +156,7 @@ def _print_fit_summary(method: str, robot, result) -> None:
     worst = order[-min(5, len(order)) :][::-1]
     print(
         "least determined base parameters (%σ): "
-        + ", ".join(f"{_short_name(result.base, i)} {result.sigma_percent[i]:.3g}%" for i in worst)
+        + ", ".join(f"{_short_name(result.base, i)} {format_percent(result.sigma_percent[i])}" for i in worst)
     )
     print(
         "residual RMS [N·m, N]: "
@@ -174,7 +200,9 @@ def validate_command(args: argparse.Namespace) -> int:
     config = config_from_args(args)
     measurement = measurement_from_args(args, config)
     robot = robot_from_args(args, config)
-    result = load_identified(args.model, robot)
+    result = load_identified(args.model, robot)  # identified.json or the diagnosis's augmented_model.json
+    for note in result.physical_notes if result.method == "diagnose" else ():
+        print(f"note: {note}")
     raw = read_log_from_args(args, robot, config)
     check_raw_measurement(robot, raw)
     data = prepare_measurement(robot, raw, cutoff_hz=getattr(args, "cutoff", None), max_gap_s=config.data.max_gap_s)
@@ -182,7 +210,8 @@ def validate_command(args: argparse.Namespace) -> int:
     check_against_model(robot, data)
     kind = MeasurementType(measurement)
     names = kind.row_names(robot.joint_names)
-    measured, predicted = _channels(robot, result, data, kind)
+    scale = result.drive.layout.velocity_scale if result.drive is not None else 0.01
+    measured, predicted = _channels(robot, result, data, kind, filtered_coulomb(raw, data, scale))
     rms, rel = torque_errors(measured, predicted)
     total = float(100 * np.linalg.norm(measured - predicted) / max(np.linalg.norm(measured), 1e-300))
     width = max(len(j) for j in names)
@@ -211,22 +240,23 @@ def validate_command(args: argparse.Namespace) -> int:
     return 0
 
 
-def _channels(robot, result, data, kind: MeasurementType) -> tuple[np.ndarray, np.ndarray]:
-    """(measured, predicted), each (S, r): the joint torques, then the ground wrench."""
+def _channels(robot, result, data, kind: MeasurementType, coulomb=None) -> tuple[np.ndarray, np.ndarray]:
+    """(measured, predicted), each (S, r): the joint torques, then the ground wrench
+    (``coulomb``: the parallel-filtered Coulomb columns of the drive terms)."""
     measured_values(robot, data, kind.kind)  # refuses data without the channels, naming them
     measured, predicted = [], []
     if kind.torques:
         measured.append(data.tau)
-        predicted.append(predict(robot, result, data))
+        predicted.append(predict(robot, result, data, coulomb=coulomb))
     if kind.wrench:
         measured.append(data.wrench)
         predicted.append(predict_wrench(robot, result, data))
     return np.hstack(measured), np.hstack(predicted)
 
 
-def _plot_residuals(path: Path, robot, data, result) -> None:
+def _plot_residuals(path: Path, robot, data, result, coulomb=None) -> None:
     """Measured channels and the model's fit on the identification data."""
-    measured, predicted = _channels(robot, result, data, MeasurementType(result.measurement))
+    measured, predicted = _channels(robot, result, data, MeasurementType(result.measurement), coulomb)
     title = f"{robot.name}: {result.method} fit on the identification data"
     _plot_prediction(path, robot, data.t, measured, predicted, result.relative_error, result.channels, title)
 

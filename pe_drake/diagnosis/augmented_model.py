@@ -30,13 +30,13 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import re
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from pe_drake.exceptions import ConfigError, PeDrakeError
+from pe_drake.exceptions import ConfigError
+from pe_drake.identification.physical_fit import physical_fit
 from pe_drake.identification.simulation import build_true_robot
 from pe_drake.identification.truth import EffectsTruth, PayloadTruth, Truth
 from pe_drake.io_utils import atomic_write_text
@@ -52,7 +52,7 @@ from pe_drake.multibody.inertia import (
     validity_problems,
 )
 from pe_drake.multibody.robot import load_robot
-from pe_drake.multibody.urdf import urdf_with_inertias
+from pe_drake.multibody.urdf import joint_dynamics, urdf_with_inertias
 
 PAYLOAD_LINK = "pe_drake_payload"
 
@@ -256,13 +256,12 @@ def physical_parameters(K: np.ndarray, phi_prior: np.ndarray, Sigma_phi: np.ndar
                         H: np.ndarray, *, prior_weight: float = 1e-6, margin: float = 1e-7) -> np.ndarray:
     """Physically consistent φ whose base parameters match φ_B as well as possible.
 
-    min (Kφ - φ_B)ᵀ H (Kφ - φ_B) + μ ‖D⁻¹(φ - φ_prior)‖²  s.t.  J(φ_b) ⪰ ``margin``·m_b·1,
-
-    an SDP in Drake's ``MathematicalProgram`` solved by Clarabel. J is the pseudo-inertia
-    (Wensing et al. 2017), D the a-priori standard deviations (floored as in
-    :func:`conditional_parameters`), μ = ``prior_weight`` × the largest eigenvalue of the
-    data term, so the prior only decides what the base parameters leave free. Massless
-    bodies stay massless.
+    min (Kφ - φ_B)ᵀ H (Kφ - φ_B) + the a-priori pull  s.t.  J(φ_b) ⪰ ``margin``·m_b·1: the
+    identification's SDP (:func:`pe_drake.identification.physical_fit.physical_fit`, one
+    implementation for both stages) with the data term ‖L K φ − L φ_B‖², LᵀL = H, and the
+    variables scaled by the a-priori standard deviations D (floored as in
+    :func:`conditional_parameters`), so the pull toward φ_prior in the directions K does not
+    see is measured in a-priori standard deviations. Massless bodies stay massless.
 
     Args:
         K: φ_B = K φ, (b, p).
@@ -275,44 +274,23 @@ def physical_parameters(K: np.ndarray, phi_prior: np.ndarray, Sigma_phi: np.ndar
         φ, (p,).
 
     Raises:
-        PeDrakeError: the solver failed.
+        NoSolutionFound: the solver failed.
     """
-    # pydrake imported here: keeps `import pe_drake` light.
-    from pydrake.solvers import ClarabelSolver, MathematicalProgram
-
     nb = len(phi_prior) // 10
     active = [b for b in range(nb) if phi_prior[10 * b] > 0]
-    cols = np.concatenate([np.arange(10 * b, 10 * b + 10) for b in active])
     d = np.sqrt(np.maximum(np.diag(Sigma_phi), 0.0))
     for b in active:
         for kind in (slice(0, 1), slice(1, 4), slice(4, 10)):
             idx = np.arange(10 * b, 10 * b + 10)[kind]
             d[idx] = np.maximum(d[idx], 1e-3 * max(d[idx].max(), 1e-12))
-    D = d[cols]
-    KD = K[:, cols] * D
-    H = 0.5 * (H + H.T)
-    r0 = K @ phi_prior - phi_B
-    Q = 2.0 * KD.T @ H @ KD
-    mu = prior_weight * max(float(np.linalg.eigvalsh(Q).max()), 1e-300)
-    Q = Q + 2.0 * mu * np.eye(len(cols))
-    c = 2.0 * KD.T @ H @ r0
-    norm = float(np.max(np.abs(np.diag(Q))))
-    prog = MathematicalProgram()
-    x = prog.NewContinuousVariables(len(cols), "x")
-    prog.AddQuadraticCost(Q / norm, c / norm, x, is_convex=True)
-    basis = [pseudo_inertia(e) for e in np.eye(10)]
-    for k, b in enumerate(active):
-        J0 = pseudo_inertia(phi_prior[10 * b : 10 * b + 10]) - margin * phi_prior[10 * b] * np.eye(4)
-        dk = D[10 * k : 10 * k + 10]
-        prog.AddLinearMatrixInequalityConstraint([J0] + [basis[i] * dk[i] for i in range(10)], x[10 * k : 10 * k + 10])
-    result = ClarabelSolver().Solve(prog, np.zeros(len(cols)), None)
-    if not result.is_success():
-        raise PeDrakeError(f"the physically consistent fit of the augmented model failed "
-                           f"(Clarabel: {result.get_solution_result().name})")
-    phi = np.array(phi_prior, float)
-    phi[~np.isin(np.arange(len(phi)), cols)] = 0.0
-    phi[cols] = phi_prior[cols] + D * result.GetSolution(x)
-    return phi
+    w, V = np.linalg.eigh(0.5 * (H + H.T))
+    L = (V * np.sqrt(np.maximum(w, 0.0))).T  # LᵀL = H
+    names = [f"body{b}" for b in range(nb)]
+    # H is the information matrix of φ_B, so the misfit is a χ²: the pull toward the prior may
+    # raise it by 1 (a one-σ move), the augmented model's torque stays the fit's.
+    fit = physical_fit(L @ K, L @ phi_B, np.asarray(phi_prior, float), names, base_K=K, scale=d,
+                       prior_weight=prior_weight, margin=margin, chi2_tolerance=1.0)
+    return fit.phi
 
 
 def physically_consistent(body_names, phi: np.ndarray, margin: float = 1e-9) -> tuple[np.ndarray, list[str]]:
@@ -380,20 +358,9 @@ def augmented_urdf_text(robot, model: AugmentedModel) -> str:
         PhysicallyInvalidError: an invalid body (cannot happen after :func:`physically_consistent`).
     """
     text = urdf_with_inertias(robot.model_path, model.body_names, model.phi)
-    for j, name in enumerate(model.joints):
-        text = _set_joint_damping(text, name, float(model.viscous[j]))
+    text = joint_dynamics(text, dict(zip(model.joints, map(float, model.viscous))),
+                          {j: float(a) for j, a in zip(model.joints, model.armature) if a > 0})
     extra = []
-    for j, name in enumerate(model.joints):
-        if model.armature[j] > 0:
-            extra.append(
-                f'  <transmission name="pe_drake_armature_{name}">\n'
-                "    <type>transmission_interface/SimpleTransmission</type>\n"
-                f'    <joint name="{name}"><hardwareInterface>EffortJointInterface</hardwareInterface></joint>\n'
-                f'    <actuator name="pe_drake_actuator_{name}">\n'
-                "      <mechanicalReduction>1</mechanicalReduction>\n"
-                f'      <drake:rotor_inertia value="{_num(model.armature[j])}"/>\n'
-                '      <drake:gear_ratio value="1.0"/>\n'
-                "    </actuator>\n  </transmission>\n")
     if model.payload_link:
         phi_p = phi_from_com(model.payload_mass, model.payload_com, inertia_matrix(model.payload_inertia))
         m, p, I = central_inertia(phi_p)
@@ -409,34 +376,12 @@ def augmented_urdf_text(robot, model: AugmentedModel) -> str:
     if extra:
         head, sep, tail = text.rpartition("</robot>")
         text = head + "".join(extra) + sep + tail
-    if "xmlns:drake" not in text:
-        text = re.sub(r"<robot\b", '<robot xmlns:drake="http://drake.mit.edu"', text, count=1)
     return text.replace("with identified inertial parameters (pe_drake)",
                         "augmented by pe-drake diagnose: re-identified inertias, damping, rotor inertia, payload")
 
 
 def _num(x) -> str:
     return repr(float(x))
-
-
-def _set_joint_damping(text: str, joint: str, damping: float) -> str:
-    """Sets ``damping`` in the joint's <dynamics> element (added when missing)."""
-    pattern = re.compile(r'(<joint\b[^>]*\bname="' + re.escape(joint) + r'"[^>]*>)(.*?)(</joint>)', re.S)
-    match = pattern.search(text)
-    if match is None:
-        return text
-    body = match.group(2)
-    dyn = re.search(r"<dynamics\b[^>]*/>", body)
-    if dyn:
-        element = dyn.group(0)
-        if re.search(r'\bdamping="[^"]*"', element):
-            new = re.sub(r'\bdamping="[^"]*"', f'damping="{_num(damping)}"', element)
-        else:
-            new = element.replace("<dynamics", f'<dynamics damping="{_num(damping)}"', 1)
-        body = body.replace(element, new, 1)
-    else:
-        body = body.rstrip() + f'\n    <dynamics damping="{_num(damping)}"/>\n  '
-    return text[: match.start(2)] + body + text[match.end(2) :]
 
 
 def effects_yaml_text(model: AugmentedModel) -> str:

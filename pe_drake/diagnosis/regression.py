@@ -22,6 +22,7 @@ import numpy as np
 from pe_drake.diagnosis.effects import Candidate, effect_column
 from pe_drake.diagnosis.options import TIMING, DiagnosisConfig, Thresholds
 from pe_drake.diagnosis.record import Segment
+from pe_drake.identification.statistics import integrated_autocorrelation
 
 # ---- columns and fits ------------------------------------------------------------------------
 
@@ -143,31 +144,6 @@ class Regression:
         c = self.train if which == "training" else self.held
         k = fit.columns.index(column)
         return np.abs(fit.x[k]) * np.sqrt(c.gram[:, column, column] / c.count)
-
-
-def integrated_autocorrelation(r: np.ndarray, max_lag_fraction: float = 0.1) -> np.ndarray:
-    """τ_int = 1 + 2 Σ ρ_k per column, summed while ρ_k > 0 (initial positive sequence).
-
-    Args:
-        r: residuals, (S, n).
-
-    Returns:
-        (n,), ≥ 1: the factor by which correlated samples inflate a variance.
-    """
-    S = r.shape[0]
-    x = r - r.mean(axis=0)
-    f = np.fft.rfft(x, n=2 * S, axis=0)
-    ac = np.fft.irfft(f * np.conj(f), axis=0)[:S]
-    out = np.ones(r.shape[1])
-    max_lag = max(1, int(max_lag_fraction * S))
-    for j in range(r.shape[1]):
-        if ac[0, j] <= 0:
-            continue
-        rho = ac[1 : max_lag + 1, j] / ac[0, j]
-        neg = np.flatnonzero(rho <= 0)
-        stop = neg[0] if neg.size else len(rho)
-        out[j] = 1.0 + 2.0 * float(np.sum(rho[:stop]))
-    return np.clip(out, 1.0, S / 2.0)
 
 
 def condition_number(G: np.ndarray) -> float:

@@ -99,7 +99,8 @@ class DiagnosisResult:
         cumulative: [(step label, per-joint held-out RMS)] nominal → rigid → each effect.
         unexplained: {joint: details} of joints the effects do not explain.
         not_separable: effects that cannot be told apart from rigid-body terms.
-        rejected: the strongest candidates that were not named, with the reason.
+        rejected: every candidate tried and not named, with its statistic z and the reason
+            (strongest first); the separable candidates are all tried.
         regimes: nominal residual per joint and regime.
         rigid: the rigid-body step's base parameters against the a-priori model.
         payload_test: the payload search (best link, χ² values, decision).

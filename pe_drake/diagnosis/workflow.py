@@ -289,7 +289,7 @@ class Naming:
         last_fit: the fit with every named effect (the last cumulative step).
         effects: the :class:`~pe_drake.diagnosis.result.NamedEffect`s.
         series: held-out residual of each effect's joint without it and with all named.
-        rejected: the strongest candidates not named, with the reason (at most 12).
+        rejected: every candidate tried and not named, with its z and the reason.
     """
 
     effect_cols: list[int]
@@ -352,7 +352,8 @@ def _named(reg: Regression, library: Library, final: Fit, effect_cols: list[int]
 
 
 def _rejected(reg: Regression, library: Library, sel: Selection) -> list[dict[str, Any]]:
-    """Candidates that were close: the reason they were not named (strongest first)."""
+    """Every candidate tried and not named, with its statistic z and the reason (strongest first;
+    issue 23: weaker decisions used to appear nowhere)."""
     out = []
     for col, reason in sel.rejected.items():
         if col == library.timing_col or col in sel.selected:
@@ -363,7 +364,7 @@ def _rejected(reg: Regression, library: Library, sel: Selection) -> list[dict[st
         out.append({"effect": c.effect, "joint": c.joint_name, "value": f.value(col),
                     "unit": c.unit, "z": float(z), "reason": reason})
     out.sort(key=lambda r: -r["z"])
-    return out[:12]
+    return out
 
 
 # ---- payload and the rigid-body report -------------------------------------------------------

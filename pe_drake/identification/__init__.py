@@ -4,6 +4,7 @@ Imports only ``excitation``, ``multibody`` and the base layer. Re-exports the na
 ``pe_drake.identification`` offered as a single module.
 """
 
+from pe_drake.identification.drive_terms import DriveFit, DriveTermOptions
 from pe_drake.identification.estimators import (
     IdentificationResult,
     identify,
@@ -15,9 +16,14 @@ from pe_drake.identification.estimators import (
     torque_errors,
 )
 from pe_drake.identification.identified_file import load_identified
+from pe_drake.identification.physical_fit import LinkBox, PhysicalBounds
 
 __all__ = [
+    "DriveFit",
+    "DriveTermOptions",
     "IdentificationResult",
+    "LinkBox",
+    "PhysicalBounds",
     "identify",
     "load_identified",
     "predict",

@@ -14,12 +14,19 @@ and solved by one of three estimators:
   and the weighted problem is solved again;
 - ``physical``: the standard parameters φ (10 per body) with every body's pseudo-inertia
   J(φ_b) ⪰ 0 (Wensing, Kim & Slotine 2017: the body is realizable by a positive mass
-  density, which is Drake's physical-validity condition), weighted as WLS and regularized
-  toward the a-priori model in the directions the data does not see. Solved as an SDP in
-  Drake's MathematicalProgram with Clarabel (SCS when Clarabel is unavailable).
+  density, which is Drake's physical-validity condition), friction and armature ≥ 0 and the
+  user's mass and CoM bounds, weighted as WLS and pulled toward the a-priori model only in the
+  directions no motion identifies (:mod:`pe_drake.identification.physical_fit`).
 
-The relative standard deviation of each base parameter, %σ = 100·√(Σ_ii)/|φ_B,i| with
-Σ = σ² (WᵀW)⁻¹ (weighted: (WᵀΣ_ρ⁻¹W)⁻¹), tells how well the data determined it.
+By default the regressor carries a drive block (issue 23): Coulomb and viscous friction and a
+torque offset per joint, and the rotor inertia (armature) where it is separable from the link
+inertias, W = [Y_B | D] (:mod:`pe_drake.identification.drive_terms`); the ground-wrench rows
+of D are zero.
+
+The relative standard deviation of each base parameter, %σ = 100·√(Σ_ii)/|φ_B,i|, tells how
+well the data determined it. Σ is σ² (WᵀW)⁻¹ with each channel's contribution inflated by the
+integrated autocorrelation time of its residual (filtered samples are not independent;
+:func:`pe_drake.identification.statistics.sandwich_covariance`), weighted rows for WLS.
 """
 
 from __future__ import annotations
@@ -27,7 +34,6 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from collections.abc import Sequence
 from pathlib import Path
 from typing import NamedTuple
 
@@ -35,6 +41,16 @@ import numpy as np
 
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.identification.channels import channel_names, measured_rows, measured_values
+from pe_drake.identification.drive_terms import (
+    TERMS,
+    DriveFit,
+    DriveLayout,
+    DriveTermOptions,
+    drive_columns,
+    drive_layout,
+    drive_options,
+    separable_on_data,
+)
 from pe_drake.identification.gaps import MAX_GAP_S, preprocess_segments
 from pe_drake.identification.measurements import (
     Measurement,
@@ -43,24 +59,24 @@ from pe_drake.identification.measurements import (
     check_torque_units,
     read_measurement_csv,
 )
+from pe_drake.identification.physical_fit import PhysicalBounds, physical_fit
 from pe_drake.identification.preprocessing import PreprocessOptions
+from pe_drake.identification.statistics import integrated_autocorrelation, sandwich_covariance
 from pe_drake.multibody.base_parameters import BaseParameters, compute_base_parameters
-from pe_drake.multibody.inertia import pseudo_inertia_basis
 from pe_drake.multibody.regressor import RegressorModel
 from pe_drake.multibody.sensors import MeasurementType, SensorRows
 from pe_drake.multibody.wrench import static_wrench
 
 METHODS = ("ols", "wls", "physical")
-#: Weight of the pull toward the a-priori parameters in the physical fit, relative to the
-#: smallest non-zero squared singular value of the (weighted) data regressor: small enough
-#: not to bias what the data determines, large enough to fix the unobservable directions.
-PRIOR_WEIGHT = 1e-6
-#: The physical fit keeps J(φ_b) ⪰ PSD_MARGIN · m_b,prior · I so that the result passes
-#: Drake's validity test despite the SDP solver's tolerance.
-PSD_MARGIN = 1e-7
 #: Rows per base parameter needed at least (S·n ≥ MIN_ROWS_PER_PARAMETER · b): fewer leave
 #: the noise nothing to average over.
 MIN_ROWS_PER_PARAMETER = 10
+#: A rigid-body-only fit warns when friction and offsets would explain more than this fraction
+#: of its residual energy (by chance, 3n extra columns explain ~3n/(S·n), < 1 %).
+FRICTION_SHARE_WARNING = 0.5
+#: The physical fit's pull toward the a-priori model may raise the (correlation-corrected) χ²
+#: of the data by at most this over the unconstrained optimum (physical_fit's stage 2).
+PHYSICAL_DELTA_CHI2 = 4.0
 #: Output rate of the preprocessing [Hz]: the regressor is smooth, 200 Hz is plenty.
 DEFAULT_RATE_HZ = 200.0
 
@@ -89,6 +105,12 @@ class IdentificationResult:
         measurement: "joint_torque", "base_wrench" or "both": the channels identified from.
         channels: the channel of each entry of residual_rms, relative_error and noise_std:
             joint names (torques), then :data:`~pe_drake.multibody.wrench.WRENCH_COLUMNS`.
+        drive: the identified drive terms (friction, offsets, armature), or None (a model
+            without them, e.g. an identified.json of before issue 23).
+        physical_notes: what the physical fit says about its result (parameters on a bound,
+            far from the a-priori model).
+        friction_share: for a fit without drive terms, the fraction of its residual energy
+            that Coulomb + viscous friction and offsets would explain (None otherwise).
     """
 
     robot: str
@@ -108,6 +130,9 @@ class IdentificationResult:
     source: str = ""
     measurement: str = "joint_torque"
     channels: tuple[str, ...] = ()
+    drive: DriveFit | None = None
+    physical_notes: tuple[str, ...] = ()
+    friction_share: float | None = None
 
 
 # ---- data ------------------------------------------------------------------------------------
@@ -218,13 +243,13 @@ def regressor_matrices(
 # ---- estimators ------------------------------------------------------------------------------
 
 
-def _check_rows(data: Measurement, base: BaseParameters, channels: int) -> None:
+def _check_rows(data: Measurement, count: int, channels: int) -> None:
     rows = data.num_samples * channels
-    need = MIN_ROWS_PER_PARAMETER * base.count
+    need = MIN_ROWS_PER_PARAMETER * count
     if rows < need:
         raise DataError(
             f"{data.num_samples} samples × {channels} channels = {rows} equations after "
-            f"preprocessing; identifying {base.count} base parameters needs at least {need} "
+            f"preprocessing; identifying {count} parameters (base parameters and drive terms) needs at least {need} "
             f"({math.ceil(need / channels)} samples): record a longer run",
             file=data.source,
         )
@@ -271,8 +296,12 @@ def identify(
     prior: np.ndarray | None = None,
     model: RegressorModel | None = None,
     measurement: str = "joint_torque",
+    drive_terms: DriveTermOptions | str | None = None,
+    bounds: PhysicalBounds | None = None,
+    coulomb: np.ndarray | None = None,
 ) -> IdentificationResult:
-    """Identifies the base parameters (and, for ``physical``, the standard ones).
+    """Identifies the base parameters and the drive terms (and, for ``physical``, the standard
+    parameters).
 
     Args:
         robot: the robot.
@@ -284,9 +313,15 @@ def identify(
         measurement: the channels to fit (:mod:`pe_drake.identification.channels`):
             "joint_torque", "base_wrench" (the ground wrench alone) or "both" (WLS weighs
             every channel by its residual).
+        drive_terms: friction, offset and armature columns per joint
+            (:mod:`pe_drake.identification.drive_terms`; default "all"). The ground wrench does
+            not see them: none with ``measurement="base_wrench"``.
+        bounds: the user's bounds of the ``physical`` fit (:class:`PhysicalBounds`).
+        coulomb: the Coulomb columns to use, (S, n) (e.g. tanh(v/v_s) filtered like the
+            torque); default tanh(v/v_s) of ``data.v``.
 
     Raises:
-        ConfigError: unknown method or measurement.
+        ConfigError: unknown method or measurement, bounds naming unknown links.
         DataError: too few samples, a data set that does not excite every base parameter,
             data without the measurement's channels.
     """
@@ -298,32 +333,40 @@ def identify(
     model = model or RegressorModel(robot)
     base = base or measurement_base_parameters(robot, measurement, model)
     channels = channel_names(robot, measurement)
-    _check_rows(data, base, len(channels))
     tau = measured_values(robot, data, measurement)  # (S, r): torques and/or wrench, per channel
     Y = measured_rows(robot, data, measurement, model)
     YB = base.reduce(Y)
-    ols = _ordinary_fit(YB, tau)
-    phi_B, cov, phi = ols.phi_B, ols.cov, None
+    layout, D = _drive_block(robot, data, measurement, drive_options(drive_terms), YB, model, coulomb)
+    _check_rows(data, base.count + layout.count, len(channels))
+    W = np.concatenate([YB, D], axis=2)  # Y_B | drive columns
+    ols = _ordinary_fit(W, tau)
+    x, cov, phi, physical = ols.phi_B, ols.cov, None, None
     if method in ("wls", "physical"):
         # Gautier: rows of channel j weighted by 1/σ_j.
         noise_std = ols.noise_std
         w = 1.0 / np.maximum(noise_std, 1e-9 * max(float(noise_std.max()), 1e-12))
-        S, n, b = YB.shape
+        S, n, p = W.shape
         yw = (tau * w).reshape(S * n)
-        phi_B, cov, _ = _lstsq((YB * w[None, :, None]).reshape(S * n, b), yw)
+        Ww = W * w[None, :, None]
+        x, cov_unit, _ = _lstsq(Ww.reshape(S * n, p), yw)
+        cov = sandwich_covariance(Ww, (yw - Ww.reshape(S * n, p) @ x).reshape(S, n), cov_unit)
         if method == "physical":
-            Yw = (Y * w[None, :, None]).reshape(S * n, -1)
             prior = robot.phi_model if prior is None else np.asarray(prior, float)
-            phi = physical_fit(Yw, yw, prior, robot.body_names)
-            phi_B = base.base_values(phi)
-    residual_rms, relative_error = torque_errors(tau, YB @ phi_B)
+            # Stage 2 of the fit stays in the 95 % confidence region of this estimate: whitened
+            # rows count τ̄ times for correlated samples (statistics.sandwich_covariance).
+            tau_bar = float(np.mean(integrated_autocorrelation((yw - Ww.reshape(S * n, p) @ x).reshape(S, n))))
+            physical = _physical(robot, base, data, layout, Y, D, w, yw, prior, bounds,
+                                 tau_bar * PHYSICAL_DELTA_CHI2)
+            phi, x = physical.phi, physical.x
+    b = base.count
+    residual_rms, relative_error = torque_errors(tau, W @ x)
     return IdentificationResult(
         robot=robot.name,
         method=method,
         joints=tuple(robot.joint_names),
         base=base,
-        phi_B=phi_B,
-        sigma_percent=_sigma_percent(phi_B, cov),
+        phi_B=x[:b],
+        sigma_percent=_sigma_percent(x[:b], cov[:b, :b]),
         phi=phi,
         cond=ols.cond,
         residual_rms=residual_rms,
@@ -335,12 +378,105 @@ def identify(
         source=data.source,
         measurement=measurement,
         channels=channels,
+        drive=DriveFit(layout, x[b:], np.sqrt(np.maximum(np.diag(cov)[b:], 0.0)),
+                       physical.merged_armature if physical is not None else {}),
+        physical_notes=physical.notes if physical is not None else (),
+        friction_share=_friction_share(robot, data, measurement, YB, tau, W @ x, layout, coulomb),
     )
 
 
+def _friction_share(robot, data: Measurement, measurement: str, YB: np.ndarray, tau: np.ndarray,
+                    fitted: np.ndarray, layout: DriveLayout, coulomb: np.ndarray | None) -> float | None:
+    """For a rigid-body-only fit: the fraction of its residual energy that friction and offsets
+    would explain (None when the fit has drive terms or measures no torques)."""
+    if layout.count or measurement == "base_wrench":
+        return None
+    friction = drive_layout(robot, None, DriveTermOptions("friction", layout.velocity_scale))
+    S, r, b = YB.shape
+    D = drive_columns(data.v, data.vd, friction, coulomb, rows=r)
+    friction, keep = separable_on_data(YB.reshape(S * r, b), D.reshape(S * r, -1), friction)
+    W = np.concatenate([YB, D[:, :, keep]], axis=2).reshape(S * r, -1)
+    x = np.linalg.lstsq(W, tau.reshape(S * r), rcond=None)[0]
+    before = float(np.sum((tau - fitted) ** 2))
+    after = float(np.sum((tau.reshape(S * r) - W @ x) ** 2))
+    return 1.0 - after / before if before > 0 else 0.0
+
+
+class _Physical(NamedTuple):
+    phi: np.ndarray  # standard parameters (10·nb,)
+    x: np.ndarray  # base parameters (merged armatures included), then drive terms
+    notes: tuple[str, ...]
+    merged_armature: dict[str, float]  # {joint: value} of the merged armatures
+
+
+def _physical(robot, base: BaseParameters, data: Measurement, layout: DriveLayout, Y: np.ndarray, D: np.ndarray,
+              w: np.ndarray, yw: np.ndarray, prior: np.ndarray, bounds: PhysicalBounds | None,
+              chi2_tolerance: float) -> _Physical:
+    """The physical fit with the drive terms; the armatures that merge into base parameters
+    are variables ≥ 0 of the fit too, so the part of a merged base parameter above what a
+    physical link near its a-priori model holds goes to the rotor, not into link masses."""
+    S, r, _ = Y.shape
+    merged = [robot.joint_names.index(j) for j in layout.merged]
+    extra = DriveLayout(("armature",) * len(merged), tuple(merged), layout.joint_names,
+                        tuple("kg·m²" for _ in merged), layout.velocity_scale)
+    E = np.concatenate([D, drive_columns(data.v, data.vd, extra, rows=r)], axis=2)
+    fit = physical_fit((Y * w[None, :, None]).reshape(S * r, -1), yw, prior, robot.body_names,
+                       extra=(E * w[None, :, None]).reshape(S * r, -1),
+                       extra_lower=np.r_[layout.lower_bounds(), np.zeros(len(merged))],
+                       extra_names=layout.labels + extra.labels, bounds=bounds, base_K=base.K,
+                       chi2_tolerance=chi2_tolerance,
+                       extra_in_base={layout.count + i: _in_base(base, layout.merged[robot.joint_names[j]])
+                                      for i, j in enumerate(merged)})
+    phi_B = base.base_values(fit.phi)
+    notes = list(fit.notes)
+    for j, a in zip(merged, fit.theta[layout.count :]):
+        name = robot.joint_names[j]
+        for base_name, coef in layout.merged[name].items():  # v̇_j = Σ coef_k · (column k of Y_B)
+            phi_B[base.base_names.index(base_name)] += a * coef
+        if a > 0:
+            notes.append(f"armature[{name}] {a:.4g} kg·m² (not separately identifiable) holds the part of "
+                         f"{', '.join(layout.merged[name])} above what links near the a-priori model hold")
+    values = {robot.joint_names[j]: float(a) for j, a in zip(merged, fit.theta[layout.count :])}
+    return _Physical(fit.phi, np.concatenate([phi_B, fit.theta[: layout.count]]), tuple(notes), values)
+
+
+def _in_base(base: BaseParameters, coef: dict[str, float]) -> np.ndarray:
+    """{base parameter name: coefficient} as a vector over the base parameters, shape (b,)."""
+    out = np.zeros(base.count)
+    for name, c in coef.items():
+        out[base.base_names.index(name)] = c
+    return out
+
+
+def _drive_block(robot, data: Measurement, measurement: str, options: DriveTermOptions, YB: np.ndarray,
+                 model: RegressorModel, coulomb: np.ndarray | None) -> tuple[DriveLayout, np.ndarray]:
+    """The drive columns (zero in wrench rows) this data can separate, shape (S, r, d)."""
+    S, r, b = YB.shape
+    if measurement == "base_wrench":
+        options = DriveTermOptions("none", options.velocity_scale)
+    torque_base = compute_base_parameters(robot, model=model) if "armature" in TERMS[options.terms] else None
+    layout = drive_layout(robot, torque_base, options, model)
+    D = drive_columns(data.v, data.vd, layout, coulomb, rows=r)
+    layout, keep = separable_on_data(YB.reshape(S * r, b), D.reshape(S * r, -1), layout)
+    return layout, D[:, :, keep]
+
+
+def fit_warnings(result: IdentificationResult) -> list[str]:
+    """What a reader of the fit must know: the physical fit's bounds and moves, and a
+    rigid-body-only fit of data whose residual is mostly friction."""
+    out = [f"physical fit: {note}" for note in result.physical_notes]
+    share = result.friction_share
+    if share is not None and share > FRICTION_SHARE_WARNING:
+        out.append(
+            f"warning: this rigid-body-only fit leaves a residual of which {100 * share:.0f} % is joint friction "
+            "and offsets: the link parameters absorb what they can of it and the model is not finished; "
+            "identify with --drive-terms friction or all")
+    return out
+
+
 class _OrdinaryFit(NamedTuple):
-    phi_B: np.ndarray  # (b,)
-    cov: np.ndarray  # σ² (WᵀW)⁻¹, (b, b)
+    phi_B: np.ndarray  # (b,) (base parameters, then drive terms)
+    cov: np.ndarray  # (WᵀW)⁻¹ (Σ_j τ_j σ_j² W_jᵀW_j) (WᵀW)⁻¹, (b, b): statistics.sandwich_covariance
     cond: float  # cond(W)
     noise_std: np.ndarray  # per-joint residual standard deviation σ_j, (n,) [N·m]
 
@@ -354,102 +490,24 @@ def _ordinary_fit(YB: np.ndarray, tau: np.ndarray) -> _OrdinaryFit:
     rho = (y - W @ phi_B).reshape(S, n)
     dof = max(S - b / n, 1.0)
     noise_std = np.sqrt(np.sum(rho**2, axis=0) / dof)
-    sigma2 = float(np.sum(rho**2)) / max(S * n - b, 1)
-    return _OrdinaryFit(phi_B, sigma2 * cov_unit, float(s[0] / s[-1]), noise_std)
-
-
-def physical_fit(
-    A: np.ndarray,
-    y: np.ndarray,
-    prior: np.ndarray,
-    body_names: Sequence[str],
-    *,
-    prior_weight: float = PRIOR_WEIGHT,
-) -> np.ndarray:
-    """min ‖A φ − y‖² + λ‖φ − φ_prior‖²  s.t.  J(φ_b) ⪰ ε m_b,prior 1 for every body.
-
-    Bodies whose a-priori mass is zero (frames without inertia) stay at zero. λ is
-    ``prior_weight`` × the smallest non-zero squared singular value of A, so the prior only
-    decides the directions the data does not determine.
-
-    Args:
-        A: weighted standard-parameter regressor, shape (rows, 10·nb).
-        y: weighted torques, shape (rows,).
-        prior: a-priori parameters, shape (10·nb,).
-        body_names: for error messages.
-
-    Returns:
-        φ, shape (10·nb,), physically valid.
-
-    Raises:
-        DataError: the solver failed.
-    """
-    # lazy: pydrake stays out of `import pe_drake`
-    from pydrake.solvers import ClarabelSolver, MathematicalProgram, ScsSolver, SolverOptions
-
-    p = A.shape[1]
-    # Compress the data term with a QR of [A y]: ‖Aφ − y‖² = ‖R φ − z‖² + const.
-    R = np.linalg.qr(np.column_stack([A, y]), mode="r")
-    Ra, z = R[:p, :p], R[:p, p]
-    s = np.linalg.svd(Ra, compute_uv=False)
-    rank_s = s[s > s[0] * 1e-10]
-    lam = prior_weight * float(rank_s[-1]) ** 2
-    active = [b for b in range(len(body_names)) if prior[10 * b] > 0]
-    cols = np.concatenate([np.arange(10 * b, 10 * b + 10) for b in active])
-    D = _variable_scale(prior, active)[cols]
-    Rs = Ra[:, cols] * D  # φ = D x on the active columns
-    prog = MathematicalProgram()
-    x = prog.NewContinuousVariables(len(cols), "x")
-    x_prior = prior[cols] / D
-    Q = 2.0 * (Rs.T @ Rs) + 2.0 * lam * np.diag(D**2)
-    c = -2.0 * (Rs.T @ z) - 2.0 * lam * (D**2) * x_prior
-    norm = float(np.max(np.abs(np.diag(Q))))
-    prog.AddQuadraticCost(Q / norm, c / norm, x, is_convex=True)
-    F = pseudo_inertia_basis()
-    for k, b in enumerate(active):
-        xs = x[10 * k : 10 * k + 10]
-        d = D[10 * k : 10 * k + 10]
-        F0 = -PSD_MARGIN * prior[10 * b] * np.eye(4)
-        prog.AddLinearMatrixInequalityConstraint([F0] + [F[i] * d[i] for i in range(10)], xs)
-    solver = ClarabelSolver()
-    if not solver.available():  # pragma: no cover - the drake wheel ships Clarabel
-        solver = ScsSolver()
-    options = SolverOptions()
-    if solver.solver_id() == ClarabelSolver.id():
-        for key in ("tol_gap_abs", "tol_gap_rel", "tol_feas"):
-            options.SetOption(solver.solver_id(), key, 1e-10)
-    result = solver.Solve(prog, x_prior, options)
-    if not result.is_success():
-        raise DataError(
-            f"the physically consistent fit failed ({solver.solver_id().name()}: "
-            f"{result.get_solution_result().name}); try --method wls"
-        )
-    phi = np.zeros(p)
-    phi[cols] = D * result.GetSolution(x)
-    return phi
-
-
-def _variable_scale(prior: np.ndarray, active: list[int]) -> np.ndarray:
-    """Per-variable scale, shape (10·nb,), that makes the prior about 1 in magnitude per body
-    block (mass; first moments; inertia): better numerics for the SDP."""
-    scale = np.ones(prior.size)
-    for b in active:
-        m = prior[10 * b]
-        scale[10 * b] = m
-        scale[10 * b + 1 : 10 * b + 4] = max(np.max(np.abs(prior[10 * b + 1 : 10 * b + 4])), 1e-3 * m)
-        scale[10 * b + 4 : 10 * b + 10] = max(np.max(np.abs(prior[10 * b + 4 : 10 * b + 10])), 1e-6 * m)
-    return scale
+    cov = sandwich_covariance(YB, rho, cov_unit)
+    return _OrdinaryFit(phi_B, cov, float(s[0] / s[-1]), noise_std)
 
 
 # ---- prediction and validation ----------------------------------------------------------------
 
 
 def predict(
-    robot, result: IdentificationResult, data: Measurement, model: RegressorModel | None = None
+    robot, result: IdentificationResult, data: Measurement, model: RegressorModel | None = None,
+    coulomb: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Torques the identified model predicts at the samples of ``data``, shape (S, n)."""
+    """Torques the identified model predicts at the samples of ``data``, its drive terms
+    included, shape (S, n) (``coulomb``: as in :func:`identify`)."""
     YB, _, _, _ = regressor_matrices(robot, data, result.base, model)
-    return YB @ result.phi_B
+    tau = YB @ result.phi_B
+    if result.drive is not None and result.drive.layout.count:
+        tau = tau + result.drive.torque(data.v, data.vd, coulomb)
+    return tau
 
 
 def predict_wrench(

@@ -1,8 +1,10 @@
 """The identified.json format: an :class:`IdentificationResult` written and read back.
 
 ``pe-drake identify`` writes the base parameters (value, relative standard deviation, column
-of the standard parameters each one stands for), the per-joint errors, the preprocessing and,
-for the physical fit, the standard parameters per body; ``pe-drake validate`` and the
+of the standard parameters each one stands for), the drive terms in their own block
+(``drive_terms``: per joint, Coulomb/viscous friction, offset, armature with value, σ and %σ;
+absent in files of before issue 23, which load as models without them), the per-joint errors,
+the preprocessing and, for the physical fit, the standard parameters per body; ``pe-drake validate`` and the
 diagnosis read it back with :func:`load_identified`, which checks it belongs to the robot.
 """
 
@@ -19,9 +21,10 @@ import numpy as np
 from pe_drake.config import MEASUREMENTS
 from pe_drake.exceptions import DataError
 from pe_drake.identification.channels import channel_names
-from pe_drake.identification.estimators import IdentificationResult, measurement_base_parameters
+from pe_drake.identification.drive_terms import DriveFit, DriveLayout
+from pe_drake.identification.estimators import IdentificationResult, fit_warnings, measurement_base_parameters
 from pe_drake.identification.measurements import Preprocessing
-from pe_drake.multibody.inertia import PARAMETER_NAMES, validity_problems
+from pe_drake.multibody.inertia import PARAMETER_NAMES, inertia_matrix, phi_from_com, validity_problems
 
 
 def _finite_or_none(x: float) -> float | None:
@@ -73,6 +76,15 @@ def result_to_dict(result: IdentificationResult, robot, model_file: str | None =
     if result.preprocessing is not None:
         out["preprocessing"] = dataclasses.asdict(result.preprocessing)
         out["data_used"] = data_used(result.preprocessing, result.samples)
+    if result.drive is not None:
+        out["drive_terms"] = result.drive.as_dict()
+    if result.physical_notes:
+        out["physical_fit_notes"] = list(result.physical_notes)
+    if result.friction_share is not None:
+        out["friction_share_of_residual"] = result.friction_share
+    warnings = fit_warnings(result)
+    if warnings:
+        out["warnings"] = warnings
     if result.phi is not None:
         out["standard_parameters"] = standard_parameters_dict(robot, result.phi)
         out["physically_valid"] = not validity_problems(robot.body_names, result.phi)
@@ -90,7 +102,7 @@ def standard_parameters_dict(robot, phi: np.ndarray) -> dict[str, dict[str, floa
 
 
 def load_identified(path: str | Path, robot) -> IdentificationResult:
-    """Reads identified.json and checks it belongs to ``robot``.
+    """Reads identified.json (or the diagnosis's augmented_model.json) and checks it belongs to ``robot``.
 
     Raises:
         DataError: missing/unreadable file, other robot or joints, base parameters that do
@@ -103,6 +115,8 @@ def load_identified(path: str | Path, robot) -> IdentificationResult:
         raise DataError("identified model file does not exist", file=str(path)) from None
     except (OSError, json.JSONDecodeError) as err:
         raise DataError(f"cannot read the identified model: {err}", file=str(path)) from err
+    if isinstance(d, dict) and "base_parameters" not in d and "phi" in d and "torque_equation" in d:
+        return augmented_as_result(d, robot, str(path))
     try:
         joints = tuple(d["joints"])
         entries = d["base_parameters"]
@@ -140,6 +154,12 @@ def load_identified(path: str | Path, robot) -> IdentificationResult:
             phi = np.array([float(table[b][k]) for b in robot.body_names for k in PARAMETER_NAMES])
         except (KeyError, TypeError, ValueError) as err:
             raise DataError(f"standard_parameters: {err!r} missing or malformed", file=str(path)) from err
+    drive = None
+    if d.get("drive_terms") is not None:  # files written before issue 23 have none
+        try:
+            drive = DriveFit.from_dict(d["drive_terms"], robot.joint_names)
+        except (KeyError, TypeError, ValueError, AttributeError) as err:
+            raise DataError(f"drive_terms: {err!r} missing or malformed", file=str(path)) from err
     return IdentificationResult(
         robot=d.get("robot", robot.name),
         method=d.get("method", "ols"),
@@ -156,6 +176,8 @@ def load_identified(path: str | Path, robot) -> IdentificationResult:
         source=d.get("data", ""),
         measurement=measurement,
         channels=channels,
+        drive=drive,
+        physical_notes=tuple(d.get("physical_fit_notes", ())),
     )
 
 
@@ -165,3 +187,51 @@ def standard_from_base(robot, result: IdentificationResult) -> np.ndarray:
     K = result.base.K
     phi0 = robot.phi_model
     return phi0 + np.linalg.pinv(K) @ (result.phi_B - K @ phi0)
+
+
+def augmented_as_result(d: dict[str, Any], robot, path: str = "") -> IdentificationResult:
+    """The diagnosis's augmented_model.json as an identified model: its standard parameters
+    (payload added to its link) reduced to the robot's joint-torque base parameters, its
+    friction, armature and offsets as drive terms. A time delay and pre-sliding friction are
+    not part of this model (``physical_notes`` says so when the file has them).
+
+    Raises:
+        DataError: other joints, a malformed file.
+    """
+    try:
+        joints = tuple(d["joints"])
+        if joints != tuple(robot.joint_names):
+            raise DataError(f"the model is for joints {', '.join(joints)}; robot '{robot.name}' excites "
+                            f"{', '.join(robot.joint_names)}", file=path)
+        phi = np.array([float(x) for b in robot.body_names for x in d["phi"][b]])
+        payload = d.get("payload")
+        if payload:
+            b = robot.body_names.index(payload["link"])
+            phi[10 * b : 10 * b + 10] += phi_from_com(float(payload["mass"]), np.asarray(payload["com"], float),
+                                                      inertia_matrix(np.asarray(payload["inertia_about_com"], float)))
+        terms, cols, units, theta = [], [], [], []
+        for key, term, unit in (("coulomb", "coulomb", "N·m"), ("viscous", "viscous", "N·m·s/rad"),
+                                ("torque_offset", "offset", "N·m"), ("armature", "armature", "kg·m²")):
+            for j, name in enumerate(joints):
+                terms.append(term)
+                cols.append(j)
+                units.append(unit)
+                theta.append(float(d[key][name]))
+        layout = DriveLayout(tuple(terms), tuple(cols), joints, tuple(units), float(d["coulomb_velocity_scale"]))
+    except (KeyError, TypeError, ValueError) as err:
+        raise DataError(f"not an augmented_model.json written by pe-drake diagnose ({err!r} missing or malformed)",
+                        file=path) from err
+    notes = []
+    if float(d.get("time_delay", 0.0) or 0.0) != 0.0:
+        notes.append(f"the model's time delay {d['time_delay']:.4g} s is not applied (validate pairs samples as recorded)")
+    if any(float(x) for x in (d.get("presliding_friction") or {}).values()):
+        notes.append("the model's pre-sliding (Dahl) friction is not applied")
+    base = measurement_base_parameters(robot, "joint_torque")
+    channels = channel_names(robot, "joint_torque")
+    nan = np.full(len(channels), np.nan)
+    return IdentificationResult(
+        robot=robot.name, method="diagnose", joints=joints, base=base, phi_B=base.base_values(phi),
+        sigma_percent=np.full(base.count, np.nan), phi=phi, cond=float("nan"), residual_rms=nan,
+        relative_error=nan, noise_std=nan, samples=0, source=path, measurement="joint_torque",
+        channels=channels, drive=DriveFit(layout, np.array(theta), np.full(len(theta), np.nan)),
+        physical_notes=tuple(notes))

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import re
 import xml.etree.ElementTree as ET
 from collections.abc import Sequence
 from pathlib import Path
@@ -210,6 +211,58 @@ def verify_urdf_text(text: str, body_names: Sequence[str], phi: np.ndarray, tole
             )
 
 
+def joint_dynamics(text: str, damping: dict[str, float], rotor_inertia: dict[str, float]) -> str:
+    """URDF text with each joint's viscous damping [N·m·s/rad] in its ``<dynamics>`` and a
+    rotor inertia [kg·m²] as Drake's ``drake:rotor_inertia`` of a gear-ratio-1 actuator in a
+    ``<transmission>`` (Drake adds rotor_inertia·gear_ratio² to the joint's mass-matrix
+    diagonal: the armature). Drake ignores ``<dynamics friction>``, so Coulomb friction has no
+    URDF form."""
+    for name, value in damping.items():
+        text = _set_joint_damping(text, name, float(value))
+    extra = []
+    for name, value in rotor_inertia.items():
+        extra.append(
+            f'  <transmission name="pe_drake_armature_{name}">\n'
+            "    <type>transmission_interface/SimpleTransmission</type>\n"
+            f'    <joint name="{name}"><hardwareInterface>EffortJointInterface</hardwareInterface></joint>\n'
+            f'    <actuator name="pe_drake_actuator_{name}">\n'
+            "      <mechanicalReduction>1</mechanicalReduction>\n"
+            f'      <drake:rotor_inertia value="{_num(value)}"/>\n'
+            '      <drake:gear_ratio value="1.0"/>\n'
+            "    </actuator>\n  </transmission>\n")
+    if extra:
+        head, sep, tail = text.rpartition("</robot>")
+        text = head + "".join(extra) + sep + tail
+    if "xmlns:drake" not in text:
+        text = re.sub(r"<robot\b", '<robot xmlns:drake="http://drake.mit.edu"', text, count=1)
+    return text
+
+
+def _num(x) -> str:
+    return repr(float(x))
+
+
+def _set_joint_damping(text: str, joint: str, damping: float) -> str:
+    """Sets ``damping`` in the joint's <dynamics> element (added when missing)."""
+    pattern = re.compile(r'(<joint\b[^>]*\bname="' + re.escape(joint) + r'"[^>]*>)(.*?)(</joint>)', re.S)
+    match = pattern.search(text)
+    if match is None:
+        return text
+    body = match.group(2)
+    dyn = re.search(r"<dynamics\b[^>]*/>", body)
+    if dyn:
+        element = dyn.group(0)
+        if re.search(r'\bdamping="[^"]*"', element):
+            new = re.sub(r'\bdamping="[^"]*"', f'damping="{_num(damping)}"', element)
+        else:
+            new = element.replace("<dynamics", f'<dynamics damping="{_num(damping)}"', 1)
+        body = body.replace(element, new, 1)
+    else:
+        body = body.rstrip() + f'\n    <dynamics damping="{_num(damping)}"/>\n  '
+    return text[: match.start(2)] + body + text[match.end(2) :]
+
+
+
 def write_urdf(
     path: str | Path, source: str | Path, body_names: Sequence[str], phi: np.ndarray, *, verify: bool = True
 ) -> Path:
@@ -236,12 +289,21 @@ def write_urdf(
     return path
 
 
-def write_robot_urdf(path: str | Path, robot, phi: np.ndarray, *, verify: bool = True) -> Path:
+def write_robot_urdf(path: str | Path, robot, phi: np.ndarray, *, verify: bool = True,
+                     damping: dict[str, float] | None = None, rotor_inertia: dict[str, float] | None = None) -> Path:
     """:func:`write_urdf` for a :class:`~pe_drake.multibody.robot.Robot`: its model file, its bodies.
 
     Args:
         path: output file.
         robot: the robot the parameters were identified for.
         phi: standard parameters, shape (10·nb,) in ``robot.body_names`` order.
+        damping, rotor_inertia: {joint: value} written by :func:`joint_dynamics` (the drive terms).
     """
-    return write_urdf(path, robot.model_path, robot.body_names, phi, verify=verify)
+    if not damping and not rotor_inertia:
+        return write_urdf(path, robot.model_path, robot.body_names, phi, verify=verify)
+    text = joint_dynamics(urdf_with_inertias(robot.model_path, robot.body_names, phi), damping or {},
+                          rotor_inertia or {})
+    if verify:
+        verify_urdf_text(text, robot.body_names, phi)
+    atomic_write_text(Path(path), text)
+    return Path(path)

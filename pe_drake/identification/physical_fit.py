@@ -1,0 +1,391 @@
+"""The physically consistent fit: an SDP over the standard parameters and the drive terms.
+
+Constraints: J(φ_b) ⪰ ε m_b,prior 1 for every body (Wensing, Kim & Slotine 2017), θ_k ≥ 0
+for friction and armature, and the user's bounds m_lo ≤ Σ_b m_b ≤ m_hi, m_b ∈ [lo_b, hi_b],
+m_b·box_lo ≤ h_b ≤ m_b·box_hi. Data term f(φ, θ) = ‖A φ + E θ − y‖² (A, E: the whitened
+standard-parameter regressor and drive columns). In two stages:
+
+1. min f + μ_1 ‖N_D(φ − φ_prior)‖²: the best physically valid fit (μ_1 = ``NULL_WEIGHT``
+   (1e-4) × μ only chooses among equally good fits);
+2. min ‖N_D(φ − φ_prior)‖² + λ‖D⁻¹(φ − φ_prior)‖² s.t. f ≤ f_1 + Δχ²: among the fits that the
+   data cannot tell from stage 1's (identify passes Δχ² = 4 in correlation-corrected units,
+   a two-σ move), the one nearest the a-priori model.
+
+D is a per-variable scale (the a-priori magnitudes per body block: mass, first moments,
+inertias), N_D the projector onto the φ-part of the null space of [K·D | c_k] (K: the base
+composition, φ_B = K φ; c_k: the base-parameter expression of a merged armature): the
+directions of φ no motion can identify, where the prior decides. μ is the smallest non-zero
+eigenvalue of f's Hessian and λ = ``prior_weight`` (1e-6) only makes stage 2 strictly convex.
+A single stage with the pull in the objective either lets masses drift where constraints tie
+null directions to the data (weight 1e-4: 31 kg for the real Panda's 16.8 kg CAD) or biases
+what the data determines (weight 1: 5e-5 relative base-parameter error on noise-free data of
+a Panda with ±10 % inertias, against 3e-8); BUILD_NOTES.md has the figures. Bodies whose a-priori mass is zero stay at zero.
+
+The CoM box of a link is a linear constraint on its first moments h = m c (in the link frame,
+about its origin, [m]): box_lo·m ≤ h ≤ box_hi·m keeps c in the box for any m > 0.
+
+Both the identification (``identify --method physical``) and the diagnosis's augmented model
+use :func:`physical_fit`; it raises :class:`~pe_drake.exceptions.NoSolutionFound`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import numpy as np
+
+from pe_drake.exceptions import ConfigError, NoSolutionFound, UnknownNameError
+from pe_drake.multibody.inertia import pseudo_inertia, pseudo_inertia_basis
+
+#: Stage 1's pull toward the a-priori parameters in the unidentifiable directions, relative to
+#: μ = the smallest non-zero eigenvalue of the data term's Hessian (module docstring).
+NULL_WEIGHT = 1e-4
+#: Stage 2's default misfit budget Δχ² over the unconstrained optimum (identify passes the 95 %
+#: confidence region of its estimate instead, module docstring).
+CHI2_TOLERANCE = 1.0
+#: Weight of the isotropic pull toward the a-priori parameters, relative to μ (module docstring).
+PRIOR_WEIGHT = 1e-6
+#: The fit keeps J(φ_b) ⪰ PSD_MARGIN · m_b,prior · I so that the result passes Drake's
+#: validity test despite the SDP solver's tolerance.
+PSD_MARGIN = 1e-7
+#: A mass that moved by more than this fraction of its a-priori value is reported
+#: ("moved far"): 5 × the 10 % accuracy the diagnosis assumes of a CAD model.
+FAR_FROM_PRIOR = 0.5
+#: A variable within this fraction of its bound's scale counts as on the bound (the solver's
+#: tolerance is 1e-10; its result sits within ~1e-7 of an active bound).
+ON_BOUND = 1e-5
+
+
+@dataclasses.dataclass(frozen=True)
+class LinkBox:
+    """Where a link's centre of mass may be, in the link's frame.
+
+    Attributes:
+        center: [x, y, z] [m].
+        size: full edge lengths [sx, sy, sz] [m], each ≥ 0.
+    """
+
+    center: tuple[float, float, float]
+    size: tuple[float, float, float]
+
+    def __post_init__(self) -> None:
+        if len(self.center) != 3 or len(self.size) != 3:
+            raise ConfigError(f"a CoM box needs 3 numbers for center and size, got {self.center}, {self.size}")
+        if any(not np.isfinite(x) for x in (*self.center, *self.size)) or min(self.size) < 0:
+            raise ConfigError(f"a CoM box needs finite center and non-negative size [m], got {self.center}, {self.size}")
+
+    @property
+    def lower(self) -> np.ndarray:
+        return np.asarray(self.center, float) - 0.5 * np.asarray(self.size, float)
+
+    @property
+    def upper(self) -> np.ndarray:
+        return np.asarray(self.center, float) + 0.5 * np.asarray(self.size, float)
+
+
+@dataclasses.dataclass(frozen=True)
+class PhysicalBounds:
+    """The user's bounds of the physical fit (config ``identification``).
+
+    Attributes:
+        total_mass: (lo, hi) of the summed mass of the moving bodies [kg], or None.
+        mass_bounds: {body: (lo, hi)} [kg].
+        boxes: {body: :class:`LinkBox`}: the body's CoM stays inside.
+    """
+
+    total_mass: tuple[float, float] | None = None
+    mass_bounds: dict[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
+    boxes: dict[str, LinkBox] = dataclasses.field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        pairs = ([("total_mass", self.total_mass)] if self.total_mass is not None else []) + [
+            (f"mass_bounds['{k}']", v) for k, v in self.mass_bounds.items()]
+        for name, pair in pairs:
+            if len(pair) != 2 or not all(np.isfinite(x) for x in pair) or not 0 <= pair[0] <= pair[1]:
+                raise ConfigError(f"identification.{name} must be [lo, hi] with 0 <= lo <= hi [kg], got {list(pair)}")
+
+    @property
+    def empty(self) -> bool:
+        return self.total_mass is None and not self.mass_bounds and not self.boxes
+
+    def check(self, body_names: Sequence[str]) -> None:
+        """Raises UnknownNameError for a bound on a body the robot does not have."""
+        for table, where in ((self.mass_bounds, "identification.mass_bounds"), (self.boxes, "identification.boxes")):
+            for name in table:
+                if name not in body_names:
+                    raise UnknownNameError("link", name, body_names, where)
+
+
+class PhysicalFit(NamedTuple):
+    """Result of :func:`physical_fit`.
+
+    Attributes:
+        phi: standard parameters, shape (10·nb,), physically valid.
+        theta: drive terms, shape (d,).
+        notes: parameters on a bound or far from the a-priori model, in words.
+    """
+
+    phi: np.ndarray
+    theta: np.ndarray
+    notes: tuple[str, ...]
+
+
+def physical_fit(
+    A: np.ndarray,
+    y: np.ndarray,
+    prior: np.ndarray,
+    body_names: Sequence[str],
+    *,
+    extra: np.ndarray | None = None,
+    extra_lower: np.ndarray | None = None,
+    extra_names: Sequence[str] = (),
+    bounds: PhysicalBounds | None = None,
+    base_K: np.ndarray | None = None,
+    extra_in_base: dict[int, np.ndarray] | None = None,
+    scale: np.ndarray | None = None,
+    prior_weight: float = PRIOR_WEIGHT,
+    null_weight: float = NULL_WEIGHT,
+    chi2_tolerance: float = CHI2_TOLERANCE,
+    margin: float = PSD_MARGIN,
+) -> PhysicalFit:
+    """The SDP of the module docstring.
+
+    Args:
+        A: weighted standard-parameter regressor, shape (rows, 10·nb).
+        y: weighted measurements, shape (rows,).
+        prior: a-priori parameters, shape (10·nb,).
+        body_names: the bodies, for bounds and messages.
+        extra: weighted drive columns E, shape (rows, d), or None.
+        extra_lower: lower bound of each drive term (0 or -inf), shape (d,).
+        extra_names: their labels, for notes.
+        bounds: the user's bounds.
+        base_K: the base composition K (b, 10·nb) whose null space gets the a-priori pull;
+            None: the numerical null space of A.
+        extra_in_base: {k: c_k} for drive columns inside span(Y_B): column k = Y_B c_k
+            (a merged armature). The φ-part of the directions along which such a column
+            trades against φ gets the a-priori pull too, so a merged combination's excess over
+            the a-priori links goes to the drive term (≥ 0), not into the links.
+        scale: per-variable scale D of φ, shape (10·nb,) (the pull is measured in units of
+            D); default the a-priori magnitudes per body block.
+        prior_weight: λ / μ.
+        null_weight: stage 1's pull / μ (module docstring).
+        chi2_tolerance: Δχ² of stage 2; 0 skips it.
+        margin: ε of the pseudo-inertia constraint.
+
+    Raises:
+        NoSolutionFound: the solver failed (e.g. bounds that contradict each other or the data).
+        UnknownNameError: a bound on an unknown body.
+    """
+    bounds = bounds or PhysicalBounds()
+    bounds.check(body_names)
+    p = A.shape[1]
+    E = np.zeros((A.shape[0], 0)) if extra is None else np.asarray(extra, float)
+    d = E.shape[1]
+    lower = np.full(d, -np.inf) if extra_lower is None else np.asarray(extra_lower, float)
+    active = [b for b in range(len(body_names)) if prior[10 * b] > 0]
+    cols = np.concatenate([np.arange(10 * b, 10 * b + 10) for b in active])
+    D = (_variable_scale(prior, active) if scale is None else np.asarray(scale, float))[cols]
+    s_e, Rs, z, P_null, mu = _data_term(A[:, cols] * D, E, y, base_K, cols, D, extra_in_base)
+    k = len(cols) + d
+    H = Rs.T @ Rs
+    x_prior = np.concatenate([prior[cols] / D, np.zeros(d)])
+    # The data term as (x − x0)ᵀ H (x − x0) about its minimizer nearest the prior, x0: the
+    # objective is then ~0 where the constraints are inactive, so the solver's relative
+    # tolerance resolves the small pulls (about −‖z‖² they would drown in the signal energy).
+    x0 = x_prior + np.linalg.lstsq(Rs, z - Rs @ x_prior, rcond=1e-13)[0]
+    iso = np.diag(np.r_[np.ones(len(cols)), np.zeros(d)])
+    pull = P_null + prior_weight * iso  # in units of μ, the least determined direction's curvature
+    # Stage 1: the best physically valid fit of the data (a pull of null_weight·μ only
+    # selects among equally good fits).
+    Q = 2.0 * (H + null_weight * mu * pull)
+    c = -2.0 * H @ x0 - 2.0 * null_weight * mu * pull @ x_prior
+    prog, x = _program(Q / mu, c / mu, k, D, active, prior, lower, s_e, len(cols), body_names, bounds, margin)
+    sol = _solve(prog, x, x_prior, bounds)
+    stage2_failed = False
+    if chi2_tolerance > 0:
+        # Stage 2: the parameters nearest the a-priori model (in the null-space metric) among
+        # those whose whitened misfit exceeds stage 1's by at most chi2_tolerance.
+        e = sol - x0
+        bound = float(e @ H @ e) + chi2_tolerance
+        prog, x = _program(2.0 * pull, -2.0 * pull @ x_prior, k, D, active, prior, lower, s_e, len(cols),
+                           body_names, bounds, margin)
+        # ‖Rs (x − x0)‖ ≤ √bound as a Lorentz cone [√bound; Rs x − Rs x0]
+        prog.AddLorentzConeConstraint(np.vstack([np.zeros((1, k)), Rs]), np.r_[np.sqrt(bound), -Rs @ x0], x)
+        try:
+            sol = _solve(prog, x, sol, bounds)
+        except NoSolutionFound:  # e.g. noise-free data: whitened rows of 1e9; keep stage 1
+            stage2_failed = True
+    phi = np.zeros(p)
+    phi[cols] = D * sol[: len(cols)]
+    theta = s_e * sol[len(cols) :]
+    notes = fit_notes(phi, prior, theta, lower, list(extra_names), list(body_names), bounds, margin)
+    if stage2_failed:
+        notes.append("the solver failed on the pull toward the a-priori model within the confidence region; "
+                     "the best physically valid fit is kept")
+    return PhysicalFit(phi, theta, tuple(notes))
+
+
+def _data_term(AD: np.ndarray, E: np.ndarray, y: np.ndarray, base_K, cols, D, extra_in_base):
+    """(drive scales s_e, R, z with ‖[A D | E s_e] x − y‖² = ‖R x − z‖² + const (QR), the
+    null-space projector, μ)."""
+    norms = np.linalg.norm(E, axis=0)
+    s_e = np.where(norms > 0, np.linalg.norm(y) / np.maximum(norms, 1e-300) / max(np.sqrt(len(y)), 1.0), 1.0)
+    k = AD.shape[1] + E.shape[1]
+    R = np.linalg.qr(np.column_stack([AD, E * s_e, y]), mode="r")
+    Rs, z = R[:k, :k], R[:k, k]
+    KD = None
+    if base_K is not None:
+        inside = sorted((extra_in_base or {}).items())
+        KD = np.column_stack([base_K[:, cols] * D] + [np.asarray(c, float) * s_e[i] for i, c in inside])
+    P_null, mu = _null_pull(Rs.T @ Rs, KD, AD.shape[1], 1.0)
+    return s_e, Rs, z, P_null, mu
+
+
+def _program(Q, c, k, D, active, prior, lower, s_e, ncols, body_names, bounds, margin):
+    """The SDP with cost ½xᵀQx + cᵀx: pseudo-inertias ⪰ margin·m_prior·1, drive bounds, user bounds."""
+    from pydrake.solvers import MathematicalProgram  # lazy: pydrake stays out of `import pe_drake`
+
+    prog = MathematicalProgram()
+    x = prog.NewContinuousVariables(k, "x")
+    prog.AddQuadraticCost(Q, c, x, is_convex=True)
+    F = pseudo_inertia_basis()
+    for i, b in enumerate(active):
+        dk = D[10 * i : 10 * i + 10]
+        F0 = -margin * prior[10 * b] * np.eye(4)
+        prog.AddLinearMatrixInequalityConstraint([F0] + [F[j] * dk[j] for j in range(10)], x[10 * i : 10 * i + 10])
+    for j in range(k - ncols):
+        if np.isfinite(lower[j]):
+            prog.AddBoundingBoxConstraint(lower[j] / s_e[j], np.inf, x[ncols + j])
+    _add_bounds(prog, x, D, active, list(body_names), bounds)
+    return prog, x
+
+
+def _solve(prog, x, guess: np.ndarray, bounds: PhysicalBounds) -> np.ndarray:
+    """Clarabel (SCS when unavailable) at tolerance 1e-10; NoSolutionFound on failure."""
+    from pydrake.solvers import ClarabelSolver, ScsSolver, SolverOptions  # lazy, as above
+
+    solver = ClarabelSolver()
+    if not solver.available():  # pragma: no cover - the drake wheel ships Clarabel
+        solver = ScsSolver()
+    options = SolverOptions()
+    if solver.solver_id() == ClarabelSolver.id():
+        for key in ("tol_gap_abs", "tol_gap_rel", "tol_feas"):
+            options.SetOption(solver.solver_id(), key, 1e-10)
+    result = solver.Solve(prog, guess, options)
+    if not result.is_success():
+        hint = " or relax the identification bounds" if not bounds.empty else ""
+        raise NoSolutionFound(
+            f"the physically consistent fit failed ({solver.solver_id().name()}: "
+            f"{result.get_solution_result().name}); try --method wls{hint}", result)
+    return result.GetSolution(x)
+
+
+def _null_pull(H: np.ndarray, KD: np.ndarray | None, p: int, weight: float) -> tuple[np.ndarray, float]:
+    """(projector onto the unidentifiable directions of the first p variables, μ)."""
+    w = np.linalg.eigvalsh(H[:p, :p])
+    tol = 1e-10 * max(w.max(), 1e-300)
+    determined = w[w > tol]
+    mu = weight * (float(determined.min()) if determined.size else 1.0)
+    if KD is None:
+        w, V = np.linalg.eigh(H[:p, :p])
+        N = V[:, w <= tol]
+    else:  # the φ-part of the null space of [K D | c_k s_k]: orthonormal basis of its span
+        _, s, Vt = np.linalg.svd(KD)
+        rank = int(np.sum(s > 1e-10 * max(s.max(), 1e-300)))
+        U, s2, _ = np.linalg.svd(Vt[rank:, :p].T, full_matrices=False)
+        N = U[:, s2 > 1e-8 * max(s2.max(), 1e-300)] if s2.size else U[:, :0]
+    P = np.zeros_like(H)
+    P[:p, :p] = N @ N.T
+    return P, mu
+
+
+def _add_bounds(prog, x, D: np.ndarray, active: list[int], names: list[str], bounds: PhysicalBounds) -> None:
+    """The user's mass, total-mass and CoM-box constraints on the scaled variables x."""
+    where = {b: i for i, b in enumerate(active)}
+
+    def mass_row(b: int) -> np.ndarray:
+        row = np.zeros(len(x))
+        row[10 * where[b]] = D[10 * where[b]]
+        return row
+
+    if bounds.total_mass is not None:
+        row = sum((mass_row(b) for b in active), np.zeros(len(x)))
+        prog.AddLinearConstraint(row[None, :], [bounds.total_mass[0]], [bounds.total_mass[1]], x)
+    for name, (lo, hi) in bounds.mass_bounds.items():
+        b = names.index(name)
+        if b in where:
+            prog.AddLinearConstraint(mass_row(b)[None, :], [lo], [hi], x)
+    for name, box in bounds.boxes.items():
+        b = names.index(name)
+        if b not in where:
+            continue
+        i0 = 10 * where[b]
+        for axis in range(3):
+            for limit, sign in ((box.lower[axis], 1.0), (box.upper[axis], -1.0)):
+                row = np.zeros(len(x))  # sign·(h_axis − limit·m) ≥ 0
+                row[i0 + 1 + axis] = sign * D[i0 + 1 + axis]
+                row[i0] = -sign * limit * D[i0]
+                prog.AddLinearConstraint(row[None, :], [0.0], [np.inf], x)
+
+
+def fit_notes(phi: np.ndarray, prior: np.ndarray, theta: np.ndarray, lower: np.ndarray, extra_names: list[str],
+              body_names: list[str], bounds: PhysicalBounds, margin: float = PSD_MARGIN) -> list[str]:
+    """Parameters of a physical fit on a bound or far from the a-priori model, in words."""
+    notes = []
+    masses = phi[0::10]
+    total = float(masses.sum())
+    if bounds.total_mass is not None:
+        lo, hi = bounds.total_mass
+        for value, side in ((lo, "lower"), (hi, "upper")):
+            if abs(total - value) <= ON_BOUND * max(hi, 1.0):
+                notes.append(f"total mass {total:.4g} kg is on its {side} bound {value:g} kg")
+    for b, name in enumerate(body_names):
+        m0, m = prior[10 * b], masses[b]
+        if m0 <= 0:
+            continue
+        if name in bounds.mass_bounds:
+            lo, hi = bounds.mass_bounds[name]
+            for value, side in ((lo, "lower"), (hi, "upper")):
+                if abs(m - value) <= ON_BOUND * max(hi, 1.0):
+                    notes.append(f"{name}: mass {m:.4g} kg is on its {side} bound {value:g} kg")
+        if name in bounds.boxes:
+            box = bounds.boxes[name]
+            com = phi[10 * b + 1 : 10 * b + 4] / max(m, 1e-300)
+            for axis, label in enumerate("xyz"):
+                for value, side in ((box.lower[axis], "lower"), (box.upper[axis], "upper")):
+                    if abs(com[axis] - value) <= ON_BOUND * max(box.size[axis], 1e-3):
+                        notes.append(f"{name}: CoM {label} = {com[axis]:.4g} m is on its box's {side} face")
+        if abs(m - m0) > FAR_FROM_PRIOR * m0:
+            notes.append(f"{name}: mass {m:.4g} kg moved far from the a-priori {m0:.4g} kg "
+                         f"({100 * (m - m0) / m0:+.0f} %)")
+        w = np.linalg.eigvalsh(pseudo_inertia(phi[10 * b : 10 * b + 10]))
+        if w.min() <= 10 * margin * m0:
+            notes.append(f"{name}: on the physical-validity boundary (its pseudo-inertia is singular: "
+                         "a mass distribution flat or on a line)")
+    for name, value, lo in zip(extra_names, theta, lower):
+        if np.isfinite(lo) and value <= lo + ON_BOUND * max(float(np.max(np.abs(theta))) if len(theta) else 1.0, 1e-9):
+            notes.append(f"{name} is on its bound {lo:g} (the unconstrained fit wants it negative)")
+    return notes
+
+
+def _variable_scale(prior: np.ndarray, active: list[int]) -> np.ndarray:
+    """Per-variable scale, shape (10·nb,), that makes the prior about 1 in magnitude per body
+    block (mass; first moments; inertia): better numerics for the SDP."""
+    scale = np.ones(prior.size)
+    for b in active:
+        m = prior[10 * b]
+        scale[10 * b] = m
+        scale[10 * b + 1 : 10 * b + 4] = max(np.max(np.abs(prior[10 * b + 1 : 10 * b + 4])), 1e-3 * m)
+        scale[10 * b + 4 : 10 * b + 10] = max(np.max(np.abs(prior[10 * b + 4 : 10 * b + 10])), 1e-6 * m)
+    return scale
+
+
+def bounds_from_config(config) -> PhysicalBounds:
+    """The bounds of a config's ``identification`` section (:class:`~pe_drake.config.IdentificationConfig`)."""
+    return PhysicalBounds(
+        total_mass=tuple(config.total_mass) if config.total_mass else None,
+        mass_bounds={k: (float(v[0]), float(v[1])) for k, v in config.mass_bounds.items()},
+        boxes={k: LinkBox(tuple(map(float, b.center)), tuple(map(float, b.size))) for k, b in config.boxes.items()},
+    )
