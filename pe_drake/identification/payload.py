@@ -391,3 +391,16 @@ def payload_errors(result: PayloadResult, truth: PayloadInertia) -> dict[str, fl
         "com_sigmas": float(np.max(np.abs(dc) / np.maximum(result.com_std, 1e-300))),
         "inertia_sigmas": float(np.max(np.abs(dI) / np.maximum(result.inertia_about_com_std, 1e-300))),
     }
+
+
+def check_payload_trajectory(trajectory: dict, link: str, source: str = "trajectory.json") -> None:
+    """Refuses a trajectory.json written for another payload link (its ``payload_link``).
+
+    Raises:
+        DataError: the file names another link (a file without ``payload_link`` is an arm
+            motion: accepted, since any exciting motion also excites the payload).
+    """
+    recorded = trajectory.get("payload_link")
+    if recorded and recorded != link:
+        raise DataError(f"the motion was optimized for a payload on '{recorded}', not '{link}': pass "
+                        f"--payload {recorded} or optimize a motion for '{link}'", file=source)
