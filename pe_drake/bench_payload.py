@@ -46,9 +46,10 @@ def bench_payload(args: argparse.Namespace) -> None:
         times.append(time.perf_counter() - t0)
         alone = payload_errors(identify_payload(robot, [loaded], [], link), payload)
         rows.append((paired, alone))
+        sig = max(paired["mass_sigmas"], paired["com_sigmas"], paired["inertia_sigmas"])
         print(f"payload {k}: {payload.mass:.3f} kg, CoM {np.round(payload.com, 3).tolist()} m, noise {noise:.3f} N·m | "
               f"paired: mass {paired['mass_percent']:.3g} %, CoM {paired['com_m'] * 1e3:.3g} mm, inertia "
-              f"{paired['inertia_percent_of_max']:.3g} % of max (max {max(paired['mass_sigmas'], paired['com_sigmas'], paired['inertia_sigmas']):.2g} σ) | "
+              f"{paired['inertia_percent_of_max']:.3g} % of max (max {sig:.2g} σ) | "
               f"loaded alone: mass {alone['mass_percent']:.3g} %, CoM {alone['com_m'] * 1e3:.3g} mm, inertia "
               f"{alone['inertia_percent_of_max']:.3g} %")
     worst = {key: max(r[0][key] for r in rows) for key in rows[0][0]}

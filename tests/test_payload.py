@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from pe_drake.exceptions import ConfigError, DataError, UnknownNameError
-from pe_drake.identification.payload import PayloadBox, PayloadOptions, _box_rows, identify_payload
+from pe_drake.identification.payload import PayloadBox, PayloadOptions, box_constraint_rows, identify_payload
 from pe_drake.identification.payload_formats import (
     PAYLOAD_LINK_NAME,
     default_flange,
@@ -139,15 +139,15 @@ def test_exported_urdf_carries_the_payload(name, link, tmp_path):
     np.testing.assert_allclose(loaded.inverse_dynamics(q, v, vd), want, atol=1e-8)
 
 
-def test_box_rows_hold_for_a_body_inside_and_fail_outside():
+def testbox_constraint_rows_hold_for_a_body_inside_and_fail_outside():
     size = np.array([0.1, 0.2, 0.05])
     box = PayloadBox(center=(0.0, 0.0, 0.1), size=tuple(size))
     inside = PayloadInertia(2.0, np.array([0.0, 0.0, 0.1]), box_inertia(2.0, size))
-    assert all(a @ inside.phi >= -1e-12 for a, _ in _box_rows(box))
+    assert all(a @ inside.phi >= -1e-12 for a, _ in box_constraint_rows(box))
     shifted = PayloadInertia(2.0, np.array([0.0, 0.0, 0.2]), box_inertia(2.0, size))  # CoM outside
-    assert min(a @ shifted.phi for a, _ in _box_rows(box)) < 0
+    assert min(a @ shifted.phi for a, _ in box_constraint_rows(box)) < 0
     too_big = PayloadInertia(2.0, np.array([0.0, 0.0, 0.1]), box_inertia(2.0, 2 * size))  # spread outside
-    assert min(a @ too_big.phi for a, _ in _box_rows(box)) < 0
+    assert min(a @ too_big.phi for a, _ in box_constraint_rows(box)) < 0
     with pytest.raises(ConfigError, match="edge length"):
         PayloadBox(center=(0, 0, 0), size=(0.1, 0.0, 0.1))
     with pytest.raises(ConfigError, match="velocity scale|coulomb_velocity_scale"):

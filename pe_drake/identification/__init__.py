@@ -15,10 +15,15 @@ from pe_drake.identification.estimators import (
     torque_errors,
 )
 from pe_drake.identification.identified_file import load_identified
+from pe_drake.identification.payload import PayloadBox, PayloadOptions, PayloadResult, identify_payload
 
 __all__ = [
     "IdentificationResult",
+    "PayloadBox",
+    "PayloadOptions",
+    "PayloadResult",
     "identify",
+    "identify_payload",
     "load_identified",
     "predict",
     "predict_wrench",

@@ -335,7 +335,7 @@ def _physical_fit(R_joint, w, x_ls, offset: int, box: PayloadBox | None) -> np.n
     F = pseudo_inertia_basis()
     prog.AddLinearMatrixInequalityConstraint([np.zeros((4, 4))] + [F[i] * dL[i] for i in range(10)], uL)
     if box is not None:
-        for row, lo in _box_rows(box):
+        for row, lo in box_constraint_rows(box):
             prog.AddLinearConstraint((row * dL).reshape(1, 10), [lo], [np.inf], uL)
     solver = ClarabelSolver()
     if not solver.available():  # pragma: no cover - the drake wheel ships Clarabel
@@ -351,7 +351,7 @@ def _physical_fit(R_joint, w, x_ls, offset: int, box: PayloadBox | None) -> np.n
     return result.GetSolution(u) / D
 
 
-def _box_rows(box: PayloadBox) -> list[tuple[np.ndarray, float]]:
+def box_constraint_rows(box: PayloadBox) -> list[tuple[np.ndarray, float]]:
     """Linear inequalities a·φ_L ≥ lo of "all the mass inside the box": the centre of mass
     between each pair of faces, and ∫(s_i/2)² − x_B,i² dm ≥ 0 along each box axis (x_B the
     position in box coordinates); with J ⪰ 0 they hold for every density inside the box."""

@@ -119,11 +119,10 @@ def central_jacobian(phi: np.ndarray) -> np.ndarray:
     J[1:4, 0] = -h / m**2
     J[1:4, 1:4] = np.eye(3) / m
     J[4:10, 4:10] = np.eye(6)
-    J[4:10, 0] = inertia_vector((h @ h) * np.eye(3) - np.outer(h, h)) / m**2
-    for k in range(3):
-        e = np.zeros(3)
-        e[k] = 1.0
-        dP = 2 * h[k] * np.eye(3) - np.outer(e, h) - np.outer(h, e)
+    P = parallel_axis(1.0, h)  # |h|² 1 − h hᵀ, quadratic in h
+    J[4:10, 0] = inertia_vector(P) / m**2
+    for k, e in enumerate(np.eye(3)):
+        dP = parallel_axis(1.0, h + e) - P - parallel_axis(1.0, e)  # ∂P/∂h_k (P is quadratic)
         J[4:10, 1 + k] = -inertia_vector(dP) / m
     return J
 
