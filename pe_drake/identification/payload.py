@@ -230,7 +230,7 @@ def identify_payload(
     n, p = robot.n, R_joint.shape[-1] - 1
     if S * n < 10 * p:
         raise DataError(f"{S} samples × {n} joints = {S * n} equations for {p} unknowns: record longer runs")
-    x, cov, noise_std = _weighted_fit(R_joint, S, options.weighted)
+    x, cov, noise_std = weighted_fit_from_factors(R_joint, S, options.weighted)
     nb_arm = base.count if with_arm else 0
     nd = len(options.drive_terms) * n
     constrained = False
@@ -254,18 +254,23 @@ def identify_payload(
 
 
 def _compressed_rows(robot, model, runs, phi_arm, link, base, options) -> tuple[np.ndarray, int]:
-    """Per joint j, the triangular factor R_j of [A_j  y_j] over every run's rows of joint j,
+    """:func:`compress_joint_rows` of every run's rows (:func:`_run_rows`)."""
+    return compress_joint_rows(block for run, loaded in runs
+                               for block in _run_rows(robot, model, run, loaded, phi_arm, link, base, options))
+
+
+def compress_joint_rows(blocks) -> tuple[np.ndarray, int]:
+    """Per joint j, the triangular factor R_j of [A_j  y_j] over blocks (A (s, n, p), y (s, n)),
     shape (n, p+1, p+1), and the total number of samples: ‖A_j x − y_j‖² = ‖R_j [x; −1]‖², so
     the weighted fits and the residuals need nothing else."""
     R = None
     S = 0
-    for run, loaded in runs:
-        for A, y in _run_rows(robot, model, run, loaded, phi_arm, link, base, options):
-            S += A.shape[0]
-            block = np.concatenate([A, y[..., None]], axis=-1).transpose(1, 0, 2)  # (n, s, p+1)
-            if R is not None:
-                block = np.concatenate([R, block], axis=1)
-            R = np.linalg.qr(block, mode="r")
+    for A, y in blocks:
+        S += A.shape[0]
+        block = np.concatenate([A, y[..., None]], axis=-1).transpose(1, 0, 2)  # (n, s, p+1)
+        if R is not None:
+            block = np.concatenate([R, block], axis=1)
+        R = np.linalg.qr(block, mode="r")
     return R, S
 
 
@@ -287,9 +292,9 @@ def _run_rows(robot, model, run, loaded: bool, phi_arm, link, base, options):
         yield np.concatenate(parts, axis=-1), run.tau[r] - Y @ phi_arm
 
 
-def _lstsq_cov(R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def lstsq_from_factors(R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Least squares from the stacked factors R (m, p+1) of [W y]: (x, (WᵀW)⁻¹); refuses a
-    rank-deficient W."""
+    rank-deficient W (with the payload workflow's advice)."""
     p = R.shape[1] - 1
     scale = np.maximum(np.linalg.norm(R[:, :p], axis=0), 1e-300)
     Rq = np.linalg.qr(np.column_stack([R[:, :p] / scale, R[:, p]]), mode="r")
@@ -304,16 +309,22 @@ def _lstsq_cov(R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return x, cov
 
 
-def _weighted_fit(R_joint: np.ndarray, S: int, weighted: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """OLS, per-joint σ_j from its residual, then WLS with rows / σ_j: (x, Cov(x), σ_j)."""
+def weighted_fit_from_factors(R_joint: np.ndarray, S: int, weighted: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """OLS, per-joint σ_j from its residual, then WLS with rows / σ_j: (x, Cov(x), σ_j).
+
+    Args:
+        R_joint: per-joint factors of [A_j y_j], (n, p+1, p+1) (:func:`_compressed_rows`).
+        S: samples behind them.
+        weighted: weigh by 1/σ_j (else OLS).
+    """
     n, _, p1 = R_joint.shape
     p = p1 - 1
-    x, _ = _lstsq_cov(R_joint.reshape(-1, p1))
+    x, _ = lstsq_from_factors(R_joint.reshape(-1, p1))
     xm = np.append(x, -1.0)
     noise_std = np.sqrt(np.array([np.sum((Rj @ xm) ** 2) for Rj in R_joint]) / max(S - p / n, 1.0))
     w = 1.0 / np.maximum(noise_std, 1e-9 * max(float(noise_std.max()), 1e-12)) if weighted else np.ones(n)
     Rw = (R_joint * w[:, None, None]).reshape(-1, p1)
-    x, cov = _lstsq_cov(Rw)
+    x, cov = lstsq_from_factors(Rw)
     r = Rw @ np.append(x, -1.0)
     s2 = float(r @ r) / max(S * n - p, 1)  # ≈ 1 with the weights; keeps σ honest if not
     return x, cov * s2, noise_std
