@@ -1,4 +1,4 @@
-"""Benchmarks that print numbers: ``python -m pe_drake.bench {gradient,identify,diagnose,sensitivity,solve}``.
+"""Benchmarks that print numbers: ``python -m pe_drake.bench {gradient,identify,diagnose,sensitivity,solve,payload}``.
 
 Each benchmark prints its measurements and ends with one line ``BENCH key=value ...`` so
 scripts can collect it. Timings are wall-clock medians of repeated runs on this machine.
@@ -44,6 +44,7 @@ _BENCHMARKS = {
     "diagnose": ("pe_drake.bench", "bench_diagnose"),
     "sensitivity": ("pe_drake.bench", "bench_sensitivity"),
     "solve": ("pe_drake.bench", "bench_solve"),
+    "payload": ("pe_drake.bench_payload", "bench_payload"),
 }
 
 
@@ -371,6 +372,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--max-iterations", type=int, default=None, help="solve: IPOPT budget (default: the robot's config, 300)"
     )
+    parser.add_argument("--payloads", type=int, default=5, help="payload: random payloads (default: %(default)s)")
+    parser.add_argument("--link", default="", help="payload: the payload link (default: the robot's flange)")
     args = parser.parse_args(argv)
     if args.robot is None:
         args.robot = "g1" if args.benchmark == "gradient" else "panda"

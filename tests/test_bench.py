@@ -19,3 +19,11 @@ def test_bench_solve_prints_every_field(capsys):
     assert set(fields) == expected and fields["robot"] == "ur5"
     assert float(fields["new_cond"]) > 1 and float(fields["grad_ms"]) > 0
     assert re.search(r"old cond \+ 3 % (reached in|not reached)", out)
+
+
+def test_bench_payload_prints_its_errors(capsys):
+    assert main(["payload", "--robot", "ur5", "--payloads", "1", "--seed", "3"]) == 0
+    line = [row for row in capsys.readouterr().out.splitlines() if row.startswith("BENCH ")]
+    fields = dict(item.split("=", 1) for item in line[0].split()[1:])
+    assert fields["robot"] == "ur5" and float(fields["excitation_s"]) > 0
+    assert float(fields["mass_percent"]) < 0.5 and float(fields["com_mm"]) < 1.0

@@ -88,6 +88,7 @@ def _add_trajectory_commands(sub) -> None:
                    help="no ramp from/to rest: trajectory.csv then starts at full speed (unsafe on hardware)")
     p.add_argument("--no-html", action="store_true", help="do not write the Meshcat HTML playback")
     p.add_argument("--quiet", action="store_true", help="no progress output")
+    p.add_argument("--payload", metavar="LINK", help="a short motion for a payload on LINK alone (issue 24)")
     p.add_argument("--out", required=True, help="output folder")
 
     p = sub.add_parser("view", help="play a trajectory in Meshcat")
@@ -114,7 +115,9 @@ def _add_identification_commands(sub) -> None:
     """``identify``, ``validate`` and ``diagnose``: from measured data to a model and its faults."""
     p = sub.add_parser("identify", help="identify the base parameters from measured data")
     add_robot_arguments(p)
-    p.add_argument("--data", required=True, help="measurement CSV, ROS 2 bag (folder, .db3, .mcap) or RTDE log")
+    p.add_argument("--data", required=True, action="append",
+                   help="measurement CSV, ROS 2 bag (folder, .db3, .mcap) or RTDE log (repeatable with --payload: "
+                        "the loaded runs)")
     add_log_arguments(p)
     p.add_argument("--method", choices=["ols", "wls", "physical"], default="ols")
     p.add_argument("--cutoff", type=float, help="low-pass cut-off [Hz] (default: from --trajectory or the data)")
@@ -125,6 +128,13 @@ def _add_identification_commands(sub) -> None:
     p.add_argument("--drive-terms", choices=["none", "friction", "all"],
                    help="joint friction (Coulomb + viscous), torque offsets and, with 'all', the armature where "
                         "separable (default: the config's identification.drive_terms, all)")
+    p.add_argument("--payload", metavar="LINK", help="identify a payload on LINK, the arm frozen (issue 24)")
+    p.add_argument("--unloaded", action="append", metavar="CSV", help="--payload: a run of the same motion "
+                   "without the payload (repeatable)")
+    p.add_argument("--model", help="--payload: the arm's identified.json (default: the URDF's parameters)")
+    p.add_argument("--flange", help="--payload: the vendor flange link (default: panda_link8, tool0, ...)")
+    p.add_argument("--payload-box", metavar="CX,CY,CZ,SX,SY,SZ",
+                   help="--payload: the object's box in LINK's frame [m] (centre, edge lengths)")
     p.add_argument("--out", required=True, help="output folder")
 
     p = sub.add_parser("validate", help="predict torques of another run with an identified model")
@@ -149,8 +159,15 @@ def _add_identification_commands(sub) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
     module_name, function_name = _COMMANDS[args.command]
+    if getattr(args, "payload", None) and args.command in ("optimize", "identify"):
+        module_name, function_name = "pe_drake.cli.payload", f"payload_{args.command}_command"
+    elif args.command == "identify":
+        if len(args.data) > 1:
+            parser.error("identify: --data is given once (several only with --payload)")
+        args.data = args.data[0]
     try:
         function = getattr(importlib.import_module(module_name), function_name)
         with single_threaded_blas():

@@ -40,6 +40,7 @@ import numpy as np
 
 from pe_drake.exceptions import UnknownNameError
 from pe_drake.multibody.inertia import phi_from_com, principal_inertia
+from pe_drake.multibody.payload import link_columns
 from pe_drake.multibody.regressor import RegressorModel
 
 #: Per-joint effects of the library, in the order they are listed in reports.
@@ -320,7 +321,7 @@ def payload_groups(robot, base) -> list[tuple[int, int, tuple[str, ...]]]:
             continue
         child = robot.joints[j].child_body
         lead = next((b for b in bodies if int(robot.body_indices[b]) == child), bodies[0])
-        K_L = K[:, 10 * lead : 10 * lead + 10]
+        K_L = K[:, link_columns(robot, lead)]
         rank = np.linalg.matrix_rank(K_L, 1e-9)
         if rank == 0 or np.linalg.matrix_rank(K_L[:, 1:], 1e-9) == rank:
             continue

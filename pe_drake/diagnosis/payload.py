@@ -21,6 +21,7 @@ import numpy as np
 from pe_drake.diagnosis.effects import Separability, chi2, chi2_quantile, fit_payload, payload_groups
 from pe_drake.diagnosis.options import DiagnosisConfig
 from pe_drake.diagnosis.result import NamedEffect, per_joint
+from pe_drake.multibody.payload import PayloadInertia, link_columns
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -128,7 +129,7 @@ def _link_fits(robot, base, change: BaseChange, chi2_0: float) -> list[_LinkFit]
     """The GLS fit of Δφ_B by each identifiable link group's parameters."""
     fits = []
     for j, lead, group in payload_groups(robot, base):
-        K_L = base.K[:, 10 * lead : 10 * lead + 10]
+        K_L = base.K[:, link_columns(robot, lead)]  # the payload model shared with identification
         x, cov, chi2_after = fit_payload(change.delta_B, change.C, K_L)
         rank = int(np.linalg.matrix_rank(K_L, 1e-9))
         m, m_std = float(x[0]), math.sqrt(max(float(cov[0, 0]), 0.0))
@@ -161,7 +162,7 @@ def _payload_effect(best: _LinkFit, report: dict[str, Any], joints: Sequence[str
                     rms_held: np.ndarray) -> NamedEffect:
     entry, x = best.entry, best.x
     m = float(x[0])
-    com = (x[1:4] / m).tolist()
+    com = PayloadInertia.from_phi(x).com.tolist()  # the payload model shared with identification
     return NamedEffect(
         "payload", "", entry["link"], m, "kg", entry["mass_std"], abs(m) / max(entry["mass_std"], 1e-300),
         per_joint(joints, rms_held), per_joint(joints, rms_held),

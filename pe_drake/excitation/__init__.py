@@ -5,6 +5,7 @@ offered as a single module.
 """
 
 from pe_drake.excitation.limits import add_joint_limit_constraints, add_rest_constraints
+from pe_drake.excitation.payload_motion import PayloadMotionPlan, optimize_payload_motion
 from pe_drake.excitation.problem import ExcitationProblem
 from pe_drake.excitation.program import (
     ExcitationProgram,
@@ -23,6 +24,7 @@ __all__ = [
     "ExcitationProblem",
     "ExcitationProgram",
     "ExcitationResult",
+    "PayloadMotionPlan",
     "add_excitation_cost",
     "add_joint_limit_constraints",
     "add_rest_constraints",
@@ -30,5 +32,6 @@ __all__ = [
     "build_excitation_program",
     "check_margins",
     "optimize_excitation",
+    "optimize_payload_motion",
     "solve_excitation",
 ]

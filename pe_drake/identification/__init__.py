@@ -16,6 +16,7 @@ from pe_drake.identification.estimators import (
     torque_errors,
 )
 from pe_drake.identification.identified_file import load_identified
+from pe_drake.identification.payload import PayloadBox, PayloadOptions, PayloadResult, identify_payload
 from pe_drake.identification.physical_fit import LinkBox, PhysicalBounds
 
 __all__ = [
@@ -24,7 +25,11 @@ __all__ = [
     "IdentificationResult",
     "LinkBox",
     "PhysicalBounds",
+    "PayloadBox",
+    "PayloadOptions",
+    "PayloadResult",
     "identify",
+    "identify_payload",
     "load_identified",
     "predict",
     "predict_wrench",

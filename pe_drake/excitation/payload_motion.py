@@ -1,0 +1,202 @@
+"""Excitation of a payload alone: a short motion that makes its 10 parameters well determined.
+
+With the arm's parameters known (its model, or an earlier identification), what a payload
+run must determine is the payload link's 10 columns Y_L of the regressor
+(:mod:`pe_drake.multibody.payload`). The machinery of the arm's excitation is reused as it is
+(:class:`~pe_drake.excitation.problem.ExcitationProblem`, its program, constraints and
+solve): the "base parameters" handed to it are the selection of those 10 columns
+(:func:`payload_selection`), so the criterion (cond, or the smooth bound soft_cond,
+:mod:`pe_drake.excitation.criteria`) and its analytic gradient are those of Y_L. The motion
+is short by default (a 6 s period, 5 harmonics; at most 15 s with the ramps from and to
+rest), and every constraint of the arm applies.
+
+Expected σ before the run (:func:`expected_payload_std`): Cov(φ_L) = (Y_Lᵀ Σ⁻¹ Y_L)⁻¹ over the
+whole motion at the data rate, times 2 when an unloaded run of the same motion is fitted
+with it (the fit then uses the difference of two runs with the same noise each:
+:mod:`pe_drake.identification.payload`), carried to mass, centre of mass and central
+inertia at a nominal payload.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from pe_drake.config import ExcitationConfig, SolverConfig
+from pe_drake.exceptions import ConfigError, NoSolutionFound
+from pe_drake.excitation.problem import ExcitationProblem
+from pe_drake.excitation.program import build_excitation_program
+from pe_drake.excitation.ramp import RAMP_DURATIONS, RampedMotion, choose_ramp_duration
+from pe_drake.excitation.solve import ExcitationResult, solve_excitation
+from pe_drake.excitation.trajectory_file import save_trajectory, write_motion_csv
+from pe_drake.multibody.base_parameters import BaseParameters
+from pe_drake.multibody.inertia import PARAMS_PER_BODY
+from pe_drake.multibody.payload import PayloadInertia, box_inertia, central_jacobian, link_columns, payload_parameter_names
+from pe_drake.multibody.regressor import RegressorModel
+
+#: Default period of a payload motion [s] and its harmonics.
+PAYLOAD_PERIOD_S = 6.0
+PAYLOAD_HARMONICS = 5
+#: Longest payload motion by default, ramps included [s].
+MAX_PAYLOAD_DURATION_S = 15.0
+#: The payload at which expected σ are linearized when none is given: 1 kg, 0.1 m cube,
+#: centre of mass 5 cm from the link origin along z.
+NOMINAL_PAYLOAD = PayloadInertia(1.0, np.array([0.0, 0.0, 0.05]), box_inertia(1.0, [0.1, 0.1, 0.1]))
+
+
+def payload_selection(robot, link: str) -> BaseParameters:
+    """The payload link's 10 columns as a :class:`BaseParameters` (φ_B = φ_L): the
+    excitation problem then minimizes the criterion of Y_L."""
+    cols = link_columns(robot, link)
+    p = PARAMS_PER_BODY * robot.num_bodies
+    K = np.zeros((PARAMS_PER_BODY, p))
+    K[np.arange(PARAMS_PER_BODY), cols] = 1.0
+    names = payload_parameter_names(link)
+    return BaseParameters(cols, K, tuple(robot.parameter_names), names, 0.0, np.ones(p), "joint_torque")
+
+
+def payload_excitation_config(**changes) -> ExcitationConfig:
+    """The arm's :class:`ExcitationConfig` with the payload defaults: a 6 s period, 5
+    harmonics, 60 cost samples, 300 constraint samples, ramps on; ``changes`` override."""
+    values = dict(harmonics=PAYLOAD_HARMONICS, omega=2 * math.pi / PAYLOAD_PERIOD_S, cost_samples=60,
+                  constraint_samples=300, ramp=True, criterion="dopt")
+    values.update(changes)
+    return ExcitationConfig(**values)
+
+
+@dataclasses.dataclass(frozen=True)
+class PayloadStd:
+    """Expected σ of a payload's mass [kg], centre of mass (3,) [m] and central inertia (6,)
+    [kg·m²] ([Ixx, Iyy, Izz, Ixy, Ixz, Iyz]), at ``nominal``, for ``noise_std`` [N·m]."""
+
+    mass_std: float
+    com_std: np.ndarray
+    inertia_about_com_std: np.ndarray
+    nominal: PayloadInertia
+    noise_std: np.ndarray
+    paired: bool
+    rate_hz: float
+
+    def summary_lines(self) -> list[str]:
+        p = self.nominal
+        how = "with an unloaded run of the same motion" if self.paired else "arm model exact"
+        return [
+            f"expected payload σ ({how}; {self.rate_hz:g} Hz, torque noise "
+            f"{np.array2string(self.noise_std, precision=3)} N·m; at {p.mass:g} kg, CoM {p.com.tolist()} m):",
+            f"  mass {self.mass_std * 1e3:.3g} g ({100 * self.mass_std / p.mass:.3g} %), "
+            f"CoM {np.array2string(self.com_std * 1e3, precision=3)} mm, "
+            f"inertia {np.array2string(self.inertia_about_com_std, precision=3)} kg·m²",
+        ]
+
+    def to_dict(self) -> dict:
+        return {"mass_std": self.mass_std, "com_std": self.com_std.tolist(),
+                "inertia_about_com_std": self.inertia_about_com_std.tolist(), "nominal_mass": self.nominal.mass,
+                "nominal_com": self.nominal.com.tolist(), "noise_std": self.noise_std.tolist(),
+                "paired_with_unloaded_run": self.paired, "rate_hz": self.rate_hz}
+
+
+def expected_payload_std(robot, link: str, motion, *, noise_std=0.04, nominal: PayloadInertia | None = None,
+                         rate_hz: float = 1000.0, paired: bool = True, model: RegressorModel | None = None) -> PayloadStd:
+    """Expected σ of the payload identified from ``motion`` (module docstring).
+
+    Args:
+        robot: the robot; link: the payload link.
+        motion: a :class:`~pe_drake.excitation.ramp.RampedMotion` or a FourierTrajectory
+            (one period).
+        noise_std: torque noise σ_j [N·m], scalar or (n,).
+        nominal: the payload to linearize at (default :data:`NOMINAL_PAYLOAD`).
+        rate_hz: data rate [Hz].
+        paired: an unloaded run of the same motion is fitted with it (×2 on the covariance).
+    """
+    nominal = nominal or NOMINAL_PAYLOAD
+    sigma = np.broadcast_to(np.asarray(noise_std, float), (robot.n,)).copy()
+    duration = motion.duration if hasattr(motion, "duration") else motion.period
+    t = np.arange(0.0, duration, 1.0 / rate_hz)
+    model = model or RegressorModel(robot)
+    cols = link_columns(robot, link)
+    info = np.zeros((10, 10))
+    for s in range(0, t.size, 2000):
+        q, v, vd = motion.evaluate(t[s : s + 2000])
+        YL = model(q, v, vd)[..., cols] / sigma[None, :, None]
+        YL = YL.reshape(-1, 10)
+        info += YL.T @ YL
+    cov = np.linalg.pinv(info) * (2.0 if paired else 1.0)
+    J = central_jacobian(nominal.phi)
+    std = np.sqrt(np.maximum(np.diag(J @ cov @ J.T), 0.0))
+    return PayloadStd(float(std[0]), std[1:4], std[4:10], nominal, sigma, paired, rate_hz)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class PayloadMotionPlan:
+    """A payload motion: the optimized path, the controller motion with its ramps, the
+    expected σ and timings.
+
+    Attributes:
+        link: the payload link.
+        result: the :class:`~pe_drake.excitation.solve.ExcitationResult` (cond of Y_L).
+        motion: ramp-in + the periods + ramp-out.
+        expected: :class:`PayloadStd` of the whole motion.
+        wall_time: optimization + ramp choice [s].
+    """
+
+    link: str
+    result: ExcitationResult
+    motion: RampedMotion
+    expected: PayloadStd
+    wall_time: float
+
+    def write(self, out: str | Path, robot, csv_rate: float = 1000.0) -> list[Path]:
+        """trajectory.json (with ``payload_link``) and trajectory.csv in ``out``."""
+        out = Path(out)
+        out.mkdir(parents=True, exist_ok=True)
+        save_trajectory(out / "trajectory.json", robot, self.result.trajectory, cond=self.result.cond,
+                        cond_motion=self.result.cond_motion, payload_link=self.link,
+                        payload_expected_std=self.expected.to_dict(), **self.motion.to_dict())
+        write_motion_csv(out / "trajectory.csv", robot.joint_names, self.motion, csv_rate)
+        return [out / "trajectory.json", out / "trajectory.csv"]
+
+
+def optimize_payload_motion(robot, link: str, config: ExcitationConfig | None = None,
+                            solver: str | SolverConfig | None = None, *, constraints=(),
+                            max_duration: float = MAX_PAYLOAD_DURATION_S, noise_std=0.04,
+                            nominal: PayloadInertia | None = None, raise_on_failure: bool = True) -> PayloadMotionPlan:
+    """Optimizes a payload motion for ``link`` (module docstring).
+
+    Args:
+        robot: the robot; link: the payload link (a body in ``robot.body_names``).
+        config: excitation settings (default :func:`payload_excitation_config`).
+        solver: "ipopt", "nlopt" or a :class:`SolverConfig` (default IPOPT, 150 iterations).
+        constraints: the sampled constraints (collision, balance, ...) as for the arm.
+        max_duration: longest motion, ramps included [s].
+        noise_std, nominal: for the expected σ (:func:`expected_payload_std`).
+        raise_on_failure: raise :class:`NoSolutionFound` when no valid motion was found.
+
+    Raises:
+        ConfigError: a period that leaves no room for the ramps within ``max_duration``.
+        InfeasibleError: no ramp works.
+    """
+    start = time.perf_counter()
+    config = config or payload_excitation_config()
+    solver = solver or SolverConfig(max_iterations=150, verbose=False)
+    period = 2 * math.pi / config.omega
+    durations = [d for d in RAMP_DURATIONS if period * config.periods + 2 * d <= max_duration]
+    if config.ramp and not durations:
+        raise ConfigError(f"a payload motion of {config.periods} period(s) of {period:.3g} s leaves no room for "
+                          f"ramps of at least {RAMP_DURATIONS[0]:g} s within {max_duration:g} s: shorten the period "
+                          "(a larger omega) or raise max_duration")
+    problem = ExcitationProblem(robot, config, base=payload_selection(robot, link))
+    program = build_excitation_program(problem, list(constraints))
+    result = solve_excitation(program, solver)
+    if not result.success and raise_on_failure:
+        raise NoSolutionFound(result.message, result)
+    if config.ramp:
+        motion, _ = choose_ramp_duration(result.trajectory, robot.limits, list(constraints),
+                                         periods=config.periods, durations=durations)
+    else:
+        motion = RampedMotion(result.trajectory, config.periods, 0.0)
+    expected = expected_payload_std(robot, link, motion, noise_std=noise_std, nominal=nominal, model=problem.model)
+    return PayloadMotionPlan(link, result, motion, expected, time.perf_counter() - start)

@@ -1,0 +1,417 @@
+"""Payload (tool) identification: the 10 parameters of an object on one link, the arm frozen.
+
+Every run r (loaded or not) gives rows of the linear model (Eq. 4 restricted to what is new)
+
+    τ_r − Y_r φ_arm = Y_B,r δ_B + D_r θ + [r loaded] Y_L,r φ_L + ρ_r,
+
+with φ_arm the arm's model (the URDF's or an earlier identification), Y_L the payload link's
+10 columns of the regressor (:mod:`pe_drake.multibody.payload`), D the drive terms
+(:mod:`pe_drake.identification.payload_friction`: Coulomb, viscous, offset per joint), and
+δ_B what the arm model misses in its base parameters (Eq. 2). δ_B and θ are shared by every
+run; φ_L enters the loaded rows only. Y_L = Y_B K_L lies in the span of the base columns, so
+δ_B and φ_L are only separable with unloaded runs: without them δ_B is fixed at 0 and the
+arm's model errors go into the payload. With them (of the same motion), the fit is
+equivalent to regressing the difference of the runs on Y_L, so the arm's errors cancel; the
+runs need not be sample-aligned, since each run's rows stand on their own.
+
+The fit is weighted per joint (Gautier 1997: σ_j from the ordinary fit's residual), and
+physically consistent: J(φ_L) ⪰ 0 (the payload's pseudo-inertia, Wensing et al. 2017) and,
+given the object's box, its centre of mass and second moments inside the box; solved as an
+SDP with Drake's MathematicalProgram (Clarabel). The σ are from the linearized least-squares
+covariance, carried to mass, centre of mass and central inertia (:func:`central_jacobian`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pe_drake.exceptions import ConfigError, DataError
+from pe_drake.identification.identified_file import standard_from_base
+from pe_drake.identification.payload_friction import DRIVE_TERMS, drive_columns, drive_names
+from pe_drake.io_utils import atomic_write_text
+from pe_drake.multibody.base_parameters import BaseParameters, compute_base_parameters
+from pe_drake.multibody.inertia import pseudo_inertia, pseudo_inertia_basis
+from pe_drake.multibody.payload import PayloadInertia, central_jacobian, link_columns, link_position
+from pe_drake.multibody.regressor import RegressorModel
+from pe_drake.threads import single_threaded_blas
+
+#: Samples per regressor evaluation (memory: S·n·10·nb doubles).
+CHUNK = 2000
+
+
+@dataclasses.dataclass(frozen=True)
+class PayloadBox:
+    """The object's bounding box in the payload link's frame L.
+
+    Attributes:
+        center: p_LoBo_L, the box centre [m], (3,).
+        size: full edge lengths [m], (3,), each > 0.
+        rotation: R_LB, the box axes in L, (3, 3) (default: L's axes).
+    """
+
+    center: tuple[float, float, float]
+    size: tuple[float, float, float]
+    rotation: tuple = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+
+    def __post_init__(self):
+        size = np.asarray(self.size, float)
+        R = np.asarray(self.rotation, float)
+        if np.asarray(self.center, float).shape != (3,) or size.shape != (3,) or not np.all(np.isfinite(size)):
+            raise ConfigError(f"payload box: center and size need 3 finite numbers, got {self.center}, {self.size}")
+        if np.any(size <= 0):
+            raise ConfigError(f"payload box: every edge length must be > 0 [m], got {list(self.size)}")
+        if R.shape != (3, 3) or not np.allclose(R.T @ R, np.eye(3), atol=1e-9) or np.linalg.det(R) < 0:
+            raise ConfigError("payload box: rotation must be a 3×3 rotation matrix R_LB")
+
+
+@dataclasses.dataclass(frozen=True)
+class PayloadOptions:
+    """How :func:`identify_payload` fits.
+
+    Attributes:
+        physical: keep the payload's pseudo-inertia ⪰ 0 (an SDP); False: plain weighted LS.
+        box: the object's :class:`PayloadBox` (centre of mass and mass distribution inside it),
+            or None.
+        drive_terms: the per-joint nuisance terms, a subset of
+            :data:`~pe_drake.identification.payload_friction.DRIVE_TERMS`.
+        coulomb_velocity_scale: v_s of tanh(v/v_s) [rad/s].
+        arm_correction: with unloaded runs, fit δ_B (the arm's base-parameter error); ignored
+            without them.
+        weighted: weigh joints by their residual σ_j (else every row by 1).
+    """
+
+    physical: bool = True
+    box: PayloadBox | None = None
+    drive_terms: tuple[str, ...] = DRIVE_TERMS
+    coulomb_velocity_scale: float = 0.01
+    arm_correction: bool = True
+    weighted: bool = True
+
+    def __post_init__(self):
+        if not (isinstance(self.coulomb_velocity_scale, (int, float)) and self.coulomb_velocity_scale > 0):
+            raise ConfigError(f"coulomb_velocity_scale must be > 0 [rad/s], got {self.coulomb_velocity_scale!r}")
+        bad = [t for t in self.drive_terms if t not in DRIVE_TERMS]
+        if bad:
+            raise ConfigError(f"unknown drive term(s) {bad}; valid: {', '.join(DRIVE_TERMS)}")
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class PayloadResult:
+    """An identified payload, in the link's frame L (about its centre of mass for the inertia).
+
+    Attributes:
+        robot, link: robot name and the payload link.
+        payload: mass, p_LoPcm_L and I_PPcm_L (:class:`PayloadInertia`).
+        phi: the 10 parameters about Lo in L, (10,).
+        cov_phi: their covariance, (10, 10) (linearized LS; the constraint assumed inactive).
+        mass_std [kg], com_std (3,) [m], inertia_about_com_std (6,) [kg·m²]: σ of the
+            reported values, [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] order.
+        drive: {``<term>.<joint>``: value} of the nuisance drive terms.
+        arm_correction: δ_B (b,) or None (no unloaded runs).
+        noise_std: per-joint residual σ_j [N·m], (n,).
+        loaded_runs, unloaded_runs, samples: what was fitted.
+        constrained: the physical fit moved the estimate off the unconstrained one.
+        wall_time: [s].
+    """
+
+    robot: str
+    link: str
+    payload: PayloadInertia
+    phi: np.ndarray
+    cov_phi: np.ndarray
+    mass_std: float
+    com_std: np.ndarray
+    inertia_about_com_std: np.ndarray
+    drive: dict[str, float]
+    arm_correction: np.ndarray | None
+    noise_std: np.ndarray
+    loaded_runs: int
+    unloaded_runs: int
+    samples: int
+    constrained: bool
+    wall_time: float
+
+    def to_dict(self) -> dict[str, Any]:
+        """The content of payload.json (the project's truth-file convention)."""
+        p = self.payload
+        return {
+            "robot": self.robot,
+            "link": self.link,
+            "frame": f"{self.link} (centre of mass from its origin; inertia about the centre of mass, {self.link}'s axes)",
+            "mass": p.mass,
+            "com": p.com.tolist(),
+            "inertia_about_com": p.inertia_vector.tolist(),
+            "inertia_order": ["Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz"],
+            "mass_std": self.mass_std,
+            "com_std": self.com_std.tolist(),
+            "inertia_about_com_std": self.inertia_about_com_std.tolist(),
+            "units": {"mass": "kg", "com": "m", "inertia_about_com": "kg*m^2"},
+            "phi_about_link_origin": self.phi.tolist(),
+            "physically_valid": bool(np.linalg.eigvalsh(pseudo_inertia(self.phi)).min() >= -1e-9 * max(p.mass, 1e-12)),
+            "constrained": self.constrained,
+            "drive_terms": self.drive,
+            "noise_std": self.noise_std.tolist(),
+            "loaded_runs": self.loaded_runs,
+            "unloaded_runs": self.unloaded_runs,
+            "samples": self.samples,
+            "arm_correction_fitted": self.arm_correction is not None,
+            "wall_time_s": self.wall_time,
+        }
+
+    def write(self, path: str | Path) -> None:
+        """Writes payload.json atomically."""
+        atomic_write_text(path, json.dumps(self.to_dict(), indent=2))
+
+
+def arm_parameters(robot, arm_model=None) -> np.ndarray:
+    """The arm's standard parameters: the robot's a-priori model (None), an array (10·nb,),
+    or an :class:`~pe_drake.identification.estimators.IdentificationResult` (its physical
+    parameters, else the standard ones closest to the prior that reproduce its φ_B)."""
+    if arm_model is None:
+        return np.asarray(robot.phi_model, float)
+    if isinstance(arm_model, np.ndarray) or isinstance(arm_model, (list, tuple)):
+        phi = np.asarray(arm_model, float)
+        if phi.shape != (10 * robot.num_bodies,):
+            raise ConfigError(f"arm model has shape {phi.shape}, expected ({10 * robot.num_bodies},)")
+        return phi
+    if getattr(arm_model, "phi", None) is not None:
+        return np.asarray(arm_model.phi, float)
+    return standard_from_base(robot, arm_model)
+
+
+def identify_payload(
+    robot,
+    loaded_runs: Sequence,
+    unloaded_runs: Sequence = (),
+    link: str = "",
+    arm_model=None,
+    options: PayloadOptions | None = None,
+    *,
+    base: BaseParameters | None = None,
+    model: RegressorModel | None = None,
+) -> PayloadResult:
+    """Identifies the payload on ``link`` from loaded (and unloaded) runs (module docstring).
+
+    Args:
+        robot: the robot (without the payload).
+        loaded_runs: :class:`~pe_drake.identification.measurements.Measurement` s with v and vd
+            (preprocessed), carrying the payload.
+        unloaded_runs: the same motions without it (any number; need not be sample-aligned).
+        link: the payload link (a body in ``robot.body_names``).
+        arm_model: see :func:`arm_parameters`.
+        options: :class:`PayloadOptions`.
+        base, model: the robot's base parameters and regressor model, to reuse.
+
+    Raises:
+        DataError: no loaded run, runs without v/vd or torques, other joints, too few rows,
+            data that does not excite the payload, a failed SDP.
+        UnknownNameError: an unknown link.
+    """
+    start = time.perf_counter()
+    options = options or PayloadOptions()
+    if not loaded_runs:
+        raise DataError("identify_payload needs at least one loaded run")
+    link_position(robot, link)
+    model = model or RegressorModel(robot)
+    with_arm = bool(unloaded_runs) and options.arm_correction
+    if with_arm and base is None:
+        base = compute_base_parameters(robot, model=model)
+    phi_arm = arm_parameters(robot, arm_model)
+    runs = [(r, True) for r in loaded_runs] + [(r, False) for r in unloaded_runs]
+    with single_threaded_blas():  # small blocks: threads only add contention
+        R_joint, S = _compressed_rows(robot, model, runs, phi_arm, link, base if with_arm else None, options)
+    n, p = robot.n, R_joint.shape[-1] - 1
+    if S * n < 10 * p:
+        raise DataError(f"{S} samples × {n} joints = {S * n} equations for {p} unknowns: record longer runs")
+    x, cov, noise_std = weighted_fit_from_factors(R_joint, S, options.weighted)
+    nb_arm = base.count if with_arm else 0
+    nd = len(options.drive_terms) * n
+    constrained = False
+    if (options.physical and np.linalg.eigvalsh(pseudo_inertia(x[-10:])).min() < 0) or options.box is not None:
+        w = 1.0 / noise_std if options.weighted else np.ones(n)
+        x_phys = _physical_fit(R_joint, w, x, p - 10, options.box)
+        constrained = bool(np.linalg.norm(x_phys[-10:] - x[-10:]) > 1e-6 * np.linalg.norm(x[-10:]))
+        x = x_phys
+    phi = x[-10:]
+    cov_phi = cov[-10:, -10:]
+    Jc = central_jacobian(phi)
+    std = np.sqrt(np.maximum(np.diag(Jc @ cov_phi @ Jc.T), 0.0))
+    return PayloadResult(
+        robot=robot.name, link=robot.body_names[link_position(robot, link)], payload=PayloadInertia.from_phi(phi),
+        phi=phi, cov_phi=cov_phi, mass_std=float(std[0]), com_std=std[1:4], inertia_about_com_std=std[4:10],
+        drive=dict(zip(drive_names(robot.joint_names, options.drive_terms), map(float, x[nb_arm : nb_arm + nd]))),
+        arm_correction=x[:nb_arm] if with_arm else None, noise_std=noise_std,
+        loaded_runs=len(loaded_runs), unloaded_runs=len(unloaded_runs), samples=S, constrained=constrained,
+        wall_time=time.perf_counter() - start,
+    )
+
+
+def _compressed_rows(robot, model, runs, phi_arm, link, base, options) -> tuple[np.ndarray, int]:
+    """:func:`compress_joint_rows` of every run's rows (:func:`_run_rows`)."""
+    return compress_joint_rows(block for run, loaded in runs
+                               for block in _run_rows(robot, model, run, loaded, phi_arm, link, base, options))
+
+
+def compress_joint_rows(blocks) -> tuple[np.ndarray, int]:
+    """Per joint j, the triangular factor R_j of [A_j  y_j] over blocks (A (s, n, p), y (s, n)),
+    shape (n, p+1, p+1), and the total number of samples: ‖A_j x − y_j‖² = ‖R_j [x; −1]‖², so
+    the weighted fits and the residuals need nothing else."""
+    R = None
+    S = 0
+    for A, y in blocks:
+        S += A.shape[0]
+        block = np.concatenate([A, y[..., None]], axis=-1).transpose(1, 0, 2)  # (n, s, p+1)
+        if R is not None:
+            block = np.concatenate([R, block], axis=1)
+        R = np.linalg.qr(block, mode="r")
+    return R, S
+
+
+def _run_rows(robot, model, run, loaded: bool, phi_arm, link, base, options):
+    """One run's columns [Y_B (with base) | D | Y_L (loaded, else 0)] (s, n, p) and targets τ − Y φ_arm
+    (s, n), chunk by chunk."""
+    if run.v is None or run.vd is None or run.tau is None:
+        raise DataError("a payload run needs q, v, vdot and tau (preprocess it first)", file=run.source)
+    if tuple(run.joints) != tuple(robot.joint_names):
+        raise DataError(f"the run has joints {', '.join(run.joints)}; robot '{robot.name}' excites "
+                        f"{', '.join(robot.joint_names)}", file=run.source)
+    cols = link_columns(robot, link)
+    for s in range(0, run.num_samples, CHUNK):
+        r = slice(s, min(s + CHUNK, run.num_samples))
+        Y = model(run.q[r], run.v[r], run.vd[r])
+        D = drive_columns(run.v[r], options.coulomb_velocity_scale, options.drive_terms)
+        YL = Y[..., cols] if loaded else np.zeros(Y.shape[:2] + (10,))
+        parts = ([base.reduce(Y)] if base is not None else []) + [D, YL]
+        yield np.concatenate(parts, axis=-1), run.tau[r] - Y @ phi_arm
+
+
+def lstsq_from_factors(R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Least squares from the stacked factors R (m, p+1) of [W y]: (x, (WᵀW)⁻¹); refuses a
+    rank-deficient W (with the payload workflow's advice)."""
+    p = R.shape[1] - 1
+    scale = np.maximum(np.linalg.norm(R[:, :p], axis=0), 1e-300)
+    Rq = np.linalg.qr(np.column_stack([R[:, :p] / scale, R[:, p]]), mode="r")
+    U, s, Vt = np.linalg.svd(Rq[:p, :p])
+    if s[-1] <= s[0] * 1e-10:
+        raise DataError(
+            f"the runs do not excite the payload and the nuisance terms (cond {s[0] / max(s[-1], 1e-300):.3g} "
+            "after column scaling): use a payload motion (optimize_payload_motion) and runs that move every joint"
+        )
+    x = (Vt.T @ ((U.T @ Rq[:p, p]) / s)) / scale
+    cov = ((Vt.T / s**2) @ Vt) / np.outer(scale, scale)
+    return x, cov
+
+
+def weighted_fit_from_factors(R_joint: np.ndarray, S: int, weighted: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """OLS, per-joint σ_j from its residual, then WLS with rows / σ_j: (x, Cov(x), σ_j).
+
+    Args:
+        R_joint: per-joint factors of [A_j y_j], (n, p+1, p+1) (:func:`_compressed_rows`).
+        S: samples behind them.
+        weighted: weigh by 1/σ_j (else OLS).
+    """
+    n, _, p1 = R_joint.shape
+    p = p1 - 1
+    x, _ = lstsq_from_factors(R_joint.reshape(-1, p1))
+    xm = np.append(x, -1.0)
+    noise_std = np.sqrt(np.array([np.sum((Rj @ xm) ** 2) for Rj in R_joint]) / max(S - p / n, 1.0))
+    w = 1.0 / np.maximum(noise_std, 1e-9 * max(float(noise_std.max()), 1e-12)) if weighted else np.ones(n)
+    Rw = (R_joint * w[:, None, None]).reshape(-1, p1)
+    x, cov = lstsq_from_factors(Rw)
+    r = Rw @ np.append(x, -1.0)
+    s2 = float(r @ r) / max(S * n - p, 1)  # ≈ 1 with the weights; keeps σ honest if not
+    return x, cov * s2, noise_std
+
+
+def _physical_fit(R_joint, w, x_ls, offset: int, box: PayloadBox | None) -> np.ndarray:
+    """min Σ_j w_j² ‖A_j x − y_j‖² s.t. J(φ_L) ⪰ 0 (and the box), φ_L = x[offset:offset+10]."""
+    from pydrake.solvers import ClarabelSolver, MathematicalProgram, ScsSolver, SolverOptions  # lazy: pydrake
+
+    p = R_joint.shape[-1] - 1
+    Rw = (R_joint * w[:, None, None]).reshape(-1, p + 1)
+    D = np.maximum(np.linalg.norm(Rw[:, :p], axis=0), 1e-300)
+    R = np.linalg.qr(np.column_stack([Rw[:, :p] / D, Rw[:, p]]), mode="r")
+    Ra, z = R[:p, :p], R[:p, p]
+    prog = MathematicalProgram()
+    u = prog.NewContinuousVariables(p, "u")  # x = u / D
+    prog.AddQuadraticCost(2.0 * Ra.T @ Ra, -2.0 * Ra.T @ z, u, is_convex=True)
+    uL, dL = u[offset : offset + 10], 1.0 / D[offset : offset + 10]
+    F = pseudo_inertia_basis()
+    prog.AddLinearMatrixInequalityConstraint([np.zeros((4, 4))] + [F[i] * dL[i] for i in range(10)], uL)
+    if box is not None:
+        for row, lo in box_constraint_rows(box):
+            prog.AddLinearConstraint((row * dL).reshape(1, 10), [lo], [np.inf], uL)
+    solver = ClarabelSolver()
+    if not solver.available():  # pragma: no cover - the drake wheel ships Clarabel
+        solver = ScsSolver()
+    opts = SolverOptions()
+    if solver.solver_id() == ClarabelSolver.id():
+        for key in ("tol_gap_abs", "tol_gap_rel", "tol_feas"):
+            opts.SetOption(solver.solver_id(), key, 1e-10)
+    result = solver.Solve(prog, x_ls * D, opts)
+    if not result.is_success():
+        raise DataError(f"the physically consistent payload fit failed ({solver.solver_id().name()}: "
+                        f"{result.get_solution_result().name}); is the box right? try physical=False")
+    return result.GetSolution(u) / D
+
+
+def box_constraint_rows(box: PayloadBox) -> list[tuple[np.ndarray, float]]:
+    """Linear inequalities a·φ_L ≥ lo of "all the mass inside the box": the centre of mass
+    between each pair of faces, and ∫(s_i/2)² − x_B,i² dm ≥ 0 along each box axis (x_B the
+    position in box coordinates); with J ⪰ 0 they hold for every density inside the box."""
+    c0, size, R = (np.asarray(a, float) for a in (box.center, box.size, box.rotation))
+    F = pseudo_inertia_basis()
+    rows = []
+    for i in range(3):
+        e = R[:, i]
+        a = np.zeros(10)
+        a[1:4] = e
+        a[0] = -e @ c0
+        half = 0.5 * size[i]
+        # e·(h − m c0) ≥ −m·half and ≤ m·half
+        rows.append((a + half * np.eye(10)[0], 0.0))
+        rows.append((-a + half * np.eye(10)[0], 0.0))
+        # m half² − [eᵀΣe − 2 (e·c0)(e·h) + m (e·c0)²] ≥ 0, Σ = J[:3, :3] linear in φ
+        second = np.array([e @ Fk[:3, :3] @ e for Fk in F])
+        b = -second
+        b[1:4] += 2.0 * (e @ c0) * e
+        b[0] += half**2 - (e @ c0) ** 2
+        rows.append((b, 0.0))
+    return rows
+
+
+def payload_errors(result: PayloadResult, truth: PayloadInertia) -> dict[str, float]:
+    """Errors against a known payload: mass [%], centre of mass [m], central inertia relative
+    to the largest principal moment of the truth [%], and the largest |error|/σ of each."""
+    p = result.payload
+    lam_max = float(np.linalg.eigvalsh(truth.inertia_about_com).max())
+    dI = p.inertia_vector - truth.inertia_vector
+    dc = p.com - truth.com
+    return {
+        "mass_percent": 100.0 * abs(p.mass - truth.mass) / truth.mass,
+        "com_m": float(np.linalg.norm(dc)),
+        "inertia_percent_of_max": 100.0 * float(np.abs(dI).max()) / lam_max,
+        "mass_sigmas": abs(p.mass - truth.mass) / max(result.mass_std, 1e-300),
+        "com_sigmas": float(np.max(np.abs(dc) / np.maximum(result.com_std, 1e-300))),
+        "inertia_sigmas": float(np.max(np.abs(dI) / np.maximum(result.inertia_about_com_std, 1e-300))),
+    }
+
+
+def check_payload_trajectory(trajectory: dict, link: str, source: str = "trajectory.json") -> None:
+    """Refuses a trajectory.json written for another payload link (its ``payload_link``).
+
+    Raises:
+        DataError: the file names another link (a file without ``payload_link`` is an arm
+            motion: accepted, since any exciting motion also excites the payload).
+    """
+    recorded = trajectory.get("payload_link")
+    if recorded and recorded != link:
+        raise DataError(f"the motion was optimized for a payload on '{recorded}', not '{link}': pass "
+                        f"--payload {recorded} or optimize a motion for '{link}'", file=source)

@@ -1,0 +1,48 @@
+"""Per-joint drive terms as nuisance columns of the payload fit: Coulomb, viscous, offset.
+
+τ_drive,j = f_c,j tanh(v_j / v_s) + f_v,j v_j + o_j (the smoothed Coulomb law of the
+simulated true robot, :mod:`pe_drake.identification.simulation`). They are linear in
+θ = [f_c (n), f_v (n), o (n)], so they enter the payload fit as 3n extra columns shared by
+every run. A local builder for issue 24's loaded/unloaded pairing; the project's drive-term
+columns (armature, etc.) may replace it when they land.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pe_drake.exceptions import ConfigError
+
+#: The drive terms, in column order (each one column per joint).
+DRIVE_TERMS = ("coulomb", "viscous", "offset")
+
+
+def drive_columns(v: np.ndarray, velocity_scale: float, terms=DRIVE_TERMS) -> np.ndarray:
+    """The drive-term regressor, shape (S, n, len(terms)·n): column k·n + j acts on joint j only.
+
+    Args:
+        v: joint velocities, (S, n) [rad/s].
+        velocity_scale: v_s of the smoothed Coulomb law [rad/s], > 0.
+        terms: a subset of :data:`DRIVE_TERMS`, in that order.
+
+    Raises:
+        ConfigError: an unknown term or a non-positive v_s.
+    """
+    unknown = [t for t in terms if t not in DRIVE_TERMS]
+    if unknown:
+        raise ConfigError(f"unknown drive term(s) {unknown}; valid: {', '.join(DRIVE_TERMS)}")
+    if not velocity_scale > 0:
+        raise ConfigError(f"the Coulomb velocity scale must be > 0 [rad/s], got {velocity_scale!r}")
+    v = np.atleast_2d(np.asarray(v, float))
+    S, n = v.shape
+    values = {"coulomb": np.tanh(v / velocity_scale), "viscous": v, "offset": np.ones_like(v)}
+    out = np.zeros((S, n, len(terms) * n))
+    eye = np.arange(n)
+    for k, term in enumerate(terms):
+        out[:, eye, k * n + eye] = values[term]
+    return out
+
+
+def drive_names(joints, terms=DRIVE_TERMS) -> tuple[str, ...]:
+    """``<term>.<joint>`` in the column order of :func:`drive_columns`."""
+    return tuple(f"{t}.{j}" for t in terms for j in joints)

@@ -1,0 +1,134 @@
+"""The payload model: the 10 inertial parameters of a rigid object attached to one link.
+
+A payload (a tool, a grasped object) welded to link L adds to L's own parameters
+φ_L = [m, m·c, I_LLo_L] (:data:`pe_drake.multibody.inertia.PARAMETER_NAMES`: mass, first moment
+about the link origin Lo, rotational inertia about Lo, all in L's frame). Its torques are
+therefore L's 10 columns of the rigid-body regressor, τ_payload = Y[:, :, cols(L)] φ_L (Eq. 1).
+The identification workflow (:mod:`pe_drake.identification.payload`), the payload-only
+excitation (:mod:`pe_drake.excitation.payload_motion`) and diagnose's payload test
+(:mod:`pe_drake.diagnosis.payload`) all use :func:`link_columns` and :class:`PayloadInertia`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from pe_drake.exceptions import UnknownNameError
+from pe_drake.multibody.inertia import (
+    PARAMETER_NAMES,
+    PARAMS_PER_BODY,
+    inertia_matrix,
+    inertia_vector,
+    parallel_axis,
+    phi_from_com,
+)
+
+
+def link_position(robot, link: str | int) -> int:
+    """Position of ``link`` in ``robot.body_names`` (a name, or that position itself).
+
+    Raises:
+        UnknownNameError: a link that no excited joint moves (the valid names are listed).
+    """
+    if isinstance(link, (int, np.integer)):
+        if not 0 <= int(link) < robot.num_bodies:
+            raise UnknownNameError("link", str(link), list(robot.body_names), where="payload link")
+        return int(link)
+    if link not in robot.body_names:
+        raise UnknownNameError("link", link, list(robot.body_names), where="payload link (a body an excited joint moves)")
+    return robot.body_names.index(link)
+
+
+def link_columns(robot, link: str | int) -> np.ndarray:
+    """Indices of ``link``'s 10 columns in the standard regressor Y (10·nb columns), shape (10,)."""
+    j = link_position(robot, link)
+    return np.arange(PARAMS_PER_BODY * j, PARAMS_PER_BODY * (j + 1))
+
+
+def payload_parameter_names(link: str) -> tuple[str, ...]:
+    """``<param>.<link>`` of the payload's 10 parameters (as the robot's standard names)."""
+    return tuple(f"{p}.{link}" for p in PARAMETER_NAMES)
+
+
+@dataclasses.dataclass(frozen=True)
+class PayloadInertia:
+    """A rigid payload as mass, centre of mass and inertia about it, in one frame.
+
+    Attributes:
+        mass: m [kg].
+        com: centre of mass p_FoPcm_F [m], shape (3,).
+        inertia_about_com: I_PPcm_F [kg·m²], shape (3, 3).
+    """
+
+    mass: float
+    com: np.ndarray
+    inertia_about_com: np.ndarray
+
+    @classmethod
+    def from_phi(cls, phi: np.ndarray) -> PayloadInertia:
+        """From the 10 parameters about the frame's origin (m, h = m·c, I_Fo)."""
+        phi = np.asarray(phi, float)
+        m = float(phi[0])
+        c = phi[1:4] / m if m != 0 else np.zeros(3)
+        return cls(m, c, inertia_matrix(phi[4:10]) - parallel_axis(m, c))
+
+    @property
+    def phi(self) -> np.ndarray:
+        """The 10 parameters about the frame's origin, shape (10,)."""
+        return phi_from_com(self.mass, self.com, self.inertia_about_com)
+
+    @property
+    def inertia_vector(self) -> np.ndarray:
+        """[Ixx, Iyy, Izz, Ixy, Ixz, Iyz] of the inertia about the centre of mass [kg·m²]."""
+        return inertia_vector(self.inertia_about_com)
+
+    def principal(self) -> tuple[np.ndarray, np.ndarray]:
+        """Principal moments (ascending) and axes R (columns; a rotation, det +1) of the inertia
+        about the centre of mass: I_cm = R diag(λ) Rᵀ."""
+        lam, R = np.linalg.eigh(0.5 * (self.inertia_about_com + self.inertia_about_com.T))
+        if np.linalg.det(R) < 0:
+            R[:, 2] *= -1.0
+        return lam, R
+
+    def in_frame(self, X_FG: np.ndarray) -> PayloadInertia:
+        """The same payload expressed in frame G, given G's pose in the current frame F.
+
+        Args:
+            X_FG: pose of G in F, (4, 4).
+
+        Returns:
+            mass, p_GoPcm_G = R_GF (p_FoPcm_F − p_FoGo_F) and R_GF I R_FG.
+        """
+        X_FG = np.asarray(X_FG, float)
+        R_FG, p_FG = X_FG[:3, :3], X_FG[:3, 3]
+        return PayloadInertia(self.mass, R_FG.T @ (self.com - p_FG), R_FG.T @ self.inertia_about_com @ R_FG)
+
+
+def central_jacobian(phi: np.ndarray) -> np.ndarray:
+    """d(m, c, [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] of I_cm)/dφ, shape (10, 10), at φ (m > 0).
+
+    c = h/m and I_cm = I_o − (|h|² 1 − h hᵀ)/m: the linearization that carries the
+    parameters' covariance to the reported σ of mass, centre of mass and central inertia.
+    """
+    phi = np.asarray(phi, float)
+    m, h = float(phi[0]), phi[1:4]
+    J = np.zeros((10, 10))
+    J[0, 0] = 1.0
+    J[1:4, 0] = -h / m**2
+    J[1:4, 1:4] = np.eye(3) / m
+    J[4:10, 4:10] = np.eye(6)
+    P = parallel_axis(1.0, h)  # |h|² 1 − h hᵀ, quadratic in h
+    J[4:10, 0] = inertia_vector(P) / m**2
+    for k, e in enumerate(np.eye(3)):
+        dP = parallel_axis(1.0, h + e) - P - parallel_axis(1.0, e)  # ∂P/∂h_k (P is quadratic)
+        J[4:10, 1 + k] = -inertia_vector(dP) / m
+    return J
+
+
+def box_inertia(mass: float, size: np.ndarray) -> np.ndarray:
+    """Inertia about the centre of a solid box of uniform density, in its own axes [kg·m²],
+    (3, 3); ``size`` the full edge lengths [m]."""
+    a, b, c = np.asarray(size, float)
+    return mass / 12.0 * np.diag([b * b + c * c, a * a + c * c, a * a + b * b])
