@@ -1,0 +1,176 @@
+"""The config sections of logs in, motions out and identification (issues 22, 23), and the
+number checks every section uses. :mod:`pe_drake.config` assembles them into ``Config``.
+"""
+
+import dataclasses
+import math
+from typing import Any
+
+import numpy as np
+
+from pe_drake.exceptions import ConfigError
+
+
+def check_finite(name: str, value: Any, *, positive: bool = False, nonneg: bool = False) -> float:
+    """Checks that a configuration value is a finite number (not a bool).
+
+    Args:
+        name: the field as the user wrote it (e.g. ``excitation.omega`` or ``cutoff_hz``),
+            with its unit when it helps.
+        value: the value to check.
+        positive: also require value > 0.
+        nonneg: also require value >= 0.
+
+    Returns:
+        The value as a float.
+
+    Raises:
+        ConfigError: naming the field and the bad value.
+    """
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
+        raise ConfigError(f"{name} must be a number, got {value!r}")
+    if not math.isfinite(value):
+        raise ConfigError(f"{name} must be a finite number, got {value!r}")
+    if positive and value <= 0:
+        raise ConfigError(f"{name} must be positive, got {value!r}")
+    if nonneg and value < 0:
+        raise ConfigError(f"{name} must be non-negative, got {value!r}")
+    return float(value)
+
+
+def check_fraction(name: str, value: Any) -> float:
+    """Checks that a configuration value lies in (0, 1]; returns it as a float.
+
+    Raises:
+        ConfigError: naming the field and the bad value.
+    """
+    value = check_finite(name, value, positive=True)
+    if value > 1:
+        raise ConfigError(f"{name} must lie in (0, 1], got {value!r}")
+    return value
+
+
+
+@dataclasses.dataclass
+class JointMapConfig:
+    """A log's joint names and signs → the robot's (issue 22): ``strip_prefix`` (``tf_prefix``,
+    ``arm_``) is removed, then ``rename`` {logged: URDF name} applies; the position becomes
+    ``sign·q + offset`` [rad or m] per URDF joint (v, v̇, τ are multiplied by the sign)."""
+
+    strip_prefix: str = ""
+    rename: dict[str, str] = dataclasses.field(default_factory=dict)
+    sign: dict[str, float] = dataclasses.field(default_factory=dict)
+    offset: dict[str, float] = dataclasses.field(default_factory=dict)
+
+
+DATA_FORMATS = ("auto", "pe_drake", "rosbag", "rtde", "columns")  # pe_drake.identification.readers
+EFFORT_KINDS = ("torque", "current")  # what a ROS bag's JointState effort holds
+
+
+@dataclasses.dataclass
+class DataConfig:
+    """How measured logs are read (issue 22).
+
+    Attributes:
+        format: one of :data:`DATA_FORMATS` (``auto``: a bag, an RTDE CSV by its columns,
+            ``columns`` when given, else pe_drake's CSV).
+        topic: the bag's JointState topic; empty: the only one.
+        effort: a bag's ``effort`` is ``torque`` [N·m] or ``current`` [A] (× robot.drive_gains).
+        max_gap_s: longest hole in t interpolated [s]; a longer one splits the run.
+        joint_map: :class:`JointMapConfig`.
+        columns: {``t`` | ``q|v|vdot|tau|current.<joint>``: column} for other CSVs.
+    """
+
+    format: str = "auto"
+    topic: str = ""
+    effort: str = "torque"
+    max_gap_s: float = 0.02
+    joint_map: JointMapConfig = dataclasses.field(default_factory=JointMapConfig)
+    columns: dict[str, str] = dataclasses.field(default_factory=dict)
+
+
+@dataclasses.dataclass
+class ControllerConfig:
+    """The goal ``optimize`` writes for a ros2_control controller (issue 22): waypoints at
+    ``goal_rate_hz`` [Hz], ``lead_in_s`` [s] added to every ``time_from_start``, the MCAP bag's
+    JointTrajectory ``topic``, ``joint_names`` {URDF joint: the driver's name}."""
+
+    goal_rate_hz: float = 50.0
+    lead_in_s: float = 1.0
+    topic: str = "/joint_trajectory_controller/joint_trajectory"
+    joint_names: dict[str, str] = dataclasses.field(default_factory=dict)
+class CoMBoxConfig:
+    """Where a link's centre of mass may be, in the link's frame (``identification.boxes``).
+
+    Attributes:
+        center: [x, y, z] [m].
+        size: full edge lengths [sx, sy, sz] [m].
+    """
+
+    center: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
+    size: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
+
+
+@dataclasses.dataclass
+class IdentificationConfig:
+    """What ``pe-drake identify`` models and the bounds of its physical fit (issue 23).
+
+    Attributes:
+        drive_terms: "all" (default: Coulomb and viscous friction and a torque offset per
+            joint, and the armature where the kinematics separate it from the link inertias),
+            "friction" (no armature) or "none" (rigid body only); ``--drive-terms`` overrides.
+        coulomb_velocity_scale: v_s of the Coulomb column tanh(v/v_s) [rad/s], the diagnosis's.
+        total_mass: [lo, hi] of the summed mass of the moving links [kg]; empty: no bound.
+        mass_bounds: {link: [lo, hi]} [kg].
+        boxes: {link: CoM box in the link's frame [m]}: the CoM stays inside.
+    """
+
+    drive_terms: str = "all"
+    coulomb_velocity_scale: float = 0.01
+    total_mass: list[float] = dataclasses.field(default_factory=list)
+    mass_bounds: dict[str, list[float]] = dataclasses.field(default_factory=dict)
+    boxes: dict[str, CoMBoxConfig] = dataclasses.field(default_factory=dict)
+
+
+
+def validate_log_sections(r, d: "DataConfig", c: "ControllerConfig") -> None:
+    """Drive gains, jerk limits, the data and controller sections (issue 22)."""
+    for name in ("drive_gains", "jerk_limits"):
+        for joint, value in getattr(r, name).items():
+            check_finite(f"robot.{name}['{joint}']", value, positive=True)
+    for name, value, choices in (("format", d.format, DATA_FORMATS), ("effort", d.effort, EFFORT_KINDS)):
+        if value not in choices:
+            raise ConfigError(f"data.{name} '{value}' is not one of {', '.join(choices)}")
+    check_finite("data.max_gap_s [s]", d.max_gap_s, nonneg=True)
+    for joint, value in d.joint_map.sign.items():
+        if value not in (1, -1):
+            raise ConfigError(f"data.joint_map.sign['{joint}'] must be 1 or -1, got {value!r}")
+    for joint, value in d.joint_map.offset.items():
+        check_finite(f"data.joint_map.offset['{joint}']", value)
+    check_finite("controller.goal_rate_hz [Hz]", c.goal_rate_hz, positive=True)
+    check_finite("controller.lead_in_s [s]", c.lead_in_s, positive=True)
+    if not c.topic.startswith("/"):
+        raise ConfigError(f"controller.topic must start with '/', got '{c.topic}'")
+
+
+def validate_identification(c: IdentificationConfig) -> None:
+    """Drive-term choice and the physical fit's bounds (issue 23)."""
+    choices = ("none", "friction", "all")
+    if c.drive_terms not in choices:
+        raise ConfigError(f"identification.drive_terms '{c.drive_terms}' is not one of {', '.join(choices)}")
+    check_finite("identification.coulomb_velocity_scale", c.coulomb_velocity_scale, positive=True)
+    pairs = [("identification.total_mass", c.total_mass)] if c.total_mass else []
+    pairs += [(f"identification.mass_bounds['{k}']", v) for k, v in c.mass_bounds.items()]
+    for name, pair in pairs:
+        if len(pair) != 2:
+            raise ConfigError(f"{name} must be [lo, hi] [kg], got {pair}")
+        lo, hi = (check_finite(name, v, nonneg=True) for v in pair)
+        if lo > hi:
+            raise ConfigError(f"{name}: lower {lo} > upper {hi} [kg]")
+    for link, box in c.boxes.items():
+        if len(box.center) != 3 or len(box.size) != 3:
+            raise ConfigError(f"identification.boxes['{link}'] needs center [x, y, z] and size [sx, sy, sz] [m]")
+        for v in box.center:
+            check_finite(f"identification.boxes['{link}'].center", v)
+        for v in box.size:
+            check_finite(f"identification.boxes['{link}'].size", v, nonneg=True)
