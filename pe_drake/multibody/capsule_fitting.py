@@ -1,21 +1,29 @@
-"""Capsule files fitted automatically to a URDF's meshes (for robots that ship none).
+"""Capsule files fitted automatically to a URDF's or SDF's link shapes (for robots that ship none).
 
-Each link with a ``<collision>`` mesh (else its ``<visual>`` mesh) gets one capsule fitted
-by :func:`pe_drake.multibody.capsules.fit_capsule` to the mesh vertices expressed in the link
-frame (the element's ``<origin>`` and the mesh ``scale`` applied): the axis is the vertices'
-principal axis, the radius covers 98 % of them and the segment is the shortest that contains
-them. Links joined by a joint (adjacent) and links welded together are not checked against
-each other: :func:`~pe_drake.multibody.capsules.register_capsules` filters those pairs.
+Each link gets its capsule(s) from its ``<collision>`` shapes, else from its ``<visual>`` ones
+(:mod:`pe_drake.multibody.link_geometry`):
 
-Readers: STL (binary and ASCII) and OBJ (``v`` lines). DAE meshes are not read; a link with
-only DAE meshes gets no capsule and is listed in :attr:`FittedCapsules.skipped`.
+- primitives only (at most :data:`MAX_PRIMITIVE_CAPSULES`): one exact capsule per primitive
+  (:func:`~pe_drake.multibody.link_geometry.primitive_segment`: a cylinder keeps its radius,
+  axis and length, a sphere is a zero-length capsule, a box the capsule along its longest
+  edge that encloses it);
+- meshes, or more primitives: one capsule fitted by
+  :func:`pe_drake.multibody.capsules.fit_capsule` to the pooled mesh vertices (and primitive
+  surface points) in the link frame: the axis is their principal axis, the radius covers 98 %
+  of the mesh vertices and the segment is the shortest that contains them.
+
+Links joined by a joint (adjacent) and links welded together are not checked against each
+other: :func:`~pe_drake.multibody.capsules.register_capsules` filters those pairs.
+
+Mesh readers: STL (binary and ASCII), OBJ (``v`` lines) and COLLADA ``.dae`` (pycollada,
+node transforms and ``<unit meter>`` applied). A shape that cannot be read is listed in
+:attr:`FittedCapsules.unchecked` ("link X: mesh Y could not be read: reason"): that part of
+the robot is not checked for collisions, and a caller must not report the robot as checked.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import math
-import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +31,7 @@ import numpy as np
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.capsules import capsule_pairs, capsule_pose, fit_capsule, segment_closest_points
+from pe_drake.multibody.link_geometry import Shape, primitive_points, primitive_segment, read_link_shapes
 from pe_drake.multibody.meshes import read_stl, resolve_mesh_path
 from pe_drake.multibody.model_files import loadable_model_path
 from pe_drake.multibody.robot import Robot
@@ -31,6 +40,20 @@ from pe_drake.multibody.robot import Robot
 FITTED_CAPSULES_NAME = "fitted_capsules.yaml"
 #: Self-collision margin used with fitted capsules when the config sets none [m].
 FITTED_COLLISION_MARGIN = 0.01
+#: A link with at most this many primitive shapes (and no mesh) gets one capsule per shape.
+MAX_PRIMITIVE_CAPSULES = 3
+
+
+class CapsuleFittingError(ConfigError):
+    """No link of a model has a shape capsules can be fitted to.
+
+    Attributes:
+        unchecked: one line per link whose shapes could not be used.
+    """
+
+    def __init__(self, message: str, unchecked: tuple[str, ...]):
+        self.unchecked = tuple(unchecked)
+        super().__init__(message)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -40,18 +63,38 @@ class FittedCapsules:
     Attributes:
         path: the capsule file.
         links: links that got a capsule.
-        skipped: {link: reason} for links with geometry but no capsule.
-        ignored_pairs: pairs touching by design, (capsule, capsule, reason).
+        skipped: {link: reason} for links with shapes but no capsule.
+        ignored_pairs: pairs not checked although not adjacent, (capsule, capsule, reason).
+        unchecked: what is not checked for collisions, one line each ("link X: mesh Y could
+            not be read: reason"); empty when every shape of the model was used.
+        sources: {link: "primitive" | "mesh" | "primitive+mesh"}, what each capsule came from.
+        written: whether ``path`` was written (False only for a result built without a file).
+        adjusted: capsules shrunk so that non-adjacent pairs stay checked, one line each.
     """
 
     path: Path
     links: tuple[str, ...]
     skipped: dict[str, str]
     ignored_pairs: tuple = ()
+    unchecked: tuple[str, ...] = ()
+    sources: dict[str, str] = dataclasses.field(default_factory=dict)
+    written: bool = True
+    adjusted: tuple[str, ...] = ()
+
+    def summary(self, first: int = 3) -> str:
+        """A one-line account: capsule count and sources, then the count of unchecked parts
+        with the first few and where the full list is (``report.json``'s ``unchecked``)."""
+        kinds = sorted(set(self.sources.values()))
+        text = f"{len(self.links)} link(s) with capsules (from {', '.join(kinds) or 'nothing'})"
+        if self.unchecked:
+            shown = "; ".join(self.unchecked[:first])
+            more = f"; ... {len(self.unchecked) - first} more" if len(self.unchecked) > first else ""
+            text += f"; {len(self.unchecked)} part(s) NOT checked: {shown}{more} (full list: report.json 'unchecked')"
+        return text
 
 
 def read_mesh_vertices(path: str | Path) -> np.ndarray:
-    """Vertices of an STL or OBJ mesh, shape (V, 3) [file units].
+    """Vertices of an STL, OBJ or COLLADA (.dae) mesh, shape (V, 3) [file units; DAE in m].
 
     Raises:
         DataError: an unsupported format or an unreadable file, naming it.
@@ -71,119 +114,157 @@ def read_mesh_vertices(path: str | Path) -> np.ndarray:
         if not rows:
             raise DataError("no vertices ('v x y z' lines)", file=str(path))
         return np.asarray(rows, float)
-    raise DataError(f"mesh format '{suffix}' is not read for capsule fitting (STL and OBJ are)", file=str(path))
+    if suffix == ".dae":
+        return _read_dae_vertices(path)
+    raise DataError(f"mesh format '{suffix}' is not read for capsule fitting (STL, OBJ and DAE are)", file=str(path))
 
 
-def _rotation_rpy(rpy) -> np.ndarray:
-    r, p, y = rpy
-    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
-    Rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
-    Ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
-    Rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
-    return Rz @ Ry @ Rx  # URDF: fixed-axis roll, pitch, yaw
+def _read_dae_vertices(path: Path) -> np.ndarray:
+    """Vertices of a COLLADA file's scene (node transforms applied), scaled to metres."""
+    import collada  # lazy: only DAE meshes need it
+
+    try:
+        mesh = collada.Collada(
+            str(path), ignore=[collada.common.DaeUnsupportedError, collada.common.DaeBrokenRefError]
+        )
+        blocks = []
+        if mesh.scene is not None:
+            for geometry in mesh.scene.objects("geometry"):
+                for primitive in geometry.primitives():
+                    if primitive.vertex is not None and len(primitive.vertex):
+                        blocks.append(np.asarray(primitive.vertex, float).reshape(-1, 3))
+        unit = float(mesh.assetInfo.unitmeter or 1.0)
+    except Exception as err:  # pycollada raises many types (XML, DaeError, KeyError, ...)
+        raise DataError(f"cannot read COLLADA file: {type(err).__name__}: {err}", file=str(path)) from err
+    if not blocks:
+        raise DataError("COLLADA file has no geometry in its scene", file=str(path))
+    return np.vstack(blocks) * unit
 
 
-def _numbers(text: str | None, count: int, default: float) -> list[float]:
-    if not text:
-        return [default] * count
-    values = [float(x) for x in text.split()]
-    return values if len(values) == count else values[:1] * count
+def _mesh_points(shape: Shape, model_path: Path) -> np.ndarray:
+    """A mesh shape's vertices in the link frame (scale and pose applied).
+
+    Raises:
+        DataError: the file is missing or unreadable.
+    """
+    path = resolve_mesh_path(shape.filename, model_path)
+    if path is None:
+        raise DataError("file not found")
+    v = read_mesh_vertices(path) * shape.scale
+    return v @ shape.X_LG[:3, :3].T + shape.X_LG[:3, 3]
 
 
-def _link_points(link: ET.Element, model_path: Path) -> tuple[np.ndarray | None, list[str], str]:
-    """Vertices of a link's collision (else visual) meshes in the link frame, the files used,
-    and why none were used."""
-    why = "no mesh geometry"
+class _LinkFit:
+    """The capsules of one link: segments (p0, p1, radius, comment), source, problems."""
+
+    def __init__(self):
+        self.capsules: list[tuple[np.ndarray, np.ndarray, float, str]] = []
+        self.source = ""
+        self.problems: list[str] = []  # shapes of the group the capsules came from, not read
+        self.replaced: list[str] = []  # collision shapes not read, replaced by the visual ones
+
+
+def _fit_link(shapes: list[Shape], model_path: Path, cover: float) -> _LinkFit:
+    """Capsules from a link's collision shapes, else from its visual ones."""
+    fit = _LinkFit()
     for tag in ("collision", "visual"):
-        points, files, reasons = [], [], []
-        for element in link.findall(tag):
-            mesh = element.find("geometry/mesh")
-            if mesh is None:
-                continue
-            name = mesh.get("filename", "")
-            path = resolve_mesh_path(name, model_path)
-            if path is None:
-                reasons.append(f"mesh '{name}' not found")
+        group = [s for s in shapes if s.tag == tag]
+        primitives = [s for s in group if s.kind != "mesh"]
+        meshes, problems = [], []
+        for s in group:
+            if s.kind != "mesh":
                 continue
             try:
-                v = read_mesh_vertices(path)
+                meshes.append((s, _mesh_points(s, model_path)))
             except DataError as err:
-                reasons.append(str(err))
-                continue
-            origin = element.find("origin")
-            xyz = _numbers(origin.get("xyz") if origin is not None else None, 3, 0.0)
-            rpy = _numbers(origin.get("rpy") if origin is not None else None, 3, 0.0)
-            scale = np.asarray(_numbers(mesh.get("scale"), 3, 1.0))
-            points.append((v * scale) @ _rotation_rpy(rpy).T + np.asarray(xyz))
-            files.append(path.name)
-        if points:
-            return np.vstack(points), files, ""
-        if reasons:
-            why = "; ".join(reasons)
-    return None, [], why
+                reason = str(err).split("': ", 1)[-1] if str(err).startswith("file '") else str(err)
+                problems.append(f"{tag} {s.describe()} could not be read: {reason}")
+        if not meshes and not primitives:
+            fit.replaced += problems
+            continue
+        fit.problems = problems
+        if not meshes and len(primitives) <= MAX_PRIMITIVE_CAPSULES:
+            for s in primitives:
+                p0, p1, r = primitive_segment(s)
+                fit.capsules.append((p0, p1, r, f"{tag} {s.describe()}: encloses it"))
+            fit.source = "primitive"
+            break
+        points = [p for _, p in meshes] + [primitive_points(s) for s in primitives]
+        P = np.vstack(points)
+        if len(P) < 4:
+            fit.replaced += problems + [f"{tag} shapes have fewer than 4 vertices"]
+            continue
+        # primitive surface points are extremes, not a sampled surface: cover them all
+        p0, p1, r = fit_capsule(P, cover=cover if meshes else 1.0)
+        worst = max(_radial_distance(P, p0, p1).max() - r, 0.0)
+        names = ", ".join(Path(s.filename).name if s.kind == "mesh" else s.describe() for s in group)
+        fit.capsules.append((p0, p1, r, f"{tag} {names}: worst vertex {worst * 1e3:.0f} mm out"))
+        fit.source = "mesh" if not primitives else ("primitive" if not meshes else "primitive+mesh")
+        break
+    return fit
 
 
 def fit_capsule_file(
     model_path: str | Path, out_path: str | Path, links: list[str] | None = None, cover: float = 0.98
 ) -> FittedCapsules:
-    """Fits one capsule per link of a URDF to its meshes and writes a capsule file.
+    """Fits capsules to the links of a URDF or SDF and writes a capsule file.
 
     Args:
-        model_path: the URDF.
+        model_path: the URDF or SDF.
         out_path: the capsule file to write (YAML, format of pe_drake/multibody/capsules.py).
-        links: only these links (default: every link with a mesh).
+        links: only these links (default: every link with a shape).
         cover: fraction of each mesh's vertices inside its capsule.
 
     Returns:
-        A :class:`FittedCapsules`.
+        A :class:`FittedCapsules`; its ``unchecked`` lists the shapes that could not be used.
 
     Raises:
-        ConfigError: not a URDF, unreadable XML, or no link with a readable mesh.
+        ConfigError: not a URDF/SDF, or unreadable XML.
+        CapsuleFittingError: no link has a usable shape (its ``unchecked`` says why).
     """
     model_path = Path(model_path)
-    if model_path.suffix.lower() != ".urdf":
-        raise ConfigError(f"capsules can be fitted to URDF meshes only, not '{model_path.name}'; give robot.capsules")
-    try:
-        root = ET.parse(model_path).getroot()
-    except (ET.ParseError, OSError) as err:
-        raise ConfigError(f"cannot read '{model_path}' to fit capsules: {err}") from err
+    shapes = read_link_shapes(model_path)
     lines = [
-        f"# Capsules fitted automatically by pe_drake to the meshes of {model_path.name}: one per link,",
-        "# axis = principal axis of the link's collision (else visual) mesh vertices, radius covering",
-        f"# {cover:.0%} of them, shortest segment containing them (pe_drake.multibody.capsule_fitting).",
+        f"# Capsules fitted automatically by pe_drake to the links of {model_path.name}: a primitive",
+        "# collision shape (cylinder, sphere, box, capsule) gives the capsule enclosing it; meshes give",
+        "# one capsule per link along the principal axis of the collision (else visual) mesh vertices,",
+        f"# radius covering {cover:.0%} of them (pe_drake.multibody.capsule_fitting).",
         "# Check them in `pe-drake view` and edit as needed; give the edited file as robot.capsules.",
         "capsules:",
     ]
-    fitted, skipped = [], {}
-    for link in root.findall("link"):
-        name = link.get("name", "")
-        if links is not None and name not in links:
+    fitted, skipped, unchecked, sources = [], {}, [], {}
+    for name, link_shapes in shapes.items():
+        if (links is not None and name not in links) or not link_shapes:
             continue
-        points, files, reason = _link_points(link, model_path)
-        if points is None:
-            if link.find("collision") is not None or link.find("visual") is not None:
-                skipped[name] = reason
+        fit = _fit_link(link_shapes, model_path, cover)
+        if not fit.capsules:
+            skipped[name] = "; ".join(fit.replaced + fit.problems) or "no usable shape"
+            unchecked.append(f"link {name}: " + skipped[name])
             continue
-        if len(points) < 4:
-            skipped[name] = "fewer than 4 vertices"
-            continue
-        p0, p1, r = fit_capsule(points, cover=cover)
-        xyz, rpy, length = capsule_pose(p0, p1)
-        length = max(length, 1e-3)  # a sphere-like link: Drake needs a positive length
-        radial = _radial_distance(points, p0, p1)
-        lines.append(f"  # {', '.join(files)}: worst vertex {max(radial.max() - r, 0.0) * 1e3:.0f} mm out")
-        lines.append(
-            f"  - {{name: {name}, link: {name}, radius: {r:.4f}, length: {length:.4f},\n"
-            f"     xyz: [{xyz[0]:.4f}, {xyz[1]:.4f}, {xyz[2]:.4f}], rpy: [{rpy[0]:.4f}, {rpy[1]:.4f}, {rpy[2]:.4f}]}}"
-        )
+        if fit.problems:  # a shape of the group the capsules came from: that part is unchecked
+            unchecked.append(f"link {name}: " + "; ".join(fit.problems) + " (capsule fitted to its other shapes)")
+        if fit.replaced:
+            lines.append(f"  # {name}: " + "; ".join(fit.replaced) + "; its visual shapes used instead")
+        for k, (p0, p1, r, comment) in enumerate(fit.capsules):
+            xyz, rpy, length = capsule_pose(p0, p1)
+            length = max(length, 1e-3)  # a sphere: Drake needs a positive length
+            cap = name if k == 0 else f"{name}_{k}"
+            lines.append(f"  # {comment}")
+            lines.append(
+                f"  - {{name: {cap}, link: {name}, radius: {r:.4f}, length: {length:.4f},\n"
+                f"     xyz: [{xyz[0]:.4f}, {xyz[1]:.4f}, {xyz[2]:.4f}], rpy: [{rpy[0]:.4f}, {rpy[1]:.4f}, {rpy[2]:.4f}]}}"
+            )
         fitted.append(name)
+        sources[name] = fit.source
     if not fitted:
-        raise ConfigError(
-            f"no link of '{model_path}' has a readable STL/OBJ mesh to fit capsules to "
-            f"({'; '.join(f'{k}: {v}' for k, v in skipped.items()) or 'no meshes'}); give robot.capsules"
+        first = "; ".join(unchecked[:3]) + (f"; ... {len(unchecked) - 3} more" if len(unchecked) > 3 else "")
+        raise CapsuleFittingError(
+            f"no link of '{model_path.name}' has a shape capsules can be fitted to "
+            f"({len(unchecked)} link(s) with unusable shapes: {first or 'no shapes'}); give robot.capsules",
+            tuple(unchecked),
         )
     atomic_write_text(out_path, "\n".join(lines) + "\n")
-    return FittedCapsules(Path(out_path), tuple(fitted), skipped)
+    return FittedCapsules(Path(out_path), tuple(fitted), skipped, unchecked=tuple(unchecked), sources=sources)
 
 
 def _radial_distance(points: np.ndarray, p0: np.ndarray, p1: np.ndarray) -> np.ndarray:

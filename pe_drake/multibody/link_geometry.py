@@ -1,0 +1,207 @@
+"""The collision and visual shapes of a URDF's or SDF's links, in each link's frame.
+
+:func:`read_link_shapes` lists, per link, every ``<collision>`` and ``<visual>`` element as a
+:class:`Shape`: a mesh (file name and scale) or a primitive (``<cylinder>``, ``<sphere>``,
+``<box>``, ``<capsule>``) with its pose in the link frame. Capsule fitting
+(:mod:`pe_drake.multibody.capsule_fitting`) turns these into capsules. Nothing is loaded
+here; mesh files are resolved and read by the fitting.
+
+SDF: every ``<link>`` of every (nested) ``<model>``; a shape's ``<pose>`` is taken in the link
+frame (``relative_to`` other frames is not followed). ``model://`` URIs are treated like
+``package://`` ones.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+
+from pe_drake.exceptions import ConfigError
+
+#: Primitive shape kinds and the size numbers each carries.
+PRIMITIVES = {"cylinder": "radius, length", "sphere": "radius", "box": "x, y, z", "capsule": "radius, length"}
+
+
+@dataclasses.dataclass(frozen=True)
+class Shape:
+    """One collision or visual shape of a link.
+
+    Attributes:
+        link: the link's name.
+        tag: "collision" or "visual".
+        kind: "mesh" or one of :data:`PRIMITIVES`.
+        X_LG: pose of the shape's frame G in the link frame L, shape (4, 4) [m].
+        size: cylinder/capsule (radius, length), sphere (radius,), box (x, y, z) full edge
+            lengths [m]; empty for a mesh.
+        filename: the mesh's file name or URI as written ("" for a primitive).
+        scale: the mesh's scale, shape (3,).
+    """
+
+    link: str
+    tag: str
+    kind: str
+    X_LG: np.ndarray
+    size: tuple[float, ...] = ()
+    filename: str = ""
+    scale: np.ndarray = dataclasses.field(default_factory=lambda: np.ones(3))
+
+    def describe(self) -> str:
+        """A short label: the mesh file name, or the primitive with its size."""
+        if self.kind == "mesh":
+            return f"mesh '{self.filename}'"
+        return f"{self.kind}({', '.join(f'{s:g}' for s in self.size)})"
+
+
+def rotation_rpy(rpy) -> np.ndarray:
+    """R = Rz(yaw)·Ry(pitch)·Rx(roll), the URDF/SDF fixed-axis roll-pitch-yaw, shape (3, 3)."""
+    r, p, y = rpy
+    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
+    Rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
+    Ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
+    Rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
+    return Rz @ Ry @ Rx
+
+
+def _transform(xyz, rpy) -> np.ndarray:
+    X = np.eye(4)
+    X[:3, :3] = rotation_rpy(rpy)
+    X[:3, 3] = xyz
+    return X
+
+
+def _numbers(text: str | None, count: int, default: float) -> list[float]:
+    if not text or not text.split():
+        return [default] * count
+    values = [float(x) for x in text.split()]
+    return values if len(values) == count else values[:1] * count
+
+
+def read_link_shapes(model_path: str | Path) -> dict[str, list[Shape]]:
+    """The shapes of every link of a URDF or SDF file, in file order.
+
+    Args:
+        model_path: a ``.urdf`` or ``.sdf`` file.
+
+    Returns:
+        {link name: its shapes} for every link (an empty list for a link without any).
+
+    Raises:
+        ConfigError: another format, unreadable XML, or a size that is not a number; the
+            message names the file and the link.
+    """
+    model_path = Path(model_path)
+    suffix = model_path.suffix.lower()
+    if suffix not in (".urdf", ".sdf"):
+        raise ConfigError(f"link shapes are read from URDF and SDF files, not '{model_path.name}'")
+    try:
+        root = ET.parse(model_path).getroot()
+    except (ET.ParseError, OSError) as err:
+        raise ConfigError(f"cannot read '{model_path}' to fit capsules: {err}") from err
+    reader = _urdf_shape if suffix == ".urdf" else _sdf_shape
+    out: dict[str, list[Shape]] = {}
+    for link in root.findall("link") if suffix == ".urdf" else root.iter("link"):
+        name = link.get("name", "")
+        shapes = out.setdefault(name, [])
+        for tag in ("collision", "visual"):
+            for element in link.findall(tag):
+                try:
+                    shape = reader(name, tag, element)
+                except ValueError as err:
+                    raise ConfigError(f"'{model_path}': link '{name}': bad <{tag}> geometry: {err}") from err
+                if shape is not None:
+                    shapes.append(shape)
+    return out
+
+
+def _urdf_shape(link: str, tag: str, element: ET.Element) -> Shape | None:
+    origin = element.find("origin")
+    X = _transform(
+        _numbers(origin.get("xyz") if origin is not None else None, 3, 0.0),
+        _numbers(origin.get("rpy") if origin is not None else None, 3, 0.0),
+    )
+    geometry = element.find("geometry")
+    if geometry is None or len(geometry) == 0:
+        return None
+    g = geometry[0]
+    if g.tag == "mesh":
+        return Shape(link, tag, "mesh", X, filename=g.get("filename", ""), scale=np.asarray(_numbers(g.get("scale"), 3, 1.0)))
+    if g.tag in ("cylinder", "capsule"):
+        return Shape(link, tag, g.tag, X, (float(g.get("radius")), float(g.get("length"))))
+    if g.tag == "sphere":
+        return Shape(link, tag, "sphere", X, (float(g.get("radius")),))
+    if g.tag == "box":
+        return Shape(link, tag, "box", X, tuple(_numbers(g.get("size"), 3, 0.0)))
+    return None
+
+
+def _sdf_shape(link: str, tag: str, element: ET.Element) -> Shape | None:
+    pose = _numbers(element.findtext("pose"), 6, 0.0)
+    X = _transform(pose[:3], pose[3:])
+    geometry = element.find("geometry")
+    if geometry is None or len(geometry) == 0:
+        return None
+    g = geometry[0]
+    if g.tag == "mesh":
+        uri = (g.findtext("uri") or "").strip()
+        if uri.startswith("model://"):
+            uri = "package://" + uri[len("model://") :]
+        return Shape(link, tag, "mesh", X, filename=uri, scale=np.asarray(_numbers(g.findtext("scale"), 3, 1.0)))
+    if g.tag in ("cylinder", "capsule"):
+        return Shape(link, tag, g.tag, X, (float(g.findtext("radius")), float(g.findtext("length"))))
+    if g.tag == "sphere":
+        return Shape(link, tag, "sphere", X, (float(g.findtext("radius")),))
+    if g.tag == "box":
+        return Shape(link, tag, "box", X, tuple(_numbers(g.findtext("size"), 3, 0.0)))
+    return None
+
+
+def primitive_segment(shape: Shape) -> tuple[np.ndarray, np.ndarray, float]:
+    """The smallest capsule of the primitive's own axis that encloses it, in the link frame.
+
+    A cylinder or capsule keeps its radius, axis and length (a cylinder's rims then lie
+    inside the end spheres); a sphere is a zero-length capsule; a box becomes the capsule
+    along its longest edge with the radius of half the diagonal of its cross-section and the
+    segment of that edge's length (the box's corners lie on the end circles).
+
+    Returns:
+        p0, p1: segment ends in the link frame, each shape (3,) [m]; radius [m].
+    """
+    R, p = shape.X_LG[:3, :3], shape.X_LG[:3, 3]
+    if shape.kind in ("cylinder", "capsule"):
+        r, length = shape.size
+        axis, half = R[:, 2], 0.5 * length
+    elif shape.kind == "sphere":
+        r, axis, half = shape.size[0], R[:, 2], 0.0
+    elif shape.kind == "box":
+        size = np.abs(np.asarray(shape.size, float))
+        k = int(np.argmax(size))
+        others = np.delete(size, k)
+        r, axis, half = 0.5 * float(np.hypot(*others)), R[:, k], 0.5 * size[k]
+    else:
+        raise ValueError(f"not a primitive: {shape.kind}")
+    return p - half * axis, p + half * axis, float(r)
+
+
+def primitive_points(shape: Shape, count: int = 16) -> np.ndarray:
+    """Points on the primitive's surface that a capsule enclosing them all encloses the
+    primitive's extremes (box corners, cylinder rims, sphere poles and equator), in the link
+    frame, shape (N, 3) [m]. Used when several shapes of a link are pooled into one capsule."""
+    R, p = shape.X_LG[:3, :3], shape.X_LG[:3, 3]
+    a = np.linspace(0.0, 2 * np.pi, count, endpoint=False)
+    ring = np.c_[np.cos(a), np.sin(a), np.zeros_like(a)]
+    if shape.kind == "box":
+        h = 0.5 * np.abs(np.asarray(shape.size, float))
+        local = np.array([[x, y, z] for x in (-h[0], h[0]) for y in (-h[1], h[1]) for z in (-h[2], h[2])])
+    elif shape.kind == "sphere":
+        r = shape.size[0]
+        local = r * np.vstack([ring, ring[:, [0, 2, 1]], ring[:, [2, 0, 1]]])
+    else:  # cylinder, capsule
+        r, length = shape.size
+        cap = r if shape.kind == "capsule" else 0.0
+        local = np.vstack([r * ring + [0, 0, -0.5 * length], r * ring + [0, 0, 0.5 * length]])
+        local = np.vstack([local, [[0, 0, -0.5 * length - cap], [0, 0, 0.5 * length + cap]]])
+    return local @ R.T + p
