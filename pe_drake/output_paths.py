@@ -21,6 +21,7 @@ from pe_drake.exceptions import ConfigError
 OPTIMIZE_OUTPUTS = (
     "trajectory.json",
     "trajectory.csv",
+    "trajectory_goal.yaml",
     "trajectory.png",
     "playback.html",
     "report.json",

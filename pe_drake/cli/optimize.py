@@ -17,8 +17,9 @@ import numpy as np
 
 from pe_drake.cli.common import config_from_args, robot_from_args
 from pe_drake.config import Config, noise_vector, validate_config
-from pe_drake.exceptions import ConfigError, DataError
+from pe_drake.exceptions import ConfigError, DataError, NotWithinLimitsError
 from pe_drake.excitation.constraints import constraints_from_config
+from pe_drake.excitation.controller_goal import GoalOptions, goal_yaml_text
 from pe_drake.excitation.fourier import FourierBasis, sample_times
 from pe_drake.excitation.multistart import solve_multistart
 from pe_drake.excitation.nominal import choose_nominal_posture
@@ -119,14 +120,22 @@ def optimize_command(args: argparse.Namespace) -> int:
         report = _report(robot, problem, config, ms, args.prior, time.perf_counter() - start)
         report.update(_safety_report(robot, config, motion, fitted, args.out))
         report["quality"] = quality.to_dict() if quality is not None else None
+        goal, refusal = _controller_goal(motion, robot, config, say) if result.success else (None, None)
+        report["not_valid_for_hardware"] = refusal
         with staged_output_dir(out) as tmp:
-            if result.success:
+            if result.success and refusal is None:
                 _write_success_outputs(tmp, robot, result, motion, args, say, quality)
+                if goal is not None:
+                    (tmp / "trajectory_goal.yaml").write_text(goal)
             if fitted is not None:
                 shutil.copyfile(fitted.path, tmp / fitted.path.name)
             (tmp / "report.json").write_text(json.dumps(report, indent=2, default=float))
             written = [p.name for p in tmp.iterdir()]
     remove_stale_outputs(out, OPTIMIZE_OUTPUTS, written)  # a reused --out never mixes runs
+    if refusal is not None:
+        print(f"pe-drake optimize: not valid for hardware: {refusal}. Only {out / 'report.json'} was written.",
+              file=sys.stderr)
+        return 1
     if not result.success:
         print(
             f"pe-drake optimize: no valid trajectory: {result.message}. Only {out / 'report.json'} was "
@@ -296,6 +305,22 @@ def _write_success_outputs(tmp: Path, robot, result, motion, args, say, quality:
             write_playback_html(tmp / "trajectory.json", tmp / "playback.html", config=args.config)
         except Exception as err:  # the playback is a convenience: never lose the trajectory over it
             say(f"warning: could not write the HTML playback: {err}")
+
+
+def _controller_goal(motion, robot, config: Config, say) -> tuple[str | None, str | None]:
+    """(trajectory_goal.yaml's text or None, the reason the motion is refused or None).
+
+    The goal is the FollowJointTrajectory a ros2_control controller runs as it is; a motion
+    without ramps does not start at rest and gets none. A jerk above ``robot.jerk_limits``
+    refuses the whole motion: the CSV would carry the same jerk.
+    """
+    if motion.ramp_duration <= 0:
+        say("no trajectory_goal.yaml: the motion has no ramps, so it does not start at rest")
+        return None, None
+    try:
+        return goal_yaml_text(motion, robot.joint_names, GoalOptions.from_config(config)), None
+    except NotWithinLimitsError as err:
+        return None, str(err)
 
 
 def assumed_defaults(config: Config, joint_names) -> list[str]:
