@@ -144,8 +144,11 @@ def test_ur5_ships_capsules_and_fitting_reproduces_them(tmp_path, ur5):
     assert len(ur5.capsules) == 7
     fitted = fit_capsule_file(example_robot_data_dir() / "robots/ur_description/urdf/ur5_robot.urdf", tmp_path / "c.yaml")
     shipped = {c.name: c for c in load_capsule_file(Path(ur5.config.capsules)).capsules}
-    for c in load_capsule_file(fitted.path).capsules:
-        assert c.radius == pytest.approx(shipped[c.name].radius, abs=1e-4)
+    caps = load_capsule_file(fitted.path).capsules
+    assert {c.name for c in caps} - set(shipped) == {"ee_link"}  # its <box> collision is now used too
+    for c in caps:
+        if c.name in shipped:
+            assert c.radius == pytest.approx(shipped[c.name].radius, abs=1e-4)
 
 
 def test_capsules_are_fitted_when_a_urdf_robot_has_none(tmp_path):
@@ -265,7 +268,7 @@ def test_fitted_capsules_of_a_urdf_path_switch_self_collision_on_and_skip_pairs_
     assert config.excitation.collision_margin < 0
     fitted = ensure_capsules(config, tmp_path)
     assert config.excitation.collision_margin == FITTED_COLLISION_MARGIN
-    assert len(fitted.links) == 7
+    assert len(fitted.links) == 8 and fitted.sources["ee_link"] == "primitive"  # 7 meshes + the <box> ee_link
     pairs = {frozenset(p[:2]) for p in fitted.ignored_pairs}
     assert frozenset(("base_link", "upper_arm_link")) in pairs
     assert "ignored_pairs:" in fitted.path.read_text()

@@ -184,8 +184,7 @@ def _load_robot(args, config: Config, fit_dir: Path, say):
         config.environment.floor, fitted = False, None
     if fitted is not None:
         say(
-            f"no capsule file for {name}: fitted {len(fitted.links)} capsules to its meshes "
-            f"({', '.join(fitted.links)}); written to {Path(args.out) / fitted.path.name}; "
+            f"no capsule file for {name}: fitted capsules: {fitted.summary()}; written to {Path(args.out) / fitted.path.name}; "
             f"self-collision margin {config.excitation.collision_margin:g} m"
             + (f", {len(fitted.ignored_pairs)} pair(s) touching by design ignored" if fitted.ignored_pairs else "")
         )

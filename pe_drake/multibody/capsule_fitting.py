@@ -69,7 +69,6 @@ class FittedCapsules:
             not be read: reason"); empty when every shape of the model was used.
         sources: {link: "primitive" | "mesh" | "primitive+mesh"}, what each capsule came from.
         written: whether ``path`` was written (False only for a result built without a file).
-        adjusted: capsules shrunk so that non-adjacent pairs stay checked, one line each.
     """
 
     path: Path
@@ -79,7 +78,6 @@ class FittedCapsules:
     unchecked: tuple[str, ...] = ()
     sources: dict[str, str] = dataclasses.field(default_factory=dict)
     written: bool = True
-    adjusted: tuple[str, ...] = ()
 
     def summary(self, first: int = 3) -> str:
         """A one-line account: capsule count and sources, then the count of unchecked parts
