@@ -87,6 +87,9 @@ def _add_trajectory_commands(sub) -> None:
     p.add_argument("--no-ramp", action="store_true",
                    help="no ramp from/to rest: trajectory.csv then starts at full speed (unsafe on hardware)")
     p.add_argument("--no-html", action="store_true", help="do not write the Meshcat HTML playback")
+    p.add_argument("--allow-unchecked", action="store_true",
+                   help="write the trajectory although parts of the robot could not be checked for collision "
+                        "(exit 0; the list stays in report.json 'unchecked')")
     p.add_argument("--quiet", action="store_true", help="no progress output")
     p.add_argument("--payload", metavar="LINK", help="a short motion for a payload on LINK alone (issue 24)")
     p.add_argument("--out", required=True, help="output folder")

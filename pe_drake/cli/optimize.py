@@ -99,7 +99,7 @@ def optimize_command(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     out = Path(args.out)
     with tempfile.TemporaryDirectory(prefix="pe_drake_capsules_") as fit_dir:
-        robot, fitted = _load_robot(args, config, Path(fit_dir), say)
+        robot, fitted, unchecked = _load_robot(args, config, Path(fit_dir), say)
         noise_vector(config.excitation.noise_std.torque, robot.joint_names)  # refuse a bad noise_std before solving
         problem = _problem(robot, config, args.prior, say)
         constraints = constraints_from_config(robot, config.excitation, config.environment)
@@ -121,6 +121,12 @@ def optimize_command(args: argparse.Namespace) -> int:
         report.update(_safety_report(robot, config, motion, fitted, args.out))
         report["quality"] = quality.to_dict() if quality is not None else None
         goal, refusal = _controller_goal(motion, robot, config, say) if result.success else (None, None)
+        report["unchecked"] = unchecked
+        if unchecked:
+            say(f"NOT checked ({len(unchecked)}): " + "; ".join(unchecked[:5]) + (" ..." if len(unchecked) > 5 else ""))
+            if refusal is None and not getattr(args, "allow_unchecked", False):
+                refusal = (f"{len(unchecked)} part(s) of the robot were not checked for collision (listed in "
+                           "report.json 'unchecked'); give robot.capsules, or --allow-unchecked to write it anyway")
         report["not_valid_for_hardware"] = refusal
         with staged_output_dir(out) as tmp:
             if result.success and refusal is None:
@@ -182,6 +188,9 @@ def _load_robot(args, config: Config, fit_dir: Path, say):
             raise
         say(f"warning: {err}; the floor is NOT checked (environment.floor turned off)")
         config.environment.floor, fitted = False, None
+        unchecked = [f"floor: no collision geometry to check it with ({err})"] + list(getattr(err, "unchecked", ()))
+    else:
+        unchecked = list(fitted.unchecked) if fitted is not None else []
     if fitted is not None:
         say(
             f"no capsule file for {name}: fitted capsules: {fitted.summary()}; written to {Path(args.out) / fitted.path.name}; "
@@ -197,7 +206,7 @@ def _load_robot(args, config: Config, fit_dir: Path, say):
     nominal = choose_nominal_posture(robot, config.excitation, config.environment)
     if nominal is not None:
         say(f"note: {nominal}")
-    return robot, fitted
+    return robot, fitted, unchecked
 
 
 def _quality(problem, result, constraints, config: Config) -> QualityReport:
