@@ -99,6 +99,9 @@ class ControllerConfig:
     lead_in_s: float = 1.0
     topic: str = "/joint_trajectory_controller/joint_trajectory"
     joint_names: dict[str, str] = dataclasses.field(default_factory=dict)
+
+
+@dataclasses.dataclass
 class CoMBoxConfig:
     """Where a link's centre of mass may be, in the link's frame (``identification.boxes``).
 
