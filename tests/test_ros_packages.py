@@ -12,7 +12,7 @@ import pytest
 
 from pe_drake.exceptions import ConfigError
 from pe_drake.multibody.meshes import read_stl
-from pe_drake.multibody.packages import clear_cache, find_package
+from pe_drake.multibody.packages import clear_cache, find_package, resolve_package_uri
 from pe_drake.multibody.registry import example_robot_data_dir
 from pe_drake.multibody.robot import load_robot
 
@@ -293,3 +293,15 @@ def test_closed_loop_is_refused(tmp_path, capsys):
     with pytest.raises(ConfigError, match=r"closed kinematic loop.*kinematic trees"):
         load_robot(str(sdf))
     assert main(["optimize", "--robot", str(sdf), "--out", str(tmp_path / "o"), "--quiet"]) == 2
+
+
+def test_package_uri_with_three_slashes_resolves():
+    """TALOS's URDFs write ``package:///example-robot-data/...``; ROS and Drake read it as
+    ``package://example-robot-data/...``, so every mesh of it must be found."""
+    model = example_robot_data_dir() / "robots" / "talos_data" / "robots" / "talos_full_v2.urdf"
+    if not model.is_file():
+        pytest.skip("example-robot-data without TALOS")
+    name = re.search(r'filename="(package:///[^"]+)"', model.read_text()).group(1)
+    found = resolve_package_uri(name, model)
+    assert found is not None and found.is_file()
+    assert found == resolve_package_uri(name.replace(":///", "://"), model)

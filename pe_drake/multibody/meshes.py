@@ -243,7 +243,7 @@ def resolve_mesh_path(name: str, model_path: str | Path, packages: dict | None =
 def _resolve_mesh(name: str, model_path: Path, packages: dict | None = None) -> Path | None:
     """The file a URDF mesh name points to, or None."""
     if name.startswith("package://"):
-        package, _, rest = name[len("package://") :].partition("/")
+        package, _, rest = name[len("package://") :].lstrip("/").partition("/")  # TALOS writes package:///
         for root in package_roots(package, model_path, packages):
             if (root / rest).is_file():
                 return root / rest

@@ -101,7 +101,7 @@ def unknown_package_message(package: str, model_path: str | Path) -> str:
 
 def resolve_package_uri(uri: str, model_path: str | Path, packages: Mapping[str, str] | None = None) -> Path | None:
     """The existing file of a ``package://<name>/<rest>`` URI, or None."""
-    package, _, rest = uri[len("package://") :].partition("/")
+    package, _, rest = uri[len("package://") :].lstrip("/").partition("/")  # TALOS writes package:///
     for root in package_roots(package, model_path, packages):
         if (root / rest).exists():
             return root / rest
