@@ -21,7 +21,7 @@ def config_from_args(args: argparse.Namespace, adjust: Callable[[Config], Config
     return adjust(config) if adjust is not None else config
 
 
-def robot_from_args(args: argparse.Namespace, config: Config | None = None) -> Robot:
+def robot_from_args(args: argparse.Namespace, config: Config | None = None, show_notes: bool = True) -> Robot:
     """The :class:`~pe_drake.multibody.robot.Robot` of ``--robot``/``--config``.
 
     Args:
@@ -29,12 +29,16 @@ def robot_from_args(args: argparse.Namespace, config: Config | None = None) -> R
             ``config`` (YAML file).
         config: the config to build it from, when the command has already resolved (and
             adjusted) it with :func:`config_from_args`.
+        show_notes: print the robot's notes (``optimize`` prints them with its own progress).
 
     Raises:
         UnknownNameError, ConfigError, NotWithinLimitsError: as :func:`~pe_drake.multibody.robot.load_robot`.
     """
     config = config if config is not None else config_from_args(args)
-    return Robot(robot_display_name(args.robot), config.robot)
+    robot = Robot(robot_display_name(args.robot), config.robot)
+    for note in robot.notes if show_notes else ():  # what the model needed for Drake (mimic, materials, mount)
+        print(f"note: {note}", flush=True)
+    return robot
 
 
 def measurement_from_args(args: argparse.Namespace, config: Config) -> str:

@@ -197,7 +197,7 @@ def _load_robot(args, config: Config, fit_dir: Path, say):
             f"self-collision margin {config.excitation.collision_margin:g} m"
             + (f", {len(fitted.ignored_pairs)} pair(s) touching by design ignored" if fitted.ignored_pairs else "")
         )
-    robot = robot_from_args(args, config)  # after the capsules are fitted
+    robot = robot_from_args(args, config, show_notes=False)  # after the capsules are fitted
     say(f"robot {robot.name}: {robot.n} excited joints, {robot.num_bodies} moving bodies")
     for note in assumed_defaults(config, robot.joint_names):
         say(f"note: {note}")
