@@ -1,7 +1,11 @@
-"""Figures of an optimized trajectory (matplotlib, imported lazily, Agg backend)."""
+"""Figures of an optimized trajectory (matplotlib, imported lazily, Agg backend), and the one
+way every pe_drake figure is saved (:func:`save_figure`)."""
 
 from __future__ import annotations
 
+import contextlib
+import os
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -53,7 +57,32 @@ def plot_trajectory(
                 bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "0.8"})
     if title:
         fig.suptitle(title)
+    return save_figure(fig, path, dpi=90)
+
+
+def save_figure(fig, path: str | Path, dpi: int = 80) -> Path:
+    """Saves ``fig`` whole or not at all, in the format of ``path``'s suffix (.png, .pdf, .svg),
+    and closes it.
+
+    The figure is written to a new file of an unpredictable name created exclusively beside
+    ``path`` (a symlink planted at a fixed temporary name cannot redirect the write), then
+    renamed into place.
+    """
+    import matplotlib.pyplot as plt  # lazy: matplotlib is heavy
+
     path = Path(path)
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fmt = path.suffix.lower().lstrip(".") or "png"
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=f".tmp.{fmt}")
+    try:
+        with os.fdopen(fd, "wb") as out:
+            fig.savefig(out, dpi=dpi, format=fmt)
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+    finally:
+        plt.close(fig)
     return path

@@ -43,6 +43,7 @@ from pe_drake.multibody.inertia import PhysicallyInvalidError, validity_problems
 from pe_drake.multibody.sensors import MeasurementType
 from pe_drake.multibody.urdf import write_robot_urdf
 from pe_drake.output_paths import IDENTIFY_OUTPUTS, check_output_dir, check_output_file, remove_stale_outputs
+from pe_drake.plots import save_figure
 
 
 def _trajectory_band(path: str | None) -> tuple[float | None, int | None]:
@@ -280,10 +281,6 @@ def _plot_prediction(path: Path, robot, t, measured, predicted, rel, names, titl
     axes[0].legend(fontsize=7, ncol=3, loc="upper left")
     axes[-1].set_xlabel("t [s]")
     fig.suptitle(title or f"{robot.name}: measured vs predicted")
-    tmp = path.with_name(f".{path.name}.tmp.png")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(tmp, dpi=80)
-    plt.close(fig)
-    tmp.replace(path)
+    save_figure(fig, path)
 
 

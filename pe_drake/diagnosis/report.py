@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from pe_drake.io_utils import atomic_write_text
+from pe_drake.plots import save_figure
 
 
 def _plt():
@@ -54,20 +55,7 @@ def write_report(folder: str | Path, result, model_files: list[Path]) -> list[Pa
 
 
 def _save(fig, path: Path) -> Path:
-    import os
-    import tempfile
-
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".png")
-    os.close(fd)
-    try:
-        fig.savefig(tmp, dpi=80)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        _plt().close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def plot_torques(path: Path, result) -> Path:
