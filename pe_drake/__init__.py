@@ -51,6 +51,9 @@ _EXPORTS = {
     "BalanceConstraint": "pe_drake.excitation.constraints.balance",
     "CollisionConstraint": "pe_drake.excitation.constraints.collision",
     "constraints_from_config": "pe_drake.excitation.constraints",
+    # measured runs: any supported log, checked (pe_drake.identification.intake)
+    "read_measurements": "pe_drake.identification.intake",
+    "identify_payload": "pe_drake.identification.payload",
     # diagnosis: which effects the model misses
     "diagnose": "pe_drake.diagnosis.workflow",
     "DiagnosisConfig": "pe_drake.diagnosis.options",

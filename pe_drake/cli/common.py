@@ -6,7 +6,7 @@ import argparse
 from collections.abc import Callable
 
 from pe_drake.config import Config
-from pe_drake.identification.readers import read_log
+from pe_drake.identification.intake import read_measurements
 from pe_drake.multibody.registry import resolve_robot_config, robot_display_name
 from pe_drake.multibody.robot import Robot
 
@@ -47,9 +47,10 @@ def measurement_from_args(args: argparse.Namespace, config: Config) -> str:
 
 
 def read_log_from_args(args: argparse.Namespace, robot: Robot, config: Config | None, path=None):
-    """The measured log ``--data`` (or ``path``) read with the config's ``data`` section and the log flags."""
+    """The measured log ``--data`` (or ``path``) read and checked with the config's ``data``
+    section and the log flags (:func:`~pe_drake.identification.intake.read_measurements`)."""
     options = config.data if config is not None else None
-    return read_log(path or args.data, robot, options, format=getattr(args, "format", None),
+    return read_measurements(path or args.data, robot, options, format=getattr(args, "format", None),
                     topic=getattr(args, "topic", None), effort=getattr(args, "effort", None))
 
 

@@ -8,7 +8,7 @@ from pathlib import Path
 from pe_drake.cli.common import config_from_args, print_notes, read_log_from_args, robot_from_args
 from pe_drake.diagnosis import DiagnosisConfig, diagnose, write_outputs
 from pe_drake.exceptions import ConfigError
-from pe_drake.identification.data_checks import check_against_model, check_raw_measurement
+from pe_drake.identification.data_checks import check_against_model
 from pe_drake.identification.estimators import prepare_measurement
 from pe_drake.identification.gaps import longest_segment
 from pe_drake.io_utils import staged_output_dir
@@ -33,7 +33,6 @@ def diagnose_command(args) -> int:
             print_notes(run)
     for run in (data, validation):  # units, gaps, degrees, sign flips: before any work
         if run is not None:
-            check_raw_measurement(robot, run)
             check_against_model(robot, prepare_measurement(robot, run, max_gap_s=gap))
     print(f"robot {robot.name}: {robot.n} joints ({', '.join(robot.joint_names)})", flush=True)
     result = diagnose(robot, data, validation, config, progress=lambda s: print(s, flush=True))

@@ -14,7 +14,7 @@ from pe_drake.cli.common import config_from_args, measurement_from_args, print_n
 from pe_drake.exceptions import ConfigError
 from pe_drake.excitation.trajectory_file import load_trajectory
 from pe_drake.identification.channels import measured_values
-from pe_drake.identification.data_checks import check_against_model, check_raw_measurement
+from pe_drake.identification.data_checks import check_against_model
 from pe_drake.identification.drive_terms import (
     DriveTermOptions,
     drive_effects_yaml,
@@ -69,7 +69,6 @@ def identify_command(args: argparse.Namespace) -> int:
     measurement = measurement_from_args(args, config)
     robot = robot_from_args(args, config)
     raw = read_log_from_args(args, robot, config)
-    check_raw_measurement(robot, raw)  # time units, positions (degrees)
     f0, harmonics = _trajectory_band(getattr(args, "trajectory", None))
     data = prepare_measurement(
         robot,
@@ -205,7 +204,6 @@ def validate_command(args: argparse.Namespace) -> int:
     for note in result.physical_notes if result.method == "diagnose" else ():
         print(f"note: {note}")
     raw = read_log_from_args(args, robot, config)
-    check_raw_measurement(robot, raw)
     data = prepare_measurement(robot, raw, cutoff_hz=getattr(args, "cutoff", None), max_gap_s=config.data.max_gap_s)
     print_notes(data)
     check_against_model(robot, data)

@@ -16,9 +16,9 @@ from pe_drake.exceptions import ConfigError
 from pe_drake.excitation.constraints import constraints_from_config
 from pe_drake.excitation.payload_motion import optimize_payload_motion, payload_excitation_config
 from pe_drake.excitation.trajectory_file import load_trajectory
-from pe_drake.identification.data_checks import check_raw_measurement
-from pe_drake.identification.estimators import prepare_measurement, read_robot_measurement
+from pe_drake.identification.estimators import prepare_measurement
 from pe_drake.identification.identified_file import load_identified
+from pe_drake.identification.intake import read_measurements
 from pe_drake.identification.payload import PayloadBox, PayloadOptions, arm_parameters, check_payload_trajectory, identify_payload
 from pe_drake.identification.payload_formats import vendor_formats, write_payload_urdf
 from pe_drake.io_utils import staged_output_dir
@@ -66,8 +66,7 @@ def payload_optimize_command(args: argparse.Namespace) -> int:
 def _read_runs(robot, paths, args) -> list:
     runs = []
     for path in paths:
-        raw = read_robot_measurement(robot, path)
-        check_raw_measurement(robot, raw)
+        raw = read_measurements(path, robot)
         runs.append(prepare_measurement(robot, raw, cutoff_hz=args.cutoff, filtering=not args.no_filter))
     return runs
 

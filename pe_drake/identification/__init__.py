@@ -16,6 +16,7 @@ from pe_drake.identification.estimators import (
     torque_errors,
 )
 from pe_drake.identification.identified_file import load_identified
+from pe_drake.identification.intake import read_measurements
 from pe_drake.identification.payload import PayloadBox, PayloadOptions, PayloadResult, identify_payload
 from pe_drake.identification.physical_fit import LinkBox, PhysicalBounds
 
@@ -31,6 +32,7 @@ __all__ = [
     "identify",
     "identify_payload",
     "load_identified",
+    "read_measurements",
     "predict",
     "predict_wrench",
     "prepare_measurement",
