@@ -50,6 +50,9 @@ def staged_output_dir(out: str | Path) -> Iterator[Path]:
         for item in tmp.iterdir():
             if item.is_file():
                 os.chmod(item, 0o666 & ~_umask())
-            os.replace(item, out / item.name)
+            target = out / item.name
+            if item.is_dir() and target.is_dir() and not target.is_symlink():
+                shutil.rmtree(target)  # a folder output (a bag) of an earlier run: replaced whole
+            os.replace(item, target)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import shutil
 import tempfile
 from collections.abc import Iterable
 from pathlib import Path
@@ -22,6 +23,7 @@ OPTIMIZE_OUTPUTS = (
     "trajectory.json",
     "trajectory.csv",
     "trajectory_goal.yaml",
+    "trajectory_goal_bag",
     "trajectory.png",
     "playback.html",
     "report.json",
@@ -115,8 +117,13 @@ def remove_stale_outputs(folder: str | Path, own_names: Iterable[str], written: 
     removed = []
     for name in own_names:
         path = folder / name
-        if name not in keep and path.is_file():
-            with contextlib.suppress(OSError):
+        if name in keep or path.is_symlink():
+            continue
+        with contextlib.suppress(OSError):
+            if path.is_file():
                 path.unlink()
+                removed.append(name)
+            elif path.is_dir():  # a folder output (the goal's bag)
+                shutil.rmtree(path)
                 removed.append(name)
     return removed

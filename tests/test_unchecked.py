@@ -61,3 +61,12 @@ def test_allow_unchecked_writes_the_motion_and_keeps_the_list(robot_with_unreada
     assert report["unchecked"] and report["not_valid_for_hardware"] is None
     assert rc == (0 if report["success"] else 1)
     assert (out / "trajectory.csv").exists() == report["success"]
+    if report["success"]:  # the controller's goal, as YAML and as an MCAP bag, beside the CSV
+        from rosbags.rosbag2 import Reader
+
+        assert "time_from_start" in (out / "trajectory_goal.yaml").read_text()
+        with Reader(out / "trajectory_goal_bag") as reader:
+            assert [c.msgtype for c in reader.connections] == ["trajectory_msgs/msg/JointTrajectory"]
+        assert main(["optimize", "--robot", str(robot_with_unreadable_mesh), "--max-iterations", "20", "--no-html",
+                     "--quiet", "--out", str(out)]) == 1  # a refused rerun on the same folder
+        assert not (out / "trajectory_goal_bag").exists() and not (out / "trajectory.csv").exists()

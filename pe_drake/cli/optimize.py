@@ -19,7 +19,7 @@ from pe_drake.cli.common import config_from_args, robot_from_args
 from pe_drake.config import Config, noise_vector, validate_config
 from pe_drake.exceptions import ConfigError, DataError, NotWithinLimitsError
 from pe_drake.excitation.constraints import constraints_from_config
-from pe_drake.excitation.controller_goal import GoalOptions, goal_yaml_text
+from pe_drake.excitation.controller_goal import GoalOptions, goal_yaml_text, write_goal_bag
 from pe_drake.excitation.fourier import FourierBasis, sample_times
 from pe_drake.excitation.multistart import solve_multistart
 from pe_drake.excitation.nominal import choose_nominal_posture
@@ -133,6 +133,7 @@ def optimize_command(args: argparse.Namespace) -> int:
                 _write_success_outputs(tmp, robot, result, motion, args, say, quality)
                 if goal is not None:
                     (tmp / "trajectory_goal.yaml").write_text(goal)
+                    write_goal_bag(tmp / "trajectory_goal_bag", motion, robot.joint_names, GoalOptions.from_config(config))
             if fitted is not None:
                 shutil.copyfile(fitted.path, tmp / fitted.path.name)
             (tmp / "report.json").write_text(json.dumps(report, indent=2, default=float))
