@@ -108,7 +108,7 @@ def optimize_command(args: argparse.Namespace) -> int:
         ms = _solve_starts(robot, problem, config, say)
         result = ms.best
         say(
-            f"{'success' if result.success else 'FAILED'}: {result.message}; cond {result.cond:.5g} "
+            f"{'valid' if result.success else 'FAILED'}: {result.message}; cond {result.cond:.5g} "
             f"(this motion alone {result.cond_motion:.5g}), seed {ms.seed}, "
             f"{result.nit if result.nit is not None else '-'} iterations, {result.nfev} evaluations, {result.wall_time:.1f} s"
         )
