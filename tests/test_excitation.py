@@ -297,3 +297,17 @@ def test_drakes_iteration_limit_warning_is_dropped_and_other_drake_messages_kept
         logging.getLogger("drake").warning("another Drake warning")
     assert "kIterationLimit" in result.message
     assert [r.getMessage() for r in caplog.records if r.name == "drake"] == ["another Drake warning"]
+
+
+def test_highest_harmonic_ignores_zero_padding():
+    """A trajectory file padded with zero harmonics occupies the band of its last non-zero one
+    (``identify --trajectory`` set its low-pass filter from the padded count: 400 Hz, not 4 Hz)."""
+    import numpy as np
+
+    from pe_drake.excitation.fourier import FourierTrajectory
+
+    a = np.zeros((2, 100))
+    b = np.zeros((2, 100))
+    a[0, 2], b[1, 4] = 0.1, -0.05
+    assert FourierTrajectory(a, b, np.zeros(2), 0.6).highest_harmonic == 5
+    assert FourierTrajectory(np.zeros((2, 3)), np.zeros((2, 3)), np.zeros(2), 0.6).highest_harmonic == 0

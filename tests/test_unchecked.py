@@ -18,7 +18,8 @@ URDF = """<?xml version="1.0"?>
     <collision><origin xyz="0 0 0.15"/><geometry><cylinder radius="0.03" length="0.3"/></geometry></collision></link>
   <link name="lower"><inertial><origin xyz="0.1 0 0"/><mass value="0.5"/>
       <inertia ixx="0.001" iyy="0.004" izz="0.004" ixy="0" ixz="0" iyz="0"/></inertial>
-    <collision><origin xyz="0.1 0 0" rpy="0 1.5707963267948966 0"/><geometry><cylinder radius="0.02" length="0.2"/></geometry></collision></link>
+    <collision><origin xyz="0.1 0 0" rpy="0 1.5707963267948966 0"/>
+      <geometry><cylinder radius="0.02" length="0.2"/></geometry></collision></link>
   <link name="hand"><inertial><origin xyz="0.03 0 0"/><mass value="0.2"/>
       <inertia ixx="0.0002" iyy="0.0002" izz="0.0002" ixy="0" ixz="0" iyz="0"/></inertial>
     <collision><geometry><mesh filename="meshes/missing.stl"/></geometry></collision></link>

@@ -47,11 +47,12 @@ from pe_drake.plots import save_figure
 
 
 def _trajectory_band(path: str | None) -> tuple[float | None, int | None]:
-    """(fundamental [Hz], harmonics) of a trajectory.json, to choose the filter cut-off."""
+    """(fundamental [Hz], harmonics) of a trajectory.json, to choose the filter cut-off: the
+    highest harmonic the motion uses, not the file's zero-padded count (which set 400 Hz)."""
     if not path:
         return None, None
     trajectory, _ = load_trajectory(path)
-    return trajectory.omega / (2 * math.pi), trajectory.harmonics
+    return trajectory.omega / (2 * math.pi), max(trajectory.highest_harmonic, 1)
 
 
 def _check_cutoff(cutoff: float | None) -> None:

@@ -38,6 +38,13 @@ class FourierTrajectory:
         return self.a.shape[1]
 
     @property
+    def highest_harmonic(self) -> int:
+        """The highest k with a non-zero a_k or b_k on any joint (0 for a constant posture): the
+        band the motion really occupies, whatever zero-padding the file carries."""
+        used = np.flatnonzero(np.any(self.a != 0, axis=0) | np.any(self.b != 0, axis=0))
+        return int(used[-1]) + 1 if used.size else 0
+
+    @property
     def period(self) -> float:
         """Duration of one period, 2π/ω [s]."""
         return 2 * np.pi / self.omega
