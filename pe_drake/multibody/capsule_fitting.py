@@ -293,7 +293,7 @@ def ensure_capsules(config, folder: str | Path) -> FittedCapsules | None:
     needs = config.excitation.collision_margin >= 0 or bool(env.boxes) or (env.floor and not robot.support_points)
     if robot.capsules or not needs or not robot.model:
         return None
-    model = resolve_mesh_path(robot.model, Path(robot.model))
+    model = resolve_mesh_path(robot.model, Path(robot.model), mesh=False)
     if model is None:
         raise ConfigError(f"cannot find the model '{robot.model}' to fit capsules to; give robot.capsules")
     model = loadable_model_path(model, robot.packages)  # xacro expanded, robot.packages resolved

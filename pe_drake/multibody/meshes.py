@@ -20,6 +20,7 @@ from typing import NamedTuple
 import numpy as np
 
 from pe_drake.exceptions import DataError
+from pe_drake.multibody.mesh_policy import mesh_file_refusal, visual_mesh_refusal
 from pe_drake.multibody.packages import package_roots
 
 #: Environment variable naming the folder of converted meshes (overrides the default cache).
@@ -227,7 +228,9 @@ def absolute_mesh_paths(urdf_text: str, model_path: str | Path) -> str:
     return _MESH_FILENAME.sub(absolute, urdf_text)
 
 
-def resolve_mesh_path(name: str, model_path: str | Path, packages: dict | None = None) -> Path | None:
+def resolve_mesh_path(
+    name: str, model_path: str | Path, packages: dict | None = None, *, mesh: bool = True
+) -> Path | None:
     """The file a URDF mesh filename points to (``package://``, ``file://``, absolute, or
     relative to the model file's folder), or None when it does not exist.
 
@@ -236,22 +239,40 @@ def resolve_mesh_path(name: str, model_path: str | Path, packages: dict | None =
         model_path: the URDF it appears in.
         packages: the config's ``robot.packages`` map, or None (see
             :func:`~pe_drake.multibody.packages.package_roots`).
+        mesh: the file must pass :func:`~pe_drake.multibody.mesh_policy.mesh_file_refusal`
+            (False to resolve a model file's own URI).
     """
-    return _resolve_mesh(name, Path(model_path), packages)
+    return _resolve_mesh(name, Path(model_path), packages, mesh)
 
 
-def _resolve_mesh(name: str, model_path: Path, packages: dict | None = None) -> Path | None:
-    """The file a URDF mesh name points to, or None."""
+def _resolve_mesh(name: str, model_path: Path, packages: dict | None = None, mesh: bool = True) -> Path | None:
+    """The file a URDF mesh name points to, or None (also for a mesh the policy refuses)."""
     if name.startswith("package://"):
         package, _, rest = name[len("package://") :].lstrip("/").partition("/")  # TALOS writes package:///
         for root in package_roots(package, model_path, packages):
             if (root / rest).is_file():
-                return root / rest
+                return root / rest if not mesh or mesh_file_refusal(root / rest) is None else None
         return None
     if name.startswith("file://"):
         name = name[len("file://") :]
     path = Path(name)
     if not path.is_absolute():
         path = model_path.parent / path
-    return path if path.is_file() else None
+    return path if path.is_file() and (not mesh or mesh_file_refusal(path) is None) else None
 
+
+
+def without_refused_visuals(urdf_text: str, model_path: str | Path, roots, packages: dict | None = None) -> tuple[str, list[str]]:
+    """The URDF text without the ``<visual>`` elements whose mesh must not be read
+    (:func:`~pe_drake.multibody.mesh_policy.visual_mesh_refusal`), and a note for each."""
+    notes: list[str] = []
+
+    def visual(match: re.Match) -> str:
+        for mesh in _MESH_FILENAME.finditer(match.group(0)):
+            refusal = visual_mesh_refusal(mesh.group(3), model_path, roots, packages)
+            if refusal is not None:
+                notes.append(f"visual dropped: {refusal}")
+                return ""
+        return match.group(0)
+
+    return _VISUAL.sub(visual, urdf_text), notes

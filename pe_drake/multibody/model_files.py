@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import hashlib
 import logging
+import os
 import re
 import threading
 from collections.abc import Mapping
@@ -28,7 +29,8 @@ from pathlib import Path
 
 from pe_drake.exceptions import ConfigError
 from pe_drake.io_utils import atomic_write_text
-from pe_drake.multibody.meshes import absolute_mesh_paths, default_cache_dir, stl_visuals_to_obj
+from pe_drake.multibody.mesh_policy import allowed_mesh_roots
+from pe_drake.multibody.meshes import absolute_mesh_paths, default_cache_dir, stl_visuals_to_obj, without_refused_visuals
 from pe_drake.multibody.packages import (
     find_package,
     register_packages,
@@ -36,6 +38,7 @@ from pe_drake.multibody.packages import (
     unknown_package_message,
     used_packages,
 )
+from pe_drake.multibody.registry import example_robot_data_dir
 from pe_drake.multibody.urdf_checks import check_joint_types
 
 #: Suffixes of model files pe_drake reads.
@@ -214,9 +217,21 @@ def drake_model_text(model_path: Path, obj_visuals: bool, packages: dict | None 
         text, material_notes = single_material_definitions(text)  # Kinova JACO2 (issue 21)
         notes += mimic_notes + material_notes
         text = absolute_mesh_paths(text, model_path)  # parsed from a string: no folder to resolve against
+        text, refused = without_refused_visuals(text, model_path, _mesh_roots(model_path, text, packages), packages)
+        notes += refused  # a visual naming /etc/passwd or a key would be embedded in playback.html
         if obj_visuals:
             text = stl_visuals_to_obj(text, model_path, packages=packages)
     return text, notes
+
+
+def _mesh_roots(model_path: Path, text: str, packages: dict | None) -> list[str] | None:
+    """Where the model's visual meshes may lie; None for a model pe_drake wrote to its cache
+    itself (expanded xacro, resolved packages: its meshes are absolute names our resolver
+    chose, so only the file checks apply)."""
+    cache = os.path.realpath(default_cache_dir())
+    if os.path.realpath(model_path).startswith(cache + os.sep):
+        return None
+    return allowed_mesh_roots(model_path, text, packages, extra=(default_cache_dir(), example_robot_data_dir()))
 
 
 def finalize_plant(plant, model_path: Path) -> None:
