@@ -293,7 +293,9 @@ class Robot:
         for k, name in enumerate(self.joint_names):
             if not np.isfinite(lo[k]) or not np.isfinite(hi[k]):
                 raise ConfigError(
-                    f"joint '{name}' has no finite position limits: set robot.position_limits['{name}']"
+                    f"joint '{name}' has no finite position limits: set robot.position_limits['{name}'] "
+                    f"[rad or m], or leave it out of robot.joints (a wheel, a continuous joint you do not "
+                    f"want to excite; robot.locked_positions holds it)"
                 )
             if not np.isfinite(v[k]):
                 raise ConfigError(

@@ -340,6 +340,32 @@ def _body_index(b: int):
     return BodyIndex(int(b))
 
 
+def standing_plane(robot, normal: np.ndarray, mounting_plane: float, tolerance: float = 0.02) -> float:
+    """Where a robot on a pedestal stands: the lowest point, along the floor normal n, of the
+    capsules that no excited joint moves (a pedestal, a torso welded to the base), when the
+    axis of one reaches more than ``tolerance`` [m] below the mounting plane; else
+    ``mounting_plane``.
+
+    A dual-arm robot such as Baxter has its root link at the torso and its pedestal below:
+    the mounting plane through the root link would cut the arms' workspace in half, while
+    the real floor is under the pedestal.
+    """
+    moving = {int(b) for b in robot.body_indices}
+    fixed = [c for c in getattr(robot, "capsules", ()) or () if c.body_index not in moving]
+    if not fixed:
+        return mounting_plane
+    plant = robot.plant
+    context = plant.CreateDefaultContext()
+    axis, surface = mounting_plane, mounting_plane  # lowest segment end, lowest surface point
+    for c in fixed:
+        X = plant.EvalBodyPoseInWorld(context, plant.get_body(_body_index(c.body_index))).GetAsMatrix4()
+        heights = (X[:3, :3] @ c.p_BS.T).T @ normal + X[:3, 3] @ normal
+        axis, surface = min(axis, float(heights.min())), min(surface, float(heights.min()) - c.radius)
+    # The round end of a base capsule overhangs its mounting plane by up to its radius: only
+    # a segment reaching below the plane is a pedestal.
+    return surface if axis < mounting_plane - tolerance else mounting_plane
+
+
 def environment_from_config(robot, excitation, environment) -> EnvironmentConstraint | None:
     """The floor/box constraint a config asks for, or None.
 
@@ -349,7 +375,8 @@ def environment_from_config(robot, excitation, environment) -> EnvironmentConstr
     through the root link's origin p_WBo shifted along n by ``environment.floor_height −
     p_WBo,z`` (0 when null). For an upright base that is the plane z = floor_height (or the
     base's z); a ceiling-mounted arm stays below its ceiling. The clearance is
-    ``max(excitation.collision_margin, 0)``.
+    ``max(excitation.collision_margin, 0)``. With ``floor_height`` null, a robot whose fixed
+    parts (a pedestal) reach below that plane stands on them (:func:`standing_plane`).
 
     Args:
         robot: the :class:`~pe_drake.multibody.robot.Robot`.
@@ -366,6 +393,8 @@ def environment_from_config(robot, excitation, environment) -> EnvironmentConstr
     if environment.floor and fixed_base:
         offset = 0.0 if environment.floor_height is None else float(environment.floor_height) - p_WBo[2]
         floor = float(normal @ p_WBo) + offset
+        if environment.floor_height is None:
+            floor = min(floor, standing_plane(robot, normal, floor))
     boxes = [Box.from_spec(b, k) for k, b in enumerate(environment.boxes)]
     if floor is None and not boxes:
         return None
