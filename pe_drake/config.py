@@ -77,6 +77,8 @@ class RobotConfig:
             logs with ``current.<joint>`` columns (issue 22).
         jerk_limits: {joint: limit} [rad/s³ or m/s³]: checked on the exported controller goal
             (Franka refuses 3750-10000 rad/s³); empty: not checked.
+        notes: what pe_drake chose for a model given without a config (a standing humanoid's
+            excited joints and feet), printed with the robot's notes by every command.
     """
 
     model: str = ""
@@ -102,6 +104,7 @@ class RobotConfig:
     packages: dict[str, str] = dataclasses.field(default_factory=dict)
     drive_gains: dict[str, float] = dataclasses.field(default_factory=dict)
     jerk_limits: dict[str, float] = dataclasses.field(default_factory=dict)
+    notes: list[str] = dataclasses.field(default_factory=list)
 
 
 #: Default joint-torque noise σ [N·m], every joint: the order of a joint-torque sensor's

@@ -32,7 +32,7 @@ from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.capsules import capsule_pairs, capsule_pose, fit_capsule, segment_closest_points
 from pe_drake.multibody.link_geometry import Shape, primitive_points, primitive_segment, read_link_shapes
-from pe_drake.multibody.meshes import read_stl, resolve_mesh_path
+from pe_drake.multibody.meshes import read_mesh_vertices, resolve_mesh_path
 from pe_drake.multibody.model_files import loadable_model_path
 from pe_drake.multibody.robot import Robot
 
@@ -89,54 +89,6 @@ class FittedCapsules:
             more = f"; ... {len(self.unchecked) - first} more" if len(self.unchecked) > first else ""
             text += f"; {len(self.unchecked)} part(s) NOT checked: {shown}{more} (full list: report.json 'unchecked')"
         return text
-
-
-def read_mesh_vertices(path: str | Path) -> np.ndarray:
-    """Vertices of an STL, OBJ or COLLADA (.dae) mesh, shape (V, 3) [file units; DAE in m].
-
-    Raises:
-        DataError: an unsupported format or an unreadable file, naming it.
-    """
-    path = Path(path)
-    suffix = path.suffix.lower()
-    if suffix == ".stl":
-        return read_stl(path).vertices
-    if suffix == ".obj":
-        rows = []
-        for line in path.read_text(errors="replace").splitlines():
-            if line.startswith("v "):
-                try:
-                    rows.append([float(x) for x in line.split()[1:4]])
-                except ValueError as err:
-                    raise DataError(f"bad vertex line {line!r}", file=str(path)) from err
-        if not rows:
-            raise DataError("no vertices ('v x y z' lines)", file=str(path))
-        return np.asarray(rows, float)
-    if suffix == ".dae":
-        return _read_dae_vertices(path)
-    raise DataError(f"mesh format '{suffix}' is not read for capsule fitting (STL, OBJ and DAE are)", file=str(path))
-
-
-def _read_dae_vertices(path: Path) -> np.ndarray:
-    """Vertices of a COLLADA file's scene (node transforms applied), scaled to metres."""
-    import collada  # lazy: only DAE meshes need it
-
-    try:
-        mesh = collada.Collada(
-            str(path), ignore=[collada.common.DaeUnsupportedError, collada.common.DaeBrokenRefError]
-        )
-        blocks = []
-        if mesh.scene is not None:
-            for geometry in mesh.scene.objects("geometry"):
-                for primitive in geometry.primitives():
-                    if primitive.vertex is not None and len(primitive.vertex):
-                        blocks.append(np.asarray(primitive.vertex, float).reshape(-1, 3))
-        unit = float(mesh.assetInfo.unitmeter or 1.0)
-    except Exception as err:  # pycollada raises many types (XML, DaeError, KeyError, ...)
-        raise DataError(f"cannot read COLLADA file: {type(err).__name__}: {err}", file=str(path)) from err
-    if not blocks:
-        raise DataError("COLLADA file has no geometry in its scene", file=str(path))
-    return np.vstack(blocks) * unit
 
 
 def _mesh_points(shape: Shape, model_path: Path) -> np.ndarray:

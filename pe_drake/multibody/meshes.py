@@ -99,6 +99,54 @@ def _index_corners(corners: np.ndarray) -> TriangleMesh:
     return TriangleMesh(vertices, faces[keep])
 
 
+def read_mesh_vertices(path: str | Path) -> np.ndarray:
+    """Vertices of an STL, OBJ or COLLADA (.dae) mesh, shape (V, 3) [file units; DAE in m].
+
+    Raises:
+        DataError: an unsupported format or an unreadable file, naming it.
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix == ".stl":
+        return read_stl(path).vertices
+    if suffix == ".obj":
+        rows = []
+        for line in path.read_text(errors="replace").splitlines():
+            if line.startswith("v "):
+                try:
+                    rows.append([float(x) for x in line.split()[1:4]])
+                except ValueError as err:
+                    raise DataError(f"bad vertex line {line!r}", file=str(path)) from err
+        if not rows:
+            raise DataError("no vertices ('v x y z' lines)", file=str(path))
+        return np.asarray(rows, float)
+    if suffix == ".dae":
+        return read_dae_vertices(path)
+    raise DataError(f"mesh format '{suffix}' is not read for capsule fitting (STL, OBJ and DAE are)", file=str(path))
+
+
+def read_dae_vertices(path: Path) -> np.ndarray:
+    """Vertices of a COLLADA file's scene (node transforms applied), scaled to metres."""
+    import collada  # lazy: only DAE meshes need it
+
+    try:
+        mesh = collada.Collada(
+            str(path), ignore=[collada.common.DaeUnsupportedError, collada.common.DaeBrokenRefError]
+        )
+        blocks = []
+        if mesh.scene is not None:
+            for geometry in mesh.scene.objects("geometry"):
+                for primitive in geometry.primitives():
+                    if primitive.vertex is not None and len(primitive.vertex):
+                        blocks.append(np.asarray(primitive.vertex, float).reshape(-1, 3))
+        unit = float(mesh.assetInfo.unitmeter or 1.0)
+    except Exception as err:  # pycollada raises many types (XML, DaeError, KeyError, ...)
+        raise DataError(f"cannot read COLLADA file: {type(err).__name__}: {err}", file=str(path)) from err
+    if not blocks:
+        raise DataError("COLLADA file has no geometry in its scene", file=str(path))
+    return np.vstack(blocks) * unit
+
+
 def obj_text(mesh: TriangleMesh, comment: str = "") -> str:
     """Wavefront OBJ text of a mesh: ``v`` lines (6 significant digits) and ``f`` lines."""
     v = np.asarray(mesh.vertices, float)

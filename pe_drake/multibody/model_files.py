@@ -29,6 +29,7 @@ from pathlib import Path
 
 from pe_drake.exceptions import ConfigError
 from pe_drake.io_utils import atomic_write_text
+from pe_drake.multibody.example_robot_data import example_robot_data_dir
 from pe_drake.multibody.mesh_policy import allowed_mesh_roots
 from pe_drake.multibody.meshes import absolute_mesh_paths, default_cache_dir, stl_visuals_to_obj, without_refused_visuals
 from pe_drake.multibody.packages import (
@@ -38,7 +39,6 @@ from pe_drake.multibody.packages import (
     unknown_package_message,
     used_packages,
 )
-from pe_drake.multibody.registry import example_robot_data_dir
 from pe_drake.multibody.urdf_checks import check_joint_types
 
 #: Suffixes of model files pe_drake reads.

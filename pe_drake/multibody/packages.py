@@ -23,7 +23,7 @@ from functools import lru_cache
 from pathlib import Path
 
 from pe_drake.exceptions import ConfigError
-from pe_drake.multibody.registry import example_robot_data_dir
+from pe_drake.multibody.example_robot_data import example_robot_data_dir
 
 #: Folder levels searched below each ``ROS_PACKAGE_PATH`` entry.
 ROS_PACKAGE_PATH_DEPTH = 6

@@ -8,14 +8,15 @@ pe_drake: ``panda``, ``ur5``, ``g1``) or by a URDF/SDF path. Built-in models liv
 
 from __future__ import annotations
 
+import dataclasses
 import re
-import sys
-import sysconfig
 from importlib.resources import files
 from pathlib import Path
 
 from pe_drake.config import Config, RobotConfig, load_config, validate_config
 from pe_drake.exceptions import ConfigError, UnknownNameError
+from pe_drake.multibody.example_robot_data import example_robot_data_dir
+from pe_drake.multibody.standing_defaults import standing_defaults
 
 #: Package holding the built-in robot configs (``<name>.yaml``).
 MODELS_PACKAGE = "pe_drake.models"
@@ -51,22 +52,6 @@ def robot_display_name(robot: str) -> str:
     return Path(robot).stem
 
 
-def example_robot_data_dir() -> Path:
-    """The ``share/example-robot-data`` folder of the installed ``example-robot-data`` wheel.
-
-    Raises:
-        ConfigError: when the package is not installed.
-    """
-    roots = [sysconfig.get_paths()["purelib"], *sys.path]
-    for root in roots:
-        candidate = Path(root) / "cmeel.prefix" / "share" / "example-robot-data"
-        if candidate.is_dir():
-            return candidate
-    raise ConfigError(
-        "the robot models of 'example-robot-data' are not installed: pip install example-robot-data"
-    )
-
-
 def builtin_config(name: str) -> Config:
     """The config of a built-in robot.
 
@@ -99,6 +84,13 @@ def resolve_robot_config(robot: str, config_file: str | Path | None = None) -> C
         if not path.is_file():
             raise ConfigError(f"robot model file '{robot}' does not exist")
         base = Config(robot=RobotConfig(model=str(path.resolve())))
+        standing = standing_defaults(path)  # a humanoid: arms excited, standing on its feet
+        if standing is not None:
+            base = dataclasses.replace(
+                base,
+                robot=dataclasses.replace(base.robot, **standing["robot"]),
+                excitation=dataclasses.replace(base.excitation, **standing["excitation"]),
+            )
     if config_file is not None:
         return load_config(config_file, base=base)
     return validate_config(base)

@@ -120,7 +120,8 @@ class Robot:
 
         cfg = self.config
         model_path = loadable_model_path(resolve_model_path(cfg.model), cfg.packages)
-        text, self.notes = drake_model_text(model_path, self._obj_visuals, cfg.packages)
+        text, notes = drake_model_text(model_path, self._obj_visuals, cfg.packages)
+        self.notes = list(cfg.notes) + notes
         builder = DiagramBuilder()
         plant, scene_graph = AddMultibodyPlantSceneGraph(builder, time_step=self.time_step)
         models = parse_models(plant, text, model_path, cfg.packages)

@@ -31,9 +31,9 @@ import numpy as np
 
 from pe_drake.exceptions import ConfigError
 from pe_drake.io_utils import atomic_write_text
+from pe_drake.multibody.example_robot_data import example_robot_data_dir
 from pe_drake.multibody.inertia import central_inertia, check_physically_valid, spatial_inertia_to_phi
 from pe_drake.multibody.model_files import single_material_definitions
-from pe_drake.multibody.registry import example_robot_data_dir
 
 #: Packages the pe_drake loader always registers; their URIs are kept as they are.
 KNOWN_PACKAGES = ("example-robot-data",)
