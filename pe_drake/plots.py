@@ -86,3 +86,27 @@ def save_figure(fig, path: str | Path, dpi: int = 80) -> Path:
     finally:
         plt.close(fig)
     return path
+
+
+def plot_prediction(path: str | Path, robot_name: str, t, measured, predicted, rel, names, title: str = "") -> Path:
+    """Measured channels, a model's prediction and their difference, one panel per channel
+    (``identify``'s residuals.png, ``validate --plot``)."""
+    import matplotlib  # lazy: matplotlib is heavy and only needed for the plot
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    n = measured.shape[1]
+    fig, axes = plt.subplots(n, 1, figsize=(11, 1.7 * n + 1), sharex=True, constrained_layout=True)
+    axes = np.atleast_1d(axes)
+    for j, ax in enumerate(axes):
+        ax.plot(t, measured[:, j], "k", lw=1, label="measured")
+        ax.plot(t, predicted[:, j], "C1", lw=1, label="model")
+        ax.plot(t, measured[:, j] - predicted[:, j], "C3", lw=0.7, alpha=0.7, label="error")
+        unit = "N" if names[j].startswith("wrench.f") else "N·m"
+        ax.set_ylabel(f"{names[j]}\n[{unit}]", fontsize=7)
+        ax.set_title(f"relative error {rel[j]:.1f} %", fontsize=8, loc="right")
+    axes[0].legend(fontsize=7, ncol=3, loc="upper left")
+    axes[-1].set_xlabel("t [s]")
+    fig.suptitle(title or f"{robot_name}: measured vs predicted")
+    return save_figure(fig, path)

@@ -446,3 +446,19 @@ def _translation(xy: np.ndarray, z: float):
     from pydrake.math import RigidTransform  # lazy: pydrake is heavy
 
     return RigidTransform([float(xy[0]), float(xy[1]), z])
+
+
+def write_plan_playback(plan, html_path: str | Path, *, show_capsules: bool = True, rate: float = 30.0) -> Path:
+    """Writes the HTML playback of a live :class:`~pe_drake.excitation.motion_plan.MotionPlan`
+    (what ``pe-drake optimize`` shows): its robot config and controller motion, no file re-read."""
+    motion = plan.motion
+    num_intervals = max(2, int(round(motion.duration * rate)))
+    fps = num_intervals / motion.duration
+    times = np.arange(num_intervals + 1) * (motion.duration / num_intervals)
+    meshcat = _prepare_meshcat(None, host="localhost")
+    rob = Robot(plan.robot.name, plan.config.robot, obj_visuals=True, builder_hook=_visualizer_hook(meshcat, fps, show_capsules))
+    q = motion.evaluate(times)[0]  # the same config: the same joints in the same order
+    _record_motion(meshcat, rob, q, fps, loop=motion.ramp_duration == 0.0)
+    path = Path(html_path)
+    atomic_write_text(path, meshcat.StaticHtml())
+    return path

@@ -115,7 +115,7 @@ def test_ament_prefix_path(tmp_path, monkeypatch):
 
 def test_config_packages_map_and_capsule_fitting(tmp_path):
     from pe_drake.config import load_config
-    from pe_drake.multibody.capsule_fitting import ensure_capsules
+    from pe_drake.multibody.capsule_fitting import fit_capsules
 
     write_package(tmp_path / "ws" / "src" / PKG)
     urdf = outside_urdf(tmp_path)
@@ -124,7 +124,7 @@ def test_config_packages_map_and_capsule_fitting(tmp_path):
     config = load_config(cfg_file)
     assert config.robot.packages == {PKG: str((tmp_path / "ws" / "src" / PKG).resolve())}
     check_arm(load_robot(config))
-    fitted = ensure_capsules(config, tmp_path / "fit")
+    config, fitted = fit_capsules(config, tmp_path / "fit")
     assert fitted is not None and len(fitted.links) >= 6, urdf
 
 
@@ -252,11 +252,11 @@ def test_nominal_posture_found_for_a_user_ur_arm(tmp_path):
     from pe_drake.config import Config, RobotConfig
     from pe_drake.excitation.constraints import constraints_from_config
     from pe_drake.excitation.nominal import choose_nominal_posture
-    from pe_drake.multibody.capsule_fitting import ensure_capsules
+    from pe_drake.multibody.capsule_fitting import fit_capsules
 
     urdf = write_package(tmp_path / "ws" / "src" / PKG)
     config = Config(robot=RobotConfig(model=str(urdf)))
-    ensure_capsules(config, tmp_path / "fit")
+    config, _ = fit_capsules(config, tmp_path / "fit")
     robot = load_robot(config)
     from pe_drake.exceptions import InfeasibleError
 

@@ -154,12 +154,12 @@ def test_ur5_ships_capsules_and_fitting_reproduces_them(tmp_path, ur5):
 def test_capsules_are_fitted_when_a_urdf_robot_has_none(tmp_path):
     """A robot folder made here: a two-link URDF with relative STL mesh paths."""
     from pe_drake.config import Config, RobotConfig
-    from pe_drake.multibody.capsule_fitting import ensure_capsules
+    from pe_drake.multibody.capsule_fitting import fit_capsules
     from pe_drake.multibody.meshes import TriangleMesh
 
     urdf = _two_link_robot(tmp_path)
     config = Config(robot=RobotConfig(model=str(urdf)))
-    fitted = ensure_capsules(config, tmp_path / "out")
+    config, fitted = fit_capsules(config, tmp_path / "out")
     assert fitted is not None and set(fitted.links) == {"base", "link1", "link2"}
     assert config.robot.capsules == str(tmp_path / "out" / "fitted_capsules.yaml")
     from pe_drake.multibody.capsules import load_capsule_file
@@ -261,12 +261,12 @@ def test_joint_types_in_comments_are_ignored():
 
 def test_fitted_capsules_of_a_urdf_path_switch_self_collision_on_and_skip_pairs_touching_by_design(tmp_path):
     """The UR10 through its URDF path came within 5-7 mm mesh to mesh: it now gets capsules."""
-    from pe_drake.multibody.capsule_fitting import FITTED_COLLISION_MARGIN, ensure_capsules
+    from pe_drake.multibody.capsule_fitting import FITTED_COLLISION_MARGIN, fit_capsules
     from pe_drake.multibody.registry import example_robot_data_dir, resolve_robot_config
 
     config = resolve_robot_config(str(example_robot_data_dir() / "robots/ur_description/urdf/ur10_robot.urdf"))
     assert config.excitation.collision_margin < 0
-    fitted = ensure_capsules(config, tmp_path)
+    config, fitted = fit_capsules(config, tmp_path)
     assert config.excitation.collision_margin == FITTED_COLLISION_MARGIN
     assert len(fitted.links) == 8 and fitted.sources["ee_link"] == "primitive"  # 7 meshes + the <box> ee_link
     pairs = {frozenset(p[:2]) for p in fitted.ignored_pairs}

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from pe_drake.excitation.constraints.environment import environment_from_config
-from pe_drake.multibody.capsule_fitting import ensure_capsules
+from pe_drake.multibody.capsule_fitting import fit_capsules
 from pe_drake.multibody.registry import resolve_robot_config
 from pe_drake.multibody.robot import Robot
 
@@ -28,7 +28,7 @@ def _environment(tmp_path, pedestal: bool):
     path = tmp_path / "stand.urdf"
     path.write_text(_urdf(pedestal))
     config = resolve_robot_config(str(path), None)
-    ensure_capsules(config, tmp_path)
+    config, _ = fit_capsules(config, tmp_path)
     robot = Robot("stand", config.robot)
     return robot, environment_from_config(robot, config.excitation, config.environment)
 

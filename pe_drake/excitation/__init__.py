@@ -5,6 +5,8 @@ offered as a single module.
 """
 
 from pe_drake.excitation.limits import add_joint_limit_constraints, add_rest_constraints
+from pe_drake.excitation.motion_plan import MotionPlan, check_csv_size, optimize_motion
+from pe_drake.excitation.optimize_report import MotionReport
 from pe_drake.excitation.payload_motion import PayloadMotionPlan, optimize_payload_motion
 from pe_drake.excitation.problem import ExcitationProblem
 from pe_drake.excitation.program import (
@@ -24,14 +26,18 @@ __all__ = [
     "ExcitationProblem",
     "ExcitationProgram",
     "ExcitationResult",
+    "MotionPlan",
+    "MotionReport",
     "PayloadMotionPlan",
     "add_excitation_cost",
     "add_joint_limit_constraints",
     "add_rest_constraints",
     "add_sampled_constraint",
     "build_excitation_program",
+    "check_csv_size",
     "check_margins",
     "optimize_excitation",
+    "optimize_motion",
     "optimize_payload_motion",
     "solve_excitation",
 ]

@@ -8,6 +8,7 @@ analytic gradient (Eq. 49). The Drake program around it is in
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 
@@ -92,6 +93,26 @@ class ExcitationProblem:
         self._cache_key: bytes | None = None
         self._cache: CostValue | None = None
         self.num_evaluations = 0
+
+    def with_prior(self, C0: np.ndarray | None) -> ExcitationProblem:
+        """This problem with other prior data C0 (Eq. 41): the robot, bases and base parameters
+        are shared, nothing is rebuilt.
+
+        Raises:
+            ConfigError: C0 without one column per base parameter.
+        """
+        if C0 is not None:
+            C0 = np.asarray(C0, float)
+            if C0.ndim != 2 or C0.shape[1] != self.base.count:
+                raise ConfigError(
+                    f"prior data C0 has shape {C0.shape}; it needs {self.base.count} columns "
+                    "(the robot's base parameters)"
+                )
+        other = copy.copy(self)
+        other.C0 = C0
+        other.clear_cache()
+        other.num_evaluations = 0
+        return other
 
     def clear_cache(self) -> None:
         """Forgets the cached evaluation, so the next :meth:`evaluate` computes from scratch."""

@@ -16,14 +16,18 @@ from pe_drake.identification.estimators import (
     torque_errors,
 )
 from pe_drake.identification.identified_file import load_identified
+from pe_drake.identification.identify_model import IdentifiedModel, IdentifyOptions, identify_model
 from pe_drake.identification.intake import read_measurements
 from pe_drake.identification.payload import PayloadBox, PayloadOptions, PayloadResult, identify_payload
 from pe_drake.identification.physical_fit import LinkBox, PhysicalBounds
+from pe_drake.identification.validate_model import ValidateOptions, ValidationReport, validate_model
 
 __all__ = [
     "DriveFit",
     "DriveTermOptions",
     "IdentificationResult",
+    "IdentifiedModel",
+    "IdentifyOptions",
     "LinkBox",
     "PhysicalBounds",
     "PayloadBox",
@@ -39,4 +43,8 @@ __all__ = [
     "read_robot_measurement",
     "robot_torques",
     "torque_errors",
+    "ValidateOptions",
+    "ValidationReport",
+    "identify_model",
+    "validate_model",
 ]

@@ -224,19 +224,19 @@ def _radial_distance(points: np.ndarray, p0: np.ndarray, p1: np.ndarray) -> np.n
     return np.linalg.norm(points - (p0 + s[:, None] * d), axis=1)
 
 
-def ensure_capsules(config, folder: str | Path) -> FittedCapsules | None:
+def fit_capsules(config, folder: str | Path) -> tuple:
     """Fits capsules when a config needs them (self-collision, the floor, boxes) but names no
-    capsule file: writes ``folder/fitted_capsules.yaml`` and points ``config.robot.capsules``
-    at it; pairs touching by design are ignored (:func:`ignore_touching_pairs`), and
-    self-collision is switched on at ``FITTED_COLLISION_MARGIN`` when the config leaves it
-    off. Does nothing when the robot has a capsule file or nothing needs one.
+    capsule file: writes ``folder/fitted_capsules.yaml``; pairs touching by design are ignored
+    (:func:`ignore_touching_pairs`), and self-collision is switched on at
+    ``FITTED_COLLISION_MARGIN`` when the config leaves it off.
 
     Args:
-        config: a :class:`~pe_drake.config.Config` (changed in place).
+        config: a :class:`~pe_drake.config.Config` (not changed).
         folder: where to write the fitted file.
 
     Returns:
-        What was fitted, or None.
+        (the config pointing ``robot.capsules`` at the fitted file, what was fitted), or
+        (``config`` itself, None) when the robot has a capsule file or nothing needs one.
 
     Raises:
         ConfigError: the model is not a URDF with readable meshes.
@@ -244,17 +244,20 @@ def ensure_capsules(config, folder: str | Path) -> FittedCapsules | None:
     robot, env = config.robot, config.environment
     needs = config.excitation.collision_margin >= 0 or bool(env.boxes) or (env.floor and not robot.support_points)
     if robot.capsules or not needs or not robot.model:
-        return None
+        return config, None
     model = resolve_mesh_path(robot.model, Path(robot.model), mesh=False)
     if model is None:
         raise ConfigError(f"cannot find the model '{robot.model}' to fit capsules to; give robot.capsules")
     model = loadable_model_path(model, robot.packages)  # xacro expanded, robot.packages resolved
     fitted = fit_capsule_file(model, Path(folder) / FITTED_CAPSULES_NAME)
-    robot.capsules = str(fitted.path)
-    if config.excitation.collision_margin < 0:
-        config.excitation.collision_margin = FITTED_COLLISION_MARGIN
+    margin = config.excitation.collision_margin
+    config = dataclasses.replace(
+        config,
+        robot=dataclasses.replace(robot, capsules=str(fitted.path)),
+        excitation=dataclasses.replace(config.excitation, collision_margin=margin if margin >= 0 else FITTED_COLLISION_MARGIN),
+    )
     ignored = ignore_touching_pairs(config, fitted.path, config.excitation.collision_margin)
-    return dataclasses.replace(fitted, ignored_pairs=tuple(ignored))
+    return config, dataclasses.replace(fitted, ignored_pairs=tuple(ignored))
 
 
 def ignore_touching_pairs(config, path: Path, margin: float, samples: int = 200, share: float = 0.95) -> list:

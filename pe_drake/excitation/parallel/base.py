@@ -168,6 +168,7 @@ class WorkerState:
         self.constraints_factory = constraints_factory
         self.emit = emit or (lambda event: None)
         self._constraints: dict[str, list] = {}
+        self._problems: dict[str, dict] = {}
 
     def constraints(self, config: ExcitationConfig) -> list:
         """The factory's constraints for ``config``, built once per distinct config."""
@@ -179,8 +180,17 @@ class WorkerState:
         return self._constraints[key]
 
     def problem(self, config: ExcitationConfig, C0: np.ndarray | None = None):
-        """An :class:`~pe_drake.excitation.problem.ExcitationProblem` on this robot and base."""
-        return ExcitationProblem(self.robot, config, C0=C0, base=self.base, model=self.model)
+        """The :class:`~pe_drake.excitation.problem.ExcitationProblem` on this robot and base,
+        built once per distinct config; other prior data C0 share it
+        (:meth:`~pe_drake.excitation.problem.ExcitationProblem.with_prior`)."""
+        key = repr(config)
+        if key not in self._problems:
+            self._problems[key] = {None: ExcitationProblem(self.robot, config, base=self.base, model=self.model)}
+        by_prior = self._problems[key]
+        digest = None if C0 is None else hashlib.sha256(np.ascontiguousarray(C0, float).tobytes()).hexdigest() + str(np.shape(C0))
+        if digest not in by_prior:
+            by_prior[digest] = by_prior[None].with_prior(C0)
+        return by_prior[digest]
 
 
 def worker_name(host: str = "") -> str:

@@ -1,0 +1,248 @@
+"""The front doors of ``pe-drake identify`` and ``pe-drake validate``: :func:`identify_model`
+and :func:`validate_model` take a raw measured run (:func:`~pe_drake.identification.intake.read_measurements`)
+and do what the commands do, checks included: preprocessing with the gap setting, the
+torque-sign check against the a-priori model, the fit with its drive terms (Eq. 4), the
+physically valid standard parameters for ``model.urdf``, and the prediction of another run.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pe_drake.config import Config
+from pe_drake.exceptions import ConfigError
+from pe_drake.excitation.trajectory_file import load_trajectory
+from pe_drake.identification.channels import measured_values
+from pe_drake.identification.data_checks import check_against_model
+from pe_drake.identification.drive_terms import (
+    DriveTermOptions,
+    drive_effects_yaml,
+    drive_summary,
+    filtered_coulomb,
+    format_percent,
+    urdf_dynamics,
+)
+from pe_drake.identification.estimators import (
+    IdentificationResult,
+    fit_warnings,
+    identify,
+    predict,
+    predict_wrench,
+    prepare_measurement,
+    torque_errors,
+)
+from pe_drake.identification.gaps import MAX_GAP_S
+from pe_drake.identification.identified_file import result_to_dict, standard_from_base, standard_parameters_dict
+from pe_drake.identification.measurements import Measurement
+from pe_drake.identification.physical_fit import PhysicalBounds, bounds_from_config
+from pe_drake.io_utils import staged_output_dir
+from pe_drake.multibody.inertia import PhysicallyInvalidError, validity_problems
+from pe_drake.multibody.robot import Robot
+from pe_drake.multibody.sensors import MeasurementType
+from pe_drake.multibody.urdf import write_robot_urdf
+from pe_drake.output_paths import IDENTIFY_OUTPUTS, check_output_dir, remove_stale_outputs
+from pe_drake.plots import plot_prediction
+
+
+@dataclasses.dataclass(frozen=True)
+class IdentifyOptions:
+    """How ``identify`` fits (one frozen record; :meth:`from_config` reads the config's sections).
+
+    Attributes:
+        method: "ols", "wls" or "physical".
+        measurement: the channels to fit: "joint_torque", "base_wrench" or "both".
+        cutoff_hz: low-pass cut-off [Hz] (None: from ``trajectory`` or the data).
+        trajectory: the trajectory.json that was run: its highest harmonic sets the cut-off.
+        filtering: False uses the data as it is (exact data with v.* and vdot.* columns).
+        drive: the drive terms (friction, offsets, armature).
+        bounds: the physical fit's mass and CoM bounds.
+        max_gap_s: holes in the time column up to this are interpolated [s].
+    """
+
+    method: str = "ols"
+    measurement: str = "joint_torque"
+    cutoff_hz: float | None = None
+    trajectory: str | None = None
+    filtering: bool = True
+    drive: DriveTermOptions = DriveTermOptions()
+    bounds: PhysicalBounds | None = None
+    max_gap_s: float = MAX_GAP_S
+
+    def __post_init__(self):
+        if self.method not in ("ols", "wls", "physical"):
+            raise ConfigError(f"identification method '{self.method}' is not one of ols, wls, physical")
+        if self.cutoff_hz is not None and not (math.isfinite(self.cutoff_hz) and self.cutoff_hz > 0):
+            raise ConfigError(f"--cutoff must be a positive frequency [Hz], got {self.cutoff_hz}")
+
+    @classmethod
+    def from_config(cls, config: Config, **changes: Any) -> IdentifyOptions:
+        """The options of a config (``identification``, ``data``, ``excitation.measurement``),
+        with ``changes`` on top (None values are ignored; ``drive_terms="none"`` sets the
+        drive terms' kind)."""
+        changes = {k: v for k, v in changes.items() if v is not None}
+        choice = config.identification
+        kind = changes.pop("drive_terms", None) or choice.drive_terms
+        base = cls(measurement=config.excitation.measurement, drive=DriveTermOptions(kind, choice.coulomb_velocity_scale),
+                   bounds=bounds_from_config(choice), max_gap_s=config.data.max_gap_s)
+        return dataclasses.replace(base, **changes)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class IdentifiedModel:
+    """An identified model and the data it came from; :meth:`write` writes ``identify``'s files.
+
+    Attributes:
+        robot: the robot.
+        result: the :class:`~pe_drake.identification.estimators.IdentificationResult`.
+        raw: the measured run as read; data: as preprocessed for the fit.
+        coulomb: the parallel-filtered Coulomb columns (None without filtering).
+        phi: physically valid standard parameters for model.urdf (None: none).
+        note: what was done to get them, or why model.urdf is not written.
+    """
+
+    robot: Robot
+    result: IdentificationResult
+    raw: Measurement
+    data: Measurement
+    coulomb: np.ndarray | None
+    phi: np.ndarray | None
+    note: str
+    wall_time: float
+
+    def summary_lines(self) -> list[str]:
+        """What the command prints: the data, its preprocessing, the fit and its warnings."""
+        robot, raw, result, p = self.robot, self.raw, self.result, self.data.preprocessing
+        lines = [f"robot {robot.name}: {robot.n} joints; data {raw.source}: {raw.num_samples} samples, "
+                 f"{raw.duration:.2f} s at {raw.rate_hz:.0f} Hz"]
+        if p is not None:
+            grid = (f"resampled onto a uniform {p.input_rate_hz:.0f} Hz grid (the raw time steps vary), "
+                    if p.resampled else "")
+            lines.append(
+                f"preprocessing: {grid}low-pass {p.cutoff_hz:.2f} Hz ({p.cutoff_source}), "
+                f"{p.samples_out} samples at {p.rate_hz:.0f} Hz from {p.samples_in} raw rows, "
+                f"{p.trim_s:.2f} s trimmed at each end ({p.duration_out_s:.2f} of {p.duration_in_s:.2f} s used), "
+                f"v {p.velocity_source}, vdot {p.acceleration_source}")
+        lines += [f"note: {note}" for note in self.data.notes]
+        lines.append(f"{result.method} from {result.measurement}: {result.base.count} base parameters, "
+                     f"cond(W) = {result.cond:.4g}, {result.wall_time:.2f} s")
+        worst = np.argsort(result.sigma_percent)[-min(5, len(result.sigma_percent)):][::-1]
+        lines.append("least determined base parameters (%σ): "
+                     + ", ".join(f"{_short_name(result.base, i)} {format_percent(result.sigma_percent[i])}" for i in worst))
+        lines.append("residual RMS [N·m, N]: " + ", ".join(f"{c} {r:.4g}" for c, r in zip(result.channels, result.residual_rms)))
+        return lines + drive_summary(result.drive) + fit_warnings(result)
+
+    def write(self, folder: str | Path) -> tuple[list[str], str]:
+        """Writes identified.json, residuals.png and, when physically valid, model.urdf and
+        drive_effects.yaml into ``folder``, all or nothing (earlier runs' files of these names
+        that this run does not write are removed).
+
+        Returns:
+            (the names written, the note on model.urdf: "" when nothing is to be said).
+        """
+        out, robot, result = check_output_dir(folder), self.robot, self.result
+        note, written = self.note, ["identified.json", "residuals.png"]
+        with staged_output_dir(out) as tmp:
+            model_file = None
+            if self.phi is not None:
+                try:
+                    damping, rotor, urdf_notes = urdf_dynamics(result.drive)
+                    write_robot_urdf(tmp / "model.urdf", robot, self.phi, damping=damping, rotor_inertia=rotor)
+                    model_file = "model.urdf"
+                    note = "; ".join([note] * bool(note) + urdf_notes)
+                except (PhysicallyInvalidError, ConfigError) as err:
+                    note = f"model.urdf not written: {err}"
+            d = result_to_dict(result, robot, model_file)
+            if result.phi is None and self.phi is not None:
+                d["standard_parameters"] = standard_parameters_dict(robot, self.phi)
+                d["physically_valid"] = True
+            if note:
+                d["note"] = note
+            d["total_time_s"] = self.wall_time
+            (tmp / "identified.json").write_text(json.dumps(d, indent=2))
+            measured, predicted = prediction(robot, result, self.data, MeasurementType(result.measurement), self.coulomb)
+            plot_prediction(tmp / "residuals.png", robot.name, self.data.t, measured, predicted, result.relative_error,
+                            result.channels, f"{robot.name}: {result.method} fit on the identification data")
+            if model_file:
+                written.append(model_file)
+                if result.drive is not None and result.drive.layout.count:
+                    (tmp / "drive_effects.yaml").write_text(drive_effects_yaml(result.drive))
+                    written.append("drive_effects.yaml")
+        remove_stale_outputs(out, IDENTIFY_OUTPUTS, written)  # e.g. an earlier run's model.urdf
+        return written, note
+
+
+def _short_name(base, i: int) -> str:
+    """The standard parameter a base parameter is built on, '+…' when others are lumped in."""
+    name = base.names[base.independent[i]]
+    return name if base.base_names[i] == name else name + "+…"
+
+
+def _trajectory_band(path: str | None) -> tuple[float | None, int | None]:
+    """(fundamental [Hz], harmonics) of a trajectory.json, to choose the filter cut-off: the
+    highest harmonic the motion uses, not the file's zero-padded count (which set 400 Hz)."""
+    if not path:
+        return None, None
+    trajectory, _ = load_trajectory(path)
+    return trajectory.omega / (2 * math.pi), max(trajectory.highest_harmonic, 1)
+
+
+def identify_model(robot: Robot, measurements: Measurement, options: IdentifyOptions | None = None) -> IdentifiedModel:
+    """What ``pe-drake identify`` does, from a raw measured run to an :class:`IdentifiedModel`.
+
+    Args:
+        robot: the a-priori robot.
+        measurements: the raw run (:func:`~pe_drake.identification.intake.read_measurements`).
+        options: the :class:`IdentifyOptions` (default: OLS with every drive term).
+
+    Raises:
+        DataError: data the checks refuse (units, gaps, sign-flipped torque columns, too short),
+            naming the file and the column.
+    """
+    start = time.perf_counter()
+    options = options or IdentifyOptions()
+    f0, harmonics = _trajectory_band(options.trajectory)
+    data = prepare_measurement(robot, measurements, cutoff_hz=options.cutoff_hz, fundamental_hz=f0,
+                               harmonics=harmonics, filtering=options.filtering, max_gap_s=options.max_gap_s)
+    check_against_model(robot, data)  # sign-flipped torque columns
+    coulomb = filtered_coulomb(measurements, data, options.drive.velocity_scale) if data is not measurements else None
+    result = identify(robot, data, options.method, measurement=options.measurement, drive_terms=options.drive,
+                      bounds=options.bounds, coulomb=coulomb)
+    phi, note = _model_parameters(robot, result)
+    return IdentifiedModel(robot, result, measurements, data, coulomb, phi, note, time.perf_counter() - start)
+
+
+def _model_parameters(robot: Robot, result: IdentificationResult) -> tuple[np.ndarray | None, str]:
+    """Standard parameters for model.urdf (None: none physically valid) and a note on them.
+
+    The physical method gives them; for least squares the a-priori model is moved to the
+    identified base parameters, and kept only when that is physically valid.
+    """
+    if result.phi is not None:
+        return result.phi, ""
+    candidate = standard_from_base(robot, result)
+    if not validity_problems(robot.body_names, candidate):
+        return candidate, "standard parameters: the a-priori model moved to the identified base parameters"
+    return None, ("model.urdf not written: the least-squares estimate has no physically valid standard "
+                  "parameters near the a-priori model; use --method physical")
+
+
+def prediction(robot: Robot, result: IdentificationResult, data: Measurement, kind: MeasurementType,
+               coulomb: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(measured, predicted), each (S, r): the joint torques, then the ground wrench
+    (``coulomb``: the parallel-filtered Coulomb columns of the drive terms)."""
+    measured_values(robot, data, kind.kind)  # refuses data without the channels, naming them
+    measured, predicted = [], []
+    if kind.torques:
+        measured.append(data.tau)
+        predicted.append(predict(robot, result, data, coulomb=coulomb))
+    if kind.wrench:
+        measured.append(data.wrench)
+        predicted.append(predict_wrench(robot, result, data))
+    return np.hstack(measured), np.hstack(predicted)

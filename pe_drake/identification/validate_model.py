@@ -1,0 +1,107 @@
+"""The front door of ``pe-drake validate``: :func:`validate_model` predicts another measured run
+with an identified model (``identified.json`` or the diagnosis's ``augmented_model.json``,
+:func:`~pe_drake.identification.identified_file.load_identified`) and reports the error per
+channel. Any identified model predicts any channel: one identified from the ground wrench
+alone predicts the joint torques too.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pe_drake.identification.data_checks import check_against_model
+from pe_drake.identification.drive_terms import filtered_coulomb
+from pe_drake.identification.estimators import IdentificationResult, prepare_measurement, torque_errors
+from pe_drake.identification.gaps import MAX_GAP_S
+from pe_drake.identification.identify_model import prediction
+from pe_drake.identification.measurements import Measurement
+from pe_drake.io_utils import atomic_write_text
+from pe_drake.multibody.robot import Robot
+from pe_drake.multibody.sensors import MeasurementType
+from pe_drake.plots import plot_prediction
+
+
+@dataclasses.dataclass(frozen=True)
+class ValidateOptions:
+    """How ``validate`` reads the run: the channels to predict, the cut-off [Hz] (None: from
+    the data) and the longest hole interpolated [s]."""
+
+    measurement: str = "joint_torque"
+    cutoff_hz: float | None = None
+    max_gap_s: float = MAX_GAP_S
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class ValidationReport:
+    """Measured and predicted channels of a run and their errors.
+
+    Attributes:
+        names: the channels ("tau.<joint>", "wrench.fx", ...).
+        rms: RMS error per channel [N·m, N]; relative: per channel [%]; relative_total [%].
+    """
+
+    robot: str
+    model_measurement: str
+    measurement: str
+    names: tuple[str, ...]
+    t: np.ndarray
+    measured: np.ndarray
+    predicted: np.ndarray
+    rms: np.ndarray
+    relative: np.ndarray
+    relative_total: float
+    samples: int
+    notes: tuple[str, ...] = ()
+
+    def summary_lines(self) -> list[str]:
+        width = max(len(j) for j in self.names)
+        lines = [f"model identified from {self.model_measurement}; predicting {self.measurement}",
+                 f"{'channel':<{width}}  {'RMS [N·m, N]':>12}  {'relative [%]':>12}"]
+        lines += [f"{j:<{width}}  {r:>12.4f}  {e:>12.2f}" for j, r, e in zip(self.names, self.rms, self.relative)]
+        lines.append(f"{'all':<{width}}  {float(np.sqrt(np.mean(self.rms**2))):>12.4f}  {self.relative_total:>12.2f}")
+        return lines
+
+    def to_dict(self, model: str | Path = "", data: str | Path = "") -> dict[str, Any]:
+        """``validate --json``'s content (``model``, ``data``: the files, as given)."""
+        return {
+            "robot": self.robot, "model": str(model), "model_measurement": self.model_measurement,
+            "measurement": self.measurement, "data": str(data),
+            "rms": dict(zip(self.names, map(float, self.rms))),
+            "relative_error": dict(zip(self.names, map(float, self.relative))),
+            "relative_error_total": self.relative_total, "samples": self.samples,
+        }
+
+    def write_json(self, path: str | Path, model: str | Path = "", data: str | Path = "") -> None:
+        atomic_write_text(path, json.dumps(self.to_dict(model, data), indent=2))
+
+    def plot(self, path: str | Path) -> Path:
+        return plot_prediction(path, self.robot, self.t, self.measured, self.predicted, self.relative, self.names)
+
+
+def validate_model(robot: Robot, model: IdentificationResult, measurements: Measurement,
+                   options: ValidateOptions | None = None) -> ValidationReport:
+    """What ``pe-drake validate`` does: the run preprocessed and checked, predicted by ``model``.
+
+    Args:
+        robot: the robot.
+        model: a loaded model (:func:`~pe_drake.identification.identified_file.load_identified`).
+        measurements: the raw run (:func:`~pe_drake.identification.intake.read_measurements`).
+
+    Raises:
+        DataError: data the checks refuse (sign-flipped torque, missing channels, ...).
+    """
+    options = options or ValidateOptions()
+    data = prepare_measurement(robot, measurements, cutoff_hz=options.cutoff_hz, max_gap_s=options.max_gap_s)
+    check_against_model(robot, data)
+    kind = MeasurementType(options.measurement)
+    scale = model.drive.layout.velocity_scale if model.drive is not None else 0.01
+    measured, predicted = prediction(robot, model, data, kind, filtered_coulomb(measurements, data, scale))
+    rms, rel = torque_errors(measured, predicted)
+    total = float(100 * np.linalg.norm(measured - predicted) / max(np.linalg.norm(measured), 1e-300))
+    return ValidationReport(robot.name, model.measurement, options.measurement, tuple(kind.row_names(robot.joint_names)),
+                            data.t, measured, predicted, rms, rel, total, data.num_samples, tuple(data.notes))
