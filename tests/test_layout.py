@@ -193,3 +193,57 @@ def test_no_underscore_name_is_used_outside_its_module():
                 if private and name in package_private and (name not in own or isinstance(node, ast.ImportFrom)):
                     leaks.append(f"{path.relative_to(ROOT)}:{node.lineno} {name}")
     assert not leaks, f"underscore names used outside their module: {leaks}"
+
+
+#: What a command-line face may import: the stage packages' public faces and the base layer.
+FACE_IMPORTS = {
+    "pe_drake", "pe_drake.multibody", "pe_drake.excitation", "pe_drake.identification", "pe_drake.diagnosis",
+    "pe_drake.config", "pe_drake.exceptions", "pe_drake.output_paths", "pe_drake.io_utils", "pe_drake.threads",
+    "pe_drake.memory", "pe_drake.viewer", "pe_drake.cli.common",
+}
+MAX_FACE_LINES = 80
+FACES = sorted(p for p in (PACKAGE / "cli").glob("*.py") if p.name not in ("__init__.py", "common.py"))
+
+
+@pytest.mark.parametrize("path", FACES, ids=lambda p: p.name)
+def test_command_faces_are_thin(path):
+    """A face parses flags, calls its stage's entry point once, prints and exits: short, and it
+    imports only the stage packages' public faces (the behaviour lives in the library)."""
+    lines = len(path.read_text().splitlines())
+    assert lines <= MAX_FACE_LINES, f"{path.name}: {lines} lines (at most {MAX_FACE_LINES})"
+    module = "pe_drake.cli." + path.stem
+    tree = _parse(path)
+    wrong = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("pe_drake"):
+            if node.module not in FACE_IMPORTS:
+                wrong.append(f"{node.lineno}: {node.module}")
+        elif isinstance(node, ast.Import):
+            wrong += [f"{node.lineno}: {a.name}" for a in node.names if a.name.startswith("pe_drake") and a.name not in FACE_IMPORTS]
+    assert not wrong, f"{module} imports beyond the public faces: {wrong}"
+
+
+#: Checks that belong to one stage: (module defining them, the stages allowed to call them).
+STAGE_CALLS = {
+    "pe_drake.identification.data_checks": ("pe_drake.identification", "pe_drake.diagnosis"),
+    "pe_drake.excitation.ramp": ("pe_drake.excitation", "pe_drake.identification", "pe_drake.diagnosis",
+                                 "pe_drake.viewer", "pe_drake.bench"),
+    "pe_drake.excitation.quality": ("pe_drake.excitation", "pe_drake.bench"),
+}
+
+
+@pytest.mark.parametrize("home", sorted(STAGE_CALLS))
+def test_checks_ramps_and_quality_are_called_inside_their_stage(home):
+    """Data checks, ramps and quality figures run behind the entry points, never in a face."""
+    allowed = STAGE_CALLS[home]
+    names = {n.name for n in _parse(MODULES[home]).body if isinstance(n, (ast.FunctionDef, ast.ClassDef))}
+    wrong = []
+    for module, path in MODULES.items():
+        if module == home or module.startswith(allowed):
+            continue
+        for node in ast.walk(_parse(path)):
+            if isinstance(node, ast.ImportFrom) and node.module == home:
+                wrong.append(f"{module}:{node.lineno} imports {home}")
+            elif isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in names:
+                wrong.append(f"{module}:{node.lineno} calls {node.func.id}")
+    assert not wrong, wrong

@@ -6,16 +6,15 @@ import argparse
 from collections.abc import Callable
 
 from pe_drake.config import Config
-from pe_drake.identification.intake import read_measurements
-from pe_drake.multibody.registry import resolve_robot_config, robot_display_name
-from pe_drake.multibody.robot import Robot
+from pe_drake.identification import read_measurements
+from pe_drake.multibody import Robot, resolve_robot_config, robot_display_name
 
 
 def config_from_args(args: argparse.Namespace, adjust: Callable[[Config], Config] | None = None) -> Config:
     """The config of ``--robot`` with ``--config`` on top, then ``adjust`` (other flags) applied.
 
     Raises:
-        UnknownNameError, ConfigError: as :func:`~pe_drake.multibody.registry.resolve_robot_config`.
+        UnknownNameError, ConfigError: as :func:`~pe_drake.multibody.resolve_robot_config`.
     """
     config = resolve_robot_config(args.robot, getattr(args, "config", None))
     return adjust(config) if adjust is not None else config
@@ -54,7 +53,3 @@ def read_log_from_args(args: argparse.Namespace, robot: Robot, config: Config | 
                     topic=getattr(args, "topic", None), effort=getattr(args, "effort", None))
 
 
-def print_notes(measurement) -> None:
-    """The notes reading and preprocessing left on a measurement, one line each."""
-    for note in getattr(measurement, "notes", ()):
-        print(f"note: {note}", flush=True)

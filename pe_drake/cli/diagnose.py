@@ -1,16 +1,13 @@
-"""``pe-drake diagnose``: name the effects missing from the model of a measured run."""
+"""``pe-drake diagnose``: the face of :func:`pe_drake.diagnosis.diagnose`."""
 
 from __future__ import annotations
 
 import math
 from pathlib import Path
 
-from pe_drake.cli.common import config_from_args, print_notes, read_log_from_args, robot_from_args
+from pe_drake.cli.common import config_from_args, read_log_from_args, robot_from_args
 from pe_drake.diagnosis import DiagnosisConfig, diagnose, write_outputs
 from pe_drake.exceptions import ConfigError
-from pe_drake.identification.data_checks import check_against_model
-from pe_drake.identification.estimators import prepare_measurement
-from pe_drake.identification.gaps import longest_segment
 from pe_drake.io_utils import staged_output_dir
 from pe_drake.output_paths import DIAGNOSE_OUTPUTS, check_output_dir, remove_stale_outputs
 
@@ -21,19 +18,11 @@ def diagnose_command(args) -> int:
     fraction = getattr(args, "held_out_fraction", None)
     if fraction is not None and not (math.isfinite(fraction) and 0.05 <= fraction <= 0.8):
         raise ConfigError(f"--held-out-fraction must be from 0.05 to 0.8, got {fraction:g}")
-    config = DiagnosisConfig() if fraction is None else DiagnosisConfig(holdout_fraction=fraction)
     settings = config_from_args(args)
+    config = DiagnosisConfig(max_gap_s=settings.data.max_gap_s, **({} if fraction is None else {"holdout_fraction": fraction}))
     robot = robot_from_args(args, settings)
-    gap = settings.data.max_gap_s  # holes up to it interpolated; a paused run: its longest segment
-    data = longest_segment(read_log_from_args(args, robot, settings), gap)
-    validation = (longest_segment(read_log_from_args(args, robot, settings, args.validation), gap)
-                  if getattr(args, "validation", None) else None)
-    for run in (data, validation):
-        if run is not None:
-            print_notes(run)
-    for run in (data, validation):  # units, gaps, degrees, sign flips: before any work
-        if run is not None:
-            check_against_model(robot, prepare_measurement(robot, run, max_gap_s=gap))
+    data = read_log_from_args(args, robot, settings)
+    validation = read_log_from_args(args, robot, settings, args.validation) if getattr(args, "validation", None) else None
     print(f"robot {robot.name}: {robot.n} joints ({', '.join(robot.joint_names)})", flush=True)
     result = diagnose(robot, data, validation, config, progress=lambda s: print(s, flush=True))
     with staged_output_dir(out) as tmp:

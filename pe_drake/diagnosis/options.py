@@ -15,6 +15,7 @@ import numpy as np
 
 from pe_drake.diagnosis.effects import COULOMB_VELOCITY_SCALE, JOINT_EFFECTS, PRIOR_RELATIVE_UNCERTAINTY
 from pe_drake.exceptions import ConfigError, UnknownNameError
+from pe_drake.identification.gaps import MAX_GAP_S
 
 #: The effect (and column -dτ/dt) of a timing offset between the torque and position logs.
 TIMING = "time_delay"
@@ -55,6 +56,8 @@ class DiagnosisConfig:
         payload_min_prior_sigmas: a payload's mass must exceed this many a-priori standard
             deviations of its link's mass.
         max_effects: at most this many effects are named.
+        max_gap_s: holes in the time column up to this are interpolated [s]; a run paused for
+            longer is diagnosed on its longest segment (the config's ``data.max_gap_s``).
     """
 
     holdout_fraction: float = 0.3
@@ -74,6 +77,7 @@ class DiagnosisConfig:
     payload_alpha: float = 1e-6
     payload_min_prior_sigmas: float = 3.0
     max_effects: int = 40
+    max_gap_s: float = MAX_GAP_S  # [s]
 
     def __post_init__(self) -> None:
         def check(name, value, lo, hi):
@@ -97,6 +101,7 @@ class DiagnosisConfig:
         check("payload_alpha", self.payload_alpha, 1e-15, 0.5)
         check("payload_min_prior_sigmas", self.payload_min_prior_sigmas, 0.0, 100.0)
         check("max_effects", self.max_effects, 0, 1000)
+        check("max_gap_s [s]", self.max_gap_s, 0.0, 1e6)
         for e in self.effects:
             if e not in JOINT_EFFECTS:
                 raise UnknownNameError("effect", e, JOINT_EFFECTS, where="diagnosis effects")

@@ -23,6 +23,7 @@ import numpy as np
 
 from pe_drake.diagnosis.options import MIN_PERIODS, DiagnosisConfig
 from pe_drake.exceptions import DataError
+from pe_drake.identification.data_checks import check_against_model
 from pe_drake.identification.measurements import Measurement, Preprocessing
 from pe_drake.identification.preprocessing import (
     LowPassFilter,
@@ -268,3 +269,25 @@ def _short_part_advice(seg: Segment, other: Segment, need: float, config: Diagno
         verb = "raise" if seg.name == "held-out" else "lower"
         advice += f", or {verb} --held-out-fraction (now {config.holdout_fraction:g})"
     return advice
+
+
+def check_record_signs(robot, record: Record) -> None:
+    """The torque-sign check of :func:`~pe_drake.identification.data_checks.check_against_model`
+    on the diagnosis's own filtered record (its decimated samples away from the edges), so a
+    file is filtered once.
+
+    Raises:
+        DataError: a sign-flipped torque column, naming the file and the column.
+    """
+    idx = record.usable()
+    check_against_model(robot, Measurement(record.t[idx], record.q[idx], record.tau[idx], record.v[idx],
+                                           record.vd[idx], robot.joint_names, record.source))
+
+
+def check_joints(robot, data: Measurement, validation: Measurement | None) -> None:
+    """Raises DataError when a file's joints are not the robot's excited joints, in order."""
+    for m in (data, validation):
+        if m is not None and tuple(m.joints) != tuple(robot.joint_names):
+            raise DataError(
+                f"the data's joints {', '.join(m.joints)} differ from robot '{robot.name}''s excited "
+                f"joints {', '.join(robot.joint_names)}", file=m.source)

@@ -84,7 +84,7 @@ from pe_drake.diagnosis.payload import (
     rigid_report,
 )
 from pe_drake.diagnosis.presliding import PRESLIDING, PreslidingStep, presliding_effects, presliding_step
-from pe_drake.diagnosis.record import Record, Segment, delayed_states, prepare_record, split_segments
+from pe_drake.diagnosis.record import Record, Segment, check_joints, check_record_signs, delayed_states, prepare_record, split_segments
 from pe_drake.diagnosis.regression import (
     Columns,
     Fit,
@@ -100,6 +100,7 @@ from pe_drake.diagnosis.regression import (
 )
 from pe_drake.diagnosis.result import DiagnosisResult, NamedEffect, per_joint, time_delay_effect
 from pe_drake.exceptions import DataError
+from pe_drake.identification.gaps import longest_segment
 from pe_drake.identification.measurements import Measurement, check_torque_units
 from pe_drake.multibody.base_parameters import BaseParameters, compute_base_parameters
 from pe_drake.multibody.regressor import RegressorModel
@@ -132,15 +133,6 @@ class Prepared:
     phi_B_prior: np.ndarray
 
 
-def check_joints(robot, data: Measurement, validation: Measurement | None) -> None:
-    """Raises DataError when a file's joints are not the robot's excited joints, in order."""
-    for m in (data, validation):
-        if m is not None and tuple(m.joints) != tuple(robot.joint_names):
-            raise DataError(
-                f"the data's joints {', '.join(m.joints)} differ from robot '{robot.name}''s excited "
-                f"joints {', '.join(robot.joint_names)}", file=m.source)
-
-
 def prepare(robot, data: Measurement, validation: Measurement | None, config: DiagnosisConfig,
             say: Callable[[str], None]) -> Prepared:
     """Records, training and held-out parts, the base regressor on each (data preparation).
@@ -150,6 +142,9 @@ def prepare(robot, data: Measurement, validation: Measurement | None, config: Di
     """
     record = prepare_record(data, config)
     vrecord = prepare_record(validation, config) if validation is not None else None
+    for r in (record, vrecord):  # sign-flipped torque columns, on the record filtered once
+        if r is not None:
+            check_record_signs(robot, r)
     training, held = split_segments(record, config, vrecord)
     say(f"data: {record.source}: {data.num_samples} samples at {record.rate_hz:.4g} Hz, cut-off "
         f"{record.cutoff_hz:.3g} Hz, fitted at {record.rate_hz / record.step:.4g} Hz; training "
@@ -504,8 +499,8 @@ def diagnose(
 
     Args:
         robot: the a-priori :class:`~pe_drake.multibody.robot.Robot`.
-        data: the measured run (raw, as read by
-            :func:`~pe_drake.identification.measurements.read_measurement_csv`).
+        data: the measured run, raw (:func:`~pe_drake.identification.intake.read_measurements`):
+            a run paused for longer than ``config.max_gap_s`` is diagnosed on its longest segment.
         validation: another run to hold out; None: the last ``holdout_fraction`` of ``data``.
         config: options (:class:`~pe_drake.diagnosis.options.DiagnosisConfig`).
         progress: called with one line per step (e.g. ``print``).
@@ -515,13 +510,16 @@ def diagnose(
 
     Raises:
         DataError: joints that differ from the robot's, a run too short, torques in the
-            wrong units (naming the file and column).
+            wrong units or sign-flipped (naming the file and column).
     """
     config = config or DiagnosisConfig()
     say = progress or (lambda _msg: None)
     lap = _Laps()
     joints = robot.joint_names
     check_joints(robot, data, validation)
+    data, validation = (longest_segment(m, config.max_gap_s) if m is not None else None for m in (data, validation))
+    for note in (*data.notes, *(validation.notes if validation is not None else ())):
+        say(f"note: {note}")
     prep = prepare(robot, data, validation, config, say)
     lap("prepare")
     nom = nominal(robot, prep)

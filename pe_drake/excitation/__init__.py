@@ -7,6 +7,7 @@ offered as a single module.
 from pe_drake.excitation.limits import add_joint_limit_constraints, add_rest_constraints
 from pe_drake.excitation.motion_plan import MotionPlan, check_csv_size, optimize_motion
 from pe_drake.excitation.optimize_report import MotionReport
+from pe_drake.excitation.payload_plan import optimize_payload, write_payload_plan
 from pe_drake.excitation.payload_motion import PayloadMotionPlan, optimize_payload_motion
 from pe_drake.excitation.problem import ExcitationProblem
 from pe_drake.excitation.program import (
@@ -38,6 +39,8 @@ __all__ = [
     "check_margins",
     "optimize_excitation",
     "optimize_motion",
+    "optimize_payload",
     "optimize_payload_motion",
+    "write_payload_plan",
     "solve_excitation",
 ]

@@ -141,6 +141,7 @@ class PayloadMotionPlan:
         motion: ramp-in + the periods + ramp-out.
         expected: :class:`PayloadStd` of the whole motion.
         wall_time: optimization + ramp choice [s].
+        criterion: the excitation criterion it minimized.
     """
 
     link: str
@@ -148,6 +149,7 @@ class PayloadMotionPlan:
     motion: RampedMotion
     expected: PayloadStd
     wall_time: float
+    criterion: str = "cond"
 
     def write(self, out: str | Path, robot, csv_rate: float = 1000.0) -> list[Path]:
         """trajectory.json (with ``payload_link``) and trajectory.csv in ``out``."""
@@ -199,4 +201,4 @@ def optimize_payload_motion(robot, link: str, config: ExcitationConfig | None = 
     else:
         motion = RampedMotion(result.trajectory, config.periods, 0.0)
     expected = expected_payload_std(robot, link, motion, noise_std=noise_std, nominal=nominal, model=problem.model)
-    return PayloadMotionPlan(link, result, motion, expected, time.perf_counter() - start)
+    return PayloadMotionPlan(link, result, motion, expected, time.perf_counter() - start, config.criterion)

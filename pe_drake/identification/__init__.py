@@ -19,7 +19,9 @@ from pe_drake.identification.identified_file import load_identified
 from pe_drake.identification.identify_model import IdentifiedModel, IdentifyOptions, identify_model
 from pe_drake.identification.intake import read_measurements
 from pe_drake.identification.payload import PayloadBox, PayloadOptions, PayloadResult, identify_payload
+from pe_drake.identification.payload_run import PayloadIdentification, identify_payload_runs, parse_payload_box
 from pe_drake.identification.physical_fit import LinkBox, PhysicalBounds
+from pe_drake.identification.simulated_run import SimulatedRun, simulate_run
 from pe_drake.identification.validate_model import ValidateOptions, ValidationReport, validate_model
 
 __all__ = [
@@ -46,5 +48,10 @@ __all__ = [
     "ValidateOptions",
     "ValidationReport",
     "identify_model",
+    "PayloadIdentification",
+    "identify_payload_runs",
+    "parse_payload_box",
+    "SimulatedRun",
+    "simulate_run",
     "validate_model",
 ]

@@ -1,0 +1,113 @@
+"""The front door of ``pe-drake identify --payload``: :func:`identify_payload_runs` reads the
+loaded (and unloaded) runs, identifies the payload on a link with the arm frozen
+(:func:`~pe_drake.identification.payload.identify_payload`) and returns a
+:class:`PayloadIdentification` that prints the vendor formats and writes payload.json and
+model_with_payload.urdf."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from pe_drake.exceptions import ConfigError
+from pe_drake.excitation.trajectory_file import load_trajectory
+from pe_drake.identification.estimators import prepare_measurement
+from pe_drake.identification.identified_file import load_identified
+from pe_drake.identification.intake import read_measurements
+from pe_drake.identification.payload import (
+    PayloadBox,
+    PayloadOptions,
+    PayloadResult,
+    arm_parameters,
+    check_payload_trajectory,
+    identify_payload,
+)
+from pe_drake.identification.payload_formats import vendor_formats, write_payload_urdf
+from pe_drake.io_utils import staged_output_dir
+from pe_drake.multibody.robot import Robot
+from pe_drake.output_paths import check_output_dir
+
+
+def parse_payload_box(text: str | None) -> PayloadBox | None:
+    """``cx,cy,cz,sx,sy,sz`` [m] in the payload link's frame (None: no box).
+
+    Raises:
+        ConfigError: not six numbers.
+    """
+    if not text:
+        return None
+    try:
+        values = [float(x) for x in text.split(",")]
+    except ValueError:
+        values = []
+    if len(values) != 6:
+        raise ConfigError(f"--payload-box takes cx,cy,cz,sx,sy,sz [m] in the payload link's frame, got {text!r}")
+    return PayloadBox(tuple(values[:3]), tuple(values[3:]))
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class PayloadIdentification:
+    """An identified payload, the runs it came from and its vendor formats."""
+
+    robot: Robot
+    result: PayloadResult
+    loaded: int
+    unloaded: int
+    formats: dict[str, Any]
+    arm: Any
+    wall_time: float
+
+    def summary_lines(self) -> list[str]:
+        r, p, f = self.result, self.result.payload, self.formats
+        lines = [f"payload on {r.link} ({self.loaded} loaded, {self.unloaded} unloaded run(s), {r.samples} samples, "
+                 f"{r.wall_time:.2f} s): mass {p.mass:.4f} ± {r.mass_std:.2g} kg, CoM "
+                 f"{[round(float(x), 5) for x in p.com]} ± {[float(f'{x:.2g}') for x in r.com_std]} m"]
+        if not self.unloaded:
+            lines.append("note: no unloaded run: the arm's model errors go into the payload (give --unloaded, same motion)")
+        lines += [f"in {f['flange']}: Franka setLoad mass {f['franka']['load_mass']:.4f}, "
+                  f"F_x_Cload {[round(float(x), 5) for x in f['franka']['F_x_Cload']]}",
+                  "UR: " + f["ur"]["set_target_payload"], "KUKA: " + f["kuka"]["krl"]]
+        return lines
+
+    def write(self, folder: str | Path) -> list[str]:
+        """payload.json (with the vendor formats) and model_with_payload.urdf, both or neither."""
+        out = check_output_dir(folder)
+        with staged_output_dir(out) as tmp:
+            d = self.result.to_dict()
+            d["vendor"] = self.formats
+            (tmp / "payload.json").write_text(json.dumps(d, indent=2))
+            write_payload_urdf(tmp / "model_with_payload.urdf", self.robot, self.result.payload, self.result.link,
+                               arm_parameters(self.robot, self.arm))
+        return ["payload.json", "model_with_payload.urdf"]
+
+
+def identify_payload_runs(robot: Robot, loaded: Sequence[str | Path], unloaded: Sequence[str | Path], link: str, *,
+                          model: str | Path | None = None, trajectory: str | Path | None = None,
+                          cutoff_hz: float | None = None, filtering: bool = True, box: PayloadBox | None = None,
+                          flange: str | None = None) -> PayloadIdentification:
+    """What ``pe-drake identify --payload`` does: each run read and checked
+    (:func:`~pe_drake.identification.intake.read_measurements`), preprocessed, and the payload
+    identified with the arm frozen at ``model`` (an identified.json; default the URDF's).
+
+    Raises:
+        DataError, ConfigError: unreadable runs, a trajectory for another payload link, a bad box.
+    """
+    start = time.perf_counter()
+    if trajectory:
+        _, data = load_trajectory(trajectory)
+        check_payload_trajectory(data, link, trajectory)
+
+    def runs(paths):
+        return [prepare_measurement(robot, read_measurements(p, robot), cutoff_hz=cutoff_hz, filtering=filtering)
+                for p in paths]
+
+    loaded_runs, unloaded_runs = runs(loaded), runs(unloaded)
+    arm = load_identified(model, robot) if model else None
+    result = identify_payload(robot, loaded_runs, unloaded_runs, link, arm, PayloadOptions(box=box))
+    formats = vendor_formats(robot, result.payload, result.link, flange or None)
+    return PayloadIdentification(robot, result, len(loaded_runs), len(unloaded_runs), formats, arm,
+                                 time.perf_counter() - start)

@@ -1,0 +1,76 @@
+"""The front door of ``pe-drake simulate``: :func:`simulate_run` tracks a trajectory file's
+motion on a perturbed "true" robot and returns a :class:`SimulatedRun` that writes its CSV and
+the ``.truth.json`` beside it."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+from typing import Any
+
+from pe_drake.exceptions import ConfigError, DataError
+from pe_drake.excitation.ramp import check_within_limits
+from pe_drake.excitation.trajectory_file import load_motion
+from pe_drake.identification.measurements import Measurement, measurement_to_csv_text
+from pe_drake.identification.simulation import simulate, truth_path_for
+from pe_drake.identification.truth import load_truth
+from pe_drake.io_utils import atomic_write_text
+from pe_drake.multibody.robot import Robot
+
+_RECORDED = {"joint_torque": "tau", "base_wrench": "wrench", "both": "tau and wrench"}
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class SimulatedRun:
+    """A simulated measurement and what produced it (the ``.truth.json`` content)."""
+
+    robot: str
+    measurement: str
+    data: Measurement
+    truth: dict[str, Any]
+
+    def summary_lines(self) -> list[str]:
+        sim = self.truth["simulation"]
+        return [f"simulated {sim['duration']:.3g} s of '{self.robot}' at {sim['rate_hz']:g} Hz: "
+                f"{sim['samples']} samples in {sim['wall_time_s']:.2f} s wall time",
+                "tracking error RMS [mrad]: " + ", ".join(f"{j} {1e3 * e:.3g}" for j, e in sim["tracking_error_rms"].items())]
+
+    def write(self, out: str | Path) -> tuple[Path, str]:
+        """Writes the CSV and its ``.truth.json``, both or neither.
+
+        Returns:
+            (the truth file, what the CSV records: "tau", "wrench" or "tau and wrench").
+        """
+        out = Path(out)
+        csv_text = measurement_to_csv_text(self.data.replace(source=str(out)))
+        truth_file = truth_path_for(out)
+        atomic_write_text(truth_file, json.dumps({**self.truth, "data_file": out.name}, indent=2) + "\n")
+        try:
+            atomic_write_text(out, csv_text)
+        except BaseException:
+            truth_file.unlink(missing_ok=True)  # nothing half-written
+            raise
+        return truth_file, _RECORDED[self.measurement]
+
+
+def simulate_run(robot: Robot, trajectory: str | Path, truth: str | Path, *, duration: float | None = None,
+                 measurement: str = "joint_torque") -> SimulatedRun:
+    """What ``pe-drake simulate`` does: the motion of ``trajectory``'s trajectory.csv (ramps and
+    periods; after its end the robot rests) on the robot perturbed as ``truth`` (TRUTH.yaml) says.
+
+    Raises:
+        DataError: a trajectory file for other joints, or outside the robot's limits.
+        ConfigError: a duration outside (0, 3600] s, a bad truth file.
+    """
+    motion, data = load_motion(trajectory)  # validated before any work
+    truth_spec = load_truth(truth)
+    if list(data["joints"]) != list(robot.joint_names):
+        raise DataError(f"trajectory joints {', '.join(data['joints'])} differ from robot '{robot.name}''s "
+                        f"excited joints {', '.join(robot.joint_names)}", file=str(trajectory))
+    check_within_limits(motion, robot.limits, robot.joint_names, source=str(trajectory))
+    duration = duration if duration is not None else motion.duration
+    if not 0 < duration <= 3600:
+        raise ConfigError(f"--duration must be in (0, 3600] s, got {duration!r}")
+    measured, truth_dict = simulate(robot, motion, truth_spec, duration, measurement=measurement)
+    return SimulatedRun(robot.name, measurement, measured, truth_dict)
