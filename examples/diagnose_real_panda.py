@@ -30,13 +30,13 @@ def main(argv: list[str] | None = None) -> int:
         return 0
 
     from pe_drake.diagnosis import diagnose, write_outputs
-    from pe_drake.identification.measurements import read_measurement_csv
+    from pe_drake.identification import read_measurements
     from pe_drake.io_utils import staged_output_dir
     from pe_drake.multibody.robot import load_robot
     from pe_drake.threads import single_threaded_blas
 
     robot = load_robot("panda")
-    data = read_measurement_csv(args.data, robot)
+    data = read_measurements(args.data, robot)  # the door: read and checked as `pe-drake diagnose` does
     with single_threaded_blas():
         result = diagnose(robot, data, progress=lambda s: print(s, flush=True))
         with staged_output_dir(args.out) as tmp:

@@ -43,10 +43,10 @@ def main(argv: list[str] | None = None) -> int:
         identify,
         predict,
         prepare_measurement,
-        read_robot_measurement,
         robot_torques,
         torque_errors,
     )
+    from pe_drake.identification import read_measurements
     from pe_drake.identification.identified_file import result_to_dict
     from pe_drake.io_utils import staged_output_dir
     from pe_drake.multibody.robot import load_robot
@@ -55,7 +55,7 @@ def main(argv: list[str] | None = None) -> int:
 
     robot = load_robot("panda")
     with single_threaded_blas():
-        raw = read_robot_measurement(robot, args.data)
+        raw = read_measurements(args.data, robot)  # read and checked as `pe-drake identify` does
         data = prepare_measurement(robot, raw)
         p = data.preprocessing
         print(
