@@ -1,6 +1,6 @@
 """A humanoid without joint-torque sensors: excite and identify G1's arms from the ground wrench.
 
-Issue 14. HRP-4, the paper's robot, has no joint-torque sensors; humanoids like it are
+HRP-4, the paper's robot, has no joint-torque sensors; humanoids like it are
 identified from the six unactuated rows of their dynamics, the wrench the ground applies
 (foot force/torque sensors or a force plate). Here, on the Unitree G1 standing still with
 its 14 arm joints moving (models/g1.yaml: pelvis welded, balance and capsules as in the

@@ -66,8 +66,7 @@ def main(argv: list[str] | None = None) -> int:
         rows = [("a-priori URDF", torque_errors(second.tau, robot_torques(robot, second, robot.phi_model)))]
         results = {}
         for method in ("ols", "wls", "physical"):
-            # rigid body only, as in the README's table; the drive terms (identify's default since
-            # issue 23) are in the README's drive-terms table
+            # rigid body only, as in the README's table; the drive terms (identify's default) are in the README's drive-terms table
             results[method] = identify(robot, first, method, drive_terms="none")
             rows.append((method, torque_errors(second.tau, predict(robot, results[method], second))))
     print("\nheld-out (second half) RMS torque error [N·m] and relative error [%]")

@@ -26,7 +26,7 @@ _EXPORTS = {
     "BaseParameters": "pe_drake.multibody.base_parameters",
     "compute_base_parameters": "pe_drake.multibody.base_parameters",
     "evaluate_criterion": "pe_drake.excitation.criteria",
-    # what is measured: joint torques, the ground wrench (issue 14), or both
+    # what is measured: joint torques, the ground wrench, or both
     "MeasurementType": "pe_drake.multibody.sensors",
     "SensorRows": "pe_drake.multibody.sensors",
     "static_wrench": "pe_drake.multibody.wrench",
@@ -43,7 +43,7 @@ _EXPORTS = {
     "add_rest_constraints": "pe_drake.excitation.limits",
     "add_sampled_constraint": "pe_drake.excitation.program",
     "check_margins": "pe_drake.excitation.solve",
-    # what a motion will tell you (issue 13)
+    # what a motion will tell you
     "excitation_quality": "pe_drake.excitation.quality",
     "QualityReport": "pe_drake.excitation.quality",
     # constraints

@@ -243,7 +243,7 @@ def bench_diagnose(args) -> None:
 
 
 def bench_sensitivity(args) -> None:
-    """The diagnosis's false alarms and its smallest effect (issue 13): 20 clean simulated runs
+    """The diagnosis's false alarms and its smallest effect: 20 clean simulated runs
     (14 s at 500 Hz, 5 % inertial errors, 0.05 N·m torque noise, 19-bit encoders, seeds
     seed..seed+19) on ``--trajectory`` (default: a random collision-free one), how many name
     anything; then a 0.1 N·m offset on every joint in the same conditions, how many are named."""
@@ -276,13 +276,13 @@ MATCH_STEP = 25
 def bench_solve(args: argparse.Namespace) -> None:
     """One excitation solve of the robot's own problem (as ``pe-drake optimize --robot``:
     its config's limits, balance, collision, 300 IPOPT iterations at most), from the same
-    start, with the formulation before issue 11 (cond itself as the criterion, joint limits
+    start, with the formulation before the speed work (cond itself as the criterion, joint limits
     as linear rows at sampled instants, IPOPT's default scaling, quasi-Newton pairs,
     augmented-system solver, supernodes and second-order corrections, no exchange) and with
     the default one (soft_cond, window rows, exchange, 30 quasi-Newton pairs in an extended
     augmented system). Both share the constraint callbacks as they are now (batched
     kinematics, pruned capsule pairs, 16 samples per grouped row), so "old" is faster than
-    the code before issue 11 was. Both report cond(C). Then the default is solved again
+    the code before the speed work was. Both report cond(C). Then the default is solved again
     with budgets of 25, 50, ... iterations until a complete solve ends within 3 % of the old
     cond: the time to the same quality (``match_*``). Times are wall clock in this process;
     ``grad_ms`` (one analytic gradient, measured just before) lets runs on a busy machine
@@ -303,10 +303,10 @@ def bench_solve(args: argparse.Namespace) -> None:
 
         grad_s = median_time(gradient, repeats=args.repeats)
 
-    # The formulation before issue 11 minimized cond itself (Eq. 17).
+    # The formulation before the speed work minimized cond itself (Eq. 17).
     old_problem = ExcitationProblem(robot, dataclasses.replace(config.excitation, criterion="cond"))
     old_program = build_excitation_program(old_problem, constraints, limits="sampled")
-    # IPOPT's defaults, as before issue 11
+    # IPOPT's defaults, as before the speed work
     before = {
         "spral_scaling": "matching", "limited_memory_max_history": 6, "limited_memory_aug_solver": "sherman-morrison",
         "spral_nemin": 32, "max_soc": 4,
@@ -319,7 +319,7 @@ def bench_solve(args: argparse.Namespace) -> None:
             del IPOPT_EXTRA_OPTIONS[key]
     new_program = build_excitation_program(problem, constraints)
     new = solve_excitation(new_program, solver, x0)
-    for label, r in (("before issue 11", old), ("default", new)):
+    for label, r in (("before the speed work", old), ("default", new)):
         print(
             f"{label:26s} {r.wall_time:7.2f} s  cond {r.cond:9.4f}  {r.nit} iterations  {r.nfev} evaluations  "
             f"{r.solves} solve(s)  callbacks {r.callback_seconds:6.2f} s  "

@@ -74,7 +74,7 @@ class RobotConfig:
             {link: [[x, y, z], ...]} in the link frame [m]; empty means no balance
             constraint is available.
         drive_gains: {joint: k} [N·m/A or N/A]: joint torque per motor current, τ = k·i, for
-            logs with ``current.<joint>`` columns (issue 22).
+            logs with ``current.<joint>`` columns.
         jerk_limits: {joint: limit} [rad/s³ or m/s³]: checked on the exported controller goal
             (Franka refuses 3750-10000 rad/s³); empty: not checked.
         notes: what pe_drake chose for a model given without a config (a standing humanoid's
@@ -114,7 +114,7 @@ DEFAULT_NOISE_STD = 0.05
 
 @dataclasses.dataclass
 class NoiseStdConfig:
-    """Sensor noise σ of each measured quantity: the row weights of C (issue 14).
+    """Sensor noise σ of each measured quantity: the row weights of C.
 
     Rows divided by their σ make cond(C) independent of units and of the sensor mix.
 
@@ -392,7 +392,7 @@ def validate_config(config: Config) -> Config:
 
 
 def _validate_safety(config: Config) -> None:
-    """Periods, ramp, environment and physically sensible sampling (issue 10)."""
+    """Periods, ramp, environment and physically sensible sampling."""
     e, env = config.excitation, config.environment
     period = 2 * math.pi / e.omega
     if not 0.1 <= period <= 600:

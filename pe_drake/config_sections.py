@@ -53,7 +53,7 @@ def check_fraction(name: str, value: Any) -> float:
 
 @dataclasses.dataclass
 class JointMapConfig:
-    """A log's joint names and signs → the robot's (issue 22): ``strip_prefix`` (``tf_prefix``,
+    """A log's joint names and signs → the robot's: ``strip_prefix`` (``tf_prefix``,
     ``arm_``) is removed, then ``rename`` {logged: URDF name} applies; the position becomes
     ``sign·q + offset`` [rad or m] per URDF joint (v, v̇, τ are multiplied by the sign)."""
 
@@ -69,7 +69,7 @@ EFFORT_KINDS = ("torque", "current")  # what a ROS bag's JointState effort holds
 
 @dataclasses.dataclass
 class DataConfig:
-    """How measured logs are read (issue 22).
+    """How measured logs are read.
 
     Attributes:
         format: one of :data:`DATA_FORMATS` (``auto``: a bag, an RTDE CSV by its columns,
@@ -91,7 +91,7 @@ class DataConfig:
 
 @dataclasses.dataclass
 class ControllerConfig:
-    """The goal ``optimize`` writes for a ros2_control controller (issue 22): waypoints at
+    """The goal ``optimize`` writes for a ros2_control controller: waypoints at
     ``goal_rate_hz`` [Hz], ``lead_in_s`` [s] added to every ``time_from_start``, the MCAP bag's
     JointTrajectory ``topic``, ``joint_names`` {URDF joint: the driver's name}."""
 
@@ -116,7 +116,7 @@ class CoMBoxConfig:
 
 @dataclasses.dataclass
 class IdentificationConfig:
-    """What ``pe-drake identify`` models and the bounds of its physical fit (issue 23).
+    """What ``pe-drake identify`` models and the bounds of its physical fit.
 
     Attributes:
         drive_terms: "all" (default: Coulomb and viscous friction and a torque offset per
@@ -137,7 +137,7 @@ class IdentificationConfig:
 
 
 def validate_log_sections(r, d: "DataConfig", c: "ControllerConfig") -> None:
-    """Drive gains, jerk limits, the data and controller sections (issue 22)."""
+    """Drive gains, jerk limits, the data and controller sections."""
     for name in ("drive_gains", "jerk_limits"):
         for joint, value in getattr(r, name).items():
             check_finite(f"robot.{name}['{joint}']", value, positive=True)
@@ -157,7 +157,7 @@ def validate_log_sections(r, d: "DataConfig", c: "ControllerConfig") -> None:
 
 
 def validate_identification(c: IdentificationConfig) -> None:
-    """Drive-term choice and the physical fit's bounds (issue 23)."""
+    """Drive-term choice and the physical fit's bounds."""
     choices = ("none", "friction", "all")
     if c.drive_terms not in choices:
         raise ConfigError(f"identification.drive_terms '{c.drive_terms}' is not one of {', '.join(choices)}")

@@ -33,7 +33,7 @@ def add_robot_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def add_measurement_argument(parser: argparse.ArgumentParser, what: str) -> None:
-    """``--measurement joint_torque | base_wrench | both`` (issue 14); overrides the config's."""
+    """``--measurement joint_torque | base_wrench | both``; overrides the config's."""
     parser.add_argument(
         "--measurement",
         choices=MEASUREMENTS,
@@ -42,7 +42,7 @@ def add_measurement_argument(parser: argparse.ArgumentParser, what: str) -> None
 
 
 def add_log_arguments(parser: argparse.ArgumentParser) -> None:
-    """``--format``, ``--topic``, ``--effort``: how a measured log is read (issue 22); override ``data.*``."""
+    """``--format``, ``--topic``, ``--effort``: how a measured log is read; override ``data.*``."""
     parser.add_argument("--format", choices=DATA_FORMATS, help="format of --data (default: data.format, auto)")
     parser.add_argument("--topic", help="JointState topic of a ROS 2 bag (default: the only one)")
     parser.add_argument("--effort", choices=EFFORT_KINDS,
@@ -91,7 +91,7 @@ def _add_trajectory_commands(sub) -> None:
                    help="write the trajectory although parts of the robot could not be checked for collision "
                         "(exit 0; the list stays in report.json 'unchecked')")
     p.add_argument("--quiet", action="store_true", help="no progress output")
-    p.add_argument("--payload", metavar="LINK", help="a short motion for a payload on LINK alone (issue 24)")
+    p.add_argument("--payload", metavar="LINK", help="a short motion for a payload on LINK alone")
     p.add_argument("--out", required=True, help="output folder")
 
     p = sub.add_parser("view", help="play a trajectory in Meshcat")
@@ -131,7 +131,7 @@ def _add_identification_commands(sub) -> None:
     p.add_argument("--drive-terms", choices=["none", "friction", "all"],
                    help="joint friction (Coulomb + viscous), torque offsets and, with 'all', the armature where "
                         "separable (default: the config's identification.drive_terms, all)")
-    p.add_argument("--payload", metavar="LINK", help="identify a payload on LINK, the arm frozen (issue 24)")
+    p.add_argument("--payload", metavar="LINK", help="identify a payload on LINK, the arm frozen")
     p.add_argument("--unloaded", action="append", metavar="CSV", help="--payload: a run of the same motion "
                    "without the payload (repeatable)")
     p.add_argument("--model", help="--payload: the arm's identified.json (default: the URDF's parameters)")

@@ -41,7 +41,7 @@ def robot_from_args(args: argparse.Namespace, config: Config | None = None, show
 
 
 def measurement_from_args(args: argparse.Namespace, config: Config) -> str:
-    """``--measurement`` if given, else the config's ``excitation.measurement`` (issue 14)."""
+    """``--measurement`` if given, else the config's ``excitation.measurement``."""
     return getattr(args, "measurement", None) or config.excitation.measurement
 
 

@@ -348,7 +348,7 @@ def _named(reg: Regression, library: Library, final: Fit, effect_cols: list[int]
 
 def _rejected(reg: Regression, library: Library, sel: Selection) -> list[dict[str, Any]]:
     """Every candidate tried and not named, with its statistic z and the reason (strongest first;
-    issue 23: weaker decisions used to appear nowhere)."""
+    weaker decisions used to appear nowhere)."""
     out = []
     for col, reason in sel.rejected.items():
         if col == library.timing_col or col in sel.selected:

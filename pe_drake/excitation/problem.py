@@ -59,7 +59,7 @@ class ExcitationProblem:
         self.config = config or ExcitationConfig()
         validate_config(Config(excitation=self.config))
         self.model = model or RegressorModel(robot)
-        # The rows of C: joint torques (Eq. 1), the ground wrench, or both (issue 14).
+        # The rows of C: joint torques (Eq. 1), the ground wrench, or both.
         self.rows = SensorRows(self.model, measurement_type(self.config, joint_names=robot.joint_names))
         if base is None and self.config.measurement == "joint_torque":
             base = compute_base_parameters(robot, model=self.model)

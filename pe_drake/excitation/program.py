@@ -42,7 +42,7 @@ from pe_drake.excitation.problem import ExcitationProblem, check_variables
 #: Samples per row of a one-sided sampled constraint (balance, collision, environment): each
 #: run of this many samples becomes one log-sum-exp row. These rows are dense in every
 #: coefficient and dominate IPOPT's linear algebra; 16 instead of 8 took a G1 solve from
-#: 63 to 50 s at an equal cond (40 was faster again but ended 13 % worse), issue 11.
+#: 63 to 50 s at an equal cond (40 was faster again but ended 13 % worse).
 SAMPLES_PER_ROW = 16
 
 

@@ -140,25 +140,25 @@ def _ipopt_backend(cfg: SolverConfig) -> _Backend:
     options.SetOption(sid, "file_print_level", 5)
     options.SetOption(sid, "hessian_approximation", "limited-memory")
     # SPRAL's default scaling (matching) redoes the symbolic analysis at every factorization;
-    # without it IPOPT took the same iterates with ~40 % less linear-algebra time (issue 11).
+    # without it IPOPT took the same iterates with ~40 % less linear-algebra time.
     options.SetOption(sid, "spral_scaling", "none")
     # 30 quasi-Newton pairs instead of IPOPT's 6: with the window rows of the joint limits
     # G1 ended 300 iterations at cond 254 (6 pairs), 226 (20), 205 (30), 200 (50; 40 % more
-    # time per iteration than 30); the former sampled rows reached 209 with 6 (issue 11).
+    # time per iteration than 30); the former sampled rows reached 209 with 6.
     options.SetOption(sid, "limited_memory_max_history", LBFGS_PAIRS)
     # The quasi-Newton pairs enter the augmented system as extra rows instead of through
     # Sherman-Morrison, which needs two back-solves per pair after every factorization
     # (60 of ~1 ms each per G1 iteration). The same steps in exact arithmetic; one G1 start
-    # 47 → 32–34 s, the Panda 25 → 19 s (issue 11; BUILD_NOTES.md).
+    # 47 → 32–34 s, the Panda 25 → 19 s (BUILD_NOTES.md).
     options.SetOption(sid, "limited_memory_aug_solver", "extended")
     # SPRAL amalgamates supernodes of fewer than 32 columns by default; our KKT systems are
     # a few hundred dense columns and thousands of nearly empty rows, and 4 halved the
-    # factorization time (G1: 2.4 → 1.2 s per 90 iterations; issue 11).
+    # factorization time (G1: 2.4 → 1.2 s per 90 iterations).
     options.SetOption(sid, "spral_nemin", 4)
     # No second-order corrections: they cost a constraint evaluation each and rarely rescued
     # a step. Measured with the cond criterion (before soft_cond became the default): from
     # three starts G1 ended at cond 209–211 instead of 227–232 with 10–20 % fewer
-    # evaluations, and the Panda at 11.3–12.6 instead of 12.3–12.9 (issue 11).
+    # evaluations, and the Panda at 11.3–12.6 instead of 12.3–12.9.
     options.SetOption(sid, "max_soc", 0)
     for key, value in IPOPT_EXTRA_OPTIONS.items():
         options.SetOption(sid, key, value)

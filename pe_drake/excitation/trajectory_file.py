@@ -4,7 +4,7 @@ trajectory.json keys: ``robot``, ``joints``, ``omega`` [rad/s], ``harmonics``, `
 (n × N), ``q0`` (n), ``duration`` [s], ``locked_positions`` {joint: value},
 ``base_pose`` {``position``, ``quaternion_wxyz``} of the root link in world, ``root_link``,
 ``cond``; q_j(t) = Σ_k a_jk sin(kωt) + b_jk cos(kωt) + q0_j exactly as Eq. (50).
-Written by ``optimize`` since issue 10: ``periods``, ``ramp_duration``, ``phase``,
+Written by ``optimize`` since the safety defaults: ``periods``, ``ramp_duration``, ``phase``,
 ``motion_duration`` and ``layout`` (time spans of ramp-in, periodic part and ramp-out in
 trajectory.csv; pe_drake/excitation/ramp.py). A file without them is one period, no ramps.
 """

@@ -1,4 +1,4 @@
-"""The measured channels of a run as rows of the identification model (issue 14).
+"""The measured channels of a run as rows of the identification model.
 
 A run measures joint torques, the ground wrench, or both (``measurement`` of
 :mod:`pe_drake.multibody.sensors`). Each channel c of each sample gives one equation

@@ -4,7 +4,7 @@ Each refuses with the file, the column and the row, and the likely fix:
 
 - time in milliseconds (a "1 Hz" log of a 1 kHz controller) or a rate too low to identify;
 - (holes in the time column are not refused: short ones are interpolated and pauses split
-  the run into segments, :mod:`pe_drake.identification.gaps`, issue 22);
+  the run into segments, :mod:`pe_drake.identification.gaps`);
 - joint positions far outside the robot's limits, with a degrees hint when q·π/180 fits;
 - a torque column whose sign is flipped against the a-priori model (cosine similarity of the
   measured and predicted torques near −1).

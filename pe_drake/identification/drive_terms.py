@@ -1,7 +1,7 @@
 """Drive terms of the identification model: joint friction, torque offsets and rotor inertia.
 
 The torque an actuator applies is the rigid-body torque plus what the drive itself needs
-(issue 23). Per joint j, each term is linear in its value θ and adds one column to the
+(friction, offset, armature). Per joint j, each term is linear in its value θ and adds one column to the
 regressor, on the row of joint j only (``drive_columns``):
 
 =============  =====================  ===============  ===========  ==========

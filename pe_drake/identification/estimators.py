@@ -1,7 +1,7 @@
 """Identification of the inertial parameters from measured joint data.
 
 The measured torques of S samples of n joints (or the ground wrench, or both: the
-``measurement`` of :mod:`pe_drake.identification.channels`, issue 14) are stacked into the
+``measurement`` of :mod:`pe_drake.identification.channels`) are stacked into the
 linear model of Eq. (4),
 
     τ = Y_B(q, v, v̇) φ_B + ρ,          W = [Y_B(1); …; Y_B(S)]  (S·n × b),
@@ -18,7 +18,7 @@ and solved by one of three estimators:
   user's mass and CoM bounds, weighted as WLS and pulled toward the a-priori model only in the
   directions no motion identifies (:mod:`pe_drake.identification.physical_fit`).
 
-By default the regressor carries a drive block (issue 23): Coulomb and viscous friction and a
+By default the regressor carries a drive block: Coulomb and viscous friction and a
 torque offset per joint, and the rotor inertia (armature) where it is separable from the link
 inertias, W = [Y_B | D] (:mod:`pe_drake.identification.drive_terms`); the ground-wrench rows
 of D are zero.
@@ -106,7 +106,7 @@ class IdentificationResult:
         channels: the channel of each entry of residual_rms, relative_error and noise_std:
             joint names (torques), then :data:`~pe_drake.multibody.wrench.WRENCH_COLUMNS`.
         drive: the identified drive terms (friction, offsets, armature), or None (a model
-            without them, e.g. an identified.json of before issue 23).
+            without them, e.g. an identified.json of before the drive terms).
         physical_notes: what the physical fit says about its result (parameters on a bound,
             far from the a-priori model).
         friction_share: for a fit without drive terms, the fraction of its residual energy

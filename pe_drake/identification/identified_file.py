@@ -3,7 +3,7 @@
 ``pe-drake identify`` writes the base parameters (value, relative standard deviation, column
 of the standard parameters each one stands for), the drive terms in their own block
 (``drive_terms``: per joint, Coulomb/viscous friction, offset, armature with value, σ and %σ;
-absent in files of before issue 23, which load as models without them), the per-joint errors,
+absent in files of before the drive terms, which load as models without them), the per-joint errors,
 the preprocessing and, for the physical fit, the standard parameters per body; ``pe-drake validate`` and the
 diagnosis read it back with :func:`load_identified`, which checks it belongs to the robot.
 """
@@ -155,7 +155,7 @@ def load_identified(path: str | Path, robot) -> IdentificationResult:
         except (KeyError, TypeError, ValueError) as err:
             raise DataError(f"standard_parameters: {err!r} missing or malformed", file=str(path)) from err
     drive = None
-    if d.get("drive_terms") is not None:  # files written before issue 23 have none
+    if d.get("drive_terms") is not None:  # files written before the drive terms have none
         try:
             drive = DriveFit.from_dict(d["drive_terms"], robot.joint_names)
         except (KeyError, TypeError, ValueError, AttributeError) as err:

@@ -10,7 +10,7 @@ File format (SI units, one row per sample, comma separated, one header line):
 - ``wrench.fx, wrench.fy, wrench.fz, wrench.mx, wrench.my, wrench.mz``: the wrench the ground
   applies to the robot [N, N·m] (world frame, moment about the world origin), optional (all
   six or none); with them the ``tau.<joint>`` columns may be left out (a robot without
-  joint-torque sensors, identified from its feet's force/torque sensors: issue 14).
+  joint-torque sensors, identified from its feet's force/torque sensors).
 
 Columns may come in any order; columns whose name has none of the prefixes above are ignored.
 Rows are reported as **data rows counted from 1** (the first line after the header is data row
@@ -464,7 +464,7 @@ def check_torque_units(
 
 
 #: Measured/model torque ratios in this range look like motor currents [A] taken for torques:
-#: τ = k·i with drive gains k of a few to a few tens of N·m/A (issue 22).
+#: τ = k·i with drive gains k of a few to a few tens of N·m/A.
 AMPS_RATIO = (1 / 30, 0.3)
 
 

@@ -3,7 +3,7 @@
 τ_drive,j = f_c,j tanh(v_j / v_s) + f_v,j v_j + o_j (the smoothed Coulomb law of the
 simulated true robot, :mod:`pe_drake.identification.simulation`). They are linear in
 θ = [f_c (n), f_v (n), o (n)], so they enter the payload fit as 3n extra columns shared by
-every run. A local builder for issue 24's loaded/unloaded pairing; the project's drive-term
+every run. A local builder for the payload mode's loaded/unloaded pairing; the project's drive-term
 columns (armature, etc.) may replace it when they land.
 """
 

@@ -39,7 +39,7 @@ UNIFORM_TOLERANCE = 1e-3
 #: Odd extension at each end of the filtered record, in periods of the cut-off.
 EDGE_PERIODS = 3.0
 #: Time trimmed at each end of a ground-wrench record, in periods of the cut-off (and of every
-#: record before issue 13): :func:`default_trim_s`.
+#: record before the quality figures): :func:`default_trim_s`.
 TRIM_PERIODS = 2.0
 #: The default trim drops the samples where the filter's edge transient on the acceleration
 #: exceeds this fraction of the acceleration at the end (:meth:`LowPassFilter.edge_transient_s`).
@@ -281,7 +281,7 @@ class LowPassFilter:
         record with a constant acceleration a is wrong near the ends. This returns the time
         from an end beyond which that error (filter and :func:`differentiate` together) stays
         below ``tolerance`` × |a|: the trim the filter needs. The data elsewhere is
-        untouched by the edges, and dropping more only loses information (issue 13: on the
+        untouched by the edges, and dropping more only loses information (on the
         real Panda recording, 2 / cut-off = 0.5 s at each end raised the held-out RMS of
         joint 2 from 0.28 to 0.38 N·m).
         """

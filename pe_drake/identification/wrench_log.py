@@ -1,4 +1,4 @@
-"""The ground wrench a simulated run records (issue 14).
+"""The ground wrench a simulated run records.
 
 A humanoid identified from its feet's force/torque sensors (or a force plate) logs the wrench
 the ground applies. In simulation the feet are the weld of the root link, so the wrench is

@@ -1,5 +1,5 @@
 """A joint's limits from the model file and the config: placeholders replaced, real limits only
-tightened (issue 10)."""
+tightened."""
 
 from __future__ import annotations
 

@@ -214,7 +214,7 @@ def drake_model_text(model_path: Path, obj_visuals: bool, packages: dict | None 
         # collision is our own capsules. Mimic tags would couple joints we may lock.
         text = re.sub(r"<collision\b.*?</collision>", "", text, flags=re.S)
         text, mimic_notes = without_mimic(text)
-        text, material_notes = single_material_definitions(text)  # Kinova JACO2 (issue 21)
+        text, material_notes = single_material_definitions(text)  # Kinova JACO2
         notes += mimic_notes + material_notes
         text = absolute_mesh_paths(text, model_path)  # parsed from a string: no folder to resolve against
         text, refused = without_refused_visuals(text, model_path, _mesh_roots(model_path, text, packages), packages)

@@ -1,4 +1,4 @@
-"""What the robot measures: joint torques, the ground wrench, or both (issue 14).
+"""What the robot measures: joint torques, the ground wrench, or both.
 
 Each measurement type gives the rows of the identification model y = A(q, v, vdot) φ:
 

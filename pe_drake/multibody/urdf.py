@@ -164,7 +164,7 @@ def _drop_zero_dof_mimics(root: ET.Element) -> None:
     """Removes ``<mimic>`` from fixed joints and from joints mimicking a fixed joint.
 
     A mimic on a 0-dof joint means nothing, and Drake refuses it ("Joint ... which has 0 DOF
-    cannot mimic ..."): TALOS's grippers, whose joints its reduced model fixes (issue 21).
+    cannot mimic ..."): TALOS's grippers, whose joints its reduced model fixes.
     The other mimic tags are kept for ROS tools.
     """
     kinds = {j.get("name"): j.get("type") for j in root.iter("joint")}

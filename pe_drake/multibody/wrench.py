@@ -1,4 +1,4 @@
-"""The ground wrench of a robot whose root link is welded to the world (issue 14).
+"""The ground wrench of a robot whose root link is welded to the world.
 
 A humanoid standing still with only its upper body moving is a fixed-base robot for the
 purpose of identification: the weld of the pelvis to the world stands for the feet on the

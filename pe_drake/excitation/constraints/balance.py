@@ -133,7 +133,7 @@ class BalanceConstraint(SampledConstraint):
         super().__init__(["CoM distance from support centre"], [-np.inf], [self.radius])
 
     def _setup_batched(self) -> None:
-        """Mass-weighted body CoMs for the batched forward kinematics (issue 11: Drake's
+        """Mass-weighted body CoMs for the batched forward kinematics (Drake's
         per-sample CoM and CoM Jacobian took ~12 ms for G1's 400 samples per evaluation).
 
         The bodies not moved by an excited joint (legs, torso, locked joints) contribute a

@@ -190,7 +190,7 @@ class CollisionConstraint(SampledConstraint):
         self._joint_bodies = joint_bodies
         self._joint_body_index = [BodyIndex(b) for b in joint_bodies]
         # Poses of all samples at once from the regressor's batched forward kinematics
-        # (~10× faster than Drake's per-sample queries, issue 11), when it handles the robot.
+        # (~10× faster than Drake's per-sample queries), when it handles the robot.
         self._kinematics = shared_model(robot)
         self._joint_slots = self._kinematics.slots(joint_bodies)
         self._host_joints = sorted(set(host[self._moving_caps].tolist()))

@@ -200,7 +200,7 @@ class EnvironmentConstraint(SampledConstraint):
         self._bodies = sorted({c.body_index for c in self.capsules})
         self._frames = [plant.get_body(_body_index(b)).body_frame() for b in self._bodies]
         self._slot = [self._bodies.index(c.body_index) for c in self.capsules]
-        # The batched path (issue 11: Drake's per-sample point Jacobians took half of a
+        # The batched path (Drake's per-sample point Jacobians took half of a
         # Panda solve): capsule ends from the shared forward kinematics, their Jacobians from
         # the joint twists.
         model = shared_model(robot)
