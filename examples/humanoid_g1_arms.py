@@ -28,6 +28,9 @@ Outputs in --out: tables.md, tables.json, motion_<i>/trajectory.json (optimized)
 baseline_<i>/trajectory.json (selected random motions); view one with
 ``pe-drake view results/g1_tables/motion_1/trajectory.json``.
 
+The study itself is one library call,
+:func:`pe_drake.excitation.sequential_study.run_sequential_study`; this script is its command line.
+
 cond values are not comparable between robots (they depend on the masses, lengths and units
 of the base parameters), so the paper's HRP-4 figures are shown for reference; what carries
 over is the ratio between the random baseline and the optimization.
@@ -36,67 +39,13 @@ over is the ratio between the random baseline and the optimization.
 from __future__ import annotations
 
 import argparse
-import dataclasses
-import json
 import math
-import os
 import sys
-import time
 from collections.abc import Sequence
 from pathlib import Path
 
-import numpy as np
-
 from pe_drake.config import CRITERIA
-
-# HRP-4 figures of the paper (Tables I and II).
-PAPER_TABLE_I = {"cond_motion": [47.6, 114.2, 125.5], "cond_total": [47.6, 35.7, 33.9]}
-PAPER_TABLE_II = {"cond_motion": [274.1, 332.0, 436.2], "cond_total": [274.1, 156.3, 124.7]}
-PAPER_RATIO = PAPER_TABLE_II["cond_motion"][0] / PAPER_TABLE_I["cond_motion"][0]  # 5.76
-RATIO_TARGET = 6.0  # baseline best first motion / optimized first motion
-TIME_TARGET = 120.0  # wall time per motion on 2 cores [s]
-
-#: Seeds of the baseline's draws at amplitude k start at BASELINE_SEED + k·BASELINE_SEED_BLOCK
-#: (+ --seed), apart from each other and from the optimizer's start seeds (--seed + 1000·(i-1)).
-BASELINE_SEED = 1_000_000
-BASELINE_SEED_BLOCK = 100_000
-
-
-@dataclasses.dataclass(frozen=True)
-class Settings:
-    """What one run does (from the command line, see :func:`parse_args`)."""
-
-    out: Path
-    config: Path | None
-    motions: int
-    starts: int  # random initial points per motion
-    workers: int  # starts (and chunks of baseline draws) at once
-    executor: str  # "local" (process pool) or "ray"
-    ray_address: str  # Ray cluster ("": ray.init()'s default)
-    max_iterations: int | None  # IPOPT iterations per start (None: the config's)
-    max_time: float  # wall-time limit per start [s]; 0: none
-    criterion: str | None  # None: the config's (soft_cond)
-    amplitude: float | None  # scale of the optimizer's random initial points [rad]
-    candidates: int  # accepted random motions per baseline amplitude
-    baseline_amplitudes: tuple[float, ...]  # [rad]
-    seed: int
-    quick: bool
-    quiet: bool
-
-
-# IPOPT ≤ 150 iterations per start keeps a motion within about 2 minutes on 2 cores; the
-# config's 300 doubled the time for a 4 % lower cond(C) (README, "Reproducing the paper on G1").
-# Larger random amplitudes give better baseline candidates but are rejected more often (balance,
-# collision): 0.1 rad accepts 1 draw in 3.4, 0.15 rad 1 in 69, 0.2 rad 1 in 3000 (measured).
-FULL = {
-    "starts": 2,
-    "workers": 2,
-    "candidates": 100,
-    "baseline_amplitudes": (0.1, 0.125, 0.15),
-    "max_iterations": 150,
-}
-QUICK = {"starts": 1, "workers": 1, "candidates": 8, "baseline_amplitudes": (0.05, 0.1), "max_iterations": 15}
-
+from pe_drake.excitation.sequential_study import FULL, QUICK, StudyOptions, format_console, run_sequential_study
 
 def _number(kind: type, what: str, ok):
     """An argparse type: ``kind(text)`` that must pass ``ok`` (e.g. be positive)."""
@@ -158,12 +107,12 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def parse_args(argv: Sequence[str] | None = None) -> Settings:
-    """Command line → :class:`Settings`; bad values exit with status 2 and a message."""
+def parse_args(argv: Sequence[str] | None = None) -> StudyOptions:
+    """Command line → :class:`StudyOptions`; bad values exit with status 2 and a message."""
     parser = build_parser()
     args = parser.parse_args(argv)
     defaults = QUICK if args.quick else FULL
-    settings = Settings(
+    settings = StudyOptions(
         out=Path(args.out),
         config=Path(args.config) if args.config else None,
         motions=args.motions,
@@ -195,381 +144,6 @@ def parse_args(argv: Sequence[str] | None = None) -> Settings:
     return settings
 
 
-# ---- the run ---------------------------------------------------------------------------------------
-def _running_sigmas(blocks: Sequence[np.ndarray]) -> tuple[list[float], list[float]]:
-    """σ_min and σ_max of [B_1; ...; B_i] for i = 1, 2, ...
-
-    Both are non-decreasing in i: CᵀC = Σ B_kᵀB_k (Eq. 41) only gains a positive
-    semidefinite term, so no eigenvalue of it falls (Weyl). cond = σ_max/σ_min may still rise.
-    """
-    s = [np.linalg.svd(np.vstack(blocks[:i]), compute_uv=False) for i in range(1, len(blocks) + 1)]
-    return [float(x[-1]) for x in s], [float(x[0]) for x in s]
-
-
-class _Printer:
-    """Progress lines; the baseline's per-chunk events are thinned to one every few seconds."""
-
-    def __init__(self, quiet: bool, every: float = 5.0):
-        self.quiet, self.every, self.last = quiet, every, -math.inf
-        #: 1-minute load average when each motion finished: wall times depend on it
-        self.loads: list[float] = []
-
-    def __call__(self, text: str) -> None:
-        if not self.quiet:
-            print(text, flush=True)
-
-    def event(self, event) -> None:
-        if getattr(event, "kind", "") == "finished" and hasattr(event, "motion"):
-            self.loads.append(os.getloadavg()[0] if hasattr(os, "getloadavg") else math.nan)
-        self(str(event))
-
-    def draws(self, event) -> None:
-        now = time.perf_counter()
-        if now - self.last >= self.every or event.accepted >= event.wanted:
-            self.last = now
-            self(str(event))
-
-
-def _constraints_text(excitation) -> str:
-    """The sampled constraints of the run, in words (Eqs. 52, 53)."""
-    parts = ["joint limits"]
-    if excitation.balance_radius > 0:
-        parts.append(f"balance r = {excitation.balance_radius * 100:.3g} cm")
-    if excitation.collision_margin >= 0:
-        parts.append(f"capsule margin {excitation.collision_margin * 100:.3g} cm")
-    return ", ".join(parts)
-
-
-def run(settings: Settings) -> dict:
-    """Runs the optimization and the baseline, writes the outputs; returns the tables dict.
-
-    Raises:
-        ConfigError, UnknownNameError: a bad config file or value.
-        InfeasibleError: the baseline found too few feasible random motions, or the nominal
-            posture violates a constraint.
-        WorkerError: a start or a chunk of draws failed in a worker, or its worker died.
-    """
-    from pe_drake.excitation.constraints import constraints_from_config
-    from pe_drake.excitation.parallel import open_executor
-    from pe_drake.excitation.sequential import optimize_sequence
-    from pe_drake.multibody.registry import resolve_robot_config
-    from pe_drake.multibody.robot import Robot
-
-    say = _Printer(settings.quiet)
-    begin = time.perf_counter()
-    config = resolve_robot_config("g1", settings.config)
-    excitation = config.excitation
-    if settings.criterion:
-        excitation = dataclasses.replace(excitation, criterion=settings.criterion)
-    solver = dataclasses.replace(
-        config.solver,
-        verbose=False,
-        max_iterations=settings.max_iterations or config.solver.max_iterations,
-        max_time=settings.max_time or config.solver.max_time,
-    )
-    robot = Robot("g1", config.robot)
-    workers = settings.workers
-    executor = open_executor(
-        robot, settings.executor, workers, address=settings.ray_address, constraints_factory=constraints_from_config
-    )
-    base = executor.base
-    period = 2 * math.pi / excitation.omega
-    say(
-        f"G1: {robot.n} arm joints, {base.count} base parameters; N = {excitation.harmonics}, "
-        f"ω = {excitation.omega:.4g} rad/s (period {period:.3g} s), T = {excitation.cost_samples} "
-        f"({period / excitation.cost_samples:.3g} s apart), K = {excitation.constraint_samples} "
-        f"({period / excitation.constraint_samples:.3g} s apart), {_constraints_text(excitation)}; "
-        f"criterion {excitation.criterion}"
-    )
-    say(
-        f"{settings.motions} motions × {settings.starts} start(s) on {workers} {settings.executor} worker(s), "
-        f"{solver.name} ≤ {solver.max_iterations} iterations per start" + ("  [quick]" if settings.quick else "")
-    )
-    try:
-        sets, candidates, selection, baseline_time = _baseline(settings, robot, excitation, executor, say)
-
-        # ---- Table I: sequential optimization (section IV-B): motion i minimizes cond of
-        # [C^(1); ...; C^(i-1); C^(i)], the earlier blocks being fixed prior data C0 (Eq. 41).
-        sequence = optimize_sequence(
-            robot,
-            excitation,
-            solver,
-            settings.motions,
-            starts=settings.starts,
-            seed=settings.seed,
-            amplitude=settings.amplitude,
-            executor=executor,
-            progress=say.event,
-            progress_interval=10.0 if not settings.quick else 5.0,
-            stop_on_failure=False,
-        )
-    finally:
-        executor.close()
-
-    problem = executor.problem(excitation)
-    baseline_blocks = [problem.regressor_block(candidates[k][1].alpha) for k in selection.indices]
-    tables = _tables(settings, excitation, solver, robot, base, sequence, selection, candidates, sets, baseline_blocks)
-    tables["timing"]["baseline_generation_s"] = baseline_time
-    tables["timing"]["total_s"] = time.perf_counter() - begin
-    tables["timing"]["load_average_1min_after_motion"] = say.loads
-    tables["timing"]["cpu_count"] = os.cpu_count()
-    _write_outputs(settings.out, robot, problem, sequence, selection, candidates, tables)
-    return tables
-
-
-def _baseline(settings: Settings, robot, excitation, executor, say):
-    """Table II: random motions under the same constraints, greedy selection ([16])."""
-    from pe_drake.excitation.baseline import generate_candidates, greedy_select
-
-    say(
-        f"baseline: {settings.candidates} feasible random motions at each amplitude "
-        + ", ".join(f"{a:g}" for a in settings.baseline_amplitudes)
-        + " rad"
-    )
-    sets = []  # (amplitude, CandidateSet)
-    for k, amplitude in enumerate(settings.baseline_amplitudes):
-        cset = generate_candidates(
-            robot,
-            excitation,
-            settings.candidates,
-            seed=BASELINE_SEED + k * BASELINE_SEED_BLOCK + settings.seed,
-            amplitude=amplitude,
-            max_draws=400 * settings.candidates,
-            executor=executor,
-            progress=say.draws,
-        )
-        conds = np.array([c.cond for c in cset.candidates])
-        say(
-            f"  amplitude {amplitude:g} rad: {len(conds)} accepted of {cset.draws} draws, "
-            f"cond min {conds.min():.4g}, median {np.median(conds):.4g}, {cset.wall_time:.1f} s"
-        )
-        sets.append((amplitude, cset))
-    candidates = [(a, c) for a, cset in sets for c in cset.candidates]
-    selection = greedy_select([r for _, cset in sets for r in cset.R], settings.motions)
-    return sets, candidates, selection, sum(cset.wall_time for _, cset in sets)
-
-
-def _tables(settings, excitation, solver, robot, base, sequence, selection, candidates, sets, baseline_blocks) -> dict:
-    opt_lo, opt_hi = _running_sigmas([m.block for m in sequence.motions])
-    bl_lo, bl_hi = _running_sigmas(baseline_blocks)
-    first_opt = sequence.motions[0].cond_motion
-    first_base = selection.cond_each[0]
-    times = [m.wall_time for m in sequence.motions]
-    period = 2 * math.pi / excitation.omega
-    return {
-        "paper": "K. Ayusawa et al., Generating persistently exciting trajectory based on condition "
-        "number optimization, ICRA 2017, section IV-B, Tables I and II (HRP-4)",
-        "robot": robot.name,
-        "joints": list(robot.joint_names),
-        "quick": settings.quick,
-        "setting": {
-            "harmonics": excitation.harmonics,
-            "omega": excitation.omega,
-            "period_s": period,
-            "cost_samples": excitation.cost_samples,
-            "cost_sample_spacing_s": period / excitation.cost_samples,
-            "constraint_samples": excitation.constraint_samples,
-            "constraint_sample_spacing_s": period / excitation.constraint_samples,
-            "balance_radius_m": excitation.balance_radius,
-            "collision_margin_m": excitation.collision_margin,
-            "constraints": _constraints_text(excitation),
-            "criterion": excitation.criterion,
-            "base_parameters": base.count,
-            "variables": (2 * excitation.harmonics + 1) * robot.n,
-            "solver": solver.name,
-            "max_iterations": solver.max_iterations,
-            "max_time_s": solver.max_time,
-            "motions": settings.motions,
-            "starts": settings.starts,
-            "workers": sequence.workers,
-            "executor": settings.executor,
-            "seed": settings.seed,
-        },
-        "table1": {
-            "motion": [m.index for m in sequence.motions],
-            "cond_motion": [m.cond_motion for m in sequence.motions],
-            "cond_total": [m.cond_total for m in sequence.motions],
-            "sigma_min_total": opt_lo,
-            "sigma_max_total": opt_hi,
-            "success": [m.success for m in sequence.motions],
-            "message": [m.result.message for m in sequence.motions],
-            "seed": [m.seed for m in sequence.motions],
-            "wall_time_s": times,
-            "starts": [[dataclasses.asdict(s) for s in m.starts] for m in sequence.motions],
-            "paper_hrp4": PAPER_TABLE_I,
-        },
-        "table2": {
-            "motion": list(range(1, len(selection.indices) + 1)),
-            "cond_motion": list(selection.cond_each),
-            "cond_total": list(selection.cond_total),
-            "sigma_min_total": bl_lo,
-            "sigma_max_total": bl_hi,
-            "seed": [candidates[k][1].seed for k in selection.indices],
-            "amplitude": [candidates[k][0] for k in selection.indices],
-            "candidates": len(candidates),
-            "per_amplitude": [
-                {"amplitude": a, "accepted": len(cset.candidates), "draws": cset.draws, "rejected": cset.rejected,
-                 "cond_min": float(min(c.cond for c in cset.candidates)),
-                 "cond_median": float(np.median([c.cond for c in cset.candidates])), "wall_time_s": cset.wall_time}
-                for a, cset in sets
-            ],
-            "paper_hrp4": PAPER_TABLE_II,
-        },
-        "ratio_first_motion": {"baseline": first_base, "optimized": first_opt, "ratio": first_base / first_opt,
-                               "target": RATIO_TARGET, "paper": PAPER_RATIO},
-        "timing": {"wall_time_per_motion_s": times, "target_per_motion_s": TIME_TARGET},
-        "success": sequence.success,
-    }
-
-
-def _write_outputs(out: Path, robot, problem, sequence, selection, candidates, tables: dict) -> None:
-    """Trajectories first, the tables last (each file written atomically)."""
-    from pe_drake.excitation.trajectory_file import save_trajectory
-    from pe_drake.io_utils import atomic_write_text
-
-    files = []
-    for m in sequence.motions:
-        if not m.success:  # never hand out a trajectory that violates a constraint
-            continue
-        path = out / f"motion_{m.index}" / "trajectory.json"
-        save_trajectory(path, robot, m.result.trajectory, cond=m.cond_total, cond_motion=m.cond_motion, motion=m.index)
-        files.append(str(path.relative_to(out)))
-    for i, k in enumerate(selection.indices, start=1):
-        amplitude, cand = candidates[k]
-        path = out / f"baseline_{i}" / "trajectory.json"
-        save_trajectory(
-            path,
-            robot,
-            problem.trajectory(cand.alpha),
-            cond=selection.cond_total[i - 1],
-            cond_motion=cand.cond,
-            motion=i,
-            baseline_seed=cand.seed,
-            baseline_amplitude=amplitude,
-        )
-        files.append(str(path.relative_to(out)))
-    tables["files"] = files
-    atomic_write_text(out / "tables.json", json.dumps(tables, indent=2) + "\n")
-    atomic_write_text(out / "tables.md", format_markdown(tables))
-
-
-# ---- formatting ------------------------------------------------------------------------------------
-def _row(label: str, values: Sequence[float], fmt: str = "{:.1f}") -> str:
-    return f"| {label} | " + " | ".join(fmt.format(v) for v in values) + " |"
-
-
-def format_markdown(t: dict) -> str:
-    """tables.md: Tables I and II next to the paper's HRP-4 figures."""
-    s, t1, t2, r = t["setting"], t["table1"], t["table2"], t["ratio_first_motion"]
-    n = len(t1["motion"])
-    head = "| motion index | " + " | ".join(str(i) for i in t1["motion"]) + " |\n|---|" + "---|" * n
-    paper1 = {k: v[:n] for k, v in t1["paper_hrp4"].items()}
-    paper2 = {k: v[:n] for k, v in t2["paper_hrp4"].items()}
-    lines = [
-        "# Ayusawa et al. (ICRA 2017), Tables I and II, on the Unitree G1" + (" (quick run)" if t["quick"] else ""),
-        "",
-        f"G1, {len(t['joints'])} arm joints, {s['base_parameters']} base parameters; N = {s['harmonics']}, "
-        f"ω = {s['omega']:.4g} rad/s (period {s['period_s']:.3g} s), T = {s['cost_samples']} cost samples "
-        f"{s['cost_sample_spacing_s']:.3g} s apart, K = {s['constraint_samples']} constraint samples "
-        f"{s['constraint_sample_spacing_s']:.3g} s apart; {s['constraints']}; criterion {s['criterion']}, "
-        f"{s['solver']} ≤ {s['max_iterations']} iterations, {s['starts']} start(s) per motion in "
-        f"{s['workers']} {s.get('executor', 'local')} worker(s), seed {s['seed']}.",
-        "",
-        "## Table I: optimized motions (motion i optimized with C0 = motions 1..i-1)",
-        "",
-        head,
-        _row("cond(C^(i)), G1", t1["cond_motion"]),
-        _row("cond(C^(i)), paper HRP-4", paper1["cond_motion"]),
-        _row("cond(C), G1", t1["cond_total"]),
-        _row("cond(C), paper HRP-4", paper1["cond_total"]),
-        _row("σ_min(C), G1", t1["sigma_min_total"], "{:.4g}"),
-        _row("wall time [s], G1", t1["wall_time_s"]),
-        "| constraints met (1 kHz) | " + " | ".join("yes" if ok else "NO" for ok in t1["success"]) + " |",
-        "",
-        f"## Table II: random motions, greedy selection (reference [16]; {t2['candidates']} feasible candidates)",
-        "",
-        head,
-        _row("cond(C^(i)), G1", t2["cond_motion"]),
-        _row("cond(C^(i)), paper HRP-4", paper2["cond_motion"]),
-        _row("cond(C), G1", t2["cond_total"]),
-        _row("cond(C), paper HRP-4", paper2["cond_total"]),
-        _row("σ_min(C), G1", t2["sigma_min_total"], "{:.4g}"),
-        "",
-        "| amplitude [rad] | accepted / draws | cond min | cond median |",
-        "|---|---|---|---|",
-    ]
-    for p in t2["per_amplitude"]:
-        lines.append(f"| {p['amplitude']:g} | {p['accepted']} / {p['draws']} | {p['cond_min']:.4g} | {p['cond_median']:.4g} |")
-    lines += [
-        "",
-        f"Baseline best first motion / optimized first motion: {r['baseline']:.4g} / {r['optimized']:.4g} = "
-        f"**{r['ratio']:.2f}×** (target ≥ {r['target']:g}×; paper 274.1 / 47.6 = {r['paper']:.2f}×).",
-        "",
-        "Wall time per motion: "
-        + ", ".join(f"{x:.1f} s" for x in t["timing"]["wall_time_per_motion_s"])
-        + f" (target ≤ {t['timing']['target_per_motion_s']:.0f} s); baseline generation "
-        f"{t['timing'].get('baseline_generation_s', math.nan):.1f} s; "
-        f"total {t['timing'].get('total_s', math.nan):.1f} s.",
-    ]
-    loads = t["timing"].get("load_average_1min_after_motion")
-    if loads:
-        lines.append(
-            "1-minute load average after each motion: "
-            + ", ".join(f"{x:.2f}" for x in loads)
-            + f" on {t['timing'].get('cpu_count')} cores (other jobs slow the solves down)."
-        )
-    return "\n".join(lines + [""])
-
-
-def format_console(t: dict) -> str:
-    """Tables I and II side by side with the paper, for the terminal."""
-    t1, t2, r = t["table1"], t["table2"], t["ratio_first_motion"]
-    n = len(t1["motion"])
-    idx = "".join(f"{i:>10d}" for i in t1["motion"])
-
-    def row(label, values, fmt="{:>10.1f}"):
-        return f"  {label:<30s}" + "".join(fmt.format(v) for v in values)
-
-    out = [
-        "",
-        f"Table I: optimized (sequential)   motion{idx}",
-        row("cond(C^(i))  G1", t1["cond_motion"]),
-        row("             paper HRP-4", t1["paper_hrp4"]["cond_motion"][:n]),
-        row("cond(C)      G1", t1["cond_total"]),
-        row("             paper HRP-4", t1["paper_hrp4"]["cond_total"][:n]),
-        row("wall time [s] G1", t1["wall_time_s"]),
-        f"Table II: random + greedy         motion{idx}",
-        row("cond(C^(i))  G1", t2["cond_motion"]),
-        row("             paper HRP-4", t2["paper_hrp4"]["cond_motion"][:n]),
-        row("cond(C)      G1", t2["cond_total"]),
-        row("             paper HRP-4", t2["paper_hrp4"]["cond_total"][:n]),
-        "",
-        f"first motion, baseline / optimized: {r['baseline']:.4g} / {r['optimized']:.4g} = {r['ratio']:.2f}x "
-        f"(target >= {r['target']:g}x: {'met' if r['ratio'] >= r['target'] else 'MISSED'}; "
-        f"paper {r['paper']:.2f}x)",
-        "wall time per motion: "
-        + ", ".join(f"{x:.1f} s" for x in t1["wall_time_s"])
-        + f" (target <= {TIME_TARGET:.0f} s: "
-        + ("met" if max(t1["wall_time_s"]) <= TIME_TARGET else "MISSED")
-        + ")",
-    ]
-    totals = t1["cond_total"]
-    if len(totals) > 1:
-        falls = all(b < a for a, b in zip(totals, totals[1:]))
-        out.append(
-            "cond(C) after each motion: "
-            + " -> ".join(f"{x:.4g}" for x in totals)
-            + f" (target: falls with each motion: {'met' if falls else 'MISSED'})"
-        )
-    if not all(t1["success"]):
-        out.append(
-            "WARNING: motions "
-            + ", ".join(str(i) for i, ok in zip(t1["motion"], t1["success"]) if not ok)
-            + " violate a constraint (no trajectory.json written for them)"
-        )
-    return "\n".join(out)
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns 0 on success, 1 if a motion violates a constraint, 2 on bad input."""
     import logging
@@ -583,7 +157,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     settings = parse_args(argv)
     try:
         with single_threaded_blas():
-            tables = run(settings)
+            tables = run_sequential_study(settings)
     except ConfigError as err:
         print(f"humanoid_g1_arms.py: error: {err}", file=sys.stderr)
         return 2

@@ -121,3 +121,22 @@ def test_identify_options_come_from_the_config(tmp_path):
     cfg.write_text("identification:\n  drive_terms: friction\ndata:\n  max_gap_s: 0.05\n")
     options = IdentifyOptions.from_config(load_config(cfg, base=resolve_robot_config("panda")), method="wls")
     assert (options.method, options.drive.terms, options.max_gap_s) == ("wls", "friction", 0.05)
+
+
+def test_trajectory_files_have_size_and_harmonic_limits(tmp_path):
+    """A 10⁶-harmonic file asked for 15-18 GiB of bases; a huge file was read whole."""
+    from pe_drake.excitation.trajectory_file import MAX_HARMONICS
+
+    data = json.loads((DATA / "panda_optimized.json").read_text())
+    n = len(data["joints"])
+    data["a"] = data["b"] = [[0.0] * (MAX_HARMONICS + 1)] * n
+    data["harmonics"] = MAX_HARMONICS + 1
+    wide = tmp_path / "wide.json"
+    wide.write_text(json.dumps(data))
+    with pytest.raises(DataError, match=f"{MAX_HARMONICS + 1} harmonics; at most {MAX_HARMONICS}"):
+        load_trajectory(wide)
+    big = tmp_path / "big.json"
+    with big.open("wb") as f:
+        f.truncate(51 * 1024 * 1024)
+    with pytest.raises(DataError, match="at most 52 MB"):
+        load_trajectory(big)

@@ -24,6 +24,11 @@ from pe_drake.io_utils import atomic_write_text
 
 #: Physical range of ω [rad/s]: periods from 0.1 s to 10 minutes.
 OMEGA_RANGE = (2 * np.pi / 600.0, 2 * np.pi / 0.1)
+#: Largest trajectory.json read [bytes]: an optimized motion is a few kB; a file of 10⁶ harmonics
+#: would ask for gigabytes of bases before any check.
+MAX_FILE_BYTES = 50 * 1024 * 1024
+#: Most harmonics a trajectory file may have (the paper uses 10; 1000 resolve 1 ms on a 1 s period).
+MAX_HARMONICS = 1000
 
 
 def trajectory_to_dict(robot, trajectory: FourierTrajectory, **extra: Any) -> dict[str, Any]:
@@ -66,6 +71,10 @@ def load_trajectory(path: str | Path) -> tuple[FourierTrajectory, dict[str, Any]
     path = Path(path)
     if not path.is_file():
         raise DataError("trajectory file does not exist", file=str(path))
+    size = path.stat().st_size
+    if size > MAX_FILE_BYTES:
+        raise DataError(f"{size / 1e6:.1f} MB is more than a trajectory file holds (at most "
+                        f"{MAX_FILE_BYTES / 1e6:.0f} MB)", file=str(path))
     try:
         data = json.loads(path.read_text())
     except json.JSONDecodeError as err:
@@ -98,6 +107,8 @@ def load_trajectory(path: str | Path) -> tuple[FourierTrajectory, dict[str, Any]
         raise DataError(
             f"a {a.shape}, b {b.shape}, q0 {q0.shape} do not match {n} joints", file=str(path)
         )
+    if a.shape[1] > MAX_HARMONICS:
+        raise DataError(f"{a.shape[1]} harmonics; at most {MAX_HARMONICS} are supported", file=str(path))
     if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b)) and np.all(np.isfinite(q0))):
         raise DataError("coefficients contain NaN or inf", file=str(path))
     return FourierTrajectory(a, b, q0, float(omega)), data
