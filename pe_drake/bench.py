@@ -25,7 +25,7 @@ from pe_drake.excitation.constraints import constraints_from_config
 from pe_drake.excitation.fourier import FourierTrajectory
 from pe_drake.excitation.problem import ExcitationProblem
 from pe_drake.excitation.program import build_excitation_program
-from pe_drake.excitation.solve import IPOPT_EXTRA_OPTIONS, solve_excitation
+from pe_drake.excitation.solve import solve_excitation
 from pe_drake.excitation.trajectory_file import load_trajectory
 from pe_drake.identification.estimators import identify, prepare_measurement, read_robot_measurement
 from pe_drake.identification.measurements import write_measurement_csv
@@ -308,15 +308,11 @@ def bench_solve(args: argparse.Namespace) -> None:
     old_program = build_excitation_program(old_problem, constraints, limits="sampled")
     # IPOPT's defaults, as before the speed work
     before = {
-        "spral_scaling": "matching", "limited_memory_max_history": 6, "limited_memory_aug_solver": "sherman-morrison",
-        "spral_nemin": 32, "max_soc": 4,
+        "spral_scaling": "matching", "limited_memory_max_history": "6", "limited_memory_aug_solver": "sherman-morrison",
+        "spral_nemin": "32", "max_soc": "4",
     }
-    IPOPT_EXTRA_OPTIONS.update(before)
-    try:
-        old = solve_excitation(old_program, solver, x0, exchange=False)
-    finally:
-        for key in before:
-            del IPOPT_EXTRA_OPTIONS[key]
+    old_solver = dataclasses.replace(solver, ipopt_options={**solver.ipopt_options, **before})
+    old = solve_excitation(old_program, old_solver, x0, exchange=False)
     new_program = build_excitation_program(problem, constraints)
     new = solve_excitation(new_program, solver, x0)
     for label, r in (("before the speed work", old), ("default", new)):

@@ -191,6 +191,8 @@ class SolverConfig:
         tolerance: relative tolerance.
         max_time: wall-time limit [s]; 0 means none.
         verbose: print progress (iteration, cost, worst constraint violation).
+        ipopt_options: further IPOPT options {name: value} set after pe_drake's own (values
+            are written as text: "6", "1e-8", "matching"; numbers are passed as numbers).
     """
 
     name: str = "ipopt"
@@ -199,6 +201,7 @@ class SolverConfig:
     tolerance: float = 1e-6
     max_time: float = 0.0
     verbose: bool = True
+    ipopt_options: dict[str, str] = dataclasses.field(default_factory=dict)
 
 
 @dataclasses.dataclass

@@ -140,3 +140,16 @@ def test_trajectory_files_have_size_and_harmonic_limits(tmp_path):
         f.truncate(51 * 1024 * 1024)
     with pytest.raises(DataError, match="at most 52 MB"):
         load_trajectory(big)
+
+
+def test_ipopt_options_are_data_of_the_solver_config(tmp_path):
+    """Solver options pass through the call (the config), not a module global the bench mutated."""
+    from pe_drake.excitation import solve as solve_module
+    from pe_drake.excitation.solve import option_value
+
+    assert not hasattr(solve_module, "IPOPT_EXTRA_OPTIONS")
+    assert (option_value("6"), option_value("1e-8"), option_value("matching")) == (6, 1e-8, "matching")
+    cfg = tmp_path / "s.yaml"
+    cfg.write_text("solver:\n  ipopt_options: {max_soc: '4', spral_scaling: matching}\n")
+    config = load_config(cfg, base=resolve_robot_config("panda"))
+    assert config.solver.ipopt_options == {"max_soc": "4", "spral_scaling": "matching"}

@@ -33,8 +33,17 @@ from pe_drake.threads import single_threaded_blas
 #: Quasi-Newton pairs IPOPT keeps (its limited-memory Hessian; IPOPT's default is 6).
 LBFGS_PAIRS = 30
 
-#: Extra IPOPT options (name → value), e.g. for experiments.
-IPOPT_EXTRA_OPTIONS: dict = {}
+
+
+def option_value(text: str) -> int | float | str:
+    """An IPOPT option value written as text: an integer, a number or a word (IPOPT's options
+    are typed, so "6" must reach it as 6)."""
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
 
 
 @dataclasses.dataclass
@@ -160,8 +169,8 @@ def _ipopt_backend(cfg: SolverConfig) -> _Backend:
     # three starts G1 ended at cond 209–211 instead of 227–232 with 10–20 % fewer
     # evaluations, and the Panda at 11.3–12.6 instead of 12.3–12.9.
     options.SetOption(sid, "max_soc", 0)
-    for key, value in IPOPT_EXTRA_OPTIONS.items():
-        options.SetOption(sid, key, value)
+    for key, value in cfg.ipopt_options.items():  # the config's own, last (data, not a global)
+        options.SetOption(sid, key, option_value(str(value)))
     if cfg.max_time > 0:
         options.SetOption(sid, "max_wall_time", float(cfg.max_time))
     # IPOPT reports no iteration count through Drake: its log file does (BUILD_NOTES.md).

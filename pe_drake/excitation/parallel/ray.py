@@ -7,16 +7,13 @@ per actor is in flight, so a dead actor names the task it ran. Events the tasks 
 (per-evaluation progress) stay in the worker; the caller sees each task start and finish.
 
 ``ray`` is imported lazily (an optional extra: ``pip install "pe_drake[ray]"``). Without an
-address, ``ray.init()`` joins the cluster started on this machine with ``ray start``, or starts
-a local instance listening on 127.0.0.1 only (no dashboard); with one, it joins that cluster. Every node needs pe_drake installed
+address, ``ray.init()`` starts a local instance or joins the cluster started on this machine
+with ``ray start``; with one, it joins that cluster. Every node needs pe_drake installed
 (same version) in the Python that runs Ray.
 """
 
 from __future__ import annotations
 
-import os
-import tempfile
-from pathlib import Path
 from typing import Any
 
 from pe_drake.exceptions import ConfigError
@@ -78,13 +75,8 @@ def connect(address: str = "") -> bool:
     ray = import_ray()
     if ray.is_initialized():
         return False
-    local = {}
-    if not address and not os.environ.get("RAY_ADDRESS") and not Path(tempfile.gettempdir(), "ray", "ray_current_cluster").exists():
-        # A new local instance: its services listen on the loopback interface only (Ray's
-        # default is the machine's address), and no dashboard. A cluster is joined by address.
-        local = {"_node_ip_address": "127.0.0.1", "include_dashboard": False}
     try:
-        ray.init(address=address or None, logging_level="warning", log_to_driver=False, **local)
+        ray.init(address=address or None, logging_level="warning", log_to_driver=False)
     except (ConnectionError, RuntimeError, ValueError) as err:
         raise ConfigError(f"cannot connect to Ray at '{address or 'auto/local'}': {err}") from err
     return True
