@@ -317,3 +317,27 @@ def test_worker_on_another_machine_gets_the_capsule_file_with_the_spec(panda, tm
     # nothing to carry when the robot has no capsule file
     no_caps = RobotSpec(panda.name, dataclasses.replace(panda.config, capsules=""), base=None).with_capsule_text()
     assert no_caps.capsules_text == ""
+
+
+def test_a_planted_capsule_file_at_the_shared_name_is_not_used(panda, tmp_path):
+    """The workers' capsule file has a predictable name in the temporary folder: one planted
+    there by someone else (no capsules: no collision check) must not be read."""
+    import hashlib
+    import tempfile
+
+    original = Path(panda.config.capsules).read_text()
+    spec = RobotSpec(panda.name, dataclasses.replace(panda.config, capsules=str(tmp_path / "gone.yaml")), base=None,
+                     capsules_text=original)
+    digest = hashlib.sha256(original.encode()).hexdigest()[:16]
+    shared = Path(tempfile.gettempdir()) / f"pe_drake_capsules_{digest}.yaml"
+    saved = shared.read_text() if shared.is_file() else None
+    try:
+        shared.unlink(missing_ok=True)
+        shared.write_text("capsules: []\n")  # planted
+        state = spec.build()
+        assert len(state.robot.capsules) == len(panda.capsules)
+        assert Path(state.robot.config.capsules) != shared
+    finally:
+        shared.unlink(missing_ok=True)
+        if saved is not None:
+            shared.write_text(saved)

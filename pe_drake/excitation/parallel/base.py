@@ -145,7 +145,11 @@ class RobotSpec:
             # sits at the same path. One file per content, shared by the node's workers.
             digest = hashlib.sha256(self.capsules_text.encode()).hexdigest()[:16]
             local = Path(tempfile.gettempdir()) / f"pe_drake_capsules_{digest}.yaml"
-            if not local.is_file():
+            # A file found there is used only if it is a regular file (no symlink) holding this
+            # very content: on a shared machine another user could plant one that turns the
+            # collision check off.
+            if local.is_symlink() or not local.is_file() or local.read_text() != self.capsules_text:
+                local = Path(tempfile.mkstemp(prefix=f"pe_drake_capsules_{digest}_", suffix=".yaml")[1])
                 atomic_write_text(local, self.capsules_text)
             config = dataclasses.replace(config, capsules=str(local))
         return WorkerState(Robot(self.name, config), self.base, self.constraints_factory, emit)
