@@ -28,9 +28,6 @@ Outputs in --out: tables.md, tables.json, motion_<i>/trajectory.json (optimized)
 baseline_<i>/trajectory.json (selected random motions); view one with
 ``pe-drake view results/g1_tables/motion_1/trajectory.json``.
 
-The study itself is one library call,
-:func:`pe_drake.excitation.sequential_study.run_sequential_study`; this script is its command line.
-
 cond values are not comparable between robots (they depend on the masses, lengths and units
 of the base parameters), so the paper's HRP-4 figures are shown for reference; what carries
 over is the ratio between the random baseline and the optimization.
@@ -45,7 +42,9 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from pe_drake.config import CRITERIA
-from pe_drake.excitation.sequential_study import FULL, QUICK, StudyOptions, format_console, run_sequential_study
+from pe_drake.exceptions import ConfigError
+from pe_drake.excitation.sequential_study import FULL, QUICK, StudyOptions, run_sequential_study
+
 
 def _number(kind: type, what: str, ok):
     """An argparse type: ``kind(text)`` that must pass ``ok`` (e.g. be positive)."""
@@ -107,13 +106,24 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def parse_args(argv: Sequence[str] | None = None) -> StudyOptions:
-    """Command line → :class:`StudyOptions`; bad values exit with status 2 and a message."""
+def parse_args(argv: Sequence[str] | None = None) -> tuple[StudyOptions, Path, bool]:
+    """Command line → (study options, output folder, quiet); bad values exit with status 2."""
     parser = build_parser()
     args = parser.parse_args(argv)
-    defaults = QUICK if args.quick else FULL
-    settings = StudyOptions(
-        out=Path(args.out),
+    try:
+        options = _options(args, QUICK if args.quick else FULL)
+    except ConfigError as err:  # e.g. too few candidates for the motions
+        parser.error(str(err))
+    out = Path(args.out)
+    if options.config is not None and not options.config.is_file():
+        parser.error(f"--config: file '{options.config}' does not exist")
+    if out.exists() and not out.is_dir():
+        parser.error(f"--out: '{out}' exists and is not a folder")
+    return options, out, args.quiet
+
+
+def _options(args: argparse.Namespace, defaults: dict) -> StudyOptions:
+    return StudyOptions(
         config=Path(args.config) if args.config else None,
         motions=args.motions,
         starts=args.starts or defaults["starts"],
@@ -128,20 +138,11 @@ def parse_args(argv: Sequence[str] | None = None) -> StudyOptions:
         baseline_amplitudes=tuple(args.baseline_amplitudes or defaults["baseline_amplitudes"]),
         seed=args.seed,
         quick=args.quick,
-        quiet=args.quiet,
     )
-    if settings.config is not None and not settings.config.is_file():
-        parser.error(f"--config: file '{settings.config}' does not exist")
-    if settings.out.exists() and not settings.out.is_dir():
-        parser.error(f"--out: '{settings.out}' exists and is not a folder")
-    if settings.candidates * len(settings.baseline_amplitudes) < settings.motions:
-        parser.error(
-            f"--candidates {settings.candidates} × {len(settings.baseline_amplitudes)} amplitude(s) "
-            f"cannot supply {settings.motions} baseline motions"
-        )
-    if len(set(settings.baseline_amplitudes)) != len(settings.baseline_amplitudes):
-        parser.error(f"--baseline-amplitudes must differ, got {list(settings.baseline_amplitudes)}")
-    return settings
+
+
+def _say(text: str) -> None:
+    print(text, flush=True)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -150,14 +151,15 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     import pydrake.common  # noqa: F401  (pydrake resets the logger level at import)
 
-    from pe_drake.exceptions import ConfigError, InfeasibleError, PeDrakeError
+    from pe_drake.exceptions import InfeasibleError, PeDrakeError
     from pe_drake.threads import single_threaded_blas
 
     logging.getLogger("drake").setLevel(logging.ERROR)  # IPOPT limits: in our own messages
-    settings = parse_args(argv)
+    options, out, quiet = parse_args(argv)
     try:
         with single_threaded_blas():
-            tables = run_sequential_study(settings)
+            study = run_sequential_study(options, say=None if quiet else _say)
+            files = study.write(out)
     except ConfigError as err:
         print(f"humanoid_g1_arms.py: error: {err}", file=sys.stderr)
         return 2
@@ -167,9 +169,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except PeDrakeError as err:  # e.g. WorkerError: a worker died
         print(f"humanoid_g1_arms.py: {type(err).__name__}: {err}", file=sys.stderr)
         return 1
-    print(format_console(tables), flush=True)
-    print(f"wrote {settings.out}/tables.md, tables.json and " + ", ".join(tables["files"]), flush=True)
-    return 0 if tables["success"] else 1
+    print(study.console(), flush=True)
+    print(f"wrote {out}/tables.md, tables.json and " + ", ".join(files), flush=True)
+    return 0 if study.success else 1
 
 
 if __name__ == "__main__":

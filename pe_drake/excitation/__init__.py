@@ -16,6 +16,7 @@ from pe_drake.excitation.program import (
     add_sampled_constraint,
     build_excitation_program,
 )
+from pe_drake.excitation.sequential_study import SequentialStudy, StudyOptions, run_sequential_study
 from pe_drake.excitation.solve import (
     ExcitationResult,
     check_margins,
@@ -30,6 +31,8 @@ __all__ = [
     "MotionPlan",
     "MotionReport",
     "PayloadMotionPlan",
+    "SequentialStudy",
+    "StudyOptions",
     "add_excitation_cost",
     "add_joint_limit_constraints",
     "add_rest_constraints",
@@ -42,5 +45,6 @@ __all__ = [
     "optimize_payload",
     "optimize_payload_motion",
     "write_payload_plan",
+    "run_sequential_study",
     "solve_excitation",
 ]

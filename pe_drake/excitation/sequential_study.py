@@ -1,9 +1,10 @@
-"""The paper's sequential experiment (section IV-B, Tables I and II) as one call:
-:func:`run_sequential_study` optimizes motions one after the other, each with the earlier ones
-as prior data C0 (Eq. 41, :func:`~pe_drake.excitation.sequential.optimize_sequence`), draws the
-random-selection baseline of reference [16] under the same constraints
-(:mod:`pe_drake.excitation.baseline`), writes the trajectories and tables.json / tables.md, and
-returns the tables. ``examples/humanoid_g1_arms.py`` is its command line.
+"""The paper's sequential study (Ayusawa et al., ICRA 2017, section IV-B, Tables I and II).
+
+Three (or more) motions optimized one after the other, motion i with the regressors of
+motions 1..i-1 as prior data C0 (Eq. 41), next to the conventional method of reference
+[16]: random motions that meet the same constraints, selected greedily. The study on the
+Unitree G1's arms (examples/humanoid_g1_arms.py) is a thin script over
+:func:`run_sequential_study`; the result writes tables.json, tables.md and the trajectories.
 """
 
 from __future__ import annotations
@@ -13,11 +14,13 @@ import json
 import math
 import os
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from pe_drake.exceptions import ConfigError
 from pe_drake.excitation.baseline import generate_candidates, greedy_select
 from pe_drake.excitation.constraints import constraints_from_config
 from pe_drake.excitation.parallel import open_executor
@@ -42,24 +45,40 @@ BASELINE_SEED_BLOCK = 100_000
 
 @dataclasses.dataclass(frozen=True)
 class StudyOptions:
-    """What one study does (``examples/humanoid_g1_arms.py`` fills it from its command line)."""
+    """What one study does; :data:`FULL` and :data:`QUICK` hold the example's defaults."""
 
-    out: Path
-    config: Path | None
-    motions: int
-    starts: int  # random initial points per motion
-    workers: int  # starts (and chunks of baseline draws) at once
-    executor: str  # "local" (process pool) or "ray"
-    ray_address: str  # Ray cluster ("": ray.init()'s default)
-    max_iterations: int | None  # IPOPT iterations per start (None: the config's)
-    max_time: float  # wall-time limit per start [s]; 0: none
-    criterion: str | None  # None: the config's (soft_cond)
-    amplitude: float | None  # scale of the optimizer's random initial points [rad]
-    candidates: int  # accepted random motions per baseline amplitude
-    baseline_amplitudes: tuple[float, ...]  # [rad]
-    seed: int
-    quick: bool
-    quiet: bool
+    config: Path | None = None  # YAML file overriding models/<robot>.yaml
+    motions: int = 3
+    starts: int = 2  # random initial points per motion
+    workers: int = 2  # starts (and chunks of baseline draws) at once
+    executor: str = "local"  # "local" (process pool) or "ray"
+    ray_address: str = ""  # Ray cluster ("": ray.init()'s default)
+    max_iterations: int | None = 150  # IPOPT iterations per start (None: the config's)
+    max_time: float = 0.0  # wall-time limit per start [s]; 0: none
+    criterion: str | None = None  # None: the config's (soft_cond)
+    amplitude: float | None = None  # scale of the optimizer's random initial points [rad]
+    candidates: int = 100  # accepted random motions per baseline amplitude
+    baseline_amplitudes: tuple[float, ...] = (0.1, 0.125, 0.15)  # [rad]
+    seed: int = 0
+    quick: bool = False
+    robot: str = "g1"
+
+    def __post_init__(self) -> None:
+        for name in ("motions", "starts", "workers", "candidates"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ConfigError(f"sequential study: {name} must be a positive integer, got {value!r}")
+        if self.executor not in ("local", "ray"):
+            raise ConfigError(f"sequential study: executor must be 'local' or 'ray', got {self.executor!r}")
+        if not all(math.isfinite(a) and a > 0 for a in self.baseline_amplitudes):
+            raise ConfigError(f"sequential study: baseline amplitudes must be positive, got {list(self.baseline_amplitudes)}")
+        if len(set(self.baseline_amplitudes)) != len(self.baseline_amplitudes):
+            raise ConfigError(f"--baseline-amplitudes must differ, got {list(self.baseline_amplitudes)}")
+        if self.candidates * len(self.baseline_amplitudes) < self.motions:
+            raise ConfigError(
+                f"--candidates {self.candidates} × {len(self.baseline_amplitudes)} amplitude(s) "
+                f"cannot supply {self.motions} baseline motions"
+            )
 
 
 # IPOPT ≤ 150 iterations per start keeps a motion within about 2 minutes on 2 cores; the
@@ -77,7 +96,7 @@ QUICK = {"starts": 1, "workers": 1, "candidates": 8, "baseline_amplitudes": (0.0
 
 
 # ---- the run ---------------------------------------------------------------------------------------
-def running_sigmas(blocks: Sequence[np.ndarray]) -> tuple[list[float], list[float]]:
+def _running_sigmas(blocks: Sequence[np.ndarray]) -> tuple[list[float], list[float]]:
     """σ_min and σ_max of [B_1; ...; B_i] for i = 1, 2, ...
 
     Both are non-decreasing in i: CᵀC = Σ B_kᵀB_k (Eq. 41) only gains a positive
@@ -87,17 +106,17 @@ def running_sigmas(blocks: Sequence[np.ndarray]) -> tuple[list[float], list[floa
     return [float(x[-1]) for x in s], [float(x[0]) for x in s]
 
 
-class Printer:
+class StudyPrinter:
     """Progress lines; the baseline's per-chunk events are thinned to one every few seconds."""
 
-    def __init__(self, quiet: bool, every: float = 5.0):
-        self.quiet, self.every, self.last = quiet, every, -math.inf
+    def __init__(self, say: Callable[[str], Any] | None, every: float = 5.0):
+        self.say, self.every, self.last = say, every, -math.inf
         #: 1-minute load average when each motion finished: wall times depend on it
         self.loads: list[float] = []
 
     def __call__(self, text: str) -> None:
-        if not self.quiet:
-            print(text, flush=True)
+        if self.say is not None:
+            self.say(text)
 
     def event(self, event) -> None:
         if getattr(event, "kind", "") == "finished" and hasattr(event, "motion"):
@@ -111,7 +130,7 @@ class Printer:
             self(str(event))
 
 
-def constraints_text(excitation) -> str:
+def _constraints_text(excitation) -> str:
     """The sampled constraints of the run, in words (Eqs. 52, 53)."""
     parts = ["joint limits"]
     if excitation.balance_radius > 0:
@@ -121,8 +140,8 @@ def constraints_text(excitation) -> str:
     return ", ".join(parts)
 
 
-def run_sequential_study(settings: StudyOptions, robot_name: str = "g1") -> dict:
-    """Runs the optimization and the baseline, writes the outputs; returns the tables dict.
+def run_sequential_study(settings: StudyOptions, *, say: Callable[[str], Any] | None = None) -> SequentialStudy:
+    """Runs the optimization and the baseline; ``say`` gets the progress lines (None: silent).
 
     Raises:
         ConfigError, UnknownNameError: a bad config file or value.
@@ -130,9 +149,10 @@ def run_sequential_study(settings: StudyOptions, robot_name: str = "g1") -> dict
             posture violates a constraint.
         WorkerError: a start or a chunk of draws failed in a worker, or its worker died.
     """
-    say = Printer(settings.quiet)
+
+    say = StudyPrinter(say)
     begin = time.perf_counter()
-    config = resolve_robot_config(robot_name, settings.config)
+    config = resolve_robot_config(settings.robot, settings.config)
     excitation = config.excitation
     if settings.criterion:
         excitation = dataclasses.replace(excitation, criterion=settings.criterion)
@@ -142,7 +162,7 @@ def run_sequential_study(settings: StudyOptions, robot_name: str = "g1") -> dict
         max_iterations=settings.max_iterations or config.solver.max_iterations,
         max_time=settings.max_time or config.solver.max_time,
     )
-    robot = Robot(robot_name, config.robot)
+    robot = Robot(settings.robot, config.robot)
     workers = settings.workers
     executor = open_executor(
         robot, settings.executor, workers, address=settings.ray_address, constraints_factory=constraints_from_config
@@ -150,10 +170,10 @@ def run_sequential_study(settings: StudyOptions, robot_name: str = "g1") -> dict
     base = executor.base
     period = 2 * math.pi / excitation.omega
     say(
-        f"G1: {robot.n} arm joints, {base.count} base parameters; N = {excitation.harmonics}, "
+        f"{settings.robot.upper()}: {robot.n} arm joints, {base.count} base parameters; N = {excitation.harmonics}, "
         f"ω = {excitation.omega:.4g} rad/s (period {period:.3g} s), T = {excitation.cost_samples} "
         f"({period / excitation.cost_samples:.3g} s apart), K = {excitation.constraint_samples} "
-        f"({period / excitation.constraint_samples:.3g} s apart), {constraints_text(excitation)}; "
+        f"({period / excitation.constraint_samples:.3g} s apart), {_constraints_text(excitation)}; "
         f"criterion {excitation.criterion}"
     )
     say(
@@ -161,7 +181,7 @@ def run_sequential_study(settings: StudyOptions, robot_name: str = "g1") -> dict
         f"{solver.name} ≤ {solver.max_iterations} iterations per start" + ("  [quick]" if settings.quick else "")
     )
     try:
-        sets, candidates, selection, baseline_time = baseline_selection(settings, robot, excitation, executor, say)
+        sets, candidates, selection, baseline_time = _baseline(settings, robot, excitation, executor, say)
 
         # ---- Table I: sequential optimization (section IV-B): motion i minimizes cond of
         # [C^(1); ...; C^(i-1); C^(i)], the earlier blocks being fixed prior data C0 (Eq. 41).
@@ -183,17 +203,17 @@ def run_sequential_study(settings: StudyOptions, robot_name: str = "g1") -> dict
 
     problem = executor.problem(excitation)
     baseline_blocks = [problem.regressor_block(candidates[k][1].alpha) for k in selection.indices]
-    tables = study_tables(settings, excitation, solver, robot, base, sequence, selection, candidates, sets, baseline_blocks)
+    tables = _tables(settings, excitation, solver, robot, base, sequence, selection, candidates, sets, baseline_blocks)
     tables["timing"]["baseline_generation_s"] = baseline_time
     tables["timing"]["total_s"] = time.perf_counter() - begin
     tables["timing"]["load_average_1min_after_motion"] = say.loads
     tables["timing"]["cpu_count"] = os.cpu_count()
-    write_study_outputs(settings.out, robot, problem, sequence, selection, candidates, tables)
-    return tables
+    return SequentialStudy(tables, robot, problem, sequence, selection, candidates)
 
 
-def baseline_selection(settings: StudyOptions, robot, excitation, executor, say):
+def _baseline(settings: StudyOptions, robot, excitation, executor, say):
     """Table II: random motions under the same constraints, greedy selection ([16])."""
+
     say(
         f"baseline: {settings.candidates} feasible random motions at each amplitude "
         + ", ".join(f"{a:g}" for a in settings.baseline_amplitudes)
@@ -222,9 +242,9 @@ def baseline_selection(settings: StudyOptions, robot, excitation, executor, say)
     return sets, candidates, selection, sum(cset.wall_time for _, cset in sets)
 
 
-def study_tables(settings, excitation, solver, robot, base, sequence, selection, candidates, sets, baseline_blocks) -> dict:
-    opt_lo, opt_hi = running_sigmas([m.block for m in sequence.motions])
-    bl_lo, bl_hi = running_sigmas(baseline_blocks)
+def _tables(settings, excitation, solver, robot, base, sequence, selection, candidates, sets, baseline_blocks) -> dict:
+    opt_lo, opt_hi = _running_sigmas([m.block for m in sequence.motions])
+    bl_lo, bl_hi = _running_sigmas(baseline_blocks)
     first_opt = sequence.motions[0].cond_motion
     first_base = selection.cond_each[0]
     times = [m.wall_time for m in sequence.motions]
@@ -245,7 +265,7 @@ def study_tables(settings, excitation, solver, robot, base, sequence, selection,
             "constraint_sample_spacing_s": period / excitation.constraint_samples,
             "balance_radius_m": excitation.balance_radius,
             "collision_margin_m": excitation.collision_margin,
-            "constraints": constraints_text(excitation),
+            "constraints": _constraints_text(excitation),
             "criterion": excitation.criterion,
             "base_parameters": base.count,
             "variables": (2 * excitation.harmonics + 1) * robot.n,
@@ -295,36 +315,64 @@ def study_tables(settings, excitation, solver, robot, base, sequence, selection,
     }
 
 
-def write_study_outputs(out: Path, robot, problem, sequence, selection, candidates, tables: dict) -> None:
-    """Trajectories first, the tables last (each file written atomically)."""
-    files = []
-    for m in sequence.motions:
-        if not m.success:  # never hand out a trajectory that violates a constraint
-            continue
-        path = out / f"motion_{m.index}" / "trajectory.json"
-        save_trajectory(path, robot, m.result.trajectory, cond=m.cond_total, cond_motion=m.cond_motion, motion=m.index)
-        files.append(str(path.relative_to(out)))
-    for i, k in enumerate(selection.indices, start=1):
-        amplitude, cand = candidates[k]
-        path = out / f"baseline_{i}" / "trajectory.json"
-        save_trajectory(
-            path,
-            robot,
-            problem.trajectory(cand.alpha),
-            cond=selection.cond_total[i - 1],
-            cond_motion=cand.cond,
-            motion=i,
-            baseline_seed=cand.seed,
-            baseline_amplitude=amplitude,
-        )
-        files.append(str(path.relative_to(out)))
-    tables["files"] = files
-    atomic_write_text(out / "tables.json", json.dumps(tables, indent=2) + "\n")
-    atomic_write_text(out / "tables.md", format_markdown(tables))
+@dataclasses.dataclass
+class SequentialStudy:
+    """Tables I and II of one study and what produced them; :meth:`write` puts them in a folder."""
+
+    tables: dict  # the content of tables.json ("files" is added by write)
+    robot: Robot
+    problem: Any  # ExcitationProblem of the run (turns the baseline's coefficients into trajectories)
+    sequence: Any  # SequenceResult of optimize_sequence
+    selection: Any  # greedy selection of the baseline candidates
+    candidates: list  # (amplitude, Candidate) of every accepted random motion
+
+    @property
+    def success(self) -> bool:
+        return bool(self.tables["success"])
+
+    def markdown(self) -> str:
+        return format_markdown(self.tables)
+
+    def console(self) -> str:
+        return format_console(self.tables)
+
+    def write(self, out: Path | str) -> list[str]:
+        """Trajectories first, the tables last (each file written atomically); returns the files.
+
+        Motions that violate a constraint get no trajectory.json: one is never handed out.
+        """
+        out = Path(out)
+        files = []
+        for m in self.sequence.motions:
+            if not m.success:
+                continue
+            path = out / f"motion_{m.index}" / "trajectory.json"
+            save_trajectory(
+                path, self.robot, m.result.trajectory, cond=m.cond_total, cond_motion=m.cond_motion, motion=m.index
+            )
+            files.append(str(path.relative_to(out)))
+        for i, k in enumerate(self.selection.indices, start=1):
+            amplitude, cand = self.candidates[k]
+            path = out / f"baseline_{i}" / "trajectory.json"
+            save_trajectory(
+                path,
+                self.robot,
+                self.problem.trajectory(cand.alpha),
+                cond=self.selection.cond_total[i - 1],
+                cond_motion=cand.cond,
+                motion=i,
+                baseline_seed=cand.seed,
+                baseline_amplitude=amplitude,
+            )
+            files.append(str(path.relative_to(out)))
+        self.tables["files"] = files
+        atomic_write_text(out / "tables.json", json.dumps(self.tables, indent=2) + "\n")
+        atomic_write_text(out / "tables.md", format_markdown(self.tables))
+        return files
 
 
 # ---- formatting ------------------------------------------------------------------------------------
-def table_row(label: str, values: Sequence[float], fmt: str = "{:.1f}") -> str:
+def _md_row(label: str, values: Sequence[float], fmt: str = "{:.1f}") -> str:
     return f"| {label} | " + " | ".join(fmt.format(v) for v in values) + " |"
 
 
@@ -348,22 +396,22 @@ def format_markdown(t: dict) -> str:
         "## Table I: optimized motions (motion i optimized with C0 = motions 1..i-1)",
         "",
         head,
-        table_row("cond(C^(i)), G1", t1["cond_motion"]),
-        table_row("cond(C^(i)), paper HRP-4", paper1["cond_motion"]),
-        table_row("cond(C), G1", t1["cond_total"]),
-        table_row("cond(C), paper HRP-4", paper1["cond_total"]),
-        table_row("σ_min(C), G1", t1["sigma_min_total"], "{:.4g}"),
-        table_row("wall time [s], G1", t1["wall_time_s"]),
+        _md_row("cond(C^(i)), G1", t1["cond_motion"]),
+        _md_row("cond(C^(i)), paper HRP-4", paper1["cond_motion"]),
+        _md_row("cond(C), G1", t1["cond_total"]),
+        _md_row("cond(C), paper HRP-4", paper1["cond_total"]),
+        _md_row("σ_min(C), G1", t1["sigma_min_total"], "{:.4g}"),
+        _md_row("wall time [s], G1", t1["wall_time_s"]),
         "| constraints met (1 kHz) | " + " | ".join("yes" if ok else "NO" for ok in t1["success"]) + " |",
         "",
         f"## Table II: random motions, greedy selection (reference [16]; {t2['candidates']} feasible candidates)",
         "",
         head,
-        table_row("cond(C^(i)), G1", t2["cond_motion"]),
-        table_row("cond(C^(i)), paper HRP-4", paper2["cond_motion"]),
-        table_row("cond(C), G1", t2["cond_total"]),
-        table_row("cond(C), paper HRP-4", paper2["cond_total"]),
-        table_row("σ_min(C), G1", t2["sigma_min_total"], "{:.4g}"),
+        _md_row("cond(C^(i)), G1", t2["cond_motion"]),
+        _md_row("cond(C^(i)), paper HRP-4", paper2["cond_motion"]),
+        _md_row("cond(C), G1", t2["cond_total"]),
+        _md_row("cond(C), paper HRP-4", paper2["cond_total"]),
+        _md_row("σ_min(C), G1", t2["sigma_min_total"], "{:.4g}"),
         "",
         "| amplitude [rad] | accepted / draws | cond min | cond median |",
         "|---|---|---|---|",
