@@ -82,14 +82,7 @@ class ExcitationProblem:
         self.constraint_basis = FourierBasis(
             self.harmonics, self.omega, sample_times(self.period, self.config.constraint_samples)
         )
-        if C0 is not None:
-            C0 = np.asarray(C0, float)
-            if C0.ndim != 2 or C0.shape[1] != self.base.count:
-                raise ConfigError(
-                    f"prior data C0 has shape {C0.shape}; it needs {self.base.count} columns "
-                    "(the robot's base parameters)"
-                )
-        self.C0 = C0
+        self.C0 = _checked_prior(C0, self.base.count)
         self._cache_key: bytes | None = None
         self._cache: CostValue | None = None
         self.num_evaluations = 0
@@ -101,15 +94,8 @@ class ExcitationProblem:
         Raises:
             ConfigError: C0 without one column per base parameter.
         """
-        if C0 is not None:
-            C0 = np.asarray(C0, float)
-            if C0.ndim != 2 or C0.shape[1] != self.base.count:
-                raise ConfigError(
-                    f"prior data C0 has shape {C0.shape}; it needs {self.base.count} columns "
-                    "(the robot's base parameters)"
-                )
         other = copy.copy(self)
-        other.C0 = C0
+        other.C0 = _checked_prior(C0, self.base.count)
         other.clear_cache()
         other.num_evaluations = 0
         return other
@@ -274,3 +260,13 @@ def check_variables(alpha, problem: ExcitationProblem) -> None:
             f"alpha has {len(alpha)} variables; the problem needs {problem.num_variables} "
             f"((2N+1)·n = (2·{problem.harmonics}+1)·{problem.n})"
         )
+
+
+def _checked_prior(C0: np.ndarray | None, columns: int) -> np.ndarray | None:
+    """Prior data C0 (Eq. 41) as floats, refused without one column per base parameter."""
+    if C0 is None:
+        return None
+    C0 = np.asarray(C0, float)
+    if C0.ndim != 2 or C0.shape[1] != columns:
+        raise ConfigError(f"prior data C0 has shape {C0.shape}; it needs {columns} columns (the robot's base parameters)")
+    return C0
