@@ -127,11 +127,7 @@ def play_trajectory(
         raise ConfigError(f"playback rate must be a number of frames per second in (0, 1000], got {rate!r}")
     motion, data = load_motion(trajectory_json)
     period = motion.duration  # the whole motion of trajectory.csv (ramps and periods)
-    num_intervals = max(2, int(round(period * rate)))
-    # The recording rate makes frame k fall exactly at t_k = k·T/K, so the clip of a
-    # periodic motion ends on the pose it starts with and loops seamlessly.
-    fps = num_intervals / period
-    times = np.arange(num_intervals + 1) * (period / num_intervals)
+    times, fps = frame_times(period, rate)
 
     meshcat = _prepare_meshcat(meshcat, host="localhost" if html is not None else host)
     rob = _load_robot_with_visualizers(
@@ -187,6 +183,16 @@ def write_playback_html(trajectory_json: str | Path, html_path: str | Path, **kw
     return play_trajectory(trajectory_json, html=html_path, **kw).html
 
 # ---- helpers ------------------------------------------------------------------------------
+def frame_times(duration: float, rate: float) -> tuple[np.ndarray, float]:
+    """(frame times [s], frames per second) of a recording of ``duration`` at about ``rate``.
+
+    The recording rate makes frame k fall exactly at t_k = k·T/K, so the clip of a periodic
+    motion ends on the pose it starts with and loops seamlessly.
+    """
+    num_intervals = max(2, int(round(duration * rate)))
+    return np.arange(num_intervals + 1) * (duration / num_intervals), num_intervals / duration
+
+
 def _prepare_meshcat(meshcat: Any, host: str) -> Any:
     """A new Meshcat listening on ``host`` ("localhost" unless asked otherwise: a playback is
     not for the whole network), or the given one with our earlier layers and recording
@@ -452,9 +458,7 @@ def write_plan_playback(plan, html_path: str | Path, *, show_capsules: bool = Tr
     """Writes the HTML playback of a live :class:`~pe_drake.excitation.motion_plan.MotionPlan`
     (what ``pe-drake optimize`` shows): its robot config and controller motion, no file re-read."""
     motion = plan.motion
-    num_intervals = max(2, int(round(motion.duration * rate)))
-    fps = num_intervals / motion.duration
-    times = np.arange(num_intervals + 1) * (motion.duration / num_intervals)
+    times, fps = frame_times(motion.duration, rate)
     meshcat = _prepare_meshcat(None, host="localhost")
     rob = Robot(plan.robot.name, plan.config.robot, obj_visuals=True, builder_hook=_visualizer_hook(meshcat, fps, show_capsules))
     q = motion.evaluate(times)[0]  # the same config: the same joints in the same order

@@ -22,7 +22,6 @@ import time
 import weakref
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -130,7 +129,7 @@ class MotionPlan:
             if self.fitted is not None:
                 (tmp / self.fitted.path.name).write_text(self.fitted_text)
                 report = dataclasses.replace(report, fitted_capsules=str(out / self.fitted.path.name))
-            (tmp / "report.json").write_text(_json(report.to_dict()))
+            (tmp / "report.json").write_text(json.dumps(report.to_dict(), indent=2, default=float))
             written = sorted(p.name for p in tmp.iterdir())
         remove_stale_outputs(out, OPTIMIZE_OUTPUTS, written)  # a reused folder never mixes runs
         return written
@@ -143,10 +142,6 @@ class MotionPlan:
         plot_trajectory(tmp / "trajectory.png", robot, result.trajectory, result.singular_values,
                         title=f"{robot.name}: cond {result.cond:.4g}",
                         note=self.quality.figure_note() if self.quality is not None else "")
-
-
-def _json(data: dict[str, Any]) -> str:
-    return json.dumps(data, indent=2, default=float)
 
 
 def check_csv_size(config: Config, rate: float, max_rows: int = 10_000_000) -> None:
