@@ -96,3 +96,16 @@ class MissingDependencyError(PeDrakeError, ImportError):
 
     def __init__(self, package: str, feature: str):
         super().__init__(f"{feature} needs the package '{package}': pip install {package}")
+
+
+class OutputWriteError(PeDrakeError, OSError):
+    """The outputs could not be written (a full disk, a quota): nothing was half-written, and
+    a solved motion was saved where :attr:`rescued` says (or nowhere: None).
+
+    Attributes:
+        rescued: the file that keeps the solved result, or None.
+    """
+
+    def __init__(self, message: str, rescued: str | None = None):
+        self.rescued = rescued
+        super().__init__(message)

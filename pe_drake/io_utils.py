@@ -3,11 +3,15 @@
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import shutil
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
+
+from pe_drake.output_paths import remove_stale_outputs
+from pe_drake.output_set import add_manifest, output_lock
 
 
 def atomic_write_text(path: str | Path, text: str) -> None:
@@ -33,26 +37,52 @@ def _umask() -> int:
 
 
 @contextlib.contextmanager
-def staged_output_dir(out: str | Path) -> Iterator[Path]:
+def staged_output_dir(out: str | Path, manifest: str = "", own_names: Iterable[str] = ()) -> Iterator[Path]:
     """A temporary folder whose files are moved into ``out`` only if the block succeeds.
 
     Usage::
 
-        with staged_output_dir(out) as tmp:
-            write(tmp / "a.json"); write(tmp / "b.csv")
-        # now out/a.json and out/b.csv exist; on an exception neither does.
+        with staged_output_dir(out, "report.json", OPTIMIZE_OUTPUTS) as tmp:
+            write(tmp / "a.csv"); write(tmp / "report.json")
+        # now out/a.csv and out/report.json exist; on an exception neither does.
+
+    Args:
+        manifest: the run's JSON file that gets ``"outputs"``, the SHA-256 of every other file
+            (:mod:`pe_drake.output_set`); it is moved in first, so a run killed while moving
+            leaves a set that readers refuse rather than a silent mix of two runs.
+        own_names: every name the command may write: those this run did not write are removed
+            (a reused folder never mixes runs); other files in ``out`` are left alone.
     """
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(dir=out, prefix=".staging-"))
-    try:
-        yield tmp
-        for item in tmp.iterdir():
-            if item.is_file():
-                os.chmod(item, 0o666 & ~_umask())
-            target = out / item.name
-            if item.is_dir() and target.is_dir() and not target.is_symlink():
-                shutil.rmtree(target)  # a folder output (a bag) of an earlier run: replaced whole
-            os.replace(item, target)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+    with output_lock(out):
+        for stale in out.glob(".staging-*"):  # left by a killed run: only the lock holder stages
+            if stale.is_dir() and not stale.is_symlink():
+                shutil.rmtree(stale, ignore_errors=True)
+        tmp = Path(tempfile.mkdtemp(dir=out, prefix=".staging-"))
+        try:
+            yield tmp
+            for item in tmp.rglob("*"):
+                if item.is_file():
+                    os.chmod(item, 0o666 & ~_umask())
+            written = sorted(item.name for item in tmp.iterdir())
+            if manifest in written:
+                add_manifest(tmp, manifest)
+                os.replace(tmp / manifest, out / manifest)
+            remove_stale_outputs(out, own_names, written)
+            for name in written:
+                if name == manifest:
+                    continue
+                item, target = tmp / name, out / name
+                if item.is_dir() and target.is_dir() and not target.is_symlink():
+                    shutil.rmtree(target)  # a folder output (a bag) of an earlier run: replaced whole
+                os.replace(item, target)
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
+def describe_write_error(err: OSError) -> str:
+    """An OSError as one line: what happened to which file, and for a full disk what to do."""
+    where = f" '{err.filename}'" if err.filename else ""
+    if err.errno in (errno.ENOSPC, errno.EDQUOT):
+        return f"no space left on the device to write{where} ({err.strerror}); free some space and re-run"
+    return f"{err.strerror or err}{':' if where else ''}{where}"

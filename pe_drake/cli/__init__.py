@@ -8,12 +8,16 @@ in the module that owns the work (imported lazily so ``pe-drake --help`` is inst
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import sys
 
 from pe_drake import __version__
 from pe_drake.config import CRITERIA, DATA_FORMATS, EFFORT_KINDS, MEASUREMENTS
-from pe_drake.exceptions import PeDrakeError
+from pe_drake.exceptions import OutputWriteError, PeDrakeError
+from pe_drake.io_utils import describe_write_error
+from pe_drake.output_paths import check_output_dir
+from pe_drake.output_set import output_lock
 from pe_drake.threads import single_threaded_blas
 
 _COMMANDS = {
@@ -24,6 +28,9 @@ _COMMANDS = {
     "validate": ("pe_drake.cli.identify", "validate_command"),
     "diagnose": ("pe_drake.cli.diagnose", "diagnose_command"),
 }
+
+#: The commands whose --out is a folder of pe_drake's outputs (locked while they run).
+_FOLDER_COMMANDS = ("optimize", "identify", "diagnose")
 
 
 def add_robot_arguments(parser: argparse.ArgumentParser) -> None:
@@ -161,6 +168,14 @@ def _add_identification_commands(sub) -> None:
     p.add_argument("--out", required=True, help="output folder")
 
 
+def _folder_lock(args) -> contextlib.AbstractContextManager:
+    """The output folder's lock for the whole run of a command that writes one (a second run on
+    the same --out is refused at once, not after its solve)."""
+    if args.command not in _FOLDER_COMMANDS:
+        return contextlib.nullcontext()
+    return output_lock(check_output_dir(args.out))
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -173,11 +188,17 @@ def main(argv: list[str] | None = None) -> int:
         args.data = args.data[0]
     try:
         function = getattr(importlib.import_module(module_name), function_name)
-        with single_threaded_blas():
+        with single_threaded_blas(), _folder_lock(args):
             return int(function(args) or 0)
+    except OutputWriteError as err:  # not the user's input: a full disk, a quota
+        print(f"pe-drake {args.command}: error: {err}", file=sys.stderr)
+        return 1
     except PeDrakeError as err:
         print(f"pe-drake {args.command}: error: {err}", file=sys.stderr)
         return 2
+    except OSError as err:
+        print(f"pe-drake {args.command}: error: {describe_write_error(err)}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print(f"pe-drake {args.command}: interrupted", file=sys.stderr)
         return 130

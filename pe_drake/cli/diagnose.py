@@ -9,7 +9,7 @@ from pe_drake.cli.common import config_from_args, read_log_from_args, robot_from
 from pe_drake.diagnosis import DiagnosisConfig, diagnose, write_outputs
 from pe_drake.exceptions import ConfigError
 from pe_drake.io_utils import staged_output_dir
-from pe_drake.output_paths import DIAGNOSE_OUTPUTS, check_output_dir, remove_stale_outputs
+from pe_drake.output_paths import DIAGNOSE_OUTPUTS, check_output_dir
 
 
 def diagnose_command(args) -> int:
@@ -25,8 +25,7 @@ def diagnose_command(args) -> int:
     validation = read_log_from_args(args, robot, settings, args.validation) if getattr(args, "validation", None) else None
     print(f"robot {robot.name}: {robot.n} joints ({', '.join(robot.joint_names)})", flush=True)
     result = diagnose(robot, data, validation, config, progress=lambda s: print(s, flush=True))
-    with staged_output_dir(out) as tmp:
+    with staged_output_dir(out, "diagnosis.json", DIAGNOSE_OUTPUTS) as tmp:
         written = write_outputs(tmp, robot, result)
-    remove_stale_outputs(out, DIAGNOSE_OUTPUTS, [Path(w).name for w in written])  # e.g. an old unexplained.png
     print(f"wrote {', '.join(str(out / Path(w).name) for w in written)}")
     return 0

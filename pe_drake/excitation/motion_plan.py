@@ -16,6 +16,7 @@ import dataclasses
 import functools
 import json
 import math
+import os
 import shutil
 import tempfile
 import time
@@ -26,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from pe_drake.config import Config, noise_vector, validate_config
-from pe_drake.exceptions import ConfigError, DataError, NotWithinLimitsError
+from pe_drake.exceptions import ConfigError, DataError, NotWithinLimitsError, OutputWriteError
 from pe_drake.excitation.constraints import constraints_from_config
 from pe_drake.excitation.controller_goal import GoalOptions, goal_yaml_text, write_goal_bag
 from pe_drake.excitation.fourier import FourierBasis, sample_times
@@ -38,11 +39,11 @@ from pe_drake.excitation.problem import ExcitationProblem
 from pe_drake.excitation.quality import QualityReport, excitation_quality
 from pe_drake.excitation.ramp import RAMP_DURATIONS, RampedMotion, check_within_limits, choose_ramp_duration
 from pe_drake.excitation.trajectory_file import load_motion, load_trajectory, save_trajectory, write_motion_csv
-from pe_drake.io_utils import staged_output_dir
+from pe_drake.io_utils import describe_write_error, staged_output_dir
 from pe_drake.multibody.capsule_fitting import FittedCapsules, fit_capsules
 from pe_drake.multibody.registry import robot_display_name
 from pe_drake.multibody.robot import Robot
-from pe_drake.output_paths import OPTIMIZE_OUTPUTS, check_output_dir, remove_stale_outputs
+from pe_drake.output_paths import OPTIMIZE_OUTPUTS, check_output_dir
 from pe_drake.plots import plot_trajectory
 
 Say = Callable[[str], None]
@@ -113,7 +114,13 @@ class MotionPlan:
         say = progress or (lambda _line: None)
         out = check_output_dir(folder)
         check_csv_size(self.config, csv_rate)
-        with staged_output_dir(out) as tmp:
+        try:
+            return self._write(out, csv_rate, playback, say)
+        except OSError as err:  # a full disk: the solve must not be lost to it
+            raise self._rescue(out, err) from err
+
+    def _write(self, out: Path, csv_rate: float, playback, say: Say) -> list[str]:
+        with staged_output_dir(out, "report.json", OPTIMIZE_OUTPUTS) as tmp:
             if self.success and self.refusal is None:
                 self._write_motion(tmp, csv_rate)
                 if playback is not None:
@@ -131,8 +138,26 @@ class MotionPlan:
                 report = dataclasses.replace(report, fitted_capsules=str(out / self.fitted.path.name))
             (tmp / "report.json").write_text(json.dumps(report.to_dict(), indent=2, default=float))
             written = sorted(p.name for p in tmp.iterdir())
-        remove_stale_outputs(out, OPTIMIZE_OUTPUTS, written)  # a reused folder never mixes runs
         return written
+
+    def _rescue(self, out: Path, err: OSError) -> OutputWriteError:
+        """Saves the solved trajectory alone (a few kB) beside ``out``'s outputs, or in the
+        temporary folder when even that fails, and says where."""
+        what = f"could not write the outputs into '{out}': {describe_write_error(err)}; nothing was half-written"
+        if not self.success:
+            return OutputWriteError(what)
+        result = self.result
+        for folder in (out, Path(tempfile.gettempdir())):
+            path = folder / f"trajectory.rescued-{os.getpid()}.json"
+            try:
+                save_trajectory(path, self.robot, result.trajectory, cond=result.cond,
+                                cond_motion=result.cond_motion, **self.motion.to_dict())
+            except OSError:
+                continue
+            return OutputWriteError(f"{what}. The solved motion (cond {result.cond:.4g}) is kept in '{path}': "
+                                    "pe-drake view and simulate read it; re-run optimize with the same "
+                                    "seed to write the full set", rescued=str(path))
+        return OutputWriteError(f"{what}, and the solved motion could not be saved anywhere either")
 
     def _write_motion(self, tmp: Path, csv_rate: float) -> None:
         result, robot = self.result, self.robot

@@ -15,7 +15,7 @@ from pe_drake.excitation.constraints import constraints_from_config
 from pe_drake.excitation.payload_motion import PayloadMotionPlan, optimize_payload_motion, payload_excitation_config
 from pe_drake.io_utils import staged_output_dir
 from pe_drake.multibody.robot import Robot
-from pe_drake.output_paths import check_output_dir
+from pe_drake.output_paths import OPTIMIZE_OUTPUTS, check_output_dir
 
 #: The arm's excitation settings a payload motion keeps (its constraints and noise).
 KEPT_SETTINGS = ("balance_radius", "collision_margin", "torque_limits", "noise_std", "seed", "measurement")
@@ -51,7 +51,7 @@ def optimize_payload(config: Config, robot: Robot, link: str, *, seed: int | Non
 def write_payload_plan(plan: PayloadMotionPlan, folder: str | Path, robot: Robot, csv_rate: float = 1000.0) -> list[str]:
     """Writes trajectory.json, trajectory.csv and report.json into ``folder``; returns the names."""
     out = check_output_dir(folder)
-    with staged_output_dir(out) as tmp:
+    with staged_output_dir(out, "report.json", OPTIMIZE_OUTPUTS) as tmp:
         plan.write(tmp, robot, csv_rate)
         report = {"robot": robot.name, "payload_link": plan.link, "cond": plan.result.cond,
                   "criterion": plan.criterion, "message": plan.result.message,

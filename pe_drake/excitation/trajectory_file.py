@@ -21,6 +21,7 @@ from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.excitation.fourier import FourierTrajectory
 from pe_drake.excitation.ramp import RampedMotion, ramped_motion_from_dict
 from pe_drake.io_utils import atomic_write_text
+from pe_drake.output_set import check_output_set
 
 #: Physical range of ω [rad/s]: periods from 0.1 s to 10 minutes.
 OMEGA_RANGE = (2 * np.pi / 600.0, 2 * np.pi / 0.1)
@@ -75,6 +76,7 @@ def load_trajectory(path: str | Path) -> tuple[FourierTrajectory, dict[str, Any]
     if size > MAX_FILE_BYTES:
         raise DataError(f"{size / 1e6:.1f} MB is more than a trajectory file holds (at most "
                         f"{MAX_FILE_BYTES / 1e6:.0f} MB)", file=str(path))
+    check_output_set(path)  # not a trajectory.json beside another run's trajectory.csv
     try:
         data = json.loads(path.read_text())
     except json.JSONDecodeError as err:

@@ -25,6 +25,7 @@ from pe_drake.identification.drive_terms import DriveFit, DriveLayout
 from pe_drake.identification.estimators import IdentificationResult, fit_warnings, measurement_base_parameters
 from pe_drake.identification.measurements import Preprocessing
 from pe_drake.multibody.inertia import PARAMETER_NAMES, inertia_matrix, phi_from_com, validity_problems
+from pe_drake.output_set import check_output_set
 
 
 def _finite_or_none(x: float) -> float | None:
@@ -109,6 +110,8 @@ def load_identified(path: str | Path, robot) -> IdentificationResult:
             not match the robot's composition.
     """
     path = Path(path)
+    if path.is_file():
+        check_output_set(path)  # its model.urdf and residuals are of the same run
     try:
         d = json.loads(path.read_text())
     except FileNotFoundError:

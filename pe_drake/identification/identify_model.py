@@ -47,7 +47,7 @@ from pe_drake.multibody.inertia import PhysicallyInvalidError, validity_problems
 from pe_drake.multibody.robot import Robot
 from pe_drake.multibody.sensors import MeasurementType
 from pe_drake.multibody.urdf import write_robot_urdf
-from pe_drake.output_paths import IDENTIFY_OUTPUTS, check_output_dir, remove_stale_outputs
+from pe_drake.output_paths import IDENTIFY_OUTPUTS, check_output_dir
 from pe_drake.plots import plot_prediction
 
 
@@ -148,7 +148,7 @@ class IdentifiedModel:
         """
         out, robot, result = check_output_dir(folder), self.robot, self.result
         note, written = self.note, ["identified.json", "residuals.png"]
-        with staged_output_dir(out) as tmp:
+        with staged_output_dir(out, "identified.json", IDENTIFY_OUTPUTS) as tmp:
             model_file = None
             if self.phi is not None:
                 try:
@@ -174,7 +174,6 @@ class IdentifiedModel:
                 if result.drive is not None and result.drive.layout.count:
                     (tmp / "drive_effects.yaml").write_text(drive_effects_yaml(result.drive))
                     written.append("drive_effects.yaml")
-        remove_stale_outputs(out, IDENTIFY_OUTPUTS, written)  # e.g. an earlier run's model.urdf
         return written, note
 
 

@@ -76,7 +76,7 @@ class PayloadIdentification:
     def write(self, folder: str | Path) -> list[str]:
         """payload.json (with the vendor formats) and model_with_payload.urdf, both or neither."""
         out = check_output_dir(folder)
-        with staged_output_dir(out) as tmp:
+        with staged_output_dir(out, "payload.json", ("payload.json", "model_with_payload.urdf")) as tmp:
             d = self.result.to_dict()
             d["vendor"] = self.formats
             (tmp / "payload.json").write_text(json.dumps(d, indent=2))
