@@ -1,4 +1,4 @@
-"""Benchmarks that print numbers: ``python -m pe_drake.bench {gradient,identify,diagnose,sensitivity,solve,payload}``.
+"""Benchmarks that print numbers: ``python -m pe_drake.bench {gradient,identify,diagnose,sensitivity,solve,payload,memory}``.
 
 Each benchmark prints its measurements and ends with one line ``BENCH key=value ...`` so
 scripts can collect it. Timings are wall-clock medians of repeated runs on this machine.
@@ -45,6 +45,7 @@ _BENCHMARKS = {
     "sensitivity": ("pe_drake.bench", "bench_sensitivity"),
     "solve": ("pe_drake.bench", "bench_solve"),
     "payload": ("pe_drake.bench_payload", "bench_payload"),
+    "memory": ("pe_drake.bench_memory", "bench_memory"),
 }
 
 
@@ -170,7 +171,7 @@ def bench_identify(args: argparse.Namespace) -> None:
     print("target: OLS under 5 s on 2 cores")
 
 
-def _bench_trajectory(robot, seed: int, harmonics: int = 5, period: float = 10.0):
+def bench_trajectory(robot, seed: int, harmonics: int = 5, period: float = 10.0):
     """A random Fourier trajectory about the nominal posture, as large as the joint limits and
     self-collision (capsule distance ≥ 2 cm) allow: the simulated robot has the capsules as
     contact geometry."""
@@ -214,7 +215,7 @@ def bench_diagnose(args) -> None:
 
 
     robot = load_robot(args.robot)
-    trajectory = _bench_trajectory(robot, args.seed)
+    trajectory = bench_trajectory(robot, args.seed)
     n = robot.n
     truth = Truth(seed=args.seed, inertia_perturbation=0.03,
                   effects=EffectsTruth(viscous={"all": 0.1}, coulomb={"all": 0.3}),
@@ -248,7 +249,7 @@ def bench_sensitivity(args) -> None:
     seed..seed+19) on ``--trajectory`` (default: a random collision-free one), how many name
     anything; then a 0.1 N·m offset on every joint in the same conditions, how many are named."""
     robot = load_robot(args.robot)
-    trajectory = load_trajectory(args.trajectory)[0] if args.trajectory else _bench_trajectory(robot, args.seed)
+    trajectory = load_trajectory(args.trajectory)[0] if args.trajectory else bench_trajectory(robot, args.seed)
     noise = NoiseTruth(encoder_counts_per_rev=524288, tau_std=0.05)
     control = ControlTruth(rate_hz=500.0)
     alarms = []
@@ -369,6 +370,7 @@ def main(argv: list[str] | None = None) -> int:
         "--max-iterations", type=int, default=None, help="solve: IPOPT budget (default: the robot's config, 300)"
     )
     parser.add_argument("--payloads", type=int, default=5, help="payload: random payloads (default: %(default)s)")
+    parser.add_argument("--minutes", default="1,10,60", help="memory: log durations [min] (default: %(default)s)")
     parser.add_argument("--link", default="", help="payload: the payload link (default: the robot's flange)")
     args = parser.parse_args(argv)
     if args.robot is None:

@@ -32,6 +32,7 @@ from pe_drake.identification.preprocessing import (
     design_lowpass,
     resample_uniform,
 )
+from pe_drake.memory import available_bytes
 
 #: Order of the Butterworth low-pass (the zero-phase filter doubles it).
 FILTER_ORDER = 4
@@ -282,6 +283,34 @@ def check_record_signs(robot, record: Record) -> None:
     idx = record.usable()
     check_against_model(robot, Measurement(record.t[idx], record.q[idx], record.tau[idx], record.v[idx],
                                            record.vd[idx], robot.joint_names, record.source))
+
+
+#: What diagnose holds per fitted sample (it fits at 200 Hz at most), measured with ``python -m
+#: pe_drake.bench memory``: 6.5 kB per 1 kHz row of a 7-joint Panda log, and its fixed part [bytes].
+DIAGNOSE_BYTES_PER_SAMPLE = 32.5e3
+DIAGNOSE_BASE_BYTES = 0.6e9
+FIT_RATE_HZ = 200.0
+
+
+def check_fits_in_memory(data: Measurement, validation: Measurement | None = None,
+                         available: int | None = None) -> None:
+    """Refuses, before any work, a run diagnose would need more memory for than is available.
+
+    Raises:
+        DataError: naming the duration, the estimate and what the machine has.
+    """
+    available = available_bytes() if available is None else available
+    samples = sum(m.duration * min(m.rate_hz, FIT_RATE_HZ) for m in (data, validation) if m is not None)
+    per_sample = DIAGNOSE_BYTES_PER_SAMPLE * max(data.num_joints, 1) / 7.0
+    need = DIAGNOSE_BASE_BYTES + per_sample * samples
+    usable = None if available is None else 0.8 * available  # the estimate's spread, and the rest of the machine
+    if usable is not None and need > usable:
+        fits = max(usable - DIAGNOSE_BASE_BYTES, 0.0) / per_sample / min(data.rate_hz, FIT_RATE_HZ) / 60.0
+        raise DataError(
+            f"diagnose would need about {need / 1e9:.1f} GB for {data.duration / 60:.1f} min of data "
+            f"({per_sample * min(data.rate_hz, FIT_RATE_HZ) / 1e6:.1f} MB per second of this log); this machine "
+            f"has {available / 1e9:.1f} GB available: diagnose a part of the run (about {fits:.0f} min) and "
+            "identify the whole of it (pe-drake identify reads an hour at 1 kHz in under 2 GB)", file=data.source)
 
 
 def check_joints(robot, data: Measurement, validation: Measurement | None) -> None:

@@ -84,7 +84,8 @@ from pe_drake.diagnosis.payload import (
     rigid_report,
 )
 from pe_drake.diagnosis.presliding import PRESLIDING, PreslidingStep, presliding_effects, presliding_step
-from pe_drake.diagnosis.record import Record, Segment, check_joints, check_record_signs, delayed_states, prepare_record, split_segments
+from pe_drake.diagnosis.record import (Record, Segment, check_fits_in_memory, check_joints, check_record_signs,
+                                      delayed_states, prepare_record, split_segments)
 from pe_drake.diagnosis.regression import (
     Columns,
     Fit,
@@ -518,6 +519,7 @@ def diagnose(
     joints = robot.joint_names
     check_joints(robot, data, validation)
     data, validation = (longest_segment(m, config.max_gap_s) if m is not None else None for m in (data, validation))
+    check_fits_in_memory(data, validation)
     for note in (*data.notes, *(validation.notes if validation is not None else ())):
         say(f"note: {note}")
     prep = prepare(robot, data, validation, config, say)

@@ -396,11 +396,13 @@ def filtered_coulomb(raw, data, velocity_scale: float = COULOMB_VELOCITY_SCALE) 
         return None
     grid = resample_uniform(raw.t, {"q": raw.q, "v": raw.v})
     lowpass = design_lowpass(p.cutoff_hz, grid.rate_hz, len(grid.t), p.filter_order, file=raw.source)
-    v = grid.signals["v"]
-    v = lowpass.apply(v) if v is not None else differentiate(lowpass.apply(grid.signals["q"]), grid.dt)
-    column = lowpass.apply(coulomb_column(v, velocity_scale))
     idx = np.clip(np.rint((data.t - grid.t[0]) / grid.dt).astype(int), 0, len(grid.t) - 1)
-    return column[idx]
+    out = np.empty((len(idx), raw.num_joints))
+    for j in range(raw.num_joints):  # a joint at a time: a long log's full-rate columns one by one
+        v = grid.signals["v"]
+        v = lowpass.apply(v[:, j]) if v is not None else differentiate(lowpass.apply(grid.signals["q"][:, [j]]), grid.dt)[:, 0]
+        out[:, j] = lowpass.apply(coulomb_column(v, velocity_scale))[idx]
+    return out
 
 
 def urdf_dynamics(fit: DriveFit | None) -> tuple[dict[str, float], dict[str, float], list[str]]:

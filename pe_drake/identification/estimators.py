@@ -40,7 +40,7 @@ from typing import NamedTuple
 import numpy as np
 
 from pe_drake.exceptions import ConfigError, DataError
-from pe_drake.identification.channels import channel_names, measured_rows, measured_values
+from pe_drake.identification.channels import channel_names, measured_values
 from pe_drake.identification.drive_terms import (
     TERMS,
     DriveFit,
@@ -61,7 +61,8 @@ from pe_drake.identification.measurements import (
 )
 from pe_drake.identification.physical_fit import PhysicalBounds, physical_fit
 from pe_drake.identification.preprocessing import PreprocessOptions
-from pe_drake.identification.statistics import integrated_autocorrelation, sandwich_covariance
+from pe_drake.identification.folded_rows import BLOCK, FoldedRows, column_map, fold_rows, residual_series
+from pe_drake.identification.statistics import integrated_autocorrelation, sandwich_from_grams
 from pe_drake.multibody.base_parameters import BaseParameters, compute_base_parameters
 from pe_drake.multibody.regressor import RegressorModel
 from pe_drake.multibody.sensors import MeasurementType, SensorRows
@@ -333,33 +334,33 @@ def identify(
     model = model or RegressorModel(robot)
     base = base or measurement_base_parameters(robot, measurement, model)
     channels = channel_names(robot, measurement)
-    tau = measured_values(robot, data, measurement)  # (S, r): torques and/or wrench, per channel
-    Y = measured_rows(robot, data, measurement, model)
-    YB = base.reduce(Y)
-    layout, D = _drive_block(robot, data, measurement, drive_options(drive_terms), YB, model, coulomb)
-    _check_rows(data, base.count + layout.count, len(channels))
-    W = np.concatenate([YB, D], axis=2)  # Y_B | drive columns
-    ols = _ordinary_fit(W, tau)
+    measured_values(robot, data, measurement)  # refuses data without the channels, naming them
+    layouts = _layouts(robot, measurement, drive_options(drive_terms), method, model)
+    _check_rows(data, base.count + layouts.drive.count, len(channels))
+    blocks = _row_blocks(robot, data, measurement, model, layouts, coulomb)
+    folded = fold_rows(blocks)  # the rows never held at once: an hour of data fits (folded_rows)
+    cols = _Columns(folded.R.shape[1] - 1, 10 * len(robot.body_names), base, layouts)
+    layout, keep = separable_on_data(folded.stacked(cols.base)[0], folded.stacked(cols.drive)[0], layouts.drive)
+    T = np.hstack([cols.base, cols.drive[:, keep]])  # Y_B | drive columns
+    ols = _ordinary_fit(folded, blocks, T)
     x, cov, phi, physical = ols.phi_B, ols.cov, None, None
     if method in ("wls", "physical"):
         # Gautier: rows of channel j weighted by 1/σ_j.
         noise_std = ols.noise_std
         w = 1.0 / np.maximum(noise_std, 1e-9 * max(float(noise_std.max()), 1e-12))
-        S, n, p = W.shape
-        yw = (tau * w).reshape(S * n)
-        Ww = W * w[None, :, None]
-        x, cov_unit, _ = _lstsq(Ww.reshape(S * n, p), yw)
-        cov = sandwich_covariance(Ww, (yw - Ww.reshape(S * n, p) @ x).reshape(S, n), cov_unit)
+        x, cov_unit, _ = _lstsq(*folded.stacked(T, w))
+        residual = residual_series(blocks, folded.samples, T, x, w)
+        cov = sandwich_from_grams(folded.channel_grams(T, w), residual, cov_unit)
         if method == "physical":
             prior = robot.phi_model if prior is None else np.asarray(prior, float)
             # Stage 2 of the fit stays in the 95 % confidence region of this estimate: whitened
             # rows count τ̄ times for correlated samples (statistics.sandwich_covariance).
-            tau_bar = float(np.mean(integrated_autocorrelation((yw - Ww.reshape(S * n, p) @ x).reshape(S, n))))
-            physical = _physical(robot, base, data, layout, Y, D, w, yw, prior, bounds,
+            tau_bar = float(np.mean(integrated_autocorrelation(residual)))
+            physical = _physical(robot, base, layout, folded, cols, keep, layouts.armature, w, prior, bounds,
                                  tau_bar * PHYSICAL_DELTA_CHI2)
             phi, x = physical.phi, physical.x
     b = base.count
-    residual_rms, relative_error = torque_errors(tau, W @ x)
+    residual_ss = folded.residual_ss(T, x)
     return IdentificationResult(
         robot=robot.name,
         method=method,
@@ -369,10 +370,10 @@ def identify(
         sigma_percent=_sigma_percent(x[:b], cov[:b, :b]),
         phi=phi,
         cond=ols.cond,
-        residual_rms=residual_rms,
-        relative_error=relative_error,
+        residual_rms=np.sqrt(residual_ss / folded.samples),
+        relative_error=100.0 * np.sqrt(residual_ss) / np.maximum(np.sqrt(folded.measured_ss()), 1e-300),
         noise_std=ols.noise_std,
-        samples=YB.shape[0],
+        samples=folded.samples,
         preprocessing=data.preprocessing,
         wall_time=time.perf_counter() - start,
         source=data.source,
@@ -381,24 +382,74 @@ def identify(
         drive=DriveFit(layout, x[b:], np.sqrt(np.maximum(np.diag(cov)[b:], 0.0)),
                        physical.merged_armature if physical is not None else {}),
         physical_notes=physical.notes if physical is not None else (),
-        friction_share=_friction_share(robot, data, measurement, YB, tau, W @ x, layout, coulomb),
+        friction_share=_friction_share(folded, cols, layouts, residual_ss),
     )
 
 
-def _friction_share(robot, data: Measurement, measurement: str, YB: np.ndarray, tau: np.ndarray,
-                    fitted: np.ndarray, layout: DriveLayout, coulomb: np.ndarray | None) -> float | None:
+class _Layouts(NamedTuple):
+    drive: DriveLayout  # the drive columns asked for (before the data decides which separate)
+    armature: DriveLayout  # physical: the merged armatures, variables of the fit too
+    friction: DriveLayout  # a rigid-body-only fit of torques: friction, to say what it leaves
+
+
+def _layouts(robot, measurement: str, options: DriveTermOptions, method: str, model: RegressorModel) -> _Layouts:
+    none = drive_layout(robot, None, DriveTermOptions("none", options.velocity_scale))
+    if measurement == "base_wrench":  # the ground wrench does not see the drives
+        return _Layouts(none, none, none)
+    torque_base = compute_base_parameters(robot, model=model) if "armature" in TERMS[options.terms] else None
+    drive = drive_layout(robot, torque_base, options, model)
+    armature = none
+    if method == "physical" and drive.merged:
+        merged = tuple(robot.joint_names.index(j) for j in drive.merged)
+        armature = DriveLayout(("armature",) * len(merged), merged, drive.joint_names,
+                               tuple("kg·m²" for _ in merged), drive.velocity_scale)
+    friction = none
+    if not drive.count:
+        friction = drive_layout(robot, None, DriveTermOptions("friction", options.velocity_scale))
+    return _Layouts(drive, armature, friction)
+
+
+class _Columns:
+    """Maps from the folded columns [Y | drive | armature | friction] to the fits' columns."""
+
+    def __init__(self, total: int, standard: int, base: BaseParameters, layouts: _Layouts):
+        d, a, f = layouts.drive.count, layouts.armature.count, layouts.friction.count
+        self.standard = column_map(total, range(standard))
+        self.base = self.standard[:, base.independent]
+        self.drive = column_map(total, range(standard, standard + d))
+        self.armature = column_map(total, range(standard + d, standard + d + a))
+        self.friction = column_map(total, range(standard + d + a, standard + d + a + f))
+
+
+def _row_blocks(robot, data: Measurement, measurement: str, model: RegressorModel, layouts: _Layouts,
+                coulomb: np.ndarray | None):
+    """The rows [Y | drive | armature | friction] and y of ``data``, BLOCK samples at a time."""
+    rows = SensorRows(model, MeasurementType(measurement))
+    r = len(channel_names(robot, measurement))
+
+    def blocks():
+        for s in range(0, data.num_samples, BLOCK):
+            k = slice(s, min(s + BLOCK, data.num_samples))
+            part = data.replace(**{f: None if getattr(data, f) is None else getattr(data, f)[k]
+                                   for f in ("t", "q", "tau", "v", "vd", "wrench")})
+            sign = None if coulomb is None else coulomb[k]
+            F = [rows.rows(model.kinematics(part.q, part.v, part.vd), scaled=False)]
+            F += [drive_columns(part.v, part.vd, layout, sign, rows=r) for layout in layouts]
+            yield k, np.concatenate(F, axis=2), measured_values(robot, part, measurement)
+
+    return blocks
+
+
+def _friction_share(folded: FoldedRows, cols: _Columns, layouts: _Layouts, residual_ss: np.ndarray) -> float | None:
     """For a rigid-body-only fit: the fraction of its residual energy that friction and offsets
     would explain (None when the fit has drive terms or measures no torques)."""
-    if layout.count or measurement == "base_wrench":
+    if not layouts.friction.count:
         return None
-    friction = drive_layout(robot, None, DriveTermOptions("friction", layout.velocity_scale))
-    S, r, b = YB.shape
-    D = drive_columns(data.v, data.vd, friction, coulomb, rows=r)
-    friction, keep = separable_on_data(YB.reshape(S * r, b), D.reshape(S * r, -1), friction)
-    W = np.concatenate([YB, D[:, :, keep]], axis=2).reshape(S * r, -1)
-    x = np.linalg.lstsq(W, tau.reshape(S * r), rcond=None)[0]
-    before = float(np.sum((tau - fitted) ** 2))
-    after = float(np.sum((tau.reshape(S * r) - W @ x) ** 2))
+    _, keep = separable_on_data(folded.stacked(cols.base)[0], folded.stacked(cols.friction)[0], layouts.friction)
+    T = np.hstack([cols.base, cols.friction[:, keep]])
+    x = np.linalg.lstsq(*folded.stacked(T), rcond=None)[0]
+    before = float(np.sum(residual_ss))
+    after = float(np.sum(folded.residual_ss(T, x)))
     return 1.0 - after / before if before > 0 else 0.0
 
 
@@ -409,22 +460,22 @@ class _Physical(NamedTuple):
     merged_armature: dict[str, float]  # {joint: value} of the merged armatures
 
 
-def _physical(robot, base: BaseParameters, data: Measurement, layout: DriveLayout, Y: np.ndarray, D: np.ndarray,
-              w: np.ndarray, yw: np.ndarray, prior: np.ndarray, bounds: PhysicalBounds | None,
+def _physical(robot, base: BaseParameters, layout: DriveLayout, folded: FoldedRows, cols: _Columns, keep: list[int],
+              armature: DriveLayout, w: np.ndarray, prior: np.ndarray, bounds: PhysicalBounds | None,
               chi2_tolerance: float) -> _Physical:
     """The physical fit with the drive terms; the armatures that merge into base parameters
     are variables ≥ 0 of the fit too, so the part of a merged base parameter above what a
     physical link near its a-priori model holds goes to the rotor, not into link masses."""
-    S, r, _ = Y.shape
     merged = [robot.joint_names.index(j) for j in layout.merged]
     extra = DriveLayout(("armature",) * len(merged), tuple(merged), layout.joint_names,
                         tuple("kg·m²" for _ in merged), layout.velocity_scale)
-    E = np.concatenate([D, drive_columns(data.v, data.vd, extra, rows=r)], axis=2)
-    fit = physical_fit((Y * w[None, :, None]).reshape(S * r, -1), yw, prior, robot.body_names,
-                       extra=(E * w[None, :, None]).reshape(S * r, -1),
+    A, yw = folded.stacked(cols.standard, w)
+    T_E = np.hstack([cols.drive[:, keep], cols.armature[:, [armature.joints.index(j) for j in merged]]])
+    E, _ = folded.stacked(T_E, w)
+    fit = physical_fit(A, yw, prior, robot.body_names, extra=E,
                        extra_lower=np.r_[layout.lower_bounds(), np.zeros(len(merged))],
                        extra_names=layout.labels + extra.labels, bounds=bounds, base_K=base.K,
-                       chi2_tolerance=chi2_tolerance,
+                       chi2_tolerance=chi2_tolerance, rows=folded.samples * folded.channels,
                        extra_in_base={layout.count + i: _in_base(base, layout.merged[robot.joint_names[j]])
                                       for i, j in enumerate(merged)})
     phi_B = base.base_values(fit.phi)
@@ -448,19 +499,6 @@ def _in_base(base: BaseParameters, coef: dict[str, float]) -> np.ndarray:
     return out
 
 
-def _drive_block(robot, data: Measurement, measurement: str, options: DriveTermOptions, YB: np.ndarray,
-                 model: RegressorModel, coulomb: np.ndarray | None) -> tuple[DriveLayout, np.ndarray]:
-    """The drive columns (zero in wrench rows) this data can separate, shape (S, r, d)."""
-    S, r, b = YB.shape
-    if measurement == "base_wrench":
-        options = DriveTermOptions("none", options.velocity_scale)
-    torque_base = compute_base_parameters(robot, model=model) if "armature" in TERMS[options.terms] else None
-    layout = drive_layout(robot, torque_base, options, model)
-    D = drive_columns(data.v, data.vd, layout, coulomb, rows=r)
-    layout, keep = separable_on_data(YB.reshape(S * r, b), D.reshape(S * r, -1), layout)
-    return layout, D[:, :, keep]
-
-
 def fit_warnings(result: IdentificationResult) -> list[str]:
     """What a reader of the fit must know: the physical fit's bounds and moves, and a
     rigid-body-only fit of data whose residual is mostly friction."""
@@ -481,16 +519,14 @@ class _OrdinaryFit(NamedTuple):
     noise_std: np.ndarray  # per-joint residual standard deviation σ_j, (n,) [N·m]
 
 
-def _ordinary_fit(YB: np.ndarray, tau: np.ndarray) -> _OrdinaryFit:
-    """Eq. (4): ordinary least squares on Y_B (S, n, b) and τ (S, n), with its statistics."""
-    S, n, b = YB.shape
-    W = YB.reshape(S * n, b)
-    y = tau.reshape(S * n)
-    phi_B, cov_unit, s = _lstsq(W, y)
-    rho = (y - W @ phi_B).reshape(S, n)
-    dof = max(S - b / n, 1.0)
+def _ordinary_fit(folded: FoldedRows, blocks, T: np.ndarray) -> _OrdinaryFit:
+    """Eq. (4): ordinary least squares on the columns ``T`` of the folded rows, with its statistics."""
+    p, r = T.shape[1], folded.channels
+    phi_B, cov_unit, s = _lstsq(*folded.stacked(T))
+    rho = residual_series(blocks, folded.samples, T, phi_B)
+    dof = max(folded.samples - p / r, 1.0)
     noise_std = np.sqrt(np.sum(rho**2, axis=0) / dof)
-    cov = sandwich_covariance(YB, rho, cov_unit)
+    cov = sandwich_from_grams(folded.channel_grams(T), rho, cov_unit)
     return _OrdinaryFit(phi_B, cov, float(s[0] / s[-1]), noise_std)
 
 
@@ -503,8 +539,10 @@ def predict(
 ) -> np.ndarray:
     """Torques the identified model predicts at the samples of ``data``, its drive terms
     included, shape (S, n) (``coulomb``: as in :func:`identify`)."""
-    YB, _, _, _ = regressor_matrices(robot, data, result.base, model)
-    tau = YB @ result.phi_B
+    model = model or RegressorModel(robot)
+    tau = np.empty_like(data.q)
+    for rows in _chunks(data.num_samples):  # the regressor of a block at a time: long runs fit
+        tau[rows] = result.base.reduce(model(data.q[rows], data.v[rows], data.vd[rows])) @ result.phi_B
     if result.drive is not None and result.drive.layout.count:
         tau = tau + result.drive.torque(data.v, data.vd, coulomb)
     return tau

@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from pe_drake.exceptions import ConfigError, DataError
+from pe_drake.identification.csv_table import read_header, read_table
 from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.wrench import WRENCH_COLUMNS
 
@@ -199,14 +200,7 @@ def read_measurement_csv(path: str | Path, joints, *, min_rows: int = 10) -> Mea
     path = Path(path)
     joints = _joint_names(joints)
     file = str(path)
-    numbered = _numbered_lines(path)
-    if not numbered:
-        raise DataError("the file is empty; expected a header line " + ",".join(_expected_columns(joints)),
-                        file=file)
-    header_line, header = numbered[0]
-    columns = [c.strip().strip('"').strip("'") for c in header.split(",")]
-    data = numbered[1:]
-
+    header_line, columns = read_header(path)
     has_wrench = _wrench_block(columns, file)
     index = _column_index(columns, joints, file, tau_required=not has_wrench)
     has_tau = _optional_block(index, "tau", joints, file)
@@ -219,18 +213,18 @@ def read_measurement_csv(path: str | Path, joints, *, min_rows: int = 10) -> Mea
     if has_wrench:
         wanted += list(WRENCH_COLUMNS)
 
-    if len(data) < min_rows:
-        raise DataError(f"only {len(data)} data rows; at least {min_rows} are needed", file=file)
-
-    table = _parse_table(data, columns, wanted, index, file)
+    table, linenos = read_table(path, header_line, columns, wanted, index)
+    if table.shape[0] < min_rows:
+        raise DataError(f"only {table.shape[0]} data rows; at least {min_rows} are needed", file=file)
     t = table[:, 0]
-    _check_time(t, data, file)
+    _check_time(t, linenos, file)
     n = len(joints)
-    wrench = table[:, -6:].copy() if has_wrench else None
-    blocks = iter(table[:, 1 + k * n : 1 + (k + 1) * n].copy() for k in range(1 + has_tau + has_v + has_vd))
+    # Views into the one table, not copies: an hour at 1 kHz is read at the table's size.
+    wrench = table[:, -6:] if has_wrench else None
+    blocks = iter(table[:, 1 + k * n : 1 + (k + 1) * n] for k in range(1 + has_tau + has_v + has_vd))
     q = next(blocks)
     tau, v, vd = (next(blocks) if present else None for present in (has_tau, has_v, has_vd))
-    return Measurement(t.copy(), q, tau, v, vd, joints, file, wrench=wrench)
+    return Measurement(t, q, tau, v, vd, joints, file, wrench=wrench)
 
 
 def _wrench_block(columns: list[str], file: str) -> bool:
@@ -246,44 +240,7 @@ def _wrench_block(columns: list[str], file: str) -> bool:
     return all(present)
 
 
-def _numbered_lines(path: Path) -> list[tuple[int, str]]:
-    """(line number, text) of every non-blank line, so errors point into the file."""
-    file = str(path)
-    if not path.is_file():
-        raise DataError("measurement file does not exist", file=file)
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except (OSError, UnicodeDecodeError) as err:
-        raise DataError(f"cannot read the file: {err}", file=file) from err
-    return [(k + 1, line) for k, line in enumerate(text.splitlines()) if line.strip()]
-
-
-def _parse_table(data, columns: list[str], wanted: list[str], index: dict[str, int], file: str) -> np.ndarray:
-    """The ``wanted`` columns of the data rows as floats, shape (rows, len(wanted)); all finite."""
-    usecols = [index[c] for c in wanted]
-    try:
-        # np.loadtxt's C parser: ~0.1 s for 21k rows x 22 columns.
-        table = np.loadtxt([line for _, line in data], delimiter=",", usecols=usecols, ndmin=2,
-                           dtype=float, comments=None)
-        if table.shape[0] != len(data):
-            raise ValueError("row count mismatch")
-        ragged = _first_ragged_row(data, len(columns))
-        if ragged is not None:
-            raise ValueError("ragged")
-    except ValueError:
-        _locate_parse_error(data, columns, wanted, index, file)
-        raise  # pragma: no cover - _locate_parse_error always raises
-    bad = ~np.isfinite(table)
-    if bad.any():
-        r, c = np.argwhere(bad)[0]
-        raise DataError(
-            f"value '{table[r, c]}' is not a finite number (line {data[r][0]} of the file)",
-            file=file, column=wanted[c], row=int(r) + 1,
-        )
-    return table
-
-
-def _check_time(t: np.ndarray, data, file: str) -> None:
+def _check_time(t: np.ndarray, linenos: np.ndarray, file: str) -> None:
     """Refuses duplicated or decreasing time, naming the data row and the file's line."""
     steps = np.diff(t)
     if (steps <= 0).any():
@@ -291,7 +248,7 @@ def _check_time(t: np.ndarray, data, file: str) -> None:
         kind = "duplicated" if steps[r - 1] == 0 else "decreasing"
         raise DataError(
             f"{kind} time: t = {t[r]:.9g} s does not come after the previous row's "
-            f"t = {t[r - 1]:.9g} s (line {data[r][0]} of the file); time must strictly increase",
+            f"t = {t[r - 1]:.9g} s (line {linenos[r]} of the file); time must strictly increase",
             file=file, column="t", row=r + 1,
         )
 
@@ -332,33 +289,6 @@ def _optional_block(index: dict[str, int], prefix: str, joints: tuple[str, ...],
             file=file, column=missing[0],
         )
     return all(present) and bool(joints)
-
-
-def _first_ragged_row(data: list[tuple[int, str]], width: int) -> int | None:
-    counts = np.fromiter((line.count(",") for _, line in data), dtype=int, count=len(data))
-    wrong = np.nonzero(counts != width - 1)[0]
-    return int(wrong[0]) if wrong.size else None
-
-
-def _locate_parse_error(data, columns, wanted, index, file) -> None:
-    """Slow path after a parse failure: find the first bad row/field and raise DataError."""
-    for r, (lineno, line) in enumerate(data):
-        fields = line.split(",")
-        if len(fields) != len(columns):
-            raise DataError(
-                f"{len(fields)} fields where the header has {len(columns)} (line {lineno} of the file)",
-                file=file, row=r + 1,
-            )
-        for name in wanted:
-            raw = fields[index[name]].strip()
-            try:
-                float(raw)
-            except ValueError:
-                raise DataError(
-                    f"'{raw}' is not a number (line {lineno} of the file)",
-                    file=file, column=name, row=r + 1,
-                ) from None
-    raise DataError("could not parse the file as comma-separated numbers", file=file)
 
 
 def measurement_to_csv_text(measurement: Measurement) -> str:

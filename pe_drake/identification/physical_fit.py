@@ -149,6 +149,7 @@ def physical_fit(
     null_weight: float = NULL_WEIGHT,
     chi2_tolerance: float = CHI2_TOLERANCE,
     margin: float = PSD_MARGIN,
+    rows: int | None = None,
 ) -> PhysicalFit:
     """The SDP of the module docstring.
 
@@ -173,6 +174,8 @@ def physical_fit(
         null_weight: stage 1's pull / μ (module docstring).
         chi2_tolerance: Δχ² of stage 2; 0 skips it.
         margin: ε of the pseudo-inertia constraint.
+        rows: the rows ``A`` stands for when it is folded (:mod:`~pe_drake.identification.folded_rows`:
+            the same Gram matrix in fewer rows); default ``len(y)``.
 
     Raises:
         NoSolutionFound: the solver failed (e.g. bounds that contradict each other or the data).
@@ -187,7 +190,8 @@ def physical_fit(
     active = [b for b in range(len(body_names)) if prior[10 * b] > 0]
     cols = np.concatenate([np.arange(10 * b, 10 * b + 10) for b in active])
     D = (_variable_scale(prior, active) if scale is None else np.asarray(scale, float))[cols]
-    s_e, Rs, z, P_null, mu = _data_term(A[:, cols] * D, E, y, base_K, cols, D, extra_in_base)
+    s_e, Rs, z, P_null, mu = _data_term(A[:, cols] * D, E, y, base_K, cols, D, extra_in_base,
+                                        len(y) if rows is None else rows)
     k = len(cols) + d
     H = Rs.T @ Rs
     x_prior = np.concatenate([prior[cols] / D, np.zeros(d)])
@@ -227,11 +231,11 @@ def physical_fit(
     return PhysicalFit(phi, theta, tuple(notes))
 
 
-def _data_term(AD: np.ndarray, E: np.ndarray, y: np.ndarray, base_K, cols, D, extra_in_base):
+def _data_term(AD: np.ndarray, E: np.ndarray, y: np.ndarray, base_K, cols, D, extra_in_base, rows: int):
     """(drive scales s_e, R, z with ‖[A D | E s_e] x − y‖² = ‖R x − z‖² + const (QR), the
     null-space projector, μ)."""
     norms = np.linalg.norm(E, axis=0)
-    s_e = np.where(norms > 0, np.linalg.norm(y) / np.maximum(norms, 1e-300) / max(np.sqrt(len(y)), 1.0), 1.0)
+    s_e = np.where(norms > 0, np.linalg.norm(y) / np.maximum(norms, 1e-300) / max(np.sqrt(rows), 1.0), 1.0)
     k = AD.shape[1] + E.shape[1]
     R = np.linalg.qr(np.column_stack([AD, E * s_e, y]), mode="r")
     Rs, z = R[:k, :k], R[:k, k]

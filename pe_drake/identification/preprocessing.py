@@ -271,7 +271,15 @@ class LowPassFilter:
         """Zero-phase filtered x along its first axis (time), same shape (T, ...)."""
         from scipy.signal import sosfiltfilt  # lazy: keeps `import pe_drake` light
 
-        return sosfiltfilt(self.sos, x, axis=0, padtype="odd", padlen=self.padlen)
+        x = np.asarray(x, float)
+        if x.ndim < 2:
+            return sosfiltfilt(self.sos, x, axis=0, padtype="odd", padlen=self.padlen)
+        # Column by column: scipy's padded copies and passes then cost one column of a long
+        # log, not all of them (the same numbers: the columns are filtered independently).
+        out = np.empty(x.shape)
+        for k in np.ndindex(x.shape[1:]):
+            out[(slice(None), *k)] = sosfiltfilt(self.sos, x[(slice(None), *k)], padtype="odd", padlen=self.padlen)
+        return out
 
     def edge_transient_s(self, tolerance: float = EDGE_TOLERANCE) -> float:
         """How far from each end the filter's edge transient spoils the accelerations [s].
@@ -387,6 +395,32 @@ def fill_derivatives(
     )
 
 
+def _on_grid(t: np.ndarray, x: np.ndarray, grid: UniformSignals) -> np.ndarray:
+    """One column x (T,) on the uniform grid."""
+    return _interp_rows(grid.t, t, x[:, None])[:, 0] if grid.resampled else x
+
+
+def _filtered_columns(t: np.ndarray, x: np.ndarray, grid: UniformSignals, lowpass: LowPassFilter,
+                      idx: np.ndarray) -> np.ndarray:
+    """x (T, k) on the grid, filtered, at the kept samples ``idx``: one column at a time, so a
+    long log costs one full-rate column at once (the same numbers as all columns together)."""
+    return np.column_stack([lowpass.apply(_on_grid(t, x[:, j], grid))[idx] for j in range(x.shape[1])])
+
+
+def _filtered_motion(m: Measurement, grid: UniformSignals, lowpass: LowPassFilter,
+                     idx: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(q, v, vd) filtered at ``idx``: measured v and vd kept (filtered), the others differentiated
+    at the full rate (:func:`fill_derivatives`), a joint at a time."""
+    out = np.empty((3, idx.size, m.num_joints))
+    for j in range(m.num_joints):
+        q = lowpass.apply(grid.signals["q"][:, j])
+        v = None if m.v is None else lowpass.apply(_on_grid(m.t, m.v[:, j], grid))
+        vd = None if m.vd is None else lowpass.apply(_on_grid(m.t, m.vd[:, j], grid))
+        d = fill_derivatives(q, grid.dt, v, vd)
+        out[0, :, j], out[1, :, j], out[2, :, j] = q[idx], d.v[idx], d.vd[idx]
+    return out[0], out[1], out[2]
+
+
 # ---- (5) decimation and (6) trimmed ends -----------------------------------------------------
 
 
@@ -479,22 +513,22 @@ def preprocess(measurement: Measurement, options: PreprocessOptions | None = Non
     if m.num_samples < MIN_SAMPLES:
         raise DataError(f"only {m.num_samples} samples; preprocessing needs at least {MIN_SAMPLES}",
                         file=m.source)
-    grid = resample_uniform(m.t, {"q": m.q, "tau": m.tau, "v": m.v, "vd": m.vd, "wrench": m.wrench})
+    grid = resample_uniform(m.t, {"q": m.q})
     cutoff = choose_cutoff(grid.t, grid.signals["q"], grid.rate_hz, cutoff_hz=opts.cutoff_hz,
                            fundamental_hz=opts.fundamental_hz, harmonics=opts.harmonics, file=m.source)
     lowpass = design_lowpass(cutoff.hz, grid.rate_hz, len(grid.t), opts.filter_order, file=m.source)
-    filtered = {k: None if x is None else lowpass.apply(x) for k, x in grid.signals.items()}
-    derivatives = fill_derivatives(filtered["q"], grid.dt, filtered["v"], filtered["vd"])
     step = decimation_step(grid.rate_hz, opts.decimate_to_hz, cutoff.hz)
     trim = default_trim_s(lowpass, m.wrench is not None) if opts.trim_s is None else float(opts.trim_s)
     idx = trim_indices(grid.t, trim, step, file=m.source)
+    q, v, vd = _filtered_motion(m, grid, lowpass, idx)
+    tau, wrench = (None if x is None else _filtered_columns(m.t, x, grid, lowpass, idx) for x in (m.tau, m.wrench))
     info = Preprocessing(
         cutoff_hz=cutoff.hz, cutoff_source=cutoff.source, filter_order=int(opts.filter_order),
         input_rate_hz=grid.rate_hz, resampled=grid.resampled, rate_hz=grid.rate_hz / step, trim_s=trim,
-        velocity_source=derivatives.velocity_source, acceleration_source=derivatives.acceleration_source,
+        velocity_source="measured" if m.v is not None else "differentiated",
+        acceleration_source="measured" if m.vd is not None else "differentiated",
         samples_in=m.num_samples, samples_out=int(idx.size), duration_in_s=float(m.t[-1] - m.t[0]),
         duration_out_s=float(grid.t[idx[-1]] - grid.t[idx[0]]),
     )
-    tau, wrench = (None if filtered[k] is None else filtered[k][idx] for k in ("tau", "wrench"))
-    return Measurement(grid.t[idx], filtered["q"][idx], tau, derivatives.v[idx], derivatives.vd[idx],
+    return Measurement(grid.t[idx], q, tau, v, vd,
                        m.joints, m.source, info, wrench=wrench, notes=m.notes)

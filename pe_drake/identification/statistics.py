@@ -58,6 +58,17 @@ def sandwich_covariance(W: np.ndarray, residual: np.ndarray, cov_unit: np.ndarra
     return cov_unit @ M @ cov_unit
 
 
+def sandwich_from_grams(grams: np.ndarray, residual: np.ndarray, cov_unit: np.ndarray) -> np.ndarray:
+    """:func:`sandwich_covariance` from each channel's Gram matrix W_cᵀW_c, shape (r, p, p)
+    (the folded rows of :mod:`~pe_drake.identification.folded_rows`), and the residual (S, r)."""
+    S, r = residual.shape
+    p = grams.shape[1]
+    tau = integrated_autocorrelation(residual)
+    s2 = np.sum(residual**2, axis=0) / max(S - p / r, 1.0)
+    M = np.einsum("c,cij->ij", tau * s2, grams)
+    return cov_unit @ M @ cov_unit
+
+
 def confidence_chi2(count: int, level: float = 0.95) -> float:
     """The χ² quantile of ``count`` degrees of freedom: the boundary of the ``level``
     confidence region {x : (x − x̂)ᵀ Cov⁻¹ (x − x̂) ≤ q} of a ``count``-parameter estimate."""
