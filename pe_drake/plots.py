@@ -88,6 +88,18 @@ def save_figure(fig, path: str | Path, dpi: int = 80) -> Path:
     return path
 
 
+def envelope(t: np.ndarray, y: np.ndarray, bins: int = 5000) -> tuple[np.ndarray, np.ndarray]:
+    """(t, y) as drawn: a long series as the minimum and maximum of each of ``bins`` bins (the
+    same picture at a figure's resolution, and an hour at 200 Hz is not 720,000 points per
+    line in memory); a short one unchanged."""
+    if len(t) <= 4 * bins:
+        return t, y
+    edges = np.linspace(0, len(t), bins + 1).astype(int)
+    lo, hi = np.minimum.reduceat(y, edges[:-1]), np.maximum.reduceat(y, edges[:-1])
+    mid = t[(edges[:-1] + edges[1:]) // 2]
+    return np.repeat(mid, 2), np.column_stack([lo, hi]).ravel()
+
+
 def plot_prediction(path: str | Path, robot_name: str, t, measured, predicted, rel, names, title: str = "") -> Path:
     """Measured channels, a model's prediction and their difference, one panel per channel
     (``identify``'s residuals.png, ``validate --plot``)."""
@@ -100,9 +112,9 @@ def plot_prediction(path: str | Path, robot_name: str, t, measured, predicted, r
     fig, axes = plt.subplots(n, 1, figsize=(11, 1.7 * n + 1), sharex=True, constrained_layout=True)
     axes = np.atleast_1d(axes)
     for j, ax in enumerate(axes):
-        ax.plot(t, measured[:, j], "k", lw=1, label="measured")
-        ax.plot(t, predicted[:, j], "C1", lw=1, label="model")
-        ax.plot(t, measured[:, j] - predicted[:, j], "C3", lw=0.7, alpha=0.7, label="error")
+        ax.plot(*envelope(t, measured[:, j]), "k", lw=1, label="measured")
+        ax.plot(*envelope(t, predicted[:, j]), "C1", lw=1, label="model")
+        ax.plot(*envelope(t, measured[:, j] - predicted[:, j]), "C3", lw=0.7, alpha=0.7, label="error")
         unit = "N" if names[j].startswith("wrench.f") else "N·m"
         ax.set_ylabel(f"{names[j]}\n[{unit}]", fontsize=7)
         ax.set_title(f"relative error {rel[j]:.1f} %", fontsize=8, loc="right")

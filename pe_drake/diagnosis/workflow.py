@@ -153,8 +153,8 @@ def prepare(robot, data: Measurement, validation: Measurement | None, config: Di
         f"{held.t[0]:.2f}-{held.t[-1]:.2f} s" + (f" of {vrecord.source}" if vrecord else ""))
     model = RegressorModel(robot)
     base = compute_base_parameters(robot, model=model)
-    Y_tr = base.reduce(model(training.q, training.v, training.vd))
-    Y_ho = base.reduce(model(held.q, held.v, held.vd))
+    Y_tr = model.columns(training.q, training.v, training.vd, base.independent)
+    Y_ho = model.columns(held.q, held.v, held.vd, base.independent)
     n = robot.n
     if training.num_samples * n < 3 * (base.count + 4 * n):
         raise DataError(

@@ -182,16 +182,16 @@ def motion_bandwidth_hz(t: np.ndarray, q: np.ndarray, energy_fraction: float = E
 
     T = q.shape[0]
     dt = (t[-1] - t[0]) / (T - 1)
-    x = detrend(q, axis=0, type="linear") * get_window("hann", T)[:, None]
-    power = np.abs(np.fft.rfft(x, axis=0)) ** 2
-    freqs = np.fft.rfftfreq(T, dt)
-    power, freqs = power[1:], freqs[1:]  # DC holds the (removed) mean
-    total = power.sum(axis=0)
-    moving = total > 0
-    if not moving.any():
+    window = get_window("hann", T)
+    freqs = np.fft.rfftfreq(T, dt)[1:]  # DC holds the (removed) mean
+    idx = []
+    for j in range(q.shape[1]):  # a joint at a time: the spectra of a long log one by one
+        power = np.abs(np.fft.rfft(detrend(q[:, j], type="linear") * window)[1:]) ** 2
+        total = power.sum()
+        if total > 0:
+            idx.append(int(np.searchsorted(np.cumsum(power) / total, energy_fraction)))
+    if not idx:
         return 0.0
-    cumulative = np.cumsum(power[:, moving], axis=0) / total[moving]
-    idx = [int(np.searchsorted(cumulative[:, j], energy_fraction)) for j in range(cumulative.shape[1])]
     return float(freqs[min(max(idx), len(freqs) - 1)])
 
 

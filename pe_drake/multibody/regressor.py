@@ -257,6 +257,17 @@ class RegressorModel:
         """Y(q, v, vdot), shape (T, n, 10·nb)."""
         return self.regressor(self.kinematics(q, v, vd))
 
+    def columns(self, q: np.ndarray, v: np.ndarray, vd: np.ndarray, columns, chunk: int = 2000) -> np.ndarray:
+        """Y(q, v, vdot)[..., columns] (e.g. a base regressor's independent columns), shape
+        (T, n, len(columns)), computed ``chunk`` samples at a time: the kinematics of a whole
+        long segment at once hold tens of kB per sample."""
+        columns = np.asarray(columns)
+        out = np.empty((q.shape[0], q.shape[1] if q.ndim > 1 else 1, columns.size))
+        for s in range(0, q.shape[0], chunk):
+            k = slice(s, min(s + chunk, q.shape[0]))
+            out[k] = self(q[k], v[k], vd[k])[..., columns]
+        return out
+
     # ---- adjoint ------------------------------------------------------------------------
     def pullback(
         self, kin: Kinematics, Z: np.ndarray | None, Z_wrench: np.ndarray | None = None
