@@ -253,12 +253,17 @@ class ParallelConfig:
         starts: random starts; start k uses seed ``excitation.seed + k``.
         workers: starts at once; 0: the cores available (the cluster's CPUs on Ray), at most
             ``starts``.
+        hung_after_s: a worker whose start sends no progress for this long [s] is declared
+            hung: it is stopped, that start fails, the others go on; 0: never. A running
+            solve reports every few seconds. Not checked when the starts run in this
+            process (one worker).
     """
 
     executor: str = "local"
     address: str = ""
     starts: int = 1
     workers: int = 0
+    hung_after_s: float = 600.0
 
 
 @dataclasses.dataclass
@@ -440,6 +445,7 @@ def _validate_parallel(p: ParallelConfig) -> None:
         raise ConfigError(f"parallel.starts must be a positive integer, got {p.starts!r}")
     if isinstance(p.workers, bool) or not isinstance(p.workers, int) or p.workers < 0:
         raise ConfigError(f"parallel.workers must be a positive integer (0: the cores available), got {p.workers!r}")
+    check_finite("parallel.hung_after_s [s] (0: never)", p.hung_after_s, nonneg=True)
 
 
 def load_config(path: str | Path, base: Config | None = None) -> Config:

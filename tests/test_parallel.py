@@ -10,10 +10,13 @@ from __future__ import annotations
 
 import _thread
 import dataclasses
+import functools
 import json
 import math
 import multiprocessing
 import os
+import signal
+import subprocess
 import sys
 import threading
 import time
@@ -25,8 +28,9 @@ import pytest
 from pe_drake.cli import main
 from pe_drake.config import Config, ExcitationConfig, ParallelConfig, SolverConfig, load_config, validate_config
 from pe_drake.exceptions import ConfigError
-from pe_drake.excitation.multistart import solve_multistart
-from pe_drake.excitation.parallel import RobotSpec, WorkerError, open_executor
+from pe_drake.excitation.multistart import best_index, solve_multistart
+from pe_drake.excitation.optimize_report import start_records
+from pe_drake.excitation.parallel import RobotSpec, TaskFinished, TaskLost, TaskStarted, WorkerError, open_executor
 
 CONFIG = ExcitationConfig(
     harmonics=3,
@@ -72,6 +76,54 @@ def _sleep(state, folder):
     Path(folder, f"{os.getpid()}.pid").write_text(str(os.getpid()))
     time.sleep(60)
     return 0
+
+
+def _faults(state, payload):
+    """Fault injection by payload: "hang" never returns and sends nothing; "pid:<folder>"
+    writes this worker's pid and sleeps (the test kills it); "tick" sends an event every
+    0.25 s for 2 s (alive, and still running when another task fails); an int returns itself."""
+    if payload == "hang":
+        time.sleep(3600)
+    if isinstance(payload, str) and payload.startswith("pid:"):
+        Path(payload[4:], f"{os.getpid()}.pid").write_text(str(os.getpid()))
+        time.sleep(60)
+    if payload == "tick":
+        for i in range(8):
+            state.emit(("tick", i))
+            time.sleep(0.25)
+        return "ticked"
+    return payload
+
+
+def faulty_constraints(robot, config, marker="", fault="", parent=0):
+    """No constraints, except that the first worker to build them (the marker file is free)
+    hangs or is killed: one start of a multi-start run is lost with its worker."""
+    if os.getpid() != parent:  # never the test's own process
+        try:
+            fd = os.open(marker, os.O_CREAT | os.O_EXCL)
+        except FileExistsError:
+            return []
+        os.close(fd)
+        if fault == "kill":
+            os.kill(os.getpid(), signal.SIGKILL)
+        time.sleep(3600)
+    return []
+
+
+def _kill_when_written(folder: Path, count: int = 1) -> threading.Thread:
+    """Kills (SIGKILL) the worker that writes a pid file into ``folder``, once it is there."""
+    def kill() -> None:
+        deadline = time.monotonic() + 60
+        while len(list(folder.glob("*.pid"))) < count and time.monotonic() < deadline:
+            time.sleep(0.05)
+        for path in folder.glob("*.pid"):
+            while not path.read_text():  # created, not written yet
+                time.sleep(0.01)
+            os.kill(int(path.read_text()), signal.SIGKILL)
+
+    thread = threading.Thread(target=kill, daemon=True)
+    thread.start()
+    return thread
 
 
 def _alive(pid: int) -> bool:
@@ -219,6 +271,80 @@ def test_ctrl_c_stops_every_worker(panda, executor, request, tmp_path):
     assert not multiprocessing.active_children()
 
 
+LABELS = [f"start {k} (seed {7 + k})" for k in range(4)]
+
+
+@pytest.mark.parametrize("executor", ["local", "ray"])
+def test_a_hung_worker_fails_its_task_alone_and_is_stopped(panda, executor, request):
+    """Task 1 never returns and sends nothing: after hung_after_s it is failed and its worker
+    stopped; 0 and 2 finished before and are kept; 3 was running on another worker (the
+    local pool loses it with the hung one and runs it again)."""
+    if executor == "ray":
+        request.getfixturevalue("ray_session")
+    with open_executor(panda, executor, 2, hung_after_s=3) as ex:
+        ex.map(_faults, [0, 1])  # the workers are up: their start-up is not part of the 3 s
+        seen = []
+        begin = time.monotonic()
+        done = ex.map(_faults, [0, "hang", 2, "tick"], seen.append, LABELS, keep_lost=True)
+        took = time.monotonic() - begin
+        assert [type(d) for d in done] == [TaskFinished, TaskLost, TaskFinished, TaskFinished]
+        assert [done[k].value for k in (0, 2, 3)] == [0, 2, "ticked"]
+        lost = done[1]
+        assert "gave no progress for 3 s: declared hung, start 1 (seed 8) failed" in lost.reason
+        assert lost.reason.startswith("worker ") and " pid " in lost.reason, lost.reason
+        assert lost in seen and 3 <= lost.wall_time < 10
+        assert ("tick", 0) in seen  # the running task's events come through (Ray too)
+        assert took < 20
+        with pytest.raises(WorkerError, match="declared hung, start 0 .* failed"):  # without keep_lost
+            ex.map(_faults, ["hang", 1], labels=LABELS)
+    assert not multiprocessing.active_children()
+
+
+@pytest.mark.parametrize("executor", ["local", "ray"])
+def test_a_killed_worker_loses_only_its_task(panda, executor, request, tmp_path):
+    """SIGKILL of the worker running task 1: the finished tasks are kept, task 1 is reported
+    lost with the signal, task 2 (running elsewhere) and 3 still finish."""
+    if executor == "ray":
+        request.getfixturevalue("ray_session")
+    with open_executor(panda, executor, 2) as ex:
+        ex.map(_faults, [0, 1])
+        killer = _kill_when_written(tmp_path)
+        seen = []
+        done = ex.map(_faults, [0, f"pid:{tmp_path}", "tick", 3], seen.append, LABELS, keep_lost=True)
+        killer.join()
+    assert [type(d) for d in done] == [TaskFinished, TaskLost, TaskFinished, TaskFinished]
+    assert [done[k].value for k in (0, 2, 3)] == [0, "ticked", 3]
+    assert "start 1 (seed 8)" in done[1].reason and "died" in done[1].reason
+    if executor == "local":
+        pid = int(next(tmp_path.glob("*.pid")).read_text())
+        assert done[1].reason.startswith(f"worker pid {pid} died (killed by SIGKILL)"), done[1].reason
+        # the pool broke under task 2 too: it was handed out again, not lost
+        assert [e.index for e in seen if isinstance(e, TaskStarted)].count(2) == 2
+    assert not multiprocessing.active_children()
+
+
+@pytest.mark.parametrize("fault", ["kill", "hang"])
+def test_multistart_keeps_the_finished_starts_when_a_worker_dies_or_hangs(panda, serial, fault, tmp_path):
+    factory = functools.partial(faulty_constraints, marker=str(tmp_path / "taken"), fault=fault, parent=os.getpid())
+    events = []
+    with open_executor(panda, "local", 2, constraints_factory=factory, hung_after_s=4) as ex:
+        ex.map(_faults, [0, 1])
+        result = solve_multistart(None, CONFIG, SOLVER, SEEDS, executor=ex, progress=events.append,
+                                  progress_interval=0.2)
+    lost = [k for k, s in enumerate(result.starts) if s.lost]
+    assert len(lost) == 1 and result.results[lost[0]] is None
+    why = "died (killed by SIGKILL)" if fault == "kill" else "gave no progress for 4 s: declared hung"
+    assert why in result.starts[lost[0]].message and f"(seed {SEEDS[lost[0]]})" in result.starts[lost[0]].message
+    assert [e.seed for e in events if e.kind == "failed"] == [SEEDS[lost[0]]]
+    kept = [None if k in lost else r for k, r in enumerate(serial.results)]
+    for k, r in enumerate(result.results):
+        if r is not None:  # the finished starts, run again or not, give the serial result
+            np.testing.assert_array_equal(r.x, serial.results[k].x)
+    assert result.seed == SEEDS[best_index(kept)] and result.best.success
+    assert start_records(result)[lost[0]]["lost"] is True
+    assert not multiprocessing.active_children()
+
+
 def test_bad_executor_settings_are_refused(panda, monkeypatch):
     with pytest.raises(ConfigError, match="executor 'dask' is not one of local, ray"):
         open_executor(panda, "dask")
@@ -226,6 +352,8 @@ def test_bad_executor_settings_are_refused(panda, monkeypatch):
         open_executor(panda, "local", 0)
     with pytest.raises(ConfigError, match="only used by the ray executor"):
         open_executor(panda, "local", 2, address="10.0.0.1:6379")
+    with pytest.raises(ConfigError, match=r"hung_after_s must be a non-negative number of seconds .*got -5"):
+        open_executor(panda, "local", 2, hung_after_s=-5)
     monkeypatch.setitem(sys.modules, "ray", None)  # as if Ray were not installed
     with pytest.raises(ConfigError, match=r'pip install "pe_drake\[ray\]"'):
         open_executor(panda, "ray", 2)
@@ -235,8 +363,13 @@ def test_parallel_config_section(tmp_path):
     path = tmp_path / "c.yaml"
     path.write_text("parallel: {executor: ray, address: '10.0.0.1:6379', starts: 64, workers: 16}\n")
     assert load_config(path).parallel == ParallelConfig("ray", "10.0.0.1:6379", 64, 16)
-    assert Config().parallel == ParallelConfig("local", "", 1, 0)
+    assert Config().parallel == ParallelConfig("local", "", 1, 0, 600.0)
+    path.write_text("parallel: {hung_after_s: 30}\n")
+    assert load_config(path).parallel.hung_after_s == 30
     for bad, match in [
+        (ParallelConfig(hung_after_s=-1), r"parallel.hung_after_s .*must be non-negative, got -1"),
+        (ParallelConfig(hung_after_s="10 min"), r"parallel.hung_after_s .*must be a number, got '10 min'"),
+        (ParallelConfig(hung_after_s=math.inf), r"parallel.hung_after_s .*must be a finite number, got inf"),
         (ParallelConfig(executor="mpi"), "parallel.executor 'mpi'"),
         (ParallelConfig(starts=0), "parallel.starts"),
         (ParallelConfig(workers=-1), "parallel.workers"),
@@ -284,6 +417,28 @@ def test_baseline_candidates_on_ray_equal_the_serial_ones(panda, ray_session):
     assert remote.draws == serial.draws and remote.rejected == serial.rejected
     np.testing.assert_array_equal(remote.R, serial.R)
     assert events and events[-1].drawn >= remote.draws
+
+
+def test_a_local_ray_instance_started_by_pe_drake_listens_on_localhost_only():
+    """Without an address and with no cluster to join, the instance pe_drake starts is on
+    127.0.0.1 (a new process: this one's Ray is the tests' own instance)."""
+    ray = pytest.importorskip("ray")
+    from pe_drake.excitation.parallel.ray import existing_cluster
+
+    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
+    if "RAY_ADDRESS" in os.environ or existing_cluster(ray):
+        pytest.skip("a Ray cluster runs on this machine: ray.init() would join it")
+    script = (
+        "import ray\n"
+        "from pe_drake.excitation.parallel.ray import connect, node_addresses\n"
+        "assert connect()\n"
+        "print(node_addresses(ray), ray.get_runtime_context().gcs_address)\n"
+        "ray.shutdown()\n"
+    )
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    nodes, gcs = out.stdout.strip().splitlines()[-1].rsplit(" ", 1)
+    assert nodes == "['127.0.0.1']" and gcs.startswith("127.0.0.1:"), out.stdout
 
 
 def test_more_ray_workers_than_cluster_cpus_is_refused(panda, ray_session):

@@ -230,7 +230,7 @@ def optimize_motion(
             noise_vector(config.excitation.noise_std.torque, robot.joint_names)  # a bad noise_std: before solving
             par = config.parallel
             with open_executor(robot, par.executor, par.workers or None, tasks=par.starts, address=par.address,
-                               measurement=config.excitation.measurement,
+                               measurement=config.excitation.measurement, hung_after_s=par.hung_after_s,
                                constraints_factory=constraints_factory(config)) as own:
                 plan = _plan(config, robot, own, priors, fitted, fitted_text, unchecked, allow_unchecked, start, say)
     except BaseException:

@@ -33,9 +33,11 @@ from pe_drake.config import Config, ExcitationConfig, SolverConfig, validate_con
 from pe_drake.exceptions import ConfigError
 from pe_drake.excitation.limits import joint_limit_violation
 from pe_drake.excitation.parallel import (
+    HUNG_AFTER_S,
     ConstraintsFactory,
     Executor,
     TaskFinished,
+    TaskLost,
     TaskStarted,
     WorkerError,
     WorkerState,
@@ -58,13 +60,13 @@ __all__ = [
 class StartEvent:
     """Progress of one start, sent to the ``progress`` callback.
 
-    "started" and "finished" come from the caller's process for every executor; "progress"
-    (every ``progress_interval`` seconds of a solve) from the worker, in this process and
-    the local pool only.
+    "started", "finished" and "failed" (its worker died or hung: ``message`` says which) come
+    from the caller's process; "progress" (every ``progress_interval`` seconds of a solve)
+    from the worker.
 
     Attributes:
         seed: seed of the start.
-        kind: "started", "progress" or "finished".
+        kind: "started", "progress", "finished" or "failed".
         evaluations: cost evaluations so far.
         value: criterion at the last evaluation (inf before the first).
         best_feasible: "progress": best criterion among the points checked at progress
@@ -75,7 +77,7 @@ class StartEvent:
         elapsed: time since the start began [s].
         criterion: the criterion minimized (one of :data:`pe_drake.config.CRITERIA`).
         label: a tag set by the caller (e.g. "motion 2").
-        message: the solver's message ("finished" only).
+        message: the solver's message ("finished"), why the start failed ("failed").
         origin: where the start began when not at its seed's random point (e.g. "from
             motion 1"); empty otherwise.
         worker: where it ran ("finished" only; e.g. "pid 1234").
@@ -99,6 +101,8 @@ class StartEvent:
         if self.kind == "started":
             origin = f" ({self.origin})" if self.origin else ""
             return f"  {tag}start seed {self.seed}: started{origin}"
+        if self.kind == "failed":
+            return f"  {tag}start seed {self.seed}: FAILED after {self.elapsed:.1f} s: {self.message}"
         text = (
             f"  {tag}start seed {self.seed}: eval {self.evaluations:5d}  "
             f"{self.criterion} {self.value:10.5g}  best feasible {self.best_feasible:10.5g}  "
@@ -126,6 +130,7 @@ class StartSummary:
         worker: where it ran ("main", "pid 1234", "10.0.0.2 pid 1234").
         task_time: the whole task in its worker: building the problem and its constraints,
             then the solve [s].
+        lost: the start has no result: its worker died or hung (``message`` says which).
     """
 
     seed: int
@@ -139,6 +144,7 @@ class StartSummary:
     message: str
     worker: str = "main"
     task_time: float = math.nan
+    lost: bool = False
 
 
 @dataclasses.dataclass
@@ -151,7 +157,8 @@ class MultiStartResult:
         seed: seed of ``best``.
         starts: one summary per start, in the order of the seeds.
         results: every start's ExcitationResult, same order (``raw`` is None for results
-            computed in a worker: Drake results cannot be pickled).
+            computed in a worker: Drake results cannot be pickled); None for a start lost
+            with its worker (``starts[k].lost``).
         workers: starts run at once (1: solved one after the other).
         executor: "main" (this process), "local" (process pool) or "ray".
         wall_time: whole call, including worker start-up [s].
@@ -243,7 +250,10 @@ def _solve_start(state: WorkerState, task: _StartTask):
     return dataclasses.replace(result, raw=None)  # Drake results cannot be pickled
 
 
-def _summary(seed: int, done: TaskFinished) -> StartSummary:
+def _summary(seed: int, done: TaskFinished | TaskLost) -> StartSummary:
+    if isinstance(done, TaskLost):
+        return StartSummary(seed, False, math.inf, math.nan, math.nan, None, 0, done.wall_time, done.reason,
+                            done.worker, done.wall_time, lost=True)
     r = done.value
     return StartSummary(
         seed, bool(r.success), float(r.fun), float(r.cond), float(r.cond_motion), r.nit, int(r.nfev),
@@ -253,9 +263,16 @@ def _summary(seed: int, done: TaskFinished) -> StartSummary:
 
 def best_index(results: Sequence[Any]) -> int:
     """Index of the result to keep: lowest criterion among successful ones, else among all
-    (ties: the lowest index)."""
-    feasible = [k for k, r in enumerate(results) if r.success]
-    pool = feasible or range(len(results))
+    (ties: the lowest index); None entries (lost starts) are never kept.
+
+    Raises:
+        ValueError: every entry is None.
+    """
+    kept = [k for k, r in enumerate(results) if r is not None]
+    if not kept:
+        raise ValueError("no start has a result")
+    feasible = [k for k in kept if results[k].success]
+    pool = feasible or kept
     return min(pool, key=lambda k: (results[k].fun if np.isfinite(results[k].fun) else math.inf, k))
 
 
@@ -309,6 +326,9 @@ class _StartProgress:
             return
         if isinstance(event, TaskStarted):
             self.progress(_event(self.tasks[event.index], "started"))
+        elif isinstance(event, TaskLost):
+            self.progress(_event(self.tasks[event.index], "failed", elapsed=event.wall_time, message=event.reason,
+                                 worker=event.worker))
         elif isinstance(event, TaskFinished):
             r = event.value
             self.progress(
@@ -339,8 +359,12 @@ def solve_multistart(
     progress_interval: float = 2.0,
     label: str = "",
     origins: Sequence[str] | None = None,
+    hung_after_s: float = HUNG_AFTER_S,
 ) -> MultiStartResult:
     """Solves the excitation problem from several initial points, keeps the best.
+
+    A start whose worker dies or hangs fails alone: the others go on, and the best of the
+    finished ones is kept (``starts[k].lost``, ``results[k]`` None, a "failed" event).
 
     Args:
         robot: the :class:`~pe_drake.multibody.robot.Robot` (ignored when ``executor`` is an
@@ -365,6 +389,9 @@ def solve_multistart(
         label: copied into the events (e.g. "motion 2").
         origins: one note per seed saying where an explicit initial guess comes from (e.g.
             "from motion 1"), copied into its events.
+        hung_after_s: a start without progress for this long [s] is declared hung, its
+            worker stopped ("local" with 2+ workers, "ray"; 0: never); ignored with an
+            open executor (its own setting is used).
 
     Returns:
         A :class:`MultiStartResult`.
@@ -372,8 +399,8 @@ def solve_multistart(
     Raises:
         ConfigError: no seeds, duplicate seeds, initial guesses that do not match the seeds,
             an unknown executor, Ray missing.
-        WorkerError: a start raised in a worker, or its worker died (``task`` is the start's
-            index in ``seeds``); every worker was stopped.
+        WorkerError: a start raised in a worker (``task`` is the start's index in ``seeds``),
+            or every start was lost with its worker; every worker was stopped.
     """
     begin = time.perf_counter()
     config = config or ExcitationConfig()
@@ -384,16 +411,18 @@ def solve_multistart(
     if own:
         executor = open_executor(
             robot, executor, workers, tasks=len(tasks), address=address, measurement=config.measurement,
-            constraints_factory=constraints_factory,
+            constraints_factory=constraints_factory, hung_after_s=hung_after_s,
         )
     try:
         _check_guesses(executor.problem(config, tasks[0].C0), tasks)  # C0 is checked here too
         labels = [f"{label + ' ' if label else ''}start {k} (seed {t.seed})" for k, t in enumerate(tasks)]
-        done = executor.map(_solve_start, tasks, _StartProgress(tasks, progress), labels)
+        done = executor.map(_solve_start, tasks, _StartProgress(tasks, progress), labels, keep_lost=True)
     finally:
         if own:
             executor.close()
-    results = [d.value for d in done]
+    results = [None if isinstance(d, TaskLost) else d.value for d in done]
+    if all(r is None for r in results):
+        raise WorkerError("every start was lost: " + "; ".join(d.reason for d in done), 0, tasks=range(len(done)))
     k = best_index(results)
     return MultiStartResult(
         best=results[k],

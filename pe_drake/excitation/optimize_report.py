@@ -69,6 +69,6 @@ def start_records(ms) -> list[dict[str, Any]]:
     """One entry per start of a :class:`~pe_drake.excitation.multistart.MultiStartResult`."""
     return [
         {"seed": s.seed, "cond": s.cond, "success": s.success, "time_s": s.wall_time, "task_time_s": s.task_time,
-         "worker": s.worker, "criterion_value": s.fun, "message": s.message}
+         "worker": s.worker, "criterion_value": s.fun, "message": s.message, "lost": s.lost}
         for s in ms.starts
     ]

@@ -12,15 +12,18 @@ from __future__ import annotations
 
 from pe_drake.exceptions import ConfigError
 from pe_drake.excitation.parallel.base import (
+    HUNG_AFTER_S,
     ConstraintsFactory,
     Executor,
     InProcessExecutor,
     RemoteTraceback,
     RobotSpec,
     TaskFinished,
+    TaskLost,
     TaskStarted,
     WorkerError,
     WorkerState,
+    check_hung_after,
     check_workers,
     default_workers,
 )
@@ -34,6 +37,7 @@ EXECUTORS = ("local", "ray")
 
 __all__ = [
     "EXECUTORS",
+    "HUNG_AFTER_S",
     "ConstraintsFactory",
     "Executor",
     "InProcessExecutor",
@@ -42,6 +46,7 @@ __all__ = [
     "RemoteTraceback",
     "RobotSpec",
     "TaskFinished",
+    "TaskLost",
     "TaskStarted",
     "WorkerError",
     "WorkerState",
@@ -62,6 +67,7 @@ def open_executor(
     measurement: str = "joint_torque",
     constraints_factory: ConstraintsFactory | None = None,
     start_method: str | None = None,
+    hung_after_s: float = HUNG_AFTER_S,
 ) -> Executor:
     """An executor whose workers each hold a copy of ``robot``.
 
@@ -79,13 +85,17 @@ def open_executor(
         constraints_factory: ``f(robot, excitation_config) -> [SampledConstraint, ...]``;
             a module-level function (it is pickled by name).
         start_method: for "local"; see :func:`default_start_method`.
+        hung_after_s: a running task that sends no progress for this long [s] is declared
+            hung and its worker stopped (``parallel.hung_after_s``; 0: never). Not checked
+            when the tasks run in this process (one local worker).
 
     Raises:
-        ConfigError: an unknown executor, a bad worker count, more Ray workers than the
-            cluster's CPUs, Ray missing or unreachable.
+        ConfigError: an unknown executor, a bad worker count or ``hung_after_s``, more Ray
+            workers than the cluster's CPUs, Ray missing or unreachable.
     """
     if executor not in EXECUTORS:
         raise ConfigError(f"executor '{executor}' is not one of {', '.join(EXECUTORS)}")
+    check_hung_after(hung_after_s)
     if address and executor != "ray":
         raise ConfigError(f"an address ({address}) is only used by the ray executor, not '{executor}'")
     cores = cluster_cpus(address) if executor == "ray" else default_workers()
@@ -101,7 +111,7 @@ def open_executor(
     local = WorkerState(robot, base, constraints_factory, model=model)
     spec = RobotSpec(robot.name, robot.config, base, constraints_factory).with_capsule_text()
     if executor == "ray":
-        return RayExecutor(spec, local, workers, address)
+        return RayExecutor(spec, local, workers, address, hung_after_s)
     if workers == 1:
         return InProcessExecutor(local)
-    return LocalExecutor(spec, local, workers, start_method)
+    return LocalExecutor(spec, local, workers, start_method, hung_after_s)

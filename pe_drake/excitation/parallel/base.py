@@ -105,6 +105,74 @@ class TaskFinished:
 
 
 @dataclasses.dataclass(frozen=True)
+class TaskLost:
+    """Task ``index`` was lost with its worker: the worker died, or gave no progress for the
+    executor's ``hung_after_s`` and was stopped. What the caller gets instead of a
+    :class:`TaskFinished` when it asked to keep going (``Executor.map(..., keep_lost=True)``).
+
+    Attributes:
+        index: the task.
+        reason: why, for people ("worker pid 12 gave no progress for 600 s: declared hung,
+            start 1 (seed 8) failed").
+        worker: where it ran ("pid 1234"; "" when it was not known).
+        wall_time: from handing it out to declaring it lost [s].
+    """
+
+    index: int
+    reason: str
+    worker: str = ""
+    wall_time: float = 0.0
+
+
+#: Default of ``parallel.hung_after_s``: a start's solver reports progress every few seconds,
+#: so ten minutes of silence is a worker stuck, not a slow solve.
+HUNG_AFTER_S = 600.0
+
+
+def check_hung_after(value: Any, name: str = "hung_after_s") -> float:
+    """``value`` as seconds without progress after which a worker is declared hung (0: never).
+
+    Raises:
+        ConfigError: not a finite non-negative number (naming ``name`` and the value).
+    """
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not value >= 0 or value == float("inf"):
+        raise ConfigError(f"{name} must be a non-negative number of seconds (0: never), got {value!r}")
+    return float(value)
+
+
+def hung_reason(worker: str, seconds: float, label: str) -> str:
+    return f"worker {worker or '(not known)'} gave no progress for {seconds:g} s: declared hung, {label} failed"
+
+
+class ProgressClock:
+    """When each running task last showed progress (handed out, began, emitted an event)."""
+
+    def __init__(self, hung_after_s: float):
+        self.hung_after_s = hung_after_s
+        self.last: dict[int, float] = {}
+        self.began: dict[int, float] = {}
+
+    def start(self, k: int) -> None:
+        self.last[k] = self.began[k] = time.monotonic()
+
+    def touch(self, k: int | None) -> None:
+        if k in self.last:
+            self.last[k] = time.monotonic()
+
+    def stop(self, k: int) -> float:
+        """Forgets task ``k``; its time since it was handed out [s]."""
+        self.last.pop(k, None)
+        return time.monotonic() - self.began.pop(k, time.monotonic())
+
+    def hung(self, running) -> list[int]:
+        """The running tasks silent for longer than ``hung_after_s`` (none when it is 0)."""
+        if not self.hung_after_s:
+            return []
+        now = time.monotonic()
+        return sorted(k for k in running if now - self.last.get(k, now) > self.hung_after_s)
+
+
+@dataclasses.dataclass(frozen=True)
 class RobotSpec:
     """What a worker needs to rebuild the robot (all picklable).
 
@@ -265,14 +333,17 @@ class Executor:
         workers: how many tasks run at once.
         base: the base parameters every task uses.
         local: a :class:`WorkerState` in this process (for building problems here).
+        hung_after_s: a running task without progress (no event) for this long is declared
+            hung and its worker stopped [s]; 0: never. Not checked in this process.
     """
 
     name = "main"
 
-    def __init__(self, local: WorkerState, workers: int):
+    def __init__(self, local: WorkerState, workers: int, hung_after_s: float = HUNG_AFTER_S):
         self.local = local
         self.base = local.base
         self.workers = workers
+        self.hung_after_s = check_hung_after(hung_after_s)
 
     def problem(self, config: ExcitationConfig, C0: np.ndarray | None = None):
         """An :class:`~pe_drake.excitation.problem.ExcitationProblem` in this process, with the
@@ -285,22 +356,27 @@ class Executor:
         payloads: Sequence[Any],
         progress: Progress | None = None,
         labels: Sequence[str] | None = None,
-    ) -> list[TaskFinished]:
+        keep_lost: bool = False,
+    ) -> list[TaskFinished | TaskLost]:
         """``fn(state, p)`` for every payload, spread over the workers.
 
         Args:
             fn: a module-level function ``fn(state: WorkerState, payload) -> value``.
             payloads: one per task.
-            progress: receives :class:`TaskStarted`, :class:`TaskFinished` and whatever the
-                tasks emit (``state.emit``), in this process.
+            progress: receives :class:`TaskStarted`, :class:`TaskFinished`,
+                :class:`TaskLost` and whatever the tasks emit (``state.emit``), in this process.
             labels: names of the tasks in error messages (default "task k").
+            keep_lost: a task lost with its worker (the worker died, or hung: see
+                ``hung_after_s``) comes back as a :class:`TaskLost` and the other tasks go
+                on; False: it raises :class:`WorkerError`.
 
         Returns:
-            One :class:`TaskFinished` per payload, in payload order.
+            One :class:`TaskFinished` (or :class:`TaskLost`) per payload, in payload order.
 
         Raises:
-            WorkerError: a task raised, or a worker died (naming the task(s) it ran). Every
-                worker is stopped first, as on Ctrl-C (KeyboardInterrupt is re-raised).
+            WorkerError: a task raised, or (unless ``keep_lost``) a worker died or hung,
+                naming the task(s) it ran. Every worker is stopped first, as on Ctrl-C
+                (KeyboardInterrupt is re-raised).
         """
         raise NotImplementedError
 
@@ -322,21 +398,22 @@ class RemoteExecutor(Executor):
         """What :meth:`run` sends the tasks to (the pool, the actors), created on first use."""
         raise NotImplementedError
 
-    def run(self, targets, fn, payloads, say, labels) -> list[TaskFinished]:
-        """The tasks on ``targets``: one :class:`TaskFinished` per payload, in payload order."""
+    def run(self, targets, fn, payloads, say, labels, keep_lost) -> list:
+        """The tasks on ``targets``: one :class:`TaskFinished` (or :class:`TaskLost`) per
+        payload, in payload order."""
         raise NotImplementedError
 
     def terminate(self) -> None:
         """Stops every worker now, running tasks included."""
         raise NotImplementedError
 
-    def map(self, fn, payloads, progress=None, labels=None) -> list[TaskFinished]:
+    def map(self, fn, payloads, progress=None, labels=None, keep_lost=False) -> list:
         payloads = list(payloads)
         if not payloads:
             return []
         say = progress or (lambda event: None)
         try:
-            return self.run(self.targets(), fn, payloads, say, task_labels(len(payloads), labels))
+            return self.run(self.targets(), fn, payloads, say, task_labels(len(payloads), labels), keep_lost)
         except BaseException:
             self.terminate()  # nothing keeps running after an error or Ctrl-C
             raise
@@ -355,9 +432,9 @@ class InProcessExecutor(Executor):
     name = "main"
 
     def __init__(self, local: WorkerState):
-        super().__init__(local, 1)
+        super().__init__(local, 1, 0.0)  # nothing here could stop a task that hangs
 
-    def map(self, fn, payloads, progress=None, labels=None) -> list[TaskFinished]:
+    def map(self, fn, payloads, progress=None, labels=None, keep_lost=False) -> list[TaskFinished]:
         say = progress or (lambda event: None)
         self.local.emit = say
         out = []

@@ -15,20 +15,26 @@ inherited threads. "spawn" (the default elsewhere) re-imports everything per wor
 from __future__ import annotations
 
 import multiprocessing
+import os
+import signal
 import sys
+from collections import deque
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
-from typing import Any
 
 from pe_drake.exceptions import ConfigError
 from pe_drake.excitation.parallel.base import (
+    HUNG_AFTER_S,
+    ProgressClock,
     RemoteExecutor,
     RemoteTraceback,
     RobotSpec,
     TaskFinished,
+    TaskLost,
     TaskStarted,
     WorkerError,
     WorkerState,
+    hung_reason,
     pack_error,
     run_task,
     task_error,
@@ -36,19 +42,27 @@ from pe_drake.excitation.parallel.base import (
 )
 
 _STATE: WorkerState | None = None  # the worker process's robot (set by _init_worker)
+_EVENTS = None  # the queue to the parent (set by _init_worker)
+_TASK: int | None = None  # the task this worker runs: its events are tagged with it
 
 
 def _init_worker(spec: RobotSpec, events) -> None:
     """Pool initializer: builds this worker's robot once."""
-    global _STATE
+    global _STATE, _EVENTS
+    _EVENTS = events
     try:
-        _STATE = spec.build(emit=lambda event: events.put(("event", event)))
+        _STATE = spec.build(emit=lambda event: events.put(("event", _TASK, event)))
     except BaseException as err:  # the pool only says "broken": send the reason first
-        events.put(("init_error", (*pack_error(err), worker_name())))
+        events.put(("init_error", None, (*pack_error(err), worker_name())))
         raise
 
 
-def _run_in_worker(fn, payload) -> tuple:
+def _run_in_worker(fn, payload, task: int | None = None) -> tuple:
+    global _TASK
+    _TASK = task
+    # Which process runs the task: the parent stops that one if the task hangs, and tells
+    # a dead worker's task from the ones the broken pool took down with it.
+    _EVENTS.put(("begin", task, os.getpid()))
     return run_task(_STATE, fn, payload, worker_name())
 
 
@@ -66,15 +80,17 @@ class LocalExecutor(RemoteExecutor):
         local: the parent's :class:`WorkerState`.
         workers: processes.
         start_method: "forkserver", "spawn" or "fork" (default :func:`default_start_method`).
+        hung_after_s: see :class:`~pe_drake.excitation.parallel.base.Executor`.
 
     Raises:
-        ConfigError: an unknown start method.
+        ConfigError: an unknown start method, a bad ``hung_after_s``.
     """
 
     name = "local"
 
-    def __init__(self, spec: RobotSpec, local: WorkerState, workers: int, start_method: str | None = None):
-        super().__init__(local, workers)
+    def __init__(self, spec: RobotSpec, local: WorkerState, workers: int, start_method: str | None = None,
+                 hung_after_s: float = HUNG_AFTER_S):
+        super().__init__(local, workers, hung_after_s)
         method = start_method or default_start_method()
         available = multiprocessing.get_all_start_methods()
         if method not in available:
@@ -87,75 +103,43 @@ class LocalExecutor(RemoteExecutor):
             self._ctx.set_forkserver_preload(["pe_drake.excitation.parallel.local", "pe_drake.multibody.robot"])
         self._pool: ProcessPoolExecutor | None = None
         self._events = None
+        self.began = False  # a task began on the current pool (see PoolRun.died)
 
     def targets(self) -> ProcessPoolExecutor:
         if self._pool is None:
             # A SimpleQueue writes synchronously (no feeder thread): a task's events are in the
             # pipe before its result reaches the pool, so a drain after the result sees them all.
+            # One queue per pool: a worker killed while writing may leave its lock held.
             self._events = self._ctx.SimpleQueue()
+            self.began = False
             self._pool = ProcessPoolExecutor(
                 self.workers, mp_context=self._ctx, initializer=_init_worker, initargs=(self._spec, self._events)
             )
         return self._pool
 
 
-    def run(self, pool, fn, payloads, say, labels) -> list[TaskFinished]:
-        out: dict[int, TaskFinished] = {}
-        running: dict[Any, int] = {}  # future -> task index
-        pending = iter(range(len(payloads)))
+    def run(self, pool, fn, payloads, say, labels, keep_lost) -> list:
+        return PoolRun(self, fn, payloads, say, labels, keep_lost).run()
 
-        def submit_next() -> None:
-            k = next(pending, None)
-            if k is None:
-                return
-            try:
-                running[pool.submit(_run_in_worker, fn, payloads[k])] = k
-            except BrokenProcessPool as err:  # a worker died while idle (e.g. killed between calls)
-                raise self._died(err, [k, *running.values()], labels) from err
-            say(TaskStarted(k))
-
-        for _ in range(self.workers):  # never more in flight than workers: in flight = running
-            submit_next()
-        while running:
-            done, _ = wait(list(running), timeout=0.2, return_when=FIRST_COMPLETED)
-            self._drain(say)
-            for future in sorted(done, key=running.get):
-                k = running.pop(future)
-                try:
-                    packed = future.result()
-                except BrokenProcessPool as err:
-                    raise self._died(err, [k, *running.values()], labels) from err
-                if packed[0] == "error":
-                    raise task_error(packed[1:], k, labels[k])
-                out[k] = TaskFinished(k, packed[1], packed[2], packed[3])
-                say(out[k])
-                submit_next()
-        return [out[k] for k in range(len(payloads))]
-
-    def _drain(self, say) -> None:
-        """Forwards the events the workers sent; raises if a worker could not build its robot."""
-        while True:
+    def drain(self, on_message) -> None:
+        """Passes the messages the workers sent to ``on_message(kind, task, data)``; raises if
+        a worker could not build its robot."""
+        while self._events is not None:
             try:
                 if self._events.empty():
                     return
-                kind, data = self._events.get()
+                kind, task, data = self._events.get()
             except (OSError, ValueError, EOFError):  # closed
                 return
             if kind == "init_error":
                 exc, type_name, tb, worker = data
                 err = WorkerError(f"worker {worker} could not build its robot: {type_name}: {exc}", None, type_name, tb)
                 raise err from RemoteTraceback(tb)
-            say(data)
+            on_message(kind, task, data)
 
-    def _died(self, err: BaseException, tasks: list[int], labels: list[str]) -> WorkerError:
-        self._drain(lambda event: None)  # a failed initializer explains the broken pool
-        tasks = sorted(tasks)
-        names = ", ".join(labels[k] for k in tasks)
-        return WorkerError(
-            f"a worker process died (killed, or crashed without a Python exception) while running {names}",
-            tasks[0],
-            tasks=tasks,
-        )
+    def processes(self) -> dict:
+        """{pid: Process} of the current pool (the standard pool keeps them in ``_processes``)."""
+        return dict(getattr(self._pool, "_processes", None) or {})
 
     def terminate(self) -> None:
         """Stops every worker now, running tasks included (idempotent)."""
@@ -186,3 +170,144 @@ class LocalExecutor(RemoteExecutor):
         if self._events is not None:
             self._events.close()
             self._events = None
+
+
+class PoolRun:
+    """One :meth:`LocalExecutor.run`: hands out the tasks, at most one per worker, and keeps
+    every finished one when a worker dies or hangs.
+
+    A dead worker breaks the whole standard pool: the tasks on the other workers fail with it.
+    Those are run again on a new pool (a task's result depends only on its payload); only
+    the task of the worker that died, or hung, is lost. The dead one is told by its exit
+    status: the pool and :meth:`LocalExecutor.terminate` stop the others with SIGTERM.
+    """
+
+    def __init__(self, ex: LocalExecutor, fn, payloads, say, labels, keep_lost: bool):
+        self.ex, self.fn, self.payloads, self.say, self.labels = ex, fn, payloads, say, labels
+        self.keep_lost = keep_lost
+        self.out: dict[int, TaskFinished | TaskLost] = {}
+        self.queue = deque(range(len(payloads)))
+        self.running: dict = {}  # future -> task index
+        self.pids: dict[int, int] = {}  # task index -> pid of the worker running it
+        self.clock = ProgressClock(ex.hung_after_s)
+        self.restarts = 0
+
+    def run(self) -> list:
+        while self.queue or self.running:
+            if not self.fill():
+                self.restart(self.died())
+                continue
+            done, _ = wait(list(self.running), timeout=0.2, return_when=FIRST_COMPLETED)
+            self.ex.drain(self.on_message)
+            if not all([self.collect(f) for f in sorted(done, key=self.running.get)]):
+                self.restart(self.died())
+            elif hung := self.clock.hung(self.running.values()):
+                self.restart(self.stop_hung(hung))
+        return [self.out[k] for k in range(len(self.payloads))]
+
+    def fill(self) -> bool:
+        """Hands out tasks until every worker has one; False if the pool is broken."""
+        while self.queue and len(self.running) < self.ex.workers:
+            k = self.queue[0]
+            try:
+                future = self.ex.targets().submit(_run_in_worker, self.fn, self.payloads[k], k)
+            except BrokenProcessPool:  # a worker died while idle (e.g. killed between calls)
+                return False
+            self.queue.popleft()
+            self.running[future] = k
+            self.clock.start(k)
+            self.say(TaskStarted(k))
+        return True
+
+    def on_message(self, kind: str, k, data) -> None:
+        self.clock.touch(k)
+        if kind == "begin":
+            self.pids[k] = data
+            self.ex.began = True
+        else:
+            self.say(data)
+
+    def collect(self, future) -> bool:
+        """Keeps a finished task's result; False if the pool broke under it."""
+        k = self.running[future]
+        try:
+            packed = future.result()
+        except BrokenProcessPool:
+            return False
+        del self.running[future]
+        self.clock.stop(k)
+        if packed[0] == "error":
+            raise task_error(packed[1:], k, self.labels[k])
+        self.out[k] = TaskFinished(k, packed[1], packed[2], packed[3])
+        self.say(self.out[k])
+        return True
+
+    def died(self) -> dict[int, tuple[str, str]]:
+        """{task: (reason, worker)} for the tasks whose worker died on its own."""
+        procs = self.ex.processes()
+        self.ex.drain(self.on_message)  # a failed initializer explains the broken pool (raises)
+        self.ex.terminate()  # every process has exited after this: their exit codes are known
+        codes = {pid: p.exitcode for pid, p in procs.items()}
+        dead = {pid: code for pid, code in codes.items() if code not in (None, 0, -signal.SIGTERM)}
+        if not self.ex.began:  # a new pool that breaks before any task: a new one would too
+            how = ", ".join(f"pid {pid}: {exit_text(code)}" for pid, code in dead.items()) or "exit status not known"
+            tasks = sorted(self.running.values()) or [self.queue[0]]
+            raise WorkerError(f"a worker process died before running any task ({how}) while "
+                              f"{', '.join(self.labels[k] for k in tasks)} waited for it", tasks[0], tasks=tasks)
+        lost = {}
+        for k in sorted(self.running.values()):
+            pid = self.pids.get(k)
+            if pid in dead:
+                lost[k] = (f"worker pid {pid} died ({exit_text(dead[pid])}) while running {self.labels[k]}", f"pid {pid}")
+            elif not dead and pid is not None:
+                # Nobody died by its own hand (e.g. SIGTERM from outside): the task that broke
+                # the pool is not known, so no task is run again (it could break it again).
+                lost[k] = (f"a worker process died (killed, or crashed without a Python exception) while "
+                           f"running {self.labels[k]}", f"pid {pid}")
+        return lost
+
+    def stop_hung(self, hung: list[int]) -> dict[int, tuple[str, str]]:
+        lost = {}
+        for k in hung:
+            pid = self.pids.get(k)
+            if pid is not None:
+                os.kill(pid, signal.SIGKILL)  # stuck: it may not even see a SIGTERM
+            worker = "" if pid is None else f"pid {pid}"
+            lost[k] = (hung_reason(worker, self.ex.hung_after_s, self.labels[k]), worker)
+        self.ex.terminate()  # the standard pool cannot lose one worker: the others go too
+        return lost
+
+    def restart(self, lost: dict[int, tuple[str, str]]) -> None:
+        """After the pool was stopped: tasks that finished meanwhile are kept, ``lost`` ones
+        are reported (or raised), the others are handed out again on a new pool."""
+        self.ex.terminate()
+        for future, k in sorted(self.running.items(), key=lambda item: item[1]):
+            if future.done() and not future.cancelled() and future.exception() is None:
+                self.collect(future)  # it finished before the pool went down
+        if lost and not self.keep_lost:
+            tasks = sorted(lost)
+            raise WorkerError("; ".join(lost[k][0] for k in tasks), tasks[0], tasks=tasks)
+        again = []
+        for k in sorted(self.running.values()):
+            wall = self.clock.stop(k)
+            self.pids.pop(k, None)
+            if k in lost:
+                self.out[k] = TaskLost(k, lost[k][0], lost[k][1], wall)
+                self.say(self.out[k])
+            else:
+                again.append(k)
+        self.running.clear()
+        self.queue.extendleft(reversed(again))
+        self.restarts += 1
+        if self.restarts > len(self.payloads) + self.ex.workers:  # a pool that keeps breaking
+            raise WorkerError(f"the worker pool broke {self.restarts} times; gave up", None)
+
+
+def exit_text(code: int) -> str:
+    """A process's exit code for people: "killed by SIGKILL", "exit code 3"."""
+    if code < 0:
+        try:
+            return f"killed by {signal.Signals(-code).name}"
+        except ValueError:
+            return f"killed by signal {-code}"
+    return f"exit code {code}"
