@@ -31,7 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pe_drake.exceptions import ConfigError, DataError
+from pe_drake.exceptions import ConfigError, DataError, shorten
+from pe_drake.identification.csv_checks import check_text_file, check_time_order, delimiter_hint, is_number
 from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.wrench import WRENCH_COLUMNS
 
@@ -204,6 +205,7 @@ def read_measurement_csv(path: str | Path, joints, *, min_rows: int = 10) -> Mea
         raise DataError("the file is empty; expected a header line " + ",".join(_expected_columns(joints)),
                         file=file)
     header_line, header = numbered[0]
+    delimiter_hint(header, file)  # one column of a ';' or tab file: say so, not "missing columns"
     columns = [c.strip().strip('"').strip("'") for c in header.split(",")]
     data = numbered[1:]
 
@@ -251,6 +253,7 @@ def _numbered_lines(path: Path) -> list[tuple[int, str]]:
     file = str(path)
     if not path.is_file():
         raise DataError("measurement file does not exist", file=file)
+    check_text_file(path)  # UTF-16 or another encoding: named, with how to save it
     try:
         text = path.read_text(encoding="utf-8-sig")
     except (OSError, UnicodeDecodeError) as err:
@@ -284,16 +287,8 @@ def _parse_table(data, columns: list[str], wanted: list[str], index: dict[str, i
 
 
 def _check_time(t: np.ndarray, data, file: str) -> None:
-    """Refuses duplicated or decreasing time, naming the data row and the file's line."""
-    steps = np.diff(t)
-    if (steps <= 0).any():
-        r = int(np.argmax(steps <= 0)) + 1
-        kind = "duplicated" if steps[r - 1] == 0 else "decreasing"
-        raise DataError(
-            f"{kind} time: t = {t[r]:.9g} s does not come after the previous row's "
-            f"t = {t[r - 1]:.9g} s (line {data[r][0]} of the file); time must strictly increase",
-            file=file, column="t", row=r + 1,
-        )
+    """Refuses duplicated (or 1 ns apart) and decreasing time, with counts, data rows and lines."""
+    check_time_order(t, file, [line for line, _ in data])
 
 
 def _column_index(columns: list[str], joints: tuple[str, ...], file: str, tau_required: bool = True) -> dict[str, int]:
@@ -351,13 +346,11 @@ def _locate_parse_error(data, columns, wanted, index, file) -> None:
             )
         for name in wanted:
             raw = fields[index[name]].strip()
-            try:
-                float(raw)
-            except ValueError:
+            if not is_number(raw):  # not float(): it takes "0.21_5", which numpy refused
                 raise DataError(
-                    f"'{raw}' is not a number (line {lineno} of the file)",
+                    f"'{shorten(raw)}' is not a number (line {lineno} of the file)",
                     file=file, column=name, row=r + 1,
-                ) from None
+                )
     raise DataError("could not parse the file as comma-separated numbers", file=file)
 
 

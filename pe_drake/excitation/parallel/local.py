@@ -34,6 +34,7 @@ from pe_drake.excitation.parallel.base import (
     task_error,
     worker_name,
 )
+from pe_drake.excitation.solver_logs import remove_orphaned_log_folders
 
 _STATE: WorkerState | None = None  # the worker process's robot (set by _init_worker)
 
@@ -183,6 +184,7 @@ class LocalExecutor(RemoteExecutor):
         pool, self._pool = self._pool, None
         if pool is not None:
             pool.shutdown(wait=True, cancel_futures=True)
+            remove_orphaned_log_folders()  # the IPOPT logs of workers that were killed
         if self._events is not None:
             self._events.close()
             self._events = None

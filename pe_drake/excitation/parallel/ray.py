@@ -28,6 +28,7 @@ from pe_drake.excitation.parallel.base import (
     task_error,
     worker_name,
 )
+from pe_drake.excitation.solver_logs import remove_orphaned_log_folders
 
 
 def import_ray():
@@ -153,6 +154,7 @@ class RayExecutor(RemoteExecutor):
 
     def close(self) -> None:
         self.terminate()
+        remove_orphaned_log_folders()  # the IPOPT logs of this machine's killed actors
         if self._own and self._ray.is_initialized():
             self._ray.shutdown()
             self._own = False
