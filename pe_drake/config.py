@@ -31,7 +31,7 @@ from pe_drake.config_sections import (  # noqa: F401  (re-exported: config.X kee
     validate_identification,
     validate_log_sections,
 )
-from pe_drake.exceptions import ConfigError
+from pe_drake.exceptions import ConfigError, shorten
 from pe_drake.yaml_check import check_yaml_file, key_line
 
 
@@ -315,7 +315,7 @@ def load_yaml_typed(path: str | Path, schema: type, defaults: Any = None, what: 
                                defaults=defaults if defaults is not None else schema())
     except (yaml.YAMLError, RuntimeError, ValueError, TypeError, AttributeError, AssertionError) as err:
         # Drake asserts on a list where it expects a mapping (and vice versa).
-        raise ConfigError(f"{what} file '{path}' does not match the {what} format: {err}") from err
+        raise ConfigError(f"{what} file '{path}' does not match the {what} format: {shorten(err, 1000)}") from err
 
 
 def validate_config(config: Config) -> Config:
@@ -370,12 +370,12 @@ def validate_config(config: Config) -> Config:
     if e.criterion not in CRITERIA:
         close = difflib.get_close_matches(str(e.criterion), CRITERIA, n=1)
         hint = f" (did you mean '{close[0]}'?)" if close else ""
-        raise ConfigError(f"excitation.criterion '{e.criterion}' is not one of {', '.join(CRITERIA)}{hint}")
+        raise ConfigError(f"excitation.criterion '{shorten(e.criterion)}' is not one of {', '.join(CRITERIA)}{hint}")
     check_finite("excitation.amplitude", e.amplitude, positive=True)
     check_finite("excitation.balance_radius", e.balance_radius, nonneg=True)
     check_finite("excitation.collision_margin", e.collision_margin)
     if e.measurement not in MEASUREMENTS:
-        raise ConfigError(f"excitation.measurement '{e.measurement}' is not one of {', '.join(MEASUREMENTS)}")
+        raise ConfigError(f"excitation.measurement '{shorten(e.measurement)}' is not one of {', '.join(MEASUREMENTS)}")
     torque = e.noise_std.torque
     for joint, value in (torque.items() if isinstance(torque, dict) else [("all", torque)]):
         check_finite(f"excitation.noise_std.torque['{joint}'] [N·m]", value, positive=True)
@@ -383,10 +383,10 @@ def validate_config(config: Config) -> Config:
         check_finite(f"excitation.noise_std.{name}", getattr(e.noise_std, name), positive=True)
 
     if s.name not in SOLVERS:
-        raise ConfigError(f"solver.name '{s.name}' is not one of {', '.join(SOLVERS)}")
+        raise ConfigError(f"solver.name '{shorten(s.name)}' is not one of {', '.join(SOLVERS)}")
     if s.algorithm not in NLOPT_ALGORITHMS:
         raise ConfigError(
-            f"solver.algorithm '{s.algorithm}' is not one of {', '.join(NLOPT_ALGORITHMS)}"
+            f"solver.algorithm '{shorten(s.algorithm)}' is not one of {', '.join(NLOPT_ALGORITHMS)}"
         )
     if not isinstance(s.max_iterations, int) or s.max_iterations < 1:
         raise ConfigError(f"solver.max_iterations must be a positive integer, got {s.max_iterations!r}")
@@ -438,9 +438,9 @@ def _validate_safety(config: Config) -> None:
 
 def _validate_parallel(p: ParallelConfig) -> None:
     if p.executor not in EXECUTORS:
-        raise ConfigError(f"parallel.executor '{p.executor}' is not one of {', '.join(EXECUTORS)}")
+        raise ConfigError(f"parallel.executor '{shorten(p.executor)}' is not one of {', '.join(EXECUTORS)}")
     if p.address and p.executor != "ray":
-        raise ConfigError(f"parallel.address '{p.address}' needs parallel.executor: ray (it is '{p.executor}')")
+        raise ConfigError(f"parallel.address '{shorten(p.address)}' needs parallel.executor: ray (it is '{shorten(p.executor)}')")
     if isinstance(p.starts, bool) or not isinstance(p.starts, int) or p.starts < 1:
         raise ConfigError(f"parallel.starts must be a positive integer, got {p.starts!r}")
     if isinstance(p.workers, bool) or not isinstance(p.workers, int) or p.workers < 0:

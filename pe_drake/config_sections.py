@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from pe_drake.exceptions import ConfigError
+from pe_drake.exceptions import ConfigError, shorten
 
 
 def check_finite(name: str, value: Any, *, positive: bool = False, nonneg: bool = False) -> float:
@@ -143,7 +143,7 @@ def validate_log_sections(r, d: "DataConfig", c: "ControllerConfig") -> None:
             check_finite(f"robot.{name}['{joint}']", value, positive=True)
     for name, value, choices in (("format", d.format, DATA_FORMATS), ("effort", d.effort, EFFORT_KINDS)):
         if value not in choices:
-            raise ConfigError(f"data.{name} '{value}' is not one of {', '.join(choices)}")
+            raise ConfigError(f"data.{name} '{shorten(value)}' is not one of {', '.join(choices)}")
     check_finite("data.max_gap_s [s]", d.max_gap_s, nonneg=True)
     for joint, value in d.joint_map.sign.items():
         if value not in (1, -1):

@@ -6,12 +6,34 @@ can catch one type. Subclasses carry the offending values as attributes.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Sequence
 from typing import Any
 
+#: Longest value a message shows whole: a 10 MB YAML scalar was echoed whole in one.
+MAX_SHOWN = 200
+#: A run of this many characters without a space is a value, not prose: cut in any message.
+_LONG_RUN = re.compile(r"\S{%d,}" % (2 * MAX_SHOWN + 1))
+
+
+def shorten(value: Any, limit: int = MAX_SHOWN) -> str:
+    """``str(value)``, cut after ``limit`` characters with "… (N characters)" (for messages)."""
+    text = str(value)
+    if len(text) <= limit:
+        return text
+    return f"{text[:limit]}… ({len(text)} characters)"
+
 
 class PeDrakeError(Exception):
-    """Root of every pe_drake error."""
+    """Root of every pe_drake error.
+
+    A long unbroken run in the message (a value, a key) is cut by :func:`shorten`: the sites
+    that echo values cut them already, this catches the ones they miss (Drake's own text).
+    """
+
+    def __init__(self, *args: Any):
+        super().__init__(*(_LONG_RUN.sub(lambda m: shorten(m.group(0)), a) if isinstance(a, str) else a
+                           for a in args))
 
 
 class ConfigError(PeDrakeError, ValueError):
@@ -33,7 +55,7 @@ class UnknownNameError(ConfigError):
         self.choices = tuple(choices)
         place = f" in {where}" if where else ""
         shown = ", ".join(self.choices[:60]) + (" ..." if len(self.choices) > 60 else "")
-        super().__init__(f"unknown {kind} '{name}'{place}; valid {kind}s: {shown}")
+        super().__init__(f"unknown {kind} '{shorten(name)}'{place}; valid {kind}s: {shown}")
 
 
 class NotWithinLimitsError(ConfigError):

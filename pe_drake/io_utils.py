@@ -1,17 +1,24 @@
-"""Small file helpers: outputs are written whole or not at all."""
+"""Small file helpers: outputs are written whole or not at all; JSON inputs are read with a
+nesting limit."""
 
 from __future__ import annotations
 
 import contextlib
 import errno
+import json
 import os
 import shutil
 import tempfile
 from collections.abc import Iterable, Iterator
 from pathlib import Path
+from typing import Any
 
+from pe_drake.exceptions import DataError
 from pe_drake.output_paths import remove_stale_outputs
 from pe_drake.output_set import add_manifest, output_lock
+
+#: Deepest nesting of arrays and objects accepted in a JSON input (pe_drake writes 4 at most).
+MAX_JSON_NESTING = 100
 
 
 def atomic_write_text(path: str | Path, text: str) -> None:
@@ -86,3 +93,28 @@ def describe_write_error(err: OSError) -> str:
     if err.errno in (errno.ENOSPC, errno.EDQUOT):
         return f"no space left on the device to write{where} ({err.strerror}); free some space and re-run"
     return f"{err.strerror or err}{':' if where else ''}{where}"
+
+
+def loads_json(text: str, file: str) -> Any:
+    """``json.loads(text)``, refusing nesting deeper than :data:`MAX_JSON_NESTING`.
+
+    Python's decoder recurses per level (100000 ``[`` is a RecursionError traceback), and a
+    structure parsed a few hundred levels deep still breaks the code that walks it.
+
+    Raises:
+        DataError: "nested too deeply", naming ``file``.
+        json.JSONDecodeError: as ``json.loads``.
+    """
+    too_deep = DataError(f"nested too deeply (more than {MAX_JSON_NESTING} levels of arrays or objects)", file=file)
+    try:
+        data = json.loads(text)
+    except RecursionError:
+        raise too_deep from None
+    stack = [(data, 1)]
+    while stack:  # a stack, not recursion: the depth is what is checked
+        value, depth = stack.pop()
+        if isinstance(value, (list, dict)):
+            if depth > MAX_JSON_NESTING:
+                raise too_deep
+            stack += [(v, depth + 1) for v in (value.values() if isinstance(value, dict) else value)]
+    return data

@@ -134,7 +134,7 @@ def check_output_set(path: str | Path) -> None:
             continue
         try:
             listed = json.loads(manifest.read_text()).get("outputs")
-        except (OSError, ValueError, AttributeError):
+        except (OSError, ValueError, AttributeError, RecursionError):
             continue  # not one of ours; the reader of that file says what is wrong with it
         if not isinstance(listed, dict) or (path.name != name and path.name not in _top_names(listed)):
             continue

@@ -4,7 +4,13 @@ Drake's loader reports a list where a mapping belongs with a bare ``AssertionErr
 syntax error with the YAML library's traceback, and neither names the line of the key. This
 walks the YAML node tree (which keeps line numbers) beside the dataclass fields and refuses,
 with file, line and dotted key: syntax errors, unknown keys, a mapping/list/scalar in the
-wrong place, and scalars that are not of the field's type (``harmonics: three``).
+wrong place, and scalars that are not of the field's type (``harmonics: three``). Before the
+schema it refuses what no config holds: nesting deeper than :data:`MAX_NESTING` (PyYAML's
+composer recurses per level: 100000 ``[`` was a RecursionError traceback) and tags that build
+Python objects (``!!python/object/new:``; Drake's loader answered with a raw dict). Echoed
+keys and values are cut at 200 characters (:func:`~pe_drake.exceptions.shorten`), and a file
+over :data:`MAX_YAML_BYTES` is refused unread (PyYAML's pure-Python scanner took 7 s per pass
+over a 10 MB value, and a refused config is read up to three times).
 """
 
 from __future__ import annotations
@@ -14,10 +20,15 @@ import types
 import typing
 from pathlib import Path
 
-from pe_drake.exceptions import ConfigError
+from pe_drake.exceptions import ConfigError, shorten
 
 _NULLS = ("null", "Null", "NULL", "~", "")
 _BOOLS = ("true", "True", "TRUE", "false", "False", "FALSE")
+#: Deepest nesting of lists and mappings accepted; the deepest config key is 4 levels down.
+MAX_NESTING = 100
+#: Largest YAML file read [bytes]: the largest shipped one (a capsule file) is 5 kB.
+MAX_YAML_BYTES = 1024 * 1024
+_PYTHON_TAG = "tag:yaml.org,2002:python/"
 
 
 def _where(source: str, node, key: str) -> str:
@@ -56,7 +67,7 @@ def _check_scalar(node, tp, optional: bool, source: str, key: str) -> None:
         except ValueError:
             ok = value in (".nan", ".inf", "-.inf", ".NaN", ".Inf", "-.Inf")
     if not ok:
-        raise ConfigError(f"{_where(source, node, key)}: expected {_kind(tp)}, got '{value}'")
+        raise ConfigError(f"{_where(source, node, key)}: expected {_kind(tp)}, got '{shorten(value)}'")
 
 
 def _kind(tp) -> str:
@@ -80,7 +91,7 @@ def _check_node(node, tp, source: str, key: str) -> None:
         hints = typing.get_type_hints(tp)
         for k_node, v_node in node.value:
             name = k_node.value
-            sub = f"{key}.{name}" if key else name
+            sub = f"{key}.{shorten(name)}" if key else shorten(name)
             if name not in hints:
                 raise ConfigError(
                     f"{_where(source, k_node, sub)}: unknown key; valid keys here: {', '.join(sorted(hints))}"
@@ -99,7 +110,7 @@ def _check_node(node, tp, source: str, key: str) -> None:
             raise ConfigError(f"{_where(source, node, key)}: expected a mapping, got {_shape(node)}")
         _, value_type = typing.get_args(tp)
         for k_node, v_node in node.value:
-            _check_node(v_node, value_type, source, f"{key}['{k_node.value}']")
+            _check_node(v_node, value_type, source, f"{key}['{shorten(k_node.value)}']")
     elif tp in (bool, int, float, str):
         if tp is str and isinstance(node, yaml.ScalarNode):
             return
@@ -113,7 +124,7 @@ def _shape(node) -> str:
         return "a list"
     if isinstance(node, yaml.MappingNode):
         return "a mapping"
-    return f"'{node.value}'"
+    return f"'{shorten(node.value)}'"
 
 
 def check_yaml_file(path: str | Path, schema: type, what: str = "config") -> None:
@@ -131,6 +142,10 @@ def check_yaml_file(path: str | Path, schema: type, what: str = "config") -> Non
 
     path = Path(path)
     source = f"{what} file '{path}' does not match the {what} format"
+    size = path.stat().st_size
+    if size > MAX_YAML_BYTES:
+        raise ConfigError(f"{what} file '{path}' is {size / 1e6:.1f} MB; a {what} file is a few kB "
+                          f"(at most {MAX_YAML_BYTES // 1024 ** 2} MB is read)")
     try:
         root = yaml.compose(path.read_text(errors="replace"), Loader=yaml.SafeLoader)
     except yaml.MarkedYAMLError as err:
@@ -139,9 +154,38 @@ def check_yaml_file(path: str | Path, schema: type, what: str = "config") -> Non
         raise ConfigError(f"{source}: {line}YAML syntax error: {err.problem or err}") from None
     except yaml.YAMLError as err:
         raise ConfigError(f"{source}: YAML syntax error: {err}") from None
+    except RecursionError:
+        raise ConfigError(f"{source}: nested too deeply (more than {MAX_NESTING} levels of lists or mappings)") from None
     if root is None:
         return
+    check_nodes(root, source)
     _check_node(root, schema, source, "")
+
+
+def check_nodes(root, source: str) -> None:
+    """Refuses nesting deeper than :data:`MAX_NESTING` and tags that build Python objects.
+
+    Walks the composed tree with a stack (not recursion: that is what failed on deep nesting).
+
+    Raises:
+        ConfigError: naming ``source``, the line and column, and the tag.
+    """
+    import yaml
+
+    stack = [(root, 1)]
+    while stack:
+        node, depth = stack.pop()
+        mark = node.start_mark
+        at = f"line {mark.line + 1}, column {mark.column + 1}"
+        if node.tag.startswith(_PYTHON_TAG):
+            tag = "!!" + node.tag.removeprefix("tag:yaml.org,2002:")
+            raise ConfigError(f"{source}: {at}: tag '{shorten(tag)}': YAML tags that build Python objects are not accepted")
+        if depth > MAX_NESTING:
+            raise ConfigError(f"{source}: {at}: nested too deeply (more than {MAX_NESTING} levels of lists or mappings)")
+        if isinstance(node, yaml.SequenceNode):
+            stack += [(child, depth + 1) for child in node.value]
+        elif isinstance(node, yaml.MappingNode):
+            stack += [(n, depth + 1) for pair in node.value for n in pair]
 
 
 def key_line(path: str | Path, dotted_key: str) -> int | None:
@@ -151,7 +195,7 @@ def key_line(path: str | Path, dotted_key: str) -> int | None:
 
     try:
         node = yaml.compose(Path(path).read_text(errors="replace"), Loader=yaml.SafeLoader)
-    except (OSError, yaml.YAMLError):
+    except (OSError, yaml.YAMLError, RecursionError):
         return None
     for part in dotted_key.split("."):
         if not isinstance(node, yaml.MappingNode):

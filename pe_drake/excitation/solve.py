@@ -13,7 +13,6 @@ from __future__ import annotations
 import dataclasses
 import logging
 import re
-import tempfile
 import time
 from pathlib import Path
 from typing import NamedTuple
@@ -27,6 +26,7 @@ from pe_drake.excitation.exchange import add_violated_samples
 from pe_drake.excitation.fourier import FourierBasis, FourierTrajectory
 from pe_drake.excitation.problem import ExcitationProblem
 from pe_drake.excitation.program import ExcitationProgram, build_excitation_program
+from pe_drake.excitation.solver_logs import new_log_file
 from pe_drake.memory import reuse_freed_memory
 from pe_drake.threads import single_threaded_blas
 
@@ -174,7 +174,8 @@ def _ipopt_backend(cfg: SolverConfig) -> _Backend:
     if cfg.max_time > 0:
         options.SetOption(sid, "max_wall_time", float(cfg.max_time))
     # IPOPT reports no iteration count through Drake: its log file does (BUILD_NOTES.md).
-    log_file = Path(tempfile.mkstemp(prefix="pe_drake_ipopt_", suffix=".log")[1])
+    # In this process's own folder: a worker killed mid-solve leaves it to the next sweep.
+    log_file = new_log_file()
     options.SetOption(CommonSolverOption.kPrintFileName, str(log_file))
     return _Backend(solver, options, log_file)
 

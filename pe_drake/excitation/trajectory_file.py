@@ -20,7 +20,7 @@ import numpy as np
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.excitation.fourier import FourierTrajectory
 from pe_drake.excitation.ramp import RampedMotion, ramped_motion_from_dict
-from pe_drake.io_utils import atomic_write_text
+from pe_drake.io_utils import atomic_write_text, loads_json
 from pe_drake.output_set import check_output_set
 
 #: Physical range of ω [rad/s]: periods from 0.1 s to 10 minutes.
@@ -78,7 +78,7 @@ def load_trajectory(path: str | Path) -> tuple[FourierTrajectory, dict[str, Any]
                         f"{MAX_FILE_BYTES / 1e6:.0f} MB)", file=str(path))
     check_output_set(path)  # not a trajectory.json beside another run's trajectory.csv
     try:
-        data = json.loads(path.read_text())
+        data = loads_json(path.read_text(), str(path))
     except json.JSONDecodeError as err:
         raise DataError(f"not valid JSON: {err}", file=str(path)) from err
     if not isinstance(data, dict):

@@ -9,19 +9,16 @@ a Python string per line (1.3 kB per row before, 18× the CSV's size for a decim
 from __future__ import annotations
 
 import array
-import re
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
 
-from pe_drake.exceptions import DataError
+from pe_drake.exceptions import DataError, shorten
+from pe_drake.identification.csv_checks import check_text_file, delimiter_hint, is_number
 
 #: The longest line accepted [characters]: a log's line is a few hundred; a longer one is not a log.
 MAX_LINE_CHARS = 1_000_000
-
-#: A decimal number as a log writes it (Python's float() also takes "0.21_5" and "١٢").
-NUMBER = re.compile(r"\s*[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?\s*|\s*[+-]?(nan|inf|infinity)\s*", re.IGNORECASE)
 
 _ENCODING_HINT = "save it as comma-separated UTF-8 text"
 
@@ -48,21 +45,16 @@ def read_header(path: Path) -> tuple[int, list[str]]:
     """(line number, column names) of the first non-blank line.
 
     Raises:
-        DataError: no file, an empty file, UTF-16 text, a semicolon- or tab-delimited header.
+        DataError: no file, an empty file, text that is not UTF-8, a semicolon- or tab-delimited
+            header (:mod:`~pe_drake.identification.csv_checks`).
     """
     file = str(path)
     if not path.is_file():
         raise DataError("measurement file does not exist", file=file)
-    with path.open("rb") as f:
-        start = f.read(4096)
-    if start.startswith((b"\xff\xfe", b"\xfe\xff")) or b"\x00" in start:
-        raise DataError(f"the file looks like UTF-16 text (or binary); {_ENCODING_HINT}", file=file)
+    check_text_file(path)  # UTF-16 or another encoding: named, with how to save it
     for lineno, line in _lines(path, file):
         if line.strip():
-            if "," not in line and (";" in line or "\t" in line):
-                kind = "semicolon" if ";" in line else "tab"
-                raise DataError(f"the header looks {kind}-delimited; {_ENCODING_HINT} (or give the columns "
-                                "in the config's data.columns, which reads ';' and tabs)", file=file)
+            delimiter_hint(line, file)  # one column of a ';' or tab file: say so, not "missing columns"
             return lineno, [c.strip().strip('"').strip("'") for c in line.split(",")]
     raise DataError("the file is empty", file=file)
 
@@ -122,8 +114,7 @@ def _locate_parse_error(path: Path, header_line: int, columns, wanted, index) ->
         fields = line.rstrip("\r\n").split(",")
         for name in wanted:
             raw = fields[index[name]].strip()
-            if not NUMBER.fullmatch(raw):
-                shown = raw if len(raw) <= 40 else raw[:40] + "…"
-                raise DataError(f"'{shown}' is not a number (line {lineno} of the file)", file=file,
+            if not is_number(raw):  # not float(): it takes "0.21_5", which numpy refused
+                raise DataError(f"'{shorten(raw)}' is not a number (line {lineno} of the file)", file=file,
                                 column=name, row=row)
     raise DataError("could not parse the file as comma-separated numbers", file=file)

@@ -3,6 +3,7 @@
 Each refuses with the file, the column and the row, and the likely fix:
 
 - time in milliseconds (a "1 Hz" log of a 1 kHz controller) or a rate too low to identify;
+- repeated (or nearly: 1 ns apart) and decreasing time stamps, counted, with the first rows;
 - (holes in the time column are not refused: short ones are interpolated and pauses split
   the run into segments, :mod:`pe_drake.identification.gaps`);
 - joint positions far outside the robot's limits, with a degrees hint when q·π/180 fits;
@@ -19,6 +20,7 @@ import math
 import numpy as np
 
 from pe_drake.exceptions import DataError
+from pe_drake.identification.csv_checks import check_time_order
 from pe_drake.identification.estimators import robot_torques
 
 #: Lowest sample rate accepted [Hz].
@@ -36,7 +38,7 @@ def _row(index: int) -> int:
 
 
 def check_time_column(t: np.ndarray, source: str = "") -> None:
-    """Refuses time in milliseconds and too low a rate.
+    """Refuses repeated or decreasing time stamps, time in milliseconds and too low a rate.
 
     Holes and pauses are not refused: :func:`pe_drake.identification.gaps.preprocess_segments`
     interpolates the short ones and splits the run at the long ones.
@@ -45,12 +47,12 @@ def check_time_column(t: np.ndarray, source: str = "") -> None:
         DataError: naming the file, column 't' and the row.
     """
     t = np.asarray(t, float)
+    # The CSV readers refuse these with file lines; a bag's or a caller's own data lands here.
+    check_time_order(t, source)
     if len(t) < 3:
         return
     dt = np.diff(t)
     step = float(np.median(dt))
-    if step <= 0:
-        return  # unsorted time: the reader refuses it with its own message
     rate = 1.0 / step
     if rate < MIN_RATE_HZ:
         hint = (

@@ -26,6 +26,7 @@ from typing import NamedTuple
 import numpy as np
 
 from pe_drake.exceptions import DataError
+from pe_drake.identification.csv_checks import check_time_order
 from pe_drake.identification.measurements import Measurement
 from pe_drake.identification.preprocessing import (
     PreprocessOptions,
@@ -107,7 +108,11 @@ def split_at_pauses(measurement: Measurement, max_gap_s: float = MAX_GAP_S) -> t
 
     Returns:
         (segments in time order, notes); one segment (the measurement itself) without pauses.
+
+    Raises:
+        DataError: repeated or decreasing time stamps (counted, not thousands of "holes").
     """
+    check_time_order(measurement.t, measurement.source)
     gaps = find_gaps(measurement.t, max_gap_s)
     notes = _gap_notes(measurement.t, gaps, max_gap_s)
     bounds = [0, *(int(k) + 1 for k in gaps.splits), measurement.num_samples]

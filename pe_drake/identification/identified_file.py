@@ -24,6 +24,7 @@ from pe_drake.identification.channels import channel_names
 from pe_drake.identification.drive_terms import DriveFit, DriveLayout
 from pe_drake.identification.estimators import IdentificationResult, fit_warnings, measurement_base_parameters
 from pe_drake.identification.measurements import Preprocessing
+from pe_drake.io_utils import loads_json
 from pe_drake.multibody.inertia import PARAMETER_NAMES, inertia_matrix, phi_from_com, validity_problems
 from pe_drake.output_set import check_output_set
 
@@ -113,7 +114,7 @@ def load_identified(path: str | Path, robot) -> IdentificationResult:
     if path.is_file():
         check_output_set(path)  # its model.urdf and residuals are of the same run
     try:
-        d = json.loads(path.read_text())
+        d = loads_json(path.read_text(), str(path))
     except FileNotFoundError:
         raise DataError("identified model file does not exist", file=str(path)) from None
     except (OSError, json.JSONDecodeError) as err:

@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from pe_drake.exceptions import ConfigError, DataError
+from pe_drake.identification.csv_checks import check_time_order
 from pe_drake.identification.csv_table import read_header, read_table
 from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.wrench import WRENCH_COLUMNS
@@ -241,16 +242,8 @@ def _wrench_block(columns: list[str], file: str) -> bool:
 
 
 def _check_time(t: np.ndarray, linenos: np.ndarray, file: str) -> None:
-    """Refuses duplicated or decreasing time, naming the data row and the file's line."""
-    steps = np.diff(t)
-    if (steps <= 0).any():
-        r = int(np.argmax(steps <= 0)) + 1
-        kind = "duplicated" if steps[r - 1] == 0 else "decreasing"
-        raise DataError(
-            f"{kind} time: t = {t[r]:.9g} s does not come after the previous row's "
-            f"t = {t[r - 1]:.9g} s (line {linenos[r]} of the file); time must strictly increase",
-            file=file, column="t", row=r + 1,
-        )
+    """Refuses duplicated (or 1 ns apart) and decreasing time, with counts, data rows and lines."""
+    check_time_order(t, file, linenos)
 
 
 def _column_index(columns: list[str], joints: tuple[str, ...], file: str, tau_required: bool = True) -> dict[str, int]:

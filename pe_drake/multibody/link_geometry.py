@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from pe_drake.exceptions import ConfigError
+from pe_drake.multibody.urdf_checks import urdf_tree
 
 #: Primitive shape kinds and the size numbers each carries.
 PRIMITIVES = {"cylinder": "radius, length", "sphere": "radius", "box": "x, y, z", "capsule": "radius, length"}
@@ -98,8 +99,9 @@ def read_link_shapes(model_path: str | Path) -> dict[str, list[Shape]]:
     if suffix not in (".urdf", ".sdf"):
         raise ConfigError(f"link shapes are read from URDF and SDF files, not '{model_path.name}'")
     try:
-        root = ET.parse(model_path).getroot()
-    except (ET.ParseError, OSError) as err:
+        # a URDF as Drake reads it (its DOCTYPE's entities not expanded); SDF as XML
+        root = urdf_tree(model_path.read_text()) if suffix == ".urdf" else ET.parse(model_path).getroot()
+    except (ET.ParseError, OSError, UnicodeDecodeError) as err:
         raise ConfigError(f"cannot read '{model_path}' to fit capsules: {err}") from err
     reader = _urdf_shape if suffix == ".urdf" else _sdf_shape
     out: dict[str, list[Shape]] = {}

@@ -39,7 +39,7 @@ from pe_drake.multibody.packages import (
     unknown_package_message,
     used_packages,
 )
-from pe_drake.multibody.urdf_checks import check_joint_types
+from pe_drake.multibody.urdf_checks import check_joint_types, has_entities
 
 #: Suffixes of model files pe_drake reads.
 MODEL_SUFFIXES = (".urdf", ".sdf", ".xml", ".xacro")
@@ -295,6 +295,9 @@ def parse_models(plant, text: str, model_path: Path, packages: dict | None = Non
         return parser.AddModelsFromString(text, model_path.suffix.lstrip(".").lower())
     except Exception as err:  # Drake raises RuntimeError with its parser message
         hint = "".join(f"; {unknown_package_message(p, model_path)}" for p in unknown if p in str(err))
+        if has_entities(text) and "&" in str(err):
+            hint += ("; the file's <!DOCTYPE> defines entities, which Drake does not expand (it reads '&name;' "
+                     "as that text): write their values in place")
         raise ConfigError(f"Drake could not parse '{model_path}': {err}{hint}") from err
     finally:
         drake_logger.setLevel(level)

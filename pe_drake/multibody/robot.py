@@ -39,6 +39,7 @@ from pe_drake.multibody.registry import (
     resolve_robot_config,
     robot_display_name,
 )
+from pe_drake.multibody.urdf_checks import urdf_tree
 
 
 @dataclasses.dataclass(frozen=True)
@@ -406,13 +407,17 @@ def _urdf_effort_limits(path: Path) -> dict[str, float]:
         return {}
     out = {}
     try:
-        root = ET.parse(path).getroot()
-    except ET.ParseError:
+        root = urdf_tree(path.read_text())  # as Drake reads it: a DOCTYPE made ET.parse fail
+    except (ET.ParseError, OSError, UnicodeDecodeError):
         return {}
     for joint in root.iter("joint"):
         limit = joint.find("limit")
-        if limit is not None and limit.get("effort") and float(limit.get("effort")) > 0:
-            out[joint.get("name")] = float(limit.get("effort"))
+        try:
+            effort = float(limit.get("effort")) if limit is not None else 0.0
+        except (TypeError, ValueError):  # no effort, or text Drake refuses itself
+            continue
+        if effort > 0:
+            out[joint.get("name")] = effort
     return out
 
 

@@ -30,6 +30,7 @@ import numpy as np
 
 from pe_drake.multibody.link_geometry import primitive_points, read_link_shapes, rotation_rpy
 from pe_drake.multibody.meshes import read_mesh_vertices, resolve_mesh_path
+from pe_drake.multibody.urdf_checks import urdf_tree
 
 LEG = re.compile(r"hip|knee|ankle|leg|foot|toe", re.IGNORECASE)
 ARM = re.compile(r"shoulder|elbow|wrist|arm", re.IGNORECASE)
@@ -180,8 +181,8 @@ def standing_defaults(model_path: str | Path) -> dict | None:
     if model_path.suffix.lower() != ".urdf":
         return None
     try:
-        tree = ET.parse(model_path).getroot()
-    except (ET.ParseError, OSError):
+        tree = urdf_tree(model_path.read_text())  # as Drake reads it (a DOCTYPE's entities not expanded)
+    except (ET.ParseError, OSError, UnicodeDecodeError):
         return None  # the loader reports it
     joints = tree.findall("joint")
     children = {j.find("child").get("link") for j in joints}

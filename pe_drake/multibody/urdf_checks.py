@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import re
+import xml.etree.ElementTree as ET
 from pathlib import Path
 
 from pe_drake.exceptions import ConfigError
@@ -12,6 +13,29 @@ SUPPORTED_JOINT_TYPES = ("revolute", "continuous", "prismatic", "fixed")
 
 _JOINT = re.compile(r"<joint\b[^>]*>", re.S)
 _ATTR = re.compile(r"""\b(name|type)\s*=\s*(["'])(.*?)\2""", re.S)
+_DOCTYPE = re.compile(r"<!DOCTYPE\b(?:[^\[>]*\[.*?\]\s*>|[^>]*>)", re.S)
+#: An entity reference other than XML's five and numeric ones: Drake keeps it as text.
+_ENTITY_REF = re.compile(r"&(?!(?:amp|lt|gt|quot|apos|#\d+|#x[0-9a-fA-F]+);)")
+
+
+def urdf_tree(text: str) -> ET.Element:
+    """The URDF's element tree as Drake reads it: the ``<!DOCTYPE>`` ignored and its entities
+    not expanded (``effort="&foo;"`` is the text '&foo;').
+
+    Python's parser expands a DOCTYPE's entities and fails on external or undefined ones
+    (``undefined entity``) where Drake reads the file: the effort limits read beside Drake then
+    came back empty and a robot with limits was told it had "no effort limit".
+
+    Raises:
+        xml.etree.ElementTree.ParseError: text that is not XML.
+    """
+    text = _DOCTYPE.sub(lambda m: "\n" * m.group(0).count("\n"), text)  # newlines kept: line numbers stay
+    return ET.fromstring(_ENTITY_REF.sub("&amp;", text))
+
+
+def has_entities(text: str) -> bool:
+    """Whether the text has a ``<!DOCTYPE>`` and uses an entity of its own (``&foo;``)."""
+    return bool(_DOCTYPE.search(text)) and bool(_ENTITY_REF.search(text))
 
 
 def check_joint_types(urdf_text: str, model_path: str | Path) -> None:

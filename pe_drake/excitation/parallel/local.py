@@ -40,6 +40,7 @@ from pe_drake.excitation.parallel.base import (
     task_error,
     worker_name,
 )
+from pe_drake.excitation.solver_logs import remove_orphaned_log_folders
 
 _STATE: WorkerState | None = None  # the worker process's robot (set by _init_worker)
 _EVENTS = None  # the queue to the parent (set by _init_worker)
@@ -167,6 +168,7 @@ class LocalExecutor(RemoteExecutor):
         pool, self._pool = self._pool, None
         if pool is not None:
             pool.shutdown(wait=True, cancel_futures=True)
+            remove_orphaned_log_folders()  # the IPOPT logs of workers that were killed
         if self._events is not None:
             self._events.close()
             self._events = None

@@ -37,6 +37,7 @@ from pe_drake.excitation.parallel.base import (
     task_error,
     worker_name,
 )
+from pe_drake.excitation.solver_logs import remove_orphaned_log_folders
 
 POLL_EVERY_S = 1.0  # how often a running actor is asked for its task's events
 
@@ -269,6 +270,7 @@ class RayExecutor(RemoteExecutor):
 
     def close(self) -> None:
         self.terminate()
+        remove_orphaned_log_folders()  # the IPOPT logs of this machine's killed actors
         if self._own and self._ray.is_initialized():
             self._ray.shutdown()
             self._own = False

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from pe_drake.exceptions import DataError
+from pe_drake.identification.csv_checks import check_text_file, check_time_order, first_non_number
 from pe_drake.identification.measurements import Measurement
 from pe_drake.identification.readers.currents import torque_from_current
 
@@ -39,6 +40,7 @@ def read_header(path: str | Path) -> tuple[list[str], str | None]:
     path = Path(path)
     if not path.is_file():
         raise DataError("measurement file does not exist", file=str(path))
+    check_text_file(path)  # UTF-16 or another encoding: named, not a UnicodeDecodeError traceback
     with path.open(encoding="utf-8-sig") as f:
         header = next((line for line in f if line.strip()), "")
     delimiter = next((d for d in (",", ";", "\t") if d in header), None)
@@ -125,15 +127,14 @@ def read_mapped_csv(
         table = np.loadtxt(path, delimiter=delimiter, skiprows=1, usecols=[columns.index(mapping[k]) for k in keys],
                            ndmin=2, comments=None, encoding="utf-8-sig")
     except ValueError as err:
+        _locate_non_number(path, delimiter, columns, [mapping[k] for k in keys], file)
         raise DataError(f"cannot read the values as numbers: {err}", file=file) from err
     if not np.isfinite(table).all():
         r, c = np.argwhere(~np.isfinite(table))[0]
         raise DataError("value is not a finite number", file=file, column=mapping[keys[c]], row=int(r) + 1)
     col = {k: table[:, i] for i, k in enumerate(keys)}
     t = col["t"]
-    if np.any(np.diff(t) <= 0):
-        r = int(np.argmax(np.diff(t) <= 0)) + 1
-        raise DataError("time does not strictly increase", file=file, column=mapping["t"], row=r + 1)
+    check_time_order(t, file, column=mapping["t"])
 
     def block(quantity: str) -> np.ndarray | None:
         if not all(f"{quantity}.{j}" in col for j in joints):
@@ -150,6 +151,18 @@ def read_mapped_csv(
             tau[:, list(joints).index(j)] = k_tau[:, i]
         notes.append(f"motor currents of {', '.join(current_joints)} multiplied by robot.drive_gains (τ = k·i)")
     return Measurement(t - t[0], block("q"), tau, block("v"), block("vdot"), tuple(joints), file, notes=tuple(notes))
+
+
+def _locate_non_number(path, delimiter: str | None, columns: list[str], used: list[str], file: str) -> None:
+    """Raises naming the row, line and column of the first field numpy could not read (its own
+    message counts rows and columns from 0 among the columns read)."""
+    with Path(path).open(encoding="utf-8-sig") as f:
+        lines = [(n + 1, line) for n, line in enumerate(f) if line.strip()][1:]
+    found = first_non_number(((n, _split(line, delimiter)) for n, line in lines),
+                             {columns.index(c): c for c in used})
+    if found is not None:
+        row, line, column, raw = found
+        raise DataError(f"'{raw}' is not a number (line {line} of the file)", file=file, column=column, row=row)
 
 
 def identity_columns(columns: Sequence[str], joints: Sequence[str]) -> dict[str, str]:
