@@ -286,8 +286,10 @@ def test_a_run_whose_worker_is_killed_leaves_no_ipopt_log(panda, tmp_path, monke
     config = ExcitationConfig(harmonics=3, omega=2 * math.pi, cost_samples=12, constraint_samples=40,
                               criterion="log_cond", amplitude=0.3)
     with open_executor(panda, "local", 2, tasks=2, start_method="spawn") as ex:
-        with pytest.raises(WorkerError, match="died"):
-            solve_multistart(panda, config, SolverConfig(max_iterations=3000, verbose=False), [3, 4],
+        try:  # a killed worker's start is lost, the others are re-run on a new pool (test_parallel)
+            solve_multistart(panda, config, SolverConfig(max_iterations=300, verbose=False), [3, 4],
                              executor=ex, progress=kill_workers, progress_interval=0.05)
+        except WorkerError as err:  # every start lost
+            assert "died" in str(err)
     assert killed
     assert not list(tmp_path.iterdir())  # the executor swept the killed workers' folders when it closed

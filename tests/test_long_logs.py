@@ -96,15 +96,15 @@ class _Hour:
 
 
 def test_a_diagnosis_that_cannot_fit_is_refused_with_the_figure():
-    with pytest.raises(DataError, match=r"diagnose would need about 24\.0 GB for 60\.0 min .* 15\.0 GB available"):
-        record.check_fits_in_memory(_Hour(), None, available=15_000_000_000)
+    with pytest.raises(DataError, match=r"diagnose would need about 7\.1 GB for 60\.0 min .* 5\.0 GB available"):
+        record.check_fits_in_memory(_Hour(), None, available=5_000_000_000)
     record.check_fits_in_memory(_Hour(), None, available=40_000_000_000)  # a bigger machine runs it
 
 
 def test_the_cli_refuses_before_any_work(tmp_path, monkeypatch, capsys):
     log = tmp_path / "log.csv"
     write_long_log(log, 0.5)
-    monkeypatch.setattr(record, "available_bytes", lambda: 500_000_000)
+    monkeypatch.setattr(record, "available_bytes", lambda: 300_000_000)
     assert main(["diagnose", "--robot", "panda", "--data", str(log), "--out", str(tmp_path / "out")]) == 2
     assert "diagnose would need about" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()

@@ -34,10 +34,14 @@ def test_replace_column_updates_the_gram_entries():
     ref = Columns.stack(B[:, :, :3], B[:, :, 3:], y)
     np.testing.assert_allclose(out.gram, ref.gram, atol=1e-12)
     np.testing.assert_allclose(out.rhs, ref.rhs, atol=1e-12)
-    np.testing.assert_allclose(out.A, B)
-    light = replace_column(cols, 4, 1, new, with_A=False)  # the search's trial fits
-    np.testing.assert_allclose(light.gram, ref.gram, atol=1e-12)
-    np.testing.assert_allclose(light.rhs, ref.rhs, atol=1e-12)
+    np.testing.assert_allclose(out.dense(), B)
+    assert out.A is cols.A  # shared, not copied
+    x = rng.normal(size=5)
+    np.testing.assert_allclose(out.product(range(5), x), B @ x, atol=1e-12)
+    twice = replace_column(out, 3, 2, new)  # a second column on another joint
+    B[:, :, 3] = 0.0
+    B[:, 2, 3] = new
+    np.testing.assert_allclose(twice.gram, Columns.stack(B[:, :, :3], B[:, :, 3:], y).gram, atol=1e-12)
     assert DISPLACEMENT_GRID[0] < 0.01 and DISPLACEMENT_GRID[-1] > 0.05  # covers 10-50 mrad
 
 

@@ -62,28 +62,25 @@ class PreslidingFit:
     held_values: np.ndarray | None = None
 
 
-def dahl_columns(record, grid: np.ndarray = DISPLACEMENT_GRID) -> np.ndarray:
-    """The normalized Dahl state of every joint at the record's full rate for every x_p of
-    ``grid``, filtered like the torque (parallel filtering), shape (T, G, n).
+def dahl_columns(record, joint: int, grid: np.ndarray = DISPLACEMENT_GRID) -> np.ndarray:
+    """The normalized Dahl state of one joint for every x_p of ``grid``, integrated and filtered
+    like the torque (parallel filtering) at the record's full rate, at every ``record.step``-th
+    sample (the segments' samples are among them), shape (⌈T/step⌉, G).
 
-    The state follows the record's filtered q (a noisy q would reverse at every sample).
+    The state follows the record's filtered q (a noisy q would reverse at every sample). One
+    joint at a time: all of them at the full rate held 1.1 kB per sample of a 7-joint log.
     """
-    grid = np.asarray(grid, float)
-    T, n = record.q.shape
-    z = dahl_state(record.q, np.repeat(grid[:, None], n, axis=1))
-    return record.filtered(z.reshape(T, -1)).reshape(T, len(grid), n)
+    z = dahl_state(record.q[:, joint], np.asarray(grid, float))  # (T, G)
+    return record.filtered(z)[:: record.step]
 
 
-def replace_column(columns, index: int, joint: int, values: np.ndarray, *, with_A: bool = True):
-    """A copy of a segment's columns whose column ``index`` is ``values`` on ``joint`` (zero
-    on the other joints), with its Gram entries updated (the others are unchanged).
-
-    ``with_A=False`` skips the copy of the (S, n, P) columns: the result then fits (Gram
-    matrices) but its ``A`` still holds the old column (no residuals from it).
-    """
+def replace_column(columns, index: int, joint: int, values: np.ndarray):
+    """The segment's columns with column ``index`` set to ``values`` on ``joint`` (zero on the
+    other joints), its Gram entries updated (the others are unchanged); ``A`` is shared, the new
+    column kept beside it (``Columns.overrides``): a copy of A per trial held 2-8 copies of it."""
     values = np.asarray(values, float)
     row = np.zeros(columns.rhs.shape)
-    row[joint] = values @ columns.A[:, joint, :]
+    row[joint] = values @ columns.joint_block(joint)
     row[joint, index] = values @ values
     gram = columns.gram.copy()
     gram[:, index, :] = row
@@ -91,12 +88,7 @@ def replace_column(columns, index: int, joint: int, values: np.ndarray, *, with_
     rhs = columns.rhs.copy()
     rhs[:, index] = 0.0
     rhs[joint, index] = values @ columns.y[:, joint]
-    if not with_A:
-        return dataclasses.replace(columns, gram=gram, rhs=rhs)
-    A = columns.A.copy()
-    A[:, :, index] = 0.0
-    A[:, joint, index] = values
-    return dataclasses.replace(columns, A=A, gram=gram, rhs=rhs)
+    return dataclasses.replace(columns, gram=gram, rhs=rhs, overrides={**columns.overrides, index: (joint, values)})
 
 
 def search_presliding(regression, extra: list[int], column: int, joint: int, train_dahl: np.ndarray,
@@ -123,14 +115,14 @@ def search_presliding(regression, extra: list[int], column: int, joint: int, tra
     rss_coulomb = float(base_fit.rms_train[joint] ** 2 * regression.train.count)
     rss = np.empty(len(grid))
     for g in range(len(grid)):
-        fit = _with_dahl(regression, column, joint, train_dahl[:, g], held_dahl[:, g], with_A=False).fit(extra)
+        fit = _with_dahl(regression, column, joint, train_dahl[:, g], held_dahl[:, g]).fit(extra)
         rss[g] = fit.rms_train[joint] ** 2 * regression.train.count
     g = int(np.argmin(rss))
     x_p, tr, ho = float(grid[g]), train_dahl[:, g], held_dahl[:, g]
     if column_at is not None and 0 < g < len(grid) - 1:
         x_ref = _parabola_vertex(np.log(grid[g - 1 : g + 2]), rss[g - 1 : g + 2])
         tr_ref, ho_ref = column_at(x_ref)
-        fit = _with_dahl(regression, column, joint, tr_ref, ho_ref, with_A=False).fit(extra)
+        fit = _with_dahl(regression, column, joint, tr_ref, ho_ref).fit(extra)
         if fit.rms_train[joint] ** 2 * regression.train.count < rss[g]:
             x_p, tr, ho = x_ref, tr_ref, ho_ref
     reg = _with_dahl(regression, column, joint, tr, ho)
@@ -148,10 +140,9 @@ def _parabola_vertex(u: np.ndarray, f: np.ndarray) -> float:
     return float(np.exp(np.clip(vertex, u[0], u[2])))
 
 
-def _with_dahl(regression, column: int, joint: int, train_values: np.ndarray, held_values: np.ndarray,
-               *, with_A: bool = True):
-    reg = type(regression)(replace_column(regression.train, column, joint, train_values, with_A=with_A),
-                           replace_column(regression.held, column, joint, held_values, with_A=with_A),
+def _with_dahl(regression, column: int, joint: int, train_values: np.ndarray, held_values: np.ndarray):
+    reg = type(regression)(replace_column(regression.train, column, joint, train_values),
+                           replace_column(regression.held, column, joint, held_values),
                            regression.num_base)
     reg.set_weights(regression.weights)
     reg.inflation = regression.inflation
@@ -217,7 +208,7 @@ def presliding_step(prep, lib, sel, config) -> PreslidingStep:
     is not the grid's smallest value (the Coulomb limit). Effects of that joint that are no
     longer significant with it (e.g. a viscous friction that stood in for it) are dropped."""
     reg, library, extra = lib.regression, lib.library, list(sel.selected)
-    cache: dict = {}  # id(record) -> full-rate filtered Dahl columns, (T, G, n)
+    cache: dict = {}  # (id(record), joint) -> its filtered Dahl columns (dahl_columns)
     report, fits = [], []
     held_torque = np.zeros_like(prep.held.tau)
     slots = [c for c in library.cand_of if library.cand_of[c].effect == "coulomb_friction"]
@@ -292,10 +283,14 @@ def _column_at(prep, joint: int) -> Callable[[float], tuple[np.ndarray, np.ndarr
 
 
 def _dahl_at(cache: dict, seg, joint: int) -> np.ndarray:
-    """:func:`dahl_columns` of a segment's record (once per record) at its samples, (S, G)."""
-    if id(seg.record) not in cache:
-        cache[id(seg.record)] = dahl_columns(seg.record)
-    return cache[id(seg.record)][seg.idx, :, joint]
+    """:func:`dahl_columns` of a segment's record and joint (once each) at its samples, (S, G);
+    the cache keeps the current joint only."""
+    key = (id(seg.record), joint)
+    if key not in cache:
+        for old in [k for k in cache if k[1] != joint]:
+            del cache[old]
+        cache[key] = dahl_columns(seg.record, joint)
+    return cache[key][seg.idx // seg.record.step]
 
 
 def presliding_effects(effects: Sequence[NamedEffect], step: PreslidingStep, library,

@@ -286,9 +286,10 @@ def check_record_signs(robot, record: Record) -> None:
 
 
 #: What diagnose holds per fitted sample (it fits at 200 Hz at most), measured with ``python -m
-#: pe_drake.bench memory``: 6.5 kB per 1 kHz row of a 7-joint Panda log, and its fixed part [bytes].
-DIAGNOSE_BYTES_PER_SAMPLE = 32.5e3
-DIAGNOSE_BASE_BYTES = 0.6e9
+#: pe_drake.bench memory`` on 2- and 6-minute 7-joint Panda logs at 1 kHz (408 and 842 MB: 1.8 kB
+#: per row, 9 kB per fitted sample; rounded up), and its fixed part [bytes].
+DIAGNOSE_BYTES_PER_SAMPLE = 9.5e3
+DIAGNOSE_BASE_BYTES = 0.25e9
 FIT_RATE_HZ = 200.0
 
 

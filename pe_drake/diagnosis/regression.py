@@ -38,6 +38,8 @@ class Columns:
         rhs: per-joint A_jᵀ y_j, (n, P).
         yy: per-joint y_jᵀ y_j, (n,).
         count: S.
+        overrides: {column: (joint, values (S,))}: columns that differ from ``A`` (zero on every
+            joint but ``joint``), so a trial column does not copy the (S, n, P) block.
     """
 
     A: np.ndarray
@@ -46,6 +48,37 @@ class Columns:
     rhs: np.ndarray
     yy: np.ndarray
     count: int
+    overrides: dict = dataclasses.field(default_factory=dict)
+
+    def product(self, cols: Sequence[int], x: np.ndarray, chunk: int = 4000) -> np.ndarray:
+        """The columns ``cols`` times ``x``, (S, n), a block of samples at a time (no (S, n, P) copy)."""
+        cols, x = [int(c) for c in cols], np.asarray(x, float)
+        plain = [k for k, c in enumerate(cols) if c not in self.overrides]
+        idx = [cols[k] for k in plain]
+        out = np.empty(self.y.shape)
+        for s in range(0, self.count, chunk):
+            rows = slice(s, min(s + chunk, self.count))
+            out[rows] = self.A[rows][:, :, idx] @ x[plain]
+        for k, c in enumerate(cols):
+            if c in self.overrides:
+                joint, values = self.overrides[c]
+                out[:, joint] += values * x[k]
+        return out
+
+    def joint_block(self, joint: int) -> np.ndarray:
+        """A[:, joint, :] with the overrides applied, (S, P)."""
+        block = self.A[:, joint, :].copy()
+        for c, (j, values) in self.overrides.items():
+            block[:, c] = values if j == joint else 0.0
+        return block
+
+    def dense(self) -> np.ndarray:
+        """A with the overrides applied, (S, n, P) (a copy: for tests and small data)."""
+        A = self.A.copy()
+        for c, (j, values) in self.overrides.items():
+            A[:, :, c] = 0.0
+            A[:, j, c] = values
+        return A
 
     @classmethod
     def stack(cls, Y_B: np.ndarray, extra: np.ndarray, y: np.ndarray) -> Columns:
@@ -137,7 +170,7 @@ class Regression:
     def residual(self, which: str, fit: Fit) -> np.ndarray:
         """Measured minus fitted torque on "training" or "held-out", (S, n)."""
         c = self.train if which == "training" else self.held
-        return c.y - c.A[:, :, list(fit.columns)] @ fit.x
+        return c.y - c.product(fit.columns, fit.x)
 
     def contribution_rms(self, which: str, fit: Fit, column: int) -> np.ndarray:
         """Per-joint RMS of one column's torque θ·c in a segment."""

@@ -441,7 +441,7 @@ def augment(robot, prep: Prepared, lib: CandidateLibrary, pre: PreslidingStep, n
     tau_after = augmented_torque(true, augmented, q, v, vd)
     tau_after += augmented.coulomb * (coulomb - np.tanh(v / config.coulomb_velocity_scale)) + pre.held_torque
     # the least-squares prediction with the final values (a delay by its linearization -d·dτ/dt)
-    ls_pred = pre.regression.held.A[:, :, list(final.columns)] @ final.x
+    ls_pred = pre.regression.held.product(final.columns, final.x)
     return Augmentation(augmented, tau_after, rms(held.tau - tau_after),
                         np.max(np.abs(tau_after - ls_pred), axis=0))
 
@@ -528,6 +528,8 @@ def diagnose(
     say("1. a-priori model, held-out RMS [N·m]: " + _fmt_joints(joints, nom.rms))
     lap("nominal")
     lib = candidate_library(robot, prep, config)
+    b = lib.library.num_base  # the base regressor is inside the regression's columns: one copy, not two
+    prep = dataclasses.replace(prep, Y_tr=lib.regression.train.A[:, :, :b], Y_ho=lib.regression.held.A[:, :, :b])
     rigid = rigid_reidentification(lib.regression, prep.training)
     say("2. rigid-body parameters re-identified, held-out RMS [N·m]: " + _fmt_joints(joints, rigid.rms_held))
     lap("rigid")
