@@ -96,7 +96,7 @@ class _Hour:
 
 
 def test_a_diagnosis_that_cannot_fit_is_refused_with_the_figure():
-    with pytest.raises(DataError, match=r"diagnose would need about 7\.1 GB for 60\.0 min .* 5\.0 GB available"):
+    with pytest.raises(DataError, match=r"diagnose would need about 6\.4 GB for 60\.0 min .* 5\.0 GB available"):
         record.check_fits_in_memory(_Hour(), None, available=5_000_000_000)
     record.check_fits_in_memory(_Hour(), None, available=40_000_000_000)  # a bigger machine runs it
 

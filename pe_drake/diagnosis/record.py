@@ -286,9 +286,9 @@ def check_record_signs(robot, record: Record) -> None:
 
 
 #: What diagnose holds per fitted sample (it fits at 200 Hz at most), measured with ``python -m
-#: pe_drake.bench memory`` on 2- and 6-minute 7-joint Panda logs at 1 kHz (408 and 842 MB: 1.8 kB
-#: per row, 9 kB per fitted sample; rounded up), and its fixed part [bytes].
-DIAGNOSE_BYTES_PER_SAMPLE = 9.5e3
+#: pe_drake.bench memory`` on 2- and 6-minute 7-joint Panda logs at 1 kHz (416 and 790 MB: 1.6 kB
+#: per row, 7.8 kB per fitted sample; rounded up), and its fixed part [bytes].
+DIAGNOSE_BYTES_PER_SAMPLE = 8.5e3
 DIAGNOSE_BASE_BYTES = 0.25e9
 FIT_RATE_HZ = 200.0
 

@@ -83,7 +83,11 @@ class Columns:
     @classmethod
     def stack(cls, Y_B: np.ndarray, extra: np.ndarray, y: np.ndarray) -> Columns:
         """The base regressor (S, n, b) and the extra columns (S, n, E) against the torque y."""
-        A = np.concatenate([Y_B, extra], axis=2)
+        return cls.from_matrix(np.concatenate([Y_B, extra], axis=2), y)
+
+    @classmethod
+    def from_matrix(cls, A: np.ndarray, y: np.ndarray) -> Columns:
+        """The columns A (S, n, P) against the torque y (S, n)."""
         gram = np.einsum("sjp,sjq->jpq", A, A, optimize=True)
         rhs = np.einsum("sjp,sj->jp", A, y, optimize=True)
         yy = np.einsum("sj,sj->j", y, y)
@@ -221,10 +225,17 @@ class Library:
         """The candidate's label, or ``time_delay`` for the timing column."""
         return TIMING if col == self.timing_col else self.cand_of[col].label
 
-    def extra_columns(self, seg: Segment) -> np.ndarray:
-        """The candidates' columns and the timing nuisance on a segment, (S, n, len + 1)."""
+    @property
+    def extra_count(self) -> int:
+        """Columns beside the base regressor: the candidates and the timing nuisance."""
+        return len(self.candidates) + 1
+
+    def extra_columns(self, seg: Segment, out: np.ndarray | None = None) -> np.ndarray:
+        """The candidates' columns and the timing nuisance on a segment, (S, n, len + 1), into
+        ``out`` when given."""
         n = seg.q.shape[1]
-        cols = np.zeros((seg.num_samples, n, len(self.candidates) + 1))
+        cols = np.zeros((seg.num_samples, n, self.extra_count)) if out is None else out
+        cols[...] = 0.0
         for k, c in enumerate(self.candidates):
             if c.effect == "coulomb_friction":
                 cols[:, c.joint, k] = seg.coulomb[:, c.joint]

@@ -119,7 +119,6 @@ class Prepared:
         training, held: the two :class:`~pe_drake.diagnosis.record.Segment`s.
         model: the robot's regressor model.
         base: its base parameters.
-        Y_tr, Y_ho: base regressor on each part, (S, n, b).
         phi_B_prior: the a-priori model's base parameters K φ_prior, (b,).
     """
 
@@ -129,8 +128,6 @@ class Prepared:
     held: Segment
     model: RegressorModel
     base: BaseParameters
-    Y_tr: np.ndarray
-    Y_ho: np.ndarray
     phi_B_prior: np.ndarray
 
 
@@ -153,14 +150,12 @@ def prepare(robot, data: Measurement, validation: Measurement | None, config: Di
         f"{held.t[0]:.2f}-{held.t[-1]:.2f} s" + (f" of {vrecord.source}" if vrecord else ""))
     model = RegressorModel(robot)
     base = compute_base_parameters(robot, model=model)
-    Y_tr = model.columns(training.q, training.v, training.vd, base.independent)
-    Y_ho = model.columns(held.q, held.v, held.vd, base.independent)
     n = robot.n
     if training.num_samples * n < 3 * (base.count + 4 * n):
         raise DataError(
             f"{training.num_samples} training samples × {n} joints are too few for {base.count} base "
             f"parameters and {4 * n} effect candidates; record a longer run", file=record.source)
-    return Prepared(record, vrecord, training, held, model, base, Y_tr, Y_ho, base.base_values(robot.phi_model))
+    return Prepared(record, vrecord, training, held, model, base, base.base_values(robot.phi_model))
 
 
 # ---- 1. nominal ------------------------------------------------------------------------------
@@ -191,8 +186,8 @@ def nominal(robot, prep: Prepared) -> Nominal:
     """
     training, held, joints = prep.training, prep.held, robot.joint_names
     damping = robot.joint_damping
-    tau_nom_tr = prep.Y_tr @ prep.phi_B_prior + damping * training.v
-    tau_nom_ho = prep.Y_ho @ prep.phi_B_prior + damping * held.v
+    tau_nom_tr, tau_nom_ho = (prep.model.columns_times(s.q, s.v, s.vd, prep.base.independent, prep.phi_B_prior)
+                              + damping * s.v for s in (training, held))
     for seg, pred in ((training, tau_nom_tr), (held, tau_nom_ho)):
         check_torque_units(Measurement(seg.t, seg.q, seg.tau, None, None, joints, seg.record.source), pred)
     res_tr, res_ho = training.tau - tau_nom_tr, held.tau - tau_nom_ho
@@ -221,6 +216,16 @@ class CandidateLibrary:
     regression: Regression
 
 
+def _segment_columns(prep: Prepared, library: Library, seg: Segment) -> Columns:
+    """A segment's base regressor and candidate columns, written into one array (a long log's
+    base regressor is never held beside it)."""
+    b = prep.base.count
+    A = np.empty((seg.num_samples, seg.q.shape[1], b + library.extra_count))
+    prep.model.columns(seg.q, seg.v, seg.vd, prep.base.independent, out=A[:, :, :b])
+    library.extra_columns(seg, out=A[:, :, b:])
+    return Columns.from_matrix(A, seg.tau)
+
+
 def candidate_library(robot, prep: Prepared, config: DiagnosisConfig) -> CandidateLibrary:
     """The separable candidates' columns appended to the base regressor.
 
@@ -231,11 +236,7 @@ def candidate_library(robot, prep: Prepared, config: DiagnosisConfig) -> Candida
     sep = separability(robot, prep.base, candidates, model=prep.model)
     library = Library(prep.base.count, tuple(s.candidate for s in sep if s.separable))
     training, held = prep.training, prep.held
-    reg = Regression(
-        Columns.stack(prep.Y_tr, library.extra_columns(training), training.tau),
-        Columns.stack(prep.Y_ho, library.extra_columns(held), held.tau),
-        library.num_base,
-    )
+    reg = Regression(*(_segment_columns(prep, library, seg) for seg in (training, held)), library.num_base)
     b = library.num_base
     cond = condition_number(reg.train.gram[:, :b, :b].sum(axis=0))
     if cond > MAX_COND:
@@ -528,8 +529,6 @@ def diagnose(
     say("1. a-priori model, held-out RMS [N·m]: " + _fmt_joints(joints, nom.rms))
     lap("nominal")
     lib = candidate_library(robot, prep, config)
-    b = lib.library.num_base  # the base regressor is inside the regression's columns: one copy, not two
-    prep = dataclasses.replace(prep, Y_tr=lib.regression.train.A[:, :, :b], Y_ho=lib.regression.held.A[:, :, :b])
     rigid = rigid_reidentification(lib.regression, prep.training)
     say("2. rigid-body parameters re-identified, held-out RMS [N·m]: " + _fmt_joints(joints, rigid.rms_held))
     lap("rigid")

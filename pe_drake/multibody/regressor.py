@@ -257,15 +257,26 @@ class RegressorModel:
         """Y(q, v, vdot), shape (T, n, 10·nb)."""
         return self.regressor(self.kinematics(q, v, vd))
 
-    def columns(self, q: np.ndarray, v: np.ndarray, vd: np.ndarray, columns, chunk: int = 2000) -> np.ndarray:
+    def columns(self, q: np.ndarray, v: np.ndarray, vd: np.ndarray, columns, chunk: int = 2000,
+                out: np.ndarray | None = None) -> np.ndarray:
         """Y(q, v, vdot)[..., columns] (e.g. a base regressor's independent columns), shape
-        (T, n, len(columns)), computed ``chunk`` samples at a time: the kinematics of a whole
-        long segment at once hold tens of kB per sample."""
+        (T, n, len(columns)), computed ``chunk`` samples at a time (the kinematics of a whole
+        long segment at once hold tens of kB per sample), into ``out`` when given."""
         columns = np.asarray(columns)
-        out = np.empty((q.shape[0], q.shape[1] if q.ndim > 1 else 1, columns.size))
+        if out is None:
+            out = np.empty((q.shape[0], q.shape[1] if q.ndim > 1 else 1, columns.size))
         for s in range(0, q.shape[0], chunk):
             k = slice(s, min(s + chunk, q.shape[0]))
             out[k] = self(q[k], v[k], vd[k])[..., columns]
+        return out
+
+    def columns_times(self, q: np.ndarray, v: np.ndarray, vd: np.ndarray, columns, x: np.ndarray,
+                      chunk: int = 2000) -> np.ndarray:
+        """Y(q, v, vdot)[..., columns] @ x, shape (T, n), without holding the columns."""
+        out = np.empty((q.shape[0], q.shape[1] if q.ndim > 1 else 1))
+        for s in range(0, q.shape[0], chunk):
+            k = slice(s, min(s + chunk, q.shape[0]))
+            out[k] = self(q[k], v[k], vd[k])[..., np.asarray(columns)] @ x
         return out
 
     # ---- adjoint ------------------------------------------------------------------------
