@@ -178,16 +178,18 @@ class Nominal:
     regimes: dict[str, Any]
 
 
-def nominal(robot, prep: Prepared) -> Nominal:
-    """Y φ_prior plus the model file's joint damping against the measured torque.
+def nominal(robot, prep: Prepared, regression: Regression) -> Nominal:
+    """Y φ_prior plus the model file's joint damping against the measured torque (the base
+    regressor from ``regression``'s columns).
 
     Raises:
         DataError: torques in the wrong units (naming the file and column).
     """
     training, held, joints = prep.training, prep.held, robot.joint_names
     damping = robot.joint_damping
-    tau_nom_tr, tau_nom_ho = (prep.model.columns_times(s.q, s.v, s.vd, prep.base.independent, prep.phi_B_prior)
-                              + damping * s.v for s in (training, held))
+    base = range(prep.base.count)
+    tau_nom_tr, tau_nom_ho = (c.product(base, prep.phi_B_prior) + damping * s.v
+                              for c, s in ((regression.train, training), (regression.held, held)))
     for seg, pred in ((training, tau_nom_tr), (held, tau_nom_ho)):
         check_torque_units(Measurement(seg.t, seg.q, seg.tau, None, None, joints, seg.record.source), pred)
     res_tr, res_ho = training.tau - tau_nom_tr, held.tau - tau_nom_ho
@@ -525,10 +527,10 @@ def diagnose(
         say(f"note: {note}")
     prep = prepare(robot, data, validation, config, say)
     lap("prepare")
-    nom = nominal(robot, prep)
+    lib = candidate_library(robot, prep, config)
+    nom = nominal(robot, prep, lib.regression)
     say("1. a-priori model, held-out RMS [N·m]: " + _fmt_joints(joints, nom.rms))
     lap("nominal")
-    lib = candidate_library(robot, prep, config)
     rigid = rigid_reidentification(lib.regression, prep.training)
     say("2. rigid-body parameters re-identified, held-out RMS [N·m]: " + _fmt_joints(joints, rigid.rms_held))
     lap("rigid")

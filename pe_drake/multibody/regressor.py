@@ -270,15 +270,6 @@ class RegressorModel:
             out[k] = self(q[k], v[k], vd[k])[..., columns]
         return out
 
-    def columns_times(self, q: np.ndarray, v: np.ndarray, vd: np.ndarray, columns, x: np.ndarray,
-                      chunk: int = 2000) -> np.ndarray:
-        """Y(q, v, vdot)[..., columns] @ x, shape (T, n), without holding the columns."""
-        out = np.empty((q.shape[0], q.shape[1] if q.ndim > 1 else 1))
-        for s in range(0, q.shape[0], chunk):
-            k = slice(s, min(s + chunk, q.shape[0]))
-            out[k] = self(q[k], v[k], vd[k])[..., np.asarray(columns)] @ x
-        return out
-
     # ---- adjoint ------------------------------------------------------------------------
     def pullback(
         self, kin: Kinematics, Z: np.ndarray | None, Z_wrench: np.ndarray | None = None
