@@ -138,7 +138,8 @@ def test_trajectory_files_have_size_and_harmonic_limits(tmp_path):
     big = tmp_path / "big.json"
     with big.open("wb") as f:
         f.truncate(51 * 1024 * 1024)
-    with pytest.raises(DataError, match="at most 52 MB"):
+    with pytest.raises(DataError, match=r"51\.0 MB is more than a trajectory file holds: over the 50 MB limit "
+                                        r"\(PE_DRAKE_MAX_TRAJECTORY_MB raises it\)"):
         load_trajectory(big)
 
 

@@ -23,7 +23,7 @@ MAX_FUNCTION_LINES = 100  # physical lines, docstring included
 
 #: Rank of each stage: a module may import only modules of its own rank or lower.
 STAGES = {
-    "exceptions": 0, "output_set": 0, "output_paths": 0, "config": 0, "config_sections": 0, "io_utils": 0, "threads": 0, "memory": 0, "plots": 0,
+    "exceptions": 0, "limits": 0, "output_set": 0, "output_paths": 0, "config": 0, "config_sections": 0, "io_utils": 0, "threads": 0, "memory": 0, "plots": 0,
     "multibody": 1,
     "excitation": 2,
     "identification": 3,

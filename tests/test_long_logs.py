@@ -16,7 +16,7 @@ import pytest
 from pe_drake.bench_memory import peak_of, write_long_log
 from pe_drake.cli import main
 from pe_drake.diagnosis import record
-from pe_drake.exceptions import DataError
+from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.excitation.trajectory_file import load_trajectory
 from pe_drake.identification.csv_table import MAX_LINE_CHARS
 from pe_drake.identification.drive_terms import DriveTermOptions, drive_columns, drive_layout
@@ -81,13 +81,19 @@ def test_columnwise_filter_is_the_same_filter():
     assert np.array_equal(lowpass.apply(x), sosfiltfilt(lowpass.sos, x, axis=0, padtype="odd", padlen=lowpass.padlen))
 
 
-def test_a_line_longer_than_the_limit_is_refused_by_number(tmp_path):
+def test_a_line_longer_than_the_limit_is_refused_by_number(tmp_path, monkeypatch):
     path = tmp_path / "long.csv"
     robot = load_robot("panda")
     header = ",".join(["t"] + [f"q.{j}" for j in robot.joint_names] + [f"tau.{j}" for j in robot.joint_names])
     row = ",".join(["0"] * 15)
     path.write_text(header + "\n" + row + "\n" + "1" * (MAX_LINE_CHARS + 10) + "\n")
-    with pytest.raises(DataError, match=r"line 3 is longer than 1,000,000 characters"):
+    with pytest.raises(DataError, match=r"line 3 is longer than 1,048,576 characters, the 1 MB limit \(PE_DRAKE_MAX_CSV_LINE_MB"):
+        read_measurement_csv(path, robot.joint_names)
+    monkeypatch.setenv("PE_DRAKE_MAX_CSV_LINE_MB", "2")  # the setting named in the message
+    with pytest.raises(DataError, match=r"fields where the header has"):  # read now, and refused for its content
+        read_measurement_csv(path, robot.joint_names)
+    monkeypatch.setenv("PE_DRAKE_MAX_CSV_LINE_MB", "lots")
+    with pytest.raises(ConfigError, match="PE_DRAKE_MAX_CSV_LINE_MB='lots'"):
         read_measurement_csv(path, robot.joint_names)
 
 

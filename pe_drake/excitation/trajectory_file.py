@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from pe_drake import limits
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.excitation.fourier import FourierTrajectory
 from pe_drake.excitation.ramp import RampedMotion, ramped_motion_from_dict
@@ -73,9 +74,9 @@ def load_trajectory(path: str | Path) -> tuple[FourierTrajectory, dict[str, Any]
     if not path.is_file():
         raise DataError("trajectory file does not exist", file=str(path))
     size = path.stat().st_size
-    if size > MAX_FILE_BYTES:
-        raise DataError(f"{size / 1e6:.1f} MB is more than a trajectory file holds (at most "
-                        f"{MAX_FILE_BYTES / 1e6:.0f} MB)", file=str(path))
+    if size > limits.in_bytes(limits.TRAJECTORY):
+        raise DataError(f"{size / 2**20:.1f} MB is more than a trajectory file holds: over "
+                        f"{limits.describe(limits.TRAJECTORY)}", file=str(path))
     check_output_set(path)  # not a trajectory.json beside another run's trajectory.csv
     try:
         data = loads_json(path.read_text(), str(path))
@@ -109,8 +110,9 @@ def load_trajectory(path: str | Path) -> tuple[FourierTrajectory, dict[str, Any]
         raise DataError(
             f"a {a.shape}, b {b.shape}, q0 {q0.shape} do not match {n} joints", file=str(path)
         )
-    if a.shape[1] > MAX_HARMONICS:
-        raise DataError(f"{a.shape[1]} harmonics; at most {MAX_HARMONICS} are supported", file=str(path))
+    if a.shape[1] > limits.value(limits.HARMONICS):
+        raise DataError(f"{a.shape[1]} harmonics; at most {limits.value(limits.HARMONICS):g} are read: "
+                        f"{limits.describe(limits.HARMONICS)}", file=str(path))
     if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b)) and np.all(np.isfinite(q0))):
         raise DataError("coefficients contain NaN or inf", file=str(path))
     return FourierTrajectory(a, b, q0, float(omega)), data

@@ -14,30 +14,33 @@ from pathlib import Path
 
 import numpy as np
 
+from pe_drake import limits
 from pe_drake.exceptions import DataError, shorten
 from pe_drake.identification.csv_checks import check_text_file, delimiter_hint, is_number
 
-#: The longest line accepted [characters]: a log's line is a few hundred; a longer one is not a log.
-MAX_LINE_CHARS = 1_000_000
+#: The longest line accepted by default [characters]: a log's line is a few hundred; a longer one
+#: is not a log (:data:`pe_drake.limits.CSV_LINE` overrides it).
+MAX_LINE_CHARS = 2**20
 
 _ENCODING_HINT = "save it as comma-separated UTF-8 text"
 
 
 def _lines(path: Path, file: str) -> Iterator[tuple[int, str]]:
     """(line number, text) of every line, refusing one longer than :data:`MAX_LINE_CHARS`."""
+    longest = limits.in_bytes(limits.CSV_LINE)
     with path.open(encoding="utf-8-sig", newline=None) as f:
         lineno = 0
         while True:
             try:
-                line = f.readline(MAX_LINE_CHARS + 1)
+                line = f.readline(longest + 1)
             except UnicodeDecodeError as err:
                 raise DataError(f"not UTF-8 text after line {lineno} ({err.reason}); {_ENCODING_HINT}", file=file) from None
             if not line:
                 return
             lineno += 1
-            if len(line) > MAX_LINE_CHARS and not line.endswith("\n"):
-                raise DataError(f"line {lineno} is longer than {MAX_LINE_CHARS:,} characters; a measurement "
-                                "line holds one sample", file=file)
+            if len(line) > longest and not line.endswith("\n"):
+                raise DataError(f"line {lineno} is longer than {longest:,} characters, "
+                                f"{limits.describe(limits.CSV_LINE)}; a measurement line holds one sample", file=file)
             yield lineno, line
 
 

@@ -15,11 +15,12 @@ import stat
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 
+from pe_drake import limits
 from pe_drake.multibody.packages import package_roots, resolve_package_uri, used_packages
 
 #: Suffixes of the mesh formats pe_drake or Drake read.
 MESH_SUFFIXES = (".stl", ".obj", ".dae", ".gltf", ".glb", ".ply", ".vtk")
-#: Largest mesh file read [bytes].
+#: Largest mesh file read [bytes] by default (:data:`pe_drake.limits.MESH` overrides it).
 MAX_MESH_BYTES = 256 * 2**20
 
 
@@ -36,8 +37,8 @@ def mesh_file_refusal(path: str | Path) -> str | None:
         return f"mesh {shown} cannot be read: {err.strerror}"
     if not stat.S_ISREG(info.st_mode):
         return f"mesh {shown} is not a regular file (a pipe, a device or a folder): only regular files are read"
-    if info.st_size > MAX_MESH_BYTES:
-        return f"mesh {shown} has {info.st_size / 2**20:.0f} MB, over the {MAX_MESH_BYTES / 2**20:.0f} MB limit"
+    if info.st_size > limits.in_bytes(limits.MESH):
+        return f"mesh {shown} has {info.st_size / 2**20:.0f} MB, over {limits.describe(limits.MESH)}"
     return None
 
 

@@ -1,0 +1,58 @@
+"""The size limits on files pe_drake reads, each overridable by an environment variable.
+
+A hostile or broken file must not hang a run or fill the memory (a mesh linked to /dev/zero, a
+10⁶-harmonic trajectory file asked for 15-18 GiB). The defaults hold every real robot and log
+we know of; a lab with a bigger one raises the limit for its runs, e.g.
+``PE_DRAKE_MAX_MESH_MB=1024 pe-drake optimize ...``. Every refusal names its variable.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from typing import NamedTuple
+
+from pe_drake.exceptions import ConfigError
+
+
+class Limit(NamedTuple):
+    variable: str  # the environment variable that overrides it
+    default: float
+    unit: str  # "MB" (2**20 bytes) or "" (a count)
+    what: str
+
+
+MESH = Limit("PE_DRAKE_MAX_MESH_MB", 256, "MB", "a mesh file")
+CSV_LINE = Limit("PE_DRAKE_MAX_CSV_LINE_MB", 1, "MB", "a line of a measurement CSV")
+HARMONICS = Limit("PE_DRAKE_MAX_HARMONICS", 1000, "", "the harmonics of a trajectory file")
+TRAJECTORY = Limit("PE_DRAKE_MAX_TRAJECTORY_MB", 50, "MB", "a trajectory file")
+
+
+def value(limit: Limit) -> float:
+    """The limit in its unit: the environment's value, or the default.
+
+    Raises:
+        ConfigError: a value that is not a positive number, naming the variable.
+    """
+    text = os.environ.get(limit.variable, "").strip()
+    if not text:
+        return float(limit.default)
+    try:
+        number = float(text)
+    except ValueError:
+        number = math.nan
+    if not (math.isfinite(number) and number > 0):
+        raise ConfigError(f"{limit.variable}={text!r}: the limit on {limit.what} must be a positive number"
+                          f"{' of ' + limit.unit if limit.unit else ''} (default {limit.default:g})")
+    return number
+
+
+def in_bytes(limit: Limit) -> int:
+    """A size limit in bytes."""
+    return int(value(limit) * 2**20)
+
+
+def describe(limit: Limit) -> str:
+    """"the 256 MB limit (PE_DRAKE_MAX_MESH_MB)": for a refusal's message."""
+    unit = f" {limit.unit}" if limit.unit else ""
+    return f"the {value(limit):g}{unit} limit ({limit.variable} raises it)"
