@@ -26,7 +26,7 @@ of D are zero.
 The relative standard deviation of each base parameter, %σ = 100·√(Σ_ii)/|φ_B,i|, tells how
 well the data determined it. Σ is σ² (WᵀW)⁻¹ with each channel's contribution inflated by the
 integrated autocorrelation time of its residual (filtered samples are not independent;
-:func:`pe_drake.identification.statistics.sandwich_covariance`), weighted rows for WLS.
+`pe_drake.identification.statistics.sandwich_from_grams`), weighted rows for WLS.
 """
 
 from __future__ import annotations
@@ -215,32 +215,6 @@ def _chunks(count: int, size: int = 2000) -> list[slice]:
     return [slice(s, min(s + size, count)) for s in range(0, count, size)]
 
 
-class RegressorMatrices(NamedTuple):
-    """The regressors of a data set (:func:`regressor_matrices`).
-
-    Attributes:
-        YB: base regressor Y_B, shape (S, n, b).
-        tau: measured torques τ, shape (S, n) [N·m].
-        base: the base composition (Eq. 2).
-        Y: standard regressor Y, shape (S, n, 10·nb).
-    """
-
-    YB: np.ndarray
-    tau: np.ndarray
-    base: BaseParameters
-    Y: np.ndarray
-
-
-def regressor_matrices(
-    robot, data: Measurement, base: BaseParameters | None = None, model: RegressorModel | None = None
-) -> RegressorMatrices:
-    """The data's regressors (:class:`RegressorMatrices`; unpacks as (Y_B, τ, base, Y))."""
-    model = model or RegressorModel(robot)
-    base = base or compute_base_parameters(robot, model=model)
-    Y = np.concatenate([model(data.q[r], data.v[r], data.vd[r]) for r in _chunks(data.num_samples)])
-    return RegressorMatrices(base.reduce(Y), np.asarray(data.tau, float), base, Y)
-
-
 # ---- estimators ------------------------------------------------------------------------------
 
 
@@ -354,7 +328,7 @@ def identify(
         if method == "physical":
             prior = robot.phi_model if prior is None else np.asarray(prior, float)
             # Stage 2 of the fit stays in the 95 % confidence region of this estimate: whitened
-            # rows count τ̄ times for correlated samples (statistics.sandwich_covariance).
+            # rows count τ̄ times for correlated samples (statistics.sandwich_from_grams).
             tau_bar = float(np.mean(integrated_autocorrelation(residual)))
             physical = _physical(robot, base, layout, folded, cols, keep, layouts.armature, w, prior, bounds,
                                  tau_bar * PHYSICAL_DELTA_CHI2)
@@ -400,13 +374,17 @@ def _layouts(robot, measurement: str, options: DriveTermOptions, method: str, mo
     drive = drive_layout(robot, torque_base, options, model)
     armature = none
     if method == "physical" and drive.merged:
-        merged = tuple(robot.joint_names.index(j) for j in drive.merged)
-        armature = DriveLayout(("armature",) * len(merged), merged, drive.joint_names,
-                               tuple("kg·m²" for _ in merged), drive.velocity_scale)
+        armature = _armature_layout(drive, [robot.joint_names.index(j) for j in drive.merged])
     friction = none
     if not drive.count:
         friction = drive_layout(robot, None, DriveTermOptions("friction", options.velocity_scale))
     return _Layouts(drive, armature, friction)
+
+
+def _armature_layout(drive: DriveLayout, joints: list[int]) -> DriveLayout:
+    """Armature columns of ``joints`` (the merged ones: variables of the physical fit)."""
+    return DriveLayout(("armature",) * len(joints), tuple(joints), drive.joint_names,
+                       tuple("kg·m²" for _ in joints), drive.velocity_scale)
 
 
 class _Columns:
@@ -467,8 +445,7 @@ def _physical(robot, base: BaseParameters, layout: DriveLayout, folded: FoldedRo
     are variables ≥ 0 of the fit too, so the part of a merged base parameter above what a
     physical link near its a-priori model holds goes to the rotor, not into link masses."""
     merged = [robot.joint_names.index(j) for j in layout.merged]
-    extra = DriveLayout(("armature",) * len(merged), tuple(merged), layout.joint_names,
-                        tuple("kg·m²" for _ in merged), layout.velocity_scale)
+    extra = _armature_layout(layout, merged)
     A, yw = folded.stacked(cols.standard, w)
     T_E = np.hstack([cols.drive[:, keep], cols.armature[:, [armature.joints.index(j) for j in merged]]])
     E, _ = folded.stacked(T_E, w)
@@ -514,7 +491,7 @@ def fit_warnings(result: IdentificationResult) -> list[str]:
 
 class _OrdinaryFit(NamedTuple):
     phi_B: np.ndarray  # (b,) (base parameters, then drive terms)
-    cov: np.ndarray  # (WᵀW)⁻¹ (Σ_j τ_j σ_j² W_jᵀW_j) (WᵀW)⁻¹, (b, b): statistics.sandwich_covariance
+    cov: np.ndarray  # (WᵀW)⁻¹ (Σ_j τ_j σ_j² W_jᵀW_j) (WᵀW)⁻¹, (b, b): statistics.sandwich_from_grams
     cond: float  # cond(W)
     noise_std: np.ndarray  # per-joint residual standard deviation σ_j, (n,) [N·m]
 

@@ -3,7 +3,7 @@
 Low-pass filtering and decimating a record to well above its cut-off leaves neighbouring
 samples correlated, so σ² (WᵀW)⁻¹ understates the variance of the estimate by about the
 integrated autocorrelation time τ_int of the residual (Sokal 1997): a 1 kHz record filtered at
-4 Hz and kept at 200 Hz has τ_int ≈ 10-20. :func:`sandwich_covariance` inflates each
+4 Hz and kept at 200 Hz has τ_int ≈ 10-20. :func:`sandwich_from_grams` inflates each
 channel's contribution by its own τ_int; the diagnosis uses the same :func:`integrated_autocorrelation`.
 """
 
@@ -38,29 +38,18 @@ def integrated_autocorrelation(r: np.ndarray, max_lag_fraction: float = 0.1) -> 
     return np.clip(out, 1.0, S / 2.0)
 
 
-def sandwich_covariance(W: np.ndarray, residual: np.ndarray, cov_unit: np.ndarray) -> np.ndarray:
+def sandwich_from_grams(grams: np.ndarray, residual: np.ndarray, cov_unit: np.ndarray) -> np.ndarray:
     """Cov(x̂) = G⁻¹ (Σ_c τ_c s_c² W_cᵀ W_c) G⁻¹ of a least-squares fit, G⁻¹ = ``cov_unit``.
 
     Args:
-        W: the (possibly weighted) regressor per channel, shape (S, r, p).
-        residual: its residual y − W x̂ on the same rows, shape (S, r).
+        grams: each channel's W_cᵀW_c of the (possibly weighted) regressor, shape (r, p, p)
+            (from the folded rows of :mod:`~pe_drake.identification.folded_rows`).
+        residual: its residual y − W x̂, shape (S, r).
         cov_unit: (WᵀW)⁻¹, shape (p, p).
 
     Returns:
         shape (p, p): each channel c with its residual variance s_c² and correlation time τ_c.
     """
-    S, r, p = W.shape
-    tau = integrated_autocorrelation(residual)
-    s2 = np.sum(residual**2, axis=0) / max(S - p / r, 1.0)
-    M = np.zeros((p, p))
-    for c in range(r):
-        M += tau[c] * s2[c] * (W[:, c, :].T @ W[:, c, :])
-    return cov_unit @ M @ cov_unit
-
-
-def sandwich_from_grams(grams: np.ndarray, residual: np.ndarray, cov_unit: np.ndarray) -> np.ndarray:
-    """:func:`sandwich_covariance` from each channel's Gram matrix W_cᵀW_c, shape (r, p, p)
-    (the folded rows of :mod:`~pe_drake.identification.folded_rows`), and the residual (S, r)."""
     S, r = residual.shape
     p = grams.shape[1]
     tau = integrated_autocorrelation(residual)
