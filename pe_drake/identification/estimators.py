@@ -67,6 +67,7 @@ from pe_drake.multibody.base_parameters import BaseParameters, compute_base_para
 from pe_drake.multibody.regressor import RegressorModel
 from pe_drake.multibody.sensors import MeasurementType, SensorRows
 from pe_drake.multibody.wrench import static_wrench
+from pe_drake.threads import single_threaded_blas
 
 METHODS = ("ols", "wls", "physical")
 #: Rows per base parameter needed at least (S·n ≥ MIN_ROWS_PER_PARAMETER · b): fewer leave
@@ -304,6 +305,14 @@ def identify(
         raise ConfigError(f"unknown identification method '{method}'; valid: {', '.join(METHODS)}")
     if data.v is None or data.vd is None:
         raise DataError("the data has no velocities/accelerations; preprocess it first", file=data.source)
+    with single_threaded_blas():  # thousands of small QRs: BLAS threads only contend (threads.py)
+        return _identify(robot, data, method, base, prior, model, measurement, drive_terms, bounds, coulomb)
+
+
+def _identify(robot, data: Measurement, method: str, base: BaseParameters | None, prior: np.ndarray | None,
+              model: RegressorModel | None, measurement: str, drive_terms, bounds: PhysicalBounds | None,
+              coulomb: np.ndarray | None) -> IdentificationResult:
+    """:func:`identify` after its checks."""
     start = time.perf_counter()
     model = model or RegressorModel(robot)
     base = base or measurement_base_parameters(robot, measurement, model)
