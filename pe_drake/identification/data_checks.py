@@ -78,10 +78,17 @@ def check_positions(robot, q: np.ndarray, source: str = "") -> None:
     lim = robot.limits
     slack = POSITION_SLACK + float(getattr(robot.config, "position_margin", 0.0))
     lo, hi = lim.q_lower - slack, lim.q_upper + slack
-    over = np.maximum(lo - q, q - hi)
-    if not np.any(over > 0):
+    if q.size == 0:
         return
-    k, j = np.unravel_index(int(np.argmax(over)), over.shape)
+    worst = []  # per joint (how far out, first row): a column at a time, an hour's log is not copied thrice
+    for j in range(q.shape[1]):
+        over = np.maximum(lo[j] - q[:, j], q[:, j] - hi[j])
+        k = int(np.argmax(over))
+        worst.append((float(over[k]), k))
+    if not any(w > 0 for w, _ in worst):
+        return
+    top = max(w for w, _ in worst)
+    k, j = min((k, j) for j, (w, k) in enumerate(worst) if w == top)  # as argmax over rows, then joints
     name = robot.joint_names[j]
     in_rad = q[:, j] * math.pi / 180
     degrees = bool(np.all((in_rad >= lo[j]) & (in_rad <= hi[j]))) and np.abs(q[:, j]).max() > 2 * math.pi
