@@ -247,6 +247,10 @@ def test_a_killed_worker_is_reported_with_the_task_it_ran(panda, executor, reque
 def test_ctrl_c_stops_every_worker(panda, executor, request, tmp_path):
     if executor == "ray":
         request.getfixturevalue("ray_session")
+    # interrupt_main does nothing where SIGINT is ignored (a suite started with `cmd &` from a
+    # script inherits SIG_IGN): give the test Python's own Ctrl-C handler.
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    request.addfinalizer(lambda: signal.signal(signal.SIGINT, previous))
 
     def interrupt_when_both_run():
         deadline = time.monotonic() + 60
