@@ -29,7 +29,7 @@ ROWS_SHOWN = 5
 
 _NUMBER = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?|[+-]?(nan|inf|infinity)", re.ASCII | re.IGNORECASE)
 _BOMS = {b"\xff\xfe": "UTF-16 (little-endian byte-order mark FF FE)", b"\xfe\xff": "UTF-16 (big-endian byte-order mark FE FF)"}
-_SAVE = "save it as comma-separated UTF-8 (CSV UTF-8 in Excel)"
+SAVE_AS_UTF8 = "save it as comma-separated UTF-8 (CSV UTF-8 in Excel)"
 
 
 def is_number(text: str) -> bool:
@@ -50,14 +50,14 @@ def check_text_file(path: str | Path) -> None:
     if looks is None and b"\x00" in head:
         looks = "UTF-16 or binary (it has NUL bytes)"
     if looks is not None:
-        raise DataError(f"the file looks {looks}, not UTF-8 text: {_SAVE}", file=str(path))
+        raise DataError(f"the file looks {looks}, not UTF-8 text: {SAVE_AS_UTF8}", file=str(path))
     try:
         head.decode("utf-8")
     except UnicodeDecodeError as err:
         if len(head) < 65536 or err.start < len(head) - 4:  # not a character cut at the 64 kB boundary
             line = head.count(b"\n", 0, err.start) + 1
             raise DataError(f"line {line}: byte {head[err.start]:#04x} is not UTF-8 text (Latin-1 or another "
-                            f"encoding?): {_SAVE}", file=str(path)) from None
+                            f"encoding?): {SAVE_AS_UTF8}", file=str(path)) from None
 
 
 def delimiter_hint(header: str, file: str) -> None:
@@ -71,7 +71,7 @@ def delimiter_hint(header: str, file: str) -> None:
     for mark, name in ((";", "semicolon"), ("\t", "tab")):
         if mark in header:
             raise DataError(f"the header has no commas but {header.count(mark)} {name}s: the file looks {name}-delimited; "
-                            f"{_SAVE} with decimal points, or name its columns in data.columns (that reader "
+                            f"{SAVE_AS_UTF8} with decimal points, or name its columns in data.columns (that reader "
                             "takes ; and tabs)", file=file)
 
 

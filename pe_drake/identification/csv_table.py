@@ -15,13 +15,12 @@ import numpy as np
 
 from pe_drake import limits
 from pe_drake.exceptions import DataError, shorten
-from pe_drake.identification.csv_checks import check_text_file, delimiter_hint, is_number
+from pe_drake.identification.csv_checks import SAVE_AS_UTF8, check_text_file, delimiter_hint, is_number
 
 #: The longest line accepted by default [characters]: a log's line is a few hundred; a longer one
 #: is not a log (:data:`pe_drake.limits.CSV_LINE` overrides it).
 MAX_LINE_CHARS = 2**20
 
-_ENCODING_HINT = "save it as comma-separated UTF-8 text"
 #: Lines parsed at once.
 CHUNK_LINES = 50_000
 
@@ -35,7 +34,7 @@ def _lines(path: Path, file: str) -> Iterator[tuple[int, str]]:
             try:
                 line = f.readline(longest + 1)
             except UnicodeDecodeError as err:
-                raise DataError(f"not UTF-8 text after line {lineno} ({err.reason}); {_ENCODING_HINT}", file=file) from None
+                raise DataError(f"not UTF-8 text after line {lineno} ({err.reason}); {SAVE_AS_UTF8}", file=file) from None
             if not line:
                 return
             lineno += 1

@@ -82,9 +82,7 @@ def fold_rows(blocks: RowBlocks) -> FoldedRows:
             R = np.zeros((r, k + 1, k + 1))
         for c in range(r):
             stacked = np.vstack([R[c], np.column_stack([F[:, c, :], y[:, c]])])
-            Rc = np.linalg.qr(stacked, mode="r")
-            R[c, : Rc.shape[0]] = Rc
-            R[c, Rc.shape[0] :] = 0.0
+            R[c] = np.linalg.qr(stacked, mode="r")  # k+1+s ≥ k+1 rows: always (k+1, k+1)
         samples += s
     if R is None:
         raise ValueError("no rows to fold")
