@@ -219,13 +219,17 @@ class CandidateLibrary:
 
 
 def _segment_columns(prep: Prepared, library: Library, seg: Segment) -> Columns:
-    """A segment's base regressor and candidate columns, written into one array (a long log's
-    base regressor is never held beside it)."""
+    """A segment's base regressor, timing nuisance and candidate columns, built a block of
+    samples at a time (a long log's columns are never held twice, nor in float64 when long)."""
     b = prep.base.count
-    A = np.empty((seg.num_samples, seg.q.shape[1], b + library.extra_count))
-    prep.model.columns(seg.q, seg.v, seg.vd, prep.base.independent, out=A[:, :, :b])
-    library.extra_columns(seg, out=A[:, :, b:])
-    return Columns.from_matrix(A, seg.tau)
+    q, v, vd, dtau = seg.q, seg.v, seg.vd, seg.dtau
+
+    def fill(rows: slice, out: np.ndarray) -> None:
+        prep.model.columns(q[rows], v[rows], vd[rows], prep.base.independent, out=out[:, :, :b])
+        out[:, :, b] = -dtau[rows]  # the timing nuisance: tau_rec(t) ≈ tau(t) - d·dtau/dt
+
+    return Columns.assemble(seg.tau, b + library.extra_count, library.stored_columns, fill,
+                            library.single_joint_columns(seg))
 
 
 def candidate_library(robot, prep: Prepared, config: DiagnosisConfig) -> CandidateLibrary:
