@@ -510,7 +510,8 @@ def _translation(xy: np.ndarray, z: float):
 
 def write_plan_playback(plan, html_path: str | Path, *, show_capsules: bool = True, rate: float = 30.0) -> Path:
     """Writes the HTML playback of a live :class:`~pe_drake.excitation.motion_plan.MotionPlan`
-    (what ``pe-drake optimize`` shows): its robot config and controller motion, no file re-read."""
+    (what ``pe-drake optimize`` shows): its robot config (the capsules it checked, fitted ones
+    included), environment and controller motion, no file re-read."""
     motion = plan.motion
     times, fps = frame_times(motion.duration, rate)
     meshcat = _prepare_meshcat(None, host="localhost")
