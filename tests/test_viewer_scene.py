@@ -118,8 +118,9 @@ def test_config_environment_drawn_and_no_floor_when_off(panda_traj, tmp_path):
     assert set(objects(html_commands(tmp_path / "p.html"), "/drake/environment/")) == {"/drake/environment/boxes/box0"}
 
 
-def test_malformed_recorded_environment_names_the_file(panda_traj, tmp_path):
-    path = with_entries(panda_traj[0], tmp_path / "run", environment={"boxes": [{"center": [0, 0]}]})
+@pytest.mark.parametrize("entry", [{"boxes": [{"center": [0, 0]}]}, {"floor_height": float("nan")}, [1, 2]])
+def test_malformed_recorded_environment_names_the_file(panda_traj, tmp_path, entry):
+    path = with_entries(panda_traj[0], tmp_path / "run", environment=entry)
     with pytest.raises(DataError, match="environment") as err:
         play_trajectory(path, rate=2.0)
     assert str(path) in str(err.value)

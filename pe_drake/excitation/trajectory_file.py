@@ -188,6 +188,10 @@ def recorded_environment(data: dict[str, Any], default: EnvironmentConfig, sourc
         height = entry.get("floor_height")
         boxes = [BoxConfig(center=[float(x) for x in b["center"]], size=[float(x) for x in b["size"]],
                            name=str(b.get("name", ""))) for b in entry.get("boxes", [])]
+        numbers = [height] if height is not None else []
+        numbers += [x for b in boxes for x in b.center + b.size]
+        if not np.all(np.isfinite(np.asarray(numbers, float))):
+            raise ValueError("a floor_height, center or size that is not finite")
         return EnvironmentConfig(floor=bool(entry.get("floor", True)),
                                  floor_height=None if height is None else float(height), boxes=boxes)
     except (AttributeError, KeyError, TypeError, ValueError) as err:
