@@ -38,7 +38,13 @@ from pe_drake.excitation.parallel import Executor, open_executor
 from pe_drake.excitation.problem import ExcitationProblem
 from pe_drake.excitation.quality import QualityReport, excitation_quality
 from pe_drake.excitation.ramp import RAMP_DURATIONS, RampedMotion, check_within_limits, choose_ramp_duration
-from pe_drake.excitation.trajectory_file import load_motion, load_trajectory, save_trajectory, write_motion_csv
+from pe_drake.excitation.trajectory_file import (
+    environment_record,
+    load_motion,
+    load_trajectory,
+    save_trajectory,
+    write_motion_csv,
+)
 from pe_drake.io_utils import describe_write_error, staged_output_dir
 from pe_drake.multibody.capsule_fitting import FittedCapsules, fit_capsules
 from pe_drake.multibody.registry import robot_display_name
@@ -161,8 +167,11 @@ class MotionPlan:
 
     def _write_motion(self, tmp: Path, csv_rate: float) -> None:
         result, robot = self.result, self.robot
+        # The capsules and obstacles the run checked, so that `pe-drake view` draws them.
+        capsules = self.fitted.path.name if self.fitted is not None else (self.config.robot.capsules or None)
         save_trajectory(tmp / "trajectory.json", robot, result.trajectory, cond=result.cond,
-                        cond_motion=result.cond_motion, **self.motion.to_dict())
+                        cond_motion=result.cond_motion, **self.motion.to_dict(), capsules=capsules,
+                        environment=environment_record(self.config.environment))
         write_motion_csv(tmp / "trajectory.csv", robot.joint_names, self.motion, csv_rate)
         plot_trajectory(tmp / "trajectory.png", robot, result.trajectory, result.singular_values,
                         title=f"{robot.name}: cond {result.cond:.4g}",
