@@ -168,6 +168,8 @@ def compute_base_parameters(
     beta_scaled = scipy.linalg.solve_triangular(R[:b, :b], R[:b, b:])
     beta = beta_scaled * scale[perm_live[b:]][None, :] / scale[perm_live[:b]][:, None]
     beta[np.abs(beta) < 1e-10] = 0.0
+    if len(below):  # what moves the rows less than the dropped directions is not resolved either
+        beta[np.abs(beta) * norms[ind][:, None] <= size[below].max()] = 0.0
     by_body = np.argsort(ind)  # keep base parameters in body order
     ind, beta = ind[by_body], beta[by_body]
     K = np.zeros((b, p))
