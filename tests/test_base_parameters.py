@@ -139,7 +139,7 @@ def _synthetic_rows(sizes, extra=None):
 
     def rows(q, v, vd):
         T, n = q.shape
-        p = RegressorModel(get_robot("ur5")).num_params
+        p = len(get_robot("ur5").parameter_names)
         W = np.zeros((T * n, p))
         W[:, : len(sizes)] = np.random.default_rng(4).normal(size=(T * n, len(sizes))) * sizes / np.sqrt(T * n)
         W[:, len(sizes)] = W[:, 0] - 2 * W[:, 1]
