@@ -150,6 +150,8 @@ def prepare(robot, data: Measurement, validation: Measurement | None, config: Di
         f"{held.t[0]:.2f}-{held.t[-1]:.2f} s" + (f" of {vrecord.source}" if vrecord else ""))
     model = RegressorModel(robot)
     base = compute_base_parameters(robot, model=model)
+    if base.rank_note:
+        say(f"note: {base.rank_note}")
     n = robot.n
     if training.num_samples * n < 3 * (base.count + 4 * n):
         raise DataError(

@@ -311,6 +311,8 @@ def _plan(config, robot, executor, priors, fitted, fitted_text, unchecked, allow
     say(f"{problem.base.count} base parameters of the {e.measurement} rows; {problem.num_variables} variables "
         f"(N = {problem.harmonics}, ω = {problem.omega:.4g} rad/s, period {problem.period:.3g} s); "
         f"T = {e.cost_samples} cost samples, K = {e.constraint_samples} constraint samples")
+    if problem.base.rank_note:
+        say(f"note: {problem.base.rank_note}")
     constraints = tuple(executor.local.constraints(e))
     if constraints:
         say("constraints: joint limits, " + ", ".join(c.name for c in constraints))
