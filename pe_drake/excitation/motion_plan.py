@@ -37,7 +37,13 @@ from pe_drake.excitation.optimize_report import MotionReport, assumed_defaults, 
 from pe_drake.excitation.parallel import Executor, open_executor
 from pe_drake.excitation.problem import ExcitationProblem
 from pe_drake.excitation.quality import QualityReport, excitation_quality
-from pe_drake.excitation.ramp import RAMP_DURATIONS, RampedMotion, check_within_limits, choose_ramp_duration
+from pe_drake.excitation.ramp import (
+    RAMP_DURATIONS,
+    RampedMotion,
+    check_within_limits,
+    check_written_motion,
+    choose_ramp_duration,
+)
 from pe_drake.excitation.trajectory_file import load_motion, load_trajectory, save_trajectory, write_motion_csv
 from pe_drake.io_utils import describe_write_error, staged_output_dir
 from pe_drake.multibody.capsule_fitting import FittedCapsules, fit_capsules
@@ -47,6 +53,8 @@ from pe_drake.output_paths import OPTIMIZE_OUTPUTS, check_output_dir
 from pe_drake.plots import plot_trajectory
 
 Say = Callable[[str], None]
+#: trajectory.csv's default rate [Hz] (``--csv-rate``): the written motion is checked at it.
+DEFAULT_CSV_RATE = 1000.0
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -97,7 +105,7 @@ class MotionPlan:
         """Why the motion must not go to hardware (a jerk limit, unchecked collisions), or None."""
         return self.report.not_valid_for_hardware
 
-    def write(self, folder: str | Path, *, csv_rate: float = 1000.0,
+    def write(self, folder: str | Path, *, csv_rate: float = DEFAULT_CSV_RATE,
               playback: Callable[[MotionPlan, Path], None] | None = None, progress: Say | None = None) -> list[str]:
         """Writes trajectory.json/.csv/.png, the controller goal, the fitted capsules and
         report.json (last) into ``folder``, all or nothing; earlier runs' files of these names
@@ -114,6 +122,8 @@ class MotionPlan:
         say = progress or (lambda _line: None)
         out = check_output_dir(folder)
         check_csv_size(self.config, csv_rate)
+        if self.success and self.motion is not None and csv_rate != DEFAULT_CSV_RATE:
+            check_written_motion(self.motion, self.robot.limits, self.robot.joint_names, csv_rate)  # as optimize did at 1 kHz
         try:
             return self._write(out, csv_rate, playback, say)
         except OSError as err:  # a full disk: the solve must not be lost to it
@@ -311,13 +321,14 @@ def _plan(config, robot, executor, priors, fitted, fitted_text, unchecked, allow
         f"(this motion alone {result.cond_motion:.5g}), seed {ms.seed}, "
         f"{result.nit if result.nit is not None else '-'} iterations, {result.nfev} evaluations, {result.wall_time:.1f} s")
     say("minimum margins at 1 kHz: " + ", ".join(f"{k} {m:.4g}" for k, m in result.margins.items()))
-    motion = quality = goal = refusal = None
+    motion = quality = goal = refusal = ramp_margins = None
     if result.success:
-        motion = _ramped_motion(result, robot, constraints, config, say)
+        motion, ramp_margins = _ramped_motion(result, robot, constraints, config, say)
         quality = excitation_quality(problem, result.x, constraints, noise_std=e.noise_std.torque, periods=int(e.periods))
         for line in quality.summary_lines():
             say(line)
         goal, refusal = _controller_goal(motion, robot, config, say)
+        refusal = _outside_limits(motion, robot) or refusal
     if unchecked:
         say(f"NOT checked ({len(unchecked)}): " + "; ".join(unchecked[:5]) + (" ..." if len(unchecked) > 5 else ""))
         if refusal is None and not allow_unchecked:
@@ -333,6 +344,7 @@ def _plan(config, robot, executor, priors, fitted, fitted_text, unchecked, allow
         base_parameter_names=list(problem.base.base_names), singular_values=result.singular_values.tolist(),
         prior=[str(p) for p in priors], config=dataclasses.asdict(config),
         assumed_defaults=assumed_defaults(config, robot.joint_names), fitted_capsules=None,
+        limit_margins=limit_margins(config), ramp_margins_1khz=ramp_margins,
         motion=motion.to_dict() if motion is not None else None,
         quality=quality.to_dict() if quality is not None else None, unchecked=list(unchecked),
         not_valid_for_hardware=refusal,
@@ -361,13 +373,32 @@ def _ramped_motion(result, robot: Robot, constraints, config: Config, say: Say) 
     periods = config.excitation.periods
     if not config.excitation.ramp:
         say(f"ramps off (excitation.ramp: false): trajectory.csv is {periods} period(s) and does NOT start at rest")
-        return RampedMotion(result.trajectory, periods, 0.0)
+        return RampedMotion(result.trajectory, periods, 0.0), None
     motion, checks = choose_ramp_duration(result.trajectory, robot.limits, constraints, periods=periods)
     say(f"ramps from and to rest: {motion.ramp_duration:g} s each (join phase {motion.phase:.3g} s), "
         f"{periods} period(s); trajectory.csv spans {motion.duration:.4g} s, the periodic part "
         f"[{motion.periodic_start:.4g}, {motion.periodic_end:.4g}] s; ramp margins at 1 kHz: "
         + ", ".join(f"{k} {m:.4g}" for k, m in checks[-1].margins.items()))
-    return motion
+    return motion, dict(checks[-1].margins)
+
+
+def _outside_limits(motion: RampedMotion, robot: Robot, rate: float = DEFAULT_CSV_RATE) -> str | None:
+    """Why the motion written at ``rate`` leaves a joint limit (by any amount), or None: the
+    final check of what trajectory.csv holds, ramps and periods included."""
+    try:
+        check_written_motion(motion, robot.limits, robot.joint_names, rate)
+    except NotWithinLimitsError as err:
+        return f"the written motion leaves a joint limit: {err}"
+    return None
+
+
+def limit_margins(config: Config) -> dict:
+    """The margins the limits were used with (report.json ``limit_margins``), and which of
+    them pe_drake assumed for a model given without a config (``assumed``)."""
+    r = config.robot
+    return {"position_margin": r.position_margin, "position_margin_unit": "rad (m for prismatic joints)",
+            "velocity_scale": r.velocity_scale, "acceleration_scale": r.acceleration_scale,
+            "effort_scale": r.effort_scale, "assumed": list(r.assumed)}
 
 
 def _controller_goal(motion: RampedMotion, robot: Robot, config: Config, say: Say) -> tuple[str | None, str | None]:

@@ -14,7 +14,9 @@ class MotionReport:
     """The fields of ``report.json``, in the file's order (see the README's "Outputs").
 
     ``config`` is the resolved config the motion was solved with (fitted capsules and a
-    chosen nominal posture included); ``unchecked`` lists what could not be checked for
+    chosen nominal posture included); ``limit_margins`` the position margin and velocity,
+    acceleration and effort fractions the limits were used with (and which were assumed);
+    ``ramp_margins_1khz`` the smallest margins over the ramps; ``unchecked`` lists what could not be checked for
     collision; ``not_valid_for_hardware`` the reason the motion is refused (None: valid).
     """
 
@@ -44,6 +46,8 @@ class MotionReport:
     config: dict[str, Any]
     assumed_defaults: list[str]
     fitted_capsules: str | None
+    limit_margins: dict[str, Any]
+    ramp_margins_1khz: dict[str, float] | None
     motion: dict[str, Any] | None
     quality: dict[str, Any] | None
     unchecked: list[str]
