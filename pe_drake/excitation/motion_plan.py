@@ -46,7 +46,7 @@ from pe_drake.excitation.ramp import (
 )
 from pe_drake.excitation.trajectory_file import load_motion, load_trajectory, save_trajectory, write_motion_csv
 from pe_drake.io_utils import describe_write_error, staged_output_dir
-from pe_drake.multibody.capsule_fitting import FittedCapsules, fit_capsules
+from pe_drake.multibody.capsule_fitting import FittedCapsules, fit_capsules, with_file_margin
 from pe_drake.multibody.registry import robot_display_name
 from pe_drake.multibody.robot import Robot
 from pe_drake.output_paths import OPTIMIZE_OUTPUTS, check_output_dir
@@ -257,6 +257,8 @@ def constraints_factory(config: Config):
 
 def _collision_geometry(config: Config, fit_dir: Path, say: Say) -> tuple[Config, FittedCapsules | None, list[str]]:
     """The config with fitted capsules when the robot has none, and what stays unchecked."""
+    margin_before = config.excitation.collision_margin
+    config = with_file_margin(config)  # a capsule file passed back keeps the margin it was fitted with
     try:
         config, fitted = fit_capsules(config, fit_dir)
     except ConfigError as err:
@@ -265,6 +267,9 @@ def _collision_geometry(config: Config, fit_dir: Path, say: Say) -> tuple[Config
         say(f"warning: {err}; the floor is NOT checked (environment.floor turned off)")
         config = dataclasses.replace(config, environment=dataclasses.replace(config.environment, floor=False))
         return config, None, [f"floor: no collision geometry to check it with ({err})"] + list(getattr(err, "unchecked", ()))
+    if fitted is None and config.excitation.collision_margin != margin_before:
+        say(f"self-collision margin {config.excitation.collision_margin:g} m: the capsule file's collision_margin "
+            f"({config.robot.capsules}; set excitation.collision_margin to change it)")
     if fitted is not None:
         say(f"no capsule file: fitted capsules: {fitted.summary()}; self-collision margin "
             f"{config.excitation.collision_margin:g} m"
@@ -276,7 +281,7 @@ def _robot(config: Config, name: str, say: Say) -> Robot:
     """The robot, built once, with its notes and a nominal posture that clears the floor."""
     robot = Robot(name, config.robot)
     say(f"robot {robot.name}: {robot.n} excited joints, {robot.num_bodies} moving bodies")
-    for note in assumed_defaults(config, robot.joint_names) + list(robot.notes):
+    for note in assumed_defaults(config, robot.joint_names, [j.kind for j in robot.joints]) + list(robot.notes):
         say(f"note: {note}")  # assumed limits; what the model needed for Drake (mimic, materials, mount)
     nominal = choose_nominal_posture(robot, config.excitation, config.environment)
     if nominal is not None:
@@ -335,7 +340,7 @@ def _plan(config, robot, executor, priors, fitted, fitted_text, unchecked, allow
             refusal = (f"{len(unchecked)} part(s) of the robot were not checked for collision (listed in "
                        "report.json 'unchecked'); give robot.capsules, or --allow-unchecked to write it anyway")
     report = MotionReport(
-        robot=robot.name, success=result.success, message=result.message, status=result.status, solver=result.solver,
+        robot=robot.name, success=result.success, converged=result.converged, message=result.message, status=result.status, solver=result.solver,
         criterion=e.criterion, measurement=e.measurement, cond=result.cond, cond_motion=result.cond_motion,
         criterion_value=result.fun, iterations=result.nit, evaluations=result.nfev, seed=ms.seed,
         solve_time_s=result.wall_time, multistart_time_s=ms.wall_time, total_time_s=time.perf_counter() - start,
@@ -343,7 +348,7 @@ def _plan(config, robot, executor, priors, fitted, fitted_text, unchecked, allow
         starts=start_records(ms), margins_1khz=result.margins, base_parameters=problem.base.count,
         base_parameter_names=list(problem.base.base_names), singular_values=result.singular_values.tolist(),
         prior=[str(p) for p in priors], config=dataclasses.asdict(config),
-        assumed_defaults=assumed_defaults(config, robot.joint_names), fitted_capsules=None,
+        assumed_defaults=assumed_defaults(config, robot.joint_names, [j.kind for j in robot.joints]), fitted_capsules=None,
         limit_margins=limit_margins(config), ramp_margins_1khz=ramp_margins,
         motion=motion.to_dict() if motion is not None else None,
         quality=quality.to_dict() if quality is not None else None, unchecked=list(unchecked),

@@ -403,10 +403,11 @@ def _message(cfg: SolverConfig, result, violated: dict[str, float], fallback: st
     if violated:
         message = "solution violates between samples: " + ", ".join(f"{k} by {-m:.3g}" for k, m in violated.items())
     elif not result.is_success():
-        message = f"{cfg.name} did not converge: {status}"
-        if cfg.name == "ipopt":
-            message += f" ({result.get_solver_details().ConvertStatusToString()})"
-        message += fallback
+        # The point is valid (re-checked at 1 kHz): say that the solver stopped, not that
+        # something failed, so that "valid" and the status do not read as a contradiction.
+        where = "at its iteration limit" if status == "kIterationLimit" else "early"
+        detail = f": {result.get_solver_details().ConvertStatusToString()}" if cfg.name == "ipopt" else ""
+        message = f"{cfg.name} stopped {where} before converging ({status}{detail})" + fallback
     else:  # converged, yet its point may have failed the re-check and been replaced
         message = f"{cfg.name}: {status}" + fallback
     return message + stalled

@@ -7,6 +7,15 @@ import numpy as np
 
 from pe_drake.exceptions import ConfigError
 
+#: Units of a joint's position and its first three time derivatives, by joint kind.
+JOINT_UNITS = {"revolute": ("rad", "rad/s", "rad/s²", "rad/s³"), "prismatic": ("m", "m/s", "m/s²", "m/s³")}
+
+
+def joint_unit(kind: str, derivative: int = 0) -> str:
+    """The unit of a joint's position (``derivative`` 0), velocity (1), acceleration (2) or
+    jerk (3): rad… for a revolute joint, m… for a prismatic one."""
+    return JOINT_UNITS.get(kind, JOINT_UNITS["revolute"])[derivative]
+
 
 def merge_limits(name: str, model_range, model_velocity: float, cfg, model_file: str = "the model"):
     """A joint's position range and velocity limit from the model file and the config.

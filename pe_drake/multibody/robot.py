@@ -25,7 +25,7 @@ from pe_drake.exceptions import (
 )
 from pe_drake.multibody.capsules import register_capsules
 from pe_drake.multibody.inertia import PARAMETER_NAMES, spatial_inertia_to_phi
-from pe_drake.multibody.joint_limits import merge_limits, position_margins
+from pe_drake.multibody.joint_limits import joint_unit, merge_limits, position_margins
 from pe_drake.multibody.model_files import (
     check_world_joints,
     drake_model_text,
@@ -313,7 +313,7 @@ class Robot:
                 )
                 raise InfeasibleError(
                     f"joint '{name}': position range [{lo[k]:.4g}, {hi[k]:.4g}] is empty after a "
-                    f"margin of {margin[k]:g} rad or m; {fix}"
+                    f"margin of {margin[k]:g} {joint_unit(self.joints[k].kind)}; {fix}"
                 )
         return Limits(lo, hi, v * cfg.velocity_scale, vd * cfg.acceleration_scale, effort * cfg.effort_scale)
 
