@@ -183,7 +183,7 @@ def joint_limit_violation(problem: ExcitationProblem, alpha: np.ndarray, basis: 
 #: the rounding of trajectory.csv's 9 significant digits, far less than anything cond notices.
 STRICT_BACKOFF = 1e-8
 #: Samples per cycle of the highest harmonic at which :func:`path_limit_bounds` samples.
-BOUND_SAMPLES_PER_CYCLE = 512
+BOUND_SAMPLES_PER_CYCLE = 2048
 
 
 def path_limit_bounds(trajectory: FourierTrajectory) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

@@ -272,6 +272,8 @@ def check_within_limits(
 
 #: Significant digits of the numbers in trajectory.csv (trajectory_file.write_motion_csv).
 CSV_DIGITS = 9
+#: Samples evaluated at a time by :func:`check_written_motion`.
+WRITTEN_CHUNK = 100_000
 #: Allowance of :func:`limit_excess`: the float rounding of a limit itself, relative to it.
 LIMIT_ROUNDING = 1e-12
 
@@ -325,7 +327,11 @@ def check_written_motion(motion: RampedMotion, limits, joint_names: Sequence[str
         NotWithinLimitsError: naming the joint, the quantity, the value, the excess and the time.
     """
     t = motion.sample_times(rate)
-    worst = limit_excess(*motion.evaluate(t), limits)
+    worst = None
+    for start in range(0, len(t), WRITTEN_CHUNK):  # in chunks: a 1000-period motion has 10⁷ rows
+        found = limit_excess(*motion.evaluate(t[start:start + WRITTEN_CHUNK]), limits)
+        if found is not None and (worst is None or found.excess > worst.excess):
+            worst = found._replace(sample=found.sample + start)
     if worst is not None:
         j = worst.joint
         lo, hi = {"position": (limits.q_lower, limits.q_upper), "velocity": (-limits.v_max, limits.v_max),
