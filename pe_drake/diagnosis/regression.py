@@ -302,6 +302,20 @@ class Library:
         """The columns that act on every joint: the base regressor and the timing nuisance."""
         return [*range(self.num_base), self.timing_col]
 
+    def segment_columns(self, model, independent: np.ndarray, seg: Segment) -> Columns:
+        """A segment's base regressor (``model``'s ``independent`` columns), timing nuisance and
+        candidate columns, built a block of samples at a time (a long log's columns are never
+        held twice, nor in float64: :data:`LONG_LOG_BYTES`)."""
+        b = self.num_base
+        q, v, vd, dtau = seg.q, seg.v, seg.vd, seg.dtau
+
+        def fill(rows: slice, out: np.ndarray) -> None:
+            model.columns(q[rows], v[rows], vd[rows], independent, out=out[:, :, :b])
+            out[:, :, b] = -dtau[rows]  # the timing nuisance: tau_rec(t) ≈ tau(t) - d·dtau/dt
+
+        return Columns.assemble(seg.tau, b + self.extra_count, self.stored_columns, fill,
+                                self.single_joint_columns(seg))
+
     def single_joint_columns(self, seg: Segment) -> dict[int, tuple[int, np.ndarray]]:
         """{column: (joint, values (S,))}: each candidate's column on its own joint."""
         out, q, v, vd = {}, seg.q, seg.v, seg.vd

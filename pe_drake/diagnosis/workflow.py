@@ -87,7 +87,6 @@ from pe_drake.diagnosis.presliding import PRESLIDING, PreslidingStep, presliding
 from pe_drake.diagnosis.record import (Record, Segment, check_fits_in_memory, check_joints, check_record_signs,
                                       delayed_states, prepare_record, split_segments)
 from pe_drake.diagnosis.regression import (
-    Columns,
     Fit,
     Library,
     Regression,
@@ -220,20 +219,6 @@ class CandidateLibrary:
     regression: Regression
 
 
-def _segment_columns(prep: Prepared, library: Library, seg: Segment) -> Columns:
-    """A segment's base regressor, timing nuisance and candidate columns, built a block of
-    samples at a time (a long log's columns are never held twice, nor in float64 when long)."""
-    b = prep.base.count
-    q, v, vd, dtau = seg.q, seg.v, seg.vd, seg.dtau
-
-    def fill(rows: slice, out: np.ndarray) -> None:
-        prep.model.columns(q[rows], v[rows], vd[rows], prep.base.independent, out=out[:, :, :b])
-        out[:, :, b] = -dtau[rows]  # the timing nuisance: tau_rec(t) ≈ tau(t) - d·dtau/dt
-
-    return Columns.assemble(seg.tau, b + library.extra_count, library.stored_columns, fill,
-                            library.single_joint_columns(seg))
-
-
 def candidate_library(robot, prep: Prepared, config: DiagnosisConfig) -> CandidateLibrary:
     """The separable candidates' columns appended to the base regressor.
 
@@ -244,7 +229,8 @@ def candidate_library(robot, prep: Prepared, config: DiagnosisConfig) -> Candida
     sep = separability(robot, prep.base, candidates, model=prep.model)
     library = Library(prep.base.count, tuple(s.candidate for s in sep if s.separable))
     training, held = prep.training, prep.held
-    reg = Regression(*(_segment_columns(prep, library, seg) for seg in (training, held)), library.num_base)
+    reg = Regression(*(library.segment_columns(prep.model, prep.base.independent, seg) for seg in (training, held)),
+                     library.num_base)
     b = library.num_base
     cond = condition_number(reg.train.gram[:, :b, :b].sum(axis=0))
     if cond > MAX_COND:

@@ -24,7 +24,7 @@ from pe_drake import limits
 from pe_drake.config import BoxConfig, EnvironmentConfig
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.excitation.fourier import FourierTrajectory
-from pe_drake.excitation.ramp import RampedMotion, ramped_motion_from_dict
+from pe_drake.excitation.ramp import CSV_DIGITS, RampedMotion, ramped_motion_from_dict
 from pe_drake.io_utils import atomic_write_text, loads_json
 from pe_drake.output_set import check_output_set
 
@@ -132,7 +132,7 @@ def write_trajectory_csv(
     q, v, vd = trajectory.evaluate(t)
     header = ["t"] + [f"q.{j}" for j in joints] + [f"v.{j}" for j in joints] + [f"vdot.{j}" for j in joints]
     table = np.column_stack([t, q, v, vd])
-    lines = [",".join(header)] + [",".join(f"{x:.9g}" for x in row) for row in table]
+    lines = [",".join(header)] + [",".join(f"{x:.{CSV_DIGITS}g}" for x in row) for row in table]
     atomic_write_text(path, "\n".join(lines) + "\n")
 
 
@@ -145,7 +145,7 @@ def write_motion_csv(path: str | Path, joints: tuple[str, ...] | list[str], moti
     q, v, vd = motion.evaluate(t)
     header = ["t"] + [f"q.{j}" for j in joints] + [f"v.{j}" for j in joints] + [f"vdot.{j}" for j in joints]
     table = np.column_stack([t, q, v, vd])
-    lines = [",".join(header)] + [",".join(f"{x:.9g}" for x in row) for row in table]
+    lines = [",".join(header)] + [",".join(f"{x:.{CSV_DIGITS}g}" for x in row) for row in table]
     atomic_write_text(path, "\n".join(lines) + "\n")
 
 
