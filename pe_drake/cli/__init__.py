@@ -56,6 +56,14 @@ def add_log_arguments(parser: argparse.ArgumentParser) -> None:
                         help="what a bag's effort holds: torque [N·m] or current [A] (robot.drive_gains)")
 
 
+def add_window_argument(parser: argparse.ArgumentParser, what: str) -> None:
+    """``--window START,END``: the part of the run used, cut after the whole run is filtered."""
+    parser.add_argument("--window", metavar="START,END",
+                        help=f"only the samples from START to END [s, the file's time] are {what}; either may be "
+                             "empty (',14.7'); the whole run is filtered first, so the cut has no filter edge "
+                             "(diagnose's training/held-out times reproduce its split)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="pe-drake",
@@ -132,6 +140,7 @@ def _add_identification_commands(sub) -> None:
     p.add_argument("--method", choices=["ols", "wls", "physical"], default="ols")
     p.add_argument("--cutoff", type=float, help="low-pass cut-off [Hz] (default: from --trajectory or the data)")
     p.add_argument("--trajectory", help="trajectory.json that was run (its harmonics set the cut-off)")
+    add_window_argument(p, "fitted")
     p.add_argument("--no-filter", action="store_true",
                    help="use the data as it is (exact data with v.* and vdot.* columns)")
     add_measurement_argument(p, "channels to identify from: joint torques, the ground wrench alone, or both")
@@ -153,6 +162,7 @@ def _add_identification_commands(sub) -> None:
     p.add_argument("--data", required=True, help="measurement CSV (or bag, RTDE log) of another run")
     add_log_arguments(p)
     p.add_argument("--cutoff", type=float, help="low-pass cut-off [Hz] (default: from the data)")
+    add_window_argument(p, "predicted")
     p.add_argument("--json", help="write per-joint errors here")
     p.add_argument("--plot", help="write measured vs predicted torque plot here (PNG)")
     add_measurement_argument(p, "channels to predict (from any identified model): joint torques, the ground wrench, or both")

@@ -7,6 +7,7 @@ import argparse
 
 from pe_drake.cli.common import config_from_args, measurement_from_args, read_log_from_args, robot_from_args
 from pe_drake.identification import IdentifyOptions, ValidateOptions, identify_model, load_identified, validate_model
+from pe_drake.identification.time_window import TimeWindow
 from pe_drake.output_paths import check_output_dir, check_output_file
 
 
@@ -18,7 +19,7 @@ def identify_command(args: argparse.Namespace) -> int:
     options = IdentifyOptions.from_config(
         config, method=args.method, measurement=measurement_from_args(args, config), cutoff_hz=args.cutoff,
         trajectory=getattr(args, "trajectory", None), filtering=not getattr(args, "no_filter", False),
-        drive_terms=getattr(args, "drive_terms", None))
+        drive_terms=getattr(args, "drive_terms", None), window=_window(args))
     robot = robot_from_args(args, config)
     model = identify_model(robot, read_log_from_args(args, robot, config), options)
     for line in model.summary_lines():
@@ -41,7 +42,8 @@ def validate_command(args: argparse.Namespace) -> int:
     model = load_identified(args.model, robot)  # identified.json or the diagnosis's augmented_model.json
     for note in model.physical_notes if model.method == "diagnose" else ():
         print(f"note: {note}")
-    options = ValidateOptions(measurement_from_args(args, config), getattr(args, "cutoff", None), config.data.max_gap_s)
+    options = ValidateOptions(measurement_from_args(args, config), getattr(args, "cutoff", None), config.data.max_gap_s,
+                              _window(args))
     report = validate_model(robot, model, read_log_from_args(args, robot, config), options)
     for line in [f"note: {n}" for n in report.notes] + report.summary_lines():
         print(line)
@@ -52,3 +54,8 @@ def validate_command(args: argparse.Namespace) -> int:
         report.plot(args.plot)
         print(f"wrote {args.plot}")
     return 0
+
+
+def _window(args: argparse.Namespace) -> TimeWindow | None:
+    text = getattr(args, "window", None)
+    return None if text is None else TimeWindow.parse(text)

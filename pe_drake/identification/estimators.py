@@ -40,6 +40,7 @@ from typing import NamedTuple
 import numpy as np
 
 from pe_drake.exceptions import ConfigError, DataError
+from pe_drake.identification.time_window import TimeWindow
 from pe_drake.identification.channels import channel_names, measured_values
 from pe_drake.identification.drive_terms import (
     TERMS,
@@ -156,6 +157,7 @@ def prepare_measurement(
     filtering: bool = True,
     check_units: bool = True,
     max_gap_s: float = MAX_GAP_S,
+    window: TimeWindow | None = None,
 ) -> Measurement:
     """Checks the joints and torque units and preprocesses for identification.
 
@@ -171,6 +173,8 @@ def prepare_measurement(
         max_gap_s: longest hole in the time column interpolated [s]; longer ones split the
             run into segments filtered on their own and stacked
             (:func:`~pe_drake.identification.gaps.preprocess_segments`).
+        window: the part of the run kept, taken after the whole run is filtered
+            (:class:`~pe_drake.identification.time_window.TimeWindow`); None: all of it.
 
     Raises:
         DataError: other joints than the robot's, missing v/vdot without filtering, torques
@@ -193,6 +197,8 @@ def prepare_measurement(
                 file=measurement.source,
             )
         data = measurement
+    if window is not None:
+        data = window.apply(data)
     if check_units and data.tau is not None:
         ratios = check_torque_units(data, robot_torques(robot, data, robot.phi_model))
         hint = amps_hint(data, ratios)

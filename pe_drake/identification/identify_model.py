@@ -19,6 +19,7 @@ import numpy as np
 from pe_drake.config import Config
 from pe_drake.exceptions import ConfigError
 from pe_drake.excitation.trajectory_file import load_trajectory
+from pe_drake.identification.time_window import TimeWindow
 from pe_drake.identification.channels import measured_values
 from pe_drake.identification.data_checks import check_against_model
 from pe_drake.identification.drive_terms import (
@@ -64,6 +65,7 @@ class IdentifyOptions:
         drive: the drive terms (friction, offsets, armature).
         bounds: the physical fit's mass and CoM bounds.
         max_gap_s: holes in the time column up to this are interpolated [s].
+        window: the part of the run fitted, cut after filtering (None: all of it).
     """
 
     method: str = "ols"
@@ -74,6 +76,7 @@ class IdentifyOptions:
     drive: DriveTermOptions = DriveTermOptions()
     bounds: PhysicalBounds | None = None
     max_gap_s: float = MAX_GAP_S
+    window: TimeWindow | None = None
 
     def __post_init__(self):
         if self.method not in ("ols", "wls", "physical"):
@@ -210,7 +213,8 @@ def identify_model(robot: Robot, measurements: Measurement, options: IdentifyOpt
     options = options or IdentifyOptions()
     f0, harmonics = _trajectory_band(options.trajectory)
     data = prepare_measurement(robot, measurements, cutoff_hz=options.cutoff_hz, fundamental_hz=f0,
-                               harmonics=harmonics, filtering=options.filtering, max_gap_s=options.max_gap_s)
+                               harmonics=harmonics, filtering=options.filtering, max_gap_s=options.max_gap_s,
+                               window=options.window)
     check_against_model(robot, data)  # sign-flipped torque columns
     coulomb = filtered_coulomb(measurements, data, options.drive.velocity_scale) if data is not measurements else None
     result = identify(robot, data, options.method, measurement=options.measurement, drive_terms=options.drive,

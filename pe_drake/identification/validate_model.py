@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from pe_drake.identification.time_window import TimeWindow
 from pe_drake.identification.data_checks import check_against_model
 from pe_drake.identification.drive_terms import filtered_coulomb
 from pe_drake.identification.estimators import IdentificationResult, prepare_measurement, torque_errors
@@ -29,11 +30,13 @@ from pe_drake.plots import plot_prediction
 @dataclasses.dataclass(frozen=True)
 class ValidateOptions:
     """How ``validate`` reads the run: the channels to predict, the cut-off [Hz] (None: from
-    the data) and the longest hole interpolated [s]."""
+    the data), the longest hole interpolated [s] and the part of the run predicted (cut after
+    filtering; None: all of it)."""
 
     measurement: str = "joint_torque"
     cutoff_hz: float | None = None
     max_gap_s: float = MAX_GAP_S
+    window: TimeWindow | None = None
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -96,7 +99,8 @@ def validate_model(robot: Robot, model: IdentificationResult, measurements: Meas
         DataError: data the checks refuse (sign-flipped torque, missing channels, ...).
     """
     options = options or ValidateOptions()
-    data = prepare_measurement(robot, measurements, cutoff_hz=options.cutoff_hz, max_gap_s=options.max_gap_s)
+    data = prepare_measurement(robot, measurements, cutoff_hz=options.cutoff_hz, max_gap_s=options.max_gap_s,
+                               window=options.window)
     check_against_model(robot, data)
     kind = MeasurementType(options.measurement)
     scale = model.drive.layout.velocity_scale if model.drive is not None else 0.01
