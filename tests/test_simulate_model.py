@@ -76,15 +76,19 @@ def test_simulate_with_model_is_identified_back(model_file, tmp_path, capsys):
 
 
 def augmented_model_file(tmp_path, robot):
-    """An augmented_model.json with friction, armature, offsets and a payload on link 7."""
+    """An augmented_model.json with friction, armature, offsets, a payload on link 7, a torque
+    delay and pre-sliding friction on the last joint."""
     from pe_drake.diagnosis.augmented_model import AugmentedModel
 
     n = robot.n
     rng = np.random.default_rng(0)
+    presliding, stiffness = np.zeros(n), np.zeros(n)
+    presliding[-1], stiffness[-1] = 0.3, 300.0
     model = AugmentedModel(tuple(robot.joint_names), tuple(robot.body_names), robot.phi_model.copy(),
                            rng.uniform(0, 1, n), rng.uniform(0, 2, n), 0.01, rng.uniform(0, 0.3, n),
                            rng.uniform(-1, 1, n), "panda_link7", 0.8, np.array([0.0, 0.01, 0.05]),
-                           np.array([1e-3, 1e-3, 2e-3, 0, 0, 0]))
+                           np.array([1e-3, 1e-3, 2e-3, 0, 0, 0]), time_delay=0.002, presliding=presliding,
+                           presliding_stiffness=stiffness)
     path = tmp_path / "augmented_model.json"
     path.write_text(json.dumps(model.as_dict()))
     return path, model
@@ -92,7 +96,7 @@ def augmented_model_file(tmp_path, robot):
 
 def test_simulate_with_the_diagnosis_augmented_model(tmp_path, capsys):
     """Without --truth: the simulated robot has the model's parameters (payload lumped into its
-    link) and drive terms, and no noise."""
+    link), drive terms, torque delay and pre-sliding friction, and no noise."""
     from pe_drake.identification.measurements import read_measurement_csv
 
     robot = get_robot("panda")
@@ -109,6 +113,10 @@ def test_simulate_with_the_diagnosis_augmented_model(tmp_path, capsys):
                           ("torque_offset", model.torque_offset)):
         np.testing.assert_allclose(list(record["effects"][field]["values"].values()), values, err_msg=field)
     assert record["noise"]["tau_std"] == 0.0
+    assert record["effects"]["torque_delay"]["value"] == 0.002  # validate leaves these two out
+    last = robot.joint_names[-1]
+    assert record["effects"]["presliding_friction"]["values"][last] == 0.3
+    assert record["effects"]["presliding_friction"]["stiffness"][last] == 300.0
     run = read_measurement_csv(out, robot.joint_names)
     assert run.num_samples == 501
 
@@ -128,3 +136,23 @@ def test_simulate_refuses_a_file_that_is_not_a_model(tmp_path, capsys):
     assert cli(base) == 2
     assert "--truth" in capsys.readouterr().err
     assert not out.exists() and not truth_path_for(out).exists()
+
+
+def test_a_truth_adds_its_effects_to_the_model(tmp_path):
+    from pe_drake.exceptions import ConfigError
+    from pe_drake.identification.simulated_model import load_simulation_model, truth_with_model
+    from pe_drake.identification.truth import EffectsTruth, Truth
+
+    robot = get_robot("panda")
+    path, model = augmented_model_file(tmp_path, robot)
+    sim = load_simulation_model(path, robot)
+    truth = truth_with_model(Truth(effects=EffectsTruth(viscous={"all": 0.1}, torque_delay=0.001)), sim,
+                             robot.joint_names)
+    np.testing.assert_allclose(list(truth.effects.viscous.values()), model.viscous + 0.1)
+    assert truth.effects.torque_delay == pytest.approx(0.003)
+    with pytest.raises(ConfigError, match="coulomb_velocity_scale 0.05 rad/s of the truth file differs"):
+        truth_with_model(Truth(effects=EffectsTruth(coulomb={"all": 1.0}, coulomb_velocity_scale=0.05)), sim,
+                         robot.joint_names)
+    with pytest.raises(ConfigError, match="both the truth file and the model"):
+        truth_with_model(Truth(effects=EffectsTruth(presliding_friction={"all": 0.1},
+                                                    presliding_stiffness={"all": 100.0})), sim, robot.joint_names)

@@ -18,6 +18,8 @@ needs what Drake can build:
   viscous friction as joint damping, Coulomb friction f_c·tanh(v/v_s) with the model's v_s,
   armature as rotor inertia, offsets as a constant load. A negative friction or armature (an
   unconstrained WLS fit of a joint without friction) cannot be simulated and becomes 0, noted.
+  An augmented model's time delay and pre-sliding (Dahl) friction, which ``validate`` leaves
+  out, are simulated too (``effects.torque_delay``, ``effects.presliding_*``).
 
 A TRUTH.yaml given with ``--model`` adds its effects, noise and control on top
 (:func:`truth_with_model`).
@@ -36,6 +38,7 @@ from pe_drake.identification.estimators import IdentificationResult
 from pe_drake.identification.identified_file import load_identified
 from pe_drake.identification.physical_fit import physical_fit
 from pe_drake.identification.truth import Truth, per_joint_values
+from pe_drake.io_utils import loads_json
 from pe_drake.multibody.inertia import validity_problems
 
 #: The drive terms the simulator has, as (DriveFit term, EffectsTruth field).
@@ -55,6 +58,9 @@ class SimulationModel:
             kg·m², N·m] (≥ 0 but the offsets).
         velocity_scale: v_s of the Coulomb friction tanh(v/v_s) [rad/s].
         notes: what was adjusted or left out, in words.
+        torque_delay: the torque log lags the positions by this [s] (augmented models).
+        presliding, presliding_stiffness: Dahl F_c [N·m] and σ0 [N·m/rad] per joint, (n,) or
+            empty (augmented models).
     """
 
     source: str
@@ -65,12 +71,18 @@ class SimulationModel:
     torque_offset: np.ndarray
     velocity_scale: float
     notes: tuple[str, ...] = ()
+    torque_delay: float = 0.0
+    presliding: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
+    presliding_stiffness: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
 
     def as_dict(self, joints) -> dict:
         """The model's record in the run's ``.truth.json``."""
         return {"file": self.source, "notes": list(self.notes),
                 "drive_terms": {field: dict(zip(joints, map(float, getattr(self, field))))
-                                for _, field in _TERMS}}
+                                for _, field in _TERMS},
+                "torque_delay": self.torque_delay,
+                "presliding_friction": dict(zip(joints, map(float, self.presliding))),
+                "presliding_stiffness": dict(zip(joints, map(float, self.presliding_stiffness)))}
 
 
 def load_simulation_model(path: str | Path, robot) -> SimulationModel:
@@ -80,12 +92,22 @@ def load_simulation_model(path: str | Path, robot) -> SimulationModel:
         DataError: a file that is not one of these, or one of another robot or joints.
         NoSolutionFound: no physically valid parameters near the file's base parameters.
     """
-    return simulation_model(load_identified(path, robot), robot, str(path))
+    model = simulation_model(load_identified(path, robot), robot, str(path))
+    d = loads_json(Path(path).read_text(), str(path))  # load_identified has read it: it is JSON
+    if "torque_equation" not in d or "base_parameters" in d:  # not an augmented model
+        return model
+    try:
+        fc = [float((d.get("presliding_friction") or {}).get(j, 0.0)) for j in robot.joint_names]
+        sigma0 = [float((d.get("presliding_stiffness") or {}).get(j, 0.0)) for j in robot.joint_names]
+        delay = float(d.get("time_delay") or 0.0)
+    except (TypeError, ValueError, AttributeError) as err:
+        raise DataError(f"time_delay or presliding_*: {err}", file=str(path)) from err
+    return dataclasses.replace(model, torque_delay=delay, presliding=np.array(fc), presliding_stiffness=np.array(sigma0))
 
 
 def simulation_model(result: IdentificationResult, robot, source: str = "") -> SimulationModel:
     """An identified model (:func:`load_identified`'s result) as the simulator builds it."""
-    notes = [f"not simulated: {note}" for note in result.physical_notes if "not applied" in note]
+    notes = []
     drive = result.drive
     n = robot.n
     values = {t: (drive.per_joint(t) if drive is not None else np.zeros(n)) for t, _ in _TERMS}
@@ -156,6 +178,14 @@ def truth_with_model(truth: Truth, model: SimulationModel, joints) -> Truth:
     tables = {field: {j: float(x) for j, x in zip(joints, per_joint_values(getattr(e, field), joints)
                                                    + getattr(model, field))}
               for _, field in _TERMS}
-    effects = dataclasses.replace(e, coulomb_velocity_scale=model.velocity_scale, **tables)
+    if np.any(model.presliding > 0):
+        if np.any(per_joint_values(e.presliding_friction, joints) > 0):
+            raise ConfigError(f"both the truth file and the model '{model.source}' have pre-sliding friction: "
+                              "one Dahl model per joint is simulated; remove the truth's presliding_*")
+        tables["presliding_friction"] = {j: float(x) for j, x in zip(joints, model.presliding) if x > 0}
+        tables["presliding_stiffness"] = {j: float(s) for j, x, s in zip(joints, model.presliding,
+                                                                         model.presliding_stiffness) if x > 0}
+    effects = dataclasses.replace(e, coulomb_velocity_scale=model.velocity_scale,
+                                  torque_delay=e.torque_delay + model.torque_delay, **tables)
     return dataclasses.replace(truth, effects=effects)
 
