@@ -156,3 +156,32 @@ def test_a_truth_adds_its_effects_to_the_model(tmp_path):
     with pytest.raises(ConfigError, match="both the truth file and the model"):
         truth_with_model(Truth(effects=EffectsTruth(presliding_friction={"all": 0.1},
                                                     presliding_stiffness={"all": 100.0})), sim, robot.joint_names)
+
+
+def test_simulated_parameters_are_valid_and_reproduce_the_model(model_file):
+    """A WLS fit's base parameters become physically valid links that reproduce them within
+    their σ (merged armatures as rotor inertia); a physical fit is simulated as it is, its
+    merged armatures added to the rotor inertias."""
+    from pe_drake.excitation.trajectory_file import load_trajectory
+    from pe_drake.multibody.inertia import validity_problems
+
+    robot = get_robot("panda")
+    wls = load_identified(model_file, robot)
+    sim = simulation_model(wls, robot)
+    assert not validity_problems(robot.body_names, sim.phi) and not sim.notes
+    q, v, vd = random_states(robot, 40, seed=4)
+    from pe_drake.multibody.regressor import RegressorModel
+
+    simulated = RegressorModel(robot)(q, v, vd) @ sim.phi + sim.armature * vd + sim.viscous * v + sim.torque_offset
+    simulated += sim.coulomb * np.tanh(v / sim.velocity_scale)
+    want = predicted(robot, wls, q, v, vd)
+    err = np.max(np.abs(simulated - want))
+    print(f"simulated vs file model: max |Δτ| {err:.3g} N·m of max |τ| {np.max(np.abs(want)):.3g} N·m")
+    assert err < 1e-3 * np.max(np.abs(want)), err  # measured 0.0027 of 73.8 N·m
+    trajectory, _ = load_trajectory(OPTIMIZED)
+    physical = identify(robot, with_drive(robot, trajectory, drive_truth(robot, seed=3), duration=trajectory.period),
+                        "physical")
+    sim = simulation_model(physical, robot)
+    np.testing.assert_array_equal(sim.phi, physical.phi)
+    for name, value in physical.drive.merged_armature.items():
+        assert sim.armature[robot.joint_names.index(name)] == pytest.approx(value)
