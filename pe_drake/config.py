@@ -79,6 +79,10 @@ class RobotConfig:
             (Franka refuses 3750-10000 rad/s³); empty: not checked.
         notes: what pe_drake chose for a model given without a config (a standing humanoid's
             excited joints and feet), printed with the robot's notes by every command.
+        assumed: the fields of :data:`SAFE_DEFAULTS` that pe_drake set because no config
+            gave them (a model path given without a config, or with one that leaves them
+            out); the robot prints them once, and an assumed position margin is cut to a
+            quarter of a joint's range where four margins do not fit (a gripper finger).
     """
 
     model: str = ""
@@ -105,6 +109,13 @@ class RobotConfig:
     drive_gains: dict[str, float] = dataclasses.field(default_factory=dict)
     jerk_limits: dict[str, float] = dataclasses.field(default_factory=dict)
     notes: list[str] = dataclasses.field(default_factory=list)
+    assumed: list[str] = dataclasses.field(default_factory=list)
+
+
+#: The shipped robots' conservative limits (models/panda.yaml, ur5.yaml), given to a model
+#: path without a config that sets them: position margin [rad or m] and velocity fraction.
+#: RobotConfig's own defaults (0 and 1) stay what a config file starts from.
+SAFE_DEFAULTS = {"position_margin": 0.05, "velocity_scale": 0.8}
 
 
 #: Default joint-torque noise σ [N·m], every joint: the order of a joint-torque sensor's
@@ -346,6 +357,9 @@ def validate_config(config: Config) -> Config:
     check_finite("robot.position_margin", r.position_margin, nonneg=True)
     for name in ("velocity_scale", "acceleration_scale", "effort_scale"):
         check_fraction(f"robot.{name}", getattr(r, name))
+    for name in r.assumed:
+        if name not in SAFE_DEFAULTS:
+            raise ConfigError(f"robot.assumed entry '{shorten(name)}' is not one of {', '.join(SAFE_DEFAULTS)}")
     if len(r.base_position) != 3:
         raise ConfigError(f"robot.base_position must have 3 numbers, got {r.base_position}")
     if len(r.base_quaternion_wxyz) != 4:

@@ -4,7 +4,12 @@
 (:mod:`pe_drake.multibody.meshes`), adds Drake's ``MeshcatVisualizer`` for the illustration geometry
 (Meshcat path ``/drake/visual``) and a second one for the proximity geometry, i.e. the
 collision capsules (``/drake/capsules``, toggled in the Meshcat tree), and records one period
-of the Fourier series (Eq. 50) as a Meshcat animation. The ground projection of the
+of the Fourier series (Eq. 50) as a Meshcat animation. The capsules are the ones the run
+checked: the config's ``robot.capsules``, or the file the trajectory records, or the
+``fitted_capsules.yaml`` that ``pe-drake optimize`` wrote beside it. The environment the
+optimizer avoided (the floor of a fixed-base arm and the boxes, ``/drake/environment``) is
+drawn translucent, and the camera is framed on what the robot sweeps
+(:mod:`pe_drake.viewer_scene`). The ground projection of the
 whole-body CoM (``/drake/com_projection``) is animated with it; the support area, the convex
 hull of the feet's support points (``/drake/support_area``), is drawn when the robot config
 has ``support_points``. :func:`write_playback_html` saves the recording as a self-contained
@@ -27,10 +32,12 @@ import numpy as np
 
 from pe_drake.exceptions import ConfigError, DataError, UnknownNameError
 from pe_drake.excitation.ramp import check_within_limits
-from pe_drake.excitation.trajectory_file import load_motion
+from pe_drake.excitation.trajectory_file import load_motion, recorded_environment
 from pe_drake.io_utils import atomic_write_text
+from pe_drake.multibody.capsule_fitting import FITTED_CAPSULES_NAME
 from pe_drake.multibody.registry import builtin_robots, resolve_robot_config, robot_display_name
 from pe_drake.multibody.robot import Robot
+from pe_drake.viewer_scene import ENVIRONMENT_PATH, draw_environment, frame_camera, motion_extent
 
 #: Meshcat paths (under ``/drake``) of what this module draws.
 VISUAL_PREFIX = "visual"
@@ -66,7 +73,12 @@ class Playback:
         support_polygon: corners of the support area in world (x, y), counter-clockwise,
             shape (m, 2) [m]; empty (0, 2) when the robot has no support points.
         paths: Meshcat paths of the drawn layers: visual, capsules (None when there is no
-            proximity geometry), com, support (None without support points).
+            proximity geometry), com, support (None without support points), environment
+            (None when there is no floor or box).
+        camera: (camera position, target) in world, each shape (3,) [m]: framed on ``extent``.
+        extent: (lower, upper) corners of the box the robot sweeps (link origins and
+            capsules over the motion), each shape (3,) [m].
+        capsule_file: the capsule file drawn, or None.
     """
 
     meshcat: Any
@@ -80,6 +92,9 @@ class Playback:
     com_xy: np.ndarray
     support_polygon: np.ndarray
     paths: dict[str, str | None]
+    camera: tuple[np.ndarray, np.ndarray] = (np.zeros(3), np.zeros(3))
+    extent: tuple[np.ndarray, np.ndarray] = (np.zeros(3), np.zeros(3))
+    capsule_file: str | None = None
 
 
 def play_trajectory(
@@ -104,12 +119,12 @@ def play_trajectory(
             :func:`pe_drake.excitation.trajectory_file.save_trajectory`.
         robot: built-in name or URDF/SDF path; default: the robot named in the file.
         config: YAML config of the robot. Without it (and unless ``robot`` names another
-            robot), the excited joints, locked posture, root link and base pose recorded in
-            the trajectory file are used, so the playback shows the posture the trajectory
-            was optimized for.
+            robot), the excited joints, locked posture, root link, base pose, capsules and
+            environment recorded in the trajectory file are used, so the playback shows
+            the posture and the obstacles the trajectory was optimized for.
         html: write a self-contained offline HTML playback here (atomically).
-        show_capsules: show the collision (proximity) geometry at start; it stays in the
-            Meshcat tree either way and can be toggled there.
+        show_capsules: show the collision capsules at start; they stay in the Meshcat
+            tree either way and can be toggled there.
         rate: frames per second of the recording [1/s].
         meshcat: an existing ``pydrake.geometry.Meshcat`` to draw into; default: a new one.
         host: interface a new Meshcat server listens on: "localhost" (default) or "*" for
@@ -130,7 +145,7 @@ def play_trajectory(
     times, fps = frame_times(period, rate)
 
     meshcat = _prepare_meshcat(meshcat, host="localhost" if html is not None else host)
-    rob = _load_robot_with_visualizers(
+    rob, environment = _load_robot_with_visualizers(
         trajectory_json, data, robot, config, meshcat, fps=fps, show_capsules=show_capsules
     )
     order = _joint_order(trajectory_json, data, rob)
@@ -140,6 +155,7 @@ def play_trajectory(
     # looping would jump between them, so it plays once and stays at the final rest.
     loop = motion.ramp_duration == 0.0
     com_xy, support = _record_motion(meshcat, rob, q, fps, loop=loop)
+    extent, camera, drawn = _draw_surroundings(meshcat, rob, q, environment)
 
     html_path = None
     if html is not None:
@@ -161,7 +177,11 @@ def play_trajectory(
             "capsules": f"/drake/{CAPSULES_PREFIX}" if _has_proximity_geometry(rob.scene_graph) else None,
             "com": f"/drake/{COM_PATH}",
             "support": f"/drake/{SUPPORT_PATH}" if len(support) else None,
+            "environment": f"/drake/{ENVIRONMENT_PATH}" if drawn else None,
         },
+        camera=camera,
+        extent=extent,
+        capsule_file=rob.config.capsules or None,
     )
 
 
@@ -208,7 +228,7 @@ def _prepare_meshcat(meshcat: Any, host: str) -> Any:
         finally:
             drake_logger.setLevel(level)
     # A reused instance: drop our earlier layers and recording (recordings merge).
-    for path in (VISUAL_PREFIX, CAPSULES_PREFIX, COM_PATH, SUPPORT_PATH):
+    for path in (VISUAL_PREFIX, CAPSULES_PREFIX, COM_PATH, SUPPORT_PATH, ENVIRONMENT_PATH):
         meshcat.Delete(path)
     meshcat.DeleteRecording()
     return meshcat
@@ -259,8 +279,20 @@ def _record_motion(meshcat, rob, q: np.ndarray, fps: float, loop: bool = True) -
     return com_xy, support
 
 
+def _draw_surroundings(meshcat, rob, q: np.ndarray, environment):
+    """Draws the environment and frames the camera on the motion.
+
+    Returns:
+        (extent of the motion, (camera position, target), {object: Meshcat path} drawn).
+    """
+    extent = motion_extent(rob, q)
+    drawn = draw_environment(meshcat, rob, environment, extent)
+    return extent, frame_camera(meshcat, extent), drawn
+
+
 def _load_robot_with_visualizers(path, data, robot, config, meshcat, *, fps: float, show_capsules: bool):
-    """The robot of a trajectory file, with Meshcat visualizers in its diagram."""
+    """The robot of a trajectory file, with Meshcat visualizers in its diagram, and the
+    environment to draw around it."""
     recorded = data.get("robot")
     name = robot or recorded
     if not name:
@@ -268,15 +300,19 @@ def _load_robot_with_visualizers(path, data, robot, config, meshcat, *, fps: flo
     source = name
     if robot is None and name not in builtin_robots() and data.get("model"):
         source = data["model"]  # a robot loaded from a model file: its stem is not a name
-    cfg = resolve_robot_config(source, config).robot
+    full = resolve_robot_config(source, config)
+    cfg, environment = full.robot, full.environment
     from_file = config is None and (robot is None or robot == recorded)
     if from_file:
         cfg = _config_from_file(cfg, data)
+        environment = recorded_environment(data, environment, path)
+    if robot is None or robot == recorded:
+        cfg = dataclasses.replace(cfg, capsules=_run_capsule_file(cfg.capsules, data, path, from_file))
 
     display = robot_display_name(name)
     hook = _visualizer_hook(meshcat, fps, show_capsules)
     try:
-        return Robot(display, cfg, obj_visuals=True, builder_hook=hook)
+        return Robot(display, cfg, obj_visuals=True, builder_hook=hook), environment
     except UnknownNameError as err:
         if not from_file or err.kind != "joint":
             raise
@@ -322,6 +358,24 @@ def _has_proximity_geometry(scene_graph) -> bool:
     from pydrake.geometry import Role  # lazy: pydrake is heavy
 
     return scene_graph.model_inspector().NumGeometriesWithRole(Role.kProximity) > 0
+
+
+def _run_capsule_file(configured: str, data: dict, path, from_file: bool) -> str:
+    """The capsule file the run that wrote the trajectory checked, or ``configured``.
+
+    The file the trajectory records (a bare name is the ``fitted_capsules.yaml`` written
+    beside it), else, for a file written before that was recorded, a ``fitted_capsules.yaml``
+    beside it. Without ``--config`` (``from_file``) these win over the robot's default
+    capsules, as the recorded base pose does; with one, its ``robot.capsules`` win.
+    """
+    folder = Path(path).resolve().parent
+    recorded = data.get("capsules")
+    candidates = [folder / recorded if isinstance(recorded, str) and recorded else None,
+                  folder / FITTED_CAPSULES_NAME if "capsules" not in data else None]
+    found = [str(c) for c in candidates if c is not None and c.is_file()]
+    if configured and not from_file:
+        return configured
+    return found[0] if found else configured
 
 
 def _config_from_file(cfg, data: dict):
@@ -456,13 +510,15 @@ def _translation(xy: np.ndarray, z: float):
 
 def write_plan_playback(plan, html_path: str | Path, *, show_capsules: bool = True, rate: float = 30.0) -> Path:
     """Writes the HTML playback of a live :class:`~pe_drake.excitation.motion_plan.MotionPlan`
-    (what ``pe-drake optimize`` shows): its robot config and controller motion, no file re-read."""
+    (what ``pe-drake optimize`` shows): its robot config (the capsules it checked, fitted ones
+    included), environment and controller motion, no file re-read."""
     motion = plan.motion
     times, fps = frame_times(motion.duration, rate)
     meshcat = _prepare_meshcat(None, host="localhost")
     rob = Robot(plan.robot.name, plan.config.robot, obj_visuals=True, builder_hook=_visualizer_hook(meshcat, fps, show_capsules))
     q = motion.evaluate(times)[0]  # the same config: the same joints in the same order
     _record_motion(meshcat, rob, q, fps, loop=motion.ramp_duration == 0.0)
+    _draw_surroundings(meshcat, rob, q, plan.config.environment)
     path = Path(html_path)
     atomic_write_text(path, meshcat.StaticHtml())
     return path

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -121,6 +122,15 @@ def test_cli_optimize_writes_everything(tmp_path):
     assert header[0] == "t" and "q.panda_joint1" in header and "vdot.panda_joint7" in header
     assert (out / "trajectory.png").stat().st_size > 10_000
     assert (out / "playback.html").exists()
+    # What `view` draws: the run's capsules and environment, recorded; the playback shows them.
+    assert Path(data["capsules"]).name == "panda_capsules.yaml"
+    assert data["environment"] == {"floor": True, "floor_height": None, "boxes": []}
+    from tests.test_viewer import html_commands
+
+    commands = html_commands(out / "playback.html")
+    drawn = {c["path"] for c in commands if c["type"] == "set_object"}
+    assert "/drake/environment/floor" in drawn and any(p.startswith("/drake/capsules/panda/panda_link4/") for p in drawn)
+    assert any(c["type"] == "set_target" for c in commands)  # the camera is framed on the arm
     # Eq. (50) exactly, from the JSON alone.
     a, b, q0, w = np.array(data["a"]), np.array(data["b"]), np.array(data["q0"]), data["omega"]
     t = 1.234

@@ -4,6 +4,7 @@ model, through ROS_PACKAGE_PATH, AMENT_PREFIX_PATH and robot.packages; absolute 
 
 from __future__ import annotations
 
+import json
 import re
 from pathlib import Path
 
@@ -199,6 +200,7 @@ def test_xacro_robot_runs_optimize(tmp_path):
     )
     assert code in (0, 1), code  # 5 iterations need not converge; the run completes
     assert (out / "trajectory.json").is_file() and (out / "fitted_capsules.yaml").is_file()
+    assert json.loads((out / "trajectory.json").read_text())["capsules"] == "fitted_capsules.yaml"  # view draws them
 
 
 def test_repeated_material_definitions_kinova():

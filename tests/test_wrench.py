@@ -9,6 +9,7 @@ import pytest
 from conftest import random_states
 
 from pe_drake.exceptions import ConfigError
+from pe_drake.multibody.base_parameters import RANK_GAP_RATIO
 from pe_drake.multibody.registry import builtin_config
 from pe_drake.multibody.regressor import RegressorModel
 from pe_drake.multibody.robot import load_robot
@@ -70,7 +71,7 @@ def test_rank_of_wrench_rows(waist, expected):
     counts = [SensorRows(model, MeasurementType(kind)).base_parameters().count for kind in MEASUREMENTS]
     assert tuple(counts[:2]) == expected
     assert counts[2] == expected[1]  # both = the union; the wrench already covers the torques
-    exact = SensorRows(model, MeasurementType("base_wrench")).base_parameters(rank_tolerance=1e-8)
+    exact = SensorRows(model, MeasurementType("base_wrench")).base_parameters(rank_tolerance=1e-8, gap_ratio=None)
     assert exact.count == expected[1] + (0 if waist else 1)
     d = np.sort(exact.diag_R)[::-1] / exact.diag_R.max()
     if not waist:
@@ -81,7 +82,7 @@ def test_rank_of_wrench_rows(waist, expected):
 def test_noise_free_identification_from_the_wrench(g1, tolerance):
     model = RegressorModel(g1)
     rows = SensorRows(model, MeasurementType("base_wrench"))
-    base = rows.base_parameters(rank_tolerance=tolerance)
+    base = rows.base_parameters(rank_tolerance=tolerance, gap_ratio=None if tolerance else RANK_GAP_RATIO)
     q, v, vd = random_states(g1, 40, seed=7)
     W = model.wrench_regressor(model.kinematics(q, v, vd))
     phi = g1.phi_model * np.random.default_rng(2).uniform(0.8, 1.2, model.num_params)

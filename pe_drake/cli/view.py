@@ -26,6 +26,9 @@ def view_command(args) -> int:
         f"{playback.robot.name}: {playback.num_frames} frames over {playback.duration:.3g} s "
         f"({playback.frames_per_second:.3g} fps)"
     )
+    if playback.capsule_file:  # which capsules are shown: the file to check and edit
+        shown = "hidden" if args.no_capsules else "shown"
+        summary += f"; {len(playback.robot.capsules)} capsules from {playback.capsule_file} ({shown})"
     if playback.html is not None:
         size = playback.html.stat().st_size / 1e6
         print(f"wrote {playback.html} ({size:.1f} MB; {summary}) in {time.perf_counter() - start:.1f} s")

@@ -71,7 +71,10 @@ def dahl_columns(record, joint: int, grid: np.ndarray = DISPLACEMENT_GRID) -> np
     joint at a time: all of them at the full rate held 1.1 kB per sample of a 7-joint log.
     """
     z = dahl_state(record.q[:, joint], np.asarray(grid, float))  # (T, G)
-    return record.filtered(z)[:: record.step]
+    out = np.empty((len(range(0, z.shape[0], record.step)), z.shape[1]))
+    for g in range(z.shape[1]):  # filtered a grid value at a time: no second (T, G) array
+        out[:, g] = record.filtered(z[:, g])[:: record.step]
+    return out
 
 
 def replace_column(columns, index: int, joint: int, values: np.ndarray):
@@ -80,7 +83,7 @@ def replace_column(columns, index: int, joint: int, values: np.ndarray):
     column kept beside it (``Columns.overrides``): a copy of A per trial held 2-8 copies of it."""
     values = np.asarray(values, float)
     row = np.zeros(columns.rhs.shape)
-    row[joint] = values @ columns.joint_block(joint)
+    row[joint] = columns.joint_dot(joint, values)
     row[joint, index] = values @ values
     gram = columns.gram.copy()
     gram[:, index, :] = row

@@ -14,7 +14,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -27,19 +27,27 @@ from pe_drake.identification.statistics import integrated_autocorrelation
 # ---- columns and fits ------------------------------------------------------------------------
 
 
+#: A segment whose stored columns would take more than this in float64 keeps them in float32
+#: (half the memory of an hour-long log); its Gram matrices are summed in float64 before the
+#: rounding, so every fit is unchanged and only residuals carry the ~1e-7 relative rounding.
+LONG_LOG_BYTES = 512e6
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
 class Columns:
     """Every column of one segment: base regressor, candidates, timing nuisance.
 
     Attributes:
-        A: the columns, (S, n, P).
+        A: the stored columns, (S, n, D): those that act on every joint (the base regressor and
+            the timing nuisance), in float32 for a long log (:data:`LONG_LOG_BYTES`).
         y: the target, the measured torque, (S, n).
-        gram: per-joint A_jᵀ A_j, (n, P, P).
+        gram: per-joint A_jᵀ A_j of every column, (n, P, P), summed in float64.
         rhs: per-joint A_jᵀ y_j, (n, P).
         yy: per-joint y_jᵀ y_j, (n,).
         count: S.
-        overrides: {column: (joint, values (S,))}: columns that differ from ``A`` (zero on every
-            joint but ``joint``), so a trial column does not copy the (S, n, P) block.
+        overrides: {column: (joint, values (S,))}: columns that act on one joint only (the
+            candidates, a pre-sliding trial), zero on every other; they win over ``A``'s.
+        stored: the column of each of A's, (D,); None: A holds every column in order.
     """
 
     A: np.ndarray
@@ -49,32 +57,58 @@ class Columns:
     yy: np.ndarray
     count: int
     overrides: dict = dataclasses.field(default_factory=dict)
+    stored: tuple[int, ...] | None = None
+
+    @property
+    def num_columns(self) -> int:
+        """P, every column (stored or not)."""
+        return self.gram.shape[1]
+
+    @functools.cached_property
+    def position(self) -> dict[int, int]:
+        """{column: its index in A's last axis}."""
+        stored = range(self.A.shape[2]) if self.stored is None else self.stored
+        return {int(c): k for k, c in enumerate(stored)}
 
     def product(self, cols: Sequence[int], x: np.ndarray, chunk: int = 4000) -> np.ndarray:
         """The columns ``cols`` times ``x``, (S, n), a block of samples at a time (no (S, n, P) copy)."""
         cols, x = [int(c) for c in cols], np.asarray(x, float)
         plain = [k for k, c in enumerate(cols) if c not in self.overrides]
-        idx = [cols[k] for k in plain]
-        out = np.empty(self.y.shape)
-        for s in range(0, self.count, chunk):
-            rows = slice(s, min(s + chunk, self.count))
-            out[rows] = self.A[rows][:, :, idx] @ x[plain]
+        idx = [self.position[cols[k]] for k in plain]
+        out = np.zeros(self.y.shape)
+        if plain:
+            for s in range(0, self.count, chunk):
+                rows = slice(s, min(s + chunk, self.count))
+                out[rows] = self.A[rows][:, :, idx].astype(float) @ x[plain]
         for k, c in enumerate(cols):
             if c in self.overrides:
                 joint, values = self.overrides[c]
                 out[:, joint] += values * x[k]
         return out
 
+    def joint_dot(self, joint: int, values: np.ndarray, chunk: int = 20000) -> np.ndarray:
+        """valuesᵀ A[:, joint, :] with the overrides applied, (P,), without an (S, P) copy."""
+        out = np.zeros(self.num_columns)
+        stored = list(self.position)
+        for s in range(0, self.count, chunk):
+            rows = slice(s, min(s + chunk, self.count))
+            out[stored] += values[rows] @ self.A[rows, joint, :].astype(float)
+        for c, (j, series) in self.overrides.items():
+            out[c] = series @ values if j == joint else 0.0
+        return out
+
     def joint_block(self, joint: int) -> np.ndarray:
         """A[:, joint, :] with the overrides applied, (S, P)."""
-        block = self.A[:, joint, :].copy()
+        block = np.zeros((self.count, self.num_columns))
+        block[:, list(self.position)] = self.A[:, joint, :]
         for c, (j, values) in self.overrides.items():
             block[:, c] = values if j == joint else 0.0
         return block
 
     def dense(self) -> np.ndarray:
-        """A with the overrides applied, (S, n, P) (a copy: for tests and small data)."""
-        A = self.A.copy()
+        """Every column with the overrides applied, (S, n, P) (a copy: for tests and small data)."""
+        A = np.zeros((self.count, self.y.shape[1], self.num_columns))
+        A[:, :, list(self.position)] = self.A
         for c, (j, values) in self.overrides.items():
             A[:, :, c] = 0.0
             A[:, j, c] = values
@@ -92,6 +126,39 @@ class Columns:
         rhs = np.einsum("sjp,sj->jp", A, y, optimize=True)
         yy = np.einsum("sj,sj->j", y, y)
         return cls(A, y, gram, rhs, yy, y.shape[0])
+
+    @classmethod
+    def assemble(cls, y: np.ndarray, num_columns: int, stored: Sequence[int],
+                 fill: Callable[[slice, np.ndarray], None], single: dict, chunk: int = 4000) -> Columns:
+        """The columns of a segment built a block of samples at a time.
+
+        Args:
+            y: the torque, (S, n).
+            num_columns: P.
+            stored: the columns that act on every joint, kept in ``A``.
+            fill: ``fill(rows, out)`` writes those columns of the samples ``rows`` into ``out``,
+                (len(rows), n, len(stored)), float64.
+            single: {column: (joint, values (S,))}, the columns that act on one joint.
+            chunk: samples per block.
+        """
+        S, n = y.shape
+        stored = [int(c) for c in stored]
+        dtype = np.float32 if S * n * len(stored) * 8 > LONG_LOG_BYTES else np.float64
+        A = np.empty((S, n, len(stored)), dtype)
+        gram, rhs = np.zeros((n, num_columns, num_columns)), np.zeros((n, num_columns))
+        for s in range(0, S, chunk):
+            rows = slice(s, min(s + chunk, S))
+            part = np.empty((rows.stop - rows.start, n, len(stored)))
+            fill(rows, part)
+            A[rows] = part
+            block = np.zeros((rows.stop - rows.start, n, num_columns))
+            block[:, :, stored] = part
+            for c, (j, values) in single.items():
+                block[:, j, c] = values[rows]
+            gram += np.einsum("sjp,sjq->jpq", block, block, optimize=True)
+            rhs += np.einsum("sjp,sj->jp", block, y[rows], optimize=True)
+        yy = np.einsum("sj,sj->j", y, y)
+        return cls(A, y, gram, rhs, yy, S, dict(single), tuple(stored))
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -230,19 +297,33 @@ class Library:
         """Columns beside the base regressor: the candidates and the timing nuisance."""
         return len(self.candidates) + 1
 
-    def extra_columns(self, seg: Segment, out: np.ndarray | None = None) -> np.ndarray:
-        """The candidates' columns and the timing nuisance on a segment, (S, n, len + 1), into
-        ``out`` when given."""
-        n = seg.q.shape[1]
-        cols = np.zeros((seg.num_samples, n, self.extra_count)) if out is None else out
-        cols[...] = 0.0
+    @property
+    def stored_columns(self) -> list[int]:
+        """The columns that act on every joint: the base regressor and the timing nuisance."""
+        return [*range(self.num_base), self.timing_col]
+
+    def segment_columns(self, model, independent: np.ndarray, seg: Segment) -> Columns:
+        """A segment's base regressor (``model``'s ``independent`` columns), timing nuisance and
+        candidate columns, built a block of samples at a time (a long log's columns are never
+        held twice, nor in float64: :data:`LONG_LOG_BYTES`)."""
+        b = self.num_base
+        q, v, vd, dtau = seg.q, seg.v, seg.vd, seg.dtau
+
+        def fill(rows: slice, out: np.ndarray) -> None:
+            model.columns(q[rows], v[rows], vd[rows], independent, out=out[:, :, :b])
+            out[:, :, b] = -dtau[rows]  # the timing nuisance: tau_rec(t) ≈ tau(t) - d·dtau/dt
+
+        return Columns.assemble(seg.tau, b + self.extra_count, self.stored_columns, fill,
+                                self.single_joint_columns(seg))
+
+    def single_joint_columns(self, seg: Segment) -> dict[int, tuple[int, np.ndarray]]:
+        """{column: (joint, values (S,))}: each candidate's column on its own joint."""
+        out, q, v, vd = {}, seg.q, seg.v, seg.vd
         for k, c in enumerate(self.candidates):
-            if c.effect == "coulomb_friction":
-                cols[:, c.joint, k] = seg.coulomb[:, c.joint]
-            else:
-                cols[:, c.joint, k] = effect_column(c.effect, seg.q, seg.v, seg.vd, c.joint)
-        cols[:, :, -1] = -seg.dtau  # timing nuisance: tau_rec(t) ≈ tau(t) - d·dtau/dt
-        return cols
+            values = (seg.coulomb[:, c.joint].copy() if c.effect == "coulomb_friction"
+                      else effect_column(c.effect, q, v, vd, c.joint))
+            out[self.num_base + k] = (c.joint, values)
+        return out
 
 
 # ---- stepwise selection ----------------------------------------------------------------------

@@ -87,7 +87,6 @@ from pe_drake.diagnosis.presliding import PRESLIDING, PreslidingStep, presliding
 from pe_drake.diagnosis.record import (Record, Segment, check_fits_in_memory, check_joints, check_record_signs,
                                       delayed_states, prepare_record, split_segments)
 from pe_drake.diagnosis.regression import (
-    Columns,
     Fit,
     Library,
     Regression,
@@ -150,6 +149,8 @@ def prepare(robot, data: Measurement, validation: Measurement | None, config: Di
         f"{held.t[0]:.2f}-{held.t[-1]:.2f} s" + (f" of {vrecord.source}" if vrecord else ""))
     model = RegressorModel(robot)
     base = compute_base_parameters(robot, model=model)
+    if base.rank_note:
+        say(f"note: {base.rank_note}")
     n = robot.n
     if training.num_samples * n < 3 * (base.count + 4 * n):
         raise DataError(
@@ -218,16 +219,6 @@ class CandidateLibrary:
     regression: Regression
 
 
-def _segment_columns(prep: Prepared, library: Library, seg: Segment) -> Columns:
-    """A segment's base regressor and candidate columns, written into one array (a long log's
-    base regressor is never held beside it)."""
-    b = prep.base.count
-    A = np.empty((seg.num_samples, seg.q.shape[1], b + library.extra_count))
-    prep.model.columns(seg.q, seg.v, seg.vd, prep.base.independent, out=A[:, :, :b])
-    library.extra_columns(seg, out=A[:, :, b:])
-    return Columns.from_matrix(A, seg.tau)
-
-
 def candidate_library(robot, prep: Prepared, config: DiagnosisConfig) -> CandidateLibrary:
     """The separable candidates' columns appended to the base regressor.
 
@@ -238,7 +229,8 @@ def candidate_library(robot, prep: Prepared, config: DiagnosisConfig) -> Candida
     sep = separability(robot, prep.base, candidates, model=prep.model)
     library = Library(prep.base.count, tuple(s.candidate for s in sep if s.separable))
     training, held = prep.training, prep.held
-    reg = Regression(*(_segment_columns(prep, library, seg) for seg in (training, held)), library.num_base)
+    reg = Regression(*(library.segment_columns(prep.model, prep.base.independent, seg) for seg in (training, held)),
+                     library.num_base)
     b = library.num_base
     cond = condition_number(reg.train.gram[:, :b, :b].sum(axis=0))
     if cond > MAX_COND:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pe_drake.excitation.fourier import FourierBasis
+from pe_drake.excitation.fourier import FourierBasis, FourierTrajectory
 from pe_drake.excitation.problem import ExcitationProblem, check_variables, rest_constraint_matrix
 
 
@@ -176,3 +176,74 @@ def joint_limit_violation(problem: ExcitationProblem, alpha: np.ndarray, basis: 
             np.max(np.abs(vd) - lim.vd_max),
         )
     )
+
+
+#: How far (a fraction of each limit's scale: half the position range, v_max, vd_max)
+#: :func:`keep_strictly_inside` keeps a path inside its limits in continuous time: more than
+#: the rounding of trajectory.csv's 9 significant digits, far less than anything cond notices.
+STRICT_BACKOFF = 1e-8
+#: Samples per cycle of the highest harmonic at which :func:`path_limit_bounds` samples.
+BOUND_SAMPLES_PER_CYCLE = 2048
+
+
+def path_limit_bounds(trajectory: FourierTrajectory) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Bounds of a periodic path over every instant, not only at samples.
+
+    Between samples h apart, a smooth periodic x(t) rises above its largest sample by at most
+    h²/8·max|x''| (its maximum has x' = 0 and a sample within h/2), and
+    max|x''| ≤ Σ_k (kω)^(m+2)·|(a_k, b_k)| for the m-th derivative of Eq. (50).
+
+    Returns:
+        (q_max, q_min, |v|_max, |vd|_max), each shape (n,): q_max ≥ q(t), q_min ≤ q(t),
+        |v(t)| ≤ |v|_max, |vd(t)| ≤ |vd|_max for every t [rad or m, /s, /s²].
+    """
+    N = max(trajectory.highest_harmonic, 1)
+    count = BOUND_SAMPLES_PER_CYCLE * N
+    h = trajectory.period / count
+    n = trajectory.num_joints
+    q_hi, q_lo, v_abs, vd_abs = np.full(n, -np.inf), np.full(n, np.inf), np.zeros(n), np.zeros(n)
+    chunk = max(1, 2_000_000 // max(trajectory.harmonics, 1))  # bases of chunk × N values at a time
+    for start in range(0, count, chunk):  # one period, uniform across the wrap
+        q, v, vd = trajectory.evaluate(np.arange(start, min(start + chunk, count)) * h)
+        q_hi, q_lo = np.maximum(q_hi, q.max(0)), np.minimum(q_lo, q.min(0))
+        v_abs, vd_abs = np.maximum(v_abs, np.abs(v).max(0)), np.maximum(vd_abs, np.abs(vd).max(0))
+    k_omega = np.arange(1, trajectory.harmonics + 1) * trajectory.omega
+    amplitude = np.hypot(trajectory.a, trajectory.b)  # (n, N)
+    slack = [h * h / 8 * (amplitude @ k_omega ** (m + 2)) for m in range(3)]
+    return q_hi + slack[0], q_lo - slack[0], v_abs + slack[1], vd_abs + slack[2]
+
+
+def keep_strictly_inside(problem: ExcitationProblem, alpha: np.ndarray, backoff: float = STRICT_BACKOFF) -> tuple[np.ndarray, float]:
+    """alpha with its motion about q0 scaled down, if needed, so that q, v and vd stay
+    ``backoff`` inside every joint limit at every instant (:func:`path_limit_bounds`).
+
+    The solver's tolerance and the 1 kHz re-check accept a path a hair (≤ 1e-6) outside a
+    limit; nothing outside a limit may be written, so such a path is pulled in by that hair.
+    q, v and vd are linear in the motion about q0, so one factor does it (the ramps are a
+    time scaling of the path: their postures and speeds follow).
+
+    Returns:
+        (alpha, the factor applied: 1.0 when the path already holds, or when q0 itself is
+        not inside and no factor helps).
+    """
+    alpha = np.asarray(alpha, float)
+    n = problem.n
+    lim, q0 = problem.robot.limits, alpha[-n:]
+    q_hi, q_lo, v_abs, vd_abs = path_limit_bounds(problem.trajectory(alpha))
+    half = 0.5 * (lim.q_upper - lim.q_lower)
+    top, bottom = lim.q_upper - backoff * half, lim.q_lower + backoff * half
+    if np.any(q0 >= top) or np.any(q0 <= bottom):
+        return alpha, 1.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratios = np.concatenate([
+            np.where(q_hi > top, (top - q0) / (q_hi - q0), np.inf),
+            np.where(q_lo < bottom, (q0 - bottom) / (q0 - q_lo), np.inf),
+            np.where(v_abs > lim.v_max * (1 - backoff), lim.v_max * (1 - backoff) / v_abs, np.inf),
+            np.where(vd_abs > lim.vd_max * (1 - backoff), lim.vd_max * (1 - backoff) / vd_abs, np.inf),
+        ])
+    scale = float(np.min(ratios))
+    if not scale < 1.0:
+        return alpha, 1.0
+    out = alpha * scale
+    out[-n:] = q0
+    return out, scale

@@ -37,16 +37,30 @@ from pe_drake.excitation.optimize_report import MotionReport, assumed_defaults, 
 from pe_drake.excitation.parallel import Executor, open_executor
 from pe_drake.excitation.problem import ExcitationProblem
 from pe_drake.excitation.quality import QualityReport, excitation_quality
-from pe_drake.excitation.ramp import RAMP_DURATIONS, RampedMotion, check_within_limits, choose_ramp_duration
-from pe_drake.excitation.trajectory_file import load_motion, load_trajectory, save_trajectory, write_motion_csv
+from pe_drake.excitation.ramp import (
+    RAMP_DURATIONS,
+    RampedMotion,
+    check_within_limits,
+    check_written_motion,
+    choose_ramp_duration,
+)
+from pe_drake.excitation.trajectory_file import (
+    environment_record,
+    load_motion,
+    load_trajectory,
+    save_trajectory,
+    write_motion_csv,
+)
 from pe_drake.io_utils import describe_write_error, staged_output_dir
-from pe_drake.multibody.capsule_fitting import FittedCapsules, fit_capsules
+from pe_drake.multibody.capsule_fitting import FittedCapsules, fit_capsules, with_file_margin
 from pe_drake.multibody.registry import robot_display_name
 from pe_drake.multibody.robot import Robot
 from pe_drake.output_paths import OPTIMIZE_OUTPUTS, check_output_dir
 from pe_drake.plots import plot_trajectory
 
 Say = Callable[[str], None]
+#: trajectory.csv's default rate [Hz] (``--csv-rate``): the written motion is checked at it.
+DEFAULT_CSV_RATE = 1000.0
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -97,7 +111,7 @@ class MotionPlan:
         """Why the motion must not go to hardware (a jerk limit, unchecked collisions), or None."""
         return self.report.not_valid_for_hardware
 
-    def write(self, folder: str | Path, *, csv_rate: float = 1000.0,
+    def write(self, folder: str | Path, *, csv_rate: float = DEFAULT_CSV_RATE,
               playback: Callable[[MotionPlan, Path], None] | None = None, progress: Say | None = None) -> list[str]:
         """Writes trajectory.json/.csv/.png, the controller goal, the fitted capsules and
         report.json (last) into ``folder``, all or nothing; earlier runs' files of these names
@@ -114,6 +128,8 @@ class MotionPlan:
         say = progress or (lambda _line: None)
         out = check_output_dir(folder)
         check_csv_size(self.config, csv_rate)
+        if self.success and self.motion is not None and csv_rate != DEFAULT_CSV_RATE:
+            check_written_motion(self.motion, self.robot.limits, self.robot.joint_names, csv_rate)  # as optimize did at 1 kHz
         try:
             return self._write(out, csv_rate, playback, say)
         except OSError as err:  # a full disk: the solve must not be lost to it
@@ -161,8 +177,11 @@ class MotionPlan:
 
     def _write_motion(self, tmp: Path, csv_rate: float) -> None:
         result, robot = self.result, self.robot
+        # The capsules and obstacles the run checked, so that `pe-drake view` draws them.
+        capsules = self.fitted.path.name if self.fitted is not None else (self.config.robot.capsules or None)
         save_trajectory(tmp / "trajectory.json", robot, result.trajectory, cond=result.cond,
-                        cond_motion=result.cond_motion, **self.motion.to_dict())
+                        cond_motion=result.cond_motion, **self.motion.to_dict(), capsules=capsules,
+                        environment=environment_record(self.config.environment))
         write_motion_csv(tmp / "trajectory.csv", robot.joint_names, self.motion, csv_rate)
         plot_trajectory(tmp / "trajectory.png", robot, result.trajectory, result.singular_values,
                         title=f"{robot.name}: cond {result.cond:.4g}",
@@ -247,6 +266,8 @@ def constraints_factory(config: Config):
 
 def _collision_geometry(config: Config, fit_dir: Path, say: Say) -> tuple[Config, FittedCapsules | None, list[str]]:
     """The config with fitted capsules when the robot has none, and what stays unchecked."""
+    margin_before = config.excitation.collision_margin
+    config = with_file_margin(config)  # a capsule file passed back keeps the margin it was fitted with
     try:
         config, fitted = fit_capsules(config, fit_dir)
     except ConfigError as err:
@@ -255,6 +276,9 @@ def _collision_geometry(config: Config, fit_dir: Path, say: Say) -> tuple[Config
         say(f"warning: {err}; the floor is NOT checked (environment.floor turned off)")
         config = dataclasses.replace(config, environment=dataclasses.replace(config.environment, floor=False))
         return config, None, [f"floor: no collision geometry to check it with ({err})"] + list(getattr(err, "unchecked", ()))
+    if fitted is None and config.excitation.collision_margin != margin_before:
+        say(f"self-collision margin {config.excitation.collision_margin:g} m: the capsule file's collision_margin "
+            f"({config.robot.capsules}; set excitation.collision_margin to change it)")
     if fitted is not None:
         say(f"no capsule file: fitted capsules: {fitted.summary()}; self-collision margin "
             f"{config.excitation.collision_margin:g} m"
@@ -266,7 +290,7 @@ def _robot(config: Config, name: str, say: Say) -> Robot:
     """The robot, built once, with its notes and a nominal posture that clears the floor."""
     robot = Robot(name, config.robot)
     say(f"robot {robot.name}: {robot.n} excited joints, {robot.num_bodies} moving bodies")
-    for note in assumed_defaults(config, robot.joint_names) + list(robot.notes):
+    for note in assumed_defaults(config, robot.joint_names, [j.kind for j in robot.joints]) + list(robot.notes):
         say(f"note: {note}")  # assumed limits; what the model needed for Drake (mimic, materials, mount)
     nominal = choose_nominal_posture(robot, config.excitation, config.environment)
     if nominal is not None:
@@ -302,6 +326,8 @@ def _plan(config, robot, executor, priors, fitted, fitted_text, unchecked, allow
     say(f"{problem.base.count} base parameters of the {e.measurement} rows; {problem.num_variables} variables "
         f"(N = {problem.harmonics}, ω = {problem.omega:.4g} rad/s, period {problem.period:.3g} s); "
         f"T = {e.cost_samples} cost samples, K = {e.constraint_samples} constraint samples")
+    if problem.base.rank_note:
+        say(f"note: {problem.base.rank_note}")
     constraints = tuple(executor.local.constraints(e))
     if constraints:
         say("constraints: joint limits, " + ", ".join(c.name for c in constraints))
@@ -311,20 +337,21 @@ def _plan(config, robot, executor, priors, fitted, fitted_text, unchecked, allow
         f"(this motion alone {result.cond_motion:.5g}), seed {ms.seed}, "
         f"{result.nit if result.nit is not None else '-'} iterations, {result.nfev} evaluations, {result.wall_time:.1f} s")
     say("minimum margins at 1 kHz: " + ", ".join(f"{k} {m:.4g}" for k, m in result.margins.items()))
-    motion = quality = goal = refusal = None
+    motion = quality = goal = refusal = ramp_margins = None
     if result.success:
-        motion = _ramped_motion(result, robot, constraints, config, say)
+        motion, ramp_margins = _ramped_motion(result, robot, constraints, config, say)
         quality = excitation_quality(problem, result.x, constraints, noise_std=e.noise_std.torque, periods=int(e.periods))
         for line in quality.summary_lines():
             say(line)
         goal, refusal = _controller_goal(motion, robot, config, say)
+        refusal = _outside_limits(motion, robot) or refusal
     if unchecked:
         say(f"NOT checked ({len(unchecked)}): " + "; ".join(unchecked[:5]) + (" ..." if len(unchecked) > 5 else ""))
         if refusal is None and not allow_unchecked:
             refusal = (f"{len(unchecked)} part(s) of the robot were not checked for collision (listed in "
                        "report.json 'unchecked'); give robot.capsules, or --allow-unchecked to write it anyway")
     report = MotionReport(
-        robot=robot.name, success=result.success, message=result.message, status=result.status, solver=result.solver,
+        robot=robot.name, success=result.success, converged=result.converged, message=result.message, status=result.status, solver=result.solver,
         criterion=e.criterion, measurement=e.measurement, cond=result.cond, cond_motion=result.cond_motion,
         criterion_value=result.fun, iterations=result.nit, evaluations=result.nfev, seed=ms.seed,
         solve_time_s=result.wall_time, multistart_time_s=ms.wall_time, total_time_s=time.perf_counter() - start,
@@ -332,7 +359,8 @@ def _plan(config, robot, executor, priors, fitted, fitted_text, unchecked, allow
         starts=start_records(ms), margins_1khz=result.margins, base_parameters=problem.base.count,
         base_parameter_names=list(problem.base.base_names), singular_values=result.singular_values.tolist(),
         prior=[str(p) for p in priors], config=dataclasses.asdict(config),
-        assumed_defaults=assumed_defaults(config, robot.joint_names), fitted_capsules=None,
+        assumed_defaults=assumed_defaults(config, robot.joint_names, [j.kind for j in robot.joints]), fitted_capsules=None,
+        limit_margins=limit_margins(config), ramp_margins_1khz=ramp_margins,
         motion=motion.to_dict() if motion is not None else None,
         quality=quality.to_dict() if quality is not None else None, unchecked=list(unchecked),
         not_valid_for_hardware=refusal,
@@ -361,13 +389,32 @@ def _ramped_motion(result, robot: Robot, constraints, config: Config, say: Say) 
     periods = config.excitation.periods
     if not config.excitation.ramp:
         say(f"ramps off (excitation.ramp: false): trajectory.csv is {periods} period(s) and does NOT start at rest")
-        return RampedMotion(result.trajectory, periods, 0.0)
+        return RampedMotion(result.trajectory, periods, 0.0), None
     motion, checks = choose_ramp_duration(result.trajectory, robot.limits, constraints, periods=periods)
     say(f"ramps from and to rest: {motion.ramp_duration:g} s each (join phase {motion.phase:.3g} s), "
         f"{periods} period(s); trajectory.csv spans {motion.duration:.4g} s, the periodic part "
         f"[{motion.periodic_start:.4g}, {motion.periodic_end:.4g}] s; ramp margins at 1 kHz: "
         + ", ".join(f"{k} {m:.4g}" for k, m in checks[-1].margins.items()))
-    return motion
+    return motion, dict(checks[-1].margins)
+
+
+def _outside_limits(motion: RampedMotion, robot: Robot, rate: float = DEFAULT_CSV_RATE) -> str | None:
+    """Why the motion written at ``rate`` leaves a joint limit (by any amount), or None: the
+    final check of what trajectory.csv holds, ramps and periods included."""
+    try:
+        check_written_motion(motion, robot.limits, robot.joint_names, rate)
+    except NotWithinLimitsError as err:
+        return f"the written motion leaves a joint limit: {err}"
+    return None
+
+
+def limit_margins(config: Config) -> dict:
+    """The margins the limits were used with (report.json ``limit_margins``), and which of
+    them pe_drake assumed for a model given without a config (``assumed``)."""
+    r = config.robot
+    return {"position_margin": r.position_margin, "position_margin_unit": "rad (m for prismatic joints)",
+            "velocity_scale": r.velocity_scale, "acceleration_scale": r.acceleration_scale,
+            "effort_scale": r.effort_scale, "assumed": list(r.assumed)}
 
 
 def _controller_goal(motion: RampedMotion, robot: Robot, config: Config, say: Say) -> tuple[str | None, str | None]:

@@ -7,19 +7,25 @@ import dataclasses
 from typing import Any
 
 from pe_drake.config import Config
+from pe_drake.multibody.joint_limits import joint_unit
 
 
 @dataclasses.dataclass(frozen=True)
 class MotionReport:
     """The fields of ``report.json``, in the file's order (see the README's "Outputs").
 
-    ``config`` is the resolved config the motion was solved with (fitted capsules and a
-    chosen nominal posture included); ``unchecked`` lists what could not be checked for
+    ``success``: a valid motion (every limit and constraint holds at 1 kHz); ``converged``:
+    the solver also reached a local optimum (a valid motion may come from a solver stopped at
+    its iteration limit). ``config`` is the resolved config the motion was solved with (fitted capsules and a
+    chosen nominal posture included); ``limit_margins`` the position margin and velocity,
+    acceleration and effort fractions the limits were used with (and which were assumed);
+    ``ramp_margins_1khz`` the smallest margins over the ramps; ``unchecked`` lists what could not be checked for
     collision; ``not_valid_for_hardware`` the reason the motion is refused (None: valid).
     """
 
     robot: str
     success: bool
+    converged: bool
     message: str
     status: Any
     solver: str
@@ -44,6 +50,8 @@ class MotionReport:
     config: dict[str, Any]
     assumed_defaults: list[str]
     fitted_capsules: str | None
+    limit_margins: dict[str, Any]
+    ramp_margins_1khz: dict[str, float] | None
     motion: dict[str, Any] | None
     quality: dict[str, Any] | None
     unchecked: list[str]
@@ -53,16 +61,22 @@ class MotionReport:
         return dataclasses.asdict(self)
 
 
-def assumed_defaults(config: Config, joint_names) -> list[str]:
-    """Limits pe_drake assumed because neither the model nor the config gives them."""
+def assumed_defaults(config: Config, joint_names, kinds=None) -> list[str]:
+    """Limits pe_drake assumed because neither the model nor the config gives them.
+
+    Args:
+        kinds: "revolute" or "prismatic" per joint (None: all revolute), for the units.
+    """
     r = config.robot
-    missing = [j for j in joint_names if j not in r.acceleration_limits]
-    if not missing:
+    kinds = list(kinds) if kinds is not None else ["revolute"] * len(joint_names)
+    missing = {kind: [j for j, k in zip(joint_names, kinds) if k == kind and j not in r.acceleration_limits]
+               for kind in ("revolute", "prismatic")}
+    parts = [f"{r.default_acceleration_limit:g} {joint_unit(kind, 2)} assumed for {', '.join(names)}"
+             for kind, names in missing.items() if names]
+    if not parts:
         return []
-    return [
-        f"acceleration limit {r.default_acceleration_limit:g} rad/s² assumed for {', '.join(missing)} "
-        "(robot.default_acceleration_limit; set robot.acceleration_limits from the robot's datasheet)"
-    ]
+    return [f"acceleration limit {'; '.join(parts)} "
+            "(robot.default_acceleration_limit; set robot.acceleration_limits from the robot's datasheet)"]
 
 
 def start_records(ms) -> list[dict[str, Any]]:

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 from collections.abc import Sequence
 
 import numpy as np
@@ -200,7 +201,8 @@ class QualityReport:
         order = np.argsort(-finite)[:worst]
         lines.append(
             "  largest base-parameter std (pe_drake's base parameters): "
-            + "; ".join(f"{self.base_names[k]} {self.std_percent[k]:.3g} %" for k in order if np.isfinite(finite[k]))
+            + "; ".join(f"{short_composition(self.base_names[k])} {self.std_percent[k]:.3g} %"
+                        for k in order if np.isfinite(finite[k]))
         )
         if self.random:
             best = min(m.prediction_rms_total for m in self.random)
@@ -213,6 +215,38 @@ class QualityReport:
 
 
 # ---- inputs ----------------------------------------------------------------------------------------
+#: A term of a printed base-parameter composition below this fraction of its largest
+#: coefficient is left out (a 1e-10 product of inertia from a rounded URDF angle).
+NEGLIGIBLE_COEFFICIENT = 1e-6
+#: Longest base-parameter composition printed in a summary line [characters].
+MAX_COMPOSITION_CHARS = 120
+
+
+def short_composition(name: str, max_chars: int = MAX_COMPOSITION_CHARS,
+                      negligible: float = NEGLIGIBLE_COEFFICIENT) -> str:
+    """A base parameter's composition ("hy.link1 - 0.0183 m.link2 + …") for a printed line:
+    terms below ``negligible`` of the largest coefficient dropped, then cut after
+    ``max_chars`` with "… (N more)". report.json keeps the full name."""
+    pieces = re.split(r" (?=[+-] )", name)  # "- 1.1e-10 x" splits; the exponent's "-" does not
+    coefficients = []
+    for piece in pieces:
+        m = re.match(r"([+-])?\s*(\d[\d.]*(?:e[+-]?\d+)?)\s+\S", piece)
+        coefficients.append(float(m.group(2)) if m else 1.0)
+    top = max(coefficients, default=1.0)
+    kept = [p for p, c in zip(pieces, coefficients) if c >= negligible * top]
+    dropped = len(pieces) - len(kept)
+    if kept and kept[0].startswith(("+ ", "- ")):
+        kept[0] = kept[0][2:] if kept[0][0] == "+" else "-" + kept[0][2:]
+    text, shown = "", 0
+    for piece in kept:
+        candidate = f"{text} {piece}" if text else piece
+        if len(candidate) > max_chars and shown:
+            break
+        text, shown = candidate, shown + 1
+    more = len(kept) - shown + dropped
+    return text + (f" … ({more} more)" if more else "")
+
+
 def _check_periods(periods: int) -> None:
     if isinstance(periods, bool) or not isinstance(periods, (int, np.integer)) or periods < 1:
         raise ConfigError(f"periods must be a positive integer, got {periods!r}")

@@ -33,6 +33,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import numpy as np
 
@@ -269,6 +270,79 @@ def check_within_limits(
             )
 
 
+#: Significant digits of the numbers in trajectory.csv (trajectory_file.write_motion_csv).
+CSV_DIGITS = 9
+#: Samples evaluated at a time by :func:`check_written_motion`.
+WRITTEN_CHUNK = 100_000
+#: Allowance of :func:`limit_excess`: the float rounding of a limit itself, relative to it.
+LIMIT_ROUNDING = 1e-12
+
+
+class LimitExcess(NamedTuple):
+    """The worst excess of a joint limit by written values (:func:`limit_excess`)."""
+
+    quantity: str  # "position", "velocity" or "acceleration"
+    joint: int
+    sample: int
+    value: float  # as written [rad or m, /s, /s²]
+    excess: float  # beyond the limit, > 0 [same unit]
+
+
+def limit_excess(q: np.ndarray, v: np.ndarray, vd: np.ndarray, limits, digits: int = CSV_DIGITS) -> LimitExcess | None:
+    """The worst value beyond a joint limit once written with ``digits`` significant digits,
+    or None: no excess beyond :data:`LIMIT_ROUNDING` of the limit (every other excess, 1e-8 rad
+    included, counts).
+
+    Rounding is monotone, so the written extreme of a column is its rounded extreme: only the
+    extremes are rounded.
+
+    Args:
+        q, v, vd: the samples written, shape (T, n).
+        limits: the robot's ``limits``.
+    """
+    worst = None
+    for name, x, lo, hi in (
+        ("position", q, limits.q_lower, limits.q_upper),
+        ("velocity", v, -limits.v_max, limits.v_max),
+        ("acceleration", vd, -limits.vd_max, limits.vd_max),
+    ):
+        x = np.asarray(x, float)
+        if x.size == 0:
+            continue
+        for which, bound, sign in ((np.argmax, hi, 1.0), (np.argmin, lo, -1.0)):
+            k = which(x, axis=0)
+            written = np.array([float(f"{x[k[j], j]:.{digits}g}") for j in range(x.shape[1])])
+            excess = sign * (written - bound) - LIMIT_ROUNDING * np.abs(bound)
+            j = int(np.argmax(excess))
+            if excess[j] > 0 and (worst is None or excess[j] > worst.excess):
+                worst = LimitExcess(name, j, int(k[j]), float(written[j]), float(sign * (written[j] - bound[j])))
+    return worst
+
+
+def check_written_motion(motion: RampedMotion, limits, joint_names: Sequence[str], rate: float) -> None:
+    """Refuses a motion whose trajectory.csv at ``rate`` [Hz] would hold a value outside a
+    joint limit (by any amount beyond the limit's float rounding: :func:`limit_excess`).
+
+    Raises:
+        NotWithinLimitsError: naming the joint, the quantity, the value, the excess and the time.
+    """
+    t = motion.sample_times(rate)
+    worst = None
+    for start in range(0, len(t), WRITTEN_CHUNK):  # in chunks: a 1000-period motion has 10⁷ rows
+        found = limit_excess(*motion.evaluate(t[start:start + WRITTEN_CHUNK]), limits)
+        if found is not None and (worst is None or found.excess > worst.excess):
+            worst = found._replace(sample=found.sample + start)
+    if worst is not None:
+        j = worst.joint
+        lo, hi = {"position": (limits.q_lower, limits.q_upper), "velocity": (-limits.v_max, limits.v_max),
+                  "acceleration": (-limits.vd_max, limits.vd_max)}[worst.quantity]
+        raise NotWithinLimitsError(
+            joint_names[j], worst.value, float(lo[j]), float(hi[j]),
+            f"{worst.quantity} (by {worst.excess:.3g} at t = {t[worst.sample]:.3f} s of the written motion at "
+            f"{rate:g} Hz)",
+        )
+
+
 def ramp_margins(motion: RampedMotion, limits, constraints: Sequence = (), rate: float = 1000.0) -> dict[str, float]:
     """Minimum margin of the joint limits and each sampled constraint over the two ramps.
 
@@ -285,6 +359,12 @@ def ramp_margins(motion: RampedMotion, limits, constraints: Sequence = (), rate:
     t = motion.sample_times(rate)
     in_ramp = (t <= motion.periodic_start) | (t >= motion.periodic_end)
     return state_margins(limits, constraints, *motion.evaluate(t[in_ramp]))
+
+
+def _ramp_within_limits(motion: RampedMotion, limits, rate: float) -> bool:
+    t = motion.sample_times(rate)
+    in_ramp = (t <= motion.periodic_start) | (t >= motion.periodic_end)
+    return limit_excess(*motion.evaluate(t[in_ramp]), limits) is None
 
 
 def phase_candidates(path: FourierTrajectory, limits, count: int = 3, window: float = 0.25, rate: float = 1000.0) -> list[float]:
@@ -338,7 +418,9 @@ def choose_ramp_duration(
             margins = ramp_margins(motion, limits, constraints, rate)
             worst = min(margins, key=margins.get)
             checks.append(RampCheck(float(Tr), phase, margins, worst))
-            if margins[worst] >= -tolerance:
+            # The sampled constraints (collision, balance, torque) within the solver's
+            # tolerance; the joint limits strictly, as written (nothing outside is valid).
+            if margins[worst] >= -tolerance and _ramp_within_limits(motion, limits, rate):
                 return motion, checks
     last = max(checks[-len(phases):], key=lambda c: c.margins[c.worst])
     raise InfeasibleError(

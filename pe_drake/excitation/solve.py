@@ -24,6 +24,7 @@ from pe_drake.exceptions import ConfigError, NoSolutionFound
 from pe_drake.excitation.constraints.base import SampledConstraint, state_margins
 from pe_drake.excitation.exchange import add_violated_samples
 from pe_drake.excitation.fourier import FourierBasis, FourierTrajectory
+from pe_drake.excitation.limits import keep_strictly_inside
 from pe_drake.excitation.problem import ExcitationProblem
 from pe_drake.excitation.program import ExcitationProgram, build_excitation_program
 from pe_drake.excitation.solver_logs import new_log_file
@@ -241,6 +242,11 @@ def _iterations_from_log(log_file: Path | None) -> int | None:
     return int(m.group(1)) if m else None
 
 
+#: The margins of :func:`check_margins` that are joint limits: a margin below 0 there is a
+#: violation whatever the tolerance.
+JOINT_LIMIT_KEYS = ("position", "velocity", "acceleration")
+
+
 class _Check(NamedTuple):
     """How the solution is re-checked between the samples."""
 
@@ -397,10 +403,11 @@ def _message(cfg: SolverConfig, result, violated: dict[str, float], fallback: st
     if violated:
         message = "solution violates between samples: " + ", ".join(f"{k} by {-m:.3g}" for k, m in violated.items())
     elif not result.is_success():
-        message = f"{cfg.name} did not converge: {status}"
-        if cfg.name == "ipopt":
-            message += f" ({result.get_solver_details().ConvertStatusToString()})"
-        message += fallback
+        # The point is valid (re-checked at 1 kHz): say that the solver stopped, not that
+        # something failed, so that "valid" and the status do not read as a contradiction.
+        where = "at its iteration limit" if status == "kIterationLimit" else "early"
+        detail = f": {result.get_solver_details().ConvertStatusToString()}" if cfg.name == "ipopt" else ""
+        message = f"{cfg.name} stopped {where} before converging ({status}{detail})" + fallback
     else:  # converged, yet its point may have failed the re-check and been replaced
         message = f"{cfg.name}: {status}" + fallback
     return message + stalled
@@ -461,8 +468,14 @@ def solve_excitation(
     solved = result.is_success()
     x = np.asarray(result.GetSolution(program.alpha), float)
     x, margins, fallback = _feasible_fallback(program, x, solved, check, x0)
+    x, scale = keep_strictly_inside(problem, x)
+    if scale < 1.0:
+        margins = check_margins(problem, x, program.constraints, rate=check.rate)
+        fallback += f"; motion scaled by 1 - {1 - scale:.2g} to keep strictly inside the joint limits"
     cost = problem.evaluate(x)
-    violated = {k: m for k, m in margins.items() if m < -tolerance}
+    # Nothing outside a joint limit is valid (issue 21): the solver's tolerance applies to
+    # the other constraints only.
+    violated = {k: m for k, m in margins.items() if m < (0.0 if k in JOINT_LIMIT_KEYS else -tolerance)}
     return ExcitationResult(
         x=x,
         trajectory=problem.trajectory(x),

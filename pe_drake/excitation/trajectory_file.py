@@ -7,6 +7,9 @@ trajectory.json keys: ``robot``, ``joints``, ``omega`` [rad/s], ``harmonics``, `
 Written by ``optimize`` since the safety defaults: ``periods``, ``ramp_duration``, ``phase``,
 ``motion_duration`` and ``layout`` (time spans of ramp-in, periodic part and ramp-out in
 trajectory.csv; pe_drake/excitation/ramp.py). A file without them is one period, no ramps.
+Written since the playback draws them: ``capsules`` (the capsule file the run checked, a
+bare name for the ``fitted_capsules.yaml`` beside it, or null) and ``environment`` (the
+config's ``environment`` section: ``floor``, ``floor_height``, ``boxes``).
 """
 
 from __future__ import annotations
@@ -18,9 +21,10 @@ from typing import Any
 import numpy as np
 
 from pe_drake import limits
+from pe_drake.config import BoxConfig, EnvironmentConfig
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.excitation.fourier import FourierTrajectory
-from pe_drake.excitation.ramp import RampedMotion, ramped_motion_from_dict
+from pe_drake.excitation.ramp import CSV_DIGITS, RampedMotion, ramped_motion_from_dict
 from pe_drake.io_utils import atomic_write_text, loads_json
 from pe_drake.output_set import check_output_set
 
@@ -128,7 +132,7 @@ def write_trajectory_csv(
     q, v, vd = trajectory.evaluate(t)
     header = ["t"] + [f"q.{j}" for j in joints] + [f"v.{j}" for j in joints] + [f"vdot.{j}" for j in joints]
     table = np.column_stack([t, q, v, vd])
-    lines = [",".join(header)] + [",".join(f"{x:.9g}" for x in row) for row in table]
+    lines = [",".join(header)] + [",".join(f"{x:.{CSV_DIGITS}g}" for x in row) for row in table]
     atomic_write_text(path, "\n".join(lines) + "\n")
 
 
@@ -141,7 +145,7 @@ def write_motion_csv(path: str | Path, joints: tuple[str, ...] | list[str], moti
     q, v, vd = motion.evaluate(t)
     header = ["t"] + [f"q.{j}" for j in joints] + [f"v.{j}" for j in joints] + [f"vdot.{j}" for j in joints]
     table = np.column_stack([t, q, v, vd])
-    lines = [",".join(header)] + [",".join(f"{x:.9g}" for x in row) for row in table]
+    lines = [",".join(header)] + [",".join(f"{x:.{CSV_DIGITS}g}" for x in row) for row in table]
     atomic_write_text(path, "\n".join(lines) + "\n")
 
 
@@ -157,3 +161,39 @@ def load_motion(path: str | Path) -> tuple[RampedMotion, dict[str, Any]]:
         return ramped_motion_from_dict(trajectory, data, source=str(path)), data
     except ConfigError as err:
         raise DataError(str(err).split(": ", 1)[-1], file=str(path)) from err
+
+
+def environment_record(environment: EnvironmentConfig) -> dict[str, Any]:
+    """The ``environment`` entry of trajectory.json: the obstacles the motion was optimized
+    against (what ``pe-drake view`` draws)."""
+    return {
+        "floor": bool(environment.floor),
+        "floor_height": None if environment.floor_height is None else float(environment.floor_height),
+        "boxes": [{"name": b.name, "center": [float(x) for x in b.center], "size": [float(x) for x in b.size]}
+                  for b in environment.boxes],
+    }
+
+
+def recorded_environment(data: dict[str, Any], default: EnvironmentConfig, source: str | Path) -> EnvironmentConfig:
+    """The environment a trajectory file records (:func:`environment_record`), or ``default``
+    for a file written before it was recorded.
+
+    Raises:
+        DataError: a malformed entry, naming the file and the key.
+    """
+    entry = data.get("environment")
+    if entry is None:
+        return default
+    try:
+        height = entry.get("floor_height")
+        boxes = [BoxConfig(center=[float(x) for x in b["center"]], size=[float(x) for x in b["size"]],
+                           name=str(b.get("name", ""))) for b in entry.get("boxes", [])]
+        numbers = [height] if height is not None else []
+        numbers += [x for b in boxes for x in b.center + b.size]
+        if not np.all(np.isfinite(np.asarray(numbers, float))):
+            raise ValueError("a floor_height, center or size that is not finite")
+        return EnvironmentConfig(floor=bool(entry.get("floor", True)),
+                                 floor_height=None if height is None else float(height), boxes=boxes)
+    except (AttributeError, KeyError, TypeError, ValueError) as err:
+        raise DataError(f"'environment' must be {{floor, floor_height, boxes: [{{center, size}}]}}: {err!r}",
+                        file=str(source)) from None

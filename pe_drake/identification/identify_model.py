@@ -132,6 +132,8 @@ class IdentifiedModel:
         lines += [f"note: {note}" for note in self.data.notes]
         lines.append(f"{result.method} from {result.measurement}: {result.base.count} base parameters, "
                      f"cond(W) = {result.cond:.4g}, {result.wall_time:.2f} s")
+        if result.base.rank_note:
+            lines.append(f"note: {result.base.rank_note}")
         worst = np.argsort(result.sigma_percent)[-min(5, len(result.sigma_percent)):][::-1]
         lines.append("least determined base parameters (%σ): "
                      + ", ".join(f"{_short_name(result.base, i)} {format_percent(result.sigma_percent[i])}" for i in worst))

@@ -6,6 +6,13 @@ them: Y_dep = Y_ind β with β = R1⁻¹ R2. Hence
 
     Y φ = Y_ind (φ_ind + β φ_dep) = Y_B φ_B,  Y_B = Y X (X selects the independent columns),
     φ_B = K φ with K = [I β] Pᵀ.
+
+The rank b is decided twice. |R_ii| ≤ ``rank_tolerance``·|R_00| of the equilibrated columns
+is rounding (an exact combination). Then the data's own scale: s_i = |R_ii|·‖y_i‖, what pivot
+i adds to the rows in the regressor's units (torque per unit parameter). Sorted, real
+directions form a continuum; a jump of more than :data:`RANK_GAP_RATIO` between neighbours
+is a gap, and the directions below it are dropped: the model hardly moves them (a vertical
+axis tilted by µrad because a URDF writes 1.5708 for π/2; BUILD_NOTES.md "Rank from a gap").
 """
 
 from __future__ import annotations
@@ -33,6 +40,12 @@ class BaseParameters:
         diag_R: |R_ii| of the pivoted QR (for diagnostics), shape (p,).
         measurement: the rows they were computed from: "joint_torque" (Eq. 1), or
             "base_wrench"/"both" (:class:`pe_drake.multibody.sensors.SensorRows`).
+        dropped: the standard parameters whose pivoted columns lay below the rank gap (they
+            are not base columns; K maps them onto the kept ones by least squares).
+        dropped_size: their s_i = |R_ii|·‖y_i‖ relative to the largest.
+        rank_gap: smallest kept s_i / largest dropped one; with nothing dropped, the largest
+            ratio between neighbouring sorted s_i (below ``gap_ratio``).
+        gap_ratio: the threshold used (None: no gap test).
     """
 
     independent: np.ndarray
@@ -42,6 +55,21 @@ class BaseParameters:
     rank_tolerance: float
     diag_R: np.ndarray
     measurement: str = "joint_torque"
+    dropped: tuple[str, ...] = ()
+    dropped_size: tuple[float, ...] = ()
+    rank_gap: float = 1.0
+    gap_ratio: float | None = None
+
+    @property
+    def rank_note(self) -> str | None:
+        """Which directions the rank gap dropped and why, or None when it dropped none."""
+        if not self.dropped:
+            return None
+        sizes = ", ".join(f"{x:.2g}" for x in self.dropped_size)
+        return (f"rank from a gap: {len(self.dropped)} direction(s) dropped from the {self.measurement} base "
+                f"parameters, carried by {', '.join(self.dropped)} ({sizes} of the largest); the smallest kept "
+                f"one is {self.rank_gap:.3g} times larger (gap threshold {self.gap_ratio:g}). Angles rounded in "
+                "a URDF (1.5708 for π/2) leave such a gap: an axis tilted by µrad")
 
     @property
     def count(self) -> int:
@@ -64,12 +92,23 @@ class BaseParameters:
         return self.K @ phi
 
 
+#: Two neighbouring sizes s_i = |R_ii|·‖y_i‖ of the sorted base directions further apart than
+#: this are a gap (BUILD_NOTES.md "Rank from a gap"). Shipped robots: at most 28 (G1's arms);
+#: SO-101 with rounded angles: 1.3e5.
+RANK_GAP_RATIO = 1e3
+
+#: Columns smaller than this fraction of the largest are equilibrated to it, not to 1: their
+#: pivots come after the real ones (shipped robots' smallest column: 2.9e-3, G1's arms).
+EQUILIBRATION_FLOOR = 1e-4
+
+
 def compute_base_parameters(
     robot,
     *,
     samples: int | None = None,
     seed: int = 0,
     rank_tolerance: float = 1e-8,
+    gap_ratio: float | None = RANK_GAP_RATIO,
     model: RegressorModel | None = None,
     rows: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray] | None = None,
     measurement: str = "joint_torque",
@@ -80,7 +119,10 @@ def compute_base_parameters(
         robot: a :class:`~pe_drake.multibody.robot.Robot`.
         samples: number of random states (default: enough for 4× as many rows as params).
         seed: random seed (the result does not depend on it for generic samples).
-        rank_tolerance: |R_ii| ≤ tol·|R_00| counts as zero.
+        rank_tolerance: |R_ii| ≤ tol·|R_00| (equilibrated columns) counts as zero.
+        gap_ratio: directions below a jump of more than this between neighbouring sizes
+            |R_ii|·‖y_i‖ are dropped (module docstring); None keeps every direction above
+            ``rank_tolerance``.
         model: an existing :class:`RegressorModel` to reuse.
         rows: the measured rows as a function of (q, v, vdot), shape (T, r, 10·nb); default
             the joint torques, ``model(q, v, vd)``. The ground wrench has its own base
@@ -88,7 +130,7 @@ def compute_base_parameters(
         measurement: the name of those rows, kept in the result.
 
     Returns:
-        The :class:`BaseParameters`.
+        The :class:`BaseParameters`; ``dropped`` and ``rank_note`` say what the gap dropped.
     """
     model = model or RegressorModel(robot)
     p = model.num_params
@@ -104,24 +146,55 @@ def compute_base_parameters(
     # scaling would turn their rounding noise into an "independent" column.
     norms = np.linalg.norm(W, axis=0)
     live = np.flatnonzero(norms > 1e-9 * norms.max())
-    scale = norms[live]
-    # Equilibrate columns so that the pivot order is not driven by units alone.
+    # Equilibrate columns so that the pivot order is not driven by units alone; but not the
+    # ones that are tiny for this data (an axis tilted by µrad makes a column of 1e-6):
+    # scaled up to 1 they would be as strong a pivot as any, and would be chosen first.
+    scale = np.maximum(norms[live], EQUILIBRATION_FLOOR * norms.max())
     R, perm_live = pivoted_qr_r(W[:, live] / scale)
     d = np.abs(np.diag(R))
-    b = int(np.sum(d > rank_tolerance * d[0]))
-    ind, dep_live = live[perm_live[:b]], live[perm_live[b:]]
-    # β from the unscaled columns: Y_dep = Y_ind β.
+    b = int(np.sum(d > rank_tolerance * d[0]))  # rounding: exact combinations
+    size = d[:b] * scale[perm_live[:b]]  # s_i: what pivot i adds, in the rows' own units
+    below, rank_gap = _rank_gap(size, gap_ratio)
+    keep = np.setdiff1d(np.arange(b), below)
+    dropped, by_size = live[perm_live[below]], np.argsort(-size[below])
+    order = np.concatenate([perm_live[keep], perm_live[below], perm_live[b:]])
+    if len(below) and not np.array_equal(order, perm_live):
+        # A dropped pivot came before a kept one: factor again with the kept columns first,
+        # so that the dropped ones are expressed by the kept ones (a truncated QR).
+        R = np.linalg.qr(W[:, live[order]] / scale[order], mode="r")
+    b, perm_live = len(keep), order
+    ind, dep = live[perm_live[:b]], live[perm_live[b:]]
+    # β from the unscaled columns: Y_dep = Y_ind β (least squares for the dropped ones).
     beta_scaled = scipy.linalg.solve_triangular(R[:b, :b], R[:b, b:])
     beta = beta_scaled * scale[perm_live[b:]][None, :] / scale[perm_live[:b]][:, None]
-    dep = dep_live
     beta[np.abs(beta) < 1e-10] = 0.0
-    order = np.argsort(ind)  # keep base parameters in body order
-    ind, beta = ind[order], beta[order]
+    if len(below):  # what moves the rows less than the dropped directions is not resolved either
+        beta[np.abs(beta) * norms[ind][:, None] <= size[below].max()] = 0.0
+    by_body = np.argsort(ind)  # keep base parameters in body order
+    ind, beta = ind[by_body], beta[by_body]
     K = np.zeros((b, p))
     K[np.arange(b), ind] = 1.0
     K[:, dep] = beta
     names = robot.parameter_names
-    return BaseParameters(ind, K, names, _compose_names(K, names), rank_tolerance, d, measurement)
+    return BaseParameters(
+        ind, K, names, _compose_names(K, names), rank_tolerance, d, measurement,
+        dropped=tuple(names[i] for i in dropped[by_size]),
+        dropped_size=tuple(float(x) for x in size[below][by_size] / size.max()),
+        rank_gap=rank_gap, gap_ratio=gap_ratio,
+    )
+
+
+def _rank_gap(size: np.ndarray, gap_ratio: float | None) -> tuple[np.ndarray, float]:
+    """Pivots below the largest jump between neighbouring sorted sizes, if it exceeds
+    ``gap_ratio`` (else none), and that jump."""
+    order = np.argsort(-size)
+    steps = size[order[:-1]] / size[order[1:]]
+    if not len(steps):
+        return np.zeros(0, dtype=int), 1.0
+    k = int(np.argmax(steps))
+    if gap_ratio is None or steps[k] <= gap_ratio:
+        return np.zeros(0, dtype=int), float(steps[k])
+    return np.sort(order[k + 1 :]), float(steps[k])
 
 
 #: Remaining column norms within this relative distance of the largest count as tied; ties go

@@ -30,7 +30,13 @@ import numpy as np
 
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.io_utils import atomic_write_text
-from pe_drake.multibody.capsules import capsule_pairs, capsule_pose, fit_capsule, segment_closest_points
+from pe_drake.multibody.capsules import (
+    capsule_pairs,
+    capsule_pose,
+    fit_capsule,
+    load_capsule_file,
+    segment_closest_points,
+)
 from pe_drake.multibody.link_geometry import Shape, primitive_points, primitive_segment, read_link_shapes
 from pe_drake.multibody.meshes import read_mesh_vertices, resolve_mesh_path
 from pe_drake.multibody.model_files import loadable_model_path
@@ -38,6 +44,8 @@ from pe_drake.multibody.robot import Robot
 
 #: Name of the fitted capsule file written to a command's output folder.
 FITTED_CAPSULES_NAME = "fitted_capsules.yaml"
+#: How a fitted capsule file starts.
+FITTED_HEADER = "# Capsules fitted automatically by pe_drake"
 #: Self-collision margin used with fitted capsules when the config sets none [m].
 FITTED_COLLISION_MARGIN = 0.01
 #: A link with at most this many primitive shapes (and no mesh) gets one capsule per shape.
@@ -175,7 +183,7 @@ def fit_capsule_file(
     model_path = Path(model_path)
     shapes = read_link_shapes(model_path)
     lines = [
-        f"# Capsules fitted automatically by pe_drake to the links of {model_path.name}: a primitive",
+        f"{FITTED_HEADER} to the links of {model_path.name}: a primitive",
         "# collision shape (cylinder, sphere, box, capsule) gives the capsule enclosing it; meshes give",
         "# one capsule per link along the principal axis of the collision (else visual) mesh vertices,",
         f"# radius covering {cover:.0%} of them (pe_drake.multibody.capsule_fitting).",
@@ -257,7 +265,28 @@ def fit_capsules(config, folder: str | Path) -> tuple:
         excitation=dataclasses.replace(config.excitation, collision_margin=margin if margin >= 0 else FITTED_COLLISION_MARGIN),
     )
     ignored = ignore_touching_pairs(config, fitted.path, config.excitation.collision_margin)
+    # The margin travels with the file: passed back as robot.capsules (as the README
+    # advises), it gives the same self-collision check as this run (issue 21).
+    with open(fitted.path, "a") as f:
+        f.write("# The self-collision margin these capsules were fitted for and their ignored pairs chosen with [m];\n"
+                "# used when the config sets no excitation.collision_margin.\n"
+                f"collision_margin: {config.excitation.collision_margin!r}\n")
     return config, dataclasses.replace(fitted, ignored_pairs=tuple(ignored))
+
+
+def with_file_margin(config):
+    """The config with the capsule file's ``collision_margin`` when the config sets none
+    (negative); a file fitted by an earlier pe_drake (its header, no margin) gets
+    :data:`FITTED_COLLISION_MARGIN`, the margin it was fitted with. ``config`` itself otherwise."""
+    if config.excitation.collision_margin >= 0 or not config.robot.capsules:
+        return config
+    path = Path(config.robot.capsules)
+    margin = load_capsule_file(path).collision_margin
+    if margin is None and path.read_text(errors="replace").startswith(FITTED_HEADER):
+        margin = FITTED_COLLISION_MARGIN
+    if margin is None:
+        return config
+    return dataclasses.replace(config, excitation=dataclasses.replace(config.excitation, collision_margin=float(margin)))
 
 
 def ignore_touching_pairs(config, path: Path, margin: float, samples: int = 200, share: float = 0.95) -> list:

@@ -61,10 +61,17 @@ class CapsuleSpec:
 
 @dataclasses.dataclass
 class CapsuleFile:
-    """A capsule file: the capsules and the pairs (capsule or link names) never checked."""
+    """A capsule file: the capsules and the pairs (capsule or link names) never checked.
+
+    Attributes:
+        collision_margin: the self-collision margin the file was made for [m] (a fitted file
+            records the margin its ``ignored_pairs`` were chosen with); used when the config
+            sets no ``excitation.collision_margin``. None: the config decides alone.
+    """
 
     capsules: list[CapsuleSpec] = dataclasses.field(default_factory=list)
     ignored_pairs: list[list[str]] = dataclasses.field(default_factory=list)
+    collision_margin: float | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -136,6 +143,10 @@ def load_capsule_file(path: str | Path) -> CapsuleFile:
             raise ConfigError(
                 f"capsule file '{path}': capsule name '{name}' is used {names.count(name)} times"
             )
+    margin = data.collision_margin
+    if margin is not None and (isinstance(margin, bool) or not isinstance(margin, (int, float))
+                               or not math.isfinite(margin) or margin < 0):
+        raise ConfigError(f"capsule file '{path}': collision_margin must be a finite number >= 0 [m], got {margin!r}")
     for pair in data.ignored_pairs:
         if len(pair) != 2 or pair[0] == pair[1]:
             raise ConfigError(

@@ -7,6 +7,15 @@ import numpy as np
 
 from pe_drake.exceptions import ConfigError
 
+#: Units of a joint's position and its first three time derivatives, by joint kind.
+JOINT_UNITS = {"revolute": ("rad", "rad/s", "rad/s²", "rad/s³"), "prismatic": ("m", "m/s", "m/s²", "m/s³")}
+
+
+def joint_unit(kind: str, derivative: int = 0) -> str:
+    """The unit of a joint's position (``derivative`` 0), velocity (1), acceleration (2) or
+    jerk (3): rad… for a revolute joint, m… for a prismatic one."""
+    return JOINT_UNITS.get(kind, JOINT_UNITS["revolute"])[derivative]
+
 
 def merge_limits(name: str, model_range, model_velocity: float, cfg, model_file: str = "the model"):
     """A joint's position range and velocity limit from the model file and the config.
@@ -43,3 +52,42 @@ def merge_limits(name: str, model_range, model_velocity: float, cfg, model_file:
     elif v == 0:
         v = np.inf  # a placeholder: refused below as "no velocity limit" unless the config gives one
     return lo, hi, v
+
+
+def position_margins(cfg, joint_names, kinds, lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, list[str]]:
+    """The margin kept from each joint's position limits, and the note on assumed defaults.
+
+    ``robot.position_margin`` applies to every joint. When pe_drake assumed it
+    (``"position_margin" in robot.assumed``: a model given without a config), a joint whose
+    range is narrower than four margins (a 4 cm gripper finger) keeps a quarter of its range
+    instead, so that the default never empties a range the user did not ask to shrink.
+
+    Args:
+        cfg: the :class:`~pe_drake.config.RobotConfig`.
+        joint_names, kinds: per excited joint, "revolute" or "prismatic".
+        lower, upper: the merged limits, shape (n,) [rad or m].
+
+    Returns:
+        (margins, shape (n,) [rad or m]; one note line naming the assumed defaults, or none).
+    """
+    margin = np.full(len(lower), float(cfg.position_margin))
+    width = np.asarray(upper, float) - np.asarray(lower, float)
+    assumed = set(cfg.assumed)
+    narrow = []
+    if "position_margin" in assumed:
+        cut = np.isfinite(width) & (width < 4 * margin)
+        margin[cut] = 0.25 * np.maximum(width[cut], 0.0)
+        narrow = [name for name, c in zip(joint_names, cut) if c]
+    parts = []
+    if "position_margin" in assumed:
+        unit = "rad (m on prismatic joints)" if "prismatic" in kinds else "rad"
+        text = f"position margin {cfg.position_margin:g} {unit} from each limit"
+        if narrow:
+            text += f" (a quarter of the range on {', '.join(narrow)}: narrower than 4 margins)"
+        parts.append(text)
+    if "velocity_scale" in assumed:
+        parts.append(f"{cfg.velocity_scale:.0%} of the velocity limits".replace("%", " %"))
+    if not parts:
+        return margin, []
+    names = " and ".join(f"robot.{k}" for k in cfg.assumed)
+    return margin, [f"defaults for a robot without a config: {', '.join(parts)} (set {names} in a config to change them)"]

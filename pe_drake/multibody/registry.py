@@ -13,10 +13,11 @@ import re
 from importlib.resources import files
 from pathlib import Path
 
-from pe_drake.config import Config, RobotConfig, load_config, validate_config
+from pe_drake.config import SAFE_DEFAULTS, Config, RobotConfig, load_config, validate_config
 from pe_drake.exceptions import ConfigError, UnknownNameError
 from pe_drake.multibody.example_robot_data import example_robot_data_dir
 from pe_drake.multibody.standing_defaults import standing_defaults
+from pe_drake.yaml_check import key_line
 
 #: Package holding the built-in robot configs (``<name>.yaml``).
 MODELS_PACKAGE = "pe_drake.models"
@@ -83,7 +84,9 @@ def resolve_robot_config(robot: str, config_file: str | Path | None = None) -> C
             raise UnknownNameError("robot", robot, builtin_robots() + ("<path to .urdf/.sdf/.urdf.xacro>",))
         if not path.is_file():
             raise ConfigError(f"robot model file '{robot}' does not exist")
-        base = Config(robot=RobotConfig(model=str(path.resolve())))
+        # The shipped robots' margins (SAFE_DEFAULTS), not RobotConfig's 0 and 100 %: an xArm7
+        # optimum otherwise runs at its full 3.14 rad/s on every joint, touching its limits.
+        base = Config(robot=RobotConfig(model=str(path.resolve()), **SAFE_DEFAULTS, assumed=list(SAFE_DEFAULTS)))
         standing = standing_defaults(path)  # a humanoid: arms excited, standing on its feet
         if standing is not None:
             base = dataclasses.replace(
@@ -92,7 +95,10 @@ def resolve_robot_config(robot: str, config_file: str | Path | None = None) -> C
                 excitation=dataclasses.replace(base.excitation, **standing["excitation"]),
             )
     if config_file is not None:
-        return load_config(config_file, base=base)
+        config = load_config(config_file, base=base)
+        # What the user's file sets is theirs, not assumed (a file may set the same value).
+        config.robot.assumed = [k for k in config.robot.assumed if key_line(config_file, f"robot.{k}") is None]
+        return config
     return validate_config(base)
 
 

@@ -25,7 +25,7 @@ from pe_drake.exceptions import (
 )
 from pe_drake.multibody.capsules import register_capsules
 from pe_drake.multibody.inertia import PARAMETER_NAMES, spatial_inertia_to_phi
-from pe_drake.multibody.joint_limits import merge_limits
+from pe_drake.multibody.joint_limits import joint_unit, merge_limits, position_margins
 from pe_drake.multibody.model_files import (
     check_world_joints,
     drake_model_text,
@@ -290,8 +290,10 @@ class Robot:
             lo[k], hi[k], v[k] = merge_limits(name, (lo[k], hi[k]), v[k], cfg, self.model_path.name)
             vd[k] = cfg.acceleration_limits.get(name, vd[k])
             effort[k] = min(effort[k], cfg.effort_limits.get(name, np.inf))
-        lo = lo + cfg.position_margin
-        hi = hi - cfg.position_margin
+        margin, notes = position_margins(cfg, self.joint_names, [j.kind for j in self.joints], lo, hi)
+        self.notes += notes
+        lo = lo + margin
+        hi = hi - margin
         for k, name in enumerate(self.joint_names):
             if not np.isfinite(lo[k]) or not np.isfinite(hi[k]):
                 raise ConfigError(
@@ -306,12 +308,12 @@ class Robot:
             if lo[k] >= hi[k]:
                 fix = (
                     "reduce robot.position_margin"
-                    if cfg.position_margin > 0
+                    if margin[k] > 0
                     else f"give a real range in robot.position_limits['{name}']"
                 )
                 raise InfeasibleError(
                     f"joint '{name}': position range [{lo[k]:.4g}, {hi[k]:.4g}] is empty after a "
-                    f"margin of {cfg.position_margin} rad; {fix}"
+                    f"margin of {margin[k]:g} {joint_unit(self.joints[k].kind)}; {fix}"
                 )
         return Limits(lo, hi, v * cfg.velocity_scale, vd * cfg.acceleration_scale, effort * cfg.effort_scale)
 

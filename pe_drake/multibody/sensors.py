@@ -22,7 +22,7 @@ import numpy as np
 
 from pe_drake.config import MEASUREMENTS, ExcitationConfig, noise_vector
 from pe_drake.exceptions import ConfigError
-from pe_drake.multibody.base_parameters import BaseParameters, compute_base_parameters
+from pe_drake.multibody.base_parameters import RANK_GAP_RATIO, BaseParameters, compute_base_parameters
 from pe_drake.multibody.regressor import Kinematics, RegressorModel
 from pe_drake.multibody.wrench import WRENCH_COLUMNS
 
@@ -151,7 +151,9 @@ class SensorRows:
         Z_wrench = Z[:, n:] if self.measurement.wrench else None
         return self.model.pullback(kin, Z_tau, Z_wrench)
 
-    def base_parameters(self, *, seed: int = 0, rank_tolerance: float | None = None) -> BaseParameters:
+    def base_parameters(
+        self, *, seed: int = 0, rank_tolerance: float | None = None, gap_ratio: float | None = RANK_GAP_RATIO
+    ) -> BaseParameters:
         """The base parameters of these rows (their own pivoted QR, Eq. 2).
 
         The ground wrench identifies more than the joint torques (on G1's arms 96 instead of
@@ -161,6 +163,7 @@ class SensorRows:
             seed: seed of the random states.
             rank_tolerance: relative tolerance on R's diagonal (default 1e-8 for joint
                 torques, :data:`WRENCH_RANK_TOLERANCE` with the wrench).
+            gap_ratio: the rank gap of :func:`compute_base_parameters` (None: none).
         """
         if rank_tolerance is None:
             rank_tolerance = WRENCH_RANK_TOLERANCE if self.measurement.wrench else 1e-8
@@ -171,6 +174,7 @@ class SensorRows:
             samples=samples,
             seed=seed,
             rank_tolerance=rank_tolerance,
+            gap_ratio=gap_ratio,
             model=self.model,
             rows=self,
             measurement=self.measurement.kind,

@@ -386,17 +386,28 @@ def environment_from_config(robot, excitation, environment) -> EnvironmentConstr
     Raises:
         ConfigError: a floor or boxes are asked for but the robot has no capsules.
     """
-    fixed_base = not getattr(robot.config, "support_points", None)
-    floor = None
-    X_WB = robot.base_pose.GetAsMatrix4()
-    normal, p_WBo = X_WB[:3, 2], X_WB[:3, 3]
-    if environment.floor and fixed_base:
-        offset = 0.0 if environment.floor_height is None else float(environment.floor_height) - p_WBo[2]
-        floor = float(normal @ p_WBo) + offset
-        if environment.floor_height is None:
-            floor = min(floor, standing_plane(robot, normal, floor))
+    plane = floor_plane(robot, environment)
+    normal, floor = plane if plane is not None else (robot.base_pose.GetAsMatrix4()[:3, 2], None)
     boxes = [Box.from_spec(b, k) for k, b in enumerate(environment.boxes)]
     if floor is None and not boxes:
         return None
     margin = max(float(excitation.collision_margin), 0.0)
     return EnvironmentConstraint(robot, margin, floor, boxes, floor_normal=normal)
+
+
+def floor_plane(robot, environment) -> tuple[np.ndarray, float] | None:
+    """The floor plane n·p = h of :func:`environment_from_config` (what the optimizer checks
+    and the playback draws), or None: no floor, or a robot on its own feet.
+
+    Returns:
+        (unit normal n, shape (3,); offset h [m]) in world, or None.
+    """
+    if not environment.floor or getattr(robot.config, "support_points", None):
+        return None
+    X_WB = robot.base_pose.GetAsMatrix4()
+    normal, p_WBo = X_WB[:3, 2], X_WB[:3, 3]
+    offset = 0.0 if environment.floor_height is None else float(environment.floor_height) - p_WBo[2]
+    floor = float(normal @ p_WBo) + offset
+    if environment.floor_height is None:
+        floor = min(floor, standing_plane(robot, normal, floor))
+    return normal, floor

@@ -1,0 +1,156 @@
+"""What the Meshcat playback draws around the robot: the environment and the camera.
+
+:func:`draw_environment` draws the obstacles a config's ``environment`` section names, the
+ones the optimizer kept the capsules away from: the floor of a fixed-base arm (the mounting
+plane of :func:`~pe_drake.excitation.constraints.environment.floor_plane`, a translucent
+square under the robot, Meshcat path ``/drake/environment/floor``) and each box
+(``/drake/environment/boxes/<name>``). :func:`motion_extent` is the box the robot sweeps
+over a motion (link origins and capsules), and :func:`frame_camera` points Meshcat's camera
+at it from a distance that fits it in the view, so a 0.4 m arm fills the frame as a 1.5 m
+humanoid does (Meshcat's default camera is fixed, a few metres out).
+
+Imported lazily by the CLI with :mod:`pe_drake.viewer`, so ``import pe_drake`` stays headless.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+
+import numpy as np
+
+from pe_drake.excitation.constraints.environment import Box, floor_plane
+
+#: Meshcat path (under ``/drake``) of the environment layer.
+ENVIRONMENT_PATH = "environment"
+
+_FLOOR_RGBA = (0.35, 0.35, 0.4, 0.15)
+_BOX_RGBA = (0.2, 0.45, 0.9, 0.35)
+_FLOOR_THICKNESS = 2e-3  # [m]; its top face 1 mm under the plane, so it does not flicker with the grid
+_MIN_FLOOR_SIDE = 1.0  # [m]
+_FOV_DEG = 75.0  # vertical field of view of Meshcat's default perspective camera (meshcat's viewer)
+#: Direction from the target to the camera: in front, to the right and above (about 30°).
+_VIEW_DIRECTION = np.array([1.0, 0.7, 0.85]) / np.linalg.norm([1.0, 0.7, 0.85])
+_MIN_RADIUS = 0.05  # [m]: the smallest half-size framed (a point-sized extent)
+
+
+def draw_environment(meshcat, robot, environment, extent: tuple[np.ndarray, np.ndarray]) -> dict[str, str]:
+    """Draws the config's floor (for a fixed-base arm) and boxes, translucent.
+
+    Args:
+        meshcat: the ``pydrake.geometry.Meshcat``.
+        robot: the :class:`~pe_drake.multibody.robot.Robot` (its base pose places the floor).
+        environment: an :class:`~pe_drake.config.EnvironmentConfig`.
+        extent: (lower, upper) corners of what the robot sweeps, each shape (3,) [m]: the
+            floor square is centred under it and spans it.
+
+    Returns:
+        {object name: Meshcat path} of what was drawn ("floor", "box:<name>").
+
+    Raises:
+        ConfigError: a malformed box (named by its index).
+    """
+    from pydrake.geometry import Box as BoxShape  # lazy: pydrake is heavy
+    from pydrake.geometry import Rgba
+    from pydrake.math import RigidTransform, RotationMatrix
+
+    meshcat.Delete(ENVIRONMENT_PATH)
+    drawn: dict[str, str] = {}
+    plane = floor_plane(robot, environment)
+    lo, hi = (np.asarray(v, float) for v in extent)
+    if plane is not None:
+        normal, height = plane
+        center = (lo + hi) / 2
+        center = center - (center @ normal - height) * normal  # its projection on the plane
+        side = max(_MIN_FLOOR_SIDE, 2.0 * float(np.max(hi - lo)))
+        path = f"{ENVIRONMENT_PATH}/floor"
+        meshcat.SetObject(path, BoxShape(side, side, _FLOOR_THICKNESS), Rgba(*_FLOOR_RGBA))
+        R_WF = RotationMatrix.MakeFromOneVector(normal, 2)  # the square's z axis is the floor normal
+        meshcat.SetTransform(path, RigidTransform(R_WF, center - (_FLOOR_THICKNESS / 2 + 1e-3) * normal))
+        drawn["floor"] = f"/drake/{path}"
+    for k, spec in enumerate(environment.boxes):
+        box = Box.from_spec(spec, k)
+        path = f"{ENVIRONMENT_PATH}/boxes/{_path_name(box.name, k)}"
+        meshcat.SetObject(path, BoxShape(*box.size), Rgba(*_BOX_RGBA))
+        meshcat.SetTransform(path, RigidTransform(box.center))
+        drawn[f"box:{box.name}"] = f"/drake/{path}"
+    return drawn
+
+
+def motion_extent(robot, q: np.ndarray, max_samples: int = 200) -> tuple[np.ndarray, np.ndarray]:
+    """The axis-aligned box the robot sweeps over the postures q: every body origin and every
+    capsule (its segment ends, grown by its radius), at up to ``max_samples`` of the frames.
+
+    Args:
+        robot: the :class:`~pe_drake.multibody.robot.Robot`.
+        q: postures, shape (T, n) [rad].
+        max_samples: frames used, evenly spread (the ends included).
+
+    Returns:
+        (lower corner, upper corner) in world, each shape (3,) [m].
+    """
+    plant = robot.plant
+    context = plant.CreateDefaultContext()
+    from pydrake.multibody.tree import BodyIndex  # lazy: pydrake is heavy
+
+    bodies = [plant.get_body(BodyIndex(i)) for i in range(1, plant.num_bodies())]  # 0 is the world
+    capsules = list(getattr(robot, "capsules", ()) or ())
+    rows = np.unique(np.linspace(0, len(q) - 1, min(len(q), max_samples)).round().astype(int))
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    for k in rows:
+        plant.SetPositions(context, q[k])
+        X_WB = {int(b.index()): plant.EvalBodyPoseInWorld(context, b).GetAsMatrix4() for b in bodies}
+        points = [X[:3, 3] for X in X_WB.values()]
+        for c in capsules:
+            X = X_WB.get(int(c.body_index))
+            if X is None:
+                continue
+            ends = (X[:3, :3] @ np.asarray(c.p_BS, float).T).T + X[:3, 3]
+            points += [ends - c.radius, ends + c.radius]
+        p = np.vstack(points)
+        lo, hi = np.minimum(lo, p.min(axis=0)), np.maximum(hi, p.max(axis=0))
+    return lo, hi
+
+
+def camera_pose(extent: tuple[np.ndarray, np.ndarray], fill: float = 0.9) -> tuple[np.ndarray, np.ndarray]:
+    """(camera position, target) in world that fit the box ``extent`` in Meshcat's view.
+
+    The target is the box's centre; the camera looks at it along a fixed direction (front,
+    right, above) from the nearest distance at which every corner c of the box lies within
+    ``fill`` of the half field of view, vertically and horizontally (a browser window is
+    wider than tall, so the vertical angle binds): with c relative to the target, split
+    into its component a along the view direction and its offsets u, v across it, the
+    corner is seen at angle atan(max(|u|, |v|) / (d − a)), so d = max over the corners of
+    a + max(|u|, |v|) / (fill · tan(fov/2)).
+
+    Args:
+        extent: (lower, upper) corners, each shape (3,) [m].
+        fill: share of the half field of view the box may span, in (0, 1].
+
+    Returns:
+        (p_WC camera position, p_WT target), each shape (3,) [m].
+    """
+    lo, hi = (np.asarray(v, float) for v in extent)
+    target = (lo + hi) / 2
+    half = np.maximum((hi - lo) / 2, _MIN_RADIUS)
+    corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) * half
+    back = _VIEW_DIRECTION  # from the target to the camera
+    right = np.cross([0.0, 0.0, 1.0], back)
+    right /= np.linalg.norm(right)
+    up = np.cross(back, right)
+    across = np.maximum(np.abs(corners @ right), np.abs(corners @ up))
+    distance = float(np.max(corners @ back + across / (fill * math.tan(math.radians(_FOV_DEG) / 2))))
+    return target + distance * back, target
+
+
+def frame_camera(meshcat, extent: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Points Meshcat's camera at ``extent`` (:func:`camera_pose`); returns (position, target)."""
+    camera, target = camera_pose(extent)
+    meshcat.SetCameraPose(camera, target)
+    return camera, target
+
+
+def _path_name(name: str, index: int) -> str:
+    """A Meshcat path element from a box name ('/' separates path elements)."""
+    clean = re.sub(r"[^A-Za-z0-9_.\-]+", "_", name).strip("_")
+    return clean or f"box{index}"
