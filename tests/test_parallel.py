@@ -110,11 +110,12 @@ def faulty_constraints(robot, config, marker="", fault="", parent=0):
     return []
 
 
-def _kill_when_written(folder: Path, count: int = 1) -> threading.Thread:
-    """Kills (SIGKILL) the worker that writes a pid file into ``folder``, once it is there."""
+def _kill_when_written(folder: Path, count: int = 1, after=lambda: True) -> threading.Thread:
+    """Kills (SIGKILL) the worker that writes a pid file into ``folder``, once it is there and
+    ``after()`` is true."""
     def kill() -> None:
         deadline = time.monotonic() + 60
-        while len(list(folder.glob("*.pid"))) < count and time.monotonic() < deadline:
+        while (len(list(folder.glob("*.pid"))) < count or not after()) and time.monotonic() < deadline:
             time.sleep(0.05)
         for path in folder.glob("*.pid"):
             while not path.read_text():  # created, not written yet
@@ -307,27 +308,55 @@ def test_a_hung_worker_fails_its_task_alone_and_is_stopped(panda, executor, requ
 @pytest.mark.parametrize("executor", ["local", "ray"])
 def test_a_killed_worker_loses_only_its_task(panda, executor, request, tmp_path):
     """SIGKILL of the worker running task 1: the finished tasks are kept, task 1 is reported
-    lost with the signal, task 2 (running elsewhere) and 3 still finish."""
+    lost with the signal, task 2 (running beside it, on the worker the broken pool stops with
+    SIGTERM) is run again, and 3 finishes."""
     if executor == "ray":
         request.getfixturevalue("ray_session")
-    with open_executor(panda, executor, 2) as ex:
+    _check_killed_worker_run(panda, executor, tmp_path)
+
+
+def test_a_killed_worker_is_told_apart_when_exit_statuses_come_late(panda, monkeypatch, tmp_path):
+    """The local pool's worker exit statuses, read 0.2 s after they are there: the broken pool's
+    manager thread and PoolRun then both read the status of the SIGTERMed neighbour, and
+    CPython's forkserver Popen.poll gives the loser 255. Before PoolRun waited for the manager
+    thread, either status could read 255: the killed task was reported with "exit code 255"
+    and the neighbour looked dead by its own hand, its task lost (the test above, 1 run in 4 on
+    a loaded machine; this one failed 3 runs of 3 on that code)."""
+    from multiprocessing import forkserver, popen_forkserver
+    from multiprocessing.connection import wait
+
+    def late_poll(self, flag=os.WNOHANG):  # popen_forkserver.Popen.poll with a pause
+        if self.returncode is None:
+            if not wait([self.sentinel], 0 if flag == os.WNOHANG else None):
+                return None
+            time.sleep(0.2)
+            try:
+                self.returncode = forkserver.read_signed(self.sentinel)
+            except (OSError, EOFError):
+                self.returncode = 255
+        return self.returncode
+
+    monkeypatch.setattr(popen_forkserver.Popen, "poll", late_poll)
+    _check_killed_worker_run(panda, "local", tmp_path)
+
+
+def _check_killed_worker_run(panda, executor: str, tmp_path: Path) -> None:
+    with open_executor(panda, executor, 2, start_method="forkserver" if executor == "local" else None) as ex:
         ex.map(_faults, [0, 1])
-        killer = _kill_when_written(tmp_path)
         seen = []
+        # killed once task 2 runs on the other worker (its first tick is in): the pool breaks under it
+        killer = _kill_when_written(tmp_path, after=lambda: ("tick", 0) in seen)
         done = ex.map(_faults, [0, f"pid:{tmp_path}", "tick", 3], seen.append, LABELS, keep_lost=True)
         killer.join()
-    kinds = [type(d) for d in done]
-    # task 2 ran beside the killed one: re-run on the new pool, or (when the dead pid could not be
-    # told apart in time) reported lost too; the killed task is lost and the others finish
-    assert kinds[:2] == [TaskFinished, TaskLost] and kinds[3] is TaskFinished and kinds[2] in (TaskFinished, TaskLost)
-    assert [done[k].value for k in (0, 3)] == [0, 3] and (kinds[2] is TaskLost or done[2].value == "ticked")
+    # task 2 ran beside the killed one: the pool broke under it too, so it is run again, not lost
+    assert [type(d) for d in done] == [TaskFinished, TaskLost, TaskFinished, TaskFinished], [
+        getattr(d, "reason", "") for d in done]
+    assert [done[k].value for k in (0, 2, 3)] == [0, "ticked", 3]
     assert "start 1 (seed 8)" in done[1].reason and "died" in done[1].reason
     if executor == "local":
         pid = int(next(tmp_path.glob("*.pid")).read_text())
         assert done[1].reason.startswith(f"worker pid {pid} died (killed by SIGKILL)"), done[1].reason
-        # the pool broke under task 2 too: it was handed out again, not lost
-        if kinds[2] is TaskFinished:
-            assert [e.index for e in seen if isinstance(e, TaskStarted)].count(2) == 2
+        assert [e.index for e in seen if isinstance(e, TaskStarted)].count(2) == 2
     assert not multiprocessing.active_children()
 
 

@@ -122,7 +122,9 @@ def _add_trajectory_commands(sub) -> None:
     p = sub.add_parser("simulate", help="simulate a measured run on a perturbed 'true' robot")
     add_robot_arguments(p)
     p.add_argument("--trajectory", required=True, help="trajectory.json to track")
-    p.add_argument("--truth", required=True, help="TRUTH.yaml: perturbation, effects, noise")
+    p.add_argument("--truth", help="TRUTH.yaml: perturbation, effects, noise (on top of --model's; needed without it)")
+    p.add_argument("--model", help="identified.json or augmented_model.json: simulate that model (its parameters, "
+                   "friction, armature, offsets) instead of the URDF's")
     p.add_argument("--out", required=True, help="output CSV")
     p.add_argument("--duration", type=float,
                    help="simulated time [s] (default: the whole motion of trajectory.csv, ramps included)")
@@ -158,7 +160,7 @@ def _add_identification_commands(sub) -> None:
 
     p = sub.add_parser("validate", help="predict torques of another run with an identified model")
     add_robot_arguments(p)
-    p.add_argument("--model", required=True, help="identified.json")
+    p.add_argument("--model", required=True, help="identified.json or diagnose's augmented_model.json")
     p.add_argument("--data", required=True, help="measurement CSV (or bag, RTDE log) of another run")
     add_log_arguments(p)
     p.add_argument("--cutoff", type=float, help="low-pass cut-off [Hz] (default: from the data)")

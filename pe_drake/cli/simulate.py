@@ -12,8 +12,8 @@ def simulate_command(args) -> int:
     out = check_output_file(args.out, "--out", (".csv",))  # before any work
     config = config_from_args(args)
     robot = robot_from_args(args, config)
-    run = simulate_run(robot, args.trajectory, args.truth, duration=getattr(args, "duration", None),
-                       measurement=measurement_from_args(args, config))
+    run = simulate_run(robot, args.trajectory, getattr(args, "truth", None), duration=getattr(args, "duration", None),
+                       measurement=measurement_from_args(args, config), model=getattr(args, "model", None))
     truth_file, recorded = run.write(out)
     for line in run.summary_lines():
         print(line)

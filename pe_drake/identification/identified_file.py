@@ -131,7 +131,8 @@ def load_identified(path: str | Path, robot) -> IdentificationResult:
         )
     except (KeyError, TypeError, ValueError) as err:
         raise DataError(
-            f"not an identified.json written by pe-drake identify ({err!r} missing or malformed)",
+            "not an identified.json written by pe-drake identify nor an augmented_model.json of pe-drake "
+            f"diagnose ({err!r} missing or malformed)",
             file=str(path),
         ) from err
     if joints != tuple(robot.joint_names):

@@ -1,6 +1,6 @@
 """The front door of ``pe-drake simulate``: :func:`simulate_run` tracks a trajectory file's
-motion on a perturbed "true" robot and returns a :class:`SimulatedRun` that writes its CSV and
-the ``.truth.json`` beside it."""
+motion on a perturbed "true" robot (the URDF's, or an identified model's with ``--model``) and
+returns a :class:`SimulatedRun` that writes its CSV and the ``.truth.json`` beside it."""
 
 from __future__ import annotations
 
@@ -14,7 +14,8 @@ from pe_drake.excitation.ramp import check_within_limits
 from pe_drake.excitation.trajectory_file import load_motion
 from pe_drake.identification.measurements import Measurement, measurement_to_csv_text
 from pe_drake.identification.simulation import simulate, truth_path_for
-from pe_drake.identification.truth import load_truth
+from pe_drake.identification.simulated_model import load_simulation_model, truth_with_model
+from pe_drake.identification.truth import Truth, load_truth, validate_truth
 from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.robot import Robot
 
@@ -32,7 +33,10 @@ class SimulatedRun:
 
     def summary_lines(self) -> list[str]:
         sim = self.truth["simulation"]
-        return [f"simulated {sim['duration']:.3g} s of '{self.robot}' at {sim['rate_hz']:g} Hz: "
+        model = self.truth.get("simulated_model")
+        head = [f"the robot is the model of '{model['file']}' (parameters and drive terms)"] if model else []
+        head += [f"note: {note}" for note in (model or {}).get("notes", ())]
+        return head + [f"simulated {sim['duration']:.3g} s of '{self.robot}' at {sim['rate_hz']:g} Hz: "
                 f"{sim['samples']} samples in {sim['wall_time_s']:.2f} s wall time",
                 "tracking error RMS [mrad]: " + ", ".join(f"{j} {1e3 * e:.3g}" for j, e in sim["tracking_error_rms"].items())]
 
@@ -54,17 +58,27 @@ class SimulatedRun:
         return truth_file, _RECORDED[self.measurement]
 
 
-def simulate_run(robot: Robot, trajectory: str | Path, truth: str | Path, *, duration: float | None = None,
-                 measurement: str = "joint_torque") -> SimulatedRun:
+def simulate_run(robot: Robot, trajectory: str | Path, truth: str | Path | None = None, *,
+                 duration: float | None = None, measurement: str = "joint_torque",
+                 model: str | Path | None = None) -> SimulatedRun:
     """What ``pe-drake simulate`` does: the motion of ``trajectory``'s trajectory.csv (ramps and
     periods; after its end the robot rests) on the robot perturbed as ``truth`` (TRUTH.yaml) says.
 
+    Args:
+        model: identified.json or augmented_model.json: the simulated robot has its parameters
+            and drive terms instead of the URDF's (:mod:`pe_drake.identification.simulated_model`);
+            ``truth``'s effects, noise and control come on top. Without ``truth``: no noise,
+            the default controller.
+
     Raises:
-        DataError: a trajectory file for other joints, or outside the robot's limits.
-        ConfigError: a duration outside (0, 3600] s, a bad truth file.
+        DataError: a trajectory file for other joints, or outside the robot's limits; a model
+            file that is not an identified model of this robot.
+        ConfigError: a duration outside (0, 3600] s, a bad truth file, no truth and no model.
     """
+    if truth is None and model is None:
+        raise ConfigError("give a TRUTH.yaml (--truth), an identified model (--model), or both")
     motion, data = load_motion(trajectory)  # validated before any work
-    truth_spec = load_truth(truth)
+    truth_spec = load_truth(truth) if truth is not None else Truth()
     if list(data["joints"]) != list(robot.joint_names):
         raise DataError(f"trajectory joints {', '.join(data['joints'])} differ from robot '{robot.name}''s "
                         f"excited joints {', '.join(robot.joint_names)}", file=str(trajectory))
@@ -72,5 +86,11 @@ def simulate_run(robot: Robot, trajectory: str | Path, truth: str | Path, *, dur
     duration = duration if duration is not None else motion.duration
     if not 0 < duration <= 3600:
         raise ConfigError(f"--duration must be in (0, 3600] s, got {duration!r}")
-    measured, truth_dict = simulate(robot, motion, truth_spec, duration, measurement=measurement)
-    return SimulatedRun(robot.name, measurement, measured, truth_dict)
+    phi = extra = None
+    if model is not None:
+        validate_truth(truth_spec, robot)  # the truth's joint names before they are merged
+        sim_model = load_simulation_model(model, robot)
+        truth_spec, phi = truth_with_model(truth_spec, sim_model, robot.joint_names), sim_model.phi
+        extra = {"simulated_model": sim_model.as_dict(robot.joint_names)}
+    measured, truth_dict = simulate(robot, motion, truth_spec, duration, measurement=measurement, phi=phi)
+    return SimulatedRun(robot.name, measurement, measured, {**truth_dict, **(extra or {})})

@@ -129,13 +129,15 @@ class TrueRobot:
         return self.robot.plant.get_applied_generalized_force_input_port(), self.robot.plant_context
 
 
-def build_true_robot(robot, truth: Truth) -> TrueRobot:
+def build_true_robot(robot, truth: Truth, phi: np.ndarray | None = None) -> TrueRobot:
     """Builds the true robot of a truth on top of an a-priori robot.
 
     Args:
         robot: the a-priori :class:`~pe_drake.multibody.robot.Robot` (its config is reloaded; bodies
             added by its own ``before_finalize`` are not carried over).
         truth: a validated :class:`Truth`.
+        phi: the bodies' parameters before the truth's perturbation, physically valid, shape
+            (10·nb,) (``simulate --model``: an identified model's); default the robot's a-priori ones.
 
     Raises:
         ConfigError, UnknownNameError: from :func:`validate_truth`.
@@ -169,7 +171,8 @@ def build_true_robot(robot, truth: Truth) -> TrueRobot:
 
     seeds = np.random.SeedSequence(truth.seed).spawn(2)
     rng = np.random.default_rng(seeds[0])
-    phi_bodies = perturb_inertias(robot.phi_model, truth.inertia_perturbation, rng)
+    phi_bodies = perturb_inertias(robot.phi_model if phi is None else np.asarray(phi, float),
+                                  truth.inertia_perturbation, rng)
     fc = per_joint_values(e.presliding_friction, joints)
     sigma0 = per_joint_values(e.presliding_stiffness, joints)
     hook = dahl_builder_hook(fc, sigma0, APPLIED_FORCE_PORT) if np.any(fc > 0) else None
@@ -287,6 +290,7 @@ def simulate(
     truth: Truth | str | Path,
     duration: float | None = None,
     measurement: str = "joint_torque",
+    phi: np.ndarray | None = None,
 ) -> SimulatedRun:
     """Simulates a run of the true robot tracking a trajectory; returns what it logs.
 
@@ -297,6 +301,7 @@ def simulate(
         duration: simulated time [s]; default one period of the trajectory.
         measurement: what the robot logs: "joint_torque" (tau), "base_wrench" (the ground
             wrench alone, :mod:`pe_drake.identification.wrench_log`) or "both".
+        phi: the true bodies' parameters before the truth's perturbation (:func:`build_true_robot`).
 
     Returns:
         The :class:`SimulatedRun`: the :class:`~pe_drake.identification.measurements.Measurement`
@@ -311,7 +316,7 @@ def simulate(
     if not isinstance(truth, Truth):
         truth = load_truth(truth)
     duration = _check_run(robot, trajectory, truth, duration)
-    true = build_true_robot(robot, truth)
+    true = build_true_robot(robot, truth, phi)
     log = track_trajectory(robot, true, trajectory, truth, duration)
     sensors = MeasurementType(measurement)
     data = record_log(robot, truth, log)

@@ -42,6 +42,10 @@ from pe_drake.excitation.parallel.base import (
 )
 from pe_drake.excitation.solver_logs import remove_orphaned_log_folders
 
+#: How long a broken pool's manager thread may take to stop and reap its workers [s] (it
+#: SIGTERMs them, which ends them at once; :meth:`LocalExecutor.terminate` kills stragglers).
+REAP_TIMEOUT_S = 10.0
+
 _STATE: WorkerState | None = None  # the worker process's robot (set by _init_worker)
 _EVENTS = None  # the queue to the parent (set by _init_worker)
 _TASK: int | None = None  # the task this worker runs: its events are tagged with it
@@ -141,6 +145,22 @@ class LocalExecutor(RemoteExecutor):
     def processes(self) -> dict:
         """{pid: Process} of the current pool (the standard pool keeps them in ``_processes``)."""
         return dict(getattr(self._pool, "_processes", None) or {})
+
+    def wait_until_reaped(self, timeout: float = REAP_TIMEOUT_S) -> None:
+        """After the pool broke: waits until its manager thread has stopped and reaped every
+        worker, so that their exit codes are read by that one thread alone.
+
+        Two threads that poll the exit status of one "forkserver" worker at the same time race
+        for the single status the fork server writes, and the loser records 255 (CPython's
+        ``popen_forkserver.Popen.poll``: EOFError → 255; 184 of 200 tries here when two threads
+        join a SIGTERMed worker). Our :meth:`terminate` joining the workers while the broken
+        pool's manager thread joins them too made a worker stopped with SIGTERM look as if it
+        had died on its own, 1 run in 4, and its task was lost instead of run again.
+        """
+        pool = self._pool
+        manager = getattr(pool, "_executor_manager_thread", None)
+        if pool is not None and getattr(pool, "_broken", False) and manager is not None:
+            manager.join(timeout)  # it SIGTERMs the other workers and joins them, then ends
 
     def terminate(self) -> None:
         """Stops every worker now, running tasks included (idempotent)."""
@@ -248,6 +268,7 @@ class PoolRun:
         """{task: (reason, worker)} for the tasks whose worker died on its own."""
         procs = self.ex.processes()
         self.ex.drain(self.on_message)  # a failed initializer explains the broken pool (raises)
+        self.ex.wait_until_reaped()  # before our own joins, which would race the pool's
         self.ex.terminate()  # every process has exited after this: their exit codes are known
         codes = {pid: p.exitcode for pid, p in procs.items()}
         dead = {pid: code for pid, code in codes.items() if code not in (None, 0, -signal.SIGTERM)}
