@@ -15,7 +15,7 @@ import dataclasses
 import functools
 import math
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 
@@ -248,46 +248,96 @@ class Library:
 # ---- stepwise selection ----------------------------------------------------------------------
 
 
-def accept(col: int, fit: Fit, current: Fit, library: Library, thresholds: Thresholds) -> tuple[bool, str]:
+class Verdict(NamedTuple):
+    """The decision on one column tried in the forward selection.
+
+    Attributes:
+        accepted: whether it passes criteria (a)-(d).
+        reason: why not ("" when accepted).
+        test: the criterion it fails: ``sign``, ``z``, ``gain``, ``other_joints``,
+            ``relevance`` ("" when accepted).
+        stats: its statistics: ``z`` (whole training segment), the selection part's RMS
+            before/after on its joint (``rms_before``/``rms_after`` [N·m], all joints for the
+            timing column), ``relative_gain``, ``explained_rms`` [N·m], ``wrss_gain``.
+    """
+
+    accepted: bool
+    reason: str
+    test: str
+    stats: dict[str, Any]
+
+
+class Score(NamedTuple):
+    """How a set of columns predicts data it was not fitted on (the selection's gain test).
+
+    Attributes:
+        rms_held: per-joint RMS residual on those data [N·m].
+        wrss_held: their residual sum of squares weighted like the fit.
+    """
+
+    rms_held: np.ndarray
+    wrss_held: float
+
+
+class Scorer(Protocol):
+    """What scores a set of columns on data it was not fitted on (the cross-validation)."""
+
+    def fit(self, extra: Sequence[int]) -> Score:
+        """The base parameters and the ``extra`` columns, scored."""
+
+
+def accept(col: int, fit: Fit, trial: Score, before: Score, library: Library, thresholds: Thresholds) -> Verdict:
     """Criteria (a)-(d) of the workflow's module docstring for adding one column.
+
+    (a) and (b) are judged on the whole training segment; (c) and (d) on the selection parts
+    of the training segment's blocked cross-validation (:mod:`pe_drake.diagnosis.selection`),
+    never on the held-out data, which stay for the figures reported.
 
     Args:
         col: the column tried.
-        fit: the fit with it.
-        current: the fit without it.
+        fit: the fit with it on the whole training segment (value, σ).
+        trial: the cross-validated score with it.
+        before: the same without it.
         library: the columns' meaning.
-        thresholds: significance, held-out gain and relevance to reach.
-
-    Returns:
-        (accepted, the reason when not).
+        thresholds: significance, gain and relevance to reach.
     """
     value, std = fit.value(col), fit.std(col)
     z = abs(value) / max(std, 1e-300)
-    z_min, relevance = thresholds.z_min, thresholds.relevance
+    z_min, relevance, gain_min = thresholds.z_min, thresholds.relevance, thresholds.min_heldout_gain
+    stats: dict[str, Any] = {"z": float(z), "z_min": float(z_min), "value": float(value), "std": float(std),
+                             "wrss_gain": float(before.wrss_held - trial.wrss_held)}
     if col == library.timing_col:
+        explained = np.sqrt(np.maximum(before.rms_held**2 - trial.rms_held**2, 0.0))
+        stats.update(rms_before=[float(x) for x in before.rms_held], rms_after=[float(x) for x in trial.rms_held],
+                     relative_gain=float(1 - math.sqrt(trial.wrss_held / max(before.wrss_held, 1e-300))),
+                     explained_rms=float(np.max(explained)))
         if z < z_min:
-            return False, f"not significant (z = {z:.2g} < {z_min:.2g})"
-        if fit.wrss_held > (1 - thresholds.min_heldout_gain) ** 2 * current.wrss_held:
-            return False, "held-out gain too small"
-        explained = np.sqrt(np.maximum(current.rms_held**2 - fit.rms_held**2, 0.0))
+            return Verdict(False, f"not significant (z = {z:.2g} < {z_min:.2g})", "z", stats)
+        if trial.wrss_held > (1 - gain_min) ** 2 * before.wrss_held:
+            return Verdict(False, f"selection-part gain {100 * stats['relative_gain']:.2g} % < {100 * gain_min:.2g} %",
+                           "gain", stats)
         if not np.any(explained >= relevance):
-            return False, "explains too little on every joint"
-        return True, ""
+            return Verdict(False, "explains too little on every joint", "relevance", stats)
+        return Verdict(True, "", "", stats)
     c: Candidate = library.cand_of[col]
     j = c.joint
+    r0, r1 = float(before.rms_held[j]), float(trial.rms_held[j])
+    explained = math.sqrt(max(r0**2 - r1**2, 0.0))
+    stats.update(rms_before=r0, rms_after=r1, relative_gain=1 - r1 / r0 if r0 > 0 else 0.0,
+                 explained_rms=explained, relevance=float(relevance[j]))
     if c.nonnegative and value < 0:
-        return False, f"physically implausible sign ({value:.3g} {c.unit})"
+        return Verdict(False, f"physically implausible sign ({value:.3g} {c.unit})", "sign", stats)
     if z < z_min:
-        return False, f"not significant (z = {z:.2g} < {z_min:.2g})"
-    if fit.rms_held[j] > (1 - thresholds.min_heldout_gain) * current.rms_held[j]:
-        return False, (f"held-out RMS of {c.joint_name} only {current.rms_held[j]:.4g} → "
-                       f"{fit.rms_held[j]:.4g} N·m")
-    if fit.wrss_held >= current.wrss_held:
-        return False, "held-out residual of the other joints grows"
-    explained = math.sqrt(max(current.rms_held[j] ** 2 - fit.rms_held[j] ** 2, 0.0))
+        return Verdict(False, f"not significant (z = {z:.2g} < {z_min:.2g})", "z", stats)
+    if r1 > (1 - gain_min) * r0:
+        return Verdict(False, f"selection-part RMS of {c.joint_name} only {r0:.4g} → {r1:.4g} N·m "
+                       f"({100 * stats['relative_gain']:.2g} % < {100 * gain_min:.2g} %)", "gain", stats)
+    if trial.wrss_held >= before.wrss_held:
+        return Verdict(False, "selection-part residual of the other joints grows", "other_joints", stats)
     if explained < relevance[j]:
-        return False, f"explains too little ({explained:.3g} < {relevance[j]:.3g} N·m RMS on held-out data)"
-    return True, ""
+        return Verdict(False, f"explains too little ({explained:.3g} < {relevance[j]:.3g} N·m RMS on the selection "
+                       "part)", "relevance", stats)
+    return Verdict(True, "", "", stats)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -297,11 +347,14 @@ class Selection:
     Attributes:
         selected: the columns kept (effects and possibly the timing nuisance).
         order: the same in the order they were added.
-        final: the fit with ``selected``.
+        final: the fit with ``selected`` on the whole training segment (held-out figures).
         rejected: {column: reason} of the columns tried and not kept.
         thresholds: what the columns were held to.
         steps: ("+" or "-", column, the fit after an addition or None) per addition or
             removal, in order, for the progress report.
+        verdicts: {column: the :class:`Verdict` that decided it}: for a selected column the
+            one of its addition (its ``z`` then updated from ``final``), for a rejected one its
+            last trial, for one dropped in the backward check test ``backward``.
     """
 
     selected: list[int]
@@ -310,11 +363,24 @@ class Selection:
     rejected: dict[int, str]
     thresholds: Thresholds
     steps: list[tuple[str, int, Fit | None]]
+    verdicts: dict[int, Verdict] = dataclasses.field(default_factory=dict)
 
 
-def select_effects(reg: Regression, library: Library, rigid: Fit, thresholds: Thresholds,
+def select_effects(reg: Regression, split: Scorer, library: Library, rigid: Fit, thresholds: Thresholds,
                    config: DiagnosisConfig) -> Selection:
-    """Forward stepwise selection, then a backward check (workflow step 3).
+    """Forward stepwise selection, then a backward check (workflow step 3), on the training
+    segment alone.
+
+    Args:
+        reg: the regression on the whole training segment (its held-out part is not looked at
+            here): values, σ and the autocorrelation inflation.
+        split: the blocked cross-validation of the training segment
+            (:class:`pe_drake.diagnosis.selection.CrossValidation`, ``fit(extra)`` → a
+            :class:`Score`): the gain and relevance tests, and the order of the additions.
+        library: the columns' meaning.
+        rigid: the rigid-body fit of ``reg``.
+        thresholds: what the columns are held to.
+        config: ``max_effects`` and ``timing_check``.
 
     Each accepted column re-estimates the autocorrelation inflation of ``reg`` from the new
     residual (the regression keeps it for the fits that follow).
@@ -322,39 +388,47 @@ def select_effects(reg: Regression, library: Library, rigid: Fit, thresholds: Th
     selected: list[int] = []
     order: list[int] = []
     rejected: dict[int, str] = {}
+    verdicts: dict[int, Verdict] = {}
     steps: list[tuple[str, int, Fit | None]] = []
-    current = rigid
+    current, current_split = rigid, split.fit([])
     timing_col = library.timing_col
     pool = list(library.col_of.values()) + ([timing_col] if config.timing_check else [])
     while len([c for c in selected if c != timing_col]) < config.max_effects:
-        best, best_fit, best_gain = None, None, 0.0
+        best, best_fits, best_gain = None, None, 0.0
         for col in pool:
             if col in selected:
                 continue
-            fit = reg.fit(selected + [col])
-            ok, reason = accept(col, fit, current, library, thresholds)
-            if not ok:
-                rejected[col] = reason
+            fit, trial = reg.fit(selected + [col]), split.fit(selected + [col])
+            verdict = accept(col, fit, trial, current_split, library, thresholds)
+            verdicts[col] = verdict
+            if not verdict.accepted:
+                rejected[col] = verdict.reason
                 continue
-            gain = current.wrss_held - fit.wrss_held
+            # Order of the additions: the largest drop of the weighted training residual (the
+            # largest partial F, classical forward stepwise) among the columns that pass; the
+            # cross-validation only gates. Its scores come from fits on two thirds of the run
+            # and are noisier: ordered by them, the mix of tests/test_presliding.py took
+            # Coulomb friction first as a stand-in for pre-sliding friction and lost a viscous
+            # friction in the backward check.
+            gain = float(np.sum(reg.weights**2 * (current.rms_train**2 - fit.rms_train**2)) * reg.train.count)
             if gain > best_gain:
-                best, best_fit, best_gain = col, fit, gain
+                best, best_fits, best_gain = col, (fit, trial), gain
         if best is None:
             break
         selected.append(best)
         order.append(best)
         rejected.pop(best, None)
-        current = best_fit
+        current, current_split = best_fits
         reg.inflation = integrated_autocorrelation(reg.residual("training", current))
         steps.append(("+", best, current))
-    current = _backward_check(reg, library, selected, current, thresholds.z_min, rejected, steps)
-    return Selection(selected, [c for c in order if c in selected], current, rejected, thresholds, steps)
+    current = _backward_check(reg, library, selected, current, thresholds.z_min, rejected, steps, verdicts)
+    return Selection(selected, [c for c in order if c in selected], current, rejected, thresholds, steps, verdicts)
 
 
 def _backward_check(reg: Regression, library: Library, selected: list[int], current: Fit, z_min: float,
-                    rejected: dict[int, str], steps: list) -> Fit:
+                    rejected: dict[int, str], steps: list, verdicts: dict[int, Verdict]) -> Fit:
     """Drops, one at a time, the columns no longer plausible and significant with the others
-    (updates ``selected``, ``rejected`` and ``steps`` in place); returns the last fit."""
+    (updates ``selected``, ``rejected``, ``steps`` and ``verdicts`` in place); returns the last fit."""
     cand_of = library.cand_of
     while selected:
         worst, worst_z = None, np.inf
@@ -369,6 +443,8 @@ def _backward_check(reg: Regression, library: Library, selected: list[int], curr
             break
         selected.remove(worst)
         rejected[worst] = f"dropped in the backward check (z = {worst_z:.2g} < {z_min:.2g} with the others)"
+        verdicts[worst] = Verdict(False, rejected[worst], "backward",
+                                  {**verdicts[worst].stats, "z": float(worst_z), "z_min": float(z_min)})
         current = reg.fit(selected)
         steps.append(("-", worst, None))
     return current

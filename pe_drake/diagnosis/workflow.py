@@ -68,6 +68,7 @@ from typing import Any
 import numpy as np
 
 from pe_drake.diagnosis.augmented_model import AugmentedModel, augmented_torque, build_augmented_robot
+from pe_drake.diagnosis.decisions import decision_list
 from pe_drake.diagnosis.effects import (
     EXPOSING_REGIME,
     Separability,
@@ -75,7 +76,7 @@ from pe_drake.diagnosis.effects import (
     prior_parameter_covariance,
     separability,
 )
-from pe_drake.diagnosis.options import MAX_COND, TIMING, DiagnosisConfig, Thresholds
+from pe_drake.diagnosis.options import MAX_COND, TIMING, DiagnosisConfig
 from pe_drake.diagnosis.payload import (
     BaseChange,
     PayloadOutcome,
@@ -96,9 +97,11 @@ from pe_drake.diagnosis.regression import (
     integrated_autocorrelation,
     regime_analysis,
     rms,
-    select_effects,
     unexplained_joints,
 )
+from pe_drake.diagnosis.selection import (InternalSplit, internal_split, rejected_list, say_selection, select,
+                                         split_regression)
+from pe_drake.diagnosis.report import decision_summary
 from pe_drake.diagnosis.result import DiagnosisResult, NamedEffect, per_joint, time_delay_effect
 from pe_drake.exceptions import DataError
 from pe_drake.identification.gaps import longest_segment
@@ -120,6 +123,7 @@ class Prepared:
         model: the robot's regressor model.
         base: its base parameters.
         phi_B_prior: the a-priori model's base parameters K φ_prior, (b,).
+        internal: the training part's fit/selection split (:mod:`pe_drake.diagnosis.selection`).
     """
 
     record: Record
@@ -129,6 +133,7 @@ class Prepared:
     model: RegressorModel
     base: BaseParameters
     phi_B_prior: np.ndarray
+    internal: InternalSplit
 
 
 def prepare(robot, data: Measurement, validation: Measurement | None, config: DiagnosisConfig,
@@ -155,7 +160,8 @@ def prepare(robot, data: Measurement, validation: Measurement | None, config: Di
         raise DataError(
             f"{training.num_samples} training samples × {n} joints are too few for {base.count} base "
             f"parameters and {4 * n} effect candidates; record a longer run", file=record.source)
-    return Prepared(record, vrecord, training, held, model, base, base.base_values(robot.phi_model))
+    return Prepared(record, vrecord, training, held, model, base, base.base_values(robot.phi_model),
+                    internal_split(training))
 
 
 # ---- 1. nominal ------------------------------------------------------------------------------
@@ -271,13 +277,6 @@ def rigid_reidentification(reg: Regression, training: Segment) -> Fit:
 # ---- 3. effects ------------------------------------------------------------------------------
 
 
-def select(lib: CandidateLibrary, rigid: Fit, held: Segment, config: DiagnosisConfig) -> Selection:
-    """The thresholds of the held-out data, then forward selection and backward check."""
-    thresholds = Thresholds.from_data(config, held.record.noise_floor, np.std(held.tau, axis=0),
-                                      len(lib.library.candidates) + 1)
-    return select_effects(lib.regression, lib.library, rigid, thresholds, config)
-
-
 @dataclasses.dataclass(frozen=True, eq=False)
 class Naming:
     """The named per-joint effects and what the selection left out.
@@ -311,7 +310,7 @@ def name_effects(robot, lib: CandidateLibrary, sel: Selection, rigid: Fit, nom: 
         fits_cum.append(f)
         cumulative.append((f"+ {library.label(effect_cols[k])}", f.rms_held))
     effects, series = _named(reg, library, sel.final, effect_cols, fits_cum, robot, config)
-    return Naming(effect_cols, cumulative, fits_cum[-1], effects, series, _rejected(reg, library, sel))
+    return Naming(effect_cols, cumulative, fits_cum[-1], effects, series, rejected_list(reg, library, sel))
 
 
 def _named(reg: Regression, library: Library, final: Fit, effect_cols: list[int], fits_cum: list[Fit], robot,
@@ -348,22 +347,6 @@ def _named(reg: Regression, library: Library, final: Fit, effect_cols: list[int]
             "after": res_final[:, c.joint],
         })
     return named, series
-
-
-def _rejected(reg: Regression, library: Library, sel: Selection) -> list[dict[str, Any]]:
-    """Every candidate tried and not named, with its statistic z and the reason (strongest first;
-    weaker decisions used to appear nowhere)."""
-    out = []
-    for col, reason in sel.rejected.items():
-        if col == library.timing_col or col in sel.selected:
-            continue
-        c = library.cand_of[col]
-        f = reg.fit(sel.selected + [col])
-        z = abs(f.value(col)) / max(f.std(col), 1e-300)
-        out.append({"effect": c.effect, "joint": c.joint_name, "value": f.value(col),
-                    "unit": c.unit, "z": float(z), "reason": reason})
-    out.sort(key=lambda r: -r["z"])
-    return out
 
 
 # ---- payload and the rigid-body report -------------------------------------------------------
@@ -534,11 +517,12 @@ def diagnose(
     rigid = rigid_reidentification(lib.regression, prep.training)
     say("2. rigid-body parameters re-identified, held-out RMS [N·m]: " + _fmt_joints(joints, rigid.rms_held))
     lap("rigid")
-    sel = select(lib, rigid, prep.held, config)
-    _say_selection(say, sel, lib.library, joints)
+    split = split_regression(lib.regression, prep.internal)
+    sel = select(lib.regression, split, lib.library, rigid, prep.training, prep.held, config)
+    say_selection(say, sel, lib.library, joints, _fmt_joints)
     lap("effects")
     naming = name_effects(robot, lib, sel, rigid, nom, config)
-    pre = presliding_step(prep, lib, sel, config)
+    pre = presliding_step(prep, lib, sel, config, split)
     naming = dataclasses.replace(naming, effects=presliding_effects(naming.effects, pre, lib.library, joints),
                                  series=pre.series(naming.series, joints), rejected=naming.rejected + pre.not_named(),
                                  cumulative=naming.cumulative + [(f"+ {PRESLIDING}", pre.final.rms_held)] * bool(pre.fits))
@@ -549,6 +533,8 @@ def diagnose(
     if pay.outcome.effect is not None:
         say(f"3. payload on {pay.outcome.effect.link}: {pay.outcome.effect.value:+.3g} kg "
             f"(χ² {pay.outcome.report['chi2_before']:.3g} → {pay.outcome.report['chi2_after']:.3g})")
+    decisions = decision_list(lib.library, lib.separability, sel, pre, pay.outcome.report, config.timing_check)
+    say("3. decisions: " + decision_summary(decisions))
     lap("payload")
     aug = augment(robot, prep, lib, pre, naming, pay, config)
     say("4. augmented Drake model, held-out RMS [N·m]: " + _fmt_joints(joints, aug.rms))
@@ -570,15 +556,8 @@ def diagnose(
         robot.name, joints, config, prep.training, held, named, nom.rms, rigid.rms_held, aug.rms,
         naming.cumulative, left.joints, pay.not_separable, naming.rejected, nom.regimes, pay.rigid,
         pay.outcome.report, left.timing, predictions, residual_series, aug.model, aug.drake_check,
-        lap.timings, held.record.noise_floor, sel.thresholds.unexplained)
-
-
-def _say_selection(say: Callable[[str], None], sel: Selection, library: Library, joints: Sequence[str]) -> None:
-    for sign, col, fit in sel.steps:
-        if sign == "+":
-            say(f"3. + {library.label(col)}: held-out RMS [N·m] " + _fmt_joints(joints, fit.rms_held))
-        else:
-            say(f"3. - {library.label(col)} (no longer significant)")
+        lap.timings, held.record.noise_floor, sel.thresholds.unexplained, decisions,
+        {**prep.internal.describe(), "held_out": "used only for the figures reported"})
 
 
 class _Laps:
