@@ -380,3 +380,32 @@ def test_decisions_list_every_candidate_with_its_test_and_statistic(robot, traje
     assert any(d["statistic"] < 4 for d in presliding)  # weak decisions are reported too
     assert [d["effect"] for d in result.decisions if d["effect"] in ("time_delay", "payload")] == ["time_delay", "payload"]
     assert result.to_json_dict()["decisions"] == result.decisions
+
+
+def test_diagnose_starts_from_an_earlier_model(robot, trajectory, tmp_path, capsys):
+    """Issue 23: ``diagnose --model`` takes the augmented_model.json of an earlier diagnosis or
+    the identified.json of ``identify`` (read as ``validate`` reads them) as the a-priori model:
+    its friction is in the nominal comparison, and the effects are still found in the data."""
+    measurement, _ = simulated(robot, trajectory, "coulomb")
+    data = tmp_path / "ident.csv"
+    write_measurement_csv(data, measurement)
+    first, second, third, ident = (tmp_path / k for k in ("first", "second", "third", "ident"))
+    assert cli(["diagnose", "--robot", "panda", "--data", str(data), "--out", str(first)]) == 0
+    assert cli(["diagnose", "--robot", "panda", "--data", str(data), "--out", str(second),
+                "--model", str(first / "augmented_model.json")]) == 0
+    assert "a-priori model: " in capsys.readouterr().out
+    d1, d2 = (json.loads((f / "diagnosis.json").read_text()) for f in (first, second))
+    assert d1["rms_nominal"]["panda_joint3"] > 0.4  # the URDF has no friction
+    assert d2["rms_nominal"]["panda_joint3"] < 0.02  # the earlier model has Coulomb 0.5 N·m
+    assert [e["effect"] for e in d2["effects"]] == ["coulomb_friction"]
+    assert d2["effects"][0]["value"] == pytest.approx(0.5, rel=0.02)
+    assert cli(["identify", "--robot", "panda", "--data", str(data), "--method", "wls", "--out", str(ident)]) == 0
+    assert cli(["diagnose", "--robot", "panda", "--data", str(data), "--out", str(third),
+                "--model", str(ident / "identified.json")]) == 0
+    d3 = json.loads((third / "diagnosis.json").read_text())
+    assert d3["rms_nominal"]["panda_joint3"] < 0.05  # identify's drive terms hold the friction
+    bad = tmp_path / "bad.json"
+    bad.write_text("{}")
+    assert cli(["diagnose", "--robot", "panda", "--data", str(data), "--out", str(tmp_path / "never"),
+                "--model", str(bad)]) == 2
+    assert "bad.json" in capsys.readouterr().err

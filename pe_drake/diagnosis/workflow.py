@@ -85,6 +85,7 @@ from pe_drake.diagnosis.payload import (
     rigid_report,
 )
 from pe_drake.diagnosis.presliding import PRESLIDING, PreslidingStep, presliding_effects, presliding_step
+from pe_drake.diagnosis.prior import prior_drive_torque, prior_own_parameters, prior_parameters
 from pe_drake.diagnosis.record import (Record, Segment, check_fits_in_memory, check_joints, check_record_signs,
                                       delayed_states, prepare_record, split_segments)
 from pe_drake.diagnosis.regression import (
@@ -104,6 +105,7 @@ from pe_drake.diagnosis.selection import (InternalSplit, internal_split, rejecte
 from pe_drake.diagnosis.report import decision_summary
 from pe_drake.diagnosis.result import DiagnosisResult, NamedEffect, per_joint, time_delay_effect
 from pe_drake.exceptions import DataError
+from pe_drake.identification.estimators import IdentificationResult
 from pe_drake.identification.gaps import longest_segment
 from pe_drake.identification.measurements import Measurement, check_torque_units
 from pe_drake.multibody.base_parameters import BaseParameters, compute_base_parameters
@@ -124,6 +126,8 @@ class Prepared:
         base: its base parameters.
         phi_B_prior: the a-priori model's base parameters K φ_prior, (b,).
         internal: the training part's fit/selection split (:mod:`pe_drake.diagnosis.selection`).
+        phi_prior: the a-priori standard parameters (the model file's, or ``prior``'s), (10·nb,).
+        prior: the earlier model started from (``diagnose --model``), or None.
     """
 
     record: Record
@@ -134,10 +138,12 @@ class Prepared:
     base: BaseParameters
     phi_B_prior: np.ndarray
     internal: InternalSplit
+    phi_prior: np.ndarray
+    prior: IdentificationResult | None = None
 
 
 def prepare(robot, data: Measurement, validation: Measurement | None, config: DiagnosisConfig,
-            say: Callable[[str], None]) -> Prepared:
+            say: Callable[[str], None], prior: IdentificationResult | None = None) -> Prepared:
     """Records, training and held-out parts, the base regressor on each (data preparation).
 
     Raises:
@@ -160,8 +166,9 @@ def prepare(robot, data: Measurement, validation: Measurement | None, config: Di
         raise DataError(
             f"{training.num_samples} training samples × {n} joints are too few for {base.count} base "
             f"parameters and {4 * n} effect candidates; record a longer run", file=record.source)
-    return Prepared(record, vrecord, training, held, model, base, base.base_values(robot.phi_model),
-                    internal_split(training))
+    phi = prior_parameters(robot, prior)
+    return Prepared(record, vrecord, training, held, model, base, base.base_values(phi), internal_split(training),
+                    np.asarray(phi, float), prior)
 
 
 # ---- 1. nominal ------------------------------------------------------------------------------
@@ -192,9 +199,8 @@ def nominal(robot, prep: Prepared, regression: Regression) -> Nominal:
         DataError: torques in the wrong units (naming the file and column).
     """
     training, held, joints = prep.training, prep.held, robot.joint_names
-    damping = robot.joint_damping
     base = range(prep.base.count)
-    tau_nom_tr, tau_nom_ho = (c.product(base, prep.phi_B_prior) + damping * s.v
+    tau_nom_tr, tau_nom_ho = (c.product(base, prep.phi_B_prior) + prior_drive_torque(robot, prep.prior, s)
                               for c, s in ((regression.train, training), (regression.held, held)))
     for seg, pred in ((training, tau_nom_tr), (held, tau_nom_ho)):
         check_torque_units(Measurement(seg.t, seg.q, seg.tau, None, None, joints, seg.record.source), pred)
@@ -417,7 +423,8 @@ def augment(robot, prep: Prepared, lib: CandidateLibrary, pre: PreslidingStep, n
                                         {library.cand_of[c].label: (library.cand_of[c], v) for c, v in values.items()},
                                         config.coulomb_velocity_scale,
                                         effect.link if effect is not None else None,
-                                        cov_B=pay.change.cov_B, time_delay=delay, presliding=presliding)
+                                        cov_B=pay.change.cov_B, time_delay=delay, presliding=presliding,
+                                        phi_prior=prior_own_parameters(robot, prep.prior))
     true = build_augmented_robot(robot, augmented)
     # Drake's torque at the held-out samples (along the motion `delay` earlier when a time delay
     # is named), its Coulomb term filtered like the measured torque (the parallel-filtered
@@ -481,6 +488,7 @@ def diagnose(
     validation: Measurement | None = None,
     config: DiagnosisConfig | None = None,
     progress: Callable[[str], None] | None = None,
+    prior: IdentificationResult | None = None,
 ) -> DiagnosisResult:
     """Runs the five steps of the module docstring.
 
@@ -491,6 +499,9 @@ def diagnose(
         validation: another run to hold out; None: the last ``holdout_fraction`` of ``data``.
         config: options (:class:`~pe_drake.diagnosis.options.DiagnosisConfig`).
         progress: called with one line per step (e.g. ``print``).
+        prior: an earlier model to start from instead of the model file's parameters
+            (:func:`~pe_drake.identification.identified_file.load_identified`: identified.json
+            or augmented_model.json): its parameters and drive terms are the a-priori model.
 
     Returns:
         The :class:`~pe_drake.diagnosis.result.DiagnosisResult`.
@@ -508,7 +519,7 @@ def diagnose(
     check_fits_in_memory(data, validation)
     for note in (*data.notes, *(validation.notes if validation is not None else ())):
         say(f"note: {note}")
-    prep = prepare(robot, data, validation, config, say)
+    prep = prepare(robot, data, validation, config, say, prior)
     lap("prepare")
     lib = candidate_library(robot, prep, config)
     nom = nominal(robot, prep, lib.regression)
