@@ -13,9 +13,11 @@
    (friction, armature ≥ 0), (b) it is significant: |θ| / σ_θ ≥ z, with σ_θ from the sandwich
    covariance inflated by the integrated autocorrelation time of the joint's residual (filtered
    samples are not independent) and z the two-sided Bonferroni bound for ``alpha`` over all
-   candidates, (c) it lowers the held-out RMS of its joint by at least ``min_heldout_gain``
-   (relative) and the weighted held-out residual overall, and (d) what it explains there is
-   relevant: √(RMS_before² - RMS_after²) ≥ max(``noise_factor`` × noise floor,
+   candidates, (c) it lowers the cross-validated RMS of its joint by at least
+   ``min_heldout_gain`` (relative) and the weighted cross-validated residual overall (a blocked
+   3-fold cross-validation of the training part, :mod:`pe_drake.diagnosis.selection`: the
+   held-out data are never looked at by the selection, only reported), and (d) what it
+   explains there is relevant: √(RMS_before² - RMS_after²) ≥ max(``noise_factor`` × noise floor,
    ``min_effect_fraction`` × the joint's torque spread, ``resolution_fraction`` × the largest
    joint's spread) (a value that is large only because the column is nearly collinear with
    rigid-body terms on this motion explains little).
