@@ -7,17 +7,19 @@ that decided a rejection:
 
 - ``sign``: a friction or armature came out negative (criterion (a));
 - ``z``: |θ| / σ_θ below the Bonferroni bound ``z_min`` on the training segment (b);
-- ``gain``: the relative RMS gain on the internal selection part below ``min_heldout_gain`` (c);
-- ``other_joints``: the selection part's weighted residual grows over the other joints (c);
-- ``relevance``: what it explains on the selection part is below the relevance threshold (d);
+- ``gain``: the relative gain of its joint's cross-validated RMS below ``min_heldout_gain`` (c);
+- ``other_joints``: the weighted cross-validated residual over all joints grows (c);
+- ``relevance``: the cross-validated RMS it explains is below the relevance threshold (d);
 - ``backward``: selected, then no longer significant once the others were in;
 - ``replaced``: selected, then dropped because pre-sliding friction took its place;
 - ``separability``: no motion separates it from the rigid-body terms;
 - ``presliding``: the pre-sliding tests (likelihood ratio ``statistic`` ≥ ``threshold``,
-  selection-part gain, x_p above the Coulomb limit, F_c > 0; ``reason`` lists what failed);
+  cross-validated gain, x_p above the Coulomb limit, F_c > 0; ``reason`` lists what failed);
 - ``payload``: the payload search's χ² test (``decision`` of ``payload_test``).
 
-The statistics of a rejected candidate are those of the trial that decided it (its last one);
+``selection_rms_before``/``selection_rms_after`` are the cross-validated RMS (over the folds'
+selection parts, :mod:`pe_drake.diagnosis.selection`) of its joint without and with it. The
+statistics of a rejected candidate are those of the trial that decided it (its last one);
 those of a selected candidate are the trial that added it, with ``z`` from the final fit on the
 whole training segment.
 """

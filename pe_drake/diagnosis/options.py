@@ -2,8 +2,9 @@
 
 :class:`DiagnosisConfig` holds what the user chooses (defaults are what
 :mod:`pe_drake.diagnosis.workflow` describes); :class:`Thresholds` holds what the selection
-and the ``unexplained`` step compare against once the noise floor and the torque spread of
-the held-out data are known.
+and the ``unexplained`` step compare against once the noise floor and the torque spread are
+known (of the training data for the selection, of the held-out data for ``unexplained``:
+:func:`pe_drake.diagnosis.selection.selection_thresholds`).
 """
 
 from __future__ import annotations
@@ -132,7 +133,7 @@ class Thresholds:
         Args:
             config: the options.
             noise_floor: filtered white-noise level per joint, (n,) [N·m].
-            spread: held-out torque standard deviation per joint, (n,) [N·m].
+            spread: torque standard deviation per joint, (n,) [N·m].
             num_tests: candidate columns tested (Bonferroni).
         """
         n = len(spread)

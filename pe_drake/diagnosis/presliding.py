@@ -261,7 +261,7 @@ def _decide(fit: PreslidingFit, before, rss_before: float, reg, j: int, threshol
     if statistic < thresholds.z_min**2:
         reasons.append(f"residual drop not significant ({statistic:.3g} < {thresholds.z_min ** 2:.3g})")
     if gain[1] > (1 - config.min_heldout_gain) * gain[0]:
-        reasons.append(f"selection-part RMS only {gain[0]:.4g} → {gain[1]:.4g} N·m")
+        reasons.append(f"cross-validated RMS only {gain[0]:.4g} → {gain[1]:.4g} N·m")
     if fit.coulomb <= 0:
         reasons.append("non-positive friction level")
     return {"statistic": statistic, "threshold": thresholds.z_min**2, "heldout_rms_before": float(before.rms_held[j]),

@@ -256,9 +256,10 @@ class Verdict(NamedTuple):
         reason: why not ("" when accepted).
         test: the criterion it fails: ``sign``, ``z``, ``gain``, ``other_joints``,
             ``relevance`` ("" when accepted).
-        stats: its statistics: ``z`` (whole training segment), the selection part's RMS
-            before/after on its joint (``rms_before``/``rms_after`` [N·m], all joints for the
-            timing column), ``relative_gain``, ``explained_rms`` [N·m], ``wrss_gain``.
+        stats: its statistics: ``z`` (whole training segment), the cross-validated RMS
+            (over the folds' selection parts) before/after on its joint (``rms_before``,
+            ``rms_after`` [N·m], all joints for the timing column), ``relative_gain``,
+            ``explained_rms`` [N·m], ``wrss_gain``.
     """
 
     accepted: bool
@@ -314,7 +315,7 @@ def accept(col: int, fit: Fit, trial: Score, before: Score, library: Library, th
         if z < z_min:
             return Verdict(False, f"not significant (z = {z:.2g} < {z_min:.2g})", "z", stats)
         if trial.wrss_held > (1 - gain_min) ** 2 * before.wrss_held:
-            return Verdict(False, f"selection-part gain {100 * stats['relative_gain']:.2g} % < {100 * gain_min:.2g} %",
+            return Verdict(False, f"cross-validated gain {100 * stats['relative_gain']:.2g} % < {100 * gain_min:.2g} %",
                            "gain", stats)
         if not np.any(explained >= relevance):
             return Verdict(False, "explains too little on every joint", "relevance", stats)
@@ -330,13 +331,13 @@ def accept(col: int, fit: Fit, trial: Score, before: Score, library: Library, th
     if z < z_min:
         return Verdict(False, f"not significant (z = {z:.2g} < {z_min:.2g})", "z", stats)
     if r1 > (1 - gain_min) * r0:
-        return Verdict(False, f"selection-part RMS of {c.joint_name} only {r0:.4g} → {r1:.4g} N·m "
+        return Verdict(False, f"cross-validated RMS of {c.joint_name} only {r0:.4g} → {r1:.4g} N·m "
                        f"({100 * stats['relative_gain']:.2g} % < {100 * gain_min:.2g} %)", "gain", stats)
     if trial.wrss_held >= before.wrss_held:
-        return Verdict(False, "selection-part residual of the other joints grows", "other_joints", stats)
+        return Verdict(False, "cross-validated residual of the other joints grows", "other_joints", stats)
     if explained < relevance[j]:
-        return Verdict(False, f"explains too little ({explained:.3g} < {relevance[j]:.3g} N·m RMS on the selection "
-                       "part)", "relevance", stats)
+        return Verdict(False, f"explains too little ({explained:.3g} < {relevance[j]:.3g} N·m cross-validated "
+                       "RMS)", "relevance", stats)
     return Verdict(True, "", "", stats)
 
 

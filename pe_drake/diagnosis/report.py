@@ -372,6 +372,8 @@ def near_misses(decisions: Sequence[dict[str, Any]], count: int = 8) -> list[dic
     """The rejected candidates closest to being selected: the largest z relative to z_min (or
     statistic relative to threshold) first."""
     def closeness(d: dict[str, Any]) -> float:
+        if d.get("test") == "sign":  # a negative friction or armature is far from being named
+            return 0.0
         if d.get("z") is not None and d.get("z_min"):
             return float(d["z"]) / float(d["z_min"])
         if d.get("statistic") is not None and d.get("threshold"):

@@ -88,10 +88,12 @@ class Moments:
 
 @dataclasses.dataclass(frozen=True)
 class Fold:
-    """One fold of the cross-validation: runs of training samples fitted and predicted."""
+    """One fold of the cross-validation: runs of training samples fitted, predicted, and in
+    neither (the guards)."""
 
     fit_rows: tuple[slice, ...]
     selection_rows: tuple[slice, ...]
+    guard_rows: tuple[slice, ...] = ()
 
 
 def _count(rows: Sequence[slice]) -> int:
@@ -147,7 +149,8 @@ def internal_split(training: Segment) -> InternalSplit:
         # distance of each sample to the nearest selection sample
         pos = np.clip(np.searchsorted(sel_t, t), 1, len(sel_t) - 1)
         near = np.minimum(np.abs(t - sel_t[pos - 1]), np.abs(t - sel_t[pos]))
-        folds.append(Fold(_runs(~selection & (near > guard)), _runs(selection)))
+        fit = ~selection & (near > guard)
+        folds.append(Fold(_runs(fit), _runs(selection), _runs(~selection & ~fit)))
     return InternalSplit(tuple(folds), block, guard)
 
 
@@ -172,9 +175,14 @@ class CrossValidation:
     def of(cls, reg: Regression, split: InternalSplit) -> CrossValidation:
         """The folds of ``split`` on the training columns of ``reg``, with its weights."""
         out = []
+        total = reg.train
         for fold in split.folds:
-            r = Regression(Moments.of_rows(reg.train, fold.fit_rows), Moments.of_rows(reg.train, fold.selection_rows),
-                           reg.num_base)
+            # the fit part as the whole minus the rest: each sample's products once over the
+            # folds (3 passes over A for an hour's log otherwise), the guards are short
+            sel, guard = Moments.of_rows(total, fold.selection_rows), Moments.of_rows(total, fold.guard_rows)
+            fit = Moments(total.gram - sel.gram - guard.gram, total.rhs - sel.rhs - guard.rhs,
+                          total.yy - sel.yy - guard.yy, total.count - sel.count - guard.count)
+            r = Regression(fit, sel, reg.num_base)
             r.set_weights(reg.weights)
             out.append(r)
         return cls(out)
