@@ -100,7 +100,7 @@ def test_a_line_longer_than_the_limit_is_refused_by_number(tmp_path, monkeypatch
 def test_diagnose_keeps_single_joint_columns_once_and_long_ones_in_float32(monkeypatch):
     """The candidate columns (one joint each) are one series, not an (S, n) block; the stored
     columns of a long segment are float32 with the Gram matrices of the float64 columns."""
-    from pe_drake.diagnosis import regression
+    from pe_drake.diagnosis import columns, regression
 
     rng = np.random.default_rng(1)
     S, n, b = 500, 3, 4
@@ -116,7 +116,7 @@ def test_diagnose_keeps_single_joint_columns_once_and_long_ones_in_float32(monke
         out[...] = dense[rows]
 
     for threshold, dtype in ((1e12, np.float64), (0.0, np.float32)):
-        monkeypatch.setattr(regression, "LONG_LOG_BYTES", threshold)
+        monkeypatch.setattr(columns, "LONG_LOG_BYTES", threshold)
         cols = regression.Columns.assemble(y, b + 1 + n, range(b + 1), fill, single, chunk=128)
         assert cols.A.shape == (S, n, b + 1) and cols.A.dtype == dtype
         np.testing.assert_allclose(cols.gram, ref.gram, rtol=1e-12, atol=1e-10)  # float64 sums either way

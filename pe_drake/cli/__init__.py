@@ -177,6 +177,8 @@ def _add_identification_commands(sub) -> None:
     p.add_argument("--held-out-fraction", type=float, default=None,
                    help="fraction of --data held out at its end when no --validation is given "
                         "(default 0.3, from 0.05 to 0.8)")
+    p.add_argument("--model", help="start from an earlier model (identified.json of identify, or augmented_model.json "
+                                   "of diagnose) as the a-priori model (default: the URDF's)")
     p.add_argument("--out", required=True, help="output folder")
 
 

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from pe_drake.diagnosis.result import NamedEffect, per_joint
+from pe_drake.diagnosis.selection import split_with_column
 from pe_drake.identification.dahl import dahl_state
 
 #: Name of the effect.
@@ -203,13 +204,15 @@ class PreslidingStep:
                 for r in self.report if not r["named"] and r["statistic"] >= min_statistic]
 
 
-def presliding_step(prep, lib, sel, config) -> PreslidingStep:
+def presliding_step(prep, lib, sel, config, split) -> PreslidingStep:
     """Tries the Dahl column in each joint's Coulomb slot (replacing a named Coulomb column, or
     added) and keeps it when the joint's training residual drops significantly
     (likelihood ratio ≥ z_min², the selection's Bonferroni bound squared, with the joint's
-    autocorrelation-inflated noise), its held-out RMS drops by ``min_heldout_gain``, and x_p
-    is not the grid's smallest value (the Coulomb limit). Effects of that joint that are no
-    longer significant with it (e.g. a viscous friction that stood in for it) are dropped."""
+    autocorrelation-inflated noise), its cross-validated RMS on the training segment (``split``,
+    :class:`pe_drake.diagnosis.selection.CrossValidation`; never the held-out data) drops by
+    ``min_heldout_gain``, and x_p is not the grid's smallest value (the Coulomb
+    limit). Effects of that joint that are no longer significant with it (e.g. a viscous
+    friction that stood in for it) are dropped."""
     reg, library, extra = lib.regression, lib.library, list(sel.selected)
     cache: dict = {}  # (id(record), joint) -> its filtered Dahl columns (dahl_columns)
     report, fits = [], []
@@ -219,21 +222,28 @@ def presliding_step(prep, lib, sel, config) -> PreslidingStep:
         j = library.cand_of[col].joint
         trial = extra if col in extra else extra + [col]
         tr, ho = (_dahl_at(cache, seg, j) for seg in (prep.training, prep.held))
-        before = reg.fit(extra)
-        fit = search_presliding(reg, trial, col, j, tr, ho)
+        before, split_before = reg.fit(extra), split.fit(extra)
         rss_before = float(before.rms_train[j] ** 2 * reg.train.count)
-        decision = _decide(fit, before, rss_before, reg, j, sel.thresholds, config)
+
+        def decide(fit: PreslidingFit) -> tuple[dict[str, Any], Any]:
+            values = fit.regression.train.overrides[col][1]  # the Dahl column on the training samples
+            with_dahl = split_with_column(split, reg.train, prep.internal, col, j, values)
+            gain = (float(split_before.rms_held[j]), float(with_dahl.fit(trial).rms_held[j]))
+            return _decide(fit, before, rss_before, reg, j, sel.thresholds, config, gain), with_dahl
+
+        fit = search_presliding(reg, trial, col, j, tr, ho)
+        decision, with_dahl = decide(fit)
         if decision["named"]:  # refine x_p between grid points (only here: each column costs a pass)
-            refined = search_presliding(reg, trial, col, j, tr, ho, column_at=_column_at(prep, j))
-            decision = _decide(refined, before, rss_before, reg, j, sel.thresholds, config)
-            fit = refined
+            fit = search_presliding(reg, trial, col, j, tr, ho, column_at=_column_at(prep, j))
+            decision, with_dahl = decide(fit)
         report.append({"joint": library.cand_of[col].joint_name, "displacement": fit.displacement,
                        "coulomb": fit.coulomb, "stiffness": fit.stiffness, **decision,
                        "heldout_rms_all_before": [float(x) for x in before.rms_held],
                        "heldout_residual_before": reg.residual("held-out", before)[:, j] if decision["named"] else None})
         if decision["named"]:
             fits.append(fit)
-            reg, extra = fit.regression, _drop_stand_ins(fit.regression, trial, col, j, library, sel.thresholds)
+            reg, split = fit.regression, with_dahl
+            extra = _drop_stand_ins(fit.regression, trial, col, j, library, sel.thresholds)
             held_torque[:, j] = fit.held_values
     final = reg.fit(extra) if fits else sel.final
     for f in fits:  # the Dahl torques with the final values
@@ -241,8 +251,10 @@ def presliding_step(prep, lib, sel, config) -> PreslidingStep:
     return PreslidingStep(fits, report, reg, final, held_torque, tuple(c for c in sel.selected if c not in extra))
 
 
-def _decide(fit: PreslidingFit, before, rss_before: float, reg, j: int, thresholds, config) -> dict[str, Any]:
-    """The acceptance tests of :func:`presliding_step` for one joint."""
+def _decide(fit: PreslidingFit, before, rss_before: float, reg, j: int, thresholds, config,
+            gain: tuple[float, float]) -> dict[str, Any]:
+    """The acceptance tests of :func:`presliding_step` for one joint (``gain``: the joint's
+    cross-validated RMS without and with the Dahl column [N·m])."""
     best = int(np.argmin(fit.rss))
     sigma2 = fit.rss_best / reg.train.count
     statistic = float((rss_before - fit.rss_best) / max(sigma2 * reg.inflation[j], 1e-300))
@@ -251,12 +263,13 @@ def _decide(fit: PreslidingFit, before, rss_before: float, reg, j: int, threshol
         reasons.append("the smallest pre-sliding displacement fits best (the Coulomb limit)")
     if statistic < thresholds.z_min**2:
         reasons.append(f"residual drop not significant ({statistic:.3g} < {thresholds.z_min ** 2:.3g})")
-    if fit.fit.rms_held[j] > (1 - config.min_heldout_gain) * before.rms_held[j]:
-        reasons.append(f"held-out RMS only {before.rms_held[j]:.4g} → {fit.fit.rms_held[j]:.4g} N·m")
+    if gain[1] > (1 - config.min_heldout_gain) * gain[0]:
+        reasons.append(f"cross-validated RMS only {gain[0]:.4g} → {gain[1]:.4g} N·m")
     if fit.coulomb <= 0:
         reasons.append("non-positive friction level")
     return {"statistic": statistic, "threshold": thresholds.z_min**2, "heldout_rms_before": float(before.rms_held[j]),
-            "heldout_rms_presliding": float(fit.fit.rms_held[j]), "named": not reasons, "reason": "; ".join(reasons)}
+            "heldout_rms_presliding": float(fit.fit.rms_held[j]), "selection_rms_before": gain[0],
+            "selection_rms_presliding": gain[1], "named": not reasons, "reason": "; ".join(reasons)}
 
 
 def _drop_stand_ins(reg, extra: list[int], col: int, joint: int, library, thresholds) -> list[int]:

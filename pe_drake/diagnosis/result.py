@@ -112,6 +112,10 @@ class DiagnosisResult:
         timings: wall time per step [s].
         noise_floor: filtered white-noise level of the held-out torque per joint [N·m].
         thresholds: held-out residual RMS above which a joint is unexplained [N·m].
+        decisions: every candidate considered with its decision, the test that decided it and
+            its statistics (:mod:`pe_drake.diagnosis.decisions`).
+        selection: how the training data were split for the selection (the held-out data
+            only give the figures reported).
     """
 
     robot: str
@@ -138,6 +142,8 @@ class DiagnosisResult:
     timings: dict[str, float]
     noise_floor: np.ndarray
     thresholds: np.ndarray
+    decisions: list[dict[str, Any]] = dataclasses.field(default_factory=list)
+    selection: dict[str, Any] = dataclasses.field(default_factory=dict)
 
     def per_joint(self, x: np.ndarray) -> dict[str, float]:
         """{joint: value} of a per-joint array."""
@@ -172,6 +178,8 @@ class DiagnosisResult:
             "unexplained_threshold": self.per_joint(self.thresholds),
             "not_separable": self.not_separable,
             "rejected": self.rejected,
+            "decisions": self.decisions,
+            "selection": self.selection,
             "regimes": self.regimes,
             "rigid": self.rigid,
             "payload_test": self.payload_test,
