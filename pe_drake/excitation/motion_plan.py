@@ -290,7 +290,7 @@ def _robot(config: Config, name: str, say: Say) -> Robot:
     """The robot, built once, with its notes and a nominal posture that clears the floor."""
     robot = Robot(name, config.robot)
     say(f"robot {robot.name}: {robot.n} excited joints, {robot.num_bodies} moving bodies")
-    for note in assumed_defaults(config, robot.joint_names, [j.kind for j in robot.joints]) + list(robot.notes):
+    for note in assumed_defaults(config, robot.joint_names, [j.kind for j in robot.joints]) + list(robot.notes) + list(robot.limit_notes):
         say(f"note: {note}")  # assumed limits; what the model needed for Drake (mimic, materials, mount)
     nominal = choose_nominal_posture(robot, config.excitation, config.environment)
     if nominal is not None:

@@ -430,8 +430,8 @@ def urdf_dynamics(fit: DriveFit | None) -> tuple[dict[str, float], dict[str, flo
             continue
         (damping if t == "viscous" else rotor)[name] = float(x)
     rotor.update({name: x for name, x in fit.merged_armature.items() if x > 0})
-    notes.append("Coulomb friction and torque offsets are in identified.json only (Drake's URDF parser ignores "
-                 "<dynamics friction>)")
+    notes.append("Coulomb friction and torque offsets are not in model.urdf (Drake's URDF parser ignores "
+                 "<dynamics friction>): they are in identified.json and drive_effects.yaml")
     return damping, rotor, notes
 
 
