@@ -53,9 +53,10 @@ FITTED_HEADER = "# Capsules fitted automatically by pe_drake"
 FITTED_COLLISION_MARGIN = 0.01
 #: A link with at most this many primitive shapes (and no mesh) gets one capsule per shape.
 MAX_PRIMITIVE_CAPSULES = 3
-#: A link's points are mirror-symmetric when the median distance from a mirrored point to the
-#: cloud is at most this fraction of the cloud's size (TALOS's torso: 0.5 %, its forearm: 10 %).
-SYMMETRY_TOLERANCE = 0.02
+#: A link's points are mirror-symmetric when 90 % of the mirrored points lie within this fraction
+#: of the cloud's size of a point (TALOS's torso, pelvis and head: 1.7-2.5 %; its forearm 30 %,
+#: UR5's upper arm and forearm 3.6 and 5.5 %: left as fitted).
+SYMMETRY_TOLERANCE = 0.03
 #: Pairs at most this many joints apart may touch by design (a link and its grandparent: an
 #: elbow's upper arm and wrist); pairs farther apart are always checked (issue 21).
 TOUCHING_JOINTS = 2
@@ -260,31 +261,40 @@ def fit_capsule_file(
 
 def _mirror_symmetric(P: np.ndarray) -> bool:
     """Whether a link's points are mirror-symmetric about the link frame's x-z plane (y → -y):
-    every mirrored point has a point within :data:`SYMMETRY_TOLERANCE` of the cloud's size
-    (median; meshes are not sampled symmetrically point by point)."""
+    90 % of the mirrored points have a point within :data:`SYMMETRY_TOLERANCE` of the cloud's
+    size (a quantile: meshes are not sampled symmetrically vertex by vertex)."""
     from scipy.spatial import cKDTree
 
     size = float(np.linalg.norm(P.max(axis=0) - P.min(axis=0)))
     gaps = cKDTree(P).query(P * [1.0, -1.0, 1.0])[0]
-    return size > 0 and float(np.median(gaps)) <= SYMMETRY_TOLERANCE * size
+    return size > 0 and float(np.quantile(gaps, 0.9)) <= SYMMETRY_TOLERANCE * size
 
 
 def _fit_points(P: np.ndarray, cover: float) -> tuple[np.ndarray, np.ndarray, float]:
-    """:func:`fit_capsule`, kept mirror-symmetric for a mirror-symmetric link (a torso, a
+    """:func:`fit_capsule`, made mirror-symmetric for a mirror-symmetric link (a torso, a
     pelvis: issue 21). The quantile radius and the Nelder-Mead centre of a plain fit drift off
     the plane of symmetry (TALOS's torso capsule sat 12 mm towards the right arm and leant
-    12°, so the right forearm came closer to it than the left). Such a link is fitted to its
-    points and their mirror images, with the axis in the plane (or across it) and through
-    it, so the capsule is its own mirror image."""
+    12°). Such a link's capsule axis is turned into the plane (or across it, whichever is
+    nearer) and the best axis line is sought among those that are their own mirror image:
+    in the plane, or across it; the segment ends of an axis across the plane are made
+    symmetric (the longer side kept)."""
+    from scipy.optimize import minimize_scalar
+
+    p0, p1, r = fit_capsule(P, cover=cover)
     if not _mirror_symmetric(P):
-        return fit_capsule(P, cover=cover)
-    P = np.vstack([P, P * [1.0, -1.0, 1.0]])
-    p0, p1, _ = fit_capsule(P, cover=cover)
-    u, mid = p1 - p0, 0.5 * (p0 + p1)
-    u = np.array([0.0, 1.0, 0.0]) if abs(u[1]) > np.linalg.norm(u) * math.sqrt(0.5) else u * [1.0, 0.0, 1.0]
-    if not np.any(u):  # a sphere: any axis in the plane
-        u = np.array([0.0, 0.0, 1.0])
-    return fit_capsule(P, axis=u, cover=cover, through=mid * [1.0, 0.0, 1.0])
+        return p0, p1, r
+    u, mid = p1 - p0, 0.5 * (p0 + p1) * [1.0, 0.0, 1.0]
+    if abs(u[1]) > np.linalg.norm(u) * math.sqrt(0.5):  # across the plane: any line along y is symmetric
+        p0, p1, r = fit_capsule(P, axis=[0.0, 1.0, 0.0], cover=cover)
+        half = max(abs(p0[1]), abs(p1[1]))
+        return np.r_[p0[0], -half, p0[2]], np.r_[p1[0], half, p1[2]], r
+    u = u * [1.0, 0.0, 1.0] if np.any(u[[0, 2]]) else np.array([0.0, 0.0, 1.0])
+    w = np.cross(u, [0.0, 1.0, 0.0])
+    w /= np.linalg.norm(w)  # in the plane, across the axis: the one free offset of the line
+    size = float(np.linalg.norm(P.max(axis=0) - P.min(axis=0)))
+    best = minimize_scalar(lambda s: fit_capsule(P, axis=u, cover=cover, through=mid + s * w)[2],
+                           bounds=(-0.5 * size, 0.5 * size), method="bounded", options={"xatol": 1e-5})
+    return fit_capsule(P, axis=u, cover=cover, through=mid + best.x * w)
 
 
 def _radial_distance(points: np.ndarray, p0: np.ndarray, p1: np.ndarray) -> np.ndarray:
