@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from pe_drake.excitation.motion_plan import optimize_motion
+from pe_drake.excitation.constraints.collision import CollisionConstraint
 from pe_drake.multibody.capsule_fitting import fit_capsules, mirror_name
 from pe_drake.multibody.capsules import capsule_pairs, joints_apart
 from pe_drake.multibody.registry import example_robot_data_dir, resolve_robot_config
@@ -55,6 +55,7 @@ def test_a_capsule_too_fat_for_links_three_joints_away_is_shrunk_not_ignored(tmp
     assert torso.radius == pytest.approx(after, abs=1e-4)  # written to the file
     assert not any("torso" in p[:2] and "hand" in " ".join(p[:2]) for p in fitted.ignored_pairs)
     assert "shrunk" in fitted.pairs_summary() and "torso 0.300 ->" in fitted.pairs_summary()
+    CollisionConstraint(robot, 0.02).check_posture(robot.nominal_posture())  # the start posture is clear
 
 
 def test_joints_apart_counts_joints_between_links(tmp_path):

@@ -10,10 +10,13 @@ Each link gets its capsule(s) from its ``<collision>`` shapes, else from its ``<
 - meshes, or more primitives: one capsule fitted by
   :func:`pe_drake.multibody.capsules.fit_capsule` to the pooled mesh vertices (and primitive
   surface points) in the link frame: the axis is their principal axis, the radius covers 98 %
-  of the mesh vertices and the segment is the shortest that contains them.
+  of the mesh vertices and the segment is the shortest that contains them; a link whose
+  points are mirror-symmetric about its x-z plane gets a capsule that is its own mirror image.
 
 Links joined by a joint (adjacent) and links welded together are not checked against each
-other: :func:`~pe_drake.multibody.capsules.register_capsules` filters those pairs.
+other: :func:`~pe_drake.multibody.capsules.register_capsules` filters those pairs. Of the
+others, :func:`ignore_touching_pairs` ignores only pairs at most :data:`TOUCHING_JOINTS`
+joints apart that touch by design; a capsule touching a link farther away is shrunk instead.
 
 Mesh readers: STL (binary and ASCII), OBJ (``v`` lines) and COLLADA ``.dae`` (pycollada,
 node transforms and ``<unit meter>`` applied). A shape that cannot be read is listed in
@@ -220,7 +223,8 @@ def fit_capsule_file(
         f"{FITTED_HEADER} to the links of {model_path.name}: a primitive",
         "# collision shape (cylinder, sphere, box, capsule) gives the capsule enclosing it; meshes give",
         "# one capsule per link along the principal axis of the collision (else visual) mesh vertices,",
-        f"# radius covering {cover:.0%} of them (pe_drake.multibody.capsule_fitting).",
+        f"# radius covering {cover:.0%} of them, mirror-symmetric for a mirror-symmetric link",
+        "# (pe_drake.multibody.capsule_fitting).",
         "# Check them in `pe-drake view` and edit as needed; give the edited file as robot.capsules.",
         "capsules:",
     ]
@@ -307,7 +311,7 @@ def _radial_distance(points: np.ndarray, p0: np.ndarray, p1: np.ndarray) -> np.n
 def fit_capsules(config, folder: str | Path) -> tuple:
     """Fits capsules when a config needs them (self-collision, the floor, boxes) but names no
     capsule file: writes ``folder/fitted_capsules.yaml``; pairs touching by design are ignored
-    (:func:`ignore_touching_pairs`), and self-collision is switched on at
+    and capsules too fat for links farther away shrunk (:func:`ignore_touching_pairs`), and self-collision is switched on at
     ``FITTED_COLLISION_MARGIN`` when the config leaves it off.
 
     Args:
