@@ -379,8 +379,8 @@ def ignore_touching_pairs(config, path: Path, margin: float, samples: int = 200,
     mesh: the fatter capsule is shrunk to clear it (then the other), each to no less than
     :data:`SHRINK_FLOOR` of its radius; only a pair that still touches is ignored, with that
     reason. Left and right stay alike: a capsule and its mirror-named counterpart
-    (:func:`mirror_name`) get the smaller radius of the two, and a pair is ignored only when
-    its mirror pair is ignored too. Adjacent and welded links are filtered anyway
+    (:func:`mirror_name`) get the smaller radius of the two, and a pair touching in random
+    postures is ignored only when its mirror pair is ignored too. Adjacent and welded links are filtered anyway
     (:func:`register_capsules`).
 
     Returns:
@@ -410,9 +410,12 @@ def ignore_touching_pairs(config, path: Path, margin: float, samples: int = 200,
         elif hops[p] <= TOUCHING_JOINTS and (d[0, p] < margin or np.mean(d[1:, p] < margin) >= share):
             reasons[names] = "closer than the margin at the nominal posture" if d[0, p] < margin else (
                 f"closer than the margin in {np.mean(d[1:, p] < margin):.0%} of random postures")
+    # A pair ignored by chance (random postures) stays checked unless its mirror pair is ignored
+    # too: the two sides draw different postures. One touching at the nominal posture is
+    # ignored regardless: checked, the start posture would collide.
     checked = {(caps[a].name, caps[b].name) for a, b in pairs}
-    added = [[a, b, why] for (a, b), why in reasons.items()
-             if _mirror_pair(a, b, checked) is None or _mirror_pair(a, b, reasons) is not None]
+    added = [[a, b, why] for (a, b), why in reasons.items() if not why.endswith("of random postures")
+             or _mirror_pair(a, b, checked) is None or _mirror_pair(a, b, reasons) is not None]
     shrunk = {c.name: (float(fitted[k]), float(radii[k])) for k, c in enumerate(caps) if radii[k] < fitted[k]}
     _rewrite_capsule_file(path, added, shrunk)
     return added, shrunk
