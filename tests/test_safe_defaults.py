@@ -234,3 +234,15 @@ def test_the_summary_neither_runs_long_nor_calls_a_stopped_solver_a_failure(so10
         assert "did not converge" not in result.message
         assert "stopped at its iteration limit" in result.message
         assert plan.report.converged is False
+
+
+def test_the_ignored_capsule_pairs_are_named_in_the_output_and_report_json(so101_plan):
+    """stdout said only "N pair(s) touching by design ignored" (issue 21)."""
+    plan, lines = so101_plan
+    report = plan.report.to_dict()
+    assert report["ignored_pairs"], "the SO-101's fitted capsules touch their neighbours' neighbours"
+    assert report["ignored_pairs"] == [{"pair": list(p[:2]), "reason": p[2]} for p in plan.fitted.ignored_pairs]
+    first = report["ignored_pairs"][0]["pair"]
+    line = next(x for x in lines if "touching by design ignored" in x)
+    assert f"{len(report['ignored_pairs'])} pair(s) touching by design ignored: {first[0]}/{first[1]}" in line
+    assert isinstance(report["shrunk_capsules"], dict)
