@@ -112,6 +112,8 @@ class DiagnosisResult:
         timings: wall time per step [s].
         noise_floor: filtered white-noise level of the held-out torque per joint [N·m].
         thresholds: held-out residual RMS above which a joint is unexplained [N·m].
+        holding_test: the holding-torque test per joint (:mod:`pe_drake.diagnosis.holding`):
+            rest periods of both parts, decision and reason.
     """
 
     robot: str
@@ -138,6 +140,7 @@ class DiagnosisResult:
     timings: dict[str, float]
     noise_floor: np.ndarray
     thresholds: np.ndarray
+    holding_test: dict[str, Any] = dataclasses.field(default_factory=dict)
 
     def per_joint(self, x: np.ndarray) -> dict[str, float]:
         """{joint: value} of a per-joint array."""
@@ -176,6 +179,7 @@ class DiagnosisResult:
             "rigid": self.rigid,
             "payload_test": self.payload_test,
             "timing": self.timing,
+            "holding_test": self.holding_test,
             "drake_check_max_abs": self.per_joint(self.drake_check),
             "config": {k: (list(v) if isinstance(v, tuple) else v)
                        for k, v in dataclasses.asdict(self.config).items()},

@@ -83,6 +83,8 @@ from pe_drake.diagnosis.payload import (
     payload_search,
     rigid_report,
 )
+from pe_drake.diagnosis.holding_selection import add_friction_pairs
+from pe_drake.diagnosis.holding import holding_candidates, holding_note, holding_report, holding_torque
 from pe_drake.diagnosis.presliding import PRESLIDING, PreslidingStep, presliding_effects, presliding_step
 from pe_drake.diagnosis.record import (Record, Segment, check_fits_in_memory, check_joints, check_record_signs,
                                       delayed_states, prepare_record, split_segments)
@@ -227,6 +229,8 @@ def candidate_library(robot, prep: Prepared, config: DiagnosisConfig) -> Candida
     """
     candidates = joint_candidates(robot, config.effects)
     sep = separability(robot, prep.base, candidates, model=prep.model)
+    # a holding torque's column depends on the history, never on the state alone: separable
+    sep += [Separability(c, 1.0, True, {}) for c in holding_candidates(robot, prep.training)]
     library = Library(prep.base.count, tuple(s.candidate for s in sep if s.separable))
     training, held = prep.training, prep.held
     reg = Regression(*(library.segment_columns(prep.model, prep.base.independent, seg) for seg in (training, held)),
@@ -435,6 +439,7 @@ def augment(robot, prep: Prepared, lib: CandidateLibrary, pre: PreslidingStep, n
                          else (held.q, held.v, held.vd, held.coulomb))
     tau_after = augmented_torque(true, augmented, q, v, vd)
     tau_after += augmented.coulomb * (coulomb - np.tanh(v / config.coulomb_velocity_scale)) + pre.held_torque
+    tau_after += holding_torque(pre.regression.held, final, library)  # friction held at rest
     # the least-squares prediction with the final values (a delay by its linearization -d·dτ/dt)
     ls_pred = pre.regression.held.product(final.columns, final.x)
     return Augmentation(augmented, tau_after, rms(held.tau - tau_after),
@@ -527,6 +532,7 @@ def diagnose(
     say("2. rigid-body parameters re-identified, held-out RMS [N·m]: " + _fmt_joints(joints, rigid.rms_held))
     lap("rigid")
     sel = select(lib, rigid, prep.held, config)
+    sel = add_friction_pairs(lib.regression, lib.library, sel, config.max_effects)  # sliding + at rest
     _say_selection(say, sel, lib.library, joints)
     lap("effects")
     naming = name_effects(robot, lib, sel, rigid, nom, config)
@@ -536,6 +542,10 @@ def diagnose(
                                  cumulative=naming.cumulative + [(f"+ {PRESLIDING}", pre.final.rms_held)] * bool(pre.fits))
     for f in pre.fits:
         say(f"3. {PRESLIDING}[{joints[f.joint]}] (x_p {1e3 * f.displacement:.3g} mrad) in its Coulomb slot")
+    holding = holding_report(prep.training, prep.held, lib.library, pre.regression, pre.final,
+                             [f"{e.effect}[{e.joint}]" for e in naming.effects], joints)
+    if holding_note(holding):
+        say(holding_note(holding))
     lap("presliding")
     pay = payload_step(robot, prep, lib, sel, naming, config)
     if pay.outcome.effect is not None:
@@ -562,7 +572,7 @@ def diagnose(
         robot.name, joints, config, prep.training, held, named, nom.rms, rigid.rms_held, aug.rms,
         naming.cumulative, left.joints, pay.not_separable, naming.rejected, nom.regimes, pay.rigid,
         pay.outcome.report, left.timing, predictions, residual_series, aug.model, aug.drake_check,
-        lap.timings, held.record.noise_floor, sel.thresholds.unexplained)
+        lap.timings, held.record.noise_floor, sel.thresholds.unexplained, holding)
 
 
 def _say_selection(say: Callable[[str], None], sel: Selection, library: Library, joints: Sequence[str]) -> None:
