@@ -47,8 +47,8 @@ class NamedEffect:
     """An effect the diagnosis names.
 
     Attributes:
-        effect: ``coulomb_friction``, ``viscous_friction``, ``armature``, ``torque_offset`` or
-            ``payload``.
+        effect: ``coulomb_friction``, ``viscous_friction``, ``armature``, ``torque_offset``,
+            ``holding_torque``, ``presliding_friction``, ``time_delay`` or ``payload``.
         joint: the joint (per-joint effects) or "" (payload).
         link: the link (payload) or "".
         value: identified value in ``unit`` (payload: the added mass).

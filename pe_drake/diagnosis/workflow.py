@@ -32,6 +32,10 @@
    passes it is named ``time_delay`` (d in seconds, the unit of ``simulate``'s
    ``torque_delay``) and the augmented model pairs each torque sample with the motion d
    earlier. Without the column the library would absorb a delay into other effects.
+   On joints that rest in the training data a ``holding_torque`` candidate joins the library
+   (the friction held at rest, :mod:`pe_drake.diagnosis.holding`), also tried together with
+   the joint's Coulomb friction after the selection
+   (:mod:`pe_drake.diagnosis.holding_selection`).
 4. **Augmented model.** The selected effects are added to the model in Drake (joint damping,
    rotor inertia, a welded payload body, Coulomb friction as a ``DoorHinge`` force element,
    offsets as a generalized force, a time delay as the motion interpolated at t − d;
