@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from pe_drake.diagnosis.effects import COULOMB_VELOCITY_SCALE, Candidate
+from pe_drake.diagnosis.effects import COULOMB_VELOCITY_SCALE, Candidate, Separability
 from pe_drake.identification.dahl import dahl_state
 
 #: Name of the effect.
@@ -116,6 +116,13 @@ def holding_candidates(robot, training) -> list[Candidate]:
     return out
 
 
+def holding_separability(robot, training) -> list[Separability]:
+    """:func:`holding_candidates` as separable: a column of the history is never a function of
+    the state, so no rigid-body column can hold it (the structural test of
+    :func:`~pe_drake.diagnosis.effects.separability` draws random states)."""
+    return [Separability(c, 1.0, True, {}) for c in holding_candidates(robot, training)]
+
+
 def holding_torque(columns, fit, library) -> np.ndarray:
     """The named holding torques H·h of a segment, (S, n) [N·m]: what the augmented model adds
     to Drake's torque (Drake's joints have no friction state at rest)."""
@@ -128,18 +135,19 @@ def holding_torque(columns, fit, library) -> np.ndarray:
     return out
 
 
-def holding_report(training, held, library, regression, final, named: Sequence[str],
-                   joints: Sequence[str]) -> dict[str, Any]:
+def holding_report(training, held, library, pre, effects: Sequence, joints: Sequence[str]) -> dict[str, Any]:
     """The ``holding_test`` of diagnosis.json: per joint, its rests in both parts and, for the
     candidates, the held-out RMS at rest without and with the holding torque.
 
     Args:
         training, held: the two segments.
         library: the regression's columns (:class:`~pe_drake.diagnosis.regression.Library`).
-        regression, final: the final regression and fit (with the pre-sliding columns).
-        named: labels of the named effects.
+        pre: the pre-sliding step (its final regression and fit).
+        effects: the named :class:`~pe_drake.diagnosis.result.NamedEffect` list.
         joints: joint names.
     """
+    regression, final = pre.regression, pre.final
+    named = {f"{e.effect}[{e.joint}]" for e in effects}
     rows = []
     for j, name in enumerate(joints):
         tr, ho = segment_rests(training, j), segment_rests(held, j)

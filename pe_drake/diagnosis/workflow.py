@@ -32,10 +32,8 @@
    passes it is named ``time_delay`` (d in seconds, the unit of ``simulate``'s
    ``torque_delay``) and the augmented model pairs each torque sample with the motion d
    earlier. Without the column the library would absorb a delay into other effects.
-   On joints that rest in the training data a ``holding_torque`` candidate joins the library
-   (the friction held at rest, :mod:`pe_drake.diagnosis.holding`), also tried together with
-   the joint's Coulomb friction after the selection
-   (:mod:`pe_drake.diagnosis.holding_selection`).
+   Joints that rest in the training data get a ``holding_torque`` candidate (friction held at
+   rest, :mod:`pe_drake.diagnosis.holding`; with Coulomb friction: ``holding_selection``).
 4. **Augmented model.** The selected effects are added to the model in Drake (joint damping,
    rotor inertia, a welded payload body, Coulomb friction as a ``DoorHinge`` force element,
    offsets as a generalized force, a time delay as the motion interpolated at t − d;
@@ -87,8 +85,8 @@ from pe_drake.diagnosis.payload import (
     payload_search,
     rigid_report,
 )
+from pe_drake.diagnosis.holding import holding_note, holding_report, holding_separability, holding_torque
 from pe_drake.diagnosis.holding_selection import add_friction_pairs
-from pe_drake.diagnosis.holding import holding_candidates, holding_note, holding_report, holding_torque
 from pe_drake.diagnosis.presliding import PRESLIDING, PreslidingStep, presliding_effects, presliding_step
 from pe_drake.diagnosis.record import (Record, Segment, check_fits_in_memory, check_joints, check_record_signs,
                                       delayed_states, prepare_record, split_segments)
@@ -233,8 +231,7 @@ def candidate_library(robot, prep: Prepared, config: DiagnosisConfig) -> Candida
     """
     candidates = joint_candidates(robot, config.effects)
     sep = separability(robot, prep.base, candidates, model=prep.model)
-    # a holding torque's column depends on the history, never on the state alone: separable
-    sep += [Separability(c, 1.0, True, {}) for c in holding_candidates(robot, prep.training)]
+    sep += holding_separability(robot, prep.training)
     library = Library(prep.base.count, tuple(s.candidate for s in sep if s.separable))
     training, held = prep.training, prep.held
     reg = Regression(*(library.segment_columns(prep.model, prep.base.independent, seg) for seg in (training, held)),
@@ -546,10 +543,9 @@ def diagnose(
                                  cumulative=naming.cumulative + [(f"+ {PRESLIDING}", pre.final.rms_held)] * bool(pre.fits))
     for f in pre.fits:
         say(f"3. {PRESLIDING}[{joints[f.joint]}] (x_p {1e3 * f.displacement:.3g} mrad) in its Coulomb slot")
-    holding = holding_report(prep.training, prep.held, lib.library, pre.regression, pre.final,
-                             [f"{e.effect}[{e.joint}]" for e in naming.effects], joints)
-    if holding_note(holding):
-        say(holding_note(holding))
+    holding = holding_report(prep.training, prep.held, lib.library, pre, naming.effects, joints)
+    if note := holding_note(holding):
+        say(note)
     lap("presliding")
     pay = payload_step(robot, prep, lib, sel, naming, config)
     if pay.outcome.effect is not None:
