@@ -69,6 +69,7 @@ EXPOSING_REGIME = {
     "payload": "q",
     "time_delay": "dtau",
     "presliding_friction": "v",
+    "holding_torque": "v",
 }
 
 

@@ -21,6 +21,7 @@ import numpy as np
 
 from pe_drake.diagnosis.columns import Columns
 from pe_drake.diagnosis.effects import Candidate, effect_column
+from pe_drake.diagnosis.holding import HOLDING, holding_column
 from pe_drake.diagnosis.options import TIMING, DiagnosisConfig, Thresholds
 from pe_drake.diagnosis.record import Segment
 from pe_drake.identification.statistics import integrated_autocorrelation
@@ -187,8 +188,11 @@ class Library:
         """{column: (joint, values (S,))}: each candidate's column on its own joint."""
         out, q, v, vd = {}, seg.q, seg.v, seg.vd
         for k, c in enumerate(self.candidates):
-            values = (seg.coulomb[:, c.joint].copy() if c.effect == "coulomb_friction"
-                      else effect_column(c.effect, q, v, vd, c.joint))
+            if c.effect == HOLDING:  # a history column (diagnosis/holding.py), not a function of the state
+                values = holding_column(seg, c.joint)
+            else:
+                values = (seg.coulomb[:, c.joint].copy() if c.effect == "coulomb_friction"
+                          else effect_column(c.effect, q, v, vd, c.joint))
             out[self.num_base + k] = (c.joint, values)
         return out
 

@@ -34,6 +34,8 @@
    passes it is named ``time_delay`` (d in seconds, the unit of ``simulate``'s
    ``torque_delay``) and the augmented model pairs each torque sample with the motion d
    earlier. Without the column the library would absorb a delay into other effects.
+   Joints that rest in the training data get a ``holding_torque`` candidate (friction held at
+   rest, :mod:`pe_drake.diagnosis.holding`; with Coulomb friction: ``holding_selection``).
 4. **Augmented model.** The selected effects are added to the model in Drake (joint damping,
    rotor inertia, a welded payload body, Coulomb friction as a ``DoorHinge`` force element,
    offsets as a generalized force, a time delay as the motion interpolated at t − d;
@@ -86,6 +88,8 @@ from pe_drake.diagnosis.payload import (
     payload_search,
     rigid_report,
 )
+from pe_drake.diagnosis.holding import holding_note, holding_report, holding_separability, holding_torque
+from pe_drake.diagnosis.holding_selection import add_friction_pairs
 from pe_drake.diagnosis.presliding import PRESLIDING, PreslidingStep, presliding_effects, presliding_step
 from pe_drake.diagnosis.prior import prior_drive_torque, prior_own_parameters, prior_parameters
 from pe_drake.diagnosis.record import (Record, Segment, check_fits_in_memory, check_joints, check_record_signs,
@@ -241,6 +245,7 @@ def candidate_library(robot, prep: Prepared, config: DiagnosisConfig) -> Candida
     """
     candidates = joint_candidates(robot, config.effects)
     sep = separability(robot, prep.base, candidates, model=prep.model)
+    sep += holding_separability(robot, prep.training)
     library = Library(prep.base.count, tuple(s.candidate for s in sep if s.separable))
     training, held = prep.training, prep.held
     reg = Regression(*(library.segment_columns(prep.model, prep.base.independent, seg) for seg in (training, held)),
@@ -427,6 +432,7 @@ def augment(robot, prep: Prepared, lib: CandidateLibrary, pre: PreslidingStep, n
                          else (held.q, held.v, held.vd, held.coulomb))
     tau_after = augmented_torque(true, augmented, q, v, vd)
     tau_after += augmented.coulomb * (coulomb - np.tanh(v / config.coulomb_velocity_scale)) + pre.held_torque
+    tau_after += holding_torque(pre.regression.held, final, library)  # friction held at rest
     # the least-squares prediction with the final values (a delay by its linearization -d·dτ/dt)
     ls_pred = pre.regression.held.product(final.columns, final.x)
     return Augmentation(augmented, tau_after, rms(held.tau - tau_after),
@@ -524,6 +530,7 @@ def diagnose(
     lap("rigid")
     split = split_regression(lib.regression, prep.internal)
     sel = select(lib.regression, split, lib.library, rigid, prep.training, prep.held, config)
+    sel = add_friction_pairs(lib.regression, split, lib.library, sel, config.max_effects)  # sliding + at rest
     say_selection(say, sel, lib.library, joints, _fmt_joints)
     lap("effects")
     naming = name_effects(robot, lib, sel, rigid, nom, config)
@@ -533,6 +540,9 @@ def diagnose(
                                  cumulative=naming.cumulative + [(f"+ {PRESLIDING}", pre.final.rms_held)] * bool(pre.fits))
     for f in pre.fits:
         say(f"3. {PRESLIDING}[{joints[f.joint]}] (x_p {1e3 * f.displacement:.3g} mrad) in its Coulomb slot")
+    holding = holding_report(prep.training, prep.held, lib.library, pre, naming.effects, joints)
+    if note := holding_note(holding):
+        say(note)
     lap("presliding")
     pay = payload_step(robot, prep, lib, sel, naming, config)
     if pay.outcome.effect is not None:
@@ -562,7 +572,7 @@ def diagnose(
         naming.cumulative, left.joints, pay.not_separable, naming.rejected, nom.regimes, pay.rigid,
         pay.outcome.report, left.timing, predictions, residual_series, aug.model, aug.drake_check,
         lap.timings, held.record.noise_floor, sel.thresholds.unexplained, decisions,
-        {**prep.internal.describe(), "held_out": "used only for the figures reported"})
+        {**prep.internal.describe(), "held_out": "used only for the figures reported"}, holding)
 
 
 class _Laps:
