@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from pe_drake.exceptions import ConfigError
+from pe_drake.exceptions import ConfigError, shorten
 from pe_drake.identification.preprocessing import design_lowpass, differentiate, resample_uniform
 from pe_drake.multibody.regressor import RegressorModel
 
@@ -368,7 +368,10 @@ def drive_summary(fit: DriveFit | None) -> list[str]:
                  for t, jj, u, x, s in zip(fit.layout.terms, fit.layout.joints, fit.layout.units, fit.theta, fit.sigma)
                  if jj == j]
         if name in fit.layout.merged:
-            parts.append("armature not separable (merged into " + ", ".join(fit.layout.merged[name]) + ")")
+            merged = list(fit.layout.merged[name])  # base-parameter compositions: identified.json has them whole
+            more = f", … ({len(merged) - 2} more)" if len(merged) > 2 else ""
+            parts.append("armature not separable (merged into " + ", ".join(shorten(m, 60) for m in merged[:2])
+                         + more + ")")
         if parts:
             lines.append(f"  {name}: " + "; ".join(parts))
     for label, reason in fit.layout.dropped.items():
