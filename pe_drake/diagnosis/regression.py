@@ -302,10 +302,17 @@ class Library:
         """The columns that act on every joint: the base regressor and the timing nuisance."""
         return [*range(self.num_base), self.timing_col]
 
-    def segment_columns(self, model, independent: np.ndarray, seg: Segment) -> Columns:
+    def segment_columns(self, model, independent: np.ndarray, seg: Segment,
+                        known: np.ndarray | None = None) -> Columns:
         """A segment's base regressor (``model``'s ``independent`` columns), timing nuisance and
         candidate columns, built a block of samples at a time (a long log's columns are never
-        held twice, nor in float64: :data:`LONG_LOG_BYTES`)."""
+        held twice, nor in float64: :data:`LONG_LOG_BYTES`).
+
+        Args:
+            known: torque the a-priori model already holds outside the regressor (the model
+                file's friction), (S, n) [N·m]: the fit is of the measured torque minus it,
+                so the candidates are what the model file lacks.
+        """
         b = self.num_base
         q, v, vd, dtau = seg.q, seg.v, seg.vd, seg.dtau
 
@@ -313,7 +320,8 @@ class Library:
             model.columns(q[rows], v[rows], vd[rows], independent, out=out[:, :, :b])
             out[:, :, b] = -dtau[rows]  # the timing nuisance: tau_rec(t) ≈ tau(t) - d·dtau/dt
 
-        return Columns.assemble(seg.tau, b + self.extra_count, self.stored_columns, fill,
+        y = seg.tau if known is None else seg.tau - known
+        return Columns.assemble(y, b + self.extra_count, self.stored_columns, fill,
                                 self.single_joint_columns(seg))
 
     def single_joint_columns(self, seg: Segment) -> dict[int, tuple[int, np.ndarray]]:

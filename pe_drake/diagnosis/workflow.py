@@ -3,8 +3,11 @@
 ``pe-drake diagnose --robot ROBOT --data ident.csv [--validation other.csv] --out DIR``
 
 1. **Nominal comparison.** The a-priori model's torque along the measured motion (Drake's
-   inverse dynamics = Y φ_prior, plus the model file's joint damping) against the measured
-   torque, per joint and per regime (velocity sign, speed, acceleration, position, time).
+   inverse dynamics = Y φ_prior, plus the model file's joint friction: ``<dynamics damping>``
+   as d·v and ``friction`` as f_c·tanh(v/v_s)) against the measured torque, per joint and per
+   regime (velocity sign, speed, acceleration, position, time). Every later fit is of the
+   measured torque minus that friction, so an effect named is what the model file lacks (a
+   viscous friction on top of its damping; its details give the total).
 2. **Rigid-body re-identification** of the base parameters alone (WLS, Gautier's per-joint
    weights), reported as its own step: inertial errors are not a missing effect.
 3. **Effects.** Candidate columns of :mod:`pe_drake.diagnosis.effects` are appended to the base
@@ -179,17 +182,26 @@ class Nominal:
     regimes: dict[str, Any]
 
 
+def model_file_friction(robot, seg: Segment) -> np.ndarray:
+    """The friction the model file holds, d·v + f_c·tanh(v/v_s), along a segment, (S, n) [N·m].
+
+    ``<dynamics damping>`` (Drake's joint damping) and ``friction`` (which Drake ignores) are
+    part of the a-priori model (issue 21, as in ``simulate`` and ``identify``); the Coulomb
+    term is the segment's parallel-filtered column, like the measured torque.
+    """
+    return robot.joint_damping * seg.v + robot.joint_friction * seg.coulomb
+
+
 def nominal(robot, prep: Prepared, regression: Regression) -> Nominal:
-    """Y φ_prior plus the model file's joint damping against the measured torque (the base
+    """Y φ_prior plus the model file's joint friction against the measured torque (the base
     regressor from ``regression``'s columns).
 
     Raises:
         DataError: torques in the wrong units (naming the file and column).
     """
     training, held, joints = prep.training, prep.held, robot.joint_names
-    damping = robot.joint_damping
     base = range(prep.base.count)
-    tau_nom_tr, tau_nom_ho = (c.product(base, prep.phi_B_prior) + damping * s.v
+    tau_nom_tr, tau_nom_ho = (c.product(base, prep.phi_B_prior) + model_file_friction(robot, s)
                               for c, s in ((regression.train, training), (regression.held, held)))
     for seg, pred in ((training, tau_nom_tr), (held, tau_nom_ho)):
         check_torque_units(Measurement(seg.t, seg.q, seg.tau, None, None, joints, seg.record.source), pred)
@@ -229,8 +241,8 @@ def candidate_library(robot, prep: Prepared, config: DiagnosisConfig) -> Candida
     sep = separability(robot, prep.base, candidates, model=prep.model)
     library = Library(prep.base.count, tuple(s.candidate for s in sep if s.separable))
     training, held = prep.training, prep.held
-    reg = Regression(*(library.segment_columns(prep.model, prep.base.independent, seg) for seg in (training, held)),
-                     library.num_base)
+    reg = Regression(*(library.segment_columns(prep.model, prep.base.independent, seg, model_file_friction(robot, seg))
+                       for seg in (training, held)), library.num_base)
     b = library.num_base
     cond = condition_number(reg.train.gram[:, :b, :b].sum(axis=0))
     if cond > MAX_COND:
@@ -309,7 +321,7 @@ def name_effects(robot, lib: CandidateLibrary, sel: Selection, rigid: Fit, nom: 
 def _named(reg: Regression, library: Library, final: Fit, effect_cols: list[int], fits_cum: list[Fit], robot,
            config: DiagnosisConfig) -> tuple[list[NamedEffect], list[dict[str, Any]]]:
     """Each effect with its value, and the fits with everything but it for its plot."""
-    joints, damping = robot.joint_names, robot.joint_damping
+    joints, damping, friction = robot.joint_names, robot.joint_damping, robot.joint_friction
     named: list[NamedEffect] = []
     series: list[dict[str, Any]] = []
     res_final = reg.residual("held-out", reg.fit(effect_cols))
@@ -327,10 +339,12 @@ def _named(reg: Regression, library: Library, final: Fit, effect_cols: list[int]
             continue
         c = library.cand_of[col]
         details: dict[str, Any] = {"contribution_rms": float(reg.contribution_rms("held-out", final, col)[c.joint])}
+        # The value is what the model file lacks (the fit starts from its friction): say the total.
         if c.effect == "viscous_friction":
-            details["model_file_damping"] = float(damping[c.joint])
+            details.update(model_file_damping=float(damping[c.joint]), total=float(damping[c.joint] + value))
         if c.effect == "coulomb_friction":
-            details["velocity_scale"] = config.coulomb_velocity_scale
+            details.update(velocity_scale=config.coulomb_velocity_scale, model_file_friction=float(friction[c.joint]),
+                           total=float(friction[c.joint] + value))
         named.append(NamedEffect(
             c.effect, c.joint_name, "", float(value), c.unit, float(std), float(abs(value) / max(std, 1e-300)),
             per_joint(joints, fits_cum[k].rms_held), per_joint(joints, fits_cum[k + 1].rms_held), details))
@@ -436,7 +450,7 @@ def augment(robot, prep: Prepared, lib: CandidateLibrary, pre: PreslidingStep, n
     tau_after = augmented_torque(true, augmented, q, v, vd)
     tau_after += augmented.coulomb * (coulomb - np.tanh(v / config.coulomb_velocity_scale)) + pre.held_torque
     # the least-squares prediction with the final values (a delay by its linearization -d·dτ/dt)
-    ls_pred = pre.regression.held.product(final.columns, final.x)
+    ls_pred = pre.regression.held.product(final.columns, final.x) + model_file_friction(robot, held)
     return Augmentation(augmented, tau_after, rms(held.tau - tau_after),
                         np.max(np.abs(tau_after - ls_pred), axis=0))
 

@@ -1,0 +1,89 @@
+"""The model file's joint friction is part of the a-priori model of every command (issue 21).
+
+A URDF's ``<dynamics damping>`` (Drake's joint damping) and ``friction`` (which Drake ignores)
+used to be dropped by ``simulate`` (the truth's viscous friction replaced the damping, 0 when
+the truth had none) but kept by ``diagnose``'s a-priori model, so ``diagnose`` refused
+pe_drake's own simulated run or named the URDF's damping as a missing friction.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+
+import numpy as np
+import pytest
+
+from pe_drake.diagnosis import diagnose
+from pe_drake.excitation.trajectory_file import load_trajectory
+from pe_drake.identification.simulation import simulate
+from pe_drake.identification.truth import ControlTruth, EffectsTruth, NoiseTruth, Truth
+from pe_drake.multibody.robot import load_robot
+from tests.conftest import get_robot
+from tests.test_diagnosis import TRAJECTORY
+
+DAMPING = 0.5  # [N·m·s/rad] on every arm joint of the copied URDF
+FRICTION = {"panda_joint2": 0.4}  # [N·m] <dynamics friction>
+DURATION = 14.0  # [s], as the diagnosis tests
+CONTROL = ControlTruth(rate_hz=500.0)
+NOISE = NoiseTruth(encoder_counts_per_rev=524288, tau_std=0.02)
+
+
+@pytest.fixture(scope="module")
+def damped(tmp_path_factory):
+    """The Panda with damping 0.5 on its arm joints and friction 0.4 N·m on joint 2."""
+    panda = get_robot("panda")
+    text = panda.model_path.read_text()
+    text = re.sub(r'damping="0\.003"', f'damping="{DAMPING}"', text)
+    for joint, f in FRICTION.items():
+        start = text.index(f'<joint name="{joint}"')
+        end = text.index("</joint>", start)
+        text = text[:start] + re.sub(r'friction="0\.0"', f'friction="{f}"', text[start:end], count=1) + text[end:]
+    path = tmp_path_factory.mktemp("damped") / "panda_damped.urdf"
+    path.write_text(text)
+    return load_robot(dataclasses.replace(panda.config, model=str(path)))
+
+
+@pytest.fixture(scope="module")
+def trajectory():
+    return load_trajectory(TRAJECTORY)[0]
+
+
+def test_the_model_files_friction_is_read(damped):
+    np.testing.assert_allclose(damped.joint_damping, DAMPING)
+    assert damped.joint_friction.tolist() == [FRICTION.get(j, 0.0) for j in damped.joint_names]
+
+
+def test_simulate_keeps_the_urdf_damping_and_diagnose_accepts_it(damped, trajectory):
+    """simulate → diagnose on a URDF with damping: nothing named that is only the URDF's."""
+    truth = Truth(seed=2, noise=NOISE, control=CONTROL)
+    data, record = simulate(damped, trajectory, truth, DURATION)
+    assert record["effects"]["viscous"]["values"] == {j: DAMPING for j in damped.joint_names}
+    assert set(record["effects"]["viscous"]["source"].values()) == {"model file"}
+    assert record["effects"]["coulomb"]["values"]["panda_joint2"] == FRICTION["panda_joint2"]
+    result = diagnose(damped, data)  # refused before: "probably in kN·m" / named the damping
+    friction = [e for e in result.effects if e.effect in ("viscous_friction", "coulomb_friction")]
+    assert not friction, friction
+    # the a-priori model (rigid body + the URDF's friction) already predicts the torque
+    assert np.max(result.rms_nominal) < 0.1, result.rms_nominal
+
+
+def test_the_truths_viscous_friction_replaces_the_urdf_damping(damped, trajectory):
+    """A truth that sets a joint's viscous friction is what is simulated there; the other
+    joints keep the URDF's damping, and diagnose names only what the URDF lacks."""
+    truth = Truth(seed=4, noise=NOISE, control=CONTROL, effects=EffectsTruth(viscous={"panda_joint4": 1.5}))
+    data, record = simulate(damped, trajectory, truth, DURATION)
+    viscous = record["effects"]["viscous"]
+    assert viscous["values"]["panda_joint4"] == 1.5 and viscous["source"]["panda_joint4"] == "truth"
+    assert viscous["values"]["panda_joint1"] == DAMPING and viscous["source"]["panda_joint1"] == "model file"
+    assert viscous["model_file_damping"]["panda_joint4"] == DAMPING
+    result = diagnose(damped, data)
+    found = {(e.effect, e.joint): e for e in result.effects}
+    assert set(found) == {("viscous_friction", "panda_joint4")}, found
+    effect = found[("viscous_friction", "panda_joint4")]
+    assert effect.value == pytest.approx(1.5 - DAMPING, rel=0.1)  # what the URDF lacks
+    assert effect.details["total"] == pytest.approx(1.5, rel=0.05)
+    j = damped.joint_names.index("panda_joint4")
+    assert result.augmented.viscous[j] == pytest.approx(1.5, rel=0.05)  # the augmented model holds the total
+    assert result.augmented.viscous[0] == DAMPING
+    assert result.rms_after[j] < 0.2 * result.rms_nominal[j]
