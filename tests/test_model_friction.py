@@ -54,10 +54,23 @@ def test_the_model_files_friction_is_read(damped):
     assert damped.joint_friction.tolist() == [FRICTION.get(j, 0.0) for j in damped.joint_names]
 
 
+_RUNS: dict = {}
+
+
+def simulated(robot, trajectory, truth: Truth):
+    """The simulated run of a truth (once per module)."""
+    key = repr(truth)
+    if key not in _RUNS:
+        _RUNS[key] = simulate(robot, trajectory, truth, DURATION)
+    return _RUNS[key]
+
+
+PLAIN = Truth(seed=2, noise=NOISE, control=CONTROL)
+
+
 def test_simulate_keeps_the_urdf_damping_and_diagnose_accepts_it(damped, trajectory):
     """simulate → diagnose on a URDF with damping: nothing named that is only the URDF's."""
-    truth = Truth(seed=2, noise=NOISE, control=CONTROL)
-    data, record = simulate(damped, trajectory, truth, DURATION)
+    data, record = simulated(damped, trajectory, PLAIN)
     assert record["effects"]["viscous"]["values"] == {j: DAMPING for j in damped.joint_names}
     assert set(record["effects"]["viscous"]["source"].values()) == {"model file"}
     assert record["effects"]["coulomb"]["values"]["panda_joint2"] == FRICTION["panda_joint2"]
@@ -87,3 +100,27 @@ def test_the_truths_viscous_friction_replaces_the_urdf_damping(damped, trajector
     assert result.augmented.viscous[j] == pytest.approx(1.5, rel=0.05)  # the augmented model holds the total
     assert result.augmented.viscous[0] == DAMPING
     assert result.rms_after[j] < 0.2 * result.rms_nominal[j]
+
+
+def test_identify_starts_from_the_urdf_friction(damped, trajectory, tmp_path):
+    """Without drive terms the model file's friction is kept (not absorbed by the links); with
+    them the fitted viscous and Coulomb friction are each joint's total, written to model.urdf."""
+    from pe_drake.identification.identify_model import IdentifyOptions, identify_model
+    from pe_drake.identification.drive_terms import DriveTermOptions
+
+    data, _ = simulated(damped, trajectory, PLAIN)
+    rigid = identify_model(damped, data, IdentifyOptions(drive=DriveTermOptions("none"))).result
+    drive = rigid.drive.as_dict()["joints"]
+    assert drive["panda_joint3"]["viscous"] == {**drive["panda_joint3"]["viscous"], "value": DAMPING,
+                                                 "source": "model file"}
+    assert drive["panda_joint2"]["coulomb"]["value"] == FRICTION["panda_joint2"]
+    assert np.max(rigid.residual_rms) < 0.1, rigid.residual_rms  # the links did not have to absorb it
+    full = identify_model(damped, data, IdentifyOptions(method="physical"))
+    viscous, coulomb = full.result.drive.per_joint("viscous"), full.result.drive.per_joint("coulomb")
+    np.testing.assert_allclose(viscous, DAMPING, atol=0.05)  # the total, not what the URDF lacks
+    assert coulomb[1] == pytest.approx(FRICTION["panda_joint2"], abs=0.05)
+    assert not full.result.drive.known
+    full.write(tmp_path)
+    again = load_robot(dataclasses.replace(damped.config, model=str(tmp_path / "model.urdf")))
+    np.testing.assert_allclose(again.joint_damping, viscous, rtol=1e-9)
+    assert again.joint_friction[1] == pytest.approx(coulomb[1], rel=1e-9)

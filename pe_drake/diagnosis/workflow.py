@@ -88,7 +88,7 @@ from pe_drake.diagnosis.payload import (
 )
 from pe_drake.diagnosis.presliding import PRESLIDING, PreslidingStep, presliding_effects, presliding_step
 from pe_drake.diagnosis.record import (Record, Segment, check_fits_in_memory, check_joints, check_record_signs,
-                                      delayed_states, prepare_record, split_segments)
+                                      delayed_states, model_file_friction, prepare_record, split_segments)
 from pe_drake.diagnosis.regression import (
     Fit,
     Library,
@@ -180,16 +180,6 @@ class Nominal:
     residual_held: np.ndarray
     rms: np.ndarray
     regimes: dict[str, Any]
-
-
-def model_file_friction(robot, seg: Segment) -> np.ndarray:
-    """The friction the model file holds, d·v + f_c·tanh(v/v_s), along a segment, (S, n) [N·m].
-
-    ``<dynamics damping>`` (Drake's joint damping) and ``friction`` (which Drake ignores) are
-    part of the a-priori model (issue 21, as in ``simulate`` and ``identify``); the Coulomb
-    term is the segment's parallel-filtered column, like the measured torque.
-    """
-    return robot.joint_damping * seg.v + robot.joint_friction * seg.coulomb
 
 
 def nominal(robot, prep: Prepared, regression: Regression) -> Nominal:
