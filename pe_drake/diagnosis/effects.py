@@ -81,7 +81,9 @@ class Candidate:
         joint: index of the joint in the robot's order.
         joint_name: its name.
         unit: unit of the value θ.
-        nonnegative: a physically meaningful value is ≥ 0 (friction, armature).
+        nonnegative: a physically meaningful value is ≥ ``lower`` (friction, armature).
+        lower: that bound: 0, or for friction minus the model file's value on the joint (the
+            value is what the model file lacks, the total d + θ must be ≥ 0; issue 21).
     """
 
     effect: str
@@ -89,6 +91,7 @@ class Candidate:
     joint_name: str
     unit: str
     nonnegative: bool
+    lower: float = 0.0
 
     @property
     def label(self) -> str:
@@ -103,12 +106,14 @@ def joint_candidates(robot, effects: Sequence[str] = JOINT_EFFECTS) -> list[Cand
         effects: names from :data:`JOINT_EFFECTS`.
     """
     out = []
+    model_file = {"viscous_friction": robot.joint_damping, "coulomb_friction": robot.joint_friction}
     for effect in effects:
         if effect not in JOINT_EFFECTS:
             raise UnknownNameError("effect", effect, JOINT_EFFECTS)
         for j, info in enumerate(robot.joints):
             unit = _UNITS[effect][0 if info.kind == "revolute" else 1]
-            out.append(Candidate(effect, j, info.name, unit, _NONNEGATIVE[effect]))
+            lower = -float(model_file[effect][j]) if effect in model_file else 0.0
+            out.append(Candidate(effect, j, info.name, unit, _NONNEGATIVE[effect], lower))
     return out
 
 

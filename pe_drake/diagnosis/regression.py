@@ -364,7 +364,11 @@ def accept(col: int, fit: Fit, current: Fit, library: Library, thresholds: Thres
         return True, ""
     c: Candidate = library.cand_of[col]
     j = c.joint
-    if c.nonnegative and value < 0:
+    # A correction of a model file's friction (lower < 0) is checked against its bound in the
+    # backward pass, with every effect in: while other joints' frictions are still missing, a
+    # lone Coulomb column also takes its joint's viscous deficit and overshoots a URDF whose
+    # friction is too high (TALOS writes damping 1, friction 1 on every arm joint; issue 21).
+    if c.nonnegative and c.lower == 0 and value < 0:
         return False, f"physically implausible sign ({value:.3g} {c.unit})"
     if z < z_min:
         return False, f"not significant (z = {z:.2g} < {z_min:.2g})"
@@ -450,7 +454,7 @@ def _backward_check(reg: Regression, library: Library, selected: list[int], curr
         for col in selected:
             value = current.value(col)
             z = abs(value) / max(current.std(col), 1e-300)
-            if col in cand_of and cand_of[col].nonnegative and value < 0:
+            if col in cand_of and cand_of[col].nonnegative and value < cand_of[col].lower:
                 z = -1.0
             if z < z_min and z < worst_z:
                 worst, worst_z = col, z
