@@ -124,3 +124,24 @@ def test_identify_starts_from_the_urdf_friction(damped, trajectory, tmp_path):
     again = load_robot(dataclasses.replace(damped.config, model=str(tmp_path / "model.urdf")))
     np.testing.assert_allclose(again.joint_damping, viscous, rtol=1e-9)
     assert again.joint_friction[1] == pytest.approx(coulomb[1], rel=1e-9)
+
+
+def test_a_urdf_with_too_much_friction_gets_negative_corrections(trajectory, tmp_path):
+    """TALOS's URDF writes damping 1 and friction 1 on every arm joint. On a robot with less, each
+    joint needs both corrections negative: a lone Coulomb column, fitted while the other joints'
+    frictions are still missing, overshot the URDF's value and was refused as implausible, so
+    the augmented model kept the URDF's friction and predicted worse than the rigid fit."""
+    panda = get_robot("panda")
+    text = re.sub(r'damping="0\.003" friction="0\.0"', 'damping="1.0" friction="1.0"', panda.model_path.read_text())
+    path = tmp_path / "panda_talos_like.urdf"
+    path.write_text(text)
+    robot = load_robot(dataclasses.replace(panda.config, model=str(path)))
+    assert robot.joint_friction.tolist() == [1.0] * 7
+    truth = Truth(seed=6, noise=NOISE, control=CONTROL, effects=EffectsTruth(viscous={"all": 0.1}, coulomb={"all": 0.3}))
+    data, _ = simulate(robot, trajectory, truth, DURATION)
+    result = diagnose(robot, data)
+    coulomb = {e.joint: e for e in result.effects if e.effect == "coulomb_friction"}
+    assert len(coulomb) >= 5, [(e.effect, e.joint) for e in result.effects]
+    for e in coulomb.values():
+        assert e.value == pytest.approx(-0.7, abs=0.1) and e.details["total"] == pytest.approx(0.3, abs=0.1)
+    assert np.all(result.rms_after < 0.5 * result.rms_nominal), (result.rms_nominal, result.rms_after)
