@@ -25,7 +25,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", default="results/diagnose_real_panda", help="output folder")
     args = parser.parse_args(argv)
     if not Path(args.data).is_file():
-        print(f"skipped: the real Panda recording is not here ({args.data}); it is not part of the "
+        print(f"skipped: the real Panda recording is not here ({args.data}); pass --data FILE; it is not part of the "
               "project (see ../shared/datasets/panda_gaz2019/README.md)")
         return 0
 

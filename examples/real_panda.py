@@ -34,7 +34,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if not Path(args.data).is_file():
         print(
-            f"skipped: the real Panda recording is not here ({args.data}); it is not part of the "
+            f"skipped: the real Panda recording is not here ({args.data}); pass --data FILE; it is not part of the "
             "project (see ../shared/datasets/panda_gaz2019/README.md)"
         )
         return 0

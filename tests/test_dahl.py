@@ -34,7 +34,7 @@ def test_exact_integration_matches_the_ode():
 
     ode = solve_ivp(rhs, (0.0, 3.0), [0.0], t_eval=t, rtol=1e-9, atol=1e-11, max_step=1e-3)
     np.testing.assert_allclose(z, ode.y[0], atol=2e-4)
-    # Sliding far from reversals: z → sgn v (the Coulomb limit); bounded by 1.
+    # Sliding far from reversals: z → sgn v (the Coulomb limit, in sliding only); bounded by 1.
     assert np.max(np.abs(z)) <= 1.0
     assert np.min(z[np.argmax(q)]) > 0.9  # after a long positive stroke
 

@@ -207,15 +207,18 @@ def test_armature_of_the_first_joint_is_reported_as_not_separable(robot, traject
 # ---- the command, its files and the augmented model ------------------------------------------
 
 
-def test_command_writes_every_output_and_the_augmented_model_loads(robot, trajectory, tmp_path):
+def test_command_writes_every_output_and_the_augmented_model_loads(robot, trajectory, tmp_path, capsys):
     measurement, _ = simulated(robot, trajectory, "armature")
     data = tmp_path / "ident.csv"
     write_measurement_csv(data, measurement)
     out = tmp_path / "diag"
     assert cli(["diagnose", "--robot", "panda", "--data", str(data), "--out", str(out)]) == 0
     d = json.loads((out / "diagnosis.json").read_text())
-    for key in ("effects", "rms_nominal", "rms_rigid", "rms_after", "unexplained", "cumulative"):
+    for key in ("effects", "rms_nominal", "rms_rigid", "rms_after", "unexplained", "cumulative", "rejected",
+                "decisions", "selection"):
         assert key in d
+    assert {x["decision"] for x in d["decisions"]} <= {"selected", "rejected", "not separable", "not tried"}
+    assert "3. decisions: " in capsys.readouterr().out
     assert d["effects"][0]["effect"] == "armature" and d["effects"][0]["joint"] == "panda_joint4"
     assert d["effects"][0]["unit"] == "kg·m²"
     assert set(d["rms_after"]) == set(robot.joint_names)
@@ -224,7 +227,7 @@ def test_command_writes_every_output_and_the_augmented_model_loads(robot, trajec
         assert (out / name).is_file(), name
     assert not [p for p in out.iterdir() if p.name.startswith(".")]  # nothing staged left behind
     report = (out / "report.md").read_text()
-    assert "armature" in report and "| nominal |" in report
+    assert "armature" in report and "| nominal |" in report and "Decisions: " in report
     # the URDF carries the rotor inertia: loading it gives the augmented torque (checked on
     # writing against build_augmented_robot; here against the diagnosis' own prediction)
     from pe_drake.config import RobotConfig
@@ -324,3 +327,85 @@ def test_every_candidate_gets_a_decision_with_its_statistic(robot, trajectory):
     assert all("z" in r and r["reason"] for r in result.rejected)
     assert not named_ & rejected
     assert len(named_) + len(rejected) + len(result.not_separable) == len(JOINT_EFFECTS) * robot.n
+
+
+# ---- the hold-out stays clean (issue 23) ------------------------------------------------------
+
+
+def test_selection_does_not_look_at_the_held_out_data(robot, trajectory):
+    """Issue 23: the effects are selected on the training data alone. The held-out run's torques
+    replaced by another run's (the same motion with viscous friction on joint 5 and no Coulomb
+    friction on joint 3) change the held-out figures, not what is named nor its value."""
+    measurement, _ = simulated(robot, trajectory, "coulomb")
+    other, _ = simulated(robot, trajectory, "viscous")
+    first = measurement.t < 9.0
+    part = Measurement(measurement.t[first], measurement.q[first], measurement.tau[first], None, None,
+                       measurement.joints, "first.csv")
+    rest = Measurement(measurement.t[~first], measurement.q[~first], measurement.tau[~first], None, None,
+                       measurement.joints, "rest.csv")
+    garbage = rest.replace(tau=other.tau[~first], source="garbage.csv")
+    clean, dirty = diagnose(robot, part, rest), diagnose(robot, part, garbage)
+    assert set(named(clean)) == {("coulomb_friction", "panda_joint3")}
+    assert [(e.effect, e.joint, e.value, e.std) for e in dirty.effects] == \
+        [(e.effect, e.joint, e.value, e.std) for e in clean.effects]
+    assert [(r["effect"], r["joint"], r["reason"]) for r in dirty.rejected] == \
+        [(r["effect"], r["joint"], r["reason"]) for r in clean.rejected]
+    # the reported figures are the held-out run's
+    assert dirty.rms_after[4] > 10 * clean.rms_after[4]
+
+
+
+def test_decisions_list_every_candidate_with_its_test_and_statistic(robot, trajectory):
+    """Issue 23: ``decisions`` holds every candidate considered, named or not, with the test that
+    decided it and its statistic, weak ones included (the pre-sliding test of every joint, not
+    only those with a statistic ≥ 4)."""
+    from pe_drake.diagnosis.effects import JOINT_EFFECTS
+
+    result = diagnosed(robot, trajectory, "mix")
+    joint_effects = [d for d in result.decisions if d["effect"] in JOINT_EFFECTS]
+    assert len({(d["effect"], d["joint"]) for d in joint_effects}) == len(joint_effects) == len(JOINT_EFFECTS) * robot.n
+    selected = {(d["effect"], d.get("joint") or d.get("link", "")) for d in result.decisions if d["decision"] == "selected"}
+    assert selected == set(named(result))
+    tests = {"sign", "z", "gain", "other_joints", "relevance", "backward", "replaced", "presliding", "payload"}
+    for d in result.decisions:
+        if d["decision"] == "rejected":
+            assert d["test"] in tests and d["reason"], d
+        if d["decision"] in ("selected", "rejected") and d["effect"] in JOINT_EFFECTS:
+            assert d["z"] >= 0 and d["z_min"] > 0 and "relative_gain" in d and "selection_rms_after" in d, d
+        if d["decision"] == "selected" and d["effect"] in JOINT_EFFECTS:
+            assert d["z"] >= d["z_min"] and d["relative_gain"] >= result.config.min_heldout_gain
+    assert sum(d["decision"] == "not separable" for d in result.decisions) == len(result.not_separable)
+    presliding = [d for d in result.decisions if d["effect"] == "presliding_friction"]
+    assert len(presliding) == robot.n and all("statistic" in d and "threshold" in d for d in presliding)
+    assert any(d["statistic"] < 4 for d in presliding)  # weak decisions are reported too
+    assert [d["effect"] for d in result.decisions if d["effect"] in ("time_delay", "payload")] == ["time_delay", "payload"]
+    assert result.to_json_dict()["decisions"] == result.decisions
+
+
+def test_diagnose_starts_from_an_earlier_model(robot, trajectory, tmp_path, capsys):
+    """Issue 23: ``diagnose --model`` takes the augmented_model.json of an earlier diagnosis or
+    the identified.json of ``identify`` (read as ``validate`` reads them) as the a-priori model:
+    its friction is in the nominal comparison, and the effects are still found in the data."""
+    measurement, _ = simulated(robot, trajectory, "coulomb")
+    data = tmp_path / "ident.csv"
+    write_measurement_csv(data, measurement)
+    first, second, third, ident = (tmp_path / k for k in ("first", "second", "third", "ident"))
+    assert cli(["diagnose", "--robot", "panda", "--data", str(data), "--out", str(first)]) == 0
+    assert cli(["diagnose", "--robot", "panda", "--data", str(data), "--out", str(second),
+                "--model", str(first / "augmented_model.json")]) == 0
+    assert "a-priori model: " in capsys.readouterr().out
+    d1, d2 = (json.loads((f / "diagnosis.json").read_text()) for f in (first, second))
+    assert d1["rms_nominal"]["panda_joint3"] > 0.4  # the URDF has no friction
+    assert d2["rms_nominal"]["panda_joint3"] < 0.02  # the earlier model has Coulomb 0.5 N·m
+    assert [e["effect"] for e in d2["effects"]] == ["coulomb_friction"]
+    assert d2["effects"][0]["value"] == pytest.approx(0.5, rel=0.02)
+    assert cli(["identify", "--robot", "panda", "--data", str(data), "--method", "wls", "--out", str(ident)]) == 0
+    assert cli(["diagnose", "--robot", "panda", "--data", str(data), "--out", str(third),
+                "--model", str(ident / "identified.json")]) == 0
+    d3 = json.loads((third / "diagnosis.json").read_text())
+    assert d3["rms_nominal"]["panda_joint3"] < 0.05  # identify's drive terms hold the friction
+    bad = tmp_path / "bad.json"
+    bad.write_text("{}")
+    assert cli(["diagnose", "--robot", "panda", "--data", str(data), "--out", str(tmp_path / "never"),
+                "--model", str(bad)]) == 2
+    assert "bad.json" in capsys.readouterr().err

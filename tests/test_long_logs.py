@@ -97,12 +97,42 @@ def test_a_line_longer_than_the_limit_is_refused_by_number(tmp_path, monkeypatch
         read_measurement_csv(path, robot.joint_names)
 
 
+def test_diagnose_keeps_single_joint_columns_once_and_long_ones_in_float32(monkeypatch):
+    """The candidate columns (one joint each) are one series, not an (S, n) block; the stored
+    columns of a long segment are float32 with the Gram matrices of the float64 columns."""
+    from pe_drake.diagnosis import columns, regression
+
+    rng = np.random.default_rng(1)
+    S, n, b = 500, 3, 4
+    dense, y = rng.normal(size=(S, n, b + 1)), rng.normal(size=(S, n))
+    single = {b + 1 + j: (j, rng.normal(size=S)) for j in range(n)}  # one candidate per joint
+    full = np.zeros((S, n, b + 1 + n))
+    full[:, :, : b + 1] = dense
+    for c, (j, values) in single.items():
+        full[:, j, c] = values
+    ref = regression.Columns.from_matrix(full, y)
+
+    def fill(rows, out):
+        out[...] = dense[rows]
+
+    for threshold, dtype in ((1e12, np.float64), (0.0, np.float32)):
+        monkeypatch.setattr(columns, "LONG_LOG_BYTES", threshold)
+        cols = regression.Columns.assemble(y, b + 1 + n, range(b + 1), fill, single, chunk=128)
+        assert cols.A.shape == (S, n, b + 1) and cols.A.dtype == dtype
+        np.testing.assert_allclose(cols.gram, ref.gram, rtol=1e-12, atol=1e-10)  # float64 sums either way
+        np.testing.assert_allclose(cols.rhs, ref.rhs, rtol=1e-12, atol=1e-10)
+        x = rng.normal(size=b + 1 + n)
+        np.testing.assert_allclose(cols.product(range(b + 1 + n), x), full @ x, rtol=0, atol=1e-5)
+        np.testing.assert_allclose(cols.joint_dot(1, y[:, 1]), y[:, 1] @ full[:, 1, :], rtol=1e-6, atol=1e-5)
+        np.testing.assert_allclose(cols.dense(), full, atol=1e-6)
+
+
 class _Hour:
     duration, rate_hz, num_joints, source = 3600.0, 1000.0, 7, "hour.csv"
 
 
 def test_a_diagnosis_that_cannot_fit_is_refused_with_the_figure():
-    with pytest.raises(DataError, match=r"diagnose would need about 6\.4 GB for 60\.0 min .* 5\.0 GB available"):
+    with pytest.raises(DataError, match=r"diagnose would need about 4\.2 GB for 60\.0 min .* 5\.0 GB available"):
         record.check_fits_in_memory(_Hour(), None, available=5_000_000_000)
     record.check_fits_in_memory(_Hour(), None, available=40_000_000_000)  # a bigger machine runs it
 

@@ -68,7 +68,7 @@ def test_a_model_path_without_a_config_gets_the_shipped_robots_margins(so101):
     assert robot.limits.q_lower[k] == pytest.approx(-1.91986 + 0.05)
     assert robot.limits.q_upper[k] == pytest.approx(1.91986 - 0.05)
     np.testing.assert_allclose(robot.limits.v_max, 8.0)
-    notes = [n for n in robot.notes if n.startswith(DEFAULTS_LINE)]
+    notes = [n for n in robot.limit_notes if n.startswith(DEFAULTS_LINE)]
     assert len(notes) == 1 and "0.05 rad" in notes[0] and "80 %" in notes[0]
 
 
@@ -79,7 +79,7 @@ def test_a_config_that_sets_a_margin_keeps_it(so101, tmp_path):
     assert config.robot.position_margin == 0.0 and config.robot.velocity_scale == 0.8
     assert config.robot.assumed == ["velocity_scale"]
     robot = load_robot(config)
-    note = next(n for n in robot.notes if n.startswith(DEFAULTS_LINE))
+    note = next(n for n in robot.limit_notes if n.startswith(DEFAULTS_LINE))
     assert "position margin" not in note and "80 %" in note
 
 
@@ -96,7 +96,7 @@ def test_a_narrow_prismatic_joint_keeps_a_quarter_of_its_range_and_says_m():
     assert (robot.limits.q_lower[k], robot.limits.q_upper[k]) == pytest.approx((0.01, 0.03))
     j1 = robot.joint_names.index("panda_joint1")
     assert robot.limits.q_upper[j1] == pytest.approx(2.8973 - 0.05)
-    note = next(n for n in robot.notes if n.startswith(DEFAULTS_LINE))
+    note = next(n for n in robot.limit_notes if n.startswith(DEFAULTS_LINE))
     assert "m on prismatic joints" in note and "panda_finger_joint1" in note
     # 4. the assumed acceleration limit in m/s² for the fingers, rad/s² for the arm
     line = assumed_defaults(resolve_robot_config(str(robot.model_path)), robot.joint_names,
@@ -234,3 +234,15 @@ def test_the_summary_neither_runs_long_nor_calls_a_stopped_solver_a_failure(so10
         assert "did not converge" not in result.message
         assert "stopped at its iteration limit" in result.message
         assert plan.report.converged is False
+
+
+def test_the_ignored_capsule_pairs_are_named_in_the_output_and_report_json(so101_plan):
+    """stdout said only "N pair(s) touching by design ignored" (issue 21)."""
+    plan, lines = so101_plan
+    report = plan.report.to_dict()
+    assert report["ignored_pairs"], "the SO-101's fitted capsules touch their neighbours' neighbours"
+    assert report["ignored_pairs"] == [{"pair": list(p[:2]), "reason": p[2]} for p in plan.fitted.ignored_pairs]
+    first = report["ignored_pairs"][0]["pair"]
+    line = next(x for x in lines if "touching by design ignored" in x)
+    assert f"{len(report['ignored_pairs'])} pair(s) touching by design ignored: {first[0]}/{first[1]}" in line
+    assert isinstance(report["shrunk_capsules"], dict)

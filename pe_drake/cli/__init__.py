@@ -139,7 +139,9 @@ def _add_identification_commands(sub) -> None:
                    help="measurement CSV, ROS 2 bag (folder, .db3, .mcap) or RTDE log (repeatable with --payload: "
                         "the loaded runs)")
     add_log_arguments(p)
-    p.add_argument("--method", choices=["ols", "wls", "physical"], default="ols")
+    p.add_argument("--method", choices=["ols", "wls", "physical"], default="ols",
+                   help="ols (default), wls (per-joint noise weights), or physical (every link physically "
+                        "consistent; writes model.urdf)")
     p.add_argument("--cutoff", type=float, help="low-pass cut-off [Hz] (default: from --trajectory or the data)")
     p.add_argument("--trajectory", help="trajectory.json that was run (its harmonics set the cut-off)")
     add_window_argument(p, "fitted")
@@ -177,6 +179,8 @@ def _add_identification_commands(sub) -> None:
     p.add_argument("--held-out-fraction", type=float, default=None,
                    help="fraction of --data held out at its end when no --validation is given "
                         "(default 0.3, from 0.05 to 0.8)")
+    p.add_argument("--model", help="start from an earlier model (identified.json of identify, or augmented_model.json "
+                                   "of diagnose) as the a-priori model (default: the URDF's)")
     p.add_argument("--out", required=True, help="output folder")
 
 

@@ -20,7 +20,8 @@ def config_from_args(args: argparse.Namespace, adjust: Callable[[Config], Config
     return adjust(config) if adjust is not None else config
 
 
-def robot_from_args(args: argparse.Namespace, config: Config | None = None, show_notes: bool = True) -> Robot:
+def robot_from_args(args: argparse.Namespace, config: Config | None = None, show_notes: bool = True,
+                    show_limit_notes: bool = False) -> Robot:
     """The :class:`~pe_drake.multibody.robot.Robot` of ``--robot``/``--config``.
 
     Args:
@@ -29,13 +30,16 @@ def robot_from_args(args: argparse.Namespace, config: Config | None = None, show
         config: the config to build it from, when the command has already resolved (and
             adjusted) it with :func:`config_from_args`.
         show_notes: print the robot's notes (``optimize`` prints them with its own progress).
+        show_limit_notes: print the limit margins assumed for a model without a config too (the
+            commands that move the robot; identification does not use the margins).
 
     Raises:
         UnknownNameError, ConfigError, NotWithinLimitsError: as :func:`~pe_drake.multibody.robot.load_robot`.
     """
     config = config if config is not None else config_from_args(args)
     robot = Robot(robot_display_name(args.robot), config.robot)
-    for note in robot.notes if show_notes else ():  # what the model needed for Drake (mimic, materials, mount)
+    notes = robot.notes + (robot.limit_notes if show_limit_notes else [])
+    for note in notes if show_notes else ():  # what the model needed for Drake (mimic, materials, mount)
         print(f"note: {note}", flush=True)
     return robot
 

@@ -8,6 +8,7 @@ from pathlib import Path
 from pe_drake.cli.common import config_from_args, read_log_from_args, robot_from_args
 from pe_drake.diagnosis import DiagnosisConfig, diagnose, write_outputs
 from pe_drake.exceptions import ConfigError
+from pe_drake.identification import load_identified
 from pe_drake.io_utils import staged_output_dir
 from pe_drake.output_paths import DIAGNOSE_OUTPUTS, check_output_dir
 
@@ -23,8 +24,13 @@ def diagnose_command(args) -> int:
     robot = robot_from_args(args, settings)
     data = read_log_from_args(args, robot, settings)
     validation = read_log_from_args(args, robot, settings, args.validation) if getattr(args, "validation", None) else None
+    prior = load_identified(args.model, robot) if getattr(args, "model", None) else None  # as validate reads it
     print(f"robot {robot.name}: {robot.n} joints ({', '.join(robot.joint_names)})", flush=True)
-    result = diagnose(robot, data, validation, config, progress=lambda s: print(s, flush=True))
+    if prior is not None:
+        print(f"a-priori model: {args.model} ({prior.method})", flush=True)
+        for note in prior.physical_notes if prior.method == "diagnose" else ():
+            print(f"note: {note}", flush=True)
+    result = diagnose(robot, data, validation, config, progress=lambda s: print(s, flush=True), prior=prior)
     with staged_output_dir(out, "diagnosis.json", DIAGNOSE_OUTPUTS) as tmp:
         written = write_outputs(tmp, robot, result)
     print(f"wrote {', '.join(str(out / Path(w).name) for w in written)}")

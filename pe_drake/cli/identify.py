@@ -6,8 +6,14 @@ from __future__ import annotations
 import argparse
 
 from pe_drake.cli.common import config_from_args, measurement_from_args, read_log_from_args, robot_from_args
-from pe_drake.identification import IdentifyOptions, ValidateOptions, identify_model, load_identified, validate_model
-from pe_drake.identification.time_window import TimeWindow
+from pe_drake.identification import (
+    IdentifyOptions,
+    TimeWindow,
+    ValidateOptions,
+    identify_model,
+    load_identified,
+    validate_model,
+)
 from pe_drake.output_paths import check_output_dir, check_output_file
 
 

@@ -11,7 +11,7 @@ def simulate_command(args) -> int:
     """``pe-drake simulate``: writes the CSV and its ``.truth.json``; prints a summary."""
     out = check_output_file(args.out, "--out", (".csv",))  # before any work
     config = config_from_args(args)
-    robot = robot_from_args(args, config)
+    robot = robot_from_args(args, config, show_limit_notes=True)
     run = simulate_run(robot, args.trajectory, getattr(args, "truth", None), duration=getattr(args, "duration", None),
                        measurement=measurement_from_args(args, config), model=getattr(args, "model", None))
     truth_file, recorded = run.write(out)

@@ -105,7 +105,9 @@ class AugmentedModel:
                  effects: dict[str, tuple[Any, float]], velocity_scale: float,
                  payload_link: str | None = None, cov_B: np.ndarray | None = None,
                  time_delay: float = 0.0,
-                 presliding: dict[int, tuple[float, float]] | None = None) -> AugmentedModel:
+                 presliding: dict[int, tuple[float, float]] | None = None,
+                 phi_prior: np.ndarray | None = None,
+                 friction_start: tuple[np.ndarray, np.ndarray] | None = None) -> AugmentedModel:
         """The model of a diagnosis fit.
 
         Args:
@@ -123,9 +125,15 @@ class AugmentedModel:
                 parameters are not physically valid and a physically consistent fit is needed.
             time_delay: a named ``time_delay`` [s] (0: none).
             presliding: {joint index: (F_c [N·m], σ0 [N·m/rad])} of the named pre-sliding friction.
+            phi_prior: the a-priori standard parameters the closest ones are sought from
+                (None: the robot's model file's; ``diagnose --model``: the earlier model's).
+            friction_start: (viscous, Coulomb) per joint a named friction adds to (default the
+                model file's; zeros with an earlier model, whose fits give totals).
         """
+        phi0 = robot.phi_model if phi_prior is None else np.asarray(phi_prior, float)
         n = robot.n
-        viscous, coulomb = np.array(robot.joint_damping, float), np.array(robot.joint_friction, float)
+        start = (robot.joint_damping, robot.joint_friction) if friction_start is None else friction_start
+        viscous, coulomb = np.array(start[0], float), np.array(start[1], float)
         armature, offset = np.zeros(n), np.zeros(n)
         for cand, value in effects.values():
             j = cand.joint
@@ -162,11 +170,11 @@ class AugmentedModel:
                 notes.append(f"payload: negative mass {m:.3g} kg folded into {robot.body_names[lead]}'s "
                              "parameters (a body cannot have negative mass)")
         target = phi_B - base.K @ phi_payload_full
-        phi = conditional_parameters(base.K, robot.phi_model, Sigma_phi, target)
+        phi = conditional_parameters(base.K, phi0, Sigma_phi, target)
         invalid = validity_problems(robot.body_names, phi)
         if invalid:
             H = np.linalg.pinv(cov_B) if cov_B is not None else np.eye(len(phi_B))
-            phi = physical_parameters(base.K, robot.phi_model, Sigma_phi, target, H)
+            phi = physical_parameters(base.K, phi0, Sigma_phi, target, H)
             phi, projected = physically_consistent(robot.body_names, phi)
             notes.append(
                 "the parameters closest to the a-priori model are not physically valid for "

@@ -69,6 +69,7 @@ EXPOSING_REGIME = {
     "payload": "q",
     "time_delay": "dtau",
     "presliding_friction": "v",
+    "holding_torque": "v",
 }
 
 
@@ -98,15 +99,19 @@ class Candidate:
         return f"{self.effect}[{self.joint_name}]"
 
 
-def joint_candidates(robot, effects: Sequence[str] = JOINT_EFFECTS) -> list[Candidate]:
+def joint_candidates(robot, effects: Sequence[str] = JOINT_EFFECTS,
+                     start: tuple[np.ndarray, np.ndarray] | None = None) -> list[Candidate]:
     """Every per-joint effect on every excited joint.
 
     Args:
         robot: a :class:`~pe_drake.multibody.robot.Robot`.
         effects: names from :data:`JOINT_EFFECTS`.
+        start: (viscous, Coulomb) per joint the fits start from (a friction's ``lower`` is
+            minus it); default the model file's (``Robot.joint_damping``, ``joint_friction``).
     """
     out = []
-    model_file = {"viscous_friction": robot.joint_damping, "coulomb_friction": robot.joint_friction}
+    viscous, coulomb = (robot.joint_damping, robot.joint_friction) if start is None else start
+    model_file = {"viscous_friction": viscous, "coulomb_friction": coulomb}
     for effect in effects:
         if effect not in JOINT_EFFECTS:
             raise UnknownNameError("effect", effect, JOINT_EFFECTS)

@@ -2,8 +2,9 @@
 
 :class:`DiagnosisConfig` holds what the user chooses (defaults are what
 :mod:`pe_drake.diagnosis.workflow` describes); :class:`Thresholds` holds what the selection
-and the ``unexplained`` step compare against once the noise floor and the torque spread of
-the held-out data are known.
+and the ``unexplained`` step compare against once the noise floor and the torque spread are
+known (of the training data for the selection, of the held-out data for ``unexplained``:
+:func:`pe_drake.diagnosis.selection.selection_thresholds`).
 """
 
 from __future__ import annotations
@@ -42,9 +43,10 @@ class DiagnosisConfig:
         payload: look for a payload.
         timing_check: use the timing-offset nuisance column.
         alpha: family-wise probability of naming an effect that is not there.
-        min_heldout_gain: relative held-out RMS reduction an effect must bring on its joint.
-        min_effect_fraction: the held-out torque an effect explains (RMS) must reach this
-            fraction of its joint's torque spread (std).
+        min_heldout_gain: relative RMS reduction an effect must bring on its joint, on data
+            its fit has not seen: the training part's cross-validation (the name is older).
+        min_effect_fraction: the torque an effect explains (cross-validated RMS) must reach
+            this fraction of its joint's torque spread (std, training part).
         noise_factor: multiples of the noise floor for relevance and for ``unexplained``.
         unexplained_fraction: a joint is unexplained when its held-out residual RMS exceeds
             this fraction of its torque spread (and ``noise_factor`` × its noise floor).
@@ -113,8 +115,8 @@ class Thresholds:
 
     Attributes:
         z_min: two-sided Bonferroni bound of the significance test, |θ| / σ_θ ≥ z_min.
-        min_heldout_gain: relative held-out RMS reduction an effect must bring on its joint.
-        relevance: held-out RMS an effect must explain on its joint, (n,) [N·m].
+        min_heldout_gain: relative cross-validated RMS reduction an effect must bring on its joint.
+        relevance: cross-validated RMS an effect must explain on its joint, (n,) [N·m].
         unexplained: held-out residual RMS above which a joint is unexplained, (n,) [N·m].
     """
 
@@ -131,7 +133,7 @@ class Thresholds:
         Args:
             config: the options.
             noise_floor: filtered white-noise level per joint, (n,) [N·m].
-            spread: held-out torque standard deviation per joint, (n,) [N·m].
+            spread: torque standard deviation per joint, (n,) [N·m].
             num_tests: candidate columns tested (Bonferroni).
         """
         n = len(spread)

@@ -5,9 +5,12 @@ linear in F_c, nonlinear in x_p = F_c/σ0. Where the selection named ``coulomb_f
 a joint, its column tanh(v/v_s) is replaced by the parallel-filtered Dahl column z(q; x_p)
 for every x_p of :data:`DISPLACEMENT_GRID`, the whole model is refitted (base parameters and
 every named effect: the linear fit inside the search), and the x_p with the lowest weighted
-training residual wins. The Coulomb model is the x_p → 0 limit, so the two are nested: the
-workflow names ``presliding_friction`` instead of ``coulomb_friction`` when the residual drop
-is significant (a likelihood-ratio test with the autocorrelation-inflated noise of the joint)
+training residual wins. In sliding the Coulomb model is the x_p → 0 limit, so there the two
+are nested (at rest they are not: the Dahl state keeps ±1 where tanh(v/v_s) is 0, the
+holding torque of :mod:`pe_drake.diagnosis.holding`; on a joint whose holding torque is
+named the Dahl column is zero at rest, so that it models the motion only): the workflow
+names ``presliding_friction`` instead of ``coulomb_friction`` when the residual drop is
+significant (a likelihood-ratio test with the autocorrelation-inflated noise of the joint)
 and the held-out residual of the joint drops too.
 """
 
@@ -19,7 +22,9 @@ from typing import Any
 
 import numpy as np
 
+from pe_drake.diagnosis.holding import HOLDING, record_rest_mask
 from pe_drake.diagnosis.result import NamedEffect, per_joint
+from pe_drake.diagnosis.selection import split_with_column
 from pe_drake.identification.dahl import dahl_state
 
 #: Name of the effect.
@@ -62,15 +67,19 @@ class PreslidingFit:
     held_values: np.ndarray | None = None
 
 
-def dahl_columns(record, joint: int, grid: np.ndarray = DISPLACEMENT_GRID) -> np.ndarray:
+def dahl_columns(record, joint: int, grid: np.ndarray = DISPLACEMENT_GRID, moving: np.ndarray | None = None) -> np.ndarray:
     """The normalized Dahl state of one joint for every x_p of ``grid``, integrated and filtered
     like the torque (parallel filtering) at the record's full rate, at every ``record.step``-th
-    sample (the segments' samples are among them), shape (⌈T/step⌉, G).
+    sample (the segments' samples are among them), shape (⌈T/step⌉, G). With ``moving`` (a
+    full-rate mask, (T,)) the state is zero outside it: the joint's rests belong to its named
+    holding torque (:mod:`pe_drake.diagnosis.holding`), the Dahl column to its motion.
 
     The state follows the record's filtered q (a noisy q would reverse at every sample). One
     joint at a time: all of them at the full rate held 1.1 kB per sample of a 7-joint log.
     """
     z = dahl_state(record.q[:, joint], np.asarray(grid, float))  # (T, G)
+    if moving is not None:
+        z *= moving[:, None]
     out = np.empty((len(range(0, z.shape[0], record.step)), z.shape[1]))
     for g in range(z.shape[1]):  # filtered a grid value at a time: no second (T, G) array
         out[:, g] = record.filtered(z[:, g])[:: record.step]
@@ -203,37 +212,48 @@ class PreslidingStep:
                 for r in self.report if not r["named"] and r["statistic"] >= min_statistic]
 
 
-def presliding_step(prep, lib, sel, config) -> PreslidingStep:
+def presliding_step(prep, lib, sel, config, split) -> PreslidingStep:
     """Tries the Dahl column in each joint's Coulomb slot (replacing a named Coulomb column, or
     added) and keeps it when the joint's training residual drops significantly
     (likelihood ratio ≥ z_min², the selection's Bonferroni bound squared, with the joint's
-    autocorrelation-inflated noise), its held-out RMS drops by ``min_heldout_gain``, and x_p
-    is not the grid's smallest value (the Coulomb limit). Effects of that joint that are no
-    longer significant with it (e.g. a viscous friction that stood in for it) are dropped."""
+    autocorrelation-inflated noise), its cross-validated RMS on the training segment (``split``,
+    :class:`pe_drake.diagnosis.selection.CrossValidation`; never the held-out data) drops by
+    ``min_heldout_gain``, and x_p is not the grid's smallest value (the Coulomb limit in
+    sliding). Effects of that joint that are no longer significant with it (e.g. a viscous
+    friction that stood in for it) are dropped."""
     reg, library, extra = lib.regression, lib.library, list(sel.selected)
     cache: dict = {}  # (id(record), joint) -> its filtered Dahl columns (dahl_columns)
     report, fits = [], []
     held_torque = np.zeros_like(prep.held.tau)
     slots = [c for c in library.cand_of if library.cand_of[c].effect == "coulomb_friction"]
+    resting = {library.cand_of[c].joint for c in sel.selected if c in library.cand_of
+               and library.cand_of[c].effect == HOLDING}  # joints whose rests a holding torque carries
     for col in slots:
         j = library.cand_of[col].joint
         trial = extra if col in extra else extra + [col]
-        tr, ho = (_dahl_at(cache, seg, j) for seg in (prep.training, prep.held))
-        before = reg.fit(extra)
-        fit = search_presliding(reg, trial, col, j, tr, ho)
+        tr, ho = (_dahl_at(cache, seg, j, j in resting) for seg in (prep.training, prep.held))
+        before, split_before = reg.fit(extra), split.fit(extra)
         rss_before = float(before.rms_train[j] ** 2 * reg.train.count)
-        decision = _decide(fit, before, rss_before, reg, j, sel.thresholds, config)
+
+        def decide(fit: PreslidingFit) -> tuple[dict[str, Any], Any]:
+            values = fit.regression.train.overrides[col][1]  # the Dahl column on the training samples
+            with_dahl = split_with_column(split, reg.train, prep.internal, col, j, values)
+            gain = (float(split_before.rms_held[j]), float(with_dahl.fit(trial).rms_held[j]))
+            return _decide(fit, before, rss_before, reg, j, sel.thresholds, config, gain), with_dahl
+
+        fit = search_presliding(reg, trial, col, j, tr, ho)
+        decision, with_dahl = decide(fit)
         if decision["named"]:  # refine x_p between grid points (only here: each column costs a pass)
-            refined = search_presliding(reg, trial, col, j, tr, ho, column_at=_column_at(prep, j))
-            decision = _decide(refined, before, rss_before, reg, j, sel.thresholds, config)
-            fit = refined
+            fit = search_presliding(reg, trial, col, j, tr, ho, column_at=_column_at(prep, j, j in resting))
+            decision, with_dahl = decide(fit)
         report.append({"joint": library.cand_of[col].joint_name, "displacement": fit.displacement,
                        "coulomb": fit.coulomb, "stiffness": fit.stiffness, **decision,
                        "heldout_rms_all_before": [float(x) for x in before.rms_held],
                        "heldout_residual_before": reg.residual("held-out", before)[:, j] if decision["named"] else None})
         if decision["named"]:
             fits.append(fit)
-            reg, extra = fit.regression, _drop_stand_ins(fit.regression, trial, col, j, library, sel.thresholds)
+            reg, split = fit.regression, with_dahl
+            extra = _drop_stand_ins(fit.regression, trial, col, j, library, sel.thresholds)
             held_torque[:, j] = fit.held_values
     final = reg.fit(extra) if fits else sel.final
     for f in fits:  # the Dahl torques with the final values
@@ -241,22 +261,25 @@ def presliding_step(prep, lib, sel, config) -> PreslidingStep:
     return PreslidingStep(fits, report, reg, final, held_torque, tuple(c for c in sel.selected if c not in extra))
 
 
-def _decide(fit: PreslidingFit, before, rss_before: float, reg, j: int, thresholds, config) -> dict[str, Any]:
-    """The acceptance tests of :func:`presliding_step` for one joint."""
+def _decide(fit: PreslidingFit, before, rss_before: float, reg, j: int, thresholds, config,
+            gain: tuple[float, float]) -> dict[str, Any]:
+    """The acceptance tests of :func:`presliding_step` for one joint (``gain``: the joint's
+    cross-validated RMS without and with the Dahl column [N·m])."""
     best = int(np.argmin(fit.rss))
     sigma2 = fit.rss_best / reg.train.count
     statistic = float((rss_before - fit.rss_best) / max(sigma2 * reg.inflation[j], 1e-300))
     reasons = []
     if best == 0:
-        reasons.append("the smallest pre-sliding displacement fits best (the Coulomb limit)")
+        reasons.append("the smallest pre-sliding displacement fits best (in sliding, the Coulomb model)")
     if statistic < thresholds.z_min**2:
         reasons.append(f"residual drop not significant ({statistic:.3g} < {thresholds.z_min ** 2:.3g})")
-    if fit.fit.rms_held[j] > (1 - config.min_heldout_gain) * before.rms_held[j]:
-        reasons.append(f"held-out RMS only {before.rms_held[j]:.4g} → {fit.fit.rms_held[j]:.4g} N·m")
+    if gain[1] > (1 - config.min_heldout_gain) * gain[0]:
+        reasons.append(f"cross-validated RMS only {gain[0]:.4g} → {gain[1]:.4g} N·m")
     if fit.coulomb <= 0:
         reasons.append("non-positive friction level")
     return {"statistic": statistic, "threshold": thresholds.z_min**2, "heldout_rms_before": float(before.rms_held[j]),
-            "heldout_rms_presliding": float(fit.fit.rms_held[j]), "named": not reasons, "reason": "; ".join(reasons)}
+            "heldout_rms_presliding": float(fit.fit.rms_held[j]), "selection_rms_before": gain[0],
+            "selection_rms_presliding": gain[1], "named": not reasons, "reason": "; ".join(reasons)}
 
 
 def _drop_stand_ins(reg, extra: list[int], col: int, joint: int, library, thresholds) -> list[int]:
@@ -272,27 +295,31 @@ def _drop_stand_ins(reg, extra: list[int], col: int, joint: int, library, thresh
         extra.remove(min(weak, key=lambda c: z[c]))
 
 
-def _column_at(prep, joint: int) -> Callable[[float], tuple[np.ndarray, np.ndarray]]:
-    """x_p → the joint's filtered Dahl column on the training and held-out samples."""
+def _column_at(prep, joint: int, resting: bool = False) -> Callable[[float], tuple[np.ndarray, np.ndarray]]:
+    """x_p → the joint's filtered Dahl column on the training and held-out samples (zero at
+    rest when ``resting``)."""
 
     def at(x_p: float) -> tuple[np.ndarray, np.ndarray]:
         out = []
         for seg in (prep.training, prep.held):
-            z = seg.record.filtered(dahl_state(seg.record.q[:, joint], x_p)[:, None])[:, 0]
+            z = dahl_state(seg.record.q[:, joint], x_p)
+            if resting:
+                z = z * ~record_rest_mask(seg.record, joint)
+            z = seg.record.filtered(z[:, None])[:, 0]
             out.append(z[seg.idx])
         return out[0], out[1]
 
     return at
 
 
-def _dahl_at(cache: dict, seg, joint: int) -> np.ndarray:
-    """:func:`dahl_columns` of a segment's record and joint (once each) at its samples, (S, G);
-    the cache keeps the current joint only."""
+def _dahl_at(cache: dict, seg, joint: int, resting: bool = False) -> np.ndarray:
+    """:func:`dahl_columns` of a segment's record and joint (once each) at its samples, (S, G),
+    zero at rest when ``resting``; the cache keeps the current joint only."""
     key = (id(seg.record), joint)
     if key not in cache:
         for old in [k for k in cache if k[1] != joint]:
             del cache[old]
-        cache[key] = dahl_columns(seg.record, joint)
+        cache[key] = dahl_columns(seg.record, joint, moving=~record_rest_mask(seg.record, joint) if resting else None)
     return cache[key][seg.idx // seg.record.step]
 
 

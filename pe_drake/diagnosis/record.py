@@ -285,10 +285,11 @@ def check_record_signs(robot, record: Record) -> None:
                                            record.vd[idx], robot.joint_names, record.source))
 
 
-#: What diagnose holds per fitted sample (it fits at 200 Hz at most), measured with ``python -m
-#: pe_drake.bench memory`` on 2- and 6-minute 7-joint Panda logs at 1 kHz (416 and 790 MB: 1.6 kB
-#: per row, 7.8 kB per fitted sample; rounded up), and its fixed part [bytes].
-DIAGNOSE_BYTES_PER_SAMPLE = 8.5e3
+#: What diagnose holds per fitted sample (it fits at 200 Hz at most), measured on 7-joint Panda
+#: logs at 1 kHz: 4.8 kB on an hour (3714 MB peak, its columns in float32:
+#: ``columns.LONG_LOG_BYTES``), rounded up; 6.7 kB on 10 minutes (1053 MB, float64 columns),
+#: where the 80 % margin covers the difference. And its fixed part [bytes].
+DIAGNOSE_BYTES_PER_SAMPLE = 5.5e3
 DIAGNOSE_BASE_BYTES = 0.25e9
 FIT_RATE_HZ = 200.0
 

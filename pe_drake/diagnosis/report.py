@@ -1,4 +1,5 @@
-"""The diagnosis report: report.md and its figures (matplotlib, Agg backend, imported lazily).
+"""The diagnosis report: report.md and its figures (matplotlib, Agg backend, imported lazily),
+and the one-line summary of the candidates' decisions (:mod:`pe_drake.diagnosis.decisions`).
 
 Figures:
 
@@ -15,6 +16,9 @@ Figures:
 
 from __future__ import annotations
 
+import math
+from collections import Counter
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -317,11 +321,14 @@ def _effects_section(r) -> list[str]:
             rows.append([e.effect, e.joint or e.link or "all joints", f"{_g(e.value, 4)} ± {_g(e.std, 2)} {e.unit}", _g(e.z),
                          f"{_g(before)} → {_g(after)}" if before is not None else "(within the rigid step)"])
         lines += [_table(["effect", "joint / link", "value", "z", "held-out RMS of its joint"], rows), ""]
-    lines.append("Selection: forward stepwise on the training data, each effect physically plausible, "
-                 "significant after correcting for correlated samples, lowering its joint's held-out RMS "
-                 f"by ≥ {100 * r.config.min_heldout_gain:g} % and larger than "
+    split = getattr(r, "selection", {}) or {}
+    lines.append("Selection: forward stepwise on the training data alone, each effect physically plausible, "
+                 "significant after correcting for correlated samples, lowering its joint's cross-validated RMS "
+                 f"on the training data by ≥ {100 * r.config.min_heldout_gain:g} % and larger than "
                  f"max({r.config.noise_factor:g} × noise floor, {100 * r.config.min_effect_fraction:g} % of the "
-                 "joint's torque spread).")
+                 "joint's torque spread); the held-out data give only the figures reported."
+                 + (f" Selection parts: {split['method']}, blocks of {_g(split['block_s'])} s, "
+                    f"{_g(split['guard_s'])} s between a fold's fit and selection parts." if split else ""))
     lines.append("")
     if r.not_separable:
         lines.append("Not separable from the rigid-body terms (not named; only their sum with a base parameter "
@@ -336,7 +343,16 @@ def _effects_section(r) -> list[str]:
                          f"{ns['unit']} (a-priori uncertainty of that sum {_g(ns['implied_value_prior_std'])})")
             lines.append(f"- {ns['effect']} of `{ns['joint']}` merges with {merged}{extra}")
         lines.append("")
-    if r.rejected:
+    decisions = getattr(r, "decisions", None) or []
+    if decisions:
+        lines += [f"Decisions: {decision_summary(decisions)} (every one in diagnosis.json `decisions`). "
+                  "Closest to being named:", ""]
+        lines.append(_table(["effect", "joint", "value", "statistic", "test", "reason"],
+                            [[d["effect"], d.get("joint") or d.get("link", ""),
+                              f"{_g(d['value'])} {d['unit']}" if d.get("value") is not None else "",
+                              _statistic(d), d["test"], d["reason"]] for d in near_misses(decisions, 6)]))
+        lines.append("")
+    elif r.rejected:
         lines.append("Strongest candidates not named:")
         lines.append("")
         lines.append(_table(["effect", "joint", "value", "z", "reason"],
@@ -344,6 +360,42 @@ def _effects_section(r) -> list[str]:
                              for x in r.rejected[:6]]))
         lines.append("")
     return lines + ["![residuals](residual_effects.png)", ""]
+
+
+def decision_summary(decisions: Sequence[dict[str, Any]]) -> str:
+    """One line: how many candidates were selected, rejected by which test, not separable."""
+    counts = Counter(d["decision"] for d in decisions)
+    tests = Counter(d["test"] for d in decisions if d["decision"] == "rejected")
+    parts = [f"{counts.get('selected', 0)} selected",
+             f"{counts.get('rejected', 0)} rejected"
+             + (" (" + ", ".join(f"{k} {v}" for k, v in tests.most_common()) + ")" if tests else "")]
+    parts += [f"{counts[k]} {k}" for k in ("not separable", "not tried") if counts.get(k)]
+    return f"{len(decisions)} candidates: " + ", ".join(parts)
+
+
+def near_misses(decisions: Sequence[dict[str, Any]], count: int = 8) -> list[dict[str, Any]]:
+    """The rejected candidates closest to being selected: the largest z relative to z_min (or
+    statistic relative to threshold) first."""
+    def closeness(d: dict[str, Any]) -> float:
+        if d.get("test") == "sign":  # a negative friction or armature is far from being named
+            return 0.0
+        if d.get("z") is not None and d.get("z_min"):
+            return float(d["z"]) / float(d["z_min"])
+        if d.get("statistic") is not None and d.get("threshold"):
+            return math.sqrt(max(float(d["statistic"]), 0.0) / float(d["threshold"]))  # a z²-like statistic
+        return 0.0
+
+    rejected = [d for d in decisions if d["decision"] == "rejected"]
+    return sorted(rejected, key=closeness, reverse=True)[:count]
+
+
+def _statistic(d: dict[str, Any]) -> str:
+    """A decision's statistic against its threshold: z / z_min, or a χ²-like statistic."""
+    if d.get("z") is not None and d.get("z_min") is not None:
+        return f"z {_g(d['z'], 2)} (≥ {_g(d['z_min'], 2)})"
+    if d.get("statistic") is not None and d.get("threshold") is not None:
+        return f"{_g(d['statistic'], 3)} (≥ {_g(d['threshold'], 3)})"
+    return ""
 
 
 def _augmented_section(r, model_files: list[str]) -> list[str]:

@@ -47,8 +47,8 @@ class NamedEffect:
     """An effect the diagnosis names.
 
     Attributes:
-        effect: ``coulomb_friction``, ``viscous_friction``, ``armature``, ``torque_offset`` or
-            ``payload``.
+        effect: ``coulomb_friction``, ``viscous_friction``, ``armature``, ``torque_offset``,
+            ``holding_torque``, ``presliding_friction``, ``time_delay`` or ``payload``.
         joint: the joint (per-joint effects) or "" (payload).
         link: the link (payload) or "".
         value: identified value in ``unit`` (payload: the added mass).
@@ -112,6 +112,12 @@ class DiagnosisResult:
         timings: wall time per step [s].
         noise_floor: filtered white-noise level of the held-out torque per joint [N·m].
         thresholds: held-out residual RMS above which a joint is unexplained [N·m].
+        decisions: every candidate considered with its decision, the test that decided it and
+            its statistics (:mod:`pe_drake.diagnosis.decisions`).
+        selection: how the training data were split for the selection (the held-out data
+            only give the figures reported).
+        holding_test: the holding-torque test per joint (:mod:`pe_drake.diagnosis.holding`):
+            rest periods of both parts, decision and reason.
     """
 
     robot: str
@@ -138,6 +144,9 @@ class DiagnosisResult:
     timings: dict[str, float]
     noise_floor: np.ndarray
     thresholds: np.ndarray
+    decisions: list[dict[str, Any]] = dataclasses.field(default_factory=list)
+    selection: dict[str, Any] = dataclasses.field(default_factory=dict)
+    holding_test: dict[str, Any] = dataclasses.field(default_factory=dict)
 
     def per_joint(self, x: np.ndarray) -> dict[str, float]:
         """{joint: value} of a per-joint array."""
@@ -172,10 +181,13 @@ class DiagnosisResult:
             "unexplained_threshold": self.per_joint(self.thresholds),
             "not_separable": self.not_separable,
             "rejected": self.rejected,
+            "decisions": self.decisions,
+            "selection": self.selection,
             "regimes": self.regimes,
             "rigid": self.rigid,
             "payload_test": self.payload_test,
             "timing": self.timing,
+            "holding_test": self.holding_test,
             "drake_check_max_abs": self.per_joint(self.drake_check),
             "config": {k: (list(v) if isinstance(v, tuple) else v)
                        for k, v in dataclasses.asdict(self.config).items()},

@@ -16,9 +16,11 @@
    (friction, armature ≥ 0), (b) it is significant: |θ| / σ_θ ≥ z, with σ_θ from the sandwich
    covariance inflated by the integrated autocorrelation time of the joint's residual (filtered
    samples are not independent) and z the two-sided Bonferroni bound for ``alpha`` over all
-   candidates, (c) it lowers the held-out RMS of its joint by at least ``min_heldout_gain``
-   (relative) and the weighted held-out residual overall, and (d) what it explains there is
-   relevant: √(RMS_before² - RMS_after²) ≥ max(``noise_factor`` × noise floor,
+   candidates, (c) it lowers the cross-validated RMS of its joint by at least
+   ``min_heldout_gain`` (relative) and the weighted cross-validated residual overall (a blocked
+   3-fold cross-validation of the training part, :mod:`pe_drake.diagnosis.selection`: the
+   held-out data are never looked at by the selection, only reported), and (d) what it
+   explains there is relevant: √(RMS_before² - RMS_after²) ≥ max(``noise_factor`` × noise floor,
    ``min_effect_fraction`` × the joint's torque spread, ``resolution_fraction`` × the largest
    joint's spread) (a value that is large only because the column is nearly collinear with
    rigid-body terms on this motion explains little).
@@ -35,6 +37,8 @@
    passes it is named ``time_delay`` (d in seconds, the unit of ``simulate``'s
    ``torque_delay``) and the augmented model pairs each torque sample with the motion d
    earlier. Without the column the library would absorb a delay into other effects.
+   Joints that rest in the training data get a ``holding_torque`` candidate (friction held at
+   rest, :mod:`pe_drake.diagnosis.holding`; with Coulomb friction: ``holding_selection``).
 4. **Augmented model.** The selected effects are added to the model in Drake (joint damping,
    rotor inertia, a welded payload body, Coulomb friction as a ``DoorHinge`` force element,
    offsets as a generalized force, a time delay as the motion interpolated at t − d;
@@ -71,6 +75,7 @@ from typing import Any
 import numpy as np
 
 from pe_drake.diagnosis.augmented_model import AugmentedModel, augmented_torque, build_augmented_robot
+from pe_drake.diagnosis.decisions import decision_list
 from pe_drake.diagnosis.effects import (
     EXPOSING_REGIME,
     Separability,
@@ -78,7 +83,7 @@ from pe_drake.diagnosis.effects import (
     prior_parameter_covariance,
     separability,
 )
-from pe_drake.diagnosis.options import MAX_COND, TIMING, DiagnosisConfig, Thresholds
+from pe_drake.diagnosis.options import MAX_COND, TIMING, DiagnosisConfig
 from pe_drake.diagnosis.payload import (
     BaseChange,
     PayloadOutcome,
@@ -86,9 +91,13 @@ from pe_drake.diagnosis.payload import (
     payload_search,
     rigid_report,
 )
+from pe_drake.diagnosis.holding import holding_note, holding_report, holding_separability, holding_torque
+from pe_drake.diagnosis.holding_selection import add_friction_pairs
 from pe_drake.diagnosis.presliding import PRESLIDING, PreslidingStep, presliding_effects, presliding_step
+from pe_drake.diagnosis.prior import (fitted_friction, friction_start, prior_drive_torque, prior_own_parameters,
+                                     prior_parameters)
 from pe_drake.diagnosis.record import (Record, Segment, check_fits_in_memory, check_joints, check_record_signs,
-                                      delayed_states, model_file_friction, prepare_record, split_segments)
+                                      delayed_states, prepare_record, split_segments)
 from pe_drake.diagnosis.regression import (
     Fit,
     Library,
@@ -98,11 +107,14 @@ from pe_drake.diagnosis.regression import (
     integrated_autocorrelation,
     regime_analysis,
     rms,
-    select_effects,
     unexplained_joints,
 )
+from pe_drake.diagnosis.selection import (InternalSplit, internal_split, rejected_list, say_selection, select,
+                                         split_regression)
+from pe_drake.diagnosis.report import decision_summary
 from pe_drake.diagnosis.result import DiagnosisResult, NamedEffect, per_joint, time_delay_effect
 from pe_drake.exceptions import DataError
+from pe_drake.identification.estimators import IdentificationResult
 from pe_drake.identification.gaps import longest_segment
 from pe_drake.identification.measurements import Measurement, check_torque_units
 from pe_drake.multibody.base_parameters import BaseParameters, compute_base_parameters
@@ -122,6 +134,9 @@ class Prepared:
         model: the robot's regressor model.
         base: its base parameters.
         phi_B_prior: the a-priori model's base parameters K φ_prior, (b,).
+        internal: the training part's fit/selection split (:mod:`pe_drake.diagnosis.selection`).
+        phi_prior: the a-priori standard parameters (the model file's, or ``prior``'s), (10·nb,).
+        prior: the earlier model started from (``diagnose --model``), or None.
     """
 
     record: Record
@@ -131,10 +146,13 @@ class Prepared:
     model: RegressorModel
     base: BaseParameters
     phi_B_prior: np.ndarray
+    internal: InternalSplit
+    phi_prior: np.ndarray
+    prior: IdentificationResult | None = None
 
 
 def prepare(robot, data: Measurement, validation: Measurement | None, config: DiagnosisConfig,
-            say: Callable[[str], None]) -> Prepared:
+            say: Callable[[str], None], prior: IdentificationResult | None = None) -> Prepared:
     """Records, training and held-out parts, the base regressor on each (data preparation).
 
     Raises:
@@ -159,7 +177,9 @@ def prepare(robot, data: Measurement, validation: Measurement | None, config: Di
         raise DataError(
             f"{training.num_samples} training samples × {n} joints are too few for {base.count} base "
             f"parameters and {4 * n} effect candidates; record a longer run", file=record.source)
-    return Prepared(record, vrecord, training, held, model, base, base.base_values(robot.phi_model))
+    phi = prior_parameters(robot, prior)
+    return Prepared(record, vrecord, training, held, model, base, base.base_values(phi), internal_split(training),
+                    np.asarray(phi, float), prior)
 
 
 # ---- 1. nominal ------------------------------------------------------------------------------
@@ -191,7 +211,7 @@ def nominal(robot, prep: Prepared, regression: Regression) -> Nominal:
     """
     training, held, joints = prep.training, prep.held, robot.joint_names
     base = range(prep.base.count)
-    tau_nom_tr, tau_nom_ho = (c.product(base, prep.phi_B_prior) + model_file_friction(robot, s)
+    tau_nom_tr, tau_nom_ho = (c.product(base, prep.phi_B_prior) + prior_drive_torque(robot, prep.prior, s)
                               for c, s in ((regression.train, training), (regression.held, held)))
     for seg, pred in ((training, tau_nom_tr), (held, tau_nom_ho)):
         check_torque_units(Measurement(seg.t, seg.q, seg.tau, None, None, joints, seg.record.source), pred)
@@ -227,11 +247,12 @@ def candidate_library(robot, prep: Prepared, config: DiagnosisConfig) -> Candida
     Raises:
         DataError: the training part does not excite every base parameter.
     """
-    candidates = joint_candidates(robot, config.effects)
+    candidates = joint_candidates(robot, config.effects, friction_start(robot, prep.prior))
     sep = separability(robot, prep.base, candidates, model=prep.model)
+    sep += holding_separability(robot, prep.training)
     library = Library(prep.base.count, tuple(s.candidate for s in sep if s.separable))
     training, held = prep.training, prep.held
-    reg = Regression(*(library.segment_columns(prep.model, prep.base.independent, seg, model_file_friction(robot, seg))
+    reg = Regression(*(library.segment_columns(prep.model, prep.base.independent, seg, fitted_friction(robot, prep.prior, seg))
                        for seg in (training, held)), library.num_base)
     b = library.num_base
     cond = condition_number(reg.train.gram[:, :b, :b].sum(axis=0))
@@ -263,13 +284,6 @@ def rigid_reidentification(reg: Regression, training: Segment) -> Fit:
 
 
 # ---- 3. effects ------------------------------------------------------------------------------
-
-
-def select(lib: CandidateLibrary, rigid: Fit, held: Segment, config: DiagnosisConfig) -> Selection:
-    """The thresholds of the held-out data, then forward selection and backward check."""
-    thresholds = Thresholds.from_data(config, held.record.noise_floor, np.std(held.tau, axis=0),
-                                      len(lib.library.candidates) + 1)
-    return select_effects(lib.regression, lib.library, rigid, thresholds, config)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -305,13 +319,13 @@ def name_effects(robot, lib: CandidateLibrary, sel: Selection, rigid: Fit, nom: 
         fits_cum.append(f)
         cumulative.append((f"+ {library.label(effect_cols[k])}", f.rms_held))
     effects, series = _named(reg, library, sel.final, effect_cols, fits_cum, robot, config)
-    return Naming(effect_cols, cumulative, fits_cum[-1], effects, series, _rejected(reg, library, sel))
+    return Naming(effect_cols, cumulative, fits_cum[-1], effects, series, rejected_list(reg, library, sel))
 
 
 def _named(reg: Regression, library: Library, final: Fit, effect_cols: list[int], fits_cum: list[Fit], robot,
            config: DiagnosisConfig) -> tuple[list[NamedEffect], list[dict[str, Any]]]:
     """Each effect with its value, and the fits with everything but it for its plot."""
-    joints, damping, friction = robot.joint_names, robot.joint_damping, robot.joint_friction
+    joints = robot.joint_names
     named: list[NamedEffect] = []
     series: list[dict[str, Any]] = []
     res_final = reg.residual("held-out", reg.fit(effect_cols))
@@ -329,12 +343,12 @@ def _named(reg: Regression, library: Library, final: Fit, effect_cols: list[int]
             continue
         c = library.cand_of[col]
         details: dict[str, Any] = {"contribution_rms": float(reg.contribution_rms("held-out", final, col)[c.joint])}
-        # The value is what the model file lacks (the fit starts from its friction): say the total.
+        # The value is what the model file lacks (the fit starts from its friction, -c.lower): the total.
         if c.effect == "viscous_friction":
-            details.update(model_file_damping=float(damping[c.joint]), total=float(damping[c.joint] + value))
+            details.update(model_file_damping=-c.lower, total=float(value - c.lower))
         if c.effect == "coulomb_friction":
-            details.update(velocity_scale=config.coulomb_velocity_scale, model_file_friction=float(friction[c.joint]),
-                           total=float(friction[c.joint] + value))
+            details.update(velocity_scale=config.coulomb_velocity_scale, model_file_friction=-c.lower,
+                           total=float(value - c.lower))
         named.append(NamedEffect(
             c.effect, c.joint_name, "", float(value), c.unit, float(std), float(abs(value) / max(std, 1e-300)),
             per_joint(joints, fits_cum[k].rms_held), per_joint(joints, fits_cum[k + 1].rms_held), details))
@@ -344,22 +358,6 @@ def _named(reg: Regression, library: Library, final: Fit, effect_cols: list[int]
             "after": res_final[:, c.joint],
         })
     return named, series
-
-
-def _rejected(reg: Regression, library: Library, sel: Selection) -> list[dict[str, Any]]:
-    """Every candidate tried and not named, with its statistic z and the reason (strongest first;
-    weaker decisions used to appear nowhere)."""
-    out = []
-    for col, reason in sel.rejected.items():
-        if col == library.timing_col or col in sel.selected:
-            continue
-        c = library.cand_of[col]
-        f = reg.fit(sel.selected + [col])
-        z = abs(f.value(col)) / max(f.std(col), 1e-300)
-        out.append({"effect": c.effect, "joint": c.joint_name, "value": f.value(col),
-                    "unit": c.unit, "z": float(z), "reason": reason})
-    out.sort(key=lambda r: -r["z"])
-    return out
 
 
 # ---- payload and the rigid-body report -------------------------------------------------------
@@ -430,7 +428,9 @@ def augment(robot, prep: Prepared, lib: CandidateLibrary, pre: PreslidingStep, n
                                         {library.cand_of[c].label: (library.cand_of[c], v) for c, v in values.items()},
                                         config.coulomb_velocity_scale,
                                         effect.link if effect is not None else None,
-                                        cov_B=pay.change.cov_B, time_delay=delay, presliding=presliding)
+                                        cov_B=pay.change.cov_B, time_delay=delay, presliding=presliding,
+                                        phi_prior=prior_own_parameters(robot, prep.prior),
+                                        friction_start=friction_start(robot, prep.prior))
     true = build_augmented_robot(robot, augmented)
     # Drake's torque at the held-out samples (along the motion `delay` earlier when a time delay
     # is named), its Coulomb term filtered like the measured torque (the parallel-filtered
@@ -439,8 +439,9 @@ def augment(robot, prep: Prepared, lib: CandidateLibrary, pre: PreslidingStep, n
                          else (held.q, held.v, held.vd, held.coulomb))
     tau_after = augmented_torque(true, augmented, q, v, vd)
     tau_after += augmented.coulomb * (coulomb - np.tanh(v / config.coulomb_velocity_scale)) + pre.held_torque
+    tau_after += holding_torque(pre.regression.held, final, library)  # friction held at rest
     # the least-squares prediction with the final values (a delay by its linearization -d·dτ/dt)
-    ls_pred = pre.regression.held.product(final.columns, final.x) + model_file_friction(robot, held)
+    ls_pred = pre.regression.held.product(final.columns, final.x) + fitted_friction(robot, prep.prior, held)
     return Augmentation(augmented, tau_after, rms(held.tau - tau_after),
                         np.max(np.abs(tau_after - ls_pred), axis=0))
 
@@ -494,6 +495,7 @@ def diagnose(
     validation: Measurement | None = None,
     config: DiagnosisConfig | None = None,
     progress: Callable[[str], None] | None = None,
+    prior: IdentificationResult | None = None,
 ) -> DiagnosisResult:
     """Runs the five steps of the module docstring.
 
@@ -504,6 +506,9 @@ def diagnose(
         validation: another run to hold out; None: the last ``holdout_fraction`` of ``data``.
         config: options (:class:`~pe_drake.diagnosis.options.DiagnosisConfig`).
         progress: called with one line per step (e.g. ``print``).
+        prior: an earlier model to start from instead of the model file's parameters
+            (:func:`~pe_drake.identification.identified_file.load_identified`: identified.json
+            or augmented_model.json): its parameters and drive terms are the a-priori model.
 
     Returns:
         The :class:`~pe_drake.diagnosis.result.DiagnosisResult`.
@@ -521,7 +526,7 @@ def diagnose(
     check_fits_in_memory(data, validation)
     for note in (*data.notes, *(validation.notes if validation is not None else ())):
         say(f"note: {note}")
-    prep = prepare(robot, data, validation, config, say)
+    prep = prepare(robot, data, validation, config, say, prior)
     lap("prepare")
     lib = candidate_library(robot, prep, config)
     nom = nominal(robot, prep, lib.regression)
@@ -530,21 +535,28 @@ def diagnose(
     rigid = rigid_reidentification(lib.regression, prep.training)
     say("2. rigid-body parameters re-identified, held-out RMS [N·m]: " + _fmt_joints(joints, rigid.rms_held))
     lap("rigid")
-    sel = select(lib, rigid, prep.held, config)
-    _say_selection(say, sel, lib.library, joints)
+    split = split_regression(lib.regression, prep.internal)
+    sel = select(lib.regression, split, lib.library, rigid, prep.training, prep.held, config)
+    sel = add_friction_pairs(lib.regression, split, lib.library, sel, config.max_effects)  # sliding + at rest
+    say_selection(say, sel, lib.library, joints, _fmt_joints)
     lap("effects")
     naming = name_effects(robot, lib, sel, rigid, nom, config)
-    pre = presliding_step(prep, lib, sel, config)
+    pre = presliding_step(prep, lib, sel, config, split)
     naming = dataclasses.replace(naming, effects=presliding_effects(naming.effects, pre, lib.library, joints),
                                  series=pre.series(naming.series, joints), rejected=naming.rejected + pre.not_named(),
                                  cumulative=naming.cumulative + [(f"+ {PRESLIDING}", pre.final.rms_held)] * bool(pre.fits))
     for f in pre.fits:
         say(f"3. {PRESLIDING}[{joints[f.joint]}] (x_p {1e3 * f.displacement:.3g} mrad) in its Coulomb slot")
+    holding = holding_report(prep.training, prep.held, lib.library, pre, naming.effects, joints)
+    if note := holding_note(holding):
+        say(note)
     lap("presliding")
     pay = payload_step(robot, prep, lib, sel, naming, config)
     if pay.outcome.effect is not None:
         say(f"3. payload on {pay.outcome.effect.link}: {pay.outcome.effect.value:+.3g} kg "
             f"(χ² {pay.outcome.report['chi2_before']:.3g} → {pay.outcome.report['chi2_after']:.3g})")
+    decisions = decision_list(lib.library, lib.separability, sel, pre, pay.outcome.report, config.timing_check)
+    say("3. decisions: " + decision_summary(decisions))
     lap("payload")
     aug = augment(robot, prep, lib, pre, naming, pay, config)
     say("4. augmented Drake model, held-out RMS [N·m]: " + _fmt_joints(joints, aug.rms))
@@ -566,15 +578,8 @@ def diagnose(
         robot.name, joints, config, prep.training, held, named, nom.rms, rigid.rms_held, aug.rms,
         naming.cumulative, left.joints, pay.not_separable, naming.rejected, nom.regimes, pay.rigid,
         pay.outcome.report, left.timing, predictions, residual_series, aug.model, aug.drake_check,
-        lap.timings, held.record.noise_floor, sel.thresholds.unexplained)
-
-
-def _say_selection(say: Callable[[str], None], sel: Selection, library: Library, joints: Sequence[str]) -> None:
-    for sign, col, fit in sel.steps:
-        if sign == "+":
-            say(f"3. + {library.label(col)}: held-out RMS [N·m] " + _fmt_joints(joints, fit.rms_held))
-        else:
-            say(f"3. - {library.label(col)} (no longer significant)")
+        lap.timings, held.record.noise_floor, sel.thresholds.unexplained, decisions,
+        {**prep.internal.describe(), "held_out": "used only for the figures reported"}, holding)
 
 
 class _Laps:

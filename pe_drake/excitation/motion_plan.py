@@ -282,7 +282,7 @@ def _collision_geometry(config: Config, fit_dir: Path, say: Say) -> tuple[Config
     if fitted is not None:
         say(f"no capsule file: fitted capsules: {fitted.summary()}; self-collision margin "
             f"{config.excitation.collision_margin:g} m"
-            + (f", {len(fitted.ignored_pairs)} pair(s) touching by design ignored" if fitted.ignored_pairs else ""))
+            + (f"; {fitted.pairs_summary()}" if fitted.pairs_summary() else ""))
     return config, fitted, list(fitted.unchecked) if fitted is not None else []
 
 
@@ -290,7 +290,7 @@ def _robot(config: Config, name: str, say: Say) -> Robot:
     """The robot, built once, with its notes and a nominal posture that clears the floor."""
     robot = Robot(name, config.robot)
     say(f"robot {robot.name}: {robot.n} excited joints, {robot.num_bodies} moving bodies")
-    for note in assumed_defaults(config, robot.joint_names, [j.kind for j in robot.joints]) + list(robot.notes):
+    for note in assumed_defaults(config, robot.joint_names, [j.kind for j in robot.joints]) + list(robot.notes) + list(robot.limit_notes):
         say(f"note: {note}")  # assumed limits; what the model needed for Drake (mimic, materials, mount)
     nominal = choose_nominal_posture(robot, config.excitation, config.environment)
     if nominal is not None:
@@ -360,6 +360,8 @@ def _plan(config, robot, executor, priors, fitted, fitted_text, unchecked, allow
         base_parameter_names=list(problem.base.base_names), singular_values=result.singular_values.tolist(),
         prior=[str(p) for p in priors], config=dataclasses.asdict(config),
         assumed_defaults=assumed_defaults(config, robot.joint_names, [j.kind for j in robot.joints]), fitted_capsules=None,
+        ignored_pairs=fitted.ignored_records() if fitted is not None else [],
+        shrunk_capsules={n: {"fitted_radius": a, "radius": b} for n, (a, b) in fitted.shrunk.items()} if fitted is not None else {},
         limit_margins=limit_margins(config), ramp_margins_1khz=ramp_margins,
         motion=motion.to_dict() if motion is not None else None,
         quality=quality.to_dict() if quality is not None else None, unchecked=list(unchecked),

@@ -20,7 +20,8 @@ class MotionReport:
     chosen nominal posture included); ``limit_margins`` the position margin and velocity,
     acceleration and effort fractions the limits were used with (and which were assumed);
     ``ramp_margins_1khz`` the smallest margins over the ramps; ``unchecked`` lists what could not be checked for
-    collision; ``not_valid_for_hardware`` the reason the motion is refused (None: valid).
+    collision; ``ignored_pairs`` the fitted capsule pairs not checked (touching by design) with the reason,
+    ``shrunk_capsules`` the fitted capsules made thinner so that farther links stay checked; ``not_valid_for_hardware`` the reason the motion is refused (None: valid).
     """
 
     robot: str
@@ -50,6 +51,8 @@ class MotionReport:
     config: dict[str, Any]
     assumed_defaults: list[str]
     fitted_capsules: str | None
+    ignored_pairs: list[dict[str, Any]]
+    shrunk_capsules: dict[str, dict[str, float]]
     limit_margins: dict[str, Any]
     ramp_margins_1khz: dict[str, float] | None
     motion: dict[str, Any] | None

@@ -22,6 +22,7 @@ from pe_drake.identification.payload import PayloadBox, PayloadOptions, PayloadR
 from pe_drake.identification.payload_run import PayloadIdentification, identify_payload_runs, parse_payload_box
 from pe_drake.identification.physical_fit import LinkBox, PhysicalBounds
 from pe_drake.identification.simulated_run import SimulatedRun, simulate_run
+from pe_drake.identification.time_window import TimeWindow
 from pe_drake.identification.validate_model import ValidateOptions, ValidationReport, validate_model
 
 __all__ = [
@@ -52,6 +53,7 @@ __all__ = [
     "identify_payload_runs",
     "parse_payload_box",
     "SimulatedRun",
+    "TimeWindow",
     "simulate_run",
     "validate_model",
 ]

@@ -16,7 +16,10 @@ so z depends on the path q(t) only (rate-independent hysteresis), and along a mo
 Δq it is integrated exactly: z ← s + (z − s)·exp(−|Δq|/x_p), s = sgn Δq
 (:func:`dahl_state`). F = F_c·z is linear in F_c for a given x_p: the diagnosis searches
 over x_p with the linear fit of F_c inside. In sliding z → sgn v, the Coulomb model of
-:mod:`pe_drake.diagnosis.effects`; it is its x_p → 0 limit.
+:mod:`pe_drake.diagnosis.effects`, which is its x_p → 0 limit in sliding only: at rest
+(dq = 0) z keeps the value it had when the joint stopped (±1 after sliding), so the Dahl
+friction holds ±F_c where the Coulomb column tanh(v/v_s) gives 0 (the holding torque of
+:mod:`pe_drake.diagnosis.holding`).
 
 Sign convention (as every effect of :mod:`pe_drake.identification.simulation`): F is a
 resistive load the actuator must overcome, so the recorded torque holds +F and the joint

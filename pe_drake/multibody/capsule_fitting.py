@@ -10,10 +10,13 @@ Each link gets its capsule(s) from its ``<collision>`` shapes, else from its ``<
 - meshes, or more primitives: one capsule fitted by
   :func:`pe_drake.multibody.capsules.fit_capsule` to the pooled mesh vertices (and primitive
   surface points) in the link frame: the axis is their principal axis, the radius covers 98 %
-  of the mesh vertices and the segment is the shortest that contains them.
+  of the mesh vertices and the segment is the shortest that contains them; a link whose
+  points are mirror-symmetric about its x-z plane gets a capsule that is its own mirror image.
 
 Links joined by a joint (adjacent) and links welded together are not checked against each
-other: :func:`~pe_drake.multibody.capsules.register_capsules` filters those pairs.
+other: :func:`~pe_drake.multibody.capsules.register_capsules` filters those pairs. Of the
+others, :func:`ignore_touching_pairs` ignores only pairs at most :data:`TOUCHING_JOINTS`
+joints apart that touch by design; a capsule touching a link farther away is shrunk instead.
 
 Mesh readers: STL (binary and ASCII), OBJ (``v`` lines) and COLLADA ``.dae`` (pycollada,
 node transforms and ``<unit meter>`` applied). A shape that cannot be read is listed in
@@ -24,6 +27,8 @@ the robot is not checked for collisions, and a caller must not report the robot 
 from __future__ import annotations
 
 import dataclasses
+import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -34,6 +39,7 @@ from pe_drake.multibody.capsules import (
     capsule_pairs,
     capsule_pose,
     fit_capsule,
+    joints_apart,
     load_capsule_file,
     segment_closest_points,
 )
@@ -50,6 +56,16 @@ FITTED_HEADER = "# Capsules fitted automatically by pe_drake"
 FITTED_COLLISION_MARGIN = 0.01
 #: A link with at most this many primitive shapes (and no mesh) gets one capsule per shape.
 MAX_PRIMITIVE_CAPSULES = 3
+#: A link's points are mirror-symmetric when 90 % of the mirrored points lie within this fraction
+#: of the cloud's size of a point (TALOS's torso, pelvis and head: 1.7-2.5 %; its forearm 30 %,
+#: UR5's upper arm and forearm 3.6 and 5.5 %: left as fitted).
+SYMMETRY_TOLERANCE = 0.03
+#: Pairs at most this many joints apart may touch by design (a link and its grandparent: an
+#: elbow's upper arm and wrist); pairs farther apart are always checked (issue 21).
+TOUCHING_JOINTS = 2
+#: A capsule is shrunk to clear a farther pair at the nominal posture down to this fraction of
+#: its fitted radius, no further.
+SHRINK_FLOOR = 0.5
 
 
 class CapsuleFittingError(ConfigError):
@@ -77,6 +93,8 @@ class FittedCapsules:
             not be read: reason"); empty when every shape of the model was used.
         sources: {link: "primitive" | "mesh" | "primitive+mesh"}, what each capsule came from.
         written: whether ``path`` was written (False only for a result built without a file).
+        shrunk: {capsule: (fitted radius, radius used)} [m] for capsules made thinner so that
+            links farther apart than :data:`TOUCHING_JOINTS` joints stay checked.
     """
 
     path: Path
@@ -86,6 +104,7 @@ class FittedCapsules:
     unchecked: tuple[str, ...] = ()
     sources: dict[str, str] = dataclasses.field(default_factory=dict)
     written: bool = True
+    shrunk: dict[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
 
     def summary(self, first: int = 3) -> str:
         """A one-line account: capsule count and sources, then the count of unchecked parts
@@ -97,6 +116,24 @@ class FittedCapsules:
             more = f"; ... {len(self.unchecked) - first} more" if len(self.unchecked) > first else ""
             text += f"; {len(self.unchecked)} part(s) NOT checked: {shown}{more} (full list: report.json 'unchecked')"
         return text
+
+    def pairs_summary(self, first: int = 4) -> str:
+        """The ignored pairs, named (the first few, then the count; all of them in
+        ``report.json``'s ``ignored_pairs``), and the shrunk capsules; "" when there are none."""
+        parts = []
+        if self.ignored_pairs:
+            shown = ", ".join(f"{a}/{b}" for a, b, _ in self.ignored_pairs[:first])
+            more = f", ... {len(self.ignored_pairs) - first} more" if len(self.ignored_pairs) > first else ""
+            parts.append(f"{len(self.ignored_pairs)} pair(s) touching by design ignored: {shown}{more} "
+                         "(full list: report.json 'ignored_pairs')")
+        if self.shrunk:
+            parts.append(f"{len(self.shrunk)} capsule(s) shrunk to keep links more than {TOUCHING_JOINTS} joints "
+                         "apart checked: " + ", ".join(f"{n} {a:.3f} -> {b:.3f} m" for n, (a, b) in self.shrunk.items()))
+        return "; ".join(parts)
+
+    def ignored_records(self) -> list[dict]:
+        """The ignored pairs for ``report.json``: [{"pair": [a, b], "reason": ...}]."""
+        return [{"pair": [a, b], "reason": why} for a, b, why in self.ignored_pairs]
 
 
 def _mesh_points(shape: Shape, model_path: Path) -> np.ndarray:
@@ -153,7 +190,7 @@ def _fit_link(shapes: list[Shape], model_path: Path, cover: float) -> _LinkFit:
             fit.replaced += problems + [f"{tag} shapes have fewer than 4 vertices"]
             continue
         # primitive surface points are extremes, not a sampled surface: cover them all
-        p0, p1, r = fit_capsule(P, cover=cover if meshes else 1.0)
+        p0, p1, r = _fit_points(P, cover=cover if meshes else 1.0)
         worst = max(_radial_distance(P, p0, p1).max() - r, 0.0)
         names = ", ".join(Path(s.filename).name if s.kind == "mesh" else s.describe() for s in group)
         fit.capsules.append((p0, p1, r, f"{tag} {names}: worst vertex {worst * 1e3:.0f} mm out"))
@@ -186,7 +223,8 @@ def fit_capsule_file(
         f"{FITTED_HEADER} to the links of {model_path.name}: a primitive",
         "# collision shape (cylinder, sphere, box, capsule) gives the capsule enclosing it; meshes give",
         "# one capsule per link along the principal axis of the collision (else visual) mesh vertices,",
-        f"# radius covering {cover:.0%} of them (pe_drake.multibody.capsule_fitting).",
+        f"# radius covering {cover:.0%} of them, mirror-symmetric for a mirror-symmetric link",
+        "# (pe_drake.multibody.capsule_fitting).",
         "# Check them in `pe-drake view` and edit as needed; give the edited file as robot.capsules.",
         "capsules:",
     ]
@@ -225,6 +263,44 @@ def fit_capsule_file(
     return FittedCapsules(Path(out_path), tuple(fitted), skipped, unchecked=tuple(unchecked), sources=sources)
 
 
+def _mirror_symmetric(P: np.ndarray) -> bool:
+    """Whether a link's points are mirror-symmetric about the link frame's x-z plane (y → -y):
+    90 % of the mirrored points have a point within :data:`SYMMETRY_TOLERANCE` of the cloud's
+    size (a quantile: meshes are not sampled symmetrically vertex by vertex)."""
+    from scipy.spatial import cKDTree
+
+    size = float(np.linalg.norm(P.max(axis=0) - P.min(axis=0)))
+    gaps = cKDTree(P).query(P * [1.0, -1.0, 1.0])[0]
+    return size > 0 and float(np.quantile(gaps, 0.9)) <= SYMMETRY_TOLERANCE * size
+
+
+def _fit_points(P: np.ndarray, cover: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """:func:`fit_capsule`, made mirror-symmetric for a mirror-symmetric link (a torso, a
+    pelvis: issue 21). The quantile radius and the Nelder-Mead centre of a plain fit drift off
+    the plane of symmetry (TALOS's torso capsule sat 12 mm towards the right arm and leant
+    12°). Such a link's capsule axis is turned into the plane (or across it, whichever is
+    nearer) and the best axis line is sought among those that are their own mirror image:
+    in the plane, or across it; the segment ends of an axis across the plane are made
+    symmetric (the longer side kept)."""
+    from scipy.optimize import minimize_scalar
+
+    p0, p1, r = fit_capsule(P, cover=cover)
+    if not _mirror_symmetric(P):
+        return p0, p1, r
+    u, mid = p1 - p0, 0.5 * (p0 + p1) * [1.0, 0.0, 1.0]
+    if abs(u[1]) > np.linalg.norm(u) * math.sqrt(0.5):  # across the plane: any line along y is symmetric
+        p0, p1, r = fit_capsule(P, axis=[0.0, 1.0, 0.0], cover=cover)
+        half = max(abs(p0[1]), abs(p1[1]))
+        return np.r_[p0[0], -half, p0[2]], np.r_[p1[0], half, p1[2]], r
+    u = u * [1.0, 0.0, 1.0] if np.any(u[[0, 2]]) else np.array([0.0, 0.0, 1.0])
+    w = np.cross(u, [0.0, 1.0, 0.0])
+    w /= np.linalg.norm(w)  # in the plane, across the axis: the one free offset of the line
+    size = float(np.linalg.norm(P.max(axis=0) - P.min(axis=0)))
+    best = minimize_scalar(lambda s: fit_capsule(P, axis=u, cover=cover, through=mid + s * w)[2],
+                           bounds=(-0.5 * size, 0.5 * size), method="bounded", options={"xatol": 1e-5})
+    return fit_capsule(P, axis=u, cover=cover, through=mid + best.x * w)
+
+
 def _radial_distance(points: np.ndarray, p0: np.ndarray, p1: np.ndarray) -> np.ndarray:
     d = p1 - p0
     L2 = max(float(d @ d), 1e-300)
@@ -235,7 +311,7 @@ def _radial_distance(points: np.ndarray, p0: np.ndarray, p1: np.ndarray) -> np.n
 def fit_capsules(config, folder: str | Path) -> tuple:
     """Fits capsules when a config needs them (self-collision, the floor, boxes) but names no
     capsule file: writes ``folder/fitted_capsules.yaml``; pairs touching by design are ignored
-    (:func:`ignore_touching_pairs`), and self-collision is switched on at
+    and capsules too fat for links farther away shrunk (:func:`ignore_touching_pairs`), and self-collision is switched on at
     ``FITTED_COLLISION_MARGIN`` when the config leaves it off.
 
     Args:
@@ -264,14 +340,14 @@ def fit_capsules(config, folder: str | Path) -> tuple:
         robot=dataclasses.replace(robot, capsules=str(fitted.path)),
         excitation=dataclasses.replace(config.excitation, collision_margin=margin if margin >= 0 else FITTED_COLLISION_MARGIN),
     )
-    ignored = ignore_touching_pairs(config, fitted.path, config.excitation.collision_margin)
+    ignored, shrunk = ignore_touching_pairs(config, fitted.path, config.excitation.collision_margin)
     # The margin travels with the file: passed back as robot.capsules (as the README
     # advises), it gives the same self-collision check as this run (issue 21).
     with open(fitted.path, "a") as f:
         f.write("# The self-collision margin these capsules were fitted for and their ignored pairs chosen with [m];\n"
                 "# used when the config sets no excitation.collision_margin.\n"
                 f"collision_margin: {config.excitation.collision_margin!r}\n")
-    return config, dataclasses.replace(fitted, ignored_pairs=tuple(ignored))
+    return config, dataclasses.replace(fitted, ignored_pairs=tuple(tuple(p) for p in ignored), shrunk=shrunk)
 
 
 def with_file_margin(config):
@@ -289,35 +365,114 @@ def with_file_margin(config):
     return dataclasses.replace(config, excitation=dataclasses.replace(config.excitation, collision_margin=float(margin)))
 
 
-def ignore_touching_pairs(config, path: Path, margin: float, samples: int = 200, share: float = 0.95) -> list:
-    """Adds to a capsule file's ``ignored_pairs`` the pairs that touch by design: closer than
-    ``margin`` at the nominal posture, or in ``share`` of random postures within the limits
-    (as MoveIt's set-up assistant disables "default" and "always" colliding pairs). Pairs on
-    adjacent or welded links are filtered anyway (:func:`register_capsules`).
+def ignore_touching_pairs(config, path: Path, margin: float, samples: int = 200, share: float = 0.95) -> tuple:
+    """Decides, for a fitted capsule file, which pairs touch by design (added to its
+    ``ignored_pairs``) and which capsules are shrunk so that the others stay checked.
+
+    Why per pair by joint distance (issue 21): a fitted capsule of a bulky link (TALOS's torso,
+    radius 0.25 m) reaches the arm links beside it, and ignoring every pair closer than the
+    margin at the nominal posture left the forearms unchecked against the torso. Only links
+    at most :data:`TOUCHING_JOINTS` joints apart (a link and its grandparent: upper arm and
+    wrist, MoveIt's "adjacent"/"default" pairs) may touch by design: closer than ``margin`` at
+    the nominal posture, or in ``share`` of random postures within the limits. A pair farther
+    apart that is closer than ``margin`` at the nominal posture is a capsule too fat for its
+    mesh: the fatter capsule is shrunk to clear it (then the other), each to no less than
+    :data:`SHRINK_FLOOR` of its radius; only a pair that still touches is ignored, with that
+    reason. Left and right stay alike: a capsule and its mirror-named counterpart
+    (:func:`mirror_name`) get the smaller radius of the two, and a pair touching in random
+    postures is ignored only when its mirror pair is ignored too. Adjacent and welded links are filtered anyway
+    (:func:`register_capsules`).
 
     Returns:
-        The pairs added, as [capsule, capsule, reason].
+        (the pairs ignored, as [capsule, capsule, reason]; the capsules shrunk, as
+        {name: (fitted radius, new radius)} [m]); the file is rewritten with both.
     """
     robot = Robot("fit", config.robot)
-    pairs = capsule_pairs(robot.scene_graph, robot.capsules)
+    caps = robot.capsules
+    pairs = capsule_pairs(robot.scene_graph, caps)
     if not pairs:
-        return []
+        return [], {}
     rng = np.random.default_rng(0)
     lim = robot.limits
     q = np.vstack([robot.nominal_posture(), rng.uniform(lim.q_lower, lim.q_upper, (samples, robot.n))])
-    d = _pair_distances(robot, pairs, q)  # (1 + samples, P)
-    added = []
+    ia, ib = np.array(pairs).T
+    fitted = np.array([c.radius for c in caps])
+    axes = _pair_distances(robot, pairs, q) + fitted[ia] + fitted[ib]  # axis to axis, (1 + samples, P)
+    hops = joints_apart(robot.plant, [c.body_index for c in caps])[ia, ib]
+    radii, stuck = _shrunk_radii(caps, pairs, axes[0], hops > TOUCHING_JOINTS, fitted, margin)
+    d = axes - radii[ia] - radii[ib]
+    reasons = {}
     for p, (a, b) in enumerate(pairs):
-        nominal, always = d[0, p] < margin, np.mean(d[1:, p] < margin) >= share
-        if nominal or always:
-            reason = "closer than the margin at the nominal posture" if nominal else (
+        names = (caps[a].name, caps[b].name)
+        if p in stuck:
+            reasons[names] = (f"{hops[p]} joints apart, closer than the margin at the nominal posture "
+                              f"even with both radii at {SHRINK_FLOOR:.0%}")
+        elif hops[p] <= TOUCHING_JOINTS and (d[0, p] < margin or np.mean(d[1:, p] < margin) >= share):
+            reasons[names] = "closer than the margin at the nominal posture" if d[0, p] < margin else (
                 f"closer than the margin in {np.mean(d[1:, p] < margin):.0%} of random postures")
-            added.append([robot.capsules[a].name, robot.capsules[b].name, reason])
-    if added:
+    # A pair ignored by chance (random postures) stays checked unless its mirror pair is ignored
+    # too: the two sides draw different postures. One touching at the nominal posture is
+    # ignored regardless: checked, the start posture would collide.
+    checked = {(caps[a].name, caps[b].name) for a, b in pairs}
+    added = [[a, b, why] for (a, b), why in reasons.items() if not why.endswith("of random postures")
+             or _mirror_pair(a, b, checked) is None or _mirror_pair(a, b, reasons) is not None]
+    shrunk = {c.name: (float(fitted[k]), float(radii[k])) for k, c in enumerate(caps) if radii[k] < fitted[k]}
+    _rewrite_capsule_file(path, added, shrunk)
+    return added, shrunk
+
+
+def mirror_name(name: str) -> str:
+    """The name of a link's left/right counterpart: "left" and "right" swapped (any case),
+    else an "l_"/"r_" prefix swapped (iCub); the name itself when it has neither."""
+    swap = {"left": "right", "right": "left", "Left": "Right", "Right": "Left", "LEFT": "RIGHT", "RIGHT": "LEFT"}
+    out = re.sub("left|right|Left|Right|LEFT|RIGHT", lambda m: swap[m.group(0)], name)
+    if out == name:
+        out = re.sub(r"^([lr])_", lambda m: ("r" if m.group(1) == "l" else "l") + "_", name)
+    return out
+
+
+def _mirror_pair(a: str, b: str, pairs) -> tuple | None:
+    """The mirror of pair (a, b) as it is spelled in ``pairs`` (either order), or None."""
+    ma, mb = mirror_name(a), mirror_name(b)
+    return next((p for p in ((ma, mb), (mb, ma)) if p in pairs), None)
+
+
+def _shrunk_radii(caps, pairs, axis, far, fitted, margin) -> tuple:
+    """Radii with which every far pair clears ``margin`` (plus 1 mm) at the nominal posture
+    (axis-to-axis distance ``axis``), fatter capsule first, none below :data:`SHRINK_FLOOR`
+    of its fitted radius, mirror-named capsules kept equal. Returns (radii, indices of the far
+    pairs that still do not clear)."""
+    radii = fitted.copy()
+    floor = SHRINK_FLOOR * fitted
+    index = {c.name: k for k, c in enumerate(caps)}
+    mirror = [index.get(mirror_name(c.name), k) for k, c in enumerate(caps)]
+    order = sorted(np.flatnonzero(far), key=lambda p: axis[p])
+    for p in order:
+        a, b = pairs[p]
+        need = radii[a] + radii[b] - (axis[p] - margin - 1e-3)
+        for c in sorted((a, b), key=lambda c: -radii[c]):
+            cut = min(max(need, 0.0), radii[c] - floor[c])
+            if cut > 0:
+                radii[c] = radii[mirror[c]] = min(radii[c] - cut, radii[mirror[c]])
+                need -= cut
+    ia, ib = np.array(pairs).T
+    stuck = {int(p) for p in order if axis[p] - radii[ia[p]] - radii[ib[p]] < margin}
+    return radii, stuck
+
+
+def _rewrite_capsule_file(path: Path, ignored: list, shrunk: dict) -> None:
+    """Writes the shrunk radii and the ignored pairs into a fitted capsule file."""
+    text = path.read_text()
+    for name, (before, after) in shrunk.items():
+        text = re.sub(rf"(\{{name: {re.escape(name)}, link: [^,]+, radius: )[^,]+,",
+                      lambda m: f"{m.group(1)}{after:.4f},", text)
+        text = text.replace(f"  - {{name: {name}, link:", f"  # shrunk from radius {before:.4f} m to keep links more than "
+                            f"{TOUCHING_JOINTS} joints away checked\n  - {{name: {name}, link:", 1)
+    if ignored:
         lines = ["ignored_pairs:", "  # touching by design (pe_drake.multibody.capsule_fitting.ignore_touching_pairs)"]
-        lines += [f"  - [{a}, {b}]  # {why}" for a, b, why in added]
-        path.write_text(path.read_text() + "\n".join(lines) + "\n")
-    return added
+        lines += [f"  - [{a}, {b}]  # {why}" for a, b, why in ignored]
+        text += "\n".join(lines) + "\n"
+    path.write_text(text)
 
 
 def _pair_distances(robot, pairs, q: np.ndarray) -> np.ndarray:

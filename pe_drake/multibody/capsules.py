@@ -393,3 +393,26 @@ def capsule_pose(p0: np.ndarray, p1: np.ndarray) -> tuple[np.ndarray, np.ndarray
     roll = -math.asin(max(-1.0, min(1.0, u[1])))
     pitch = math.atan2(u[0], u[2])
     return 0.5 * (p0 + p1), np.array([roll, pitch, 0.0]), length
+
+
+def joints_apart(plant, bodies) -> np.ndarray:
+    """How many moving joints separate each pair of ``bodies`` (body indices) in the plant's
+    tree, bodies welded together counting as one; a large number (the body count) when no
+    path joins them. 0 on the diagonal and between welded bodies, 1 for adjacent bodies."""
+    group = _welded_groups(plant)
+    neighbours: dict[int, set[int]] = {}
+    for pair in _adjacent_groups(plant, group):
+        a, b = tuple(pair) if len(pair) == 2 else (next(iter(pair)),) * 2
+        neighbours.setdefault(a, set()).add(b)
+        neighbours.setdefault(b, set()).add(a)
+    far = plant.num_bodies()
+    groups = [group[int(b)] for b in bodies]
+    hops = {}
+    for g in set(groups):  # breadth-first from each group
+        seen, frontier, k = {g: 0}, [g], 0
+        while frontier:
+            k += 1
+            frontier = sorted({n for f in frontier for n in neighbours.get(f, ()) if n not in seen})
+            seen.update({n: k for n in frontier})
+        hops[g] = seen
+    return np.array([[hops[ga].get(gb, far) for gb in groups] for ga in groups], int)

@@ -123,6 +123,7 @@ class Robot:
         model_path = loadable_model_path(resolve_model_path(cfg.model), cfg.packages)
         text, notes = drake_model_text(model_path, self._obj_visuals, cfg.packages)
         self.notes = list(cfg.notes) + notes
+        self.limit_notes: list[str] = []
         builder = DiagramBuilder()
         plant, scene_graph = AddMultibodyPlantSceneGraph(builder, time_step=self.time_step)
         models = parse_models(plant, text, model_path, cfg.packages)
@@ -291,7 +292,7 @@ class Robot:
             vd[k] = cfg.acceleration_limits.get(name, vd[k])
             effort[k] = min(effort[k], cfg.effort_limits.get(name, np.inf))
         margin, notes = position_margins(cfg, self.joint_names, [j.kind for j in self.joints], lo, hi)
-        self.notes += notes
+        self.limit_notes = notes  # the margins assumed: optimize and simulate print them
         lo = lo + margin
         hi = hi - margin
         for k, name in enumerate(self.joint_names):

@@ -1,0 +1,186 @@
+"""Holding torque at rest: the friction a stopped joint keeps, which no friction curve predicts.
+
+A sliding joint's friction is a function of its velocity (the Coulomb column tanh(v/v_s) of
+:mod:`pe_drake.diagnosis.effects`), a stopped one's is not: at v = 0 the friction takes
+whatever value in [−F_s, F_s] holds the joint (F_s the static friction), and tanh(0) = 0
+predicts none of it. What a stopped joint holds depends on how it got there, so a model that
+predicts it must use the history. The Dahl model (:mod:`pe_drake.identification.dahl`) does:
+its state z freezes when the joint stops, at the value it had (±1 after a stop from sliding,
+less after a small overshoot), so F·z keeps the friction loaded while the joint rests. This
+is why the Coulomb column is the x_p → 0 limit of the Dahl model only in sliding: at rest
+the limit of z is the sign of the last motion, not 0.
+
+The candidate ``holding_torque`` of a joint is the column
+
+    h(t) = m(t) · z(t; x_p),   x_p = :data:`HOLDING_DISPLACEMENT`,
+
+with m the joint's rest mask (filtered |v| < :data:`REST_VELOCITY` for at least
+:func:`min_rest_s`) and z the Dahl state along the filtered q, both at the full rate, their
+product filtered like the torque (parallel filtering, Gautier 1997) and decimated like the
+other columns (:func:`holding_column`). Its value H [N·m] is the friction level the joint
+holds at rest: the predicted holding torque is H·z, |H·z| ≤ H, and H is a lower bound on the
+static friction (the friction held the joint). It enters the stepwise selection like every
+candidate (criteria (a)-(d) of :mod:`pe_drake.diagnosis.workflow`, H ≥ 0: the friction stays
+loaded against the approach), but only on joints with at least :data:`MIN_REST_PERIODS` rests
+in the training data (:func:`holding_candidates`): without rests its column is zero and the
+report says so (:func:`holding_report`). When the pre-sliding step names a joint's Dahl
+friction, whose state carries the torque at rest too, a holding torque it makes
+insignificant is dropped with the other stand-ins.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from pe_drake.diagnosis.effects import COULOMB_VELOCITY_SCALE, Candidate, Separability
+from pe_drake.identification.dahl import dahl_state
+
+#: Name of the effect.
+HOLDING = "holding_torque"
+#: A joint is at rest where its filtered |v| is below this [rad/s or m/s]: a quarter of the
+#: Coulomb column's v_s, where tanh(v/v_s) < 0.25 (the sliding model predicts almost nothing).
+REST_VELOCITY = 0.25 * COULOMB_VELOCITY_SCALE
+#: Shortest rest [s] (and at least two filter time constants, :func:`min_rest_s`): a velocity
+#: reversal crosses v = 0 in milliseconds, a stop lasts.
+MIN_REST_S = 0.2
+#: Rests a joint needs in the training data to be a candidate: with one stop, any drift of that
+#: window could pass for a holding torque.
+MIN_REST_PERIODS = 2
+#: x_p of the Dahl state of the column [rad]: the smallest of the pre-sliding grid
+#: (:data:`pe_drake.diagnosis.presliding.DISPLACEMENT_GRID`); a stop after sliding over more
+#: than a few x_p leaves z = ±1 whatever x_p is, and a smaller one follows encoder jitter at rest.
+HOLDING_DISPLACEMENT = 0.002
+
+
+def min_rest_s(record) -> float:
+    """The shortest rest of a record [s]: :data:`MIN_REST_S` and at least 2 / cut-off, so that
+    the zero-phase filter's transient of the stop is over."""
+    return max(MIN_REST_S, 2.0 / record.cutoff_hz)
+
+
+def rest_mask(v: np.ndarray, rate_hz: float, v_rest: float, min_s: float) -> np.ndarray:
+    """Where a joint rests: |v| < ``v_rest`` for at least ``min_s``.
+
+    Args:
+        v: one joint's velocity at the full rate, (T,) [rad/s].
+        rate_hz: its rate [Hz].
+        v_rest: the velocity below which it is still [rad/s].
+        min_s: the shortest rest [s].
+
+    Returns:
+        Boolean mask, (T,).
+    """
+    still = np.abs(np.asarray(v, float)) < v_rest
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], still.astype(np.int8), [0]])))
+    out = np.zeros(still.shape, bool)
+    for start, stop in zip(edges[::2], edges[1::2]):
+        if stop - start >= min_s * rate_hz:
+            out[start:stop] = True
+    return out
+
+
+def count_runs(mask: np.ndarray) -> int:
+    """Number of runs of True in a boolean series."""
+    m = np.asarray(mask, bool)
+    return int(np.count_nonzero(m[1:] & ~m[:-1]) + bool(m.size and m[0]))
+
+
+def record_rest_mask(record, joint: int) -> np.ndarray:
+    """A joint's rest mask at a record's full rate, (T,)."""
+    return rest_mask(record.v[:, joint], record.rate_hz, REST_VELOCITY, min_rest_s(record))
+
+
+def segment_rests(seg, joint: int) -> np.ndarray:
+    """A joint's rest mask at a segment's samples, (S,)."""
+    return record_rest_mask(seg.record, joint)[seg.idx]
+
+
+def holding_column(seg, joint: int, x_p: float = HOLDING_DISPLACEMENT) -> np.ndarray:
+    """The holding column m·z(q; x_p) of one joint at a segment's samples, (S,): rest mask and
+    Dahl state at the record's full rate, their product filtered like the torque."""
+    record = seg.record
+    z = dahl_state(record.q[:, joint], x_p)
+    return record.filtered(record_rest_mask(record, joint) * z)[seg.idx]
+
+
+def holding_candidates(robot, training) -> list[Candidate]:
+    """The ``holding_torque`` candidates: one per joint with :data:`MIN_REST_PERIODS` rests or
+    more in the training part (the column of a joint that never stops is zero)."""
+    out = []
+    for j, info in enumerate(robot.joints):
+        if count_runs(segment_rests(training, j)) >= MIN_REST_PERIODS:
+            out.append(Candidate(HOLDING, j, info.name, "N·m" if info.kind == "revolute" else "N", True))
+    return out
+
+
+def holding_separability(robot, training) -> list[Separability]:
+    """:func:`holding_candidates` as separable: a column of the history is never a function of
+    the state, so no rigid-body column can hold it (the structural test of
+    :func:`~pe_drake.diagnosis.effects.separability` draws random states)."""
+    return [Separability(c, 1.0, True, {}) for c in holding_candidates(robot, training)]
+
+
+def holding_torque(columns, fit, library) -> np.ndarray:
+    """The named holding torques H·h of a segment, (S, n) [N·m]: what the augmented model adds
+    to Drake's torque (Drake's joints have no friction state at rest)."""
+    out = np.zeros(columns.y.shape)
+    for col in fit.columns:
+        c = library.cand_of.get(col)
+        if c is not None and c.effect == HOLDING:
+            joint, values = columns.overrides[col]
+            out[:, joint] += fit.value(col) * values
+    return out
+
+
+def holding_report(training, held, library, pre, effects: Sequence, joints: Sequence[str]) -> dict[str, Any]:
+    """The ``holding_test`` of diagnosis.json: per joint, its rests in both parts and, for the
+    candidates, the held-out RMS at rest without and with the holding torque.
+
+    Args:
+        training, held: the two segments.
+        library: the regression's columns (:class:`~pe_drake.diagnosis.regression.Library`).
+        pre: the pre-sliding step (its final regression and fit).
+        effects: the named :class:`~pe_drake.diagnosis.result.NamedEffect` list.
+        joints: joint names.
+    """
+    regression, final = pre.regression, pre.final
+    named = {f"{e.effect}[{e.joint}]" for e in effects}
+    rows = []
+    for j, name in enumerate(joints):
+        tr, ho = segment_rests(training, j), segment_rests(held, j)
+        row = {"joint": name, "rest_periods_training": count_runs(tr),
+               "rest_time_training_s": float(tr.mean() * training.duration) if tr.size else 0.0,
+               "rest_periods_held_out": count_runs(ho),
+               "rest_time_held_out_s": float(ho.mean() * held.duration) if ho.size else 0.0}
+        col = library.col_of.get(f"{HOLDING}[{name}]")
+        row["candidate"] = col is not None
+        row["named"] = f"{HOLDING}[{name}]" in named
+        if col is None:
+            row["reason"] = f"{row['rest_periods_training']} rests in the training data (< {MIN_REST_PERIODS})"
+        elif np.any(ho):
+            without = regression.fit([c for c in final.columns if c >= regression.num_base and c != col])
+            row["heldout_rms_at_rest_before"] = _rms_at(regression.residual("held-out", without)[:, j], ho)
+            row["heldout_rms_at_rest_after"] = _rms_at(regression.residual("held-out", final)[:, j], ho)
+        rows.append(row)
+    return {"rest_velocity": REST_VELOCITY, "min_rest_s": MIN_REST_S, "min_rest_periods": MIN_REST_PERIODS,
+            "displacement": HOLDING_DISPLACEMENT, "joints": rows}
+
+
+def holding_note(report: dict[str, Any]) -> str | None:
+    """A progress line when no joint rests in the training data (None otherwise)."""
+    rows = report["joints"]
+    if any(r["candidate"] for r in rows):
+        return None
+    held = [f"{r['joint']} {r['rest_periods_held_out']} ({r['rest_time_held_out_s']:.3g} s)"
+            for r in rows if r["rest_periods_held_out"]]
+    extra = (f"; the held-out data has some ({', '.join(held)}): a training run with stops would "
+             "identify it") if held else ""
+    return (f"3. {HOLDING}: no joint rests in the training data (|v| < {REST_VELOCITY:.3g} rad/s for "
+            f"≥ {MIN_REST_S:g} s, {MIN_REST_PERIODS} times), not tested{extra}")
+
+
+def _rms_at(r: np.ndarray, mask: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(r[mask] ** 2)))

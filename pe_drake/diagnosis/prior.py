@@ -1,0 +1,71 @@
+"""The a-priori model of the diagnosis: the robot's model file, or an earlier model
+(``pe-drake diagnose --model``: identified.json of ``identify`` or augmented_model.json of an
+earlier diagnosis, read by :func:`~pe_drake.identification.identified_file.load_identified` as
+``validate`` reads them).
+
+Only the nominal comparison (step 1), the payload search's Δφ_B and the augmented model's
+closest standard parameters start from it: the rigid-body and effect fits use the measured
+torque alone, so an earlier model's friction is found again as effects when the data show it.
+Without an earlier model the model file's friction is the a-priori model's and the fits start
+from it (:func:`friction_start`; issue 21): a friction named is what the model file lacks.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pe_drake.diagnosis.record import Segment, model_file_friction
+from pe_drake.identification.estimators import IdentificationResult
+from pe_drake.identification.identified_file import standard_from_base
+from pe_drake.multibody.inertia import validity_problems
+
+
+def prior_parameters(robot, prior: IdentificationResult | None) -> np.ndarray:
+    """The a-priori standard parameters, (10·nb,): the model file's, or an earlier model's own
+    (physical fits, augmented_model.json) or, for a base-parameter fit, the ones closest to the
+    model file's that give its base parameters."""
+    if prior is None:
+        return np.asarray(robot.phi_model, float)
+    return np.asarray(prior.phi if prior.phi is not None else standard_from_base(robot, prior), float)
+
+
+def prior_own_parameters(robot, prior: IdentificationResult | None) -> np.ndarray | None:
+    """The standard parameters the augmented model's closest ones are sought from: an earlier
+    model's own when physically valid (a physical fit, augmented_model.json), else None (the
+    model file's). An OLS/WLS fit's standard parameters (:func:`standard_from_base`: the model
+    file's null-space part) are often not physically valid, and the physically consistent fit
+    of the augmented model cannot start from them (Clarabel fails)."""
+    if prior is None or prior.phi is None or validity_problems(robot.body_names, prior.phi):
+        return None
+    return np.asarray(prior.phi, float)
+
+
+def prior_drive_torque(robot, prior: IdentificationResult | None, seg: Segment) -> np.ndarray:
+    """The a-priori model's joint torque beside Y φ on a segment, (S, n) [N·m]: the model file's
+    joint friction, or an earlier model's drive terms (its Coulomb column tanh(v/v_s) with its
+    own v_s, parallel-filtered like the torque, as ``validate`` predicts; the model file's
+    damping is not added, as in ``validate``)."""
+    if prior is None:  # the model file's friction, d·v + f_c·tanh(v/v_s) (issue 21)
+        return model_file_friction(robot, seg)
+    drive = prior.drive
+    if drive is None or not drive.layout.count:
+        return np.zeros_like(seg.v)
+    rec = seg.record
+    coulomb = rec.filtered(np.tanh(rec.v / drive.layout.velocity_scale))[seg.idx]
+    return drive.torque(seg.v, seg.vd, coulomb)
+
+
+def friction_start(robot, prior: IdentificationResult | None) -> tuple[np.ndarray, np.ndarray]:
+    """(viscous [N·m·s/rad], Coulomb [N·m]) per joint that the effect fits start from: the model
+    file's ``<dynamics damping, friction>`` (issue 21: a friction named is what it lacks), or
+    zeros with an earlier model, whose fits use the measured torque alone (module docstring)."""
+    if prior is None:
+        return np.asarray(robot.joint_damping, float), np.asarray(robot.joint_friction, float)
+    return np.zeros(robot.n), np.zeros(robot.n)
+
+
+def fitted_friction(robot, prior: IdentificationResult | None, seg: Segment) -> np.ndarray:
+    """The torque of :func:`friction_start` along a segment, subtracted from the measured torque
+    before the rigid-body and effect fits, (S, n) [N·m]."""
+    viscous, coulomb = friction_start(robot, prior)
+    return viscous * seg.v + coulomb * seg.coulomb

@@ -1,0 +1,270 @@
+"""The effect selection on the training data alone: its blocked cross-validation.
+
+The held-out data (the default held-out tail or the ``--validation`` run) are never looked at
+by the selection: they give only the figures reported (held-out RMS lines, the cumulative
+table, the augmented model). The gain and relevance tests of the selection (criteria (c)-(d)
+of :mod:`pe_drake.diagnosis.workflow`) need data the trial fit has not seen, so the training
+segment is cut into blocks for a blocked ("hv-block", Racine 2000) cross-validation
+(:func:`internal_split`, :class:`CrossValidation`):
+
+- **alternating blocks**, ``FOLDS`` = 3 classes in turn (block k is in class k mod 3). In
+  fold f the blocks of class f are the selection part and the rest the fit part; a column's
+  score is the residual of the three folds' selection parts together, so every training
+  sample is predicted once by a fit that has not seen it. Blocks rather than the training
+  segment's last part, so that each part covers the whole motion (every regime of every
+  joint, the whole period of an optimized trajectory) and a slow drift (temperature,
+  friction warming up) falls on both alike; three folds rather than one selection part,
+  because one fit on two thirds of a short run identifies the 40-odd base parameters less well
+  than the whole run, and a single selection part of a 9 s run is two blocks: with one fold
+  the mix of tests/test_presliding.py lost viscous friction on two joints.
+- each block is ``BLOCK_PERIODS`` periods of the cut-off long (10: about 20 independent
+  samples of filtered noise per block, the count a part of the training/held-out split must
+  at least have, :data:`~pe_drake.diagnosis.options.MIN_PERIODS`), shorter only when the
+  training segment would otherwise hold fewer than two blocks of each class;
+- a fold's fit part leaves out the samples within 1 / cut-off of its selection part: the
+  zero-phase filter's noise correlation does not reach across (the same gap as between the
+  training and held-out parts, 2 / cut-off in all). The filtered noise's integrated
+  correlation time is 1 / (the filter's noise gain) full-rate samples, about 1 / (2 × cut-off)
+  s, so the guard is about two of them and a block about twenty. The residual of a missing
+  effect stays correlated for longer, which is what the gain test should see: a column fitted
+  on the fit part lowers the selection part's residual only if it models something both
+  parts share.
+
+The significance test (criteria (a)-(b)) uses the fit on the whole training segment, with the
+autocorrelation-inflated σ; the selected effects are then refitted on the whole training
+segment (``Selection.final``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+
+from pe_drake.diagnosis.options import TIMING, DiagnosisConfig, Thresholds
+from pe_drake.diagnosis.record import Segment
+from pe_drake.diagnosis.regression import Columns, Fit, Library, Regression, Score, Selection, select_effects
+from pe_drake.exceptions import DataError
+
+#: Length of a block of the internal split, in periods of the cut-off (module docstring).
+BLOCK_PERIODS = 10.0
+#: Folds of the cross-validation: block k is in the selection part of fold k mod FOLDS.
+FOLDS = 3
+
+
+@dataclasses.dataclass(frozen=True)
+class Moments:
+    """What a fit needs of a set of samples: per-joint Gram matrices, right-hand sides, yᵀy.
+
+    Attributes:
+        gram: per-joint A_jᵀ A_j, (n, P, P).
+        rhs: per-joint A_jᵀ y_j, (n, P).
+        yy: per-joint y_jᵀ y_j, (n,).
+        count: number of samples.
+    """
+
+    gram: np.ndarray
+    rhs: np.ndarray
+    yy: np.ndarray
+    count: int
+
+    @classmethod
+    def of_rows(cls, columns: Columns, rows: Sequence[slice]) -> Moments:
+        """The moments of some runs of samples of ``columns`` (a block at a time: no copy of A)."""
+        return cls(*columns.moments(rows))
+
+
+@dataclasses.dataclass(frozen=True)
+class Fold:
+    """One fold of the cross-validation: runs of training samples fitted, predicted, and in
+    neither (the guards)."""
+
+    fit_rows: tuple[slice, ...]
+    selection_rows: tuple[slice, ...]
+    guard_rows: tuple[slice, ...] = ()
+
+
+def _count(rows: Sequence[slice]) -> int:
+    return int(sum(s.stop - s.start for s in rows))
+
+
+@dataclasses.dataclass(frozen=True)
+class InternalSplit:
+    """The training segment's folds (module docstring).
+
+    Attributes:
+        folds: the :class:`Fold`s.
+        block_s: block length [s].
+        guard_s: a fold's fit part keeps this far from its selection part [s].
+    """
+
+    folds: tuple[Fold, ...]
+    block_s: float
+    guard_s: float
+
+    def describe(self) -> dict[str, Any]:
+        """The split as written to diagnosis.json."""
+        return {"method": f"blocked {len(self.folds)}-fold cross-validation on the training data",
+                "block_s": self.block_s, "guard_s": self.guard_s,
+                "blocks_per_fold": [len(f.selection_rows) for f in self.folds],
+                "fit_samples": [_count(f.fit_rows) for f in self.folds],
+                "selection_samples": [_count(f.selection_rows) for f in self.folds]}
+
+
+def internal_split(training: Segment) -> InternalSplit:
+    """The blocks and folds of the training segment (module docstring).
+
+    Raises:
+        DataError: a training segment too short for the folds.
+    """
+    t = training.t
+    cutoff = training.record.cutoff_hz
+    duration = float(t[-1] - t[0])
+    guard = 1.0 / cutoff
+    # two blocks of each class where the segment allows, never blocks under 3 guards
+    block = max(min(BLOCK_PERIODS / cutoff, duration / (2 * FOLDS)), 3 * guard)
+    # a last partial block joins the one before (no block shorter than ``block``)
+    last = max(int(np.floor(duration / block + 1e-9)), 1) - 1
+    k = np.minimum(np.floor((t - t[0]) / block).astype(int), last)
+    folds = []
+    for f in range(FOLDS):
+        selection = k % FOLDS == f
+        sel_t = t[selection]
+        if len(sel_t) < 20 or len(sel_t) > len(t) - 20:
+            raise DataError(f"the training part ({duration:.3g} s, {training.num_samples} samples) is too short for "
+                            f"a {FOLDS}-fold cross-validation of the effects; record a longer run",
+                            file=training.record.source)
+        # distance of each sample to the nearest selection sample
+        pos = np.clip(np.searchsorted(sel_t, t), 1, len(sel_t) - 1)
+        near = np.minimum(np.abs(t - sel_t[pos - 1]), np.abs(t - sel_t[pos]))
+        fit = ~selection & (near > guard)
+        folds.append(Fold(_runs(fit), _runs(selection), _runs(~selection & ~fit)))
+    return InternalSplit(tuple(folds), block, guard)
+
+
+def _runs(mask: np.ndarray) -> tuple[slice, ...]:
+    """The runs of True in a boolean array, as slices."""
+    d = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
+    return tuple(slice(int(a), int(b)) for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)))
+
+
+class CrossValidation:
+    """The folds' regressions (fit part against selection part, moments only) and their score.
+
+    Attributes:
+        folds: one :class:`~pe_drake.diagnosis.regression.Regression` per fold, its ``held``
+            the fold's selection part.
+    """
+
+    def __init__(self, folds: Sequence[Regression]):
+        self.folds = list(folds)
+
+    @classmethod
+    def of(cls, reg: Regression, split: InternalSplit) -> CrossValidation:
+        """The folds of ``split`` on the training columns of ``reg``, with its weights."""
+        out = []
+        total = reg.train
+        for fold in split.folds:
+            # the fit part as the whole minus the rest: each sample's products once over the
+            # folds (3 passes over A for an hour's log otherwise), the guards are short
+            sel, guard = Moments.of_rows(total, fold.selection_rows), Moments.of_rows(total, fold.guard_rows)
+            fit = Moments(total.gram - sel.gram - guard.gram, total.rhs - sel.rhs - guard.rhs,
+                          total.yy - sel.yy - guard.yy, total.count - sel.count - guard.count)
+            r = Regression(fit, sel, reg.num_base)
+            r.set_weights(reg.weights)
+            out.append(r)
+        return cls(out)
+
+    def fit(self, extra: Sequence[int]) -> Score:
+        """The base parameters and ``extra`` fitted on each fold's fit part, scored on its
+        selection part: per-joint RMS and weighted RSS over all selection parts together."""
+        rss, count, wrss = 0.0, 0, 0.0
+        for r in self.folds:
+            f = r.fit(extra)
+            rss = rss + f.rms_held**2 * r.held.count
+            count += r.held.count
+            wrss += f.wrss_held
+        return Score(np.sqrt(rss / count), float(wrss))
+
+
+def split_regression(reg: Regression, split: InternalSplit) -> CrossValidation:
+    """The cross-validation of ``split`` on the training columns of ``reg`` (its weights)."""
+    return CrossValidation.of(reg, split)
+
+
+def split_with_column(cv: CrossValidation, columns: Columns, split: InternalSplit, index: int, joint: int,
+                      values: np.ndarray) -> CrossValidation:
+    """``cv`` with column ``index`` set to ``values`` on ``joint`` (zero on the other joints),
+    as :func:`pe_drake.diagnosis.presliding.replace_column` does to the whole segment.
+
+    Args:
+        cv: the cross-validation of :func:`split_regression`.
+        columns: the whole training segment's columns (overrides applied), which ``cv`` was
+            built from.
+        split: its folds.
+        index, joint: the column and its joint.
+        values: the new column on the training samples, (S,).
+    """
+    values = np.asarray(values, float)
+    block = columns.joint_block(joint)  # (S, P), earlier replaced columns included
+    y = columns.y[:, joint]
+    out = []
+    for reg, fold in zip(cv.folds, split.folds):
+        parts = []
+        for moments, rows in ((reg.train, fold.fit_rows), (reg.held, fold.selection_rows)):
+            row = np.zeros(moments.rhs.shape)
+            row[joint] = sum(values[s] @ block[s] for s in rows)
+            row[joint, index] = sum(values[s] @ values[s] for s in rows)
+            gram, rhs = moments.gram.copy(), moments.rhs.copy()
+            gram[:, index, :] = row
+            gram[:, :, index] = row
+            rhs[:, index] = 0.0
+            rhs[joint, index] = sum(values[s] @ y[s] for s in rows)
+            parts.append(Moments(gram, rhs, moments.yy, moments.count))
+        r = Regression(parts[0], parts[1], reg.num_base)
+        r.set_weights(reg.weights)
+        out.append(r)
+    return CrossValidation(out)
+
+
+def selection_thresholds(config: DiagnosisConfig, training: Segment, held: Segment, num_tests: int) -> Thresholds:
+    """The selection's thresholds from the training data (noise floor, torque spread); the
+    ``unexplained`` threshold of step 5, a reported figure, from the held-out data."""
+    train = Thresholds.from_data(config, training.record.noise_floor, np.std(training.tau, axis=0), num_tests)
+    report = Thresholds.from_data(config, held.record.noise_floor, np.std(held.tau, axis=0), num_tests)
+    return dataclasses.replace(train, unexplained=report.unexplained)
+
+
+def select(reg: Regression, split: CrossValidation, library: Library, rigid: Fit, training: Segment, held: Segment,
+           config: DiagnosisConfig) -> Selection:
+    """The thresholds, then forward selection and backward check on the training data."""
+    thresholds = selection_thresholds(config, training, held, len(library.candidates) + 1)
+    return select_effects(reg, split, library, rigid, thresholds, config)
+
+
+def say_selection(say: Callable[[str], None], sel: Selection, library: Library, joints: Sequence[str],
+                  fmt: Callable[[Sequence[str], Any], str]) -> None:
+    """One progress line per addition (with the held-out RMS, a reported figure) or removal."""
+    for sign, col, fit in sel.steps:
+        if sign == "+":
+            say(f"3. + {library.label(col)}: held-out RMS [N·m] " + fmt(joints, fit.rms_held))
+        else:
+            say(f"3. - {library.label(col)} (no longer significant)")
+
+
+def rejected_list(reg: Regression, library: Library, sel: Selection) -> list[dict[str, Any]]:
+    """Every candidate tried and not named, with its statistic z (with the selected effects, on
+    the whole training segment) and the reason, strongest first."""
+    out = []
+    for col, reason in sel.rejected.items():
+        if col == library.timing_col or col in sel.selected:
+            continue
+        c = library.cand_of[col]
+        f = reg.fit(sel.selected + [col])
+        z = abs(f.value(col)) / max(f.std(col), 1e-300)
+        out.append({"effect": c.effect, "joint": c.joint_name, "value": f.value(col),
+                    "unit": c.unit, "z": float(z), "reason": reason})
+    out.sort(key=lambda r: -r["z"])
+    return out
