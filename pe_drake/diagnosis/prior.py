@@ -6,8 +6,8 @@ earlier diagnosis, read by :func:`~pe_drake.identification.identified_file.load_
 Only the nominal comparison (step 1), the payload search's Δφ_B and the augmented model's
 closest standard parameters start from it: the rigid-body and effect fits use the measured
 torque alone, so an earlier model's friction is found again as effects when the data show it.
-Without an earlier model the model file's friction is the a-priori model's and the fits start
-from it (:func:`friction_start`; issue 21): a friction named is what the model file lacks.
+The fits start from the model file's friction, with or without an earlier model
+(:func:`friction_start`; issue 21): a friction named is what the model file lacks.
 """
 
 from __future__ import annotations
@@ -57,11 +57,12 @@ def prior_drive_torque(robot, prior: IdentificationResult | None, seg: Segment) 
 
 def friction_start(robot, prior: IdentificationResult | None) -> tuple[np.ndarray, np.ndarray]:
     """(viscous [N·m·s/rad], Coulomb [N·m]) per joint that the effect fits start from: the model
-    file's ``<dynamics damping, friction>`` (issue 21: a friction named is what it lacks), or
-    zeros with an earlier model, whose fits use the measured torque alone (module docstring)."""
-    if prior is None:
-        return np.asarray(robot.joint_damping, float), np.asarray(robot.joint_friction, float)
-    return np.zeros(robot.n), np.zeros(robot.n)
+    file's ``<dynamics damping, friction>`` (issue 21: a friction named is what it lacks), with
+    or without an earlier model. An earlier model's drive terms are its nominal comparison's
+    only, so its friction is found again in the data (module docstring), as a correction of the
+    model file's like without it."""
+    del prior  # the same start either way (see above)
+    return np.asarray(robot.joint_damping, float), np.asarray(robot.joint_friction, float)
 
 
 def fitted_friction(robot, prior: IdentificationResult | None, seg: Segment) -> np.ndarray:
