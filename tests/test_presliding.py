@@ -69,7 +69,9 @@ def test_presliding_friction_alone_is_named(panda, diagnosis_trajectory, joint, 
 def test_presliding_friction_in_a_mix(panda, diagnosis_trajectory):
     """Dahl friction on two joints among viscous friction everywhere and Coulomb friction on
     another joint, with noise and inertial errors."""
-    effects = EffectsTruth(viscous={"all": 0.1}, coulomb={"panda_joint1": 0.4},
+    # joint 1: 0.15, not 0.1: what diagnose names is the correction of the URDF's damping 0.003
+    # (issue 21), and 0.097 sat at z 3.98 under the 4.1 bound where 0.1 had just passed
+    effects = EffectsTruth(viscous={"all": 0.1, "panda_joint1": 0.15}, coulomb={"panda_joint1": 0.4},
                            **_dahl({"panda_joint2": 0.6, "panda_joint4": 0.4}, {"panda_joint2": 0.02, "panda_joint4": 0.03}))
     truth = Truth(seed=7, inertia_perturbation=0.03, noise=NOISE, control=CONTROL, effects=effects)
     measurement, _ = simulate(panda, diagnosis_trajectory, truth, DURATION)
@@ -80,6 +82,8 @@ def test_presliding_friction_in_a_mix(panda, diagnosis_trajectory):
         assert abs(effect.value - fc) <= 0.1 * fc, (joint, effect.value)
         assert 0.5 < effect.details["stiffness"] / (fc / x_p) < 2.0
     assert abs(found[("coulomb_friction", "panda_joint1")].value - 0.4) <= 0.04
-    viscous = {j: e.value for (effect, j), e in found.items() if effect == "viscous_friction"}
-    assert viscous and all(abs(v - 0.1) <= 0.01 for v in viscous.values()), viscous  # refitted with Dahl
+    viscous = {j: e.details["total"] for (effect, j), e in found.items() if effect == "viscous_friction"}
+    assert viscous and all(abs(v - (0.15 if j == "panda_joint1" else 0.1)) <= 0.01 for j, v in viscous.items()), viscous
+    assert all(e.value == pytest.approx(e.details["total"] - 0.003)  # refitted with Dahl, on the URDF's 0.003
+               for (effect, _), e in found.items() if effect == "viscous_friction")
     assert {e for e, _ in found} <= {"presliding_friction", "coulomb_friction", "viscous_friction"}

@@ -65,8 +65,10 @@ class AugmentedModel:
         joints: excited joints, length n.
         body_names: the robot's moving bodies, length nb.
         phi: their inertial parameters, shape (10·nb,) (payload not included).
-        viscous: joint damping [N·m·s/rad], (n,); replaces the model file's damping.
-        coulomb: Coulomb friction [N·m], (n,).
+        viscous: joint damping [N·m·s/rad], (n,): the total, the model file's damping plus the
+            named viscous friction.
+        coulomb: Coulomb friction [N·m], (n,): the total, the model file's ``<dynamics
+            friction>`` plus the named Coulomb friction.
         coulomb_velocity_scale: v_s [rad/s].
         armature: rotor inertia [kg·m²], (n,).
         torque_offset: [N·m], (n,), added to the torque the actuator applies.
@@ -104,7 +106,8 @@ class AugmentedModel:
                  payload_link: str | None = None, cov_B: np.ndarray | None = None,
                  time_delay: float = 0.0,
                  presliding: dict[int, tuple[float, float]] | None = None,
-                 phi_prior: np.ndarray | None = None) -> AugmentedModel:
+                 phi_prior: np.ndarray | None = None,
+                 friction_start: tuple[np.ndarray, np.ndarray] | None = None) -> AugmentedModel:
         """The model of a diagnosis fit.
 
         Args:
@@ -113,9 +116,9 @@ class AugmentedModel:
             phi_B: re-identified base parameters, (b,).
             Sigma_phi: a-priori covariance of the standard parameters, (10·nb, 10·nb).
             payload_phi: Δφ_L of a named payload about its link's origin (10,), or None.
-            effects: {label: (Candidate, value)} of the named per-joint effects. The viscous
-                friction replaces the model file's joint damping (0 where none is named, as
-                in :mod:`pe_drake.identification.simulation`).
+            effects: {label: (Candidate, value)} of the named per-joint effects. A named
+                viscous or Coulomb friction is what the model file lacks: it adds to the model
+                file's damping and friction (the a-priori model the diagnosis starts from).
             velocity_scale: v_s of the Coulomb friction [rad/s].
             payload_link: the link whose frame ``payload_phi`` is expressed in.
             cov_B: covariance of φ_B, (b, b): weighs the base parameters when the conditional
@@ -124,16 +127,20 @@ class AugmentedModel:
             presliding: {joint index: (F_c [N·m], σ0 [N·m/rad])} of the named pre-sliding friction.
             phi_prior: the a-priori standard parameters the closest ones are sought from
                 (None: the robot's model file's; ``diagnose --model``: the earlier model's).
+            friction_start: (viscous, Coulomb) per joint a named friction adds to (default the
+                model file's; zeros with an earlier model, whose fits give totals).
         """
         phi0 = robot.phi_model if phi_prior is None else np.asarray(phi_prior, float)
         n = robot.n
-        viscous, coulomb, armature, offset = np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n)
+        start = (robot.joint_damping, robot.joint_friction) if friction_start is None else friction_start
+        viscous, coulomb = np.array(start[0], float), np.array(start[1], float)
+        armature, offset = np.zeros(n), np.zeros(n)
         for cand, value in effects.values():
             j = cand.joint
             if cand.effect == "viscous_friction":
-                viscous[j] = value
+                viscous[j] += value
             elif cand.effect == "coulomb_friction":
-                coulomb[j] = value
+                coulomb[j] += value
             elif cand.effect == "armature":
                 armature[j] = value
             elif cand.effect == "torque_offset":
@@ -186,7 +193,8 @@ class AugmentedModel:
                                    [float(x) for x in self.payload_com], [float(x) for x in self.payload_inertia])
         effects = EffectsTruth(
             viscous={j: float(x) for j, x in zip(self.joints, self.viscous)},
-            coulomb={j: float(x) for j, x in zip(self.joints, self.coulomb) if x > 0},
+            # every joint: a joint left out would keep the model file's friction in the simulator
+            coulomb={j: float(x) for j, x in zip(self.joints, self.coulomb)},
             coulomb_velocity_scale=float(self.coulomb_velocity_scale),
             armature={j: float(x) for j, x in zip(self.joints, self.armature) if x > 0},
             torque_offset={j: float(x) for j, x in zip(self.joints, self.torque_offset) if x != 0},
@@ -363,7 +371,8 @@ def augmented_urdf_text(robot, model: AugmentedModel) -> str:
     """
     text = urdf_with_inertias(robot.model_path, model.body_names, model.phi)
     text = joint_dynamics(text, dict(zip(model.joints, map(float, model.viscous))),
-                          {j: float(a) for j, a in zip(model.joints, model.armature) if a > 0})
+                          {j: float(a) for j, a in zip(model.joints, model.armature) if a > 0},
+                          dict(zip(model.joints, map(float, model.coulomb))))
     extra = []
     if model.payload_link:
         phi_p = phi_from_com(model.payload_mass, model.payload_com, inertia_matrix(model.payload_inertia))
@@ -390,18 +399,19 @@ def _num(x) -> str:
 
 def effects_yaml_text(model: AugmentedModel) -> str:
     """The effects a URDF cannot hold, as a TRUTH.yaml for ``pe-drake simulate``."""
-    def table(x):
-        items = {j: float(v) for j, v in zip(model.joints, x) if v != 0}
+    def table(x, every: bool = False):
+        items = {j: float(v) for j, v in zip(model.joints, x) if every or v != 0}
         return "{" + ", ".join(f"{j}: {v!r}" for j, v in items.items()) + "}"
 
     return (
         "# Effects found by pe-drake diagnose that a URDF cannot hold (TRUTH.yaml schema):\n"
         "#   pe-drake simulate --robot augmented_model.urdf --truth augmented_effects.yaml ...\n"
-        "# re-simulates the augmented model (viscous and armature repeat the URDF's damping and\n"
-        "# rotor inertia; the payload and the inertias are in the URDF).\n"
+        "# re-simulates the augmented model (viscous, coulomb and armature repeat the URDF's damping,\n"
+        "# friction and rotor inertia; the payload and the inertias are in the URDF).\n"
         "effects:\n"
-        f"  viscous: {table(model.viscous)}            # [N·m·s/rad]\n"
-        f"  coulomb: {table(model.coulomb)}            # [N·m], f_c·tanh(v / v_s)\n"
+        # every joint's friction: the simulator keeps the model file's where a joint is left out
+        f"  viscous: {table(model.viscous, True)}            # [N·m·s/rad]\n"
+        f"  coulomb: {table(model.coulomb, True)}            # [N·m], f_c·tanh(v / v_s)\n"
         f"  coulomb_velocity_scale: {model.coulomb_velocity_scale!r}   # v_s [rad/s]\n"
         f"  armature: {table(model.armature)}          # [kg·m²]\n"
         f"  torque_offset: {table(model.torque_offset)}   # [N·m]\n"

@@ -82,7 +82,9 @@ class Candidate:
         joint: index of the joint in the robot's order.
         joint_name: its name.
         unit: unit of the value θ.
-        nonnegative: a physically meaningful value is ≥ 0 (friction, armature).
+        nonnegative: a physically meaningful value is ≥ ``lower`` (friction, armature).
+        lower: that bound: 0, or for friction minus the model file's value on the joint (the
+            value is what the model file lacks, the total d + θ must be ≥ 0; issue 21).
     """
 
     effect: str
@@ -90,26 +92,33 @@ class Candidate:
     joint_name: str
     unit: str
     nonnegative: bool
+    lower: float = 0.0
 
     @property
     def label(self) -> str:
         return f"{self.effect}[{self.joint_name}]"
 
 
-def joint_candidates(robot, effects: Sequence[str] = JOINT_EFFECTS) -> list[Candidate]:
+def joint_candidates(robot, effects: Sequence[str] = JOINT_EFFECTS,
+                     start: tuple[np.ndarray, np.ndarray] | None = None) -> list[Candidate]:
     """Every per-joint effect on every excited joint.
 
     Args:
         robot: a :class:`~pe_drake.multibody.robot.Robot`.
         effects: names from :data:`JOINT_EFFECTS`.
+        start: (viscous, Coulomb) per joint the fits start from (a friction's ``lower`` is
+            minus it); default the model file's (``Robot.joint_damping``, ``joint_friction``).
     """
     out = []
+    viscous, coulomb = (robot.joint_damping, robot.joint_friction) if start is None else start
+    model_file = {"viscous_friction": viscous, "coulomb_friction": coulomb}
     for effect in effects:
         if effect not in JOINT_EFFECTS:
             raise UnknownNameError("effect", effect, JOINT_EFFECTS)
         for j, info in enumerate(robot.joints):
             unit = _UNITS[effect][0 if info.kind == "revolute" else 1]
-            out.append(Candidate(effect, j, info.name, unit, _NONNEGATIVE[effect]))
+            lower = -float(model_file[effect][j]) if effect in model_file else 0.0
+            out.append(Candidate(effect, j, info.name, unit, _NONNEGATIVE[effect], lower))
     return out
 
 

@@ -353,4 +353,8 @@ def _refitted(e: NamedEffect, step: PreslidingStep, library) -> NamedEffect:
     if not step.fits or col is None or col not in step.final.columns:
         return e
     value, std = step.final.value(col), step.final.std(col)
-    return dataclasses.replace(e, value=float(value), std=float(std), z=float(abs(value) / max(std, 1e-300)))
+    details = dict(e.details)
+    if "total" in details:  # a friction on top of the model file's: its total moves with it
+        details["total"] += float(value) - e.value
+    return dataclasses.replace(e, value=float(value), std=float(std), z=float(abs(value) / max(std, 1e-300)),
+                               details=details)

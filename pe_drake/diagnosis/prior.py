@@ -6,13 +6,15 @@ earlier diagnosis, read by :func:`~pe_drake.identification.identified_file.load_
 Only the nominal comparison (step 1), the payload search's Δφ_B and the augmented model's
 closest standard parameters start from it: the rigid-body and effect fits use the measured
 torque alone, so an earlier model's friction is found again as effects when the data show it.
+The fits start from the model file's friction, with or without an earlier model
+(:func:`friction_start`; issue 21): a friction named is what the model file lacks.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from pe_drake.diagnosis.record import Segment
+from pe_drake.diagnosis.record import Segment, model_file_friction
 from pe_drake.identification.estimators import IdentificationResult
 from pe_drake.identification.identified_file import standard_from_base
 from pe_drake.multibody.inertia import validity_problems
@@ -40,14 +42,31 @@ def prior_own_parameters(robot, prior: IdentificationResult | None) -> np.ndarra
 
 def prior_drive_torque(robot, prior: IdentificationResult | None, seg: Segment) -> np.ndarray:
     """The a-priori model's joint torque beside Y φ on a segment, (S, n) [N·m]: the model file's
-    joint damping, or an earlier model's drive terms (its Coulomb column tanh(v/v_s) with its
+    joint friction, or an earlier model's drive terms (its Coulomb column tanh(v/v_s) with its
     own v_s, parallel-filtered like the torque, as ``validate`` predicts; the model file's
     damping is not added, as in ``validate``)."""
-    if prior is None:
-        return robot.joint_damping * seg.v
+    if prior is None:  # the model file's friction, d·v + f_c·tanh(v/v_s) (issue 21)
+        return model_file_friction(robot, seg)
     drive = prior.drive
     if drive is None or not drive.layout.count:
         return np.zeros_like(seg.v)
     rec = seg.record
     coulomb = rec.filtered(np.tanh(rec.v / drive.layout.velocity_scale))[seg.idx]
     return drive.torque(seg.v, seg.vd, coulomb)
+
+
+def friction_start(robot, prior: IdentificationResult | None) -> tuple[np.ndarray, np.ndarray]:
+    """(viscous [N·m·s/rad], Coulomb [N·m]) per joint that the effect fits start from: the model
+    file's ``<dynamics damping, friction>`` (issue 21: a friction named is what it lacks), with
+    or without an earlier model. An earlier model's drive terms are its nominal comparison's
+    only, so its friction is found again in the data (module docstring), as a correction of the
+    model file's like without it."""
+    del prior  # the same start either way (see above)
+    return np.asarray(robot.joint_damping, float), np.asarray(robot.joint_friction, float)
+
+
+def fitted_friction(robot, prior: IdentificationResult | None, seg: Segment) -> np.ndarray:
+    """The torque of :func:`friction_start` along a segment, subtracted from the measured torque
+    before the rigid-body and effect fits, (S, n) [N·m]."""
+    viscous, coulomb = friction_start(robot, prior)
+    return viscous * seg.v + coulomb * seg.coulomb

@@ -322,3 +322,13 @@ def check_joints(robot, data: Measurement, validation: Measurement | None) -> No
             raise DataError(
                 f"the data's joints {', '.join(m.joints)} differ from robot '{robot.name}''s excited "
                 f"joints {', '.join(robot.joint_names)}", file=m.source)
+
+
+def model_file_friction(robot, seg: Segment) -> np.ndarray:
+    """The friction the model file holds, d·v + f_c·tanh(v/v_s), along a segment, (S, n) [N·m].
+
+    ``<dynamics damping>`` (Drake's joint damping) and ``friction`` (which Drake ignores) are
+    part of the a-priori model (issue 21, as in ``simulate`` and ``identify``); the Coulomb
+    term is the segment's parallel-filtered column, like the measured torque.
+    """
+    return robot.joint_damping * seg.v + robot.joint_friction * seg.coulomb

@@ -170,10 +170,17 @@ class Library:
         """The columns that act on every joint: the base regressor and the timing nuisance."""
         return [*range(self.num_base), self.timing_col]
 
-    def segment_columns(self, model, independent: np.ndarray, seg: Segment) -> Columns:
+    def segment_columns(self, model, independent: np.ndarray, seg: Segment,
+                        known: np.ndarray | None = None) -> Columns:
         """A segment's base regressor (``model``'s ``independent`` columns), timing nuisance and
         candidate columns, built a block of samples at a time (a long log's columns are never
-        held twice, nor in float64: :data:`~pe_drake.diagnosis.columns.LONG_LOG_BYTES`)."""
+        held twice, nor in float64: :data:`~pe_drake.diagnosis.columns.LONG_LOG_BYTES`).
+
+        Args:
+            known: torque the a-priori model already holds outside the regressor (the model
+                file's friction), (S, n) [N·m]: the fit is of the measured torque minus it,
+                so the candidates are what the model file lacks.
+        """
         b = self.num_base
         q, v, vd, dtau = seg.q, seg.v, seg.vd, seg.dtau
 
@@ -181,7 +188,8 @@ class Library:
             model.columns(q[rows], v[rows], vd[rows], independent, out=out[:, :, :b])
             out[:, :, b] = -dtau[rows]  # the timing nuisance: tau_rec(t) ≈ tau(t) - d·dtau/dt
 
-        return Columns.assemble(seg.tau, b + self.extra_count, self.stored_columns, fill,
+        y = seg.tau if known is None else seg.tau - known
+        return Columns.assemble(y, b + self.extra_count, self.stored_columns, fill,
                                 self.single_joint_columns(seg))
 
     def single_joint_columns(self, seg: Segment) -> dict[int, tuple[int, np.ndarray]]:
@@ -278,7 +286,11 @@ def accept(col: int, fit: Fit, trial: Score, before: Score, library: Library, th
     explained = math.sqrt(max(r0**2 - r1**2, 0.0))
     stats.update(rms_before=r0, rms_after=r1, relative_gain=1 - r1 / r0 if r0 > 0 else 0.0,
                  explained_rms=explained, relevance=float(relevance[j]))
-    if c.nonnegative and value < 0:
+    # A correction of a model file's friction (lower < 0) is checked against its bound in the
+    # backward pass, with every effect in: while other joints' frictions are still missing, a
+    # lone Coulomb column also takes its joint's viscous deficit and overshoots a URDF whose
+    # friction is too high (TALOS writes damping 1, friction 1 on every arm joint; issue 21).
+    if c.nonnegative and c.lower == 0 and value < 0:
         return Verdict(False, f"physically implausible sign ({value:.3g} {c.unit})", "sign", stats)
     if z < z_min:
         return Verdict(False, f"not significant (z = {z:.2g} < {z_min:.2g})", "z", stats)
@@ -388,7 +400,7 @@ def _backward_check(reg: Regression, library: Library, selected: list[int], curr
         for col in selected:
             value = current.value(col)
             z = abs(value) / max(current.std(col), 1e-300)
-            if col in cand_of and cand_of[col].nonnegative and value < 0:
+            if col in cand_of and cand_of[col].nonnegative and value < cand_of[col].lower:
                 z = -1.0
             if z < z_min and z < worst_z:
                 worst, worst_z = col, z

@@ -242,6 +242,11 @@ def _summary(r) -> list[str]:
         lines.append(_table(["effect", "joint / link", "value", "± std", "unit", "z"],
                             [[e.effect, e.joint or e.link or "all joints", _g(e.value, 4), _g(e.std, 2), e.unit, _g(e.z, 3)]
                              for e in r.effects]))
+        totals = [f"{e.effect}[{e.joint}] {_g(e.details['total'], 4)} {e.unit}" for e in r.effects
+                  if "total" in (e.details or {})]
+        if totals:  # issue 21: the fit starts from the URDF's <dynamics damping, friction>
+            lines += ["", "A friction's value is what the model file's `<dynamics>` lacks; with it, the totals are: "
+                      + ", ".join(totals) + "."]
     else:
         lines.append("No effect of the library is named: what the a-priori model misses is explained by the "
                      "rigid-body re-identification" + (" or left unexplained." if r.unexplained else "."))

@@ -3,8 +3,11 @@
 ``pe-drake diagnose --robot ROBOT --data ident.csv [--validation other.csv] --out DIR``
 
 1. **Nominal comparison.** The a-priori model's torque along the measured motion (Drake's
-   inverse dynamics = Y φ_prior, plus the model file's joint damping) against the measured
-   torque, per joint and per regime (velocity sign, speed, acceleration, position, time).
+   inverse dynamics = Y φ_prior, plus the model file's joint friction: ``<dynamics damping>``
+   as d·v and ``friction`` as f_c·tanh(v/v_s)) against the measured torque, per joint and per
+   regime (velocity sign, speed, acceleration, position, time). Every later fit is of the
+   measured torque minus that friction, so an effect named is what the model file lacks (a
+   viscous friction on top of its damping; its details give the total).
 2. **Rigid-body re-identification** of the base parameters alone (WLS, Gautier's per-joint
    weights), reported as its own step: inertial errors are not a missing effect.
 3. **Effects.** Candidate columns of :mod:`pe_drake.diagnosis.effects` are appended to the base
@@ -91,7 +94,8 @@ from pe_drake.diagnosis.payload import (
 from pe_drake.diagnosis.holding import holding_note, holding_report, holding_separability, holding_torque
 from pe_drake.diagnosis.holding_selection import add_friction_pairs
 from pe_drake.diagnosis.presliding import PRESLIDING, PreslidingStep, presliding_effects, presliding_step
-from pe_drake.diagnosis.prior import prior_drive_torque, prior_own_parameters, prior_parameters
+from pe_drake.diagnosis.prior import (fitted_friction, friction_start, prior_drive_torque, prior_own_parameters,
+                                     prior_parameters)
 from pe_drake.diagnosis.record import (Record, Segment, check_fits_in_memory, check_joints, check_record_signs,
                                       delayed_states, prepare_record, split_segments)
 from pe_drake.diagnosis.regression import (
@@ -199,7 +203,7 @@ class Nominal:
 
 
 def nominal(robot, prep: Prepared, regression: Regression) -> Nominal:
-    """Y φ_prior plus the model file's joint damping against the measured torque (the base
+    """Y φ_prior plus the model file's joint friction against the measured torque (the base
     regressor from ``regression``'s columns).
 
     Raises:
@@ -243,13 +247,13 @@ def candidate_library(robot, prep: Prepared, config: DiagnosisConfig) -> Candida
     Raises:
         DataError: the training part does not excite every base parameter.
     """
-    candidates = joint_candidates(robot, config.effects)
+    candidates = joint_candidates(robot, config.effects, friction_start(robot, prep.prior))
     sep = separability(robot, prep.base, candidates, model=prep.model)
     sep += holding_separability(robot, prep.training)
     library = Library(prep.base.count, tuple(s.candidate for s in sep if s.separable))
     training, held = prep.training, prep.held
-    reg = Regression(*(library.segment_columns(prep.model, prep.base.independent, seg) for seg in (training, held)),
-                     library.num_base)
+    reg = Regression(*(library.segment_columns(prep.model, prep.base.independent, seg, fitted_friction(robot, prep.prior, seg))
+                       for seg in (training, held)), library.num_base)
     b = library.num_base
     cond = condition_number(reg.train.gram[:, :b, :b].sum(axis=0))
     if cond > MAX_COND:
@@ -321,7 +325,7 @@ def name_effects(robot, lib: CandidateLibrary, sel: Selection, rigid: Fit, nom: 
 def _named(reg: Regression, library: Library, final: Fit, effect_cols: list[int], fits_cum: list[Fit], robot,
            config: DiagnosisConfig) -> tuple[list[NamedEffect], list[dict[str, Any]]]:
     """Each effect with its value, and the fits with everything but it for its plot."""
-    joints, damping = robot.joint_names, robot.joint_damping
+    joints = robot.joint_names
     named: list[NamedEffect] = []
     series: list[dict[str, Any]] = []
     res_final = reg.residual("held-out", reg.fit(effect_cols))
@@ -339,10 +343,12 @@ def _named(reg: Regression, library: Library, final: Fit, effect_cols: list[int]
             continue
         c = library.cand_of[col]
         details: dict[str, Any] = {"contribution_rms": float(reg.contribution_rms("held-out", final, col)[c.joint])}
+        # The value is what the model file lacks (the fit starts from its friction, -c.lower): the total.
         if c.effect == "viscous_friction":
-            details["model_file_damping"] = float(damping[c.joint])
+            details.update(model_file_damping=-c.lower, total=float(value - c.lower))
         if c.effect == "coulomb_friction":
-            details["velocity_scale"] = config.coulomb_velocity_scale
+            details.update(velocity_scale=config.coulomb_velocity_scale, model_file_friction=-c.lower,
+                           total=float(value - c.lower))
         named.append(NamedEffect(
             c.effect, c.joint_name, "", float(value), c.unit, float(std), float(abs(value) / max(std, 1e-300)),
             per_joint(joints, fits_cum[k].rms_held), per_joint(joints, fits_cum[k + 1].rms_held), details))
@@ -423,7 +429,8 @@ def augment(robot, prep: Prepared, lib: CandidateLibrary, pre: PreslidingStep, n
                                         config.coulomb_velocity_scale,
                                         effect.link if effect is not None else None,
                                         cov_B=pay.change.cov_B, time_delay=delay, presliding=presliding,
-                                        phi_prior=prior_own_parameters(robot, prep.prior))
+                                        phi_prior=prior_own_parameters(robot, prep.prior),
+                                        friction_start=friction_start(robot, prep.prior))
     true = build_augmented_robot(robot, augmented)
     # Drake's torque at the held-out samples (along the motion `delay` earlier when a time delay
     # is named), its Coulomb term filtered like the measured torque (the parallel-filtered
@@ -434,7 +441,7 @@ def augment(robot, prep: Prepared, lib: CandidateLibrary, pre: PreslidingStep, n
     tau_after += augmented.coulomb * (coulomb - np.tanh(v / config.coulomb_velocity_scale)) + pre.held_torque
     tau_after += holding_torque(pre.regression.held, final, library)  # friction held at rest
     # the least-squares prediction with the final values (a delay by its linearization -d·dτ/dt)
-    ls_pred = pre.regression.held.product(final.columns, final.x)
+    ls_pred = pre.regression.held.product(final.columns, final.x) + fitted_friction(robot, prep.prior, held)
     return Augmentation(augmented, tau_after, rms(held.tau - tau_after),
                         np.max(np.abs(tau_after - ls_pred), axis=0))
 

@@ -21,6 +21,7 @@ import numpy as np
 
 from pe_drake.exceptions import DataError
 from pe_drake.identification.csv_checks import check_time_order
+from pe_drake.identification.drive_terms import COULOMB_VELOCITY_SCALE, coulomb_column
 from pe_drake.identification.estimators import robot_torques
 
 #: Lowest sample rate accepted [Hz].
@@ -166,5 +167,9 @@ def check_against_model(robot, prepared) -> np.ndarray:
     """
     if prepared.tau is None:
         return np.empty(0)
-    return check_torque_signs(prepared.tau, robot_torques(robot, prepared, robot.phi_model), prepared.joints,
-                              prepared.source)
+    model = robot_torques(robot, prepared, robot.phi_model)
+    # the model file's friction is part of the a-priori model (issue 21): xArm7's damping of 10
+    # N·m·s/rad is much of its measured torque
+    model = model + robot.joint_damping * prepared.v + robot.joint_friction * coulomb_column(
+        prepared.v, COULOMB_VELOCITY_SCALE)
+    return check_torque_signs(prepared.tau, model, prepared.joints, prepared.source)

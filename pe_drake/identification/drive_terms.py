@@ -17,6 +17,16 @@ so τ = Y_B φ_B + D θ with W = [Y_B | D]: the drive block is extra columns, wh
 normal equations of W are accumulated. The smoothed sign and its v_s are the diagnosis's
 (:mod:`pe_drake.diagnosis.effects`) and the simulator's ``DoorHinge``.
 
+**The model file's friction** (a URDF's ``<dynamics damping>`` and ``friction``) is part of the
+a-priori model (issue 21). A viscous or Coulomb column the fit has estimates the joint's *total*
+friction (least squares gives the same total whether the model file's value is subtracted
+first or not, and the physical fit's bound θ ≥ 0 is on the total), which is what identified.json,
+model.urdf (``damping``, ``friction``) and drive_effects.yaml hold. A term the fit does not have
+(``--drive-terms none``, or a joint the model file gives friction the chosen terms leave out)
+keeps the model file's value (:func:`model_file_terms`): it is subtracted from the measured
+torque before the fit and is a drive term with ``"source": "model file"`` and σ = 0. The
+diagnosis names only what the model file lacks and gives the same total in its details.
+
 The ground wrench does not see joint friction (it acts between two links of the robot), so
 the drive columns are zero in base-wrench rows.
 
@@ -225,12 +235,23 @@ class DriveFit:
         sigma: their standard deviations, shape (d,).
         merged_armature: {joint: value [kg·m²]} the physical fit gave the armatures that are
             not separable (already inside the base parameters; the URDF's rotor inertia).
+        known: labels of the terms taken from the model file, not estimated (:func:`model_file_terms`).
     """
 
     layout: DriveLayout
     theta: np.ndarray
     sigma: np.ndarray
     merged_armature: dict[str, float] = dataclasses.field(default_factory=dict)
+    known: tuple[str, ...] = ()
+
+    def with_known(self, known: DriveFit | None) -> DriveFit:
+        """This fit with the model file's terms ``known`` appended (their σ is 0)."""
+        if known is None or not known.layout.count:
+            return self
+        a, b = self.layout, known.layout
+        layout = dataclasses.replace(a, terms=a.terms + b.terms, joints=a.joints + b.joints, units=a.units + b.units)
+        return DriveFit(layout, np.r_[self.theta, known.theta], np.r_[self.sigma, known.sigma],
+                        self.merged_armature, self.known + b.labels)
 
     def torque(self, v: np.ndarray, vd: np.ndarray, coulomb: np.ndarray | None = None) -> np.ndarray:
         """D θ at the samples, shape (S, n) [N·m], a block of samples at a time (D of an hour at
@@ -255,6 +276,8 @@ class DriveFit:
         for t, j, u, x, s in zip(self.layout.terms, self.layout.joints, self.layout.units, self.theta, self.sigma):
             table[self.layout.joint_names[j]][t] = {
                 "value": float(x), "sigma": float(s), "sigma_percent": percent_or_none(x, s), "unit": u}
+            if f"{t}[{self.layout.joint_names[j]}]" in self.known:
+                table[self.layout.joint_names[j]][t]["source"] = "model file"
         for name, coef in self.layout.merged.items():
             table[name]["armature"] = {"value": None, "identifiable": False, "merged_into": coef,
                                        "note": "in the span of the rigid-body base columns: only the sum with "
@@ -266,6 +289,8 @@ class DriveFit:
             "velocity_scale": self.layout.velocity_scale,
             "coulomb_model": "coulomb * tanh(v / velocity_scale)",
             "torque_equation": "tau = Y_B(q, v, vd) phi_B + coulomb*tanh(v/v_s) + viscous*v + offset + armature*vd",
+            "friction": "viscous and coulomb are each joint's total friction; 'source: model file' marks a value "
+                        "kept from the model file's <dynamics> (not estimated)",
             "dropped": dict(self.layout.dropped),
         }
 
@@ -281,7 +306,7 @@ class DriveFit:
         unknown = set(table) - set(names)
         if unknown:
             raise ValueError(f"drive terms for joints {', '.join(sorted(unknown))} not in {', '.join(names)}")
-        terms, joints, units, theta, sigma, merged, merged_values = [], [], [], [], [], {}, {}
+        terms, joints, units, theta, sigma, merged, merged_values, known = [], [], [], [], [], {}, {}, []
         for j, name in enumerate(names):
             for t, entry in table.get(name, {}).items():
                 if t not in _UNITS:
@@ -291,6 +316,8 @@ class DriveFit:
                     if entry.get("physical_fit_value") is not None:
                         merged_values[name] = float(entry["physical_fit_value"])
                     continue
+                if entry.get("source") == "model file":
+                    known.append(f"{t}[{name}]")
                 terms.append(t)
                 joints.append(j)
                 units.append(str(entry.get("unit", _UNITS[t][0])))
@@ -299,7 +326,27 @@ class DriveFit:
         layout = DriveLayout(tuple(terms), tuple(joints), names, tuple(units),
                              float(d.get("velocity_scale", COULOMB_VELOCITY_SCALE)), merged,
                              dict(d.get("dropped", {})))
-        return cls(layout, np.array(theta, float), np.array(sigma, float), merged_values)
+        return cls(layout, np.array(theta, float), np.array(sigma, float), merged_values, tuple(known))
+
+
+def model_file_terms(robot, layout: DriveLayout) -> DriveFit | None:
+    """The model file's friction that ``layout`` does not estimate, as a fit with σ = 0 (module
+    docstring), or None when there is none.
+
+    Args:
+        robot: the a-priori robot (``joint_damping``, ``joint_friction``).
+        layout: the drive columns the fit estimates.
+    """
+    fitted = set(zip(layout.terms, layout.joints))
+    cols = [(t, j, float(x)) for j in range(robot.n)
+            for t, x in (("coulomb", robot.joint_friction[j]), ("viscous", robot.joint_damping[j]))
+            if x != 0 and (t, j) not in fitted]
+    if not cols:
+        return None
+    units = tuple(_UNITS[t][0 if robot.joints[j].kind == "revolute" else 1] for t, j, _ in cols)
+    known = DriveLayout(tuple(t for t, _, _ in cols), tuple(j for _, j, _ in cols), layout.joint_names, units,
+                        layout.velocity_scale)
+    return DriveFit(known, np.array([x for _, _, x in cols]), np.zeros(len(cols)), {}, known.labels)
 
 
 def percent_or_none(value: float, sigma: float) -> float | None:
@@ -364,7 +411,7 @@ def drive_summary(fit: DriveFit | None) -> list[str]:
     lines = ["drive terms (value ± σ):"]
     names = fit.layout.joint_names
     for j, name in enumerate(names):
-        parts = [f"{t} {x:.4g} ± {s:.2g} {u}"
+        parts = [f"{t} {x:.4g} {u} (model file)" if f"{t}[{name}]" in fit.known else f"{t} {x:.4g} ± {s:.2g} {u}"
                  for t, jj, u, x, s in zip(fit.layout.terms, fit.layout.joints, fit.layout.units, fit.theta, fit.sigma)
                  if jj == j]
         if name in fit.layout.merged:
@@ -433,9 +480,18 @@ def urdf_dynamics(fit: DriveFit | None) -> tuple[dict[str, float], dict[str, flo
             continue
         (damping if t == "viscous" else rotor)[name] = float(x)
     rotor.update({name: x for name, x in fit.merged_armature.items() if x > 0})
-    notes.append("Coulomb friction and torque offsets are not in model.urdf (Drake's URDF parser ignores "
-                 "<dynamics friction>): they are in identified.json and drive_effects.yaml")
+    notes.append("Coulomb friction is in <dynamics friction> (Drake's parser ignores it, pe_drake reads it as the "
+                 "model file's friction) and identified.json; torque offsets in identified.json only")
     return damping, rotor, notes
+
+
+def urdf_friction(fit: DriveFit | None) -> dict[str, float]:
+    """{joint: Coulomb friction [N·m]} for a URDF's ``<dynamics friction>``, negative values left
+    out: so model.urdf's friction is the fit's, not a stale copy of the source URDF's."""
+    if fit is None:
+        return {}
+    return {fit.layout.joint_names[j]: float(x) for t, j, x in zip(fit.layout.terms, fit.layout.joints, fit.theta)
+            if t == "coulomb" and x >= 0}
 
 
 def drive_effects_yaml(fit: DriveFit) -> str:
@@ -444,8 +500,10 @@ def drive_effects_yaml(fit: DriveFit) -> str:
     (viscous and armature repeat model.urdf's damping and rotor inertia; negative values, which
     the simulator refuses, are left out)."""
     def table(term: str, nonnegative: bool) -> str:
+        # a fitted friction of 0 is written too: a joint left out keeps the model file's friction
+        friction = term in ("viscous", "coulomb")
         values = {fit.layout.joint_names[j]: float(x) for t, j, x in zip(fit.layout.terms, fit.layout.joints, fit.theta)
-                  if t == term and x != 0 and not (nonnegative and x < 0)}
+                  if t == term and (x != 0 or friction) and not (nonnegative and x < 0)}
         if term == "armature":
             values.update({k: v for k, v in fit.merged_armature.items() if v > 0})
         return "{" + ", ".join(f"{j}: {v!r}" for j, v in values.items()) + "}"

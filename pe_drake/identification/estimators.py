@@ -50,6 +50,7 @@ from pe_drake.identification.drive_terms import (
     drive_columns,
     drive_layout,
     drive_options,
+    model_file_terms,
     separable_on_data,
 )
 from pe_drake.identification.gaps import MAX_GAP_S, preprocess_segments
@@ -326,7 +327,8 @@ def _identify(robot, data: Measurement, method: str, base: BaseParameters | None
     measured_values(robot, data, measurement)  # refuses data without the channels, naming them
     layouts = _layouts(robot, measurement, drive_options(drive_terms), method, model)
     _check_rows(data, base.count + layouts.drive.count, len(channels))
-    blocks = _row_blocks(robot, data, measurement, model, layouts, coulomb)
+    known = model_file_terms(robot, layouts.drive) if MeasurementType(measurement).torques else None
+    blocks = _row_blocks(robot, data, measurement, model, layouts, coulomb, known)
     folded = fold_rows(blocks)  # the rows never held at once: an hour of data fits (folded_rows)
     cols = _Columns(folded.R.shape[1] - 1, 10 * len(robot.body_names), base, layouts)
     layout, keep = separable_on_data(folded.stacked(cols.base)[0], folded.stacked(cols.drive)[0], layouts.drive)
@@ -369,7 +371,7 @@ def _identify(robot, data: Measurement, method: str, base: BaseParameters | None
         measurement=measurement,
         channels=channels,
         drive=DriveFit(layout, x[b:], np.sqrt(np.maximum(np.diag(cov)[b:], 0.0)),
-                       physical.merged_armature if physical is not None else {}),
+                       physical.merged_armature if physical is not None else {}).with_known(known),
         physical_notes=physical.notes if physical is not None else (),
         friction_share=_friction_share(folded, cols, layouts, residual_ss),
     )
@@ -415,8 +417,9 @@ class _Columns:
 
 
 def _row_blocks(robot, data: Measurement, measurement: str, model: RegressorModel, layouts: _Layouts,
-                coulomb: np.ndarray | None):
-    """The rows [Y | drive | armature | friction] and y of ``data``, BLOCK samples at a time."""
+                coulomb: np.ndarray | None, known: DriveFit | None = None):
+    """The rows [Y | drive | armature | friction] and y of ``data``, BLOCK samples at a time
+    (y of the torques without the model file's ``known`` friction)."""
     rows = SensorRows(model, MeasurementType(measurement))
     r = len(channel_names(robot, measurement))
 
@@ -428,7 +431,10 @@ def _row_blocks(robot, data: Measurement, measurement: str, model: RegressorMode
             sign = None if coulomb is None else coulomb[k]
             F = [rows.rows(model.kinematics(part.q, part.v, part.vd), scaled=False)]
             F += [drive_columns(part.v, part.vd, layout, sign, rows=r) for layout in layouts]
-            yield k, np.concatenate(F, axis=2), measured_values(robot, part, measurement)
+            y = measured_values(robot, part, measurement)
+            if known is not None:  # the torque channels come first
+                y[:, : robot.n] -= known.torque(part.v, part.vd, sign)
+            yield k, np.concatenate(F, axis=2), y
 
     return blocks
 

@@ -29,6 +29,7 @@ from pe_drake.identification.drive_terms import (
     filtered_coulomb,
     format_percent,
     urdf_dynamics,
+    urdf_friction,
 )
 from pe_drake.identification.estimators import (
     IdentificationResult,
@@ -158,7 +159,8 @@ class IdentifiedModel:
             if self.phi is not None:
                 try:
                     damping, rotor, urdf_notes = urdf_dynamics(result.drive)
-                    write_robot_urdf(tmp / "model.urdf", robot, self.phi, damping=damping, rotor_inertia=rotor)
+                    write_robot_urdf(tmp / "model.urdf", robot, self.phi, damping=damping, rotor_inertia=rotor,
+                                     friction=urdf_friction(result.drive))
                     model_file = "model.urdf"
                     note = "; ".join([note] * bool(note) + urdf_notes)
                 except (PhysicallyInvalidError, ConfigError) as err:

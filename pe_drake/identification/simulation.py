@@ -10,8 +10,11 @@ The true robot is the a-priori model with:
 
 - inertial parameters perturbed per body (:func:`pe_drake.multibody.inertia.perturb_inertias`), each body kept
   physically valid;
-- viscous friction as Drake joint damping (it *replaces* the model file's damping, so an
-  effect-free truth has none);
+- viscous friction as Drake joint damping and Coulomb friction (below): the model file's
+  ``<dynamics damping>`` and ``friction`` are part of the a-priori model and are kept, except
+  on the joints where the truth sets that effect (by name or ``all``), whose value replaces
+  the model file's (issue 21: every command starts from the model file's friction; the truth
+  record lists both and which one was simulated);
 - Coulomb friction ``-f_c·tanh(v/v_s)`` as a Drake ``DoorHinge`` force element (its dynamic
   friction term is exactly this; spring, catch and static terms are zero), so it is part of
   the continuous dynamics the integrator sees rather than a sampled input;
@@ -63,9 +66,11 @@ from pe_drake.excitation.fourier import FourierTrajectory
 from pe_drake.identification.dahl import dahl_builder_hook
 from pe_drake.identification.measurements import Measurement
 from pe_drake.identification.truth import (
+    ALL_JOINTS,
     Truth,
     load_truth,
     payload_spatial_inertia,
+    per_joint_or_model,
     per_joint_values,
     validate_truth,
 )
@@ -103,7 +108,10 @@ class TrueRobot:
         phi_bodies: true parameters of the bodies alone (without payload), (10·nb,).
         phi_payload: payload parameters about the link origin in the link frame, (10,).
         viscous, coulomb, armature, torque_offset: per joint, shape (n,).
-        model_damping: the model file's joint damping (replaced by ``viscous``), (n,).
+        model_damping: the model file's joint damping, (n,) (``viscous`` where the truth does
+            not set it).
+        model_friction: the model file's ``<dynamics friction>``, (n,) (``coulomb`` where the
+            truth does not set it).
         presliding, presliding_stiffness: Dahl F_c [N·m] and σ0 [N·m/rad] per joint, (n,);
             when any F_c > 0 the diagram holds the Dahl system and exports the input port
             ``applied_generalized_force`` that the controller drives.
@@ -120,6 +128,7 @@ class TrueRobot:
     model_damping: np.ndarray
     presliding: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
     presliding_stiffness: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
+    model_friction: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
 
     def force_input(self):
         """(port, context) of the applied generalized force the controller sets: the
@@ -147,13 +156,11 @@ def build_true_robot(robot, truth: Truth, phi: np.ndarray | None = None) -> True
     validate_truth(truth, robot)
     joints = robot.joint_names
     e = truth.effects
-    viscous = per_joint_values(e.viscous, joints)
-    coulomb = per_joint_values(e.coulomb, joints)
+    model_damping, model_friction = robot.joint_damping, robot.joint_friction
+    viscous = per_joint_or_model(e.viscous, joints, model_damping)
+    coulomb = per_joint_or_model(e.coulomb, joints, model_friction)
     armature = per_joint_values(e.armature, joints)
     offset = per_joint_values(e.torque_offset, joints)
-    model_damping = np.array(
-        [robot.plant.GetJointByName(j).default_damping_vector()[0] for j in joints], float
-    )
     payload_M = payload_spatial_inertia(e.payload) if e.payload.link else None
 
     def before_finalize(plant, scene_graph):
@@ -190,7 +197,7 @@ def build_true_robot(robot, truth: Truth, phi: np.ndarray | None = None) -> True
         b = robot.body_names.index(e.payload.link)
         phi[10 * b : 10 * b + 10] += phi_payload
     return TrueRobot(true, phi, phi_bodies, phi_payload, viscous, coulomb, armature, offset, model_damping,
-                     fc, sigma0)
+                     fc, sigma0, model_friction)
 
 
 def _add_coulomb_friction(plant, joint, f_c: float, v_s: float) -> None:
@@ -475,6 +482,10 @@ def _truth_dict(robot, truth: Truth, true: TrueRobot, duration: float, log: Trac
         return {j: float(x) for j, x in zip(joints, values)}
 
     e = truth.effects
+
+    def source(table):
+        return {j: "truth" if j in table or ALL_JOINTS in table else "model file" for j in joints}
+
     return {
         "robot": robot.name,
         "joints": joints,
@@ -491,9 +502,10 @@ def _truth_dict(robot, truth: Truth, true: TrueRobot, duration: float, log: Trac
         ),
         "effects": {
             "viscous": {"unit": "N·m·s/rad", "values": per_joint(true.viscous),
-                        "model_file_damping": per_joint(true.model_damping),
-                        "note": "replaces the model file's joint damping"},
+                        "model_file_damping": per_joint(true.model_damping), "source": source(e.viscous),
+                        "note": "the simulated value: the truth's where it sets the joint, else the model file's"},
             "coulomb": {"unit": "N·m", "values": per_joint(true.coulomb),
+                        "model_file_friction": per_joint(true.model_friction), "source": source(e.coulomb),
                         "velocity_scale": e.coulomb_velocity_scale, "velocity_scale_unit": "rad/s",
                         "model": "coulomb * tanh(v / velocity_scale)"},
             "armature": {"unit": "kg·m²", "values": per_joint(true.armature)},

@@ -47,12 +47,15 @@ class EffectsTruth:
     """Effects of the true robot beyond its rigid-body dynamics.
 
     Per-joint tables map a joint name to a value; the key ``all`` sets every joint not named.
-    Joints absent from a table get 0.
+    Joints absent from a table get 0, except for the friction the model file already has
+    (``viscous``, ``coulomb``): that is part of the a-priori model and is kept.
 
     Attributes:
-        viscous: viscous friction f_v [N·m·s/rad] (Drake joint damping; replaces the model
-            file's damping).
-        coulomb: Coulomb friction f_c [N·m], smoothed as f_c·tanh(v/v_s) (revolute joints).
+        viscous: viscous friction f_v [N·m·s/rad] (Drake joint damping). A joint this table
+            sets (by name or ``all``) has this value instead of the model file's
+            ``<dynamics damping>``; a joint it does not set keeps the model file's.
+        coulomb: Coulomb friction f_c [N·m], smoothed as f_c·tanh(v/v_s) (revolute joints);
+            like ``viscous``, it replaces the model file's ``<dynamics friction>`` where set.
         coulomb_velocity_scale: v_s [rad/s].
         armature: reflected rotor inertia I_a [kg·m²], adds I_a·vd.
         torque_offset: constant torque o [N·m] the actuator must supply (sign convention:
@@ -286,6 +289,14 @@ def per_joint_values(table: dict[str, float], joints: tuple[str, ...]) -> np.nda
     """Per-joint table (with the ``all`` key) → values in joint order, shape (n,)."""
     default = float(table.get(ALL_JOINTS, 0.0))
     return np.array([float(table.get(j, default)) for j in joints])
+
+
+def per_joint_or_model(table: dict[str, float], joints: tuple[str, ...], model: np.ndarray) -> np.ndarray:
+    """A per-joint table where it sets a joint (by name or ``all``), the model file's value
+    ``model`` (n,) elsewhere: the truth's value replaces the model's, an absent one keeps it."""
+    if ALL_JOINTS in table:
+        return per_joint_values(table, joints)
+    return np.array([float(table[j]) if j in table else float(m) for j, m in zip(joints, model)])
 
 
 def payload_spatial_inertia(p: PayloadTruth):

@@ -365,6 +365,17 @@ class Robot:
         """Viscous damping of each excited joint in the model, shape (n,) [N·m·s/rad]."""
         return np.array([j.default_damping_vector()[0] for j in self._joints], float)
 
+    @cached_property
+    def joint_friction(self) -> np.ndarray:
+        """Coulomb friction of each excited joint in the model file, shape (n,) [N·m or N]: a
+        URDF's ``<dynamics friction>``, which Drake's parser ignores; 0 for other formats.
+
+        Like the damping it is part of the a-priori model of every command (issue 21): the
+        simulator, the diagnosis and the identification apply it as f·tanh(v/v_s).
+        """
+        table = _urdf_dynamics(self.model_path, "friction")
+        return np.array([max(table.get(name, 0.0), 0.0) for name in self.joint_names], float)
+
     def inverse_dynamics(
         self, q: np.ndarray, v: np.ndarray, vd: np.ndarray, include_damping: bool = False
     ) -> np.ndarray:
@@ -421,6 +432,27 @@ def _urdf_effort_limits(path: Path) -> dict[str, float]:
             continue
         if effort > 0:
             out[joint.get("name")] = effort
+    return out
+
+
+def _urdf_dynamics(path: Path, attribute: str) -> dict[str, float]:
+    """{joint: value} of a URDF's ``<dynamics attribute=...>`` ({} for other formats or text
+    that does not parse; Drake reports those itself)."""
+    if path.suffix.lower() != ".urdf":
+        return {}
+    try:
+        root = urdf_tree(path.read_text())
+    except (ET.ParseError, OSError, UnicodeDecodeError):
+        return {}
+    out = {}
+    for joint in root.findall("joint"):  # not a <transmission>'s <joint>, which has no dynamics
+        dynamics = joint.find("dynamics")
+        try:
+            value = float(dynamics.get(attribute))
+        except (AttributeError, TypeError, ValueError):  # no <dynamics>, no attribute, bad text
+            continue
+        if np.isfinite(value):
+            out[joint.get("name")] = value
     return out
 
 

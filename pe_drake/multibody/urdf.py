@@ -211,14 +211,18 @@ def verify_urdf_text(text: str, body_names: Sequence[str], phi: np.ndarray, tole
             )
 
 
-def joint_dynamics(text: str, damping: dict[str, float], rotor_inertia: dict[str, float]) -> str:
+def joint_dynamics(text: str, damping: dict[str, float], rotor_inertia: dict[str, float],
+                   friction: dict[str, float] | None = None) -> str:
     """URDF text with each joint's viscous damping [N·m·s/rad] in its ``<dynamics>`` and a
     rotor inertia [kg·m²] as Drake's ``drake:rotor_inertia`` of a gear-ratio-1 actuator in a
     ``<transmission>`` (Drake adds rotor_inertia·gear_ratio² to the joint's mass-matrix
-    diagonal: the armature). Drake ignores ``<dynamics friction>``, so Coulomb friction has no
-    URDF form."""
+    diagonal: the armature). Coulomb friction [N·m] goes to ``<dynamics friction>``: Drake
+    ignores it, but pe_drake reads it as the model file's friction (``Robot.joint_friction``),
+    so a written value replaces the source URDF's instead of leaving a stale one."""
     for name, value in damping.items():
-        text = _set_joint_damping(text, name, float(value))
+        text = _set_joint_dynamics(text, name, "damping", float(value))
+    for name, value in (friction or {}).items():
+        text = _set_joint_dynamics(text, name, "friction", float(value))
     extra = []
     for name, value in rotor_inertia.items():
         extra.append(
@@ -242,25 +246,25 @@ def _num(x) -> str:
     return repr(float(x))
 
 
-def _set_joint_damping(text: str, joint: str, damping: float) -> str:
-    """Sets ``damping`` in the joint's <dynamics> element (added when missing)."""
+def _set_joint_dynamics(text: str, joint: str, attribute: str, value: float) -> str:
+    """Sets ``attribute`` (damping, friction) in the joint's <dynamics> element (added when missing)."""
     pattern = re.compile(r'(<joint\b[^>]*\bname="' + re.escape(joint) + r'"[^>]*>)(.*?)(</joint>)', re.S)
     match = pattern.search(text)
     if match is None:
         return text
     body = match.group(2)
     dyn = re.search(r"<dynamics\b[^>]*/>", body)
+    setting = f'{attribute}="{_num(value)}"'
     if dyn:
         element = dyn.group(0)
-        if re.search(r'\bdamping="[^"]*"', element):
-            new = re.sub(r'\bdamping="[^"]*"', f'damping="{_num(damping)}"', element)
+        if re.search(r'\b' + attribute + r'="[^"]*"', element):
+            new = re.sub(r'\b' + attribute + r'="[^"]*"', setting, element)
         else:
-            new = element.replace("<dynamics", f'<dynamics damping="{_num(damping)}"', 1)
+            new = element.replace("<dynamics", f"<dynamics {setting}", 1)
         body = body.replace(element, new, 1)
     else:
-        body = body.rstrip() + f'\n    <dynamics damping="{_num(damping)}"/>\n  '
+        body = body.rstrip() + f"\n    <dynamics {setting}/>\n  "
     return text[: match.start(2)] + body + text[match.end(2) :]
-
 
 
 def write_urdf(
@@ -290,19 +294,21 @@ def write_urdf(
 
 
 def write_robot_urdf(path: str | Path, robot, phi: np.ndarray, *, verify: bool = True,
-                     damping: dict[str, float] | None = None, rotor_inertia: dict[str, float] | None = None) -> Path:
+                     damping: dict[str, float] | None = None, rotor_inertia: dict[str, float] | None = None,
+                     friction: dict[str, float] | None = None) -> Path:
     """:func:`write_urdf` for a :class:`~pe_drake.multibody.robot.Robot`: its model file, its bodies.
 
     Args:
         path: output file.
         robot: the robot the parameters were identified for.
         phi: standard parameters, shape (10·nb,) in ``robot.body_names`` order.
-        damping, rotor_inertia: {joint: value} written by :func:`joint_dynamics` (the drive terms).
+        damping, rotor_inertia, friction: {joint: value} written by :func:`joint_dynamics` (the
+            drive terms).
     """
-    if not damping and not rotor_inertia:
+    if not damping and not rotor_inertia and not friction:
         return write_urdf(path, robot.model_path, robot.body_names, phi, verify=verify)
     text = joint_dynamics(urdf_with_inertias(robot.model_path, robot.body_names, phi), damping or {},
-                          rotor_inertia or {})
+                          rotor_inertia or {}, friction)
     if verify:
         verify_urdf_text(text, robot.body_names, phi)
     atomic_write_text(Path(path), text)
