@@ -307,3 +307,28 @@ def test_package_uri_with_three_slashes_resolves():
     found = resolve_package_uri(name, model)
     assert found is not None and found.is_file()
     assert found == resolve_package_uri(name.replace(":///", "://"), model)
+
+
+def test_materials_used_before_their_definition_or_defined_nowhere():
+    """Drake refuses a material used before its (in-link) definition and one defined nowhere;
+    global definitions (children of <robot>) may come anywhere."""
+    from pe_drake.multibody.model_files import single_material_definitions
+
+    text = ('<robot name="r"><link name="a"><visual><material name="G"/></visual></link>'
+            '<link name="b"><visual><material name="G"><color rgba="1 0 0 1"/></material></visual></link>'
+            '<link name="c"><visual><material name="X"/><material name="W"/></visual></link>'
+            '<material name="W"><color rgba="1 1 1 1"/></material></robot>')
+    out, notes = single_material_definitions(text)
+    assert out.index('<color rgba="1 0 0 1"/>') < out.index('<link name="b">')  # G's definition at its first use
+    assert '<link name="b"><visual><material name="G"/>' in out
+    assert 'name="X"' not in out and '<material name="W"/>' in out and '<color rgba="1 1 1 1"/>' in out
+    assert any("moved to their first use" in n and "'G'" in n for n in notes)
+    assert any("defined nowhere" in n and "'X'" in n for n in notes)
+
+
+@pytest.mark.parametrize("name", ["talos_full_v2.urdf", "talos_reduced_corrected.urdf"])
+def test_talos_models_drake_refused_load(name):
+    """TALOS full (materials used before their definition, package:/// URIs) and reduced_corrected
+    (a material defined nowhere) were refused by Drake."""
+    robot = load_robot(str(example_robot_data_dir() / "robots" / "talos_data" / "robots" / name))
+    assert robot.n == 14

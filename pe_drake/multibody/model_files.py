@@ -46,6 +46,7 @@ MODEL_SUFFIXES = (".urdf", ".sdf", ".xml", ".xacro")
 
 _MESH_FILENAME = re.compile(r"(<mesh\b[^>]*?\bfilename\s*=\s*)([\"'])(.*?)\2", re.S)
 _MATERIAL = re.compile(r"<material\b([^>]*?)(/>|>(.*?)</material\s*>)", re.S)
+_LINK = re.compile(r"<link\b[^>]*?(/>|>.*?</link\s*>)", re.S)
 _NAME_ATTR = re.compile(r"""\bname\s*=\s*(["'])(.*?)\1""", re.S)
 _MIMIC = re.compile(r"<mimic\b[^>]*/>|<mimic\b[^>]*>.*?</mimic\s*>", re.S)
 _XACRO_LOCK = threading.Lock()  # xacro keeps its state in module globals
@@ -173,35 +174,75 @@ def without_mimic(text: str) -> tuple[str, list[str]]:
 
 
 def single_material_definitions(text: str) -> tuple[str, list[str]]:
-    """URDF text in which each named material is defined once (its first definition); later
+    """URDF text in which each named material is defined once, at its first use; later
     definitions of the same name become references ``<material name="..."/>``.
 
     Drake refuses a repeated definition ("Material 'carbon_fiber' was previously defined",
-    example-robot-data's Kinova JACO2), which ROS tools accept.
+    example-robot-data's Kinova JACO2) and a reference that comes before the definition
+    ("Material 'DarkGrey' not previously defined", its TALOS full and box models) or one defined
+    nowhere ('Grey' there), which ROS tools accept. The first definition of a name (its colour
+    or texture) is used at the name's first use; a name defined nowhere is dropped.
 
     Returns:
-        The text and a note naming the materials whose later definitions were dropped.
+        The text and a note naming the materials whose definitions were moved or dropped.
     """
-    defined: set[str] = set()
+    links = [m.span() for m in _LINK.finditer(text)]
+    definitions: dict[str, str] = {}
+    global_names: set[str] = set()  # defined under <robot> itself: Drake reads those first, wherever they are
+    for match in _MATERIAL.finditer(text):
+        name_match = _NAME_ATTR.search(match.group(1))
+        if name_match is not None and match.group(3) is not None and match.group(3).strip():
+            definitions.setdefault(name_match.group(2), match.group(0))
+            if not any(a <= match.start() < b for a, b in links):
+                global_names.add(name_match.group(2))
+    used: set[str] = set()
+    undefined: set[str] = set()
     repeated: dict[str, int] = {}
+    moved: list[str] = []
 
     def one(match: re.Match) -> str:
         name_match = _NAME_ATTR.search(match.group(1))
-        body = match.group(3)
-        if name_match is None or body is None or not body.strip():
+        if name_match is None:
             return match.group(0)
         name = name_match.group(2)
-        if name not in defined:
-            defined.add(name)
+        if name not in definitions:
+            if match.group(3) is None or not match.group(3).strip():
+                undefined.add(name)
+                return ""  # a name defined nowhere: the visual keeps Drake's default colour
             return match.group(0)
-        repeated[name] = repeated.get(name, 0) + 1
-        return f"<material{match.group(1).rstrip()}/>"
+        defines = match.group(3) is not None and bool(match.group(3).strip())
+        if name in global_names:  # Drake reads these first: uses anywhere are fine
+            if not defines:
+                return match.group(0)
+            if not any(a <= match.start() < b for a, b in links) and name not in used:
+                used.add(name)
+                return match.group(0)  # the (first) global definition
+            repeated[name] = repeated.get(name, 0) + 1
+            return "" if not any(a <= match.start() < b for a, b in links) else f"<material{match.group(1).rstrip()}/>"
+        if name not in used:
+            used.add(name)
+            if defines:
+                return match.group(0)
+            moved.append(name)
+            return definitions[name]  # the definition, brought forward to the first use
+        if defines:
+            if not (name in moved and match.group(0) == definitions[name]):
+                repeated[name] = repeated.get(name, 0) + 1
+            return f"<material{match.group(1).rstrip()}/>"
+        return match.group(0)
 
     out = _MATERIAL.sub(one, text)
-    if not repeated:
-        return text, []
-    listed = ", ".join(f"'{k}' ({v}×)" for k, v in repeated.items())
-    return out, [f"repeated material definitions kept once (the first; Drake refuses repeats): {listed}"]
+    notes = []
+    if repeated:
+        listed = ", ".join(f"'{k}' ({v}×)" for k, v in repeated.items())
+        notes.append(f"repeated material definitions kept once (the first; Drake refuses repeats): {listed}")
+    if moved:
+        notes.append("material definitions moved to their first use (Drake refuses a use before the "
+                     f"definition): {', '.join(repr(m) for m in moved)}")
+    if undefined:
+        notes.append("materials used but defined nowhere dropped (the default colour; Drake refuses them): "
+                     + ", ".join(repr(m) for m in sorted(undefined)))
+    return (out, notes) if notes else (text, [])
 
 
 def drake_model_text(model_path: Path, obj_visuals: bool, packages: dict | None = None) -> tuple[str, list[str]]:
@@ -214,8 +255,11 @@ def drake_model_text(model_path: Path, obj_visuals: bool, packages: dict | None 
         # collision is our own capsules. Mimic tags would couple joints we may lock.
         text = re.sub(r"<collision\b.*?</collision>", "", text, flags=re.S)
         text, mimic_notes = without_mimic(text)
-        text, material_notes = single_material_definitions(text)  # Kinova JACO2
+        text, material_notes = single_material_definitions(text)  # Kinova JACO2, TALOS full
         notes += mimic_notes + material_notes
+        if "package:///" in text:  # TALOS full writes package:///<name>/...: an empty package for Drake
+            text = text.replace("package:///", "package://")
+            notes.append("package:/// URIs read as package:// (an empty package name)")
         text = absolute_mesh_paths(text, model_path)  # parsed from a string: no folder to resolve against
         text, refused = without_refused_visuals(text, model_path, _mesh_roots(model_path, text, packages), packages)
         notes += refused  # a visual naming /etc/passwd or a key would be embedded in playback.html
