@@ -61,25 +61,25 @@ _TIAGO_ARM = "robot:\n  joints: [" + ", ".join(f"arm_{k}_joint" for k in range(1
 #: Baxter's right arm; the head and the left arm locked at zero.
 _BAXTER_RIGHT = "robot:\n  joints: [" + ", ".join(f"right_{j}" for j in ("s0", "s1", "e0", "e1", "w0", "w1", "w2")) + "]\n"
 
-#: The arms and humanoids of example-robot-data, in the order they run.
+#: The arms and humanoids of example-robot-data, in the order they run (issue 21's first).
 ROBOTS = (
-    BenchRobot("kinova", "kinova_description/robots/kinova.urdf"),  # a JACO2 j2s6s200
-    BenchRobot("so101", "so_arm_description/urdf/so101.urdf"),
-    BenchRobot("so100", "so_arm_description/urdf/so100.urdf"),
-    BenchRobot("z1", "z1_description/urdf/z1.urdf"),
     BenchRobot("ur3", "ur_description/urdf/ur3_robot.urdf"),
+    BenchRobot("so101", "so_arm_description/urdf/so101.urdf"),
+    BenchRobot("z1", "z1_description/urdf/z1.urdf"),
+    BenchRobot("kinova", "kinova_description/robots/kinova.urdf"),  # a JACO2 j2s6s200
     BenchRobot("ur5", "ur_description/urdf/ur5_robot.urdf"),
     BenchRobot("ur10", "ur_description/urdf/ur10_robot.urdf"),
     BenchRobot("xarm7", "xarm_description/urdf/xarm7.urdf"),
     BenchRobot("panda_fingers", "panda_description/urdf/panda.urdf"),
     BenchRobot("tiago_arm", "tiago_description/robots/tiago_no_hand.urdf", _TIAGO_ARM),
+    BenchRobot("talos", "talos_data/robots/talos_reduced.urdf"),
+    BenchRobot("romeo", "romeo_description/urdf/romeo.urdf"),
+    BenchRobot("icub", "icub_description/robots/icub_reduced.urdf"),
+    BenchRobot("so100", "so_arm_description/urdf/so100.urdf"),
     BenchRobot("baxter_right", "baxter_description/urdf/baxter.urdf", _BAXTER_RIGHT),
     BenchRobot("panda", "panda"),  # the shipped configs: capsule files
     BenchRobot("ur5_config", "ur5"),
     BenchRobot("g1", "g1"),
-    BenchRobot("talos", "talos_data/robots/talos_reduced.urdf"),
-    BenchRobot("romeo", "romeo_description/urdf/romeo.urdf"),
-    BenchRobot("icub", "icub_description/robots/icub_reduced.urdf"),
     BenchRobot("simple_humanoid", "simple_humanoid_description/urdf/simple_humanoid.urdf"),
 )
 
@@ -120,10 +120,15 @@ class Row:
     effect: str = "-"
     seconds: float = 0.0
     note: str = ""
+    stage_seconds: dict[str, float] = dataclasses.field(default_factory=dict)
 
     def cells(self) -> list[str]:
         return [self.robot, self.loads, self.mount, self.capsules, self.valid, self.cond, self.effect,
                 f"{self.seconds:.0f}", self.note]
+
+    def timing(self) -> str:
+        """Seconds per stage, e.g. ``optimize 41, simulate 12, ...``."""
+        return ", ".join(f"{k} {v:.0f}" for k, v in self.stage_seconds.items())
 
 
 def short_reason(err: BaseException | str, limit: int = REASON_CHARS) -> str:
@@ -205,13 +210,15 @@ def hidden_friction(robot: Robot, seed: int) -> str:
     """TRUTH.yaml text: Coulomb and viscous friction on every excited joint, sized to the
     joint's effort limit (2 % and 1 %·s/rad; 0.3 N·m and 0.1 N·m·s/rad without one) so a
     small servo arm and a 300 N·m UR10 joint both carry a friction a sensor would see,
-    3 % inertial error, 0.02 N·m torque noise and a 19-bit encoder."""
+    3 % inertial error, 0.02 N·m torque noise and a 19-bit encoder. Integrated with radau3:
+    Coulomb friction on light links makes the dynamics stiff (3 s of SO-101 took 338 s with
+    runge_kutta3, 2.9 s with radau3; the UR3 12.6 s and 5.3 s)."""
     coulomb, viscous = [], []
     for name, effort in zip(robot.joint_names, robot.limits.effort_max):
         effort = float(effort) if np.isfinite(effort) and effort > 0 else None
         coulomb.append(f"    {name}: {min(max(0.02 * effort, 0.05), 5.0) if effort else 0.3:.4g}")
         viscous.append(f"    {name}: {min(max(0.01 * effort, 0.02), 2.0) if effort else 0.1:.4g}")
-    return (f"seed: {seed}\ninertia_perturbation: 0.03\neffects:\n  coulomb:\n" + "\n".join(coulomb)
+    return (f"seed: {seed}\ninertia_perturbation: 0.03\nintegrator: radau3\neffects:\n  coulomb:\n" + "\n".join(coulomb)
             + "\n  viscous:\n" + "\n".join(viscous)
             + "\nnoise:\n  tau_std: 0.02\n  encoder_counts_per_rev: 524288\ncontrol:\n  rate_hz: 1000.0\n")
 
@@ -228,11 +235,14 @@ def effect_named(result, joints: int) -> str:
 
 def _stage(row: Row, name: str, step: Callable[[], object]):
     """Runs one stage; a failure goes into the row's note (the caller stops there)."""
+    start = time.perf_counter()
     try:
         return step()
     except Exception as err:  # noqa: BLE001 -- the bench reports every robot's failure and goes on
         row.note = f"{name}: {short_reason(err)}"
         return None
+    finally:
+        row.stage_seconds[name] = row.stage_seconds.get(name, 0.0) + time.perf_counter() - start
 
 
 def run_robot(entry: BenchRobot, options: BenchOptions, folder: Path) -> Row:
@@ -329,6 +339,7 @@ def bench_robots(args) -> list[Row]:
             row = run_robot(entry, options, Path(tmp))
         rows.append(row)
         print(format_row(row.cells(), WIDTHS), flush=True)
+    print("seconds per stage: " + "; ".join(f"{r.robot}: {r.timing()}" for r in rows))
     valid = sum(r.valid.startswith("yes") for r in rows)
     named = sum(r.effect.startswith("yes") for r in rows)
     print(f"BENCH robots={len(rows)} loaded={sum(r.loads.startswith('yes') for r in rows)} valid={valid} "
