@@ -132,9 +132,11 @@ class Row:
 
 
 def short_reason(err: BaseException | str, limit: int = REASON_CHARS) -> str:
-    """An error as one line of at most ``limit`` characters."""
+    """An error as one line of at most ``limit`` characters, folders left out of file paths
+    (the bench's temporary folders would fill the line)."""
     text = str(err).strip() or type(err).__name__
     text = re.sub(r"\s+", " ", text)
+    text = re.sub(r"(?:/[^\s'\":/]+)+/([^\s'\":/]+)", r"\1", text)
     return text if len(text) <= limit else text[: limit - 1] + "…"
 
 
