@@ -209,29 +209,32 @@ def capsules_of(plan) -> str:
 
 
 def hidden_friction(robot: Robot, seed: int) -> str:
-    """TRUTH.yaml text: Coulomb and viscous friction on every excited joint, sized to the
+    """TRUTH.yaml text: Coulomb (revolute joints: the simulation's smoothed Coulomb model is
+    for them) and viscous friction on every excited joint, sized to the
     joint's effort limit (2 % and 1 %·s/rad; 0.3 N·m and 0.1 N·m·s/rad without one) so a
     small servo arm and a 300 N·m UR10 joint both carry a friction a sensor would see,
     3 % inertial error, 0.02 N·m torque noise and a 19-bit encoder. Integrated with radau3:
     Coulomb friction on light links makes the dynamics stiff (3 s of SO-101 took 338 s with
     runge_kutta3, 2.9 s with radau3; the UR3 12.6 s and 5.3 s)."""
     coulomb, viscous = [], []
-    for name, effort in zip(robot.joint_names, robot.limits.effort_max):
+    for name, joint, effort in zip(robot.joint_names, robot.joints, robot.limits.effort_max):
         effort = float(effort) if np.isfinite(effort) and effort > 0 else None
-        coulomb.append(f"    {name}: {min(max(0.02 * effort, 0.05), 5.0) if effort else 0.3:.4g}")
+        if joint.kind == "revolute":
+            coulomb.append(f"    {name}: {min(max(0.02 * effort, 0.05), 5.0) if effort else 0.3:.4g}")
         viscous.append(f"    {name}: {min(max(0.01 * effort, 0.02), 2.0) if effort else 0.1:.4g}")
-    return (f"seed: {seed}\ninertia_perturbation: 0.03\nintegrator: radau3\neffects:\n  coulomb:\n" + "\n".join(coulomb)
-            + "\n  viscous:\n" + "\n".join(viscous)
+    return (f"seed: {seed}\ninertia_perturbation: 0.03\nintegrator: radau3\neffects:\n"
+            + ("  coulomb:\n" + "\n".join(coulomb) if coulomb else "  coulomb: {}") + "\n  viscous:\n" + "\n".join(viscous)
             + "\nnoise:\n  tau_std: 0.02\n  encoder_counts_per_rev: 524288\ncontrol:\n  rate_hz: 1000.0\n")
 
 
-def effect_named(result, joints: int) -> str:
-    """Whether the diagnosis named the hidden friction, on how many joints."""
+def effect_named(result, joints: int, revolute: int) -> str:
+    """Whether the diagnosis named the hidden friction, on how many joints (Coulomb: of the
+    ``revolute`` ones that have it)."""
     coulomb = {e.joint for e in result.effects if e.effect == "coulomb_friction"}
     viscous = {e.joint for e in result.effects if e.effect == "viscous_friction"}
     others = sorted({e.effect for e in result.effects} - {"coulomb_friction", "viscous_friction"})
     named = "yes" if coulomb or viscous else "no"
-    text = f"{named}: coulomb {len(coulomb)}/{joints}, viscous {len(viscous)}/{joints}"
+    text = f"{named}: coulomb {len(coulomb)}/{revolute}, viscous {len(viscous)}/{joints}"
     return text + (f" (+{', '.join(others)})" if others else "")
 
 
@@ -312,7 +315,7 @@ def _identify_and_diagnose(row: Row, plan, trajectory: Path, options: BenchOptio
         return
     result = _stage(row, "diagnose", lambda: diagnose(robot, data))
     if result is not None:
-        row.effect = effect_named(result, robot.n)
+        row.effect = effect_named(result, robot.n, sum(j.kind == "revolute" for j in robot.joints))
 
 
 def format_row(cells: list[str], widths: list[int]) -> str:

@@ -6,8 +6,12 @@ from __future__ import annotations
 import pytest
 
 from pe_drake.bench import main
-from pe_drake.bench_robots import COLUMNS, ROBOTS, BenchOptions, BenchRobot, caps_yaml, select_robots, short_reason
+from pe_drake.bench_robots import (
+    COLUMNS, ROBOTS, BenchOptions, BenchRobot, caps_yaml, hidden_friction, select_robots, short_reason,
+)
+from pe_drake.identification.truth import load_truth, validate_truth
 from pe_drake.multibody.registry import example_robot_data_dir
+from pe_drake.multibody.robot import load_robot
 
 
 def _table(output: str) -> tuple[list[str], list[str]]:
@@ -52,6 +56,19 @@ def test_the_named_robots_are_in_the_bench():
 def test_the_caps_go_into_the_config_a_user_would_write():
     text = caps_yaml(BenchRobot("x", "x.urdf", "robot:\n  joints: [a]\n"), BenchOptions(max_iterations=7))
     assert "joints: [a]" in text and "max_iterations: 7" in text and "starts: 1" in text and "periods: 1" in text
+
+
+def test_the_hidden_friction_is_a_truth_the_simulation_takes(tmp_path):
+    """Failed on the first bench run: Coulomb friction on the Panda's prismatic fingers was
+    refused by simulate."""
+    robot = load_robot(str(example_robot_data_dir() / "robots/panda_description/urdf/panda.urdf"))
+    path = tmp_path / "TRUTH.yaml"
+    path.write_text(hidden_friction(robot, 0))
+    truth = validate_truth(load_truth(path), robot)
+    assert set(truth.effects.viscous) == set(robot.joint_names)
+    assert set(truth.effects.coulomb) == {j for j in robot.joint_names if "finger" not in j}
+    assert truth.effects.coulomb["panda_joint1"] == pytest.approx(0.02 * 87.0)  # 2 % of its effort limit
+    assert truth.integrator == "radau3"
 
 
 def test_reasons_are_one_short_line():
