@@ -1,4 +1,4 @@
-"""Benchmarks that print numbers: ``python -m pe_drake.bench {gradient,identify,diagnose,sensitivity,solve,payload,memory}``.
+"""Benchmarks that print numbers: ``python -m pe_drake.bench {gradient,identify,diagnose,sensitivity,solve,payload,memory,robots}``.
 
 Each benchmark prints its measurements and ends with one line ``BENCH key=value ...`` so
 scripts can collect it. Timings are wall-clock medians of repeated runs on this machine.
@@ -46,6 +46,7 @@ _BENCHMARKS = {
     "solve": ("pe_drake.bench", "bench_solve"),
     "payload": ("pe_drake.bench_payload", "bench_payload"),
     "memory": ("pe_drake.bench_memory", "bench_memory"),
+    "robots": ("pe_drake.bench_robots", "bench_robots"),
 }
 
 
@@ -367,8 +368,13 @@ def main(argv: list[str] | None = None) -> int:
         "--default-malloc", action="store_true", help="gradient: keep glibc's malloc thresholds (see pe_drake.memory)"
     )
     parser.add_argument(
-        "--max-iterations", type=int, default=None, help="solve: IPOPT budget (default: the robot's config, 300)"
+        "--max-iterations", type=int, default=None,
+        help="solve: IPOPT budget (default: the robot's config, 300); robots: per robot (default: 60)",
     )
+    parser.add_argument("--robots", default="", help="robots: names or model paths, a,b,c (default: all)")
+    parser.add_argument("--harmonics", type=int, default=None, help="robots: Fourier harmonics (default: the robot's)")
+    parser.add_argument("--duration", type=float, default=None,
+                        help="robots: simulated seconds (default: the whole written motion)")
     parser.add_argument("--payloads", type=int, default=5, help="payload: random payloads (default: %(default)s)")
     parser.add_argument("--minutes", default="1,10,60", help="memory: log durations [min] (default: %(default)s)")
     parser.add_argument("--link", default="", help="payload: the payload link (default: the robot's flange)")
