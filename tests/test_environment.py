@@ -134,3 +134,16 @@ def test_constraints_on_drakes_per_sample_queries_equal_the_batched_ones(robot_n
         np.testing.assert_allclose(a.value, b.value, atol=1e-12)
         np.testing.assert_allclose(a.d_q, b.d_q, atol=1e-11)
         assert np.abs(a.d_q).max() > 1e-3
+
+
+def test_capsules_only_on_fixed_links_are_refused_with_a_reason(panda):
+    """A model whose capsules all sit on links no excited joint moves (example-robot-data's
+    simple_humanoid) raised an IndexError inside the floor rows."""
+    import copy
+
+    moving = {int(b) for b in panda.body_indices}
+    robot = copy.copy(panda)
+    robot.capsules = tuple(c for c in panda.capsules if c.body_index not in moving)
+    assert robot.capsules  # the base's capsule
+    with pytest.raises(ConfigError, match="none of its 1 collision capsule"):
+        EnvironmentConstraint(robot, 0.01, floor_height=0.0)

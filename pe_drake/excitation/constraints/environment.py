@@ -182,6 +182,11 @@ class EnvironmentConstraint(SampledConstraint):
         self.aggregate, self.smoothing = bool(aggregate), float(smoothing)
         moving = {int(b) for b in robot.body_indices}
         self.capsules = [c for c in capsules if c.body_index in moving]
+        if not self.capsules:
+            raise ConfigError(
+                f"robot '{robot.name}': none of its {len(capsules)} collision capsule(s) is on a link the "
+                "excited joints move, so nothing can be kept off the floor or the boxes: give the moving links "
+                "capsules (robot.capsules) or collision geometry, or set environment: {floor: false} and no boxes")
         self._setup_bodies()
         self.floor_ends = self._floor_ends() if floor_height is not None else []
         labels = [f"{self.capsules[c].name}.{('start', 'end')[e]}/floor" for c, e in self.floor_ends]
