@@ -126,13 +126,7 @@ class IdentifiedModel:
         lines = [f"robot {robot.name}: {robot.n} joints; data {raw.source}: {raw.num_samples} samples, "
                  f"{raw.duration:.2f} s at {raw.rate_hz:.0f} Hz"]
         if p is not None:
-            grid = (f"resampled onto a uniform {p.input_rate_hz:.0f} Hz grid (the raw time steps vary), "
-                    if p.resampled else "")
-            lines.append(
-                f"preprocessing: {grid}low-pass {p.cutoff_hz:.2f} Hz ({p.cutoff_source}), "
-                f"{p.samples_out} samples at {p.rate_hz:.0f} Hz from {p.samples_in} raw rows, "
-                f"{p.trim_s:.2f} s trimmed at each end ({p.duration_out_s:.2f} of {p.duration_in_s:.2f} s used), "
-                f"v {p.velocity_source}, vdot {p.acceleration_source}")
+            lines.append(p.describe())
         lines += [f"note: {note}" for note in self.data.notes]
         lines.append(f"{result.method} from {result.measurement}: {result.base.count} base parameters, "
                      f"cond(W) = {result.cond:.4g}, {result.wall_time:.2f} s")

@@ -80,6 +80,15 @@ class Preprocessing:
     duration_out_s: float = 0.0
     segments: int = 1
 
+    def describe(self) -> str:
+        """One line for a command's output: what was done to the raw data."""
+        grid = (f"resampled onto a uniform {self.input_rate_hz:.0f} Hz grid (the raw time steps vary), "
+                if self.resampled else "")
+        return (f"preprocessing: {grid}low-pass {self.cutoff_hz:.2f} Hz ({self.cutoff_source}), "
+                f"{self.samples_out} samples at {self.rate_hz:.0f} Hz from {self.samples_in} raw rows, "
+                f"{self.trim_s:.2f} s trimmed at each end ({self.duration_out_s:.2f} of {self.duration_in_s:.2f} s "
+                f"used), v {self.velocity_source}, vdot {self.acceleration_source}")
+
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class Measurement:

@@ -46,6 +46,7 @@ class ValidationReport:
     Attributes:
         names: the channels ("tau.<joint>", "wrench.fx", ...).
         rms: RMS error per channel [N·m, N]; relative: per channel [%]; relative_total [%].
+        preprocessing: what was done to the run (cut-off, trim, rates), printed first.
     """
 
     robot: str
@@ -60,10 +61,12 @@ class ValidationReport:
     relative_total: float
     samples: int
     notes: tuple[str, ...] = ()
+    preprocessing: Any = None
 
     def summary_lines(self) -> list[str]:
         width = max(len(j) for j in self.names)
-        lines = [f"model identified from {self.model_measurement}; predicting {self.measurement}",
+        lines = [self.preprocessing.describe()] if self.preprocessing is not None else []
+        lines += [f"model identified from {self.model_measurement}; predicting {self.measurement}",
                  f"{'channel':<{width}}  {'RMS [N·m, N]':>12}  {'relative [%]':>12}"]
         lines += [f"{j:<{width}}  {r:>12.4f}  {e:>12.2f}" for j, r, e in zip(self.names, self.rms, self.relative)]
         lines.append(f"{'all':<{width}}  {float(np.sqrt(np.mean(self.rms**2))):>12.4f}  {self.relative_total:>12.2f}")
@@ -108,4 +111,5 @@ def validate_model(robot: Robot, model: IdentificationResult, measurements: Meas
     rms, rel = torque_errors(measured, predicted)
     total = float(100 * np.linalg.norm(measured - predicted) / max(np.linalg.norm(measured), 1e-300))
     return ValidationReport(robot.name, model.measurement, options.measurement, tuple(kind.row_names(robot.joint_names)),
-                            data.t, measured, predicted, rms, rel, total, data.num_samples, tuple(data.notes))
+                            data.t, measured, predicted, rms, rel, total, data.num_samples, tuple(data.notes),
+                            data.preprocessing)
