@@ -13,7 +13,8 @@ def simulate_command(args) -> int:
     config = config_from_args(args)
     robot = robot_from_args(args, config, show_limit_notes=True)
     run = simulate_run(robot, args.trajectory, getattr(args, "truth", None), duration=getattr(args, "duration", None),
-                       measurement=measurement_from_args(args, config), model=getattr(args, "model", None))
+                       measurement=measurement_from_args(args, config), model=getattr(args, "model", None),
+                       progress=lambda s: print(s, flush=True))
     truth_file, recorded = run.write(out)
     for line in run.summary_lines():
         print(line)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -60,7 +61,7 @@ class SimulatedRun:
 
 def simulate_run(robot: Robot, trajectory: str | Path, truth: str | Path | None = None, *,
                  duration: float | None = None, measurement: str = "joint_torque",
-                 model: str | Path | None = None) -> SimulatedRun:
+                 model: str | Path | None = None, progress: Callable[[str], None] | None = None) -> SimulatedRun:
     """What ``pe-drake simulate`` does: the motion of ``trajectory``'s trajectory.csv (ramps and
     periods; after its end the robot rests) on the robot perturbed as ``truth`` (TRUTH.yaml) says.
 
@@ -69,6 +70,7 @@ def simulate_run(robot: Robot, trajectory: str | Path, truth: str | Path | None 
             and drive terms instead of the URDF's (:mod:`pe_drake.identification.simulated_model`);
             ``truth``'s effects, noise and control come on top. Without ``truth``: no noise,
             the default controller.
+        progress: called with a line before the simulation starts (it can take tens of seconds).
 
     Raises:
         DataError: a trajectory file for other joints, or outside the robot's limits; a model
@@ -92,5 +94,8 @@ def simulate_run(robot: Robot, trajectory: str | Path, truth: str | Path | None 
         sim_model = load_simulation_model(model, robot)
         truth_spec, phi = truth_with_model(truth_spec, sim_model, robot.joint_names), sim_model.phi
         extra = {"simulated_model": sim_model.as_dict(robot.joint_names)}
+    if progress is not None:
+        progress(f"simulating {duration:.3g} s of {Path(trajectory).name} on the simulated {robot.name} "
+                 f"(integrator {truth_spec.integrator}) ...")
     measured, truth_dict = simulate(robot, motion, truth_spec, duration, measurement=measurement, phi=phi)
     return SimulatedRun(robot.name, measurement, measured, {**truth_dict, **(extra or {})})
