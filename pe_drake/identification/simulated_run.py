@@ -95,7 +95,7 @@ def simulate_run(robot: Robot, trajectory: str | Path, truth: str | Path | None 
         truth_spec, phi = truth_with_model(truth_spec, sim_model, robot.joint_names), sim_model.phi
         extra = {"simulated_model": sim_model.as_dict(robot.joint_names)}
     if progress is not None:
-        progress(f"simulating {duration:.3g} s of {Path(trajectory).name} on the simulated {robot.name} "
+        progress(f"simulating {robot.name}: {duration:.3g} s of {Path(trajectory).name} "
                  f"(integrator {truth_spec.integrator}) ...")
     measured, truth_dict = simulate(robot, motion, truth_spec, duration, measurement=measurement, phi=phi)
     return SimulatedRun(robot.name, measurement, measured, {**truth_dict, **(extra or {})})
