@@ -409,3 +409,13 @@ def test_diagnose_starts_from_an_earlier_model(robot, trajectory, tmp_path, caps
     assert cli(["diagnose", "--robot", "panda", "--data", str(data), "--out", str(tmp_path / "never"),
                 "--model", str(bad)]) == 2
     assert "bad.json" in capsys.readouterr().err
+
+
+def test_a_candidate_that_passed_when_the_selection_was_full_says_so(robot, trajectory):
+    """With max_effects reached, a candidate that passed its last trial was reported as
+    "rejected" with no test and no reason."""
+    measurement, _ = simulated(robot, trajectory, "mix")
+    result = diagnose(robot, measurement, config=DiagnosisConfig(max_effects=2))
+    rejected = [d for d in result.decisions if d["decision"] == "rejected"]
+    assert all(d["test"] and d["reason"] for d in rejected)
+    assert any(d["test"] == "max_effects" for d in rejected)

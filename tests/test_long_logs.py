@@ -132,8 +132,8 @@ class _Hour:
 
 
 def test_a_diagnosis_that_cannot_fit_is_refused_with_the_figure():
-    with pytest.raises(DataError, match=r"diagnose would need about 4\.2 GB for 60\.0 min .* 5\.0 GB available"):
-        record.check_fits_in_memory(_Hour(), None, available=5_000_000_000)
+    with pytest.raises(DataError, match=r"diagnose would need about 5\.3 GB for 60\.0 min .* 6\.0 GB available"):
+        record.check_fits_in_memory(_Hour(), None, available=6_000_000_000)
     record.check_fits_in_memory(_Hour(), None, available=40_000_000_000)  # a bigger machine runs it
 
 

@@ -101,7 +101,8 @@ class Candidate:
 
 def joint_candidates(robot, effects: Sequence[str] = JOINT_EFFECTS,
                      start: tuple[np.ndarray, np.ndarray] | None = None) -> list[Candidate]:
-    """Every per-joint effect on every excited joint.
+    """Every per-joint effect on every excited joint (Coulomb friction on revolute joints: the
+    augmented Drake model, like the simulator, holds it as a revolute ``DoorHinge``).
 
     Args:
         robot: a :class:`~pe_drake.multibody.robot.Robot`.
@@ -116,6 +117,8 @@ def joint_candidates(robot, effects: Sequence[str] = JOINT_EFFECTS,
         if effect not in JOINT_EFFECTS:
             raise UnknownNameError("effect", effect, JOINT_EFFECTS)
         for j, info in enumerate(robot.joints):
+            if effect == "coulomb_friction" and info.kind != "revolute":
+                continue  # the augmented Drake model holds Coulomb friction as a revolute DoorHinge
             unit = _UNITS[effect][0 if info.kind == "revolute" else 1]
             lower = -float(model_file[effect][j]) if effect in model_file else 0.0
             out.append(Candidate(effect, j, info.name, unit, _NONNEGATIVE[effect], lower))

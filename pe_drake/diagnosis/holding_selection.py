@@ -47,6 +47,8 @@ def add_friction_pairs(reg: Regression, split: Scorer, library: Library, sel: Se
         if not all(v.accepted for v in pair.values()):
             reason = "; ".join(v.reason for v in pair.values() if not v.accepted)
             rejected[hold] = f"{rejected.get(hold, '')}; with coulomb_friction[{cand.joint_name}]: {reason}".lstrip("; ")
+            failed = pair[hold] if not pair[hold].accepted else pair[coulomb]
+            verdicts[hold] = failed._replace(reason=rejected[hold])  # decisions and rejected say the same
             continue
         for col in (coulomb, hold):
             selected.append(col)
@@ -57,6 +59,6 @@ def add_friction_pairs(reg: Regression, split: Scorer, library: Library, sel: Se
         current, current_split = fit, trial
         reg.inflation = integrated_autocorrelation(reg.residual("training", current))
     if current is sel.final:
-        return dataclasses.replace(sel, rejected=rejected)
+        return dataclasses.replace(sel, rejected=rejected, verdicts=verdicts)
     return dataclasses.replace(sel, selected=selected, order=order, final=reg.fit(selected), rejected=rejected,
                                steps=steps, verdicts=verdicts)

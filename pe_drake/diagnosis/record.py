@@ -286,10 +286,10 @@ def check_record_signs(robot, record: Record) -> None:
 
 
 #: What diagnose holds per fitted sample (it fits at 200 Hz at most), measured on 7-joint Panda
-#: logs at 1 kHz: 4.8 kB on an hour (3714 MB peak, its columns in float32:
-#: ``columns.LONG_LOG_BYTES``), rounded up; 6.7 kB on 10 minutes (1053 MB, float64 columns),
-#: where the 80 % margin covers the difference. And its fixed part [bytes].
-DIAGNOSE_BYTES_PER_SAMPLE = 5.5e3
+#: logs at 1 kHz: 6.7 kB on 10 minutes (1053 MB peak, float64 columns), rounded up; an hour
+#: needs less, 4.8 kB (3714 MB, its columns in float32: ``columns.LONG_LOG_BYTES``), so the
+#: estimate errs on the safe side there. And its fixed part [bytes].
+DIAGNOSE_BYTES_PER_SAMPLE = 7.0e3
 DIAGNOSE_BASE_BYTES = 0.25e9
 FIT_RATE_HZ = 200.0
 

@@ -215,7 +215,8 @@ class Verdict(NamedTuple):
         accepted: whether it passes criteria (a)-(d).
         reason: why not ("" when accepted).
         test: the criterion it fails: ``sign``, ``z``, ``gain``, ``other_joints``,
-            ``relevance`` ("" when accepted).
+            ``relevance``, or ``max_effects`` (it passed when the selection was already full;
+            "" when accepted).
         stats: its statistics: ``z`` (whole training segment), the cross-validated RMS
             (over the folds' selection parts) before/after on its joint (``rms_before``,
             ``rms_after`` [N·m], all joints for the timing column), ``relative_gain``,
@@ -386,6 +387,11 @@ def select_effects(reg: Regression, split: Scorer, library: Library, rigid: Fit,
         current, current_split = best_fits
         reg.inflation = integrated_autocorrelation(reg.residual("training", current))
         steps.append(("+", best, current))
+    for col, verdict in list(verdicts.items()):  # passed its last trial, but the selection was full
+        if verdict.accepted and col not in selected:
+            reason = f"passed, but the selection stopped at max_effects = {config.max_effects}"
+            verdicts[col] = Verdict(False, reason, "max_effects", verdict.stats)
+            rejected[col] = reason
     current = _backward_check(reg, library, selected, current, thresholds.z_min, rejected, steps, verdicts)
     return Selection(selected, [c for c in order if c in selected], current, rejected, thresholds, steps, verdicts)
 

@@ -158,7 +158,10 @@ def build_true_robot(robot, truth: Truth, phi: np.ndarray | None = None) -> True
     e = truth.effects
     model_damping, model_friction = robot.joint_damping, robot.joint_friction
     viscous = per_joint_or_model(e.viscous, joints, model_damping)
-    coulomb = per_joint_or_model(e.coulomb, joints, model_friction)
+    # Coulomb friction is simulated by a revolute DoorHinge; a model file's friction on a prismatic
+    # joint (the truth itself may not set one: validate_truth) is left out rather than crash.
+    revolute = np.array([j.kind == "revolute" for j in robot.joints])
+    coulomb = np.where(revolute, per_joint_or_model(e.coulomb, joints, model_friction), 0.0)
     armature = per_joint_values(e.armature, joints)
     offset = per_joint_values(e.torque_offset, joints)
     payload_M = payload_spatial_inertia(e.payload) if e.payload.link else None

@@ -4,8 +4,9 @@ Cutting the file first would give the filter two new ends, each with its edge tr
 the real Panda recording, a run cut at 70 % and validated alone lost 0.5 s to the trim and
 still showed 0.39 N·m on joint 2 at the cut). Filtering the whole run and keeping the samples
 of the window leaves no edge at the cut: the training and held-out parts of ``diagnose``
-(``--held-out-fraction``) are reproduced by ``identify --window ,END`` and ``validate
---window START,``, with the times ``diagnose`` prints.
+(``--held-out-fraction``) are reproduced by ``identify --window T0,T1`` and ``validate
+--window T0,T1`` with the spans ``diagnose`` prints (both ends: diagnose trims 2 / cut-off at
+the run's ends, and an open end takes those samples back).
 """
 
 from __future__ import annotations
