@@ -128,7 +128,7 @@ class AugmentedModel:
             phi_prior: the a-priori standard parameters the closest ones are sought from
                 (None: the robot's model file's; ``diagnose --model``: the earlier model's).
             friction_start: (viscous, Coulomb) per joint a named friction adds to (default the
-                model file's; zeros with an earlier model, whose fits give totals).
+                model file's, which the workflow always passes, also with an earlier model).
         """
         phi0 = robot.phi_model if phi_prior is None else np.asarray(phi_prior, float)
         n = robot.n

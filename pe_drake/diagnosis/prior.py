@@ -4,10 +4,10 @@ earlier diagnosis, read by :func:`~pe_drake.identification.identified_file.load_
 ``validate`` reads them).
 
 Only the nominal comparison (step 1), the payload search's Δφ_B and the augmented model's
-closest standard parameters start from it: the rigid-body and effect fits use the measured
-torque alone, so an earlier model's friction is found again as effects when the data show it.
-The fits start from the model file's friction, with or without an earlier model
-(:func:`friction_start`; issue 21): a friction named is what the model file lacks.
+closest standard parameters start from it. The rigid-body and effect fits are of the measured
+torque minus the *model file's* friction, with or without an earlier model
+(:func:`friction_start`): a friction named is what the model file lacks, so an earlier
+model's friction is found again as effects when the data show it.
 """
 
 from __future__ import annotations
