@@ -6,7 +6,7 @@ earlier diagnosis, read by :func:`~pe_drake.identification.identified_file.load_
 Only the nominal comparison (step 1), the payload search's Δφ_B and the augmented model's
 closest standard parameters start from it. The rigid-body and effect fits are of the measured
 torque minus the *model file's* friction, with or without an earlier model
-(:func:`friction_start`): a friction named is what the model file lacks, so an earlier
+(:func:`fitted_friction`): a friction named is what the model file lacks, so an earlier
 model's friction is found again as effects when the data show it.
 """
 
@@ -55,18 +55,9 @@ def prior_drive_torque(robot, prior: IdentificationResult | None, seg: Segment) 
     return drive.torque(seg.v, seg.vd, coulomb)
 
 
-def friction_start(robot, prior: IdentificationResult | None) -> tuple[np.ndarray, np.ndarray]:
-    """(viscous [N·m·s/rad], Coulomb [N·m]) per joint that the effect fits start from: the model
-    file's ``<dynamics damping, friction>`` (issue 21: a friction named is what it lacks), with
-    or without an earlier model. An earlier model's drive terms are its nominal comparison's
-    only, so its friction is found again in the data (module docstring), as a correction of the
-    model file's like without it."""
-    del prior  # the same start either way (see above)
-    return np.asarray(robot.joint_damping, float), np.asarray(robot.joint_friction, float)
-
-
-def fitted_friction(robot, prior: IdentificationResult | None, seg: Segment) -> np.ndarray:
-    """The torque of :func:`friction_start` along a segment, subtracted from the measured torque
-    before the rigid-body and effect fits, (S, n) [N·m]."""
-    viscous, coulomb = friction_start(robot, prior)
+def fitted_friction(robot, seg: Segment) -> np.ndarray:
+    """The model file's friction (``<dynamics damping, friction>``) along a segment, subtracted
+    from the measured torque before the rigid-body and effect fits, with or without an earlier
+    model (module docstring), (S, n) [N·m]."""
+    viscous, coulomb = np.asarray(robot.joint_damping, float), np.asarray(robot.joint_friction, float)
     return viscous * seg.v + coulomb * seg.coulomb

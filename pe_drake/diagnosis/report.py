@@ -321,7 +321,7 @@ def _effects_section(r) -> list[str]:
             rows.append([e.effect, e.joint or e.link or "all joints", f"{_g(e.value, 4)} ± {_g(e.std, 2)} {e.unit}", _g(e.z),
                          f"{_g(before)} → {_g(after)}" if before is not None else "(within the rigid step)"])
         lines += [_table(["effect", "joint / link", "value", "z", "held-out RMS of its joint"], rows), ""]
-    split = getattr(r, "selection", {}) or {}
+    split = r.selection
     lines.append("Selection: forward stepwise on the training data alone, each effect physically plausible, "
                  "significant after correcting for correlated samples, lowering its joint's cross-validated RMS "
                  f"on the training data by ≥ {100 * r.config.min_heldout_gain:g} % and larger than "
@@ -343,7 +343,7 @@ def _effects_section(r) -> list[str]:
                          f"{ns['unit']} (a-priori uncertainty of that sum {_g(ns['implied_value_prior_std'])})")
             lines.append(f"- {ns['effect']} of `{ns['joint']}` merges with {merged}{extra}")
         lines.append("")
-    decisions = getattr(r, "decisions", None) or []
+    decisions = r.decisions
     if decisions:
         lines += [f"Decisions: {decision_summary(decisions)} (every one in diagnosis.json `decisions`). "
                   "Closest to being named:", ""]

@@ -189,18 +189,13 @@ class CrossValidation:
         return Score(np.sqrt(rss / count), float(wrss))
 
 
-def split_regression(reg: Regression, split: InternalSplit) -> CrossValidation:
-    """The cross-validation of ``split`` on the training columns of ``reg`` (its weights)."""
-    return CrossValidation.of(reg, split)
-
-
 def split_with_column(cv: CrossValidation, columns: Columns, split: InternalSplit, index: int, joint: int,
                       values: np.ndarray) -> CrossValidation:
     """``cv`` with column ``index`` set to ``values`` on ``joint`` (zero on the other joints),
     as :func:`pe_drake.diagnosis.presliding.replace_column` does to the whole segment.
 
     Args:
-        cv: the cross-validation of :func:`split_regression`.
+        cv: the cross-validation (:meth:`CrossValidation.of`).
         columns: the whole training segment's columns (overrides applied), which ``cv`` was
             built from.
         split: its folds.

@@ -94,7 +94,7 @@ from pe_drake.diagnosis.payload import (
 from pe_drake.diagnosis.holding import holding_note, holding_report, holding_separability, holding_torque
 from pe_drake.diagnosis.holding_selection import add_friction_pairs
 from pe_drake.diagnosis.presliding import PRESLIDING, PreslidingStep, presliding_effects, presliding_step
-from pe_drake.diagnosis.prior import (fitted_friction, friction_start, prior_drive_torque, prior_own_parameters,
+from pe_drake.diagnosis.prior import (fitted_friction, prior_drive_torque, prior_own_parameters,
                                      prior_parameters)
 from pe_drake.diagnosis.record import (Record, Segment, check_fits_in_memory, check_joints, check_record_signs,
                                       delayed_states, prepare_record, split_segments)
@@ -109,8 +109,8 @@ from pe_drake.diagnosis.regression import (
     rms,
     unexplained_joints,
 )
-from pe_drake.diagnosis.selection import (InternalSplit, internal_split, rejected_list, say_selection, select,
-                                         split_regression)
+from pe_drake.diagnosis.selection import (CrossValidation, InternalSplit, internal_split, rejected_list,
+                                         say_selection, select)
 from pe_drake.diagnosis.report import decision_summary
 from pe_drake.diagnosis.result import DiagnosisResult, NamedEffect, per_joint, time_delay_effect
 from pe_drake.exceptions import DataError
@@ -247,12 +247,12 @@ def candidate_library(robot, prep: Prepared, config: DiagnosisConfig) -> Candida
     Raises:
         DataError: the training part does not excite every base parameter.
     """
-    candidates = joint_candidates(robot, config.effects, friction_start(robot, prep.prior))
+    candidates = joint_candidates(robot, config.effects)  # friction as corrections of the model file's
     sep = separability(robot, prep.base, candidates, model=prep.model)
     sep += holding_separability(robot, prep.training)
     library = Library(prep.base.count, tuple(s.candidate for s in sep if s.separable))
     training, held = prep.training, prep.held
-    reg = Regression(*(library.segment_columns(prep.model, prep.base.independent, seg, fitted_friction(robot, prep.prior, seg))
+    reg = Regression(*(library.segment_columns(prep.model, prep.base.independent, seg, fitted_friction(robot, seg))
                        for seg in (training, held)), library.num_base)
     b = library.num_base
     cond = condition_number(reg.train.gram[:, :b, :b].sum(axis=0))
@@ -429,8 +429,7 @@ def augment(robot, prep: Prepared, lib: CandidateLibrary, pre: PreslidingStep, n
                                         config.coulomb_velocity_scale,
                                         effect.link if effect is not None else None,
                                         cov_B=pay.change.cov_B, time_delay=delay, presliding=presliding,
-                                        phi_prior=prior_own_parameters(robot, prep.prior),
-                                        friction_start=friction_start(robot, prep.prior))
+                                        phi_prior=prior_own_parameters(robot, prep.prior))
     true = build_augmented_robot(robot, augmented)
     # Drake's torque at the held-out samples (along the motion `delay` earlier when a time delay
     # is named), its Coulomb term filtered like the measured torque (the parallel-filtered
@@ -441,7 +440,7 @@ def augment(robot, prep: Prepared, lib: CandidateLibrary, pre: PreslidingStep, n
     tau_after += augmented.coulomb * (coulomb - np.tanh(v / config.coulomb_velocity_scale)) + pre.held_torque
     tau_after += holding_torque(pre.regression.held, final, library)  # friction held at rest
     # the least-squares prediction with the final values (a delay by its linearization -d·dτ/dt)
-    ls_pred = pre.regression.held.product(final.columns, final.x) + fitted_friction(robot, prep.prior, held)
+    ls_pred = pre.regression.held.product(final.columns, final.x) + fitted_friction(robot, held)
     return Augmentation(augmented, tau_after, rms(held.tau - tau_after),
                         np.max(np.abs(tau_after - ls_pred), axis=0))
 
@@ -535,7 +534,7 @@ def diagnose(
     rigid = rigid_reidentification(lib.regression, prep.training)
     say("2. rigid-body parameters re-identified, held-out RMS [N·m]: " + _fmt_joints(joints, rigid.rms_held))
     lap("rigid")
-    split = split_regression(lib.regression, prep.internal)
+    split = CrossValidation.of(lib.regression, prep.internal)
     sel = select(lib.regression, split, lib.library, rigid, prep.training, prep.held, config)
     sel = add_friction_pairs(lib.regression, split, lib.library, sel, config.max_effects)  # sliding + at rest
     say_selection(say, sel, lib.library, joints, _fmt_joints)
