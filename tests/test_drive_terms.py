@@ -4,6 +4,7 @@ zero without them, the identified.json block, old files, the physical fit with b
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -312,3 +313,25 @@ def test_drive_effects_yaml_is_a_truth_file_for_simulate(optimized, tmp_path):
         assert effects.coulomb[name] == pytest.approx(result.drive.per_joint("coulomb")[j])
         assert effects.torque_offset[name] == pytest.approx(result.drive.per_joint("offset")[j])
     assert set(effects.armature) == set(robot.joint_names)  # merged ones from the physical fit
+
+
+def test_ground_wrench_and_torques_separate_every_armature_and_the_physical_fit_runs():
+    """measurement="both": the armature column is zero in the wrench rows, so the wrench-and-
+    torque base parameters separate the armatures the torques alone merge (the first joints'),
+    and the physical fit recovers an armature it was given (it raised ValueError before:
+    the merged armatures were named in the torque-only base parameters)."""
+    from pe_drake.identification.channels import predicted_wrench
+
+    g1 = get_robot("g1")
+    trajectory, _ = load_trajectory(Path(__file__).parent / "data" / "g1_joint_torque_optimized.json")
+    data = model_measurement(g1, trajectory, rate_hz=50)
+    truth = np.zeros(g1.n)
+    truth[g1.joint_names.index("left_elbow_joint")] = 0.03  # [kg·m²]
+    wrench = predicted_wrench(g1, g1.phi_model, data.q, data.v, data.vd)
+    data = data.replace(tau=data.tau + truth * data.vd, wrench=wrench)
+    torque_only = drive_layout(g1, compute_base_parameters(g1), DriveTermOptions("all"))
+    assert torque_only.merged  # the shoulders' armatures merge with the torques alone
+    result = identify(g1, data, "physical", measurement="both")
+    assert not result.drive.layout.merged
+    armature = result.drive.per_joint("armature")
+    assert np.allclose(armature, truth, atol=2e-3), armature

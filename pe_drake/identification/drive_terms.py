@@ -145,44 +145,51 @@ class DriveLayout:
         return np.array([0.0 if t in NONNEGATIVE else -np.inf for t in self.terms])
 
 
-def drive_layout(robot, base, options: DriveTermOptions, model=None, *, samples: int = 200,
+def drive_layout(robot, base, options: DriveTermOptions, model=None, *, rows=None, samples: int = 200,
                  seed: int = 1) -> DriveLayout:
     """The drive columns of ``options`` for ``robot`` (armature: where separable).
 
     Args:
         robot: a :class:`~pe_drake.multibody.robot.Robot`.
-        base: its joint-torque :class:`~pe_drake.multibody.base_parameters.BaseParameters`.
+        base: the :class:`~pe_drake.multibody.base_parameters.BaseParameters` of ``rows``.
         options: the choice of terms.
         model: a :class:`~pe_drake.multibody.regressor.RegressorModel` to reuse.
+        rows: the :class:`~pe_drake.multibody.sensors.SensorRows` fitted (default: the joint
+            torques); the ground wrench's rows separate every armature the torques cannot.
         samples, seed: random states of the armature's separability test.
     """
     terms = TERMS[options.terms]
     names = tuple(robot.joint_names)
-    merged = armature_merges(robot, base, model, samples=samples, seed=seed) if "armature" in terms else {}
+    merged = armature_merges(robot, base, model, rows=rows, samples=samples, seed=seed) if "armature" in terms else {}
     cols = [(t, j) for j in range(robot.n) for t in terms if not (t == "armature" and names[j] in merged)]
     units = tuple(_UNITS[t][0 if robot.joints[j].kind == "revolute" else 1] for t, j in cols)
     return DriveLayout(tuple(t for t, _ in cols), tuple(j for _, j in cols), names, units,
                        float(options.velocity_scale), merged)
 
 
-def armature_merges(robot, base, model=None, *, samples: int = 200, seed: int = 1) -> dict[str, dict[str, float]]:
+def armature_merges(robot, base, model=None, *, rows=None, samples: int = 200,
+                    seed: int = 1) -> dict[str, dict[str, float]]:
     """{joint: {base parameter: coefficient}} of the armature columns inside span(Y_B).
 
     Random states within the robot's limits (as the base parameters use) decide whether
-    *any* motion separates the column v̇_j from the rigid-body columns.
+    *any* motion separates the column v̇_j from the rigid-body columns. ``rows`` (a
+    :class:`~pe_drake.multibody.sensors.SensorRows`, torque channels first) are the rows of
+    Y_B (default: the joint torques); the armature's column is zero in ground-wrench rows.
     """
     model = model or RegressorModel(robot)
     rng = np.random.default_rng(seed)
     q = rng.uniform(robot.limits.q_lower, robot.limits.q_upper, (samples, robot.n))
     v = rng.uniform(-1, 1, (samples, robot.n)) * np.minimum(robot.limits.v_max, 3.0)
     vd = rng.uniform(-1, 1, (samples, robot.n)) * np.minimum(robot.limits.vd_max, 10.0)
-    Y_B = base.reduce(model(q, v, vd)).reshape(-1, base.count)
+    Y = model(q, v, vd) if rows is None else rows.rows(rows.kinematics(q, v, vd), scaled=False)
+    channels = Y.shape[1]
+    Y_B = base.reduce(Y).reshape(-1, base.count)
     scale = np.linalg.norm(Y_B, axis=0)
     scale[scale == 0] = 1.0
     A = Y_B / scale
     out = {}
     for j, name in enumerate(robot.joint_names):
-        col = np.zeros((samples, robot.n))
+        col = np.zeros((samples, channels))
         col[:, j] = vd[:, j]
         col = col.ravel()
         beta, *_ = np.linalg.lstsq(A, col, rcond=None)

@@ -387,8 +387,10 @@ def _layouts(robot, measurement: str, options: DriveTermOptions, method: str, mo
     none = drive_layout(robot, None, DriveTermOptions("none", options.velocity_scale))
     if measurement == "base_wrench":  # the ground wrench does not see the drives
         return _Layouts(none, none, none)
-    torque_base = compute_base_parameters(robot, model=model) if "armature" in TERMS[options.terms] else None
-    drive = drive_layout(robot, torque_base, options, model)
+    # The armature's separability is decided on the rows fitted: with the ground wrench
+    # ("both") the base parameters are the wrench-and-torque ones and merge fewer armatures.
+    fitted_base = measurement_base_parameters(robot, measurement, model) if "armature" in TERMS[options.terms] else None
+    drive = drive_layout(robot, fitted_base, options, model, rows=SensorRows(model, MeasurementType(measurement)))
     armature = none
     if method == "physical" and drive.merged:
         armature = _armature_layout(drive, [robot.joint_names.index(j) for j in drive.merged])
