@@ -172,6 +172,11 @@ class ExcitationConfig:
             root link stands on the ground: foot force/torque sensors or a force plate) or
             "both".
         noise_std: the sensors' noise, :class:`NoiseStdConfig` (row weights).
+        drive_terms: identify's drive terms as columns of C too: "none" (default: the
+            base parameters alone, as in the paper), "friction" (Coulomb, viscous, offset
+            per joint) or "all" (also the armature where separable); see
+            :mod:`pe_drake.excitation.drive_block`. Not with ``base_wrench`` (the ground
+            wrench does not see joint friction).
     """
 
     harmonics: int = 10
@@ -189,6 +194,7 @@ class ExcitationConfig:
     ramp: bool = True
     measurement: str = "joint_torque"
     noise_std: NoiseStdConfig = dataclasses.field(default_factory=NoiseStdConfig)
+    drive_terms: str = "none"
 
 
 @dataclasses.dataclass
@@ -390,6 +396,11 @@ def validate_config(config: Config) -> Config:
     check_finite("excitation.collision_margin", e.collision_margin)
     if e.measurement not in MEASUREMENTS:
         raise ConfigError(f"excitation.measurement '{shorten(e.measurement)}' is not one of {', '.join(MEASUREMENTS)}")
+    if e.drive_terms not in ("none", "friction", "all"):
+        raise ConfigError(f"excitation.drive_terms '{shorten(str(e.drive_terms))}' is not one of none, friction, all")
+    if e.drive_terms != "none" and e.measurement == "base_wrench":
+        raise ConfigError("excitation.drive_terms needs joint-torque rows: the ground wrench (measurement: "
+                          "base_wrench) does not see joint friction; use measurement: both or drive_terms: none")
     torque = e.noise_std.torque
     for joint, value in (torque.items() if isinstance(torque, dict) else [("all", torque)]):
         check_finite(f"excitation.noise_std.torque['{joint}'] [N·m]", value, positive=True)

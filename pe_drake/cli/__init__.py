@@ -96,6 +96,9 @@ def _add_trajectory_commands(sub) -> None:
     p.add_argument("--ray-address", metavar="ADDR", help="join this Ray cluster (default: ray.init()'s: the cluster "
                    "started here with `ray start`, else a new local instance)")
     add_measurement_argument(p, "rows of C: joint torques, the ground wrench (foot F/T sensors), or both")
+    p.add_argument("--drive-terms", choices=["none", "friction", "all"],
+                   help="identify's friction, offset (and armature) columns in C too, their expected σ reported "
+                        "(default: the config's excitation.drive_terms, none)")
     p.add_argument("--csv-rate", type=float, default=1000.0, help="rate of trajectory.csv [Hz]")
     p.add_argument("--periods", type=int,
                    help="periods of the path in trajectory.csv (default: excitation.periods, 1)")

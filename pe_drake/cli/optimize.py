@@ -27,7 +27,7 @@ def apply_arguments(config: Config, args: argparse.Namespace) -> Config:
     given = lambda **kw: {k: v for k, v in kw.items() if v is not None}  # noqa: E731
     solver = given(name=args.solver or None, max_iterations=args.max_iterations, verbose=False if args.quiet else None)
     excitation = given(criterion=args.criterion or None, seed=args.seed, measurement=args.measurement or None,
-                       periods=args.periods, ramp=False if args.no_ramp else None)
+                       periods=args.periods, ramp=False if args.no_ramp else None, drive_terms=args.drive_terms)
     executor = "ray" if args.ray_address and not args.executor else args.executor or None
     parallel = given(starts=args.starts, workers=args.workers, executor=executor, address=args.ray_address or None)
     return validate_config(dataclasses.replace(

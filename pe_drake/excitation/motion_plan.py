@@ -299,7 +299,7 @@ def _robot(config: Config, name: str, say: Say) -> Robot:
 
 
 def prior_regressor(problem: ExcitationProblem, trajectory_json: str | Path) -> np.ndarray:
-    """Stacked base regressor of an earlier motion (for C0, Eq. 41), at the problem's number
+    """Stacked rows of C of an earlier motion (for C0, Eq. 41: base regressor, then the drive columns), at the problem's number
     of cost samples over that motion's own period.
 
     Raises:
@@ -313,8 +313,7 @@ def prior_regressor(problem: ExcitationProblem, trajectory_json: str | Path) -> 
     check_within_limits(RampedMotion(trajectory), problem.robot.limits, joints, source=str(trajectory_json))
     basis = FourierBasis(trajectory.harmonics, trajectory.omega, sample_times(trajectory.period, problem.config.cost_samples))
     a, b = trajectory.a, trajectory.b
-    Y = problem.rows(basis.q(a, b, trajectory.q0), basis.v(a, b), basis.vd(a, b))  # joint torques, wrench or both
-    return problem.base.reduce(Y).reshape(-1, problem.base.count)
+    return problem.rows_at(basis.q(a, b, trajectory.q0), basis.v(a, b), basis.vd(a, b))  # torques, wrench or both
 
 
 def _plan(config, robot, executor, priors, fitted, fitted_text, unchecked, allow_unchecked, start, say) -> MotionPlan:
@@ -323,7 +322,8 @@ def _plan(config, robot, executor, priors, fitted, fitted_text, unchecked, allow
     if priors:
         problem = executor.problem(e, np.vstack([prior_regressor(problem, p) for p in priors]))
         say(f"prior data: {len(priors)} motion(s), {problem.C0.shape[0]} rows, cond(C0) = {np.linalg.cond(problem.C0):.4g}")
-    say(f"{problem.base.count} base parameters of the {e.measurement} rows; {problem.num_variables} variables "
+    drive = f" and {problem.drive.count} drive terms ({e.drive_terms})" if problem.drive.count else ""
+    say(f"{problem.base.count} base parameters of the {e.measurement} rows{drive}; {problem.num_variables} variables "
         f"(N = {problem.harmonics}, ω = {problem.omega:.4g} rad/s, period {problem.period:.3g} s); "
         f"T = {e.cost_samples} cost samples, K = {e.constraint_samples} constraint samples")
     if problem.base.rank_note:

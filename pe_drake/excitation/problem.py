@@ -17,6 +17,7 @@ import numpy as np
 from pe_drake.config import Config, ExcitationConfig, validate_config
 from pe_drake.exceptions import ConfigError, InfeasibleError
 from pe_drake.excitation.criteria import evaluate_criterion
+from pe_drake.excitation.drive_block import excitation_drive_block
 from pe_drake.excitation.fourier import FourierBasis, FourierTrajectory, sample_times
 from pe_drake.multibody.base_parameters import BaseParameters, compute_base_parameters
 from pe_drake.multibody.regressor import RegressorModel
@@ -38,11 +39,14 @@ class ExcitationProblem:
     Args:
         robot: the :class:`~pe_drake.multibody.robot.Robot`.
         config: harmonics, ω, sample counts, criterion (:class:`ExcitationConfig`).
-        C0: prior data, the stacked base regressor of earlier motions, shape (m1, b).
+        C0: prior data, the stacked base regressor of earlier motions, shape (m1, columns).
         base: base parameters to use (computed if not given).
 
     Attributes:
         num_variables: (2N+1)·n.
+        drive: the drive terms' columns of C (``excitation.drive_terms``;
+            :mod:`pe_drake.excitation.drive_block`), none by default.
+        columns: columns of C: the base parameters, then the drive terms.
         cost_basis / constraint_basis: Fourier bases at the T cost / K constraint samples.
     """
 
@@ -71,6 +75,8 @@ class ExcitationProblem:
                 "(also to a WorkerPool)"
             )
         self.n = robot.n
+        self.drive = excitation_drive_block(robot, self.config.drive_terms, self.base, self.rows, self.model)
+        self.columns = self.base.count + self.drive.count
         _check_cost_rows(self)
         self.harmonics = self.config.harmonics
         self.omega = self.config.omega
@@ -82,7 +88,7 @@ class ExcitationProblem:
         self.constraint_basis = FourierBasis(
             self.harmonics, self.omega, sample_times(self.period, self.config.constraint_samples)
         )
-        self.C0 = _checked_prior(C0, self.base.count)
+        self.C0 = _checked_prior(C0, self.columns)
         self._cache_key: bytes | None = None
         self._cache: CostValue | None = None
         self.num_evaluations = 0
@@ -92,10 +98,10 @@ class ExcitationProblem:
         are shared, nothing is rebuilt.
 
         Raises:
-            ConfigError: C0 without one column per base parameter.
+            ConfigError: C0 without one column per base parameter and drive term.
         """
         other = copy.copy(self)
-        other.C0 = _checked_prior(C0, self.base.count)
+        other.C0 = _checked_prior(C0, self.columns)
         other.clear_cache()
         other.num_evaluations = 0
         return other
@@ -110,10 +116,17 @@ class ExcitationProblem:
         return FourierTrajectory.from_alpha(alpha, self.n, self.harmonics, self.omega)
 
     def regressor_block(self, alpha: np.ndarray) -> np.ndarray:
-        """Ŷ_B of one motion at the T cost samples (Eq. 3), shape (T·r, b) (r rows per sample)."""
+        """Ŷ_B of one motion at the T cost samples (Eq. 3), then the drive columns, shape
+        (T·r, columns) (r rows per sample)."""
         q, v, vd = self.cost_basis.evaluate_alpha(np.asarray(alpha, float), self.n)
-        Y = self.rows(q, v, vd)
-        return self.base.reduce(Y).reshape(-1, self.base.count)
+        return self.rows_at(q, v, vd)
+
+    def rows_at(self, q: np.ndarray, v: np.ndarray, vd: np.ndarray) -> np.ndarray:
+        """The rows of C at the samples (q, v, v̇), each (S, n): shape (S·r, columns)."""
+        Y = self.base.reduce(self.rows(q, v, vd))
+        if self.drive.count:
+            Y = np.concatenate([Y, self.drive.columns(v, vd)], axis=2)
+        return Y.reshape(-1, self.columns)
 
     def stacked(self, alpha: np.ndarray) -> np.ndarray:
         """C = [C0; Ŷ_B] (Eq. 41)."""
@@ -141,16 +154,22 @@ class ExcitationProblem:
         kin = self.model.kinematics(q, v, vd)
         Y = self.rows.rows(kin)
         T, r, b = Y.shape[0], Y.shape[1], self.base.count
-        block = self.base.reduce(Y).reshape(T * r, b)
+        block = self.base.reduce(Y)
+        if self.drive.count:
+            block = np.concatenate([block, self.drive.columns(v, vd)], axis=2)
+        block = block.reshape(T * r, self.columns)
         C = block if self.C0 is None else np.vstack([self.C0, block])
         crit = evaluate_criterion(C, self.config.criterion)  # Eq. (17) for cond, (16) for soft_cond
         if not np.isfinite(crit.value):
             out = CostValue(np.inf, np.zeros_like(alpha), crit.singular_values)
         else:
-            G = crit.grad[C.shape[0] - T * r :].reshape(T, r, b)
+            G = crit.grad[C.shape[0] - T * r :].reshape(T, r, self.columns)
             Z = np.zeros_like(Y)
-            Z[..., self.base.independent] = G  # Eq. (46): Z = X C(C) S^T
+            Z[..., self.base.independent] = G[..., :b]  # Eq. (46): Z = X C(C) S^T
             q_bar, v_bar, vd_bar = self.rows.pullback(kin, Z)  # Eq. (47); docs/derivations.md §4a
+            if self.drive.count:  # the drive columns depend on v and v̇ only (drive_block.py)
+                v_drive, vd_drive = self.drive.pullback(v, vd, G[..., b:])
+                v_bar, vd_bar = v_bar + v_drive, vd_bar + vd_drive
             grad = self.cost_basis.pullback(q_bar, v_bar, vd_bar)  # Eq. (49)
             out = CostValue(crit.value, grad, crit.singular_values)
         self._cache_key, self._cache = key, out
@@ -179,11 +198,12 @@ class ExcitationProblem:
 def _check_cost_rows(problem: ExcitationProblem) -> None:
     """C needs at least as many rows as base parameters (the wrench gives 6 per sample)."""
     rows = problem.config.cost_samples * problem.rows.num_rows
-    if rows < problem.base.count:
-        need = math.ceil(problem.base.count / problem.rows.num_rows)
+    if rows < problem.columns:
+        need = math.ceil(problem.columns / problem.rows.num_rows)
         raise ConfigError(
             f"excitation.cost_samples = {problem.config.cost_samples} gives {rows} rows of "
-            f"{problem.config.measurement} for {problem.base.count} base parameters: use at least {need}"
+            f"{problem.config.measurement} for {problem.base.count} base parameters and {problem.drive.count} "
+            f"drive terms: use at least {need}"
         )
 
 
@@ -263,10 +283,12 @@ def check_variables(alpha, problem: ExcitationProblem) -> None:
 
 
 def _checked_prior(C0: np.ndarray | None, columns: int) -> np.ndarray | None:
-    """Prior data C0 (Eq. 41) as floats, refused without one column per base parameter."""
+    """Prior data C0 (Eq. 41) as floats, refused without one column per column of C (base
+    parameters, then drive terms)."""
     if C0 is None:
         return None
     C0 = np.asarray(C0, float)
     if C0.ndim != 2 or C0.shape[1] != columns:
-        raise ConfigError(f"prior data C0 has shape {C0.shape}; it needs {columns} columns (the robot's base parameters)")
+        raise ConfigError(f"prior data C0 has shape {C0.shape}; it needs {columns} columns (the robot's base "
+                          "parameters and the excitation's drive terms)")
     return C0

@@ -42,6 +42,7 @@ import numpy as np
 from pe_drake.config import noise_vector
 from pe_drake.exceptions import ConfigError
 from pe_drake.excitation.fourier import FourierBasis, sample_times
+from pe_drake.multibody.drive_columns import drive_columns
 
 #: Rate of the samples the identification fits [Hz] (its preprocessing decimates to it:
 #: ``pe_drake.identification.estimators.DEFAULT_RATE_HZ``; a test keeps the two equal).
@@ -80,8 +81,8 @@ class MotionQuality:
         cond: cond(C) in pe_drake's base parameters (depends on the basis and units).
         d_efficiency: geometric mean of the singular values of Σ^(-1/2)C over P periods
             (its ratios between motions are basis-free; the value itself is not).
-        std: expected standard deviation of each base parameter, shape (b,) [SI units of
-            each base parameter].
+        std: expected standard deviation of each base parameter, then of each drive term of
+            ``excitation.drive_terms``, shape (b + d,) [SI units of each].
         prediction_rms: expected RMS error of the predicted torques on the reference set,
             per joint, shape (n,) [N·m or N].
         prediction_rms_total: the same over all joints [N·m or N].
@@ -111,6 +112,9 @@ class QualityReport:
         std_percent: the motion's std in % of |prior| (inf where the prior is ~0), shape (b,).
         motion: the optimized motion's :class:`MotionQuality`.
         random: the random motions' figures.
+        drive_names: the drive terms in C (``excitation.drive_terms``), e.g.
+            "coulomb[panda_joint1]"; their std is ``motion.std[b:]``.
+        drive_units: their units.
         random_rejected: random draws that failed the constraints even when shrunk.
         prediction_ratio: best random prediction RMS / the motion's ("k× better"; nan
             without random motions).
@@ -130,6 +134,19 @@ class QualityReport:
     random_rejected: int
     prediction_ratio: float
     d_efficiency_ratio: float
+    drive_names: tuple[str, ...] = ()
+    drive_units: tuple[str, ...] = ()
+
+    @property
+    def drive_std(self) -> np.ndarray:
+        """Expected standard deviation of each drive term, shape (d,) [``drive_units``]."""
+        return self.motion.std[len(self.base_names):]
+
+    def worst_drive_terms(self) -> list[int]:
+        """Index of the drive term with the largest std of each kind (coulomb, viscous, ...)."""
+        kinds = dict.fromkeys(name.split("[")[0] for name in self.drive_names)
+        return [max((k for k, name in enumerate(self.drive_names) if name.startswith(kind + "[")),
+                    key=lambda k: self.drive_std[k]) for kind in kinds]
 
     def to_dict(self) -> dict:
         """JSON-ready content (report.json's ``quality`` section)."""
@@ -165,6 +182,10 @@ class QualityReport:
             "base_parameter_std": [
                 {"name": n, "prior": float(p), "std": float(s), "std_percent": num(pc)}
                 for n, p, s, pc in zip(self.base_names, self.prior, self.motion.std, self.std_percent)
+            ],
+            "drive_term_std": [
+                {"name": n, "std": float(s), "unit": u}
+                for n, s, u in zip(self.drive_names, self.drive_std, self.drive_units)
             ],
             "motion": motion(self.motion),
             "random": [motion(m) for m in self.random],
@@ -204,6 +225,9 @@ class QualityReport:
             + "; ".join(f"{short_composition(self.base_names[k])} {self.std_percent[k]:.3g} %"
                         for k in order if np.isfinite(finite[k]))
         )
+        if self.drive_names:
+            lines.append(f"  drive terms ({len(self.drive_names)}), largest std of each kind: " + "; ".join(
+                f"{self.drive_names[k]} {self.drive_std[k]:.3g} {self.drive_units[k]}" for k in self.worst_drive_terms()))
         if self.random:
             best = min(m.prediction_rms_total for m in self.random)
             lines.append(
@@ -312,15 +336,25 @@ def d_efficiency(C: np.ndarray, noise_std: np.ndarray, periods: float = 1) -> fl
 
 # ---- motions -----------------------------------------------------------------------------------------
 def motion_regressor(problem, alpha: np.ndarray, rate_hz: float = DATA_RATE_HZ) -> np.ndarray:
-    """Base regressor of one period of the problem's motion ``alpha`` sampled at ``rate_hz``.
+    """Rows of C (joint torques: base parameters, then drive terms) of one period of the
+    problem's motion ``alpha`` sampled at ``rate_hz``.
 
     Returns:
-        Shape (S·n, b) with S = round(period·rate_hz) samples, rows sample-major.
+        Shape (S·n, columns) with S = round(period·rate_hz) samples, rows sample-major.
     """
     samples = max(int(round(problem.period * rate_hz)), 1)
     basis = FourierBasis(problem.harmonics, problem.omega, sample_times(problem.period, samples))
     q, v, vd = basis.evaluate_alpha(np.asarray(alpha, float), problem.n)
-    return problem.base.reduce(problem.model(q, v, vd)).reshape(-1, problem.base.count)
+    return torque_rows(problem, q, v, vd)
+
+
+def torque_rows(problem, q: np.ndarray, v: np.ndarray, vd: np.ndarray) -> np.ndarray:
+    """The joint-torque rows of the problem's columns (base parameters, then drive terms) at
+    the samples, unweighted: shape (S·n, columns)."""
+    Y = problem.base.reduce(problem.model(q, v, vd))
+    if problem.drive.count:
+        Y = np.concatenate([Y, drive_columns(v, vd, problem.drive.layout)], axis=2)
+    return Y.reshape(-1, problem.columns)
 
 
 def reference_states(robot, count: int = REFERENCE_MOTIONS, seed: int = REFERENCE_SEED):
@@ -359,9 +393,9 @@ def reference_states(robot, count: int = REFERENCE_MOTIONS, seed: int = REFERENC
 
 
 def reference_regressor(problem) -> np.ndarray:
-    """Base regressor of :func:`reference_states` for the problem's robot, (S_ref·n, b)."""
+    """Rows of :func:`reference_states` for the problem's robot, (S_ref·n, columns)."""
     q, v, vd = reference_states(problem.robot)
-    return problem.base.reduce(problem.model(q, v, vd)).reshape(-1, problem.base.count)
+    return torque_rows(problem, q, v, vd)
 
 
 def _margin_ok(problem, alpha: np.ndarray, constraints: Sequence) -> bool:
@@ -461,7 +495,7 @@ def excitation_quality(
     prior = problem.base.base_values(problem.robot.phi_model)
     floor = PERCENT_FLOOR * float(np.max(np.abs(prior))) if prior.size else 0.0
     with np.errstate(divide="ignore", invalid="ignore"):
-        percent = np.where(np.abs(prior) > max(floor, 1e-300), 100.0 * motion.std / np.abs(prior), np.inf)
+        percent = np.where(np.abs(prior) > max(floor, 1e-300), 100.0 * motion.std[: prior.size] / np.abs(prior), np.inf)
     best_rms = min((m.prediction_rms_total for m in random), default=math.nan)
     best_d = max((m.d_efficiency for m in random), default=math.nan)
     return QualityReport(
@@ -478,4 +512,6 @@ def excitation_quality(
         random_rejected=rejected,
         prediction_ratio=best_rms / motion.prediction_rms_total if random else math.nan,
         d_efficiency_ratio=motion.d_efficiency / best_d if random and best_d > 0 else math.nan,
+        drive_names=problem.drive.layout.labels,
+        drive_units=problem.drive.layout.units,
     )

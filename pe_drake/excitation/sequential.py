@@ -228,7 +228,8 @@ def optimize_sequence(
             constraints_factory=constraints_factory or constraints_from_config,
         )
     try:
-        run = _SequenceRun(executor, config, solver, _prior(C0, executor.base.count), progress or (lambda event: None))
+        prior = _prior(C0, executor.problem(config).columns)  # base parameters and drive terms
+        run = _SequenceRun(executor, config, solver, prior, progress or (lambda event: None))
         for i in range(1, motions + 1):
             motion = run.motion(i, motions, seeds[i - 1], amplitude, progress_interval, warm_start)
             if stop_on_failure and not motion.success:
@@ -262,7 +263,8 @@ def _prior(C0, count: int) -> np.ndarray | None:
     prior = np.asarray(C0, float)
     if prior.ndim != 2 or prior.shape[1] != count:
         raise ConfigError(
-            f"prior data C0 has shape {prior.shape}; it needs {count} columns (the robot's base parameters)"
+            f"prior data C0 has shape {prior.shape}; it needs {count} columns (the robot's base parameters and "
+            "the excitation's drive terms)"
         )
     return prior
 

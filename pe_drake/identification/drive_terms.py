@@ -1,21 +1,10 @@
 """Drive terms of the identification model: joint friction, torque offsets and rotor inertia.
 
 The torque an actuator applies is the rigid-body torque plus what the drive itself needs
-(friction, offset, armature). Per joint j, each term is linear in its value θ and adds one column to the
-regressor, on the row of joint j only (``drive_columns``):
-
-=============  =====================  ===============  ===========  ==========
-term           column                 unit (revolute)  (prismatic)  sign of θ
-=============  =====================  ===============  ===========  ==========
-``coulomb``    tanh(v_j / v_s)        N·m              N            θ ≥ 0
-``viscous``    v_j                    N·m·s/rad        N·s/m        θ ≥ 0
-``offset``     1                      N·m              N            any
-``armature``   v̇_j                   kg·m²            kg           θ ≥ 0
-=============  =====================  ===============  ===========  ==========
-
-so τ = Y_B φ_B + D θ with W = [Y_B | D]: the drive block is extra columns, whatever way the
-normal equations of W are accumulated. The smoothed sign and its v_s are the diagnosis's
-(:mod:`pe_drake.diagnosis.effects`) and the simulator's ``DoorHinge``.
+(friction, offset, armature): per joint, Coulomb tanh(v/v_s), viscous v, offset 1 and armature
+v̇ columns on that joint's row (:mod:`pe_drake.multibody.drive_columns`, whose names are
+re-exported here), so τ = Y_B φ_B + D θ. This module holds what identify does with them: the
+fitted values and their σ, the model file's friction, the data's separability, the outputs.
 
 **The model file's friction** (a URDF's ``<dynamics damping>`` and ``friction``) is part of the
 a-priori model (issue 21). A viscous or Coulomb column the fit has estimates the joint's *total*
@@ -27,13 +16,9 @@ keeps the model file's value (:func:`model_file_terms`): it is subtracted from t
 torque before the fit and is a drive term with ``"source": "model file"`` and σ = 0. The
 diagnosis names only what the model file lacks and gives the same total in its details.
 
-The ground wrench does not see joint friction (it acts between two links of the robot), so
-the drive columns are zero in base-wrench rows.
-
-The armature column v̇_j of a joint whose axis is fixed in the world (the first joint of a
-fixed-base arm) is exactly the column of the base parameter that holds the link inertia
-about that axis: the two are one base parameter (:func:`drive_layout` tests this on random
-states, like the diagnosis's ``separability``), and the armature is reported as merged into it.
+The ground wrench does not see joint friction, so the drive columns are zero in base-wrench
+rows; an armature whose column lies in span(Y_B) is merged into a base parameter
+(:func:`~pe_drake.multibody.drive_columns.drive_layout`).
 """
 
 from __future__ import annotations
@@ -45,191 +30,24 @@ from typing import Any
 
 import numpy as np
 
-from pe_drake.exceptions import ConfigError, shorten
+from pe_drake.exceptions import shorten
 from pe_drake.identification.preprocessing import design_lowpass, differentiate, resample_uniform
-from pe_drake.multibody.regressor import RegressorModel
-
-#: The ``--drive-terms`` choices: no drive terms, Coulomb + viscous + offset, and those with
-#: the armature where the robot's kinematics let it be told from the link inertias.
-DRIVE_TERMS = ("none", "friction", "all")
-#: What ``identify`` models unless told otherwise.
-DEFAULT_DRIVE_TERMS = "all"
-#: Terms of each choice, in column order per joint.
-TERMS = {"none": (), "friction": ("coulomb", "viscous", "offset"), "all": ("coulomb", "viscous", "offset", "armature")}
-#: Smoothing velocity v_s of the Coulomb column tanh(v/v_s) [rad/s or m/s]; the diagnosis and
-#: the simulator use the same value.
-COULOMB_VELOCITY_SCALE = 0.01
-#: Terms whose value is physically ≥ 0.
-NONNEGATIVE = ("coulomb", "viscous", "armature")
-#: ‖(I − P_B) c‖ / ‖c‖ below which an armature column counts as inside span(Y_B) on random
-#: states: rounding gives ~1e-14, a separable column O(0.1-1).
-SEPARABILITY_TOLERANCE = 1e-6
-_UNITS = {"coulomb": ("N·m", "N"), "viscous": ("N·m·s/rad", "N·s/m"), "offset": ("N·m", "N"),
-          "armature": ("kg·m²", "kg")}
-
-
-@dataclasses.dataclass(frozen=True)
-class DriveTermOptions:
-    """Which drive terms ``identify`` adds.
-
-    Attributes:
-        terms: "none", "friction" (Coulomb, viscous, offset per joint) or "all" (also the
-            armature of every joint where it is separable from the link inertias).
-        velocity_scale: v_s of the Coulomb column tanh(v/v_s) [rad/s or m/s].
-
-    Raises:
-        ConfigError: an unknown choice or a non-positive v_s.
-    """
-
-    terms: str = DEFAULT_DRIVE_TERMS
-    velocity_scale: float = COULOMB_VELOCITY_SCALE
-
-    def __post_init__(self) -> None:
-        if self.terms not in DRIVE_TERMS:
-            raise ConfigError(f"drive terms '{self.terms}' is not one of {', '.join(DRIVE_TERMS)}")
-        v = self.velocity_scale
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
-            raise ConfigError(f"the Coulomb velocity scale must be a positive number [rad/s], got {v!r}")
-
-
-def drive_options(value: DriveTermOptions | str | None) -> DriveTermOptions:
-    """``value`` as options: None → the default, a string → that choice."""
-    if value is None:
-        return DriveTermOptions()
-    if isinstance(value, str):
-        return DriveTermOptions(value)
-    return value
-
-
-@dataclasses.dataclass(frozen=True)
-class DriveLayout:
-    """The drive columns of a fit and the armatures left out.
-
-    Attributes:
-        terms: term of each column ("coulomb", "viscous", "offset", "armature"), length d.
-        joints: joint index of each column, length d.
-        joint_names: the robot's excited joints, length n.
-        units: unit of each column's value.
-        velocity_scale: v_s of the Coulomb columns [rad/s].
-        merged: {joint name: {base parameter: coefficient}} of the armatures that are not
-            separable from the rigid-body base parameters (only their sum is identifiable).
-        dropped: {label: reason} of columns this data set cannot tell apart (e.g. the Coulomb
-            column of a joint that never reverses, which equals its offset column).
-    """
-
-    terms: tuple[str, ...]
-    joints: tuple[int, ...]
-    joint_names: tuple[str, ...]
-    units: tuple[str, ...]
-    velocity_scale: float = COULOMB_VELOCITY_SCALE
-    merged: dict[str, dict[str, float]] = dataclasses.field(default_factory=dict)
-    dropped: dict[str, str] = dataclasses.field(default_factory=dict)
-
-    @property
-    def count(self) -> int:
-        return len(self.terms)
-
-    @property
-    def labels(self) -> tuple[str, ...]:
-        return tuple(f"{t}[{self.joint_names[j]}]" for t, j in zip(self.terms, self.joints))
-
-    def without(self, keep: Sequence[int], reasons: dict[str, str]) -> DriveLayout:
-        """The layout with only the columns ``keep``; ``reasons`` of the others go to ``dropped``."""
-        keep = list(keep)
-        return dataclasses.replace(
-            self, terms=tuple(self.terms[k] for k in keep), joints=tuple(self.joints[k] for k in keep),
-            units=tuple(self.units[k] for k in keep), dropped={**self.dropped, **reasons})
-
-    def lower_bounds(self) -> np.ndarray:
-        """0 for friction and armature, -inf for offsets, shape (d,)."""
-        return np.array([0.0 if t in NONNEGATIVE else -np.inf for t in self.terms])
-
-
-def drive_layout(robot, base, options: DriveTermOptions, model=None, *, rows=None, samples: int = 200,
-                 seed: int = 1) -> DriveLayout:
-    """The drive columns of ``options`` for ``robot`` (armature: where separable).
-
-    Args:
-        robot: a :class:`~pe_drake.multibody.robot.Robot`.
-        base: the :class:`~pe_drake.multibody.base_parameters.BaseParameters` of ``rows``.
-        options: the choice of terms.
-        model: a :class:`~pe_drake.multibody.regressor.RegressorModel` to reuse.
-        rows: the :class:`~pe_drake.multibody.sensors.SensorRows` fitted (default: the joint
-            torques); the ground wrench's rows separate every armature the torques cannot.
-        samples, seed: random states of the armature's separability test.
-    """
-    terms = TERMS[options.terms]
-    names = tuple(robot.joint_names)
-    merged = armature_merges(robot, base, model, rows=rows, samples=samples, seed=seed) if "armature" in terms else {}
-    cols = [(t, j) for j in range(robot.n) for t in terms if not (t == "armature" and names[j] in merged)]
-    units = tuple(_UNITS[t][0 if robot.joints[j].kind == "revolute" else 1] for t, j in cols)
-    return DriveLayout(tuple(t for t, _ in cols), tuple(j for _, j in cols), names, units,
-                       float(options.velocity_scale), merged)
-
-
-def armature_merges(robot, base, model=None, *, rows=None, samples: int = 200,
-                    seed: int = 1) -> dict[str, dict[str, float]]:
-    """{joint: {base parameter: coefficient}} of the armature columns inside span(Y_B).
-
-    Random states within the robot's limits (as the base parameters use) decide whether
-    *any* motion separates the column v̇_j from the rigid-body columns. ``rows`` (a
-    :class:`~pe_drake.multibody.sensors.SensorRows`, torque channels first) are the rows of
-    Y_B (default: the joint torques); the armature's column is zero in ground-wrench rows.
-    """
-    model = model or RegressorModel(robot)
-    rng = np.random.default_rng(seed)
-    q = rng.uniform(robot.limits.q_lower, robot.limits.q_upper, (samples, robot.n))
-    v = rng.uniform(-1, 1, (samples, robot.n)) * np.minimum(robot.limits.v_max, 3.0)
-    vd = rng.uniform(-1, 1, (samples, robot.n)) * np.minimum(robot.limits.vd_max, 10.0)
-    Y = model(q, v, vd) if rows is None else rows.rows(rows.kinematics(q, v, vd), scaled=False)
-    channels = Y.shape[1]
-    Y_B = base.reduce(Y).reshape(-1, base.count)
-    scale = np.linalg.norm(Y_B, axis=0)
-    scale[scale == 0] = 1.0
-    A = Y_B / scale
-    out = {}
-    for j, name in enumerate(robot.joint_names):
-        col = np.zeros((samples, channels))
-        col[:, j] = vd[:, j]
-        col = col.ravel()
-        beta, *_ = np.linalg.lstsq(A, col, rcond=None)
-        if np.linalg.norm(col - A @ beta) <= SEPARABILITY_TOLERANCE * np.linalg.norm(col):
-            coef = beta / scale
-            big = np.flatnonzero(np.abs(coef) > 1e-6 * np.abs(coef).max())
-            out[name] = {base.base_names[k]: float(coef[k]) for k in big}
-    return out
-
-
-def coulomb_column(v: np.ndarray, velocity_scale: float) -> np.ndarray:
-    """tanh(v / v_s), same shape as v."""
-    return np.tanh(np.asarray(v, float) / velocity_scale)
-
-
-def drive_columns(v: np.ndarray, vd: np.ndarray, layout: DriveLayout, coulomb: np.ndarray | None = None,
-                  rows: int | None = None) -> np.ndarray:
-    """The drive block D of the regressor, shape (S, rows, d): column k on joint row j_k only.
-
-    Args:
-        v, vd: joint velocities and accelerations, each (S, n).
-        layout: the columns (:func:`drive_layout`).
-        coulomb: the Coulomb columns to use, (S, n) (e.g. tanh(v/v_s) computed at the full
-            rate and filtered like the torque); default tanh(v/v_s) of ``v``.
-        rows: channels per sample (n torques, then the ground wrench, whose rows stay zero);
-            default n.
-    """
-    S, n = v.shape
-    out = np.zeros((S, n if rows is None else rows, layout.count))
-    sign = coulomb_column(v, layout.velocity_scale) if coulomb is None else np.asarray(coulomb, float)
-    for k, (term, j) in enumerate(zip(layout.terms, layout.joints)):
-        if term == "coulomb":
-            out[:, j, k] = sign[:, j]
-        elif term == "viscous":
-            out[:, j, k] = v[:, j]
-        elif term == "offset":
-            out[:, j, k] = 1.0
-        else:
-            out[:, j, k] = vd[:, j]
-    return out
+from pe_drake.multibody.drive_columns import (  # noqa: F401 (re-exported: identify's names for them)
+    COULOMB_VELOCITY_SCALE,
+    DEFAULT_DRIVE_TERMS,
+    DRIVE_TERMS,
+    NONNEGATIVE,
+    SEPARABILITY_TOLERANCE,
+    TERMS,
+    UNITS,
+    DriveLayout,
+    DriveTermOptions,
+    armature_merges,
+    coulomb_column,
+    drive_columns,
+    drive_layout,
+    drive_options,
+)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -316,8 +134,8 @@ class DriveFit:
         terms, joints, units, theta, sigma, merged, merged_values, known = [], [], [], [], [], {}, {}, []
         for j, name in enumerate(names):
             for t, entry in table.get(name, {}).items():
-                if t not in _UNITS:
-                    raise ValueError(f"unknown drive term '{t}' (valid: {', '.join(_UNITS)})")
+                if t not in UNITS:
+                    raise ValueError(f"unknown drive term '{t}' (valid: {', '.join(UNITS)})")
                 if entry.get("value") is None:
                     merged[name] = dict(entry.get("merged_into", {}))
                     if entry.get("physical_fit_value") is not None:
@@ -327,7 +145,7 @@ class DriveFit:
                     known.append(f"{t}[{name}]")
                 terms.append(t)
                 joints.append(j)
-                units.append(str(entry.get("unit", _UNITS[t][0])))
+                units.append(str(entry.get("unit", UNITS[t][0])))
                 theta.append(float(entry["value"]))
                 sigma.append(float("nan") if entry.get("sigma") is None else float(entry["sigma"]))
         layout = DriveLayout(tuple(terms), tuple(joints), names, tuple(units),
@@ -350,7 +168,7 @@ def model_file_terms(robot, layout: DriveLayout) -> DriveFit | None:
             if x != 0 and (t, j) not in fitted]
     if not cols:
         return None
-    units = tuple(_UNITS[t][0 if robot.joints[j].kind == "revolute" else 1] for t, j, _ in cols)
+    units = tuple(UNITS[t][0 if robot.joints[j].kind == "revolute" else 1] for t, j, _ in cols)
     known = DriveLayout(tuple(t for t, _, _ in cols), tuple(j for _, j, _ in cols), layout.joint_names, units,
                         layout.velocity_scale)
     return DriveFit(known, np.array([x for _, _, x in cols]), np.zeros(len(cols)), {}, known.labels)
