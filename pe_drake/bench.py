@@ -83,7 +83,8 @@ def bench_gradient(args: argparse.Namespace) -> None:
 
     robot = load_robot(args.robot)
     # The paper's criterion and its Eq. (17) gradient, as in its timing.
-    config = ExcitationConfig(harmonics=10, omega=math.pi / 4, cost_samples=40, criterion="cond")
+    config = ExcitationConfig(harmonics=10, omega=math.pi / 4, cost_samples=40, criterion="cond",
+                              drive_terms=args.drive_terms)
     problem = ExcitationProblem(robot, config)
     rng = np.random.default_rng(args.seed)
     alpha = problem.initial_guess(seed=args.seed, amplitude=0.3)
@@ -120,7 +121,8 @@ def bench_gradient(args: argparse.Namespace) -> None:
             central[i] = (problem.value(x1) - problem.value(x2)) / (2 * step)
     rel_err = float(np.linalg.norm(grad - central) / np.linalg.norm(central))
     print(f"robot {robot.name}: n = {robot.n}, N = 10, T = 40, variables = {problem.num_variables}, "
-          f"base parameters = {problem.base.count}, cond = {problem.value(alpha):.4g}; "
+          f"base parameters = {problem.base.count}, drive terms = {problem.drive.count} ({args.drive_terms}), "
+          f"cond = {problem.value(alpha):.4g}; "
           f"freed memory {'reused' if reused else 'returned (glibc defaults)'}")
     print(f"one cost evaluation            {cost_s * 1e3:9.2f} ms")
     print(f"one analytic gradient          {grad_s * 1e3:9.2f} ms  (value + gradient, = {grad_s / cost_s:.2f} cost evaluations)")
@@ -378,6 +380,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--payloads", type=int, default=5, help="payload: random payloads (default: %(default)s)")
     parser.add_argument("--minutes", default="1,10,60", help="memory: log durations [min] (default: %(default)s)")
     parser.add_argument("--link", default="", help="payload: the payload link (default: the robot's flange)")
+    parser.add_argument("--drive-terms", default="none", choices=["none", "friction", "all"],
+                        help="gradient: identify's drive terms as columns of C too (default: %(default)s)")
     args = parser.parse_args(argv)
     if args.robot is None:
         args.robot = "g1" if args.benchmark == "gradient" else "panda"
