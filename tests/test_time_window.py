@@ -60,6 +60,17 @@ def test_a_window_outside_the_run_names_its_span(run):
         prepare_measurement(robot, m, window=TimeWindow(50.0, None))
 
 
+def test_a_window_too_short_to_fit_says_widen_it(run):
+    from pe_drake.identification.estimators import identify
+
+    robot, m = run
+    short = prepare_measurement(robot, m, window=TimeWindow(2.0, 2.1))
+    with pytest.raises(DataError, match="widen --window or record a longer run"):
+        identify(robot, short)
+    with pytest.raises(DataError, match=r"samples\): record a longer run"):  # no window: no such hint
+        identify(robot, prepare_measurement(robot, m.replace(t=m.t[:300], q=m.q[:300], tau=m.tau[:300])))
+
+
 def test_cli_refuses_a_bad_window(tmp_path, capsys):
     assert main(["identify", "--robot", "panda", "--data", str(tmp_path / "x.csv"), "--window", "4,2",
                  "--out", str(tmp_path / "o")]) == 2

@@ -36,7 +36,7 @@ from pe_drake.excitation.nominal import choose_nominal_posture
 from pe_drake.excitation.optimize_report import MotionReport, assumed_defaults, start_records
 from pe_drake.excitation.parallel import Executor, open_executor
 from pe_drake.excitation.problem import ExcitationProblem
-from pe_drake.excitation.quality import QualityReport, excitation_quality
+from pe_drake.excitation.quality import RANDOM_MOTIONS, QualityReport, excitation_quality
 from pe_drake.excitation.ramp import (
     RAMP_DURATIONS,
     RampedMotion,
@@ -340,6 +340,8 @@ def _plan(config, robot, executor, priors, fitted, fitted_text, unchecked, allow
     motion = quality = goal = refusal = ramp_margins = None
     if result.success:
         motion, ramp_margins = _ramped_motion(result, robot, constraints, config, say)
+        # A few seconds with collision and balance: say what runs (the solve's output has ended).
+        say(f"expected quality: the motion and {RANDOM_MOTIONS} random motions under the same constraints ...")
         quality = excitation_quality(problem, result.x, constraints, noise_std=e.noise_std.torque, periods=int(e.periods))
         for line in quality.summary_lines():
             say(line)
@@ -392,6 +394,7 @@ def _ramped_motion(result, robot: Robot, constraints, config: Config, say: Say) 
     if not config.excitation.ramp:
         say(f"ramps off (excitation.ramp: false): trajectory.csv is {periods} period(s) and does NOT start at rest")
         return RampedMotion(result.trajectory, periods, 0.0), None
+    say("choosing ramps from and to rest (each candidate checked at 1 kHz against every limit and constraint) ...")
     motion, checks = choose_ramp_duration(result.trajectory, robot.limits, constraints, periods=periods)
     say(f"ramps from and to rest: {motion.ramp_duration:g} s each (join phase {motion.phase:.3g} s), "
         f"{periods} period(s); trajectory.csv spans {motion.duration:.4g} s, the periodic part "

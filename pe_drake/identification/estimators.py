@@ -230,10 +230,11 @@ def _check_rows(data: Measurement, count: int, channels: int) -> None:
     rows = data.num_samples * channels
     need = MIN_ROWS_PER_PARAMETER * count
     if rows < need:
+        windowed = any(note.startswith("--window") for note in data.notes)
         raise DataError(
             f"{data.num_samples} samples × {channels} channels = {rows} equations after "
             f"preprocessing; identifying {count} parameters (base parameters and drive terms) needs at least {need} "
-            f"({math.ceil(need / channels)} samples): record a longer run",
+            f"({math.ceil(need / channels)} samples): " + ("widen --window or " if windowed else "") + "record a longer run",
             file=data.source,
         )
 
