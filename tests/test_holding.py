@@ -56,6 +56,13 @@ def test_holding_torque_is_named_on_a_run_that_stops(panda, diagnosis_trajectory
     assert result.rms_after[j] < 0.25 * result.rms_rigid[j]
     assert any(line.startswith(f"3. + {HOLDING}[{JOINT}]") for line in lines)
     assert "holding_test" in result.to_json_dict()
+    # the augmented model records it; validate's reading of the file says it is not applied
+    from pe_drake.identification.identified_file import augmented_as_result
+
+    d = result.augmented.as_dict()
+    assert d["holding_torque"][JOINT] == pytest.approx(hold.value)
+    notes = augmented_as_result(d, panda).physical_notes
+    assert any(n.startswith("the model's holding torque at rest is not applied (panda_joint5") for n in notes), notes
 
 
 def test_no_holding_torque_without_rests(panda, diagnosis_trajectory):

@@ -81,6 +81,10 @@ class AugmentedModel:
             predicts the recorded torque at t from the motion at t − time_delay.
         presliding, presliding_stiffness: Dahl friction F_c [N·m] and σ0 [N·m/rad] per joint
             (empty or 0: none); a Drake system in the simulator, not in the URDF.
+        holding_torque: H [N·m] per joint of a named ``holding_torque`` (the friction a
+            stopped joint holds, H·z with z the Dahl state, :mod:`pe_drake.diagnosis.holding`;
+            empty or 0: none). Recorded for the user; validate and simulate do not apply it
+            (they say so).
     """
 
     joints: tuple[str, ...]
@@ -99,6 +103,7 @@ class AugmentedModel:
     time_delay: float = 0.0
     presliding: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
     presliding_stiffness: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
+    holding_torque: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
 
     @classmethod
     def from_fit(cls, robot, base, phi_B: np.ndarray, Sigma_phi: np.ndarray, payload_phi: np.ndarray | None,
@@ -134,7 +139,7 @@ class AugmentedModel:
         n = robot.n
         start = (robot.joint_damping, robot.joint_friction) if friction_start is None else friction_start
         viscous, coulomb = np.array(start[0], float), np.array(start[1], float)
-        armature, offset = np.zeros(n), np.zeros(n)
+        armature, offset, holding = np.zeros(n), np.zeros(n), np.zeros(n)
         for cand, value in effects.values():
             j = cand.joint
             if cand.effect == "viscous_friction":
@@ -145,6 +150,8 @@ class AugmentedModel:
                 armature[j] = value
             elif cand.effect == "torque_offset":
                 offset[j] = value
+            elif cand.effect == "holding_torque":
+                holding[j] = value
         notes = []
         phi_payload_full = np.zeros_like(robot.phi_model)
         link, mass, com, inertia = "", 0.0, np.zeros(3), np.zeros(6)
@@ -183,7 +190,7 @@ class AugmentedModel:
         return cls(tuple(robot.joint_names), tuple(robot.body_names), phi, viscous, coulomb,
                    float(velocity_scale), armature, offset, link, mass, np.asarray(com, float),
                    np.asarray(inertia, float), tuple(notes), float(time_delay),
-                   *_presliding_arrays(presliding or {}, n))
+                   *_presliding_arrays(presliding or {}, n), holding_torque=holding)
 
     def truth(self):
         """The :class:`~pe_drake.identification.simulation.Truth` that builds this model's effects."""
@@ -225,6 +232,9 @@ class AugmentedModel:
             "time_delay": self.time_delay, "time_delay_unit": "s",
             "presliding_friction": per_joint(self.presliding), "presliding_stiffness": per_joint(self.presliding_stiffness),
             "presliding_units": "N·m, N·m/rad (Dahl model)",
+            "holding_torque": per_joint(self.holding_torque) if self.holding_torque.size else {},
+            "holding_torque_unit": "N·m (the friction a stopped joint holds: H·z, z the Dahl state; not applied "
+                                   "by validate or simulate)",
             "torque_equation": "tau_recorded(t) = [ID(q, v, vd) + viscous*v + coulomb*tanh(v/v_s) + armature*vd "
                                "+ offset](t - time_delay)",
             "notes": list(self.notes),

@@ -197,8 +197,9 @@ def standard_from_base(robot, result: IdentificationResult) -> np.ndarray:
 def augmented_as_result(d: dict[str, Any], robot, path: str = "") -> IdentificationResult:
     """The diagnosis's augmented_model.json as an identified model: its standard parameters
     (payload added to its link) reduced to the robot's joint-torque base parameters, its
-    friction, armature and offsets as drive terms. A time delay and pre-sliding friction are
-    not part of this model (``physical_notes`` says so when the file has them).
+    friction, armature and offsets as drive terms. A time delay, pre-sliding friction and a
+    holding torque at rest are not part of this model (``physical_notes`` says so when the
+    file has them).
 
     Raises:
         DataError: other joints, a malformed file.
@@ -231,6 +232,10 @@ def augmented_as_result(d: dict[str, Any], robot, path: str = "") -> Identificat
         notes.append(f"the model's time delay {d['time_delay']:.4g} s is not applied (validate pairs samples as recorded)")
     if any(float(x) for x in (d.get("presliding_friction") or {}).values()):
         notes.append("the model's pre-sliding (Dahl) friction is not applied")
+    holding = {j: float(x) for j, x in (d.get("holding_torque") or {}).items() if float(x)}
+    if holding:
+        notes.append("the model's holding torque at rest is not applied ("
+                     + ", ".join(f"{j} {x:.3g} N·m" for j, x in holding.items()) + ")")
     base = measurement_base_parameters(robot, "joint_torque")
     channels = channel_names(robot, "joint_torque")
     nan = np.full(len(channels), np.nan)
