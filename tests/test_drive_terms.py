@@ -335,3 +335,27 @@ def test_ground_wrench_and_torques_separate_every_armature_and_the_physical_fit_
     assert not result.drive.layout.merged
     armature = result.drive.per_joint("armature")
     assert np.allclose(armature, truth, atol=2e-3), armature
+
+
+def test_a_column_the_data_cannot_separate_keeps_the_model_files_friction(optimized):
+    """The Panda URDF's damping (0.003 N·m·s/rad per joint) on a run where joint 7 never moves:
+    its viscous column is zero, the fit drops it, and the joint keeps the model file's value
+    (subtracted, σ 0) instead of losing its friction (before: no viscous term at all)."""
+    import dataclasses
+
+    robot = get_robot("panda")
+    a, b = optimized.a.copy(), optimized.b.copy()
+    a[6], b[6] = 0.0, 0.0  # joint 7 still
+    still = dataclasses.replace(optimized, a=a, b=b)
+    damping = robot.joint_damping
+    data = model_measurement(robot, still, rate_hz=100)
+    data = data.replace(tau=data.tau + damping * data.v)  # the URDF's friction is in the torque
+    data = prepare_measurement(robot, data, filtering=False)
+    result = identify(robot, data, "ols", drive_terms="friction")
+    assert "viscous[panda_joint7]" in result.drive.layout.dropped
+    assert "viscous[panda_joint7]" in result.drive.known
+    assert result.drive.per_joint("viscous")[6] == pytest.approx(damping[6])
+    moving = prepare_measurement(robot, model_measurement(robot, optimized, rate_hz=100), filtering=False)
+    with_friction = predict(robot, result, moving)[:, 6] - predict(robot, dataclasses.replace(
+        result, drive=None), moving)[:, 6]
+    assert np.allclose(with_friction, damping[6] * moving.v[:, 6] + result.drive.per_joint("offset")[6], atol=1e-9)

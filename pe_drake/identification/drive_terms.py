@@ -174,6 +174,33 @@ def model_file_terms(robot, layout: DriveLayout) -> DriveFit | None:
     return DriveFit(known, np.array([x for _, _, x in cols]), np.zeros(len(cols)), {}, known.labels)
 
 
+def model_file_terms_lost(robot, kept: DriveLayout, asked: DriveLayout,
+                          known: DriveFit | None) -> tuple[DriveFit | None, np.ndarray]:
+    """The model file's friction once the data has dropped some of the columns ``asked``.
+
+    A column the data cannot separate (a joint that never moves or never reverses) keeps the
+    model file's value, as a term the fit was never asked for does: subtracted from the
+    torque, σ = 0.
+
+    Args:
+        robot: the a-priori robot.
+        kept: the columns the data separates (:func:`separable_on_data`).
+        asked: the columns asked for.
+        known: :func:`model_file_terms` of ``asked`` (already subtracted from the torque).
+
+    Returns:
+        (:func:`model_file_terms` of ``kept``, the values to subtract now: per column of
+        ``asked``, the model file's value of the lost columns, else 0, shape (asked.count,)).
+    """
+    after = model_file_terms(robot, kept)
+    before = set(known.layout.labels) if known is not None else set()
+    lost = np.zeros(asked.count)
+    for label, value in zip(after.layout.labels, after.theta) if after is not None else ():
+        if label not in before:
+            lost[asked.labels.index(label)] = value
+    return after, lost
+
+
 def percent_or_none(value: float, sigma: float) -> float | None:
     """100·σ/|value| [%], None when value is 0 or either is not finite."""
     if not (math.isfinite(value) and math.isfinite(sigma)) or value == 0:

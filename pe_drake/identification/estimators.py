@@ -51,6 +51,7 @@ from pe_drake.identification.drive_terms import (
     drive_layout,
     drive_options,
     model_file_terms,
+    model_file_terms_lost,
     separable_on_data,
 )
 from pe_drake.identification.gaps import MAX_GAP_S, preprocess_segments
@@ -63,7 +64,14 @@ from pe_drake.identification.measurements import (
 )
 from pe_drake.identification.physical_fit import PhysicalBounds, physical_fit
 from pe_drake.identification.preprocessing import PreprocessOptions
-from pe_drake.identification.folded_rows import BLOCK, FoldedRows, column_map, fold_rows, residual_series
+from pe_drake.identification.folded_rows import (
+    BLOCK,
+    FoldedRows,
+    column_map,
+    fold_rows,
+    known_columns_removed,
+    residual_series,
+)
 from pe_drake.identification.statistics import integrated_autocorrelation, sandwich_from_grams
 from pe_drake.multibody.base_parameters import BaseParameters, compute_base_parameters
 from pe_drake.multibody.regressor import RegressorModel
@@ -333,6 +341,9 @@ def _identify(robot, data: Measurement, method: str, base: BaseParameters | None
     folded = fold_rows(blocks)  # the rows never held at once: an hour of data fits (folded_rows)
     cols = _Columns(folded.R.shape[1] - 1, 10 * len(robot.body_names), base, layouts)
     layout, keep = separable_on_data(folded.stacked(cols.base)[0], folded.stacked(cols.drive)[0], layouts.drive)
+    if layout.count < layouts.drive.count:  # a column the data cannot separate keeps the model file's value
+        known, lost = model_file_terms_lost(robot, layout, layouts.drive, known)
+        folded, blocks = folded.with_known_columns(cols.drive @ lost), known_columns_removed(blocks, cols.drive @ lost)
     T = np.hstack([cols.base, cols.drive[:, keep]])  # Y_B | drive columns
     ols = _ordinary_fit(folded, blocks, T)
     x, cov, phi, physical = ols.phi_B, ols.cov, None, None

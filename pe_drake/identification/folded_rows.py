@@ -72,6 +72,25 @@ class FoldedRows(NamedTuple):
             out.append(A.T @ A)
         return np.array(out)
 
+    def with_known_columns(self, theta: np.ndarray) -> FoldedRows:
+        """The rows with ``y_c − F_c θ`` as measurements (θ over the folded columns, (k,)):
+        ``[F_c | y_c − F_c θ] = [F_c | y_c] M``, so ``R_c M`` has its Gram matrix (not
+        triangular; nothing here needs it to be)."""
+        R = self.R.copy()
+        R[:, :, -1] -= R[:, :, :-1] @ np.asarray(theta, float)
+        return FoldedRows(R, self.samples)
+
+
+def known_columns_removed(blocks: RowBlocks, theta: np.ndarray) -> RowBlocks:
+    """``blocks`` with ``y − F θ`` as measurements (:meth:`FoldedRows.with_known_columns`)."""
+    theta = np.asarray(theta, float)
+
+    def shifted():
+        for rows, F, y in blocks():
+            yield rows, F, y - F @ theta
+
+    return shifted
+
 
 def fold_rows(blocks: RowBlocks) -> FoldedRows:
     """Folds every block of ``blocks()`` into the per-channel R factors."""
