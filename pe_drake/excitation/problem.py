@@ -200,10 +200,10 @@ def _check_cost_rows(problem: ExcitationProblem) -> None:
     rows = problem.config.cost_samples * problem.rows.num_rows
     if rows < problem.columns:
         need = math.ceil(problem.columns / problem.rows.num_rows)
+        drive = f" and {problem.drive.count} drive terms" if problem.drive.count else ""
         raise ConfigError(
             f"excitation.cost_samples = {problem.config.cost_samples} gives {rows} rows of "
-            f"{problem.config.measurement} for {problem.base.count} base parameters and {problem.drive.count} "
-            f"drive terms: use at least {need}"
+            f"{problem.config.measurement} for {problem.base.count} base parameters{drive}: use at least {need}"
         )
 
 
