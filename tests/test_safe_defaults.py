@@ -246,3 +246,19 @@ def test_the_ignored_capsule_pairs_are_named_in_the_output_and_report_json(so101
     line = next(x for x in lines if "touching by design ignored" in x)
     assert f"{len(report['ignored_pairs'])} pair(s) touching by design ignored: {first[0]}/{first[1]}" in line
     assert isinstance(report["shrunk_capsules"], dict)
+
+
+def test_placeholder_velocity_limits_are_named_and_a_config_silences_them(tmp_path):
+    """example-robot-data's finger_edu says 1000 rad/s on every joint: the motion is then bounded
+    by the acceleration limit alone, which the notes say; a config's velocity limit replaces it."""
+    path = example_robot_data_dir() / "robots" / "finger_edu_description" / "robots" / "finger_edu.urdf"
+    robot = load_robot(path)
+    note = next(n for n in robot.limit_notes if "placeholders" in n)
+    assert "finger_base_to_upper_joint 1000 rad/s" in note and "robot.velocity_limits" in note
+    assert not any("placeholders" in n for n in load_robot("ur5").limit_notes)  # 3.14 rad/s: real
+    config = tmp_path / "finger.yaml"
+    config.write_text("robot:\n  velocity_limits: {finger_base_to_upper_joint: 5.0, finger_upper_to_middle_joint: 5.0,"
+                      " finger_middle_to_lower_joint: 5.0}\n")
+    tuned = load_robot(resolve_robot_config(path, config))
+    assert not any("placeholders" in n for n in tuned.limit_notes)
+    assert np.allclose(tuned.limits.v_max, 5.0 * tuned.config.velocity_scale)

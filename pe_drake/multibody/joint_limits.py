@@ -7,6 +7,11 @@ import numpy as np
 
 from pe_drake.exceptions import ConfigError
 
+#: A model file's velocity limit above this is taken for a placeholder and named (rad/s on a
+#: revolute joint, m/s on a prismatic one): the fastest arm and humanoid joints turn at
+#: 3-30 rad/s (UR wrists 6.3, G1's 20-30), while example-robot-data's finger_edu says 1000.
+PLAUSIBLE_VELOCITY = {"revolute": 50.0, "prismatic": 10.0}
+
 #: Units of a joint's position and its first three time derivatives, by joint kind.
 JOINT_UNITS = {"revolute": ("rad", "rad/s", "rad/s²", "rad/s³"), "prismatic": ("m", "m/s", "m/s²", "m/s³")}
 
@@ -91,3 +96,17 @@ def position_margins(cfg, joint_names, kinds, lower: np.ndarray, upper: np.ndarr
         return margin, []
     names = " and ".join(f"robot.{k}" for k in cfg.assumed)
     return margin, [f"defaults for a robot without a config: {', '.join(parts)} (set {names} in a config to change them)"]
+
+
+def placeholder_velocity_notes(cfg, joint_names, kinds, velocity: np.ndarray) -> list[str]:
+    """A note naming the joints whose model velocity limit looks like a placeholder (above
+    :data:`PLAUSIBLE_VELOCITY`, not set in the config): the motion is then bounded by the
+    acceleration limit and the range alone, which a user should know before running it."""
+    high = [(name, v, kind) for name, v, kind in zip(joint_names, velocity, kinds)
+            if name not in cfg.velocity_limits and np.isfinite(v) and v > PLAUSIBLE_VELOCITY.get(kind, 50.0)]
+    if not high:
+        return []
+    listed = ", ".join(f"{name} {v:g} {joint_unit(kind, 1)}" for name, v, kind in high[:4])
+    more = f" and {len(high) - 4} more" if len(high) > 4 else ""
+    return [f"the model's velocity limits look like placeholders ({listed}{more}); the motion is bounded by "
+            "the acceleration limits and the ranges: set robot.velocity_limits from the robot's datasheet"]

@@ -25,7 +25,7 @@ from pe_drake.exceptions import (
 )
 from pe_drake.multibody.capsules import register_capsules
 from pe_drake.multibody.inertia import PARAMETER_NAMES, spatial_inertia_to_phi
-from pe_drake.multibody.joint_limits import joint_unit, merge_limits, position_margins
+from pe_drake.multibody.joint_limits import joint_unit, merge_limits, placeholder_velocity_notes, position_margins
 from pe_drake.multibody.model_files import (
     check_world_joints,
     drake_model_text,
@@ -292,6 +292,7 @@ class Robot:
             vd[k] = cfg.acceleration_limits.get(name, vd[k])
             effort[k] = min(effort[k], cfg.effort_limits.get(name, np.inf))
         margin, notes = position_margins(cfg, self.joint_names, [j.kind for j in self.joints], lo, hi)
+        notes += placeholder_velocity_notes(cfg, self.joint_names, [j.kind for j in self.joints], v)
         self.limit_notes = notes  # the margins assumed: optimize and simulate print them
         lo = lo + margin
         hi = hi - margin
