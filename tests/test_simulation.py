@@ -369,3 +369,25 @@ def test_command_refuses_trajectory_of_other_joints(tmp_path, robot, trajectory,
                  "--out", str(out), "--duration", "0.3"])
     assert code == 2 and "differ from robot" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_a_thin_rod_is_perturbed_into_a_rod_and_the_prior_covariance_ends():
+    """example-robot-data's finger_edu has a link with Ixx = Iyy, Izz = 0 (a rod on its z
+    axis): relative draws of its principal moments never met the triangle inequality again,
+    so `simulate` refused the robot and `diagnose` looped for ever in its prior covariance."""
+    from pe_drake.diagnosis.effects import prior_parameter_covariance
+    from pe_drake.multibody.inertia import mass_on_a_line, principal_inertia
+    from pe_drake.multibody.registry import example_robot_data_dir
+    from pe_drake.multibody.robot import load_robot
+
+    finger = load_robot(example_robot_data_dir() / "robots" / "finger_edu_description" / "robots" / "finger_edu.urdf")
+    k = finger.body_names.index("finger_lower_link")
+    rod = finger.phi_model[10 * k : 10 * k + 10]
+    assert mass_on_a_line(rod) and not mass_on_a_line(finger.phi_model[10 * (k - 1) : 10 * k])
+    phi = perturb_inertias(finger.phi_model, 0.1, 5)
+    new = phi[10 * k : 10 * k + 10]
+    assert phi_to_spatial_inertia(new).IsPhysicallyValid() and not np.allclose(new, rod)
+    lam = np.sort(principal_inertia(new)[2])
+    assert lam[0] < 1e-12 and abs(lam[1] / lam[2] - 1) < 1e-9  # still a rod
+    S = prior_parameter_covariance(finger, 0.1, samples=500)
+    assert np.all(np.isfinite(S)) and S[10 * k, 10 * k] > 0

@@ -39,7 +39,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from pe_drake.exceptions import UnknownNameError
-from pe_drake.multibody.inertia import phi_from_com, principal_inertia
+from pe_drake.multibody.inertia import mass_on_a_line, phi_from_com, principal_inertia
 from pe_drake.multibody.payload import link_columns
 from pe_drake.multibody.regressor import RegressorModel
 
@@ -262,11 +262,15 @@ def _perturbation_draws(phi_b: np.ndarray, eps: float, count: int, rng: np.rando
     """``count`` perturbed copies of one body's parameters, shape (count, 10) (vectorized
     form of the perturbation of :func:`pe_drake.multibody.inertia.perturb_inertias`)."""
     m, p, lam, R, r_gyr = principal_inertia(phi_b)
-    lam2 = np.empty((0, 3))
-    while lam2.shape[0] < count:  # redraw principal moments that break the triangle inequality
-        x = lam * (1 + eps * rng.uniform(-1, 1, (2 * count, 3)))
-        lam2 = np.concatenate([lam2, x[x.max(axis=1) <= x.sum(axis=1) - x.max(axis=1)]])
-    lam2 = lam2[:count]
+    if mass_on_a_line(phi_b):  # a rod: scale its second moments Σ = tr/2 − λ instead (never invalid)
+        sigma = np.maximum(0.5 * lam.sum() - lam, 0.0) * (1 + eps * rng.uniform(-1, 1, (count, 3)))
+        lam2 = sigma.sum(axis=1, keepdims=True) - sigma
+    else:
+        lam2 = np.empty((0, 3))
+        while lam2.shape[0] < count:  # redraw principal moments that break the triangle inequality
+            x = lam * (1 + eps * rng.uniform(-1, 1, (2 * count, 3)))
+            lam2 = np.concatenate([lam2, x[x.max(axis=1) <= x.sum(axis=1) - x.max(axis=1)]])
+        lam2 = lam2[:count]
     m2 = m * (1 + eps * rng.uniform(-1, 1, count))
     p2 = p + eps * rng.uniform(-1, 1, (count, 3)) * max(np.linalg.norm(p), r_gyr)
     axis = rng.normal(size=(count, 3))

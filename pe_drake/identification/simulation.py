@@ -182,7 +182,7 @@ def build_true_robot(robot, truth: Truth, phi: np.ndarray | None = None) -> True
     seeds = np.random.SeedSequence(truth.seed).spawn(2)
     rng = np.random.default_rng(seeds[0])
     phi_bodies = perturb_inertias(robot.phi_model if phi is None else np.asarray(phi, float),
-                                  truth.inertia_perturbation, rng)
+                                  truth.inertia_perturbation, rng, body_names=robot.body_names)
     fc = per_joint_values(e.presliding_friction, joints)
     sigma0 = per_joint_values(e.presliding_stiffness, joints)
     hook = dahl_builder_hook(fc, sigma0, APPLIED_FORCE_PORT) if np.any(fc > 0) else None

@@ -211,7 +211,8 @@ def check_physically_valid(body_names: Sequence[str], phi: np.ndarray) -> None:
 
 
 def perturb_inertias(
-    phi: np.ndarray, size: float, rng: int | np.random.Generator = 0, max_tries: int = 100
+    phi: np.ndarray, size: float, rng: int | np.random.Generator = 0, max_tries: int = 100,
+    body_names: tuple[str, ...] | None = None,
 ) -> np.ndarray:
     """Random, physically valid perturbation of every body's inertial parameters.
 
@@ -222,7 +223,9 @@ def perturb_inertias(
     - centre of mass p' = p + ε U₃ max(|p|, r), r = √(tr I_cm / 2m) the radius of gyration;
     - principal moments of the central inertia λ' = λ (1 + ε U₃), redrawn until they satisfy
       the triangle inequality; principal axes rotated by an angle ε U [rad] about a random
-      axis;
+      axis. A thin rod (λ = (a, a, 0), :func:`mass_on_a_line`) would never satisfy it again:
+      its second moments of mass Σ_i = tr/2 − λ_i ≥ 0 are scaled by (1 + ε U₃) instead
+      (λ_i = Σ_j + Σ_k), which keeps a rod a rod;
     - rebuilt about the body origin (parallel-axis theorem) and checked with Drake's
       ``SpatialInertia.IsPhysicallyValid``.
 
@@ -231,6 +234,7 @@ def perturb_inertias(
         size: ε, relative size in [0, 0.5].
         rng: seed or numpy Generator.
         max_tries: redraws per body before giving up.
+        body_names: the bodies' names, for the error (default: their indices).
 
     Returns:
         Perturbed parameters, shape (10·nb,); equal to phi when size is 0.
@@ -251,17 +255,51 @@ def perturb_inertias(
         m = phi[10 * b]
         if m <= 0:
             continue
+        perturb = _perturb_second_moments if mass_on_a_line(phi[10 * b : 10 * b + 10]) else _perturb_body
         for _ in range(max_tries):
-            new = _perturb_body(phi[10 * b : 10 * b + 10], size, rng)
+            new = perturb(phi[10 * b : 10 * b + 10], size, rng)
             if new is not None and phi_to_spatial_inertia(new).IsPhysicallyValid():
                 out[10 * b : 10 * b + 10] = new
                 break
         else:
+            name = f"body '{body_names[b]}'" if body_names is not None else f"body {b}"
             raise ConfigError(
-                f"body {b}: could not perturb its inertia into a physically valid one in "
+                f"{name}: could not perturb its inertia into a physically valid one in "
                 f"{max_tries} tries; is the model's inertia valid?"
             )
     return out
+
+
+#: A body whose two smallest second moments of mass Σ_i = tr(I_cm)/2 − λ_i are below this
+#: fraction of tr(I_cm)/2 holds its mass on a line (a rod: λ = (a, a, 0)). Relative draws of λ
+#: then meet both binding triangle inequalities with a probability of about that fraction
+#: over ε (zero for an exact rod); a plate (one Σ_i = 0) meets its one in about half the draws.
+ROD_TOLERANCE = 1e-3
+
+
+def mass_on_a_line(phi_b: np.ndarray) -> bool:
+    """Whether a body's mass lies (nearly) on a line: a thin rod, whose principal moments
+    meet two triangle inequalities with equality, so that relative perturbations of λ
+    almost never satisfy them again."""
+    _, _, lam, _, _ = principal_inertia(phi_b)
+    half_trace = 0.5 * float(lam.sum())
+    return half_trace > 0 and float(np.sort(half_trace - lam)[1]) <= ROD_TOLERANCE * half_trace
+
+
+def _perturb_second_moments(phi_b: np.ndarray, eps: float, rng: np.random.Generator) -> np.ndarray:
+    """:func:`_perturb_body` with the second moments Σ = tr/2 − λ scaled (never invalid)."""
+    m, p, lam, R, r_gyr = principal_inertia(phi_b)
+    sigma = np.maximum(0.5 * lam.sum() - lam, 0.0)
+    m2 = m * (1 + eps * rng.uniform(-1, 1))
+    p2 = p + eps * rng.uniform(-1, 1, 3) * max(np.linalg.norm(p), r_gyr)
+    sigma2 = sigma * (1 + eps * rng.uniform(-1, 1, 3))
+    lam2 = sigma2.sum() - sigma2
+    axis = rng.normal(size=3)
+    axis /= np.linalg.norm(axis)
+    angle = eps * rng.uniform(-1, 1)
+    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    R2 = (np.eye(3) + math.sin(angle) * K + (1 - math.cos(angle)) * K @ K) @ R  # Rodrigues
+    return phi_from_com(m2, p2, R2 @ np.diag(lam2) @ R2.T)
 
 
 def _perturb_body(phi_b: np.ndarray, eps: float, rng: np.random.Generator) -> np.ndarray | None:
