@@ -3,6 +3,7 @@ zero without them, the identified.json block, old files, the physical fit with b
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -94,6 +95,18 @@ def test_without_friction_the_drive_terms_are_zero_within_sigma(name, optimized)
     z = np.abs(drive.theta) / drive.sigma
     assert np.all(z < 4.0), dict(zip(drive.layout.labels, z))  # 4σ over ~27 terms: p ≈ 2e-3 per run
     assert np.mean(z**2) < 2.0  # the σ are calibrated: E[z²] = 1
+    unphysical = [(t, v, sd) for t, v, sd in zip(drive.layout.terms, drive.theta, drive.sigma)
+                  if t != "offset" and v < -3 * sd]
+    from pe_drake.identification.estimators import fit_warnings
+    from pe_drake.identification.drive_terms import unphysical_drive_terms
+
+    assert bool(unphysical_drive_terms(drive)) == bool(unphysical)
+    # a term pushed 5σ below zero is named, with its value and σ
+    k = drive.layout.terms.index("armature")
+    bent = dataclasses.replace(drive, theta=np.where(np.arange(len(drive.theta)) == k, -5 * drive.sigma[k], drive.theta))
+    lines = unphysical_drive_terms(bent)
+    assert len(lines) == 1 and drive.layout.labels[k] in lines[0] and "--method physical" in lines[0]
+    assert not any("negative beyond" in w for w in fit_warnings(identify(robot, data, "physical")))
 
 
 def test_friction_choice_has_no_armature_and_none_has_nothing(panda):

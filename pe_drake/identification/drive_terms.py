@@ -201,6 +201,27 @@ def model_file_terms_lost(robot, kept: DriveLayout, asked: DriveLayout,
     return after, lost
 
 
+#: A least-squares friction or armature this many σ below zero is reported as unphysical: σ is
+#: the correlation-inflated one (statistics.sandwich_from_grams), so 3σ is a two-sided 0.3 %
+#: chance for a term whose true value is 0.
+UNPHYSICAL_SIGMAS = 3.0
+
+
+def unphysical_drive_terms(fit: DriveFit) -> list[str]:
+    """A warning naming the fitted terms that must be ≥ 0 (friction, armature) and are below
+    zero by more than :data:`UNPHYSICAL_SIGMAS` σ, or none."""
+    bad = [f"{label} {value:.3g} ± {sigma:.2g} {unit}"
+           for label, term, value, sigma, unit in zip(fit.layout.labels, fit.layout.terms, fit.theta, fit.sigma,
+                                                      fit.layout.units)
+           if term in NONNEGATIVE and label not in fit.known and sigma > 0 and value < -UNPHYSICAL_SIGMAS * sigma]
+    if not bad:
+        return []
+    return [f"warning: {len(bad)} drive term(s) negative beyond {UNPHYSICAL_SIGMAS:g}σ, which no drive can have: "
+            + "; ".join(bad[:4]) + (" …" if len(bad) > 4 else "") + ". They absorb something the model lacks "
+            "(a time shift between the logs, friction smoother than tanh(v/v_s), ...): --method physical keeps "
+            "them ≥ 0, pe-drake diagnose tests what else is missing"]
+
+
 def percent_or_none(value: float, sigma: float) -> float | None:
     """100·σ/|value| [%], None when value is 0 or either is not finite."""
     if not (math.isfinite(value) and math.isfinite(sigma)) or value == 0:

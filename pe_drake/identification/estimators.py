@@ -53,6 +53,7 @@ from pe_drake.identification.drive_terms import (
     model_file_terms,
     model_file_terms_lost,
     separable_on_data,
+    unphysical_drive_terms,
 )
 from pe_drake.identification.gaps import MAX_GAP_S, preprocess_segments
 from pe_drake.identification.measurements import (
@@ -512,9 +513,12 @@ def _in_base(base: BaseParameters, coef: dict[str, float]) -> np.ndarray:
 
 
 def fit_warnings(result: IdentificationResult) -> list[str]:
-    """What a reader of the fit must know: the physical fit's bounds and moves, and a
-    rigid-body-only fit of data whose residual is mostly friction."""
+    """What a reader of the fit must know: the physical fit's bounds and moves, least-squares
+    drive terms that are negative beyond their σ, and a rigid-body-only fit of data whose
+    residual is mostly friction."""
     out = [f"physical fit: {note}" for note in result.physical_notes]
+    if result.method != "physical" and result.drive is not None:
+        out += unphysical_drive_terms(result.drive)
     share = result.friction_share
     if share is not None and share > FRICTION_SHARE_WARNING:
         out.append(
