@@ -79,3 +79,28 @@ def test_g1_defaults_match_the_shipped_config():
     assert sorted(d["robot"]["joints"]) == sorted(g1.robot.joints)
     assert d["robot"]["base_position"][2] == pytest.approx(g1.robot.base_position[2], abs=1e-3)
     assert set(d["robot"]["support_points"]) == set(g1.robot.support_points)
+
+
+def test_icubs_y_up_meshes_are_turned_and_it_stands_balanced():
+    """iCub's 56 COLLADA meshes say Y_UP and are drawn for tools that honour it: as written, its
+    thighs lay horizontal and its feet pointed sideways, overlapping, so the support centre sat
+    31 mm to one side and the nominal posture was "out of balance" before any solve. TIAGo's
+    Y_UP meshes fit their links only as written (the ROS convention), and stay so."""
+    from pe_drake.excitation.constraints.balance import BalanceConstraint
+    from pe_drake.multibody.collada_up_axis import honors_up_axis, link_points_inside, to_z_up
+    from pe_drake.multibody.robot import load_robot
+
+    robots = example_robot_data_dir() / "robots"
+    icub = robots / "icub_description" / "robots" / "icub_reduced.urdf"
+    tiago = robots / "tiago_description" / "robots" / "tiago_no_hand.urdf"
+    assert honors_up_axis(str(icub)) and not honors_up_axis(str(tiago))
+    raw, turned, points = link_points_inside(str(icub))
+    assert turned > raw + 0.2 * points
+    assert np.allclose(to_z_up(np.array([[1.0, 2.0, 3.0]]), "Y_UP"), [[1.0, -3.0, 2.0]])
+    d = standing_defaults(icub)
+    assert any("<up_axis>" in n for n in d["robot"]["notes"])
+    config = resolve_robot_config(str(icub))
+    robot = load_robot(config)
+    balance = BalanceConstraint(robot, config.excitation.balance_radius)
+    assert abs(balance.p_WSc[1]) < 1e-3  # the feet are mirror images: the support centre is on the mid-plane
+    balance.check_posture(robot.nominal_posture()[None, :])  # raised "out of balance at sample 0" before

@@ -44,7 +44,8 @@ from pe_drake.multibody.capsules import (
     segment_closest_points,
 )
 from pe_drake.multibody.link_geometry import Shape, primitive_points, primitive_segment, read_link_shapes
-from pe_drake.multibody.meshes import read_mesh_vertices, resolve_mesh_path
+from pe_drake.multibody.collada_up_axis import oriented_vertices, up_axis_note
+from pe_drake.multibody.meshes import resolve_mesh_path
 from pe_drake.multibody.model_files import loadable_model_path
 from pe_drake.multibody.robot import Robot
 
@@ -95,6 +96,7 @@ class FittedCapsules:
         written: whether ``path`` was written (False only for a result built without a file).
         shrunk: {capsule: (fitted radius, radius used)} [m] for capsules made thinner so that
             links farther apart than :data:`TOUCHING_JOINTS` joints stay checked.
+        notes: how the meshes were read, when it is not as written (:mod:`collada_up_axis`).
     """
 
     path: Path
@@ -105,6 +107,7 @@ class FittedCapsules:
     sources: dict[str, str] = dataclasses.field(default_factory=dict)
     written: bool = True
     shrunk: dict[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
+    notes: tuple[str, ...] = ()
 
     def summary(self, first: int = 3) -> str:
         """A one-line account: capsule count and sources, then the count of unchecked parts
@@ -115,7 +118,7 @@ class FittedCapsules:
             shown = "; ".join(self.unchecked[:first])
             more = f"; ... {len(self.unchecked) - first} more" if len(self.unchecked) > first else ""
             text += f"; {len(self.unchecked)} part(s) NOT checked: {shown}{more} (full list: report.json 'unchecked')"
-        return text
+        return "; ".join([text, *self.notes])
 
     def pairs_summary(self, first: int = 4) -> str:
         """The ignored pairs, named (the first few, then the count; all of them in
@@ -145,7 +148,7 @@ def _mesh_points(shape: Shape, model_path: Path) -> np.ndarray:
     path = resolve_mesh_path(shape.filename, model_path)
     if path is None:
         raise DataError("file not found")
-    v = read_mesh_vertices(path) * shape.scale
+    v = oriented_vertices(path, model_path) * shape.scale  # a COLLADA mesh as the model means it
     return v @ shape.X_LG[:3, :3].T + shape.X_LG[:3, 3]
 
 
@@ -260,7 +263,9 @@ def fit_capsule_file(
             tuple(unchecked),
         )
     atomic_write_text(out_path, "\n".join(lines) + "\n")
-    return FittedCapsules(Path(out_path), tuple(fitted), skipped, unchecked=tuple(unchecked), sources=sources)
+    note = up_axis_note(model_path)
+    return FittedCapsules(Path(out_path), tuple(fitted), skipped, unchecked=tuple(unchecked), sources=sources,
+                          notes=(note,) if note else ())
 
 
 def _mirror_symmetric(P: np.ndarray) -> bool:

@@ -29,7 +29,8 @@ from pathlib import Path
 import numpy as np
 
 from pe_drake.multibody.link_geometry import primitive_points, read_link_shapes, rotation_rpy
-from pe_drake.multibody.meshes import read_mesh_vertices, resolve_mesh_path
+from pe_drake.multibody.collada_up_axis import oriented_vertices, up_axis_note
+from pe_drake.multibody.meshes import resolve_mesh_path
 from pe_drake.multibody.urdf_checks import urdf_tree
 
 LEG = re.compile(r"hip|knee|ankle|leg|foot|toe", re.IGNORECASE)
@@ -149,7 +150,7 @@ def _shape_points(shapes, model_path: Path) -> np.ndarray:
             continue
         path = resolve_mesh_path(s.filename, model_path)
         if path is not None:
-            v = read_mesh_vertices(path) * s.scale
+            v = oriented_vertices(path, model_path) * s.scale  # a COLLADA mesh as the model means it
             points.append(v @ s.X_LG[:3, :3].T + s.X_LG[:3, 3])
     return np.vstack(points) if points else np.zeros((0, 3))
 
@@ -211,7 +212,9 @@ def standing_defaults(model_path: str | Path) -> dict | None:
         f"joints locked at zero, CoM within {radius:g} m of the feet's centre, capsules {COLLISION_MARGIN:g} m "
         "apart; give a config (robot.joints, support_points, base_position) to choose otherwise"
     )
+    turned = up_axis_note(model_path)
     return {
-        "robot": {"joints": arms, "base_position": [0.0, 0.0, -z0], "support_points": support, "notes": [note]},
+        "robot": {"joints": arms, "base_position": [0.0, 0.0, -z0], "support_points": support,
+                  "notes": [note] + ([turned] if turned else [])},
         "excitation": {"balance_radius": radius, "collision_margin": COLLISION_MARGIN},
     }
