@@ -399,8 +399,9 @@ def validate_config(config: Config) -> Config:
     if e.drive_terms not in ("none", "friction", "all"):
         raise ConfigError(f"excitation.drive_terms '{shorten(str(e.drive_terms))}' is not one of none, friction, all")
     if e.drive_terms != "none" and e.measurement == "base_wrench":
-        raise ConfigError("excitation.drive_terms needs joint-torque rows: the ground wrench (measurement: "
-                          "base_wrench) does not see joint friction; use measurement: both or drive_terms: none")
+        raise ConfigError("excitation.drive_terms (--drive-terms) needs joint-torque rows: the ground wrench "
+                          "(measurement: base_wrench) does not see joint friction; use measurement: both "
+                          "(--measurement both) or drive_terms: none (--drive-terms none)")
     torque = e.noise_std.torque
     for joint, value in (torque.items() if isinstance(torque, dict) else [("all", torque)]):
         check_finite(f"excitation.noise_std.torque['{joint}'] [N·m]", value, positive=True)

@@ -107,3 +107,15 @@ def test_optimize_cli_with_drive_terms_writes_their_sigma_and_a_prior_run_reuses
     # sequential: the earlier motion's rows (base and drive columns) are C0
     assert main(args + ["--prior", str(first / "trajectory.json"), "--out", str(second)]) == 0
     assert "prior data: 1 motion(s), 210 rows" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("measurement,terms", [("both", "all"), ("both", "none"), ("base_wrench", "none")])
+def test_quality_with_the_ground_wrench_uses_its_rows(measurement, terms):
+    """The quality figures were built from the joint-torque rows alone, whose C does not
+    determine the wrench-and-torque base parameters: every σ and the prediction RMS were inf.
+    C is now the measurement's rows (wrench rows weighted by the config's force/moment σ)."""
+    g1 = get_robot("g1")
+    problem = ExcitationProblem(g1, ExcitationConfig(measurement=measurement, drive_terms=terms))
+    report = excitation_quality(problem, problem.initial_guess(seed=0, amplitude=0.3), random_motions=0)
+    assert np.all(np.isfinite(report.motion.std)) and math.isfinite(report.motion.prediction_rms_total)
+    assert len(report.drive_names) == problem.drive.count

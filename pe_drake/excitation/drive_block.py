@@ -9,7 +9,8 @@ reverses a joint cannot tell its Coulomb friction from its offset: C is singular
 
 The columns are those of identify: on torque row j, tanh(v_j/v_s), v_j, 1 and v̇_j, times the
 row's noise weight (:class:`~pe_drake.multibody.sensors.SensorRows`); zero on ground-wrench
-rows. The gradient adds to the regressor's pullback (Eq. 47) its part through v and v̇:
+rows. (identify filters its Coulomb column like the torque, at the full rate; the cost's
+samples are exact, unfiltered, as for the rigid-body columns.) The gradient adds to the regressor's pullback (Eq. 47) its part through v and v̇:
 
     ∂/∂v_j  tanh(v_j/v_s) = (1 − tanh²(v_j/v_s)) / v_s,   ∂/∂v_j  v_j = 1,   ∂/∂v̇_j  v̇_j = 1.
 """
@@ -31,7 +32,7 @@ class DriveBlock:
     """The drive columns D of C at some samples, and the gradient through them.
 
     Args:
-        layout: the columns (:func:`~pe_drake.identification.drive_terms.drive_layout`).
+        layout: the columns (:func:`~pe_drake.multibody.drive_columns.drive_layout`).
         row_scale: each row's weight (the :class:`SensorRows` scale), shape (r,), torque rows first.
     """
 

@@ -39,7 +39,8 @@ class ExcitationProblem:
     Args:
         robot: the :class:`~pe_drake.multibody.robot.Robot`.
         config: harmonics, ω, sample counts, criterion (:class:`ExcitationConfig`).
-        C0: prior data, the stacked base regressor of earlier motions, shape (m1, columns).
+        C0: prior data, the stacked rows of C of earlier motions (base regressor, then the
+            drive columns), shape (m1, columns).
         base: base parameters to use (computed if not given).
 
     Attributes:
@@ -196,7 +197,8 @@ class ExcitationProblem:
 
 
 def _check_cost_rows(problem: ExcitationProblem) -> None:
-    """C needs at least as many rows as base parameters (the wrench gives 6 per sample)."""
+    """C needs at least as many rows as columns, base parameters and drive terms (the wrench
+    gives 6 rows per sample)."""
     rows = problem.config.cost_samples * problem.rows.num_rows
     if rows < problem.columns:
         need = math.ceil(problem.columns / problem.rows.num_rows)

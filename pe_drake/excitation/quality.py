@@ -23,11 +23,14 @@ P recorded periods this module gives figures a user can act on:
   collision, torque), and the ratios: "this motion predicts torques k× better than random
   motions under the same constraints".
 
-Assumptions (stated in every report): C is the base regressor of one period sampled at
-``rate_hz`` (default :data:`DATA_RATE_HZ`, the identification's output rate), the noise is
-independent between those samples with standard deviation σ_j (the ``noise_std`` that
-identified.json reports is that figure), and a periodic motion recorded for P periods gives
-P times the information of one.
+Assumptions (stated in every report): C is the measurement's rows (joint torques, the ground
+wrench or both) of one period sampled at ``rate_hz`` (default :data:`DATA_RATE_HZ`, the
+identification's output rate), with the base parameters and (``excitation.drive_terms``) the
+drive terms as columns; the noise is independent between those samples with standard
+deviation σ_j per joint (the ``noise_std`` that identified.json reports is that figure) and
+the config's force/moment σ on wrench rows; a periodic motion recorded for P periods gives P
+times the information of one. The predicted torques on the reference motions are the joint
+torques, whatever is measured.
 """
 
 from __future__ import annotations
@@ -301,7 +304,7 @@ def parameter_covariance(C: np.ndarray, noise_std: np.ndarray, periods: float = 
 
 
 def prediction_rms(
-    C: np.ndarray, C_ref: np.ndarray, noise_std: np.ndarray, periods: float = 1
+    C: np.ndarray, C_ref: np.ndarray, noise_std: np.ndarray, periods: float = 1, row_std: np.ndarray | None = None
 ) -> tuple[np.ndarray, float]:
     """Expected RMS error of the torques predicted with the identified parameters.
 
@@ -313,12 +316,14 @@ def prediction_rms(
         C_ref: the reference motions' base regressor, (S_ref·n, b), rows sample-major.
         noise_std: σ_j, (n,).
         periods: P, as in :func:`parameter_covariance`.
+        row_std: σ of the rows of one sample of C (default ``noise_std``: C has the joint
+            torques' rows; with the ground wrench, its six rows' σ follow).
 
     Returns:
         (per joint, shape (n,); over all joints).
     """
     n = len(noise_std)
-    _, s, Vt = np.linalg.svd(whitened(C, noise_std), full_matrices=False)
+    _, s, Vt = np.linalg.svd(whitened(C, noise_std if row_std is None else row_std), full_matrices=False)
     if s[-1] <= s[0] * 1e-12:
         return np.full(n, np.inf), math.inf
     A = (C_ref @ Vt.T) / s  # C_ref V S⁻¹: row sums of squares are c_v (CᵀΣ⁻¹C)⁻¹ c_vᵀ
@@ -336,16 +341,31 @@ def d_efficiency(C: np.ndarray, noise_std: np.ndarray, periods: float = 1) -> fl
 
 # ---- motions -----------------------------------------------------------------------------------------
 def motion_regressor(problem, alpha: np.ndarray, rate_hz: float = DATA_RATE_HZ) -> np.ndarray:
-    """Rows of C (joint torques: base parameters, then drive terms) of one period of the
-    problem's motion ``alpha`` sampled at ``rate_hz``.
+    """Rows of C (the measurement's: joint torques, the ground wrench or both; columns the
+    base parameters, then the drive terms), unweighted, of one period of the problem's motion
+    ``alpha`` sampled at ``rate_hz``.
 
     Returns:
-        Shape (S·n, columns) with S = round(period·rate_hz) samples, rows sample-major.
+        Shape (S·r, columns) with S = round(period·rate_hz) samples, rows sample-major.
     """
     samples = max(int(round(problem.period * rate_hz)), 1)
     basis = FourierBasis(problem.harmonics, problem.omega, sample_times(problem.period, samples))
     q, v, vd = basis.evaluate_alpha(np.asarray(alpha, float), problem.n)
-    return torque_rows(problem, q, v, vd)
+    rows = problem.rows
+    Y = problem.base.reduce(rows.rows(rows.kinematics(q, v, vd), scaled=False))
+    if problem.drive.count:  # zero on the wrench rows (drive_columns' rows)
+        Y = np.concatenate([Y, drive_columns(v, vd, problem.drive.layout, rows=rows.num_rows)], axis=2)
+    return Y.reshape(-1, problem.columns)
+
+
+def row_noise(problem, noise_std: np.ndarray) -> np.ndarray:
+    """σ of the rows of one sample of :func:`motion_regressor`: the joint torques' ``noise_std``
+    (n,), then the ground wrench's force and moment σ of the config (3 each), as measured."""
+    m = problem.rows.measurement
+    parts = [np.asarray(noise_std, float)] if m.torques else []
+    if m.wrench:
+        parts.append(np.repeat([m.force_std, m.moment_std], 3))
+    return np.concatenate(parts)
 
 
 def torque_rows(problem, q: np.ndarray, v: np.ndarray, vd: np.ndarray) -> np.ndarray:
@@ -440,12 +460,15 @@ def random_feasible_motions(
 
 
 # ---- the report ------------------------------------------------------------------------------------------
-def _figures(label: str, C: np.ndarray, C_ref: np.ndarray, noise: np.ndarray, periods: float) -> MotionQuality:
+def _figures(label: str, C: np.ndarray, C_ref: np.ndarray, noise: np.ndarray, row_std: np.ndarray,
+             periods: float) -> MotionQuality:
+    """The figures of one motion: C its measurement rows (σ ``row_std`` per sample), C_ref the
+    reference motions' joint-torque rows (σ ``noise`` per joint)."""
     s = np.linalg.svd(C, compute_uv=False)
-    rms, total = prediction_rms(C, C_ref, noise, periods)
-    std = np.sqrt(np.maximum(np.diag(parameter_covariance(C, noise, periods)), 0.0))
+    rms, total = prediction_rms(C, C_ref, noise, periods, row_std)
+    std = np.sqrt(np.maximum(np.diag(parameter_covariance(C, row_std, periods)), 0.0))
     cond = float(s[0] / s[-1]) if s[-1] > 0 else math.inf
-    return MotionQuality(label, cond, d_efficiency(C, noise, periods), std, rms, total)
+    return MotionQuality(label, cond, d_efficiency(C, row_std, periods), std, rms, total)
 
 
 def excitation_quality(
@@ -486,12 +509,14 @@ def excitation_quality(
     sample_hz = min(float(rate_hz), SAMPLE_RATE_HZ)
     weight = periods * rate_hz / sample_hz  # periods, in units of the sampled period's information
     C = motion_regressor(problem, alpha, sample_hz)
-    motion = _figures("optimized", C, C_ref, noise, weight)
+    row_std = row_noise(problem, noise)
+    motion = _figures("optimized", C, C_ref, noise, row_std, weight)
     random, rejected = [], 0
     if random_motions > 0:
         draws, rejected = random_feasible_motions(problem, constraints, random_motions, seed)
         for s, a in draws:
-            random.append(_figures(f"random {s}", motion_regressor(problem, a, sample_hz), C_ref, noise, weight))
+            random.append(_figures(f"random {s}", motion_regressor(problem, a, sample_hz), C_ref, noise, row_std,
+                                   weight))
     prior = problem.base.base_values(problem.robot.phi_model)
     floor = PERCENT_FLOOR * float(np.max(np.abs(prior))) if prior.size else 0.0
     with np.errstate(divide="ignore", invalid="ignore"):

@@ -202,8 +202,9 @@ def model_file_terms_lost(robot, kept: DriveLayout, asked: DriveLayout,
 
 
 #: A least-squares friction or armature this many σ below zero is reported as unphysical: σ is
-#: the correlation-inflated one (statistics.sandwich_from_grams), so 3σ is a two-sided 0.3 %
-#: chance for a term whose true value is 0.
+#: the correlation-inflated one (statistics.sandwich_from_grams), so a term whose true value is
+#: 0 is named with a one-sided chance of 0.13 % (2.5 % that one of the Panda's 19 friction
+#: and armature terms is).
 UNPHYSICAL_SIGMAS = 3.0
 
 

@@ -20,7 +20,10 @@ normal equations of W are accumulated. The smoothed sign and its v_s are the dia
 (:mod:`pe_drake.excitation.drive_block`).
 
 The ground wrench does not see joint friction (it acts between two links of the robot), so
-the drive columns are zero in base-wrench rows.
+the drive columns are zero in base-wrench rows. For the armature this is an approximation: a
+rotor of inertia I_r behind a gear ratio G adds I_r·G²·q̈ to the joint torque (the armature)
+but only its own angular-momentum change, I_r·G·q̈, to the wrench on the link holding the
+stator: 1/G of it (1 % for G = 100), neglected.
 
 The armature column v̇_j of a joint whose axis is fixed in the world (the first joint of a
 fixed-base arm) is exactly the column of the base parameter that holds the link inertia
