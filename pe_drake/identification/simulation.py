@@ -44,7 +44,11 @@ is added last.
 Control: computed torque at ``control.rate_hz`` with zero-order hold, ``tau = M(q)(vd_d +
 kp·(q_d - q) + kd·(v_d - v)) + c(q, v) - tau_g(q)`` evaluated with the a-priori rigid-body
 model (``control.model: prior``, what a real controller has) or the true one (``true``), on
-the true state (noise only affects the log). The controller runs between
+the true state (noise only affects the log), plus the model file's joint friction (its
+``<dynamics damping>`` and ``friction``, part of the a-priori model) at the desired velocity,
+``damping·v_d + friction·tanh(v_d/v_s)``: the simulated robot has that friction, and without it
+the feedback alone must hold it (iCub's URDF gives every joint 1 N·m·s/rad: its 0.4 g·m² wrists
+lagged by 0.2-0.4 rad). The controller runs between
 ``Simulator.AdvanceTo`` calls and holds its torque on the plant's applied-generalized-force
 input. The plant is continuous (Drake's error-controlled RK3 by default, Radau3 on request):
 the stiff tanh of Coulomb friction would need a much smaller time step in a discrete plant.
@@ -405,6 +409,9 @@ def track_trajectory(
     t = np.arange(count) * h
     q_d, v_d, vd_d = trajectory.evaluate(t)
     kp, kd = truth.control.kp, truth.control.kd
+    # the a-priori model's friction, fed forward at the desired velocity (module docstring)
+    damping, friction = np.asarray(robot.joint_damping, float), np.asarray(robot.joint_friction, float)
+    v_s = float(truth.effects.coulomb_velocity_scale)
     simulator = _start_simulator(true, truth, q_d[0], v_d[0], h)
     port, port_context = true.force_input()
     q_log, v_log, tau_log = (np.empty((count, robot.n)) for _ in range(3))
@@ -417,6 +424,7 @@ def track_trajectory(
         ctl_plant.SetVelocities(ctl_ctx, v)
         tau_g = ctl_plant.CalcGravityGeneralizedForces(ctl_ctx)
         tau = ctl_plant.CalcInverseDynamics(ctl_ctx, a_ref, forces) - tau_g
+        tau = tau + damping * v_d[k] + friction * np.tanh(v_d[k] / v_s)
         q_log[k], v_log[k], tau_log[k] = q, v, tau
         if k + 1 < count:
             # The offset is a constant load the actuator must overcome (module docstring).
