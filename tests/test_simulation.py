@@ -409,3 +409,15 @@ def test_the_controller_feeds_forward_the_model_files_friction():
     _, info = simulate(icub, trajectory, Truth(), duration=1.0)
     worst = max(info["simulation"]["tracking_error_rms"].values())
     assert worst < 0.005, worst  # [rad]; 0.2-0.4 rad before
+
+
+def test_a_run_that_does_not_track_its_trajectory_is_flagged():
+    from pe_drake.identification.simulated_run import SimulatedRun
+
+    sim = {"duration": 1.0, "rate_hz": 1000.0, "samples": 1001, "wall_time_s": 0.1,
+           "tracking_error_rms": {"a": 0.001, "b": 0.15}}
+    lines = SimulatedRun("r", "joint_torque", None, {"simulation": sim}).summary_lines()
+    assert lines[-1].startswith("warning: b tracks its trajectory to 150 mrad RMS") and "control.kp" in lines[-1]
+    sim["tracking_error_rms"]["b"] = 0.005
+    assert not any(line.startswith("warning") for line in SimulatedRun("r", "joint_torque", None,
+                                                                        {"simulation": sim}).summary_lines())

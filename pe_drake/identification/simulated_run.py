@@ -21,6 +21,9 @@ from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.robot import Robot
 
 _RECORDED = {"joint_torque": "tau", "base_wrench": "wrench", "both": "tau and wrench"}
+#: A joint tracking its trajectory worse than this [rad RMS] gets a warning: more than a
+#: degree, the recorded motion is no longer the one planned (and checked against the limits).
+LARGE_TRACKING_ERROR = 0.02
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -37,9 +40,17 @@ class SimulatedRun:
         model = self.truth.get("simulated_model")
         head = [f"the robot is the model of '{model['file']}' (parameters and drive terms)"] if model else []
         head += [f"note: {note}" for note in (model or {}).get("notes", ())]
-        return head + [f"simulated {sim['duration']:.3g} s of '{self.robot}' at {sim['rate_hz']:g} Hz: "
-                f"{sim['samples']} samples in {sim['wall_time_s']:.2f} s wall time",
-                "tracking error RMS [mrad]: " + ", ".join(f"{j} {1e3 * e:.3g}" for j, e in sim["tracking_error_rms"].items())]
+        lines = head + [f"simulated {sim['duration']:.3g} s of '{self.robot}' at {sim['rate_hz']:g} Hz: "
+                        f"{sim['samples']} samples in {sim['wall_time_s']:.2f} s wall time",
+                        "tracking error RMS [mrad]: " + ", ".join(f"{j} {1e3 * e:.3g}"
+                                                                   for j, e in sim["tracking_error_rms"].items())]
+        joint, worst = max(sim["tracking_error_rms"].items(), key=lambda item: item[1])
+        if worst > LARGE_TRACKING_ERROR:
+            lines.append(f"warning: {joint} tracks its trajectory to {1e3 * worst:.3g} mrad RMS: the run is not the "
+                         "planned motion (it may leave the joint limits). The truth's friction is large for the "
+                         "controller (gains kp·M, kd·M scale with the link's inertia): raise control.kp and control.kd "
+                         "or lower the friction")
+        return lines
 
     def write(self, out: str | Path) -> tuple[Path, str]:
         """Writes the CSV and its ``.truth.json``, both or neither.
