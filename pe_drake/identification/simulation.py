@@ -46,9 +46,12 @@ kp·(q_d - q) + kd·(v_d - v)) + c(q, v) - tau_g(q)`` evaluated with the a-prior
 model (``control.model: prior``, what a real controller has) or the true one (``true``), on
 the true state (noise only affects the log), plus the model file's joint friction (its
 ``<dynamics damping>`` and ``friction``, part of the a-priori model) at the desired velocity,
-``damping·v_d + friction·tanh(v_d/v_s)``: the simulated robot has that friction, and without it
-the feedback alone must hold it (iCub's URDF gives every joint 1 N·m·s/rad: its 0.4 g·m² wrists
-lagged by 0.2-0.4 rad). The controller runs between
+``damping·v_d + friction·tanh(v_d/v_s)``, on the joints where the simulated robot keeps it
+(the truth does not replace it): without it the feedback alone must hold that friction (iCub's
+URDF gives every joint 1 N·m·s/rad: its 0.4 g·m² wrists lagged by 0.2-0.4 rad). A friction the
+truth sets is the unknown to identify and stays with the feedback, as before (fed forward at
+the URDF's value, TIAGo's 1 N·m Coulomb on a light wrist against the truth's 0.13 made the
+M-scaled feedback lose the joint). The controller runs between
 ``Simulator.AdvanceTo`` calls and holds its torque on the plant's applied-generalized-force
 input. The plant is continuous (Drake's error-controlled RK3 by default, Radau3 on request):
 the stiff tanh of Coulomb friction would need a much smaller time step in a discrete plant.
@@ -409,8 +412,9 @@ def track_trajectory(
     t = np.arange(count) * h
     q_d, v_d, vd_d = trajectory.evaluate(t)
     kp, kd = truth.control.kp, truth.control.kd
-    # the a-priori model's friction, fed forward at the desired velocity (module docstring)
-    damping, friction = np.asarray(robot.joint_damping, float), np.asarray(robot.joint_friction, float)
+    # the model file's friction the simulated robot keeps, fed forward at v_d (module docstring)
+    damping = np.where(np.isclose(true.viscous, true.model_damping), true.model_damping, 0.0)
+    friction = np.where(np.isclose(true.coulomb, true.model_friction), true.model_friction, 0.0)
     v_s = float(truth.effects.coulomb_velocity_scale)
     simulator = _start_simulator(true, truth, q_d[0], v_d[0], h)
     port, port_context = true.force_input()
