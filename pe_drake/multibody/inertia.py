@@ -255,9 +255,9 @@ def perturb_inertias(
         m = phi[10 * b]
         if m <= 0:
             continue
-        perturb = _perturb_second_moments if mass_on_a_line(phi[10 * b : 10 * b + 10]) else _perturb_body
+        rod = mass_on_a_line(phi[10 * b : 10 * b + 10])
         for _ in range(max_tries):
-            new = perturb(phi[10 * b : 10 * b + 10], size, rng)
+            new = _perturb_body(phi[10 * b : 10 * b + 10], size, rng, second_moments=rod)
             if new is not None and phi_to_spatial_inertia(new).IsPhysicallyValid():
                 out[10 * b : 10 * b + 10] = new
                 break
@@ -286,27 +286,18 @@ def mass_on_a_line(phi_b: np.ndarray) -> bool:
     return half_trace > 0 and float(np.sort(half_trace - lam)[1]) <= ROD_TOLERANCE * half_trace
 
 
-def _perturb_second_moments(phi_b: np.ndarray, eps: float, rng: np.random.Generator) -> np.ndarray:
-    """:func:`_perturb_body` with the second moments Σ = tr/2 − λ scaled (never invalid)."""
-    m, p, lam, R, r_gyr = principal_inertia(phi_b)
-    sigma = np.maximum(0.5 * lam.sum() - lam, 0.0)
-    m2 = m * (1 + eps * rng.uniform(-1, 1))
-    p2 = p + eps * rng.uniform(-1, 1, 3) * max(np.linalg.norm(p), r_gyr)
-    sigma2 = sigma * (1 + eps * rng.uniform(-1, 1, 3))
-    lam2 = sigma2.sum() - sigma2
-    axis = rng.normal(size=3)
-    axis /= np.linalg.norm(axis)
-    angle = eps * rng.uniform(-1, 1)
-    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    R2 = (np.eye(3) + math.sin(angle) * K + (1 - math.cos(angle)) * K @ K) @ R  # Rodrigues
-    return phi_from_com(m2, p2, R2 @ np.diag(lam2) @ R2.T)
-
-
-def _perturb_body(phi_b: np.ndarray, eps: float, rng: np.random.Generator) -> np.ndarray | None:
+def _perturb_body(phi_b: np.ndarray, eps: float, rng: np.random.Generator,
+                  second_moments: bool = False) -> np.ndarray | None:
+    """One draw of :func:`perturb_inertias` for one body (None: it broke the triangle
+    inequality); ``second_moments`` scales Σ = tr/2 − λ instead of λ (a rod: never invalid)."""
     m, p, lam, R, r_gyr = principal_inertia(phi_b)
     m2 = m * (1 + eps * rng.uniform(-1, 1))
     p2 = p + eps * rng.uniform(-1, 1, 3) * max(np.linalg.norm(p), r_gyr)
-    lam2 = lam * (1 + eps * rng.uniform(-1, 1, 3))
+    if second_moments:
+        sigma2 = np.maximum(0.5 * lam.sum() - lam, 0.0) * (1 + eps * rng.uniform(-1, 1, 3))
+        lam2 = sigma2.sum() - sigma2  # λ_i = Σ_j + Σ_k
+    else:
+        lam2 = lam * (1 + eps * rng.uniform(-1, 1, 3))
     axis = rng.normal(size=3)
     axis /= np.linalg.norm(axis)
     angle = eps * rng.uniform(-1, 1)
