@@ -266,18 +266,27 @@ def _program(Q, c, k, D, active, prior, lower, s_e, ncols, body_names, bounds, m
     return prog, x
 
 
+#: Clarabel's gap and feasibility tolerances, tried in turn: the tight one first; when it stalls
+#: (kSolverSpecificError: insufficient progress near the optimum, seen on a diagnosis's augmented
+#: model of a well-tracked run) the looser one, still far below the data's σ.
+SDP_TOLERANCES = (1e-10, 1e-8)
+
+
 def _solve(prog, x, guess: np.ndarray, bounds: PhysicalBounds) -> np.ndarray:
-    """Clarabel (SCS when unavailable) at tolerance 1e-10; NoSolutionFound on failure."""
+    """Clarabel (SCS when unavailable) at :data:`SDP_TOLERANCES`; NoSolutionFound on failure."""
     from pydrake.solvers import ClarabelSolver, ScsSolver, SolverOptions  # lazy, as above
 
     solver = ClarabelSolver()
     if not solver.available():  # pragma: no cover - the drake wheel ships Clarabel
         solver = ScsSolver()
-    options = SolverOptions()
-    if solver.solver_id() == ClarabelSolver.id():
-        for key in ("tol_gap_abs", "tol_gap_rel", "tol_feas"):
-            options.SetOption(solver.solver_id(), key, 1e-10)
-    result = solver.Solve(prog, guess, options)
+    for tolerance in SDP_TOLERANCES:
+        options = SolverOptions()
+        if solver.solver_id() == ClarabelSolver.id():
+            for key in ("tol_gap_abs", "tol_gap_rel", "tol_feas"):
+                options.SetOption(solver.solver_id(), key, tolerance)
+        result = solver.Solve(prog, guess, options)
+        if result.is_success():
+            break
     if not result.is_success():
         hint = " or relax the identification bounds" if not bounds.empty else ""
         raise NoSolutionFound(
