@@ -104,3 +104,28 @@ def test_icubs_y_up_meshes_are_turned_and_it_stands_balanced():
     balance = BalanceConstraint(robot, config.excitation.balance_radius)
     assert abs(balance.p_WSc[1]) < 1e-3  # the feet are mirror images: the support centre is on the mid-plane
     balance.check_posture(robot.nominal_posture()[None, :])  # raised "out of balance at sample 0" before
+
+
+def test_the_playback_draws_icubs_dae_visuals_turned_and_tiagos_as_written(tmp_path, monkeypatch):
+    """Meshcat draws a DAE as written: for a model whose meshes are turned (iCub) the viewer's
+    model text names turned OBJ copies; TIAGo's DAE visuals are left for Meshcat as they are."""
+    from pe_drake.multibody.collada_up_axis import to_z_up, turned_dae_visuals
+    from pe_drake.multibody.meshes import read_dae_triangles, read_mesh_vertices
+
+    monkeypatch.setenv("PE_DRAKE_MESH_CACHE", str(tmp_path))
+    robots = example_robot_data_dir() / "robots"
+    icub = robots / "icub_description" / "robots" / "icub_reduced.urdf"
+    tiago = robots / "tiago_description" / "robots" / "tiago_no_hand.urdf"
+    text = turned_dae_visuals(icub.read_text(), icub)
+    import re
+
+    visuals = re.findall(r"<visual\b.*?</visual>", text, re.S)
+    assert visuals and not any(".dae" in v for v in visuals) and any(".turned.obj" in v for v in visuals)
+    assert "icub_simple_collision_r_foot.dae" in text  # collisions are not the viewer's
+    turned = sorted(tmp_path.rglob("*.turned.obj"))
+    assert turned
+    foot = next(p for p in turned if p.name == "icub_r_foot.turned.obj")
+    dae = robots / "icub_description" / "meshes" / "upmc" / "visual" / "icub_r_foot.dae"
+    assert np.allclose(np.sort(read_mesh_vertices(foot), axis=0),
+                       np.sort(to_z_up(read_dae_triangles(dae).vertices, "Y_UP"), axis=0), atol=1e-6)
+    assert turned_dae_visuals(tiago.read_text(), tiago) == tiago.read_text()

@@ -11,8 +11,9 @@ So the choice is made per model, from the model itself (:func:`honors_up_axis`):
 that says ``Y_UP`` or ``X_UP`` is placed in its link both ways, and the way that puts more of
 the link's own points inside the mesh's bounding box (±:data:`BOX_MARGIN`) wins: the link's
 centre of mass and the origins of its child joints, which a mesh of that link surrounds. The
-mesh readers for capsule fitting and for a humanoid's soles use that choice (Drake draws the
-visuals itself and is not affected).
+mesh readers for capsule fitting and for a humanoid's soles use that choice, and for a model
+whose meshes are turned, the playback's visual DAE meshes are turned OBJ copies
+(:func:`turned_dae_visuals`; Meshcat draws a DAE as written).
 """
 
 from __future__ import annotations
@@ -24,7 +25,17 @@ from pathlib import Path
 import numpy as np
 
 from pe_drake.multibody.link_geometry import read_link_shapes
-from pe_drake.multibody.meshes import read_mesh_vertices, resolve_mesh_path
+import hashlib
+
+from pe_drake.multibody.meshes import (
+    TriangleMesh,
+    default_cache_dir,
+    read_dae_triangles,
+    read_mesh_vertices,
+    resolve_mesh_path,
+    rewrite_visual_meshes,
+    write_obj,
+)
 from pe_drake.multibody.urdf_checks import urdf_tree
 
 #: Slack of a mesh's bounding box when counting the link points it holds [m].
@@ -139,3 +150,24 @@ def _inside(vertices: np.ndarray, shape, points: list[np.ndarray]) -> int:
 
 def _xyz(origin) -> np.ndarray:
     return np.array([float(x) for x in origin.get("xyz", "0 0 0").split()]) if origin is not None else np.zeros(3)
+
+
+def turned_dae_visuals(urdf_text: str, model_path: str | Path, packages: dict | None = None,
+                       cache_dir: str | Path | None = None) -> str:
+    """The URDF text with its ``<visual>`` DAE meshes replaced by OBJ copies turned by their
+    ``<up_axis>`` (cached by content), when :func:`honors_up_axis`; else the text unchanged.
+    Meshcat draws a DAE as written, which for such a model is sideways (iCub's thighs)."""
+    if not honors_up_axis(str(model_path)):
+        return urdf_text
+
+    def convert(source: Path) -> Path:
+        data = source.read_bytes()
+        digest = hashlib.blake2b(data, digest_size=8).hexdigest()
+        target = Path(cache_dir or default_cache_dir()) / digest / f"{source.stem}.turned.obj"
+        if not target.is_file():
+            mesh = read_dae_triangles(source)
+            write_obj(target, TriangleMesh(to_z_up(mesh.vertices, up_axis(source)), mesh.faces),
+                      comment=f"converted by pe_drake from {source.name}, turned by its <up_axis>")
+        return target
+
+    return rewrite_visual_meshes(urdf_text, model_path, ".dae", convert, packages)

@@ -242,20 +242,52 @@ def stl_visuals_to_obj(
     Raises:
         DataError: an STL file that exists but is malformed.
     """
+    return rewrite_visual_meshes(urdf_text, model_path, ".stl", lambda source: stl_to_obj(source, cache_dir),
+                                 packages)
+
+
+def rewrite_visual_meshes(urdf_text: str, model_path: str | Path, suffix: str, convert,
+                          packages: dict | None = None) -> str:
+    """Rewrites the ``<visual>`` meshes of a URDF whose names end in ``suffix`` to
+    ``convert(resolved path)`` (a path, as a ``file://`` URI), each file once; see
+    :func:`stl_visuals_to_obj`. Meshes that cannot be found are left untouched."""
     model_path = Path(model_path)
     converted: dict[str, str] = {}
 
     def mesh(match: re.Match) -> str:
         name = match.group(3)
-        if not name.lower().endswith(".stl"):
+        if not name.lower().endswith(suffix):
             return match.group(0)
         if name not in converted:
             source = _resolve_mesh(name, model_path, packages)
-            obj = stl_to_obj(source, cache_dir) if source is not None else None
-            converted[name] = obj.resolve().as_uri() if obj is not None else name
+            out = convert(source) if source is not None else None
+            converted[name] = out.resolve().as_uri() if out is not None else name
         return f"{match.group(1)}{match.group(2)}{converted[name]}{match.group(2)}"
 
     return _VISUAL.sub(lambda visual: _MESH_FILENAME.sub(mesh, visual.group(0)), urdf_text)
+
+
+def read_dae_triangles(path: Path) -> TriangleMesh:
+    """The triangles of a COLLADA file's scene (node transforms applied), in metres."""
+    import collada  # lazy: only DAE meshes need it
+
+    try:
+        mesh = collada.Collada(
+            str(path), ignore=[collada.common.DaeUnsupportedError, collada.common.DaeBrokenRefError]
+        )
+        corners = []
+        if mesh.scene is not None:
+            for geometry in mesh.scene.objects("geometry"):
+                for primitive in geometry.primitives():
+                    tris = primitive.triangleset() if hasattr(primitive, "triangleset") else primitive
+                    if getattr(tris, "vertex", None) is not None and len(tris.vertex_index):
+                        corners.append(np.asarray(tris.vertex, float)[np.asarray(tris.vertex_index)])
+        unit = float(mesh.assetInfo.unitmeter or 1.0)
+    except Exception as err:  # pycollada raises many types (XML, DaeError, KeyError, ...)
+        raise DataError(f"cannot read COLLADA file: {type(err).__name__}: {err}", file=str(path)) from err
+    if not corners:
+        raise DataError("COLLADA file has no triangles in its scene", file=str(path))
+    return _index_corners(np.concatenate(corners).reshape(-1, 3, 3) * unit)
 
 
 def absolute_mesh_paths(urdf_text: str, model_path: str | Path) -> str:

@@ -31,6 +31,7 @@ from pe_drake.exceptions import ConfigError
 from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.example_robot_data import example_robot_data_dir
 from pe_drake.multibody.mesh_policy import allowed_mesh_roots
+from pe_drake.multibody.collada_up_axis import turned_dae_visuals
 from pe_drake.multibody.meshes import absolute_mesh_paths, default_cache_dir, stl_visuals_to_obj, without_refused_visuals
 from pe_drake.multibody.packages import (
     find_package,
@@ -265,6 +266,7 @@ def drake_model_text(model_path: Path, obj_visuals: bool, packages: dict | None 
         notes += refused  # a visual naming /etc/passwd or a key would be embedded in playback.html
         if obj_visuals:
             text = stl_visuals_to_obj(text, model_path, packages=packages)
+            text = turned_dae_visuals(text, model_path, packages)  # iCub's: Meshcat draws a DAE as written
     return text, notes
 
 
