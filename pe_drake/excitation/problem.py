@@ -124,10 +124,13 @@ class ExcitationProblem:
 
     def rows_at(self, q: np.ndarray, v: np.ndarray, vd: np.ndarray) -> np.ndarray:
         """The rows of C at the samples (q, v, v̇), each (S, n): shape (S·r, columns)."""
-        Y = self.base.reduce(self.rows(q, v, vd))
+        return self._with_drive(self.base.reduce(self.rows(q, v, vd)), v, vd)
+
+    def _with_drive(self, Y_B: np.ndarray, v: np.ndarray, vd: np.ndarray) -> np.ndarray:
+        """The reduced rows Y_B (S, r, b) with the drive columns appended, as (S·r, columns)."""
         if self.drive.count:
-            Y = np.concatenate([Y, self.drive.columns(v, vd)], axis=2)
-        return Y.reshape(-1, self.columns)
+            Y_B = np.concatenate([Y_B, self.drive.columns(v, vd)], axis=2)
+        return Y_B.reshape(-1, self.columns)
 
     def stacked(self, alpha: np.ndarray) -> np.ndarray:
         """C = [C0; Ŷ_B] (Eq. 41)."""
@@ -155,10 +158,7 @@ class ExcitationProblem:
         kin = self.model.kinematics(q, v, vd)
         Y = self.rows.rows(kin)
         T, r, b = Y.shape[0], Y.shape[1], self.base.count
-        block = self.base.reduce(Y)
-        if self.drive.count:
-            block = np.concatenate([block, self.drive.columns(v, vd)], axis=2)
-        block = block.reshape(T * r, self.columns)
+        block = self._with_drive(self.base.reduce(Y), v, vd)
         C = block if self.C0 is None else np.vstack([self.C0, block])
         crit = evaluate_criterion(C, self.config.criterion)  # Eq. (17) for cond, (16) for soft_cond
         if not np.isfinite(crit.value):

@@ -344,7 +344,8 @@ def _identify(robot, data: Measurement, method: str, base: BaseParameters | None
     layout, keep = separable_on_data(folded.stacked(cols.base)[0], folded.stacked(cols.drive)[0], layouts.drive)
     if layout.count < layouts.drive.count:  # a column the data cannot separate keeps the model file's value
         known, lost = model_file_terms_lost(robot, layout, layouts.drive, known)
-        folded, blocks = folded.with_known_columns(cols.drive @ lost), known_columns_removed(blocks, cols.drive @ lost)
+        theta = cols.drive @ lost  # over the folded columns
+        folded, blocks = folded.with_known_columns(theta), known_columns_removed(blocks, theta)
     T = np.hstack([cols.base, cols.drive[:, keep]])  # Y_B | drive columns
     ols = _ordinary_fit(folded, blocks, T)
     x, cov, phi, physical = ols.phi_B, ols.cov, None, None

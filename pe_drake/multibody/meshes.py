@@ -125,23 +125,33 @@ def read_mesh_vertices(path: str | Path) -> np.ndarray:
     raise DataError(f"mesh format '{suffix}' is not read for capsule fitting (STL, OBJ and DAE are)", file=str(path))
 
 
-def read_dae_vertices(path: Path) -> np.ndarray:
-    """Vertices of a COLLADA file's scene (node transforms applied), scaled to metres."""
+def _dae_primitives(path: Path) -> tuple[list, float]:
+    """(the bound primitives of a COLLADA file's scene, node transforms applied; its metres per
+    unit), read with pycollada.
+
+    Raises:
+        DataError: an unreadable file, naming it.
+    """
     import collada  # lazy: only DAE meshes need it
 
     try:
         mesh = collada.Collada(
             str(path), ignore=[collada.common.DaeUnsupportedError, collada.common.DaeBrokenRefError]
         )
-        blocks = []
+        primitives = []
         if mesh.scene is not None:
             for geometry in mesh.scene.objects("geometry"):
-                for primitive in geometry.primitives():
-                    if primitive.vertex is not None and len(primitive.vertex):
-                        blocks.append(np.asarray(primitive.vertex, float).reshape(-1, 3))
-        unit = float(mesh.assetInfo.unitmeter or 1.0)
+                primitives += list(geometry.primitives())
+        return primitives, float(mesh.assetInfo.unitmeter or 1.0)
     except Exception as err:  # pycollada raises many types (XML, DaeError, KeyError, ...)
         raise DataError(f"cannot read COLLADA file: {type(err).__name__}: {err}", file=str(path)) from err
+
+
+def read_dae_vertices(path: Path) -> np.ndarray:
+    """Vertices of a COLLADA file's scene (node transforms applied), scaled to metres."""
+    primitives, unit = _dae_primitives(path)
+    blocks = [np.asarray(p.vertex, float).reshape(-1, 3) for p in primitives
+              if p.vertex is not None and len(p.vertex)]
     if not blocks:
         raise DataError("COLLADA file has no geometry in its scene", file=str(path))
     return np.vstack(blocks) * unit
@@ -269,22 +279,15 @@ def rewrite_visual_meshes(urdf_text: str, model_path: str | Path, suffix: str, c
 
 def read_dae_triangles(path: Path) -> TriangleMesh:
     """The triangles of a COLLADA file's scene (node transforms applied), in metres."""
-    import collada  # lazy: only DAE meshes need it
-
-    try:
-        mesh = collada.Collada(
-            str(path), ignore=[collada.common.DaeUnsupportedError, collada.common.DaeBrokenRefError]
-        )
-        corners = []
-        if mesh.scene is not None:
-            for geometry in mesh.scene.objects("geometry"):
-                for primitive in geometry.primitives():
-                    tris = primitive.triangleset() if hasattr(primitive, "triangleset") else primitive
-                    if getattr(tris, "vertex", None) is not None and len(tris.vertex_index):
-                        corners.append(np.asarray(tris.vertex, float)[np.asarray(tris.vertex_index)])
-        unit = float(mesh.assetInfo.unitmeter or 1.0)
-    except Exception as err:  # pycollada raises many types (XML, DaeError, KeyError, ...)
-        raise DataError(f"cannot read COLLADA file: {type(err).__name__}: {err}", file=str(path)) from err
+    primitives, unit = _dae_primitives(path)
+    corners = []
+    for primitive in primitives:
+        try:
+            tris = primitive.triangleset() if hasattr(primitive, "triangleset") else primitive
+        except Exception as err:  # noqa: BLE001 (pycollada's many error types)
+            raise DataError(f"cannot read COLLADA file: {type(err).__name__}: {err}", file=str(path)) from err
+        if getattr(tris, "vertex", None) is not None and len(tris.vertex_index):
+            corners.append(np.asarray(tris.vertex, float)[np.asarray(tris.vertex_index)])
     if not corners:
         raise DataError("COLLADA file has no triangles in its scene", file=str(path))
     return _index_corners(np.concatenate(corners).reshape(-1, 3, 3) * unit)
