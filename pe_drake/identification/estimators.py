@@ -9,9 +9,10 @@ linear model of Eq. (4),
 and solved by one of three estimators:
 
 - ``ols``: ordinary least squares, φ_B = W⁺ τ (Eq. 4);
-- ``wls``: weighted least squares with per-joint noise weights (Gautier 1997): the OLS
+- ``wls``: weighted least squares with per-joint noise weights (Gautier 1997): the
   residual of joint j gives σ_j² = ‖ρ_j‖² / (S − b/n), rows of joint j are divided by σ_j,
-  and the weighted problem is solved again;
+  and the weighted problem is solved again, until σ_j is that of the weighted fit's own
+  residual (:mod:`pe_drake.identification.least_squares`);
 - ``physical``: the standard parameters φ (10 per body) with every body's pseudo-inertia
   J(φ_b) ⪰ 0 (Wensing, Kim & Slotine 2017: the body is realizable by a positive mass
   density, which is Drake's physical-validity condition), friction and armature ≥ 0 and the
@@ -63,6 +64,7 @@ from pe_drake.identification.measurements import (
     check_torque_units,
     read_measurement_csv,
 )
+from pe_drake.identification.least_squares import ordinary_fit, weighted_fit
 from pe_drake.identification.physical_fit import PhysicalBounds, physical_fit
 from pe_drake.identification.preprocessing import PreprocessOptions
 from pe_drake.identification.folded_rows import (
@@ -71,9 +73,8 @@ from pe_drake.identification.folded_rows import (
     column_map,
     fold_rows,
     known_columns_removed,
-    residual_series,
 )
-from pe_drake.identification.statistics import integrated_autocorrelation, sandwich_from_grams
+from pe_drake.identification.statistics import integrated_autocorrelation
 from pe_drake.multibody.base_parameters import BaseParameters, compute_base_parameters
 from pe_drake.multibody.regressor import RegressorModel
 from pe_drake.multibody.sensors import MeasurementType, SensorRows
@@ -122,8 +123,10 @@ class IdentificationResult:
             without them, e.g. an identified.json of before the drive terms).
         physical_notes: what the physical fit says about its result (parameters on a bound,
             far from the a-priori model).
-        friction_share: for a fit without drive terms, the fraction of its residual energy
-            that Coulomb + viscous friction and offsets would explain (None otherwise).
+        friction_share: for a fit without drive terms, the fraction of the OLS residual's
+            energy that Coulomb + viscous friction and offsets would explain (None otherwise).
+        weight_iterations: the WLS's reweighted solves to the weights' fixed point
+            (:func:`~pe_drake.identification.least_squares.weighted_fit`; 0 for OLS).
     """
 
     robot: str
@@ -146,6 +149,7 @@ class IdentificationResult:
     drive: DriveFit | None = None
     physical_notes: tuple[str, ...] = ()
     friction_share: float | None = None
+    weight_iterations: int = 0
 
 
 # ---- data ------------------------------------------------------------------------------------
@@ -258,22 +262,6 @@ def measurement_base_parameters(
     return SensorRows(model, MeasurementType(measurement)).base_parameters()
 
 
-def _lstsq(W: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Least squares through QR then the SVD of R: (x, (WᵀW)⁻¹, singular values of W)."""
-    b = W.shape[1]
-    R = np.linalg.qr(np.column_stack([W, y]), mode="r")  # [W y] = Q [[R_W, z], [0, r]]
-    U, s, Vt = np.linalg.svd(R[:b, :b])
-    y = R[:b, b]
-    if s[-1] <= s[0] * 1e-12:
-        raise DataError(
-            f"the data does not excite every base parameter (cond(W) = {s[0] / max(s[-1], 1e-300):.3g}); "
-            "use an exciting trajectory (pe-drake optimize)"
-        )
-    x = Vt.T @ ((U.T @ y) / s)
-    cov = (Vt.T / s**2) @ Vt
-    return x, cov, s
-
-
 def _sigma_percent(x: np.ndarray, cov: np.ndarray) -> np.ndarray:
     sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -347,23 +335,22 @@ def _identify(robot, data: Measurement, method: str, base: BaseParameters | None
         theta = cols.drive @ lost  # over the folded columns
         folded, blocks = folded.with_known_columns(theta), known_columns_removed(blocks, theta)
     T = np.hstack([cols.base, cols.drive[:, keep]])  # Y_B | drive columns
-    ols = _ordinary_fit(folded, blocks, T)
-    x, cov, phi, physical = ols.phi_B, ols.cov, None, None
-    if method in ("wls", "physical"):
-        # Gautier: rows of channel j weighted by 1/σ_j.
-        noise_std = ols.noise_std
-        w = 1.0 / np.maximum(noise_std, 1e-9 * max(float(noise_std.max()), 1e-12))
-        x, cov_unit, _ = _lstsq(*folded.stacked(T, w))
-        residual = residual_series(blocks, folded.samples, T, x, w)
-        cov = sandwich_from_grams(folded.channel_grams(T, w), residual, cov_unit)
-        if method == "physical":
-            prior = robot.phi_model if prior is None else np.asarray(prior, float)
-            # Stage 2 of the fit stays in the 95 % confidence region of this estimate: whitened
-            # rows count τ̄ times for correlated samples (statistics.sandwich_from_grams).
-            tau_bar = float(np.mean(integrated_autocorrelation(residual)))
-            physical = _physical(robot, base, layout, folded, cols, keep, layouts.armature, w, prior, bounds,
-                                 tau_bar * PHYSICAL_DELTA_CHI2)
-            phi, x = physical.phi, physical.x
+    ols = fit = ordinary_fit(folded, blocks, T)
+    share = _friction_share(folded, cols, layouts, folded.residual_ss(T, ols.x))
+    if method in ("wls", "physical"):  # rows of channel c divided by σ_c
+        # Reweighting to the fixed point takes the residual for noise; a residual that is mostly
+        # friction would weight the joints by how little friction they have (least_squares).
+        fit = weighted_fit(folded, blocks, T, ols.noise_std,
+                           iterate=share is None or share <= FRICTION_SHARE_WARNING)
+    x, cov, phi, physical = fit.x, fit.cov, None, None
+    if method == "physical":
+        prior = robot.phi_model if prior is None else np.asarray(prior, float)
+        # Stage 2 of the fit stays in the 95 % confidence region of this estimate: whitened
+        # rows count τ̄ times for correlated samples (statistics.sandwich_from_grams).
+        tau_bar = float(np.mean(integrated_autocorrelation(fit.residual)))
+        physical = _physical(robot, base, layout, folded, cols, keep, layouts.armature, 1.0 / fit.noise_std,
+                             prior, bounds, tau_bar * PHYSICAL_DELTA_CHI2)
+        phi, x = physical.phi, physical.x
     b = base.count
     residual_ss = folded.residual_ss(T, x)
     return IdentificationResult(
@@ -377,7 +364,8 @@ def _identify(robot, data: Measurement, method: str, base: BaseParameters | None
         cond=ols.cond,
         residual_rms=np.sqrt(residual_ss / folded.samples),
         relative_error=100.0 * np.sqrt(residual_ss) / np.maximum(np.sqrt(folded.measured_ss()), 1e-300),
-        noise_std=ols.noise_std,
+        noise_std=fit.noise_std,
+        weight_iterations=fit.iterations,
         samples=folded.samples,
         preprocessing=data.preprocessing,
         wall_time=time.perf_counter() - start,
@@ -387,7 +375,7 @@ def _identify(robot, data: Measurement, method: str, base: BaseParameters | None
         drive=DriveFit(layout, x[b:], np.sqrt(np.maximum(np.diag(cov)[b:], 0.0)),
                        physical.merged_armature if physical is not None else {}).with_known(known),
         physical_notes=physical.notes if physical is not None else (),
-        friction_share=_friction_share(folded, cols, layouts, residual_ss),
+        friction_share=share,
     )
 
 
@@ -525,26 +513,10 @@ def fit_warnings(result: IdentificationResult) -> list[str]:
         out.append(
             f"warning: this rigid-body-only fit leaves a residual of which {100 * share:.0f} % is joint friction "
             "and offsets: the link parameters absorb what they can of it and the model is not finished; "
-            "identify with --drive-terms friction or all")
+            "identify with --drive-terms friction or all"
+            + ("; the WLS weights are those of the OLS residual (one step), not iterated to their fixed point, "
+               "which takes the residual for noise" if result.method != "ols" else ""))
     return out
-
-
-class _OrdinaryFit(NamedTuple):
-    phi_B: np.ndarray  # (b,) (base parameters, then drive terms)
-    cov: np.ndarray  # (WᵀW)⁻¹ (Σ_j τ_j σ_j² W_jᵀW_j) (WᵀW)⁻¹, (b, b): statistics.sandwich_from_grams
-    cond: float  # cond(W)
-    noise_std: np.ndarray  # per-joint residual standard deviation σ_j, (n,) [N·m]
-
-
-def _ordinary_fit(folded: FoldedRows, blocks, T: np.ndarray) -> _OrdinaryFit:
-    """Eq. (4): ordinary least squares on the columns ``T`` of the folded rows, with its statistics."""
-    p, r = T.shape[1], folded.channels
-    phi_B, cov_unit, s = _lstsq(*folded.stacked(T))
-    rho = residual_series(blocks, folded.samples, T, phi_B)
-    dof = max(folded.samples - p / r, 1.0)
-    noise_std = np.sqrt(np.sum(rho**2, axis=0) / dof)
-    cov = sandwich_from_grams(folded.channel_grams(T), rho, cov_unit)
-    return _OrdinaryFit(phi_B, cov, float(s[0] / s[-1]), noise_std)
 
 
 # ---- prediction and validation ----------------------------------------------------------------

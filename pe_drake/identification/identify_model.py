@@ -129,7 +129,9 @@ class IdentifiedModel:
             lines.append(p.describe())
         lines += [f"note: {note}" for note in self.data.notes]
         lines.append(f"{result.method} from {result.measurement}: {result.base.count} base parameters, "
-                     f"cond(W) = {result.cond:.4g}, {result.wall_time:.2f} s")
+                     f"cond(W) = {result.cond:.4g}, {result.wall_time:.2f} s"
+                     + (f"; weights 1/σ_j at their fixed point after {result.weight_iterations} solves"
+                        if result.weight_iterations > 1 else ""))
         if result.base.rank_note:
             lines.append(f"note: {result.base.rank_note}")
         worst = np.argsort(result.sigma_percent)[-min(5, len(result.sigma_percent)):][::-1]
