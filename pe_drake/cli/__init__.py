@@ -142,9 +142,9 @@ def _add_identification_commands(sub) -> None:
                    help="measurement CSV, ROS 2 bag (folder, .db3, .mcap) or RTDE log (repeatable with --payload: "
                         "the loaded runs)")
     add_log_arguments(p)
-    p.add_argument("--method", choices=["ols", "wls", "physical"], default="ols",
-                   help="ols (default), wls (per-joint noise weights), or physical (every link physically "
-                        "consistent; writes model.urdf)")
+    p.add_argument("--method", choices=["ols", "wls", "physical"], default="wls",
+                   help="wls (default: per-joint noise weights), ols (Eq. 4, unweighted), or physical (every "
+                        "link physically consistent; writes model.urdf)")
     p.add_argument("--cutoff", type=float, help="low-pass cut-off [Hz] (default: from --trajectory or the data)")
     p.add_argument("--trajectory", help="trajectory.json that was run (its harmonics set the cut-off)")
     add_window_argument(p, "fitted")

@@ -271,7 +271,7 @@ def _sigma_percent(x: np.ndarray, cov: np.ndarray) -> np.ndarray:
 def identify(
     robot,
     data: Measurement,
-    method: str = "ols",
+    method: str = "wls",
     *,
     base: BaseParameters | None = None,
     prior: np.ndarray | None = None,
@@ -287,7 +287,7 @@ def identify(
     Args:
         robot: the robot.
         data: preprocessed data (:func:`prepare_measurement`), with v and vd.
-        method: "ols", "wls" or "physical".
+        method: "wls" (the default), "ols" or "physical".
         base: the base composition (default: the measurement's, :func:`measurement_base_parameters`).
         prior: a-priori standard parameters for ``physical`` (default: the robot's model).
         model: a :class:`RegressorModel` to reuse.

@@ -58,7 +58,7 @@ class IdentifyOptions:
     """How ``identify`` fits (one frozen record; :meth:`from_config` reads the config's sections).
 
     Attributes:
-        method: "ols", "wls" or "physical".
+        method: "wls" (the default), "ols" or "physical".
         measurement: the channels to fit: "joint_torque", "base_wrench" or "both".
         cutoff_hz: low-pass cut-off [Hz] (None: from ``trajectory`` or the data).
         trajectory: the trajectory.json that was run: its highest harmonic sets the cut-off.
@@ -69,7 +69,7 @@ class IdentifyOptions:
         window: the part of the run fitted, cut after filtering (None: all of it).
     """
 
-    method: str = "ols"
+    method: str = "wls"
     measurement: str = "joint_torque"
     cutoff_hz: float | None = None
     trajectory: str | None = None
