@@ -213,7 +213,7 @@ def test_identify_and_validate_commands_model_drive_terms_of_filtered_data(optim
                     assert abs(entry["value"] - truth[t][j]) < 3 * entry["sigma"], (name, t, entry, truth[t][j])
                     assert entry["sigma"] < 0.02 * abs(truth[t][j]) + 0.01
         else:
-            assert "warning: this rigid-body-only fit" in text
+            assert "warning: the OLS residual of this rigid-body-only fit" in text
     assert np.all(rms["all"] < NOISE), rms["all"]  # the filtered noise floor is below the raw 0.05 N·m
     assert np.all(rms["none"] > 10 * rms["all"])
 
@@ -400,5 +400,5 @@ def test_real_panda_identify_predicts_the_held_out_part_like_diagnose():
     report = validate_model(robot, model.result, raw, ValidateOptions(window=TimeWindow(*held)))
     print("identify", report.rms.round(4), "diagnose", dg.rms_after.round(4))
     # measured: identify 0.132 0.095 0.082 0.095 0.062 0.022 0.035, diagnose 0.124 0.094 0.131 0.130
-    # 0.066 0.034 0.043 (the one-step WLS weights of the OLS residual left joint 6 at 0.051)
+    # 0.066 0.034 0.043 (the one-step WLS weights of the OLS residual left joint 6 at 0.054)
     assert np.all(report.rms < 1.10 * dg.rms_after)

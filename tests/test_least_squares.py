@@ -75,3 +75,29 @@ def test_noiseless_channel_keeps_a_finite_weight():
     # the exact channel fixes the shared parameters and its own; the noisy ones keep their noise
     assert np.max(np.abs(fit.x[:5] - x_true[:5])) < 1e-9
     assert fit.iterations <= 3  # measured 3
+
+
+def test_one_step_is_gautiers_wls_with_the_ols_weights():
+    blocks, F, y, _ = _problem(seed=5)
+    folded = fold_rows(blocks)
+    T = np.eye(F.shape[2])
+    ols = ordinary_fit(folded, blocks, T)
+    fit = weighted_fit(folded, blocks, T, ols.noise_std, iterate=False)
+    x_one, _, _ = solve_least_squares(*folded.stacked(T, 1.0 / ols.noise_std))
+    np.testing.assert_allclose(fit.x, x_one, rtol=1e-12, atol=1e-14)
+    np.testing.assert_array_equal(fit.noise_std, ols.noise_std)  # the σ of the weights used
+    assert fit.iterations == 1 and not fit.converged
+
+
+def test_weights_out_of_solves_are_reported_and_consistent(monkeypatch):
+    import pe_drake.identification.least_squares as least_squares
+
+    monkeypatch.setattr(least_squares, "MAX_WEIGHT_ITERATIONS", 3)
+    monkeypatch.setattr(least_squares, "WEIGHT_TOLERANCE", 1e-15)  # never met: the solves run out
+    blocks, F, y, _ = _problem(seed=6)
+    folded = fold_rows(blocks)
+    T = np.eye(F.shape[2])
+    fit = weighted_fit(folded, blocks, T, ordinary_fit(folded, blocks, T).noise_std)
+    assert fit.iterations == 3 and not fit.converged
+    x, _, _ = solve_least_squares(*folded.stacked(T, 1.0 / fit.noise_std))
+    np.testing.assert_allclose(fit.x, x, rtol=1e-12, atol=1e-14)  # x belongs to the σ returned

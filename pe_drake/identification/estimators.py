@@ -12,7 +12,8 @@ and solved by one of three estimators:
 - ``wls``: weighted least squares with per-joint noise weights (Gautier 1997): the
   residual of joint j gives σ_j² = ‖ρ_j‖² / (S − b/n), rows of joint j are divided by σ_j,
   and the weighted problem is solved again, until σ_j is that of the weighted fit's own
-  residual (:mod:`pe_drake.identification.least_squares`);
+  residual (:mod:`pe_drake.identification.least_squares`; one step for a rigid-body-only fit
+  whose OLS residual is mostly friction); the default;
 - ``physical``: the standard parameters φ (10 per body) with every body's pseudo-inertia
   J(φ_b) ⪰ 0 (Wensing, Kim & Slotine 2017: the body is realizable by a positive mass
   density, which is Drake's physical-validity condition), friction and armature ≥ 0 and the
@@ -111,7 +112,8 @@ class IdentificationResult:
         cond: cond(W) of the (unweighted) stacked data regressor.
         residual_rms: per-channel RMS of y − W φ_B on the identification data [N·m, N].
         relative_error: per-channel 100·‖ρ_c‖/‖y_c‖ [%].
-        noise_std: per-channel residual standard deviation σ_c (WLS weights).
+        noise_std: per-channel σ_c: the OLS residual's for ``ols``; for ``wls`` and
+            ``physical`` the σ_c of the WLS weights 1/σ_c (``residual_rms`` is the fit's own).
         samples: S, samples used (after preprocessing).
         preprocessing: what :func:`pe_drake.identification.preprocessing.preprocess` did (or None).
         wall_time: seconds spent in the estimator (regressor included).
@@ -125,8 +127,9 @@ class IdentificationResult:
             far from the a-priori model).
         friction_share: for a fit without drive terms, the fraction of the OLS residual's
             energy that Coulomb + viscous friction and offsets would explain (None otherwise).
-        weight_iterations: the WLS's reweighted solves to the weights' fixed point
-            (:func:`~pe_drake.identification.least_squares.weighted_fit`; 0 for OLS).
+        weight_iterations: the WLS's weighted solves (0 for OLS, 1 for Gautier's one step;
+            :func:`~pe_drake.identification.least_squares.weighted_fit`).
+        weights_converged: the WLS weights reached their fixed point.
     """
 
     robot: str
@@ -150,6 +153,7 @@ class IdentificationResult:
     physical_notes: tuple[str, ...] = ()
     friction_share: float | None = None
     weight_iterations: int = 0
+    weights_converged: bool = False
 
 
 # ---- data ------------------------------------------------------------------------------------
@@ -336,7 +340,7 @@ def _identify(robot, data: Measurement, method: str, base: BaseParameters | None
         folded, blocks = folded.with_known_columns(theta), known_columns_removed(blocks, theta)
     T = np.hstack([cols.base, cols.drive[:, keep]])  # Y_B | drive columns
     ols = fit = ordinary_fit(folded, blocks, T)
-    share = _friction_share(folded, cols, layouts, folded.residual_ss(T, ols.x))
+    share = _friction_share(folded, cols, layouts, folded.residual_ss(T, ols.x), robot.n)
     if method in ("wls", "physical"):  # rows of channel c divided by σ_c
         # Reweighting to the fixed point takes the residual for noise; a residual that is mostly
         # friction would weight the joints by how little friction they have (least_squares).
@@ -366,6 +370,7 @@ def _identify(robot, data: Measurement, method: str, base: BaseParameters | None
         relative_error=100.0 * np.sqrt(residual_ss) / np.maximum(np.sqrt(folded.measured_ss()), 1e-300),
         noise_std=fit.noise_std,
         weight_iterations=fit.iterations,
+        weights_converged=fit.converged,
         samples=folded.samples,
         preprocessing=data.preprocessing,
         wall_time=time.perf_counter() - start,
@@ -443,16 +448,18 @@ def _row_blocks(robot, data: Measurement, measurement: str, model: RegressorMode
     return blocks
 
 
-def _friction_share(folded: FoldedRows, cols: _Columns, layouts: _Layouts, residual_ss: np.ndarray) -> float | None:
-    """For a rigid-body-only fit: the fraction of its residual energy that friction and offsets
-    would explain (None when the fit has drive terms or measures no torques)."""
+def _friction_share(folded: FoldedRows, cols: _Columns, layouts: _Layouts, residual_ss: np.ndarray,
+                    torques: int) -> float | None:
+    """For a rigid-body-only fit: the fraction of the residual energy of its first ``torques``
+    channels (the joint torques; a wrench's N and N·m are not added in) that friction and
+    offsets would explain (None when the fit has drive terms or measures no torques)."""
     if not layouts.friction.count:
         return None
     _, keep = separable_on_data(folded.stacked(cols.base)[0], folded.stacked(cols.friction)[0], layouts.friction)
     T = np.hstack([cols.base, cols.friction[:, keep]])
     x = np.linalg.lstsq(*folded.stacked(T), rcond=None)[0]
-    before = float(np.sum(residual_ss))
-    after = float(np.sum(folded.residual_ss(T, x)))
+    before = float(np.sum(residual_ss[:torques]))
+    after = float(np.sum(folded.residual_ss(T, x)[:torques]))
     return 1.0 - after / before if before > 0 else 0.0
 
 
@@ -511,7 +518,7 @@ def fit_warnings(result: IdentificationResult) -> list[str]:
     share = result.friction_share
     if share is not None and share > FRICTION_SHARE_WARNING:
         out.append(
-            f"warning: this rigid-body-only fit leaves a residual of which {100 * share:.0f} % is joint friction "
+            f"warning: the OLS residual of this rigid-body-only fit is {100 * share:.0f} % joint friction "
             "and offsets: the link parameters absorb what they can of it and the model is not finished; "
             "identify with --drive-terms friction or all"
             + ("; the WLS weights are those of the OLS residual (one step), not iterated to their fixed point, "

@@ -82,8 +82,10 @@ def result_to_dict(result: IdentificationResult, robot, model_file: str | None =
         out["drive_terms"] = result.drive.as_dict()
     if result.physical_notes:
         out["physical_fit_notes"] = list(result.physical_notes)
-    if result.friction_share is not None:
+    if result.friction_share is not None:  # of the OLS residual's energy
         out["friction_share_of_residual"] = result.friction_share
+    if result.weight_iterations:  # noise_std holds the σ_j of these weights
+        out["wls_weights"] = {"solves": result.weight_iterations, "fixed_point": result.weights_converged}
     warnings = fit_warnings(result)
     if warnings:
         out["warnings"] = warnings

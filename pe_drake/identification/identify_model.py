@@ -130,8 +130,7 @@ class IdentifiedModel:
         lines += [f"note: {note}" for note in self.data.notes]
         lines.append(f"{result.method} from {result.measurement}: {result.base.count} base parameters, "
                      f"cond(W) = {result.cond:.4g}, {result.wall_time:.2f} s"
-                     + (f"; weights 1/σ_j at their fixed point after {result.weight_iterations} solves"
-                        if result.weight_iterations > 1 else ""))
+                     + _weights_note(result))
         if result.base.rank_note:
             lines.append(f"note: {result.base.rank_note}")
         worst = np.argsort(result.sigma_percent)[-min(5, len(result.sigma_percent)):][::-1]
@@ -180,6 +179,16 @@ class IdentifiedModel:
         return written, note
 
 
+def _weights_note(result) -> str:
+    """What the WLS weights did, for the summary line ("" for OLS and the one step)."""
+    if result.weight_iterations <= 1:
+        return ""
+    if result.weights_converged:
+        return f"; weights 1/σ_j at their fixed point after {result.weight_iterations} solves"
+    return (f"; warning: the weights 1/σ_j did not reach their fixed point in {result.weight_iterations} solves "
+            "(the last solve's are used)")
+
+
 def _short_name(base, i: int) -> str:
     """The standard parameter a base parameter is built on, '+…' when others are lumped in."""
     name = base.names[base.independent[i]]
@@ -201,7 +210,7 @@ def identify_model(robot: Robot, measurements: Measurement, options: IdentifyOpt
     Args:
         robot: the a-priori robot.
         measurements: the raw run (:func:`~pe_drake.identification.intake.read_measurements`).
-        options: the :class:`IdentifyOptions` (default: OLS with every drive term).
+        options: the :class:`IdentifyOptions` (default: WLS with every drive term).
 
     Raises:
         DataError: data the checks refuse (units, gaps, sign-flipped torque columns, too short),

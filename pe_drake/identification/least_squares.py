@@ -3,13 +3,15 @@
 - :func:`ordinary_fit`: Eq. (4), φ_B = W⁺ τ, with the residual's per-channel σ_c.
 - :func:`weighted_fit`: weighted least squares with per-channel noise weights (Gautier 1997),
   the rows of channel c divided by σ_c. Gautier takes σ_c from the OLS residual, one step;
-  here the weights are iterated until σ_c is the residual σ of the weighted fit itself (a
-  fixed point: the maximum-likelihood estimate of φ_B and of every channel's noise variance
-  under independent Gaussian noise per channel). On data where one joint's model is much
-  better than another's the one step leaves the good joint under-weighted: on the real Panda
-  recording (training 0–14.4 s, held-out 15–20.5 s) the one step predicts joint 6's held-out
-  torque at 0.051 N·m and the fixed point at 0.021 N·m (8 iterations; the other joints move
-  by −2 to +10 %). On data with equal noise on every joint the two agree.
+  here the weights are iterated until σ_c is the residual σ of the weighted fit itself (the
+  fixed point is the maximum-likelihood estimate of φ_B and of every channel's noise variance
+  under independent Gaussian noise per channel, up to the S − p/r degrees-of-freedom
+  correction). On data where one joint's model is much better than another's, the OLS σ of the
+  good joint is inflated by the errors OLS makes in the parameters it shares with the louder
+  ones, and the one step leaves it under-weighted: on the real Panda recording (`identify
+  --window ,14.445`, validated on 14.95–20.495 s) the one step predicts joint 6's held-out
+  torque at 0.054 N·m and the fixed point at 0.022 N·m (12 solves; the other joints move by
+  −1 to +9 %). On data with the same noise on every joint the two agree.
 
 The fixed point takes the residual for noise. A rigid-body-only fit of a robot whose torque
 is mostly friction has a residual that is mostly friction, and reweighting would weight each
@@ -34,7 +36,7 @@ from pe_drake.identification.statistics import sandwich_from_grams
 
 #: The weights' fixed point is reached when no σ_c changes by more than this (relative).
 WEIGHT_TOLERANCE = 1e-3
-#: At most this many reweighted solves (the Panda's converge in 8, simulated data in 2-3).
+#: At most this many reweighted solves (the real Panda's converge in 12-20, simulated data in 2-3).
 MAX_WEIGHT_ITERATIONS = 50
 #: σ_c is kept above this fraction of the largest: a channel the model fits exactly (noiseless
 #: data) would otherwise get an infinite weight.
@@ -48,9 +50,11 @@ class LeastSquaresFit(NamedTuple):
         x: the fitted values, (p,) (base parameters, then drive terms).
         cov: their covariance, (WᵀW)⁻¹ (Σ_c τ_c s_c² W_cᵀW_c) (WᵀW)⁻¹ (weighted rows for WLS).
         cond: cond(W) of the regressor solved (the weighted one for WLS).
-        noise_std: per-channel residual standard deviation σ_c, (r,): for WLS, the weights'.
+        noise_std: per-channel σ_c, (r,): OLS, its residual's; WLS, the σ_c whose weights 1/σ_c
+            ``x`` was solved with (at the fixed point, also the residual's).
         residual: the (weighted, for WLS) residual of every sample, (S, r).
-        iterations: the reweighted solves (0 for OLS).
+        iterations: the weighted solves (0 for OLS, 1 for Gautier's one step).
+        converged: the weights reached their fixed point (False for OLS and the one step).
     """
 
     x: np.ndarray
@@ -59,6 +63,7 @@ class LeastSquaresFit(NamedTuple):
     noise_std: np.ndarray
     residual: np.ndarray
     iterations: int = 0
+    converged: bool = False
 
 
 def solve_least_squares(W: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -101,13 +106,17 @@ def weighted_fit(folded: FoldedRows, blocks: RowBlocks, T: np.ndarray, sigma: np
     (``iterate``), or Gautier's one step with the weights of ``sigma``."""
     floor = MIN_RELATIVE_SIGMA * max(float(np.max(sigma)), 1e-12)
     sigma = np.maximum(sigma, floor)
-    for iteration in range(1, (MAX_WEIGHT_ITERATIONS if iterate else 1) + 1):
-        w = 1.0 / sigma
-        x, cov_unit, s = solve_least_squares(*folded.stacked(T, w))
+    solves = MAX_WEIGHT_ITERATIONS if iterate else 1
+    iterations, converged = 0, False
+    while True:
+        iterations += 1
+        x, cov_unit, s = solve_least_squares(*folded.stacked(T, 1.0 / sigma))
         new = np.maximum(channel_sigma(folded, T, x), floor)
-        if np.max(np.abs(new / sigma - 1.0)) < WEIGHT_TOLERANCE:
+        converged = iterate and bool(np.max(np.abs(new / sigma - 1.0)) < WEIGHT_TOLERANCE)
+        if converged or iterations == solves:
             break
-        sigma = new
+        sigma = new  # the next solve's; what is returned belongs to the weights x was solved with
+    w = 1.0 / sigma
     rho = residual_series(blocks, folded.samples, T, x, w)
     cov = sandwich_from_grams(folded.channel_grams(T, w), rho, cov_unit)
-    return LeastSquaresFit(x, cov, float(s[0] / s[-1]), sigma, rho, iteration)
+    return LeastSquaresFit(x, cov, float(s[0] / s[-1]), sigma, rho, iterations, converged)
