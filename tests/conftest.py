@@ -61,6 +61,15 @@ def central_gradient(f, x, idx, h=1e-6) -> np.ndarray:
     return np.array(out)
 
 
+def sampled_gradient_error(problem, alpha, count, rng):
+    """The analytic gradient of ``problem`` at ``alpha`` against central differences along
+    ``count`` coordinates drawn by ``rng``: (relative error, coordinates, numeric gradient)."""
+    grad = problem.evaluate(alpha).grad
+    idx = rng.choice(len(alpha), count, replace=False)
+    numeric = central_gradient(problem.value, alpha, idx)
+    return np.linalg.norm(grad[idx] - numeric) / np.linalg.norm(numeric), idx, numeric
+
+
 def random_postures(robot, count: int, seed: int) -> np.ndarray:
     """``count`` postures drawn uniformly within the joint limits, shape (count, n)."""
     rng = np.random.default_rng(seed)

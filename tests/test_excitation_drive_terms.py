@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 import pytest
-from conftest import central_gradient, get_robot
+from conftest import get_robot, sampled_gradient_error
 
 from pe_drake.config import Config, ExcitationConfig, validate_config
 from pe_drake.exceptions import ConfigError
@@ -40,12 +40,8 @@ def test_columns_are_identifys_drive_columns_after_the_base_regressor():
                                                   ("g1", "all", "cond")])
 def test_gradient_with_drive_columns_matches_central_differences(name, terms, criterion):
     problem = _problem(name, terms, criterion=criterion)
-    rng = np.random.default_rng(0)
     alpha = problem.initial_guess(seed=2, amplitude=0.3)
-    grad = problem.evaluate(alpha).grad
-    idx = rng.choice(len(alpha), 25, replace=False)
-    numeric = central_gradient(problem.value, alpha, idx)
-    rel = np.linalg.norm(grad[idx] - numeric) / np.linalg.norm(numeric)
+    rel, idx, numeric = sampled_gradient_error(problem, alpha, 25, np.random.default_rng(0))
     assert rel < 1e-6, f"relative error {rel:.2e}"
     # the drive part of the gradient is not zero: without it the error is large
     rigid = ExcitationProblem(problem.robot, dataclasses.replace(problem.config, drive_terms="none"))
