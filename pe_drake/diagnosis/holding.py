@@ -4,7 +4,7 @@ A sliding joint's friction is a function of its velocity (the Coulomb column tan
 :mod:`pe_drake.diagnosis.effects`), a stopped one's is not: at v = 0 the friction takes
 whatever value in [−F_s, F_s] holds the joint (F_s the static friction), and tanh(0) = 0
 predicts none of it. What a stopped joint holds depends on how it got there, so a model that
-predicts it must use the history. The Dahl model (:mod:`pe_drake.identification.dahl`) does:
+predicts it must use the history. The Dahl model (:mod:`pe_drake.multibody.dahl`) does:
 its state z freezes when the joint stops, at the value it had (±1 after a stop from sliding,
 less after a small overshoot), so F·z keeps the friction loaded while the joint rests. This
 is why the Coulomb column is the x_p → 0 limit of the Dahl model only in sliding: at rest
@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 
 from pe_drake.diagnosis.effects import COULOMB_VELOCITY_SCALE, Candidate, Separability
-from pe_drake.identification.dahl import dahl_state
+from pe_drake.multibody.dahl import dahl_state
 
 #: Name of the effect.
 HOLDING = "holding_torque"

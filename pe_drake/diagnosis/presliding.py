@@ -1,6 +1,6 @@
 """Pre-sliding friction in the diagnosis: a search over the pre-sliding displacement.
 
-The Dahl model (:mod:`pe_drake.identification.dahl`) gives the friction torque F_c·z(q; x_p):
+The Dahl model (:mod:`pe_drake.multibody.dahl`) gives the friction torque F_c·z(q; x_p):
 linear in F_c, nonlinear in x_p = F_c/σ0. Where the selection named ``coulomb_friction`` on
 a joint, its column tanh(v/v_s) is replaced by the parallel-filtered Dahl column z(q; x_p)
 for every x_p of :data:`DISPLACEMENT_GRID`, the whole model is refitted (base parameters and
@@ -25,7 +25,7 @@ import numpy as np
 from pe_drake.diagnosis.holding import HOLDING, record_rest_mask
 from pe_drake.diagnosis.result import NamedEffect, per_joint
 from pe_drake.diagnosis.selection import split_with_column
-from pe_drake.identification.dahl import dahl_state
+from pe_drake.multibody.dahl import dahl_state
 
 #: Name of the effect.
 PRESLIDING = "presliding_friction"

@@ -22,7 +22,7 @@ The true robot is the a-priori model with:
   (gear ratio 1), added when the joint has none;
 - constant torque offsets as a constant generalized force on the joint;
 - pre-sliding (Dahl) friction F_c·z as a small Drake system with one state per joint
-  (:mod:`pe_drake.identification.dahl`) whose torque adds to the controller's;
+  (:mod:`pe_drake.multibody.dahl`) whose torque adds to the controller's;
 - a payload body welded to a link.
 
 **Sign convention of the recorded torque.** ``tau`` is the torque the actuator applies. The
@@ -70,7 +70,7 @@ import numpy as np
 from pe_drake.config import check_finite
 from pe_drake.exceptions import ConfigError, DataError, PeDrakeError
 from pe_drake.excitation.fourier import FourierTrajectory
-from pe_drake.identification.dahl import dahl_builder_hook
+from pe_drake.multibody.dahl import dahl_builder_hook
 from pe_drake.identification.measurements import Measurement
 from pe_drake.identification.truth import (
     ALL_JOINTS,

@@ -62,7 +62,7 @@ class EffectsTruth:
             :mod:`pe_drake.identification.simulation`).
         torque_delay: recorded torque lags the positions by this [s] (negative: leads).
         payload: see :class:`PayloadTruth`.
-        presliding_friction: Dahl friction level F_c [N·m] (:mod:`pe_drake.identification.dahl`,
+        presliding_friction: Dahl friction level F_c [N·m] (:mod:`pe_drake.multibody.dahl`,
             a Drake system with one state per joint).
         presliding_stiffness: its stiffness at rest σ0 [N·m/rad]; the pre-sliding
             displacement is F_c/σ0. Needed for every joint with ``presliding_friction``.

@@ -242,6 +242,20 @@ def joint_dynamics(text: str, damping: dict[str, float], rotor_inertia: dict[str
     return text
 
 
+def payload_link_text(name: str, parent: str, payload) -> str:
+    """URDF text of a link ``name`` holding a :class:`~pe_drake.multibody.payload.PayloadInertia`
+    (expressed in ``parent``'s frame) welded to ``parent``, to insert before ``</robot>``."""
+    m, p, I = central_inertia(payload.phi)
+    return (f'  <link name="{name}">\n    <inertial>\n'
+            f'      <origin xyz="{_num(p[0])} {_num(p[1])} {_num(p[2])}" rpy="0 0 0"/>\n'
+            f'      <mass value="{_num(m)}"/>\n'
+            f'      <inertia ixx="{_num(I[0, 0])}" ixy="{_num(I[0, 1])}" ixz="{_num(I[0, 2])}" iyy="{_num(I[1, 1])}" '
+            f'iyz="{_num(I[1, 2])}" izz="{_num(I[2, 2])}"/>\n    </inertial>\n  </link>\n'
+            f'  <joint name="{name}_weld" type="fixed">\n'
+            f'    <parent link="{parent}"/>\n    <child link="{name}"/>\n'
+            '    <origin xyz="0 0 0" rpy="0 0 0"/>\n  </joint>\n')
+
+
 def _num(x) -> str:
     return repr(float(x))
 

@@ -1,0 +1,463 @@
+"""The robot as built: one value every stage fits, simulates, diagnoses and writes (issue 33).
+
+A :class:`RobotModel` is the rigid-body parameters (10 per body,
+:data:`~pe_drake.multibody.inertia.PARAMETER_NAMES`, about each body origin in its frame) plus
+what the drive adds per joint in the one vocabulary of :mod:`pe_drake.multibody.drive_columns`
+(``coulomb``, ``viscous``, ``offset``, ``armature``; each a total: the model file's friction
+included), a payload welded to a link, a time delay of the torque log and pre-sliding (Dahl)
+friction. The torque the actuator applies (the simulator's sign convention)::
+
+    tau_recorded(t) = [Y(q, v, vd) phi + D(v, vd) theta + F_c z](t - torque_delay)
+
+with D the drive columns; :meth:`RobotModel.torque` gives the instantaneous part (no delay, no
+Dahl state), :meth:`RobotModel.plant` the Drake plant of all of it: viscous friction as joint
+damping, Coulomb friction a ``DoorHinge`` (f_c·tanh(v/v_s)), armature the rotor inertia of a
+gear-ratio-1 actuator, the payload a welded body and the Dahl friction a Drake system; the
+offsets are a constant generalized force the caller adds.
+
+Files: :meth:`RobotModel.to_dict` writes one schema (the diagnosis's augmented_model.json);
+:meth:`RobotModel.from_dict` reads it and ``identify``'s identified.json (every method, files of
+before this module included). :meth:`RobotModel.urdf_text` and :meth:`RobotModel.effects_yaml`
+are the one URDF and the one effects-YAML writer.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pe_drake.exceptions import ConfigError
+from pe_drake.io_utils import atomic_write_text
+from pe_drake.multibody.dahl import dahl_builder_hook
+from pe_drake.multibody.drive_columns import COULOMB_VELOCITY_SCALE, NONNEGATIVE, TERMS, UNITS, DriveLayout, drive_columns
+from pe_drake.multibody.inertia import (
+    PARAMETER_NAMES,
+    inertia_matrix,
+    phi_to_spatial_inertia,
+    validity_problems,
+)
+from pe_drake.multibody.payload import PayloadInertia
+from pe_drake.multibody.regressor import shared_model
+from pe_drake.multibody.robot import load_robot
+from pe_drake.multibody.urdf import joint_dynamics, payload_link_text, urdf_with_inertias
+
+#: The drive terms of a model, in the order of :data:`~pe_drake.multibody.drive_columns.TERMS`.
+DRIVE_TERMS = TERMS["all"]
+#: Name of the payload body in the plant and the URDF.
+PAYLOAD_BODY_NAME = "pe_drake_payload"
+#: Input port of the plant's diagram that takes the actuator torque when a Dahl friction
+#: system shares the plant's applied-generalized-force input.
+APPLIED_FORCE_PORT = "applied_generalized_force"
+#: Keys of the file's per-joint tables, by term (``offset`` is ``torque_offset`` in files).
+FILE_KEYS = {"coulomb": "coulomb", "viscous": "viscous", "offset": "torque_offset", "armature": "armature"}
+TORQUE_EQUATION = ("tau_recorded(t) = [ID(q, v, vd) + viscous*v + coulomb*tanh(v/v_s) + armature*vd "
+                   "+ offset](t - time_delay)")
+
+
+def _per_joint(x, n: int, field: str) -> np.ndarray:
+    x = np.zeros(n) if x is None else np.asarray(x, float).reshape(-1)
+    if x.size == 0:
+        return np.zeros(n)
+    if x.shape != (n,):
+        raise ValueError(f"RobotModel.{field} must have one value per joint ({n}), got shape {x.shape}")
+    return x
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class RobotModel:
+    """The robot as built (module docstring).
+
+    Attributes:
+        joints: the excited joints, velocity order, length n.
+        bodies: the bodies they move, the order of ``phi``, length nb.
+        phi: standard parameters of the bodies alone (payload apart), shape (10·nb,).
+        drive: {term: per-joint value, shape (n,)} of :data:`DRIVE_TERMS` [units of
+            :data:`~pe_drake.multibody.drive_columns.UNITS`]; an absent term is 0.
+        sigma: {term: σ per joint, (n,)} of the identified drive terms (NaN where not
+            estimated, 0 where taken from the model file); empty when not identified.
+        velocity_scale: v_s of the Coulomb friction tanh(v/v_s) [rad/s].
+        payload: a rigid payload welded to ``payload_link`` (its frame), or None.
+        payload_link: the link carrying it ("" for none).
+        torque_delay: the torque log lags the positions by this [s].
+        presliding, presliding_stiffness: Dahl F_c [N·m] and σ0 [N·m/rad] per joint, (n,).
+        holding_torque: the friction a stopped joint holds [N·m] (diagnose's ``holding_torque``),
+            (n,); recorded, not applied by :meth:`plant` or :meth:`torque`.
+        physical: whether every body of ``phi`` is physically consistent.
+        notes: what was adjusted or left out, in words.
+    """
+
+    joints: tuple[str, ...]
+    bodies: tuple[str, ...]
+    phi: np.ndarray
+    drive: Mapping[str, np.ndarray] = dataclasses.field(default_factory=dict)
+    sigma: Mapping[str, np.ndarray] = dataclasses.field(default_factory=dict)
+    velocity_scale: float = COULOMB_VELOCITY_SCALE
+    payload: PayloadInertia | None = None
+    payload_link: str = ""
+    torque_delay: float = 0.0
+    presliding: np.ndarray | None = None
+    presliding_stiffness: np.ndarray | None = None
+    holding_torque: np.ndarray | None = None
+    physical: bool | None = None
+    notes: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        n, set_ = len(self.joints), object.__setattr__
+        set_(self, "joints", tuple(self.joints))
+        set_(self, "bodies", tuple(self.bodies))
+        set_(self, "phi", np.asarray(self.phi, float).reshape(-1))
+        if self.phi.shape != (10 * len(self.bodies),):
+            raise ValueError(f"RobotModel.phi must have 10 values per body ({10 * len(self.bodies)}), got {self.phi.shape}")
+        for field in ("drive", "sigma"):
+            table = getattr(self, field)
+            unknown = set(table) - set(DRIVE_TERMS)
+            if unknown:
+                raise ValueError(f"RobotModel.{field}: unknown drive term(s) {', '.join(sorted(unknown))} "
+                                 f"(valid: {', '.join(DRIVE_TERMS)})")
+            set_(self, field, {t: _per_joint(table[t], n, f"{field}['{t}']") for t in DRIVE_TERMS if t in table})
+        for field in ("presliding", "presliding_stiffness", "holding_torque"):
+            set_(self, field, _per_joint(getattr(self, field), n, field))
+        if self.payload_link and self.payload_link not in self.bodies:
+            raise ValueError(f"RobotModel.payload_link '{self.payload_link}' is not one of {', '.join(self.bodies)}")
+        if (self.payload is None) != (not self.payload_link):
+            raise ValueError("RobotModel.payload and payload_link go together (both or neither)")
+        if not (math.isfinite(self.velocity_scale) and self.velocity_scale > 0):
+            raise ValueError(f"RobotModel.velocity_scale must be positive [rad/s], got {self.velocity_scale!r}")
+        if self.physical is None:
+            set_(self, "physical", not validity_problems(self.bodies, self.phi))
+
+    # ---- values -------------------------------------------------------------------------------
+
+    def term(self, name: str) -> np.ndarray:
+        """The per-joint value of drive term ``name``, shape (n,) (zeros when absent)."""
+        if name not in DRIVE_TERMS:
+            raise ValueError(f"unknown drive term '{name}' (valid: {', '.join(DRIVE_TERMS)})")
+        return self.drive.get(name, np.zeros(len(self.joints)))
+
+    coulomb = property(lambda self: self.term("coulomb"), doc="Coulomb friction f_c [N·m], (n,).")
+    viscous = property(lambda self: self.term("viscous"), doc="viscous friction [N·m·s/rad], (n,).")
+    offset = property(lambda self: self.term("offset"), doc="torque offset [N·m], (n,).")
+    armature = property(lambda self: self.term("armature"), doc="rotor inertia [kg·m²], (n,).")
+
+    @property
+    def phi_total(self) -> np.ndarray:
+        """``phi`` with the payload added to its link, (10·nb,)."""
+        phi = self.phi.copy()
+        if self.payload is not None:
+            b = self.bodies.index(self.payload_link)
+            phi[10 * b : 10 * b + 10] += self.payload.phi
+        return phi
+
+    def layout(self) -> DriveLayout:
+        """Every drive term of every joint as drive columns (:func:`~pe_drake.multibody.drive_columns.drive_columns`)."""
+        cols = [(t, j) for j in range(len(self.joints)) for t in DRIVE_TERMS]
+        return DriveLayout(tuple(t for t, _ in cols), tuple(j for _, j in cols), self.joints,
+                           tuple(UNITS[t][0] for t, _ in cols), self.velocity_scale)
+
+    def theta(self) -> np.ndarray:
+        """The values of :meth:`layout`'s columns, shape (4·n,)."""
+        return np.array([self.term(t)[j] for j in range(len(self.joints)) for t in DRIVE_TERMS])
+
+    def check_robot(self, robot) -> None:
+        """Raises ValueError when ``robot`` has other joints or bodies than the model."""
+        if tuple(robot.joint_names) != self.joints or tuple(robot.body_names) != self.bodies:
+            raise ValueError(f"the model is of joints {', '.join(self.joints)} and bodies {', '.join(self.bodies)}; "
+                             f"robot '{robot.name}' has {', '.join(robot.joint_names)} and {', '.join(robot.body_names)}")
+
+    def nonnegative(self) -> RobotModel:
+        """This model with negative friction and armature (an unconstrained fit's) set to 0, noted:
+        what Drake and the URDF can hold."""
+        drive, notes = dict(self.drive), list(self.notes)
+        for t in NONNEGATIVE:
+            x = self.term(t).copy()
+            for j in np.flatnonzero(x < 0):
+                notes.append(f"{t}[{self.joints[j]}] = {x[j]:.3g} < 0 is taken as 0")
+            drive[t] = np.maximum(x, 0.0)
+        return dataclasses.replace(self, drive=drive, notes=tuple(notes))
+
+    # ---- dynamics -----------------------------------------------------------------------------
+
+    def torque(self, robot, q: np.ndarray, v: np.ndarray, vd: np.ndarray) -> np.ndarray:
+        """Inverse dynamics of the model: Y(q, v, vd)·phi_total + D(v, vd)·theta, shape (T, n)
+        [N·m] (no delay, no Dahl state), a block of samples at a time.
+
+        Args:
+            robot: the :class:`~pe_drake.multibody.robot.Robot` of the model's joints and bodies.
+            q, v, vd: each (T, n) or (n,).
+        """
+        self.check_robot(robot)
+        q, v, vd = (np.atleast_2d(np.asarray(x, float)) for x in (q, v, vd))
+        model, phi, layout, theta = shared_model(robot), self.phi_total, self.layout(), self.theta()
+        out = np.empty(q.shape)
+        for s in range(0, q.shape[0], 2000):
+            k = slice(s, s + 2000)
+            out[k] = model(q[k], v[k], vd[k]) @ phi + drive_columns(v[k], vd[k], layout) @ theta
+        return out
+
+    def plant(self, robot):
+        """The model in Drake: a continuous :class:`~pe_drake.multibody.robot.Robot` of
+        ``robot``'s config with these inertias, damping, Coulomb ``DoorHinge``, rotor inertia,
+        payload body and, with pre-sliding friction, the Dahl system whose diagram exports
+        the input :data:`APPLIED_FORCE_PORT`. Offsets are not in the plant: add them to its torque.
+
+        Raises:
+            ValueError: other joints or bodies than the robot's.
+            ConfigError: a negative friction or armature (:meth:`nonnegative` removes them).
+        """
+        from pydrake.math import RigidTransform  # lazy: pydrake stays out of `import pe_drake`
+
+        self.check_robot(robot)
+        for t in NONNEGATIVE:
+            bad = [f"{j} {x:.3g}" for j, x in zip(self.joints, self.term(t)) if x < 0]
+            if bad:
+                raise ConfigError(f"{t} must be ≥ 0 in Drake, got {', '.join(bad)}")
+        viscous, coulomb, armature = self.viscous, self.coulomb, self.armature
+        revolute = [info.kind == "revolute" for info in robot.joints]
+        payload = phi_to_spatial_inertia(self.payload.phi) if self.payload is not None else None
+
+        def before_finalize(plant, scene_graph):
+            for k, name in enumerate(self.joints):
+                joint = plant.GetJointByName(name)
+                joint.set_default_damping_vector([viscous[k]])
+                if coulomb[k] > 0 and revolute[k]:  # a DoorHinge is revolute
+                    add_coulomb_friction(plant, joint, float(coulomb[k]), self.velocity_scale)
+                if armature[k] > 0:
+                    set_armature(plant, joint, float(armature[k]))
+            if payload is not None:
+                link = plant.GetBodyByName(self.payload_link)
+                body = plant.AddRigidBody(PAYLOAD_BODY_NAME, link.model_instance(), payload)
+                plant.WeldFrames(link.body_frame(), body.body_frame(), RigidTransform())
+
+        fc, sigma0 = self.presliding, self.presliding_stiffness
+        hook = dahl_builder_hook(fc, sigma0, APPLIED_FORCE_PORT) if np.any(fc > 0) else None
+        out = load_robot(robot.config, time_step=0.0, before_finalize=before_finalize, builder_hook=hook)
+        for b, name in enumerate(self.bodies):
+            phi_b = self.phi[10 * b : 10 * b + 10]
+            if phi_b[0] > 0:  # massless frames keep the model file's (zero) inertia
+                out.plant.GetBodyByName(name).SetSpatialInertiaInBodyFrame(out.plant_context, phi_to_spatial_inertia(phi_b))
+        return out
+
+    # ---- files --------------------------------------------------------------------------------
+
+    def to_dict(self) -> dict[str, Any]:
+        """The model as JSON-ready data (augmented_model.json's schema; :meth:`from_dict` reads it)."""
+        def per_joint(x):
+            return {j: float(v) for j, v in zip(self.joints, x)}
+
+        p = self.payload
+        out = {
+            "joints": list(self.joints),
+            "parameter_names": list(PARAMETER_NAMES),
+            "phi": {b: self.phi[10 * k : 10 * k + 10].tolist() for k, b in enumerate(self.bodies)},
+            "phi_frame": "about each body origin, in the body frame [kg, kg·m, kg·m²]",
+            "viscous": per_joint(self.viscous), "viscous_unit": "N·m·s/rad",
+            "coulomb": per_joint(self.coulomb), "coulomb_unit": "N·m",
+            "coulomb_velocity_scale": self.velocity_scale,
+            "armature": per_joint(self.armature), "armature_unit": "kg·m²",
+            "torque_offset": per_joint(self.offset), "torque_offset_unit": "N·m",
+            "payload": {"link": self.payload_link, "mass": p.mass, "com": np.asarray(p.com, float).tolist(),
+                        "inertia_about_com": p.inertia_vector.tolist()} if p is not None else None,
+            "time_delay": self.torque_delay, "time_delay_unit": "s",
+            "presliding_friction": per_joint(self.presliding), "presliding_stiffness": per_joint(self.presliding_stiffness),
+            "presliding_units": "N·m, N·m/rad (Dahl model)",
+            "holding_torque": per_joint(self.holding_torque) if np.any(self.holding_torque) else {},
+            "holding_torque_unit": "N·m (the friction a stopped joint holds: H·z, z the Dahl state; not applied "
+                                   "by validate or simulate)",
+            "torque_equation": TORQUE_EQUATION,
+            "notes": list(self.notes),
+        }
+        if self.sigma:
+            out["sigma"] = {FILE_KEYS[t]: per_joint(s) for t, s in self.sigma.items()}
+        return out
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any], bodies=None, *, base=None, phi_prior=None) -> RobotModel:
+        """Reads :meth:`to_dict`'s data, an augmented_model.json or an identify identified.json.
+
+        Args:
+            d: the file's content.
+            bodies: the robot's body names (identified.json names its bodies only in its
+                ``standard_parameters``, absent from an OLS/WLS fit's).
+            base: the :class:`~pe_drake.multibody.base_parameters.BaseParameters` of the file's
+                measurement, for an identified.json with base parameters only: its ``phi`` is
+                then the standard parameters closest to ``phi_prior`` that give them,
+                φ = φ0 + K⁺(φ_B − K φ0), which predicts the same torques (Y φ = Y_B φ_B) but is
+                not physically consistent in general (``physical`` says).
+            phi_prior: φ0, (10·nb,).
+
+        Raises:
+            KeyError, TypeError, ValueError: a malformed file (the caller names it).
+        """
+        if "base_parameters" in d:
+            return _from_identified(cls, d, bodies, base, phi_prior)
+        joints = tuple(d["joints"])
+        phi_table = d["phi"]
+        body_names = tuple(bodies) if bodies is not None else tuple(phi_table)
+        phi = np.array([float(x) for b in body_names for x in phi_table[b]])
+        p = d.get("payload")
+        payload = (PayloadInertia(float(p["mass"]), np.asarray(p["com"], float),
+                                  inertia_matrix(np.asarray(p["inertia_about_com"], float))) if p else None)
+
+        def table(key):
+            t = d.get(key) or {}
+            return np.array([float(t.get(j, 0.0)) for j in joints])
+
+        sigma = {t: table_of(d["sigma"], k, joints) for t, k in FILE_KEYS.items() if k in (d.get("sigma") or {})}
+        return cls(joints, body_names, phi, {t: np.array([float(d[k][j]) for j in joints]) for t, k in FILE_KEYS.items()},
+                   sigma, float(d.get("coulomb_velocity_scale", COULOMB_VELOCITY_SCALE)), payload,
+                   p["link"] if p else "", float(d.get("time_delay") or 0.0), table("presliding_friction"),
+                   table("presliding_stiffness"), table("holding_torque"), None, tuple(d.get("notes", ())))
+
+    def urdf_text(self, robot, title: str = "") -> str:
+        """The robot's URDF with this model's inertials, ``<dynamics damping friction>``, rotor
+        inertias (``drake:rotor_inertia``) and payload link; negative friction and armature
+        (which Drake cannot hold) are left out. Offsets, delay and pre-sliding stay in the
+        effects YAML (:meth:`effects_yaml`).
+
+        Raises:
+            ConfigError: the robot was not loaded from a URDF.
+            PhysicallyInvalidError: a body that is not physically valid.
+        """
+        text = urdf_with_inertias(robot.model_path, self.bodies, self.phi)
+        m = self.nonnegative() if self.drive else None
+        if m is not None:
+            text = joint_dynamics(text, dict(zip(self.joints, map(float, m.viscous))),
+                                  {j: float(a) for j, a in zip(self.joints, m.armature) if a > 0},
+                                  dict(zip(self.joints, map(float, m.coulomb))))
+        if self.payload is not None:
+            head, sep, tail = text.rpartition("</robot>")
+            text = head + payload_link_text(PAYLOAD_BODY_NAME, self.payload_link, self.payload) + sep + tail
+        return text.replace("with identified inertial parameters (pe_drake)", title) if title else text
+
+    def effects_yaml(self, by: str = "pe-drake") -> str:
+        """What a URDF cannot hold, as a TRUTH.yaml ``effects`` section of ``pe-drake simulate``
+        (viscous, coulomb and armature repeat the URDF's; negative values, which the simulator
+        refuses, are left out)."""
+        m = self.nonnegative()
+
+        def table(x, every: bool = False):
+            items = {j: float(v) for j, v in zip(self.joints, x) if every or v != 0}
+            return "{" + ", ".join(f"{j}: {v!r}" for j, v in items.items()) + "}"
+
+        return (
+            f"# Effects of the model of {by} that a URDF cannot hold (TRUTH.yaml schema):\n"
+            "#   pe-drake simulate --robot <its URDF> --truth <this file> ...\n"
+            "# re-simulates the model (viscous, coulomb and armature repeat the URDF's damping,\n"
+            "# friction and rotor inertia; the payload and the inertias are in the URDF).\n"
+            "effects:\n"
+            # every joint's friction: the simulator keeps the model file's where a joint is left out
+            f"  viscous: {table(m.viscous, True)}            # [N·m·s/rad]\n"
+            f"  coulomb: {table(m.coulomb, True)}            # [N·m], f_c·tanh(v / v_s)\n"
+            f"  coulomb_velocity_scale: {self.velocity_scale!r}   # v_s [rad/s]\n"
+            f"  armature: {table(m.armature)}          # [kg·m²]\n"
+            f"  torque_offset: {table(self.offset)}   # [N·m]\n"
+            f"  torque_delay: {float(self.torque_delay)!r}   # [s], the torque log lags the positions (time_delay)\n"
+            f"  presliding_friction: {table(self.presliding)}   # Dahl F_c [N·m]\n"
+            f"  presliding_stiffness: {table(self.presliding_stiffness)}   # Dahl σ0 [N·m/rad]\n"
+        )
+
+    def write_urdf(self, path: str | Path, robot, title: str = "", *, samples: int = 20,
+                   tolerance: float = 1e-6) -> float:
+        """Writes :meth:`urdf_text` after checking that Drake, loading it, gives this model's
+        torque without Coulomb friction and offsets on random states.
+
+        Returns:
+            The largest difference [N·m].
+
+        Raises:
+            ConfigError: the URDF does not reproduce the model (nothing is written).
+        """
+        text, path = self.urdf_text(robot, title), Path(path)
+        tmp = path.with_name(f".{path.name}.check.urdf")
+        tmp.write_text(text)
+        try:
+            loaded = load_robot(dataclasses.replace(robot.config, model=str(tmp.resolve()), capsules=""))
+        finally:
+            tmp.unlink(missing_ok=True)
+        rng = np.random.default_rng(0)
+        q = rng.uniform(robot.limits.q_lower, robot.limits.q_upper, (samples, robot.n))
+        v, vd = rng.uniform(-1, 1, (samples, robot.n)), rng.uniform(-3, 3, (samples, robot.n))
+        m = self.nonnegative()
+        want = m.torque(robot, q, v, vd) - m.offset - m.coulomb * np.tanh(v / m.velocity_scale)
+        got = loaded.inverse_dynamics(q, v, vd, include_damping=True)
+        err = float(np.max(np.abs(got - want)))
+        if not math.isfinite(err) or err > tolerance * max(float(np.max(np.abs(want))), 1.0):
+            raise ConfigError(f"the URDF '{path}' does not reproduce the model: torques differ by up to {err:.3g} N·m")
+        atomic_write_text(path, text)
+        return err
+
+
+def table_of(table: Mapping[str, Any], key: str, joints) -> np.ndarray:
+    """A per-joint table ``table[key]`` in joint order, NaN where missing or null."""
+    t = table.get(key) or {}
+    return np.array([float("nan") if t.get(j) is None else float(t[j]) for j in joints])
+
+
+def _from_identified(cls, d: Mapping[str, Any], bodies, base, phi_prior) -> RobotModel:
+    """An identify identified.json (:meth:`RobotModel.from_dict`)."""
+    joints = tuple(d["joints"])
+    std = d.get("standard_parameters")
+    bodies = tuple(bodies) if bodies is not None else tuple(std or ())
+    if std is not None:
+        phi = np.array([float(std[b][k]) for b in bodies for k in PARAMETER_NAMES])
+    elif base is None or phi_prior is None:
+        raise ValueError("an identified.json with base parameters only needs the robot's base parameters")
+    else:
+        phi_B = np.array([float(e["value"]) for e in d["base_parameters"]])
+        phi0 = np.asarray(phi_prior, float)
+        phi = phi0 + np.linalg.pinv(base.K) @ (phi_B - base.K @ phi0)
+    drive, sigma = {}, {}
+    block = d.get("drive_terms") or {}
+    for name, terms in (block.get("joints") or {}).items():
+        if name not in joints:
+            raise ValueError(f"drive terms for joint '{name}' not in {', '.join(joints)}")
+        j = joints.index(name)
+        for t, entry in terms.items():
+            if t not in DRIVE_TERMS:
+                raise ValueError(f"unknown drive term '{t}' (valid: {', '.join(DRIVE_TERMS)})")
+            value = entry.get("value")
+            if value is None:  # an armature merged into the base parameters
+                value = entry.get("physical_fit_value") if std is not None else None
+                if value is None:
+                    continue
+                s = float("nan")
+            else:
+                s = 0.0 if entry.get("source") == "model file" else (
+                    float("nan") if entry.get("sigma") is None else float(entry["sigma"]))
+            drive.setdefault(t, np.zeros(len(joints)))[j] = float(value)
+            sigma.setdefault(t, np.full(len(joints), np.nan))[j] = s
+    notes = tuple(d.get("physical_fit_notes", ())) + ((d["note"],) if d.get("note") else ())
+    return cls(joints, bodies, phi, drive, sigma, float(block.get("velocity_scale", COULOMB_VELOCITY_SCALE)),
+               notes=notes)
+
+
+def add_coulomb_friction(plant, joint, f_c: float, v_s: float) -> None:
+    """f_c·tanh(v/v_s) as a Drake DoorHinge whose only non-zero term is its dynamic friction."""
+    from pydrake.multibody.tree import DoorHinge, DoorHingeConfig  # lazy: pydrake stays out of `import pe_drake`
+
+    config = DoorHingeConfig()
+    config.spring_constant = 0.0
+    config.catch_torque = 0.0
+    config.static_friction_torque = 0.0
+    config.viscous_friction = 0.0
+    config.dynamic_friction_torque = f_c
+    config.motion_threshold = v_s
+    plant.AddForceElement(DoorHinge(joint, config))
+
+
+def set_armature(plant, joint, armature: float) -> None:
+    """Reflected rotor inertia on the joint's actuator (gear² taken out), or a new actuator."""
+    actuators = [plant.get_joint_actuator(a) for a in plant.GetJointActuatorIndices()
+                 if plant.get_joint_actuator(a).joint().index() == joint.index()]
+    if actuators:
+        gear = actuators[0].default_gear_ratio() or 1.0
+        actuators[0].set_default_rotor_inertia(armature / gear**2)
+    else:
+        actuator = plant.AddJointActuator(f"pe_drake_armature_{joint.name()}", joint)
+        actuator.set_default_gear_ratio(1.0)
+        actuator.set_default_rotor_inertia(armature)
