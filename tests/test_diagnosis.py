@@ -176,8 +176,8 @@ def test_timing_delay_is_named_and_corrected(robot, trajectory):
     assert not result.unexplained
     loaded = [0, 1, 3]  # joints 1, 2, 4 carry the largest torques
     assert np.all(result.rms_after[loaded] < 0.1 * result.rms_rigid[loaded])
-    assert result.augmented.time_delay == pytest.approx(effect.value)
-    assert result.augmented.truth().effects.torque_delay == pytest.approx(effect.value)
+    assert result.augmented.torque_delay == pytest.approx(effect.value)
+    assert result.augmented.to_dict()["time_delay"] == pytest.approx(effect.value)
 
 
 def test_timing_delay_in_a_mix(robot, trajectory):

@@ -220,20 +220,13 @@ def test_identify_and_validate_commands_model_drive_terms_of_filtered_data(optim
 
 def test_validate_accepts_the_diagnosis_augmented_model(tmp_path):
     """augmented_model.json with friction, armature, offsets and a payload predicts like its torque equation."""
-    from pe_drake.diagnosis.augmented_model import AugmentedModel
     from pe_drake.identification.measurements import Measurement
     from pe_drake.multibody.inertia import phi_from_com
     from tests.conftest import random_states
+    from tests.test_simulate_model import augmented_model_file
 
     robot = get_robot("panda")
-    n = robot.n
-    rng = np.random.default_rng(0)
-    model = AugmentedModel(tuple(robot.joint_names), tuple(robot.body_names), robot.phi_model.copy(),
-                           rng.uniform(0, 1, n), rng.uniform(0, 2, n), COULOMB_VELOCITY_SCALE, rng.uniform(0, 0.3, n),
-                           rng.uniform(-1, 1, n), "panda_link7", 0.8, np.array([0.0, 0.01, 0.05]),
-                           np.array([1e-3, 1e-3, 2e-3, 0, 0, 0]))
-    path = tmp_path / "augmented_model.json"
-    path.write_text(json.dumps(model.as_dict()))
+    path, model = augmented_model_file(tmp_path, robot)
     loaded = load_identified(path, robot)
     q, v, vd = random_states(robot, 30, seed=2)
     phi = robot.phi_model.copy()
@@ -241,7 +234,7 @@ def test_validate_accepts_the_diagnosis_augmented_model(tmp_path):
     phi[10 * b : 10 * b + 10] += phi_from_com(0.8, np.array([0.0, 0.01, 0.05]), np.diag([1e-3, 1e-3, 2e-3]))
     from pe_drake.multibody.regressor import RegressorModel
 
-    want = RegressorModel(robot)(q, v, vd) @ phi + model.viscous * v + model.armature * vd + model.torque_offset
+    want = RegressorModel(robot)(q, v, vd) @ phi + model.viscous * v + model.armature * vd + model.offset
     want += model.coulomb * np.tanh(v / COULOMB_VELOCITY_SCALE)
     data = Measurement(np.arange(30.0), q, want, v, vd, robot.joint_names)
     np.testing.assert_allclose(predict(robot, loaded, data), want, atol=1e-9)

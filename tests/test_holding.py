@@ -59,7 +59,7 @@ def test_holding_torque_is_named_on_a_run_that_stops(panda, diagnosis_trajectory
     # the augmented model records it; validate's reading of the file says it is not applied
     from pe_drake.identification.identified_file import augmented_as_result
 
-    d = result.augmented.as_dict()
+    d = result.augmented.to_dict()
     assert d["holding_torque"][JOINT] == pytest.approx(hold.value)
     notes = augmented_as_result(d, panda).physical_notes
     assert any(n.startswith("the model's holding torque at rest is not applied (panda_joint5") for n in notes), notes

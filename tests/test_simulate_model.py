@@ -13,7 +13,7 @@ from pe_drake.cli import main as cli
 from pe_drake.identification.estimators import identify
 from pe_drake.identification.identified_file import load_identified, result_to_dict
 from pe_drake.identification.simulation import truth_path_for
-from pe_drake.identification.simulated_model import simulation_model
+from pe_drake.identification.simulated_model import load_simulation_model
 from tests.conftest import get_robot, random_states
 from tests.test_drive_terms import drive_truth, with_drive
 from tests.test_identification import OPTIMIZED
@@ -54,7 +54,7 @@ def test_simulate_with_model_is_identified_back(model_file, tmp_path, capsys):
     assert f"the robot is the model of '{model_file}'" in printed
     record = json.loads(truth_path_for(out).read_text())
     model = load_identified(model_file, robot)
-    sim = simulation_model(model, robot)
+    sim = load_simulation_model(model_file, robot)
     np.testing.assert_allclose(list(record["simulated_model"]["drive_terms"]["coulomb"].values()), sim.coulomb)
     np.testing.assert_allclose(list(record["effects"]["coulomb"]["values"].values()), sim.coulomb)
     assert record["noise"]["tau_std"] == 0.02
@@ -78,19 +78,23 @@ def test_simulate_with_model_is_identified_back(model_file, tmp_path, capsys):
 def augmented_model_file(tmp_path, robot):
     """An augmented_model.json with friction, armature, offsets, a payload on link 7, a torque
     delay and pre-sliding friction on the last joint."""
-    from pe_drake.diagnosis.augmented_model import AugmentedModel
+    from pe_drake.multibody.inertia import inertia_matrix
+    from pe_drake.multibody.payload import PayloadInertia
+    from pe_drake.multibody.robot_model import RobotModel
 
     n = robot.n
     rng = np.random.default_rng(0)
     presliding, stiffness = np.zeros(n), np.zeros(n)
     presliding[-1], stiffness[-1] = 0.3, 300.0
-    model = AugmentedModel(tuple(robot.joint_names), tuple(robot.body_names), robot.phi_model.copy(),
-                           rng.uniform(0, 1, n), rng.uniform(0, 2, n), 0.01, rng.uniform(0, 0.3, n),
-                           rng.uniform(-1, 1, n), "panda_link7", 0.8, np.array([0.0, 0.01, 0.05]),
-                           np.array([1e-3, 1e-3, 2e-3, 0, 0, 0]), time_delay=0.002, presliding=presliding,
-                           presliding_stiffness=stiffness)
+    drive = {"viscous": rng.uniform(0, 1, n), "coulomb": rng.uniform(0, 2, n), "armature": rng.uniform(0, 0.3, n),
+             "offset": rng.uniform(-1, 1, n)}
+    link = "panda_link7" if "panda_link7" in robot.body_names else robot.body_names[-1]
+    payload = PayloadInertia(0.8, np.array([0.0, 0.01, 0.05]), inertia_matrix(np.array([1e-3, 1e-3, 2e-3, 0, 0, 0])))
+    model = RobotModel(tuple(robot.joint_names), tuple(robot.body_names), robot.phi_model.copy(), drive,
+                       payload=payload, payload_link=link, torque_delay=0.002, presliding=presliding,
+                       presliding_stiffness=stiffness)
     path = tmp_path / "augmented_model.json"
-    path.write_text(json.dumps(model.as_dict()))
+    path.write_text(json.dumps(model.to_dict()))
     return path, model
 
 
@@ -110,7 +114,7 @@ def test_simulate_with_the_diagnosis_augmented_model(tmp_path, capsys):
     np.testing.assert_allclose(record["phi_true"]["panda_link7"], loaded.phi[10 * b : 10 * b + 10])
     assert record["phi_true"]["panda_link7"][0] == pytest.approx(robot.phi_model[10 * b] + 0.8)
     for field, values in (("viscous", model.viscous), ("coulomb", model.coulomb), ("armature", model.armature),
-                          ("torque_offset", model.torque_offset)):
+                          ("torque_offset", model.offset)):
         np.testing.assert_allclose(list(record["effects"][field]["values"].values()), values, err_msg=field)
     assert record["noise"]["tau_std"] == 0.0
     assert record["effects"]["torque_delay"]["value"] == 0.002  # validate leaves these two out
@@ -140,22 +144,20 @@ def test_simulate_refuses_a_file_that_is_not_a_model(tmp_path, capsys):
 
 def test_a_truth_adds_its_effects_to_the_model(tmp_path):
     from pe_drake.exceptions import ConfigError
-    from pe_drake.identification.simulated_model import load_simulation_model, truth_with_model
+    from pe_drake.identification.simulation import true_model
     from pe_drake.identification.truth import EffectsTruth, Truth
 
     robot = get_robot("panda")
     path, model = augmented_model_file(tmp_path, robot)
     sim = load_simulation_model(path, robot)
-    truth = truth_with_model(Truth(effects=EffectsTruth(viscous={"all": 0.1}, torque_delay=0.001)), sim,
-                             robot.joint_names)
-    np.testing.assert_allclose(list(truth.effects.viscous.values()), model.viscous + 0.1)
-    assert truth.effects.torque_delay == pytest.approx(0.003)
+    true = true_model(robot, Truth(effects=EffectsTruth(viscous={"all": 0.1}, torque_delay=0.001)), sim)
+    np.testing.assert_allclose(true.viscous, model.viscous + 0.1)
+    assert true.torque_delay == pytest.approx(0.003)
     with pytest.raises(ConfigError, match="coulomb_velocity_scale 0.05 rad/s of the truth file differs"):
-        truth_with_model(Truth(effects=EffectsTruth(coulomb={"all": 1.0}, coulomb_velocity_scale=0.05)), sim,
-                         robot.joint_names)
+        true_model(robot, Truth(effects=EffectsTruth(coulomb={"all": 1.0}, coulomb_velocity_scale=0.05)), sim)
     with pytest.raises(ConfigError, match="both the truth file and the model"):
-        truth_with_model(Truth(effects=EffectsTruth(presliding_friction={"all": 0.1},
-                                                    presliding_stiffness={"all": 100.0})), sim, robot.joint_names)
+        true_model(robot, Truth(effects=EffectsTruth(presliding_friction={"all": 0.1},
+                                                     presliding_stiffness={"all": 100.0})), sim)
 
 
 def test_simulated_parameters_are_valid_and_reproduce_the_model(model_file):
@@ -167,12 +169,12 @@ def test_simulated_parameters_are_valid_and_reproduce_the_model(model_file):
 
     robot = get_robot("panda")
     wls = load_identified(model_file, robot)
-    sim = simulation_model(wls, robot)
+    sim = load_simulation_model(model_file, robot)
     assert not validity_problems(robot.body_names, sim.phi) and not sim.notes
     q, v, vd = random_states(robot, 40, seed=4)
     from pe_drake.multibody.regressor import RegressorModel
 
-    simulated = RegressorModel(robot)(q, v, vd) @ sim.phi + sim.armature * vd + sim.viscous * v + sim.torque_offset
+    simulated = RegressorModel(robot)(q, v, vd) @ sim.phi + sim.armature * vd + sim.viscous * v + sim.offset
     simulated += sim.coulomb * np.tanh(v / sim.velocity_scale)
     want = predicted(robot, wls, q, v, vd)
     err = np.max(np.abs(simulated - want))
@@ -181,7 +183,10 @@ def test_simulated_parameters_are_valid_and_reproduce_the_model(model_file):
     trajectory, _ = load_trajectory(OPTIMIZED)
     physical = identify(robot, with_drive(robot, trajectory, drive_truth(robot, seed=3), duration=trajectory.period),
                         "physical")
-    sim = simulation_model(physical, robot)
+    path = model_file.parent / "physical" / "identified.json"
+    path.parent.mkdir(exist_ok=True)
+    path.write_text(json.dumps(result_to_dict(physical, robot)))
+    sim = load_simulation_model(path, robot)
     np.testing.assert_array_equal(sim.phi, physical.phi)
     for name, value in physical.drive.merged_armature.items():
         assert sim.armature[robot.joint_names.index(name)] == pytest.approx(value)

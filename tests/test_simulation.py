@@ -150,7 +150,7 @@ def test_torque_is_true_dynamics_at_the_actual_motion(robot, trajectory):
     vd = np.gradient(m.v, m.t, axis=0)
     s = truth.effects.coulomb_velocity_scale
     expected = rigid_body_torque(plant, true.robot.plant_context, m.q, m.v, vd)
-    expected += true.viscous * m.v + true.coulomb * np.tanh(m.v / s) + true.torque_offset
+    expected += true.model.viscous * m.v + true.model.coulomb * np.tanh(m.v / s) + true.model.offset
     error = np.abs(m.tau - expected)[1:-1]  # np.gradient is one-sided at the ends
     assert np.all(np.median(error, axis=0) < 1e-3), np.median(error, axis=0)
     assert np.all(np.percentile(error, 95, axis=0) < 1e-2)
@@ -240,7 +240,7 @@ def test_truth_seed_reproduces_parameters(robot):
     truth.inertia_perturbation = 0.1
     truth.seed = 11
     a, b = build_true_robot(robot, truth), build_true_robot(robot, truth)
-    np.testing.assert_array_equal(a.phi, b.phi)
+    np.testing.assert_array_equal(a.model.phi, b.model.phi)
 
 
 def test_delay_and_noise(robot, trajectory, baseline):
@@ -320,7 +320,7 @@ def test_example_truth_file_is_valid(robot):
     truth = load_truth(EXAMPLE)
     true = build_true_robot(robot, truth)
     assert truth.inertia_perturbation == pytest.approx(0.1)
-    assert np.all(true.viscous > 0) and np.all(true.coulomb > 0)
+    assert np.all(true.model.viscous > 0) and np.all(true.model.coulomb > 0)
 
 
 def test_command_writes_csv_and_truth(tmp_path, robot, trajectory, capsys):

@@ -107,7 +107,7 @@ class DiagnosisResult:
         timing: the timing-offset nuisance (estimated offset [s], whether it was needed).
         predictions: held-out torques {"measured", "nominal", "rigid", "after"}, each (S, n).
         residual_series: held-out residuals before/after each named effect, for plots.
-        augmented: the :class:`~pe_drake.diagnosis.augmented_model.AugmentedModel`.
+        augmented: the augmented :class:`~pe_drake.multibody.robot_model.RobotModel`.
         drake_check: max |Drake augmented torque - least-squares prediction| per joint [N·m].
         timings: wall time per step [s].
         noise_floor: filtered white-noise level of the held-out torque per joint [N·m].

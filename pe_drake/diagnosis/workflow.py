@@ -74,7 +74,7 @@ from typing import Any
 
 import numpy as np
 
-from pe_drake.diagnosis.augmented_model import AugmentedModel, augmented_torque, build_augmented_robot
+from pe_drake.diagnosis.augmented_model import augmented_model
 from pe_drake.diagnosis.decisions import decision_list
 from pe_drake.diagnosis.effects import (
     EXPOSING_REGIME,
@@ -119,6 +119,7 @@ from pe_drake.identification.gaps import longest_segment
 from pe_drake.identification.measurements import Measurement, check_torque_units
 from pe_drake.multibody.base_parameters import BaseParameters, compute_base_parameters
 from pe_drake.multibody.regressor import RegressorModel
+from pe_drake.multibody.robot_model import RobotModel
 
 # ---- preparation -----------------------------------------------------------------------------
 
@@ -401,13 +402,13 @@ class Augmentation:
     """The augmented Drake model on the held-out data (step 4).
 
     Attributes:
-        model: the :class:`~pe_drake.diagnosis.augmented_model.AugmentedModel`.
+        model: the augmented :class:`~pe_drake.multibody.robot_model.RobotModel`.
         tau: its torque along the held-out motion, (S, n) [N·m].
         rms: per-joint held-out RMS of measured minus that torque [N·m].
         drake_check: max |Drake torque - least-squares prediction| per joint [N·m].
     """
 
-    model: AugmentedModel
+    model: RobotModel
     tau: np.ndarray
     rms: np.ndarray
     drake_check: np.ndarray
@@ -423,20 +424,19 @@ def augment(robot, prep: Prepared, lib: CandidateLibrary, pre: PreslidingStep, n
     presliding = {f.joint: (final.value(c), final.value(c) / f.displacement) for c, f in dahl.items()}
     delay = final.value(library.timing_col) if library.timing_col in naming.effect_cols else 0.0
     effect = pay.outcome.effect
-    augmented = AugmentedModel.from_fit(robot, prep.base, pay.change.phi_B, pay.change.Sigma_phi,
-                                        pay.outcome.delta_phi,
-                                        {library.cand_of[c].label: (library.cand_of[c], v) for c, v in values.items()},
-                                        config.coulomb_velocity_scale,
-                                        effect.link if effect is not None else None,
-                                        cov_B=pay.change.cov_B, time_delay=delay, presliding=presliding,
-                                        phi_prior=prior_own_parameters(robot, prep.prior))
-    true = build_augmented_robot(robot, augmented)
+    augmented = augmented_model(robot, prep.base, pay.change.phi_B, pay.change.Sigma_phi,
+                                pay.outcome.delta_phi,
+                                {library.cand_of[c].label: (library.cand_of[c], v) for c, v in values.items()},
+                                config.coulomb_velocity_scale,
+                                effect.link if effect is not None else None,
+                                cov_B=pay.change.cov_B, time_delay=delay, presliding=presliding,
+                                phi_prior=prior_own_parameters(robot, prep.prior))
     # Drake's torque at the held-out samples (along the motion `delay` earlier when a time delay
     # is named), its Coulomb term filtered like the measured torque (the parallel-filtered
     # column; the rest of the torque is smooth within the pass band).
     q, v, vd, coulomb = (delayed_states(held, delay, config.coulomb_velocity_scale) if delay
                          else (held.q, held.v, held.vd, held.coulomb))
-    tau_after = augmented_torque(true, augmented, q, v, vd)
+    tau_after = augmented.plant(robot).inverse_dynamics(q, v, vd, include_damping=True) + augmented.offset
     tau_after += augmented.coulomb * (coulomb - np.tanh(v / config.coulomb_velocity_scale)) + pre.held_torque
     tau_after += holding_torque(pre.regression.held, final, library)  # friction held at rest
     # the least-squares prediction with the final values (a delay by its linearization -d·dτ/dt)

@@ -21,11 +21,12 @@ import numpy as np
 from pe_drake.config import MEASUREMENTS
 from pe_drake.exceptions import DataError
 from pe_drake.identification.channels import channel_names
-from pe_drake.identification.drive_terms import DriveFit, DriveLayout
+from pe_drake.identification.drive_terms import DriveFit
 from pe_drake.identification.estimators import IdentificationResult, fit_warnings, measurement_base_parameters
 from pe_drake.identification.measurements import Preprocessing
 from pe_drake.io_utils import loads_json
-from pe_drake.multibody.inertia import PARAMETER_NAMES, inertia_matrix, phi_from_com, validity_problems
+from pe_drake.multibody.inertia import PARAMETER_NAMES, validity_problems
+from pe_drake.multibody.robot_model import RobotModel
 from pe_drake.output_set import check_output_set
 
 
@@ -197,53 +198,40 @@ def standard_from_base(robot, result: IdentificationResult) -> np.ndarray:
 
 
 def augmented_as_result(d: dict[str, Any], robot, path: str = "") -> IdentificationResult:
-    """The diagnosis's augmented_model.json as an identified model: its standard parameters
-    (payload added to its link) reduced to the robot's joint-torque base parameters, its
-    friction, armature and offsets as drive terms. A time delay, pre-sliding friction and a
-    holding torque at rest are not part of this model (``physical_notes`` says so when the
-    file has them).
+    """The diagnosis's augmented_model.json (a :class:`~pe_drake.multibody.robot_model.RobotModel`)
+    as an identified model: its standard parameters (payload added to its link) reduced to the
+    robot's joint-torque base parameters, its drive terms as drive columns. A time delay,
+    pre-sliding friction and a holding torque at rest are not part of this model
+    (``physical_notes`` says so when the file has them).
 
     Raises:
         DataError: other joints, a malformed file.
     """
+    joints = tuple(d.get("joints") or ())
+    if joints != tuple(robot.joint_names):
+        raise DataError(f"the model is for joints {', '.join(map(str, joints))}; robot '{robot.name}' excites "
+                        f"{', '.join(robot.joint_names)}", file=path)
     try:
-        joints = tuple(d["joints"])
-        if joints != tuple(robot.joint_names):
-            raise DataError(f"the model is for joints {', '.join(joints)}; robot '{robot.name}' excites "
-                            f"{', '.join(robot.joint_names)}", file=path)
-        phi = np.array([float(x) for b in robot.body_names for x in d["phi"][b]])
-        payload = d.get("payload")
-        if payload:
-            b = robot.body_names.index(payload["link"])
-            phi[10 * b : 10 * b + 10] += phi_from_com(float(payload["mass"]), np.asarray(payload["com"], float),
-                                                      inertia_matrix(np.asarray(payload["inertia_about_com"], float)))
-        terms, cols, units, theta = [], [], [], []
-        for key, term, unit in (("coulomb", "coulomb", "N·m"), ("viscous", "viscous", "N·m·s/rad"),
-                                ("torque_offset", "offset", "N·m"), ("armature", "armature", "kg·m²")):
-            for j, name in enumerate(joints):
-                terms.append(term)
-                cols.append(j)
-                units.append(unit)
-                theta.append(float(d[key][name]))
-        layout = DriveLayout(tuple(terms), tuple(cols), joints, tuple(units), float(d["coulomb_velocity_scale"]))
-    except (KeyError, TypeError, ValueError) as err:
+        model = RobotModel.from_dict(d, robot.body_names)
+    except (KeyError, TypeError, ValueError, AttributeError) as err:
         raise DataError(f"not an augmented_model.json written by pe-drake diagnose ({err!r} missing or malformed)",
                         file=path) from err
     notes = []
-    if float(d.get("time_delay", 0.0) or 0.0) != 0.0:
-        notes.append(f"the model's time delay {d['time_delay']:.4g} s is not applied (validate pairs samples as recorded)")
-    if any(float(x) for x in (d.get("presliding_friction") or {}).values()):
+    if model.torque_delay != 0.0:
+        notes.append(f"the model's time delay {model.torque_delay:.4g} s is not applied (validate pairs samples as "
+                     "recorded)")
+    if np.any(model.presliding):
         notes.append("the model's pre-sliding (Dahl) friction is not applied")
-    holding = {j: float(x) for j, x in (d.get("holding_torque") or {}).items() if float(x)}
-    if holding:
+    if np.any(model.holding_torque):
         notes.append("the model's holding torque at rest is not applied ("
-                     + ", ".join(f"{j} {x:.3g} N·m" for j, x in holding.items()) + ")")
+                     + ", ".join(f"{j} {x:.3g} N·m" for j, x in zip(model.joints, model.holding_torque) if x) + ")")
     base = measurement_base_parameters(robot, "joint_torque")
     channels = channel_names(robot, "joint_torque")
     nan = np.full(len(channels), np.nan)
+    theta = model.theta()
     return IdentificationResult(
-        robot=robot.name, method="diagnose", joints=joints, base=base, phi_B=base.base_values(phi),
-        sigma_percent=np.full(base.count, np.nan), phi=phi, cond=float("nan"), residual_rms=nan,
+        robot=robot.name, method="diagnose", joints=model.joints, base=base, phi_B=base.base_values(model.phi_total),
+        sigma_percent=np.full(base.count, np.nan), phi=model.phi_total, cond=float("nan"), residual_rms=nan,
         relative_error=nan, noise_std=nan, samples=0, source=path, measurement="joint_torque",
-        channels=channels, drive=DriveFit(layout, np.array(theta), np.full(len(theta), np.nan)),
+        channels=channels, drive=DriveFit(model.layout(), theta, np.full(len(theta), np.nan)),
         physical_notes=tuple(notes))

@@ -22,114 +22,60 @@ needs what Drake can build:
   out, are simulated too (``effects.torque_delay``, ``effects.presliding_*``).
 
 A TRUTH.yaml given with ``--model`` adds its effects, noise and control on top
-(:func:`truth_with_model`).
+(:func:`~pe_drake.identification.simulation.true_model`).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import math
 from pathlib import Path
 
 import numpy as np
 
-from pe_drake.exceptions import ConfigError, DataError
+from pe_drake.exceptions import DataError
 from pe_drake.identification.estimators import IdentificationResult
 from pe_drake.identification.identified_file import load_identified
 from pe_drake.identification.physical_fit import physical_fit
-from pe_drake.identification.truth import Truth, per_joint_values
 from pe_drake.io_utils import loads_json
 from pe_drake.multibody.inertia import validity_problems
+from pe_drake.multibody.robot_model import RobotModel
 
-#: The drive terms the simulator has, as (DriveFit term, EffectsTruth field).
-_TERMS = (("viscous", "viscous"), ("coulomb", "coulomb"), ("armature", "armature"), ("offset", "torque_offset"))
 #: A base parameter of the simulated model more than this many σ from the file's is reported.
 ATTAINABLE_SIGMA = 1.0
 
 
-@dataclasses.dataclass(frozen=True, eq=False)
-class SimulationModel:
-    """An identified model as the simulator builds it.
-
-    Attributes:
-        source: the model file.
-        phi: standard parameters per body, physically valid, shape (10·nb,).
-        viscous, coulomb, armature, torque_offset: per joint, shape (n,) [N·m·s/rad, N·m,
-            kg·m², N·m] (≥ 0 but the offsets).
-        velocity_scale: v_s of the Coulomb friction tanh(v/v_s) [rad/s].
-        notes: what was adjusted or left out, in words.
-        torque_delay: the torque log lags the positions by this [s] (augmented models).
-        presliding, presliding_stiffness: Dahl F_c [N·m] and σ0 [N·m/rad] per joint, (n,) or
-            empty (augmented models).
-    """
-
-    source: str
-    phi: np.ndarray
-    viscous: np.ndarray
-    coulomb: np.ndarray
-    armature: np.ndarray
-    torque_offset: np.ndarray
-    velocity_scale: float
-    notes: tuple[str, ...] = ()
-    torque_delay: float = 0.0
-    presliding: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
-    presliding_stiffness: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
-
-    def as_dict(self, joints) -> dict:
-        """The model's record in the run's ``.truth.json``."""
-        return {"file": self.source, "notes": list(self.notes),
-                "drive_terms": {field: dict(zip(joints, map(float, getattr(self, field))))
-                                for _, field in _TERMS},
-                "torque_delay": self.torque_delay,
-                "presliding_friction": dict(zip(joints, map(float, self.presliding))),
-                "presliding_stiffness": dict(zip(joints, map(float, self.presliding_stiffness)))}
-
-
-def load_simulation_model(path: str | Path, robot) -> SimulationModel:
-    """Reads identified.json or augmented_model.json as the model to simulate (module docstring).
+def load_simulation_model(path: str | Path, robot) -> RobotModel:
+    """Reads identified.json or augmented_model.json as the model to simulate (module docstring):
+    physically consistent, friction and armature ≥ 0.
 
     Raises:
         DataError: a file that is not one of these, or one of another robot or joints.
         NoSolutionFound: no physically valid parameters near the file's base parameters.
     """
-    model = simulation_model(load_identified(path, robot), robot, str(path))
+    result = load_identified(path, robot)  # checks the file belongs to the robot
     d = loads_json(Path(path).read_text(), str(path))  # load_identified has read it: it is JSON
-    if "torque_equation" not in d or "base_parameters" in d:  # not an augmented model
-        return model
     try:
-        fc = [float((d.get("presliding_friction") or {}).get(j, 0.0)) for j in robot.joint_names]
-        sigma0 = [float((d.get("presliding_stiffness") or {}).get(j, 0.0)) for j in robot.joint_names]
-        delay = float(d.get("time_delay") or 0.0)
-    except (TypeError, ValueError, AttributeError) as err:
-        raise DataError(f"time_delay or presliding_*: {err}", file=str(path)) from err
-    return dataclasses.replace(model, torque_delay=delay, presliding=np.array(fc), presliding_stiffness=np.array(sigma0))
-
-
-def simulation_model(result: IdentificationResult, robot, source: str = "") -> SimulationModel:
-    """An identified model (:func:`load_identified`'s result) as the simulator builds it."""
-    notes = []
-    drive = result.drive
-    n = robot.n
-    values = {t: (drive.per_joint(t) if drive is not None else np.zeros(n)) for t, _ in _TERMS}
-    if result.phi is not None:
-        phi = np.asarray(result.phi, float)
-        problems = validity_problems(robot.body_names, phi)
-        if problems:
+        model = RobotModel.from_dict(d, robot.body_names, base=result.base, phi_prior=robot.phi_model)
+    except (KeyError, TypeError, ValueError, AttributeError) as err:
+        raise DataError(f"not a model pe-drake can simulate ({err!r} missing or malformed)", file=str(path)) from err
+    if "standard_parameters" in d or "phi" in d:
+        if not model.physical:
+            problems = validity_problems(robot.body_names, model.phi)
             raise DataError("the model's standard parameters are not physically valid, so Drake cannot simulate "
-                            "them: " + "; ".join(f"{b}: {why}" for b, why in problems.items()), file=source)
-        merged = dict(drive.merged_armature) if drive is not None else {}  # not in phi (identified_file)
-    else:
-        phi, merged, fit_notes = _consistent_parameters(robot, result)
-        notes += fit_notes
+                            "them: " + "; ".join(f"{b}: {why}" for b, why in problems.items()), file=str(path))
+        return model.nonnegative()
+    return consistent_model(robot, model, result).nonnegative()
+
+
+def consistent_model(robot, model: RobotModel, result: IdentificationResult) -> RobotModel:
+    """``model`` (of ``result``, a fit with base parameters only) with the physically consistent
+    standard parameters of its φ_B (module docstring), the merged armatures its variables."""
+    phi, merged, notes = _consistent_parameters(robot, result)
+    armature = model.armature.copy()
     for name, value in merged.items():
-        values["armature"][robot.joint_names.index(name)] += value
-    for term, _ in _TERMS[:3]:  # friction and armature are ≥ 0 in Drake
-        for j in np.flatnonzero(values[term] < 0):
-            notes.append(f"{term}[{robot.joint_names[j]}] = {values[term][j]:.3g} < 0 is simulated as 0")
-            values[term][j] = 0.0
-    scale = drive.layout.velocity_scale if drive is not None else 0.01
-    return SimulationModel(source, phi, values["viscous"], values["coulomb"], values["armature"], values["offset"],
-                           float(scale), tuple(notes))
+        armature[robot.joint_names.index(name)] += value
+    return dataclasses.replace(model, phi=phi, drive={**model.drive, "armature": armature}, physical=True,
+                               notes=model.notes + tuple(notes))
 
 
 def _consistent_parameters(robot, result: IdentificationResult) -> tuple[np.ndarray, dict[str, float], list[str]]:
@@ -161,31 +107,3 @@ def _consistent_parameters(robot, result: IdentificationResult) -> tuple[np.ndar
         notes.append(f"the model has base parameters only; no physically valid links reproduce them all: "
                      f"the simulated {base.base_names[worst]} is {misfit[worst]:.3g} σ from the file's")
     return fit.phi, {j: float(a) for j, a in zip(merged, theta)}, notes
-
-
-def truth_with_model(truth: Truth, model: SimulationModel, joints) -> Truth:
-    """The truth whose effects are the model's drive terms plus the truth's own (per joint, summed).
-
-    Raises:
-        ConfigError: the truth has Coulomb friction with another v_s than the model's.
-    """
-    e = truth.effects
-    if np.any(per_joint_values(e.coulomb, joints) > 0) and not math.isclose(
-            e.coulomb_velocity_scale, model.velocity_scale, rel_tol=1e-12):
-        raise ConfigError(f"effects.coulomb_velocity_scale {e.coulomb_velocity_scale:g} rad/s of the truth file differs "
-                          f"from the model's {model.velocity_scale:g} rad/s ('{model.source}'): one tanh(v/v_s) is "
-                          "simulated; remove the truth's coulomb or set the model's v_s")
-    tables = {field: {j: float(x) for j, x in zip(joints, per_joint_values(getattr(e, field), joints)
-                                                   + getattr(model, field))}
-              for _, field in _TERMS}
-    if np.any(model.presliding > 0):
-        if np.any(per_joint_values(e.presliding_friction, joints) > 0):
-            raise ConfigError(f"both the truth file and the model '{model.source}' have pre-sliding friction: "
-                              "one Dahl model per joint is simulated; remove the truth's presliding_*")
-        tables["presliding_friction"] = {j: float(x) for j, x in zip(joints, model.presliding) if x > 0}
-        tables["presliding_stiffness"] = {j: float(s) for j, x, s in zip(joints, model.presliding,
-                                                                         model.presliding_stiffness) if x > 0}
-    effects = dataclasses.replace(e, coulomb_velocity_scale=model.velocity_scale,
-                                  torque_delay=e.torque_delay + model.torque_delay, **tables)
-    return dataclasses.replace(truth, effects=effects)
-

@@ -14,11 +14,12 @@ from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.excitation.ramp import check_within_limits
 from pe_drake.excitation.trajectory_file import load_motion
 from pe_drake.identification.measurements import Measurement, measurement_to_csv_text
-from pe_drake.identification.simulation import simulate, truth_path_for
-from pe_drake.identification.simulated_model import load_simulation_model, truth_with_model
+from pe_drake.identification.simulation import FIELDS, simulate, truth_path_for
+from pe_drake.identification.simulated_model import load_simulation_model
 from pe_drake.identification.truth import Truth, load_truth, validate_truth
 from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.robot import Robot
+from pe_drake.multibody.robot_model import RobotModel
 
 _RECORDED = {"joint_torque": "tau", "base_wrench": "wrench", "both": "tau and wrench"}
 #: A joint tracking its trajectory worse than this [rad RMS] gets a warning: more than a
@@ -99,14 +100,24 @@ def simulate_run(robot: Robot, trajectory: str | Path, truth: str | Path | None 
     duration = duration if duration is not None else motion.duration
     if not 0 < duration <= 3600:
         raise ConfigError(f"--duration must be in (0, 3600] s, got {duration!r}")
-    phi = extra = None
+    sim_model = extra = None
     if model is not None:
         validate_truth(truth_spec, robot)  # the truth's joint names before they are merged
         sim_model = load_simulation_model(model, robot)
-        truth_spec, phi = truth_with_model(truth_spec, sim_model, robot.joint_names), sim_model.phi
-        extra = {"simulated_model": sim_model.as_dict(robot.joint_names)}
+        extra = {"simulated_model": _model_record(sim_model, str(model))}
     if progress is not None:
         progress(f"simulating {robot.name}: {duration:.3g} s of {Path(trajectory).name} "
                  f"(integrator {truth_spec.integrator}) ...")
-    measured, truth_dict = simulate(robot, motion, truth_spec, duration, measurement=measurement, phi=phi)
+    measured, truth_dict = simulate(robot, motion, truth_spec, duration, measurement=measurement, model=sim_model)
     return SimulatedRun(robot.name, measurement, measured, {**truth_dict, **(extra or {})})
+
+
+def _model_record(model: RobotModel, source: str) -> dict[str, Any]:
+    """The simulated model's record in the run's ``.truth.json``."""
+    def per_joint(x):
+        return dict(zip(model.joints, map(float, x)))
+
+    return {"file": source, "notes": list(model.notes),
+            "drive_terms": {field: per_joint(model.term(t)) for t, field in FIELDS.items()},
+            "torque_delay": model.torque_delay, "presliding_friction": per_joint(model.presliding),
+            "presliding_stiffness": per_joint(model.presliding_stiffness)}

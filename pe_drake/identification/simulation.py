@@ -70,31 +70,24 @@ import numpy as np
 from pe_drake.config import check_finite
 from pe_drake.exceptions import ConfigError, DataError, PeDrakeError
 from pe_drake.excitation.fourier import FourierTrajectory
-from pe_drake.multibody.dahl import dahl_builder_hook
 from pe_drake.identification.measurements import Measurement
 from pe_drake.identification.truth import (
     ALL_JOINTS,
     Truth,
     load_truth,
-    payload_spatial_inertia,
     per_joint_or_model,
     per_joint_values,
     validate_truth,
 )
 from pe_drake.identification.wrench_log import recorded_wrench
-from pe_drake.multibody.inertia import (
-    PARAMETER_NAMES,
-    perturb_inertias,
-    phi_to_spatial_inertia,
-    spatial_inertia_to_phi,
-)
+from pe_drake.multibody.inertia import PARAMETER_NAMES, inertia_matrix, perturb_inertias
+from pe_drake.multibody.payload import PayloadInertia
 from pe_drake.multibody.robot import Robot, load_robot
+from pe_drake.multibody.robot_model import APPLIED_FORCE_PORT, RobotModel
 from pe_drake.multibody.sensors import MeasurementType
 
-PAYLOAD_BODY_NAME = "pe_drake_payload"
-#: Input port of the true robot's diagram that takes the controller's torque when a Dahl
-#: friction system shares the plant's applied-generalized-force input.
-APPLIED_FORCE_PORT = "applied_generalized_force"
+#: The truth's per-joint effect tables, by drive term (the simulator's sign convention above).
+FIELDS = {"viscous": "viscous", "coulomb": "coulomb", "armature": "armature", "offset": "torque_offset"}
 
 
 class SimulationError(PeDrakeError):
@@ -106,138 +99,91 @@ class SimulationError(PeDrakeError):
 
 @dataclasses.dataclass(frozen=True)
 class TrueRobot:
-    """The simulated robot and the true values it was built with.
+    """The simulated robot: its model and its Drake plant.
 
     Attributes:
-        robot: the :class:`~pe_drake.multibody.robot.Robot` (continuous plant) with every effect.
-        phi: true parameters of the a-priori robot's bodies, payload lumped into its link,
-            shape (10·nb,).
-        phi_bodies: true parameters of the bodies alone (without payload), (10·nb,).
-        phi_payload: payload parameters about the link origin in the link frame, (10,).
-        viscous, coulomb, armature, torque_offset: per joint, shape (n,).
-        model_damping: the model file's joint damping, (n,) (``viscous`` where the truth does
-            not set it).
-        model_friction: the model file's ``<dynamics friction>``, (n,) (``coulomb`` where the
-            truth does not set it).
-        presliding, presliding_stiffness: Dahl F_c [N·m] and σ0 [N·m/rad] per joint, (n,);
-            when any F_c > 0 the diagram holds the Dahl system and exports the input port
-            ``applied_generalized_force`` that the controller drives.
+        robot: the :class:`~pe_drake.multibody.robot.Robot` (continuous plant) of ``model``
+            (:meth:`~pe_drake.multibody.robot_model.RobotModel.plant`); with pre-sliding
+            friction its diagram exports the input ``applied_generalized_force`` the controller drives.
+        model: the true :class:`~pe_drake.multibody.robot_model.RobotModel` (:func:`true_model`).
+        model_damping, model_friction: the model file's joint damping and ``<dynamics
+            friction>``, (n,) (the model's friction where the truth does not set it).
     """
 
     robot: Any
-    phi: np.ndarray
-    phi_bodies: np.ndarray
-    phi_payload: np.ndarray
-    viscous: np.ndarray
-    coulomb: np.ndarray
-    armature: np.ndarray
-    torque_offset: np.ndarray
+    model: RobotModel
     model_damping: np.ndarray
-    presliding: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
-    presliding_stiffness: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
-    model_friction: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
+    model_friction: np.ndarray
 
     def force_input(self):
         """(port, context) of the applied generalized force the controller sets: the
         plant's, or the diagram's exported input when the Dahl system adds its torque."""
-        if np.any(self.presliding > 0):
+        if np.any(self.model.presliding > 0):
             return self.robot.diagram.GetInputPort(APPLIED_FORCE_PORT), self.robot.context
         return self.robot.plant.get_applied_generalized_force_input_port(), self.robot.plant_context
 
 
-def build_true_robot(robot, truth: Truth, phi: np.ndarray | None = None) -> TrueRobot:
-    """Builds the true robot of a truth on top of an a-priori robot.
+def true_model(robot, truth: Truth, model: RobotModel | None = None) -> RobotModel:
+    """The robot a truth simulates: ``model`` (default: the a-priori robot with its model file's
+    friction) with the truth's effects, its bodies' parameters perturbed and the payload welded.
+
+    The truth's friction replaces the model file's on the joints it sets (module docstring);
+    on an identified ``model`` (``simulate --model``) the truth's per-joint effects add to the
+    model's, its delay too.
+
+    Raises:
+        ConfigError, UnknownNameError: from :func:`validate_truth`; a truth with Coulomb friction of
+            another v_s than the model's, or pre-sliding friction where the model has its own.
+    """
+    validate_truth(truth, robot)
+    joints, e = robot.joint_names, truth.effects
+    tables = {t: per_joint_values(getattr(e, field), joints) for t, field in FIELDS.items()}
+    fc, sigma0 = per_joint_values(e.presliding_friction, joints), per_joint_values(e.presliding_stiffness, joints)
+    revolute = np.array([j.kind == "revolute" for j in robot.joints])
+    if model is None:
+        tables["viscous"] = per_joint_or_model(e.viscous, joints, robot.joint_damping)
+        tables["coulomb"] = per_joint_or_model(e.coulomb, joints, robot.joint_friction)
+        phi, v_s, delay = robot.phi_model, float(e.coulomb_velocity_scale), float(e.torque_delay)
+    else:
+        _check_model_truth(model, tables["coulomb"], fc, e.coulomb_velocity_scale)
+        tables = {t: x + model.term(t) for t, x in tables.items()}
+        if np.any(model.presliding > 0):
+            fc, sigma0 = model.presliding, model.presliding_stiffness
+        phi, v_s, delay = model.phi_total, model.velocity_scale, e.torque_delay + model.torque_delay
+    # Coulomb friction is simulated by a revolute DoorHinge; a model's friction on a prismatic
+    # joint (the truth itself may not set one: validate_truth) is left out rather than crash.
+    tables["coulomb"] = np.where(revolute, tables["coulomb"], 0.0)
+    rng = np.random.default_rng(np.random.SeedSequence(truth.seed).spawn(2)[0])
+    phi = perturb_inertias(np.asarray(phi, float), truth.inertia_perturbation, rng, body_names=robot.body_names)
+    p = e.payload
+    payload = PayloadInertia(float(p.mass), np.asarray(p.com, float), inertia_matrix(p.inertia)) if p.link else None
+    return RobotModel(joints, robot.body_names, phi, tables, velocity_scale=v_s, payload=payload,
+                      payload_link=p.link, torque_delay=float(delay), presliding=fc, presliding_stiffness=sigma0,
+                      notes=model.notes if model is not None else ())
+
+
+def _check_model_truth(model: RobotModel, coulomb: np.ndarray, presliding: np.ndarray, v_s: float) -> None:
+    """One tanh(v/v_s) and one Dahl model per joint are simulated (:func:`true_model`)."""
+    if np.any(coulomb > 0) and not math.isclose(v_s, model.velocity_scale, rel_tol=1e-12):
+        raise ConfigError(f"effects.coulomb_velocity_scale {v_s:g} rad/s of the truth file differs from the model's "
+                          f"{model.velocity_scale:g} rad/s: one tanh(v/v_s) is simulated; remove the truth's coulomb "
+                          "or set the model's v_s")
+    if np.any(model.presliding > 0) and np.any(presliding > 0):
+        raise ConfigError("both the truth file and the model have pre-sliding friction: one Dahl model per joint is "
+                          "simulated; remove the truth's presliding_*")
+
+
+def build_true_robot(robot, truth: Truth, model: RobotModel | None = None) -> TrueRobot:
+    """The true robot of a truth (:func:`true_model`) in Drake.
 
     Args:
         robot: the a-priori :class:`~pe_drake.multibody.robot.Robot` (its config is reloaded; bodies
             added by its own ``before_finalize`` are not carried over).
-        truth: a validated :class:`Truth`.
-        phi: the bodies' parameters before the truth's perturbation, physically valid, shape
-            (10·nb,) (``simulate --model``: an identified model's); default the robot's a-priori ones.
-
-    Raises:
-        ConfigError, UnknownNameError: from :func:`validate_truth`.
+        truth: a :class:`Truth`.
+        model: the robot the truth perturbs (``simulate --model``); default the a-priori one.
     """
-    from pydrake.math import RigidTransform  # lazy: pydrake stays out of `import pe_drake`
-
-    validate_truth(truth, robot)
-    joints = robot.joint_names
-    e = truth.effects
-    model_damping, model_friction = robot.joint_damping, robot.joint_friction
-    viscous = per_joint_or_model(e.viscous, joints, model_damping)
-    # Coulomb friction is simulated by a revolute DoorHinge; a model file's friction on a prismatic
-    # joint (the truth itself may not set one: validate_truth) is left out rather than crash.
-    revolute = np.array([j.kind == "revolute" for j in robot.joints])
-    coulomb = np.where(revolute, per_joint_or_model(e.coulomb, joints, model_friction), 0.0)
-    armature = per_joint_values(e.armature, joints)
-    offset = per_joint_values(e.torque_offset, joints)
-    payload_M = payload_spatial_inertia(e.payload) if e.payload.link else None
-
-    def before_finalize(plant, scene_graph):
-        for k, name in enumerate(joints):
-            joint = plant.GetJointByName(name)
-            joint.set_default_damping_vector([viscous[k]])
-            if coulomb[k] > 0:
-                _add_coulomb_friction(plant, joint, float(coulomb[k]), float(e.coulomb_velocity_scale))
-            if armature[k] > 0:
-                _set_armature(plant, joint, float(armature[k]))
-        if payload_M is not None:
-            link = plant.GetBodyByName(e.payload.link)
-            body = plant.AddRigidBody(PAYLOAD_BODY_NAME, link.model_instance(), payload_M)
-            plant.WeldFrames(link.body_frame(), body.body_frame(), RigidTransform())
-
-    seeds = np.random.SeedSequence(truth.seed).spawn(2)
-    rng = np.random.default_rng(seeds[0])
-    phi_bodies = perturb_inertias(robot.phi_model if phi is None else np.asarray(phi, float),
-                                  truth.inertia_perturbation, rng, body_names=robot.body_names)
-    fc = per_joint_values(e.presliding_friction, joints)
-    sigma0 = per_joint_values(e.presliding_stiffness, joints)
-    hook = dahl_builder_hook(fc, sigma0, APPLIED_FORCE_PORT) if np.any(fc > 0) else None
-    true = load_robot(robot.config, time_step=0.0, before_finalize=before_finalize, builder_hook=hook)
-    for b, name in enumerate(robot.body_names):
-        phi_b = phi_bodies[10 * b : 10 * b + 10]
-        if phi_b[0] <= 0:  # massless frames are not perturbed; keep the model's value
-            continue
-        body = true.plant.GetBodyByName(name)
-        body.SetSpatialInertiaInBodyFrame(true.plant_context, phi_to_spatial_inertia(phi_b))
-    phi = phi_bodies.copy()
-    phi_payload = np.zeros(10)
-    if payload_M is not None:
-        phi_payload = spatial_inertia_to_phi(payload_M)
-        b = robot.body_names.index(e.payload.link)
-        phi[10 * b : 10 * b + 10] += phi_payload
-    return TrueRobot(true, phi, phi_bodies, phi_payload, viscous, coulomb, armature, offset, model_damping,
-                     fc, sigma0, model_friction)
-
-
-def _add_coulomb_friction(plant, joint, f_c: float, v_s: float) -> None:
-    """f_c·tanh(v/v_s) as a Drake DoorHinge whose only non-zero term is its dynamic friction."""
-    from pydrake.multibody.tree import DoorHinge, DoorHingeConfig  # lazy: pydrake stays out of `import pe_drake`
-
-    config = DoorHingeConfig()
-    config.spring_constant = 0.0
-    config.catch_torque = 0.0
-    config.static_friction_torque = 0.0
-    config.viscous_friction = 0.0
-    config.dynamic_friction_torque = f_c
-    config.motion_threshold = v_s
-    plant.AddForceElement(DoorHinge(joint, config))
-
-
-def _set_armature(plant, joint, armature: float) -> None:
-    """Reflected rotor inertia on the joint's actuator (gear² taken out), or a new actuator."""
-    actuators = [
-        plant.get_joint_actuator(a)
-        for a in plant.GetJointActuatorIndices()
-        if plant.get_joint_actuator(a).joint().index() == joint.index()
-    ]
-    if actuators:
-        gear = actuators[0].default_gear_ratio() or 1.0
-        actuators[0].set_default_rotor_inertia(armature / gear**2)
-    else:
-        actuator = plant.AddJointActuator(f"pe_drake_armature_{joint.name()}", joint)
-        actuator.set_default_gear_ratio(1.0)
-        actuator.set_default_rotor_inertia(armature)
+    true = true_model(robot, truth, model)
+    return TrueRobot(true.plant(robot), true, robot.joint_damping, robot.joint_friction)
 
 
 # ---- simulation ------------------------------------------------------------------------------
@@ -307,7 +253,7 @@ def simulate(
     truth: Truth | str | Path,
     duration: float | None = None,
     measurement: str = "joint_torque",
-    phi: np.ndarray | None = None,
+    model: RobotModel | None = None,
 ) -> SimulatedRun:
     """Simulates a run of the true robot tracking a trajectory; returns what it logs.
 
@@ -318,7 +264,7 @@ def simulate(
         duration: simulated time [s]; default one period of the trajectory.
         measurement: what the robot logs: "joint_torque" (tau), "base_wrench" (the ground
             wrench alone, :mod:`pe_drake.identification.wrench_log`) or "both".
-        phi: the true bodies' parameters before the truth's perturbation (:func:`build_true_robot`).
+        model: the robot the truth perturbs (an identified model); default the a-priori one.
 
     Returns:
         The :class:`SimulatedRun`: the :class:`~pe_drake.identification.measurements.Measurement`
@@ -333,13 +279,14 @@ def simulate(
     if not isinstance(truth, Truth):
         truth = load_truth(truth)
     duration = _check_run(robot, trajectory, truth, duration)
-    true = build_true_robot(robot, truth, phi)
+    true = build_true_robot(robot, truth, model)
     log = track_trajectory(robot, true, trajectory, truth, duration)
     sensors = MeasurementType(measurement)
-    data = record_log(robot, truth, log)
-    wrench = recorded_wrench(true.robot, truth, log.q, log.v, log.tau - true.torque_offset) if sensors.wrench else None
+    data = record_log(robot, truth, log, true.model.torque_delay)
+    wrench = recorded_wrench(true.robot, truth, log.q, log.v, log.tau - true.model.offset) if sensors.wrench else None
     data = data.replace(tau=data.tau if sensors.torques else None, wrench=wrench)
-    return SimulatedRun(data, {**_truth_dict(robot, truth, true, duration, log), "measurement": sensors.kind})
+    return SimulatedRun(data, {**_truth_dict(robot, truth, true, duration, log, model is not None),
+                               "measurement": sensors.kind})
 
 
 def _check_run(robot, trajectory: FourierTrajectory, truth: Truth, duration: float | None) -> float:
@@ -413,9 +360,9 @@ def track_trajectory(
     q_d, v_d, vd_d = trajectory.evaluate(t)
     kp, kd = truth.control.kp, truth.control.kd
     # the model file's friction the simulated robot keeps, fed forward at v_d (module docstring)
-    damping = np.where(np.isclose(true.viscous, true.model_damping), true.model_damping, 0.0)
-    friction = np.where(np.isclose(true.coulomb, true.model_friction), true.model_friction, 0.0)
-    v_s = float(truth.effects.coulomb_velocity_scale)
+    damping = np.where(np.isclose(true.model.viscous, true.model_damping), true.model_damping, 0.0)
+    friction = np.where(np.isclose(true.model.coulomb, true.model_friction), true.model_friction, 0.0)
+    v_s = true.model.velocity_scale
     simulator = _start_simulator(true, truth, q_d[0], v_d[0], h)
     port, port_context = true.force_input()
     q_log, v_log, tau_log = (np.empty((count, robot.n)) for _ in range(3))
@@ -432,7 +379,7 @@ def track_trajectory(
         q_log[k], v_log[k], tau_log[k] = q, v, tau
         if k + 1 < count:
             # The offset is a constant load the actuator must overcome (module docstring).
-            port.FixValue(port_context, tau - true.torque_offset)
+            port.FixValue(port_context, tau - true.model.offset)
             simulator.AdvanceTo(t[k + 1])
             if not np.isfinite(plant.GetPositionsAndVelocities(ctx)).all():
                 raise SimulationError(
@@ -442,8 +389,9 @@ def track_trajectory(
     return TrackingLog(t, q_d, q_log, v_log, tau_log, time.perf_counter() - wall)
 
 
-def recorded_torque(log: TrackingLog, truth: Truth) -> np.ndarray:
-    """The torque the log records, before noise: centred average (or raw command), delayed.
+def recorded_torque(log: TrackingLog, truth: Truth, delay: float) -> np.ndarray:
+    """The torque the log records, before noise: centred average (or raw command), delayed by
+    ``delay`` [s].
 
     Returns:
         Shape (K, n) [N·m].
@@ -455,20 +403,19 @@ def recorded_torque(log: TrackingLog, truth: Truth) -> np.ndarray:
         # [t_k, t_k+h), so on its own it leads the positions by h/2 (see the module docstring).
         tau_rec = log.tau.copy()
         tau_rec[1:] = 0.5 * (log.tau[:-1] + log.tau[1:])
-    delay = truth.effects.torque_delay
     if delay != 0:
         t = log.t
         tau_rec = np.column_stack([np.interp(t - delay, t, tau_rec[:, j]) for j in range(tau_rec.shape[1])])
     return tau_rec
 
 
-def record_log(robot, truth: Truth, log: TrackingLog) -> Measurement:
+def record_log(robot, truth: Truth, log: TrackingLog, delay: float) -> Measurement:
     """What the sensors log: recorded torque, encoder quantization and white noise.
 
     The noise generator is seeded by the truth's seed (independently of the inertial
     perturbation); q, tau and v noise are drawn in that order.
     """
-    tau_rec = recorded_torque(log, truth)
+    tau_rec = recorded_torque(log, truth, delay)
     rng = np.random.default_rng(np.random.SeedSequence(truth.seed).spawn(2)[1])
     noise = truth.noise
     q_rec = log.q.copy()
@@ -486,8 +433,10 @@ def record_log(robot, truth: Truth, log: TrackingLog) -> Measurement:
     return Measurement(log.t, q_rec, tau_rec, v_rec, None, robot.joint_names, "")
 
 
-def _truth_dict(robot, truth: Truth, true: TrueRobot, duration: float, log: TrackingLog) -> dict[str, Any]:
-    """The JSON-ready record of every true value of a run (``<out>.truth.json``)."""
+def _truth_dict(robot, truth: Truth, true: TrueRobot, duration: float, log: TrackingLog,
+                on_model: bool = False) -> dict[str, Any]:
+    """The JSON-ready record of every true value of a run (``<out>.truth.json``); ``on_model``:
+    the truth perturbs an identified model, whose drive terms set every joint."""
     joints = list(robot.joint_names)
     bodies = robot.body_names
     tracking_rms = np.sqrt(np.mean((log.q - log.q_d) ** 2, axis=0))
@@ -496,10 +445,10 @@ def _truth_dict(robot, truth: Truth, true: TrueRobot, duration: float, log: Trac
     def per_joint(values):
         return {j: float(x) for j, x in zip(joints, values)}
 
-    e = truth.effects
+    e, m = truth.effects, true.model
 
     def source(table):
-        return {j: "truth" if j in table or ALL_JOINTS in table else "model file" for j in joints}
+        return {j: "truth" if on_model or j in table or ALL_JOINTS in table else "model file" for j in joints}
 
     return {
         "robot": robot.name,
@@ -507,7 +456,7 @@ def _truth_dict(robot, truth: Truth, true: TrueRobot, duration: float, log: Trac
         "bodies": list(robot.body_names),
         "parameter_names": list(parameter_names),
         "parameters_frame": "about the body origin, in the body frame; payload lumped into its link",
-        "phi_true": {b: true.phi[10 * i : 10 * i + 10].tolist() for i, b in enumerate(bodies)},
+        "phi_true": {b: m.phi_total[10 * i : 10 * i + 10].tolist() for i, b in enumerate(bodies)},
         "phi_model": {b: robot.phi_model[10 * i : 10 * i + 10].tolist() for i, b in enumerate(bodies)},
         "seed": truth.seed,
         "inertia_perturbation": truth.inertia_perturbation,
@@ -516,28 +465,28 @@ def _truth_dict(robot, truth: Truth, true: TrueRobot, duration: float, log: Trac
             "coulomb_velocity_scale) + presliding*z + armature*vd + torque_offset](t - torque_delay) + noise"
         ),
         "effects": {
-            "viscous": {"unit": "N·m·s/rad", "values": per_joint(true.viscous),
+            "viscous": {"unit": "N·m·s/rad", "values": per_joint(m.viscous),
                         "model_file_damping": per_joint(true.model_damping), "source": source(e.viscous),
                         "note": "the simulated value: the truth's where it sets the joint, else the model file's"},
-            "coulomb": {"unit": "N·m", "values": per_joint(true.coulomb),
+            "coulomb": {"unit": "N·m", "values": per_joint(m.coulomb),
                         "model_file_friction": per_joint(true.model_friction), "source": source(e.coulomb),
-                        "velocity_scale": e.coulomb_velocity_scale, "velocity_scale_unit": "rad/s",
+                        "velocity_scale": m.velocity_scale, "velocity_scale_unit": "rad/s",
                         "model": "coulomb * tanh(v / velocity_scale)"},
-            "armature": {"unit": "kg·m²", "values": per_joint(true.armature)},
-            "presliding_friction": {"unit": "N·m", "values": per_joint(true.presliding),
-                                    "stiffness": per_joint(true.presliding_stiffness),
+            "armature": {"unit": "kg·m²", "values": per_joint(m.armature)},
+            "presliding_friction": {"unit": "N·m", "values": per_joint(m.presliding),
+                                    "stiffness": per_joint(m.presliding_stiffness),
                                     "stiffness_unit": "N·m/rad",
                                     "model": "Dahl: dz/dt = v (1 - z sgn v) * stiffness / presliding, "
                                              "torque presliding * z"},
-            "torque_offset": {"unit": "N·m", "values": per_joint(true.torque_offset),
+            "torque_offset": {"unit": "N·m", "values": per_joint(m.offset),
                               "convention": "added to the recorded torque (a constant load -offset "
                                             "acts on the joint)"},
-            "torque_delay": {"unit": "s", "value": e.torque_delay,
+            "torque_delay": {"unit": "s", "value": m.torque_delay,
                              "convention": "tau_recorded(t) = tau(t - delay)"},
             "payload": {
                 "link": e.payload.link, "mass": e.payload.mass, "com": list(e.payload.com),
                 "inertia_about_com": list(e.payload.inertia),
-                "phi_about_link_origin": true.phi_payload.tolist(),
+                "phi_about_link_origin": (m.payload.phi if m.payload is not None else np.zeros(10)).tolist(),
                 "units": "kg, m, kg·m²",
             },
         },

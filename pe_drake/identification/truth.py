@@ -17,6 +17,9 @@ import numpy as np
 
 from pe_drake.config import check_finite, load_yaml_typed
 from pe_drake.exceptions import ConfigError, UnknownNameError
+from pe_drake.multibody.inertia import inertia_matrix
+from pe_drake.multibody.payload import PayloadInertia
+from pe_drake.multibody.robot_model import COULOMB_VELOCITY_SCALE, payload_spatial_inertia
 from pe_drake.multibody.wrench import WRENCH_COLUMNS
 
 #: Key of a per-joint table that sets every joint not listed by name.
@@ -70,7 +73,7 @@ class EffectsTruth:
 
     viscous: dict[str, float] = dataclasses.field(default_factory=dict)
     coulomb: dict[str, float] = dataclasses.field(default_factory=dict)
-    coulomb_velocity_scale: float = 0.01
+    coulomb_velocity_scale: float = COULOMB_VELOCITY_SCALE
     armature: dict[str, float] = dataclasses.field(default_factory=dict)
     torque_offset: dict[str, float] = dataclasses.field(default_factory=dict)
     torque_delay: float = 0.0
@@ -232,8 +235,8 @@ def _check_effects(e: EffectsTruth) -> None:
         raise ConfigError(f"effects.payload.mass must be positive for a payload on '{p.link}', got {p.mass}")
     if not p.link and (p.mass != 0 or any(p.inertia)):
         raise ConfigError("effects.payload has a mass or inertia but no link: set effects.payload.link")
-    if p.link:
-        payload_spatial_inertia(p)  # raises when not physically valid
+    if p.link:  # raises when not physically valid
+        payload_spatial_inertia(PayloadInertia(float(p.mass), np.asarray(p.com, float), inertia_matrix(p.inertia)))
 
 
 def _check_noise_and_control(n: NoiseTruth, c: ControlTruth) -> None:
@@ -297,24 +300,3 @@ def per_joint_or_model(table: dict[str, float], joints: tuple[str, ...], model: 
     if ALL_JOINTS in table:
         return per_joint_values(table, joints)
     return np.array([float(table[j]) if j in table else float(m) for j, m in zip(joints, model)])
-
-
-def payload_spatial_inertia(p: PayloadTruth):
-    """The payload's Drake ``SpatialInertia`` about the link origin, in the link frame.
-
-    Raises:
-        ConfigError: an inertia that is not physically valid.
-    """
-    from pydrake.multibody.tree import RotationalInertia, SpatialInertia  # lazy: pydrake stays out of `import pe_drake`
-
-    Ixx, Iyy, Izz, Ixy, Ixz, Iyz = (float(x) for x in p.inertia)
-    I_PPcm = RotationalInertia(Ixx, Iyy, Izz, Ixy, Ixz, Iyz)
-    if not I_PPcm.CouldBePhysicallyValid():
-        raise ConfigError(
-            f"effects.payload.inertia {list(p.inertia)} is not physically valid (moments must be "
-            "non-negative and satisfy the triangle inequality)"
-        )
-    try:
-        return SpatialInertia.MakeFromCentralInertia(float(p.mass), np.asarray(p.com, float), I_PPcm)
-    except RuntimeError as err:
-        raise ConfigError(f"effects.payload is not physically valid: {err}") from err

@@ -218,7 +218,7 @@ class RobotModel:
                 raise ConfigError(f"{t} must be ≥ 0 in Drake, got {', '.join(bad)}")
         viscous, coulomb, armature = self.viscous, self.coulomb, self.armature
         revolute = [info.kind == "revolute" for info in robot.joints]
-        payload = phi_to_spatial_inertia(self.payload.phi) if self.payload is not None else None
+        payload = payload_spatial_inertia(self.payload) if self.payload is not None else None
 
         def before_finalize(plant, scene_graph):
             for k, name in enumerate(self.joints):
@@ -265,7 +265,7 @@ class RobotModel:
             "time_delay": self.torque_delay, "time_delay_unit": "s",
             "presliding_friction": per_joint(self.presliding), "presliding_stiffness": per_joint(self.presliding_stiffness),
             "presliding_units": "N·m, N·m/rad (Dahl model)",
-            "holding_torque": per_joint(self.holding_torque) if np.any(self.holding_torque) else {},
+            "holding_torque": per_joint(self.holding_torque),
             "holding_torque_unit": "N·m (the friction a stopped joint holds: H·z, z the Dahl state; not applied "
                                    "by validate or simulate)",
             "torque_equation": TORQUE_EQUATION,
@@ -334,10 +334,10 @@ class RobotModel:
             text = head + payload_link_text(PAYLOAD_BODY_NAME, self.payload_link, self.payload) + sep + tail
         return text.replace("with identified inertial parameters (pe_drake)", title) if title else text
 
-    def effects_yaml(self, by: str = "pe-drake") -> str:
+    def effects_yaml(self, header: str = "") -> str:
         """What a URDF cannot hold, as a TRUTH.yaml ``effects`` section of ``pe-drake simulate``
-        (viscous, coulomb and armature repeat the URDF's; negative values, which the simulator
-        refuses, are left out)."""
+        after the comment lines ``header`` (viscous, coulomb and armature repeat the URDF's;
+        negative values, which the simulator refuses, are left out)."""
         m = self.nonnegative()
 
         def table(x, every: bool = False):
@@ -345,11 +345,7 @@ class RobotModel:
             return "{" + ", ".join(f"{j}: {v!r}" for j, v in items.items()) + "}"
 
         return (
-            f"# Effects of the model of {by} that a URDF cannot hold (TRUTH.yaml schema):\n"
-            "#   pe-drake simulate --robot <its URDF> --truth <this file> ...\n"
-            "# re-simulates the model (viscous, coulomb and armature repeat the URDF's damping,\n"
-            "# friction and rotor inertia; the payload and the inertias are in the URDF).\n"
-            "effects:\n"
+            header + "effects:\n"
             # every joint's friction: the simulator keeps the model file's where a joint is left out
             f"  viscous: {table(m.viscous, True)}            # [N·m·s/rad]\n"
             f"  coulomb: {table(m.coulomb, True)}            # [N·m], f_c·tanh(v / v_s)\n"
@@ -434,6 +430,24 @@ def _from_identified(cls, d: Mapping[str, Any], bodies, base, phi_prior) -> Robo
     notes = tuple(d.get("physical_fit_notes", ())) + ((d["note"],) if d.get("note") else ())
     return cls(joints, bodies, phi, drive, sigma, float(block.get("velocity_scale", COULOMB_VELOCITY_SCALE)),
                notes=notes)
+
+
+def payload_spatial_inertia(payload: PayloadInertia):
+    """A payload's Drake ``SpatialInertia`` about its frame's origin.
+
+    Raises:
+        ConfigError: an inertia that is not physically valid.
+    """
+    from pydrake.multibody.tree import RotationalInertia, SpatialInertia  # lazy: pydrake stays out of `import pe_drake`
+
+    I_PPcm = RotationalInertia(*(float(x) for x in payload.inertia_vector))
+    if not I_PPcm.CouldBePhysicallyValid():
+        raise ConfigError(f"the payload inertia {payload.inertia_vector.tolist()} [kg·m²] is not physically valid "
+                          "(moments must be non-negative and satisfy the triangle inequality)")
+    try:
+        return SpatialInertia.MakeFromCentralInertia(float(payload.mass), np.asarray(payload.com, float), I_PPcm)
+    except RuntimeError as err:
+        raise ConfigError(f"the payload is not physically valid: {err}") from err
 
 
 def add_coulomb_friction(plant, joint, f_c: float, v_s: float) -> None:
