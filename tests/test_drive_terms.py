@@ -245,17 +245,18 @@ def test_model_urdf_holds_the_viscous_friction_and_armature(optimized, tmp_path)
     model's torque minus Coulomb friction and offsets (which a URDF cannot hold)."""
     import dataclasses
 
-    from pe_drake.identification.drive_terms import urdf_dynamics
+    from pe_drake.identification.identified_file import result_to_dict
     from pe_drake.multibody.robot import load_robot
-    from pe_drake.multibody.urdf import write_robot_urdf
+    from pe_drake.multibody.robot_model import RobotModel
     from tests.conftest import random_states
 
     robot = get_robot("panda")
     truth = drive_truth(robot, seed=4)
     result = identify(robot, with_drive(robot, optimized, truth, duration=optimized.period), "physical")
-    damping, rotor, notes = urdf_dynamics(result.drive)
-    assert set(rotor) == set(robot.joint_names)  # the merged armatures of joints 1-2 too
-    path = write_robot_urdf(tmp_path / "model.urdf", robot, result.phi, damping=damping, rotor_inertia=rotor)
+    model = RobotModel.from_dict(result_to_dict(result, robot), robot.body_names)
+    assert np.all(model.armature > 0)  # the merged armatures of joints 1-2 too
+    path = tmp_path / "model.urdf"
+    model.write_urdf(path, robot)
     loaded = load_robot(dataclasses.replace(robot.config, model=str(path), capsules=""))
     q, v, vd = random_states(robot, 20, seed=3)
     from pe_drake.identification.measurements import Measurement
@@ -311,13 +312,15 @@ def test_real_panda_drive_terms_beat_the_rigid_fit_and_masses_stay_plausible():
 
 
 def test_drive_effects_yaml_is_a_truth_file_for_simulate(optimized, tmp_path):
-    from pe_drake.identification.drive_terms import drive_effects_yaml
+    from pe_drake.identification.identified_file import result_to_dict
     from pe_drake.identification.truth import load_truth
+    from pe_drake.multibody.robot_model import RobotModel
 
     robot = get_robot("panda")
     truth = drive_truth(robot, seed=4)
     result = identify(robot, with_drive(robot, optimized, truth, duration=optimized.period), "physical")
-    (tmp_path / "drive_effects.yaml").write_text(drive_effects_yaml(result.drive))
+    model = RobotModel.from_dict(result_to_dict(result, robot), robot.body_names)
+    (tmp_path / "drive_effects.yaml").write_text(model.effects_yaml())
     effects = load_truth(tmp_path / "drive_effects.yaml").effects
     for j, name in enumerate(robot.joint_names):
         assert effects.coulomb[name] == pytest.approx(result.drive.per_joint("coulomb")[j])

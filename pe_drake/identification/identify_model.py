@@ -24,12 +24,9 @@ from pe_drake.identification.channels import measured_values
 from pe_drake.identification.data_checks import check_against_model
 from pe_drake.identification.drive_terms import (
     DriveTermOptions,
-    drive_effects_yaml,
     drive_summary,
     filtered_coulomb,
     format_percent,
-    urdf_dynamics,
-    urdf_friction,
 )
 from pe_drake.identification.estimators import (
     IdentificationResult,
@@ -47,8 +44,8 @@ from pe_drake.identification.physical_fit import PhysicalBounds, bounds_from_con
 from pe_drake.io_utils import staged_output_dir
 from pe_drake.multibody.inertia import PhysicallyInvalidError, validity_problems
 from pe_drake.multibody.robot import Robot
+from pe_drake.multibody.robot_model import RobotModel
 from pe_drake.multibody.sensors import MeasurementType
-from pe_drake.multibody.urdf import write_robot_urdf
 from pe_drake.output_paths import IDENTIFY_OUTPUTS, check_output_dir
 from pe_drake.plots import plot_prediction
 
@@ -120,6 +117,15 @@ class IdentifiedModel:
     note: str
     wall_time: float
 
+    @property
+    def model(self) -> RobotModel:
+        """The identified robot as built: the fit's parameters (``phi`` when the fit has base
+        parameters only) and drive terms with their σ."""
+        d = result_to_dict(self.result, self.robot)
+        if self.result.phi is None and self.phi is not None:
+            d["standard_parameters"] = standard_parameters_dict(self.robot, self.phi)
+        return RobotModel.from_dict(d, self.robot.body_names, base=self.result.base, phi_prior=self.robot.phi_model)
+
     def summary_lines(self) -> list[str]:
         """What the command prints: the data, its preprocessing, the fit and its warnings."""
         robot, raw, result, p = self.robot, self.raw, self.result, self.data.preprocessing
@@ -152,12 +158,11 @@ class IdentifiedModel:
         with staged_output_dir(out, "identified.json", IDENTIFY_OUTPUTS) as tmp:
             model_file = None
             if self.phi is not None:
+                model = self.model
                 try:
-                    damping, rotor, urdf_notes = urdf_dynamics(result.drive)
-                    write_robot_urdf(tmp / "model.urdf", robot, self.phi, damping=damping, rotor_inertia=rotor,
-                                     friction=urdf_friction(result.drive))
+                    model.write_urdf(tmp / "model.urdf", robot)
                     model_file = "model.urdf"
-                    note = "; ".join([note] * bool(note) + urdf_notes)
+                    note = "; ".join([note] * bool(note) + _urdf_notes(model))
                 except (PhysicallyInvalidError, ConfigError) as err:
                     note = f"model.urdf not written: {err}"
             d = result_to_dict(result, robot, model_file)
@@ -174,9 +179,23 @@ class IdentifiedModel:
             if model_file:
                 written.append(model_file)
                 if result.drive is not None and result.drive.layout.count:
-                    (tmp / "drive_effects.yaml").write_text(drive_effects_yaml(result.drive))
+                    (tmp / "drive_effects.yaml").write_text(self.model.effects_yaml(DRIVE_EFFECTS_HEADER))
                     written.append("drive_effects.yaml")
         return written, note
+
+
+#: drive_effects.yaml's header.
+DRIVE_EFFECTS_HEADER = ("# Drive terms identified by pe-drake identify (TRUTH.yaml schema of pe-drake simulate):\n"
+                        "#   pe-drake simulate --robot model.urdf --truth drive_effects.yaml ...\n")
+
+
+def _urdf_notes(model: RobotModel) -> list[str]:
+    """What model.urdf leaves out (negative friction or armature; Coulomb friction and offsets)."""
+    if not model.drive:
+        return []
+    return [n.replace("is taken as 0", "is written as 0 to the URDF") for n in model.nonnegative().notes[len(model.notes):]] + [
+        "Coulomb friction is in <dynamics friction> (Drake's parser ignores it, pe_drake reads it as the model file's "
+        "friction) and identified.json; torque offsets in identified.json only"]
 
 
 def _weights_note(result) -> str:

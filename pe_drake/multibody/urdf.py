@@ -307,23 +307,7 @@ def write_urdf(
     return path
 
 
-def write_robot_urdf(path: str | Path, robot, phi: np.ndarray, *, verify: bool = True,
-                     damping: dict[str, float] | None = None, rotor_inertia: dict[str, float] | None = None,
-                     friction: dict[str, float] | None = None) -> Path:
-    """:func:`write_urdf` for a :class:`~pe_drake.multibody.robot.Robot`: its model file, its bodies.
-
-    Args:
-        path: output file.
-        robot: the robot the parameters were identified for.
-        phi: standard parameters, shape (10·nb,) in ``robot.body_names`` order.
-        damping, rotor_inertia, friction: {joint: value} written by :func:`joint_dynamics` (the
-            drive terms).
-    """
-    if not damping and not rotor_inertia and not friction:
-        return write_urdf(path, robot.model_path, robot.body_names, phi, verify=verify)
-    text = joint_dynamics(urdf_with_inertias(robot.model_path, robot.body_names, phi), damping or {},
-                          rotor_inertia or {}, friction)
-    if verify:
-        verify_urdf_text(text, robot.body_names, phi)
-    atomic_write_text(Path(path), text)
-    return Path(path)
+def write_robot_urdf(path: str | Path, robot, phi: np.ndarray, *, verify: bool = True) -> Path:
+    """:func:`write_urdf` for a :class:`~pe_drake.multibody.robot.Robot`: its model file, its bodies
+    (a whole model, drive terms included: :meth:`~pe_drake.multibody.robot_model.RobotModel.write_urdf`)."""
+    return write_urdf(path, robot.model_path, robot.body_names, phi, verify=verify)
