@@ -20,6 +20,7 @@ import numpy as np
 
 from pe_drake.bench import bench_trajectory
 from pe_drake.identification.synthetic import model_measurement
+from pe_drake.multibody.drive_columns import coulomb_column
 from pe_drake.multibody.robot import load_robot
 
 #: The harness a command runs in: its child's peak RSS [kB] on the last line.
@@ -37,7 +38,7 @@ def write_long_log(path: str | Path, minutes: float, *, rate_hz: float = 1000.0,
     one = model_measurement(robot, trajectory, rate_hz=rate_hz, duration=period)
     keep = one.t < period - 0.5 / rate_hz
     t, q, v = one.t[keep], one.q[keep], one.v[keep]
-    tau = one.tau[keep] + 0.8 * np.tanh(v / 0.02) + 0.3 * v  # friction: diagnose has something to name
+    tau = one.tau[keep] + 0.8 * coulomb_column(v, 0.02) + 0.3 * v  # friction: diagnose has something to name
     rng = np.random.default_rng(seed)
     header = ",".join(["t"] + [f"q.{j}" for j in robot.joint_names] + [f"tau.{j}" for j in robot.joint_names])
     rows = 0

@@ -4,7 +4,7 @@ number checks every section uses. :mod:`pe_drake.config` assembles them into ``C
 
 import dataclasses
 import math
-from typing import Any
+from typing import Any, Optional
 
 import numpy as np
 
@@ -122,14 +122,15 @@ class IdentificationConfig:
         drive_terms: "all" (default: Coulomb and viscous friction and a torque offset per
             joint, and the armature where the kinematics separate it from the link inertias),
             "friction" (no armature) or "none" (rigid body only); ``--drive-terms`` overrides.
-        coulomb_velocity_scale: v_s of the Coulomb column tanh(v/v_s) [rad/s], the diagnosis's.
+        coulomb_velocity_scale: v_s of the Coulomb column tanh(v/v_s) [rad/s]; unset: the one
+            default, :data:`pe_drake.multibody.drive_columns.COULOMB_VELOCITY_SCALE`.
         total_mass: [lo, hi] of the summed mass of the moving links [kg]; empty: no bound.
         mass_bounds: {link: [lo, hi]} [kg].
         boxes: {link: CoM box in the link's frame [m]}: the CoM stays inside.
     """
 
     drive_terms: str = "all"
-    coulomb_velocity_scale: float = 0.01
+    coulomb_velocity_scale: Optional[float] = None  # noqa: UP045 (yaml_load_typed reads the type at run time)
     total_mass: list[float] = dataclasses.field(default_factory=list)
     mass_bounds: dict[str, list[float]] = dataclasses.field(default_factory=dict)
     boxes: dict[str, CoMBoxConfig] = dataclasses.field(default_factory=dict)
@@ -161,7 +162,8 @@ def validate_identification(c: IdentificationConfig) -> None:
     choices = ("none", "friction", "all")
     if c.drive_terms not in choices:
         raise ConfigError(f"identification.drive_terms '{c.drive_terms}' is not one of {', '.join(choices)}")
-    check_finite("identification.coulomb_velocity_scale", c.coulomb_velocity_scale, positive=True)
+    if c.coulomb_velocity_scale is not None:
+        check_finite("identification.coulomb_velocity_scale", c.coulomb_velocity_scale, positive=True)
     pairs = [("identification.total_mass", c.total_mass)] if c.total_mass else []
     pairs += [(f"identification.mass_bounds['{k}']", v) for k, v in c.mass_bounds.items()]
     for name, pair in pairs:

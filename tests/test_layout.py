@@ -153,6 +153,48 @@ def test_one_formula_in_one_place(what, pattern, home):
     assert places in ([home], []), f"{what} in {places}; it belongs in {home} only"
 
 
+def _is_tanh_of_a_ratio(node: ast.AST) -> bool:
+    """``tanh(x / y)`` (numpy's or math's): the smoothed sign of a Coulomb column."""
+    return (isinstance(node, ast.Call) and isinstance(node.func, (ast.Attribute, ast.Name))
+            and getattr(node.func, "attr", getattr(node.func, "id", None)) == "tanh"
+            and len(node.args) == 1 and isinstance(node.args[0], ast.BinOp) and isinstance(node.args[0].op, ast.Div))
+
+
+def _is_v_s(name: str, where: str) -> bool:
+    """A name of the Coulomb v_s (config.py's ``velocity_scale`` scales the joint velocity limits)."""
+    return "velocity_scale" in name and not (where == "pe_drake/config.py" and name == "velocity_scale")
+
+
+def test_one_coulomb_column_and_one_velocity_scale():
+    """Issue 33: the Coulomb column tanh(v/v_s) and its default v_s are defined once
+    (pe_drake/multibody/drive_columns.py); every other place calls ``coulomb_column`` and
+    imports ``COULOMB_VELOCITY_SCALE`` (no second constant, no literal default of a v_s)."""
+    home = "pe_drake/multibody/drive_columns.py"
+    columns, scales, literals = [], [], []
+    for path in MODULES.values():
+        where = str(path.relative_to(ROOT))
+        for node in ast.walk(_parse(path)):
+            if _is_tanh_of_a_ratio(node):
+                columns.append(f"{where}:{node.lineno}")
+            targets = (node.targets if isinstance(node, ast.Assign) else [node.target]
+                       if isinstance(node, ast.AnnAssign) else [])
+            for target in targets:
+                name = getattr(target, "id", "")
+                if name == "COULOMB_VELOCITY_SCALE":
+                    scales.append(f"{where}:{node.lineno}")
+                elif _is_v_s(name, where) and isinstance(getattr(node, "value", None), ast.Constant) \
+                        and node.value.value is not None:
+                    literals.append(f"{where}:{node.lineno} {name}")
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                args = node.args.args + node.args.kwonlyargs
+                defaults = [None] * (len(node.args.args) - len(node.args.defaults)) + node.args.defaults + node.args.kw_defaults
+                literals += [f"{where}:{node.lineno} {a.arg}" for a, d in zip(args, defaults)
+                             if _is_v_s(a.arg, where) and isinstance(d, ast.Constant) and d.value is not None]
+    assert [c.split(":")[0] for c in columns] == [home], f"Coulomb columns tanh(v / v_s) at {columns}: use coulomb_column"
+    assert [c.split(":")[0] for c in scales] == [home], f"COULOMB_VELOCITY_SCALE defined at {scales}"
+    assert not literals, f"v_s defaults written as numbers at {literals}: use COULOMB_VELOCITY_SCALE"
+
+
 def _on_self(node: ast.Attribute) -> bool:
     return isinstance(node.value, ast.Name) and node.value.id in ("self", "cls")
 

@@ -14,7 +14,7 @@ effect                 column c_j             unit (revolute)    unit (prismatic
 
 The columns carry the sign convention of :mod:`pe_drake.identification.simulation`: τ is the torque the
 actuator applies, so a resistive load adds to it. ``coulomb_friction`` uses the same smoothed
-sign as the simulator's Drake ``DoorHinge`` (v_s = 0.01 rad/s by default); the data are
+sign as the simulator's Drake ``DoorHinge`` (:func:`~pe_drake.multibody.drive_columns.coulomb_column`); the data are
 low-pass filtered, so the columns are filtered in parallel with the torque (Gautier 1997,
 "parallel filtering") by the caller.
 
@@ -39,6 +39,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from pe_drake.exceptions import UnknownNameError
+from pe_drake.multibody.drive_columns import COULOMB_VELOCITY_SCALE, NONNEGATIVE, UNITS, term_values
 from pe_drake.multibody.inertia import mass_on_a_line, phi_from_com, principal_inertia
 from pe_drake.multibody.payload import link_columns
 from pe_drake.multibody.regressor import RegressorModel
@@ -48,18 +49,13 @@ JOINT_EFFECTS = ("coulomb_friction", "viscous_friction", "armature", "torque_off
 #: All effect names (``payload`` is a link effect).
 EFFECT_NAMES = (*JOINT_EFFECTS, "payload", "time_delay")
 
-#: Default smoothing velocity of the Coulomb column tanh(v / v_s) [rad/s or m/s].
-COULOMB_VELOCITY_SCALE = 0.01
 #: Default relative a-priori uncertainty of every inertial parameter (CAD-level accuracy).
 PRIOR_RELATIVE_UNCERTAINTY = 0.10
 
-_UNITS = {  # effect: (revolute, prismatic)
-    "coulomb_friction": ("N·m", "N"),
-    "viscous_friction": ("N·m·s/rad", "N·s/m"),
-    "armature": ("kg·m²", "kg"),
-    "torque_offset": ("N·m", "N"),
-}
-_NONNEGATIVE = {"coulomb_friction": True, "viscous_friction": True, "armature": True, "torque_offset": False}
+#: The drive term (:mod:`pe_drake.multibody.drive_columns`) of each per-joint effect: its column,
+#: unit and sign come from there.
+EFFECT_TERMS = {"coulomb_friction": "coulomb", "viscous_friction": "viscous", "armature": "armature",
+                "torque_offset": "offset"}
 #: The signal against which each effect's residual is plotted (the regime that exposes it).
 EXPOSING_REGIME = {
     "coulomb_friction": "v",
@@ -119,9 +115,9 @@ def joint_candidates(robot, effects: Sequence[str] = JOINT_EFFECTS,
         for j, info in enumerate(robot.joints):
             if effect == "coulomb_friction" and info.kind != "revolute":
                 continue  # the augmented Drake model holds Coulomb friction as a revolute DoorHinge
-            unit = _UNITS[effect][0 if info.kind == "revolute" else 1]
+            unit = UNITS[EFFECT_TERMS[effect]][0 if info.kind == "revolute" else 1]
             lower = -float(model_file[effect][j]) if effect in model_file else 0.0
-            out.append(Candidate(effect, j, info.name, unit, _NONNEGATIVE[effect], lower))
+            out.append(Candidate(effect, j, info.name, unit, EFFECT_TERMS[effect] in NONNEGATIVE, lower))
     return out
 
 
@@ -138,15 +134,9 @@ def effect_column(effect: str, q: np.ndarray, v: np.ndarray, vd: np.ndarray, joi
     Returns:
         Shape (T,): the effect's torque on ``joint`` per unit θ (other joints get none).
     """
-    if effect == "coulomb_friction":
-        return np.tanh(v[:, joint] / velocity_scale)
-    if effect == "viscous_friction":
-        return v[:, joint].copy()
-    if effect == "armature":
-        return vd[:, joint].copy()
-    if effect == "torque_offset":
-        return np.ones(q.shape[0])
-    raise ValueError(f"unknown effect '{effect}'")
+    if effect not in EFFECT_TERMS:
+        raise ValueError(f"unknown effect '{effect}'")
+    return term_values(EFFECT_TERMS[effect], v[:, [joint]], vd[:, [joint]], velocity_scale)[:, 0].copy()
 
 
 def candidate_columns(candidates: Sequence[Candidate], q, v, vd,

@@ -35,8 +35,9 @@ from typing import Any
 
 import numpy as np
 
-from pe_drake.diagnosis.effects import COULOMB_VELOCITY_SCALE, Candidate, Separability
+from pe_drake.diagnosis.effects import Candidate, Separability
 from pe_drake.multibody.dahl import dahl_state
+from pe_drake.multibody.drive_columns import COULOMB_VELOCITY_SCALE
 
 #: Name of the effect.
 HOLDING = "holding_torque"

@@ -14,9 +14,10 @@ import math
 
 import numpy as np
 
-from pe_drake.diagnosis.effects import COULOMB_VELOCITY_SCALE, JOINT_EFFECTS, PRIOR_RELATIVE_UNCERTAINTY
+from pe_drake.diagnosis.effects import JOINT_EFFECTS, PRIOR_RELATIVE_UNCERTAINTY
 from pe_drake.exceptions import ConfigError, UnknownNameError
 from pe_drake.identification.gaps import MAX_GAP_S
+from pe_drake.multibody.drive_columns import COULOMB_VELOCITY_SCALE
 
 #: The effect (and column -dτ/dt) of a timing offset between the torque and position logs.
 TIMING = "time_delay"

@@ -17,6 +17,7 @@ import numpy as np
 from pe_drake.diagnosis.record import Segment, model_file_friction
 from pe_drake.identification.estimators import IdentificationResult
 from pe_drake.identification.identified_file import standard_from_base
+from pe_drake.multibody.drive_columns import coulomb_column
 from pe_drake.multibody.inertia import validity_problems
 
 
@@ -51,7 +52,7 @@ def prior_drive_torque(robot, prior: IdentificationResult | None, seg: Segment) 
     if drive is None or not drive.layout.count:
         return np.zeros_like(seg.v)
     rec = seg.record
-    coulomb = rec.filtered(np.tanh(rec.v / drive.layout.velocity_scale))[seg.idx]
+    coulomb = rec.filtered(coulomb_column(rec.v, drive.layout.velocity_scale))[seg.idx]
     return drive.torque(seg.v, seg.vd, coulomb)
 
 

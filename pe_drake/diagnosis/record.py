@@ -33,6 +33,7 @@ from pe_drake.identification.preprocessing import (
     resample_uniform,
 )
 from pe_drake.memory import available_bytes
+from pe_drake.multibody.drive_columns import coulomb_column
 
 #: Order of the Butterworth low-pass (the zero-phase filter doubles it).
 FILTER_ORDER = 4
@@ -192,7 +193,7 @@ def delayed_states(seg: Segment, delay: float, velocity_scale: float) -> tuple[n
     """
     rec = seg.record
     t = seg.t - delay
-    coulomb = rec.filtered(np.tanh(rec.v / velocity_scale))
+    coulomb = rec.filtered(coulomb_column(rec.v, velocity_scale))
 
     def at(x: np.ndarray) -> np.ndarray:
         return np.column_stack([np.interp(t, rec.t, x[:, j]) for j in range(x.shape[1])])
@@ -211,7 +212,7 @@ def split_segments(record: Record, config: DiagnosisConfig, validation: Record |
     for rec in (record, validation):
         if rec is None:
             continue
-        coulomb = rec.filtered(np.tanh(rec.v / config.coulomb_velocity_scale))
+        coulomb = rec.filtered(coulomb_column(rec.v, config.coulomb_velocity_scale))
         dtau = np.gradient(rec.tau, 1.0 / rec.rate_hz, axis=0)
         columns[id(rec)] = (coulomb, dtau)
     usable = record.usable()

@@ -118,6 +118,7 @@ from pe_drake.identification.estimators import IdentificationResult
 from pe_drake.identification.gaps import longest_segment
 from pe_drake.identification.measurements import Measurement, check_torque_units
 from pe_drake.multibody.base_parameters import BaseParameters, compute_base_parameters
+from pe_drake.multibody.drive_columns import coulomb_column
 from pe_drake.multibody.regressor import RegressorModel
 from pe_drake.multibody.robot_model import RobotModel
 
@@ -437,7 +438,7 @@ def augment(robot, prep: Prepared, lib: CandidateLibrary, pre: PreslidingStep, n
     q, v, vd, coulomb = (delayed_states(held, delay, config.coulomb_velocity_scale) if delay
                          else (held.q, held.v, held.vd, held.coulomb))
     tau_after = augmented.plant(robot).inverse_dynamics(q, v, vd, include_damping=True) + augmented.offset
-    tau_after += augmented.coulomb * (coulomb - np.tanh(v / config.coulomb_velocity_scale)) + pre.held_torque
+    tau_after += augmented.coulomb * (coulomb - coulomb_column(v, config.coulomb_velocity_scale)) + pre.held_torque
     tau_after += holding_torque(pre.regression.held, final, library)  # friction held at rest
     # the least-squares prediction with the final values (a delay by its linearization -d·dτ/dt)
     ls_pred = pre.regression.held.product(final.columns, final.x) + fitted_friction(robot, held)

@@ -23,6 +23,7 @@ from pe_drake.multibody.drive_columns import (
     COULOMB_VELOCITY_SCALE,
     DriveLayout,
     DriveTermOptions,
+    coulomb_column,
     drive_columns,
     drive_layout,
 )
@@ -54,7 +55,7 @@ class DriveBlock:
         for k, (term, j) in enumerate(zip(self.layout.terms, self.layout.joints)):
             g = G[:, j, k] * self.row_scale[j]
             if term == "coulomb":
-                v_bar[:, j] += g * (1.0 - np.tanh(v[:, j] / scale) ** 2) / scale
+                v_bar[:, j] += g * (1.0 - coulomb_column(v[:, j], scale) ** 2) / scale
             elif term == "viscous":
                 v_bar[:, j] += g
             elif term == "armature":

@@ -23,6 +23,7 @@ from pe_drake.identification.time_window import TimeWindow
 from pe_drake.identification.channels import measured_values
 from pe_drake.identification.data_checks import check_against_model
 from pe_drake.identification.drive_terms import (
+    COULOMB_VELOCITY_SCALE,
     DriveTermOptions,
     drive_summary,
     filtered_coulomb,
@@ -90,7 +91,7 @@ class IdentifyOptions:
         changes = {k: v for k, v in changes.items() if v is not None}
         choice = config.identification
         kind = changes.pop("drive_terms", None) or choice.drive_terms
-        base = cls(measurement=config.excitation.measurement, drive=DriveTermOptions(kind, choice.coulomb_velocity_scale),
+        base = cls(measurement=config.excitation.measurement, drive=DriveTermOptions(kind, choice.coulomb_velocity_scale or COULOMB_VELOCITY_SCALE),
                    bounds=bounds_from_config(choice), max_gap_s=config.data.max_gap_s)
         return dataclasses.replace(base, **changes)
 

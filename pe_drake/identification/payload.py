@@ -34,9 +34,10 @@ import numpy as np
 
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.identification.identified_file import standard_from_base
-from pe_drake.identification.payload_friction import DRIVE_TERMS, drive_columns, drive_names
+from pe_drake.identification.payload_friction import DRIVE_TERMS, drive_names, friction_columns
 from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.base_parameters import BaseParameters, compute_base_parameters
+from pe_drake.multibody.drive_columns import COULOMB_VELOCITY_SCALE
 from pe_drake.multibody.inertia import pseudo_inertia, pseudo_inertia_basis
 from pe_drake.multibody.payload import PayloadInertia, central_jacobian, link_columns, link_position
 from pe_drake.multibody.regressor import RegressorModel
@@ -90,7 +91,7 @@ class PayloadOptions:
     physical: bool = True
     box: PayloadBox | None = None
     drive_terms: tuple[str, ...] = DRIVE_TERMS
-    coulomb_velocity_scale: float = 0.01
+    coulomb_velocity_scale: float = COULOMB_VELOCITY_SCALE
     arm_correction: bool = True
     weighted: bool = True
 
@@ -286,7 +287,7 @@ def _run_rows(robot, model, run, loaded: bool, phi_arm, link, base, options):
     for s in range(0, run.num_samples, CHUNK):
         r = slice(s, min(s + CHUNK, run.num_samples))
         Y = model(run.q[r], run.v[r], run.vd[r])
-        D = drive_columns(run.v[r], options.coulomb_velocity_scale, options.drive_terms)
+        D = friction_columns(run.v[r], options.coulomb_velocity_scale, options.drive_terms)
         YL = Y[..., cols] if loaded else np.zeros(Y.shape[:2] + (10,))
         parts = ([base.reduce(Y)] if base is not None else []) + [D, YL]
         yield np.concatenate(parts, axis=-1), run.tau[r] - Y @ phi_arm

@@ -3,8 +3,7 @@
 τ_drive,j = f_c,j tanh(v_j / v_s) + f_v,j v_j + o_j (the smoothed Coulomb law of the
 simulated true robot, :mod:`pe_drake.identification.simulation`). They are linear in
 θ = [f_c (n), f_v (n), o (n)], so they enter the payload fit as 3n extra columns shared by
-every run. A local builder for the payload mode's loaded/unloaded pairing; the project's drive-term
-columns (armature, etc.) may replace it when they land.
+every run. Their columns come from the one builder, :mod:`pe_drake.multibody.drive_columns`.
 """
 
 from __future__ import annotations
@@ -12,13 +11,15 @@ from __future__ import annotations
 import numpy as np
 
 from pe_drake.exceptions import ConfigError
+from pe_drake.multibody.drive_columns import UNITS, DriveLayout, drive_columns
 
 #: The drive terms, in column order (each one column per joint).
 DRIVE_TERMS = ("coulomb", "viscous", "offset")
 
 
-def drive_columns(v: np.ndarray, velocity_scale: float, terms=DRIVE_TERMS) -> np.ndarray:
-    """The drive-term regressor, shape (S, n, len(terms)·n): column k·n + j acts on joint j only.
+def friction_columns(v: np.ndarray, velocity_scale: float, terms=DRIVE_TERMS) -> np.ndarray:
+    """The drive-term regressor, shape (S, n, len(terms)·n): column k·n + j acts on joint j only
+    (:func:`~pe_drake.multibody.drive_columns.drive_columns` with the columns term by term).
 
     Args:
         v: joint velocities, (S, n) [rad/s].
@@ -34,15 +35,13 @@ def drive_columns(v: np.ndarray, velocity_scale: float, terms=DRIVE_TERMS) -> np
     if not velocity_scale > 0:
         raise ConfigError(f"the Coulomb velocity scale must be > 0 [rad/s], got {velocity_scale!r}")
     v = np.atleast_2d(np.asarray(v, float))
-    S, n = v.shape
-    values = {"coulomb": np.tanh(v / velocity_scale), "viscous": v, "offset": np.ones_like(v)}
-    out = np.zeros((S, n, len(terms) * n))
-    eye = np.arange(n)
-    for k, term in enumerate(terms):
-        out[:, eye, k * n + eye] = values[term]
-    return out
+    n = v.shape[1]
+    layout = DriveLayout(tuple(t for t in terms for _ in range(n)), tuple(j for _ in terms for j in range(n)),
+                         tuple(str(j) for j in range(n)), tuple(UNITS[t][0] for t in terms for _ in range(n)),
+                         float(velocity_scale))
+    return drive_columns(v, v, layout)
 
 
 def drive_names(joints, terms=DRIVE_TERMS) -> tuple[str, ...]:
-    """``<term>.<joint>`` in the column order of :func:`drive_columns`."""
+    """``<term>.<joint>`` in the column order of :func:`friction_columns`."""
     return tuple(f"{t}.{j}" for t in terms for j in joints)

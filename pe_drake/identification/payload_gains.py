@@ -26,7 +26,7 @@ import numpy as np
 
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.identification.payload import PayloadOptions, compress_joint_rows, weighted_fit_from_factors
-from pe_drake.identification.payload_friction import drive_columns, drive_names
+from pe_drake.identification.payload_friction import drive_names, friction_columns
 from pe_drake.multibody.base_parameters import compute_base_parameters
 from pe_drake.multibody.inertia import pseudo_inertia_basis
 from pe_drake.multibody.payload import PayloadInertia, link_columns, link_position
@@ -130,7 +130,7 @@ def _gain_rows(robot, model, base, run, loaded: bool, link: str, M: float, optio
         current = np.zeros((Y.shape[0], n, n))
         current[:, np.arange(n), np.arange(n)] = run.tau[r]
         YL = Y[..., cols] if loaded else np.zeros(Y.shape[:2] + (10,))
-        D = drive_columns(run.v[r], options.coulomb_velocity_scale, options.drive_terms)
+        D = friction_columns(run.v[r], options.coulomb_velocity_scale, options.drive_terms)
         yield np.concatenate([current, -base.reduce(Y), -D, -YL[..., 1:]], axis=-1), M * YL[..., 0]
 
 

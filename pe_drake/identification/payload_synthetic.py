@@ -13,6 +13,7 @@ import dataclasses
 import numpy as np
 
 from pe_drake.identification.measurements import Measurement
+from pe_drake.multibody.drive_columns import COULOMB_VELOCITY_SCALE, coulomb_column
 from pe_drake.multibody.inertia import perturb_inertias
 from pe_drake.multibody.payload import PayloadInertia, box_inertia, link_columns
 from pe_drake.multibody.regressor import RegressorModel
@@ -47,7 +48,7 @@ class TrueArm:
     phi: np.ndarray
     coulomb: np.ndarray
     viscous: np.ndarray
-    velocity_scale: float = 0.01
+    velocity_scale: float = COULOMB_VELOCITY_SCALE
 
 
 def random_true_arm(robot, rng: np.random.Generator, *, inertia_error: float = 0.05,
@@ -74,7 +75,7 @@ def payload_run(robot, motion, arm: TrueArm, link: str, payload: PayloadInertia 
     if payload is not None:
         phi[link_columns(robot, link)] += payload.phi
     tau = np.concatenate([model(q[s : s + 2000], v[s : s + 2000], vd[s : s + 2000]) @ phi for s in range(0, t.size, 2000)])
-    tau += arm.coulomb * np.tanh(v / arm.velocity_scale) + arm.viscous * v
+    tau += arm.coulomb * coulomb_column(v, arm.velocity_scale) + arm.viscous * v
     rng = np.random.default_rng(seed)
     tau += rng.normal(size=tau.shape) * np.broadcast_to(np.asarray(noise_std, float), (robot.n,))
     return Measurement(t=t - t[0], q=q, tau=tau, v=v, vd=vd, joints=robot.joint_names,

@@ -80,6 +80,7 @@ from pe_drake.identification.truth import (
     validate_truth,
 )
 from pe_drake.identification.wrench_log import recorded_wrench
+from pe_drake.multibody.drive_columns import coulomb_column
 from pe_drake.multibody.inertia import PARAMETER_NAMES, inertia_matrix, perturb_inertias
 from pe_drake.multibody.payload import PayloadInertia
 from pe_drake.multibody.robot import Robot, load_robot
@@ -375,7 +376,7 @@ def track_trajectory(
         ctl_plant.SetVelocities(ctl_ctx, v)
         tau_g = ctl_plant.CalcGravityGeneralizedForces(ctl_ctx)
         tau = ctl_plant.CalcInverseDynamics(ctl_ctx, a_ref, forces) - tau_g
-        tau = tau + damping * v_d[k] + friction * np.tanh(v_d[k] / v_s)
+        tau = tau + damping * v_d[k] + friction * coulomb_column(v_d[k], v_s)
         q_log[k], v_log[k], tau_log[k] = q, v, tau
         if k + 1 < count:
             # The offset is a constant load the actuator must overcome (module docstring).

@@ -16,7 +16,7 @@ import numpy as np
 
 from pe_drake.identification.time_window import TimeWindow
 from pe_drake.identification.data_checks import check_against_model
-from pe_drake.identification.drive_terms import filtered_coulomb
+from pe_drake.identification.drive_terms import COULOMB_VELOCITY_SCALE, filtered_coulomb
 from pe_drake.identification.estimators import IdentificationResult, prepare_measurement, torque_errors
 from pe_drake.identification.gaps import MAX_GAP_S
 from pe_drake.identification.identify_model import prediction
@@ -106,7 +106,7 @@ def validate_model(robot: Robot, model: IdentificationResult, measurements: Meas
                                window=options.window)
     check_against_model(robot, data)
     kind = MeasurementType(options.measurement)
-    scale = model.drive.layout.velocity_scale if model.drive is not None else 0.01
+    scale = model.drive.layout.velocity_scale if model.drive is not None else COULOMB_VELOCITY_SCALE
     measured, predicted = prediction(robot, model, data, kind, filtered_coulomb(measurements, data, scale))
     rms, rel = torque_errors(measured, predicted)
     total = float(100 * np.linalg.norm(measured - predicted) / max(np.linalg.norm(measured), 1e-300))

@@ -194,8 +194,33 @@ def armature_merges(robot, base, model=None, *, rows=None, samples: int = 200,
 
 
 def coulomb_column(v: np.ndarray, velocity_scale: float) -> np.ndarray:
-    """tanh(v / v_s), same shape as v."""
+    """tanh(v / v_s), same shape as v: the one Coulomb column (the smoothed sign of the
+    simulator's ``DoorHinge``)."""
     return np.tanh(np.asarray(v, float) / velocity_scale)
+
+
+def term_values(term: str, v: np.ndarray, vd: np.ndarray | None, velocity_scale: float,
+                coulomb: np.ndarray | None = None) -> np.ndarray:
+    """The column of drive term ``term`` for every joint (module docstring's table), shape of v.
+
+    Args:
+        term: one of ``TERMS["all"]``.
+        v, vd: joint velocities and accelerations, (S, n) (vd only for the armature).
+        velocity_scale: v_s of the Coulomb column [rad/s].
+        coulomb: the Coulomb columns to use instead of tanh(v/v_s) (e.g. parallel-filtered).
+
+    Raises:
+        ValueError: an unknown term.
+    """
+    if term == "coulomb":
+        return coulomb_column(v, velocity_scale) if coulomb is None else np.asarray(coulomb, float)
+    if term == "viscous":
+        return np.asarray(v, float)
+    if term == "offset":
+        return np.ones(np.shape(v))
+    if term == "armature":
+        return np.asarray(vd, float)
+    raise ValueError(f"unknown drive term '{term}' (valid: {', '.join(TERMS['all'])})")
 
 
 def drive_columns(v: np.ndarray, vd: np.ndarray, layout: DriveLayout, coulomb: np.ndarray | None = None,
@@ -212,14 +237,7 @@ def drive_columns(v: np.ndarray, vd: np.ndarray, layout: DriveLayout, coulomb: n
     """
     S, n = v.shape
     out = np.zeros((S, n if rows is None else rows, layout.count))
-    sign = coulomb_column(v, layout.velocity_scale) if coulomb is None else np.asarray(coulomb, float)
+    values = {t: term_values(t, v, vd, layout.velocity_scale, coulomb) for t in set(layout.terms)}
     for k, (term, j) in enumerate(zip(layout.terms, layout.joints)):
-        if term == "coulomb":
-            out[:, j, k] = sign[:, j]
-        elif term == "viscous":
-            out[:, j, k] = v[:, j]
-        elif term == "offset":
-            out[:, j, k] = 1.0
-        else:
-            out[:, j, k] = vd[:, j]
+        out[:, j, k] = values[term][:, j]
     return out

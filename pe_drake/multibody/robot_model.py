@@ -34,7 +34,15 @@ import numpy as np
 from pe_drake.exceptions import ConfigError
 from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.dahl import dahl_builder_hook
-from pe_drake.multibody.drive_columns import COULOMB_VELOCITY_SCALE, NONNEGATIVE, TERMS, UNITS, DriveLayout, drive_columns
+from pe_drake.multibody.drive_columns import (
+    COULOMB_VELOCITY_SCALE,
+    NONNEGATIVE,
+    TERMS,
+    UNITS,
+    DriveLayout,
+    coulomb_column,
+    drive_columns,
+)
 from pe_drake.multibody.inertia import (
     PARAMETER_NAMES,
     inertia_matrix,
@@ -379,7 +387,7 @@ class RobotModel:
         q = rng.uniform(robot.limits.q_lower, robot.limits.q_upper, (samples, robot.n))
         v, vd = rng.uniform(-1, 1, (samples, robot.n)), rng.uniform(-3, 3, (samples, robot.n))
         m = self.nonnegative()
-        want = m.torque(robot, q, v, vd) - m.offset - m.coulomb * np.tanh(v / m.velocity_scale)
+        want = m.torque(robot, q, v, vd) - m.offset - m.coulomb * coulomb_column(v, m.velocity_scale)
         got = loaded.inverse_dynamics(q, v, vd, include_damping=True)
         err = float(np.max(np.abs(got - want)))
         if not math.isfinite(err) or err > tolerance * max(float(np.max(np.abs(want))), 1.0):
