@@ -1,6 +1,6 @@
 """Hide effects in a simulated Panda run, then let ``diagnose`` find them.
 
-Simulates the Panda (pe_drake.identification.simulation) on an optimized, collision-free trajectory with
+Simulates the Panda (pe_drake.simulation.simulation) on an optimized, collision-free trajectory with
 a few % inertial error, Coulomb and viscous friction on every joint, an armature, a torque
 offset and a 0.8 kg payload on the hand, then diagnoses the run without knowing any of it and
 prints what it named next to the truth.
@@ -30,8 +30,8 @@ def main(argv: list[str] | None = None) -> int:
 
     from pe_drake.diagnosis import diagnose, write_outputs
     from pe_drake.excitation.trajectory_file import load_trajectory
-    from pe_drake.identification.simulation import simulate
-    from pe_drake.identification.truth import ControlTruth, EffectsTruth, NoiseTruth, PayloadTruth, Truth
+    from pe_drake.simulation.simulation import simulate
+    from pe_drake.simulation.truth import ControlTruth, EffectsTruth, NoiseTruth, PayloadTruth, Truth
     from pe_drake.io_utils import staged_output_dir
     from pe_drake.multibody.robot import load_robot
     from pe_drake.threads import single_threaded_blas

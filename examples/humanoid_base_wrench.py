@@ -119,8 +119,8 @@ def simulate_runs(robot, trajectories: dict, duration: float, seed: int, say) ->
     motors apply without noise, so the held-out error measures the model, not the sensor.
     """
     from pe_drake.identification.estimators import prepare_measurement
-    from pe_drake.identification.simulation import simulate
-    from pe_drake.identification.truth import Truth
+    from pe_drake.simulation.simulation import simulate
+    from pe_drake.simulation.truth import Truth
 
     noisy = Truth(seed=seed, inertia_perturbation=0.1)
     noisy.noise.tau_std, noisy.noise.force_std, noisy.noise.moment_std = TORQUE_STD, FORCE_STD, MOMENT_STD

@@ -3,7 +3,7 @@
 1. An optimized exciting trajectory (tests/data/panda_optimized.json, made by
    ``pe-drake optimize --robot panda``) and, for validation, a random one of the same period.
 2. Both are run on a "true" Panda in Drake's Simulator: inertias ±10 % off the URDF, encoder
-   quantization, torque noise (``pe_drake.identification.simulation``), logged at 1 kHz.
+   quantization, torque noise (``pe_drake.simulation.simulation``), logged at 1 kHz.
 3. OLS, WLS and the physically consistent SDP identify the base parameters from the first run;
    each is validated on the second, next to the a-priori URDF and the true rigid-body model.
 4. The physical estimate is written as a URDF Drake loads.
@@ -37,8 +37,8 @@ def main(argv: list[str] | None = None) -> int:
     from pe_drake.excitation.problem import ExcitationProblem, scale_into_limits
     from pe_drake.excitation.trajectory_file import load_trajectory
     from pe_drake.identification.estimators import identify, predict, prepare_measurement, robot_torques, torque_errors
-    from pe_drake.identification.simulation import simulate
-    from pe_drake.identification.truth import Truth
+    from pe_drake.simulation.simulation import simulate
+    from pe_drake.simulation.truth import Truth
     from pe_drake.multibody.robot import load_robot
     from pe_drake.multibody.urdf import write_robot_urdf
     from pe_drake.threads import single_threaded_blas

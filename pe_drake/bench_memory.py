@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from pe_drake.bench import bench_trajectory
-from pe_drake.identification.synthetic import model_measurement
+from pe_drake.simulation.synthetic import model_measurement
 from pe_drake.multibody.drive_columns import coulomb_column
 from pe_drake.multibody.robot import load_robot
 

@@ -9,8 +9,8 @@ from scipy.integrate import solve_ivp
 from pe_drake.exceptions import ConfigError
 from pe_drake.excitation.trajectory_file import load_trajectory
 from pe_drake.multibody.dahl import dahl_friction_system, dahl_state
-from pe_drake.identification.simulation import simulate
-from pe_drake.identification.truth import ControlTruth, EffectsTruth, Truth, validate_truth
+from pe_drake.simulation.simulation import simulate
+from pe_drake.simulation.truth import ControlTruth, EffectsTruth, Truth, validate_truth
 from tests.conftest import get_robot
 from tests.test_diagnosis import TRAJECTORY
 

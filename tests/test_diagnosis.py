@@ -2,7 +2,7 @@
 data with inertial errors, a timing delay (named time_delay), a non-separable armature; the
 command's outputs, the augmented model, errors, and the real Panda recording.
 
-The data are simulated by pe_drake.identification.simulation on an optimized trajectory; the test knows the
+The data are simulated by pe_drake.simulation.simulation on an optimized trajectory; the test knows the
 truth, the diagnosis does not.
 """
 
@@ -26,8 +26,8 @@ from pe_drake.diagnosis.effects import (
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.excitation.trajectory_file import load_trajectory
 from pe_drake.identification.measurements import Measurement, write_measurement_csv
-from pe_drake.identification.simulation import simulate
-from pe_drake.identification.truth import ControlTruth, EffectsTruth, NoiseTruth, PayloadTruth, Truth
+from pe_drake.simulation.simulation import simulate
+from pe_drake.simulation.truth import ControlTruth, EffectsTruth, NoiseTruth, PayloadTruth, Truth
 from pe_drake.multibody.inertia import perturb_inertias
 from tests.conftest import get_robot
 

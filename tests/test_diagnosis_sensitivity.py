@@ -11,8 +11,8 @@ from __future__ import annotations
 import pytest
 
 from pe_drake.diagnosis.workflow import diagnose
-from pe_drake.identification.simulation import simulate
-from pe_drake.identification.truth import EffectsTruth, NoiseTruth, Truth
+from pe_drake.simulation.simulation import simulate
+from pe_drake.simulation.truth import EffectsTruth, NoiseTruth, Truth
 from tests.test_diagnosis import CONTROL, DURATION
 
 NOISE = NoiseTruth(encoder_counts_per_rev=524288, tau_std=0.05)

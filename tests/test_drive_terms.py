@@ -21,7 +21,7 @@ from pe_drake.identification.drive_terms import (
 from pe_drake.identification.estimators import identify, predict, prepare_measurement
 from pe_drake.identification.identified_file import load_identified, result_to_dict
 from pe_drake.identification.physical_fit import LinkBox, PhysicalBounds
-from pe_drake.identification.synthetic import model_measurement
+from pe_drake.simulation.synthetic import model_measurement
 from pe_drake.multibody.base_parameters import compute_base_parameters
 from tests.conftest import get_robot
 from tests.test_identification import OPTIMIZED, random_trajectory
@@ -313,7 +313,7 @@ def test_real_panda_drive_terms_beat_the_rigid_fit_and_masses_stay_plausible():
 
 def test_drive_effects_yaml_is_a_truth_file_for_simulate(optimized, tmp_path):
     from pe_drake.identification.identified_file import result_to_dict
-    from pe_drake.identification.truth import load_truth
+    from pe_drake.simulation.truth import load_truth
     from pe_drake.multibody.robot_model import RobotModel
 
     robot = get_robot("panda")

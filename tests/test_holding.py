@@ -10,8 +10,8 @@ import pytest
 
 from pe_drake.diagnosis.holding import HOLDING, count_runs, rest_mask
 from pe_drake.diagnosis.workflow import diagnose
-from pe_drake.identification.simulation import simulate
-from pe_drake.identification.truth import EffectsTruth, Truth
+from pe_drake.simulation.simulation import simulate
+from pe_drake.simulation.truth import EffectsTruth, Truth
 from tests.held_trajectory import HeldTrajectory
 from tests.test_diagnosis import CONTROL, DURATION, NOISE, named
 

@@ -22,7 +22,7 @@ from pe_drake.identification.estimators import (
 )
 from pe_drake.identification.identified_file import load_identified
 from pe_drake.identification.measurements import write_measurement_csv
-from pe_drake.identification.synthetic import model_measurement
+from pe_drake.simulation.synthetic import model_measurement
 from pe_drake.multibody.inertia import perturb_inertias, pseudo_inertia, validity_problems
 from tests.conftest import get_robot
 
@@ -128,8 +128,8 @@ def test_optimized_trajectory_gives_smaller_parameter_errors_than_random_ones(op
 def simulated_runs(optimized, tmp_path_factory):
     """Identification run (optimized trajectory) and validation run (another, random one) of
     a true Panda with ±10 % inertias, encoder quantization and torque noise."""
-    from pe_drake.identification.simulation import simulate
-    from pe_drake.identification.truth import Truth
+    from pe_drake.simulation.simulation import simulate
+    from pe_drake.simulation.truth import Truth
 
     robot = get_robot("panda")
     truth = Truth(seed=2, inertia_perturbation=0.1)

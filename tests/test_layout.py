@@ -1,7 +1,8 @@
 """The package layout keeps its rules (issue 9): the folder list reads as the method.
 
 A shared base layer (exceptions, config, io_utils, threads, memory, plots) under
-multibody → excitation → identification → diagnosis, with cli/, bench and viewer on top.
+multibody → excitation → identification → simulation → diagnosis, with cli/, bench and viewer
+on top.
 A module imports only its own stage and lower ones, pe_drake's own imports sit at the top of
 the module, no name with an underscore is used outside its module, and no file or function
 grows past what a reader can hold.
@@ -27,8 +28,9 @@ STAGES = {
     "multibody": 1,
     "excitation": 2,
     "identification": 3,
-    "diagnosis": 4,
-    "viewer": 5, "viewer_scene": 5, "bench": 5, "bench_robots": 5, "cli": 5,
+    "simulation": 4,
+    "diagnosis": 5,
+    "viewer": 6, "viewer_scene": 6, "bench": 6, "bench_robots": 6, "cli": 6,
 }
 #: Python's own API names that begin with an underscore (namedtuple, sys, os).
 FOREIGN_PRIVATE = {"_replace", "_asdict", "_fields", "_make", "_getframe", "_exit"}
@@ -109,6 +111,16 @@ def test_stages_import_only_lower_stages_and_nothing_imports_cli():
             target_rank = _stage(target)
             if rank is not None and target_rank is not None and target_rank > rank:
                 wrong.append(f"{module}:{line} imports the higher stage {target}")
+    assert not wrong, wrong
+
+
+def test_the_diagnosis_does_not_import_the_simulator():
+    """Issue 33: the diagnosis builds its Drake plant from a RobotModel, not by posing as the
+    simulator's truth (simulation ranks below diagnosis, so the stage rule alone allows it)."""
+    wrong = [f"{module}:{line} imports {target}" for module, path in MODULES.items()
+             if module.startswith("pe_drake.diagnosis")
+             for line, target in _pe_drake_imports(_parse(path), module, top_level_only=False)
+             if target.startswith("pe_drake.simulation")]
     assert not wrong, wrong
 
 
@@ -239,7 +251,8 @@ def test_no_underscore_name_is_used_outside_its_module():
 
 #: What a command-line face may import: the stage packages' public faces and the base layer.
 FACE_IMPORTS = {
-    "pe_drake", "pe_drake.multibody", "pe_drake.excitation", "pe_drake.identification", "pe_drake.diagnosis",
+    "pe_drake", "pe_drake.multibody", "pe_drake.excitation", "pe_drake.identification", "pe_drake.simulation",
+    "pe_drake.diagnosis",
     "pe_drake.config", "pe_drake.exceptions", "pe_drake.output_paths", "pe_drake.io_utils", "pe_drake.threads",
     "pe_drake.memory", "pe_drake.viewer", "pe_drake.cli.common",
 }
@@ -267,8 +280,9 @@ def test_command_faces_are_thin(path):
 
 #: Checks that belong to one stage: (module defining them, the stages allowed to call them).
 STAGE_CALLS = {
-    "pe_drake.identification.data_checks": ("pe_drake.identification", "pe_drake.diagnosis"),
-    "pe_drake.excitation.ramp": ("pe_drake.excitation", "pe_drake.identification", "pe_drake.diagnosis",
+    "pe_drake.identification.data_checks": ("pe_drake.identification", "pe_drake.simulation", "pe_drake.diagnosis"),
+    "pe_drake.excitation.ramp": ("pe_drake.excitation", "pe_drake.identification", "pe_drake.simulation",
+                                 "pe_drake.diagnosis",
                                  "pe_drake.viewer", "pe_drake.bench"),
     "pe_drake.excitation.quality": ("pe_drake.excitation", "pe_drake.bench"),
 }

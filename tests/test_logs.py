@@ -22,7 +22,7 @@ from pe_drake.identification.data_checks import check_raw_measurement
 from pe_drake.identification.estimators import identify, predict, prepare_measurement, robot_torques
 from pe_drake.identification.gaps import longest_segment, split_at_pauses
 from pe_drake.identification.readers import read_log
-from pe_drake.identification.synthetic import model_measurement
+from pe_drake.simulation.synthetic import model_measurement
 
 NOISE = 0.05  # [N·m]
 REAL = next((p / "shared" / "datasets" / "panda_gaz2019" / "excitation_1.csv" for p in Path(__file__).resolve().parents

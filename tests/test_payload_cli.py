@@ -10,7 +10,7 @@ import pytest
 
 from pe_drake.cli import main
 from pe_drake.identification.measurements import write_measurement_csv
-from pe_drake.identification.payload_synthetic import payload_run, random_box_payload, random_true_arm
+from pe_drake.simulation.payload_synthetic import payload_run, random_box_payload, random_true_arm
 from tests.conftest import get_robot
 from tests.test_payload_identification import _plan
 

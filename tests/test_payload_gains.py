@@ -12,7 +12,7 @@ import pytest
 from pe_drake.exceptions import ConfigError
 from pe_drake.excitation.trajectory_file import load_trajectory
 from pe_drake.identification.payload_gains import identify_drive_gains
-from pe_drake.identification.payload_synthetic import payload_run, random_box_payload, random_true_arm
+from pe_drake.simulation.payload_synthetic import payload_run, random_box_payload, random_true_arm
 from tests.conftest import get_robot
 
 TRAJECTORY = Path(__file__).resolve().parent / "data" / "panda_optimized.json"

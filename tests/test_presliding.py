@@ -13,8 +13,8 @@ import pytest
 from pe_drake.diagnosis.presliding import DISPLACEMENT_GRID, replace_column
 from pe_drake.diagnosis.regression import Columns
 from pe_drake.diagnosis.workflow import diagnose
-from pe_drake.identification.simulation import simulate
-from pe_drake.identification.truth import EffectsTruth, Truth
+from pe_drake.simulation.simulation import simulate
+from pe_drake.simulation.truth import EffectsTruth, Truth
 from tests.test_diagnosis import CONTROL, DURATION, NOISE, named
 
 

@@ -12,8 +12,8 @@ import pytest
 from pe_drake.cli import main as cli
 from pe_drake.identification.estimators import identify
 from pe_drake.identification.identified_file import load_identified, result_to_dict
-from pe_drake.identification.simulation import truth_path_for
-from pe_drake.identification.simulated_model import load_simulation_model
+from pe_drake.simulation.simulation import truth_path_for
+from pe_drake.simulation.simulated_model import load_simulation_model
 from tests.conftest import get_robot, random_states
 from tests.test_drive_terms import drive_truth, with_drive
 from tests.test_identification import OPTIMIZED
@@ -144,8 +144,8 @@ def test_simulate_refuses_a_file_that_is_not_a_model(tmp_path, capsys):
 
 def test_a_truth_adds_its_effects_to_the_model(tmp_path):
     from pe_drake.exceptions import ConfigError
-    from pe_drake.identification.simulation import true_model
-    from pe_drake.identification.truth import EffectsTruth, Truth
+    from pe_drake.simulation.simulation import true_model
+    from pe_drake.simulation.truth import EffectsTruth, Truth
 
     robot = get_robot("panda")
     path, model = augmented_model_file(tmp_path, robot)

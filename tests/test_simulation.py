@@ -12,13 +12,13 @@ from pe_drake.exceptions import ConfigError, UnknownNameError
 from pe_drake.excitation.fourier import FourierTrajectory
 from pe_drake.excitation.trajectory_file import save_trajectory
 from pe_drake.identification.measurements import read_measurement_csv
-from pe_drake.identification.simulation import (
+from pe_drake.simulation.simulation import (
     build_true_robot,
     rigid_body_torque,
     simulate,
     truth_path_for,
 )
-from pe_drake.identification.truth import PayloadTruth, Truth, load_truth
+from pe_drake.simulation.truth import PayloadTruth, Truth, load_truth
 from pe_drake.multibody.inertia import perturb_inertias, phi_to_spatial_inertia
 from pe_drake.multibody.robot import load_robot
 
@@ -162,7 +162,7 @@ def test_payload_changes_torque_like_a_welded_body(robot, trajectory, baseline):
     truth.record_velocity = True
     m, d = _run(robot, trajectory, truth)
 
-    def add_payload(plant, scene_graph):  # independent of pe_drake.identification.simulation
+    def add_payload(plant, scene_graph):  # independent of pe_drake.simulation.simulation
         from pydrake.math import RigidTransform
         from pydrake.multibody.tree import RotationalInertia, SpatialInertia
 
@@ -412,7 +412,7 @@ def test_the_controller_feeds_forward_the_model_files_friction():
 
 
 def test_a_run_that_does_not_track_its_trajectory_is_flagged():
-    from pe_drake.identification.simulated_run import SimulatedRun
+    from pe_drake.simulation.simulated_run import SimulatedRun
 
     sim = {"duration": 1.0, "rate_hz": 1000.0, "samples": 1001, "wall_time_s": 0.1,
            "tracking_error_rms": {"a": 0.001, "b": 0.15}}

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pe_drake.cli.common import config_from_args, measurement_from_args, robot_from_args
-from pe_drake.identification import simulate_run
+from pe_drake.simulation import simulate_run
 from pe_drake.output_paths import check_output_file
 
 

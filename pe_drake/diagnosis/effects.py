@@ -12,7 +12,7 @@ effect                 column c_j             unit (revolute)    unit (prismatic
 ``torque_offset``      1                      N·m                N                   any
 =====================  ====================  =================  ==================  ==========
 
-The columns carry the sign convention of :mod:`pe_drake.identification.simulation`: τ is the torque the
+The columns carry the sign convention of :mod:`pe_drake.multibody.robot_model`: τ is the torque the
 actuator applies, so a resistive load adds to it. ``coulomb_friction`` uses the same smoothed
 sign as the simulator's Drake ``DoorHinge`` (:func:`~pe_drake.multibody.drive_columns.coulomb_column`); the data are
 low-pass filtered, so the columns are filtered in parallel with the torque (Gautier 1997,

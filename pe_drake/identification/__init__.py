@@ -1,4 +1,4 @@
-"""From measured data to parameters (Eq. 4): measurements, preprocessing, estimators, simulated runs.
+"""From measured data to parameters (Eq. 4): measurements, preprocessing, estimators.
 
 Imports only ``excitation``, ``multibody`` and the base layer. Re-exports the names that
 ``pe_drake.identification`` offered as a single module.
@@ -21,7 +21,6 @@ from pe_drake.identification.intake import read_measurements
 from pe_drake.identification.payload import PayloadBox, PayloadOptions, PayloadResult, identify_payload
 from pe_drake.identification.payload_run import PayloadIdentification, identify_payload_runs, parse_payload_box
 from pe_drake.identification.physical_fit import LinkBox, PhysicalBounds
-from pe_drake.identification.simulated_run import SimulatedRun, simulate_run
 from pe_drake.identification.time_window import TimeWindow
 from pe_drake.identification.validate_model import ValidateOptions, ValidationReport, validate_model
 
@@ -52,8 +51,6 @@ __all__ = [
     "PayloadIdentification",
     "identify_payload_runs",
     "parse_payload_box",
-    "SimulatedRun",
     "TimeWindow",
-    "simulate_run",
     "validate_model",
 ]

@@ -185,7 +185,7 @@ def prepare_measurement(
         cutoff_hz, fundamental_hz, harmonics, rate_hz: see
             :func:`pe_drake.identification.preprocessing.preprocess` (``rate_hz`` = ``decimate_to_hz``).
         filtering: False uses the data as it is; it must then hold v and vdot (exact,
-            noise-free data, e.g. from :func:`pe_drake.identification.synthetic.model_measurement`).
+            noise-free data, e.g. from :func:`pe_drake.simulation.synthetic.model_measurement`).
         check_units: compare the torques with the a-priori model (refuses N·mm or kN·m; a
             note when they look like motor currents).
         max_gap_s: longest hole in the time column interpolated [s]; longer ones split the

@@ -1,7 +1,7 @@
 """Per-joint drive terms as nuisance columns of the payload fit: Coulomb, viscous, offset.
 
 τ_drive,j = f_c,j tanh(v_j / v_s) + f_v,j v_j + o_j (the smoothed Coulomb law of the
-simulated true robot, :mod:`pe_drake.identification.simulation`). They are linear in
+simulated true robot, :mod:`pe_drake.simulation.simulation`). They are linear in
 θ = [f_c (n), f_v (n), o (n)], so they enter the payload fit as 3n extra columns shared by
 every run. Their columns come from the one builder, :mod:`pe_drake.multibody.drive_columns`.
 """

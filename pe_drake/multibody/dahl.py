@@ -21,7 +21,7 @@ over x_p with the linear fit of F_c inside. In sliding z → sgn v, the Coulomb 
 friction holds ±F_c where the Coulomb column tanh(v/v_s) gives 0 (the holding torque of
 :mod:`pe_drake.diagnosis.holding`).
 
-Sign convention (as every effect of :mod:`pe_drake.identification.simulation`): F is a
+Sign convention (as every effect of :mod:`pe_drake.simulation.simulation`): F is a
 resistive load the actuator must overcome, so the recorded torque holds +F and the joint
 feels −F. :func:`dahl_friction_system` is the Drake system the simulator adds for it.
 """

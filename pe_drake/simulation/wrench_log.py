@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pe_drake.identification.truth import Truth
+from pe_drake.simulation.truth import Truth
 from pe_drake.multibody.wrench import weld_reaction
 
 

@@ -14,7 +14,7 @@ needs what Drake can build:
   valid φ can, and the prior decides only the directions no motion identifies. An armature
   that merges into the base parameters (joint 1 of a fixed arm) is a variable ≥ 0 of that fit,
   like in ``identify --method physical``;
-- **drive terms as the simulator's effects** (:mod:`pe_drake.identification.simulation`):
+- **drive terms as the simulator's effects** (:mod:`pe_drake.simulation.simulation`):
   viscous friction as joint damping, Coulomb friction f_c·tanh(v/v_s) with the model's v_s,
   armature as rotor inertia, offsets as a constant load. A negative friction or armature (an
   unconstrained WLS fit of a joint without friction) cannot be simulated and becomes 0, noted.
@@ -22,7 +22,7 @@ needs what Drake can build:
   out, are simulated too (``effects.torque_delay``, ``effects.presliding_*``).
 
 A TRUTH.yaml given with ``--model`` adds its effects, noise and control on top
-(:func:`~pe_drake.identification.simulation.true_model`).
+(:func:`~pe_drake.simulation.simulation.true_model`).
 """
 
 from __future__ import annotations

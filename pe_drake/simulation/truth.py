@@ -1,6 +1,6 @@
 """The TRUTH.yaml schema of a simulated run: what the true robot has beyond the a-priori model.
 
-``pe-drake simulate --truth TRUTH.yaml`` (:mod:`pe_drake.identification.simulation`) builds
+``pe-drake simulate --truth TRUTH.yaml`` (:mod:`pe_drake.simulation.simulation`) builds
 the true robot from these dataclasses: perturbed inertias, friction, armature, torque offsets
 and delay, a payload, sensor noise and the tracking controller. :func:`load_truth` reads a
 file onto :class:`Truth` with Drake's ``yaml_load_typed`` (unknown keys refused) and
@@ -62,7 +62,7 @@ class EffectsTruth:
         coulomb_velocity_scale: v_s [rad/s].
         armature: reflected rotor inertia I_a [kg·m²], adds I_a·vd.
         torque_offset: constant torque o [N·m] the actuator must supply (sign convention:
-            :mod:`pe_drake.identification.simulation`).
+            :mod:`pe_drake.simulation.simulation`).
         torque_delay: recorded torque lags the positions by this [s] (negative: leads).
         payload: see :class:`PayloadTruth`.
         presliding_friction: Dahl friction level F_c [N·m] (:mod:`pe_drake.multibody.dahl`,

@@ -71,7 +71,7 @@ from pe_drake.config import check_finite
 from pe_drake.exceptions import ConfigError, DataError, PeDrakeError
 from pe_drake.excitation.fourier import FourierTrajectory
 from pe_drake.identification.measurements import Measurement
-from pe_drake.identification.truth import (
+from pe_drake.simulation.truth import (
     ALL_JOINTS,
     Truth,
     load_truth,
@@ -79,7 +79,7 @@ from pe_drake.identification.truth import (
     per_joint_values,
     validate_truth,
 )
-from pe_drake.identification.wrench_log import recorded_wrench
+from pe_drake.simulation.wrench_log import recorded_wrench
 from pe_drake.multibody.drive_columns import coulomb_column
 from pe_drake.multibody.inertia import PARAMETER_NAMES, inertia_matrix, perturb_inertias
 from pe_drake.multibody.payload import PayloadInertia
@@ -261,10 +261,10 @@ def simulate(
     Args:
         robot_or_name: the a-priori :class:`~pe_drake.multibody.robot.Robot` or a built-in name.
         trajectory: the trajectory to track (joints in the robot's order).
-        truth: a :class:`~pe_drake.identification.truth.Truth` or the path of a TRUTH.yaml.
+        truth: a :class:`~pe_drake.simulation.truth.Truth` or the path of a TRUTH.yaml.
         duration: simulated time [s]; default one period of the trajectory.
         measurement: what the robot logs: "joint_torque" (tau), "base_wrench" (the ground
-            wrench alone, :mod:`pe_drake.identification.wrench_log`) or "both".
+            wrench alone, :mod:`pe_drake.simulation.wrench_log`) or "both".
         model: the robot the truth perturbs (an identified model); default the a-priori one.
 
     Returns:

@@ -14,9 +14,9 @@ from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.excitation.ramp import check_within_limits
 from pe_drake.excitation.trajectory_file import load_motion
 from pe_drake.identification.measurements import Measurement, measurement_to_csv_text
-from pe_drake.identification.simulation import FIELDS, simulate, truth_path_for
-from pe_drake.identification.simulated_model import load_simulation_model
-from pe_drake.identification.truth import Truth, load_truth, validate_truth
+from pe_drake.simulation.simulation import FIELDS, simulate, truth_path_for
+from pe_drake.simulation.simulated_model import load_simulation_model
+from pe_drake.simulation.truth import Truth, load_truth, validate_truth
 from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.robot import Robot
 from pe_drake.multibody.robot_model import RobotModel
@@ -79,7 +79,7 @@ def simulate_run(robot: Robot, trajectory: str | Path, truth: str | Path | None 
 
     Args:
         model: identified.json or augmented_model.json: the simulated robot has its parameters
-            and drive terms instead of the URDF's (:mod:`pe_drake.identification.simulated_model`);
+            and drive terms instead of the URDF's (:mod:`pe_drake.simulation.simulated_model`);
             ``truth``'s effects, noise and control come on top. Without ``truth``: no noise,
             the default controller.
         progress: called with a line before the simulation starts (it can take tens of seconds).
