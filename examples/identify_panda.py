@@ -40,7 +40,7 @@ def main(argv: list[str] | None = None) -> int:
     from pe_drake.simulation.simulation import simulate
     from pe_drake.simulation.truth import Truth
     from pe_drake.multibody.robot import load_robot
-    from pe_drake.multibody.urdf import write_robot_urdf
+    from pe_drake.multibody.robot_model import RobotModel
     from pe_drake.threads import single_threaded_blas
 
     out = Path(args.out)
@@ -84,7 +84,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{'model':16s}" + "".join(f"{j[-6:]:>9s}" for j in robot.joint_names) + f"{'all':>9s}")
     for name, rms, _ in rows:
         print(f"{name:16s}" + "".join(f"{r:9.4f}" for r in rms) + f"{float(np.sqrt(np.mean(rms**2))):9.4f}")
-    path = write_robot_urdf(out / "model.urdf", robot, results["physical"].phi)
+    path = out / "model.urdf"
+    RobotModel(robot.joint_names, robot.body_names, results["physical"].phi).write_urdf(path, robot)
     print(f"\nwrote {path} (physically consistent estimate; Drake loads it)")
     return 0
 

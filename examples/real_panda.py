@@ -50,7 +50,7 @@ def main(argv: list[str] | None = None) -> int:
     from pe_drake.identification.identified_file import result_to_dict
     from pe_drake.io_utils import staged_output_dir
     from pe_drake.multibody.robot import load_robot
-    from pe_drake.multibody.urdf import write_robot_urdf
+    from pe_drake.multibody.robot_model import RobotModel
     from pe_drake.threads import single_threaded_blas
 
     robot = load_robot("panda")
@@ -76,7 +76,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{'':14s}" + "".join(f"{e:8.1f}%" for e in rel))
     with staged_output_dir(args.out) as tmp:
         (tmp / "identified.json").write_text(json.dumps(result_to_dict(results["physical"], robot, "model.urdf"), indent=2))
-        write_robot_urdf(tmp / "model.urdf", robot, results["physical"].phi)
+        RobotModel(robot.joint_names, robot.body_names, results["physical"].phi).write_urdf(tmp / "model.urdf", robot)
     print(
         f"\nwrote {args.out}/identified.json, model.urdf (physically consistent). The remaining gap is "
         "mostly friction: see `pe-drake diagnose`."

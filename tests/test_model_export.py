@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from pe_drake.multibody.inertia import PhysicallyInvalidError, central_inertia, perturb_inertias, validity_problems
-from pe_drake.multibody.urdf import urdf_with_inertias, verify_urdf_text, write_robot_urdf
+from pe_drake.multibody.robot_model import RobotModel
+from pe_drake.multibody.urdf import urdf_with_inertias, verify_urdf_text
 from tests.conftest import get_robot
 
 
@@ -25,7 +26,8 @@ def test_central_inertia_is_the_parallel_axis_theorem():
 def test_round_trip_through_drake(name, tmp_path):
     robot = get_robot(name)
     phi = perturb_inertias(robot.phi_model, 0.2, rng=4)
-    path = write_robot_urdf(tmp_path / "model.urdf", robot, phi)  # verifies with Drake inside
+    path = tmp_path / "model.urdf"
+    RobotModel(robot.joint_names, robot.body_names, phi).write_urdf(path, robot)  # verifies with Drake inside
     text = path.read_text()
     assert "identified inertial parameters" in text
     verify_urdf_text(text, robot.body_names, phi)
@@ -43,7 +45,7 @@ def test_invalid_bodies_are_refused_and_nothing_is_written(tmp_path):
     assert set(problems) == {"panda_link4", "panda_link2"}
     assert "negative mass" in problems["panda_link2"]
     with pytest.raises(PhysicallyInvalidError, match="panda_link2"):
-        write_robot_urdf(tmp_path / "model.urdf", robot, phi)
+        RobotModel(robot.joint_names, robot.body_names, phi).write_urdf(tmp_path / "model.urdf", robot)
     assert not (tmp_path / "model.urdf").exists()
     with pytest.raises(Exception, match="URDF"):
         urdf_with_inertias(tmp_path / "robot.sdf", robot.body_names, robot.phi_model)

@@ -230,21 +230,23 @@ def test_movable_world_joint_is_refused(tmp_path):
 
 def test_talos_identified_model_reloads(tmp_path):
     """TALOS's fixed gripper joints carry <mimic> tags: Drake refused the exported model.urdf."""
-    from pe_drake.multibody.urdf import write_robot_urdf
+    from pe_drake.multibody.robot_model import RobotModel
 
     robot = load_robot(str(example_robot_data_dir() / "robots/talos_data/robots/talos_reduced.urdf"))
     assert any("mimic" in note for note in robot.notes)
     phi = robot.phi_model * 1.1
-    path = write_robot_urdf(tmp_path / "model.urdf", robot, phi)
+    path = tmp_path / "model.urdf"
+    RobotModel(robot.joint_names, robot.body_names, phi).write_urdf(path, robot)
     again = load_robot(str(path))
     np.testing.assert_allclose(again.phi_model, phi, rtol=1e-9, atol=1e-12)
 
 
 def test_kinova_identified_model_reloads(tmp_path):
-    from pe_drake.multibody.urdf import write_robot_urdf
+    from pe_drake.multibody.robot_model import RobotModel
 
     robot = load_robot(str(example_robot_data_dir() / "robots/kinova_description/robots/kinova.urdf"))
-    path = write_robot_urdf(tmp_path / "model.urdf", robot, robot.phi_model)
+    path = tmp_path / "model.urdf"
+    RobotModel(robot.joint_names, robot.body_names, robot.phi_model).write_urdf(path, robot)
     np.testing.assert_allclose(load_robot(str(path)).phi_model, robot.phi_model, rtol=1e-9, atol=1e-12)
 
 

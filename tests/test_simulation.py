@@ -14,7 +14,6 @@ from pe_drake.excitation.trajectory_file import save_trajectory
 from pe_drake.identification.measurements import read_measurement_csv
 from pe_drake.simulation.simulation import (
     build_true_robot,
-    rigid_body_torque,
     simulate,
     truth_path_for,
 )
@@ -146,11 +145,8 @@ def test_torque_is_true_dynamics_at_the_actual_motion(robot, trajectory):
     truth.record_velocity = True
     m, _ = _run(robot, trajectory, truth)
     true = build_true_robot(robot, truth)
-    plant = true.robot.plant
     vd = np.gradient(m.v, m.t, axis=0)
-    s = truth.effects.coulomb_velocity_scale
-    expected = rigid_body_torque(plant, true.robot.plant_context, m.q, m.v, vd)
-    expected += true.model.viscous * m.v + true.model.coulomb * np.tanh(m.v / s) + true.model.offset
+    expected = true.model.torque(robot, m.q, m.v, vd)  # rigid body with payload, rotor inertia, friction, offsets
     error = np.abs(m.tau - expected)[1:-1]  # np.gradient is one-sided at the ends
     assert np.all(np.median(error, axis=0) < 1e-3), np.median(error, axis=0)
     assert np.all(np.percentile(error, 95, axis=0) < 1e-2)

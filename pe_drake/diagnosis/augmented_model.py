@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from pe_drake.diagnosis.effects import EFFECT_TERMS
 from pe_drake.identification.physical_fit import physical_fit
 from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.inertia import (
@@ -84,20 +85,14 @@ def augmented_model(robot, base, phi_B: np.ndarray, Sigma_phi: np.ndarray, paylo
     phi0 = robot.phi_model if phi_prior is None else np.asarray(phi_prior, float)
     n = robot.n
     start = (robot.joint_damping, robot.joint_friction) if friction_start is None else friction_start
-    viscous, coulomb = np.array(start[0], float), np.array(start[1], float)
-    armature, offset, holding = np.zeros(n), np.zeros(n), np.zeros(n)
+    drive = {"viscous": np.array(start[0], float), "coulomb": np.array(start[1], float), "armature": np.zeros(n),
+             "offset": np.zeros(n)}
+    holding = np.zeros(n)
     for cand, value in effects.values():
-        j = cand.joint
-        if cand.effect == "viscous_friction":
-            viscous[j] += value
-        elif cand.effect == "coulomb_friction":
-            coulomb[j] += value
-        elif cand.effect == "armature":
-            armature[j] = value
-        elif cand.effect == "torque_offset":
-            offset[j] = value
-        elif cand.effect == "holding_torque":
-            holding[j] = value
+        if cand.effect == "holding_torque":
+            holding[cand.joint] = value
+        elif cand.effect in EFFECT_TERMS:  # a named friction adds to the model file's
+            drive[EFFECT_TERMS[cand.effect]][cand.joint] += value
     notes = []
     phi_payload_full = np.zeros_like(robot.phi_model)
     link, mass, com, inertia = "", 0.0, np.zeros(3), np.zeros(6)
@@ -137,11 +132,10 @@ def augmented_model(robot, base, phi_B: np.ndarray, Sigma_phi: np.ndarray, paylo
     for j, (f, s0) in (presliding or {}).items():
         fc[j], sigma0[j] = f, s0
     payload = PayloadInertia(mass, np.asarray(com, float), inertia_matrix(inertia)) if link else None
-    return RobotModel(tuple(robot.joint_names), tuple(robot.body_names), phi,
-                      {"coulomb": coulomb, "viscous": viscous, "offset": offset, "armature": armature},
-                      velocity_scale=float(velocity_scale), payload=payload, payload_link=link,
+    return RobotModel(tuple(robot.joint_names), tuple(robot.body_names), phi, drive, velocity_scale=float(velocity_scale), payload=payload, payload_link=link,
                       torque_delay=float(time_delay), presliding=fc, presliding_stiffness=sigma0,
                       holding_torque=holding, notes=tuple(notes))
+
 
 def conditional_parameters(K: np.ndarray, phi_prior: np.ndarray, Sigma_phi: np.ndarray,
                            phi_B: np.ndarray) -> np.ndarray:

@@ -33,7 +33,6 @@ compared with the a-priori uncertainty of every link (:func:`fit_payload`).
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -137,16 +136,6 @@ def effect_column(effect: str, q: np.ndarray, v: np.ndarray, vd: np.ndarray, joi
     if effect not in EFFECT_TERMS:
         raise ValueError(f"unknown effect '{effect}'")
     return term_values(EFFECT_TERMS[effect], v[:, [joint]], vd[:, [joint]], velocity_scale)[:, 0].copy()
-
-
-def candidate_columns(candidates: Sequence[Candidate], q, v, vd,
-                      velocity_scale: float = COULOMB_VELOCITY_SCALE) -> np.ndarray:
-    """Columns of several candidates as a regressor block, shape (T, n, len(candidates))."""
-    T, n = q.shape
-    out = np.zeros((T, n, len(candidates)))
-    for k, c in enumerate(candidates):
-        out[:, c.joint, k] = effect_column(c.effect, q, v, vd, c.joint, velocity_scale)
-    return out
 
 
 @dataclasses.dataclass(frozen=True)
@@ -275,41 +264,6 @@ def _perturbation_draws(phi_b: np.ndarray, eps: float, count: int, rng: np.rando
     return phi_from_com(m2, p2, np.einsum("kij,kj,klj->kil", R2, lam2, R2))
 
 
-@dataclasses.dataclass(frozen=True)
-class PayloadFit:
-    """The best explanation of a base-parameter change by one link's parameters.
-
-    Attributes:
-        link: the joint's child link (the first body of the group).
-        group: bodies rigidly attached to that link (a payload on any of them is the same).
-        joint: the joint that moves the group.
-        delta_phi: Δφ_L, the link's 10 parameter changes about its origin, in its frame.
-        mass: Δm [kg].
-        mass_std: standard deviation of Δm [kg] (from the covariance used in the fit).
-        com: centre of mass of the added mass in the link frame [m] (Δh / Δm).
-        chi2_before: Δφ_Bᵀ C⁻¹ Δφ_B before (b degrees of freedom).
-        chi2_after: the same after removing K_L Δφ_L.
-        rank: rank of K_L (degrees of freedom the link explains).
-        mass_prior_std: a-priori standard deviation of the group's mass [kg].
-    """
-
-    link: str
-    group: tuple[str, ...]
-    joint: str
-    delta_phi: np.ndarray
-    mass: float
-    mass_std: float
-    com: np.ndarray
-    chi2_before: float
-    chi2_after: float
-    rank: int
-    mass_prior_std: float
-
-    @property
-    def gain(self) -> float:
-        return self.chi2_before - self.chi2_after
-
-
 def payload_groups(robot, base) -> list[tuple[int, int, tuple[str, ...]]]:
     """Link groups where an added mass is identifiable from the base parameters.
 
@@ -376,7 +330,3 @@ def chi2_quantile(p: float, dof: int) -> float:
     from scipy.special import chdtri
 
     return float(chdtri(max(int(dof), 1), 1.0 - p))
-
-
-def sqrt_or_zero(x: float) -> float:
-    return math.sqrt(x) if x > 0 else 0.0

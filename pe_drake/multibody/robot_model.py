@@ -52,7 +52,7 @@ from pe_drake.multibody.inertia import (
 from pe_drake.multibody.payload import PayloadInertia
 from pe_drake.multibody.regressor import shared_model
 from pe_drake.multibody.robot import load_robot
-from pe_drake.multibody.urdf import joint_dynamics, payload_link_text, urdf_with_inertias
+from pe_drake.multibody.urdf import joint_dynamics, payload_link_text, urdf_with_inertias, verify_urdf_text
 
 #: The drive terms of a model, in the order of :data:`~pe_drake.multibody.drive_columns.TERMS`.
 DRIVE_TERMS = TERMS["all"]
@@ -315,7 +315,8 @@ class RobotModel:
             t = d.get(key) or {}
             return np.array([float(t.get(j, 0.0)) for j in joints])
 
-        sigma = {t: table_of(d["sigma"], k, joints) for t, k in FILE_KEYS.items() if k in (d.get("sigma") or {})}
+        sigma = {t: [float("nan") if d["sigma"][k].get(j) is None else d["sigma"][k][j] for j in joints]
+                 for t, k in FILE_KEYS.items() if k in (d.get("sigma") or {})}
         return cls(joints, body_names, phi, {t: np.array([float(d[k][j]) for j in joints]) for t, k in FILE_KEYS.items()},
                    sigma, float(d.get("coulomb_velocity_scale", COULOMB_VELOCITY_SCALE)), payload,
                    p["link"] if p else "", float(d.get("time_delay") or 0.0), table("presliding_friction"),
@@ -367,16 +368,22 @@ class RobotModel:
 
     def write_urdf(self, path: str | Path, robot, title: str = "", *, samples: int = 20,
                    tolerance: float = 1e-6) -> float:
-        """Writes :meth:`urdf_text` after checking that Drake, loading it, gives this model's
-        torque without Coulomb friction and offsets on random states.
+        """Writes :meth:`urdf_text` after checking that Drake reads back every body's inertia and,
+        with drive terms or a payload, gives this model's torque without Coulomb friction and
+        offsets on random states.
 
         Returns:
-            The largest difference [N·m].
+            The largest torque difference [N·m] (0 without drive terms and payload).
 
         Raises:
+            PhysicallyInvalidError: a body that is not physically valid (nothing is written).
             ConfigError: the URDF does not reproduce the model (nothing is written).
         """
         text, path = self.urdf_text(robot, title), Path(path)
+        verify_urdf_text(text, self.bodies, self.phi)
+        if not self.drive and self.payload is None:
+            atomic_write_text(path, text)
+            return 0.0
         tmp = path.with_name(f".{path.name}.check.urdf")
         tmp.write_text(text)
         try:
@@ -394,12 +401,6 @@ class RobotModel:
             raise ConfigError(f"the URDF '{path}' does not reproduce the model: torques differ by up to {err:.3g} N·m")
         atomic_write_text(path, text)
         return err
-
-
-def table_of(table: Mapping[str, Any], key: str, joints) -> np.ndarray:
-    """A per-joint table ``table[key]`` in joint order, NaN where missing or null."""
-    t = table.get(key) or {}
-    return np.array([float("nan") if t.get(j) is None else float(t[j]) for j in joints])
 
 
 def _from_identified(cls, d: Mapping[str, Any], bodies, base, phi_prior) -> RobotModel:

@@ -30,7 +30,6 @@ from pathlib import Path
 import numpy as np
 
 from pe_drake.exceptions import ConfigError
-from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.example_robot_data import example_robot_data_dir
 from pe_drake.multibody.inertia import central_inertia, check_physically_valid, spatial_inertia_to_phi
 from pe_drake.multibody.model_files import single_material_definitions
@@ -279,35 +278,3 @@ def _set_joint_dynamics(text: str, joint: str, attribute: str, value: float) -> 
     else:
         body = body.rstrip() + f"\n    <dynamics {setting}/>\n  "
     return text[: match.start(2)] + body + text[match.end(2) :]
-
-
-def write_urdf(
-    path: str | Path, source: str | Path, body_names: Sequence[str], phi: np.ndarray, *, verify: bool = True
-) -> Path:
-    """Writes the URDF with identified inertias atomically (see :func:`urdf_with_inertias`).
-
-    Args:
-        path: output file.
-        source: the original URDF.
-        body_names: bodies (links) to rewrite, length nb.
-        phi: their parameters, shape (10·nb,).
-        verify: parse the text with Drake and compare before moving it into place.
-
-    Returns:
-        The path written.
-
-    Raises:
-        PhysicallyInvalidError, ConfigError: nothing is written then.
-    """
-    text = urdf_with_inertias(source, body_names, phi)
-    if verify:
-        verify_urdf_text(text, body_names, phi)
-    path = Path(path)
-    atomic_write_text(path, text)
-    return path
-
-
-def write_robot_urdf(path: str | Path, robot, phi: np.ndarray, *, verify: bool = True) -> Path:
-    """:func:`write_urdf` for a :class:`~pe_drake.multibody.robot.Robot`: its model file, its bodies
-    (a whole model, drive terms included: :meth:`~pe_drake.multibody.robot_model.RobotModel.write_urdf`)."""
-    return write_urdf(path, robot.model_path, robot.body_names, phi, verify=verify)

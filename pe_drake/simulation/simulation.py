@@ -190,30 +190,6 @@ def build_true_robot(robot, truth: Truth, model: RobotModel | None = None) -> Tr
 # ---- simulation ------------------------------------------------------------------------------
 
 
-def rigid_body_torque(plant, context, q: np.ndarray, v: np.ndarray, vd: np.ndarray) -> np.ndarray:
-    """M(q)·vd + c(q, v) - tau_g(q) of a plant (rotor inertia included, no damping or other
-    force elements), batched.
-
-    Args:
-        plant, context: a MultibodyPlant and its context (positions are overwritten).
-        q, v, vd: each (T, n) or (n,).
-
-    Returns:
-        Torques, shape (T, n) [N·m or N].
-    """
-    from pydrake.multibody.tree import MultibodyForces  # lazy: pydrake stays out of `import pe_drake`
-
-    q, v, vd = np.atleast_2d(q), np.atleast_2d(v), np.atleast_2d(vd)
-    forces = MultibodyForces(plant)
-    out = np.empty_like(q, dtype=float)
-    for k in range(q.shape[0]):
-        plant.SetPositions(context, q[k])
-        plant.SetVelocities(context, v[k])
-        tau_g = plant.CalcGravityGeneralizedForces(context)
-        out[k] = plant.CalcInverseDynamics(context, vd[k], forces) - tau_g
-    return out
-
-
 class SimulatedRun(NamedTuple):
     """What :func:`simulate` returns (unpacks as ``measurement, truth = simulate(...)``).
 
