@@ -92,3 +92,18 @@ def test_urdf_writer_reproduces_the_rigid_torque(tmp_path):
     assert "pe_drake_payload" in path.read_text()
     yaml = model.effects_yaml()
     assert "torque_delay: 0.002" in yaml and "presliding_stiffness: {panda_joint7: 300.0}" in yaml
+
+
+def test_any_model_becomes_physically_consistent():
+    """consistent_model (what the simulator and an exporter need): a WLS file's minimum-norm
+    parameters are not physical; the consistent ones give the same joint torques."""
+    from pe_drake.simulation.simulated_model import consistent_model
+
+    robot = get_robot("panda")
+    model = read(robot, "identified_wls")
+    assert not model.physical
+    physical = consistent_model(robot, model)
+    assert physical.physical and consistent_model(robot, physical) is physical
+    q, v, vd = random_states(robot, 20, seed=6)
+    want = model.torque(robot, q, v, vd)
+    assert np.abs(physical.torque(robot, q, v, vd) - want).max() < 1e-3 * np.abs(want).max()

@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from pe_drake.exceptions import DataError
-from pe_drake.identification.estimators import IdentificationResult
+from pe_drake.identification.estimators import measurement_base_parameters
 from pe_drake.identification.identified_file import load_identified
 from pe_drake.identification.physical_fit import physical_fit
 from pe_drake.io_utils import loads_json
@@ -64,36 +64,54 @@ def load_simulation_model(path: str | Path, robot) -> RobotModel:
             raise DataError("the model's standard parameters are not physically valid, so Drake cannot simulate "
                             "them: " + "; ".join(f"{b}: {why}" for b, why in problems.items()), file=str(path))
         return model.nonnegative()
-    return consistent_model(robot, model, result).nonnegative()
+    merged = result.drive.layout.merged if result.drive is not None else {}
+    sigma_B = np.abs(result.phi_B) * np.asarray(result.sigma_percent, float) / 100.0
+    return consistent_model(robot, model, result.base, sigma_B, merged).nonnegative()
 
 
-def consistent_model(robot, model: RobotModel, result: IdentificationResult) -> RobotModel:
-    """``model`` (of ``result``, a fit with base parameters only) with the physically consistent
-    standard parameters of its φ_B (module docstring), the merged armatures its variables."""
-    phi, merged, notes = _consistent_parameters(robot, result)
+def consistent_model(robot, model: RobotModel, base=None, sigma_B: np.ndarray | None = None,
+                     merged: dict[str, dict[str, float]] | None = None) -> RobotModel:
+    """``model`` with physically consistent standard parameters: itself when it has them, else the
+    physically consistent fit of its base parameters φ_B = K·phi_total, each weighted by 1/σ
+    (module docstring): what Drake can simulate and a model file can hold.
+
+    Args:
+        robot: the robot of the model.
+        model: any :class:`~pe_drake.multibody.robot_model.RobotModel`.
+        base: the base parameters that identify it (default: the joint torques').
+        sigma_B: σ of φ_B, (b,) (default, or where not finite or 0: 1e-4 of each value).
+        merged: {joint: {base parameter: coefficient}} of the armatures inside φ_B (identify's
+            ``merged_into``): variables ≥ 0 of the fit, added to the model's armature.
+
+    Raises:
+        NoSolutionFound: the solver failed.
+    """
+    if model.physical:
+        return model
+    base = base if base is not None else measurement_base_parameters(robot, "joint_torque")
+    phi_B = base.K @ model.phi_total
+    phi, armatures, notes = _consistent_parameters(robot, base, phi_B, sigma_B, merged or {})
     armature = model.armature.copy()
-    for name, value in merged.items():
+    for name, value in armatures.items():
         armature[robot.joint_names.index(name)] += value
-    return dataclasses.replace(model, phi=phi, drive={**model.drive, "armature": armature}, physical=True,
+    return dataclasses.replace(model, phi=phi, payload=None, payload_link="",
+                               drive={**model.drive, "armature": armature}, physical=True,
                                notes=model.notes + tuple(notes))
 
 
-def _consistent_parameters(robot, result: IdentificationResult) -> tuple[np.ndarray, dict[str, float], list[str]]:
-    """(φ, {joint: merged armature}, notes): the physically consistent fit of a base-parameter-only
-    model's φ_B, each base parameter weighted by 1/σ (module docstring)."""
-    base, phi_B = result.base, np.asarray(result.phi_B, float)
-    sigma = np.abs(phi_B) * np.asarray(result.sigma_percent, float) / 100.0
+def _consistent_parameters(robot, base, phi_B: np.ndarray, sigma_B: np.ndarray | None,
+                           merged: dict[str, dict[str, float]]) -> tuple[np.ndarray, dict[str, float], list[str]]:
+    """(φ, {joint: merged armature}, notes) of :func:`consistent_model`."""
+    sigma = np.full(len(phi_B), np.nan) if sigma_B is None else np.asarray(sigma_B, float)
     scale = np.abs(phi_B).max(initial=1e-12)
     # An exact fit reports σ ≈ 0 and an old file none: weigh those at 1e-4 of their value,
     # floored so that the whitened rows stay within the SDP solver's range.
     sigma = np.where(np.isfinite(sigma) & (sigma > 0), sigma, 1e-4 * np.abs(phi_B))
     sigma = np.maximum(sigma, 1e-9 * scale)
     L = np.diag(1.0 / sigma)
-    layout = result.drive.layout if result.drive is not None else None
-    merged = list(layout.merged) if layout is not None else []
     C = np.zeros((base.count, len(merged)))  # v̇_j = Σ_k C_kj · (base column k): φ_B holds a_j C_j
     for i, joint in enumerate(merged):
-        for name, coef in layout.merged[joint].items():
+        for name, coef in merged[joint].items():
             C[base.base_names.index(name), i] = coef
     fit = physical_fit(L @ base.K, L @ phi_B, robot.phi_model, robot.body_names, extra=L @ C if merged else None,
                        extra_lower=np.zeros(len(merged)), extra_names=[f"armature[{j}]" for j in merged],
