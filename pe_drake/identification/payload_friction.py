@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from pe_drake.exceptions import ConfigError
 from pe_drake.multibody.drive_columns import UNITS, DriveLayout, drive_columns
 
 #: The drive terms, in column order (each one column per joint).
@@ -24,16 +23,8 @@ def friction_columns(v: np.ndarray, velocity_scale: float, terms=DRIVE_TERMS) ->
     Args:
         v: joint velocities, (S, n) [rad/s].
         velocity_scale: v_s of the smoothed Coulomb law [rad/s], > 0.
-        terms: a subset of :data:`DRIVE_TERMS`, in that order.
-
-    Raises:
-        ConfigError: an unknown term or a non-positive v_s.
+        terms: a subset of :data:`DRIVE_TERMS`, in that order (checked by ``PayloadOptions``).
     """
-    unknown = [t for t in terms if t not in DRIVE_TERMS]
-    if unknown:
-        raise ConfigError(f"unknown drive term(s) {unknown}; valid: {', '.join(DRIVE_TERMS)}")
-    if not velocity_scale > 0:
-        raise ConfigError(f"the Coulomb velocity scale must be > 0 [rad/s], got {velocity_scale!r}")
     v = np.atleast_2d(np.asarray(v, float))
     n = v.shape[1]
     layout = DriveLayout(tuple(t for t in terms for _ in range(n)), tuple(j for _ in terms for j in range(n)),

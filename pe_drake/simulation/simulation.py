@@ -75,7 +75,6 @@ from pe_drake.simulation.truth import (
     ALL_JOINTS,
     Truth,
     load_truth,
-    per_joint_or_model,
     per_joint_values,
     validate_truth,
 )
@@ -141,9 +140,10 @@ def true_model(robot, truth: Truth, model: RobotModel | None = None) -> RobotMod
     tables = {t: per_joint_values(getattr(e, field), joints) for t, field in FIELDS.items()}
     fc, sigma0 = per_joint_values(e.presliding_friction, joints), per_joint_values(e.presliding_stiffness, joints)
     revolute = np.array([j.kind == "revolute" for j in robot.joints])
-    if model is None:
-        tables["viscous"] = per_joint_or_model(e.viscous, joints, robot.joint_damping)
-        tables["coulomb"] = per_joint_or_model(e.coulomb, joints, robot.joint_friction)
+    if model is None:  # the truth's friction where it sets a joint (by name or all), else the model file's
+        tables["viscous"], tables["coulomb"] = (
+            per_joint_values(t, joints) if ALL_JOINTS in t else np.array([float(t.get(j, m)) for j, m in zip(joints, x)])
+            for t, x in ((e.viscous, robot.joint_damping), (e.coulomb, robot.joint_friction)))
         phi, v_s, delay = robot.phi_model, float(e.coulomb_velocity_scale), float(e.torque_delay)
     else:
         _check_model_truth(model, tables["coulomb"], fc, e.coulomb_velocity_scale)

@@ -292,11 +292,3 @@ def per_joint_values(table: dict[str, float], joints: tuple[str, ...]) -> np.nda
     """Per-joint table (with the ``all`` key) → values in joint order, shape (n,)."""
     default = float(table.get(ALL_JOINTS, 0.0))
     return np.array([float(table.get(j, default)) for j in joints])
-
-
-def per_joint_or_model(table: dict[str, float], joints: tuple[str, ...], model: np.ndarray) -> np.ndarray:
-    """A per-joint table where it sets a joint (by name or ``all``), the model file's value
-    ``model`` (n,) elsewhere: the truth's value replaces the model's, an absent one keeps it."""
-    if ALL_JOINTS in table:
-        return per_joint_values(table, joints)
-    return np.array([float(table[j]) if j in table else float(m) for j, m in zip(joints, model)])
