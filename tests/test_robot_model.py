@@ -42,6 +42,8 @@ def test_round_trip():
     robot = get_robot("panda")
     model = read(robot, "augmented_model")
     assert model.payload_link == "panda_link7" and model.torque_delay == 0.002 and model.holding_torque[-1] == 0.2
+    written = json.loads((FIXTURES / "augmented_model.json").read_text())
+    assert list(model.to_dict().items()) == list(written.items())  # the file today's diagnose writes, key order too
     again = RobotModel.from_dict(json.loads(json.dumps(model.to_dict())))
     for field in dataclasses.fields(RobotModel):
         a, b = getattr(model, field.name), getattr(again, field.name)

@@ -61,8 +61,9 @@ PAYLOAD_BODY_NAME = "pe_drake_payload"
 #: Input port of the plant's diagram that takes the actuator torque when a Dahl friction
 #: system shares the plant's applied-generalized-force input.
 APPLIED_FORCE_PORT = "applied_generalized_force"
-#: Keys of the file's per-joint tables, by term (``offset`` is ``torque_offset`` in files).
-FILE_KEYS = {"coulomb": "coulomb", "viscous": "viscous", "offset": "torque_offset", "armature": "armature"}
+#: Keys of the file's per-joint tables, by term, in file order (``offset`` is ``torque_offset``);
+#: a file without a term's table (written before the term existed) loads it as 0.
+FILE_KEYS = {"viscous": "viscous", "coulomb": "coulomb", "armature": "armature", "offset": "torque_offset"}
 TORQUE_EQUATION = ("tau_recorded(t) = [ID(q, v, vd) + viscous*v + coulomb*tanh(v/v_s) + armature*vd "
                    "+ offset](t - time_delay)")
 
@@ -258,16 +259,14 @@ class RobotModel:
             return {j: float(v) for j, v in zip(self.joints, x)}
 
         p = self.payload
-        out = {
-            "joints": list(self.joints),
-            "parameter_names": list(PARAMETER_NAMES),
-            "phi": {b: self.phi[10 * k : 10 * k + 10].tolist() for k, b in enumerate(self.bodies)},
-            "phi_frame": "about each body origin, in the body frame [kg, kg·m, kg·m²]",
-            "viscous": per_joint(self.viscous), "viscous_unit": "N·m·s/rad",
-            "coulomb": per_joint(self.coulomb), "coulomb_unit": "N·m",
-            "coulomb_velocity_scale": self.velocity_scale,
-            "armature": per_joint(self.armature), "armature_unit": "kg·m²",
-            "torque_offset": per_joint(self.offset), "torque_offset_unit": "N·m",
+        out = {"joints": list(self.joints), "parameter_names": list(PARAMETER_NAMES),
+               "phi": {b: self.phi[10 * k : 10 * k + 10].tolist() for k, b in enumerate(self.bodies)},
+               "phi_frame": "about each body origin, in the body frame [kg, kg·m, kg·m²]"}
+        for t, key in FILE_KEYS.items():
+            out[key], out[f"{key}_unit"] = per_joint(self.term(t)), UNITS[t][0]
+            if t == "coulomb":
+                out["coulomb_velocity_scale"] = self.velocity_scale
+        out.update({
             "payload": {"link": self.payload_link, "mass": p.mass, "com": np.asarray(p.com, float).tolist(),
                         "inertia_about_com": p.inertia_vector.tolist()} if p is not None else None,
             "time_delay": self.torque_delay, "time_delay_unit": "s",
@@ -278,7 +277,7 @@ class RobotModel:
                                    "by validate or simulate)",
             "torque_equation": TORQUE_EQUATION,
             "notes": list(self.notes),
-        }
+        })
         if self.sigma:
             out["sigma"] = {FILE_KEYS[t]: per_joint(s) for t, s in self.sigma.items()}
         return out
@@ -317,7 +316,7 @@ class RobotModel:
 
         sigma = {t: [float("nan") if d["sigma"][k].get(j) is None else d["sigma"][k][j] for j in joints]
                  for t, k in FILE_KEYS.items() if k in (d.get("sigma") or {})}
-        return cls(joints, body_names, phi, {t: np.array([float(d[k][j]) for j in joints]) for t, k in FILE_KEYS.items()},
+        return cls(joints, body_names, phi, {t: table(k) for t, k in FILE_KEYS.items()},
                    sigma, float(d.get("coulomb_velocity_scale", COULOMB_VELOCITY_SCALE)), payload,
                    p["link"] if p else "", float(d.get("time_delay") or 0.0), table("presliding_friction"),
                    table("presliding_stiffness"), table("holding_torque"), None, tuple(d.get("notes", ())))
