@@ -34,6 +34,7 @@ import numpy as np
 
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.identification.identified_file import standard_from_base
+from pe_drake.identification.physical_fit import SDP_TOLERANCES, InertiaBlock, factored_sdp
 from pe_drake.identification.payload_friction import DRIVE_TERMS, drive_columns, drive_names
 from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.base_parameters import BaseParameters, compute_base_parameters
@@ -236,7 +237,7 @@ def identify_payload(
     constrained = False
     if (options.physical and np.linalg.eigvalsh(pseudo_inertia(x[-10:])).min() < 0) or options.box is not None:
         w = 1.0 / noise_std if options.weighted else np.ones(n)
-        x_phys = _physical_fit(R_joint, w, x, p - 10, options.box)
+        x_phys = _physical_payload(R_joint, w, x, p - 10, options.box)
         constrained = bool(np.linalg.norm(x_phys[-10:] - x[-10:]) > 1e-6 * np.linalg.norm(x[-10:]))
         x = x_phys
     phi = x[-10:]
@@ -330,36 +331,15 @@ def weighted_fit_from_factors(R_joint: np.ndarray, S: int, weighted: bool) -> tu
     return x, cov * s2, noise_std
 
 
-def _physical_fit(R_joint, w, x_ls, offset: int, box: PayloadBox | None) -> np.ndarray:
+def _physical_payload(R_joint, w, x_ls, offset: int, box: PayloadBox | None) -> np.ndarray:
     """min Σ_j w_j² ‖A_j x − y_j‖² s.t. J(φ_L) ⪰ 0 (and the box), φ_L = x[offset:offset+10]."""
-    from pydrake.solvers import ClarabelSolver, MathematicalProgram, ScsSolver, SolverOptions  # lazy: pydrake
-
-    p = R_joint.shape[-1] - 1
-    Rw = (R_joint * w[:, None, None]).reshape(-1, p + 1)
-    D = np.maximum(np.linalg.norm(Rw[:, :p], axis=0), 1e-300)
-    R = np.linalg.qr(np.column_stack([Rw[:, :p] / D, Rw[:, p]]), mode="r")
-    Ra, z = R[:p, :p], R[:p, p]
-    prog = MathematicalProgram()
-    u = prog.NewContinuousVariables(p, "u")  # x = u / D
-    prog.AddQuadraticCost(2.0 * Ra.T @ Ra, -2.0 * Ra.T @ z, u, is_convex=True)
-    uL, dL = u[offset : offset + 10], 1.0 / D[offset : offset + 10]
-    F = pseudo_inertia_basis()
-    prog.AddLinearMatrixInequalityConstraint([np.zeros((4, 4))] + [F[i] * dL[i] for i in range(10)], uL)
-    if box is not None:
-        for row, lo in box_constraint_rows(box):
-            prog.AddLinearConstraint((row * dL).reshape(1, 10), [lo], [np.inf], uL)
-    solver = ClarabelSolver()
-    if not solver.available():  # pragma: no cover - the drake wheel ships Clarabel
-        solver = ScsSolver()
-    opts = SolverOptions()
-    if solver.solver_id() == ClarabelSolver.id():
-        for key in ("tol_gap_abs", "tol_gap_rel", "tol_feas"):
-            opts.SetOption(solver.solver_id(), key, 1e-10)
-    result = solver.Solve(prog, x_ls * D, opts)
-    if not result.is_success():
-        raise DataError(f"the physically consistent payload fit failed ({solver.solver_id().name()}: "
-                        f"{result.get_solution_result().name}); is the box right? try physical=False")
-    return result.GetSolution(u) / D
+    rows = []
+    for row, lo in box_constraint_rows(box) if box is not None else ():
+        a = np.zeros(len(x_ls))
+        a[offset : offset + 10] = row
+        rows.append((a, lo, np.inf))
+    return factored_sdp(R_joint, w, x_ls, [InertiaBlock(offset, np.ones(10))], rows=rows, what="payload fit",
+                        advice="is the box right? try physical=False", tolerances=SDP_TOLERANCES[:1])
 
 
 def box_constraint_rows(box: PayloadBox) -> list[tuple[np.ndarray, float]]:
