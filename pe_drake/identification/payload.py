@@ -34,6 +34,7 @@ import numpy as np
 
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.identification.identified_file import standard_from_base
+from pe_drake.identification.least_squares import compress_joint_rows, weighted_fit_from_factors
 from pe_drake.identification.physical_fit import SDP_TOLERANCES, InertiaBlock, factored_sdp
 from pe_drake.identification.payload_friction import DRIVE_TERMS, drive_columns, drive_names
 from pe_drake.io_utils import atomic_write_text
@@ -260,21 +261,6 @@ def _compressed_rows(robot, model, runs, phi_arm, link, base, options) -> tuple[
                                for block in _run_rows(robot, model, run, loaded, phi_arm, link, base, options))
 
 
-def compress_joint_rows(blocks) -> tuple[np.ndarray, int]:
-    """Per joint j, the triangular factor R_j of [A_j  y_j] over blocks (A (s, n, p), y (s, n)),
-    shape (n, p+1, p+1), and the total number of samples: ‖A_j x − y_j‖² = ‖R_j [x; −1]‖², so
-    the weighted fits and the residuals need nothing else."""
-    R = None
-    S = 0
-    for A, y in blocks:
-        S += A.shape[0]
-        block = np.concatenate([A, y[..., None]], axis=-1).transpose(1, 0, 2)  # (n, s, p+1)
-        if R is not None:
-            block = np.concatenate([R, block], axis=1)
-        R = np.linalg.qr(block, mode="r")
-    return R, S
-
-
 def _run_rows(robot, model, run, loaded: bool, phi_arm, link, base, options):
     """One run's columns [Y_B (with base) | D | Y_L (loaded, else 0)] (s, n, p) and targets τ − Y φ_arm
     (s, n), chunk by chunk."""
@@ -291,44 +277,6 @@ def _run_rows(robot, model, run, loaded: bool, phi_arm, link, base, options):
         YL = Y[..., cols] if loaded else np.zeros(Y.shape[:2] + (10,))
         parts = ([base.reduce(Y)] if base is not None else []) + [D, YL]
         yield np.concatenate(parts, axis=-1), run.tau[r] - Y @ phi_arm
-
-
-def lstsq_from_factors(R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Least squares from the stacked factors R (m, p+1) of [W y]: (x, (WᵀW)⁻¹); refuses a
-    rank-deficient W (with the payload workflow's advice)."""
-    p = R.shape[1] - 1
-    scale = np.maximum(np.linalg.norm(R[:, :p], axis=0), 1e-300)
-    Rq = np.linalg.qr(np.column_stack([R[:, :p] / scale, R[:, p]]), mode="r")
-    U, s, Vt = np.linalg.svd(Rq[:p, :p])
-    if s[-1] <= s[0] * 1e-10:
-        raise DataError(
-            f"the runs do not excite the payload and the nuisance terms (cond {s[0] / max(s[-1], 1e-300):.3g} "
-            "after column scaling): use a payload motion (optimize_payload_motion) and runs that move every joint"
-        )
-    x = (Vt.T @ ((U.T @ Rq[:p, p]) / s)) / scale
-    cov = ((Vt.T / s**2) @ Vt) / np.outer(scale, scale)
-    return x, cov
-
-
-def weighted_fit_from_factors(R_joint: np.ndarray, S: int, weighted: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """OLS, per-joint σ_j from its residual, then WLS with rows / σ_j: (x, Cov(x), σ_j).
-
-    Args:
-        R_joint: per-joint factors of [A_j y_j], (n, p+1, p+1) (:func:`_compressed_rows`).
-        S: samples behind them.
-        weighted: weigh by 1/σ_j (else OLS).
-    """
-    n, _, p1 = R_joint.shape
-    p = p1 - 1
-    x, _ = lstsq_from_factors(R_joint.reshape(-1, p1))
-    xm = np.append(x, -1.0)
-    noise_std = np.sqrt(np.array([np.sum((Rj @ xm) ** 2) for Rj in R_joint]) / max(S - p / n, 1.0))
-    w = 1.0 / np.maximum(noise_std, 1e-9 * max(float(noise_std.max()), 1e-12)) if weighted else np.ones(n)
-    Rw = (R_joint * w[:, None, None]).reshape(-1, p1)
-    x, cov = lstsq_from_factors(Rw)
-    r = Rw @ np.append(x, -1.0)
-    s2 = float(r @ r) / max(S * n - p, 1)  # ≈ 1 with the weights; keeps σ honest if not
-    return x, cov * s2, noise_std
 
 
 def _physical_payload(R_joint, w, x_ls, offset: int, box: PayloadBox | None) -> np.ndarray:

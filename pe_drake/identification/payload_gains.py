@@ -25,7 +25,8 @@ from typing import Any
 import numpy as np
 
 from pe_drake.exceptions import ConfigError, DataError
-from pe_drake.identification.payload import PayloadOptions, compress_joint_rows, weighted_fit_from_factors
+from pe_drake.identification.least_squares import compress_joint_rows, weighted_fit_from_factors
+from pe_drake.identification.payload import PayloadOptions
 from pe_drake.identification.physical_fit import InertiaBlock, factored_sdp
 from pe_drake.identification.payload_friction import drive_columns, drive_names
 from pe_drake.multibody.base_parameters import compute_base_parameters
