@@ -315,15 +315,6 @@ def check_fits_in_memory(data: Measurement, validation: Measurement | None = Non
             "identify the whole of it (pe-drake identify reads an hour at 1 kHz in under 2 GB)", file=data.source)
 
 
-def check_joints(robot, data: Measurement, validation: Measurement | None) -> None:
-    """Raises DataError when a file's joints are not the robot's excited joints, in order."""
-    for m in (data, validation):
-        if m is not None and tuple(m.joints) != tuple(robot.joint_names):
-            raise DataError(
-                f"the data's joints {', '.join(m.joints)} differ from robot '{robot.name}''s excited "
-                f"joints {', '.join(robot.joint_names)}", file=m.source)
-
-
 def model_file_friction(robot, seg: Segment) -> np.ndarray:
     """The friction the model file holds, d·v + f_c·tanh(v/v_s), along a segment, (S, n) [N·m].
 

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from pe_drake.config import Config, noise_vector, validate_config
-from pe_drake.exceptions import ConfigError, DataError, NotWithinLimitsError, OutputWriteError
+from pe_drake.exceptions import ConfigError, DataError, NotWithinLimitsError, OutputWriteError, check_joints
 from pe_drake.excitation.constraints import constraints_from_config
 from pe_drake.excitation.controller_goal import GoalOptions, goal_yaml_text, write_goal_bag
 from pe_drake.excitation.fourier import FourierBasis, sample_times
@@ -307,9 +307,7 @@ def prior_regressor(problem: ExcitationProblem, trajectory_json: str | Path) -> 
     """
     trajectory, data = load_trajectory(trajectory_json)
     joints = tuple(data["joints"])
-    if joints != problem.robot.joint_names:
-        raise DataError(f"its joints {list(joints)} differ from the robot's {list(problem.robot.joint_names)}",
-                        file=str(trajectory_json))
+    check_joints(problem.robot, joints, file=str(trajectory_json), what="the prior motion")
     check_within_limits(RampedMotion(trajectory), problem.robot.limits, joints, source=str(trajectory_json))
     basis = FourierBasis(trajectory.harmonics, trajectory.omega, sample_times(trajectory.period, problem.config.cost_samples))
     a, b = trajectory.a, trajectory.b

@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from pe_drake.exceptions import ConfigError, DataError
+from pe_drake.exceptions import ConfigError, DataError, check_joints
 from pe_drake.identification.identified_file import standard_from_base
 from pe_drake.identification.least_squares import compress_joint_rows, weighted_fit_from_factors
 from pe_drake.identification.physical_fit import SDP_TOLERANCES, InertiaBlock, factored_sdp
@@ -266,9 +266,7 @@ def _run_rows(robot, model, run, loaded: bool, phi_arm, link, base, options):
     (s, n), chunk by chunk."""
     if run.v is None or run.vd is None or run.tau is None:
         raise DataError("a payload run needs q, v, vdot and tau (preprocess it first)", file=run.source)
-    if tuple(run.joints) != tuple(robot.joint_names):
-        raise DataError(f"the run has joints {', '.join(run.joints)}; robot '{robot.name}' excites "
-                        f"{', '.join(robot.joint_names)}", file=run.source)
+    check_joints(robot, run.joints, file=run.source, what="the run")
     cols = link_columns(robot, link)
     for s in range(0, run.num_samples, CHUNK):
         r = slice(s, min(s + CHUNK, run.num_samples))

@@ -29,9 +29,8 @@ from pe_drake.excitation.parallel.base import (
 )
 from pe_drake.excitation.parallel.local import LocalExecutor, default_start_method
 from pe_drake.excitation.parallel.ray import RayExecutor, cluster_cpus
-from pe_drake.multibody.base_parameters import compute_base_parameters
 from pe_drake.multibody.regressor import RegressorModel
-from pe_drake.multibody.sensors import MeasurementType, SensorRows
+from pe_drake.multibody.sensors import measurement_base_parameters
 
 EXECUTORS = ("local", "ray")
 
@@ -106,8 +105,7 @@ def open_executor(
         raise ConfigError(f"{workers} Ray workers need {workers} CPUs; the cluster has {cores}: lower workers or add nodes")
     model = RegressorModel(robot)
     if base is None:  # the rows' own base parameters: the torques' would select wrong columns
-        base = (compute_base_parameters(robot, model=model) if measurement == "joint_torque"
-                else SensorRows(model, MeasurementType(measurement)).base_parameters())
+        base = measurement_base_parameters(robot, measurement, model)
     local = WorkerState(robot, base, constraints_factory, model=model)
     spec = RobotSpec(robot.name, robot.config, base, constraints_factory).with_capsule_text()
     if executor == "ray":
