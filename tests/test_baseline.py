@@ -12,7 +12,7 @@ import pytest
 from pe_drake.config import ExcitationConfig
 from pe_drake.exceptions import ConfigError, InfeasibleError
 from pe_drake.excitation.baseline import (
-    Candidate,
+    RandomMotion,
     generate_candidates,
     greedy_select,
     random_baseline,
@@ -119,7 +119,7 @@ def test_rejection_sampling_keeps_only_feasible_draws(panda, candidates):
         else:
             assert min(margins.values()) < 0, margins  # rejected for a reason
     for c in candidates.candidates:
-        assert isinstance(c, Candidate)
+        assert isinstance(c, RandomMotion)
         np.testing.assert_array_equal(c.alpha, problem.initial_guess(c.seed, CONFIG.amplitude))
         assert c.margins == pytest.approx(sample_margins(problem, c.alpha, constraints))
         assert c.cond == pytest.approx(np.linalg.cond(problem.regressor_block(c.alpha)), rel=1e-9)

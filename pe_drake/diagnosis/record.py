@@ -26,6 +26,7 @@ from pe_drake.exceptions import DataError
 from pe_drake.identification.data_checks import check_against_model
 from pe_drake.identification.measurements import Measurement, Preprocessing
 from pe_drake.identification.preprocessing import (
+    EDGE_PERIODS,
     LowPassFilter,
     choose_cutoff,
     decimation_step,
@@ -36,10 +37,6 @@ from pe_drake.memory import available_bytes
 
 #: Order of the Butterworth low-pass (the zero-phase filter doubles it).
 FILTER_ORDER = 4
-#: Odd extension of the filter at each end, in periods of the cut-off: a short extension
-#: leaves edge transients in the twice-differentiated acceleration that reach past the
-#: 2 / cut-off trimmed at each end.
-EDGE_PERIODS = 3.0
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

@@ -39,7 +39,7 @@ from pe_drake.excitation.parallel import Executor, TaskFinished, open_executor
 
 
 @dataclasses.dataclass(frozen=True)
-class Candidate:
+class RandomMotion:
     """One random motion that satisfies every constraint at the K samples.
 
     Attributes:
@@ -71,7 +71,7 @@ class CandidateSet:
         workers: chunks of draws run at once (1: one after the other).
     """
 
-    candidates: list[Candidate]
+    candidates: list[RandomMotion]
     R: np.ndarray
     draws: int
     rejected: dict[str, int]
@@ -86,7 +86,7 @@ class CandidateSet:
 
 
 @dataclasses.dataclass(frozen=True)
-class Selection:
+class GreedySelection:
     """A greedy selection (Table II).
 
     Attributes:
@@ -107,14 +107,14 @@ class BaselineResult:
     Attributes:
         candidate_set: the accepted random motions.
         selection: the greedy selection over them.
-        selected: the selected :class:`Candidate` objects, in selection order.
+        selected: the selected :class:`RandomMotion` objects, in selection order.
         generation_time: time to draw and check the candidates [s].
         selection_time: time of the greedy selection [s].
     """
 
     candidate_set: CandidateSet
-    selection: Selection
-    selected: list[Candidate]
+    selection: GreedySelection
+    selected: list[RandomMotion]
     generation_time: float
     selection_time: float
 
@@ -166,7 +166,7 @@ def stacked_cond(blocks: Sequence[np.ndarray]) -> float:
     return _cond(s)
 
 
-def greedy_select(blocks: Sequence[np.ndarray], motions: int, C0: np.ndarray | None = None) -> Selection:
+def greedy_select(blocks: Sequence[np.ndarray], motions: int, C0: np.ndarray | None = None) -> GreedySelection:
     """Greedy choice of ``motions`` blocks minimizing cond of their concatenation.
 
     The first pick has the lowest cond alone (or, with ``C0``, the lowest cond of [C0; block]);
@@ -178,7 +178,7 @@ def greedy_select(blocks: Sequence[np.ndarray], motions: int, C0: np.ndarray | N
         C0: prior data, shape (m0, b), or None.
 
     Returns:
-        The :class:`Selection`.
+        The :class:`GreedySelection`.
 
     Raises:
         ConfigError: fewer blocks than motions, a motion count below 1, or column counts
@@ -209,7 +209,7 @@ def greedy_select(blocks: Sequence[np.ndarray], motions: int, C0: np.ndarray | N
         totals.append(best_cond)
         stack = R[best] if current is None else np.vstack([current, R[best]])
         current = _r_factor(stack)
-    return Selection(chosen, [alone[k] for k in chosen], totals)
+    return GreedySelection(chosen, [alone[k] for k in chosen], totals)
 
 
 # ---- rejection sampling ---------------------------------------------------------------------------
@@ -236,7 +236,7 @@ def _joint_margins(lim, q: np.ndarray, v: np.ndarray, vd: np.ndarray) -> dict[st
 
 def _draw(
     problem, constraints, seed: int, amplitude: float
-) -> tuple[str, Candidate | None, np.ndarray | None]:
+) -> tuple[str, RandomMotion | None, np.ndarray | None]:
     """One draw: ("", candidate, R) if accepted, else (reason, None, None)."""
     alpha = problem.initial_guess(seed, amplitude)
     q, v, vd = problem.constraint_basis.evaluate_alpha(alpha, problem.n)
@@ -250,7 +250,7 @@ def _draw(
     block = problem.regressor_block(alpha)
     R = _r_factor(block)
     cond = _cond(np.linalg.svd(R, compute_uv=False))
-    return "", Candidate(int(seed), alpha, cond, margins), R
+    return "", RandomMotion(int(seed), alpha, cond, margins), R
 
 
 @dataclasses.dataclass
@@ -260,7 +260,7 @@ class _DrawChunk:
     amplitude: float
 
 
-def _draw_chunk(state, chunk: _DrawChunk) -> list[tuple[str, Candidate | None, np.ndarray | None]]:
+def _draw_chunk(state, chunk: _DrawChunk) -> list[tuple[str, RandomMotion | None, np.ndarray | None]]:
     """Executor task: a chunk of draws (see :mod:`pe_drake.excitation.parallel`)."""
     problem = state.problem(chunk.config, None)
     constraints = state.constraints(chunk.config)

@@ -34,6 +34,7 @@ import numpy as np
 
 from pe_drake.exceptions import ConfigError, DataError, check_joints
 from pe_drake.identification.identified_file import standard_from_base
+from pe_drake.identification.channels import CHUNK
 from pe_drake.identification.least_squares import compress_joint_rows, weighted_fit_from_factors
 from pe_drake.identification.physical_fit import SDP_TOLERANCES, InertiaBlock, factored_sdp
 from pe_drake.identification.payload_friction import DRIVE_TERMS, drive_columns, drive_names
@@ -43,9 +44,6 @@ from pe_drake.multibody.inertia import pseudo_inertia, pseudo_inertia_basis
 from pe_drake.multibody.payload import PayloadInertia, central_jacobian, link_columns, link_position
 from pe_drake.multibody.regressor import RegressorModel
 from pe_drake.threads import single_threaded_blas
-
-#: Samples per regressor evaluation (memory: S·n·10·nb doubles).
-CHUNK = 2000
 
 
 @dataclasses.dataclass(frozen=True)

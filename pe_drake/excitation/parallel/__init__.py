@@ -10,6 +10,7 @@ by :func:`open_executor`::
 
 from __future__ import annotations
 
+from pe_drake.config import EXECUTORS
 from pe_drake.exceptions import ConfigError
 from pe_drake.excitation.parallel.base import (
     HUNG_AFTER_S,
@@ -32,7 +33,6 @@ from pe_drake.excitation.parallel.ray import RayExecutor, cluster_cpus
 from pe_drake.multibody.regressor import RegressorModel
 from pe_drake.multibody.sensors import measurement_base_parameters
 
-EXECUTORS = ("local", "ray")
 
 __all__ = [
     "EXECUTORS",
