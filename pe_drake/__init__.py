@@ -6,7 +6,7 @@ fast and does not load pydrake.
 
 from __future__ import annotations
 
-import importlib
+from pe_drake.exports import lazy_exports
 
 __version__ = "0.1.0"
 
@@ -73,11 +73,7 @@ _EXPORTS = {
 
 __all__ = sorted(_EXPORTS) + ["__version__"]
 
-
-def __getattr__(name: str):
-    if name in _EXPORTS:
-        return getattr(importlib.import_module(_EXPORTS[name]), name)
-    raise AttributeError(f"module 'pe_drake' has no attribute '{name}'")
+__getattr__ = lazy_exports(__name__, _EXPORTS)
 
 
 def __dir__():

@@ -23,7 +23,7 @@ MAX_FUNCTION_LINES = 100  # physical lines, docstring included
 
 #: Rank of each stage: a module may import only modules of its own rank or lower.
 STAGES = {
-    "exceptions": 0, "limits": 0, "output_set": 0, "output_paths": 0, "config": 0, "config_sections": 0, "io_utils": 0, "threads": 0, "memory": 0, "plots": 0,
+    "exceptions": 0, "exports": 0, "limits": 0, "output_set": 0, "output_paths": 0, "config": 0, "config_sections": 0, "io_utils": 0, "threads": 0, "memory": 0, "plots": 0,
     "multibody": 1,
     "excitation": 2,
     "identification": 3,
@@ -324,3 +324,20 @@ def test_no_two_public_module_level_names_are_equal():
                     where.setdefault(name, []).append(module)
     twice = {n: ms for n, ms in where.items() if len(ms) > 1 and n not in PENDING_DUPLICATE_NAMES}
     assert not twice, f"public names defined in more than one module (rename or merge): {twice}"
+
+
+@pytest.mark.parametrize("package", ["pe_drake", "pe_drake.multibody", "pe_drake.excitation", "pe_drake.identification",
+                                     "pe_drake.diagnosis"])
+def test_every_lazy_export_is_the_object_not_a_module(package):
+    """Issue 33: the packages export lazily (pe_drake/exports.py); a name that is also a
+    submodule's must still give the function once the submodule is imported."""
+    import importlib
+    import importlib.util
+    import types
+
+    pkg = importlib.import_module(package)
+    for name in pkg.__all__:
+        if name != "__version__" and importlib.util.find_spec(f"{package}.{name}") is not None:
+            importlib.import_module(f"{package}.{name}")  # the submodule first, then the name
+    wrong = [name for name in pkg.__all__ if isinstance(getattr(pkg, name), types.ModuleType)]
+    assert not wrong, f"{package} gives modules for {wrong}"

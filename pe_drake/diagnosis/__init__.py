@@ -5,8 +5,17 @@ options → record (data preparation) → effects (the library) → regression (
 selection) → payload → augmented_model → result, report → workflow (:func:`diagnose`).
 """
 
-from pe_drake.diagnosis.options import DiagnosisConfig
-from pe_drake.diagnosis.result import DiagnosisResult, write_outputs
-from pe_drake.diagnosis.workflow import diagnose
+from __future__ import annotations
 
-__all__ = ["DiagnosisConfig", "DiagnosisResult", "diagnose", "write_outputs"]
+from pe_drake.exports import lazy_exports
+
+#: The stage's public names and their modules, imported on first use (pe_drake/exports.py).
+_EXPORTS = {
+    "DiagnosisConfig": "pe_drake.diagnosis.options",
+    "DiagnosisResult": "pe_drake.diagnosis.result",
+    "write_outputs": "pe_drake.diagnosis.result",
+    "diagnose": "pe_drake.diagnosis.workflow",
+}
+
+__all__ = sorted(_EXPORTS)
+__getattr__ = lazy_exports(__name__, _EXPORTS)

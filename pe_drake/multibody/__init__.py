@@ -3,7 +3,18 @@
 The lowest stage: it imports only the shared base layer (``exceptions``, ``config``, ...).
 """
 
-from pe_drake.multibody.registry import builtin_robots, resolve_robot_config, robot_display_name
-from pe_drake.multibody.robot import Robot, load_robot
+from __future__ import annotations
 
-__all__ = ["Robot", "builtin_robots", "load_robot", "resolve_robot_config", "robot_display_name"]
+from pe_drake.exports import lazy_exports
+
+#: The stage's public names and their modules, imported on first use (pe_drake/exports.py).
+_EXPORTS = {
+    "builtin_robots": "pe_drake.multibody.registry",
+    "resolve_robot_config": "pe_drake.multibody.registry",
+    "robot_display_name": "pe_drake.multibody.registry",
+    "Robot": "pe_drake.multibody.robot",
+    "load_robot": "pe_drake.multibody.robot",
+}
+
+__all__ = sorted(_EXPORTS)
+__getattr__ = lazy_exports(__name__, _EXPORTS)
