@@ -101,13 +101,8 @@ class DataError(PeDrakeError, ValueError):
 
 
 class JointMismatchError(DataError, ConfigError):
-    """A file's or log's joints are not the robot's excited joints (bad data or the wrong
-    --robot/--config: both a DataError and a ConfigError).
-
-    Attributes:
-        joints: the file's joints. robot_joints: the robot's. missing: the robot's joints the
-        file lacks. extra: the file's joints the robot does not excite.
-    """
+    """A file's joints (``joints``) are not the robot's (``robot_joints``): bad data or the wrong
+    --robot/--config. ``missing``: the robot's the file lacks; ``extra``: the file's the robot lacks."""
 
     def __init__(self, joints: Sequence[str], robot_name: str, robot_joints: Sequence[str], *, file: str = "",
                  what: str = "the data"):

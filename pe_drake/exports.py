@@ -21,3 +21,8 @@ def lazy_exports(package: str, exports: dict[str, str]) -> Callable[[str], Any]:
         raise AttributeError(f"module '{package}' has no attribute '{name}'")
 
     return __getattr__
+
+
+def exports_by_module(package: str, table: dict[str, str]) -> dict[str, str]:
+    """``{name: module}`` of ``{submodule of package: "name name ..."}``."""
+    return {name: f"{package}.{module}" for module, names in table.items() for name in names.split()}

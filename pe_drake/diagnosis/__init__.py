@@ -7,15 +7,14 @@ selection) → payload → augmented_model → result, report → workflow (:fun
 
 from __future__ import annotations
 
-from pe_drake.exports import lazy_exports
+from pe_drake.exports import exports_by_module, lazy_exports
 
 #: The stage's public names and their modules, imported on first use (pe_drake/exports.py).
-_EXPORTS = {
-    "DiagnosisConfig": "pe_drake.diagnosis.options",
-    "DiagnosisResult": "pe_drake.diagnosis.result",
-    "write_outputs": "pe_drake.diagnosis.result",
-    "diagnose": "pe_drake.diagnosis.workflow",
-}
+_EXPORTS = exports_by_module(__name__, {
+    "options": "DiagnosisConfig",
+    "result": "DiagnosisResult write_outputs",
+    "workflow": "diagnose",
+})
 
 __all__ = sorted(_EXPORTS)
 __getattr__ = lazy_exports(__name__, _EXPORTS)

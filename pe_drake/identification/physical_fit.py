@@ -208,7 +208,9 @@ def physical_fit(
     # selects among equally good fits).
     Q = 2.0 * (H + null_weight * mu * pull)
     c = -2.0 * H @ x0 - 2.0 * null_weight * mu * pull @ x_prior
-    blocks, lower_x, rows = _program_parts(k, D, active, prior, lower, s_e, len(cols), body_names, bounds, margin)
+    blocks = [InertiaBlock(10 * i, D[10 * i : 10 * i + 10], margin * prior[10 * b]) for i, b in enumerate(active)]
+    lower_x = np.r_[np.full(len(cols), -np.inf), lower / s_e]
+    rows = _bound_rows(k, D, active, list(body_names), bounds)
     advice = "try --method wls" + (" or relax the identification bounds" if not bounds.empty else "")
     sol = solve_sdp(Q / mu, c / mu, blocks, x_prior, lower=lower_x, rows=rows, advice=advice)
     stage2_failed = False
@@ -250,25 +252,9 @@ def _data_term(AD: np.ndarray, E: np.ndarray, y: np.ndarray, base_K, cols, D, ex
     return s_e, Rs, z, P_null, mu
 
 
-def _program_parts(k, D, active, prior, lower, s_e, ncols, body_names, bounds, margin):
-    """The constraints of the module docstring for :func:`solve_sdp`: pseudo-inertias
-    ⪰ margin·m_prior·1, drive bounds, user bounds."""
-    blocks = [InertiaBlock(10 * i, D[10 * i : 10 * i + 10], margin * prior[10 * b]) for i, b in enumerate(active)]
-    lower_x = np.full(k, -np.inf)
-    lower_x[ncols:] = lower / s_e
-    return blocks, lower_x, _bound_rows(k, D, active, list(body_names), bounds)
-
-
 class InertiaBlock(NamedTuple):
-    """One body's physical-consistency constraint J(φ_b) ⪰ margin·1 in the SDP's variables x.
-
-    Attributes:
-        start: φ_b's first variable in x.
-        scale: φ_b = scale ⊙ x[start : start + len(scale)], shape (10,); or, with
-            ``fixed_mass``, the 9 parameters after the mass, shape (9,).
-        margin: ε [kg] of J(φ_b) ⪰ ε·1 (0: J ⪰ 0).
-        fixed_mass: a known mass [kg] (φ_b = [fixed_mass, scale ⊙ x[...]]), or None.
-    """
+    """One body's J(φ_b) ⪰ margin [kg]·1 in the SDP's variables x: φ_b = scale ⊙ x[start :
+    start + len(scale)] (10 values), or with a known ``fixed_mass`` [kg] the 9 after the mass."""
 
     start: int
     scale: np.ndarray
@@ -277,9 +263,8 @@ class InertiaBlock(NamedTuple):
 
 
 def add_pseudo_inertia_constraint(prog, x, block: InertiaBlock) -> None:
-    """J(φ_b) = Σ_i φ_b,i F_i ⪰ margin·1 as a linear matrix inequality in x (Wensing, Kim &
-    Slotine 2017, Eq. 13: J ⪰ 0 exactly when a non-negative mass density gives φ_b).
-    The one place the package writes this constraint."""
+    """J(φ_b) = Σ_i φ_b,i F_i ⪰ margin·1, linear in x (Wensing, Kim & Slotine 2017: J ⪰ 0 exactly
+    when a non-negative mass density gives φ_b); the one place the package writes it."""
     F = pseudo_inertia_basis()
     F0 = -block.margin * np.eye(4)
     if block.fixed_mass is not None:
@@ -299,20 +284,13 @@ def solve_sdp(Q: np.ndarray, c: np.ndarray, blocks: Sequence[InertiaBlock], gues
               lower: np.ndarray | None = None, rows: Sequence[tuple[np.ndarray, float, float]] = (),
               cone: tuple[np.ndarray, np.ndarray] | None = None, what: str = "fit", advice: str = "",
               tolerances: Sequence[float] = SDP_TOLERANCES) -> np.ndarray:
-    """The package's one physically consistent fit: min ½xᵀQx + cᵀx over x subject to every
-    block's J(φ_b) ⪰ margin·1, x ≥ ``lower``, lo ≤ a·x ≤ hi for (a, lo, hi) in ``rows``, and
-    the Lorentz cone A x + b ∈ L (``cone`` = (A, b)); Clarabel (SCS when unavailable) at
-    ``tolerances`` in turn.
-
-    Args:
-        Q: (k, k), positive semidefinite; c: (k,).
-        blocks: the bodies' pseudo-inertia constraints (:class:`InertiaBlock`).
-        guess: the solver's initial guess, (k,).
-        lower: lower bounds of x (−inf: none), (k,).
-        what, advice: the failure's message, "the physically consistent {what} failed (…); {advice}".
+    """The package's one physically consistent fit: min ½xᵀQx + cᵀx (Q (k, k) PSD) s.t. every
+    :class:`InertiaBlock`, x ≥ ``lower`` (−inf: none), lo ≤ a·x ≤ hi for (a, lo, hi) in ``rows``
+    and A x + b in the Lorentz cone (``cone`` = (A, b)); Clarabel (SCS when unavailable) from
+    ``guess`` at ``tolerances`` in turn.
 
     Raises:
-        NoSolutionFound: the solver failed at every tolerance.
+        NoSolutionFound: "the physically consistent {what} failed (…); {advice}".
     """
     from pydrake.solvers import ClarabelSolver, MathematicalProgram, ScsSolver, SolverOptions  # lazy: pydrake
 
@@ -347,15 +325,9 @@ def solve_sdp(Q: np.ndarray, c: np.ndarray, blocks: Sequence[InertiaBlock], gues
 def factored_sdp(R_joint: np.ndarray, w: np.ndarray, x_ls: np.ndarray, blocks: Sequence[InertiaBlock], *,
                  lower: np.ndarray | None = None, rows: Sequence[tuple[np.ndarray, float, float]] = (),
                  what: str = "fit", advice: str = "", tolerances: Sequence[float] = SDP_TOLERANCES) -> np.ndarray:
-    """min Σ_j w_j² ‖A_j x − y_j‖² under :func:`solve_sdp`'s constraints, from the per-joint
-    triangular factors R_j of [A_j y_j] (:func:`~pe_drake.identification.least_squares.compress_joint_rows`).
-
-    The variables are scaled by the weighted column norms D (u = D x) for the solver; ``blocks``,
-    ``lower`` and ``rows`` are given in x and rescaled here.
-
-    Args:
-        R_joint: (n, p+1, p+1). w: per-joint weights, (n,). x_ls: the unconstrained fit, the guess, (p,).
-    """
+    """min Σ_j w_j² ‖A_j x − y_j‖² under :func:`solve_sdp`'s constraints (given in x), from the
+    per-joint factors R_j of [A_j y_j], (n, p+1, p+1) (:func:`~pe_drake.identification.least_squares.
+    compress_joint_rows`), from the unconstrained ``x_ls``; solved in u = D x, D the column norms."""
     p = R_joint.shape[-1] - 1
     Rw = (R_joint * w[:, None, None]).reshape(-1, p + 1)
     D = np.maximum(np.linalg.norm(Rw[:, :p], axis=0), 1e-300)
