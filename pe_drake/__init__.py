@@ -51,8 +51,12 @@ _EXPORTS = {
     "BalanceConstraint": "pe_drake.excitation.constraints.balance",
     "CollisionConstraint": "pe_drake.excitation.constraints.collision",
     "constraints_from_config": "pe_drake.excitation.constraints",
-    # measured runs: any supported log, checked (pe_drake.identification.intake)
-    "read_measurements": "pe_drake.identification.intake",
+    # the front doors of the commands (README "As a Python library")
+    "optimize_motion": "pe_drake.excitation.motion_plan",
+    "simulate_run": "pe_drake.identification.simulated_run",
+    "read_measurements": "pe_drake.identification.intake",  # any supported log, checked
+    "identify_model": "pe_drake.identification.identify_model",
+    "validate_model": "pe_drake.identification.validate_model",
     "identify_payload": "pe_drake.identification.payload",
     # diagnosis: which effects the model misses
     "diagnose": "pe_drake.diagnosis.workflow",
