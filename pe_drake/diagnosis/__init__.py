@@ -5,11 +5,8 @@ options → record (data preparation) → effects (the library) → regression (
 selection) → payload → augmented_model → result, report → workflow (:func:`diagnose`).
 """
 
-from __future__ import annotations
-
 from pe_drake.exports import exports_by_module, lazy_exports
 
-#: The stage's public names and their modules, imported on first use (pe_drake/exports.py).
 _EXPORTS = exports_by_module(__name__, {
     "options": "DiagnosisConfig",
     "result": "DiagnosisResult write_outputs",

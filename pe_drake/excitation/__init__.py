@@ -4,11 +4,8 @@ Imports only ``multibody`` and the base layer. Re-exports the names that ``pe_dr
 offered as a single module.
 """
 
-from __future__ import annotations
-
 from pe_drake.exports import exports_by_module, lazy_exports
 
-#: The stage's public names and their modules, imported on first use (pe_drake/exports.py).
 _EXPORTS = exports_by_module(__name__, {
     "limits": "add_joint_limit_constraints add_rest_constraints",
     "motion_plan": "MotionPlan check_csv_size optimize_motion",

@@ -35,7 +35,8 @@ import scipy.linalg
 from pe_drake.config import Config, ExcitationConfig, validate_config
 from pe_drake.exceptions import ConfigError, InfeasibleError
 from pe_drake.excitation.constraints import constraints_from_config
-from pe_drake.excitation.parallel import Executor, TaskFinished, open_executor
+from pe_drake.excitation.parallel import Executor, ExecutorOptions, TaskFinished, open_executor
+from pe_drake.multibody.robot import Robot
 
 
 @dataclasses.dataclass(frozen=True)
@@ -393,53 +394,58 @@ def generate_candidates(
     return CandidateSet(kept, np.array(R), draws, rejected, float(amplitude), time.perf_counter() - begin, executor.workers)
 
 
-def random_baseline(
-    robot,
-    config: ExcitationConfig | None = None,
-    motions: int = 3,
-    candidates: int = 200,
-    *,
-    constraints_factory: Callable | None = None,
-    seed: int = 0,
-    amplitude: float | None = None,
-    max_draws: int | None = None,
-    C0: np.ndarray | None = None,
-    workers: int = 1,
-    executor: str | Executor = "local",
-    address: str = "",
-    progress: Callable[[DrawEvent], None] | None = None,
-) -> BaselineResult:
-    """Random feasible candidates, then the greedy selection of ``motions`` of them.
+@dataclasses.dataclass(frozen=True, eq=False)
+class BaselineOptions:
+    """The random baseline's draws, its selection and where the draws run.
 
-    Args:
-        robot, config, constraints_factory, seed, amplitude, max_draws, workers, executor,
-        address, progress: see :func:`generate_candidates`.
+    Attributes:
         motions: how many motions to select (the paper: 3).
         candidates: accepted random motions to select from.
         C0: prior data the selection starts from, shape (m0, b), or None.
+        constraints_factory, seed, amplitude, max_draws: see :func:`generate_candidates`.
+        run: where the draws run (``workers``, ``executor``, ``address`` of
+            :class:`~pe_drake.excitation.parallel.ExecutorOptions`; default one worker).
+    """
+
+    motions: int = 3
+    candidates: int = 200
+    C0: np.ndarray | None = None
+    constraints_factory: Callable | None = None
+    seed: int = 0
+    amplitude: float | None = None
+    max_draws: int | None = None
+    run: ExecutorOptions = ExecutorOptions(workers=1)
+
+
+def random_baseline(
+    robot: Robot | None,
+    config: ExcitationConfig | None = None,
+    options: BaselineOptions | None = None,
+    *,
+    progress: Callable[[DrawEvent], None] | None = None,
+) -> BaselineResult:
+    """Random feasible candidates (:func:`generate_candidates`), then the greedy selection of
+    ``options.motions`` of them.
+
+    Args:
+        robot, config, progress: see :func:`generate_candidates`.
+        options: the draws and the selection (default :class:`BaselineOptions`).
 
     Returns:
         The :class:`BaselineResult`.
     """
+    o = options or BaselineOptions()
+    motions, candidates = o.motions, o.candidates
     if not isinstance(motions, int) or motions < 1:
         raise ConfigError(f"motions must be a positive integer, got {motions!r}")
     if isinstance(candidates, int) and candidates < motions:
         raise ConfigError(f"{candidates} candidates cannot supply {motions} motions")
     cset = generate_candidates(
-        robot,
-        config,
-        candidates,
-        constraints_factory=constraints_factory,
-        seed=seed,
-        amplitude=amplitude,
-        max_draws=max_draws,
-        workers=workers,
-        executor=executor,
-        address=address,
-        progress=progress,
+        robot, config, candidates, constraints_factory=o.constraints_factory, seed=o.seed, amplitude=o.amplitude,
+        max_draws=o.max_draws, workers=o.run.workers, executor=o.run.executor, address=o.run.address, progress=progress,
     )
     begin = time.perf_counter()
-    selection = greedy_select(list(cset.R), motions, C0)
+    selection = greedy_select(list(cset.R), motions, o.C0)
     selection_time = time.perf_counter() - begin
     return BaselineResult(
         candidate_set=cset,

@@ -31,10 +31,10 @@ from pe_drake.exceptions import ConfigError, DataError, NotWithinLimitsError, Ou
 from pe_drake.excitation.constraints import constraints_from_config
 from pe_drake.excitation.controller_goal import GoalOptions, goal_yaml_text, write_goal_bag
 from pe_drake.excitation.fourier import FourierBasis, sample_times
-from pe_drake.excitation.multistart import MultiStartResult, solve_multistart
+from pe_drake.excitation.multistart import MultiStartOptions, MultiStartResult, solve_multistart
 from pe_drake.excitation.nominal import choose_nominal_posture
 from pe_drake.excitation.optimize_report import MotionReport, assumed_defaults, start_records
-from pe_drake.excitation.parallel import Executor, open_executor
+from pe_drake.excitation.parallel import Executor, ExecutorOptions, open_executor
 from pe_drake.excitation.problem import ExcitationProblem
 from pe_drake.excitation.quality import RANDOM_MOTIONS, QualityReport, excitation_quality
 from pe_drake.excitation.ramp import (
@@ -382,8 +382,8 @@ def _solve_starts(problem: ExcitationProblem, executor: Executor, config: Config
         if event.kind != "progress" or config.solver.verbose:
             say(str(event))
 
-    return solve_multistart(None, config.excitation, config.solver, seeds, C0=problem.C0, executor=executor,
-                            progress=progress)
+    options = MultiStartOptions(seeds, C0=problem.C0, run=ExecutorOptions(executor=executor))
+    return solve_multistart(None, config.excitation, config.solver, options, progress=progress)
 
 
 def _ramped_motion(result, robot: Robot, constraints, config: Config, say: Say) -> RampedMotion:

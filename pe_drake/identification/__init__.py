@@ -4,8 +4,6 @@ Imports only ``excitation``, ``multibody`` and the base layer. Re-exports the na
 ``pe_drake.identification`` offered as a single module.
 """
 
-from __future__ import annotations
-
 from pe_drake.exports import exports_by_module, lazy_exports
 
 # Bound now, not lazily: these names are also submodules', and importing a submodule sets the
@@ -13,7 +11,6 @@ from pe_drake.exports import exports_by_module, lazy_exports
 from pe_drake.identification.identify_model import identify_model
 from pe_drake.identification.validate_model import validate_model
 
-#: The stage's public names and their modules, imported on first use (pe_drake/exports.py).
 _EXPORTS = exports_by_module(__name__, {
     "drive_terms": "DriveFit DriveTermOptions",
     "estimators": "IdentificationResult identify predict predict_wrench prepare_measurement "

@@ -3,11 +3,8 @@
 The lowest stage: it imports only the shared base layer (``exceptions``, ``config``, ...).
 """
 
-from __future__ import annotations
-
 from pe_drake.exports import exports_by_module, lazy_exports
 
-#: The stage's public names and their modules, imported on first use (pe_drake/exports.py).
 _EXPORTS = exports_by_module(__name__, {
     "registry": "builtin_robots resolve_robot_config robot_display_name",
     "robot": "Robot load_robot",

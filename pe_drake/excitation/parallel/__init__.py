@@ -10,6 +10,8 @@ by :func:`open_executor`::
 
 from __future__ import annotations
 
+import dataclasses
+
 from pe_drake.config import EXECUTORS
 from pe_drake.exceptions import ConfigError
 from pe_drake.excitation.parallel.base import (
@@ -39,6 +41,7 @@ __all__ = [
     "HUNG_AFTER_S",
     "ConstraintsFactory",
     "Executor",
+    "ExecutorOptions",
     "InProcessExecutor",
     "LocalExecutor",
     "RayExecutor",
@@ -53,6 +56,28 @@ __all__ = [
     "default_workers",
     "open_executor",
 ]
+
+
+@dataclasses.dataclass(frozen=True)
+class ExecutorOptions:
+    """Where independent solves run (the options of :func:`open_executor` a caller chooses).
+
+    Attributes:
+        workers: tasks at once; None: the cores available (the Ray cluster's CPUs), at most the
+            tasks.
+        executor: "local", "ray", or an open :class:`Executor` to reuse (its workers keep their
+            robot, constraints and ``hung_after_s``).
+        address: the Ray cluster ("ray" only; "": ``ray.init()``'s default).
+        hung_after_s: a task without progress for this long [s] is declared hung, its worker
+            stopped; 0: never.
+        progress_interval: seconds between the progress events of a running solve [s].
+    """
+
+    workers: int | None = None
+    executor: str | Executor = "local"
+    address: str = ""
+    hung_after_s: float = HUNG_AFTER_S
+    progress_interval: float = 2.0
 
 
 def open_executor(
