@@ -33,11 +33,11 @@ from typing import Any
 import numpy as np
 
 from pe_drake.exceptions import ConfigError, DataError, check_joints
-from pe_drake.identification.identified_file import standard_from_base
 from pe_drake.identification.channels import CHUNK
+from pe_drake.identification.identified_file import standard_from_base
 from pe_drake.identification.least_squares import compress_joint_rows, weighted_fit_from_factors
-from pe_drake.identification.physical_fit import SDP_TOLERANCES, InertiaBlock, factored_sdp
 from pe_drake.identification.payload_friction import DRIVE_TERMS, drive_columns, drive_names
+from pe_drake.identification.physical_fit import SDP_TOLERANCES, InertiaBlock, factored_sdp
 from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.base_parameters import BaseParameters, compute_base_parameters
 from pe_drake.multibody.inertia import pseudo_inertia, pseudo_inertia_basis

@@ -27,8 +27,8 @@ import numpy as np
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.identification.least_squares import compress_joint_rows, weighted_fit_from_factors
 from pe_drake.identification.payload import PayloadOptions
-from pe_drake.identification.physical_fit import InertiaBlock, factored_sdp
 from pe_drake.identification.payload_friction import drive_columns, drive_names
+from pe_drake.identification.physical_fit import InertiaBlock, factored_sdp
 from pe_drake.multibody.base_parameters import compute_base_parameters
 from pe_drake.multibody.inertia import pseudo_inertia
 from pe_drake.multibody.payload import PayloadInertia, link_columns, link_position
