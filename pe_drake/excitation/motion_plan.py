@@ -367,7 +367,8 @@ def _plan(config, robot, executor, priors, fitted, fitted_text, unchecked, allow
         quality=quality.to_dict() if quality is not None else None, unchecked=list(unchecked),
         not_valid_for_hardware=refusal,
     )
-    return MotionPlan(robot, config, problem, constraints, ms, motion, quality, goal, fitted, fitted_text, report)
+    return MotionPlan(robot=robot, config=config, problem=problem, constraints=constraints, multistart=ms, motion=motion,
+                      quality=quality, goal_yaml=goal, fitted=fitted, fitted_text=fitted_text, report=report)
 
 
 def _solve_starts(problem: ExcitationProblem, executor: Executor, config: Config, say: Say) -> MultiStartResult:
