@@ -25,7 +25,8 @@ import numpy as np
 def run(robot_name: str, starts: int, max_iterations: int, settings: list[tuple[str, int]]) -> list[dict]:
     """One multi-start per (executor, workers) setting; returns a row per setting."""
     from pe_drake.excitation.constraints import constraints_from_config
-    from pe_drake.excitation.multistart import solve_multistart
+    from pe_drake.excitation.multistart import MultiStartOptions, solve_multistart
+    from pe_drake.excitation.parallel import ExecutorOptions
     from pe_drake.multibody.registry import resolve_robot_config
     from pe_drake.multibody.robot import Robot
 
@@ -36,10 +37,9 @@ def run(robot_name: str, starts: int, max_iterations: int, settings: list[tuple[
     rows, reference = [], None
     for executor, workers in settings:
         begin = time.perf_counter()
-        ms = solve_multistart(
-            robot, config.excitation, solver, seeds, workers=workers, executor=executor,
-            constraints_factory=constraints_from_config,
-        )
+        options = MultiStartOptions(seeds, constraints_factory=constraints_from_config,
+                                    run=ExecutorOptions(workers=workers, executor=executor))
+        ms = solve_multistart(robot, config.excitation, solver, options)
         wall = time.perf_counter() - begin
         reference = reference or ms
         diff = max(float(np.max(np.abs(a.x - b.x))) for a, b in zip(ms.results, reference.results))

@@ -6,7 +6,7 @@ fast and does not load pydrake.
 
 from __future__ import annotations
 
-import importlib
+from pe_drake.exports import lazy_exports
 
 __version__ = "0.1.0"
 
@@ -51,8 +51,12 @@ _EXPORTS = {
     "BalanceConstraint": "pe_drake.excitation.constraints.balance",
     "CollisionConstraint": "pe_drake.excitation.constraints.collision",
     "constraints_from_config": "pe_drake.excitation.constraints",
-    # measured runs: any supported log, checked (pe_drake.identification.intake)
-    "read_measurements": "pe_drake.identification.intake",
+    # the front doors of the commands (README "As a Python library")
+    "optimize_motion": "pe_drake.excitation.motion_plan",
+    "simulate_run": "pe_drake.simulation.simulated_run",
+    "read_measurements": "pe_drake.identification.intake",  # any supported log, checked
+    "identify_model": "pe_drake.identification.identify_model",
+    "validate_model": "pe_drake.identification.validate_model",
     "identify_payload": "pe_drake.identification.payload",
     # diagnosis: which effects the model misses
     "diagnose": "pe_drake.diagnosis.workflow",
@@ -73,11 +77,7 @@ _EXPORTS = {
 
 __all__ = sorted(_EXPORTS) + ["__version__"]
 
-
-def __getattr__(name: str):
-    if name in _EXPORTS:
-        return getattr(importlib.import_module(_EXPORTS[name]), name)
-    raise AttributeError(f"module 'pe_drake' has no attribute '{name}'")
+__getattr__ = lazy_exports(__name__, _EXPORTS)
 
 
 def __dir__():

@@ -359,7 +359,7 @@ def bench_solve(args: argparse.Namespace) -> None:
     )
 
 
-def main(argv: list[str] | None = None) -> int:
+def bench_main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m pe_drake.bench", description=__doc__)
     parser.add_argument("benchmark", choices=sorted(_BENCHMARKS))
     parser.add_argument("--robot", default=None, help="robot (default: g1 for gradient, panda otherwise)")
@@ -391,4 +391,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(bench_main())

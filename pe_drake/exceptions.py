@@ -100,6 +100,36 @@ class DataError(PeDrakeError, ValueError):
         super().__init__(prefix + message)
 
 
+class JointMismatchError(DataError, ConfigError):
+    """A file's joints (``joints``) are not the robot's (``robot_joints``): bad data or the wrong
+    --robot/--config. ``missing``: the robot's the file lacks; ``extra``: the file's the robot lacks."""
+
+    def __init__(self, joints: Sequence[str], robot_name: str, robot_joints: Sequence[str], *, file: str = "",
+                 what: str = "the data"):
+        self.joints, self.robot_joints = tuple(joints), tuple(robot_joints)
+        self.missing = tuple(j for j in self.robot_joints if j not in self.joints)
+        self.extra = tuple(j for j in self.joints if j not in self.robot_joints)
+        detail = "; ".join(f"{label}: {', '.join(names)}" for label, names in (
+            ("missing", self.missing), ("not the robot's", self.extra)) if names) or "the same joints in another order"
+        super().__init__(f"{what}'s joints {', '.join(self.joints)} differ from robot '{robot_name}''s excited "
+                         f"joints {', '.join(self.robot_joints)} ({detail}); pass the --robot/--config they were "
+                         "recorded or optimized with", file=file)
+
+
+def check_joints(robot, joints: Sequence[str], *, file: str = "", what: str = "the data",
+                 any_order: bool = False) -> None:
+    """The package's one check that a file's joints are ``robot``'s excited joints (in order,
+    or in ``any_order``).
+
+    Raises:
+        JointMismatchError: they are not.
+    """
+    joints = tuple(str(j) for j in joints)
+    expected = tuple(robot.joint_names)
+    if joints != expected and not (any_order and sorted(joints) == sorted(expected) and len(set(joints)) == len(joints)):
+        raise JointMismatchError(joints, robot.name, expected, file=str(file), what=what)
+
+
 class NoSolutionFound(PeDrakeError):
     """The solver did not find a solution that satisfies every constraint.
 

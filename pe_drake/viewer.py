@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from pe_drake.exceptions import ConfigError, DataError, UnknownNameError
+from pe_drake.exceptions import ConfigError, DataError, UnknownNameError, check_joints
 from pe_drake.excitation.ramp import check_within_limits
 from pe_drake.excitation.trajectory_file import load_motion, recorded_environment
 from pe_drake.io_utils import atomic_write_text
@@ -416,21 +416,9 @@ def _limits_in_file_order(limits, order: np.ndarray):
 
 
 def _joint_order(path, data: dict, rob) -> np.ndarray:
-    """Column of the trajectory for each plant position; ConfigError on a joint mismatch."""
+    """Column of the trajectory for each plant position; JointMismatchError on a joint mismatch."""
     joints = [str(j) for j in data["joints"]]
-    missing = [j for j in joints if j not in rob.joint_names]
-    extra = [j for j in rob.joint_names if j not in joints]
-    if missing or extra:
-        parts = []
-        if missing:
-            parts.append(f"trajectory joints the robot does not excite: {missing}")
-        if extra:
-            parts.append(f"robot joints the trajectory does not move: {extra}")
-        raise ConfigError(
-            f"trajectory '{path}' does not match robot '{rob.name}': "
-            + "; ".join(parts)
-            + ". Pass the --robot/--config the trajectory was optimized with."
-        )
+    check_joints(rob, joints, file=str(path), what="the trajectory", any_order=True)
     return np.array([joints.index(j) for j in rob.joint_names])
 
 

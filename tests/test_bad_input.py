@@ -102,3 +102,23 @@ def test_failed_optimize_leaves_no_stale_trajectory(tmp_path):
         assert "trajectory.json" not in names
     else:
         assert json.loads((out / "trajectory.json").read_text())["periods"] == 1
+
+
+def test_one_joint_check_names_the_file_the_missing_and_extra_joints_and_the_robots():
+    from types import SimpleNamespace
+
+    from pe_drake.exceptions import ConfigError, DataError, JointMismatchError, check_joints
+
+    robot = SimpleNamespace(name="arm", joint_names=("j1", "j2", "j3"))
+    check_joints(robot, ["j1", "j2", "j3"])
+    check_joints(robot, ["j3", "j1", "j2"], any_order=True)
+    with pytest.raises(JointMismatchError) as err:
+        check_joints(robot, ["j1", "j2", "x9"], file="log.csv")
+    text = str(err.value)
+    assert "log.csv" in text and "missing: j3" in text and "not the robot's: x9" in text and "j1, j2, j3" in text
+    assert isinstance(err.value, DataError) and isinstance(err.value, ConfigError)
+    assert err.value.missing == ("j3",) and err.value.extra == ("x9",)
+    with pytest.raises(JointMismatchError, match="another order"):
+        check_joints(robot, ["j3", "j1", "j2"])
+    with pytest.raises(JointMismatchError):
+        check_joints(robot, ["j1", "j1", "j2", "j3"], any_order=True)

@@ -12,7 +12,8 @@ import pytest
 from pe_drake.config import ExcitationConfig
 from pe_drake.exceptions import ConfigError, InfeasibleError
 from pe_drake.excitation.baseline import (
-    Candidate,
+    BaselineOptions,
+    RandomMotion,
     generate_candidates,
     greedy_select,
     random_baseline,
@@ -119,7 +120,7 @@ def test_rejection_sampling_keeps_only_feasible_draws(panda, candidates):
         else:
             assert min(margins.values()) < 0, margins  # rejected for a reason
     for c in candidates.candidates:
-        assert isinstance(c, Candidate)
+        assert isinstance(c, RandomMotion)
         np.testing.assert_array_equal(c.alpha, problem.initial_guess(c.seed, CONFIG.amplitude))
         assert c.margins == pytest.approx(sample_margins(problem, c.alpha, constraints))
         assert c.cond == pytest.approx(np.linalg.cond(problem.regressor_block(c.alpha)), rel=1e-9)
@@ -139,9 +140,7 @@ def test_candidates_do_not_depend_on_the_worker_count(panda, candidates):
 
 def test_random_baseline_selects_from_its_candidates(panda):
     events = []
-    result = random_baseline(
-        panda, CONFIG, motions=2, candidates=6, seed=100, workers=1, progress=events.append
-    )
+    result = random_baseline(panda, CONFIG, BaselineOptions(motions=2, candidates=6, seed=100), progress=events.append)
     blocks = list(result.candidate_set.R)
     assert result.selection == greedy_select(blocks, 2)
     assert [c.seed for c in result.selected] == [
@@ -157,4 +156,4 @@ def test_too_few_feasible_draws_is_an_infeasible_error(panda):
     with pytest.raises(ConfigError, match="amplitude"):
         generate_candidates(panda, CONFIG, 5, amplitude=-1.0, workers=1)
     with pytest.raises(ConfigError, match="cannot supply"):
-        random_baseline(panda, CONFIG, motions=3, candidates=2, workers=1)
+        random_baseline(panda, CONFIG, BaselineOptions(motions=3, candidates=2))

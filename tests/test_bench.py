@@ -2,7 +2,7 @@
 
 import re
 
-from pe_drake.bench import main
+from pe_drake.bench import bench_main as main
 
 
 def test_bench_solve_prints_every_field(capsys):

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from pe_drake.bench import main
+from pe_drake.bench import bench_main as main
 from pe_drake.bench_robots import (
     COLUMNS, ROBOTS, BenchOptions, BenchRobot, caps_yaml, hidden_friction, select_robots, short_reason,
 )

@@ -154,3 +154,14 @@ def test_ipopt_options_are_data_of_the_solver_config(tmp_path):
     cfg.write_text("solver:\n  ipopt_options: {max_soc: '4', spral_scaling: matching}\n")
     config = load_config(cfg, base=resolve_robot_config("panda"))
     assert config.solver.ipopt_options == {"max_soc": "4", "spral_scaling": "matching"}
+
+
+def test_every_front_door_is_a_name_of_the_package():
+    """Issue 33: the six doors are importable from `pe_drake` itself and are the stages' own."""
+    import pe_drake
+    from pe_drake.diagnosis import diagnose
+    from pe_drake.identification import read_measurements, simulate_run, validate_model
+
+    doors = (optimize_motion, simulate_run, read_measurements, identify_model, validate_model, diagnose)
+    assert all(getattr(pe_drake, door.__name__) is door for door in doors)
+    assert {d.__name__ for d in doors} <= set(pe_drake.__all__)

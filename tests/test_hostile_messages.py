@@ -20,8 +20,8 @@ from pe_drake.cli import main
 from pe_drake.config import ExcitationConfig, SolverConfig
 from pe_drake.exceptions import ConfigError, DataError, PeDrakeError, shorten
 from pe_drake.excitation import solver_logs
-from pe_drake.excitation.multistart import solve_multistart
-from pe_drake.excitation.parallel import WorkerError, open_executor
+from pe_drake.excitation.multistart import MultiStartOptions, solve_multistart
+from pe_drake.excitation.parallel import ExecutorOptions, WorkerError, open_executor
 from pe_drake.excitation.trajectory_file import load_trajectory
 from pe_drake.identification.gaps import split_at_pauses
 from pe_drake.identification.identified_file import load_identified
@@ -287,8 +287,9 @@ def test_a_run_whose_worker_is_killed_leaves_no_ipopt_log(panda, tmp_path, monke
                               criterion="log_cond", amplitude=0.3)
     with open_executor(panda, "local", 2, tasks=2, start_method="spawn") as ex:
         try:  # a killed worker's start is lost, the others are re-run on a new pool (test_parallel)
-            solve_multistart(panda, config, SolverConfig(max_iterations=300, verbose=False), [3, 4],
-                             executor=ex, progress=kill_workers, progress_interval=0.05)
+            options = MultiStartOptions([3, 4], run=ExecutorOptions(executor=ex, progress_interval=0.05))
+            solve_multistart(panda, config, SolverConfig(max_iterations=300, verbose=False), options,
+                             progress=kill_workers)
         except WorkerError as err:  # every start lost
             assert "died" in str(err)
     assert killed

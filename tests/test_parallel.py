@@ -28,9 +28,17 @@ import pytest
 from pe_drake.cli import main
 from pe_drake.config import Config, ExcitationConfig, ParallelConfig, SolverConfig, load_config, validate_config
 from pe_drake.exceptions import ConfigError
-from pe_drake.excitation.multistart import best_index, solve_multistart
+from pe_drake.excitation.multistart import MultiStartOptions, best_index, solve_multistart
 from pe_drake.excitation.optimize_report import start_records
-from pe_drake.excitation.parallel import RobotSpec, TaskFinished, TaskLost, TaskStarted, WorkerError, open_executor
+from pe_drake.excitation.parallel import (
+    ExecutorOptions,
+    RobotSpec,
+    TaskFinished,
+    TaskLost,
+    TaskStarted,
+    WorkerError,
+    open_executor,
+)
 
 CONFIG = ExcitationConfig(
     harmonics=3,
@@ -147,7 +155,8 @@ def ray_session():
 
 @pytest.fixture(scope="module")
 def serial(panda):
-    return solve_multistart(panda, CONFIG, SOLVER, SEEDS, workers=1, constraints_factory=no_constraints)
+    options = MultiStartOptions(SEEDS, constraints_factory=no_constraints, run=ExecutorOptions(workers=1))
+    return solve_multistart(panda, CONFIG, SOLVER, options)
 
 
 def _assert_same_starts(a, b, atol=0.0):
@@ -163,9 +172,8 @@ def test_local_pool_gives_the_serial_trajectories_whatever_the_worker_count(pand
     assert {s.worker for s in serial.starts} == {"main"}
     events = []
     for workers in (2, 3):
-        parallel = solve_multistart(
-            panda, CONFIG, SOLVER, SEEDS, workers=workers, constraints_factory=no_constraints, progress=events.append
-        )
+        parallel = solve_multistart(panda, CONFIG, SOLVER, MultiStartOptions(
+            SEEDS, constraints_factory=no_constraints, run=ExecutorOptions(workers=workers)), progress=events.append)
         assert parallel.executor == "local" and parallel.workers == workers
         _assert_same_starts(parallel, serial)
         assert all(s.worker.startswith("pid ") and s.worker != f"pid {os.getpid()}" for s in parallel.starts)
@@ -179,9 +187,8 @@ def test_local_pool_gives_the_serial_trajectories_whatever_the_worker_count(pand
 
 
 def test_ray_gives_the_serial_trajectories(panda, serial, ray_session):
-    result = solve_multistart(
-        panda, CONFIG, SOLVER, SEEDS, workers=2, executor="ray", constraints_factory=no_constraints
-    )
+    result = solve_multistart(panda, CONFIG, SOLVER, MultiStartOptions(
+        SEEDS, constraints_factory=no_constraints, run=ExecutorOptions(workers=2, executor="ray")))
     assert result.executor == "ray" and result.workers == 2
     # Bit-identical in the runs here, but Ray workers are not always: on a larger Panda problem
     # 3 of 16 starts differed from the local ones by up to 4.6e-10 rad (README, cluster section).
@@ -225,9 +232,8 @@ def test_a_failing_start_names_its_seed(panda, executor, request):
     if executor == "ray":
         request.getfixturevalue("ray_session")
     with pytest.raises(WorkerError, match=r"start \d \(seed [01]\) failed .*ConfigError: constraint factory failed on purpose"):
-        solve_multistart(
-            panda, CONFIG, SOLVER, [0, 1], workers=2, executor=executor, constraints_factory=failing_constraints
-        )
+        solve_multistart(panda, CONFIG, SOLVER, MultiStartOptions(
+            [0, 1], constraints_factory=failing_constraints, run=ExecutorOptions(workers=2, executor=executor)))
     assert not multiprocessing.active_children()
 
 
@@ -366,8 +372,8 @@ def test_multistart_keeps_the_finished_starts_when_a_worker_dies_or_hangs(panda,
     events = []
     with open_executor(panda, "local", 2, constraints_factory=factory, hung_after_s=4) as ex:
         ex.map(_faults, [0, 1])
-        result = solve_multistart(None, CONFIG, SOLVER, SEEDS, executor=ex, progress=events.append,
-                                  progress_interval=0.2)
+        options = MultiStartOptions(SEEDS, run=ExecutorOptions(executor=ex, progress_interval=0.2))
+        result = solve_multistart(None, CONFIG, SOLVER, options, progress=events.append)
     lost = [k for k, s in enumerate(result.starts) if s.lost]
     assert len(lost) == 1 and result.results[lost[0]] is None
     why = "died (killed by SIGKILL)" if fault == "kill" else "gave no progress for 4 s: declared hung"

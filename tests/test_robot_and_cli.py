@@ -165,3 +165,24 @@ def test_cli_bad_config_value(tmp_path, capsys):
     assert main(["optimize", "--robot", "panda", "--config", str(cfg), "--out", str(tmp_path / "o")]) == 2
     assert "omeg" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+
+
+def test_optimize_loads_no_identification_or_diagnosis_module(tmp_path):
+    """Issue 33: the stage packages export lazily, so `pe-drake optimize` (run whole, in a fresh
+    interpreter) imports neither the identification nor the diagnosis stage."""
+    import os
+    import subprocess
+    import sys
+
+    cfg = tmp_path / "small.yaml"
+    cfg.write_text("excitation: {harmonics: 3, cost_samples: 24, constraint_samples: 96}\nsolver: {max_iterations: 30}\n")
+    script = (
+        "import sys\nfrom pe_drake.cli import main\n"
+        f"code = main(['optimize', '--robot', 'panda', '--config', {str(cfg)!r}, '--out', {str(tmp_path / 'o')!r}, "
+        "'--quiet', '--csv-rate', '50'])\n"
+        "print(code, [m for m in sys.modules if m.startswith(('pe_drake.identification', 'pe_drake.diagnosis'))])\n"
+    )
+    root = str(Path(__file__).resolve().parent.parent)
+    run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300, cwd=root,
+                         env={**os.environ, "PYTHONPATH": root})
+    assert run.stdout.strip().splitlines()[-1] == "0 []", run.stdout + run.stderr

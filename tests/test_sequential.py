@@ -16,10 +16,10 @@ import pytest
 from pe_drake.config import ExcitationConfig, SolverConfig
 from pe_drake.exceptions import ConfigError, NoSolutionFound
 from pe_drake.excitation.constraints.base import SampledConstraint, SampledValues
-from pe_drake.excitation.multistart import StartEvent, WorkerError, best_index, solve_multistart
-from pe_drake.excitation.parallel import open_executor
+from pe_drake.excitation.multistart import MultiStartOptions, StartEvent, WorkerError, best_index, solve_multistart
+from pe_drake.excitation.parallel import ExecutorOptions, open_executor
 from pe_drake.excitation.problem import ExcitationProblem
-from pe_drake.excitation.sequential import MotionEvent, motion_seeds, optimize_sequence
+from pe_drake.excitation.sequential import MotionEvent, SequenceOptions, motion_seeds, optimize_sequence
 
 CONFIG = ExcitationConfig(
     harmonics=3,
@@ -30,6 +30,7 @@ CONFIG = ExcitationConfig(
     amplitude=0.3,
 )
 SOLVER = SolverConfig(max_iterations=8, verbose=False)
+ONE_WORKER = ExecutorOptions(workers=1)
 
 
 def no_constraints(robot, config):
@@ -66,17 +67,9 @@ def _cond(C):
 @pytest.fixture(scope="module")
 def sequence(panda):
     events = []
-    result = optimize_sequence(
-        panda,
-        CONFIG,
-        SOLVER,
-        motions=3,
-        starts=1,
-        workers=1,
-        constraints_factory=no_constraints,
-        progress=events.append,
-        warm_start=False,  # every start at its seed's random point (see the warm-start test)
-    )
+    options = SequenceOptions(motions=3, starts=1, constraints_factory=no_constraints, run=ONE_WORKER,
+                              warm_start=False)  # every start at its seed's random point (see the warm-start test)
+    result = optimize_sequence(panda, CONFIG, SOLVER, options, progress=events.append)
     return result, events
 
 
@@ -114,16 +107,8 @@ def test_each_motion_starts_from_its_own_seed(panda, sequence):
 def test_prior_data_is_the_first_block_of_C(panda, sequence):
     first, _ = sequence
     C0 = first.motions[0].block
-    result = optimize_sequence(
-        panda,
-        CONFIG,
-        SOLVER,
-        motions=1,
-        workers=1,
-        seed=first.motions[1].seed,
-        C0=C0,
-        constraints_factory=no_constraints,
-    )
+    result = optimize_sequence(panda, CONFIG, SOLVER, SequenceOptions(
+        motions=1, seed=first.motions[1].seed, C0=C0, constraints_factory=no_constraints, run=ONE_WORKER))
     # Same prior, same seed, same solver: motion 2 of the first run again.
     np.testing.assert_allclose(result.motions[0].result.x, first.motions[1].result.x, rtol=0, atol=1e-10)
     np.testing.assert_allclose(result.C[: len(C0)], C0)
@@ -132,10 +117,8 @@ def test_prior_data_is_the_first_block_of_C(panda, sequence):
 
 def test_warm_start_begins_at_the_best_earlier_motion(panda):
     events = []
-    result = optimize_sequence(
-        panda, CONFIG, SOLVER, motions=3, starts=2, workers=1, constraints_factory=no_constraints,
-        progress=events.append,
-    )
+    result = optimize_sequence(panda, CONFIG, SOLVER, SequenceOptions(
+        motions=3, starts=2, constraints_factory=no_constraints, run=ONE_WORKER), progress=events.append)
     started = [e for e in events if isinstance(e, StartEvent) and e.kind == "started"]
     # Motion 1: two random starts; motions 2 and 3: a random start, then the warm start.
     assert [e.origin.split(",")[0] for e in started[:2]] == ["", ""]
@@ -154,10 +137,10 @@ def test_warm_start_begins_at_the_best_earlier_motion(panda):
 def test_multistart_in_two_processes_keeps_the_best_and_equals_serial(panda):
     seeds = [3, 4, 5]
     events = []
-    parallel = solve_multistart(
-        panda, CONFIG, SOLVER, seeds, workers=2, constraints_factory=no_constraints, progress=events.append
-    )
-    serial = solve_multistart(panda, CONFIG, SOLVER, seeds, workers=1, constraints_factory=no_constraints)
+    parallel = solve_multistart(panda, CONFIG, SOLVER, MultiStartOptions(
+        seeds, constraints_factory=no_constraints, run=ExecutorOptions(workers=2)), progress=events.append)
+    serial = solve_multistart(panda, CONFIG, SOLVER, MultiStartOptions(
+        seeds, constraints_factory=no_constraints, run=ONE_WORKER))
     assert parallel.workers == 2 and parallel.executor == "local"
     assert serial.workers == 1 and serial.executor == "main"
     for a, b in zip(parallel.results, serial.results):
@@ -184,18 +167,21 @@ def test_best_index_prefers_feasible_starts():
 
 def test_worker_errors_reach_the_caller_and_leave_no_process(panda):
     with pytest.raises(WorkerError, match="on purpose") as info:
-        solve_multistart(panda, CONFIG, SOLVER, [0, 1], workers=2, constraints_factory=failing_constraints)
+        solve_multistart(panda, CONFIG, SOLVER, MultiStartOptions(
+            [0, 1], constraints_factory=failing_constraints, run=ExecutorOptions(workers=2)))
     assert info.value.exception_type == "ConfigError" and info.value.task in (0, 1)
     assert not multiprocessing.active_children()
     # In this process (one worker) the exception itself propagates.
     with pytest.raises(ConfigError, match="on purpose"):
-        solve_multistart(panda, CONFIG, SOLVER, [0, 1], workers=1, constraints_factory=failing_constraints)
+        solve_multistart(panda, CONFIG, SOLVER, MultiStartOptions(
+            [0, 1], constraints_factory=failing_constraints, run=ONE_WORKER))
 
 
 def test_sequence_in_two_processes_equals_serial(panda, sequence):
     serial, _ = sequence
     with open_executor(panda, "local", 2, constraints_factory=no_constraints) as ex:
-        parallel = optimize_sequence(panda, CONFIG, SOLVER, motions=3, executor=ex, warm_start=False)
+        parallel = optimize_sequence(panda, CONFIG, SOLVER, SequenceOptions(
+            motions=3, warm_start=False, run=ExecutorOptions(executor=ex)))
     assert parallel.workers == 1  # one start per motion: one at a time
     for a, b in zip(parallel.motions, serial.motions):
         np.testing.assert_array_equal(a.result.x, b.result.x)
@@ -205,14 +191,8 @@ def test_sequence_in_two_processes_equals_serial(panda, sequence):
 
 def test_a_motion_without_a_feasible_start_raises_with_the_partial_result(panda):
     with pytest.raises(NoSolutionFound) as info:
-        optimize_sequence(
-            panda,
-            CONFIG,
-            SolverConfig(max_iterations=3, verbose=False),
-            motions=2,
-            workers=1,
-            constraints_factory=unreachable_constraints,
-        )
+        optimize_sequence(panda, CONFIG, SolverConfig(max_iterations=3, verbose=False), SequenceOptions(
+            motions=2, constraints_factory=unreachable_constraints, run=ONE_WORKER))
     partial = info.value.result
     assert len(partial.motions) == 1 and not partial.success
     assert partial.motions[0].result.margins["unreachable"] < 0
@@ -229,15 +209,16 @@ def test_a_motion_without_a_feasible_start_raises_with_the_partial_result(panda)
 )
 def test_bad_arguments_are_refused(panda, kwargs, match):
     with pytest.raises(ConfigError, match=match):
-        optimize_sequence(panda, CONFIG, SOLVER, workers=1, constraints_factory=no_constraints, **kwargs)
+        optimize_sequence(panda, CONFIG, SOLVER, SequenceOptions(constraints_factory=no_constraints, run=ONE_WORKER,
+                                                                 **kwargs))
 
 
 def test_multistart_refuses_bad_seeds(panda):
     with pytest.raises(ConfigError, match="differ"):
-        solve_multistart(panda, CONFIG, SOLVER, [1, 1], workers=1)
+        solve_multistart(panda, CONFIG, SOLVER, MultiStartOptions([1, 1], run=ONE_WORKER))
     with pytest.raises(ConfigError, match="at least one"):
-        solve_multistart(panda, CONFIG, SOLVER, [], workers=1)
+        solve_multistart(panda, CONFIG, SOLVER, MultiStartOptions([], run=ONE_WORKER))
     with pytest.raises(ConfigError, match="workers"):
-        solve_multistart(panda, CONFIG, SOLVER, [1, 2], workers=0)
+        solve_multistart(panda, CONFIG, SOLVER, MultiStartOptions([1, 2], run=ExecutorOptions(workers=0)))
     with pytest.raises(ConfigError, match="1 origins for 2 seeds"):
-        solve_multistart(panda, CONFIG, SOLVER, [1, 2], workers=1, origins=["from motion 1"])
+        solve_multistart(panda, CONFIG, SOLVER, MultiStartOptions([1, 2], origins=["from motion 1"], run=ONE_WORKER))

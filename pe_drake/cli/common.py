@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 from collections.abc import Callable
 
+import pe_drake
 from pe_drake.config import Config
-from pe_drake.identification import read_measurements
 from pe_drake.multibody import Robot, resolve_robot_config, robot_display_name
 
 
@@ -53,7 +53,8 @@ def read_log_from_args(args: argparse.Namespace, robot: Robot, config: Config | 
     """The measured log ``--data`` (or ``path``) read and checked with the config's ``data``
     section and the log flags (:func:`~pe_drake.identification.intake.read_measurements`)."""
     options = config.data if config is not None else None
-    return read_measurements(path or args.data, robot, options, format=getattr(args, "format", None),
+    # Through the package's lazy export: `pe-drake optimize` loads no identification module.
+    return pe_drake.read_measurements(path or args.data, robot, options, format=getattr(args, "format", None),
                     topic=getattr(args, "topic", None), effort=getattr(args, "effort", None))
 
 

@@ -5,8 +5,13 @@ options → record (data preparation) → effects (the library) → regression (
 selection) → payload → augmented_model → result, report → workflow (:func:`diagnose`).
 """
 
-from pe_drake.diagnosis.options import DiagnosisConfig
-from pe_drake.diagnosis.result import DiagnosisResult, write_outputs
-from pe_drake.diagnosis.workflow import diagnose
+from pe_drake.exports import exports_by_module, lazy_exports
 
-__all__ = ["DiagnosisConfig", "DiagnosisResult", "diagnose", "write_outputs"]
+_EXPORTS = exports_by_module(__name__, {
+    "options": "DiagnosisConfig",
+    "result": "DiagnosisResult write_outputs",
+    "workflow": "diagnose",
+})
+
+__all__ = sorted(_EXPORTS)
+__getattr__ = lazy_exports(__name__, _EXPORTS)

@@ -26,6 +26,7 @@ from pe_drake.exceptions import DataError
 from pe_drake.identification.data_checks import check_against_model
 from pe_drake.identification.measurements import Measurement, Preprocessing
 from pe_drake.identification.preprocessing import (
+    EDGE_PERIODS,
     LowPassFilter,
     choose_cutoff,
     decimation_step,
@@ -37,10 +38,6 @@ from pe_drake.multibody.drive_columns import coulomb_column
 
 #: Order of the Butterworth low-pass (the zero-phase filter doubles it).
 FILTER_ORDER = 4
-#: Odd extension of the filter at each end, in periods of the cut-off: a short extension
-#: leaves edge transients in the twice-differentiated acceleration that reach past the
-#: 2 / cut-off trimmed at each end.
-EDGE_PERIODS = 3.0
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -314,15 +311,6 @@ def check_fits_in_memory(data: Measurement, validation: Measurement | None = Non
             f"({per_sample * min(data.rate_hz, FIT_RATE_HZ) / 1e6:.1f} MB per second of this log); this machine "
             f"has {available / 1e9:.1f} GB available: diagnose a part of the run (about {fits:.0f} min) and "
             "identify the whole of it (pe-drake identify reads an hour at 1 kHz in under 2 GB)", file=data.source)
-
-
-def check_joints(robot, data: Measurement, validation: Measurement | None) -> None:
-    """Raises DataError when a file's joints are not the robot's excited joints, in order."""
-    for m in (data, validation):
-        if m is not None and tuple(m.joints) != tuple(robot.joint_names):
-            raise DataError(
-                f"the data's joints {', '.join(m.joints)} differ from robot '{robot.name}''s excited "
-                f"joints {', '.join(robot.joint_names)}", file=m.source)
 
 
 def model_file_friction(robot, seg: Segment) -> np.ndarray:

@@ -24,6 +24,7 @@ from pe_drake.diagnosis.effects import Candidate, effect_column
 from pe_drake.diagnosis.holding import HOLDING, holding_column
 from pe_drake.diagnosis.options import TIMING, DiagnosisConfig, Thresholds
 from pe_drake.diagnosis.record import Segment
+from pe_drake.identification.least_squares import solve_normal_equations
 from pe_drake.identification.statistics import integrated_autocorrelation
 
 # ---- columns and fits ------------------------------------------------------------------------
@@ -82,14 +83,7 @@ class Regression:
         Gj = self.train.gram[:, cols][:, :, cols]
         G = np.einsum("j,jpq->pq", w2, Gj)
         g = np.einsum("j,jp->p", w2, self.train.rhs[:, cols])
-        d = np.sqrt(np.maximum(np.diag(G), 1e-300))
-        Gs = G / np.outer(d, d)
-        try:
-            Hinv = np.linalg.inv(Gs)
-        except np.linalg.LinAlgError:
-            Hinv = np.linalg.pinv(Gs)
-        x = (Hinv @ (g / d)) / d
-        Hinv = Hinv / np.outer(d, d)
+        x, Hinv = solve_normal_equations(G, g)
         rss_tr = self._rss(self.train, cols, x)
         rss_ho = self._rss(self.held, cols, x)
         S_tr, S_ho = self.train.count, self.held.count

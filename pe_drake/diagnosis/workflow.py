@@ -96,7 +96,7 @@ from pe_drake.diagnosis.holding_selection import add_friction_pairs
 from pe_drake.diagnosis.presliding import PRESLIDING, PreslidingStep, presliding_effects, presliding_step
 from pe_drake.diagnosis.prior import (fitted_friction, prior_drive_torque, prior_own_parameters,
                                      prior_parameters)
-from pe_drake.diagnosis.record import (Record, Segment, check_fits_in_memory, check_joints, check_record_signs,
+from pe_drake.diagnosis.record import (Record, Segment, check_fits_in_memory, check_record_signs,
                                       delayed_states, prepare_record, split_segments)
 from pe_drake.diagnosis.regression import (
     Fit,
@@ -113,7 +113,7 @@ from pe_drake.diagnosis.selection import (CrossValidation, InternalSplit, intern
                                          say_selection, select)
 from pe_drake.diagnosis.report import decision_summary
 from pe_drake.diagnosis.result import DiagnosisResult, NamedEffect, per_joint, time_delay_effect
-from pe_drake.exceptions import DataError
+from pe_drake.exceptions import DataError, check_joints
 from pe_drake.identification.estimators import IdentificationResult
 from pe_drake.identification.gaps import longest_segment
 from pe_drake.identification.measurements import Measurement, check_torque_units
@@ -521,7 +521,8 @@ def diagnose(
     say = progress or (lambda _msg: None)
     lap = _Laps()
     joints = robot.joint_names
-    check_joints(robot, data, validation)
+    for m in filter(None, (data, validation)):
+        check_joints(robot, m.joints, file=m.source)
     data, validation = (longest_segment(m, config.max_gap_s) if m is not None else None for m in (data, validation))
     check_fits_in_memory(data, validation)
     for note in (*data.notes, *(validation.notes if validation is not None else ())):

@@ -35,11 +35,12 @@ import scipy.linalg
 from pe_drake.config import Config, ExcitationConfig, validate_config
 from pe_drake.exceptions import ConfigError, InfeasibleError
 from pe_drake.excitation.constraints import constraints_from_config
-from pe_drake.excitation.parallel import Executor, TaskFinished, open_executor
+from pe_drake.excitation.parallel import Executor, ExecutorOptions, TaskFinished, open_executor
+from pe_drake.multibody.robot import Robot
 
 
 @dataclasses.dataclass(frozen=True)
-class Candidate:
+class RandomMotion:
     """One random motion that satisfies every constraint at the K samples.
 
     Attributes:
@@ -71,7 +72,7 @@ class CandidateSet:
         workers: chunks of draws run at once (1: one after the other).
     """
 
-    candidates: list[Candidate]
+    candidates: list[RandomMotion]
     R: np.ndarray
     draws: int
     rejected: dict[str, int]
@@ -86,7 +87,7 @@ class CandidateSet:
 
 
 @dataclasses.dataclass(frozen=True)
-class Selection:
+class GreedySelection:
     """A greedy selection (Table II).
 
     Attributes:
@@ -107,14 +108,14 @@ class BaselineResult:
     Attributes:
         candidate_set: the accepted random motions.
         selection: the greedy selection over them.
-        selected: the selected :class:`Candidate` objects, in selection order.
+        selected: the selected :class:`RandomMotion` objects, in selection order.
         generation_time: time to draw and check the candidates [s].
         selection_time: time of the greedy selection [s].
     """
 
     candidate_set: CandidateSet
-    selection: Selection
-    selected: list[Candidate]
+    selection: GreedySelection
+    selected: list[RandomMotion]
     generation_time: float
     selection_time: float
 
@@ -166,7 +167,7 @@ def stacked_cond(blocks: Sequence[np.ndarray]) -> float:
     return _cond(s)
 
 
-def greedy_select(blocks: Sequence[np.ndarray], motions: int, C0: np.ndarray | None = None) -> Selection:
+def greedy_select(blocks: Sequence[np.ndarray], motions: int, C0: np.ndarray | None = None) -> GreedySelection:
     """Greedy choice of ``motions`` blocks minimizing cond of their concatenation.
 
     The first pick has the lowest cond alone (or, with ``C0``, the lowest cond of [C0; block]);
@@ -178,7 +179,7 @@ def greedy_select(blocks: Sequence[np.ndarray], motions: int, C0: np.ndarray | N
         C0: prior data, shape (m0, b), or None.
 
     Returns:
-        The :class:`Selection`.
+        The :class:`GreedySelection`.
 
     Raises:
         ConfigError: fewer blocks than motions, a motion count below 1, or column counts
@@ -209,7 +210,7 @@ def greedy_select(blocks: Sequence[np.ndarray], motions: int, C0: np.ndarray | N
         totals.append(best_cond)
         stack = R[best] if current is None else np.vstack([current, R[best]])
         current = _r_factor(stack)
-    return Selection(chosen, [alone[k] for k in chosen], totals)
+    return GreedySelection(chosen, [alone[k] for k in chosen], totals)
 
 
 # ---- rejection sampling ---------------------------------------------------------------------------
@@ -236,7 +237,7 @@ def _joint_margins(lim, q: np.ndarray, v: np.ndarray, vd: np.ndarray) -> dict[st
 
 def _draw(
     problem, constraints, seed: int, amplitude: float
-) -> tuple[str, Candidate | None, np.ndarray | None]:
+) -> tuple[str, RandomMotion | None, np.ndarray | None]:
     """One draw: ("", candidate, R) if accepted, else (reason, None, None)."""
     alpha = problem.initial_guess(seed, amplitude)
     q, v, vd = problem.constraint_basis.evaluate_alpha(alpha, problem.n)
@@ -250,7 +251,7 @@ def _draw(
     block = problem.regressor_block(alpha)
     R = _r_factor(block)
     cond = _cond(np.linalg.svd(R, compute_uv=False))
-    return "", Candidate(int(seed), alpha, cond, margins), R
+    return "", RandomMotion(int(seed), alpha, cond, margins), R
 
 
 @dataclasses.dataclass
@@ -260,7 +261,7 @@ class _DrawChunk:
     amplitude: float
 
 
-def _draw_chunk(state, chunk: _DrawChunk) -> list[tuple[str, Candidate | None, np.ndarray | None]]:
+def _draw_chunk(state, chunk: _DrawChunk) -> list[tuple[str, RandomMotion | None, np.ndarray | None]]:
     """Executor task: a chunk of draws (see :mod:`pe_drake.excitation.parallel`)."""
     problem = state.problem(chunk.config, None)
     constraints = state.constraints(chunk.config)
@@ -393,53 +394,58 @@ def generate_candidates(
     return CandidateSet(kept, np.array(R), draws, rejected, float(amplitude), time.perf_counter() - begin, executor.workers)
 
 
-def random_baseline(
-    robot,
-    config: ExcitationConfig | None = None,
-    motions: int = 3,
-    candidates: int = 200,
-    *,
-    constraints_factory: Callable | None = None,
-    seed: int = 0,
-    amplitude: float | None = None,
-    max_draws: int | None = None,
-    C0: np.ndarray | None = None,
-    workers: int = 1,
-    executor: str | Executor = "local",
-    address: str = "",
-    progress: Callable[[DrawEvent], None] | None = None,
-) -> BaselineResult:
-    """Random feasible candidates, then the greedy selection of ``motions`` of them.
+@dataclasses.dataclass(frozen=True, eq=False)
+class BaselineOptions:
+    """The random baseline's draws, its selection and where the draws run.
 
-    Args:
-        robot, config, constraints_factory, seed, amplitude, max_draws, workers, executor,
-        address, progress: see :func:`generate_candidates`.
+    Attributes:
         motions: how many motions to select (the paper: 3).
         candidates: accepted random motions to select from.
         C0: prior data the selection starts from, shape (m0, b), or None.
+        constraints_factory, seed, amplitude, max_draws: see :func:`generate_candidates`.
+        run: where the draws run (``workers``, ``executor``, ``address`` of
+            :class:`~pe_drake.excitation.parallel.ExecutorOptions`; default one worker).
+    """
+
+    motions: int = 3
+    candidates: int = 200
+    C0: np.ndarray | None = None
+    constraints_factory: Callable | None = None
+    seed: int = 0
+    amplitude: float | None = None
+    max_draws: int | None = None
+    run: ExecutorOptions = ExecutorOptions(workers=1)
+
+
+def random_baseline(
+    robot: Robot | None,
+    config: ExcitationConfig | None = None,
+    options: BaselineOptions | None = None,
+    *,
+    progress: Callable[[DrawEvent], None] | None = None,
+) -> BaselineResult:
+    """Random feasible candidates (:func:`generate_candidates`), then the greedy selection of
+    ``options.motions`` of them.
+
+    Args:
+        robot, config, progress: see :func:`generate_candidates`.
+        options: the draws and the selection (default :class:`BaselineOptions`).
 
     Returns:
         The :class:`BaselineResult`.
     """
+    o = options or BaselineOptions()
+    motions, candidates = o.motions, o.candidates
     if not isinstance(motions, int) or motions < 1:
         raise ConfigError(f"motions must be a positive integer, got {motions!r}")
     if isinstance(candidates, int) and candidates < motions:
         raise ConfigError(f"{candidates} candidates cannot supply {motions} motions")
     cset = generate_candidates(
-        robot,
-        config,
-        candidates,
-        constraints_factory=constraints_factory,
-        seed=seed,
-        amplitude=amplitude,
-        max_draws=max_draws,
-        workers=workers,
-        executor=executor,
-        address=address,
-        progress=progress,
+        robot, config, candidates, constraints_factory=o.constraints_factory, seed=o.seed, amplitude=o.amplitude,
+        max_draws=o.max_draws, workers=o.run.workers, executor=o.run.executor, address=o.run.address, progress=progress,
     )
     begin = time.perf_counter()
-    selection = greedy_select(list(cset.R), motions, C0)
+    selection = greedy_select(list(cset.R), motions, o.C0)
     selection_time = time.perf_counter() - begin
     return BaselineResult(
         candidate_set=cset,

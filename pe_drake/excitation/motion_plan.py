@@ -27,14 +27,14 @@ from pathlib import Path
 import numpy as np
 
 from pe_drake.config import Config, noise_vector, validate_config
-from pe_drake.exceptions import ConfigError, DataError, NotWithinLimitsError, OutputWriteError
+from pe_drake.exceptions import ConfigError, DataError, NotWithinLimitsError, OutputWriteError, check_joints
 from pe_drake.excitation.constraints import constraints_from_config
 from pe_drake.excitation.controller_goal import GoalOptions, goal_yaml_text, write_goal_bag
 from pe_drake.excitation.fourier import FourierBasis, sample_times
-from pe_drake.excitation.multistart import MultiStartResult, solve_multistart
+from pe_drake.excitation.multistart import MultiStartOptions, MultiStartResult, solve_multistart
 from pe_drake.excitation.nominal import choose_nominal_posture
 from pe_drake.excitation.optimize_report import MotionReport, assumed_defaults, start_records
-from pe_drake.excitation.parallel import Executor, open_executor
+from pe_drake.excitation.parallel import Executor, ExecutorOptions, open_executor
 from pe_drake.excitation.problem import ExcitationProblem
 from pe_drake.excitation.quality import RANDOM_MOTIONS, QualityReport, excitation_quality
 from pe_drake.excitation.ramp import (
@@ -307,9 +307,7 @@ def prior_regressor(problem: ExcitationProblem, trajectory_json: str | Path) -> 
     """
     trajectory, data = load_trajectory(trajectory_json)
     joints = tuple(data["joints"])
-    if joints != problem.robot.joint_names:
-        raise DataError(f"its joints {list(joints)} differ from the robot's {list(problem.robot.joint_names)}",
-                        file=str(trajectory_json))
+    check_joints(problem.robot, joints, file=str(trajectory_json), what="the prior motion")
     check_within_limits(RampedMotion(trajectory), problem.robot.limits, joints, source=str(trajectory_json))
     basis = FourierBasis(trajectory.harmonics, trajectory.omega, sample_times(trajectory.period, problem.config.cost_samples))
     a, b = trajectory.a, trajectory.b
@@ -369,7 +367,8 @@ def _plan(config, robot, executor, priors, fitted, fitted_text, unchecked, allow
         quality=quality.to_dict() if quality is not None else None, unchecked=list(unchecked),
         not_valid_for_hardware=refusal,
     )
-    return MotionPlan(robot, config, problem, constraints, ms, motion, quality, goal, fitted, fitted_text, report)
+    return MotionPlan(robot=robot, config=config, problem=problem, constraints=constraints, multistart=ms, motion=motion,
+                      quality=quality, goal_yaml=goal, fitted=fitted, fitted_text=fitted_text, report=report)
 
 
 def _solve_starts(problem: ExcitationProblem, executor: Executor, config: Config, say: Say) -> MultiStartResult:
@@ -384,8 +383,8 @@ def _solve_starts(problem: ExcitationProblem, executor: Executor, config: Config
         if event.kind != "progress" or config.solver.verbose:
             say(str(event))
 
-    return solve_multistart(None, config.excitation, config.solver, seeds, C0=problem.C0, executor=executor,
-                            progress=progress)
+    options = MultiStartOptions(seeds, C0=problem.C0, run=ExecutorOptions(executor=executor))
+    return solve_multistart(None, config.excitation, config.solver, options, progress=progress)
 
 
 def _ramped_motion(result, robot: Robot, constraints, config: Config, say: Say) -> RampedMotion:

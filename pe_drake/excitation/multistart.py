@@ -10,12 +10,13 @@ starts finish.
 
 Use it like::
 
-    result = solve_multistart(robot, config.excitation, "ipopt", seeds=[0, 1, 2, 3], workers=2)
+    options = MultiStartOptions(seeds=[0, 1, 2, 3], run=ExecutorOptions(workers=2))
+    result = solve_multistart(robot, config.excitation, "ipopt", options)
     result.best            # the ExcitationResult with the lowest criterion among feasible ones
     for s in result.starts:
         print(s.seed, s.cond, s.wall_time, s.worker)
 
-or pass an open executor (``open_executor(...)``) to reuse its workers over several calls
+or pass an open executor (``ExecutorOptions(executor=open_executor(...))``) to reuse its workers over several calls
 (:func:`pe_drake.excitation.sequential.optimize_sequence` does that for its motions).
 """
 
@@ -33,9 +34,9 @@ from pe_drake.config import Config, ExcitationConfig, SolverConfig, validate_con
 from pe_drake.exceptions import ConfigError
 from pe_drake.excitation.limits import joint_limit_violation
 from pe_drake.excitation.parallel import (
-    HUNG_AFTER_S,
     ConstraintsFactory,
     Executor,
+    ExecutorOptions,
     TaskFinished,
     TaskLost,
     TaskStarted,
@@ -45,8 +46,10 @@ from pe_drake.excitation.parallel import (
 )
 from pe_drake.excitation.program import build_excitation_program
 from pe_drake.excitation.solve import solve_excitation
+from pe_drake.multibody.robot import Robot
 
 __all__ = [
+    "MultiStartOptions",
     "MultiStartResult",
     "StartEvent",
     "StartSummary",
@@ -277,9 +280,9 @@ def best_index(results: Sequence[Any]) -> int:
 
 
 # ---- many starts ----------------------------------------------------------------------------------
-def _make_tasks(seeds, config, solver_cfg, C0, initial_guesses, amplitude, label, interval, origins) -> list[_StartTask]:
+def _make_tasks(o: MultiStartOptions, config, solver_cfg) -> list[_StartTask]:
     """One task per seed; refuses what does not match (before any worker starts)."""
-    seeds = [int(s) for s in seeds]
+    seeds, initial_guesses, origins, interval = [int(s) for s in o.seeds], o.initial_guesses, o.origins, o.run.progress_interval
     if not seeds:
         raise ConfigError("multi-start needs at least one seed")
     if len(set(seeds)) != len(seeds):
@@ -290,7 +293,7 @@ def _make_tasks(seeds, config, solver_cfg, C0, initial_guesses, amplitude, label
         raise ConfigError(f"{len(origins)} origins for {len(seeds)} seeds")
     if not interval > 0:
         raise ConfigError(f"progress_interval must be positive [s], got {interval!r}")
-    C0 = None if C0 is None else np.asarray(C0, float)
+    C0 = None if o.C0 is None else np.asarray(o.C0, float)
     return [
         _StartTask(
             seed=s,
@@ -298,8 +301,8 @@ def _make_tasks(seeds, config, solver_cfg, C0, initial_guesses, amplitude, label
             solver=solver_cfg,
             C0=C0,
             x0=None if initial_guesses is None or initial_guesses[k] is None else np.asarray(initial_guesses[k], float),
-            amplitude=amplitude,
-            label=label,
+            amplitude=o.amplitude,
+            label=o.label,
             interval=interval,
             origin="" if origins is None else str(origins[k]),
         )
@@ -342,24 +345,44 @@ class _StartProgress:
             self.progress(event)
 
 
+@dataclasses.dataclass(frozen=True, eq=False)
+class MultiStartOptions:
+    """The starts of :func:`solve_multistart` and where they run.
+
+    Attributes:
+        seeds: one start per seed; start k begins at ``problem.initial_guess(seeds[k],
+            amplitude)`` unless ``initial_guesses`` is given.
+        C0: prior data (Eq. 41), shape (m1, b), in the executor's base parameters.
+        constraints_factory: ``f(robot, config) -> [SampledConstraint, ...]``, called once per
+            worker (e.g. :func:`pe_drake.excitation.constraints.constraints_from_config`); a
+            module-level function. Ignored with an open executor (its factory is used).
+        initial_guesses: explicit initial alphas, one per seed; a None entry keeps that seed's
+            random point.
+        amplitude: scale of the random initial coefficients [rad] (default config.amplitude).
+        label: copied into the events (e.g. "motion 2").
+        origins: one note per seed saying where an explicit initial guess comes from (e.g.
+            "from motion 1"), copied into its events.
+        run: where the starts run (:class:`~pe_drake.excitation.parallel.ExecutorOptions`;
+            ``workers`` capped at the number of seeds).
+    """
+
+    seeds: Sequence[int] = (0, 1)
+    C0: np.ndarray | None = None
+    constraints_factory: ConstraintsFactory | None = None
+    initial_guesses: Sequence[np.ndarray | None] | None = None
+    amplitude: float | None = None
+    label: str = ""
+    origins: Sequence[str] | None = None
+    run: ExecutorOptions = ExecutorOptions()
+
+
 def solve_multistart(
-    robot,
+    robot: Robot | None,
     config: ExcitationConfig | None = None,
     solver: str | SolverConfig = "ipopt",
-    seeds: Sequence[int] = (0, 1),
+    options: MultiStartOptions | None = None,
     *,
-    C0: np.ndarray | None = None,
-    constraints_factory: ConstraintsFactory | None = None,
-    initial_guesses: Sequence[np.ndarray] | None = None,
-    amplitude: float | None = None,
-    workers: int | None = None,
-    executor: str | Executor = "local",
-    address: str = "",
     progress: Callable[[StartEvent], None] | None = None,
-    progress_interval: float = 2.0,
-    label: str = "",
-    origins: Sequence[str] | None = None,
-    hung_after_s: float = HUNG_AFTER_S,
 ) -> MultiStartResult:
     """Solves the excitation problem from several initial points, keeps the best.
 
@@ -367,31 +390,12 @@ def solve_multistart(
     finished ones is kept (``starts[k].lost``, ``results[k]`` None, a "failed" event).
 
     Args:
-        robot: the :class:`~pe_drake.multibody.robot.Robot` (ignored when ``executor`` is an
-            open :class:`~pe_drake.excitation.parallel.Executor`).
+        robot: the :class:`~pe_drake.multibody.robot.Robot` (ignored, may be None, with an open
+            executor in ``options.run``).
         config: the excitation problem (default :class:`ExcitationConfig`).
         solver: "ipopt", "nlopt" or a :class:`SolverConfig`.
-        seeds: one start per seed; start k begins at ``problem.initial_guess(seeds[k],
-            amplitude)`` unless ``initial_guesses`` is given.
-        C0: prior data (Eq. 41), shape (m1, b), in the executor's base parameters.
-        constraints_factory: ``f(robot, config) -> [SampledConstraint, ...]``, called once
-            per worker (e.g. :func:`pe_drake.excitation.constraints.constraints_from_config`);
-            a module-level function. Ignored with an open executor (its factory is used).
-        initial_guesses: explicit initial alphas, one per seed; a None entry keeps that
-            seed's random point.
-        amplitude: scale of the random initial coefficients [rad] (default config.amplitude).
-        workers: starts at once (default: the cores available, or the Ray cluster's CPUs;
-            capped at the number of seeds).
-        executor: "local", "ray", or an open executor to reuse (its workers keep their robot).
-        address: Ray cluster address (``executor="ray"``; "" : ``ray.init()``'s default).
+        options: the starts and where they run (default :class:`MultiStartOptions`).
         progress: callback receiving :class:`StartEvent` objects (in this process).
-        progress_interval: seconds between "progress" events of a start.
-        label: copied into the events (e.g. "motion 2").
-        origins: one note per seed saying where an explicit initial guess comes from (e.g.
-            "from motion 1"), copied into its events.
-        hung_after_s: a start without progress for this long [s] is declared hung, its
-            worker stopped ("local" with 2+ workers, "ray"; 0: never); ignored with an
-            open executor (its own setting is used).
 
     Returns:
         A :class:`MultiStartResult`.
@@ -406,13 +410,12 @@ def solve_multistart(
     config = config or ExcitationConfig()
     solver_cfg = solver if isinstance(solver, SolverConfig) else SolverConfig(name=solver)
     validate_config(Config(excitation=config, solver=solver_cfg))
-    tasks = _make_tasks(seeds, config, solver_cfg, C0, initial_guesses, amplitude, label, progress_interval, origins)
-    own = not isinstance(executor, Executor)
-    if own:
-        executor = open_executor(
-            robot, executor, workers, tasks=len(tasks), address=address, measurement=config.measurement,
-            constraints_factory=constraints_factory, hung_after_s=hung_after_s,
-        )
+    o = options or MultiStartOptions()
+    tasks = _make_tasks(o, config, solver_cfg)
+    own, label = not isinstance(o.run.executor, Executor), o.label
+    executor = o.run.executor if not own else open_executor(
+        robot, o.run.executor, o.run.workers, tasks=len(tasks), address=o.run.address,
+        measurement=config.measurement, constraints_factory=o.constraints_factory, hung_after_s=o.run.hung_after_s)
     try:
         _check_guesses(executor.problem(config, tasks[0].C0), tasks)  # C0 is checked here too
         labels = [f"{label + ' ' if label else ''}start {k} (seed {t.seed})" for k, t in enumerate(tasks)]

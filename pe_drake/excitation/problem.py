@@ -19,9 +19,9 @@ from pe_drake.exceptions import ConfigError, InfeasibleError
 from pe_drake.excitation.criteria import evaluate_criterion
 from pe_drake.excitation.drive_block import excitation_drive_block
 from pe_drake.excitation.fourier import FourierBasis, FourierTrajectory, sample_times
-from pe_drake.multibody.base_parameters import BaseParameters, compute_base_parameters
+from pe_drake.multibody.base_parameters import BaseParameters
 from pe_drake.multibody.regressor import RegressorModel
-from pe_drake.multibody.sensors import SensorRows, measurement_type
+from pe_drake.multibody.sensors import SensorRows, measurement_base_parameters, measurement_type
 
 
 @dataclasses.dataclass(frozen=True)
@@ -66,9 +66,7 @@ class ExcitationProblem:
         self.model = model or RegressorModel(robot)
         # The rows of C: joint torques (Eq. 1), the ground wrench, or both.
         self.rows = SensorRows(self.model, measurement_type(self.config, joint_names=robot.joint_names))
-        if base is None and self.config.measurement == "joint_torque":
-            base = compute_base_parameters(robot, model=self.model)
-        self.base = base or self.rows.base_parameters()
+        self.base = base or measurement_base_parameters(robot, self.config.measurement, self.model, rows=self.rows)
         if self.base.measurement != self.config.measurement:
             raise ConfigError(
                 f"the base parameters given are those of the {self.base.measurement} rows, the problem's "

@@ -20,7 +20,7 @@ about 222, above the prior's 217.0 (measured with IPOPT ≤ 150 iterations).
 
 Use it like::
 
-    result = optimize_sequence(robot, config.excitation, config.solver, motions=3)
+    result = optimize_sequence(robot, config.excitation, config.solver, SequenceOptions(motions=3))
     for m in result.motions:
         print(m.index, m.cond_motion, m.cond_total, m.wall_time)
 """
@@ -38,8 +38,9 @@ import numpy as np
 from pe_drake.config import ExcitationConfig, SolverConfig
 from pe_drake.exceptions import ConfigError, NoSolutionFound
 from pe_drake.excitation.constraints import constraints_from_config
-from pe_drake.excitation.multistart import solve_multistart
-from pe_drake.excitation.parallel import Executor, open_executor
+from pe_drake.excitation.multistart import MultiStartOptions, solve_multistart
+from pe_drake.excitation.parallel import Executor, ExecutorOptions, open_executor
+from pe_drake.multibody.robot import Robot
 
 #: Seeds of motion i (1-based) are ``seed + SEED_STRIDE·(i-1) + s`` for start s = 0, 1, ...:
 #: fresh for every motion, and the same for motion i whatever the number of starts.
@@ -148,58 +149,62 @@ def _cond(C: np.ndarray) -> float:
     return float(s[0] / s[-1]) if s[-1] > 0 else math.inf
 
 
-def optimize_sequence(
-    robot,
-    config: ExcitationConfig | None = None,
-    solver: str | SolverConfig = "ipopt",
-    motions: int = 3,
-    *,
-    constraints_factory: Callable | None = None,
-    C0: np.ndarray | None = None,
-    starts: int = 1,
-    workers: int | None = None,
-    executor: str | Executor = "local",
-    address: str = "",
-    seed: int | None = None,
-    seeds: Sequence[Sequence[int]] | None = None,
-    amplitude: float | None = None,
-    progress: Callable[[Any], None] | None = None,
-    progress_interval: float = 2.0,
-    stop_on_failure: bool = True,
-    warm_start: bool = True,
-) -> SequenceResult:
-    """Optimizes ``motions`` exciting motions one after the other (section IV-B).
+@dataclasses.dataclass(frozen=True, eq=False)
+class SequenceOptions:
+    """The motions of :func:`optimize_sequence`, their starts and where they run.
 
-    Motion i minimizes the criterion of [C0; C^(1); ...; C^(i-1); C^(i)] over its own
-    Fourier coefficients; the earlier blocks are fixed prior data (Eq. 41).
-
-    Args:
-        robot: the :class:`~pe_drake.multibody.robot.Robot` (ignored with an open executor).
-        config: the excitation problem (default :class:`ExcitationConfig`).
-        solver: "ipopt", "nlopt" or a :class:`SolverConfig`.
+    Attributes:
         motions: number of motions (the paper: 3).
-        constraints_factory: ``f(robot, config) -> [SampledConstraint, ...]`` (default
-            :func:`pe_drake.excitation.constraints.constraints_from_config`: balance and collision as
-            the config asks); a module-level function; ignored with an open executor.
-        C0: prior data from earlier experiments, shape (m0, b), or None (the paper: O).
         starts: random initial points per motion; the best feasible one is kept.
-        workers: starts at once (default: the cores available, or the Ray cluster's CPUs;
-            capped at the starts per motion).
-        executor: "local", "ray", or an open
-            :class:`~pe_drake.excitation.parallel.Executor` to reuse.
-        address: Ray cluster address (``executor="ray"``).
         seed: first seed (default ``config.seed``); see :func:`motion_seeds`.
         seeds: explicit seeds, one list per motion (overrides ``seed`` and ``starts``).
-        amplitude: scale of the random initial coefficients [rad] (default
-            ``config.amplitude``).
-        progress: callback receiving :class:`MotionEvent` and
-            :class:`~pe_drake.excitation.multistart.StartEvent` objects.
-        progress_interval: seconds between progress events of a start.
+        C0: prior data from earlier experiments, shape (m0, b), or None (the paper: O).
+        constraints_factory: ``f(robot, config) -> [SampledConstraint, ...]`` (default
+            :func:`pe_drake.excitation.constraints.constraints_from_config`: balance and collision
+            as the config asks); a module-level function; ignored with an open executor.
+        amplitude: scale of the random initial coefficients [rad] (default ``config.amplitude``).
         stop_on_failure: raise when a motion has no feasible start (else keep its best
             infeasible start and go on).
         warm_start: the last start of motion i > 1 begins from the earlier motion with the
             lowest criterion on the current prior (its seed stays its label); see the module
             docstring.
+        run: where the starts run (:class:`~pe_drake.excitation.parallel.ExecutorOptions`;
+            ``workers`` capped at the starts per motion).
+    """
+
+    motions: int = 3
+    starts: int = 1
+    seed: int | None = None
+    seeds: Sequence[Sequence[int]] | None = None
+    C0: np.ndarray | None = None
+    constraints_factory: Callable | None = None
+    amplitude: float | None = None
+    stop_on_failure: bool = True
+    warm_start: bool = True
+    run: ExecutorOptions = ExecutorOptions()
+
+
+def optimize_sequence(
+    robot: Robot | None,
+    config: ExcitationConfig | None = None,
+    solver: str | SolverConfig = "ipopt",
+    options: SequenceOptions | None = None,
+    *,
+    progress: Callable[[Any], None] | None = None,
+) -> SequenceResult:
+    """Optimizes ``options.motions`` exciting motions one after the other (section IV-B).
+
+    Motion i minimizes the criterion of [C0; C^(1); ...; C^(i-1); C^(i)] over its own
+    Fourier coefficients; the earlier blocks are fixed prior data (Eq. 41).
+
+    Args:
+        robot: the :class:`~pe_drake.multibody.robot.Robot` (ignored, may be None, with an open
+            executor in ``options.run``).
+        config: the excitation problem (default :class:`ExcitationConfig`).
+        solver: "ipopt", "nlopt" or a :class:`SolverConfig`.
+        options: the motions, starts and executor (default :class:`SequenceOptions`).
+        progress: callback receiving :class:`MotionEvent` and
+            :class:`~pe_drake.excitation.multistart.StartEvent` objects.
 
     Returns:
         The :class:`SequenceResult`.
@@ -215,24 +220,19 @@ def optimize_sequence(
 
     begin = time.perf_counter()
     config = config or ExcitationConfig()
-    seeds = _sequence_seeds(config, motions, starts, seed, seeds)
-    own = not isinstance(executor, Executor)
-    if own:
-        executor = open_executor(
-            robot,
-            executor,
-            workers,
-            tasks=max(len(row) for row in seeds),
-            address=address,
-            measurement=config.measurement,
-            constraints_factory=constraints_factory or constraints_from_config,
-        )
+    o = options or SequenceOptions()
+    motions, seeds = o.motions, _sequence_seeds(config, o.motions, o.starts, o.seed, o.seeds)
+    own = not isinstance(o.run.executor, Executor)
+    executor = o.run.executor if not own else open_executor(
+        robot, o.run.executor, o.run.workers, tasks=max(len(row) for row in seeds), address=o.run.address,
+        measurement=config.measurement, constraints_factory=o.constraints_factory or constraints_from_config,
+        hung_after_s=o.run.hung_after_s)
     try:
-        prior = _prior(C0, executor.problem(config).columns)  # base parameters and drive terms
+        prior = _prior(o.C0, executor.problem(config).columns)  # base parameters and drive terms
         run = _SequenceRun(executor, config, solver, prior, progress or (lambda event: None))
         for i in range(1, motions + 1):
-            motion = run.motion(i, motions, seeds[i - 1], amplitude, progress_interval, warm_start)
-            if stop_on_failure and not motion.success:
+            motion = run.motion(i, motions, seeds[i - 1], o.amplitude, o.run.progress_interval, o.warm_start)
+            if o.stop_on_failure and not motion.success:
                 raise NoSolutionFound(
                     f"motion {i}: none of the {len(seeds[i - 1])} start(s) met every constraint "
                     f"({motion.result.message}); try more starts, more iterations or other seeds",
@@ -299,20 +299,9 @@ class _SequenceRun:
         parts = ([self.prior] if self.prior is not None else []) + self.blocks
         C0_i = np.vstack(parts) if parts else None  # Eq. (41): [C^(1); ...; C^(i-1)]
         guesses, origins = self._warm_start(C0_i, len(seeds)) if warm_start else (None, None)
-        ms = solve_multistart(
-            None,
-            self.config,
-            self.solver,
-            seeds,
-            C0=C0_i,
-            amplitude=amplitude,
-            executor=self.executor,
-            progress=self.say,
-            progress_interval=interval,
-            label=f"motion {i}",
-            initial_guesses=guesses,
-            origins=origins,
-        )
+        ms = solve_multistart(None, self.config, self.solver, MultiStartOptions(
+            seeds, C0=C0_i, initial_guesses=guesses, amplitude=amplitude, label=f"motion {i}", origins=origins,
+            run=ExecutorOptions(executor=self.executor, progress_interval=interval)), progress=self.say)
         self.used = max(self.used, ms.workers)
         block = self.executor.problem(self.config).regressor_block(ms.best.x)
         total = block if C0_i is None else np.vstack([C0_i, block])

@@ -23,8 +23,8 @@ import numpy as np
 from pe_drake.exceptions import ConfigError
 from pe_drake.excitation.baseline import generate_candidates, greedy_select
 from pe_drake.excitation.constraints import constraints_from_config
-from pe_drake.excitation.parallel import open_executor
-from pe_drake.excitation.sequential import optimize_sequence
+from pe_drake.excitation.parallel import ExecutorOptions, open_executor
+from pe_drake.excitation.sequential import SequenceOptions, optimize_sequence
 from pe_drake.excitation.trajectory_file import save_trajectory
 from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.registry import resolve_robot_config
@@ -185,19 +185,11 @@ def run_sequential_study(settings: StudyOptions, *, say: Callable[[str], Any] | 
 
         # ---- Table I: sequential optimization (section IV-B): motion i minimizes cond of
         # [C^(1); ...; C^(i-1); C^(i)], the earlier blocks being fixed prior data C0 (Eq. 41).
-        sequence = optimize_sequence(
-            robot,
-            excitation,
-            solver,
-            settings.motions,
-            starts=settings.starts,
-            seed=settings.seed,
-            amplitude=settings.amplitude,
-            executor=executor,
-            progress=say.event,
-            progress_interval=10.0 if not settings.quick else 5.0,
-            stop_on_failure=False,
-        )
+        interval = 10.0 if not settings.quick else 5.0
+        sequence = optimize_sequence(robot, excitation, solver, SequenceOptions(
+            settings.motions, starts=settings.starts, seed=settings.seed, amplitude=settings.amplitude,
+            stop_on_failure=False, run=ExecutorOptions(executor=executor, progress_interval=interval)),
+            progress=say.event)
     finally:
         executor.close()
 

@@ -44,7 +44,7 @@ def _lines(path: Path, file: str) -> Iterator[tuple[int, str]]:
             yield lineno, line
 
 
-def read_header(path: Path) -> tuple[int, list[str]]:
+def read_header_line(path: Path) -> tuple[int, list[str]]:
     """(line number, column names) of the first non-blank line.
 
     Raises:

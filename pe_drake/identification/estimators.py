@@ -41,7 +41,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from pe_drake.exceptions import ConfigError, DataError
+from pe_drake.exceptions import ConfigError, DataError, check_joints
 from pe_drake.identification.time_window import TimeWindow
 from pe_drake.identification.channels import channel_names, measured_values
 from pe_drake.identification.drive_terms import (
@@ -76,9 +76,9 @@ from pe_drake.identification.folded_rows import (
     known_columns_removed,
 )
 from pe_drake.identification.statistics import integrated_autocorrelation
-from pe_drake.multibody.base_parameters import BaseParameters, compute_base_parameters
+from pe_drake.multibody.base_parameters import BaseParameters
 from pe_drake.multibody.regressor import RegressorModel
-from pe_drake.multibody.sensors import MeasurementType, SensorRows
+from pe_drake.multibody.sensors import MeasurementType, SensorRows, measurement_base_parameters
 from pe_drake.multibody.wrench import static_wrench
 from pe_drake.threads import single_threaded_blas
 
@@ -198,12 +198,7 @@ def prepare_measurement(
         DataError: other joints than the robot's, missing v/vdot without filtering, torques
             off by orders of magnitude.
     """
-    if tuple(measurement.joints) != tuple(robot.joint_names):
-        raise DataError(
-            f"the data has joints {', '.join(measurement.joints)}; robot '{robot.name}' excites "
-            f"{', '.join(robot.joint_names)}",
-            file=measurement.source,
-        )
+    check_joints(robot, measurement.joints, file=measurement.source)
     if filtering:
         options = PreprocessOptions(cutoff_hz=cutoff_hz, fundamental_hz=fundamental_hz, harmonics=harmonics,
                                     decimate_to_hz=rate_hz)
@@ -254,16 +249,6 @@ def _check_rows(data: Measurement, count: int, channels: int) -> None:
             f"({math.ceil(need / channels)} samples): " + ("widen --window or " if windowed else "") + "record a longer run",
             file=data.source,
         )
-
-
-def measurement_base_parameters(
-    robot, measurement: str = "joint_torque", model: RegressorModel | None = None
-) -> BaseParameters:
-    """The base parameters a measurement identifies (:class:`~pe_drake.multibody.sensors.SensorRows`)."""
-    model = model or RegressorModel(robot)
-    if measurement == "joint_torque":
-        return compute_base_parameters(robot, model=model)
-    return SensorRows(model, MeasurementType(measurement)).base_parameters()
 
 
 def _sigma_percent(x: np.ndarray, cov: np.ndarray) -> np.ndarray:

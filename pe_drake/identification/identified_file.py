@@ -19,14 +19,15 @@ from typing import Any
 import numpy as np
 
 from pe_drake.config import MEASUREMENTS
-from pe_drake.exceptions import DataError
+from pe_drake.exceptions import DataError, check_joints
 from pe_drake.identification.channels import channel_names
 from pe_drake.identification.drive_terms import DriveFit
-from pe_drake.identification.estimators import IdentificationResult, fit_warnings, measurement_base_parameters
+from pe_drake.identification.estimators import IdentificationResult, fit_warnings
 from pe_drake.identification.measurements import Preprocessing
 from pe_drake.io_utils import loads_json
 from pe_drake.multibody.inertia import PARAMETER_NAMES, validity_problems
 from pe_drake.multibody.robot_model import RobotModel
+from pe_drake.multibody.sensors import measurement_base_parameters
 from pe_drake.output_set import check_output_set
 
 
@@ -138,12 +139,7 @@ def load_identified(path: str | Path, robot) -> IdentificationResult:
             f"diagnose ({err!r} missing or malformed)",
             file=str(path),
         ) from err
-    if joints != tuple(robot.joint_names):
-        raise DataError(
-            f"the model was identified for joints {', '.join(joints)}; robot '{robot.name}' "
-            f"excites {', '.join(robot.joint_names)}",
-            file=str(path),
-        )
+    check_joints(robot, joints, file=str(path), what="the model")
     measurement = d.get("measurement", "joint_torque")
     if measurement not in MEASUREMENTS:
         raise DataError(f"measurement '{measurement}' is not one of {', '.join(MEASUREMENTS)}", file=str(path))
@@ -207,10 +203,7 @@ def augmented_as_result(d: dict[str, Any], robot, path: str = "") -> Identificat
     Raises:
         DataError: other joints, a malformed file.
     """
-    joints = tuple(d.get("joints") or ())
-    if joints != tuple(robot.joint_names):
-        raise DataError(f"the model is for joints {', '.join(map(str, joints))}; robot '{robot.name}' excites "
-                        f"{', '.join(robot.joint_names)}", file=path)
+    check_joints(robot, tuple(d.get("joints") or ()), file=path, what="the model")
     try:
         model = RobotModel.from_dict(d, robot.body_names)
     except (KeyError, TypeError, ValueError, AttributeError) as err:

@@ -66,24 +66,86 @@ class LeastSquaresFit(NamedTuple):
     converged: bool = False
 
 
-def solve_least_squares(W: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def solve_least_squares(W: np.ndarray, y: np.ndarray, *, min_ratio: float = 1e-12,
+                        refusal: str = "the data does not excite every base parameter",
+                        advice: str = "use an exciting trajectory (pe-drake optimize)",
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Least squares through QR then the SVD of R: (x, (WᵀW)⁻¹, singular values of W).
 
     Raises:
-        DataError: W is rank deficient (the data does not excite every base parameter).
+        DataError: W is rank deficient, s_min ≤ ``min_ratio``·s_max ("{refusal} (cond(W) = …);
+            {advice}").
     """
     b = W.shape[1]
     R = np.linalg.qr(np.column_stack([W, y]), mode="r")  # [W y] = Q [[R_W, z], [0, r]]
     U, s, Vt = np.linalg.svd(R[:b, :b])
     y = R[:b, b]
-    if s[-1] <= s[0] * 1e-12:
-        raise DataError(
-            f"the data does not excite every base parameter (cond(W) = {s[0] / max(s[-1], 1e-300):.3g}); "
-            "use an exciting trajectory (pe-drake optimize)"
-        )
+    if s[-1] <= s[0] * min_ratio:
+        raise DataError(f"{refusal} (cond(W) = {s[0] / max(s[-1], 1e-300):.3g}); {advice}")
     x = Vt.T @ ((U.T @ y) / s)
     cov = (Vt.T / s**2) @ Vt
     return x, cov, s
+
+
+def solve_normal_equations(G: np.ndarray, g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Least squares from the Gram matrix G = WᵀW and g = Wᵀy, equilibrated: (x, G⁻¹) (the
+    pseudo-inverse when G is singular)."""
+    d = np.sqrt(np.maximum(np.diag(G), 1e-300))
+    Gs = G / np.outer(d, d)
+    try:
+        Hinv = np.linalg.inv(Gs)
+    except np.linalg.LinAlgError:
+        Hinv = np.linalg.pinv(Gs)
+    return (Hinv @ (g / d)) / d, Hinv / np.outer(d, d)
+
+
+def compress_joint_rows(blocks) -> tuple[np.ndarray, int]:
+    """Per joint j, the triangular factor R_j of [A_j  y_j] over blocks (A (s, n, p), y (s, n)),
+    shape (n, p+1, p+1), and the total number of samples: ‖A_j x − y_j‖² = ‖R_j [x; −1]‖², so
+    the weighted fits and the residuals need nothing else."""
+    R = None
+    S = 0
+    for A, y in blocks:
+        S += A.shape[0]
+        block = np.concatenate([A, y[..., None]], axis=-1).transpose(1, 0, 2)  # (n, s, p+1)
+        if R is not None:
+            block = np.concatenate([R, block], axis=1)
+        R = np.linalg.qr(block, mode="r")
+    return R, S
+
+
+def lstsq_from_factors(R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`solve_least_squares` of the stacked factors R (m, p+1) of [W y] with equilibrated
+    columns: (x, (WᵀW)⁻¹); refuses a rank-deficient W (with the payload workflow's advice)."""
+    p = R.shape[1] - 1
+    scale = np.maximum(np.linalg.norm(R[:, :p], axis=0), 1e-300)
+    x, cov, _ = solve_least_squares(
+        R[:, :p] / scale, R[:, p], min_ratio=1e-10,
+        refusal="the runs do not excite the payload and the nuisance terms (after column scaling)",
+        advice="use a payload motion (optimize_payload_motion) and runs that move every joint")
+    return x / scale, cov / np.outer(scale, scale)
+
+
+def weighted_fit_from_factors(R_joint: np.ndarray, S: int, weighted: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """OLS, per-joint σ_j from its residual, then Gautier's one WLS step with rows / σ_j, from
+    per-joint factors: (x, Cov(x), σ_j).
+
+    Args:
+        R_joint: per-joint factors of [A_j y_j], (n, p+1, p+1) (:func:`compress_joint_rows`).
+        S: samples behind them.
+        weighted: weigh by 1/σ_j (else OLS).
+    """
+    n, _, p1 = R_joint.shape
+    p = p1 - 1
+    x, _ = lstsq_from_factors(R_joint.reshape(-1, p1))
+    xm = np.append(x, -1.0)
+    noise_std = np.sqrt(np.array([np.sum((Rj @ xm) ** 2) for Rj in R_joint]) / max(S - p / n, 1.0))
+    w = 1.0 / np.maximum(noise_std, 1e-9 * max(float(noise_std.max()), 1e-12)) if weighted else np.ones(n)
+    Rw = (R_joint * w[:, None, None]).reshape(-1, p1)
+    x, cov = lstsq_from_factors(Rw)
+    r = Rw @ np.append(x, -1.0)
+    s2 = float(r @ r) / max(S * n - p, 1)  # ≈ 1 with the weights; keeps σ honest if not
+    return x, cov * s2, noise_std
 
 
 def channel_sigma(folded: FoldedRows, T: np.ndarray, x: np.ndarray) -> np.ndarray:

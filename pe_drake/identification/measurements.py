@@ -33,7 +33,7 @@ import numpy as np
 
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.identification.csv_checks import check_time_order
-from pe_drake.identification.csv_table import read_header, read_table
+from pe_drake.identification.csv_table import read_header_line, read_table
 from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.wrench import WRENCH_COLUMNS
 
@@ -210,7 +210,7 @@ def read_measurement_csv(path: str | Path, joints, *, min_rows: int = 10) -> Mea
     path = Path(path)
     joints = _joint_names(joints)
     file = str(path)
-    header_line, columns = read_header(path)
+    header_line, columns = read_header_line(path)
     has_wrench = _wrench_block(columns, file)
     index = _column_index(columns, joints, file, tau_required=not has_wrench)
     has_tau = _optional_block(index, "tau", joints, file)

@@ -32,9 +32,12 @@ from typing import Any
 
 import numpy as np
 
-from pe_drake.exceptions import ConfigError, DataError
+from pe_drake.exceptions import ConfigError, DataError, check_joints
+from pe_drake.identification.channels import CHUNK
 from pe_drake.identification.identified_file import standard_from_base
+from pe_drake.identification.least_squares import compress_joint_rows, weighted_fit_from_factors
 from pe_drake.identification.payload_friction import DRIVE_TERMS, drive_names, friction_columns
+from pe_drake.identification.physical_fit import SDP_TOLERANCES, InertiaBlock, factored_sdp
 from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.base_parameters import BaseParameters, compute_base_parameters
 from pe_drake.multibody.drive_columns import COULOMB_VELOCITY_SCALE
@@ -42,9 +45,6 @@ from pe_drake.multibody.inertia import pseudo_inertia, pseudo_inertia_basis
 from pe_drake.multibody.payload import PayloadInertia, central_jacobian, link_columns, link_position
 from pe_drake.multibody.regressor import RegressorModel
 from pe_drake.threads import single_threaded_blas
-
-#: Samples per regressor evaluation (memory: S·n·10·nb doubles).
-CHUNK = 2000
 
 
 @dataclasses.dataclass(frozen=True)
@@ -237,7 +237,7 @@ def identify_payload(
     constrained = False
     if (options.physical and np.linalg.eigvalsh(pseudo_inertia(x[-10:])).min() < 0) or options.box is not None:
         w = 1.0 / noise_std if options.weighted else np.ones(n)
-        x_phys = _physical_fit(R_joint, w, x, p - 10, options.box)
+        x_phys = _physical_payload(R_joint, w, x, p - 10, options.box)
         constrained = bool(np.linalg.norm(x_phys[-10:] - x[-10:]) > 1e-6 * np.linalg.norm(x[-10:]))
         x = x_phys
     phi = x[-10:]
@@ -260,29 +260,12 @@ def _compressed_rows(robot, model, runs, phi_arm, link, base, options) -> tuple[
                                for block in _run_rows(robot, model, run, loaded, phi_arm, link, base, options))
 
 
-def compress_joint_rows(blocks) -> tuple[np.ndarray, int]:
-    """Per joint j, the triangular factor R_j of [A_j  y_j] over blocks (A (s, n, p), y (s, n)),
-    shape (n, p+1, p+1), and the total number of samples: ‖A_j x − y_j‖² = ‖R_j [x; −1]‖², so
-    the weighted fits and the residuals need nothing else."""
-    R = None
-    S = 0
-    for A, y in blocks:
-        S += A.shape[0]
-        block = np.concatenate([A, y[..., None]], axis=-1).transpose(1, 0, 2)  # (n, s, p+1)
-        if R is not None:
-            block = np.concatenate([R, block], axis=1)
-        R = np.linalg.qr(block, mode="r")
-    return R, S
-
-
 def _run_rows(robot, model, run, loaded: bool, phi_arm, link, base, options):
     """One run's columns [Y_B (with base) | D | Y_L (loaded, else 0)] (s, n, p) and targets τ − Y φ_arm
     (s, n), chunk by chunk."""
     if run.v is None or run.vd is None or run.tau is None:
         raise DataError("a payload run needs q, v, vdot and tau (preprocess it first)", file=run.source)
-    if tuple(run.joints) != tuple(robot.joint_names):
-        raise DataError(f"the run has joints {', '.join(run.joints)}; robot '{robot.name}' excites "
-                        f"{', '.join(robot.joint_names)}", file=run.source)
+    check_joints(robot, run.joints, file=run.source, what="the run")
     cols = link_columns(robot, link)
     for s in range(0, run.num_samples, CHUNK):
         r = slice(s, min(s + CHUNK, run.num_samples))
@@ -293,74 +276,15 @@ def _run_rows(robot, model, run, loaded: bool, phi_arm, link, base, options):
         yield np.concatenate(parts, axis=-1), run.tau[r] - Y @ phi_arm
 
 
-def lstsq_from_factors(R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Least squares from the stacked factors R (m, p+1) of [W y]: (x, (WᵀW)⁻¹); refuses a
-    rank-deficient W (with the payload workflow's advice)."""
-    p = R.shape[1] - 1
-    scale = np.maximum(np.linalg.norm(R[:, :p], axis=0), 1e-300)
-    Rq = np.linalg.qr(np.column_stack([R[:, :p] / scale, R[:, p]]), mode="r")
-    U, s, Vt = np.linalg.svd(Rq[:p, :p])
-    if s[-1] <= s[0] * 1e-10:
-        raise DataError(
-            f"the runs do not excite the payload and the nuisance terms (cond {s[0] / max(s[-1], 1e-300):.3g} "
-            "after column scaling): use a payload motion (optimize_payload_motion) and runs that move every joint"
-        )
-    x = (Vt.T @ ((U.T @ Rq[:p, p]) / s)) / scale
-    cov = ((Vt.T / s**2) @ Vt) / np.outer(scale, scale)
-    return x, cov
-
-
-def weighted_fit_from_factors(R_joint: np.ndarray, S: int, weighted: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """OLS, per-joint σ_j from its residual, then WLS with rows / σ_j: (x, Cov(x), σ_j).
-
-    Args:
-        R_joint: per-joint factors of [A_j y_j], (n, p+1, p+1) (:func:`_compressed_rows`).
-        S: samples behind them.
-        weighted: weigh by 1/σ_j (else OLS).
-    """
-    n, _, p1 = R_joint.shape
-    p = p1 - 1
-    x, _ = lstsq_from_factors(R_joint.reshape(-1, p1))
-    xm = np.append(x, -1.0)
-    noise_std = np.sqrt(np.array([np.sum((Rj @ xm) ** 2) for Rj in R_joint]) / max(S - p / n, 1.0))
-    w = 1.0 / np.maximum(noise_std, 1e-9 * max(float(noise_std.max()), 1e-12)) if weighted else np.ones(n)
-    Rw = (R_joint * w[:, None, None]).reshape(-1, p1)
-    x, cov = lstsq_from_factors(Rw)
-    r = Rw @ np.append(x, -1.0)
-    s2 = float(r @ r) / max(S * n - p, 1)  # ≈ 1 with the weights; keeps σ honest if not
-    return x, cov * s2, noise_std
-
-
-def _physical_fit(R_joint, w, x_ls, offset: int, box: PayloadBox | None) -> np.ndarray:
+def _physical_payload(R_joint, w, x_ls, offset: int, box: PayloadBox | None) -> np.ndarray:
     """min Σ_j w_j² ‖A_j x − y_j‖² s.t. J(φ_L) ⪰ 0 (and the box), φ_L = x[offset:offset+10]."""
-    from pydrake.solvers import ClarabelSolver, MathematicalProgram, ScsSolver, SolverOptions  # lazy: pydrake
-
-    p = R_joint.shape[-1] - 1
-    Rw = (R_joint * w[:, None, None]).reshape(-1, p + 1)
-    D = np.maximum(np.linalg.norm(Rw[:, :p], axis=0), 1e-300)
-    R = np.linalg.qr(np.column_stack([Rw[:, :p] / D, Rw[:, p]]), mode="r")
-    Ra, z = R[:p, :p], R[:p, p]
-    prog = MathematicalProgram()
-    u = prog.NewContinuousVariables(p, "u")  # x = u / D
-    prog.AddQuadraticCost(2.0 * Ra.T @ Ra, -2.0 * Ra.T @ z, u, is_convex=True)
-    uL, dL = u[offset : offset + 10], 1.0 / D[offset : offset + 10]
-    F = pseudo_inertia_basis()
-    prog.AddLinearMatrixInequalityConstraint([np.zeros((4, 4))] + [F[i] * dL[i] for i in range(10)], uL)
-    if box is not None:
-        for row, lo in box_constraint_rows(box):
-            prog.AddLinearConstraint((row * dL).reshape(1, 10), [lo], [np.inf], uL)
-    solver = ClarabelSolver()
-    if not solver.available():  # pragma: no cover - the drake wheel ships Clarabel
-        solver = ScsSolver()
-    opts = SolverOptions()
-    if solver.solver_id() == ClarabelSolver.id():
-        for key in ("tol_gap_abs", "tol_gap_rel", "tol_feas"):
-            opts.SetOption(solver.solver_id(), key, 1e-10)
-    result = solver.Solve(prog, x_ls * D, opts)
-    if not result.is_success():
-        raise DataError(f"the physically consistent payload fit failed ({solver.solver_id().name()}: "
-                        f"{result.get_solution_result().name}); is the box right? try physical=False")
-    return result.GetSolution(u) / D
+    rows = []
+    for row, lo in box_constraint_rows(box) if box is not None else ():
+        a = np.zeros(len(x_ls))
+        a[offset : offset + 10] = row
+        rows.append((a, lo, np.inf))
+    return factored_sdp(R_joint, w, x_ls, [InertiaBlock(offset, np.ones(10))], rows=rows, what="payload fit",
+                        advice="is the box right? try physical=False", tolerances=SDP_TOLERANCES[:1])
 
 
 def box_constraint_rows(box: PayloadBox) -> list[tuple[np.ndarray, float]]:

@@ -25,10 +25,12 @@ from typing import Any
 import numpy as np
 
 from pe_drake.exceptions import ConfigError, DataError
-from pe_drake.identification.payload import PayloadOptions, compress_joint_rows, weighted_fit_from_factors
+from pe_drake.identification.least_squares import compress_joint_rows, weighted_fit_from_factors
+from pe_drake.identification.payload import PayloadOptions
 from pe_drake.identification.payload_friction import drive_names, friction_columns
+from pe_drake.identification.physical_fit import InertiaBlock, factored_sdp
 from pe_drake.multibody.base_parameters import compute_base_parameters
-from pe_drake.multibody.inertia import pseudo_inertia_basis
+from pe_drake.multibody.inertia import pseudo_inertia
 from pe_drake.multibody.payload import PayloadInertia, link_columns, link_position
 from pe_drake.multibody.regressor import RegressorModel
 from pe_drake.threads import single_threaded_blas
@@ -103,7 +105,7 @@ def identify_drive_gains(robot, loaded_runs: Sequence, unloaded_runs: Sequence, 
     n, b = robot.n, base.count
     x, cov = _errors_in_variables(R_joint, S, x, noise, n)
     constrained = False
-    if np.any(x[:n] <= 0) or np.linalg.eigvalsh(_pseudo(payload_mass, x[-9:])).min() < 0:
+    if np.any(x[:n] <= 0) or np.linalg.eigvalsh(pseudo_inertia(np.r_[payload_mass, x[-9:]])).min() < 0:
         x = _physical(R_joint, 1.0 / noise, x, n, payload_mass)
         constrained = True
     k, k_std = x[:n], np.sqrt(np.maximum(np.diag(cov)[:n], 0.0))
@@ -157,27 +159,10 @@ def _errors_in_variables(R_joint, S: int, x, noise, n: int, iterations: int = 3)
     return x, cov
 
 
-def _pseudo(M: float, rest: np.ndarray) -> np.ndarray:
-    F = pseudo_inertia_basis()
-    return M * F[0] + sum(rest[i] * F[i + 1] for i in range(9))
-
-
 def _physical(R_joint, w, x_ls, n: int, M: float) -> np.ndarray:
-    """min Σ_j w_j² ‖A_j x − y_j‖² s.t. k ≥ 0 and J(M, φ_L[1:]) ⪰ 0 (Clarabel)."""
-    from pydrake.solvers import ClarabelSolver, MathematicalProgram  # lazy: pydrake
-
-    p = R_joint.shape[-1] - 1
-    Rw = (R_joint * w[:, None, None]).reshape(-1, p + 1)
-    D = np.maximum(np.linalg.norm(Rw[:, :p], axis=0), 1e-300)
-    R = np.linalg.qr(np.column_stack([Rw[:, :p] / D, Rw[:, p]]), mode="r")
-    prog = MathematicalProgram()
-    u = prog.NewContinuousVariables(p, "u")  # x = u / D
-    prog.AddQuadraticCost(2.0 * R[:p, :p].T @ R[:p, :p], -2.0 * R[:p, :p].T @ R[:p, p], u, is_convex=True)
-    prog.AddBoundingBoxConstraint(np.zeros(n), np.full(n, np.inf), u[:n])
-    F = pseudo_inertia_basis()
-    d = 1.0 / D[-9:]
-    prog.AddLinearMatrixInequalityConstraint([M * F[0]] + [F[i + 1] * d[i] for i in range(9)], u[-9:])
-    result = ClarabelSolver().Solve(prog, x_ls * D, None)
-    if not result.is_success():
-        raise DataError(f"the physically consistent drive-gain fit failed ({result.get_solution_result().name})")
-    return result.GetSolution(u) / D
+    """min Σ_j w_j² ‖A_j x − y_j‖² s.t. k ≥ 0 and J(M, φ_L[1:]) ⪰ 0."""
+    lower = np.full(len(x_ls), -np.inf)
+    lower[:n] = 0.0
+    # Clarabel's own tolerances (1e-8), as this fit has always been solved with.
+    return factored_sdp(R_joint, w, x_ls, [InertiaBlock(len(x_ls) - 9, np.ones(9), fixed_mass=M)], lower=lower,
+                        what="drive-gain fit", tolerances=(1e-8,))

@@ -25,7 +25,10 @@ The CoM box of a link is a linear constraint on its first moments h = m c (in th
 about its origin, [m]): box_lo·m ≤ h ≤ box_hi·m keeps c in the box for any m > 0.
 
 Both the identification (``identify --method physical``) and the diagnosis's augmented model
-use :func:`physical_fit`; it raises :class:`~pe_drake.exceptions.NoSolutionFound`.
+use :func:`physical_fit`; the payload and drive-gain fits use :func:`factored_sdp` with their
+blocks. All go through :func:`solve_sdp`, the package's one SDP, and
+:func:`add_pseudo_inertia_constraint`, its one pseudo-inertia LMI (tests/test_layout.py
+holds it); they raise :class:`~pe_drake.exceptions.NoSolutionFound`.
 """
 
 from __future__ import annotations
@@ -205,20 +208,22 @@ def physical_fit(
     # selects among equally good fits).
     Q = 2.0 * (H + null_weight * mu * pull)
     c = -2.0 * H @ x0 - 2.0 * null_weight * mu * pull @ x_prior
-    prog, x = _program(Q / mu, c / mu, k, D, active, prior, lower, s_e, len(cols), body_names, bounds, margin)
-    sol = _solve(prog, x, x_prior, bounds)
+    blocks = [InertiaBlock(10 * i, D[10 * i : 10 * i + 10], margin * prior[10 * b]) for i, b in enumerate(active)]
+    lower_x = np.r_[np.full(len(cols), -np.inf), lower / s_e]
+    rows = _bound_rows(k, D, active, list(body_names), bounds)
+    advice = "try --method wls" + (" or relax the identification bounds" if not bounds.empty else "")
+    sol = solve_sdp(Q / mu, c / mu, blocks, x_prior, lower=lower_x, rows=rows, advice=advice)
     stage2_failed = False
     if chi2_tolerance > 0:
         # Stage 2: the parameters nearest the a-priori model (in the null-space metric) among
         # those whose whitened misfit exceeds stage 1's by at most chi2_tolerance.
         e = sol - x0
         bound = float(e @ H @ e) + chi2_tolerance
-        prog, x = _program(2.0 * pull, -2.0 * pull @ x_prior, k, D, active, prior, lower, s_e, len(cols),
-                           body_names, bounds, margin)
         # ‖Rs (x − x0)‖ ≤ √bound as a Lorentz cone [√bound; Rs x − Rs x0]
-        prog.AddLorentzConeConstraint(np.vstack([np.zeros((1, k)), Rs]), np.r_[np.sqrt(bound), -Rs @ x0], x)
+        cone = (np.vstack([np.zeros((1, k)), Rs]), np.r_[np.sqrt(bound), -Rs @ x0])
         try:
-            sol = _solve(prog, x, sol, bounds)
+            sol = solve_sdp(2.0 * pull, -2.0 * pull @ x_prior, blocks, sol, lower=lower_x, rows=rows, cone=cone,
+                            advice=advice)
         except NoSolutionFound:  # e.g. noise-free data: whitened rows of 1e9; keep stage 1
             stage2_failed = True
     phi = np.zeros(p)
@@ -247,23 +252,26 @@ def _data_term(AD: np.ndarray, E: np.ndarray, y: np.ndarray, base_K, cols, D, ex
     return s_e, Rs, z, P_null, mu
 
 
-def _program(Q, c, k, D, active, prior, lower, s_e, ncols, body_names, bounds, margin):
-    """The SDP with cost ½xᵀQx + cᵀx: pseudo-inertias ⪰ margin·m_prior·1, drive bounds, user bounds."""
-    from pydrake.solvers import MathematicalProgram  # lazy: pydrake stays out of `import pe_drake`
+class InertiaBlock(NamedTuple):
+    """One body's J(φ_b) ⪰ margin [kg]·1 in the SDP's variables x: φ_b = scale ⊙ x[start :
+    start + len(scale)] (10 values), or with a known ``fixed_mass`` [kg] the 9 after the mass."""
 
-    prog = MathematicalProgram()
-    x = prog.NewContinuousVariables(k, "x")
-    prog.AddQuadraticCost(Q, c, x, is_convex=True)
+    start: int
+    scale: np.ndarray
+    margin: float = 0.0
+    fixed_mass: float | None = None
+
+
+def add_pseudo_inertia_constraint(prog, x, block: InertiaBlock) -> None:
+    """J(φ_b) = Σ_i φ_b,i F_i ⪰ margin·1, linear in x (Wensing, Kim & Slotine 2017: J ⪰ 0 exactly
+    when a non-negative mass density gives φ_b); the one place the package writes it."""
     F = pseudo_inertia_basis()
-    for i, b in enumerate(active):
-        dk = D[10 * i : 10 * i + 10]
-        F0 = -margin * prior[10 * b] * np.eye(4)
-        prog.AddLinearMatrixInequalityConstraint([F0] + [F[j] * dk[j] for j in range(10)], x[10 * i : 10 * i + 10])
-    for j in range(k - ncols):
-        if np.isfinite(lower[j]):
-            prog.AddBoundingBoxConstraint(lower[j] / s_e[j], np.inf, x[ncols + j])
-    _add_bounds(prog, x, D, active, list(body_names), bounds)
-    return prog, x
+    F0 = -block.margin * np.eye(4)
+    if block.fixed_mass is not None:
+        F0, F = block.fixed_mass * F[0] + F0, F[1:]
+    scale = block.scale
+    prog.AddLinearMatrixInequalityConstraint([F0] + [F[j] * scale[j] for j in range(len(scale))],
+                                             x[block.start : block.start + len(scale)])
 
 
 #: Clarabel's gap and feasibility tolerances, tried in turn: the tight one first; when it stalls
@@ -272,14 +280,35 @@ def _program(Q, c, k, D, active, prior, lower, s_e, ncols, body_names, bounds, m
 SDP_TOLERANCES = (1e-10, 1e-8)
 
 
-def _solve(prog, x, guess: np.ndarray, bounds: PhysicalBounds) -> np.ndarray:
-    """Clarabel (SCS when unavailable) at :data:`SDP_TOLERANCES`; NoSolutionFound on failure."""
-    from pydrake.solvers import ClarabelSolver, ScsSolver, SolverOptions  # lazy, as above
+def solve_sdp(Q: np.ndarray, c: np.ndarray, blocks: Sequence[InertiaBlock], guess: np.ndarray, *,
+              lower: np.ndarray | None = None, rows: Sequence[tuple[np.ndarray, float, float]] = (),
+              cone: tuple[np.ndarray, np.ndarray] | None = None, what: str = "fit", advice: str = "",
+              tolerances: Sequence[float] = SDP_TOLERANCES) -> np.ndarray:
+    """The package's one physically consistent fit: min ½xᵀQx + cᵀx (Q (k, k) PSD) s.t. every
+    :class:`InertiaBlock`, x ≥ ``lower`` (−inf: none), lo ≤ a·x ≤ hi for (a, lo, hi) in ``rows``
+    and A x + b in the Lorentz cone (``cone`` = (A, b)); Clarabel (SCS when unavailable) from
+    ``guess`` at ``tolerances`` in turn.
 
+    Raises:
+        NoSolutionFound: "the physically consistent {what} failed (…); {advice}".
+    """
+    from pydrake.solvers import ClarabelSolver, MathematicalProgram, ScsSolver, SolverOptions  # lazy: pydrake
+
+    prog = MathematicalProgram()
+    x = prog.NewContinuousVariables(len(c), "x")
+    prog.AddQuadraticCost(Q, c, x, is_convex=True)
+    for block in blocks:
+        add_pseudo_inertia_constraint(prog, x, block)
+    for j in np.flatnonzero(np.isfinite(lower)) if lower is not None else ():
+        prog.AddBoundingBoxConstraint(lower[j], np.inf, x[j])
+    for a, lo, hi in rows:
+        prog.AddLinearConstraint(np.asarray(a, float)[None, :], [lo], [hi], x)
+    if cone is not None:
+        prog.AddLorentzConeConstraint(cone[0], cone[1], x)
     solver = ClarabelSolver()
     if not solver.available():  # pragma: no cover - the drake wheel ships Clarabel
         solver = ScsSolver()
-    for tolerance in SDP_TOLERANCES:
+    for tolerance in tolerances:
         options = SolverOptions()
         if solver.solver_id() == ClarabelSolver.id():
             for key in ("tol_gap_abs", "tol_gap_rel", "tol_feas"):
@@ -288,11 +317,27 @@ def _solve(prog, x, guess: np.ndarray, bounds: PhysicalBounds) -> np.ndarray:
         if result.is_success():
             break
     if not result.is_success():
-        hint = " or relax the identification bounds" if not bounds.empty else ""
-        raise NoSolutionFound(
-            f"the physically consistent fit failed ({solver.solver_id().name()}: "
-            f"{result.get_solution_result().name}); try --method wls{hint}", result)
+        raise NoSolutionFound(f"the physically consistent {what} failed ({solver.solver_id().name()}: "
+                              f"{result.get_solution_result().name})" + (f"; {advice}" if advice else ""), result)
     return result.GetSolution(x)
+
+
+def factored_sdp(R_joint: np.ndarray, w: np.ndarray, x_ls: np.ndarray, blocks: Sequence[InertiaBlock], *,
+                 lower: np.ndarray | None = None, rows: Sequence[tuple[np.ndarray, float, float]] = (),
+                 what: str = "fit", advice: str = "", tolerances: Sequence[float] = SDP_TOLERANCES) -> np.ndarray:
+    """min Σ_j w_j² ‖A_j x − y_j‖² under :func:`solve_sdp`'s constraints (given in x), from the
+    per-joint factors R_j of [A_j y_j], (n, p+1, p+1) (:func:`~pe_drake.identification.least_squares.
+    compress_joint_rows`), from the unconstrained ``x_ls``; solved in u = D x, D the column norms."""
+    p = R_joint.shape[-1] - 1
+    Rw = (R_joint * w[:, None, None]).reshape(-1, p + 1)
+    D = np.maximum(np.linalg.norm(Rw[:, :p], axis=0), 1e-300)
+    R = np.linalg.qr(np.column_stack([Rw[:, :p] / D, Rw[:, p]]), mode="r")
+    Ra, z = R[:p, :p], R[:p, p]
+    d = 1.0 / D  # x = d ⊙ u
+    scaled = [b._replace(scale=b.scale * d[b.start : b.start + len(b.scale)]) for b in blocks]
+    u = solve_sdp(2.0 * Ra.T @ Ra, -2.0 * Ra.T @ z, scaled, x_ls * D, lower=None if lower is None else lower * D,
+                  rows=[(a * d, lo, hi) for a, lo, hi in rows], what=what, advice=advice, tolerances=tolerances)
+    return u / D
 
 
 def _null_pull(H: np.ndarray, KD: np.ndarray | None, p: int, weight: float) -> tuple[np.ndarray, float]:
@@ -314,22 +359,23 @@ def _null_pull(H: np.ndarray, KD: np.ndarray | None, p: int, weight: float) -> t
     return P, mu
 
 
-def _add_bounds(prog, x, D: np.ndarray, active: list[int], names: list[str], bounds: PhysicalBounds) -> None:
-    """The user's mass, total-mass and CoM-box constraints on the scaled variables x."""
+def _bound_rows(k: int, D: np.ndarray, active: list[int], names: list[str], bounds: PhysicalBounds) -> list:
+    """The user's mass, total-mass and CoM-box constraints on the scaled variables x, as rows
+    (a, lo, hi) of lo ≤ a·x ≤ hi."""
     where = {b: i for i, b in enumerate(active)}
+    rows = []
 
     def mass_row(b: int) -> np.ndarray:
-        row = np.zeros(len(x))
+        row = np.zeros(k)
         row[10 * where[b]] = D[10 * where[b]]
         return row
 
     if bounds.total_mass is not None:
-        row = sum((mass_row(b) for b in active), np.zeros(len(x)))
-        prog.AddLinearConstraint(row[None, :], [bounds.total_mass[0]], [bounds.total_mass[1]], x)
+        rows.append((sum((mass_row(b) for b in active), np.zeros(k)), bounds.total_mass[0], bounds.total_mass[1]))
     for name, (lo, hi) in bounds.mass_bounds.items():
         b = names.index(name)
         if b in where:
-            prog.AddLinearConstraint(mass_row(b)[None, :], [lo], [hi], x)
+            rows.append((mass_row(b), lo, hi))
     for name, box in bounds.boxes.items():
         b = names.index(name)
         if b not in where:
@@ -337,10 +383,11 @@ def _add_bounds(prog, x, D: np.ndarray, active: list[int], names: list[str], bou
         i0 = 10 * where[b]
         for axis in range(3):
             for limit, sign in ((box.lower[axis], 1.0), (box.upper[axis], -1.0)):
-                row = np.zeros(len(x))  # sign·(h_axis − limit·m) ≥ 0
+                row = np.zeros(k)  # sign·(h_axis − limit·m) ≥ 0
                 row[i0 + 1 + axis] = sign * D[i0 + 1 + axis]
                 row[i0] = -sign * limit * D[i0]
-                prog.AddLinearConstraint(row[None, :], [0.0], [np.inf], x)
+                rows.append((row, 0.0, np.inf))
+    return rows
 
 
 def fit_notes(phi: np.ndarray, prior: np.ndarray, theta: np.ndarray, lower: np.ndarray, extra_names: list[str],

@@ -36,7 +36,9 @@ MAX_CUTOFF_FRACTION = 0.4
 ENERGY_FRACTION = 0.999
 #: Relative spread of the time steps above which the data is resampled to a uniform grid.
 UNIFORM_TOLERANCE = 1e-3
-#: Odd extension at each end of the filtered record, in periods of the cut-off.
+#: Odd extension at each end of the filtered record, in periods of the cut-off: a short one
+#: leaves edge transients in the twice-differentiated acceleration that reach past the
+#: 2 / cut-off trimmed at each end.
 EDGE_PERIODS = 3.0
 #: Time trimmed at each end of a ground-wrench record, in periods of the cut-off (and of every
 #: record before the quality figures): :func:`default_trim_s`.

@@ -56,11 +56,3 @@ def sandwich_from_grams(grams: np.ndarray, residual: np.ndarray, cov_unit: np.nd
     s2 = np.sum(residual**2, axis=0) / max(S - p / r, 1.0)
     M = np.einsum("c,cij->ij", tau * s2, grams)
     return cov_unit @ M @ cov_unit
-
-
-def confidence_chi2(count: int, level: float = 0.95) -> float:
-    """The χ² quantile of ``count`` degrees of freedom: the boundary of the ``level``
-    confidence region {x : (x − x̂)ᵀ Cov⁻¹ (x − x̂) ≤ q} of a ``count``-parameter estimate."""
-    from scipy.special import chdtri  # lazy: scipy.special is only needed here
-
-    return float(chdtri(max(int(count), 1), 1.0 - level))

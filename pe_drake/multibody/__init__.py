@@ -3,7 +3,12 @@
 The lowest stage: it imports only the shared base layer (``exceptions``, ``config``, ...).
 """
 
-from pe_drake.multibody.registry import builtin_robots, resolve_robot_config, robot_display_name
-from pe_drake.multibody.robot import Robot, load_robot
+from pe_drake.exports import exports_by_module, lazy_exports
 
-__all__ = ["Robot", "builtin_robots", "load_robot", "resolve_robot_config", "robot_display_name"]
+_EXPORTS = exports_by_module(__name__, {
+    "registry": "builtin_robots resolve_robot_config robot_display_name",
+    "robot": "Robot load_robot",
+})
+
+__all__ = sorted(_EXPORTS)
+__getattr__ = lazy_exports(__name__, _EXPORTS)

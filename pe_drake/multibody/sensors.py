@@ -179,3 +179,19 @@ class SensorRows:
             rows=self,
             measurement=self.measurement.kind,
         )
+
+
+def measurement_base_parameters(robot, measurement: str = "joint_torque", model: RegressorModel | None = None, *,
+                                rows: SensorRows | None = None) -> BaseParameters:
+    """The base parameters a measurement identifies: Eq. (2) on the joint torques, or the
+    ground wrench's rows' own (:meth:`SensorRows.base_parameters`).
+
+    Args:
+        measurement: one of :data:`~pe_drake.config.MEASUREMENTS`.
+        model: a :class:`RegressorModel` of ``robot`` to reuse.
+        rows: the measurement's rows with their noise weights (default: unit sensor noise).
+    """
+    model = model or (rows.model if rows is not None else RegressorModel(robot))
+    if measurement == "joint_torque":
+        return compute_base_parameters(robot, model=model)
+    return (rows or SensorRows(model, MeasurementType(measurement))).base_parameters()

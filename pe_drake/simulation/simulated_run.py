@@ -10,7 +10,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from pe_drake.exceptions import ConfigError, DataError
+from pe_drake.exceptions import ConfigError, DataError, check_joints
 from pe_drake.excitation.ramp import check_within_limits
 from pe_drake.excitation.trajectory_file import load_motion
 from pe_drake.identification.measurements import Measurement, measurement_to_csv_text
@@ -93,9 +93,7 @@ def simulate_run(robot: Robot, trajectory: str | Path, truth: str | Path | None 
         raise ConfigError("give a TRUTH.yaml (--truth), an identified model (--model), or both")
     motion, data = load_motion(trajectory)  # validated before any work
     truth_spec = load_truth(truth) if truth is not None else Truth()
-    if list(data["joints"]) != list(robot.joint_names):
-        raise DataError(f"trajectory joints {', '.join(data['joints'])} differ from robot '{robot.name}''s "
-                        f"excited joints {', '.join(robot.joint_names)}", file=str(trajectory))
+    check_joints(robot, data["joints"], file=str(trajectory), what="the trajectory")
     check_within_limits(motion, robot.limits, robot.joint_names, source=str(trajectory))
     duration = duration if duration is not None else motion.duration
     if not 0 < duration <= 3600:

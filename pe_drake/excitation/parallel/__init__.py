@@ -10,6 +10,9 @@ by :func:`open_executor`::
 
 from __future__ import annotations
 
+import dataclasses
+
+from pe_drake.config import EXECUTORS
 from pe_drake.exceptions import ConfigError
 from pe_drake.excitation.parallel.base import (
     HUNG_AFTER_S,
@@ -29,17 +32,16 @@ from pe_drake.excitation.parallel.base import (
 )
 from pe_drake.excitation.parallel.local import LocalExecutor, default_start_method
 from pe_drake.excitation.parallel.ray import RayExecutor, cluster_cpus
-from pe_drake.multibody.base_parameters import compute_base_parameters
 from pe_drake.multibody.regressor import RegressorModel
-from pe_drake.multibody.sensors import MeasurementType, SensorRows
+from pe_drake.multibody.sensors import measurement_base_parameters
 
-EXECUTORS = ("local", "ray")
 
 __all__ = [
     "EXECUTORS",
     "HUNG_AFTER_S",
     "ConstraintsFactory",
     "Executor",
+    "ExecutorOptions",
     "InProcessExecutor",
     "LocalExecutor",
     "RayExecutor",
@@ -54,6 +56,28 @@ __all__ = [
     "default_workers",
     "open_executor",
 ]
+
+
+@dataclasses.dataclass(frozen=True)
+class ExecutorOptions:
+    """Where independent solves run (the options of :func:`open_executor` a caller chooses).
+
+    Attributes:
+        workers: tasks at once; None: the cores available (the Ray cluster's CPUs), at most the
+            tasks.
+        executor: "local", "ray", or an open :class:`Executor` to reuse (its workers keep their
+            robot, constraints and ``hung_after_s``).
+        address: the Ray cluster ("ray" only; "": ``ray.init()``'s default).
+        hung_after_s: a task without progress for this long [s] is declared hung, its worker
+            stopped; 0: never.
+        progress_interval: seconds between the progress events of a running solve [s].
+    """
+
+    workers: int | None = None
+    executor: str | Executor = "local"
+    address: str = ""
+    hung_after_s: float = HUNG_AFTER_S
+    progress_interval: float = 2.0
 
 
 def open_executor(
@@ -106,8 +130,7 @@ def open_executor(
         raise ConfigError(f"{workers} Ray workers need {workers} CPUs; the cluster has {cores}: lower workers or add nodes")
     model = RegressorModel(robot)
     if base is None:  # the rows' own base parameters: the torques' would select wrong columns
-        base = (compute_base_parameters(robot, model=model) if measurement == "joint_torque"
-                else SensorRows(model, MeasurementType(measurement)).base_parameters())
+        base = measurement_base_parameters(robot, measurement, model)
     local = WorkerState(robot, base, constraints_factory, model=model)
     spec = RobotSpec(robot.name, robot.config, base, constraints_factory).with_capsule_text()
     if executor == "ray":
