@@ -239,7 +239,7 @@ def optimize_motion(
         load_motion(prior)  # every value of each file, ramps included: before any work
     fit_dir = Path(tempfile.mkdtemp(prefix="pe_drake_capsules_"))  # lives as long as the plan (its config names it)
     try:
-        config, fitted, unchecked = _collision_geometry(config, fit_dir, say)
+        config, fitted, unchecked = collision_geometry(config, fit_dir, say)
         fitted_text = fitted.path.read_text() if fitted is not None else ""
         if executor is not None:
             plan = _plan(config, executor.local.robot, executor, priors, fitted, fitted_text, unchecked, allow_unchecked,
@@ -264,7 +264,7 @@ def constraints_factory(config: Config):
     return functools.partial(constraints_from_config, environment=config.environment)
 
 
-def _collision_geometry(config: Config, fit_dir: Path, say: Say) -> tuple[Config, FittedCapsules | None, list[str]]:
+def collision_geometry(config: Config, fit_dir: Path, say: Say) -> tuple[Config, FittedCapsules | None, list[str]]:
     """The config with fitted capsules when the robot has none, and what stays unchecked."""
     margin_before = config.excitation.collision_margin
     config = with_file_margin(config)  # a capsule file passed back keeps the margin it was fitted with

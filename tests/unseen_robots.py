@@ -1,0 +1,44 @@
+# ruff: noqa: E501 (URDF/SDF text on one line per link)
+"""Small robots of the kinds issue 37 tried (a SCARA with a vertical quill, an SDF with a prismatic
+joint, a model without inertials, an arm whose capsule file carries its margin), written as text so
+that tests and ``python -m pe_drake.bench robots`` can build them without downloads."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+_I = '<inertial><origin xyz="{c}"/><mass value="{m}"/><inertia ixx="{i}" iyy="{i}" izz="{i}" ixy="0" ixz="0" iyz="0"/></inertial>'
+
+
+def _inertial(m: float, c: str = "0 0 0", i: float = 0.01) -> str:
+    return _I.format(m=m, c=c, i=i)
+
+
+_COLLISION = '<collision><origin xyz="0 0 {z}"/><geometry><cylinder radius="{r}" length="{L}"/></geometry></collision>'
+
+
+def folding_arm(folder: Path, margin: float = 0.05, collision: bool = False) -> tuple[Path, Path]:
+    """A 3-joint arm about x whose hand can fold back onto its base post, and a capsule file that
+    records ``collision_margin`` (as a fitted file does). ``collision``: the URDF has cylinders
+    as collision geometry (capsules can be fitted to them). Returns (urdf, capsule file)."""
+    shapes = dict(base=(0.325, 0.06, 0.35), l2=(0.15, 0.04, 0.2), hand=(0.08, 0.04, 0.1)) if collision else {}
+    joint = ('<joint name="j{k}" type="revolute"><parent link="{p}"/><child link="{c}"/><origin xyz="0 0 {z}"/>'
+             '<axis xyz="1 0 0"/><limit lower="-2.6" upper="2.6" effort="80" velocity="2"/></joint>')
+    inertials = dict(base=(5, "0 0 0.2"), l1=(1.5, "0 0 0.15"), l2=(1.5, "0 0 0.15"), hand=(0.5, "0 0 0.05"))
+    links = ['<link name="world"/>'] + [
+        f'<link name="{name}">{_inertial(*inertial)}'
+        + (_COLLISION.format(z=shapes[name][0], r=shapes[name][1], L=shapes[name][2]) if name in shapes else "") + "</link>"
+        for name, inertial in inertials.items()]
+    joints = ['<joint name="w" type="fixed"><parent link="world"/><child link="base"/></joint>',
+              joint.format(k=1, p="base", c="l1", z=0.6), joint.format(k=2, p="l1", c="l2", z=0.3),
+              joint.format(k=3, p="l2", c="hand", z=0.3)]
+    urdf = Path(folder) / "folding.urdf"
+    urdf.write_text('<robot name="folding">' + "".join(links + joints) + "</robot>")
+    capsules = Path(folder) / "folding_capsules.yaml"
+    capsules.write_text(
+        "capsules:\n"
+        "  - {name: post, link: base, radius: 0.06, length: 0.35, xyz: [0, 0, 0.325], rpy: [0, 0, 0]}\n"
+        "  - {name: l2, link: l2, radius: 0.04, length: 0.2, xyz: [0, 0, 0.15], rpy: [0, 0, 0]}\n"
+        "  - {name: hand, link: hand, radius: 0.04, length: 0.1, xyz: [0, 0, 0.08], rpy: [0, 0, 0]}\n"
+        f"collision_margin: {margin}\n")
+    return urdf, capsules
