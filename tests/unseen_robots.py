@@ -42,3 +42,43 @@ def folding_arm(folder: Path, margin: float = 0.05, collision: bool = False) -> 
         "  - {name: hand, link: hand, radius: 0.04, length: 0.1, xyz: [0, 0, 0.08], rpy: [0, 0, 0]}\n"
         f"collision_margin: {margin}\n")
     return urdf, capsules
+
+
+def scara(folder: Path, fmt: str = "urdf") -> Path:
+    """A SCARA: two vertical revolute axes, a vertical prismatic quill (it carries its own weight),
+    a vertical wrist and a tool link; every axis parallel to gravity. ``fmt``: "urdf" or "sdf"."""
+    bodies = [("base", 8.0, "0 0 0.2", 0.1), ("upper", 3.0, "0.2 0 0", 0.02), ("fore", 2.0, "0.15 0 0", 0.01),
+              ("quill", 1.0, "0 0 -0.1", 0.005), ("tool", 0.3, "0 0 -0.02", 0.001)]
+    joints = [("shoulder", "revolute", "base", "upper", "0 0 0.5", -2.5, 2.5),
+              ("elbow", "revolute", "upper", "fore", "0.35 0 0", -2.5, 2.5),
+              ("lift", "prismatic", "fore", "quill", "0.3 0 0", -0.15, 0.0),
+              ("wrist", "revolute", "quill", "tool", "0 0 -0.2", -3.0, 3.0)]
+    if fmt == "sdf":
+        return _scara_sdf(Path(folder), bodies, joints)
+    links = ['<link name="world"/>'] + [f'<link name="{n}">{_inertial(m, c, i)}</link>' for n, m, c, i in bodies]
+    js = ['<joint name="fix" type="fixed"><parent link="world"/><child link="base"/></joint>'] + [
+        f'<joint name="{n}" type="{t}"><parent link="{p}"/><child link="{c}"/><origin xyz="{o}"/><axis xyz="0 0 1"/>'
+        f'<limit lower="{lo}" upper="{hi}" effort="{60 if t == "prismatic" else 40}" velocity="{0.5 if t == "prismatic" else 2}"/></joint>'
+        for n, t, p, c, o, lo, hi in joints]
+    path = Path(folder) / "scara.urdf"
+    path.write_text('<robot name="scara">' + "".join(links + js) + "</robot>")
+    return path
+
+
+def _scara_sdf(folder: Path, bodies, joints) -> Path:
+    """The SCARA as SDFormat 1.7 (poses relative to the parent link, as the URDF's origins)."""
+    pose = {"base": [0.0, 0.0, 0.0]}
+    for _, _, parent, child, origin, _, _ in joints:
+        pose[child] = [a + float(b) for a, b in zip(pose[parent], origin.split())]
+    links = "".join(
+        f'<link name="{n}"><pose>{" ".join(map(str, pose[n]))} 0 0 0</pose><inertial><pose>{c} 0 0 0</pose><mass>{m}</mass>'
+        f"<inertia><ixx>{i}</ixx><iyy>{i}</iyy><izz>{i}</izz><ixy>0</ixy><ixz>0</ixz><iyz>0</iyz></inertia></inertial></link>"
+        for n, m, c, i in bodies)
+    js = '<joint name="fix" type="fixed"><parent>world</parent><child>base</child></joint>' + "".join(
+        f'<joint name="{n}" type="{t}"><parent>{p}</parent><child>{c}</child><axis><xyz>0 0 1</xyz>'
+        f"<limit><lower>{lo}</lower><upper>{hi}</upper><effort>{60 if t == 'prismatic' else 40}</effort>"
+        f"<velocity>{0.5 if t == 'prismatic' else 2}</velocity></limit></axis></joint>"
+        for n, t, p, c, _, lo, hi in joints)
+    path = folder / "scara.sdf"
+    path.write_text(f'<?xml version="1.0"?><sdf version="1.7"><model name="scara">{links}{js}</model></sdf>')
+    return path

@@ -17,7 +17,7 @@ from pe_drake.exceptions import ConfigError
 from pe_drake.excitation.constraints import constraints_from_config
 from pe_drake.excitation.motion_plan import collision_geometry
 from pe_drake.excitation.payload_motion import PayloadMotionPlan, optimize_payload_motion, payload_excitation_config
-from pe_drake.io_utils import staged_output_dir
+from pe_drake.io_utils import finite_json, staged_output_dir
 from pe_drake.multibody.robot import Robot
 from pe_drake.output_paths import OPTIMIZE_OUTPUTS, check_output_dir
 
@@ -83,5 +83,5 @@ def write_payload_plan(plan: PayloadMotionPlan, folder: str | Path, robot: Robot
                   "criterion": plan.criterion, "message": plan.result.message,
                   "motion_duration": plan.motion.duration, "optimize_time_s": plan.wall_time,
                   "expected": plan.expected.to_dict(), "margins_1khz": plan.result.margins}
-        (tmp / "report.json").write_text(json.dumps(report, indent=2, default=float))
+        (tmp / "report.json").write_text(json.dumps(finite_json(report), indent=2))
     return ["trajectory.json", "trajectory.csv", "report.json"]

@@ -35,10 +35,19 @@ import numpy as np
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.identification.identified_file import standard_from_base
 from pe_drake.identification.payload_friction import DRIVE_TERMS, drive_columns, drive_names
-from pe_drake.io_utils import atomic_write_text
+from pe_drake.io_utils import atomic_write_text, finite_json
 from pe_drake.multibody.base_parameters import BaseParameters, compute_base_parameters
 from pe_drake.multibody.inertia import pseudo_inertia, pseudo_inertia_basis
-from pe_drake.multibody.payload import PayloadInertia, central_jacobian, link_columns, link_position
+from pe_drake.multibody.payload import (
+    PayloadInertia,
+    central_jacobian,
+    determined_std,
+    link_columns,
+    link_position,
+    payload_base_parameters,
+    payload_parameter_names,
+    undetermined_parameters,
+)
 from pe_drake.multibody.regressor import RegressorModel
 from pe_drake.threads import single_threaded_blas
 
@@ -137,6 +146,7 @@ class PayloadResult:
     samples: int
     constrained: bool
     wall_time: float
+    undetermined: tuple[str, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
         """The content of payload.json (the project's truth-file convention)."""
@@ -163,11 +173,12 @@ class PayloadResult:
             "samples": self.samples,
             "arm_correction_fitted": self.arm_correction is not None,
             "wall_time_s": self.wall_time,
+            "not_determined": list(self.undetermined),
         }
 
     def write(self, path: str | Path) -> None:
         """Writes payload.json atomically."""
-        atomic_write_text(path, json.dumps(self.to_dict(), indent=2))
+        atomic_write_text(path, json.dumps(finite_json(self.to_dict()), indent=2))
 
 
 def arm_parameters(robot, arm_model=None) -> np.ndarray:
@@ -225,24 +236,30 @@ def identify_payload(
         base = compute_base_parameters(robot, model=model)
     phi_arm = arm_parameters(robot, arm_model)
     runs = [(r, True) for r in loaded_runs] + [(r, False) for r in unloaded_runs]
+    # φ_B = K_L φ_L: the combinations of the payload's parameters this robot's torques determine
+    # (all 10 unless its axes leave some unexcitable, issue 37); the fit solves for those.
+    pbase = payload_base_parameters(robot, link, model)
+    K_L = pbase.K[:, link_columns(robot, link)]
     with single_threaded_blas():  # small blocks: threads only add contention
-        R_joint, S = _compressed_rows(robot, model, runs, phi_arm, link, base if with_arm else None, options)
+        R_joint, S = _compressed_rows(robot, model, runs, phi_arm, pbase, base if with_arm else None, options)
     n, p = robot.n, R_joint.shape[-1] - 1
     if S * n < 10 * p:
         raise DataError(f"{S} samples × {n} joints = {S * n} equations for {p} unknowns: record longer runs")
     x, cov, noise_std = weighted_fit_from_factors(R_joint, S, options.weighted)
-    nb_arm = base.count if with_arm else 0
+    nb_arm, b = (base.count if with_arm else 0), pbase.count
     nd = len(options.drive_terms) * n
     constrained = False
-    if (options.physical and np.linalg.eigvalsh(pseudo_inertia(x[-10:])).min() < 0) or options.box is not None:
+    phi = np.linalg.pinv(K_L) @ x[-b:]
+    if (options.physical and np.linalg.eigvalsh(pseudo_inertia(phi)).min() < 0) or options.box is not None or b < 10:
         w = 1.0 / noise_std if options.weighted else np.ones(n)
-        x_phys = _physical_fit(R_joint, w, x, p - 10, options.box)
-        constrained = bool(np.linalg.norm(x_phys[-10:] - x[-10:]) > 1e-6 * np.linalg.norm(x[-10:]))
+        x_phys, phi = _physical_fit(R_joint, w, x, K_L, options.box)
+        constrained = bool(np.linalg.norm(x_phys[-b:] - x[-b:]) > 1e-6 * np.linalg.norm(x[-b:]))
         x = x_phys
-    phi = x[-10:]
-    cov_phi = cov[-10:, -10:]
-    Jc = central_jacobian(phi)
-    std = np.sqrt(np.maximum(np.diag(Jc @ cov_phi @ Jc.T), 0.0))
+    cov_B = cov[-b:, -b:]
+    std = determined_std(central_jacobian(phi), K_L, cov_B)
+    undetermined = undetermined_parameters(pbase, robot, link)
+    cov_phi = np.linalg.pinv(K_L) @ cov_B @ np.linalg.pinv(K_L).T
+    cov_phi[undetermined, :] = cov_phi[:, undetermined] = np.nan
     return PayloadResult(
         robot=robot.name, link=robot.body_names[link_position(robot, link)], payload=PayloadInertia.from_phi(phi),
         phi=phi, cov_phi=cov_phi, mass_std=float(std[0]), com_std=std[1:4], inertia_about_com_std=std[4:10],
@@ -250,13 +267,14 @@ def identify_payload(
         arm_correction=x[:nb_arm] if with_arm else None, noise_std=noise_std,
         loaded_runs=len(loaded_runs), unloaded_runs=len(unloaded_runs), samples=S, constrained=constrained,
         wall_time=time.perf_counter() - start,
+        undetermined=tuple(payload_parameter_names(robot.body_names[link_position(robot, link)])[i] for i in undetermined),
     )
 
 
-def _compressed_rows(robot, model, runs, phi_arm, link, base, options) -> tuple[np.ndarray, int]:
+def _compressed_rows(robot, model, runs, phi_arm, pbase, base, options) -> tuple[np.ndarray, int]:
     """:func:`compress_joint_rows` of every run's rows (:func:`_run_rows`)."""
     return compress_joint_rows(block for run, loaded in runs
-                               for block in _run_rows(robot, model, run, loaded, phi_arm, link, base, options))
+                               for block in _run_rows(robot, model, run, loaded, phi_arm, pbase, base, options))
 
 
 def compress_joint_rows(blocks) -> tuple[np.ndarray, int]:
@@ -274,20 +292,19 @@ def compress_joint_rows(blocks) -> tuple[np.ndarray, int]:
     return R, S
 
 
-def _run_rows(robot, model, run, loaded: bool, phi_arm, link, base, options):
-    """One run's columns [Y_B (with base) | D | Y_L (loaded, else 0)] (s, n, p) and targets τ − Y φ_arm
-    (s, n), chunk by chunk."""
+def _run_rows(robot, model, run, loaded: bool, phi_arm, pbase, base, options):
+    """One run's columns [Y_B (with base) | D | the payload's base columns (loaded, else 0)] (s, n, p)
+    and targets τ − Y φ_arm (s, n), chunk by chunk."""
     if run.v is None or run.vd is None or run.tau is None:
         raise DataError("a payload run needs q, v, vdot and tau (preprocess it first)", file=run.source)
     if tuple(run.joints) != tuple(robot.joint_names):
         raise DataError(f"the run has joints {', '.join(run.joints)}; robot '{robot.name}' excites "
                         f"{', '.join(robot.joint_names)}", file=run.source)
-    cols = link_columns(robot, link)
     for s in range(0, run.num_samples, CHUNK):
         r = slice(s, min(s + CHUNK, run.num_samples))
         Y = model(run.q[r], run.v[r], run.vd[r])
         D = drive_columns(run.v[r], options.coulomb_velocity_scale, options.drive_terms)
-        YL = Y[..., cols] if loaded else np.zeros(Y.shape[:2] + (10,))
+        YL = pbase.reduce(Y) if loaded else np.zeros(Y.shape[:2] + (pbase.count,))
         parts = ([base.reduce(Y)] if base is not None else []) + [D, YL]
         yield np.concatenate(parts, axis=-1), run.tau[r] - Y @ phi_arm
 
@@ -330,8 +347,10 @@ def weighted_fit_from_factors(R_joint: np.ndarray, S: int, weighted: bool) -> tu
     return x, cov * s2, noise_std
 
 
-def _physical_fit(R_joint, w, x_ls, offset: int, box: PayloadBox | None) -> np.ndarray:
-    """min Σ_j w_j² ‖A_j x − y_j‖² s.t. J(φ_L) ⪰ 0 (and the box), φ_L = x[offset:offset+10]."""
+def _physical_fit(R_joint, w, x_ls, K_L: np.ndarray, box: PayloadBox | None) -> tuple[np.ndarray, np.ndarray]:
+    """min Σ_j w_j² ‖A_j x − y_j‖² s.t. J(φ_L) ⪰ 0 (and the box), K_L φ_L = the last b entries of x;
+    returns (x, φ_L). Parameters K_L leaves out (no motion excites them) are kept small, so that
+    φ_L is the least extended payload that explains the data."""
     from pydrake.solvers import ClarabelSolver, MathematicalProgram, ScsSolver, SolverOptions  # lazy: pydrake
 
     p = R_joint.shape[-1] - 1
@@ -342,12 +361,17 @@ def _physical_fit(R_joint, w, x_ls, offset: int, box: PayloadBox | None) -> np.n
     prog = MathematicalProgram()
     u = prog.NewContinuousVariables(p, "u")  # x = u / D
     prog.AddQuadraticCost(2.0 * Ra.T @ Ra, -2.0 * Ra.T @ z, u, is_convex=True)
-    uL, dL = u[offset : offset + 10], 1.0 / D[offset : offset + 10]
+    b = K_L.shape[0]
+    phi = prog.NewContinuousVariables(10, "phi_L")
+    prog.AddLinearEqualityConstraint(np.hstack([K_L, -np.diag(1.0 / D[p - b :])]), np.zeros(b), np.concatenate([phi, u[p - b :]]))
     F = pseudo_inertia_basis()
-    prog.AddLinearMatrixInequalityConstraint([np.zeros((4, 4))] + [F[i] * dL[i] for i in range(10)], uL)
+    prog.AddLinearMatrixInequalityConstraint([np.zeros((4, 4))] + list(F), phi)
+    free = np.flatnonzero(np.abs(K_L).max(axis=0) == 0.0)
+    if len(free):
+        prog.AddQuadraticCost(1e-6 * np.eye(len(free)), np.zeros(len(free)), phi[free], is_convex=True)
     if box is not None:
         for row, lo in box_constraint_rows(box):
-            prog.AddLinearConstraint((row * dL).reshape(1, 10), [lo], [np.inf], uL)
+            prog.AddLinearConstraint(row.reshape(1, 10), [lo], [np.inf], phi)
     solver = ClarabelSolver()
     if not solver.available():  # pragma: no cover - the drake wheel ships Clarabel
         solver = ScsSolver()
@@ -355,11 +379,11 @@ def _physical_fit(R_joint, w, x_ls, offset: int, box: PayloadBox | None) -> np.n
     if solver.solver_id() == ClarabelSolver.id():
         for key in ("tol_gap_abs", "tol_gap_rel", "tol_feas"):
             opts.SetOption(solver.solver_id(), key, 1e-10)
-    result = solver.Solve(prog, x_ls * D, opts)
+    result = solver.Solve(prog, np.concatenate([x_ls * D, np.linalg.pinv(K_L) @ x_ls[p - b :]]), opts)
     if not result.is_success():
         raise DataError(f"the physically consistent payload fit failed ({solver.solver_id().name()}: "
                         f"{result.get_solution_result().name}); is the box right? try physical=False")
-    return result.GetSolution(u) / D
+    return result.GetSolution(u) / D, result.GetSolution(phi)
 
 
 def box_constraint_rows(box: PayloadBox) -> list[tuple[np.ndarray, float]]:

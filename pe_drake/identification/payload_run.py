@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from pe_drake.exceptions import ConfigError
+from pe_drake.excitation.payload_motion import undetermined_note
 from pe_drake.excitation.trajectory_file import load_trajectory
 from pe_drake.identification.estimators import prepare_measurement
 from pe_drake.identification.identified_file import load_identified
@@ -27,7 +28,7 @@ from pe_drake.identification.payload import (
     identify_payload,
 )
 from pe_drake.identification.payload_formats import vendor_formats, write_payload_urdf
-from pe_drake.io_utils import staged_output_dir
+from pe_drake.io_utils import finite_json, staged_output_dir
 from pe_drake.multibody.robot import Robot
 from pe_drake.output_paths import check_output_dir
 
@@ -66,6 +67,8 @@ class PayloadIdentification:
         lines = [f"payload on {r.link} ({self.loaded} loaded, {self.unloaded} unloaded run(s), {r.samples} samples, "
                  f"{r.wall_time:.2f} s): mass {p.mass:.4f} ± {r.mass_std:.2g} kg, CoM "
                  f"{[round(float(x), 5) for x in p.com]} ± {[float(f'{x:.2g}') for x in r.com_std]} m"]
+        if r.undetermined:
+            lines.append(undetermined_note(r.undetermined) + " (σ nan, null in payload.json)")
         if not self.unloaded:
             lines.append("note: no unloaded run: the arm's model errors go into the payload (give --unloaded, same motion)")
         lines += [f"in {f['flange']}: Franka setLoad mass {f['franka']['load_mass']:.4f}, "
@@ -79,7 +82,7 @@ class PayloadIdentification:
         with staged_output_dir(out, "payload.json", ("payload.json", "model_with_payload.urdf")) as tmp:
             d = self.result.to_dict()
             d["vendor"] = self.formats
-            (tmp / "payload.json").write_text(json.dumps(d, indent=2))
+            (tmp / "payload.json").write_text(json.dumps(finite_json(d), indent=2))
             write_payload_urdf(tmp / "model_with_payload.urdf", self.robot, self.result.payload, self.result.link,
                                arm_parameters(self.robot, self.arm))
         return ["payload.json", "model_with_payload.urdf"]
