@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 from pe_drake.cli import main
 from pe_drake.identification.measurements import write_measurement_csv
@@ -16,7 +17,8 @@ from pe_drake.excitation.constraints.collision import CollisionConstraint
 from pe_drake.excitation.trajectory_file import load_motion
 from pe_drake.multibody.registry import resolve_robot_config
 from pe_drake.multibody.robot import Robot
-from tests.unseen_robots import folding_arm, scara
+from pe_drake.multibody.base_parameters import compute_base_parameters
+from tests.unseen_robots import folding_arm, scara, without_inertials
 
 
 def test_payload_motion_keeps_the_capsule_files_margin_at_1khz(tmp_path, capsys):
@@ -88,3 +90,39 @@ def test_payload_on_a_scara_names_what_no_motion_excites_and_fits_the_rest(tmp_p
     assert abs(d["mass"] - 0.8) < 0.02 and np.allclose(d["com"][:2], payload.com[:2], atol=3e-3)
     assert set(d["not_determined"]) == {"hz.tool", "Ixx.tool", "Iyy.tool", "Ixy.tool", "Ixz.tool", "Iyz.tool"}
     assert d["com_std"][2] is None and d["com_std"][0] is not None
+
+
+@pytest.fixture(scope="module")
+def massless(tmp_path_factory):
+    """A run of the folding arm (its inertials, viscous and Coulomb friction) and the same arm's
+    model without any <inertial>, as a ROS-Industrial description ships: (model, truth model, csv)."""
+    folder = tmp_path_factory.mktemp("massless")
+    urdf, _ = folding_arm(folder, collision=True)
+    cfg = folder / "small.yaml"
+    cfg.write_text("excitation: {harmonics: 3, cost_samples: 24, constraint_samples: 96}\nsolver: {max_iterations: 40}\n")
+    assert main(["optimize", "--robot", str(urdf), "--config", str(cfg), "--out", str(folder / "motion"), "--quiet",
+                 "--no-html"]) == 0
+    (folder / "truth.yaml").write_text("seed: 1\neffects: {viscous: {all: 0.2}, coulomb: {all: 0.5}}\n")
+    assert main(["simulate", "--robot", str(urdf), "--trajectory", str(folder / "motion" / "trajectory.json"),
+                 "--truth", str(folder / "truth.yaml"), "--out", str(folder / "run.csv")]) == 0
+    return without_inertials(urdf, folder), urdf, folder / "run.csv"
+
+
+def _base_values(model, phi_of):
+    robot = Robot("ref", resolve_robot_config(str(model)).robot)
+    base = compute_base_parameters(robot)
+    return base.K @ Robot("other", resolve_robot_config(str(phi_of)).robot).phi_model
+
+
+def test_diagnose_with_a_massless_model_exports_what_the_data_determine(massless, tmp_path, capsys):
+    """Item 3: the augmented model fell back to the zero prior (every joint "unexplained" at the
+    a-priori error); the exported augmented_model.urdf now carries the data's base parameters."""
+    model, truth_model, csv = massless
+    out = tmp_path / "diag"
+    assert main(["diagnose", "--robot", str(model), "--data", str(csv), "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    prior = [float(x) for x in printed.split("1. a-priori model, held-out RMS [N·m]:")[1].split("\n")[0].replace(",", "").split()[1::2]]
+    augmented = [float(x) for x in printed.split("4. augmented Drake model, held-out RMS [N·m]:")[1].split("\n")[0].replace(",", "").split()[1::2]]
+    assert max(augmented) < 0.05 * max(prior)
+    exported, truth = _base_values(truth_model, out / "augmented_model.urdf"), _base_values(truth_model, truth_model)
+    assert np.abs(exported - truth).max() < 0.02 * np.abs(truth).max()

@@ -82,3 +82,13 @@ def _scara_sdf(folder: Path, bodies, joints) -> Path:
     path = folder / "scara.sdf"
     path.write_text(f'<?xml version="1.0"?><sdf version="1.7"><model name="scara">{links}{js}</model></sdf>')
     return path
+
+
+def without_inertials(model: Path, folder: Path) -> Path:
+    """A copy of ``model`` with every ``<inertial>`` removed, as ROS-Industrial descriptions ship."""
+    import re
+
+    text = re.sub(r"<inertial>.*?</inertial>", "", Path(model).read_text(), flags=re.S)
+    path = Path(folder) / f"{Path(model).stem}_no_inertials{Path(model).suffix}"
+    path.write_text(text)
+    return path

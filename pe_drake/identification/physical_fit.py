@@ -188,6 +188,8 @@ def physical_fit(
     d = E.shape[1]
     lower = np.full(d, -np.inf) if extra_lower is None else np.asarray(extra_lower, float)
     active = [b for b in range(len(body_names)) if prior[10 * b] > 0]
+    if not active:  # a model without inertials (issue 37): every body is fitted, pulled toward zero
+        active = list(range(len(body_names)))
     cols = np.concatenate([np.arange(10 * b, 10 * b + 10) for b in active])
     D = (_variable_scale(prior, active) if scale is None else np.asarray(scale, float))[cols]
     s_e, Rs, z, P_null, mu = _data_term(A[:, cols] * D, E, y, base_K, cols, D, extra_in_base,
@@ -257,7 +259,7 @@ def _program(Q, c, k, D, active, prior, lower, s_e, ncols, body_names, bounds, m
     F = pseudo_inertia_basis()
     for i, b in enumerate(active):
         dk = D[10 * i : 10 * i + 10]
-        F0 = -margin * prior[10 * b] * np.eye(4)
+        F0 = -margin * (prior[10 * b] if prior[10 * b] > 0 else 1.0) * np.eye(4)  # massless prior: per 1 kg
         prog.AddLinearMatrixInequalityConstraint([F0] + [F[j] * dk[j] for j in range(10)], x[10 * i : 10 * i + 10])
     for j in range(k - ncols):
         if np.isfinite(lower[j]):
@@ -389,6 +391,9 @@ def _variable_scale(prior: np.ndarray, active: list[int]) -> np.ndarray:
     scale = np.ones(prior.size)
     for b in active:
         m = prior[10 * b]
+        if m <= 0:  # no a-priori inertia (a model without inertials): a generic link's magnitudes
+            scale[10 * b : 10 * b + 10] = [1.0, 0.1, 0.1, 0.1] + [0.01] * 6  # [kg, kg·m, kg·m²]
+            continue
         scale[10 * b] = m
         scale[10 * b + 1 : 10 * b + 4] = max(np.max(np.abs(prior[10 * b + 1 : 10 * b + 4])), 1e-3 * m)
         scale[10 * b + 4 : 10 * b + 10] = max(np.max(np.abs(prior[10 * b + 4 : 10 * b + 10])), 1e-6 * m)
