@@ -126,3 +126,25 @@ def test_diagnose_with_a_massless_model_exports_what_the_data_determine(massless
     assert max(augmented) < 0.05 * max(prior)
     exported, truth = _base_values(truth_model, out / "augmented_model.urdf"), _base_values(truth_model, truth_model)
     assert np.abs(exported - truth).max() < 0.02 * np.abs(truth).max()
+
+
+def test_a_model_without_inertials_says_up_front_what_works(massless, tmp_path, capsys):
+    """Item 5: accepted without a word, an empty quality line, no playback, tracebacks in simulate
+    and identify --method physical; now a note up front, the playback drawn, clear refusals."""
+    model, _, csv = massless
+    cfg = tmp_path / "small.yaml"
+    cfg.write_text("excitation: {harmonics: 2, cost_samples: 16, constraint_samples: 64}\nsolver: {max_iterations: 10}\n"
+                   "parallel: {starts: 1}\n")
+    assert main(["optimize", "--robot", str(model), "--config", str(cfg), "--out", str(tmp_path / "opt")]) == 0
+    printed = capsys.readouterr().out
+    assert "no inertial parameters" in printed.split("constraints:")[0]  # before any work
+    assert "std (pe_drake's base parameters): not available" in printed
+    assert (tmp_path / "opt" / "playback.html").exists() and "could not write the HTML playback" not in printed
+    (tmp_path / "truth.yaml").write_text("effects: {viscous: {all: 0.1}}\n")
+    code = main(["simulate", "--robot", str(model), "--trajectory", str(tmp_path / "opt" / "trajectory.json"),
+                 "--truth", str(tmp_path / "truth.yaml"), "--out", str(tmp_path / "sim.csv")])
+    assert code == 2 and "identify --method physical" in capsys.readouterr().err
+    out = tmp_path / "ident"
+    assert main(["identify", "--robot", str(model), "--data", str(csv), "--method", "physical", "--out", str(out)]) == 0
+    fitted = Robot("fitted", resolve_robot_config(str(out / "model.urdf")).robot)
+    assert np.all(fitted.phi_model[0::10] > 0)

@@ -10,6 +10,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.excitation.ramp import check_within_limits
 from pe_drake.excitation.trajectory_file import load_motion
@@ -90,6 +92,10 @@ def simulate_run(robot: Robot, trajectory: str | Path, truth: str | Path | None 
     """
     if truth is None and model is None:
         raise ConfigError("give a TRUTH.yaml (--truth), an identified model (--model), or both")
+    if not np.any(robot.phi_model[0::10] > 0):  # a singular mass matrix; the controller's gains scale with it
+        raise ConfigError(f"robot '{robot.name}' has no inertial parameters (every moving body's mass is 0; no "
+                          "<inertial> in its model) to simulate: simulate --robot the model.urdf of "
+                          "identify --method physical (with --truth its drive_effects.yaml)")
     motion, data = load_motion(trajectory)  # validated before any work
     truth_spec = load_truth(truth) if truth is not None else Truth()
     if list(data["joints"]) != list(robot.joint_names):

@@ -152,6 +152,8 @@ class Robot:
         self._joints = joints
         self._structure()
         self.limits = self._limits()
+        if not np.any(self.phi_model[0::10] > 0):
+            self.notes.append(NO_INERTIALS_NOTE)
 
     def _weld_root(self, plant, models) -> None:
         """Welds the root link to the world at the config's base pose.
@@ -414,6 +416,14 @@ class Robot:
 
     def __repr__(self) -> str:
         return f"Robot('{self.name}', {self.n} joints, {self.num_bodies} moving bodies)"
+
+
+#: What works on a model whose moving bodies all have zero mass (no ``<inertial>``, as
+#: ROS-Industrial descriptions ship), said up front (issue 37).
+NO_INERTIALS_NOTE = (
+    "the model has no inertial parameters (every moving body's mass is 0): optimize, identify (ols, wls, "
+    "physical) and diagnose work without them (identify finds them); simulate, the playback's centre of mass, "
+    "excitation.torque_limits and payload identification need them: use the model.urdf of identify --method physical")
 
 
 def _urdf_effort_limits(path: Path) -> dict[str, float]:
