@@ -18,7 +18,7 @@ from pe_drake.excitation.trajectory_file import load_motion
 from pe_drake.multibody.registry import resolve_robot_config
 from pe_drake.multibody.robot import Robot
 from pe_drake.multibody.base_parameters import compute_base_parameters
-from tests.unseen_robots import folding_arm, scara, without_inertials
+from tests.unseen_robots import folding_arm, scara, vertical_lift, without_inertials
 
 
 def test_payload_motion_keeps_the_capsule_files_margin_at_1khz(tmp_path, capsys):
@@ -148,3 +148,24 @@ def test_a_model_without_inertials_says_up_front_what_works(massless, tmp_path, 
     assert main(["identify", "--robot", str(model), "--data", str(csv), "--method", "physical", "--out", str(out)]) == 0
     fitted = Robot("fitted", resolve_robot_config(str(out / "model.urdf")).robot)
     assert np.all(fitted.phi_model[0::10] > 0)
+
+
+def test_simulate_takes_coulomb_friction_on_a_prismatic_joint_and_its_own_drive_effects(tmp_path, capsys):
+    """Item 7: simulate refused Coulomb friction on prismatic joints, including the
+    drive_effects.yaml that identify writes, so the README's round trip failed on any lift."""
+    urdf = vertical_lift(tmp_path)
+    cfg = tmp_path / "small.yaml"
+    cfg.write_text("excitation: {harmonics: 3, cost_samples: 24, constraint_samples: 96}\nsolver: {max_iterations: 30}\n"
+                   "environment: {floor: false}\n")
+    assert main(["optimize", "--robot", str(urdf), "--config", str(cfg), "--out", str(tmp_path / "m"), "--quiet",
+                 "--no-html", "--allow-unchecked"]) in (0, 1)
+    (tmp_path / "truth.yaml").write_text("effects: {viscous: {all: 3.0}, coulomb: {all: 4.0}}\n")
+    trajectory = str(tmp_path / "m" / "trajectory.json")
+    assert main(["simulate", "--robot", str(urdf), "--trajectory", trajectory, "--truth", str(tmp_path / "truth.yaml"),
+                 "--out", str(tmp_path / "run.csv")]) == 0
+    assert main(["identify", "--robot", str(urdf), "--data", str(tmp_path / "run.csv"), "--out", str(tmp_path / "id")]) == 0
+    drive = json.loads((tmp_path / "id" / "identified.json").read_text())["drive_terms"]["joints"]["lift"]
+    assert abs(drive["coulomb"]["value"] - 4.0) < 0.2  # simulated, and found again
+    # the round trip of the README: the identified model and its drive_effects.yaml
+    assert main(["simulate", "--robot", str(tmp_path / "id" / "model.urdf"), "--trajectory", trajectory,
+                 "--truth", str(tmp_path / "id" / "drive_effects.yaml"), "--out", str(tmp_path / "again.csv")]) == 0

@@ -92,3 +92,14 @@ def without_inertials(model: Path, folder: Path) -> Path:
     path = Path(folder) / f"{Path(model).stem}_no_inertials{Path(model).suffix}"
     path.write_text(text)
     return path
+
+
+def vertical_lift(folder: Path) -> Path:
+    """One vertical prismatic joint carrying 2 kg (a lift, a quill on its own)."""
+    path = Path(folder) / "lift.urdf"
+    path.write_text(
+        '<robot name="lift"><link name="world"/>' f'<link name="base">{_inertial(5)}</link><link name="carriage">{_inertial(2)}</link>'
+        '<joint name="fix" type="fixed"><parent link="world"/><child link="base"/></joint>'
+        '<joint name="lift" type="prismatic"><parent link="base"/><child link="carriage"/><origin xyz="0 0 0.3"/>'
+        '<axis xyz="0 0 1"/><limit lower="-0.2" upper="0.2" effort="200" velocity="0.5"/></joint></robot>')
+    return path

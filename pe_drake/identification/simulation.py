@@ -140,7 +140,7 @@ class TrueRobot:
     def force_input(self):
         """(port, context) of the applied generalized force the controller sets: the
         plant's, or the diagram's exported input when the Dahl system adds its torque."""
-        if np.any(self.presliding > 0):
+        if self.robot.diagram.HasInputPort(APPLIED_FORCE_PORT):  # pre-sliding or prismatic Coulomb friction
             return self.robot.diagram.GetInputPort(APPLIED_FORCE_PORT), self.robot.context
         return self.robot.plant.get_applied_generalized_force_input_port(), self.robot.plant_context
 
@@ -165,10 +165,11 @@ def build_true_robot(robot, truth: Truth, phi: np.ndarray | None = None) -> True
     e = truth.effects
     model_damping, model_friction = robot.joint_damping, robot.joint_friction
     viscous = per_joint_or_model(e.viscous, joints, model_damping)
-    # Coulomb friction is simulated by a revolute DoorHinge; a model file's friction on a prismatic
-    # joint (the truth itself may not set one: validate_truth) is left out rather than crash.
+    # Coulomb friction is simulated by a revolute DoorHinge; on a prismatic joint (which a DoorHinge
+    # cannot carry) by the friction system of the Dahl hook, without pre-sliding (issue 37).
     revolute = np.array([j.kind == "revolute" for j in robot.joints])
-    coulomb = np.where(revolute, per_joint_or_model(e.coulomb, joints, model_friction), 0.0)
+    coulomb = per_joint_or_model(e.coulomb, joints, model_friction)
+    sliding = np.where(revolute, 0.0, coulomb)
     armature = per_joint_values(e.armature, joints)
     offset = per_joint_values(e.torque_offset, joints)
     payload_M = payload_spatial_inertia(e.payload) if e.payload.link else None
@@ -177,7 +178,7 @@ def build_true_robot(robot, truth: Truth, phi: np.ndarray | None = None) -> True
         for k, name in enumerate(joints):
             joint = plant.GetJointByName(name)
             joint.set_default_damping_vector([viscous[k]])
-            if coulomb[k] > 0:
+            if coulomb[k] > 0 and revolute[k]:
                 _add_coulomb_friction(plant, joint, float(coulomb[k]), float(e.coulomb_velocity_scale))
             if armature[k] > 0:
                 _set_armature(plant, joint, float(armature[k]))
@@ -192,7 +193,8 @@ def build_true_robot(robot, truth: Truth, phi: np.ndarray | None = None) -> True
                                   truth.inertia_perturbation, rng, body_names=robot.body_names)
     fc = per_joint_values(e.presliding_friction, joints)
     sigma0 = per_joint_values(e.presliding_stiffness, joints)
-    hook = dahl_builder_hook(fc, sigma0, APPLIED_FORCE_PORT) if np.any(fc > 0) else None
+    v_s = float(e.coulomb_velocity_scale)
+    hook = dahl_builder_hook(fc, sigma0, APPLIED_FORCE_PORT, sliding, v_s) if np.any(fc > 0) or np.any(sliding > 0) else None
     true = load_robot(robot.config, time_step=0.0, before_finalize=before_finalize, builder_hook=hook)
     for b, name in enumerate(robot.body_names):
         phi_b = phi_bodies[10 * b : 10 * b + 10]
