@@ -193,3 +193,20 @@ def test_simulate_takes_coulomb_friction_on_a_prismatic_joint_and_its_own_drive_
     # the round trip of the README: the identified model and its drive_effects.yaml
     assert main(["simulate", "--robot", str(tmp_path / "id" / "model.urdf"), "--trajectory", trajectory,
                  "--truth", str(tmp_path / "id" / "drive_effects.yaml"), "--out", str(tmp_path / "again.csv")]) == 0
+
+
+def test_diagnose_on_an_sdf_robot_says_that_no_urdf_is_written(tmp_path, capsys):
+    """Item 7: an SDF robot got no augmented_model.urdf and no word about it."""
+    sdf = scara(tmp_path, "sdf")
+    cfg = tmp_path / "small.yaml"
+    cfg.write_text("excitation: {harmonics: 3, cost_samples: 24, constraint_samples: 96}\nsolver: {max_iterations: 30}\n"
+                   "environment: {floor: false}\n")
+    assert main(["optimize", "--robot", str(sdf), "--config", str(cfg), "--out", str(tmp_path / "m"), "--quiet",
+                 "--no-html"]) == 0
+    (tmp_path / "truth.yaml").write_text("effects: {viscous: {all: 0.5}}\n")
+    assert main(["simulate", "--robot", str(sdf), "--trajectory", str(tmp_path / "m" / "trajectory.json"),
+                 "--truth", str(tmp_path / "truth.yaml"), "--out", str(tmp_path / "run.csv")]) == 0
+    capsys.readouterr()
+    assert main(["diagnose", "--robot", str(sdf), "--data", str(tmp_path / "run.csv"), "--out", str(tmp_path / "d")]) == 0
+    assert "augmented_model.urdf not written" in capsys.readouterr().out
+    assert not (tmp_path / "d" / "augmented_model.urdf").exists() and (tmp_path / "d" / "augmented_model.json").exists()
