@@ -11,6 +11,7 @@ import pytest
 
 from pe_drake.cli import main
 from pe_drake.identification.measurements import write_measurement_csv
+from pe_drake.identification.simulated_run import SimulatedRun
 from pe_drake.identification.payload_synthetic import payload_run, random_true_arm
 from pe_drake.multibody.payload import PayloadInertia, box_inertia
 from pe_drake.excitation.constraints.collision import CollisionConstraint
@@ -210,3 +211,40 @@ def test_diagnose_on_an_sdf_robot_says_that_no_urdf_is_written(tmp_path, capsys)
     assert main(["diagnose", "--robot", str(sdf), "--data", str(tmp_path / "run.csv"), "--out", str(tmp_path / "d")]) == 0
     assert "augmented_model.urdf not written" in capsys.readouterr().out
     assert not (tmp_path / "d" / "augmented_model.urdf").exists() and (tmp_path / "d" / "augmented_model.json").exists()
+
+
+def test_payload_messages_fit_the_robot(tmp_path, capsys):
+    """Item 9: --flange was demanded on a robot without a known flange name (the payload link is
+    known); "Franka setLoad" was printed for a non-Franka robot; without an unloaded run the ±
+    looked like the payload's error; the tracking warning blamed friction for a payload."""
+    urdf = scara(tmp_path)
+    cfg = tmp_path / "scara.yaml"
+    cfg.write_text("environment: {floor: false}\n")
+    assert main(["optimize", "--robot", str(urdf), "--config", str(cfg), "--payload", "tool", "--out", str(tmp_path / "m"),
+                 "--max-iterations", "20", "--quiet"]) == 0
+    (tmp_path / "truth.yaml").write_text("effects: {payload: {link: tool, mass: 3.0, com: [0, 0, -0.05], "
+                                         "inertia: [0.001, 0.001, 0.001, 0, 0, 0]}}\n")
+    capsys.readouterr()
+    assert main(["simulate", "--robot", str(urdf), "--trajectory", str(tmp_path / "m" / "trajectory.json"),
+                 "--truth", str(tmp_path / "truth.yaml"), "--out", str(tmp_path / "run.csv")]) == 0
+    printed = capsys.readouterr().out
+    assert " mm" in printed.split("tracking error RMS")[1].split("\n")[0]  # the lift's error in mm
+    sim = {"duration": 1.0, "rate_hz": 1000.0, "samples": 1001, "wall_time_s": 0.1, "tracking_error_rms": {"lift": 0.05}}
+    lines = SimulatedRun("scara", "joint_torque", None, {"simulation": sim, "effects": {"payload": {"link": "tool", "mass": 3.0}}},
+                         ("lift",)).summary_lines()
+    assert "to 50 mm RMS" in lines[-1] and "payload (3 kg on tool)" in lines[-1] and "friction" not in lines[-1]
+    assert main(["identify", "--robot", str(urdf), "--payload", "tool", "--data", str(tmp_path / "run.csv"),
+                 "--out", str(tmp_path / "p")]) == 0
+    printed = capsys.readouterr().out
+    assert "setLoad" not in printed and "without them" in printed
+    assert _strict_json(tmp_path / "p" / "payload.json")["vendor"]["flange"] == "tool"
+
+
+def test_a_prismatic_position_in_mm_is_named_as_mm_not_degrees(tmp_path):
+    """Item 9: a lift logged in mm was told "the column looks like degrees: multiply by π/180"."""
+    from pe_drake.exceptions import DataError
+    from pe_drake.identification.data_checks import check_positions
+
+    robot = Robot("lift", resolve_robot_config(str(vertical_lift(tmp_path))).robot)
+    with pytest.raises(DataError, match="looks like mm: divide by 1000"):
+        check_positions(robot, np.array([[-100.0], [0.0], [120.0]]), "log.csv")

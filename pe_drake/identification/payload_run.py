@@ -33,6 +33,10 @@ from pe_drake.multibody.robot import Robot
 from pe_drake.output_paths import check_output_dir
 
 
+#: The controller whose payload command a flange link's name stands for (the others go to payload.json).
+VENDOR_OF_FLANGE = {"panda_link8": "franka", "tool0": "ur", "iiwa_link_ee": "kuka"}
+
+
 def parse_payload_box(text: str | None) -> PayloadBox | None:
     """``cx,cy,cz,sx,sy,sz`` [m] in the payload link's frame (None: no box).
 
@@ -61,6 +65,7 @@ class PayloadIdentification:
     formats: dict[str, Any]
     arm: Any
     wall_time: float
+    flange_given: bool = False
 
     def summary_lines(self) -> list[str]:
         r, p, f = self.result, self.result.payload, self.formats
@@ -70,10 +75,20 @@ class PayloadIdentification:
         if r.undetermined:
             lines.append(undetermined_note(r.undetermined) + " (σ nan, null in payload.json)")
         if not self.unloaded:
-            lines.append("note: no unloaded run: the arm's model errors go into the payload (give --unloaded, same motion)")
-        lines += [f"in {f['flange']}: Franka setLoad mass {f['franka']['load_mass']:.4f}, "
-                  f"F_x_Cload {[round(float(x), 5) for x in f['franka']['F_x_Cload']]}",
-                  "UR: " + f["ur"]["set_target_payload"], "KUKA: " + f["kuka"]["krl"]]
+            lines.append("note: no unloaded run: the arm's model errors go into the payload, and the ± above are the "
+                         "noise's alone, without them (give --unloaded, a run of the same motion without the payload)")
+        vendor = VENDOR_OF_FLANGE.get(f["flange"])
+        if vendor == "franka":
+            lines.append(f"in {f['flange']}: Franka setLoad mass {f['franka']['load_mass']:.4f}, "
+                         f"F_x_Cload {[round(float(x), 5) for x in f['franka']['F_x_Cload']]}")
+        elif vendor == "ur":
+            lines.append(f"in {f['flange']}: UR " + f["ur"]["set_target_payload"])
+        elif vendor == "kuka":
+            lines.append(f"in {f['flange']}: KUKA " + f["kuka"]["krl"])
+        else:  # not a known vendor's flange: no vendor's command is the robot's own (issue 37)
+            lines.append(f"in {f['flange']}: mass {p.mass:.4f} kg; the Franka, UR and KUKA formats are in payload.json "
+                         "'vendor'" + ("" if self.flange_given or f["flange"] != r.link else
+                                       " (frame: the payload link; --flange names the controller's flange)"))
         return lines
 
     def write(self, folder: str | Path) -> list[str]:
@@ -113,4 +128,4 @@ def identify_payload_runs(robot: Robot, loaded: Sequence[str | Path], unloaded: 
     result = identify_payload(robot, loaded_runs, unloaded_runs, link, arm, PayloadOptions(box=box))
     formats = vendor_formats(robot, result.payload, result.link, flange or None)
     return PayloadIdentification(robot, result, len(loaded_runs), len(unloaded_runs), formats, arm,
-                                 time.perf_counter() - start)
+                                 time.perf_counter() - start, bool(flange))
