@@ -248,3 +248,25 @@ def test_a_prismatic_position_in_mm_is_named_as_mm_not_degrees(tmp_path):
     robot = Robot("lift", resolve_robot_config(str(vertical_lift(tmp_path))).robot)
     with pytest.raises(DataError, match="looks like mm: divide by 1000"):
         check_positions(robot, np.array([[-100.0], [0.0], [120.0]]), "log.csv")
+
+
+def _acrobot():
+    from pydrake.common import FindResourceOrThrow
+
+    return FindResourceOrThrow("drake/examples/acrobot/Acrobot.sdf")
+
+
+def test_a_robot_hanging_below_its_base_is_told_the_floor_blocks(tmp_path, capsys):
+    """Item 9: Drake's Acrobot hangs below its base: the start-posture refusal did not say that
+    the floor is what blocks; a joint without limits was refused twice, after a stray "the floor
+    is NOT checked"."""
+    out = str(tmp_path / "o")
+    assert main(["optimize", "--robot", _acrobot(), "--out", out]) == 2
+    captured = capsys.readouterr()
+    assert "NOT checked" not in captured.out + captured.err and captured.err.count("no finite position limits") == 1
+    cfg = tmp_path / "acrobot.yaml"
+    cfg.write_text("robot:\n  position_limits: {shoulder: [-3.0, 3.0], elbow: [-2.5, 2.5]}\n"
+                   "  velocity_limits: {shoulder: 3.0, elbow: 3.0}\n")
+    assert main(["optimize", "--robot", _acrobot(), "--config", str(cfg), "--out", out]) != 0
+    err = capsys.readouterr().err
+    assert "the floor blocks every one" in err and "floor: false" in err

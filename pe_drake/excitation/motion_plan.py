@@ -273,6 +273,10 @@ def collision_geometry(config: Config, fit_dir: Path, say: Say) -> tuple[Config,
     except ConfigError as err:
         if config.excitation.collision_margin >= 0 or config.environment.boxes:
             raise
+        # Only a missing collision geometry turns the floor off: a robot that does not load at all
+        # (a joint without limits) is refused once, by its own error (issue 37: it came twice,
+        # after a stray "the floor is NOT checked").
+        Robot(robot_display_name(config.robot.model), config.robot)
         say(f"warning: {err}; the floor is NOT checked (environment.floor turned off)")
         config = dataclasses.replace(config, environment=dataclasses.replace(config.environment, floor=False))
         return config, None, [f"floor: no collision geometry to check it with ({err})"] + list(getattr(err, "unchecked", ()))
