@@ -270,3 +270,14 @@ def test_a_robot_hanging_below_its_base_is_told_the_floor_blocks(tmp_path, capsy
     assert main(["optimize", "--robot", _acrobot(), "--config", str(cfg), "--out", out]) != 0
     err = capsys.readouterr().err
     assert "the floor blocks every one" in err and "floor: false" in err
+
+
+def test_the_output_says_when_the_iteration_limit_ended_the_solve(tmp_path, capsys):
+    """Item 10: optimize usually stopped at its iteration limit; the output says that the budget,
+    not convergence, ended the solve, and what more iterations would do."""
+    cfg = tmp_path / "small.yaml"
+    cfg.write_text("excitation: {harmonics: 3, cost_samples: 24, constraint_samples: 96}\nenvironment: {floor: false}\n")
+    main(["optimize", "--robot", str(vertical_lift(tmp_path)), "--config", str(cfg), "--out", str(tmp_path / "m"),
+          "--max-iterations", "3", "--no-html", "--allow-unchecked"])
+    printed = capsys.readouterr().out
+    assert "stopped at its iteration limit (3) before converging" in printed and "--max-iterations" in printed
