@@ -28,7 +28,7 @@ STAGES = {
     "excitation": 2,
     "identification": 3,
     "diagnosis": 4,
-    "viewer": 5, "viewer_scene": 5, "bench": 5, "bench_robots": 5, "cli": 5,
+    "viewer": 5, "viewer_scene": 5, "bench": 5, "bench_robots": 5, "bench_models": 5, "cli": 5,
 }
 #: Python's own API names that begin with an underscore (namedtuple, sys, os).
 FOREIGN_PRIVATE = {"_replace", "_asdict", "_fields", "_make", "_getframe", "_exit"}

@@ -19,7 +19,7 @@ from pe_drake.excitation.trajectory_file import load_motion
 from pe_drake.multibody.registry import resolve_robot_config
 from pe_drake.multibody.robot import Robot
 from pe_drake.multibody.base_parameters import compute_base_parameters
-from tests.unseen_robots import folding_arm, scara, vertical_lift, without_inertials
+from pe_drake.bench_models import folding_arm, scara, vertical_lift, without_inertials
 
 
 def test_payload_motion_keeps_the_capsule_files_margin_at_1khz(tmp_path, capsys):
@@ -281,3 +281,20 @@ def test_the_output_says_when_the_iteration_limit_ended_the_solve(tmp_path, caps
           "--max-iterations", "3", "--no-html", "--allow-unchecked"])
     printed = capsys.readouterr().out
     assert "stopped at its iteration limit (3) before converging" in printed and "--max-iterations" in printed
+
+
+def test_the_bench_has_robots_of_these_kinds_and_they_load(tmp_path):
+    """``python -m pe_drake.bench robots`` rows for an SDF with a prismatic joint, a model without
+    inertials (identified from a run of its twin with them) and a dual-arm torso on a lift."""
+    from pe_drake.bench_robots import select_robots
+
+    entries = {e.name: e for e in select_robots("scara_sdf,folding_no_inertials,dual_arm_lift")}
+    kinds = {}
+    for name, entry in entries.items():
+        folder = tmp_path / name
+        folder.mkdir()
+        robot = Robot(name, resolve_robot_config(str(entry.build(folder))).robot)
+        kinds[name] = ({j.kind for j in robot.joints}, robot.model_path.suffix, float(robot.phi_model[0::10].sum()))
+    assert "prismatic" in kinds["scara_sdf"][0] and kinds["scara_sdf"][1] == ".sdf"
+    assert kinds["folding_no_inertials"][2] == 0.0 and entries["folding_no_inertials"].simulate_with is not None
+    assert "prismatic" in kinds["dual_arm_lift"][0]
