@@ -151,19 +151,28 @@ def test_a_model_without_inertials_says_up_front_what_works(massless, tmp_path, 
     assert np.all(fitted.phi_model[0::10] > 0)
 
 
-def test_a_force_offset_on_a_vertical_prismatic_joint_is_not_turned_into_a_negative_armature(tmp_path, capsys):
-    """Item 4: on a vertical axis the offset's column 1 and the armature's z̈ span the carried mass's
-    g + z̈: identify dropped the offset ("the joint never reverses") and reported an armature of
-    −offset/g. The offset is kept, the armature goes into the carried mass, and the reason is said."""
+def _lift_run(tmp_path, more_effects: str = "") -> tuple:
+    """A vertical lift's short motion simulated with viscous and Coulomb friction (and
+    ``more_effects``, YAML entries of ``effects``) into run.csv: (model, trajectory.json)."""
     urdf = vertical_lift(tmp_path)
     cfg = tmp_path / "small.yaml"
     cfg.write_text("excitation: {harmonics: 3, cost_samples: 24, constraint_samples: 96}\nsolver: {max_iterations: 30}\n"
                    "environment: {floor: false}\n")
     assert main(["optimize", "--robot", str(urdf), "--config", str(cfg), "--out", str(tmp_path / "m"), "--quiet",
                  "--no-html", "--allow-unchecked"]) in (0, 1)
-    (tmp_path / "truth.yaml").write_text("effects: {viscous: {all: 3.0}, coulomb: {all: 4.0}, torque_offset: {lift: 5.0}}\n")
-    assert main(["simulate", "--robot", str(urdf), "--trajectory", str(tmp_path / "m" / "trajectory.json"),
-                 "--truth", str(tmp_path / "truth.yaml"), "--out", str(tmp_path / "run.csv")]) == 0
+    (tmp_path / "truth.yaml").write_text("effects: {viscous: {all: 3.0}, coulomb: {all: 4.0}"
+                                         + (f", {more_effects}" if more_effects else "") + "}\n")
+    trajectory = str(tmp_path / "m" / "trajectory.json")
+    assert main(["simulate", "--robot", str(urdf), "--trajectory", trajectory, "--truth", str(tmp_path / "truth.yaml"),
+                 "--out", str(tmp_path / "run.csv")]) == 0
+    return urdf, trajectory
+
+
+def test_a_force_offset_on_a_vertical_prismatic_joint_is_not_turned_into_a_negative_armature(tmp_path, capsys):
+    """Item 4: on a vertical axis the offset's column 1 and the armature's z̈ span the carried mass's
+    g + z̈: identify dropped the offset ("the joint never reverses") and reported an armature of
+    −offset/g. The offset is kept, the armature goes into the carried mass, and the reason is said."""
+    urdf, _ = _lift_run(tmp_path, "torque_offset: {lift: 5.0}")
     capsys.readouterr()
     assert main(["identify", "--robot", str(urdf), "--data", str(tmp_path / "run.csv"), "--out", str(tmp_path / "id")]) == 0
     printed = capsys.readouterr().out
@@ -178,16 +187,7 @@ def test_a_force_offset_on_a_vertical_prismatic_joint_is_not_turned_into_a_negat
 def test_simulate_takes_coulomb_friction_on_a_prismatic_joint_and_its_own_drive_effects(tmp_path, capsys):
     """Item 7: simulate refused Coulomb friction on prismatic joints, including the
     drive_effects.yaml that identify writes, so the README's round trip failed on any lift."""
-    urdf = vertical_lift(tmp_path)
-    cfg = tmp_path / "small.yaml"
-    cfg.write_text("excitation: {harmonics: 3, cost_samples: 24, constraint_samples: 96}\nsolver: {max_iterations: 30}\n"
-                   "environment: {floor: false}\n")
-    assert main(["optimize", "--robot", str(urdf), "--config", str(cfg), "--out", str(tmp_path / "m"), "--quiet",
-                 "--no-html", "--allow-unchecked"]) in (0, 1)
-    (tmp_path / "truth.yaml").write_text("effects: {viscous: {all: 3.0}, coulomb: {all: 4.0}}\n")
-    trajectory = str(tmp_path / "m" / "trajectory.json")
-    assert main(["simulate", "--robot", str(urdf), "--trajectory", trajectory, "--truth", str(tmp_path / "truth.yaml"),
-                 "--out", str(tmp_path / "run.csv")]) == 0
+    urdf, trajectory = _lift_run(tmp_path)
     assert main(["identify", "--robot", str(urdf), "--data", str(tmp_path / "run.csv"), "--out", str(tmp_path / "id")]) == 0
     drive = json.loads((tmp_path / "id" / "identified.json").read_text())["drive_terms"]["joints"]["lift"]
     assert abs(drive["coulomb"]["value"] - 4.0) < 0.2  # simulated, and found again
