@@ -298,3 +298,24 @@ def test_the_bench_has_robots_of_these_kinds_and_they_load(tmp_path):
     assert "prismatic" in kinds["scara_sdf"][0] and kinds["scara_sdf"][1] == ".sdf"
     assert kinds["folding_no_inertials"][2] == 0.0 and entries["folding_no_inertials"].simulate_with is not None
     assert "prismatic" in kinds["dual_arm_lift"][0]
+
+
+def test_payload_identification_on_an_sdf_robot_writes_payload_json(tmp_path, capsys):
+    """Item 7: identify --payload on an SDF robot fitted the payload, then exited 2 writing nothing
+    (model_with_payload.urdf needs a URDF); payload.json is written and the URDF said not to be."""
+    sdf = scara(tmp_path, "sdf")
+    cfg = tmp_path / "scara.yaml"
+    cfg.write_text("environment: {floor: false}\n")
+    assert main(["optimize", "--robot", str(sdf), "--config", str(cfg), "--payload", "tool", "--out", str(tmp_path / "m"),
+                 "--max-iterations", "20", "--quiet"]) == 0
+    robot = Robot("scara", resolve_robot_config(str(sdf)).robot)
+    motion, _ = load_motion(tmp_path / "m" / "trajectory.json")
+    payload = PayloadInertia(0.5, np.array([0.01, 0.0, -0.02]), box_inertia(0.5, [0.04, 0.04, 0.04]))
+    run = payload_run(robot, motion, random_true_arm(robot, np.random.default_rng(1)), "tool", payload, seed=2)
+    write_measurement_csv(tmp_path / "loaded.csv", run.replace(v=None, vd=None))
+    capsys.readouterr()
+    assert main(["identify", "--robot", str(sdf), "--payload", "tool", "--data", str(tmp_path / "loaded.csv"),
+                 "--out", str(tmp_path / "p")]) == 0
+    assert "model_with_payload.urdf not written" in capsys.readouterr().out
+    assert abs(_strict_json(tmp_path / "p" / "payload.json")["mass"] - 0.5) < 0.05
+    assert not (tmp_path / "p" / "model_with_payload.urdf").exists()

@@ -77,6 +77,9 @@ class PayloadIdentification:
         if not self.unloaded:
             lines.append("note: no unloaded run: the arm's model errors go into the payload, and the ± above are the "
                          "noise's alone, without them (give --unloaded, a run of the same motion without the payload)")
+        if Path(self.robot.model_path).suffix.lower() != ".urdf":
+            lines.append(f"note: model_with_payload.urdf not written: '{Path(self.robot.model_path).name}' is not a URDF "
+                         "(payload.json holds the payload)")
         vendor = VENDOR_OF_FLANGE.get(f["flange"])
         if vendor == "franka":
             lines.append(f"in {f['flange']}: Franka setLoad mass {f['franka']['load_mass']:.4f}, "
@@ -92,15 +95,20 @@ class PayloadIdentification:
         return lines
 
     def write(self, folder: str | Path) -> list[str]:
-        """payload.json (with the vendor formats) and model_with_payload.urdf, both or neither."""
+        """payload.json (with the vendor formats) and model_with_payload.urdf, both or neither (the
+        URDF only for a robot loaded from one: payload.json says so, as identify does for model.urdf)."""
         out = check_output_dir(folder)
+        urdf = Path(self.robot.model_path).suffix.lower() == ".urdf"
         with staged_output_dir(out, "payload.json", ("payload.json", "model_with_payload.urdf")) as tmp:
             d = self.result.to_dict()
             d["vendor"] = self.formats
+            if not urdf:  # an SDF robot: the fit is still written (issue 37: it exited 2 with nothing)
+                d["model_with_payload_urdf"] = f"not written: '{Path(self.robot.model_path).name}' is not a URDF"
             (tmp / "payload.json").write_text(json.dumps(finite_json(d), indent=2))
-            write_payload_urdf(tmp / "model_with_payload.urdf", self.robot, self.result.payload, self.result.link,
-                               arm_parameters(self.robot, self.arm))
-        return ["payload.json", "model_with_payload.urdf"]
+            if urdf:
+                write_payload_urdf(tmp / "model_with_payload.urdf", self.robot, self.result.payload, self.result.link,
+                                   arm_parameters(self.robot, self.arm))
+        return ["payload.json", "model_with_payload.urdf"] if urdf else ["payload.json"]
 
 
 def identify_payload_runs(robot: Robot, loaded: Sequence[str | Path], unloaded: Sequence[str | Path], link: str, *,
