@@ -24,7 +24,7 @@ from pe_drake.exceptions import (
     UnknownNameError,
 )
 from pe_drake.multibody.capsules import register_capsules
-from pe_drake.multibody.inertia import PARAMETER_NAMES, spatial_inertia_to_phi
+from pe_drake.multibody.inertia import NO_INERTIALS_NOTE, PARAMETER_NAMES, spatial_inertia_to_phi
 from pe_drake.multibody.joint_limits import joint_unit, merge_limits, placeholder_velocity_notes, position_margins
 from pe_drake.multibody.model_files import (
     check_world_joints,
@@ -416,14 +416,6 @@ class Robot:
 
     def __repr__(self) -> str:
         return f"Robot('{self.name}', {self.n} joints, {self.num_bodies} moving bodies)"
-
-
-#: What works on a model whose moving bodies all have zero mass (no ``<inertial>``, as
-#: ROS-Industrial descriptions ship), said up front (issue 37).
-NO_INERTIALS_NOTE = (
-    "the model has no inertial parameters (every moving body's mass is 0): optimize, identify (ols, wls, "
-    "physical) and diagnose work without them (identify finds them); simulate, the playback's centre of mass, "
-    "excitation.torque_limits and payload identification need them: use the model.urdf of identify --method physical")
 
 
 def _urdf_effort_limits(path: Path) -> dict[str, float]:
