@@ -18,6 +18,7 @@ It prints one table, one row per robot as it finishes; a stage that fails fills 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import re
 import sys
@@ -28,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pe_drake.bench_models import dual_arm_lift, folding_arm, scara, without_inertials
 from pe_drake.diagnosis import diagnose
 from pe_drake.excitation import optimize_motion
 from pe_drake.excitation.ramp import check_written_motion
@@ -50,11 +52,17 @@ class BenchRobot:
             model file path.
         config: YAML text a user would write for it (e.g. which joints are the arm), put
             under the bench's caps; empty: the defaults for a model without a config.
+        build: writes the model into the run's folder (:mod:`pe_drake.bench_models`: robots of
+            the kinds issue 37 tried, which no package ships).
+        simulate_with: writes the model the simulated run comes from (a model without inertials
+            is identified from a robot that has them).
     """
 
     name: str
     model: str
     config: str = ""
+    build: Callable[[Path], Path] | None = None  # writes the model into a folder (then ``model`` is unused)
+    simulate_with: Callable[[Path], Path] | None = None  # the robot the run comes from, when not the model itself
 
 
 #: TIAGo is a mobile manipulator: its arm is excited, the wheels, torso lift and head locked.
@@ -82,6 +90,12 @@ ROBOTS = (
     BenchRobot("ur5_config", "ur5"),
     BenchRobot("g1", "g1"),
     BenchRobot("simple_humanoid", "simple_humanoid_description/urdf/simple_humanoid.urdf"),
+    # issue 37's kinds, built as text (pe_drake.bench_models): an SDF with a prismatic quill (a SCARA
+    # on a table: no floor below its moving parts), a model without inertials, a two-arm torso on a lift
+    BenchRobot("scara_sdf", "", "environment: {floor: false}\n", build=functools.partial(scara, fmt="sdf")),
+    BenchRobot("folding_no_inertials", "", build=lambda f: without_inertials(folding_arm(f, collision=True)[0], f),
+               simulate_with=lambda f: folding_arm(f, collision=True)[0]),
+    BenchRobot("dual_arm_lift", "", build=dual_arm_lift),
 )
 
 COLUMNS = ("robot", "loads", "mount", "capsules", "valid 1 kHz", "cond", "effect named", "s", "note")
@@ -210,8 +224,8 @@ def capsules_of(plan) -> str:
 
 
 def hidden_friction(robot: Robot, seed: int) -> str:
-    """TRUTH.yaml text: Coulomb (revolute joints: the simulation's smoothed Coulomb model is
-    for them) and viscous friction on every excited joint, sized to the
+    """TRUTH.yaml text: Coulomb and viscous friction on every excited joint (prismatic ones
+    included: the simulator carries both since issue 37), sized to the
     joint's effort limit (2 % and 1 %·s/rad; 0.3 N·m and 0.1 N·m·s/rad without one) so a
     small servo arm and a 300 N·m UR10 joint both carry a friction a sensor would see,
     3 % inertial error, 0.02 N·m torque noise and a 19-bit encoder. Integrated with radau3:
@@ -220,8 +234,7 @@ def hidden_friction(robot: Robot, seed: int) -> str:
     coulomb, viscous = [], []
     for name, joint, effort in zip(robot.joint_names, robot.joints, robot.limits.effort_max):
         effort = float(effort) if np.isfinite(effort) and effort > 0 else None
-        if joint.kind == "revolute":
-            coulomb.append(f"    {name}: {min(max(0.02 * effort, 0.05), 5.0) if effort else 0.3:.4g}")
+        coulomb.append(f"    {name}: {min(max(0.02 * effort, 0.05), 5.0) if effort else 0.3:.4g}")
         viscous.append(f"    {name}: {min(max(0.01 * effort, 0.02), 2.0) if effort else 0.1:.4g}")
     return (f"seed: {seed}\ninertia_perturbation: 0.03\nintegrator: radau3\neffects:\n"
             + ("  coulomb:\n" + "\n".join(coulomb) if coulomb else "  coulomb: {}") + "\n  viscous:\n" + "\n".join(viscous)
@@ -264,7 +277,8 @@ def run_robot(entry: BenchRobot, options: BenchOptions, folder: Path) -> Row:
 def _run_stages(row: Row, entry: BenchRobot, options: BenchOptions, folder: Path) -> None:
     caps = folder / "bench.yaml"
     caps.write_text(caps_yaml(entry, options))
-    config = _stage(row, "config", lambda: resolve_robot_config(model_argument(entry), caps))
+    model = str(entry.build(folder)) if entry.build else model_argument(entry)
+    config = _stage(row, "config", lambda: resolve_robot_config(model, caps))
     robot = _stage(row, "load", lambda: Robot(entry.name, config.robot)) if config is not None else None
     if robot is None:
         row.loads = row.note.split(": ", 1)[-1] or "no"
@@ -285,7 +299,7 @@ def _run_stages(row: Row, entry: BenchRobot, options: BenchOptions, folder: Path
     row.valid = _written_check(plan, out / "trajectory.json")
     if row.valid != "yes":
         return
-    _identify_and_diagnose(row, plan, out / "trajectory.json", options, folder)
+    _identify_and_diagnose(row, plan, out / "trajectory.json", options, folder, entry)
 
 
 def _written_check(plan, trajectory: Path) -> str:
@@ -298,11 +312,17 @@ def _written_check(plan, trajectory: Path) -> str:
     return "yes" + (" (not for hardware)" if plan.refusal else "")
 
 
-def _identify_and_diagnose(row: Row, plan, trajectory: Path, options: BenchOptions, folder: Path) -> None:
+def _identify_and_diagnose(row: Row, plan, trajectory: Path, options: BenchOptions, folder: Path,
+                           entry: BenchRobot) -> None:
     robot = plan.robot
     truth = folder / "TRUTH.yaml"
     truth.write_text(hidden_friction(robot, options.seed))
-    run = _stage(row, "simulate", lambda: simulate_run(robot, trajectory, truth, duration=options.duration))
+    source = robot
+    if entry.simulate_with is not None:
+        twin = folder / "twin"
+        twin.mkdir(exist_ok=True)
+        source = Robot(entry.name, dataclasses.replace(plan.config.robot, model=str(entry.simulate_with(twin))))
+    run = _stage(row, "simulate", lambda: simulate_run(source, trajectory, truth, duration=options.duration))
     if run is None:
         return
     csv = folder / "run.csv"
@@ -316,7 +336,7 @@ def _identify_and_diagnose(row: Row, plan, trajectory: Path, options: BenchOptio
         return
     result = _stage(row, "diagnose", lambda: diagnose(robot, data))
     if result is not None:
-        row.effect = effect_named(result, robot.n, sum(j.kind == "revolute" for j in robot.joints))
+        row.effect = effect_named(result, robot.n, robot.n)
 
 
 def format_row(cells: list[str], widths: list[int]) -> str:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import json
+import math
 import os
 import shutil
 import tempfile
@@ -35,6 +36,21 @@ def atomic_write_text(path: str | Path, text: str) -> None:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise
+
+
+def finite_json(value: Any) -> Any:
+    """``value`` with every non-finite float (inf, NaN) replaced by None, so that ``json.dumps``
+    writes valid JSON (``Infinity`` and ``NaN`` are not JSON); numpy scalars and arrays become
+    Python numbers and lists."""
+    if isinstance(value, dict):
+        return {k: finite_json(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [finite_json(v) for v in value]
+    if hasattr(value, "tolist"):  # numpy array or scalar
+        return finite_json(value.tolist())
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
 
 
 def _umask() -> int:

@@ -252,6 +252,7 @@ def _record_motion(meshcat, rob, q: np.ndarray, fps: float, loop: bool = True) -
 
     meshcat.StartRecording(frames_per_second=fps, set_visualizations_while_recording=False)
     com_xy = np.empty((len(q), 2))
+    massive = plant.CalcTotalMass(plant_context) > 0
     for k in range(len(q)):
         # Meshcat files a keyframe at floor(time·fps): stamp mid-frame so rounding of k·T/K
         # cannot drop frame k onto k - 1.
@@ -259,7 +260,8 @@ def _record_motion(meshcat, rob, q: np.ndarray, fps: float, loop: bool = True) -
         context.SetTime(t_record)
         plant.SetPositions(plant_context, q[k])
         diagram.ForcedPublish(context)
-        p_WCcm = plant.CalcCenterOfMassPositionInWorld(plant_context)
+        # Drake refuses the CoM of a massless model (no inertials): the robot is still drawn
+        p_WCcm = plant.CalcCenterOfMassPositionInWorld(plant_context) if massive else np.zeros(3)
         com_xy[k] = p_WCcm[:2]
         meshcat.SetTransform(COM_PATH, _translation(com_xy[k], _GROUND_OFFSET), t_record)
     meshcat.StopRecording()

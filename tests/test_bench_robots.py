@@ -60,13 +60,13 @@ def test_the_caps_go_into_the_config_a_user_would_write():
 
 def test_the_hidden_friction_is_a_truth_the_simulation_takes(tmp_path):
     """Failed on the first bench run: Coulomb friction on the Panda's prismatic fingers was
-    refused by simulate."""
+    refused by simulate; since issue 37 simulate carries it, and every joint gets it."""
     robot = load_robot(str(example_robot_data_dir() / "robots/panda_description/urdf/panda.urdf"))
     path = tmp_path / "TRUTH.yaml"
     path.write_text(hidden_friction(robot, 0))
     truth = validate_truth(load_truth(path), robot)
     assert set(truth.effects.viscous) == set(robot.joint_names)
-    assert set(truth.effects.coulomb) == {j for j in robot.joint_names if "finger" not in j}
+    assert set(truth.effects.coulomb) == set(robot.joint_names)
     assert truth.effects.coulomb["panda_joint1"] == pytest.approx(0.02 * 87.0)  # 2 % of its effort limit
     assert truth.integrator == "radau3"
 

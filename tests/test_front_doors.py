@@ -160,7 +160,8 @@ def test_every_front_door_is_a_name_of_the_package():
     """Issue 33: the six doors are importable from `pe_drake` itself and are the stages' own."""
     import pe_drake
     from pe_drake.diagnosis import diagnose
-    from pe_drake.identification import read_measurements, simulate_run, validate_model
+    from pe_drake.identification import read_measurements, validate_model
+    from pe_drake.simulation import simulate_run
 
     doors = (optimize_motion, simulate_run, read_measurements, identify_model, validate_model, diagnose)
     assert all(getattr(pe_drake, door.__name__) is door for door in doors)

@@ -30,7 +30,7 @@ STAGES = {
     "identification": 3,
     "simulation": 4,
     "diagnosis": 5,
-    "viewer": 6, "viewer_scene": 6, "bench": 6, "bench_robots": 6, "cli": 6,
+    "viewer": 6, "viewer_scene": 6, "bench": 6, "bench_robots": 6, "bench_models": 6, "cli": 6,
 }
 #: Python's own API names that begin with an underscore (namedtuple, sys, os).
 FOREIGN_PRIVATE = {"_replace", "_asdict", "_fields", "_make", "_getframe", "_exit"}

@@ -34,4 +34,8 @@ def diagnose_command(args) -> int:
     with staged_output_dir(out, "diagnosis.json", DIAGNOSE_OUTPUTS) as tmp:
         written = write_outputs(tmp, robot, result)
     print(f"wrote {', '.join(str(out / Path(w).name) for w in written)}")
+    if not any(Path(w).name == "augmented_model.urdf" for w in written):  # identify says it too (issue 37)
+        print(f"note: augmented_model.urdf not written: model export writes URDF files and '{Path(robot.model_path).name}' "
+              "is not one; augmented_model.json and augmented_effects.yaml hold the augmented model (load the robot "
+              "from a URDF to get the file)")
     return 0

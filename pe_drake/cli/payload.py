@@ -19,7 +19,8 @@ def payload_optimize_command(args: argparse.Namespace) -> int:
     config = config_from_args(args)
     robot = robot_from_args(args, config)
     plan = optimize_payload(config, robot, args.payload, seed=args.seed, criterion=args.criterion or None,
-                            max_iterations=args.max_iterations, progress=say)
+                            max_iterations=args.max_iterations,
+                            allow_unchecked=getattr(args, "allow_unchecked", False), progress=say)
     written = write_payload_plan(plan, out, robot, args.csv_rate)
     say(f"wrote {args.out}/" + ", ".join(written))
     return 0

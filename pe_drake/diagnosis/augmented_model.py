@@ -120,7 +120,14 @@ def augmented_model(robot, base, phi_B: np.ndarray, Sigma_phi: np.ndarray, paylo
     target = phi_B - base.K @ phi_payload_full
     phi = conditional_parameters(base.K, phi0, Sigma_phi, target)
     invalid = validity_problems(robot.body_names, phi)
-    if invalid:
+    if not np.any(phi0[0::10] > 0):  # no inertials at all: nothing to move, only the data (issue 37)
+        H = np.linalg.pinv(cov_B) if cov_B is not None else np.eye(len(phi_B))
+        phi = physical_parameters(base.K, phi0, Sigma_phi, target, H)
+        phi, _ = physically_consistent(robot.body_names, phi)
+        notes.append("the a-priori model has no inertial parameters (every mass 0): the model holds the "
+                     "physically consistent fit of the re-identified base parameters nearest zero (what the "
+                     "data do not determine stays small)")
+    elif invalid:
         H = np.linalg.pinv(cov_B) if cov_B is not None else np.eye(len(phi_B))
         phi = physical_parameters(base.K, phi0, Sigma_phi, target, H)
         phi, projected = physically_consistent(robot.body_names, phi)
@@ -199,7 +206,7 @@ def physical_parameters(K: np.ndarray, phi_prior: np.ndarray, Sigma_phi: np.ndar
     names = [f"body{b}" for b in range(nb)]
     # H is the information matrix of φ_B, so the misfit is a χ²: the pull toward the prior may
     # raise it by 1 (a one-σ move), the augmented model's torque stays the fit's.
-    fit = physical_fit(L @ K, L @ phi_B, np.asarray(phi_prior, float), names, base_K=K, scale=d,
+    fit = physical_fit(L @ K, L @ phi_B, np.asarray(phi_prior, float), names, base_K=K, scale=d if active else None,
                        prior_weight=prior_weight, margin=margin, chi2_tolerance=1.0)
     return fit.phi
 

@@ -239,7 +239,7 @@ def optimize_motion(
         load_motion(prior)  # every value of each file, ramps included: before any work
     fit_dir = Path(tempfile.mkdtemp(prefix="pe_drake_capsules_"))  # lives as long as the plan (its config names it)
     try:
-        config, fitted, unchecked = _collision_geometry(config, fit_dir, say)
+        config, fitted, unchecked = collision_geometry(config, fit_dir, say)
         fitted_text = fitted.path.read_text() if fitted is not None else ""
         if executor is not None:
             plan = _plan(config, executor.local.robot, executor, priors, fitted, fitted_text, unchecked, allow_unchecked,
@@ -264,7 +264,7 @@ def constraints_factory(config: Config):
     return functools.partial(constraints_from_config, environment=config.environment)
 
 
-def _collision_geometry(config: Config, fit_dir: Path, say: Say) -> tuple[Config, FittedCapsules | None, list[str]]:
+def collision_geometry(config: Config, fit_dir: Path, say: Say) -> tuple[Config, FittedCapsules | None, list[str]]:
     """The config with fitted capsules when the robot has none, and what stays unchecked."""
     margin_before = config.excitation.collision_margin
     config = with_file_margin(config)  # a capsule file passed back keeps the margin it was fitted with
@@ -273,6 +273,10 @@ def _collision_geometry(config: Config, fit_dir: Path, say: Say) -> tuple[Config
     except ConfigError as err:
         if config.excitation.collision_margin >= 0 or config.environment.boxes:
             raise
+        # Only a missing collision geometry turns the floor off: a robot that does not load at all
+        # (a joint without limits) is refused once, by its own error (issue 37: it came twice,
+        # after a stray "the floor is NOT checked").
+        Robot(robot_display_name(config.robot.model), config.robot)
         say(f"warning: {err}; the floor is NOT checked (environment.floor turned off)")
         config = dataclasses.replace(config, environment=dataclasses.replace(config.environment, floor=False))
         return config, None, [f"floor: no collision geometry to check it with ({err})"] + list(getattr(err, "unchecked", ()))

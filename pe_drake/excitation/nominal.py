@@ -77,9 +77,10 @@ def choose_nominal_posture(robot, excitation, environment) -> str | None:
         checks.append(CollisionConstraint(robot, excitation.collision_margin))
     if not checks:
         return None
-    tried = 0
+    tried, floor_blocks = 0, env is not None
     for q in candidate_postures(robot):
         tried += 1
+        floor_blocks = floor_blocks and not _clears(env, q)
         if all(_clears(c, q) for c in checks):
             if tried == 1:
                 return None
@@ -89,6 +90,15 @@ def choose_nominal_posture(robot, excitation, environment) -> str | None:
                 f"the mid-range posture does not clear the floor/obstacles/self-collision margin; starting from "
                 f"{', '.join(moved)} (others mid-range); set robot.nominal_positions to choose"
             )
+    if floor_blocks and environment is not None and environment.floor:
+        # a robot that hangs below its base (Drake's Acrobot) cannot clear a floor at any posture:
+        # moving joints will not help, the floor setting will (issue 37)
+        raise InfeasibleError(
+            f"the floor blocks every one of {tried} candidate postures (mid-range, one or two joints moved): part of "
+            "the robot is below the floor ("
+            + ("the base's support plane" if environment.floor_height is None else
+               f"environment.floor_height {environment.floor_height:g} m") + ") whatever its joints do, as for a robot hanging below its base; set environment.floor_height below its lowest point, "
+            "environment: {floor: false}, or robot.base_pose to raise its base")
     raise InfeasibleError(
         f"none of {tried} candidate postures (mid-range, one or two joints moved) clears the floor, the boxes and "
         f"the self-collision margin; set robot.nominal_positions for the joints {', '.join(robot.joint_names)} "

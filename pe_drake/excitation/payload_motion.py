@@ -33,9 +33,18 @@ from pe_drake.excitation.program import build_excitation_program
 from pe_drake.excitation.ramp import RAMP_DURATIONS, RampedMotion, choose_ramp_duration
 from pe_drake.excitation.solve import ExcitationResult, solve_excitation
 from pe_drake.excitation.trajectory_file import save_trajectory, write_motion_csv
+from pe_drake.io_utils import finite_json
 from pe_drake.multibody.base_parameters import BaseParameters
-from pe_drake.multibody.inertia import PARAMS_PER_BODY
-from pe_drake.multibody.payload import PayloadInertia, box_inertia, central_jacobian, link_columns, payload_parameter_names
+from pe_drake.multibody.payload import (
+    PayloadInertia,
+    box_inertia,
+    central_jacobian,
+    determined_std,
+    link_columns,
+    payload_base_parameters,
+    payload_parameter_names,
+    undetermined_parameters,
+)
 from pe_drake.multibody.regressor import RegressorModel
 
 #: Default period of a payload motion [s] and its harmonics.
@@ -48,15 +57,13 @@ MAX_PAYLOAD_DURATION_S = 15.0
 NOMINAL_PAYLOAD = PayloadInertia(1.0, np.array([0.0, 0.0, 0.05]), box_inertia(1.0, [0.1, 0.1, 0.1]))
 
 
-def payload_selection(robot, link: str) -> BaseParameters:
-    """The payload link's 10 columns as a :class:`BaseParameters` (φ_B = φ_L): the
-    excitation problem then minimizes the criterion of Y_L."""
-    cols = link_columns(robot, link)
-    p = PARAMS_PER_BODY * robot.num_bodies
-    K = np.zeros((PARAMS_PER_BODY, p))
-    K[np.arange(PARAMS_PER_BODY), cols] = 1.0
-    names = payload_parameter_names(link)
-    return BaseParameters(cols, K, tuple(robot.parameter_names), names, 0.0, np.ones(p), "joint_torque")
+def payload_selection(robot, link: str, model: RegressorModel | None = None) -> BaseParameters:
+    """The combinations of the payload link's 10 parameters the robot's torques determine, as a
+    :class:`BaseParameters` (φ_B = K φ_L; all 10 on an arm with axes in every direction): the
+    excitation problem then minimizes the criterion of Y_L K⁺. What no motion of the robot can
+    excite (a SCARA: the tilting inertias, the CoM height) is left out rather than made to blow up
+    cond (issue 37: ``cond(Y_L) inf``); :func:`undetermined_parameters` names it."""
+    return payload_base_parameters(robot, link, model)
 
 
 def payload_excitation_config(**changes) -> ExcitationConfig:
@@ -80,23 +87,34 @@ class PayloadStd:
     noise_std: np.ndarray
     paired: bool
     rate_hz: float
+    undetermined: tuple[str, ...] = ()  # parameters no motion of the robot excites (their σ: NaN)
 
     def summary_lines(self) -> list[str]:
         p = self.nominal
         how = "with an unloaded run of the same motion" if self.paired else "arm model exact"
-        return [
+        lines = [
             f"expected payload σ ({how}; {self.rate_hz:g} Hz, torque noise "
             f"{np.array2string(self.noise_std, precision=3)} N·m; at {p.mass:g} kg, CoM {p.com.tolist()} m):",
             f"  mass {self.mass_std * 1e3:.3g} g ({100 * self.mass_std / p.mass:.3g} %), "
             f"CoM {np.array2string(self.com_std * 1e3, precision=3)} mm, "
-            f"inertia {np.array2string(self.inertia_about_com_std, precision=3)} kg·m²",
+            f"inertia {np.array2string(self.inertia_about_com_std, precision=3)} kg·m² (nan: not determined)",
         ]
+        if self.undetermined:
+            lines.append(undetermined_note(self.undetermined))
+        return lines
 
     def to_dict(self) -> dict:
-        return {"mass_std": self.mass_std, "com_std": self.com_std.tolist(),
-                "inertia_about_com_std": self.inertia_about_com_std.tolist(), "nominal_mass": self.nominal.mass,
-                "nominal_com": self.nominal.com.tolist(), "noise_std": self.noise_std.tolist(),
-                "paired_with_unloaded_run": self.paired, "rate_hz": self.rate_hz}
+        return finite_json({"mass_std": self.mass_std, "com_std": self.com_std, "inertia_about_com_std":
+                            self.inertia_about_com_std, "nominal_mass": self.nominal.mass, "nominal_com": self.nominal.com,
+                            "noise_std": self.noise_std, "paired_with_unloaded_run": self.paired,
+                            "rate_hz": self.rate_hz, "not_determined": list(self.undetermined)})
+
+
+def undetermined_note(names) -> str:
+    """What the user is told about payload parameters no motion of the robot excites."""
+    return (f"not determined by any motion of this robot ({len(names)} of 10): {', '.join(names)}: they never change "
+            "its joint torques (e.g. all axes vertical), so they are left out of the motion's criterion and the fit; "
+            "it needs no value for them: take them from CAD where another robot or a controller needs them")
 
 
 def expected_payload_std(robot, link: str, motion, *, noise_std=0.04, nominal: PayloadInertia | None = None,
@@ -118,16 +136,18 @@ def expected_payload_std(robot, link: str, motion, *, noise_std=0.04, nominal: P
     t = np.arange(0.0, duration, 1.0 / rate_hz)
     model = model or RegressorModel(robot)
     cols = link_columns(robot, link)
-    info = np.zeros((10, 10))
+    base = payload_base_parameters(robot, link, model)
+    K_L = base.K[:, cols]  # φ_B = K_L φ_L: what the torques determine
+    info = np.zeros((base.count, base.count))
     for s in range(0, t.size, 2000):
         q, v, vd = motion.evaluate(t[s : s + 2000])
-        YL = model(q, v, vd)[..., cols] / sigma[None, :, None]
-        YL = YL.reshape(-1, 10)
-        info += YL.T @ YL
-    cov = np.linalg.pinv(info) * (2.0 if paired else 1.0)
-    J = central_jacobian(nominal.phi)
-    std = np.sqrt(np.maximum(np.diag(J @ cov @ J.T), 0.0))
-    return PayloadStd(float(std[0]), std[1:4], std[4:10], nominal, sigma, paired, rate_hz)
+        YB = (base.reduce(model(q, v, vd)) / sigma[None, :, None]).reshape(-1, base.count)  # Y_L = Y_B K_L
+        info += YB.T @ YB
+    cov_B = np.linalg.pinv(info) * (2.0 if paired else 1.0)
+    std = determined_std(central_jacobian(nominal.phi), K_L, cov_B)
+    names = payload_parameter_names(link)
+    undetermined = tuple(names[i] for i in undetermined_parameters(base, robot, link))
+    return PayloadStd(float(std[0]), std[1:4], std[4:10], nominal, sigma, paired, rate_hz, undetermined)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

@@ -7,13 +7,17 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import shutil
+import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
 from pe_drake.config import Config, noise_vector
+from pe_drake.exceptions import ConfigError
 from pe_drake.excitation.constraints import constraints_from_config
+from pe_drake.excitation.motion_plan import collision_geometry
 from pe_drake.excitation.payload_motion import PayloadMotionPlan, optimize_payload_motion, payload_excitation_config
-from pe_drake.io_utils import staged_output_dir
+from pe_drake.io_utils import finite_json, staged_output_dir
 from pe_drake.multibody.robot import Robot
 from pe_drake.output_paths import OPTIMIZE_OUTPUTS, check_output_dir
 
@@ -22,14 +26,36 @@ KEPT_SETTINGS = ("balance_radius", "collision_margin", "torque_limits", "noise_s
 
 
 def optimize_payload(config: Config, robot: Robot, link: str, *, seed: int | None = None, criterion: str | None = None,
-                     max_iterations: int | None = None, progress: Callable[[str], None] | None = None) -> PayloadMotionPlan:
+                     max_iterations: int | None = None, allow_unchecked: bool = False,
+                     progress: Callable[[str], None] | None = None) -> PayloadMotionPlan:
     """A short motion that excites the payload on ``link`` alone, within the arm's limits,
     constraints and noise (:func:`~pe_drake.excitation.payload_motion.optimize_payload_motion`).
 
+    Self-collision is set up as plain ``optimize`` does it (issue 37): a capsule file's
+    recorded ``collision_margin`` applies when the config sets none, and a robot without a
+    capsule file gets capsules fitted to its collision geometry.
+
     Raises:
-        ConfigError, NoSolutionFound: bad settings, or no valid motion.
+        ConfigError, NoSolutionFound: bad settings, parts of the robot that cannot be checked
+            for collision (unless ``allow_unchecked``), or no valid motion.
     """
     say = progress or (lambda _line: None)
+    fit_dir = tempfile.mkdtemp(prefix="pe_drake_capsules_")
+    try:
+        return _optimize(config, robot, link, fit_dir, seed, criterion, max_iterations, allow_unchecked, say)
+    finally:
+        shutil.rmtree(fit_dir, ignore_errors=True)  # fitted capsules live in the robot once it is built
+
+
+def _optimize(config, robot, link, fit_dir, seed, criterion, max_iterations, allow_unchecked, say) -> PayloadMotionPlan:
+    config, fitted, unchecked = collision_geometry(config, fit_dir, say)
+    if unchecked and not allow_unchecked:
+        raise ConfigError(f"{len(unchecked)} part(s) of the robot cannot be checked for collision: "
+                          + "; ".join(unchecked[:5]) + "; give robot.capsules, or --allow-unchecked to write it anyway")
+    for part in unchecked:
+        say(f"NOT checked: {part}")
+    if fitted is not None:  # the robot with the capsules just fitted
+        robot = Robot(robot.name, config.robot)
     arm = config.excitation
     changes = {k: getattr(arm, k) for k in KEPT_SETTINGS}
     changes.update({k: v for k, v in (("seed", seed), ("criterion", criterion)) if v is not None})
@@ -57,5 +83,5 @@ def write_payload_plan(plan: PayloadMotionPlan, folder: str | Path, robot: Robot
                   "criterion": plan.criterion, "message": plan.result.message,
                   "motion_duration": plan.motion.duration, "optimize_time_s": plan.wall_time,
                   "expected": plan.expected.to_dict(), "margins_1khz": plan.result.margins}
-        (tmp / "report.json").write_text(json.dumps(report, indent=2, default=float))
+        (tmp / "report.json").write_text(json.dumps(finite_json(report), indent=2))
     return ["trajectory.json", "trajectory.csv", "report.json"]

@@ -225,8 +225,10 @@ class QualityReport:
         order = np.argsort(-finite)[:worst]
         lines.append(
             "  largest base-parameter std (pe_drake's base parameters): "
-            + "; ".join(f"{short_composition(self.base_names[k])} {self.std_percent[k]:.3g} %"
-                        for k in order if np.isfinite(finite[k]))
+            + ("; ".join(f"{short_composition(self.base_names[k])} {self.std_percent[k]:.3g} %"
+                         for k in order if np.isfinite(finite[k]))
+               # % of the a-priori values: none to compare with when the model has no inertials
+               or "not available (no a-priori base parameter to express σ in % of)")
         )
         if self.drive_names:
             lines.append(f"  drive terms ({len(self.drive_names)}), largest std of each kind: " + "; ".join(

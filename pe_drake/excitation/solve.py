@@ -405,9 +405,13 @@ def _message(cfg: SolverConfig, result, violated: dict[str, float], fallback: st
     elif not result.is_success():
         # The point is valid (re-checked at 1 kHz): say that the solver stopped, not that
         # something failed, so that "valid" and the status do not read as a contradiction.
-        where = "at its iteration limit" if status == "kIterationLimit" else "early"
+        limit = status == "kIterationLimit"
+        where = f"at its iteration limit ({cfg.max_iterations})" if limit else "early"
         detail = f": {result.get_solver_details().ConvertStatusToString()}" if cfg.name == "ipopt" else ""
         message = f"{cfg.name} stopped {where} before converging ({status}{detail})" + fallback
+        if limit:  # the budget, not convergence, ended the solve (issue 37)
+            message += ("; more iterations (solver.max_iterations, --max-iterations) may still lower the criterion, "
+                        "at about the same time per iteration")
     else:  # converged, yet its point may have failed the re-check and been replaced
         message = f"{cfg.name}: {status}" + fallback
     return message + stalled

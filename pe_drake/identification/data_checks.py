@@ -91,11 +91,14 @@ def check_positions(robot, q: np.ndarray, source: str = "") -> None:
     top = max(w for w, _ in worst)
     k, j = min((k, j) for j, (w, k) in enumerate(worst) if w == top)  # as argmax over rows, then joints
     name = robot.joint_names[j]
-    in_rad = q[:, j] * math.pi / 180
-    degrees = bool(np.all((in_rad >= lo[j]) & (in_rad <= hi[j]))) and np.abs(q[:, j]).max() > 2 * math.pi
+    prismatic = robot.joints[j].kind == "prismatic"
+    # a prismatic joint's likely unit slip is mm, not degrees (issue 37)
+    scaled = q[:, j] / 1000 if prismatic else q[:, j] * math.pi / 180
+    slipped = bool(np.all((scaled >= lo[j]) & (scaled <= hi[j]))) and np.abs(q[:, j]).max() > (1.0 if prismatic else 2 * math.pi)
     hint = (
-        "; the column looks like degrees: multiply by π/180 to get rad"
-        if degrees
+        ("; the column looks like mm: divide by 1000 to get m" if prismatic else
+         "; the column looks like degrees: multiply by π/180 to get rad")
+        if slipped
         else "; check the units (rad or m) and the joint order of the columns"
     )
     raise DataError(

@@ -271,11 +271,34 @@ def separable_on_data(W_base: np.ndarray, D: np.ndarray, layout: DriveLayout) ->
         _, s, Vt = np.linalg.svd(R)
         if s[-1] > DATA_COLLINEARITY * s[0]:
             break
-        worst = keep[int(np.argmax(np.abs(Vt[-1, b:])))]
-        reasons[layout.labels[worst]] = ("the data cannot tell it from the other columns (e.g. the joint never "
-                                         "reverses: Coulomb friction = offset)")
+        worst = _armature_against_offset(layout, keep, np.abs(Vt[-1, b:]))
+        if worst is not None:
+            reasons[layout.labels[worst]] = ARMATURE_ALONG_GRAVITY
+        else:
+            worst = keep[int(np.argmax(np.abs(Vt[-1, b:])))]
+            reasons[layout.labels[worst]] = ("the data cannot tell it from the other columns (e.g. the joint never "
+                                             "reverses: Coulomb friction = offset)")
         keep.remove(worst)
     return layout.without(keep, reasons), keep
+
+
+#: Why the armature of a joint along gravity is left out (issue 37: identify reported an armature of
+#: −offset/g on a vertical lift, and the carried mass biased by offset/g).
+ARMATURE_ALONG_GRAVITY = (
+    "a joint along gravity (a vertical lift): the weight it carries has the column g + z̈, so the armature's z̈ "
+    "and the offset's constant span only two directions with it; the offset is kept (a counterweight, spring or "
+    "brake force is constant) and the armature is merged into the carried mass, which the data give as m + armature")
+
+
+def _armature_against_offset(layout: DriveLayout, keep: list[int], weight: np.ndarray) -> int | None:
+    """The armature column among ``keep`` whose joint's offset column shares the null direction
+    (``weight``: its components on ``keep``), or None."""
+    big = [k for k, w in zip(keep, weight) if w > 1e-3 * weight.max()]
+    for k in big:
+        if layout.terms[k] == "armature" and any(layout.terms[o] == "offset" and layout.joints[o] == layout.joints[k]
+                                                 for o in big):
+            return k
+    return None
 
 
 def drive_summary(fit: DriveFit | None) -> list[str]:

@@ -37,12 +37,21 @@ from pe_drake.identification.channels import CHUNK
 from pe_drake.identification.identified_file import standard_from_base
 from pe_drake.identification.least_squares import compress_joint_rows, weighted_fit_from_factors
 from pe_drake.identification.payload_friction import DRIVE_TERMS, drive_names, friction_columns
-from pe_drake.identification.physical_fit import SDP_TOLERANCES, InertiaBlock, factored_sdp
-from pe_drake.io_utils import atomic_write_text
+from pe_drake.identification.physical_fit import SDP_TOLERANCES, InertiaBlock, solve_sdp
+from pe_drake.io_utils import atomic_write_text, finite_json
 from pe_drake.multibody.base_parameters import BaseParameters, compute_base_parameters
 from pe_drake.multibody.drive_columns import COULOMB_VELOCITY_SCALE
 from pe_drake.multibody.inertia import pseudo_inertia, pseudo_inertia_basis
-from pe_drake.multibody.payload import PayloadInertia, central_jacobian, link_columns, link_position
+from pe_drake.multibody.payload import (
+    PayloadInertia,
+    central_jacobian,
+    determined_std,
+    link_position,
+    payload_base_parameters,
+    payload_parameter_map,
+    payload_parameter_names,
+    undetermined_parameters,
+)
 from pe_drake.multibody.regressor import RegressorModel
 from pe_drake.threads import single_threaded_blas
 
@@ -138,6 +147,7 @@ class PayloadResult:
     samples: int
     constrained: bool
     wall_time: float
+    undetermined: tuple[str, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
         """The content of payload.json (the project's truth-file convention)."""
@@ -164,11 +174,12 @@ class PayloadResult:
             "samples": self.samples,
             "arm_correction_fitted": self.arm_correction is not None,
             "wall_time_s": self.wall_time,
+            "not_determined": list(self.undetermined),
         }
 
     def write(self, path: str | Path) -> None:
         """Writes payload.json atomically."""
-        atomic_write_text(path, json.dumps(self.to_dict(), indent=2))
+        atomic_write_text(path, json.dumps(finite_json(self.to_dict()), indent=2))
 
 
 def arm_parameters(robot, arm_model=None) -> np.ndarray:
@@ -226,24 +237,30 @@ def identify_payload(
         base = compute_base_parameters(robot, model=model)
     phi_arm = arm_parameters(robot, arm_model)
     runs = [(r, True) for r in loaded_runs] + [(r, False) for r in unloaded_runs]
+    # φ_B = K_L φ_L: the combinations of the payload's parameters this robot's torques determine
+    # (all 10 unless its axes leave some unexcitable, issue 37); the fit solves for those.
+    pbase = payload_base_parameters(robot, link, model)
+    K_L, K_plus = payload_parameter_map(pbase, robot, link)
     with single_threaded_blas():  # small blocks: threads only add contention
-        R_joint, S = _compressed_rows(robot, model, runs, phi_arm, link, base if with_arm else None, options)
+        R_joint, S = _compressed_rows(robot, model, runs, phi_arm, pbase, base if with_arm else None, options)
     n, p = robot.n, R_joint.shape[-1] - 1
     if S * n < 10 * p:
         raise DataError(f"{S} samples × {n} joints = {S * n} equations for {p} unknowns: record longer runs")
     x, cov, noise_std = weighted_fit_from_factors(R_joint, S, options.weighted)
-    nb_arm = base.count if with_arm else 0
+    nb_arm, b = (base.count if with_arm else 0), pbase.count
     nd = len(options.drive_terms) * n
     constrained = False
-    if (options.physical and np.linalg.eigvalsh(pseudo_inertia(x[-10:])).min() < 0) or options.box is not None:
+    phi = K_plus @ x[-b:]
+    if (options.physical and np.linalg.eigvalsh(pseudo_inertia(phi)).min() < 0) or options.box is not None or b < 10:
         w = 1.0 / noise_std if options.weighted else np.ones(n)
-        x_phys = _physical_payload(R_joint, w, x, p - 10, options.box)
-        constrained = bool(np.linalg.norm(x_phys[-10:] - x[-10:]) > 1e-6 * np.linalg.norm(x[-10:]))
+        x_phys, phi = _physical_fit(R_joint, w, x, K_L, K_plus, options.box)
+        constrained = bool(np.linalg.norm(x_phys[-b:] - x[-b:]) > 1e-6 * np.linalg.norm(x[-b:]))
         x = x_phys
-    phi = x[-10:]
-    cov_phi = cov[-10:, -10:]
-    Jc = central_jacobian(phi)
-    std = np.sqrt(np.maximum(np.diag(Jc @ cov_phi @ Jc.T), 0.0))
+    cov_B = cov[-b:, -b:]
+    std = determined_std(central_jacobian(phi), K_L, cov_B)
+    undetermined = undetermined_parameters(pbase, robot, link)
+    cov_phi = K_plus @ cov_B @ K_plus.T
+    cov_phi[undetermined, :] = cov_phi[:, undetermined] = np.nan
     return PayloadResult(
         robot=robot.name, link=robot.body_names[link_position(robot, link)], payload=PayloadInertia.from_phi(phi),
         phi=phi, cov_phi=cov_phi, mass_std=float(std[0]), com_std=std[1:4], inertia_about_com_std=std[4:10],
@@ -251,40 +268,61 @@ def identify_payload(
         arm_correction=x[:nb_arm] if with_arm else None, noise_std=noise_std,
         loaded_runs=len(loaded_runs), unloaded_runs=len(unloaded_runs), samples=S, constrained=constrained,
         wall_time=time.perf_counter() - start,
+        undetermined=tuple(payload_parameter_names(robot.body_names[link_position(robot, link)])[i] for i in undetermined),
     )
 
 
-def _compressed_rows(robot, model, runs, phi_arm, link, base, options) -> tuple[np.ndarray, int]:
+def _compressed_rows(robot, model, runs, phi_arm, pbase, base, options) -> tuple[np.ndarray, int]:
     """:func:`compress_joint_rows` of every run's rows (:func:`_run_rows`)."""
     return compress_joint_rows(block for run, loaded in runs
-                               for block in _run_rows(robot, model, run, loaded, phi_arm, link, base, options))
+                               for block in _run_rows(robot, model, run, loaded, phi_arm, pbase, base, options))
 
 
-def _run_rows(robot, model, run, loaded: bool, phi_arm, link, base, options):
-    """One run's columns [Y_B (with base) | D | Y_L (loaded, else 0)] (s, n, p) and targets τ − Y φ_arm
-    (s, n), chunk by chunk."""
+def _run_rows(robot, model, run, loaded: bool, phi_arm, pbase, base, options):
+    """One run's columns [Y_B (with base) | D | the payload's base columns (loaded, else 0)] (s, n, p)
+    and targets τ − Y φ_arm (s, n), chunk by chunk."""
     if run.v is None or run.vd is None or run.tau is None:
         raise DataError("a payload run needs q, v, vdot and tau (preprocess it first)", file=run.source)
     check_joints(robot, run.joints, file=run.source, what="the run")
-    cols = link_columns(robot, link)
     for s in range(0, run.num_samples, CHUNK):
         r = slice(s, min(s + CHUNK, run.num_samples))
         Y = model(run.q[r], run.v[r], run.vd[r])
         D = friction_columns(run.v[r], options.coulomb_velocity_scale, options.drive_terms)
-        YL = Y[..., cols] if loaded else np.zeros(Y.shape[:2] + (10,))
+        YL = pbase.reduce(Y) if loaded else np.zeros(Y.shape[:2] + (pbase.count,))
         parts = ([base.reduce(Y)] if base is not None else []) + [D, YL]
         yield np.concatenate(parts, axis=-1), run.tau[r] - Y @ phi_arm
 
 
-def _physical_payload(R_joint, w, x_ls, offset: int, box: PayloadBox | None) -> np.ndarray:
-    """min Σ_j w_j² ‖A_j x − y_j‖² s.t. J(φ_L) ⪰ 0 (and the box), φ_L = x[offset:offset+10]."""
+def _physical_fit(R_joint, w, x_ls, K_L: np.ndarray, K_plus: np.ndarray, box: PayloadBox | None) -> tuple[np.ndarray, np.ndarray]:
+    """min Σ_j w_j² ‖A_j x − y_j‖² s.t. J(φ_L) ⪰ 0 (and the box), K_L φ_L = the last b entries of x;
+    returns (x, φ_L). Parameters K_L leaves out (no motion excites them) are kept small, so that
+    φ_L is the least extended payload that explains the data."""
+    p = R_joint.shape[-1] - 1
+    Rw = (R_joint * w[:, None, None]).reshape(-1, p + 1)
+    D = np.maximum(np.linalg.norm(Rw[:, :p], axis=0), 1e-300)
+    R = np.linalg.qr(np.column_stack([Rw[:, :p] / D, Rw[:, p]]), mode="r")
+    Ra, z = R[:p, :p], R[:p, p]
+    b = K_L.shape[0]
+    # variables [u (p), φ_L (10)], x = u / D
+    Q = np.zeros((p + 10, p + 10))
+    Q[:p, :p] = 2.0 * Ra.T @ Ra
+    free = p + np.flatnonzero(np.abs(K_L).max(axis=0) == 0.0)
+    Q[free, free] = 1e-6
+    c = np.concatenate([-2.0 * Ra.T @ z, np.zeros(10)])
     rows = []
+    for i in range(b):  # K_L φ_L = x[p - b + i]
+        a = np.zeros(p + 10)
+        a[p - b + i] = -1.0 / D[p - b + i]
+        a[p:] = K_L[i]
+        rows.append((a, 0.0, 0.0))
     for row, lo in box_constraint_rows(box) if box is not None else ():
-        a = np.zeros(len(x_ls))
-        a[offset : offset + 10] = row
+        a = np.zeros(p + 10)
+        a[p:] = row
         rows.append((a, lo, np.inf))
-    return factored_sdp(R_joint, w, x_ls, [InertiaBlock(offset, np.ones(10))], rows=rows, what="payload fit",
-                        advice="is the box right? try physical=False", tolerances=SDP_TOLERANCES[:1])
+    guess = np.concatenate([x_ls * D, K_plus @ x_ls[p - b :]])
+    sol = solve_sdp(Q, c, [InertiaBlock(p, np.ones(10))], guess, rows=rows, what="payload fit",
+                    advice="is the box right? try physical=False", tolerances=SDP_TOLERANCES[:1])
+    return sol[:p] / D, sol[p:]
 
 
 def box_constraint_rows(box: PayloadBox) -> list[tuple[np.ndarray, float]]:

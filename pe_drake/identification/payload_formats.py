@@ -125,8 +125,10 @@ def kuka_load_data(p: PayloadInertia, index: int = 1) -> dict[str, Any]:
 
 
 def vendor_formats(robot, payload: PayloadInertia, link: str, flange: str | None = None) -> dict[str, Any]:
-    """Every format above for the payload on ``link``, in the flange frame."""
-    flange = flange or default_flange(robot)
+    """Every format above for the payload on ``link``, in the flange frame (the payload link's own
+    when none is given and the robot has none of :data:`DEFAULT_FLANGES`: issue 37)."""
+    known = [name for name in DEFAULT_FLANGES if name in robot.body_names]
+    flange = flange or (known[0] if known else link)
     p = payload_in_flange(robot, payload, link, flange)
     return {"flange": flange, "mass": p.mass, "com_in_flange": p.com.tolist(),
             "inertia_about_com_in_flange": p.inertia_vector.tolist(),

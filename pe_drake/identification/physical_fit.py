@@ -190,7 +190,8 @@ def physical_fit(
     E = np.zeros((A.shape[0], 0)) if extra is None else np.asarray(extra, float)
     d = E.shape[1]
     lower = np.full(d, -np.inf) if extra_lower is None else np.asarray(extra_lower, float)
-    active = [b for b in range(len(body_names)) if prior[10 * b] > 0]
+    # a model without inertials (issue 37): every body is fitted, pulled toward zero
+    active = [b for b in range(len(body_names)) if prior[10 * b] > 0] or list(range(len(body_names)))
     cols = np.concatenate([np.arange(10 * b, 10 * b + 10) for b in active])
     D = (_variable_scale(prior, active) if scale is None else np.asarray(scale, float))[cols]
     s_e, Rs, z, P_null, mu = _data_term(A[:, cols] * D, E, y, base_K, cols, D, extra_in_base,
@@ -208,7 +209,8 @@ def physical_fit(
     # selects among equally good fits).
     Q = 2.0 * (H + null_weight * mu * pull)
     c = -2.0 * H @ x0 - 2.0 * null_weight * mu * pull @ x_prior
-    blocks = [InertiaBlock(10 * i, D[10 * i : 10 * i + 10], margin * prior[10 * b]) for i, b in enumerate(active)]
+    # the margin is per kg of the prior's mass; a massless prior (no inertials): per 1 kg
+    blocks = [InertiaBlock(10 * i, D[10 * i : 10 * i + 10], margin * (prior[10 * b] or 1.0)) for i, b in enumerate(active)]
     lower_x = np.r_[np.full(len(cols), -np.inf), lower / s_e]
     rows = _bound_rows(k, D, active, list(body_names), bounds)
     advice = "try --method wls" + (" or relax the identification bounds" if not bounds.empty else "")
@@ -230,9 +232,8 @@ def physical_fit(
     phi[cols] = D * sol[: len(cols)]
     theta = s_e * sol[len(cols) :]
     notes = fit_notes(phi, prior, theta, lower, list(extra_names), list(body_names), bounds, margin)
-    if stage2_failed:
-        notes.append("the solver failed on the pull toward the a-priori model within the confidence region; "
-                     "the best physically valid fit is kept")
+    notes += ["the solver failed on the pull toward the a-priori model within the confidence region; the best "
+              "physically valid fit is kept"] if stage2_failed else []
     return PhysicalFit(phi, theta, tuple(notes))
 
 
@@ -436,6 +437,9 @@ def _variable_scale(prior: np.ndarray, active: list[int]) -> np.ndarray:
     scale = np.ones(prior.size)
     for b in active:
         m = prior[10 * b]
+        if m <= 0:  # no a-priori inertia (a model without inertials): a generic link's magnitudes
+            scale[10 * b : 10 * b + 10] = [1.0, 0.1, 0.1, 0.1] + [0.01] * 6  # [kg, kg·m, kg·m²]
+            continue
         scale[10 * b] = m
         scale[10 * b + 1 : 10 * b + 4] = max(np.max(np.abs(prior[10 * b + 1 : 10 * b + 4])), 1e-3 * m)
         scale[10 * b + 4 : 10 * b + 10] = max(np.max(np.abs(prior[10 * b + 4 : 10 * b + 10])), 1e-6 * m)

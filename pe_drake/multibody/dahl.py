@@ -30,6 +30,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from pe_drake.multibody.drive_columns import COULOMB_VELOCITY_SCALE, coulomb_column
+
 
 def dahl_state(q: np.ndarray, x_p, z0=0.0) -> np.ndarray:
     """The normalized Dahl state z = F/F_c along a sampled path, integrated exactly.
@@ -59,7 +61,8 @@ def dahl_state(q: np.ndarray, x_p, z0=0.0) -> np.ndarray:
     return out[:, 0] if flat and x_p.ndim == 0 else out
 
 
-def dahl_friction_system(coulomb: np.ndarray, displacement: np.ndarray):
+def dahl_friction_system(coulomb: np.ndarray, displacement: np.ndarray, sliding: np.ndarray | None = None,
+                         velocity_scale: float = COULOMB_VELOCITY_SCALE):
     """A Drake ``LeafSystem`` with the Dahl state of every joint.
 
     Input port ``state``: the plant's [q; v], size 2n. Output port ``generalized_force``:
@@ -70,6 +73,10 @@ def dahl_friction_system(coulomb: np.ndarray, displacement: np.ndarray):
     Args:
         coulomb: F_c per joint, shape (n,) [N·m].
         displacement: x_p = F_c/σ0 per joint, shape (n,) [rad], > 0.
+        sliding: f_c per joint of a Coulomb friction f_c·tanh(v/v_s) without pre-sliding, shape
+            (n,) [N·m or N] (the simulator's for prismatic joints, which Drake's DoorHinge cannot
+            carry); None: none.
+        velocity_scale: v_s of ``sliding`` [rad/s or m/s].
 
     Returns:
         The system (pydrake is imported here so that importing this module stays light).
@@ -79,6 +86,7 @@ def dahl_friction_system(coulomb: np.ndarray, displacement: np.ndarray):
     fc = np.asarray(coulomb, float).copy()
     xp = np.asarray(displacement, float).copy()
     n = fc.size
+    f_s = np.zeros(n) if sliding is None else np.asarray(sliding, float).copy()
 
     class DahlFriction(LeafSystem):
         def __init__(self):
@@ -94,14 +102,16 @@ def dahl_friction_system(coulomb: np.ndarray, displacement: np.ndarray):
 
         def _force(self, context, output):
             z = context.get_continuous_state_vector().CopyToVector()
-            output.SetFromVector(-fc * z)
+            v = self.state_port.Eval(context)[n:]
+            output.SetFromVector(-fc * z - f_s * coulomb_column(v, velocity_scale))
 
     system = DahlFriction()
     system.set_name("pe_drake_dahl_friction")
     return system
 
 
-def dahl_builder_hook(coulomb: np.ndarray, stiffness: np.ndarray, port_name: str):
+def dahl_builder_hook(coulomb: np.ndarray, stiffness: np.ndarray, port_name: str, sliding: np.ndarray | None = None,
+                      velocity_scale: float = COULOMB_VELOCITY_SCALE):
     """A ``load_robot`` builder hook that adds :func:`dahl_friction_system` to a robot's diagram.
 
     The plant's applied generalized force becomes the diagram's exported input ``port_name``
@@ -111,6 +121,7 @@ def dahl_builder_hook(coulomb: np.ndarray, stiffness: np.ndarray, port_name: str
         coulomb: F_c per joint, shape (n,) [N·m]; joints with 0 carry no friction.
         stiffness: σ0 per joint, shape (n,) [N·m/rad], > 0 where F_c > 0.
         port_name: name of the exported input port.
+        sliding, velocity_scale: a Coulomb friction without pre-sliding (:func:`dahl_friction_system`).
     """
     coulomb = np.asarray(coulomb, float)
     stiffness = np.asarray(stiffness, float)
@@ -119,7 +130,7 @@ def dahl_builder_hook(coulomb: np.ndarray, stiffness: np.ndarray, port_name: str
         from pydrake.systems.primitives import Adder  # lazy: pydrake stays out of `import pe_drake`
 
         x_p = np.where(coulomb > 0, coulomb / np.where(stiffness > 0, stiffness, 1.0), 1.0)
-        dahl = builder.AddSystem(dahl_friction_system(coulomb, x_p))
+        dahl = builder.AddSystem(dahl_friction_system(coulomb, x_p, sliding, velocity_scale))
         adder = builder.AddSystem(Adder(2, len(coulomb)))
         builder.Connect(plant.get_state_output_port(), dahl.get_input_port(0))
         builder.Connect(dahl.get_output_port(0), adder.get_input_port(1))

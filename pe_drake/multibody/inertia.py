@@ -307,3 +307,11 @@ def _perturb_body(phi_b: np.ndarray, eps: float, rng: np.random.Generator,
     dR = np.eye(3) + math.sin(angle) * K + (1 - math.cos(angle)) * K @ K  # Rodrigues
     R2 = dR @ R
     return phi_from_com(m2, p2, R2 @ np.diag(lam2) @ R2.T)
+
+
+#: What works on a model whose moving bodies all have zero mass (no ``<inertial>``, as
+#: ROS-Industrial descriptions ship), said up front (issue 37).
+NO_INERTIALS_NOTE = (
+    "the model has no inertial parameters (every moving body's mass is 0): optimize, identify (ols, wls, "
+    "physical) and diagnose work without them (identify finds them); simulate, the playback's centre of mass, "
+    "excitation.torque_limits and payload identification need them: use the model.urdf of identify --method physical")

@@ -16,6 +16,8 @@ import dataclasses
 import numpy as np
 
 from pe_drake.exceptions import UnknownNameError
+from pe_drake.multibody.base_parameters import BaseParameters, compute_base_parameters
+from pe_drake.multibody.regressor import RegressorModel
 from pe_drake.multibody.inertia import (
     PARAMETER_NAMES,
     PARAMS_PER_BODY,
@@ -50,6 +52,44 @@ def link_columns(robot, link: str | int) -> np.ndarray:
 def payload_parameter_names(link: str) -> tuple[str, ...]:
     """``<param>.<link>`` of the payload's 10 parameters (as the robot's standard names)."""
     return tuple(f"{p}.{link}" for p in PARAMETER_NAMES)
+
+
+def payload_base_parameters(robot, link: str | int, model=None) -> BaseParameters:
+    """The combinations of ``link``'s 10 parameters that this robot's joint torques determine:
+    the base parameters (:func:`~pe_drake.multibody.base_parameters.compute_base_parameters`)
+    of Y_L alone, over random states within the limits. On a robot whose axes are all vertical
+    (a SCARA) Y_L has rank 4 at most: the payload's tilting inertias and the height of its centre
+    of mass never produce a torque, and no motion of that robot can excite them (issue 37).
+    ``K`` maps the 10·nb standard parameters; only ``link``'s columns are non-zero."""
+    cols = link_columns(robot, link)
+    mask = np.zeros(PARAMS_PER_BODY * robot.num_bodies)
+    mask[cols] = 1.0
+
+    model = model or RegressorModel(robot)
+    return compute_base_parameters(robot, model=model, rows=lambda q, v, vd: model(q, v, vd) * mask)
+
+
+def payload_parameter_map(base: BaseParameters, robot, link: str | int) -> tuple[np.ndarray, np.ndarray]:
+    """(K_L, K_L⁺) of φ_B = K_L φ_L (:func:`payload_base_parameters`): the payload's base
+    parameters from its 10, and the minimum-norm φ_L of given base parameters."""
+    K_L = base.K[:, link_columns(robot, link)]
+    return K_L, np.linalg.pinv(K_L)
+
+
+def undetermined_parameters(base: BaseParameters, robot, link: str | int) -> np.ndarray:
+    """Positions (0..9) of ``link``'s parameters that no combination in ``base`` contains: no
+    motion of the robot tells them (:func:`payload_base_parameters`)."""
+    K_L = base.K[:, link_columns(robot, link)]
+    return np.flatnonzero(np.abs(K_L).max(axis=0, initial=0.0) == 0.0)
+
+
+def determined_std(J: np.ndarray, K_L: np.ndarray, cov_B: np.ndarray) -> np.ndarray:
+    """σ of the outputs g(φ_L) (rows of their Jacobian J, (k, 10)) from Cov(φ_B) of φ_B = K_L φ_L,
+    NaN for an output the data do not determine (its row not a combination of K_L's rows)."""
+    G, *_ = np.linalg.lstsq(K_L.T, J.T, rcond=None)  # J ≈ Gᵀ K_L
+    determined = np.linalg.norm(G.T @ K_L - J, axis=1) <= 1e-9 * np.maximum(np.linalg.norm(J, axis=1), 1e-300)
+    std = np.sqrt(np.maximum(np.einsum("ik,kl,il->i", G.T, cov_B, G.T), 0.0))
+    return np.where(determined, std, np.nan)
 
 
 @dataclasses.dataclass(frozen=True)

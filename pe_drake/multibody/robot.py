@@ -24,7 +24,7 @@ from pe_drake.exceptions import (
     UnknownNameError,
 )
 from pe_drake.multibody.capsules import register_capsules
-from pe_drake.multibody.inertia import PARAMETER_NAMES, spatial_inertia_to_phi
+from pe_drake.multibody.inertia import NO_INERTIALS_NOTE, PARAMETER_NAMES, spatial_inertia_to_phi
 from pe_drake.multibody.joint_limits import joint_unit, merge_limits, placeholder_velocity_notes, position_margins
 from pe_drake.multibody.model_files import (
     check_world_joints,
@@ -152,6 +152,8 @@ class Robot:
         self._joints = joints
         self._structure()
         self.limits = self._limits()
+        if not np.any(self.phi_model[0::10] > 0):
+            self.notes.append(NO_INERTIALS_NOTE)
 
     def _weld_root(self, plant, models) -> None:
         """Welds the root link to the world at the config's base pose.

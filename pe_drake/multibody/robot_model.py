@@ -243,7 +243,11 @@ class RobotModel:
                 plant.WeldFrames(link.body_frame(), body.body_frame(), RigidTransform())
 
         fc, sigma0 = self.presliding, self.presliding_stiffness
-        hook = dahl_builder_hook(fc, sigma0, APPLIED_FORCE_PORT) if np.any(fc > 0) else None
+        # Coulomb friction on a prismatic joint (which a DoorHinge cannot carry) goes to the
+        # friction system of the Dahl hook, without pre-sliding.
+        sliding = np.where(revolute, 0.0, coulomb)
+        hook = (dahl_builder_hook(fc, sigma0, APPLIED_FORCE_PORT, sliding, self.velocity_scale)
+                if np.any(fc > 0) or np.any(sliding > 0) else None)
         out = load_robot(robot.config, time_step=0.0, before_finalize=before_finalize, builder_hook=hook)
         for b, name in enumerate(self.bodies):
             phi_b = self.phi[10 * b : 10 * b + 10]

@@ -10,6 +10,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from pe_drake.exceptions import ConfigError, DataError, check_joints
 from pe_drake.excitation.ramp import check_within_limits
 from pe_drake.excitation.trajectory_file import load_motion
@@ -35,6 +37,7 @@ class SimulatedRun:
     measurement: str
     data: Measurement
     truth: dict[str, Any]
+    prismatic: tuple[str, ...] = ()  # joints whose error is in mm, not mrad
 
     def summary_lines(self) -> list[str]:
         sim = self.truth["simulation"]
@@ -43,15 +46,23 @@ class SimulatedRun:
         head += [f"note: {note}" for note in (model or {}).get("notes", ())]
         lines = head + [f"simulated {sim['duration']:.3g} s of '{self.robot}' at {sim['rate_hz']:g} Hz: "
                         f"{sim['samples']} samples in {sim['wall_time_s']:.2f} s wall time",
-                        "tracking error RMS [mrad]: " + ", ".join(f"{j} {1e3 * e:.3g}"
-                                                                   for j, e in sim["tracking_error_rms"].items())]
+                        "tracking error RMS: " + ", ".join(f"{j} {1e3 * e:.3g} {self._unit(j)}"
+                                                          for j, e in sim["tracking_error_rms"].items())]
         joint, worst = max(sim["tracking_error_rms"].items(), key=lambda item: item[1])
         if worst > LARGE_TRACKING_ERROR:
-            lines.append(f"warning: {joint} tracks its trajectory to {1e3 * worst:.3g} mrad RMS: the run is not the "
-                         "planned motion (it may leave the joint limits). The truth's friction is large for the "
-                         "controller (gains kp·M, kd·M scale with the link's inertia): raise control.kp and control.kd "
-                         "or lower the friction")
+            payload = self.truth.get("effects", {}).get("payload", {})
+            # the controller's model is the a-priori one: a payload it lacks is the likelier cause (issue 37)
+            cause = (f"The truth's payload ({payload['mass']:g} kg on {payload['link']}) is not in the controller's "
+                     "model: raise control.kp and control.kd, or give the controller the payload"
+                     if payload.get("link") else
+                     "The truth's friction is large for the controller (gains kp·M, kd·M scale with the link's "
+                     "inertia): raise control.kp and control.kd or lower the friction")
+            lines.append(f"warning: {joint} tracks its trajectory to {1e3 * worst:.3g} {self._unit(joint)} RMS: the run "
+                         f"is not the planned motion (it may leave the joint limits). {cause}")
         return lines
+
+    def _unit(self, joint: str) -> str:
+        return "mm" if joint in self.prismatic else "mrad"
 
     def write(self, out: str | Path) -> tuple[Path, str]:
         """Writes the CSV and its ``.truth.json``, both or neither.
@@ -91,6 +102,10 @@ def simulate_run(robot: Robot, trajectory: str | Path, truth: str | Path | None 
     """
     if truth is None and model is None:
         raise ConfigError("give a TRUTH.yaml (--truth), an identified model (--model), or both")
+    if not np.any(robot.phi_model[0::10] > 0):  # a singular mass matrix; the controller's gains scale with it
+        raise ConfigError(f"robot '{robot.name}' has no inertial parameters (every moving body's mass is 0; no "
+                          "<inertial> in its model) to simulate: simulate --robot the model.urdf of "
+                          "identify --method physical (with --truth its drive_effects.yaml)")
     motion, data = load_motion(trajectory)  # validated before any work
     truth_spec = load_truth(truth) if truth is not None else Truth()
     check_joints(robot, data["joints"], file=str(trajectory), what="the trajectory")
@@ -107,7 +122,8 @@ def simulate_run(robot: Robot, trajectory: str | Path, truth: str | Path | None 
         progress(f"simulating {robot.name}: {duration:.3g} s of {Path(trajectory).name} "
                  f"(integrator {truth_spec.integrator}) ...")
     measured, truth_dict = simulate(robot, motion, truth_spec, duration, measurement=measurement, model=sim_model)
-    return SimulatedRun(robot.name, measurement, measured, {**truth_dict, **(extra or {})})
+    return SimulatedRun(robot.name, measurement, measured, {**truth_dict, **(extra or {})},
+                        tuple(j.name for j in robot.joints if j.kind == "prismatic"))
 
 
 def _model_record(model: RobotModel, source: str) -> dict[str, Any]:

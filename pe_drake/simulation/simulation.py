@@ -118,7 +118,7 @@ class TrueRobot:
     def force_input(self):
         """(port, context) of the applied generalized force the controller sets: the
         plant's, or the diagram's exported input when the Dahl system adds its torque."""
-        if np.any(self.model.presliding > 0):
+        if self.robot.diagram.HasInputPort(APPLIED_FORCE_PORT):  # pre-sliding or prismatic Coulomb friction
             return self.robot.diagram.GetInputPort(APPLIED_FORCE_PORT), self.robot.context
         return self.robot.plant.get_applied_generalized_force_input_port(), self.robot.plant_context
 
@@ -139,7 +139,6 @@ def true_model(robot, truth: Truth, model: RobotModel | None = None) -> RobotMod
     joints, e = robot.joint_names, truth.effects
     tables = {t: per_joint_values(getattr(e, field), joints) for t, field in FIELDS.items()}
     fc, sigma0 = per_joint_values(e.presliding_friction, joints), per_joint_values(e.presliding_stiffness, joints)
-    revolute = np.array([j.kind == "revolute" for j in robot.joints])
     if model is None:  # the truth's friction where it sets a joint (by name or all), else the model file's
         tables["viscous"], tables["coulomb"] = (
             per_joint_values(t, joints) if ALL_JOINTS in t else np.array([float(t.get(j, m)) for j, m in zip(joints, x)])
@@ -151,9 +150,6 @@ def true_model(robot, truth: Truth, model: RobotModel | None = None) -> RobotMod
         if np.any(model.presliding > 0):
             fc, sigma0 = model.presliding, model.presliding_stiffness
         phi, v_s, delay = model.phi_total, model.velocity_scale, e.torque_delay + model.torque_delay
-    # Coulomb friction is simulated by a revolute DoorHinge; a model's friction on a prismatic
-    # joint (the truth itself may not set one: validate_truth) is left out rather than crash.
-    tables["coulomb"] = np.where(revolute, tables["coulomb"], 0.0)
     rng = np.random.default_rng(np.random.SeedSequence(truth.seed).spawn(2)[0])
     phi = perturb_inertias(np.asarray(phi, float), truth.inertia_perturbation, rng, body_names=robot.body_names)
     p = e.payload

@@ -261,7 +261,7 @@ def _check_noise_and_control(n: NoiseTruth, c: ControlTruth) -> None:
 
 
 def _check_names(e: EffectsTruth, robot) -> None:
-    """Joint and link names against the robot; Coulomb friction on revolute joints only."""
+    """Joint and link names against the robot."""
     for field in _JOINT_TABLES:
         for joint in getattr(e, field):
             if joint != ALL_JOINTS and joint not in robot.joint_names:
@@ -279,13 +279,7 @@ def _check_names(e: EffectsTruth, robot) -> None:
                 f"effects.presliding_friction['{name}'] = {fc[k]:g} N·m needs a positive "
                 f"effects.presliding_stiffness['{name}'] [N·m/rad] (σ0 of the Dahl model)"
             )
-    coulomb = per_joint_values(e.coulomb, robot.joint_names)
-    for k, info in enumerate(robot.joints):
-        if coulomb[k] > 0 and info.kind != "revolute":
-            raise ConfigError(
-                f"effects.coulomb['{info.name}']: Coulomb friction is simulated on revolute "
-                f"joints only; '{info.name}' is {info.kind}"
-            )
+
 
 
 def per_joint_values(table: dict[str, float], joints: tuple[str, ...]) -> np.ndarray:

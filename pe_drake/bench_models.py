@@ -1,0 +1,142 @@
+# ruff: noqa: E501 (URDF/SDF text on one line per link)
+"""Small robots of the kinds issue 37 tried, written as text so that ``python -m pe_drake.bench
+robots`` and the tests can build them without downloads: a SCARA with a vertical prismatic quill
+(URDF or SDF), a two-arm torso on a prismatic lift, a model without any ``<inertial>`` (as
+ROS-Industrial descriptions ship), an arm that can fold onto its base post with a capsule file
+that records its margin, and a single vertical lift.
+
+Each builder writes the model into ``folder`` and returns its path.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+_I = '<inertial><origin xyz="{c}"/><mass value="{m}"/><inertia ixx="{i}" iyy="{i}" izz="{i}" ixy="0" ixz="0" iyz="0"/></inertial>'
+_COLLISION = '<collision><origin xyz="{o}" rpy="{r}"/><geometry><cylinder radius="{rad}" length="{L}"/></geometry></collision>'
+_JOINT = ('<joint name="{n}" type="{t}"><parent link="{p}"/><child link="{c}"/><origin xyz="{o}"/><axis xyz="{a}"/>'
+          '<limit lower="{lo}" upper="{hi}" effort="{e}" velocity="{v}"/></joint>')
+
+
+def _inertial(m: float, c: str = "0 0 0", i: float = 0.01) -> str:
+    return _I.format(m=m, c=c, i=i)
+
+
+def _cylinder(z: float, radius: float, length: float, along: str = "z") -> str:
+    """A collision cylinder centred at ``z`` on the link's z axis (or lying along y)."""
+    return _COLLISION.format(o=f"0 0 {z}", r="1.5708 0 0" if along == "y" else "0 0 0", rad=radius, L=length)
+
+
+def _fixed(child: str) -> str:
+    return f'<joint name="fix_{child}" type="fixed"><parent link="world"/><child link="{child}"/></joint>'
+
+
+def folding_arm(folder: Path, margin: float = 0.05, collision: bool = False) -> tuple[Path, Path]:
+    """A 3-joint arm about x whose hand can fold back onto its base post, and a capsule file that
+    records ``collision_margin`` (as a fitted file does). ``collision``: the URDF has cylinders
+    as collision geometry (capsules can be fitted to them). Returns (urdf, capsule file)."""
+    shapes = dict(base=(0.325, 0.06, 0.35), l2=(0.15, 0.04, 0.2), hand=(0.08, 0.04, 0.1)) if collision else {}
+    inertials = dict(base=(5, "0 0 0.2"), l1=(1.5, "0 0 0.15"), l2=(1.5, "0 0 0.15"), hand=(0.5, "0 0 0.05"))
+    links = ['<link name="world"/>'] + [
+        f'<link name="{name}">{_inertial(*inertial)}' + (_cylinder(*shapes[name]) if name in shapes else "") + "</link>"
+        for name, inertial in inertials.items()]
+    joints = [_fixed("base")] + [
+        _JOINT.format(n=f"j{k}", t="revolute", p=p, c=c, o=f"0 0 {z}", a="1 0 0", lo=-2.6, hi=2.6, e=80, v=2)
+        for k, (p, c, z) in enumerate((("base", "l1", 0.6), ("l1", "l2", 0.3), ("l2", "hand", 0.3)), start=1)]
+    urdf = Path(folder) / "folding.urdf"
+    urdf.write_text('<robot name="folding">' + "".join(links + joints) + "</robot>")
+    capsules = Path(folder) / "folding_capsules.yaml"
+    capsules.write_text(
+        "capsules:\n"
+        "  - {name: post, link: base, radius: 0.06, length: 0.35, xyz: [0, 0, 0.325], rpy: [0, 0, 0]}\n"
+        "  - {name: l2, link: l2, radius: 0.04, length: 0.2, xyz: [0, 0, 0.15], rpy: [0, 0, 0]}\n"
+        "  - {name: hand, link: hand, radius: 0.04, length: 0.1, xyz: [0, 0, 0.08], rpy: [0, 0, 0]}\n"
+        f"collision_margin: {margin}\n")
+    return urdf, capsules
+
+
+#: The SCARA's bodies (name, mass [kg], CoM, principal moment [kg·m²]) and joints (name, type,
+#: parent, child, origin, lower, upper): every axis vertical, the quill a prismatic lift.
+_SCARA_BODIES = (("base", 8.0, "0 0 0.2", 0.1), ("upper", 3.0, "0.2 0 0", 0.02), ("fore", 2.0, "0.15 0 0", 0.01),
+                 ("quill", 1.0, "0 0 -0.1", 0.005), ("tool", 0.3, "0 0 -0.02", 0.001))
+_SCARA_JOINTS = (("shoulder", "revolute", "base", "upper", "0 0 0.5", -2.5, 2.5),
+                 ("elbow", "revolute", "upper", "fore", "0.35 0 0", -2.5, 2.5),
+                 ("lift", "prismatic", "fore", "quill", "0.3 0 0", -0.15, 0.0),
+                 ("wrist", "revolute", "quill", "tool", "0 0 -0.2", -3.0, 3.0))
+
+
+def scara(folder: Path, fmt: str = "urdf") -> Path:
+    """A SCARA: two vertical revolute axes, a vertical prismatic quill (it carries its own weight),
+    a vertical wrist and a tool link; every axis parallel to gravity. ``fmt``: "urdf" or "sdf"."""
+    if fmt == "sdf":
+        return _scara_sdf(Path(folder))
+    links = ['<link name="world"/>'] + [f'<link name="{n}">{_inertial(m, c, i)}</link>' for n, m, c, i in _SCARA_BODIES]
+    joints = [_fixed("base")] + [
+        _JOINT.format(n=n, t=t, p=p, c=c, o=o, a="0 0 1", lo=lo, hi=hi, e=60 if t == "prismatic" else 40,
+                      v=0.5 if t == "prismatic" else 2)
+        for n, t, p, c, o, lo, hi in _SCARA_JOINTS]
+    path = Path(folder) / "scara.urdf"
+    path.write_text('<robot name="scara">' + "".join(links + joints) + "</robot>")
+    return path
+
+
+def _scara_sdf(folder: Path) -> Path:
+    """The SCARA as SDFormat 1.7 (link poses in the model frame, from the URDF's origins)."""
+    pose = {"base": [0.0, 0.0, 0.0]}
+    for _, _, parent, child, origin, _, _ in _SCARA_JOINTS:
+        pose[child] = [a + float(b) for a, b in zip(pose[parent], origin.split())]
+    links = "".join(
+        f'<link name="{n}"><pose>{" ".join(map(str, pose[n]))} 0 0 0</pose><inertial><pose>{c} 0 0 0</pose><mass>{m}</mass>'
+        f"<inertia><ixx>{i}</ixx><iyy>{i}</iyy><izz>{i}</izz><ixy>0</ixy><ixz>0</ixz><iyz>0</iyz></inertia></inertial></link>"
+        for n, m, c, i in _SCARA_BODIES)
+    joints = '<joint name="fix" type="fixed"><parent>world</parent><child>base</child></joint>' + "".join(
+        f'<joint name="{n}" type="{t}"><parent>{p}</parent><child>{c}</child><axis><xyz>0 0 1</xyz>'
+        f"<limit><lower>{lo}</lower><upper>{hi}</upper><effort>{60 if t == 'prismatic' else 40}</effort>"
+        f"<velocity>{0.5 if t == 'prismatic' else 2}</velocity></limit></axis></joint>"
+        for n, t, p, c, _, lo, hi in _SCARA_JOINTS)
+    path = folder / "scara.sdf"
+    path.write_text(f'<?xml version="1.0"?><sdf version="1.7"><model name="scara">{links}{joints}</model></sdf>')
+    return path
+
+
+def dual_arm_lift(folder: Path) -> Path:
+    """A torso on a vertical prismatic lift with two 3-joint arms (shoulder pitch, shoulder roll,
+    elbow), collision cylinders on every link (capsules are fitted to them)."""
+    links = ['<link name="world"/>', f'<link name="column">{_inertial(20, "0 0 0.4", 0.5)}{_cylinder(0.4, 0.08, 0.7)}</link>',
+             f'<link name="torso">{_inertial(8, "0 0 0.15", 0.1)}{_cylinder(0.15, 0.1, 0.25)}</link>']
+    joints = [_fixed("column"),
+              _JOINT.format(n="lift", t="prismatic", p="column", c="torso", o="0 0 0.85", a="0 0 1", lo=-0.2, hi=0.2,
+                            e=400, v=0.3)]
+    for side, s in (("left", 1), ("right", -1)):
+        links += [f'<link name="{side}_shoulder">{_inertial(1.0, f"0 {s * 0.03} 0", 0.003)}</link>',
+                  f'<link name="{side}_upper">{_inertial(1.5, "0 0 -0.15", 0.01)}{_cylinder(-0.15, 0.04, 0.22)}</link>',
+                  f'<link name="{side}_fore">{_inertial(1.0, "0 0 -0.12", 0.006)}{_cylinder(-0.13, 0.035, 0.18)}</link>']
+        joints += [_JOINT.format(n=f"{side}_pitch", t="revolute", p="torso", c=f"{side}_shoulder", o=f"0 {s * 0.2} 0.25",
+                                 a="0 1 0", lo=-2.0, hi=2.0, e=60, v=2),
+                   _JOINT.format(n=f"{side}_roll", t="revolute", p=f"{side}_shoulder", c=f"{side}_upper",
+                                 o=f"0 {s * 0.06} 0", a="1 0 0", lo=-0.3 if s > 0 else -1.5, hi=1.5 if s > 0 else 0.3,
+                                 e=40, v=2),
+                   _JOINT.format(n=f"{side}_elbow", t="revolute", p=f"{side}_upper", c=f"{side}_fore", o="0 0 -0.3",
+                                 a="0 1 0", lo=-2.2, hi=0.1, e=30, v=2)]
+    path = Path(folder) / "dual_arm_lift.urdf"
+    path.write_text('<robot name="dual_arm_lift">' + "".join(links + joints) + "</robot>")
+    return path
+
+
+def vertical_lift(folder: Path) -> Path:
+    """One vertical prismatic joint carrying 2 kg (a lift, a quill on its own)."""
+    path = Path(folder) / "lift.urdf"
+    path.write_text(
+        '<robot name="lift"><link name="world"/>' f'<link name="base">{_inertial(5)}</link><link name="carriage">{_inertial(2)}</link>'
+        + _fixed("base") + _JOINT.format(n="lift", t="prismatic", p="base", c="carriage", o="0 0 0.3", a="0 0 1",
+                                         lo=-0.2, hi=0.2, e=200, v=0.5) + "</robot>")
+    return path
+
+
+def without_inertials(model: Path, folder: Path) -> Path:
+    """A copy of ``model`` with every ``<inertial>`` removed, as ROS-Industrial descriptions ship."""
+    text = re.sub(r"<inertial>.*?</inertial>", "", Path(model).read_text(), flags=re.S)
+    path = Path(folder) / f"{Path(model).stem}_no_inertials{Path(model).suffix}"
+    path.write_text(text)
+    return path
