@@ -51,6 +51,7 @@ from pe_drake.multibody.inertia import (
     pseudo_inertia,
     validity_problems,
 )
+from pe_drake.multibody.packages import found_packages
 from pe_drake.multibody.robot import load_robot
 from pe_drake.multibody.urdf import joint_dynamics, urdf_with_inertias
 
@@ -462,7 +463,10 @@ def write_augmented_model(folder: str | Path, robot, model: AugmentedModel, *, v
 def verify_augmented_urdf(path: Path, robot, model: AugmentedModel, samples: int = 20,
                           tolerance: float = 1e-6) -> float:
     """Max |τ_urdf - τ_model| over random states [N·m] (raises above ``tolerance`` relative)."""
-    config = dataclasses.replace(robot.config, model=str(Path(path).resolve()), capsules="")
+    # the file sits in an output (or staging) folder: its package:// URIs resolve as the input
+    # model's did, not by the upward search from its own folder
+    packages = {**robot.config.packages, **found_packages(Path(path).read_text(), robot.model_path, robot.config.packages)}
+    config = dataclasses.replace(robot.config, model=str(Path(path).resolve()), capsules="", packages=packages)
     loaded = load_robot(config)
     rng = np.random.default_rng(0)
     q = rng.uniform(robot.limits.q_lower, robot.limits.q_upper, (samples, robot.n))
