@@ -170,6 +170,8 @@ def _add_identification_commands(sub) -> None:
     add_log_arguments(p)
     p.add_argument("--cutoff", type=float, help="low-pass cut-off [Hz] (default: from the data)")
     add_window_argument(p, "predicted")
+    p.add_argument("--no-filter", action="store_true",
+                   help="predict the torques as recorded, unfiltered (needs v.* and vdot.* columns)")
     p.add_argument("--json", help="write per-joint errors here")
     p.add_argument("--plot", help="write measured vs predicted torque plot here (PNG)")
     add_measurement_argument(p, "channels to predict (from any identified model): joint torques, the ground wrench, or both")

@@ -49,7 +49,7 @@ def validate_command(args: argparse.Namespace) -> int:
     for note in model.physical_notes if model.method == "diagnose" else ():
         print(f"note: {note}")
     options = ValidateOptions(measurement_from_args(args, config), getattr(args, "cutoff", None), config.data.max_gap_s,
-                              _window(args))
+                              _window(args), filtering=not args.no_filter)
     report = validate_model(robot, model, read_log_from_args(args, robot, config), options)
     for line in [f"note: {n}" for n in report.notes] + report.summary_lines():
         print(line)
