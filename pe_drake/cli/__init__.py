@@ -154,6 +154,9 @@ def _add_identification_commands(sub) -> None:
     p.add_argument("--drive-terms", choices=["none", "friction", "all"],
                    help="joint friction (Coulomb + viscous), torque offsets and, with 'all', the armature where "
                         "separable (default: the config's identification.drive_terms, all)")
+    p.add_argument("--rest", choices=["auto", "keep", "exclude"],
+                   help="the torque rows of a joint at rest (its holding friction is unknown): kept out of the fit "
+                        "if cross-validation says so (auto, the default), kept, or kept out")
     p.add_argument("--payload", metavar="LINK", help="identify a payload on LINK, the arm frozen")
     p.add_argument("--unloaded", action="append", metavar="CSV", help="--payload: a run of the same motion "
                    "without the payload (repeatable)")

@@ -25,7 +25,7 @@ def identify_command(args: argparse.Namespace) -> int:
     options = IdentifyOptions.from_config(
         config, method=args.method, measurement=measurement_from_args(args, config), cutoff_hz=args.cutoff,
         trajectory=getattr(args, "trajectory", None), filtering=not getattr(args, "no_filter", False),
-        drive_terms=getattr(args, "drive_terms", None), window=_window(args))
+        drive_terms=getattr(args, "drive_terms", None), window=_window(args), rest=getattr(args, "rest", None))
     robot = robot_from_args(args, config)
     model = identify_model(robot, read_log_from_args(args, robot, config), options)
     for line in model.summary_lines():

@@ -284,6 +284,7 @@ def identify(
     drive_terms: DriveTermOptions | str | None = None,
     bounds: PhysicalBounds | None = None,
     coulomb: np.ndarray | None = None,
+    rest: np.ndarray | None = None,
 ) -> IdentificationResult:
     """Identifies the base parameters and the drive terms (and, for ``physical``, the standard
     parameters).
@@ -304,6 +305,8 @@ def identify(
         bounds: the user's bounds of the ``physical`` fit (:class:`PhysicalBounds`).
         coulomb: the Coulomb columns to use, (S, n) (e.g. tanh(v/v_s) filtered like the
             torque); default tanh(v/v_s) of ``data.v``.
+        rest: the joint-torque rows kept out of the fit, (S, n) bool (a joint at rest,
+            :mod:`~pe_drake.identification.rest`), or None.
 
     Raises:
         ConfigError: unknown method or measurement, bounds naming unknown links.
@@ -315,12 +318,12 @@ def identify(
     if data.v is None or data.vd is None:
         raise DataError("the data has no velocities/accelerations; preprocess it first", file=data.source)
     with single_threaded_blas():  # thousands of small QRs: BLAS threads only contend (threads.py)
-        return _identify(robot, data, method, base, prior, model, measurement, drive_terms, bounds, coulomb)
+        return _identify(robot, data, method, base, prior, model, measurement, drive_terms, bounds, coulomb, rest)
 
 
 def _identify(robot, data: Measurement, method: str, base: BaseParameters | None, prior: np.ndarray | None,
               model: RegressorModel | None, measurement: str, drive_terms, bounds: PhysicalBounds | None,
-              coulomb: np.ndarray | None) -> IdentificationResult:
+              coulomb: np.ndarray | None, rest: np.ndarray | None = None) -> IdentificationResult:
     """:func:`identify` after its checks."""
     start = time.perf_counter()
     model = model or RegressorModel(robot)
@@ -330,7 +333,7 @@ def _identify(robot, data: Measurement, method: str, base: BaseParameters | None
     layouts = _layouts(robot, measurement, drive_options(drive_terms), method, model)
     _check_rows(data, base.count + layouts.drive.count, len(channels))
     known = model_file_terms(robot, layouts.drive) if MeasurementType(measurement).torques else None
-    blocks = _row_blocks(robot, data, measurement, model, layouts, coulomb, known)
+    blocks = _row_blocks(robot, data, measurement, model, layouts, coulomb, known, rest)
     folded = fold_rows(blocks)  # the rows never held at once: an hour of data fits (folded_rows)
     cols = _Columns(folded.R.shape[1] - 1, 10 * len(robot.body_names), base, layouts)
     layout, keep = separable_on_data(folded.stacked(cols.base)[0], folded.stacked(cols.drive)[0], layouts.drive)
@@ -426,9 +429,10 @@ class _Columns:
 
 
 def _row_blocks(robot, data: Measurement, measurement: str, model: RegressorModel, layouts: _Layouts,
-                coulomb: np.ndarray | None, known: DriveFit | None = None):
+                coulomb: np.ndarray | None, known: DriveFit | None = None, rest: np.ndarray | None = None):
     """The rows [Y | drive | armature | friction] and y of ``data``, BLOCK samples at a time
-    (y of the torques without the model file's ``known`` friction)."""
+    (y of the torques without the model file's ``known`` friction; the torque rows ``rest``
+    zero: a zero row adds nothing to a least-squares fit)."""
     rows = SensorRows(model, MeasurementType(measurement))
     r = len(channel_names(robot, measurement))
 
@@ -443,7 +447,12 @@ def _row_blocks(robot, data: Measurement, measurement: str, model: RegressorMode
             y = measured_values(robot, part, measurement)
             if known is not None:  # the torque channels come first
                 y[:, : robot.n] -= known.torque(part.v, part.vd, sign)
-            yield k, np.concatenate(F, axis=2), y
+            F = np.concatenate(F, axis=2)
+            if rest is not None and MeasurementType(measurement).torques:  # the torque channels come first
+                at_rest = np.zeros(y.shape, bool)
+                at_rest[:, : robot.n] = rest[k]
+                F[at_rest], y[at_rest] = 0.0, 0.0
+            yield k, F, y
 
     return blocks
 
