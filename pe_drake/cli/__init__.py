@@ -144,7 +144,8 @@ def _add_identification_commands(sub) -> None:
     add_log_arguments(p)
     p.add_argument("--method", choices=["ols", "wls", "physical"], default="wls",
                    help="wls (default: per-joint noise weights), ols (Eq. 4, unweighted), or physical (every "
-                        "link physically consistent; writes model.urdf)")
+                        "link physically consistent, each rigid group of welded links one body; weighted by wls's "
+                        "per-joint noise weights; writes model.urdf)")
     p.add_argument("--cutoff", type=float, help="low-pass cut-off [Hz] (default: from --trajectory or the data)")
     p.add_argument("--trajectory", help="trajectory.json that was run (its harmonics set the cut-off)")
     add_window_argument(p, "fitted")

@@ -67,6 +67,7 @@ from pe_drake.identification.measurements import (
 )
 from pe_drake.identification.least_squares import ordinary_fit, weighted_fit
 from pe_drake.identification.physical_fit import PhysicalBounds, physical_fit
+from pe_drake.identification.welded import merge_welded
 from pe_drake.identification.preprocessing import PreprocessOptions
 from pe_drake.identification.folded_rows import (
     BLOCK,
@@ -92,6 +93,10 @@ FRICTION_SHARE_WARNING = 0.5
 #: The physical fit's pull toward the a-priori model may raise the (correlation-corrected) χ²
 #: of the data by at most this over the unconstrained optimum (physical_fit's stage 2).
 PHYSICAL_DELTA_CHI2 = 4.0
+#: The physical fit's σ_c is at least this fraction of the channel's RMS torque: no torque
+#: sensor or current loop resolves finer (a 20-bit converter is 1e-6 of its range), and the SDP
+#: solver (tolerances 1e-10-1e-8) cannot resolve a thinner confidence region.
+PHYSICAL_MIN_RELATIVE_SIGMA = 1e-6
 #: Output rate of the preprocessing [Hz]: the regressor is smooth, 200 Hz is plenty.
 DEFAULT_RATE_HZ = 200.0
 
@@ -355,7 +360,10 @@ def _identify(robot, data: Measurement, method: str, base: BaseParameters | None
         # Stage 2 of the fit stays in the 95 % confidence region of this estimate: whitened
         # rows count τ̄ times for correlated samples (statistics.sandwich_from_grams).
         tau_bar = float(np.mean(integrated_autocorrelation(fit.residual)))
-        physical = _physical(robot, base, layout, folded, cols, keep, layouts.armature, 1.0 / fit.noise_std,
+        # σ_c ≥ 1e-6 RMS: noise-free data's σ (1e-12) left stage 2's region too thin for the SDP
+        # solver, which failed and kept stage 1's masses (a UR10's upper arm 113 kg for 12.1 kg).
+        sigma = np.maximum(fit.noise_std, PHYSICAL_MIN_RELATIVE_SIGMA * np.sqrt(folded.measured_ss() / folded.samples))
+        physical = _physical(robot, base, layout, folded, cols, keep, layouts.armature, 1.0 / sigma,
                              prior, bounds, tau_bar * PHYSICAL_DELTA_CHI2)
         phi, x = physical.phi, physical.x
     b = base.count
@@ -490,12 +498,17 @@ def _physical(robot, base: BaseParameters, layout: DriveLayout, folded: FoldedRo
     A, yw = folded.stacked(cols.standard, w)
     T_E = np.hstack([cols.drive[:, keep], cols.armature[:, [armature.joints.index(j) for j in merged]]])
     E, _ = folded.stacked(T_E, w)
-    fit = physical_fit(A, yw, prior, robot.body_names, extra=E,
+    # one body per rigid group (welded.py): only a group's sum is identifiable
+    groups = merge_welded(robot, prior, [*bounds.mass_bounds, *bounds.boxes] if bounds is not None else ())
+    c = groups.cols()
+    fit = physical_fit(A[:, c], yw, groups.prior(prior), groups.names(robot.body_names), extra=E,
                        extra_lower=np.r_[layout.lower_bounds(), np.zeros(len(merged))],
-                       extra_names=layout.labels + extra.labels, bounds=bounds, base_K=base.K,
+                       extra_names=layout.labels + extra.labels, bounds=bounds, base_K=base.K[:, c],
                        chi2_tolerance=chi2_tolerance, rows=folded.samples * folded.channels,
                        extra_in_base={layout.count + i: _in_base(base, layout.merged[robot.joint_names[j]])
                                       for i, j in enumerate(merged)})
+    phi, group_notes = groups.split(fit.phi, prior, robot.body_names)
+    fit = fit._replace(phi=phi, notes=(*group_notes, *fit.notes))
     phi_B = base.base_values(fit.phi)
     notes = list(fit.notes)
     for j, a in zip(merged, fit.theta[layout.count :]):
