@@ -26,6 +26,7 @@ from pe_drake.config_sections import (  # noqa: F401  (re-exported: config.X kee
     DataConfig,
     IdentificationConfig,
     JointMapConfig,
+    TransmissionConfig,
     check_finite,
     check_fraction,
     validate_identification,
@@ -75,6 +76,8 @@ class RobotConfig:
             constraint is available.
         drive_gains: {joint: k} [N·m/A or N/A]: joint torque per motor current, τ = k·i, for
             logs with ``current.<joint>`` columns.
+        transmission: gear ratios and coupling of the motors (:class:`TransmissionConfig`): a
+            motor-side log (``q_motor.*``, ``tau_motor.*``) is converted with them.
         jerk_limits: {joint: limit} [rad/s³ or m/s³]: checked on the exported controller goal
             (Franka refuses 3750-10000 rad/s³); empty: not checked.
         notes: what pe_drake chose for a model given without a config (a standing humanoid's
@@ -108,6 +111,7 @@ class RobotConfig:
     packages: dict[str, str] = dataclasses.field(default_factory=dict)
     drive_gains: dict[str, float] = dataclasses.field(default_factory=dict)
     jerk_limits: dict[str, float] = dataclasses.field(default_factory=dict)
+    transmission: TransmissionConfig = dataclasses.field(default_factory=TransmissionConfig)
     notes: list[str] = dataclasses.field(default_factory=list)
     assumed: list[str] = dataclasses.field(default_factory=list)
 

@@ -102,6 +102,21 @@ class ControllerConfig:
 
 
 @dataclasses.dataclass
+class TransmissionConfig:
+    """Gear ratios and coupling between motors and joints (``robot.transmission``,
+    :mod:`pe_drake.multibody.transmission`): θ_m = R q, τ = Rᵀ τ_m.
+
+    Attributes:
+        ratios: {joint: ratio} [rad of its motor per rad of the joint]; unlisted joints 1.
+        coupling: {joint: {other joint: R entry}}: the motor of ``joint`` also turns with the
+            other joint (θ_m = ratio·q + Σ entry·q_other).
+    """
+
+    ratios: dict[str, float] = dataclasses.field(default_factory=dict)
+    coupling: dict[str, dict[str, float]] = dataclasses.field(default_factory=dict)
+
+
+@dataclasses.dataclass
 class CoMBoxConfig:
     """Where a link's centre of mass may be, in the link's frame (``identification.boxes``).
 
@@ -142,6 +157,12 @@ def validate_log_sections(r, d: "DataConfig", c: "ControllerConfig") -> None:
     for name in ("drive_gains", "jerk_limits"):
         for joint, value in getattr(r, name).items():
             check_finite(f"robot.{name}['{joint}']", value, positive=True)
+    for joint, value in r.transmission.ratios.items():
+        if check_finite(f"robot.transmission.ratios['{joint}']", value) == 0:
+            raise ConfigError(f"robot.transmission.ratios['{joint}'] must not be 0")
+    for motor, row in r.transmission.coupling.items():
+        for joint, value in row.items():
+            check_finite(f"robot.transmission.coupling['{motor}']['{joint}']", value)
     for name, value, choices in (("format", d.format, DATA_FORMATS), ("effort", d.effort, EFFORT_KINDS)):
         if value not in choices:
             raise ConfigError(f"data.{name} '{shorten(value)}' is not one of {', '.join(choices)}")

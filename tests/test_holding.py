@@ -8,7 +8,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pe_drake.diagnosis.holding import HOLDING, count_runs, rest_mask
+from pe_drake.diagnosis.holding import HOLDING
+from pe_drake.identification.rest import count_runs, rest_mask
 from pe_drake.diagnosis.workflow import diagnose
 from pe_drake.simulation.simulation import simulate
 from pe_drake.simulation.truth import EffectsTruth, Truth

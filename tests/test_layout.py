@@ -359,7 +359,7 @@ def test_one_definition_of_the_weighted_least_squares():
 #: Names defined twice that the RobotModel half of issue 33 (branch `model`: one drive-column
 #: builder, one COULOMB_VELOCITY_SCALE, the simulator as its own stage) merges; drop them from
 #: here when it lands.
-PENDING_DUPLICATE_NAMES = {"COULOMB_VELOCITY_SCALE", "DRIVE_TERMS", "drive_columns", "SimulatedRun"}
+PENDING_DUPLICATE_NAMES: set[str] = set()
 
 
 def test_no_two_public_module_level_names_are_equal():

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pe_drake.identification.estimators import measurement_base_parameters
+from pe_drake.multibody.sensors import measurement_base_parameters
 from pe_drake.multibody.payload import PayloadInertia
 from pe_drake.multibody.robot import load_robot
 from pe_drake.multibody.robot_model import RobotModel

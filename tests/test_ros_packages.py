@@ -334,3 +334,32 @@ def test_talos_models_drake_refused_load(name):
     (a material defined nowhere) were refused by Drake."""
     robot = load_robot(str(example_robot_data_dir() / "robots" / "talos_data" / "robots" / name))
     assert robot.n == 14
+
+
+@pytest.mark.parametrize("manifest", [True, False])
+def test_diagnose_writes_its_model_for_a_robot_in_a_package_folder(tmp_path, manifest):
+    """Issue 36: the augmented URDF's self-check re-read it from out/.staging-*, where the
+    package (found above the input model, by its package.xml or its folder name) was unknown,
+    so diagnose wrote nothing."""
+    from pe_drake.cli import main
+    from pe_drake.identification.measurements import Measurement, write_measurement_csv
+
+    path = write_package(tmp_path / PKG)
+    if not manifest:
+        (tmp_path / PKG / "package.xml").unlink()
+    robot = load_robot(str(path))
+    t = np.arange(0.0, 12.0, 0.005)
+    rng = np.random.default_rng(0)
+    a, phase = rng.uniform(0.3, 0.8, (3, robot.n)), rng.uniform(0, 2 * np.pi, (3, robot.n))
+    w = 2 * np.pi / 6 * np.arange(1, 4)[:, None, None]  # three harmonics of a 6 s period [rad/s]
+    arg = w * t[None, :, None] + phase[:, None, :]
+    q = np.sum(a[:, None] / w * np.sin(arg), axis=0)
+    v = np.sum(a[:, None] * np.cos(arg), axis=0)
+    vd = np.sum(-a[:, None] * w * np.sin(arg), axis=0)
+    tau = robot.inverse_dynamics(q, v, vd) + rng.normal(0, 0.02, q.shape)
+    write_measurement_csv(tmp_path / "run.csv", Measurement(t, q, tau, v, vd, robot.joint_names))
+    out = tmp_path / "out"
+    assert main(["diagnose", "--robot", str(path), "--data", str(tmp_path / "run.csv"), "--out", str(out)]) == 0
+    check = json.loads((out / "augmented_model.json").read_text())["urdf_check_max_abs_torque"]
+    assert (out / "augmented_model.urdf").is_file() and check < 1e-6
+    assert not list(out.glob(".staging-*"))

@@ -144,7 +144,8 @@ def _add_identification_commands(sub) -> None:
     add_log_arguments(p)
     p.add_argument("--method", choices=["ols", "wls", "physical"], default="wls",
                    help="wls (default: per-joint noise weights), ols (Eq. 4, unweighted), or physical (every "
-                        "link physically consistent; writes model.urdf)")
+                        "link physically consistent, each rigid group of welded links one body; weighted by wls's "
+                        "per-joint noise weights; writes model.urdf)")
     p.add_argument("--cutoff", type=float, help="low-pass cut-off [Hz] (default: from --trajectory or the data)")
     p.add_argument("--trajectory", help="trajectory.json that was run (its harmonics set the cut-off)")
     add_window_argument(p, "fitted")
@@ -154,6 +155,9 @@ def _add_identification_commands(sub) -> None:
     p.add_argument("--drive-terms", choices=["none", "friction", "all"],
                    help="joint friction (Coulomb + viscous), torque offsets and, with 'all', the armature where "
                         "separable (default: the config's identification.drive_terms, all)")
+    p.add_argument("--rest", choices=["auto", "keep", "exclude"],
+                   help="the torque rows of a joint at rest (its holding friction is unknown): kept out of the fit "
+                        "if cross-validation says so (auto, the default), kept, or kept out")
     p.add_argument("--payload", metavar="LINK", help="identify a payload on LINK, the arm frozen")
     p.add_argument("--unloaded", action="append", metavar="CSV", help="--payload: a run of the same motion "
                    "without the payload (repeatable)")
@@ -170,6 +174,8 @@ def _add_identification_commands(sub) -> None:
     add_log_arguments(p)
     p.add_argument("--cutoff", type=float, help="low-pass cut-off [Hz] (default: from the data)")
     add_window_argument(p, "predicted")
+    p.add_argument("--no-filter", action="store_true",
+                   help="predict the torques as recorded, unfiltered (needs v.* and vdot.* columns)")
     p.add_argument("--json", help="write per-joint errors here")
     p.add_argument("--plot", help="write measured vs predicted torque plot here (PNG)")
     add_measurement_argument(p, "channels to predict (from any identified model): joint torques, the ground wrench, or both")

@@ -25,7 +25,7 @@ def identify_command(args: argparse.Namespace) -> int:
     options = IdentifyOptions.from_config(
         config, method=args.method, measurement=measurement_from_args(args, config), cutoff_hz=args.cutoff,
         trajectory=getattr(args, "trajectory", None), filtering=not getattr(args, "no_filter", False),
-        drive_terms=getattr(args, "drive_terms", None), window=_window(args))
+        drive_terms=getattr(args, "drive_terms", None), window=_window(args), rest=getattr(args, "rest", None))
     robot = robot_from_args(args, config)
     model = identify_model(robot, read_log_from_args(args, robot, config), options)
     for line in model.summary_lines():
@@ -49,7 +49,7 @@ def validate_command(args: argparse.Namespace) -> int:
     for note in model.physical_notes if model.method == "diagnose" else ():
         print(f"note: {note}")
     options = ValidateOptions(measurement_from_args(args, config), getattr(args, "cutoff", None), config.data.max_gap_s,
-                              _window(args))
+                              _window(args), filtering=not args.no_filter)
     report = validate_model(robot, model, read_log_from_args(args, robot, config), options)
     for line in [f"note: {n}" for n in report.notes] + report.summary_lines():
         print(line)

@@ -36,17 +36,15 @@ from typing import Any
 import numpy as np
 
 from pe_drake.diagnosis.effects import Candidate, Separability
+from pe_drake.identification.rest import MIN_REST_S, REST_FLOOR, count_runs, min_rest_s, rest_mask
 from pe_drake.multibody.dahl import dahl_state
 from pe_drake.multibody.drive_columns import COULOMB_VELOCITY_SCALE
 
 #: Name of the effect.
 HOLDING = "holding_torque"
-#: A joint is at rest where its filtered |v| is below this [rad/s or m/s]: a quarter of the
-#: Coulomb column's v_s, where tanh(v/v_s) < 0.25 (the sliding model predicts almost nothing).
-REST_VELOCITY = 0.25 * COULOMB_VELOCITY_SCALE
-#: Shortest rest [s] (and at least two filter time constants, :func:`min_rest_s`): a velocity
-#: reversal crosses v = 0 in milliseconds, a stop lasts.
-MIN_REST_S = 0.2
+#: A joint is at rest where its filtered |v| is below this [rad/s or m/s] (identify's floor,
+#: :mod:`pe_drake.identification.rest`, which shares the rest mask).
+REST_VELOCITY = REST_FLOOR
 #: Rests a joint needs in the training data to be a candidate: with one stop, any drift of that
 #: window could pass for a holding torque.
 MIN_REST_PERIODS = 2
@@ -56,42 +54,9 @@ MIN_REST_PERIODS = 2
 HOLDING_DISPLACEMENT = 0.002
 
 
-def min_rest_s(record) -> float:
-    """The shortest rest of a record [s]: :data:`MIN_REST_S` and at least 2 / cut-off, so that
-    the zero-phase filter's transient of the stop is over."""
-    return max(MIN_REST_S, 2.0 / record.cutoff_hz)
-
-
-def rest_mask(v: np.ndarray, rate_hz: float, v_rest: float, min_s: float) -> np.ndarray:
-    """Where a joint rests: |v| < ``v_rest`` for at least ``min_s``.
-
-    Args:
-        v: one joint's velocity at the full rate, (T,) [rad/s].
-        rate_hz: its rate [Hz].
-        v_rest: the velocity below which it is still [rad/s].
-        min_s: the shortest rest [s].
-
-    Returns:
-        Boolean mask, (T,).
-    """
-    still = np.abs(np.asarray(v, float)) < v_rest
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], still.astype(np.int8), [0]])))
-    out = np.zeros(still.shape, bool)
-    for start, stop in zip(edges[::2], edges[1::2]):
-        if stop - start >= min_s * rate_hz:
-            out[start:stop] = True
-    return out
-
-
-def count_runs(mask: np.ndarray) -> int:
-    """Number of runs of True in a boolean series."""
-    m = np.asarray(mask, bool)
-    return int(np.count_nonzero(m[1:] & ~m[:-1]) + bool(m.size and m[0]))
-
-
 def record_rest_mask(record, joint: int) -> np.ndarray:
     """A joint's rest mask at a record's full rate, (T,)."""
-    return rest_mask(record.v[:, joint], record.rate_hz, REST_VELOCITY, min_rest_s(record))
+    return rest_mask(record.v[:, joint], record.rate_hz, REST_VELOCITY, min_rest_s(record.cutoff_hz))
 
 
 def segment_rests(seg, joint: int) -> np.ndarray:

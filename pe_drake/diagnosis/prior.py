@@ -17,6 +17,7 @@ import numpy as np
 from pe_drake.diagnosis.record import Segment, model_file_friction
 from pe_drake.identification.estimators import IdentificationResult
 from pe_drake.identification.identified_file import standard_from_base
+from pe_drake.identification.reference_errors import Shortfall, shortfalls
 from pe_drake.multibody.drive_columns import coulomb_column
 from pe_drake.multibody.inertia import validity_problems
 
@@ -62,3 +63,18 @@ def fitted_friction(robot, seg: Segment) -> np.ndarray:
     model (module docstring), (S, n) [N·m]."""
     viscous, coulomb = np.asarray(robot.joint_damping, float), np.asarray(robot.joint_friction, float)
     return viscous * seg.v + coulomb * seg.coulomb
+
+
+def model_file_torque(robot, base, columns, seg: Segment) -> np.ndarray:
+    """The model file's (CAD) torque along a segment, (S, n) [N·m]: Y φ_model from the base
+    regressor ``columns`` (:class:`~pe_drake.diagnosis.columns.Columns` of ``seg``) plus its
+    friction; the reference the augmented model must beat (issue 36), the a-priori model too
+    unless ``diagnose --model`` gave an earlier one."""
+    return columns.product(range(base.count), base.base_values(robot.phi_model)) + model_file_friction(robot, seg)
+
+
+def reference_shortfalls(robot, base, columns, seg: Segment, tau: np.ndarray) -> list[Shortfall]:
+    """The joints whose torque ``tau`` along ``seg`` (the augmented model's on the held-out part)
+    is worse than the model file's (:func:`model_file_torque`) or than predicting zero."""
+    references = {"a_priori": model_file_torque(robot, base, columns, seg), "zero": np.zeros_like(tau)}
+    return shortfalls(robot.joint_names, seg.tau, tau, references)

@@ -16,6 +16,7 @@ from pe_drake.diagnosis.augmented_model import write_augmented_model
 from pe_drake.diagnosis.options import DiagnosisConfig
 from pe_drake.diagnosis.record import Segment
 from pe_drake.diagnosis.report import write_report
+from pe_drake.identification.reference_errors import shortfall_report
 from pe_drake.io_utils import atomic_write_text
 
 
@@ -118,6 +119,9 @@ class DiagnosisResult:
             only give the figures reported).
         holding_test: the holding-torque test per joint (:mod:`pe_drake.diagnosis.holding`):
             rest periods of both parts, decision and reason.
+        worse: the joints whose augmented model is worse on the held-out part than the model
+            file's (CAD) or than predicting zero
+            (:class:`~pe_drake.identification.reference_errors.Shortfall`).
     """
 
     robot: str
@@ -147,6 +151,7 @@ class DiagnosisResult:
     decisions: list[dict[str, Any]] = dataclasses.field(default_factory=list)
     selection: dict[str, Any] = dataclasses.field(default_factory=dict)
     holding_test: dict[str, Any] = dataclasses.field(default_factory=dict)
+    worse: tuple = ()
 
     def per_joint(self, x: np.ndarray) -> dict[str, float]:
         """{joint: value} of a per-joint array."""
@@ -188,6 +193,7 @@ class DiagnosisResult:
             "payload_test": self.payload_test,
             "timing": self.timing,
             "holding_test": self.holding_test,
+            "worse_than_references": shortfall_report(self.worse, ("a_priori", "zero")),
             "drake_check_max_abs": self.per_joint(self.drake_check),
             "config": {k: (list(v) if isinstance(v, tuple) else v)
                        for k, v in dataclasses.asdict(self.config).items()},

@@ -95,7 +95,7 @@ from pe_drake.diagnosis.holding import holding_note, holding_report, holding_sep
 from pe_drake.diagnosis.holding_selection import add_friction_pairs
 from pe_drake.diagnosis.presliding import PRESLIDING, PreslidingStep, presliding_effects, presliding_step
 from pe_drake.diagnosis.prior import (fitted_friction, prior_drive_torque, prior_own_parameters,
-                                     prior_parameters)
+                                     prior_parameters, reference_shortfalls)
 from pe_drake.diagnosis.record import (Record, Segment, check_fits_in_memory, check_record_signs,
                                       delayed_states, prepare_record, split_segments)
 from pe_drake.diagnosis.regression import (
@@ -561,12 +561,12 @@ def diagnose(
     lap("payload")
     aug = augment(robot, prep, lib, pre, naming, pay, config)
     say("4. augmented Drake model, held-out RMS [N·m]: " + _fmt_joints(joints, aug.rms))
+    for shortfall in (worse := reference_shortfalls(robot, prep.base, lib.regression.held, prep.held, aug.tau)):
+        say(shortfall.line())
     lap("augmented")
     left = unexplained(robot, prep, lib, sel, nom, aug, config)
-    if left.joints:
-        say("5. unexplained: " + ", ".join(f"{j} {u['rms']:.3g} N·m" for j, u in left.joints.items()))
-    else:
-        say("5. nothing left unexplained above the thresholds")
+    say("5. unexplained: " + ", ".join(f"{j} {u['rms']:.3g} N·m" for j, u in left.joints.items()) if left.joints
+        else "5. nothing left unexplained above the thresholds")
     lap("unexplained")
     held = prep.held
     residual_rigid = lib.regression.residual("held-out", rigid)
@@ -580,7 +580,7 @@ def diagnose(
         naming.cumulative, left.joints, pay.not_separable, naming.rejected, nom.regimes, pay.rigid,
         pay.outcome.report, left.timing, predictions, residual_series, aug.model, aug.drake_check,
         lap.timings, held.record.noise_floor, sel.thresholds.unexplained, decisions,
-        {**prep.internal.describe(), "held_out": "used only for the figures reported"}, holding)
+        {**prep.internal.describe(), "held_out": "used only for the figures reported"}, holding, tuple(worse))
 
 
 class _Laps:

@@ -170,9 +170,20 @@ def check_against_model(robot, prepared) -> np.ndarray:
     """
     if prepared.tau is None:
         return np.empty(0)
-    model = robot_torques(robot, prepared, robot.phi_model)
-    # the model file's friction is part of the a-priori model (issue 21): xArm7's damping of 10
-    # N·m·s/rad is much of its measured torque
-    model = model + robot.joint_damping * prepared.v + robot.joint_friction * coulomb_column(
-        prepared.v, COULOMB_VELOCITY_SCALE)
-    return check_torque_signs(prepared.tau, model, prepared.joints, prepared.source)
+    return check_torque_signs(prepared.tau, a_priori_torque(robot, prepared), prepared.joints, prepared.source)
+
+
+def a_priori_torque(robot, prepared, coulomb: np.ndarray | None = None) -> np.ndarray:
+    """The a-priori model's joint torques at the samples of ``prepared``, (S, n) [N·m]: the
+    model file's inertias and its joint friction d·v + f_c·tanh(v/v_s) (issue 21: xArm7's
+    damping of 10 N·m·s/rad is much of its measured torque).
+
+    Args:
+        coulomb: the Coulomb columns tanh(v/v_s) at v_s = ``COULOMB_VELOCITY_SCALE``, parallel-
+            filtered like the torque (:func:`~pe_drake.identification.drive_terms.filtered_coulomb`);
+            None: tanh of ``prepared``'s v.
+    """
+    if coulomb is None:
+        coulomb = coulomb_column(prepared.v, COULOMB_VELOCITY_SCALE)
+    return robot_torques(robot, prepared, robot.phi_model) + robot.joint_damping * prepared.v + \
+        robot.joint_friction * coulomb

@@ -35,7 +35,7 @@ from pe_drake.identification.preprocessing import design_lowpass, differentiate,
 from pe_drake.multibody.drive_columns import (  # noqa: F401 (re-exported: identify's names for them)
     COULOMB_VELOCITY_SCALE,
     DEFAULT_DRIVE_TERMS,
-    DRIVE_TERMS,
+    DRIVE_TERM_CHOICES,
     NONNEGATIVE,
     SEPARABILITY_TOLERANCE,
     TERMS,

@@ -67,6 +67,7 @@ from pe_drake.identification.measurements import (
 )
 from pe_drake.identification.least_squares import ordinary_fit, weighted_fit
 from pe_drake.identification.physical_fit import PhysicalBounds, physical_fit
+from pe_drake.identification.welded import merge_welded
 from pe_drake.identification.preprocessing import PreprocessOptions
 from pe_drake.identification.folded_rows import (
     BLOCK,
@@ -92,6 +93,10 @@ FRICTION_SHARE_WARNING = 0.5
 #: The physical fit's pull toward the a-priori model may raise the (correlation-corrected) χ²
 #: of the data by at most this over the unconstrained optimum (physical_fit's stage 2).
 PHYSICAL_DELTA_CHI2 = 4.0
+#: The physical fit's σ_c is at least this fraction of the channel's RMS torque: no torque
+#: sensor or current loop resolves finer (a 20-bit converter is 1e-6 of its range), and the SDP
+#: solver (tolerances 1e-10-1e-8) cannot resolve a thinner confidence region.
+PHYSICAL_MIN_RELATIVE_SIGMA = 1e-6
 #: Output rate of the preprocessing [Hz]: the regressor is smooth, 200 Hz is plenty.
 DEFAULT_RATE_HZ = 200.0
 
@@ -269,6 +274,7 @@ def identify(
     drive_terms: DriveTermOptions | str | None = None,
     bounds: PhysicalBounds | None = None,
     coulomb: np.ndarray | None = None,
+    rest: np.ndarray | None = None,
 ) -> IdentificationResult:
     """Identifies the base parameters and the drive terms (and, for ``physical``, the standard
     parameters).
@@ -289,6 +295,8 @@ def identify(
         bounds: the user's bounds of the ``physical`` fit (:class:`PhysicalBounds`).
         coulomb: the Coulomb columns to use, (S, n) (e.g. tanh(v/v_s) filtered like the
             torque); default tanh(v/v_s) of ``data.v``.
+        rest: the joint-torque rows kept out of the fit, (S, n) bool (a joint at rest,
+            :mod:`~pe_drake.identification.rest`), or None.
 
     Raises:
         ConfigError: unknown method or measurement, bounds naming unknown links.
@@ -300,12 +308,12 @@ def identify(
     if data.v is None or data.vd is None:
         raise DataError("the data has no velocities/accelerations; preprocess it first", file=data.source)
     with single_threaded_blas():  # thousands of small QRs: BLAS threads only contend (threads.py)
-        return _identify(robot, data, method, base, prior, model, measurement, drive_terms, bounds, coulomb)
+        return _identify(robot, data, method, base, prior, model, measurement, drive_terms, bounds, coulomb, rest)
 
 
 def _identify(robot, data: Measurement, method: str, base: BaseParameters | None, prior: np.ndarray | None,
               model: RegressorModel | None, measurement: str, drive_terms, bounds: PhysicalBounds | None,
-              coulomb: np.ndarray | None) -> IdentificationResult:
+              coulomb: np.ndarray | None, rest: np.ndarray | None = None) -> IdentificationResult:
     """:func:`identify` after its checks."""
     start = time.perf_counter()
     model = model or RegressorModel(robot)
@@ -315,7 +323,7 @@ def _identify(robot, data: Measurement, method: str, base: BaseParameters | None
     layouts = _layouts(robot, measurement, drive_options(drive_terms), method, model)
     _check_rows(data, base.count + layouts.drive.count, len(channels))
     known = model_file_terms(robot, layouts.drive) if MeasurementType(measurement).torques else None
-    blocks = _row_blocks(robot, data, measurement, model, layouts, coulomb, known)
+    blocks = _row_blocks(robot, data, measurement, model, layouts, coulomb, known, rest)
     folded = fold_rows(blocks)  # the rows never held at once: an hour of data fits (folded_rows)
     cols = _Columns(folded.R.shape[1] - 1, 10 * len(robot.body_names), base, layouts)
     layout, keep = separable_on_data(folded.stacked(cols.base)[0], folded.stacked(cols.drive)[0], layouts.drive)
@@ -337,7 +345,10 @@ def _identify(robot, data: Measurement, method: str, base: BaseParameters | None
         # Stage 2 of the fit stays in the 95 % confidence region of this estimate: whitened
         # rows count τ̄ times for correlated samples (statistics.sandwich_from_grams).
         tau_bar = float(np.mean(integrated_autocorrelation(fit.residual)))
-        physical = _physical(robot, base, layout, folded, cols, keep, layouts.armature, 1.0 / fit.noise_std,
+        # σ_c ≥ 1e-6 RMS: noise-free data's σ (1e-12) left stage 2's region too thin for the SDP
+        # solver, which failed and kept stage 1's masses (a UR10's upper arm 113 kg for 12.1 kg).
+        sigma = np.maximum(fit.noise_std, PHYSICAL_MIN_RELATIVE_SIGMA * np.sqrt(folded.measured_ss() / folded.samples))
+        physical = _physical(robot, base, layout, folded, cols, keep, layouts.armature, 1.0 / sigma,
                              prior, bounds, tau_bar * PHYSICAL_DELTA_CHI2)
         phi, x = physical.phi, physical.x
     b = base.count
@@ -411,9 +422,10 @@ class _Columns:
 
 
 def _row_blocks(robot, data: Measurement, measurement: str, model: RegressorModel, layouts: _Layouts,
-                coulomb: np.ndarray | None, known: DriveFit | None = None):
+                coulomb: np.ndarray | None, known: DriveFit | None = None, rest: np.ndarray | None = None):
     """The rows [Y | drive | armature | friction] and y of ``data``, BLOCK samples at a time
-    (y of the torques without the model file's ``known`` friction)."""
+    (y of the torques without the model file's ``known`` friction; the torque rows ``rest``
+    zero: a zero row adds nothing to a least-squares fit)."""
     rows = SensorRows(model, MeasurementType(measurement))
     r = len(channel_names(robot, measurement))
 
@@ -428,7 +440,12 @@ def _row_blocks(robot, data: Measurement, measurement: str, model: RegressorMode
             y = measured_values(robot, part, measurement)
             if known is not None:  # the torque channels come first
                 y[:, : robot.n] -= known.torque(part.v, part.vd, sign)
-            yield k, np.concatenate(F, axis=2), y
+            F = np.concatenate(F, axis=2)
+            if rest is not None and MeasurementType(measurement).torques:  # the torque channels come first
+                at_rest = np.zeros(y.shape, bool)
+                at_rest[:, : robot.n] = rest[k]
+                F[at_rest], y[at_rest] = 0.0, 0.0
+            yield k, F, y
 
     return blocks
 
@@ -466,12 +483,17 @@ def _physical(robot, base: BaseParameters, layout: DriveLayout, folded: FoldedRo
     A, yw = folded.stacked(cols.standard, w)
     T_E = np.hstack([cols.drive[:, keep], cols.armature[:, [armature.joints.index(j) for j in merged]]])
     E, _ = folded.stacked(T_E, w)
-    fit = physical_fit(A, yw, prior, robot.body_names, extra=E,
+    # one body per rigid group (welded.py): only a group's sum is identifiable
+    groups = merge_welded(robot, prior, [*bounds.mass_bounds, *bounds.boxes] if bounds is not None else ())
+    c = groups.cols()
+    fit = physical_fit(A[:, c], yw, groups.prior(prior), groups.names(robot.body_names), extra=E,
                        extra_lower=np.r_[layout.lower_bounds(), np.zeros(len(merged))],
-                       extra_names=layout.labels + extra.labels, bounds=bounds, base_K=base.K,
+                       extra_names=layout.labels + extra.labels, bounds=bounds, base_K=base.K[:, c],
                        chi2_tolerance=chi2_tolerance, rows=folded.samples * folded.channels,
                        extra_in_base={layout.count + i: _in_base(base, layout.merged[robot.joint_names[j]])
                                       for i, j in enumerate(merged)})
+    phi, group_notes = groups.split(fit.phi, prior, robot.body_names)
+    fit = fit._replace(phi=phi, notes=(*group_notes, *fit.notes))
     phi_B = base.base_values(fit.phi)
     notes = list(fit.notes)
     for j, a in zip(merged, fit.theta[layout.count :]):

@@ -42,6 +42,7 @@ from pe_drake.identification.gaps import MAX_GAP_S
 from pe_drake.identification.identified_file import result_to_dict, standard_from_base, standard_parameters_dict
 from pe_drake.identification.measurements import Measurement
 from pe_drake.identification.physical_fit import PhysicalBounds, bounds_from_config
+from pe_drake.identification.rest import REST_CHOICES, RestDecision, decide_rest
 from pe_drake.io_utils import staged_output_dir
 from pe_drake.multibody.inertia import PhysicallyInvalidError, validity_problems
 from pe_drake.multibody.robot import Robot
@@ -65,6 +66,8 @@ class IdentifyOptions:
         bounds: the physical fit's mass and CoM bounds.
         max_gap_s: holes in the time column up to this are interpolated [s].
         window: the part of the run fitted, cut after filtering (None: all of it).
+        rest: the joint-torque rows of a joint at rest: ``auto`` (kept out of the fit if
+            cross-validation says so), ``keep`` or ``exclude`` (:mod:`~pe_drake.identification.rest`).
     """
 
     method: str = "wls"
@@ -76,10 +79,13 @@ class IdentifyOptions:
     bounds: PhysicalBounds | None = None
     max_gap_s: float = MAX_GAP_S
     window: TimeWindow | None = None
+    rest: str = "auto"
 
     def __post_init__(self):
         if self.method not in ("ols", "wls", "physical"):
             raise ConfigError(f"identification method '{self.method}' is not one of ols, wls, physical")
+        if self.rest not in REST_CHOICES:
+            raise ConfigError(f"--rest '{self.rest}' is not one of {', '.join(REST_CHOICES)}")
         if self.cutoff_hz is not None and not (math.isfinite(self.cutoff_hz) and self.cutoff_hz > 0):
             raise ConfigError(f"--cutoff must be a positive frequency [Hz], got {self.cutoff_hz}")
 
@@ -107,6 +113,7 @@ class IdentifiedModel:
         coulomb: the parallel-filtered Coulomb columns (None without filtering).
         phi: physically valid standard parameters for model.urdf (None: none).
         note: what was done to get them, or why model.urdf is not written.
+        rest: what was done with the samples at rest (None: a fit of the ground wrench alone).
     """
 
     robot: Robot
@@ -117,6 +124,7 @@ class IdentifiedModel:
     phi: np.ndarray | None
     note: str
     wall_time: float
+    rest: RestDecision | None = None
 
     @property
     def model(self) -> RobotModel:
@@ -135,6 +143,7 @@ class IdentifiedModel:
         if p is not None:
             lines.append(p.describe())
         lines += [f"note: {note}" for note in self.data.notes]
+        lines += [self.rest.line()] if self.rest is not None else []
         lines.append(f"{result.method} from {result.measurement}: {result.base.count} base parameters, "
                      f"cond(W) = {result.cond:.4g}, {result.wall_time:.2f} s"
                      + _weights_note(result))
@@ -173,6 +182,8 @@ class IdentifiedModel:
             if note:
                 d["note"] = note
             d["total_time_s"] = self.wall_time
+            if self.rest is not None:
+                d["rest"] = self.rest.as_dict()
             (tmp / "identified.json").write_text(json.dumps(d, indent=2))
             measured, predicted = prediction(robot, result, self.data, MeasurementType(result.measurement), self.coulomb)
             plot_prediction(tmp / "residuals.png", robot.name, self.data.t, measured, predicted, result.relative_error,
@@ -244,10 +255,34 @@ def identify_model(robot: Robot, measurements: Measurement, options: IdentifyOpt
                                window=options.window)
     check_against_model(robot, data)  # sign-flipped torque columns
     coulomb = filtered_coulomb(measurements, data, options.drive.velocity_scale) if data is not measurements else None
+    rest = _rest_decision(robot, measurements, data, options, coulomb)
     result = identify(robot, data, options.method, measurement=options.measurement, drive_terms=options.drive,
-                      bounds=options.bounds, coulomb=coulomb)
+                      bounds=options.bounds, coulomb=coulomb, rest=None if rest is None else rest.mask)
     phi, note = _model_parameters(robot, result)
-    return IdentifiedModel(robot, result, measurements, data, coulomb, phi, note, time.perf_counter() - start)
+    return IdentifiedModel(robot, result, measurements, data, coulomb, phi, note, time.perf_counter() - start, rest)
+
+
+def _rest_decision(robot: Robot, raw: Measurement, data: Measurement, options: IdentifyOptions,
+                   coulomb: np.ndarray | None) -> RestDecision | None:
+    """What to do with the rows at rest (:func:`~pe_drake.identification.rest.decide_rest`);
+    None for the ground wrench alone, which no friction acts on. The folds are fitted by least
+    squares (wls for the physical fit: an SDP per fold would cost more than it decides)."""
+    if not MeasurementType(options.measurement).torques:
+        return None
+    method = "ols" if options.method == "ols" else "wls"
+
+    def part(idx):
+        return data.replace(**{f: None if getattr(data, f) is None else getattr(data, f)[idx]
+                               for f in ("t", "q", "tau", "v", "vd", "wrench")})
+
+    def fit(idx, mask):
+        return identify(robot, part(idx), method, measurement=options.measurement, drive_terms=options.drive,
+                        coulomb=None if coulomb is None else coulomb[idx], rest=mask)
+
+    def predicted(result, idx):
+        return predict(robot, result, part(idx), coulomb=None if coulomb is None else coulomb[idx])
+
+    return decide_rest(raw, data, options.rest, fit, predicted)
 
 
 def _model_parameters(robot: Robot, result: IdentificationResult) -> tuple[np.ndarray | None, str]:

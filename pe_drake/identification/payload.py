@@ -36,7 +36,7 @@ from pe_drake.exceptions import ConfigError, DataError, check_joints
 from pe_drake.identification.channels import CHUNK
 from pe_drake.identification.identified_file import standard_from_base
 from pe_drake.identification.least_squares import compress_joint_rows, weighted_fit_from_factors
-from pe_drake.identification.payload_friction import DRIVE_TERMS, drive_names, friction_columns
+from pe_drake.identification.payload_friction import FRICTION_TERMS, drive_names, friction_columns
 from pe_drake.identification.physical_fit import SDP_TOLERANCES, InertiaBlock, solve_sdp
 from pe_drake.io_utils import atomic_write_text, finite_json
 from pe_drake.multibody.base_parameters import BaseParameters, compute_base_parameters
@@ -90,7 +90,7 @@ class PayloadOptions:
         box: the object's :class:`PayloadBox` (centre of mass and mass distribution inside it),
             or None.
         drive_terms: the per-joint nuisance terms, a subset of
-            :data:`~pe_drake.identification.payload_friction.DRIVE_TERMS`.
+            :data:`~pe_drake.identification.payload_friction.FRICTION_TERMS`.
         coulomb_velocity_scale: v_s of tanh(v/v_s) [rad/s].
         arm_correction: with unloaded runs, fit δ_B (the arm's base-parameter error); ignored
             without them.
@@ -99,7 +99,7 @@ class PayloadOptions:
 
     physical: bool = True
     box: PayloadBox | None = None
-    drive_terms: tuple[str, ...] = DRIVE_TERMS
+    drive_terms: tuple[str, ...] = FRICTION_TERMS
     coulomb_velocity_scale: float = COULOMB_VELOCITY_SCALE
     arm_correction: bool = True
     weighted: bool = True
@@ -107,9 +107,9 @@ class PayloadOptions:
     def __post_init__(self):
         if not (isinstance(self.coulomb_velocity_scale, (int, float)) and self.coulomb_velocity_scale > 0):
             raise ConfigError(f"coulomb_velocity_scale must be > 0 [rad/s], got {self.coulomb_velocity_scale!r}")
-        bad = [t for t in self.drive_terms if t not in DRIVE_TERMS]
+        bad = [t for t in self.drive_terms if t not in FRICTION_TERMS]
         if bad:
-            raise ConfigError(f"unknown drive term(s) {bad}; valid: {', '.join(DRIVE_TERMS)}")
+            raise ConfigError(f"unknown drive term(s) {bad}; valid: {', '.join(FRICTION_TERMS)}")
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

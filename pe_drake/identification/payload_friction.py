@@ -13,17 +13,17 @@ import numpy as np
 from pe_drake.multibody.drive_columns import UNITS, DriveLayout, drive_columns
 
 #: The drive terms, in column order (each one column per joint).
-DRIVE_TERMS = ("coulomb", "viscous", "offset")
+FRICTION_TERMS = ("coulomb", "viscous", "offset")
 
 
-def friction_columns(v: np.ndarray, velocity_scale: float, terms=DRIVE_TERMS) -> np.ndarray:
+def friction_columns(v: np.ndarray, velocity_scale: float, terms=FRICTION_TERMS) -> np.ndarray:
     """The drive-term regressor, shape (S, n, len(terms)·n): column k·n + j acts on joint j only
     (:func:`~pe_drake.multibody.drive_columns.drive_columns` with the columns term by term).
 
     Args:
         v: joint velocities, (S, n) [rad/s].
         velocity_scale: v_s of the smoothed Coulomb law [rad/s], > 0.
-        terms: a subset of :data:`DRIVE_TERMS`, in that order (checked by ``PayloadOptions``).
+        terms: a subset of :data:`FRICTION_TERMS`, in that order (checked by ``PayloadOptions``).
     """
     v = np.atleast_2d(np.asarray(v, float))
     n = v.shape[1]
@@ -33,6 +33,6 @@ def friction_columns(v: np.ndarray, velocity_scale: float, terms=DRIVE_TERMS) ->
     return drive_columns(v, v, layout)
 
 
-def drive_names(joints, terms=DRIVE_TERMS) -> tuple[str, ...]:
+def drive_names(joints, terms=FRICTION_TERMS) -> tuple[str, ...]:
     """``<term>.<joint>`` in the column order of :func:`friction_columns`."""
     return tuple(f"{t}.{j}" for t in terms for j in joints)

@@ -15,12 +15,13 @@ from typing import Any
 import numpy as np
 
 from pe_drake.identification.time_window import TimeWindow
-from pe_drake.identification.data_checks import check_against_model
+from pe_drake.identification.data_checks import a_priori_torque, check_against_model
 from pe_drake.identification.drive_terms import COULOMB_VELOCITY_SCALE, filtered_coulomb
 from pe_drake.identification.estimators import IdentificationResult, prepare_measurement, torque_errors
 from pe_drake.identification.gaps import MAX_GAP_S
 from pe_drake.identification.identify_model import prediction
 from pe_drake.identification.measurements import Measurement
+from pe_drake.identification.reference_errors import Shortfall, shortfall_report, shortfalls
 from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.robot import Robot
 from pe_drake.multibody.sensors import MeasurementType
@@ -30,13 +31,15 @@ from pe_drake.plots import plot_prediction
 @dataclasses.dataclass(frozen=True)
 class ValidateOptions:
     """How ``validate`` reads the run: the channels to predict, the cut-off [Hz] (None: from
-    the data), the longest hole interpolated [s] and the part of the run predicted (cut after
-    filtering; None: all of it)."""
+    the data), the longest hole interpolated [s], the part of the run predicted (cut after
+    filtering; None: all of it) and whether it is filtered (False: the torques as recorded,
+    which then needs v.* and vdot.* columns, as ``identify --no-filter``)."""
 
     measurement: str = "joint_torque"
     cutoff_hz: float | None = None
     max_gap_s: float = MAX_GAP_S
     window: TimeWindow | None = None
+    filtering: bool = True
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -47,6 +50,8 @@ class ValidationReport:
         names: the channels ("tau.<joint>", "wrench.fx", ...).
         rms: RMS error per channel [N·m, N]; relative: per channel [%]; relative_total [%].
         preprocessing: what was done to the run (cut-off, trim, rates), printed first.
+        worse: the channels worse than the a-priori model (torques) or than predicting zero
+            (:mod:`~pe_drake.identification.reference_errors`), printed last.
     """
 
     robot: str
@@ -62,15 +67,17 @@ class ValidationReport:
     samples: int
     notes: tuple[str, ...] = ()
     preprocessing: Any = None
+    worse: tuple[Shortfall, ...] = ()
 
     def summary_lines(self) -> list[str]:
         width = max(len(j) for j in self.names)
-        lines = [self.preprocessing.describe()] if self.preprocessing is not None else []
+        lines = [self.preprocessing.describe() if self.preprocessing is not None
+                 else "the run as recorded (--no-filter): its torques, v.* and vdot.* columns unfiltered"]
         lines += [f"model identified from {self.model_measurement}; predicting {self.measurement}",
                  f"{'channel':<{width}}  {'RMS [N·m, N]':>12}  {'relative [%]':>12}"]
         lines += [f"{j:<{width}}  {r:>12.4f}  {e:>12.2f}" for j, r, e in zip(self.names, self.rms, self.relative)]
         lines.append(f"{'all':<{width}}  {float(np.sqrt(np.mean(self.rms**2))):>12.4f}  {self.relative_total:>12.2f}")
-        return lines
+        return lines + [s.line() for s in self.worse]
 
     def to_dict(self, model: str | Path = "", data: str | Path = "") -> dict[str, Any]:
         """``validate --json``'s content (``model``, ``data``: the files, as given)."""
@@ -80,6 +87,8 @@ class ValidationReport:
             "rms": dict(zip(self.names, map(float, self.rms))),
             "relative_error": dict(zip(self.names, map(float, self.relative))),
             "relative_error_total": self.relative_total, "samples": self.samples,
+            "filtered": self.preprocessing is not None,
+            "worse_than_references": shortfall_report(self.worse, ("a_priori", "zero")),
         }
 
     def write_json(self, path: str | Path, model: str | Path = "", data: str | Path = "") -> None:
@@ -103,13 +112,24 @@ def validate_model(robot: Robot, model: IdentificationResult, measurements: Meas
     """
     options = options or ValidateOptions()
     data = prepare_measurement(robot, measurements, cutoff_hz=options.cutoff_hz, max_gap_s=options.max_gap_s,
-                               window=options.window)
+                               window=options.window, filtering=options.filtering)
     check_against_model(robot, data)
     kind = MeasurementType(options.measurement)
     scale = model.drive.layout.velocity_scale if model.drive is not None else COULOMB_VELOCITY_SCALE
     measured, predicted = prediction(robot, model, data, kind, filtered_coulomb(measurements, data, scale))
     rms, rel = torque_errors(measured, predicted)
     total = float(100 * np.linalg.norm(measured - predicted) / max(np.linalg.norm(measured), 1e-300))
-    return ValidationReport(robot.name, model.measurement, options.measurement, tuple(kind.row_names(robot.joint_names)),
+    names = tuple(kind.row_names(robot.joint_names))
+    worse = shortfalls(names, measured, predicted, {"a_priori": _a_priori(robot, measurements, data, kind),
+                                                     "zero": np.zeros_like(measured)})
+    return ValidationReport(robot.name, model.measurement, options.measurement, names,
                             data.t, measured, predicted, rms, rel, total, data.num_samples, tuple(data.notes),
-                            data.preprocessing)
+                            data.preprocessing, tuple(worse))
+
+
+def _a_priori(robot: Robot, raw: Measurement, data: Measurement, kind: MeasurementType) -> np.ndarray | None:
+    """The a-priori model's torques on the torque channels (first in the report), or None."""
+    if not kind.torques:
+        return None
+    coulomb = filtered_coulomb(raw, data, COULOMB_VELOCITY_SCALE) if robot.joint_friction.any() else None
+    return a_priori_torque(robot, data, coulomb)

@@ -44,7 +44,7 @@ from pe_drake.multibody.regressor import RegressorModel
 
 #: The ``--drive-terms`` choices: no drive terms, Coulomb + viscous + offset, and those with
 #: the armature where the robot's kinematics let it be told from the link inertias.
-DRIVE_TERMS = ("none", "friction", "all")
+DRIVE_TERM_CHOICES = ("none", "friction", "all")
 #: What ``identify`` models unless told otherwise.
 DEFAULT_DRIVE_TERMS = "all"
 #: Terms of each choice, in column order per joint.
@@ -78,8 +78,8 @@ class DriveTermOptions:
     velocity_scale: float = COULOMB_VELOCITY_SCALE
 
     def __post_init__(self) -> None:
-        if self.terms not in DRIVE_TERMS:
-            raise ConfigError(f"drive terms '{self.terms}' is not one of {', '.join(DRIVE_TERMS)}")
+        if self.terms not in DRIVE_TERM_CHOICES:
+            raise ConfigError(f"drive terms '{self.terms}' is not one of {', '.join(DRIVE_TERM_CHOICES)}")
         v = self.velocity_scale
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
             raise ConfigError(f"the Coulomb velocity scale must be a positive number [rad/s], got {v!r}")

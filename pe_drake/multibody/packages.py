@@ -113,6 +113,20 @@ def used_packages(text: str) -> list[str]:
     return list(dict.fromkeys(_PACKAGE_URI.findall(text)))
 
 
+def found_packages(text: str, model_path: str | Path, packages: Mapping[str, str] | None = None) -> dict[str, str]:
+    """{name: folder} of every package the text uses that is found from ``model_path``.
+
+    A file written elsewhere from a model's text (an exported URDF in an output folder) is
+    read with this map as its ``robot.packages``: its URIs then resolve as the model's did.
+    """
+    found = {}
+    for package in used_packages(text):
+        roots = package_roots(package, model_path, packages)
+        if roots:
+            found[package] = str(roots[0])
+    return found
+
+
 def register_packages(package_map, text: str, model_path: str | Path, packages: Mapping[str, str] | None = None) -> list[str]:
     """Adds every package the text uses to a Drake ``PackageMap`` (the parser's).
 

@@ -49,6 +49,7 @@ from pe_drake.multibody.inertia import (
     phi_to_spatial_inertia,
     validity_problems,
 )
+from pe_drake.multibody.packages import found_packages
 from pe_drake.multibody.payload import PayloadInertia
 from pe_drake.multibody.regressor import shared_model
 from pe_drake.multibody.robot import load_robot
@@ -389,8 +390,12 @@ class RobotModel:
             return 0.0
         tmp = path.with_name(f".{path.name}.check.urdf")
         tmp.write_text(text)
+        # the file sits in an output (or staging) folder: its package:// URIs resolve as the input
+        # model's did, not by the upward search from its own folder
+        packages = {**robot.config.packages, **found_packages(text, robot.model_path, robot.config.packages)}
         try:
-            loaded = load_robot(dataclasses.replace(robot.config, model=str(tmp.resolve()), capsules=""))
+            loaded = load_robot(dataclasses.replace(robot.config, model=str(tmp.resolve()), capsules="",
+                                                    packages=packages))
         finally:
             tmp.unlink(missing_ok=True)
         rng = np.random.default_rng(0)

@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from pe_drake.exceptions import DataError
-from pe_drake.identification.estimators import measurement_base_parameters
+from pe_drake.multibody.sensors import measurement_base_parameters
 from pe_drake.identification.identified_file import load_identified
 from pe_drake.identification.physical_fit import physical_fit
 from pe_drake.io_utils import loads_json

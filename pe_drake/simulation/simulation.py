@@ -186,7 +186,7 @@ def build_true_robot(robot, truth: Truth, model: RobotModel | None = None) -> Tr
 # ---- simulation ------------------------------------------------------------------------------
 
 
-class SimulatedRun(NamedTuple):
+class SimulationOutput(NamedTuple):
     """What :func:`simulate` returns (unpacks as ``measurement, truth = simulate(...)``).
 
     Attributes:
@@ -227,7 +227,7 @@ def simulate(
     duration: float | None = None,
     measurement: str = "joint_torque",
     model: RobotModel | None = None,
-) -> SimulatedRun:
+) -> SimulationOutput:
     """Simulates a run of the true robot tracking a trajectory; returns what it logs.
 
     Args:
@@ -240,7 +240,7 @@ def simulate(
         model: the robot the truth perturbs (an identified model); default the a-priori one.
 
     Returns:
-        The :class:`SimulatedRun`: the :class:`~pe_drake.identification.measurements.Measurement`
+        The :class:`SimulationOutput`: the :class:`~pe_drake.identification.measurements.Measurement`
         and the truth dict.
 
     Raises:
@@ -258,7 +258,7 @@ def simulate(
     data = record_log(robot, truth, log, true.model.torque_delay)
     wrench = recorded_wrench(true.robot, truth, log.q, log.v, log.tau - true.model.offset) if sensors.wrench else None
     data = data.replace(tau=data.tau if sensors.torques else None, wrench=wrench)
-    return SimulatedRun(data, {**_truth_dict(robot, truth, true, duration, log, model is not None),
+    return SimulationOutput(data, {**_truth_dict(robot, truth, true, duration, log, model is not None),
                                "measurement": sensors.kind})
 
 

@@ -6,7 +6,8 @@
 - ``rtde``: a UR RTDE CSV, recognised by its ``timestamp``/``actual_q_0`` columns (:mod:`.columns`);
 - ``columns``: any CSV through ``data.columns`` (:mod:`.columns`);
 - ``pe_drake``: pe_drake's own CSV (:func:`~pe_drake.identification.measurements.read_measurement_csv`),
-  or with ``current.<joint>`` columns instead of ``tau.<joint>``.
+  or with ``current.<joint>`` columns instead of ``tau.<joint>``, or motor-side
+  (``q_motor.<joint>``, ``tau_motor.<joint>``: :mod:`.motor_side`, converted with ``robot.transmission``).
 
 Then ``data.joint_map``'s signs and offsets are applied.
 """
@@ -20,7 +21,9 @@ from pe_drake.exceptions import ConfigError
 from pe_drake.identification.measurements import Measurement, read_measurement_csv
 from pe_drake.identification.readers.columns import identity_columns, is_rtde, read_header, read_mapped_csv, rtde_columns
 from pe_drake.identification.readers.joint_map import apply_signs
+from pe_drake.identification.readers.motor_side import is_motor_side, read_motor_side_csv
 from pe_drake.identification.readers.rosbag import is_bag, read_joint_state_bag
+from pe_drake.multibody.transmission import robot_transmission
 
 __all__ = ["detect_format", "read_log"]
 
@@ -69,7 +72,9 @@ def read_log(path: str | Path, robot, options: DataConfig | None = None, **chang
         m = read_mapped_csv(path, joints, options.columns, gains)
     elif fmt == "pe_drake":
         columns, _ = read_header(path)
-        if any(c.startswith("current.") for c in columns):
+        if is_motor_side(columns):
+            m = read_motor_side_csv(path, joints, columns, gains, robot_transmission(robot))
+        elif any(c.startswith("current.") for c in columns):
             m = read_mapped_csv(path, joints, identity_columns(columns, joints), gains)
         else:
             m = read_measurement_csv(path, joints, min_rows=30)

@@ -1,0 +1,103 @@
+"""Two references every identified model must beat on held-out data (issue 36): the a-priori
+model (the model file's inertias and joint friction, the CAD) and predicting zero torque.
+
+A fit can be worse than either: on a coupled wrist that pe_drake cannot model, ``validate``
+printed 134-152 % relative error on joint 5 (worse than predicting zero) and ``diagnose``'s
+augmented model was worse there than the CAD model, both without a word. :func:`shortfalls`
+names every channel whose error is worse than a reference's on the same samples, and by how
+much.
+
+Worse means worse beyond the sampling noise of the held-out part: the per-sample difference of
+squared errors d = e_model² − e_ref² has a mean > 0 at least :data:`SIGNIFICANCE` standard
+errors, the standard error inflated by d's integrated autocorrelation time (filtered samples are
+correlated, :mod:`~pe_drake.identification.statistics`). Without it a model equal to the CAD up
+to the estimation noise (a simulated robot whose model file is the truth) would be flagged on
+every joint by a fraction of a percent.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from pe_drake.identification.statistics import integrated_autocorrelation
+
+#: A channel is flagged when its mean squared-error excess is this many standard errors above 0.
+SIGNIFICANCE = 2.0
+
+#: The references and how the output names them.
+REFERENCE_NAMES = {"a_priori": "the a-priori (model file) model", "zero": "predicting zero"}
+
+
+@dataclasses.dataclass(frozen=True)
+class Shortfall:
+    """A channel whose held-out error is worse than a reference's.
+
+    Attributes:
+        channel: the joint (or ``tau.<joint>``, ``wrench.fx``, ... as the caller names them).
+        reference: ``a_priori`` or ``zero`` (:data:`REFERENCE_NAMES`).
+        rms: the model's RMS error [N·m, N].
+        reference_rms: the reference's on the same samples.
+        z: mean(e_model² − e_ref²) over its standard error.
+    """
+
+    channel: str
+    reference: str
+    rms: float
+    reference_rms: float
+    z: float
+
+    @property
+    def percent_worse(self) -> float:
+        """100 (rms / reference_rms − 1) [%]."""
+        return 100.0 * (self.rms / max(self.reference_rms, 1e-300) - 1.0)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"channel": self.channel, "reference": self.reference, "rms": self.rms,
+                "reference_rms": self.reference_rms, "percent_worse": self.percent_worse, "z": self.z}
+
+    def line(self) -> str:
+        return (f"warning: {self.channel}: held-out RMS {self.rms:.4g} is {self.percent_worse:.0f} % worse than "
+                f"{REFERENCE_NAMES[self.reference]} ({self.reference_rms:.4g}, z {self.z:.3g})")
+
+
+def shortfalls(channels: Sequence[str], measured: np.ndarray, predicted: np.ndarray,
+               references: Mapping[str, np.ndarray | None]) -> list[Shortfall]:
+    """Every channel whose error is significantly worse than a reference's (module docstring).
+
+    Args:
+        channels: names, length r.
+        measured, predicted: (S, r).
+        references: {``a_priori`` | ``zero``: the reference's prediction, (S, r), or (S, k)
+            for the first k channels only (the a-priori model predicts torques, not a wrench),
+            or None (not computed)}.
+
+    Returns:
+        The shortfalls, reference by reference, channels in order.
+    """
+    measured, predicted = np.asarray(measured, float), np.asarray(predicted, float)
+    e_model = measured - predicted
+    out = []
+    for reference, pred in references.items():
+        if pred is None:
+            continue
+        pred = np.asarray(pred, float)
+        k = pred.shape[1]
+        e_ref = measured[:, :k] - pred
+        d = e_model[:, :k] ** 2 - e_ref**2
+        S = d.shape[0]
+        stderr = np.sqrt(np.var(d, axis=0) * integrated_autocorrelation(d) / max(S, 1))
+        z = np.mean(d, axis=0) / np.maximum(stderr, 1e-300)
+        rms, rms_ref = np.sqrt(np.mean(e_model[:, :k] ** 2, axis=0)), np.sqrt(np.mean(e_ref**2, axis=0))
+        out += [Shortfall(channels[j], reference, float(rms[j]), float(rms_ref[j]), float(z[j]))
+                for j in range(k) if rms[j] > rms_ref[j] and z[j] >= SIGNIFICANCE]
+    return out
+
+
+def shortfall_report(found: Sequence[Shortfall], references: Sequence[str]) -> dict[str, Any]:
+    """The JSON entry: the references compared and every shortfall."""
+    return {"references": {r: REFERENCE_NAMES[r] for r in references}, "significance_z": SIGNIFICANCE,
+            "worse": [s.as_dict() for s in found]}

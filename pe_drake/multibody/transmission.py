@@ -1,0 +1,159 @@
+"""Transmissions between motors and joints: gear ratios and a coupling (issue 36).
+
+Motor angles are θ_m = R q, R = diag(ratios) plus the coupling entries, and the joint torques
+are τ = Rᵀ τ_m (the power θ̇_mᵀ τ_m = q̇ᵀ τ). A Stäubli TX40's wrist, with the config
+
+.. code-block:: yaml
+
+    robot:
+      transmission:
+        ratios: {joint_1: 32, joint_2: 32, joint_3: 45, joint_4: -48, joint_5: 45, joint_6: 32}
+        coupling: {joint_6: {joint_5: 32}}   # motor of joint_6: θ_m6 = 32 q6 + 32 q5
+
+has motor 6 turning with joints 5 and 6. Motors are named by the joint their ratio belongs to.
+A joint not in ``ratios`` has ratio 1 (a direct drive, or a log already on the joint side).
+
+:class:`Transmission` converts motor-side logs to the joint side (the log readers) and gives
+the joint-side columns of the drive terms that act per motor (:func:`motor_drive_columns`):
+friction, offset and rotor inertia act on θ̇_m, θ̈_m, and reach the joints through Rᵀ, so a
+coupled motor's friction and rotor inertia act on every joint it turns with. It is one element
+of the robot model: the one-model work (issue 33) holds it beside the inertias and the drive
+terms.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+from pe_drake.exceptions import ConfigError, UnknownNameError
+from pe_drake.multibody.drive_columns import COULOMB_VELOCITY_SCALE, coulomb_column
+
+#: R is refused when its condition number is above this: the joint angles would not follow
+#: from the motor angles.
+MAX_TRANSMISSION_COND = 1e8
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Transmission:
+    """θ_m = R q and τ = Rᵀ τ_m for the robot's excited joints.
+
+    Attributes:
+        joints: the joint names, length n (motor i is the one of joint i).
+        R: (n, n) [rad of motor per rad or m of joint]: row i the motor of joint i.
+    """
+
+    joints: tuple[str, ...]
+    R: np.ndarray
+
+    @classmethod
+    def from_config(cls, ratios: Mapping[str, float], coupling: Mapping[str, Mapping[str, float]],
+                    joints: Sequence[str]) -> Transmission:
+        """R from the config's ``robot.transmission`` (module docstring).
+
+        Raises:
+            UnknownNameError: a joint that is not excited (the valid ones listed).
+            ConfigError: a ratio that is zero or not finite, a coupling of a motor with its own
+                joint, or an R that does not determine the joint angles.
+        """
+        joints = tuple(joints)
+        R = np.eye(len(joints))
+        for name, ratio in ratios.items():
+            i = _index(name, joints, "robot.transmission.ratios")
+            R[i, i] = _number(f"robot.transmission.ratios['{name}']", ratio, nonzero=True)
+        for motor, row in coupling.items():
+            i = _index(motor, joints, "robot.transmission.coupling")
+            for joint, value in row.items():
+                j = _index(joint, joints, f"robot.transmission.coupling['{motor}']")
+                if i == j:
+                    raise ConfigError(f"robot.transmission.coupling['{motor}'] names its own joint '{joint}': "
+                                      "its ratio goes in robot.transmission.ratios")
+                R[i, j] = _number(f"robot.transmission.coupling['{motor}']['{joint}']", value)
+        cond = np.linalg.cond(R)
+        if not np.isfinite(cond) or cond > MAX_TRANSMISSION_COND:
+            raise ConfigError(f"robot.transmission: the motor angles do not determine the joint angles "
+                              f"(cond(R) = {cond:.3g}); check the ratios and the coupling")
+        return cls(joints, R)
+
+    @property
+    def identity(self) -> bool:
+        """No gear and no coupling: motor and joint sides are the same."""
+        return bool(np.array_equal(self.R, np.eye(len(self.joints))))
+
+    @property
+    def coupled(self) -> bool:
+        return bool(np.any(self.R - np.diag(np.diag(self.R))))
+
+    def motor_positions(self, q: np.ndarray) -> np.ndarray:
+        """θ_m = R q per sample, (T, n) [rad] (also θ̇_m, θ̈_m from q̇, q̈)."""
+        return np.asarray(q, float) @ self.R.T
+
+    def joint_positions(self, theta: np.ndarray) -> np.ndarray:
+        """q = R⁻¹ θ_m per sample, (T, n) (also q̇, q̈ from θ̇_m, θ̈_m)."""
+        return np.linalg.solve(self.R, np.asarray(theta, float).T).T
+
+    def joint_torques(self, tau_motor: np.ndarray) -> np.ndarray:
+        """τ = Rᵀ τ_m per sample, (T, n) [N·m]."""
+        return np.asarray(tau_motor, float) @ self.R
+
+    def motor_torques(self, tau: np.ndarray) -> np.ndarray:
+        """τ_m = R⁻ᵀ τ per sample, (T, n) [N·m]."""
+        return np.linalg.solve(self.R.T, np.asarray(tau, float).T).T
+
+
+def robot_transmission(robot) -> Transmission:
+    """A robot's transmission from its config's ``robot.transmission`` (identity without one).
+
+    Raises:
+        ConfigError: a joint that is not excited, a zero ratio, an R that is singular.
+    """
+    t = getattr(getattr(robot, "config", None), "transmission", None)
+    if t is None:
+        return Transmission(tuple(robot.joint_names), np.eye(robot.n))
+    return Transmission.from_config(t.ratios, t.coupling, robot.joint_names)
+
+
+def _index(name: str, joints: tuple[str, ...], field: str) -> int:
+    if name not in joints:
+        raise UnknownNameError("joint", name, joints, field)
+    return joints.index(name)
+
+
+def _number(field: str, value, nonzero: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
+            or not np.isfinite(value) or (nonzero and value == 0):
+        raise ConfigError(f"{field} must be a finite{' non-zero' if nonzero else ''} number, got {value!r}")
+    return float(value)
+
+
+#: The drive terms of one motor, in the order of :func:`motor_drive_columns`.
+MOTOR_TERMS = ("coulomb", "viscous", "offset", "armature")
+
+
+def motor_drive_columns(v: np.ndarray, vd: np.ndarray, transmission: Transmission,
+                        velocity_scale: float = COULOMB_VELOCITY_SCALE) -> np.ndarray:
+    """The joint-side columns of every motor's drive terms, (S, n, 4n).
+
+    Motor i's friction, offset and rotor inertia give the motor torque
+    F_c,i tanh(θ̇_i / (|R_ii| v_s)) + F_v,i θ̇_i + o_i + I_i θ̈_i (θ̇ = R q̇; the Coulomb column's
+    smoothing v_s is the joint's, carried to the motor by its own ratio), and the joints
+    τ = Rᵀ τ_m: column 4i + k of joint j is R_ij times motor i's term k (:data:`MOTOR_TERMS`).
+    The values are motor-side ([N·m], [N·m·s/rad], [N·m], [kg·m²] of the motor).
+
+    Args:
+        v, vd: joint velocities and accelerations, (S, n).
+        transmission: R.
+        velocity_scale: v_s [rad/s of the joint].
+    """
+    R = transmission.R
+    w, wd = transmission.motor_positions(v), transmission.motor_positions(vd)
+    n = R.shape[0]
+    motor = np.empty((w.shape[0], n, len(MOTOR_TERMS)))
+    motor[:, :, 0] = coulomb_column(w, np.abs(np.diag(R)) * velocity_scale)
+    motor[:, :, 1] = w
+    motor[:, :, 2] = 1.0
+    motor[:, :, 3] = wd
+    # joint j's row: Σ_i R_ij · (motor i's columns), each motor's columns kept apart
+    return np.einsum("ij,sik->sjik", R, motor).reshape(w.shape[0], n, n * len(MOTOR_TERMS))

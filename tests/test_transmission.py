@@ -1,0 +1,163 @@
+"""Transmissions (issue 36): gear ratios and a coupled wrist (a UR5 given a Stäubli TX40's
+drivetrain: ratios 32 32 45 −48 45 32, motor 6 turning with joints 5 and 6), motor-side logs
+read on the joint side, and the drive terms of each motor as joint-side columns."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from pe_drake.config import TransmissionConfig
+from pe_drake.exceptions import ConfigError, DataError, UnknownNameError
+from pe_drake.identification.measurements import Measurement, write_measurement_csv
+from pe_drake.identification.readers import read_log
+from pe_drake.simulation.synthetic import model_measurement
+from pe_drake.multibody.base_parameters import compute_base_parameters
+from pe_drake.multibody.drive_columns import DriveTermOptions, drive_columns, drive_layout
+from pe_drake.multibody.regressor import RegressorModel
+from pe_drake.multibody.transmission import MOTOR_TERMS, Transmission, motor_drive_columns
+from tests.conftest import get_robot
+from tests.test_identification import optimized, random_trajectory  # noqa: F401  (a fixture)
+
+RATIOS = [32.0, 32.0, 45.0, -48.0, 45.0, 32.0]
+NOISE = 0.05  # [N·m]
+
+
+def tx40(robot) -> Transmission:
+    joints = robot.joint_names
+    return Transmission.from_config(dict(zip(joints, RATIOS)), {joints[5]: {joints[4]: 32.0}}, joints)
+
+
+class _Config:  # the robot.transmission a config gives
+    def __init__(self, robot):
+        self.transmission = TransmissionConfig(dict(zip(robot.joint_names, RATIOS)),
+                                               {robot.joint_names[5]: {robot.joint_names[4]: 32.0}})
+        self.drive_gains = {}
+
+
+@dataclasses.dataclass
+class _Robot:  # the robot with that config, for the reader
+    joint_names: tuple
+    n: int
+    config: _Config
+
+
+def test_r_and_its_errors():
+    robot = get_robot("ur5")
+    T = tx40(robot)
+    assert T.R[5, 4] == 32 and T.R[5, 5] == 32 and T.R[3, 3] == -48 and T.coupled
+    q = np.random.default_rng(0).normal(size=(5, 6))
+    np.testing.assert_allclose(T.joint_positions(T.motor_positions(q)), q, atol=1e-12)
+    tau_m = np.random.default_rng(1).normal(size=(5, 6))
+    v = np.random.default_rng(2).normal(size=(5, 6))
+    # power is the same on both sides
+    np.testing.assert_allclose(np.sum(T.motor_positions(v) * tau_m, axis=1), np.sum(v * T.joint_torques(tau_m), axis=1))
+    with pytest.raises(UnknownNameError, match="valid joints: shoulder_pan_joint"):
+        Transmission.from_config({"joint_9": 2.0}, {}, robot.joint_names)
+    with pytest.raises(ConfigError, match="ratios\\['elbow_joint'\\] must be a finite non-zero number"):
+        Transmission.from_config({"elbow_joint": 0}, {}, robot.joint_names)
+    with pytest.raises(ConfigError, match="names its own joint"):
+        Transmission.from_config({}, {"elbow_joint": {"elbow_joint": 3.0}}, robot.joint_names)
+
+
+def test_motor_side_log_is_read_on_the_joint_side(optimized, tmp_path):  # noqa: F811
+    """θ_m = R q and τ_m = R⁻ᵀ τ written per motor read back as q and τ; a mixed file is refused."""
+    robot = get_robot("ur5")
+    T = tx40(robot)
+    m = model_measurement(robot, random_trajectory(robot, optimized, seed=1), rate_hz=100, duration=3.0)
+    header = ["t"] + [f"q_motor.{j}" for j in robot.joint_names] + [f"tau_motor.{j}" for j in robot.joint_names]
+    table = np.column_stack([m.t, T.motor_positions(m.q), T.motor_torques(m.tau)])
+    path = tmp_path / "motor.csv"
+    np.savetxt(path, table, delimiter=",", header=",".join(header), comments="", fmt="%.12g")
+    fake = _Robot(robot.joint_names, robot.n, _Config(robot))
+    got = read_log(path, fake)
+    np.testing.assert_allclose(got.q, m.q, atol=1e-9)
+    np.testing.assert_allclose(got.tau, m.tau, rtol=1e-9, atol=1e-9)
+    assert any("motor-side log converted" in note and "coupled" in note for note in got.notes)
+    mixed = tmp_path / "mixed.csv"
+    np.savetxt(mixed, np.column_stack([table, m.tau[:, :1]]), delimiter=",", comments="", fmt="%.12g",
+               header=",".join(header + [f"tau.{robot.joint_names[0]}"]))
+    with pytest.raises(DataError, match="mixes motor-side columns"):
+        read_log(mixed, fake)
+
+
+def motor_truth(n: int) -> dict[str, np.ndarray]:
+    """Per motor, motor side: F_c [N·m], F_v [N·m·s/rad], offset [N·m], rotor inertia [kg·m²]."""
+    rng = np.random.default_rng(4)
+    return {"coulomb": rng.uniform(0.03, 0.1, n), "viscous": rng.uniform(1e-4, 4e-4, n),
+            "offset": rng.uniform(-0.02, 0.02, n), "armature": rng.uniform(3e-5, 1e-4, n)}
+
+
+def coupled_run(robot, trajectory, T, truth, seed):
+    m = model_measurement(robot, trajectory, rate_hz=100, duration=2 * trajectory.period, tau_noise_std=NOISE,
+                          seed=seed)
+    theta = np.column_stack([truth[t] for t in MOTOR_TERMS]).ravel()  # motor i's terms at 4i..4i+3
+    return m.replace(tau=m.tau + motor_drive_columns(m.v, m.vd, T) @ theta), theta
+
+
+def test_each_motors_terms_are_recovered_through_the_coupling(optimized):  # noqa: F811
+    """Least squares on [Y_B | motor columns]: every motor's term within 3σ (the armatures that
+    merge with base parameters left out), the other run at the noise floor; the per-joint drive
+    columns, blind to the coupling, leave every joint far above it."""
+    robot = get_robot("ur5")
+    T = tx40(robot)
+    truth = motor_truth(robot.n)
+    base = compute_base_parameters(robot)
+    model = RegressorModel(robot)
+    runs = [coupled_run(robot, random_trajectory(robot, optimized, seed=s), T, truth, s) for s in (1, 7)]
+
+    def rows(m, columns):
+        Y = base.reduce(model(m.q, m.v, m.vd))
+        return np.concatenate([Y, columns(m)], axis=2).reshape(-1, Y.shape[2] + columns(m).shape[2]), m.tau.ravel()
+
+    def motor(m):
+        return motor_drive_columns(m.v, m.vd, T)
+
+    A, y = rows(runs[0][0], motor)
+    b = base.count
+    # an armature column inside span(Y_B) (the first motor's) is not identifiable: left out
+    keep = list(range(b))
+    for k in range(A.shape[1] - b):
+        trial = keep + [b + k]
+        if np.linalg.matrix_rank(A[:, trial] / np.linalg.norm(A[:, trial], axis=0), tol=1e-8) == len(trial):
+            keep = trial
+    x, *_ = np.linalg.lstsq(A[:, keep], y, rcond=None)
+    cov = NOISE**2 * np.linalg.inv(A[:, keep].T @ A[:, keep])
+    theta = runs[0][1]
+    left_out = [k for k in range(len(theta)) if b + k not in keep]
+    # the armatures of the motors of joints 1 and 2, which merge into base parameters as the
+    # joints' own do (drive_layout)
+    layout = drive_layout(robot, base, DriveTermOptions("all"))
+    assert left_out == [4 * robot.joint_names.index(j) + 3 for j in layout.merged] == [3, 7], left_out
+    for pos, col in enumerate(keep[b:], start=b):
+        k = col - b
+        sd = np.sqrt(cov[pos, pos])
+        assert abs(x[pos] - theta[k]) < 3 * sd, (MOTOR_TERMS[k % 4], k // 4, x[pos], theta[k], sd)
+    A2, y2 = rows(runs[1][0], motor)
+    held = (y2 - A2[:, keep] @ x).reshape(-1, robot.n)
+    assert np.all(np.sqrt(np.mean(held**2, axis=0)) < 1.1 * NOISE)
+    # the same data with each joint's own friction, offset and armature (no coupling)
+    def joint(m):
+        return drive_columns(m.v, m.vd, layout)
+
+    A, y = rows(runs[0][0], joint)
+    x, *_ = np.linalg.lstsq(A, y, rcond=None)
+    A2, y2 = rows(runs[1][0], joint)
+    rms = np.sqrt(np.mean((y2 - A2 @ x).reshape(-1, robot.n) ** 2, axis=0))
+    # joints 5 and 6 carry motor 6's terms, which no joint's own columns hold; the misfit
+    # biases the shared rigid-body parameters, so every joint is far above the noise floor
+    assert np.all(rms > 10 * NOISE), rms
+
+
+def test_config_refuses_a_zero_ratio(tmp_path):
+    from pe_drake.config import load_config
+
+    path = tmp_path / "robot.yaml"
+    path.write_text("robot:\n  transmission:\n    ratios: {joint_1: 0}\n    coupling: {joint_6: {joint_5: 32}}\n")
+    with pytest.raises(ConfigError, match=r"robot.transmission.ratios\['joint_1'\] must not be 0"):
+        load_config(path)
+    path.write_text("robot:\n  transmission:\n    ratios: {joint_1: 32}\n    coupling: {joint_6: {joint_5: .nan}}\n")
+    with pytest.raises(ConfigError, match=r"coupling\['joint_6'\]\['joint_5'\] must be a finite number"):
+        load_config(path)
