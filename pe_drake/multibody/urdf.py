@@ -313,3 +313,20 @@ def write_robot_urdf(path: str | Path, robot, phi: np.ndarray, *, verify: bool =
         verify_urdf_text(text, robot.body_names, phi)
     atomic_write_text(Path(path), text)
     return Path(path)
+
+
+def with_payload_link(text: str, link: str, phi_payload: np.ndarray, name: str) -> str:
+    """URDF text with a payload as its own link ``name`` welded to ``link`` at its origin.
+
+    Args:
+        phi_payload: the payload's 10 parameters about ``link``'s origin, in its frame.
+    """
+    element = _inertial_element(np.asarray(phi_payload, float), "    ")
+    element.tail = "\n  "
+    inertial = ET.tostring(element, encoding="unicode")
+    extra = (f'  <link name="{name}">\n    {inertial}</link>\n'
+             f'  <joint name="{name}_weld" type="fixed">\n'
+             f'    <parent link="{link}"/>\n    <child link="{name}"/>\n'
+             '    <origin xyz="0 0 0" rpy="0 0 0"/>\n  </joint>\n')
+    head, sep, tail = text.rpartition("</robot>")
+    return head + extra + sep + tail

@@ -1,0 +1,138 @@
+"""The identified robot as MuJoCo's MJCF: one ``<body>`` per Drake body with its identified
+inertial, the excited joints with their drive terms, the base at its mount pose.
+
+Written from the :class:`~pe_drake.multibody.robot.Robot`'s plant, so a URDF, xacro or SDF
+robot gives the same file: each body's pose in its parent at q = 0 (a locked joint is a weld at
+its locked position, as pe_drake's plant has it), each excited joint a ``hinge`` (revolute) or
+``slide`` (prismatic) at the child's joint frame with its axis, ``range`` and
+``actuatorfrcrange`` from the model's limits, and MuJoCo's drive terms:
+
+- ``armature``: added to the joint's mass-matrix diagonal, as Drake's reflected rotor inertia;
+- ``damping``: the viscous friction (MuJoCo's passive force −d·v);
+- ``frictionloss``: the Coulomb friction f_c. MuJoCo's dry friction is a constraint (it holds
+  a joint at rest below f_c), not pe_drake's f_c·tanh(v/v_s): the two agree on a sliding joint
+  (|v| ≫ v_s) and differ near rest.
+
+A motor per joint (``gear`` 1, ``ctrlrange`` the force limit) drives it. Bodies carry no
+geometry (``inertiafromgeom`` false: the inertials are the identified ones, never recomputed).
+What MJCF cannot hold — torque offsets, the tanh smoothing, a torque delay, pre-sliding
+friction — is listed in a comment at the top and returned as notes.
+"""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+
+import numpy as np
+
+from pe_drake.export.terms import ExportTerms
+from pe_drake.export.tree import quaternion_wxyz, robot_tree
+from pe_drake.multibody.inertia import central_inertia
+
+#: Name of the payload body (a child of its link, no joint).
+PAYLOAD_BODY = "pe_drake_payload"
+
+
+def _num(x: float) -> str:
+    return repr(float(x)) if x != 0 else "0"
+
+
+def _vec(x) -> str:
+    return " ".join(_num(v) for v in np.ravel(x))
+
+
+def _inertial(parent: ET.Element, phi_b: np.ndarray) -> None:
+    """``<inertial>`` of a body's 10 parameters (about its origin, in its frame); none for a
+    massless frame (MuJoCo gives it mass 0 like Drake)."""
+    m, p, I = central_inertia(phi_b)
+    if m <= 0:
+        return
+    ET.SubElement(parent, "inertial", {
+        "pos": _vec(p), "mass": _num(m),
+        "fullinertia": _vec([I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2]])})
+
+
+def _joint(body_el: ET.Element, robot, terms: ExportTerms, k: int) -> None:
+    """The ``<joint>`` of excited joint k in its child body: frame, axis, limits, drive terms."""
+    info, joint = robot.joints[k], robot.plant.GetJointByName(robot.joint_names[k])
+    X_CM = np.asarray(info.X_CM, float)
+    attributes = {
+        "name": info.name, "type": "hinge" if info.kind == "revolute" else "slide",
+        "pos": _vec(X_CM[:3, 3]), "axis": _vec(X_CM[:3, :3] @ np.asarray(info.axis_M, float)),
+        "armature": _num(terms.drive["armature"][k]), "damping": _num(terms.drive["viscous"][k]),
+        "frictionloss": _num(terms.drive["coulomb"][k]),
+    }
+    lo, hi = joint.position_lower_limits()[0], joint.position_upper_limits()[0]
+    attributes["limited"] = "true" if np.isfinite(lo) and np.isfinite(hi) else "false"
+    if attributes["limited"] == "true":
+        attributes["range"] = _vec([lo, hi])
+    effort = robot.limits.effort_max[k]
+    if np.isfinite(effort):
+        attributes.update(actuatorfrclimited="true", actuatorfrcrange=_vec([-effort, effort]))
+    ET.SubElement(body_el, "joint", attributes)
+
+
+def _bodies(robot, terms: ExportTerms, worldbody: ET.Element) -> None:
+    """The bodies, nested as Drake's tree, each posed in its parent at q = 0."""
+    elements = {"world": worldbody}
+    for body in robot_tree(robot, terms):
+        X = body.X_PC
+        body_el = ET.SubElement(elements[body.parent], "body", {
+            "name": body.name, "pos": _vec(X[:3, 3]), "quat": _vec(quaternion_wxyz(X))})
+        elements[body.name] = body_el
+        _inertial(body_el, body.phi)
+        if body.joint >= 0:
+            _joint(body_el, robot, terms, body.joint)
+        if terms.payload is not None and body.name == terms.payload_link:
+            payload_el = ET.SubElement(body_el, "body", {"name": PAYLOAD_BODY, "pos": "0 0 0"})
+            _inertial(payload_el, terms.payload.phi)
+
+
+def unheld_terms(robot, terms: ExportTerms) -> list[str]:
+    """What MJCF cannot hold of the model, one sentence each (the file's comment and the output)."""
+    joints = robot.joint_names
+    out = []
+    offsets = terms.drive["offset"]
+    if np.any(offsets != 0):
+        out.append("torque offsets (add them to the control: MJCF has no constant joint torque): "
+                   + ", ".join(f"{j} {x:.4g}" for j, x in zip(joints, offsets) if x != 0))
+    if np.any(terms.drive["coulomb"] > 0):
+        out.append(f"Coulomb friction f_c*tanh(v/v_s), v_s = {terms.velocity_scale:g} rad/s, is written as "
+                   "MuJoCo's frictionloss f_c: a constraint that holds the joint at rest below f_c and equals "
+                   "f_c*sign(v) once it slides; the two differ for |v| below a few v_s")
+    if terms.torque_delay:
+        out.append(f"the torque delay of {terms.torque_delay:.4g} s")
+    if terms.presliding.size and np.any(terms.presliding > 0):
+        out.append("pre-sliding (Dahl) friction: " + ", ".join(
+            f"{j} {x:.4g}" for j, x in zip(joints, terms.presliding) if x > 0))
+    return out
+
+
+def mjcf_text(robot, terms: ExportTerms, name: str = "") -> tuple[str, list[str]]:
+    """The MJCF of the robot with ``terms`` (module docstring).
+
+    Returns:
+        (the file's text, what it cannot hold of the model: one sentence each).
+    """
+    unheld = unheld_terms(robot, terms)
+    root = ET.Element("mujoco", {"model": name or robot.name})
+    ET.SubElement(root, "compiler", {"angle": "radian", "inertiafromgeom": "false", "autolimits": "true"})
+    gravity = robot.plant.gravity_field().gravity_vector()
+    ET.SubElement(root, "option", {"gravity": _vec(gravity), "integrator": "implicitfast"})
+    worldbody = ET.SubElement(root, "worldbody")
+    _bodies(robot, terms, worldbody)
+    actuator = ET.SubElement(root, "actuator")
+    for k, joint in enumerate(robot.joint_names):
+        attributes = {"name": joint, "joint": joint, "gear": "1"}
+        effort = robot.limits.effort_max[k]
+        if np.isfinite(effort):
+            attributes.update(ctrllimited="true", ctrlrange=_vec([-effort, effort]))
+        ET.SubElement(actuator, "motor", attributes)
+    ET.indent(root, "  ")
+    lines = [f"MJCF of robot '{robot.name}' written by pe-drake export",
+             f"model: {terms.source or 'the robot model file (CAD)'}"]
+    lines += [f"note: {n}" for n in terms.notes]
+    lines += [f"not held by MJCF: {n}" for n in unheld]
+    lines.append("no geometry: inertials are explicit (inertiafromgeom false); add visuals from the robot's model")
+    comment = "\n".join("  " + line.replace("--", "- -") for line in lines)
+    return f"<!--\n{comment}\n-->\n" + ET.tostring(root, encoding="unicode") + "\n", unheld

@@ -1,0 +1,123 @@
+"""What every export writes: the robot as identified, read from a model file in one place.
+
+:func:`export_terms` is the only function of the export stage that reads a model: the rigid
+parameters (physically valid per body; a model of base parameters only is first projected onto
+the nearest physically consistent ones, as ``simulate --model`` does), the drive terms per joint
+(Coulomb friction with its smoothing velocity, viscous friction, offset, armature), a payload as
+its own body, and what was adjusted on the way. The writers (:mod:`pe_drake.export.mjcf`,
+:mod:`pe_drake.export.drake_files`, :mod:`pe_drake.export.controller`) take an
+:class:`ExportTerms` and nothing else from the model.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+
+from pe_drake.exceptions import DataError
+from pe_drake.identification.simulated_model import load_simulation_model
+from pe_drake.io_utils import loads_json
+from pe_drake.multibody.inertia import inertia_matrix
+from pe_drake.multibody.payload import PayloadInertia
+from pe_drake.multibody.regressor import RegressorModel
+
+#: The drive terms per joint, in the vocabulary of the drive columns.
+DRIVE_TERMS = ("coulomb", "viscous", "offset", "armature")
+#: v_s of tanh(v/v_s) for a model that has no Coulomb friction of its own [rad/s].
+DEFAULT_VELOCITY_SCALE = 0.01
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class ExportTerms:
+    """The robot as identified, in the terms the exporters write.
+
+    Attributes:
+        source: the model file ("" for the model file's own parameters: the CAD model).
+        phi: standard parameters of ``robot.body_names``, physically valid, payload not
+            included, shape (10·nb,) [kg, kg·m, kg·m²].
+        drive: {term: per-joint values, shape (n,)} for :data:`DRIVE_TERMS`
+            [N·m, N·m·s/rad, N·m, kg·m²] (friction and armature ≥ 0).
+        velocity_scale: v_s of the Coulomb friction f_c·tanh(v/v_s) [rad/s].
+        payload_link: link carrying the payload ("" for none); payload: its inertia in that
+            link's frame.
+        notes: what was adjusted on the way (projection, negative terms set to 0).
+        torque_delay: the model's torque delay [s] (0: none).
+        presliding: the model's pre-sliding (Dahl) friction per joint [N·m], (n,) or empty.
+    """
+
+    source: str
+    phi: np.ndarray
+    drive: dict[str, np.ndarray]
+    velocity_scale: float
+    payload_link: str = ""
+    payload: PayloadInertia | None = None
+    notes: tuple[str, ...] = ()
+    torque_delay: float = 0.0
+    presliding: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
+
+    def phi_with_payload(self, body_names) -> np.ndarray:
+        """φ with the payload added to its link, shape (10·nb,): what the robot's torques see."""
+        phi = np.array(self.phi, float)
+        if self.payload is not None:
+            b = list(body_names).index(self.payload_link)
+            phi[10 * b : 10 * b + 10] += self.payload.phi
+        return phi
+
+
+def export_terms(robot, model: str | Path | None) -> ExportTerms:
+    """The terms to export: those of ``model`` (identified.json of any method or
+    augmented_model.json), or with ``model`` None the robot's own (its model file's inertials,
+    ``<dynamics damping friction>`` and rotor inertias).
+
+    This adapter is the one place that knows the model types (see the module docstring).
+
+    Raises:
+        DataError: a model file of another robot, or not one of these files.
+        NoSolutionFound: no physically valid parameters near a base-parameter model.
+    """
+    if model is None:
+        armature = np.zeros(robot.n)
+        for a in robot.plant.GetJointActuatorIndices():
+            actuator = robot.plant.get_joint_actuator(a)
+            if actuator.joint().name() in robot.joint_names:
+                armature[robot.joint_names.index(actuator.joint().name())] = actuator.default_reflected_inertia()
+        drive = {"coulomb": np.array(robot.joint_friction, float), "viscous": np.array(robot.joint_damping, float),
+                 "offset": np.zeros(robot.n), "armature": armature}
+        return ExportTerms("", np.array(robot.phi_model, float), drive, DEFAULT_VELOCITY_SCALE)
+    sim = load_simulation_model(model, robot)
+    drive = {"coulomb": sim.coulomb, "viscous": sim.viscous, "offset": sim.torque_offset, "armature": sim.armature}
+    link, payload, phi = _split_payload(robot, Path(model), np.asarray(sim.phi, float))
+    return ExportTerms(str(model), phi, {k: np.array(v, float) for k, v in drive.items()}, float(sim.velocity_scale),
+                       link, payload, tuple(sim.notes), float(sim.torque_delay), np.array(sim.presliding, float))
+
+
+def _split_payload(robot, path: Path, phi: np.ndarray) -> tuple[str, PayloadInertia | None, np.ndarray]:
+    """(link, payload, φ of the bodies alone): an augmented model's payload, which the simulator
+    lumps into its link, taken out again so that it is written as its own body."""
+    d = loads_json(path.read_text(), str(path))  # read before by load_simulation_model
+    record = d.get("payload") if isinstance(d, dict) and "torque_equation" in d else None
+    if not record:
+        return "", None, phi
+    try:
+        payload = PayloadInertia(float(record["mass"]), np.asarray(record["com"], float),
+                                 inertia_matrix(np.asarray(record["inertia_about_com"], float)))
+        b = robot.body_names.index(record["link"])
+    except (KeyError, TypeError, ValueError) as err:
+        raise DataError(f"payload: {err!r} missing or malformed", file=str(path)) from err
+    phi = phi.copy()
+    phi[10 * b : 10 * b + 10] -= payload.phi
+    return str(record["link"]), payload, phi
+
+
+def model_torques(robot, terms: ExportTerms, q: np.ndarray, v: np.ndarray, vd: np.ndarray) -> np.ndarray:
+    """pe_drake's rigid + armature + viscous torque of the model (payload included), (S, n):
+    what an exported file must reproduce (Coulomb friction and offsets are checked apart).
+
+    Args:
+        q, v, vd: each (S, n) [rad or m, per s, per s²].
+    """
+    q, v, vd = np.atleast_2d(q), np.atleast_2d(v), np.atleast_2d(vd)
+    Y = RegressorModel(robot)(q, v, vd)
+    return Y @ terms.phi_with_payload(robot.body_names) + terms.drive["armature"] * vd + terms.drive["viscous"] * v
