@@ -29,6 +29,7 @@ STAGES = {
     "identification": 3,
     "diagnosis": 4,
     "viewer": 5, "viewer_scene": 5, "bench": 5, "bench_robots": 5, "cli": 5,
+    "export": 5,  # writes a model of any stage for simulators and controllers (issue 35)
 }
 #: Python's own API names that begin with an underscore (namedtuple, sys, os).
 FOREIGN_PRIVATE = {"_replace", "_asdict", "_fields", "_make", "_getframe", "_exit"}

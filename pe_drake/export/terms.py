@@ -17,6 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from pe_drake.exceptions import DataError
+from pe_drake.identification.estimators import predict
+from pe_drake.identification.identified_file import load_identified
 from pe_drake.identification.simulated_model import load_simulation_model
 from pe_drake.io_utils import loads_json
 from pe_drake.multibody.inertia import inertia_matrix
@@ -45,6 +47,10 @@ class ExportTerms:
         notes: what was adjusted on the way (projection, negative terms set to 0).
         torque_delay: the model's torque delay [s] (0: none).
         presliding: the model's pre-sliding (Dahl) friction per joint [N·m], (n,) or empty.
+        base_K: the identification's base parameters as rows of the standard ones, φ_B = K φ,
+            shape (p, 10·nb), or None (a model without σ: the CAD model, an augmented model).
+        base_sigma: σ of each base parameter, shape (p,) (inf: not identified), or None.
+        drive_sigma: {term: σ per joint} of the identified drive terms (0: not identified).
     """
 
     source: str
@@ -56,6 +62,9 @@ class ExportTerms:
     notes: tuple[str, ...] = ()
     torque_delay: float = 0.0
     presliding: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
+    base_K: np.ndarray | None = None
+    base_sigma: np.ndarray | None = None
+    drive_sigma: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
 
     def phi_with_payload(self, body_names) -> np.ndarray:
         """φ with the payload added to its link, shape (10·nb,): what the robot's torques see."""
@@ -89,8 +98,18 @@ def export_terms(robot, model: str | Path | None) -> ExportTerms:
     sim = load_simulation_model(model, robot)
     drive = {"coulomb": sim.coulomb, "viscous": sim.viscous, "offset": sim.torque_offset, "armature": sim.armature}
     link, payload, phi = _split_payload(robot, Path(model), np.asarray(sim.phi, float))
+    result = load_identified(model, robot)
+    K = sigma = None
+    if result.method != "diagnose":  # an augmented model has no covariance
+        K = np.asarray(result.base.K, float)
+        sigma = np.abs(np.asarray(result.phi_B, float)) * np.asarray(result.sigma_percent, float) / 100.0
+    drive_sigma = {}
+    if result.drive is not None:
+        spread = dataclasses.replace(result.drive, theta=np.asarray(result.drive.sigma, float))
+        drive_sigma = {t: spread.per_joint(t) for t in DRIVE_TERMS}
     return ExportTerms(str(model), phi, {k: np.array(v, float) for k, v in drive.items()}, float(sim.velocity_scale),
-                       link, payload, tuple(sim.notes), float(sim.torque_delay), np.array(sim.presliding, float))
+                       link, payload, tuple(sim.notes), float(sim.torque_delay), np.array(sim.presliding, float),
+                       K, sigma, drive_sigma)
 
 
 def _split_payload(robot, path: Path, phi: np.ndarray) -> tuple[str, PayloadInertia | None, np.ndarray]:
@@ -121,3 +140,21 @@ def model_torques(robot, terms: ExportTerms, q: np.ndarray, v: np.ndarray, vd: n
     q, v, vd = np.atleast_2d(q), np.atleast_2d(v), np.atleast_2d(vd)
     Y = RegressorModel(robot)(q, v, vd)
     return Y @ terms.phi_with_payload(robot.body_names) + terms.drive["armature"] * vd + terms.drive["viscous"] * v
+
+
+def projection_change(robot, model: str | Path, terms: ExportTerms, data) -> np.ndarray | None:
+    """RMS [N·m] per joint of the change of the held-out prediction between the model file's own
+    (its base parameters) and the exported terms (their consistent φ), or None for a model whose
+    standard parameters are exported as they are.
+
+    Args:
+        data: a preprocessed run (:func:`~pe_drake.identification.estimators.prepare_measurement`).
+    """
+    result = load_identified(model, robot)
+    if result.phi is not None:
+        return None
+    own = predict(robot, result, data)
+    d = terms.drive
+    exported = model_torques(robot, terms, data.q, data.v, data.vd) + d["offset"] \
+        + d["coulomb"] * np.tanh(data.v / terms.velocity_scale)
+    return np.sqrt(np.mean((own - exported) ** 2, axis=0))

@@ -1,0 +1,198 @@
+"""Export (issue 35): the identified robot loaded in MuJoCo and Drake reproduces pe_drake's own
+rigid + armature + viscous torque; frictionloss holds and lets go; feed-forward, gains and
+randomization; ``validate --model model.xml``; the CLI face."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from pe_drake.config import RobotConfig
+from pe_drake.exceptions import ConfigError
+from pe_drake.export.controller import effective_inertia, gains_table, sample_models
+from pe_drake.export.drake_files import drake_check, random_states, sdf_text, urdf_export_text
+from pe_drake.export.export_model import ExportOptions
+from pe_drake.export.mjcf import PAYLOAD_BODY, mjcf_text
+from pe_drake.export.terms import ExportTerms, model_torques
+from pe_drake.multibody.inertia import central_inertia, perturb_inertias, validity_problems
+from pe_drake.multibody.payload import PayloadInertia
+from pe_drake.multibody.robot import load_robot
+from tests.conftest import get_robot
+
+#: A robot of our own: revolute, prismatic (tilted), revolute, a massless frame; mounted tilted.
+SLIDER_URDF = """<?xml version="1.0"?>
+<robot name="slider">
+  <link name="base"><inertial><mass value="2"/>
+    <inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>
+  <joint name="turn" type="revolute"><parent link="base"/><child link="arm"/>
+    <origin xyz="0 0 0.2" rpy="0 0 0"/><axis xyz="0 0 1"/><limit lower="-2" upper="2" effort="50" velocity="3"/></joint>
+  <link name="arm"><inertial><origin xyz="0.1 0.02 0.05" rpy="0.1 0.2 0.3"/><mass value="1.5"/>
+    <inertia ixx="0.02" iyy="0.03" izz="0.025" ixy="0.001" ixz="0.002" iyz="-0.001"/></inertial></link>
+  <joint name="slide" type="prismatic"><parent link="arm"/><child link="carriage"/>
+    <origin xyz="0.3 0 0" rpy="0 1.2 0"/><axis xyz="1 0 0"/><limit lower="-0.2" upper="0.2" effort="200" velocity="1"/></joint>
+  <link name="carriage"><inertial><origin xyz="0.01 0 -0.02" rpy="0 0 0"/><mass value="0.8"/>
+    <inertia ixx="0.004" iyy="0.005" izz="0.006" ixy="0" ixz="0.0005" iyz="0"/></inertial></link>
+  <joint name="tilt" type="revolute"><parent link="carriage"/><child link="tool"/>
+    <origin xyz="0 0.1 0" rpy="0.3 0 0"/><axis xyz="0 1 0"/><limit lower="-1.5" upper="1.5" effort="20" velocity="4"/></joint>
+  <link name="tool"><inertial><origin xyz="0.05 0.01 0.03" rpy="0.4 0 0.2"/><mass value="0.5"/>
+    <inertia ixx="0.002" iyy="0.0025" izz="0.003" ixy="0" ixz="0" iyz="0"/></inertial></link>
+  <joint name="tool_frame_joint" type="fixed"><parent link="tool"/><child link="tool_frame"/>
+    <origin xyz="0 0 0.1" rpy="0 0 0"/></joint>
+  <link name="tool_frame"/>
+</robot>
+"""
+MOUNT = {"base_position": [0.1, -0.2, 0.5], "base_quaternion_wxyz": [0.9238795325112867, 0.3826834323650898, 0, 0]}
+
+
+@pytest.fixture(scope="module")
+def slider(tmp_path_factory):
+    path = tmp_path_factory.mktemp("slider") / "slider.urdf"
+    path.write_text(SLIDER_URDF)
+    return load_robot(RobotConfig(model=str(path), **MOUNT))
+
+
+def identified_terms(robot, seed: int, payload_link: str = "") -> ExportTerms:
+    """A known truth: inertias ±10 %, friction, offsets and armature of real arms' size, a payload."""
+    rng = np.random.default_rng(seed)
+    n = robot.n
+    phi = perturb_inertias(robot.phi_model, 0.1, rng, body_names=robot.body_names)
+    drive = {"coulomb": rng.uniform(0.5, 3.0, n), "viscous": rng.uniform(0.2, 1.5, n),
+             "offset": rng.uniform(-0.8, 0.8, n), "armature": rng.uniform(0.05, 0.4, n)}
+    payload = PayloadInertia(0.8, np.array([0.01, 0.02, 0.1]), np.diag([1e-3, 2e-3, 1.5e-3])) if payload_link else None
+    return ExportTerms("known truth", phi, drive, 0.01, payload_link, payload)
+
+
+def relative(a, b) -> float:
+    return float(np.max(np.abs(a - b)) / np.max(np.abs(b)))
+
+
+@pytest.mark.parametrize("name", ["panda", "slider"])
+def test_mjcf_in_mujoco_reproduces_the_model_and_its_inertials(name, slider):
+    mujoco = pytest.importorskip("mujoco")
+    from pe_drake.export.mujoco_dynamics import load_mjcf, mujoco_torques
+
+    robot = get_robot("panda") if name == "panda" else slider
+    terms = identified_terms(robot, 3, "panda_link7" if name == "panda" else "tool")
+    text, unheld = mjcf_text(robot, terms)
+    assert any("offsets" in u for u in unheld) and any("frictionloss" in u for u in unheld)
+    model = load_mjcf(text, text=True)
+    q, v, vd = random_states(robot, 30, seed=5)  # held-out states, not those of the export's own check
+    assert relative(mujoco_torques(model, robot.joint_names, q, v, vd), model_torques(robot, terms, q, v, vd)) < 1e-6
+    # MuJoCo's own reading of each body: mass, centre of mass, inertia about it (principal axes back to the body)
+    bodies = dict(zip(robot.body_names, terms.phi.reshape(-1, 10)))
+    bodies[PAYLOAD_BODY] = terms.payload.phi
+    for body, phi_b in bodies.items():
+        if phi_b[0] <= 0:
+            continue
+        m, p, I = central_inertia(phi_b)
+        got = model.body(body)
+        R = np.zeros(9)
+        mujoco.mju_quat2Mat(R, got.iquat)
+        R = R.reshape(3, 3)
+        assert got.mass[0] == pytest.approx(m, rel=1e-12)
+        np.testing.assert_allclose(got.ipos, p, atol=1e-12)
+        np.testing.assert_allclose(R @ np.diag(got.inertia) @ R.T, I, atol=1e-9 * np.abs(I).max())
+
+
+def test_frictionloss_holds_below_and_slides_above(slider):
+    mujoco = pytest.importorskip("mujoco")
+    from pe_drake.export.mujoco_dynamics import load_mjcf
+
+    terms = identified_terms(slider, 4)
+    model = load_mjcf(mjcf_text(slider, terms)[0], text=True)
+    model.opt.gravity[:] = 0.0
+    k = slider.joint_names.index("tilt")
+
+    def moved(share: float, friction: bool = True) -> float:
+        data = mujoco.MjData(model)
+        data.qfrc_applied[k] = share * terms.drive["coulomb"][k]
+        flags = model.opt.disableflags
+        if not friction:
+            model.opt.disableflags = flags | int(mujoco.mjtDisableBit.mjDSBL_FRICTIONLOSS)
+        for _ in range(250):  # 0.5 s
+            mujoco.mj_step(model, data)
+        model.opt.disableflags = flags
+        return abs(float(data.qpos[k]))
+
+    # MuJoCo's friction loss is a soft constraint: below it the joint creeps by a small fraction of
+    # what the same torque does without friction; above it, the excess moves it like a free joint
+    free = moved(0.5, friction=False)
+    assert moved(0.5) < 0.02 * free, (moved(0.5), free)
+    assert moved(2.0) > 0.5 * moved(1.0, friction=False), (moved(2.0), free)
+
+
+@pytest.mark.parametrize("name", ["panda", "slider"])
+def test_urdf_and_sdf_reloaded_in_drake_reproduce_the_model(name, slider):
+    robot = get_robot("panda") if name == "panda" else slider
+    terms = identified_terms(robot, 6, "panda_link7" if name == "panda" else "tool")
+    for text, suffix in ((urdf_export_text(robot, terms), ".urdf"), (sdf_text(robot, terms), ".sdf")):
+        assert drake_check(robot, terms, text, suffix, samples=30) < 1e-6
+        assert "drake:rotor_inertia" in text
+
+
+def test_an_sdf_robot_exports_sdf_and_mjcf_and_refuses_urdf(slider, tmp_path):
+    terms = identified_terms(slider, 7)
+    path = tmp_path / "slider.sdf"
+    path.write_text(sdf_text(slider, terms))
+    robot = load_robot(RobotConfig(model=str(path), **MOUNT))
+    assert robot.joint_names == slider.joint_names
+    again = dataclasses.replace(terms, phi=identified_terms(robot, 8).phi)
+    assert drake_check(robot, again, sdf_text(robot, again), ".sdf") < 1e-6
+    with pytest.raises(ConfigError, match="not one: use --to sdf"):
+        urdf_export_text(robot, again)
+
+
+def test_gains_use_the_mass_matrix_diagonal_plus_armature(slider):
+    from pydrake.multibody.tree import MultibodyForces  # noqa: F401 - the plant's own mass matrix below
+
+    terms = identified_terms(slider, 9)
+    q = random_states(slider, 5, seed=2)[0]
+    J = effective_inertia(slider, terms, q)
+    loaded = load_robot(dataclasses.replace(slider.config, model=str(_write(sdf_text(slider, terms), slider))))
+    for s in range(q.shape[0]):
+        loaded.plant.SetPositions(loaded.plant_context, q[s])
+        M = loaded.plant.CalcMassMatrix(loaded.plant_context)  # rotor inertia included
+        np.testing.assert_allclose(J[s], np.diag(M), rtol=1e-9)
+    table = gains_table(slider, terms, q, bandwidth_hz=10.0, damping_ratio=0.7)
+    omega = 2 * np.pi * 10.0
+    for k, name in enumerate(slider.joint_names):
+        assert table[name]["kp"] == pytest.approx(J[:, k].mean() * omega**2)
+        assert table[name]["kd"] == pytest.approx(2 * 0.7 * J[:, k].mean() * omega)
+
+
+def _write(text: str, robot):
+    import tempfile
+    from pathlib import Path
+
+    path = Path(tempfile.mkdtemp()) / f"{robot.name}.sdf"
+    path.write_text(text)
+    return path
+
+
+def test_sampled_models_are_consistent_and_spread_as_sigma(slider):
+    terms = identified_terms(slider, 10)
+    # the slider's base parameters as one identification would report them: K of the regressor's base
+    from pe_drake.multibody.base_parameters import compute_base_parameters
+
+    base = compute_base_parameters(slider)
+    K = np.asarray(base.K, float)
+    # 0.5 %: base parameters sharing a link inertia differ by less than that link's triangle margin
+    sigma = 0.005 * np.abs(K @ terms.phi) + 1e-7
+    drive_sigma = {t: 0.05 * terms.drive[t] for t in terms.drive}
+    terms = dataclasses.replace(terms, base_K=K, base_sigma=sigma, drive_sigma=drive_sigma)
+    models = sample_models(slider, terms, 400, seed=1)
+    for phi in models.phi:
+        assert not validity_problems(slider.body_names, phi)
+    spread = np.std(models.phi @ K.T, axis=0) / sigma
+    assert models.projected == 0
+    np.testing.assert_allclose(spread, 1.0, atol=0.15)  # 400 draws: the std's own error is 3.5 %
+    np.testing.assert_allclose(np.std(models.drive["viscous"], axis=0) / drive_sigma["viscous"], 1.0, atol=0.15)
+
+
+def test_options_and_model_files_are_checked():
+    with pytest.raises(ConfigError, match="not one of mjcf, urdf, sdf, feedforward, gains"):
+        ExportOptions("usd")
+    with pytest.raises(ConfigError, match="bandwidth_hz"):
+        ExportOptions("gains", bandwidth_hz=-1.0)
