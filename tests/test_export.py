@@ -5,6 +5,8 @@ randomization; ``validate --model model.xml``; the CLI face."""
 from __future__ import annotations
 
 import dataclasses
+import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,9 +15,10 @@ from pe_drake.config import RobotConfig
 from pe_drake.exceptions import ConfigError
 from pe_drake.export.controller import effective_inertia, gains_table, sample_models
 from pe_drake.export.drake_files import drake_check, random_states, sdf_text, urdf_export_text
-from pe_drake.export.export_model import ExportOptions
+from pe_drake.export.model_export import ExportOptions
 from pe_drake.export.mjcf import PAYLOAD_BODY, mjcf_text
 from pe_drake.export.terms import ExportTerms, model_torques
+from pe_drake.multibody.base_parameters import compute_base_parameters
 from pe_drake.multibody.inertia import central_inertia, perturb_inertias, validity_problems
 from pe_drake.multibody.payload import PayloadInertia
 from pe_drake.multibody.robot import load_robot
@@ -144,13 +147,13 @@ def test_an_sdf_robot_exports_sdf_and_mjcf_and_refuses_urdf(slider, tmp_path):
         urdf_export_text(robot, again)
 
 
-def test_gains_use_the_mass_matrix_diagonal_plus_armature(slider):
-    from pydrake.multibody.tree import MultibodyForces  # noqa: F401 - the plant's own mass matrix below
-
+def test_gains_use_the_mass_matrix_diagonal_plus_armature(slider, tmp_path):
     terms = identified_terms(slider, 9)
     q = random_states(slider, 5, seed=2)[0]
     J = effective_inertia(slider, terms, q)
-    loaded = load_robot(dataclasses.replace(slider.config, model=str(_write(sdf_text(slider, terms), slider))))
+    path = tmp_path / "slider.sdf"
+    path.write_text(sdf_text(slider, terms))
+    loaded = load_robot(dataclasses.replace(slider.config, model=str(path)))
     for s in range(q.shape[0]):
         loaded.plant.SetPositions(loaded.plant_context, q[s])
         M = loaded.plant.CalcMassMatrix(loaded.plant_context)  # rotor inertia included
@@ -162,20 +165,9 @@ def test_gains_use_the_mass_matrix_diagonal_plus_armature(slider):
         assert table[name]["kd"] == pytest.approx(2 * 0.7 * J[:, k].mean() * omega)
 
 
-def _write(text: str, robot):
-    import tempfile
-    from pathlib import Path
-
-    path = Path(tempfile.mkdtemp()) / f"{robot.name}.sdf"
-    path.write_text(text)
-    return path
-
-
 def test_sampled_models_are_consistent_and_spread_as_sigma(slider):
     terms = identified_terms(slider, 10)
     # the slider's base parameters as one identification would report them: K of the regressor's base
-    from pe_drake.multibody.base_parameters import compute_base_parameters
-
     base = compute_base_parameters(slider)
     K = np.asarray(base.K, float)
     # 0.5 %: base parameters sharing a link inertia differ by less than that link's triangle margin
@@ -196,3 +188,59 @@ def test_options_and_model_files_are_checked():
         ExportOptions("usd")
     with pytest.raises(ConfigError, match="bandwidth_hz"):
         ExportOptions("gains", bandwidth_hz=-1.0)
+
+
+REAL = Path(__file__).resolve().parents[2] / "shared" / "datasets" / "panda_gaz2019" / "excitation_1.csv"
+
+
+def run_cli(*argv) -> tuple[int, str, str]:
+    import contextlib
+    import io
+
+    from pe_drake.cli import main
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main([str(a) for a in argv])
+    return code, out.getvalue(), err.getvalue()
+
+
+@pytest.mark.skipif(not REAL.is_file(), reason="the real Panda recording is not here")
+def test_cli_export_then_validate_in_mujoco_and_drake_agree_on_the_real_run(tmp_path, slider):
+    pytest.importorskip("mujoco")
+    results = {}
+    for to, suffix in (("mjcf", ".xml"), ("urdf", ".urdf")):
+        path = tmp_path / f"cad{suffix}"
+        code, out, err = run_cli("export", "--robot", "panda", "--to", to, "--out", path)
+        assert code == 0, err
+        assert f"wrote {path}" in out and "vs the model (relative)" in out
+        code, out, err = run_cli("validate", "--robot", "panda", "--model", path, "--data", REAL,
+                                 "--window", "15,17", "--json", tmp_path / f"{to}.json")
+        assert code == 0, err
+        results[to] = json.loads((tmp_path / f"{to}.json").read_text())["rms"]
+    # the CAD Panda has damping and no friction: MuJoCo and Drake compute the same torques
+    for joint, rms in results["urdf"].items():
+        assert results["mjcf"][joint] == pytest.approx(rms, rel=1e-6)
+    # another robot's MJCF: refused, naming the missing joints; nothing half-written
+    other = tmp_path / "slider.xml"
+    other.write_text(mjcf_text(slider, identified_terms(slider, 1))[0])
+    code, _, err = run_cli("validate", "--robot", "panda", "--model", other, "--data", REAL, "--window", "15,16")
+    assert code == 2 and "has no joint(s) panda_joint1" in err
+    code, _, err = run_cli("export", "--robot", "panda", "--to", "mjcf", "--out", tmp_path / "x.urdf")
+    assert code == 2 and not (tmp_path / "x.urdf").exists()
+
+
+def test_simulator_torques_of_exported_files_hold_the_friction(slider, tmp_path):
+    pytest.importorskip("mujoco")
+    from pe_drake.export.simulator_validation import simulator_torques
+
+    terms = identified_terms(slider, 11)
+    q, v, vd = random_states(slider, 10, seed=4)
+    want = model_torques(slider, terms, q, v, vd)
+    c = terms.drive["coulomb"]
+    for suffix, text, friction in ((".xml", mjcf_text(slider, terms)[0], c * np.sign(v)),
+                                   (".urdf", urdf_export_text(slider, terms), c * np.tanh(v / 0.01))):
+        path = tmp_path / f"slider{suffix}"
+        path.write_text(text)
+        got, _ = simulator_torques(slider, path, q, v, vd)
+        assert relative(got, want + friction) < 1e-6, suffix  # the URDF's friction read before its file goes

@@ -200,7 +200,7 @@ def test_no_underscore_name_is_used_outside_its_module():
 FACE_IMPORTS = {
     "pe_drake", "pe_drake.multibody", "pe_drake.excitation", "pe_drake.identification", "pe_drake.diagnosis",
     "pe_drake.config", "pe_drake.exceptions", "pe_drake.output_paths", "pe_drake.io_utils", "pe_drake.threads",
-    "pe_drake.memory", "pe_drake.viewer", "pe_drake.cli.common",
+    "pe_drake.memory", "pe_drake.viewer", "pe_drake.cli.common", "pe_drake.export",
 }
 MAX_FACE_LINES = 80
 FACES = sorted(p for p in (PACKAGE / "cli").glob("*.py") if p.name not in ("__init__.py", "common.py"))
@@ -226,7 +226,7 @@ def test_command_faces_are_thin(path):
 
 #: Checks that belong to one stage: (module defining them, the stages allowed to call them).
 STAGE_CALLS = {
-    "pe_drake.identification.data_checks": ("pe_drake.identification", "pe_drake.diagnosis"),
+    "pe_drake.identification.data_checks": ("pe_drake.identification", "pe_drake.diagnosis", "pe_drake.export"),
     "pe_drake.excitation.ramp": ("pe_drake.excitation", "pe_drake.identification", "pe_drake.diagnosis",
                                  "pe_drake.viewer", "pe_drake.bench"),
     "pe_drake.excitation.quality": ("pe_drake.excitation", "pe_drake.bench"),

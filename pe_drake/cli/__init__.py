@@ -203,6 +203,7 @@ def _add_export_command(sub) -> None:
     p.add_argument("--data", help="a held-out run: the projection's and the feed-forward's effect on it, the "
                                   "postures of the gains")
     add_log_arguments(p)
+    add_window_argument(p, "used from --data")
     p.add_argument("--bandwidth", type=float, default=10.0, help="gains: closed-loop bandwidth [Hz] (default 10)")
     p.add_argument("--damping-ratio", type=float, default=1.0, help="gains: damping ratio ζ (default 1)")
     p.add_argument("--sigma-k", type=float, default=2.0, help="gains: randomization ranges value ± k·σ (default 2)")

@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 
 from pe_drake.cli.common import config_from_args, measurement_from_args, read_log_from_args, robot_from_args
-from pe_drake.export.validate_exported import is_simulator_model, validate_exported
+from pe_drake.export import is_simulator_model, validate_exported
 from pe_drake.identification import (
     IdentifyOptions,
     TimeWindow,

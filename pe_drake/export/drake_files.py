@@ -139,7 +139,9 @@ def reloaded_robot(robot, text: str, suffix: str):
         changes = {"model": str(path), "capsules": ""}
         if suffix == ".sdf":
             changes["locked_positions"] = {}
-        return load_robot(dataclasses.replace(robot.config, **changes))
+        loaded = load_robot(dataclasses.replace(robot.config, **changes))
+        loaded.joint_friction  # noqa: B018 - read from the file (a cached property) before it is removed
+        return loaded
 
 
 def drake_check(robot, terms: ExportTerms, text: str, suffix: str, samples: int = 20,

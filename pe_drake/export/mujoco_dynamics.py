@@ -25,7 +25,7 @@ def import_mujoco():
     try:
         import mujoco  # lazy: an optional dependency
     except ImportError as err:
-        raise MissingDependencyError("mujoco", "MuJoCo models (pip install 'pe_drake[mujoco]')") from err
+        raise MissingDependencyError("mujoco", "a MuJoCo model (pe_drake[mujoco])") from err
     return mujoco
 
 
@@ -100,5 +100,10 @@ def mujoco_torques(model, joint_names, q: np.ndarray, v: np.ndarray, vd: np.ndar
     finally:
         model.opt.disableflags = flags
     if sliding_friction:
-        out = out + model.dof_frictionloss[dof_adr] * np.sign(v)
+        out = out + joint_frictionloss(model, joint_names) * np.sign(v)
     return out
+
+
+def joint_frictionloss(model, joint_names) -> np.ndarray:
+    """The ``frictionloss`` of the named joints of an MjModel, shape (n,) [N·m or N]."""
+    return np.asarray(model.dof_frictionloss[joint_addresses(model, joint_names)[1]], float)

@@ -17,14 +17,17 @@ import numpy as np
 
 from pe_drake.exceptions import ConfigError
 from pe_drake.export.drake_files import reloaded_robot
-from pe_drake.export.mujoco_dynamics import load_mjcf, mujoco_torques
+from pe_drake.export.mujoco_dynamics import joint_frictionloss, load_mjcf, mujoco_torques
 from pe_drake.export.terms import DEFAULT_VELOCITY_SCALE
 from pe_drake.identification.data_checks import check_against_model
+from pe_drake.identification.drive_terms import filtered_coulomb
 from pe_drake.identification.estimators import prepare_measurement, torque_errors
 from pe_drake.identification.measurements import Measurement
 from pe_drake.identification.validate_model import ValidateOptions, ValidationReport
 from pe_drake.multibody.robot import Robot
 
+#: v_s standing for sign(v): MuJoCo's dry friction on a sliding joint [rad/s].
+SIGN_VELOCITY_SCALE = 1e-6
 #: Suffixes of the model files validate predicts with a simulator.
 SIMULATOR_SUFFIXES = (".xml", ".urdf", ".sdf")
 
@@ -34,9 +37,13 @@ def is_simulator_model(path: str | Path) -> bool:
     return Path(path).suffix.lower() in SIMULATOR_SUFFIXES
 
 
-def simulator_torques(robot: Robot, path: str | Path, q: np.ndarray, v: np.ndarray, vd: np.ndarray
-                      ) -> tuple[np.ndarray, str]:
+def simulator_torques(robot: Robot, path: str | Path, q: np.ndarray, v: np.ndarray, vd: np.ndarray,
+                      friction_columns=None) -> tuple[np.ndarray, str]:
     """(torques (S, n), what computed them) of the model file at the samples (module docstring).
+
+    Args:
+        friction_columns: ``f(v_s) -> (S, n)`` the Coulomb columns tanh(v/v_s) of the samples
+            (validate: filtered like the torques); default tanh of ``v``.
 
     Raises:
         ConfigError: a file the simulator refuses or whose joints differ from the robot's.
@@ -44,16 +51,18 @@ def simulator_torques(robot: Robot, path: str | Path, q: np.ndarray, v: np.ndarr
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"--model '{path}' does not exist")
+    columns = friction_columns or (lambda scale: np.tanh(v / scale))
     if path.suffix.lower() == ".xml":
         model = load_mjcf(path)
-        return mujoco_torques(model, robot.joint_names, q, v, vd, sliding_friction=True), (
-            "MuJoCo mj_inverse (armature, damping) + frictionloss·sign(v)")
+        tau = mujoco_torques(model, robot.joint_names, q, v, vd)
+        tau = tau + joint_frictionloss(model, robot.joint_names) * columns(SIGN_VELOCITY_SCALE)
+        return tau, "MuJoCo mj_inverse (armature, damping) + frictionloss·sign(v)"
     loaded = reloaded_robot(robot, path.read_text(), path.suffix.lower())
     if loaded.joint_names != robot.joint_names:
         raise ConfigError(f"'{path.name}' has joints {', '.join(loaded.joint_names)}; robot '{robot.name}' excites "
                           f"{', '.join(robot.joint_names)}")
     tau = loaded.inverse_dynamics(q, v, vd, include_damping=True)
-    tau = tau + loaded.joint_friction * np.tanh(v / DEFAULT_VELOCITY_SCALE)
+    tau = tau + loaded.joint_friction * columns(DEFAULT_VELOCITY_SCALE)
     return tau, "Drake inverse dynamics (rotor inertia, damping) + the file's friction·tanh(v/v_s)"
 
 
@@ -72,7 +81,9 @@ def validate_exported(robot: Robot, path: str | Path, measurements: Measurement,
     data = prepare_measurement(robot, measurements, cutoff_hz=options.cutoff_hz, max_gap_s=options.max_gap_s,
                                window=options.window)
     check_against_model(robot, data)
-    predicted, how = simulator_torques(robot, path, data.q, data.v, data.vd)
+    # the torque was low-pass filtered: so is the friction's sign (parallel filtering, as validate_model)
+    predicted, how = simulator_torques(robot, path, data.q, data.v, data.vd,
+                                       lambda scale: filtered_coulomb(measurements, data, scale))
     rms, rel = torque_errors(data.tau, predicted)
     total = float(100 * np.linalg.norm(data.tau - predicted) / max(np.linalg.norm(data.tau), 1e-300))
     return ValidationReport(robot.name, Path(path).name, "joint_torque",

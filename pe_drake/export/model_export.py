@@ -24,6 +24,7 @@ from pe_drake.export.mujoco_dynamics import load_mjcf, mujoco_torques
 from pe_drake.export.terms import ExportTerms, export_terms, model_torques, projection_change
 from pe_drake.identification.estimators import prepare_measurement
 from pe_drake.identification.measurements import Measurement
+from pe_drake.identification.time_window import TimeWindow
 from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.robot import Robot
 
@@ -44,6 +45,7 @@ class ExportOptions:
         sigma_k: randomization ranges value ± k·σ (gains).
         samples: physically consistent models drawn from σ (gains).
         seed: of the draws.
+        window: the part of the held-out run used (cut after filtering; None: all of it).
     """
 
     to: str = "mjcf"
@@ -52,6 +54,7 @@ class ExportOptions:
     sigma_k: float = 2.0
     samples: int = 10
     seed: int = 0
+    window: TimeWindow | None = None
 
     def __post_init__(self):
         if self.to not in FORMATS:
@@ -113,7 +116,7 @@ def export_model(robot: Robot, model: str | Path | None, options: ExportOptions 
     options = options or ExportOptions()
     terms = export_terms(robot, model)
     figures: dict = {}
-    data = prepare_measurement(robot, held_out) if held_out is not None else None
+    data = prepare_measurement(robot, held_out, window=options.window) if held_out is not None else None
     if data is not None and model is not None:
         change = projection_change(robot, model, terms, data)
         if change is not None:
