@@ -244,3 +244,36 @@ def test_simulator_torques_of_exported_files_hold_the_friction(slider, tmp_path)
         path.write_text(text)
         got, _ = simulator_torques(slider, path, q, v, vd)
         assert relative(got, want + friction) < 1e-6, suffix  # the URDF's friction read before its file goes
+
+
+@pytest.mark.parametrize("method", ["ols", "wls"])
+def test_a_base_parameter_model_is_projected_at_the_noise_floor(method, tmp_path):
+    """OLS/WLS files have base parameters only: the export projects them onto consistent links
+    and reports how much that changes the held-out prediction; on data of a consistent truth
+    (Panda, inertias ±10 %, friction, offsets, armature) the change is at the noise floor."""
+    from pe_drake.excitation.trajectory_file import load_trajectory
+    from pe_drake.export.terms import export_terms, projection_change
+    from pe_drake.identification.drive_terms import COULOMB_VELOCITY_SCALE
+    from pe_drake.identification.estimators import identify, prepare_measurement
+    from pe_drake.identification.identified_file import result_to_dict
+    from pe_drake.identification.synthetic import model_measurement
+    from tests.test_identification import OPTIMIZED, random_trajectory
+
+    robot = get_robot("panda")
+    truth = identified_terms(robot, 12)
+    trajectory, _ = load_trajectory(OPTIMIZED)
+    noise = 0.05  # [N·m]
+
+    def run(traj, seed, duration=None):
+        m = model_measurement(robot, traj, truth.phi, rate_hz=100, duration=duration, tau_noise_std=noise, seed=seed)
+        d = truth.drive
+        tau = m.tau + d["coulomb"] * np.tanh(m.v / COULOMB_VELOCITY_SCALE) + d["viscous"] * m.v + d["offset"] \
+            + d["armature"] * m.vd
+        return prepare_measurement(robot, m.replace(tau=tau), filtering=False, check_units=False)
+
+    result = identify(robot, run(trajectory, 1, 2 * trajectory.period), method)
+    (tmp_path / "identified.json").write_text(json.dumps(result_to_dict(result, robot)))
+    terms = export_terms(robot, tmp_path / "identified.json")
+    assert not validity_problems(robot.body_names, terms.phi)
+    change = projection_change(robot, tmp_path / "identified.json", terms, run(random_trajectory(robot, trajectory, 7), 5))
+    assert change is not None and np.all(change < noise), change
