@@ -31,7 +31,7 @@ from pe_drake.multibody.inertia import central_inertia, validity_problems
 def _dump(data) -> str:
     import yaml  # lazy: only the YAML exports need it
 
-    return yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=120)
+    return yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=120, allow_unicode=True)
 
 
 def _unit(robot, k: int) -> tuple[str, str]:
@@ -74,10 +74,12 @@ def feedforward_yaml(robot, terms: ExportTerms, check: dict | None = None) -> st
     return header + _dump(data)
 
 
-def friction_torque(terms: ExportTerms, v: np.ndarray) -> np.ndarray:
-    """The feed-forward's friction and offset torque at velocities v (S, n), shape (S, n)."""
+def friction_torque(terms: ExportTerms, v: np.ndarray, coulomb: np.ndarray | None = None) -> np.ndarray:
+    """The feed-forward's friction and offset torque at velocities v (S, n), shape (S, n)
+    (``coulomb``: the Coulomb columns, default tanh(v/v_s))."""
     d = terms.drive
-    return d["coulomb"] * np.tanh(np.asarray(v) / terms.velocity_scale) + d["viscous"] * v + d["offset"]
+    column = np.tanh(np.asarray(v) / terms.velocity_scale) if coulomb is None else coulomb
+    return d["coulomb"] * column + d["viscous"] * v + d["offset"]
 
 
 def effective_inertia(robot, terms: ExportTerms, q: np.ndarray) -> np.ndarray:
@@ -169,18 +171,24 @@ def _body_record(phi_b: np.ndarray) -> dict:
 
 
 def randomization(robot, terms: ExportTerms, k: float, count: int, seed: int = 0) -> dict:
-    """Ranges value ± k·σ per drive term and base parameter, and ``count`` sampled models."""
+    """Ranges value ± k·σ per drive term (friction and armature floored at 0) and base
+    parameter, and ``count`` sampled models."""
     if terms.base_K is None:
         return {"note": f"no σ in '{terms.source or 'the CAD model'}': no randomization ranges"}
-    drive = {name: {t: [float(terms.drive[t][j] - k * terms.drive_sigma.get(t, 0 * terms.drive[t])[j]),
-                        float(terms.drive[t][j] + k * terms.drive_sigma.get(t, 0 * terms.drive[t])[j])]
-                    for t in ("coulomb", "viscous", "offset", "armature")}
-             for j, name in enumerate(robot.joint_names)}
+    drive = {}
+    for j, name in enumerate(robot.joint_names):
+        drive[name] = {}
+        for t in ("coulomb", "viscous", "offset", "armature"):
+            value, spread = terms.drive[t][j], terms.drive_sigma.get(t, np.zeros(robot.n))[j]
+            low = value - k * spread if t == "offset" else max(value - k * spread, 0.0)
+            drive[name][t] = [float(low), float(value + k * spread)]
     base_value = terms.base_K @ terms.phi
-    base = [[float(v - k * s), float(v + k * s)] for v, s in zip(base_value, terms.base_sigma) if np.isfinite(s)]
+    base = {name: [float(v - k * s), float(v + k * s)]
+            for name, v, s in zip(terms.base_names, base_value, terms.base_sigma) if np.isfinite(s)}
     out = {"k": k, "drive_terms": drive, "base_parameters": base}
     if count > 0:
         models = sample_models(robot, terms, count, seed)
+        # a projected draw is pulled back to the consistent set: the spread is then below σ
         out["samples_projected_onto_consistent"] = models.projected
         out["samples"] = [
             {"bodies": {b: _body_record(models.phi[s, 10 * i : 10 * i + 10]) for i, b in enumerate(robot.body_names)},

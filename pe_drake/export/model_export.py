@@ -22,6 +22,7 @@ from pe_drake.export.drake_files import drake_check, random_states, sdf_text, ur
 from pe_drake.export.mjcf import mjcf_text, unheld_terms
 from pe_drake.export.mujoco_dynamics import load_mjcf, mujoco_torques
 from pe_drake.export.terms import ExportTerms, export_terms, model_torques, projection_change
+from pe_drake.identification.drive_terms import filtered_coulomb
 from pe_drake.identification.estimators import prepare_measurement
 from pe_drake.identification.measurements import Measurement
 from pe_drake.identification.time_window import TimeWindow
@@ -90,7 +91,9 @@ class ExportResult:
         lines += [f"note: {n}" for n in self.terms.notes]
         lines += [f"not held by {self.format}: {n}" for n in self.unheld]
         for name, value in self.figures.items():
-            lines.append(f"{name}: {value}" if not isinstance(value, float) else f"{name}: {value:.3g}")
+            if isinstance(value, dict):  # per joint
+                value = ", ".join(f"{j} {x:.3g}" for j, x in value.items())
+            lines.append(f"{name}: {value:.3g}" if isinstance(value, float) else f"{name}: {value}")
         return lines
 
     def write(self, path: str | Path) -> list[str]:
@@ -120,7 +123,7 @@ def export_model(robot: Robot, model: str | Path | None, options: ExportOptions 
     if data is not None and model is not None:
         change = projection_change(robot, model, terms, data)
         if change is not None:
-            figures["projection: held-out RMS change per joint [N·m]"] = _per_joint(robot, change)
+            figures["projection: held-out RMS change per joint [N·m]"] = dict(zip(robot.joint_names, map(float, change)))
     unheld = tuple(unheld_terms(robot, terms))
     if options.to == "mjcf":
         text, unheld_list = mjcf_text(robot, terms)
@@ -131,7 +134,7 @@ def export_model(robot: Robot, model: str | Path | None, options: ExportOptions 
         figures[f"Drake inverse dynamics of the {options.to} vs the model (relative)"] = drake_check(
             robot, terms, text, FORMATS[options.to], tolerance=CHECK_TOLERANCE)
     elif options.to == "feedforward":
-        check = _feedforward_check(robot, terms, data) if data is not None else None
+        check = _feedforward_check(robot, terms, data, held_out) if data is not None else None
         text = feedforward_yaml(robot, terms, check)
         figures.update(check or {})
         unheld = ()
@@ -141,10 +144,6 @@ def export_model(robot: Robot, model: str | Path | None, options: ExportOptions 
                           sigma_k=options.sigma_k, samples=options.samples, seed=options.seed)
         unheld = ()
     return ExportResult(options.to, text, terms, unheld, figures)
-
-
-def _per_joint(robot, x: np.ndarray) -> str:
-    return ", ".join(f"{j} {v:.3g}" for j, v in zip(robot.joint_names, x))
 
 
 def _mujoco_check(robot, terms: ExportTerms, text: str) -> dict:
@@ -162,14 +161,17 @@ def _mujoco_check(robot, terms: ExportTerms, text: str) -> dict:
     return {"MuJoCo mj_inverse vs the model (relative)": error}
 
 
-def _feedforward_check(robot, terms: ExportTerms, data) -> dict:
-    """RMS error [N·m] per joint of gravity + friction feed-forward, and of the whole model, on the run."""
+def _feedforward_check(robot, terms: ExportTerms, data, raw) -> dict:
+    """RMS error [N·m] per joint of the gravity + friction feed-forward and of the whole model on
+    the run (Coulomb columns filtered like the torque, as ``validate``)."""
     zero = np.zeros_like(data.v)
-    gravity = model_torques(robot, terms, data.q, zero, zero)
-    full = model_torques(robot, terms, data.q, data.v, data.vd) + friction_torque(terms, data.v) \
-        - terms.drive["viscous"] * data.v  # model_torques has the viscous term already
-    ff = gravity + friction_torque(terms, data.v)
-    rms = lambda x: np.sqrt(np.mean(x**2, axis=0))  # noqa: E731
-    return {"gravity + friction feed-forward RMS error [N·m]": dict(zip(robot.joint_names, map(float, rms(data.tau - ff)))),
-            "whole model RMS error [N·m]": dict(zip(robot.joint_names, map(float, rms(data.tau - full)))),
-            "measured RMS [N·m]": dict(zip(robot.joint_names, map(float, rms(data.tau))))}
+    coulomb = filtered_coulomb(raw, data, terms.velocity_scale)
+    friction = friction_torque(terms, data.v, coulomb)
+    gravity_ff = model_torques(robot, terms, data.q, zero, zero) + friction
+    whole = model_torques(robot, terms, data.q, data.v, data.vd) + friction - terms.drive["viscous"] * data.v
+
+    def rms(x):
+        return dict(zip(robot.joint_names, (float(r) for r in np.sqrt(np.mean(x**2, axis=0)))))
+
+    return {"gravity + friction feed-forward RMS error [N·m]": rms(data.tau - gravity_ff),
+            "whole model RMS error [N·m]": rms(data.tau - whole), "measured RMS [N·m]": rms(data.tau)}

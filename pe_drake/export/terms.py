@@ -50,6 +50,7 @@ class ExportTerms:
         base_K: the identification's base parameters as rows of the standard ones, φ_B = K φ,
             shape (p, 10·nb), or None (a model without σ: the CAD model, an augmented model).
         base_sigma: σ of each base parameter, shape (p,) (inf: not identified), or None.
+        base_names: the base parameters' names, length p.
         drive_sigma: {term: σ per joint} of the identified drive terms (0: not identified).
     """
 
@@ -65,6 +66,7 @@ class ExportTerms:
     base_K: np.ndarray | None = None
     base_sigma: np.ndarray | None = None
     drive_sigma: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
+    base_names: tuple[str, ...] = ()
 
     def phi_with_payload(self, body_names) -> np.ndarray:
         """φ with the payload added to its link, shape (10·nb,): what the robot's torques see."""
@@ -109,7 +111,7 @@ def export_terms(robot, model: str | Path | None) -> ExportTerms:
         drive_sigma = {t: spread.per_joint(t) for t in DRIVE_TERMS}
     return ExportTerms(str(model), phi, {k: np.array(v, float) for k, v in drive.items()}, float(sim.velocity_scale),
                        link, payload, tuple(sim.notes), float(sim.torque_delay), np.array(sim.presliding, float),
-                       K, sigma, drive_sigma)
+                       K, sigma, drive_sigma, tuple(result.base.base_names))
 
 
 def _split_payload(robot, path: Path, phi: np.ndarray) -> tuple[str, PayloadInertia | None, np.ndarray]:
