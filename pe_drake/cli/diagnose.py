@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from pe_drake.cli.common import config_from_args, read_log_from_args, robot_from_args
+from pe_drake.cli.common import config_from_args, export_hint, read_log_from_args, robot_from_args
 from pe_drake.diagnosis import DiagnosisConfig, diagnose, write_outputs
 from pe_drake.exceptions import ConfigError
 from pe_drake.identification import load_identified
@@ -34,4 +34,6 @@ def diagnose_command(args) -> int:
     with staged_output_dir(out, "diagnosis.json", DIAGNOSE_OUTPUTS) as tmp:
         written = write_outputs(tmp, robot, result)
     print(f"wrote {', '.join(str(out / Path(w).name) for w in written)}")
+    if any(Path(w).name == "augmented_model.json" for w in written):
+        print(export_hint(out / "augmented_model.json", args.robot))
     return 0

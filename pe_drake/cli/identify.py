@@ -5,7 +5,13 @@ from __future__ import annotations
 
 import argparse
 
-from pe_drake.cli.common import config_from_args, measurement_from_args, read_log_from_args, robot_from_args
+from pe_drake.cli.common import (
+    config_from_args,
+    export_hint,
+    measurement_from_args,
+    read_log_from_args,
+    robot_from_args,
+)
 from pe_drake.export import is_simulator_model, validate_exported
 from pe_drake.identification import (
     IdentifyOptions,
@@ -35,6 +41,7 @@ def identify_command(args: argparse.Namespace) -> int:
     if note:
         print(note)
     print(f"wrote {out}/" + ", ".join(written))
+    print(export_hint(out / "identified.json", args.robot))
     return 0
 
 
