@@ -14,10 +14,10 @@ import pytest
 from pe_drake.config import RobotConfig
 from pe_drake.exceptions import ConfigError
 from pe_drake.export.controller import effective_inertia, gains_table, sample_models
-from pe_drake.export.drake_files import drake_check, random_states, sdf_text, urdf_export_text
+from pe_drake.export.drake_files import drake_check, sdf_text, urdf_export_text
 from pe_drake.export.model_export import ExportOptions
 from pe_drake.export.mjcf import PAYLOAD_BODY, mjcf_text
-from pe_drake.export.terms import ExportTerms, model_torques
+from pe_drake.export.terms import ExportTerms, model_torques, random_states
 from pe_drake.multibody.base_parameters import compute_base_parameters
 from pe_drake.multibody.inertia import central_inertia, perturb_inertias, validity_problems
 from pe_drake.multibody.payload import PayloadInertia

@@ -27,7 +27,7 @@ import numpy as np
 
 from pe_drake.exceptions import ConfigError
 from pe_drake.export.mjcf import PAYLOAD_BODY, unheld_terms
-from pe_drake.export.terms import ExportTerms, model_torques
+from pe_drake.export.terms import ExportTerms, model_torques, random_states
 from pe_drake.export.tree import robot_tree
 from pe_drake.multibody.inertia import central_inertia
 from pe_drake.multibody.robot import load_robot
@@ -168,13 +168,3 @@ def drake_check(robot, terms: ExportTerms, text: str, suffix: str, samples: int 
                           f"{error:.3g} relative (tolerance {tolerance:g})")
     return error
 
-
-def random_states(robot, samples: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(q, v, v̇), each (samples, n): q inside the limits, |v| up to the velocity limit, |v̇| up to
-    the acceleration limit."""
-    rng = np.random.default_rng(seed)
-    lim = robot.limits
-    q = rng.uniform(lim.q_lower, lim.q_upper, (samples, robot.n))
-    v = rng.uniform(-1, 1, (samples, robot.n)) * lim.v_max
-    vd = rng.uniform(-1, 1, (samples, robot.n)) * lim.vd_max
-    return q, v, vd

@@ -18,10 +18,10 @@ import numpy as np
 
 from pe_drake.exceptions import ConfigError
 from pe_drake.export.controller import feedforward_yaml, friction_torque, gains_yaml
-from pe_drake.export.drake_files import drake_check, random_states, sdf_text, urdf_export_text
+from pe_drake.export.drake_files import drake_check, sdf_text, urdf_export_text
 from pe_drake.export.mjcf import mjcf_text, unheld_terms
 from pe_drake.export.mujoco_dynamics import load_mjcf, mujoco_torques
-from pe_drake.export.terms import ExportTerms, export_terms, model_torques, projection_change
+from pe_drake.export.terms import ExportTerms, export_terms, model_torques, projection_change, random_states
 from pe_drake.identification.drive_terms import filtered_coulomb
 from pe_drake.identification.estimators import prepare_measurement
 from pe_drake.identification.measurements import Measurement

@@ -160,3 +160,14 @@ def projection_change(robot, model: str | Path, terms: ExportTerms, data) -> np.
     exported = model_torques(robot, terms, data.q, data.v, data.vd) + d["offset"] \
         + d["coulomb"] * np.tanh(data.v / terms.velocity_scale)
     return np.sqrt(np.mean((own - exported) ** 2, axis=0))
+
+
+def random_states(robot, samples: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(q, v, v̇), each (samples, n): q inside the limits, |v| up to the velocity limit, |v̇| up to
+    the acceleration limit."""
+    rng = np.random.default_rng(seed)
+    lim = robot.limits
+    q = rng.uniform(lim.q_lower, lim.q_upper, (samples, robot.n))
+    v = rng.uniform(-1, 1, (samples, robot.n)) * lim.v_max
+    vd = rng.uniform(-1, 1, (samples, robot.n)) * lim.vd_max
+    return q, v, vd
