@@ -4,7 +4,8 @@ held-out run in the simulator it was exported for.
 An MJCF's torques are MuJoCo's own (``mj_inverse`` with armature and damping, plus its dry
 friction on a sliding joint, ``frictionloss·sign(v)``; :mod:`pe_drake.export.mujoco_dynamics`);
 a URDF's or SDFormat's are Drake's inverse dynamics of the file loaded as a robot (rotor
-inertia and damping; a URDF's ``<dynamics friction>`` as pe_drake's f·tanh(v/v_s)). So the gap
+inertia and damping; a URDF's ``<dynamics friction>`` as pe_drake's f·tanh(v/v_s), an SDFormat
+file's none: Drake ignores it). So the gap
 between a CAD file and the identified one shows in the simulator a user trains in. Offsets and
 whatever else the format cannot hold are not predicted.
 """
@@ -62,6 +63,8 @@ def simulator_torques(robot: Robot, path: str | Path, q: np.ndarray, v: np.ndarr
         raise ConfigError(f"'{path.name}' has joints {', '.join(loaded.joint_names)}; robot '{robot.name}' excites "
                           f"{', '.join(robot.joint_names)}")
     tau = loaded.inverse_dynamics(q, v, vd, include_damping=True)
+    if path.suffix.lower() == ".sdf":  # Drake ignores <friction>, and pe_drake reads it from URDFs only
+        return tau, "Drake inverse dynamics (rotor inertia, damping); an SDFormat file's <friction> is not applied"
     tau = tau + loaded.joint_friction * columns(DEFAULT_VELOCITY_SCALE)
     return tau, "Drake inverse dynamics (rotor inertia, damping) + the file's friction·tanh(v/v_s)"
 
