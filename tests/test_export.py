@@ -207,13 +207,17 @@ def run_cli(*argv) -> tuple[int, str, str]:
 
 @pytest.mark.skipif(not REAL.is_file(), reason="the real Panda recording is not here")
 def test_cli_export_then_validate_in_mujoco_and_drake_agree_on_the_real_run(tmp_path, slider):
-    pytest.importorskip("mujoco")
+    mujoco = pytest.importorskip("mujoco")
     results = {}
     for to, suffix in (("mjcf", ".xml"), ("urdf", ".urdf")):
         path = tmp_path / f"cad{suffix}"
         code, out, err = run_cli("export", "--robot", "panda", "--to", to, "--out", path)
         assert code == 0, err
         assert f"wrote {path}" in out and "vs the model (relative)" in out
+        if to == "mjcf":  # the visuals: example-robot-data's COLLADA meshes converted to OBJ beside it
+            assert len(list((tmp_path / "cad_meshes").glob("*.obj"))) == 10
+            model = mujoco.MjModel.from_xml_path(str(path))
+            assert model.nmesh == 11 and not list(tmp_path.glob(".cad_meshes*"))
         code, out, err = run_cli("validate", "--robot", "panda", "--model", path, "--data", REAL,
                                  "--window", "15,17", "--json", tmp_path / f"{to}.json")
         assert code == 0, err
@@ -277,3 +281,29 @@ def test_a_base_parameter_model_is_projected_at_the_noise_floor(method, tmp_path
     assert not validity_problems(robot.body_names, terms.phi)
     change = projection_change(robot, tmp_path / "identified.json", terms, run(random_trajectory(robot, trajectory, 7), 5))
     assert change is not None and np.all(change < noise), change
+
+
+def test_mjcf_visuals_are_copied_beside_it_and_leave_the_inertials_alone(tmp_path):
+    mujoco = pytest.importorskip("mujoco")
+    from pe_drake.export import ExportOptions, export_model
+
+    (tmp_path / "tetra.obj").write_text("v 0 0 0\nv 0.1 0 0\nv 0 0.1 0\nv 0 0 0.1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")
+    text = SLIDER_URDF.replace(
+        '<link name="arm">', '<link name="arm"><visual><origin xyz="0.1 0 0" rpy="0 0 0.5"/>'
+        '<geometry><box size="0.2 0.04 0.06"/></geometry></visual>').replace(
+        '<link name="tool">', '<link name="tool"><visual><geometry><mesh filename="tetra.obj" scale="2 2 2"/>'
+        '</geometry></visual>')
+    (tmp_path / "slider.urdf").write_text(text)
+    robot = load_robot(RobotConfig(model=str(tmp_path / "slider.urdf"), **MOUNT))
+    result = export_model(robot, None, ExportOptions("mjcf", meshdir="slider_meshes"))
+    out = tmp_path / "out" / "slider.xml"
+    result.write(out)
+    model = mujoco.MjModel.from_xml_path(str(out))
+    box = model.geom(model.body("arm").geomadr[0])
+    np.testing.assert_allclose(box.size, [0.1, 0.02, 0.03])
+    np.testing.assert_allclose(box.pos, [0.1, 0, 0], atol=1e-12)
+    assert (tmp_path / "out" / "slider_meshes" / "tool_0.obj").read_text().startswith("v 0 0 0")
+    np.testing.assert_allclose(model.mesh_scale[0], [2, 2, 2])
+    assert model.body("arm").mass[0] == pytest.approx(robot.phi_model[10 * robot.body_names.index("arm")])  # no geom mass
+    with pytest.raises(ConfigError, match="must be a folder name"):
+        ExportOptions("mjcf", meshdir="../elsewhere")

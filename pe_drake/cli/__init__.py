@@ -209,6 +209,8 @@ def _add_export_command(sub) -> None:
     p.add_argument("--sigma-k", type=float, default=2.0, help="gains: randomization ranges value ± k·σ (default 2)")
     p.add_argument("--samples", type=int, default=10, help="gains: consistent models drawn from σ (default 10)")
     p.add_argument("--seed", type=int, default=0, help="gains: seed of the draws")
+    p.add_argument("--no-meshes", action="store_true",
+                   help="mjcf: no visual geometry (default: the model's visuals, meshes in OUT_STEM_meshes/ beside it)")
 
 
 def _folder_lock(args) -> contextlib.AbstractContextManager:

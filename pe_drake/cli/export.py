@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from pe_drake.cli.common import config_from_args, read_log_from_args, robot_from_args
 from pe_drake.export import FORMATS, ExportOptions, export_model
@@ -14,7 +15,8 @@ def export_command(args: argparse.Namespace) -> int:
     """Runs ``pe-drake export``: one file, checked, written whole or not at all."""
     options = ExportOptions(args.to, bandwidth_hz=args.bandwidth, damping_ratio=args.damping_ratio,
                             sigma_k=args.sigma_k, samples=args.samples, seed=args.seed,
-                            window=None if args.window is None else TimeWindow.parse(args.window))
+                            window=None if args.window is None else TimeWindow.parse(args.window),
+                            meshdir="" if args.no_meshes or args.to != "mjcf" else f"{Path(args.out).stem}_meshes")
     out = check_output_file(args.out, "--out", (FORMATS[args.to],))  # before any work
     config = config_from_args(args)
     robot = robot_from_args(args, config)

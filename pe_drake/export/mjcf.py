@@ -13,8 +13,9 @@ its locked position, as pe_drake's plant has it), each excited joint a ``hinge``
   a joint at rest below f_c), not pe_drake's f_c·tanh(v/v_s): the two agree on a sliding joint
   (|v| ≫ v_s) and differ near rest.
 
-A motor per joint (``gear`` 1, ``ctrlrange`` the force limit) drives it. Bodies carry no
-geometry (``inertiafromgeom`` false: the inertials are the identified ones, never recomputed).
+A motor per joint (``gear`` 1, ``ctrlrange`` the force limit) drives it. The inertials are
+explicit (``inertiafromgeom`` false: never recomputed from geometry); the visuals, with a mesh
+folder, come from :mod:`pe_drake.export.mjcf_meshes`.
 What MJCF cannot hold — torque offsets, the tanh smoothing, a torque delay, pre-sliding
 friction — is listed in a comment at the top and returned as notes.
 """
@@ -22,9 +23,11 @@ friction — is listed in a comment at the top and returned as notes.
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
+from typing import NamedTuple
 
 import numpy as np
 
+from pe_drake.export.mjcf_meshes import add_visuals
 from pe_drake.export.terms import ExportTerms
 from pe_drake.export.tree import quaternion_wxyz, robot_tree
 from pe_drake.multibody.inertia import central_inertia
@@ -72,8 +75,8 @@ def _joint(body_el: ET.Element, robot, terms: ExportTerms, k: int) -> None:
     ET.SubElement(body_el, "joint", attributes)
 
 
-def _bodies(robot, terms: ExportTerms, worldbody: ET.Element) -> None:
-    """The bodies, nested as Drake's tree, each posed in its parent at q = 0."""
+def _bodies(robot, terms: ExportTerms, worldbody: ET.Element) -> dict[str, ET.Element]:
+    """The bodies, nested as Drake's tree, each posed in its parent at q = 0: {name: element}."""
     elements = {"world": worldbody}
     for body in robot_tree(robot, terms):
         X = body.X_PC
@@ -86,6 +89,8 @@ def _bodies(robot, terms: ExportTerms, worldbody: ET.Element) -> None:
         if terms.payload is not None and body.name == terms.payload_link:
             payload_el = ET.SubElement(body_el, "body", {"name": PAYLOAD_BODY, "pos": "0 0 0"})
             _inertial(payload_el, terms.payload.phi)
+    del elements["world"]
+    return elements
 
 
 def unheld_terms(robot, terms: ExportTerms) -> list[str]:
@@ -108,19 +113,39 @@ def unheld_terms(robot, terms: ExportTerms) -> list[str]:
     return out
 
 
-def mjcf_text(robot, terms: ExportTerms, name: str = "") -> tuple[str, list[str]]:
-    """The MJCF of the robot with ``terms`` (module docstring).
+class MJCFFiles(NamedTuple):
+    """An MJCF and its meshes (:func:`mjcf_files`).
 
-    Returns:
-        (the file's text, what it cannot hold of the model: one sentence each).
+    Attributes:
+        text: the MJCF.
+        unheld: what it cannot hold of the model, one sentence each.
+        meshes: {file name: content} of its mesh folder (``meshdir``), empty without visuals.
+        notes: visuals left out, one sentence each.
     """
+
+    text: str
+    unheld: list[str]
+    meshes: dict[str, bytes]
+    notes: list[str]
+
+
+def mjcf_files(robot, terms: ExportTerms, name: str = "", meshdir: str | None = None) -> MJCFFiles:
+    """The MJCF of the robot with ``terms`` (module docstring); with ``meshdir`` (a folder name
+    beside the file) its visuals too (:mod:`pe_drake.export.mjcf_meshes`)."""
     unheld = unheld_terms(robot, terms)
     root = ET.Element("mujoco", {"model": name or robot.name})
-    ET.SubElement(root, "compiler", {"angle": "radian", "inertiafromgeom": "false", "autolimits": "true"})
+    compiler = ET.SubElement(root, "compiler", {"angle": "radian", "inertiafromgeom": "false", "autolimits": "true"})
     gravity = robot.plant.gravity_field().gravity_vector()
     ET.SubElement(root, "option", {"gravity": _vec(gravity), "integrator": "implicitfast"})
+    asset = ET.SubElement(root, "asset")
     worldbody = ET.SubElement(root, "worldbody")
-    _bodies(robot, terms, worldbody)
+    bodies = _bodies(robot, terms, worldbody)
+    meshes, notes = {}, []
+    if meshdir is not None:
+        compiler.set("meshdir", meshdir)
+        meshes, notes = add_visuals(robot, bodies, asset)
+    if not len(asset):
+        root.remove(asset)
     actuator = ET.SubElement(root, "actuator")
     for k, joint in enumerate(robot.joint_names):
         attributes = {"name": joint, "joint": joint, "gear": "1"}
@@ -133,6 +158,18 @@ def mjcf_text(robot, terms: ExportTerms, name: str = "") -> tuple[str, list[str]
              f"model: {terms.source or 'the robot model file (CAD)'}"]
     lines += [f"note: {n}" for n in terms.notes]
     lines += [f"not held by MJCF: {n}" for n in unheld]
-    lines.append("no geometry: inertials are explicit (inertiafromgeom false); add visuals from the robot's model")
+    lines += [f"note: {n}" for n in notes]
+    if meshdir is None:
+        lines.append("no geometry: inertials are explicit (inertiafromgeom false); add visuals from the robot's model")
     comment = "\n".join("  " + line.replace("--", "- -") for line in lines)
-    return f"<!--\n{comment}\n-->\n" + ET.tostring(root, encoding="unicode") + "\n", unheld
+    return MJCFFiles(f"<!--\n{comment}\n-->\n" + ET.tostring(root, encoding="unicode") + "\n", unheld, meshes, notes)
+
+
+def mjcf_text(robot, terms: ExportTerms, name: str = "") -> tuple[str, list[str]]:
+    """The MJCF of the robot with ``terms``, without geometry.
+
+    Returns:
+        (the file's text, what it cannot hold of the model: one sentence each).
+    """
+    files = mjcf_files(robot, terms, name)
+    return files.text, files.unheld

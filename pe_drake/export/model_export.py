@@ -12,6 +12,8 @@ the prediction, and the feed-forward reports its gravity + friction error on the
 from __future__ import annotations
 
 import dataclasses
+import shutil
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +21,7 @@ import numpy as np
 from pe_drake.exceptions import ConfigError
 from pe_drake.export.controller import feedforward_yaml, friction_torque, gains_yaml
 from pe_drake.export.drake_files import drake_check, sdf_text, urdf_export_text
-from pe_drake.export.mjcf import mjcf_text, unheld_terms
+from pe_drake.export.mjcf import mjcf_files, unheld_terms
 from pe_drake.export.mujoco_dynamics import load_mjcf, mujoco_torques
 from pe_drake.export.terms import ExportTerms, export_terms, model_torques, projection_change, random_states
 from pe_drake.identification.drive_terms import filtered_coulomb
@@ -47,6 +49,8 @@ class ExportOptions:
         samples: physically consistent models drawn from σ (gains).
         seed: of the draws.
         window: the part of the held-out run used (cut after filtering; None: all of it).
+        meshdir: mjcf: the folder (beside the file) its visual meshes are written to; "" for
+            no geometry.
     """
 
     to: str = "mjcf"
@@ -56,8 +60,11 @@ class ExportOptions:
     samples: int = 10
     seed: int = 0
     window: TimeWindow | None = None
+    meshdir: str = ""
 
     def __post_init__(self):
+        if self.meshdir and (Path(self.meshdir).name != self.meshdir or self.meshdir in (".", "..")):
+            raise ConfigError(f"export meshdir '{self.meshdir}' must be a folder name (it is written beside the file)")
         if self.to not in FORMATS:
             raise ConfigError(f"export format '{self.to}' is not one of {', '.join(FORMATS)}")
         for name in ("bandwidth_hz", "damping_ratio", "sigma_k"):
@@ -78,6 +85,7 @@ class ExportResult:
         terms: the model exported.
         unheld: what the format cannot hold of the model, one sentence each.
         figures: {name: value} measured while checking (relative torque differences, RMS [N·m]).
+        meshdir: the mesh folder's name beside the file ("" for none); meshes: its files.
     """
 
     format: str
@@ -85,6 +93,8 @@ class ExportResult:
     terms: ExportTerms
     unheld: tuple[str, ...] = ()
     figures: dict = dataclasses.field(default_factory=dict)
+    meshdir: str = ""
+    meshes: dict = dataclasses.field(default_factory=dict)
 
     def summary_lines(self) -> list[str]:
         lines = [f"exported {self.terms.source or 'the CAD model'} as {self.format}"]
@@ -97,9 +107,39 @@ class ExportResult:
         return lines
 
     def write(self, path: str | Path) -> list[str]:
-        """Writes the file atomically (whole or not at all); returns the paths written."""
-        atomic_write_text(Path(path), self.text)
-        return [str(path)]
+        """Writes the file (and its mesh folder) whole or not at all; returns the paths written."""
+        path = Path(path)
+        if not self.meshes:
+            atomic_write_text(path, self.text)
+            return [str(path)]
+        folder = write_folder(path.parent / self.meshdir, self.meshes)
+        try:
+            atomic_write_text(path, self.text)
+        except BaseException:
+            shutil.rmtree(folder, ignore_errors=True)
+            raise
+        return [str(path), f"{folder}/ ({len(self.meshes)} meshes)"]
+
+
+def write_folder(folder: Path, files: dict[str, bytes]) -> Path:
+    """Writes ``files`` into ``folder`` whole: a temporary folder beside it, renamed into place
+    (an older folder of that name is replaced)."""
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", dir=folder.parent))
+    try:
+        for name, content in files.items():
+            (staging / name).write_bytes(content)
+        old = None
+        if folder.exists():
+            old = folder.with_name(f"{staging.name}.old")
+            folder.rename(old)
+        staging.rename(folder)
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    return folder
 
 
 def export_model(robot: Robot, model: str | Path | None, options: ExportOptions | None = None, *,
@@ -125,10 +165,13 @@ def export_model(robot: Robot, model: str | Path | None, options: ExportOptions 
         if change is not None:
             figures["projection: held-out RMS change per joint [N·m]"] = dict(zip(robot.joint_names, map(float, change)))
     unheld = tuple(unheld_terms(robot, terms))
+    meshes: dict = {}
     if options.to == "mjcf":
-        text, unheld_list = mjcf_text(robot, terms)
-        unheld = tuple(unheld_list)
-        figures.update(_mujoco_check(robot, terms, text))
+        mjcf = mjcf_files(robot, terms, meshdir=options.meshdir or None)
+        text, unheld, meshes = mjcf.text, tuple(mjcf.unheld), mjcf.meshes
+        figures.update(_mujoco_check(robot, terms, text, meshes))
+        if mjcf.notes:
+            figures["visuals left out"] = "; ".join(mjcf.notes)
     elif options.to in ("urdf", "sdf"):
         text = urdf_export_text(robot, terms) if options.to == "urdf" else sdf_text(robot, terms)
         figures[f"Drake inverse dynamics of the {options.to} vs the model (relative)"] = drake_check(
@@ -143,13 +186,13 @@ def export_model(robot: Robot, model: str | Path | None, options: ExportOptions 
         text = gains_yaml(robot, terms, q, bandwidth_hz=options.bandwidth_hz, damping_ratio=options.damping_ratio,
                           sigma_k=options.sigma_k, samples=options.samples, seed=options.seed)
         unheld = ()
-    return ExportResult(options.to, text, terms, unheld, figures)
+    return ExportResult(options.to, text, terms, unheld, figures, options.meshdir if meshes else "", meshes)
 
 
-def _mujoco_check(robot, terms: ExportTerms, text: str) -> dict:
+def _mujoco_check(robot, terms: ExportTerms, text: str, meshes: dict) -> dict:
     """MuJoCo loads the MJCF and its mj_inverse reproduces the model (figures), or raises."""
     try:
-        mj = load_mjcf(text, text=True)
+        mj = load_mjcf(text, text=True, assets=meshes)
     except ImportError:
         return {"MuJoCo check": "skipped: mujoco is not installed (pip install 'pe_drake[mujoco]')"}
     q, v, vd = random_states(robot, 20)

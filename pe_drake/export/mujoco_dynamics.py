@@ -29,8 +29,8 @@ def import_mujoco():
     return mujoco
 
 
-def load_mjcf(path_or_text: str | Path, *, text: bool = False):
-    """An ``MjModel`` from an MJCF file (or its text).
+def load_mjcf(path_or_text: str | Path, *, text: bool = False, assets: dict[str, bytes] | None = None):
+    """An ``MjModel`` from an MJCF file (or its text, with its mesh files as ``assets``).
 
     Raises:
         ConfigError: MuJoCo refuses the file (its message, with the file).
@@ -38,7 +38,7 @@ def load_mjcf(path_or_text: str | Path, *, text: bool = False):
     mujoco = import_mujoco()
     try:
         if text:
-            return mujoco.MjModel.from_xml_string(str(path_or_text))
+            return mujoco.MjModel.from_xml_string(str(path_or_text), assets or {})
         return mujoco.MjModel.from_xml_path(str(path_or_text))
     except (ValueError, OSError) as err:
         where = "the MJCF text" if text else f"'{path_or_text}'"
