@@ -307,3 +307,32 @@ def test_mjcf_visuals_are_copied_beside_it_and_leave_the_inertials_alone(tmp_pat
     assert model.body("arm").mass[0] == pytest.approx(robot.phi_model[10 * robot.body_names.index("arm")])  # no geom mass
     with pytest.raises(ConfigError, match="must be a folder name"):
         ExportOptions("mjcf", meshdir="../elsewhere")
+
+
+def test_a_diagnosed_model_exports_with_its_payload_as_a_body(tmp_path):
+    """augmented_model.json through the one adapter: MuJoCo reproduces the diagnosis's own Drake
+    plant (inertias, damping, rotor inertia, payload body) and the file lists delay and pre-sliding."""
+    mujoco = pytest.importorskip("mujoco")
+    from pe_drake.diagnosis.augmented_model import AugmentedModel, augmented_torque, build_augmented_robot
+    from pe_drake.export import ExportOptions, export_model
+    from pe_drake.export.mujoco_dynamics import load_mjcf, mujoco_torques
+
+    robot = get_robot("panda")
+    t = identified_terms(robot, 13, "panda_link7")
+    n = robot.n
+    model = AugmentedModel(robot.joint_names, robot.body_names, t.phi, t.drive["viscous"], t.drive["coulomb"], 0.01,
+                           t.drive["armature"], t.drive["offset"], "panda_link7", t.payload.mass, t.payload.com,
+                           t.payload.inertia_vector, time_delay=0.004, presliding=np.r_[0.3, np.zeros(n - 1)],
+                           presliding_stiffness=np.r_[50.0, np.zeros(n - 1)])
+    path = tmp_path / "augmented_model.json"
+    path.write_text(json.dumps(model.as_dict()))
+    result = export_model(robot, path, ExportOptions("mjcf"))
+    assert any("0.004 s" in u for u in result.unheld) and any("pre-sliding" in u for u in result.unheld)
+    assert result.terms.payload.mass == pytest.approx(t.payload.mass)
+    mj = load_mjcf(result.text, text=True)
+    assert mj.body("pe_drake_payload").mass[0] == pytest.approx(t.payload.mass)
+    q, v, vd = random_states(robot, 20, seed=8)
+    want = augmented_torque(build_augmented_robot(robot, model), model, q, v, vd) - model.torque_offset \
+        - model.coulomb * np.tanh(v / 0.01)
+    assert relative(mujoco_torques(mj, robot.joint_names, q, v, vd), want) < 1e-6
+    assert mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_JOINT, 0) == robot.joint_names[0]
