@@ -250,16 +250,20 @@ def test_simulator_torques_of_exported_files_hold_the_friction(slider, tmp_path)
         assert relative(got, want + friction) < 1e-6, suffix  # the URDF's friction read before its file goes
 
 
-@pytest.mark.parametrize("method", ["ols", "wls"])
-def test_a_base_parameter_model_is_projected_at_the_noise_floor(method, tmp_path):
-    """OLS/WLS files have base parameters only: the export projects them onto consistent links
-    and reports how much that changes the held-out prediction; on data of a consistent truth
-    (Panda, inertias ±10 %, friction, offsets, armature) the change is at the noise floor."""
+@pytest.mark.parametrize("method", ["ols", "wls", "physical"])
+def test_identified_models_reproduce_their_own_prediction_in_mujoco(method, tmp_path):
+    """identified.json of each method through the one adapter. OLS/WLS files have base parameters
+    only: the export projects them onto consistent links and reports how much that changes the
+    held-out prediction; on data of a consistent truth (Panda, inertias ±10 %, friction, offsets,
+    armature) the change is at the noise floor. A physical model is exported as it is: MuJoCo's
+    torque plus offsets and Coulomb friction is pe_drake's own prediction of the held-out run."""
+    pytest.importorskip("mujoco")
     from pe_drake.excitation.trajectory_file import load_trajectory
+    from pe_drake.export.mujoco_dynamics import load_mjcf, mujoco_torques
     from pe_drake.export.terms import export_terms, projection_change
     from pe_drake.identification.drive_terms import COULOMB_VELOCITY_SCALE
-    from pe_drake.identification.estimators import identify, prepare_measurement
-    from pe_drake.identification.identified_file import result_to_dict
+    from pe_drake.identification.estimators import identify, predict, prepare_measurement
+    from pe_drake.identification.identified_file import load_identified, result_to_dict
     from pe_drake.identification.synthetic import model_measurement
     from tests.test_identification import OPTIMIZED, random_trajectory
 
@@ -276,11 +280,21 @@ def test_a_base_parameter_model_is_projected_at_the_noise_floor(method, tmp_path
         return prepare_measurement(robot, m.replace(tau=tau), filtering=False, check_units=False)
 
     result = identify(robot, run(trajectory, 1, 2 * trajectory.period), method)
-    (tmp_path / "identified.json").write_text(json.dumps(result_to_dict(result, robot)))
-    terms = export_terms(robot, tmp_path / "identified.json")
+    path = tmp_path / "identified.json"
+    path.write_text(json.dumps(result_to_dict(result, robot)))
+    terms = export_terms(robot, path)
     assert not validity_problems(robot.body_names, terms.phi)
-    change = projection_change(robot, tmp_path / "identified.json", terms, run(random_trajectory(robot, trajectory, 7), 5))
-    assert change is not None and np.all(change < noise), change
+    held = run(random_trajectory(robot, trajectory, 7), 5)
+    change = projection_change(robot, path, terms, held)
+    own = predict(robot, load_identified(path, robot), held)
+    mj = mujoco_torques(load_mjcf(mjcf_text(robot, terms)[0], text=True), robot.joint_names, held.q, held.v, held.vd)
+    mj = mj + terms.drive["offset"] + terms.drive["coulomb"] * np.tanh(held.v / terms.velocity_scale)
+    if method == "physical":
+        assert change is None
+        assert relative(mj, own) < 1e-6
+    else:
+        assert change is not None and np.all(change < noise), change
+        assert np.all(np.sqrt(np.mean((mj - own) ** 2, axis=0)) < noise)
 
 
 def test_mjcf_visuals_are_copied_beside_it_and_leave_the_inertials_alone(tmp_path):
