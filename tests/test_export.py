@@ -83,7 +83,14 @@ def test_mjcf_in_mujoco_reproduces_the_model_and_its_inertials(name, slider):
     model = load_mjcf(text, text=True)
     q, v, vd = random_states(robot, 30, seed=5)  # held-out states, not those of the export's own check
     assert relative(mujoco_torques(model, robot.joint_names, q, v, vd), model_torques(robot, terms, q, v, vd)) < 1e-6
-    # MuJoCo's own reading of each body: mass, centre of mass, inertia about it (principal axes back to the body)
+    assert_mujoco_inertials(model, robot, terms)
+
+
+def assert_mujoco_inertials(model, robot, terms: ExportTerms) -> None:
+    """MuJoCo's own reading of each body: mass, centre of mass, inertia about it (its principal
+    axes turned back to the body frame) equal the model's."""
+    import mujoco
+
     bodies = dict(zip(robot.body_names, terms.phi.reshape(-1, 10)))
     bodies[PAYLOAD_BODY] = terms.payload.phi
     for body, phi_b in bodies.items():
@@ -97,6 +104,16 @@ def test_mjcf_in_mujoco_reproduces_the_model_and_its_inertials(name, slider):
         assert got.mass[0] == pytest.approx(m, rel=1e-12)
         np.testing.assert_allclose(got.ipos, p, atol=1e-12)
         np.testing.assert_allclose(R @ np.diag(got.inertia) @ R.T, I, atol=1e-9 * np.abs(I).max())
+
+
+def test_mujoco_reads_the_exported_urdf_inertials_as_written(slider):
+    """An independent URDF parser (MuJoCo's) agrees with the model on every exported inertial."""
+    mujoco = pytest.importorskip("mujoco")
+    terms = identified_terms(slider, 14, "tool")
+    # MuJoCo's URDF options: keep welded links as bodies, inertias as written
+    text = urdf_export_text(slider, terms).replace(
+        "</robot>", '<mujoco><compiler fusestatic="false" balanceinertia="false"/></mujoco></robot>')
+    assert_mujoco_inertials(mujoco.MjModel.from_xml_string(text), slider, terms)
 
 
 def test_frictionloss_holds_below_and_slides_above(slider):
