@@ -200,11 +200,20 @@ def test_sampled_models_are_consistent_and_spread_as_sigma(slider):
     np.testing.assert_allclose(np.std(models.drive["viscous"], axis=0) / drive_sigma["viscous"], 1.0, atol=0.15)
 
 
-def test_options_and_model_files_are_checked():
+def test_options_and_model_files_are_checked(tmp_path):
     with pytest.raises(ConfigError, match="not one of mjcf, urdf, sdf, feedforward, gains"):
         ExportOptions("usd")
     with pytest.raises(ConfigError, match="bandwidth_hz"):
         ExportOptions("gains", bandwidth_hz=-1.0)
+    missing = tmp_path / "nothing.json"
+    code, _, err = run_cli("export", missing, "--robot", "panda", "--to", "sdf", "--out", tmp_path / "p.sdf")
+    assert code == 2 and "does not exist" in err and str(missing) in err and not (tmp_path / "p.sdf").exists()
+    other = tmp_path / "other.json"
+    other.write_text(json.dumps({"joints": ["a", "b"], "base_parameters": []}))
+    code, _, err = run_cli("export", other, "--robot", "panda", "--to", "mjcf", "--out", tmp_path / "p.xml")
+    assert code == 2 and "identified for joints a, b" in err and not (tmp_path / "p.xml").exists()
+    code, out, err = run_cli("export", "--robot", "panda", "--to", "gains", "--out", tmp_path / "g.yaml")
+    assert code == 0 and "no randomization ranges" in (tmp_path / "g.yaml").read_text()  # the CAD model has no σ
 
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "datasets" / "panda_gaz2019" / "excitation_1.csv"
