@@ -376,3 +376,22 @@ def test_a_diagnosed_model_exports_with_its_payload_as_a_body(tmp_path):
         - model.coulomb * np.tanh(v / 0.01)
     assert relative(mujoco_torques(mj, robot.joint_names, q, v, vd), want) < 1e-6
     assert mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_JOINT, 0) == robot.joint_names[0]
+
+
+def test_a_point_mass_is_given_the_smallest_inertia_mujoco_accepts(tmp_path):
+    """Drake accepts a mass with no rotational inertia (a flange frame with a mass, so101's,
+    TALOS's); MuJoCo refuses it: its principal moments are raised to 1e-12 kg·m², noted."""
+    pytest.importorskip("mujoco")
+    from pe_drake.export.mujoco_dynamics import load_mjcf, mujoco_torques
+
+    path = tmp_path / "slider.urdf"
+    path.write_text(SLIDER_URDF.replace('<link name="tool_frame"/>', '<link name="tool_frame"><inertial>'
+                                        '<mass value="0.05"/><inertia ixx="0" iyy="0" izz="0" ixy="0" ixz="0" iyz="0"/>'
+                                        '</inertial></link>'))
+    robot = load_robot(RobotConfig(model=str(path), **MOUNT))
+    terms = dataclasses.replace(identified_terms(robot, 15), phi=robot.phi_model)
+    text, unheld = mjcf_text(robot, terms)
+    assert any(u.startswith("tool_frame: principal moments 0, 0, 0") for u in unheld)
+    q, v, vd = random_states(robot, 10, seed=3)
+    got = mujoco_torques(load_mjcf(text, text=True), robot.joint_names, q, v, vd)
+    assert relative(got, model_torques(robot, terms, q, v, vd)) < 1e-6

@@ -34,6 +34,8 @@ from pe_drake.multibody.inertia import central_inertia
 
 #: Name of the payload body (a child of its link, no joint).
 PAYLOAD_BODY = "pe_drake_payload"
+#: Smallest principal moment of inertia of a body with mass written to an MJCF [kg·m²].
+MIN_PRINCIPAL_MOMENT = 1e-12
 
 
 def _num(x: float) -> str:
@@ -44,15 +46,30 @@ def _vec(x) -> str:
     return " ".join(_num(v) for v in np.ravel(x))
 
 
-def _inertial(parent: ET.Element, phi_b: np.ndarray) -> None:
+def _inertial(parent: ET.Element, phi_b: np.ndarray) -> str:
     """``<inertial>`` of a body's 10 parameters (about its origin, in its frame); none for a
-    massless frame (MuJoCo gives it mass 0 like Drake)."""
+    massless frame (MuJoCo gives it mass 0 like Drake).
+
+    MuJoCo refuses a mass whose inertia has a zero principal moment (a point mass, a rod: valid
+    in Drake); those moments are raised to :data:`MIN_PRINCIPAL_MOMENT` and a note returned.
+    """
     m, p, I = central_inertia(phi_b)
     if m <= 0:
-        return
-    ET.SubElement(parent, "inertial", {
-        "pos": _vec(p), "mass": _num(m),
-        "fullinertia": _vec([I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2]])})
+        return ""
+    attributes = {"pos": _vec(p), "mass": _num(m)}
+    lam, R = np.linalg.eigh(0.5 * (I + I.T))
+    floor = max(MIN_PRINCIPAL_MOMENT, 1e-9 * float(lam.max()))
+    if lam.min() > floor:
+        attributes["fullinertia"] = _vec([I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2]])
+        ET.SubElement(parent, "inertial", attributes)
+        return ""
+    if np.linalg.det(R) < 0:
+        R[:, 0] = -R[:, 0]
+    attributes.update(quat=_vec(quaternion_wxyz(np.block([[R, np.zeros((3, 1))], [np.zeros((1, 3)), 1.0]]))),
+                      diaginertia=_vec(np.maximum(lam, floor)))
+    ET.SubElement(parent, "inertial", attributes)
+    return (f"{parent.get('name')}: principal moments {', '.join(f'{x:.3g}' for x in lam)} kg·m² raised to "
+            f"at least {floor:.3g} (MuJoCo refuses a zero principal moment)")
 
 
 def _joint(body_el: ET.Element, robot, terms: ExportTerms, k: int) -> None:
@@ -75,20 +92,21 @@ def _joint(body_el: ET.Element, robot, terms: ExportTerms, k: int) -> None:
     ET.SubElement(body_el, "joint", attributes)
 
 
-def _bodies(robot, terms: ExportTerms, worldbody: ET.Element) -> dict[str, ET.Element]:
-    """The bodies, nested as Drake's tree, each posed in its parent at q = 0: {name: element}."""
+def _bodies(robot, terms: ExportTerms, worldbody: ET.Element, notes: list[str]) -> dict[str, ET.Element]:
+    """The bodies, nested as Drake's tree, each posed in its parent at q = 0: {name: element}
+    (what was adjusted is appended to ``notes``)."""
     elements = {"world": worldbody}
     for body in robot_tree(robot, terms):
         X = body.X_PC
         body_el = ET.SubElement(elements[body.parent], "body", {
             "name": body.name, "pos": _vec(X[:3, 3]), "quat": _vec(quaternion_wxyz(X))})
         elements[body.name] = body_el
-        _inertial(body_el, body.phi)
+        notes.append(_inertial(body_el, body.phi))
         if body.joint >= 0:
             _joint(body_el, robot, terms, body.joint)
         if terms.payload is not None and body.name == terms.payload_link:
             payload_el = ET.SubElement(body_el, "body", {"name": PAYLOAD_BODY, "pos": "0 0 0"})
-            _inertial(payload_el, terms.payload.phi)
+            notes.append(_inertial(payload_el, terms.payload.phi))
     del elements["world"]
     return elements
 
@@ -139,7 +157,9 @@ def mjcf_files(robot, terms: ExportTerms, name: str = "", meshdir: str | None = 
     ET.SubElement(root, "option", {"gravity": _vec(gravity), "integrator": "implicitfast"})
     asset = ET.SubElement(root, "asset")
     worldbody = ET.SubElement(root, "worldbody")
-    bodies = _bodies(robot, terms, worldbody)
+    adjusted: list[str] = []
+    bodies = _bodies(robot, terms, worldbody, adjusted)
+    unheld = unheld + [n for n in adjusted if n]
     meshes, notes = {}, []
     if meshdir is not None:
         compiler.set("meshdir", meshdir)
