@@ -150,6 +150,9 @@ def test_urdf_and_sdf_reloaded_in_drake_reproduce_the_model(name, slider):
     for text, suffix in ((urdf_export_text(robot, terms), ".urdf"), (sdf_text(robot, terms), ".sdf")):
         assert drake_check(robot, terms, text, suffix, samples=30) < 1e-6
         assert "drake:rotor_inertia" in text
+        # what the format cannot hold, in its own words, at the top of the file
+        assert "not held: torque offsets" in text
+        assert ("is written as <dynamics friction>" if suffix == ".urdf" else "so does pe_drake") in text
 
 
 def test_an_sdf_robot_exports_sdf_and_mjcf_and_refuses_urdf(slider, tmp_path):

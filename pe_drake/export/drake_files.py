@@ -58,7 +58,15 @@ def urdf_export_text(robot, terms: ExportTerms) -> str:
     verify_urdf_text(text, robot.body_names, terms.phi)
     if terms.payload is not None:
         text = with_payload_link(text, terms.payload_link, terms.payload.phi, PAYLOAD_BODY)
-    return text
+    return text.replace("<robot", _comment(robot, terms, "URDF", "urdf") + "<robot", 1)
+
+
+def _comment(robot, terms: ExportTerms, kind: str, fmt: str) -> str:
+    """The file's opening comment: what it is, from which model, what it cannot hold."""
+    notes = [f"{kind} of robot '{robot.name}' written by pe-drake export; model: {terms.source or 'CAD'}"]
+    notes += [f"note: {n}" for n in terms.notes]
+    notes += [f"not held: {n}" for n in unheld_terms(robot, terms, fmt)]
+    return "<!--\n" + "\n".join("  " + n.replace("--", "- -") for n in notes) + "\n-->\n"
 
 
 def _pose_text(X: np.ndarray) -> str:
@@ -124,10 +132,7 @@ def sdf_text(robot, terms: ExportTerms) -> str:
             ET.SubElement(weld, "parent").text = body.name
             ET.SubElement(weld, "child").text = PAYLOAD_BODY
     ET.indent(root, "  ")
-    notes = [f"SDFormat of robot '{robot.name}' written by pe-drake export; model: {terms.source or 'CAD'}"]
-    notes += [f"not held: {n}" for n in unheld_terms(robot, terms)]
-    comment = "\n".join("  " + n.replace("--", "- -") for n in notes)
-    return f'<?xml version="1.0"?>\n<!--\n{comment}\n-->\n' + ET.tostring(root, encoding="unicode") + "\n"
+    return '<?xml version="1.0"?>\n' + _comment(robot, terms, "SDFormat", "sdf") + ET.tostring(root, encoding="unicode") + "\n"
 
 
 def reloaded_robot(robot, text: str, suffix: str):

@@ -111,18 +111,26 @@ def _bodies(robot, terms: ExportTerms, worldbody: ET.Element, notes: list[str]) 
     return elements
 
 
-def unheld_terms(robot, terms: ExportTerms) -> list[str]:
-    """What MJCF cannot hold of the model, one sentence each (the file's comment and the output)."""
+#: How each format holds f_c·tanh(v/v_s), or why it does not.
+_COULOMB = {
+    "mjcf": "is written as MuJoCo's frictionloss f_c: a constraint that holds the joint at rest below f_c and "
+            "equals f_c*sign(v) once it slides; the two differ for |v| below a few v_s",
+    "urdf": "is written as <dynamics friction>: Drake ignores it, pe_drake reads it back as f_c*tanh(v/0.01)",
+    "sdf": "is written as <dynamics><friction>: Drake ignores it, and so does pe_drake in an SDFormat file",
+}
+
+
+def unheld_terms(robot, terms: ExportTerms, fmt: str = "mjcf") -> list[str]:
+    """What a format (mjcf, urdf, sdf) cannot hold of the model, one sentence each (the file's
+    comment and the output)."""
     joints = robot.joint_names
     out = []
     offsets = terms.drive["offset"]
     if np.any(offsets != 0):
-        out.append("torque offsets (add them to the control: MJCF has no constant joint torque): "
+        out.append("torque offsets (add them to the control: the format has no constant joint torque): "
                    + ", ".join(f"{j} {x:.4g}" for j, x in zip(joints, offsets) if x != 0))
-    if np.any(terms.drive["coulomb"] > 0):
-        out.append(f"Coulomb friction f_c*tanh(v/v_s), v_s = {terms.velocity_scale:g} rad/s, is written as "
-                   "MuJoCo's frictionloss f_c: a constraint that holds the joint at rest below f_c and equals "
-                   "f_c*sign(v) once it slides; the two differ for |v| below a few v_s")
+    if np.any(terms.drive["coulomb"] > 0) and fmt in _COULOMB:
+        out.append(f"Coulomb friction f_c*tanh(v/v_s), v_s = {terms.velocity_scale:g} rad/s, {_COULOMB[fmt]}")
     if terms.torque_delay:
         out.append(f"the torque delay of {terms.torque_delay:.4g} s")
     if terms.presliding.size and np.any(terms.presliding > 0):

@@ -160,11 +160,14 @@ def export_model(robot: Robot, model: str | Path | None, options: ExportOptions 
     terms = export_terms(robot, model)
     figures: dict = {}
     data = prepare_measurement(robot, held_out, window=options.window) if held_out is not None else None
-    if data is not None and model is not None:
-        change = projection_change(robot, model, terms, data)
+    if model is not None:
+        # without a held-out run, random states inside the limits show the projection's size
+        states = data if data is not None else _random_run(robot, options.seed)
+        change = projection_change(robot, model, terms, states)
         if change is not None:
-            figures["projection: held-out RMS change per joint [N·m]"] = dict(zip(robot.joint_names, map(float, change)))
-    unheld = tuple(unheld_terms(robot, terms))
+            where = "held-out" if data is not None else f"{states.num_samples} random states'"
+            figures[f"projection: {where} RMS change per joint [N·m]"] = dict(zip(robot.joint_names, map(float, change)))
+    unheld = tuple(unheld_terms(robot, terms, options.to))
     meshes: dict = {}
     if options.to == "mjcf":
         mjcf = mjcf_files(robot, terms, meshdir=options.meshdir or None)
@@ -187,6 +190,12 @@ def export_model(robot: Robot, model: str | Path | None, options: ExportOptions 
                           sigma_k=options.sigma_k, samples=options.samples, seed=options.seed)
         unheld = ()
     return ExportResult(options.to, text, terms, unheld, figures, options.meshdir if meshes else "", meshes)
+
+
+def _random_run(robot, seed: int, samples: int = 200) -> Measurement:
+    """Random states (:func:`~pe_drake.export.terms.random_states`) as a run without torques."""
+    q, v, vd = random_states(robot, samples, seed)
+    return Measurement(np.arange(samples, dtype=float), q, np.zeros_like(q), v, vd, tuple(robot.joint_names))
 
 
 def _mujoco_check(robot, terms: ExportTerms, text: str, meshes: dict) -> dict:
