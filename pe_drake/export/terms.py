@@ -110,8 +110,14 @@ def export_terms(robot, model: str | Path | None) -> ExportTerms:
         spread = dataclasses.replace(result.drive, theta=np.asarray(result.drive.sigma, float))
         drive_sigma = {t: spread.per_joint(t) for t in DRIVE_TERMS}
     return ExportTerms(str(model), phi, {k: np.array(v, float) for k, v in drive.items()}, float(sim.velocity_scale),
-                       link, payload, tuple(sim.notes), float(sim.torque_delay), np.array(sim.presliding, float),
+                       link, payload, tuple(_exported(n) for n in sim.notes), float(sim.torque_delay),
+                       np.array(sim.presliding, float),
                        K, sigma, drive_sigma, tuple(result.base.base_names))
+
+
+def _exported(note: str) -> str:
+    """A simulator's note in the export's words (the same adjustment: 'simulated' → 'exported')."""
+    return note.replace(" is simulated as 0", " is written as 0").replace("the simulated ", "the exported ")
 
 
 def _split_payload(robot, path: Path, phi: np.ndarray) -> tuple[str, PayloadInertia | None, np.ndarray]:
