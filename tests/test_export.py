@@ -155,16 +155,33 @@ def test_urdf_and_sdf_reloaded_in_drake_reproduce_the_model(name, slider):
         assert ("is written as <dynamics friction>" if suffix == ".urdf" else "so does pe_drake") in text
 
 
-def test_an_sdf_robot_exports_sdf_and_mjcf_and_refuses_urdf(slider, tmp_path):
+def test_an_sdf_robot_exports_sdf_and_urdf(slider, tmp_path):
+    """An SDF robot whose joint frames are not its child links' frames (the slider written as
+    SDFormat by the export; a URDF cannot say that): its URDF re-expresses each link in its
+    joint frame, and Drake and MuJoCo read it back as the model."""
+    mujoco = pytest.importorskip("mujoco")
     terms = identified_terms(slider, 7)
     path = tmp_path / "slider.sdf"
-    path.write_text(sdf_text(slider, terms))
+    path.write_text(sdf_text(slider, terms).replace(  # the tool's joint frame off its link frame
+        "<child>tool</child>\n      <pose>0 0 0 0 0 0</pose>", "<child>tool</child>\n      <pose>0.02 0.03 -0.01 0.3 0.2 0.1</pose>"))
     robot = load_robot(RobotConfig(model=str(path), **MOUNT))
     assert robot.joint_names == slider.joint_names
-    again = dataclasses.replace(terms, phi=identified_terms(robot, 8).phi)
+    assert not np.allclose(robot.joints[2].X_CM, np.eye(4))
+    again = identified_terms(robot, 8, "tool")
     assert drake_check(robot, again, sdf_text(robot, again), ".sdf") < 1e-6
-    with pytest.raises(ConfigError, match="not one: use --to sdf"):
-        urdf_export_text(robot, again)
+    urdf = urdf_export_text(robot, again)
+    assert drake_check(robot, again, urdf, ".urdf") < 1e-6
+    from pe_drake.export.mujoco_dynamics import mujoco_torques
+
+    q, v, vd = random_states(robot, 10, seed=2)
+    model = mujoco.MjModel.from_xml_string(urdf.replace(
+        "</robot>", '<mujoco><compiler fusestatic="false" balanceinertia="false"/></mujoco></robot>'))
+    model.opt.gravity[:] = robot.plant.gravity_field().gravity_vector()
+    # MuJoCo's own URDF reading of the rigid body (its URDF importer takes no rotor inertia or damping)
+    rigid = dataclasses.replace(again, drive={**again.drive, "armature": 0 * again.drive["armature"],
+                                              "viscous": 0 * again.drive["viscous"]})
+    model.dof_damping[:] = 0.0
+    assert relative(mujoco_torques(model, robot.joint_names, q, v, vd), model_torques(robot, rigid, q, v, vd)) < 1e-6
 
 
 def test_gains_use_the_mass_matrix_diagonal_plus_armature(slider, tmp_path):

@@ -29,6 +29,7 @@ from pe_drake.exceptions import ConfigError
 from pe_drake.export.mjcf import PAYLOAD_BODY, unheld_terms
 from pe_drake.export.terms import ExportTerms, model_torques, random_states
 from pe_drake.export.tree import robot_tree
+from pe_drake.export.urdf_tree import urdf_from_tree
 from pe_drake.multibody.inertia import central_inertia
 from pe_drake.multibody.robot import load_robot
 from pe_drake.multibody.urdf import joint_dynamics, urdf_with_inertias, verify_urdf_text, with_payload_link
@@ -41,14 +42,11 @@ def _num(x: float) -> str:
 
 
 def urdf_export_text(robot, terms: ExportTerms) -> str:
-    """The robot's URDF with the model's inertials, joint dynamics and payload link.
-
-    Raises:
-        ConfigError: the robot was not loaded from a URDF or xacro file (use SDFormat).
-    """
-    if Path(robot.model_path).suffix.lower() != ".urdf":
-        raise ConfigError(f"--to urdf rewrites the robot's own URDF; '{Path(robot.model_path).name}' is not one: "
-                          "use --to sdf (written for any robot) or --to mjcf")
+    """The robot's URDF with the model's inertials, joint dynamics and payload link (a robot
+    loaded from SDFormat: a URDF written from its plant, :mod:`pe_drake.export.urdf_tree`)."""
+    if Path(robot.model_path).suffix.lower() != ".urdf":  # an SDF robot: written from the plant
+        text = urdf_from_tree(robot, terms, PAYLOAD_BODY)
+        return text.replace("<robot", _comment(robot, terms, "URDF", "urdf") + "<robot", 1)
     text = urdf_with_inertias(robot.model_path, robot.body_names, terms.phi)
     joints = robot.joint_names
     d = terms.drive
