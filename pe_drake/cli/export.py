@@ -21,7 +21,7 @@ def export_command(args: argparse.Namespace) -> int:
     config = config_from_args(args)
     robot = robot_from_args(args, config)
     held_out = read_log_from_args(args, robot, config) if args.data else None
-    result = export_model(robot, args.model, options, held_out=held_out)
+    result = export_model(robot, args.model, options, held_out=held_out, progress=lambda line: print(line, flush=True))
     for line in result.summary_lines():
         print(line)
     for path in result.write(out):

@@ -151,12 +151,15 @@ def export_model(robot: Robot, model: str | Path | None, options: ExportOptions 
         model: identified.json (any method) or augmented_model.json; None: the robot's own model.
         held_out: a raw measured run (:func:`~pe_drake.identification.intake.read_measurements`)
             to report the projection's and the feed-forward's effect on.
+        progress: called with a line before each slow step (mesh conversion, the checks).
 
     Raises:
         ConfigError: a format the robot cannot be written in, a file that fails its check.
         DataError: a model file of another robot.
     """
     options = options or ExportOptions()
+    say = progress or (lambda line: None)
+    say(f"reading {model or 'the CAD model'}")
     terms = export_terms(robot, model)
     figures: dict = {}
     data = prepare_measurement(robot, held_out, window=options.window) if held_out is not None else None
@@ -170,13 +173,16 @@ def export_model(robot: Robot, model: str | Path | None, options: ExportOptions 
     unheld = tuple(unheld_terms(robot, terms, options.to))
     meshes: dict = {}
     if options.to == "mjcf":
+        say("writing the MJCF" + (" and its meshes" if options.meshdir else ""))
         mjcf = mjcf_files(robot, terms, meshdir=options.meshdir or None)
         text, unheld, meshes = mjcf.text, tuple(mjcf.unheld), mjcf.meshes
+        say("checking it in MuJoCo")
         figures.update(_mujoco_check(robot, terms, text, meshes))
         if mjcf.notes:
             figures["visuals left out"] = "; ".join(mjcf.notes)
     elif options.to in ("urdf", "sdf"):
         text = urdf_export_text(robot, terms) if options.to == "urdf" else sdf_text(robot, terms)
+        say("checking it in Drake")
         figures[f"Drake inverse dynamics of the {options.to} vs the model (relative)"] = drake_check(
             robot, terms, text, FORMATS[options.to], tolerance=CHECK_TOLERANCE)
     elif options.to == "feedforward":
