@@ -28,17 +28,13 @@ import numpy as np
 from pe_drake.exceptions import ConfigError
 from pe_drake.export.mjcf import PAYLOAD_BODY, unheld_terms
 from pe_drake.export.terms import ExportTerms, model_torques, random_states
-from pe_drake.export.tree import robot_tree
+from pe_drake.export.tree import number_text, robot_tree
 from pe_drake.export.urdf_tree import urdf_from_tree
 from pe_drake.multibody.inertia import central_inertia
 from pe_drake.multibody.robot import load_robot
 from pe_drake.multibody.urdf import joint_dynamics, urdf_with_inertias, verify_urdf_text, with_payload_link
 
 DRAKE_NAMESPACE = "http://drake.mit.edu"
-
-
-def _num(x: float) -> str:
-    return repr(float(x)) if x != 0 else "0"
 
 
 def urdf_export_text(robot, terms: ExportTerms) -> str:
@@ -71,18 +67,18 @@ def _pose_text(X: np.ndarray) -> str:
     from pydrake.math import RollPitchYaw, RotationMatrix  # lazy: pydrake is heavy
 
     rpy = RollPitchYaw(RotationMatrix(np.asarray(X, float)[:3, :3])).vector()
-    return " ".join(_num(x) for x in [*np.asarray(X)[:3, 3], *rpy])
+    return " ".join(number_text(x) for x in [*np.asarray(X)[:3, 3], *rpy])
 
 
 def _sdf_inertial(link: ET.Element, phi_b: np.ndarray) -> None:
     m, p, I = central_inertia(phi_b)
     inertial = ET.SubElement(link, "inertial")
-    ET.SubElement(inertial, "pose").text = " ".join(_num(x) for x in [*p, 0, 0, 0])
-    ET.SubElement(inertial, "mass").text = _num(m)
+    ET.SubElement(inertial, "pose").text = " ".join(number_text(x) for x in [*p, 0, 0, 0])
+    ET.SubElement(inertial, "mass").text = number_text(m)
     inertia = ET.SubElement(inertial, "inertia")
     for tag, (r, c) in (("ixx", (0, 0)), ("ixy", (0, 1)), ("ixz", (0, 2)), ("iyy", (1, 1)), ("iyz", (1, 2)),
                         ("izz", (2, 2))):
-        ET.SubElement(inertia, tag).text = _num(I[r, c])
+        ET.SubElement(inertia, tag).text = number_text(I[r, c])
 
 
 def _sdf_joint(model: ET.Element, robot, terms: ExportTerms, parent: str, child: str, k: int) -> None:
@@ -92,18 +88,18 @@ def _sdf_joint(model: ET.Element, robot, terms: ExportTerms, parent: str, child:
     ET.SubElement(el, "child").text = child
     ET.SubElement(el, "pose").text = _pose_text(info.X_CM)  # relative to the child link
     axis = ET.SubElement(el, "axis")
-    ET.SubElement(axis, "xyz").text = " ".join(_num(x) for x in info.axis_M)
+    ET.SubElement(axis, "xyz").text = " ".join(number_text(x) for x in info.axis_M)
     limit = ET.SubElement(axis, "limit")
     effort = robot.limits.effort_max[k]
     for tag, value in (("lower", joint.position_lower_limits()[0]), ("upper", joint.position_upper_limits()[0]),
                        ("effort", effort if np.isfinite(effort) else -1.0),  # -1: no limit
                        ("velocity", joint.velocity_upper_limits()[0])):
         if np.isfinite(value):
-            ET.SubElement(limit, tag).text = _num(value)
+            ET.SubElement(limit, tag).text = number_text(value)
     dynamics = ET.SubElement(axis, "dynamics")
-    ET.SubElement(dynamics, "damping").text = _num(terms.drive["viscous"][k])
-    ET.SubElement(dynamics, "friction").text = _num(terms.drive["coulomb"][k])
-    ET.SubElement(el, f"{{{DRAKE_NAMESPACE}}}rotor_inertia").text = _num(terms.drive["armature"][k])
+    ET.SubElement(dynamics, "damping").text = number_text(terms.drive["viscous"][k])
+    ET.SubElement(dynamics, "friction").text = number_text(terms.drive["coulomb"][k])
+    ET.SubElement(el, f"{{{DRAKE_NAMESPACE}}}rotor_inertia").text = number_text(terms.drive["armature"][k])
     ET.SubElement(el, f"{{{DRAKE_NAMESPACE}}}gear_ratio").text = "1"
 
 

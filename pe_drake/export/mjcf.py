@@ -29,21 +29,13 @@ import numpy as np
 
 from pe_drake.export.mjcf_meshes import add_visuals
 from pe_drake.export.terms import ExportTerms
-from pe_drake.export.tree import quaternion_wxyz, robot_tree
+from pe_drake.export.tree import number_text, quaternion_wxyz, robot_tree, vector_text
 from pe_drake.multibody.inertia import central_inertia
 
 #: Name of the payload body (a child of its link, no joint).
 PAYLOAD_BODY = "pe_drake_payload"
 #: Smallest principal moment of inertia of a body with mass written to an MJCF [kg·m²].
 MIN_PRINCIPAL_MOMENT = 1e-12
-
-
-def _num(x: float) -> str:
-    return repr(float(x)) if x != 0 else "0"
-
-
-def _vec(x) -> str:
-    return " ".join(_num(v) for v in np.ravel(x))
 
 
 def _inertial(parent: ET.Element, phi_b: np.ndarray) -> str:
@@ -56,17 +48,17 @@ def _inertial(parent: ET.Element, phi_b: np.ndarray) -> str:
     m, p, I = central_inertia(phi_b)
     if m <= 0:
         return ""
-    attributes = {"pos": _vec(p), "mass": _num(m)}
+    attributes = {"pos": vector_text(p), "mass": number_text(m)}
     lam, R = np.linalg.eigh(0.5 * (I + I.T))
     floor = max(MIN_PRINCIPAL_MOMENT, 1e-9 * float(lam.max()))
     if lam.min() > floor:
-        attributes["fullinertia"] = _vec([I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2]])
+        attributes["fullinertia"] = vector_text([I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2]])
         ET.SubElement(parent, "inertial", attributes)
         return ""
     if np.linalg.det(R) < 0:
         R[:, 0] = -R[:, 0]
-    attributes.update(quat=_vec(quaternion_wxyz(np.block([[R, np.zeros((3, 1))], [np.zeros((1, 3)), 1.0]]))),
-                      diaginertia=_vec(np.maximum(lam, floor)))
+    attributes.update(quat=vector_text(quaternion_wxyz(np.block([[R, np.zeros((3, 1))], [np.zeros((1, 3)), 1.0]]))),
+                      diaginertia=vector_text(np.maximum(lam, floor)))
     ET.SubElement(parent, "inertial", attributes)
     return (f"{parent.get('name')}: principal moments {', '.join(f'{x:.3g}' for x in lam)} kg·m² raised to "
             f"at least {floor:.3g} (MuJoCo refuses a zero principal moment)")
@@ -78,17 +70,17 @@ def _joint(body_el: ET.Element, robot, terms: ExportTerms, k: int) -> None:
     X_CM = np.asarray(info.X_CM, float)
     attributes = {
         "name": info.name, "type": "hinge" if info.kind == "revolute" else "slide",
-        "pos": _vec(X_CM[:3, 3]), "axis": _vec(X_CM[:3, :3] @ np.asarray(info.axis_M, float)),
-        "armature": _num(terms.drive["armature"][k]), "damping": _num(terms.drive["viscous"][k]),
-        "frictionloss": _num(terms.drive["coulomb"][k]),
+        "pos": vector_text(X_CM[:3, 3]), "axis": vector_text(X_CM[:3, :3] @ np.asarray(info.axis_M, float)),
+        "armature": number_text(terms.drive["armature"][k]), "damping": number_text(terms.drive["viscous"][k]),
+        "frictionloss": number_text(terms.drive["coulomb"][k]),
     }
     lo, hi = joint.position_lower_limits()[0], joint.position_upper_limits()[0]
     attributes["limited"] = "true" if np.isfinite(lo) and np.isfinite(hi) else "false"
     if attributes["limited"] == "true":
-        attributes["range"] = _vec([lo, hi])
+        attributes["range"] = vector_text([lo, hi])
     effort = robot.limits.effort_max[k]
     if np.isfinite(effort):
-        attributes.update(actuatorfrclimited="true", actuatorfrcrange=_vec([-effort, effort]))
+        attributes.update(actuatorfrclimited="true", actuatorfrcrange=vector_text([-effort, effort]))
     ET.SubElement(body_el, "joint", attributes)
 
 
@@ -99,7 +91,7 @@ def _bodies(robot, terms: ExportTerms, worldbody: ET.Element, notes: list[str]) 
     for body in robot_tree(robot, terms):
         X = body.X_PC
         body_el = ET.SubElement(elements[body.parent], "body", {
-            "name": body.name, "pos": _vec(X[:3, 3]), "quat": _vec(quaternion_wxyz(X))})
+            "name": body.name, "pos": vector_text(X[:3, 3]), "quat": vector_text(quaternion_wxyz(X))})
         elements[body.name] = body_el
         notes.append(_inertial(body_el, body.phi))
         if body.joint >= 0:
@@ -162,7 +154,7 @@ def mjcf_files(robot, terms: ExportTerms, name: str = "", meshdir: str | None = 
     root = ET.Element("mujoco", {"model": name or robot.name})
     compiler = ET.SubElement(root, "compiler", {"angle": "radian", "inertiafromgeom": "false", "autolimits": "true"})
     gravity = robot.plant.gravity_field().gravity_vector()
-    ET.SubElement(root, "option", {"gravity": _vec(gravity), "integrator": "implicitfast"})
+    ET.SubElement(root, "option", {"gravity": vector_text(gravity), "integrator": "implicitfast"})
     asset = ET.SubElement(root, "asset")
     worldbody = ET.SubElement(root, "worldbody")
     adjusted: list[str] = []
@@ -179,7 +171,7 @@ def mjcf_files(robot, terms: ExportTerms, name: str = "", meshdir: str | None = 
         attributes = {"name": joint, "joint": joint, "gear": "1"}
         effort = robot.limits.effort_max[k]
         if np.isfinite(effort):
-            attributes.update(ctrllimited="true", ctrlrange=_vec([-effort, effort]))
+            attributes.update(ctrllimited="true", ctrlrange=vector_text([-effort, effort]))
         ET.SubElement(actuator, "motor", attributes)
     ET.indent(root, "  ")
     lines = [f"MJCF of robot '{robot.name}' written by pe-drake export",

@@ -17,18 +17,13 @@ from __future__ import annotations
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
-import numpy as np
-
 from pe_drake.exceptions import DataError
+from pe_drake.export.tree import vector_text
 from pe_drake.multibody.mesh_policy import mesh_file_refusal
 from pe_drake.multibody.meshes import obj_text, read_dae_triangles
 
 #: Mesh formats MuJoCo reads as they are.
 COPIED_SUFFIXES = (".stl", ".obj")
-
-
-def _vec(x) -> str:
-    return " ".join(repr(float(v)) if v != 0 else "0" for v in np.ravel(x))
 
 
 def _mesh_bytes(path: Path) -> tuple[bytes | None, str, str]:
@@ -81,11 +76,11 @@ def add_visuals(robot, bodies: dict[str, ET.Element], asset: ET.Element) -> tupl
             continue
         for k, geometry in enumerate(inspector.GetGeometries(frame, Role.kIllustration)):
             shape, X = inspector.GetShape(geometry), inspector.GetPoseInFrame(geometry)
-            attributes = {"pos": _vec(X.translation()), "quat": _vec(X.rotation().ToQuaternion().wxyz()),
+            attributes = {"pos": vector_text(X.translation()), "quat": vector_text(X.rotation().ToQuaternion().wxyz()),
                           "contype": "0", "conaffinity": "0", "group": "1"}
             primitive = _primitive(shape)
             if primitive is not None:
-                attributes.update(type=primitive[0], size=_vec(primitive[1]))
+                attributes.update(type=primitive[0], size=vector_text(primitive[1]))
             elif type(shape).__name__ in ("Mesh", "Convex"):
                 source = Path(shape.source().path())
                 if str(source) not in converted:
@@ -97,7 +92,7 @@ def add_visuals(robot, bodies: dict[str, ET.Element], asset: ET.Element) -> tupl
                     files[converted[str(source)]] = content
                 mesh_name = f"{name}_{k}"  # one asset per geom: each has its own scale
                 ET.SubElement(asset, "mesh", {"name": mesh_name, "file": converted[str(source)],
-                                              "scale": _vec(shape.scale3())})
+                                              "scale": vector_text(shape.scale3())})
                 attributes.update(type="mesh", mesh=mesh_name)
             else:
                 notes.append(f"{name}: a visual {type(shape).__name__} is left out")

@@ -65,6 +65,16 @@ def robot_tree(robot, terms: ExportTerms) -> list[TreeBody]:
     return out
 
 
+def number_text(x: float) -> str:
+    """A number as the exported files write it: every digit (repr), 0 as '0'."""
+    return repr(float(x)) if x != 0 else "0"
+
+
+def vector_text(x) -> str:
+    """Numbers separated by spaces, each as :func:`number_text`."""
+    return " ".join(number_text(v) for v in np.ravel(x))
+
+
 def quaternion_wxyz(X: np.ndarray) -> np.ndarray:
     """The rotation of a pose (4, 4) as a unit quaternion [w, x, y, z]."""
     from pydrake.common.eigen_geometry import Quaternion  # lazy: pydrake is heavy

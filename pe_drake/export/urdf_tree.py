@@ -16,7 +16,7 @@ import xml.etree.ElementTree as ET
 import numpy as np
 
 from pe_drake.export.terms import ExportTerms
-from pe_drake.export.tree import robot_tree
+from pe_drake.export.tree import number_text, robot_tree, vector_text
 from pe_drake.multibody.inertia import phi_to_spatial_inertia, spatial_inertia_to_phi
 from pe_drake.multibody.urdf import inertial_element, joint_dynamics
 
@@ -25,8 +25,7 @@ def _origin(parent: ET.Element, X: np.ndarray) -> None:
     from pydrake.math import RollPitchYaw, RotationMatrix  # lazy: pydrake is heavy
 
     rpy = RollPitchYaw(RotationMatrix(np.asarray(X, float)[:3, :3])).vector()
-    ET.SubElement(parent, "origin", {"xyz": " ".join(repr(float(x)) for x in np.asarray(X)[:3, 3]),
-                                     "rpy": " ".join(repr(float(x)) for x in rpy)})
+    ET.SubElement(parent, "origin", {"xyz": vector_text(np.asarray(X)[:3, 3]), "rpy": vector_text(rpy)})
 
 
 def _inverse(X: np.ndarray) -> np.ndarray:
@@ -58,11 +57,11 @@ def _joint(robot_el: ET.Element, robot, name: str, kind: str, parent: str, child
     _origin(joint, X)
     if k < 0:
         return
-    ET.SubElement(joint, "axis", {"xyz": " ".join(repr(float(x)) for x in robot.joints[k].axis_M)})
+    ET.SubElement(joint, "axis", {"xyz": vector_text(robot.joints[k].axis_M)})
     drake_joint = robot.plant.GetJointByName(robot.joint_names[k])
     limits = {"lower": drake_joint.position_lower_limits()[0], "upper": drake_joint.position_upper_limits()[0],
               "effort": robot.limits.effort_max[k], "velocity": drake_joint.velocity_upper_limits()[0]}
-    ET.SubElement(joint, "limit", {key: repr(float(v)) for key, v in limits.items() if np.isfinite(v)})
+    ET.SubElement(joint, "limit", {key: number_text(v) for key, v in limits.items() if np.isfinite(v)})
 
 
 def urdf_from_tree(robot, terms: ExportTerms, payload_name: str) -> str:
