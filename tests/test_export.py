@@ -415,3 +415,32 @@ def test_a_point_mass_is_given_the_smallest_inertia_mujoco_accepts(tmp_path):
     q, v, vd = random_states(robot, 10, seed=3)
     got = mujoco_torques(load_mjcf(text, text=True), robot.joint_names, q, v, vd)
     assert relative(got, model_torques(robot, terms, q, v, vd)) < 1e-6
+
+
+@pytest.mark.skipif(not REAL.is_file(), reason="the real Panda recording is not here")
+def test_real_panda_in_mujoco_is_pe_drakes_validate_minus_what_mjcf_cannot_hold(tmp_path):
+    """The shared real Panda run (identify on 0-14.445 s, validate on 14.95-20.495 s, diagnose's
+    split): MuJoCo's held-out torques of the exported MJCF are pe_drake's own prediction minus the
+    offsets and minus f_c·(tanh(v/v_s) − sign(v)), and the CAD MJCF is far worse."""
+    pytest.importorskip("mujoco")
+    from pe_drake.export import ExportOptions, export_model, export_terms, validate_exported
+    from pe_drake.identification import (IdentifyOptions, TimeWindow, ValidateOptions, identify_model,
+                                         load_identified, read_measurements, validate_model)
+    from pe_drake.identification.drive_terms import filtered_coulomb
+    from pe_drake.identification.estimators import prepare_measurement
+
+    robot = get_robot("panda")
+    raw = read_measurements(REAL, robot)
+    identify_model(robot, raw, IdentifyOptions(method="physical", window=TimeWindow.parse(",14.445"))).write(tmp_path)
+    model = tmp_path / "identified.json"
+    export_model(robot, model, ExportOptions("mjcf")).write(tmp_path / "identified.xml")
+    export_model(robot, None, ExportOptions("mjcf")).write(tmp_path / "cad.xml")
+    options = ValidateOptions(window=TimeWindow.parse("14.95,20.495"))
+    own = validate_model(robot, load_identified(model, robot), raw, options)
+    mj = validate_exported(robot, tmp_path / "identified.xml", raw, options)
+    cad = validate_exported(robot, tmp_path / "cad.xml", raw, options)
+    terms = export_terms(robot, model)
+    data = prepare_measurement(robot, raw, window=options.window)
+    shape = terms.drive["coulomb"] * (filtered_coulomb(raw, data, terms.velocity_scale) - filtered_coulomb(raw, data, 1e-6))
+    np.testing.assert_allclose(mj.predicted, own.predicted - terms.drive["offset"] - shape, atol=1e-9)
+    assert np.all(cad.rms > 2 * mj.rms)  # the CAD-vs-identified gap, in MuJoCo
