@@ -89,6 +89,7 @@ def validate_exported(robot: Robot, path: str | Path, measurements: Measurement,
                                        lambda scale: filtered_coulomb(measurements, data, scale))
     rms, rel = torque_errors(data.tau, predicted)
     total = float(100 * np.linalg.norm(data.tau - predicted) / max(np.linalg.norm(data.tau), 1e-300))
-    return ValidationReport(robot.name, Path(path).name, "joint_torque",
+    simulator = "MuJoCo" if Path(path).suffix.lower() == ".xml" else "Drake"
+    return ValidationReport(robot.name, f"{Path(path).name}, torques by {simulator}", "joint_torque",
                             tuple(robot.joint_names), data.t, data.tau, predicted, rms, rel,
                             total, data.num_samples, (*data.notes, f"torques computed by {how}"), data.preprocessing)
