@@ -62,6 +62,10 @@ _EXPORTS = {
     "diagnose": "pe_drake.diagnosis.workflow",
     "DiagnosisConfig": "pe_drake.diagnosis.options",
     "DiagnosisResult": "pe_drake.diagnosis.result",
+    # the model where it is used: MuJoCo, Drake/ROS, controllers
+    "export_model": "pe_drake.export.model_export",
+    "ExportOptions": "pe_drake.export.model_export",
+    "ExportResult": "pe_drake.export.model_export",
     # files
     "load_trajectory": "pe_drake.excitation.trajectory_file",
     "save_trajectory": "pe_drake.excitation.trajectory_file",

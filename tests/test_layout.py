@@ -31,6 +31,7 @@ STAGES = {
     "simulation": 4,
     "diagnosis": 5,
     "viewer": 6, "viewer_scene": 6, "bench": 6, "bench_robots": 6, "bench_models": 6, "cli": 6,
+    "export": 6,  # writes a model of any stage for simulators and controllers (issue 35)
 }
 #: Python's own API names that begin with an underscore (namedtuple, sys, os).
 FOREIGN_PRIVATE = {"_replace", "_asdict", "_fields", "_make", "_getframe", "_exit"}
@@ -254,7 +255,7 @@ FACE_IMPORTS = {
     "pe_drake", "pe_drake.multibody", "pe_drake.excitation", "pe_drake.identification", "pe_drake.simulation",
     "pe_drake.diagnosis",
     "pe_drake.config", "pe_drake.exceptions", "pe_drake.output_paths", "pe_drake.io_utils", "pe_drake.threads",
-    "pe_drake.memory", "pe_drake.viewer", "pe_drake.cli.common",
+    "pe_drake.memory", "pe_drake.viewer", "pe_drake.cli.common", "pe_drake.export",
 }
 MAX_FACE_LINES = 80
 FACES = sorted(p for p in (PACKAGE / "cli").glob("*.py") if p.name not in ("__init__.py", "common.py"))
@@ -280,7 +281,7 @@ def test_command_faces_are_thin(path):
 
 #: Checks that belong to one stage: (module defining them, the stages allowed to call them).
 STAGE_CALLS = {
-    "pe_drake.identification.data_checks": ("pe_drake.identification", "pe_drake.simulation", "pe_drake.diagnosis"),
+    "pe_drake.identification.data_checks": ("pe_drake.identification", "pe_drake.simulation", "pe_drake.diagnosis", "pe_drake.export"),
     "pe_drake.excitation.ramp": ("pe_drake.excitation", "pe_drake.identification", "pe_drake.simulation",
                                  "pe_drake.diagnosis",
                                  "pe_drake.viewer", "pe_drake.bench"),

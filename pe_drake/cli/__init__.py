@@ -1,4 +1,4 @@
-"""Command line: ``pe-drake optimize | view | simulate | identify | validate | diagnose``.
+"""Command line: ``pe-drake optimize | view | simulate | identify | validate | diagnose | export``.
 
 Each sub-command parses its arguments here and calls one ``*_command(args) -> int`` function
 in the module that owns the work (imported lazily so ``pe-drake --help`` is instant). Every
@@ -27,6 +27,7 @@ _COMMANDS = {
     "identify": ("pe_drake.cli.identify", "identify_command"),
     "validate": ("pe_drake.cli.identify", "validate_command"),
     "diagnose": ("pe_drake.cli.diagnose", "diagnose_command"),
+    "export": ("pe_drake.cli.export", "export_command"),
 }
 
 #: The commands whose --out is a folder of pe_drake's outputs (locked while they run).
@@ -169,7 +170,8 @@ def _add_identification_commands(sub) -> None:
 
     p = sub.add_parser("validate", help="predict torques of another run with an identified model")
     add_robot_arguments(p)
-    p.add_argument("--model", required=True, help="identified.json or diagnose's augmented_model.json")
+    p.add_argument("--model", required=True, help="identified.json or diagnose's augmented_model.json; or an "
+                   "exported model.xml (torques computed by MuJoCo), model.urdf or model.sdf (by Drake)")
     p.add_argument("--data", required=True, help="measurement CSV (or bag, RTDE log) of another run")
     add_log_arguments(p)
     p.add_argument("--cutoff", type=float, help="low-pass cut-off [Hz] (default: from the data)")
@@ -191,6 +193,30 @@ def _add_identification_commands(sub) -> None:
     p.add_argument("--model", help="start from an earlier model (identified.json of identify, or augmented_model.json "
                                    "of diagnose) as the a-priori model (default: the URDF's)")
     p.add_argument("--out", required=True, help="output folder")
+    _add_export_command(sub)
+
+
+def _add_export_command(sub) -> None:
+    """``export``: the identified robot in a simulator's or controller's format."""
+    p = sub.add_parser("export", help="write the identified robot for MuJoCo, Drake/ROS or a controller")
+    p.add_argument("model", nargs="?", help="identified.json (any method) or augmented_model.json "
+                   "(default: the robot's own model file, the CAD model)")
+    add_robot_arguments(p)
+    p.add_argument("--to", required=True, choices=["mjcf", "urdf", "sdf", "feedforward", "gains"],
+                   help="mjcf (MuJoCo .xml), urdf or sdf (Drake, ROS), feedforward (friction YAML), gains "
+                        "(PD gains, effective inertia, randomization ranges YAML)")
+    p.add_argument("--out", required=True, help="output file (.xml, .urdf, .sdf, .yaml)")
+    p.add_argument("--data", help="a held-out run: the projection's and the feed-forward's effect on it, the "
+                                  "postures of the gains")
+    add_log_arguments(p)
+    add_window_argument(p, "used from --data")
+    p.add_argument("--bandwidth", type=float, default=10.0, help="gains: closed-loop bandwidth [Hz] (default 10)")
+    p.add_argument("--damping-ratio", type=float, default=1.0, help="gains: damping ratio ζ (default 1)")
+    p.add_argument("--sigma-k", type=float, default=2.0, help="gains: randomization ranges value ± k·σ (default 2)")
+    p.add_argument("--samples", type=int, default=10, help="gains: consistent models drawn from σ (default 10)")
+    p.add_argument("--seed", type=int, default=0, help="gains: seed of the draws")
+    p.add_argument("--no-meshes", action="store_true",
+                   help="mjcf: no visual geometry (default: the model's visuals, meshes in OUT_STEM_meshes/ beside it)")
 
 
 def _folder_lock(args) -> contextlib.AbstractContextManager:

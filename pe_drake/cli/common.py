@@ -58,3 +58,9 @@ def read_log_from_args(args: argparse.Namespace, robot: Robot, config: Config | 
                     topic=getattr(args, "topic", None), effort=getattr(args, "effort", None))
 
 
+
+
+def export_hint(model, robot: str) -> str:
+    """Where the model goes next: the ``pe-drake export`` command line for it."""
+    return (f"use it in a simulator or controller: pe-drake export {model} --robot {robot} "
+            "--to mjcf|urdf|sdf|feedforward|gains --out FILE")

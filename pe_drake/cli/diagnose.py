@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from pe_drake.cli.common import config_from_args, read_log_from_args, robot_from_args
+from pe_drake.cli.common import config_from_args, export_hint, read_log_from_args, robot_from_args
 from pe_drake.diagnosis import DiagnosisConfig, diagnose, write_outputs
 from pe_drake.exceptions import ConfigError
 from pe_drake.identification import load_identified
@@ -38,4 +38,6 @@ def diagnose_command(args) -> int:
         print(f"note: augmented_model.urdf not written: model export writes URDF files and '{Path(robot.model_path).name}' "
               "is not one; augmented_model.json and augmented_effects.yaml hold the augmented model (load the robot "
               "from a URDF to get the file)")
+    if any(Path(w).name == "augmented_model.json" for w in written):
+        print(export_hint(out / "augmented_model.json", args.robot))
     return 0

@@ -5,7 +5,14 @@ from __future__ import annotations
 
 import argparse
 
-from pe_drake.cli.common import config_from_args, measurement_from_args, read_log_from_args, robot_from_args
+from pe_drake.cli.common import (
+    config_from_args,
+    export_hint,
+    measurement_from_args,
+    read_log_from_args,
+    robot_from_args,
+)
+from pe_drake.export import is_simulator_model, validate_exported
 from pe_drake.identification import (
     IdentifyOptions,
     TimeWindow,
@@ -34,6 +41,7 @@ def identify_command(args: argparse.Namespace) -> int:
     if note:
         print(note)
     print(f"wrote {out}/" + ", ".join(written))
+    print(export_hint(out / "identified.json", args.robot))
     return 0
 
 
@@ -45,12 +53,15 @@ def validate_command(args: argparse.Namespace) -> int:
         check_output_file(args.plot, "--plot", (".png", ".pdf", ".svg"))
     config = config_from_args(args)
     robot = robot_from_args(args, config)
-    model = load_identified(args.model, robot)  # identified.json or the diagnosis's augmented_model.json
-    for note in model.physical_notes if model.method == "diagnose" else ():
-        print(f"note: {note}")
     options = ValidateOptions(measurement_from_args(args, config), getattr(args, "cutoff", None), config.data.max_gap_s,
                               _window(args), filtering=not args.no_filter)
-    report = validate_model(robot, model, read_log_from_args(args, robot, config), options)
+    if is_simulator_model(args.model):  # an exported model.xml/.urdf/.sdf: its simulator predicts
+        report = validate_exported(robot, args.model, read_log_from_args(args, robot, config), options)
+    else:
+        model = load_identified(args.model, robot)  # identified.json or the diagnosis's augmented_model.json
+        for note in model.physical_notes if model.method == "diagnose" else ():
+            print(f"note: {note}")
+        report = validate_model(robot, model, read_log_from_args(args, robot, config), options)
     for line in [f"note: {n}" for n in report.notes] + report.summary_lines():
         print(line)
     if args.json:

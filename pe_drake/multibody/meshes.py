@@ -286,8 +286,10 @@ def read_dae_triangles(path: Path) -> TriangleMesh:
             tris = primitive.triangleset() if hasattr(primitive, "triangleset") else primitive
         except Exception as err:  # noqa: BLE001 (pycollada's many error types)
             raise DataError(f"cannot read COLLADA file: {type(err).__name__}: {err}", file=str(path)) from err
-        if getattr(tris, "vertex", None) is not None and len(tris.vertex_index):
-            corners.append(np.asarray(tris.vertex, float)[np.asarray(tris.vertex_index)])
+        index = np.asarray(getattr(tris, "vertex_index", []))
+        # a line set (Panda's link meshes have them) has pairs, not triangles: it has no surface
+        if getattr(tris, "vertex", None) is not None and len(index) and index.shape[-1] == 3:
+            corners.append(np.asarray(tris.vertex, float)[index])
     if not corners:
         raise DataError("COLLADA file has no triangles in its scene", file=str(path))
     return _index_corners(np.concatenate(corners).reshape(-1, 3, 3) * unit)

@@ -62,6 +62,12 @@ def _inertial_element(phi_b: np.ndarray, indent: str) -> ET.Element:
     return inertial
 
 
+def inertial_element(phi_b: np.ndarray, indent: str = "    ") -> ET.Element:
+    """The ``<inertial>`` element of one body's 10 parameters (about its origin, in its frame),
+    indented for a link at ``indent``."""
+    return _inertial_element(np.asarray(phi_b, float), indent)
+
+
 def _resolve_uri(uri: str, model_dir: Path, package_map) -> str:
     """A mesh URI that works from any folder (see the module docstring)."""
     if uri.startswith("package://"):

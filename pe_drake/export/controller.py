@@ -1,0 +1,217 @@
+"""The identified robot for a controller and a training config: friction feed-forward, PD gains
+from the identified effective inertia, and randomization ranges from the identification's σ.
+
+- **Feed-forward** (:func:`feedforward_yaml`): per joint τ_f = f_c·tanh(v/v_s) + b·v + τ_0 in the
+  log's sign and units (positive torque drives the joint's positive direction; N·m and rad/s, N
+  and m/s for a prismatic joint), with the ± table form of firmware friction tables.
+- **Gains** (:func:`gains_yaml`): the effective joint inertia J_i(q) = M_ii(q) + armature_i (the
+  mass-matrix diagonal of the identified model, its payload included, over the postures of a
+  motion) and PD gains for a bandwidth ω and damping ratio ζ from the mean J:
+  k_p = J·ω², k_d = 2·ζ·J·ω (the second-order joint J·q̈ + k_d·q̇ + k_p·q = 0).
+- **Randomization** (:func:`sample_models`): per base parameter and drive term the range
+  value ± k·σ, and models drawn from the identification's σ: base parameters
+  φ_B + δ, δ ~ N(0, diag σ²), mapped onto the standard ones by the least change
+  δφ = W Kᵀ (K W Kᵀ)⁺ δ (W weighs each parameter by its size), every body projected onto the
+  physically consistent set where the draw left it (noted); drive terms N(θ, σ²), friction
+  and armature clipped at 0.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from pe_drake.diagnosis.augmented_model import physically_consistent
+from pe_drake.exceptions import ConfigError
+from pe_drake.export.terms import ExportTerms, model_torques
+from pe_drake.multibody.drive_columns import coulomb_column
+from pe_drake.multibody.inertia import central_inertia, validity_problems
+
+
+def _dump(data) -> str:
+    import yaml  # lazy: only the YAML exports need it
+
+    return yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=120, allow_unicode=True)
+
+
+def _unit(robot, k: int) -> tuple[str, str]:
+    """(force unit, velocity unit) of joint k."""
+    return ("N", "m/s") if robot.joints[k].kind == "prismatic" else ("N·m", "rad/s")
+
+
+def feedforward_yaml(robot, terms: ExportTerms, check: dict | None = None) -> str:
+    """The friction and offset feed-forward per joint as YAML (module docstring).
+
+    Args:
+        check: figures of the feed-forward on a held-out run, written under ``check``.
+    """
+    d = terms.drive
+    joints = {}
+    for k, name in enumerate(robot.joint_names):
+        force, speed = _unit(robot, k)
+        c, b, o = (float(d[t][k]) for t in ("coulomb", "viscous", "offset"))
+        joints[name] = {
+            "coulomb": c, "viscous": b, "offset": o, "units": f"{force}, {force}/({speed}), {force}",
+            # firmware tables with separate signs: the identified model is symmetric
+            "table": {"coulomb_pos": c + o, "coulomb_neg": c - o, "viscous_pos": b, "viscous_neg": b,
+                      "velocity_threshold": terms.velocity_scale},
+        }
+    data = {
+        "robot": robot.name, "model": terms.source or "CAD",
+        "formula": "tau_friction = coulomb * tanh(v / velocity_scale) + viscous * v + offset",
+        "velocity_scale": terms.velocity_scale,
+        "sign": "the log's: a positive torque drives the joint in its positive direction",
+        "joints": joints,
+        "ur_friction_model": ("UR's FrictionModelParameters (ur_msgs) take scale factors in [0, 1] of UR's own "
+                              "viscous and Coulomb model, not values: set them to 0 and add this feed-forward "
+                              "to the direct torque command"),
+    }
+    if check:
+        data["check"] = check
+    header = ("# Friction feed-forward of the identified model (pe-drake export --to feedforward).\n"
+              "# Add gravity (and the rigid-body torque) from the exported URDF/MJCF; table.coulomb_pos/neg hold the\n"
+              "# offset: friction table form tau = +coulomb_pos (v > threshold), -coulomb_neg (v < -threshold).\n")
+    return header + _dump(data)
+
+
+def friction_torque(terms: ExportTerms, v: np.ndarray, coulomb: np.ndarray | None = None) -> np.ndarray:
+    """The feed-forward's friction and offset torque at velocities v (S, n), shape (S, n)
+    (``coulomb``: the Coulomb columns, default tanh(v/v_s))."""
+    d = terms.drive
+    column = coulomb_column(v, terms.velocity_scale) if coulomb is None else coulomb
+    return d["coulomb"] * column + d["viscous"] * v + d["offset"]
+
+
+def effective_inertia(robot, terms: ExportTerms, q: np.ndarray) -> np.ndarray:
+    """J_i(q) = M_ii(q) + armature_i at each posture, shape (S, n) [kg·m² or kg].
+
+    Args:
+        q: postures, shape (S, n).
+    """
+    q = np.atleast_2d(q)
+    zero = np.zeros_like(q)
+    rest = model_torques(robot, terms, q, zero, zero)  # gravity alone
+    J = np.empty_like(q)
+    for i in range(robot.n):
+        unit = zero.copy()
+        unit[:, i] = 1.0
+        J[:, i] = model_torques(robot, terms, q, zero, unit)[:, i] - rest[:, i]
+    return J
+
+
+def gains_table(robot, terms: ExportTerms, q: np.ndarray, bandwidth_hz: float, damping_ratio: float) -> dict:
+    """Per joint the effective inertia over the postures q (min, mean, max) and the PD gains
+    k_p = J·ω², k_d = 2·ζ·J·ω of the mean J (ω = 2π·bandwidth)."""
+    J = effective_inertia(robot, terms, q)
+    omega = 2 * np.pi * bandwidth_hz
+    out = {}
+    for k, name in enumerate(robot.joint_names):
+        j = float(np.mean(J[:, k]))
+        out[name] = {"effective_inertia": {"min": float(J[:, k].min()), "mean": j, "max": float(J[:, k].max())},
+                     "armature": float(terms.drive["armature"][k]),
+                     "kp": j * omega**2, "kd": 2 * damping_ratio * j * omega}
+    return out
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class SampledModels:
+    """Models drawn from the identification's σ (:func:`sample_models`).
+
+    Attributes:
+        phi: standard parameters per sample, shape (count, 10·nb), physically consistent.
+        drive: {term: per-sample per-joint values, shape (count, n)}.
+        projected: samples in which at least one body was projected onto the consistent set.
+    """
+
+    phi: np.ndarray
+    drive: dict[str, np.ndarray]
+    projected: int
+
+
+def sample_models(robot, terms: ExportTerms, count: int, seed: int = 0) -> SampledModels:
+    """``count`` models drawn from the identification's σ (module docstring).
+
+    Raises:
+        ConfigError: the model has no σ (the CAD model, a diagnosed model).
+    """
+    if terms.base_K is None or terms.base_sigma is None:
+        raise ConfigError("randomization needs an identified model with σ (identified.json of identify); "
+                          f"'{terms.source or 'the CAD model'}' has none")
+    rng = np.random.default_rng(seed)
+    K = terms.base_K
+    sigma = np.where(np.isfinite(terms.base_sigma), terms.base_sigma, 0.0)
+    # each parameter weighed by its size, floored at 1e-3 of its body's largest: a massless frame
+    # (a flange welded to its link) stays massless, the draw goes to the bodies that carry it
+    per_body = np.abs(terms.phi).reshape(-1, 10)
+    scale = (per_body + 1e-3 * per_body.max(axis=1, keepdims=True)).ravel()
+    W = scale**2
+    KW = K * W
+    lift = KW.T @ np.linalg.pinv(KW @ K.T)  # δφ = W Kᵀ (K W Kᵀ)⁺ δ
+    phi = np.empty((count, terms.phi.size))
+    projected = 0
+    for s in range(count):
+        sample = terms.phi + lift @ (sigma * rng.standard_normal(sigma.size))
+        if validity_problems(robot.body_names, sample):
+            sample, _ = physically_consistent(robot.body_names, sample)
+            projected += 1
+        phi[s] = sample
+    drive = {}
+    for term, value in terms.drive.items():
+        spread = terms.drive_sigma.get(term, np.zeros_like(value))
+        draw = value + spread * rng.standard_normal((count, value.size))
+        drive[term] = draw if term == "offset" else np.maximum(draw, 0.0)
+    return SampledModels(phi, drive, projected)
+
+
+def _body_record(phi_b: np.ndarray) -> dict:
+    m, p, I = central_inertia(phi_b)
+    return {"mass": m, "com": [float(x) for x in p],
+            "inertia_about_com": [float(I[0, 0]), float(I[1, 1]), float(I[2, 2]), float(I[0, 1]), float(I[0, 2]),
+                                  float(I[1, 2])]}
+
+
+def randomization(robot, terms: ExportTerms, k: float, count: int, seed: int = 0) -> dict:
+    """Ranges value ± k·σ per drive term (friction and armature floored at 0) and base
+    parameter, and ``count`` sampled models."""
+    if terms.base_K is None:
+        return {"note": f"no σ in '{terms.source or 'the CAD model'}': no randomization ranges"}
+    drive = {}
+    for j, name in enumerate(robot.joint_names):
+        drive[name] = {}
+        for t in ("coulomb", "viscous", "offset", "armature"):
+            value, spread = terms.drive[t][j], terms.drive_sigma.get(t, np.zeros(robot.n))[j]
+            low = value - k * spread if t == "offset" else max(value - k * spread, 0.0)
+            drive[name][t] = [float(low), float(value + k * spread)]
+    base_value = terms.base_K @ terms.phi
+    base = {name: [float(v - k * s), float(v + k * s)]
+            for name, v, s in zip(terms.base_names, base_value, terms.base_sigma) if np.isfinite(s)}
+    out = {"k": k, "drive_terms": drive, "base_parameters": base}
+    if count > 0:
+        models = sample_models(robot, terms, count, seed)
+        # a projected draw is pulled back to the consistent set: the spread is then below σ
+        out["samples_projected_onto_consistent"] = models.projected
+        out["samples"] = [
+            {"bodies": {b: _body_record(models.phi[s, 10 * i : 10 * i + 10]) for i, b in enumerate(robot.body_names)},
+             "joints": {j: {"armature": float(models.drive["armature"][s, i]),
+                            "damping": float(models.drive["viscous"][s, i]),
+                            "frictionloss": float(models.drive["coulomb"][s, i]),
+                            "offset": float(models.drive["offset"][s, i])}
+                        for i, j in enumerate(robot.joint_names)}}
+            for s in range(count)]
+    return out
+
+
+def gains_yaml(robot, terms: ExportTerms, q: np.ndarray, *, bandwidth_hz: float, damping_ratio: float,
+               sigma_k: float, samples: int, seed: int = 0) -> str:
+    """The gains, effective inertias and randomization ranges as YAML (module docstring)."""
+    data = {
+        "robot": robot.name, "model": terms.source or "CAD",
+        "formula": "kp = J * omega^2, kd = 2 * zeta * J * omega, J = mean over the postures of M_ii(q) + armature",
+        "bandwidth_hz": bandwidth_hz, "damping_ratio": damping_ratio, "postures": int(np.atleast_2d(q).shape[0]),
+        "joints": gains_table(robot, terms, q, bandwidth_hz, damping_ratio),
+        "randomization": randomization(robot, terms, sigma_k, samples, seed),
+    }
+    header = ("# PD gains from the identified effective inertia and randomization ranges from σ\n"
+              "# (pe-drake export --to gains). Units: kg·m², N·m/rad, N·m·s/rad (kg, N/m, N·s/m: prismatic).\n")
+    return header + _dump(data)

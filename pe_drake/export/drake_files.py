@@ -1,0 +1,170 @@
+"""The identified robot for Drake and ROS: URDF and SDFormat with inertials, joint friction and
+rotor inertia, checked by loading them back in Drake.
+
+- **URDF** (a URDF or xacro robot): the robot's own file with the identified ``<inertial>``
+  elements, ``<dynamics damping friction>`` and the armature as ``drake:rotor_inertia`` of a
+  gear-ratio-1 actuator in a ``<transmission>`` (:func:`pe_drake.multibody.urdf.joint_dynamics`,
+  the one URDF dynamics writer); everything else of the file is kept. The payload is a link.
+- **SDFormat** (any robot: URDF, xacro or SDF): written from pe_drake's plant
+  (:func:`~pe_drake.export.tree.robot_tree`): each link at its pose at q = 0 with its inertial, the
+  root welded to the world at its mount pose, each excited joint with its limits,
+  ``<dynamics><damping><friction>`` and ``drake:rotor_inertia``/``drake:gear_ratio`` (Drake adds
+  gear²·rotor inertia to the joint's mass-matrix diagonal), locked joints as welds. No geometry.
+
+Drake reads damping and rotor inertia; it ignores the Coulomb ``friction``, which pe_drake reads
+from a URDF as the model's friction (``Robot.joint_friction``). Offsets, a delay and pre-sliding
+have no place in either format (notes).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tempfile
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+
+from pe_drake.exceptions import ConfigError
+from pe_drake.export.mjcf import PAYLOAD_BODY_NAME, unheld_terms
+from pe_drake.export.terms import ExportTerms, model_torques, random_states
+from pe_drake.export.tree import number_text, robot_tree
+from pe_drake.export.urdf_tree import urdf_from_tree
+from pe_drake.multibody.inertia import central_inertia
+from pe_drake.multibody.robot import load_robot
+from pe_drake.multibody.urdf import joint_dynamics, payload_link_text, urdf_with_inertias, verify_urdf_text
+
+DRAKE_NAMESPACE = "http://drake.mit.edu"
+
+
+def urdf_export_text(robot, terms: ExportTerms) -> str:
+    """The robot's URDF with the model's inertials, joint dynamics and payload link (a robot
+    loaded from SDFormat: a URDF written from its plant, :mod:`pe_drake.export.urdf_tree`)."""
+    if Path(robot.model_path).suffix.lower() != ".urdf":  # an SDF robot: written from the plant
+        text = urdf_from_tree(robot, terms, PAYLOAD_BODY_NAME)
+        return text.replace("<robot", _comment(robot, terms, "URDF", "urdf") + "<robot", 1)
+    text = urdf_with_inertias(robot.model_path, robot.body_names, terms.phi)
+    joints = robot.joint_names
+    d = terms.drive
+    text = joint_dynamics(text, dict(zip(joints, map(float, d["viscous"]))),
+                          {j: float(a) for j, a in zip(joints, d["armature"]) if a > 0},
+                          dict(zip(joints, map(float, d["coulomb"]))))
+    verify_urdf_text(text, robot.body_names, terms.phi)
+    if terms.payload is not None:
+        head, sep, tail = text.rpartition("</robot>")
+        text = head + payload_link_text(PAYLOAD_BODY_NAME, terms.payload_link, terms.payload) + sep + tail
+    return text.replace("<robot", _comment(robot, terms, "URDF", "urdf") + "<robot", 1)
+
+
+def _comment(robot, terms: ExportTerms, kind: str, fmt: str) -> str:
+    """The file's opening comment: what it is, from which model, what it cannot hold."""
+    notes = [f"{kind} of robot '{robot.name}' written by pe-drake export; model: {terms.source or 'CAD'}"]
+    notes += [f"note: {n}" for n in terms.notes]
+    notes += [f"not held: {n}" for n in unheld_terms(robot, terms, fmt)]
+    return "<!--\n" + "\n".join("  " + n.replace("--", "- -") for n in notes) + "\n-->\n"
+
+
+def _pose_text(X: np.ndarray) -> str:
+    from pydrake.math import RollPitchYaw, RotationMatrix  # lazy: pydrake is heavy
+
+    rpy = RollPitchYaw(RotationMatrix(np.asarray(X, float)[:3, :3])).vector()
+    return " ".join(number_text(x) for x in [*np.asarray(X)[:3, 3], *rpy])
+
+
+def _sdf_inertial(link: ET.Element, phi_b: np.ndarray) -> None:
+    m, p, I = central_inertia(phi_b)
+    inertial = ET.SubElement(link, "inertial")
+    ET.SubElement(inertial, "pose").text = " ".join(number_text(x) for x in [*p, 0, 0, 0])
+    ET.SubElement(inertial, "mass").text = number_text(m)
+    inertia = ET.SubElement(inertial, "inertia")
+    for tag, (r, c) in (("ixx", (0, 0)), ("ixy", (0, 1)), ("ixz", (0, 2)), ("iyy", (1, 1)), ("iyz", (1, 2)),
+                        ("izz", (2, 2))):
+        ET.SubElement(inertia, tag).text = number_text(I[r, c])
+
+
+def _sdf_joint(model: ET.Element, robot, terms: ExportTerms, parent: str, child: str, k: int) -> None:
+    info, joint = robot.joints[k], robot.plant.GetJointByName(robot.joint_names[k])
+    el = ET.SubElement(model, "joint", {"name": info.name, "type": info.kind})
+    ET.SubElement(el, "parent").text = parent
+    ET.SubElement(el, "child").text = child
+    ET.SubElement(el, "pose").text = _pose_text(info.X_CM)  # relative to the child link
+    axis = ET.SubElement(el, "axis")
+    ET.SubElement(axis, "xyz").text = " ".join(number_text(x) for x in info.axis_M)
+    limit = ET.SubElement(axis, "limit")
+    effort = robot.limits.effort_max[k]
+    for tag, value in (("lower", joint.position_lower_limits()[0]), ("upper", joint.position_upper_limits()[0]),
+                       ("effort", effort if np.isfinite(effort) else -1.0),  # -1: no limit
+                       ("velocity", joint.velocity_upper_limits()[0])):
+        if np.isfinite(value):
+            ET.SubElement(limit, tag).text = number_text(value)
+    dynamics = ET.SubElement(axis, "dynamics")
+    ET.SubElement(dynamics, "damping").text = number_text(terms.drive["viscous"][k])
+    ET.SubElement(dynamics, "friction").text = number_text(terms.drive["coulomb"][k])
+    ET.SubElement(el, f"{{{DRAKE_NAMESPACE}}}rotor_inertia").text = number_text(terms.drive["armature"][k])
+    ET.SubElement(el, f"{{{DRAKE_NAMESPACE}}}gear_ratio").text = "1"
+
+
+def sdf_text(robot, terms: ExportTerms) -> str:
+    """The SDFormat model of the robot with ``terms`` (module docstring)."""
+    ET.register_namespace("drake", DRAKE_NAMESPACE)
+    root = ET.Element("sdf", {"version": "1.9"})
+    model = ET.SubElement(root, "model", {"name": robot.name})
+    for body in robot_tree(robot, terms):
+        link = ET.SubElement(model, "link", {"name": body.name})
+        ET.SubElement(link, "pose").text = _pose_text(body.X_WC)
+        _sdf_inertial(link, body.phi)
+        if body.joint >= 0:
+            _sdf_joint(model, robot, terms, body.parent, body.name, body.joint)
+        else:
+            weld = ET.SubElement(model, "joint", {"name": body.weld_name, "type": "fixed"})
+            ET.SubElement(weld, "parent").text = body.parent
+            ET.SubElement(weld, "child").text = body.name
+        if terms.payload is not None and body.name == terms.payload_link:
+            payload = ET.SubElement(model, "link", {"name": PAYLOAD_BODY_NAME})
+            ET.SubElement(payload, "pose").text = _pose_text(body.X_WC)
+            _sdf_inertial(payload, terms.payload.phi)
+            weld = ET.SubElement(model, "joint", {"name": f"{PAYLOAD_BODY_NAME}_weld", "type": "fixed"})
+            ET.SubElement(weld, "parent").text = body.name
+            ET.SubElement(weld, "child").text = PAYLOAD_BODY_NAME
+    ET.indent(root, "  ")
+    return '<?xml version="1.0"?>\n' + _comment(robot, terms, "SDFormat", "sdf") + ET.tostring(root, encoding="unicode") + "\n"
+
+
+def reloaded_robot(robot, text: str, suffix: str):
+    """``robot`` with its model replaced by the exported text (a temporary file), loaded by
+    pe_drake as any robot (SDFormat: its locked joints are welds of the file already)."""
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / f"{robot.name}{suffix}"
+        path.write_text(text)
+        changes = {"model": str(path), "capsules": ""}
+        if suffix == ".sdf":
+            changes["locked_positions"] = {}
+        loaded = load_robot(dataclasses.replace(robot.config, **changes))
+        loaded.joint_friction  # noqa: B018 - read from the file (a cached property) before it is removed
+        return loaded
+
+
+def drake_check(robot, terms: ExportTerms, text: str, suffix: str, samples: int = 20,
+                tolerance: float = 1e-6) -> float:
+    """Largest relative difference between Drake's inverse dynamics of the exported file (rotor
+    inertia and damping included) and pe_drake's rigid + armature + viscous torque of the model,
+    on random states.
+
+    Raises:
+        ConfigError: Drake refuses the file, or the torques differ by more than ``tolerance``.
+    """
+    try:
+        loaded = reloaded_robot(robot, text, suffix)
+    except ConfigError as err:
+        raise ConfigError(f"Drake refuses the exported {suffix} file: {err}") from err
+    if loaded.joint_names != robot.joint_names:
+        raise ConfigError(f"the exported file has joints {loaded.joint_names}, expected {robot.joint_names}")
+    q, v, vd = random_states(robot, samples)
+    want = model_torques(robot, terms, q, v, vd)
+    got = loaded.inverse_dynamics(q, v, vd, include_damping=True)
+    error = float(np.max(np.abs(got - want)) / max(float(np.max(np.abs(want))), 1e-12))
+    if not error <= tolerance:
+        raise ConfigError(f"the exported {suffix} file does not reproduce the model in Drake: torques differ by "
+                          f"{error:.3g} relative (tolerance {tolerance:g})")
+    return error
+

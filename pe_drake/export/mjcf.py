@@ -1,0 +1,195 @@
+"""The identified robot as MuJoCo's MJCF: one ``<body>`` per Drake body with its identified
+inertial, the excited joints with their drive terms, the base at its mount pose.
+
+Written from the :class:`~pe_drake.multibody.robot.Robot`'s plant, so a URDF, xacro or SDF
+robot gives the same file: each body's pose in its parent at q = 0 (a locked joint is a weld at
+its locked position, as pe_drake's plant has it), each excited joint a ``hinge`` (revolute) or
+``slide`` (prismatic) at the child's joint frame with its axis, ``range`` and
+``actuatorfrcrange`` from the model's limits, and MuJoCo's drive terms:
+
+- ``armature``: added to the joint's mass-matrix diagonal, as Drake's reflected rotor inertia;
+- ``damping``: the viscous friction (MuJoCo's passive force −d·v);
+- ``frictionloss``: the Coulomb friction f_c. MuJoCo's dry friction is a constraint (it holds
+  a joint at rest below f_c), not pe_drake's f_c·tanh(v/v_s): the two agree on a sliding joint
+  (|v| ≫ v_s) and differ near rest.
+
+A motor per joint (``gear`` 1, ``ctrlrange`` the force limit) drives it. The inertials are
+explicit (``inertiafromgeom`` false: never recomputed from geometry); the visuals, with a mesh
+folder, come from :mod:`pe_drake.export.mjcf_meshes`.
+What MJCF cannot hold — torque offsets, the tanh smoothing, a torque delay, pre-sliding
+friction — is listed in a comment at the top and returned as notes.
+"""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+from typing import NamedTuple
+
+import numpy as np
+
+from pe_drake.export.mjcf_meshes import add_visuals
+from pe_drake.export.terms import ExportTerms
+from pe_drake.export.tree import number_text, quaternion_wxyz, robot_tree, vector_text
+from pe_drake.multibody.inertia import central_inertia
+from pe_drake.multibody.robot_model import PAYLOAD_BODY_NAME
+
+#: Name of the payload body (a child of its link, no joint).
+#: Smallest principal moment of inertia of a body with mass written to an MJCF [kg·m²].
+MIN_PRINCIPAL_MOMENT = 1e-12
+
+
+def _inertial(parent: ET.Element, phi_b: np.ndarray) -> str:
+    """``<inertial>`` of a body's 10 parameters (about its origin, in its frame); none for a
+    massless frame (MuJoCo gives it mass 0 like Drake).
+
+    MuJoCo refuses a mass whose inertia has a zero principal moment (a point mass, a rod: valid
+    in Drake); those moments are raised to :data:`MIN_PRINCIPAL_MOMENT` and a note returned.
+    """
+    m, p, I = central_inertia(phi_b)
+    if m <= 0:
+        return ""
+    attributes = {"pos": vector_text(p), "mass": number_text(m)}
+    lam, R = np.linalg.eigh(0.5 * (I + I.T))
+    floor = max(MIN_PRINCIPAL_MOMENT, 1e-9 * float(lam.max()))
+    if lam.min() > floor:
+        attributes["fullinertia"] = vector_text([I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2]])
+        ET.SubElement(parent, "inertial", attributes)
+        return ""
+    if np.linalg.det(R) < 0:
+        R[:, 0] = -R[:, 0]
+    attributes.update(quat=vector_text(quaternion_wxyz(np.block([[R, np.zeros((3, 1))], [np.zeros((1, 3)), 1.0]]))),
+                      diaginertia=vector_text(np.maximum(lam, floor)))
+    ET.SubElement(parent, "inertial", attributes)
+    return (f"{parent.get('name')}: principal moments {', '.join(f'{x:.3g}' for x in lam)} kg·m² raised to "
+            f"at least {floor:.3g} (MuJoCo refuses a zero principal moment)")
+
+
+def _joint(body_el: ET.Element, robot, terms: ExportTerms, k: int) -> None:
+    """The ``<joint>`` of excited joint k in its child body: frame, axis, limits, drive terms."""
+    info, joint = robot.joints[k], robot.plant.GetJointByName(robot.joint_names[k])
+    X_CM = np.asarray(info.X_CM, float)
+    attributes = {
+        "name": info.name, "type": "hinge" if info.kind == "revolute" else "slide",
+        "pos": vector_text(X_CM[:3, 3]), "axis": vector_text(X_CM[:3, :3] @ np.asarray(info.axis_M, float)),
+        "armature": number_text(terms.drive["armature"][k]), "damping": number_text(terms.drive["viscous"][k]),
+        "frictionloss": number_text(terms.drive["coulomb"][k]),
+    }
+    lo, hi = joint.position_lower_limits()[0], joint.position_upper_limits()[0]
+    attributes["limited"] = "true" if np.isfinite(lo) and np.isfinite(hi) else "false"
+    if attributes["limited"] == "true":
+        attributes["range"] = vector_text([lo, hi])
+    effort = robot.limits.effort_max[k]
+    if np.isfinite(effort):
+        attributes.update(actuatorfrclimited="true", actuatorfrcrange=vector_text([-effort, effort]))
+    ET.SubElement(body_el, "joint", attributes)
+
+
+def _bodies(robot, terms: ExportTerms, worldbody: ET.Element, notes: list[str]) -> dict[str, ET.Element]:
+    """The bodies, nested as Drake's tree, each posed in its parent at q = 0: {name: element}
+    (what was adjusted is appended to ``notes``)."""
+    elements = {"world": worldbody}
+    for body in robot_tree(robot, terms):
+        X = body.X_PC
+        body_el = ET.SubElement(elements[body.parent], "body", {
+            "name": body.name, "pos": vector_text(X[:3, 3]), "quat": vector_text(quaternion_wxyz(X))})
+        elements[body.name] = body_el
+        notes.append(_inertial(body_el, body.phi))
+        if body.joint >= 0:
+            _joint(body_el, robot, terms, body.joint)
+        if terms.payload is not None and body.name == terms.payload_link:
+            payload_el = ET.SubElement(body_el, "body", {"name": PAYLOAD_BODY_NAME, "pos": "0 0 0"})
+            notes.append(_inertial(payload_el, terms.payload.phi))
+    del elements["world"]
+    return elements
+
+
+#: How each format holds f_c·tanh(v/v_s), or why it does not.
+_COULOMB = {
+    "mjcf": "is written as MuJoCo's frictionloss f_c: a constraint that holds the joint at rest below f_c and "
+            "equals f_c*sign(v) once it slides; the two differ for |v| below a few v_s",
+    "urdf": "is written as <dynamics friction>: Drake ignores it, pe_drake reads it back as f_c*tanh(v/0.01)",
+    "sdf": "is written as <dynamics><friction>: Drake ignores it, and so does pe_drake in an SDFormat file",
+}
+
+
+def unheld_terms(robot, terms: ExportTerms, fmt: str = "mjcf") -> list[str]:
+    """What a format (mjcf, urdf, sdf) cannot hold of the model, one sentence each (the file's
+    comment and the output)."""
+    joints = robot.joint_names
+    out = []
+    offsets = terms.drive["offset"]
+    if np.any(offsets != 0):
+        out.append("torque offsets (add them to the control: the format has no constant joint torque): "
+                   + ", ".join(f"{j} {x:.4g}" for j, x in zip(joints, offsets) if x != 0))
+    if np.any(terms.drive["coulomb"] > 0) and fmt in _COULOMB:
+        out.append(f"Coulomb friction f_c*tanh(v/v_s), v_s = {terms.velocity_scale:g} rad/s, {_COULOMB[fmt]}")
+    if terms.torque_delay:
+        out.append(f"the torque delay of {terms.torque_delay:.4g} s")
+    if terms.presliding.size and np.any(terms.presliding > 0):
+        out.append("pre-sliding (Dahl) friction: " + ", ".join(
+            f"{j} {x:.4g}" for j, x in zip(joints, terms.presliding) if x > 0))
+    return out
+
+
+class MJCFFiles(NamedTuple):
+    """An MJCF and its meshes (:func:`mjcf_files`).
+
+    Attributes:
+        text: the MJCF.
+        unheld: what it cannot hold of the model, one sentence each.
+        meshes: {file name: content} of its mesh folder (``meshdir``), empty without visuals.
+        notes: visuals left out, one sentence each.
+    """
+
+    text: str
+    unheld: list[str]
+    meshes: dict[str, bytes]
+    notes: list[str]
+
+
+def mjcf_files(robot, terms: ExportTerms, name: str = "", meshdir: str | None = None) -> MJCFFiles:
+    """The MJCF of the robot with ``terms`` (module docstring); with ``meshdir`` (a folder name
+    beside the file) its visuals too (:mod:`pe_drake.export.mjcf_meshes`)."""
+    unheld = unheld_terms(robot, terms)
+    root = ET.Element("mujoco", {"model": name or robot.name})
+    compiler = ET.SubElement(root, "compiler", {"angle": "radian", "inertiafromgeom": "false", "autolimits": "true"})
+    gravity = robot.plant.gravity_field().gravity_vector()
+    ET.SubElement(root, "option", {"gravity": vector_text(gravity), "integrator": "implicitfast"})
+    asset = ET.SubElement(root, "asset")
+    worldbody = ET.SubElement(root, "worldbody")
+    adjusted: list[str] = []
+    bodies = _bodies(robot, terms, worldbody, adjusted)
+    unheld = unheld + [n for n in adjusted if n]
+    meshes, notes = {}, []
+    if meshdir is not None:
+        compiler.set("meshdir", meshdir)
+        meshes, notes = add_visuals(robot, bodies, asset)
+    if not len(asset):
+        root.remove(asset)
+    actuator = ET.SubElement(root, "actuator")
+    for k, joint in enumerate(robot.joint_names):
+        attributes = {"name": joint, "joint": joint, "gear": "1"}
+        effort = robot.limits.effort_max[k]
+        if np.isfinite(effort):
+            attributes.update(ctrllimited="true", ctrlrange=vector_text([-effort, effort]))
+        ET.SubElement(actuator, "motor", attributes)
+    ET.indent(root, "  ")
+    lines = [f"MJCF of robot '{robot.name}' written by pe-drake export",
+             f"model: {terms.source or 'the robot model file (CAD)'}"]
+    lines += [f"note: {n}" for n in terms.notes]
+    lines += [f"not held by MJCF: {n}" for n in unheld]
+    lines += [f"note: {n}" for n in notes]
+    if meshdir is None:
+        lines.append("no geometry: inertials are explicit (inertiafromgeom false); add visuals from the robot's model")
+    comment = "\n".join("  " + line.replace("--", "- -") for line in lines)
+    return MJCFFiles(f"<!--\n{comment}\n-->\n" + ET.tostring(root, encoding="unicode") + "\n", unheld, meshes, notes)
+
+
+def mjcf_text(robot, terms: ExportTerms, name: str = "") -> tuple[str, list[str]]:
+    """The MJCF of the robot with ``terms``, without geometry.
+
+    Returns:
+        (the file's text, what it cannot hold of the model: one sentence each).
+    """
+    files = mjcf_files(robot, terms, name)
+    return files.text, files.unheld

@@ -1,0 +1,235 @@
+"""The front door of ``pe-drake export``: :func:`export_model` writes the identified robot in the
+format where it is used, and checks it there.
+
+Each format is checked before it is returned: an MJCF is loaded by MuJoCo (when installed) and
+its ``mj_inverse`` compared with pe_drake's rigid + armature + viscous torque of the model on
+random states; a URDF or SDFormat file is loaded back by Drake and its inverse dynamics (rotor
+inertia and damping included) compared the same way. With a held-out run, a model of base
+parameters only reports how much its projection onto physically consistent parameters changes
+the prediction, and the feed-forward reports its gravity + friction error on the run.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import shutil
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from pe_drake.exceptions import ConfigError
+from pe_drake.export.controller import feedforward_yaml, friction_torque, gains_yaml
+from pe_drake.export.drake_files import drake_check, sdf_text, urdf_export_text
+from pe_drake.export.mjcf import mjcf_files, unheld_terms
+from pe_drake.export.mujoco_dynamics import load_mjcf, mujoco_torques
+from pe_drake.export.terms import ExportTerms, export_terms, model_torques, projection_change, random_states
+from pe_drake.identification.drive_terms import filtered_coulomb
+from pe_drake.identification.estimators import prepare_measurement
+from pe_drake.identification.measurements import Measurement
+from pe_drake.identification.time_window import TimeWindow
+from pe_drake.io_utils import atomic_write_text
+from pe_drake.multibody.robot import Robot
+
+#: Formats and the suffix of their file.
+FORMATS = {"mjcf": ".xml", "urdf": ".urdf", "sdf": ".sdf", "feedforward": ".yaml", "gains": ".yaml"}
+#: Largest relative torque difference an exported file may show against the model.
+CHECK_TOLERANCE = 1e-6
+
+
+@dataclasses.dataclass(frozen=True)
+class ExportOptions:
+    """What ``export`` writes.
+
+    Attributes:
+        to: the format, one of :data:`FORMATS`.
+        bandwidth_hz: closed-loop bandwidth of the PD gains [Hz] (gains).
+        damping_ratio: ζ of the PD gains (gains).
+        sigma_k: randomization ranges value ± k·σ (gains).
+        samples: physically consistent models drawn from σ (gains).
+        seed: of the draws.
+        window: the part of the held-out run used (cut after filtering; None: all of it).
+        meshdir: mjcf: the folder (beside the file) its visual meshes are written to; "" for
+            no geometry.
+    """
+
+    to: str = "mjcf"
+    bandwidth_hz: float = 10.0
+    damping_ratio: float = 1.0
+    sigma_k: float = 2.0
+    samples: int = 10
+    seed: int = 0
+    window: TimeWindow | None = None
+    meshdir: str = ""
+
+    def __post_init__(self):
+        if self.meshdir and (Path(self.meshdir).name != self.meshdir or self.meshdir in (".", "..")):
+            raise ConfigError(f"export meshdir '{self.meshdir}' must be a folder name (it is written beside the file)")
+        if self.to not in FORMATS:
+            raise ConfigError(f"export format '{self.to}' is not one of {', '.join(FORMATS)}")
+        for name in ("bandwidth_hz", "damping_ratio", "sigma_k"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0):
+                raise ConfigError(f"export {name} = {value!r}: give a positive number")
+        if not 0 <= self.samples <= 10000:
+            raise ConfigError(f"export samples = {self.samples}: give 0 to 10000")
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class ExportResult:
+    """An exported file's text and what it took.
+
+    Attributes:
+        format: one of :data:`FORMATS`.
+        text: the file's content.
+        terms: the model exported.
+        unheld: what the format cannot hold of the model, one sentence each.
+        figures: {name: value} measured while checking (relative torque differences, RMS [N·m]).
+        meshdir: the mesh folder's name beside the file ("" for none); meshes: its files.
+    """
+
+    format: str
+    text: str
+    terms: ExportTerms
+    unheld: tuple[str, ...] = ()
+    figures: dict = dataclasses.field(default_factory=dict)
+    meshdir: str = ""
+    meshes: dict = dataclasses.field(default_factory=dict)
+
+    def summary_lines(self) -> list[str]:
+        lines = [f"exported {self.terms.source or 'the CAD model'} as {self.format}"]
+        lines += [f"note: {n}" for n in self.terms.notes]
+        lines += [f"not held by {self.format}: {n}" for n in self.unheld]
+        for name, value in self.figures.items():
+            if isinstance(value, dict):  # per joint
+                value = ", ".join(f"{j} {x:.3g}" for j, x in value.items())
+            lines.append(f"{name}: {value:.3g}" if isinstance(value, float) else f"{name}: {value}")
+        return lines
+
+    def write(self, path: str | Path) -> list[str]:
+        """Writes the file (and its mesh folder) whole or not at all; returns the paths written."""
+        path = Path(path)
+        if not self.meshes:
+            atomic_write_text(path, self.text)
+            return [str(path)]
+        folder = write_folder(path.parent / self.meshdir, self.meshes)
+        try:
+            atomic_write_text(path, self.text)
+        except BaseException:
+            shutil.rmtree(folder, ignore_errors=True)
+            raise
+        return [str(path), f"{folder}/ ({len(self.meshes)} meshes)"]
+
+
+def write_folder(folder: Path, files: dict[str, bytes]) -> Path:
+    """Writes ``files`` into ``folder`` whole: a temporary folder beside it, renamed into place
+    (an older folder of that name is replaced)."""
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", dir=folder.parent))
+    try:
+        for name, content in files.items():
+            (staging / name).write_bytes(content)
+        old = None
+        if folder.exists():
+            old = folder.with_name(f"{staging.name}.old")
+            folder.rename(old)
+        staging.rename(folder)
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    return folder
+
+
+def export_model(robot: Robot, model: str | Path | None, options: ExportOptions | None = None, *,
+                 held_out: Measurement | None = None, progress=None) -> ExportResult:
+    """What ``pe-drake export`` does (module docstring).
+
+    Args:
+        robot: the robot the model belongs to.
+        model: identified.json (any method) or augmented_model.json; None: the robot's own model.
+        held_out: a raw measured run (:func:`~pe_drake.identification.intake.read_measurements`)
+            to report the projection's and the feed-forward's effect on.
+        progress: called with a line before each slow step (mesh conversion, the checks).
+
+    Raises:
+        ConfigError: a format the robot cannot be written in, a file that fails its check.
+        DataError: a model file of another robot.
+    """
+    options = options or ExportOptions()
+    say = progress or (lambda line: None)
+    say(f"reading {model or 'the CAD model'}")
+    terms = export_terms(robot, model)
+    figures: dict = {}
+    data = prepare_measurement(robot, held_out, window=options.window) if held_out is not None else None
+    if model is not None:
+        # without a held-out run, random states inside the limits show the projection's size
+        states = data if data is not None else _random_run(robot, options.seed)
+        change = projection_change(robot, model, terms, states)
+        if change is not None:
+            where = "held-out" if data is not None else f"{states.num_samples} random states'"
+            figures[f"projection: {where} RMS change per joint [N·m]"] = dict(zip(robot.joint_names, map(float, change)))
+    unheld = tuple(unheld_terms(robot, terms, options.to))
+    meshes: dict = {}
+    if options.to == "mjcf":
+        say("writing the MJCF" + (" and its meshes" if options.meshdir else ""))
+        mjcf = mjcf_files(robot, terms, meshdir=options.meshdir or None)
+        text, unheld, meshes = mjcf.text, tuple(mjcf.unheld), mjcf.meshes
+        say("checking it in MuJoCo")
+        figures.update(_mujoco_check(robot, terms, text, meshes))
+        if mjcf.notes:
+            figures["visuals left out"] = "; ".join(mjcf.notes)
+    elif options.to in ("urdf", "sdf"):
+        text = urdf_export_text(robot, terms) if options.to == "urdf" else sdf_text(robot, terms)
+        say("checking it in Drake")
+        figures[f"Drake inverse dynamics of the {options.to} vs the model (relative)"] = drake_check(
+            robot, terms, text, FORMATS[options.to], tolerance=CHECK_TOLERANCE)
+    elif options.to == "feedforward":
+        check = _feedforward_check(robot, terms, data, held_out) if data is not None else None
+        text = feedforward_yaml(robot, terms, check)
+        figures.update(check or {})
+        unheld = ()
+    else:
+        q = data.q if data is not None else random_states(robot, 200, options.seed)[0]
+        text = gains_yaml(robot, terms, q, bandwidth_hz=options.bandwidth_hz, damping_ratio=options.damping_ratio,
+                          sigma_k=options.sigma_k, samples=options.samples, seed=options.seed)
+        unheld = ()
+    return ExportResult(options.to, text, terms, unheld, figures, options.meshdir if meshes else "", meshes)
+
+
+def _random_run(robot, seed: int, samples: int = 200) -> Measurement:
+    """Random states (:func:`~pe_drake.export.terms.random_states`) as a run without torques."""
+    q, v, vd = random_states(robot, samples, seed)
+    return Measurement(np.arange(samples, dtype=float), q, np.zeros_like(q), v, vd, tuple(robot.joint_names))
+
+
+def _mujoco_check(robot, terms: ExportTerms, text: str, meshes: dict) -> dict:
+    """MuJoCo loads the MJCF and its mj_inverse reproduces the model (figures), or raises."""
+    try:
+        mj = load_mjcf(text, text=True, assets=meshes)
+    except ImportError:
+        return {"MuJoCo check": "skipped: mujoco is not installed (pip install 'pe_drake[mujoco]')"}
+    q, v, vd = random_states(robot, 20)
+    want = model_torques(robot, terms, q, v, vd)
+    got = mujoco_torques(mj, robot.joint_names, q, v, vd)
+    error = float(np.max(np.abs(got - want)) / max(float(np.max(np.abs(want))), 1e-12))
+    if not error <= CHECK_TOLERANCE:
+        raise ConfigError(f"the MJCF does not reproduce the model in MuJoCo: torques differ by {error:.3g} relative")
+    return {"MuJoCo mj_inverse vs the model (relative)": error}
+
+
+def _feedforward_check(robot, terms: ExportTerms, data, raw) -> dict:
+    """RMS error [N·m] per joint of the gravity + friction feed-forward and of the whole model on
+    the run (Coulomb columns filtered like the torque, as ``validate``)."""
+    zero = np.zeros_like(data.v)
+    coulomb = filtered_coulomb(raw, data, terms.velocity_scale)
+    friction = friction_torque(terms, data.v, coulomb)
+    gravity_ff = model_torques(robot, terms, data.q, zero, zero) + friction
+    whole = model_torques(robot, terms, data.q, data.v, data.vd) + friction - terms.drive["viscous"] * data.v
+
+    def rms(x):
+        return dict(zip(robot.joint_names, (float(r) for r in np.sqrt(np.mean(x**2, axis=0)))))
+
+    return {"gravity + friction feed-forward RMS error [N·m]": rms(data.tau - gravity_ff),
+            "whole model RMS error [N·m]": rms(data.tau - whole), "measured RMS [N·m]": rms(data.tau)}
