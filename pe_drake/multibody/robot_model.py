@@ -321,8 +321,8 @@ class RobotModel:
 
     def urdf_text(self, robot, title: str = "") -> str:
         """The robot's URDF with this model's inertials, ``<dynamics damping friction>``, rotor
-        inertias (``drake:rotor_inertia``) and payload link; negative friction and armature
-        (which Drake cannot hold) are left out. Offsets, delay and pre-sliding stay in the
+        inertias (``drake:rotor_inertia``) and payload link; a negative friction or armature
+        (which Drake cannot hold) is written as 0. Offsets, delay and pre-sliding stay in the
         effects YAML (:meth:`effects_yaml`).
 
         Raises:
