@@ -29,12 +29,12 @@ from pe_drake.excitation.solve import solve_excitation
 from pe_drake.excitation.trajectory_file import load_trajectory
 from pe_drake.identification.estimators import identify, prepare_measurement, read_robot_measurement
 from pe_drake.identification.measurements import write_measurement_csv
-from pe_drake.simulation.simulation import simulate
-from pe_drake.simulation.synthetic import model_measurement
-from pe_drake.simulation.truth import ControlTruth, EffectsTruth, NoiseTruth, Truth
 from pe_drake.memory import reuse_freed_memory
 from pe_drake.multibody.registry import resolve_robot_config
 from pe_drake.multibody.robot import Robot, load_robot
+from pe_drake.simulation.simulation import simulate
+from pe_drake.simulation.synthetic import model_measurement
+from pe_drake.simulation.truth import ControlTruth, EffectsTruth, NoiseTruth, Truth
 from pe_drake.threads import single_threaded_blas
 
 # name -> (module, function): each function takes the parsed args and prints its results.

@@ -19,9 +19,9 @@ from pathlib import Path
 import numpy as np
 
 from pe_drake.bench import bench_trajectory
-from pe_drake.simulation.synthetic import model_measurement
 from pe_drake.multibody.drive_columns import coulomb_column
 from pe_drake.multibody.robot import load_robot
+from pe_drake.simulation.synthetic import model_measurement
 
 #: The harness a command runs in: its child's peak RSS [kB] on the last line.
 _PEAK = ("import resource, subprocess, sys; r = subprocess.run(sys.argv[1:]).returncode; "

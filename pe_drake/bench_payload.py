@@ -16,8 +16,8 @@ import numpy as np
 from pe_drake.excitation.payload_motion import optimize_payload_motion
 from pe_drake.identification.payload import identify_payload, payload_errors
 from pe_drake.identification.payload_formats import default_flange
-from pe_drake.simulation.payload_synthetic import payload_run, random_box_payload, random_true_arm
 from pe_drake.multibody.robot import load_robot
+from pe_drake.simulation.payload_synthetic import payload_run, random_box_payload, random_true_arm
 from pe_drake.threads import single_threaded_blas
 
 

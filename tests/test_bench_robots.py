@@ -9,9 +9,9 @@ from pe_drake.bench import bench_main as main
 from pe_drake.bench_robots import (
     COLUMNS, ROBOTS, BenchOptions, BenchRobot, caps_yaml, hidden_friction, select_robots, short_reason,
 )
-from pe_drake.simulation.truth import load_truth, validate_truth
 from pe_drake.multibody.registry import example_robot_data_dir
 from pe_drake.multibody.robot import load_robot
+from pe_drake.simulation.truth import load_truth, validate_truth
 
 
 def _table(output: str) -> tuple[list[str], list[str]]:

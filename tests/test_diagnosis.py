@@ -26,9 +26,9 @@ from pe_drake.diagnosis.effects import (
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.excitation.trajectory_file import load_trajectory
 from pe_drake.identification.measurements import Measurement, write_measurement_csv
+from pe_drake.multibody.inertia import perturb_inertias
 from pe_drake.simulation.simulation import simulate
 from pe_drake.simulation.truth import ControlTruth, EffectsTruth, NoiseTruth, PayloadTruth, Truth
-from pe_drake.multibody.inertia import perturb_inertias
 from tests.conftest import get_robot
 
 DATA = Path(__file__).parent / "data"
@@ -229,7 +229,7 @@ def test_command_writes_every_output_and_the_augmented_model_loads(robot, trajec
     report = (out / "report.md").read_text()
     assert "armature" in report and "| nominal |" in report and "Decisions: " in report
     # the URDF carries the rotor inertia: loading it gives the augmented torque (checked on
-    # writing against build_augmented_robot; here against the diagnosis' own prediction)
+    # writing against RobotModel.torque; here against the diagnosis' own prediction)
     from pe_drake.config import RobotConfig
     from pe_drake.multibody.robot import load_robot
 

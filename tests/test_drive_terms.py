@@ -21,8 +21,8 @@ from pe_drake.identification.drive_terms import (
 from pe_drake.identification.estimators import identify, predict, prepare_measurement
 from pe_drake.identification.identified_file import load_identified, result_to_dict
 from pe_drake.identification.physical_fit import LinkBox, PhysicalBounds
-from pe_drake.simulation.synthetic import model_measurement
 from pe_drake.multibody.base_parameters import compute_base_parameters
+from pe_drake.simulation.synthetic import model_measurement
 from tests.conftest import get_robot
 from tests.test_identification import OPTIMIZED, random_trajectory
 

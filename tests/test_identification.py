@@ -22,8 +22,8 @@ from pe_drake.identification.estimators import (
 )
 from pe_drake.identification.identified_file import load_identified
 from pe_drake.identification.measurements import write_measurement_csv
-from pe_drake.simulation.synthetic import model_measurement
 from pe_drake.multibody.inertia import perturb_inertias, pseudo_inertia, validity_problems
+from pe_drake.simulation.synthetic import model_measurement
 from tests.conftest import get_robot
 
 DATA = Path(__file__).parent / "data"

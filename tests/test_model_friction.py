@@ -16,9 +16,9 @@ import pytest
 
 from pe_drake.diagnosis import diagnose
 from pe_drake.excitation.trajectory_file import load_trajectory
+from pe_drake.multibody.robot import load_robot
 from pe_drake.simulation.simulation import simulate
 from pe_drake.simulation.truth import ControlTruth, EffectsTruth, NoiseTruth, Truth
-from pe_drake.multibody.robot import load_robot
 from tests.conftest import get_robot
 from tests.test_diagnosis import TRAJECTORY
 

@@ -23,11 +23,11 @@ from pe_drake.excitation import motion_plan, optimize_motion
 from pe_drake.excitation.trajectory_file import load_trajectory
 from pe_drake.identification import IdentifyOptions, identify_model
 from pe_drake.identification.identified_file import load_identified
-from pe_drake.simulation.synthetic import model_measurement
 from pe_drake.io_utils import staged_output_dir
 from pe_drake.multibody import load_robot, resolve_robot_config
 from pe_drake.output_paths import OPTIMIZE_OUTPUTS
 from pe_drake.output_set import LOCK_NAME, check_output_set, output_lock
+from pe_drake.simulation.synthetic import model_measurement
 
 DATA = Path(__file__).parent / "data"
 

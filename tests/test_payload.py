@@ -25,11 +25,11 @@ from pe_drake.identification.payload_formats import (
     urdf_with_payload,
     vendor_formats,
 )
-from pe_drake.simulation.payload_synthetic import random_box_payload
 from pe_drake.multibody.inertia import phi_to_spatial_inertia, spatial_inertia_to_phi
 from pe_drake.multibody.payload import PayloadInertia, box_inertia, central_jacobian, link_columns
 from pe_drake.multibody.regressor import RegressorModel
 from pe_drake.multibody.robot import load_robot
+from pe_drake.simulation.payload_synthetic import random_box_payload
 from tests.conftest import get_robot, random_postures
 
 

@@ -10,9 +10,9 @@ import pytest
 
 from pe_drake.excitation.payload_motion import optimize_payload_motion
 from pe_drake.identification.payload import PayloadBox, PayloadOptions, identify_payload, payload_errors
-from pe_drake.simulation.payload_synthetic import TrueArm, payload_run, random_box_payload, random_true_arm
 from pe_drake.multibody.inertia import pseudo_inertia
 from pe_drake.multibody.payload import PayloadInertia, box_inertia
+from pe_drake.simulation.payload_synthetic import TrueArm, payload_run, random_box_payload, random_true_arm
 from tests.conftest import get_robot
 
 ROBOTS = {"panda": "panda_link8", "ur5": "tool0"}

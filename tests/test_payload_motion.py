@@ -12,8 +12,8 @@ import pytest
 from pe_drake.excitation.payload_motion import expected_payload_std, payload_excitation_config, payload_selection
 from pe_drake.excitation.problem import ExcitationProblem
 from pe_drake.identification.payload import identify_payload
-from pe_drake.simulation.payload_synthetic import payload_run, random_true_arm
 from pe_drake.multibody.payload import link_columns
+from pe_drake.simulation.payload_synthetic import payload_run, random_true_arm
 from tests.conftest import central_gradient, get_robot
 from tests.test_payload_identification import ROBOTS, _plan
 

@@ -60,7 +60,8 @@ def test_presliding_friction_alone_is_named(panda, diagnosis_trajectory, joint, 
     assert abs(effect.value - fc) <= 0.1 * fc
     assert 0.5 < effect.details["stiffness"] / (fc / x_p) < 2.0
     assert result.augmented.presliding[panda.joint_names.index(joint)] == pytest.approx(effect.value)
-    assert {j: x for j, x in zip(result.augmented.joints, result.augmented.presliding) if x} == {joint: pytest.approx(effect.value)}
+    presliding = {j: x for j, x in zip(result.augmented.joints, result.augmented.presliding) if x}
+    assert presliding == {joint: pytest.approx(effect.value)}
     assert not result.unexplained
     j = panda.joint_names.index(joint)
     assert result.rms_after[j] < 0.1 * result.rms_rigid[j]  # the gap closes in the augmented model

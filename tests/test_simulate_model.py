@@ -12,8 +12,8 @@ import pytest
 from pe_drake.cli import main as cli
 from pe_drake.identification.estimators import identify
 from pe_drake.identification.identified_file import load_identified, result_to_dict
-from pe_drake.simulation.simulation import truth_path_for
 from pe_drake.simulation.simulated_model import load_simulation_model
+from pe_drake.simulation.simulation import truth_path_for
 from tests.conftest import get_robot, random_states
 from tests.test_drive_terms import drive_truth, with_drive
 from tests.test_identification import OPTIMIZED

@@ -12,14 +12,14 @@ from pe_drake.exceptions import ConfigError, UnknownNameError
 from pe_drake.excitation.fourier import FourierTrajectory
 from pe_drake.excitation.trajectory_file import save_trajectory
 from pe_drake.identification.measurements import read_measurement_csv
+from pe_drake.multibody.inertia import perturb_inertias, phi_to_spatial_inertia
+from pe_drake.multibody.robot import load_robot
 from pe_drake.simulation.simulation import (
     build_true_robot,
     simulate,
     truth_path_for,
 )
 from pe_drake.simulation.truth import PayloadTruth, Truth, load_truth
-from pe_drake.multibody.inertia import perturb_inertias, phi_to_spatial_inertia
-from pe_drake.multibody.robot import load_robot
 
 DURATION = 1.5  # [s]
 SETTLED = 0.2  # [s] compare after the PD transient (the start is on the trajectory already)

@@ -1,10 +1,10 @@
-"""``pe-drake simulate``: the face of :func:`pe_drake.identification.simulate_run`."""
+"""``pe-drake simulate``: the face of :func:`pe_drake.simulation.simulate_run`."""
 
 from __future__ import annotations
 
 from pe_drake.cli.common import config_from_args, measurement_from_args, robot_from_args
-from pe_drake.simulation import simulate_run
 from pe_drake.output_paths import check_output_file
+from pe_drake.simulation import simulate_run
 
 
 def simulate_command(args) -> int:

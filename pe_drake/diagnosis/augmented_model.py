@@ -139,7 +139,8 @@ def augmented_model(robot, base, phi_B: np.ndarray, Sigma_phi: np.ndarray, paylo
     for j, (f, s0) in (presliding or {}).items():
         fc[j], sigma0[j] = f, s0
     payload = PayloadInertia(mass, np.asarray(com, float), inertia_matrix(inertia)) if link else None
-    return RobotModel(tuple(robot.joint_names), tuple(robot.body_names), phi, drive, velocity_scale=float(velocity_scale), payload=payload, payload_link=link,
+    return RobotModel(tuple(robot.joint_names), tuple(robot.body_names), phi, drive,
+                      velocity_scale=float(velocity_scale), payload=payload, payload_link=link,
                       torque_delay=float(time_delay), presliding=fc, presliding_stiffness=sigma0,
                       holding_torque=holding, notes=tuple(notes))
 

@@ -97,7 +97,8 @@ class IdentifyOptions:
         changes = {k: v for k, v in changes.items() if v is not None}
         choice = config.identification
         kind = changes.pop("drive_terms", None) or choice.drive_terms
-        base = cls(measurement=config.excitation.measurement, drive=DriveTermOptions(kind, choice.coulomb_velocity_scale or COULOMB_VELOCITY_SCALE),
+        v_s = choice.coulomb_velocity_scale or COULOMB_VELOCITY_SCALE
+        base = cls(measurement=config.excitation.measurement, drive=DriveTermOptions(kind, v_s),
                    bounds=bounds_from_config(choice), max_gap_s=config.data.max_gap_s)
         return dataclasses.replace(base, **changes)
 
@@ -205,7 +206,7 @@ def _urdf_notes(model: RobotModel) -> list[str]:
     """What model.urdf leaves out (negative friction or armature; Coulomb friction and offsets)."""
     if not model.drive:
         return []
-    return [n.replace("is taken as 0", "is written as 0 to the URDF") for n in model.nonnegative().notes[len(model.notes):]] + [
+    return list(model.nonnegative("is written as 0 to the URDF").notes[len(model.notes):]) + [
         "Coulomb friction is in <dynamics friction> (Drake's parser ignores it, pe_drake reads it as the model file's "
         "friction) and identified.json; torque offsets in identified.json only"]
 

@@ -70,9 +70,7 @@ TORQUE_EQUATION = ("tau_recorded(t) = [ID(q, v, vd) + viscous*v + coulomb*tanh(v
 
 
 def _per_joint(x, n: int, field: str) -> np.ndarray:
-    x = np.zeros(n) if x is None else np.asarray(x, float).reshape(-1)
-    if x.size == 0:
-        return np.zeros(n)
+    x = np.zeros(n) if x is None or np.size(x) == 0 else np.asarray(x, float).reshape(-1)
     if x.shape != (n,):
         raise ValueError(f"RobotModel.{field} must have one value per joint ({n}), got shape {x.shape}")
     return x
@@ -179,14 +177,14 @@ class RobotModel:
             raise ValueError(f"the model is of joints {', '.join(self.joints)} and bodies {', '.join(self.bodies)}; "
                              f"robot '{robot.name}' has {', '.join(robot.joint_names)} and {', '.join(robot.body_names)}")
 
-    def nonnegative(self) -> RobotModel:
-        """This model with negative friction and armature (an unconstrained fit's) set to 0, noted:
-        what Drake and the URDF can hold."""
+    def nonnegative(self, why: str = "is taken as 0") -> RobotModel:
+        """This model with negative friction and armature (an unconstrained fit's) set to 0, noted
+        "<term>[<joint>] = <value> < 0 ``why``": what Drake and the URDF can hold."""
         drive, notes = dict(self.drive), list(self.notes)
         for t in NONNEGATIVE:
             x = self.term(t).copy()
             for j in np.flatnonzero(x < 0):
-                notes.append(f"{t}[{self.joints[j]}] = {x[j]:.3g} < 0 is taken as 0")
+                notes.append(f"{t}[{self.joints[j]}] = {x[j]:.3g} < 0 {why}")
             drive[t] = np.maximum(x, 0.0)
         return dataclasses.replace(self, drive=drive, notes=tuple(notes))
 
@@ -328,8 +326,8 @@ class RobotModel:
 
     def urdf_text(self, robot, title: str = "") -> str:
         """The robot's URDF with this model's inertials, ``<dynamics damping friction>``, rotor
-        inertias (``drake:rotor_inertia``) and payload link; negative friction and armature
-        (which Drake cannot hold) are left out. Offsets, delay and pre-sliding stay in the
+        inertias (``drake:rotor_inertia``) and payload link; a negative friction or armature
+        (which Drake cannot hold) is written as 0. Offsets, delay and pre-sliding stay in the
         effects YAML (:meth:`effects_yaml`).
 
         Raises:

@@ -58,19 +58,21 @@ def load_simulation_model(path: str | Path, robot) -> RobotModel:
         model = RobotModel.from_dict(d, robot.body_names, base=result.base, phi_prior=robot.phi_model)
     except (KeyError, TypeError, ValueError, AttributeError) as err:
         raise DataError(f"not a model pe-drake can simulate ({err!r} missing or malformed)", file=str(path)) from err
+    model = dataclasses.replace(model, notes=())  # the notes say what the simulator adjusted, not the file's
     if "standard_parameters" in d or "phi" in d:
         if not model.physical:
             problems = validity_problems(robot.body_names, model.phi)
             raise DataError("the model's standard parameters are not physically valid, so Drake cannot simulate "
                             "them: " + "; ".join(f"{b}: {why}" for b, why in problems.items()), file=str(path))
-        return model.nonnegative()
+        return model.nonnegative("is simulated as 0")
     merged = result.drive.layout.merged if result.drive is not None else {}
     sigma_B = np.abs(result.phi_B) * np.asarray(result.sigma_percent, float) / 100.0
-    return consistent_model(robot, model, result.base, sigma_B, merged).nonnegative()
+    return consistent_model(robot, model, result.base, sigma_B, merged, result.phi_B).nonnegative("is simulated as 0")
 
 
 def consistent_model(robot, model: RobotModel, base=None, sigma_B: np.ndarray | None = None,
-                     merged: dict[str, dict[str, float]] | None = None) -> RobotModel:
+                     merged: dict[str, dict[str, float]] | None = None,
+                     phi_B: np.ndarray | None = None) -> RobotModel:
     """``model`` with physically consistent standard parameters: itself when it has them, else the
     physically consistent fit of its base parameters φ_B = K·phi_total, each weighted by 1/σ
     (module docstring): what Drake can simulate and a model file can hold.
@@ -82,6 +84,7 @@ def consistent_model(robot, model: RobotModel, base=None, sigma_B: np.ndarray | 
         sigma_B: σ of φ_B, (b,) (default, or where not finite or 0: 1e-4 of each value).
         merged: {joint: {base parameter: coefficient}} of the armatures inside φ_B (identify's
             ``merged_into``): variables ≥ 0 of the fit, added to the model's armature.
+        phi_B: the base parameters to fit (default K·phi_total; a file's own, to the last digit).
 
     Raises:
         NoSolutionFound: the solver failed.
@@ -89,7 +92,7 @@ def consistent_model(robot, model: RobotModel, base=None, sigma_B: np.ndarray | 
     if model.physical:
         return model
     base = base if base is not None else measurement_base_parameters(robot, "joint_torque")
-    phi_B = base.K @ model.phi_total
+    phi_B = base.K @ model.phi_total if phi_B is None else np.asarray(phi_B, float)
     phi, armatures, notes = _consistent_parameters(robot, base, phi_B, sigma_B, merged or {})
     armature = model.armature.copy()
     for name, value in armatures.items():

@@ -16,12 +16,12 @@ from pe_drake.exceptions import ConfigError, DataError, check_joints
 from pe_drake.excitation.ramp import check_within_limits
 from pe_drake.excitation.trajectory_file import load_motion
 from pe_drake.identification.measurements import Measurement, measurement_to_csv_text
-from pe_drake.simulation.simulation import FIELDS, simulate, truth_path_for
-from pe_drake.simulation.simulated_model import load_simulation_model
-from pe_drake.simulation.truth import Truth, load_truth, validate_truth
 from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.robot import Robot
 from pe_drake.multibody.robot_model import RobotModel
+from pe_drake.simulation.simulated_model import load_simulation_model
+from pe_drake.simulation.simulation import FIELDS, simulate, truth_path_for
+from pe_drake.simulation.truth import Truth, load_truth, validate_truth
 
 _RECORDED = {"joint_torque": "tau", "base_wrench": "wrench", "both": "tau and wrench"}
 #: A joint tracking its trajectory worse than this [rad RMS] gets a warning: more than a

@@ -71,6 +71,12 @@ from pe_drake.config import check_finite
 from pe_drake.exceptions import ConfigError, DataError, PeDrakeError
 from pe_drake.excitation.fourier import FourierTrajectory
 from pe_drake.identification.measurements import Measurement
+from pe_drake.multibody.drive_columns import coulomb_column
+from pe_drake.multibody.inertia import PARAMETER_NAMES, inertia_matrix, perturb_inertias
+from pe_drake.multibody.payload import PayloadInertia
+from pe_drake.multibody.robot import Robot, load_robot
+from pe_drake.multibody.robot_model import APPLIED_FORCE_PORT, RobotModel
+from pe_drake.multibody.sensors import MeasurementType
 from pe_drake.simulation.truth import (
     ALL_JOINTS,
     Truth,
@@ -79,12 +85,6 @@ from pe_drake.simulation.truth import (
     validate_truth,
 )
 from pe_drake.simulation.wrench_log import recorded_wrench
-from pe_drake.multibody.drive_columns import coulomb_column
-from pe_drake.multibody.inertia import PARAMETER_NAMES, inertia_matrix, perturb_inertias
-from pe_drake.multibody.payload import PayloadInertia
-from pe_drake.multibody.robot import Robot, load_robot
-from pe_drake.multibody.robot_model import APPLIED_FORCE_PORT, RobotModel
-from pe_drake.multibody.sensors import MeasurementType
 
 #: The truth's per-joint effect tables, by drive term (the simulator's sign convention above).
 FIELDS = {"viscous": "viscous", "coulomb": "coulomb", "armature": "armature", "offset": "torque_offset"}

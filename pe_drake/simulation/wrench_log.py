@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from pe_drake.simulation.truth import Truth
 from pe_drake.multibody.wrench import weld_reaction
+from pe_drake.simulation.truth import Truth
 
 
 def recorded_wrench(true_robot, truth: Truth, q: np.ndarray, v: np.ndarray, applied: np.ndarray) -> np.ndarray:
