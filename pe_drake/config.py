@@ -79,6 +79,9 @@ class RobotConfig:
             (Franka refuses 3750-10000 rad/s³); empty: not checked.
         notes: what pe_drake chose for a model given without a config (a standing humanoid's
             excited joints and feet), printed with the robot's notes by every command.
+        trust_xacro: expand a xacro model with xacro's full Python (``$(eval)`` builtins,
+            ``load_yaml``, ``$(env)``); by default those are refused, because a xacro is a program
+            (pe_drake/multibody/xacro_sandbox.py). Set it only for files whose author you trust.
         assumed: the fields of :data:`SAFE_DEFAULTS` that pe_drake set because no config
             gave them (a model path given without a config, or with one that leaves them
             out); the robot prints them once, and an assumed position margin is cut to a
@@ -110,6 +113,7 @@ class RobotConfig:
     jerk_limits: dict[str, float] = dataclasses.field(default_factory=dict)
     notes: list[str] = dataclasses.field(default_factory=list)
     assumed: list[str] = dataclasses.field(default_factory=list)
+    trust_xacro: bool = False
 
 
 #: The shipped robots' conservative limits (models/panda.yaml, ur5.yaml), given to a model
@@ -374,6 +378,8 @@ def validate_config(config: Config) -> Config:
         check_finite("robot.base_pose", v)
     if math.sqrt(sum(v * v for v in r.base_quaternion_wxyz)) < 1e-9:
         raise ConfigError("robot.base_quaternion_wxyz must not be zero")
+    if not isinstance(r.trust_xacro, bool):
+        raise ConfigError(f"robot.trust_xacro must be true or false, got {r.trust_xacro!r}")
     for package, folder in r.packages.items():
         if not Path(str(folder)).expanduser().is_dir():
             raise ConfigError(f"robot.packages['{package}']: folder '{folder}' does not exist")

@@ -37,6 +37,14 @@ def add_robot_arguments(parser: argparse.ArgumentParser) -> None:
     """``--robot`` (required) and ``--config``: what every command that loads a robot takes."""
     parser.add_argument("--robot", required=True, help="built-in name (panda, ur5, g1) or URDF/SDF path")
     parser.add_argument("--config", help="YAML config overriding the robot's defaults")
+    add_trust_xacro_argument(parser)
+
+
+def add_trust_xacro_argument(parser: argparse.ArgumentParser) -> None:
+    """``--trust-xacro``: expand a xacro model with xacro's full Python (a xacro is a program)."""
+    parser.add_argument("--trust-xacro", action="store_true",
+                        help="run a .xacro model with xacro's full Python ($(eval) builtins, load_yaml, $(env)); "
+                             "only for files whose author you trust (default: those are refused)")
 
 
 def add_measurement_argument(parser: argparse.ArgumentParser, what: str) -> None:
@@ -116,6 +124,7 @@ def _add_trajectory_commands(sub) -> None:
     p.add_argument("trajectory", help="trajectory.json")
     p.add_argument("--robot", help="override the robot named in the trajectory file")
     p.add_argument("--config", help="YAML config of the robot")
+    add_trust_xacro_argument(p)
     p.add_argument("--html", help="write a self-contained HTML playback here and exit")
     p.add_argument("--no-capsules", action="store_true", help="hide the collision capsules")
     p.add_argument("--rate", type=float, default=30.0, help="frames per second")

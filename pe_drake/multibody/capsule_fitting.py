@@ -337,7 +337,7 @@ def fit_capsules(config, folder: str | Path) -> tuple:
     model = resolve_mesh_path(robot.model, Path(robot.model), mesh=False)
     if model is None:
         raise ConfigError(f"cannot find the model '{robot.model}' to fit capsules to; give robot.capsules")
-    model = loadable_model_path(model, robot.packages)  # xacro expanded, robot.packages resolved
+    model = loadable_model_path(model, robot.packages, trust_xacro=robot.trust_xacro)  # xacro expanded, robot.packages resolved
     fitted = fit_capsule_file(model, Path(folder) / FITTED_CAPSULES_NAME)
     margin = config.excitation.collision_margin
     config = dataclasses.replace(

@@ -29,6 +29,7 @@ CACHE_ENV = "PE_DRAKE_MESH_CACHE"
 _BINARY_DTYPE = np.dtype([("normal", "<f4", (3,)), ("vertices", "<f4", (3, 3)), ("attribute", "<u2")])
 _VISUAL = re.compile(r"<visual\b.*?</visual>", re.S)
 _MESH_FILENAME = re.compile(r"(<mesh\b[^>]*?\bfilename\s*=\s*)([\"'])(.*?)\2", re.S)
+_FILE_NAME = re.compile(r"(<(?:mesh|texture)\b[^>]*?\bfilename\s*=\s*)([\"'])(.*?)\2", re.S)
 _FLOAT = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
 _ASCII_VERTEX = re.compile(
     rb"vertex\s+(" + _FLOAT.encode() + rb")\s+(" + _FLOAT.encode() + rb")\s+(" + _FLOAT.encode() + rb")"
@@ -294,7 +295,7 @@ def read_dae_triangles(path: Path) -> TriangleMesh:
 
 
 def absolute_mesh_paths(urdf_text: str, model_path: str | Path) -> str:
-    """Rewrites relative and absolute mesh filenames (``meshes/base.stl``,
+    """Rewrites relative and absolute mesh and texture filenames (``meshes/base.stl``,
     ``/opt/meshes/base.stl``) of a URDF to absolute ``file://`` URIs, relative ones against
     the model file's folder: Drake parses our rewritten text from a string, where a relative
     name has no folder to resolve against and a bare absolute path is refused ("invalid when
@@ -308,7 +309,7 @@ def absolute_mesh_paths(urdf_text: str, model_path: str | Path) -> str:
         path = Path(name) if Path(name).is_absolute() else folder / name
         return f"{match.group(1)}{match.group(2)}{path.resolve().as_uri()}{match.group(2)}"
 
-    return _MESH_FILENAME.sub(absolute, urdf_text)
+    return _FILE_NAME.sub(absolute, urdf_text)
 
 
 def resolve_mesh_path(

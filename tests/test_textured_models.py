@@ -1,0 +1,62 @@
+"""Issue 37, items 6 and 8: a material's ``<texture filename="package://…">`` (every Interbotix
+arm) is resolved like a mesh, from the .xacro the user named (not from its expanded copy in
+pe_drake's cache), in the expanded model and in an exported URDF."""
+
+from __future__ import annotations
+
+import struct
+import zlib
+
+import numpy as np
+
+from pe_drake.multibody.meshes import TriangleMesh, obj_text
+from pe_drake.multibody.robot import load_robot
+from pe_drake.multibody.urdf import urdf_with_inertias
+
+INERTIAL = '<inertial><mass value="1"/><inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial>'
+URDF = f"""<?xml version="1.0"?>
+<robot name="arm" xmlns:xacro="http://www.ros.org/wiki/xacro">
+  <material name="skin"><texture filename="package://arm_description/meshes/skin.png"/></material>
+  <link name="base">{INERTIAL}</link>
+  <link name="l1">{INERTIAL}<visual><geometry><mesh filename="package://arm_description/meshes/l1.obj"/></geometry>
+    <material name="skin"/></visual></link>
+  <joint name="j1" type="revolute"><parent link="base"/><child link="l1"/><axis xyz="0 0 1"/>
+    <limit lower="-1" upper="1" velocity="1" effort="1"/></joint>
+</robot>
+"""
+
+
+def _png() -> bytes:
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", 1, 1, 8, 2, 0, 0, 0))
+            + chunk(b"IDAT", zlib.compress(b"\x00\xff\x00\x00")) + chunk(b"IEND", b""))
+
+
+def _package(tmp_path, name: str):
+    package = tmp_path / "ws" / "arm_description"
+    (package / "meshes").mkdir(parents=True)
+    (package / "urdf").mkdir()
+    (package / "package.xml").write_text("<package><name>arm_description</name></package>")
+    (package / "meshes" / "l1.obj").write_text(obj_text(TriangleMesh(np.eye(3), np.array([[0, 1, 2]]))))
+    (package / "meshes" / "skin.png").write_bytes(_png())
+    path = package / "urdf" / name
+    path.write_text(URDF)
+    return path
+
+
+def test_textured_xacro_loads_with_its_package_found_above_the_xacro(tmp_path, monkeypatch):
+    monkeypatch.setenv("PE_DRAKE_MESH_CACHE", str(tmp_path / "cache"))
+    robot = load_robot(str(_package(tmp_path, "arm.urdf.xacro")), obj_visuals=True)
+    assert robot.joint_names == ("j1",)
+    text = robot.model_path.read_text()
+    assert "package://" not in text and (tmp_path / "ws" / "arm_description" / "meshes" / "skin.png").as_uri() in text
+
+
+def test_exported_urdf_resolves_textures(tmp_path):
+    source = _package(tmp_path, "arm.urdf")
+    phi = np.array([1.0, 0, 0, 0, 0.01, 0.01, 0.01, 0, 0, 0])
+    text = urdf_with_inertias(source, ["l1"], phi)
+    assert "package://arm_description" not in text
+    assert (tmp_path / "ws" / "arm_description" / "meshes" / "skin.png").as_uri() in text
