@@ -31,6 +31,7 @@ from pe_drake.config_sections import (  # noqa: F401  (re-exported: config.X kee
     validate_identification,
     validate_log_sections,
 )
+from pe_drake import limits
 from pe_drake.exceptions import ConfigError, shorten
 from pe_drake.yaml_check import check_yaml_file, key_line
 
@@ -328,8 +329,9 @@ def load_yaml_typed(path: str | Path, schema: type, defaults: Any = None, what: 
     from pydrake.common.yaml import yaml_load_typed
 
     path = Path(path)
-    if not path.is_file():
-        raise ConfigError(f"{what} file '{path}' does not exist")
+    problem = limits.input_file_problem(path)
+    if problem:
+        raise ConfigError(f"{what} file '{path}' {problem}")
     check_yaml_file(path, schema, what)  # syntax and shape, naming the line and the key
     try:
         return yaml_load_typed(schema=schema, filename=str(path),

@@ -9,8 +9,12 @@ from __future__ import annotations
 import base64
 import binascii
 import json
+import os
 import re
+import subprocess
+import sys
 import urllib.parse
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,6 +22,7 @@ import pytest
 from pe_drake.multibody.meshes import TriangleMesh, obj_text
 from pe_drake.multibody.robot import load_robot
 
+ROOT = Path(__file__).resolve().parents[1]
 CANARY = "CANARY-5e1f-not-for-html"
 INERTIAL = '<inertial><mass value="1"/><inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial>'
 TRIANGLE = obj_text(TriangleMesh(np.eye(3), np.array([[0, 1, 2]])))
@@ -137,3 +142,45 @@ def test_sdf_with_relative_mesh_uri_loads(layout):
     _, model, _ = layout
     robot = load_robot(str(_write(model, "r.sdf", _sdf("meshes/good.obj"))), obj_visuals=True)
     assert robot.joint_names == ("j1",)
+
+
+BOUNDED = """
+import resource, sys, time
+resource.setrlimit(resource.RLIMIT_AS, (2**30, 2**30))  # 1 GB: /dev/zero read whole would exceed it
+from pe_drake.multibody.robot import load_robot
+start = time.perf_counter()
+robot = load_robot(sys.argv[1], obj_visuals=True)
+print("\\n".join(robot.notes))
+print(f"seconds {time.perf_counter() - start:.2f}")
+"""
+
+HANGS = {
+    "obj mtllib fifo": lambda m, s: (
+        _write(m / "meshes", "lib.obj", f"mtllib pipe.mtl\n{TRIANGLE}"), os.mkfifo(m / "meshes" / "pipe.mtl"),
+        _write(m, "r.urdf", _urdf('<mesh filename="meshes/lib.obj"/>')))[2],
+    "gltf uri dev zero": lambda m, s: (
+        os.symlink("/dev/zero", m / "meshes" / "zero.bin"),
+        _write(m / "meshes", "g.gltf", json.dumps({"asset": {"version": "2.0"}, "buffers": [
+            {"uri": "zero.bin", "byteLength": 2**40}]})),
+        _write(m, "r.urdf", _urdf('<mesh filename="meshes/g.gltf"/>')))[2],
+    "sdf uri fifo": lambda m, s: (
+        os.mkfifo(m / "meshes" / "pipe.obj"), _write(m, "r.sdf", _sdf("meshes/pipe.obj")))[1],
+    "texture fifo": lambda m, s: (
+        os.mkfifo(m / "meshes" / "pipe.png"),
+        _write(m, "r.urdf", _urdf('<mesh filename="meshes/good.obj"/>',
+                                  '<material name="m"><texture filename="meshes/pipe.png"/></material>')))[1],
+}
+
+
+@pytest.mark.parametrize("case", HANGS)
+def test_pipes_and_devices_named_by_a_model_end_quickly(layout, case, monkeypatch):
+    """Each case runs in a child limited to 1 GB and 30 s: a hang or a read of /dev/zero fails
+    the test instead of the suite."""
+    tmp, model, secret = layout
+    path = HANGS[case](model, secret)
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "PE_DRAKE_MESH_CACHE": str(tmp / "cache")}
+    done = subprocess.run([sys.executable, "-c", BOUNDED, str(path)], capture_output=True, text=True, timeout=30,
+                          env=env, cwd=ROOT)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert re.search("not a regular file|is not a .* file: only", done.stdout), done.stdout
+    print(case, done.stdout.splitlines()[-1])

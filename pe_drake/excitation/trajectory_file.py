@@ -75,8 +75,9 @@ def load_trajectory(path: str | Path) -> tuple[FourierTrajectory, dict[str, Any]
         DataError: missing file, missing key, or inconsistent shapes.
     """
     path = Path(path)
-    if not path.is_file():
-        raise DataError("trajectory file does not exist", file=str(path))
+    problem = limits.input_file_problem(path)
+    if problem:
+        raise DataError(f"trajectory file {problem}", file=str(path))
     size = path.stat().st_size
     if size > limits.in_bytes(limits.TRAJECTORY):
         raise DataError(f"{size / 2**20:.1f} MB is more than a trajectory file holds: over "

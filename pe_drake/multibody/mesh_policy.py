@@ -55,13 +55,14 @@ def decoded_character_references(text: str) -> str:
     return _CHARACTER_REFERENCE.sub(one, text)
 
 
-def mesh_file_refusal(path: str | Path, suffixes: tuple[str, ...] = MESH_SUFFIXES, what: str = "mesh") -> str | None:
-    """Why the mesh file ``path`` (or, with ``suffixes`` and ``what``, a file a mesh names) must
-    not be read (a sentence naming the path and the rule), or None when it may."""
+def mesh_file_refusal(path: str | Path, suffixes: tuple[str, ...] = MESH_SUFFIXES, what: str = "mesh",
+                      kind: str | None = None) -> str | None:
+    """Why the mesh file ``path`` (or, with ``suffixes``, ``what`` and ``kind``, another file a
+    model reads) must not be read (a sentence naming the path and the rule), or None."""
     real = os.path.realpath(path)
     shown = f"{what} '{path}'" + (f" (-> {real})" if real != os.path.abspath(path) else "")
     if Path(real).suffix.lower() not in suffixes:
-        return f"{shown} is not a {what} file: only {', '.join(suffixes)} files are read"
+        return f"{shown} is not a {kind or what} file: only {', '.join(suffixes)} files are read"
     try:
         info = os.stat(real)
     except OSError as err:
@@ -178,7 +179,8 @@ def _one_reference_refusal(name: str, mesh: Path, roots: Iterable[str] | None) -
     path = Path(name) if os.path.isabs(name) else mesh.parent / name
     if not os.path.lexists(path):
         return None  # a missing texture: drawn without it
-    refusal = mesh_file_refusal(path, REFERENCE_SUFFIXES, f"file named by mesh '{mesh.name}':")
+    refusal = mesh_file_refusal(path, REFERENCE_SUFFIXES, f"the file named by mesh '{mesh.name}',",
+                                "material, texture or buffer")
     if refusal is None and roots is not None and not _is_under(os.path.realpath(path), roots):
         refusal = _outside(name, path, f"the file named by mesh '{mesh.name}'")
     return refusal

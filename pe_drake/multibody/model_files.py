@@ -183,10 +183,11 @@ def loadable_model_path(model_path: str | Path, packages: Mapping[str, str] | No
     """
     model_path = Path(model_path)
     packages = dict(packages or {})
+    source = read_model_text(model_path)  # a pipe or /dev/zero named as the model: refused, not read
     if is_xacro(model_path):
         text = expand_xacro(model_path, packages, trust=trust_xacro)
-    elif model_path.suffix.lower() == ".urdf" and set(used_packages(model_path.read_text(errors="replace"))) & set(packages):
-        text = model_path.read_text()
+    elif model_path.suffix.lower() == ".urdf" and set(used_packages(source)) & set(packages):
+        text = source
     else:
         return model_path
     text = decoded_character_references(text)
@@ -329,7 +330,7 @@ def read_model_text(model_path: Path) -> str:
     Raises:
         ConfigError: a pipe, a device, a folder or an oversize file, naming it and the limit.
     """
-    refusal = mesh_file_refusal(model_path, (*MODEL_SUFFIXES, ".urdf"), "model")
+    refusal = mesh_file_refusal(model_path, MODEL_SUFFIXES, "model")
     if refusal is not None:
         raise ConfigError(refusal)
     try:

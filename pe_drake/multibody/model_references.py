@@ -60,7 +60,7 @@ def file_refusal(name: str, model_path: Path, roots: Iterable[str] | None, packa
     path = _named_file(name, model_path, packages)
     if path is None or not os.path.lexists(path):
         return None  # a missing file: Drake names it
-    refusal = mesh_file_refusal(path, suffixes, what)
+    refusal = mesh_file_refusal(path, suffixes, what, "texture" if suffixes == REFERENCE_SUFFIXES else "model")
     if refusal is None and not _under(path, roots):
         refusal = (f"{what} '{name}' is {os.path.realpath(path)}, outside the model's folder, its packages and "
                    "pe_drake's mesh cache: files are read only from there")

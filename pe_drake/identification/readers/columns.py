@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from pe_drake.exceptions import DataError
+from pe_drake.limits import input_file_problem
 from pe_drake.identification.csv_checks import check_text_file, check_time_order, first_non_number
 from pe_drake.identification.measurements import Measurement
 from pe_drake.identification.readers.currents import torque_from_current
@@ -38,8 +39,9 @@ def _split(line: str, delimiter: str | None) -> list[str]:
 def read_header(path: str | Path) -> tuple[list[str], str | None]:
     """(column names, delimiter; None: whitespace) of a delimited text file."""
     path = Path(path)
-    if not path.is_file():
-        raise DataError("measurement file does not exist", file=str(path))
+    problem = input_file_problem(path)
+    if problem:
+        raise DataError(f"measurement file {problem}", file=str(path))
     check_text_file(path)  # UTF-16 or another encoding: named, not a UnicodeDecodeError traceback
     with path.open(encoding="utf-8-sig") as f:
         header = next((line for line in f if line.strip()), "")

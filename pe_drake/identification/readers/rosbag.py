@@ -17,6 +17,7 @@ import numpy as np
 
 from pe_drake.config import JointMapConfig
 from pe_drake.exceptions import DataError
+from pe_drake.limits import input_file_problem
 from pe_drake.identification.measurements import Measurement
 from pe_drake.identification.readers.currents import torque_from_current
 from pe_drake.identification.readers.joint_map import robot_name
@@ -110,8 +111,9 @@ def read_joint_state_bag(
 
     path, file = Path(path), str(path)
     joint_map = joint_map or JointMapConfig()
-    if not path.exists():
-        raise DataError("the bag does not exist", file=file)
+    problem = input_file_problem(path)
+    if problem and not path.is_dir():  # a ROS 2 bag is a folder
+        raise DataError(f"the bag {problem}", file=file)
     try:
         with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE)) as reader:
             connections = _pick_topic(reader.connections, topic, file)
