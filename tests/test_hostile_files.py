@@ -44,3 +44,26 @@ def test_pipes_and_devices_as_inputs_are_named(tmp_path, argv, named):
     done = run_bounded(argv, tmp_path)
     assert done.returncode == 2, done.stderr
     assert named in done.stderr and "Traceback" not in done.stderr, done.stderr
+
+
+def _anchors(indent: str, levels: int) -> str:
+    """``levels`` anchors, each a list of ten aliases of the one before: 10^levels values."""
+    rows = [f"{indent}l0: &b0 [1, 2, 3]"]
+    rows += [f"{indent}l{k}: &b{k} [{', '.join([f'*b{k - 1}'] * 10)}]" for k in range(1, levels)]
+    return "\n".join(rows) + "\n"
+
+
+@pytest.mark.parametrize("text, message", [
+    (_anchors("", 25), "expand to"),  # under unknown top-level keys
+    ("robot:\n  model: x.urdf\n  support_points:\n" + _anchors("    ", 25), "expand to"),  # as values
+    ("robot: &r\n  joints: [*r]\n", "cycle"),
+    ("solver:\n  max_iterations: 10\nexcitation:\n  harmonics: 3\nsolver:\n  max_iterations: 20\n",
+     "line 5: key 'solver' is given twice"),
+    ("robot:\n  joints: [a]\n  joints: [b]\n", "line 3: key 'joints' is given twice"),
+])
+def test_yaml_alias_bombs_and_repeated_keys_are_refused(tmp_path, text, message):
+    """Linear in the file's size: each refused in well under the child's 30 s."""
+    (tmp_path / "c.yaml").write_text(text)
+    done = run_bounded(["optimize", "--robot", "panda", "--config", "c.yaml", "--out", "out"], tmp_path)
+    assert done.returncode == 2, done.stderr
+    assert message in done.stderr and "c.yaml" in done.stderr, done.stderr
