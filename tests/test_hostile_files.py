@@ -67,3 +67,82 @@ def test_yaml_alias_bombs_and_repeated_keys_are_refused(tmp_path, text, message)
     done = run_bounded(["optimize", "--robot", "panda", "--config", "c.yaml", "--out", "out"], tmp_path)
     assert done.returncode == 2, done.stderr
     assert message in done.stderr and "c.yaml" in done.stderr, done.stderr
+
+
+PANDA = [f"panda_joint{k}" for k in range(1, 8)]
+
+
+def _bag(path: Path, names_of, count: int = 40) -> Path:
+    """An MCAP bag of ``count`` JointState messages whose names are ``names_of(k)``."""
+    import numpy as np
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    state, header, time = (ts.types[t] for t in ("sensor_msgs/msg/JointState", "std_msgs/msg/Header",
+                                                  "builtin_interfaces/msg/Time"))
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        conn = writer.add_connection("/joint_states", state.__msgtype__, typestore=ts)
+        for k in range(count):
+            names = names_of(k)
+            stamp = 10**9 + k * 10**7
+            msg = state(header=header(stamp=time(sec=stamp // 10**9, nanosec=stamp % 10**9), frame_id=""),
+                        name=names, position=np.full(len(names), 0.1 * k), velocity=np.zeros(0),
+                        effort=np.arange(len(names), dtype=float))
+            writer.write(conn, stamp, ts.serialize_cdr(msg, state.__msgtype__))
+    return path
+
+
+@pytest.mark.parametrize("names, named", [
+    (["panda_joint1", *PANDA], "'panda_joint1' more than once"),  # the second copy won silently
+    (["panda_joint1", *PANDA[:6], "panda_joint1"], "'panda_joint1' more than once"),  # and joint 7 was np.empty
+])
+def test_bag_naming_a_joint_twice_is_refused(tmp_path, names, named):
+    from pe_drake.exceptions import DataError
+    from pe_drake.identification.readers.rosbag import read_joint_state_bag
+
+    bag = _bag(tmp_path / "run", lambda k: names)
+    with pytest.raises(DataError, match=named):
+        read_joint_state_bag(bag, PANDA)
+
+
+def _mcap_bomb(path: Path, declared: int, inflated: int) -> Path:
+    """An MCAP file with one zstd chunk of ``inflated`` zero bytes that declares ``declared``."""
+    import struct
+
+    from backports import zstd
+
+    compressor = zstd.ZstdCompressor()
+    block = bytes(2**24)
+    data = b"".join(compressor.compress(block) for _ in range(inflated // len(block))) + compressor.flush()
+
+    def record(opcode: int, body: bytes) -> bytes:
+        return struct.pack("<BQ", opcode, len(body)) + body
+
+    def string(s: str) -> bytes:
+        return struct.pack("<I", len(s)) + s.encode()
+
+    chunk = struct.pack("<QQQI", 0, 1, declared, 0) + string("zstd") + struct.pack("<Q", len(data)) + data
+    body = (b"\x89MCAP0\r\n" + record(0x01, string("ros2") + string("pe_drake-test")) + record(0x06, chunk)
+            + record(0x02, bytes(20)) + b"\x89MCAP0\r\n")
+    path.write_bytes(body)
+    return path
+
+
+@pytest.mark.parametrize("declared, message", [(1000, "decompression bomb"), (2**31, "over the 256 MB limit")])
+def test_zstd_bomb_mcap_is_refused_in_bounded_memory(tmp_path, declared, message):
+    """58 kB that inflate to 1.6 GB: refused within the child's 30 s and 1 GB."""
+    bomb = _mcap_bomb(tmp_path / "bomb.mcap", declared, 1600 * 2**20)
+    assert bomb.stat().st_size < 200_000
+    done = run_bounded(["identify", "--robot", "panda", "--data", str(bomb), "--out", "out"], tmp_path)
+    assert done.returncode == 2, done.stderr
+    assert message in done.stderr and "bomb.mcap" in done.stderr, done.stderr
+
+
+def test_a_huge_bag_message_is_refused(tmp_path):
+    from pe_drake.exceptions import DataError
+    from pe_drake.identification.readers.rosbag import read_joint_state_bag
+
+    bag = _bag(tmp_path / "run", lambda k: PANDA * (20_000 if k == 3 else 1))
+    with pytest.raises(DataError, match="message 3 on '/joint_states' has .* MB"):
+        read_joint_state_bag(bag, PANDA)
