@@ -146,3 +146,44 @@ def test_a_huge_bag_message_is_refused(tmp_path):
     bag = _bag(tmp_path / "run", lambda k: PANDA * (20_000 if k == 3 else 1))
     with pytest.raises(DataError, match="message 3 on '/joint_states' has .* MB"):
         read_joint_state_bag(bag, PANDA)
+
+
+UR5 = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint", "wrist_3_joint"]
+
+
+def _rtde(path: Path, rows: int = 3000, extra_column: str = "", edit=None) -> Path:
+    """A UR RTDE log (spaces between fields, as UR's writer) of ``rows`` samples."""
+    columns = ["timestamp"] + [f"actual_q_{k}" for k in range(6)] + [f"actual_current_{k}" for k in range(6)]
+    columns += [extra_column] if extra_column else []
+    lines = [" ".join(columns)]
+    for r in range(rows):
+        values = [f"{0.002 * r:.3f}"] + [f"{0.1 * k + 1e-4 * r:.6f}" for k in range(12)]
+        lines.append(" ".join(values + (["0.5"] if extra_column else [])))
+    if edit:
+        edit(lines)
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return path
+
+
+def test_rtde_log_with_a_repeated_column_is_refused(tmp_path):
+    from pe_drake.exceptions import DataError
+    from pe_drake.identification.readers.columns import read_mapped_csv, rtde_columns
+
+    path = _rtde(tmp_path / "run.csv", extra_column="actual_q_0")
+    columns = (tmp_path / "run.csv").read_text().splitlines()[0].split()
+    with pytest.raises(DataError, match=r"'actual_q_0' \(columns 2, 14\) more than once"):
+        read_mapped_csv(path, UR5, rtde_columns(UR5, columns, str(path)), dict.fromkeys(UR5, 1.0))
+
+
+def test_a_latin1_byte_after_64_kb_of_an_rtde_log_is_named(tmp_path):
+    from pe_drake.exceptions import DataError
+    from pe_drake.identification.readers.columns import read_mapped_csv, rtde_columns
+
+    path = _rtde(tmp_path / "run.csv")
+    data = path.read_bytes().splitlines(keepends=True)
+    data[2500] = data[2500].replace(b" ", b" \xe9", 1)
+    path.write_bytes(b"".join(data))
+    assert sum(len(line) for line in data[:2500]) > 65536
+    columns = data[0].decode().split()
+    with pytest.raises(DataError, match="line 2501: byte 0xe9 is not UTF-8"):
+        read_mapped_csv(path, UR5, rtde_columns(UR5, columns, str(path)), dict.fromkeys(UR5, 1.0))
