@@ -8,7 +8,9 @@ import errno
 import json
 import os
 import shutil
+import signal
 import tempfile
+import threading
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
@@ -37,6 +39,36 @@ def atomic_write_text(path: str | Path, text: str) -> None:
         raise
 
 
+class Terminated(BaseException):
+    """SIGTERM arrived (``timeout``, systemd, CI): raised so that every ``finally`` runs, as
+    for Ctrl-C (a BaseException, like KeyboardInterrupt: no ``except Exception`` swallows it)."""
+
+
+@contextlib.contextmanager
+def terminated_as_exception() -> Iterator[None]:
+    """Within it, SIGTERM raises :class:`Terminated` in this process, so a staged output folder
+    is removed and the lock released as on an exception (the default action kills the process
+    with no cleanup and left ``.staging-*`` folders behind). A forked worker keeps the default
+    action: it has nothing of ours to clean and its pool expects it to die."""
+    if threading.current_thread() is not threading.main_thread():
+        yield  # signal handlers can only be set from the main thread
+        return
+    owner = os.getpid()
+
+    def handler(signum, frame):
+        if os.getpid() != owner:
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)
+            os.kill(os.getpid(), signal.SIGTERM)
+            return
+        raise Terminated()
+
+    previous = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)
@@ -55,8 +87,10 @@ def staged_output_dir(out: str | Path, manifest: str = "", own_names: Iterable[s
 
     Args:
         manifest: the run's JSON file that gets ``"outputs"``, the SHA-256 of every other file
-            (:mod:`pe_drake.output_set`); it is moved in first, so a run killed while moving
-            leaves a set that readers refuse rather than a silent mix of two runs.
+            (:mod:`pe_drake.output_set`). The previous run's files of the same names are moved
+            out first, then the manifest is moved in, then the other files: a run killed at any
+            point leaves each file old (with the old manifest) or absent or new (with the new
+            one), so readers that know nothing of the manifest never see old beside new.
         own_names: every name the command may write: those this run did not write are removed
             (a reused folder never mixes runs); other files in ``out`` are left alone.
     """
@@ -74,8 +108,14 @@ def staged_output_dir(out: str | Path, manifest: str = "", own_names: Iterable[s
             written = sorted(item.name for item in tmp.iterdir())
             if manifest in written:
                 add_manifest(tmp, manifest)
-                os.replace(tmp / manifest, out / manifest)
+            # The previous run's files leave before the new manifest arrives, each by one rename:
+            # a kill from here on leaves every file a controller reads (goal, bag, CSV, URDF)
+            # absent or new, never old beside a new report (issue 34; the manifest alone only
+            # protects pe_drake's own readers).
+            _retire(out, tmp / ".retired", [n for n in written if n != manifest])
             remove_stale_outputs(out, own_names, written)
+            if manifest in written:
+                os.replace(tmp / manifest, out / manifest)
             for name in written:
                 if name == manifest:
                     continue
@@ -85,6 +125,14 @@ def staged_output_dir(out: str | Path, manifest: str = "", own_names: Iterable[s
                 os.replace(item, target)
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _retire(out: Path, bin_: Path, names: Iterable[str]) -> None:
+    """Moves ``out/<name>`` (a file, a folder or a link, not followed) into ``bin_``, each whole."""
+    bin_.mkdir()
+    for name in names:
+        if os.path.lexists(out / name):
+            os.replace(out / name, bin_ / name)
 
 
 def describe_write_error(err: OSError) -> str:

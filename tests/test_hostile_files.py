@@ -187,3 +187,57 @@ def test_a_latin1_byte_after_64_kb_of_an_rtde_log_is_named(tmp_path):
     columns = data[0].decode().split()
     with pytest.raises(DataError, match="line 2501: byte 0xe9 is not UTF-8"):
         read_mapped_csv(path, UR5, rtde_columns(UR5, columns, str(path)), dict.fromkeys(UR5, 1.0))
+
+
+STAGED_SLEEPER = """
+import sys, time
+from pe_drake.io_utils import staged_output_dir, terminated_as_exception
+with terminated_as_exception():
+    with staged_output_dir(sys.argv[1], "report.json", ("report.json", "trajectory.csv")) as tmp:
+        (tmp / "trajectory.csv").write_text("half")
+        print("staged", flush=True)
+        time.sleep(60)
+"""
+
+
+def test_sigterm_cleans_up_like_an_exception(tmp_path):
+    """``timeout`` and systemd send SIGTERM: the staged folder and the lock go, as on Ctrl-C."""
+    import signal
+
+    out = tmp_path / "out"
+    child = subprocess.Popen([sys.executable, "-c", STAGED_SLEEPER, str(out)], stdout=subprocess.PIPE, text=True,
+                             env={**os.environ, "PYTHONPATH": str(ROOT)}, cwd=tmp_path)
+    try:
+        assert child.stdout.readline().strip() == "staged"
+        assert list(out.glob(".staging-*"))
+        child.send_signal(signal.SIGTERM)
+        child.wait(timeout=30)
+    finally:
+        child.kill()
+    assert child.returncode != 0
+    assert not out.exists() or not list(out.iterdir())  # no .staging-*, no lock, nothing half-written
+
+
+def test_the_cli_turns_sigterm_into_a_clean_exit(tmp_path):
+    """``pe-drake optimize`` under SIGTERM exits 143 with a message and leaves no staging folder."""
+    import signal
+    import time
+
+    out = tmp_path / "out"
+    (tmp_path / "slow.yaml").write_text("solver:\n  max_iterations: 3000\n")
+    child = subprocess.Popen([sys.executable, "-c", BOUNDED.replace("resource.setrlimit", "# resource.setrlimit"),
+                              "optimize", "--robot", "panda", "--config", "slow.yaml", "--out", str(out), "--quiet"],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                             env={**os.environ, "PYTHONPATH": str(ROOT)}, cwd=tmp_path)
+    try:
+        deadline = time.monotonic() + 60
+        while not (out / ".pe_drake.lock").exists() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        time.sleep(1.0)
+        child.send_signal(signal.SIGTERM)
+        _, err = child.communicate(timeout=60)
+    finally:
+        child.kill()
+    assert child.returncode == 143, err[-2000:]
+    assert "terminated (SIGTERM)" in err
+    assert not out.exists() or not list(out.glob(".staging-*")) and not (out / ".pe_drake.lock").exists()

@@ -15,7 +15,7 @@ import sys
 from pe_drake import __version__
 from pe_drake.config import CRITERIA, DATA_FORMATS, EFFORT_KINDS, MEASUREMENTS
 from pe_drake.exceptions import OutputWriteError, PeDrakeError
-from pe_drake.io_utils import describe_write_error
+from pe_drake.io_utils import Terminated, describe_write_error, terminated_as_exception
 from pe_drake.output_paths import check_output_dir
 from pe_drake.output_set import output_lock
 from pe_drake.threads import single_threaded_blas
@@ -216,7 +216,7 @@ def main(argv: list[str] | None = None) -> int:
         args.data = args.data[0]
     try:
         function = getattr(importlib.import_module(module_name), function_name)
-        with single_threaded_blas(), _folder_lock(args):
+        with terminated_as_exception(), single_threaded_blas(), _folder_lock(args):
             return int(function(args) or 0)
     except OutputWriteError as err:  # not the user's input: a full disk, a quota
         print(f"pe-drake {args.command}: error: {err}", file=sys.stderr)
@@ -230,6 +230,9 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"pe-drake {args.command}: interrupted", file=sys.stderr)
         return 130
+    except Terminated:  # SIGTERM: the outputs were cleaned up as for Ctrl-C
+        print(f"pe-drake {args.command}: terminated (SIGTERM); nothing half-written was left", file=sys.stderr)
+        return 143
 
 
 if __name__ == "__main__":
