@@ -123,6 +123,10 @@ class RobotConfig:
 SAFE_DEFAULTS = {"position_margin": 0.05, "velocity_scale": 0.8}
 
 
+#: Largest solver.max_iterations: IPOPT and NLopt take a C int (1e35 was an IPOPT option error).
+MAX_ITERATIONS = 2**31 - 1
+
+
 #: Default joint-torque noise σ [N·m], every joint: the order of a joint-torque sensor's
 #: noise after the identification's low-pass filter.
 DEFAULT_NOISE_STD = 0.05
@@ -274,7 +278,7 @@ class ParallelConfig:
             else a new local instance).
         starts: random starts; start k uses seed ``excitation.seed + k``.
         workers: starts at once; 0: the cores available (the cluster's CPUs on Ray), at most
-            ``starts``.
+            ``starts``; the local executor never runs more than the cores available.
         hung_after_s: a worker whose start sends no progress for this long [s] is declared
             hung: it is stopped, that start fails, the others go on; 0: never. A running
             solve reports every few seconds. Not checked when the starts run in this
@@ -422,8 +426,9 @@ def validate_config(config: Config) -> Config:
         raise ConfigError(
             f"solver.algorithm '{shorten(s.algorithm)}' is not one of {', '.join(NLOPT_ALGORITHMS)}"
         )
-    if not isinstance(s.max_iterations, int) or s.max_iterations < 1:
-        raise ConfigError(f"solver.max_iterations must be a positive integer, got {s.max_iterations!r}")
+    if isinstance(s.max_iterations, bool) or not isinstance(s.max_iterations, int) or not 1 <= s.max_iterations <= MAX_ITERATIONS:
+        raise ConfigError(f"solver.max_iterations must be an integer from 1 to {MAX_ITERATIONS} (the solvers take a "
+                          f"32-bit count), got {shorten(repr(s.max_iterations))}")
     check_finite("solver.tolerance", s.tolerance, positive=True)
     check_finite("solver.max_time", s.max_time, nonneg=True)
     _validate_safety(config)

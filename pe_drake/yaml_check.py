@@ -91,7 +91,10 @@ def _check_node(node, tp, source: str, key: str) -> None:
     origin = typing.get_origin(tp)
     if dataclasses.is_dataclass(tp):
         if not isinstance(node, yaml.MappingNode):
-            raise ConfigError(f"{_where(source, node, key)}: expected a mapping of {tp.__name__} keys, got {_shape(node)}")
+            # A whole file that is one scalar is not YAML of ours (a key, a password file named
+            # by mistake or on purpose): its content is not echoed.
+            got = _shape(node) if key or not isinstance(node, yaml.ScalarNode) else "text that is not YAML keys"
+            raise ConfigError(f"{_where(source, node, key)}: expected a mapping of {tp.__name__} keys, got {got}")
         hints = typing.get_type_hints(tp)
         for k_node, v_node in node.value:
             name = k_node.value

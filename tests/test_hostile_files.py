@@ -5,6 +5,7 @@ child process limited to 30 s and 1 GB, so a regression fails instead of hanging
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -241,3 +242,84 @@ def test_the_cli_turns_sigterm_into_a_clean_exit(tmp_path):
     assert child.returncode == 143, err[-2000:]
     assert "terminated (SIGTERM)" in err
     assert not out.exists() or not list(out.glob(".staging-*")) and not (out / ".pe_drake.lock").exists()
+
+
+STOPPED_WORKER = """
+import multiprocessing, os, signal, sys, time
+from pe_drake.excitation.parallel import open_executor
+from pe_drake.multibody.robot import load_robot
+
+
+def double(state, payload):
+    return 2 * payload
+
+
+if __name__ == "__main__":
+    with open_executor(load_robot("panda"), "local", 2) as ex:
+        assert [d.value for d in ex.map(double, [1, 2, 3])] == [2, 4, 6]
+        os.kill(next(iter(ex.processes())), signal.SIGSTOP)
+        begin = time.monotonic()
+    print(f"closed in {time.monotonic() - begin:.1f} s; children left: {len(multiprocessing.active_children())}")
+"""
+
+
+def test_a_stopped_idle_worker_does_not_hang_the_end_of_a_run(tmp_path):
+    """SIGSTOP on a worker after every task finished: closing the pool waited forever for it
+    (over 800 s); now it is killed after CLOSE_TIMEOUT_S. In a child bounded to 60 s."""
+    from pe_drake.excitation.parallel.local import CLOSE_TIMEOUT_S
+
+    (tmp_path / "stopped_worker.py").write_text(STOPPED_WORKER)
+    env = {**os.environ, "PYTHONPATH": f"{ROOT}{os.pathsep}{tmp_path}"}
+    done = subprocess.run([sys.executable, str(tmp_path / "stopped_worker.py")], capture_output=True, text=True,
+                          timeout=60, env=env, cwd=tmp_path)
+    assert done.returncode == 0, done.stderr[-2000:]
+    seconds = float(done.stdout.split("closed in ")[1].split(" s")[0])
+    assert seconds < CLOSE_TIMEOUT_S + 10 and "children left: 0" in done.stdout, done.stdout
+
+
+def test_config_workers_are_capped_at_the_cores(tmp_path, capsys):
+    """A shared config's 'workers: 200' starts no more processes than this machine has cores."""
+    from pe_drake.cli import main
+    from pe_drake.excitation.parallel import default_workers
+
+    (tmp_path / "c.yaml").write_text("solver:\n  max_iterations: 2\nparallel:\n  starts: 3\n  workers: 200\n")
+    main(["optimize", "--robot", "panda", "--config", str(tmp_path / "c.yaml"), "--out", str(tmp_path / "out"),
+          "--no-html", "--allow-unchecked"])
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert report["executor"]["workers"] == min(3, default_workers()), report["executor"]
+
+
+@pytest.mark.parametrize("edit, message", [
+    ({"ramp_duration": 1e9}, "ramp_duration is 1e\\+09 s, over the 600 s"),
+    ({"periods": 1000, "ramp_duration": 500.0}, "the whole motion .* over the 7200 s"),
+])
+def test_an_absurd_motion_length_is_refused_before_sampling(tmp_path, edit, message):
+    """'ramp_duration: 1e9' asked for 447 GiB when the motion was sampled."""
+    import json
+
+    from pe_drake.exceptions import DataError
+    from pe_drake.excitation.trajectory_file import load_motion
+
+    data = json.loads((ROOT / "tests" / "data" / "panda_optimized.json").read_text())
+    data.update(edit)
+    path = tmp_path / "trajectory.json"
+    path.write_text(json.dumps(data))
+    with pytest.raises(DataError, match=message):
+        load_motion(path)
+
+
+def test_an_iteration_count_beyond_the_solvers_is_refused(tmp_path):
+    from pe_drake.config import load_config
+    from pe_drake.exceptions import ConfigError
+
+    (tmp_path / "c.yaml").write_text("solver:\n  max_iterations: 100000000000000000000000000000000000\n")
+    with pytest.raises(ConfigError, match=r"line 2: solver.max_iterations must be an integer from 1 to 2147483647"):
+        load_config(tmp_path / "c.yaml")
+
+
+def test_a_file_named_as_capsules_is_not_echoed(tmp_path):
+    (tmp_path / "id_rsa").write_text("-----BEGIN OPENSSH PRIVATE KEY-----\nCANARY-b3BlbnNzaC1rZXk\n")
+    (tmp_path / "c.yaml").write_text(f"robot:\n  capsules: {tmp_path / 'id_rsa'}\n")
+    done = run_bounded(["optimize", "--robot", "panda", "--config", "c.yaml", "--out", "out"], tmp_path)
+    assert done.returncode == 2 and "capsule" in done.stderr, done.stderr
+    assert "CANARY" not in done.stderr and "PRIVATE KEY" not in done.stderr, done.stderr

@@ -34,7 +34,7 @@ from pe_drake.excitation.fourier import FourierBasis, sample_times
 from pe_drake.excitation.multistart import MultiStartResult, solve_multistart
 from pe_drake.excitation.nominal import choose_nominal_posture
 from pe_drake.excitation.optimize_report import MotionReport, assumed_defaults, start_records
-from pe_drake.excitation.parallel import Executor, open_executor
+from pe_drake.excitation.parallel import Executor, default_workers, open_executor
 from pe_drake.excitation.problem import ExcitationProblem
 from pe_drake.excitation.quality import RANDOM_MOTIONS, QualityReport, excitation_quality
 from pe_drake.excitation.ramp import (
@@ -248,7 +248,9 @@ def optimize_motion(
             robot = _robot(config, name or robot_display_name(config.robot.model), say)
             noise_vector(config.excitation.noise_std.torque, robot.joint_names)  # a bad noise_std: before solving
             par = config.parallel
-            with open_executor(robot, par.executor, par.workers or None, tasks=par.starts, address=par.address,
+            # A shared config's 'workers: 200' would start 200 Drake processes on this machine.
+            workers = min(par.workers, default_workers()) if par.executor == "local" and par.workers else par.workers
+            with open_executor(robot, par.executor, workers or None, tasks=par.starts, address=par.address,
                                measurement=config.excitation.measurement, hung_after_s=par.hung_after_s,
                                constraints_factory=constraints_factory(config)) as own:
                 plan = _plan(config, robot, own, priors, fitted, fitted_text, unchecked, allow_unchecked, start, say)
