@@ -19,6 +19,8 @@ from pe_drake.exceptions import DataError
 from pe_drake.output_paths import remove_stale_outputs
 from pe_drake.output_set import add_manifest, output_lock
 
+#: Name prefix of the folder a run is staged in inside its output folder.
+STAGING_PREFIX = ".staging-"
 #: Deepest nesting of arrays and objects accepted in a JSON input (pe_drake writes 4 at most).
 MAX_JSON_NESTING = 100
 
@@ -96,10 +98,10 @@ def staged_output_dir(out: str | Path, manifest: str = "", own_names: Iterable[s
     """
     out = Path(out)
     with output_lock(out):
-        for stale in out.glob(".staging-*"):  # left by a killed run: only the lock holder stages
+        for stale in out.glob(STAGING_PREFIX + "*"):  # left by a killed run: only the lock holder stages
             if stale.is_dir() and not stale.is_symlink():
                 shutil.rmtree(stale, ignore_errors=True)
-        tmp = Path(tempfile.mkdtemp(dir=out, prefix=".staging-"))
+        tmp = Path(tempfile.mkdtemp(dir=out, prefix=STAGING_PREFIX))
         try:
             yield tmp
             for item in tmp.rglob("*"):
@@ -133,6 +135,43 @@ def _retire(out: Path, bin_: Path, names: Iterable[str]) -> None:
     for name in names:
         if os.path.lexists(out / name):
             os.replace(out / name, bin_ / name)
+
+
+def final_folder(path: str | Path) -> Path:
+    """The folder a file written at ``path`` ends up in: ``out`` for a file staged in
+    ``out/.staging-*`` by :func:`staged_output_dir`, else its own folder (for paths recorded
+    relative to the output folder)."""
+    parent = Path(path).parent
+    return parent.parent if parent.name.startswith(STAGING_PREFIX) else parent
+
+
+def portable_path(target: str | Path, folder: str | Path) -> str:
+    """``target`` relative to ``folder`` (where the file recording it ends up), so that a
+    shared output carries no user name or folder layout of the author's machine; a
+    ``package://`` URI or a built-in name is kept as it is."""
+    text = str(target)
+    if not text or "://" in text or not os.path.isabs(text):
+        return text
+    return os.path.relpath(os.path.realpath(text), os.path.realpath(folder))
+
+
+def portable_config(data: dict, folder: str | Path) -> dict:
+    """A report's JSON dict with the config's model, capsule, package and prior paths made
+    relative to ``folder`` (:func:`portable_path`)."""
+    robot = (data.get("config") or {}).get("robot")
+    if isinstance(robot, dict):
+        for key in ("model", "capsules"):
+            if isinstance(robot.get(key), str):
+                robot[key] = portable_path(robot[key], folder)
+        if isinstance(robot.get("packages"), dict):
+            robot["packages"] = {k: portable_path(v, folder) for k, v in robot["packages"].items()}
+    for key in ("prior", "fitted_capsules"):
+        value = data.get(key)
+        if isinstance(value, list):
+            data[key] = [portable_path(v, folder) if isinstance(v, str) else v for v in value]
+        elif isinstance(value, str):
+            data[key] = portable_path(value, folder)
+    return data
 
 
 def describe_write_error(err: OSError) -> str:

@@ -304,7 +304,9 @@ def _load_robot_with_visualizers(path, data, robot, config, meshcat, *, fps: flo
         raise DataError("the file names no robot: pass --robot", file=str(path))
     source = name
     if robot is None and name not in builtin_robots() and data.get("model"):
-        source = data["model"]  # a robot loaded from a model file: its stem is not a name
+        source = str(data["model"])  # a robot loaded from a model file: its stem is not a name
+        if "://" not in source and not Path(source).is_absolute():  # recorded relative to the file
+            source = str(Path(path).resolve().parent / source)
     if robot is None and is_xacro(str(source)):
         raise ConfigError(
             f"trajectory '{path}' names the xacro model '{source}': a xacro file is a program, and pe_drake "

@@ -184,3 +184,17 @@ def test_pipes_and_devices_named_by_a_model_end_quickly(layout, case, monkeypatc
     assert done.returncode == 0, done.stderr[-2000:]
     assert re.search("not a regular file|is not a .* file: only", done.stdout), done.stdout
     print(case, done.stdout.splitlines()[-1])
+
+
+def test_mjcf_and_sdf_include_naming_outside_files_are_refused(layout):
+    from pe_drake.exceptions import ConfigError
+    from pe_drake.multibody.model_files import drake_model_text
+
+    _, model, secret = layout
+    mjcf = _write(model, "r.xml", f"""<mujoco><compiler meshdir="meshes"/>
+  <asset><mesh name="a" file="good.obj"/><mesh name="b" file="{secret}/cad.obj"/></asset></mujoco>""")
+    with pytest.raises(ConfigError, match="outside the model's folder"):
+        drake_model_text(mjcf, obj_visuals=True)
+    sdf = _write(model, "inc.sdf", f'<sdf version="1.7"><include><uri>file://{secret}/x.sdf</uri></include></sdf>')
+    with pytest.raises(ConfigError, match="<include>s another model"):
+        drake_model_text(sdf, obj_visuals=True)

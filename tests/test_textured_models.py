@@ -60,3 +60,25 @@ def test_exported_urdf_resolves_textures(tmp_path):
     text = urdf_with_inertias(source, ["l1"], phi)
     assert "package://arm_description" not in text
     assert (tmp_path / "ws" / "arm_description" / "meshes" / "skin.png").as_uri() in text
+
+
+def test_outputs_record_the_model_relative_to_their_folder(tmp_path, monkeypatch):
+    """trajectory.json and report.json name the model relative to the output folder (no user
+    name or folder layout of the author's machine), and ``view`` still finds it."""
+    import json
+
+    from pe_drake.cli import main
+    from pe_drake.viewer import play_trajectory
+
+    monkeypatch.setenv("PE_DRAKE_MESH_CACHE", str(tmp_path / "cache"))
+    model = _package(tmp_path, "arm.urdf")
+    (tmp_path / "c.yaml").write_text("solver:\n  max_iterations: 3\nexcitation:\n  collision_margin: -1\n")
+    out = tmp_path / "runs" / "out"
+    assert main(["optimize", "--robot", str(model), "--config", str(tmp_path / "c.yaml"), "--out", str(out),
+                 "--no-html", "--allow-unchecked"]) in (0, 3)
+    for name in ("trajectory.json", "report.json"):
+        text = (out / name).read_text()
+        assert str(tmp_path) not in text, name
+    assert json.loads((out / "trajectory.json").read_text())["model"] == "../../ws/arm_description/urdf/arm.urdf"
+    monkeypatch.chdir(tmp_path / "ws")  # another working folder: the path is the file's, not the shell's
+    assert play_trajectory(out / "trajectory.json", html=tmp_path / "p.html", rate=5.0).num_frames > 0

@@ -51,7 +51,7 @@ from pe_drake.excitation.trajectory_file import (
     save_trajectory,
     write_motion_csv,
 )
-from pe_drake.io_utils import describe_write_error, staged_output_dir
+from pe_drake.io_utils import describe_write_error, portable_config, staged_output_dir
 from pe_drake.multibody.capsule_fitting import FittedCapsules, fit_capsules, with_file_margin
 from pe_drake.multibody.registry import robot_display_name
 from pe_drake.multibody.robot import Robot
@@ -152,7 +152,8 @@ class MotionPlan:
             if self.fitted is not None:
                 (tmp / self.fitted.path.name).write_text(self.fitted_text)
                 report = dataclasses.replace(report, fitted_capsules=str(out / self.fitted.path.name))
-            (tmp / "report.json").write_text(json.dumps(report.to_dict(), indent=2, default=float))
+            # Paths relative to the folder: a shared report names no user or folder of the author's
+            (tmp / "report.json").write_text(json.dumps(portable_config(report.to_dict(), out), indent=2, default=float))
             written = sorted(p.name for p in tmp.iterdir())
         return written
 
