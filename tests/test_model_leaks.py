@@ -198,3 +198,18 @@ def test_mjcf_and_sdf_include_naming_outside_files_are_refused(layout):
     sdf = _write(model, "inc.sdf", f'<sdf version="1.7"><include><uri>file://{secret}/x.sdf</uri></include></sdf>')
     with pytest.raises(ConfigError, match="<include>s another model"):
         drake_model_text(sdf, obj_visuals=True)
+
+
+def test_capsule_fitting_names_a_pipe_or_an_oversize_mesh(layout, monkeypatch):
+    """An oversize or unreadable mesh was reported as "file not found"."""
+    from pe_drake.multibody.capsule_fitting import CapsuleFittingError, fit_capsule_file
+
+    tmp, model, _ = layout
+    os.mkfifo(model / "meshes" / "pipe.stl")
+    (model / "meshes" / "big.obj").write_text(TRIANGLE * 2000)
+    monkeypatch.setenv("PE_DRAKE_MAX_MESH_MB", "0.01")
+    for name, says in (("pipe.stl", "not a regular file"), ("big.obj", "over the 0.01 MB limit")):
+        path = _write(model, "r.urdf", _urdf(f'<mesh filename="meshes/{name}"/>'))
+        with pytest.raises(CapsuleFittingError) as err:
+            fit_capsule_file(path, tmp / "caps.yaml")
+        assert says in str(err.value.unchecked), err.value.unchecked

@@ -45,6 +45,7 @@ from pe_drake.multibody.capsules import (
 )
 from pe_drake.multibody.link_geometry import Shape, primitive_points, primitive_segment, read_link_shapes
 from pe_drake.multibody.collada_up_axis import oriented_vertices, up_axis_note
+from pe_drake.multibody.mesh_policy import mesh_file_refusal
 from pe_drake.multibody.meshes import resolve_mesh_path
 from pe_drake.multibody.model_files import loadable_model_path
 from pe_drake.multibody.robot import Robot
@@ -145,9 +146,12 @@ def _mesh_points(shape: Shape, model_path: Path) -> np.ndarray:
     Raises:
         DataError: the file is missing or unreadable.
     """
-    path = resolve_mesh_path(shape.filename, model_path)
+    path = resolve_mesh_path(shape.filename, model_path, mesh=False)
     if path is None:
         raise DataError("file not found")
+    refusal = mesh_file_refusal(path)  # an oversize file or a pipe: said so, not "not found"
+    if refusal is not None:
+        raise DataError(refusal)
     v = oriented_vertices(path, model_path) * shape.scale  # a COLLADA mesh as the model means it
     return v @ shape.X_LG[:3, :3].T + shape.X_LG[:3, 3]
 

@@ -334,7 +334,7 @@ def _resolve_mesh(name: str, model_path: Path, packages: dict | None = None, mes
     if name.startswith("package://"):
         package, _, rest = name[len("package://") :].lstrip("/").partition("/")  # TALOS writes package:///
         for root in package_roots(package, model_path, packages):
-            if (root / rest).is_file():
+            if _present(root / rest, mesh):
                 return root / rest if not mesh or mesh_file_refusal(root / rest) is None else None
         return None
     if name.startswith("file://"):
@@ -342,7 +342,13 @@ def _resolve_mesh(name: str, model_path: Path, packages: dict | None = None, mes
     path = Path(name)
     if not path.is_absolute():
         path = model_path.parent / path
-    return path if path.is_file() and (not mesh or mesh_file_refusal(path) is None) else None
+    return path if _present(path, mesh) and (not mesh or mesh_file_refusal(path) is None) else None
+
+
+def _present(path: Path, mesh: bool) -> bool:
+    """A regular file; without ``mesh``, anything there (the caller names a pipe or a folder
+    with :func:`~pe_drake.multibody.mesh_policy.mesh_file_refusal` instead of "not found")."""
+    return path.is_file() if mesh else os.path.lexists(path)
 
 
 
