@@ -323,3 +323,28 @@ def test_a_file_named_as_capsules_is_not_echoed(tmp_path):
     done = run_bounded(["optimize", "--robot", "panda", "--config", "c.yaml", "--out", "out"], tmp_path)
     assert done.returncode == 2 and "capsule" in done.stderr, done.stderr
     assert "CANARY" not in done.stderr and "PRIVATE KEY" not in done.stderr, done.stderr
+
+
+def test_a_nan_effort_in_a_bag_is_named(tmp_path):
+    """A NaN effort was reported as "check the torque units" further on."""
+    import numpy as np
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    from pe_drake.exceptions import DataError
+    from pe_drake.identification.readers.rosbag import read_joint_state_bag
+
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    state, header, time = (ts.types[t] for t in ("sensor_msgs/msg/JointState", "std_msgs/msg/Header",
+                                                  "builtin_interfaces/msg/Time"))
+    with Writer(tmp_path / "run", version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        conn = writer.add_connection("/joint_states", state.__msgtype__, typestore=ts)
+        for k in range(40):
+            effort = np.arange(7.0)
+            effort[3] = np.nan if k == 17 else 3.0
+            stamp = 10**9 + k * 10**7
+            msg = state(header=header(stamp=time(sec=stamp // 10**9, nanosec=stamp % 10**9), frame_id=""),
+                        name=PANDA, position=np.zeros(7), velocity=np.zeros(0), effort=effort)
+            writer.write(conn, stamp, ts.serialize_cdr(msg, state.__msgtype__))
+    with pytest.raises(DataError, match=r"effort of joint 'panda_joint4' is nan in the message stamped 1.170000000 s"):
+        read_joint_state_bag(tmp_path / "run", PANDA)

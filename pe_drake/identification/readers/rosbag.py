@@ -143,6 +143,18 @@ def read_joint_state_bag(
     return _to_measurement(rows, joints, effort, drive_gains or {}, file, partial, other)
 
 
+def _check_finite(field: str, values: np.ndarray | None, joints, stamps: np.ndarray, file: str) -> None:
+    """Refuses a NaN or infinite value, naming the message's stamp and the joint (a NaN effort
+    was reported as a torque-unit problem further on)."""
+    if values is None or np.isfinite(values).all():
+        return
+    row, col = np.argwhere(~np.isfinite(values))[0]
+    count = int((~np.isfinite(values)).sum())
+    raise DataError(f"{field} of joint '{joints[col]}' is {values[row, col]} in the message stamped "
+                    f"{stamps[row] * 1e-9:.9f} s (message {row + 1} of {len(values)} in time order; {count} such "
+                    "value(s)): the JointState holds no number there", file=file)
+
+
 def _to_measurement(rows, joints, effort: str, gains, file: str, partial: int, other: int) -> Measurement:
     notes = []
     if partial or other:
@@ -169,6 +181,8 @@ def _to_measurement(rows, joints, effort: str, gains, file: str, partial: int, o
     q = np.array([rows[k][2] for k in order])
     tau = np.array([rows[k][4] for k in order])
     v = np.array([rows[k][3] for k in order]) if all(rows[k][3] is not None for k in order) else None
+    for field, values in (("position", q), ("effort", tau), ("velocity", v)):
+        _check_finite(field, values, joints, stamps[keep], file)
     if effort == "current":
         tau = torque_from_current(tau, joints, gains, file, "effort read as motor current, --effort current")
         notes.append("effort read as motor current [A] and multiplied by robot.drive_gains")
