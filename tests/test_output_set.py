@@ -221,3 +221,20 @@ def test_full_disk_at_the_cli_is_one_line_and_exit_1(tmp_path, monkeypatch, caps
     err = capsys.readouterr().err
     assert code == 1
     assert "no space left on the device" in err and "trajectory.rescued-" in err and "Traceback" not in err
+
+
+def test_validate_writes_its_json_and_figure_both_or_neither(tmp_path, monkeypatch, capsys):
+    """A full disk while the figure is written left validation.json without it."""
+    from pe_drake.identification.measurements import write_measurement_csv
+    from pe_drake.identification.validate_model import ValidationReport
+
+    robot = load_robot("panda")
+    trajectory, _ = load_trajectory(DATA / "panda_optimized.json")
+    data = model_measurement(robot, trajectory, rate_hz=200.0, duration=8.0, tau_noise_std=0.05, seed=1)
+    identify_model(robot, data, IdentifyOptions(method="ols")).write(tmp_path / "model")
+    write_measurement_csv(tmp_path / "run.csv", data)
+    monkeypatch.setattr(ValidationReport, "plot", _full_disk)
+    code = main(["validate", "--robot", "panda", "--model", str(tmp_path / "model" / "identified.json"),
+                 "--data", str(tmp_path / "run.csv"), "--json", str(tmp_path / "v.json"), "--plot", str(tmp_path / "v.png")])
+    assert code == 1 and "no space left" in capsys.readouterr().err
+    assert not (tmp_path / "v.json").exists() and not (tmp_path / "v.png").exists()

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from pe_drake.cli.common import config_from_args, measurement_from_args, read_log_from_args, robot_from_args
 from pe_drake.identification import (
@@ -53,12 +54,20 @@ def validate_command(args: argparse.Namespace) -> int:
     report = validate_model(robot, model, read_log_from_args(args, robot, config), options)
     for line in [f"note: {n}" for n in report.notes] + report.summary_lines():
         print(line)
-    if args.json:
-        report.write_json(args.json, model=args.model, data=args.data)
-        print(f"wrote {args.json}")
-    if args.plot:
-        report.plot(args.plot)
-        print(f"wrote {args.plot}")
+    written = []
+    try:  # both or neither: a full disk after the JSON left it without its figure
+        if args.json:
+            report.write_json(args.json, model=args.model, data=args.data)
+            written.append(args.json)
+        if args.plot:
+            report.plot(args.plot)
+            written.append(args.plot)
+    except BaseException:
+        for path in written:
+            Path(path).unlink(missing_ok=True)
+        raise
+    for path in written:
+        print(f"wrote {path}")
     return 0
 
 
