@@ -213,3 +213,13 @@ def test_capsule_fitting_names_a_pipe_or_an_oversize_mesh(layout, monkeypatch):
         with pytest.raises(CapsuleFittingError) as err:
             fit_capsule_file(path, tmp / "caps.yaml")
         assert says in str(err.value.unchecked), err.value.unchecked
+
+
+def test_a_collada_file_with_entities_is_not_parsed(tmp_path):
+    from pe_drake.exceptions import DataError
+    from pe_drake.multibody.meshes import read_dae_vertices
+
+    (tmp_path / "x.dae").write_text('<?xml version="1.0"?><!DOCTYPE c [<!ENTITY s SYSTEM "file:///etc/passwd">]>'
+                                    '<COLLADA><library_geometries>&s;</library_geometries></COLLADA>')
+    with pytest.raises(DataError, match="declares XML entities"):
+        read_dae_vertices(tmp_path / "x.dae")

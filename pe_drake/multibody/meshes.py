@@ -135,6 +135,11 @@ def _dae_primitives(path: Path) -> tuple[list, float]:
     """
     import collada  # lazy: only DAE meshes need it
 
+    with open(path, "rb") as f:  # the caller checked it is a regular file of bounded size
+        if b"<!ENTITY" in f.read().upper():
+            # pycollada parses with lxml when it is installed, which expands external entities:
+            # a file's content would reach the parse tree and its error messages.
+            raise DataError("COLLADA file declares XML entities (<!ENTITY>), which pe_drake does not read", file=str(path))
     try:
         mesh = collada.Collada(
             str(path), ignore=[collada.common.DaeUnsupportedError, collada.common.DaeBrokenRefError]
