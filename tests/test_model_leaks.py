@@ -115,6 +115,14 @@ CASES = {
         _write(m, "r.urdf", _urdf('<mesh filename="meshes/g.gltf"/>')))[1],
     "package path climbing out": lambda m, s: _write(m, "r.urdf", _urdf(
         '<mesh filename="package://arm/../secret/cad.obj"/>')),
+    "percent-encoded file uri": lambda m, s: _write(m, "r.urdf", _urdf(
+        f'<mesh filename="file://{s}/cad%2Eobj"/>')),
+    "percent-encoded package climb": lambda m, s: _write(m, "r.urdf", _urdf(
+        '<mesh filename="package://arm/%2E%2E/secret/cad.obj"/>')),
+    "file uri with a host": lambda m, s: _write(m, "r.urdf", _urdf(
+        f'<mesh filename="file://localhost{s}/cad.obj"/>')),
+    "upper-case scheme": lambda m, s: _write(m, "r.urdf", _urdf(
+        f'<mesh filename="FILE://{s}/cad.obj"/>')),
     "sdf uri": lambda m, s: _write(m, "r.sdf", _sdf(f"file://{s}/cad.obj")),
     "texture": lambda m, s: _write(m, "r.urdf", _urdf(
         '<mesh filename="meshes/good.obj"/>',

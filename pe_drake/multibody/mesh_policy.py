@@ -92,27 +92,62 @@ def _is_under(real: str, roots: Iterable[str]) -> bool:
     return any(real == r or real.startswith(r.rstrip(os.sep) + os.sep) for r in roots)
 
 
-def package_uri_refusal(name: str) -> str | None:
-    """Why a ``package://`` or ``model://`` name must not be followed: a path that climbs above
-    its package's root (``package://arm/../../secret/cad.obj``), or None."""
-    scheme = next((s for s in ("package://", "model://") if name.startswith(s)), None)
-    if scheme is None:
-        return None
-    rest = name[len(scheme):].lstrip("/").partition("/")[2]
-    normal = os.path.normpath(rest) if rest else ""
-    if os.path.isabs(rest) or normal == ".." or normal.startswith(".." + os.sep) or "\\" in rest:
-        return f"'{name}' leaves its package's folder: a package:// name is read only inside its package"
+_SCHEME = re.compile(r"^([A-Za-z][A-Za-z0-9+.-]*):")
+
+
+def spellings(name: str) -> list[str]:
+    """A file name as written and percent-decoded (a URI reader may decode ``%2E``)."""
+    return list(dict.fromkeys((name, unquote(name))))
+
+
+def name_refusal(name: str) -> str | None:
+    """Why a file name a model gives must not be followed whatever it resolves to, or None:
+    a scheme other than ``package://``, ``model://`` and ``file://`` (local, or ``localhost``),
+    or a package path that climbs above its package's root (``package://arm/../../x``),
+    as written or percent-decoded."""
+    for spelling in spellings(name):
+        match = _SCHEME.match(spelling)
+        scheme = match.group(1).lower() if match and len(match.group(1)) > 1 else ""  # "C:" is a drive
+        if not scheme:
+            continue
+        if scheme not in ("package", "model", "file") or not spelling[len(scheme) + 1:].startswith("//"):
+            return f"'{name}' is a {scheme}: URI: only package://, model://, file:// and paths are read"
+        rest = spelling[len(scheme) + 3:]
+        if scheme == "file":
+            host = rest.split("/", 1)[0]
+            if host not in ("", "localhost"):
+                return f"'{name}' names host '{host}': only local files are read"
+            continue
+        inside = rest.lstrip("/").partition("/")[2]
+        normal = os.path.normpath(inside) if inside else ""
+        if os.path.isabs(inside) or normal == ".." or normal.startswith(".." + os.sep) or "\\" in inside:
+            return f"'{name}' leaves its package's folder: a package:// name is read only inside its package"
     return None
 
 
+def named_files(name: str, model_path: Path, packages: Mapping[str, str] | None) -> list[Path]:
+    """The files a model's file name may be read as (each spelling of :func:`spellings`):
+    ``package://``/``model://`` through the resolver, ``file://`` (with or without
+    ``localhost``), absolute, or relative to the model's folder."""
+    out = []
+    for spelling in spellings(name):
+        match = _SCHEME.match(spelling)
+        scheme = match.group(1).lower() if match and len(match.group(1)) > 1 else ""
+        if scheme in ("package", "model"):
+            found = resolve_package_uri("package://" + spelling.split("://", 1)[1], model_path, packages)
+            out += [found] if found is not None else []
+            continue
+        if scheme == "file":
+            spelling = spelling[len("file://"):]
+            spelling = spelling[len("localhost"):] if spelling.startswith("localhost/") else spelling
+        path = Path(spelling)
+        out.append(path if path.is_absolute() else model_path.parent / path)
+    return out
+
+
 def _mesh_file(name: str, model_path: Path, packages: Mapping[str, str] | None) -> Path | None:
-    if name.startswith(("package://", "model://")):
-        name = "package://" + name.split("://", 1)[1]
-        return resolve_package_uri(name, model_path, packages)
-    if name.startswith("file://"):
-        name = name[len("file://"):]
-    path = Path(name)
-    return path if path.is_absolute() else model_path.parent / path
+    found = [p for p in named_files(name, model_path, packages) if os.path.lexists(p)]
+    return found[0] if found else None
 
 
 def visual_mesh_refusal(
@@ -126,16 +161,19 @@ def visual_mesh_refusal(
         roots: :func:`allowed_mesh_roots`, or None to check only the file itself.
         packages: the config's ``robot.packages`` map.
     """
-    refusal = package_uri_refusal(name)
+    refusal = name_refusal(name)
     if refusal is not None:
         return refusal
-    path = _mesh_file(name, Path(model_path), packages)
-    if path is None or not os.path.lexists(path):
-        return None  # a missing mesh: Drake names it
-    refusal = mesh_file_refusal(path)
-    if refusal is None and roots is not None and not _is_under(os.path.realpath(path), roots):
-        refusal = _outside(name, path)
-    return refusal or referenced_file_refusal(Path(path), roots)
+    for path in named_files(name, Path(model_path), packages):
+        if not os.path.lexists(path):
+            continue  # a missing mesh: Drake names it
+        refusal = mesh_file_refusal(path)
+        if refusal is None and roots is not None and not _is_under(os.path.realpath(path), roots):
+            refusal = _outside(name, path)
+        refusal = refusal or referenced_file_refusal(Path(path), roots)
+        if refusal:
+            return refusal
+    return None
 
 
 def _outside(name: str, path: str | Path, what: str = "mesh") -> str:
@@ -161,29 +199,24 @@ def referenced_file_refusal(mesh: Path, roots: Iterable[str] | None) -> str | No
 
 
 def _reference_refusal(name: str, mesh: Path, roots: Iterable[str] | None) -> str | None:
-    """Checks a name as written and, percent-decoded, as a URI reader may read it."""
-    for spelling in dict.fromkeys((name, unquote(name))):
-        refusal = _one_reference_refusal(spelling, mesh, roots)
+    """Checks a name a mesh gives, in each spelling a reader may follow (:func:`named_files`)."""
+    if name.startswith("data:"):
+        return None  # embedded in the mesh file itself
+    refusal = name_refusal(name)
+    if refusal is None and _SCHEME.match(name) and not name.lower().startswith("file:"):
+        refusal = f"mesh '{mesh}' names '{name}': only files beside the mesh are read"
+    if refusal is not None:
+        return refusal
+    for path in named_files(name, mesh, None):  # relative names are relative to the mesh's folder
+        if not os.path.lexists(path):
+            continue  # a missing texture: drawn without it
+        refusal = mesh_file_refusal(path, REFERENCE_SUFFIXES, f"the file named by mesh '{mesh.name}',",
+                                    "material, texture or buffer")
+        if refusal is None and roots is not None and not _is_under(os.path.realpath(path), roots):
+            refusal = _outside(name, path, f"the file named by mesh '{mesh.name}'")
         if refusal:
             return refusal
     return None
-
-
-def _one_reference_refusal(name: str, mesh: Path, roots: Iterable[str] | None) -> str | None:
-    if name.startswith("data:"):
-        return None  # embedded in the mesh file itself
-    if name.startswith("file://"):
-        name = name[len("file://"):]
-    elif "://" in name:
-        return f"mesh '{mesh}' names '{name}': only files beside the mesh are read"
-    path = Path(name) if os.path.isabs(name) else mesh.parent / name
-    if not os.path.lexists(path):
-        return None  # a missing texture: drawn without it
-    refusal = mesh_file_refusal(path, REFERENCE_SUFFIXES, f"the file named by mesh '{mesh.name}',",
-                                "material, texture or buffer")
-    if refusal is None and roots is not None and not _is_under(os.path.realpath(path), roots):
-        refusal = _outside(name, path, f"the file named by mesh '{mesh.name}'")
-    return refusal
 
 
 def _head(path: Path) -> bytes:

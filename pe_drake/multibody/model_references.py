@@ -21,10 +21,10 @@ from pe_drake.multibody.mesh_policy import (
     MESH_SUFFIXES,
     REFERENCE_SUFFIXES,
     mesh_file_refusal,
-    package_uri_refusal,
+    name_refusal,
+    named_files,
     visual_mesh_refusal,
 )
-from pe_drake.multibody.packages import resolve_package_uri
 
 _TEXTURE = re.compile(r"<texture\b[^>]*?\bfilename\s*=\s*([\"'])(.*?)\1[^>]*?(?:/>|>.*?</texture\s*>)", re.S)
 _MATERIAL = re.compile(r"(<material\b[^>]*?(?<!/)>)(.*?)(</material\s*>)", re.S)
@@ -42,29 +42,26 @@ def _under(path: str | Path, roots: Iterable[str] | None) -> bool:
 
 
 def _named_file(name: str, model_path: Path, packages: Mapping[str, str] | None) -> Path | None:
-    if name.startswith(("package://", "model://")):
-        return resolve_package_uri("package://" + name.split("://", 1)[1], model_path, packages)
-    if name.startswith("file://"):
-        name = name[len("file://"):]
-    elif "://" in name:
-        return None
-    return Path(name) if os.path.isabs(name) else model_path.parent / name
+    found = [p for p in named_files(name, model_path, packages) if os.path.lexists(p)]
+    return found[0] if found else None
 
 
 def file_refusal(name: str, model_path: Path, roots: Iterable[str] | None, packages: Mapping[str, str] | None,
                  suffixes: tuple[str, ...], what: str) -> str | None:
     """Why the file a model names (``what``: "texture", ...) must not be read, or None."""
-    refusal = package_uri_refusal(name)
+    refusal = name_refusal(name)
     if refusal is not None:
         return f"{what} {refusal}"
-    path = _named_file(name, model_path, packages)
-    if path is None or not os.path.lexists(path):
-        return None  # a missing file: Drake names it
-    refusal = mesh_file_refusal(path, suffixes, what, "texture" if suffixes == REFERENCE_SUFFIXES else "model")
-    if refusal is None and not _under(path, roots):
-        refusal = (f"{what} '{name}' is {os.path.realpath(path)}, outside the model's folder, its packages and "
-                   "pe_drake's mesh cache: files are read only from there")
-    return refusal
+    for path in named_files(name, model_path, packages):
+        if not os.path.lexists(path):
+            continue  # a missing file: Drake names it
+        refusal = mesh_file_refusal(path, suffixes, what, "texture" if suffixes == REFERENCE_SUFFIXES else "model")
+        if refusal is None and not _under(path, roots):
+            refusal = (f"{what} '{name}' is {os.path.realpath(path)}, outside the model's folder, its packages and "
+                       "pe_drake's mesh cache: files are read only from there")
+        if refusal:
+            return refusal
+    return None
 
 
 def without_refused_textures(text: str, model_path: str | Path, roots: Iterable[str] | None,
