@@ -123,6 +123,10 @@ CASES = {
         f'<mesh filename="file://localhost{s}/cad.obj"/>')),
     "upper-case scheme": lambda m, s: _write(m, "r.urdf", _urdf(
         f'<mesh filename="FILE://{s}/cad.obj"/>')),
+    "decoy attribute": lambda m, s: _write(m, "r.urdf", _urdf(
+        f'<mesh data-filename="meshes/good.obj" filename="file://{s}/cad.obj"/>')),
+    "closing tag with a space": lambda m, s: _write(m, "r.urdf", _urdf(
+        f'<mesh filename="{s}/cad.obj"/>').replace("</visual>", "</visual >")),
     "sdf uri": lambda m, s: _write(m, "r.sdf", _sdf(f"file://{s}/cad.obj")),
     "texture": lambda m, s: _write(m, "r.urdf", _urdf(
         '<mesh filename="meshes/good.obj"/>',

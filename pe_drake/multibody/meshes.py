@@ -27,9 +27,10 @@ from pe_drake.multibody.packages import package_roots
 CACHE_ENV = "PE_DRAKE_MESH_CACHE"
 
 _BINARY_DTYPE = np.dtype([("normal", "<f4", (3,)), ("vertices", "<f4", (3, 3)), ("attribute", "<u2")])
-_VISUAL = re.compile(r"<visual\b.*?</visual>", re.S)
-_MESH_FILENAME = re.compile(r"(<mesh\b[^>]*?\bfilename\s*=\s*)([\"'])(.*?)\2", re.S)
-_FILE_NAME = re.compile(r"(<(?:mesh|texture)\b[^>]*?\bfilename\s*=\s*)([\"'])(.*?)\2", re.S)
+_VISUAL = re.compile(r"<visual\b.*?</visual\s*>", re.S)
+# (?<![\w:.-]): the attribute itself, not data-filename= or x:filename= before it
+_MESH_FILENAME = re.compile(r"(<mesh\b[^>]*?(?<![\w:.-])filename\s*=\s*)([\"'])(.*?)\2", re.S)
+_FILE_NAME = re.compile(r"(<(?:mesh|texture)\b[^>]*?(?<![\w:.-])filename\s*=\s*)([\"'])(.*?)\2", re.S)
 _FLOAT = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
 _ASCII_VERTEX = re.compile(
     rb"vertex\s+(" + _FLOAT.encode() + rb")\s+(" + _FLOAT.encode() + rb")\s+(" + _FLOAT.encode() + rb")"

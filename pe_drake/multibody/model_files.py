@@ -32,7 +32,12 @@ from pe_drake.exceptions import ConfigError
 from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.example_robot_data import example_robot_data_dir
 from pe_drake.multibody.mesh_policy import allowed_mesh_roots, decoded_character_references, mesh_file_refusal
-from pe_drake.multibody.model_references import check_mjcf_files, checked_sdf_text, without_refused_textures
+from pe_drake.multibody.model_references import (
+    check_every_name,
+    check_mjcf_files,
+    checked_sdf_text,
+    without_refused_textures,
+)
 from pe_drake.multibody.collada_up_axis import turned_dae_visuals
 from pe_drake.multibody.meshes import absolute_mesh_paths, default_cache_dir, stl_visuals_to_obj, without_refused_visuals
 from pe_drake.multibody.packages import (
@@ -49,11 +54,11 @@ from pe_drake.multibody.xacro_sandbox import sandboxed
 #: Suffixes of model files pe_drake reads.
 MODEL_SUFFIXES = (".urdf", ".sdf", ".xml", ".xacro")
 
-_FILE_NAME = re.compile(r"(<(?:mesh|texture)\b[^>]*?\bfilename\s*=\s*)([\"'])(.*?)\2", re.S)
+_FILE_NAME = re.compile(r"(<(?:mesh|texture)\b[^>]*?(?<![\w:.-])filename\s*=\s*)([\"'])(.*?)\2", re.S)
 _ROOTS_FILE = "mesh_roots.txt"
 _MATERIAL = re.compile(r"<material\b([^>]*?)(/>|>(.*?)</material\s*>)", re.S)
 _LINK = re.compile(r"<link\b[^>]*?(/>|>.*?</link\s*>)", re.S)
-_NAME_ATTR = re.compile(r"""\bname\s*=\s*(["'])(.*?)\1""", re.S)
+_NAME_ATTR = re.compile(r"""(?<![\w:.-])name\s*=\s*(["'])(.*?)\1""", re.S)
 _MIMIC = re.compile(r"<mimic\b[^>]*/>|<mimic\b[^>]*>.*?</mimic\s*>", re.S)
 _XACRO_LOCK = threading.Lock()  # xacro keeps its state in module globals
 
@@ -301,13 +306,14 @@ def drake_model_text(model_path: Path, obj_visuals: bool, packages: dict | None 
     roots = _mesh_roots(model_path, text, packages)
     if suffix == ".sdf":
         text, notes = checked_sdf_text(text, model_path, roots, packages)
+        check_every_name(text, model_path, roots, packages)
     elif suffix == ".xml":
         check_mjcf_files(text, model_path, roots)
     if suffix == ".urdf":
         check_joint_types(text, model_path)  # floating/ball joints: named, with what is supported
         # Drake cannot build convex hulls of STL/DAE collision meshes (BUILD_NOTES.md);
         # collision is our own capsules. Mimic tags would couple joints we may lock.
-        text = re.sub(r"<collision\b.*?</collision>", "", text, flags=re.S)
+        text = re.sub(r"<collision\b.*?</collision\s*>", "", text, flags=re.S)
         text, mimic_notes = without_mimic(text)
         text, material_notes = single_material_definitions(text)  # Kinova JACO2, TALOS full
         notes += mimic_notes + material_notes
@@ -318,6 +324,7 @@ def drake_model_text(model_path: Path, obj_visuals: bool, packages: dict | None 
         text, refused = without_refused_visuals(text, model_path, roots, packages)
         text, refused_textures = without_refused_textures(text, model_path, roots, packages)
         notes += refused + refused_textures  # a visual naming /etc/passwd or a key would be embedded in playback.html
+        check_every_name(text, model_path, roots, packages)
         if obj_visuals:
             text = stl_visuals_to_obj(text, model_path, packages=packages)
             text = turned_dae_visuals(text, model_path, packages)  # iCub's: Meshcat draws a DAE as written

@@ -26,14 +26,15 @@ from pe_drake.multibody.mesh_policy import (
     visual_mesh_refusal,
 )
 
-_TEXTURE = re.compile(r"<texture\b[^>]*?\bfilename\s*=\s*([\"'])(.*?)\1[^>]*?(?:/>|>.*?</texture\s*>)", re.S)
+_TEXTURE = re.compile(r"<texture\b[^>]*?(?<![\w:.-])filename\s*=\s*([\"'])(.*?)\1[^>]*?(?:/>|>.*?</texture\s*>)", re.S)
 _MATERIAL = re.compile(r"(<material\b[^>]*?(?<!/)>)(.*?)(</material\s*>)", re.S)
+_ANY_FILENAME = re.compile(r"(<[\w:]+\b[^>]*?(?<![\w:.-])filename\s*=\s*)([\"'])(.*?)\2", re.S)
 _SDF_GEOMETRY = re.compile(r"<(visual|collision)\b.*?</\1\s*>", re.S)
 _SDF_URI = re.compile(r"(<uri\b[^>]*>)\s*(.*?)\s*(</uri\s*>)", re.S)
 _SDF_INCLUDE = re.compile(r"<include\b")
 _SDF_MAP = re.compile(r"(?=<([\w:]*_map)\b)(<[\w:]*_map\b[^>]*>)\s*(.*?)\s*(</[\w:]*_map\s*>)", re.S)
-_MJCF_FILE = re.compile(r"(<(\w+)\b[^>]*?\bfile\s*=\s*)([\"'])(.*?)\3", re.S)
-_MJCF_DIR = re.compile(r"<compiler\b[^>]*?\b(meshdir|texturedir|assetdir)\s*=\s*([\"'])(.*?)\2", re.S)
+_MJCF_FILE = re.compile(r"(<(\w+)\b[^>]*?(?<![\w:.-])file\s*=\s*)([\"'])(.*?)\3", re.S)
+_MJCF_DIR = re.compile(r"<compiler\b[^>]*?(?<![\w:.-])(meshdir|texturedir|assetdir)\s*=\s*([\"'])(.*?)\2", re.S)
 
 
 def _under(path: str | Path, roots: Iterable[str] | None) -> bool:
@@ -85,6 +86,25 @@ def without_refused_textures(text: str, model_path: str | Path, roots: Iterable[
         return match.group(1) + body + match.group(3)
 
     return _MATERIAL.sub(material, text), notes
+
+
+def check_every_name(text: str, model_path: str | Path, roots: Iterable[str] | None,
+                     packages: Mapping[str, str] | None = None) -> None:
+    """The last check before Drake parses a model's text: every mesh and texture ``filename``
+    and every ``<uri>`` left in it must pass the read policy, wherever it sits (a name the
+    element-by-element checks did not see, e.g. in markup they do not expect, stops the load).
+
+    Raises:
+        ConfigError: naming the file and the rule.
+    """
+    model_path = Path(model_path)
+    names = [m.group(3) for m in _ANY_FILENAME.finditer(text)] + [m.group(2) for m in _SDF_URI.finditer(text)]
+    for name in names:
+        texture = Path(name.split("?")[0]).suffix.lower() in REFERENCE_SUFFIXES
+        refusal = (file_refusal(name, model_path, roots, packages, REFERENCE_SUFFIXES, "texture") if texture
+                   else visual_mesh_refusal(name, model_path, roots, packages))
+        if refusal is not None:
+            raise ConfigError(f"'{model_path}': {refusal}")
 
 
 def checked_sdf_text(text: str, model_path: str | Path, roots: Iterable[str] | None,
