@@ -240,9 +240,12 @@ def _obj_references(mesh: Path, roots: Iterable[str] | None) -> str | None:
             for entry in _head(library).decode("latin-1").splitlines():
                 fields = entry.split()
                 if len(fields) >= 2 and (fields[0].lower().startswith("map_") or fields[0].lower() in _MTL_MAPS):
-                    refusal = _reference_refusal(fields[-1], library, roots)
-                    if refusal:
-                        return refusal
+                    # the last word (after options such as -s 1 1 1), or all after the keyword
+                    # (a name with spaces), as readers differ
+                    for image in dict.fromkeys([fields[-1], entry.strip().split(None, 1)[1]]):
+                        refusal = _reference_refusal(image, library, roots)
+                        if refusal:
+                            return refusal
     return None
 
 
