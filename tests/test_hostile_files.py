@@ -348,3 +348,16 @@ def test_a_nan_effort_in_a_bag_is_named(tmp_path):
             writer.write(conn, stamp, ts.serialize_cdr(msg, state.__msgtype__))
     with pytest.raises(DataError, match=r"effort of joint 'panda_joint4' is nan in the message stamped 1.170000000 s"):
         read_joint_state_bag(tmp_path / "run", PANDA)
+
+
+def test_a_swapped_row_is_called_out_of_order_not_repeated():
+    import numpy as np
+
+    from pe_drake.exceptions import DataError
+    from pe_drake.identification.csv_checks import check_time_order
+
+    t = np.arange(50) * 0.002
+    t[[20, 21]] = t[[21, 20]]
+    with pytest.raises(DataError, match="Put the rows back in time order") as err:
+        check_time_order(t, "run.csv")
+    assert "repeated" not in str(err.value)
