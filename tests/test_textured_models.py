@@ -82,3 +82,29 @@ def test_outputs_record_the_model_relative_to_their_folder(tmp_path, monkeypatch
     assert json.loads((out / "trajectory.json").read_text())["model"] == "../../ws/arm_description/urdf/arm.urdf"
     monkeypatch.chdir(tmp_path / "ws")  # another working folder: the path is the file's, not the shell's
     assert play_trajectory(out / "trajectory.json", html=tmp_path / "p.html", rate=5.0).num_frames > 0
+
+
+def test_the_playback_holds_the_textured_link(tmp_path, monkeypatch):
+    """The textured visual is sent to Meshcat (the playback drew no robot when a material had a
+    texture): its set_object command is in the static HTML."""
+    import base64
+    import binascii
+    import re
+
+    from pydrake.geometry import Meshcat, MeshcatVisualizer, MeshcatVisualizerParams, Role
+
+    monkeypatch.setenv("PE_DRAKE_MESH_CACHE", str(tmp_path / "cache"))
+    meshcat = Meshcat()
+
+    def hook(builder, plant, scene_graph):
+        MeshcatVisualizer.AddToBuilder(builder, scene_graph, meshcat, MeshcatVisualizerParams(role=Role.kIllustration))
+
+    robot = load_robot(str(_package(tmp_path, "arm.urdf.xacro")), obj_visuals=True, builder_hook=hook)
+    robot.diagram.ForcedPublish(robot.diagram.CreateDefaultContext())
+    paths = set()
+    for chunk in re.findall(r"[A-Za-z0-9+/]{40,}={0,2}", meshcat.StaticHtml()):
+        try:
+            paths |= set(re.findall(rb"/drake/visualizer/[\w/]+", base64.b64decode(chunk + "=" * (-len(chunk) % 4))))
+        except (binascii.Error, ValueError):
+            continue
+    assert b"/drake/visualizer/arm/l1/arm/Mesh" in paths, paths
