@@ -183,7 +183,25 @@ def _outside(name: str, path: str | Path, what: str = "mesh") -> str:
 
 def referenced_file_refusal(mesh: Path, roots: Iterable[str] | None) -> str | None:
     """Why a file that the mesh ``mesh`` names must not be read (see the module docstring),
-    or None when every one may."""
+    or None when every one may. Remembered per file version and roots: a model's meshes are
+    checked twice per load (each visual, then the last pass) and a model is loaded often."""
+    roots = tuple(roots) if roots is not None else None
+    try:
+        info = os.stat(mesh)
+    except OSError:
+        return None
+    key = (os.path.realpath(mesh), info.st_mtime_ns, info.st_size, roots)
+    if key not in _CHECKED:
+        if len(_CHECKED) > 4096:
+            _CHECKED.clear()
+        _CHECKED[key] = _referenced_file_refusal(mesh, roots)
+    return _CHECKED[key]
+
+
+_CHECKED: dict[tuple, str | None] = {}
+
+
+def _referenced_file_refusal(mesh: Path, roots: tuple[str, ...] | None) -> str | None:
     suffix = mesh.suffix.lower()
     try:
         if suffix == ".obj":

@@ -28,7 +28,8 @@ from pe_drake.multibody.mesh_policy import (
 
 _TEXTURE = re.compile(r"<texture\b[^>]*?(?<![\w:.-])filename\s*=\s*([\"'])(.*?)\1[^>]*?(?:/>|>.*?</texture\s*>)", re.S)
 _MATERIAL = re.compile(r"(<material\b[^>]*?(?<!/)>)(.*?)(</material\s*>)", re.S)
-_ANY_FILENAME = re.compile(r"(<[\w:]+\b[^>]*?(?<![\w:.-])filename\s*=\s*)([\"'])(.*?)\2", re.S)
+# Every element Drake reads a file for in a URDF (a <gazebo> plugin's filename is not read)
+_ANY_FILENAME = re.compile(r"(<(?:\w+:)?(?:mesh|texture)\b[^>]*?(?<![\w:.-])filename\s*=\s*)([\"'])(.*?)\2", re.S)
 _SDF_GEOMETRY = re.compile(r"<(visual|collision)\b.*?</\1\s*>", re.S)
 _SDF_URI = re.compile(r"(<uri\b[^>]*>)\s*(.*?)\s*(</uri\s*>)", re.S)
 _SDF_INCLUDE = re.compile(r"<include\b")
