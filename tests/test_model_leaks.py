@@ -159,9 +159,14 @@ def test_sdf_with_relative_mesh_uri_loads(layout):
 BOUNDED = """
 import resource, sys, time
 resource.setrlimit(resource.RLIMIT_AS, (2**30, 2**30))  # 1 GB: /dev/zero read whole would exceed it
+from pydrake.geometry import Meshcat, MeshcatVisualizer, MeshcatVisualizerParams, Role
 from pe_drake.multibody.robot import load_robot
 start = time.perf_counter()
-robot = load_robot(sys.argv[1], obj_visuals=True)
+meshcat = Meshcat()
+hook = lambda builder, plant, sg: MeshcatVisualizer.AddToBuilder(builder, sg, meshcat, MeshcatVisualizerParams(role=Role.kIllustration))
+robot = load_robot(sys.argv[1], obj_visuals=True, builder_hook=hook)
+robot.diagram.ForcedPublish(robot.diagram.CreateDefaultContext())  # Meshcat reads what the meshes name here
+meshcat.StaticHtml()
 print("\\n".join(robot.notes))
 print(f"seconds {time.perf_counter() - start:.2f}")
 """
