@@ -118,3 +118,22 @@ def test_config_field_and_flag_are_checked():
 
     with pytest.raises(ConfigError, match="robot.trust_xacro"):
         validate_config(Config(robot=RobotConfig(model="x.urdf", trust_xacro="yes")))
+
+
+def test_an_included_pipe_is_refused_not_read(tmp_path):
+    """Bounded by an alarm: on a regression the open() of the pipe blocks."""
+    import os
+    import signal
+
+    def give_up(signum, frame):
+        raise TimeoutError("expanding the xacro blocked on the pipe")
+
+    os.mkfifo(tmp_path / "parts.xacro")
+    previous = signal.signal(signal.SIGALRM, give_up)
+    signal.alarm(20)
+    try:
+        with pytest.raises(ConfigError, match="named pipe"):
+            expand_xacro(_xacro(tmp_path, extra='<xacro:include filename="parts.xacro"/>'))
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, previous)

@@ -28,7 +28,9 @@ import os
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
+from pe_drake import limits
 from pe_drake.exceptions import ConfigError
+from pe_drake.limits import input_file_problem
 
 #: What the refusals tell the user to do when they trust the file.
 TRUST_HINT = ("a xacro file is a program that pe_drake runs to expand it; if you trust its author, pass "
@@ -117,6 +119,11 @@ def _confined_parse(original: Callable, allowed: list[str]) -> Callable:
                 raise XacroRefused(
                     f"xacro:include of '{filename}' ({real}) is outside the xacro's folder, its package and the "
                     f"packages it finds; {TRUST_HINT}")
+            problem = input_file_problem(real)  # a named pipe would block the expansion
+            if problem is None and os.path.getsize(real) > limits.in_bytes(limits.MESH):
+                problem = f"is over {limits.describe(limits.MESH)}"
+            if problem:
+                raise XacroRefused(f"xacro:include of '{filename}': {real} {problem}")
         return original(inp, filename)
 
     return parse
