@@ -51,7 +51,7 @@ def test_plain_xacro_still_expands(tmp_path):
 ])
 def test_dollar_eval_runs_no_code(tmp_path, expression):
     marker = tmp_path / "marker.txt"
-    with pytest.raises(ConfigError, match="--trust-xacro|is not defined"):
+    with pytest.raises(ConfigError, match="--trust-xacro"):
         expand_xacro(_program(tmp_path, expression.format(marker=marker)))
     assert not marker.exists()
 

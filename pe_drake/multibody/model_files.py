@@ -49,7 +49,7 @@ from pe_drake.multibody.packages import (
     used_packages,
 )
 from pe_drake.multibody.urdf_checks import check_joint_types, has_entities
-from pe_drake.multibody.xacro_sandbox import sandboxed
+from pe_drake.multibody.xacro_sandbox import TRUST_HINT, sandboxed
 
 #: Suffixes of model files pe_drake reads.
 MODEL_SUFFIXES = (".urdf", ".sdf", ".xml", ".xacro")
@@ -122,7 +122,9 @@ def expand_xacro(path: str | Path, packages: Mapping[str, str] | None = None,
         except ConfigError:
             raise
         except Exception as err:  # xacro raises XacroException, SubstitutionException, XML errors
-            raise ConfigError(f"xacro could not expand '{path}': {err}") from err
+            # a builtin the sandbox withholds (open, exec, getattr) is a NameError inside xacro
+            hint = f"; {TRUST_HINT}" if not trust and "is not defined" in str(err) else ""
+            raise ConfigError(f"xacro could not expand '{path}': {err}{hint}") from err
         finally:
             substitution_args._eval_find, substitution_args._eval_dict["find"] = saved
 
