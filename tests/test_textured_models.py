@@ -108,3 +108,16 @@ def test_the_playback_holds_the_textured_link(tmp_path, monkeypatch):
         except (binascii.Error, ValueError):
             continue
     assert b"/drake/visualizer/arm/l1/arm/Mesh" in paths, paths
+
+
+def test_payload_urdf_of_a_textured_robot_is_written(tmp_path, monkeypatch):
+    """identify --payload fitted, then exited 2 writing nothing: Drake could not read the
+    texture's package:// back from the exported model_with_payload.urdf (issue 37, item 6)."""
+    from pe_drake.identification.payload_formats import write_payload_urdf
+    from pe_drake.multibody.payload import PayloadInertia
+
+    monkeypatch.setenv("PE_DRAKE_MESH_CACHE", str(tmp_path / "cache"))
+    robot = load_robot(str(_package(tmp_path, "arm.urdf")))
+    payload = PayloadInertia(0.5, np.array([0.0, 0.0, 0.05]), np.diag([1e-3, 1e-3, 2e-3]))
+    path = write_payload_urdf(tmp_path / "model_with_payload.urdf", robot, payload, "l1")
+    assert "package://arm_description" not in path.read_text()
