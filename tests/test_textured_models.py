@@ -121,3 +121,16 @@ def test_payload_urdf_of_a_textured_robot_is_written(tmp_path, monkeypatch):
     payload = PayloadInertia(0.5, np.array([0.0, 0.0, 0.05]), np.diag([1e-3, 1e-3, 2e-3]))
     path = write_payload_urdf(tmp_path / "model_with_payload.urdf", robot, payload, "l1")
     assert "package://arm_description" not in path.read_text()
+
+
+def test_trajectory_records_its_capsule_file_relative(tmp_path):
+    import json
+    from pathlib import Path
+
+    from pe_drake.excitation.trajectory_file import load_trajectory, save_trajectory
+
+    trajectory, _ = load_trajectory(Path(__file__).parent / "data" / "panda_optimized.json")
+    capsules = tmp_path / "shared" / "caps.yaml"
+    save_trajectory(tmp_path / "run" / "trajectory.json", load_robot("panda"), trajectory, capsules=str(capsules))
+    data = json.loads((tmp_path / "run" / "trajectory.json").read_text())
+    assert data["capsules"] == "../shared/caps.yaml" and str(tmp_path) not in json.dumps(data)

@@ -66,7 +66,10 @@ def trajectory_to_dict(robot, trajectory: FourierTrajectory, folder: str | Path 
 
 def save_trajectory(path: str | Path, robot, trajectory: FourierTrajectory, **extra: Any) -> None:
     """Writes trajectory.json atomically."""
-    data = trajectory_to_dict(robot, trajectory, final_folder(path), **extra)
+    folder = final_folder(path)
+    if isinstance(extra.get("capsules"), str):  # relative like the model: view reads it against the folder
+        extra["capsules"] = portable_path(extra["capsules"], folder)
+    data = trajectory_to_dict(robot, trajectory, folder, **extra)
     atomic_write_text(path, json.dumps(data, indent=2))
 
 
