@@ -137,3 +137,9 @@ def test_an_included_pipe_is_refused_not_read(tmp_path):
     finally:
         signal.alarm(0)
         signal.signal(signal.SIGALRM, previous)
+
+
+def test_a_property_named_like_a_removed_builtin_still_works(tmp_path):
+    extra = ('<xacro:macro name="part" params="type"><link name="${type}_link"/></xacro:macro>'
+             '<xacro:part type="wheel"/>')
+    assert 'name="wheel_link"' in expand_xacro(_xacro(tmp_path, extra=extra))

@@ -63,8 +63,10 @@ def check_expression(expression: str, where: str) -> None:
         name = node.attr if isinstance(node, ast.Attribute) else node.id if isinstance(node, ast.Name) else None
         if name is None:
             continue
-        bad = name in _REMOVED_SYMBOLS or (
-            isinstance(node, ast.Attribute) and (name in _FORBIDDEN_ATTRIBUTES or name.startswith(_FORBIDDEN_PREFIXES)))
+        # A bare name is looked up in the sanitised symbols (a property called 'type' is fine);
+        # an attribute can reach past them.
+        bad = isinstance(node, ast.Attribute) and (
+            name in _REMOVED_SYMBOLS or name in _FORBIDDEN_ATTRIBUTES or name.startswith(_FORBIDDEN_PREFIXES))
         if bad:
             raise XacroRefused(f"{where} '{expression.strip()[:200]}' uses '{name}', which an untrusted xacro may "
                                f"not use (it can run code or read files); {TRUST_HINT}")
