@@ -143,3 +143,21 @@ def test_a_property_named_like_a_removed_builtin_still_works(tmp_path):
     extra = ('<xacro:macro name="part" params="type"><link name="${type}_link"/></xacro:macro>'
              '<xacro:part type="wheel"/>')
     assert 'name="wheel_link"' in expand_xacro(_xacro(tmp_path, extra=extra))
+
+
+def test_common_xacro_idioms_expand_in_the_sandbox(tmp_path):
+    """What real description packages write keeps working untrusted."""
+    extra = """
+  <xacro:arg name="prefix" default="left_"/>
+  <xacro:property name="p" value="$(arg prefix)"/>
+  <xacro:property name="mode" value="a"/>
+  <link name="${p}link_${int(radians(180) / pi)}"/>
+  <link name="${'%s_b' % p}"/>
+  <link name="${str(mode).upper()}_${' '.join(['x', 'y']).replace(' ', '')}_${len([1, 2])}"/>
+  <xacro:if value="${mode == 'a'}"><link name="if_${sorted([3, 1])[0]}"/></xacro:if>
+  <xacro:if value="$(eval 1 + 1 == 2)"><link name="eval_${xacro.arg('prefix')}"/></xacro:if>
+  <link name="${[k for k in range(3)][-1]}_${dict(a=1)['a']}_${max(1, 2)}_${python.abs(-3)}"/>
+"""
+    text = expand_xacro(_xacro(tmp_path, extra=extra))
+    for name in ("left_link_1", "left__b", "A_xy_2", "if_1", "eval_left_", "2_1_2_3"):
+        assert f'name="{name}"' in text, name
