@@ -26,6 +26,7 @@ MESH = Limit("PE_DRAKE_MAX_MESH_MB", 256, "MB", "a mesh file")
 CSV_LINE = Limit("PE_DRAKE_MAX_CSV_LINE_MB", 1, "MB", "a line of a measurement CSV")
 HARMONICS = Limit("PE_DRAKE_MAX_HARMONICS", 1000, "", "the harmonics of a trajectory file")
 BAG_CHUNK = Limit("PE_DRAKE_MAX_BAG_CHUNK_MB", 256, "MB", "a decompressed chunk of an MCAP bag")
+BAG_FILE = Limit("PE_DRAKE_MAX_BAG_FILE_MB", 4096, "MB", "a decompressed storage file of a bag")
 BAG_MESSAGE = Limit("PE_DRAKE_MAX_BAG_MESSAGE_MB", 1, "MB", "one message of a bag")
 TRAJECTORY = Limit("PE_DRAKE_MAX_TRAJECTORY_MB", 50, "MB", "a trajectory file")
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -361,3 +362,47 @@ def test_a_swapped_row_is_called_out_of_order_not_repeated():
     with pytest.raises(DataError, match="Put the rows back in time order") as err:
         check_time_order(t, "run.csv")
     assert "repeated" not in str(err.value)
+
+
+@pytest.mark.parametrize("mode", ["message", "file"])
+def test_a_compressed_rosbag2_bomb_is_refused(tmp_path, mode, monkeypatch):
+    """rosbags inflates a message-compressed db3 message, or a file-compressed storage file,
+    whole: one message of 51 kB that inflates to 1.6 GB is refused before that."""
+    import sqlite3
+
+    import numpy as np
+    from backports import zstd
+    from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    from pe_drake.identification.readers.rosbag import read_joint_state_bag
+
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    state, header, time = (ts.types[t] for t in ("sensor_msgs/msg/JointState", "std_msgs/msg/Header",
+                                                  "builtin_interfaces/msg/Time"))
+    compressor = zstd.ZstdCompressor()
+    bomb = b"".join(compressor.compress(bytes(2**24)) for _ in range(100)) + compressor.flush()
+    writer = Writer(tmp_path / "run", version=9, storage_plugin=StoragePlugin.SQLITE3)
+    writer.set_compression(CompressionMode.MESSAGE, CompressionFormat.ZSTD)
+    with writer:
+        conn = writer.add_connection("/joint_states", state.__msgtype__, typestore=ts)
+        for k in range(40):
+            stamp = 10**9 + k * 10**7
+            msg = state(header=header(stamp=time(sec=stamp // 10**9, nanosec=stamp % 10**9), frame_id=""),
+                        name=PANDA, position=np.zeros(7), velocity=np.zeros(0), effort=np.ones(7))
+            writer.write(conn, stamp, ts.serialize_cdr(msg, state.__msgtype__))
+    assert read_joint_state_bag(tmp_path / "run", PANDA).num_samples == 40  # an honest compressed bag reads
+    db3 = next((tmp_path / "run").glob("*.db3"))
+    if mode == "message":
+        with sqlite3.connect(db3) as db:
+            db.execute("UPDATE messages SET data = ? WHERE id = 5", (bomb,))
+    else:
+        zipped = db3.with_name(db3.name + ".zstd")
+        zipped.write_bytes(bomb)
+        db3.unlink()
+        meta = (tmp_path / "run" / "metadata.yaml").read_text()
+        meta = meta.replace("compression_mode: message", "compression_mode: file").replace(db3.name, zipped.name)
+        (tmp_path / "run" / "metadata.yaml").write_text(meta)
+        monkeypatch.setenv("PE_DRAKE_MAX_BAG_FILE_MB", "64")  # the 1.6 GB is over it: quicker than 4 GB
+    done = run_bounded(["identify", "--robot", "panda", "--data", str(tmp_path / "run"), "--out", "out"], tmp_path)
+    assert done.returncode == 2 and re.search("inflates past .* decompression bomb", done.stderr), done.stderr

@@ -11,6 +11,7 @@ dropped, so a chunk is refused before ``rosbags`` inflates it: over
 
 from __future__ import annotations
 
+import contextlib
 import struct
 from pathlib import Path
 
@@ -31,6 +32,67 @@ def check_message_size(raw: bytes, index: int, topic: str, file: str) -> None:
     if len(raw) > limits.in_bytes(limits.BAG_MESSAGE):
         raise DataError(f"message {index} on '{topic}' has {len(raw) / 2**20:.1f} MB; a JointState of a robot "
                         f"is a few kB: over {limits.describe(limits.BAG_MESSAGE)}", file=file)
+
+
+def check_compressed_bag(path: str | Path) -> None:
+    """Refuses a rosbag2 folder compressed per message or per file (``ros2 bag record
+    --compression-mode``) whose zstd data inflates past the limits: rosbags inflates each
+    message, or each whole storage file, without a bound. Messages over
+    :data:`pe_drake.limits.BAG_MESSAGE` and storage files over :data:`pe_drake.limits.BAG_FILE`
+    are refused, counted in pieces that are dropped.
+
+    Raises:
+        DataError: naming the file, the message or the limit.
+    """
+    import yaml  # PyYAML, a dependency of pydrake
+
+    path = Path(path)
+    try:
+        info = yaml.safe_load((path / "metadata.yaml").read_text()).get("rosbag2_bagfile_information") or {}
+    except (OSError, yaml.YAMLError, AttributeError):
+        return  # rosbags names what is wrong with it
+    mode = str(info.get("compression_mode") or "").lower()
+    files = [path / Path(str(name)).name for name in info.get("relative_file_paths") or []]
+    if mode == "file":
+        for part in files:
+            if part.is_file() and _inflated_file_size(part, limits.in_bytes(limits.BAG_FILE) + 1) \
+                    > limits.in_bytes(limits.BAG_FILE):
+                raise DataError(f"inflates past {limits.describe(limits.BAG_FILE)} (a decompression bomb?)",
+                                file=str(part))
+    elif mode == "message":
+        for part in files:
+            if part.suffix == ".db3" and part.is_file():
+                _check_db3_messages(part)
+
+
+def _inflated_file_size(path: Path, cap: int) -> int:
+    """Bytes a zstd file inflates to, read and inflated in 16 MB pieces, stopping past ``cap``."""
+    from backports import zstd  # lazy, as rosbags imports it (Python < 3.14)
+
+    total, decompressor, pending = 0, zstd.ZstdDecompressor(), b""
+    with path.open("rb") as f:
+        while total < cap:
+            if decompressor.eof:  # frames one after another
+                pending, decompressor = decompressor.unused_data + pending, zstd.ZstdDecompressor()
+            if decompressor.needs_input:
+                block, pending = pending or f.read(_PIECE), b""
+                if not block:
+                    break
+                total += len(decompressor.decompress(block, max_length=_PIECE))
+            else:
+                total += len(decompressor.decompress(b"", max_length=_PIECE))
+    return total
+
+
+def _check_db3_messages(part: Path) -> None:
+    import sqlite3
+
+    limit = limits.in_bytes(limits.BAG_MESSAGE)
+    with contextlib.closing(sqlite3.connect(f"file:{part}?mode=ro", uri=True)) as db:
+        for index, (data,) in enumerate(db.execute("SELECT data FROM messages ORDER BY id")):
+            if _inflated_size(bytes(data), "zstd", limit + 1) > limit:
+                raise DataError(f"message {index} inflates past {limits.describe(limits.BAG_MESSAGE)} "
+                                "(a decompression bomb?)", file=str(part))
 
 
 def check_mcap_chunks(path: str | Path) -> None:

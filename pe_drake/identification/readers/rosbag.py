@@ -19,7 +19,7 @@ from pe_drake.config import JointMapConfig
 from pe_drake.exceptions import DataError
 from pe_drake.limits import input_file_problem
 from pe_drake.identification.measurements import Measurement
-from pe_drake.identification.readers.bag_limits import check_mcap_chunks, check_message_size
+from pe_drake.identification.readers.bag_limits import check_compressed_bag, check_mcap_chunks, check_message_size
 from pe_drake.identification.readers.currents import torque_from_current
 from pe_drake.identification.readers.joint_map import robot_name
 
@@ -127,6 +127,8 @@ def read_joint_state_bag(
     if problem and not path.is_dir():  # a ROS 2 bag is a folder
         raise DataError(f"the bag {problem}", file=file)
     check_mcap_chunks(path)  # before rosbags inflates a chunk whole
+    if path.is_dir() and (path / "metadata.yaml").is_file():
+        check_compressed_bag(path)  # and a compressed message or storage file
     try:
         with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE)) as reader:
             connections = _pick_topic(reader.connections, topic, file)
