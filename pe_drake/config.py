@@ -32,6 +32,7 @@ from pe_drake.config_sections import (  # noqa: F401  (re-exported: config.X kee
     validate_identification,
     validate_log_sections,
 )
+from pe_drake import limits
 from pe_drake.exceptions import ConfigError, shorten
 from pe_drake.yaml_check import check_yaml_file, key_line
 
@@ -82,6 +83,9 @@ class RobotConfig:
             (Franka refuses 3750-10000 rad/s³); empty: not checked.
         notes: what pe_drake chose for a model given without a config (a standing humanoid's
             excited joints and feet), printed with the robot's notes by every command.
+        trust_xacro: expand a xacro model with xacro's full Python (``$(eval)`` builtins,
+            ``load_yaml``, ``$(env)``); by default those are refused, because a xacro is a program
+            (pe_drake/multibody/xacro_sandbox.py). Set it only for files whose author you trust.
         assumed: the fields of :data:`SAFE_DEFAULTS` that pe_drake set because no config
             gave them (a model path given without a config, or with one that leaves them
             out); the robot prints them once, and an assumed position margin is cut to a
@@ -114,12 +118,17 @@ class RobotConfig:
     transmission: TransmissionConfig = dataclasses.field(default_factory=TransmissionConfig)
     notes: list[str] = dataclasses.field(default_factory=list)
     assumed: list[str] = dataclasses.field(default_factory=list)
+    trust_xacro: bool = False
 
 
 #: The shipped robots' conservative limits (models/panda.yaml, ur5.yaml), given to a model
 #: path without a config that sets them: position margin [rad or m] and velocity fraction.
 #: RobotConfig's own defaults (0 and 1) stay what a config file starts from.
 SAFE_DEFAULTS = {"position_margin": 0.05, "velocity_scale": 0.8}
+
+
+#: Largest solver.max_iterations: IPOPT and NLopt take a C int (1e35 was an IPOPT option error).
+MAX_ITERATIONS = 2**31 - 1
 
 
 #: Default joint-torque noise σ [N·m], every joint: the order of a joint-torque sensor's
@@ -273,7 +282,7 @@ class ParallelConfig:
             else a new local instance).
         starts: random starts; start k uses seed ``excitation.seed + k``.
         workers: starts at once; 0: the cores available (the cluster's CPUs on Ray), at most
-            ``starts``.
+            ``starts``; the local executor never runs more than the cores available.
         hung_after_s: a worker whose start sends no progress for this long [s] is declared
             hung: it is stopped, that start fails, the others go on; 0: never. A running
             solve reports every few seconds. Not checked when the starts run in this
@@ -328,8 +337,9 @@ def load_yaml_typed(path: str | Path, schema: type, defaults: Any = None, what: 
     from pydrake.common.yaml import yaml_load_typed
 
     path = Path(path)
-    if not path.is_file():
-        raise ConfigError(f"{what} file '{path}' does not exist")
+    problem = limits.input_file_problem(path)
+    if problem:
+        raise ConfigError(f"{what} file '{path}' {problem}")
     check_yaml_file(path, schema, what)  # syntax and shape, naming the line and the key
     try:
         return yaml_load_typed(schema=schema, filename=str(path),
@@ -378,6 +388,8 @@ def validate_config(config: Config) -> Config:
         check_finite("robot.base_pose", v)
     if math.sqrt(sum(v * v for v in r.base_quaternion_wxyz)) < 1e-9:
         raise ConfigError("robot.base_quaternion_wxyz must not be zero")
+    if not isinstance(r.trust_xacro, bool):
+        raise ConfigError(f"robot.trust_xacro must be true or false, got {r.trust_xacro!r}")
     for package, folder in r.packages.items():
         if not Path(str(folder)).expanduser().is_dir():
             raise ConfigError(f"robot.packages['{package}']: folder '{folder}' does not exist")
@@ -418,8 +430,9 @@ def validate_config(config: Config) -> Config:
         raise ConfigError(
             f"solver.algorithm '{shorten(s.algorithm)}' is not one of {', '.join(NLOPT_ALGORITHMS)}"
         )
-    if not isinstance(s.max_iterations, int) or s.max_iterations < 1:
-        raise ConfigError(f"solver.max_iterations must be a positive integer, got {s.max_iterations!r}")
+    if isinstance(s.max_iterations, bool) or not isinstance(s.max_iterations, int) or not 1 <= s.max_iterations <= MAX_ITERATIONS:
+        raise ConfigError(f"solver.max_iterations must be an integer from 1 to {MAX_ITERATIONS} (the solvers take a "
+                          f"32-bit count), got {shorten(repr(s.max_iterations))}")
     check_finite("solver.tolerance", s.tolerance, positive=True)
     check_finite("solver.max_time", s.max_time, nonneg=True)
     _validate_safety(config)

@@ -9,7 +9,9 @@ import json
 import math
 import os
 import shutil
+import signal
 import tempfile
+import threading
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
@@ -18,6 +20,8 @@ from pe_drake.exceptions import DataError
 from pe_drake.output_paths import remove_stale_outputs
 from pe_drake.output_set import add_manifest, output_lock
 
+#: Name prefix of the folder a run is staged in inside its output folder.
+STAGING_PREFIX = ".staging-"
 #: Deepest nesting of arrays and objects accepted in a JSON input (pe_drake writes 4 at most).
 MAX_JSON_NESTING = 100
 
@@ -53,6 +57,36 @@ def finite_json(value: Any) -> Any:
     return value
 
 
+class Terminated(BaseException):
+    """SIGTERM arrived (``timeout``, systemd, CI): raised so that every ``finally`` runs, as
+    for Ctrl-C (a BaseException, like KeyboardInterrupt: no ``except Exception`` swallows it)."""
+
+
+@contextlib.contextmanager
+def terminated_as_exception() -> Iterator[None]:
+    """Within it, SIGTERM raises :class:`Terminated` in this process, so a staged output folder
+    is removed and the lock released as on an exception (the default action kills the process
+    with no cleanup and left ``.staging-*`` folders behind). A forked worker keeps the default
+    action: it has nothing of ours to clean and its pool expects it to die."""
+    if threading.current_thread() is not threading.main_thread():
+        yield  # signal handlers can only be set from the main thread
+        return
+    owner = os.getpid()
+
+    def handler(signum, frame):
+        if os.getpid() != owner:
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)
+            os.kill(os.getpid(), signal.SIGTERM)
+            return
+        raise Terminated()
+
+    previous = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)
@@ -71,17 +105,19 @@ def staged_output_dir(out: str | Path, manifest: str = "", own_names: Iterable[s
 
     Args:
         manifest: the run's JSON file that gets ``"outputs"``, the SHA-256 of every other file
-            (:mod:`pe_drake.output_set`); it is moved in first, so a run killed while moving
-            leaves a set that readers refuse rather than a silent mix of two runs.
+            (:mod:`pe_drake.output_set`). The previous run's files of the same names are moved
+            out first, then the manifest is moved in, then the other files: a run killed at any
+            point leaves each file old (with the old manifest) or absent or new (with the new
+            one), so readers that know nothing of the manifest never see old beside new.
         own_names: every name the command may write: those this run did not write are removed
             (a reused folder never mixes runs); other files in ``out`` are left alone.
     """
     out = Path(out)
     with output_lock(out):
-        for stale in out.glob(".staging-*"):  # left by a killed run: only the lock holder stages
+        for stale in out.glob(STAGING_PREFIX + "*"):  # left by a killed run: only the lock holder stages
             if stale.is_dir() and not stale.is_symlink():
                 shutil.rmtree(stale, ignore_errors=True)
-        tmp = Path(tempfile.mkdtemp(dir=out, prefix=".staging-"))
+        tmp = Path(tempfile.mkdtemp(dir=out, prefix=STAGING_PREFIX))
         try:
             yield tmp
             for item in tmp.rglob("*"):
@@ -90,8 +126,14 @@ def staged_output_dir(out: str | Path, manifest: str = "", own_names: Iterable[s
             written = sorted(item.name for item in tmp.iterdir())
             if manifest in written:
                 add_manifest(tmp, manifest)
-                os.replace(tmp / manifest, out / manifest)
+            # The previous run's files leave before the new manifest arrives, each by one rename:
+            # a kill from here on leaves every file a controller reads (goal, bag, CSV, URDF)
+            # absent or new, never old beside a new report (issue 34; the manifest alone only
+            # protects pe_drake's own readers).
+            _retire(out, tmp / ".retired", [n for n in written if n != manifest])
             remove_stale_outputs(out, own_names, written)
+            if manifest in written:
+                os.replace(tmp / manifest, out / manifest)
             for name in written:
                 if name == manifest:
                     continue
@@ -101,6 +143,51 @@ def staged_output_dir(out: str | Path, manifest: str = "", own_names: Iterable[s
                 os.replace(item, target)
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _retire(out: Path, bin_: Path, names: Iterable[str]) -> None:
+    """Moves ``out/<name>`` (a file, a folder or a link, not followed) into ``bin_``, each whole."""
+    bin_.mkdir()
+    for name in names:
+        if os.path.lexists(out / name):
+            os.replace(out / name, bin_ / name)
+
+
+def final_folder(path: str | Path) -> Path:
+    """The folder a file written at ``path`` ends up in: ``out`` for a file staged in
+    ``out/.staging-*`` by :func:`staged_output_dir`, else its own folder (for paths recorded
+    relative to the output folder)."""
+    parent = Path(path).parent
+    return parent.parent if parent.name.startswith(STAGING_PREFIX) else parent
+
+
+def portable_path(target: str | Path, folder: str | Path) -> str:
+    """``target`` relative to ``folder`` (where the file recording it ends up), so that a
+    shared output carries no user name or folder layout of the author's machine; a
+    ``package://`` URI or a built-in name is kept as it is."""
+    text = str(target)
+    if not text or "://" in text or not os.path.isabs(text):
+        return text
+    return os.path.relpath(os.path.realpath(text), os.path.realpath(folder))
+
+
+def portable_config(data: dict, folder: str | Path) -> dict:
+    """A report's JSON dict with the config's model, capsule, package and prior paths made
+    relative to ``folder`` (:func:`portable_path`)."""
+    robot = (data.get("config") or {}).get("robot")
+    if isinstance(robot, dict):
+        for key in ("model", "capsules"):
+            if isinstance(robot.get(key), str):
+                robot[key] = portable_path(robot[key], folder)
+        if isinstance(robot.get("packages"), dict):
+            robot["packages"] = {k: portable_path(v, folder) for k, v in robot["packages"].items()}
+    for key in ("prior", "fitted_capsules"):
+        value = data.get(key)
+        if isinstance(value, list):
+            data[key] = [portable_path(v, folder) if isinstance(v, str) else v for v in value]
+        elif isinstance(value, str):
+            data[key] = portable_path(value, folder)
+    return data
 
 
 def describe_write_error(err: OSError) -> str:

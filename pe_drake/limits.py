@@ -25,6 +25,9 @@ class Limit(NamedTuple):
 MESH = Limit("PE_DRAKE_MAX_MESH_MB", 256, "MB", "a mesh file")
 CSV_LINE = Limit("PE_DRAKE_MAX_CSV_LINE_MB", 1, "MB", "a line of a measurement CSV")
 HARMONICS = Limit("PE_DRAKE_MAX_HARMONICS", 1000, "", "the harmonics of a trajectory file")
+BAG_CHUNK = Limit("PE_DRAKE_MAX_BAG_CHUNK_MB", 256, "MB", "a decompressed chunk of an MCAP bag")
+BAG_FILE = Limit("PE_DRAKE_MAX_BAG_FILE_MB", 4096, "MB", "a decompressed storage file of a bag")
+BAG_MESSAGE = Limit("PE_DRAKE_MAX_BAG_MESSAGE_MB", 1, "MB", "one message of a bag")
 TRAJECTORY = Limit("PE_DRAKE_MAX_TRAJECTORY_MB", 50, "MB", "a trajectory file")
 
 
@@ -56,3 +59,23 @@ def describe(limit: Limit) -> str:
     """"the 256 MB limit (PE_DRAKE_MAX_MESH_MB)": for a refusal's message."""
     unit = f" {limit.unit}" if limit.unit else ""
     return f"the {value(limit):g}{unit} limit ({limit.variable} raises it)"
+
+
+def input_file_problem(path) -> str | None:
+    """Why ``path`` cannot be read as an input file ("does not exist", or names what it is
+    instead of a regular file: reading a named pipe blocks, a device never ends), or None."""
+    import stat
+    from pathlib import Path
+
+    path = Path(path)
+    try:
+        mode = path.stat().st_mode
+    except FileNotFoundError:
+        return "does not exist" + (" (a broken symbolic link)" if path.is_symlink() else "")
+    except OSError as err:
+        return f"cannot be read: {err.strerror}"
+    if stat.S_ISREG(mode):
+        return None
+    kind = ("is a folder" if stat.S_ISDIR(mode) else "is a named pipe (FIFO)" if stat.S_ISFIFO(mode)
+            else "is a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "is not a regular file")
+    return f"{kind}: pe_drake reads regular files only"

@@ -35,6 +35,7 @@ from pe_drake.excitation.ramp import check_within_limits
 from pe_drake.excitation.trajectory_file import load_motion, recorded_environment
 from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.capsule_fitting import FITTED_CAPSULES_NAME
+from pe_drake.multibody.model_files import is_xacro
 from pe_drake.multibody.registry import builtin_robots, resolve_robot_config, robot_display_name
 from pe_drake.multibody.robot import Robot
 from pe_drake.viewer_scene import ENVIRONMENT_PATH, draw_environment, frame_camera, motion_extent
@@ -107,6 +108,7 @@ def play_trajectory(
     rate: float = 30.0,
     meshcat: Any = None,
     host: str = "localhost",
+    trust_xacro: bool = False,
 ) -> Playback:
     """Records the motion of trajectory.csv (ramp-in, periods, ramp-out, as the trajectory
     file records them) in Meshcat and optionally writes it as HTML.
@@ -127,6 +129,8 @@ def play_trajectory(
             tree either way and can be toggled there.
         rate: frames per second of the recording [1/s].
         meshcat: an existing ``pydrake.geometry.Meshcat`` to draw into; default: a new one.
+        trust_xacro: expand a xacro ``robot`` (one the caller names, never one the trajectory
+            file names) with xacro's full Python (``robot.trust_xacro``).
         host: interface a new Meshcat server listens on: "localhost" (default) or "*" for
             every interface (others on the network can then watch).
 
@@ -146,7 +150,7 @@ def play_trajectory(
 
     meshcat = _prepare_meshcat(meshcat, host="localhost" if html is not None else host)
     rob, environment = _load_robot_with_visualizers(
-        trajectory_json, data, robot, config, meshcat, fps=fps, show_capsules=show_capsules
+        trajectory_json, data, robot, config, meshcat, fps=fps, show_capsules=show_capsules, trust_xacro=trust_xacro
     )
     order = _joint_order(trajectory_json, data, rob)
     check_within_limits(motion, _limits_in_file_order(rob.limits, order), data["joints"], source=str(trajectory_json))
@@ -292,7 +296,8 @@ def _draw_surroundings(meshcat, rob, q: np.ndarray, environment):
     return extent, frame_camera(meshcat, extent), drawn
 
 
-def _load_robot_with_visualizers(path, data, robot, config, meshcat, *, fps: float, show_capsules: bool):
+def _load_robot_with_visualizers(path, data, robot, config, meshcat, *, fps: float, show_capsules: bool,
+                                 trust_xacro: bool = False):
     """The robot of a trajectory file, with Meshcat visualizers in its diagram, and the
     environment to draw around it."""
     recorded = data.get("robot")
@@ -301,9 +306,17 @@ def _load_robot_with_visualizers(path, data, robot, config, meshcat, *, fps: flo
         raise DataError("the file names no robot: pass --robot", file=str(path))
     source = name
     if robot is None and name not in builtin_robots() and data.get("model"):
-        source = data["model"]  # a robot loaded from a model file: its stem is not a name
+        source = str(data["model"])  # a robot loaded from a model file: its stem is not a name
+        if "://" not in source and not Path(source).is_absolute():  # recorded relative to the file
+            source = str(Path(path).resolve().parent / source)
+    if robot is None and is_xacro(str(source)):
+        raise ConfigError(
+            f"trajectory '{path}' names the xacro model '{source}': a xacro file is a program, and pe_drake "
+            "expands only one you name yourself; pass --robot (the .xacro or its expanded URDF) or --config")
     full = resolve_robot_config(source, config)
     cfg, environment = full.robot, full.environment
+    if trust_xacro:
+        cfg = dataclasses.replace(cfg, trust_xacro=True)
     from_file = config is None and (robot is None or robot == recorded)
     if from_file:
         cfg = _config_from_file(cfg, data)

@@ -16,6 +16,7 @@ over a 10 MB value, and a refused config is read up to three times).
 from __future__ import annotations
 
 import dataclasses
+import math
 import types
 import typing
 from pathlib import Path
@@ -29,6 +30,9 @@ MAX_NESTING = 100
 #: Largest YAML file read [bytes]: the largest shipped one (a capsule file) is 5 kB.
 MAX_YAML_BYTES = 1024 * 1024
 _PYTHON_TAG = "tag:yaml.org,2002:python/"
+#: Most values a YAML file may hold once its aliases are expanded (the loader and the schema
+#: walk expand them: ten nested anchors of ten aliases are 10¹⁰ values).
+MAX_EXPANDED_NODES = 100_000
 
 
 def _where(source: str, node, key: str) -> str:
@@ -87,7 +91,10 @@ def _check_node(node, tp, source: str, key: str) -> None:
     origin = typing.get_origin(tp)
     if dataclasses.is_dataclass(tp):
         if not isinstance(node, yaml.MappingNode):
-            raise ConfigError(f"{_where(source, node, key)}: expected a mapping of {tp.__name__} keys, got {_shape(node)}")
+            # A whole file that is one scalar is not YAML of ours (a key, a password file named
+            # by mistake or on purpose): its content is not echoed.
+            got = _shape(node) if key or not isinstance(node, yaml.ScalarNode) else "text that is not YAML keys"
+            raise ConfigError(f"{_where(source, node, key)}: expected a mapping of {tp.__name__} keys, got {got}")
         hints = typing.get_type_hints(tp)
         for k_node, v_node in node.value:
             name = k_node.value
@@ -163,18 +170,26 @@ def check_yaml_file(path: str | Path, schema: type, what: str = "config") -> Non
 
 
 def check_nodes(root, source: str) -> None:
-    """Refuses nesting deeper than :data:`MAX_NESTING` and tags that build Python objects.
+    """Refuses nesting deeper than :data:`MAX_NESTING`, tags that build Python objects, a key
+    given twice in one mapping (the loader keeps the last silently) and aliases that expand to
+    more than :data:`MAX_EXPANDED_NODES` values.
 
-    Walks the composed tree with a stack (not recursion: that is what failed on deep nesting).
+    Walks the composed tree with a stack (not recursion: that is what failed on deep nesting),
+    each node once: an alias is the same node object as its anchor, so the walk is linear in
+    the file's size (visiting every alias again made a nested-anchor file hang, issue 34).
 
     Raises:
-        ConfigError: naming ``source``, the line and column, and the tag.
+        ConfigError: naming ``source``, the line and column, and the tag or key.
     """
     import yaml
 
     stack = [(root, 1)]
+    seen: set[int] = set()
     while stack:
         node, depth = stack.pop()
+        if id(node) in seen:
+            continue
+        seen.add(id(node))
         mark = node.start_mark
         at = f"line {mark.line + 1}, column {mark.column + 1}"
         if node.tag.startswith(_PYTHON_TAG):
@@ -185,7 +200,52 @@ def check_nodes(root, source: str) -> None:
         if isinstance(node, yaml.SequenceNode):
             stack += [(child, depth + 1) for child in node.value]
         elif isinstance(node, yaml.MappingNode):
+            _check_unique_keys(node, source)
             stack += [(n, depth + 1) for pair in node.value for n in pair]
+    expanded = _expanded_size(root)
+    if expanded == math.inf:
+        raise ConfigError(f"{source}: an alias (*name) stands for a list or mapping that contains it: "
+                          "a cycle, which no config holds")
+    if expanded > MAX_EXPANDED_NODES:
+        raise ConfigError(f"{source}: its aliases (*name) expand to {expanded:.3g} values; a {source.split()[0]} "
+                          f"file holds a few hundred (at most {MAX_EXPANDED_NODES} are read)")
+
+
+def _check_unique_keys(node, source: str) -> None:
+    first: dict[str, int] = {}
+    for key, _ in node.value:
+        if not hasattr(key, "value") or not isinstance(key.value, str) or key.value == "<<":
+            continue
+        line = key.start_mark.line + 1
+        if key.value in first:
+            raise ConfigError(f"{source}: line {line}: key '{shorten(key.value)}' is given twice in one mapping "
+                              f"(first on line {first[key.value]}); the second would silently replace the first")
+        first[key.value] = line
+
+
+def _expanded_size(root) -> float:
+    """How many nodes the tree has once every alias is expanded, in one pass over the distinct
+    nodes (sizes of shared nodes memoised; children before parents)."""
+    import yaml
+
+    size: dict[int, float] = {}
+    started: set[int] = set()
+    stack = [(root, False)]
+    while stack:
+        node, children_done = stack.pop()
+        if id(node) in size:
+            continue
+        children = (node.value if isinstance(node, yaml.SequenceNode)
+                    else [n for pair in node.value for n in pair] if isinstance(node, yaml.MappingNode) else [])
+        if children_done:
+            size[id(node)] = 1.0 + sum(size[id(c)] for c in children)
+        elif id(node) in started:  # reached again from inside itself: an alias to its own ancestor
+            return math.inf
+        else:
+            started.add(id(node))
+            stack.append((node, True))
+            stack += [(c, False) for c in children if id(c) not in size]
+    return size[id(root)]
 
 
 def key_line(path: str | Path, dotted_key: str) -> int | None:

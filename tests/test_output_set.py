@@ -25,7 +25,7 @@ from pe_drake.identification import IdentifyOptions, identify_model
 from pe_drake.identification.identified_file import load_identified
 from pe_drake.io_utils import staged_output_dir
 from pe_drake.multibody import load_robot, resolve_robot_config
-from pe_drake.output_paths import OPTIMIZE_OUTPUTS
+from pe_drake.output_paths import DIAGNOSE_OUTPUTS, IDENTIFY_OUTPUTS, OPTIMIZE_OUTPUTS
 from pe_drake.output_set import LOCK_NAME, check_output_set, output_lock
 from pe_drake.simulation.synthetic import model_measurement
 
@@ -69,13 +69,68 @@ def test_a_run_stopped_between_renames_is_refused_by_readers(tmp_path, monkeypat
     with pytest.raises(KeyboardInterrupt):
         _write_run(tmp_path, "second")
     monkeypatch.setattr(os, "replace", real_replace)
-    csv = (tmp_path / "trajectory.csv").read_text()
+    csv = tmp_path / "trajectory.csv"
     report = json.loads((tmp_path / "report.json").read_text())["run"]
-    if report == "first" and "first" in csv:  # stopped before the manifest moved: the old run whole
+    if report == "first" and csv.is_file() and "first" in csv.read_text():  # stopped before anything moved
         load_trajectory(tmp_path / "trajectory.json")
-    else:
+    elif (tmp_path / "trajectory.json").is_file():
         with pytest.raises(DataError, match="has changed since|is missing since"):
             load_trajectory(tmp_path / "trajectory.json")
+
+
+#: Each command's manifest and the files a controller or ROS tool reads without pe_drake.
+CONSUMER_SETS = {
+    "optimize": ("report.json", OPTIMIZE_OUTPUTS, ("trajectory.json", "trajectory.csv", "trajectory_goal.yaml",
+                                                  "trajectory_goal_bag/goal.mcap", "playback.html")),
+    "identify": ("identified.json", IDENTIFY_OUTPUTS, ("model.urdf", "drive_effects.yaml", "residuals.png")),
+    "diagnose": ("diagnosis.json", DIAGNOSE_OUTPUTS, ("augmented_model.urdf", "report.md", "gap.png")),
+}
+
+
+def _write_set(out: Path, command: str, tag: str) -> None:
+    manifest, own, files = CONSUMER_SETS[command]
+    with staged_output_dir(out, manifest, own) as tmp:
+        for name in files:
+            (tmp / name).parent.mkdir(parents=True, exist_ok=True)
+            (tmp / name).write_text(tag)
+        (tmp / manifest).write_text(json.dumps({"run": tag}))
+
+
+@pytest.mark.parametrize("command", CONSUMER_SETS)
+def test_a_kill_before_any_rename_never_leaves_old_files_beside_a_new_manifest(tmp_path, monkeypatch, command):
+    """A kill injected before each os.replace of optimize's, identify's and diagnose's output
+    sets: each file a tool reads without pe_drake (goal, bag, CSV, URDF) is then the old run's
+    beside the old manifest, or absent, or the new run's beside the new manifest."""
+    manifest, _, files = CONSUMER_SETS[command]
+    real_replace = os.replace
+    stop_at = 0
+    while True:
+        out = tmp_path / f"run{stop_at}"
+        _write_set(out, command, "old")
+        calls = []
+
+        def replace(src, dst):
+            if len(calls) == stop_at:
+                raise KeyboardInterrupt
+            calls.append(dst)
+            real_replace(src, dst)
+
+        monkeypatch.setattr(os, "replace", replace)
+        try:
+            _write_set(out, command, "new")
+            finished = True
+        except KeyboardInterrupt:
+            finished = False
+        monkeypatch.setattr(os, "replace", real_replace)
+        run = json.loads((out / manifest).read_text())["run"]
+        for name in files:
+            if (out / name).exists():
+                assert (out / name).read_text() == run, (stop_at, name, run)
+        assert not list(out.glob(".staging-*"))
+        if finished:
+            break
+        stop_at += 1
+    assert stop_at >= 2 * len(files)  # every file moved out and in again
 
 
 def test_an_edited_file_of_the_set_is_named(tmp_path):
@@ -166,3 +221,20 @@ def test_full_disk_at_the_cli_is_one_line_and_exit_1(tmp_path, monkeypatch, caps
     err = capsys.readouterr().err
     assert code == 1
     assert "no space left on the device" in err and "trajectory.rescued-" in err and "Traceback" not in err
+
+
+def test_validate_writes_its_json_and_figure_both_or_neither(tmp_path, monkeypatch, capsys):
+    """A full disk while the figure is written left validation.json without it."""
+    from pe_drake.identification.measurements import write_measurement_csv
+    from pe_drake.identification.validate_model import ValidationReport
+
+    robot = load_robot("panda")
+    trajectory, _ = load_trajectory(DATA / "panda_optimized.json")
+    data = model_measurement(robot, trajectory, rate_hz=200.0, duration=8.0, tau_noise_std=0.05, seed=1)
+    identify_model(robot, data, IdentifyOptions(method="ols")).write(tmp_path / "model")
+    write_measurement_csv(tmp_path / "run.csv", data)
+    monkeypatch.setattr(ValidationReport, "plot", _full_disk)
+    code = main(["validate", "--robot", "panda", "--model", str(tmp_path / "model" / "identified.json"),
+                 "--data", str(tmp_path / "run.csv"), "--json", str(tmp_path / "v.json"), "--plot", str(tmp_path / "v.png")])
+    assert code == 1 and "no space left" in capsys.readouterr().err
+    assert not (tmp_path / "v.json").exists() and not (tmp_path / "v.png").exists()

@@ -15,7 +15,7 @@ import sys
 from pe_drake import __version__
 from pe_drake.config import CRITERIA, DATA_FORMATS, EFFORT_KINDS, MEASUREMENTS
 from pe_drake.exceptions import OutputWriteError, PeDrakeError
-from pe_drake.io_utils import describe_write_error
+from pe_drake.io_utils import Terminated, describe_write_error, terminated_as_exception
 from pe_drake.output_paths import check_output_dir
 from pe_drake.output_set import output_lock
 from pe_drake.threads import single_threaded_blas
@@ -38,6 +38,14 @@ def add_robot_arguments(parser: argparse.ArgumentParser) -> None:
     """``--robot`` (required) and ``--config``: what every command that loads a robot takes."""
     parser.add_argument("--robot", required=True, help="built-in name (panda, ur5, g1) or URDF/SDF path")
     parser.add_argument("--config", help="YAML config overriding the robot's defaults")
+    add_trust_xacro_argument(parser)
+
+
+def add_trust_xacro_argument(parser: argparse.ArgumentParser) -> None:
+    """``--trust-xacro``: expand a xacro model with xacro's full Python (a xacro is a program)."""
+    parser.add_argument("--trust-xacro", action="store_true",
+                        help="run a .xacro model with xacro's full Python ($(eval) builtins, load_yaml, $(env)); "
+                             "only for files whose author you trust (default: those are refused)")
 
 
 def add_measurement_argument(parser: argparse.ArgumentParser, what: str) -> None:
@@ -117,6 +125,7 @@ def _add_trajectory_commands(sub) -> None:
     p.add_argument("trajectory", help="trajectory.json")
     p.add_argument("--robot", help="override the robot named in the trajectory file")
     p.add_argument("--config", help="YAML config of the robot")
+    add_trust_xacro_argument(p)
     p.add_argument("--html", help="write a self-contained HTML playback here and exit")
     p.add_argument("--no-capsules", action="store_true", help="hide the collision capsules")
     p.add_argument("--rate", type=float, default=30.0, help="frames per second")
@@ -239,7 +248,7 @@ def main(argv: list[str] | None = None) -> int:
         args.data = args.data[0]
     try:
         function = getattr(importlib.import_module(module_name), function_name)
-        with single_threaded_blas(), _folder_lock(args):
+        with terminated_as_exception(), single_threaded_blas(), _folder_lock(args):
             return int(function(args) or 0)
     except OutputWriteError as err:  # not the user's input: a full disk, a quota
         print(f"pe-drake {args.command}: error: {err}", file=sys.stderr)
@@ -253,6 +262,9 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"pe-drake {args.command}: interrupted", file=sys.stderr)
         return 130
+    except Terminated:  # SIGTERM: the outputs were cleaned up as for Ctrl-C
+        print(f"pe-drake {args.command}: terminated (SIGTERM); nothing half-written was left", file=sys.stderr)
+        return 143
 
 
 if __name__ == "__main__":

@@ -17,6 +17,8 @@ def config_from_args(args: argparse.Namespace, adjust: Callable[[Config], Config
         UnknownNameError, ConfigError: as :func:`~pe_drake.multibody.resolve_robot_config`.
     """
     config = resolve_robot_config(args.robot, getattr(args, "config", None))
+    if getattr(args, "trust_xacro", False):  # the user vouches for the xacro they named
+        config.robot.trust_xacro = True
     return adjust(config) if adjust is not None else config
 
 

@@ -64,12 +64,9 @@ def validate_command(args: argparse.Namespace) -> int:
         report = validate_model(robot, model, read_log_from_args(args, robot, config), options)
     for line in [f"note: {n}" for n in report.notes] + report.summary_lines():
         print(line)
-    if args.json:
-        report.write_json(args.json, model=args.model, data=args.data)
-        print(f"wrote {args.json}")
-    if args.plot:
-        report.plot(args.plot)
-        print(f"wrote {args.plot}")
+    written = report.write(args.json, args.plot, model=args.model, data=args.data)
+    for path in written:
+        print(f"wrote {path}")
     return 0
 
 

@@ -21,6 +21,7 @@ def view_command(args) -> int:
         show_capsules=not args.no_capsules,
         rate=args.rate,
         host=getattr(args, "host", "localhost"),
+        trust_xacro=getattr(args, "trust_xacro", False),
     )
     summary = (
         f"{playback.robot.name}: {playback.num_frames} frames over {playback.duration:.3g} s "

@@ -34,7 +34,7 @@ from pe_drake.excitation.fourier import FourierBasis, sample_times
 from pe_drake.excitation.multistart import MultiStartOptions, MultiStartResult, solve_multistart
 from pe_drake.excitation.nominal import choose_nominal_posture
 from pe_drake.excitation.optimize_report import MotionReport, assumed_defaults, start_records
-from pe_drake.excitation.parallel import Executor, ExecutorOptions, open_executor
+from pe_drake.excitation.parallel import Executor, ExecutorOptions, default_workers, open_executor
 from pe_drake.excitation.problem import ExcitationProblem
 from pe_drake.excitation.quality import RANDOM_MOTIONS, QualityReport, excitation_quality
 from pe_drake.excitation.ramp import (
@@ -51,7 +51,7 @@ from pe_drake.excitation.trajectory_file import (
     save_trajectory,
     write_motion_csv,
 )
-from pe_drake.io_utils import describe_write_error, staged_output_dir
+from pe_drake.io_utils import describe_write_error, portable_config, staged_output_dir
 from pe_drake.multibody.capsule_fitting import FittedCapsules, fit_capsules, with_file_margin
 from pe_drake.multibody.registry import robot_display_name
 from pe_drake.multibody.robot import Robot
@@ -152,7 +152,8 @@ class MotionPlan:
             if self.fitted is not None:
                 (tmp / self.fitted.path.name).write_text(self.fitted_text)
                 report = dataclasses.replace(report, fitted_capsules=str(out / self.fitted.path.name))
-            (tmp / "report.json").write_text(json.dumps(report.to_dict(), indent=2, default=float))
+            # Paths relative to the folder: a shared report names no user or folder of the author's
+            (tmp / "report.json").write_text(json.dumps(portable_config(report.to_dict(), out), indent=2, default=float))
             written = sorted(p.name for p in tmp.iterdir())
         return written
 
@@ -248,7 +249,9 @@ def optimize_motion(
             robot = _robot(config, name or robot_display_name(config.robot.model), say)
             noise_vector(config.excitation.noise_std.torque, robot.joint_names)  # a bad noise_std: before solving
             par = config.parallel
-            with open_executor(robot, par.executor, par.workers or None, tasks=par.starts, address=par.address,
+            # A shared config's 'workers: 200' would start 200 Drake processes on this machine.
+            workers = min(par.workers, default_workers()) if par.executor == "local" and par.workers else par.workers
+            with open_executor(robot, par.executor, workers or None, tasks=par.starts, address=par.address,
                                measurement=config.excitation.measurement, hung_after_s=par.hung_after_s,
                                constraints_factory=constraints_factory(config)) as own:
                 plan = _plan(config, robot, own, priors, fitted, fitted_text, unchecked, allow_unchecked, start, say)

@@ -45,6 +45,11 @@ from pe_drake.excitation.fourier import FourierTrajectory
 RAMP_DURATIONS = (1.0, 2.0, 3.0, 5.0, 8.0, 13.0)
 #: max |σ'(x)| = 30x²(1−x)² at x = 1/2: the path acceleration is at most this / T_r.
 MAX_SMOOTHERSTEP_SLOPE = 1.875
+#: Longest ramp read from a motion file [s] (optimize writes a few seconds).
+MAX_RAMP_S = 600.0
+#: Longest whole motion read from a motion file [s]: ramps and periods (identification runs
+#: last minutes; each reader samples the whole motion at up to 1 kHz).
+MAX_MOTION_S = 7200.0
 
 
 def smootherstep(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -214,12 +219,18 @@ def ramped_motion_from_dict(path: FourierTrajectory, data: dict, *, source: str 
     ramp = data.get("ramp_duration", 0.0)
     phase = data.get("phase", 0.0)
     try:
-        return RampedMotion(
+        motion = RampedMotion(
             path,
             check_periods(periods),
             _check_positive("ramp_duration", ramp, allow_zero=True),
             _check_positive("phase", phase, allow_zero=True),
         )
+        # Every reader samples the whole motion: 'ramp_duration: 1e9' asked for 447 GiB.
+        for name, value, most in (("ramp_duration", motion.ramp_duration, MAX_RAMP_S),
+                                  ("the whole motion (ramps and periods)", motion.duration, MAX_MOTION_S)):
+            if value > most:
+                raise ConfigError(f"{name} is {value:.6g} s, over the {most:g} s pe_drake reads from a motion file")
+        return motion
     except ConfigError as err:
         raise ConfigError(f"{source}: {err}") from err
 

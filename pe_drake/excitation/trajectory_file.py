@@ -1,6 +1,7 @@
 """Reading and writing ``trajectory.json`` and ``trajectory.csv``.
 
-trajectory.json keys: ``robot``, ``joints``, ``omega`` [rad/s], ``harmonics``, ``a`` and ``b``
+trajectory.json keys: ``robot``, ``model`` (the model file, relative to the trajectory's folder
+since issue 34; absolute in older files), ``joints``, ``omega`` [rad/s], ``harmonics``, ``a`` and ``b``
 (n × N), ``q0`` (n), ``duration`` [s], ``locked_positions`` {joint: value},
 ``base_pose`` {``position``, ``quaternion_wxyz``} of the root link in world, ``root_link``,
 ``cond``; q_j(t) = Σ_k a_jk sin(kωt) + b_jk cos(kωt) + q0_j exactly as Eq. (50).
@@ -25,7 +26,7 @@ from pe_drake.config import BoxConfig, EnvironmentConfig
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.excitation.fourier import FourierTrajectory
 from pe_drake.excitation.ramp import CSV_DIGITS, RampedMotion, ramped_motion_from_dict
-from pe_drake.io_utils import atomic_write_text, loads_json
+from pe_drake.io_utils import atomic_write_text, final_folder, loads_json, portable_path
 from pe_drake.output_set import check_output_set
 
 #: Physical range of ω [rad/s]: periods from 0.1 s to 10 minutes.
@@ -37,12 +38,15 @@ MAX_FILE_BYTES = 50 * 1024 * 1024
 MAX_HARMONICS = 1000
 
 
-def trajectory_to_dict(robot, trajectory: FourierTrajectory, **extra: Any) -> dict[str, Any]:
-    """The JSON-ready description of a trajectory on a robot."""
+def trajectory_to_dict(robot, trajectory: FourierTrajectory, folder: str | Path | None = None,
+                       **extra: Any) -> dict[str, Any]:
+    """The JSON-ready description of a trajectory on a robot; with ``folder`` (where the file
+    goes), the model's path is recorded relative to it (no user name or folder layout of the
+    author's machine in a shared file)."""
     pose = robot.base_pose
     return {
         "robot": robot.name,
-        "model": str(robot.model_path),
+        "model": portable_path(robot.model_path, folder) if folder is not None else str(robot.model_path),
         "joints": list(robot.joint_names),
         "omega": trajectory.omega,
         "harmonics": trajectory.harmonics,
@@ -62,7 +66,11 @@ def trajectory_to_dict(robot, trajectory: FourierTrajectory, **extra: Any) -> di
 
 def save_trajectory(path: str | Path, robot, trajectory: FourierTrajectory, **extra: Any) -> None:
     """Writes trajectory.json atomically."""
-    atomic_write_text(path, json.dumps(trajectory_to_dict(robot, trajectory, **extra), indent=2))
+    folder = final_folder(path)
+    if isinstance(extra.get("capsules"), str):  # relative like the model: view reads it against the folder
+        extra["capsules"] = portable_path(extra["capsules"], folder)
+    data = trajectory_to_dict(robot, trajectory, folder, **extra)
+    atomic_write_text(path, json.dumps(data, indent=2))
 
 
 def load_trajectory(path: str | Path) -> tuple[FourierTrajectory, dict[str, Any]]:
@@ -75,8 +83,9 @@ def load_trajectory(path: str | Path) -> tuple[FourierTrajectory, dict[str, Any]
         DataError: missing file, missing key, or inconsistent shapes.
     """
     path = Path(path)
-    if not path.is_file():
-        raise DataError("trajectory file does not exist", file=str(path))
+    problem = limits.input_file_problem(path)
+    if problem:
+        raise DataError(f"trajectory file {problem}", file=str(path))
     size = path.stat().st_size
     if size > limits.in_bytes(limits.TRAJECTORY):
         raise DataError(f"{size / 2**20:.1f} MB is more than a trajectory file holds: over "

@@ -134,8 +134,10 @@ def check_time_order(t: np.ndarray, file: str = "", lines=None, column: str = "t
     if back.size:
         parts.append(f"{back.size} decreasing time stamp(s) (before the previous row's) at {_rows_text(back, lines)}")
     k = int(min(repeated[:1].tolist() + back[:1].tolist()))
+    fixes = (["drop the repeated rows"] if repeated.size else []) + (
+        ["put the rows back in time order (swapped rows, or two logs joined)"] if back.size else [])
     raise DataError(
         f"time must strictly increase; the column has {'; and '.join(parts)}; the first: t = {t[k]:.12g} s after "
-        f"t = {t[k - 1]:.12g} s. Drop the repeated rows or fix the logger's time stamps",
+        f"t = {t[k - 1]:.12g} s. {' and '.join(fixes).capitalize()}, or fix the logger's time stamps",
         file=file, column=column, row=k + 1,
     )

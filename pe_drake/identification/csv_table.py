@@ -52,8 +52,9 @@ def read_header_line(path: Path) -> tuple[int, list[str]]:
             header (:mod:`~pe_drake.identification.csv_checks`).
     """
     file = str(path)
-    if not path.is_file():
-        raise DataError("measurement file does not exist", file=file)
+    problem = limits.input_file_problem(path)
+    if problem:
+        raise DataError(f"measurement file {problem}", file=file)
     check_text_file(path)  # UTF-16 or another encoding: named, with how to save it
     for lineno, line in _lines(path, file):
         if line.strip():

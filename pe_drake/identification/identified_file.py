@@ -20,6 +20,7 @@ import numpy as np
 
 from pe_drake.config import MEASUREMENTS
 from pe_drake.exceptions import DataError, check_joints
+from pe_drake.limits import input_file_problem
 from pe_drake.identification.channels import channel_names
 from pe_drake.identification.drive_terms import DriveFit
 from pe_drake.identification.estimators import IdentificationResult, fit_warnings
@@ -115,6 +116,9 @@ def load_identified(path: str | Path, robot) -> IdentificationResult:
             not match the robot's composition.
     """
     path = Path(path)
+    problem = input_file_problem(path)
+    if problem:
+        raise DataError(f"identified model file {problem}", file=str(path))
     if path.is_file():
         check_output_set(path)  # its model.urdf and residuals are of the same run
     try:

@@ -97,6 +97,24 @@ class ValidationReport:
     def plot(self, path: str | Path) -> Path:
         return plot_prediction(path, self.robot, self.t, self.measured, self.predicted, self.relative, self.names)
 
+    def write(self, json_path: str | Path | None, plot_path: str | Path | None, model: str | Path = "",
+              data: str | Path = "") -> list[str]:
+        """Writes ``validate --json`` and ``--plot`` (either may be None): both or neither (a full
+        disk after the JSON left it without its figure). Returns the paths written."""
+        written = []
+        try:
+            if json_path:
+                self.write_json(json_path, model=model, data=data)
+                written.append(str(json_path))
+            if plot_path:
+                self.plot(plot_path)
+                written.append(str(plot_path))
+        except BaseException:
+            for path in written:
+                Path(path).unlink(missing_ok=True)
+            raise
+        return written
+
 
 def validate_model(robot: Robot, model: IdentificationResult, measurements: Measurement,
                    options: ValidateOptions | None = None) -> ValidationReport:

@@ -45,6 +45,7 @@ from pe_drake.multibody.capsules import (
 )
 from pe_drake.multibody.link_geometry import Shape, primitive_points, primitive_segment, read_link_shapes
 from pe_drake.multibody.collada_up_axis import oriented_vertices, up_axis_note
+from pe_drake.multibody.mesh_policy import mesh_file_refusal
 from pe_drake.multibody.meshes import resolve_mesh_path
 from pe_drake.multibody.model_files import loadable_model_path
 from pe_drake.multibody.robot import Robot
@@ -145,9 +146,12 @@ def _mesh_points(shape: Shape, model_path: Path) -> np.ndarray:
     Raises:
         DataError: the file is missing or unreadable.
     """
-    path = resolve_mesh_path(shape.filename, model_path)
+    path = resolve_mesh_path(shape.filename, model_path, mesh=False)
     if path is None:
         raise DataError("file not found")
+    refusal = mesh_file_refusal(path)  # an oversize file or a pipe: said so, not "not found"
+    if refusal is not None:
+        raise DataError(refusal)
     v = oriented_vertices(path, model_path) * shape.scale  # a COLLADA mesh as the model means it
     return v @ shape.X_LG[:3, :3].T + shape.X_LG[:3, 3]
 
@@ -337,7 +341,7 @@ def fit_capsules(config, folder: str | Path) -> tuple:
     model = resolve_mesh_path(robot.model, Path(robot.model), mesh=False)
     if model is None:
         raise ConfigError(f"cannot find the model '{robot.model}' to fit capsules to; give robot.capsules")
-    model = loadable_model_path(model, robot.packages)  # xacro expanded, robot.packages resolved
+    model = loadable_model_path(model, robot.packages, trust_xacro=robot.trust_xacro)  # xacro expanded, robot.packages resolved
     fitted = fit_capsule_file(model, Path(folder) / FITTED_CAPSULES_NAME)
     margin = config.excitation.collision_margin
     config = dataclasses.replace(

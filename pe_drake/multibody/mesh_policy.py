@@ -5,40 +5,72 @@ on a named pipe or read ``/dev/zero`` until memory runs out.
 A mesh is read only if its real path (symlinks resolved) is a regular file with a mesh suffix,
 at most :data:`MAX_MESH_BYTES`, and, for a model's visuals, lies under the model's folder, the
 root of a package the model uses (and that root's real path, for colcon ``--symlink-install``),
-pe_drake's mesh cache or example-robot-data.
+pe_drake's mesh cache or example-robot-data. A ``package://`` name stays inside its package
+(no ``..`` above the root). The files a mesh names itself (an OBJ's ``mtllib`` and the
+material's ``map_*`` images, a glTF's ``buffers``/``images`` ``uri``, a COLLADA image's
+``init_from``) pass the same checks with their own suffixes: Meshcat embeds them too.
+Names are checked as the XML parser reads them: character references (``&#46;``) are
+decoded first (:func:`decoded_character_references`).
 """
 
 from __future__ import annotations
 
+import json
 import os
+import re
 import stat
+import struct
 from collections.abc import Iterable, Mapping
 from pathlib import Path
+from urllib.parse import unquote
 
 from pe_drake import limits
 from pe_drake.multibody.packages import package_roots, resolve_package_uri, used_packages
 
 #: Suffixes of the mesh formats pe_drake or Drake read.
 MESH_SUFFIXES = (".stl", ".obj", ".dae", ".gltf", ".glb", ".ply", ".vtk")
+#: Suffixes of the files a mesh may name (materials, textures, glTF buffers).
+REFERENCE_SUFFIXES = (".mtl", ".png", ".jpg", ".jpeg", ".bmp", ".tga", ".gif", ".ktx2", ".webp", ".bin")
 #: Largest mesh file read [bytes] by default (:data:`pe_drake.limits.MESH` overrides it).
 MAX_MESH_BYTES = 256 * 2**20
 
 
-def mesh_file_refusal(path: str | Path) -> str | None:
-    """Why the mesh file ``path`` must not be read (a sentence naming the path and the rule),
-    or None when it may."""
+_CHARACTER_REFERENCE = re.compile(r"&#(?:[xX]([0-9a-fA-F]{1,8})|([0-9]{1,10}));")
+_KEPT_ESCAPED = {"<": "&lt;", "&": "&amp;", '"': "&quot;", "'": "&apos;", ">": "&gt;"}
+
+
+def decoded_character_references(text: str) -> str:
+    """XML text with its numeric character references (``&#46;``, ``&#x2e;``) written as the
+    characters they stand for, so that a check of the raw text sees the names the XML parser
+    will read (tinyxml2 decodes them after pe_drake's checks ran). Markup characters and
+    control characters stay escaped."""
+
+    def one(match: re.Match) -> str:
+        code = int(match.group(1), 16) if match.group(1) else int(match.group(2))
+        if code < 0x20 or code > 0x10FFFF or 0xD800 <= code <= 0xDFFF:
+            return match.group(0)
+        char = chr(code)
+        return _KEPT_ESCAPED.get(char, char)
+
+    return _CHARACTER_REFERENCE.sub(one, text)
+
+
+def mesh_file_refusal(path: str | Path, suffixes: tuple[str, ...] = MESH_SUFFIXES, what: str = "mesh",
+                      kind: str | None = None) -> str | None:
+    """Why the mesh file ``path`` (or, with ``suffixes``, ``what`` and ``kind``, another file a
+    model reads) must not be read (a sentence naming the path and the rule), or None."""
     real = os.path.realpath(path)
-    shown = f"'{path}'" + (f" (-> {real})" if real != os.path.abspath(path) else "")
-    if Path(real).suffix.lower() not in MESH_SUFFIXES:
-        return f"mesh {shown} is not a mesh file: only {', '.join(MESH_SUFFIXES)} files are read"
+    shown = f"{what} '{path}'" + (f" (-> {real})" if real != os.path.abspath(path) else "")
+    if Path(real).suffix.lower() not in suffixes:
+        return f"{shown} is not a {kind or what} file: only {', '.join(suffixes)} files are read"
     try:
         info = os.stat(real)
     except OSError as err:
-        return f"mesh {shown} cannot be read: {err.strerror}"
+        return f"{shown} cannot be read: {err.strerror}"
     if not stat.S_ISREG(info.st_mode):
-        return f"mesh {shown} is not a regular file (a pipe, a device or a folder): only regular files are read"
+        return f"{shown} is not a regular file (a pipe, a device or a folder): only regular files are read"
     if info.st_size > limits.in_bytes(limits.MESH):
-        return f"mesh {shown} has {info.st_size / 2**20:.0f} MB, over {limits.describe(limits.MESH)}"
+        return f"{shown} has {info.st_size / 2**20:.0f} MB, over {limits.describe(limits.MESH)}"
     return None
 
 
@@ -60,13 +92,62 @@ def _is_under(real: str, roots: Iterable[str]) -> bool:
     return any(real == r or real.startswith(r.rstrip(os.sep) + os.sep) for r in roots)
 
 
+_SCHEME = re.compile(r"^([A-Za-z][A-Za-z0-9+.-]*):")
+
+
+def spellings(name: str) -> list[str]:
+    """A file name as written and percent-decoded (a URI reader may decode ``%2E``)."""
+    return list(dict.fromkeys((name, unquote(name))))
+
+
+def name_refusal(name: str) -> str | None:
+    """Why a file name a model gives must not be followed whatever it resolves to, or None:
+    a scheme other than ``package://``, ``model://`` and ``file://`` (local, or ``localhost``),
+    or a package path that climbs above its package's root (``package://arm/../../x``),
+    as written or percent-decoded."""
+    for spelling in spellings(name):
+        match = _SCHEME.match(spelling)
+        scheme = match.group(1).lower() if match and len(match.group(1)) > 1 else ""  # "C:" is a drive
+        if not scheme:
+            continue
+        if scheme not in ("package", "model", "file") or not spelling[len(scheme) + 1:].startswith("//"):
+            return f"'{name}' is a {scheme}: URI: only package://, model://, file:// and paths are read"
+        rest = spelling[len(scheme) + 3:]
+        if scheme == "file":
+            host = rest.split("/", 1)[0]
+            if host not in ("", "localhost"):
+                return f"'{name}' names host '{host}': only local files are read"
+            continue
+        inside = rest.lstrip("/").partition("/")[2]
+        normal = os.path.normpath(inside) if inside else ""
+        if os.path.isabs(inside) or normal == ".." or normal.startswith(".." + os.sep) or "\\" in inside:
+            return f"'{name}' leaves its package's folder: a package:// name is read only inside its package"
+    return None
+
+
+def named_files(name: str, model_path: Path, packages: Mapping[str, str] | None) -> list[Path]:
+    """The files a model's file name may be read as (each spelling of :func:`spellings`):
+    ``package://``/``model://`` through the resolver, ``file://`` (with or without
+    ``localhost``), absolute, or relative to the model's folder."""
+    out = []
+    for spelling in spellings(name):
+        match = _SCHEME.match(spelling)
+        scheme = match.group(1).lower() if match and len(match.group(1)) > 1 else ""
+        if scheme in ("package", "model"):
+            found = resolve_package_uri("package://" + spelling.split("://", 1)[1], model_path, packages)
+            out += [found] if found is not None else []
+            continue
+        if scheme == "file":
+            spelling = spelling[len("file://"):]
+            spelling = spelling[len("localhost"):] if spelling.startswith("localhost/") else spelling
+        path = Path(spelling)
+        out.append(path if path.is_absolute() else model_path.parent / path)
+    return out
+
+
 def _mesh_file(name: str, model_path: Path, packages: Mapping[str, str] | None) -> Path | None:
-    if name.startswith("package://"):
-        return resolve_package_uri(name, model_path, packages)
-    if name.startswith("file://"):
-        name = name[len("file://"):]
-    path = Path(name)
-    return path if path.is_absolute() else model_path.parent / path
+    found = [p for p in named_files(name, model_path, packages) if os.path.lexists(p)]
+    return found[0] if found else None
 
 
 def visual_mesh_refusal(
@@ -80,11 +161,143 @@ def visual_mesh_refusal(
         roots: :func:`allowed_mesh_roots`, or None to check only the file itself.
         packages: the config's ``robot.packages`` map.
     """
-    path = _mesh_file(name, Path(model_path), packages)
-    if path is None or not os.path.lexists(path):
-        return None  # a missing mesh: Drake names it
-    refusal = mesh_file_refusal(path)
-    if refusal is None and roots is not None and not _is_under(os.path.realpath(path), roots):
-        refusal = (f"mesh '{name}' is {os.path.realpath(path)}, outside the model's folder, its packages and "
-                   "pe_drake's mesh cache: meshes are read only from there")
-    return refusal
+    refusal = name_refusal(name)
+    if refusal is not None:
+        return refusal
+    for path in named_files(name, Path(model_path), packages):
+        if not os.path.lexists(path):
+            continue  # a missing mesh: Drake names it
+        refusal = mesh_file_refusal(path)
+        if refusal is None and roots is not None and not _is_under(os.path.realpath(path), roots):
+            refusal = _outside(name, path)
+        refusal = refusal or referenced_file_refusal(Path(path), roots)
+        if refusal:
+            return refusal
+    return None
+
+
+def _outside(name: str, path: str | Path, what: str = "mesh") -> str:
+    return (f"{what} '{name}' is {os.path.realpath(path)}, outside the model's folder, its packages and "
+            "pe_drake's mesh cache: meshes and the files they name are read only from there")
+
+
+def referenced_file_refusal(mesh: Path, roots: Iterable[str] | None) -> str | None:
+    """Why a file that the mesh ``mesh`` names must not be read (see the module docstring),
+    or None when every one may. Remembered per file version and roots: a model's meshes are
+    checked twice per load (each visual, then the last pass) and a model is loaded often."""
+    roots = tuple(roots) if roots is not None else None
+    try:
+        info = os.stat(mesh)
+    except OSError:
+        return None
+    key = (os.path.realpath(mesh), info.st_mtime_ns, info.st_size, roots)
+    if key not in _CHECKED:
+        if len(_CHECKED) > 4096:
+            _CHECKED.clear()
+        _CHECKED[key] = _referenced_file_refusal(mesh, roots)
+    return _CHECKED[key]
+
+
+_CHECKED: dict[tuple, str | None] = {}
+
+
+def _referenced_file_refusal(mesh: Path, roots: tuple[str, ...] | None) -> str | None:
+    suffix = mesh.suffix.lower()
+    try:
+        if suffix == ".obj":
+            return _obj_references(mesh, roots)
+        names = {".gltf": _gltf_uris, ".glb": _glb_uris, ".dae": _dae_images}.get(suffix)
+        for name in names(mesh) if names else ():
+            refusal = _reference_refusal(name, mesh, roots)
+            if refusal:
+                return refusal
+    except (OSError, ValueError, UnicodeDecodeError) as err:
+        return f"mesh '{mesh}' cannot be read: {err}"
+    return None
+
+
+def _reference_refusal(name: str, mesh: Path, roots: Iterable[str] | None) -> str | None:
+    """Checks a name a mesh gives, in each spelling a reader may follow (:func:`named_files`)."""
+    if name.startswith("data:"):
+        return None  # embedded in the mesh file itself
+    refusal = name_refusal(name)
+    if refusal is None and _SCHEME.match(name) and not name.lower().startswith("file:"):
+        refusal = f"mesh '{mesh}' names '{name}': only files beside the mesh are read"
+    if refusal is not None:
+        return refusal
+    for path in named_files(name, mesh, None):  # relative names are relative to the mesh's folder
+        if not os.path.lexists(path):
+            continue  # a missing texture: drawn without it
+        refusal = mesh_file_refusal(path, REFERENCE_SUFFIXES, f"the file named by mesh '{mesh.name}',",
+                                    "material, texture or buffer")
+        if refusal is None and roots is not None and not _is_under(os.path.realpath(path), roots):
+            refusal = _outside(name, path, f"the file named by mesh '{mesh.name}'")
+        if refusal:
+            return refusal
+    return None
+
+
+def _head(path: Path) -> bytes:
+    with open(path, "rb") as f:  # the caller has checked it is a regular, bounded file
+        return f.read(limits.in_bytes(limits.MESH))
+
+
+def _obj_references(mesh: Path, roots: Iterable[str] | None) -> str | None:
+    for line in _head(mesh).decode("latin-1").splitlines():
+        words = line.split()
+        if len(words) < 2 or words[0] != "mtllib":
+            continue
+        whole = line.strip()[len("mtllib"):].strip()  # readers split it at spaces, or take it whole
+        for name in dict.fromkeys([whole, *words[1:]]):
+            refusal = _reference_refusal(name, mesh, roots)
+            if refusal:
+                return refusal
+            library = mesh.parent / name if not os.path.isabs(name) else Path(name)
+            if not library.is_file():
+                continue
+            for entry in _head(library).decode("latin-1").splitlines():
+                fields = entry.split()
+                if len(fields) >= 2 and (fields[0].lower().startswith("map_") or fields[0].lower() in _MTL_MAPS):
+                    # the last word (after options such as -s 1 1 1), or all after the keyword
+                    # (a name with spaces), as readers differ
+                    for image in dict.fromkeys([fields[-1], entry.strip().split(None, 1)[1]]):
+                        refusal = _reference_refusal(image, library, roots)
+                        if refusal:
+                            return refusal
+    return None
+
+
+_MTL_MAPS = ("bump", "disp", "decal", "refl", "norm")
+
+
+def _gltf_names(document: dict) -> list[str]:
+    entries = list(document.get("buffers") or []) + list(document.get("images") or [])
+    return [e["uri"] for e in entries if isinstance(e, dict) and isinstance(e.get("uri"), str)]
+
+
+def _gltf_uris(mesh: Path) -> list[str]:
+    document = json.loads(_head(mesh))
+    return _gltf_names(document) if isinstance(document, dict) else []
+
+
+def _glb_uris(mesh: Path) -> list[str]:
+    data = _head(mesh)
+    if len(data) < 20 or data[:4] != b"glTF":
+        raise ValueError("not a binary glTF file")
+    length, kind = struct.unpack_from("<II", data, 12)
+    if kind != 0x4E4F534A:  # "JSON": the first chunk of every .glb
+        raise ValueError("binary glTF without a JSON chunk")
+    document = json.loads(data[20:20 + length])
+    return _gltf_names(document) if isinstance(document, dict) else []
+
+
+_DAE_IMAGE = re.compile(rb"<image\b.*?</image\s*>", re.S)
+_INIT_FROM = re.compile(rb"<init_from\b[^>]*>\s*(?:<ref\b[^>]*>)?\s*([^<]*?)\s*<", re.S)
+
+
+def _dae_images(mesh: Path) -> list[str]:
+    names = []
+    for image in _DAE_IMAGE.finditer(_head(mesh)):
+        for match in _INIT_FROM.finditer(image.group(0)):
+            names.append(decoded_character_references(match.group(1).decode("latin-1")))
+    return names

@@ -27,8 +27,10 @@ from pe_drake.multibody.packages import package_roots
 CACHE_ENV = "PE_DRAKE_MESH_CACHE"
 
 _BINARY_DTYPE = np.dtype([("normal", "<f4", (3,)), ("vertices", "<f4", (3, 3)), ("attribute", "<u2")])
-_VISUAL = re.compile(r"<visual\b.*?</visual>", re.S)
-_MESH_FILENAME = re.compile(r"(<mesh\b[^>]*?\bfilename\s*=\s*)([\"'])(.*?)\2", re.S)
+_VISUAL = re.compile(r"<visual\b.*?</visual\s*>", re.S)
+# (?<![\w:.-]): the attribute itself, not data-filename= or x:filename= before it
+_MESH_FILENAME = re.compile(r"(<mesh\b[^>]*?(?<![\w:.-])filename\s*=\s*)([\"'])(.*?)\2", re.S)
+_FILE_NAME = re.compile(r"(<(?:mesh|texture)\b[^>]*?(?<![\w:.-])filename\s*=\s*)([\"'])(.*?)\2", re.S)
 _FLOAT = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
 _ASCII_VERTEX = re.compile(
     rb"vertex\s+(" + _FLOAT.encode() + rb")\s+(" + _FLOAT.encode() + rb")\s+(" + _FLOAT.encode() + rb")"
@@ -134,6 +136,11 @@ def _dae_primitives(path: Path) -> tuple[list, float]:
     """
     import collada  # lazy: only DAE meshes need it
 
+    with open(path, "rb") as f:  # the caller checked it is a regular file of bounded size
+        if b"<!ENTITY" in f.read().upper():
+            # pycollada parses with lxml when it is installed, which expands external entities:
+            # a file's content would reach the parse tree and its error messages.
+            raise DataError("COLLADA file declares XML entities (<!ENTITY>), which pe_drake does not read", file=str(path))
     try:
         mesh = collada.Collada(
             str(path), ignore=[collada.common.DaeUnsupportedError, collada.common.DaeBrokenRefError]
@@ -296,7 +303,7 @@ def read_dae_triangles(path: Path) -> TriangleMesh:
 
 
 def absolute_mesh_paths(urdf_text: str, model_path: str | Path) -> str:
-    """Rewrites relative and absolute mesh filenames (``meshes/base.stl``,
+    """Rewrites relative and absolute mesh and texture filenames (``meshes/base.stl``,
     ``/opt/meshes/base.stl``) of a URDF to absolute ``file://`` URIs, relative ones against
     the model file's folder: Drake parses our rewritten text from a string, where a relative
     name has no folder to resolve against and a bare absolute path is refused ("invalid when
@@ -310,7 +317,7 @@ def absolute_mesh_paths(urdf_text: str, model_path: str | Path) -> str:
         path = Path(name) if Path(name).is_absolute() else folder / name
         return f"{match.group(1)}{match.group(2)}{path.resolve().as_uri()}{match.group(2)}"
 
-    return _MESH_FILENAME.sub(absolute, urdf_text)
+    return _FILE_NAME.sub(absolute, urdf_text)
 
 
 def resolve_mesh_path(
@@ -335,7 +342,7 @@ def _resolve_mesh(name: str, model_path: Path, packages: dict | None = None, mes
     if name.startswith("package://"):
         package, _, rest = name[len("package://") :].lstrip("/").partition("/")  # TALOS writes package:///
         for root in package_roots(package, model_path, packages):
-            if (root / rest).is_file():
+            if _present(root / rest, mesh):
                 return root / rest if not mesh or mesh_file_refusal(root / rest) is None else None
         return None
     if name.startswith("file://"):
@@ -343,7 +350,13 @@ def _resolve_mesh(name: str, model_path: Path, packages: dict | None = None, mes
     path = Path(name)
     if not path.is_absolute():
         path = model_path.parent / path
-    return path if path.is_file() and (not mesh or mesh_file_refusal(path) is None) else None
+    return path if _present(path, mesh) and (not mesh or mesh_file_refusal(path) is None) else None
+
+
+def _present(path: Path, mesh: bool) -> bool:
+    """A regular file; without ``mesh``, anything there (the caller names a pipe or a folder
+    with :func:`~pe_drake.multibody.mesh_policy.mesh_file_refusal` instead of "not found")."""
+    return path.is_file() if mesh else os.path.lexists(path)
 
 
 

@@ -19,6 +19,7 @@ structures outside the supported set into a :class:`~pe_drake.exceptions.ConfigE
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import logging
 import os
@@ -30,25 +31,34 @@ from pathlib import Path
 from pe_drake.exceptions import ConfigError
 from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.example_robot_data import example_robot_data_dir
-from pe_drake.multibody.mesh_policy import allowed_mesh_roots
+from pe_drake.multibody.mesh_policy import allowed_mesh_roots, decoded_character_references, mesh_file_refusal
+from pe_drake.multibody.model_references import (
+    check_every_name,
+    check_mjcf_files,
+    checked_sdf_text,
+    without_refused_textures,
+)
 from pe_drake.multibody.collada_up_axis import turned_dae_visuals
 from pe_drake.multibody.meshes import absolute_mesh_paths, default_cache_dir, stl_visuals_to_obj, without_refused_visuals
 from pe_drake.multibody.packages import (
     find_package,
+    manifest_name,
     register_packages,
     resolve_package_uri,
     unknown_package_message,
     used_packages,
 )
 from pe_drake.multibody.urdf_checks import check_joint_types, has_entities
+from pe_drake.multibody.xacro_sandbox import TRUST_HINT, sandboxed
 
 #: Suffixes of model files pe_drake reads.
 MODEL_SUFFIXES = (".urdf", ".sdf", ".xml", ".xacro")
 
-_MESH_FILENAME = re.compile(r"(<mesh\b[^>]*?\bfilename\s*=\s*)([\"'])(.*?)\2", re.S)
+_FILE_NAME = re.compile(r"(<(?:mesh|texture)\b[^>]*?(?<![\w:.-])filename\s*=\s*)([\"'])(.*?)\2", re.S)
+_ROOTS_FILE = "mesh_roots.txt"
 _MATERIAL = re.compile(r"<material\b([^>]*?)(/>|>(.*?)</material\s*>)", re.S)
 _LINK = re.compile(r"<link\b[^>]*?(/>|>.*?</link\s*>)", re.S)
-_NAME_ATTR = re.compile(r"""\bname\s*=\s*(["'])(.*?)\1""", re.S)
+_NAME_ATTR = re.compile(r"""(?<![\w:.-])name\s*=\s*(["'])(.*?)\1""", re.S)
 _MIMIC = re.compile(r"<mimic\b[^>]*/>|<mimic\b[^>]*>.*?</mimic\s*>", re.S)
 _XACRO_LOCK = threading.Lock()  # xacro keeps its state in module globals
 
@@ -67,20 +77,25 @@ def model_stem(path: str | Path) -> str:
     return Path(path).stem
 
 
-def expand_xacro(path: str | Path, packages: Mapping[str, str] | None = None, mappings: Mapping[str, str] | None = None) -> str:
+def expand_xacro(path: str | Path, packages: Mapping[str, str] | None = None,
+                 mappings: Mapping[str, str] | None = None, *, trust: bool = False) -> str:
     """The URDF text of a xacro file.
 
     ``$(find pkg)`` goes through :func:`~pe_drake.multibody.packages.find_package` (the
     ``robot.packages`` map, ``package.xml`` above the file, ``ROS_PACKAGE_PATH``,
-    ``AMENT_PREFIX_PATH``) instead of xacro's own ``ament_index`` look-up.
+    ``AMENT_PREFIX_PATH``) instead of xacro's own ``ament_index`` look-up. A xacro is a
+    program: unless ``trust``, it runs in :func:`~pe_drake.multibody.xacro_sandbox.sandboxed`
+    (no builtins, no ``load_yaml``, no ``$(env)``, includes confined to its packages).
 
     Args:
         path: the .xacro file.
         packages: the config's ``robot.packages`` map, or None.
         mappings: xacro arguments {name: value} (``xacro file.xacro name:=value``).
+        trust: run the file with xacro's full Python (``--trust-xacro``, ``robot.trust_xacro``).
 
     Raises:
-        ConfigError: xacro is missing, a package is unknown, or xacro refuses the file.
+        ConfigError: xacro is missing, a package is unknown, xacro refuses the file, or an
+            untrusted file uses a refused construct.
     """
     try:
         import xacro  # lazy: only xacro models need it
@@ -88,29 +103,37 @@ def expand_xacro(path: str | Path, packages: Mapping[str, str] | None = None, ma
     except ImportError as err:  # pragma: no cover - xacro is a dependency
         raise ConfigError(f"reading '{Path(path).name}' needs the xacro package: pip install xacro") from err
     path = Path(path).resolve()
+    found: list[str] = []
 
     def find(package: str) -> str:
-        return str(find_package(package, path, packages))
+        folder = find_package(package, path, packages)
+        found.append(os.path.realpath(folder))
+        return str(folder)
 
+    home = next((f for f in path.parents if manifest_name(f) is not None), None)
     with _XACRO_LOCK:
         saved = substitution_args._eval_find, substitution_args._eval_dict.get("find")
         substitution_args._eval_find = find  # used by $(find ...) and by $(eval find(...))
         substitution_args._eval_dict["find"] = find
         try:
-            doc = xacro.process_file(str(path), mappings=dict(mappings or {}))
+            with contextlib.nullcontext() if trust else sandboxed(path, home, found):
+                doc = xacro.process_file(str(path), mappings=dict(mappings or {}))
             return doc.toprettyxml(indent="  ")
         except ConfigError:
             raise
         except Exception as err:  # xacro raises XacroException, SubstitutionException, XML errors
-            raise ConfigError(f"xacro could not expand '{path}': {err}") from err
+            # a builtin the sandbox withholds (open, exec, getattr) is a NameError inside xacro
+            hint = f"; {TRUST_HINT}" if not trust and "is not defined" in str(err) else ""
+            raise ConfigError(f"xacro could not expand '{path}': {err}{hint}") from err
         finally:
             substitution_args._eval_find, substitution_args._eval_dict["find"] = saved
 
 
 def resolved_mesh_uris(text: str, model_path: str | Path, packages: Mapping[str, str] | None = None) -> str:
-    """Every mesh name of a URDF as an absolute ``file://`` URI where the file is found
-    (``package://`` through the resolver, relative names against the model's folder);
-    names that cannot be found stay for Drake to report."""
+    """Every mesh and texture name of a URDF as an absolute ``file://`` URI where the file is
+    found (``package://`` through the resolver, relative names against the model's folder);
+    names that cannot be found stay for Drake to report. The names are resolved from the
+    model file the user named, not from the copy in the cache (issue 37, items 6 and 8)."""
     model_path = Path(model_path).resolve()
 
     def absolute(match: re.Match) -> str:
@@ -126,33 +149,60 @@ def resolved_mesh_uris(text: str, model_path: str | Path, packages: Mapping[str,
             return match.group(0)
         return f"{match.group(1)}{match.group(2)}{found.resolve().as_uri()}{match.group(2)}"
 
-    return _MESH_FILENAME.sub(absolute, text)
+    return _FILE_NAME.sub(absolute, text)
 
 
-def loadable_model_path(model_path: str | Path, packages: Mapping[str, str] | None = None) -> Path:
+def cached_model_roots(model_path: str | Path) -> list[str] | None:
+    """The folders a model pe_drake wrote to its cache may read meshes from (those of the file
+    it came from, recorded beside it), or None for a model outside the cache."""
+    cache = os.path.realpath(default_cache_dir())
+    real = os.path.realpath(model_path)
+    if not real.startswith(cache + os.sep):
+        return None
+    record = Path(real).parent / _ROOTS_FILE
+    try:
+        return [line for line in record.read_text().splitlines() if line.strip()]
+    except OSError:  # an older cache entry: the cache and example-robot-data only
+        return [cache, *_always_allowed()]
+
+
+def _always_allowed() -> list[str]:
+    with contextlib.suppress(ConfigError):
+        return [os.path.realpath(example_robot_data_dir())]
+    return []
+
+
+def loadable_model_path(model_path: str | Path, packages: Mapping[str, str] | None = None, *,
+                        trust_xacro: bool = False) -> Path:
     """The file later steps read for a model (see the module docstring).
 
     Args:
         model_path: the model file (URDF, SDF or xacro).
         packages: the config's ``robot.packages`` map, or None.
+        trust_xacro: expand a xacro with xacro's full Python (:func:`expand_xacro`).
 
     Returns:
-        ``model_path`` itself, or a URDF in ``<mesh cache>/models/<hash>/<name>.urdf``.
+        ``model_path`` itself, or a URDF in ``<mesh cache>/models/<hash>/<name>.urdf`` with
+        the folders its meshes may come from recorded beside it (:func:`cached_model_roots`).
 
     Raises:
         ConfigError: a xacro file that cannot be expanded.
     """
     model_path = Path(model_path)
     packages = dict(packages or {})
+    source = read_model_text(model_path)  # a pipe or /dev/zero named as the model: refused, not read
     if is_xacro(model_path):
-        text = expand_xacro(model_path, packages)
-    elif model_path.suffix.lower() == ".urdf" and set(used_packages(model_path.read_text(errors="replace"))) & set(packages):
-        text = model_path.read_text()
+        text = expand_xacro(model_path, packages, trust=trust_xacro)
+    elif model_path.suffix.lower() == ".urdf" and set(used_packages(source)) & set(packages):
+        text = source
     else:
         return model_path
+    text = decoded_character_references(text)
+    roots = allowed_mesh_roots(model_path, text, packages, extra=(default_cache_dir(), *_always_allowed()))
     text = resolved_mesh_uris(text, model_path, packages)
     digest = hashlib.blake2b(f"{model_path.resolve()}\n{text}".encode(), digest_size=8).hexdigest()
     target = default_cache_dir() / "models" / digest / f"{model_stem(model_path)}.urdf"
+    atomic_write_text(target.parent / _ROOTS_FILE, "\n".join(roots) + "\n")  # before the model: never unconfined
     if not target.is_file() or target.read_text() != text:
         atomic_write_text(target, text)
     return target
@@ -247,14 +297,25 @@ def single_material_definitions(text: str) -> tuple[str, list[str]]:
 
 
 def drake_model_text(model_path: Path, obj_visuals: bool, packages: dict | None = None) -> tuple[str, list[str]]:
-    """The model file's text as Drake parses it, and notes of what was changed for Drake."""
-    text = model_path.read_text()
+    """The model file's text as Drake parses it, and notes of what was changed for Drake.
+
+    Every file the model names passes the read policy (:mod:`~pe_drake.multibody.mesh_policy`,
+    :mod:`~pe_drake.multibody.model_references`), checked after XML character references are
+    decoded, as Drake's parser will read the names."""
+    text = decoded_character_references(read_model_text(model_path))
     notes: list[str] = []
-    if model_path.suffix.lower() == ".urdf":
+    suffix = model_path.suffix.lower()
+    roots = _mesh_roots(model_path, text, packages)
+    if suffix == ".sdf":
+        text, notes = checked_sdf_text(text, model_path, roots, packages)
+        check_every_name(text, model_path, roots, packages)
+    elif suffix == ".xml":
+        check_mjcf_files(text, model_path, roots)
+    if suffix == ".urdf":
         check_joint_types(text, model_path)  # floating/ball joints: named, with what is supported
         # Drake cannot build convex hulls of STL/DAE collision meshes (BUILD_NOTES.md);
         # collision is our own capsules. Mimic tags would couple joints we may lock.
-        text = re.sub(r"<collision\b.*?</collision>", "", text, flags=re.S)
+        text = re.sub(r"<collision\b.*?</collision\s*>", "", text, flags=re.S)
         text, mimic_notes = without_mimic(text)
         text, material_notes = single_material_definitions(text)  # Kinova JACO2, TALOS full
         notes += mimic_notes + material_notes
@@ -262,22 +323,38 @@ def drake_model_text(model_path: Path, obj_visuals: bool, packages: dict | None 
             text = text.replace("package:///", "package://")
             notes.append("package:/// URIs read as package:// (an empty package name)")
         text = absolute_mesh_paths(text, model_path)  # parsed from a string: no folder to resolve against
-        text, refused = without_refused_visuals(text, model_path, _mesh_roots(model_path, text, packages), packages)
-        notes += refused  # a visual naming /etc/passwd or a key would be embedded in playback.html
+        text, refused = without_refused_visuals(text, model_path, roots, packages)
+        text, refused_textures = without_refused_textures(text, model_path, roots, packages)
+        notes += refused + refused_textures  # a visual naming /etc/passwd or a key would be embedded in playback.html
+        check_every_name(text, model_path, roots, packages)
         if obj_visuals:
             text = stl_visuals_to_obj(text, model_path, packages=packages)
             text = turned_dae_visuals(text, model_path, packages)  # iCub's: Meshcat draws a DAE as written
     return text, notes
 
 
-def _mesh_roots(model_path: Path, text: str, packages: dict | None) -> list[str] | None:
-    """Where the model's visual meshes may lie; None for a model pe_drake wrote to its cache
-    itself (expanded xacro, resolved packages: its meshes are absolute names our resolver
-    chose, so only the file checks apply)."""
-    cache = os.path.realpath(default_cache_dir())
-    if os.path.realpath(model_path).startswith(cache + os.sep):
-        return None
-    return allowed_mesh_roots(model_path, text, packages, extra=(default_cache_dir(), example_robot_data_dir()))
+def read_model_text(model_path: Path) -> str:
+    """A model file's text, read only if it is a regular file of bounded size.
+
+    Raises:
+        ConfigError: a pipe, a device, a folder or an oversize file, naming it and the limit.
+    """
+    refusal = mesh_file_refusal(model_path, MODEL_SUFFIXES, "model")
+    if refusal is not None:
+        raise ConfigError(refusal)
+    try:
+        return model_path.read_text()
+    except (OSError, UnicodeDecodeError) as err:
+        raise ConfigError(f"cannot read the model '{model_path}': {err}") from err
+
+
+def _mesh_roots(model_path: Path, text: str, packages: dict | None) -> list[str]:
+    """Where the model's meshes (and the files they name) may lie: for a model pe_drake wrote to
+    its cache, the folders of the file it came from (:func:`cached_model_roots`)."""
+    cached = cached_model_roots(model_path)
+    if cached is not None:
+        return cached
+    return allowed_mesh_roots(model_path, text, packages, extra=(default_cache_dir(), *_always_allowed()))
 
 
 def finalize_plant(plant, model_path: Path) -> None:

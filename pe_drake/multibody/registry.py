@@ -15,6 +15,7 @@ from pathlib import Path
 
 from pe_drake.config import SAFE_DEFAULTS, Config, RobotConfig, load_config, validate_config
 from pe_drake.exceptions import ConfigError, UnknownNameError
+from pe_drake.limits import input_file_problem
 from pe_drake.multibody.example_robot_data import example_robot_data_dir
 from pe_drake.multibody.standing_defaults import standing_defaults
 from pe_drake.yaml_check import key_line
@@ -82,8 +83,9 @@ def resolve_robot_config(robot: str, config_file: str | Path | None = None) -> C
         path = Path(robot)
         if path.suffix.lower() not in (".urdf", ".sdf", ".xml", ".xacro"):
             raise UnknownNameError("robot", robot, builtin_robots() + ("<path to .urdf/.sdf/.urdf.xacro>",))
-        if not path.is_file():
-            raise ConfigError(f"robot model file '{robot}' does not exist")
+        problem = input_file_problem(path)
+        if problem:
+            raise ConfigError(f"robot model file '{robot}' {problem}")
         # The shipped robots' margins (SAFE_DEFAULTS), not RobotConfig's 0 and 100 %: an xArm7
         # optimum otherwise runs at its full 3.14 rad/s on every joint, touching its limits.
         base = Config(robot=RobotConfig(model=str(path.resolve()), **SAFE_DEFAULTS, assumed=list(SAFE_DEFAULTS)))
@@ -114,6 +116,7 @@ def resolve_model_path(model: str) -> Path:
         path = example_robot_data_dir() / model[len(EXAMPLE_ROBOT_DATA_URI):]
     else:
         path = Path(model)
-    if not path.is_file():
-        raise ConfigError(f"robot model file '{path}' does not exist")
+    problem = input_file_problem(path)
+    if problem:
+        raise ConfigError(f"robot model file '{path}' {problem}")
     return path

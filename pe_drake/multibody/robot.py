@@ -120,7 +120,7 @@ class Robot:
         from pydrake.systems.framework import DiagramBuilder
 
         cfg = self.config
-        model_path = loadable_model_path(resolve_model_path(cfg.model), cfg.packages)
+        model_path = loadable_model_path(resolve_model_path(cfg.model), cfg.packages, trust_xacro=cfg.trust_xacro)
         text, notes = drake_model_text(model_path, self._obj_visuals, cfg.packages)
         self.notes = list(cfg.notes) + notes
         self.limit_notes: list[str] = []

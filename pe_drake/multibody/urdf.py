@@ -33,6 +33,7 @@ from pe_drake.exceptions import ConfigError
 from pe_drake.multibody.example_robot_data import example_robot_data_dir
 from pe_drake.multibody.inertia import central_inertia, check_physically_valid, spatial_inertia_to_phi
 from pe_drake.multibody.model_files import single_material_definitions
+from pe_drake.multibody.packages import resolve_package_uri
 
 #: Packages the pe_drake loader always registers; their URIs are kept as they are.
 KNOWN_PACKAGES = ("example-robot-data",)
@@ -68,11 +69,16 @@ def inertial_element(phi_b: np.ndarray, indent: str = "    ") -> ET.Element:
     return _inertial_element(np.asarray(phi_b, float), indent)
 
 
-def _resolve_uri(uri: str, model_dir: Path, package_map) -> str:
-    """A mesh URI that works from any folder (see the module docstring)."""
+def _resolve_uri(uri: str, model_dir: Path, package_map, source: Path | None = None) -> str:
+    """A mesh or texture URI that works from any folder (see the module docstring)."""
     if uri.startswith("package://"):
         package = uri[len("package://") :].split("/", 1)[0]
-        if package in KNOWN_PACKAGES or package_map is None:
+        if package in KNOWN_PACKAGES:
+            return uri
+        found = resolve_package_uri(uri, source) if source is not None else None
+        if found is not None:  # pe_drake's resolver: package.xml above the model, ROS paths
+            return found.resolve().as_uri()
+        if package_map is None:
             return uri
         try:
             return "file://" + str(Path(package_map.ResolveUrl(uri)).resolve())
@@ -154,9 +160,9 @@ def urdf_with_inertias(
             package_map.PopulateFromFolder(str(source.parent))
     except ImportError:  # pragma: no cover - drake is a dependency
         package_map = None
-    for mesh in root.iter("mesh"):
-        if mesh.get("filename"):
-            mesh.set("filename", _resolve_uri(mesh.get("filename"), source.parent, package_map))
+    for element in [*root.iter("mesh"), *root.iter("texture")]:  # textures too (issue 37, item 6)
+        if element.get("filename"):
+            element.set("filename", _resolve_uri(element.get("filename"), source.parent, package_map, source))
     text = ET.tostring(root, encoding="unicode")
     header = (
         '<?xml version="1.0"?>\n'

@@ -17,6 +17,7 @@ from __future__ import annotations
 import multiprocessing
 import os
 import signal
+import time
 import sys
 from collections import deque
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -42,6 +43,8 @@ from pe_drake.excitation.parallel.base import (
 )
 from pe_drake.excitation.solver_logs import remove_orphaned_log_folders
 
+#: How long idle workers may take to leave a closed pool before they are killed [s].
+CLOSE_TIMEOUT_S = 10.0
 #: How long a broken pool's manager thread may take to stop and reap its workers [s] (it
 #: SIGTERMs them, which ends them at once; :meth:`LocalExecutor.terminate` kills stragglers).
 REAP_TIMEOUT_S = 10.0
@@ -187,11 +190,32 @@ class LocalExecutor(RemoteExecutor):
     def close(self) -> None:
         pool, self._pool = self._pool, None
         if pool is not None:
-            pool.shutdown(wait=True, cancel_futures=True)
+            procs = list((getattr(pool, "_processes", None) or {}).values())
+            pool.shutdown(wait=False, cancel_futures=True)
+            _reap(procs, CLOSE_TIMEOUT_S)
+            manager = getattr(pool, "_executor_manager_thread", None)
+            if manager is not None:
+                manager.join(CLOSE_TIMEOUT_S)
             remove_orphaned_log_folders()  # the IPOPT logs of workers that were killed
         if self._events is not None:
             self._events.close()
             self._events = None
+
+
+def _reap(procs: list, timeout: float) -> None:
+    """Waits up to ``timeout`` [s] for the idle workers to leave, then kills the rest.
+
+    An idle worker that was stopped (SIGSTOP, a debugger, a frozen container) never reads the
+    pool's shutdown message: ``shutdown(wait=True)`` then waited forever after every start
+    had finished (over 800 s, issue 34). SIGKILL ends a stopped process too.
+    """
+    deadline = time.monotonic() + timeout
+    for p in procs:
+        p.join(max(0.0, deadline - time.monotonic()))
+    for p in procs:
+        if p.is_alive():
+            p.kill()
+            p.join(5)
 
 
 class PoolRun:

@@ -17,7 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from pe_drake.exceptions import DataError
-from pe_drake.identification.csv_checks import check_text_file, check_time_order, first_non_number
+from pe_drake.limits import input_file_problem
+from pe_drake.identification.csv_checks import SAVE_AS_UTF8, check_text_file, check_time_order, first_non_number
 from pe_drake.identification.measurements import Measurement
 from pe_drake.identification.readers.currents import torque_from_current
 
@@ -38,8 +39,9 @@ def _split(line: str, delimiter: str | None) -> list[str]:
 def read_header(path: str | Path) -> tuple[list[str], str | None]:
     """(column names, delimiter; None: whitespace) of a delimited text file."""
     path = Path(path)
-    if not path.is_file():
-        raise DataError("measurement file does not exist", file=str(path))
+    problem = input_file_problem(path)
+    if problem:
+        raise DataError(f"measurement file {problem}", file=str(path))
     check_text_file(path)  # UTF-16 or another encoding: named, not a UnicodeDecodeError traceback
     with path.open(encoding="utf-8-sig") as f:
         header = next((line for line in f if line.strip()), "")
@@ -122,10 +124,14 @@ def read_mapped_csv(
             raise DataError(f"no time column: name it in data.columns as t: <column>; columns: {', '.join(columns)}",
                             file=file)
     _check_map(mapping, joints, columns, file)
+    _check_unique_columns(columns, set(mapping.values()), file)
     keys = list(mapping)
     try:
         table = np.loadtxt(path, delimiter=delimiter, skiprows=1, usecols=[columns.index(mapping[k]) for k in keys],
                            ndmin=2, comments=None, encoding="utf-8-sig")
+    except UnicodeDecodeError:  # past the first 64 kB that check_text_file reads
+        _locate_non_utf8(path, file)
+        raise
     except ValueError as err:
         _locate_non_number(path, delimiter, columns, [mapping[k] for k in keys], file)
         raise DataError(f"cannot read the values as numbers: {err}", file=file) from err
@@ -151,6 +157,27 @@ def read_mapped_csv(
             tau[:, list(joints).index(j)] = k_tau[:, i]
         notes.append(f"motor currents of {', '.join(current_joints)} multiplied by robot.drive_gains (τ = k·i)")
     return Measurement(t - t[0], block("q"), tau, block("v"), block("vdot"), tuple(joints), file, notes=tuple(notes))
+
+
+def _check_unique_columns(columns: Sequence[str], used: set[str], file: str) -> None:
+    """Refuses a header naming a used column twice (the reader took the first copy silently)."""
+    twice = [c for c in dict.fromkeys(columns) if c in used and columns.count(c) > 1]
+    if twice:
+        positions = ", ".join(f"'{c}' (columns {', '.join(str(i + 1) for i, n in enumerate(columns) if n == c)})"
+                              for c in twice)
+        raise DataError(f"the header names {positions} more than once: which copy holds the data is unknown; "
+                        "remove or rename the repeated column", file=file, column=twice[0])
+
+
+def _locate_non_utf8(path, file: str) -> None:
+    """Raises naming the line and the byte of the first text that is not UTF-8."""
+    with Path(path).open("rb") as f:
+        for number, line in enumerate(f, 1):
+            try:
+                line.decode("utf-8")
+            except UnicodeDecodeError as err:
+                raise DataError(f"line {number}: byte {line[err.start]:#04x} is not UTF-8 text (Latin-1 or another "
+                                f"encoding?): {SAVE_AS_UTF8}", file=file) from None
 
 
 def _locate_non_number(path, delimiter: str | None, columns: list[str], used: list[str], file: str) -> None:

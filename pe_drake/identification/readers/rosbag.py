@@ -17,7 +17,9 @@ import numpy as np
 
 from pe_drake.config import JointMapConfig
 from pe_drake.exceptions import DataError
+from pe_drake.limits import input_file_problem
 from pe_drake.identification.measurements import Measurement
+from pe_drake.identification.readers.bag_limits import check_compressed_bag, check_mcap_chunks, check_message_size
 from pe_drake.identification.readers.currents import torque_from_current
 from pe_drake.identification.readers.joint_map import robot_name
 
@@ -48,16 +50,27 @@ def _pick_topic(connections, topic: str, file: str) -> list:
     return [c for c in connections if c.topic == states[0]]
 
 
-def _collect(reader, connections, joints: Sequence[str], joint_map: JointMapConfig):
+def _check_unique_names(names: list[str], mine: list[tuple[int, int]], index: int, topic: str, file: str) -> None:
+    """Refuses a message naming an excited joint twice: which copy is the joint's is unknown
+    (the second silently won, and a duplicate could stand in for a missing joint)."""
+    if len({c for _, c in mine}) < len(mine):
+        twice = sorted({names[i] for i, _ in mine if sum(names[k] == names[i] for k, _ in mine) > 1})
+        raise DataError(f"message {index} on '{topic}' names joint(s) {', '.join(repr(n) for n in twice)} more than "
+                        f"once (names: {', '.join(names)}); each joint must appear once per message", file=file)
+
+
+def _collect(reader, connections, joints: Sequence[str], joint_map: JointMapConfig, file: str):
     """Per complete message: stamp [ns], receive time [ns], q, v (or None), effort (or None)."""
     index = {j: k for k, j in enumerate(joints)}
     rows, seen, partial, other = [], set(), 0, 0
-    for conn, received, raw in reader.messages(connections=connections):
+    for count, (conn, received, raw) in enumerate(reader.messages(connections=connections)):
+        check_message_size(raw, count, conn.topic, file)
         msg = reader.deserialize(raw, conn.msgtype)
         names = [robot_name(n, joint_map) for n in msg.name]
         seen.update(msg.name)
         cols = [index.get(n, -1) for n in names]
         mine = [(i, c) for i, c in enumerate(cols) if c >= 0]
+        _check_unique_names(names, mine, count, conn.topic, file)
         if len(mine) < len(joints) or len(msg.position) < len(names):
             partial += bool(mine)
             other += not mine
@@ -68,7 +81,7 @@ def _collect(reader, connections, joints: Sequence[str], joint_map: JointMapConf
         for field in ("position", "velocity", "effort"):
             array = np.asarray(getattr(msg, field), float)
             if len(array) == len(names):
-                out = np.empty(len(joints))
+                out = np.full(len(joints), np.nan)  # every column is written: mine covers each joint once
                 out[dst] = array[src]
                 values.append(out)
             else:
@@ -110,12 +123,16 @@ def read_joint_state_bag(
 
     path, file = Path(path), str(path)
     joint_map = joint_map or JointMapConfig()
-    if not path.exists():
-        raise DataError("the bag does not exist", file=file)
+    problem = input_file_problem(path)
+    if problem and not path.is_dir():  # a ROS 2 bag is a folder
+        raise DataError(f"the bag {problem}", file=file)
+    check_mcap_chunks(path)  # before rosbags inflates a chunk whole
+    if path.is_dir() and (path / "metadata.yaml").is_file():
+        check_compressed_bag(path)  # and a compressed message or storage file
     try:
         with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE)) as reader:
             connections = _pick_topic(reader.connections, topic, file)
-            rows, seen, partial, other = _collect(reader, connections, joints, joint_map)
+            rows, seen, partial, other = _collect(reader, connections, joints, joint_map, file)
     except DataError:
         raise
     except Exception as err:  # rosbags raises its own error types for corrupt or foreign files
@@ -126,6 +143,18 @@ def read_joint_state_bag(
             f"no message holds every excited joint; never published: {', '.join(missing)}; names on the topic: "
             f"{', '.join(sorted(seen)) or 'none'} (map them with data.joint_map: strip_prefix, rename)", file=file)
     return _to_measurement(rows, joints, effort, drive_gains or {}, file, partial, other)
+
+
+def _check_finite(field: str, values: np.ndarray | None, joints, stamps: np.ndarray, file: str) -> None:
+    """Refuses a NaN or infinite value, naming the message's stamp and the joint (a NaN effort
+    was reported as a torque-unit problem further on)."""
+    if values is None or np.isfinite(values).all():
+        return
+    row, col = np.argwhere(~np.isfinite(values))[0]
+    count = int((~np.isfinite(values)).sum())
+    raise DataError(f"{field} of joint '{joints[col]}' is {values[row, col]} in the message stamped "
+                    f"{stamps[row] * 1e-9:.9f} s (message {row + 1} of {len(values)} in time order; {count} such "
+                    "value(s)): the JointState holds no number there", file=file)
 
 
 def _to_measurement(rows, joints, effort: str, gains, file: str, partial: int, other: int) -> Measurement:
@@ -154,6 +183,8 @@ def _to_measurement(rows, joints, effort: str, gains, file: str, partial: int, o
     q = np.array([rows[k][2] for k in order])
     tau = np.array([rows[k][4] for k in order])
     v = np.array([rows[k][3] for k in order]) if all(rows[k][3] is not None for k in order) else None
+    for field, values in (("position", q), ("effort", tau), ("velocity", v)):
+        _check_finite(field, values, joints, stamps[keep], file)
     if effort == "current":
         tau = torque_from_current(tau, joints, gains, file, "effort read as motor current, --effort current")
         notes.append("effort read as motor current [A] and multiplied by robot.drive_gains")

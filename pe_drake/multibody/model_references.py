@@ -1,0 +1,169 @@
+"""The read policy (:mod:`pe_drake.multibody.mesh_policy`) applied to every file a model names
+besides its URDF visual meshes: URDF material textures, SDF ``<uri>`` elements and MJCF
+``file`` attributes.
+
+Meshcat embeds every texture and visual mesh whole in ``playback.html``, and Drake would read a
+named pipe until the run is killed; so a texture, SDF visual or collision whose file is refused
+is dropped with a note, an SDF ``<include>`` or an MJCF asset whose file is refused stops the
+load with the rule it broke. Relative SDF URIs become absolute ``file://`` URIs: Drake parses
+pe_drake's checked text from a string, where a relative name has nothing to resolve against.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+
+from pe_drake.exceptions import ConfigError
+from pe_drake.multibody.mesh_policy import (
+    MESH_SUFFIXES,
+    REFERENCE_SUFFIXES,
+    mesh_file_refusal,
+    name_refusal,
+    named_files,
+    visual_mesh_refusal,
+)
+
+_TEXTURE = re.compile(r"<texture\b[^>]*?(?<![\w:.-])filename\s*=\s*([\"'])(.*?)\1[^>]*?(?:/>|>.*?</texture\s*>)", re.S)
+_MATERIAL = re.compile(r"(<material\b[^>]*?(?<!/)>)(.*?)(</material\s*>)", re.S)
+# Every element Drake reads a file for in a URDF (a <gazebo> plugin's filename is not read)
+_ANY_FILENAME = re.compile(r"(<(?:\w+:)?(?:mesh|texture)\b[^>]*?(?<![\w:.-])filename\s*=\s*)([\"'])(.*?)\2", re.S)
+_SDF_GEOMETRY = re.compile(r"<(visual|collision)\b.*?</\1\s*>", re.S)
+_SDF_URI = re.compile(r"(<uri\b[^>]*>)\s*(.*?)\s*(</uri\s*>)", re.S)
+_SDF_INCLUDE = re.compile(r"<include\b")
+_SDF_MAP = re.compile(r"(?=<([\w:]*_map)\b)(<[\w:]*_map\b[^>]*>)\s*(.*?)\s*(</[\w:]*_map\s*>)", re.S)
+_MJCF_FILE = re.compile(r"(<(\w+)\b[^>]*?(?<![\w:.-])file\s*=\s*)([\"'])(.*?)\3", re.S)
+_MJCF_DIR = re.compile(r"<compiler\b[^>]*?(?<![\w:.-])(meshdir|texturedir|assetdir)\s*=\s*([\"'])(.*?)\2", re.S)
+
+
+def _under(path: str | Path, roots: Iterable[str] | None) -> bool:
+    real = os.path.realpath(path)
+    return roots is None or any(real == r or real.startswith(r.rstrip(os.sep) + os.sep) for r in roots)
+
+
+def _named_file(name: str, model_path: Path, packages: Mapping[str, str] | None) -> Path | None:
+    found = [p for p in named_files(name, model_path, packages) if os.path.lexists(p)]
+    return found[0] if found else None
+
+
+def file_refusal(name: str, model_path: Path, roots: Iterable[str] | None, packages: Mapping[str, str] | None,
+                 suffixes: tuple[str, ...], what: str) -> str | None:
+    """Why the file a model names (``what``: "texture", ...) must not be read, or None."""
+    refusal = name_refusal(name)
+    if refusal is not None:
+        return f"{what} {refusal}"
+    for path in named_files(name, model_path, packages):
+        if not os.path.lexists(path):
+            continue  # a missing file: Drake names it
+        refusal = mesh_file_refusal(path, suffixes, what, "texture" if suffixes == REFERENCE_SUFFIXES else "model")
+        if refusal is None and not _under(path, roots):
+            refusal = (f"{what} '{name}' is {os.path.realpath(path)}, outside the model's folder, its packages and "
+                       "pe_drake's mesh cache: files are read only from there")
+        if refusal:
+            return refusal
+    return None
+
+
+def without_refused_textures(text: str, model_path: str | Path, roots: Iterable[str] | None,
+                             packages: Mapping[str, str] | None = None) -> tuple[str, list[str]]:
+    """URDF text without the ``<texture>`` elements whose image must not be read, and a note
+    each; a material left with neither colour nor texture gets a white one (Drake refuses an
+    empty material definition)."""
+    notes: list[str] = []
+
+    def texture(match: re.Match) -> str:
+        refusal = file_refusal(match.group(2), Path(model_path), roots, packages, REFERENCE_SUFFIXES, "texture")
+        if refusal is None:
+            return match.group(0)
+        notes.append(f"texture dropped: {refusal}")
+        return ""
+
+    def material(match: re.Match) -> str:
+        body = _TEXTURE.sub(texture, match.group(2))
+        if body != match.group(2) and not re.search(r"<(color|texture)\b", body):
+            body += '<color rgba="1 1 1 1"/>'
+        return match.group(1) + body + match.group(3)
+
+    return _MATERIAL.sub(material, text), notes
+
+
+def check_every_name(text: str, model_path: str | Path, roots: Iterable[str] | None,
+                     packages: Mapping[str, str] | None = None) -> None:
+    """The last check before Drake parses a model's text: every mesh and texture ``filename``
+    and every ``<uri>`` left in it must pass the read policy, wherever it sits (a name the
+    element-by-element checks did not see, e.g. in markup they do not expect, stops the load).
+
+    Raises:
+        ConfigError: naming the file and the rule.
+    """
+    model_path = Path(model_path)
+    names = [m.group(3) for m in _ANY_FILENAME.finditer(text)] + [m.group(2) for m in _SDF_URI.finditer(text)]
+    for name in names:
+        texture = Path(name.split("?")[0]).suffix.lower() in REFERENCE_SUFFIXES
+        refusal = (file_refusal(name, model_path, roots, packages, REFERENCE_SUFFIXES, "texture") if texture
+                   else visual_mesh_refusal(name, model_path, roots, packages))
+        if refusal is not None:
+            raise ConfigError(f"'{model_path}': {refusal}")
+
+
+def checked_sdf_text(text: str, model_path: str | Path, roots: Iterable[str] | None,
+                     packages: Mapping[str, str] | None = None) -> tuple[str, list[str]]:
+    """SDF text with relative ``<uri>`` names made absolute and every visual or collision whose
+    file is refused dropped (a note each).
+
+    Raises:
+        ConfigError: a ``<uri>`` outside a visual or collision (an ``<include>``) that is refused.
+    """
+    model_path = Path(model_path)
+    notes: list[str] = []
+
+    def geometry(match: re.Match) -> str:
+        for uri in _SDF_URI.finditer(match.group(0)):
+            refusal = visual_mesh_refusal(uri.group(2), model_path, roots, packages)
+            if refusal is not None:
+                notes.append(f"{match.group(1)} dropped: {refusal}")
+                return ""
+        return match.group(0)
+
+    text = _SDF_GEOMETRY.sub(geometry, text)
+    if _SDF_INCLUDE.search(text):
+        raise ConfigError(f"'{model_path}' <include>s another model: Drake would read that file without "
+                          "pe_drake's checks of the files a model names; write the included model into this file")
+    text = _SDF_MAP.sub(lambda m: _checked_map(m, model_path, roots, packages, notes), text)
+    return _SDF_URI.sub(lambda m: m.group(1) + _absolute(m.group(2), model_path, packages) + m.group(3), text), notes
+
+
+def _checked_map(match: re.Match, model_path: Path, roots, packages, notes: list[str]) -> str:
+    refusal = file_refusal(match.group(3), model_path, roots, packages, REFERENCE_SUFFIXES, f"<{match.group(1)}>")
+    if refusal is not None:
+        notes.append(f"texture dropped: {refusal}")
+        return ""
+    return match.group(2) + _absolute(match.group(3), model_path, packages) + match.group(4)
+
+
+def _absolute(name: str, model_path: Path, packages: Mapping[str, str] | None) -> str:
+    """The checked file of a name as a ``file://`` URI (Drake then reads what was checked), or
+    the name itself when it names no existing file."""
+    path = _named_file(name, model_path, packages) if name else None
+    return path.resolve().as_uri() if path is not None and os.path.lexists(path) else name
+
+
+def check_mjcf_files(text: str, model_path: str | Path, roots: Iterable[str] | None) -> None:
+    """Refuses an MJCF model any of whose ``file`` attributes names a file the policy refuses.
+
+    Raises:
+        ConfigError: naming the element, the file and the rule.
+    """
+    model_path = Path(model_path)
+    folders = {kind: value for kind, _, value in _MJCF_DIR.findall(text)}
+    for match in _MJCF_FILE.finditer(text):
+        element, name = match.group(2), match.group(4)
+        kind = "texturedir" if element in ("texture", "hfield") else "meshdir"
+        base = folders.get(kind) or folders.get("assetdir") or ""
+        path = Path(name) if os.path.isabs(name) else model_path.parent / base / name
+        refusal = file_refusal(str(path), model_path, roots, None, (*MESH_SUFFIXES, *REFERENCE_SUFFIXES, ".xml"),
+                               f"<{element} file>")
+        if refusal is not None:
+            raise ConfigError(f"'{model_path}': {refusal}")
