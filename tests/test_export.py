@@ -298,27 +298,18 @@ def test_simulator_torques_of_exported_files_hold_the_friction(slider, tmp_path)
         assert relative(got, want + friction) < 1e-6, suffix  # the URDF's friction read before its file goes
 
 
-@pytest.mark.parametrize("method", ["ols", "wls", "physical"])
-def test_identified_models_reproduce_their_own_prediction_in_mujoco(method, tmp_path):
-    """identified.json of each method through the one adapter. OLS/WLS files have base parameters
-    only: the export projects them onto consistent links and reports how much that changes the
-    held-out prediction; on data of a consistent truth (Panda, inertias ±10 %, friction, offsets,
-    armature) the change is at the noise floor. A physical model is exported as it is: MuJoCo's
-    torque plus offsets and Coulomb friction is pe_drake's own prediction of the held-out run."""
-    pytest.importorskip("mujoco")
+def simulated_fit(robot, truth: RobotModel, method: str, folder: Path, noise: float):
+    """identified.json of ``method`` fitted on two periods of the optimized Panda trajectory
+    simulated from ``truth`` with torque noise ``noise`` [N·m]: (its path, the trajectory, run),
+    run(trajectory, seed, duration=None) a prepared simulated run of the truth."""
     from pe_drake.excitation.trajectory_file import load_trajectory
-    from pe_drake.export.mujoco_dynamics import load_mjcf, mujoco_torques
-    from pe_drake.export.model_source import exported_model, projection_change
     from pe_drake.identification.drive_terms import COULOMB_VELOCITY_SCALE
-    from pe_drake.identification.estimators import identify, predict, prepare_measurement
-    from pe_drake.identification.identified_file import load_identified, result_to_dict
+    from pe_drake.identification.estimators import identify, prepare_measurement
+    from pe_drake.identification.identified_file import result_to_dict
     from pe_drake.simulation.synthetic import model_measurement
-    from tests.test_identification import OPTIMIZED, random_trajectory
+    from tests.test_identification import OPTIMIZED
 
-    robot = get_robot("panda")
-    truth = identified_terms(robot, 12)
     trajectory, _ = load_trajectory(OPTIMIZED)
-    noise = 0.05  # [N·m]
 
     def run(traj, seed, duration=None):
         m = model_measurement(robot, traj, truth.phi, rate_hz=100, duration=duration, tau_noise_std=noise, seed=seed)
@@ -328,8 +319,29 @@ def test_identified_models_reproduce_their_own_prediction_in_mujoco(method, tmp_
         return prepare_measurement(robot, m.replace(tau=tau), filtering=False, check_units=False)
 
     result = identify(robot, run(trajectory, 1, 2 * trajectory.period), method)
-    path = tmp_path / "identified.json"
+    path = folder / "identified.json"
     path.write_text(json.dumps(result_to_dict(result, robot)))
+    return path, trajectory, run
+
+
+@pytest.mark.parametrize("method", ["ols", "wls", "physical"])
+def test_identified_models_reproduce_their_own_prediction_in_mujoco(method, tmp_path):
+    """identified.json of each method through the one adapter. OLS/WLS files have base parameters
+    only: the export projects them onto consistent links and reports how much that changes the
+    held-out prediction; on data of a consistent truth (Panda, inertias ±10 %, friction, offsets,
+    armature) the change is at the noise floor. A physical model is exported as it is: MuJoCo's
+    torque plus offsets and Coulomb friction is pe_drake's own prediction of the held-out run."""
+    pytest.importorskip("mujoco")
+    from pe_drake.export.mujoco_dynamics import load_mjcf, mujoco_torques
+    from pe_drake.export.model_source import exported_model, projection_change
+    from pe_drake.identification.estimators import predict
+    from pe_drake.identification.identified_file import load_identified
+    from tests.test_identification import random_trajectory
+
+    robot = get_robot("panda")
+    truth = identified_terms(robot, 12)
+    noise = 0.05  # [N·m]
+    path, trajectory, run = simulated_fit(robot, truth, method, tmp_path, noise)
     terms = exported_model(robot, path)
     assert not validity_problems(robot.body_names, terms.phi)
     held = run(random_trajectory(robot, trajectory, 7), 5)
@@ -446,3 +458,52 @@ def test_real_panda_in_mujoco_is_pe_drakes_validate_minus_what_mjcf_cannot_hold(
     shape = terms.drive["coulomb"] * (filtered_coulomb(raw, data, terms.velocity_scale) - filtered_coulomb(raw, data, 1e-6))
     np.testing.assert_allclose(mj.predicted, own.predicted - terms.drive["offset"] - shape, atol=1e-9)
     assert np.all(cad.rms > 2 * mj.rms)  # the CAD-vs-identified gap, in MuJoCo
+
+
+def test_randomization_draws_from_the_identifications_covariance(tmp_path):
+    """identified.json stores the base parameters' covariance; the sampled models are physically
+    consistent and their base parameters spread as it says: σ and the correlations, which draws
+    from σ alone lose. A WLS fit of a simulated Panda with 0.2 mN·m of torque noise: its σ is
+    small against the bodies' margins, so projection is rarely needed and leaves the spread
+    alone. An older file without the covariance still exports, drawing from σ and saying so."""
+    from pe_drake.export import ExportOptions, export_model, exported_model, identified_spread
+
+    robot = get_robot("panda")
+    path, _, _ = simulated_fit(robot, identified_terms(robot, 12), "wls", tmp_path, 2e-4)
+    model, spread = exported_model(robot, path), identified_spread(robot, path)
+    assert spread.cov is not None and spread.cov.shape == (len(spread.names),) * 2 and not spread.note
+    np.testing.assert_allclose(np.sqrt(np.diag(spread.cov)), spread.sigma, rtol=1e-9)
+    count = 400
+    models = sample_models(robot, model, spread, count, seed=1)
+    for phi in models.phi:
+        assert not validity_problems(robot.body_names, phi)
+    assert models.projected < 0.2 * count, models.projected
+    draws = models.phi @ spread.K.T
+    # 400 draws: the std's own error is 3.5 %, a correlation's at most 5 % (0.15: 3 of them)
+    np.testing.assert_allclose(np.std(draws, axis=0) / spread.sigma, 1.0, atol=0.15)
+    rho = spread.cov / np.outer(spread.sigma, spread.sigma)
+    strong = np.abs(rho - np.eye(len(rho))) > 0.5
+    assert strong.any()  # the Panda's base parameters are correlated: what draws from σ alone lose
+    np.testing.assert_allclose(np.corrcoef(draws.T)[strong], rho[strong], atol=0.15)
+
+    old = json.loads(path.read_text())
+    del old["base_parameter_covariance"]
+    path.write_text(json.dumps(old))
+    result = export_model(robot, path, ExportOptions("gains", samples=3))
+    assert "no base_parameter_covariance" in result.figures["randomization"]
+    assert "drawn independently from their σ" in result.text
+    assert any("randomization" in line and "written before" in line for line in result.summary_lines())
+
+
+def test_a_malformed_covariance_is_refused_naming_the_file(tmp_path):
+    from pe_drake.exceptions import DataError
+    from pe_drake.identification.identified_file import load_identified
+
+    robot = get_robot("panda")
+    path, _, _ = simulated_fit(robot, identified_terms(robot, 12), "ols", tmp_path, 0.05)
+    d = json.loads(path.read_text())
+    d["base_parameter_covariance"] = d["base_parameter_covariance"][:-1]
+    path.write_text(json.dumps(d))
+    with pytest.raises(DataError, match="base_parameter_covariance has shape") as err:
+        load_identified(path, robot)
+    assert str(path) in str(err.value)

@@ -9,8 +9,9 @@ from the identified effective inertia, and randomization ranges from the identif
   motion) and PD gains for a bandwidth ω and damping ratio ζ from the mean J:
   k_p = J·ω², k_d = 2·ζ·J·ω (the second-order joint J·q̈ + k_d·q̇ + k_p·q = 0).
 - **Randomization** (:func:`sample_models`): per base parameter and drive term the range
-  value ± k·σ, and models drawn from the identification's σ: base parameters
-  φ_B + δ, δ ~ N(0, diag σ²), mapped onto the standard ones by the least change
+  value ± k·σ, and models drawn from the identification's covariance Σ_B: base parameters
+  φ_B + δ, δ ~ N(0, Σ_B) (an identified.json without it: N(0, diag σ²), said in the file),
+  mapped onto the standard ones by the least change
   δφ = W Kᵀ (K W Kᵀ)⁺ δ (W weighs each parameter by its size), every body projected onto the
   physically consistent set where the draw left it (noted); drive terms N(θ, σ²), friction
   and armature clipped at 0.
@@ -143,7 +144,7 @@ def sample_models(robot, model: RobotModel, spread: IdentifiedSpread, count: int
     """
     rng = np.random.default_rng(seed)
     K = spread.K
-    sigma = np.where(np.isfinite(spread.sigma), spread.sigma, 0.0)
+    root = _covariance_root(spread)
     # each parameter weighed by its size, floored at 1e-3 of its body's largest: a massless frame
     # (a flange welded to its link) stays massless, the draw goes to the bodies that carry it
     per_body = np.abs(model.phi).reshape(-1, 10)
@@ -154,7 +155,7 @@ def sample_models(robot, model: RobotModel, spread: IdentifiedSpread, count: int
     phi = np.empty((count, model.phi.size))
     projected = 0
     for s in range(count):
-        sample = model.phi + lift @ (sigma * rng.standard_normal(sigma.size))
+        sample = model.phi + lift @ (root @ rng.standard_normal(root.shape[1]))
         if validity_problems(robot.body_names, sample):
             sample, _ = physically_consistent(robot.body_names, sample)
             projected += 1
@@ -164,6 +165,17 @@ def sample_models(robot, model: RobotModel, spread: IdentifiedSpread, count: int
         draw = model.term(term) + drive_spread(model, term) * rng.standard_normal((count, robot.n))
         drive[term] = draw if term == "offset" else np.maximum(draw, 0.0)
     return SampledModels(phi, drive, projected)
+
+
+def _covariance_root(spread: IdentifiedSpread) -> np.ndarray:
+    """L with L Lᵀ = Σ_B, (p, p): δ = L z, z ~ N(0, I) has covariance Σ_B (diag σ² without a
+    covariance; a base parameter not identified, σ not finite, is not drawn)."""
+    sigma = np.where(np.isfinite(spread.sigma), spread.sigma, 0.0)
+    if spread.cov is None:
+        return np.diag(sigma)
+    # eigh, not Cholesky: a covariance of nearly dependent parameters is only semi-definite
+    lam, V = np.linalg.eigh(0.5 * (spread.cov + spread.cov.T))
+    return V * np.sqrt(np.maximum(lam, 0.0))
 
 
 def _body_record(phi_b: np.ndarray) -> dict:
@@ -190,7 +202,8 @@ def randomization(robot, model: RobotModel, spread: IdentifiedSpread | None, k: 
     base_value = spread.K @ model.phi
     base = {name: [float(v - k * s), float(v + k * s)]
             for name, v, s in zip(spread.names, base_value, spread.sigma) if np.isfinite(s)}
-    out = {"k": k, "drive_terms": drive, "base_parameters": base}
+    out = {"k": k, "drive_terms": drive, "base_parameters": base,
+           "base_draws": spread.note or "from the identification's covariance of the base parameters"}
     if count > 0:
         models = sample_models(robot, model, spread, count, seed)
         # a projected draw is pulled back to the consistent set: the spread is then below σ

@@ -195,9 +195,12 @@ def export_model(robot: Robot, model: str | Path | None, options: ExportOptions 
         unheld = ()
     else:
         q = data.q if data is not None else random_states(robot, 200, options.seed)[0]
-        text = gains_yaml(robot, exported, identified_spread(robot, model), q, bandwidth_hz=options.bandwidth_hz,
+        spread = identified_spread(robot, model)
+        text = gains_yaml(robot, exported, spread, q, bandwidth_hz=options.bandwidth_hz,
                           damping_ratio=options.damping_ratio, sigma_k=options.sigma_k, samples=options.samples,
                           seed=options.seed, source=source)
+        if spread is not None and spread.note:
+            figures["randomization"] = spread.note
         unheld = ()
     return ExportResult(options.to, text, exported, source, unheld, figures, options.meshdir if meshes else "", meshes)
 

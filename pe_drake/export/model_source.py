@@ -31,11 +31,16 @@ class IdentifiedSpread:
         K: the base parameters as rows of the standard ones, φ_B = K φ, shape (p, 10·nb).
         sigma: σ of each base parameter, shape (p,) (inf or NaN: not identified).
         names: the base parameters' names, length p.
+        cov: their covariance, shape (p, p) (diagonal σ²), or None: a file written before it was
+            stored, whose base parameters are then drawn independently from σ (``note`` says so).
+        note: what the draws could not use ("" when they use the covariance).
     """
 
     K: np.ndarray
     sigma: np.ndarray
     names: tuple[str, ...] = ()
+    cov: np.ndarray | None = None
+    note: str = ""
 
 
 def exported_model(robot, model: str | Path | None) -> RobotModel:
@@ -62,7 +67,11 @@ def identified_spread(robot, model: str | Path | None) -> IdentifiedSpread | Non
     if result.method == "diagnose":
         return None
     sigma = np.abs(np.asarray(result.phi_B, float)) * np.asarray(result.sigma_percent, float) / 100.0
-    return IdentifiedSpread(np.asarray(result.base.K, float), sigma, tuple(result.base.base_names))
+    note = "" if result.cov_B is not None else (
+        f"'{model}' has no base_parameter_covariance (written before identify stored it): the base parameters "
+        "are drawn independently from their σ, their correlations left out; identify again to draw from it")
+    return IdentifiedSpread(np.asarray(result.base.K, float), sigma, tuple(result.base.base_names), result.cov_B,
+                            note)
 
 
 def _exported(note: str) -> str:
