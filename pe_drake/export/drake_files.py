@@ -1,12 +1,13 @@
 """The identified robot for Drake and ROS: URDF and SDFormat with inertials, joint friction and
 rotor inertia, checked by loading them back in Drake.
 
-- **URDF** (a URDF robot): the robot's own file with the identified ``<inertial>`` elements,
-  ``<dynamics damping friction>`` and the armature as ``drake:rotor_inertia`` of a gear-ratio-1
-  actuator in a ``<transmission>``, written by the one URDF writer
+- **URDF** (a URDF or xacro robot, as expanded): the robot's own file with the identified
+  ``<inertial>`` elements, ``<dynamics damping friction>`` and the armature as
+  ``drake:rotor_inertia`` of a gear-ratio-1 actuator in a ``<transmission>``, written by the one
+  URDF writer
   (:meth:`~pe_drake.multibody.robot_model.RobotModel.urdf_text`); everything else of the file is
-  kept. The payload is a link. A robot loaded from SDFormat (or xacro) has no URDF of its own:
-  its URDF is written from the plant (:mod:`pe_drake.export.urdf_tree`).
+  kept. The payload is a link. A robot loaded from SDFormat has no URDF of its own: its URDF is
+  written from the plant (:mod:`pe_drake.export.urdf_tree`).
 - **SDFormat** (any robot: URDF, xacro or SDF): written from pe_drake's plant
   (:func:`~pe_drake.export.tree.robot_tree`): each link at its pose at q = 0 with its inertial, the
   root welded to the world at its mount pose, each excited joint with its limits,
@@ -45,7 +46,7 @@ def urdf_export_text(robot, model: RobotModel, source: str = "") -> str:
     comment naming ``source`` ("": the robot's own model) and what the URDF cannot hold."""
     if Path(robot.model_path).suffix.lower() == ".urdf":
         text = model.urdf_text(robot)
-    else:  # an SDF or xacro robot: no URDF of its own to edit
+    else:  # an SDF robot: no URDF of its own to edit
         text = urdf_from_tree(robot, model)
     return text.replace("<robot", _comment(robot, model, source, "URDF", "urdf") + "<robot", 1)
 
@@ -122,7 +123,8 @@ def sdf_text(robot, model: RobotModel, source: str = "") -> str:
             ET.SubElement(weld, "parent").text = body.name
             ET.SubElement(weld, "child").text = PAYLOAD_BODY_NAME
     ET.indent(root, "  ")
-    return '<?xml version="1.0"?>\n' + _comment(robot, model, source, "SDFormat", "sdf") + ET.tostring(root, encoding="unicode") + "\n"
+    head = '<?xml version="1.0"?>\n' + _comment(robot, model, source, "SDFormat", "sdf")
+    return head + ET.tostring(root, encoding="unicode") + "\n"
 
 
 def reloaded_robot(robot, text: str, suffix: str):
