@@ -17,11 +17,12 @@ from pe_drake.export.controller import effective_inertia, gains_table, sample_mo
 from pe_drake.export.drake_files import drake_check, sdf_text, urdf_export_text
 from pe_drake.export.model_export import ExportOptions
 from pe_drake.export.mjcf import PAYLOAD_BODY_NAME, mjcf_text
-from pe_drake.export.terms import ExportTerms, model_torques, random_states
+from pe_drake.export.model_source import IdentifiedSpread, random_states
 from pe_drake.multibody.base_parameters import compute_base_parameters
 from pe_drake.multibody.inertia import central_inertia, perturb_inertias, validity_problems
 from pe_drake.multibody.payload import PayloadInertia
 from pe_drake.multibody.robot import load_robot
+from pe_drake.multibody.robot_model import RobotModel
 from tests.conftest import get_robot
 
 #: A robot of our own: revolute, prismatic (tilted), revolute, a massless frame; mounted tilted.
@@ -56,7 +57,7 @@ def slider(tmp_path_factory):
     return load_robot(RobotConfig(model=str(path), **MOUNT))
 
 
-def identified_terms(robot, seed: int, payload_link: str = "") -> ExportTerms:
+def identified_terms(robot, seed: int, payload_link: str = "") -> RobotModel:
     """A known truth: inertias ±10 %, friction, offsets and armature of real arms' size, a payload."""
     rng = np.random.default_rng(seed)
     n = robot.n
@@ -64,7 +65,8 @@ def identified_terms(robot, seed: int, payload_link: str = "") -> ExportTerms:
     drive = {"coulomb": rng.uniform(0.5, 3.0, n), "viscous": rng.uniform(0.2, 1.5, n),
              "offset": rng.uniform(-0.8, 0.8, n), "armature": rng.uniform(0.05, 0.4, n)}
     payload = PayloadInertia(0.8, np.array([0.01, 0.02, 0.1]), np.diag([1e-3, 2e-3, 1.5e-3])) if payload_link else None
-    return ExportTerms("known truth", phi, drive, 0.01, payload_link, payload)
+    return RobotModel(robot.joint_names, robot.body_names, phi, drive, velocity_scale=0.01, payload=payload,
+                      payload_link=payload_link)
 
 
 def relative(a, b) -> float:
@@ -82,11 +84,12 @@ def test_mjcf_in_mujoco_reproduces_the_model_and_its_inertials(name, slider):
     assert any("offsets" in u for u in unheld) and any("frictionloss" in u for u in unheld)
     model = load_mjcf(text, text=True)
     q, v, vd = random_states(robot, 30, seed=5)  # held-out states, not those of the export's own check
-    assert relative(mujoco_torques(model, robot.joint_names, q, v, vd), model_torques(robot, terms, q, v, vd)) < 1e-6
+    want = terms.torque(robot, q, v, vd, coulomb=False, offset=False)
+    assert relative(mujoco_torques(model, robot.joint_names, q, v, vd), want) < 1e-6
     assert_mujoco_inertials(model, robot, terms)
 
 
-def assert_mujoco_inertials(model, robot, terms: ExportTerms) -> None:
+def assert_mujoco_inertials(model, robot, terms: RobotModel) -> None:
     """MuJoCo's own reading of each body: mass, centre of mass, inertia about it (its principal
     axes turned back to the body frame) equal the model's."""
     import mujoco
@@ -181,7 +184,8 @@ def test_an_sdf_robot_exports_sdf_and_urdf(slider, tmp_path):
     rigid = dataclasses.replace(again, drive={**again.drive, "armature": 0 * again.drive["armature"],
                                               "viscous": 0 * again.drive["viscous"]})
     model.dof_damping[:] = 0.0
-    assert relative(mujoco_torques(model, robot.joint_names, q, v, vd), model_torques(robot, rigid, q, v, vd)) < 1e-6
+    want = rigid.torque(robot, q, v, vd, coulomb=False, offset=False)
+    assert relative(mujoco_torques(model, robot.joint_names, q, v, vd), want) < 1e-6
 
 
 def test_gains_use_the_mass_matrix_diagonal_plus_armature(slider, tmp_path):
@@ -210,8 +214,8 @@ def test_sampled_models_are_consistent_and_spread_as_sigma(slider):
     # 0.5 %: base parameters sharing a link inertia differ by less than that link's triangle margin
     sigma = 0.005 * np.abs(K @ terms.phi) + 1e-7
     drive_sigma = {t: 0.05 * terms.drive[t] for t in terms.drive}
-    terms = dataclasses.replace(terms, base_K=K, base_sigma=sigma, drive_sigma=drive_sigma)
-    models = sample_models(slider, terms, 400, seed=1)
+    terms = dataclasses.replace(terms, sigma=drive_sigma)
+    models = sample_models(slider, terms, IdentifiedSpread(K, sigma), 400, seed=1)
     for phi in models.phi:
         assert not validity_problems(slider.body_names, phi)
     spread = np.std(models.phi @ K.T, axis=0) / sigma
@@ -286,7 +290,7 @@ def test_simulator_torques_of_exported_files_hold_the_friction(slider, tmp_path)
 
     terms = identified_terms(slider, 11)
     q, v, vd = random_states(slider, 10, seed=4)
-    want = model_torques(slider, terms, q, v, vd)
+    want = terms.torque(slider, q, v, vd, coulomb=False, offset=False)
     c = terms.drive["coulomb"]
     for suffix, text, friction in ((".xml", mjcf_text(slider, terms)[0], c * np.sign(v)),
                                    (".urdf", urdf_export_text(slider, terms), c * np.tanh(v / 0.01))):
@@ -294,6 +298,32 @@ def test_simulator_torques_of_exported_files_hold_the_friction(slider, tmp_path)
         path.write_text(text)
         got, _ = simulator_torques(slider, path, q, v, vd)
         assert relative(got, want + friction) < 1e-6, suffix  # the URDF's friction read before its file goes
+
+
+def simulated_fit(robot, truth: RobotModel, method: str, folder: Path, noise: float):
+    """identified.json of ``method`` fitted on two periods of the optimized Panda trajectory
+    simulated from ``truth`` with torque noise ``noise`` [N·m]: (its path, the trajectory, run),
+    run(trajectory, seed, duration=None) a prepared simulated run of the truth."""
+    from pe_drake.excitation.trajectory_file import load_trajectory
+    from pe_drake.identification.drive_terms import COULOMB_VELOCITY_SCALE
+    from pe_drake.identification.estimators import identify, prepare_measurement
+    from pe_drake.identification.identified_file import result_to_dict
+    from pe_drake.simulation.synthetic import model_measurement
+    from tests.test_identification import OPTIMIZED
+
+    trajectory, _ = load_trajectory(OPTIMIZED)
+
+    def run(traj, seed, duration=None):
+        m = model_measurement(robot, traj, truth.phi, rate_hz=100, duration=duration, tau_noise_std=noise, seed=seed)
+        d = truth.drive
+        tau = m.tau + d["coulomb"] * np.tanh(m.v / COULOMB_VELOCITY_SCALE) + d["viscous"] * m.v + d["offset"] \
+            + d["armature"] * m.vd
+        return prepare_measurement(robot, m.replace(tau=tau), filtering=False, check_units=False)
+
+    result = identify(robot, run(trajectory, 1, 2 * trajectory.period), method)
+    path = folder / "identified.json"
+    path.write_text(json.dumps(result_to_dict(result, robot)))
+    return path, trajectory, run
 
 
 @pytest.mark.parametrize("method", ["ols", "wls", "physical"])
@@ -304,31 +334,17 @@ def test_identified_models_reproduce_their_own_prediction_in_mujoco(method, tmp_
     armature) the change is at the noise floor. A physical model is exported as it is: MuJoCo's
     torque plus offsets and Coulomb friction is pe_drake's own prediction of the held-out run."""
     pytest.importorskip("mujoco")
-    from pe_drake.excitation.trajectory_file import load_trajectory
     from pe_drake.export.mujoco_dynamics import load_mjcf, mujoco_torques
-    from pe_drake.export.terms import export_terms, projection_change
-    from pe_drake.identification.drive_terms import COULOMB_VELOCITY_SCALE
-    from pe_drake.identification.estimators import identify, predict, prepare_measurement
-    from pe_drake.identification.identified_file import load_identified, result_to_dict
-    from pe_drake.simulation.synthetic import model_measurement
-    from tests.test_identification import OPTIMIZED, random_trajectory
+    from pe_drake.export.model_source import exported_model, projection_change
+    from pe_drake.identification.estimators import predict
+    from pe_drake.identification.identified_file import load_identified
+    from tests.test_identification import random_trajectory
 
     robot = get_robot("panda")
     truth = identified_terms(robot, 12)
-    trajectory, _ = load_trajectory(OPTIMIZED)
     noise = 0.05  # [N·m]
-
-    def run(traj, seed, duration=None):
-        m = model_measurement(robot, traj, truth.phi, rate_hz=100, duration=duration, tau_noise_std=noise, seed=seed)
-        d = truth.drive
-        tau = m.tau + d["coulomb"] * np.tanh(m.v / COULOMB_VELOCITY_SCALE) + d["viscous"] * m.v + d["offset"] \
-            + d["armature"] * m.vd
-        return prepare_measurement(robot, m.replace(tau=tau), filtering=False, check_units=False)
-
-    result = identify(robot, run(trajectory, 1, 2 * trajectory.period), method)
-    path = tmp_path / "identified.json"
-    path.write_text(json.dumps(result_to_dict(result, robot)))
-    terms = export_terms(robot, path)
+    path, trajectory, run = simulated_fit(robot, truth, method, tmp_path, noise)
+    terms = exported_model(robot, path)
     assert not validity_problems(robot.body_names, terms.phi)
     held = run(random_trajectory(robot, trajectory, 7), 5)
     change = projection_change(robot, path, terms, held)
@@ -388,7 +404,7 @@ def test_a_diagnosed_model_exports_with_its_payload_as_a_body(tmp_path):
     path.write_text(json.dumps(model.to_dict()))
     result = export_model(robot, path, ExportOptions("mjcf"))
     assert any("0.004 s" in u for u in result.unheld) and any("pre-sliding" in u for u in result.unheld)
-    assert result.terms.payload.mass == pytest.approx(t.payload.mass)
+    assert result.model.payload.mass == pytest.approx(t.payload.mass)
     mj = load_mjcf(result.text, text=True)
     assert mj.body("pe_drake_payload").mass[0] == pytest.approx(t.payload.mass)
     q, v, vd = random_states(robot, 20, seed=8)
@@ -414,7 +430,7 @@ def test_a_point_mass_is_given_the_smallest_inertia_mujoco_accepts(tmp_path):
     assert any(u.startswith("tool_frame: principal moments 0, 0, 0") for u in unheld)
     q, v, vd = random_states(robot, 10, seed=3)
     got = mujoco_torques(load_mjcf(text, text=True), robot.joint_names, q, v, vd)
-    assert relative(got, model_torques(robot, terms, q, v, vd)) < 1e-6
+    assert relative(got, terms.torque(robot, q, v, vd, coulomb=False, offset=False)) < 1e-6
 
 
 @pytest.mark.skipif(not REAL.is_file(), reason="the real Panda recording is not here")
@@ -423,7 +439,7 @@ def test_real_panda_in_mujoco_is_pe_drakes_validate_minus_what_mjcf_cannot_hold(
     split): MuJoCo's held-out torques of the exported MJCF are pe_drake's own prediction minus the
     offsets and minus f_c·(tanh(v/v_s) − sign(v)), and the CAD MJCF is far worse."""
     pytest.importorskip("mujoco")
-    from pe_drake.export import ExportOptions, export_model, export_terms, validate_exported
+    from pe_drake.export import ExportOptions, export_model, exported_model, validate_exported
     from pe_drake.identification import (IdentifyOptions, TimeWindow, ValidateOptions, identify_model,
                                          load_identified, read_measurements, validate_model)
     from pe_drake.identification.drive_terms import filtered_coulomb
@@ -439,8 +455,57 @@ def test_real_panda_in_mujoco_is_pe_drakes_validate_minus_what_mjcf_cannot_hold(
     own = validate_model(robot, load_identified(model, robot), raw, options)
     mj = validate_exported(robot, tmp_path / "identified.xml", raw, options)
     cad = validate_exported(robot, tmp_path / "cad.xml", raw, options)
-    terms = export_terms(robot, model)
+    terms = exported_model(robot, model)
     data = prepare_measurement(robot, raw, window=options.window)
     shape = terms.drive["coulomb"] * (filtered_coulomb(raw, data, terms.velocity_scale) - filtered_coulomb(raw, data, 1e-6))
     np.testing.assert_allclose(mj.predicted, own.predicted - terms.drive["offset"] - shape, atol=1e-9)
     assert np.all(cad.rms > 2 * mj.rms)  # the CAD-vs-identified gap, in MuJoCo
+
+
+def test_randomization_draws_from_the_identifications_covariance(tmp_path):
+    """identified.json stores the base parameters' covariance; the sampled models are physically
+    consistent and their base parameters spread as it says: σ and the correlations, which draws
+    from σ alone lose. A WLS fit of a simulated Panda with 0.2 mN·m of torque noise: its σ is
+    small against the bodies' margins, so projection is rarely needed and leaves the spread
+    alone. An older file without the covariance still exports, drawing from σ and saying so."""
+    from pe_drake.export import ExportOptions, export_model, exported_model, identified_spread
+
+    robot = get_robot("panda")
+    path, _, _ = simulated_fit(robot, identified_terms(robot, 12), "wls", tmp_path, 2e-4)
+    model, spread = exported_model(robot, path), identified_spread(robot, path)
+    assert spread.cov is not None and spread.cov.shape == (len(spread.names),) * 2 and not spread.note
+    np.testing.assert_allclose(np.sqrt(np.diag(spread.cov)), spread.sigma, rtol=1e-9)
+    count = 400
+    models = sample_models(robot, model, spread, count, seed=1)
+    for phi in models.phi:
+        assert not validity_problems(robot.body_names, phi)
+    assert models.projected < 0.2 * count, models.projected
+    draws = models.phi @ spread.K.T
+    # 400 draws: the std's own error is 3.5 %, a correlation's at most 5 % (0.15: 3 of them)
+    np.testing.assert_allclose(np.std(draws, axis=0) / spread.sigma, 1.0, atol=0.15)
+    rho = spread.cov / np.outer(spread.sigma, spread.sigma)
+    strong = np.abs(rho - np.eye(len(rho))) > 0.5
+    assert strong.any()  # the Panda's base parameters are correlated: what draws from σ alone lose
+    np.testing.assert_allclose(np.corrcoef(draws.T)[strong], rho[strong], atol=0.15)
+
+    old = json.loads(path.read_text())
+    del old["base_parameter_covariance"]
+    path.write_text(json.dumps(old))
+    result = export_model(robot, path, ExportOptions("gains", samples=3))
+    assert "no base_parameter_covariance" in result.figures["randomization"]
+    assert "drawn independently from their σ" in result.text
+    assert any("randomization" in line and "written before" in line for line in result.summary_lines())
+
+
+def test_a_malformed_covariance_is_refused_naming_the_file(tmp_path):
+    from pe_drake.exceptions import DataError
+    from pe_drake.identification.identified_file import load_identified
+
+    robot = get_robot("panda")
+    path, _, _ = simulated_fit(robot, identified_terms(robot, 12), "ols", tmp_path, 0.05)
+    d = json.loads(path.read_text())
+    d["base_parameter_covariance"] = d["base_parameter_covariance"][:-1]
+    path.write_text(json.dumps(d))
+    with pytest.raises(DataError, match="base_parameter_covariance has shape") as err:
+        load_identified(path, robot)
+    assert str(path) in str(err.value)

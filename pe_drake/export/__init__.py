@@ -15,8 +15,9 @@ _NAMES = {
     "ExportOptions": "pe_drake.export.model_export",
     "ExportResult": "pe_drake.export.model_export",
     "export_model": "pe_drake.export.model_export",
-    "ExportTerms": "pe_drake.export.terms",
-    "export_terms": "pe_drake.export.terms",
+    "IdentifiedSpread": "pe_drake.export.model_source",
+    "exported_model": "pe_drake.export.model_source",
+    "identified_spread": "pe_drake.export.model_source",
     "is_simulator_model": "pe_drake.export.simulator_validation",
     "validate_exported": "pe_drake.export.simulator_validation",
 }

@@ -9,8 +9,9 @@ from the identified effective inertia, and randomization ranges from the identif
   motion) and PD gains for a bandwidth ω and damping ratio ζ from the mean J:
   k_p = J·ω², k_d = 2·ζ·J·ω (the second-order joint J·q̈ + k_d·q̇ + k_p·q = 0).
 - **Randomization** (:func:`sample_models`): per base parameter and drive term the range
-  value ± k·σ, and models drawn from the identification's σ: base parameters
-  φ_B + δ, δ ~ N(0, diag σ²), mapped onto the standard ones by the least change
+  value ± k·σ, and models drawn from the identification's covariance Σ_B: base parameters
+  φ_B + δ, δ ~ N(0, Σ_B) (an identified.json without it: N(0, diag σ²), said in the file),
+  mapped onto the standard ones by the least change
   δφ = W Kᵀ (K W Kᵀ)⁺ δ (W weighs each parameter by its size), every body projected onto the
   physically consistent set where the draw left it (noted); drive terms N(θ, σ²), friction
   and armature clipped at 0.
@@ -23,10 +24,10 @@ import dataclasses
 import numpy as np
 
 from pe_drake.diagnosis.augmented_model import physically_consistent
-from pe_drake.exceptions import ConfigError
-from pe_drake.export.terms import ExportTerms, model_torques
+from pe_drake.export.model_source import IdentifiedSpread
 from pe_drake.multibody.drive_columns import coulomb_column
 from pe_drake.multibody.inertia import central_inertia, validity_problems
+from pe_drake.multibody.robot_model import DRIVE_TERMS, RobotModel
 
 
 def _dump(data) -> str:
@@ -40,27 +41,27 @@ def _unit(robot, k: int) -> tuple[str, str]:
     return ("N", "m/s") if robot.joints[k].kind == "prismatic" else ("N·m", "rad/s")
 
 
-def feedforward_yaml(robot, terms: ExportTerms, check: dict | None = None) -> str:
+def feedforward_yaml(robot, model: RobotModel, check: dict | None = None, source: str = "") -> str:
     """The friction and offset feed-forward per joint as YAML (module docstring).
 
     Args:
         check: figures of the feed-forward on a held-out run, written under ``check``.
+        source: the model file ("": the robot's own model).
     """
-    d = terms.drive
     joints = {}
     for k, name in enumerate(robot.joint_names):
         force, speed = _unit(robot, k)
-        c, b, o = (float(d[t][k]) for t in ("coulomb", "viscous", "offset"))
+        c, b, o = (float(model.term(t)[k]) for t in ("coulomb", "viscous", "offset"))
         joints[name] = {
             "coulomb": c, "viscous": b, "offset": o, "units": f"{force}, {force}/({speed}), {force}",
             # firmware tables with separate signs: the identified model is symmetric
             "table": {"coulomb_pos": c + o, "coulomb_neg": c - o, "viscous_pos": b, "viscous_neg": b,
-                      "velocity_threshold": terms.velocity_scale},
+                      "velocity_threshold": model.velocity_scale},
         }
     data = {
-        "robot": robot.name, "model": terms.source or "CAD",
+        "robot": robot.name, "model": source or "CAD",
         "formula": "tau_friction = coulomb * tanh(v / velocity_scale) + viscous * v + offset",
-        "velocity_scale": terms.velocity_scale,
+        "velocity_scale": model.velocity_scale,
         "sign": "the log's: a positive torque drives the joint in its positive direction",
         "joints": joints,
         "ur_friction_model": ("UR's FrictionModelParameters (ur_msgs) take scale factors in [0, 1] of UR's own "
@@ -75,15 +76,14 @@ def feedforward_yaml(robot, terms: ExportTerms, check: dict | None = None) -> st
     return header + _dump(data)
 
 
-def friction_torque(terms: ExportTerms, v: np.ndarray, coulomb: np.ndarray | None = None) -> np.ndarray:
+def friction_torque(model: RobotModel, v: np.ndarray, coulomb: np.ndarray | None = None) -> np.ndarray:
     """The feed-forward's friction and offset torque at velocities v (S, n), shape (S, n)
     (``coulomb``: the Coulomb columns, default tanh(v/v_s))."""
-    d = terms.drive
-    column = coulomb_column(v, terms.velocity_scale) if coulomb is None else coulomb
-    return d["coulomb"] * column + d["viscous"] * v + d["offset"]
+    column = coulomb_column(v, model.velocity_scale) if coulomb is None else coulomb
+    return model.coulomb * column + model.viscous * v + model.offset
 
 
-def effective_inertia(robot, terms: ExportTerms, q: np.ndarray) -> np.ndarray:
+def effective_inertia(robot, model: RobotModel, q: np.ndarray) -> np.ndarray:
     """J_i(q) = M_ii(q) + armature_i at each posture, shape (S, n) [kg·m² or kg].
 
     Args:
@@ -91,25 +91,25 @@ def effective_inertia(robot, terms: ExportTerms, q: np.ndarray) -> np.ndarray:
     """
     q = np.atleast_2d(q)
     zero = np.zeros_like(q)
-    rest = model_torques(robot, terms, q, zero, zero)  # gravity alone
+    rest = model.torque(robot, q, zero, zero, coulomb=False, offset=False)  # gravity alone
     J = np.empty_like(q)
     for i in range(robot.n):
         unit = zero.copy()
         unit[:, i] = 1.0
-        J[:, i] = model_torques(robot, terms, q, zero, unit)[:, i] - rest[:, i]
+        J[:, i] = model.torque(robot, q, zero, unit, coulomb=False, offset=False)[:, i] - rest[:, i]
     return J
 
 
-def gains_table(robot, terms: ExportTerms, q: np.ndarray, bandwidth_hz: float, damping_ratio: float) -> dict:
+def gains_table(robot, model: RobotModel, q: np.ndarray, bandwidth_hz: float, damping_ratio: float) -> dict:
     """Per joint the effective inertia over the postures q (min, mean, max) and the PD gains
     k_p = J·ω², k_d = 2·ζ·J·ω of the mean J (ω = 2π·bandwidth)."""
-    J = effective_inertia(robot, terms, q)
+    J = effective_inertia(robot, model, q)
     omega = 2 * np.pi * bandwidth_hz
     out = {}
     for k, name in enumerate(robot.joint_names):
         j = float(np.mean(J[:, k]))
         out[name] = {"effective_inertia": {"min": float(J[:, k].min()), "mean": j, "max": float(J[:, k].max())},
-                     "armature": float(terms.drive["armature"][k]),
+                     "armature": float(model.armature[k]),
                      "kp": j * omega**2, "kd": 2 * damping_ratio * j * omega}
     return out
 
@@ -129,39 +129,53 @@ class SampledModels:
     projected: int
 
 
-def sample_models(robot, terms: ExportTerms, count: int, seed: int = 0) -> SampledModels:
+def drive_spread(model: RobotModel, term: str) -> np.ndarray:
+    """σ per joint of a drive term, shape (n,): the model's ``sigma``, 0 where it has none (a term
+    not estimated, or taken from the model file, is not randomized)."""
+    return np.nan_to_num(model.sigma.get(term, np.zeros(len(model.joints))), nan=0.0)
+
+
+def sample_models(robot, model: RobotModel, spread: IdentifiedSpread, count: int, seed: int = 0) -> SampledModels:
     """``count`` models drawn from the identification's σ (module docstring).
 
-    Raises:
-        ConfigError: the model has no σ (the CAD model, a diagnosed model).
+    Args:
+        model: the identified model (physically consistent).
+        spread: its base parameters' σ (:func:`~pe_drake.export.model_source.identified_spread`).
     """
-    if terms.base_K is None or terms.base_sigma is None:
-        raise ConfigError("randomization needs an identified model with σ (identified.json of identify); "
-                          f"'{terms.source or 'the CAD model'}' has none")
     rng = np.random.default_rng(seed)
-    K = terms.base_K
-    sigma = np.where(np.isfinite(terms.base_sigma), terms.base_sigma, 0.0)
+    K = spread.K
+    root = _covariance_root(spread)
     # each parameter weighed by its size, floored at 1e-3 of its body's largest: a massless frame
     # (a flange welded to its link) stays massless, the draw goes to the bodies that carry it
-    per_body = np.abs(terms.phi).reshape(-1, 10)
+    per_body = np.abs(model.phi).reshape(-1, 10)
     scale = (per_body + 1e-3 * per_body.max(axis=1, keepdims=True)).ravel()
     W = scale**2
     KW = K * W
     lift = KW.T @ np.linalg.pinv(KW @ K.T)  # δφ = W Kᵀ (K W Kᵀ)⁺ δ
-    phi = np.empty((count, terms.phi.size))
+    phi = np.empty((count, model.phi.size))
     projected = 0
     for s in range(count):
-        sample = terms.phi + lift @ (sigma * rng.standard_normal(sigma.size))
+        sample = model.phi + lift @ (root @ rng.standard_normal(root.shape[1]))
         if validity_problems(robot.body_names, sample):
             sample, _ = physically_consistent(robot.body_names, sample)
             projected += 1
         phi[s] = sample
     drive = {}
-    for term, value in terms.drive.items():
-        spread = terms.drive_sigma.get(term, np.zeros_like(value))
-        draw = value + spread * rng.standard_normal((count, value.size))
+    for term in DRIVE_TERMS:
+        draw = model.term(term) + drive_spread(model, term) * rng.standard_normal((count, robot.n))
         drive[term] = draw if term == "offset" else np.maximum(draw, 0.0)
     return SampledModels(phi, drive, projected)
+
+
+def _covariance_root(spread: IdentifiedSpread) -> np.ndarray:
+    """L with L Lᵀ = Σ_B, (p, p): δ = L z, z ~ N(0, I) has covariance Σ_B (diag σ² without a
+    covariance; a base parameter not identified, σ not finite, is not drawn)."""
+    sigma = np.where(np.isfinite(spread.sigma), spread.sigma, 0.0)
+    if spread.cov is None:
+        return np.diag(sigma)
+    # eigh, not Cholesky: a covariance of nearly dependent parameters is only semi-definite
+    lam, V = np.linalg.eigh(0.5 * (spread.cov + spread.cov.T))
+    return V * np.sqrt(np.maximum(lam, 0.0))
 
 
 def _body_record(phi_b: np.ndarray) -> dict:
@@ -171,24 +185,27 @@ def _body_record(phi_b: np.ndarray) -> dict:
                                   float(I[1, 2])]}
 
 
-def randomization(robot, terms: ExportTerms, k: float, count: int, seed: int = 0) -> dict:
+def randomization(robot, model: RobotModel, spread: IdentifiedSpread | None, k: float, count: int,
+                  seed: int = 0, source: str = "") -> dict:
     """Ranges value ± k·σ per drive term (friction and armature floored at 0) and base
-    parameter, and ``count`` sampled models."""
-    if terms.base_K is None:
-        return {"note": f"no σ in '{terms.source or 'the CAD model'}': no randomization ranges"}
+    parameter, and ``count`` sampled models (none without ``spread``: the CAD model, a
+    diagnosed model; ``source`` names it)."""
+    if spread is None:
+        return {"note": f"no σ in '{source or 'the CAD model'}': no randomization ranges"}
     drive = {}
     for j, name in enumerate(robot.joint_names):
         drive[name] = {}
-        for t in ("coulomb", "viscous", "offset", "armature"):
-            value, spread = terms.drive[t][j], terms.drive_sigma.get(t, np.zeros(robot.n))[j]
-            low = value - k * spread if t == "offset" else max(value - k * spread, 0.0)
-            drive[name][t] = [float(low), float(value + k * spread)]
-    base_value = terms.base_K @ terms.phi
+        for t in DRIVE_TERMS:
+            value, s = model.term(t)[j], drive_spread(model, t)[j]
+            low = value - k * s if t == "offset" else max(value - k * s, 0.0)
+            drive[name][t] = [float(low), float(value + k * s)]
+    base_value = spread.K @ model.phi
     base = {name: [float(v - k * s), float(v + k * s)]
-            for name, v, s in zip(terms.base_names, base_value, terms.base_sigma) if np.isfinite(s)}
-    out = {"k": k, "drive_terms": drive, "base_parameters": base}
+            for name, v, s in zip(spread.names, base_value, spread.sigma) if np.isfinite(s)}
+    out = {"k": k, "drive_terms": drive, "base_parameters": base,
+           "base_draws": spread.note or "from the identification's covariance of the base parameters"}
     if count > 0:
-        models = sample_models(robot, terms, count, seed)
+        models = sample_models(robot, model, spread, count, seed)
         # a projected draw is pulled back to the consistent set: the spread is then below σ
         out["samples_projected_onto_consistent"] = models.projected
         out["samples"] = [
@@ -202,15 +219,15 @@ def randomization(robot, terms: ExportTerms, k: float, count: int, seed: int = 0
     return out
 
 
-def gains_yaml(robot, terms: ExportTerms, q: np.ndarray, *, bandwidth_hz: float, damping_ratio: float,
-               sigma_k: float, samples: int, seed: int = 0) -> str:
+def gains_yaml(robot, model: RobotModel, spread: IdentifiedSpread | None, q: np.ndarray, *, bandwidth_hz: float,
+               damping_ratio: float, sigma_k: float, samples: int, seed: int = 0, source: str = "") -> str:
     """The gains, effective inertias and randomization ranges as YAML (module docstring)."""
     data = {
-        "robot": robot.name, "model": terms.source or "CAD",
+        "robot": robot.name, "model": source or "CAD",
         "formula": "kp = J * omega^2, kd = 2 * zeta * J * omega, J = mean over the postures of M_ii(q) + armature",
         "bandwidth_hz": bandwidth_hz, "damping_ratio": damping_ratio, "postures": int(np.atleast_2d(q).shape[0]),
-        "joints": gains_table(robot, terms, q, bandwidth_hz, damping_ratio),
-        "randomization": randomization(robot, terms, sigma_k, samples, seed),
+        "joints": gains_table(robot, model, q, bandwidth_hz, damping_ratio),
+        "randomization": randomization(robot, model, spread, sigma_k, samples, seed, source),
     }
     header = ("# PD gains from the identified effective inertia and randomization ranges from σ\n"
               "# (pe-drake export --to gains). Units: kg·m², N·m/rad, N·m·s/rad (kg, N/m, N·s/m: prismatic).\n")

@@ -1,10 +1,13 @@
 """The identified robot for Drake and ROS: URDF and SDFormat with inertials, joint friction and
 rotor inertia, checked by loading them back in Drake.
 
-- **URDF** (a URDF or xacro robot): the robot's own file with the identified ``<inertial>``
-  elements, ``<dynamics damping friction>`` and the armature as ``drake:rotor_inertia`` of a
-  gear-ratio-1 actuator in a ``<transmission>`` (:func:`pe_drake.multibody.urdf.joint_dynamics`,
-  the one URDF dynamics writer); everything else of the file is kept. The payload is a link.
+- **URDF** (a URDF or xacro robot, as expanded): the robot's own file with the identified
+  ``<inertial>`` elements, ``<dynamics damping friction>`` and the armature as
+  ``drake:rotor_inertia`` of a gear-ratio-1 actuator in a ``<transmission>``, written by the one
+  URDF writer
+  (:meth:`~pe_drake.multibody.robot_model.RobotModel.urdf_text`); everything else of the file is
+  kept. The payload is a link. A robot loaded from SDFormat has no URDF of its own: its URDF is
+  written from the plant (:mod:`pe_drake.export.urdf_tree`).
 - **SDFormat** (any robot: URDF, xacro or SDF): written from pe_drake's plant
   (:func:`~pe_drake.export.tree.robot_tree`): each link at its pose at q = 0 with its inertial, the
   root welded to the world at its mount pose, each excited joint with its limits,
@@ -26,41 +29,33 @@ from pathlib import Path
 import numpy as np
 
 from pe_drake.exceptions import ConfigError
-from pe_drake.export.mjcf import PAYLOAD_BODY_NAME, unheld_terms
-from pe_drake.export.terms import ExportTerms, model_torques, random_states
+from pe_drake.export.mjcf import unheld_terms
+from pe_drake.export.model_source import random_states
 from pe_drake.export.tree import number_text, robot_tree
 from pe_drake.export.urdf_tree import urdf_from_tree
 from pe_drake.multibody.inertia import central_inertia
 from pe_drake.multibody.robot import load_robot
-from pe_drake.multibody.urdf import joint_dynamics, payload_link_text, urdf_with_inertias, verify_urdf_text
+from pe_drake.multibody.robot_model import PAYLOAD_BODY_NAME, RobotModel
 
 DRAKE_NAMESPACE = "http://drake.mit.edu"
 
 
-def urdf_export_text(robot, terms: ExportTerms) -> str:
-    """The robot's URDF with the model's inertials, joint dynamics and payload link (a robot
-    loaded from SDFormat: a URDF written from its plant, :mod:`pe_drake.export.urdf_tree`)."""
-    if Path(robot.model_path).suffix.lower() != ".urdf":  # an SDF robot: written from the plant
-        text = urdf_from_tree(robot, terms, PAYLOAD_BODY_NAME)
-        return text.replace("<robot", _comment(robot, terms, "URDF", "urdf") + "<robot", 1)
-    text = urdf_with_inertias(robot.model_path, robot.body_names, terms.phi)
-    joints = robot.joint_names
-    d = terms.drive
-    text = joint_dynamics(text, dict(zip(joints, map(float, d["viscous"]))),
-                          {j: float(a) for j, a in zip(joints, d["armature"]) if a > 0},
-                          dict(zip(joints, map(float, d["coulomb"]))))
-    verify_urdf_text(text, robot.body_names, terms.phi)
-    if terms.payload is not None:
-        head, sep, tail = text.rpartition("</robot>")
-        text = head + payload_link_text(PAYLOAD_BODY_NAME, terms.payload_link, terms.payload) + sep + tail
-    return text.replace("<robot", _comment(robot, terms, "URDF", "urdf") + "<robot", 1)
+def urdf_export_text(robot, model: RobotModel, source: str = "") -> str:
+    """The robot's URDF with the model's inertials, joint dynamics and payload link
+    (:meth:`RobotModel.urdf_text` for a URDF robot, else written from the plant), headed by a
+    comment naming ``source`` ("": the robot's own model) and what the URDF cannot hold."""
+    if Path(robot.model_path).suffix.lower() == ".urdf":
+        text = model.urdf_text(robot)
+    else:  # an SDF robot: no URDF of its own to edit
+        text = urdf_from_tree(robot, model)
+    return text.replace("<robot", _comment(robot, model, source, "URDF", "urdf") + "<robot", 1)
 
 
-def _comment(robot, terms: ExportTerms, kind: str, fmt: str) -> str:
+def _comment(robot, model: RobotModel, source: str, kind: str, fmt: str) -> str:
     """The file's opening comment: what it is, from which model, what it cannot hold."""
-    notes = [f"{kind} of robot '{robot.name}' written by pe-drake export; model: {terms.source or 'CAD'}"]
-    notes += [f"note: {n}" for n in terms.notes]
-    notes += [f"not held: {n}" for n in unheld_terms(robot, terms, fmt)]
+    notes = [f"{kind} of robot '{robot.name}' written by pe-drake export; model: {source or 'CAD'}"]
+    notes += [f"note: {n}" for n in model.notes]
+    notes += [f"not held: {n}" for n in unheld_terms(robot, model, fmt)]
     return "<!--\n" + "\n".join("  " + n.replace("--", "- -") for n in notes) + "\n-->\n"
 
 
@@ -82,9 +77,9 @@ def _sdf_inertial(link: ET.Element, phi_b: np.ndarray) -> None:
         ET.SubElement(inertia, tag).text = number_text(I[r, c])
 
 
-def _sdf_joint(model: ET.Element, robot, terms: ExportTerms, parent: str, child: str, k: int) -> None:
+def _sdf_joint(sdf_model: ET.Element, robot, model: RobotModel, parent: str, child: str, k: int) -> None:
     info, joint = robot.joints[k], robot.plant.GetJointByName(robot.joint_names[k])
-    el = ET.SubElement(model, "joint", {"name": info.name, "type": info.kind})
+    el = ET.SubElement(sdf_model, "joint", {"name": info.name, "type": info.kind})
     ET.SubElement(el, "parent").text = parent
     ET.SubElement(el, "child").text = child
     ET.SubElement(el, "pose").text = _pose_text(info.X_CM)  # relative to the child link
@@ -98,36 +93,38 @@ def _sdf_joint(model: ET.Element, robot, terms: ExportTerms, parent: str, child:
         if np.isfinite(value):
             ET.SubElement(limit, tag).text = number_text(value)
     dynamics = ET.SubElement(axis, "dynamics")
-    ET.SubElement(dynamics, "damping").text = number_text(terms.drive["viscous"][k])
-    ET.SubElement(dynamics, "friction").text = number_text(terms.drive["coulomb"][k])
-    ET.SubElement(el, f"{{{DRAKE_NAMESPACE}}}rotor_inertia").text = number_text(terms.drive["armature"][k])
+    ET.SubElement(dynamics, "damping").text = number_text(model.viscous[k])
+    ET.SubElement(dynamics, "friction").text = number_text(model.coulomb[k])
+    ET.SubElement(el, f"{{{DRAKE_NAMESPACE}}}rotor_inertia").text = number_text(model.armature[k])
     ET.SubElement(el, f"{{{DRAKE_NAMESPACE}}}gear_ratio").text = "1"
 
 
-def sdf_text(robot, terms: ExportTerms) -> str:
-    """The SDFormat model of the robot with ``terms`` (module docstring)."""
+def sdf_text(robot, model: RobotModel, source: str = "") -> str:
+    """The SDFormat model of the robot with ``model`` (module docstring); ``source`` names the
+    model file in its comment."""
     ET.register_namespace("drake", DRAKE_NAMESPACE)
     root = ET.Element("sdf", {"version": "1.9"})
-    model = ET.SubElement(root, "model", {"name": robot.name})
-    for body in robot_tree(robot, terms):
-        link = ET.SubElement(model, "link", {"name": body.name})
+    sdf_model = ET.SubElement(root, "model", {"name": robot.name})
+    for body in robot_tree(robot, model):
+        link = ET.SubElement(sdf_model, "link", {"name": body.name})
         ET.SubElement(link, "pose").text = _pose_text(body.X_WC)
         _sdf_inertial(link, body.phi)
         if body.joint >= 0:
-            _sdf_joint(model, robot, terms, body.parent, body.name, body.joint)
+            _sdf_joint(sdf_model, robot, model, body.parent, body.name, body.joint)
         else:
-            weld = ET.SubElement(model, "joint", {"name": body.weld_name, "type": "fixed"})
+            weld = ET.SubElement(sdf_model, "joint", {"name": body.weld_name, "type": "fixed"})
             ET.SubElement(weld, "parent").text = body.parent
             ET.SubElement(weld, "child").text = body.name
-        if terms.payload is not None and body.name == terms.payload_link:
-            payload = ET.SubElement(model, "link", {"name": PAYLOAD_BODY_NAME})
+        if model.payload is not None and body.name == model.payload_link:
+            payload = ET.SubElement(sdf_model, "link", {"name": PAYLOAD_BODY_NAME})
             ET.SubElement(payload, "pose").text = _pose_text(body.X_WC)
-            _sdf_inertial(payload, terms.payload.phi)
-            weld = ET.SubElement(model, "joint", {"name": f"{PAYLOAD_BODY_NAME}_weld", "type": "fixed"})
+            _sdf_inertial(payload, model.payload.phi)
+            weld = ET.SubElement(sdf_model, "joint", {"name": f"{PAYLOAD_BODY_NAME}_weld", "type": "fixed"})
             ET.SubElement(weld, "parent").text = body.name
             ET.SubElement(weld, "child").text = PAYLOAD_BODY_NAME
     ET.indent(root, "  ")
-    return '<?xml version="1.0"?>\n' + _comment(robot, terms, "SDFormat", "sdf") + ET.tostring(root, encoding="unicode") + "\n"
+    head = '<?xml version="1.0"?>\n' + _comment(robot, model, source, "SDFormat", "sdf")
+    return head + ET.tostring(root, encoding="unicode") + "\n"
 
 
 def reloaded_robot(robot, text: str, suffix: str):
@@ -144,7 +141,7 @@ def reloaded_robot(robot, text: str, suffix: str):
         return loaded
 
 
-def drake_check(robot, terms: ExportTerms, text: str, suffix: str, samples: int = 20,
+def drake_check(robot, model: RobotModel, text: str, suffix: str, samples: int = 20,
                 tolerance: float = 1e-6) -> float:
     """Largest relative difference between Drake's inverse dynamics of the exported file (rotor
     inertia and damping included) and pe_drake's rigid + armature + viscous torque of the model,
@@ -160,7 +157,7 @@ def drake_check(robot, terms: ExportTerms, text: str, suffix: str, samples: int 
     if loaded.joint_names != robot.joint_names:
         raise ConfigError(f"the exported file has joints {loaded.joint_names}, expected {robot.joint_names}")
     q, v, vd = random_states(robot, samples)
-    want = model_torques(robot, terms, q, v, vd)
+    want = model.torque(robot, q, v, vd, coulomb=False, offset=False)
     got = loaded.inverse_dynamics(q, v, vd, include_damping=True)
     error = float(np.max(np.abs(got - want)) / max(float(np.max(np.abs(want))), 1e-12))
     if not error <= tolerance:

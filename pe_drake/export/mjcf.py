@@ -28,12 +28,10 @@ from typing import NamedTuple
 import numpy as np
 
 from pe_drake.export.mjcf_meshes import add_visuals
-from pe_drake.export.terms import ExportTerms
 from pe_drake.export.tree import number_text, quaternion_wxyz, robot_tree, vector_text
 from pe_drake.multibody.inertia import central_inertia
-from pe_drake.multibody.robot_model import PAYLOAD_BODY_NAME
+from pe_drake.multibody.robot_model import PAYLOAD_BODY_NAME, RobotModel
 
-#: Name of the payload body (a child of its link, no joint).
 #: Smallest principal moment of inertia of a body with mass written to an MJCF [kg·m²].
 MIN_PRINCIPAL_MOMENT = 1e-12
 
@@ -64,15 +62,15 @@ def _inertial(parent: ET.Element, phi_b: np.ndarray) -> str:
             f"at least {floor:.3g} (MuJoCo refuses a zero principal moment)")
 
 
-def _joint(body_el: ET.Element, robot, terms: ExportTerms, k: int) -> None:
+def _joint(body_el: ET.Element, robot, model: RobotModel, k: int) -> None:
     """The ``<joint>`` of excited joint k in its child body: frame, axis, limits, drive terms."""
     info, joint = robot.joints[k], robot.plant.GetJointByName(robot.joint_names[k])
     X_CM = np.asarray(info.X_CM, float)
     attributes = {
         "name": info.name, "type": "hinge" if info.kind == "revolute" else "slide",
         "pos": vector_text(X_CM[:3, 3]), "axis": vector_text(X_CM[:3, :3] @ np.asarray(info.axis_M, float)),
-        "armature": number_text(terms.drive["armature"][k]), "damping": number_text(terms.drive["viscous"][k]),
-        "frictionloss": number_text(terms.drive["coulomb"][k]),
+        "armature": number_text(model.armature[k]), "damping": number_text(model.viscous[k]),
+        "frictionloss": number_text(model.coulomb[k]),
     }
     lo, hi = joint.position_lower_limits()[0], joint.position_upper_limits()[0]
     attributes["limited"] = "true" if np.isfinite(lo) and np.isfinite(hi) else "false"
@@ -84,21 +82,21 @@ def _joint(body_el: ET.Element, robot, terms: ExportTerms, k: int) -> None:
     ET.SubElement(body_el, "joint", attributes)
 
 
-def _bodies(robot, terms: ExportTerms, worldbody: ET.Element, notes: list[str]) -> dict[str, ET.Element]:
+def _bodies(robot, model: RobotModel, worldbody: ET.Element, notes: list[str]) -> dict[str, ET.Element]:
     """The bodies, nested as Drake's tree, each posed in its parent at q = 0: {name: element}
     (what was adjusted is appended to ``notes``)."""
     elements = {"world": worldbody}
-    for body in robot_tree(robot, terms):
+    for body in robot_tree(robot, model):
         X = body.X_PC
         body_el = ET.SubElement(elements[body.parent], "body", {
             "name": body.name, "pos": vector_text(X[:3, 3]), "quat": vector_text(quaternion_wxyz(X))})
         elements[body.name] = body_el
         notes.append(_inertial(body_el, body.phi))
         if body.joint >= 0:
-            _joint(body_el, robot, terms, body.joint)
-        if terms.payload is not None and body.name == terms.payload_link:
+            _joint(body_el, robot, model, body.joint)
+        if model.payload is not None and body.name == model.payload_link:
             payload_el = ET.SubElement(body_el, "body", {"name": PAYLOAD_BODY_NAME, "pos": "0 0 0"})
-            notes.append(_inertial(payload_el, terms.payload.phi))
+            notes.append(_inertial(payload_el, model.payload.phi))
     del elements["world"]
     return elements
 
@@ -112,22 +110,22 @@ _COULOMB = {
 }
 
 
-def unheld_terms(robot, terms: ExportTerms, fmt: str = "mjcf") -> list[str]:
+def unheld_terms(robot, model: RobotModel, fmt: str = "mjcf") -> list[str]:
     """What a format (mjcf, urdf, sdf) cannot hold of the model, one sentence each (the file's
     comment and the output)."""
     joints = robot.joint_names
     out = []
-    offsets = terms.drive["offset"]
+    offsets = model.offset
     if np.any(offsets != 0):
         out.append("torque offsets (add them to the control: the format has no constant joint torque): "
                    + ", ".join(f"{j} {x:.4g}" for j, x in zip(joints, offsets) if x != 0))
-    if np.any(terms.drive["coulomb"] > 0) and fmt in _COULOMB:
-        out.append(f"Coulomb friction f_c*tanh(v/v_s), v_s = {terms.velocity_scale:g} rad/s, {_COULOMB[fmt]}")
-    if terms.torque_delay:
-        out.append(f"the torque delay of {terms.torque_delay:.4g} s")
-    if terms.presliding.size and np.any(terms.presliding > 0):
+    if np.any(model.coulomb > 0) and fmt in _COULOMB:
+        out.append(f"Coulomb friction f_c*tanh(v/v_s), v_s = {model.velocity_scale:g} rad/s, {_COULOMB[fmt]}")
+    if model.torque_delay:
+        out.append(f"the torque delay of {model.torque_delay:.4g} s")
+    if np.any(model.presliding > 0):
         out.append("pre-sliding (Dahl) friction: " + ", ".join(
-            f"{j} {x:.4g}" for j, x in zip(joints, terms.presliding) if x > 0))
+            f"{j} {x:.4g}" for j, x in zip(joints, model.presliding) if x > 0))
     return out
 
 
@@ -147,10 +145,11 @@ class MJCFFiles(NamedTuple):
     notes: list[str]
 
 
-def mjcf_files(robot, terms: ExportTerms, name: str = "", meshdir: str | None = None) -> MJCFFiles:
-    """The MJCF of the robot with ``terms`` (module docstring); with ``meshdir`` (a folder name
-    beside the file) its visuals too (:mod:`pe_drake.export.mjcf_meshes`)."""
-    unheld = unheld_terms(robot, terms)
+def mjcf_files(robot, model: RobotModel, name: str = "", meshdir: str | None = None, source: str = "") -> MJCFFiles:
+    """The MJCF of the robot with ``model`` (module docstring); with ``meshdir`` (a folder name
+    beside the file) its visuals too (:mod:`pe_drake.export.mjcf_meshes`); ``source`` names the
+    model file in its comment ("": the robot's own model)."""
+    unheld = unheld_terms(robot, model)
     root = ET.Element("mujoco", {"model": name or robot.name})
     compiler = ET.SubElement(root, "compiler", {"angle": "radian", "inertiafromgeom": "false", "autolimits": "true"})
     gravity = robot.plant.gravity_field().gravity_vector()
@@ -158,7 +157,7 @@ def mjcf_files(robot, terms: ExportTerms, name: str = "", meshdir: str | None = 
     asset = ET.SubElement(root, "asset")
     worldbody = ET.SubElement(root, "worldbody")
     adjusted: list[str] = []
-    bodies = _bodies(robot, terms, worldbody, adjusted)
+    bodies = _bodies(robot, model, worldbody, adjusted)
     unheld = unheld + [n for n in adjusted if n]
     meshes, notes = {}, []
     if meshdir is not None:
@@ -175,8 +174,8 @@ def mjcf_files(robot, terms: ExportTerms, name: str = "", meshdir: str | None = 
         ET.SubElement(actuator, "motor", attributes)
     ET.indent(root, "  ")
     lines = [f"MJCF of robot '{robot.name}' written by pe-drake export",
-             f"model: {terms.source or 'the robot model file (CAD)'}"]
-    lines += [f"note: {n}" for n in terms.notes]
+             f"model: {source or 'the robot model file (CAD)'}"]
+    lines += [f"note: {n}" for n in model.notes]
     lines += [f"not held by MJCF: {n}" for n in unheld]
     lines += [f"note: {n}" for n in notes]
     if meshdir is None:
@@ -185,11 +184,11 @@ def mjcf_files(robot, terms: ExportTerms, name: str = "", meshdir: str | None = 
     return MJCFFiles(f"<!--\n{comment}\n-->\n" + ET.tostring(root, encoding="unicode") + "\n", unheld, meshes, notes)
 
 
-def mjcf_text(robot, terms: ExportTerms, name: str = "") -> tuple[str, list[str]]:
-    """The MJCF of the robot with ``terms``, without geometry.
+def mjcf_text(robot, model: RobotModel, name: str = "") -> tuple[str, list[str]]:
+    """The MJCF of the robot with ``model``, without geometry.
 
     Returns:
         (the file's text, what it cannot hold of the model: one sentence each).
     """
-    files = mjcf_files(robot, terms, name)
+    files = mjcf_files(robot, model, name)
     return files.text, files.unheld

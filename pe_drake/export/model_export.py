@@ -23,13 +23,14 @@ from pe_drake.export.controller import feedforward_yaml, friction_torque, gains_
 from pe_drake.export.drake_files import drake_check, sdf_text, urdf_export_text
 from pe_drake.export.mjcf import mjcf_files, unheld_terms
 from pe_drake.export.mujoco_dynamics import load_mjcf, mujoco_torques
-from pe_drake.export.terms import ExportTerms, export_terms, model_torques, projection_change, random_states
+from pe_drake.export.model_source import exported_model, identified_spread, projection_change, random_states
 from pe_drake.identification.drive_terms import filtered_coulomb
 from pe_drake.identification.estimators import prepare_measurement
 from pe_drake.identification.measurements import Measurement
 from pe_drake.identification.time_window import TimeWindow
 from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.robot import Robot
+from pe_drake.multibody.robot_model import RobotModel
 
 #: Formats and the suffix of their file.
 FORMATS = {"mjcf": ".xml", "urdf": ".urdf", "sdf": ".sdf", "feedforward": ".yaml", "gains": ".yaml"}
@@ -82,7 +83,8 @@ class ExportResult:
     Attributes:
         format: one of :data:`FORMATS`.
         text: the file's content.
-        terms: the model exported.
+        model: the model exported (physically consistent).
+        source: the model file ("" for the robot's own model: the CAD model).
         unheld: what the format cannot hold of the model, one sentence each.
         figures: {name: value} measured while checking (relative torque differences, RMS [N·m]).
         meshdir: the mesh folder's name beside the file ("" for none); meshes: its files.
@@ -90,15 +92,16 @@ class ExportResult:
 
     format: str
     text: str
-    terms: ExportTerms
+    model: RobotModel
+    source: str = ""
     unheld: tuple[str, ...] = ()
     figures: dict = dataclasses.field(default_factory=dict)
     meshdir: str = ""
     meshes: dict = dataclasses.field(default_factory=dict)
 
     def summary_lines(self) -> list[str]:
-        lines = [f"exported {self.terms.source or 'the CAD model'} as {self.format}"]
-        lines += [f"note: {n}" for n in self.terms.notes]
+        lines = [f"exported {self.source or 'the CAD model'} as {self.format}"]
+        lines += [f"note: {n}" for n in self.model.notes]
         lines += [f"not held by {self.format}: {n}" for n in self.unheld]
         for name, value in self.figures.items():
             if isinstance(value, dict):  # per joint
@@ -160,58 +163,62 @@ def export_model(robot: Robot, model: str | Path | None, options: ExportOptions 
     options = options or ExportOptions()
     say = progress or (lambda line: None)
     say(f"reading {model or 'the CAD model'}")
-    terms = export_terms(robot, model)
+    exported, source = exported_model(robot, model), str(model or "")
     figures: dict = {}
     data = prepare_measurement(robot, held_out, window=options.window) if held_out is not None else None
     if model is not None:
         # without a held-out run, random states inside the limits show the projection's size
         states = data if data is not None else _random_run(robot, options.seed)
-        change = projection_change(robot, model, terms, states)
+        change = projection_change(robot, model, exported, states)
         if change is not None:
             where = "held-out" if data is not None else f"{states.num_samples} random states'"
             figures[f"projection: {where} RMS change per joint [N·m]"] = dict(zip(robot.joint_names, map(float, change)))
-    unheld = tuple(unheld_terms(robot, terms, options.to))
+    unheld = tuple(unheld_terms(robot, exported, options.to))
     meshes: dict = {}
     if options.to == "mjcf":
         say("writing the MJCF" + (" and its meshes" if options.meshdir else ""))
-        mjcf = mjcf_files(robot, terms, meshdir=options.meshdir or None)
+        mjcf = mjcf_files(robot, exported, meshdir=options.meshdir or None, source=source)
         text, unheld, meshes = mjcf.text, tuple(mjcf.unheld), mjcf.meshes
         say("checking it in MuJoCo")
-        figures.update(_mujoco_check(robot, terms, text, meshes))
+        figures.update(_mujoco_check(robot, exported, text, meshes))
         if mjcf.notes:
             figures["visuals left out"] = "; ".join(mjcf.notes)
     elif options.to in ("urdf", "sdf"):
-        text = urdf_export_text(robot, terms) if options.to == "urdf" else sdf_text(robot, terms)
+        text = (urdf_export_text if options.to == "urdf" else sdf_text)(robot, exported, source)
         say("checking it in Drake")
         figures[f"Drake inverse dynamics of the {options.to} vs the model (relative)"] = drake_check(
-            robot, terms, text, FORMATS[options.to], tolerance=CHECK_TOLERANCE)
+            robot, exported, text, FORMATS[options.to], tolerance=CHECK_TOLERANCE)
     elif options.to == "feedforward":
-        check = _feedforward_check(robot, terms, data, held_out) if data is not None else None
-        text = feedforward_yaml(robot, terms, check)
+        check = _feedforward_check(robot, exported, data, held_out) if data is not None else None
+        text = feedforward_yaml(robot, exported, check, source)
         figures.update(check or {})
         unheld = ()
     else:
         q = data.q if data is not None else random_states(robot, 200, options.seed)[0]
-        text = gains_yaml(robot, terms, q, bandwidth_hz=options.bandwidth_hz, damping_ratio=options.damping_ratio,
-                          sigma_k=options.sigma_k, samples=options.samples, seed=options.seed)
+        spread = identified_spread(robot, model)
+        text = gains_yaml(robot, exported, spread, q, bandwidth_hz=options.bandwidth_hz,
+                          damping_ratio=options.damping_ratio, sigma_k=options.sigma_k, samples=options.samples,
+                          seed=options.seed, source=source)
+        if spread is not None and spread.note:
+            figures["randomization"] = spread.note
         unheld = ()
-    return ExportResult(options.to, text, terms, unheld, figures, options.meshdir if meshes else "", meshes)
+    return ExportResult(options.to, text, exported, source, unheld, figures, options.meshdir if meshes else "", meshes)
 
 
 def _random_run(robot, seed: int, samples: int = 200) -> Measurement:
-    """Random states (:func:`~pe_drake.export.terms.random_states`) as a run without torques."""
+    """Random states (:func:`~pe_drake.export.model_source.random_states`) as a run without torques."""
     q, v, vd = random_states(robot, samples, seed)
     return Measurement(np.arange(samples, dtype=float), q, np.zeros_like(q), v, vd, tuple(robot.joint_names))
 
 
-def _mujoco_check(robot, terms: ExportTerms, text: str, meshes: dict) -> dict:
+def _mujoco_check(robot, model: RobotModel, text: str, meshes: dict) -> dict:
     """MuJoCo loads the MJCF and its mj_inverse reproduces the model (figures), or raises."""
     try:
         mj = load_mjcf(text, text=True, assets=meshes)
     except ImportError:
         return {"MuJoCo check": "skipped: mujoco is not installed (pip install 'pe_drake[mujoco]')"}
     q, v, vd = random_states(robot, 20)
-    want = model_torques(robot, terms, q, v, vd)
+    want = model.torque(robot, q, v, vd, coulomb=False, offset=False)
     got = mujoco_torques(mj, robot.joint_names, q, v, vd)
     error = float(np.max(np.abs(got - want)) / max(float(np.max(np.abs(want))), 1e-12))
     if not error <= CHECK_TOLERANCE:
@@ -219,14 +226,15 @@ def _mujoco_check(robot, terms: ExportTerms, text: str, meshes: dict) -> dict:
     return {"MuJoCo mj_inverse vs the model (relative)": error}
 
 
-def _feedforward_check(robot, terms: ExportTerms, data, raw) -> dict:
+def _feedforward_check(robot, model: RobotModel, data, raw) -> dict:
     """RMS error [N·m] per joint of the gravity + friction feed-forward and of the whole model on
     the run (Coulomb columns filtered like the torque, as ``validate``)."""
     zero = np.zeros_like(data.v)
-    coulomb = filtered_coulomb(raw, data, terms.velocity_scale)
-    friction = friction_torque(terms, data.v, coulomb)
-    gravity_ff = model_torques(robot, terms, data.q, zero, zero) + friction
-    whole = model_torques(robot, terms, data.q, data.v, data.vd) + friction - terms.drive["viscous"] * data.v
+    coulomb = filtered_coulomb(raw, data, model.velocity_scale)
+    friction = friction_torque(model, data.v, coulomb)
+    gravity_ff = model.torque(robot, data.q, zero, zero, coulomb=False, offset=False) + friction
+    whole = model.torque(robot, data.q, data.v, data.vd, coulomb=False, offset=False) + friction \
+        - model.viscous * data.v
 
     def rms(x):
         return dict(zip(robot.joint_names, (float(r) for r in np.sqrt(np.mean(x**2, axis=0)))))

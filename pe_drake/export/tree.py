@@ -11,8 +11,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from pe_drake.export.terms import ExportTerms
 from pe_drake.multibody.inertia import spatial_inertia_to_phi
+from pe_drake.multibody.robot_model import RobotModel
 
 
 class TreeBody(NamedTuple):
@@ -38,7 +38,7 @@ class TreeBody(NamedTuple):
     weld_name: str
 
 
-def robot_tree(robot, terms: ExportTerms) -> list[TreeBody]:
+def robot_tree(robot, model: RobotModel) -> list[TreeBody]:
     """The bodies of ``robot``'s plant, parents before children (module docstring)."""
     plant = robot.plant
     context = plant.CreateDefaultContext()
@@ -47,7 +47,7 @@ def robot_tree(robot, terms: ExportTerms) -> list[TreeBody]:
     for index in plant.GetJointIndices():
         joint = plant.get_joint(index)
         children.setdefault(int(joint.parent_body().index()), []).append(joint)
-    moving = {name: np.asarray(terms.phi[10 * b : 10 * b + 10], float) for b, name in enumerate(robot.body_names)}
+    moving = {name: model.phi[10 * b : 10 * b + 10] for b, name in enumerate(robot.body_names)}
     out: list[TreeBody] = []
     stack = [plant.world_body()]
     while stack:

@@ -15,9 +15,9 @@ import xml.etree.ElementTree as ET
 
 import numpy as np
 
-from pe_drake.export.terms import ExportTerms
 from pe_drake.export.tree import number_text, robot_tree, vector_text
 from pe_drake.multibody.inertia import phi_to_spatial_inertia, spatial_inertia_to_phi
+from pe_drake.multibody.robot_model import PAYLOAD_BODY_NAME, RobotModel
 from pe_drake.multibody.urdf import inertial_element, joint_dynamics
 
 
@@ -64,12 +64,13 @@ def _joint(robot_el: ET.Element, robot, name: str, kind: str, parent: str, child
     ET.SubElement(joint, "limit", {key: number_text(v) for key, v in limits.items() if np.isfinite(v)})
 
 
-def urdf_from_tree(robot, terms: ExportTerms, payload_name: str) -> str:
-    """The URDF of the robot with ``terms`` (module docstring), the payload a link ``payload_name``."""
+def urdf_from_tree(robot, model: RobotModel) -> str:
+    """The URDF of the robot with ``model`` (module docstring), the payload a link
+    :data:`~pe_drake.multibody.robot_model.PAYLOAD_BODY_NAME`."""
     root = ET.Element("robot", {"name": robot.name})
     ET.SubElement(root, "link", {"name": "world"})
     X_CL = {"world": np.eye(4)}  # each body's link frame L in its body frame C
-    for body in robot_tree(robot, terms):
+    for body in robot_tree(robot, model):
         X_CL[body.name] = np.asarray(robot.joints[body.joint].X_CM, float) if body.joint >= 0 else np.eye(4)
         _link(root, body.name, _in_frame(body.phi, X_CL[body.name]))
         X_parent_link = _inverse(X_CL[body.parent]) @ body.X_PC @ X_CL[body.name]
@@ -78,12 +79,13 @@ def urdf_from_tree(robot, terms: ExportTerms, payload_name: str) -> str:
                    X_parent_link, body.joint)
         else:
             _joint(root, robot, body.weld_name, "fixed", body.parent, body.name, X_parent_link)
-        if terms.payload is not None and body.name == terms.payload_link:
-            _link(root, payload_name, terms.payload.phi)
-            _joint(root, robot, f"{payload_name}_weld", "fixed", body.name, payload_name, _inverse(X_CL[body.name]))
+        if model.payload is not None and body.name == model.payload_link:
+            _link(root, PAYLOAD_BODY_NAME, model.payload.phi)
+            _joint(root, robot, f"{PAYLOAD_BODY_NAME}_weld", "fixed", body.name, PAYLOAD_BODY_NAME,
+                   _inverse(X_CL[body.name]))
     ET.indent(root, "  ")
     text = '<?xml version="1.0"?>\n' + ET.tostring(root, encoding="unicode") + "\n"
-    joints, d = robot.joint_names, terms.drive
-    return joint_dynamics(text, dict(zip(joints, map(float, d["viscous"]))),
-                          {j: float(a) for j, a in zip(joints, d["armature"]) if a > 0},
-                          dict(zip(joints, map(float, d["coulomb"]))))
+    joints = robot.joint_names
+    return joint_dynamics(text, dict(zip(joints, map(float, model.viscous))),
+                          {j: float(a) for j, a in zip(joints, model.armature) if a > 0},
+                          dict(zip(joints, map(float, model.coulomb))))

@@ -135,6 +135,8 @@ class IdentificationResult:
         weight_iterations: the WLS's weighted solves (0 for OLS, 1 for Gautier's one step;
             :func:`~pe_drake.identification.least_squares.weighted_fit`).
         weights_converged: the WLS weights reached their fixed point.
+        cov_B: covariance of ``phi_B``, shape (b, b) (its diagonal is σ²: ``sigma_percent``), or
+            None (an identified.json written before it was stored, an augmented model).
     """
 
     robot: str
@@ -159,6 +161,7 @@ class IdentificationResult:
     friction_share: float | None = None
     weight_iterations: int = 0
     weights_converged: bool = False
+    cov_B: np.ndarray | None = None
 
 
 # ---- data ------------------------------------------------------------------------------------
@@ -377,6 +380,7 @@ def _identify(robot, data: Measurement, method: str, base: BaseParameters | None
                        physical.merged_armature if physical is not None else {}).with_known(known),
         physical_notes=physical.notes if physical is not None else (),
         friction_share=share,
+        cov_B=cov[:b, :b],
     )
 
 

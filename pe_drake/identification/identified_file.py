@@ -81,6 +81,9 @@ def result_to_dict(result: IdentificationResult, robot, model_file: str | None =
     if result.preprocessing is not None:
         out["preprocessing"] = dataclasses.asdict(result.preprocessing)
         out["data_used"] = data_used(result.preprocessing, result.samples)
+    if result.cov_B is not None and np.all(np.isfinite(result.cov_B)):  # export --to gains draws from it
+        cov = np.asarray(result.cov_B, float)
+        out["base_parameter_covariance"] = (0.5 * (cov + cov.T)).tolist()  # the sandwich is symmetric up to rounding
     if result.drive is not None:
         out["drive_terms"] = result.drive.as_dict()
     if result.physical_notes:
@@ -162,6 +165,7 @@ def load_identified(path: str | Path, robot) -> IdentificationResult:
             phi = np.array([float(table[b][k]) for b in robot.body_names for k in PARAMETER_NAMES])
         except (KeyError, TypeError, ValueError) as err:
             raise DataError(f"standard_parameters: {err!r} missing or malformed", file=str(path)) from err
+    cov_B = _covariance(d, base.count, str(path))
     drive = None
     if d.get("drive_terms") is not None:  # files written before the drive terms have none
         try:
@@ -186,7 +190,29 @@ def load_identified(path: str | Path, robot) -> IdentificationResult:
         channels=channels,
         drive=drive,
         physical_notes=tuple(d.get("physical_fit_notes", ())),
+        cov_B=cov_B,
     )
+
+
+def _covariance(d: dict[str, Any], count: int, path: str) -> np.ndarray | None:
+    """The file's ``base_parameter_covariance``, (count, count), or None (a file written before
+    it was stored), made symmetric.
+
+    Raises:
+        DataError: a covariance of another size, or not finite.
+    """
+    if d.get("base_parameter_covariance") is None:
+        return None
+    try:
+        cov = np.array(d["base_parameter_covariance"], dtype=float)
+    except (TypeError, ValueError) as err:
+        raise DataError(f"base_parameter_covariance: not a matrix of numbers ({err})", file=path) from err
+    if cov.shape != (count, count):
+        raise DataError(f"base_parameter_covariance has shape {cov.shape}; the {count} base parameters need "
+                        f"({count}, {count})", file=path)
+    if not np.all(np.isfinite(cov)):
+        raise DataError("base_parameter_covariance must hold finite numbers", file=path)
+    return 0.5 * (cov + cov.T)
 
 
 def standard_from_base(robot, result: IdentificationResult) -> np.ndarray:

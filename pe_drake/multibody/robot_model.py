@@ -40,7 +40,6 @@ from pe_drake.multibody.drive_columns import (
     TERMS,
     UNITS,
     DriveLayout,
-    coulomb_column,
     drive_columns,
 )
 from pe_drake.multibody.inertia import (
@@ -139,6 +138,20 @@ class RobotModel:
         if self.physical is None:
             set_(self, "physical", not validity_problems(self.bodies, self.phi))
 
+    @classmethod
+    def from_robot(cls, robot) -> RobotModel:
+        """The robot's own model as built (the CAD model): its model file's inertials,
+        ``<dynamics damping friction>`` as viscous and Coulomb friction and its actuators'
+        reflected rotor inertia as armature; no offsets, payload or delay."""
+        armature = np.zeros(robot.n)
+        for a in robot.plant.GetJointActuatorIndices():
+            actuator = robot.plant.get_joint_actuator(a)
+            if actuator.joint().name() in robot.joint_names:
+                armature[robot.joint_names.index(actuator.joint().name())] = actuator.default_reflected_inertia()
+        drive = {"coulomb": robot.joint_friction, "viscous": robot.joint_damping, "offset": np.zeros(robot.n),
+                 "armature": armature}
+        return cls(robot.joint_names, robot.body_names, robot.phi_model, drive)
+
     # ---- values -------------------------------------------------------------------------------
 
     def term(self, name: str) -> np.ndarray:
@@ -190,17 +203,23 @@ class RobotModel:
 
     # ---- dynamics -----------------------------------------------------------------------------
 
-    def torque(self, robot, q: np.ndarray, v: np.ndarray, vd: np.ndarray) -> np.ndarray:
+    def torque(self, robot, q: np.ndarray, v: np.ndarray, vd: np.ndarray, *, coulomb: bool = True,
+               offset: bool = True) -> np.ndarray:
         """Inverse dynamics of the model: Y(q, v, vd)·phi_total + D(v, vd)·theta, shape (T, n)
         [N·m] (no delay, no Dahl state), a block of samples at a time.
 
         Args:
             robot: the :class:`~pe_drake.multibody.robot.Robot` of the model's joints and bodies.
             q, v, vd: each (T, n) or (n,).
+            coulomb, offset: include the Coulomb friction and the offsets. Without them the torque
+                is what a simulator file holds as inverse dynamics (rigid + armature + viscous):
+                Drake's URDF/SDFormat and MuJoCo's ``mj_inverse`` of an exported model.
         """
         self.check_robot(robot)
         q, v, vd = (np.atleast_2d(np.asarray(x, float)) for x in (q, v, vd))
         model, phi, layout, theta = shared_model(robot), self.phi_total, self.layout(), self.theta()
+        left_out = [t for t, keep in (("coulomb", coulomb), ("offset", offset)) if not keep]
+        theta = np.where(np.isin(np.array(layout.terms), left_out), 0.0, theta)
         out = np.empty(q.shape)
         for s in range(0, q.shape[0], 2000):
             k = slice(s, s + 2000)
@@ -399,8 +418,7 @@ class RobotModel:
         rng = np.random.default_rng(0)
         q = rng.uniform(robot.limits.q_lower, robot.limits.q_upper, (samples, robot.n))
         v, vd = rng.uniform(-1, 1, (samples, robot.n)), rng.uniform(-3, 3, (samples, robot.n))
-        m = self.nonnegative()
-        want = m.torque(robot, q, v, vd) - m.offset - m.coulomb * coulomb_column(v, m.velocity_scale)
+        want = self.nonnegative().torque(robot, q, v, vd, coulomb=False, offset=False)
         got = loaded.inverse_dynamics(q, v, vd, include_damping=True)
         err = float(np.max(np.abs(got - want)))
         if not math.isfinite(err) or err > tolerance * max(float(np.max(np.abs(want))), 1.0):

@@ -1,0 +1,105 @@
+"""What every export writes: the robot as built (:class:`~pe_drake.multibody.robot_model.RobotModel`),
+read from a model file in one place, and the identification's spread for randomization.
+
+:func:`exported_model` is the only function of the export stage that reads a model: a
+physically consistent :class:`RobotModel` (:func:`~pe_drake.simulation.simulated_model.load_simulation_model`:
+a model of base parameters only is first projected onto the nearest physically consistent
+parameters, as ``simulate --model`` does; negative friction and armature set to 0, noted), or the
+robot's own (:meth:`RobotModel.from_robot`). The writers take that model and nothing else from the
+file; :func:`identified_spread` adds the base parameters' σ that the randomization draws from.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+
+from pe_drake.identification.estimators import predict
+from pe_drake.identification.identified_file import load_identified
+from pe_drake.multibody.robot_model import RobotModel
+from pe_drake.simulation.simulated_model import load_simulation_model
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class IdentifiedSpread:
+    """The identification's uncertainty of the base parameters (the drive terms' σ is the
+    model's own ``RobotModel.sigma``).
+
+    Attributes:
+        K: the base parameters as rows of the standard ones, φ_B = K φ, shape (p, 10·nb).
+        sigma: σ of each base parameter, shape (p,) (inf or NaN: not identified).
+        names: the base parameters' names, length p.
+        cov: their covariance, shape (p, p) (diagonal σ²), or None: a file written before it was
+            stored, whose base parameters are then drawn independently from σ (``note`` says so).
+        note: what the draws could not use ("" when they use the covariance).
+    """
+
+    K: np.ndarray
+    sigma: np.ndarray
+    names: tuple[str, ...] = ()
+    cov: np.ndarray | None = None
+    note: str = ""
+
+
+def exported_model(robot, model: str | Path | None) -> RobotModel:
+    """The model to export: that of ``model`` (identified.json of any method or
+    augmented_model.json), physically consistent, or with ``model`` None the robot's own
+    (:meth:`~pe_drake.multibody.robot_model.RobotModel.from_robot`).
+
+    Raises:
+        DataError: a model file of another robot, or not one of these files.
+        NoSolutionFound: no physically valid parameters near a base-parameter model.
+    """
+    if model is None:
+        return RobotModel.from_robot(robot)
+    out = load_simulation_model(model, robot)  # physically consistent, friction and armature ≥ 0
+    return dataclasses.replace(out, notes=tuple(_exported(n) for n in out.notes))
+
+
+def identified_spread(robot, model: str | Path | None) -> IdentifiedSpread | None:
+    """The base parameters' σ of an identify identified.json, or None (the CAD model, an
+    augmented model: no covariance)."""
+    if model is None:
+        return None
+    result = load_identified(model, robot)
+    if result.method == "diagnose":
+        return None
+    sigma = np.abs(np.asarray(result.phi_B, float)) * np.asarray(result.sigma_percent, float) / 100.0
+    note = "" if result.cov_B is not None else (
+        f"'{model}' has no base_parameter_covariance (written before identify stored it): the base parameters "
+        "are drawn independently from their σ, their correlations left out; identify again to draw from it")
+    return IdentifiedSpread(np.asarray(result.base.K, float), sigma, tuple(result.base.base_names), result.cov_B,
+                            note)
+
+
+def _exported(note: str) -> str:
+    """A simulator's note in the export's words (the same adjustment: 'simulated' → 'exported')."""
+    return note.replace(" is simulated as 0", " is written as 0").replace("the simulated ", "the exported ")
+
+
+def projection_change(robot, model: str | Path, exported: RobotModel, data) -> np.ndarray | None:
+    """RMS [N·m] per joint of the change of the held-out prediction between the model file's own
+    (its base parameters) and the exported model (its consistent φ), or None for a model whose
+    standard parameters are exported as they are.
+
+    Args:
+        data: a preprocessed run (:func:`~pe_drake.identification.estimators.prepare_measurement`).
+    """
+    result = load_identified(model, robot)
+    if result.phi is not None:
+        return None
+    own = predict(robot, result, data)
+    return np.sqrt(np.mean((own - exported.torque(robot, data.q, data.v, data.vd)) ** 2, axis=0))
+
+
+def random_states(robot, samples: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(q, v, v̇), each (samples, n): q inside the limits, |v| up to the velocity limit, |v̇| up to
+    the acceleration limit."""
+    rng = np.random.default_rng(seed)
+    lim = robot.limits
+    q = rng.uniform(lim.q_lower, lim.q_upper, (samples, robot.n))
+    v = rng.uniform(-1, 1, (samples, robot.n)) * lim.v_max
+    vd = rng.uniform(-1, 1, (samples, robot.n)) * lim.vd_max
+    return q, v, vd
