@@ -20,8 +20,6 @@ p_FoPcm_F = R_FL (p_LoPcm_L − p_LoFo_L) and I_F = R_FL I_L R_LF (about the cen
 
 from __future__ import annotations
 
-import contextlib
-import logging
 import math
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -29,12 +27,10 @@ from typing import Any
 
 import numpy as np
 
-from pe_drake.exceptions import ConfigError, UnknownNameError
+from pe_drake.exceptions import ConfigError
 from pe_drake.io_utils import atomic_write_text
-from pe_drake.multibody.inertia import spatial_inertia_to_phi
 from pe_drake.multibody.payload import PayloadInertia, link_position
-from pe_drake.multibody.registry import example_robot_data_dir
-from pe_drake.multibody.urdf import urdf_with_inertias
+from pe_drake.multibody.urdf import urdf_text_phi, urdf_with_inertias
 
 #: Known vendor flange links, tried in order when no flange is given.
 DEFAULT_FLANGES = ("panda_link8", "tool0", "flange", "iiwa_link_ee", "link_ee")
@@ -182,22 +178,4 @@ def write_payload_urdf(path: str | Path, robot, payload: PayloadInertia, link: s
 
 def read_urdf_body_phi(text: str, body: str) -> np.ndarray:
     """The 10 parameters (about its origin, in its frame) of one link of URDF text, as Drake reads them."""
-    from pydrake.multibody.parsing import Parser  # lazy: pydrake is heavy
-    from pydrake.multibody.plant import MultibodyPlant
-
-    plant = MultibodyPlant(0.0)
-    parser = Parser(plant)
-    with contextlib.suppress(ConfigError):
-        parser.package_map().Add("example-robot-data", str(example_robot_data_dir()))
-    logger = logging.getLogger("drake")
-    level = logger.level
-    logger.setLevel(logging.ERROR)
-    try:
-        parser.AddModelsFromString(text, "urdf")
-    except Exception as err:
-        raise ConfigError(f"Drake refuses the exported URDF: {err}") from err
-    finally:
-        logger.setLevel(level)
-    if not plant.HasBodyNamed(body):
-        raise UnknownNameError("link", body, [], where="exported URDF")
-    return spatial_inertia_to_phi(plant.GetBodyByName(body).default_spatial_inertia())
+    return urdf_text_phi(text, [body])

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pe_drake.exceptions import ConfigError
+from pe_drake.exceptions import ConfigError, UnknownNameError
 from pe_drake.multibody.example_robot_data import example_robot_data_dir
 from pe_drake.multibody.inertia import central_inertia, check_physically_valid, spatial_inertia_to_phi
 from pe_drake.multibody.model_files import single_material_definitions
@@ -185,12 +185,14 @@ def _drop_zero_dof_mimics(root: ET.Element) -> None:
                 joint.remove(mimic)
 
 
-def verify_urdf_text(text: str, body_names: Sequence[str], phi: np.ndarray, tolerance: float = 1e-9) -> None:
-    """Parses URDF text with Drake (no scene graph) and compares each body's spatial inertia.
+def urdf_text_phi(text: str, body_names: Sequence[str]) -> np.ndarray:
+    """Each body's 10 parameters (about its origin, in its frame) as Drake reads URDF text
+    (parsed without a scene graph, as pe_drake loads it: repeated materials kept once),
+    shape (10·len(body_names),).
 
     Raises:
-        ConfigError: Drake refuses the text, or a body's parameters differ by more than
-            ``tolerance`` relative to the largest parameter of that body.
+        ConfigError: Drake refuses the text.
+        UnknownNameError: a body the text does not have.
     """
     from pydrake.multibody.parsing import Parser  # lazy: pydrake is heavy
     from pydrake.multibody.plant import MultibodyPlant
@@ -202,18 +204,29 @@ def verify_urdf_text(text: str, body_names: Sequence[str], phi: np.ndarray, tole
     drake_logger = logging.getLogger("drake")
     level = drake_logger.level
     drake_logger.setLevel(logging.ERROR)
-    # as pe_drake loads it (pe_drake.multibody.model_files): repeated materials kept once
-    text = single_material_definitions(text)[0]
     try:
-        parser.AddModelsFromString(text, "urdf")
+        parser.AddModelsFromString(single_material_definitions(text)[0], "urdf")
     except Exception as err:
         raise ConfigError(f"Drake refuses the exported URDF: {err}") from err
     finally:
         drake_logger.setLevel(level)
-    phi = np.asarray(phi, float)
+    missing = [b for b in body_names if not plant.HasBodyNamed(b)]
+    if missing:
+        raise UnknownNameError("link", missing[0], [], where="exported URDF")
+    return np.concatenate([spatial_inertia_to_phi(plant.GetBodyByName(b).default_spatial_inertia())
+                           for b in body_names]) if body_names else np.zeros(0)
+
+
+def verify_urdf_text(text: str, body_names: Sequence[str], phi: np.ndarray, tolerance: float = 1e-9) -> None:
+    """Parses URDF text with Drake (:func:`urdf_text_phi`) and compares each body's spatial inertia.
+
+    Raises:
+        ConfigError: Drake refuses the text, or a body's parameters differ by more than
+            ``tolerance`` relative to the largest parameter of that body.
+    """
+    read, phi = urdf_text_phi(text, body_names), np.asarray(phi, float)
     for b, name in enumerate(body_names):
-        got = spatial_inertia_to_phi(plant.GetBodyByName(name).default_spatial_inertia())
-        want = phi[10 * b : 10 * b + 10]
+        got, want = read[10 * b : 10 * b + 10], phi[10 * b : 10 * b + 10]
         scale = max(float(np.max(np.abs(want))), 1e-12)
         if float(np.max(np.abs(got - want))) > tolerance * scale:
             raise ConfigError(
