@@ -16,7 +16,8 @@ def test_bench_solve_prints_old_and_new_cpu_seconds_and_cond(capsys):
     lines = [row for row in out.splitlines() if row.startswith("BENCH ")]
     assert len(lines) == 2
     expected = {
-        "robot", "n", "old_cpu_s", "new_cpu_s", "speedup", "old_cond", "new_cond", "cond_ratio",
+        "robot", "n", "old_cpu_s", "new_cpu_s", "speedup", "old_solve_cpu_s", "new_solve_cpu_s", "old_cond",
+        "new_cond", "cond_ratio",
         "old_iterations", "new_iterations", "old_valid", "new_valid",
     }
     for line, robot, n in zip(lines, ("ur5", "two_arm_lift"), (6, 10)):
@@ -25,7 +26,8 @@ def test_bench_solve_prints_old_and_new_cpu_seconds_and_cond(capsys):
         assert float(fields["old_cpu_s"]) > 0 and float(fields["new_cpu_s"]) > 0
         assert float(fields["new_cond"]) > 1 and float(fields["old_cond"]) > 1
         assert float(fields["cond_ratio"]) == pytest.approx(float(fields["new_cond"]) / float(fields["old_cond"]), rel=1e-3)
-    assert re.search(r"two_arm_lift +old .* CPU-s  cond", out) and re.search(r"two_arm_lift +new .* CPU-s  cond", out)
+    assert re.search(r"two_arm_lift +old .* CPU-s \(solve .*, quality report .*\)  cond", out)
+    assert re.search(r"two_arm_lift +new .* CPU-s \(solve .*, quality report .*\)  cond", out)
 
 
 def test_two_arm_lift_robot_loads_without_a_config(tmp_path):

@@ -35,6 +35,7 @@ torques, whatever is measured.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import re
@@ -483,6 +484,7 @@ def excitation_quality(
     rate_hz: float = DATA_RATE_HZ,
     random_motions: int = RANDOM_MOTIONS,
     seed: int = RANDOM_SEED,
+    one_blas_thread: bool = True,
 ) -> QualityReport:
     """The quality figures of motion ``alpha`` and of random motions under the same constraints.
 
@@ -496,6 +498,8 @@ def excitation_quality(
         rate_hz: rate of the fitted samples [Hz].
         random_motions: random motions to compare with (0: none).
         seed: seed of the first random draw.
+        one_blas_thread: run on one BLAS thread (False: BLAS's own threads, as before issue
+            38; ``bench solve``'s old formulation).
 
     Returns:
         The :class:`QualityReport`.
@@ -506,7 +510,7 @@ def excitation_quality(
     # One BLAS thread: OpenBLAS's threads on these few-thousand-row matrices only spin, and
     # on a loaded 2-core machine G1's report took 17.5 CPU-s with them, 1 CPU-s without
     # (issue 38, BUILD_NOTES.md).
-    with single_threaded_blas():
+    with single_threaded_blas() if one_blas_thread else contextlib.nullcontext():
         return _quality(problem, alpha, constraints, noise_std, periods, rate_hz, random_motions, seed)
 
 
