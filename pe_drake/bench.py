@@ -1,7 +1,8 @@
 """Benchmarks that print numbers: ``python -m pe_drake.bench {gradient,identify,diagnose,sensitivity,solve,payload,memory,robots}``.
 
 Each benchmark prints its measurements and ends with one line ``BENCH key=value ...`` so
-scripts can collect it. Timings are wall-clock medians of repeated runs on this machine.
+scripts can collect it. Timings are wall-clock medians of repeated runs on this machine (``solve``:
+CPU seconds of single runs, :mod:`pe_drake.bench_solve`).
 """
 
 from __future__ import annotations

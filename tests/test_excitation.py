@@ -323,6 +323,12 @@ def test_far_from_convergence_rule():
     assert not far_from_convergence(False, FAR_FROM_CONVERGENCE * 100.0, 100.0)
     assert far_from_convergence(False, float("inf"), None)
     assert not far_from_convergence(False, 10.0, None)
+    # log_cond: the factor on cond is a difference of its log; dopt (any sign) only if not finite
+    assert far_from_convergence(False, 5.0 + np.log(FAR_FROM_CONVERGENCE) + 1e-6, 5.0, "log_cond")
+    assert not far_from_convergence(False, 5.0 + 0.5, 5.0, "log_cond")
+    assert not far_from_convergence(False, -173.05, -173.05, "dopt")
+    assert not far_from_convergence(False, -100.0, -173.05, "dopt")
+    assert far_from_convergence(False, float("nan"), -173.05, "dopt")
 
 
 def test_a_start_far_from_convergence_is_not_valid(panda, monkeypatch):

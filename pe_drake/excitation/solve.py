@@ -76,9 +76,9 @@ class ExcitationResult:
         callback_seconds: time in the program's own callbacks (cost, limits, sampled
             constraints) during the solve [s]; the rest of ``wall_time`` is the solver's.
         far_from_convergence: the solver did not converge and the point returned has a
-            criterion more than :data:`FAR_FROM_CONVERGENCE` times the best point within the
-            joint limits it evaluated (:func:`far_from_convergence`): not a result, so
-            ``success`` is False whatever the 1 kHz re-check says.
+            cond-like criterion more than :data:`FAR_FROM_CONVERGENCE` times the best point
+            within the joint limits it evaluated (:func:`far_from_convergence`): not a result,
+            so ``success`` is False whatever the 1 kHz re-check says.
     """
 
     x: np.ndarray
@@ -425,16 +425,22 @@ def _message(cfg: SolverConfig, result, violated: dict[str, float], fallback: st
 FAR_FROM_CONVERGENCE = 2.0
 
 
-def far_from_convergence(converged: bool, value: float, best_evaluated: float | None) -> bool:
+def far_from_convergence(converged: bool, value: float, best_evaluated: float | None, criterion: str = "soft_cond") -> bool:
     """Whether a solve's returned point is no result: the solver did not converge and its
     criterion ``value`` is above :data:`FAR_FROM_CONVERGENCE` times ``best_evaluated`` (the
     lowest criterion among the points within the joint limits the solver evaluated; None when
-    it evaluated none, and a non-finite ``value`` is always far)."""
+    it evaluated none). A non-finite ``value`` is always far. For ``log_cond`` the factor is
+    applied to cond (a difference of log 2); ``dopt`` (−log det, any sign) is only judged by
+    finiteness."""
     if converged:
         return False
     if not np.isfinite(value):
         return True
-    return best_evaluated is not None and bool(value > FAR_FROM_CONVERGENCE * best_evaluated)
+    if best_evaluated is None or criterion == "dopt":
+        return False
+    if criterion == "log_cond":
+        return bool(value - best_evaluated > np.log(FAR_FROM_CONVERGENCE))
+    return bool(value > FAR_FROM_CONVERGENCE * best_evaluated)
 
 
 def _cond(singular_values: np.ndarray) -> float:
@@ -501,7 +507,7 @@ def solve_excitation(
     # the other constraints only.
     violated = {k: m for k, m in margins.items() if m < (0.0 if k in JOINT_LIMIT_KEYS else -tolerance)}
     best = program.cost.best_value if program.cost is not None else None
-    far = far_from_convergence(bool(solved), float(cost.value), best)
+    far = far_from_convergence(bool(solved), float(cost.value), best, problem.config.criterion)
     if far:
         fallback += (
             f"; FAR FROM CONVERGENCE: {problem.config.criterion} {cost.value:.5g} is more than "
