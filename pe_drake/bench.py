@@ -1,13 +1,13 @@
 """Benchmarks that print numbers: ``python -m pe_drake.bench {gradient,identify,diagnose,sensitivity,solve,payload,memory,robots}``.
 
 Each benchmark prints its measurements and ends with one line ``BENCH key=value ...`` so
-scripts can collect it. Timings are wall-clock medians of repeated runs on this machine.
+scripts can collect it. Timings are wall-clock medians of repeated runs on this machine (``solve``:
+CPU seconds of single runs, :mod:`pe_drake.bench_solve`).
 """
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import importlib
 import math
 import statistics
@@ -21,20 +21,16 @@ import numpy as np
 
 from pe_drake.config import ExcitationConfig
 from pe_drake.diagnosis import diagnose, write_outputs
-from pe_drake.excitation.constraints import constraints_from_config
 from pe_drake.excitation.fourier import FourierTrajectory
 from pe_drake.excitation.problem import ExcitationProblem
-from pe_drake.excitation.program import build_excitation_program
-from pe_drake.excitation.solve import solve_excitation
 from pe_drake.excitation.trajectory_file import load_trajectory
 from pe_drake.identification.estimators import identify, prepare_measurement, read_robot_measurement
 from pe_drake.identification.measurements import write_measurement_csv
-from pe_drake.memory import reuse_freed_memory
-from pe_drake.multibody.registry import resolve_robot_config
-from pe_drake.multibody.robot import Robot, load_robot
 from pe_drake.simulation.simulation import simulate
 from pe_drake.simulation.synthetic import model_measurement
 from pe_drake.simulation.truth import ControlTruth, EffectsTruth, NoiseTruth, Truth
+from pe_drake.memory import reuse_freed_memory
+from pe_drake.multibody.robot import load_robot
 from pe_drake.threads import single_threaded_blas
 
 # name -> (module, function): each function takes the parsed args and prints its results.
@@ -43,7 +39,7 @@ _BENCHMARKS = {
     "identify": ("pe_drake.bench", "bench_identify"),
     "diagnose": ("pe_drake.bench", "bench_diagnose"),
     "sensitivity": ("pe_drake.bench", "bench_sensitivity"),
-    "solve": ("pe_drake.bench", "bench_solve"),
+    "solve": ("pe_drake.bench_solve", "bench_solve"),
     "payload": ("pe_drake.bench_payload", "bench_payload"),
     "memory": ("pe_drake.bench_memory", "bench_memory"),
     "robots": ("pe_drake.bench_robots", "bench_robots"),
@@ -273,96 +269,10 @@ def bench_sensitivity(args) -> None:
     print(f"BENCH false_alarms={false_alarms} clean_runs=20 offsets_named={len(offsets)} joints={robot.n}")
 
 
-#: Budget step of the equal-quality search in ``bench solve`` [IPOPT iterations].
-MATCH_STEP = 25
-
-
-def bench_solve(args: argparse.Namespace) -> None:
-    """One excitation solve of the robot's own problem (as ``pe-drake optimize --robot``:
-    its config's limits, balance, collision, 300 IPOPT iterations at most), from the same
-    start, with the formulation before the speed work (cond itself as the criterion, joint limits
-    as linear rows at sampled instants, IPOPT's default scaling, quasi-Newton pairs,
-    augmented-system solver, supernodes and second-order corrections, no exchange) and with
-    the default one (soft_cond, window rows, exchange, 30 quasi-Newton pairs in an extended
-    augmented system). Both share the constraint callbacks as they are now (batched
-    kinematics, pruned capsule pairs, 16 samples per grouped row), so "old" is faster than
-    the code before the speed work was. Both report cond(C). Then the default is solved again
-    with budgets of 25, 50, ... iterations until a complete solve ends within 3 % of the old
-    cond: the time to the same quality (``match_*``). Times are wall clock in this process;
-    ``grad_ms`` (one analytic gradient, measured just before) lets runs on a busy machine
-    be compared."""
-    config = resolve_robot_config(args.robot, None)
-    robot = Robot(args.robot, config.robot)
-    problem = ExcitationProblem(robot, config.excitation)
-    constraints = constraints_from_config(robot, config.excitation, config.environment)
-    x0 = problem.initial_guess(seed=args.seed)
-    solver = dataclasses.replace(config.solver, verbose=False)
-    if args.max_iterations is not None:
-        solver = dataclasses.replace(solver, max_iterations=args.max_iterations)
-    reuse_freed_memory()
-    with single_threaded_blas():
-        def gradient():
-            problem.clear_cache()
-            return problem.evaluate(x0).grad
-
-        grad_s = median_time(gradient, repeats=args.repeats)
-
-    # The formulation before the speed work minimized cond itself (Eq. 17).
-    old_problem = ExcitationProblem(robot, dataclasses.replace(config.excitation, criterion="cond"))
-    old_program = build_excitation_program(old_problem, constraints, limits="sampled")
-    # IPOPT's defaults, as before the speed work
-    before = {
-        "spral_scaling": "matching", "limited_memory_max_history": "6", "limited_memory_aug_solver": "sherman-morrison",
-        "spral_nemin": "32", "max_soc": "4",
-    }
-    old_solver = dataclasses.replace(solver, ipopt_options={**solver.ipopt_options, **before})
-    old = solve_excitation(old_program, old_solver, x0, exchange=False)
-    new_program = build_excitation_program(problem, constraints)
-    new = solve_excitation(new_program, solver, x0)
-    for label, r in (("before the speed work", old), ("default", new)):
-        print(
-            f"{label:26s} {r.wall_time:7.2f} s  cond {r.cond:9.4f}  {r.nit} iterations  {r.nfev} evaluations  "
-            f"{r.solves} solve(s)  callbacks {r.callback_seconds:6.2f} s  "
-            f"{'valid at 1 kHz' if r.success else 'INVALID'}: {r.message}"
-        )
-    print(f"in gradient evaluations: {new.wall_time / grad_s:.0f} ({old.wall_time / grad_s:.0f} before)")
-    # Equal quality: the smallest budget, in steps of MATCH_STEP iterations, whose complete
-    # solve (re-checked at 1 kHz) ends within 3 % of the old formulation's cond.
-    match = None
-    for budget in range(MATCH_STEP, solver.max_iterations, MATCH_STEP):
-        r = solve_excitation(
-            build_excitation_program(problem, constraints), dataclasses.replace(solver, max_iterations=budget), x0
-        )
-        state = "valid" if r.success else "INVALID"
-        print(f"budget {budget:3d} iterations     {r.wall_time:7.2f} s  cond {r.cond:9.4f}  {state}")
-        if r.success and r.cond <= 1.03 * old.cond:
-            match = r
-            break
-    if match is None:
-        print(f"old cond + 3 % not reached below {solver.max_iterations} iterations")
-    else:
-        print(
-            f"old cond + 3 % reached in {match.wall_time:.2f} s ({match.nit} iterations, cond {match.cond:.4f}): "
-            f"{old.wall_time / match.wall_time:.2f}x faster, {match.wall_time / grad_s:.0f} gradient evaluations"
-        )
-    matched = (
-        f"match_s={match.wall_time:.2f} match_iterations={match.nit} match_cond={match.cond:.4f}"
-        if match is not None
-        else "match_s=nan match_iterations=nan match_cond=nan"
-    )
-    print(
-        f"BENCH robot={robot.name} old_s={old.wall_time:.2f} new_s={new.wall_time:.2f} "
-        f"speedup={old.wall_time / new.wall_time:.2f} old_cond={old.cond:.4f} new_cond={new.cond:.4f} "
-        f"old_iterations={old.nit} new_iterations={new.nit} new_callbacks_s={new.callback_seconds:.2f} "
-        f"new_solver_s={new.wall_time - new.callback_seconds:.2f} grad_ms={grad_s * 1e3:.3f} "
-        f"{matched}"
-    )
-
-
 def bench_main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m pe_drake.bench", description=__doc__)
     parser.add_argument("benchmark", choices=sorted(_BENCHMARKS))
-    parser.add_argument("--robot", default=None, help="robot (default: g1 for gradient, panda otherwise)")
+    parser.add_argument("--robot", default=None, help="robot (default: g1 for gradient, g1,ur5,two_arm_lift for solve, panda otherwise)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--trajectory", default="", help="sensitivity: trajectory.json to simulate (default: random)")
     parser.add_argument("--repeats", type=int, default=51, help="timed runs per median (default: %(default)s)")
@@ -371,9 +281,10 @@ def bench_main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument(
         "--max-iterations", type=int, default=None,
-        help="solve: IPOPT budget (default: the robot's config, 300); robots: per robot (default: 60)",
+        help="solve: IPOPT budget (default: each robot's config, 300); robots: per robot (default: 60)",
     )
-    parser.add_argument("--robots", default="", help="robots: names or model paths, a,b,c (default: all)")
+    parser.add_argument("--robots", default="", help="robots, solve: names or model paths, a,b,c (default: all; "
+                        "solve: g1,ur5,two_arm_lift)")
     parser.add_argument("--harmonics", type=int, default=None, help="robots: Fourier harmonics (default: the robot's)")
     parser.add_argument("--duration", type=float, default=None,
                         help="robots: simulated seconds (default: the whole written motion)")
@@ -383,7 +294,7 @@ def bench_main(argv: list[str] | None = None) -> int:
     parser.add_argument("--drive-terms", default="none", choices=["none", "friction", "all"],
                         help="gradient: identify's drive terms as columns of C too (default: %(default)s)")
     args = parser.parse_args(argv)
-    if args.robot is None:
+    if args.robot is None and args.benchmark != "solve":  # solve: its own list (bench_solve.DEFAULT_ROBOTS)
         args.robot = "g1" if args.benchmark == "gradient" else "panda"
     module, function = _BENCHMARKS[args.benchmark]
     getattr(importlib.import_module(module), function)(args)

@@ -308,3 +308,42 @@ def test_highest_harmonic_ignores_zero_padding():
     a[0, 2], b[1, 4] = 0.1, -0.05
     assert FourierTrajectory(a, b, np.zeros(2), 0.6).highest_harmonic == 5
     assert FourierTrajectory(np.zeros((2, 3)), np.zeros((2, 3)), np.zeros(2), 0.6).highest_harmonic == 0
+
+
+def test_far_from_convergence_rule():
+    """Issue 38: an unconverged solve whose returned criterion is more than
+    FAR_FROM_CONVERGENCE times the best point within the joint limits it evaluated is no
+    result; a converged one always is, and a non-finite criterion never."""
+    from pe_drake.excitation.solve import FAR_FROM_CONVERGENCE, far_from_convergence
+
+    assert not far_from_convergence(True, 3714.0, 182.0)
+    assert far_from_convergence(False, 3714.0, 182.0)
+    assert not far_from_convergence(False, 195.8, 190.0)
+    assert far_from_convergence(False, FAR_FROM_CONVERGENCE * 100.0 * 1.001, 100.0)
+    assert not far_from_convergence(False, FAR_FROM_CONVERGENCE * 100.0, 100.0)
+    assert far_from_convergence(False, float("inf"), None)
+    assert not far_from_convergence(False, 10.0, None)
+    # log_cond: the factor on cond is a difference of its log; dopt (any sign) only if not finite
+    assert far_from_convergence(False, 5.0 + np.log(FAR_FROM_CONVERGENCE) + 1e-6, 5.0, "log_cond")
+    assert not far_from_convergence(False, 5.0 + 0.5, 5.0, "log_cond")
+    assert not far_from_convergence(False, -173.05, -173.05, "dopt")
+    assert not far_from_convergence(False, -100.0, -173.05, "dopt")
+    assert far_from_convergence(False, float("nan"), -173.05, "dopt")
+
+
+def test_a_start_far_from_convergence_is_not_valid(panda, monkeypatch):
+    """The rule reaches the result: with the factor lowered below 1 every unconverged solve
+    is far (the returned point is never below the best evaluated one by more than the
+    1 kHz shrink), so it is not ``success`` although its point holds every limit at 1 kHz, and
+    the message says so; with the default factor the same solve is valid."""
+    import pe_drake.excitation.solve as solve_module
+
+    problem = ExcitationProblem(panda, ExcitationConfig(harmonics=2, cost_samples=16, constraint_samples=64))
+    options = SolverConfig(max_iterations=3)
+    near = solve_excitation(build_excitation_program(problem), options, exchange=False)
+    assert not near.converged and near.success and not near.far_from_convergence
+    monkeypatch.setattr(solve_module, "FAR_FROM_CONVERGENCE", 0.5)
+    far = solve_excitation(build_excitation_program(problem), options, exchange=False)
+    assert not far.converged and far.far_from_convergence and not far.success
+    assert min(far.margins.values()) >= 0.0 and "FAR FROM CONVERGENCE" in far.message
+    np.testing.assert_allclose(far.x, near.x)

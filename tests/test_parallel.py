@@ -177,10 +177,10 @@ def test_local_pool_gives_the_serial_trajectories_whatever_the_worker_count(pand
         assert parallel.executor == "local" and parallel.workers == workers
         _assert_same_starts(parallel, serial)
         assert all(s.worker.startswith("pid ") and s.worker != f"pid {os.getpid()}" for s in parallel.starts)
-    # The best start: lowest criterion among the feasible ones (all are here), ties to the lowest index.
-    funs = [r.fun for r in serial.results]
+    # The best start: lowest cond among the feasible ones (all are here), ties to the lowest index.
+    conds = [r.cond for r in serial.results]
     assert all(r.success for r in serial.results)
-    assert serial.seed == SEEDS[int(np.argmin(funs))]
+    assert serial.seed == SEEDS[int(np.argmin(conds))]
     kinds = {(e.seed, e.kind) for e in events}
     assert kinds >= {(s, k) for s in SEEDS for k in ("started", "finished")}
     assert not multiprocessing.active_children()

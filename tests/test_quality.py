@@ -225,3 +225,43 @@ def test_optimize_refuses_a_bad_noise_std_before_solving(tmp_path, capsys):
     assert main(["optimize", "--robot", "panda", "--config", str(cfg), "--out", str(tmp_path / "o")]) == 2
     assert "excitation.noise_std.torque['all'] [N·m] must be positive" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+
+
+def test_figures_from_the_r_factor_equal_those_of_the_svd(small_problem, motion):
+    """Issue 38: the covariance, prediction RMS and D-efficiency come from the b×b R of a
+    QR instead of SVDs of the tall regressor; the same numbers as the SVD formulas."""
+    noise = np.array([0.05, 0.08, 0.03])
+    C = motion_regressor(small_problem, motion, 50.0)
+    C_ref = reference_regressor(small_problem)
+    W = C / np.tile(noise, C.shape[0] // 3)[:, None]
+    _, s, Vt = np.linalg.svd(W, full_matrices=False)
+    np.testing.assert_allclose(parameter_covariance(C, noise, 2), (Vt.T / s**2) @ Vt / 2, rtol=1e-9, atol=0)
+    var = np.sum(((C_ref @ Vt.T) / s) ** 2, axis=1).reshape(-1, 3)
+    rms, total = prediction_rms(C, C_ref, noise)
+    np.testing.assert_allclose(rms, np.sqrt(var.mean(axis=0)), rtol=1e-9)
+    assert total == pytest.approx(float(np.sqrt(var.mean())), rel=1e-9)
+    assert d_efficiency(C, noise, 3) == pytest.approx(np.sqrt(3) * np.exp(np.mean(np.log(s))), rel=1e-12)
+
+
+def test_the_report_runs_on_one_blas_thread(small_problem, motion, monkeypatch):
+    """Issue 38: OpenBLAS's threads only spun on the report's matrices (G1: 17.5 CPU-s with
+    them, 1 without, on a loaded 2-core machine): the whole report runs inside
+    single_threaded_blas."""
+    import contextlib
+
+    import pe_drake.excitation.quality as quality_module
+    from threadpoolctl import threadpool_info
+
+    seen = []
+
+    from pe_drake.threads import single_threaded_blas
+
+    @contextlib.contextmanager
+    def inside():
+        with single_threaded_blas():
+            seen.append([info["num_threads"] for info in threadpool_info() if info["user_api"] == "blas"])
+            yield
+
+    monkeypatch.setattr(quality_module, "single_threaded_blas", inside)
+    report = excitation_quality(small_problem, motion, random_motions=1)
+    assert report.motion.cond > 1 and seen and all(n == 1 for n in seen[0])

@@ -146,10 +146,10 @@ def test_multistart_in_two_processes_keeps_the_best_and_equals_serial(panda):
     for a, b in zip(parallel.results, serial.results):
         np.testing.assert_allclose(a.x, b.x, rtol=0, atol=1e-12)
         assert a.fun == pytest.approx(b.fun, rel=1e-12)
-    funs = [r.fun for r in serial.results]
+    conds = [r.cond for r in serial.results]
     assert all(r.success for r in serial.results)
-    assert parallel.seed == serial.seed == seeds[int(np.argmin(funs))]
-    assert parallel.best.fun == min(funs)
+    assert parallel.seed == serial.seed == seeds[int(np.argmin(conds))]
+    assert parallel.best.cond == min(conds)
     assert [s.seed for s in parallel.starts] == seeds
     assert {(e.seed, e.kind) for e in events} >= {(s, k) for s in seeds for k in ("started", "finished")}
     assert not multiprocessing.active_children()
@@ -157,12 +157,19 @@ def test_multistart_in_two_processes_keeps_the_best_and_equals_serial(panda):
 
 def test_best_index_prefers_feasible_starts():
     class R:
-        def __init__(self, fun, success):
-            self.fun, self.success = fun, success
+        def __init__(self, fun, success, cond=None):
+            self.fun, self.success, self.cond = fun, success, fun if cond is None else cond
 
     assert best_index([R(1.0, False), R(3.0, True), R(2.0, True)]) == 2
     assert best_index([R(5.0, False), R(4.0, False)]) == 1
     assert best_index([R(2.0, True), R(2.0, True)]) == 0
+    # Issue 38: the kept start has the lowest reported cond, not the lowest soft_cond (32 G1
+    # starts kept soft_cond 190 at cond 182.88 while another reached cond 181.93) ...
+    starts = [R(190.0, True, cond=182.88), R(191.0, True, cond=181.93)]
+    assert best_index(starts) == best_index(starts, "cond") == 1
+    # ... except for a criterion that is not a cond (D-optimality): the criterion itself.
+    assert best_index(starts, "dopt") == 0
+    assert best_index([R(float("nan"), True, cond=float("inf")), R(3.0, True)]) == 1
 
 
 def test_worker_errors_reach_the_caller_and_leave_no_process(panda):

@@ -62,7 +62,7 @@ def evaluate_criterion(C: np.ndarray, criterion: str = "cond", gradient: bool = 
         A :class:`CriterionValue` (value inf/gradient 0 when C is rank deficient).
     """
     m, b = C.shape
-    s, Vt = _singular_values_and_vectors(C, vectors=gradient)
+    s, Vt = singular_values_and_vectors(C, vectors=gradient)
     value = _value(s, criterion)
     if not gradient:
         return CriterionValue(value, np.zeros(0), s)
@@ -91,8 +91,8 @@ def evaluate_criterion(C: np.ndarray, criterion: str = "cond", gradient: bool = 
     return CriterionValue(value, grad, s)
 
 
-def _singular_values_and_vectors(C: np.ndarray, vectors: bool) -> tuple[np.ndarray, np.ndarray | None]:
-    """σ (descending) and Vᵀ of C.
+def singular_values_and_vectors(C: np.ndarray, vectors: bool) -> tuple[np.ndarray, np.ndarray | None]:
+    """σ (descending) and Vᵀ of C (None without ``vectors``).
 
     C = QR is backward stable, so the b×b factor R has C's singular values and right
     vectors: one QR (without Q) and a small SVD, ~25 % cheaper than the SVD of a tall C.

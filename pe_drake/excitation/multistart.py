@@ -12,7 +12,7 @@ Use it like::
 
     options = MultiStartOptions(seeds=[0, 1, 2, 3], run=ExecutorOptions(workers=2))
     result = solve_multistart(robot, config.excitation, "ipopt", options)
-    result.best            # the ExcitationResult with the lowest criterion among feasible ones
+    result.best            # the ExcitationResult with the lowest cond among feasible ones
     for s in result.starts:
         print(s.seed, s.cond, s.wall_time, s.worker)
 
@@ -155,8 +155,9 @@ class MultiStartResult:
     """Outcome of :func:`solve_multistart`.
 
     Attributes:
-        best: the kept :class:`~pe_drake.excitation.solve.ExcitationResult`: the lowest criterion
-            among the feasible starts, else the lowest among all (then ``success`` is False).
+        best: the kept :class:`~pe_drake.excitation.solve.ExcitationResult`: the lowest cond
+            (the criterion for ``dopt``) among the feasible starts, else the lowest among all
+            (then ``success`` is False); see :func:`best_index`.
         seed: seed of ``best``.
         starts: one summary per start, in the order of the seeds.
         results: every start's ExcitationResult, same order (``raw`` is None for results
@@ -264,9 +265,13 @@ def _summary(seed: int, done: TaskFinished | TaskLost) -> StartSummary:
     )
 
 
-def best_index(results: Sequence[Any]) -> int:
-    """Index of the result to keep: lowest criterion among successful ones, else among all
-    (ties: the lowest index); None entries (lost starts) are never kept.
+def best_index(results: Sequence[Any], criterion: str = "soft_cond") -> int:
+    """Index of the result to keep: the best reported figure among successful ones, else
+    among all (ties: the lowest index); None entries (lost starts) are never kept.
+
+    The figure is cond(C) for the cond-like criteria (``cond``, ``soft_cond``, ``log_cond``:
+    soft_cond only bounds cond, and 32 G1 starts kept soft_cond's best at cond 182.88 while
+    another start reached 181.93), else the criterion itself (``dopt``).
 
     Raises:
         ValueError: every entry is None.
@@ -276,7 +281,13 @@ def best_index(results: Sequence[Any]) -> int:
         raise ValueError("no start has a result")
     feasible = [k for k in kept if results[k].success]
     pool = feasible or kept
-    return min(pool, key=lambda k: (results[k].fun if np.isfinite(results[k].fun) else math.inf, k))
+    by_cond = criterion in ("cond", "soft_cond", "log_cond")
+
+    def figure(k: int) -> float:
+        value = results[k].cond if by_cond else results[k].fun
+        return value if np.isfinite(value) else math.inf
+
+    return min(pool, key=lambda k: (figure(k), k))
 
 
 # ---- many starts ----------------------------------------------------------------------------------
@@ -426,7 +437,7 @@ def solve_multistart(
     results = [None if isinstance(d, TaskLost) else d.value for d in done]
     if all(r is None for r in results):
         raise WorkerError("every start was lost: " + "; ".join(d.reason for d in done), 0, tasks=range(len(done)))
-    k = best_index(results)
+    k = best_index(results, config.criterion)
     return MultiStartResult(
         best=results[k],
         seed=tasks[k].seed,

@@ -87,6 +87,12 @@ class ExcitationCost:
         ids = {id(alpha) for _, alpha in picked}
         return picked + [c for c in self._best if id(c[1]) not in ids]
 
+    @property
+    def best_value(self) -> float | None:
+        """The lowest criterion among the evaluated points within the joint limits (None
+        before any)."""
+        return self._best[0][0] if self._best else None
+
     def reset(self) -> None:
         """Forgets the points of earlier solves (each solve falls back to its own points)."""
         self._evaluated.clear()

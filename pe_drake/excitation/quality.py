@@ -35,6 +35,7 @@ torques, whatever is measured.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import re
@@ -44,8 +45,10 @@ import numpy as np
 
 from pe_drake.config import noise_vector
 from pe_drake.exceptions import ConfigError
+from pe_drake.excitation.criteria import singular_values_and_vectors
 from pe_drake.excitation.fourier import FourierBasis, sample_times
 from pe_drake.multibody.drive_columns import drive_columns
+from pe_drake.threads import single_threaded_blas
 
 #: Rate of the samples the identification fits [Hz] (its preprocessing decimates to it:
 #: ``pe_drake.identification.estimators.DEFAULT_RATE_HZ``; a test keeps the two equal).
@@ -299,7 +302,7 @@ def parameter_covariance(C: np.ndarray, noise_std: np.ndarray, periods: float = 
     Returns:
         Shape (b, b); infinite when C is rank deficient.
     """
-    _, s, Vt = np.linalg.svd(whitened(C, noise_std), full_matrices=False)
+    s, Vt = singular_values_and_vectors(whitened(C, noise_std), vectors=True)
     if s[-1] <= s[0] * 1e-12:
         return np.full((C.shape[1], C.shape[1]), np.inf)
     return (Vt.T / s**2) @ Vt / periods
@@ -325,7 +328,7 @@ def prediction_rms(
         (per joint, shape (n,); over all joints).
     """
     n = len(noise_std)
-    _, s, Vt = np.linalg.svd(whitened(C, noise_std if row_std is None else row_std), full_matrices=False)
+    s, Vt = singular_values_and_vectors(whitened(C, noise_std if row_std is None else row_std), vectors=True)
     if s[-1] <= s[0] * 1e-12:
         return np.full(n, np.inf), math.inf
     A = (C_ref @ Vt.T) / s  # C_ref V S⁻¹: row sums of squares are c_v (CᵀΣ⁻¹C)⁻¹ c_vᵀ
@@ -335,7 +338,7 @@ def prediction_rms(
 
 def d_efficiency(C: np.ndarray, noise_std: np.ndarray, periods: float = 1) -> float:
     """det(P·CᵀΣ⁻¹C)^(1/2b): the geometric mean of the singular values of √P·Σ^(-1/2)C."""
-    s = np.linalg.svd(whitened(C, noise_std), compute_uv=False)
+    s = singular_values_and_vectors(whitened(C, noise_std), vectors=False)[0]
     if s[-1] <= 0:
         return 0.0
     return float(math.sqrt(periods) * np.exp(np.mean(np.log(s))))
@@ -466,7 +469,7 @@ def _figures(label: str, C: np.ndarray, C_ref: np.ndarray, noise: np.ndarray, ro
              periods: float) -> MotionQuality:
     """The figures of one motion: C its measurement rows (σ ``row_std`` per sample), C_ref the
     reference motions' joint-torque rows (σ ``noise`` per joint)."""
-    s = np.linalg.svd(C, compute_uv=False)
+    s = singular_values_and_vectors(C, vectors=False)[0]
     rms, total = prediction_rms(C, C_ref, noise, periods, row_std)
     std = np.sqrt(np.maximum(np.diag(parameter_covariance(C, row_std, periods)), 0.0))
     cond = float(s[0] / s[-1]) if s[-1] > 0 else math.inf
@@ -483,6 +486,7 @@ def excitation_quality(
     rate_hz: float = DATA_RATE_HZ,
     random_motions: int = RANDOM_MOTIONS,
     seed: int = RANDOM_SEED,
+    one_blas_thread: bool = True,
 ) -> QualityReport:
     """The quality figures of motion ``alpha`` and of random motions under the same constraints.
 
@@ -496,6 +500,8 @@ def excitation_quality(
         rate_hz: rate of the fitted samples [Hz].
         random_motions: random motions to compare with (0: none).
         seed: seed of the first random draw.
+        one_blas_thread: run on one BLAS thread (False: BLAS's own threads, as before issue
+            38; ``bench solve``'s old formulation).
 
     Returns:
         The :class:`QualityReport`.
@@ -503,6 +509,15 @@ def excitation_quality(
     Raises:
         ConfigError: a bad noise_std, periods or rate.
     """
+    # One BLAS thread: OpenBLAS's threads on these few-thousand-row matrices only spin, and
+    # on a loaded 2-core machine G1's report took 17.5 CPU-s with them, 1 CPU-s without
+    # (issue 38, BUILD_NOTES.md).
+    with single_threaded_blas() if one_blas_thread else contextlib.nullcontext():
+        return _quality(problem, alpha, constraints, noise_std, periods, rate_hz, random_motions, seed)
+
+
+def _quality(problem, alpha, constraints, noise_std, periods, rate_hz, random_motions, seed) -> QualityReport:
+    """:func:`excitation_quality`'s work (its arguments)."""
     noise = noise_vector(noise_std, problem.robot.joint_names)
     _check_periods(periods)
     if not (isinstance(rate_hz, (int, float)) and math.isfinite(rate_hz) and rate_hz > 0):

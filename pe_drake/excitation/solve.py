@@ -75,6 +75,10 @@ class ExcitationResult:
         exchange_samples: instants the exchange step added to the program.
         callback_seconds: time in the program's own callbacks (cost, limits, sampled
             constraints) during the solve [s]; the rest of ``wall_time`` is the solver's.
+        far_from_convergence: the solver did not converge and the point returned has a
+            cond-like criterion more than :data:`FAR_FROM_CONVERGENCE` times the best point
+            within the joint limits it evaluated (:func:`far_from_convergence`): not a result,
+            so ``success`` is False whatever the 1 kHz re-check says.
     """
 
     x: np.ndarray
@@ -96,6 +100,7 @@ class ExcitationResult:
     solves: int = 1
     exchange_samples: int = 0
     callback_seconds: float = 0.0
+    far_from_convergence: bool = False
 
 
 def check_margins(
@@ -417,6 +422,31 @@ def _message(cfg: SolverConfig, result, violated: dict[str, float], fallback: st
     return message + stalled
 
 
+#: A solve that did not converge ends "far from convergence" when the criterion at the point
+#: it returns is more than this factor above the best point within the joint limits it
+#: evaluated (issue 38: UR10 starts ended at cond 3,936 and 73,186 and a G1 start at 3,714,
+#: each labelled valid, where their rivals reached 15 and 182).
+FAR_FROM_CONVERGENCE = 2.0
+
+
+def far_from_convergence(converged: bool, value: float, best_evaluated: float | None, criterion: str = "soft_cond") -> bool:
+    """Whether a solve's returned point is no result: the solver did not converge and its
+    criterion ``value`` is above :data:`FAR_FROM_CONVERGENCE` times ``best_evaluated`` (the
+    lowest criterion among the points within the joint limits the solver evaluated; None when
+    it evaluated none). A non-finite ``value`` is always far. For ``log_cond`` the factor is
+    applied to cond (a difference of log 2); ``dopt`` (−log det, any sign) is only judged by
+    finiteness."""
+    if converged:
+        return False
+    if not np.isfinite(value):
+        return True
+    if best_evaluated is None or criterion == "dopt":
+        return False
+    if criterion == "log_cond":
+        return bool(value - best_evaluated > np.log(FAR_FROM_CONVERGENCE))
+    return bool(value > FAR_FROM_CONVERGENCE * best_evaluated)
+
+
 def _cond(singular_values: np.ndarray) -> float:
     return float(singular_values[0] / singular_values[-1]) if singular_values[-1] > 0 else np.inf
 
@@ -480,13 +510,22 @@ def solve_excitation(
     # Nothing outside a joint limit is valid (issue 21): the solver's tolerance applies to
     # the other constraints only.
     violated = {k: m for k, m in margins.items() if m < (0.0 if k in JOINT_LIMIT_KEYS else -tolerance)}
+    best = program.cost.best_value if program.cost is not None else None
+    far = far_from_convergence(bool(solved), float(cost.value), best, problem.config.criterion)
+    if far:
+        fallback += (
+            f"; FAR FROM CONVERGENCE: {problem.config.criterion} {cost.value:.5g} is more than "
+            f"{FAR_FROM_CONVERGENCE:g}x the best point within the joint limits evaluated ({best:.5g}): not a result"
+            if best is not None and np.isfinite(cost.value)
+            else "; FAR FROM CONVERGENCE: the criterion is not finite: not a result"
+        )
     return ExcitationResult(
         x=x,
         trajectory=problem.trajectory(x),
         fun=float(cost.value),
         cond=_cond(cost.singular_values),
         cond_motion=_cond(np.linalg.svd(problem.regressor_block(x), compute_uv=False)),
-        success=not violated,
+        success=not violated and not far,
         converged=bool(solved),
         message=_message(cfg, result, violated, fallback, stalled),
         status=result.get_solution_result().name,
@@ -500,6 +539,7 @@ def solve_excitation(
         solves=run.solves,
         exchange_samples=run.added,
         callback_seconds=program.callback_seconds() - callbacks_before,
+        far_from_convergence=far,
     )
 
 
