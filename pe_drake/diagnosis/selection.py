@@ -263,3 +263,17 @@ def rejected_list(reg: Regression, library: Library, sel: Selection) -> list[dic
                     "unit": c.unit, "z": float(z), "reason": reason})
     out.sort(key=lambda r: -r["z"])
     return out
+
+
+def timing_report(reg: Regression, library: Library, sel: Selection, config: DiagnosisConfig) -> dict[str, Any]:
+    """The timing-offset nuisance: its estimate and whether the selection needed it."""
+    timing_col = library.timing_col
+    timing: dict[str, Any] = {"checked": config.timing_check}
+    if timing_col in sel.selected:
+        timing.update(offset_s=sel.final.value(timing_col), std_s=sel.final.std(timing_col), needed=True,
+                      named=True, convention="positive: the torque log lags the positions")
+    else:
+        f = reg.fit(sel.selected + [timing_col])
+        timing.update(offset_s=f.value(timing_col), std_s=f.std(timing_col), needed=False,
+                      reason=sel.rejected.get(timing_col, ""))
+    return timing

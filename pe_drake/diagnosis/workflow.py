@@ -110,8 +110,9 @@ from pe_drake.diagnosis.regression import (
     unexplained_joints,
 )
 from pe_drake.diagnosis.selection import (CrossValidation, InternalSplit, internal_split, rejected_list,
-                                         say_selection, select)
+                                         say_selection, select, timing_report)
 from pe_drake.diagnosis.report import decision_summary
+from pe_drake.diagnosis.start import identify_columns, start_shortfalls, starting_fit
 from pe_drake.diagnosis.result import DiagnosisResult, NamedEffect, per_joint, time_delay_effect
 from pe_drake.exceptions import DataError, check_joints
 from pe_drake.identification.estimators import IdentificationResult
@@ -449,20 +450,6 @@ def augment(robot, prep: Prepared, lib: CandidateLibrary, pre: PreslidingStep, n
 # ---- 5. unexplained --------------------------------------------------------------------------
 
 
-def timing_report(lib: CandidateLibrary, sel: Selection, config: DiagnosisConfig) -> dict[str, Any]:
-    """The timing-offset nuisance: its estimate and whether the selection needed it."""
-    timing_col = lib.library.timing_col
-    timing: dict[str, Any] = {"checked": config.timing_check}
-    if timing_col in sel.selected:
-        timing.update(offset_s=sel.final.value(timing_col), std_s=sel.final.std(timing_col), needed=True,
-                      named=True, convention="positive: the torque log lags the positions")
-    else:
-        f = lib.regression.fit(sel.selected + [timing_col])
-        timing.update(offset_s=f.value(timing_col), std_s=f.std(timing_col), needed=False,
-                      reason=sel.rejected.get(timing_col, ""))
-    return timing
-
-
 @dataclasses.dataclass(frozen=True, eq=False)
 class Unexplained:
     """What the augmented model leaves (step 5).
@@ -479,7 +466,7 @@ class Unexplained:
 def unexplained(robot, prep: Prepared, lib: CandidateLibrary, sel: Selection, nom: Nominal, aug: Augmentation,
                 config: DiagnosisConfig) -> Unexplained:
     """Joints whose held-out residual stays above their threshold, with their signature."""
-    timing = timing_report(lib, sel, config)
+    timing = timing_report(lib.regression, lib.library, sel, config)
     held = prep.held
     found = unexplained_joints(held.tau - aug.tau, held, sel.thresholds.unexplained, held.record.noise_floor,
                                nom.rms, robot.joint_names, timing)
@@ -533,6 +520,8 @@ def diagnose(
     nom = nominal(robot, prep, lib.regression)
     say("1. a-priori model, held-out RMS [N·m]: " + _fmt_joints(joints, nom.rms))
     lap("nominal")
+    start = starting_fit(lib.regression, identify_columns(robot, prep.base, prep.model, lib.library))
+    say("2. starting fit (identify's: WLS with drive terms), held-out RMS [N·m]: " + _fmt_joints(joints, start.fit.rms_held))
     rigid = rigid_reidentification(lib.regression, prep.training)
     say("2. rigid-body parameters re-identified, held-out RMS [N·m]: " + _fmt_joints(joints, rigid.rms_held))
     lap("rigid")
@@ -561,7 +550,11 @@ def diagnose(
     lap("payload")
     aug = augment(robot, prep, lib, pre, naming, pay, config)
     say("4. augmented Drake model, held-out RMS [N·m]: " + _fmt_joints(joints, aug.rms))
-    for shortfall in (worse := reference_shortfalls(robot, prep.base, lib.regression.held, prep.held, aug.tau)):
+    worse = reference_shortfalls(robot, prep.base, lib.regression.held, prep.held, aug.tau) + start_shortfalls(
+        joints, lib.regression.held.y, start, lib.regression.held.product(start.fit.columns, start.fit.x),
+        pre.regression.held.product(pre.final.columns, pre.final.x), aug.tau - fitted_friction(robot, prep.held),
+        pre.final.columns, lib.library)
+    for shortfall in worse:
         say(shortfall.line())
     lap("augmented")
     left = unexplained(robot, prep, lib, sel, nom, aug, config)
@@ -580,7 +573,8 @@ def diagnose(
         naming.cumulative, left.joints, pay.not_separable, naming.rejected, nom.regimes, pay.rigid,
         pay.outcome.report, left.timing, predictions, residual_series, aug.model, aug.drake_check,
         lap.timings, held.record.noise_floor, sel.thresholds.unexplained, decisions,
-        {**prep.internal.describe(), "held_out": "used only for the figures reported"}, holding, tuple(worse))
+        {**prep.internal.describe(), "held_out": "used only for the figures reported"}, holding, tuple(worse),
+        start.as_dict(lib.library, joints))
 
 
 class _Laps:
