@@ -53,3 +53,38 @@ def test_a_joint_worse_than_the_starting_fit_is_named_with_its_reason(negative_a
     assert all(w["reason"] for w in worse.values())
     assert any(line.startswith("warning: panda_joint4: held-out RMS") and "worse than the starting fit" in line
                for line in lines)
+
+
+def test_real_panda_diagnose_starts_from_identify_and_says_where_it_is_worse():
+    """Issue 36's criterion on the shared real Panda recording (70 % training, as
+    tests/test_drive_terms.py): the starting fit is identify's (within 5 % of ``identify``'s
+    held-out figures or better on every joint), and every joint where the augmented model is
+    more than 5 % worse than it is named with the reason. What is not met: the augmented
+    (physically consistent) model is not within 5 % of identify's WLS on joints 2, 4, 6 and 7
+    (identify's WLS holds negative rotor inertias on joints 3-7 that no physical model holds;
+    ``identify --method physical`` is 56 % worse on joint 4 too; BUILD_NOTES)."""
+    from pe_drake.identification.estimators import read_robot_measurement
+    from pe_drake.identification.identify_model import IdentifyOptions, identify_model
+    from pe_drake.identification.time_window import TimeWindow
+    from pe_drake.identification.validate_model import ValidateOptions, validate_model
+    from tests.test_identification import REAL
+
+    if not REAL.exists():
+        pytest.skip("the real Panda recording is not available")
+    robot = get_robot("panda")
+    raw = read_robot_measurement(robot, REAL)
+    lines: list[str] = []
+    dg = diagnose(robot, raw, config=DiagnosisConfig(holdout_fraction=0.3), progress=lines.append)
+    held = (float(dg.held_out.t[0]), float(dg.held_out.t[-1]))
+    model = identify_model(robot, raw, IdentifyOptions(method="wls", window=TimeWindow(None, float(dg.training.t[-1]))))
+    identify_rms = validate_model(robot, model.result, raw, ValidateOptions(window=TimeWindow(*held))).rms
+    start = np.array(list(dg.start["held_out_rms"].values()))
+    print("identify", identify_rms.round(4), "start", start.round(4), "diagnose", dg.rms_after.round(4))
+    # measured: identify 0.132 0.095 0.082 0.095 0.062 0.022 0.035, start 0.126 0.098 0.075 0.097
+    # 0.063 0.021 0.035, diagnose 0.130 0.102 0.079 0.149 0.057 0.026 0.040
+    assert np.all(start < 1.05 * identify_rms)
+    flagged = {s.channel: s for s in dg.worse if s.reference == "start"}
+    for j, name in enumerate(robot.joint_names):
+        if dg.rms_after[j] > 1.05 * start[j]:
+            assert name in flagged and flagged[name].reason, (name, dg.rms_after[j], start[j])
+            assert any(line.startswith(f"warning: {name}: ") and flagged[name].reason in line for line in lines)
