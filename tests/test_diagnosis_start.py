@@ -42,6 +42,28 @@ def test_the_starting_fit_is_identifys_and_finds_the_negative_armature(negative_
     assert any(line.startswith("2. starting fit (identify's") for line in lines)
 
 
+def test_the_starting_fit_is_identify_on_the_same_rows(negative_armature):
+    """The same kernel: ``identify`` (WLS, default drive terms) on the diagnosis's training rows
+    (its Coulomb column, parallel-filtered, passed as identify's ``coulomb``) gives the starting
+    fit's drive terms; identify reports the total friction, the diagnosis what the URDF lacks."""
+    from pe_drake.diagnosis.effects import EFFECT_TERMS
+    from pe_drake.identification.estimators import identify
+    from pe_drake.identification.measurements import Measurement
+
+    robot, result, _ = negative_armature
+    seg = result.training
+    fit = identify(robot, Measurement(seg.t, seg.q, seg.tau, seg.v, seg.vd, robot.joint_names, ""), "wls",
+                   coulomb=seg.coulomb)
+    assert fit.weights_converged
+    model_file = {"viscous": robot.joint_damping, "coulomb": robot.joint_friction}
+    term_of = {term: effect for effect, term in EFFECT_TERMS.items()}
+    ours = result.start["drive_terms"]
+    assert len(ours) == len(fit.drive.layout.labels)
+    for term, j, value in zip(fit.drive.layout.terms, fit.drive.layout.joints, fit.drive.theta):
+        total = ours[f"{term_of[term]}[{robot.joint_names[j]}]"] + (model_file[term][j] if term in model_file else 0.0)
+        assert total == pytest.approx(value, abs=1e-8), (term, j)
+
+
 def test_a_joint_worse_than_the_starting_fit_is_named_with_its_reason(negative_armature):
     """The physical augmented model cannot hold armature < 0: joint 4 is worse than the
     starting fit, and the output and diagnosis.json say so and why."""
