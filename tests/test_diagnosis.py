@@ -17,6 +17,7 @@ import pytest
 
 from pe_drake.cli import main as cli
 from pe_drake.diagnosis import DiagnosisConfig, diagnose
+from pe_drake.diagnosis.options import KEPT
 from pe_drake.diagnosis.effects import (
     joint_candidates,
     payload_groups,
@@ -146,9 +147,11 @@ def test_realistic_mix_names_every_friction_within_ten_percent(robot, trajectory
         assert_close(found[key].value, value)
     assert not result.unexplained
     assert np.all(result.rms_after < 0.1 * result.rms_nominal)
-    # the cumulative table goes nominal -> rigid -> one column per effect
+    # the cumulative table goes nominal -> rigid -> the starting fit's terms kept and not named
+    # (issue 36, one step) -> one column per effect
+    kept = [d for d in result.decisions if d["decision"] == KEPT]
     assert [s for s, _ in result.cumulative][:2] == ["nominal", "rigid"]
-    assert len(result.cumulative) == 2 + len(expected)
+    assert len(result.cumulative) == 2 + bool(kept) + len(expected)
     np.testing.assert_allclose(result.cumulative[-1][1], result.rms_after, rtol=0.05, atol=1e-3)
 
 
@@ -217,7 +220,7 @@ def test_command_writes_every_output_and_the_augmented_model_loads(robot, trajec
     for key in ("effects", "rms_nominal", "rms_rigid", "rms_after", "unexplained", "cumulative", "rejected",
                 "decisions", "selection"):
         assert key in d
-    assert {x["decision"] for x in d["decisions"]} <= {"selected", "rejected", "not separable", "not tried"}
+    assert {x["decision"] for x in d["decisions"]} <= {"selected", "rejected", KEPT, "not separable", "not tried"}
     assert "3. decisions: " in capsys.readouterr().out
     assert d["effects"][0]["effect"] == "armature" and d["effects"][0]["joint"] == "panda_joint4"
     assert d["effects"][0]["unit"] == "kg·m²"
@@ -326,7 +329,9 @@ def test_every_candidate_gets_a_decision_with_its_statistic(robot, trajectory):
     rejected = {(r["effect"], r["joint"]) for r in result.rejected if r["effect"] in JOINT_EFFECTS}
     assert all("z" in r and r["reason"] for r in result.rejected)
     assert not named_ & rejected
-    assert len(named_) + len(rejected) + len(result.not_separable) == len(JOINT_EFFECTS) * robot.n
+    kept = {(d["effect"], d["joint"]) for d in result.decisions if d["decision"] == KEPT}  # issue 36
+    assert not kept & (named_ | rejected)
+    assert len(named_) + len(rejected) + len(kept) + len(result.not_separable) == len(JOINT_EFFECTS) * robot.n
 
 
 # ---- the hold-out stays clean (issue 23) ------------------------------------------------------
@@ -368,9 +373,9 @@ def test_decisions_list_every_candidate_with_its_test_and_statistic(robot, traje
     assert selected == set(named(result))
     tests = {"sign", "z", "gain", "other_joints", "relevance", "backward", "replaced", "presliding", "payload"}
     for d in result.decisions:
-        if d["decision"] == "rejected":
+        if d["decision"] in ("rejected", KEPT):
             assert d["test"] in tests and d["reason"], d
-        if d["decision"] in ("selected", "rejected") and d["effect"] in JOINT_EFFECTS:
+        if d["decision"] in ("selected", "rejected", KEPT) and d["effect"] in JOINT_EFFECTS:
             assert d["z"] >= 0 and d["z_min"] > 0 and "relative_gain" in d and "selection_rms_after" in d, d
         if d["decision"] == "selected" and d["effect"] in JOINT_EFFECTS:
             assert d["z"] >= d["z_min"] and d["relative_gain"] >= result.config.min_heldout_gain
@@ -418,4 +423,5 @@ def test_a_candidate_that_passed_when_the_selection_was_full_says_so(robot, traj
     result = diagnose(robot, measurement, config=DiagnosisConfig(max_effects=2))
     rejected = [d for d in result.decisions if d["decision"] == "rejected"]
     assert all(d["test"] and d["reason"] for d in rejected)
-    assert any(d["test"] == "max_effects" for d in rejected)
+    # one that passed among the starting fit's drive terms stays in the model (issue 36), saying so
+    assert any(d["test"] == "max_effects" for d in result.decisions if d["decision"] in ("rejected", KEPT))

@@ -395,6 +395,7 @@ def test_real_panda_identify_predicts_the_held_out_part_like_diagnose():
     assert model.result.weight_iterations > 1
     report = validate_model(robot, model.result, raw, ValidateOptions(window=TimeWindow(*held)))
     print("identify", report.rms.round(4), "diagnose", dg.rms_after.round(4))
-    # measured: identify 0.132 0.095 0.082 0.095 0.062 0.022 0.035, diagnose 0.124 0.094 0.131 0.130
-    # 0.066 0.034 0.043 (the one-step WLS weights of the OLS residual left joint 6 at 0.054)
+    # measured: identify 0.132 0.095 0.082 0.095 0.062 0.022 0.035, diagnose 0.130 0.102 0.079 0.149
+    # 0.057 0.026 0.040 since it starts from identify's fit (issue 36; 0.124 0.094 0.131 0.130 0.066
+    # 0.034 0.043 before; the one-step WLS weights of the OLS residual left joint 6 at 0.054)
     assert np.all(report.rms < 1.10 * dg.rms_after)

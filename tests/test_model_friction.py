@@ -98,7 +98,9 @@ def test_the_truths_viscous_friction_replaces_the_urdf_damping(damped, trajector
     assert effect.details["total"] == pytest.approx(1.5, rel=0.05)
     j = damped.joint_names.index("panda_joint4")
     assert result.augmented.viscous[j] == pytest.approx(1.5, rel=0.05)  # the augmented model holds the total
-    assert result.augmented.viscous[0] == DAMPING
+    # the URDF's damping plus the starting fit's (identify's) unnamed correction, at the noise
+    # level (issue 36: measured 0.4993 for 0.5)
+    assert result.augmented.viscous[0] == pytest.approx(DAMPING, rel=0.01)
     assert result.rms_after[j] < 0.2 * result.rms_nominal[j]
 
 

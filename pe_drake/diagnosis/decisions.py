@@ -2,8 +2,10 @@
 
 One entry per candidate the diagnosis considered: each per-joint effect of the library, the
 timing column, the pre-sliding test of each joint and the payload search. ``decision`` is
-``selected``, ``rejected``, ``not separable`` or ``not tried``; ``test`` names the criterion
-that decided a rejection:
+``selected``, ``rejected``, ``kept, not named`` (:data:`~pe_drake.diagnosis.options.KEPT`: a drive term of the starting fit, identify's, kept
+in the model because it improves the cross-validated error but not named: ``test`` and
+``reason`` say which criterion it missed), ``not separable`` or ``not tried``; ``test`` names
+the criterion that decided a rejection:
 
 - ``sign``: a friction or armature came out negative (criterion (a));
 - ``z``: |θ| / σ_θ below the Bonferroni bound ``z_min`` on the training segment (b);
@@ -30,7 +32,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from pe_drake.diagnosis.effects import Separability
-from pe_drake.diagnosis.options import TIMING
+from pe_drake.diagnosis.options import KEPT, TIMING
 from pe_drake.diagnosis.presliding import PRESLIDING, PreslidingStep
 from pe_drake.diagnosis.regression import Library, Selection
 
@@ -88,6 +90,9 @@ def _tried(entry: dict[str, Any], col: int, sel: Selection, pre: PreslidingStep,
     if col in sel.selected and col in pre.dropped:
         entry.update(decision="rejected", test="replaced",
                      reason=f"selected, then dropped: {PRESLIDING} of its joint took its place")
+    elif col in sel.unnamed:  # the starting fit's term: in the model, not named (start.start_terms)
+        entry.update(decision=KEPT, test=verdict.test, reason=verdict.reason, value=sel.final.value(col),
+                     std=sel.final.std(col))
     elif col in sel.selected:
         entry.update(decision="selected", test="", reason="")
         value, std = sel.final.value(col), sel.final.std(col)

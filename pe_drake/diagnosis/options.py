@@ -21,6 +21,8 @@ from pe_drake.multibody.drive_columns import COULOMB_VELOCITY_SCALE
 
 #: The effect (and column -dτ/dt) of a timing offset between the torque and position logs.
 TIMING = "time_delay"
+#: The decision of a starting-fit drive term kept in the model but not named (diagnosis/decisions.py).
+KEPT = "kept, not named"
 #: Largest condition number of the (column-scaled) training regressor the diagnosis accepts
 #: (optimized trajectories give about 10; above this some base parameters are barely excited
 #: and effects cannot be told apart from them reliably).

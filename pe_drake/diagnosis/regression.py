@@ -315,6 +315,9 @@ class Selection:
         verdicts: {column: the :class:`Verdict` that decided it}: for a selected column the
             one of its addition (its ``z`` then updated from ``final``), for a rejected one its
             last trial, for one dropped in the backward check test ``backward``.
+
+        unnamed: the starting fit's drive terms kept in the model but not named
+            (:func:`~pe_drake.diagnosis.start.start_terms`); in ``selected`` and ``order``.
     """
 
     selected: list[int]
@@ -324,10 +327,11 @@ class Selection:
     thresholds: Thresholds
     steps: list[tuple[str, int, Fit | None]]
     verdicts: dict[int, Verdict] = dataclasses.field(default_factory=dict)
+    unnamed: tuple[int, ...] = ()
 
 
 def select_effects(reg: Regression, split: Scorer, library: Library, rigid: Fit, thresholds: Thresholds,
-                   config: DiagnosisConfig) -> Selection:
+                   config: DiagnosisConfig, start: Any = None) -> Selection:
     """Forward stepwise selection, then a backward check (workflow step 3), on the training
     segment alone.
 
@@ -341,19 +345,26 @@ def select_effects(reg: Regression, split: Scorer, library: Library, rigid: Fit,
         rigid: the rigid-body fit of ``reg``.
         thresholds: what the columns are held to.
         config: ``max_effects`` and ``timing_check``.
+        start: the starting fit's drive terms (:class:`~pe_drake.diagnosis.start.StartTerms`),
+            or None: the forward selection starts from them, the backward check keeps them,
+            the ones it left out are not tried again, and ``max_effects`` counts the others.
 
     Each accepted column re-estimates the autocorrelation inflation of ``reg`` from the new
     residual (the regression keeps it for the fits that follow).
     """
-    selected: list[int] = []
-    order: list[int] = []
-    rejected: dict[int, str] = {}
-    verdicts: dict[int, Verdict] = {}
+    kept = list(start.kept) if start is not None else []
+    selected: list[int] = list(kept)
+    order: list[int] = list(kept)
+    verdicts: dict[int, Verdict] = dict(start.verdicts) if start is not None else {}
+    rejected: dict[int, str] = {c: v.reason for c, v in verdicts.items() if c not in kept}
     steps: list[tuple[str, int, Fit | None]] = []
-    current, current_split = rigid, split.fit([])
+    current, current_split = (reg.fit(kept), split.fit(kept)) if kept else (rigid, split.fit([]))
+    if kept:
+        reg.inflation = integrated_autocorrelation(reg.residual("training", current))
     timing_col = library.timing_col
-    pool = list(library.col_of.values()) + ([timing_col] if config.timing_check else [])
-    while len([c for c in selected if c != timing_col]) < config.max_effects:
+    pool = [c for c in library.col_of.values() if c not in verdicts] + ([timing_col] if config.timing_check else [])
+    unnamed = tuple(c for c in kept if c not in start.named) if start is not None else ()
+    while len([c for c in selected if c != timing_col and c not in unnamed]) < config.max_effects:
         best, best_fits, best_gain = None, None, 0.0
         for col in pool:
             if col in selected:
@@ -386,18 +397,20 @@ def select_effects(reg: Regression, split: Scorer, library: Library, rigid: Fit,
             reason = f"passed, but the selection stopped at max_effects = {config.max_effects}"
             verdicts[col] = Verdict(False, reason, "max_effects", verdict.stats)
             rejected[col] = reason
-    current = _backward_check(reg, library, selected, current, thresholds.z_min, rejected, steps, verdicts)
-    return Selection(selected, [c for c in order if c in selected], current, rejected, thresholds, steps, verdicts)
+    current = _backward_check(reg, library, selected, current, thresholds.z_min, rejected, steps, verdicts, kept)
+    return Selection(selected, [c for c in order if c in selected], current, rejected, thresholds, steps, verdicts,
+                     unnamed)
 
 
 def _backward_check(reg: Regression, library: Library, selected: list[int], current: Fit, z_min: float,
-                    rejected: dict[int, str], steps: list, verdicts: dict[int, Verdict]) -> Fit:
+                    rejected: dict[int, str], steps: list, verdicts: dict[int, Verdict], kept: Sequence[int] = ()) -> Fit:
     """Drops, one at a time, the columns no longer plausible and significant with the others
-    (updates ``selected``, ``rejected``, ``steps`` and ``verdicts`` in place); returns the last fit."""
+    (updates ``selected``, ``rejected``, ``steps`` and ``verdicts`` in place); returns the last fit.
+    The starting fit's terms ``kept`` were decided by the cross-validation and stay."""
     cand_of = library.cand_of
     while selected:
         worst, worst_z = None, np.inf
-        for col in selected:
+        for col in (c for c in selected if c not in kept):
             value = current.value(col)
             z = abs(value) / max(current.std(col), 1e-300)
             if col in cand_of and cand_of[col].nonnegative and value < cand_of[col].lower:

@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from pe_drake.diagnosis.options import KEPT
 from pe_drake.io_utils import atomic_write_text
 from pe_drake.plots import save_figure
 
@@ -369,7 +370,7 @@ def decision_summary(decisions: Sequence[dict[str, Any]]) -> str:
     parts = [f"{counts.get('selected', 0)} selected",
              f"{counts.get('rejected', 0)} rejected"
              + (" (" + ", ".join(f"{k} {v}" for k, v in tests.most_common()) + ")" if tests else "")]
-    parts += [f"{counts[k]} {k}" for k in ("not separable", "not tried") if counts.get(k)]
+    parts += [f"{counts[k]} {k}" for k in (KEPT, "not separable", "not tried") if counts.get(k)]
     return f"{len(decisions)} candidates: " + ", ".join(parts)
 
 

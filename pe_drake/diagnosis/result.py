@@ -121,7 +121,9 @@ class DiagnosisResult:
             rest periods of both parts, decision and reason.
         worse: the joints whose augmented model is worse on the held-out part than the model
             file's (CAD) or than predicting zero
-            (:class:`~pe_drake.identification.reference_errors.Shortfall`).
+            (:class:`~pe_drake.identification.reference_errors.Shortfall`), or than the starting
+            fit (identify's, :mod:`pe_drake.diagnosis.start`), each with its reason.
+        start: the starting fit (:meth:`~pe_drake.diagnosis.start.StartingFit.as_dict`).
     """
 
     robot: str
@@ -152,6 +154,7 @@ class DiagnosisResult:
     selection: dict[str, Any] = dataclasses.field(default_factory=dict)
     holding_test: dict[str, Any] = dataclasses.field(default_factory=dict)
     worse: tuple = ()
+    start: dict[str, Any] = dataclasses.field(default_factory=dict)
 
     def per_joint(self, x: np.ndarray) -> dict[str, float]:
         """{joint: value} of a per-joint array."""
@@ -193,7 +196,8 @@ class DiagnosisResult:
             "payload_test": self.payload_test,
             "timing": self.timing,
             "holding_test": self.holding_test,
-            "worse_than_references": shortfall_report(self.worse, ("a_priori", "zero")),
+            "starting_fit": self.start,
+            "worse_than_references": shortfall_report(self.worse, ("a_priori", "zero", "start")),
             "drake_check_max_abs": self.per_joint(self.drake_check),
             "config": {k: (list(v) if isinstance(v, tuple) else v)
                        for k, v in dataclasses.asdict(self.config).items()},

@@ -45,7 +45,8 @@ import numpy as np
 
 from pe_drake.diagnosis.options import TIMING, DiagnosisConfig, Thresholds
 from pe_drake.diagnosis.record import Segment
-from pe_drake.diagnosis.regression import Columns, Fit, Library, Regression, Score, Selection, select_effects
+from pe_drake.diagnosis.regression import Columns, Fit, Library, Regression, Score, Selection, accept, select_effects
+from pe_drake.diagnosis.start import StartingFit, start_terms
 from pe_drake.exceptions import DataError
 
 #: Length of a block of the internal split, in periods of the cut-off (module docstring).
@@ -233,15 +234,45 @@ def selection_thresholds(config: DiagnosisConfig, training: Segment, held: Segme
 
 
 def select(reg: Regression, split: CrossValidation, library: Library, rigid: Fit, training: Segment, held: Segment,
-           config: DiagnosisConfig) -> Selection:
-    """The thresholds, then forward selection and backward check on the training data."""
+           config: DiagnosisConfig, start: StartingFit | None = None) -> Selection:
+    """The thresholds, the starting fit's drive terms a physical model holds and the
+    cross-validation keeps (:func:`~pe_drake.diagnosis.start.start_terms`), then forward
+    selection and backward check on the training data."""
     thresholds = selection_thresholds(config, training, held, len(library.candidates) + 1)
-    return select_effects(reg, split, library, rigid, thresholds, config)
+    terms = start_terms(reg, split, library, start.columns, thresholds, config.max_effects) if start is not None else None
+    sel = select_effects(reg, split, library, rigid, thresholds, config, terms)
+    return renamed(reg, split, library, sel) if terms is not None else sel
+
+
+def renamed(reg: Regression, split: CrossValidation, library: Library, sel: Selection) -> Selection:
+    """A starting-fit term named before the forward selection added columns stays named only if
+    it still passes :func:`~pe_drake.diagnosis.regression.accept` against the final model without
+    it (a Coulomb friction that stood in for a time delay is not named once the delay is in);
+    else it stays in the model unnamed."""
+    added = {col for _, col, _ in sel.steps}
+    if not added:
+        return sel
+    verdicts, unnamed = dict(sel.verdicts), list(sel.unnamed)
+    current = split.fit(sel.selected)
+    for col in sel.selected:
+        if col in added or col in unnamed or col == library.timing_col:
+            continue
+        without = [c for c in sel.selected if c != col]
+        verdict = accept(col, sel.final, current, split.fit(without), library, sel.thresholds)
+        if not verdict.accepted:
+            verdicts[col], unnamed = verdict, unnamed + [col]
+    return dataclasses.replace(sel, verdicts=verdicts, unnamed=tuple(unnamed))
 
 
 def say_selection(say: Callable[[str], None], sel: Selection, library: Library, joints: Sequence[str],
                   fmt: Callable[[Sequence[str], Any], str]) -> None:
     """One progress line per addition (with the held-out RMS, a reported figure) or removal."""
+    if sel.order:
+        kept = [c for c in sel.order if c not in {col for _, col, _ in sel.steps}]
+        named = [library.label(c) for c in kept if c not in sel.unnamed]
+        if kept:
+            say(f"3. from the starting fit: {len(kept)} drive terms kept (within their physical bounds), "
+                f"named: {', '.join(named) or 'none'}")
     for sign, col, fit in sel.steps:
         if sign == "+":
             say(f"3. + {library.label(col)}: held-out RMS [N·m] " + fmt(joints, fit.rms_held))
@@ -263,3 +294,17 @@ def rejected_list(reg: Regression, library: Library, sel: Selection) -> list[dic
                     "unit": c.unit, "z": float(z), "reason": reason})
     out.sort(key=lambda r: -r["z"])
     return out
+
+
+def timing_report(reg: Regression, library: Library, sel: Selection, config: DiagnosisConfig) -> dict[str, Any]:
+    """The timing-offset nuisance: its estimate and whether the selection needed it."""
+    timing_col = library.timing_col
+    timing: dict[str, Any] = {"checked": config.timing_check}
+    if timing_col in sel.selected:
+        timing.update(offset_s=sel.final.value(timing_col), std_s=sel.final.std(timing_col), needed=True,
+                      named=True, convention="positive: the torque log lags the positions")
+    else:
+        f = reg.fit(sel.selected + [timing_col])
+        timing.update(offset_s=f.value(timing_col), std_s=f.std(timing_col), needed=False,
+                      reason=sel.rejected.get(timing_col, ""))
+    return timing

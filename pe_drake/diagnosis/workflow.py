@@ -77,13 +77,13 @@ import numpy as np
 from pe_drake.diagnosis.augmented_model import augmented_model
 from pe_drake.diagnosis.decisions import decision_list
 from pe_drake.diagnosis.effects import (
-    EXPOSING_REGIME,
     Separability,
     joint_candidates,
     prior_parameter_covariance,
     separability,
 )
-from pe_drake.diagnosis.options import MAX_COND, TIMING, DiagnosisConfig
+from pe_drake.diagnosis.naming import Naming, name_effects
+from pe_drake.diagnosis.options import MAX_COND, DiagnosisConfig
 from pe_drake.diagnosis.payload import (
     BaseChange,
     PayloadOutcome,
@@ -109,10 +109,11 @@ from pe_drake.diagnosis.regression import (
     rms,
     unexplained_joints,
 )
-from pe_drake.diagnosis.selection import (CrossValidation, InternalSplit, internal_split, rejected_list,
-                                         say_selection, select)
+from pe_drake.diagnosis.selection import (CrossValidation, InternalSplit, internal_split,
+                                         say_selection, select, timing_report)
 from pe_drake.diagnosis.report import decision_summary
-from pe_drake.diagnosis.result import DiagnosisResult, NamedEffect, per_joint, time_delay_effect
+from pe_drake.diagnosis.start import identify_columns, start_shortfalls, starting_fit
+from pe_drake.diagnosis.result import DiagnosisResult
 from pe_drake.exceptions import DataError, check_joints
 from pe_drake.identification.estimators import IdentificationResult
 from pe_drake.identification.gaps import longest_segment
@@ -288,80 +289,6 @@ def rigid_reidentification(reg: Regression, training: Segment) -> Fit:
 # ---- 3. effects ------------------------------------------------------------------------------
 
 
-@dataclasses.dataclass(frozen=True, eq=False)
-class Naming:
-    """The named per-joint effects and what the selection left out.
-
-    Attributes:
-        effect_cols: the selected columns (``time_delay`` included), in selection order.
-        cumulative: [(step label, per-joint held-out RMS)] nominal → rigid → each effect.
-        last_fit: the fit with every named effect (the last cumulative step).
-        effects: the :class:`~pe_drake.diagnosis.result.NamedEffect`s.
-        series: held-out residual of each effect's joint without it and with all named.
-        rejected: every candidate tried and not named, with its z and the reason.
-    """
-
-    effect_cols: list[int]
-    cumulative: list[tuple[str, np.ndarray]]
-    last_fit: Fit
-    effects: list[NamedEffect]
-    series: list[dict[str, Any]]
-    rejected: list[dict[str, Any]]
-
-
-def name_effects(robot, lib: CandidateLibrary, sel: Selection, rigid: Fit, nom: Nominal,
-                 config: DiagnosisConfig) -> Naming:
-    """The cumulative table, each selected effect as a NamedEffect, the rejected candidates."""
-    reg, library = lib.regression, lib.library
-    cumulative = [("nominal", nom.rms), ("rigid", rigid.rms_held)]
-    effect_cols = list(sel.order)
-    fits_cum = [rigid]
-    for k in range(len(effect_cols)):
-        f = reg.fit(effect_cols[: k + 1])
-        fits_cum.append(f)
-        cumulative.append((f"+ {library.label(effect_cols[k])}", f.rms_held))
-    effects, series = _named(reg, library, sel.final, effect_cols, fits_cum, robot, config)
-    return Naming(effect_cols, cumulative, fits_cum[-1], effects, series, rejected_list(reg, library, sel))
-
-
-def _named(reg: Regression, library: Library, final: Fit, effect_cols: list[int], fits_cum: list[Fit], robot,
-           config: DiagnosisConfig) -> tuple[list[NamedEffect], list[dict[str, Any]]]:
-    """Each effect with its value, and the fits with everything but it for its plot."""
-    joints = robot.joint_names
-    named: list[NamedEffect] = []
-    series: list[dict[str, Any]] = []
-    res_final = reg.residual("held-out", reg.fit(effect_cols))
-    for k, col in enumerate(effect_cols):
-        without = reg.fit([x for x in effect_cols if x != col])
-        value = final.value(col)
-        std = final.std(col)
-        if col == library.timing_col:
-            named.append(time_delay_effect(value, std, per_joint(joints, reg.contribution_rms("held-out", final, col)),
-                                           per_joint(joints, fits_cum[k].rms_held),
-                                           per_joint(joints, fits_cum[k + 1].rms_held)))
-            j = int(np.argmax(fits_cum[k].rms_held - fits_cum[k + 1].rms_held))
-            series.append({"label": TIMING, "effect": TIMING, "joint": j, "regime": EXPOSING_REGIME[TIMING],
-                           "before": reg.residual("held-out", without)[:, j], "after": res_final[:, j]})
-            continue
-        c = library.cand_of[col]
-        details: dict[str, Any] = {"contribution_rms": float(reg.contribution_rms("held-out", final, col)[c.joint])}
-        # The value is what the model file lacks (the fit starts from its friction, -c.lower): the total.
-        if c.effect == "viscous_friction":
-            details.update(model_file_damping=-c.lower, total=float(value - c.lower))
-        if c.effect == "coulomb_friction":
-            details.update(velocity_scale=config.coulomb_velocity_scale, model_file_friction=-c.lower,
-                           total=float(value - c.lower))
-        named.append(NamedEffect(
-            c.effect, c.joint_name, "", float(value), c.unit, float(std), float(abs(value) / max(std, 1e-300)),
-            per_joint(joints, fits_cum[k].rms_held), per_joint(joints, fits_cum[k + 1].rms_held), details))
-        series.append({
-            "label": c.label, "effect": c.effect, "joint": c.joint, "regime": EXPOSING_REGIME[c.effect],
-            "before": reg.residual("held-out", without)[:, c.joint],
-            "after": res_final[:, c.joint],
-        })
-    return named, series
-
-
 # ---- payload and the rigid-body report -------------------------------------------------------
 
 
@@ -420,8 +347,9 @@ def augment(robot, prep: Prepared, lib: CandidateLibrary, pre: PreslidingStep, n
     """The named effects added to the model in Drake, its held-out torque and the gap."""
     held, library, final = prep.held, lib.library, pre.final
     dahl = {f.column: f for f in pre.fits}  # Coulomb slots holding pre-sliding friction
-    values = {col: final.value(col) for col in naming.effect_cols
-              if col != library.timing_col and col not in dahl and col not in pre.dropped}
+    # a starting-fit term the later columns pushed below its bound is held there (diagnosis/start.py)
+    values = {col: max(final.value(col), c.lower) if c.nonnegative else final.value(col) for col in naming.effect_cols
+              if col != library.timing_col and col not in dahl and col not in pre.dropped and (c := library.cand_of[col])}
     presliding = {f.joint: (final.value(c), final.value(c) / f.displacement) for c, f in dahl.items()}
     delay = final.value(library.timing_col) if library.timing_col in naming.effect_cols else 0.0
     effect = pay.outcome.effect
@@ -449,20 +377,6 @@ def augment(robot, prep: Prepared, lib: CandidateLibrary, pre: PreslidingStep, n
 # ---- 5. unexplained --------------------------------------------------------------------------
 
 
-def timing_report(lib: CandidateLibrary, sel: Selection, config: DiagnosisConfig) -> dict[str, Any]:
-    """The timing-offset nuisance: its estimate and whether the selection needed it."""
-    timing_col = lib.library.timing_col
-    timing: dict[str, Any] = {"checked": config.timing_check}
-    if timing_col in sel.selected:
-        timing.update(offset_s=sel.final.value(timing_col), std_s=sel.final.std(timing_col), needed=True,
-                      named=True, convention="positive: the torque log lags the positions")
-    else:
-        f = lib.regression.fit(sel.selected + [timing_col])
-        timing.update(offset_s=f.value(timing_col), std_s=f.std(timing_col), needed=False,
-                      reason=sel.rejected.get(timing_col, ""))
-    return timing
-
-
 @dataclasses.dataclass(frozen=True, eq=False)
 class Unexplained:
     """What the augmented model leaves (step 5).
@@ -479,7 +393,7 @@ class Unexplained:
 def unexplained(robot, prep: Prepared, lib: CandidateLibrary, sel: Selection, nom: Nominal, aug: Augmentation,
                 config: DiagnosisConfig) -> Unexplained:
     """Joints whose held-out residual stays above their threshold, with their signature."""
-    timing = timing_report(lib, sel, config)
+    timing = timing_report(lib.regression, lib.library, sel, config)
     held = prep.held
     found = unexplained_joints(held.tau - aug.tau, held, sel.thresholds.unexplained, held.record.noise_floor,
                                nom.rms, robot.joint_names, timing)
@@ -533,15 +447,18 @@ def diagnose(
     nom = nominal(robot, prep, lib.regression)
     say("1. a-priori model, held-out RMS [N·m]: " + _fmt_joints(joints, nom.rms))
     lap("nominal")
+    start = starting_fit(lib.regression, identify_columns(robot, prep.base, prep.model, lib.library))
+    say("2. starting fit (identify's: WLS with drive terms), held-out RMS [N·m]: " + _fmt_joints(joints, start.fit.rms_held))
     rigid = rigid_reidentification(lib.regression, prep.training)
     say("2. rigid-body parameters re-identified, held-out RMS [N·m]: " + _fmt_joints(joints, rigid.rms_held))
     lap("rigid")
+    lib.regression.set_weights(start.weights)  # identify's weights (the fixed point) for the effects
     split = CrossValidation.of(lib.regression, prep.internal)
-    sel = select(lib.regression, split, lib.library, rigid, prep.training, prep.held, config)
+    sel = select(lib.regression, split, lib.library, rigid, prep.training, prep.held, config, start)
     sel = add_friction_pairs(lib.regression, split, lib.library, sel, config.max_effects)  # sliding + at rest
     say_selection(say, sel, lib.library, joints, _fmt_joints)
     lap("effects")
-    naming = name_effects(robot, lib, sel, rigid, nom, config)
+    naming = name_effects(robot, lib.regression, lib.library, sel, rigid, nom.rms, config)
     pre = presliding_step(prep, lib, sel, config, split)
     naming = dataclasses.replace(naming, effects=presliding_effects(naming.effects, pre, lib.library, joints),
                                  series=pre.series(naming.series, joints), rejected=naming.rejected + pre.not_named(),
@@ -561,7 +478,11 @@ def diagnose(
     lap("payload")
     aug = augment(robot, prep, lib, pre, naming, pay, config)
     say("4. augmented Drake model, held-out RMS [N·m]: " + _fmt_joints(joints, aug.rms))
-    for shortfall in (worse := reference_shortfalls(robot, prep.base, lib.regression.held, prep.held, aug.tau)):
+    worse = reference_shortfalls(robot, prep.base, lib.regression.held, prep.held, aug.tau) + start_shortfalls(
+        joints, lib.regression.held.y, start, lib.regression.held.product(start.fit.columns, start.fit.x),
+        pre.regression.held.product(pre.final.columns, pre.final.x), aug.tau - fitted_friction(robot, prep.held),
+        pre.final.columns, lib.library)
+    for shortfall in worse:
         say(shortfall.line())
     lap("augmented")
     left = unexplained(robot, prep, lib, sel, nom, aug, config)
@@ -580,7 +501,8 @@ def diagnose(
         naming.cumulative, left.joints, pay.not_separable, naming.rejected, nom.regimes, pay.rigid,
         pay.outcome.report, left.timing, predictions, residual_series, aug.model, aug.drake_check,
         lap.timings, held.record.noise_floor, sel.thresholds.unexplained, decisions,
-        {**prep.internal.describe(), "held_out": "used only for the figures reported"}, holding, tuple(worse))
+        {**prep.internal.describe(), "held_out": "used only for the figures reported"}, holding, tuple(worse),
+        start.as_dict(lib.library, joints))
 
 
 class _Laps:

@@ -18,6 +18,7 @@ every joint by a fraction of a percent.
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -29,7 +30,8 @@ from pe_drake.identification.statistics import integrated_autocorrelation
 SIGNIFICANCE = 2.0
 
 #: The references and how the output names them.
-REFERENCE_NAMES = {"a_priori": "the a-priori (model file) model", "zero": "predicting zero"}
+REFERENCE_NAMES = {"a_priori": "the a-priori (model file) model", "zero": "predicting zero",
+                   "start": "the starting fit (identify's, on the same training part)"}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -38,10 +40,11 @@ class Shortfall:
 
     Attributes:
         channel: the joint (or ``tau.<joint>``, ``wrench.fx``, ... as the caller names them).
-        reference: ``a_priori`` or ``zero`` (:data:`REFERENCE_NAMES`).
+        reference: ``a_priori``, ``zero`` or ``start`` (:data:`REFERENCE_NAMES`).
         rms: the model's RMS error [N·m, N].
         reference_rms: the reference's on the same samples.
         z: mean(e_model² − e_ref²) over its standard error.
+        reason: why, when the caller knows ("" otherwise).
     """
 
     channel: str
@@ -49,6 +52,7 @@ class Shortfall:
     rms: float
     reference_rms: float
     z: float
+    reason: str = ""
 
     @property
     def percent_worse(self) -> float:
@@ -57,15 +61,17 @@ class Shortfall:
 
     def as_dict(self) -> dict[str, Any]:
         return {"channel": self.channel, "reference": self.reference, "rms": self.rms,
-                "reference_rms": self.reference_rms, "percent_worse": self.percent_worse, "z": self.z}
+                "reference_rms": self.reference_rms, "percent_worse": self.percent_worse, "z": self.z,
+                **({"reason": self.reason} if self.reason else {})}
 
     def line(self) -> str:
         return (f"warning: {self.channel}: held-out RMS {self.rms:.4g} is {self.percent_worse:.0f} % worse than "
-                f"{REFERENCE_NAMES[self.reference]} ({self.reference_rms:.4g}, z {self.z:.3g})")
+                f"{REFERENCE_NAMES[self.reference]} ({self.reference_rms:.4g}, z {self.z:.3g})"
+                + (f": {self.reason}" if self.reason else ""))
 
 
 def shortfalls(channels: Sequence[str], measured: np.ndarray, predicted: np.ndarray,
-               references: Mapping[str, np.ndarray | None]) -> list[Shortfall]:
+               references: Mapping[str, np.ndarray | None], min_percent: float = math.inf) -> list[Shortfall]:
     """Every channel whose error is significantly worse than a reference's (module docstring).
 
     Args:
@@ -74,6 +80,8 @@ def shortfalls(channels: Sequence[str], measured: np.ndarray, predicted: np.ndar
         references: {``a_priori`` | ``zero``: the reference's prediction, (S, r), or (S, k)
             for the first k channels only (the a-priori model predicts torques, not a wrench),
             or None (not computed)}.
+        min_percent: a channel worse by more than this [%] is named even below
+            :data:`SIGNIFICANCE` (a short held-out part: the diagnosis against its starting fit).
 
     Returns:
         The shortfalls, reference by reference, channels in order.
@@ -93,7 +101,8 @@ def shortfalls(channels: Sequence[str], measured: np.ndarray, predicted: np.ndar
         z = np.mean(d, axis=0) / np.maximum(stderr, 1e-300)
         rms, rms_ref = np.sqrt(np.mean(e_model[:, :k] ** 2, axis=0)), np.sqrt(np.mean(e_ref**2, axis=0))
         out += [Shortfall(channels[j], reference, float(rms[j]), float(rms_ref[j]), float(z[j]))
-                for j in range(k) if rms[j] > rms_ref[j] and z[j] >= SIGNIFICANCE]
+                for j in range(k) if rms[j] > rms_ref[j]
+                and (z[j] >= SIGNIFICANCE or rms[j] > (1 + min_percent / 100) * rms_ref[j])]
     return out
 
 

@@ -1,0 +1,221 @@
+"""The diagnosis's starting fit: ``identify``'s fit on the diagnosis's training part (issue 36).
+
+``identify`` (default drive terms, WLS) fits the base parameters together with a Coulomb, a
+viscous friction and an offset on every joint and the armature of every joint where it is
+separable from the link inertias (:func:`~pe_drake.multibody.drive_columns.drive_layout` with
+the default :class:`~pe_drake.multibody.drive_columns.DriveTermOptions`), with per-joint weights
+iterated to their fixed point (:mod:`pe_drake.identification.least_squares`). The diagnosis
+used to start from the rigid-body fit alone, with Gautier's one step of weights from its OLS
+residual, and then admitted drive terms one at a time against the Bonferroni bound: on the
+shared real Panda recording (70 % training) it kept seven Coulomb frictions and two offsets,
+and its held-out RMS on joints 3, 4 and 6 was 1.4-1.6 times ``identify``'s (0.131 / 0.130 /
+0.034 against 0.082 / 0.095 / 0.022 N·m): the viscous frictions and armatures it left out are
+each below the bound, together they are what joints 3 and 4 need.
+
+:func:`starting_fit` is that fit, on the diagnosis's own columns (the same drive columns,
+the Coulomb column parallel-filtered as identify's ``coulomb`` argument, the model file's
+friction subtracted as identify's ``known`` terms) and with identify's weight rule (the same
+tolerance, iteration limit and σ floor). It is the figure the augmented model is held to
+(:func:`start_shortfalls`): a joint whose augmented model is worse on the held-out part than
+the starting fit is named in the output and in diagnosis.json with the reason.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from pe_drake.diagnosis.effects import EFFECT_TERMS
+from pe_drake.diagnosis.options import Thresholds
+from pe_drake.diagnosis.regression import Fit, Library, Regression, Scorer, Verdict, accept
+from pe_drake.identification.least_squares import MAX_WEIGHT_ITERATIONS, MIN_RELATIVE_SIGMA, WEIGHT_TOLERANCE
+from pe_drake.identification.reference_errors import Shortfall, shortfalls
+from pe_drake.multibody.drive_columns import DriveTermOptions, drive_layout
+
+#: A joint whose augmented model is this much worse than the starting fit [%] is named even when
+#: the held-out part is too short for the difference to be significant (issue 36's bar: within
+#: 5 % of identify's figures; on the real Panda joint 4 was 36 % worse at z 1.4).
+START_TOLERANCE_PERCENT = 5.0
+
+#: A term of the starting fit this many σ below its physical bound is named in the reason.
+BOUND_SIGMAS = 2.0
+
+#: The starting fit as the output and diagnosis.json name it.
+START_NAME = "identify's fit (WLS with drive terms) on the training part"
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class StartingFit:
+    """``identify``'s fit on the diagnosis's columns (module docstring).
+
+    Attributes:
+        columns: the library columns of identify's drive terms (base parameters not included).
+        fit: the weighted fit of the base parameters and those columns.
+        weights: its per-joint weights 1/σ_j at the fixed point, (n,).
+        iterations: the weighted solves.
+        converged: the weights reached their fixed point.
+    """
+
+    columns: tuple[int, ...]
+    fit: Fit
+    weights: np.ndarray
+    iterations: int
+    converged: bool
+
+    def as_dict(self, library: Library, joints) -> dict:
+        """The diagnosis.json entry: its held-out RMS per joint and its drive terms."""
+        return {"name": START_NAME, "weight_iterations": self.iterations, "weights_converged": self.converged,
+                "held_out_rms": {j: float(r) for j, r in zip(joints, self.fit.rms_held)},
+                "drive_terms": {library.label(c): self.fit.value(c) for c in self.columns}}
+
+
+def identify_columns(robot, base, model, library: Library) -> tuple[int, ...]:
+    """The library columns of the drive terms ``identify`` fits by default on this robot."""
+    layout = drive_layout(robot, base, DriveTermOptions(), model)
+    wanted = {(term, joint) for term, joint in zip(layout.terms, layout.joints)}
+    return tuple(col for col, c in library.cand_of.items()
+                 if c.effect in EFFECT_TERMS and (EFFECT_TERMS[c.effect], c.joint) in wanted)
+
+
+def starting_fit(reg: Regression, columns: tuple[int, ...]) -> StartingFit:
+    """The base parameters and ``columns`` with identify's iterated per-joint weights
+    (:func:`~pe_drake.identification.least_squares.weighted_fit`'s rule: σ_j² = RSS_j /
+    (S − p/n) of the weighted fit itself). Leaves ``reg``'s weights unchanged."""
+    saved = reg.weights
+    S, n = reg.train.count, len(reg.weights)
+    dof_scale = np.sqrt(S / max(S - (reg.num_base + len(columns)) / n, 1.0))
+    reg.set_weights(np.ones(n))
+    sigma = reg.fit(columns).rms_train * dof_scale  # the OLS σ_j, as identify starts from
+    floor = MIN_RELATIVE_SIGMA * max(float(np.max(sigma)), 1e-12)
+    sigma = np.maximum(sigma, floor)
+    converged = False
+    for iterations in range(1, MAX_WEIGHT_ITERATIONS + 1):
+        reg.set_weights(1.0 / sigma)
+        fit = reg.fit(columns)
+        new = np.maximum(fit.rms_train * dof_scale, floor)
+        converged = bool(np.max(np.abs(new / sigma - 1.0)) < WEIGHT_TOLERANCE)
+        if converged:
+            break
+        sigma = new
+    weights = reg.weights
+    reg.set_weights(saved)
+    return StartingFit(tuple(columns), fit, weights, iterations, converged)
+
+
+def below_bound(fit: Fit, col: int, library: Library) -> bool:
+    """A friction or armature of ``fit`` significantly below its physical bound (by more than
+    ``BOUND_SIGMAS`` σ: a value at the noise level of a zero is not a finding)."""
+    c = library.cand_of[col]
+    return c.nonnegative and fit.value(col) < c.lower - BOUND_SIGMAS * fit.std(col)
+
+
+def start_shortfalls(joints, y: np.ndarray, start: StartingFit, start_pred: np.ndarray, selected_pred: np.ndarray,
+                     tau_after: np.ndarray, final_columns, library: Library) -> list[Shortfall]:
+    """The joints whose augmented model is worse on the held-out part than the starting fit,
+    each with the reason: the starting fit's drive terms the selection left out, or the
+    physically consistent model (armature ≥ 0, the closest physically valid inertias) when the
+    selection's own least-squares fit is not worse.
+
+    Args:
+        joints: the joint names.
+        y: the held-out torque the columns fit (measured minus the model file's friction), (S, n).
+        start: the starting fit; start_pred: its torque on the held-out part, (S, n).
+        selected_pred: the selected effects' least-squares torque there, (S, n).
+        tau_after: the augmented model's (Drake), minus the model file's friction, (S, n).
+        final_columns: the selected fit's columns.
+        library: the columns' meaning.
+    """
+    found = shortfalls(joints, y, tau_after, {"start": start_pred}, START_TOLERANCE_PERCENT)
+    if not found:
+        return []
+    selected_worse = {s.channel for s in shortfalls(joints, y, selected_pred, {"start": start_pred},
+                                                    START_TOLERANCE_PERCENT)}
+    out = []
+    for s in found:
+        j = list(joints).index(s.channel)
+        own = [c for c in start.columns if library.cand_of[c].joint == j]
+        left_out = [library.label(c) for c in own if c not in final_columns]
+        negative = [f"{library.label(c)} = {start.fit.value(c):.3g}" for c in own if below_bound(start.fit, c, library)]
+        if s.channel in selected_worse:
+            why = ("the selection left out the starting fit's " + ", ".join(left_out) if left_out
+                   else "the selected fit's rigid-body part differs from the starting fit's")
+        else:
+            why = "the physically consistent model (Drake) departs from the selected least-squares fit"
+        if negative:
+            why += f"; the starting fit holds {', '.join(negative)}, below its physical bound"
+        out.append(dataclasses.replace(s, reason=why))
+    return out
+
+
+@dataclasses.dataclass(frozen=True)
+class StartTerms:
+    """Which of the starting fit's drive terms the diagnosis keeps, and which it names.
+
+    Attributes:
+        kept: the columns kept in the model (those a physical model can hold).
+        named: those of ``kept`` that also pass criteria (a)-(d) against the starting model
+            without them: named as effects.
+        verdicts: {column: the :class:`~pe_drake.diagnosis.regression.Verdict` that decided it}.
+    """
+
+    kept: tuple[int, ...]
+    named: tuple[int, ...]
+    verdicts: dict[int, Verdict]
+
+
+def start_terms(reg: Regression, split: Scorer, library: Library, columns: tuple[int, ...],
+                thresholds: Thresholds, max_effects: int) -> StartTerms:
+    """The starting fit's drive terms a physical model can hold, and which of them are named.
+
+    1. A friction or armature below its bound (armature < 0; a friction below minus the model
+       file's) is held at the bound, as identify's physical fit holds it: the column is left out,
+       the most negative (in σ) first, refitting after each. The others stay in the model:
+       they are identify's fit.
+    2. Each column kept is named if it passes :func:`~pe_drake.diagnosis.regression.accept`
+       against the kept model without it: the forward selection's criteria, the cross-validated
+       gain among them, with the other drive terms in (a rotor inertia is tested where identify
+       tests it), the largest z first and at most ``max_effects``; the others stay in the model
+       unnamed (``kept, not named``, with the criterion they missed).
+
+    Leaving out the terms whose removal lowers the cross-validated error was tried: on the
+    mix of tests/test_presliding.py it dropped joint 2's viscous friction while its Coulomb
+    column stood in for pre-sliding friction, which then took the viscous part (0.70 N·m for
+    0.6), and on the real Panda it left joints 2-5 4-17 % worse than keeping them.
+    """
+    kept: list[int] = list(columns)
+    verdicts: dict[int, Verdict] = {}
+    _hold_at_bounds(reg, split, library, kept, verdicts, thresholds)
+    named: list[int] = []
+    for col in kept:
+        verdicts[col] = _verdict(reg, split, library, kept, col, thresholds)
+    for col in sorted((c for c in kept if verdicts[c].accepted), key=lambda c: -verdicts[c].stats["z"]):
+        if len(named) < max_effects:
+            named.append(col)
+        else:
+            reason = f"passed, but the selection stopped at max_effects = {max_effects}"
+            verdicts[col] = Verdict(False, reason, "max_effects", verdicts[col].stats)
+    return StartTerms(tuple(kept), tuple(c for c in kept if c in named), verdicts)
+
+
+def _verdict(reg: Regression, split: Scorer, library: Library, kept: list[int], col: int,
+             thresholds: Thresholds) -> Verdict:
+    """:func:`~pe_drake.diagnosis.regression.accept` of ``col`` against ``kept`` without it."""
+    return accept(col, reg.fit(kept), split.fit(kept), split.fit([x for x in kept if x != col]), library, thresholds)
+
+
+def _hold_at_bounds(reg: Regression, split: Scorer, library: Library, kept: list[int], verdicts: dict[int, Verdict],
+                    thresholds: Thresholds) -> None:
+    """Step 1 of :func:`start_terms` (updates ``kept`` and ``verdicts`` in place)."""
+    while kept:
+        fit = reg.fit(kept)
+        low = {c: (fit.value(c) - library.cand_of[c].lower) / max(fit.std(c), 1e-300) for c in kept
+               if library.cand_of[c].nonnegative and fit.value(c) < library.cand_of[c].lower}
+        if not low:
+            return
+        col = min(low, key=low.get)
+        stats = _verdict(reg, split, library, kept, col, thresholds).stats
+        kept.remove(col)
+        c = library.cand_of[col]
+        verdicts[col] = Verdict(False, f"below its physical bound in the starting fit ({fit.value(col):.3g} {c.unit}): "
+                                "held at the bound, as identify's physical fit holds it", "sign", stats)
