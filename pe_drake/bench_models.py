@@ -13,6 +13,8 @@ Each builder writes the model into ``folder`` and returns its path.
 from __future__ import annotations
 
 import re
+import struct
+import zlib
 from pathlib import Path
 
 _I = '<inertial><origin xyz="{c}"/><mass value="{m}"/><inertia ixx="{i}" iyy="{i}" izz="{i}" ixy="0" ixz="0" iyz="0"/></inertial>'
@@ -56,6 +58,38 @@ def folding_arm(folder: Path, margin: float = 0.05, collision: bool = False) -> 
         "  - {name: hand, link: hand, radius: 0.04, length: 0.1, xyz: [0, 0, 0.08], rpy: [0, 0, 0]}\n"
         f"collision_margin: {margin}\n")
     return urdf, capsules
+
+
+def png_1x1() -> bytes:
+    """A 1×1 green PNG: the texture of :func:`textured_xacro` (no image file to ship)."""
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", 1, 1, 8, 2, 0, 0, 0))
+            + chunk(b"IDAT", zlib.compress(b"\x00\x00\xff\x00")) + chunk(b"IEND", b""))
+
+
+def textured_xacro(folder: Path) -> Path:
+    """:func:`folding_arm` (with collision cylinders) as an Interbotix-style description package:
+    ``arm_description/{package.xml, urdf/arm.urdf.xacro, meshes/skin.png}``, the xacro using a
+    property and a macro, and a material whose ``<texture filename="package://...">`` every
+    link's visual uses (issue 37, item 6). Returns the .urdf.xacro the user names."""
+    package = Path(folder) / "ws" / "arm_description"
+    (package / "urdf").mkdir(parents=True, exist_ok=True)
+    (package / "meshes").mkdir(exist_ok=True)
+    (package / "package.xml").write_text("<package><name>arm_description</name></package>\n")
+    (package / "meshes" / "skin.png").write_bytes(png_1x1())
+    urdf = folding_arm(Path(folder), collision=True)[0].read_text()
+    visual = ('<visual><geometry><cylinder radius="${radius}" length="0.1"/></geometry>'
+              '<material name="skin"/></visual>')
+    urdf = re.sub(r'(<link name="(?:base|l1|l2|hand)">)', r"\1" + visual, urdf)
+    urdf = urdf.replace('<robot name="folding">', '<robot name="textured" xmlns:xacro="http://www.ros.org/wiki/xacro">'
+                        '<xacro:property name="radius" value="0.03"/>'
+                        '<material name="skin"><texture filename="package://arm_description/meshes/skin.png"/>'
+                        '</material>', 1)
+    path = package / "urdf" / "arm.urdf.xacro"
+    path.write_text(urdf)
+    return path
 
 
 #: The SCARA's bodies (name, mass [kg], CoM, principal moment [kg·m²]) and joints (name, type,

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pe_drake.bench_models import dual_arm_lift, folding_arm, scara, without_inertials
+from pe_drake.bench_models import dual_arm_lift, folding_arm, scara, textured_xacro, without_inertials
 from pe_drake.diagnosis import diagnose
 from pe_drake.excitation import optimize_motion
 from pe_drake.excitation.ramp import check_written_motion
@@ -91,11 +91,13 @@ ROBOTS = (
     BenchRobot("g1", "g1"),
     BenchRobot("simple_humanoid", "simple_humanoid_description/urdf/simple_humanoid.urdf"),
     # issue 37's kinds, built as text (pe_drake.bench_models): an SDF with a prismatic quill (a SCARA
-    # on a table: no floor below its moving parts), a model without inertials, a two-arm torso on a lift
+    # on a table: no floor below its moving parts), a model without inertials, a two-arm torso on a lift,
+    # an Interbotix-style textured xacro in its description package
     BenchRobot("scara_sdf", "", "environment: {floor: false}\n", build=functools.partial(scara, fmt="sdf")),
     BenchRobot("folding_no_inertials", "", build=lambda f: without_inertials(folding_arm(f, collision=True)[0], f),
                simulate_with=lambda f: folding_arm(f, collision=True)[0]),
     BenchRobot("dual_arm_lift", "", build=dual_arm_lift),
+    BenchRobot("textured_xacro", "", build=textured_xacro),  # a description package's xacro, textured visuals
 )
 
 COLUMNS = ("robot", "loads", "mount", "capsules", "valid 1 kHz", "cond", "effect named", "s", "note")

@@ -4,11 +4,9 @@ pe_drake's cache), in the expanded model and in an exported URDF."""
 
 from __future__ import annotations
 
-import struct
-import zlib
-
 import numpy as np
 
+from pe_drake.bench_models import png_1x1
 from pe_drake.multibody.meshes import TriangleMesh, obj_text
 from pe_drake.multibody.robot import load_robot
 from pe_drake.multibody.urdf import urdf_with_inertias
@@ -26,21 +24,13 @@ URDF = f"""<?xml version="1.0"?>
 """
 
 
-def _png() -> bytes:
-    def chunk(kind: bytes, data: bytes) -> bytes:
-        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
-
-    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", 1, 1, 8, 2, 0, 0, 0))
-            + chunk(b"IDAT", zlib.compress(b"\x00\xff\x00\x00")) + chunk(b"IEND", b""))
-
-
 def _package(tmp_path, name: str):
     package = tmp_path / "ws" / "arm_description"
     (package / "meshes").mkdir(parents=True)
     (package / "urdf").mkdir()
     (package / "package.xml").write_text("<package><name>arm_description</name></package>")
     (package / "meshes" / "l1.obj").write_text(obj_text(TriangleMesh(np.eye(3), np.array([[0, 1, 2]]))))
-    (package / "meshes" / "skin.png").write_bytes(_png())
+    (package / "meshes" / "skin.png").write_bytes(png_1x1())
     path = package / "urdf" / name
     path.write_text(URDF)
     return path
