@@ -135,6 +135,8 @@ class IdentificationResult:
         weight_iterations: the WLS's weighted solves (0 for OLS, 1 for Gautier's one step;
             :func:`~pe_drake.identification.least_squares.weighted_fit`).
         weights_converged: the WLS weights reached their fixed point.
+        coupling: warnings of joints whose residual looks like a coupled drive the model lacks
+            (:mod:`~pe_drake.identification.coupling`; set by ``identify_model``).
     """
 
     robot: str
@@ -159,6 +161,7 @@ class IdentificationResult:
     friction_share: float | None = None
     weight_iterations: int = 0
     weights_converged: bool = False
+    coupling: tuple[str, ...] = ()
 
 
 # ---- data ------------------------------------------------------------------------------------
@@ -398,15 +401,17 @@ def _layouts(robot, measurement: str, options: DriveTermOptions, method: str, mo
     if method == "physical" and drive.merged:
         armature = _armature_layout(drive, [robot.joint_names.index(j) for j in drive.merged])
     friction = none
-    if not drive.count:
-        friction = drive_layout(robot, None, DriveTermOptions("friction", options.velocity_scale))
+    if not drive.count:  # per joint, as the Coulomb columns of a fit without drive terms are
+        friction = dataclasses.replace(drive_layout(robot, None, DriveTermOptions("friction", options.velocity_scale)),
+                                       transmission=None)
     return _Layouts(drive, armature, friction)
 
 
 def _armature_layout(drive: DriveLayout, joints: list[int]) -> DriveLayout:
-    """Armature columns of ``joints`` (the merged ones: variables of the physical fit)."""
+    """Armature columns of ``joints`` (the merged ones: variables of the physical fit; a motor's
+    through the transmission)."""
     return DriveLayout(("armature",) * len(joints), tuple(joints), drive.joint_names,
-                       tuple("kg·m²" for _ in joints), drive.velocity_scale)
+                       tuple("kg·m²" for _ in joints), drive.velocity_scale, transmission=drive.transmission)
 
 
 class _Columns:
@@ -530,7 +535,7 @@ def fit_warnings(result: IdentificationResult) -> list[str]:
             "identify with --drive-terms friction or all"
             + ("; the WLS weights are those of the OLS residual (one step), not iterated to their fixed point, "
                "which takes the residual for noise" if result.method != "ols" else ""))
-    return out
+    return out + list(result.coupling)
 
 
 # ---- prediction and validation ----------------------------------------------------------------

@@ -116,7 +116,8 @@ def validate_model(robot: Robot, model: IdentificationResult, measurements: Meas
     check_against_model(robot, data)
     kind = MeasurementType(options.measurement)
     scale = model.drive.layout.velocity_scale if model.drive is not None else COULOMB_VELOCITY_SCALE
-    measured, predicted = prediction(robot, model, data, kind, filtered_coulomb(measurements, data, scale))
+    transmission = model.drive.layout.transmission if model.drive is not None else None
+    measured, predicted = prediction(robot, model, data, kind, filtered_coulomb(measurements, data, scale, transmission))
     rms, rel = torque_errors(measured, predicted)
     total = float(100 * np.linalg.norm(measured - predicted) / max(np.linalg.norm(measured), 1e-300))
     names = tuple(kind.row_names(robot.joint_names))
