@@ -92,7 +92,9 @@ def export_terms(robot, model: str | Path | None) -> ExportTerms:
         drive = {"coulomb": np.array(robot.joint_friction, float), "viscous": np.array(robot.joint_damping, float),
                  "offset": np.zeros(robot.n), "armature": armature}
         return ExportTerms("", np.array(robot.phi_model, float), drive, COULOMB_VELOCITY_SCALE)
-    sim = load_simulation_model(model, robot)  # physically consistent, friction and armature ≥ 0
+    # physically consistent, friction and armature ≥ 0; a transmission's per-motor terms as the
+    # joints hold them (a coupled motor's friction and rotor-inertia coupling left out, noted)
+    sim = load_simulation_model(model, robot).per_joint_model()
     drive = {term: sim.term(term) for term in DRIVE_TERMS}
     link, payload, phi = sim.payload_link or "", sim.payload, np.asarray(sim.phi, float)
     result = load_identified(model, robot)
@@ -101,7 +103,7 @@ def export_terms(robot, model: str | Path | None) -> ExportTerms:
         K = np.asarray(result.base.K, float)
         sigma = np.abs(np.asarray(result.phi_B, float)) * np.asarray(result.sigma_percent, float) / 100.0
     drive_sigma = {}
-    if result.drive is not None:
+    if result.drive is not None and result.drive.layout.transmission is None:  # σ of the motors' terms: not per joint
         spread = dataclasses.replace(result.drive, theta=np.asarray(result.drive.sigma, float))
         drive_sigma = {t: spread.per_joint(t) for t in DRIVE_TERMS}
     return ExportTerms(str(model), phi, {k: np.array(v, float) for k, v in drive.items()}, float(sim.velocity_scale),
