@@ -271,3 +271,18 @@ def test_robot_model_carries_the_transmission(tmp_path):
         tau = sim.inverse_dynamics(q[k:k + 1], v[k:k + 1], vd[k:k + 1], include_damping=True)[0]
         want = truth.torque(robot, q[k], v[k], vd[k])[0] - joint.offset - cross @ vd[k]
         np.testing.assert_allclose(tau - friction(v[k]), want, atol=1e-9)
+
+
+def test_a_per_motor_model_needs_its_transmission(optimized, tmp_path):  # noqa: F811
+    """identified.json of a per-motor fit is refused for a robot without (or with another)
+    transmission, naming the file; model.urdf's note says what a per-joint file leaves out."""
+    from pe_drake.identification.identified_file import load_identified
+    from pe_drake.identification.identify_model import IdentifyOptions, identify_model
+
+    robot = coupled_robot()
+    run = model_run(robot, true_model(robot), random_trajectory(robot, optimized, seed=1), 1)
+    fit = identify_model(robot, run, IdentifyOptions(method="physical", filtering=False, rest="keep"))
+    written, note = fit.write(tmp_path)
+    assert "model.urdf" in written and "wrist_2_joint-wrist_3_joint" in note, note
+    with pytest.raises(DataError, match="per motor through robot.transmission.*config gives none"):
+        load_identified(tmp_path / "identified.json", get_robot("ur5"))

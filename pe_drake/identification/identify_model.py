@@ -207,7 +207,9 @@ def _urdf_notes(model: RobotModel) -> list[str]:
     """What model.urdf leaves out (negative friction or armature; Coulomb friction and offsets)."""
     if not model.drive:
         return []
-    return [n.replace("is taken as 0", "is written as 0 to the URDF") for n in model.nonnegative().notes[len(model.notes):]] + [
+    # through a transmission: what the per-joint URDF leaves out of the motors' terms, noted too
+    written = model.per_joint_model().nonnegative()
+    return [n.replace("is taken as 0", "is written as 0 to the URDF") for n in written.notes[len(model.notes):]] + [
         "Coulomb friction is in <dynamics friction> (Drake's parser ignores it, pe_drake reads it as the model file's "
         "friction) and identified.json; torque offsets in identified.json only"]
 
