@@ -271,6 +271,18 @@ def test_robot_model_carries_the_transmission(tmp_path):
         tau = sim.inverse_dynamics(q[k:k + 1], v[k:k + 1], vd[k:k + 1], include_damping=True)[0]
         want = truth.torque(robot, q[k], v[k], vd[k])[0] - joint.offset - cross @ vd[k]
         np.testing.assert_allclose(tau - friction(v[k]), want, atol=1e-9)
+    # the diagram's forward dynamics (its rotor-coupling system) are exact: torque() of the
+    # acceleration it gives is the applied torque, slow joints (Coulomb's tanh) included;
+    # states near home, where no capsules touch (contact forces are no drive term)
+    from pe_drake.multibody.robot_model import APPLIED_FORCE_PORT
+
+    for _ in range(5):
+        x = np.r_[rng.uniform(-0.5, 0.5, robot.n), rng.uniform(-1, 1, robot.n) * rng.choice([1, 0.01], robot.n)]
+        u = rng.uniform(-5, 5, robot.n)
+        sim.plant.SetPositionsAndVelocities(sim.plant_context, x)
+        sim.diagram.GetInputPort(APPLIED_FORCE_PORT).FixValue(sim.context, u)
+        a = sim.plant.get_generalized_acceleration_output_port().Eval(sim.plant_context)
+        np.testing.assert_allclose(truth.torque(robot, x[:6], x[6:], a)[0] - joint.offset, u, atol=1e-9)
 
 
 def test_a_per_motor_model_needs_its_transmission(optimized, tmp_path):  # noqa: F811

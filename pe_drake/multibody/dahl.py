@@ -31,6 +31,7 @@ from __future__ import annotations
 import numpy as np
 
 from pe_drake.multibody.drive_columns import COULOMB_VELOCITY_SCALE, coulomb_column
+from pe_drake.multibody.rotor_coupling import rotor_coupling_system
 
 
 def dahl_state(q: np.ndarray, x_p, z0=0.0) -> np.ndarray:
@@ -114,7 +115,8 @@ def dahl_friction_system(coulomb: np.ndarray, displacement: np.ndarray, sliding:
 
 
 def dahl_builder_hook(coulomb: np.ndarray, stiffness: np.ndarray, port_name: str, sliding: np.ndarray | None = None,
-                      velocity_scale: float = COULOMB_VELOCITY_SCALE, drive_force=None):
+                      velocity_scale: float = COULOMB_VELOCITY_SCALE, drive_force=None,
+                      rotor_coupling: np.ndarray | None = None):
     """A ``load_robot`` builder hook that adds :func:`dahl_friction_system` to a robot's diagram.
 
     The plant's applied generalized force becomes the diagram's exported input ``port_name``
@@ -126,6 +128,10 @@ def dahl_builder_hook(coulomb: np.ndarray, stiffness: np.ndarray, port_name: str
         port_name: name of the exported input port.
         sliding, velocity_scale, drive_force: a Coulomb friction without pre-sliding and a further
             velocity-dependent torque (:func:`dahl_friction_system`).
+        rotor_coupling: the off-diagonal rotor inertia C of a coupled transmission, (n, n)
+            [kg·m²]: the summed torque then passes through
+            :func:`~pe_drake.multibody.rotor_coupling.rotor_coupling_system` (None: no coupling).
+            The hook's ``systems`` list holds it once built: ``sync`` it with the plant's context.
     """
     coulomb = np.asarray(coulomb, float)
     stiffness = np.asarray(stiffness, float)
@@ -138,7 +144,15 @@ def dahl_builder_hook(coulomb: np.ndarray, stiffness: np.ndarray, port_name: str
         adder = builder.AddSystem(Adder(2, len(coulomb)))
         builder.Connect(plant.get_state_output_port(), dahl.get_input_port(0))
         builder.Connect(dahl.get_output_port(0), adder.get_input_port(1))
-        builder.Connect(adder.get_output_port(0), plant.get_applied_generalized_force_input_port())
         builder.ExportInput(adder.get_input_port(0), port_name)
+        if rotor_coupling is None:
+            builder.Connect(adder.get_output_port(0), plant.get_applied_generalized_force_input_port())
+            return
+        coupling = builder.AddSystem(rotor_coupling_system(plant, rotor_coupling))
+        hook.systems.append(coupling)
+        builder.Connect(plant.get_state_output_port(), coupling.state_port)
+        builder.Connect(adder.get_output_port(0), coupling.applied_port)
+        builder.Connect(coupling.get_output_port(0), plant.get_applied_generalized_force_input_port())
 
+    hook.systems = []
     return hook

@@ -19,8 +19,10 @@ offsets are a constant generalized force the caller adds.
 each motor's, motor side (motors named by their joint), and act on the joints through Rᵀ, a
 coupled motor's on every joint it turns (:mod:`pe_drake.multibody.drive_columns`):
 :meth:`RobotModel.torque` is exact; :meth:`RobotModel.plant` holds all the friction and the
-diagonal of the reflected rotor inertia Rᵀ diag(I_m) R, whose off-diagonal (coupling) entries
-Drake's per-joint rotor inertia cannot hold (:meth:`RobotModel.plant_notes` says so).
+diagonal of the reflected rotor inertia Rᵀ diag(I_m) R as rotor inertias; its off-diagonal
+(coupling) entries, which Drake's per-joint rotor inertia cannot hold, are a system of the
+plant's diagram (:mod:`pe_drake.multibody.rotor_coupling`), so a simulation has them while the
+plant's own inverse dynamics and mass matrix do not (:meth:`RobotModel.plant_notes`).
 
 Files: :meth:`RobotModel.to_dict` writes one schema (the diagnosis's augmented_model.json);
 :meth:`RobotModel.from_dict` reads it and ``identify``'s identified.json (every method, files of
@@ -235,8 +237,11 @@ class RobotModel:
         ``DoorHinge`` |R_ii|·F_c and rotor inertia R_ii²·I; a coupled motor's friction is a
         velocity-dependent generalized force −Rᵀ(F_c tanh(θ̇/(|R_ii| v_s)) + F_v θ̇) of the
         friction system (exact). The reflected rotor inertia is the block Rᵀ diag(I) R: Drake holds
-        a rotor inertia per joint, so its diagonal only; the coupling's off-diagonal entries are
-        left out of the plant (:meth:`plant_notes`; :meth:`torque` has them).
+        a rotor inertia per joint, so the plant has its diagonal; the coupling's off-diagonal
+        entries C are the diagram's rotor-coupling system, which adds −C q̈ to the applied force
+        with q̈ solved from (M + C) q̈ = … (:mod:`~pe_drake.multibody.rotor_coupling`): the
+        diagram's forward dynamics are exact, the plant's own inverse dynamics and mass matrix
+        lack C (:meth:`plant_notes`; :meth:`torque` has it).
 
         Raises:
             ValueError: other joints or bodies than the robot's.
@@ -271,13 +276,17 @@ class RobotModel:
         # Coulomb friction on a prismatic joint (which a DoorHinge cannot carry) goes to the
         # friction system of the Dahl hook, without pre-sliding.
         sliding = np.where(revolute, 0.0, coulomb)
-        hook = (dahl_builder_hook(fc, sigma0, APPLIED_FORCE_PORT, sliding, self.velocity_scale, coupled)
-                if np.any(fc > 0) or np.any(sliding > 0) or coupled is not None else None)
+        cross = self.rotor_coupling()
+        hook = (dahl_builder_hook(fc, sigma0, APPLIED_FORCE_PORT, sliding, self.velocity_scale, coupled,
+                                  cross if np.any(cross) else None)
+                if np.any(fc > 0) or np.any(sliding > 0) or coupled is not None or np.any(cross) else None)
         out = load_robot(robot.config, time_step=0.0, before_finalize=before_finalize, builder_hook=hook)
         for b, name in enumerate(self.bodies):
             phi_b = self.phi[10 * b : 10 * b + 10]
             if phi_b[0] > 0:  # massless frames keep the model file's (zero) inertia
                 out.plant.GetBodyByName(name).SetSpatialInertiaInBodyFrame(out.plant_context, phi_to_spatial_inertia(phi_b))
+        for system in getattr(hook, "systems", ()):  # the rotor coupling evaluates on the plant's parameters
+            system.sync(out.plant_context)
         return out
 
     def per_joint_model(self) -> RobotModel:
@@ -315,19 +324,25 @@ class RobotModel:
 
         return coupled
 
+    def rotor_coupling(self) -> np.ndarray:
+        """The off-diagonal part of the reflected rotor inertia Rᵀ diag(I) R (of the armatures
+        ≥ 0), (n, n) [kg·m²]; zeros without a coupled transmission."""
+        n = len(self.joints)
+        if self.transmission is None:
+            return np.zeros((n, n))
+        block = self.transmission.reflected(np.maximum(self.armature, 0.0))
+        return block - np.diag(np.diag(block))
+
     def plant_notes(self) -> list[str]:
-        """What :meth:`plant` leaves out of this model, in words (empty when nothing)."""
-        T = self.transmission
-        if T is None:
-            return []
-        block = T.reflected(self.armature)
-        cross = block - np.diag(np.diag(block))
+        """What :meth:`plant` holds apart from the plant itself, in words (empty when nothing)."""
+        cross = self.rotor_coupling()
         if not np.any(cross):
             return []
         pairs = [f"{self.joints[j]}-{self.joints[k]} {cross[j, k]:.3g} kg·m²"
                  for j in range(len(self.joints)) for k in range(j + 1, len(self.joints)) if cross[j, k] != 0]
-        return [f"the coupled rotor inertia's off-diagonal entries (R^T diag(I) R: {', '.join(pairs)}) are not in the "
-                "Drake plant, whose rotor inertia is per joint; torque() and the identified model have them"]
+        return [f"the coupled rotor inertia's off-diagonal entries (R^T diag(I) R: {', '.join(pairs)}) are not a per-joint "
+                "rotor inertia: not in a URDF or the exported files; pe_drake's simulator applies them as a force "
+                "system of its Drake diagram"]
 
     # ---- files --------------------------------------------------------------------------------
 
