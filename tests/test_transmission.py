@@ -229,9 +229,11 @@ def test_identify_fits_each_motor_through_the_coupling(optimized, tmp_path):  # 
     plain = get_robot("ur5")
     blind = identify_model(plain, train, options)
     assert blind.result.drive.layout.transmission is None
-    rms = validate_model(plain, load_identified(_written(blind, tmp_path / "blind"), plain), held,
-                         ValidateOptions(filtering=False)).rms
+    blind_report = validate_model(plain, load_identified(_written(blind, tmp_path / "blind"), plain), held,
+                                  ValidateOptions(filtering=False))
+    rms = blind_report.rms
     assert rms[4] > 5 * NOISE and rms[5] > 5 * NOISE, rms
+    assert not report.coupling and "wrist_2_joint-wrist_3_joint" in blind_report.to_dict()["coupling_warnings"][0]
     warning = [w for w in blind.result.coupling if "coupled drive" in w]
     assert warning and "wrist_2_joint-wrist_3_joint" in warning[0], blind.result.coupling
 
