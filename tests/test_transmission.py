@@ -17,7 +17,8 @@ from pe_drake.simulation.synthetic import model_measurement
 from pe_drake.multibody.base_parameters import compute_base_parameters
 from pe_drake.multibody.drive_columns import DriveTermOptions, drive_columns, drive_layout
 from pe_drake.multibody.regressor import RegressorModel
-from pe_drake.multibody.transmission import MOTOR_TERMS, Transmission, motor_drive_columns
+from pe_drake.multibody.drive_columns import MOTOR_TERMS, motor_drive_columns
+from pe_drake.multibody.transmission import Transmission
 from tests.conftest import get_robot
 from tests.test_identification import optimized, random_trajectory  # noqa: F401  (a fixture)
 
@@ -161,3 +162,141 @@ def test_config_refuses_a_zero_ratio(tmp_path):
     path.write_text("robot:\n  transmission:\n    ratios: {joint_1: 32}\n    coupling: {joint_6: {joint_5: .nan}}\n")
     with pytest.raises(ConfigError, match=r"coupling\['joint_6'\]\['joint_5'\] must be a finite number"):
         load_config(path)
+
+
+# ---- wired into identify and the robot model ----------------------------------------------------
+
+
+def coupled_robot():
+    """The UR5 with the TX40's drivetrain in its config (robot.transmission)."""
+    from pe_drake.multibody.robot import load_robot
+
+    ur5 = get_robot("ur5")
+    joints = ur5.joint_names
+    return load_robot(dataclasses.replace(ur5.config, transmission=TransmissionConfig(
+        dict(zip(joints, RATIOS)), {joints[5]: {joints[4]: 32.0}})))
+
+
+def true_model(robot):
+    from pe_drake.multibody.robot_model import RobotModel
+    from pe_drake.multibody.transmission import robot_transmission
+
+    return RobotModel(robot.joint_names, robot.body_names, robot.phi_model, motor_truth(robot.n),
+                      transmission=robot_transmission(robot))
+
+
+def model_run(robot, truth, trajectory, seed):
+    """The truth's torques along a trajectory (RobotModel.torque: the motors' terms through R), noisy."""
+    m = model_measurement(robot, trajectory, rate_hz=100, duration=2 * trajectory.period)
+    noise = np.random.default_rng(seed).normal(size=m.tau.shape) * NOISE
+    return m.replace(tau=truth.torque(robot, m.q, m.v, m.vd) + noise)
+
+
+def test_identify_fits_each_motor_through_the_coupling(optimized, tmp_path):  # noqa: F811
+    """identify with robot.transmission: every motor term within 3σ of the truth, the held-out
+    run at the noise floor, identified.json read back as the same model; without the
+    transmission the same data leave joints far above it and the fit says why."""
+    from pe_drake.identification.identified_file import load_identified
+    from pe_drake.identification.identify_model import IdentifyOptions, identify_model
+    from pe_drake.identification.validate_model import ValidateOptions, validate_model
+    from pe_drake.multibody.robot_model import RobotModel
+
+    robot = coupled_robot()
+    truth = true_model(robot)
+    train, held = (model_run(robot, truth, random_trajectory(robot, optimized, seed=s), s) for s in (1, 7))
+    options = IdentifyOptions(filtering=False, rest="keep")
+    fit = identify_model(robot, train, options)
+    drive = fit.result.drive
+    assert drive.layout.transmission is not None and set(drive.layout.merged) == set(robot.joint_names[:2])
+    for label, term, j, x, sd in zip(drive.layout.labels, drive.layout.terms, drive.layout.joints, drive.theta,
+                                     drive.sigma):
+        assert abs(x - truth.term(term)[j]) < 3 * sd, (label, x, truth.term(term)[j], sd)
+    assert not fit.result.coupling, fit.result.coupling
+    assert any("motor wrist_3_joint" in line for line in fit.summary_lines())
+    fit.write(tmp_path)
+    model = load_identified(tmp_path / "identified.json", robot)
+    report = validate_model(robot, model, held, ValidateOptions(filtering=False))
+    assert np.all(report.rms < 1.1 * NOISE), report.rms
+    # the file's model is the fit's: its torque through R equals the fit's prediction
+    import json
+
+    d = json.loads((tmp_path / "identified.json").read_text())
+    assert "motors" in d["drive_terms"] and d["drive_terms"]["transmission"]["R"][5][4] == 32.0
+    again = RobotModel.from_dict(d, robot.body_names, base=fit.result.base, phi_prior=robot.phi_model)
+    assert again.transmission is not None
+    np.testing.assert_allclose(again.torque(robot, held.q, held.v, held.vd), report.predicted, atol=1e-8)
+    # without the transmission: per-joint terms, far above the noise floor and flagged
+    plain = get_robot("ur5")
+    blind = identify_model(plain, train, options)
+    assert blind.result.drive.layout.transmission is None
+    blind_report = validate_model(plain, load_identified(_written(blind, tmp_path / "blind"), plain), held,
+                                  ValidateOptions(filtering=False))
+    rms = blind_report.rms
+    assert rms[4] > 5 * NOISE and rms[5] > 5 * NOISE, rms
+    assert not report.coupling and "wrist_2_joint-wrist_3_joint" in blind_report.to_dict()["coupling_warnings"][0]
+    warning = [w for w in blind.result.coupling if "coupled drive" in w]
+    assert warning and "wrist_2_joint-wrist_3_joint" in warning[0], blind.result.coupling
+
+
+def _written(fit, folder):
+    fit.write(folder)
+    return folder / "identified.json"
+
+
+def test_robot_model_carries_the_transmission(tmp_path):
+    """to_dict/from_dict keep R and the per-motor terms; per_joint_model and plant: the
+    uncoupled motors exactly, the coupled motor's friction as a force, its inertia's diagonal."""
+    from pe_drake.multibody.robot_model import RobotModel
+
+    robot = coupled_robot()
+    truth = true_model(robot)
+    back = RobotModel.from_dict(truth.to_dict())
+    np.testing.assert_array_equal(back.transmission.R, truth.transmission.R)
+    rng = np.random.default_rng(3)
+    q = rng.uniform(robot.limits.q_lower, robot.limits.q_upper, (5, robot.n))
+    v, vd = rng.uniform(-1, 1, (5, robot.n)), rng.uniform(-3, 3, (5, robot.n))
+    np.testing.assert_allclose(back.torque(robot, q, v, vd), truth.torque(robot, q, v, vd), atol=1e-12)
+    # a file of before the transmissions loads without one
+    old = truth.to_dict()
+    del old["transmission"]
+    assert RobotModel.from_dict(old).transmission is None
+    notes = truth.plant_notes()
+    assert len(notes) == 1 and "wrist_2_joint-wrist_3_joint" in notes[0]
+    # Drake's plant (its DoorHinges in inverse_dynamics) minus the coupled motor's friction force
+    # = torque() minus the offsets and the rotor inertia's off-diagonal entries (which Drake cannot hold)
+    sim = truth.plant(robot)
+    cross = truth.transmission.reflected(truth.armature)
+    cross -= np.diag(np.diag(cross))
+    joint = truth.per_joint_model()
+    friction = truth.coupled_friction()
+    for k in range(5):
+        tau = sim.inverse_dynamics(q[k:k + 1], v[k:k + 1], vd[k:k + 1], include_damping=True)[0]
+        want = truth.torque(robot, q[k], v[k], vd[k])[0] - joint.offset - cross @ vd[k]
+        np.testing.assert_allclose(tau - friction(v[k]), want, atol=1e-9)
+    # the diagram's forward dynamics (its rotor-coupling system) are exact: torque() of the
+    # acceleration it gives is the applied torque, slow joints (Coulomb's tanh) included;
+    # states near home, where no capsules touch (contact forces are no drive term)
+    from pe_drake.multibody.robot_model import APPLIED_FORCE_PORT
+
+    for _ in range(5):
+        x = np.r_[rng.uniform(-0.5, 0.5, robot.n), rng.uniform(-1, 1, robot.n) * rng.choice([1, 0.01], robot.n)]
+        u = rng.uniform(-5, 5, robot.n)
+        sim.plant.SetPositionsAndVelocities(sim.plant_context, x)
+        sim.diagram.GetInputPort(APPLIED_FORCE_PORT).FixValue(sim.context, u)
+        a = sim.plant.get_generalized_acceleration_output_port().Eval(sim.plant_context)
+        np.testing.assert_allclose(truth.torque(robot, x[:6], x[6:], a)[0] - joint.offset, u, atol=1e-9)
+
+
+def test_a_per_motor_model_needs_its_transmission(optimized, tmp_path):  # noqa: F811
+    """identified.json of a per-motor fit is refused for a robot without (or with another)
+    transmission, naming the file; model.urdf's note says what a per-joint file leaves out."""
+    from pe_drake.identification.identified_file import load_identified
+    from pe_drake.identification.identify_model import IdentifyOptions, identify_model
+
+    robot = coupled_robot()
+    run = model_run(robot, true_model(robot), random_trajectory(robot, optimized, seed=1), 1)
+    fit = identify_model(robot, run, IdentifyOptions(method="physical", filtering=False, rest="keep"))
+    written, note = fit.write(tmp_path)
+    assert "model.urdf" in written and "wrist_2_joint-wrist_3_joint" in note, note
+    with pytest.raises(DataError, match="per motor through robot.transmission.*config gives none"):
+        load_identified(tmp_path / "identified.json", get_robot("ur5"))

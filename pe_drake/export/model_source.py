@@ -54,7 +54,9 @@ def exported_model(robot, model: str | Path | None) -> RobotModel:
     """
     if model is None:
         return RobotModel.from_robot(robot)
-    out = load_simulation_model(model, robot)  # physically consistent, friction and armature ≥ 0
+    # physically consistent, friction and armature ≥ 0; a transmission's per-motor terms as the
+    # joints hold them (a coupled motor's friction and rotor-inertia coupling left out, noted)
+    out = load_simulation_model(model, robot).per_joint_model()
     return dataclasses.replace(out, notes=tuple(_exported(n) for n in out.notes))
 
 

@@ -16,6 +16,14 @@ keeps the model file's value (:func:`model_file_terms`): it is subtracted from t
 torque before the fit and is a drive term with ``"source": "model file"`` and σ = 0. The
 diagnosis names only what the model file lacks and gives the same total in its details.
 
+**Through a transmission** (``robot.transmission``) the terms are each motor's, motor side,
+acting on the joints through Rᵀ (:mod:`pe_drake.multibody.drive_columns`); identified.json
+holds them under ``motors`` with the ``transmission`` and their ``joint_side`` view
+(:func:`joint_side`: each motor's Coulomb friction on every joint it turns, Rᵀ o, and the
+viscous friction and rotor inertia as the matrices Rᵀ diag(x) R, whose off-diagonal entries
+are the coupling's). The model file's joint friction is then not used: the motors' terms are
+the drive's whole friction.
+
 The ground wrench does not see joint friction, so the drive columns are zero in base-wrench
 rows; an armature whose column lies in span(Y_B) is merged into a base parameter
 (:func:`~pe_drake.multibody.drive_columns.drive_layout`).
@@ -45,9 +53,11 @@ from pe_drake.multibody.drive_columns import (  # noqa: F401 (re-exported: ident
     armature_merges,
     coulomb_column,
     drive_columns,
+    coulomb_velocities,
     drive_layout,
     drive_options,
 )
+from pe_drake.multibody.transmission import Transmission
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -96,7 +106,8 @@ class DriveFit:
         return out
 
     def as_dict(self) -> dict[str, Any]:
-        """identified.json's ``drive_terms`` block: {joint: {term: {value, sigma, sigma_percent, unit}}}."""
+        """identified.json's ``drive_terms`` block: {joint: {term: {value, sigma, sigma_percent, unit}}}
+        under ``joints``, or under ``motors`` with the ``transmission`` and the ``joint_side`` view."""
         table: dict[str, Any] = {name: {} for name in self.layout.joint_names}
         for t, j, u, x, s in zip(self.layout.terms, self.layout.joints, self.layout.units, self.theta, self.sigma):
             table[self.layout.joint_names[j]][t] = {
@@ -109,8 +120,13 @@ class DriveFit:
                                                "these base parameters is identifiable"}
             if name in self.merged_armature:  # included in the base parameters
                 table[name]["armature"]["physical_fit_value"] = self.merged_armature[name]
+        T = self.layout.transmission
+        side = {"joints": table} if T is None else {
+            "motors": table, "transmission": T.to_dict(), "joint_side": joint_side(self),
+            "motor_coulomb_model": "coulomb * tanh(theta_dot_m / (|R_ii| velocity_scale)), theta_dot_m = R v; "
+                                   "every term acts on the joints through R^T"}
         return {
-            "joints": table,
+            **side,
             "velocity_scale": self.layout.velocity_scale,
             "coulomb_model": "coulomb * tanh(v / velocity_scale)",
             "torque_equation": "tau = Y_B(q, v, vd) phi_B + coulomb*tanh(v/v_s) + viscous*v + offset + armature*vd",
@@ -127,7 +143,10 @@ class DriveFit:
             KeyError, TypeError, ValueError: a malformed block (the caller names the file).
         """
         names = tuple(joint_names)
-        table = d["joints"]
+        T = Transmission.from_dict(d["transmission"]) if d.get("transmission") is not None else None
+        if T is not None and T.joints != names:
+            raise ValueError(f"the transmission is of joints {', '.join(T.joints)}, not {', '.join(names)}")
+        table = d["joints"] if T is None else d["motors"]
         unknown = set(table) - set(names)
         if unknown:
             raise ValueError(f"drive terms for joints {', '.join(sorted(unknown))} not in {', '.join(names)}")
@@ -150,18 +169,39 @@ class DriveFit:
                 sigma.append(float("nan") if entry.get("sigma") is None else float(entry["sigma"]))
         layout = DriveLayout(tuple(terms), tuple(joints), names, tuple(units),
                              float(d.get("velocity_scale", COULOMB_VELOCITY_SCALE)), merged,
-                             dict(d.get("dropped", {})))
+                             dict(d.get("dropped", {})), transmission=T)
         return cls(layout, np.array(theta, float), np.array(sigma, float), merged_values, tuple(known))
+
+
+def joint_side(fit: DriveFit) -> dict[str, Any]:
+    """A per-motor fit as the joints see it (module docstring): ``coulomb`` {motor: {joint:
+    |R_ij|·F_c,i}} [N·m] (the amplitude on the joint; its sign follows θ̇_m), ``offset``
+    {joint: (Rᵀ o)_j}, ``viscous`` and ``armature`` {joint: {joint: (Rᵀ diag(x) R)_jk}}; joints
+    a motor does not turn are left out."""
+    T, names = fit.layout.transmission, fit.layout.joint_names
+    values = {t: fit.per_joint(t) for t in TERMS["all"]}
+
+    def matrix(M):
+        return {a: {b: float(M[j, k]) for k, b in enumerate(names) if M[j, k] != 0} for j, a in enumerate(names)}
+
+    return {"coulomb": {m: {j: float(abs(r) * values["coulomb"][i]) for j, r in zip(names, T.R[i]) if r != 0}
+                        for i, m in enumerate(names) if values["coulomb"][i] != 0},
+            "offset": dict(zip(names, map(float, T.R.T @ values["offset"]))),
+            "viscous": matrix(T.reflected(values["viscous"])), "armature": matrix(T.reflected(values["armature"])),
+            "units": "N·m, N·m, N·m·s/rad, kg·m² of the joints"}
 
 
 def model_file_terms(robot, layout: DriveLayout) -> DriveFit | None:
     """The model file's friction that ``layout`` does not estimate, as a fit with σ = 0 (module
-    docstring), or None when there is none.
+    docstring), or None when there is none (always with a transmission: the motors' terms are
+    the drive's whole friction).
 
     Args:
         robot: the a-priori robot (``joint_damping``, ``joint_friction``).
         layout: the drive columns the fit estimates.
     """
+    if layout.transmission is not None:
+        return None
     fitted = set(zip(layout.terms, layout.joints))
     cols = [(t, j, float(x)) for j in range(robot.n)
             for t, x in (("coulomb", robot.joint_friction[j]), ("viscous", robot.joint_damping[j]))
@@ -305,7 +345,8 @@ def drive_summary(fit: DriveFit | None) -> list[str]:
     """Lines for a command's output: the drive terms per joint with their σ, what was left out."""
     if fit is None or (fit.layout.count == 0 and not fit.layout.merged):
         return ["drive terms: none (rigid body only)"]
-    lines = ["drive terms (value ± σ):"]
+    T = fit.layout.transmission
+    lines = ["drive terms (value ± σ):" if T is None else "drive terms per motor (value ± σ, motor side):"]
     names = fit.layout.joint_names
     for j, name in enumerate(names):
         parts = [f"{t} {x:.4g} {u} (model file)" if f"{t}[{name}]" in fit.known else f"{t} {x:.4g} ± {s:.2g} {u}"
@@ -317,13 +358,28 @@ def drive_summary(fit: DriveFit | None) -> list[str]:
             parts.append("armature not separable (merged into " + ", ".join(shorten(m, 60) for m in merged[:2])
                          + more + ")")
         if parts:
-            lines.append(f"  {name}: " + "; ".join(parts))
+            lines.append(f"  {'motor ' if T is not None else ''}{name}: " + "; ".join(parts))
     for label, reason in fit.layout.dropped.items():
         lines.append(f"  {label} left out: {reason}")
+    return lines + (_joint_side_lines(fit) if T is not None else [])
+
+
+def _joint_side_lines(fit: DriveFit) -> list[str]:
+    """The joint side of a per-motor fit, a line per joint (:func:`joint_side`)."""
+    side, names = joint_side(fit), fit.layout.joint_names
+    lines = ["  joint side (through R): coulomb from each motor, offset, viscous and armature (coupling entries)"]
+    for j in names:
+        coulomb = ", ".join(f"{x:.4g} N·m (motor {m})" for m, row in side["coulomb"].items() for jj, x in row.items()
+                            if jj == j)
+        cross = [f"{k} {x:.4g}" for k, x in side["armature"][j].items() if k != j]
+        lines.append(f"    {j}: coulomb {coulomb or 0}; offset {side['offset'][j]:.4g} N·m; viscous "
+                     f"{side['viscous'][j].get(j, 0.0):.4g} N·m·s/rad; armature {side['armature'][j].get(j, 0.0):.4g} "
+                     "kg·m²" + (f" (with {', '.join(cross)})" if cross else ""))
     return lines
 
 
-def filtered_coulomb(raw, data, velocity_scale: float = COULOMB_VELOCITY_SCALE) -> np.ndarray | None:
+def filtered_coulomb(raw, data, velocity_scale: float = COULOMB_VELOCITY_SCALE,
+                     transmission: Transmission | None = None) -> np.ndarray | None:
     """The Coulomb columns of preprocessed data, parallel-filtered (Gautier 1997), shape (S, n).
 
     The torque was low-pass filtered, so its friction part is the filtered tanh(v/v_s), not
@@ -338,6 +394,8 @@ def filtered_coulomb(raw, data, velocity_scale: float = COULOMB_VELOCITY_SCALE) 
         raw: the measurement as read.
         data: ``preprocess(raw, ...)``'s result (its ``preprocessing`` names the filter).
         velocity_scale: v_s [rad/s].
+        transmission: the motors' columns instead, tanh(θ̇_i / (|R_ii| v_s)) of θ̇ = R q̇ (a
+            layout's ``transmission``).
 
     Returns:
         The columns at data's samples, or None when ``data`` was not preprocessed (exact data:
@@ -350,8 +408,15 @@ def filtered_coulomb(raw, data, velocity_scale: float = COULOMB_VELOCITY_SCALE) 
     lowpass = design_lowpass(p.cutoff_hz, grid.rate_hz, len(grid.t), p.filter_order, file=raw.source)
     idx = np.clip(np.rint((data.t - grid.t[0]) / grid.dt).astype(int), 0, len(grid.t) - 1)
     out = np.empty((len(idx), raw.num_joints))
-    for j in range(raw.num_joints):  # a joint at a time: a long log's full-rate columns one by one
+
+    def velocity(j):
         v = grid.signals["v"]
-        v = lowpass.apply(v[:, j]) if v is not None else differentiate(lowpass.apply(grid.signals["q"][:, [j]]), grid.dt)[:, 0]
-        out[:, j] = lowpass.apply(coulomb_column(v, velocity_scale))[idx]
+        return lowpass.apply(v[:, j]) if v is not None else differentiate(lowpass.apply(grid.signals["q"][:, [j]]), grid.dt)[:, 0]
+
+    if transmission is not None:  # a motor turns several joints: every joint's full-rate velocity at once
+        w, scale = coulomb_velocities(np.column_stack([velocity(j) for j in range(raw.num_joints)]), velocity_scale,
+                                      transmission)
+        return lowpass.apply(coulomb_column(w, scale))[idx]
+    for j in range(raw.num_joints):  # a joint at a time: a long log's full-rate columns one by one
+        out[:, j] = lowpass.apply(coulomb_column(velocity(j), velocity_scale))[idx]
     return out

@@ -137,6 +137,8 @@ class IdentificationResult:
         weights_converged: the WLS weights reached their fixed point.
         cov_B: covariance of ``phi_B``, shape (b, b) (its diagonal is σ²: ``sigma_percent``), or
             None (an identified.json written before it was stored, an augmented model).
+        coupling: warnings of joints whose residual looks like a coupled drive the model lacks
+            (:mod:`~pe_drake.identification.coupling`; set by ``identify_model``).
     """
 
     robot: str
@@ -162,6 +164,7 @@ class IdentificationResult:
     weight_iterations: int = 0
     weights_converged: bool = False
     cov_B: np.ndarray | None = None
+    coupling: tuple[str, ...] = ()
 
 
 # ---- data ------------------------------------------------------------------------------------
@@ -402,15 +405,17 @@ def _layouts(robot, measurement: str, options: DriveTermOptions, method: str, mo
     if method == "physical" and drive.merged:
         armature = _armature_layout(drive, [robot.joint_names.index(j) for j in drive.merged])
     friction = none
-    if not drive.count:
-        friction = drive_layout(robot, None, DriveTermOptions("friction", options.velocity_scale))
+    if not drive.count:  # per joint, as the Coulomb columns of a fit without drive terms are
+        friction = dataclasses.replace(drive_layout(robot, None, DriveTermOptions("friction", options.velocity_scale)),
+                                       transmission=None)
     return _Layouts(drive, armature, friction)
 
 
 def _armature_layout(drive: DriveLayout, joints: list[int]) -> DriveLayout:
-    """Armature columns of ``joints`` (the merged ones: variables of the physical fit)."""
+    """Armature columns of ``joints`` (the merged ones: variables of the physical fit; a motor's
+    through the transmission)."""
     return DriveLayout(("armature",) * len(joints), tuple(joints), drive.joint_names,
-                       tuple("kg·m²" for _ in joints), drive.velocity_scale)
+                       tuple("kg·m²" for _ in joints), drive.velocity_scale, transmission=drive.transmission)
 
 
 class _Columns:
@@ -534,7 +539,7 @@ def fit_warnings(result: IdentificationResult) -> list[str]:
             "identify with --drive-terms friction or all"
             + ("; the WLS weights are those of the OLS residual (one step), not iterated to their fixed point, "
                "which takes the residual for noise" if result.method != "ols" else ""))
-    return out
+    return out + list(result.coupling)
 
 
 # ---- prediction and validation ----------------------------------------------------------------

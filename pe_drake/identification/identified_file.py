@@ -29,6 +29,7 @@ from pe_drake.io_utils import loads_json
 from pe_drake.multibody.inertia import PARAMETER_NAMES, validity_problems
 from pe_drake.multibody.robot_model import RobotModel
 from pe_drake.multibody.sensors import measurement_base_parameters
+from pe_drake.multibody.transmission import robot_transmission
 from pe_drake.output_set import check_output_set
 
 
@@ -172,6 +173,7 @@ def load_identified(path: str | Path, robot) -> IdentificationResult:
             drive = DriveFit.from_dict(d["drive_terms"], robot.joint_names)
         except (KeyError, TypeError, ValueError, AttributeError) as err:
             raise DataError(f"drive_terms: {err!r} missing or malformed", file=str(path)) from err
+        _check_transmission(drive, robot, path)
     return IdentificationResult(
         robot=d.get("robot", robot.name),
         method=d.get("method", "ols"),
@@ -258,3 +260,18 @@ def augmented_as_result(d: dict[str, Any], robot, path: str = "") -> Identificat
         relative_error=nan, noise_std=nan, samples=0, source=path, measurement="joint_torque",
         channels=channels, drive=DriveFit(model.layout(), theta, np.full(len(theta), np.nan)),
         physical_notes=tuple(notes))
+
+
+def _check_transmission(drive: DriveFit, robot, path) -> None:
+    """Refuses a model fitted through another transmission than the robot's config gives: the
+    config's R converts motor-side logs, the file's R carries its per-motor terms, and the two
+    must be one (a model of per-joint terms goes with any config)."""
+    T = drive.layout.transmission
+    if T is None:
+        return
+    mine = robot_transmission(robot)
+    if not np.allclose(mine.R, T.R, rtol=1e-12, atol=0.0):
+        given = "none (R = I)" if mine.identity else f"R = {mine.R.tolist()}"
+        raise DataError(f"the model's drive terms are per motor through robot.transmission R = {T.R.tolist()}; this "
+                        f"robot's config gives {given}: load the robot with the config it was identified with "
+                        "(--config)", file=str(path))

@@ -21,6 +21,7 @@ from pe_drake.exceptions import ConfigError
 from pe_drake.excitation.trajectory_file import load_trajectory
 from pe_drake.identification.time_window import TimeWindow
 from pe_drake.identification.channels import measured_values
+from pe_drake.identification.coupling import coupled_pairs, coupling_warnings
 from pe_drake.identification.data_checks import check_against_model
 from pe_drake.identification.drive_terms import (
     COULOMB_VELOCITY_SCALE,
@@ -48,6 +49,7 @@ from pe_drake.multibody.inertia import PhysicallyInvalidError, validity_problems
 from pe_drake.multibody.robot import Robot
 from pe_drake.multibody.robot_model import RobotModel
 from pe_drake.multibody.sensors import MeasurementType
+from pe_drake.multibody.transmission import Transmission, robot_transmission
 from pe_drake.output_paths import IDENTIFY_OUTPUTS, check_output_dir
 from pe_drake.plots import plot_prediction
 
@@ -206,7 +208,9 @@ def _urdf_notes(model: RobotModel) -> list[str]:
     """What model.urdf leaves out (negative friction or armature; Coulomb friction and offsets)."""
     if not model.drive:
         return []
-    return list(model.nonnegative("is written as 0 to the URDF").notes[len(model.notes):]) + [
+    # through a transmission: what the per-joint URDF leaves out of the motors' terms, noted too
+    written = model.per_joint_model().nonnegative("is written as 0 to the URDF")
+    return list(written.notes[len(model.notes):]) + [
         "Coulomb friction is in <dynamics friction> (Drake's parser ignores it, pe_drake reads it as the model file's "
         "friction) and identified.json; torque offsets in identified.json only"]
 
@@ -255,12 +259,35 @@ def identify_model(robot: Robot, measurements: Measurement, options: IdentifyOpt
                                harmonics=harmonics, filtering=options.filtering, max_gap_s=options.max_gap_s,
                                window=options.window)
     check_against_model(robot, data)  # sign-flipped torque columns
-    coulomb = filtered_coulomb(measurements, data, options.drive.velocity_scale) if data is not measurements else None
+    coulomb = (filtered_coulomb(measurements, data, options.drive.velocity_scale, fitted_transmission(robot, options))
+               if data is not measurements else None)
     rest = _rest_decision(robot, measurements, data, options, coulomb)
     result = identify(robot, data, options.method, measurement=options.measurement, drive_terms=options.drive,
                       bounds=options.bounds, coulomb=coulomb, rest=None if rest is None else rest.mask)
+    result = dataclasses.replace(result, coupling=tuple(_coupling(robot, result, data, coulomb)))
     phi, note = _model_parameters(robot, result)
     return IdentifiedModel(robot, result, measurements, data, coulomb, phi, note, time.perf_counter() - start, rest)
+
+
+def fitted_transmission(robot: Robot, options: IdentifyOptions) -> Transmission | None:
+    """The transmission the drive terms of ``options`` act through (None: per joint), as
+    :func:`~pe_drake.multibody.drive_columns.drive_layout` decides: the robot's, unless R = I.
+    The Coulomb columns are the motors' exactly when this is not None."""
+    T = robot_transmission(robot)
+    none = options.drive.terms == "none" or MeasurementType(options.measurement).kind == "base_wrench"
+    return None if T.identity or none else T
+
+
+def _coupling(robot: Robot, result: IdentificationResult, data: Measurement, coulomb: np.ndarray | None) -> list[str]:
+    """The warning of :mod:`~pe_drake.identification.coupling` on the joint torques' residual
+    (none for the ground wrench alone or a fit without drive terms, whose residual holds all
+    the friction)."""
+    if not MeasurementType(result.measurement).torques or result.drive is None or not result.drive.layout.count:
+        return []
+    residual = data.tau - predict(robot, result, data, coulomb=coulomb)
+    T = result.drive.layout.transmission
+    return coupling_warnings(coupled_pairs(robot.joint_names, data.v, data.vd, residual,
+                                           result.drive.layout.velocity_scale, None if T is None else T.R))
 
 
 def _rest_decision(robot: Robot, raw: Measurement, data: Measurement, options: IdentifyOptions,

@@ -21,6 +21,7 @@ from pe_drake.identification.estimators import IdentificationResult, prepare_mea
 from pe_drake.identification.gaps import MAX_GAP_S
 from pe_drake.identification.identify_model import prediction
 from pe_drake.identification.measurements import Measurement
+from pe_drake.identification.coupling import coupled_pairs, coupling_warnings
 from pe_drake.identification.reference_errors import Shortfall, shortfall_report, shortfalls
 from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.robot import Robot
@@ -52,6 +53,8 @@ class ValidationReport:
         preprocessing: what was done to the run (cut-off, trim, rates), printed first.
         worse: the channels worse than the a-priori model (torques) or than predicting zero
             (:mod:`~pe_drake.identification.reference_errors`), printed last.
+        coupling: the warning of joints whose held-out residual looks like a coupled drive the
+            model lacks (:mod:`~pe_drake.identification.coupling`), printed last.
     """
 
     robot: str
@@ -68,6 +71,7 @@ class ValidationReport:
     notes: tuple[str, ...] = ()
     preprocessing: Any = None
     worse: tuple[Shortfall, ...] = ()
+    coupling: tuple[str, ...] = ()
 
     def summary_lines(self) -> list[str]:
         width = max(len(j) for j in self.names)
@@ -77,7 +81,7 @@ class ValidationReport:
                  f"{'channel':<{width}}  {'RMS [N·m, N]':>12}  {'relative [%]':>12}"]
         lines += [f"{j:<{width}}  {r:>12.4f}  {e:>12.2f}" for j, r, e in zip(self.names, self.rms, self.relative)]
         lines.append(f"{'all':<{width}}  {float(np.sqrt(np.mean(self.rms**2))):>12.4f}  {self.relative_total:>12.2f}")
-        return lines + [s.line() for s in self.worse]
+        return lines + [s.line() for s in self.worse] + list(self.coupling)
 
     def to_dict(self, model: str | Path = "", data: str | Path = "") -> dict[str, Any]:
         """``validate --json``'s content (``model``, ``data``: the files, as given)."""
@@ -89,6 +93,7 @@ class ValidationReport:
             "relative_error_total": self.relative_total, "samples": self.samples,
             "filtered": self.preprocessing is not None,
             "worse_than_references": shortfall_report(self.worse, ("a_priori", "zero")),
+            "coupling_warnings": list(self.coupling),
         }
 
     def write_json(self, path: str | Path, model: str | Path = "", data: str | Path = "") -> None:
@@ -134,15 +139,21 @@ def validate_model(robot: Robot, model: IdentificationResult, measurements: Meas
     check_against_model(robot, data)
     kind = MeasurementType(options.measurement)
     scale = model.drive.layout.velocity_scale if model.drive is not None else COULOMB_VELOCITY_SCALE
-    measured, predicted = prediction(robot, model, data, kind, filtered_coulomb(measurements, data, scale))
+    transmission = model.drive.layout.transmission if model.drive is not None else None
+    measured, predicted = prediction(robot, model, data, kind, filtered_coulomb(measurements, data, scale, transmission))
     rms, rel = torque_errors(measured, predicted)
     total = float(100 * np.linalg.norm(measured - predicted) / max(np.linalg.norm(measured), 1e-300))
     names = tuple(kind.row_names(robot.joint_names))
     worse = shortfalls(names, measured, predicted, {"a_priori": _a_priori(robot, measurements, data, kind),
                                                      "zero": np.zeros_like(measured)})
+    coupling = ()
+    if kind.torques and model.drive is not None and model.drive.layout.count:  # the torque channels come first
+        R = transmission.R if transmission is not None else None
+        coupling = tuple(coupling_warnings(coupled_pairs(robot.joint_names, data.v, data.vd,
+                                                         (measured - predicted)[:, : robot.n], scale, R)))
     return ValidationReport(robot.name, model.measurement, options.measurement, names,
                             data.t, measured, predicted, rms, rel, total, data.num_samples, tuple(data.notes),
-                            data.preprocessing, tuple(worse))
+                            data.preprocessing, tuple(worse), coupling)
 
 
 def _a_priori(robot: Robot, raw: Measurement, data: Measurement, kind: MeasurementType) -> np.ndarray | None:

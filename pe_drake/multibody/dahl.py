@@ -31,6 +31,7 @@ from __future__ import annotations
 import numpy as np
 
 from pe_drake.multibody.drive_columns import COULOMB_VELOCITY_SCALE, coulomb_column
+from pe_drake.multibody.rotor_coupling import rotor_coupling_system
 
 
 def dahl_state(q: np.ndarray, x_p, z0=0.0) -> np.ndarray:
@@ -62,7 +63,7 @@ def dahl_state(q: np.ndarray, x_p, z0=0.0) -> np.ndarray:
 
 
 def dahl_friction_system(coulomb: np.ndarray, displacement: np.ndarray, sliding: np.ndarray | None = None,
-                         velocity_scale: float = COULOMB_VELOCITY_SCALE):
+                         velocity_scale: float = COULOMB_VELOCITY_SCALE, drive_force=None):
     """A Drake ``LeafSystem`` with the Dahl state of every joint.
 
     Input port ``state``: the plant's [q; v], size 2n. Output port ``generalized_force``:
@@ -77,6 +78,8 @@ def dahl_friction_system(coulomb: np.ndarray, displacement: np.ndarray, sliding:
             (n,) [N·m or N] (the simulator's for prismatic joints, which Drake's DoorHinge cannot
             carry); None: none.
         velocity_scale: v_s of ``sliding`` [rad/s or m/s].
+        drive_force: f(v) → (n,), a further velocity-dependent torque on the joints (a coupled
+            motor's friction through its transmission, ``RobotModel.plant``); None: none.
 
     Returns:
         The system (pydrake is imported here so that importing this module stays light).
@@ -103,7 +106,8 @@ def dahl_friction_system(coulomb: np.ndarray, displacement: np.ndarray, sliding:
         def _force(self, context, output):
             z = context.get_continuous_state_vector().CopyToVector()
             v = self.state_port.Eval(context)[n:]
-            output.SetFromVector(-fc * z - f_s * coulomb_column(v, velocity_scale))
+            extra = drive_force(v) if drive_force is not None else 0.0
+            output.SetFromVector(-fc * z - f_s * coulomb_column(v, velocity_scale) + extra)
 
     system = DahlFriction()
     system.set_name("pe_drake_dahl_friction")
@@ -111,7 +115,8 @@ def dahl_friction_system(coulomb: np.ndarray, displacement: np.ndarray, sliding:
 
 
 def dahl_builder_hook(coulomb: np.ndarray, stiffness: np.ndarray, port_name: str, sliding: np.ndarray | None = None,
-                      velocity_scale: float = COULOMB_VELOCITY_SCALE):
+                      velocity_scale: float = COULOMB_VELOCITY_SCALE, drive_force=None,
+                      rotor_coupling: np.ndarray | None = None):
     """A ``load_robot`` builder hook that adds :func:`dahl_friction_system` to a robot's diagram.
 
     The plant's applied generalized force becomes the diagram's exported input ``port_name``
@@ -121,7 +126,12 @@ def dahl_builder_hook(coulomb: np.ndarray, stiffness: np.ndarray, port_name: str
         coulomb: F_c per joint, shape (n,) [N·m]; joints with 0 carry no friction.
         stiffness: σ0 per joint, shape (n,) [N·m/rad], > 0 where F_c > 0.
         port_name: name of the exported input port.
-        sliding, velocity_scale: a Coulomb friction without pre-sliding (:func:`dahl_friction_system`).
+        sliding, velocity_scale, drive_force: a Coulomb friction without pre-sliding and a further
+            velocity-dependent torque (:func:`dahl_friction_system`).
+        rotor_coupling: the off-diagonal rotor inertia C of a coupled transmission, (n, n)
+            [kg·m²]: the summed torque then passes through
+            :func:`~pe_drake.multibody.rotor_coupling.rotor_coupling_system` (None: no coupling).
+            The hook's ``systems`` list holds it once built: ``sync`` it with the plant's context.
     """
     coulomb = np.asarray(coulomb, float)
     stiffness = np.asarray(stiffness, float)
@@ -130,11 +140,19 @@ def dahl_builder_hook(coulomb: np.ndarray, stiffness: np.ndarray, port_name: str
         from pydrake.systems.primitives import Adder  # lazy: pydrake stays out of `import pe_drake`
 
         x_p = np.where(coulomb > 0, coulomb / np.where(stiffness > 0, stiffness, 1.0), 1.0)
-        dahl = builder.AddSystem(dahl_friction_system(coulomb, x_p, sliding, velocity_scale))
+        dahl = builder.AddSystem(dahl_friction_system(coulomb, x_p, sliding, velocity_scale, drive_force))
         adder = builder.AddSystem(Adder(2, len(coulomb)))
         builder.Connect(plant.get_state_output_port(), dahl.get_input_port(0))
         builder.Connect(dahl.get_output_port(0), adder.get_input_port(1))
-        builder.Connect(adder.get_output_port(0), plant.get_applied_generalized_force_input_port())
         builder.ExportInput(adder.get_input_port(0), port_name)
+        if rotor_coupling is None:
+            builder.Connect(adder.get_output_port(0), plant.get_applied_generalized_force_input_port())
+            return
+        coupling = builder.AddSystem(rotor_coupling_system(plant, rotor_coupling))
+        hook.systems.append(coupling)
+        builder.Connect(plant.get_state_output_port(), coupling.state_port)
+        builder.Connect(adder.get_output_port(0), coupling.applied_port)
+        builder.Connect(coupling.get_output_port(0), plant.get_applied_generalized_force_input_port())
 
+    hook.systems = []
     return hook

@@ -25,6 +25,15 @@ rotor of inertia I_r behind a gear ratio G adds I_r·G²·q̈ to the joint torqu
 but only its own angular-momentum change, I_r·G·q̈, to the wrench on the link holding the
 stator: 1/G of it (1 % for G = 100), neglected.
 
+**Through a transmission** (``robot.transmission``, :mod:`pe_drake.multibody.transmission`:
+θ_m = R q, τ = Rᵀ τ_m) the terms act per motor: motor i's term has the column of the table
+evaluated on the motor's θ̇_i = (R q̇)_i, θ̈_i (Coulomb: tanh(θ̇_i / (|R_ii| v_s)), the joint's
+v_s carried to the motor by its own ratio) and reaches joint j's row times R_ij, so a coupled
+motor's friction and rotor inertia act on every joint it turns. The layout's ``transmission``
+says so; its values are motor side ([N·m], [N·m·s/rad], [N·m], [kg·m²] of the motor) and the
+motors are named by the joint their ratio belongs to. Without one (or with R = I) a motor is
+its joint and the table holds as written.
+
 The armature column v̇_j of a joint whose axis is fixed in the world (the first joint of a
 fixed-base arm) is exactly the column of the base parameter that holds the link inertia
 about that axis: the two are one base parameter (:func:`drive_layout` tests this on random
@@ -41,6 +50,7 @@ import numpy as np
 
 from pe_drake.exceptions import ConfigError
 from pe_drake.multibody.regressor import RegressorModel
+from pe_drake.multibody.transmission import Transmission, robot_transmission
 
 #: The ``--drive-terms`` choices: no drive terms, Coulomb + viscous + offset, and those with
 #: the armature where the robot's kinematics let it be told from the link inertias.
@@ -108,6 +118,8 @@ class DriveLayout:
             separable from the rigid-body base parameters (only their sum is identifiable).
         dropped: {label: reason} of columns this data set cannot tell apart (e.g. the Coulomb
             column of a joint that never reverses, which equals its offset column).
+        transmission: the robot's transmission when the terms act per motor (module
+            docstring; ``joints`` then index motors), None when per joint.
     """
 
     terms: tuple[str, ...]
@@ -117,6 +129,7 @@ class DriveLayout:
     velocity_scale: float = COULOMB_VELOCITY_SCALE
     merged: dict[str, dict[str, float]] = dataclasses.field(default_factory=dict)
     dropped: dict[str, str] = dataclasses.field(default_factory=dict)
+    transmission: Transmission | None = None
 
     @property
     def count(self) -> int:
@@ -124,7 +137,9 @@ class DriveLayout:
 
     @property
     def labels(self) -> tuple[str, ...]:
-        return tuple(f"{t}[{self.joint_names[j]}]" for t, j in zip(self.terms, self.joints))
+        """``term[joint]``, or ``term[motor joint]`` for the terms of a motor."""
+        motor = "motor " if self.transmission is not None else ""
+        return tuple(f"{t}[{motor}{self.joint_names[j]}]" for t, j in zip(self.terms, self.joints))
 
     def without(self, keep: Sequence[int], reasons: dict[str, str]) -> DriveLayout:
         """The layout with only the columns ``keep``; ``reasons`` of the others go to ``dropped``."""
@@ -150,24 +165,34 @@ def drive_layout(robot, base, options: DriveTermOptions, model=None, *, rows=Non
         rows: the :class:`~pe_drake.multibody.sensors.SensorRows` fitted (default: the joint
             torques); the ground wrench's rows separate every armature the torques cannot.
         samples, seed: random states of the armature's separability test.
+
+    With a ``robot.transmission`` in the robot's config (R ≠ I) the terms are per motor
+    (module docstring), the motor's units those of a revolute joint.
+
+    Raises:
+        ConfigError: a ``robot.transmission`` that does not determine the joint angles.
     """
     terms = TERMS[options.terms]
     names = tuple(robot.joint_names)
-    merged = armature_merges(robot, base, model, rows=rows, samples=samples, seed=seed) if "armature" in terms else {}
+    transmission = robot_transmission(robot) if terms else None
+    transmission = None if transmission is None or transmission.identity else transmission
+    merged = (armature_merges(robot, base, model, rows=rows, samples=samples, seed=seed, transmission=transmission)
+              if "armature" in terms else {})
     cols = [(t, j) for j in range(robot.n) for t in terms if not (t == "armature" and names[j] in merged)]
-    units = tuple(UNITS[t][0 if robot.joints[j].kind == "revolute" else 1] for t, j in cols)
+    units = tuple(UNITS[t][0 if transmission is not None or robot.joints[j].kind == "revolute" else 1] for t, j in cols)
     return DriveLayout(tuple(t for t, _ in cols), tuple(j for _, j in cols), names, units,
-                       float(options.velocity_scale), merged)
+                       float(options.velocity_scale), merged, transmission=transmission)
 
 
-def armature_merges(robot, base, model=None, *, rows=None, samples: int = 200,
-                    seed: int = 1) -> dict[str, dict[str, float]]:
-    """{joint: {base parameter: coefficient}} of the armature columns inside span(Y_B).
+def armature_merges(robot, base, model=None, *, rows=None, samples: int = 200, seed: int = 1,
+                    transmission: Transmission | None = None) -> dict[str, dict[str, float]]:
+    """{joint (or motor): {base parameter: coefficient}} of the armature columns inside span(Y_B).
 
     Random states within the robot's limits (as the base parameters use) decide whether
-    *any* motion separates the column v̇_j from the rigid-body columns. ``rows`` (a
-    :class:`~pe_drake.multibody.sensors.SensorRows`, torque channels first) are the rows of
-    Y_B (default: the joint torques); the armature's column is zero in ground-wrench rows.
+    *any* motion separates the column v̇_j (a motor's: Rᵀ e_i θ̈_i, :func:`drive_columns`) from
+    the rigid-body columns. ``rows`` (a :class:`~pe_drake.multibody.sensors.SensorRows`,
+    torque channels first) are the rows of Y_B (default: the joint torques); the armature's
+    column is zero in ground-wrench rows.
     """
     model = model or RegressorModel(robot)
     rng = np.random.default_rng(seed)
@@ -180,11 +205,13 @@ def armature_merges(robot, base, model=None, *, rows=None, samples: int = 200,
     scale = np.linalg.norm(Y_B, axis=0)
     scale[scale == 0] = 1.0
     A = Y_B / scale
+    names = tuple(robot.joint_names)
+    every = DriveLayout(("armature",) * robot.n, tuple(range(robot.n)), names, ("kg·m²",) * robot.n,
+                        transmission=transmission)
+    columns = drive_columns(v, vd, every, rows=channels)
     out = {}
-    for j, name in enumerate(robot.joint_names):
-        col = np.zeros((samples, channels))
-        col[:, j] = vd[:, j]
-        col = col.ravel()
+    for j, name in enumerate(names):
+        col = columns[:, :, j].ravel()
         beta, *_ = np.linalg.lstsq(A, col, rcond=None)
         if np.linalg.norm(col - A @ beta) <= SEPARABILITY_TOLERANCE * np.linalg.norm(col):
             coef = beta / scale
@@ -199,7 +226,7 @@ def coulomb_column(v: np.ndarray, velocity_scale: float) -> np.ndarray:
     return np.tanh(np.asarray(v, float) / velocity_scale)
 
 
-def term_values(term: str, v: np.ndarray, vd: np.ndarray | None, velocity_scale: float,
+def term_values(term: str, v: np.ndarray, vd: np.ndarray | None, velocity_scale: float | np.ndarray,
                 coulomb: np.ndarray | None = None) -> np.ndarray:
     """The column of drive term ``term`` for every joint (module docstring's table), shape of v.
 
@@ -225,19 +252,52 @@ def term_values(term: str, v: np.ndarray, vd: np.ndarray | None, velocity_scale:
 
 def drive_columns(v: np.ndarray, vd: np.ndarray, layout: DriveLayout, coulomb: np.ndarray | None = None,
                   rows: int | None = None) -> np.ndarray:
-    """The drive block D of the regressor, shape (S, rows, d): column k on joint row j_k only.
+    """The drive block D of the regressor, shape (S, rows, d): column k on joint row j_k only,
+    or, through a transmission, motor j_k's term on every joint row j times R[j_k, j].
 
     Args:
         v, vd: joint velocities and accelerations, each (S, n).
         layout: the columns (:func:`drive_layout`).
         coulomb: the Coulomb columns to use, (S, n) (e.g. tanh(v/v_s) computed at the full
-            rate and filtered like the torque); default tanh(v/v_s) of ``v``.
+            rate and filtered like the torque; per motor with a transmission,
+            :func:`coulomb_velocities`); default tanh(v/v_s) of ``v``.
         rows: channels per sample (n torques, then the ground wrench, whose rows stay zero);
             default n.
     """
     S, n = v.shape
     out = np.zeros((S, n if rows is None else rows, layout.count))
-    values = {t: term_values(t, v, vd, layout.velocity_scale, coulomb) for t in set(layout.terms)}
+    T = layout.transmission
+    scale = layout.velocity_scale
+    if T is not None:  # the motors' velocities and accelerations, each motor's v_s by its own ratio
+        v, vd = T.motor_positions(v), None if vd is None else T.motor_positions(vd)
+        scale = np.abs(np.diag(T.R)) * layout.velocity_scale
+    values = {t: term_values(t, v, vd, scale, coulomb) for t in set(layout.terms)}
     for k, (term, j) in enumerate(zip(layout.terms, layout.joints)):
-        out[:, j, k] = values[term][:, j]
+        if T is None:
+            out[:, j, k] = values[term][:, j]
+        else:  # τ = Rᵀ τ_m: motor j's term on joint i's row times R[j, i]
+            out[:, :n, k] = values[term][:, [j]] * T.R[j]
     return out
+
+
+def coulomb_velocities(v: np.ndarray, velocity_scale: float, transmission: Transmission | None) -> tuple[np.ndarray, np.ndarray]:
+    """(velocities, v_s) whose tanh(v/v_s) are the Coulomb columns: the joints' and v_s, or
+    the motors' θ̇ = R q̇ and |R_ii|·v_s (module docstring), each (S, n) and scalar or (n,)."""
+    if transmission is None:
+        return np.asarray(v, float), velocity_scale
+    return transmission.motor_positions(v), np.abs(np.diag(transmission.R)) * velocity_scale
+
+
+#: The drive terms of one motor, in the order of :func:`motor_drive_columns`.
+MOTOR_TERMS = TERMS["all"]
+
+
+def motor_drive_columns(v: np.ndarray, vd: np.ndarray, transmission: Transmission,
+                        velocity_scale: float = COULOMB_VELOCITY_SCALE) -> np.ndarray:
+    """Every motor's drive terms as joint-side columns, (S, n, 4n): column 4i + k is motor i's
+    term k of :data:`MOTOR_TERMS` (:func:`drive_columns` of a layout with ``transmission``)."""
+    n = len(transmission.joints)
+    cols = [(t, i) for i in range(n) for t in MOTOR_TERMS]
+    layout = DriveLayout(tuple(t for t, _ in cols), tuple(i for _, i in cols), transmission.joints,
+                         tuple(UNITS[t][0] for t, _ in cols), velocity_scale, transmission=transmission)
+    return drive_columns(v, vd, layout)

@@ -15,7 +15,7 @@ import dataclasses
 
 import numpy as np
 
-from pe_drake.exceptions import UnknownNameError
+from pe_drake.exceptions import ConfigError, UnknownNameError
 from pe_drake.multibody.base_parameters import BaseParameters, compute_base_parameters
 from pe_drake.multibody.regressor import RegressorModel
 from pe_drake.multibody.inertia import (
@@ -172,3 +172,21 @@ def box_inertia(mass: float, size: np.ndarray) -> np.ndarray:
     (3, 3); ``size`` the full edge lengths [m]."""
     a, b, c = np.asarray(size, float)
     return mass / 12.0 * np.diag([b * b + c * c, a * a + c * c, a * a + b * b])
+
+
+def payload_spatial_inertia(payload: PayloadInertia):
+    """A payload's Drake ``SpatialInertia`` about its frame's origin.
+
+    Raises:
+        ConfigError: an inertia that is not physically valid.
+    """
+    from pydrake.multibody.tree import RotationalInertia, SpatialInertia  # lazy: pydrake stays out of `import pe_drake`
+
+    I_PPcm = RotationalInertia(*(float(x) for x in payload.inertia_vector))
+    if not I_PPcm.CouldBePhysicallyValid():
+        raise ConfigError(f"the payload inertia {payload.inertia_vector.tolist()} [kg·m²] is not physically valid "
+                          "(moments must be non-negative and satisfy the triangle inequality)")
+    try:
+        return SpatialInertia.MakeFromCentralInertia(float(payload.mass), np.asarray(payload.com, float), I_PPcm)
+    except RuntimeError as err:
+        raise ConfigError(f"the payload is not physically valid: {err}") from err

@@ -15,6 +15,15 @@ damping, Coulomb friction a ``DoorHinge`` (f_c·tanh(v/v_s)), armature the rotor
 gear-ratio-1 actuator, the payload a welded body and the Dahl friction a Drake system; the
 offsets are a constant generalized force the caller adds.
 
+**Through a transmission** (``robot.transmission``: θ_m = R q, τ = Rᵀ τ_m) the drive terms are
+each motor's, motor side (motors named by their joint), and act on the joints through Rᵀ, a
+coupled motor's on every joint it turns (:mod:`pe_drake.multibody.drive_columns`):
+:meth:`RobotModel.torque` is exact; :meth:`RobotModel.plant` holds all the friction and the
+diagonal of the reflected rotor inertia Rᵀ diag(I_m) R as rotor inertias; its off-diagonal
+(coupling) entries, which Drake's per-joint rotor inertia cannot hold, are a system of the
+plant's diagram (:mod:`pe_drake.multibody.rotor_coupling`), so a simulation has them while the
+plant's own inverse dynamics and mass matrix do not (:meth:`RobotModel.plant_notes`).
+
 Files: :meth:`RobotModel.to_dict` writes one schema (the diagnosis's augmented_model.json);
 :meth:`RobotModel.from_dict` reads it and ``identify``'s identified.json (every method, files of
 before this module included). :meth:`RobotModel.urdf_text` and :meth:`RobotModel.effects_yaml`
@@ -40,6 +49,8 @@ from pe_drake.multibody.drive_columns import (
     TERMS,
     UNITS,
     DriveLayout,
+    coulomb_column,
+    coulomb_velocities,
     drive_columns,
 )
 from pe_drake.multibody.inertia import (
@@ -49,9 +60,10 @@ from pe_drake.multibody.inertia import (
     validity_problems,
 )
 from pe_drake.multibody.packages import found_packages
-from pe_drake.multibody.payload import PayloadInertia
+from pe_drake.multibody.payload import PayloadInertia, payload_spatial_inertia
 from pe_drake.multibody.regressor import shared_model
 from pe_drake.multibody.robot import load_robot
+from pe_drake.multibody.transmission import Transmission
 from pe_drake.multibody.urdf import joint_dynamics, payload_link_text, urdf_with_inertias, verify_urdf_text
 
 #: The drive terms of a model, in the order of :data:`~pe_drake.multibody.drive_columns.TERMS`.
@@ -96,6 +108,8 @@ class RobotModel:
             (n,); recorded, not applied by :meth:`plant` or :meth:`torque`.
         physical: whether every body of ``phi`` is physically consistent.
         notes: what was adjusted or left out, in words.
+        transmission: θ_m = R q of the motors (None: each joint its own drive); with one,
+            ``drive`` and ``sigma`` are per motor, motor side (module docstring).
     """
 
     joints: tuple[str, ...]
@@ -112,6 +126,7 @@ class RobotModel:
     holding_torque: np.ndarray | None = None
     physical: bool | None = None
     notes: tuple[str, ...] = ()
+    transmission: Transmission | None = None
 
     def __post_init__(self) -> None:
         n, set_ = len(self.joints), object.__setattr__
@@ -137,6 +152,9 @@ class RobotModel:
             raise ValueError(f"RobotModel.velocity_scale must be positive [rad/s], got {self.velocity_scale!r}")
         if self.physical is None:
             set_(self, "physical", not validity_problems(self.bodies, self.phi))
+        if self.transmission is not None and self.transmission.joints != self.joints:
+            raise ValueError(f"RobotModel.transmission is of joints {', '.join(self.transmission.joints)}, "
+                             f"not {', '.join(self.joints)}")
 
     @classmethod
     def from_robot(cls, robot) -> RobotModel:
@@ -155,7 +173,8 @@ class RobotModel:
     # ---- values -------------------------------------------------------------------------------
 
     def term(self, name: str) -> np.ndarray:
-        """The per-joint value of drive term ``name``, shape (n,) (zeros when absent)."""
+        """The per-joint (per-motor with a transmission) value of drive term ``name``, shape (n,)
+        (zeros when absent)."""
         if name not in DRIVE_TERMS:
             raise ValueError(f"unknown drive term '{name}' (valid: {', '.join(DRIVE_TERMS)})")
         return self.drive.get(name, np.zeros(len(self.joints)))
@@ -178,7 +197,7 @@ class RobotModel:
         """Every drive term of every joint as drive columns (:func:`~pe_drake.multibody.drive_columns.drive_columns`)."""
         cols = [(t, j) for j in range(len(self.joints)) for t in DRIVE_TERMS]
         return DriveLayout(tuple(t for t, _ in cols), tuple(j for _, j in cols), self.joints,
-                           tuple(UNITS[t][0] for t, _ in cols), self.velocity_scale)
+                           tuple(UNITS[t][0] for t, _ in cols), self.velocity_scale, transmission=self.transmission)
 
     def theta(self) -> np.ndarray:
         """The values of :meth:`layout`'s columns, shape (4·n,)."""
@@ -232,6 +251,16 @@ class RobotModel:
         payload body and, with pre-sliding friction, the Dahl system whose diagram exports
         the input :data:`APPLIED_FORCE_PORT`. Offsets are not in the plant: add them to its torque.
 
+        Through a transmission: a motor that turns one joint is that joint's damping R_ii²·F_v,
+        ``DoorHinge`` |R_ii|·F_c and rotor inertia R_ii²·I; a coupled motor's friction is a
+        velocity-dependent generalized force −Rᵀ(F_c tanh(θ̇/(|R_ii| v_s)) + F_v θ̇) of the
+        friction system (exact). The reflected rotor inertia is the block Rᵀ diag(I) R: Drake holds
+        a rotor inertia per joint, so the plant has its diagonal; the coupling's off-diagonal
+        entries C are the diagram's rotor-coupling system, which adds −C q̈ to the applied force
+        with q̈ solved from (M + C) q̈ = … (:mod:`~pe_drake.multibody.rotor_coupling`): the
+        diagram's forward dynamics are exact, the plant's own inverse dynamics and mass matrix
+        lack C (:meth:`plant_notes`; :meth:`torque` has it).
+
         Raises:
             ValueError: other joints or bodies than the robot's.
             ConfigError: a negative friction or armature (:meth:`nonnegative` removes them).
@@ -243,7 +272,8 @@ class RobotModel:
             bad = [f"{j} {x:.3g}" for j, x in zip(self.joints, self.term(t)) if x < 0]
             if bad:
                 raise ConfigError(f"{t} must be ≥ 0 in Drake, got {', '.join(bad)}")
-        viscous, coulomb, armature = self.viscous, self.coulomb, self.armature
+        joint = self.per_joint_model()
+        viscous, coulomb, armature, coupled = joint.viscous, joint.coulomb, joint.armature, self.coupled_friction()
         revolute = [info.kind == "revolute" for info in robot.joints]
         payload = payload_spatial_inertia(self.payload) if self.payload is not None else None
 
@@ -264,14 +294,73 @@ class RobotModel:
         # Coulomb friction on a prismatic joint (which a DoorHinge cannot carry) goes to the
         # friction system of the Dahl hook, without pre-sliding.
         sliding = np.where(revolute, 0.0, coulomb)
-        hook = (dahl_builder_hook(fc, sigma0, APPLIED_FORCE_PORT, sliding, self.velocity_scale)
-                if np.any(fc > 0) or np.any(sliding > 0) else None)
+        cross = self.rotor_coupling()
+        hook = (dahl_builder_hook(fc, sigma0, APPLIED_FORCE_PORT, sliding, self.velocity_scale, coupled,
+                                  cross if np.any(cross) else None)
+                if np.any(fc > 0) or np.any(sliding > 0) or coupled is not None or np.any(cross) else None)
         out = load_robot(robot.config, time_step=0.0, before_finalize=before_finalize, builder_hook=hook)
         for b, name in enumerate(self.bodies):
             phi_b = self.phi[10 * b : 10 * b + 10]
             if phi_b[0] > 0:  # massless frames keep the model file's (zero) inertia
                 out.plant.GetBodyByName(name).SetSpatialInertiaInBodyFrame(out.plant_context, phi_to_spatial_inertia(phi_b))
+        for system in getattr(hook, "systems", ()):  # the rotor coupling evaluates on the plant's parameters
+            system.sync(out.plant_context)
         return out
+
+    def per_joint_model(self) -> RobotModel:
+        """This model with per-joint drive terms, what a URDF and Drake's joint elements hold
+        (itself without a transmission): a motor that turns one joint is that joint's viscous
+        R_ii²·F_v and Coulomb |R_ii|·F_c, the offsets are Rᵀ o, the armature the diagonal of
+        Rᵀ diag(I) R; a coupled motor's friction and the off-diagonal rotor inertia are left out,
+        noted (:meth:`plant` applies the friction as a generalized force)."""
+        T = self.transmission
+        if T is None:
+            return self
+        ratio, single = np.diag(T.R), np.count_nonzero(T.R, axis=1) == 1  # motor i turns joint i only
+        drive = {"viscous": np.where(single, ratio**2 * self.viscous, 0.0),
+                 "coulomb": np.where(single, np.abs(ratio) * self.coulomb, 0.0),
+                 "offset": T.R.T @ self.offset, "armature": np.diag(T.reflected(self.armature)).copy()}
+        lost = [f"motor {self.joints[i]}" for i in np.flatnonzero(~single)
+                if self.coulomb[i] != 0 or self.viscous[i] != 0]
+        notes = self.plant_notes() + ([f"the friction of the coupled {', '.join(lost)} acts on several joints: not a "
+                                       "per-joint term (pe_drake's Drake plant applies it as a generalized force)"]
+                                      if lost else [])
+        return dataclasses.replace(self, drive=drive, sigma={}, transmission=None, notes=(*self.notes, *notes))
+
+    def coupled_friction(self):
+        """f(v): the torque the coupled motors' friction applies to the joints, (n,) (None
+        when no motor is coupled): :meth:`plant`'s part of the drive beyond :meth:`per_joint_model`."""
+        T = self.transmission
+        single = np.count_nonzero(T.R, axis=1) == 1 if T is not None else None
+        if T is None or single.all():
+            return None
+        f_c, f_v, R = np.where(single, 0.0, self.coulomb), np.where(single, 0.0, self.viscous), T.R
+
+        def coupled(v):
+            w, scale = coulomb_velocities(v, self.velocity_scale, T)
+            return -(R.T @ (f_c * coulomb_column(w, scale) + f_v * w))
+
+        return coupled
+
+    def rotor_coupling(self) -> np.ndarray:
+        """The off-diagonal part of the reflected rotor inertia Rᵀ diag(I) R (of the armatures
+        ≥ 0), (n, n) [kg·m²]; zeros without a coupled transmission."""
+        n = len(self.joints)
+        if self.transmission is None:
+            return np.zeros((n, n))
+        block = self.transmission.reflected(np.maximum(self.armature, 0.0))
+        return block - np.diag(np.diag(block))
+
+    def plant_notes(self) -> list[str]:
+        """What :meth:`plant` holds apart from the plant itself, in words (empty when nothing)."""
+        cross = self.rotor_coupling()
+        if not np.any(cross):
+            return []
+        pairs = [f"{self.joints[j]}-{self.joints[k]} {cross[j, k]:.3g} kg·m²"
+                 for j in range(len(self.joints)) for k in range(j + 1, len(self.joints)) if cross[j, k] != 0]
+        return [f"the coupled rotor inertia's off-diagonal entries (R^T diag(I) R: {', '.join(pairs)}) are not a per-joint "
+                "rotor inertia: not in a URDF or the exported files; pe_drake's simulator applies them as a force "
+                "system of its Drake diagram"]
 
     # ---- files --------------------------------------------------------------------------------
 
@@ -302,6 +391,9 @@ class RobotModel:
         })
         if self.sigma:
             out["sigma"] = {FILE_KEYS[t]: per_joint(s) for t, s in self.sigma.items()}
+        if self.transmission is not None:  # the per-joint tables above are then per motor
+            out["transmission"] = {**self.transmission.to_dict(), "drive_side": "motor: the drive tables are per "
+                                   "motor (named by its joint), motor side, acting on the joints through R^T"}
         return out
 
     @classmethod
@@ -341,20 +433,22 @@ class RobotModel:
         return cls(joints, body_names, phi, {t: table(k) for t, k in FILE_KEYS.items()},
                    sigma, float(d.get("coulomb_velocity_scale", COULOMB_VELOCITY_SCALE)), payload,
                    p["link"] if p else "", float(d.get("time_delay") or 0.0), table("presliding_friction"),
-                   table("presliding_stiffness"), table("holding_torque"), None, tuple(d.get("notes", ())))
+                   table("presliding_stiffness"), table("holding_torque"), None, tuple(d.get("notes", ())),
+                   Transmission.from_dict(d["transmission"]) if d.get("transmission") else None)
 
     def urdf_text(self, robot, title: str = "") -> str:
         """The robot's URDF with this model's inertials, ``<dynamics damping friction>``, rotor
         inertias (``drake:rotor_inertia``) and payload link; a negative friction or armature
         (which Drake cannot hold) is written as 0. Offsets, delay and pre-sliding stay in the
-        effects YAML (:meth:`effects_yaml`).
+        effects YAML (:meth:`effects_yaml`). Through a transmission: :meth:`per_joint_model`'s
+        terms (a coupled motor's friction and rotor-inertia coupling are not per joint).
 
         Raises:
             ConfigError: the robot was not loaded from a URDF.
             PhysicallyInvalidError: a body that is not physically valid.
         """
         text = urdf_with_inertias(robot.model_path, self.bodies, self.phi)
-        m = self.nonnegative() if self.drive else None
+        m = self.per_joint_model().nonnegative() if self.drive else None
         if m is not None:
             text = joint_dynamics(text, dict(zip(self.joints, map(float, m.viscous))),
                                   {j: float(a) for j, a in zip(self.joints, m.armature) if a > 0},
@@ -367,8 +461,9 @@ class RobotModel:
     def effects_yaml(self, header: str = "") -> str:
         """What a URDF cannot hold, as a TRUTH.yaml ``effects`` section of ``pe-drake simulate``
         after the comment lines ``header`` (viscous, coulomb and armature repeat the URDF's;
-        negative values, which the simulator refuses, are left out)."""
-        m = self.nonnegative()
+        negative values, which the simulator refuses, are left out; through a transmission,
+        :meth:`per_joint_model`'s)."""
+        m = self.per_joint_model().nonnegative()
 
         def table(x, every: bool = False):
             items = {j: float(v) for j, v in zip(self.joints, x) if every or v != 0}
@@ -381,7 +476,7 @@ class RobotModel:
             f"  coulomb: {table(m.coulomb, True)}            # [N·m], f_c·tanh(v / v_s)\n"
             f"  coulomb_velocity_scale: {self.velocity_scale!r}   # v_s [rad/s]\n"
             f"  armature: {table(m.armature)}          # [kg·m²]\n"
-            f"  torque_offset: {table(self.offset)}   # [N·m]\n"
+            f"  torque_offset: {table(m.offset)}   # [N·m]\n"
             f"  torque_delay: {float(self.torque_delay)!r}   # [s], the torque log lags the positions (time_delay)\n"
             f"  presliding_friction: {table(self.presliding)}   # Dahl F_c [N·m]\n"
             f"  presliding_stiffness: {table(self.presliding_stiffness)}   # Dahl σ0 [N·m/rad]\n"
@@ -418,7 +513,7 @@ class RobotModel:
         rng = np.random.default_rng(0)
         q = rng.uniform(robot.limits.q_lower, robot.limits.q_upper, (samples, robot.n))
         v, vd = rng.uniform(-1, 1, (samples, robot.n)), rng.uniform(-3, 3, (samples, robot.n))
-        want = self.nonnegative().torque(robot, q, v, vd, coulomb=False, offset=False)
+        want = self.per_joint_model().nonnegative().torque(robot, q, v, vd, coulomb=False, offset=False)
         got = loaded.inverse_dynamics(q, v, vd, include_damping=True)
         err = float(np.max(np.abs(got - want)))
         if not math.isfinite(err) or err > tolerance * max(float(np.max(np.abs(want))), 1.0):
@@ -442,7 +537,9 @@ def _from_identified(cls, d: Mapping[str, Any], bodies, base, phi_prior) -> Robo
         phi = phi0 + np.linalg.pinv(base.K) @ (phi_B - base.K @ phi0)
     drive, sigma = {}, {}
     block = d.get("drive_terms") or {}
-    for name, terms in (block.get("joints") or {}).items():
+    transmission = Transmission.from_dict(block["transmission"]) if block.get("transmission") else None
+    # through a transmission the terms are the motors' (named by their joint)
+    for name, terms in (block.get("motors" if transmission is not None else "joints") or {}).items():
         if name not in joints:
             raise ValueError(f"drive terms for joint '{name}' not in {', '.join(joints)}")
         j = joints.index(name)
@@ -462,25 +559,7 @@ def _from_identified(cls, d: Mapping[str, Any], bodies, base, phi_prior) -> Robo
             sigma.setdefault(t, np.full(len(joints), np.nan))[j] = s
     notes = tuple(d.get("physical_fit_notes", ())) + ((d["note"],) if d.get("note") else ())
     return cls(joints, bodies, phi, drive, sigma, float(block.get("velocity_scale", COULOMB_VELOCITY_SCALE)),
-               notes=notes)
-
-
-def payload_spatial_inertia(payload: PayloadInertia):
-    """A payload's Drake ``SpatialInertia`` about its frame's origin.
-
-    Raises:
-        ConfigError: an inertia that is not physically valid.
-    """
-    from pydrake.multibody.tree import RotationalInertia, SpatialInertia  # lazy: pydrake stays out of `import pe_drake`
-
-    I_PPcm = RotationalInertia(*(float(x) for x in payload.inertia_vector))
-    if not I_PPcm.CouldBePhysicallyValid():
-        raise ConfigError(f"the payload inertia {payload.inertia_vector.tolist()} [kg·m²] is not physically valid "
-                          "(moments must be non-negative and satisfy the triangle inequality)")
-    try:
-        return SpatialInertia.MakeFromCentralInertia(float(payload.mass), np.asarray(payload.com, float), I_PPcm)
-    except RuntimeError as err:
-        raise ConfigError(f"the payload is not physically valid: {err}") from err
+               notes=notes, transmission=transmission)
 
 
 def add_coulomb_friction(plant, joint, f_c: float, v_s: float) -> None:

@@ -14,11 +14,11 @@ has motor 6 turning with joints 5 and 6. Motors are named by the joint their rat
 A joint not in ``ratios`` has ratio 1 (a direct drive, or a log already on the joint side).
 
 :class:`Transmission` converts motor-side logs to the joint side (the log readers) and gives
-the joint-side columns of the drive terms that act per motor (:func:`motor_drive_columns`):
-friction, offset and rotor inertia act on θ̇_m, θ̈_m, and reach the joints through Rᵀ, so a
-coupled motor's friction and rotor inertia act on every joint it turns with. It is one element
-of the robot model: the one-model work (issue 33) holds it beside the inertias and the drive
-terms.
+the drive terms that act per motor: friction, offset and rotor inertia act on θ̇_m, θ̈_m and
+reach the joints through Rᵀ, so a coupled motor's friction and rotor inertia act on every joint
+it turns with (the one column builder, :func:`pe_drake.multibody.drive_columns.drive_columns`
+with a layout's ``transmission``). It is one element of the robot model
+(:class:`~pe_drake.multibody.robot_model.RobotModel`'s ``transmission``).
 """
 
 from __future__ import annotations
@@ -29,7 +29,6 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from pe_drake.exceptions import ConfigError, UnknownNameError
-from pe_drake.multibody.drive_columns import COULOMB_VELOCITY_SCALE, coulomb_column
 
 #: R is refused when its condition number is above this: the joint angles would not follow
 #: from the motor angles.
@@ -102,6 +101,29 @@ class Transmission:
         """τ_m = R⁻ᵀ τ per sample, (T, n) [N·m]."""
         return np.linalg.solve(self.R.T, np.asarray(tau, float).T).T
 
+    def reflected(self, motor_values: np.ndarray) -> np.ndarray:
+        """Rᵀ diag(x) R, (n, n): a per-motor viscous friction or rotor inertia x as the joints
+        see it (its off-diagonal entries are the coupling's)."""
+        return self.R.T @ (np.asarray(motor_values, float)[:, None] * self.R)
+
+    def to_dict(self) -> dict:
+        """JSON-ready: the joints, R row by row and its meaning (:meth:`from_dict` reads it)."""
+        return {"joints": list(self.joints), "R": self.R.tolist(),
+                "meaning": "motor angles theta_m = R q (row i: the motor of joint i), joint torques tau = R^T tau_m"}
+
+    @classmethod
+    def from_dict(cls, d: Mapping) -> Transmission:
+        """Reads :meth:`to_dict`'s data.
+
+        Raises:
+            KeyError, TypeError, ValueError: a malformed block (the caller names the file).
+        """
+        joints = tuple(str(j) for j in d["joints"])
+        R = np.asarray(d["R"], float)
+        if R.shape != (len(joints), len(joints)) or not np.all(np.isfinite(R)):
+            raise ValueError(f"transmission.R must be finite and {len(joints)} x {len(joints)}, got shape {R.shape}")
+        return cls(joints, R)
+
 
 def robot_transmission(robot) -> Transmission:
     """A robot's transmission from its config's ``robot.transmission`` (identity without one).
@@ -127,33 +149,3 @@ def _number(field: str, value, nonzero: bool = False) -> float:
         raise ConfigError(f"{field} must be a finite{' non-zero' if nonzero else ''} number, got {value!r}")
     return float(value)
 
-
-#: The drive terms of one motor, in the order of :func:`motor_drive_columns`.
-MOTOR_TERMS = ("coulomb", "viscous", "offset", "armature")
-
-
-def motor_drive_columns(v: np.ndarray, vd: np.ndarray, transmission: Transmission,
-                        velocity_scale: float = COULOMB_VELOCITY_SCALE) -> np.ndarray:
-    """The joint-side columns of every motor's drive terms, (S, n, 4n).
-
-    Motor i's friction, offset and rotor inertia give the motor torque
-    F_c,i tanh(θ̇_i / (|R_ii| v_s)) + F_v,i θ̇_i + o_i + I_i θ̈_i (θ̇ = R q̇; the Coulomb column's
-    smoothing v_s is the joint's, carried to the motor by its own ratio), and the joints
-    τ = Rᵀ τ_m: column 4i + k of joint j is R_ij times motor i's term k (:data:`MOTOR_TERMS`).
-    The values are motor-side ([N·m], [N·m·s/rad], [N·m], [kg·m²] of the motor).
-
-    Args:
-        v, vd: joint velocities and accelerations, (S, n).
-        transmission: R.
-        velocity_scale: v_s [rad/s of the joint].
-    """
-    R = transmission.R
-    w, wd = transmission.motor_positions(v), transmission.motor_positions(vd)
-    n = R.shape[0]
-    motor = np.empty((w.shape[0], n, len(MOTOR_TERMS)))
-    motor[:, :, 0] = coulomb_column(w, np.abs(np.diag(R)) * velocity_scale)
-    motor[:, :, 1] = w
-    motor[:, :, 2] = 1.0
-    motor[:, :, 3] = wd
-    # joint j's row: Σ_i R_ij · (motor i's columns), each motor's columns kept apart
-    return np.einsum("ij,sik->sjik", R, motor).reshape(w.shape[0], n, n * len(MOTOR_TERMS))

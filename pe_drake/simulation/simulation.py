@@ -77,6 +77,7 @@ from pe_drake.multibody.payload import PayloadInertia
 from pe_drake.multibody.robot import Robot, load_robot
 from pe_drake.multibody.robot_model import APPLIED_FORCE_PORT, RobotModel
 from pe_drake.multibody.sensors import MeasurementType
+from pe_drake.multibody.transmission import robot_transmission
 from pe_drake.simulation.truth import (
     ALL_JOINTS,
     Truth,
@@ -129,7 +130,10 @@ def true_model(robot, truth: Truth, model: RobotModel | None = None) -> RobotMod
 
     The truth's friction replaces the model file's on the joints it sets (module docstring);
     on an identified ``model`` (``simulate --model``) the truth's per-joint effects add to the
-    model's, its delay too.
+    model's, its delay too. With a transmission (the model's, or the robot config's
+    ``robot.transmission``) the truth's viscous, coulomb, armature and torque_offset are per
+    motor (named by its joint) and act through R, and the model file's joint friction is not
+    simulated (as ``identify`` fits the motors' terms as the drive's whole friction).
 
     Raises:
         ConfigError, UnknownNameError: from :func:`validate_truth`; a truth with Coulomb friction of
@@ -139,7 +143,11 @@ def true_model(robot, truth: Truth, model: RobotModel | None = None) -> RobotMod
     joints, e = robot.joint_names, truth.effects
     tables = {t: per_joint_values(getattr(e, field), joints) for t, field in FIELDS.items()}
     fc, sigma0 = per_joint_values(e.presliding_friction, joints), per_joint_values(e.presliding_stiffness, joints)
-    if model is None:  # the truth's friction where it sets a joint (by name or all), else the model file's
+    transmission = robot_transmission(robot) if model is None else model.transmission
+    transmission = None if transmission is None or transmission.identity else transmission
+    if model is None and transmission is not None:  # per motor: the model file's joint friction is not the motors'
+        phi, v_s, delay = robot.phi_model, float(e.coulomb_velocity_scale), float(e.torque_delay)
+    elif model is None:  # the truth's friction where it sets a joint (by name or all), else the model file's
         tables["viscous"], tables["coulomb"] = (
             per_joint_values(t, joints) if ALL_JOINTS in t else np.array([float(t.get(j, m)) for j, m in zip(joints, x)])
             for t, x in ((e.viscous, robot.joint_damping), (e.coulomb, robot.joint_friction)))
@@ -156,7 +164,7 @@ def true_model(robot, truth: Truth, model: RobotModel | None = None) -> RobotMod
     payload = PayloadInertia(float(p.mass), np.asarray(p.com, float), inertia_matrix(p.inertia)) if p.link else None
     return RobotModel(joints, robot.body_names, phi, tables, velocity_scale=v_s, payload=payload,
                       payload_link=p.link, torque_delay=float(delay), presliding=fc, presliding_stiffness=sigma0,
-                      notes=model.notes if model is not None else ())
+                      notes=model.notes if model is not None else (), transmission=transmission)
 
 
 def _check_model_truth(model: RobotModel, coulomb: np.ndarray, presliding: np.ndarray, v_s: float) -> None:
@@ -256,7 +264,8 @@ def simulate(
     log = track_trajectory(robot, true, trajectory, truth, duration)
     sensors = MeasurementType(measurement)
     data = record_log(robot, truth, log, true.model.torque_delay)
-    wrench = recorded_wrench(true.robot, truth, log.q, log.v, log.tau - true.model.offset) if sensors.wrench else None
+    wrench = (recorded_wrench(true.robot, truth, log.q, log.v, log.tau - true.model.per_joint_model().offset)
+              if sensors.wrench else None)
     data = data.replace(tau=data.tau if sensors.torques else None, wrench=wrench)
     return SimulationOutput(data, {**_truth_dict(robot, truth, true, duration, log, model is not None),
                                "measurement": sensors.kind})
@@ -333,8 +342,10 @@ def track_trajectory(
     q_d, v_d, vd_d = trajectory.evaluate(t)
     kp, kd = truth.control.kp, truth.control.kd
     # the model file's friction the simulated robot keeps, fed forward at v_d (module docstring)
-    damping = np.where(np.isclose(true.model.viscous, true.model_damping), true.model_damping, 0.0)
-    friction = np.where(np.isclose(true.model.coulomb, true.model_friction), true.model_friction, 0.0)
+    joint = true.model.per_joint_model()  # through a transmission, the motors' terms per joint
+    kept = true.model.transmission is None  # with one the model file's friction is not simulated
+    damping = np.where(kept & np.isclose(joint.viscous, true.model_damping), true.model_damping, 0.0)
+    friction = np.where(kept & np.isclose(joint.coulomb, true.model_friction), true.model_friction, 0.0)
     v_s = true.model.velocity_scale
     simulator = _start_simulator(true, truth, q_d[0], v_d[0], h)
     port, port_context = true.force_input()
@@ -352,7 +363,7 @@ def track_trajectory(
         q_log[k], v_log[k], tau_log[k] = q, v, tau
         if k + 1 < count:
             # The offset is a constant load the actuator must overcome (module docstring).
-            port.FixValue(port_context, tau - true.model.offset)
+            port.FixValue(port_context, tau - joint.offset)
             simulator.AdvanceTo(t[k + 1])
             if not np.isfinite(plant.GetPositionsAndVelocities(ctx)).all():
                 raise SimulationError(
@@ -456,6 +467,10 @@ def _truth_dict(robot, truth: Truth, true: TrueRobot, duration: float, log: Trac
                                             "acts on the joint)"},
             "torque_delay": {"unit": "s", "value": m.torque_delay,
                              "convention": "tau_recorded(t) = tau(t - delay)"},
+            **({"transmission": {**m.transmission.to_dict(),
+                                 "drive_side": "viscous, coulomb, armature and torque_offset are per motor (named by "
+                                               "its joint), motor side, acting on the joints through R^T",
+                                 "plant_notes": m.plant_notes()}} if m.transmission is not None else {}),
             "payload": {
                 "link": e.payload.link, "mass": e.payload.mass, "com": list(e.payload.com),
                 "inertia_about_com": list(e.payload.inertia),

@@ -19,7 +19,8 @@ from pe_drake.config import check_finite, load_yaml_typed
 from pe_drake.exceptions import ConfigError, UnknownNameError
 from pe_drake.multibody.inertia import inertia_matrix
 from pe_drake.multibody.payload import PayloadInertia
-from pe_drake.multibody.robot_model import COULOMB_VELOCITY_SCALE, payload_spatial_inertia
+from pe_drake.multibody.payload import payload_spatial_inertia
+from pe_drake.multibody.robot_model import COULOMB_VELOCITY_SCALE
 from pe_drake.multibody.wrench import WRENCH_COLUMNS
 
 #: Key of a per-joint table that sets every joint not listed by name.
