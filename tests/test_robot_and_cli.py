@@ -186,3 +186,23 @@ def test_optimize_loads_no_identification_or_diagnosis_module(tmp_path):
     run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300, cwd=root,
                          env={**os.environ, "PYTHONPATH": root})
     assert run.stdout.strip().splitlines()[-1] == "0 []", run.stdout + run.stderr
+
+
+def test_python_m_pe_drake_cli_runs_the_command_line(tmp_path):
+    """`python -m pe_drake.cli` works from a checkout (no console script on PATH): it needs a
+    __main__.py, and passes the exit code of a refused input through (2, one-line message)."""
+    import os
+    import subprocess
+    import sys
+
+    root = str(Path(__file__).resolve().parent.parent)
+    env = {**os.environ, "PYTHONPATH": root}
+    shown = subprocess.run([sys.executable, "-m", "pe_drake.cli", "--help"], capture_output=True, text=True,
+                           timeout=120, cwd=tmp_path, env=env)
+    assert shown.returncode == 0, shown.stderr
+    assert "optimize" in shown.stdout and "identify" in shown.stdout
+    refused = subprocess.run([sys.executable, "-m", "pe_drake.cli", "optimize", "--robot", "no_such_robot",
+                              "--out", str(tmp_path / "o")], capture_output=True, text=True, timeout=300,
+                             cwd=tmp_path, env=env)
+    assert refused.returncode == 2, refused.stdout + refused.stderr
+    assert "no_such_robot" in refused.stderr and "Traceback" not in refused.stderr
