@@ -267,6 +267,7 @@ def test_cli_export_then_validate_in_mujoco_and_drake_agree_on_the_real_run(tmp_
         code, out, err = run_cli("validate", "--robot", "panda", "--model", path, "--data", REAL,
                                  "--window", "15,17", "--json", tmp_path / f"{to}.json")
         assert code == 0, err
+        assert f"model: cad{suffix}, torques by " in out and "identified from" not in out
         results[to] = json.loads((tmp_path / f"{to}.json").read_text())["rms"]
     # the CAD Panda has damping and no friction: MuJoCo and Drake compute the same torques
     for joint, rms in results["urdf"].items():
@@ -444,3 +445,17 @@ def test_real_panda_in_mujoco_is_pe_drakes_validate_minus_what_mjcf_cannot_hold(
     shape = terms.drive["coulomb"] * (filtered_coulomb(raw, data, terms.velocity_scale) - filtered_coulomb(raw, data, 1e-6))
     np.testing.assert_allclose(mj.predicted, own.predicted - terms.drive["offset"] - shape, atol=1e-9)
     assert np.all(cad.rms > 2 * mj.rms)  # the CAD-vs-identified gap, in MuJoCo
+
+
+def test_validation_of_a_model_file_does_not_call_it_identified():
+    """`validate --model model.xml` printed "model identified from model.xml, torques by MuJoCo":
+    a model file was not identified from a measurement; an identified.json still says what it was."""
+    from pe_drake.identification.validate_model import ValidationReport
+
+    def first_line(source):
+        one = np.ones((2, 1))
+        return ValidationReport("slider", source, "joint_torque", ("x",), np.arange(2.0), one, one,
+                                np.zeros(1), np.zeros(1), 0.0, 2).summary_lines()[1]
+
+    assert first_line("model.xml, torques by MuJoCo") == "model: model.xml, torques by MuJoCo; predicting joint_torque"
+    assert first_line("joint_torque") == "model identified from joint_torque; predicting joint_torque"
