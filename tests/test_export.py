@@ -459,3 +459,17 @@ def test_validation_of_a_model_file_does_not_call_it_identified():
 
     assert first_line("model.xml, torques by MuJoCo") == "model: model.xml, torques by MuJoCo; predicting joint_torque"
     assert first_line("joint_torque") == "model identified from joint_torque; predicting joint_torque"
+
+
+def test_sdf_of_a_urdf_whose_weld_shares_its_links_name(tmp_path):
+    """URDF lets a joint and a link share a name, SDFormat does not: example-robot-data's Z1 has a
+    fixed joint and its child link both called gripperStator, and `export --to sdf` was refused
+    ("Non-unique name[gripperStator]"). The weld is renamed; the excited joints keep their names."""
+    path = tmp_path / "same_names.urdf"
+    path.write_text(SLIDER_URDF.replace('joint name="tool_frame_joint"', 'joint name="tool_frame"'))
+    robot = load_robot(RobotConfig(model=str(path), **MOUNT))
+    terms = identified_terms(robot, 2)
+    text = sdf_text(robot, terms)
+    assert drake_check(robot, terms, text, ".sdf", samples=10) < 1e-6
+    assert '<joint name="tool_frame_weld" type="fixed">' in text and '<link name="tool_frame">' in text
+    assert all(f'<joint name="{j}"' in text for j in robot.joint_names)
