@@ -153,6 +153,7 @@ def test_report_of_a_motion(small_problem, motion):
     assert f"predicts torques {1 / report.prediction_ratio:.3g}× worse" in report.summary_lines()[-1]
     better = dataclasses.replace(report, prediction_ratio=2.5)
     assert "predicts torques 2.5× better" in better.summary_lines()[-1]
+    assert f"{1 / report.prediction_ratio:.3g}× worse than 3 random motions" in report.figure_note()
 
 
 def test_sampled_rate_gives_the_data_rate_figures(small_problem, motion):

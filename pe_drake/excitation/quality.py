@@ -205,7 +205,7 @@ class QualityReport:
             f"torque-prediction RMS {self.motion.prediction_rms_total:.3g} N·m (reference motions)",
         ]
         if self.random:
-            lines.append(f"{self.prediction_ratio:.3g}× better than {len(self.random)} random motions")
+            lines.append(f"{_times(self.prediction_ratio)} than {len(self.random)} random motions")
             lines.append(f"D-efficiency {self.d_efficiency_ratio:.3g}× theirs")
         finite = np.where(np.isfinite(self.std_percent), self.std_percent, -np.inf)
         k = int(np.argmax(finite))
