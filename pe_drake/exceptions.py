@@ -111,8 +111,9 @@ class JointMismatchError(DataError, ConfigError):
         self.extra = tuple(j for j in self.joints if j not in self.robot_joints)
         detail = "; ".join(f"{label}: {', '.join(names)}" for label, names in (
             ("missing", self.missing), ("not the robot's", self.extra)) if names) or "the same joints in another order"
-        super().__init__(f"{what}'s joints {', '.join(self.joints)} differ from robot '{robot_name}''s excited "
-                         f"joints {', '.join(self.robot_joints)} ({detail}); pass the --robot/--config they were "
+        # "robot 'panda': its excited joints", not "robot 'panda''s excited joints" (a quote, then 's)
+        super().__init__(f"{what}'s joints {', '.join(self.joints)} differ from robot '{robot_name}': its excited "
+                         f"joints are {', '.join(self.robot_joints)} ({detail}); pass the --robot/--config they were "
                          "recorded or optimized with", file=file)
 
 

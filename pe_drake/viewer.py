@@ -24,6 +24,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+import os
 import types
 from pathlib import Path
 from typing import Any
@@ -387,7 +388,8 @@ def _run_capsule_file(configured: str, data: dict, path, from_file: bool) -> str
     recorded = data.get("capsules")
     candidates = [folder / recorded if isinstance(recorded, str) and recorded else None,
                   folder / FITTED_CAPSULES_NAME if "capsules" not in data else None]
-    found = [str(c) for c in candidates if c is not None and c.is_file()]
+    # normpath: a recorded '../../models/x.yaml' is printed as the file's own path, not the folder's + '..'
+    found = [os.path.normpath(c) for c in candidates if c is not None and c.is_file()]
     if configured and not from_file:
         return configured
     return found[0] if found else configured

@@ -116,6 +116,7 @@ def test_one_joint_check_names_the_file_the_missing_and_extra_joints_and_the_rob
         check_joints(robot, ["j1", "j2", "x9"], file="log.csv")
     text = str(err.value)
     assert "log.csv" in text and "missing: j3" in text and "not the robot's: x9" in text and "j1, j2, j3" in text
+    assert "robot 'arm': its excited joints are j1, j2, j3" in text and "''s" not in text  # was "robot 'arm''s"
     assert isinstance(err.value, DataError) and isinstance(err.value, ConfigError)
     assert err.value.missing == ("j3",) and err.value.extra == ("x9",)
     with pytest.raises(JointMismatchError, match="another order"):

@@ -271,6 +271,7 @@ def test_cli_export_then_validate_in_mujoco_and_drake_agree_on_the_real_run(tmp_
         code, out, err = run_cli("validate", "--robot", "panda", "--model", path, "--data", REAL,
                                  "--window", "15,17", "--json", tmp_path / f"{to}.json")
         assert code == 0, err
+        assert f"model: cad{suffix}, torques by " in out and "identified from" not in out
         results[to] = json.loads((tmp_path / f"{to}.json").read_text())["rms"]
     # the CAD Panda has damping and no friction: MuJoCo and Drake compute the same torques
     for joint, rms in results["urdf"].items():
@@ -509,3 +510,31 @@ def test_a_malformed_covariance_is_refused_naming_the_file(tmp_path):
     with pytest.raises(DataError, match="base_parameter_covariance has shape") as err:
         load_identified(path, robot)
     assert str(path) in str(err.value)
+
+
+def test_validation_of_a_model_file_does_not_call_it_identified():
+    """`validate --model model.xml` printed "model identified from model.xml, torques by MuJoCo":
+    a model file was not identified from a measurement; an identified.json still says what it was."""
+    from pe_drake.identification.validate_model import ValidationReport
+
+    def first_line(source):
+        one = np.ones((2, 1))
+        return ValidationReport("slider", source, "joint_torque", ("x",), np.arange(2.0), one, one,
+                                np.zeros(1), np.zeros(1), 0.0, 2).summary_lines()[1]
+
+    assert first_line("model.xml, torques by MuJoCo") == "model: model.xml, torques by MuJoCo; predicting joint_torque"
+    assert first_line("joint_torque") == "model identified from joint_torque; predicting joint_torque"
+
+
+def test_sdf_of_a_urdf_whose_weld_shares_its_links_name(tmp_path):
+    """URDF lets a joint and a link share a name, SDFormat does not: example-robot-data's Z1 has a
+    fixed joint and its child link both called gripperStator, and `export --to sdf` was refused
+    ("Non-unique name[gripperStator]"). The weld is renamed; the excited joints keep their names."""
+    path = tmp_path / "same_names.urdf"
+    path.write_text(SLIDER_URDF.replace('joint name="tool_frame_joint"', 'joint name="tool_frame"'))
+    robot = load_robot(RobotConfig(model=str(path), **MOUNT))
+    terms = identified_terms(robot, 2)
+    text = sdf_text(robot, terms)
+    assert drake_check(robot, terms, text, ".sdf", samples=10) < 1e-6
+    assert '<joint name="tool_frame_weld" type="fixed">' in text and '<link name="tool_frame">' in text
+    assert all(f'<joint name="{j}"' in text for j in robot.joint_names)

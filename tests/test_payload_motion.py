@@ -66,3 +66,18 @@ def test_expected_sigma_matches_the_identified_sigma():
     ratio = np.concatenate([[result.mass_std / expected.mass_std], result.com_std / expected.com_std,
                             result.inertia_about_com_std / expected.inertia_about_com_std])
     assert np.all((ratio > 0.7) & (ratio < 1.3)), ratio
+
+
+def test_expected_sigma_names_nan_only_when_a_sigma_is_nan():
+    """The expected-σ line ended in "(nan: not determined)" even when every σ was finite."""
+    from pe_drake.excitation.payload_motion import PayloadStd
+    from pe_drake.multibody.payload import PayloadInertia
+
+    def line(inertia_std):
+        std = PayloadStd(1e-4, np.full(3, 2e-5), np.asarray(inertia_std, float),
+                         PayloadInertia(1.0, np.array([0.0, 0.0, 0.05]), np.eye(3) * 1e-3),
+                         np.full(6, 0.05), True, 1000.0)
+        return std.summary_lines()[1]
+
+    assert "nan" not in line([4e-5] * 6)
+    assert line([4e-5, 4e-5, np.nan, 1e-5, 1e-5, 1e-5]).endswith("(nan: not determined)")

@@ -82,3 +82,14 @@ def test_identify_help_says_the_physical_fit_is_weighted(capsys):
         main(["identify", "--help"])
     text = " ".join(capsys.readouterr().out.split())
     assert "physical (every link physically consistent, each rigid group of welded links one body; weighted" in text
+
+
+def test_a_single_welded_body_is_named_in_the_singular():
+    """The Z1's link06 is welded to its gripper stator: the fit's note said 'the 1 bodies'."""
+    from pe_drake.identification.welded import WeldedGroups
+
+    body = np.array([1.0, 0.0, 0.0, 0.05, 0.01, 0.01, 0.01, 0.0, 0.0, 0.0])  # 1 kg, CoM 5 cm up
+    groups = WeldedGroups(kept=(0,), members={0: [(1, np.eye(10))]})
+    assert groups.names(["stator", "link06"]) == ["stator (with its 1 welded body)"]
+    _, notes = groups.split(2 * body, np.concatenate([body, body]), ["stator", "link06"])
+    assert notes and notes[0].startswith("stator and the 1 body welded to it (link06) fitted as one body"), notes

@@ -147,8 +147,13 @@ def test_report_of_a_motion(small_problem, motion):
     d = report.to_dict()
     assert d["assumptions"]["periods"] == 3 and d["assumptions"]["rate_hz"] == DATA_RATE_HZ
     assert [e["name"] for e in d["base_parameter_std"]] == list(small_problem.base.base_names)
-    lines = report.summary_lines()
-    assert "better" in lines[-1]
+    # this fixture's motion predicts worse than the best random one (ratio 0.88): the line said
+    # "0.88× better", read as a gain; it says "1.13× worse"
+    assert report.prediction_ratio < 1
+    assert f"predicts torques {1 / report.prediction_ratio:.3g}× worse" in report.summary_lines()[-1]
+    better = dataclasses.replace(report, prediction_ratio=2.5)
+    assert "predicts torques 2.5× better" in better.summary_lines()[-1]
+    assert f"{1 / report.prediction_ratio:.3g}× worse than 3 random motions" in report.figure_note()
 
 
 def test_sampled_rate_gives_the_data_rate_figures(small_problem, motion):

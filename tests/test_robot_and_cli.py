@@ -58,6 +58,21 @@ def test_unknown_robot_lists_builtins():
         load_robot("pandaa")
 
 
+def test_an_example_robot_data_name_points_to_its_model_file(tmp_path, capsys):
+    """`--robot z1` (README: pe_drake was tried on example-robot-data's robots) is not built in:
+    the refusal gives the model file to pass instead, and that path then loads."""
+    from pe_drake.multibody.registry import example_robot_data_dir
+
+    z1 = example_robot_data_dir() / "robots" / "z1_description" / "urdf" / "z1.urdf"
+    assert main(["optimize", "--robot", "z1", "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "unknown robot 'z1'" in err and str(z1) in err and not (tmp_path / "o").exists()
+    assert len(load_robot(str(z1)).joint_names) == 7
+    with pytest.raises(UnknownNameError) as unknown:  # no look-alike: the built-ins and a path only
+        load_robot("no_such_robot")
+    assert unknown.value.choices[-1] == "<path to .urdf/.sdf/.urdf.xacro>"
+
+
 def test_locked_posture_outside_limits():
     with pytest.raises(NotWithinLimitsError, match="panda_joint4"):
         load_robot(RobotConfig(model=PANDA_URDF, joints=["panda_joint1"], locked_positions={"panda_joint4": 1.0}))
@@ -186,3 +201,23 @@ def test_optimize_loads_no_identification_or_diagnosis_module(tmp_path):
     run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300, cwd=root,
                          env={**os.environ, "PYTHONPATH": root})
     assert run.stdout.strip().splitlines()[-1] == "0 []", run.stdout + run.stderr
+
+
+def test_python_m_pe_drake_cli_runs_the_command_line(tmp_path):
+    """`python -m pe_drake.cli` works from a checkout (no console script on PATH): it needs a
+    __main__.py, and passes the exit code of a refused input through (2, one-line message)."""
+    import os
+    import subprocess
+    import sys
+
+    root = str(Path(__file__).resolve().parent.parent)
+    env = {**os.environ, "PYTHONPATH": root}
+    shown = subprocess.run([sys.executable, "-m", "pe_drake.cli", "--help"], capture_output=True, text=True,
+                           timeout=120, cwd=tmp_path, env=env)
+    assert shown.returncode == 0, shown.stderr
+    assert "optimize" in shown.stdout and "identify" in shown.stdout
+    refused = subprocess.run([sys.executable, "-m", "pe_drake.cli", "optimize", "--robot", "no_such_robot",
+                              "--out", str(tmp_path / "o")], capture_output=True, text=True, timeout=300,
+                             cwd=tmp_path, env=env)
+    assert refused.returncode == 2, refused.stdout + refused.stderr
+    assert "no_such_robot" in refused.stderr and "Traceback" not in refused.stderr

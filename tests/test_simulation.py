@@ -347,9 +347,11 @@ def test_command_error_writes_nothing(tmp_path, robot, trajectory, capsys):
     code = main(["simulate", "--robot", "panda", "--trajectory", str(tmp_path / "trajectory.json"),
                  "--truth", str(truth), "--out", str(out), "--duration", "0.3"])
     assert code != 0
-    err = capsys.readouterr().err
+    printed = capsys.readouterr()
+    err = printed.err
     assert "unknown joint 'joint_x'" in err and "panda_joint1" in err
     assert not out.exists() and not truth_path_for(out).exists()
+    assert "simulating" not in printed.out  # refused before the work was announced
 
 
 def test_command_refuses_trajectory_of_other_joints(tmp_path, robot, trajectory, capsys):

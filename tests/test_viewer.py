@@ -452,3 +452,25 @@ def test_ramped_motion_plays_once_and_holds_its_final_rest(panda_traj, tmp_path)
     assert options["loopMode"] == 2200 and options["clampWhenFinished"]  # THREE.LoopOnce
     q_start, q_end = motion.evaluate(np.array([0.0, motion.duration]))[0]
     assert np.abs(q_start - q_end).max() > 1e-3  # the two rest postures differ
+
+
+def test_view_names_a_recorded_capsule_file_by_its_own_path(panda_traj, tmp_path, monkeypatch, capsys):
+    """trajectory.json records the capsule file relative to its folder ('../../models/x.yaml'):
+    `view` printed it joined to that folder, '/out/panda/../../…/panda_capsules.yaml'."""
+    import json
+    import os
+
+    import pe_drake.cli.view as view
+    from pe_drake.cli import main
+    from pe_drake.multibody.registry import models_dir
+
+    capsules = models_dir() / "panda_capsules.yaml"
+    folder = tmp_path / "out" / "panda"
+    folder.mkdir(parents=True)
+    data = json.loads(panda_traj[0].read_text())
+    data["capsules"] = os.path.relpath(capsules, folder)
+    (folder / "trajectory.json").write_text(json.dumps(data))
+    monkeypatch.setattr(view.time, "sleep", lambda _: (_ for _ in ()).throw(KeyboardInterrupt))
+    assert main(["view", str(folder / "trajectory.json"), "--rate", "5"]) == 0
+    out = capsys.readouterr().out
+    assert f"capsules from {os.path.normpath(capsules)} (shown)" in out, out

@@ -97,7 +97,9 @@ class PayloadStd:
             f"{np.array2string(self.noise_std, precision=3)} N·m; at {p.mass:g} kg, CoM {p.com.tolist()} m):",
             f"  mass {self.mass_std * 1e3:.3g} g ({100 * self.mass_std / p.mass:.3g} %), "
             f"CoM {np.array2string(self.com_std * 1e3, precision=3)} mm, "
-            f"inertia {np.array2string(self.inertia_about_com_std, precision=3)} kg·m² (nan: not determined)",
+            f"inertia {np.array2string(self.inertia_about_com_std, precision=3)} kg·m²"
+            # the legend only where a σ is NaN: printed always, it read as if something were undetermined
+            + (" (nan: not determined)" if np.isnan(self.inertia_about_com_std).any() else ""),
         ]
         if self.undetermined:
             lines.append(undetermined_note(self.undetermined))

@@ -208,7 +208,7 @@ class QualityReport:
             f"torque-prediction RMS {self.motion.prediction_rms_total:.3g} N·m (reference motions)",
         ]
         if self.random:
-            lines.append(f"{self.prediction_ratio:.3g}× better than {len(self.random)} random motions")
+            lines.append(f"{_times(self.prediction_ratio)} than {len(self.random)} random motions")
             lines.append(f"D-efficiency {self.d_efficiency_ratio:.3g}× theirs")
         finite = np.where(np.isfinite(self.std_percent), self.std_percent, -np.inf)
         k = int(np.argmax(finite))
@@ -240,10 +240,16 @@ class QualityReport:
             best = min(m.prediction_rms_total for m in self.random)
             lines.append(
                 f"  vs the best of {len(self.random)} random motions under the same constraints "
-                f"(RMS {best:.3g} N·m): predicts torques {self.prediction_ratio:.3g}× better, "
+                f"(RMS {best:.3g} N·m): predicts torques {_times(self.prediction_ratio)}, "
                 f"D-efficiency {self.d_efficiency_ratio:.3g}×"
             )
         return lines
+
+
+def _times(ratio: float) -> str:
+    """"2.5× better" or, below 1, "8.55× worse": "0.117× better" read as a gain (a Z1 motion of
+    20 NLopt iterations predicted torques 8.5 times worse than a random one)."""
+    return f"{ratio:.3g}× better" if not ratio < 1 else f"{1 / ratio:.3g}× worse"
 
 
 # ---- inputs ----------------------------------------------------------------------------------------

@@ -99,20 +99,35 @@ def _sdf_joint(sdf_model: ET.Element, robot, model: RobotModel, parent: str, chi
     ET.SubElement(el, f"{{{DRAKE_NAMESPACE}}}gear_ratio").text = "1"
 
 
+def _free_name(name: str, taken: set[str]) -> str:
+    """``name``, or ``name_weld``, ``name_weld_2``, ... when a link or joint already has it; taken then."""
+    free, k = name, 1
+    while free in taken:
+        free = f"{name}_weld" + (f"_{k}" if k > 1 else "")
+        k += 1
+    taken.add(free)
+    return free
+
+
 def sdf_text(robot, model: RobotModel, source: str = "") -> str:
     """The SDFormat model of the robot with ``model`` (module docstring); ``source`` names the
     model file in its comment."""
     ET.register_namespace("drake", DRAKE_NAMESPACE)
     root = ET.Element("sdf", {"version": "1.9"})
     sdf_model = ET.SubElement(root, "model", {"name": robot.name})
-    for body in robot_tree(robot, model):
+    tree = robot_tree(robot, model)
+    # SDFormat gives a model's links and joints one namespace; URDF does not (example-robot-data's
+    # Z1 has a fixed joint and its child link both named gripperStator): a weld's name is free
+    taken = {body.name for body in tree} | {PAYLOAD_BODY_NAME, f"{PAYLOAD_BODY_NAME}_weld"}
+    taken |= {robot.joint_names[body.joint] for body in tree if body.joint >= 0}
+    for body in tree:
         link = ET.SubElement(sdf_model, "link", {"name": body.name})
         ET.SubElement(link, "pose").text = _pose_text(body.X_WC)
         _sdf_inertial(link, body.phi)
         if body.joint >= 0:
             _sdf_joint(sdf_model, robot, model, body.parent, body.name, body.joint)
         else:
-            weld = ET.SubElement(sdf_model, "joint", {"name": body.weld_name, "type": "fixed"})
+            weld = ET.SubElement(sdf_model, "joint", {"name": _free_name(body.weld_name, taken), "type": "fixed"})
             ET.SubElement(weld, "parent").text = body.parent
             ET.SubElement(weld, "child").text = body.name
         if model.payload is not None and body.name == model.payload_link:

@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from pe_drake.config import MEASUREMENTS
 from pe_drake.identification.time_window import TimeWindow
 from pe_drake.identification.data_checks import a_priori_torque, check_against_model
 from pe_drake.identification.drive_terms import COULOMB_VELOCITY_SCALE, filtered_coulomb
@@ -53,6 +54,8 @@ class ValidationReport:
         preprocessing: what was done to the run (cut-off, trim, rates), printed first.
         worse: the channels worse than the a-priori model (torques) or than predicting zero
             (:mod:`~pe_drake.identification.reference_errors`), printed last.
+        model_measurement: what an identified model was fitted to (a ``MEASUREMENTS`` name),
+            or for a model file (``validate --model model.xml``) the file and its simulator.
         coupling: the warning of joints whose held-out residual looks like a coupled drive the
             model lacks (:mod:`~pe_drake.identification.coupling`), printed last.
     """
@@ -77,7 +80,10 @@ class ValidationReport:
         width = max(len(j) for j in self.names)
         lines = [self.preprocessing.describe() if self.preprocessing is not None
                  else "the run as recorded (--no-filter): its torques, v.* and vdot.* columns unfiltered"]
-        lines += [f"model identified from {self.model_measurement}; predicting {self.measurement}",
+        # a model file was not identified from anything: say which file and simulator predicted
+        source = (f"model identified from {self.model_measurement}" if self.model_measurement in MEASUREMENTS
+                  else f"model: {self.model_measurement}")
+        lines += [f"{source}; predicting {self.measurement}",
                  f"{'channel':<{width}}  {'RMS [N·m, N]':>12}  {'relative [%]':>12}"]
         lines += [f"{j:<{width}}  {r:>12.4f}  {e:>12.2f}" for j, r, e in zip(self.names, self.rms, self.relative)]
         lines.append(f"{'all':<{width}}  {float(np.sqrt(np.mean(self.rms**2))):>12.4f}  {self.relative_total:>12.2f}")

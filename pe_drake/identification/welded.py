@@ -37,6 +37,11 @@ def moved_parameters_map(X: np.ndarray) -> np.ndarray:
     return np.column_stack([phi_from_pseudo_inertia(X @ pseudo_inertia(e) @ X.T) for e in np.eye(P)])
 
 
+def _bodies(count: int) -> str:
+    """'body' or 'bodies' after a count: a note reads right for a single welded link (the Z1's)."""
+    return "body" if count == 1 else "bodies"
+
+
 @dataclasses.dataclass(frozen=True)
 class WeldedGroups:
     """The rigid groups of a robot's bodies and the merged problem's bodies.
@@ -57,7 +62,8 @@ class WeldedGroups:
     def names(self, body_names: Sequence[str]) -> list[str]:
         """The merged problem's body names, a carrier's saying it holds its group (the fit's
         notes then speak of the group)."""
-        return [f"{body_names[b]} (with its {len(self.members[b])} welded bodies)" if b in self.members
+        counts = {b: len(group) for b, group in self.members.items()}
+        return [f"{body_names[b]} (with its {counts[b]} welded {_bodies(counts[b])})" if b in counts
                 else body_names[b] for b in self.kept]
 
     def prior(self, prior: np.ndarray) -> np.ndarray:
@@ -78,8 +84,8 @@ class WeldedGroups:
             bodies = [carrier] + [m for m, _ in group]
             maps = [np.eye(P)] + [L for _, L in group]
             names = [body_names[m] for m, _ in group]
-            head = (f"{body_names[carrier]} and the {len(group)} bodies welded to it ({', '.join(names[:3])}"
-                    f"{', …' if len(names) > 3 else ''}) fitted as one body")
+            head = (f"{body_names[carrier]} and the {len(group)} {_bodies(len(group))} welded to it "
+                    f"({', '.join(names[:3])}{', …' if len(names) > 3 else ''}) fitted as one body")
             parts = nearest_split(phi[P * carrier : P * carrier + P], [prior[P * b : P * b + P] for b in bodies], maps)
             if parts is not None and not validity_problems([body_names[b] for b in bodies], np.concatenate(parts)):
                 for b, x in zip(bodies, parts):

@@ -66,6 +66,26 @@ def builtin_config(name: str) -> Config:
     return load_config(path)
 
 
+def example_robot_data_models(name: str, limit: int = 3) -> tuple[str, ...]:
+    """Paths of example-robot-data's URDFs named like ``name`` (``z1`` → ``.../z1.urdf``), shortest
+    first: what to pass as ``--robot`` when a name was given that is not built in. Empty when the
+    wheel is not installed or has none.
+
+    A user who read that pe_drake was tried on example-robot-data's robots types their names
+    (``--robot ur10``); only panda, ur5 and g1 are built in, the others are taken by path.
+    """
+    stem = name.strip().lower()
+    if not stem or not re.fullmatch(r"[\w.-]+", stem):
+        return ()
+    try:
+        robots = example_robot_data_dir() / "robots"
+    except ConfigError:
+        return ()
+    found = sorted((p for p in robots.rglob("*.urdf") if p.stem.lower().startswith(stem)),
+                   key=lambda p: (len(p.stem), str(p)))
+    return tuple(str(p) for p in found[:limit])
+
+
 def resolve_robot_config(robot: str, config_file: str | Path | None = None) -> Config:
     """Config for a robot given by built-in name or model path, with a user file on top.
 
@@ -82,7 +102,8 @@ def resolve_robot_config(robot: str, config_file: str | Path | None = None) -> C
     else:
         path = Path(robot)
         if path.suffix.lower() not in (".urdf", ".sdf", ".xml", ".xacro"):
-            raise UnknownNameError("robot", robot, builtin_robots() + ("<path to .urdf/.sdf/.urdf.xacro>",))
+            raise UnknownNameError("robot", robot, builtin_robots() + ("<path to .urdf/.sdf/.urdf.xacro>",)
+                                   + example_robot_data_models(robot))
         problem = input_file_problem(path)
         if problem:
             raise ConfigError(f"robot model file '{robot}' {problem}")

@@ -113,9 +113,11 @@ def simulate_run(robot: Robot, trajectory: str | Path, truth: str | Path | None 
     duration = duration if duration is not None else motion.duration
     if not 0 < duration <= 3600:
         raise ConfigError(f"--duration must be in (0, 3600] s, got {duration!r}")
+    # the truth's joint and link names before any work (and before a model's terms are merged
+    # into it): a misspelt joint was refused only after "simulating ..." had been printed
+    validate_truth(truth_spec, robot)
     sim_model = extra = None
     if model is not None:
-        validate_truth(truth_spec, robot)  # the truth's joint names before they are merged
         sim_model = load_simulation_model(model, robot)
         extra = {"simulated_model": _model_record(sim_model, str(model))}
     if progress is not None:
