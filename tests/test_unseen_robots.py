@@ -209,8 +209,19 @@ def test_diagnose_on_an_sdf_robot_says_that_no_urdf_is_written(tmp_path, capsys)
                  "--truth", str(tmp_path / "truth.yaml"), "--out", str(tmp_path / "run.csv")]) == 0
     capsys.readouterr()
     assert main(["diagnose", "--robot", str(sdf), "--data", str(tmp_path / "run.csv"), "--out", str(tmp_path / "d")]) == 0
-    assert "augmented_model.urdf not written" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "augmented_model.urdf not written" in out
     assert not (tmp_path / "d" / "augmented_model.urdf").exists() and (tmp_path / "d" / "augmented_model.json").exists()
+    # item 9: the SCARA's quill is prismatic: its figures are forces, not N·m alone
+    assert "1. a-priori model, held-out RMS [N·m; N for prismatic joints]:" in out, out
+
+
+def test_effort_units_follow_the_joint_kinds():
+    from pe_drake.multibody.joint_limits import effort_label
+
+    assert effort_label(["revolute", "revolute"]) == "N·m"
+    assert effort_label(["prismatic"]) == "N"
+    assert effort_label(["prismatic", "revolute"]) == "N·m; N for prismatic joints"
 
 
 def test_payload_messages_fit_the_robot(tmp_path, capsys):

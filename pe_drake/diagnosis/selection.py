@@ -265,8 +265,8 @@ def renamed(reg: Regression, split: CrossValidation, library: Library, sel: Sele
 
 
 def say_selection(say: Callable[[str], None], sel: Selection, library: Library, joints: Sequence[str],
-                  fmt: Callable[[Sequence[str], Any], str]) -> None:
-    """One progress line per addition (with the held-out RMS, a reported figure) or removal."""
+                  fmt: Callable[[Sequence[str], Any], str], unit: str = "N·m") -> None:
+    """One progress line per addition (with the held-out RMS [``unit``], a reported figure) or removal."""
     if sel.order:
         kept = [c for c in sel.order if c not in {col for _, col, _ in sel.steps}]
         named = [library.label(c) for c in kept if c not in sel.unnamed]
@@ -275,7 +275,7 @@ def say_selection(say: Callable[[str], None], sel: Selection, library: Library, 
                 f"named: {', '.join(named) or 'none'}")
     for sign, col, fit in sel.steps:
         if sign == "+":
-            say(f"3. + {library.label(col)}: held-out RMS [N·m] " + fmt(joints, fit.rms_held))
+            say(f"3. + {library.label(col)}: held-out RMS [{unit}] " + fmt(joints, fit.rms_held))
         else:
             say(f"3. - {library.label(col)} (no longer significant)")
 

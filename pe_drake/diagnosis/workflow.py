@@ -120,6 +120,7 @@ from pe_drake.identification.gaps import longest_segment
 from pe_drake.identification.measurements import Measurement, check_torque_units
 from pe_drake.multibody.base_parameters import BaseParameters, compute_base_parameters
 from pe_drake.multibody.drive_columns import coulomb_column
+from pe_drake.multibody.joint_limits import EFFORT_UNITS, effort_label
 from pe_drake.multibody.regressor import RegressorModel
 from pe_drake.multibody.robot_model import RobotModel
 
@@ -435,6 +436,7 @@ def diagnose(
     say = progress or (lambda _msg: None)
     lap = _Laps()
     joints = robot.joint_names
+    unit = effort_label(j.kind for j in robot.joints)  # N·m, or N on a prismatic joint
     for m in filter(None, (data, validation)):
         check_joints(robot, m.joints, file=m.source)
     data, validation = (longest_segment(m, config.max_gap_s) if m is not None else None for m in (data, validation))
@@ -445,18 +447,18 @@ def diagnose(
     lap("prepare")
     lib = candidate_library(robot, prep, config)
     nom = nominal(robot, prep, lib.regression)
-    say("1. a-priori model, held-out RMS [N·m]: " + _fmt_joints(joints, nom.rms))
+    say(f"1. a-priori model, held-out RMS [{unit}]: " + _fmt_joints(joints, nom.rms))
     lap("nominal")
     start = starting_fit(lib.regression, identify_columns(robot, prep.base, prep.model, lib.library))
-    say("2. starting fit (identify's: WLS with drive terms), held-out RMS [N·m]: " + _fmt_joints(joints, start.fit.rms_held))
+    say(f"2. starting fit (identify's: WLS with drive terms), held-out RMS [{unit}]: " + _fmt_joints(joints, start.fit.rms_held))
     rigid = rigid_reidentification(lib.regression, prep.training)
-    say("2. rigid-body parameters re-identified, held-out RMS [N·m]: " + _fmt_joints(joints, rigid.rms_held))
+    say(f"2. rigid-body parameters re-identified, held-out RMS [{unit}]: " + _fmt_joints(joints, rigid.rms_held))
     lap("rigid")
     lib.regression.set_weights(start.weights)  # identify's weights (the fixed point) for the effects
     split = CrossValidation.of(lib.regression, prep.internal)
     sel = select(lib.regression, split, lib.library, rigid, prep.training, prep.held, config, start)
     sel = add_friction_pairs(lib.regression, split, lib.library, sel, config.max_effects)  # sliding + at rest
-    say_selection(say, sel, lib.library, joints, _fmt_joints)
+    say_selection(say, sel, lib.library, joints, _fmt_joints, unit)
     lap("effects")
     naming = name_effects(robot, lib.regression, lib.library, sel, rigid, nom.rms, config)
     pre = presliding_step(prep, lib, sel, config, split)
@@ -477,7 +479,7 @@ def diagnose(
     say("3. decisions: " + decision_summary(decisions))
     lap("payload")
     aug = augment(robot, prep, lib, pre, naming, pay, config)
-    say("4. augmented Drake model, held-out RMS [N·m]: " + _fmt_joints(joints, aug.rms))
+    say(f"4. augmented Drake model, held-out RMS [{unit}]: " + _fmt_joints(joints, aug.rms))
     worse = reference_shortfalls(robot, prep.base, lib.regression.held, prep.held, aug.tau) + start_shortfalls(
         joints, lib.regression.held.y, start, lib.regression.held.product(start.fit.columns, start.fit.x),
         pre.regression.held.product(pre.final.columns, pre.final.x), aug.tau - fitted_friction(robot, prep.held),
@@ -486,8 +488,7 @@ def diagnose(
         say(shortfall.line())
     lap("augmented")
     left = unexplained(robot, prep, lib, sel, nom, aug, config)
-    say("5. unexplained: " + ", ".join(f"{j} {u['rms']:.3g} N·m" for j, u in left.joints.items()) if left.joints
-        else "5. nothing left unexplained above the thresholds")
+    say(_unexplained_line(robot, left.joints))
     lap("unexplained")
     held = prep.held
     residual_rigid = lib.regression.residual("held-out", rigid)
@@ -518,5 +519,13 @@ class _Laps:
         self.clock = now
 
 
+def _unexplained_line(robot, left: dict[str, dict[str, Any]]) -> str:
+    """Step 5's line: each joint's unexplained held-out RMS in its effort unit (N·m or N)."""
+    kinds = {info.name: info.kind for info in robot.joints}
+    if not left:
+        return "5. nothing left unexplained above the thresholds"
+    return "5. unexplained: " + ", ".join(f"{j} {u['rms']:.3g} {EFFORT_UNITS[kinds[j]]}" for j, u in left.items())
+
+
 def _fmt_joints(joints: Sequence[str], x) -> str:
-    return ", ".join(f"{j.replace('panda_', '')} {v:.3g}" for j, v in zip(joints, x))
+    return ", ".join(f"{j} {v:.3g}" for j, v in zip(joints, x))

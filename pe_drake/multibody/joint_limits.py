@@ -22,6 +22,17 @@ def joint_unit(kind: str, derivative: int = 0) -> str:
     return JOINT_UNITS.get(kind, JOINT_UNITS["revolute"])[derivative]
 
 
+#: Units of a joint's effort (torque or force), by joint kind.
+EFFORT_UNITS = {"revolute": "N·m", "prismatic": "N"}
+
+
+def effort_label(kinds) -> str:
+    """The unit of the efforts of joints of ``kinds`` (an iterable of joint kinds), for a line
+    or an axis that shows them all: N·m, N, or both when a robot has both kinds."""
+    units = sorted({EFFORT_UNITS.get(k, "N·m") for k in kinds}, reverse=True)
+    return units[0] if len(units) == 1 else "N·m; N for prismatic joints"
+
+
 def merge_limits(name: str, model_range, model_velocity: float, cfg, model_file: str = "the model"):
     """A joint's position range and velocity limit from the model file and the config.
 
