@@ -154,18 +154,18 @@ class ExcitationProblem:
         self.num_evaluations += 1
         q, v, vd = self.cost_basis.evaluate_alpha(alpha, self.n)
         kin = self.model.kinematics(q, v, vd)
-        Y = self.rows.rows(kin)
-        T, r, b = Y.shape[0], Y.shape[1], self.base.count
-        block = self._with_drive(self.base.reduce(Y), v, vd)
+        independent = self.base.independent
+        Y_B = self.rows.rows(kin, columns=independent)  # Y_B only: the other columns never enter C
+        T, r, b = Y_B.shape[0], Y_B.shape[1], self.base.count
+        block = self._with_drive(Y_B, v, vd)
         C = block if self.C0 is None else np.vstack([self.C0, block])
         crit = evaluate_criterion(C, self.config.criterion)  # Eq. (17) for cond, (16) for soft_cond
         if not np.isfinite(crit.value):
             out = CostValue(np.inf, np.zeros_like(alpha), crit.singular_values)
         else:
             G = crit.grad[C.shape[0] - T * r :].reshape(T, r, self.columns)
-            Z = np.zeros_like(Y)
-            Z[..., self.base.independent] = G[..., :b]  # Eq. (46): Z = X C(C) S^T
-            q_bar, v_bar, vd_bar = self.rows.pullback(kin, Z)  # Eq. (47); docs/derivations.md §4a
+            # Eq. (46): Z = X C(C) S^T, zero outside the independent columns: passed as those.
+            q_bar, v_bar, vd_bar = self.rows.pullback(kin, G[..., :b], independent)  # Eq. (47); docs/derivations.md §4a
             if self.drive.count:  # the drive columns depend on v and v̇ only (drive_block.py)
                 v_drive, vd_drive = self.drive.pullback(v, vd, G[..., b:])
                 v_bar, vd_bar = v_bar + v_drive, vd_bar + vd_drive

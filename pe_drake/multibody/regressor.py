@@ -24,13 +24,12 @@ from pe_drake.multibody.spatial import (
     cross_force,
     cross_force_matrix,
     cross_motion,
-    cross_motion_matrix,
     force_transform_matrix,
     inertia_times,
     inertia_times_diagonal,
     rotate,
     skew,
-    summed_cross_force,
+    summed_cross_force_of,
 )
 
 GRAVITY = 9.81  # [m/s²], overwritten by the plant's gravity field in Kinematics
@@ -58,6 +57,8 @@ class Kinematics:
         G_V: Γ(V), the unit-parameter inertias times V, (T, nb, 6, 10).
         X_force: per-body force transforms X* (body at Bo → world at the origin), (T, nb, 6, 6);
             their transposes take world-origin motion vectors to the body.
+        VB_cross: [VB ×*], the force cross-product matrix of each body's velocity, (T, nb, 6, 6).
+        X_motion: X*ᵀ (world-origin motion vectors to each body), contiguous, (T, nb, 6, 6).
     """
 
     q: np.ndarray
@@ -74,6 +75,8 @@ class Kinematics:
     F_W: np.ndarray
     G_V: np.ndarray
     X_force: np.ndarray
+    VB_cross: np.ndarray
+    X_motion: np.ndarray
 
 
 class RegressorModel:
@@ -101,6 +104,7 @@ class RegressorModel:
         self.owner[self.joint_of_body, np.arange(self.nb)] = 1.0
         self._mask = np.repeat(self.moves, 10, axis=1)  # (n, 10·nb)
         self.prismatic = np.array([j.kind == "prismatic" for j in robot.joints])
+        self._any_prismatic = bool(self.prismatic.any())
         self.axis_M = np.array([j.axis_M for j in robot.joints])  # (n, 3)
         self.X_CM = np.array([j.X_CM for j in robot.joints])  # (n, 4, 4)
         self._joint_child = [j.child_body for j in robot.joints]
@@ -208,11 +212,9 @@ class RegressorModel:
         X_WM = X_WC @ self.X_CM
         u = (X_WM[..., :3, :3] @ self.axis_M[..., None])[..., 0]  # axis in world
         o = X_WM[..., :3, 3]
-        S = np.where(
-            self.prismatic[None, :, None],
-            np.concatenate([np.zeros_like(u), u], axis=-1),
-            np.concatenate([u, cross3(o, u)], axis=-1),
-        )
+        S = np.concatenate([u, cross3(o, u)], axis=-1)
+        if self._any_prismatic:
+            S = np.where(self.prismatic[None, :, None], np.concatenate([np.zeros_like(u), u], axis=-1), S)
         Xb = X[:, [self._slot[int(b)] for b in self.robot.body_indices]]
         R, p = Xb[..., :3, :3], Xb[..., :3, 3]
 
@@ -223,35 +225,51 @@ class RegressorModel:
         dA = S * vd[..., None] + cross_motion(VJ, Sv)
         AJ = self.A0 + self.anc_incl.T @ dA
 
-        # Motion vectors to the body are X*ᵀ; V and A of each body in one batched matmul.
+        # Motion vectors to the body are X*ᵀ; V and A of each body in one batched matmul, as
+        # rows (vᵀ X* = (X*ᵀ v)ᵀ). Row forms with contiguous operands throughout: numpy's
+        # batched matmul of transposed views took twice as long (issue 38).
         X_force = force_transform_matrix(R, p)
-        VAB = X_force.swapaxes(-1, -2) @ np.stack([VJ[:, self.joint_of_body], AJ[:, self.joint_of_body]], -1)
-        VB, AB = VAB[..., 0], VAB[..., 1]
+        X_motion = np.ascontiguousarray(X_force.swapaxes(-1, -2))  # X*ᵀ
+        VAB = np.stack([VJ, AJ], -2)[:, self.joint_of_body] @ X_force
+        VB, AB = VAB[..., 0, :], VAB[..., 1, :]
         G_V = inertia_times(VB)  # M_k V for each unit parameter k, (T, nb, 6, 10)
         # One 6 × 6 matrix per body applied to its 10 parameter columns (a batched matmul is
         # several times faster than the vector formulas on (T, nb, 10, 6) arrays).
-        F_B = inertia_times(AB) + cross_force_matrix(VB) @ G_V
-        F_W = X_force @ F_B
-        return Kinematics(q, v, vd, S, R, p, VJ, AJ, VB, AB, F_B, F_W, G_V, X_force)
+        VB_cross = cross_force_matrix(VB)
+        F_B = inertia_times(AB) + VB_cross @ G_V
+        # F_W = X* F_B, computed as its transpose F_Bᵀ X*ᵀ: the (10, 6) layout is the one the
+        # regressor (Y = S·F) and its adjoint read as a (10·nb, 6) matrix without a copy.
+        F_W = (F_B.swapaxes(-1, -2) @ X_motion).swapaxes(-1, -2)
+        return Kinematics(q, v, vd, S, R, p, VJ, AJ, VB, AB, F_B, F_W, G_V, X_force, VB_cross, X_motion)
 
-    def regressor(self, kin: Kinematics) -> np.ndarray:
-        """Y, shape (T, n, 10·nb): Y[t, i, 10j+k] = [joint i moves body j] S_i · F_jk."""
-        T = kin.S.shape[0]
-        F = kin.F_W.transpose(0, 2, 1, 3).reshape(T, 6, self.num_params)
-        return (kin.S @ F) * self._mask
+    def regressor(self, kin: Kinematics, columns: np.ndarray | None = None) -> np.ndarray:
+        """Y, shape (T, n, 10·nb): Y[t, i, 10j+k] = [joint i moves body j] S_i · F_jk.
 
-    def wrench_regressor(self, kin: Kinematics) -> np.ndarray:
+        Args:
+            kin: from :meth:`kinematics`.
+            columns: compute only these columns (e.g. the base parameters' independent ones):
+                Y[..., columns], shape (T, n, len(columns)).
+        """
+        F, mask = _forces_by_parameter(kin), self._mask
+        if columns is not None:
+            F, mask = F[:, columns], mask[:, columns]
+        # (F_Wᵀ Sᵀ)ᵀ: F_W is stored as its transpose (see kinematics), so no copy of it.
+        return (F @ kin.S.swapaxes(-1, -2)).swapaxes(-1, -2) * mask
+
+    def wrench_regressor(self, kin: Kinematics, columns: np.ndarray | None = None) -> np.ndarray:
         """Ground-wrench rows Y_0, shape (T, 6, 10·nb): the per-body Newton–Euler blocks side by side.
 
         Y_0[t, :, 10j:10j+10] is body j's world-frame force block F_j (moment about the world
         origin), rows fx, fy, fz, mx, my, mz (:data:`WRENCH_FROM_SPATIAL`). Y_0 φ is the wrench
         the ground (the weld of the root link) applies to the moving bodies, gravity included;
         the bodies no excited joint moves add a constant (:func:`pe_drake.multibody.wrench.static_wrench`).
-        No joint torque and no joint friction enters these rows.
+        No joint torque and no joint friction enters these rows. ``columns``: only these
+        columns, as in :meth:`regressor`.
         """
         T = kin.F_W.shape[0]
         F = kin.F_W[:, :, WRENCH_FROM_SPATIAL, :]  # (T, nb, 6, 10)
-        return F.transpose(0, 2, 1, 3).reshape(T, 6, self.num_params)
+        Y_0 = F.transpose(0, 2, 1, 3).reshape(T, 6, self.num_params)
+        return Y_0 if columns is None else Y_0[..., columns]
 
     def __call__(self, q: np.ndarray, v: np.ndarray, vd: np.ndarray) -> np.ndarray:
         """Y(q, v, vdot), shape (T, n, 10·nb)."""
@@ -272,7 +290,8 @@ class RegressorModel:
 
     # ---- adjoint ------------------------------------------------------------------------
     def pullback(
-        self, kin: Kinematics, Z: np.ndarray | None, Z_wrench: np.ndarray | None = None
+        self, kin: Kinematics, Z: np.ndarray | None, Z_wrench: np.ndarray | None = None,
+        columns: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Gradient of f = Σ_t Z^(t) : Y^(t) + Z_0^(t) : Y_0^(t) with respect to q, v and vdot (Eq. 47).
 
@@ -281,6 +300,9 @@ class RegressorModel:
             Z: weights of the joint-torque rows, shape (T, n, 10·nb) (Eq. 46), or None.
             Z_wrench: weights of the ground-wrench rows (:meth:`wrench_regressor`), shape
                 (T, 6, 10·nb), or None.
+            columns: Z and Z_wrench hold only these columns (last axis len(columns)); the
+                other weights are zero (the base parameters' columns: Eq. 46's Z is zero
+                outside them, so neither the full Z nor its products are formed).
 
         Returns:
             (∂f/∂q, ∂f/∂v, ∂f/∂vdot), each (T, n).
@@ -290,13 +312,20 @@ class RegressorModel:
 
         # f = Σ_j Σ_k w_jk · F_jk, with w_jk = Σ_i [i moves j] Z_ijk S_i (a motion vector).
         if Z is not None:
-            Zm = Z.reshape(T, n, self.num_params) * self._mask
-            w = (Zm.transpose(0, 2, 1) @ S).reshape(T, nb, 10, 6)
-            F_W = kin.F_W.transpose(0, 1, 3, 2).reshape(T, self.num_params, 6)
-            S_bar = Zm @ F_W  # ∂f/∂S_i through w
+            F, mask = _forces_by_parameter(kin), self._mask
+            if columns is not None:
+                F, mask = F[:, columns], mask[:, columns]
+            Zm = Z.reshape(T, n, -1) * mask
+            w = Zm.transpose(0, 2, 1) @ S
+            if columns is not None:
+                w = _scattered(w, columns, self.num_params, axis=1)
+            w = w.reshape(T, nb, 10, 6)
+            S_bar = Zm @ F  # ∂f/∂S_i through w
         else:
             w, S_bar = np.zeros((T, nb, 10, 6)), np.zeros((T, n, 6))
         if Z_wrench is not None:
+            if columns is not None:
+                Z_wrench = _scattered(Z_wrench, columns, self.num_params, axis=2)
             # The wrench rows weigh F_jk directly: w_jk is the row weights, in [n; f] order.
             w = w + Z_wrench.reshape(T, 6, nb, 10).transpose(0, 2, 3, 1)[..., WRENCH_FROM_SPATIAL]
         return self._pullback_forces(kin, w, S_bar)
@@ -315,21 +344,22 @@ class RegressorModel:
 
         # Body-coordinate adjoints of A_j and V_j (F = Γ(A)φ + V ×* Γ(V)φ, φ = e_k).
         # The adjoint of "motion to the body" (X*ᵀ) is X* itself.
-        wB = (kin.X_force.swapaxes(-1, -2) @ w.swapaxes(-1, -2)).swapaxes(-1, -2)  # (T, nb, 10, 6)
+        # Row-vector forms (w X* = (X*ᵀ wᵀ)ᵀ) keep every operand contiguous: no copies.
+        wB = w @ kin.X_force  # (T, nb, 10, 6)
         a_bar_B = inertia_times_diagonal(wB)
-        G_V = np.moveaxis(kin.G_V, -1, -2)  # (T, nb, 10, 6): M_k V
-        wB_x_V = -(cross_motion_matrix(kin.VB) @ wB.swapaxes(-1, -2)).swapaxes(-1, -2)  # w ×m V = -V ×m w
-        v_bar_B = inertia_times_diagonal(wB_x_V) - summed_cross_force(wB, G_V)
+        wB_x_V = wB @ kin.VB_cross  # w ×m V = -[V ×m] w, as rows: w (-[V ×m])ᵀ = w [V ×*]
+        # Σ_k w_k ×* (M_k V) and Σ_k w_k ×* F_k from the 6 × 6 products Γ(V) wB and F_B wB.
+        v_bar_B = inertia_times_diagonal(wB_x_V) - summed_cross_force_of(kin.G_V @ wB)
         # Rotating body j with joint l leaves f invariant if w, V, A and M all rotate: the
         # derivative through M is minus that through w, V and A (docs/derivations.md, §4).
         Q_B = (
-            summed_cross_force(wB, np.moveaxis(kin.F_B, -1, -2))
+            summed_cross_force_of(kin.F_B @ wB)
             + cross_force(kin.VB, v_bar_B)
             + cross_force(kin.AB, a_bar_B)
         )
         # The three body forces to world coordinates in one batched matmul.
-        world = kin.X_force @ np.stack([a_bar_B, v_bar_B, Q_B], -1)
-        a_bar, v_bar_body, Q = world[..., 0], world[..., 1], world[..., 2]
+        world = np.stack([a_bar_B, v_bar_B, Q_B], -2) @ kin.X_motion  # rows: fᵀ X*ᵀ = (X* f)ᵀ
+        a_bar, v_bar_body, Q = world[..., 0, :], world[..., 1, :], world[..., 2, :]
         q_bar = -np.sum(S * (self.moves @ Q), axis=-1)
 
         # Bodies → the joint whose child body carries them.
@@ -351,6 +381,25 @@ class RegressorModel:
         # S_i(q): ∂S_i/∂q_l = S_l ×m S_i for l strictly before i.
         q_bar += np.sum(S * (self.strict_anc @ cross_force(S, S_bar)), axis=-1)
         return q_bar, v_bar, vd_bar
+
+
+def _scattered(x: np.ndarray, columns: np.ndarray, size: int, axis: int) -> np.ndarray:
+    """x, given at ``columns`` of ``axis``, as an array with ``size`` entries there (zeros
+    elsewhere)."""
+    shape = list(x.shape)
+    shape[axis] = size
+    out = np.zeros(shape)
+    index = [slice(None)] * x.ndim
+    index[axis] = columns
+    out[tuple(index)] = x
+    return out
+
+
+def _forces_by_parameter(kin: Kinematics) -> np.ndarray:
+    """F_W as (T, 10·nb, 6): row 10j + k is body j's force for unit parameter k (a view when
+    F_W is the transposed view :meth:`RegressorModel.kinematics` returns)."""
+    T, nb = kin.F_W.shape[:2]
+    return kin.F_W.swapaxes(-1, -2).reshape(T, 10 * nb, 6)
 
 
 def shared_model(robot) -> RegressorModel:

@@ -116,40 +116,47 @@ class SensorRows:
         self.num_params = model.num_params
         self.scale = 1.0 / self.measurement.row_std(model.n)  # (r,)
         self.num_rows = len(self.scale)
+        # Joint torques with σ = 1 (the default) need no scaling: skip two passes over (T, r, p).
+        self._unit_scale = bool(np.all(self.scale == 1.0))
 
     def kinematics(self, q: np.ndarray, v: np.ndarray, vd: np.ndarray) -> Kinematics:
         """:meth:`RegressorModel.kinematics`."""
         return self.model.kinematics(q, v, vd)
 
-    def rows(self, kin: Kinematics, scaled: bool = True) -> np.ndarray:
-        """A, shape (T, r, 10·nb): joint-torque rows then wrench rows, divided by σ if ``scaled``."""
+    def rows(self, kin: Kinematics, scaled: bool = True, columns: np.ndarray | None = None) -> np.ndarray:
+        """A, shape (T, r, 10·nb): joint-torque rows then wrench rows, divided by σ if ``scaled``;
+        only the given ``columns`` (shape (T, r, len(columns))) when given."""
         parts = []
         if self.measurement.torques:
-            parts.append(self.model.regressor(kin))
+            parts.append(self.model.regressor(kin, columns))
         if self.measurement.wrench:
-            parts.append(self.model.wrench_regressor(kin))
+            parts.append(self.model.wrench_regressor(kin, columns))
         A = parts[0] if len(parts) == 1 else np.concatenate(parts, axis=1)
-        return A * self.scale[:, None] if scaled else A
+        return A * self.scale[:, None] if scaled and not self._unit_scale else A
 
     def __call__(self, q: np.ndarray, v: np.ndarray, vd: np.ndarray) -> np.ndarray:
         """The scaled rows at (q, v, vdot), shape (T, r, 10·nb)."""
         return self.rows(self.kinematics(q, v, vd))
 
-    def pullback(self, kin: Kinematics, Z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def pullback(
+        self, kin: Kinematics, Z: np.ndarray, columns: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Gradient of Σ_t Z^(t) : A^(t) (scaled rows) with respect to q, v and vdot.
 
         Args:
             kin: from :meth:`kinematics`.
-            Z: weights, shape (T, r, 10·nb).
+            Z: weights, shape (T, r, 10·nb), or (T, r, len(columns)) with ``columns``.
+            columns: the columns Z is given at (the others are zero).
 
         Returns:
             (∂f/∂q, ∂f/∂v, ∂f/∂vdot), each (T, n).
         """
-        Z = Z * self.scale[:, None]
+        if not self._unit_scale:
+            Z = Z * self.scale[:, None]
         n = self.n if self.measurement.torques else 0
         Z_tau = Z[:, :n] if self.measurement.torques else None
         Z_wrench = Z[:, n:] if self.measurement.wrench else None
-        return self.model.pullback(kin, Z_tau, Z_wrench)
+        return self.model.pullback(kin, Z_tau, Z_wrench, columns)
 
     def base_parameters(
         self, *, seed: int = 0, rank_tolerance: float | None = None, gap_ratio: float | None = RANK_GAP_RATIO
