@@ -301,3 +301,22 @@ def _dae_images(mesh: Path) -> list[str]:
         for match in _INIT_FROM.finditer(image.group(0)):
             names.append(decoded_character_references(match.group(1).decode("latin-1")))
     return names
+
+
+def without_refused_elements(text: str, elements: re.Pattern, names: re.Pattern, group: int, label: str | None,
+                             model_path, roots, packages=None) -> tuple[str, list[str]]:
+    """``text`` without each element (a match of ``elements``) that names a file (group ``group``
+    of a match of ``names`` inside it) which :func:`visual_mesh_refusal` refuses, and a note
+    "<label> dropped: <why>" each (``label`` None: the element match's group 1, its tag)."""
+    notes: list[str] = []
+
+    def element(match: re.Match) -> str:
+        for name in names.finditer(match.group(0)):
+            refusal = visual_mesh_refusal(name.group(group), model_path, roots, packages)
+            if refusal is not None:
+                notes.append(f"{label or match.group(1)} dropped: {refusal}")
+                return ""
+        return match.group(0)
+
+    return elements.sub(element, text), notes
+

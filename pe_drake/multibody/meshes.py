@@ -20,7 +20,7 @@ from typing import NamedTuple
 import numpy as np
 
 from pe_drake.exceptions import DataError
-from pe_drake.multibody.mesh_policy import mesh_file_refusal, visual_mesh_refusal
+from pe_drake.multibody.mesh_policy import mesh_file_refusal, without_refused_elements
 from pe_drake.multibody.packages import package_roots
 
 #: Environment variable naming the folder of converted meshes (overrides the default cache).
@@ -363,14 +363,4 @@ def _present(path: Path, mesh: bool) -> bool:
 def without_refused_visuals(urdf_text: str, model_path: str | Path, roots, packages: dict | None = None) -> tuple[str, list[str]]:
     """The URDF text without the ``<visual>`` elements whose mesh must not be read
     (:func:`~pe_drake.multibody.mesh_policy.visual_mesh_refusal`), and a note for each."""
-    notes: list[str] = []
-
-    def visual(match: re.Match) -> str:
-        for mesh in _MESH_FILENAME.finditer(match.group(0)):
-            refusal = visual_mesh_refusal(mesh.group(3), model_path, roots, packages)
-            if refusal is not None:
-                notes.append(f"visual dropped: {refusal}")
-                return ""
-        return match.group(0)
-
-    return _VISUAL.sub(visual, urdf_text), notes
+    return without_refused_elements(urdf_text, _VISUAL, _MESH_FILENAME, 3, "visual", model_path, roots, packages)

@@ -24,6 +24,7 @@ from pe_drake.multibody.mesh_policy import (
     name_refusal,
     named_files,
     visual_mesh_refusal,
+    without_refused_elements,
 )
 
 _TEXTURE = re.compile(r"<texture\b[^>]*?(?<![\w:.-])filename\s*=\s*([\"'])(.*?)\1[^>]*?(?:/>|>.*?</texture\s*>)", re.S)
@@ -117,17 +118,7 @@ def checked_sdf_text(text: str, model_path: str | Path, roots: Iterable[str] | N
         ConfigError: a ``<uri>`` outside a visual or collision (an ``<include>``) that is refused.
     """
     model_path = Path(model_path)
-    notes: list[str] = []
-
-    def geometry(match: re.Match) -> str:
-        for uri in _SDF_URI.finditer(match.group(0)):
-            refusal = visual_mesh_refusal(uri.group(2), model_path, roots, packages)
-            if refusal is not None:
-                notes.append(f"{match.group(1)} dropped: {refusal}")
-                return ""
-        return match.group(0)
-
-    text = _SDF_GEOMETRY.sub(geometry, text)
+    text, notes = without_refused_elements(text, _SDF_GEOMETRY, _SDF_URI, 2, None, model_path, roots, packages)
     if _SDF_INCLUDE.search(text):
         raise ConfigError(f"'{model_path}' <include>s another model: Drake would read that file without "
                           "pe_drake's checks of the files a model names; write the included model into this file")
