@@ -452,7 +452,7 @@ def diagnose(
     start = starting_fit(lib.regression, identify_columns(robot, prep.base, prep.model, lib.library))
     say(f"2. starting fit (identify's: WLS with drive terms), held-out RMS [{unit}]: " + _fmt_joints(joints, start.fit.rms_held))
     rigid = rigid_reidentification(lib.regression, prep.training)
-    say(f"2. rigid-body parameters re-identified, held-out RMS [{unit}]: " + _fmt_joints(joints, rigid.rms_held))
+    say(f"2. for comparison, rigid-body parameters alone, held-out RMS [{unit}]: " + _fmt_joints(joints, rigid.rms_held))
     lap("rigid")
     lib.regression.set_weights(start.weights)  # identify's weights (the fixed point) for the effects
     split = CrossValidation.of(lib.regression, prep.internal)
