@@ -131,20 +131,6 @@ def load_trajectory(path: str | Path) -> tuple[FourierTrajectory, dict[str, Any]
     return FourierTrajectory(a, b, q0, float(omega)), data
 
 
-def write_trajectory_csv(
-    path: str | Path, joints: tuple[str, ...] | list[str], trajectory: FourierTrajectory, rate: float
-) -> None:
-    """Writes t, q.<joint>, v.<joint>, vdot.<joint> sampled at ``rate`` [Hz] over one period."""
-    if not rate > 0:
-        raise ValueError(f"sample rate must be positive, got {rate}")
-    t = np.arange(0.0, trajectory.period + 0.5 / rate, 1.0 / rate)
-    q, v, vd = trajectory.evaluate(t)
-    header = ["t"] + [f"q.{j}" for j in joints] + [f"v.{j}" for j in joints] + [f"vdot.{j}" for j in joints]
-    table = np.column_stack([t, q, v, vd])
-    lines = [",".join(header)] + [",".join(f"{x:.{CSV_DIGITS}g}" for x in row) for row in table]
-    atomic_write_text(path, "\n".join(lines) + "\n")
-
-
 def write_motion_csv(path: str | Path, joints: tuple[str, ...] | list[str], motion: RampedMotion, rate: float) -> None:
     """Writes t, q.<joint>, v.<joint>, vdot.<joint> of the whole motion (ramp-in, N periods,
     ramp-out) sampled at ``rate`` [Hz] from t = 0 (at rest) to the end (at rest)."""

@@ -197,15 +197,6 @@ def cross_motion_matrix(a: np.ndarray) -> np.ndarray:
     return (a @ _MOTION_MATRIX).reshape(a.shape[:-1] + (6, 6))
 
 
-def summed_cross_force(a: np.ndarray, f: np.ndarray) -> np.ndarray:
-    """Σ_k a_k ×* f_k over the second-to-last axis, (..., K, 6) × (..., K, 6) → (..., 6).
-
-    Σ_k x_k × y_k is the axial vector of M - Mᵀ with M = Σ_k x_k y_kᵀ, so the whole sum
-    is one batched matmul M = aᵀ f (6 × 6) instead of K cross products.
-    """
-    return summed_cross_force_of((a.swapaxes(-1, -2) @ f).swapaxes(-1, -2))
-
-
 def summed_cross_force_of(fa: np.ndarray) -> np.ndarray:
     """Σ_k a_k ×* f_k from the 6 × 6 matrix fᵀ a = Σ_k f_k a_kᵀ, (..., 6, 6) → (..., 6).
 
