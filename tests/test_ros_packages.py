@@ -365,3 +365,11 @@ def test_diagnose_writes_its_model_for_a_robot_in_a_package_folder(tmp_path, man
     check = json.loads((out / "augmented_model.json").read_text())["urdf_check_max_abs_torque"]
     assert (out / "augmented_model.urdf").is_file() and check < 1e-6
     assert not list(out.glob(".staging-*"))
+
+
+def test_a_transmission_of_a_joint_the_file_does_not_define_is_ignored_with_a_note():
+    """example-robot-data's talos_left_arm.urdf is cut from the full TALOS with the transmission
+    of arm_left_1_joint kept: Drake refused the whole file."""
+    robot = load_robot(str(example_robot_data_dir() / "robots/talos_data/robots/talos_left_arm.urdf"))
+    assert any("transmission" in note and "arm_left_1_joint" in note for note in robot.notes)
+    assert "arm_left_2_joint" in robot.joint_names and "arm_left_1_joint" not in robot.joint_names

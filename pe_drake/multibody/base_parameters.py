@@ -247,14 +247,15 @@ def pivoted_qr_r(A: np.ndarray, tie_tolerance: float = PIVOT_TIE_TOLERANCE) -> t
 
 
 def _compose_names(K: np.ndarray, names: tuple[str, ...]) -> tuple[str, ...]:
+    """Each base parameter as the combination it is, coefficients to 4 digits; a coefficient
+    that shows as ±1 at that precision is written as a sign alone (Ixx - Iyy, not -1 Ixx)."""
     out = []
     for row in K:
-        terms = []
+        text = ""
         for k in np.flatnonzero(row):
-            c = row[k]
-            if abs(c - 1) < 1e-12:
-                terms.append(names[k])
-            else:
-                terms.append(f"{c:+.4g} {names[k]}")
-        out.append(" + ".join(terms).replace("+ +", "+ ").replace("+ -", "- "))
+            shown = f"{row[k]:+.4g}"
+            sign, magnitude = shown[0], shown[1:]
+            term = names[k] if magnitude == "1" else f"{magnitude} {names[k]}"
+            text += (("-" if sign == "-" else "") + term) if not text else f" {sign} {term}"
+        out.append(text)
     return tuple(out)

@@ -59,6 +59,7 @@ _ROOTS_FILE = "mesh_roots.txt"
 _MATERIAL = re.compile(r"<material\b([^>]*?)(/>|>(.*?)</material\s*>)", re.S)
 _LINK = re.compile(r"<link\b[^>]*?(/>|>.*?</link\s*>)", re.S)
 _NAME_ATTR = re.compile(r"""(?<![\w:.-])name\s*=\s*(["'])(.*?)\1""", re.S)
+_TRANSMISSION = re.compile(r"<transmission\b.*?</transmission\s*>", re.S)
 _MIMIC = re.compile(r"<mimic\b[^>]*/>|<mimic\b[^>]*>.*?</mimic\s*>", re.S)
 _XACRO_LOCK = threading.Lock()  # xacro keeps its state in module globals
 
@@ -224,6 +225,33 @@ def without_mimic(text: str) -> tuple[str, list[str]]:
     return _MIMIC.sub("", text), [f"mimic tags of {len(joints)} joint(s) ignored ({shown}): each is an independent joint"]
 
 
+def without_dangling_transmissions(text: str) -> tuple[str, list[str]]:
+    """URDF text without the ``<transmission>`` elements that name a joint the file does not
+    define, and a note naming them.
+
+    Drake refuses the whole file ("Transmission specifies joint 'arm_left_1_joint' which does
+    not exist", example-robot-data's ``talos_left_arm.urdf``, cut from the full robot with its
+    transmissions kept); ROS tools skip such a transmission. pe_drake does not read
+    transmissions (gear ratios come from ``robot.transmission``), so nothing else changes.
+    """
+    defined = {m.group(2) for m in re.finditer(r"<joint\b[^>]*?(?<![\w:.-])name\s*=\s*([\"'])(.*?)\1[^>]*?>", text)
+               if "type" in m.group(0)}
+    dropped: list[str] = []
+
+    def one(match: re.Match) -> str:
+        named = [m.group(2) for m in re.finditer(r"<joint\b[^>]*?(?<![\w:.-])name\s*=\s*([\"'])(.*?)\1", match.group(0))]
+        missing = [name for name in named if name not in defined]
+        if not missing:
+            return match.group(0)
+        dropped.extend(missing)
+        return ""
+
+    text = _TRANSMISSION.sub(one, text)
+    if not dropped:
+        return text, []
+    return text, [f"transmission element(s) of joint(s) the file does not define ignored: {', '.join(dropped)}"]
+
+
 def single_material_definitions(text: str) -> tuple[str, list[str]]:
     """URDF text in which each named material is defined once, at its first use; later
     definitions of the same name become references ``<material name="..."/>``.
@@ -318,7 +346,8 @@ def drake_model_text(model_path: Path, obj_visuals: bool, packages: dict | None 
         text = re.sub(r"<collision\b.*?</collision\s*>", "", text, flags=re.S)
         text, mimic_notes = without_mimic(text)
         text, material_notes = single_material_definitions(text)  # Kinova JACO2, TALOS full
-        notes += mimic_notes + material_notes
+        text, transmission_notes = without_dangling_transmissions(text)  # TALOS left arm
+        notes += mimic_notes + material_notes + transmission_notes
         if "package:///" in text:  # TALOS full writes package:///<name>/...: an empty package for Drake
             text = text.replace("package:///", "package://")
             notes.append("package:/// URIs read as package:// (an empty package name)")
