@@ -373,3 +373,14 @@ def test_a_transmission_of_a_joint_the_file_does_not_define_is_ignored_with_a_no
     robot = load_robot(str(example_robot_data_dir() / "robots/talos_data/robots/talos_left_arm.urdf"))
     assert any("transmission" in note and "arm_left_1_joint" in note for note in robot.notes)
     assert "arm_left_2_joint" in robot.joint_names and "arm_left_1_joint" not in robot.joint_names
+
+
+def test_the_model_urdf_of_a_file_with_a_dangling_transmission_reloads(tmp_path):
+    """diagnose's self-check refused its own augmented_model.urdf of talos_left_arm.urdf."""
+    from pe_drake.multibody.robot_model import RobotModel
+
+    robot = load_robot(str(example_robot_data_dir() / "robots/talos_data/robots/talos_left_arm.urdf"))
+    path = tmp_path / "model.urdf"
+    RobotModel(robot.joint_names, robot.body_names, robot.phi_model * 1.1).write_urdf(path, robot)
+    assert "<transmission" in path.read_text()  # the others are kept for ROS tools
+    np.testing.assert_allclose(load_robot(str(path)).phi_model, robot.phi_model * 1.1, rtol=1e-9, atol=1e-12)

@@ -32,7 +32,7 @@ import numpy as np
 from pe_drake.exceptions import ConfigError, UnknownNameError
 from pe_drake.multibody.example_robot_data import example_robot_data_dir
 from pe_drake.multibody.inertia import central_inertia, check_physically_valid, spatial_inertia_to_phi
-from pe_drake.multibody.model_files import single_material_definitions
+from pe_drake.multibody.model_files import single_material_definitions, without_dangling_transmissions
 from pe_drake.multibody.packages import resolve_package_uri
 
 #: Packages the pe_drake loader always registers; their URIs are kept as they are.
@@ -163,7 +163,7 @@ def urdf_with_inertias(
     for element in [*root.iter("mesh"), *root.iter("texture")]:  # textures too (issue 37, item 6)
         if element.get("filename"):
             element.set("filename", _resolve_uri(element.get("filename"), source.parent, package_map, source))
-    text = ET.tostring(root, encoding="unicode")
+    text = without_dangling_transmissions(ET.tostring(root, encoding="unicode"))[0]  # Drake refuses them
     header = (
         '<?xml version="1.0"?>\n'
         f"<!-- {source.name} with identified inertial parameters (pe_drake) -->\n"
