@@ -18,7 +18,7 @@ from pe_drake.diagnosis.record import Segment, model_file_friction
 from pe_drake.identification.estimators import IdentificationResult
 from pe_drake.identification.identified_file import standard_from_base
 from pe_drake.identification.reference_errors import Shortfall, shortfalls
-from pe_drake.multibody.drive_columns import coulomb_column
+from pe_drake.multibody.drive_columns import coulomb_columns
 from pe_drake.multibody.inertia import validity_problems
 
 
@@ -46,14 +46,16 @@ def prior_drive_torque(robot, prior: IdentificationResult | None, seg: Segment) 
     """The a-priori model's joint torque beside Y φ on a segment, (S, n) [N·m]: the model file's
     joint friction, or an earlier model's drive terms (its Coulomb column tanh(v/v_s) with its
     own v_s, parallel-filtered like the torque, as ``validate`` predicts; the model file's
-    damping is not added, as in ``validate``)."""
+    damping is not added, as in ``validate``). Through the model's transmission the terms are
+    each motor's: τ = Rᵀ τ_m(θ̇ = R q̇, θ̈ = R q̈), a coupled motor's Coulomb column the filtered
+    tanh of its own velocity (:func:`~pe_drake.multibody.drive_columns.coulomb_columns`)."""
     if prior is None:  # the model file's friction, d·v + f_c·tanh(v/v_s) (issue 21)
         return model_file_friction(robot, seg)
     drive = prior.drive
     if drive is None or not drive.layout.count:
         return np.zeros_like(seg.v)
     rec = seg.record
-    coulomb = rec.filtered(coulomb_column(rec.v, drive.layout.velocity_scale))[seg.idx]
+    coulomb = rec.filtered(coulomb_columns(rec.v, drive.layout))[seg.idx]
     return drive.torque(seg.v, seg.vd, coulomb)
 
 

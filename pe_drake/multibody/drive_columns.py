@@ -268,6 +268,8 @@ def drive_columns(v: np.ndarray, vd: np.ndarray, layout: DriveLayout, coulomb: n
     out = np.zeros((S, n if rows is None else rows, layout.count))
     T = layout.transmission
     scale = layout.velocity_scale
+    if coulomb is None and "coulomb" in layout.terms:
+        coulomb = coulomb_columns(v, layout)
     if T is not None:  # the motors' velocities and accelerations, each motor's v_s by its own ratio
         v, vd = T.motor_positions(v), None if vd is None else T.motor_positions(vd)
         scale = np.abs(np.diag(T.R)) * layout.velocity_scale
@@ -278,6 +280,14 @@ def drive_columns(v: np.ndarray, vd: np.ndarray, layout: DriveLayout, coulomb: n
         else:  # τ = Rᵀ τ_m: motor j's term on joint i's row times R[j, i]
             out[:, :n, k] = values[term][:, [j]] * T.R[j]
     return out
+
+
+def coulomb_columns(v: np.ndarray, layout: DriveLayout) -> np.ndarray:
+    """The Coulomb columns of a layout, (S, n): tanh(q̇_j / v_s) per joint, or per motor
+    tanh(θ̇_i / (|R_ii| v_s)) of θ̇ = R q̇ through its transmission (:func:`coulomb_velocities`);
+    what :func:`drive_columns` takes as ``coulomb`` (filter them like the torque first)."""
+    w, scale = coulomb_velocities(v, layout.velocity_scale, layout.transmission)
+    return coulomb_column(w, scale)
 
 
 def coulomb_velocities(v: np.ndarray, velocity_scale: float, transmission: Transmission | None) -> tuple[np.ndarray, np.ndarray]:

@@ -19,6 +19,7 @@ from pe_drake.identification.measurements import Measurement, measurement_to_csv
 from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.robot import Robot
 from pe_drake.multibody.robot_model import RobotModel
+from pe_drake.simulation.contact import capsule_contacts
 from pe_drake.simulation.simulated_model import load_simulation_model
 from pe_drake.simulation.simulation import FIELDS, simulate, truth_path_for
 from pe_drake.simulation.truth import Truth, load_truth, validate_truth
@@ -27,6 +28,9 @@ _RECORDED = {"joint_torque": "tau", "base_wrench": "wrench", "both": "tau and wr
 #: A joint tracking its trajectory worse than this [rad RMS] gets a warning: more than a
 #: degree, the recorded motion is no longer the one planned (and checked against the limits).
 LARGE_TRACKING_ERROR = 0.02
+#: What a capsule overlap along a simulated run means (:mod:`pe_drake.simulation.contact`).
+CONTACT_NOTE = ("the simulated robot moves through (no contact force); a real robot whose links fill their capsules "
+                "would collide there: check the trajectory (optimize with excitation.collision_margin)")
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -48,6 +52,9 @@ class SimulatedRun:
                         f"{sim['samples']} samples in {sim['wall_time_s']:.2f} s wall time",
                         "tracking error RMS: " + ", ".join(f"{j} {1e3 * e:.3g} {self._unit(j)}"
                                                           for j, e in sim["tracking_error_rms"].items())]
+        contacts = {k: c for k, c in sim.get("capsule_contacts", {}).items() if k != "note"}
+        lines += [f"warning: the capsules of {pair} overlap by up to {1e3 * c['max_overlap_m']:.3g} mm in "
+                  f"{c['from_s']:.3g}-{c['to_s']:.3g} s: {CONTACT_NOTE}" for pair, c in contacts.items()]
         joint, worst = max(sim["tracking_error_rms"].items(), key=lambda item: item[1])
         if worst > LARGE_TRACKING_ERROR:
             payload = self.truth.get("effects", {}).get("payload", {})
@@ -124,6 +131,9 @@ def simulate_run(robot: Robot, trajectory: str | Path, truth: str | Path | None 
         progress(f"simulating {robot.name}: {duration:.3g} s of {Path(trajectory).name} "
                  f"(integrator {truth_spec.integrator}) ...")
     measured, truth_dict = simulate(robot, motion, truth_spec, duration, measurement=measurement, model=sim_model)
+    contacts = capsule_contacts(robot, measured.t, measured.q)
+    truth_dict["simulation"]["capsule_contacts"] = {
+        c.pair: c.to_dict() for c in contacts} | ({"note": CONTACT_NOTE} if contacts else {})
     return SimulatedRun(robot.name, measurement, measured, {**truth_dict, **(extra or {})},
                         tuple(j.name for j in robot.joints if j.kind == "prismatic"))
 

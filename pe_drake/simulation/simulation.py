@@ -78,6 +78,7 @@ from pe_drake.multibody.robot import Robot, load_robot
 from pe_drake.multibody.robot_model import APPLIED_FORCE_PORT, RobotModel
 from pe_drake.multibody.sensors import MeasurementType
 from pe_drake.multibody.transmission import robot_transmission
+from pe_drake.simulation.contact import without_contact
 from pe_drake.simulation.truth import (
     ALL_JOINTS,
     Truth,
@@ -186,9 +187,13 @@ def build_true_robot(robot, truth: Truth, model: RobotModel | None = None) -> Tr
             added by its own ``before_finalize`` are not carried over).
         truth: a :class:`Truth`.
         model: the robot the truth perturbs (``simulate --model``); default the a-priori one.
+
+    The plant applies no contact force (:mod:`pe_drake.simulation.contact`).
     """
     true = true_model(robot, truth, model)
-    return TrueRobot(true.plant(robot), true, robot.joint_damping, robot.joint_friction)
+    plant = true.plant(robot)
+    without_contact(plant)
+    return TrueRobot(plant, true, robot.joint_damping, robot.joint_friction)
 
 
 # ---- simulation ------------------------------------------------------------------------------
