@@ -199,7 +199,7 @@ def test_a_dropped_pivot_before_a_kept_one(ur5):
 
 
 def test_a_coefficient_that_shows_as_one_is_written_as_a_sign():
-    from pe_drake.multibody.base_parameters import _compose_names
+    from pe_drake.multibody.base_parameters import composed_names
 
     K = np.array([[-0.99999999, -1.0000000001, 1.0], [1.0, 0.0825, 0.0], [0.0, -2.5, 1.0]])
-    assert _compose_names(K, ("a", "b", "c")) == ("-a - b + c", "a + 0.0825 b", "-2.5 b + c")
+    assert composed_names(K, ("a", "b", "c")) == ("-a - b + c", "a + 0.0825 b", "-2.5 b + c")

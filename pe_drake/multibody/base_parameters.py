@@ -177,7 +177,7 @@ def compute_base_parameters(
     K[:, dep] = beta
     names = robot.parameter_names
     return BaseParameters(
-        ind, K, names, _compose_names(K, names), rank_tolerance, d, measurement,
+        ind, K, names, composed_names(K, names), rank_tolerance, d, measurement,
         dropped=tuple(names[i] for i in dropped[by_size]),
         dropped_size=tuple(float(x) for x in size[below][by_size] / size.max()),
         rank_gap=rank_gap, gap_ratio=gap_ratio,
@@ -246,7 +246,7 @@ def pivoted_qr_r(A: np.ndarray, tie_tolerance: float = PIVOT_TIE_TOLERANCE) -> t
     return np.triu(A[:steps]), perm
 
 
-def _compose_names(K: np.ndarray, names: tuple[str, ...]) -> tuple[str, ...]:
+def composed_names(K: np.ndarray, names: tuple[str, ...]) -> tuple[str, ...]:
     """Each base parameter as the combination it is, coefficients to 4 digits; a coefficient
     that shows as ±1 at that precision is written as a sign alone (Ixx - Iyy, not -1 Ixx)."""
     out = []
