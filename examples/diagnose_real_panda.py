@@ -36,7 +36,7 @@ def main(argv: list[str] | None = None) -> int:
     from pe_drake.threads import single_threaded_blas
 
     robot = load_robot("panda")
-    data = read_measurements(args.data, robot)  # the door: read and checked as `pe-drake diagnose` does
+    data = read_measurements(robot, args.data)  # the door: read and checked as `pe-drake diagnose` does
     with single_threaded_blas():
         result = diagnose(robot, data, progress=lambda s: print(s, flush=True))
         with staged_output_dir(args.out) as tmp:

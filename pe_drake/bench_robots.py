@@ -330,7 +330,7 @@ def _identify_and_diagnose(row: Row, plan, trajectory: Path, options: BenchOptio
     csv = folder / "run.csv"
     if _stage(row, "simulate", lambda: run.write(csv)) is None:
         return
-    data = _stage(row, "read", lambda: read_measurements(csv, robot, plan.config.data))
+    data = _stage(row, "read", lambda: read_measurements(robot, csv, plan.config.data))
     if data is None:
         return
     model = _stage(row, "identify", lambda: identify_model(robot, data, IdentifyOptions.from_config(plan.config, method="wls")))

@@ -94,11 +94,11 @@ def test_every_robot_parameter_is_typed():
 
 
 def test_a_measurement_writes_what_it_was_read_from(tmp_path, panda):
-    t = np.arange(20) / 100.0
-    q = np.tile(np.linspace(0.0, 0.1, 20)[:, None], (1, panda.n))
+    t = np.arange(40) / 100.0
+    q = panda.nominal_posture() + np.linspace(0.0, 0.1, 40)[:, None]
     m = Measurement(t, q, np.zeros_like(q), joints=panda.joint_names, source="lab.csv")
     written = m.write(tmp_path / "out")
     assert written == [str(tmp_path / "out" / "measurement.csv")]
     again = pe_drake.read_measurements(panda, written[0])
     np.testing.assert_allclose(again.q, q)
-    assert again.summary_lines()[0] == f"data {written[0]}: 20 samples, 0.19 s at 100 Hz"
+    assert again.summary_lines()[0] == f"data {written[0]}: 40 samples, 0.39 s at 100 Hz"

@@ -447,7 +447,7 @@ def test_real_panda_in_mujoco_is_pe_drakes_validate_minus_what_mjcf_cannot_hold(
     from pe_drake.identification.estimators import prepare_measurement
 
     robot = get_robot("panda")
-    raw = read_measurements(REAL, robot)
+    raw = read_measurements(robot, REAL)
     identify_model(robot, raw, IdentifyOptions(method="physical", window=TimeWindow.parse(",14.445"))).write(tmp_path)
     model = tmp_path / "identified.json"
     export_model(robot, model, ExportOptions("mjcf")).write(tmp_path / "identified.xml")

@@ -103,7 +103,7 @@ def test_sign_flip_is_refused_by_the_library_as_by_the_cli(panda, runs, tmp_path
     from pe_drake.diagnosis import diagnose
     from pe_drake.identification import read_measurements
 
-    raw = read_measurements(runs["flipped"], panda)
+    raw = read_measurements(panda, runs["flipped"])
     with pytest.raises(DataError) as by_identify:
         identify_model(panda, raw, IdentifyOptions())
     with pytest.raises(DataError) as by_diagnose:
