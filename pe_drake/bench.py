@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from pe_drake.config import ExcitationConfig
-from pe_drake.diagnosis import diagnose, write_outputs
+from pe_drake.diagnosis import diagnose
 from pe_drake.excitation.fourier import FourierTrajectory
 from pe_drake.excitation.problem import ExcitationProblem
 from pe_drake.excitation.trajectory_file import load_trajectory
@@ -244,7 +244,7 @@ def bench_diagnose(args) -> None:
         nonlocal result
         with single_threaded_blas(), tempfile.TemporaryDirectory() as tmp:
             result = diagnose(robot, data)
-            write_outputs(tmp, robot, result)
+            result.write(tmp)
 
     repeats = max(1, min(int(args.repeats), 3))
     seconds = median_time(run, repeats=repeats, warmup=0, warmup_seconds=0.0)

@@ -122,6 +122,7 @@ from pe_drake.multibody.base_parameters import BaseParameters, compute_base_para
 from pe_drake.multibody.drive_columns import coulomb_column
 from pe_drake.multibody.joint_limits import EFFORT_UNITS, effort_label
 from pe_drake.multibody.regressor import RegressorModel
+from pe_drake.multibody.robot import Robot
 from pe_drake.multibody.robot_model import RobotModel
 
 # ---- preparation -----------------------------------------------------------------------------
@@ -405,12 +406,13 @@ def unexplained(robot, prep: Prepared, lib: CandidateLibrary, sel: Selection, no
 
 
 def diagnose(
-    robot,
+    robot: Robot,
     data: Measurement,
     validation: Measurement | None = None,
-    config: DiagnosisConfig | None = None,
-    progress: Callable[[str], None] | None = None,
+    options: DiagnosisConfig | None = None,
+    *,
     prior: IdentificationResult | None = None,
+    progress: Callable[[str], None] | None = None,
 ) -> DiagnosisResult:
     """Runs the five steps of the module docstring.
 
@@ -419,11 +421,11 @@ def diagnose(
         data: the measured run, raw (:func:`~pe_drake.identification.intake.read_measurements`):
             a run paused for longer than ``config.max_gap_s`` is diagnosed on its longest segment.
         validation: another run to hold out; None: the last ``holdout_fraction`` of ``data``.
-        config: options (:class:`~pe_drake.diagnosis.options.DiagnosisConfig`).
-        progress: called with one line per step (e.g. ``print``).
+        options: the :class:`~pe_drake.diagnosis.options.DiagnosisConfig`.
         prior: an earlier model to start from instead of the model file's parameters
             (:func:`~pe_drake.identification.identified_file.load_identified`: identified.json
             or augmented_model.json): its parameters and drive terms are the a-priori model.
+        progress: called with one line per step (e.g. ``print``).
 
     Returns:
         The :class:`~pe_drake.diagnosis.result.DiagnosisResult`.
@@ -432,7 +434,7 @@ def diagnose(
         DataError: joints that differ from the robot's, a run too short, torques in the
             wrong units or sign-flipped (naming the file and column).
     """
-    config = config or DiagnosisConfig()
+    config = options or DiagnosisConfig()
     say = progress or (lambda _msg: None)
     lap = _Laps()
     joints = robot.joint_names
@@ -498,12 +500,14 @@ def diagnose(
                        "after": held.tau - aug.tau}
     named = naming.effects + ([pay.outcome.effect] if pay.outcome.effect is not None else [])
     return DiagnosisResult(
-        robot.name, joints, config, prep.training, held, named, nom.rms, rigid.rms_held, aug.rms,
-        naming.cumulative, left.joints, pay.not_separable, naming.rejected, nom.regimes, pay.rigid,
-        pay.outcome.report, left.timing, predictions, residual_series, aug.model, aug.drake_check,
-        lap.timings, held.record.noise_floor, sel.thresholds.unexplained, decisions,
-        {**prep.internal.describe(), "held_out": "used only for the figures reported"}, holding, tuple(worse),
-        start.as_dict(lib.library, joints))
+        robot=robot, joints=joints, config=config, training=prep.training, held_out=held, effects=named,
+        rms_nominal=nom.rms, rms_rigid=rigid.rms_held, rms_after=aug.rms, cumulative=naming.cumulative,
+        unexplained=left.joints, not_separable=pay.not_separable, rejected=naming.rejected, regimes=nom.regimes,
+        rigid=pay.rigid, payload_test=pay.outcome.report, timing=left.timing, predictions=predictions,
+        residual_series=residual_series, augmented=aug.model, drake_check=aug.drake_check, timings=lap.timings,
+        noise_floor=held.record.noise_floor, thresholds=sel.thresholds.unexplained, decisions=decisions,
+        selection={**prep.internal.describe(), "held_out": "used only for the figures reported"},
+        holding_test=holding, worse=tuple(worse), start=start.as_dict(lib.library, joints))
 
 
 class _Laps:
