@@ -405,21 +405,15 @@ def unexplained(robot, prep: Prepared, lib: CandidateLibrary, sel: Selection, no
 # ---- the workflow ----------------------------------------------------------------------------
 
 
-def diagnose(
-    robot: Robot,
-    data: Measurement,
-    validation: Measurement | None = None,
-    options: DiagnosisConfig | None = None,
-    *,
-    prior: IdentificationResult | None = None,
-    progress: Callable[[str], None] | None = None,
-) -> DiagnosisResult:
+def diagnose(robot: Robot, data: Measurement, validation: Measurement | None = None,
+             options: DiagnosisConfig | None = None, *, prior: IdentificationResult | None = None,
+             progress: Callable[[str], None] | None = None) -> DiagnosisResult:
     """Runs the five steps of the module docstring.
 
     Args:
         robot: the a-priori :class:`~pe_drake.multibody.robot.Robot`.
         data: the measured run, raw (:func:`~pe_drake.identification.intake.read_measurements`):
-            a run paused for longer than ``config.max_gap_s`` is diagnosed on its longest segment.
+            a run paused for longer than ``options.max_gap_s`` is diagnosed on its longest segment.
         validation: another run to hold out; None: the last ``holdout_fraction`` of ``data``.
         options: the :class:`~pe_drake.diagnosis.options.DiagnosisConfig`.
         prior: an earlier model to start from instead of the model file's parameters
@@ -492,22 +486,21 @@ def diagnose(
     left = unexplained(robot, prep, lib, sel, nom, aug, config)
     say(_unexplained_line(robot, left.joints))
     lap("unexplained")
-    held = prep.held
-    residual_rigid = lib.regression.residual("held-out", rigid)
-    predictions = {"t": held.t, "measured": held.tau, "nominal": nom.tau_held,
-                   "rigid": held.tau - residual_rigid, "after": aug.tau}
-    residual_series = {"effects": naming.series, "nominal": nom.residual_held, "rigid": residual_rigid,
-                       "after": held.tau - aug.tau}
-    named = naming.effects + ([pay.outcome.effect] if pay.outcome.effect is not None else [])
+    held, residual_rigid = prep.held, lib.regression.residual("held-out", rigid)
     return DiagnosisResult(
-        robot=robot, joints=joints, config=config, training=prep.training, held_out=held, effects=named,
+        robot=robot, joints=joints, config=config, training=prep.training, held_out=held,
+        effects=naming.effects + ([pay.outcome.effect] if pay.outcome.effect is not None else []),
         rms_nominal=nom.rms, rms_rigid=rigid.rms_held, rms_after=aug.rms, cumulative=naming.cumulative,
         unexplained=left.joints, not_separable=pay.not_separable, rejected=naming.rejected, regimes=nom.regimes,
-        rigid=pay.rigid, payload_test=pay.outcome.report, timing=left.timing, predictions=predictions,
-        residual_series=residual_series, augmented=aug.model, drake_check=aug.drake_check, timings=lap.timings,
-        noise_floor=held.record.noise_floor, thresholds=sel.thresholds.unexplained, decisions=decisions,
+        rigid=pay.rigid, payload_test=pay.outcome.report, timing=left.timing,
+        predictions={"t": held.t, "measured": held.tau, "nominal": nom.tau_held, "rigid": held.tau - residual_rigid,
+                     "after": aug.tau},
+        residual_series={"effects": naming.series, "nominal": nom.residual_held, "rigid": residual_rigid,
+                         "after": held.tau - aug.tau},
+        augmented=aug.model, drake_check=aug.drake_check, timings=lap.timings, noise_floor=held.record.noise_floor,
+        thresholds=sel.thresholds.unexplained, decisions=decisions, holding_test=holding, worse=tuple(worse),
         selection={**prep.internal.describe(), "held_out": "used only for the figures reported"},
-        holding_test=holding, worse=tuple(worse), start=start.as_dict(lib.library, joints))
+        start=start.as_dict(lib.library, joints))
 
 
 class _Laps:
