@@ -156,7 +156,7 @@ class Prepared:
     prior: IdentificationResult | None = None
 
 
-def prepare(robot, data: Measurement, validation: Measurement | None, config: DiagnosisConfig,
+def prepare(robot: Robot, data: Measurement, validation: Measurement | None, config: DiagnosisConfig,
             say: Callable[[str], None], prior: IdentificationResult | None = None) -> Prepared:
     """Records, training and held-out parts, the base regressor on each (data preparation).
 
@@ -207,7 +207,7 @@ class Nominal:
     regimes: dict[str, Any]
 
 
-def nominal(robot, prep: Prepared, regression: Regression) -> Nominal:
+def nominal(robot: Robot, prep: Prepared, regression: Regression) -> Nominal:
     """Y φ_prior plus the model file's joint friction against the measured torque (the base
     regressor from ``regression``'s columns).
 
@@ -246,7 +246,7 @@ class CandidateLibrary:
     regression: Regression
 
 
-def candidate_library(robot, prep: Prepared, config: DiagnosisConfig) -> CandidateLibrary:
+def candidate_library(robot: Robot, prep: Prepared, config: DiagnosisConfig) -> CandidateLibrary:
     """The separable candidates' columns appended to the base regressor.
 
     Raises:
@@ -311,7 +311,7 @@ class PayloadStep:
     not_separable: list[dict[str, Any]]
 
 
-def payload_step(robot, prep: Prepared, lib: CandidateLibrary, sel: Selection, naming: Naming,
+def payload_step(robot: Robot, prep: Prepared, lib: CandidateLibrary, sel: Selection, naming: Naming,
                  config: DiagnosisConfig) -> PayloadStep:
     """Payload search and rigid-body report from the final fit's base parameters."""
     base, final = prep.base, sel.final
@@ -344,7 +344,7 @@ class Augmentation:
     drake_check: np.ndarray
 
 
-def augment(robot, prep: Prepared, lib: CandidateLibrary, pre: PreslidingStep, naming: Naming, pay: PayloadStep,
+def augment(robot: Robot, prep: Prepared, lib: CandidateLibrary, pre: PreslidingStep, naming: Naming, pay: PayloadStep,
             config: DiagnosisConfig) -> Augmentation:
     """The named effects added to the model in Drake, its held-out torque and the gap."""
     held, library, final = prep.held, lib.library, pre.final
@@ -392,7 +392,7 @@ class Unexplained:
     joints: dict[str, dict[str, Any]]
 
 
-def unexplained(robot, prep: Prepared, lib: CandidateLibrary, sel: Selection, nom: Nominal, aug: Augmentation,
+def unexplained(robot: Robot, prep: Prepared, lib: CandidateLibrary, sel: Selection, nom: Nominal, aug: Augmentation,
                 config: DiagnosisConfig) -> Unexplained:
     """Joints whose held-out residual stays above their threshold, with their signature."""
     timing = timing_report(lib.regression, lib.library, sel, config)
@@ -516,7 +516,7 @@ class _Laps:
         self.clock = now
 
 
-def _unexplained_line(robot, left: dict[str, dict[str, Any]]) -> str:
+def _unexplained_line(robot: Robot, left: dict[str, dict[str, Any]]) -> str:
     """Step 5's line: each joint's unexplained held-out RMS in its effort unit (N·m or N)."""
     kinds = {info.name: info.kind for info in robot.joints}
     if not left:

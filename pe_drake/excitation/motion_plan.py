@@ -330,7 +330,7 @@ def prior_regressor(problem: ExcitationProblem, trajectory_json: str | Path) -> 
     return problem.rows_at(basis.q(a, b, trajectory.q0), basis.v(a, b), basis.vd(a, b))  # torques, wrench or both
 
 
-def _plan(config, robot, executor, priors, fitted, fitted_text, unchecked, allow_unchecked, start, say) -> MotionPlan:
+def _plan(config, robot: Robot, executor, priors, fitted, fitted_text, unchecked, allow_unchecked, start, say) -> MotionPlan:
     e = config.excitation
     problem = executor.problem(e)
     if priors:

@@ -212,13 +212,13 @@ def export_model(robot: Robot, model: str | Path | None, options: ExportOptions 
     return ExportResult(options.to, text, exported, source, unheld, figures, options.meshdir if meshes else "", meshes)
 
 
-def _random_run(robot, seed: int, samples: int = 200) -> Measurement:
+def _random_run(robot: Robot, seed: int, samples: int = 200) -> Measurement:
     """Random states (:func:`~pe_drake.export.model_source.random_states`) as a run without torques."""
     q, v, vd = random_states(robot, samples, seed)
     return Measurement(np.arange(samples, dtype=float), q, np.zeros_like(q), v, vd, tuple(robot.joint_names))
 
 
-def _mujoco_check(robot, model: RobotModel, text: str, meshes: dict) -> dict:
+def _mujoco_check(robot: Robot, model: RobotModel, text: str, meshes: dict) -> dict:
     """MuJoCo loads the MJCF and its mj_inverse reproduces the model (figures), or raises."""
     try:
         mj = load_mjcf(text, text=True, assets=meshes)
@@ -233,7 +233,7 @@ def _mujoco_check(robot, model: RobotModel, text: str, meshes: dict) -> dict:
     return {"MuJoCo mj_inverse vs the model (relative)": error}
 
 
-def _feedforward_check(robot, model: RobotModel, data, raw) -> dict:
+def _feedforward_check(robot: Robot, model: RobotModel, data, raw) -> dict:
     """RMS error [N·m] per joint of the gravity + friction feed-forward and of the whole model on
     the run (Coulomb columns filtered like the torque, as ``validate``)."""
     zero = np.zeros_like(data.v)
