@@ -102,3 +102,26 @@ def test_a_measurement_writes_what_it_was_read_from(tmp_path, panda):
     again = pe_drake.read_measurements(panda, written[0])
     np.testing.assert_allclose(again.q, q)
     assert again.summary_lines()[0] == f"data {written[0]}: 40 samples, 0.39 s at 100 Hz"
+
+
+def test_diagnose_writes_itself_as_the_cli_writes_it(panda, tmp_path, capsys):
+    """The CLI face no longer stages the diagnosis's folder: DiagnosisResult.write does, and
+    names the joints as the model does (report.md cut 'panda_' off)."""
+    from pe_drake.cli import main
+    from pe_drake.excitation.trajectory_file import load_trajectory
+    from pe_drake.identification.measurements import write_measurement_csv
+    from pe_drake.simulation.synthetic import model_measurement
+
+    trajectory = load_trajectory(Path(__file__).parent / "data" / "diagnosis_panda_trajectory.json")[0]
+    m = model_measurement(panda, trajectory, rate_hz=500.0, duration=12.0, tau_noise_std=0.05, seed=1)
+    csv = tmp_path / "a.csv"
+    write_measurement_csv(csv, m.replace(v=None, vd=None, source=str(csv)))
+    assert main(["diagnose", "--robot", "panda", "--data", str(csv), "--out", str(tmp_path / "cli")]) == 0
+    printed = capsys.readouterr().out
+    result = pe_drake.diagnose(panda, pe_drake.read_measurements(panda, csv))
+    written = result.write(tmp_path / "lib")
+    assert "wrote " + ", ".join(str(tmp_path / "cli" / Path(p).name) for p in written) in printed
+    assert sorted(Path(p).name for p in written) == sorted(p.name for p in (tmp_path / "cli").iterdir())
+    assert all(Path(p).is_file() for p in written)
+    assert "| panda_joint1 |" in (tmp_path / "lib" / "report.md").read_text()
+    assert result.summary_lines()[0].startswith("a-priori model, held-out RMS: panda_joint1 ")
