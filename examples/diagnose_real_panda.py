@@ -29,18 +29,16 @@ def main(argv: list[str] | None = None) -> int:
               "project (see ../shared/datasets/panda_gaz2019/README.md)")
         return 0
 
-    from pe_drake.diagnosis import diagnose, write_outputs
+    from pe_drake.diagnosis import diagnose
     from pe_drake.identification import read_measurements
-    from pe_drake.io_utils import staged_output_dir
     from pe_drake.multibody.robot import load_robot
     from pe_drake.threads import single_threaded_blas
 
     robot = load_robot("panda")
-    data = read_measurements(args.data, robot)  # the door: read and checked as `pe-drake diagnose` does
+    data = read_measurements(robot, args.data)  # the door: read and checked as `pe-drake diagnose` does
     with single_threaded_blas():
         result = diagnose(robot, data, progress=lambda s: print(s, flush=True))
-        with staged_output_dir(args.out) as tmp:
-            write_outputs(tmp, robot, result)
+        result.write(args.out)
 
     print()
     print("named per joint:")

@@ -28,11 +28,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", default="results/diagnose_simulated", help="output folder")
     args = parser.parse_args(argv)
 
-    from pe_drake.diagnosis import diagnose, write_outputs
+    from pe_drake.diagnosis import diagnose
     from pe_drake.excitation.trajectory_file import load_trajectory
     from pe_drake.simulation.simulation import simulate
     from pe_drake.simulation.truth import ControlTruth, EffectsTruth, NoiseTruth, PayloadTruth, Truth
-    from pe_drake.io_utils import staged_output_dir
     from pe_drake.multibody.robot import load_robot
     from pe_drake.threads import single_threaded_blas
 
@@ -51,8 +50,7 @@ def main(argv: list[str] | None = None) -> int:
     data, true = simulate(robot, trajectory, truth, args.duration)
     with single_threaded_blas():
         result = diagnose(robot, data, progress=lambda s: print(s, flush=True))
-        with staged_output_dir(args.out) as tmp:
-            write_outputs(tmp, robot, result)
+        result.write(args.out)
 
     tables = {"coulomb_friction": "coulomb", "viscous_friction": "viscous", "armature": "armature",
               "torque_offset": "torque_offset"}

@@ -55,7 +55,7 @@ def main(argv: list[str] | None = None) -> int:
 
     robot = load_robot("panda")
     with single_threaded_blas():
-        raw = read_measurements(args.data, robot)  # read and checked as `pe-drake identify` does
+        raw = read_measurements(robot, args.data)  # read and checked as `pe-drake identify` does
         data = prepare_measurement(robot, raw)
         p = data.preprocessing
         print(

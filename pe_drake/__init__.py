@@ -54,9 +54,12 @@ _EXPORTS = {
     # the front doors of the commands (README "As a Python library")
     "optimize_motion": "pe_drake.excitation.motion_plan",
     "simulate_run": "pe_drake.simulation.simulated_run",
+    "SimulateOptions": "pe_drake.simulation.simulated_run",
     "read_measurements": "pe_drake.identification.intake",  # any supported log, checked
     "identify_model": "pe_drake.identification.identify_model",
+    "IdentifyOptions": "pe_drake.identification.identify_model",
     "validate_model": "pe_drake.identification.validate_model",
+    "ValidateOptions": "pe_drake.identification.validate_model",
     "identify_payload": "pe_drake.identification.payload",
     # diagnosis: which effects the model misses
     "diagnose": "pe_drake.diagnosis.workflow",

@@ -16,11 +16,12 @@ import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from pe_drake.config import ExcitationConfig
-from pe_drake.diagnosis import diagnose, write_outputs
+from pe_drake.diagnosis import diagnose
 from pe_drake.excitation.fourier import FourierTrajectory
 from pe_drake.excitation.problem import ExcitationProblem
 from pe_drake.excitation.trajectory_file import load_trajectory
@@ -32,6 +33,9 @@ from pe_drake.simulation.truth import ControlTruth, EffectsTruth, NoiseTruth, Tr
 from pe_drake.memory import reuse_freed_memory
 from pe_drake.multibody.robot import load_robot
 from pe_drake.threads import single_threaded_blas
+
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
 
 # name -> (module, function): each function takes the parsed args and prints its results.
 _BENCHMARKS = {
@@ -184,7 +188,7 @@ def bench_identify(args: argparse.Namespace) -> None:
     print("target: OLS under 5 s on 2 cores")
 
 
-def bench_trajectory(robot, seed: int, harmonics: int = 5, period: float = 10.0):
+def bench_trajectory(robot: Robot, seed: int, harmonics: int = 5, period: float = 10.0):
     """A random Fourier trajectory about the nominal posture, as large as the joint limits and
     self-collision (capsule distance ≥ 2 cm) allow: the simulated robot has the capsules as
     contact geometry."""
@@ -206,7 +210,7 @@ def bench_trajectory(robot, seed: int, harmonics: int = 5, period: float = 10.0)
     return trajectory
 
 
-def _capsule_clearance(robot, q: np.ndarray) -> float:
+def _capsule_clearance(robot: Robot, q: np.ndarray) -> float:
     """Smallest distance between the robot's collision capsules over configurations [m]."""
     if not getattr(robot, "capsules", ()):
         return math.inf
@@ -244,7 +248,7 @@ def bench_diagnose(args) -> None:
         nonlocal result
         with single_threaded_blas(), tempfile.TemporaryDirectory() as tmp:
             result = diagnose(robot, data)
-            write_outputs(tmp, robot, result)
+            result.write(tmp)
 
     repeats = max(1, min(int(args.repeats), 3))
     seconds = median_time(run, repeats=repeats, warmup=0, warmup_seconds=0.0)

@@ -39,7 +39,7 @@ from pe_drake.multibody.capsules import load_capsule_file
 from pe_drake.multibody.example_robot_data import example_robot_data_dir
 from pe_drake.multibody.registry import builtin_robots, resolve_robot_config
 from pe_drake.multibody.robot import Robot
-from pe_drake.simulation import simulate_run
+from pe_drake.simulation import SimulateOptions, simulate_run
 
 
 @dataclasses.dataclass(frozen=True)
@@ -324,13 +324,13 @@ def _identify_and_diagnose(row: Row, plan, trajectory: Path, options: BenchOptio
         twin = folder / "twin"
         twin.mkdir(exist_ok=True)
         source = Robot(entry.name, dataclasses.replace(plan.config.robot, model=str(entry.simulate_with(twin))))
-    run = _stage(row, "simulate", lambda: simulate_run(source, trajectory, truth, duration=options.duration))
+    run = _stage(row, "simulate", lambda: simulate_run(source, trajectory, SimulateOptions(truth, duration=options.duration)))
     if run is None:
         return
     csv = folder / "run.csv"
-    if _stage(row, "simulate", lambda: run.write(csv)) is None:
+    if _stage(row, "simulate", lambda: run.write(folder, name=csv.name)) is None:
         return
-    data = _stage(row, "read", lambda: read_measurements(csv, robot, plan.config.data))
+    data = _stage(row, "read", lambda: read_measurements(robot, csv, plan.config.data))
     if data is None:
         return
     model = _stage(row, "identify", lambda: identify_model(robot, data, IdentifyOptions.from_config(plan.config, method="wls")))

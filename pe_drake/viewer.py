@@ -297,7 +297,7 @@ def _draw_surroundings(meshcat, rob, q: np.ndarray, environment):
     return extent, frame_camera(meshcat, extent), drawn
 
 
-def _load_robot_with_visualizers(path, data, robot, config, meshcat, *, fps: float, show_capsules: bool,
+def _load_robot_with_visualizers(path, data, robot: Robot, config, meshcat, *, fps: float, show_capsules: bool,
                                  trust_xacro: bool = False):
     """The robot of a trajectory file, with Meshcat visualizers in its diagram, and the
     environment to draw around it."""

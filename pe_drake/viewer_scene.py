@@ -16,10 +16,14 @@ from __future__ import annotations
 
 import math
 import re
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from pe_drake.excitation.constraints.environment import Box, floor_plane
+
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
 
 #: Meshcat path (under ``/drake``) of the environment layer.
 ENVIRONMENT_PATH = "environment"
@@ -34,7 +38,7 @@ _VIEW_DIRECTION = np.array([1.0, 0.7, 0.85]) / np.linalg.norm([1.0, 0.7, 0.85])
 _MIN_RADIUS = 0.05  # [m]: the smallest half-size framed (a point-sized extent)
 
 
-def draw_environment(meshcat, robot, environment, extent: tuple[np.ndarray, np.ndarray]) -> dict[str, str]:
+def draw_environment(meshcat, robot: Robot, environment, extent: tuple[np.ndarray, np.ndarray]) -> dict[str, str]:
     """Draws the config's floor (for a fixed-base arm) and boxes, translucent.
 
     Args:
@@ -77,7 +81,7 @@ def draw_environment(meshcat, robot, environment, extent: tuple[np.ndarray, np.n
     return drawn
 
 
-def motion_extent(robot, q: np.ndarray, max_samples: int = 200) -> tuple[np.ndarray, np.ndarray]:
+def motion_extent(robot: Robot, q: np.ndarray, max_samples: int = 200) -> tuple[np.ndarray, np.ndarray]:
     """The axis-aligned box the robot sweeps over the postures q: every body origin and every
     capsule (its segment ends, grown by its radius), at up to ``max_samples`` of the frames.
 

@@ -420,7 +420,7 @@ def test_a_candidate_that_passed_when_the_selection_was_full_says_so(robot, traj
     """With max_effects reached, a candidate that passed its last trial was reported as
     "rejected" with no test and no reason."""
     measurement, _ = simulated(robot, trajectory, "mix")
-    result = diagnose(robot, measurement, config=DiagnosisConfig(max_effects=2))
+    result = diagnose(robot, measurement, options=DiagnosisConfig(max_effects=2))
     rejected = [d for d in result.decisions if d["decision"] == "rejected"]
     assert all(d["test"] and d["reason"] for d in rejected)
     # one that passed among the starting fit's drive terms stays in the model (issue 36), saying so

@@ -27,7 +27,7 @@ def negative_armature(optimized):  # noqa: F811
     tau = m.tau.copy()
     tau[:, 3] += ARMATURE * np.gradient(v[:, 3], m.t)
     lines: list[str] = []
-    result = diagnose(robot, m.replace(tau=tau), config=DiagnosisConfig(holdout_fraction=0.3), progress=lines.append)
+    result = diagnose(robot, m.replace(tau=tau), options=DiagnosisConfig(holdout_fraction=0.3), progress=lines.append)
     return robot, result, lines
 
 
@@ -96,7 +96,7 @@ def test_real_panda_diagnose_starts_from_identify_and_says_where_it_is_worse():
     robot = get_robot("panda")
     raw = read_robot_measurement(robot, REAL)
     lines: list[str] = []
-    dg = diagnose(robot, raw, config=DiagnosisConfig(holdout_fraction=0.3), progress=lines.append)
+    dg = diagnose(robot, raw, options=DiagnosisConfig(holdout_fraction=0.3), progress=lines.append)
     held = (float(dg.held_out.t[0]), float(dg.held_out.t[-1]))
     model = identify_model(robot, raw, IdentifyOptions(method="wls", window=TimeWindow(None, float(dg.training.t[-1]))))
     identify_rms = validate_model(robot, model.result, raw, ValidateOptions(window=TimeWindow(*held))).rms

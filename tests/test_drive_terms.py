@@ -389,7 +389,7 @@ def test_real_panda_identify_predicts_the_held_out_part_like_diagnose():
         pytest.skip("the real Panda recording is not available")
     robot = get_robot("panda")
     raw = read_robot_measurement(robot, REAL)
-    dg = diagnose(robot, raw, config=DiagnosisConfig(holdout_fraction=0.3))
+    dg = diagnose(robot, raw, options=DiagnosisConfig(holdout_fraction=0.3))
     train_end, held = float(dg.training.t[-1]), (float(dg.held_out.t[0]), float(dg.held_out.t[-1]))
     model = identify_model(robot, raw, IdentifyOptions(method="wls", window=TimeWindow(None, train_end)))
     assert model.result.weight_iterations > 1

@@ -374,7 +374,7 @@ def test_mjcf_visuals_are_copied_beside_it_and_leave_the_inertials_alone(tmp_pat
     robot = load_robot(RobotConfig(model=str(tmp_path / "slider.urdf"), **MOUNT))
     result = export_model(robot, None, ExportOptions("mjcf", meshdir="slider_meshes"))
     out = tmp_path / "out" / "slider.xml"
-    result.write(out)
+    result.write(out.parent, name=out.name)
     model = mujoco.MjModel.from_xml_path(str(out))
     box = model.geom(model.body("arm").geomadr[0])
     np.testing.assert_allclose(box.size, [0.1, 0.02, 0.03])
@@ -447,11 +447,11 @@ def test_real_panda_in_mujoco_is_pe_drakes_validate_minus_what_mjcf_cannot_hold(
     from pe_drake.identification.estimators import prepare_measurement
 
     robot = get_robot("panda")
-    raw = read_measurements(REAL, robot)
+    raw = read_measurements(robot, REAL)
     identify_model(robot, raw, IdentifyOptions(method="physical", window=TimeWindow.parse(",14.445"))).write(tmp_path)
     model = tmp_path / "identified.json"
-    export_model(robot, model, ExportOptions("mjcf")).write(tmp_path / "identified.xml")
-    export_model(robot, None, ExportOptions("mjcf")).write(tmp_path / "cad.xml")
+    export_model(robot, model, ExportOptions("mjcf")).write(tmp_path, name="identified.xml")
+    export_model(robot, None, ExportOptions("mjcf")).write(tmp_path, name="cad.xml")
     options = ValidateOptions(window=TimeWindow.parse("14.95,20.495"))
     own = validate_model(robot, load_identified(model, robot), raw, options)
     mj = validate_exported(robot, tmp_path / "identified.xml", raw, options)

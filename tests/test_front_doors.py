@@ -57,7 +57,7 @@ def test_library_writes_what_the_cli_writes(tmp_path, monkeypatch):
     plan = optimize_motion(resolve_robot_config("panda", cfg), name="panda")
     assert len(built) == 1, f"{len(built)} excitation problems built for one in-process start"
     written = plan.write(tmp_path / "lib", playback=write_plan_playback)
-    assert written == sorted(p.name for p in (tmp_path / "cli").iterdir())
+    assert [Path(p).name for p in written] == sorted(p.name for p in (tmp_path / "cli").iterdir())
     for name in ("trajectory.json", "trajectory.csv", "trajectory.png", "trajectory_goal.yaml", "playback.html"):
         assert (tmp_path / "lib" / name).read_bytes() == (tmp_path / "cli" / name).read_bytes(), name
     assert _report(tmp_path / "lib" / "report.json") == _report(tmp_path / "cli" / "report.json")
@@ -103,7 +103,7 @@ def test_sign_flip_is_refused_by_the_library_as_by_the_cli(panda, runs, tmp_path
     from pe_drake.diagnosis import diagnose
     from pe_drake.identification import read_measurements
 
-    raw = read_measurements(runs["flipped"], panda)
+    raw = read_measurements(panda, runs["flipped"])
     with pytest.raises(DataError) as by_identify:
         identify_model(panda, raw, IdentifyOptions())
     with pytest.raises(DataError) as by_diagnose:

@@ -28,11 +28,11 @@ def test_library_door_refuses_positions_in_degrees(panda, tmp_path):
     path = tmp_path / "degrees.csv"
     path.write_text(measurement_to_csv_text(_log(panda, 180 / np.pi)))
     with pytest.raises(DataError, match="degrees.csv"):
-        pe_drake.read_measurements(path, panda)
+        pe_drake.read_measurements(panda, path)
 
 
 def test_library_door_reads_a_plain_log(panda, tmp_path):
     path = tmp_path / "run.csv"
     path.write_text(measurement_to_csv_text(_log(panda, 1.0)))
-    m = pe_drake.read_measurements(path, panda)
+    m = pe_drake.read_measurements(panda, path)
     assert m.joints == panda.joint_names and m.num_samples == 4000

@@ -296,8 +296,9 @@ def test_a_per_motor_model_needs_its_transmission(optimized, tmp_path):  # noqa:
     robot = coupled_robot()
     run = model_run(robot, true_model(robot), random_trajectory(robot, optimized, seed=1), 1)
     fit = identify_model(robot, run, IdentifyOptions(method="physical", filtering=False, rest="keep"))
-    written, note = fit.write(tmp_path)
-    assert "model.urdf" in written and "wrist_2_joint-wrist_3_joint" in note, note
+    notes = []
+    written = fit.write(tmp_path, progress=notes.append)
+    assert str(tmp_path / "model.urdf") in written and "wrist_2_joint-wrist_3_joint" in notes[0], notes
     with pytest.raises(DataError, match="per motor through robot.transmission.*config gives none"):
         load_identified(tmp_path / "identified.json", get_robot("ur5"))
 

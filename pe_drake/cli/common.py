@@ -56,7 +56,7 @@ def read_log_from_args(args: argparse.Namespace, robot: Robot, config: Config | 
     section and the log flags (:func:`~pe_drake.identification.intake.read_measurements`)."""
     options = config.data if config is not None else None
     # Through the package's lazy export: `pe-drake optimize` loads no identification module.
-    return pe_drake.read_measurements(path or args.data, robot, options, format=getattr(args, "format", None),
+    return pe_drake.read_measurements(robot, path or args.data, options, format=getattr(args, "format", None),
                     topic=getattr(args, "topic", None), effort=getattr(args, "effort", None))
 
 

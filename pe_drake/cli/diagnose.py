@@ -6,11 +6,10 @@ import math
 from pathlib import Path
 
 from pe_drake.cli.common import config_from_args, export_hint, read_log_from_args, robot_from_args
-from pe_drake.diagnosis import DiagnosisConfig, diagnose, write_outputs
+from pe_drake.diagnosis import DiagnosisConfig, diagnose
 from pe_drake.exceptions import ConfigError
 from pe_drake.identification import load_identified
-from pe_drake.io_utils import staged_output_dir
-from pe_drake.output_paths import DIAGNOSE_OUTPUTS, check_output_dir
+from pe_drake.output_paths import check_output_dir
 
 
 def diagnose_command(args) -> int:
@@ -30,10 +29,9 @@ def diagnose_command(args) -> int:
         print(f"a-priori model: {args.model} ({prior.method})", flush=True)
         for note in prior.physical_notes if prior.method == "diagnose" else ():
             print(f"note: {note}", flush=True)
-    result = diagnose(robot, data, validation, config, progress=lambda s: print(s, flush=True), prior=prior)
-    with staged_output_dir(out, "diagnosis.json", DIAGNOSE_OUTPUTS) as tmp:
-        written = write_outputs(tmp, robot, result)
-    print(f"wrote {', '.join(str(out / Path(w).name) for w in written)}")
+    result = diagnose(robot, data, validation, config, prior=prior, progress=lambda s: print(s, flush=True))
+    written = result.write(out)
+    print(f"wrote {', '.join(written)}")
     if not any(Path(w).name == "augmented_model.urdf" for w in written):  # identify says it too (issue 37)
         print(f"note: augmented_model.urdf not written: model export writes URDF files and '{Path(robot.model_path).name}' "
               "is not one; augmented_model.json and augmented_effects.yaml hold the augmented model (load the robot "

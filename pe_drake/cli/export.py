@@ -24,6 +24,8 @@ def export_command(args: argparse.Namespace) -> int:
     result = export_model(robot, args.model, options, held_out=held_out, progress=lambda line: print(line, flush=True))
     for line in result.summary_lines():
         print(line)
-    for path in result.write(out):
-        print(f"wrote {path}")
+    path, *meshes = result.write(out.parent, name=out.name)
+    print(f"wrote {path}")
+    for folder in meshes:
+        print(f"wrote {folder}/ ({len(result.meshes)} meshes)")
     return 0

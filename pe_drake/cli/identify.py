@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from pe_drake.cli.common import (
     config_from_args,
@@ -37,10 +38,8 @@ def identify_command(args: argparse.Namespace) -> int:
     model = identify_model(robot, read_log_from_args(args, robot, config), options)
     for line in model.summary_lines():
         print(line, flush=True)
-    written, note = model.write(out)
-    if note:
-        print(note)
-    print(f"wrote {out}/" + ", ".join(written))
+    written = model.write(out, progress=print)  # the note on model.urdf, if any
+    print(f"wrote {out}/" + ", ".join(Path(p).name for p in written))
     print(export_hint(out / "identified.json", args.robot))
     return 0
 
@@ -64,7 +63,7 @@ def validate_command(args: argparse.Namespace) -> int:
         report = validate_model(robot, model, read_log_from_args(args, robot, config), options)
     for line in [f"note: {n}" for n in report.notes] + report.summary_lines():
         print(line)
-    written = report.write(args.json, args.plot, model=args.model, data=args.data)
+    written = report.write(Path(), json_name=args.json, plot_name=args.plot, model=args.model, data=args.data)
     for path in written:
         print(f"wrote {path}")
     return 0

@@ -49,17 +49,13 @@ def optimize_command(args: argparse.Namespace) -> int:
     written = plan.write(out, csv_rate=args.csv_rate, playback=None if args.no_html else write_plan_playback,
                          progress=say)
     if plan.refusal is not None:
-        print(f"pe-drake optimize: not valid for hardware: {plan.refusal}. Only {_listed(out, written)} was written.",
+        print(f"pe-drake optimize: not valid for hardware: {plan.refusal}. Only {', '.join(written)} was written.",
               file=sys.stderr)
         return 1
     if not plan.success:
-        print(f"pe-drake optimize: no valid trajectory: {plan.result.message}. Only {_listed(out, written)} was "
+        print(f"pe-drake optimize: no valid trajectory: {plan.result.message}. Only {', '.join(written)} was "
               "written. Try more iterations (--max-iterations), more starts (--starts), another seed (--seed), "
               "or looser margins.", file=sys.stderr)
         return 1
-    say(f"wrote {out}/" + ", ".join(written))
+    say(f"wrote {out}/" + ", ".join(Path(p).name for p in written))
     return 0
-
-
-def _listed(out: Path, written: list[str]) -> str:
-    return ", ".join(str(out / name) for name in written)

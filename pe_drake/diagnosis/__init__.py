@@ -9,7 +9,7 @@ from pe_drake.exports import exports_by_module, lazy_exports
 
 _EXPORTS = exports_by_module(__name__, {
     "options": "DiagnosisConfig",
-    "result": "DiagnosisResult write_outputs",
+    "result": "DiagnosisResult",
     "workflow": "diagnose",
 })
 

@@ -25,7 +25,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -44,6 +44,9 @@ from pe_drake.multibody.inertia import (
 from pe_drake.multibody.payload import PayloadInertia
 from pe_drake.multibody.robot_model import RobotModel
 
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
+
 #: The augmented URDF's comment line and the effects file's header.
 URDF_TITLE = "augmented by pe-drake diagnose: re-identified inertias, damping, rotor inertia, payload"
 EFFECTS_HEADER = (
@@ -53,7 +56,7 @@ EFFECTS_HEADER = (
     "# friction and rotor inertia; the payload and the inertias are in the URDF).\n")
 
 
-def augmented_model(robot, base, phi_B: np.ndarray, Sigma_phi: np.ndarray, payload_phi: np.ndarray | None,
+def augmented_model(robot: Robot, base, phi_B: np.ndarray, Sigma_phi: np.ndarray, payload_phi: np.ndarray | None,
              effects: dict[str, tuple[Any, float]], velocity_scale: float,
              payload_link: str | None = None, cov_B: np.ndarray | None = None,
              time_delay: float = 0.0,
@@ -241,7 +244,7 @@ def physically_consistent(body_names, phi: np.ndarray, margin: float = 1e-9) -> 
 # ---- files ----------------------------------------------------------------------------------
 
 
-def write_augmented_model(folder: str | Path, robot, model: RobotModel, *, verify: bool = True) -> list[Path]:
+def write_augmented_model(folder: str | Path, robot: Robot, model: RobotModel, *, verify: bool = True) -> list[Path]:
     """Writes the augmented model's files into ``folder`` (module docstring).
 
     The URDF is checked by :meth:`~pe_drake.multibody.robot_model.RobotModel.write_urdf`

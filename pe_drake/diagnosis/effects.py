@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -42,6 +43,9 @@ from pe_drake.multibody.drive_columns import COULOMB_VELOCITY_SCALE, NONNEGATIVE
 from pe_drake.multibody.inertia import mass_on_a_line, phi_from_com, principal_inertia
 from pe_drake.multibody.payload import link_columns
 from pe_drake.multibody.regressor import RegressorModel
+
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
 
 #: Per-joint effects of the library, in the order they are listed in reports.
 JOINT_EFFECTS = ("coulomb_friction", "viscous_friction", "armature", "torque_offset")
@@ -94,7 +98,7 @@ class Candidate:
         return f"{self.effect}[{self.joint_name}]"
 
 
-def joint_candidates(robot, effects: Sequence[str] = JOINT_EFFECTS,
+def joint_candidates(robot: Robot, effects: Sequence[str] = JOINT_EFFECTS,
                      start: tuple[np.ndarray, np.ndarray] | None = None) -> list[Candidate]:
     """Every per-joint effect on every excited joint (Coulomb friction on revolute joints: the
     augmented Drake model, like the simulator, holds it as a revolute ``DoorHinge``).
@@ -157,7 +161,7 @@ class Separability:
     merged_with: dict[str, float]
 
 
-def separability(robot, base, candidates: Sequence[Candidate], *, model=None, samples: int = 200,
+def separability(robot: Robot, base, candidates: Sequence[Candidate], *, model=None, samples: int = 200,
                  seed: int = 1, tolerance: float = 1e-6) -> list[Separability]:
     """Whether each candidate can be told apart from the rigid-body terms (structural test).
 
@@ -204,7 +208,7 @@ def separability(robot, base, candidates: Sequence[Candidate], *, model=None, sa
 # ---- a-priori uncertainty and the payload pattern --------------------------------------------
 
 
-def prior_parameter_covariance(robot, relative: float = PRIOR_RELATIVE_UNCERTAINTY, *,
+def prior_parameter_covariance(robot: Robot, relative: float = PRIOR_RELATIVE_UNCERTAINTY, *,
                                samples: int = 400, seed: int = 0) -> np.ndarray:
     """Covariance of the standard parameters of an a-priori model accurate to ``relative``.
 
@@ -264,7 +268,7 @@ def _perturbation_draws(phi_b: np.ndarray, eps: float, count: int, rng: np.rando
     return phi_from_com(m2, p2, np.einsum("kij,kj,klj->kil", R2, lam2, R2))
 
 
-def payload_groups(robot, base) -> list[tuple[int, int, tuple[str, ...]]]:
+def payload_groups(robot: Robot, base) -> list[tuple[int, int, tuple[str, ...]]]:
     """Link groups where an added mass is identifiable from the base parameters.
 
     A group is every body rigidly attached to one joint's child link. The payload's mass must

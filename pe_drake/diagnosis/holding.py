@@ -31,7 +31,7 @@ insignificant is dropped with the other stand-ins.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -39,6 +39,9 @@ from pe_drake.diagnosis.effects import Candidate, Separability
 from pe_drake.identification.rest import MIN_REST_S, REST_FLOOR, count_runs, min_rest_s, rest_mask
 from pe_drake.multibody.dahl import dahl_state
 from pe_drake.multibody.drive_columns import COULOMB_VELOCITY_SCALE
+
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
 
 #: Name of the effect.
 HOLDING = "holding_torque"
@@ -72,7 +75,7 @@ def holding_column(seg, joint: int, x_p: float = HOLDING_DISPLACEMENT) -> np.nda
     return record.filtered(record_rest_mask(record, joint) * z)[seg.idx]
 
 
-def holding_candidates(robot, training) -> list[Candidate]:
+def holding_candidates(robot: Robot, training) -> list[Candidate]:
     """The ``holding_torque`` candidates: one per joint with :data:`MIN_REST_PERIODS` rests or
     more in the training part (the column of a joint that never stops is zero)."""
     out = []
@@ -82,7 +85,7 @@ def holding_candidates(robot, training) -> list[Candidate]:
     return out
 
 
-def holding_separability(robot, training) -> list[Separability]:
+def holding_separability(robot: Robot, training) -> list[Separability]:
     """:func:`holding_candidates` as separable: a column of the history is never a function of
     the state, so no rigid-body column can hold it (the structural test of
     :func:`~pe_drake.diagnosis.effects.separability` draws random states)."""

@@ -5,7 +5,7 @@ table, and the candidates not named."""
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -14,6 +14,9 @@ from pe_drake.diagnosis.options import TIMING, DiagnosisConfig
 from pe_drake.diagnosis.regression import Fit, Library, Regression, Selection
 from pe_drake.diagnosis.result import NamedEffect, per_joint, time_delay_effect
 from pe_drake.diagnosis.selection import rejected_list
+
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -38,7 +41,7 @@ class Naming:
     rejected: list[dict[str, Any]]
 
 
-def name_effects(robot, reg: Regression, library: Library, sel: Selection, rigid: Fit, nominal_rms: np.ndarray,
+def name_effects(robot: Robot, reg: Regression, library: Library, sel: Selection, rigid: Fit, nominal_rms: np.ndarray,
                  config: DiagnosisConfig) -> Naming:
     """The cumulative table, each selected effect as a NamedEffect, the rejected candidates.
 
@@ -60,7 +63,7 @@ def name_effects(robot, reg: Regression, library: Library, sel: Selection, rigid
     return Naming(unnamed + named_cols, cumulative, fits_cum[-1], effects, series, rejected_list(reg, library, sel))
 
 
-def _named(reg: Regression, library: Library, final: Fit, effect_cols: list[int], fits_cum: list[Fit], robot,
+def _named(reg: Regression, library: Library, final: Fit, effect_cols: list[int], fits_cum: list[Fit], robot: Robot,
            config: DiagnosisConfig, unnamed: list[int]) -> tuple[list[NamedEffect], list[dict[str, Any]]]:
     """Each effect with its value, and the fits with everything but it (the ``unnamed`` terms
     in) for its plot."""

@@ -14,7 +14,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -22,6 +22,9 @@ from pe_drake.diagnosis.effects import Separability, chi2, chi2_quantile, fit_pa
 from pe_drake.diagnosis.options import DiagnosisConfig
 from pe_drake.diagnosis.result import NamedEffect, per_joint
 from pe_drake.multibody.payload import PayloadInertia, link_columns
+
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -80,7 +83,7 @@ class _LinkFit:
     joint: int
 
 
-def payload_search(robot, base, change: BaseChange, config: DiagnosisConfig,
+def payload_search(robot: Robot, base, change: BaseChange, config: DiagnosisConfig,
                    rms_held: np.ndarray) -> PayloadOutcome:
     """The payload test of the module docstring.
 
@@ -125,7 +128,7 @@ def payload_search(robot, base, change: BaseChange, config: DiagnosisConfig,
     return PayloadOutcome(report, _payload_effect(best, report, joints, rms_held), best.x)
 
 
-def _link_fits(robot, base, change: BaseChange, chi2_0: float) -> list[_LinkFit]:
+def _link_fits(robot: Robot, base, change: BaseChange, chi2_0: float) -> list[_LinkFit]:
     """The GLS fit of Δφ_B by each identifiable link group's parameters."""
     fits = []
     for j, lead, group in payload_groups(robot, base):

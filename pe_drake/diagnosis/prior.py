@@ -12,6 +12,8 @@ model's friction is found again as effects when the data show it.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from pe_drake.diagnosis.record import Segment, model_file_friction
@@ -21,8 +23,11 @@ from pe_drake.identification.reference_errors import Shortfall, shortfalls
 from pe_drake.multibody.drive_columns import coulomb_columns
 from pe_drake.multibody.inertia import validity_problems
 
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
 
-def prior_parameters(robot, prior: IdentificationResult | None) -> np.ndarray:
+
+def prior_parameters(robot: Robot, prior: IdentificationResult | None) -> np.ndarray:
     """The a-priori standard parameters, (10·nb,): the model file's, or an earlier model's own
     (physical fits, augmented_model.json) or, for a base-parameter fit, the ones closest to the
     model file's that give its base parameters."""
@@ -31,7 +36,7 @@ def prior_parameters(robot, prior: IdentificationResult | None) -> np.ndarray:
     return np.asarray(prior.phi if prior.phi is not None else standard_from_base(robot, prior), float)
 
 
-def prior_own_parameters(robot, prior: IdentificationResult | None) -> np.ndarray | None:
+def prior_own_parameters(robot: Robot, prior: IdentificationResult | None) -> np.ndarray | None:
     """The standard parameters the augmented model's closest ones are sought from: an earlier
     model's own when physically valid (a physical fit, augmented_model.json), else None (the
     model file's). An OLS/WLS fit's standard parameters (:func:`standard_from_base`: the model
@@ -42,7 +47,7 @@ def prior_own_parameters(robot, prior: IdentificationResult | None) -> np.ndarra
     return np.asarray(prior.phi, float)
 
 
-def prior_drive_torque(robot, prior: IdentificationResult | None, seg: Segment) -> np.ndarray:
+def prior_drive_torque(robot: Robot, prior: IdentificationResult | None, seg: Segment) -> np.ndarray:
     """The a-priori model's joint torque beside Y φ on a segment, (S, n) [N·m]: the model file's
     joint friction, or an earlier model's drive terms (its Coulomb column tanh(v/v_s) with its
     own v_s, parallel-filtered like the torque, as ``validate`` predicts; the model file's
@@ -59,7 +64,7 @@ def prior_drive_torque(robot, prior: IdentificationResult | None, seg: Segment) 
     return drive.torque(seg.v, seg.vd, coulomb)
 
 
-def fitted_friction(robot, seg: Segment) -> np.ndarray:
+def fitted_friction(robot: Robot, seg: Segment) -> np.ndarray:
     """The model file's friction (``<dynamics damping, friction>``) along a segment, subtracted
     from the measured torque before the rigid-body and effect fits, with or without an earlier
     model (module docstring), (S, n) [N·m]."""
@@ -67,7 +72,7 @@ def fitted_friction(robot, seg: Segment) -> np.ndarray:
     return viscous * seg.v + coulomb * seg.coulomb
 
 
-def model_file_torque(robot, base, columns, seg: Segment) -> np.ndarray:
+def model_file_torque(robot: Robot, base, columns, seg: Segment) -> np.ndarray:
     """The model file's (CAD) torque along a segment, (S, n) [N·m]: Y φ_model from the base
     regressor ``columns`` (:class:`~pe_drake.diagnosis.columns.Columns` of ``seg``) plus its
     friction; the reference the augmented model must beat (issue 36), the a-priori model too
@@ -75,7 +80,7 @@ def model_file_torque(robot, base, columns, seg: Segment) -> np.ndarray:
     return columns.product(range(base.count), base.base_values(robot.phi_model)) + model_file_friction(robot, seg)
 
 
-def reference_shortfalls(robot, base, columns, seg: Segment, tau: np.ndarray) -> list[Shortfall]:
+def reference_shortfalls(robot: Robot, base, columns, seg: Segment, tau: np.ndarray) -> list[Shortfall]:
     """The joints whose torque ``tau`` along ``seg`` (the augmented model's on the held-out part)
     is worse than the model file's (:func:`model_file_torque`) or than predicting zero."""
     references = {"a_priori": model_file_torque(robot, base, columns, seg), "zero": np.zeros_like(tau)}

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -35,6 +35,9 @@ from pe_drake.identification.preprocessing import (
 )
 from pe_drake.memory import available_bytes
 from pe_drake.multibody.drive_columns import coulomb_column
+
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
 
 #: Order of the Butterworth low-pass (the zero-phase filter doubles it).
 FILTER_ORDER = 4
@@ -270,7 +273,7 @@ def _short_part_advice(seg: Segment, other: Segment, need: float, config: Diagno
     return advice
 
 
-def check_record_signs(robot, record: Record) -> None:
+def check_record_signs(robot: Robot, record: Record) -> None:
     """The torque-sign check of :func:`~pe_drake.identification.data_checks.check_against_model`
     on the diagnosis's own filtered record (its decimated samples away from the edges), so a
     file is filtered once.
@@ -313,7 +316,7 @@ def check_fits_in_memory(data: Measurement, validation: Measurement | None = Non
             "identify the whole of it (pe-drake identify reads an hour at 1 kHz in under 2 GB)", file=data.source)
 
 
-def model_file_friction(robot, seg: Segment) -> np.ndarray:
+def model_file_friction(robot: Robot, seg: Segment) -> np.ndarray:
     """The friction the model file holds, d·v + f_c·tanh(v/v_s), along a segment, (S, n) [N·m].
 
     ``<dynamics damping>`` (Drake's joint damping) and ``friction`` (which Drake ignores) are

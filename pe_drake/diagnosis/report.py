@@ -39,10 +39,6 @@ def _plt():
     return plt
 
 
-def _short(name: str) -> str:
-    return name.replace("panda_", "")
-
-
 def write_report(folder: str | Path, result, model_files: list[Path]) -> list[Path]:
     """Writes report.md and the figures into ``folder``; returns the figure paths."""
     folder = Path(folder)
@@ -75,7 +71,7 @@ def plot_torques(path: Path, result) -> Path:
         ax.plot(p["t"], p["nominal"][:, j], "r--", lw=1, label="a-priori model")
         ax.plot(p["t"], p["rigid"][:, j], color="orange", lw=1, label="rigid re-identified")
         ax.plot(p["t"], p["after"][:, j], "b", lw=1, label="augmented (Drake)")
-        ax.set_ylabel(f"{_short(result.joints[j])}\n[N·m]", fontsize=8)
+        ax.set_ylabel(f"{result.joints[j]}\n[N·m]", fontsize=8)
         ax.tick_params(labelsize=7)
     axes[0].legend(fontsize=7, ncol=4, loc="upper right")
     axes[-1].set_xlabel("t [s] (held-out data)")
@@ -107,11 +103,11 @@ def plot_effect_residuals(path: Path, result) -> Path:
     payload = [e for e in result.effects if e.effect == "payload"]
     if payload:
         j = int(np.argmax(result.rms_nominal - result.rms_rigid))
-        panels.append((f"payload on {payload[0].link} ({_short(result.joints[j])})", result.held_out.t,
+        panels.append((f"payload on {payload[0].link} ({result.joints[j]})", result.held_out.t,
                        rs["nominal"][:, j], rs["rigid"][:, j], "t [s]", "a-priori model", "re-identified"))
     if not panels:
         for j, name in enumerate(result.joints):
-            panels.append((f"{_short(name)}: no effect named", result.held_out.v[:, j], rs["rigid"][:, j],
+            panels.append((f"{name}: no effect named", result.held_out.v[:, j], rs["rigid"][:, j],
                            rs["after"][:, j], "v [rad/s]", "rigid re-identified", "augmented"))
     cols = min(3, len(panels))
     rows = int(np.ceil(len(panels) / cols))
@@ -143,7 +139,7 @@ def plot_regimes(path: Path, result) -> Path:
     ax.set_xticks(range(len(labels)))
     ax.set_xticklabels(labels, rotation=60, ha="right", fontsize=7)
     ax.set_yticks(range(len(joints)))
-    ax.set_yticklabels([_short(j) for j in joints], fontsize=8)
+    ax.set_yticklabels(list(joints), fontsize=8)
     for j in range(len(joints)):
         for k in range(len(labels)):
             ax.text(k, j, f"{M[j, k]:.2g}", ha="center", va="center", fontsize=5)
@@ -165,7 +161,7 @@ def plot_gap(path: Path, result) -> Path:
     ax.plot(x, result.noise_floor, "k_", ms=18, label="noise floor")
     ax.set_yscale("log")
     ax.set_xticks(x)
-    ax.set_xticklabels([_short(j) for j in result.joints], fontsize=8)
+    ax.set_xticklabels(list(result.joints), fontsize=8)
     ax.set_ylabel("held-out RMS [N·m]")
     ax.legend(fontsize=7)
     ax.set_title("Held-out gap per joint")
@@ -184,7 +180,7 @@ def plot_unexplained(path: Path, result) -> Path:
         r = result.residual_series["after"][:, j]
         row[0].plot(seg.t, r, "b", lw=0.8)
         row[0].set_xlabel("t [s]", fontsize=8)
-        row[0].set_ylabel(f"{_short(name)} residual [N·m]", fontsize=8)
+        row[0].set_ylabel(f"{name} residual [N·m]", fontsize=8)
         row[1].plot(seg.dtau[:, j], r, ".", ms=1.5)
         row[1].set_xlabel("dτ/dt [N·m/s]", fontsize=8)
         for ax in row:
@@ -220,7 +216,7 @@ def _header(r) -> list[str]:
     tr, ho = r.training, r.held_out
     rec = tr.record
     return [
-        f"# Diagnosis of `{r.robot}`",
+        f"# Diagnosis of `{r.robot.name}`",
         "",
         f"- data: `{rec.source}`, {rec.rate_hz:.4g} Hz, zero-phase low-pass at {rec.cutoff_hz:.3g} Hz, "
         f"fitted at {rec.rate_hz / rec.step:.4g} Hz",
@@ -268,7 +264,7 @@ def _summary(r) -> list[str]:
 
 def _cumulative(r) -> list[str]:
     lines = ["![held-out gap](gap.png)", "", "## Cumulative held-out RMS per joint [N·m]", ""]
-    header = ["step"] + [_short(j) for j in r.joints]
+    header = ["step", *r.joints]
     rows = [[s] + [_g(v) for v in rms] for s, rms in r.cumulative]
     rows.append(["augmented Drake model"] + [_g(v) for v in r.rms_after])
     rows.append(["noise floor"] + [_g(v) for v in r.noise_floor])
@@ -283,7 +279,7 @@ def _nominal_section(r) -> list[str]:
     for j in r.joints:
         g = r.regimes[j]
         s = g["strongest"]
-        rows.append([_short(j), _g(g["overall"]["rms"]), _g(g["overall"]["mean"]),
+        rows.append([j, _g(g["overall"]["rms"]), _g(g["overall"]["mean"]),
                      f"{s['regime']}: {s['bin']} (mean {_g(s['mean'])})", _g(g["correlation_sign_v"], 2),
                      _g(g["correlation_vd"], 2)])
     return lines + [_table(["joint", "RMS", "mean", "strongest regime", "corr sign(v)", "corr v̇"], rows), "",
@@ -406,7 +402,7 @@ def _augmented_section(r, model_files: list[str]) -> list[str]:
                  "offsets as a generalized force); its inverse dynamics along the held-out motion:")
     lines.append("")
     lines.append(_table(["joint", "a-priori", "rigid", "augmented", "gap closed"],
-                        [[_short(j), _g(a), _g(b), _g(c), f"{100 * (1 - (c / a) ** 2):.1f} %" if a > 0 else "–"]
+                        [[j, _g(a), _g(b), _g(c), f"{100 * (1 - (c / a) ** 2):.1f} %" if a > 0 else "–"]
                          for j, a, b, c in zip(r.joints, r.rms_nominal, r.rms_rigid, r.rms_after)]))
     lines.append("")
     lines.append("(gap closed: share of the a-priori model's held-out mean-square error removed.) Drake vs the "
@@ -425,7 +421,7 @@ def _augmented_section(r, model_files: list[str]) -> list[str]:
 def _unexplained_section(r, figures: list[str]) -> list[str]:
     lines = ["## 5. Unexplained", ""]
     if r.unexplained:
-        rows = [[_short(j), _g(u["rms"]), _g(u["threshold"]), _g(u["noise_floor"]),
+        rows = [[j, _g(u["rms"]), _g(u["threshold"]), _g(u["noise_floor"]),
                  f"{100 * u['fraction_of_nominal_rms']:.0f} %", u["hint"]] for j, u in r.unexplained.items()]
         lines += [_table(["joint", "RMS", "threshold", "noise floor", "of nominal RMS", "signature"], rows), ""]
         if "unexplained.png" in figures:

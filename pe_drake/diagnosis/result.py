@@ -1,5 +1,6 @@
-"""What the diagnosis returns and writes: :class:`NamedEffect`, :class:`DiagnosisResult`, and
-:func:`write_outputs` (diagnosis.json, report.md, figures, the augmented model files)."""
+"""What the diagnosis returns and writes: :class:`NamedEffect` and :class:`DiagnosisResult`, whose
+:meth:`~DiagnosisResult.write` writes diagnosis.json, report.md, the figures and the augmented
+model files."""
 
 from __future__ import annotations
 
@@ -16,8 +17,11 @@ from pe_drake.diagnosis.augmented_model import write_augmented_model
 from pe_drake.diagnosis.options import DiagnosisConfig
 from pe_drake.diagnosis.record import Segment
 from pe_drake.diagnosis.report import write_report
-from pe_drake.identification.reference_errors import shortfall_report
-from pe_drake.io_utils import atomic_write_text
+from pe_drake.identification.reference_errors import Shortfall, shortfall_report
+from pe_drake.io_utils import atomic_write_text, staged_output_dir
+from pe_drake.multibody.robot import Robot
+from pe_drake.multibody.robot_model import RobotModel
+from pe_drake.output_paths import DIAGNOSE_OUTPUTS, check_output_dir
 
 
 def per_joint(joints: Sequence[str], x) -> dict[str, float]:
@@ -87,10 +91,10 @@ class NamedEffect:
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class DiagnosisResult:
-    """Everything the diagnosis found (JSON via :meth:`to_json_dict`).
+    """Everything the diagnosis found (JSON via :meth:`to_json_dict`; files via :meth:`write`).
 
     Attributes:
-        robot: robot name.
+        robot: the a-priori :class:`~pe_drake.multibody.robot.Robot`.
         joints: excited joints.
         config: the :class:`~pe_drake.diagnosis.options.DiagnosisConfig` used.
         training, held_out: the two :class:`~pe_drake.diagnosis.record.Segment`s.
@@ -126,7 +130,7 @@ class DiagnosisResult:
         start: the starting fit (:meth:`~pe_drake.diagnosis.start.StartingFit.as_dict`).
     """
 
-    robot: str
+    robot: Robot
     joints: tuple[str, ...]
     config: DiagnosisConfig
     training: Segment
@@ -145,7 +149,7 @@ class DiagnosisResult:
     timing: dict[str, Any]
     predictions: dict[str, np.ndarray]
     residual_series: dict[str, Any]
-    augmented: Any
+    augmented: RobotModel
     drake_check: np.ndarray
     timings: dict[str, float]
     noise_floor: np.ndarray
@@ -153,18 +157,52 @@ class DiagnosisResult:
     decisions: list[dict[str, Any]] = dataclasses.field(default_factory=list)
     selection: dict[str, Any] = dataclasses.field(default_factory=dict)
     holding_test: dict[str, Any] = dataclasses.field(default_factory=dict)
-    worse: tuple = ()
+    worse: tuple[Shortfall, ...] = ()
     start: dict[str, Any] = dataclasses.field(default_factory=dict)
 
     def per_joint(self, x: np.ndarray) -> dict[str, float]:
         """{joint: value} of a per-joint array."""
         return per_joint(self.joints, x)
 
+    def summary_lines(self) -> list[str]:
+        """The held-out RMS nominal → augmented, the effects named and what is left (the
+        progress lines of :func:`~pe_drake.diagnosis.workflow.diagnose` tell each step)."""
+        def rms(x) -> str:
+            return ", ".join(f"{j} {v:.3g}" for j, v in self.per_joint(x).items())
+
+        named = ", ".join(f"{e.effect}[{e.joint or e.link}] {e.value:+.3g} {e.unit}" for e in self.effects)
+        return [f"a-priori model, held-out RMS: {rms(self.rms_nominal)}",
+                f"augmented model, held-out RMS: {rms(self.rms_after)}",
+                f"named: {named or 'nothing'}",
+                "unexplained: " + (", ".join(self.unexplained) or "nothing")] + [s.line() for s in self.worse]
+
+    def write(self, folder: str | Path) -> list[str]:
+        """Writes diagnosis.json, report.md, the figures and the augmented model files into
+        ``folder``, all or nothing (staged, then moved into place; earlier runs' files of these
+        names that this run does not write are removed).
+
+        Returns:
+            The paths written (diagnosis.json, report.md, the figures, the model files).
+        """
+        out = check_output_dir(folder)
+        with staged_output_dir(out, "diagnosis.json", DIAGNOSE_OUTPUTS) as tmp:
+            written = self._write_files(tmp)
+        return [str(out / path.name) for path in written]
+
+    def _write_files(self, folder: Path) -> list[Path]:
+        model_files = write_augmented_model(folder, self.robot, self.augmented)
+        figures = write_report(folder, self, model_files)
+        data = self.to_json_dict()
+        data["model_files"] = [Path(p).name for p in model_files]
+        data["figures"] = [Path(p).name for p in figures]
+        atomic_write_text(folder / "diagnosis.json", json.dumps(_jsonable(data), indent=2) + "\n")
+        return [folder / "diagnosis.json", folder / "report.md", *figures, *model_files]
+
     def to_json_dict(self) -> dict[str, Any]:
         """The content of diagnosis.json."""
         rec_tr, rec_ho = self.training.record, self.held_out.record
         return {
-            "robot": self.robot,
+            "robot": self.robot.name,
             "joints": list(self.joints),
             "units": {"torque": "N·m (N for prismatic joints)", "rms": "N·m"},
             "data": {
@@ -215,18 +253,6 @@ def _closed(nominal: float, rigid: float, after: float) -> dict[str, float]:
 def _segment_info(seg: Segment) -> dict[str, Any]:
     return {"file": seg.record.source, "t_start": float(seg.t[0]), "t_end": float(seg.t[-1]),
             "samples": seg.num_samples}
-
-
-def write_outputs(folder: str | Path, robot, result: DiagnosisResult) -> list[Path]:
-    """diagnosis.json, report.md, the figures and the augmented model files into ``folder``."""
-    folder = Path(folder)
-    model_files = write_augmented_model(folder, robot, result.augmented)
-    figures = write_report(folder, result, model_files)
-    data = result.to_json_dict()
-    data["model_files"] = [Path(p).name for p in model_files]
-    data["figures"] = [Path(p).name for p in figures]
-    atomic_write_text(folder / "diagnosis.json", json.dumps(_jsonable(data), indent=2) + "\n")
-    return [folder / "diagnosis.json", folder / "report.md", *figures, *model_files]
 
 
 def _jsonable(x):

@@ -23,6 +23,7 @@ the starting fit is named in the output and in diagnosis.json with the reason.
 from __future__ import annotations
 
 import dataclasses
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -32,6 +33,9 @@ from pe_drake.diagnosis.regression import Fit, Library, Regression, Scorer, Verd
 from pe_drake.identification.least_squares import MAX_WEIGHT_ITERATIONS, MIN_RELATIVE_SIGMA, WEIGHT_TOLERANCE
 from pe_drake.identification.reference_errors import Shortfall, shortfalls
 from pe_drake.multibody.drive_columns import DriveTermOptions, drive_layout
+
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
 
 #: A joint whose augmented model is this much worse than the starting fit [%] is named even when
 #: the held-out part is too short for the difference to be significant (issue 36's bar: within
@@ -70,7 +74,7 @@ class StartingFit:
                 "drive_terms": {library.label(c): self.fit.value(c) for c in self.columns}}
 
 
-def identify_columns(robot, base, model, library: Library) -> tuple[int, ...]:
+def identify_columns(robot: Robot, base, model, library: Library) -> tuple[int, ...]:
     """The library columns of the drive terms ``identify`` fits by default on this robot."""
     layout = drive_layout(robot, base, DriveTermOptions(), model)
     wanted = {(term, joint) for term, joint in zip(layout.terms, layout.joints)}

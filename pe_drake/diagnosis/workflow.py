@@ -122,6 +122,7 @@ from pe_drake.multibody.base_parameters import BaseParameters, compute_base_para
 from pe_drake.multibody.drive_columns import coulomb_column
 from pe_drake.multibody.joint_limits import EFFORT_UNITS, effort_label
 from pe_drake.multibody.regressor import RegressorModel
+from pe_drake.multibody.robot import Robot
 from pe_drake.multibody.robot_model import RobotModel
 
 # ---- preparation -----------------------------------------------------------------------------
@@ -155,7 +156,7 @@ class Prepared:
     prior: IdentificationResult | None = None
 
 
-def prepare(robot, data: Measurement, validation: Measurement | None, config: DiagnosisConfig,
+def prepare(robot: Robot, data: Measurement, validation: Measurement | None, config: DiagnosisConfig,
             say: Callable[[str], None], prior: IdentificationResult | None = None) -> Prepared:
     """Records, training and held-out parts, the base regressor on each (data preparation).
 
@@ -206,7 +207,7 @@ class Nominal:
     regimes: dict[str, Any]
 
 
-def nominal(robot, prep: Prepared, regression: Regression) -> Nominal:
+def nominal(robot: Robot, prep: Prepared, regression: Regression) -> Nominal:
     """Y φ_prior plus the model file's joint friction against the measured torque (the base
     regressor from ``regression``'s columns).
 
@@ -245,7 +246,7 @@ class CandidateLibrary:
     regression: Regression
 
 
-def candidate_library(robot, prep: Prepared, config: DiagnosisConfig) -> CandidateLibrary:
+def candidate_library(robot: Robot, prep: Prepared, config: DiagnosisConfig) -> CandidateLibrary:
     """The separable candidates' columns appended to the base regressor.
 
     Raises:
@@ -310,7 +311,7 @@ class PayloadStep:
     not_separable: list[dict[str, Any]]
 
 
-def payload_step(robot, prep: Prepared, lib: CandidateLibrary, sel: Selection, naming: Naming,
+def payload_step(robot: Robot, prep: Prepared, lib: CandidateLibrary, sel: Selection, naming: Naming,
                  config: DiagnosisConfig) -> PayloadStep:
     """Payload search and rigid-body report from the final fit's base parameters."""
     base, final = prep.base, sel.final
@@ -343,7 +344,7 @@ class Augmentation:
     drake_check: np.ndarray
 
 
-def augment(robot, prep: Prepared, lib: CandidateLibrary, pre: PreslidingStep, naming: Naming, pay: PayloadStep,
+def augment(robot: Robot, prep: Prepared, lib: CandidateLibrary, pre: PreslidingStep, naming: Naming, pay: PayloadStep,
             config: DiagnosisConfig) -> Augmentation:
     """The named effects added to the model in Drake, its held-out torque and the gap."""
     held, library, final = prep.held, lib.library, pre.final
@@ -391,7 +392,7 @@ class Unexplained:
     joints: dict[str, dict[str, Any]]
 
 
-def unexplained(robot, prep: Prepared, lib: CandidateLibrary, sel: Selection, nom: Nominal, aug: Augmentation,
+def unexplained(robot: Robot, prep: Prepared, lib: CandidateLibrary, sel: Selection, nom: Nominal, aug: Augmentation,
                 config: DiagnosisConfig) -> Unexplained:
     """Joints whose held-out residual stays above their threshold, with their signature."""
     timing = timing_report(lib.regression, lib.library, sel, config)
@@ -404,26 +405,21 @@ def unexplained(robot, prep: Prepared, lib: CandidateLibrary, sel: Selection, no
 # ---- the workflow ----------------------------------------------------------------------------
 
 
-def diagnose(
-    robot,
-    data: Measurement,
-    validation: Measurement | None = None,
-    config: DiagnosisConfig | None = None,
-    progress: Callable[[str], None] | None = None,
-    prior: IdentificationResult | None = None,
-) -> DiagnosisResult:
+def diagnose(robot: Robot, data: Measurement, validation: Measurement | None = None,
+             options: DiagnosisConfig | None = None, *, prior: IdentificationResult | None = None,
+             progress: Callable[[str], None] | None = None) -> DiagnosisResult:
     """Runs the five steps of the module docstring.
 
     Args:
         robot: the a-priori :class:`~pe_drake.multibody.robot.Robot`.
         data: the measured run, raw (:func:`~pe_drake.identification.intake.read_measurements`):
-            a run paused for longer than ``config.max_gap_s`` is diagnosed on its longest segment.
+            a run paused for longer than ``options.max_gap_s`` is diagnosed on its longest segment.
         validation: another run to hold out; None: the last ``holdout_fraction`` of ``data``.
-        config: options (:class:`~pe_drake.diagnosis.options.DiagnosisConfig`).
-        progress: called with one line per step (e.g. ``print``).
+        options: the :class:`~pe_drake.diagnosis.options.DiagnosisConfig`.
         prior: an earlier model to start from instead of the model file's parameters
             (:func:`~pe_drake.identification.identified_file.load_identified`: identified.json
             or augmented_model.json): its parameters and drive terms are the a-priori model.
+        progress: called with one line per step (e.g. ``print``).
 
     Returns:
         The :class:`~pe_drake.diagnosis.result.DiagnosisResult`.
@@ -432,7 +428,7 @@ def diagnose(
         DataError: joints that differ from the robot's, a run too short, torques in the
             wrong units or sign-flipped (naming the file and column).
     """
-    config = config or DiagnosisConfig()
+    config = options or DiagnosisConfig()
     say = progress or (lambda _msg: None)
     lap = _Laps()
     joints = robot.joint_names
@@ -490,20 +486,21 @@ def diagnose(
     left = unexplained(robot, prep, lib, sel, nom, aug, config)
     say(_unexplained_line(robot, left.joints))
     lap("unexplained")
-    held = prep.held
-    residual_rigid = lib.regression.residual("held-out", rigid)
-    predictions = {"t": held.t, "measured": held.tau, "nominal": nom.tau_held,
-                   "rigid": held.tau - residual_rigid, "after": aug.tau}
-    residual_series = {"effects": naming.series, "nominal": nom.residual_held, "rigid": residual_rigid,
-                       "after": held.tau - aug.tau}
-    named = naming.effects + ([pay.outcome.effect] if pay.outcome.effect is not None else [])
+    held, residual_rigid = prep.held, lib.regression.residual("held-out", rigid)
     return DiagnosisResult(
-        robot.name, joints, config, prep.training, held, named, nom.rms, rigid.rms_held, aug.rms,
-        naming.cumulative, left.joints, pay.not_separable, naming.rejected, nom.regimes, pay.rigid,
-        pay.outcome.report, left.timing, predictions, residual_series, aug.model, aug.drake_check,
-        lap.timings, held.record.noise_floor, sel.thresholds.unexplained, decisions,
-        {**prep.internal.describe(), "held_out": "used only for the figures reported"}, holding, tuple(worse),
-        start.as_dict(lib.library, joints))
+        robot=robot, joints=joints, config=config, training=prep.training, held_out=held,
+        effects=naming.effects + ([pay.outcome.effect] if pay.outcome.effect is not None else []),
+        rms_nominal=nom.rms, rms_rigid=rigid.rms_held, rms_after=aug.rms, cumulative=naming.cumulative,
+        unexplained=left.joints, not_separable=pay.not_separable, rejected=naming.rejected, regimes=nom.regimes,
+        rigid=pay.rigid, payload_test=pay.outcome.report, timing=left.timing,
+        predictions={"t": held.t, "measured": held.tau, "nominal": nom.tau_held, "rigid": held.tau - residual_rigid,
+                     "after": aug.tau},
+        residual_series={"effects": naming.series, "nominal": nom.residual_held, "rigid": residual_rigid,
+                         "after": held.tau - aug.tau},
+        augmented=aug.model, drake_check=aug.drake_check, timings=lap.timings, noise_floor=held.record.noise_floor,
+        thresholds=sel.thresholds.unexplained, decisions=decisions, holding_test=holding, worse=tuple(worse),
+        selection={**prep.internal.describe(), "held_out": "used only for the figures reported"},
+        start=start.as_dict(lib.library, joints))
 
 
 class _Laps:
@@ -519,7 +516,7 @@ class _Laps:
         self.clock = now
 
 
-def _unexplained_line(robot, left: dict[str, dict[str, Any]]) -> str:
+def _unexplained_line(robot: Robot, left: dict[str, dict[str, Any]]) -> str:
     """Step 5's line: each joint's unexplained held-out RMS in its effort unit (N·m or N)."""
     kinds = {info.name: info.kind for info in robot.joints}
     if not left:

@@ -309,7 +309,7 @@ def _draw_rounds(executor: Executor, config, count, seed, amplitude, max_draws, 
 
 
 def generate_candidates(
-    robot,
+    robot: Robot,
     config: ExcitationConfig | None = None,
     count: int = 200,
     *,

@@ -17,6 +17,8 @@ samples are exact, unfiltered, as for the rigid-body columns.) The gradient adds
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from pe_drake.multibody.drive_columns import (
@@ -27,6 +29,9 @@ from pe_drake.multibody.drive_columns import (
     drive_columns,
     drive_layout,
 )
+
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
 
 
 class DriveBlock:
@@ -63,7 +68,7 @@ class DriveBlock:
         return v_bar, vd_bar
 
 
-def excitation_drive_block(robot, choice: str, base, rows, model) -> DriveBlock:
+def excitation_drive_block(robot: Robot, choice: str, base, rows, model) -> DriveBlock:
     """The drive block of ``excitation.drive_terms`` = ``choice`` ("none": no columns), the
     armature's separability decided on the problem's rows and base parameters."""
     options = DriveTermOptions(choice, COULOMB_VELOCITY_SCALE)

@@ -29,6 +29,7 @@ import numpy as np
 from pe_drake.config import Config, noise_vector, validate_config
 from pe_drake.exceptions import ConfigError, DataError, NotWithinLimitsError, OutputWriteError, check_joints
 from pe_drake.excitation.constraints import constraints_from_config
+from pe_drake.excitation.constraints.base import SampledConstraint
 from pe_drake.excitation.controller_goal import GoalOptions, goal_yaml_text, write_goal_bag
 from pe_drake.excitation.fourier import FourierBasis, sample_times
 from pe_drake.excitation.multistart import MultiStartOptions, MultiStartResult, solve_multistart
@@ -83,7 +84,7 @@ class MotionPlan:
     robot: Robot
     config: Config
     problem: ExcitationProblem
-    constraints: tuple
+    constraints: tuple[SampledConstraint, ...]
     multistart: MultiStartResult
     motion: RampedMotion | None
     quality: QualityReport | None
@@ -111,6 +112,13 @@ class MotionPlan:
         """Why the motion must not go to hardware (a jerk limit, unchecked collisions), or None."""
         return self.report.not_valid_for_hardware
 
+    def summary_lines(self) -> list[str]:
+        """The solve's outcome, the motion's expected quality and why it must not go to hardware
+        (the progress lines of :func:`optimize_motion` tell each step)."""
+        lines = [_outcome_line(self.multistart)]
+        lines += self.quality.summary_lines() if self.quality is not None else []
+        return lines + ([f"not valid for hardware: {self.refusal}"] if self.refusal is not None else [])
+
     def write(self, folder: str | Path, *, csv_rate: float = DEFAULT_CSV_RATE,
               playback: Callable[[MotionPlan, Path], None] | None = None, progress: Say | None = None) -> list[str]:
         """Writes trajectory.json/.csv/.png, the controller goal, the fitted capsules and
@@ -121,9 +129,10 @@ class MotionPlan:
             csv_rate: rate of trajectory.csv [Hz].
             playback: ``f(plan, html_path)`` writing the Meshcat playback (the viewer's
                 :func:`~pe_drake.viewer.write_plan_playback`); a failure there is a warning.
+            progress: called with that warning.
 
         Returns:
-            The names written.
+            The paths written, sorted by name.
         """
         say = progress or (lambda _line: None)
         out = check_output_dir(folder)
@@ -155,7 +164,7 @@ class MotionPlan:
             # Paths relative to the folder: a shared report names no user or folder of the author's
             (tmp / "report.json").write_text(json.dumps(portable_config(report.to_dict(), out), indent=2, default=float))
             written = sorted(p.name for p in tmp.iterdir())
-        return written
+        return [str(out / name) for name in written]
 
     def _rescue(self, out: Path, err: OSError) -> OutputWriteError:
         """Saves the solved trajectory alone (a few kB) beside ``out``'s outputs, or in the
@@ -321,7 +330,7 @@ def prior_regressor(problem: ExcitationProblem, trajectory_json: str | Path) -> 
     return problem.rows_at(basis.q(a, b, trajectory.q0), basis.v(a, b), basis.vd(a, b))  # torques, wrench or both
 
 
-def _plan(config, robot, executor, priors, fitted, fitted_text, unchecked, allow_unchecked, start, say) -> MotionPlan:
+def _plan(config, robot: Robot, executor, priors, fitted, fitted_text, unchecked, allow_unchecked, start, say) -> MotionPlan:
     e = config.excitation
     problem = executor.problem(e)
     if priors:
@@ -338,9 +347,7 @@ def _plan(config, robot, executor, priors, fitted, fitted_text, unchecked, allow
         say("constraints: joint limits, " + ", ".join(c.name for c in constraints))
     ms = _solve_starts(problem, executor, config, say)
     result = ms.best
-    say(f"{'valid' if result.success else 'FAILED'}: {result.message}; cond {result.cond:.5g} "
-        f"(this motion alone {result.cond_motion:.5g}), seed {ms.seed}, "
-        f"{result.nit if result.nit is not None else '-'} iterations, {result.nfev} evaluations, {result.wall_time:.1f} s")
+    say(_outcome_line(ms))
     say("minimum margins at 1 kHz: " + ", ".join(f"{k} {m:.4g}" for k, m in result.margins.items()))
     motion = quality = goal = refusal = ramp_margins = None
     if result.success:
@@ -376,6 +383,13 @@ def _plan(config, robot, executor, priors, fitted, fitted_text, unchecked, allow
     )
     return MotionPlan(robot=robot, config=config, problem=problem, constraints=constraints, multistart=ms, motion=motion,
                       quality=quality, goal_yaml=goal, fitted=fitted, fitted_text=fitted_text, report=report)
+
+
+def _outcome_line(ms: MultiStartResult) -> str:
+    r = ms.best
+    return (f"{'valid' if r.success else 'FAILED'}: {r.message}; cond {r.cond:.5g} (this motion alone "
+            f"{r.cond_motion:.5g}), seed {ms.seed}, {r.nit if r.nit is not None else '-'} iterations, "
+            f"{r.nfev} evaluations, {r.wall_time:.1f} s")
 
 
 def _solve_starts(problem: ExcitationProblem, executor: Executor, config: Config, say: Say) -> MultiStartResult:

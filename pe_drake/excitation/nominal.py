@@ -18,6 +18,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Iterator
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -25,10 +26,13 @@ from pe_drake.exceptions import ConfigError, InfeasibleError
 from pe_drake.excitation.constraints.collision import CollisionConstraint
 from pe_drake.excitation.constraints.environment import environment_from_config
 
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
+
 _OFFSETS = (-math.pi / 4, math.pi / 4, -math.pi / 2, math.pi / 2, -3 * math.pi / 4, 3 * math.pi / 4)
 
 
-def candidate_postures(robot) -> Iterator[np.ndarray]:
+def candidate_postures(robot: Robot) -> Iterator[np.ndarray]:
     """The candidates of the module docstring, each within the joint limits, shape (n,)."""
     lo, hi = robot.limits.q_lower, robot.limits.q_upper
     q0 = robot.nominal_posture()
@@ -46,7 +50,7 @@ def candidate_postures(robot) -> Iterator[np.ndarray]:
             yield q
 
 
-def choose_nominal_posture(robot, excitation, environment) -> str | None:
+def choose_nominal_posture(robot: Robot, excitation, environment) -> str | None:
     """Sets ``robot.config.nominal_positions`` to the first candidate posture that clears the
     floor, the boxes and self-collision, when the config gives no nominal posture and the
     mid-range one does not clear.
@@ -106,7 +110,7 @@ def choose_nominal_posture(robot, excitation, environment) -> str | None:
     )
 
 
-def robot_mid(robot) -> np.ndarray:
+def robot_mid(robot: Robot) -> np.ndarray:
     """The mid-range posture, shape (n,)."""
     return 0.5 * (robot.limits.q_lower + robot.limits.q_upper)
 

@@ -23,6 +23,7 @@ import dataclasses
 import math
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -47,6 +48,9 @@ from pe_drake.multibody.payload import (
 )
 from pe_drake.multibody.regressor import RegressorModel
 
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
+
 #: Default period of a payload motion [s] and its harmonics.
 PAYLOAD_PERIOD_S = 6.0
 PAYLOAD_HARMONICS = 5
@@ -57,7 +61,7 @@ MAX_PAYLOAD_DURATION_S = 15.0
 NOMINAL_PAYLOAD = PayloadInertia(1.0, np.array([0.0, 0.0, 0.05]), box_inertia(1.0, [0.1, 0.1, 0.1]))
 
 
-def payload_selection(robot, link: str, model: RegressorModel | None = None) -> BaseParameters:
+def payload_selection(robot: Robot, link: str, model: RegressorModel | None = None) -> BaseParameters:
     """The combinations of the payload link's 10 parameters the robot's torques determine, as a
     :class:`BaseParameters` (φ_B = K φ_L; all 10 on an arm with axes in every direction): the
     excitation problem then minimizes the criterion of Y_L K⁺. What no motion of the robot can
@@ -119,7 +123,7 @@ def undetermined_note(names) -> str:
             "it needs no value for them: take them from CAD where another robot or a controller needs them")
 
 
-def expected_payload_std(robot, link: str, motion, *, noise_std=0.04, nominal: PayloadInertia | None = None,
+def expected_payload_std(robot: Robot, link: str, motion, *, noise_std=0.04, nominal: PayloadInertia | None = None,
                          rate_hz: float = 1000.0, paired: bool = True, model: RegressorModel | None = None) -> PayloadStd:
     """Expected σ of the payload identified from ``motion`` (module docstring).
 
@@ -173,7 +177,7 @@ class PayloadMotionPlan:
     wall_time: float
     criterion: str = "cond"
 
-    def write(self, out: str | Path, robot, csv_rate: float = 1000.0) -> list[Path]:
+    def write(self, out: str | Path, robot: Robot, csv_rate: float = 1000.0) -> list[Path]:
         """trajectory.json (with ``payload_link``) and trajectory.csv in ``out``."""
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
@@ -184,7 +188,7 @@ class PayloadMotionPlan:
         return [out / "trajectory.json", out / "trajectory.csv"]
 
 
-def optimize_payload_motion(robot, link: str, config: ExcitationConfig | None = None,
+def optimize_payload_motion(robot: Robot, link: str, config: ExcitationConfig | None = None,
                             solver: str | SolverConfig | None = None, *, constraints=(),
                             max_duration: float = MAX_PAYLOAD_DURATION_S, noise_std=0.04,
                             nominal: PayloadInertia | None = None, raise_on_failure: bool = True) -> PayloadMotionPlan:

@@ -47,7 +47,7 @@ def optimize_payload(config: Config, robot: Robot, link: str, *, seed: int | Non
         shutil.rmtree(fit_dir, ignore_errors=True)  # fitted capsules live in the robot once it is built
 
 
-def _optimize(config, robot, link, fit_dir, seed, criterion, max_iterations, allow_unchecked, say) -> PayloadMotionPlan:
+def _optimize(config, robot: Robot, link, fit_dir, seed, criterion, max_iterations, allow_unchecked, say) -> PayloadMotionPlan:
     config, fitted, unchecked = collision_geometry(config, fit_dir, say)
     if unchecked and not allow_unchecked:
         raise ConfigError(f"{len(unchecked)} part(s) of the robot cannot be checked for collision: "

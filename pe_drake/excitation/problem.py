@@ -11,6 +11,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -22,6 +23,9 @@ from pe_drake.excitation.fourier import FourierBasis, FourierTrajectory, sample_
 from pe_drake.multibody.base_parameters import BaseParameters
 from pe_drake.multibody.regressor import RegressorModel
 from pe_drake.multibody.sensors import SensorRows, measurement_base_parameters, measurement_type
+
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
 
 
 @dataclasses.dataclass(frozen=True)
@@ -53,7 +57,7 @@ class ExcitationProblem:
 
     def __init__(
         self,
-        robot,
+        robot: Robot,
         config: ExcitationConfig | None = None,
         *,
         C0: np.ndarray | None = None,

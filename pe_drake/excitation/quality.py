@@ -40,6 +40,7 @@ import dataclasses
 import math
 import re
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -49,6 +50,9 @@ from pe_drake.excitation.criteria import singular_values_and_vectors
 from pe_drake.excitation.fourier import FourierBasis, sample_times
 from pe_drake.multibody.drive_columns import drive_columns
 from pe_drake.threads import single_threaded_blas
+
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
 
 #: Rate of the samples the identification fits [Hz] (its preprocessing decimates to it:
 #: ``pe_drake.identification.estimators.DEFAULT_RATE_HZ``; a test keeps the two equal).
@@ -388,7 +392,7 @@ def torque_rows(problem, q: np.ndarray, v: np.ndarray, vd: np.ndarray) -> np.nda
     return Y.reshape(-1, problem.columns)
 
 
-def reference_states(robot, count: int = REFERENCE_MOTIONS, seed: int = REFERENCE_SEED):
+def reference_states(robot: Robot, count: int = REFERENCE_MOTIONS, seed: int = REFERENCE_SEED):
     """The fixed reference set: ``count`` random Fourier motions within the robot's limits.
 
     Motion k draws coefficients a, b ~ N(0, 1/k_h²) (harmonic k_h = 1..REFERENCE_HARMONICS,

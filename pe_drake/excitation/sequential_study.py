@@ -203,7 +203,7 @@ def run_sequential_study(settings: StudyOptions, *, say: Callable[[str], Any] | 
     return SequentialStudy(tables, robot, problem, sequence, selection, candidates)
 
 
-def _baseline(settings: StudyOptions, robot, excitation, executor, say):
+def _baseline(settings: StudyOptions, robot: Robot, excitation, executor, say):
     """Table II: random motions under the same constraints, greedy selection ([16])."""
 
     say(
@@ -234,7 +234,7 @@ def _baseline(settings: StudyOptions, robot, excitation, executor, say):
     return sets, candidates, selection, sum(cset.wall_time for _, cset in sets)
 
 
-def _tables(settings, excitation, solver, robot, base, sequence, selection, candidates, sets, baseline_blocks) -> dict:
+def _tables(settings, excitation, solver, robot: Robot, base, sequence, selection, candidates, sets, baseline_blocks) -> dict:
     opt_lo, opt_hi = _running_sigmas([m.block for m in sequence.motions])
     bl_lo, bl_hi = _running_sigmas(baseline_blocks)
     first_opt = sequence.motions[0].cond_motion

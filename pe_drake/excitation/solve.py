@@ -15,7 +15,7 @@ import logging
 import re
 import time
 from pathlib import Path
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
@@ -30,6 +30,9 @@ from pe_drake.excitation.program import ExcitationProgram, build_excitation_prog
 from pe_drake.excitation.solver_logs import new_log_file
 from pe_drake.memory import reuse_freed_memory
 from pe_drake.threads import single_threaded_blas
+
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
 
 #: Quasi-Newton pairs IPOPT keeps (its limited-memory Hessian; IPOPT's default is 6).
 LBFGS_PAIRS = 30
@@ -544,7 +547,7 @@ def solve_excitation(
 
 
 def optimize_excitation(
-    robot,
+    robot: Robot,
     config: ExcitationConfig | None = None,
     solver: str | SolverConfig = "ipopt",
     *,

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -29,6 +29,9 @@ from pe_drake.excitation.ramp import CSV_DIGITS, RampedMotion, ramped_motion_fro
 from pe_drake.io_utils import atomic_write_text, final_folder, loads_json, portable_path
 from pe_drake.output_set import check_output_set
 
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
+
 #: Physical range of ω [rad/s]: periods from 0.1 s to 10 minutes.
 OMEGA_RANGE = (2 * np.pi / 600.0, 2 * np.pi / 0.1)
 #: Largest trajectory.json read [bytes]: an optimized motion is a few kB; a file of 10⁶ harmonics
@@ -38,7 +41,7 @@ MAX_FILE_BYTES = 50 * 1024 * 1024
 MAX_HARMONICS = 1000
 
 
-def trajectory_to_dict(robot, trajectory: FourierTrajectory, folder: str | Path | None = None,
+def trajectory_to_dict(robot: Robot, trajectory: FourierTrajectory, folder: str | Path | None = None,
                        **extra: Any) -> dict[str, Any]:
     """The JSON-ready description of a trajectory on a robot; with ``folder`` (where the file
     goes), the model's path is recorded relative to it (no user name or folder layout of the
@@ -64,7 +67,7 @@ def trajectory_to_dict(robot, trajectory: FourierTrajectory, folder: str | Path 
     }
 
 
-def save_trajectory(path: str | Path, robot, trajectory: FourierTrajectory, **extra: Any) -> None:
+def save_trajectory(path: str | Path, robot: Robot, trajectory: FourierTrajectory, **extra: Any) -> None:
     """Writes trajectory.json atomically."""
     folder = final_folder(path)
     if isinstance(extra.get("capsules"), str):  # relative like the model: view reads it against the folder

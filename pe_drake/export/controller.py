@@ -20,6 +20,7 @@ from the identified effective inertia, and randomization ranges from the identif
 from __future__ import annotations
 
 import dataclasses
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -29,6 +30,9 @@ from pe_drake.multibody.drive_columns import coulomb_column
 from pe_drake.multibody.inertia import central_inertia, validity_problems
 from pe_drake.multibody.robot_model import DRIVE_TERMS, RobotModel
 
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
+
 
 def _dump(data) -> str:
     import yaml  # lazy: only the YAML exports need it
@@ -36,12 +40,12 @@ def _dump(data) -> str:
     return yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=120, allow_unicode=True)
 
 
-def _unit(robot, k: int) -> tuple[str, str]:
+def _unit(robot: Robot, k: int) -> tuple[str, str]:
     """(force unit, velocity unit) of joint k."""
     return ("N", "m/s") if robot.joints[k].kind == "prismatic" else ("N·m", "rad/s")
 
 
-def feedforward_yaml(robot, model: RobotModel, check: dict | None = None, source: str = "") -> str:
+def feedforward_yaml(robot: Robot, model: RobotModel, check: dict | None = None, source: str = "") -> str:
     """The friction and offset feed-forward per joint as YAML (module docstring).
 
     Args:
@@ -83,7 +87,7 @@ def friction_torque(model: RobotModel, v: np.ndarray, coulomb: np.ndarray | None
     return model.coulomb * column + model.viscous * v + model.offset
 
 
-def effective_inertia(robot, model: RobotModel, q: np.ndarray) -> np.ndarray:
+def effective_inertia(robot: Robot, model: RobotModel, q: np.ndarray) -> np.ndarray:
     """J_i(q) = M_ii(q) + armature_i at each posture, shape (S, n) [kg·m² or kg].
 
     Args:
@@ -100,7 +104,7 @@ def effective_inertia(robot, model: RobotModel, q: np.ndarray) -> np.ndarray:
     return J
 
 
-def gains_table(robot, model: RobotModel, q: np.ndarray, bandwidth_hz: float, damping_ratio: float) -> dict:
+def gains_table(robot: Robot, model: RobotModel, q: np.ndarray, bandwidth_hz: float, damping_ratio: float) -> dict:
     """Per joint the effective inertia over the postures q (min, mean, max) and the PD gains
     k_p = J·ω², k_d = 2·ζ·J·ω of the mean J (ω = 2π·bandwidth)."""
     J = effective_inertia(robot, model, q)
@@ -135,7 +139,7 @@ def drive_spread(model: RobotModel, term: str) -> np.ndarray:
     return np.nan_to_num(model.sigma.get(term, np.zeros(len(model.joints))), nan=0.0)
 
 
-def sample_models(robot, model: RobotModel, spread: IdentifiedSpread, count: int, seed: int = 0) -> SampledModels:
+def sample_models(robot: Robot, model: RobotModel, spread: IdentifiedSpread, count: int, seed: int = 0) -> SampledModels:
     """``count`` models drawn from the identification's σ (module docstring).
 
     Args:
@@ -185,7 +189,7 @@ def _body_record(phi_b: np.ndarray) -> dict:
                                   float(I[1, 2])]}
 
 
-def randomization(robot, model: RobotModel, spread: IdentifiedSpread | None, k: float, count: int,
+def randomization(robot: Robot, model: RobotModel, spread: IdentifiedSpread | None, k: float, count: int,
                   seed: int = 0, source: str = "") -> dict:
     """Ranges value ± k·σ per drive term (friction and armature floored at 0) and base
     parameter, and ``count`` sampled models (none without ``spread``: the CAD model, a
@@ -219,7 +223,7 @@ def randomization(robot, model: RobotModel, spread: IdentifiedSpread | None, k: 
     return out
 
 
-def gains_yaml(robot, model: RobotModel, spread: IdentifiedSpread | None, q: np.ndarray, *, bandwidth_hz: float,
+def gains_yaml(robot: Robot, model: RobotModel, spread: IdentifiedSpread | None, q: np.ndarray, *, bandwidth_hz: float,
                damping_ratio: float, sigma_k: float, samples: int, seed: int = 0, source: str = "") -> str:
     """The gains, effective inertias and randomization ranges as YAML (module docstring)."""
     data = {

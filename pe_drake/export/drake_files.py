@@ -25,6 +25,7 @@ import dataclasses
 import tempfile
 import xml.etree.ElementTree as ET
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -37,10 +38,13 @@ from pe_drake.multibody.inertia import central_inertia
 from pe_drake.multibody.robot import load_robot
 from pe_drake.multibody.robot_model import PAYLOAD_BODY_NAME, RobotModel
 
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
+
 DRAKE_NAMESPACE = "http://drake.mit.edu"
 
 
-def urdf_export_text(robot, model: RobotModel, source: str = "") -> str:
+def urdf_export_text(robot: Robot, model: RobotModel, source: str = "") -> str:
     """The robot's URDF with the model's inertials, joint dynamics and payload link
     (:meth:`RobotModel.urdf_text` for a URDF robot, else written from the plant), headed by a
     comment naming ``source`` ("": the robot's own model) and what the URDF cannot hold."""
@@ -51,7 +55,7 @@ def urdf_export_text(robot, model: RobotModel, source: str = "") -> str:
     return text.replace("<robot", _comment(robot, model, source, "URDF", "urdf") + "<robot", 1)
 
 
-def _comment(robot, model: RobotModel, source: str, kind: str, fmt: str) -> str:
+def _comment(robot: Robot, model: RobotModel, source: str, kind: str, fmt: str) -> str:
     """The file's opening comment: what it is, from which model, what it cannot hold."""
     notes = [f"{kind} of robot '{robot.name}' written by pe-drake export; model: {source or 'CAD'}"]
     notes += [f"note: {n}" for n in model.notes]
@@ -77,7 +81,7 @@ def _sdf_inertial(link: ET.Element, phi_b: np.ndarray) -> None:
         ET.SubElement(inertia, tag).text = number_text(I[r, c])
 
 
-def _sdf_joint(sdf_model: ET.Element, robot, model: RobotModel, parent: str, child: str, k: int) -> None:
+def _sdf_joint(sdf_model: ET.Element, robot: Robot, model: RobotModel, parent: str, child: str, k: int) -> None:
     info, joint = robot.joints[k], robot.plant.GetJointByName(robot.joint_names[k])
     el = ET.SubElement(sdf_model, "joint", {"name": info.name, "type": info.kind})
     ET.SubElement(el, "parent").text = parent
@@ -109,7 +113,7 @@ def _free_name(name: str, taken: set[str]) -> str:
     return free
 
 
-def sdf_text(robot, model: RobotModel, source: str = "") -> str:
+def sdf_text(robot: Robot, model: RobotModel, source: str = "") -> str:
     """The SDFormat model of the robot with ``model`` (module docstring); ``source`` names the
     model file in its comment."""
     ET.register_namespace("drake", DRAKE_NAMESPACE)
@@ -142,7 +146,7 @@ def sdf_text(robot, model: RobotModel, source: str = "") -> str:
     return head + ET.tostring(root, encoding="unicode") + "\n"
 
 
-def reloaded_robot(robot, text: str, suffix: str):
+def reloaded_robot(robot: Robot, text: str, suffix: str):
     """``robot`` with its model replaced by the exported text (a temporary file), loaded by
     pe_drake as any robot (SDFormat: its locked joints are welds of the file already)."""
     with tempfile.TemporaryDirectory() as folder:
@@ -156,7 +160,7 @@ def reloaded_robot(robot, text: str, suffix: str):
         return loaded
 
 
-def drake_check(robot, model: RobotModel, text: str, suffix: str, samples: int = 20,
+def drake_check(robot: Robot, model: RobotModel, text: str, suffix: str, samples: int = 20,
                 tolerance: float = 1e-6) -> float:
     """Largest relative difference between Drake's inverse dynamics of the exported file (rotor
     inertia and damping included) and pe_drake's rigid + armature + viscous torque of the model,

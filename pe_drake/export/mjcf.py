@@ -23,7 +23,7 @@ friction — is listed in a comment at the top and returned as notes.
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
@@ -31,6 +31,9 @@ from pe_drake.export.mjcf_meshes import add_visuals
 from pe_drake.export.tree import number_text, quaternion_wxyz, robot_tree, vector_text
 from pe_drake.multibody.inertia import central_inertia
 from pe_drake.multibody.robot_model import PAYLOAD_BODY_NAME, RobotModel
+
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
 
 #: Smallest principal moment of inertia of a body with mass written to an MJCF [kg·m²].
 MIN_PRINCIPAL_MOMENT = 1e-12
@@ -62,7 +65,7 @@ def _inertial(parent: ET.Element, phi_b: np.ndarray) -> str:
             f"at least {floor:.3g} (MuJoCo refuses a zero principal moment)")
 
 
-def _joint(body_el: ET.Element, robot, model: RobotModel, k: int) -> None:
+def _joint(body_el: ET.Element, robot: Robot, model: RobotModel, k: int) -> None:
     """The ``<joint>`` of excited joint k in its child body: frame, axis, limits, drive terms."""
     info, joint = robot.joints[k], robot.plant.GetJointByName(robot.joint_names[k])
     X_CM = np.asarray(info.X_CM, float)
@@ -82,7 +85,7 @@ def _joint(body_el: ET.Element, robot, model: RobotModel, k: int) -> None:
     ET.SubElement(body_el, "joint", attributes)
 
 
-def _bodies(robot, model: RobotModel, worldbody: ET.Element, notes: list[str]) -> dict[str, ET.Element]:
+def _bodies(robot: Robot, model: RobotModel, worldbody: ET.Element, notes: list[str]) -> dict[str, ET.Element]:
     """The bodies, nested as Drake's tree, each posed in its parent at q = 0: {name: element}
     (what was adjusted is appended to ``notes``)."""
     elements = {"world": worldbody}
@@ -110,7 +113,7 @@ _COULOMB = {
 }
 
 
-def unheld_terms(robot, model: RobotModel, fmt: str = "mjcf") -> list[str]:
+def unheld_terms(robot: Robot, model: RobotModel, fmt: str = "mjcf") -> list[str]:
     """What a format (mjcf, urdf, sdf) cannot hold of the model, one sentence each (the file's
     comment and the output)."""
     joints = robot.joint_names
@@ -145,7 +148,7 @@ class MJCFFiles(NamedTuple):
     notes: list[str]
 
 
-def mjcf_files(robot, model: RobotModel, name: str = "", meshdir: str | None = None, source: str = "") -> MJCFFiles:
+def mjcf_files(robot: Robot, model: RobotModel, name: str = "", meshdir: str | None = None, source: str = "") -> MJCFFiles:
     """The MJCF of the robot with ``model`` (module docstring); with ``meshdir`` (a folder name
     beside the file) its visuals too (:mod:`pe_drake.export.mjcf_meshes`); ``source`` names the
     model file in its comment ("": the robot's own model)."""
@@ -184,7 +187,7 @@ def mjcf_files(robot, model: RobotModel, name: str = "", meshdir: str | None = N
     return MJCFFiles(f"<!--\n{comment}\n-->\n" + ET.tostring(root, encoding="unicode") + "\n", unheld, meshes, notes)
 
 
-def mjcf_text(robot, model: RobotModel, name: str = "") -> tuple[str, list[str]]:
+def mjcf_text(robot: Robot, model: RobotModel, name: str = "") -> tuple[str, list[str]]:
     """The MJCF of the robot with ``model``, without geometry.
 
     Returns:

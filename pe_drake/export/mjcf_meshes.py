@@ -16,11 +16,15 @@ from __future__ import annotations
 
 import xml.etree.ElementTree as ET
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from pe_drake.exceptions import DataError
 from pe_drake.export.tree import vector_text
 from pe_drake.multibody.mesh_policy import mesh_file_refusal
 from pe_drake.multibody.meshes import obj_text, read_dae_triangles
+
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
 
 #: Mesh formats MuJoCo reads as they are.
 COPIED_SUFFIXES = (".stl", ".obj")
@@ -54,7 +58,7 @@ def _primitive(shape) -> tuple[str, list[float]] | None:
     return None
 
 
-def add_visuals(robot, bodies: dict[str, ET.Element], asset: ET.Element) -> tuple[dict[str, bytes], list[str]]:
+def add_visuals(robot: Robot, bodies: dict[str, ET.Element], asset: ET.Element) -> tuple[dict[str, bytes], list[str]]:
     """Adds the robot's visual geoms to the MJCF bodies and their meshes to ``asset``.
 
     Args:

@@ -100,6 +100,7 @@ class ExportResult:
     meshes: dict = dataclasses.field(default_factory=dict)
 
     def summary_lines(self) -> list[str]:
+        """What the file holds and leaves out, and the checks' figures."""
         lines = [f"exported {self.source or 'the CAD model'} as {self.format}"]
         lines += [f"note: {n}" for n in self.model.notes]
         lines += [f"not held by {self.format}: {n}" for n in self.unheld]
@@ -109,19 +110,25 @@ class ExportResult:
             lines.append(f"{name}: {value:.3g}" if isinstance(value, float) else f"{name}: {value}")
         return lines
 
-    def write(self, path: str | Path) -> list[str]:
-        """Writes the file (and its mesh folder) whole or not at all; returns the paths written."""
-        path = Path(path)
+    def write(self, folder: str | Path, *, name: str = "") -> list[str]:
+        """Writes the file ``folder/name`` (default ``model`` + the format's suffix) and its mesh
+        folder beside it, whole or not at all.
+
+        Returns:
+            The paths written: the file, then the mesh folder (if any).
+        """
+        path = Path(folder) / (name or f"model{FORMATS[self.format]}")
+        path.parent.mkdir(parents=True, exist_ok=True)
         if not self.meshes:
             atomic_write_text(path, self.text)
             return [str(path)]
-        folder = write_folder(path.parent / self.meshdir, self.meshes)
+        meshes = write_folder(path.parent / self.meshdir, self.meshes)
         try:
             atomic_write_text(path, self.text)
         except BaseException:
-            shutil.rmtree(folder, ignore_errors=True)
+            shutil.rmtree(meshes, ignore_errors=True)
             raise
-        return [str(path), f"{folder}/ ({len(self.meshes)} meshes)"]
+        return [str(path), str(meshes)]
 
 
 def write_folder(folder: Path, files: dict[str, bytes]) -> Path:
@@ -205,13 +212,13 @@ def export_model(robot: Robot, model: str | Path | None, options: ExportOptions 
     return ExportResult(options.to, text, exported, source, unheld, figures, options.meshdir if meshes else "", meshes)
 
 
-def _random_run(robot, seed: int, samples: int = 200) -> Measurement:
+def _random_run(robot: Robot, seed: int, samples: int = 200) -> Measurement:
     """Random states (:func:`~pe_drake.export.model_source.random_states`) as a run without torques."""
     q, v, vd = random_states(robot, samples, seed)
     return Measurement(np.arange(samples, dtype=float), q, np.zeros_like(q), v, vd, tuple(robot.joint_names))
 
 
-def _mujoco_check(robot, model: RobotModel, text: str, meshes: dict) -> dict:
+def _mujoco_check(robot: Robot, model: RobotModel, text: str, meshes: dict) -> dict:
     """MuJoCo loads the MJCF and its mj_inverse reproduces the model (figures), or raises."""
     try:
         mj = load_mjcf(text, text=True, assets=meshes)
@@ -226,7 +233,7 @@ def _mujoco_check(robot, model: RobotModel, text: str, meshes: dict) -> dict:
     return {"MuJoCo mj_inverse vs the model (relative)": error}
 
 
-def _feedforward_check(robot, model: RobotModel, data, raw) -> dict:
+def _feedforward_check(robot: Robot, model: RobotModel, data, raw) -> dict:
     """RMS error [N·m] per joint of the gravity + friction feed-forward and of the whole model on
     the run (Coulomb columns filtered like the torque, as ``validate``)."""
     zero = np.zeros_like(data.v)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -20,6 +21,9 @@ from pe_drake.identification.estimators import predict
 from pe_drake.identification.identified_file import load_identified
 from pe_drake.multibody.robot_model import RobotModel
 from pe_drake.simulation.simulated_model import load_simulation_model
+
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -43,7 +47,7 @@ class IdentifiedSpread:
     note: str = ""
 
 
-def exported_model(robot, model: str | Path | None) -> RobotModel:
+def exported_model(robot: Robot, model: str | Path | None) -> RobotModel:
     """The model to export: that of ``model`` (identified.json of any method or
     augmented_model.json), physically consistent, or with ``model`` None the robot's own
     (:meth:`~pe_drake.multibody.robot_model.RobotModel.from_robot`).
@@ -60,7 +64,7 @@ def exported_model(robot, model: str | Path | None) -> RobotModel:
     return dataclasses.replace(out, notes=tuple(_exported(n) for n in out.notes))
 
 
-def identified_spread(robot, model: str | Path | None) -> IdentifiedSpread | None:
+def identified_spread(robot: Robot, model: str | Path | None) -> IdentifiedSpread | None:
     """The base parameters' σ of an identify identified.json, or None (the CAD model, an
     augmented model: no covariance)."""
     if model is None:
@@ -81,7 +85,7 @@ def _exported(note: str) -> str:
     return note.replace(" is simulated as 0", " is written as 0").replace("the simulated ", "the exported ")
 
 
-def projection_change(robot, model: str | Path, exported: RobotModel, data) -> np.ndarray | None:
+def projection_change(robot: Robot, model: str | Path, exported: RobotModel, data) -> np.ndarray | None:
     """RMS [N·m] per joint of the change of the held-out prediction between the model file's own
     (its base parameters) and the exported model (its consistent φ), or None for a model whose
     standard parameters are exported as they are.
@@ -96,7 +100,7 @@ def projection_change(robot, model: str | Path, exported: RobotModel, data) -> n
     return np.sqrt(np.mean((own - exported.torque(robot, data.q, data.v, data.vd)) ** 2, axis=0))
 
 
-def random_states(robot, samples: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def random_states(robot: Robot, samples: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(q, v, v̇), each (samples, n): q inside the limits, |v| up to the velocity limit, |v̇| up to
     the acceleration limit."""
     rng = np.random.default_rng(seed)

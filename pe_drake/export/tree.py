@@ -7,12 +7,15 @@ locked position, each excited joint at its child's joint frame.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
 from pe_drake.multibody.inertia import spatial_inertia_to_phi
 from pe_drake.multibody.robot_model import RobotModel
+
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
 
 
 class TreeBody(NamedTuple):
@@ -38,7 +41,7 @@ class TreeBody(NamedTuple):
     weld_name: str
 
 
-def robot_tree(robot, model: RobotModel) -> list[TreeBody]:
+def robot_tree(robot: Robot, model: RobotModel) -> list[TreeBody]:
     """The bodies of ``robot``'s plant, parents before children (module docstring)."""
     plant = robot.plant
     context = plant.CreateDefaultContext()

@@ -12,6 +12,7 @@ joint's ``<origin>`` the pose of its link in its parent's link at q = 0, the roo
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -19,6 +20,9 @@ from pe_drake.export.tree import number_text, robot_tree, vector_text
 from pe_drake.multibody.inertia import phi_to_spatial_inertia, spatial_inertia_to_phi
 from pe_drake.multibody.robot_model import PAYLOAD_BODY_NAME, RobotModel
 from pe_drake.multibody.urdf import inertial_element, joint_dynamics
+
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
 
 
 def _origin(parent: ET.Element, X: np.ndarray) -> None:
@@ -49,7 +53,7 @@ def _link(robot_el: ET.Element, name: str, phi_b: np.ndarray) -> None:
         link.append(inertial_element(phi_b, "    "))
 
 
-def _joint(robot_el: ET.Element, robot, name: str, kind: str, parent: str, child: str, X: np.ndarray,
+def _joint(robot_el: ET.Element, robot: Robot, name: str, kind: str, parent: str, child: str, X: np.ndarray,
            k: int = -1) -> None:
     joint = ET.SubElement(robot_el, "joint", {"name": name, "type": kind})
     ET.SubElement(joint, "parent", {"link": parent})
@@ -64,7 +68,7 @@ def _joint(robot_el: ET.Element, robot, name: str, kind: str, parent: str, child
     ET.SubElement(joint, "limit", {key: number_text(v) for key, v in limits.items() if np.isfinite(v)})
 
 
-def urdf_from_tree(robot, model: RobotModel) -> str:
+def urdf_from_tree(robot: Robot, model: RobotModel) -> str:
     """The URDF of the robot with ``model`` (module docstring), the payload a link
     :data:`~pe_drake.multibody.robot_model.PAYLOAD_BODY_NAME`."""
     root = ET.Element("robot", {"name": robot.name})

@@ -17,6 +17,8 @@ in a static pose and subtract it.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from pe_drake.exceptions import DataError
@@ -24,16 +26,19 @@ from pe_drake.multibody.regressor import RegressorModel
 from pe_drake.multibody.sensors import MeasurementType, SensorRows
 from pe_drake.multibody.wrench import WRENCH_COLUMNS, static_wrench
 
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
+
 #: Samples per regressor evaluation (bounds the memory of (S, r, 10·nb) arrays).
 CHUNK = 2000
 
 
-def channel_names(robot, measurement: str) -> tuple[str, ...]:
+def channel_names(robot: Robot, measurement: str) -> tuple[str, ...]:
     """Names of the channels of one sample: the joints (their torques), then :data:`WRENCH_COLUMNS`."""
     return MeasurementType(measurement).row_names(robot.joint_names)
 
 
-def measured_values(robot, data, measurement: str) -> np.ndarray:
+def measured_values(robot: Robot, data, measurement: str) -> np.ndarray:
     """y of every sample, shape (S, r): torques, then the wrench minus the static bodies' weight.
 
     Raises:
@@ -61,7 +66,7 @@ def measured_values(robot, data, measurement: str) -> np.ndarray:
     return np.concatenate(parts, axis=1)
 
 
-def measured_rows(robot, data, measurement: str, model: RegressorModel | None = None) -> np.ndarray:
+def measured_rows(robot: Robot, data, measurement: str, model: RegressorModel | None = None) -> np.ndarray:
     """A of every sample, shape (S, r, 10·nb), unscaled (rows in :func:`channel_names` order)."""
     model = model or RegressorModel(robot)
     rows = SensorRows(model, MeasurementType(measurement))
@@ -72,7 +77,7 @@ def measured_rows(robot, data, measurement: str, model: RegressorModel | None = 
     return np.concatenate(out)
 
 
-def predicted_wrench(robot, phi: np.ndarray, q: np.ndarray, v: np.ndarray, vd: np.ndarray, model=None) -> np.ndarray:
+def predicted_wrench(robot: Robot, phi: np.ndarray, q: np.ndarray, v: np.ndarray, vd: np.ndarray, model=None) -> np.ndarray:
     """The ground wrench a model φ predicts, shape (S, 6) [N, N·m] (static bodies included)."""
     model = model or RegressorModel(robot)
     out = np.empty((q.shape[0], 6))

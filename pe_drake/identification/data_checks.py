@@ -16,6 +16,7 @@ Row numbers are those of the CSV file: the header is row 1, the first sample row
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -23,6 +24,9 @@ from pe_drake.exceptions import DataError
 from pe_drake.identification.csv_checks import check_time_order
 from pe_drake.identification.drive_terms import COULOMB_VELOCITY_SCALE, coulomb_column
 from pe_drake.identification.estimators import robot_torques
+
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
 
 #: Lowest sample rate accepted [Hz].
 MIN_RATE_HZ = 10.0
@@ -69,7 +73,7 @@ def check_time_column(t: np.ndarray, source: str = "") -> None:
         )
 
 
-def check_positions(robot, q: np.ndarray, source: str = "") -> None:
+def check_positions(robot: Robot, q: np.ndarray, source: str = "") -> None:
     """Refuses positions far outside the robot's limits; says so when they look like degrees.
 
     Raises:
@@ -110,7 +114,7 @@ def check_positions(robot, q: np.ndarray, source: str = "") -> None:
     )
 
 
-def check_raw_measurement(robot, measurement) -> None:
+def check_raw_measurement(robot: Robot, measurement) -> None:
     """Time column and positions of a raw measurement (see the module docstring).
 
     Raises:
@@ -157,7 +161,7 @@ def check_torque_signs(measured, predicted: np.ndarray, joints, source: str = ""
     return s
 
 
-def check_against_model(robot, prepared) -> np.ndarray:
+def check_against_model(robot: Robot, prepared) -> np.ndarray:
     """:func:`check_torque_signs` of preprocessed data against the robot's a-priori model.
 
     Args:
@@ -173,7 +177,7 @@ def check_against_model(robot, prepared) -> np.ndarray:
     return check_torque_signs(prepared.tau, a_priori_torque(robot, prepared), prepared.joints, prepared.source)
 
 
-def a_priori_torque(robot, prepared, coulomb: np.ndarray | None = None) -> np.ndarray:
+def a_priori_torque(robot: Robot, prepared, coulomb: np.ndarray | None = None) -> np.ndarray:
     """The a-priori model's joint torques at the samples of ``prepared``, (S, n) [N·m]: the
     model file's inertias and its joint friction d·v + f_c·tanh(v/v_s) (issue 21: xArm7's
     damping of 10 N·m·s/rad is much of its measured torque).

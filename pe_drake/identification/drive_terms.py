@@ -34,7 +34,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -58,6 +58,9 @@ from pe_drake.multibody.drive_columns import (  # noqa: F401 (re-exported: ident
     drive_options,
 )
 from pe_drake.multibody.transmission import Transmission
+
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -191,7 +194,7 @@ def joint_side(fit: DriveFit) -> dict[str, Any]:
             "units": "N·m, N·m, N·m·s/rad, kg·m² of the joints"}
 
 
-def model_file_terms(robot, layout: DriveLayout) -> DriveFit | None:
+def model_file_terms(robot: Robot, layout: DriveLayout) -> DriveFit | None:
     """The model file's friction that ``layout`` does not estimate, as a fit with σ = 0 (module
     docstring), or None when there is none (always with a transmission: the motors' terms are
     the drive's whole friction).
@@ -214,7 +217,7 @@ def model_file_terms(robot, layout: DriveLayout) -> DriveFit | None:
     return DriveFit(known, np.array([x for _, _, x in cols]), np.zeros(len(cols)), {}, known.labels)
 
 
-def model_file_terms_lost(robot, kept: DriveLayout, asked: DriveLayout,
+def model_file_terms_lost(robot: Robot, kept: DriveLayout, asked: DriveLayout,
                           known: DriveFit | None) -> tuple[DriveFit | None, np.ndarray]:
     """The model file's friction once the data has dropped some of the columns ``asked``.
 

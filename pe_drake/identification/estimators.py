@@ -37,7 +37,7 @@ import dataclasses
 import math
 import time
 from pathlib import Path
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
@@ -82,6 +82,9 @@ from pe_drake.multibody.regressor import RegressorModel
 from pe_drake.multibody.sensors import MeasurementType, SensorRows, measurement_base_parameters
 from pe_drake.multibody.wrench import static_wrench
 from pe_drake.threads import single_threaded_blas
+
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
 
 METHODS = ("ols", "wls", "physical")
 #: Rows per base parameter needed at least (S·n ≥ MIN_ROWS_PER_PARAMETER · b): fewer leave
@@ -170,13 +173,13 @@ class IdentificationResult:
 # ---- data ------------------------------------------------------------------------------------
 
 
-def read_robot_measurement(robot, path: str | Path) -> Measurement:
+def read_robot_measurement(robot: Robot, path: str | Path) -> Measurement:
     """Reads a measurement CSV for ``robot``'s excited joints (see measurements.py)."""
     return read_measurement_csv(path, robot.joint_names, min_rows=30)
 
 
 def prepare_measurement(
-    robot,
+    robot: Robot,
     measurement: Measurement,
     *,
     cutoff_hz: float | None = None,
@@ -232,7 +235,7 @@ def prepare_measurement(
 
 
 def robot_torques(
-    robot, data: Measurement, phi: np.ndarray, model: RegressorModel | None = None
+    robot: Robot, data: Measurement, phi: np.ndarray, model: RegressorModel | None = None
 ) -> np.ndarray:
     """Rigid-body torques Y(q, v, v̇) φ at the samples of ``data``, shape (S, n)."""
     model = model or RegressorModel(robot)
@@ -269,7 +272,7 @@ def _sigma_percent(x: np.ndarray, cov: np.ndarray) -> np.ndarray:
 
 
 def identify(
-    robot,
+    robot: Robot,
     data: Measurement,
     method: str = "wls",
     *,
@@ -317,7 +320,7 @@ def identify(
         return _identify(robot, data, method, base, prior, model, measurement, drive_terms, bounds, coulomb, rest)
 
 
-def _identify(robot, data: Measurement, method: str, base: BaseParameters | None, prior: np.ndarray | None,
+def _identify(robot: Robot, data: Measurement, method: str, base: BaseParameters | None, prior: np.ndarray | None,
               model: RegressorModel | None, measurement: str, drive_terms, bounds: PhysicalBounds | None,
               coulomb: np.ndarray | None, rest: np.ndarray | None = None) -> IdentificationResult:
     """:func:`identify` after its checks."""
@@ -393,7 +396,7 @@ class _Layouts(NamedTuple):
     friction: DriveLayout  # a rigid-body-only fit of torques: friction, to say what it leaves
 
 
-def _layouts(robot, measurement: str, options: DriveTermOptions, method: str, model: RegressorModel) -> _Layouts:
+def _layouts(robot: Robot, measurement: str, options: DriveTermOptions, method: str, model: RegressorModel) -> _Layouts:
     none = drive_layout(robot, None, DriveTermOptions("none", options.velocity_scale))
     if measurement == "base_wrench":  # the ground wrench does not see the drives
         return _Layouts(none, none, none)
@@ -430,7 +433,7 @@ class _Columns:
         self.friction = column_map(total, range(standard + d + a, standard + d + a + f))
 
 
-def _row_blocks(robot, data: Measurement, measurement: str, model: RegressorModel, layouts: _Layouts,
+def _row_blocks(robot: Robot, data: Measurement, measurement: str, model: RegressorModel, layouts: _Layouts,
                 coulomb: np.ndarray | None, known: DriveFit | None = None, rest: np.ndarray | None = None):
     """The rows [Y | drive | armature | friction] and y of ``data``, BLOCK samples at a time
     (y of the torques without the model file's ``known`` friction; the torque rows ``rest``
@@ -481,7 +484,7 @@ class _Physical(NamedTuple):
     merged_armature: dict[str, float]  # {joint: value} of the merged armatures
 
 
-def _physical(robot, base: BaseParameters, layout: DriveLayout, folded: FoldedRows, cols: _Columns, keep: list[int],
+def _physical(robot: Robot, base: BaseParameters, layout: DriveLayout, folded: FoldedRows, cols: _Columns, keep: list[int],
               armature: DriveLayout, w: np.ndarray, prior: np.ndarray, bounds: PhysicalBounds | None,
               chi2_tolerance: float) -> _Physical:
     """The physical fit with the drive terms; the armatures that merge into base parameters
@@ -546,7 +549,7 @@ def fit_warnings(result: IdentificationResult) -> list[str]:
 
 
 def predict(
-    robot, result: IdentificationResult, data: Measurement, model: RegressorModel | None = None,
+    robot: Robot, result: IdentificationResult, data: Measurement, model: RegressorModel | None = None,
     coulomb: np.ndarray | None = None,
 ) -> np.ndarray:
     """Torques the identified model predicts at the samples of ``data``, its drive terms
@@ -561,7 +564,7 @@ def predict(
 
 
 def predict_wrench(
-    robot, result: IdentificationResult, data: Measurement, model: RegressorModel | None = None
+    robot: Robot, result: IdentificationResult, data: Measurement, model: RegressorModel | None = None
 ) -> np.ndarray:
     """The ground wrench the identified model predicts at the samples of ``data``, (S, 6)
     [N, N·m] (the a-priori weight of the bodies no excited joint moves included; no offset)."""

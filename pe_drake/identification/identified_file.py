@@ -14,7 +14,7 @@ import dataclasses
 import json
 import math
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -31,6 +31,9 @@ from pe_drake.multibody.robot_model import RobotModel
 from pe_drake.multibody.sensors import measurement_base_parameters
 from pe_drake.multibody.transmission import robot_transmission
 from pe_drake.output_set import check_output_set
+
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
 
 
 def _finite_or_none(x: float) -> float | None:
@@ -52,7 +55,7 @@ def data_used(p: Preprocessing, samples: int) -> dict[str, Any]:
     }
 
 
-def result_to_dict(result: IdentificationResult, robot, model_file: str | None = None) -> dict[str, Any]:
+def result_to_dict(result: IdentificationResult, robot: Robot, model_file: str | None = None) -> dict[str, Any]:
     """The content of identified.json."""
     out: dict[str, Any] = {
         "robot": result.robot,
@@ -104,7 +107,7 @@ def result_to_dict(result: IdentificationResult, robot, model_file: str | None =
     return out
 
 
-def standard_parameters_dict(robot, phi: np.ndarray) -> dict[str, dict[str, float]]:
+def standard_parameters_dict(robot: Robot, phi: np.ndarray) -> dict[str, dict[str, float]]:
     """{body: {parameter name: value}} (names of ``pe_drake.multibody.robot.PARAMETER_NAMES``)."""
     return {
         body: dict(zip(PARAMETER_NAMES, map(float, phi[10 * b : 10 * b + 10])))
@@ -112,7 +115,7 @@ def standard_parameters_dict(robot, phi: np.ndarray) -> dict[str, dict[str, floa
     }
 
 
-def load_identified(path: str | Path, robot) -> IdentificationResult:
+def load_identified(path: str | Path, robot: Robot) -> IdentificationResult:
     """Reads identified.json (or the diagnosis's augmented_model.json) and checks it belongs to ``robot``.
 
     Raises:
@@ -217,7 +220,7 @@ def _covariance(d: dict[str, Any], count: int, path: str) -> np.ndarray | None:
     return 0.5 * (cov + cov.T)
 
 
-def standard_from_base(robot, result: IdentificationResult) -> np.ndarray:
+def standard_from_base(robot: Robot, result: IdentificationResult) -> np.ndarray:
     """Standard parameters closest to the a-priori model that reproduce φ_B:
     φ = φ0 + K⁺(φ_B − K φ0). Not necessarily physically valid."""
     K = result.base.K
@@ -225,7 +228,7 @@ def standard_from_base(robot, result: IdentificationResult) -> np.ndarray:
     return phi0 + np.linalg.pinv(K) @ (result.phi_B - K @ phi0)
 
 
-def augmented_as_result(d: dict[str, Any], robot, path: str = "") -> IdentificationResult:
+def augmented_as_result(d: dict[str, Any], robot: Robot, path: str = "") -> IdentificationResult:
     """The diagnosis's augmented_model.json (a :class:`~pe_drake.multibody.robot_model.RobotModel`)
     as an identified model: its standard parameters (payload added to its link) reduced to the
     robot's joint-torque base parameters, its drive terms as drive columns. A time delay,
@@ -262,7 +265,7 @@ def augmented_as_result(d: dict[str, Any], robot, path: str = "") -> Identificat
         physical_notes=tuple(notes))
 
 
-def _check_transmission(drive: DriveFit, robot, path) -> None:
+def _check_transmission(drive: DriveFit, robot: Robot, path) -> None:
     """Refuses a model fitted through another transmission than the robot's config gives: the
     config's R converts motor-side logs, the file's R carries its per-motor terms, and the two
     must be one (a model of per-joint terms goes with any config)."""

@@ -11,6 +11,7 @@ import dataclasses
 import json
 import math
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -158,13 +159,17 @@ class IdentifiedModel:
         lines.append("residual RMS [N·m, N]: " + ", ".join(f"{c} {r:.4g}" for c, r in zip(result.channels, result.residual_rms)))
         return lines + drive_summary(result.drive) + fit_warnings(result)
 
-    def write(self, folder: str | Path) -> tuple[list[str], str]:
+    def write(self, folder: str | Path, *, progress: Callable[[str], None] | None = None) -> list[str]:
         """Writes identified.json, residuals.png and, when physically valid, model.urdf and
         drive_effects.yaml into ``folder``, all or nothing (earlier runs' files of these names
         that this run does not write are removed).
 
+        Args:
+            progress: called with the note on model.urdf (what it leaves out, or why it is not
+                written), when there is one; identified.json records it as ``note``.
+
         Returns:
-            (the names written, the note on model.urdf: "" when nothing is to be said).
+            The paths written.
         """
         out, robot, result = check_output_dir(folder), self.robot, self.result
         note, written = self.note, ["identified.json", "residuals.png"]
@@ -196,7 +201,9 @@ class IdentifiedModel:
                 if result.drive is not None and result.drive.layout.count:
                     (tmp / "drive_effects.yaml").write_text(self.model.effects_yaml(DRIVE_EFFECTS_HEADER))
                     written.append("drive_effects.yaml")
-        return written, note
+        if note and progress is not None:
+            progress(note)
+        return [str(out / name) for name in written]
 
 
 #: drive_effects.yaml's header.
@@ -240,13 +247,15 @@ def _trajectory_band(path: str | None) -> tuple[float | None, int | None]:
     return trajectory.omega / (2 * math.pi), max(trajectory.highest_harmonic, 1)
 
 
-def identify_model(robot: Robot, measurements: Measurement, options: IdentifyOptions | None = None) -> IdentifiedModel:
+def identify_model(robot: Robot, measurements: Measurement, options: IdentifyOptions | None = None, *,
+                   progress: Callable[[str], None] | None = None) -> IdentifiedModel:
     """What ``pe-drake identify`` does, from a raw measured run to an :class:`IdentifiedModel`.
 
     Args:
         robot: the a-priori robot.
         measurements: the raw run (:func:`~pe_drake.identification.intake.read_measurements`).
         options: the :class:`IdentifyOptions` (default: WLS with every drive term).
+        progress: called with the :meth:`~IdentifiedModel.summary_lines` once the fit is done.
 
     Raises:
         DataError: data the checks refuse (units, gaps, sign-flipped torque columns, too short),
@@ -266,7 +275,10 @@ def identify_model(robot: Robot, measurements: Measurement, options: IdentifyOpt
                       bounds=options.bounds, coulomb=coulomb, rest=None if rest is None else rest.mask)
     result = dataclasses.replace(result, coupling=tuple(_coupling(robot, result, data, coulomb)))
     phi, note = _model_parameters(robot, result)
-    return IdentifiedModel(robot, result, measurements, data, coulomb, phi, note, time.perf_counter() - start, rest)
+    model = IdentifiedModel(robot, result, measurements, data, coulomb, phi, note, time.perf_counter() - start, rest)
+    for line in model.summary_lines() if progress is not None else ():
+        progress(line)
+    return model
 
 
 def fitted_transmission(robot: Robot, options: IdentifyOptions) -> Transmission | None:

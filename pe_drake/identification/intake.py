@@ -3,22 +3,26 @@ the raw-data checks, so the library refuses what the CLI refuses."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 from pe_drake.config import DataConfig
 from pe_drake.identification.data_checks import check_raw_measurement
 from pe_drake.identification.measurements import Measurement
 from pe_drake.identification.readers import read_log
+from pe_drake.multibody.robot import Robot
 
 
-def read_measurements(path: str | Path, robot, options: DataConfig | None = None, **changes) -> Measurement:
+def read_measurements(robot: Robot, path: str | Path, options: DataConfig | None = None, *,
+                      progress: Callable[[str], None] | None = None, **changes) -> Measurement:
     """Reads a measured run of ``robot`` and checks it before any work.
 
     Args:
+        robot: the :class:`~pe_drake.multibody.robot.Robot` (its excited joints, drive gains).
         path: pe_drake's CSV, a ROS 2 bag (folder, ``.db3``, ``.mcap``), a UR RTDE CSV, or a CSV
             read through ``options.columns``.
-        robot: the :class:`~pe_drake.multibody.robot.Robot` (its excited joints, drive gains).
         options: the config's ``data`` section (:class:`~pe_drake.config.DataConfig`).
+        progress: called with :meth:`~Measurement.summary_lines` once the run is read and checked.
         **changes: fields of ``options`` to override (``format=``, ``topic=``, ``effort=``).
 
     Returns:
@@ -32,4 +36,6 @@ def read_measurements(path: str | Path, robot, options: DataConfig | None = None
     """
     measurement = read_log(path, robot, options, **changes)
     check_raw_measurement(robot, measurement)  # time units, positions (degrees)
+    for line in measurement.summary_lines() if progress is not None else ():
+        progress(line)
     return measurement

@@ -173,6 +173,18 @@ class Measurement:
         """A copy with some fields changed (``dataclasses.replace``)."""
         return dataclasses.replace(self, **changes)
 
+    def summary_lines(self) -> list[str]:
+        """The run in one line (file, samples, duration, rate), then what reading it did."""
+        return [f"data {self.source}: {self.num_samples} samples, {self.duration:.2f} s at {self.rate_hz:.0f} Hz",
+                *(f"note: {note}" for note in self.notes)]
+
+    def write(self, folder: str | Path, *, name: str = "measurement.csv") -> list[str]:
+        """Writes the run as pe_drake's CSV ``folder/name``, whole or not at all; returns its path."""
+        path = Path(folder) / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write_measurement_csv(path, self)
+        return [str(path)]
+
 
 # ---- reading and writing -------------------------------------------------------------------
 

@@ -28,7 +28,7 @@ import json
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -54,6 +54,9 @@ from pe_drake.multibody.payload import (
 )
 from pe_drake.multibody.regressor import RegressorModel
 from pe_drake.threads import single_threaded_blas
+
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
 
 
 @dataclasses.dataclass(frozen=True)
@@ -182,7 +185,7 @@ class PayloadResult:
         atomic_write_text(path, json.dumps(finite_json(self.to_dict()), indent=2))
 
 
-def arm_parameters(robot, arm_model=None) -> np.ndarray:
+def arm_parameters(robot: Robot, arm_model=None) -> np.ndarray:
     """The arm's standard parameters: the robot's a-priori model (None), an array (10·nb,),
     or an :class:`~pe_drake.identification.estimators.IdentificationResult` (its physical
     parameters, else the standard ones closest to the prior that reproduce its φ_B)."""
@@ -199,7 +202,7 @@ def arm_parameters(robot, arm_model=None) -> np.ndarray:
 
 
 def identify_payload(
-    robot,
+    robot: Robot,
     loaded_runs: Sequence,
     unloaded_runs: Sequence = (),
     link: str = "",
@@ -272,13 +275,13 @@ def identify_payload(
     )
 
 
-def _compressed_rows(robot, model, runs, phi_arm, pbase, base, options) -> tuple[np.ndarray, int]:
+def _compressed_rows(robot: Robot, model, runs, phi_arm, pbase, base, options) -> tuple[np.ndarray, int]:
     """:func:`compress_joint_rows` of every run's rows (:func:`_run_rows`)."""
     return compress_joint_rows(block for run, loaded in runs
                                for block in _run_rows(robot, model, run, loaded, phi_arm, pbase, base, options))
 
 
-def _run_rows(robot, model, run, loaded: bool, phi_arm, pbase, base, options):
+def _run_rows(robot: Robot, model, run, loaded: bool, phi_arm, pbase, base, options):
     """One run's columns [Y_B (with base) | D | the payload's base columns (loaded, else 0)] (s, n, p)
     and targets τ − Y φ_arm (s, n), chunk by chunk."""
     if run.v is None or run.vd is None or run.tau is None:

@@ -23,7 +23,7 @@ from __future__ import annotations
 import math
 import xml.etree.ElementTree as ET
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -32,13 +32,16 @@ from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.payload import PayloadInertia, link_position
 from pe_drake.multibody.urdf import urdf_text_phi, urdf_with_inertias
 
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
+
 #: Known vendor flange links, tried in order when no flange is given.
 DEFAULT_FLANGES = ("panda_link8", "tool0", "flange", "iiwa_link_ee", "link_ee")
 #: Name of the payload link in the exported URDF.
 PAYLOAD_LINK_NAME = "pe_drake_payload"
 
 
-def default_flange(robot) -> str:
+def default_flange(robot: Robot) -> str:
     """The robot's known flange link (``panda_link8``, ``tool0``, ...).
 
     Raises:
@@ -51,7 +54,7 @@ def default_flange(robot) -> str:
                       f"give the flange link (--flange); moving links: {', '.join(robot.body_names)}")
 
 
-def flange_pose_in_link(robot, link: str, flange: str) -> np.ndarray:
+def flange_pose_in_link(robot: Robot, link: str, flange: str) -> np.ndarray:
     """X_LF, the flange's pose in the payload link's frame, (4, 4).
 
     Raises:
@@ -67,7 +70,7 @@ def flange_pose_in_link(robot, link: str, flange: str) -> np.ndarray:
     return np.linalg.inv(X_WL) @ X_WF
 
 
-def payload_in_flange(robot, payload: PayloadInertia, link: str, flange: str | None = None) -> PayloadInertia:
+def payload_in_flange(robot: Robot, payload: PayloadInertia, link: str, flange: str | None = None) -> PayloadInertia:
     """The payload (in ``link``'s frame) expressed in the flange frame (default :func:`default_flange`)."""
     flange = flange or default_flange(robot)
     return payload.in_frame(flange_pose_in_link(robot, link, flange))
@@ -120,7 +123,7 @@ def kuka_load_data(p: PayloadInertia, index: int = 1) -> dict[str, Any]:
     return d
 
 
-def vendor_formats(robot, payload: PayloadInertia, link: str, flange: str | None = None) -> dict[str, Any]:
+def vendor_formats(robot: Robot, payload: PayloadInertia, link: str, flange: str | None = None) -> dict[str, Any]:
     """Every format above for the payload on ``link``, in the flange frame (the payload link's own
     when none is given and the robot has none of :data:`DEFAULT_FLANGES`: issue 37)."""
     known = [name for name in DEFAULT_FLANGES if name in robot.body_names]
@@ -131,7 +134,7 @@ def vendor_formats(robot, payload: PayloadInertia, link: str, flange: str | None
             "franka": franka_load(p), "ur": ur_script(p), "kuka": kuka_load_data(p)}
 
 
-def urdf_with_payload(robot, payload: PayloadInertia, link: str, arm_phi: np.ndarray | None = None) -> str:
+def urdf_with_payload(robot: Robot, payload: PayloadInertia, link: str, arm_phi: np.ndarray | None = None) -> str:
     """The robot's URDF (with the arm's parameters ``arm_phi`` if given) plus a link
     :data:`PAYLOAD_LINK_NAME` welded to ``link`` carrying the payload (in ``link``'s frame).
 
@@ -160,7 +163,7 @@ def urdf_with_payload(robot, payload: PayloadInertia, link: str, arm_phi: np.nda
     return (body + "\n" if sep else "") + ET.tostring(root, encoding="unicode") + "\n"
 
 
-def write_payload_urdf(path: str | Path, robot, payload: PayloadInertia, link: str,
+def write_payload_urdf(path: str | Path, robot: Robot, payload: PayloadInertia, link: str,
                        arm_phi: np.ndarray | None = None) -> Path:
     """Writes :func:`urdf_with_payload` after Drake has read the payload link back unchanged.
 

@@ -20,7 +20,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -34,6 +34,9 @@ from pe_drake.multibody.inertia import pseudo_inertia
 from pe_drake.multibody.payload import PayloadInertia, link_columns, link_position
 from pe_drake.multibody.regressor import RegressorModel
 from pe_drake.threads import single_threaded_blas
+
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -72,7 +75,7 @@ class DriveGainResult:
                 "wall_time_s": self.wall_time}
 
 
-def identify_drive_gains(robot, loaded_runs: Sequence, unloaded_runs: Sequence, link: str, payload_mass: float, *,
+def identify_drive_gains(robot: Robot, loaded_runs: Sequence, unloaded_runs: Sequence, link: str, payload_mass: float, *,
                          options: PayloadOptions | None = None, max_sigma_percent: float = 5.0,
                          model: RegressorModel | None = None) -> DriveGainResult:
     """Identifies the drive gains, the arm and the payload (module docstring).
@@ -119,7 +122,7 @@ def identify_drive_gains(robot, loaded_runs: Sequence, unloaded_runs: Sequence, 
         constrained=constrained, samples=S, wall_time=time.perf_counter() - start)
 
 
-def _gain_rows(robot, model, base, run, loaded: bool, link: str, M: float, options, chunk: int = 2000):
+def _gain_rows(robot: Robot, model, base, run, loaded: bool, link: str, M: float, options, chunk: int = 2000):
     """Columns [diag(i) | −Y_B | −D | −Y_L[:, 1:]] (s, n, p) and targets M·Y_L[:, 0] (s, n)."""
     if run.v is None or run.vd is None or run.tau is None:
         raise DataError("a drive-gain run needs q, v, vdot and the motor signal in tau (preprocess it first)",

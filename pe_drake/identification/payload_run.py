@@ -128,7 +128,7 @@ def identify_payload_runs(robot: Robot, loaded: Sequence[str | Path], unloaded: 
         check_payload_trajectory(data, link, trajectory)
 
     def runs(paths):
-        return [prepare_measurement(robot, read_measurements(p, robot), cutoff_hz=cutoff_hz, filtering=filtering)
+        return [prepare_measurement(robot, read_measurements(robot, p), cutoff_hz=cutoff_hz, filtering=filtering)
                 for p in paths]
 
     loaded_runs, unloaded_runs = runs(loaded), runs(unloaded)

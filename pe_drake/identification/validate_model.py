@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -77,6 +78,7 @@ class ValidationReport:
     coupling: tuple[str, ...] = ()
 
     def summary_lines(self) -> list[str]:
+        """What ``validate`` prints: the preprocessing, the model, the error table, the warnings."""
         width = max(len(j) for j in self.names)
         lines = [self.preprocessing.describe() if self.preprocessing is not None
                  else "the run as recorded (--no-filter): its torques, v.* and vdot.* columns unfiltered"]
@@ -108,18 +110,27 @@ class ValidationReport:
     def plot(self, path: str | Path) -> Path:
         return plot_prediction(path, self.robot, self.t, self.measured, self.predicted, self.relative, self.names)
 
-    def write(self, json_path: str | Path | None, plot_path: str | Path | None, model: str | Path = "",
+    def write(self, folder: str | Path, *, json_name: str | Path | None = "validation.json",
+              plot_name: str | Path | None = "validation.png", model: str | Path = "",
               data: str | Path = "") -> list[str]:
-        """Writes ``validate --json`` and ``--plot`` (either may be None): both or neither (a full
-        disk after the JSON left it without its figure). Returns the paths written."""
-        written = []
+        """Writes ``validate --json`` and ``--plot`` into ``folder`` (a name may be a path;
+        None: not written): both or neither (a full disk after the JSON left it without its
+        figure).
+
+        Args:
+            model, data: the model file and the run, as given (recorded in the JSON).
+
+        Returns:
+            The paths written.
+        """
+        folder, written = Path(folder), []
         try:
-            if json_path:
-                self.write_json(json_path, model=model, data=data)
-                written.append(str(json_path))
-            if plot_path:
-                self.plot(plot_path)
-                written.append(str(plot_path))
+            if json_name:
+                self.write_json(folder / json_name, model=model, data=data)
+                written.append(str(folder / json_name))
+            if plot_name:
+                self.plot(folder / plot_name)
+                written.append(str(folder / plot_name))
         except BaseException:
             for path in written:
                 Path(path).unlink(missing_ok=True)
@@ -128,13 +139,15 @@ class ValidationReport:
 
 
 def validate_model(robot: Robot, model: IdentificationResult, measurements: Measurement,
-                   options: ValidateOptions | None = None) -> ValidationReport:
+                   options: ValidateOptions | None = None, *,
+                   progress: Callable[[str], None] | None = None) -> ValidationReport:
     """What ``pe-drake validate`` does: the run preprocessed and checked, predicted by ``model``.
 
     Args:
         robot: the robot.
         model: a loaded model (:func:`~pe_drake.identification.identified_file.load_identified`).
         measurements: the raw run (:func:`~pe_drake.identification.intake.read_measurements`).
+        progress: called with the :meth:`~ValidationReport.summary_lines` once predicted.
 
     Raises:
         DataError: data the checks refuse (sign-flipped torque, missing channels, ...).
@@ -157,9 +170,12 @@ def validate_model(robot: Robot, model: IdentificationResult, measurements: Meas
         R = transmission.R if transmission is not None else None
         coupling = tuple(coupling_warnings(coupled_pairs(robot.joint_names, data.v, data.vd,
                                                          (measured - predicted)[:, : robot.n], scale, R)))
-    return ValidationReport(robot.name, model.measurement, options.measurement, names,
-                            data.t, measured, predicted, rms, rel, total, data.num_samples, tuple(data.notes),
-                            data.preprocessing, tuple(worse), coupling)
+    report = ValidationReport(robot.name, model.measurement, options.measurement, names,
+                              data.t, measured, predicted, rms, rel, total, data.num_samples, tuple(data.notes),
+                              data.preprocessing, tuple(worse), coupling)
+    for line in report.summary_lines() if progress is not None else ():
+        progress(line)
+    return report
 
 
 def _a_priori(robot: Robot, raw: Measurement, data: Measurement, kind: MeasurementType) -> np.ndarray | None:

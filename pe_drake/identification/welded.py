@@ -21,12 +21,16 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from pe_drake.exceptions import NoSolutionFound
 from pe_drake.identification.physical_fit import SDP_TOLERANCES, InertiaBlock, solve_sdp
 from pe_drake.multibody.inertia import phi_from_pseudo_inertia, pseudo_inertia, validity_problems
+
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
 
 P = 10  # parameters per body
 
@@ -132,7 +136,7 @@ def nearest_split(phi_group: np.ndarray, priors: Sequence[np.ndarray], maps: Seq
     return [sol[P * i : P * i + P] for i in range(k)]
 
 
-def merge_welded(robot, prior: np.ndarray, bounded: Sequence[str] = ()) -> WeldedGroups:
+def merge_welded(robot: Robot, prior: np.ndarray, bounded: Sequence[str] = ()) -> WeldedGroups:
     """The rigid groups of ``robot``'s bodies with an a-priori mass (module docstring); a body
     the user bounds (``bounded``: mass bounds, CoM boxes) stays a body of its own."""
     from pydrake.multibody.tree import BodyIndex  # lazy: pydrake is heavy

@@ -19,11 +19,15 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.linalg
 
 from pe_drake.multibody.regressor import RegressorModel
+
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
 
 
 @dataclasses.dataclass(frozen=True)
@@ -103,7 +107,7 @@ EQUILIBRATION_FLOOR = 1e-4
 
 
 def compute_base_parameters(
-    robot,
+    robot: Robot,
     *,
     samples: int | None = None,
     seed: int = 0,

@@ -484,7 +484,7 @@ def _rewrite_capsule_file(path: Path, ignored: list, shrunk: dict) -> None:
     path.write_text(text)
 
 
-def _pair_distances(robot, pairs, q: np.ndarray) -> np.ndarray:
+def _pair_distances(robot: Robot, pairs, q: np.ndarray) -> np.ndarray:
     """Surface distance of capsule pairs at postures q (K, n), shape (K, P) [m]."""
     caps = robot.capsules
     X = robot.body_poses(q)  # (K, bodies, 4, 4)

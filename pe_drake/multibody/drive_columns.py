@@ -45,12 +45,16 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from pe_drake.exceptions import ConfigError
 from pe_drake.multibody.regressor import RegressorModel
 from pe_drake.multibody.transmission import Transmission, robot_transmission
+
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
 
 #: The ``--drive-terms`` choices: no drive terms, Coulomb + viscous + offset, and those with
 #: the armature where the robot's kinematics let it be told from the link inertias.
@@ -153,7 +157,7 @@ class DriveLayout:
         return np.array([0.0 if t in NONNEGATIVE else -np.inf for t in self.terms])
 
 
-def drive_layout(robot, base, options: DriveTermOptions, model=None, *, rows=None, samples: int = 200,
+def drive_layout(robot: Robot, base, options: DriveTermOptions, model=None, *, rows=None, samples: int = 200,
                  seed: int = 1) -> DriveLayout:
     """The drive columns of ``options`` for ``robot`` (armature: where separable).
 
@@ -184,7 +188,7 @@ def drive_layout(robot, base, options: DriveTermOptions, model=None, *, rows=Non
                        float(options.velocity_scale), merged, transmission=transmission)
 
 
-def armature_merges(robot, base, model=None, *, rows=None, samples: int = 200, seed: int = 1,
+def armature_merges(robot: Robot, base, model=None, *, rows=None, samples: int = 200, seed: int = 1,
                     transmission: Transmission | None = None) -> dict[str, dict[str, float]]:
     """{joint (or motor): {base parameter: coefficient}} of the armature columns inside span(Y_B).
 

@@ -12,6 +12,7 @@ excitation (:mod:`pe_drake.excitation.payload_motion`) and diagnose's payload te
 from __future__ import annotations
 
 import dataclasses
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -27,8 +28,11 @@ from pe_drake.multibody.inertia import (
     phi_from_com,
 )
 
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
 
-def link_position(robot, link: str | int) -> int:
+
+def link_position(robot: Robot, link: str | int) -> int:
     """Position of ``link`` in ``robot.body_names`` (a name, or that position itself).
 
     Raises:
@@ -43,7 +47,7 @@ def link_position(robot, link: str | int) -> int:
     return robot.body_names.index(link)
 
 
-def link_columns(robot, link: str | int) -> np.ndarray:
+def link_columns(robot: Robot, link: str | int) -> np.ndarray:
     """Indices of ``link``'s 10 columns in the standard regressor Y (10·nb columns), shape (10,)."""
     j = link_position(robot, link)
     return np.arange(PARAMS_PER_BODY * j, PARAMS_PER_BODY * (j + 1))
@@ -54,7 +58,7 @@ def payload_parameter_names(link: str) -> tuple[str, ...]:
     return tuple(f"{p}.{link}" for p in PARAMETER_NAMES)
 
 
-def payload_base_parameters(robot, link: str | int, model=None) -> BaseParameters:
+def payload_base_parameters(robot: Robot, link: str | int, model=None) -> BaseParameters:
     """The combinations of ``link``'s 10 parameters that this robot's joint torques determine:
     the base parameters (:func:`~pe_drake.multibody.base_parameters.compute_base_parameters`)
     of Y_L alone, over random states within the limits. On a robot whose axes are all vertical
@@ -69,14 +73,14 @@ def payload_base_parameters(robot, link: str | int, model=None) -> BaseParameter
     return compute_base_parameters(robot, model=model, rows=lambda q, v, vd: model(q, v, vd) * mask)
 
 
-def payload_parameter_map(base: BaseParameters, robot, link: str | int) -> tuple[np.ndarray, np.ndarray]:
+def payload_parameter_map(base: BaseParameters, robot: Robot, link: str | int) -> tuple[np.ndarray, np.ndarray]:
     """(K_L, K_L⁺) of φ_B = K_L φ_L (:func:`payload_base_parameters`): the payload's base
     parameters from its 10, and the minimum-norm φ_L of given base parameters."""
     K_L = base.K[:, link_columns(robot, link)]
     return K_L, np.linalg.pinv(K_L)
 
 
-def undetermined_parameters(base: BaseParameters, robot, link: str | int) -> np.ndarray:
+def undetermined_parameters(base: BaseParameters, robot: Robot, link: str | int) -> np.ndarray:
     """Positions (0..9) of ``link``'s parameters that no combination in ``base`` contains: no
     motion of the robot tells them (:func:`payload_base_parameters`)."""
     K_L = base.K[:, link_columns(robot, link)]

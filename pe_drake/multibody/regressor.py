@@ -16,6 +16,7 @@ derivation, and how it maps onto the paper's Eqs. (25)–(40), is in docs/deriva
 from __future__ import annotations
 
 import dataclasses
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -31,6 +32,9 @@ from pe_drake.multibody.spatial import (
     skew,
     summed_cross_force_of,
 )
+
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
 
 GRAVITY = 9.81  # [m/s²], overwritten by the plant's gravity field in Kinematics
 
@@ -90,7 +94,7 @@ class RegressorModel:
             :func:`shared_model`).
     """
 
-    def __init__(self, robot, *, batched: bool = True, keep_last_poses: bool = False):
+    def __init__(self, robot: Robot, *, batched: bool = True, keep_last_poses: bool = False):
         self.robot = robot
         self.n = robot.n
         self.nb = robot.num_bodies
@@ -402,7 +406,7 @@ def _forces_by_parameter(kin: Kinematics) -> np.ndarray:
     return kin.F_W.swapaxes(-1, -2).reshape(T, 10 * nb, 6)
 
 
-def shared_model(robot) -> RegressorModel:
+def shared_model(robot: Robot) -> RegressorModel:
     """One :class:`RegressorModel` per robot that keeps its last poses, for the sampled
     constraints (balance, collision, environment) that evaluate the same postures: the
     forward kinematics runs once per evaluation instead of once per constraint.
@@ -459,7 +463,7 @@ class _ForwardKinematics:
         )
 
     @staticmethod
-    def build(robot, bodies):
+    def build(robot: Robot, bodies):
         from pydrake.multibody.tree import ModelInstanceIndex, PrismaticJoint, RevoluteJoint, WeldJoint
 
         plant = robot.plant

@@ -36,7 +36,7 @@ import dataclasses
 import math
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -65,6 +65,9 @@ from pe_drake.multibody.regressor import shared_model
 from pe_drake.multibody.robot import load_robot
 from pe_drake.multibody.transmission import Transmission
 from pe_drake.multibody.urdf import joint_dynamics, payload_link_text, urdf_with_inertias, verify_urdf_text
+
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
 
 #: The drive terms of a model, in the order of :data:`~pe_drake.multibody.drive_columns.TERMS`.
 DRIVE_TERMS = TERMS["all"]
@@ -157,7 +160,7 @@ class RobotModel:
                              f"not {', '.join(self.joints)}")
 
     @classmethod
-    def from_robot(cls, robot) -> RobotModel:
+    def from_robot(cls, robot: Robot) -> RobotModel:
         """The robot's own model as built (the CAD model): its model file's inertials,
         ``<dynamics damping friction>`` as viscous and Coulomb friction and its actuators'
         reflected rotor inertia as armature; no offsets, payload or delay."""
@@ -203,7 +206,7 @@ class RobotModel:
         """The values of :meth:`layout`'s columns, shape (4·n,)."""
         return np.array([self.term(t)[j] for j in range(len(self.joints)) for t in DRIVE_TERMS])
 
-    def check_robot(self, robot) -> None:
+    def check_robot(self, robot: Robot) -> None:
         """Raises ValueError when ``robot`` has other joints or bodies than the model."""
         if tuple(robot.joint_names) != self.joints or tuple(robot.body_names) != self.bodies:
             raise ValueError(f"the model is of joints {', '.join(self.joints)} and bodies {', '.join(self.bodies)}; "
@@ -222,7 +225,7 @@ class RobotModel:
 
     # ---- dynamics -----------------------------------------------------------------------------
 
-    def torque(self, robot, q: np.ndarray, v: np.ndarray, vd: np.ndarray, *, coulomb: bool = True,
+    def torque(self, robot: Robot, q: np.ndarray, v: np.ndarray, vd: np.ndarray, *, coulomb: bool = True,
                offset: bool = True) -> np.ndarray:
         """Inverse dynamics of the model: Y(q, v, vd)·phi_total + D(v, vd)·theta, shape (T, n)
         [N·m] (no delay, no Dahl state), a block of samples at a time.
@@ -245,7 +248,7 @@ class RobotModel:
             out[k] = model(q[k], v[k], vd[k]) @ phi + drive_columns(v[k], vd[k], layout) @ theta
         return out
 
-    def plant(self, robot):
+    def plant(self, robot: Robot):
         """The model in Drake: a continuous :class:`~pe_drake.multibody.robot.Robot` of
         ``robot``'s config with these inertias, damping, Coulomb ``DoorHinge``, rotor inertia,
         payload body and, with pre-sliding friction, the Dahl system whose diagram exports
@@ -436,7 +439,7 @@ class RobotModel:
                    table("presliding_stiffness"), table("holding_torque"), None, tuple(d.get("notes", ())),
                    Transmission.from_dict(d["transmission"]) if d.get("transmission") else None)
 
-    def urdf_text(self, robot, title: str = "") -> str:
+    def urdf_text(self, robot: Robot, title: str = "") -> str:
         """The robot's URDF with this model's inertials, ``<dynamics damping friction>``, rotor
         inertias (``drake:rotor_inertia``) and payload link; a negative friction or armature
         (which Drake cannot hold) is written as 0. Offsets, delay and pre-sliding stay in the
@@ -482,7 +485,7 @@ class RobotModel:
             f"  presliding_stiffness: {table(self.presliding_stiffness)}   # Dahl σ0 [N·m/rad]\n"
         )
 
-    def write_urdf(self, path: str | Path, robot, title: str = "", *, samples: int = 20,
+    def write_urdf(self, path: str | Path, robot: Robot, title: str = "", *, samples: int = 20,
                    tolerance: float = 1e-6) -> float:
         """Writes :meth:`urdf_text` after checking that Drake reads back every body's inertia and,
         with drive terms or a payload, gives this model's torque without Coulomb friction and

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -25,6 +26,9 @@ from pe_drake.exceptions import ConfigError
 from pe_drake.multibody.base_parameters import RANK_GAP_RATIO, BaseParameters, compute_base_parameters
 from pe_drake.multibody.regressor import Kinematics, RegressorModel
 from pe_drake.multibody.wrench import WRENCH_COLUMNS
+
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
 
 __all__ = ["MEASUREMENTS", "WRENCH_RANK_TOLERANCE", "MeasurementType", "SensorRows", "measurement_type"]
 
@@ -188,7 +192,7 @@ class SensorRows:
         )
 
 
-def measurement_base_parameters(robot, measurement: str = "joint_torque", model: RegressorModel | None = None, *,
+def measurement_base_parameters(robot: Robot, measurement: str = "joint_torque", model: RegressorModel | None = None, *,
                                 rows: SensorRows | None = None) -> BaseParameters:
     """The base parameters a measurement identifies: Eq. (2) on the joint torques, or the
     ground wrench's rows' own (:meth:`SensorRows.base_parameters`).

@@ -25,10 +25,14 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Mapping, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from pe_drake.exceptions import ConfigError, UnknownNameError
+
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
 
 #: R is refused when its condition number is above this: the joint angles would not follow
 #: from the motor angles.
@@ -125,7 +129,7 @@ class Transmission:
         return cls(joints, R)
 
 
-def robot_transmission(robot) -> Transmission:
+def robot_transmission(robot: Robot) -> Transmission:
     """A robot's transmission from its config's ``robot.transmission`` (identity without one).
 
     Raises:

@@ -17,15 +17,20 @@ frame, applied by the ground to the robot.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from pe_drake.multibody.inertia import spatial_inertia_to_phi
+
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
 
 #: CSV columns of a measured ground wrench, in the order of the wrench rows [N, N·m].
 WRENCH_COLUMNS = ("wrench.fx", "wrench.fy", "wrench.fz", "wrench.mx", "wrench.my", "wrench.mz")
 
 
-def static_wrench(robot) -> np.ndarray:
+def static_wrench(robot: Robot) -> np.ndarray:
     """The ground wrench that holds the bodies no excited joint moves, shape (6,) [N, N·m].
 
     Those bodies (pelvis, torso, legs, ... of a humanoid whose arms are excited) only weigh:
@@ -54,7 +59,7 @@ def static_wrench(robot) -> np.ndarray:
     return total
 
 
-def root_weld_joint_position(robot) -> int:
+def root_weld_joint_position(robot: Robot) -> int:
     """Position of the root link's weld in ``plant.GetJointIndices()``.
 
     Drake's reaction-force output is indexed by that position, not by the JointIndex: they
@@ -70,7 +75,7 @@ def root_weld_joint_position(robot) -> int:
     raise ValueError(f"no joint welds '{robot.root_link}' to the world")
 
 
-def reaction_to_ground_wrench(robot, reactions) -> np.ndarray:
+def reaction_to_ground_wrench(robot: Robot, reactions) -> np.ndarray:
     """The ground wrench (:data:`WRENCH_COLUMNS` order) from Drake's reaction-force output.
 
     Args:
@@ -93,7 +98,7 @@ def reaction_to_ground_wrench(robot, reactions) -> np.ndarray:
     return np.concatenate([force, moment])
 
 
-def weld_reaction(robot, q: np.ndarray, v: np.ndarray, applied: np.ndarray, centred: bool = False) -> np.ndarray:
+def weld_reaction(robot: Robot, q: np.ndarray, v: np.ndarray, applied: np.ndarray, centred: bool = False) -> np.ndarray:
     """Drake's reaction at the root weld at states (q, v) under applied joint forces, (T, 6).
 
     Uses ``robot.plant_context`` (a simulated robot's context keeps its true inertias).
@@ -128,7 +133,7 @@ def weld_reaction(robot, q: np.ndarray, v: np.ndarray, applied: np.ndarray, cent
     return out
 
 
-def weld_reaction_wrench(robot, q: np.ndarray, v: np.ndarray, vd: np.ndarray) -> np.ndarray:
+def weld_reaction_wrench(robot: Robot, q: np.ndarray, v: np.ndarray, vd: np.ndarray) -> np.ndarray:
     """Drake's reaction at the root weld while the robot moves with (q, v, vdot), (T, 6).
 
     The joints are driven by the inverse-dynamics torques (joint damping included), so that

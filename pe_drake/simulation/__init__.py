@@ -2,7 +2,7 @@
 :class:`~pe_drake.multibody.robot_model.RobotModel` perturbed as a TRUTH.yaml says tracks a
 trajectory in Drake and logs what a real robot would (:func:`simulate_run`); synthetic logs."""
 
-from pe_drake.simulation.simulated_run import SimulatedRun, simulate_run
+from pe_drake.simulation.simulated_run import SimulatedRun, SimulateOptions, simulate_run
 from pe_drake.simulation.truth import Truth, load_truth
 
-__all__ = ["SimulatedRun", "Truth", "load_truth", "simulate_run"]
+__all__ = ["SimulateOptions", "SimulatedRun", "Truth", "load_truth", "simulate_run"]

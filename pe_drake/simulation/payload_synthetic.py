@@ -9,6 +9,7 @@ plus the arm's errors, so what the fit gets wrong is attributable to it.
 from __future__ import annotations
 
 import dataclasses
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -17,6 +18,9 @@ from pe_drake.multibody.drive_columns import COULOMB_VELOCITY_SCALE, coulomb_col
 from pe_drake.multibody.inertia import perturb_inertias
 from pe_drake.multibody.payload import PayloadInertia, box_inertia, link_columns
 from pe_drake.multibody.regressor import RegressorModel
+
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
 
 
 def random_box_payload(rng: np.random.Generator, *, mass_range=(0.3, 3.0), size_range=(0.05, 0.25),
@@ -51,7 +55,7 @@ class TrueArm:
     velocity_scale: float = COULOMB_VELOCITY_SCALE
 
 
-def random_true_arm(robot, rng: np.random.Generator, *, inertia_error: float = 0.05,
+def random_true_arm(robot: Robot, rng: np.random.Generator, *, inertia_error: float = 0.05,
                     coulomb_range=(0.2, 1.0), viscous_range=(0.05, 0.3)) -> TrueArm:
     """The a-priori model with every body's inertia perturbed by ``inertia_error``
     (:func:`~pe_drake.multibody.inertia.perturb_inertias`) and friction on every joint."""
@@ -59,7 +63,7 @@ def random_true_arm(robot, rng: np.random.Generator, *, inertia_error: float = 0
     return TrueArm(phi, rng.uniform(*coulomb_range, robot.n), rng.uniform(*viscous_range, robot.n))
 
 
-def payload_run(robot, motion, arm: TrueArm, link: str, payload: PayloadInertia | None, *, rate_hz: float = 1000.0,
+def payload_run(robot: Robot, motion, arm: TrueArm, link: str, payload: PayloadInertia | None, *, rate_hz: float = 1000.0,
                 t0: float = 0.0, noise_std=0.04, seed: int = 0, model: RegressorModel | None = None) -> Measurement:
     """One run of ``motion`` (anything with ``evaluate(t)`` and ``duration``/``period``) on the
     true arm, with ``payload`` on ``link`` (None: unloaded), sampled at ``t0 + k/rate_hz``.

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -40,11 +41,14 @@ from pe_drake.io_utils import loads_json
 from pe_drake.multibody.inertia import validity_problems
 from pe_drake.multibody.robot_model import RobotModel
 
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
+
 #: A base parameter of the simulated model more than this many σ from the file's is reported.
 ATTAINABLE_SIGMA = 1.0
 
 
-def load_simulation_model(path: str | Path, robot) -> RobotModel:
+def load_simulation_model(path: str | Path, robot: Robot) -> RobotModel:
     """Reads identified.json or augmented_model.json as the model to simulate (module docstring):
     physically consistent, friction and armature ≥ 0.
 
@@ -70,7 +74,7 @@ def load_simulation_model(path: str | Path, robot) -> RobotModel:
     return consistent_model(robot, model, result.base, sigma_B, merged, result.phi_B).nonnegative("is simulated as 0")
 
 
-def consistent_model(robot, model: RobotModel, base=None, sigma_B: np.ndarray | None = None,
+def consistent_model(robot: Robot, model: RobotModel, base=None, sigma_B: np.ndarray | None = None,
                      merged: dict[str, dict[str, float]] | None = None,
                      phi_B: np.ndarray | None = None) -> RobotModel:
     """``model`` with physically consistent standard parameters: itself when it has them, else the
@@ -102,7 +106,7 @@ def consistent_model(robot, model: RobotModel, base=None, sigma_B: np.ndarray | 
                                notes=model.notes + tuple(notes))
 
 
-def _consistent_parameters(robot, base, phi_B: np.ndarray, sigma_B: np.ndarray | None,
+def _consistent_parameters(robot: Robot, base, phi_B: np.ndarray, sigma_B: np.ndarray | None,
                            merged: dict[str, dict[str, float]]) -> tuple[np.ndarray, dict[str, float], list[str]]:
     """(φ, {joint: merged armature}, notes) of :func:`consistent_model`."""
     sigma = np.full(len(phi_B), np.nan) if sigma_B is None else np.asarray(sigma_B, float)

@@ -71,13 +71,19 @@ class SimulatedRun:
     def _unit(self, joint: str) -> str:
         return "mm" if joint in self.prismatic else "mrad"
 
-    def write(self, out: str | Path) -> tuple[Path, str]:
-        """Writes the CSV and its ``.truth.json``, both or neither.
+    @property
+    def recorded(self) -> str:
+        """What the CSV records: "tau", "wrench" or "tau and wrench"."""
+        return _RECORDED[self.measurement]
+
+    def write(self, folder: str | Path, *, name: str = "run.csv") -> list[str]:
+        """Writes the CSV ``folder/name`` and its ``.truth.json`` beside it, both or neither.
 
         Returns:
-            (the truth file, what the CSV records: "tau", "wrench" or "tau and wrench").
+            The paths written: the CSV, then the truth file.
         """
-        out = Path(out)
+        out = Path(folder) / name
+        out.parent.mkdir(parents=True, exist_ok=True)
         csv_text = measurement_to_csv_text(self.data.replace(source=str(out)))
         truth_file = truth_path_for(out)
         atomic_write_text(truth_file, json.dumps({**self.truth, "data_file": out.name}, indent=2) + "\n")
@@ -86,20 +92,45 @@ class SimulatedRun:
         except BaseException:
             truth_file.unlink(missing_ok=True)  # nothing half-written
             raise
-        return truth_file, _RECORDED[self.measurement]
+        return [str(out), str(truth_file)]
 
 
-def simulate_run(robot: Robot, trajectory: str | Path, truth: str | Path | None = None, *,
-                 duration: float | None = None, measurement: str = "joint_torque",
-                 model: str | Path | None = None, progress: Callable[[str], None] | None = None) -> SimulatedRun:
-    """What ``pe-drake simulate`` does: the motion of ``trajectory``'s trajectory.csv (ramps and
-    periods; after its end the robot rests) on the robot perturbed as ``truth`` (TRUTH.yaml) says.
+@dataclasses.dataclass(frozen=True)
+class SimulateOptions:
+    """What ``simulate`` runs the motion on.
 
-    Args:
+    Attributes:
+        truth: the TRUTH.yaml: the robot's perturbation, noise and control (None: none).
         model: identified.json or augmented_model.json: the simulated robot has its parameters
             and drive terms instead of the URDF's (:mod:`pe_drake.simulation.simulated_model`);
             ``truth``'s effects, noise and control come on top. Without ``truth``: no noise,
             the default controller.
+        duration: simulated time [s] (None: the motion's).
+        measurement: what the CSV records, one of ``MEASUREMENTS``.
+    """
+
+    truth: str | Path | None = None
+    model: str | Path | None = None
+    duration: float | None = None
+    measurement: str = "joint_torque"
+
+    def __post_init__(self):
+        if self.truth is None and self.model is None:
+            raise ConfigError("give a TRUTH.yaml (--truth), an identified model (--model), or both")
+        if self.duration is not None and not 0 < self.duration <= 3600:
+            raise ConfigError(f"--duration must be in (0, 3600] s, got {self.duration!r}")
+        if self.measurement not in _RECORDED:
+            raise ConfigError(f"measurement '{self.measurement}' is not one of {', '.join(_RECORDED)}")
+
+
+def simulate_run(robot: Robot, trajectory: str | Path, options: SimulateOptions, *,
+                 progress: Callable[[str], None] | None = None) -> SimulatedRun:
+    """What ``pe-drake simulate`` does: the motion of ``trajectory``'s trajectory.csv (ramps and
+    periods; after its end the robot rests) on the robot perturbed as ``options.truth``
+    (TRUTH.yaml) says, or as ``options.model`` was identified.
+
+    Args:
+        options: the :class:`SimulateOptions`.
         progress: called with a line before the simulation starts (it can take tens of seconds).
 
     Raises:
@@ -107,8 +138,7 @@ def simulate_run(robot: Robot, trajectory: str | Path, truth: str | Path | None 
             file that is not an identified model of this robot.
         ConfigError: a duration outside (0, 3600] s, a bad truth file, no truth and no model.
     """
-    if truth is None and model is None:
-        raise ConfigError("give a TRUTH.yaml (--truth), an identified model (--model), or both")
+    truth, model, measurement = options.truth, options.model, options.measurement
     if not np.any(robot.phi_model[0::10] > 0):  # a singular mass matrix; the controller's gains scale with it
         raise ConfigError(f"robot '{robot.name}' has no inertial parameters (every moving body's mass is 0; no "
                           "<inertial> in its model) to simulate: simulate --robot the model.urdf of "
@@ -117,9 +147,9 @@ def simulate_run(robot: Robot, trajectory: str | Path, truth: str | Path | None 
     truth_spec = load_truth(truth) if truth is not None else Truth()
     check_joints(robot, data["joints"], file=str(trajectory), what="the trajectory")
     check_within_limits(motion, robot.limits, robot.joint_names, source=str(trajectory))
-    duration = duration if duration is not None else motion.duration
-    if not 0 < duration <= 3600:
-        raise ConfigError(f"--duration must be in (0, 3600] s, got {duration!r}")
+    duration = options.duration if options.duration is not None else motion.duration
+    if not 0 < duration <= 3600:  # the motion's own
+        raise ConfigError(f"the motion of '{trajectory}' lasts {duration:g} s: simulate at most 3600 s (--duration)")
     # the truth's joint and link names before any work (and before a model's terms are merged
     # into it): a misspelt joint was refused only after "simulating ..." had been printed
     validate_truth(truth_spec, robot)

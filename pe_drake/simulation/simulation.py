@@ -125,7 +125,7 @@ class TrueRobot:
         return self.robot.plant.get_applied_generalized_force_input_port(), self.robot.plant_context
 
 
-def true_model(robot, truth: Truth, model: RobotModel | None = None) -> RobotModel:
+def true_model(robot: Robot, truth: Truth, model: RobotModel | None = None) -> RobotModel:
     """The robot a truth simulates: ``model`` (default: the a-priori robot with its model file's
     friction) with the truth's effects, its bodies' parameters perturbed and the payload welded.
 
@@ -179,7 +179,7 @@ def _check_model_truth(model: RobotModel, coulomb: np.ndarray, presliding: np.nd
                           "simulated; remove the truth's presliding_*")
 
 
-def build_true_robot(robot, truth: Truth, model: RobotModel | None = None) -> TrueRobot:
+def build_true_robot(robot: Robot, truth: Truth, model: RobotModel | None = None) -> TrueRobot:
     """The true robot of a truth (:func:`true_model`) in Drake.
 
     Args:
@@ -276,7 +276,7 @@ def simulate(
                                "measurement": sensors.kind})
 
 
-def _check_run(robot, trajectory: FourierTrajectory, truth: Truth, duration: float | None) -> float:
+def _check_run(robot: Robot, trajectory: FourierTrajectory, truth: Truth, duration: float | None) -> float:
     """The duration [s] after checking the trajectory's joints and the torque delay."""
     if trajectory.num_joints != robot.n:
         raise DataError(
@@ -291,7 +291,7 @@ def _check_run(robot, trajectory: FourierTrajectory, truth: Truth, duration: flo
     return duration
 
 
-def _controller_plant(robot, true: TrueRobot, model: str):
+def _controller_plant(robot: Robot, true: TrueRobot, model: str):
     """(plant, context) the computed-torque law evaluates: the a-priori or the true model."""
     if model == "prior":
         return robot.plant, robot.plant.CreateDefaultContext()
@@ -321,7 +321,7 @@ def _start_simulator(true: TrueRobot, truth: Truth, q0: np.ndarray, v0: np.ndarr
 
 
 def track_trajectory(
-    robot, true: TrueRobot, trajectory: FourierTrajectory, truth: Truth, duration: float
+    robot: Robot, true: TrueRobot, trajectory: FourierTrajectory, truth: Truth, duration: float
 ) -> TrackingLog:
     """Runs the computed-torque controller on the true robot (module docstring).
 
@@ -398,7 +398,7 @@ def recorded_torque(log: TrackingLog, truth: Truth, delay: float) -> np.ndarray:
     return tau_rec
 
 
-def record_log(robot, truth: Truth, log: TrackingLog, delay: float) -> Measurement:
+def record_log(robot: Robot, truth: Truth, log: TrackingLog, delay: float) -> Measurement:
     """What the sensors log: recorded torque, encoder quantization and white noise.
 
     The noise generator is seeded by the truth's seed (independently of the inertial
@@ -422,7 +422,7 @@ def record_log(robot, truth: Truth, log: TrackingLog, delay: float) -> Measureme
     return Measurement(log.t, q_rec, tau_rec, v_rec, None, robot.joint_names, "")
 
 
-def _truth_dict(robot, truth: Truth, true: TrueRobot, duration: float, log: TrackingLog,
+def _truth_dict(robot: Robot, truth: Truth, true: TrueRobot, duration: float, log: TrackingLog,
                 on_model: bool = False) -> dict[str, Any]:
     """The JSON-ready record of every true value of a run (``<out>.truth.json``); ``on_model``:
     the truth perturbs an identified model, whose drive terms set every joint."""

@@ -8,15 +8,20 @@ identification assumes, so errors can be attributed to the estimator alone.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from pe_drake.excitation.fourier import FourierTrajectory
 from pe_drake.identification.measurements import Measurement
 from pe_drake.multibody.regressor import RegressorModel
 
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
+
 
 def model_measurement(
-    robot,
+    robot: Robot,
     trajectory: FourierTrajectory,
     phi: np.ndarray | None = None,
     *,

@@ -12,6 +12,7 @@ The sign convention of the effects is in the simulation module's docstring.
 
 import dataclasses
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -22,6 +23,9 @@ from pe_drake.multibody.payload import PayloadInertia
 from pe_drake.multibody.payload import payload_spatial_inertia
 from pe_drake.multibody.robot_model import COULOMB_VELOCITY_SCALE
 from pe_drake.multibody.wrench import WRENCH_COLUMNS
+
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
 
 #: Key of a per-joint table that sets every joint not listed by name.
 ALL_JOINTS = "all"
@@ -180,7 +184,7 @@ _JOINT_TABLES = {  # field: (unit, non-negative)
 }
 
 
-def validate_truth(truth: Truth, robot=None) -> Truth:
+def validate_truth(truth: Truth, robot: "Robot | None" = None) -> Truth:
     """Checks a :class:`Truth`; with a robot, also its joint and link names.
 
     Raises:
@@ -261,7 +265,7 @@ def _check_noise_and_control(n: NoiseTruth, c: ControlTruth) -> None:
         raise ConfigError(f"control.model '{c.model}' is not one of {', '.join(CONTROL_MODELS)}")
 
 
-def _check_names(e: EffectsTruth, robot) -> None:
+def _check_names(e: EffectsTruth, robot: "Robot") -> None:
     """Joint and link names against the robot."""
     for field in _JOINT_TABLES:
         for joint in getattr(e, field):

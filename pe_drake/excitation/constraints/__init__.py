@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from pe_drake.exceptions import ConfigError
 from pe_drake.excitation.constraints.balance import BalanceConstraint
 from pe_drake.excitation.constraints.base import SampledConstraint, SampledValues
@@ -9,10 +11,13 @@ from pe_drake.excitation.constraints.collision import CollisionConstraint
 from pe_drake.excitation.constraints.environment import EnvironmentConstraint, environment_from_config
 from pe_drake.excitation.constraints.torque import TorqueConstraint
 
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
+
 __all__ = ["EnvironmentConstraint", "SampledConstraint", "SampledValues", "constraints_from_config"]
 
 
-def constraints_from_config(robot, excitation, environment=None) -> list[SampledConstraint]:
+def constraints_from_config(robot: Robot, excitation, environment=None) -> list[SampledConstraint]:
     """The sampled constraints an :class:`~pe_drake.config.ExcitationConfig` asks for.
 
     ``balance_radius > 0`` adds the balance constraint (Eq. 52), ``collision_margin >= 0``

@@ -21,6 +21,7 @@ path; q̇ = v for the revolute and prismatic joints excited here).
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -28,6 +29,9 @@ from pe_drake.exceptions import ConfigError, InfeasibleError, UnknownNameError
 from pe_drake.excitation.constraints.base import SampledConstraint, SampledValues, check_postures
 from pe_drake.multibody.regressor import shared_model
 from pe_drake.multibody.spatial import cross3, rotate
+
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
 
 
 class OutOfBalanceError(InfeasibleError):
@@ -59,7 +63,7 @@ class OutOfBalanceError(InfeasibleError):
         )
 
 
-def support_center(robot) -> np.ndarray:
+def support_center(robot: Robot) -> np.ndarray:
     """p_WSc: centroid of the support (contact) points in world, shape (3,) [m].
 
     Args:
@@ -107,7 +111,7 @@ class BalanceConstraint(SampledConstraint):
     name = "balance"
     unit = "m"
 
-    def __init__(self, robot, radius: float = 0.01, *, smoothing: float = 1e-4):
+    def __init__(self, robot: Robot, radius: float = 0.01, *, smoothing: float = 1e-4):
         """
         Args:
             robot: a :class:`~pe_drake.multibody.robot.Robot` with ``support_points``.

@@ -11,13 +11,17 @@ from __future__ import annotations
 
 import abc
 import dataclasses
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from pe_drake.exceptions import ConfigError
 
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
 
-def check_postures(q: np.ndarray, robot, what: str) -> np.ndarray:
+
+def check_postures(q: np.ndarray, robot: Robot, what: str) -> np.ndarray:
     """q as finite postures of the robot's excited joints, shape (K, n) (a single posture (n,)
     becomes (1, n)).
 

@@ -47,6 +47,7 @@ no slack and stays exact.
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -55,6 +56,9 @@ from pe_drake.excitation.constraints.base import SampledConstraint, SampledValue
 from pe_drake.multibody.capsules import capsule_pairs, segment_closest_points
 from pe_drake.multibody.regressor import shared_model
 from pe_drake.multibody.spatial import cross3, rotate
+
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
 
 #: Pairs farther than this many smoothing lengths h beyond the closest pair of their sample
 #: are left out of the soft-min: their weight exp(-(d - d_min)/h) is below e^-30 ≈ 1e-13.
@@ -115,7 +119,7 @@ class CollisionConstraint(SampledConstraint):
     name = "collision"
     unit = "m"
 
-    def __init__(self, robot, margin: float, *, aggregate: bool = True, smoothing: float = 0.002):
+    def __init__(self, robot: Robot, margin: float, *, aggregate: bool = True, smoothing: float = 0.002):
         """
         Args:
             robot: a :class:`~pe_drake.multibody.robot.Robot` loaded with a capsule file.

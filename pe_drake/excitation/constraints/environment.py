@@ -30,6 +30,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -37,6 +38,9 @@ from pe_drake.exceptions import ConfigError, InfeasibleError
 from pe_drake.excitation.constraints.base import SampledConstraint, SampledValues, check_postures
 from pe_drake.multibody.regressor import shared_model
 from pe_drake.multibody.spatial import cross3, rotate
+
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
 
 _GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
 
@@ -154,7 +158,7 @@ class EnvironmentConstraint(SampledConstraint):
 
     def __init__(
         self,
-        robot,
+        robot: Robot,
         margin: float,
         floor_height: float | None = None,
         boxes: Sequence[Box] = (),
@@ -345,7 +349,7 @@ def _body_index(b: int):
     return BodyIndex(int(b))
 
 
-def standing_plane(robot, normal: np.ndarray, mounting_plane: float, tolerance: float = 0.02) -> float:
+def standing_plane(robot: Robot, normal: np.ndarray, mounting_plane: float, tolerance: float = 0.02) -> float:
     """Where a robot on a pedestal stands: the lowest point, along the floor normal n, of the
     capsules that no excited joint moves (a pedestal, a torso welded to the base), when the
     axis of one reaches more than ``tolerance`` [m] below the mounting plane; else
@@ -371,7 +375,7 @@ def standing_plane(robot, normal: np.ndarray, mounting_plane: float, tolerance: 
     return surface if axis < mounting_plane - tolerance else mounting_plane
 
 
-def environment_from_config(robot, excitation, environment) -> EnvironmentConstraint | None:
+def environment_from_config(robot: Robot, excitation, environment) -> EnvironmentConstraint | None:
     """The floor/box constraint a config asks for, or None.
 
     The floor applies to a fixed-base arm (no ``robot.support_points``) when
@@ -400,7 +404,7 @@ def environment_from_config(robot, excitation, environment) -> EnvironmentConstr
     return EnvironmentConstraint(robot, margin, floor, boxes, floor_normal=normal)
 
 
-def floor_plane(robot, environment) -> tuple[np.ndarray, float] | None:
+def floor_plane(robot: Robot, environment) -> tuple[np.ndarray, float] | None:
     """The floor plane n·p = h of :func:`environment_from_config` (what the optimizer checks
     and the playback draws), or None: no floor, or a robot on its own feet.
 

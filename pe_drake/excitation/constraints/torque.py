@@ -12,11 +12,16 @@ are independent).
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from pe_drake.exceptions import ConfigError, InfeasibleError
 from pe_drake.excitation.constraints.base import SampledConstraint, SampledValues
 from pe_drake.multibody.regressor import RegressorModel
+
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
 
 
 class TorqueLimitError(InfeasibleError):
@@ -37,7 +42,7 @@ class TorqueConstraint(SampledConstraint):
     name = "torque"
     unit = "N·m"
 
-    def __init__(self, robot, model: RegressorModel | None = None):
+    def __init__(self, robot: Robot, model: RegressorModel | None = None):
         effort = np.asarray(robot.limits.effort_max, float)
         missing = [j for j, e in zip(robot.joint_names, effort) if not np.isfinite(e) or e <= 0]
         if missing:

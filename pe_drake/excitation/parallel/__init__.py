@@ -11,6 +11,7 @@ by :func:`open_executor`::
 from __future__ import annotations
 
 import dataclasses
+from typing import TYPE_CHECKING
 
 from pe_drake.config import EXECUTORS
 from pe_drake.exceptions import ConfigError
@@ -34,6 +35,9 @@ from pe_drake.excitation.parallel.local import LocalExecutor, default_start_meth
 from pe_drake.excitation.parallel.ray import RayExecutor, cluster_cpus
 from pe_drake.multibody.regressor import RegressorModel
 from pe_drake.multibody.sensors import measurement_base_parameters
+
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
 
 
 __all__ = [
@@ -81,7 +85,7 @@ class ExecutorOptions:
 
 
 def open_executor(
-    robot,
+    robot: Robot,
     executor: str = "local",
     workers: int | None = None,
     *,

@@ -233,7 +233,7 @@ class WorkerState:
         emit: sends an event to the caller's progress callback (dropped on Ray).
     """
 
-    def __init__(self, robot, base, constraints_factory=None, emit=None, model=None):
+    def __init__(self, robot: Robot, base, constraints_factory=None, emit=None, model=None):
         self.robot = robot
         self.model = model if model is not None else RegressorModel(robot)
         self.base = base

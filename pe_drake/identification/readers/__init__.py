@@ -15,6 +15,7 @@ Then ``data.joint_map``'s signs and offsets are applied.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from pe_drake.config import DATA_FORMATS, DataConfig
 from pe_drake.exceptions import ConfigError
@@ -24,6 +25,9 @@ from pe_drake.identification.readers.joint_map import apply_signs
 from pe_drake.identification.readers.motor_side import is_motor_side, read_motor_side_csv
 from pe_drake.identification.readers.rosbag import is_bag, read_joint_state_bag
 from pe_drake.multibody.transmission import robot_transmission
+
+if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
+    from pe_drake.multibody.robot import Robot
 
 __all__ = ["detect_format", "read_log"]
 
@@ -40,7 +44,7 @@ def detect_format(path: str | Path, options: DataConfig) -> str:
     return "rtde" if is_rtde(columns) else "pe_drake"
 
 
-def read_log(path: str | Path, robot, options: DataConfig | None = None, **changes) -> Measurement:
+def read_log(path: str | Path, robot: Robot, options: DataConfig | None = None, **changes) -> Measurement:
     """Reads a measured log of ``robot``'s excited joints, whatever its format.
 
     Args:
