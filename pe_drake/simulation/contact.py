@@ -15,15 +15,19 @@ where a real robot with links of those shapes would have collided.
 from __future__ import annotations
 
 import dataclasses
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from pe_drake.multibody.robot import Robot
 
 #: Checking more than this many configurations per second of motion adds nothing (the
 #: capsules move a few mm between checks at the arm's speeds).
 CHECK_RATE_HZ = 100.0
 
 
-def without_contact(robot) -> None:
+def without_contact(robot: Robot) -> None:
     """Filters every collision pair of ``robot``'s SceneGraph in its diagram context, so the
     plant applies no contact force (the geometry stays, for queries of its own).
 
@@ -58,7 +62,7 @@ class CapsuleContact:
         return {"max_overlap_m": self.depth, "from_s": self.start, "to_s": self.end}
 
 
-def capsule_contacts(robot, t: np.ndarray, q: np.ndarray) -> list[CapsuleContact]:
+def capsule_contacts(robot: Robot, t: np.ndarray, q: np.ndarray) -> list[CapsuleContact]:
     """The capsule pairs of ``robot`` (the a-priori one: its filters skip adjacent links and the
     capsule file's ignored pairs) that overlap along the motion, at most :data:`CHECK_RATE_HZ`.
 
