@@ -58,8 +58,11 @@ def test_the_starting_fit_is_identify_on_the_same_rows(negative_armature):
     model_file = {"viscous": robot.joint_damping, "coulomb": robot.joint_friction}
     term_of = {term: effect for effect, term in EFFECT_TERMS.items()}
     ours = result.start["drive_terms"]
-    assert len(ours) == len(fit.drive.layout.labels)
-    for term, j, value in zip(fit.drive.layout.terms, fit.drive.layout.joints, fit.drive.theta):
+    from pe_drake.identification.drive_terms import layout_values
+
+    assert len(ours) == len(fit.drive_layout.labels)
+    theta, _ = layout_values(fit.model, fit.drive_layout)
+    for term, j, value in zip(fit.drive_layout.terms, fit.drive_layout.joints, theta):
         total = ours[f"{term_of[term]}[{robot.joint_names[j]}]"] + (model_file[term][j] if term in model_file else 0.0)
         assert total == pytest.approx(value, abs=1e-8), (term, j)
 

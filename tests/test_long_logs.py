@@ -63,7 +63,7 @@ def test_folded_fit_equals_the_fit_on_all_rows():
     model = RegressorModel(robot)
     base = compute_base_parameters(robot, model=model)
     YB = base.reduce(model(data.q, data.v, data.vd))
-    layout = drive_layout(robot, None, DriveTermOptions("friction", result.drive.layout.velocity_scale))
+    layout = drive_layout(robot, None, DriveTermOptions("friction", result.drive_layout.velocity_scale))
     D = drive_columns(data.v, data.vd, layout)
     S, n, _ = YB.shape
     W = np.concatenate([YB, D], axis=2).reshape(S * n, -1)

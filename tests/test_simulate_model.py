@@ -61,13 +61,12 @@ def test_simulate_with_model_is_identified_back(model_file, tmp_path, capsys):
     assert cli(["identify", "--robot", "panda", "--data", str(out), "--method", "wls", "--trajectory", str(OPTIMIZED),
                 "--out", str(tmp_path / "again")]) == 0
     again = load_identified(tmp_path / "again" / "identified.json", robot)
-    sigma = {(t, j): s for t, j, s in zip(again.drive.layout.terms, again.drive.layout.joints, again.drive.sigma)}
     for term in ("coulomb", "viscous", "offset"):  # measured: within 1.1 σ
         for j in range(robot.n):
-            got, want = again.drive.per_joint(term)[j], model.drive.per_joint(term)[j]
-            assert abs(got - want) < 3 * sigma[term, j], (term, j, got, want, sigma[term, j])
+            got, want, sd = again.model.term(term)[j], model.model.term(term)[j], again.model.sigma[term][j]
+            assert abs(got - want) < 3 * sd, (term, j, got, want, sd)
     # measured: 1 % low (a few σ) on joints 3-7, whose armature the model can separate
-    np.testing.assert_allclose(again.drive.per_joint("armature")[2:], model.drive.per_joint("armature")[2:], rtol=0.03)
+    np.testing.assert_allclose(again.model.armature[2:], model.model.armature[2:], rtol=0.03)
     q, v, vd = random_states(robot, 50, seed=1)
     v = np.sign(v) * np.maximum(np.abs(v), 0.2)  # away from the tanh's knee, where the fits need not agree
     want, got = predicted(robot, model, q, v, vd), predicted(robot, again, q, v, vd)
@@ -188,5 +187,6 @@ def test_simulated_parameters_are_valid_and_reproduce_the_model(model_file):
     path.write_text(json.dumps(result_to_dict(physical, robot)))
     sim = load_simulation_model(path, robot)
     np.testing.assert_array_equal(sim.phi, physical.phi)
-    for name, value in physical.drive.merged_armature.items():
-        assert sim.armature[robot.joint_names.index(name)] == pytest.approx(value)
+    for name in physical.drive_layout.merged:
+        j = robot.joint_names.index(name)
+        assert sim.armature[j] == pytest.approx(physical.model.armature[j])

@@ -206,10 +206,12 @@ def test_identify_fits_each_motor_through_the_coupling(optimized, tmp_path):  # 
     train, held = (model_run(robot, truth, random_trajectory(robot, optimized, seed=s), s) for s in (1, 7))
     options = IdentifyOptions(filtering=False, rest="keep")
     fit = identify_model(robot, train, options)
-    drive = fit.result.drive
-    assert drive.layout.transmission is not None and set(drive.layout.merged) == set(robot.joint_names[:2])
-    for label, term, j, x, sd in zip(drive.layout.labels, drive.layout.terms, drive.layout.joints, drive.theta,
-                                     drive.sigma):
+    from pe_drake.identification.drive_terms import layout_values
+
+    layout = fit.result.drive_layout
+    assert layout.transmission is not None and set(layout.merged) == set(robot.joint_names[:2])
+    for label, term, j, x, sd in zip(layout.labels, layout.terms, layout.joints,
+                                     *layout_values(fit.result.model, layout)):
         assert abs(x - truth.term(term)[j]) < 3 * sd, (label, x, truth.term(term)[j], sd)
     assert not fit.result.coupling, fit.result.coupling
     assert any("motor wrist_3_joint" in line for line in fit.summary_lines())
@@ -228,7 +230,7 @@ def test_identify_fits_each_motor_through_the_coupling(optimized, tmp_path):  # 
     # without the transmission: per-joint terms, far above the noise floor and flagged
     plain = get_robot("ur5")
     blind = identify_model(plain, train, options)
-    assert blind.result.drive.layout.transmission is None
+    assert blind.result.drive_layout.transmission is None
     blind_report = validate_model(plain, load_identified(_written(blind, tmp_path / "blind"), plain), held,
                                   ValidateOptions(filtering=False))
     rms = blind_report.rms

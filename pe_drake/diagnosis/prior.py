@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from pe_drake.diagnosis.record import Segment, model_file_friction
+from pe_drake.identification.drive_terms import drive_torque
 from pe_drake.identification.estimators import IdentificationResult
 from pe_drake.identification.identified_file import standard_from_base
 from pe_drake.identification.reference_errors import Shortfall, shortfalls
@@ -49,12 +50,12 @@ def prior_drive_torque(robot, prior: IdentificationResult | None, seg: Segment) 
     damping is not added, as in ``validate``)."""
     if prior is None:  # the model file's friction, d·v + f_c·tanh(v/v_s) (issue 21)
         return model_file_friction(robot, seg)
-    drive = prior.drive
-    if drive is None or not drive.layout.count:
+    layout = prior.drive_layout
+    if layout is None or not layout.count:
         return np.zeros_like(seg.v)
     rec = seg.record
-    coulomb = rec.filtered(coulomb_column(rec.v, drive.layout.velocity_scale))[seg.idx]
-    return drive.torque(seg.v, seg.vd, coulomb)
+    coulomb = rec.filtered(coulomb_column(rec.v, layout.velocity_scale))[seg.idx]
+    return drive_torque(prior.model, layout, seg.v, seg.vd, coulomb)
 
 
 def fitted_friction(robot, seg: Segment) -> np.ndarray:

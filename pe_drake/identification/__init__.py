@@ -12,7 +12,7 @@ from pe_drake.identification.identify_model import identify_model
 from pe_drake.identification.validate_model import validate_model
 
 _EXPORTS = exports_by_module(__name__, {
-    "drive_terms": "DriveFit DriveTermOptions",
+    "drive_terms": "DriveTermOptions",
     "estimators": "IdentificationResult identify predict predict_wrench prepare_measurement "
                   "read_robot_measurement robot_torques torque_errors",
     "identified_file": "load_identified",

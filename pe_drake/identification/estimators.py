@@ -46,16 +46,19 @@ from pe_drake.identification.time_window import TimeWindow
 from pe_drake.identification.channels import channel_names, measured_values
 from pe_drake.identification.drive_terms import (
     TERMS,
-    DriveFit,
     DriveLayout,
     DriveTermOptions,
     drive_columns,
     drive_layout,
     drive_options,
+    drive_torque,
+    layout_torque,
     model_file_terms,
     model_file_terms_lost,
+    model_tables,
     separable_on_data,
     unphysical_drive_terms,
+    with_known,
 )
 from pe_drake.identification.gaps import MAX_GAP_S, preprocess_segments
 from pe_drake.identification.measurements import (
@@ -79,6 +82,7 @@ from pe_drake.identification.folded_rows import (
 from pe_drake.identification.statistics import integrated_autocorrelation
 from pe_drake.multibody.base_parameters import BaseParameters
 from pe_drake.multibody.regressor import RegressorModel
+from pe_drake.multibody.robot_model import RobotModel
 from pe_drake.multibody.sensors import MeasurementType, SensorRows, measurement_base_parameters
 from pe_drake.multibody.wrench import static_wrench
 from pe_drake.threads import single_threaded_blas
@@ -126,8 +130,12 @@ class IdentificationResult:
         measurement: "joint_torque", "base_wrench" or "both": the channels identified from.
         channels: the channel of each entry of residual_rms, relative_error and noise_std:
             joint names (torques), then :data:`~pe_drake.multibody.wrench.WRENCH_COLUMNS`.
-        drive: the identified drive terms (friction, offsets, armature), or None (a model
-            without them, e.g. an identified.json of before the drive terms).
+        model: the robot as built this fit gives (:class:`~pe_drake.multibody.robot_model.RobotModel`):
+            ``phi``, or for base parameters only the standard parameters closest to the
+            a-priori model that give them (φ0 + K⁺(φ_B − K φ0)), and the drive terms with their σ.
+        drive_layout: the fitted drive columns (which terms, the armatures merged into base
+            parameters, the columns the data dropped, those kept from the model file), or None
+            (a model without them, e.g. an identified.json of before the drive terms).
         physical_notes: what the physical fit says about its result (parameters on a bound,
             far from the a-priori model).
         friction_share: for a fit without drive terms, the fraction of the OLS residual's
@@ -158,7 +166,8 @@ class IdentificationResult:
     source: str = ""
     measurement: str = "joint_torque"
     channels: tuple[str, ...] = ()
-    drive: DriveFit | None = None
+    model: RobotModel | None = None
+    drive_layout: DriveLayout | None = None
     physical_notes: tuple[str, ...] = ()
     friction_share: float | None = None
     weight_iterations: int = 0
@@ -359,6 +368,12 @@ def _identify(robot, data: Measurement, method: str, base: BaseParameters | None
         phi, x = physical.phi, physical.x
     b = base.count
     residual_ss = folded.residual_ss(T, x)
+    layout, theta, sigma = with_known(layout, x[b:], np.sqrt(np.maximum(np.diag(cov)[b:], 0.0)), known)
+    drive, drive_sigma = model_tables(layout, theta, sigma, physical.merged_armature if physical is not None else {})
+    phi_model = phi if phi is not None else robot.phi_model + np.linalg.pinv(base.K) @ (x[:b] - base.K @ robot.phi_model)
+    model = RobotModel(tuple(robot.joint_names), tuple(robot.body_names), phi_model, drive, drive_sigma,
+                       layout.velocity_scale, notes=physical.notes if physical is not None else (),
+                       transmission=layout.transmission)
     return IdentificationResult(
         robot=robot.name,
         method=method,
@@ -379,8 +394,8 @@ def _identify(robot, data: Measurement, method: str, base: BaseParameters | None
         source=data.source,
         measurement=measurement,
         channels=channels,
-        drive=DriveFit(layout, x[b:], np.sqrt(np.maximum(np.diag(cov)[b:], 0.0)),
-                       physical.merged_armature if physical is not None else {}).with_known(known),
+        model=model,
+        drive_layout=layout,
         physical_notes=physical.notes if physical is not None else (),
         friction_share=share,
         cov_B=cov[:b, :b],
@@ -431,7 +446,8 @@ class _Columns:
 
 
 def _row_blocks(robot, data: Measurement, measurement: str, model: RegressorModel, layouts: _Layouts,
-                coulomb: np.ndarray | None, known: DriveFit | None = None, rest: np.ndarray | None = None):
+                coulomb: np.ndarray | None, known: tuple[DriveLayout, np.ndarray] | None = None,
+                rest: np.ndarray | None = None):
     """The rows [Y | drive | armature | friction] and y of ``data``, BLOCK samples at a time
     (y of the torques without the model file's ``known`` friction; the torque rows ``rest``
     zero: a zero row adds nothing to a least-squares fit)."""
@@ -448,7 +464,7 @@ def _row_blocks(robot, data: Measurement, measurement: str, model: RegressorMode
             F += [drive_columns(part.v, part.vd, layout, sign, rows=r) for layout in layouts]
             y = measured_values(robot, part, measurement)
             if known is not None:  # the torque channels come first
-                y[:, : robot.n] -= known.torque(part.v, part.vd, sign)
+                y[:, : robot.n] -= layout_torque(*known, part.v, part.vd, sign)
             F = np.concatenate(F, axis=2)
             if rest is not None and MeasurementType(measurement).torques:  # the torque channels come first
                 at_rest = np.zeros(y.shape, bool)
@@ -529,8 +545,8 @@ def fit_warnings(result: IdentificationResult) -> list[str]:
     drive terms that are negative beyond their σ, and a rigid-body-only fit of data whose
     residual is mostly friction."""
     out = [f"physical fit: {note}" for note in result.physical_notes]
-    if result.method != "physical" and result.drive is not None:
-        out += unphysical_drive_terms(result.drive)
+    if result.method != "physical" and result.drive_layout is not None:
+        out += unphysical_drive_terms(result.model, result.drive_layout)
     share = result.friction_share
     if share is not None and share > FRICTION_SHARE_WARNING:
         out.append(
@@ -555,8 +571,9 @@ def predict(
     tau = np.empty_like(data.q)
     for rows in _chunks(data.num_samples):  # the regressor of a block at a time: long runs fit
         tau[rows] = result.base.reduce(model(data.q[rows], data.v[rows], data.vd[rows])) @ result.phi_B
-    if result.drive is not None and result.drive.layout.count:
-        tau = tau + result.drive.torque(data.v, data.vd, coulomb)
+    drive = drive_torque(result.model, result.drive_layout, data.v, data.vd, coulomb)
+    if drive is not None:
+        tau = tau + drive
     return tau
 
 

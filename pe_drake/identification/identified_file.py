@@ -22,7 +22,7 @@ from pe_drake.config import MEASUREMENTS
 from pe_drake.exceptions import DataError, check_joints
 from pe_drake.limits import input_file_problem
 from pe_drake.identification.channels import channel_names
-from pe_drake.identification.drive_terms import DriveFit
+from pe_drake.identification.drive_terms import drive_block, read_drive_layout
 from pe_drake.identification.estimators import IdentificationResult, fit_warnings
 from pe_drake.identification.measurements import Preprocessing
 from pe_drake.io_utils import loads_json
@@ -85,8 +85,8 @@ def result_to_dict(result: IdentificationResult, robot, model_file: str | None =
     if result.cov_B is not None and np.all(np.isfinite(result.cov_B)):  # export --to gains draws from it
         cov = np.asarray(result.cov_B, float)
         out["base_parameter_covariance"] = (0.5 * (cov + cov.T)).tolist()  # the sandwich is symmetric up to rounding
-    if result.drive is not None:
-        out["drive_terms"] = result.drive.as_dict()
+    if result.drive_layout is not None:
+        out["drive_terms"] = drive_block(result.model, result.drive_layout, result.phi is not None)
     if result.physical_notes:
         out["physical_fit_notes"] = list(result.physical_notes)
     if result.friction_share is not None:  # of the OLS residual's energy
@@ -167,13 +167,16 @@ def load_identified(path: str | Path, robot) -> IdentificationResult:
         except (KeyError, TypeError, ValueError) as err:
             raise DataError(f"standard_parameters: {err!r} missing or malformed", file=str(path)) from err
     cov_B = _covariance(d, base.count, str(path))
-    drive = None
+    layout = None
     if d.get("drive_terms") is not None:  # files written before the drive terms have none
         try:
-            drive = DriveFit.from_dict(d["drive_terms"], robot.joint_names)
+            layout = read_drive_layout(d["drive_terms"], robot.joint_names)
+            model = RobotModel.from_dict(d, robot.body_names, base=base, phi_prior=robot.phi_model)
         except (KeyError, TypeError, ValueError, AttributeError) as err:
             raise DataError(f"drive_terms: {err!r} missing or malformed", file=str(path)) from err
-        _check_transmission(drive, robot, path)
+        _check_transmission(layout, robot, path)
+    else:
+        model = RobotModel.from_dict(d, robot.body_names, base=base, phi_prior=robot.phi_model)
     return IdentificationResult(
         robot=d.get("robot", robot.name),
         method=d.get("method", "ols"),
@@ -190,7 +193,8 @@ def load_identified(path: str | Path, robot) -> IdentificationResult:
         source=d.get("data", ""),
         measurement=measurement,
         channels=channels,
-        drive=drive,
+        model=model,
+        drive_layout=layout,
         physical_notes=tuple(d.get("physical_fit_notes", ())),
         cov_B=cov_B,
     )
@@ -253,20 +257,19 @@ def augmented_as_result(d: dict[str, Any], robot, path: str = "") -> Identificat
     base = measurement_base_parameters(robot, "joint_torque")
     channels = channel_names(robot, "joint_torque")
     nan = np.full(len(channels), np.nan)
-    theta = model.theta()
     return IdentificationResult(
         robot=robot.name, method="diagnose", joints=model.joints, base=base, phi_B=base.base_values(model.phi_total),
         sigma_percent=np.full(base.count, np.nan), phi=model.phi_total, cond=float("nan"), residual_rms=nan,
         relative_error=nan, noise_std=nan, samples=0, source=path, measurement="joint_torque",
-        channels=channels, drive=DriveFit(model.layout(), theta, np.full(len(theta), np.nan)),
+        channels=channels, model=dataclasses.replace(model, sigma={}), drive_layout=model.layout(),
         physical_notes=tuple(notes))
 
 
-def _check_transmission(drive: DriveFit, robot, path) -> None:
+def _check_transmission(layout, robot, path) -> None:
     """Refuses a model fitted through another transmission than the robot's config gives: the
     config's R converts motor-side logs, the file's R carries its per-motor terms, and the two
     must be one (a model of per-joint terms goes with any config)."""
-    T = drive.layout.transmission
+    T = layout.transmission
     if T is None:
         return
     mine = robot_transmission(robot)

@@ -133,10 +133,7 @@ class IdentifiedModel:
     def model(self) -> RobotModel:
         """The identified robot as built: the fit's parameters (``phi`` when the fit has base
         parameters only) and drive terms with their σ."""
-        d = result_to_dict(self.result, self.robot)
-        if self.result.phi is None and self.phi is not None:
-            d["standard_parameters"] = standard_parameters_dict(self.robot, self.phi)
-        return RobotModel.from_dict(d, self.robot.body_names, base=self.result.base, phi_prior=self.robot.phi_model)
+        return self.result.model
 
     def summary_lines(self) -> list[str]:
         """What the command prints: the data, its preprocessing, the fit and its warnings."""
@@ -156,7 +153,7 @@ class IdentifiedModel:
         lines.append("least determined base parameters (%σ): "
                      + ", ".join(f"{_short_name(result.base, i)} {format_percent(result.sigma_percent[i])}" for i in worst))
         lines.append("residual RMS [N·m, N]: " + ", ".join(f"{c} {r:.4g}" for c, r in zip(result.channels, result.residual_rms)))
-        return lines + drive_summary(result.drive) + fit_warnings(result)
+        return lines + drive_summary(result.model, result.drive_layout) + fit_warnings(result)
 
     def write(self, folder: str | Path) -> tuple[list[str], str]:
         """Writes identified.json, residuals.png and, when physically valid, model.urdf and
@@ -193,7 +190,7 @@ class IdentifiedModel:
                             result.channels, f"{robot.name}: {result.method} fit on the identification data")
             if model_file:
                 written.append(model_file)
-                if result.drive is not None and result.drive.layout.count:
+                if result.drive_layout is not None and result.drive_layout.count:
                     (tmp / "drive_effects.yaml").write_text(self.model.effects_yaml(DRIVE_EFFECTS_HEADER))
                     written.append("drive_effects.yaml")
         return written, note
@@ -282,12 +279,13 @@ def _coupling(robot: Robot, result: IdentificationResult, data: Measurement, cou
     """The warning of :mod:`~pe_drake.identification.coupling` on the joint torques' residual
     (none for the ground wrench alone or a fit without drive terms, whose residual holds all
     the friction)."""
-    if not MeasurementType(result.measurement).torques or result.drive is None or not result.drive.layout.count:
+    layout = result.drive_layout
+    if not MeasurementType(result.measurement).torques or layout is None or not layout.count:
         return []
     residual = data.tau - predict(robot, result, data, coulomb=coulomb)
-    T = result.drive.layout.transmission
+    T = layout.transmission
     return coupling_warnings(coupled_pairs(robot.joint_names, data.v, data.vd, residual,
-                                           result.drive.layout.velocity_scale, None if T is None else T.R))
+                                           layout.velocity_scale, None if T is None else T.R))
 
 
 def _rest_decision(robot: Robot, raw: Measurement, data: Measurement, options: IdentifyOptions,

@@ -144,8 +144,9 @@ def validate_model(robot: Robot, model: IdentificationResult, measurements: Meas
                                window=options.window, filtering=options.filtering)
     check_against_model(robot, data)
     kind = MeasurementType(options.measurement)
-    scale = model.drive.layout.velocity_scale if model.drive is not None else COULOMB_VELOCITY_SCALE
-    transmission = model.drive.layout.transmission if model.drive is not None else None
+    layout = model.drive_layout
+    scale = layout.velocity_scale if layout is not None else COULOMB_VELOCITY_SCALE
+    transmission = layout.transmission if layout is not None else None
     measured, predicted = prediction(robot, model, data, kind, filtered_coulomb(measurements, data, scale, transmission))
     rms, rel = torque_errors(measured, predicted)
     total = float(100 * np.linalg.norm(measured - predicted) / max(np.linalg.norm(measured), 1e-300))
@@ -153,7 +154,7 @@ def validate_model(robot: Robot, model: IdentificationResult, measurements: Meas
     worse = shortfalls(names, measured, predicted, {"a_priori": _a_priori(robot, measurements, data, kind),
                                                      "zero": np.zeros_like(measured)})
     coupling = ()
-    if kind.torques and model.drive is not None and model.drive.layout.count:  # the torque channels come first
+    if kind.torques and layout is not None and layout.count:  # the torque channels come first
         R = transmission.R if transmission is not None else None
         coupling = tuple(coupling_warnings(coupled_pairs(robot.joint_names, data.v, data.vd,
                                                          (measured - predicted)[:, : robot.n], scale, R)))

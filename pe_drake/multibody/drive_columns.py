@@ -120,6 +120,7 @@ class DriveLayout:
             column of a joint that never reverses, which equals its offset column).
         transmission: the robot's transmission when the terms act per motor (module
             docstring; ``joints`` then index motors), None when per joint.
+        known: labels of the columns whose values are the model file's, not estimated (σ = 0).
     """
 
     terms: tuple[str, ...]
@@ -130,6 +131,7 @@ class DriveLayout:
     merged: dict[str, dict[str, float]] = dataclasses.field(default_factory=dict)
     dropped: dict[str, str] = dataclasses.field(default_factory=dict)
     transmission: Transmission | None = None
+    known: tuple[str, ...] = ()
 
     @property
     def count(self) -> int:

@@ -65,7 +65,7 @@ def load_simulation_model(path: str | Path, robot) -> RobotModel:
             raise DataError("the model's standard parameters are not physically valid, so Drake cannot simulate "
                             "them: " + "; ".join(f"{b}: {why}" for b, why in problems.items()), file=str(path))
         return model.nonnegative("is simulated as 0")
-    merged = result.drive.layout.merged if result.drive is not None else {}
+    merged = result.drive_layout.merged if result.drive_layout is not None else {}
     sigma_B = np.abs(result.phi_B) * np.asarray(result.sigma_percent, float) / 100.0
     return consistent_model(robot, model, result.base, sigma_B, merged, result.phi_B).nonnegative("is simulated as 0")
 
