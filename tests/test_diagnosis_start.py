@@ -88,7 +88,7 @@ def test_real_panda_diagnose_starts_from_identify_and_says_where_it_is_worse():
     (physically consistent) model is not within 5 % of identify's WLS on joints 2, 4, 6 and 7
     (identify's WLS holds negative rotor inertias on joints 3-7 that no physical model holds;
     ``identify --method physical`` is 56 % worse on joint 4 too; BUILD_NOTES)."""
-    from pe_drake.identification.estimators import read_robot_measurement
+    from pe_drake.identification.intake import read_robot_measurement
     from pe_drake.identification.identify_model import IdentifyOptions, identify_model
     from pe_drake.identification.time_window import TimeWindow
     from pe_drake.identification.validate_model import ValidateOptions, validate_model

@@ -19,9 +19,11 @@ from pe_drake.identification.drive_terms import (
     drive_torque,
     format_percent,
     layout_values,
-    per_joint,
+    layout_term,
 )
-from pe_drake.identification.estimators import identify, predict, prepare_measurement
+from pe_drake.identification.estimators import identify
+from pe_drake.identification.intake import prepare_measurement
+from pe_drake.identification.prediction import predict
 from pe_drake.identification.identified_file import load_identified, result_to_dict
 from pe_drake.identification.physical_fit import LinkBox, PhysicalBounds
 from pe_drake.multibody.base_parameters import compute_base_parameters
@@ -270,8 +272,8 @@ def test_model_urdf_holds_the_viscous_friction_and_armature(optimized, tmp_path)
     # φ_B holds the merged armatures already; the URDF's rotor inertias hold them too
     theta, _ = layout_values(result.model, result.drive_layout)
     want = predict(robot, result, data) - drive_torque(result.model, result.drive_layout, v, vd)
-    want += (per_joint(result.drive_layout, theta, "viscous") * v
-             + per_joint(result.drive_layout, theta, "armature") * vd)  # the merged armatures are in φ_B
+    want += (layout_term(result.drive_layout, theta, "viscous") * v
+             + layout_term(result.drive_layout, theta, "armature") * vd)  # the merged armatures are in φ_B
     np.testing.assert_allclose(loaded.inverse_dynamics(q, v, vd, include_damping=True), want, atol=1e-6)
 
 
@@ -291,7 +293,9 @@ def test_identification_config_is_checked(tmp_path):
 def test_real_panda_drive_terms_beat_the_rigid_fit_and_masses_stay_plausible():
     """Real recording: identify on the first 70 %, predict the last 30 % (run filtered alone)."""
     from pe_drake.identification.drive_terms import filtered_coulomb
-    from pe_drake.identification.estimators import fit_warnings, read_robot_measurement, torque_errors
+    from pe_drake.identification.estimators import fit_warnings
+    from pe_drake.identification.intake import read_robot_measurement
+    from pe_drake.identification.prediction import torque_errors
     from tests.test_identification import REAL
 
     if not REAL.exists():
@@ -386,7 +390,7 @@ def test_real_panda_identify_predicts_the_held_out_part_like_diagnose():
     validate on its held-out part come within 10 % per joint of diagnose's held-out figures."""
     from pe_drake.diagnosis.options import DiagnosisConfig
     from pe_drake.diagnosis.workflow import diagnose
-    from pe_drake.identification.estimators import read_robot_measurement
+    from pe_drake.identification.intake import read_robot_measurement
     from pe_drake.identification.identify_model import IdentifyOptions, identify_model
     from pe_drake.identification.time_window import TimeWindow
     from pe_drake.identification.validate_model import ValidateOptions, validate_model

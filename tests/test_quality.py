@@ -61,7 +61,7 @@ def motion(small_problem):
 
 
 def test_rate_matches_the_identification():
-    from pe_drake.identification.estimators import DEFAULT_RATE_HZ
+    from pe_drake.identification.intake import DEFAULT_RATE_HZ
 
     assert DATA_RATE_HZ == DEFAULT_RATE_HZ
 

@@ -35,7 +35,7 @@ def model_file(tmp_path_factory):
 
 
 def predicted(robot, model, q, v, vd):
-    from pe_drake.identification.estimators import predict
+    from pe_drake.identification.prediction import predict
     from pe_drake.identification.measurements import Measurement
 
     return predict(robot, model, Measurement(np.arange(len(q), dtype=float), q, np.zeros_like(q), v, vd, robot.joint_names))

@@ -152,11 +152,11 @@ class Prepared:
     phi_B_prior: np.ndarray
     internal: InternalSplit
     phi_prior: np.ndarray
-    prior: IdentificationResult | None = None
+    prior: IdentificationResult | RobotModel | None = None
 
 
 def prepare(robot, data: Measurement, validation: Measurement | None, config: DiagnosisConfig,
-            say: Callable[[str], None], prior: IdentificationResult | None = None) -> Prepared:
+            say: Callable[[str], None], prior: IdentificationResult | RobotModel | None = None) -> Prepared:
     """Records, training and held-out parts, the base regressor on each (data preparation).
 
     Raises:
@@ -410,7 +410,7 @@ def diagnose(
     validation: Measurement | None = None,
     config: DiagnosisConfig | None = None,
     progress: Callable[[str], None] | None = None,
-    prior: IdentificationResult | None = None,
+    prior: IdentificationResult | RobotModel | None = None,
 ) -> DiagnosisResult:
     """Runs the five steps of the module docstring.
 

@@ -51,7 +51,7 @@ from pe_drake.multibody.drive_columns import drive_columns
 from pe_drake.threads import single_threaded_blas
 
 #: Rate of the samples the identification fits [Hz] (its preprocessing decimates to it:
-#: ``pe_drake.identification.estimators.DEFAULT_RATE_HZ``; a test keeps the two equal).
+#: ``pe_drake.identification.intake.DEFAULT_RATE_HZ``; a test keeps the two equal).
 DATA_RATE_HZ = 200.0
 #: The fixed reference set of validation motions: count, seed, harmonics, period [s],
 #: samples per motion, fraction of the binding joint limit used.

@@ -22,7 +22,7 @@ import numpy as np
 from pe_drake.exceptions import DataError
 from pe_drake.identification.csv_checks import check_time_order
 from pe_drake.identification.drive_terms import COULOMB_VELOCITY_SCALE, coulomb_column
-from pe_drake.identification.estimators import robot_torques
+from pe_drake.identification.prediction import robot_torques
 
 #: Lowest sample rate accepted [Hz].
 MIN_RATE_HZ = 10.0

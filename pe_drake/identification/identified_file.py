@@ -112,8 +112,10 @@ def standard_parameters_dict(robot, phi: np.ndarray) -> dict[str, dict[str, floa
     }
 
 
-def load_identified(path: str | Path, robot) -> IdentificationResult:
-    """Reads identified.json (or the diagnosis's augmented_model.json) and checks it belongs to ``robot``.
+def load_identified(path: str | Path, robot) -> IdentificationResult | RobotModel:
+    """Reads identified.json, or the diagnosis's augmented_model.json as a
+    :class:`~pe_drake.multibody.robot_model.RobotModel` (:func:`read_augmented_model`), and checks it
+    belongs to ``robot``.
 
     Raises:
         DataError: missing/unreadable file, other robot or joints, base parameters that do
@@ -132,7 +134,7 @@ def load_identified(path: str | Path, robot) -> IdentificationResult:
     except (OSError, json.JSONDecodeError) as err:
         raise DataError(f"cannot read the identified model: {err}", file=str(path)) from err
     if isinstance(d, dict) and "base_parameters" not in d and "phi" in d and "torque_equation" in d:
-        return augmented_as_result(d, robot, str(path))
+        return read_augmented_model(d, robot, str(path))
     try:
         joints = tuple(d["joints"])
         entries = d["base_parameters"]
@@ -224,27 +226,35 @@ def _covariance(d: dict[str, Any], count: int, path: str) -> np.ndarray | None:
 def standard_from_base(robot, result: IdentificationResult) -> np.ndarray:
     """Standard parameters closest to the a-priori model that reproduce φ_B:
     φ = φ0 + K⁺(φ_B − K φ0). Not necessarily physically valid."""
-    K = result.base.K
-    phi0 = robot.phi_model
-    return phi0 + np.linalg.pinv(K) @ (result.phi_B - K @ phi0)
+    return result.base.closest_standard(result.phi_B, robot.phi_model)
 
 
-def augmented_as_result(d: dict[str, Any], robot, path: str = "") -> IdentificationResult:
-    """The diagnosis's augmented_model.json (a :class:`~pe_drake.multibody.robot_model.RobotModel`)
-    as an identified model: its standard parameters (payload added to its link) reduced to the
-    robot's joint-torque base parameters, its drive terms as drive columns. A time delay,
-    pre-sliding friction and a holding torque at rest are not part of this model
-    (``physical_notes`` says so when the file has them).
+def read_augmented_model(d: dict[str, Any], robot, path: str = "") -> RobotModel:
+    """The diagnosis's augmented_model.json as the :class:`~pe_drake.multibody.robot_model.RobotModel`
+    it is (validate, ``diagnose --model`` and export take it as it is).
 
     Raises:
         DataError: other joints, a malformed file.
     """
     check_joints(robot, tuple(d.get("joints") or ()), file=path, what="the model")
     try:
-        model = RobotModel.from_dict(d, robot.body_names)
+        return RobotModel.from_dict(d, robot.body_names)
     except (KeyError, TypeError, ValueError, AttributeError) as err:
         raise DataError(f"not an augmented_model.json written by pe-drake diagnose ({err!r} missing or malformed)",
                         file=path) from err
+
+
+def model_method(model: IdentificationResult | RobotModel) -> str:
+    """What made a loaded model: the fit's method, or "diagnose" (a RobotModel: the augmented model)."""
+    return "diagnose" if isinstance(model, RobotModel) else model.method
+
+
+def unapplied_effects(model: IdentificationResult | RobotModel) -> list[str]:
+    """What of a loaded model a prediction of the torque log sample by sample leaves out (validate,
+    ``diagnose --model``): a :class:`~pe_drake.multibody.robot_model.RobotModel`'s time delay,
+    pre-sliding friction and holding torque at rest; nothing of an identified fit."""
+    if not isinstance(model, RobotModel):
+        return []
     notes = []
     if model.torque_delay != 0.0:
         notes.append(f"the model's time delay {model.torque_delay:.4g} s is not applied (validate pairs samples as "
@@ -254,15 +264,7 @@ def augmented_as_result(d: dict[str, Any], robot, path: str = "") -> Identificat
     if np.any(model.holding_torque):
         notes.append("the model's holding torque at rest is not applied ("
                      + ", ".join(f"{j} {x:.3g} N·m" for j, x in zip(model.joints, model.holding_torque) if x) + ")")
-    base = measurement_base_parameters(robot, "joint_torque")
-    channels = channel_names(robot, "joint_torque")
-    nan = np.full(len(channels), np.nan)
-    return IdentificationResult(
-        robot=robot.name, method="diagnose", joints=model.joints, base=base, phi_B=base.base_values(model.phi_total),
-        sigma_percent=np.full(base.count, np.nan), phi=model.phi_total, cond=float("nan"), residual_rms=nan,
-        relative_error=nan, noise_std=nan, samples=0, source=path, measurement="joint_torque",
-        channels=channels, model=dataclasses.replace(model, sigma={}), drive_layout=model.layout(),
-        physical_notes=tuple(notes))
+    return notes
 
 
 def _check_transmission(layout, robot, path) -> None:

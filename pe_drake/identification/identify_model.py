@@ -30,15 +30,9 @@ from pe_drake.identification.drive_terms import (
     filtered_coulomb,
     format_percent,
 )
-from pe_drake.identification.estimators import (
-    IdentificationResult,
-    fit_warnings,
-    identify,
-    predict,
-    predict_wrench,
-    prepare_measurement,
-    torque_errors,
-)
+from pe_drake.identification.estimators import IdentificationResult, fit_warnings, identify
+from pe_drake.identification.intake import prepare_measurement
+from pe_drake.identification.prediction import predict, predict_wrench, torque_errors
 from pe_drake.identification.gaps import MAX_GAP_S
 from pe_drake.identification.identified_file import result_to_dict, standard_from_base, standard_parameters_dict
 from pe_drake.identification.measurements import Measurement

@@ -53,6 +53,7 @@ from pe_drake.multibody.payload import (
     undetermined_parameters,
 )
 from pe_drake.multibody.regressor import RegressorModel
+from pe_drake.multibody.robot_model import RobotModel
 from pe_drake.threads import single_threaded_blas
 
 
@@ -184,8 +185,9 @@ class PayloadResult:
 
 def arm_parameters(robot, arm_model=None) -> np.ndarray:
     """The arm's standard parameters: the robot's a-priori model (None), an array (10·nb,),
-    or an :class:`~pe_drake.identification.estimators.IdentificationResult` (its physical
-    parameters, else the standard ones closest to the prior that reproduce its φ_B)."""
+    an :class:`~pe_drake.identification.estimators.IdentificationResult` (its physical
+    parameters, else the standard ones closest to the prior that reproduce its φ_B) or a
+    :class:`~pe_drake.multibody.robot_model.RobotModel` (its parameters, payload included)."""
     if arm_model is None:
         return np.asarray(robot.phi_model, float)
     if isinstance(arm_model, np.ndarray) or isinstance(arm_model, (list, tuple)):
@@ -193,6 +195,8 @@ def arm_parameters(robot, arm_model=None) -> np.ndarray:
         if phi.shape != (10 * robot.num_bodies,):
             raise ConfigError(f"arm model has shape {phi.shape}, expected ({10 * robot.num_bodies},)")
         return phi
+    if isinstance(arm_model, RobotModel):
+        return arm_model.phi_total
     if getattr(arm_model, "phi", None) is not None:
         return np.asarray(arm_model.phi, float)
     return standard_from_base(robot, arm_model)

@@ -18,7 +18,9 @@ from pe_drake.config import MEASUREMENTS
 from pe_drake.identification.time_window import TimeWindow
 from pe_drake.identification.data_checks import a_priori_torque, check_against_model
 from pe_drake.identification.drive_terms import COULOMB_VELOCITY_SCALE, filtered_coulomb
-from pe_drake.identification.estimators import IdentificationResult, prepare_measurement, torque_errors
+from pe_drake.identification.estimators import IdentificationResult
+from pe_drake.identification.intake import prepare_measurement
+from pe_drake.identification.prediction import torque_errors
 from pe_drake.identification.gaps import MAX_GAP_S
 from pe_drake.identification.identify_model import prediction
 from pe_drake.identification.measurements import Measurement
@@ -26,6 +28,7 @@ from pe_drake.identification.coupling import coupled_pairs, coupling_warnings
 from pe_drake.identification.reference_errors import Shortfall, shortfall_report, shortfalls
 from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.robot import Robot
+from pe_drake.multibody.robot_model import RobotModel
 from pe_drake.multibody.sensors import MeasurementType
 from pe_drake.plots import plot_prediction
 
@@ -127,13 +130,14 @@ class ValidationReport:
         return written
 
 
-def validate_model(robot: Robot, model: IdentificationResult, measurements: Measurement,
+def validate_model(robot: Robot, model: IdentificationResult | RobotModel, measurements: Measurement,
                    options: ValidateOptions | None = None) -> ValidationReport:
     """What ``pe-drake validate`` does: the run preprocessed and checked, predicted by ``model``.
 
     Args:
         robot: the robot.
-        model: a loaded model (:func:`~pe_drake.identification.identified_file.load_identified`).
+        model: a loaded model (:func:`~pe_drake.identification.identified_file.load_identified`): an
+            identified fit or a :class:`~pe_drake.multibody.robot_model.RobotModel` (the diagnosis's).
         measurements: the raw run (:func:`~pe_drake.identification.intake.read_measurements`).
 
     Raises:
@@ -144,7 +148,8 @@ def validate_model(robot: Robot, model: IdentificationResult, measurements: Meas
                                window=options.window, filtering=options.filtering)
     check_against_model(robot, data)
     kind = MeasurementType(options.measurement)
-    layout = model.drive_layout
+    as_built = isinstance(model, RobotModel)
+    layout = model.layout() if as_built else model.drive_layout
     scale = layout.velocity_scale if layout is not None else COULOMB_VELOCITY_SCALE
     transmission = layout.transmission if layout is not None else None
     measured, predicted = prediction(robot, model, data, kind, filtered_coulomb(measurements, data, scale, transmission))
@@ -158,7 +163,7 @@ def validate_model(robot: Robot, model: IdentificationResult, measurements: Meas
         R = transmission.R if transmission is not None else None
         coupling = tuple(coupling_warnings(coupled_pairs(robot.joint_names, data.v, data.vd,
                                                          (measured - predicted)[:, : robot.n], scale, R)))
-    return ValidationReport(robot.name, model.measurement, options.measurement, names,
+    return ValidationReport(robot.name, "joint_torque" if as_built else model.measurement, options.measurement, names,
                             data.t, measured, predicted, rms, rel, total, data.num_samples, tuple(data.notes),
                             data.preprocessing, tuple(worse), coupling)
 

@@ -532,9 +532,7 @@ def _from_identified(cls, d: Mapping[str, Any], bodies, base, phi_prior) -> Robo
     elif base is None or phi_prior is None:
         raise ValueError("an identified.json with base parameters only needs the robot's base parameters")
     else:
-        phi_B = np.array([float(e["value"]) for e in d["base_parameters"]])
-        phi0 = np.asarray(phi_prior, float)
-        phi = phi0 + np.linalg.pinv(base.K) @ (phi_B - base.K @ phi0)
+        phi = base.closest_standard(np.array([float(e["value"]) for e in d["base_parameters"]]), phi_prior)
     drive, sigma = {}, {}
     block = d.get("drive_terms") or {}
     transmission = Transmission.from_dict(block["transmission"]) if block.get("transmission") else None
