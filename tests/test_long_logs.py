@@ -23,7 +23,7 @@ from pe_drake.identification.drive_terms import DriveTermOptions, drive_columns,
 from pe_drake.identification.estimators import identify
 from pe_drake.identification.intake import prepare_measurement
 from pe_drake.identification.measurements import read_measurement_csv
-from pe_drake.identification.preprocessing import design_lowpass
+from pe_drake.identification.lowpass import design_lowpass
 from pe_drake.multibody import load_robot
 from pe_drake.multibody.base_parameters import compute_base_parameters
 from pe_drake.multibody.regressor import RegressorModel

@@ -25,14 +25,8 @@ from pe_drake.diagnosis.options import MIN_PERIODS, DiagnosisConfig
 from pe_drake.exceptions import DataError
 from pe_drake.identification.data_checks import check_against_model
 from pe_drake.identification.measurements import Measurement, Preprocessing
-from pe_drake.identification.preprocessing import (
-    EDGE_PERIODS,
-    LowPassFilter,
-    choose_cutoff,
-    decimation_step,
-    design_lowpass,
-    resample_uniform,
-)
+from pe_drake.identification.lowpass import EDGE_PERIODS, LowPassFilter, design_lowpass
+from pe_drake.identification.preprocessing import choose_cutoff, decimation_step, resample_uniform
 from pe_drake.memory import available_bytes
 from pe_drake.multibody.drive_columns import coulomb_column
 

@@ -43,7 +43,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from pe_drake.config import noise_vector
+from pe_drake.config_sections import noise_vector
 from pe_drake.exceptions import ConfigError
 from pe_drake.excitation.criteria import singular_values_and_vectors
 from pe_drake.excitation.fourier import FourierBasis, sample_times

@@ -39,7 +39,8 @@ from typing import Any
 import numpy as np
 
 from pe_drake.exceptions import shorten
-from pe_drake.identification.preprocessing import design_lowpass, differentiate, resample_uniform
+from pe_drake.identification.lowpass import design_lowpass, differentiate
+from pe_drake.identification.preprocessing import resample_uniform
 from pe_drake.multibody.drive_columns import (  # noqa: F401 (re-exported: identify's names for them)
     COULOMB_VELOCITY_SCALE,
     DEFAULT_DRIVE_TERMS,
