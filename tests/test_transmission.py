@@ -270,7 +270,9 @@ def test_robot_model_carries_the_transmission(tmp_path):
     cross = truth.transmission.reflected(truth.armature)
     cross -= np.diag(np.diag(cross))
     joint = truth.per_joint_model()
-    friction = truth.coupled_friction()
+    from pe_drake.multibody.model_plant import coupled_friction
+
+    friction = coupled_friction(truth)
     for k in range(5):
         tau = sim.inverse_dynamics(q[k:k + 1], v[k:k + 1], vd[k:k + 1], include_damping=True)[0]
         want = truth.torque(robot, q[k], v[k], vd[k])[0] - joint.offset - cross @ vd[k]
@@ -278,7 +280,7 @@ def test_robot_model_carries_the_transmission(tmp_path):
     # the diagram's forward dynamics (its rotor-coupling system) are exact: torque() of the
     # acceleration it gives is the applied torque, slow joints (Coulomb's tanh) included;
     # states near home, where no capsules touch (contact forces are no drive term)
-    from pe_drake.multibody.robot_model import APPLIED_FORCE_PORT
+    from pe_drake.multibody.model_plant import APPLIED_FORCE_PORT
 
     for _ in range(5):
         x = np.r_[rng.uniform(-0.5, 0.5, robot.n), rng.uniform(-1, 1, robot.n) * rng.choice([1, 0.01], robot.n)]

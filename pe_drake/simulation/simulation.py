@@ -75,7 +75,8 @@ from pe_drake.multibody.drive_columns import coulomb_column
 from pe_drake.multibody.inertia import PARAMETER_NAMES, inertia_matrix, perturb_inertias
 from pe_drake.multibody.payload import PayloadInertia
 from pe_drake.multibody.robot import Robot, load_robot
-from pe_drake.multibody.robot_model import APPLIED_FORCE_PORT, RobotModel
+from pe_drake.multibody.model_plant import APPLIED_FORCE_PORT
+from pe_drake.multibody.robot_model import RobotModel
 from pe_drake.multibody.sensors import MeasurementType
 from pe_drake.multibody.transmission import robot_transmission
 from pe_drake.simulation.truth import (
