@@ -143,7 +143,7 @@ def test_simulate_refuses_a_file_that_is_not_a_model(tmp_path, capsys):
 
 def test_a_truth_adds_its_effects_to_the_model(tmp_path):
     from pe_drake.exceptions import ConfigError
-    from pe_drake.simulation.simulation import true_model
+    from pe_drake.simulation.true_robot import true_model
     from pe_drake.simulation.truth import EffectsTruth, Truth
 
     robot = get_robot("panda")

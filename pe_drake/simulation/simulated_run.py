@@ -20,7 +20,8 @@ from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.robot import Robot
 from pe_drake.multibody.robot_model import RobotModel
 from pe_drake.simulation.simulated_model import load_simulation_model
-from pe_drake.simulation.simulation import FIELDS, simulate, truth_path_for
+from pe_drake.simulation.simulation import simulate, truth_path_for
+from pe_drake.simulation.true_robot import FIELDS
 from pe_drake.simulation.truth import Truth, load_truth, validate_truth
 
 _RECORDED = {"joint_torque": "tau", "base_wrench": "wrench", "both": "tau and wrench"}
