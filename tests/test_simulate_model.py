@@ -110,7 +110,7 @@ def test_simulate_with_the_diagnosis_augmented_model(tmp_path, capsys):
     record = json.loads(truth_path_for(out).read_text())
     loaded = load_identified(path, robot)
     b = robot.body_names.index("panda_link7")
-    np.testing.assert_allclose(record["phi_true"]["panda_link7"], loaded.phi[10 * b : 10 * b + 10])
+    np.testing.assert_allclose(record["phi_true"]["panda_link7"], loaded.phi_total[10 * b : 10 * b + 10])
     assert record["phi_true"]["panda_link7"][0] == pytest.approx(robot.phi_model[10 * b] + 0.8)
     for field, values in (("viscous", model.viscous), ("coulomb", model.coulomb), ("armature", model.armature),
                           ("torque_offset", model.offset)):
