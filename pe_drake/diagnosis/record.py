@@ -140,25 +140,12 @@ class Segment:
     coulomb: np.ndarray
     dtau: np.ndarray
 
-    @property
-    def t(self) -> np.ndarray:
-        return self.record.t[self.idx]
-
-    @property
-    def q(self) -> np.ndarray:
-        return self.record.q[self.idx]
-
-    @property
-    def v(self) -> np.ndarray:
-        return self.record.v[self.idx]
-
-    @property
-    def vd(self) -> np.ndarray:
-        return self.record.vd[self.idx]
-
-    @property
-    def tau(self) -> np.ndarray:
-        return self.record.tau[self.idx]
+    # the record's samples of the segment: time [s], (S,); q, v, vd, tau, each (S, n)
+    t = property(lambda self: self.record.t[self.idx])
+    q = property(lambda self: self.record.q[self.idx])
+    v = property(lambda self: self.record.v[self.idx])
+    vd = property(lambda self: self.record.vd[self.idx])
+    tau = property(lambda self: self.record.tau[self.idx])
 
     @property
     def num_samples(self) -> int:

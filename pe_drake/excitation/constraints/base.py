@@ -11,10 +11,26 @@ from __future__ import annotations
 
 import abc
 import dataclasses
+import math
 
 import numpy as np
 
 from pe_drake.exceptions import ConfigError
+
+
+def robot_capsules(robot, margin, what: str, fix: str) -> tuple:
+    """The robot's collision capsules, after checking the ``margin`` [m] of the ``what`` constraint.
+
+    Raises:
+        ConfigError: a margin that is not a finite number ≥ 0; a robot without capsules (the
+            message ends with ``fix``: how to give it some).
+    """
+    if not isinstance(margin, (int, float)) or not math.isfinite(margin) or margin < 0:
+        raise ConfigError(f"{what} margin must be a finite number >= 0 [m], got {margin!r}")
+    capsules = tuple(getattr(robot, "capsules", ()) or ())
+    if not capsules:
+        raise ConfigError(f"robot '{robot.name}' has no collision capsules{fix}")
+    return capsules
 
 
 def check_postures(q: np.ndarray, robot, what: str) -> np.ndarray:

@@ -34,7 +34,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from pe_drake.exceptions import ConfigError, InfeasibleError
-from pe_drake.excitation.constraints.base import SampledConstraint, SampledValues, check_postures
+from pe_drake.excitation.constraints.base import SampledConstraint, SampledValues, check_postures, robot_capsules
 from pe_drake.multibody.regressor import shared_model
 from pe_drake.multibody.spatial import cross3, rotate
 
@@ -163,16 +163,10 @@ class EnvironmentConstraint(SampledConstraint):
         smoothing: float = 0.002,
         floor_normal: Sequence[float] = (0.0, 0.0, 1.0),
     ):
-        if not isinstance(margin, (int, float)) or not math.isfinite(margin) or margin < 0:
-            raise ConfigError(f"environment margin must be a finite number >= 0 [m], got {margin!r}")
+        capsules = robot_capsules(robot, margin, "environment", " for the floor/box check: set robot.capsules, or "
+                                  "environment: {floor: false} and no boxes")
         if floor_height is not None and not math.isfinite(floor_height):
             raise ConfigError(f"environment.floor_height must be a finite number [m], got {floor_height!r}")
-        capsules = tuple(getattr(robot, "capsules", ()) or ())
-        if not capsules:
-            raise ConfigError(
-                f"robot '{robot.name}' has no collision capsules for the floor/box check: set "
-                "robot.capsules, or environment: {floor: false} and no boxes"
-            )
         self.robot, self.margin, self.floor_height = robot, float(margin), floor_height
         normal = np.asarray(floor_normal, float).reshape(3)
         if not np.isfinite(normal).all() or np.linalg.norm(normal) < 1e-9:
