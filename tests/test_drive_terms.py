@@ -12,15 +12,8 @@ import pytest
 
 from pe_drake.exceptions import ConfigError, UnknownNameError
 from pe_drake.excitation.trajectory_file import load_trajectory
-from pe_drake.identification.drive_terms import (
-    COULOMB_VELOCITY_SCALE,
-    DriveTermOptions,
-    drive_layout,
-    drive_torque,
-    format_percent,
-    layout_values,
-    layout_term,
-)
+from pe_drake.identification.drive_terms import drive_torque, format_percent, layout_values, layout_term
+from pe_drake.multibody.drive_columns import COULOMB_VELOCITY_SCALE, DriveTermOptions, drive_layout
 from pe_drake.identification.estimators import identify
 from pe_drake.identification.intake import prepare_measurement
 from pe_drake.identification.prediction import predict
@@ -126,7 +119,7 @@ def test_friction_choice_has_no_armature_and_none_has_nothing(panda):
 
 def test_base_wrench_rows_get_no_drive_terms():
     g1 = get_robot("g1")
-    from pe_drake.identification.drive_terms import drive_columns
+    from pe_drake.multibody.drive_columns import drive_columns
 
     base = None
     layout = drive_layout(g1, base, DriveTermOptions("friction"))

@@ -306,7 +306,7 @@ def simulated_fit(robot, truth: RobotModel, method: str, folder: Path, noise: fl
     simulated from ``truth`` with torque noise ``noise`` [N·m]: (its path, the trajectory, run),
     run(trajectory, seed, duration=None) a prepared simulated run of the truth."""
     from pe_drake.excitation.trajectory_file import load_trajectory
-    from pe_drake.identification.drive_terms import COULOMB_VELOCITY_SCALE
+    from pe_drake.multibody.drive_columns import COULOMB_VELOCITY_SCALE
     from pe_drake.identification.estimators import identify
     from pe_drake.identification.intake import prepare_measurement
     from pe_drake.identification.identified_file import result_to_dict

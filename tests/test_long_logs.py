@@ -19,7 +19,7 @@ from pe_drake.diagnosis import record
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.excitation.trajectory_file import load_trajectory
 from pe_drake.identification.csv_table import MAX_LINE_CHARS
-from pe_drake.identification.drive_terms import DriveTermOptions, drive_columns, drive_layout
+from pe_drake.multibody.drive_columns import DriveTermOptions, drive_columns, drive_layout
 from pe_drake.identification.estimators import identify
 from pe_drake.identification.intake import prepare_measurement
 from pe_drake.identification.measurements import read_measurement_csv

@@ -108,7 +108,7 @@ def test_identify_starts_from_the_urdf_friction(damped, trajectory, tmp_path):
     """Without drive terms the model file's friction is kept (not absorbed by the links); with
     them the fitted viscous and Coulomb friction are each joint's total, written to model.urdf."""
     from pe_drake.identification.identify_model import IdentifyOptions, identify_model
-    from pe_drake.identification.drive_terms import DriveTermOptions
+    from pe_drake.multibody.drive_columns import DriveTermOptions
 
     data, _ = simulated(damped, trajectory, PLAIN)
     rigid = identify_model(damped, data, IdentifyOptions(drive=DriveTermOptions("none"))).result

@@ -17,7 +17,6 @@ import numpy as np
 from pe_drake.diagnosis.record import Segment, model_file_friction
 from pe_drake.identification.drive_terms import drive_torque
 from pe_drake.identification.estimators import IdentificationResult
-from pe_drake.identification.identified_file import standard_from_base
 from pe_drake.identification.reference_errors import Shortfall, shortfalls
 from pe_drake.multibody.drive_columns import coulomb_column
 from pe_drake.multibody.inertia import validity_problems
@@ -31,7 +30,7 @@ def prior_parameters(robot, prior: IdentificationResult | RobotModel | None) -> 
     if prior is None:
         return np.asarray(robot.phi_model, float)
     phi = _own_parameters(prior)
-    return np.asarray(phi if phi is not None else standard_from_base(robot, prior), float)
+    return np.asarray(phi if phi is not None else prior.model.phi, float)
 
 
 def _own_parameters(prior: IdentificationResult | RobotModel) -> np.ndarray | None:
@@ -43,7 +42,7 @@ def _own_parameters(prior: IdentificationResult | RobotModel) -> np.ndarray | No
 def prior_own_parameters(robot, prior: IdentificationResult | RobotModel | None) -> np.ndarray | None:
     """The standard parameters the augmented model's closest ones are sought from: an earlier
     model's own when physically valid (a physical fit, augmented_model.json), else None (the
-    model file's). An OLS/WLS fit's standard parameters (:func:`standard_from_base`: the model
+    model file's). An OLS/WLS fit's standard parameters (``IdentificationResult.model.phi``: the model
     file's null-space part) are often not physically valid, and the physically consistent fit
     of the augmented model cannot start from them (Clarabel fails)."""
     phi = _own_parameters(prior) if prior is not None else None

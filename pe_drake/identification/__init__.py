@@ -12,7 +12,6 @@ from pe_drake.identification.identify_model import identify_model
 from pe_drake.identification.validate_model import validate_model
 
 _EXPORTS = exports_by_module(__name__, {
-    "drive_terms": "DriveTermOptions",
     "estimators": "IdentificationResult identify",
     "identified_file": "load_identified model_method unapplied_effects",
     "identify_model": "IdentifiedModel IdentifyOptions identify_model",
@@ -23,7 +22,7 @@ _EXPORTS = exports_by_module(__name__, {
     "prediction": "predict predict_wrench robot_torques torque_errors",
     "time_window": "TimeWindow",
     "validate_model": "ValidateOptions ValidationReport validate_model",
-})
+}) | {"DriveTermOptions": "pe_drake.multibody.drive_columns"}
 
 __all__ = sorted(_EXPORTS)
 __getattr__ = lazy_exports(__name__, _EXPORTS)

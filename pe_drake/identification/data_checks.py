@@ -21,7 +21,7 @@ import numpy as np
 
 from pe_drake.exceptions import DataError
 from pe_drake.identification.csv_checks import check_time_order
-from pe_drake.identification.drive_terms import COULOMB_VELOCITY_SCALE, coulomb_column
+from pe_drake.multibody.drive_columns import COULOMB_VELOCITY_SCALE, coulomb_column
 from pe_drake.identification.prediction import robot_torques
 
 #: Lowest sample rate accepted [Hz].

@@ -2,9 +2,10 @@
 
 The torque an actuator applies is the rigid-body torque plus what the drive itself needs
 (friction, offset, armature): per joint, Coulomb tanh(v/v_s), viscous v, offset 1 and armature
-v̇ columns on that joint's row (:mod:`pe_drake.multibody.drive_columns`, whose names are
-re-exported here), so τ = Y_B φ_B + D θ. This module holds what identify does with them: the
-fitted values and their σ, the model file's friction, the data's separability, the outputs.
+v̇ columns on that joint's row (:mod:`pe_drake.multibody.drive_columns`), so τ = Y_B φ_B + D θ.
+This module holds what identify does with them: the fitted values and their σ (a
+:class:`~pe_drake.multibody.robot_model.RobotModel`'s, over the fit's columns), the model file's
+friction, the data's separability, the outputs.
 
 **The model file's friction** (a URDF's ``<dynamics damping>`` and ``friction``) is part of the
 a-priori model (issue 21). A viscous or Coulomb column the fit has estimates the joint's *total*
@@ -41,22 +42,15 @@ import numpy as np
 from pe_drake.exceptions import shorten
 from pe_drake.identification.lowpass import design_lowpass, differentiate
 from pe_drake.identification.preprocessing import resample_uniform
-from pe_drake.multibody.drive_columns import (  # noqa: F401 (re-exported: identify's names for them)
+from pe_drake.multibody.drive_columns import (
     COULOMB_VELOCITY_SCALE,
-    DEFAULT_DRIVE_TERMS,
-    DRIVE_TERM_CHOICES,
     NONNEGATIVE,
-    SEPARABILITY_TOLERANCE,
     TERMS,
     UNITS,
     DriveLayout,
-    DriveTermOptions,
-    armature_merges,
     coulomb_column,
     drive_columns,
     coulomb_velocities,
-    drive_layout,
-    drive_options,
 )
 from pe_drake.multibody.robot_model import RobotModel
 from pe_drake.multibody.transmission import Transmission

@@ -43,12 +43,6 @@ import numpy as np
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.identification.channels import channel_names, measured_values
 from pe_drake.identification.drive_terms import (
-    TERMS,
-    DriveLayout,
-    DriveTermOptions,
-    drive_columns,
-    drive_layout,
-    drive_options,
     layout_torque,
     model_file_terms,
     model_file_terms_lost,
@@ -56,6 +50,14 @@ from pe_drake.identification.drive_terms import (
     separable_on_data,
     unphysical_drive_terms,
     with_known,
+)
+from pe_drake.multibody.drive_columns import (
+    TERMS,
+    DriveLayout,
+    DriveTermOptions,
+    drive_columns,
+    drive_layout,
+    drive_options,
 )
 from pe_drake.identification.measurements import (
     Measurement,

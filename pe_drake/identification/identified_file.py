@@ -223,12 +223,6 @@ def _covariance(d: dict[str, Any], count: int, path: str) -> np.ndarray | None:
     return 0.5 * (cov + cov.T)
 
 
-def standard_from_base(robot, result: IdentificationResult) -> np.ndarray:
-    """Standard parameters closest to the a-priori model that reproduce φ_B:
-    φ = φ0 + K⁺(φ_B − K φ0). Not necessarily physically valid."""
-    return result.base.closest_standard(result.phi_B, robot.phi_model)
-
-
 def read_augmented_model(d: dict[str, Any], robot, path: str = "") -> RobotModel:
     """The diagnosis's augmented_model.json as the :class:`~pe_drake.multibody.robot_model.RobotModel`
     it is (validate, ``diagnose --model`` and export take it as it is).

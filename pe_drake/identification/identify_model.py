@@ -23,18 +23,13 @@ from pe_drake.identification.time_window import TimeWindow
 from pe_drake.identification.channels import measured_values
 from pe_drake.identification.coupling import coupled_pairs, coupling_warnings
 from pe_drake.identification.data_checks import check_against_model
-from pe_drake.identification.drive_terms import (
-    COULOMB_VELOCITY_SCALE,
-    DriveTermOptions,
-    drive_summary,
-    filtered_coulomb,
-    format_percent,
-)
+from pe_drake.identification.drive_terms import drive_summary, filtered_coulomb, format_percent
+from pe_drake.multibody.drive_columns import COULOMB_VELOCITY_SCALE, DriveTermOptions
 from pe_drake.identification.estimators import IdentificationResult, fit_warnings, identify
 from pe_drake.identification.intake import prepare_measurement
 from pe_drake.identification.prediction import predict, predict_wrench, torque_errors
 from pe_drake.identification.gaps import MAX_GAP_S
-from pe_drake.identification.identified_file import result_to_dict, standard_from_base, standard_parameters_dict
+from pe_drake.identification.identified_file import result_to_dict, standard_parameters_dict
 from pe_drake.identification.measurements import Measurement
 from pe_drake.identification.physical_fit import PhysicalBounds, bounds_from_config
 from pe_drake.identification.rest import REST_CHOICES, RestDecision, decide_rest
@@ -313,7 +308,7 @@ def _model_parameters(robot: Robot, result: IdentificationResult) -> tuple[np.nd
     """
     if result.phi is not None:
         return result.phi, ""
-    candidate = standard_from_base(robot, result)
+    candidate = result.model.phi  # the a-priori model moved to the base parameters
     if not validity_problems(robot.body_names, candidate):
         return candidate, "standard parameters: the a-priori model moved to the identified base parameters"
     return None, ("model.urdf not written: the least-squares estimate has no physically valid standard "

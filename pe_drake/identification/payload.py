@@ -34,7 +34,6 @@ import numpy as np
 
 from pe_drake.exceptions import ConfigError, DataError, check_joints
 from pe_drake.identification.channels import CHUNK
-from pe_drake.identification.identified_file import standard_from_base
 from pe_drake.identification.least_squares import compress_joint_rows, weighted_fit_from_factors
 from pe_drake.identification.payload_friction import FRICTION_TERMS, drive_names, friction_columns
 from pe_drake.identification.physical_fit import SDP_TOLERANCES, InertiaBlock, solve_sdp
@@ -199,7 +198,7 @@ def arm_parameters(robot, arm_model=None) -> np.ndarray:
         return arm_model.phi_total
     if getattr(arm_model, "phi", None) is not None:
         return np.asarray(arm_model.phi, float)
-    return standard_from_base(robot, arm_model)
+    return arm_model.model.phi  # the standard parameters closest to the prior that give its φ_B
 
 
 def identify_payload(

@@ -17,7 +17,8 @@ import numpy as np
 from pe_drake.config import MEASUREMENTS
 from pe_drake.identification.time_window import TimeWindow
 from pe_drake.identification.data_checks import a_priori_torque, check_against_model
-from pe_drake.identification.drive_terms import COULOMB_VELOCITY_SCALE, filtered_coulomb
+from pe_drake.identification.drive_terms import filtered_coulomb
+from pe_drake.multibody.drive_columns import COULOMB_VELOCITY_SCALE
 from pe_drake.identification.estimators import IdentificationResult
 from pe_drake.identification.intake import prepare_measurement
 from pe_drake.identification.prediction import torque_errors

@@ -35,6 +35,7 @@ import numpy as np
 
 from pe_drake.exceptions import ConfigError, InfeasibleError
 from pe_drake.excitation.constraints.base import SampledConstraint, SampledValues, check_postures, robot_capsules
+from pe_drake.multibody.forward_kinematics import body_index
 from pe_drake.multibody.regressor import shared_model
 from pe_drake.multibody.spatial import cross3, rotate
 
@@ -197,7 +198,7 @@ class EnvironmentConstraint(SampledConstraint):
         robot, plant = self.robot, self.robot.plant
         self._plant, self._context = plant, plant.CreateDefaultContext()
         self._bodies = sorted({c.body_index for c in self.capsules})
-        self._frames = [plant.get_body(_body_index(b)).body_frame() for b in self._bodies]
+        self._frames = [plant.get_body(body_index(b)).body_frame() for b in self._bodies]
         self._slot = [self._bodies.index(c.body_index) for c in self.capsules]
         # The batched path (Drake's per-sample point Jacobians took half of a
         # Panda solve): capsule ends from the shared forward kinematics, their Jacobians from
@@ -333,12 +334,6 @@ class EnvironmentConstraint(SampledConstraint):
             )
 
 
-def _body_index(b: int):
-    from pydrake.multibody.tree import BodyIndex
-
-    return BodyIndex(int(b))
-
-
 def standing_plane(robot, normal: np.ndarray, mounting_plane: float, tolerance: float = 0.02) -> float:
     """Where a robot on a pedestal stands: the lowest point, along the floor normal n, of the
     capsules that no excited joint moves (a pedestal, a torso welded to the base), when the
@@ -357,7 +352,7 @@ def standing_plane(robot, normal: np.ndarray, mounting_plane: float, tolerance: 
     context = plant.CreateDefaultContext()
     axis, surface = mounting_plane, mounting_plane  # lowest segment end, lowest surface point
     for c in fixed:
-        X = plant.EvalBodyPoseInWorld(context, plant.get_body(_body_index(c.body_index))).GetAsMatrix4()
+        X = plant.EvalBodyPoseInWorld(context, plant.get_body(body_index(c.body_index))).GetAsMatrix4()
         heights = (X[:3, :3] @ c.p_BS.T).T @ normal + X[:3, 3] @ normal
         axis, surface = min(axis, float(heights.min())), min(surface, float(heights.min()) - c.radius)
     # The round end of a base capsule overhangs its mounting plane by up to its radius: only
