@@ -12,7 +12,7 @@ import pytest
 
 from pe_drake.exceptions import ConfigError, UnknownNameError
 from pe_drake.excitation.trajectory_file import load_trajectory
-from pe_drake.identification.drive_terms import drive_torque, format_percent, layout_values, layout_term
+from pe_drake.identification.drive_terms import drive_torque, format_percent, layout_values, model_tables
 from pe_drake.multibody.drive_columns import COULOMB_VELOCITY_SCALE, DriveTermOptions, drive_layout
 from pe_drake.identification.estimators import identify
 from pe_drake.identification.intake import prepare_measurement
@@ -265,8 +265,8 @@ def test_model_urdf_holds_the_viscous_friction_and_armature(optimized, tmp_path)
     # φ_B holds the merged armatures already; the URDF's rotor inertias hold them too
     theta, _ = layout_values(result.model, result.drive_layout)
     want = predict(robot, result, data) - drive_torque(result.model, result.drive_layout, v, vd)
-    want += (layout_term(result.drive_layout, theta, "viscous") * v
-             + layout_term(result.drive_layout, theta, "armature") * vd)  # the merged armatures are in φ_B
+    fitted = model_tables(result.drive_layout, theta, theta, {})[0]  # the merged armatures are in φ_B
+    want += fitted["viscous"] * v + fitted["armature"] * vd
     np.testing.assert_allclose(loaded.inverse_dynamics(q, v, vd, include_damping=True), want, atol=1e-6)
 
 

@@ -115,15 +115,6 @@ def drive_torque(model: RobotModel, layout: DriveLayout | None, v: np.ndarray, v
     return layout_torque(layout, layout_values(model, layout)[0], v, vd, coulomb)
 
 
-def layout_term(layout: DriveLayout, theta: np.ndarray, term: str) -> np.ndarray:
-    """The value of ``term`` on every joint (0 where not a column), shape (n,)."""
-    out = np.zeros(len(layout.joint_names))
-    for t, j, x in zip(layout.terms, layout.joints, theta):
-        if t == term:
-            out[j] = x
-    return out
-
-
 def drive_block(model: RobotModel, layout: DriveLayout, physical: bool) -> dict[str, Any]:
     """identified.json's ``drive_terms`` block of a fit: {joint: {term: {value, sigma, sigma_percent,
     unit}}} under ``joints``, or under ``motors`` with the ``transmission`` and the ``joint_side``
@@ -196,7 +187,8 @@ def joint_side(layout: DriveLayout, theta: np.ndarray) -> dict[str, Any]:
     its sign follows θ̇_m), ``offset`` {joint: (Rᵀ o)_j}, ``viscous`` and ``armature`` {joint:
     {joint: (Rᵀ diag(x) R)_jk}}; joints a motor does not turn are left out."""
     T, names = layout.transmission, layout.joint_names
-    values = {t: layout_term(layout, theta, t) for t in TERMS["all"]}
+    table, zero = model_tables(layout, theta, theta, {})[0], np.zeros(len(names))
+    values = {t: table.get(t, zero) for t in TERMS["all"]}
 
     def matrix(M):
         return {a: {b: float(M[j, k]) for k, b in enumerate(names) if M[j, k] != 0} for j, a in enumerate(names)}

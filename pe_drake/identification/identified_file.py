@@ -161,24 +161,14 @@ def load_identified(path: str | Path, robot) -> IdentificationResult | RobotMode
             f"({base.count}); was it identified with another model or config?",
             file=str(path),
         )
-    phi = None
-    if "standard_parameters" in d:
-        try:
-            table = d["standard_parameters"]
-            phi = np.array([float(table[b][k]) for b in robot.body_names for k in PARAMETER_NAMES])
-        except (KeyError, TypeError, ValueError) as err:
-            raise DataError(f"standard_parameters: {err!r} missing or malformed", file=str(path)) from err
     cov_B = _covariance(d, base.count, str(path))
-    layout = None
-    if d.get("drive_terms") is not None:  # files written before the drive terms have none
-        try:
-            layout = read_drive_layout(d["drive_terms"], robot.joint_names)
-            model = RobotModel.from_dict(d, robot.body_names, base=base, phi_prior=robot.phi_model)
-        except (KeyError, TypeError, ValueError, AttributeError) as err:
-            raise DataError(f"drive_terms: {err!r} missing or malformed", file=str(path)) from err
-        _check_transmission(layout, robot, path)
-    else:
+    try:  # files written before the drive terms have none
         model = RobotModel.from_dict(d, robot.body_names, base=base, phi_prior=robot.phi_model)
+        layout = read_drive_layout(d["drive_terms"], robot.joint_names) if d.get("drive_terms") is not None else None
+    except (KeyError, TypeError, ValueError, AttributeError) as err:
+        raise DataError(f"standard_parameters or drive_terms: {err!r} missing or malformed", file=str(path)) from err
+    if layout is not None:
+        _check_transmission(layout, robot, path)
     return IdentificationResult(
         robot=d.get("robot", robot.name),
         method=d.get("method", "ols"),
@@ -186,7 +176,7 @@ def load_identified(path: str | Path, robot) -> IdentificationResult | RobotMode
         base=base,
         phi_B=phi_B,
         sigma_percent=sigma,
-        phi=phi,
+        phi=model.phi if "standard_parameters" in d else None,
         cond=float(d.get("cond", float("nan"))),
         residual_rms=np.array([d.get("residual_rms", {}).get(c, np.nan) for c in channels]),
         relative_error=np.array([d.get("relative_error", {}).get(c, np.nan) for c in channels]),

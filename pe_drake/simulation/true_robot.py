@@ -16,12 +16,9 @@ from pe_drake.exceptions import ConfigError
 from pe_drake.multibody.inertia import inertia_matrix, perturb_inertias
 from pe_drake.multibody.model_plant import APPLIED_FORCE_PORT
 from pe_drake.multibody.payload import PayloadInertia
-from pe_drake.multibody.robot_model import RobotModel
+from pe_drake.multibody.robot_model import FILE_KEYS, RobotModel
 from pe_drake.multibody.transmission import robot_transmission
 from pe_drake.simulation.truth import ALL_JOINTS, Truth, per_joint_values, validate_truth
-
-#: The truth's per-joint effect tables, by drive term (the simulator's sign convention).
-FIELDS = {"viscous": "viscous", "coulomb": "coulomb", "armature": "armature", "offset": "torque_offset"}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -67,7 +64,7 @@ def true_model(robot, truth: Truth, model: RobotModel | None = None) -> RobotMod
     """
     validate_truth(truth, robot)
     joints, e = robot.joint_names, truth.effects
-    tables = {t: per_joint_values(getattr(e, field), joints) for t, field in FIELDS.items()}
+    tables = {t: per_joint_values(getattr(e, field), joints) for t, field in FILE_KEYS.items()}  # the truth's tables are the model file's
     fc, sigma0 = per_joint_values(e.presliding_friction, joints), per_joint_values(e.presliding_stiffness, joints)
     transmission = robot_transmission(robot) if model is None else model.transmission
     transmission = None if transmission is None or transmission.identity else transmission
