@@ -12,7 +12,8 @@ import pytest
 
 from pe_drake.exceptions import ConfigError, UnknownNameError
 from pe_drake.excitation.trajectory_file import load_trajectory
-from pe_drake.identification.drive_terms import drive_torque, format_percent, layout_values, model_tables
+from pe_drake.identification.drive_terms import drive_torque, format_percent, layout_values
+from pe_drake.multibody.drive_columns import model_tables
 from pe_drake.multibody.drive_columns import COULOMB_VELOCITY_SCALE, DriveTermOptions, drive_layout
 from pe_drake.identification.estimators import identify
 from pe_drake.identification.intake import prepare_measurement

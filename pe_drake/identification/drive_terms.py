@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -49,6 +48,7 @@ from pe_drake.multibody.drive_columns import (
     UNITS,
     DriveLayout,
     coulomb_column,
+    model_tables,
     drive_columns,
     coulomb_velocities,
 )
@@ -77,24 +77,6 @@ def with_known(layout: DriveLayout, theta: np.ndarray, sigma: np.ndarray,
     layout = dataclasses.replace(layout, terms=layout.terms + b.terms, joints=layout.joints + b.joints,
                                  units=layout.units + b.units, known=layout.known + b.labels)
     return layout, np.r_[theta, known[1]], np.r_[sigma, np.zeros(b.count)]
-
-
-def model_tables(layout: DriveLayout, theta: np.ndarray, sigma: np.ndarray,
-                 merged_armature: dict[str, float]) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
-    """A fit's drive terms as a :class:`~pe_drake.multibody.robot_model.RobotModel`'s ``drive`` and
-    ``sigma`` ({term: per-joint values}): the model file's terms σ = 0, the physical fit's merged
-    armatures (``merged_armature``, {joint: value}, inside the base parameters) σ = NaN."""
-    n = len(layout.joint_names)
-    drive: dict[str, np.ndarray] = {}
-    sd: dict[str, np.ndarray] = {}
-    for t, j, x, s in zip(layout.terms, layout.joints, theta, sigma):
-        drive.setdefault(t, np.zeros(n))[j] = float(x)
-        sd.setdefault(t, np.full(n, np.nan))[j] = float(s)
-    for name, value in merged_armature.items():
-        j = layout.joint_names.index(name)
-        drive.setdefault("armature", np.zeros(n))[j] = float(value)
-        sd.setdefault("armature", np.full(n, np.nan))[j] = np.nan
-    return drive, sd
 
 
 def layout_values(model: RobotModel, layout: DriveLayout) -> tuple[np.ndarray, np.ndarray]:
@@ -146,39 +128,6 @@ def drive_block(model: RobotModel, layout: DriveLayout, physical: bool) -> dict[
                     "kept from the model file's <dynamics> (not estimated)",
         "dropped": dict(layout.dropped),
     }
-
-
-def read_drive_layout(d: dict[str, Any], joint_names: Sequence[str]) -> DriveLayout:
-    """The columns of :func:`drive_block`'s block (the values: ``RobotModel.from_dict``).
-
-    Raises:
-        KeyError, TypeError, ValueError: a malformed block (the caller names the file).
-    """
-    names = tuple(joint_names)
-    T = Transmission.from_dict(d["transmission"]) if d.get("transmission") is not None else None
-    if T is not None and T.joints != names:
-        raise ValueError(f"the transmission is of joints {', '.join(T.joints)}, not {', '.join(names)}")
-    table = d["joints"] if T is None else d["motors"]
-    unknown = set(table) - set(names)
-    if unknown:
-        raise ValueError(f"drive terms for joints {', '.join(sorted(unknown))} not in {', '.join(names)}")
-    terms, joints, units, merged, known = [], [], [], {}, []
-    for j, name in enumerate(names):
-        for t, entry in table.get(name, {}).items():
-            if t not in UNITS:
-                raise ValueError(f"unknown drive term '{t}' (valid: {', '.join(UNITS)})")
-            if entry.get("value") is None:
-                merged[name] = dict(entry.get("merged_into", {}))
-                continue
-            float(entry["value"])  # a malformed value is refused here, naming the block
-            if entry.get("source") == "model file":
-                known.append(f"{t}[{name}]")
-            terms.append(t)
-            joints.append(j)
-            units.append(str(entry.get("unit", UNITS[t][0])))
-    return DriveLayout(tuple(terms), tuple(joints), names, tuple(units),
-                       float(d.get("velocity_scale", COULOMB_VELOCITY_SCALE)), merged,
-                       dict(d.get("dropped", {})), transmission=T, known=tuple(known))
 
 
 def joint_side(layout: DriveLayout, theta: np.ndarray) -> dict[str, Any]:

@@ -46,11 +46,11 @@ from pe_drake.identification.drive_terms import (
     layout_torque,
     model_file_terms,
     model_file_terms_lost,
-    model_tables,
     separable_on_data,
     unphysical_drive_terms,
     with_known,
 )
+from pe_drake.multibody.drive_columns import model_tables
 from pe_drake.multibody.drive_columns import (
     TERMS,
     DriveLayout,

@@ -22,7 +22,8 @@ from pe_drake.config import MEASUREMENTS
 from pe_drake.exceptions import DataError, check_joints
 from pe_drake.limits import input_file_problem
 from pe_drake.identification.channels import channel_names
-from pe_drake.identification.drive_terms import drive_block, read_drive_layout
+from pe_drake.identification.drive_terms import drive_block
+from pe_drake.multibody.drive_columns import read_drive_block
 from pe_drake.identification.estimators import IdentificationResult, fit_warnings
 from pe_drake.identification.measurements import Preprocessing
 from pe_drake.io_utils import loads_json
@@ -164,7 +165,7 @@ def load_identified(path: str | Path, robot) -> IdentificationResult | RobotMode
     cov_B = _covariance(d, base.count, str(path))
     try:  # files written before the drive terms have none
         model = RobotModel.from_dict(d, robot.body_names, base=base, phi_prior=robot.phi_model)
-        layout = read_drive_layout(d["drive_terms"], robot.joint_names) if d.get("drive_terms") is not None else None
+        layout = read_drive_block(d["drive_terms"], robot.joint_names)[0] if d.get("drive_terms") is not None else None
     except (KeyError, TypeError, ValueError, AttributeError) as err:
         raise DataError(f"standard_parameters or drive_terms: {err!r} missing or malformed", file=str(path)) from err
     if layout is not None:

@@ -36,7 +36,7 @@ from pe_drake.exceptions import ConfigError, DataError, check_joints
 from pe_drake.identification.channels import CHUNK
 from pe_drake.identification.least_squares import compress_joint_rows, weighted_fit_from_factors
 from pe_drake.identification.payload_friction import FRICTION_TERMS, drive_names, friction_columns
-from pe_drake.identification.physical_fit import SDP_TOLERANCES, InertiaBlock, solve_sdp
+from pe_drake.identification.physical_fit import SDP_TOLERANCES, InertiaBlock, scaled_factor, solve_sdp
 from pe_drake.io_utils import atomic_write_text, finite_json
 from pe_drake.multibody.base_parameters import BaseParameters, compute_base_parameters
 from pe_drake.multibody.drive_columns import COULOMB_VELOCITY_SCALE
@@ -300,12 +300,8 @@ def _physical_fit(R_joint, w, x_ls, K_L: np.ndarray, K_plus: np.ndarray, box: Pa
     """min Σ_j w_j² ‖A_j x − y_j‖² s.t. J(φ_L) ⪰ 0 (and the box), K_L φ_L = the last b entries of x;
     returns (x, φ_L). Parameters K_L leaves out (no motion excites them) are kept small, so that
     φ_L is the least extended payload that explains the data."""
-    p = R_joint.shape[-1] - 1
-    Rw = (R_joint * w[:, None, None]).reshape(-1, p + 1)
-    D = np.maximum(np.linalg.norm(Rw[:, :p], axis=0), 1e-300)
-    R = np.linalg.qr(np.column_stack([Rw[:, :p] / D, Rw[:, p]]), mode="r")
-    Ra, z = R[:p, :p], R[:p, p]
-    b = K_L.shape[0]
+    Ra, z, D = scaled_factor(R_joint, w)
+    p, b = len(D), K_L.shape[0]
     # variables [u (p), φ_L (10)], x = u / D
     Q = np.zeros((p + 10, p + 10))
     Q[:p, :p] = 2.0 * Ra.T @ Ra

@@ -49,6 +49,8 @@ from pe_drake.multibody.drive_columns import (
     UNITS,
     DriveLayout,
     drive_columns,
+    model_tables,
+    read_drive_block,
 )
 from pe_drake.multibody.inertia import (
     PARAMETER_NAMES,
@@ -459,28 +461,11 @@ def _from_identified(cls, d: Mapping[str, Any], bodies, base, phi_prior) -> Robo
         raise ValueError("an identified.json with base parameters only needs the robot's base parameters")
     else:
         phi = base.closest_standard(np.array([float(e["value"]) for e in d["base_parameters"]]), phi_prior)
-    drive, sigma = {}, {}
-    block = d.get("drive_terms") or {}
-    transmission = Transmission.from_dict(block["transmission"]) if block.get("transmission") else None
-    # through a transmission the terms are the motors' (named by their joint)
-    for name, terms in (block.get("motors" if transmission is not None else "joints") or {}).items():
-        if name not in joints:
-            raise ValueError(f"drive terms for joint '{name}' not in {', '.join(joints)}")
-        j = joints.index(name)
-        for t, entry in terms.items():
-            if t not in DRIVE_TERMS:
-                raise ValueError(f"unknown drive term '{t}' (valid: {', '.join(DRIVE_TERMS)})")
-            value = entry.get("value")
-            if value is None:  # an armature merged into the base parameters
-                value = entry.get("physical_fit_value") if std is not None else None
-                if value is None:
-                    continue
-                s = float("nan")
-            else:
-                s = 0.0 if entry.get("source") == "model file" else (
-                    float("nan") if entry.get("sigma") is None else float(entry["sigma"]))
-            drive.setdefault(t, np.zeros(len(joints)))[j] = float(value)
-            sigma.setdefault(t, np.full(len(joints), np.nan))[j] = s
+    drive, sigma, transmission, v_s = {}, {}, None, COULOMB_VELOCITY_SCALE
+    if d.get("drive_terms"):
+        layout, theta, sd, merged = read_drive_block(d["drive_terms"], joints)
+        # a merged armature's value is the physical fit's (with standard parameters); else in φ_B
+        drive, sigma = model_tables(layout, theta, sd, merged if std is not None else {})
+        transmission, v_s = layout.transmission, layout.velocity_scale
     notes = tuple(d.get("physical_fit_notes", ())) + ((d["note"],) if d.get("note") else ())
-    return cls(joints, bodies, phi, drive, sigma, float(block.get("velocity_scale", COULOMB_VELOCITY_SCALE)),
-               notes=notes, transmission=transmission)
+    return cls(joints, bodies, phi, drive, sigma, v_s, notes=notes, transmission=transmission)
