@@ -439,19 +439,18 @@ def format_console(t: dict) -> str:
     def row(label, values, fmt="{:>10.1f}"):
         return f"  {label:<30s}" + "".join(fmt.format(v) for v in values)
 
+    def cond_rows(table):
+        paper = table["paper_hrp4"]
+        return [("cond(C^(i))  G1", table["cond_motion"]), ("             paper HRP-4", paper["cond_motion"][:n]),
+                ("cond(C)      G1", table["cond_total"]), ("             paper HRP-4", paper["cond_total"][:n])]
+
     out = [
         "",
         f"Table I: optimized (sequential)   motion{idx}",
-        row("cond(C^(i))  G1", t1["cond_motion"]),
-        row("             paper HRP-4", t1["paper_hrp4"]["cond_motion"][:n]),
-        row("cond(C)      G1", t1["cond_total"]),
-        row("             paper HRP-4", t1["paper_hrp4"]["cond_total"][:n]),
+        *(row(label, values) for label, values in cond_rows(t1)),
         row("wall time [s] G1", t1["wall_time_s"]),
         f"Table II: random + greedy         motion{idx}",
-        row("cond(C^(i))  G1", t2["cond_motion"]),
-        row("             paper HRP-4", t2["paper_hrp4"]["cond_motion"][:n]),
-        row("cond(C)      G1", t2["cond_total"]),
-        row("             paper HRP-4", t2["paper_hrp4"]["cond_total"][:n]),
+        *(row(label, values) for label, values in cond_rows(t2)),
         "",
         f"first motion, baseline / optimized: {r['baseline']:.4g} / {r['optimized']:.4g} = {r['ratio']:.2f}x "
         f"(target >= {r['target']:g}x: {'met' if r['ratio'] >= r['target'] else 'MISSED'}; "
