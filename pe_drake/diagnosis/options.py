@@ -32,6 +32,16 @@ MAX_COND = 1e4
 MIN_PERIODS = 10.0
 
 
+#: The range of each numeric :class:`DiagnosisConfig` option: (field [unit], lower, upper).
+_RANGES = (
+    ("holdout_fraction", 0.05, 0.8), ("cutoff_hz [Hz]", 1e-3, 1e6), ("decimate_to_hz [Hz]", 1.0, 1e6),
+    ("coulomb_velocity_scale [rad/s]", 1e-6, 10.0), ("alpha", 1e-12, 0.5), ("min_heldout_gain", 0.0, 0.9),
+    ("min_effect_fraction", 0.0, 1.0), ("noise_factor", 0.0, 100.0), ("unexplained_fraction", 0.0, 1.0),
+    ("resolution_fraction", 0.0, 0.1), ("prior_uncertainty", 1e-3, 0.5), ("payload_alpha", 1e-15, 0.5),
+    ("payload_min_prior_sigmas", 0.0, 100.0), ("max_effects", 0, 1000), ("max_gap_s [s]", 0.0, 1e6),
+)
+
+
 @dataclasses.dataclass(frozen=True)
 class DiagnosisConfig:
     """Options of the diagnosis (defaults are what the workflow's module docstring describes).
@@ -98,16 +108,6 @@ class DiagnosisConfig:
         for e in self.effects:
             if e not in JOINT_EFFECTS:
                 raise UnknownNameError("effect", e, JOINT_EFFECTS, where="diagnosis effects")
-
-
-#: The range of each numeric :class:`DiagnosisConfig` option: (field [unit], lower, upper).
-_RANGES = (
-    ("holdout_fraction", 0.05, 0.8), ("cutoff_hz [Hz]", 1e-3, 1e6), ("decimate_to_hz [Hz]", 1.0, 1e6),
-    ("coulomb_velocity_scale [rad/s]", 1e-6, 10.0), ("alpha", 1e-12, 0.5), ("min_heldout_gain", 0.0, 0.9),
-    ("min_effect_fraction", 0.0, 1.0), ("noise_factor", 0.0, 100.0), ("unexplained_fraction", 0.0, 1.0),
-    ("resolution_fraction", 0.0, 0.1), ("prior_uncertainty", 1e-3, 0.5), ("payload_alpha", 1e-15, 0.5),
-    ("payload_min_prior_sigmas", 0.0, 100.0), ("max_effects", 0, 1000), ("max_gap_s [s]", 0.0, 1e6),
-)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

@@ -37,7 +37,8 @@ def predict(
 ) -> np.ndarray:
     """Torques an identified fit (Y_B φ_B) or a :class:`~pe_drake.multibody.robot_model.RobotModel`
     (Y φ, its payload included) predicts at the samples of ``data``, the drive terms included,
-    shape (S, n) (``coulomb``: as in :func:`~pe_drake.identification.estimators.identify`; no delay or pre-sliding state)."""
+    shape (S, n) (``coulomb``: as in :func:`~pe_drake.identification.estimators.identify`; no delay
+    or pre-sliding state)."""
     model = model or RegressorModel(robot)
     tau = np.empty_like(data.q)
     as_built = isinstance(result, RobotModel)

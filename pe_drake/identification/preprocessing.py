@@ -5,7 +5,7 @@ from them too):
 
 1. :func:`resample_uniform`: linear interpolation onto a uniform grid when the time steps vary;
 2. :func:`choose_cutoff`: the low-pass cut-off (argument, trajectory band or spectrum);
-3. :func:`~pe_drake.identification.lowpass.design_lowpass` (:mod:`~pe_drake.identification.lowpass`): the one Butterworth design of the package,
+3. :func:`~pe_drake.identification.lowpass.design_lowpass`: the one Butterworth design of the package,
    run forward and backward (zero phase) with an odd extension of a few cut-off periods at the
    ends, on q and tau alike so torque and motion keep the same phase;
 4. :func:`fill_derivatives` (:func:`differentiate`): v and vd by central differences of the

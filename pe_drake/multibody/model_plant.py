@@ -23,10 +23,10 @@ APPLIED_FORCE_PORT = "applied_generalized_force"
 
 
 def model_plant(model, robot):
-    """A :class:`~pe_drake.multibody.robot_model.RobotModel` in Drake (:meth:`~pe_drake.multibody.robot_model.RobotModel.plant`): a continuous :class:`~pe_drake.multibody.robot.Robot` of
-    ``robot``'s config with these inertias, damping, Coulomb ``DoorHinge``, rotor inertia,
-    payload body and, with pre-sliding friction, the Dahl system whose diagram exports
-    the input :data:`APPLIED_FORCE_PORT`. Offsets are not in the plant: add them to its torque.
+    """A :class:`~pe_drake.multibody.robot_model.RobotModel` in Drake (its ``plant``): a continuous
+    :class:`~pe_drake.multibody.robot.Robot` of ``robot``'s config with these inertias, damping,
+    Coulomb ``DoorHinge``, rotor inertia, payload body and, with pre-sliding friction, the Dahl
+    system whose diagram exports the input :data:`APPLIED_FORCE_PORT`. Offsets are not in the plant: add them to its torque.
 
     Through a transmission: a motor that turns one joint is that joint's damping R_ii²·F_v,
     ``DoorHinge`` |R_ii|·F_c and rotor inertia R_ii²·I; a coupled motor's friction is a

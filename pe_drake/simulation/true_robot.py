@@ -64,7 +64,8 @@ def true_model(robot, truth: Truth, model: RobotModel | None = None) -> RobotMod
     """
     validate_truth(truth, robot)
     joints, e = robot.joint_names, truth.effects
-    tables = {t: per_joint_values(getattr(e, field), joints) for t, field in FILE_KEYS.items()}  # the truth's tables are the model file's
+    # the truth's tables are named as the model file's (RobotModel.FILE_KEYS)
+    tables = {t: per_joint_values(getattr(e, field), joints) for t, field in FILE_KEYS.items()}
     fc, sigma0 = per_joint_values(e.presliding_friction, joints), per_joint_values(e.presliding_stiffness, joints)
     transmission = robot_transmission(robot) if model is None else model.transmission
     transmission = None if transmission is None or transmission.identity else transmission
