@@ -37,8 +37,6 @@ import numpy as np
 from pe_drake.exceptions import ConfigError
 from pe_drake.excitation.problem import ExcitationProblem, check_variables
 
-_QUANTITIES = ("position", "velocity", "acceleration")
-
 
 def trig_rows(k_omega: np.ndarray, t: np.ndarray, order: np.ndarray) -> np.ndarray:
     """Rows of the ``order``-th time derivative of [sin(kωt)…, cos(kωt)…, 1] at times t.

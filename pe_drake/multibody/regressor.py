@@ -32,8 +32,6 @@ from pe_drake.multibody.spatial import (
     summed_cross_force_of,
 )
 
-GRAVITY = 9.81  # [m/s²], overwritten by the plant's gravity field in Kinematics
-
 #: Rows of the ground-wrench regressor, in the order of a spatial force [n; f] (Drake's):
 #: fx, fy, fz, mx, my, mz (the CSV order) are its entries 3, 4, 5, 0, 1, 2. A swap of the
 #: halves, so the permutation is its own inverse.
