@@ -118,7 +118,7 @@ def simulate_runs(robot, trajectories: dict, duration: float, seed: int, say) ->
     The identification runs carry sensor noise; the validation run records the torques the
     motors apply without noise, so the held-out error measures the model, not the sensor.
     """
-    from pe_drake.identification.estimators import prepare_measurement
+    from pe_drake.identification.intake import prepare_measurement
     from pe_drake.simulation.simulation import simulate
     from pe_drake.simulation.truth import Truth
 
@@ -140,7 +140,8 @@ def simulate_runs(robot, trajectories: dict, duration: float, seed: int, say) ->
 
 def identify_and_predict(robot, runs: dict, phi_true: np.ndarray, say) -> dict:
     """Wrench-only and torque-only identification; held-out torque prediction."""
-    from pe_drake.identification.estimators import identify, predict, robot_torques
+    from pe_drake.identification.estimators import identify
+    from pe_drake.identification.prediction import predict, robot_torques
 
     held_out = runs["validation"]
     tau = held_out.tau
@@ -182,7 +183,7 @@ def plot(out: Path, robot, conds: dict, problem, alphas: dict, runs: dict, model
     import matplotlib.pyplot as plt
 
     from pe_drake.excitation.criteria import evaluate_criterion
-    from pe_drake.identification.estimators import predict
+    from pe_drake.identification.prediction import predict
 
     fig, ax = plt.subplots(figsize=(6.4, 3.6))
     for name, alpha in alphas.items():
@@ -196,7 +197,7 @@ def plot(out: Path, robot, conds: dict, problem, alphas: dict, runs: dict, model
     fig.savefig(out / "wrench_singular_values.png", dpi=110)
     plt.close(fig)
 
-    from pe_drake.identification.estimators import robot_torques
+    from pe_drake.identification.prediction import robot_torques
 
     held_out = runs["validation"]
     predicted = predict(robot, models["base_wrench wls"], held_out)

@@ -36,7 +36,9 @@ def main(argv: list[str] | None = None) -> int:
     from pe_drake.config import ExcitationConfig
     from pe_drake.excitation.problem import ExcitationProblem, scale_into_limits
     from pe_drake.excitation.trajectory_file import load_trajectory
-    from pe_drake.identification.estimators import identify, predict, prepare_measurement, robot_torques, torque_errors
+    from pe_drake.identification.estimators import identify
+    from pe_drake.identification.intake import prepare_measurement
+    from pe_drake.identification.prediction import predict, robot_torques, torque_errors
     from pe_drake.simulation.simulation import simulate
     from pe_drake.simulation.truth import Truth
     from pe_drake.multibody.robot import load_robot

@@ -39,13 +39,9 @@ def main(argv: list[str] | None = None) -> int:
         )
         return 0
 
-    from pe_drake.identification.estimators import (
-        identify,
-        predict,
-        prepare_measurement,
-        robot_torques,
-        torque_errors,
-    )
+    from pe_drake.identification.estimators import identify
+    from pe_drake.identification.intake import prepare_measurement
+    from pe_drake.identification.prediction import predict, robot_torques, torque_errors
     from pe_drake.identification import read_measurements
     from pe_drake.identification.identified_file import result_to_dict
     from pe_drake.io_utils import staged_output_dir

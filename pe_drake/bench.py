@@ -25,7 +25,8 @@ from pe_drake.diagnosis import diagnose
 from pe_drake.excitation.fourier import FourierTrajectory
 from pe_drake.excitation.problem import ExcitationProblem
 from pe_drake.excitation.trajectory_file import load_trajectory
-from pe_drake.identification.estimators import identify, prepare_measurement, read_robot_measurement
+from pe_drake.identification.estimators import identify
+from pe_drake.identification.intake import prepare_measurement, read_robot_measurement
 from pe_drake.identification.measurements import write_measurement_csv
 from pe_drake.simulation.simulation import simulate
 from pe_drake.simulation.synthetic import model_measurement

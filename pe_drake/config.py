@@ -12,11 +12,9 @@ import dataclasses
 import difflib
 import math
 import re
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 
 from pe_drake.config_sections import (  # noqa: F401  (re-exported: config.X keeps working)
     DATA_FORMATS,
@@ -27,14 +25,14 @@ from pe_drake.config_sections import (  # noqa: F401  (re-exported: config.X kee
     IdentificationConfig,
     JointMapConfig,
     TransmissionConfig,
+    NoiseStdConfig,
     check_finite,
     check_fraction,
     validate_identification,
     validate_log_sections,
 )
-from pe_drake import limits
 from pe_drake.exceptions import ConfigError, shorten
-from pe_drake.yaml_check import check_yaml_file, key_line
+from pe_drake.yaml_check import key_line, load_yaml_typed
 
 
 @dataclasses.dataclass
@@ -129,31 +127,6 @@ SAFE_DEFAULTS = {"position_margin": 0.05, "velocity_scale": 0.8}
 
 #: Largest solver.max_iterations: IPOPT and NLopt take a C int (1e35 was an IPOPT option error).
 MAX_ITERATIONS = 2**31 - 1
-
-
-#: Default joint-torque noise σ [N·m], every joint: the order of a joint-torque sensor's
-#: noise after the identification's low-pass filter.
-DEFAULT_NOISE_STD = 0.05
-
-
-@dataclasses.dataclass
-class NoiseStdConfig:
-    """Sensor noise σ of each measured quantity: the row weights of C.
-
-    Rows divided by their σ make cond(C) independent of units and of the sensor mix.
-
-    Attributes:
-        torque: joint-torque noise [N·m or N]: one value for every joint, or {joint: value}
-            (``all`` for the joints not named). It weighs the torque rows against the wrench
-            rows (``measurement: both``), weighs joints against each other, and sets the
-            quality figures ``optimize`` reports (:mod:`pe_drake.excitation.quality`).
-        force: force noise of the ground-wrench sensor [N].
-        moment: moment noise of the ground-wrench sensor [N·m].
-    """
-
-    torque: dict[str, float] | float = DEFAULT_NOISE_STD  # [N·m]; a Drake yaml union: container type first
-    force: float = 0.5
-    moment: float = 0.05
 
 
 @dataclasses.dataclass
@@ -315,38 +288,6 @@ MEASUREMENTS = ("joint_torque", "base_wrench", "both")
 SOLVERS = ("ipopt", "nlopt")
 NLOPT_ALGORITHMS = ("LD_SLSQP", "LD_MMA", "LD_CCSAQ")
 EXECUTORS = ("local", "ray")
-
-
-def load_yaml_typed(path: str | Path, schema: type, defaults: Any = None, what: str = "config") -> Any:
-    """Reads a YAML file onto a dataclass with Drake's ``yaml_load_typed`` (unknown keys refused).
-
-    Args:
-        path: the YAML file.
-        schema: the dataclass type the file maps onto.
-        defaults: an instance whose values the file's keys override (None: ``schema()``).
-        what: what the file is, for messages ("config", "truth", "capsule").
-
-    Returns:
-        The loaded ``schema`` instance (not validated further).
-
-    Raises:
-        ConfigError: a missing file, or a file that does not parse or does not match the
-            schema (unknown key, wrong type); the message names the file.
-    """
-    import yaml  # lazy, with pydrake: keeps `import pe_drake` light
-    from pydrake.common.yaml import yaml_load_typed
-
-    path = Path(path)
-    problem = limits.input_file_problem(path)
-    if problem:
-        raise ConfigError(f"{what} file '{path}' {problem}")
-    check_yaml_file(path, schema, what)  # syntax and shape, naming the line and the key
-    try:
-        return yaml_load_typed(schema=schema, filename=str(path),
-                               defaults=defaults if defaults is not None else schema())
-    except (yaml.YAMLError, RuntimeError, ValueError, TypeError, AttributeError, AssertionError) as err:
-        # Drake asserts on a list where it expects a mapping (and vice versa).
-        raise ConfigError(f"{what} file '{path}' does not match the {what} format: {shorten(err, 1000)}") from err
 
 
 def validate_config(config: Config) -> Config:
@@ -529,48 +470,3 @@ def _resolve_paths(robot: RobotConfig, folder: Path) -> None:
 def to_dict(obj: Any) -> Any:
     """A dataclass as plain dicts/lists (for JSON reports)."""
     return dataclasses.asdict(obj)
-
-
-def noise_vector(noise_std, joint_names: Sequence[str]) -> np.ndarray:
-    """σ_j per joint from the config's ``excitation.noise_std.torque``.
-
-    Args:
-        noise_std: one value for every joint; a {joint: value} table (the key ``all`` sets
-            the joints not named); a sequence with one value per joint; or None
-            (:data:`DEFAULT_NOISE_STD`) [N·m or N].
-        joint_names: the excited joints, length n.
-
-    Raises:
-        ConfigError: an unknown joint, a sequence whose length is not n, or a value that is not
-            a positive finite number (naming the joint).
-    """
-    joints = list(joint_names)
-    n = len(joints)
-    if noise_std is None:
-        return np.full(n, DEFAULT_NOISE_STD)
-    if isinstance(noise_std, dict):
-        unknown = [k for k in noise_std if k != "all" and k not in joints]
-        if unknown:
-            raise ConfigError(
-                f"excitation.noise_std.torque names unknown joint '{unknown[0]}'; valid: all, {', '.join(joints)}"
-            )
-        default = noise_std.get("all", DEFAULT_NOISE_STD)
-        values = [noise_std.get(j, default) for j in joints]
-    elif isinstance(noise_std, (str, bytes)) or not hasattr(noise_std, "__len__"):
-        values = [noise_std] * n
-    else:
-        values = list(noise_std)
-        if len(values) != n:
-            raise ConfigError(
-                f"excitation.noise_std.torque has {len(values)} values; give one value, or one per joint ({n}: "
-                f"{', '.join(joints)}), or a {{joint: value}} table"
-            )
-    out = np.empty(n)
-    for j, value in enumerate(values):
-        ok = isinstance(value, (int, float, np.floating, np.integer)) and not isinstance(value, bool)
-        if not ok or not math.isfinite(float(value)) or float(value) <= 0:
-            raise ConfigError(
-                f"excitation.noise_std.torque of joint '{joints[j]}' must be a positive number [N·m], got {value!r}"
-            )
-        out[j] = float(value)
-    return out

@@ -1,9 +1,10 @@
-"""The config sections of logs in, motions out and identification (issues 22, 23), and the
-number checks every section uses. :mod:`pe_drake.config` assembles them into ``Config``.
+"""The config sections of logs in, motions out, sensor noise and identification (issues 22, 23),
+and the number checks every section uses. :mod:`pe_drake.config` assembles them into ``Config``.
 """
 
 import dataclasses
 import math
+from collections.abc import Sequence
 from typing import Any, Optional
 
 import numpy as np
@@ -200,3 +201,73 @@ def validate_identification(c: IdentificationConfig) -> None:
             check_finite(f"identification.boxes['{link}'].center", v)
         for v in box.size:
             check_finite(f"identification.boxes['{link}'].size", v, nonneg=True)
+
+
+#: Default joint-torque noise σ [N·m], every joint: the order of a joint-torque sensor's
+#: noise after the identification's low-pass filter.
+DEFAULT_NOISE_STD = 0.05
+
+
+@dataclasses.dataclass
+class NoiseStdConfig:
+    """Sensor noise σ of each measured quantity: the row weights of C.
+
+    Rows divided by their σ make cond(C) independent of units and of the sensor mix.
+
+    Attributes:
+        torque: joint-torque noise [N·m or N]: one value for every joint, or {joint: value}
+            (``all`` for the joints not named). It weighs the torque rows against the wrench
+            rows (``measurement: both``), weighs joints against each other, and sets the
+            quality figures ``optimize`` reports (:mod:`pe_drake.excitation.quality`).
+        force: force noise of the ground-wrench sensor [N].
+        moment: moment noise of the ground-wrench sensor [N·m].
+    """
+
+    torque: dict[str, float] | float = DEFAULT_NOISE_STD  # [N·m]; a Drake yaml union: container type first
+    force: float = 0.5
+    moment: float = 0.05
+
+
+def noise_vector(noise_std, joint_names: Sequence[str]) -> np.ndarray:
+    """σ_j per joint from the config's ``excitation.noise_std.torque``.
+
+    Args:
+        noise_std: one value for every joint; a {joint: value} table (the key ``all`` sets
+            the joints not named); a sequence with one value per joint; or None
+            (:data:`DEFAULT_NOISE_STD`) [N·m or N].
+        joint_names: the excited joints, length n.
+
+    Raises:
+        ConfigError: an unknown joint, a sequence whose length is not n, or a value that is not
+            a positive finite number (naming the joint).
+    """
+    joints = list(joint_names)
+    n = len(joints)
+    if noise_std is None:
+        return np.full(n, DEFAULT_NOISE_STD)
+    if isinstance(noise_std, dict):
+        unknown = [k for k in noise_std if k != "all" and k not in joints]
+        if unknown:
+            raise ConfigError(
+                f"excitation.noise_std.torque names unknown joint '{unknown[0]}'; valid: all, {', '.join(joints)}"
+            )
+        default = noise_std.get("all", DEFAULT_NOISE_STD)
+        values = [noise_std.get(j, default) for j in joints]
+    elif isinstance(noise_std, (str, bytes)) or not hasattr(noise_std, "__len__"):
+        values = [noise_std] * n
+    else:
+        values = list(noise_std)
+        if len(values) != n:
+            raise ConfigError(
+                f"excitation.noise_std.torque has {len(values)} values; give one value, or one per joint ({n}: "
+                f"{', '.join(joints)}), or a {{joint: value}} table"
+            )
+    out = np.empty(n)
+    for j, value in enumerate(values):
+        ok = isinstance(value, (int, float, np.floating, np.integer)) and not isinstance(value, bool)
+        if not ok or not math.isfinite(float(value)) or float(value) <= 0:
+            raise ConfigError(
+                f"excitation.noise_std.torque of joint '{joints[j]}' must be a positive number [N·m], got {value!r}"
+            )
+        out[j] = float(value)
+    return out

@@ -39,19 +39,23 @@ from pe_drake.multibody.capsule_fitting import FITTED_CAPSULES_NAME
 from pe_drake.multibody.model_files import is_xacro
 from pe_drake.multibody.registry import builtin_robots, resolve_robot_config, robot_display_name
 from pe_drake.multibody.robot import Robot
-from pe_drake.viewer_scene import ENVIRONMENT_PATH, draw_environment, frame_camera, motion_extent
+from pe_drake.viewer_scene import (
+    COM_PATH,
+    ENVIRONMENT_PATH,
+    SUPPORT_PATH,
+    com_marker_pose,
+    draw_environment,
+    draw_markers,
+    frame_camera,
+    motion_extent,
+    support_polygon,
+)
 
 #: Meshcat paths (under ``/drake``) of what this module draws.
 VISUAL_PREFIX = "visual"
 CAPSULES_PREFIX = "capsules"
-COM_PATH = "com_projection"
-SUPPORT_PATH = "support_area"
 
-_COM_RADIUS = 0.03  # [m] radius of the CoM ground marker (a flat disc)
-_GROUND_OFFSET = 1e-3  # [m] above z = 0, so the markers do not flicker with the grid
 _CAPSULE_RGBA = (1.0, 0.55, 0.0, 0.35)
-_COM_RGBA = (0.9, 0.1, 0.1, 1.0)
-_SUPPORT_RGBA = (0.1, 0.7, 0.2, 0.35)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -252,8 +256,8 @@ def _record_motion(meshcat, rob, q: np.ndarray, fps: float, loop: bool = True) -
     context = diagram.CreateDefaultContext()
     plant_context = plant.GetMyMutableContextFromRoot(context)
 
-    support = _support_polygon(rob, plant, plant_context, q[0])
-    _draw_markers(meshcat, support)
+    support = support_polygon(rob, plant, plant_context, q[0])
+    draw_markers(meshcat, support)
 
     meshcat.StartRecording(frames_per_second=fps, set_visualizations_while_recording=False)
     com_xy = np.empty((len(q), 2))
@@ -268,7 +272,7 @@ def _record_motion(meshcat, rob, q: np.ndarray, fps: float, loop: bool = True) -
         # Drake refuses the CoM of a massless model (no inertials): the robot is still drawn
         p_WCcm = plant.CalcCenterOfMassPositionInWorld(plant_context) if massive else np.zeros(3)
         com_xy[k] = p_WCcm[:2]
-        meshcat.SetTransform(COM_PATH, _translation(com_xy[k], _GROUND_OFFSET), t_record)
+        meshcat.SetTransform(COM_PATH, com_marker_pose(com_xy[k]), t_record)
     meshcat.StopRecording()
     animation = meshcat.get_mutable_recording()
     if loop:
@@ -282,7 +286,7 @@ def _record_motion(meshcat, rob, q: np.ndarray, fps: float, loop: bool = True) -
     context.SetTime(0.0)
     plant.SetPositions(plant_context, q[0])
     diagram.ForcedPublish(context)
-    meshcat.SetTransform(COM_PATH, _translation(com_xy[0], _GROUND_OFFSET))
+    meshcat.SetTransform(COM_PATH, com_marker_pose(com_xy[0]))
     return com_xy, support
 
 
@@ -437,80 +441,6 @@ def _joint_order(path, data: dict, rob) -> np.ndarray:
     joints = [str(j) for j in data["joints"]]
     check_joints(rob, joints, file=str(path), what="the trajectory", any_order=True)
     return np.array([joints.index(j) for j in rob.joint_names])
-
-
-def _support_polygon(rob, plant, plant_context, q0: np.ndarray) -> np.ndarray:
-    """Convex hull (x, y) of the support points in world at q0, shape (m, 2) [m].
-
-    The feet are welded in every built-in config; if an excited joint moves a foot, the area
-    drawn is the one at t = 0.
-    """
-    points = rob.config.support_points or {}
-    if not points:
-        return np.zeros((0, 2))
-    plant.SetPositions(plant_context, q0)
-    p_W = []
-    for link, p_L in points.items():
-        if not plant.HasBodyNamed(link):
-            raise UnknownNameError("link", link, rob.body_names_all, where="robot.support_points")
-        X_WL = plant.EvalBodyPoseInWorld(plant_context, plant.GetBodyByName(link))
-        p_W.append((X_WL.GetAsMatrix4() @ np.c_[np.asarray(p_L, float), np.ones(len(p_L))].T)[:3].T)
-    return convex_hull_2d(np.concatenate(p_W)[:, :2])
-
-
-def convex_hull_2d(points: np.ndarray) -> np.ndarray:
-    """Convex hull of planar points (Andrew's monotone chain).
-
-    Args:
-        points: shape (N, 2).
-
-    Returns:
-        Hull corners counter-clockwise without repetition, shape (m, 2).
-    """
-    pts = np.unique(np.asarray(points, float).reshape(-1, 2), axis=0)  # sorted by x, then y
-    if len(pts) <= 2:
-        return pts
-
-    def half(seq):
-        chain: list[np.ndarray] = []
-        for p in seq:
-            while len(chain) >= 2 and _cross(chain[-1] - chain[-2], p - chain[-2]) <= 0:
-                chain.pop()
-            chain.append(p)
-        return chain[:-1]
-
-    return np.array(half(pts) + half(pts[::-1]))
-
-
-def _cross(a: np.ndarray, b: np.ndarray) -> float:
-    """z of the cross product of two planar vectors."""
-    return float(a[0] * b[1] - a[1] * b[0])
-
-
-def _draw_markers(meshcat, support: np.ndarray) -> None:
-    from pydrake.geometry import Cylinder, Rgba  # lazy: pydrake is heavy
-
-    meshcat.Delete(COM_PATH)
-    meshcat.Delete(SUPPORT_PATH)
-    meshcat.SetObject(f"{COM_PATH}/disc", Cylinder(_COM_RADIUS, 0.002), Rgba(*_COM_RGBA))
-    if len(support) >= 3:
-        m = len(support)
-        vertices = np.c_[support, np.full(m, _GROUND_OFFSET / 2)].T
-        faces = np.array([[0, k, k + 1] for k in range(1, m - 1)], np.int32).T
-        meshcat.SetTriangleMesh(
-            f"{SUPPORT_PATH}/area",
-            np.asfortranarray(vertices),
-            np.asfortranarray(faces),
-            Rgba(*_SUPPORT_RGBA),
-        )
-        outline = np.c_[vertices, vertices[:, :1]]
-        meshcat.SetLine(f"{SUPPORT_PATH}/outline", np.asfortranarray(outline), 2.0, Rgba(0.1, 0.5, 0.1, 1.0))
-
-
-def _translation(xy: np.ndarray, z: float):
-    from pydrake.math import RigidTransform  # lazy: pydrake is heavy
-
-    return RigidTransform([float(xy[0]), float(xy[1]), z])
 
 
 def write_plan_playback(plan, html_path: str | Path, *, show_capsules: bool = True, rate: float = 30.0) -> Path:

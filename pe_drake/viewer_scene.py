@@ -1,4 +1,5 @@
-"""What the Meshcat playback draws around the robot: the environment and the camera.
+"""What the Meshcat playback draws around the robot: the environment, the camera, and the ground
+projection of the whole-body CoM with the support area of the feet (:func:`draw_markers`).
 
 :func:`draw_environment` draws the obstacles a config's ``environment`` section names, the
 ones the optimizer kept the capsules away from: the floor of a fixed-base arm (the mounting
@@ -20,6 +21,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from pe_drake.exceptions import UnknownNameError
 from pe_drake.excitation.constraints.environment import Box, floor_plane
 
 if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
@@ -27,6 +29,14 @@ if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
 
 #: Meshcat path (under ``/drake``) of the environment layer.
 ENVIRONMENT_PATH = "environment"
+#: Meshcat paths (under ``/drake``) of the CoM's ground projection and the support area.
+COM_PATH = "com_projection"
+SUPPORT_PATH = "support_area"
+
+_COM_RADIUS = 0.03  # [m] radius of the CoM ground marker (a flat disc)
+_GROUND_OFFSET = 1e-3  # [m] above z = 0, so the markers do not flicker with the grid
+_COM_RGBA = (0.9, 0.1, 0.1, 1.0)
+_SUPPORT_RGBA = (0.1, 0.7, 0.2, 0.35)
 
 _FLOOR_RGBA = (0.35, 0.35, 0.4, 0.15)
 _BOX_RGBA = (0.2, 0.45, 0.9, 0.35)
@@ -158,3 +168,80 @@ def _path_name(name: str, index: int) -> str:
     """A Meshcat path element from a box name ('/' separates path elements)."""
     clean = re.sub(r"[^A-Za-z0-9_.\-]+", "_", name).strip("_")
     return clean or f"box{index}"
+
+
+def support_polygon(rob, plant, plant_context, q0: np.ndarray) -> np.ndarray:
+    """Convex hull (x, y) of the support points in world at q0, shape (m, 2) [m].
+
+    The feet are welded in every built-in config; if an excited joint moves a foot, the area
+    drawn is the one at t = 0.
+    """
+    points = rob.config.support_points or {}
+    if not points:
+        return np.zeros((0, 2))
+    plant.SetPositions(plant_context, q0)
+    p_W = []
+    for link, p_L in points.items():
+        if not plant.HasBodyNamed(link):
+            raise UnknownNameError("link", link, rob.body_names_all, where="robot.support_points")
+        X_WL = plant.EvalBodyPoseInWorld(plant_context, plant.GetBodyByName(link))
+        p_W.append((X_WL.GetAsMatrix4() @ np.c_[np.asarray(p_L, float), np.ones(len(p_L))].T)[:3].T)
+    return convex_hull_2d(np.concatenate(p_W)[:, :2])
+
+
+def convex_hull_2d(points: np.ndarray) -> np.ndarray:
+    """Convex hull of planar points (Andrew's monotone chain).
+
+    Args:
+        points: shape (N, 2).
+
+    Returns:
+        Hull corners counter-clockwise without repetition, shape (m, 2).
+    """
+    pts = np.unique(np.asarray(points, float).reshape(-1, 2), axis=0)  # sorted by x, then y
+    if len(pts) <= 2:
+        return pts
+
+    def half(seq):
+        chain: list[np.ndarray] = []
+        for p in seq:
+            while len(chain) >= 2 and _cross(chain[-1] - chain[-2], p - chain[-2]) <= 0:
+                chain.pop()
+            chain.append(p)
+        return chain[:-1]
+
+    return np.array(half(pts) + half(pts[::-1]))
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> float:
+    """z of the cross product of two planar vectors."""
+    return float(a[0] * b[1] - a[1] * b[0])
+
+
+def draw_markers(meshcat, support: np.ndarray) -> None:
+    """The CoM's ground disc (``/drake/com_projection``) and the support area's polygon and outline
+    (``/drake/support_area``) when it has 3 corners or more."""
+    from pydrake.geometry import Cylinder, Rgba  # lazy: pydrake is heavy
+
+    meshcat.Delete(COM_PATH)
+    meshcat.Delete(SUPPORT_PATH)
+    meshcat.SetObject(f"{COM_PATH}/disc", Cylinder(_COM_RADIUS, 0.002), Rgba(*_COM_RGBA))
+    if len(support) >= 3:
+        m = len(support)
+        vertices = np.c_[support, np.full(m, _GROUND_OFFSET / 2)].T
+        faces = np.array([[0, k, k + 1] for k in range(1, m - 1)], np.int32).T
+        meshcat.SetTriangleMesh(
+            f"{SUPPORT_PATH}/area",
+            np.asfortranarray(vertices),
+            np.asfortranarray(faces),
+            Rgba(*_SUPPORT_RGBA),
+        )
+        outline = np.c_[vertices, vertices[:, :1]]
+        meshcat.SetLine(f"{SUPPORT_PATH}/outline", np.asfortranarray(outline), 2.0, Rgba(0.1, 0.5, 0.1, 1.0))
+
+
+def com_marker_pose(xy: np.ndarray):
+    """The pose of the CoM's ground disc over the point ``xy`` [m], just above the ground."""
+    from pydrake.math import RigidTransform  # lazy: pydrake is heavy
+
+    return RigidTransform([float(xy[0]), float(xy[1]), _GROUND_OFFSET])

@@ -1,4 +1,5 @@
-"""Checks a YAML file against a dataclass schema before Drake's ``yaml_load_typed`` reads it.
+"""Checks a YAML file against a dataclass schema before Drake's ``yaml_load_typed`` reads it
+(:func:`load_yaml_typed`, the one reader of YAML files onto dataclasses).
 
 Drake's loader reports a list where a mapping belongs with a bare ``AssertionError`` and a
 syntax error with the YAML library's traceback, and neither names the line of the key. This
@@ -20,7 +21,9 @@ import math
 import types
 import typing
 from pathlib import Path
+from typing import Any
 
+from pe_drake import limits
 from pe_drake.exceptions import ConfigError, shorten
 
 _NULLS = ("null", "Null", "NULL", "~", "")
@@ -265,3 +268,35 @@ def key_line(path: str | Path, dotted_key: str) -> int | None:
             return None
         key_node, node = match[0]
     return key_node.start_mark.line + 1
+
+
+def load_yaml_typed(path: str | Path, schema: type, defaults: Any = None, what: str = "config") -> Any:
+    """Reads a YAML file onto a dataclass with Drake's ``yaml_load_typed`` (unknown keys refused).
+
+    Args:
+        path: the YAML file.
+        schema: the dataclass type the file maps onto.
+        defaults: an instance whose values the file's keys override (None: ``schema()``).
+        what: what the file is, for messages ("config", "truth", "capsule").
+
+    Returns:
+        The loaded ``schema`` instance (not validated further).
+
+    Raises:
+        ConfigError: a missing file, or a file that does not parse or does not match the
+            schema (unknown key, wrong type); the message names the file.
+    """
+    import yaml  # lazy, with pydrake: keeps `import pe_drake` light
+    from pydrake.common.yaml import yaml_load_typed
+
+    path = Path(path)
+    problem = limits.input_file_problem(path)
+    if problem:
+        raise ConfigError(f"{what} file '{path}' {problem}")
+    check_yaml_file(path, schema, what)  # syntax and shape, naming the line and the key
+    try:
+        return yaml_load_typed(schema=schema, filename=str(path),
+                               defaults=defaults if defaults is not None else schema())
+    except (yaml.YAMLError, RuntimeError, ValueError, TypeError, AttributeError, AssertionError) as err:
+        # Drake asserts on a list where it expects a mapping (and vice versa).
+        raise ConfigError(f"{what} file '{path}' does not match the {what} format: {shorten(err, 1000)}") from err

@@ -6,7 +6,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from pe_drake.config import check_finite, check_fraction, load_yaml_typed
+from pe_drake.config import check_finite, check_fraction
+from pe_drake.yaml_check import load_yaml_typed
 from pe_drake.exceptions import ConfigError
 
 

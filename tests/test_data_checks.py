@@ -9,7 +9,7 @@ from pe_drake.cli import main
 from pe_drake.exceptions import DataError
 from pe_drake.excitation.trajectory_file import load_trajectory
 from pe_drake.identification.data_checks import check_against_model, check_raw_measurement
-from pe_drake.identification.estimators import prepare_measurement
+from pe_drake.identification.intake import prepare_measurement
 from pe_drake.identification.measurements import write_measurement_csv
 from pe_drake.simulation.synthetic import model_measurement
 

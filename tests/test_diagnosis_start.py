@@ -58,8 +58,11 @@ def test_the_starting_fit_is_identify_on_the_same_rows(negative_armature):
     model_file = {"viscous": robot.joint_damping, "coulomb": robot.joint_friction}
     term_of = {term: effect for effect, term in EFFECT_TERMS.items()}
     ours = result.start["drive_terms"]
-    assert len(ours) == len(fit.drive.layout.labels)
-    for term, j, value in zip(fit.drive.layout.terms, fit.drive.layout.joints, fit.drive.theta):
+    from pe_drake.identification.drive_terms import layout_values
+
+    assert len(ours) == len(fit.drive_layout.labels)
+    theta, _ = layout_values(fit.model, fit.drive_layout)
+    for term, j, value in zip(fit.drive_layout.terms, fit.drive_layout.joints, theta):
         total = ours[f"{term_of[term]}[{robot.joint_names[j]}]"] + (model_file[term][j] if term in model_file else 0.0)
         assert total == pytest.approx(value, abs=1e-8), (term, j)
 
@@ -85,7 +88,7 @@ def test_real_panda_diagnose_starts_from_identify_and_says_where_it_is_worse():
     (physically consistent) model is not within 5 % of identify's WLS on joints 2, 4, 6 and 7
     (identify's WLS holds negative rotor inertias on joints 3-7 that no physical model holds;
     ``identify --method physical`` is 56 % worse on joint 4 too; BUILD_NOTES)."""
-    from pe_drake.identification.estimators import read_robot_measurement
+    from pe_drake.identification.intake import read_robot_measurement
     from pe_drake.identification.identify_model import IdentifyOptions, identify_model
     from pe_drake.identification.time_window import TimeWindow
     from pe_drake.identification.validate_model import ValidateOptions, validate_model

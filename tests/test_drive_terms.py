@@ -12,13 +12,12 @@ import pytest
 
 from pe_drake.exceptions import ConfigError, UnknownNameError
 from pe_drake.excitation.trajectory_file import load_trajectory
-from pe_drake.identification.drive_terms import (
-    COULOMB_VELOCITY_SCALE,
-    DriveTermOptions,
-    drive_layout,
-    format_percent,
-)
-from pe_drake.identification.estimators import identify, predict, prepare_measurement
+from pe_drake.identification.drive_terms import drive_torque, format_percent, layout_values
+from pe_drake.multibody.drive_columns import model_tables
+from pe_drake.multibody.drive_columns import COULOMB_VELOCITY_SCALE, DriveTermOptions, drive_layout
+from pe_drake.identification.estimators import identify
+from pe_drake.identification.intake import prepare_measurement
+from pe_drake.identification.prediction import predict
 from pe_drake.identification.identified_file import load_identified, result_to_dict
 from pe_drake.identification.physical_fit import LinkBox, PhysicalBounds
 from pe_drake.multibody.base_parameters import compute_base_parameters
@@ -64,11 +63,11 @@ def test_known_drive_terms_are_recovered_within_their_sigma(name, optimized, tmp
     truth = drive_truth(robot, seed=3)
     train = with_drive(robot, train_traj, truth, duration=2 * train_traj.period)
     result = identify(robot, train, "wls")
-    drive = result.drive
-    layout = drive.layout
+    layout = result.drive_layout
     # the first joint's axis is fixed in the world: its armature is one base parameter with the link inertia
     assert robot.joint_names[0] in layout.merged
-    for label, t, j, value, sigma in zip(layout.labels, layout.terms, layout.joints, drive.theta, drive.sigma):
+    for label, t, j, value, sigma in zip(layout.labels, layout.terms, layout.joints,
+                                         *layout_values(result.model, layout)):
         assert sigma > 0
         assert abs(value - truth[t][j]) < 3 * sigma, (label, value, truth[t][j], sigma)
         if t != "armature":
@@ -82,7 +81,7 @@ def test_known_drive_terms_are_recovered_within_their_sigma(name, optimized, tmp
     # without the drive terms the same data is far off
     rigid = identify(robot, train, "wls", drive_terms="none")
     # nothing estimated: only the model file's friction is kept (the Panda URDF's damping 0.003)
-    assert rigid.drive.layout.count == len(rigid.drive.known)
+    assert rigid.drive_layout.count == len(rigid.drive_layout.known)
     assert np.all(rigid.residual_rms[1:] > 5 * NOISE)
 
 
@@ -91,21 +90,23 @@ def test_without_friction_the_drive_terms_are_zero_within_sigma(name, optimized)
     robot, train_traj, _ = trajectories(name, optimized)
     zero = {k: np.zeros(robot.n) for k in ("coulomb", "viscous", "offset", "armature")}
     data = with_drive(robot, train_traj, zero, seed=2)
-    drive = identify(robot, data, "ols").drive
-    z = np.abs(drive.theta) / drive.sigma
-    assert np.all(z < 4.0), dict(zip(drive.layout.labels, z))  # 4σ over ~27 terms: p ≈ 2e-3 per run
+    fit = identify(robot, data, "ols")
+    layout, (theta, sigma) = fit.drive_layout, layout_values(fit.model, fit.drive_layout)
+    z = np.abs(theta) / sigma
+    assert np.all(z < 4.0), dict(zip(layout.labels, z))  # 4σ over ~27 terms: p ≈ 2e-3 per run
     assert np.mean(z**2) < 2.0  # the σ are calibrated: E[z²] = 1
-    unphysical = [(t, v, sd) for t, v, sd in zip(drive.layout.terms, drive.theta, drive.sigma)
-                  if t != "offset" and v < -3 * sd]
+    unphysical = [(t, v, sd) for t, v, sd in zip(layout.terms, theta, sigma) if t != "offset" and v < -3 * sd]
     from pe_drake.identification.estimators import fit_warnings
     from pe_drake.identification.drive_terms import unphysical_drive_terms
 
-    assert bool(unphysical_drive_terms(drive)) == bool(unphysical)
+    assert bool(unphysical_drive_terms(fit.model, layout)) == bool(unphysical)
     # a term pushed 5σ below zero is named, with its value and σ
-    k = drive.layout.terms.index("armature")
-    bent = dataclasses.replace(drive, theta=np.where(np.arange(len(drive.theta)) == k, -5 * drive.sigma[k], drive.theta))
-    lines = unphysical_drive_terms(bent)
-    assert len(lines) == 1 and drive.layout.labels[k] in lines[0] and "--method physical" in lines[0]
+    k = layout.terms.index("armature")
+    armature = fit.model.armature.copy()
+    armature[layout.joints[k]] = -5 * sigma[k]
+    bent = dataclasses.replace(fit.model, drive={**fit.model.drive, "armature": armature})
+    lines = unphysical_drive_terms(bent, layout)
+    assert len(lines) == 1 and layout.labels[k] in lines[0] and "--method physical" in lines[0]
     assert not any("negative beyond" in w for w in fit_warnings(identify(robot, data, "physical")))
 
 
@@ -119,7 +120,7 @@ def test_friction_choice_has_no_armature_and_none_has_nothing(panda):
 
 def test_base_wrench_rows_get_no_drive_terms():
     g1 = get_robot("g1")
-    from pe_drake.identification.drive_terms import drive_columns
+    from pe_drake.multibody.drive_columns import drive_columns
 
     base = None
     layout = drive_layout(g1, base, DriveTermOptions("friction"))
@@ -138,7 +139,7 @@ def test_old_identified_json_loads_without_drive_terms(optimized, tmp_path):
     path = tmp_path / "old.json"
     path.write_text(json.dumps(d))
     loaded = load_identified(path, robot)
-    assert loaded.drive is None
+    assert loaded.drive_layout is None
     np.testing.assert_allclose(predict(robot, loaded, data), data.tau, atol=1e-8)
 
 
@@ -153,11 +154,11 @@ def test_physical_fit_with_drive_terms_and_bounds(optimized):
     truth = drive_truth(robot, seed=4)
     data = with_drive(robot, optimized, truth, duration=optimized.period)
     result = identify(robot, data, "physical")
-    d = result.drive
+    d = result.model
     for t in ("coulomb", "viscous"):
-        assert np.all(d.per_joint(t) >= 0)
-        np.testing.assert_allclose(d.per_joint(t), truth[t], rtol=0.1, atol=0.05)
-    assert np.all(d.per_joint("armature") >= 0)
+        assert np.all(d.term(t) >= 0)
+        np.testing.assert_allclose(d.term(t), truth[t], rtol=0.1, atol=0.05)
+    assert np.all(d.armature >= 0)
     assert np.all(result.residual_rms < 1.2 * NOISE)
     # user bounds: a link's mass held in a tight range and its CoM in a box
     link = robot.body_names[3]
@@ -263,8 +264,10 @@ def test_model_urdf_holds_the_viscous_friction_and_armature(optimized, tmp_path)
 
     data = Measurement(np.arange(20.0), q, np.zeros_like(q), v, vd, robot.joint_names)
     # φ_B holds the merged armatures already; the URDF's rotor inertias hold them too
-    want = predict(robot, result, data) - result.drive.torque(v, vd)
-    want += result.drive.per_joint("viscous") * v + result.drive.per_joint("armature") * vd
+    theta, _ = layout_values(result.model, result.drive_layout)
+    want = predict(robot, result, data) - drive_torque(result.model, result.drive_layout, v, vd)
+    fitted = model_tables(result.drive_layout, theta, theta, {})[0]  # the merged armatures are in φ_B
+    want += fitted["viscous"] * v + fitted["armature"] * vd
     np.testing.assert_allclose(loaded.inverse_dynamics(q, v, vd, include_damping=True), want, atol=1e-6)
 
 
@@ -284,7 +287,9 @@ def test_identification_config_is_checked(tmp_path):
 def test_real_panda_drive_terms_beat_the_rigid_fit_and_masses_stay_plausible():
     """Real recording: identify on the first 70 %, predict the last 30 % (run filtered alone)."""
     from pe_drake.identification.drive_terms import filtered_coulomb
-    from pe_drake.identification.estimators import fit_warnings, read_robot_measurement, torque_errors
+    from pe_drake.identification.estimators import fit_warnings
+    from pe_drake.identification.intake import read_robot_measurement
+    from pe_drake.identification.prediction import torque_errors
     from tests.test_identification import REAL
 
     if not REAL.exists():
@@ -323,8 +328,8 @@ def test_drive_effects_yaml_is_a_truth_file_for_simulate(optimized, tmp_path):
     (tmp_path / "drive_effects.yaml").write_text(model.effects_yaml())
     effects = load_truth(tmp_path / "drive_effects.yaml").effects
     for j, name in enumerate(robot.joint_names):
-        assert effects.coulomb[name] == pytest.approx(result.drive.per_joint("coulomb")[j])
-        assert effects.torque_offset[name] == pytest.approx(result.drive.per_joint("offset")[j])
+        assert effects.coulomb[name] == pytest.approx(result.model.coulomb[j])
+        assert effects.torque_offset[name] == pytest.approx(result.model.offset[j])
     assert set(effects.armature) == set(robot.joint_names)  # merged ones from the physical fit
 
 
@@ -345,8 +350,8 @@ def test_ground_wrench_and_torques_separate_every_armature_and_the_physical_fit_
     torque_only = drive_layout(g1, compute_base_parameters(g1), DriveTermOptions("all"))
     assert torque_only.merged  # the shoulders' armatures merge with the torques alone
     result = identify(g1, data, "physical", measurement="both")
-    assert not result.drive.layout.merged
-    armature = result.drive.per_joint("armature")
+    assert not result.drive_layout.merged
+    armature = result.model.armature
     assert np.allclose(armature, truth, atol=2e-3), armature
 
 
@@ -365,13 +370,13 @@ def test_a_column_the_data_cannot_separate_keeps_the_model_files_friction(optimi
     data = data.replace(tau=data.tau + damping * data.v)  # the URDF's friction is in the torque
     data = prepare_measurement(robot, data, filtering=False)
     result = identify(robot, data, "ols", drive_terms="friction")
-    assert "viscous[panda_joint7]" in result.drive.layout.dropped
-    assert "viscous[panda_joint7]" in result.drive.known
-    assert result.drive.per_joint("viscous")[6] == pytest.approx(damping[6])
+    assert "viscous[panda_joint7]" in result.drive_layout.dropped
+    assert "viscous[panda_joint7]" in result.drive_layout.known
+    assert result.model.viscous[6] == pytest.approx(damping[6])
     moving = prepare_measurement(robot, model_measurement(robot, optimized, rate_hz=100), filtering=False)
     with_friction = predict(robot, result, moving)[:, 6] - predict(robot, dataclasses.replace(
-        result, drive=None), moving)[:, 6]
-    assert np.allclose(with_friction, damping[6] * moving.v[:, 6] + result.drive.per_joint("offset")[6], atol=1e-9)
+        result, drive_layout=None), moving)[:, 6]
+    assert np.allclose(with_friction, damping[6] * moving.v[:, 6] + result.model.offset[6], atol=1e-9)
 
 
 def test_real_panda_identify_predicts_the_held_out_part_like_diagnose():
@@ -379,7 +384,7 @@ def test_real_panda_identify_predicts_the_held_out_part_like_diagnose():
     validate on its held-out part come within 10 % per joint of diagnose's held-out figures."""
     from pe_drake.diagnosis.options import DiagnosisConfig
     from pe_drake.diagnosis.workflow import diagnose
-    from pe_drake.identification.estimators import read_robot_measurement
+    from pe_drake.identification.intake import read_robot_measurement
     from pe_drake.identification.identify_model import IdentifyOptions, identify_model
     from pe_drake.identification.time_window import TimeWindow
     from pe_drake.identification.validate_model import ValidateOptions, validate_model

@@ -14,7 +14,7 @@ from pe_drake.config import Config, ExcitationConfig, validate_config
 from pe_drake.exceptions import ConfigError
 from pe_drake.excitation.problem import ExcitationProblem
 from pe_drake.excitation.quality import excitation_quality
-from pe_drake.identification.drive_terms import drive_columns
+from pe_drake.multibody.drive_columns import drive_columns
 
 CONFIG = ExcitationConfig(harmonics=5, omega=math.pi / 4, cost_samples=60)
 

@@ -306,8 +306,9 @@ def simulated_fit(robot, truth: RobotModel, method: str, folder: Path, noise: fl
     simulated from ``truth`` with torque noise ``noise`` [N·m]: (its path, the trajectory, run),
     run(trajectory, seed, duration=None) a prepared simulated run of the truth."""
     from pe_drake.excitation.trajectory_file import load_trajectory
-    from pe_drake.identification.drive_terms import COULOMB_VELOCITY_SCALE
-    from pe_drake.identification.estimators import identify, prepare_measurement
+    from pe_drake.multibody.drive_columns import COULOMB_VELOCITY_SCALE
+    from pe_drake.identification.estimators import identify
+    from pe_drake.identification.intake import prepare_measurement
     from pe_drake.identification.identified_file import result_to_dict
     from pe_drake.simulation.synthetic import model_measurement
     from tests.test_identification import OPTIMIZED
@@ -337,7 +338,7 @@ def test_identified_models_reproduce_their_own_prediction_in_mujoco(method, tmp_
     pytest.importorskip("mujoco")
     from pe_drake.export.mujoco_dynamics import load_mjcf, mujoco_torques
     from pe_drake.export.model_source import exported_model, projection_change
-    from pe_drake.identification.estimators import predict
+    from pe_drake.identification.prediction import predict
     from pe_drake.identification.identified_file import load_identified
     from tests.test_identification import random_trajectory
 
@@ -444,7 +445,7 @@ def test_real_panda_in_mujoco_is_pe_drakes_validate_minus_what_mjcf_cannot_hold(
     from pe_drake.identification import (IdentifyOptions, TimeWindow, ValidateOptions, identify_model,
                                          load_identified, read_measurements, validate_model)
     from pe_drake.identification.drive_terms import filtered_coulomb
-    from pe_drake.identification.estimators import prepare_measurement
+    from pe_drake.identification.intake import prepare_measurement
 
     robot = get_robot("panda")
     raw = read_measurements(robot, REAL)

@@ -21,7 +21,7 @@ from pe_drake.excitation.problem import ExcitationProblem
 from pe_drake.excitation.trajectory_file import load_trajectory
 from pe_drake.identification import IdentifyOptions, identify_model
 from pe_drake.identification.measurements import write_measurement_csv
-from pe_drake.identification.preprocessing import LowPassFilter
+from pe_drake.identification.lowpass import LowPassFilter
 from pe_drake.multibody import resolve_robot_config
 from pe_drake.simulation.synthetic import model_measurement
 from pe_drake.viewer import write_plan_playback

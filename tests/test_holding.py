@@ -58,11 +58,11 @@ def test_holding_torque_is_named_on_a_run_that_stops(panda, diagnosis_trajectory
     assert any(line.startswith(f"3. + {HOLDING}[{JOINT}]") for line in lines)
     assert "holding_test" in result.to_json_dict()
     # the augmented model records it; validate's reading of the file says it is not applied
-    from pe_drake.identification.identified_file import augmented_as_result
+    from pe_drake.identification.identified_file import read_augmented_model, unapplied_effects
 
     d = result.augmented.to_dict()
     assert d["holding_torque"][JOINT] == pytest.approx(hold.value)
-    notes = augmented_as_result(d, panda).physical_notes
+    notes = unapplied_effects(read_augmented_model(d, panda))
     assert any(n.startswith("the model's holding torque at rest is not applied (panda_joint5") for n in notes), notes
 
 

@@ -14,12 +14,9 @@ from pe_drake.cli import main as cli
 from pe_drake.config import ExcitationConfig
 from pe_drake.excitation.problem import ExcitationProblem, scale_into_limits
 from pe_drake.excitation.trajectory_file import load_trajectory, save_trajectory
-from pe_drake.identification.estimators import (
-    identify,
-    predict,
-    prepare_measurement,
-    torque_errors,
-)
+from pe_drake.identification.estimators import identify
+from pe_drake.identification.intake import prepare_measurement
+from pe_drake.identification.prediction import predict, torque_errors
 from pe_drake.identification.identified_file import load_identified
 from pe_drake.identification.measurements import write_measurement_csv
 from pe_drake.multibody.inertia import perturb_inertias, pseudo_inertia, validity_problems
@@ -149,7 +146,7 @@ def simulated_runs(optimized, tmp_path_factory):
 
 def test_simulated_run_validation_error_is_at_the_noise_floor(simulated_runs):
     robot = get_robot("panda")
-    from pe_drake.identification.estimators import read_robot_measurement
+    from pe_drake.identification.intake import read_robot_measurement
 
     ident = prepare_measurement(robot, read_robot_measurement(robot, simulated_runs["ident"]))
     valid = prepare_measurement(robot, read_robot_measurement(robot, simulated_runs["valid"]))
@@ -179,7 +176,7 @@ def test_simulated_run_validation_error_is_at_the_noise_floor(simulated_runs):
 
 
 def predict_true(robot, data, phi):
-    from pe_drake.identification.estimators import robot_torques
+    from pe_drake.identification.prediction import robot_torques
 
     return robot_torques(robot, data, phi)
 
@@ -348,7 +345,7 @@ def test_unknown_method_and_bad_cutoff_are_refused(tmp_path, optimized, capsys):
 
 @pytest.mark.skipif(not REAL.is_file(), reason=f"real data not present ({REAL})")
 def test_real_panda_recording_identifies_a_valid_model():
-    from pe_drake.identification.estimators import read_robot_measurement
+    from pe_drake.identification.intake import read_robot_measurement
 
     robot = get_robot("panda")
     raw = read_robot_measurement(robot, REAL)

@@ -165,7 +165,7 @@ def test_commands_live_in_cli():
 
 
 @pytest.mark.parametrize(("what", "pattern", "home"), [
-    ("Butterworth design", r"\bbutter\(", "pe_drake/identification/preprocessing.py"),
+    ("Butterworth design", r"\bbutter\(", "pe_drake/identification/lowpass.py"),
     ("parallel-axis formula", r"np\.eye\(3\)\s*-\s*(np\.outer|p\[)|\* np\.eye\(3\) - ", "pe_drake/multibody/inertia.py"),
 ])
 def test_one_formula_in_one_place(what, pattern, home):

@@ -19,7 +19,9 @@ from pe_drake.exceptions import DataError
 from pe_drake.excitation.fourier import FourierTrajectory
 from pe_drake.excitation.trajectory_file import load_trajectory
 from pe_drake.identification.data_checks import check_raw_measurement
-from pe_drake.identification.estimators import identify, predict, prepare_measurement, robot_torques
+from pe_drake.identification.estimators import identify
+from pe_drake.identification.intake import prepare_measurement
+from pe_drake.identification.prediction import predict, robot_torques
 from pe_drake.identification.gaps import longest_segment, split_at_pauses
 from pe_drake.identification.readers import read_log
 from pe_drake.simulation.synthetic import model_measurement

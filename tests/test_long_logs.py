@@ -19,10 +19,11 @@ from pe_drake.diagnosis import record
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.excitation.trajectory_file import load_trajectory
 from pe_drake.identification.csv_table import MAX_LINE_CHARS
-from pe_drake.identification.drive_terms import DriveTermOptions, drive_columns, drive_layout
-from pe_drake.identification.estimators import identify, prepare_measurement
+from pe_drake.multibody.drive_columns import DriveTermOptions, drive_columns, drive_layout
+from pe_drake.identification.estimators import identify
+from pe_drake.identification.intake import prepare_measurement
 from pe_drake.identification.measurements import read_measurement_csv
-from pe_drake.identification.preprocessing import design_lowpass
+from pe_drake.identification.lowpass import design_lowpass
 from pe_drake.multibody import load_robot
 from pe_drake.multibody.base_parameters import compute_base_parameters
 from pe_drake.multibody.regressor import RegressorModel
@@ -63,7 +64,7 @@ def test_folded_fit_equals_the_fit_on_all_rows():
     model = RegressorModel(robot)
     base = compute_base_parameters(robot, model=model)
     YB = base.reduce(model(data.q, data.v, data.vd))
-    layout = drive_layout(robot, None, DriveTermOptions("friction", result.drive.layout.velocity_scale))
+    layout = drive_layout(robot, None, DriveTermOptions("friction", result.drive_layout.velocity_scale))
     D = drive_columns(data.v, data.vd, layout)
     S, n, _ = YB.shape
     W = np.concatenate([YB, D], axis=2).reshape(S * n, -1)

@@ -15,11 +15,11 @@ from pe_drake.identification.measurements import (
     read_measurement_csv,
     write_measurement_csv,
 )
+from pe_drake.identification.lowpass import design_lowpass
 from pe_drake.identification.preprocessing import (
     PreprocessOptions,
     choose_cutoff,
     decimation_step,
-    design_lowpass,
     fill_derivatives,
     motion_bandwidth_hz,
     preprocess,

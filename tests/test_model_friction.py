@@ -108,20 +108,22 @@ def test_identify_starts_from_the_urdf_friction(damped, trajectory, tmp_path):
     """Without drive terms the model file's friction is kept (not absorbed by the links); with
     them the fitted viscous and Coulomb friction are each joint's total, written to model.urdf."""
     from pe_drake.identification.identify_model import IdentifyOptions, identify_model
-    from pe_drake.identification.drive_terms import DriveTermOptions
+    from pe_drake.multibody.drive_columns import DriveTermOptions
 
     data, _ = simulated(damped, trajectory, PLAIN)
     rigid = identify_model(damped, data, IdentifyOptions(drive=DriveTermOptions("none"))).result
-    drive = rigid.drive.as_dict()["joints"]
+    from pe_drake.identification.identified_file import result_to_dict
+
+    drive = result_to_dict(rigid, damped)["drive_terms"]["joints"]
     assert drive["panda_joint3"]["viscous"] == {**drive["panda_joint3"]["viscous"], "value": DAMPING,
                                                  "source": "model file"}
     assert drive["panda_joint2"]["coulomb"]["value"] == FRICTION["panda_joint2"]
     assert np.max(rigid.residual_rms) < 0.1, rigid.residual_rms  # the links did not have to absorb it
     full = identify_model(damped, data, IdentifyOptions(method="physical"))
-    viscous, coulomb = full.result.drive.per_joint("viscous"), full.result.drive.per_joint("coulomb")
+    viscous, coulomb = full.result.model.viscous, full.result.model.coulomb
     np.testing.assert_allclose(viscous, DAMPING, atol=0.05)  # the total, not what the URDF lacks
     assert coulomb[1] == pytest.approx(FRICTION["panda_joint2"], abs=0.05)
-    assert not full.result.drive.known
+    assert not full.result.drive_layout.known
     full.write(tmp_path)
     again = load_robot(dataclasses.replace(damped.config, model=str(tmp_path / "model.urdf")))
     np.testing.assert_allclose(again.joint_damping, viscous, rtol=1e-9)

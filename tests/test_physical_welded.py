@@ -10,7 +10,8 @@ import re
 import numpy as np
 import pytest
 
-from pe_drake.identification.estimators import identify, prepare_measurement
+from pe_drake.identification.estimators import identify
+from pe_drake.identification.intake import prepare_measurement
 from pe_drake.simulation.synthetic import model_measurement
 from pe_drake.identification.welded import merge_welded
 from pe_drake.multibody.inertia import perturb_inertias

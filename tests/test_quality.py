@@ -10,7 +10,8 @@ import pytest
 import scipy.linalg
 
 from pe_drake.cli import main
-from pe_drake.config import DEFAULT_NOISE_STD, ExcitationConfig, noise_vector
+from pe_drake.config import ExcitationConfig
+from pe_drake.config_sections import DEFAULT_NOISE_STD, noise_vector
 from pe_drake.exceptions import ConfigError
 from pe_drake.excitation import ExcitationProblem
 from pe_drake.excitation.constraints.torque import TorqueConstraint
@@ -61,7 +62,7 @@ def motion(small_problem):
 
 
 def test_rate_matches_the_identification():
-    from pe_drake.identification.estimators import DEFAULT_RATE_HZ
+    from pe_drake.identification.intake import DEFAULT_RATE_HZ
 
     assert DATA_RATE_HZ == DEFAULT_RATE_HZ
 

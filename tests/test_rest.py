@@ -112,7 +112,7 @@ def test_rest_threshold_follows_the_encoder_noise():
         step = 2 * np.pi / counts
         raw = exact.replace(q=np.round(exact.q / step) * step, v=None, vd=None)
         assert encoder_noise(raw) == pytest.approx(np.full(robot.n, step / np.sqrt(12)), rel=0.35)
-        from pe_drake.identification.estimators import prepare_measurement
+        from pe_drake.identification.intake import prepare_measurement
 
         data = prepare_measurement(robot, raw, cutoff_hz=4.0)
         fc, fs = data.preprocessing.cutoff_hz, RATE

@@ -35,7 +35,7 @@ def model_file(tmp_path_factory):
 
 
 def predicted(robot, model, q, v, vd):
-    from pe_drake.identification.estimators import predict
+    from pe_drake.identification.prediction import predict
     from pe_drake.identification.measurements import Measurement
 
     return predict(robot, model, Measurement(np.arange(len(q), dtype=float), q, np.zeros_like(q), v, vd, robot.joint_names))
@@ -61,13 +61,12 @@ def test_simulate_with_model_is_identified_back(model_file, tmp_path, capsys):
     assert cli(["identify", "--robot", "panda", "--data", str(out), "--method", "wls", "--trajectory", str(OPTIMIZED),
                 "--out", str(tmp_path / "again")]) == 0
     again = load_identified(tmp_path / "again" / "identified.json", robot)
-    sigma = {(t, j): s for t, j, s in zip(again.drive.layout.terms, again.drive.layout.joints, again.drive.sigma)}
     for term in ("coulomb", "viscous", "offset"):  # measured: within 1.1 σ
         for j in range(robot.n):
-            got, want = again.drive.per_joint(term)[j], model.drive.per_joint(term)[j]
-            assert abs(got - want) < 3 * sigma[term, j], (term, j, got, want, sigma[term, j])
+            got, want, sd = again.model.term(term)[j], model.model.term(term)[j], again.model.sigma[term][j]
+            assert abs(got - want) < 3 * sd, (term, j, got, want, sd)
     # measured: 1 % low (a few σ) on joints 3-7, whose armature the model can separate
-    np.testing.assert_allclose(again.drive.per_joint("armature")[2:], model.drive.per_joint("armature")[2:], rtol=0.03)
+    np.testing.assert_allclose(again.model.armature[2:], model.model.armature[2:], rtol=0.03)
     q, v, vd = random_states(robot, 50, seed=1)
     v = np.sign(v) * np.maximum(np.abs(v), 0.2)  # away from the tanh's knee, where the fits need not agree
     want, got = predicted(robot, model, q, v, vd), predicted(robot, again, q, v, vd)
@@ -111,7 +110,7 @@ def test_simulate_with_the_diagnosis_augmented_model(tmp_path, capsys):
     record = json.loads(truth_path_for(out).read_text())
     loaded = load_identified(path, robot)
     b = robot.body_names.index("panda_link7")
-    np.testing.assert_allclose(record["phi_true"]["panda_link7"], loaded.phi[10 * b : 10 * b + 10])
+    np.testing.assert_allclose(record["phi_true"]["panda_link7"], loaded.phi_total[10 * b : 10 * b + 10])
     assert record["phi_true"]["panda_link7"][0] == pytest.approx(robot.phi_model[10 * b] + 0.8)
     for field, values in (("viscous", model.viscous), ("coulomb", model.coulomb), ("armature", model.armature),
                           ("torque_offset", model.offset)):
@@ -144,7 +143,7 @@ def test_simulate_refuses_a_file_that_is_not_a_model(tmp_path, capsys):
 
 def test_a_truth_adds_its_effects_to_the_model(tmp_path):
     from pe_drake.exceptions import ConfigError
-    from pe_drake.simulation.simulation import true_model
+    from pe_drake.simulation.true_robot import true_model
     from pe_drake.simulation.truth import EffectsTruth, Truth
 
     robot = get_robot("panda")
@@ -188,5 +187,6 @@ def test_simulated_parameters_are_valid_and_reproduce_the_model(model_file):
     path.write_text(json.dumps(result_to_dict(physical, robot)))
     sim = load_simulation_model(path, robot)
     np.testing.assert_array_equal(sim.phi, physical.phi)
-    for name, value in physical.drive.merged_armature.items():
-        assert sim.armature[robot.joint_names.index(name)] == pytest.approx(value)
+    for name in physical.drive_layout.merged:
+        j = robot.joint_names.index(name)
+        assert sim.armature[j] == pytest.approx(physical.model.armature[j])

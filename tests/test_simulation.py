@@ -14,11 +14,8 @@ from pe_drake.excitation.trajectory_file import save_trajectory
 from pe_drake.identification.measurements import read_measurement_csv
 from pe_drake.multibody.inertia import perturb_inertias, phi_to_spatial_inertia
 from pe_drake.multibody.robot import load_robot
-from pe_drake.simulation.simulation import (
-    build_true_robot,
-    simulate,
-    truth_path_for,
-)
+from pe_drake.simulation.simulation import simulate, truth_path_for
+from pe_drake.simulation.true_robot import build_true_robot
 from pe_drake.simulation.truth import PayloadTruth, Truth, load_truth
 
 DURATION = 1.5  # [s]

@@ -11,7 +11,7 @@ import pytest
 from pe_drake.cli import main
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.excitation.trajectory_file import load_trajectory
-from pe_drake.identification.estimators import prepare_measurement
+from pe_drake.identification.intake import prepare_measurement
 from pe_drake.identification.time_window import TimeWindow
 from pe_drake.multibody import load_robot
 from pe_drake.simulation.synthetic import model_measurement

@@ -11,7 +11,6 @@ import pytest
 
 from pe_drake.config import TransmissionConfig
 from pe_drake.exceptions import ConfigError, DataError, UnknownNameError
-from pe_drake.identification.measurements import Measurement, write_measurement_csv
 from pe_drake.identification.readers import read_log
 from pe_drake.simulation.synthetic import model_measurement
 from pe_drake.multibody.base_parameters import compute_base_parameters
@@ -206,10 +205,12 @@ def test_identify_fits_each_motor_through_the_coupling(optimized, tmp_path):  # 
     train, held = (model_run(robot, truth, random_trajectory(robot, optimized, seed=s), s) for s in (1, 7))
     options = IdentifyOptions(filtering=False, rest="keep")
     fit = identify_model(robot, train, options)
-    drive = fit.result.drive
-    assert drive.layout.transmission is not None and set(drive.layout.merged) == set(robot.joint_names[:2])
-    for label, term, j, x, sd in zip(drive.layout.labels, drive.layout.terms, drive.layout.joints, drive.theta,
-                                     drive.sigma):
+    from pe_drake.identification.drive_terms import layout_values
+
+    layout = fit.result.drive_layout
+    assert layout.transmission is not None and set(layout.merged) == set(robot.joint_names[:2])
+    for label, term, j, x, sd in zip(layout.labels, layout.terms, layout.joints,
+                                     *layout_values(fit.result.model, layout)):
         assert abs(x - truth.term(term)[j]) < 3 * sd, (label, x, truth.term(term)[j], sd)
     assert not fit.result.coupling, fit.result.coupling
     assert any("motor wrist_3_joint" in line for line in fit.summary_lines())
@@ -228,7 +229,7 @@ def test_identify_fits_each_motor_through_the_coupling(optimized, tmp_path):  # 
     # without the transmission: per-joint terms, far above the noise floor and flagged
     plain = get_robot("ur5")
     blind = identify_model(plain, train, options)
-    assert blind.result.drive.layout.transmission is None
+    assert blind.result.drive_layout.transmission is None
     blind_report = validate_model(plain, load_identified(_written(blind, tmp_path / "blind"), plain), held,
                                   ValidateOptions(filtering=False))
     rms = blind_report.rms
@@ -268,7 +269,9 @@ def test_robot_model_carries_the_transmission(tmp_path):
     cross = truth.transmission.reflected(truth.armature)
     cross -= np.diag(np.diag(cross))
     joint = truth.per_joint_model()
-    friction = truth.coupled_friction()
+    from pe_drake.multibody.model_plant import coupled_friction
+
+    friction = coupled_friction(truth)
     for k in range(5):
         tau = sim.inverse_dynamics(q[k:k + 1], v[k:k + 1], vd[k:k + 1], include_damping=True)[0]
         want = truth.torque(robot, q[k], v[k], vd[k])[0] - joint.offset - cross @ vd[k]
@@ -276,7 +279,7 @@ def test_robot_model_carries_the_transmission(tmp_path):
     # the diagram's forward dynamics (its rotor-coupling system) are exact: torque() of the
     # acceleration it gives is the applied torque, slow joints (Coulomb's tanh) included;
     # states near home, where no capsules touch (contact forces are no drive term)
-    from pe_drake.multibody.robot_model import APPLIED_FORCE_PORT
+    from pe_drake.multibody.model_plant import APPLIED_FORCE_PORT
 
     for _ in range(5):
         x = np.r_[rng.uniform(-0.5, 0.5, robot.n), rng.uniform(-1, 1, robot.n) * rng.choice([1, 0.01], robot.n)]

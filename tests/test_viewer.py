@@ -27,12 +27,8 @@ from pe_drake.excitation.ramp import RampedMotion
 from pe_drake.excitation.trajectory_file import save_trajectory
 from pe_drake.multibody.meshes import CACHE_ENV
 from pe_drake.multibody.robot import load_robot
-from pe_drake.viewer import (
-    COM_PATH,
-    convex_hull_2d,
-    play_trajectory,
-    write_playback_html,
-)
+from pe_drake.viewer import play_trajectory, write_playback_html
+from pe_drake.viewer_scene import COM_PATH, convex_hull_2d
 
 # ---- reading the HTML -----------------------------------------------------------------------
 _BLOB = re.compile(r'fetch\("data:application/octet-binary;base64,([A-Za-z0-9+/=]*)"\)')

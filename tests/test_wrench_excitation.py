@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 from conftest import get_robot, sampled_gradient_error
 
-from pe_drake.config import ExcitationConfig, NoiseStdConfig
+from pe_drake.config import ExcitationConfig
+from pe_drake.config_sections import NoiseStdConfig
 from pe_drake.exceptions import ConfigError
 from pe_drake.excitation.problem import ExcitationProblem
 

@@ -9,7 +9,9 @@ import pytest
 
 from pe_drake.excitation.trajectory_file import load_trajectory
 from pe_drake.identification.channels import predicted_wrench
-from pe_drake.identification.estimators import identify, predict, predict_wrench, prepare_measurement
+from pe_drake.identification.estimators import identify
+from pe_drake.identification.intake import prepare_measurement
+from pe_drake.identification.prediction import predict, predict_wrench
 from pe_drake.identification.measurements import measurement_to_csv_text, read_measurement_csv
 from pe_drake.simulation.simulation import simulate
 from pe_drake.simulation.truth import Truth

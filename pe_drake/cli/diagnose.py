@@ -8,7 +8,7 @@ from pathlib import Path
 from pe_drake.cli.common import config_from_args, export_hint, read_log_from_args, robot_from_args
 from pe_drake.diagnosis import DiagnosisConfig, diagnose
 from pe_drake.exceptions import ConfigError
-from pe_drake.identification import load_identified
+from pe_drake.identification import load_identified, model_method, unapplied_effects
 from pe_drake.output_paths import check_output_dir
 
 
@@ -26,8 +26,8 @@ def diagnose_command(args) -> int:
     prior = load_identified(args.model, robot) if getattr(args, "model", None) else None  # as validate reads it
     print(f"robot {robot.name}: {robot.n} joints ({', '.join(robot.joint_names)})", flush=True)
     if prior is not None:
-        print(f"a-priori model: {args.model} ({prior.method})", flush=True)
-        for note in prior.physical_notes if prior.method == "diagnose" else ():
+        print(f"a-priori model: {args.model} ({model_method(prior)})", flush=True)
+        for note in unapplied_effects(prior):
             print(f"note: {note}", flush=True)
     result = diagnose(robot, data, validation, config, prior=prior, progress=lambda s: print(s, flush=True))
     written = result.write(out)

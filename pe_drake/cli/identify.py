@@ -20,6 +20,7 @@ from pe_drake.identification import (
     ValidateOptions,
     identify_model,
     load_identified,
+    unapplied_effects,
     validate_model,
 )
 from pe_drake.output_paths import check_output_dir, check_output_file
@@ -58,7 +59,7 @@ def validate_command(args: argparse.Namespace) -> int:
         report = validate_exported(robot, args.model, read_log_from_args(args, robot, config), options)
     else:
         model = load_identified(args.model, robot)  # identified.json or the diagnosis's augmented_model.json
-        for note in model.physical_notes if model.method == "diagnose" else ():
+        for note in unapplied_effects(model):
             print(f"note: {note}")
         report = validate_model(robot, model, read_log_from_args(args, robot, config), options)
     for line in [f"note: {n}" for n in report.notes] + report.summary_lines():

@@ -38,7 +38,6 @@ import numpy as np
 from pe_drake.diagnosis.effects import Candidate, Separability
 from pe_drake.identification.rest import MIN_REST_S, REST_FLOOR, count_runs, min_rest_s, rest_mask
 from pe_drake.multibody.dahl import dahl_state
-from pe_drake.multibody.drive_columns import COULOMB_VELOCITY_SCALE
 
 if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
     from pe_drake.multibody.robot import Robot

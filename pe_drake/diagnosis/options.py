@@ -32,6 +32,16 @@ MAX_COND = 1e4
 MIN_PERIODS = 10.0
 
 
+#: The range of each numeric :class:`DiagnosisConfig` option: (field [unit], lower, upper).
+_RANGES = (
+    ("holdout_fraction", 0.05, 0.8), ("cutoff_hz [Hz]", 1e-3, 1e6), ("decimate_to_hz [Hz]", 1.0, 1e6),
+    ("coulomb_velocity_scale [rad/s]", 1e-6, 10.0), ("alpha", 1e-12, 0.5), ("min_heldout_gain", 0.0, 0.9),
+    ("min_effect_fraction", 0.0, 1.0), ("noise_factor", 0.0, 100.0), ("unexplained_fraction", 0.0, 1.0),
+    ("resolution_fraction", 0.0, 0.1), ("prior_uncertainty", 1e-3, 0.5), ("payload_alpha", 1e-15, 0.5),
+    ("payload_min_prior_sigmas", 0.0, 100.0), ("max_effects", 0, 1000), ("max_gap_s [s]", 0.0, 1e6),
+)
+
+
 @dataclasses.dataclass(frozen=True)
 class DiagnosisConfig:
     """Options of the diagnosis (defaults are what the workflow's module docstring describes).
@@ -91,22 +101,10 @@ class DiagnosisConfig:
             if not lo <= value <= hi:
                 raise ConfigError(f"diagnosis option {name} = {value} is outside [{lo}, {hi}]")
 
-        check("holdout_fraction", self.holdout_fraction, 0.05, 0.8)
-        if self.cutoff_hz is not None:
-            check("cutoff_hz [Hz]", self.cutoff_hz, 1e-3, 1e6)
-        check("decimate_to_hz [Hz]", self.decimate_to_hz, 1.0, 1e6)
-        check("coulomb_velocity_scale [rad/s]", self.coulomb_velocity_scale, 1e-6, 10.0)
-        check("alpha", self.alpha, 1e-12, 0.5)
-        check("min_heldout_gain", self.min_heldout_gain, 0.0, 0.9)
-        check("min_effect_fraction", self.min_effect_fraction, 0.0, 1.0)
-        check("noise_factor", self.noise_factor, 0.0, 100.0)
-        check("unexplained_fraction", self.unexplained_fraction, 0.0, 1.0)
-        check("resolution_fraction", self.resolution_fraction, 0.0, 0.1)
-        check("prior_uncertainty", self.prior_uncertainty, 1e-3, 0.5)
-        check("payload_alpha", self.payload_alpha, 1e-15, 0.5)
-        check("payload_min_prior_sigmas", self.payload_min_prior_sigmas, 0.0, 100.0)
-        check("max_effects", self.max_effects, 0, 1000)
-        check("max_gap_s [s]", self.max_gap_s, 0.0, 1e6)
+        for field, lo, hi in _RANGES:
+            value = getattr(self, field.split(" ")[0])
+            if value is not None or field != "cutoff_hz [Hz]":  # None: the cut-off from the data
+                check(field, value, lo, hi)
         for e in self.effects:
             if e not in JOINT_EFFECTS:
                 raise UnknownNameError("effect", e, JOINT_EFFECTS, where="diagnosis effects")

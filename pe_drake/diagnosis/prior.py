@@ -17,37 +17,46 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from pe_drake.diagnosis.record import Segment, model_file_friction
+from pe_drake.identification.drive_terms import drive_torque
 from pe_drake.identification.estimators import IdentificationResult
-from pe_drake.identification.identified_file import standard_from_base
 from pe_drake.identification.reference_errors import Shortfall, shortfalls
 from pe_drake.multibody.drive_columns import coulomb_columns
 from pe_drake.multibody.inertia import validity_problems
+from pe_drake.multibody.robot_model import RobotModel
 
 if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
     from pe_drake.multibody.robot import Robot
 
 
-def prior_parameters(robot: Robot, prior: IdentificationResult | None) -> np.ndarray:
+def prior_parameters(robot: Robot, prior: IdentificationResult | RobotModel | None) -> np.ndarray:
     """The a-priori standard parameters, (10·nb,): the model file's, or an earlier model's own
     (physical fits, augmented_model.json) or, for a base-parameter fit, the ones closest to the
     model file's that give its base parameters."""
     if prior is None:
         return np.asarray(robot.phi_model, float)
-    return np.asarray(prior.phi if prior.phi is not None else standard_from_base(robot, prior), float)
+    phi = _own_parameters(prior)
+    return np.asarray(phi if phi is not None else prior.model.phi, float)
 
 
-def prior_own_parameters(robot: Robot, prior: IdentificationResult | None) -> np.ndarray | None:
+def _own_parameters(prior: IdentificationResult | RobotModel) -> np.ndarray | None:
+    """The standard parameters an earlier model holds as its own: a RobotModel's (its payload added),
+    a physical fit's; None for a base-parameter fit."""
+    return prior.phi_total if isinstance(prior, RobotModel) else prior.phi
+
+
+def prior_own_parameters(robot: Robot, prior: IdentificationResult | RobotModel | None) -> np.ndarray | None:
     """The standard parameters the augmented model's closest ones are sought from: an earlier
     model's own when physically valid (a physical fit, augmented_model.json), else None (the
-    model file's). An OLS/WLS fit's standard parameters (:func:`standard_from_base`: the model
+    model file's). An OLS/WLS fit's standard parameters (``IdentificationResult.model.phi``: the model
     file's null-space part) are often not physically valid, and the physically consistent fit
     of the augmented model cannot start from them (Clarabel fails)."""
-    if prior is None or prior.phi is None or validity_problems(robot.body_names, prior.phi):
+    phi = _own_parameters(prior) if prior is not None else None
+    if phi is None or validity_problems(robot.body_names, phi):
         return None
-    return np.asarray(prior.phi, float)
+    return np.asarray(phi, float)
 
 
-def prior_drive_torque(robot: Robot, prior: IdentificationResult | None, seg: Segment) -> np.ndarray:
+def prior_drive_torque(robot: Robot, prior: IdentificationResult | RobotModel | None, seg: Segment) -> np.ndarray:
     """The a-priori model's joint torque beside Y φ on a segment, (S, n) [N·m]: the model file's
     joint friction, or an earlier model's drive terms (its Coulomb column tanh(v/v_s) with its
     own v_s, parallel-filtered like the torque, as ``validate`` predicts; the model file's
@@ -56,12 +65,12 @@ def prior_drive_torque(robot: Robot, prior: IdentificationResult | None, seg: Se
     tanh of its own velocity (:func:`~pe_drake.multibody.drive_columns.coulomb_columns`)."""
     if prior is None:  # the model file's friction, d·v + f_c·tanh(v/v_s) (issue 21)
         return model_file_friction(robot, seg)
-    drive = prior.drive
-    if drive is None or not drive.layout.count:
+    model, layout = (prior, prior.layout()) if isinstance(prior, RobotModel) else (prior.model, prior.drive_layout)
+    if layout is None or not layout.count:
         return np.zeros_like(seg.v)
     rec = seg.record
-    coulomb = rec.filtered(coulomb_columns(rec.v, drive.layout))[seg.idx]
-    return drive.torque(seg.v, seg.vd, coulomb)
+    coulomb = rec.filtered(coulomb_columns(rec.v, layout))[seg.idx]
+    return drive_torque(model, layout, seg.v, seg.vd, coulomb)
 
 
 def fitted_friction(robot: Robot, seg: Segment) -> np.ndarray:

@@ -25,14 +25,8 @@ from pe_drake.diagnosis.options import MIN_PERIODS, DiagnosisConfig
 from pe_drake.exceptions import DataError
 from pe_drake.identification.data_checks import check_against_model
 from pe_drake.identification.measurements import Measurement, Preprocessing
-from pe_drake.identification.preprocessing import (
-    EDGE_PERIODS,
-    LowPassFilter,
-    choose_cutoff,
-    decimation_step,
-    design_lowpass,
-    resample_uniform,
-)
+from pe_drake.identification.lowpass import EDGE_PERIODS, LowPassFilter, design_lowpass
+from pe_drake.identification.preprocessing import choose_cutoff, decimation_step, resample_uniform
 from pe_drake.memory import available_bytes
 from pe_drake.multibody.drive_columns import coulomb_column
 
@@ -149,25 +143,12 @@ class Segment:
     coulomb: np.ndarray
     dtau: np.ndarray
 
-    @property
-    def t(self) -> np.ndarray:
-        return self.record.t[self.idx]
-
-    @property
-    def q(self) -> np.ndarray:
-        return self.record.q[self.idx]
-
-    @property
-    def v(self) -> np.ndarray:
-        return self.record.v[self.idx]
-
-    @property
-    def vd(self) -> np.ndarray:
-        return self.record.vd[self.idx]
-
-    @property
-    def tau(self) -> np.ndarray:
-        return self.record.tau[self.idx]
+    # the record's samples of the segment: time [s], (S,); q, v, vd, tau, each (S, n)
+    t = property(lambda self: self.record.t[self.idx])
+    q = property(lambda self: self.record.q[self.idx])
+    v = property(lambda self: self.record.v[self.idx])
+    vd = property(lambda self: self.record.vd[self.idx])
+    tau = property(lambda self: self.record.tau[self.idx])
 
     @property
     def num_samples(self) -> int:

@@ -43,7 +43,7 @@ from typing import Any
 
 import numpy as np
 
-from pe_drake.diagnosis.options import TIMING, DiagnosisConfig, Thresholds
+from pe_drake.diagnosis.options import DiagnosisConfig, Thresholds
 from pe_drake.diagnosis.record import Segment
 from pe_drake.diagnosis.regression import Columns, Fit, Library, Regression, Score, Selection, accept, select_effects
 from pe_drake.diagnosis.start import StartingFit, start_terms

@@ -153,11 +153,11 @@ class Prepared:
     phi_B_prior: np.ndarray
     internal: InternalSplit
     phi_prior: np.ndarray
-    prior: IdentificationResult | None = None
+    prior: IdentificationResult | RobotModel | None = None
 
 
 def prepare(robot: Robot, data: Measurement, validation: Measurement | None, config: DiagnosisConfig,
-            say: Callable[[str], None], prior: IdentificationResult | None = None) -> Prepared:
+            say: Callable[[str], None], prior: IdentificationResult | RobotModel | None = None) -> Prepared:
     """Records, training and held-out parts, the base regressor on each (data preparation).
 
     Raises:
@@ -406,7 +406,7 @@ def unexplained(robot: Robot, prep: Prepared, lib: CandidateLibrary, sel: Select
 
 
 def diagnose(robot: Robot, data: Measurement, validation: Measurement | None = None,
-             options: DiagnosisConfig | None = None, *, prior: IdentificationResult | None = None,
+             options: DiagnosisConfig | None = None, *, prior: IdentificationResult | RobotModel | None = None,
              progress: Callable[[str], None] | None = None) -> DiagnosisResult:
     """Runs the five steps of the module docstring.
 

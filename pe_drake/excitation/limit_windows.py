@@ -37,8 +37,6 @@ import numpy as np
 from pe_drake.exceptions import ConfigError
 from pe_drake.excitation.problem import ExcitationProblem, check_variables
 
-_QUANTITIES = ("position", "velocity", "acceleration")
-
 
 def trig_rows(k_omega: np.ndarray, t: np.ndarray, order: np.ndarray) -> np.ndarray:
     """Rows of the ``order``-th time derivative of [sin(kωt)…, cos(kωt)…, 1] at times t.
@@ -62,7 +60,38 @@ def trig_rows(k_omega: np.ndarray, t: np.ndarray, order: np.ndarray) -> np.ndarr
     return np.concatenate([S, C, one], axis=-1)
 
 
-class WindowMaxRows:
+class CachedRows:
+    """Constraint rows g(x) and their Jacobian for Drake, evaluated once per point (IPOPT asks for
+    the values and then the Jacobian at the same point), the time spent in ``seconds`` [s];
+    a subclass computes them in ``_rows(x, key)`` (``key``: ``x.tobytes()``)."""
+
+    seconds = 0.0
+    _key: bytes | None = None
+    _value: tuple[np.ndarray, np.ndarray] | None = None
+
+    def values_and_jacobian(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """g (R,) and ∂g/∂x (R, len(x)) at ``x`` (cached on x)."""
+        x = np.asarray(x, float)
+        key = x.tobytes()
+        if key == self._key and self._value is not None:
+            return self._value
+        start = time.perf_counter()
+        self._value = self._rows(x, key)
+        self._key = key
+        self.seconds += time.perf_counter() - start
+        return self._value
+
+    def __call__(self, x):
+        # pydrake is imported lazily so that `import pe_drake` stays light.
+        from pydrake.autodiffutils import ExtractGradient, ExtractValue, InitializeAutoDiff
+
+        if x.dtype == object:
+            g, J = self.values_and_jacobian(ExtractValue(x).reshape(-1))
+            return InitializeAutoDiff(g, J @ ExtractGradient(x)).reshape(-1)
+        return self.values_and_jacobian(np.asarray(x, float))[0]
+
+
+class WindowMaxRows(CachedRows):
     """Drake evaluator of one joint's window rows (see the module docstring).
 
     Args:
@@ -102,9 +131,6 @@ class WindowMaxRows:
         self.newton_steps = newton_steps
         self.derivative_power = self.k_omega ** (self.order[:, None] + 1)  # (kω)^(m+1) per row, (R, N)
         self.phase_shift = self.order[:, None] * (0.5 * np.pi)  # d^m/dt^m shifts by mπ/2, (R, 1)
-        self.seconds = 0.0
-        self._key: bytes | None = None
-        self._value: tuple[np.ndarray, np.ndarray] | None = None
 
     @property
     def num_rows(self) -> int:
@@ -144,30 +170,14 @@ class WindowMaxRows:
             t = np.clip(t + step, lo, hi)
         return t, side
 
-    def values_and_jacobian(self, coefficients: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _rows(self, a: np.ndarray, key: bytes) -> tuple[np.ndarray, np.ndarray]:
         """g (R,) and ∂g/∂coefficients (R, 2N+1) at the joint's coefficients [a, b, q0]."""
-        a = np.asarray(coefficients, float)
-        key = a.tobytes()
-        if key == self._key and self._value is not None:
-            return self._value
-        start = time.perf_counter()
         t, side = self._search(a)
         J = trig_rows(self.k_omega, t, self.order) * (self.gain * side)[:, None]
         g = J @ a + self.offset
         if self.scaled_center is not None:  # s·(x − c)/scale − (bound − c)/scale
             g += (1.0 - side) * self.scaled_center
-        self._key, self._value = key, (g, J)
-        self.seconds += time.perf_counter() - start
         return g, J
-
-    def __call__(self, x):
-        # pydrake is imported lazily so that `import pe_drake` stays light.
-        from pydrake.autodiffutils import ExtractGradient, ExtractValue, InitializeAutoDiff
-
-        if x.dtype == object:
-            g, J = self.values_and_jacobian(ExtractValue(x).reshape(-1))
-            return InitializeAutoDiff(g, J @ ExtractGradient(x)).reshape(-1)
-        return self.values_and_jacobian(np.asarray(x, float))[0]
 
 
 def default_windows(problem: ExcitationProblem) -> int:

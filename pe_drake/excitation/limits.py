@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from pe_drake.excitation.fourier import FourierBasis, FourierTrajectory
+from pe_drake.excitation.limit_windows import CachedRows
 from pe_drake.excitation.problem import ExcitationProblem, check_variables, rest_constraint_matrix
 
 
@@ -55,7 +56,7 @@ def add_joint_limit_constraints(
     return bindings
 
 
-class _SmoothMaxLimits:
+class _SmoothMaxLimits(CachedRows):
     """Every sampled joint limit of Eq. (51), aggregated per joint and bound by a smooth max.
 
     For joint j and each of q, v, vdot, the K sampled values x_k must stay within
@@ -87,7 +88,7 @@ class _SmoothMaxLimits:
             for side in ("upper", "lower")
         ]
 
-    def values_and_jacobian(self, alpha: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _rows(self, alpha: np.ndarray, key: bytes) -> tuple[np.ndarray, np.ndarray]:
         p, b = self.problem, self.basis
         n, N = p.n, p.harmonics
         x = np.stack(b.evaluate_alpha(alpha, n))  # (3, K, n)
@@ -114,15 +115,6 @@ class _SmoothMaxLimits:
             J[j, :, :, n * N + j * N : n * N + (j + 1) * N] = Jb[:, :, j]
             J[j, 0, :, 2 * n * N + j] = Jq0[:, j]
         return g.transpose(2, 0, 1).reshape(rows), J.reshape(rows, -1)
-
-    def __call__(self, x):
-        # pydrake is imported lazily so that `import pe_drake` stays light.
-        from pydrake.autodiffutils import ExtractGradient, ExtractValue, InitializeAutoDiff
-
-        if x.dtype == object:
-            g, J = self.values_and_jacobian(ExtractValue(x).reshape(-1))
-            return InitializeAutoDiff(g, J @ ExtractGradient(x)).reshape(-1)
-        return self.values_and_jacobian(np.asarray(x, float))[0]
 
 
 def add_smooth_joint_limit_constraints(prog, alpha, problem: ExcitationProblem, conservatism: float = 0.005):

@@ -26,8 +26,9 @@ from pathlib import Path
 
 import numpy as np
 
-from pe_drake.config import Config, noise_vector, validate_config
-from pe_drake.exceptions import ConfigError, DataError, NotWithinLimitsError, OutputWriteError, check_joints
+from pe_drake.config import Config, validate_config
+from pe_drake.config_sections import noise_vector
+from pe_drake.exceptions import ConfigError, NotWithinLimitsError, OutputWriteError, check_joints
 from pe_drake.excitation.constraints import constraints_from_config
 from pe_drake.excitation.constraints.base import SampledConstraint
 from pe_drake.excitation.controller_goal import GoalOptions, goal_yaml_text, write_goal_bag

@@ -12,7 +12,8 @@ import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
-from pe_drake.config import Config, noise_vector
+from pe_drake.config import Config
+from pe_drake.config_sections import noise_vector
 from pe_drake.exceptions import ConfigError
 from pe_drake.excitation.constraints import constraints_from_config
 from pe_drake.excitation.motion_plan import collision_geometry

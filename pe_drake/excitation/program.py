@@ -30,7 +30,7 @@ import numpy as np
 from pe_drake.exceptions import ConfigError
 from pe_drake.excitation.constraints.base import SampledConstraint
 from pe_drake.excitation.fourier import FourierBasis, sample_times
-from pe_drake.excitation.limit_windows import add_window_limit_constraints
+from pe_drake.excitation.limit_windows import CachedRows, add_window_limit_constraints
 from pe_drake.excitation.limits import (
     add_joint_limit_constraints,
     add_rest_constraints,
@@ -150,7 +150,7 @@ def _add_cost(prog, alpha, problem, on_evaluate=None):
     return prog.AddCost(cost, vars=alpha, description="excitation"), cost
 
 
-class SampledConstraintEvaluator:
+class SampledConstraintEvaluator(CachedRows):
     """Chains a :class:`SampledConstraint` through the Fourier map (Eq. 49) for Drake.
 
     With ``group`` > 1, each run of ``group`` consecutive samples becomes one row bounded by
@@ -174,27 +174,10 @@ class SampledConstraintEvaluator:
         #: worst violation at the samples per evaluated alpha (alpha.tobytes() → value), for
         #: the solver's fallback to a feasible point (ExcitationCost.candidates)
         self.violations: dict[bytes, float] = {}
-        #: time spent in evaluations so far [s]
-        self.seconds = 0.0
-        # IPOPT asks for the values and then the Jacobian at the same point: one evaluation.
-        self._key: bytes | None = None
-        self._value: tuple[np.ndarray, np.ndarray] | None = None
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         rows = len(self.basis.t) // self.group
         return np.tile(self.constraint.lower, rows), np.tile(self.constraint.upper, rows)
-
-    def values_and_jacobian(self, alpha: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Row values and their Jacobian with respect to alpha (cached on alpha)."""
-        alpha = np.asarray(alpha, float)
-        key = alpha.tobytes()
-        if key == self._key and self._value is not None:
-            return self._value
-        start = time.perf_counter()
-        self._value = self._rows(alpha, key)
-        self._key = key
-        self.seconds += time.perf_counter() - start
-        return self._value
 
     def _rows(self, alpha: np.ndarray, key: bytes) -> tuple[np.ndarray, np.ndarray]:
         n, basis = self.problem.n, self.basis
@@ -228,16 +211,6 @@ class SampledConstraintEvaluator:
             J = (w * J.reshape(K // G, G, m, -1)).sum(axis=1)
             K = K // G
         return g.reshape(-1), J.reshape(K * m, -1)
-
-    def __call__(self, x):
-        # pydrake is imported lazily so that `import pe_drake` stays light.
-        from pydrake.autodiffutils import ExtractGradient, ExtractValue, InitializeAutoDiff
-
-        if x.dtype == object:
-            g, J = self.values_and_jacobian(ExtractValue(x).reshape(-1))
-            return InitializeAutoDiff(g, J @ ExtractGradient(x)).reshape(-1)
-        g, _ = self.values_and_jacobian(np.asarray(x, float))
-        return g
 
 
 def add_sampled_constraint(

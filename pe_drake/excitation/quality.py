@@ -44,7 +44,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from pe_drake.config import noise_vector
+from pe_drake.config_sections import noise_vector
 from pe_drake.exceptions import ConfigError
 from pe_drake.excitation.criteria import singular_values_and_vectors
 from pe_drake.excitation.fourier import FourierBasis, sample_times
@@ -55,7 +55,7 @@ if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
     from pe_drake.multibody.robot import Robot
 
 #: Rate of the samples the identification fits [Hz] (its preprocessing decimates to it:
-#: ``pe_drake.identification.estimators.DEFAULT_RATE_HZ``; a test keeps the two equal).
+#: ``pe_drake.identification.intake.DEFAULT_RATE_HZ``; a test keeps the two equal).
 DATA_RATE_HZ = 200.0
 #: The fixed reference set of validation motions: count, seed, harmonics, period [s],
 #: samples per motion, fraction of the binding joint limit used.

@@ -364,6 +364,13 @@ class SequentialStudy:
 
 
 # ---- formatting ------------------------------------------------------------------------------------
+def _cond_rows(table: dict, paper: dict) -> list[str]:
+    """A table's rows of cond(C^(i)) and cond(C), ours against the paper's, and σ_min(C)."""
+    return [_md_row("cond(C^(i)), G1", table["cond_motion"]), _md_row("cond(C^(i)), paper HRP-4", paper["cond_motion"]),
+            _md_row("cond(C), G1", table["cond_total"]), _md_row("cond(C), paper HRP-4", paper["cond_total"]),
+            _md_row("σ_min(C), G1", table["sigma_min_total"], "{:.4g}")]
+
+
 def _md_row(label: str, values: Sequence[float], fmt: str = "{:.1f}") -> str:
     return f"| {label} | " + " | ".join(fmt.format(v) for v in values) + " |"
 
@@ -388,22 +395,14 @@ def format_markdown(t: dict) -> str:
         "## Table I: optimized motions (motion i optimized with C0 = motions 1..i-1)",
         "",
         head,
-        _md_row("cond(C^(i)), G1", t1["cond_motion"]),
-        _md_row("cond(C^(i)), paper HRP-4", paper1["cond_motion"]),
-        _md_row("cond(C), G1", t1["cond_total"]),
-        _md_row("cond(C), paper HRP-4", paper1["cond_total"]),
-        _md_row("σ_min(C), G1", t1["sigma_min_total"], "{:.4g}"),
+        *_cond_rows(t1, paper1),
         _md_row("wall time [s], G1", t1["wall_time_s"]),
         "| constraints met (1 kHz) | " + " | ".join("yes" if ok else "NO" for ok in t1["success"]) + " |",
         "",
         f"## Table II: random motions, greedy selection (reference [16]; {t2['candidates']} feasible candidates)",
         "",
         head,
-        _md_row("cond(C^(i)), G1", t2["cond_motion"]),
-        _md_row("cond(C^(i)), paper HRP-4", paper2["cond_motion"]),
-        _md_row("cond(C), G1", t2["cond_total"]),
-        _md_row("cond(C), paper HRP-4", paper2["cond_total"]),
-        _md_row("σ_min(C), G1", t2["sigma_min_total"], "{:.4g}"),
+        *_cond_rows(t2, paper2),
         "",
         "| amplitude [rad] | accepted / draws | cond min | cond median |",
         "|---|---|---|---|",
@@ -440,19 +439,18 @@ def format_console(t: dict) -> str:
     def row(label, values, fmt="{:>10.1f}"):
         return f"  {label:<30s}" + "".join(fmt.format(v) for v in values)
 
+    def cond_rows(table):
+        paper = table["paper_hrp4"]
+        return [("cond(C^(i))  G1", table["cond_motion"]), ("             paper HRP-4", paper["cond_motion"][:n]),
+                ("cond(C)      G1", table["cond_total"]), ("             paper HRP-4", paper["cond_total"][:n])]
+
     out = [
         "",
         f"Table I: optimized (sequential)   motion{idx}",
-        row("cond(C^(i))  G1", t1["cond_motion"]),
-        row("             paper HRP-4", t1["paper_hrp4"]["cond_motion"][:n]),
-        row("cond(C)      G1", t1["cond_total"]),
-        row("             paper HRP-4", t1["paper_hrp4"]["cond_total"][:n]),
+        *(row(label, values) for label, values in cond_rows(t1)),
         row("wall time [s] G1", t1["wall_time_s"]),
         f"Table II: random + greedy         motion{idx}",
-        row("cond(C^(i))  G1", t2["cond_motion"]),
-        row("             paper HRP-4", t2["paper_hrp4"]["cond_motion"][:n]),
-        row("cond(C)      G1", t2["cond_total"]),
-        row("             paper HRP-4", t2["paper_hrp4"]["cond_total"][:n]),
+        *(row(label, values) for label, values in cond_rows(t2)),
         "",
         f"first motion, baseline / optimized: {r['baseline']:.4g} / {r['optimized']:.4g} = {r['ratio']:.2f}x "
         f"(target >= {r['target']:g}x: {'met' if r['ratio'] >= r['target'] else 'MISSED'}; "

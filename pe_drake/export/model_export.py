@@ -25,7 +25,7 @@ from pe_drake.export.mjcf import mjcf_files, unheld_terms
 from pe_drake.export.mujoco_dynamics import load_mjcf, mujoco_torques
 from pe_drake.export.model_source import exported_model, identified_spread, projection_change, random_states
 from pe_drake.identification.drive_terms import filtered_coulomb
-from pe_drake.identification.estimators import prepare_measurement
+from pe_drake.identification.intake import prepare_measurement
 from pe_drake.identification.measurements import Measurement
 from pe_drake.identification.time_window import TimeWindow
 from pe_drake.io_utils import atomic_write_text

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from pe_drake.identification.estimators import predict
+from pe_drake.identification.prediction import predict
 from pe_drake.identification.identified_file import load_identified
 from pe_drake.multibody.robot_model import RobotModel
 from pe_drake.simulation.simulated_model import load_simulation_model
@@ -70,7 +70,7 @@ def identified_spread(robot: Robot, model: str | Path | None) -> IdentifiedSprea
     if model is None:
         return None
     result = load_identified(model, robot)
-    if result.method == "diagnose":
+    if isinstance(result, RobotModel):
         return None
     sigma = np.abs(np.asarray(result.phi_B, float)) * np.asarray(result.sigma_percent, float) / 100.0
     note = "" if result.cov_B is not None else (
@@ -91,10 +91,10 @@ def projection_change(robot: Robot, model: str | Path, exported: RobotModel, dat
     standard parameters are exported as they are.
 
     Args:
-        data: a preprocessed run (:func:`~pe_drake.identification.estimators.prepare_measurement`).
+        data: a preprocessed run (:func:`~pe_drake.identification.intake.prepare_measurement`).
     """
     result = load_identified(model, robot)
-    if result.phi is not None:
+    if isinstance(result, RobotModel) or result.phi is not None:
         return None
     own = predict(robot, result, data)
     return np.sqrt(np.mean((own - exported.torque(robot, data.q, data.v, data.vd)) ** 2, axis=0))

@@ -22,7 +22,8 @@ from pe_drake.export.mujoco_dynamics import joint_frictionloss, load_mjcf, mujoc
 from pe_drake.multibody.drive_columns import COULOMB_VELOCITY_SCALE, coulomb_column
 from pe_drake.identification.data_checks import check_against_model
 from pe_drake.identification.drive_terms import filtered_coulomb
-from pe_drake.identification.estimators import prepare_measurement, torque_errors
+from pe_drake.identification.intake import prepare_measurement
+from pe_drake.identification.prediction import torque_errors
 from pe_drake.identification.measurements import Measurement
 from pe_drake.identification.validate_model import ValidateOptions, ValidationReport
 from pe_drake.multibody.robot import Robot

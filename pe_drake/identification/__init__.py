@@ -12,18 +12,17 @@ from pe_drake.identification.identify_model import identify_model
 from pe_drake.identification.validate_model import validate_model
 
 _EXPORTS = exports_by_module(__name__, {
-    "drive_terms": "DriveFit DriveTermOptions",
-    "estimators": "IdentificationResult identify predict predict_wrench prepare_measurement "
-                  "read_robot_measurement robot_torques torque_errors",
-    "identified_file": "load_identified",
+    "estimators": "IdentificationResult identify",
+    "identified_file": "load_identified model_method unapplied_effects",
     "identify_model": "IdentifiedModel IdentifyOptions identify_model",
-    "intake": "read_measurements",
+    "intake": "prepare_measurement read_measurements read_robot_measurement",
     "payload": "PayloadBox PayloadOptions PayloadResult identify_payload",
     "payload_run": "PayloadIdentification identify_payload_runs parse_payload_box",
     "physical_fit": "LinkBox PhysicalBounds",
+    "prediction": "predict predict_wrench robot_torques torque_errors",
     "time_window": "TimeWindow",
     "validate_model": "ValidateOptions ValidationReport validate_model",
-})
+}) | {"DriveTermOptions": "pe_drake.multibody.drive_columns"}
 
 __all__ = sorted(_EXPORTS)
 __getattr__ = lazy_exports(__name__, _EXPORTS)

@@ -22,8 +22,8 @@ import numpy as np
 
 from pe_drake.exceptions import DataError
 from pe_drake.identification.csv_checks import check_time_order
-from pe_drake.identification.drive_terms import COULOMB_VELOCITY_SCALE, coulomb_column
-from pe_drake.identification.estimators import robot_torques
+from pe_drake.multibody.drive_columns import COULOMB_VELOCITY_SCALE, coulomb_column
+from pe_drake.identification.prediction import robot_torques
 
 if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
     from pe_drake.multibody.robot import Robot

@@ -2,9 +2,10 @@
 
 The torque an actuator applies is the rigid-body torque plus what the drive itself needs
 (friction, offset, armature): per joint, Coulomb tanh(v/v_s), viscous v, offset 1 and armature
-v̇ columns on that joint's row (:mod:`pe_drake.multibody.drive_columns`, whose names are
-re-exported here), so τ = Y_B φ_B + D θ. This module holds what identify does with them: the
-fitted values and their σ, the model file's friction, the data's separability, the outputs.
+v̇ columns on that joint's row (:mod:`pe_drake.multibody.drive_columns`), so τ = Y_B φ_B + D θ.
+This module holds what identify does with them: the fitted values and their σ (a
+:class:`~pe_drake.multibody.robot_model.RobotModel`'s, over the fit's columns), the model file's
+friction, the data's separability, the outputs.
 
 **The model file's friction** (a URDF's ``<dynamics damping>`` and ``friction``) is part of the
 a-priori model (issue 21). A viscous or Coulomb column the fit has estimates the joint's *total*
@@ -33,156 +34,113 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from pe_drake.exceptions import shorten
-from pe_drake.identification.preprocessing import design_lowpass, differentiate, resample_uniform
-from pe_drake.multibody.drive_columns import (  # noqa: F401 (re-exported: identify's names for them)
+from pe_drake.identification.lowpass import design_lowpass, differentiate
+from pe_drake.identification.preprocessing import resample_uniform
+from pe_drake.multibody.drive_columns import (
     COULOMB_VELOCITY_SCALE,
-    DEFAULT_DRIVE_TERMS,
-    DRIVE_TERM_CHOICES,
     NONNEGATIVE,
-    SEPARABILITY_TOLERANCE,
     TERMS,
     UNITS,
     DriveLayout,
-    DriveTermOptions,
-    armature_merges,
     coulomb_column,
+    model_tables,
     drive_columns,
     coulomb_velocities,
-    drive_layout,
-    drive_options,
 )
+from pe_drake.multibody.robot_model import RobotModel
 from pe_drake.multibody.transmission import Transmission
 
 if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
     from pe_drake.multibody.robot import Robot
 
 
-@dataclasses.dataclass(frozen=True, eq=False)
-class DriveFit:
-    """Identified drive terms.
-
-    Attributes:
-        layout: the columns.
-        theta: values, shape (d,) (units of ``layout.units``).
-        sigma: their standard deviations, shape (d,).
-        merged_armature: {joint: value [kg·m²]} the physical fit gave the armatures that are
-            not separable (already inside the base parameters; the URDF's rotor inertia).
-        known: labels of the terms taken from the model file, not estimated (:func:`model_file_terms`).
-    """
-
-    layout: DriveLayout
-    theta: np.ndarray
-    sigma: np.ndarray
-    merged_armature: dict[str, float] = dataclasses.field(default_factory=dict)
-    known: tuple[str, ...] = ()
-
-    def with_known(self, known: DriveFit | None) -> DriveFit:
-        """This fit with the model file's terms ``known`` appended (their σ is 0)."""
-        if known is None or not known.layout.count:
-            return self
-        a, b = self.layout, known.layout
-        layout = dataclasses.replace(a, terms=a.terms + b.terms, joints=a.joints + b.joints, units=a.units + b.units)
-        return DriveFit(layout, np.r_[self.theta, known.theta], np.r_[self.sigma, known.sigma],
-                        self.merged_armature, self.known + b.labels)
-
-    def torque(self, v: np.ndarray, vd: np.ndarray, coulomb: np.ndarray | None = None) -> np.ndarray:
-        """D θ at the samples, shape (S, n) [N·m], a block of samples at a time (D of an hour at
-        200 Hz is 0.85 GB)."""
-        out = np.empty(np.shape(v))
-        for s in range(0, out.shape[0], 20000):
-            k = slice(s, s + 20000)
-            out[k] = drive_columns(v[k], vd[k], self.layout, None if coulomb is None else coulomb[k]) @ self.theta
-        return out
-
-    def per_joint(self, term: str) -> np.ndarray:
-        """The value of ``term`` on every joint (0 where not modelled), shape (n,)."""
-        out = np.zeros(len(self.layout.joint_names))
-        for t, j, x in zip(self.layout.terms, self.layout.joints, self.theta):
-            if t == term:
-                out[j] = x
-        return out
-
-    def as_dict(self) -> dict[str, Any]:
-        """identified.json's ``drive_terms`` block: {joint: {term: {value, sigma, sigma_percent, unit}}}
-        under ``joints``, or under ``motors`` with the ``transmission`` and the ``joint_side`` view."""
-        table: dict[str, Any] = {name: {} for name in self.layout.joint_names}
-        for t, j, u, x, s in zip(self.layout.terms, self.layout.joints, self.layout.units, self.theta, self.sigma):
-            table[self.layout.joint_names[j]][t] = {
-                "value": float(x), "sigma": float(s), "sigma_percent": percent_or_none(x, s), "unit": u}
-            if f"{t}[{self.layout.joint_names[j]}]" in self.known:
-                table[self.layout.joint_names[j]][t]["source"] = "model file"
-        for name, coef in self.layout.merged.items():
-            table[name]["armature"] = {"value": None, "identifiable": False, "merged_into": coef,
-                                       "note": "in the span of the rigid-body base columns: only the sum with "
-                                               "these base parameters is identifiable"}
-            if name in self.merged_armature:  # included in the base parameters
-                table[name]["armature"]["physical_fit_value"] = self.merged_armature[name]
-        T = self.layout.transmission
-        side = {"joints": table} if T is None else {
-            "motors": table, "transmission": T.to_dict(), "joint_side": joint_side(self),
-            "motor_coulomb_model": "coulomb * tanh(theta_dot_m / (|R_ii| velocity_scale)), theta_dot_m = R v; "
-                                   "every term acts on the joints through R^T"}
-        return {
-            **side,
-            "velocity_scale": self.layout.velocity_scale,
-            "coulomb_model": "coulomb * tanh(v / velocity_scale)",
-            "torque_equation": "tau = Y_B(q, v, vd) phi_B + coulomb*tanh(v/v_s) + viscous*v + offset + armature*vd",
-            "friction": "viscous and coulomb are each joint's total friction; 'source: model file' marks a value "
-                        "kept from the model file's <dynamics> (not estimated)",
-            "dropped": dict(self.layout.dropped),
-        }
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any], joint_names: Sequence[str], kinds: Sequence[str] | None = None) -> DriveFit:
-        """Reads :meth:`as_dict`'s block back.
-
-        Raises:
-            KeyError, TypeError, ValueError: a malformed block (the caller names the file).
-        """
-        names = tuple(joint_names)
-        T = Transmission.from_dict(d["transmission"]) if d.get("transmission") is not None else None
-        if T is not None and T.joints != names:
-            raise ValueError(f"the transmission is of joints {', '.join(T.joints)}, not {', '.join(names)}")
-        table = d["joints"] if T is None else d["motors"]
-        unknown = set(table) - set(names)
-        if unknown:
-            raise ValueError(f"drive terms for joints {', '.join(sorted(unknown))} not in {', '.join(names)}")
-        terms, joints, units, theta, sigma, merged, merged_values, known = [], [], [], [], [], {}, {}, []
-        for j, name in enumerate(names):
-            for t, entry in table.get(name, {}).items():
-                if t not in UNITS:
-                    raise ValueError(f"unknown drive term '{t}' (valid: {', '.join(UNITS)})")
-                if entry.get("value") is None:
-                    merged[name] = dict(entry.get("merged_into", {}))
-                    if entry.get("physical_fit_value") is not None:
-                        merged_values[name] = float(entry["physical_fit_value"])
-                    continue
-                if entry.get("source") == "model file":
-                    known.append(f"{t}[{name}]")
-                terms.append(t)
-                joints.append(j)
-                units.append(str(entry.get("unit", UNITS[t][0])))
-                theta.append(float(entry["value"]))
-                sigma.append(float("nan") if entry.get("sigma") is None else float(entry["sigma"]))
-        layout = DriveLayout(tuple(terms), tuple(joints), names, tuple(units),
-                             float(d.get("velocity_scale", COULOMB_VELOCITY_SCALE)), merged,
-                             dict(d.get("dropped", {})), transmission=T)
-        return cls(layout, np.array(theta, float), np.array(sigma, float), merged_values, tuple(known))
+def layout_torque(layout: DriveLayout, theta: np.ndarray, v: np.ndarray, vd: np.ndarray,
+                  coulomb: np.ndarray | None = None) -> np.ndarray:
+    """D θ of ``layout``'s columns at the samples, shape (S, n) [N·m], a block of samples at a
+    time (D of an hour at 200 Hz is 0.85 GB)."""
+    out = np.empty(np.shape(v))
+    for s in range(0, out.shape[0], 20000):
+        k = slice(s, s + 20000)
+        out[k] = drive_columns(v[k], vd[k], layout, None if coulomb is None else coulomb[k]) @ theta
+    return out
 
 
-def joint_side(fit: DriveFit) -> dict[str, Any]:
-    """A per-motor fit as the joints see it (module docstring): ``coulomb`` {motor: {joint:
-    |R_ij|·F_c,i}} [N·m] (the amplitude on the joint; its sign follows θ̇_m), ``offset``
-    {joint: (Rᵀ o)_j}, ``viscous`` and ``armature`` {joint: {joint: (Rᵀ diag(x) R)_jk}}; joints
-    a motor does not turn are left out."""
-    T, names = fit.layout.transmission, fit.layout.joint_names
-    values = {t: fit.per_joint(t) for t in TERMS["all"]}
+def with_known(layout: DriveLayout, theta: np.ndarray, sigma: np.ndarray,
+               known: tuple[DriveLayout, np.ndarray] | None) -> tuple[DriveLayout, np.ndarray, np.ndarray]:
+    """The fitted columns with the model file's terms ``known`` (:func:`model_file_terms`)
+    appended, σ = 0: (layout, θ, σ)."""
+    if known is None or not known[0].count:
+        return layout, theta, sigma
+    b = known[0]
+    layout = dataclasses.replace(layout, terms=layout.terms + b.terms, joints=layout.joints + b.joints,
+                                 units=layout.units + b.units, known=layout.known + b.labels)
+    return layout, np.r_[theta, known[1]], np.r_[sigma, np.zeros(b.count)]
+
+
+def layout_values(model: RobotModel, layout: DriveLayout) -> tuple[np.ndarray, np.ndarray]:
+    """(θ, σ) of ``layout``'s columns in ``model`` (σ NaN where the model has none), each (d,)."""
+    nan = np.full(len(model.joints), np.nan)
+    theta = np.array([model.term(t)[j] for t, j in zip(layout.terms, layout.joints)], float)
+    sigma = np.array([model.sigma.get(t, nan)[j] for t, j in zip(layout.terms, layout.joints)], float)
+    return theta, sigma
+
+
+def drive_torque(model: RobotModel, layout: DriveLayout | None, v: np.ndarray, vd: np.ndarray,
+                 coulomb: np.ndarray | None = None) -> np.ndarray | None:
+    """The fitted drive terms' torque D θ, (S, n) [N·m]: ``layout``'s columns of ``model`` (the
+    armatures merged into base parameters left out: the base parameters hold them), or None
+    when the fit has no drive columns."""
+    if layout is None or not layout.count:
+        return None
+    return layout_torque(layout, layout_values(model, layout)[0], v, vd, coulomb)
+
+
+def drive_block(model: RobotModel, layout: DriveLayout, physical: bool) -> dict[str, Any]:
+    """identified.json's ``drive_terms`` block of a fit: {joint: {term: {value, sigma, sigma_percent,
+    unit}}} under ``joints``, or under ``motors`` with the ``transmission`` and the ``joint_side``
+    view (``physical``: the merged armatures' values, the model's, are the physical fit's)."""
+    theta, sigma = layout_values(model, layout)
+    table: dict[str, Any] = {name: {} for name in layout.joint_names}
+    for t, j, u, x, s in zip(layout.terms, layout.joints, layout.units, theta, sigma):
+        table[layout.joint_names[j]][t] = {
+            "value": float(x), "sigma": float(s), "sigma_percent": percent_or_none(x, s), "unit": u}
+        if f"{t}[{layout.joint_names[j]}]" in layout.known:
+            table[layout.joint_names[j]][t]["source"] = "model file"
+    for name, coef in layout.merged.items():
+        table[name]["armature"] = {"value": None, "identifiable": False, "merged_into": coef,
+                                   "note": "in the span of the rigid-body base columns: only the sum with "
+                                           "these base parameters is identifiable"}
+        if physical:  # included in the base parameters
+            table[name]["armature"]["physical_fit_value"] = float(model.armature[layout.joint_names.index(name)])
+    T = layout.transmission
+    side = {"joints": table} if T is None else {
+        "motors": table, "transmission": T.to_dict(), "joint_side": joint_side(layout, theta),
+        "motor_coulomb_model": "coulomb * tanh(theta_dot_m / (|R_ii| velocity_scale)), theta_dot_m = R v; "
+                               "every term acts on the joints through R^T"}
+    return {
+        **side,
+        "velocity_scale": layout.velocity_scale,
+        "coulomb_model": "coulomb * tanh(v / velocity_scale)",
+        "torque_equation": "tau = Y_B(q, v, vd) phi_B + coulomb*tanh(v/v_s) + viscous*v + offset + armature*vd",
+        "friction": "viscous and coulomb are each joint's total friction; 'source: model file' marks a value "
+                    "kept from the model file's <dynamics> (not estimated)",
+        "dropped": dict(layout.dropped),
+    }
+
+
+def joint_side(layout: DriveLayout, theta: np.ndarray) -> dict[str, Any]:
+    """A per-motor fit (``layout``'s columns, values ``theta``) as the joints see it (module
+    docstring): ``coulomb`` {motor: {joint: |R_ij|·F_c,i}} [N·m] (the amplitude on the joint;
+    its sign follows θ̇_m), ``offset`` {joint: (Rᵀ o)_j}, ``viscous`` and ``armature`` {joint:
+    {joint: (Rᵀ diag(x) R)_jk}}; joints a motor does not turn are left out."""
+    T, names = layout.transmission, layout.joint_names
+    table, zero = model_tables(layout, theta, theta, {})[0], np.zeros(len(names))
+    values = {t: table.get(t, zero) for t in TERMS["all"]}
 
     def matrix(M):
         return {a: {b: float(M[j, k]) for k, b in enumerate(names) if M[j, k] != 0} for j, a in enumerate(names)}
@@ -194,10 +152,10 @@ def joint_side(fit: DriveFit) -> dict[str, Any]:
             "units": "N·m, N·m, N·m·s/rad, kg·m² of the joints"}
 
 
-def model_file_terms(robot: Robot, layout: DriveLayout) -> DriveFit | None:
-    """The model file's friction that ``layout`` does not estimate, as a fit with σ = 0 (module
-    docstring), or None when there is none (always with a transmission: the motors' terms are
-    the drive's whole friction).
+def model_file_terms(robot: Robot, layout: DriveLayout) -> tuple[DriveLayout, np.ndarray] | None:
+    """The model file's friction that ``layout`` does not estimate, as columns (labels in their
+    ``known``) and values (module docstring), or None when there is none (always with a
+    transmission: the motors' terms are the drive's whole friction).
 
     Args:
         robot: the a-priori robot (``joint_damping``, ``joint_friction``).
@@ -214,11 +172,12 @@ def model_file_terms(robot: Robot, layout: DriveLayout) -> DriveFit | None:
     units = tuple(UNITS[t][0 if robot.joints[j].kind == "revolute" else 1] for t, j, _ in cols)
     known = DriveLayout(tuple(t for t, _, _ in cols), tuple(j for _, j, _ in cols), layout.joint_names, units,
                         layout.velocity_scale)
-    return DriveFit(known, np.array([x for _, _, x in cols]), np.zeros(len(cols)), {}, known.labels)
+    return dataclasses.replace(known, known=known.labels), np.array([x for _, _, x in cols])
 
 
 def model_file_terms_lost(robot: Robot, kept: DriveLayout, asked: DriveLayout,
-                          known: DriveFit | None) -> tuple[DriveFit | None, np.ndarray]:
+                          known: tuple[DriveLayout, np.ndarray] | None
+                          ) -> tuple[tuple[DriveLayout, np.ndarray] | None, np.ndarray]:
     """The model file's friction once the data has dropped some of the columns ``asked``.
 
     A column the data cannot separate (a joint that never moves or never reverses) keeps the
@@ -236,9 +195,9 @@ def model_file_terms_lost(robot: Robot, kept: DriveLayout, asked: DriveLayout,
         ``asked``, the model file's value of the lost columns, else 0, shape (asked.count,)).
     """
     after = model_file_terms(robot, kept)
-    before = set(known.layout.labels) if known is not None else set()
+    before = set(known[0].labels) if known is not None else set()
     lost = np.zeros(asked.count)
-    for label, value in zip(after.layout.labels, after.theta) if after is not None else ():
+    for label, value in zip(after[0].labels, after[1]) if after is not None else ():
         if label not in before:
             lost[asked.labels.index(label)] = value
     return after, lost
@@ -251,13 +210,13 @@ def model_file_terms_lost(robot: Robot, kept: DriveLayout, asked: DriveLayout,
 UNPHYSICAL_SIGMAS = 3.0
 
 
-def unphysical_drive_terms(fit: DriveFit) -> list[str]:
-    """A warning naming the fitted terms that must be ≥ 0 (friction, armature) and are below
-    zero by more than :data:`UNPHYSICAL_SIGMAS` σ, or none."""
-    bad = [f"{label} {value:.3g} ± {sigma:.2g} {unit}"
-           for label, term, value, sigma, unit in zip(fit.layout.labels, fit.layout.terms, fit.theta, fit.sigma,
-                                                      fit.layout.units)
-           if term in NONNEGATIVE and label not in fit.known and sigma > 0 and value < -UNPHYSICAL_SIGMAS * sigma]
+def unphysical_drive_terms(model: RobotModel, layout: DriveLayout) -> list[str]:
+    """A warning naming the fitted terms (``layout``'s columns of ``model``) that must be ≥ 0
+    (friction, armature) and are below zero by more than :data:`UNPHYSICAL_SIGMAS` σ, or none."""
+    theta, sigma = layout_values(model, layout)
+    bad = [f"{label} {value:.3g} ± {s:.2g} {unit}"
+           for label, term, value, s, unit in zip(layout.labels, layout.terms, theta, sigma, layout.units)
+           if term in NONNEGATIVE and label not in layout.known and s > 0 and value < -UNPHYSICAL_SIGMAS * s]
     if not bad:
         return []
     return [f"warning: {len(bad)} drive term(s) negative beyond {UNPHYSICAL_SIGMAS:g}σ, which no drive can have: "
@@ -344,32 +303,34 @@ def _armature_against_offset(layout: DriveLayout, keep: list[int], weight: np.nd
     return None
 
 
-def drive_summary(fit: DriveFit | None) -> list[str]:
-    """Lines for a command's output: the drive terms per joint with their σ, what was left out."""
-    if fit is None or (fit.layout.count == 0 and not fit.layout.merged):
+def drive_summary(model: RobotModel | None, layout: DriveLayout | None) -> list[str]:
+    """Lines for a command's output: the fitted drive terms (``layout``'s columns of ``model``)
+    per joint with their σ, what was left out."""
+    if model is None or layout is None or (layout.count == 0 and not layout.merged):
         return ["drive terms: none (rigid body only)"]
-    T = fit.layout.transmission
+    theta, sigma = layout_values(model, layout)
+    T = layout.transmission
     lines = ["drive terms (value ± σ):" if T is None else "drive terms per motor (value ± σ, motor side):"]
-    names = fit.layout.joint_names
+    names = layout.joint_names
     for j, name in enumerate(names):
-        parts = [f"{t} {x:.4g} {u} (model file)" if f"{t}[{name}]" in fit.known else f"{t} {x:.4g} ± {s:.2g} {u}"
-                 for t, jj, u, x, s in zip(fit.layout.terms, fit.layout.joints, fit.layout.units, fit.theta, fit.sigma)
+        parts = [f"{t} {x:.4g} {u} (model file)" if f"{t}[{name}]" in layout.known else f"{t} {x:.4g} ± {s:.2g} {u}"
+                 for t, jj, u, x, s in zip(layout.terms, layout.joints, layout.units, theta, sigma)
                  if jj == j]
-        if name in fit.layout.merged:
-            merged = list(fit.layout.merged[name])  # base-parameter compositions: identified.json has them whole
+        if name in layout.merged:
+            merged = list(layout.merged[name])  # base-parameter compositions: identified.json has them whole
             more = f", … ({len(merged) - 2} more)" if len(merged) > 2 else ""
             parts.append("armature not separable (merged into " + ", ".join(shorten(m, 60) for m in merged[:2])
                          + more + ")")
         if parts:
             lines.append(f"  {'motor ' if T is not None else ''}{name}: " + "; ".join(parts))
-    for label, reason in fit.layout.dropped.items():
+    for label, reason in layout.dropped.items():
         lines.append(f"  {label} left out: {reason}")
-    return lines + (_joint_side_lines(fit) if T is not None else [])
+    return lines + (_joint_side_lines(layout, theta) if T is not None else [])
 
 
-def _joint_side_lines(fit: DriveFit) -> list[str]:
+def _joint_side_lines(layout: DriveLayout, theta: np.ndarray) -> list[str]:
     """The joint side of a per-motor fit, a line per joint (:func:`joint_side`)."""
-    side, names = joint_side(fit), fit.layout.joint_names
+    side, names = joint_side(layout, theta), layout.joint_names
     lines = ["  joint side (through R): coulomb from each motor, offset, viscous and armature (coupling entries)"]
     for j in names:
         coulomb = ", ".join(f"{x:.4g} N·m (motor {m})" for m, row in side["coulomb"].items() for jj, x in row.items()

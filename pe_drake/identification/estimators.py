@@ -36,39 +36,36 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from pathlib import Path
 from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
-from pe_drake.exceptions import ConfigError, DataError, check_joints
-from pe_drake.identification.time_window import TimeWindow
+from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.identification.channels import channel_names, measured_values
 from pe_drake.identification.drive_terms import (
+    layout_torque,
+    model_file_terms,
+    model_file_terms_lost,
+    separable_on_data,
+    unphysical_drive_terms,
+    with_known,
+)
+from pe_drake.multibody.drive_columns import model_tables
+from pe_drake.multibody.drive_columns import (
     TERMS,
-    DriveFit,
     DriveLayout,
     DriveTermOptions,
     drive_columns,
     drive_layout,
     drive_options,
-    model_file_terms,
-    model_file_terms_lost,
-    separable_on_data,
-    unphysical_drive_terms,
 )
-from pe_drake.identification.gaps import MAX_GAP_S, preprocess_segments
 from pe_drake.identification.measurements import (
     Measurement,
     Preprocessing,
-    amps_hint,
-    check_torque_units,
-    read_measurement_csv,
 )
 from pe_drake.identification.least_squares import ordinary_fit, weighted_fit
 from pe_drake.identification.physical_fit import PhysicalBounds, physical_fit
 from pe_drake.identification.welded import merge_welded
-from pe_drake.identification.preprocessing import PreprocessOptions
 from pe_drake.identification.folded_rows import (
     BLOCK,
     FoldedRows,
@@ -79,8 +76,8 @@ from pe_drake.identification.folded_rows import (
 from pe_drake.identification.statistics import integrated_autocorrelation
 from pe_drake.multibody.base_parameters import BaseParameters
 from pe_drake.multibody.regressor import RegressorModel
+from pe_drake.multibody.robot_model import RobotModel
 from pe_drake.multibody.sensors import MeasurementType, SensorRows, measurement_base_parameters
-from pe_drake.multibody.wrench import static_wrench
 from pe_drake.threads import single_threaded_blas
 
 if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
@@ -100,8 +97,6 @@ PHYSICAL_DELTA_CHI2 = 4.0
 #: sensor or current loop resolves finer (a 20-bit converter is 1e-6 of its range), and the SDP
 #: solver (tolerances 1e-10-1e-8) cannot resolve a thinner confidence region.
 PHYSICAL_MIN_RELATIVE_SIGMA = 1e-6
-#: Output rate of the preprocessing [Hz]: the regressor is smooth, 200 Hz is plenty.
-DEFAULT_RATE_HZ = 200.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -129,8 +124,12 @@ class IdentificationResult:
         measurement: "joint_torque", "base_wrench" or "both": the channels identified from.
         channels: the channel of each entry of residual_rms, relative_error and noise_std:
             joint names (torques), then :data:`~pe_drake.multibody.wrench.WRENCH_COLUMNS`.
-        drive: the identified drive terms (friction, offsets, armature), or None (a model
-            without them, e.g. an identified.json of before the drive terms).
+        model: the robot as built this fit gives (:class:`~pe_drake.multibody.robot_model.RobotModel`):
+            ``phi``, or for base parameters only the standard parameters closest to the
+            a-priori model that give them (φ0 + K⁺(φ_B − K φ0)), and the drive terms with their σ.
+        drive_layout: the fitted drive columns (which terms, the armatures merged into base
+            parameters, the columns the data dropped, those kept from the model file), or None
+            (a model without them, e.g. an identified.json of before the drive terms).
         physical_notes: what the physical fit says about its result (parameters on a bound,
             far from the a-priori model).
         friction_share: for a fit without drive terms, the fraction of the OLS residual's
@@ -161,92 +160,14 @@ class IdentificationResult:
     source: str = ""
     measurement: str = "joint_torque"
     channels: tuple[str, ...] = ()
-    drive: DriveFit | None = None
+    model: RobotModel | None = None
+    drive_layout: DriveLayout | None = None
     physical_notes: tuple[str, ...] = ()
     friction_share: float | None = None
     weight_iterations: int = 0
     weights_converged: bool = False
     cov_B: np.ndarray | None = None
     coupling: tuple[str, ...] = ()
-
-
-# ---- data ------------------------------------------------------------------------------------
-
-
-def read_robot_measurement(robot: Robot, path: str | Path) -> Measurement:
-    """Reads a measurement CSV for ``robot``'s excited joints (see measurements.py)."""
-    return read_measurement_csv(path, robot.joint_names, min_rows=30)
-
-
-def prepare_measurement(
-    robot: Robot,
-    measurement: Measurement,
-    *,
-    cutoff_hz: float | None = None,
-    fundamental_hz: float | None = None,
-    harmonics: int | None = None,
-    rate_hz: float | None = DEFAULT_RATE_HZ,
-    filtering: bool = True,
-    check_units: bool = True,
-    max_gap_s: float = MAX_GAP_S,
-    window: TimeWindow | None = None,
-) -> Measurement:
-    """Checks the joints and torque units and preprocesses for identification.
-
-    Args:
-        robot: the robot the data belongs to.
-        measurement: raw data.
-        cutoff_hz, fundamental_hz, harmonics, rate_hz: see
-            :func:`pe_drake.identification.preprocessing.preprocess` (``rate_hz`` = ``decimate_to_hz``).
-        filtering: False uses the data as it is; it must then hold v and vdot (exact,
-            noise-free data, e.g. from :func:`pe_drake.simulation.synthetic.model_measurement`).
-        check_units: compare the torques with the a-priori model (refuses N·mm or kN·m; a
-            note when they look like motor currents).
-        max_gap_s: longest hole in the time column interpolated [s]; longer ones split the
-            run into segments filtered on their own and stacked
-            (:func:`~pe_drake.identification.gaps.preprocess_segments`).
-        window: the part of the run kept, taken after the whole run is filtered
-            (:class:`~pe_drake.identification.time_window.TimeWindow`); None: all of it.
-
-    Raises:
-        DataError: other joints than the robot's, missing v/vdot without filtering, torques
-            off by orders of magnitude.
-    """
-    check_joints(robot, measurement.joints, file=measurement.source)
-    if filtering:
-        options = PreprocessOptions(cutoff_hz=cutoff_hz, fundamental_hz=fundamental_hz, harmonics=harmonics,
-                                    decimate_to_hz=rate_hz)
-        data = preprocess_segments(measurement, options, max_gap_s)
-    else:
-        if measurement.v is None or measurement.vd is None:
-            raise DataError(
-                "without filtering the data must hold v.<joint> and vdot.<joint> columns",
-                file=measurement.source,
-            )
-        data = measurement
-    if window is not None:
-        data = window.apply(data)
-    if check_units and data.tau is not None:
-        ratios = check_torque_units(data, robot_torques(robot, data, robot.phi_model))
-        hint = amps_hint(data, ratios)
-        if hint:
-            data = data.replace(notes=data.notes + (hint,))
-    return data
-
-
-def robot_torques(
-    robot: Robot, data: Measurement, phi: np.ndarray, model: RegressorModel | None = None
-) -> np.ndarray:
-    """Rigid-body torques Y(q, v, v̇) φ at the samples of ``data``, shape (S, n)."""
-    model = model or RegressorModel(robot)
-    out = np.empty_like(data.q)
-    for rows in _chunks(data.num_samples):
-        out[rows] = model(data.q[rows], data.v[rows], data.vd[rows]) @ phi
-    return out
-
-
-def _chunks(count: int, size: int = 2000) -> list[slice]:
-    return [slice(s, min(s + size, count)) for s in range(0, count, size)]
 
 
 # ---- estimators ------------------------------------------------------------------------------
@@ -290,7 +211,7 @@ def identify(
 
     Args:
         robot: the robot.
-        data: preprocessed data (:func:`prepare_measurement`), with v and vd.
+        data: preprocessed data (:func:`~pe_drake.identification.intake.prepare_measurement`), with v and vd.
         method: "wls" (the default), "ols" or "physical".
         base: the base composition (default: the measurement's, :func:`measurement_base_parameters`).
         prior: a-priori standard parameters for ``physical`` (default: the robot's model).
@@ -362,6 +283,12 @@ def _identify(robot: Robot, data: Measurement, method: str, base: BaseParameters
         phi, x = physical.phi, physical.x
     b = base.count
     residual_ss = folded.residual_ss(T, x)
+    layout, theta, sigma = with_known(layout, x[b:], np.sqrt(np.maximum(np.diag(cov)[b:], 0.0)), known)
+    drive, drive_sigma = model_tables(layout, theta, sigma, physical.merged_armature if physical is not None else {})
+    phi_model = phi if phi is not None else base.closest_standard(x[:b], robot.phi_model)
+    model = RobotModel(tuple(robot.joint_names), tuple(robot.body_names), phi_model, drive, drive_sigma,
+                       layout.velocity_scale, notes=physical.notes if physical is not None else (),
+                       transmission=layout.transmission)
     return IdentificationResult(
         robot=robot.name,
         method=method,
@@ -382,8 +309,8 @@ def _identify(robot: Robot, data: Measurement, method: str, base: BaseParameters
         source=data.source,
         measurement=measurement,
         channels=channels,
-        drive=DriveFit(layout, x[b:], np.sqrt(np.maximum(np.diag(cov)[b:], 0.0)),
-                       physical.merged_armature if physical is not None else {}).with_known(known),
+        model=model,
+        drive_layout=layout,
         physical_notes=physical.notes if physical is not None else (),
         friction_share=share,
         cov_B=cov[:b, :b],
@@ -434,7 +361,8 @@ class _Columns:
 
 
 def _row_blocks(robot: Robot, data: Measurement, measurement: str, model: RegressorModel, layouts: _Layouts,
-                coulomb: np.ndarray | None, known: DriveFit | None = None, rest: np.ndarray | None = None):
+                coulomb: np.ndarray | None, known: tuple[DriveLayout, np.ndarray] | None = None,
+                rest: np.ndarray | None = None):
     """The rows [Y | drive | armature | friction] and y of ``data``, BLOCK samples at a time
     (y of the torques without the model file's ``known`` friction; the torque rows ``rest``
     zero: a zero row adds nothing to a least-squares fit)."""
@@ -451,7 +379,7 @@ def _row_blocks(robot: Robot, data: Measurement, measurement: str, model: Regres
             F += [drive_columns(part.v, part.vd, layout, sign, rows=r) for layout in layouts]
             y = measured_values(robot, part, measurement)
             if known is not None:  # the torque channels come first
-                y[:, : robot.n] -= known.torque(part.v, part.vd, sign)
+                y[:, : robot.n] -= layout_torque(*known, part.v, part.vd, sign)
             F = np.concatenate(F, axis=2)
             if rest is not None and MeasurementType(measurement).torques:  # the torque channels come first
                 at_rest = np.zeros(y.shape, bool)
@@ -532,8 +460,8 @@ def fit_warnings(result: IdentificationResult) -> list[str]:
     drive terms that are negative beyond their σ, and a rigid-body-only fit of data whose
     residual is mostly friction."""
     out = [f"physical fit: {note}" for note in result.physical_notes]
-    if result.method != "physical" and result.drive is not None:
-        out += unphysical_drive_terms(result.drive)
+    if result.method != "physical" and result.drive_layout is not None:
+        out += unphysical_drive_terms(result.model, result.drive_layout)
     share = result.friction_share
     if share is not None and share > FRICTION_SHARE_WARNING:
         out.append(
@@ -543,54 +471,3 @@ def fit_warnings(result: IdentificationResult) -> list[str]:
             + ("; the WLS weights are those of the OLS residual (one step), not iterated to their fixed point, "
                "which takes the residual for noise" if result.method != "ols" else ""))
     return out + list(result.coupling)
-
-
-# ---- prediction and validation ----------------------------------------------------------------
-
-
-def predict(
-    robot: Robot, result: IdentificationResult, data: Measurement, model: RegressorModel | None = None,
-    coulomb: np.ndarray | None = None,
-) -> np.ndarray:
-    """Torques the identified model predicts at the samples of ``data``, its drive terms
-    included, shape (S, n) (``coulomb``: as in :func:`identify`)."""
-    model = model or RegressorModel(robot)
-    tau = np.empty_like(data.q)
-    for rows in _chunks(data.num_samples):  # the regressor of a block at a time: long runs fit
-        tau[rows] = result.base.reduce(model(data.q[rows], data.v[rows], data.vd[rows])) @ result.phi_B
-    if result.drive is not None and result.drive.layout.count:
-        tau = tau + result.drive.torque(data.v, data.vd, coulomb)
-    return tau
-
-
-def predict_wrench(
-    robot: Robot, result: IdentificationResult, data: Measurement, model: RegressorModel | None = None
-) -> np.ndarray:
-    """The ground wrench the identified model predicts at the samples of ``data``, (S, 6)
-    [N, N·m] (the a-priori weight of the bodies no excited joint moves included; no offset)."""
-    model = model or RegressorModel(robot)
-    W = np.concatenate(
-        [model.wrench_regressor(model.kinematics(data.q[r], data.v[r], data.vd[r])) for r in _chunks(data.num_samples)]
-    )
-    return result.base.reduce(W) @ result.phi_B + static_wrench(robot)
-
-
-class TorqueErrors(NamedTuple):
-    """Per-joint torque errors (:func:`torque_errors`).
-
-    Attributes:
-        rms: RMS of τ_meas − τ_pred, shape (n,) [N·m].
-        relative: 100·‖τ_meas − τ_pred‖/‖τ_meas‖, shape (n,) [%].
-    """
-
-    rms: np.ndarray
-    relative: np.ndarray
-
-
-def torque_errors(tau_measured: np.ndarray, tau_predicted: np.ndarray) -> TorqueErrors:
-    """Per-joint RMS error [N·m] and relative error 100·‖τ_meas − τ_pred‖/‖τ_meas‖ [%]
-    (:class:`TorqueErrors`; unpacks as (rms, relative))."""
-    e = np.asarray(tau_measured) - np.asarray(tau_predicted)
-    rms = np.sqrt(np.mean(e**2, axis=0))
-    rel = 100.0 * np.linalg.norm(e, axis=0) / np.maximum(np.linalg.norm(tau_measured, axis=0), 1e-300)
-    return TorqueErrors(rms, rel)

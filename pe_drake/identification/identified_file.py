@@ -22,7 +22,8 @@ from pe_drake.config import MEASUREMENTS
 from pe_drake.exceptions import DataError, check_joints
 from pe_drake.limits import input_file_problem
 from pe_drake.identification.channels import channel_names
-from pe_drake.identification.drive_terms import DriveFit
+from pe_drake.identification.drive_terms import drive_block
+from pe_drake.multibody.drive_columns import read_drive_block
 from pe_drake.identification.estimators import IdentificationResult, fit_warnings
 from pe_drake.identification.measurements import Preprocessing
 from pe_drake.io_utils import loads_json
@@ -88,8 +89,8 @@ def result_to_dict(result: IdentificationResult, robot: Robot, model_file: str |
     if result.cov_B is not None and np.all(np.isfinite(result.cov_B)):  # export --to gains draws from it
         cov = np.asarray(result.cov_B, float)
         out["base_parameter_covariance"] = (0.5 * (cov + cov.T)).tolist()  # the sandwich is symmetric up to rounding
-    if result.drive is not None:
-        out["drive_terms"] = result.drive.as_dict()
+    if result.drive_layout is not None:
+        out["drive_terms"] = drive_block(result.model, result.drive_layout, result.phi is not None)
     if result.physical_notes:
         out["physical_fit_notes"] = list(result.physical_notes)
     if result.friction_share is not None:  # of the OLS residual's energy
@@ -115,8 +116,10 @@ def standard_parameters_dict(robot: Robot, phi: np.ndarray) -> dict[str, dict[st
     }
 
 
-def load_identified(path: str | Path, robot: Robot) -> IdentificationResult:
-    """Reads identified.json (or the diagnosis's augmented_model.json) and checks it belongs to ``robot``.
+def load_identified(path: str | Path, robot: Robot) -> IdentificationResult | RobotModel:
+    """Reads identified.json, or the diagnosis's augmented_model.json as a
+    :class:`~pe_drake.multibody.robot_model.RobotModel` (:func:`read_augmented_model`), and checks it
+    belongs to ``robot``.
 
     Raises:
         DataError: missing/unreadable file, other robot or joints, base parameters that do
@@ -135,7 +138,7 @@ def load_identified(path: str | Path, robot: Robot) -> IdentificationResult:
     except (OSError, json.JSONDecodeError) as err:
         raise DataError(f"cannot read the identified model: {err}", file=str(path)) from err
     if isinstance(d, dict) and "base_parameters" not in d and "phi" in d and "torque_equation" in d:
-        return augmented_as_result(d, robot, str(path))
+        return read_augmented_model(d, robot, str(path))
     try:
         joints = tuple(d["joints"])
         entries = d["base_parameters"]
@@ -162,21 +165,14 @@ def load_identified(path: str | Path, robot: Robot) -> IdentificationResult:
             f"({base.count}); was it identified with another model or config?",
             file=str(path),
         )
-    phi = None
-    if "standard_parameters" in d:
-        try:
-            table = d["standard_parameters"]
-            phi = np.array([float(table[b][k]) for b in robot.body_names for k in PARAMETER_NAMES])
-        except (KeyError, TypeError, ValueError) as err:
-            raise DataError(f"standard_parameters: {err!r} missing or malformed", file=str(path)) from err
     cov_B = _covariance(d, base.count, str(path))
-    drive = None
-    if d.get("drive_terms") is not None:  # files written before the drive terms have none
-        try:
-            drive = DriveFit.from_dict(d["drive_terms"], robot.joint_names)
-        except (KeyError, TypeError, ValueError, AttributeError) as err:
-            raise DataError(f"drive_terms: {err!r} missing or malformed", file=str(path)) from err
-        _check_transmission(drive, robot, path)
+    try:  # files written before the drive terms have none
+        model = RobotModel.from_dict(d, robot.body_names, base=base, phi_prior=robot.phi_model)
+        layout = read_drive_block(d["drive_terms"], robot.joint_names)[0] if d.get("drive_terms") is not None else None
+    except (KeyError, TypeError, ValueError, AttributeError) as err:
+        raise DataError(f"standard_parameters or drive_terms: {err!r} missing or malformed", file=str(path)) from err
+    if layout is not None:
+        _check_transmission(layout, robot, path)
     return IdentificationResult(
         robot=d.get("robot", robot.name),
         method=d.get("method", "ols"),
@@ -184,7 +180,7 @@ def load_identified(path: str | Path, robot: Robot) -> IdentificationResult:
         base=base,
         phi_B=phi_B,
         sigma_percent=sigma,
-        phi=phi,
+        phi=model.phi if "standard_parameters" in d else None,
         cond=float(d.get("cond", float("nan"))),
         residual_rms=np.array([d.get("residual_rms", {}).get(c, np.nan) for c in channels]),
         relative_error=np.array([d.get("relative_error", {}).get(c, np.nan) for c in channels]),
@@ -193,7 +189,8 @@ def load_identified(path: str | Path, robot: Robot) -> IdentificationResult:
         source=d.get("data", ""),
         measurement=measurement,
         channels=channels,
-        drive=drive,
+        model=model,
+        drive_layout=layout,
         physical_notes=tuple(d.get("physical_fit_notes", ())),
         cov_B=cov_B,
     )
@@ -220,30 +217,32 @@ def _covariance(d: dict[str, Any], count: int, path: str) -> np.ndarray | None:
     return 0.5 * (cov + cov.T)
 
 
-def standard_from_base(robot: Robot, result: IdentificationResult) -> np.ndarray:
-    """Standard parameters closest to the a-priori model that reproduce φ_B:
-    φ = φ0 + K⁺(φ_B − K φ0). Not necessarily physically valid."""
-    K = result.base.K
-    phi0 = robot.phi_model
-    return phi0 + np.linalg.pinv(K) @ (result.phi_B - K @ phi0)
-
-
-def augmented_as_result(d: dict[str, Any], robot: Robot, path: str = "") -> IdentificationResult:
-    """The diagnosis's augmented_model.json (a :class:`~pe_drake.multibody.robot_model.RobotModel`)
-    as an identified model: its standard parameters (payload added to its link) reduced to the
-    robot's joint-torque base parameters, its drive terms as drive columns. A time delay,
-    pre-sliding friction and a holding torque at rest are not part of this model
-    (``physical_notes`` says so when the file has them).
+def read_augmented_model(d: dict[str, Any], robot: Robot, path: str = "") -> RobotModel:
+    """The diagnosis's augmented_model.json as the :class:`~pe_drake.multibody.robot_model.RobotModel`
+    it is (validate, ``diagnose --model`` and export take it as it is).
 
     Raises:
         DataError: other joints, a malformed file.
     """
     check_joints(robot, tuple(d.get("joints") or ()), file=path, what="the model")
     try:
-        model = RobotModel.from_dict(d, robot.body_names)
+        return RobotModel.from_dict(d, robot.body_names)
     except (KeyError, TypeError, ValueError, AttributeError) as err:
         raise DataError(f"not an augmented_model.json written by pe-drake diagnose ({err!r} missing or malformed)",
                         file=path) from err
+
+
+def model_method(model: IdentificationResult | RobotModel) -> str:
+    """What made a loaded model: the fit's method, or "diagnose" (a RobotModel: the augmented model)."""
+    return "diagnose" if isinstance(model, RobotModel) else model.method
+
+
+def unapplied_effects(model: IdentificationResult | RobotModel) -> list[str]:
+    """What of a loaded model a prediction of the torque log sample by sample leaves out (validate,
+    ``diagnose --model``): a :class:`~pe_drake.multibody.robot_model.RobotModel`'s time delay,
+    pre-sliding friction and holding torque at rest; nothing of an identified fit."""
+    if not isinstance(model, RobotModel):
+        return []
     notes = []
     if model.torque_delay != 0.0:
         notes.append(f"the model's time delay {model.torque_delay:.4g} s is not applied (validate pairs samples as "
@@ -253,23 +252,14 @@ def augmented_as_result(d: dict[str, Any], robot: Robot, path: str = "") -> Iden
     if np.any(model.holding_torque):
         notes.append("the model's holding torque at rest is not applied ("
                      + ", ".join(f"{j} {x:.3g} N·m" for j, x in zip(model.joints, model.holding_torque) if x) + ")")
-    base = measurement_base_parameters(robot, "joint_torque")
-    channels = channel_names(robot, "joint_torque")
-    nan = np.full(len(channels), np.nan)
-    theta = model.theta()
-    return IdentificationResult(
-        robot=robot.name, method="diagnose", joints=model.joints, base=base, phi_B=base.base_values(model.phi_total),
-        sigma_percent=np.full(base.count, np.nan), phi=model.phi_total, cond=float("nan"), residual_rms=nan,
-        relative_error=nan, noise_std=nan, samples=0, source=path, measurement="joint_torque",
-        channels=channels, drive=DriveFit(model.layout(), theta, np.full(len(theta), np.nan)),
-        physical_notes=tuple(notes))
+    return notes
 
 
-def _check_transmission(drive: DriveFit, robot: Robot, path) -> None:
+def _check_transmission(layout, robot: Robot, path) -> None:
     """Refuses a model fitted through another transmission than the robot's config gives: the
     config's R converts motor-side logs, the file's R carries its per-motor terms, and the two
     must be one (a model of per-joint terms goes with any config)."""
-    T = drive.layout.transmission
+    T = layout.transmission
     if T is None:
         return
     mine = robot_transmission(robot)

@@ -24,24 +24,13 @@ from pe_drake.identification.time_window import TimeWindow
 from pe_drake.identification.channels import measured_values
 from pe_drake.identification.coupling import coupled_pairs, coupling_warnings
 from pe_drake.identification.data_checks import check_against_model
-from pe_drake.identification.drive_terms import (
-    COULOMB_VELOCITY_SCALE,
-    DriveTermOptions,
-    drive_summary,
-    filtered_coulomb,
-    format_percent,
-)
-from pe_drake.identification.estimators import (
-    IdentificationResult,
-    fit_warnings,
-    identify,
-    predict,
-    predict_wrench,
-    prepare_measurement,
-    torque_errors,
-)
+from pe_drake.identification.drive_terms import drive_summary, filtered_coulomb, format_percent
+from pe_drake.multibody.drive_columns import COULOMB_VELOCITY_SCALE, DriveTermOptions
+from pe_drake.identification.estimators import IdentificationResult, fit_warnings, identify
+from pe_drake.identification.intake import prepare_measurement
+from pe_drake.identification.prediction import predict, predict_wrench
 from pe_drake.identification.gaps import MAX_GAP_S
-from pe_drake.identification.identified_file import result_to_dict, standard_from_base, standard_parameters_dict
+from pe_drake.identification.identified_file import result_to_dict, standard_parameters_dict
 from pe_drake.identification.measurements import Measurement
 from pe_drake.identification.physical_fit import PhysicalBounds, bounds_from_config
 from pe_drake.identification.rest import REST_CHOICES, RestDecision, decide_rest
@@ -134,10 +123,7 @@ class IdentifiedModel:
     def model(self) -> RobotModel:
         """The identified robot as built: the fit's parameters (``phi`` when the fit has base
         parameters only) and drive terms with their σ."""
-        d = result_to_dict(self.result, self.robot)
-        if self.result.phi is None and self.phi is not None:
-            d["standard_parameters"] = standard_parameters_dict(self.robot, self.phi)
-        return RobotModel.from_dict(d, self.robot.body_names, base=self.result.base, phi_prior=self.robot.phi_model)
+        return self.result.model
 
     def summary_lines(self) -> list[str]:
         """What the command prints: the data, its preprocessing, the fit and its warnings."""
@@ -157,7 +143,7 @@ class IdentifiedModel:
         lines.append("least determined base parameters (%σ): "
                      + ", ".join(f"{_short_name(result.base, i)} {format_percent(result.sigma_percent[i])}" for i in worst))
         lines.append("residual RMS [N·m, N]: " + ", ".join(f"{c} {r:.4g}" for c, r in zip(result.channels, result.residual_rms)))
-        return lines + drive_summary(result.drive) + fit_warnings(result)
+        return lines + drive_summary(result.model, result.drive_layout) + fit_warnings(result)
 
     def write(self, folder: str | Path, *, progress: Callable[[str], None] | None = None) -> list[str]:
         """Writes identified.json, residuals.png and, when physically valid, model.urdf and
@@ -198,7 +184,7 @@ class IdentifiedModel:
                             result.channels, f"{robot.name}: {result.method} fit on the identification data")
             if model_file:
                 written.append(model_file)
-                if result.drive is not None and result.drive.layout.count:
+                if result.drive_layout is not None and result.drive_layout.count:
                     (tmp / "drive_effects.yaml").write_text(self.model.effects_yaml(DRIVE_EFFECTS_HEADER))
                     written.append("drive_effects.yaml")
         if note and progress is not None:
@@ -294,12 +280,13 @@ def _coupling(robot: Robot, result: IdentificationResult, data: Measurement, cou
     """The warning of :mod:`~pe_drake.identification.coupling` on the joint torques' residual
     (none for the ground wrench alone or a fit without drive terms, whose residual holds all
     the friction)."""
-    if not MeasurementType(result.measurement).torques or result.drive is None or not result.drive.layout.count:
+    layout = result.drive_layout
+    if not MeasurementType(result.measurement).torques or layout is None or not layout.count:
         return []
     residual = data.tau - predict(robot, result, data, coulomb=coulomb)
-    T = result.drive.layout.transmission
+    T = layout.transmission
     return coupling_warnings(coupled_pairs(robot.joint_names, data.v, data.vd, residual,
-                                           result.drive.layout.velocity_scale, None if T is None else T.R))
+                                           layout.velocity_scale, None if T is None else T.R))
 
 
 def _rest_decision(robot: Robot, raw: Measurement, data: Measurement, options: IdentifyOptions,
@@ -333,7 +320,7 @@ def _model_parameters(robot: Robot, result: IdentificationResult) -> tuple[np.nd
     """
     if result.phi is not None:
         return result.phi, ""
-    candidate = standard_from_base(robot, result)
+    candidate = result.model.phi  # the a-priori model moved to the base parameters
     if not validity_problems(robot.body_names, candidate):
         return candidate, "standard parameters: the a-priori model moved to the identified base parameters"
     return None, ("model.urdf not written: the least-squares estimate has no physically valid standard "

@@ -314,15 +314,10 @@ def measurement_to_csv_text(measurement: Measurement) -> str:
     m = measurement
     header = ["t"] + [f"q.{j}" for j in m.joints]
     blocks = [m.t[:, None], m.q]
-    if m.v is not None:
-        header += [f"v.{j}" for j in m.joints]
-        blocks.append(m.v)
-    if m.vd is not None:
-        header += [f"vdot.{j}" for j in m.joints]
-        blocks.append(m.vd)
-    if m.tau is not None:
-        header += [f"tau.{j}" for j in m.joints]
-        blocks.append(m.tau)
+    for prefix, x in (("v", m.v), ("vdot", m.vd), ("tau", m.tau)):
+        if x is not None:
+            header += [f"{prefix}.{j}" for j in m.joints]
+            blocks.append(x)
     if m.wrench is not None:
         header += list(WRENCH_COLUMNS)
         blocks.append(m.wrench)

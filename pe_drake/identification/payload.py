@@ -34,10 +34,9 @@ import numpy as np
 
 from pe_drake.exceptions import ConfigError, DataError, check_joints
 from pe_drake.identification.channels import CHUNK
-from pe_drake.identification.identified_file import standard_from_base
 from pe_drake.identification.least_squares import compress_joint_rows, weighted_fit_from_factors
 from pe_drake.identification.payload_friction import FRICTION_TERMS, drive_names, friction_columns
-from pe_drake.identification.physical_fit import SDP_TOLERANCES, InertiaBlock, solve_sdp
+from pe_drake.identification.physical_fit import SDP_TOLERANCES, InertiaBlock, scaled_factor, solve_sdp
 from pe_drake.io_utils import atomic_write_text, finite_json
 from pe_drake.multibody.base_parameters import BaseParameters, compute_base_parameters
 from pe_drake.multibody.drive_columns import COULOMB_VELOCITY_SCALE
@@ -53,6 +52,7 @@ from pe_drake.multibody.payload import (
     undetermined_parameters,
 )
 from pe_drake.multibody.regressor import RegressorModel
+from pe_drake.multibody.robot_model import RobotModel
 from pe_drake.threads import single_threaded_blas
 
 if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
@@ -187,8 +187,9 @@ class PayloadResult:
 
 def arm_parameters(robot: Robot, arm_model=None) -> np.ndarray:
     """The arm's standard parameters: the robot's a-priori model (None), an array (10·nb,),
-    or an :class:`~pe_drake.identification.estimators.IdentificationResult` (its physical
-    parameters, else the standard ones closest to the prior that reproduce its φ_B)."""
+    an :class:`~pe_drake.identification.estimators.IdentificationResult` (its physical
+    parameters, else the standard ones closest to the prior that reproduce its φ_B) or a
+    :class:`~pe_drake.multibody.robot_model.RobotModel` (its parameters, payload included)."""
     if arm_model is None:
         return np.asarray(robot.phi_model, float)
     if isinstance(arm_model, np.ndarray) or isinstance(arm_model, (list, tuple)):
@@ -196,9 +197,11 @@ def arm_parameters(robot: Robot, arm_model=None) -> np.ndarray:
         if phi.shape != (10 * robot.num_bodies,):
             raise ConfigError(f"arm model has shape {phi.shape}, expected ({10 * robot.num_bodies},)")
         return phi
+    if isinstance(arm_model, RobotModel):
+        return arm_model.phi_total
     if getattr(arm_model, "phi", None) is not None:
         return np.asarray(arm_model.phi, float)
-    return standard_from_base(robot, arm_model)
+    return arm_model.model.phi  # the standard parameters closest to the prior that give its φ_B
 
 
 def identify_payload(
@@ -300,12 +303,8 @@ def _physical_fit(R_joint, w, x_ls, K_L: np.ndarray, K_plus: np.ndarray, box: Pa
     """min Σ_j w_j² ‖A_j x − y_j‖² s.t. J(φ_L) ⪰ 0 (and the box), K_L φ_L = the last b entries of x;
     returns (x, φ_L). Parameters K_L leaves out (no motion excites them) are kept small, so that
     φ_L is the least extended payload that explains the data."""
-    p = R_joint.shape[-1] - 1
-    Rw = (R_joint * w[:, None, None]).reshape(-1, p + 1)
-    D = np.maximum(np.linalg.norm(Rw[:, :p], axis=0), 1e-300)
-    R = np.linalg.qr(np.column_stack([Rw[:, :p] / D, Rw[:, p]]), mode="r")
-    Ra, z = R[:p, :p], R[:p, p]
-    b = K_L.shape[0]
+    Ra, z, D = scaled_factor(R_joint, w)
+    p, b = len(D), K_L.shape[0]
     # variables [u (p), φ_L (10)], x = u / D
     Q = np.zeros((p + 10, p + 10))
     Q[:p, :p] = 2.0 * Ra.T @ Ra

@@ -16,7 +16,7 @@ from typing import Any
 from pe_drake.exceptions import ConfigError
 from pe_drake.excitation.payload_motion import undetermined_note
 from pe_drake.excitation.trajectory_file import load_trajectory
-from pe_drake.identification.estimators import prepare_measurement
+from pe_drake.identification.intake import prepare_measurement
 from pe_drake.identification.identified_file import load_identified
 from pe_drake.identification.intake import read_measurements
 from pe_drake.identification.payload import (

@@ -323,17 +323,23 @@ def solve_sdp(Q: np.ndarray, c: np.ndarray, blocks: Sequence[InertiaBlock], gues
     return result.GetSolution(x)
 
 
+def scaled_factor(R_joint: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(R_a, z, D): Σ_j w_j² ‖A_j x − y_j‖² = ‖R_a u − z‖² + const in u = D x, D the column norms of
+    the weighted rows, from the per-joint factors R_j of [A_j y_j], (n, p+1, p+1)."""
+    p = R_joint.shape[-1] - 1
+    Rw = (R_joint * w[:, None, None]).reshape(-1, p + 1)
+    D = np.maximum(np.linalg.norm(Rw[:, :p], axis=0), 1e-300)
+    R = np.linalg.qr(np.column_stack([Rw[:, :p] / D, Rw[:, p]]), mode="r")
+    return R[:p, :p], R[:p, p], D
+
+
 def factored_sdp(R_joint: np.ndarray, w: np.ndarray, x_ls: np.ndarray, blocks: Sequence[InertiaBlock], *,
                  lower: np.ndarray | None = None, rows: Sequence[tuple[np.ndarray, float, float]] = (),
                  what: str = "fit", advice: str = "", tolerances: Sequence[float] = SDP_TOLERANCES) -> np.ndarray:
     """min Σ_j w_j² ‖A_j x − y_j‖² under :func:`solve_sdp`'s constraints (given in x), from the
     per-joint factors R_j of [A_j y_j], (n, p+1, p+1) (:func:`~pe_drake.identification.least_squares.
     compress_joint_rows`), from the unconstrained ``x_ls``; solved in u = D x, D the column norms."""
-    p = R_joint.shape[-1] - 1
-    Rw = (R_joint * w[:, None, None]).reshape(-1, p + 1)
-    D = np.maximum(np.linalg.norm(Rw[:, :p], axis=0), 1e-300)
-    R = np.linalg.qr(np.column_stack([Rw[:, :p] / D, Rw[:, p]]), mode="r")
-    Ra, z = R[:p, :p], R[:p, p]
+    Ra, z, D = scaled_factor(R_joint, w)
     d = 1.0 / D  # x = d ⊙ u
     scaled = [b._replace(scale=b.scale * d[b.start : b.start + len(b.scale)]) for b in blocks]
     u = solve_sdp(2.0 * Ra.T @ Ra, -2.0 * Ra.T @ z, scaled, x_ls * D, lower=None if lower is None else lower * D,

@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from pe_drake.exceptions import ConfigError, DataError
-from pe_drake.identification.drive_terms import COULOMB_VELOCITY_SCALE
+from pe_drake.multibody.drive_columns import COULOMB_VELOCITY_SCALE
 from pe_drake.identification.measurements import Measurement
 
 #: The lowest rest threshold [rad/s or m/s]: a quarter of the Coulomb column's v_s, where

@@ -18,8 +18,11 @@ import numpy as np
 from pe_drake.config import MEASUREMENTS
 from pe_drake.identification.time_window import TimeWindow
 from pe_drake.identification.data_checks import a_priori_torque, check_against_model
-from pe_drake.identification.drive_terms import COULOMB_VELOCITY_SCALE, filtered_coulomb
-from pe_drake.identification.estimators import IdentificationResult, prepare_measurement, torque_errors
+from pe_drake.identification.drive_terms import filtered_coulomb
+from pe_drake.multibody.drive_columns import COULOMB_VELOCITY_SCALE
+from pe_drake.identification.estimators import IdentificationResult
+from pe_drake.identification.intake import prepare_measurement
+from pe_drake.identification.prediction import torque_errors
 from pe_drake.identification.gaps import MAX_GAP_S
 from pe_drake.identification.identify_model import prediction
 from pe_drake.identification.measurements import Measurement
@@ -27,6 +30,7 @@ from pe_drake.identification.coupling import coupled_pairs, coupling_warnings
 from pe_drake.identification.reference_errors import Shortfall, shortfall_report, shortfalls
 from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.robot import Robot
+from pe_drake.multibody.robot_model import RobotModel
 from pe_drake.multibody.sensors import MeasurementType
 from pe_drake.plots import plot_prediction
 
@@ -138,14 +142,15 @@ class ValidationReport:
         return written
 
 
-def validate_model(robot: Robot, model: IdentificationResult, measurements: Measurement,
+def validate_model(robot: Robot, model: IdentificationResult | RobotModel, measurements: Measurement,
                    options: ValidateOptions | None = None, *,
                    progress: Callable[[str], None] | None = None) -> ValidationReport:
     """What ``pe-drake validate`` does: the run preprocessed and checked, predicted by ``model``.
 
     Args:
         robot: the robot.
-        model: a loaded model (:func:`~pe_drake.identification.identified_file.load_identified`).
+        model: a loaded model (:func:`~pe_drake.identification.identified_file.load_identified`): an
+            identified fit or a :class:`~pe_drake.multibody.robot_model.RobotModel` (the diagnosis's).
         measurements: the raw run (:func:`~pe_drake.identification.intake.read_measurements`).
         progress: called with the :meth:`~ValidationReport.summary_lines` once predicted.
 
@@ -157,8 +162,10 @@ def validate_model(robot: Robot, model: IdentificationResult, measurements: Meas
                                window=options.window, filtering=options.filtering)
     check_against_model(robot, data)
     kind = MeasurementType(options.measurement)
-    scale = model.drive.layout.velocity_scale if model.drive is not None else COULOMB_VELOCITY_SCALE
-    transmission = model.drive.layout.transmission if model.drive is not None else None
+    as_built = isinstance(model, RobotModel)
+    layout = model.layout() if as_built else model.drive_layout
+    scale = layout.velocity_scale if layout is not None else COULOMB_VELOCITY_SCALE
+    transmission = layout.transmission if layout is not None else None
     measured, predicted = prediction(robot, model, data, kind, filtered_coulomb(measurements, data, scale, transmission))
     rms, rel = torque_errors(measured, predicted)
     total = float(100 * np.linalg.norm(measured - predicted) / max(np.linalg.norm(measured), 1e-300))
@@ -166,13 +173,13 @@ def validate_model(robot: Robot, model: IdentificationResult, measurements: Meas
     worse = shortfalls(names, measured, predicted, {"a_priori": _a_priori(robot, measurements, data, kind),
                                                      "zero": np.zeros_like(measured)})
     coupling = ()
-    if kind.torques and model.drive is not None and model.drive.layout.count:  # the torque channels come first
+    if kind.torques and layout is not None and layout.count:  # the torque channels come first
         R = transmission.R if transmission is not None else None
         coupling = tuple(coupling_warnings(coupled_pairs(robot.joint_names, data.v, data.vd,
                                                          (measured - predicted)[:, : robot.n], scale, R)))
-    report = ValidationReport(robot.name, model.measurement, options.measurement, names,
-                              data.t, measured, predicted, rms, rel, total, data.num_samples, tuple(data.notes),
-                              data.preprocessing, tuple(worse), coupling)
+    report = ValidationReport(robot.name, "joint_torque" if as_built else model.measurement, options.measurement,
+                              names, data.t, measured, predicted, rms, rel, total, data.num_samples,
+                              tuple(data.notes), data.preprocessing, tuple(worse), coupling)
     for line in report.summary_lines() if progress is not None else ():
         progress(line)
     return report

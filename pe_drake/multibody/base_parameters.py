@@ -95,6 +95,13 @@ class BaseParameters:
         """φ_B = K φ."""
         return self.K @ phi
 
+    def closest_standard(self, phi_B: np.ndarray, phi0: np.ndarray) -> np.ndarray:
+        """The standard parameters closest to ``phi0`` that give ``phi_B``: φ = φ0 + K⁺(φ_B − K φ0),
+        (10·nb,). They predict the same torques (Y φ = Y_B φ_B) but are not physically consistent
+        in general."""
+        phi0 = np.asarray(phi0, float)
+        return phi0 + np.linalg.pinv(self.K) @ (np.asarray(phi_B, float) - self.K @ phi0)
+
 
 #: Two neighbouring sizes s_i = |R_ii|·‖y_i‖ of the sorted base directions further apart than
 #: this are a gap (BUILD_NOTES.md "Rank from a gap"). Shipped robots: at most 28 (G1's arms);

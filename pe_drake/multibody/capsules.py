@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pe_drake.config import load_yaml_typed
+from pe_drake.yaml_check import load_yaml_typed
 from pe_drake.exceptions import ConfigError, UnknownNameError
 
 

@@ -44,8 +44,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Sequence
-from typing import TYPE_CHECKING
+from collections.abc import Mapping, Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -124,6 +124,7 @@ class DriveLayout:
             column of a joint that never reverses, which equals its offset column).
         transmission: the robot's transmission when the terms act per motor (module
             docstring; ``joints`` then index motors), None when per joint.
+        known: labels of the columns whose values are the model file's, not estimated (σ = 0).
     """
 
     terms: tuple[str, ...]
@@ -134,6 +135,7 @@ class DriveLayout:
     merged: dict[str, dict[str, float]] = dataclasses.field(default_factory=dict)
     dropped: dict[str, str] = dataclasses.field(default_factory=dict)
     transmission: Transmission | None = None
+    known: tuple[str, ...] = ()
 
     @property
     def count(self) -> int:
@@ -155,6 +157,64 @@ class DriveLayout:
     def lower_bounds(self) -> np.ndarray:
         """0 for friction and armature, -inf for offsets, shape (d,)."""
         return np.array([0.0 if t in NONNEGATIVE else -np.inf for t in self.terms])
+
+
+def read_drive_block(d: Mapping[str, Any], joint_names: Sequence[str]
+                     ) -> tuple[DriveLayout, np.ndarray, np.ndarray, dict[str, float]]:
+    """identify's ``drive_terms`` block of identified.json: (the fitted columns, their values θ and
+    σ (0 for the model file's), {joint: the physical fit's value} of the armatures merged into base
+    parameters); :func:`model_tables` makes a RobotModel's tables of them.
+
+    Raises:
+        KeyError, TypeError, ValueError: a malformed block (the caller names the file).
+    """
+    names = tuple(joint_names)
+    T = Transmission.from_dict(d["transmission"]) if d.get("transmission") is not None else None
+    if T is not None and T.joints != names:
+        raise ValueError(f"the transmission is of joints {', '.join(T.joints)}, not {', '.join(names)}")
+    table = d["joints"] if T is None else d["motors"]  # through a transmission the motors' (named by their joint)
+    unknown = set(table) - set(names)
+    if unknown:
+        raise ValueError(f"drive terms for joints {', '.join(sorted(unknown))} not in {', '.join(names)}")
+    terms, joints, units, theta, sigma, merged, merged_values, known = [], [], [], [], [], {}, {}, []
+    for j, name in enumerate(names):
+        for t, entry in table.get(name, {}).items():
+            if t not in UNITS:
+                raise ValueError(f"unknown drive term '{t}' (valid: {', '.join(UNITS)})")
+            if entry.get("value") is None:  # an armature merged into the base parameters
+                merged[name] = dict(entry.get("merged_into", {}))
+                if entry.get("physical_fit_value") is not None:
+                    merged_values[name] = float(entry["physical_fit_value"])
+                continue
+            model_file = entry.get("source") == "model file"
+            known += [f"{t}[{name}]"] * model_file
+            terms.append(t)
+            joints.append(j)
+            units.append(str(entry.get("unit", UNITS[t][0])))
+            theta.append(float(entry["value"]))
+            sigma.append(0.0 if model_file else float("nan") if entry.get("sigma") is None else float(entry["sigma"]))
+    layout = DriveLayout(tuple(terms), tuple(joints), names, tuple(units),
+                         float(d.get("velocity_scale", COULOMB_VELOCITY_SCALE)), merged,
+                         dict(d.get("dropped", {})), transmission=T, known=tuple(known))
+    return layout, np.array(theta, float), np.array(sigma, float), merged_values
+
+
+def model_tables(layout: DriveLayout, theta: np.ndarray, sigma: np.ndarray,
+                 merged_armature: dict[str, float]) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """A fit's drive terms as a :class:`~pe_drake.multibody.robot_model.RobotModel`'s ``drive`` and
+    ``sigma`` ({term: per-joint values}): the model file's terms σ = 0, the physical fit's merged
+    armatures (``merged_armature``, {joint: value}, inside the base parameters) σ = NaN."""
+    n = len(layout.joint_names)
+    drive: dict[str, np.ndarray] = {}
+    sd: dict[str, np.ndarray] = {}
+    for t, j, x, s in zip(layout.terms, layout.joints, theta, sigma):
+        drive.setdefault(t, np.zeros(n))[j] = float(x)
+        sd.setdefault(t, np.full(n, np.nan))[j] = float(s)
+    for name, value in merged_armature.items():
+        j = layout.joint_names.index(name)
+        drive.setdefault("armature", np.zeros(n))[j] = float(value)
+        sd.setdefault("armature", np.full(n, np.nan))[j] = np.nan
+    return drive, sd
 
 
 def drive_layout(robot: Robot, base, options: DriveTermOptions, model=None, *, rows=None, samples: int = 200,

@@ -125,27 +125,33 @@ def _urdf_shape(link: str, tag: str, element: ET.Element) -> Shape | None:
         _numbers(origin.get("xyz") if origin is not None else None, 3, 0.0),
         _numbers(origin.get("rpy") if origin is not None else None, 3, 0.0),
     )
-    geometry = element.find("geometry")
-    if geometry is None or len(geometry) == 0:
-        return None
-    g = geometry[0]
-    if g.tag == "mesh":
-        return Shape(link, tag, "mesh", X, filename=g.get("filename", ""), scale=np.asarray(_numbers(g.get("scale"), 3, 1.0)))
-    if g.tag in ("cylinder", "capsule"):
-        return Shape(link, tag, g.tag, X, (float(g.get("radius")), float(g.get("length"))))
-    if g.tag == "sphere":
-        return Shape(link, tag, "sphere", X, (float(g.get("radius")),))
-    if g.tag == "box":
-        return Shape(link, tag, "box", X, tuple(_numbers(g.get("size"), 3, 0.0)))
-    return None
+    return _shape(link, tag, X, element.find("geometry"), lambda g, key: g.get(key))  # URDF: attributes
 
 
 def _sdf_shape(link: str, tag: str, element: ET.Element) -> Shape | None:
     pose = _numbers(element.findtext("pose"), 6, 0.0)
-    X = _transform(pose[:3], pose[3:])
-    geometry = element.find("geometry")
+    return _shape(link, tag, _transform(pose[:3], pose[3:]), element.find("geometry"),
+                  lambda g, key: g.findtext(key))  # SDFormat: child elements
+
+
+def _shape(link: str, tag: str, X, geometry: ET.Element | None, value) -> Shape | None:
+    """The :class:`Shape` of a ``<geometry>`` element (None: none or of another kind); ``value(g,
+    key)`` reads a shape's ``filename``/``uri``, ``scale``, ``radius``, ``length`` or ``size``."""
     if geometry is None or len(geometry) == 0:
         return None
+    g = geometry[0]
+    if g.tag == "mesh":
+        uri = (value(g, "filename") or value(g, "uri") or "").strip()
+        if uri.startswith("model://"):
+            uri = "package://" + uri[len("model://") :]
+        return Shape(link, tag, "mesh", X, filename=uri, scale=np.asarray(_numbers(value(g, "scale"), 3, 1.0)))
+    if g.tag in ("cylinder", "capsule"):
+        return Shape(link, tag, g.tag, X, (float(value(g, "radius")), float(value(g, "length"))))
+    if g.tag == "sphere":
+        return Shape(link, tag, "sphere", X, (float(value(g, "radius")),))
+    if g.tag == "box":
+        return Shape(link, tag, "box", X, tuple(_numbers(value(g, "size"), 3, 0.0)))
+    return None
     g = geometry[0]
     if g.tag == "mesh":
         uri = (g.findtext("uri") or "").strip()

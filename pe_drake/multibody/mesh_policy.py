@@ -145,11 +145,6 @@ def named_files(name: str, model_path: Path, packages: Mapping[str, str] | None)
     return out
 
 
-def _mesh_file(name: str, model_path: Path, packages: Mapping[str, str] | None) -> Path | None:
-    found = [p for p in named_files(name, model_path, packages) if os.path.lexists(p)]
-    return found[0] if found else None
-
-
 def visual_mesh_refusal(
     name: str, model_path: str | Path, roots: Iterable[str] | None, packages: Mapping[str, str] | None = None
 ) -> str | None:

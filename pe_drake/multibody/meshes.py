@@ -9,17 +9,16 @@ vertices and triangular faces, without normals (three.js computes flat normals).
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import os
 import re
-import tempfile
 from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
 
 from pe_drake.exceptions import DataError
+from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.mesh_policy import mesh_file_refusal, without_refused_elements
 from pe_drake.multibody.packages import package_roots
 
@@ -182,18 +181,8 @@ def write_obj(path: str | Path, mesh: TriangleMesh, comment: str = "") -> Path:
     Returns:
         The path written.
     """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as out:
-            out.write(obj_text(mesh, comment))
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
-    return path
+    atomic_write_text(path, obj_text(mesh, comment))
+    return Path(path)
 
 
 def default_cache_dir() -> Path:

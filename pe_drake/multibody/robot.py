@@ -9,7 +9,6 @@ the joint limits the optimizer uses, and the tree structure the regressor needs.
 from __future__ import annotations
 
 import dataclasses
-import xml.etree.ElementTree as ET
 from collections.abc import Callable
 from functools import cached_property
 from pathlib import Path
@@ -20,10 +19,15 @@ from pe_drake.config import Config, RobotConfig, validate_config
 from pe_drake.exceptions import (
     ConfigError,
     InfeasibleError,
-    NotWithinLimitsError,
     UnknownNameError,
 )
 from pe_drake.multibody.capsules import register_capsules
+from pe_drake.multibody.excited_joints import (
+    excited_joint_names,
+    inboard_joint,
+    joint_info,
+    weld_locked_joints,
+)
 from pe_drake.multibody.inertia import NO_INERTIALS_NOTE, PARAMETER_NAMES, spatial_inertia_to_phi
 from pe_drake.multibody.joint_limits import joint_unit, merge_limits, placeholder_velocity_notes, position_margins
 from pe_drake.multibody.model_files import (
@@ -39,26 +43,7 @@ from pe_drake.multibody.registry import (
     resolve_robot_config,
     robot_display_name,
 )
-from pe_drake.multibody.urdf_checks import urdf_tree
-
-
-@dataclasses.dataclass(frozen=True)
-class JointInfo:
-    """One excited joint.
-
-    Attributes:
-        name: joint name.
-        kind: "revolute" or "prismatic".
-        child_body: index (into ``Robot.body_names_all``) of the joint's child body.
-        X_CM: pose of the joint's child frame M in the child body frame C, (4, 4).
-        axis_M: unit joint axis in M, (3,).
-    """
-
-    name: str
-    kind: str
-    child_body: int
-    X_CM: np.ndarray
-    axis_M: np.ndarray
+from pe_drake.multibody.urdf_checks import urdf_joint_dynamics, urdf_joint_efforts
 
 
 @dataclasses.dataclass(frozen=True)
@@ -136,8 +121,8 @@ class Robot:
             if plant.get_joint(j).num_positions() == 1
         ]
         check_world_joints(plant, models, model_path)
-        excited = _excited_joint_names(cfg, [j.name() for j in movable], model_path)
-        self.locked_positions = _weld_locked_joints(plant, movable, excited, cfg.locked_positions)
+        excited = excited_joint_names(cfg, [j.name() for j in movable], model_path)
+        self.locked_positions = weld_locked_joints(plant, movable, excited, cfg.locked_positions)
         self._weld_root(plant, models)
         self._scene_graph_builder_hook(plant, scene_graph)
         if self._before_finalize is not None:
@@ -234,7 +219,7 @@ class Robot:
         # For each body, the nearest excited joint upstream (-1: welded to the world).
         def upstream_joint(body) -> int:
             while body.index() != plant.world_body().index():
-                joint = _inboard_joint(plant, body)
+                joint = inboard_joint(plant, body)
                 if joint is None:
                     return -1
                 if joint.index() in index_of_joint:
@@ -272,7 +257,7 @@ class Robot:
             moves[anc[:, k], j] = True
         self.joint_moves_body = moves
 
-        self.joints = tuple(_joint_info(joint) for joint in self._joints)
+        self.joints = tuple(joint_info(joint) for joint in self._joints)
 
     def _limits(self) -> Limits:
         cfg = self.config
@@ -284,7 +269,7 @@ class Robot:
             actuator = self.plant.get_joint_actuator(a)
             if actuator.joint().name() in self.joint_names:
                 effort[self.joint_names.index(actuator.joint().name())] = actuator.effort_limit()
-        urdf_effort = _urdf_effort_limits(self.model_path)
+        urdf_effort = urdf_joint_efforts(self.model_path)
         for k, name in enumerate(self.joint_names):
             if not np.isfinite(effort[k]) and name in urdf_effort:
                 effort[k] = urdf_effort[name]
@@ -376,7 +361,7 @@ class Robot:
         Like the damping it is part of the a-priori model of every command (issue 21): the
         simulator, the diagnosis and the identification apply it as f·tanh(v/v_s).
         """
-        table = _urdf_dynamics(self.model_path, "friction")
+        table = urdf_joint_dynamics(self.model_path, "friction")
         return np.array([max(table.get(name, 0.0), 0.0) for name in self.joint_names], float)
 
     def inverse_dynamics(
@@ -418,143 +403,11 @@ class Robot:
         return f"Robot('{self.name}', {self.n} joints, {self.num_bodies} moving bodies)"
 
 
-def _urdf_effort_limits(path: Path) -> dict[str, float]:
-    """{joint: effort} from a URDF's <limit effort=...> (Drake keeps them only with actuators)."""
-    if path.suffix.lower() != ".urdf":
-        return {}
-    out = {}
-    try:
-        root = urdf_tree(path.read_text())  # as Drake reads it: a DOCTYPE made ET.parse fail
-    except (ET.ParseError, OSError, UnicodeDecodeError):
-        return {}
-    for joint in root.iter("joint"):
-        limit = joint.find("limit")
-        try:
-            effort = float(limit.get("effort")) if limit is not None else 0.0
-        except (TypeError, ValueError):  # no effort, or text Drake refuses itself
-            continue
-        if effort > 0:
-            out[joint.get("name")] = effort
-    return out
-
-
-def _urdf_dynamics(path: Path, attribute: str) -> dict[str, float]:
-    """{joint: value} of a URDF's ``<dynamics attribute=...>`` ({} for other formats or text
-    that does not parse; Drake reports those itself)."""
-    if path.suffix.lower() != ".urdf":
-        return {}
-    try:
-        root = urdf_tree(path.read_text())
-    except (ET.ParseError, OSError, UnicodeDecodeError):
-        return {}
-    out = {}
-    for joint in root.findall("joint"):  # not a <transmission>'s <joint>, which has no dynamics
-        dynamics = joint.find("dynamics")
-        try:
-            value = float(dynamics.get(attribute))
-        except (AttributeError, TypeError, ValueError):  # no <dynamics>, no attribute, bad text
-            continue
-        if np.isfinite(value):
-            out[joint.get("name")] = value
-    return out
-
-
-def _joint_info(joint) -> JointInfo:
-    """The :class:`JointInfo` of an excited Drake joint.
-
-    Raises:
-        ConfigError: a joint that is neither revolute nor prismatic.
-    """
-    X_CM = joint.frame_on_child().GetFixedPoseInBodyFrame().GetAsMatrix4()
-    if joint.type_name() == "revolute":
-        kind, axis = "revolute", np.asarray(joint.revolute_axis(), float)
-    elif joint.type_name() == "prismatic":
-        kind, axis = "prismatic", np.asarray(joint.translation_axis(), float)
-    else:
-        raise ConfigError(
-            f"joint '{joint.name()}' is a {joint.type_name()} joint; only revolute and "
-            "prismatic joints can be excited"
-        )
-    return JointInfo(joint.name(), kind, int(joint.child_body().index()), X_CM, axis / np.linalg.norm(axis))
-
-
-def _inboard_joint(plant, body):
-    for j in plant.GetJointIndices():
-        joint = plant.get_joint(j)
-        if joint.child_body().index() == body.index():
-            return joint
-    return None
-
-
 def _quaternion(wxyz):
     from pydrake.common.eigen_geometry import Quaternion  # lazy: pydrake is heavy
 
     q = np.asarray(wxyz, float)
     return Quaternion(q / np.linalg.norm(q))
-
-
-def _excited_joint_names(cfg: RobotConfig, movable_names: list[str], model_path: Path) -> list[str]:
-    """The excited joints (default: every 1-dof joint), after checking every joint name the
-    config uses.
-
-    Raises:
-        UnknownNameError: a joint the model (or the excited set) does not have.
-        ConfigError: a joint listed twice, or both excited and locked.
-    """
-    excited = list(cfg.joints) if cfg.joints else list(movable_names)
-    for j in excited:
-        if j not in movable_names:
-            raise UnknownNameError("joint", j, movable_names, where=str(model_path.name))
-    if len(set(excited)) != len(excited):
-        raise ConfigError(f"robot.joints lists a joint twice: {excited}")
-    for j in cfg.locked_positions:
-        if j not in movable_names:
-            raise UnknownNameError("joint", j, movable_names, where="robot.locked_positions")
-        if j in excited:
-            raise ConfigError(f"joint '{j}' is both excited and in robot.locked_positions")
-    for table in ("position_limits", "velocity_limits", "acceleration_limits", "effort_limits", "nominal_positions"):
-        for j in getattr(cfg, table):
-            if j not in excited:
-                raise UnknownNameError("joint", j, excited, where=f"robot.{table} (excited joints)")
-    return excited
-
-
-def _weld_locked_joints(plant, movable: list, excited: list[str], positions: dict[str, float]) -> dict[str, float]:
-    """Welds every non-excited joint at its locked position (default: 0 clipped to its limits).
-
-    Returns:
-        {joint: locked position} [rad or m].
-
-    Raises:
-        NotWithinLimitsError: a locked position outside the joint's limits.
-        ConfigError: a joint type that cannot be locked.
-    """
-    from pydrake.common.eigen_geometry import AngleAxis  # lazy: pydrake is heavy
-    from pydrake.math import RigidTransform
-    from pydrake.multibody.tree import PrismaticJoint, RevoluteJoint
-
-    locked: dict[str, float] = {}
-    for joint in movable:
-        if joint.name() in excited:
-            continue
-        lo, hi = joint.position_lower_limits()[0], joint.position_upper_limits()[0]
-        value = positions.get(joint.name(), float(np.clip(0.0, lo, hi)))
-        if not lo - 1e-9 <= value <= hi + 1e-9:
-            raise NotWithinLimitsError(joint.name(), value, lo, hi, what="locked position")
-        locked[joint.name()] = float(value)
-        if isinstance(joint, RevoluteJoint):
-            X_FM = RigidTransform(AngleAxis(value, joint.revolute_axis()), np.zeros(3))
-        elif isinstance(joint, PrismaticJoint):
-            X_FM = RigidTransform(joint.translation_axis() * value)
-        else:
-            raise ConfigError(f"cannot lock joint '{joint.name()}' of type {joint.type_name()}")
-        frame_F, frame_M = joint.frame_on_parent(), joint.frame_on_child()
-        for actuator_index in plant.GetJointActuatorIndices():
-            if plant.get_joint_actuator(actuator_index).joint().index() == joint.index():
-                plant.RemoveJointActuator(plant.get_joint_actuator(actuator_index))
-        plant.RemoveJoint(joint)
-        plant.WeldFrames(frame_F, frame_M, X_FM)
-    return locked
 
 
 def load_robot(

@@ -42,25 +42,24 @@ import numpy as np
 
 from pe_drake.exceptions import ConfigError
 from pe_drake.io_utils import atomic_write_text
-from pe_drake.multibody.dahl import dahl_builder_hook
 from pe_drake.multibody.drive_columns import (
     COULOMB_VELOCITY_SCALE,
     NONNEGATIVE,
     TERMS,
     UNITS,
     DriveLayout,
-    coulomb_column,
-    coulomb_velocities,
     drive_columns,
+    model_tables,
+    read_drive_block,
 )
 from pe_drake.multibody.inertia import (
     PARAMETER_NAMES,
     inertia_matrix,
-    phi_to_spatial_inertia,
     validity_problems,
 )
+from pe_drake.multibody.model_plant import PAYLOAD_BODY_NAME, model_plant
 from pe_drake.multibody.packages import found_packages
-from pe_drake.multibody.payload import PayloadInertia, payload_spatial_inertia
+from pe_drake.multibody.payload import PayloadInertia
 from pe_drake.multibody.regressor import shared_model
 from pe_drake.multibody.robot import load_robot
 from pe_drake.multibody.transmission import Transmission
@@ -71,11 +70,6 @@ if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
 
 #: The drive terms of a model, in the order of :data:`~pe_drake.multibody.drive_columns.TERMS`.
 DRIVE_TERMS = TERMS["all"]
-#: Name of the payload body in the plant and the URDF.
-PAYLOAD_BODY_NAME = "pe_drake_payload"
-#: Input port of the plant's diagram that takes the actuator torque when a Dahl friction
-#: system shares the plant's applied-generalized-force input.
-APPLIED_FORCE_PORT = "applied_generalized_force"
 #: Keys of the file's per-joint tables, by term, in file order (``offset`` is ``torque_offset``);
 #: a file without a term's table (written before the term existed) loads it as 0.
 FILE_KEYS = {"viscous": "viscous", "coulomb": "coulomb", "armature": "armature", "offset": "torque_offset"}
@@ -249,66 +243,15 @@ class RobotModel:
         return out
 
     def plant(self, robot: Robot):
-        """The model in Drake: a continuous :class:`~pe_drake.multibody.robot.Robot` of
-        ``robot``'s config with these inertias, damping, Coulomb ``DoorHinge``, rotor inertia,
-        payload body and, with pre-sliding friction, the Dahl system whose diagram exports
-        the input :data:`APPLIED_FORCE_PORT`. Offsets are not in the plant: add them to its torque.
-
-        Through a transmission: a motor that turns one joint is that joint's damping R_ii²·F_v,
-        ``DoorHinge`` |R_ii|·F_c and rotor inertia R_ii²·I; a coupled motor's friction is a
-        velocity-dependent generalized force −Rᵀ(F_c tanh(θ̇/(|R_ii| v_s)) + F_v θ̇) of the
-        friction system (exact). The reflected rotor inertia is the block Rᵀ diag(I) R: Drake holds
-        a rotor inertia per joint, so the plant has its diagonal; the coupling's off-diagonal
-        entries C are the diagram's rotor-coupling system, which adds −C q̈ to the applied force
-        with q̈ solved from (M + C) q̈ = … (:mod:`~pe_drake.multibody.rotor_coupling`): the
-        diagram's forward dynamics are exact, the plant's own inverse dynamics and mass matrix
-        lack C (:meth:`plant_notes`; :meth:`torque` has it).
+        """The model in Drake, a continuous :class:`~pe_drake.multibody.robot.Robot` with its damping,
+        Coulomb friction, rotor inertia, payload body and Dahl system
+        (:func:`~pe_drake.multibody.model_plant.model_plant`; offsets are not in it).
 
         Raises:
             ValueError: other joints or bodies than the robot's.
             ConfigError: a negative friction or armature (:meth:`nonnegative` removes them).
         """
-        from pydrake.math import RigidTransform  # lazy: pydrake stays out of `import pe_drake`
-
-        self.check_robot(robot)
-        for t in NONNEGATIVE:
-            bad = [f"{j} {x:.3g}" for j, x in zip(self.joints, self.term(t)) if x < 0]
-            if bad:
-                raise ConfigError(f"{t} must be ≥ 0 in Drake, got {', '.join(bad)}")
-        joint = self.per_joint_model()
-        viscous, coulomb, armature, coupled = joint.viscous, joint.coulomb, joint.armature, self.coupled_friction()
-        revolute = [info.kind == "revolute" for info in robot.joints]
-        payload = payload_spatial_inertia(self.payload) if self.payload is not None else None
-
-        def before_finalize(plant, scene_graph):
-            for k, name in enumerate(self.joints):
-                joint = plant.GetJointByName(name)
-                joint.set_default_damping_vector([viscous[k]])
-                if coulomb[k] > 0 and revolute[k]:  # a DoorHinge is revolute
-                    add_coulomb_friction(plant, joint, float(coulomb[k]), self.velocity_scale)
-                if armature[k] > 0:
-                    set_armature(plant, joint, float(armature[k]))
-            if payload is not None:
-                link = plant.GetBodyByName(self.payload_link)
-                body = plant.AddRigidBody(PAYLOAD_BODY_NAME, link.model_instance(), payload)
-                plant.WeldFrames(link.body_frame(), body.body_frame(), RigidTransform())
-
-        fc, sigma0 = self.presliding, self.presliding_stiffness
-        # Coulomb friction on a prismatic joint (which a DoorHinge cannot carry) goes to the
-        # friction system of the Dahl hook, without pre-sliding.
-        sliding = np.where(revolute, 0.0, coulomb)
-        cross = self.rotor_coupling()
-        hook = (dahl_builder_hook(fc, sigma0, APPLIED_FORCE_PORT, sliding, self.velocity_scale, coupled,
-                                  cross if np.any(cross) else None)
-                if np.any(fc > 0) or np.any(sliding > 0) or coupled is not None or np.any(cross) else None)
-        out = load_robot(robot.config, time_step=0.0, before_finalize=before_finalize, builder_hook=hook)
-        for b, name in enumerate(self.bodies):
-            phi_b = self.phi[10 * b : 10 * b + 10]
-            if phi_b[0] > 0:  # massless frames keep the model file's (zero) inertia
-                out.plant.GetBodyByName(name).SetSpatialInertiaInBodyFrame(out.plant_context, phi_to_spatial_inertia(phi_b))
-        for system in getattr(hook, "systems", ()):  # the rotor coupling evaluates on the plant's parameters
-            system.sync(out.plant_context)
-        return out
+        return model_plant(self, robot)
 
     def per_joint_model(self) -> RobotModel:
         """This model with per-joint drive terms, what a URDF and Drake's joint elements hold
@@ -329,21 +272,6 @@ class RobotModel:
                                        "per-joint term (pe_drake's Drake plant applies it as a generalized force)"]
                                       if lost else [])
         return dataclasses.replace(self, drive=drive, sigma={}, transmission=None, notes=(*self.notes, *notes))
-
-    def coupled_friction(self):
-        """f(v): the torque the coupled motors' friction applies to the joints, (n,) (None
-        when no motor is coupled): :meth:`plant`'s part of the drive beyond :meth:`per_joint_model`."""
-        T = self.transmission
-        single = np.count_nonzero(T.R, axis=1) == 1 if T is not None else None
-        if T is None or single.all():
-            return None
-        f_c, f_v, R = np.where(single, 0.0, self.coulomb), np.where(single, 0.0, self.viscous), T.R
-
-        def coupled(v):
-            w, scale = coulomb_velocities(v, self.velocity_scale, T)
-            return -(R.T @ (f_c * coulomb_column(w, scale) + f_v * w))
-
-        return coupled
 
     def rotor_coupling(self) -> np.ndarray:
         """The off-diagonal part of the reflected rotor inertia Rᵀ diag(I) R (of the armatures
@@ -535,58 +463,12 @@ def _from_identified(cls, d: Mapping[str, Any], bodies, base, phi_prior) -> Robo
     elif base is None or phi_prior is None:
         raise ValueError("an identified.json with base parameters only needs the robot's base parameters")
     else:
-        phi_B = np.array([float(e["value"]) for e in d["base_parameters"]])
-        phi0 = np.asarray(phi_prior, float)
-        phi = phi0 + np.linalg.pinv(base.K) @ (phi_B - base.K @ phi0)
-    drive, sigma = {}, {}
-    block = d.get("drive_terms") or {}
-    transmission = Transmission.from_dict(block["transmission"]) if block.get("transmission") else None
-    # through a transmission the terms are the motors' (named by their joint)
-    for name, terms in (block.get("motors" if transmission is not None else "joints") or {}).items():
-        if name not in joints:
-            raise ValueError(f"drive terms for joint '{name}' not in {', '.join(joints)}")
-        j = joints.index(name)
-        for t, entry in terms.items():
-            if t not in DRIVE_TERMS:
-                raise ValueError(f"unknown drive term '{t}' (valid: {', '.join(DRIVE_TERMS)})")
-            value = entry.get("value")
-            if value is None:  # an armature merged into the base parameters
-                value = entry.get("physical_fit_value") if std is not None else None
-                if value is None:
-                    continue
-                s = float("nan")
-            else:
-                s = 0.0 if entry.get("source") == "model file" else (
-                    float("nan") if entry.get("sigma") is None else float(entry["sigma"]))
-            drive.setdefault(t, np.zeros(len(joints)))[j] = float(value)
-            sigma.setdefault(t, np.full(len(joints), np.nan))[j] = s
+        phi = base.closest_standard(np.array([float(e["value"]) for e in d["base_parameters"]]), phi_prior)
+    drive, sigma, transmission, v_s = {}, {}, None, COULOMB_VELOCITY_SCALE
+    if d.get("drive_terms"):
+        layout, theta, sd, merged = read_drive_block(d["drive_terms"], joints)
+        # a merged armature's value is the physical fit's (with standard parameters); else in φ_B
+        drive, sigma = model_tables(layout, theta, sd, merged if std is not None else {})
+        transmission, v_s = layout.transmission, layout.velocity_scale
     notes = tuple(d.get("physical_fit_notes", ())) + ((d["note"],) if d.get("note") else ())
-    return cls(joints, bodies, phi, drive, sigma, float(block.get("velocity_scale", COULOMB_VELOCITY_SCALE)),
-               notes=notes, transmission=transmission)
-
-
-def add_coulomb_friction(plant, joint, f_c: float, v_s: float) -> None:
-    """f_c·tanh(v/v_s) as a Drake DoorHinge whose only non-zero term is its dynamic friction."""
-    from pydrake.multibody.tree import DoorHinge, DoorHingeConfig  # lazy: pydrake stays out of `import pe_drake`
-
-    config = DoorHingeConfig()
-    config.spring_constant = 0.0
-    config.catch_torque = 0.0
-    config.static_friction_torque = 0.0
-    config.viscous_friction = 0.0
-    config.dynamic_friction_torque = f_c
-    config.motion_threshold = v_s
-    plant.AddForceElement(DoorHinge(joint, config))
-
-
-def set_armature(plant, joint, armature: float) -> None:
-    """Reflected rotor inertia on the joint's actuator (gear² taken out), or a new actuator."""
-    actuators = [plant.get_joint_actuator(a) for a in plant.GetJointActuatorIndices()
-                 if plant.get_joint_actuator(a).joint().index() == joint.index()]
-    if actuators:
-        gear = actuators[0].default_gear_ratio() or 1.0
-        actuators[0].set_default_rotor_inertia(armature / gear**2)
-    else:
-        actuator = plant.AddJointActuator(f"pe_drake_armature_{joint.name()}", joint)
-        actuator.set_default_gear_ratio(1.0)
-        actuator.set_default_rotor_inertia(armature)
+    return cls(joints, bodies, phi, drive, sigma, v_s, notes=notes, transmission=transmission)

@@ -21,7 +21,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from pe_drake.config import MEASUREMENTS, ExcitationConfig, noise_vector
+from pe_drake.config import MEASUREMENTS, ExcitationConfig
+from pe_drake.config_sections import noise_vector
 from pe_drake.exceptions import ConfigError
 from pe_drake.multibody.base_parameters import RANK_GAP_RATIO, BaseParameters, compute_base_parameters
 from pe_drake.multibody.regressor import Kinematics, RegressorModel

@@ -53,8 +53,7 @@ _MOTION_A, _MOTION_B, _MOTION_SUM = _bilinear_terms(_MOTION_TENSOR)
 _FORCE_A, _FORCE_B, _FORCE_SUM = _bilinear_terms(_FORCE_TENSOR)
 #: [x]× = (x @ _SKEW) reshaped (3, 3): [x]×_ik = Σ_j ε_ijk x_j.
 _SKEW = _levi_civita().transpose(1, 0, 2).reshape(3, 9)
-#: [a ×m] and [a ×*] as (a @ matrix) reshaped (6, 6).
-_MOTION_MATRIX = _MOTION_TENSOR.transpose(1, 0, 2).reshape(6, 36)
+#: [a ×*] as (a @ matrix) reshaped (6, 6).
 _FORCE_MATRIX = _FORCE_TENSOR.transpose(1, 0, 2).reshape(6, 36)
 #: Σ_k a_k ×* f_k = (aᵀ f) reshaped (36,) @ this: the force cross tensor contracted with M = aᵀ f.
 _SUMMED_FORCE = _FORCE_TENSOR.transpose(0, 2, 1).reshape(6, 36).T
@@ -190,11 +189,6 @@ def force_transform_matrix(R: np.ndarray, p: np.ndarray) -> np.ndarray:
 def cross_force_matrix(a: np.ndarray) -> np.ndarray:
     """[a ×*] with [a ×*] f = :func:`cross_force` (a, f): [[ω×, v×], [0, ω×]], (..., 6, 6)."""
     return (a @ _FORCE_MATRIX).reshape(a.shape[:-1] + (6, 6))
-
-
-def cross_motion_matrix(a: np.ndarray) -> np.ndarray:
-    """[a ×m] with [a ×m] m = :func:`cross_motion` (a, m): [[ω×, 0], [v×, ω×]], (..., 6, 6)."""
-    return (a @ _MOTION_MATRIX).reshape(a.shape[:-1] + (6, 6))
 
 
 def summed_cross_force_of(fa: np.ndarray) -> np.ndarray:

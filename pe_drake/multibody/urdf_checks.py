@@ -1,10 +1,13 @@
-"""Checks of a user's URDF text before Drake parses it, with messages that say what to change."""
+"""Checks of a user's URDF text before Drake parses it, with messages that say what to change, and
+the joint attributes Drake's parser does not keep (effort limits without an actuator, ``<dynamics friction>``)."""
 
 from __future__ import annotations
 
 import re
 import xml.etree.ElementTree as ET
 from pathlib import Path
+
+import numpy as np
 
 from pe_drake.exceptions import ConfigError
 
@@ -62,3 +65,44 @@ def check_joint_types(urdf_text: str, model_path: str | Path) -> None:
                 f"pe_drake supports {', '.join(SUPPORTED_JOINT_TYPES)} joints (1-dof joints are excited or "
                 f"locked, fixed ones welded). {hint}"
             )
+
+
+def urdf_joint_efforts(path: Path) -> dict[str, float]:
+    """{joint: effort} from a URDF's <limit effort=...> (Drake keeps them only with actuators)."""
+    if path.suffix.lower() != ".urdf":
+        return {}
+    out = {}
+    try:
+        root = urdf_tree(path.read_text())  # as Drake reads it: a DOCTYPE made ET.parse fail
+    except (ET.ParseError, OSError, UnicodeDecodeError):
+        return {}
+    for joint in root.iter("joint"):
+        limit = joint.find("limit")
+        try:
+            effort = float(limit.get("effort")) if limit is not None else 0.0
+        except (TypeError, ValueError):  # no effort, or text Drake refuses itself
+            continue
+        if effort > 0:
+            out[joint.get("name")] = effort
+    return out
+
+
+def urdf_joint_dynamics(path: Path, attribute: str) -> dict[str, float]:
+    """{joint: value} of a URDF's ``<dynamics attribute=...>`` ({} for other formats or text
+    that does not parse; Drake reports those itself)."""
+    if path.suffix.lower() != ".urdf":
+        return {}
+    try:
+        root = urdf_tree(path.read_text())
+    except (ET.ParseError, OSError, UnicodeDecodeError):
+        return {}
+    out = {}
+    for joint in root.findall("joint"):  # not a <transmission>'s <joint>, which has no dynamics
+        dynamics = joint.find("dynamics")
+        try:
+            value = float(dynamics.get(attribute))
+        except (AttributeError, TypeError, ValueError):  # no <dynamics>, no attribute, bad text
+            continue
+        if np.isfinite(value):
+            out[joint.get("name")] = value
+    return out

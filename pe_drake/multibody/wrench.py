@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from pe_drake.multibody.forward_kinematics import body_index
 from pe_drake.multibody.inertia import spatial_inertia_to_phi
 
 if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
@@ -48,7 +49,7 @@ def static_wrench(robot: Robot) -> np.ndarray:
     for k in range(1, plant.num_bodies()):
         if k in moving:
             continue
-        body = plant.get_body(_body_index(k))
+        body = plant.get_body(body_index(k))
         phi = spatial_inertia_to_phi(body.default_spatial_inertia())
         m, h_B = phi[0], phi[1:4]
         X_WB = plant.EvalBodyPoseInWorld(ctx, body)
@@ -150,9 +151,3 @@ def weld_reaction_wrench(robot: Robot, q: np.ndarray, v: np.ndarray, vd: np.ndar
     """
     q, v, vd = (np.atleast_2d(np.asarray(x, float)) for x in (q, v, vd))
     return weld_reaction(robot, q, v, robot.inverse_dynamics(q, v, vd, include_damping=True))
-
-
-def _body_index(b: int):
-    from pydrake.multibody.tree import BodyIndex  # lazy: keeps `import pe_drake` light
-
-    return BodyIndex(int(b))

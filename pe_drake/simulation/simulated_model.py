@@ -22,7 +22,7 @@ needs what Drake can build:
   out, are simulated too (``effects.torque_delay``, ``effects.presliding_*``).
 
 A TRUTH.yaml given with ``--model`` adds its effects, noise and control on top
-(:func:`~pe_drake.simulation.simulation.true_model`).
+(:func:`~pe_drake.simulation.true_robot.true_model`).
 """
 
 from __future__ import annotations
@@ -37,7 +37,6 @@ from pe_drake.exceptions import DataError
 from pe_drake.multibody.sensors import measurement_base_parameters
 from pe_drake.identification.identified_file import load_identified
 from pe_drake.identification.physical_fit import physical_fit
-from pe_drake.io_utils import loads_json
 from pe_drake.multibody.inertia import validity_problems
 from pe_drake.multibody.robot_model import RobotModel
 
@@ -57,19 +56,16 @@ def load_simulation_model(path: str | Path, robot: Robot) -> RobotModel:
         NoSolutionFound: no physically valid parameters near the file's base parameters.
     """
     result = load_identified(path, robot)  # checks the file belongs to the robot
-    d = loads_json(Path(path).read_text(), str(path))  # load_identified has read it: it is JSON
-    try:
-        model = RobotModel.from_dict(d, robot.body_names, base=result.base, phi_prior=robot.phi_model)
-    except (KeyError, TypeError, ValueError, AttributeError) as err:
-        raise DataError(f"not a model pe-drake can simulate ({err!r} missing or malformed)", file=str(path)) from err
-    model = dataclasses.replace(model, notes=())  # the notes say what the simulator adjusted, not the file's
-    if "standard_parameters" in d or "phi" in d:
+    as_built = isinstance(result, RobotModel)  # the diagnosis's augmented model
+    # the notes say what the simulator adjusted, not the file's
+    model = dataclasses.replace(result if as_built else result.model, notes=())
+    if as_built or result.phi is not None:  # standard parameters of its own
         if not model.physical:
             problems = validity_problems(robot.body_names, model.phi)
             raise DataError("the model's standard parameters are not physically valid, so Drake cannot simulate "
                             "them: " + "; ".join(f"{b}: {why}" for b, why in problems.items()), file=str(path))
         return model.nonnegative("is simulated as 0")
-    merged = result.drive.layout.merged if result.drive is not None else {}
+    merged = result.drive_layout.merged if result.drive_layout is not None else {}
     sigma_B = np.abs(result.phi_B) * np.asarray(result.sigma_percent, float) / 100.0
     return consistent_model(robot, model, result.base, sigma_B, merged, result.phi_B).nonnegative("is simulated as 0")
 

@@ -12,16 +12,16 @@ from typing import Any
 
 import numpy as np
 
-from pe_drake.exceptions import ConfigError, DataError, check_joints
+from pe_drake.exceptions import ConfigError, check_joints
 from pe_drake.excitation.ramp import check_within_limits
 from pe_drake.excitation.trajectory_file import load_motion
 from pe_drake.identification.measurements import Measurement, measurement_to_csv_text
 from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.robot import Robot
-from pe_drake.multibody.robot_model import RobotModel
+from pe_drake.multibody.robot_model import FILE_KEYS, RobotModel
 from pe_drake.simulation.contact import capsule_contacts
 from pe_drake.simulation.simulated_model import load_simulation_model
-from pe_drake.simulation.simulation import FIELDS, simulate, truth_path_for
+from pe_drake.simulation.simulation import simulate, truth_path_for
 from pe_drake.simulation.truth import Truth, load_truth, validate_truth
 
 _RECORDED = {"joint_torque": "tau", "base_wrench": "wrench", "both": "tau and wrench"}
@@ -174,6 +174,6 @@ def _model_record(model: RobotModel, source: str) -> dict[str, Any]:
         return dict(zip(model.joints, map(float, x)))
 
     return {"file": source, "notes": list(model.notes),
-            "drive_terms": {field: per_joint(model.term(t)) for t, field in FIELDS.items()},
+            "drive_terms": {field: per_joint(model.term(t)) for t, field in FILE_KEYS.items()},
             "torque_delay": model.torque_delay, "presliding_friction": per_joint(model.presliding),
             "presliding_stiffness": per_joint(model.presliding_stiffness)}

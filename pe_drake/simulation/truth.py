@@ -16,7 +16,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from pe_drake.config import check_finite, load_yaml_typed
+from pe_drake.config import check_finite
+from pe_drake.yaml_check import load_yaml_typed
 from pe_drake.exceptions import ConfigError, UnknownNameError
 from pe_drake.multibody.inertia import inertia_matrix
 from pe_drake.multibody.payload import PayloadInertia

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import abc
 import dataclasses
+import math
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -19,6 +20,21 @@ from pe_drake.exceptions import ConfigError
 
 if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
     from pe_drake.multibody.robot import Robot
+
+
+def robot_capsules(robot: Robot, margin, what: str, fix: str) -> tuple:
+    """The robot's collision capsules, after checking the ``margin`` [m] of the ``what`` constraint.
+
+    Raises:
+        ConfigError: a margin that is not a finite number ≥ 0; a robot without capsules (the
+            message ends with ``fix``: how to give it some).
+    """
+    if not isinstance(margin, (int, float)) or not math.isfinite(margin) or margin < 0:
+        raise ConfigError(f"{what} margin must be a finite number >= 0 [m], got {margin!r}")
+    capsules = tuple(getattr(robot, "capsules", ()) or ())
+    if not capsules:
+        raise ConfigError(f"robot '{robot.name}' has no collision capsules{fix}")
+    return capsules
 
 
 def check_postures(q: np.ndarray, robot: Robot, what: str) -> np.ndarray:

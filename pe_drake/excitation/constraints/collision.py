@@ -52,7 +52,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from pe_drake.exceptions import ConfigError, InfeasibleError
-from pe_drake.excitation.constraints.base import SampledConstraint, SampledValues, check_postures
+from pe_drake.excitation.constraints.base import SampledConstraint, SampledValues, check_postures, robot_capsules
 from pe_drake.multibody.capsules import capsule_pairs, segment_closest_points
 from pe_drake.multibody.regressor import shared_model
 from pe_drake.multibody.spatial import cross3, rotate
@@ -130,16 +130,10 @@ class CollisionConstraint(SampledConstraint):
         Raises:
             ConfigError: no capsules, no pair left to check, or a bad margin/smoothing.
         """
-        if not isinstance(margin, (int, float)) or not math.isfinite(margin) or margin < 0:
-            raise ConfigError(f"collision margin must be a finite number >= 0 [m], got {margin!r}")
+        capsules = robot_capsules(robot, margin, "collision", ": set robot.capsules to a capsule file in its config "
+                                  "(format: pe_drake/multibody/capsules.py)")
         if aggregate and (not math.isfinite(smoothing) or smoothing <= 0):
             raise ConfigError(f"collision smoothing must be a positive number [m], got {smoothing!r}")
-        capsules = tuple(getattr(robot, "capsules", ()) or ())
-        if not capsules:
-            raise ConfigError(
-                f"robot '{robot.name}' has no collision capsules: set robot.capsules to a capsule "
-                "file in its config (format: pe_drake/multibody/capsules.py)"
-            )
         self.robot = robot
         self.capsules = capsules
         self.margin = float(margin)

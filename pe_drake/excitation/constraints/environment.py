@@ -35,7 +35,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from pe_drake.exceptions import ConfigError, InfeasibleError
-from pe_drake.excitation.constraints.base import SampledConstraint, SampledValues, check_postures
+from pe_drake.excitation.constraints.base import SampledConstraint, SampledValues, check_postures, robot_capsules
+from pe_drake.multibody.forward_kinematics import body_index
 from pe_drake.multibody.regressor import shared_model
 from pe_drake.multibody.spatial import cross3, rotate
 
@@ -167,16 +168,10 @@ class EnvironmentConstraint(SampledConstraint):
         smoothing: float = 0.002,
         floor_normal: Sequence[float] = (0.0, 0.0, 1.0),
     ):
-        if not isinstance(margin, (int, float)) or not math.isfinite(margin) or margin < 0:
-            raise ConfigError(f"environment margin must be a finite number >= 0 [m], got {margin!r}")
+        capsules = robot_capsules(robot, margin, "environment", " for the floor/box check: set robot.capsules, or "
+                                  "environment: {floor: false} and no boxes")
         if floor_height is not None and not math.isfinite(floor_height):
             raise ConfigError(f"environment.floor_height must be a finite number [m], got {floor_height!r}")
-        capsules = tuple(getattr(robot, "capsules", ()) or ())
-        if not capsules:
-            raise ConfigError(
-                f"robot '{robot.name}' has no collision capsules for the floor/box check: set "
-                "robot.capsules, or environment: {floor: false} and no boxes"
-            )
         self.robot, self.margin, self.floor_height = robot, float(margin), floor_height
         normal = np.asarray(floor_normal, float).reshape(3)
         if not np.isfinite(normal).all() or np.linalg.norm(normal) < 1e-9:
@@ -207,7 +202,7 @@ class EnvironmentConstraint(SampledConstraint):
         robot, plant = self.robot, self.robot.plant
         self._plant, self._context = plant, plant.CreateDefaultContext()
         self._bodies = sorted({c.body_index for c in self.capsules})
-        self._frames = [plant.get_body(_body_index(b)).body_frame() for b in self._bodies]
+        self._frames = [plant.get_body(body_index(b)).body_frame() for b in self._bodies]
         self._slot = [self._bodies.index(c.body_index) for c in self.capsules]
         # The batched path (Drake's per-sample point Jacobians took half of a
         # Panda solve): capsule ends from the shared forward kinematics, their Jacobians from
@@ -343,12 +338,6 @@ class EnvironmentConstraint(SampledConstraint):
             )
 
 
-def _body_index(b: int):
-    from pydrake.multibody.tree import BodyIndex
-
-    return BodyIndex(int(b))
-
-
 def standing_plane(robot: Robot, normal: np.ndarray, mounting_plane: float, tolerance: float = 0.02) -> float:
     """Where a robot on a pedestal stands: the lowest point, along the floor normal n, of the
     capsules that no excited joint moves (a pedestal, a torso welded to the base), when the
@@ -367,7 +356,7 @@ def standing_plane(robot: Robot, normal: np.ndarray, mounting_plane: float, tole
     context = plant.CreateDefaultContext()
     axis, surface = mounting_plane, mounting_plane  # lowest segment end, lowest surface point
     for c in fixed:
-        X = plant.EvalBodyPoseInWorld(context, plant.get_body(_body_index(c.body_index))).GetAsMatrix4()
+        X = plant.EvalBodyPoseInWorld(context, plant.get_body(body_index(c.body_index))).GetAsMatrix4()
         heights = (X[:3, :3] @ c.p_BS.T).T @ normal + X[:3, 3] @ normal
         axis, surface = min(axis, float(heights.min())), min(surface, float(heights.min()) - c.radius)
     # The round end of a base capsule overhangs its mounting plane by up to its radius: only
