@@ -101,6 +101,21 @@ def check_output_file(path: str | Path, flag: str, suffixes: Iterable[str] = ())
     return path
 
 
+def output_file(folder: str | Path, name: str) -> Path:
+    """``folder/name`` for a result's ``write(folder, name=...)``, refusing a ``folder`` that names
+    the file itself (``run.write("held.csv")`` would write ``held.csv/run.csv``).
+
+    Raises:
+        ConfigError: ``folder`` ends in ``name``'s suffix and is not an existing folder.
+    """
+    folder = Path(folder)
+    suffix = Path(name).suffix.lower()
+    if suffix and folder.suffix.lower() == suffix and not folder.is_dir():
+        raise ConfigError(f"write() takes the folder and the file's name as name=: got folder '{folder}'; "
+                          f"use write('{folder.parent}', name='{folder.name}')")
+    return folder / name
+
+
 def remove_stale_outputs(folder: str | Path, own_names: Iterable[str], written: Iterable[str]) -> list[str]:
     """Deletes the command's own output files in ``folder`` that this run did not write.
 

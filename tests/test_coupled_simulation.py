@@ -16,7 +16,7 @@ from pe_drake.identification.preprocessing import design_lowpass
 from pe_drake.identification.readers import read_log
 from pe_drake.identification.validate_model import ValidateOptions, validate_model
 from pe_drake.multibody.robot import load_robot
-from pe_drake.simulation import simulate_run
+from pe_drake.simulation import SimulateOptions, simulate_run
 from pe_drake.simulation.simulation import truth_path_for
 from tests.conftest import get_robot
 from tests.test_identification import OPTIMIZED, random_trajectory
@@ -56,8 +56,8 @@ def coupled_runs(tmp_path_factory):
                         periods=2)
     assert cli(["simulate", "--robot", "ur5", "--config", str(config), "--trajectory", str(folder / "trajectory1.json"),
                 "--truth", str(folder / "truth.yaml"), "--out", str(folder / "train.csv")]) == 0
-    held = simulate_run(robot, folder / "trajectory7.json", folder / "truth.yaml")
-    held.write(folder / "held.csv")
+    held = simulate_run(robot, folder / "trajectory7.json", SimulateOptions(folder / "truth.yaml"))
+    held.write(folder, name="held.csv")
     return folder, robot, truth
 
 
@@ -81,10 +81,10 @@ def test_simulated_coupled_wrist_is_identified_per_motor(coupled_runs):
     options = IdentifyOptions(cutoff_hz=CUTOFF)
     train, held = read_log(folder / "train.csv", robot), read_log(folder / "held.csv", robot)
     fit = identify_model(robot, train, options)
-    layout = fit.result.drive.layout
+    layout, model = fit.result.drive_layout, fit.result.model
     assert layout.transmission is not None
-    for label, term, j, x, sd in zip(layout.labels, layout.terms, layout.joints, fit.result.drive.theta,
-                                     fit.result.drive.sigma):
+    for label, term, j in zip(layout.labels, layout.terms, layout.joints):
+        x, sd = model.term(term)[j], model.sigma[term][j]
         assert abs(x - truth[term][j]) < 3 * sd, (label, x, truth[term][j], sd)
     report = validate_model(robot, fit.result, held, ValidateOptions(cutoff_hz=CUTOFF))
     floor = _floor(len(held.t))

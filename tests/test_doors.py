@@ -125,3 +125,14 @@ def test_diagnose_writes_itself_as_the_cli_writes_it(panda, tmp_path, capsys):
     assert all(Path(p).is_file() for p in written)
     assert "| panda_joint1 |" in (tmp_path / "lib" / "report.md").read_text()
     assert result.summary_lines()[0].startswith("a-priori model, held-out RMS: panda_joint1 ")
+
+
+def test_a_result_written_to_a_file_name_is_refused_with_the_call_to_make(tmp_path):
+    """write(folder, name=...): ``run.write("held.csv")`` would have made a folder held.csv."""
+    from pe_drake.exceptions import ConfigError
+
+    m = Measurement(t=np.arange(3) * 0.01, q=np.zeros((3, 1)), tau=np.zeros((3, 1)), joints=("j",))
+    with pytest.raises(ConfigError, match=r"write\('.*', name='held.csv'\)"):
+        m.write(tmp_path / "held.csv")
+    assert not (tmp_path / "held.csv").exists()
+    assert m.write(tmp_path, name="held.csv") == [str(tmp_path / "held.csv")]

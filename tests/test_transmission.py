@@ -321,13 +321,13 @@ def test_diagnosis_prior_drive_torque_acts_per_motor(optimized):  # noqa: F811
     truth = true_model(robot)
     run = model_run(robot, truth, random_trajectory(robot, optimized, seed=1), 1)
     prior = identify_model(robot, run, IdentifyOptions(filtering=False, rest="keep")).result
-    drive = prior.drive
+    layout = prior.drive_layout
     record = prepare_record(run, DiagnosisConfig())
     for seg in split_segments(record, DiagnosisConfig()):
-        T = drive.layout.transmission
+        T = layout.transmission
         w, wd = T.motor_positions(record.v), T.motor_positions(seg.vd)
-        coulomb = record.filtered(np.tanh(w / (np.abs(np.diag(T.R)) * drive.layout.velocity_scale)))[seg.idx]
-        terms = {t: drive.per_joint(t) for t in MOTOR_TERMS}  # per motor, motor side
+        coulomb = record.filtered(np.tanh(w / (np.abs(np.diag(T.R)) * layout.velocity_scale)))[seg.idx]
+        terms = {t: prior.model.term(t) for t in MOTOR_TERMS}  # per motor, motor side
         tau_m = (terms["coulomb"] * coulomb + terms["viscous"] * T.motor_positions(seg.v) + terms["offset"]
                  + terms["armature"] * wd)
         want = T.joint_torques(tau_m)

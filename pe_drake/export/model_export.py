@@ -22,8 +22,8 @@ from pe_drake.exceptions import ConfigError
 from pe_drake.export.controller import feedforward_yaml, friction_torque, gains_yaml
 from pe_drake.export.drake_files import drake_check, sdf_text, urdf_export_text
 from pe_drake.export.mjcf import mjcf_files, unheld_terms
-from pe_drake.export.mujoco_dynamics import load_mjcf, mujoco_torques
 from pe_drake.export.model_source import exported_model, identified_spread, projection_change, random_states
+from pe_drake.export.mujoco_dynamics import load_mjcf, mujoco_torques
 from pe_drake.identification.drive_terms import filtered_coulomb
 from pe_drake.identification.intake import prepare_measurement
 from pe_drake.identification.measurements import Measurement
@@ -31,6 +31,7 @@ from pe_drake.identification.time_window import TimeWindow
 from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.robot import Robot
 from pe_drake.multibody.robot_model import RobotModel
+from pe_drake.output_paths import output_file
 
 #: Formats and the suffix of their file.
 FORMATS = {"mjcf": ".xml", "urdf": ".urdf", "sdf": ".sdf", "feedforward": ".yaml", "gains": ".yaml"}
@@ -117,7 +118,7 @@ class ExportResult:
         Returns:
             The paths written: the file, then the mesh folder (if any).
         """
-        path = Path(folder) / (name or f"model{FORMATS[self.format]}")
+        path = output_file(folder, name or f"model{FORMATS[self.format]}")
         path.parent.mkdir(parents=True, exist_ok=True)
         if not self.meshes:
             atomic_write_text(path, self.text)

@@ -36,6 +36,7 @@ from pe_drake.identification.csv_checks import check_time_order
 from pe_drake.identification.csv_table import read_header_line, read_table
 from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.wrench import WRENCH_COLUMNS
+from pe_drake.output_paths import output_file
 
 #: Column prefixes of the format, in the order written.
 PREFIXES = ("q", "v", "vdot", "tau")
@@ -180,7 +181,7 @@ class Measurement:
 
     def write(self, folder: str | Path, *, name: str = "measurement.csv") -> list[str]:
         """Writes the run as pe_drake's CSV ``folder/name``, whole or not at all; returns its path."""
-        path = Path(folder) / name
+        path = output_file(folder, name)
         path.parent.mkdir(parents=True, exist_ok=True)
         write_measurement_csv(path, self)
         return [str(path)]

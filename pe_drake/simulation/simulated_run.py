@@ -19,6 +19,7 @@ from pe_drake.identification.measurements import Measurement, measurement_to_csv
 from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.robot import Robot
 from pe_drake.multibody.robot_model import FILE_KEYS, RobotModel
+from pe_drake.output_paths import output_file
 from pe_drake.simulation.contact import capsule_contacts
 from pe_drake.simulation.simulated_model import load_simulation_model
 from pe_drake.simulation.simulation import simulate, truth_path_for
@@ -82,7 +83,7 @@ class SimulatedRun:
         Returns:
             The paths written: the CSV, then the truth file.
         """
-        out = Path(folder) / name
+        out = output_file(folder, name)
         out.parent.mkdir(parents=True, exist_ok=True)
         csv_text = measurement_to_csv_text(self.data.replace(source=str(out)))
         truth_file = truth_path_for(out)
