@@ -165,6 +165,7 @@ class IdentificationResult:
     weights_converged: bool = False
     cov_B: np.ndarray | None = None
     coupling: tuple[str, ...] = ()
+    spring: np.ndarray | None = None  # a diagnosed model's joint springs k: torque k·q [N·m/rad], (n,)
 
 
 # ---- data ------------------------------------------------------------------------------------
@@ -557,7 +558,7 @@ def predict(
         tau[rows] = result.base.reduce(model(data.q[rows], data.v[rows], data.vd[rows])) @ result.phi_B
     if result.drive is not None and result.drive.layout.count:
         tau = tau + result.drive.torque(data.v, data.vd, coulomb)
-    return tau
+    return tau if result.spring is None else tau + data.q * result.spring
 
 
 def predict_wrench(

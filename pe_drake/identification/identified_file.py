@@ -259,7 +259,7 @@ def augmented_as_result(d: dict[str, Any], robot, path: str = "") -> Identificat
         sigma_percent=np.full(base.count, np.nan), phi=model.phi_total, cond=float("nan"), residual_rms=nan,
         relative_error=nan, noise_std=nan, samples=0, source=path, measurement="joint_torque",
         channels=channels, drive=DriveFit(model.layout(), theta, np.full(len(theta), np.nan)),
-        physical_notes=tuple(notes))
+        physical_notes=tuple(notes), spring=model.spring if np.any(model.spring) else None)
 
 
 def _check_transmission(drive: DriveFit, robot, path) -> None:
