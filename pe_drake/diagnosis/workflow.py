@@ -498,8 +498,7 @@ def diagnose(
     left = unexplained(robot, prep, lib, sel, nom, aug, config)
     say(_unexplained_line(robot, left.joints))
     lap("unexplained")
-    held = prep.held
-    residual_rigid = lib.regression.residual("held-out", rigid)
+    held, residual_rigid = prep.held, lib.regression.residual("held-out", rigid)
     predictions = {"t": held.t, "measured": held.tau, "nominal": nom.tau_held,
                    "rigid": held.tau - residual_rigid, "after": aug.tau}
     residual_series = {"effects": naming.series, "nominal": nom.residual_held, "rigid": residual_rigid,
