@@ -20,11 +20,12 @@ parameters as K φ, the drive columns with their physical lower bounds.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 
 import numpy as np
 
-from pe_drake.diagnosis.regression import Library, Regression, Score
+from pe_drake.diagnosis.regression import Fit, Library, Regression, Score
 from pe_drake.exceptions import NoSolutionFound
 from pe_drake.identification.physical_fit import physical_fit
 
@@ -45,6 +46,20 @@ class ConsistentCrossValidation:
                  body_names: Sequence[str]):
         self.folds, self.library, self.K = list(folds), library, np.asarray(K, float)
         self.phi_prior, self.body_names = np.asarray(phi_prior, float), list(body_names)
+
+    def final(self, reg: Regression, fit: Fit) -> Fit:
+        """``fit`` (of ``reg``, the whole training segment) with the values of the consistent fit
+        of its columns and their residuals; σ stays the least-squares one (the significance
+        test's). Unchanged when the solver fails."""
+        found = consistent_fit(reg, fit.columns, self.library, self.K, self.phi_prior, self.body_names)
+        if found is None:
+            return fit
+        x, cols = found[0], list(fit.columns)
+        rss = [np.maximum(c.yy - 2 * c.rhs[:, cols] @ x + np.einsum("p,jpq,q->j", x, c.gram[:, cols][:, :, cols], x),
+                          0.0) for c in (reg.train, reg.held)]
+        return dataclasses.replace(fit, x=x, rms_train=np.sqrt(rss[0] / reg.train.count),
+                                   rms_held=np.sqrt(rss[1] / reg.held.count),
+                                   wrss_held=float(np.sum(reg.weights**2 * rss[1])))
 
     def fit(self, extra: Sequence[int]) -> Score:
         """The base parameters (as K φ, φ physically consistent) and ``extra`` fitted on each

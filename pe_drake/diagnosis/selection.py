@@ -45,6 +45,7 @@ import numpy as np
 
 from pe_drake.diagnosis.options import TIMING, DiagnosisConfig, Thresholds
 from pe_drake.diagnosis.record import Segment
+from pe_drake.diagnosis.consistent_cv import ConsistentCrossValidation
 from pe_drake.diagnosis.effects import JOINT_EFFECTS
 from pe_drake.diagnosis.regression import (Columns, Fit, Library, Regression, Score, Scorer, Selection, Verdict,
                                            accept, select_effects)
@@ -236,7 +237,8 @@ def selection_thresholds(config: DiagnosisConfig, training: Segment, held: Segme
 
 
 def select(reg: Regression, split: CrossValidation, library: Library, rigid: Fit, training: Segment, held: Segment,
-           config: DiagnosisConfig, start: StartingFit | None = None, consistent: Scorer | None = None) -> Selection:
+           config: DiagnosisConfig, start: StartingFit | None = None,
+           consistent: ConsistentCrossValidation | None = None) -> Selection:
     """The thresholds, the starting fit's drive terms a physical model holds and the
     cross-validation keeps (:func:`~pe_drake.diagnosis.start.start_terms`), then forward
     selection and backward check on the training data, then the terms that lower the
@@ -246,7 +248,9 @@ def select(reg: Regression, split: CrossValidation, library: Library, rigid: Fit
     terms = start_terms(reg, split, library, start.columns, thresholds, config.max_effects) if start is not None else None
     sel = select_effects(reg, split, library, rigid, thresholds, config, terms)
     sel = renamed(reg, split, library, sel) if terms is not None else sel
-    return kept_by_cross_validation(reg, consistent or split, library, sel)
+    sel = kept_by_cross_validation(reg, consistent or split, library, sel)
+    # the values the augmented model holds: the consistent fit's (diagnosis/consistent_cv.py)
+    return dataclasses.replace(sel, final=consistent.final(reg, sel.final)) if consistent is not None else sel
 
 
 def kept_by_cross_validation(reg: Regression, split: Scorer, library: Library, sel: Selection) -> Selection:
@@ -297,7 +301,8 @@ def kept_by_cross_validation(reg: Regression, split: Scorer, library: Library, s
     if len(unnamed) == len(sel.unnamed):
         return sel
     return dataclasses.replace(sel, selected=selected, order=[*sel.order, *selected[len(sel.selected):]],
-                               final=reg.fit(selected), verdicts=verdicts, rejected=rejected, unnamed=tuple(unnamed))
+                               final=reg.fit(selected), verdicts=verdicts, rejected=rejected, unnamed=tuple(unnamed),
+                               kept_cv=tuple(unnamed[len(sel.unnamed):]))
 
 
 def renamed(reg: Regression, split: CrossValidation, library: Library, sel: Selection) -> Selection:
@@ -324,11 +329,14 @@ def say_selection(say: Callable[[str], None], sel: Selection, library: Library, 
                   fmt: Callable[[Sequence[str], Any], str], unit: str = "N·m") -> None:
     """One progress line per addition (with the held-out RMS [``unit``], a reported figure) or removal."""
     if sel.order:
-        kept = [c for c in sel.order if c not in {col for _, col, _ in sel.steps}]
+        kept = [c for c in sel.order if c not in {col for _, col, _ in sel.steps} and c not in sel.kept_cv]
         named = [library.label(c) for c in kept if c not in sel.unnamed]
         if kept:
             say(f"3. from the starting fit: {len(kept)} drive terms kept (within their physical bounds), "
                 f"named: {', '.join(named) or 'none'}")
+    if sel.kept_cv:
+        say("3. kept, not named (not significant, but they lower the cross-validated error of the physically "
+            f"consistent model): {', '.join(library.label(c) for c in sel.kept_cv)}")
     for sign, col, fit in sel.steps:
         if sign == "+":
             say(f"3. + {library.label(col)}: held-out RMS [{unit}] " + fmt(joints, fit.rms_held))
