@@ -389,10 +389,11 @@ class RobotModel:
             "time_delay": self.torque_delay, "time_delay_unit": "s",
             "presliding_friction": per_joint(self.presliding), "presliding_stiffness": per_joint(self.presliding_stiffness),
             "presliding_units": "N·m, N·m/rad (Dahl model)",
-            "holding_torque": per_joint(self.holding_torque), "joint_stiffness": per_joint(self.spring),
-            "joint_stiffness_unit": "N·m/rad (N/m on a prismatic joint): torque k·q, its rest angle in torque_offset",
+            "holding_torque": per_joint(self.holding_torque),
             "holding_torque_unit": "N·m (the friction a stopped joint holds: H·z, z the Dahl state; not applied "
                                    "by validate or simulate)",
+            "joint_stiffness": per_joint(self.spring),
+            "joint_stiffness_unit": "N·m/rad (N/m on a prismatic joint): torque k·q, its rest angle in torque_offset",
             "torque_equation": TORQUE_EQUATION,
             "notes": list(self.notes),
         })
@@ -487,6 +488,7 @@ class RobotModel:
             f"  torque_delay: {float(self.torque_delay)!r}   # [s], the torque log lags the positions (time_delay)\n"
             f"  presliding_friction: {table(self.presliding)}   # Dahl F_c [N·m]\n"
             f"  presliding_stiffness: {table(self.presliding_stiffness)}   # Dahl σ0 [N·m/rad]\n"
+            + (f"  # joint springs k·q [N·m/rad], not a TRUTH.yaml effect: {table(self.spring)}\n" if np.any(self.spring) else "")
         )
 
     def write_urdf(self, path: str | Path, robot, title: str = "", *, samples: int = 20,
