@@ -27,6 +27,7 @@ import numpy as np
 
 from pe_drake.diagnosis.regression import Fit, Library, Regression, Score
 from pe_drake.exceptions import NoSolutionFound
+from pe_drake.identification.estimators import PHYSICAL_DELTA_CHI2
 from pe_drake.identification.physical_fit import physical_fit
 
 
@@ -51,7 +52,7 @@ class ConsistentCrossValidation:
         """``fit`` (of ``reg``, the whole training segment) with the values of the consistent fit
         of its columns and their residuals; σ stays the least-squares one (the significance
         test's). Unchanged when the solver fails."""
-        found = consistent_fit(reg, fit.columns, self.library, self.K, self.phi_prior, self.body_names)
+        found = consistent_fit(reg, fit.columns, self.library, self.K, self.phi_prior, self.body_names, delivered=True)
         if found is None:
             return fit
         x, cols = found[0], list(fit.columns)
@@ -82,14 +83,18 @@ class ConsistentCrossValidation:
 
 
 def consistent_fit(reg: Regression, cols: Sequence[int], library: Library, K: np.ndarray, phi_prior: np.ndarray,
-                   body_names: Sequence[str]) -> tuple[np.ndarray, np.ndarray] | None:
+                   body_names: Sequence[str], *, delivered: bool = False) -> tuple[np.ndarray, np.ndarray] | None:
     """The physically consistent fit of ``cols`` (the base parameters first) on ``reg``'s
     training moments with its weights: ([K φ, θ] in the order of ``cols``, φ), or None when
     the solver fails.
 
     φ is physically consistent (the one SDP of
-    :func:`~pe_drake.identification.physical_fit.physical_fit`, without stage 2's pull toward
-    the a-priori model), θ at least each column's physical bound (friction, armature, spring)."""
+    :func:`~pe_drake.identification.physical_fit.physical_fit`), θ at least each column's
+    physical bound (friction, armature, spring). The cross-validation scores stage 1, the best
+    consistent fit; the model delivered (``delivered``) is stage 2's, as ``identify --method
+    physical``'s: among the fits whose correlation-corrected χ² is within
+    :data:`~pe_drake.identification.estimators.PHYSICAL_DELTA_CHI2` of stage 1's, the one
+    nearest the a-priori model (stage 1 alone put 9.5 kg on the real Panda's link 3, CAD 3.2)."""
     cols, w2, b = list(cols), reg.weights**2, reg.num_base
     G = np.einsum("j,jpq->pq", w2, reg.train.gram[:, cols][:, :, cols])
     g = np.einsum("j,jp->p", w2, reg.train.rhs[:, cols])
@@ -99,9 +104,11 @@ def consistent_fit(reg: Regression, cols: Sequence[int], library: Library, K: np
     R = (V * np.sqrt(np.maximum(ev, 0.0))).T
     lower = np.array([library.cand_of[c].lower if c in library.cand_of and library.cand_of[c].nonnegative
                       else -np.inf for c in cols[b:]])
+    # whitened rows count τ̄ times for correlated samples, as in identify's physical fit
+    chi2 = PHYSICAL_DELTA_CHI2 * float(np.mean(reg.inflation)) if delivered else 0.0
     try:
         fit = physical_fit(R[:, :b] @ K, R[:, -1], np.asarray(phi_prior, float), list(body_names),
-                           extra=R[:, b:-1], extra_lower=lower, base_K=K, chi2_tolerance=0.0,
+                           extra=R[:, b:-1], extra_lower=lower, base_K=K, chi2_tolerance=chi2,
                            rows=reg.train.count * len(w2))
     except NoSolutionFound:
         return None

@@ -275,18 +275,20 @@ def kept_by_cross_validation(reg: Regression, split: Scorer, library: Library, s
     pool = [c for c, cand in library.cand_of.items() if c not in selected and cand.effect in JOINT_EFFECTS]
     current = split.fit(selected)
     while pool:
-        best = None
+        best, passed = None, []
         for col in pool:
             j = library.cand_of[col].joint
             trial = split.fit(selected + [col])
             r0, r1 = float(current.rms_held[j]), float(trial.rms_held[j])
             passes = (r1 <= (1 - t.min_heldout_gain) * r0 and trial.wrss_held < current.wrss_held
                       and np.sqrt(max(r0**2 - r1**2, 0.0)) >= t.relevance[j])
+            passed += [col] * bool(passes)
             if passes and (best is None or trial.wrss_held < best[1].wrss_held):
                 best = (col, trial, r0, r1)
         if best is None:
             break
         col, current, r0, r1 = best
+        pool = [c for c in passed if c != col]  # one that does not help now is not tried again (each try is 3 SDPs)
         fit = reg.fit(selected + [col])
         z = abs(fit.value(col)) / max(fit.std(col), 1e-300)
         reason = (f"not named (z = {z:.2g} < {t.z_min:.2g} or a sign its least-squares value lacks), kept in the model: "
@@ -296,7 +298,6 @@ def kept_by_cross_validation(reg: Regression, split: Scorer, library: Library, s
         verdicts[col] = Verdict(False, reason, "z", stats)
         selected.append(col)
         unnamed.append(col)
-        pool.remove(col)
         rejected.pop(col, None)
     if len(unnamed) == len(sel.unnamed):
         return sel

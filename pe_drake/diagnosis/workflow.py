@@ -351,7 +351,8 @@ def augment(robot, prep: Prepared, lib: CandidateLibrary, pre: PreslidingStep, n
     # the model is physically consistent: the base parameters and drive terms of the consistent
     # fit of the selected columns (the model the selection's last pass scored), not a projection
     # of the least-squares base parameters with its drive terms kept (diagnosis/consistent_cv.py)
-    fit = consistent_fit(pre.regression, pre.final.columns, library, prep.base.K, prep.phi_prior, robot.body_names)
+    fit = consistent_fit(pre.regression, pre.final.columns, library, prep.base.K, prep.phi_prior, robot.body_names,
+                         delivered=True)
     final = pre.final if fit is None else dataclasses.replace(pre.final, x=fit[0])
     dahl = {f.column: f for f in pre.fits}  # Coulomb slots holding pre-sliding friction
     # a starting-fit term the later columns pushed below its bound is held there (diagnosis/start.py)
