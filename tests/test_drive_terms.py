@@ -397,8 +397,8 @@ def test_real_panda_identify_predicts_the_held_out_part_like_diagnose():
     assert model.result.weight_iterations > 1
     report = validate_model(robot, model.result, raw, ValidateOptions(window=TimeWindow(*held)))
     print("identify", report.rms.round(4), "diagnose", dg.rms_after.round(4))
-    # measured: identify 0.132 0.095 0.082 0.095 0.062 0.022 0.035, diagnose 0.122 0.094 0.060 0.106
-    # 0.063 0.019 0.036 with the joint springs and the consistent fit (issue 36, branch panda5; 0.130
+    # measured: identify 0.132 0.095 0.082 0.095 0.062 0.022 0.035, diagnose 0.120 0.096 0.060 0.101
+    # 0.063 0.018 0.036 with the joint springs and the consistent fit (issue 36, branch panda5; 0.130
     # 0.102 0.079 0.149 0.057 0.026 0.040 before; 0.124 0.094 0.131 0.130 0.066 0.034 0.043 before
     # it started from identify's fit)
     spring = dg.augmented.spring > 0
