@@ -470,7 +470,7 @@ def diagnose(
     say_selection(say, sel, lib.library, joints, _fmt_joints, unit)
     lap("effects")
     naming = name_effects(robot, lib.regression, lib.library, sel, rigid, nom.rms, config)
-    pre = presliding_step(prep, lib, sel, config, split)
+    pre = presliding_step(prep, lib, sel, config, split, consistent)
     naming = dataclasses.replace(naming, effects=presliding_effects(naming.effects, pre, lib.library, joints),
                                  series=pre.series(naming.series, joints), rejected=naming.rejected + pre.not_named(),
                                  cumulative=naming.cumulative + [(f"+ {PRESLIDING}", pre.final.rms_held)] * bool(pre.fits))
