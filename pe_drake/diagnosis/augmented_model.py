@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from pe_drake.diagnosis.effects import EFFECT_TERMS
+from pe_drake.diagnosis.effects import EFFECT_TERMS, STIFFNESS
 from pe_drake.identification.physical_fit import physical_fit
 from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.inertia import (
@@ -62,7 +62,8 @@ def augmented_model(robot: Robot, base, phi_B: np.ndarray, Sigma_phi: np.ndarray
              time_delay: float = 0.0,
              presliding: dict[int, tuple[float, float]] | None = None,
              phi_prior: np.ndarray | None = None,
-             friction_start: tuple[np.ndarray, np.ndarray] | None = None) -> RobotModel:
+             friction_start: tuple[np.ndarray, np.ndarray] | None = None,
+             phi_consistent: np.ndarray | None = None) -> RobotModel:
     """The :class:`~pe_drake.multibody.robot_model.RobotModel` of a diagnosis fit (module docstring).
 
     Args:
@@ -84,16 +85,20 @@ def augmented_model(robot: Robot, base, phi_B: np.ndarray, Sigma_phi: np.ndarray
             (None: the robot's model file's; ``diagnose --model``: the earlier model's).
         friction_start: (viscous, Coulomb) per joint a named friction adds to (default the
             model file's, which the workflow always passes, also with an earlier model).
+        phi_consistent: physically consistent standard parameters with K φ = ``phi_B`` (the
+            diagnosis's consistent fit): the model's, unless a payload body is split off them.
     """
     phi0 = robot.phi_model if phi_prior is None else np.asarray(phi_prior, float)
     n = robot.n
     start = (robot.joint_damping, robot.joint_friction) if friction_start is None else friction_start
     drive = {"viscous": np.array(start[0], float), "coulomb": np.array(start[1], float), "armature": np.zeros(n),
              "offset": np.zeros(n)}
-    holding = np.zeros(n)
+    holding, spring = np.zeros(n), np.zeros(n)
     for cand, value in effects.values():
         if cand.effect == "holding_torque":
             holding[cand.joint] = value
+        elif cand.effect == STIFFNESS:
+            spring[cand.joint] = value
         elif cand.effect in EFFECT_TERMS:  # a named friction adds to the model file's
             drive[EFFECT_TERMS[cand.effect]][cand.joint] += value
     notes = []
@@ -123,7 +128,9 @@ def augmented_model(robot: Robot, base, phi_B: np.ndarray, Sigma_phi: np.ndarray
     target = phi_B - base.K @ phi_payload_full
     phi = conditional_parameters(base.K, phi0, Sigma_phi, target)
     invalid = validity_problems(robot.body_names, phi)
-    if not np.any(phi0[0::10] > 0):  # no inertials at all: nothing to move, only the data (issue 37)
+    if phi_consistent is not None and not link:  # already the consistent fit of the data
+        phi = np.asarray(phi_consistent, float)
+    elif not np.any(phi0[0::10] > 0):  # no inertials at all: nothing to move, only the data (issue 37)
         H = np.linalg.pinv(cov_B) if cov_B is not None else np.eye(len(phi_B))
         phi = physical_parameters(base.K, phi0, Sigma_phi, target, H)
         phi, _ = physically_consistent(robot.body_names, phi)
@@ -145,7 +152,7 @@ def augmented_model(robot: Robot, base, phi_B: np.ndarray, Sigma_phi: np.ndarray
     return RobotModel(tuple(robot.joint_names), tuple(robot.body_names), phi, drive,
                       velocity_scale=float(velocity_scale), payload=payload, payload_link=link,
                       torque_delay=float(time_delay), presliding=fc, presliding_stiffness=sigma0,
-                      holding_torque=holding, notes=tuple(notes))
+                      holding_torque=holding, notes=tuple(notes), spring=spring)
 
 
 def conditional_parameters(K: np.ndarray, phi_prior: np.ndarray, Sigma_phi: np.ndarray,

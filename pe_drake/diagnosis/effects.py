@@ -10,6 +10,7 @@ effect                 column c_j             unit (revolute)    unit (prismatic
 ``viscous_friction``   v_j                    N·m·s/rad          N·s/m               θ ≥ 0
 ``armature``           v̇_j                   kg·m²              kg                  θ ≥ 0
 ``torque_offset``      1                      N·m                N                   any
+``joint_stiffness``    q_j                    N·m/rad            N/m                 θ ≥ 0
 =====================  ====================  =================  ==================  ==========
 
 The columns carry the sign convention of :mod:`pe_drake.multibody.robot_model`: τ is the torque the
@@ -48,7 +49,7 @@ if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
     from pe_drake.multibody.robot import Robot
 
 #: Per-joint effects of the library, in the order they are listed in reports.
-JOINT_EFFECTS = ("coulomb_friction", "viscous_friction", "armature", "torque_offset")
+JOINT_EFFECTS = ("coulomb_friction", "viscous_friction", "armature", "torque_offset", "joint_stiffness")
 #: All effect names (``payload`` is a link effect).
 EFFECT_NAMES = (*JOINT_EFFECTS, "payload", "time_delay")
 
@@ -59,12 +60,19 @@ PRIOR_RELATIVE_UNCERTAINTY = 0.10
 #: unit and sign come from there.
 EFFECT_TERMS = {"coulomb_friction": "coulomb", "viscous_friction": "viscous", "armature": "armature",
                 "torque_offset": "offset"}
+#: A spring at the joint (a cable or hose package, a balancer, a torque sensor whose zero moves
+#: with the angle): a torque k·q_j, k ≥ 0 for a passive spring, its rest angle held by the joint's
+#: torque offset. Not a drive term of ``identify``: its unit and sign are the library's own.
+STIFFNESS = "joint_stiffness"
+STIFFNESS_UNITS = ("N·m/rad", "N/m")
+
 #: The signal against which each effect's residual is plotted (the regime that exposes it).
 EXPOSING_REGIME = {
     "coulomb_friction": "v",
     "viscous_friction": "v",
     "armature": "vd",
     "torque_offset": "t",
+    "joint_stiffness": "q",
     "payload": "q",
     "time_delay": "dtau",
     "presliding_friction": "v",
@@ -118,9 +126,10 @@ def joint_candidates(robot: Robot, effects: Sequence[str] = JOINT_EFFECTS,
         for j, info in enumerate(robot.joints):
             if effect == "coulomb_friction" and info.kind != "revolute":
                 continue  # the augmented Drake model holds Coulomb friction as a revolute DoorHinge
-            unit = UNITS[EFFECT_TERMS[effect]][0 if info.kind == "revolute" else 1]
+            units = STIFFNESS_UNITS if effect == STIFFNESS else UNITS[EFFECT_TERMS[effect]]
             lower = -float(model_file[effect][j]) if effect in model_file else 0.0
-            out.append(Candidate(effect, j, info.name, unit, EFFECT_TERMS[effect] in NONNEGATIVE, lower))
+            nonnegative = effect == STIFFNESS or EFFECT_TERMS[effect] in NONNEGATIVE
+            out.append(Candidate(effect, j, info.name, units[0 if info.kind == "revolute" else 1], nonnegative, lower))
     return out
 
 
@@ -137,6 +146,8 @@ def effect_column(effect: str, q: np.ndarray, v: np.ndarray, vd: np.ndarray, joi
     Returns:
         Shape (T,): the effect's torque on ``joint`` per unit θ (other joints get none).
     """
+    if effect == STIFFNESS:
+        return np.asarray(q, float)[:, joint].copy()
     if effect not in EFFECT_TERMS:
         raise ValueError(f"unknown effect '{effect}'")
     return term_values(EFFECT_TERMS[effect], v[:, [joint]], vd[:, [joint]], velocity_scale)[:, 0].copy()

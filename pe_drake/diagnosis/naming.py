@@ -54,7 +54,8 @@ def name_effects(robot: Robot, reg: Regression, library: Library, sel: Selection
     fits_cum = [rigid]
     if unnamed:
         fits_cum = [reg.fit(unnamed)]
-        cumulative.append((f"+ {len(unnamed)} drive terms of the starting fit, not named", fits_cum[0].rms_held))
+        what = "drive terms of the starting fit" + (" and terms the cross-validation keeps" if sel.kept_cv else "")
+        cumulative.append((f"+ {len(unnamed)} {what}, not named", fits_cum[0].rms_held))
     for k in range(len(named_cols)):
         f = reg.fit(unnamed + named_cols[: k + 1])
         fits_cum.append(f)

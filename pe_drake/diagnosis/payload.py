@@ -3,8 +3,9 @@ and the change of the base parameters that non-separable effects merge into.
 
 The change Δφ_B = φ_B - K φ_prior has covariance C = K Σ_φ Kᵀ + Cov(φ_B) under "the
 a-priori model is right to within Σ_φ" (:class:`BaseChange`). A payload is one link's 10
-parameters explaining it (GLS, :func:`pe_drake.diagnosis.effects.fit_payload`), named when the
-χ² gain passes ``payload_alpha``, the mass change exceeds ``payload_min_prior_sigmas``
+parameters explaining it (GLS, :func:`pe_drake.diagnosis.effects.fit_payload`), named when its
+mass change is positive (a negative one is reported as what it is: the link is lighter than the
+a-priori model, not a payload), the χ² gain passes ``payload_alpha``, the mass change exceeds ``payload_min_prior_sigmas``
 a-priori standard deviations of the link's mass and 3 of its own, and what is left is
 consistent with the a-priori uncertainty (:func:`payload_search`).
 """
@@ -148,6 +149,10 @@ def _link_fits(robot: Robot, base, change: BaseChange, chi2_0: float) -> list[_L
 def _no_payload_reasons(entry: dict[str, Any], gain_needed: float, rest_allowed: float,
                         config: DiagnosisConfig) -> list[str]:
     reasons = []
+    if entry["mass"] < 0:  # the link carries less than the a-priori model: a finding, not a payload
+        reasons.append(f"negative mass change {entry['mass']:+.3g} kg, not a payload (a body cannot have negative "
+                       "mass): the link carries less mass than the a-priori model (a tool or hand in the model "
+                       "but not on the robot?)")
     if entry["gain"] < gain_needed:
         reasons.append(f"χ² gain {entry['gain']:.3g} < {gain_needed:.3g}")
     if abs(entry["mass"]) < config.payload_min_prior_sigmas * entry["mass_prior_std"]:
@@ -173,9 +178,7 @@ def _payload_effect(best: _LinkFit, report: dict[str, Any], joints: Sequence[str
          "equally_well_on": report["equivalent_links"],
          "delta_phi": x.tolist(), "chi2_before": report["chi2_before"], "chi2_after": entry["chi2_after"],
          "mass_prior_std": entry["mass_prior_std"],
-         "note": ("a negative mass: the a-priori model carries more mass on this link than measured "
-                  "(a tool or hand in the model but not on the robot?)") if m < 0 else
-                 "the rigid-body step already fits it; the augmented model carries it as a welded body"})
+         "note": "the rigid-body step already fits it; the augmented model carries it as a welded body"})
 
 
 def rigid_report(base, change: BaseChange) -> dict[str, Any]:

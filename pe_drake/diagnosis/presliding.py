@@ -212,7 +212,7 @@ class PreslidingStep:
                 for r in self.report if not r["named"] and r["statistic"] >= min_statistic]
 
 
-def presliding_step(prep, lib, sel, config, split) -> PreslidingStep:
+def presliding_step(prep, lib, sel, config, split, consistent=None) -> PreslidingStep:
     """Tries the Dahl column in each joint's Coulomb slot (replacing a named Coulomb column, or
     added) and keeps it when the joint's training residual drops significantly
     (likelihood ratio ≥ z_min², the selection's Bonferroni bound squared, with the joint's
@@ -220,7 +220,9 @@ def presliding_step(prep, lib, sel, config, split) -> PreslidingStep:
     :class:`pe_drake.diagnosis.selection.CrossValidation`; never the held-out data) drops by
     ``min_heldout_gain``, and x_p is not the grid's smallest value (the Coulomb limit in
     sliding). Effects of that joint that are no longer significant with it (e.g. a viscous
-    friction that stood in for it) are dropped."""
+    friction that stood in for it) are dropped. With ``consistent``
+    (:class:`~pe_drake.diagnosis.consistent_cv.ConsistentCrossValidation`) the final values are
+    its consistent fit's, the augmented model's (as ``sel.final``'s)."""
     reg, library, extra = lib.regression, lib.library, list(sel.selected)
     cache: dict = {}  # (id(record), joint) -> its filtered Dahl columns (dahl_columns)
     report, fits = [], []
@@ -255,7 +257,7 @@ def presliding_step(prep, lib, sel, config, split) -> PreslidingStep:
             reg, split = fit.regression, with_dahl
             extra = _drop_stand_ins(fit.regression, trial, col, j, library, sel.thresholds)
             held_torque[:, j] = fit.held_values
-    final = reg.fit(extra) if fits else sel.final
+    final = (reg.fit(extra) if consistent is None else consistent.final(reg, reg.fit(extra))) if fits else sel.final
     for f in fits:  # the Dahl torques with the final values
         held_torque[:, f.joint] *= final.value(f.column)
     return PreslidingStep(fits, report, reg, final, held_torque, tuple(c for c in sel.selected if c not in extra))

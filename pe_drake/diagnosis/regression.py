@@ -317,7 +317,10 @@ class Selection:
             last trial, for one dropped in the backward check test ``backward``.
 
         unnamed: the starting fit's drive terms kept in the model but not named
-            (:func:`~pe_drake.diagnosis.start.start_terms`); in ``selected`` and ``order``.
+            (:func:`~pe_drake.diagnosis.start.start_terms`), then ``kept_cv``; in ``selected``
+            and ``order``.
+        kept_cv: the candidates kept, not named, because they lower the cross-validated error
+            of the consistent model (:func:`~pe_drake.diagnosis.selection.kept_by_cross_validation`).
     """
 
     selected: list[int]
@@ -328,6 +331,7 @@ class Selection:
     steps: list[tuple[str, int, Fit | None]]
     verdicts: dict[int, Verdict] = dataclasses.field(default_factory=dict)
     unnamed: tuple[int, ...] = ()
+    kept_cv: tuple[int, ...] = ()
 
 
 def select_effects(reg: Regression, split: Scorer, library: Library, rigid: Fit, thresholds: Thresholds,

@@ -45,7 +45,10 @@ import numpy as np
 
 from pe_drake.diagnosis.options import DiagnosisConfig, Thresholds
 from pe_drake.diagnosis.record import Segment
-from pe_drake.diagnosis.regression import Columns, Fit, Library, Regression, Score, Selection, accept, select_effects
+from pe_drake.diagnosis.consistent_cv import ConsistentCrossValidation
+from pe_drake.diagnosis.effects import JOINT_EFFECTS
+from pe_drake.diagnosis.regression import (Columns, Fit, Library, Regression, Score, Scorer, Selection, Verdict,
+                                           accept, select_effects)
 from pe_drake.diagnosis.start import StartingFit, start_terms
 from pe_drake.exceptions import DataError
 
@@ -234,14 +237,73 @@ def selection_thresholds(config: DiagnosisConfig, training: Segment, held: Segme
 
 
 def select(reg: Regression, split: CrossValidation, library: Library, rigid: Fit, training: Segment, held: Segment,
-           config: DiagnosisConfig, start: StartingFit | None = None) -> Selection:
+           config: DiagnosisConfig, start: StartingFit | None = None,
+           consistent: ConsistentCrossValidation | None = None) -> Selection:
     """The thresholds, the starting fit's drive terms a physical model holds and the
     cross-validation keeps (:func:`~pe_drake.diagnosis.start.start_terms`), then forward
-    selection and backward check on the training data."""
+    selection and backward check on the training data, then the terms that lower the
+    cross-validated error of the physically consistent model (``consistent``,
+    :mod:`pe_drake.diagnosis.consistent_cv`; default ``split``), kept and not named."""
     thresholds = selection_thresholds(config, training, held, len(library.candidates) + 1)
     terms = start_terms(reg, split, library, start.columns, thresholds, config.max_effects) if start is not None else None
     sel = select_effects(reg, split, library, rigid, thresholds, config, terms)
-    return renamed(reg, split, library, sel) if terms is not None else sel
+    sel = renamed(reg, split, library, sel) if terms is not None else sel
+    sel = kept_by_cross_validation(reg, consistent or split, library, sel)
+    # the values the augmented model holds: the consistent fit's (diagnosis/consistent_cv.py)
+    return dataclasses.replace(sel, final=consistent.final(reg, sel.final)) if consistent is not None else sel
+
+
+def kept_by_cross_validation(reg: Regression, split: Scorer, library: Library, sel: Selection) -> Selection:
+    """The per-joint candidates that lower the cross-validated error of the model without
+    reaching the significance bound, kept in the model and not named (issue 36: a term is kept
+    in the model when it improves the cross-validated error; it is named only when it is also
+    significant).
+
+    ``split`` scores the model the diagnosis delivers: the physically consistent fit
+    (:class:`~pe_drake.diagnosis.consistent_cv.ConsistentCrossValidation`), which holds every
+    friction, armature and spring at its bound; so a term the least-squares fit takes negative is
+    tried again here at its bound or above. Greedy, the largest drop of the weighted
+    cross-validated residual first, each held to criteria (c)-(d) of the selection
+    (:func:`~pe_drake.diagnosis.regression.accept`): the joint's cross-validated gain
+    ``min_heldout_gain``, no growth of the weighted residual over all joints, the relevance
+    bound. On the real Panda the joint springs of joints 3, 4 and 7 (z 3.9, 3.4, 2.2 against the
+    bound 4.2) are such terms: without them the consistent model moves link masses to stand in
+    for them (BUILD_NOTES).
+    """
+    t = sel.thresholds
+    selected, unnamed, verdicts, rejected = list(sel.selected), list(sel.unnamed), dict(sel.verdicts), dict(sel.rejected)
+    pool = [c for c, cand in library.cand_of.items() if c not in selected and cand.effect in JOINT_EFFECTS]
+    current = split.fit(selected)
+    while pool:
+        best, passed = None, []
+        for col in pool:
+            j = library.cand_of[col].joint
+            trial = split.fit(selected + [col])
+            r0, r1 = float(current.rms_held[j]), float(trial.rms_held[j])
+            passes = (r1 <= (1 - t.min_heldout_gain) * r0 and trial.wrss_held < current.wrss_held
+                      and np.sqrt(max(r0**2 - r1**2, 0.0)) >= t.relevance[j])
+            passed += [col] * bool(passes)
+            if passes and (best is None or trial.wrss_held < best[1].wrss_held):
+                best = (col, trial, r0, r1)
+        if best is None:
+            break
+        col, current, r0, r1 = best
+        pool = [c for c in passed if c != col]  # one that does not help now is not tried again (each try is 3 SDPs)
+        fit = reg.fit(selected + [col])
+        z = abs(fit.value(col)) / max(fit.std(col), 1e-300)
+        reason = (f"not named (z = {z:.2g} < {t.z_min:.2g} or a sign its least-squares value lacks), kept in the model: "
+                  f"it lowers the cross-validated RMS of the physically consistent model {r0:.4g} → {r1:.4g}")
+        stats = {"z": float(z), "z_min": float(t.z_min), "value": fit.value(col), "std": fit.std(col),
+                 "rms_before": r0, "rms_after": r1, "relative_gain": 1 - r1 / r0 if r0 > 0 else 0.0}
+        verdicts[col] = Verdict(False, reason, "z", stats)
+        selected.append(col)
+        unnamed.append(col)
+        rejected.pop(col, None)
+    if len(unnamed) == len(sel.unnamed):
+        return sel
+    return dataclasses.replace(sel, selected=selected, order=[*sel.order, *selected[len(sel.selected):]],
+                               final=reg.fit(selected), verdicts=verdicts, rejected=rejected, unnamed=tuple(unnamed),
+                               kept_cv=tuple(unnamed[len(sel.unnamed):]))
 
 
 def renamed(reg: Regression, split: CrossValidation, library: Library, sel: Selection) -> Selection:
@@ -268,11 +330,14 @@ def say_selection(say: Callable[[str], None], sel: Selection, library: Library, 
                   fmt: Callable[[Sequence[str], Any], str], unit: str = "N·m") -> None:
     """One progress line per addition (with the held-out RMS [``unit``], a reported figure) or removal."""
     if sel.order:
-        kept = [c for c in sel.order if c not in {col for _, col, _ in sel.steps}]
+        kept = [c for c in sel.order if c not in {col for _, col, _ in sel.steps} and c not in sel.kept_cv]
         named = [library.label(c) for c in kept if c not in sel.unnamed]
         if kept:
             say(f"3. from the starting fit: {len(kept)} drive terms kept (within their physical bounds), "
                 f"named: {', '.join(named) or 'none'}")
+    if sel.kept_cv:
+        say("3. kept, not named (not significant, but they lower the cross-validated error of the physically "
+            f"consistent model): {', '.join(library.label(c) for c in sel.kept_cv)}")
     for sign, col, fit in sel.steps:
         if sign == "+":
             say(f"3. + {library.label(col)}: held-out RMS [{unit}] " + fmt(joints, fit.rms_held))

@@ -75,6 +75,7 @@ from typing import Any
 import numpy as np
 
 from pe_drake.diagnosis.augmented_model import augmented_model
+from pe_drake.diagnosis.consistent_cv import ConsistentCrossValidation, consistent_fit
 from pe_drake.diagnosis.decisions import decision_list
 from pe_drake.diagnosis.effects import (
     Separability,
@@ -347,7 +348,13 @@ class Augmentation:
 def augment(robot: Robot, prep: Prepared, lib: CandidateLibrary, pre: PreslidingStep, naming: Naming, pay: PayloadStep,
             config: DiagnosisConfig) -> Augmentation:
     """The named effects added to the model in Drake, its held-out torque and the gap."""
-    held, library, final = prep.held, lib.library, pre.final
+    held, library = prep.held, lib.library
+    # the model is physically consistent: the base parameters and drive terms of the consistent
+    # fit of the selected columns (the model the selection's last pass scored), not a projection
+    # of the least-squares base parameters with its drive terms kept (diagnosis/consistent_cv.py)
+    fit = consistent_fit(pre.regression, pre.final.columns, library, prep.base.K, prep.phi_prior, robot.body_names,
+                         delivered=True)
+    final = pre.final if fit is None else dataclasses.replace(pre.final, x=fit[0])
     dahl = {f.column: f for f in pre.fits}  # Coulomb slots holding pre-sliding friction
     # a starting-fit term the later columns pushed below its bound is held there (diagnosis/start.py)
     values = {col: max(final.value(col), c.lower) if c.nonnegative else final.value(col) for col in naming.effect_cols
@@ -355,13 +362,14 @@ def augment(robot: Robot, prep: Prepared, lib: CandidateLibrary, pre: Presliding
     presliding = {f.joint: (final.value(c), final.value(c) / f.displacement) for c, f in dahl.items()}
     delay = final.value(library.timing_col) if library.timing_col in naming.effect_cols else 0.0
     effect = pay.outcome.effect
-    augmented = augmented_model(robot, prep.base, pay.change.phi_B, pay.change.Sigma_phi,
+    augmented = augmented_model(robot, prep.base, final.x[: prep.base.count], pay.change.Sigma_phi,
                                 pay.outcome.delta_phi,
                                 {library.cand_of[c].label: (library.cand_of[c], v) for c, v in values.items()},
                                 config.coulomb_velocity_scale,
                                 effect.link if effect is not None else None,
                                 cov_B=pay.change.cov_B, time_delay=delay, presliding=presliding,
-                                phi_prior=prior_own_parameters(robot, prep.prior))
+                                phi_prior=prior_own_parameters(robot, prep.prior),
+                                phi_consistent=fit[1] if fit is not None else None)
     # Drake's torque at the held-out samples (along the motion `delay` earlier when a time delay
     # is named), its Coulomb term filtered like the measured torque (the parallel-filtered
     # column; the rest of the torque is smooth within the pass band).
@@ -370,7 +378,7 @@ def augment(robot: Robot, prep: Prepared, lib: CandidateLibrary, pre: Presliding
     tau_after = augmented.plant(robot).inverse_dynamics(q, v, vd, include_damping=True) + augmented.offset
     tau_after += augmented.coulomb * (coulomb - coulomb_column(v, config.coulomb_velocity_scale)) + pre.held_torque
     tau_after += holding_torque(pre.regression.held, final, library)  # friction held at rest
-    # the least-squares prediction with the final values (a delay by its linearization -d·dτ/dt)
+    # the linear model's prediction with the final values (a delay by its linearization -d·dτ/dt)
     ls_pred = pre.regression.held.product(final.columns, final.x) + fitted_friction(robot, held)
     return Augmentation(augmented, tau_after, rms(held.tau - tau_after),
                         np.max(np.abs(tau_after - ls_pred), axis=0))
@@ -452,12 +460,13 @@ def diagnose(robot: Robot, data: Measurement, validation: Measurement | None = N
     lap("rigid")
     lib.regression.set_weights(start.weights)  # identify's weights (the fixed point) for the effects
     split = CrossValidation.of(lib.regression, prep.internal)
-    sel = select(lib.regression, split, lib.library, rigid, prep.training, prep.held, config, start)
+    consistent = ConsistentCrossValidation(split.folds, lib.library, prep.base.K, prep.phi_prior, robot.body_names)
+    sel = select(lib.regression, split, lib.library, rigid, prep.training, prep.held, config, start, consistent)
     sel = add_friction_pairs(lib.regression, split, lib.library, sel, config.max_effects)  # sliding + at rest
     say_selection(say, sel, lib.library, joints, _fmt_joints, unit)
     lap("effects")
     naming = name_effects(robot, lib.regression, lib.library, sel, rigid, nom.rms, config)
-    pre = presliding_step(prep, lib, sel, config, split)
+    pre = presliding_step(prep, lib, sel, config, split, consistent)
     naming = dataclasses.replace(naming, effects=presliding_effects(naming.effects, pre, lib.library, joints),
                                  series=pre.series(naming.series, joints), rejected=naming.rejected + pre.not_named(),
                                  cumulative=naming.cumulative + [(f"+ {PRESLIDING}", pre.final.rms_held)] * bool(pre.fits))

@@ -129,6 +129,9 @@ def unheld_terms(robot: Robot, model: RobotModel, fmt: str = "mjcf") -> list[str
     if np.any(model.presliding > 0):
         out.append("pre-sliding (Dahl) friction: " + ", ".join(
             f"{j} {x:.4g}" for j, x in zip(joints, model.presliding) if x > 0))
+    if np.any(model.spring > 0):  # diagnose's joint_stiffness: torque k·q (MJCF's joint stiffness not written)
+        out.append("joint springs k·q [N·m/rad] (add them to the control): " + ", ".join(
+            f"{j} {x:.4g}" for j, x in zip(joints, model.spring) if x > 0))
     return out
 
 

@@ -53,6 +53,8 @@ def predict(
              else drive_torque(result.model, result.drive_layout, data.v, data.vd, coulomb))
     if drive is not None:
         tau = tau + drive
+    if as_built and np.any(result.spring):  # diagnose's joint_stiffness: torque k·q
+        tau = tau + data.q * result.spring
     return tau
 
 

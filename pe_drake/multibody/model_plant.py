@@ -43,6 +43,7 @@ def model_plant(model, robot: Robot):
         ConfigError: a negative friction or armature (:meth:`nonnegative` removes them).
     """
     from pydrake.math import RigidTransform  # lazy: pydrake stays out of `import pe_drake`
+    from pydrake.multibody.tree import PrismaticSpring, RevoluteSpring
 
     model.check_robot(robot)
     for t in NONNEGATIVE:
@@ -62,6 +63,8 @@ def model_plant(model, robot: Robot):
                 add_coulomb_friction(plant, joint, float(coulomb[k]), model.velocity_scale)
             if armature[k] > 0:
                 set_armature(plant, joint, float(armature[k]))
+            if model.spring[k] > 0:  # Drake's spring applies -k q: the actuator's torque has +k q
+                plant.AddForceElement((RevoluteSpring if revolute[k] else PrismaticSpring)(joint, 0.0, model.spring[k]))
         if payload is not None:
             link = plant.GetBodyByName(model.payload_link)
             body = plant.AddRigidBody(PAYLOAD_BODY_NAME, link.model_instance(), payload)

@@ -74,7 +74,7 @@ DRIVE_TERMS = TERMS["all"]
 #: a file without a term's table (written before the term existed) loads it as 0.
 FILE_KEYS = {"viscous": "viscous", "coulomb": "coulomb", "armature": "armature", "offset": "torque_offset"}
 TORQUE_EQUATION = ("tau_recorded(t) = [ID(q, v, vd) + viscous*v + coulomb*tanh(v/v_s) + armature*vd "
-                   "+ offset](t - time_delay)")
+                   "+ offset + joint_stiffness*q](t - time_delay)")
 
 
 def _per_joint(x, n: int, field: str) -> np.ndarray:
@@ -107,6 +107,8 @@ class RobotModel:
         notes: what was adjusted or left out, in words.
         transmission: θ_m = R q of the motors (None: each joint its own drive); with one,
             ``drive`` and ``sigma`` are per motor, motor side (module docstring).
+        spring: a spring at each joint, torque k·q [N·m/rad or N/m], k ≥ 0, its rest angle in
+            the offset (diagnose's ``joint_stiffness``), (n,); a Drake Revolute/PrismaticSpring.
     """
 
     joints: tuple[str, ...]
@@ -124,6 +126,7 @@ class RobotModel:
     physical: bool | None = None
     notes: tuple[str, ...] = ()
     transmission: Transmission | None = None
+    spring: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n, set_ = len(self.joints), object.__setattr__
@@ -139,7 +142,7 @@ class RobotModel:
                 raise ValueError(f"RobotModel.{field}: unknown drive term(s) {', '.join(sorted(unknown))} "
                                  f"(valid: {', '.join(DRIVE_TERMS)})")
             set_(self, field, {t: _per_joint(table[t], n, f"{field}['{t}']") for t in DRIVE_TERMS if t in table})
-        for field in ("presliding", "presliding_stiffness", "holding_torque"):
+        for field in ("presliding", "presliding_stiffness", "holding_torque", "spring"):
             set_(self, field, _per_joint(getattr(self, field), n, field))
         if self.payload_link and self.payload_link not in self.bodies:
             raise ValueError(f"RobotModel.payload_link '{self.payload_link}' is not one of {', '.join(self.bodies)}")
@@ -227,7 +230,7 @@ class RobotModel:
         Args:
             robot: the :class:`~pe_drake.multibody.robot.Robot` of the model's joints and bodies.
             q, v, vd: each (T, n) or (n,).
-            coulomb, offset: include the Coulomb friction and the offsets. Without them the torque
+            coulomb, offset: include the Coulomb friction and the offsets (and joint springs). Without them the torque
                 is what a simulator file holds as inverse dynamics (rigid + armature + viscous):
                 Drake's URDF/SDFormat and MuJoCo's ``mj_inverse`` of an exported model.
         """
@@ -240,7 +243,7 @@ class RobotModel:
         for s in range(0, q.shape[0], 2000):
             k = slice(s, s + 2000)
             out[k] = model(q[k], v[k], vd[k]) @ phi + drive_columns(v[k], vd[k], layout) @ theta
-        return out
+        return out + q * self.spring if offset else out
 
     def plant(self, robot: Robot):
         """The model in Drake, a continuous :class:`~pe_drake.multibody.robot.Robot` with its damping,
@@ -317,6 +320,8 @@ class RobotModel:
             "holding_torque": per_joint(self.holding_torque),
             "holding_torque_unit": "N·m (the friction a stopped joint holds: H·z, z the Dahl state; not applied "
                                    "by validate or simulate)",
+            "joint_stiffness": per_joint(self.spring),
+            "joint_stiffness_unit": "N·m/rad (N/m on a prismatic joint): torque k·q, its rest angle in torque_offset",
             "torque_equation": TORQUE_EQUATION,
             "notes": list(self.notes),
         })
@@ -365,7 +370,7 @@ class RobotModel:
                    sigma, float(d.get("coulomb_velocity_scale", COULOMB_VELOCITY_SCALE)), payload,
                    p["link"] if p else "", float(d.get("time_delay") or 0.0), table("presliding_friction"),
                    table("presliding_stiffness"), table("holding_torque"), None, tuple(d.get("notes", ())),
-                   Transmission.from_dict(d["transmission"]) if d.get("transmission") else None)
+                   Transmission.from_dict(d["transmission"]) if d.get("transmission") else None, table("joint_stiffness"))
 
     def urdf_text(self, robot: Robot, title: str = "") -> str:
         """The robot's URDF with this model's inertials, ``<dynamics damping friction>``, rotor
@@ -411,6 +416,7 @@ class RobotModel:
             f"  torque_delay: {float(self.torque_delay)!r}   # [s], the torque log lags the positions (time_delay)\n"
             f"  presliding_friction: {table(self.presliding)}   # Dahl F_c [N·m]\n"
             f"  presliding_stiffness: {table(self.presliding_stiffness)}   # Dahl σ0 [N·m/rad]\n"
+            + (f"  # joint springs k·q [N·m/rad], not a TRUTH.yaml effect: {table(self.spring)}\n" if np.any(self.spring) else "")
         )
 
     def write_urdf(self, path: str | Path, robot: Robot, title: str = "", *, samples: int = 20,
