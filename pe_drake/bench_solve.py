@@ -49,8 +49,13 @@ class Formulation(NamedTuple):
     quality: dict
 
 
-#: Before issue 38: 30 L-BFGS pairs, the quality report on BLAS's own threads.
-OLD = Formulation({"limits": "windows"}, {"limited_memory_max_history": 30}, {"one_blas_thread": False})
+#: Before issue 38: the solver in alpha itself, no stall rule, 30 L-BFGS pairs, the quality
+#: report on BLAS's own threads.
+OLD = Formulation(
+    {"limits": "windows", "scaling": "none", "stall": None},
+    {"limited_memory_max_history": 30},
+    {"one_blas_thread": False},
+)
 #: The default.
 NEW = Formulation({}, {"limited_memory_max_history": LBFGS_PAIRS}, {})
 
