@@ -27,7 +27,7 @@ from pe_drake.excitation.fourier import FourierBasis, FourierTrajectory
 from pe_drake.excitation.limits import keep_strictly_inside
 from pe_drake.excitation.problem import ExcitationProblem
 from pe_drake.excitation.scaling import solve_scaled
-from pe_drake.excitation.stall import CriterionStalled
+from pe_drake.excitation.stall import CriterionStalled, StalledResult
 from pe_drake.excitation.program import ExcitationProgram, build_excitation_program
 from pe_drake.excitation.solver_logs import new_log_file
 from pe_drake.memory import reuse_freed_memory
@@ -228,36 +228,6 @@ def _run_solver(program: ExcitationProgram, solver, x0: np.ndarray, options):
     except CriterionStalled as stop:
         best = program.cost.candidates if program.cost is not None else []
         return StalledResult(program.alpha, best[0][1] if best else np.asarray(x0, float), str(stop))
-
-
-class _Status(NamedTuple):
-    name: str
-
-
-class StalledResult:
-    """What a solve ended by :class:`~pe_drake.excitation.stall.CriterionStalled` returns in
-    place of Drake's result: not a success; its solution is the best evaluated point
-    within the joint limits (the fallback re-checks it at 1 kHz)."""
-
-    def __init__(self, alpha: np.ndarray, x: np.ndarray, reason: str):
-        self._alpha, self._x, self.reason = alpha, np.asarray(x, float), reason
-
-    def is_success(self) -> bool:
-        return False
-
-    def GetSolution(self, variables):  # noqa: N802 (Drake's name)
-        if variables is not self._alpha:
-            raise ValueError("a stalled solve knows only the Fourier coefficients alpha")
-        return self._x.copy()
-
-    def get_solution_result(self) -> _Status:
-        return _Status("kStalled")
-
-    def get_solver_details(self):
-        return self
-
-    def ConvertStatusToString(self) -> str:  # noqa: N802 (Drake's name)
-        return self.reason
 
 
 def _solve_with_restarts(program: ExcitationProgram, backend: _Backend, cfg: SolverConfig, x0: np.ndarray):

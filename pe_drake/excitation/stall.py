@@ -15,6 +15,7 @@ and continues as after an iteration limit (the best valid point evaluated, re-ch
 from __future__ import annotations
 
 import dataclasses
+from typing import NamedTuple
 
 import numpy as np
 
@@ -53,3 +54,33 @@ class StallRule:
         if not (np.isfinite(now) and np.isfinite(then)):
             return False
         return then - now < self.improvement * abs(then)
+
+
+class _Status(NamedTuple):
+    name: str
+
+
+class StalledResult:
+    """What a solve ended by :class:`~pe_drake.excitation.stall.CriterionStalled` returns in
+    place of Drake's result: not a success; its solution is the best evaluated point
+    within the joint limits (the fallback re-checks it at 1 kHz)."""
+
+    def __init__(self, alpha: np.ndarray, x: np.ndarray, reason: str):
+        self._alpha, self._x, self.reason = alpha, np.asarray(x, float), reason
+
+    def is_success(self) -> bool:
+        return False
+
+    def GetSolution(self, variables):  # noqa: N802 (Drake's name)
+        if variables is not self._alpha:
+            raise ValueError("a stalled solve knows only the Fourier coefficients alpha")
+        return self._x.copy()
+
+    def get_solution_result(self) -> _Status:
+        return _Status("kStalled")
+
+    def get_solver_details(self):
+        return self
+
+    def ConvertStatusToString(self) -> str:  # noqa: N802 (Drake's name)
+        return self.reason
