@@ -139,7 +139,8 @@ class ExcitationCost:
             self.on_evaluate(alpha, value)
         self.best_history.append(self._best[0][0] if self._best else np.inf)
         self.seconds += time.perf_counter() - start
-        if self.stall is not None and self.stall_enabled and self.stall.stalled(self.best_history):
+        logarithmic = self.problem.config.criterion in ("log_cond", "dopt")
+        if self.stall is not None and self.stall_enabled and self.stall.stalled(self.best_history, logarithmic):
             raise CriterionStalled(f"{self.problem.config.criterion} improved by less than "
                                    f"{self.stall.improvement:.3g} in {self.stall.window} evaluations")
         return value, out.grad

@@ -313,6 +313,8 @@ def _solve_with_exchange(program, backend: _Backend, cfg: SolverConfig, x0: np.n
         if not new and (result.is_success() or isinstance(result, StalledResult)):
             break
         added += new
+        if program.cost is not None:  # a re-solve gets the stall rule's full allowance
+            program.cost.best_history.clear()
         rerun = _ipopt_backend(dataclasses.replace(cfg, max_iterations=cfg.max_iterations - nit))
         result = _run_solver(program, rerun.solver, x, rerun.options)
         ran = _iterations_from_log(rerun.log_file) or 0
