@@ -64,8 +64,9 @@ class ExcitationCost:
         self.problem = problem
         self.on_evaluate = on_evaluate
         self.stall = stall
-        #: solve_excitation turns the rule off for NLopt (whose C callbacks swallow exceptions)
-        self.stall_enabled = True
+        #: the rule acts only inside solve_excitation with IPOPT (which catches its exception;
+        #: NLopt's C callbacks would swallow it), never in a user's own Solve of the program
+        self.stall_enabled = False
         #: the best criterion within the joint limits after each evaluation (inf before any)
         self.best_history: list[float] = []
         #: The program's sampled-constraint evaluators (set by build_excitation_program);

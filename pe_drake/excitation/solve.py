@@ -10,6 +10,7 @@ point evaluated when the solver stops at an infeasible iterate, and reports it a
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 import re
@@ -228,6 +229,19 @@ def _run_solver(program: ExcitationProgram, solver, x0: np.ndarray, options):
     except CriterionStalled as stop:
         best = program.cost.candidates if program.cost is not None else []
         return StalledResult(program.alpha, best[0][1] if best else np.asarray(x0, float), str(stop))
+
+
+@contextlib.contextmanager
+def _stall_rule(program: ExcitationProgram, enabled: bool):
+    """The program's stall rule acts inside this block only (where _run_solver catches it)."""
+    if program.cost is None:
+        yield
+        return
+    program.cost.stall_enabled = enabled
+    try:
+        yield
+    finally:
+        program.cost.stall_enabled = False
 
 
 def _solve_with_restarts(program: ExcitationProgram, backend: _Backend, cfg: SolverConfig, x0: np.ndarray):
@@ -509,13 +523,12 @@ def solve_excitation(
     problem.num_evaluations = 0
     if program.cost is not None:
         program.cost.reset()
-        # NLopt's C callbacks swallow a Python exception (DRAKE_NOTES.md): the stall rule is IPOPT's.
-        program.cost.stall_enabled = cfg.name == "ipopt"
     check = _Check(check_rate, tolerance)
     reuse_freed_memory()  # a third of each evaluation went to faulting in fresh pages
     callbacks_before = program.callback_seconds()
     start = time.perf_counter()
-    with single_threaded_blas():
+    # NLopt's C callbacks swallow a Python exception (DRAKE_NOTES.md): the stall rule is IPOPT's.
+    with single_threaded_blas(), _stall_rule(program, cfg.name == "ipopt"):
         if exchange:
             run = _solve_with_exchange(program, backend, cfg, x0, check)
         else:
