@@ -46,8 +46,12 @@ from pe_drake.excitation.stall import CriterionStalled, StallRule
 #: coefficient and dominate IPOPT's linear algebra; 16 instead of 8 took a G1 solve from
 #: 63 to 50 s at an equal cond (40 was faster again but ended 13 % worse).
 SAMPLES_PER_ROW = 16
-#: The default stopping rule on a stalled criterion (:class:`StallRule`).
-DEFAULT_STALL = StallRule()
+#: Issue 38's formulation, an option (not the default): ``build_excitation_program(problem,
+#: constraints, **FAST)`` with ``solver.ipopt_options: {limited_memory_max_history: 12}``
+#: (:data:`~pe_drake.excitation.solve.FAST_LBFGS_PAIRS`). On G1 and the 10-joint two-arm
+#: robot (N = 10) it ended starts 2.5–3.6× cheaper at an equal or lower cond; on the Panda
+#: and the UR5 (N = 5) it ended higher and no faster (BUILD_NOTES.md, "Third round").
+FAST = {"scaling": "harmonic", "stall": StallRule()}
 
 
 class ExcitationCost:
@@ -67,8 +71,11 @@ class ExcitationCost:
         #: the rule acts only inside solve_excitation with IPOPT (which catches its exception;
         #: NLopt's C callbacks would swallow it), never in a user's own Solve of the program
         self.stall_enabled = False
-        #: the best criterion within the joint limits after each evaluation (inf before any)
+        #: the lowest criterion evaluated so far, after each evaluation (the stall rule's
+        #: measure of the solver's progress: IPOPT's iterates sit slightly outside the limits
+        #: for long stretches, and the best point within them then lags behind)
         self.best_history: list[float] = []
+        self._lowest = np.inf
         #: The program's sampled-constraint evaluators (set by build_excitation_program);
         #: each records its violation per evaluated alpha.
         self.evaluators: list = []
@@ -110,6 +117,7 @@ class ExcitationCost:
         self._evaluated.clear()
         self._best.clear()
         self.best_history.clear()
+        self._lowest = np.inf
         for ev in self.evaluators:
             ev.violations.clear()
 
@@ -138,7 +146,9 @@ class ExcitationCost:
         self.remember(alpha, out.value)
         if self.on_evaluate is not None:
             self.on_evaluate(alpha, value)
-        self.best_history.append(self._best[0][0] if self._best else np.inf)
+        if np.isfinite(out.value):
+            self._lowest = min(self._lowest, float(out.value))
+        self.best_history.append(self._lowest)
         self.seconds += time.perf_counter() - start
         logarithmic = self.problem.config.criterion in ("log_cond", "dopt")
         if self.stall is not None and self.stall_enabled and self.stall.stalled(self.best_history, logarithmic):
@@ -374,8 +384,8 @@ def build_excitation_program(
     limits: str = "windows",
     sample_stride: int | None = None,
     smooth_limits: bool = False,
-    scaling: str = "harmonic",
-    stall: StallRule | None = DEFAULT_STALL,
+    scaling: str = "none",
+    stall: StallRule | None = None,
 ) -> ExcitationProgram:
     """A Drake MathematicalProgram for the excitation problem.
 
@@ -399,13 +409,12 @@ def build_excitation_program(
             budgets the exchange's re-solves ran out of iterations and the Panda's capsules
             ended 5 mm too close between samples, so every sample is the default.
         smooth_limits: same as ``limits="smooth"`` (kept for existing callers).
-        scaling: the solver's coordinates: "harmonic" (default; harmonic k's coefficients
-            times k, :mod:`pe_drake.excitation.scaling`: G1 ended 300 iterations at cond
-            177–183 instead of 188–198, BUILD_NOTES.md) or "none" (alpha itself, before
-            issue 38).
-        stall: end the solve when the criterion stalls (:mod:`pe_drake.excitation.stall`;
-            default 1 % in 40 evaluations), or None to run to convergence or
-            ``solver.max_iterations``.
+        scaling: the solver's coordinates: "none" (default: alpha itself) or "harmonic"
+            (each harmonic's coefficients in units of the amplitude the limits allow it,
+            :mod:`pe_drake.excitation.scaling`; part of :data:`FAST`).
+        stall: a :class:`StallRule` ending the solve when the criterion stalls
+            (:mod:`pe_drake.excitation.stall`; part of :data:`FAST`), or None (default) to
+            run to convergence or ``solver.max_iterations``.
 
     Returns:
         The :class:`ExcitationProgram`.
@@ -434,7 +443,7 @@ def build_excitation_program(
     alpha = prog.NewContinuousVariables(problem.num_variables, "alpha")
     program = ExcitationProgram(prog, alpha, problem, list(constraints or []), limits=limits)
     if scaling == "harmonic":
-        program.variable_scale = harmonic_scale(problem.harmonics, problem.n)
+        program.variable_scale = harmonic_scale(problem.harmonics, problem.omega, problem.robot.limits)
     reporter = _ProgressPrinter(program) if progress is True else progress or None
     program.progress = reporter
     program.cost_binding, program.cost = _add_cost(prog, alpha, problem, on_evaluate=reporter, stall=stall)

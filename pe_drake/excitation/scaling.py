@@ -1,12 +1,15 @@
-"""The solver's coordinates: harmonic k's coefficients scaled by k (issue 38).
+"""The solver's coordinates: each harmonic's coefficients sized by what the limits allow it (issue 38).
 
 q, v and vdot are linear in alpha (Eq. 50), but harmonic k's coefficient moves the velocity
 k times and the acceleration k² times as much as the first harmonic's: the criterion's and
 the limits' curvature along a_k grows with k, and a quasi-Newton method that starts from a
 multiple of the identity (IPOPT's limited-memory Hessian) spends its iterations learning that
-spread. In the coordinates beta = alpha / d, with d = 1/k for a_jk and b_jk and 1 for the
-offsets q0, every coefficient moves the velocity by the same amount per unit (beta_k is ω
-times harmonic k's velocity amplitude).
+spread. In the coordinates beta = alpha / d, every coefficient a_jk, b_jk is measured in
+units of the largest amplitude joint j's limits allow harmonic k alone,
+A_jk = min(half the position range, v_max/(kω), vdot_max/(kω)²), relative to the first
+harmonic's (d_jk = A_jk / A_j1; d = 1 for the offsets q0). For G1's arms (N = 10, ω = π/4)
+d spans ~15×; for the Panda (N = 5, ω = 0.63 rad/s) ~2×, where a plain 1/k made its
+starts worse (BUILD_NOTES.md, "Third round").
 
 Drake's ``MathematicalProgram.SetVariableScaling`` would say this, but pydrake 1.51.1's
 IpoptSolver ignores it ("IpoptSolver doesn't support the feature of variable scaling"), so
@@ -24,10 +27,26 @@ from typing import NamedTuple
 import numpy as np
 
 
-def harmonic_scale(harmonics: int, num_joints: int) -> np.ndarray:
-    """d of alpha = d·beta: 1/k for a_jk and b_jk, 1 for q0, shape ((2N+1)·n,)."""
-    dk = np.tile(1.0 / np.arange(1, harmonics + 1), num_joints)
-    return np.concatenate([dk, dk, np.ones(num_joints)])
+def harmonic_scale(harmonics: int, omega: float, limits) -> np.ndarray:
+    """d of alpha = d·beta (module docstring), shape ((2N+1)·n,).
+
+    Args:
+        harmonics: N.
+        omega: ω [rad/s].
+        limits: the robot's joint limits (``q_lower``, ``q_upper``, ``v_max``, ``vd_max``, each (n,)).
+    """
+    w = np.arange(1, harmonics + 1) * omega  # kω, (N,)
+    half_range = 0.5 * (np.asarray(limits.q_upper, float) - np.asarray(limits.q_lower, float))
+    amplitude = np.minimum.reduce([
+        np.broadcast_to(half_range[:, None], (len(half_range), harmonics)),
+        np.asarray(limits.v_max, float)[:, None] / w,
+        np.asarray(limits.vd_max, float)[:, None] / w**2,
+    ])  # (n, N)
+    with np.errstate(invalid="ignore"):
+        relative = amplitude / amplitude[:, :1]
+    relative = np.where(np.isfinite(relative) & (relative > 0), relative, 1.0)  # unbounded joints: 1
+    dk = relative.ravel()
+    return np.concatenate([dk, dk, np.ones(len(half_range))])
 
 
 class _ScaledCost:

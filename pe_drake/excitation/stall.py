@@ -14,6 +14,7 @@ and continues as after an iteration limit (the best valid point evaluated, re-ch
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 from typing import NamedTuple
 
@@ -91,3 +92,17 @@ class StalledResult:
 
     def ConvertStatusToString(self) -> str:  # noqa: N802 (Drake's name)
         return self.reason
+
+
+@contextlib.contextmanager
+def stall_rule_active(cost, enabled: bool):
+    """The stall rule of ``cost`` (an :class:`~pe_drake.excitation.program.ExcitationCost`, or
+    None) acts inside this block only, where the solve catches :class:`CriterionStalled`."""
+    if cost is None:
+        yield
+        return
+    cost.stall_enabled = enabled
+    try:
+        yield
+    finally:
+        cost.stall_enabled = False
