@@ -68,7 +68,7 @@ class ExcitationResult:
             feasible point it evaluated, if any.
         converged: the solver reported convergence to a local optimum.
         message: solver status, which constraint fails by how much, or the fallback used.
-        status: Drake's solution result name.
+        status: Drake's solution result name, or "kStalled" (:mod:`pe_drake.excitation.stall`).
         nit: solver iterations (IPOPT: from its log; NLopt: None).
         nfev: cost evaluations.
         wall_time: [s].
