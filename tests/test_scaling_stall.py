@@ -156,3 +156,24 @@ def test_nlopt_runs_without_the_stall_rule(panda):
     result = solve_excitation(program, SolverConfig(name="nlopt", algorithm="LD_SLSQP", max_iterations=30), problem.initial_guess(seed=0))
     assert result.status != "kStalled"
     assert result.nfev > 3
+
+
+def test_own_evaluators_take_the_double_path(panda, monkeypatch):
+    """pe_drake's cost, window rows and sampled rows are found by identity and rebound without
+    AutoDiff arithmetic; only other evaluators go through Drake's Eval at d·beta."""
+    import pe_drake.excitation.scaling as scaling
+
+    made = []
+    for cls in (scaling._ScaledCost, scaling._ScaledRows, scaling._ScaledAny):
+        original = cls.__init__
+
+        def init(self, *args, _original=original, _name=cls.__name__, **kw):
+            made.append(_name)
+            _original(self, *args, **kw)
+
+        monkeypatch.setattr(cls, "__init__", init)
+    problem, program = _program(panda)
+    scaled_copy(program.prog, program.alpha, program.variable_scale, program.own_evaluators())
+    assert made.count("_ScaledCost") == 1
+    assert made.count("_ScaledRows") == len(program.own_evaluators()) - 1 == problem.n + 1
+    assert "_ScaledAny" not in made  # the user's row is linear: rebound as A·d
