@@ -101,22 +101,24 @@ class ScaledProgram(NamedTuple):
     beta: np.ndarray  # its variables, one per variable of the original program, in its order
     scale: np.ndarray  # d: original variable = d · beta, shape (num_vars,)
     original: np.ndarray  # the original program's variables, in the same order
+    rebound: tuple[str, ...]  # per binding, costs first: "own" (double path), "linear" (A·d) or "eval" (Drake's Eval at d·beta)
 
 
-def _rebind(target, binding, ours: dict, beta, d, cost: bool) -> None:
+def _rebind(target, binding, ours: dict, beta, d, cost: bool) -> str:
     """Adds ``binding`` (of the original program) to ``target`` over the variables ``beta``,
-    whose scales are ``d``."""
+    whose scales are ``d``; returns how (:attr:`ScaledProgram.rebound`)."""
     ev = binding.evaluator()
     kind = type(ev).__name__
     own = ours.get(id(ev))
     if cost:
         if kind == "LinearCost":
             target.AddLinearCost(ev.a() * d, ev.b(), beta)
-        elif own is not None:
+            return "linear"
+        if own is not None:
             target.AddCost(_ScaledCost(own, d), vars=beta, description=ev.get_description())
-        else:
-            target.AddCost(_ScaledAny(ev, d, True), vars=beta, description=ev.get_description())
-        return
+            return "own"
+        target.AddCost(_ScaledAny(ev, d, True), vars=beta, description=ev.get_description())
+        return "eval"
     lower, upper = ev.lower_bound(), ev.upper_bound()
     if kind == "BoundingBoxConstraint":
         new = target.AddBoundingBoxConstraint(lower / d, upper / d, beta)
@@ -128,6 +130,8 @@ def _rebind(target, binding, ours: dict, beta, d, cost: bool) -> None:
         wrapper = _ScaledRows(own, d) if own is not None else _ScaledAny(ev, d, False)
         new = target.AddConstraint(wrapper, lower, upper, vars=beta)
     new.evaluator().set_description(ev.get_description())
+    linear = kind in ("BoundingBoxConstraint", "LinearEqualityConstraint", "LinearConstraint")
+    return "linear" if linear else "own" if own is not None else "eval"
 
 
 def scaled_copy(prog, alpha: np.ndarray, d: np.ndarray, ours: list[tuple[object, object]] = ()) -> ScaledProgram:
@@ -159,11 +163,12 @@ def scaled_copy(prog, alpha: np.ndarray, d: np.ndarray, ours: list[tuple[object,
     # for the same C++ evaluator, so identity finds our own.
     alive = [b.evaluator() for b, _ in ours]
     own = {id(ev): obj for ev, (_, obj) in zip(alive, ours)}
+    rebound = []
     for bindings, cost in ((prog.GetAllCosts(), True), (prog.GetAllConstraints(), False)):
         for b in bindings:
             idx = [index[v.get_id()] for v in b.variables()]
-            _rebind(target, b, own, beta[idx], scale[idx], cost)
-    return ScaledProgram(target, beta, scale, original)
+            rebound.append(_rebind(target, b, own, beta[idx], scale[idx], cost))
+    return ScaledProgram(target, beta, scale, original, tuple(rebound))
 
 
 class ScaledResult:

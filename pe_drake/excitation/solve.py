@@ -26,10 +26,10 @@ from pe_drake.excitation.exchange import add_violated_samples
 from pe_drake.excitation.fourier import FourierBasis, FourierTrajectory
 from pe_drake.excitation.limits import keep_strictly_inside
 from pe_drake.excitation.problem import ExcitationProblem
-from pe_drake.excitation.scaling import solve_scaled
-from pe_drake.excitation.stall import CriterionStalled, StalledResult, stall_rule_active
 from pe_drake.excitation.program import ExcitationProgram, build_excitation_program
+from pe_drake.excitation.scaling import solve_scaled
 from pe_drake.excitation.solver_logs import new_log_file
+from pe_drake.excitation.stall import CriterionStalled, StalledResult, stall_rule_active
 from pe_drake.memory import reuse_freed_memory
 from pe_drake.threads import single_threaded_blas
 
