@@ -36,13 +36,14 @@ class StallRule:
     Replayed on recorded 300-iteration histories (BUILD_NOTES.md, "Third round"): with 40
     evaluations, 1 % and 150, G1 (6 seeds) would have stopped at 0.93–1.05× the former
     formulation's 300-iteration cond (mean 0.97) in about half its iterations, the two-arm
-    robot at 0.96–1.06× (mean 1.01). The
+    robot at 0.96–1.06× (mean 1.01). Live, 1 % let the two-arm robot run 157–300 iterations;
+    2 % (the default) stopped it after 141–145 at 1.00–1.03× the former cond. The
     minimum keeps an early plateau from ending a start (G1 with 20 quasi-Newton pairs paused
     at cond 218 after 103 iterations; the UR5 at 11.3 after 114 evaluations, ending at 8.9).
     """
 
     window: int = 40  # cost evaluations
-    improvement: float = 0.01  # relative (for a logarithmic criterion: of its exponential)
+    improvement: float = 0.02  # relative (for a logarithmic criterion: of its exponential)
     min_evaluations: int = 150
 
     def __post_init__(self):
