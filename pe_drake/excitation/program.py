@@ -49,8 +49,9 @@ SAMPLES_PER_ROW = 16
 #: Issue 38's formulation, an option (not the default): ``build_excitation_program(problem,
 #: constraints, **FAST)`` with ``solver.ipopt_options: {limited_memory_max_history: 12}``
 #: (:data:`~pe_drake.excitation.solve.FAST_LBFGS_PAIRS`). On G1 and the 10-joint two-arm
-#: robot (N = 10) it ended starts 2.5–3.6× cheaper at an equal or lower cond; on the Panda
-#: and the UR5 (N = 5) it ended higher and no faster (BUILD_NOTES.md, "Third round").
+#: robot (N = 10) its solves were 2.5–3.8× cheaper at 0.86–1.03× the cond (3 seeds); on the
+#: Panda and the UR5 (N = 5) it ended higher on some seeds and was not always faster
+#: (BUILD_NOTES.md, "Third round").
 FAST = {"scaling": "harmonic", "stall": StallRule()}
 
 
