@@ -38,12 +38,21 @@ from pe_drake.excitation.limits import (
     joint_limit_violation,
 )
 from pe_drake.excitation.problem import ExcitationProblem, check_variables
+from pe_drake.excitation.scaling import harmonic_scale
+from pe_drake.excitation.stall import CriterionStalled, StallRule
 
 #: Samples per row of a one-sided sampled constraint (balance, collision, environment): each
 #: run of this many samples becomes one log-sum-exp row. These rows are dense in every
 #: coefficient and dominate IPOPT's linear algebra; 16 instead of 8 took a G1 solve from
 #: 63 to 50 s at an equal cond (40 was faster again but ended 13 % worse).
 SAMPLES_PER_ROW = 16
+#: Issue 38's formulation, an option (not the default): ``build_excitation_program(problem,
+#: constraints, **FAST)`` with ``solver.ipopt_options: {limited_memory_max_history: 12}``
+#: (:data:`~pe_drake.excitation.solve.FAST_LBFGS_PAIRS`). On G1 and the 10-joint two-arm
+#: robot (N = 10) its solves were 2.5–3.8× cheaper at 0.86–1.03× the cond (3 seeds); on the
+#: Panda and the UR5 (N = 5) it ended higher on some seeds and was not always faster
+#: (BUILD_NOTES.md, "Third round").
+FAST = {"scaling": "harmonic", "stall": StallRule()}
 
 
 class ExcitationCost:
@@ -52,11 +61,22 @@ class ExcitationCost:
     Args:
         problem: the :class:`ExcitationProblem`.
         on_evaluate: optional ``f(alpha, value)`` called after each evaluation (progress).
+        stall: a :class:`~pe_drake.excitation.stall.StallRule`: the callback raises
+            :class:`~pe_drake.excitation.stall.CriterionStalled` when it holds; None never.
     """
 
-    def __init__(self, problem: ExcitationProblem, on_evaluate: Callable | None = None):
+    def __init__(self, problem: ExcitationProblem, on_evaluate: Callable | None = None, stall: StallRule | None = None):
         self.problem = problem
         self.on_evaluate = on_evaluate
+        self.stall = stall
+        #: the rule acts only inside solve_excitation with IPOPT (which catches its exception;
+        #: NLopt's C callbacks would swallow it), never in a user's own Solve of the program
+        self.stall_enabled = False
+        #: the lowest criterion evaluated so far, after each evaluation (the stall rule's
+        #: measure of the solver's progress: IPOPT's iterates sit slightly outside the limits
+        #: for long stretches, and the best point within them then lags behind)
+        self.best_history: list[float] = []
+        self._lowest = np.inf
         #: The program's sampled-constraint evaluators (set by build_excitation_program);
         #: each records its violation per evaluated alpha.
         self.evaluators: list = []
@@ -97,6 +117,8 @@ class ExcitationCost:
         """Forgets the points of earlier solves (each solve falls back to its own points)."""
         self._evaluated.clear()
         self._best.clear()
+        self.best_history.clear()
+        self._lowest = np.inf
         for ev in self.evaluators:
             ev.violations.clear()
 
@@ -115,24 +137,37 @@ class ExcitationCost:
             self._best.sort(key=lambda c: c[0])
             del self._best[8:]
 
+    def value_and_gradient(self, alpha: np.ndarray) -> tuple[float, np.ndarray]:
+        """The criterion (1e20 where it is not finite) and its gradient at alpha; the point
+        is remembered as a fallback candidate and reported to ``on_evaluate``."""
+        start = time.perf_counter()
+        alpha = np.asarray(alpha, float)
+        out = self.problem.evaluate(alpha)
+        value = out.value if np.isfinite(out.value) else 1e20
+        self.remember(alpha, out.value)
+        if self.on_evaluate is not None:
+            self.on_evaluate(alpha, value)
+        if np.isfinite(out.value):
+            self._lowest = min(self._lowest, float(out.value))
+        self.best_history.append(self._lowest)
+        self.seconds += time.perf_counter() - start
+        logarithmic = self.problem.config.criterion in ("log_cond", "dopt")
+        if self.stall is not None and self.stall_enabled and self.stall.stalled(self.best_history, logarithmic):
+            raise CriterionStalled(f"{self.problem.config.criterion} improved by less than "
+                                   f"{self.stall.improvement:.3g} in {self.stall.window} evaluations")
+        return value, out.grad
+
     def __call__(self, x):
         # pydrake is imported lazily so that `import pe_drake` stays light.
         from pydrake.autodiffutils import AutoDiffXd, ExtractGradient, ExtractValue
 
-        start = time.perf_counter()
         if x.dtype == object:
-            alpha = ExtractValue(x).reshape(-1)
-            out = self.problem.evaluate(alpha)
-            value = out.value if np.isfinite(out.value) else 1e20
-            self.remember(alpha, out.value)
-            if self.on_evaluate is not None:
-                self.on_evaluate(alpha, value)
-            result = AutoDiffXd(value, out.grad @ ExtractGradient(x))
-        else:
-            value = self.problem.evaluate(np.asarray(x, float)).value
-            result = value if np.isfinite(value) else 1e20
+            value, grad = self.value_and_gradient(ExtractValue(x).reshape(-1))
+            return AutoDiffXd(value, grad @ ExtractGradient(x))
+        start = time.perf_counter()
+        value = self.problem.evaluate(np.asarray(x, float)).value
         self.seconds += time.perf_counter() - start
-        return result
+        return value if np.isfinite(value) else 1e20
 
 
 def add_excitation_cost(prog, alpha, problem: ExcitationProblem, on_evaluate: Callable | None = None):
@@ -144,9 +179,9 @@ def add_excitation_cost(prog, alpha, problem: ExcitationProblem, on_evaluate: Ca
     return _add_cost(prog, alpha, problem, on_evaluate)[0]
 
 
-def _add_cost(prog, alpha, problem, on_evaluate=None):
+def _add_cost(prog, alpha, problem, on_evaluate=None, stall=None):
     check_variables(alpha, problem)
-    cost = ExcitationCost(problem, on_evaluate)
+    cost = ExcitationCost(problem, on_evaluate, stall)
     return prog.AddCost(cost, vars=alpha, description="excitation"), cost
 
 
@@ -277,6 +312,9 @@ class ExcitationProgram:
         exchange_bindings / exchange_evaluators: rows added by the exchange step
             (:func:`pe_drake.excitation.exchange.add_violated_samples`) at instants where a
             sampled constraint was violated between the samples.
+        cost_binding / sampled_bindings: the Drake bindings of ``cost`` and ``evaluators``.
+        variable_scale: d of the solver's coordinates beta = alpha / d
+            (:mod:`pe_drake.excitation.scaling`), or None to solve in alpha.
     """
 
     prog: object
@@ -291,6 +329,18 @@ class ExcitationProgram:
     limit_evaluators: list = dataclasses.field(default_factory=list)
     exchange_bindings: list = dataclasses.field(default_factory=list)
     exchange_evaluators: list[SampledConstraintEvaluator] = dataclasses.field(default_factory=list)
+    cost_binding: object = None
+    sampled_bindings: list = dataclasses.field(default_factory=list)
+    variable_scale: np.ndarray | None = None
+
+    def own_evaluators(self) -> list[tuple[object, object]]:
+        """(binding, Python evaluator) of every row and cost this module added whose
+        evaluator has ``values_and_jacobian`` (``value_and_gradient`` for the cost)."""
+        pairs = [(self.cost_binding, self.cost)] if self.cost_binding is not None else []
+        pairs += list(zip(self.sampled_bindings, self.evaluators))
+        if self.limits == "windows":
+            pairs += list(zip(self.limit_bindings, self.limit_evaluators))
+        return pairs + list(zip(self.exchange_bindings, self.exchange_evaluators))
 
     def callback_seconds(self) -> float:
         """Time spent so far in this program's own callbacks (cost, joint-limit windows,
@@ -308,6 +358,8 @@ def build_excitation_program(
     limits: str = "windows",
     sample_stride: int | None = None,
     smooth_limits: bool = False,
+    scaling: str = "none",
+    stall: StallRule | None = None,
 ) -> ExcitationProgram:
     """A Drake MathematicalProgram for the excitation problem.
 
@@ -331,12 +383,18 @@ def build_excitation_program(
             budgets the exchange's re-solves ran out of iterations and the Panda's capsules
             ended 5 mm too close between samples, so every sample is the default.
         smooth_limits: same as ``limits="smooth"`` (kept for existing callers).
+        scaling: the solver's coordinates: "none" (default: alpha itself) or "harmonic"
+            (each harmonic's coefficients in units of the amplitude the limits allow it,
+            :mod:`pe_drake.excitation.scaling`; part of :data:`FAST`).
+        stall: a :class:`StallRule` ending the solve when the criterion stalls
+            (:mod:`pe_drake.excitation.stall`; part of :data:`FAST`), or None (default) to
+            run to convergence or ``solver.max_iterations``.
 
     Returns:
         The :class:`ExcitationProgram`.
 
     Raises:
-        ConfigError: an unknown ``limits``.
+        ConfigError: an unknown ``limits`` or ``scaling``.
     """
     limits = "smooth" if smooth_limits else limits
     adders = {
@@ -346,6 +404,8 @@ def build_excitation_program(
     }
     if limits not in adders:
         raise ConfigError(f"unknown joint-limit formulation '{limits}'; valid: {', '.join(adders)}")
+    if scaling not in ("harmonic", "none"):
+        raise ConfigError(f"unknown variable scaling '{scaling}'; valid: harmonic, none")
     K = problem.config.constraint_samples
     stride = 1 if sample_stride is None else sample_stride
     if not isinstance(stride, int) or stride < 1 or K % stride:
@@ -356,9 +416,11 @@ def build_excitation_program(
     prog = MathematicalProgram()
     alpha = prog.NewContinuousVariables(problem.num_variables, "alpha")
     program = ExcitationProgram(prog, alpha, problem, list(constraints or []), limits=limits)
+    if scaling == "harmonic":
+        program.variable_scale = harmonic_scale(problem.harmonics, problem.omega, problem.robot.limits)
     reporter = _ProgressPrinter(program) if progress is True else progress or None
     program.progress = reporter
-    program.cost = _add_cost(prog, alpha, problem, on_evaluate=reporter)[1]
+    program.cost_binding, program.cost = _add_cost(prog, alpha, problem, on_evaluate=reporter, stall=stall)
     if limits == "windows":
         bindings = add_window_limit_constraints(prog, alpha, problem, evaluators=program.limit_evaluators)
     else:
@@ -367,7 +429,9 @@ def build_excitation_program(
     if problem.config.rest_at_ends:
         add_rest_constraints(prog, alpha, problem)
     for c in program.constraints:
-        program.evaluators.append(_add_sampled(prog, alpha, problem, c, samples=K // stride)[1])
+        binding, evaluator = _add_sampled(prog, alpha, problem, c, samples=K // stride)
+        program.sampled_bindings.append(binding)
+        program.evaluators.append(evaluator)
     program.cost.evaluators = program.evaluators
     return program
 
