@@ -136,3 +136,9 @@ def test_a_result_written_to_a_file_name_is_refused_with_the_call_to_make(tmp_pa
         m.write(tmp_path / "held.csv")
     assert not (tmp_path / "held.csv").exists()
     assert m.write(tmp_path, name="held.csv") == [str(tmp_path / "held.csv")]
+
+
+def test_simulate_run_names_its_options_type_when_given_a_truth_path(panda, tmp_path):
+    """simulate_run(robot, trajectory, truth_path) was the shape before the one door shape."""
+    with pytest.raises(TypeError, match=r"SimulateOptions\(truth"):
+        pe_drake.simulate_run(panda, tmp_path / "trajectory.json", tmp_path / "truth.yaml")

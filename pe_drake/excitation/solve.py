@@ -44,7 +44,6 @@ LBFGS_PAIRS = 30
 FAST_LBFGS_PAIRS = 12
 
 
-
 def option_value(text: str) -> int | float | str:
     """An IPOPT option value written as text: an integer, a number or a word (IPOPT's options
     are typed, so "6" must reach it as 6)."""

@@ -34,9 +34,6 @@ if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
 
 #: Physical range of ω [rad/s]: periods from 0.1 s to 10 minutes.
 OMEGA_RANGE = (2 * np.pi / 600.0, 2 * np.pi / 0.1)
-#: Largest trajectory.json read [bytes]: an optimized motion is a few kB; a file of 10⁶ harmonics
-#: would ask for gigabytes of bases before any check.
-MAX_FILE_BYTES = 50 * 1024 * 1024
 #: Most harmonics a trajectory file may have (the paper uses 10; 1000 resolve 1 ms on a 1 s period).
 MAX_HARMONICS = 1000
 

@@ -138,7 +138,10 @@ def simulate_run(robot: Robot, trajectory: str | Path, options: SimulateOptions,
         DataError: a trajectory file for other joints, or outside the robot's limits; a model
             file that is not an identified model of this robot.
         ConfigError: a duration outside (0, 3600] s, a bad truth file, no truth and no model.
+        TypeError: ``options`` that is not a :class:`SimulateOptions`.
     """
+    if not isinstance(options, SimulateOptions):  # simulate_run(robot, trajectory, truth) before the one door shape
+        raise TypeError(f"simulate_run takes SimulateOptions(truth, model=...) as options, got {options!r}")
     truth, model, measurement = options.truth, options.model, options.measurement
     if not np.any(robot.phi_model[0::10] > 0):  # a singular mass matrix; the controller's gains scale with it
         raise ConfigError(f"robot '{robot.name}' has no inertial parameters (every moving body's mass is 0; no "
