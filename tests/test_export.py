@@ -389,7 +389,8 @@ def test_mjcf_visuals_are_copied_beside_it_and_leave_the_inertials_alone(tmp_pat
 
 def test_a_diagnosed_model_exports_with_its_payload_as_a_body(tmp_path):
     """augmented_model.json through the one adapter: MuJoCo reproduces the diagnosis's own Drake
-    plant (inertias, damping, rotor inertia, payload body) and the file lists delay and pre-sliding."""
+    plant (inertias, damping, rotor inertia, payload body, joint springs as MuJoCo's stiffness) and
+    the file lists delay and pre-sliding."""
     mujoco = pytest.importorskip("mujoco")
     from pe_drake.export import ExportOptions, export_model
     from pe_drake.export.mujoco_dynamics import load_mjcf, mujoco_torques
@@ -401,17 +402,21 @@ def test_a_diagnosed_model_exports_with_its_payload_as_a_body(tmp_path):
     n = robot.n
     model = RobotModel(robot.joint_names, robot.body_names, t.phi, t.drive, velocity_scale=0.01, payload=t.payload,
                        payload_link="panda_link7", torque_delay=0.004, presliding=np.r_[0.3, np.zeros(n - 1)],
-                       presliding_stiffness=np.r_[50.0, np.zeros(n - 1)], physical=True)
+                       presliding_stiffness=np.r_[50.0, np.zeros(n - 1)], physical=True,
+                       spring=np.r_[0.0, 0.0, 0.0, 0.26, 0.0, 0.05, 0.0])  # diagnose's joint_stiffness: MJCF stiffness
     path = tmp_path / "augmented_model.json"
     path.write_text(json.dumps(model.to_dict()))
     result = export_model(robot, path, ExportOptions("mjcf"))
     assert any("0.004 s" in u for u in result.unheld) and any("pre-sliding" in u for u in result.unheld)
+    assert not any("spring" in u for u in result.unheld)
+    assert "panda_joint4" not in next(u for u in result.unheld if "offsets" in u)  # its springref holds it
     assert result.model.payload.mass == pytest.approx(t.payload.mass)
     mj = load_mjcf(result.text, text=True)
     assert mj.body("pe_drake_payload").mass[0] == pytest.approx(t.payload.mass)
     q, v, vd = random_states(robot, 20, seed=8)
     # the model's own torque (rigid with payload, viscous, rotor inertia), Coulomb and offsets aside
-    want = model.torque(robot, q, v, vd) - model.offset - model.coulomb * coulomb_column(v, model.velocity_scale)
+    held = np.where(model.spring > 0, model.offset, 0.0)  # springref = -τ₀/k
+    want = model.torque(robot, q, v, vd) - model.offset + held - model.coulomb * coulomb_column(v, model.velocity_scale)
     assert relative(mujoco_torques(mj, robot.joint_names, q, v, vd), want) < 1e-6
     assert mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_JOINT, 0) == robot.joint_names[0]
 

@@ -75,6 +75,8 @@ def _joint(body_el: ET.Element, robot: Robot, model: RobotModel, k: int) -> None
         "armature": number_text(model.armature[k]), "damping": number_text(model.viscous[k]),
         "frictionloss": number_text(model.coulomb[k]),
     }
+    if model.spring[k] > 0:  # diagnose's joint_stiffness k·q + offset τ₀ = k (q - springref): MuJoCo's spring
+        attributes.update(stiffness=number_text(model.spring[k]), springref=number_text(-model.offset[k] / model.spring[k]))
     lo, hi = joint.position_lower_limits()[0], joint.position_upper_limits()[0]
     attributes["limited"] = "true" if np.isfinite(lo) and np.isfinite(hi) else "false"
     if attributes["limited"] == "true":
@@ -113,12 +115,18 @@ _COULOMB = {
 }
 
 
+def mjcf_held_offsets(model: RobotModel) -> np.ndarray:
+    """The torque offsets an MJCF holds, (n,): those of joints with a spring, as its ``springref``
+    (k·q + τ₀ = k (q − springref)); MJCF has no constant joint torque for the others."""
+    return np.where(model.spring > 0, model.offset, 0.0)
+
+
 def unheld_terms(robot: Robot, model: RobotModel, fmt: str = "mjcf") -> list[str]:
     """What a format (mjcf, urdf, sdf) cannot hold of the model, one sentence each (the file's
     comment and the output)."""
     joints = robot.joint_names
     out = []
-    offsets = model.offset
+    offsets = model.offset - (mjcf_held_offsets(model) if fmt == "mjcf" else 0.0)
     if np.any(offsets != 0):
         out.append("torque offsets (add them to the control: the format has no constant joint torque): "
                    + ", ".join(f"{j} {x:.4g}" for j, x in zip(joints, offsets) if x != 0))
@@ -129,7 +137,7 @@ def unheld_terms(robot: Robot, model: RobotModel, fmt: str = "mjcf") -> list[str
     if np.any(model.presliding > 0):
         out.append("pre-sliding (Dahl) friction: " + ", ".join(
             f"{j} {x:.4g}" for j, x in zip(joints, model.presliding) if x > 0))
-    if np.any(model.spring > 0):  # diagnose's joint_stiffness: torque k·q (MJCF's joint stiffness not written)
+    if np.any(model.spring > 0) and fmt != "mjcf":  # diagnose's joint_stiffness: MJCF's joint stiffness holds it
         out.append("joint springs k·q [N·m/rad] (add them to the control): " + ", ".join(
             f"{j} {x:.4g}" for j, x in zip(joints, model.spring) if x > 0))
     return out

@@ -223,16 +223,18 @@ class RobotModel:
     # ---- dynamics -----------------------------------------------------------------------------
 
     def torque(self, robot: Robot, q: np.ndarray, v: np.ndarray, vd: np.ndarray, *, coulomb: bool = True,
-               offset: bool = True) -> np.ndarray:
+               offset: bool = True, spring: bool | None = None) -> np.ndarray:
         """Inverse dynamics of the model: Y(q, v, vd)·phi_total + D(v, vd)·theta, shape (T, n)
         [N·m] (no delay, no Dahl state), a block of samples at a time.
 
         Args:
             robot: the :class:`~pe_drake.multibody.robot.Robot` of the model's joints and bodies.
             q, v, vd: each (T, n) or (n,).
-            coulomb, offset: include the Coulomb friction and the offsets (and joint springs). Without them the torque
+            coulomb, offset: include the Coulomb friction and the offsets. Without them the torque
                 is what a simulator file holds as inverse dynamics (rigid + armature + viscous):
                 Drake's URDF/SDFormat and MuJoCo's ``mj_inverse`` of an exported model.
+            spring: include the joint springs k·q (default: as ``offset``; MuJoCo's joint
+                ``stiffness`` holds them, a URDF does not).
         """
         self.check_robot(robot)
         q, v, vd = (np.atleast_2d(np.asarray(x, float)) for x in (q, v, vd))
@@ -243,7 +245,7 @@ class RobotModel:
         for s in range(0, q.shape[0], 2000):
             k = slice(s, s + 2000)
             out[k] = model(q[k], v[k], vd[k]) @ phi + drive_columns(v[k], vd[k], layout) @ theta
-        return out + q * self.spring if offset else out
+        return out + q * self.spring if (offset if spring is None else spring) else out
 
     def plant(self, robot: Robot):
         """The model in Drake, a continuous :class:`~pe_drake.multibody.robot.Robot` with its damping,
