@@ -419,6 +419,8 @@ def test_a_diagnosed_model_exports_with_its_payload_as_a_body(tmp_path):
     want = model.torque(robot, q, v, vd) - model.offset + held - model.coulomb * coulomb_column(v, model.velocity_scale)
     assert relative(mujoco_torques(mj, robot.joint_names, q, v, vd), want) < 1e-6
     assert mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_JOINT, 0) == robot.joint_names[0]
+    urdf = export_model(robot, path, ExportOptions("urdf"))  # a URDF has no spring: listed
+    assert any("joint springs" in u and "panda_joint4" in u for u in urdf.unheld)
 
 
 def test_a_point_mass_is_given_the_smallest_inertia_mujoco_accepts(tmp_path):

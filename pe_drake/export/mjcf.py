@@ -115,10 +115,17 @@ _COULOMB = {
 }
 
 
-def mjcf_held_offsets(model: RobotModel) -> np.ndarray:
-    """The torque offsets an MJCF holds, (n,): those of joints with a spring, as its ``springref``
-    (k·q + τ₀ = k (q − springref)); MJCF has no constant joint torque for the others."""
-    return np.where(model.spring > 0, model.offset, 0.0)
+#: Formats written with a joint spring (MJCF ``stiffness``/``springref``). A URDF has none; an
+#: SDFormat ``spring_stiffness`` is a RevoluteSpring in Drake, but a plant with one refuses the
+#: RemoveJoint by which pe_drake locks joints, so the SDF lists the springs as not held.
+SPRING_FORMATS = ("mjcf",)
+
+
+def spring_held_offsets(model: RobotModel, fmt: str) -> np.ndarray:
+    """The torque offsets a format holds, (n,): in MJCF those of joints with a spring, in its
+    reference angle (k·q + τ₀ = k (q − q_ref), q_ref = −τ₀/k); none has a constant joint
+    torque for the others."""
+    return np.where(model.spring > 0, model.offset, 0.0) if fmt in SPRING_FORMATS else np.zeros(len(model.joints))
 
 
 def unheld_terms(robot: Robot, model: RobotModel, fmt: str = "mjcf") -> list[str]:
@@ -126,7 +133,7 @@ def unheld_terms(robot: Robot, model: RobotModel, fmt: str = "mjcf") -> list[str
     comment and the output)."""
     joints = robot.joint_names
     out = []
-    offsets = model.offset - (mjcf_held_offsets(model) if fmt == "mjcf" else 0.0)
+    offsets = model.offset - spring_held_offsets(model, fmt)
     if np.any(offsets != 0):
         out.append("torque offsets (add them to the control: the format has no constant joint torque): "
                    + ", ".join(f"{j} {x:.4g}" for j, x in zip(joints, offsets) if x != 0))
@@ -137,7 +144,7 @@ def unheld_terms(robot: Robot, model: RobotModel, fmt: str = "mjcf") -> list[str
     if np.any(model.presliding > 0):
         out.append("pre-sliding (Dahl) friction: " + ", ".join(
             f"{j} {x:.4g}" for j, x in zip(joints, model.presliding) if x > 0))
-    if np.any(model.spring > 0) and fmt != "mjcf":  # diagnose's joint_stiffness: MJCF's joint stiffness holds it
+    if np.any(model.spring > 0) and fmt not in SPRING_FORMATS:  # diagnose's joint_stiffness
         out.append("joint springs k·q [N·m/rad] (add them to the control): " + ", ".join(
             f"{j} {x:.4g}" for j, x in zip(joints, model.spring) if x > 0))
     return out

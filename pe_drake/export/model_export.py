@@ -21,7 +21,7 @@ import numpy as np
 from pe_drake.exceptions import ConfigError
 from pe_drake.export.controller import feedforward_yaml, friction_torque, gains_yaml
 from pe_drake.export.drake_files import drake_check, sdf_text, urdf_export_text
-from pe_drake.export.mjcf import mjcf_files, mjcf_held_offsets, unheld_terms
+from pe_drake.export.mjcf import mjcf_files, spring_held_offsets, unheld_terms
 from pe_drake.export.model_source import exported_model, identified_spread, projection_change, random_states
 from pe_drake.export.mujoco_dynamics import load_mjcf, mujoco_torques
 from pe_drake.identification.drive_terms import filtered_coulomb
@@ -226,7 +226,7 @@ def _mujoco_check(robot: Robot, model: RobotModel, text: str, meshes: dict) -> d
     except ImportError:
         return {"MuJoCo check": "skipped: mujoco is not installed (pip install 'pe_drake[mujoco]')"}
     q, v, vd = random_states(robot, 20)
-    want = model.torque(robot, q, v, vd, coulomb=False, offset=False, spring=True) + mjcf_held_offsets(model)
+    want = model.torque(robot, q, v, vd, coulomb=False, offset=False, spring=True) + spring_held_offsets(model, "mjcf")
     got = mujoco_torques(mj, robot.joint_names, q, v, vd)
     error = float(np.max(np.abs(got - want)) / max(float(np.max(np.abs(want))), 1e-12))
     if not error <= CHECK_TOLERANCE:
