@@ -309,6 +309,17 @@ def test_truth_names_checked_against_robot(tmp_path, robot, trajectory, text, ki
     assert err.value.kind == kind
 
 
+def test_simulate_run_names_the_truth_file_of_an_unknown_joint(tmp_path, robot):
+    # a newcomer copies examples/truth_example.yaml for another robot: the refusal names the file
+    from pe_drake.simulation import SimulateOptions, simulate_run
+
+    path = _truth_file(tmp_path, "effects: {viscous: {joint9: 0.1}}")
+    trajectory = Path(__file__).parent / "data" / "panda_optimized.json"
+    with pytest.raises(UnknownNameError, match=r"truth file '.*truth.yaml': unknown joint 'joint9' in effects.viscous") as err:
+        simulate_run(robot, trajectory, SimulateOptions(path))
+    assert err.value.kind == "joint" and "panda_joint1" in err.value.choices
+
+
 def test_example_truth_file_is_valid(robot):
     truth = load_truth(EXAMPLE)
     true = build_true_robot(robot, truth)

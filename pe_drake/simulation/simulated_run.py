@@ -156,7 +156,11 @@ def simulate_run(robot: Robot, trajectory: str | Path, options: SimulateOptions,
         raise ConfigError(f"the motion of '{trajectory}' lasts {duration:g} s: simulate at most 3600 s (--duration)")
     # the truth's joint and link names before any work (and before a model's terms are merged
     # into it): a misspelt joint was refused only after "simulating ..." had been printed
-    validate_truth(truth_spec, robot)
+    try:
+        validate_truth(truth_spec, robot)
+    except ConfigError as err:  # UnknownNameError too: its type and fields kept, the file named
+        err.args = (f"truth file '{truth}': {err}",)
+        raise
     sim_model = extra = None
     if model is not None:
         sim_model = load_simulation_model(model, robot)
