@@ -34,7 +34,7 @@ def atomic_write_text(path: str | Path, text: str) -> None:
     try:
         with os.fdopen(fd, "w") as f:
             f.write(text)
-        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp creates 0600; outputs are ordinary files
+        chmod_as_created(tmp)  # mkstemp creates 0600; outputs are ordinary files
         os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(OSError):
@@ -93,6 +93,12 @@ def _umask() -> int:
     return mask
 
 
+def chmod_as_created(path: str | Path) -> None:
+    """Gives a staged output the mode ``open``/``mkdir`` would have (0666/0777 less the umask):
+    ``mkstemp`` and ``mkdtemp`` make it 0600/0700, which only its owner can read."""
+    os.chmod(path, (0o777 if Path(path).is_dir() else 0o666) & ~_umask())
+
+
 @contextlib.contextmanager
 def staged_output_dir(out: str | Path, manifest: str = "", own_names: Iterable[str] = ()) -> Iterator[Path]:
     """A temporary folder whose files are moved into ``out`` only if the block succeeds.
@@ -122,7 +128,7 @@ def staged_output_dir(out: str | Path, manifest: str = "", own_names: Iterable[s
             yield tmp
             for item in tmp.rglob("*"):
                 if item.is_file():
-                    os.chmod(item, 0o666 & ~_umask())
+                    chmod_as_created(item)
             written = sorted(item.name for item in tmp.iterdir())
             if manifest in written:
                 add_manifest(tmp, manifest)

@@ -176,6 +176,20 @@ def test_physical_fit_with_drive_terms_and_bounds(optimized):
         identify(robot, data, "physical", bounds=PhysicalBounds(mass_bounds={"nope": (0.0, 1.0)}))
 
 
+def test_a_merged_armature_on_its_bound_is_not_said_to_hold_a_part(optimized):
+    # joint 1's armature is not separable (merged into Izz.panda_link1 + Iyy.panda_link2); a
+    # negative one in the data puts the physical fit on its bound 0, where the solver returns
+    # ~1e-15: the notes said both "on its bound 0" and "3.7e-15 kg·m² holds the part of ..."
+    robot = get_robot("panda")
+    truth = drive_truth(robot, seed=4)
+    truth["armature"] = np.zeros(robot.n)
+    truth["armature"][:2] = -0.05
+    data = with_drive(robot, optimized, truth, duration=optimized.period)
+    notes = identify(robot, data, "physical").physical_notes
+    assert any(n.startswith("armature[panda_joint1] is on its bound 0") for n in notes), notes
+    assert not any(n.startswith("armature[panda_joint1]") and "holds the part" in n for n in notes), notes
+
+
 def write_run(path, robot, trajectory, truth, seed):
     """A 500 Hz CSV without v/vdot columns (so identify filters and differentiates)."""
     from pe_drake.identification.measurements import write_measurement_csv

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -381,6 +382,10 @@ def test_mjcf_visuals_are_copied_beside_it_and_leave_the_inertials_alone(tmp_pat
     np.testing.assert_allclose(box.size, [0.1, 0.02, 0.03])
     np.testing.assert_allclose(box.pos, [0.1, 0, 0], atol=1e-12)
     assert (tmp_path / "out" / "slider_meshes" / "tool_0.obj").read_text().startswith("v 0 0 0")
+    # readable by others as a plain mkdir would make it, not mkdtemp's 0700
+    mask = os.umask(0)
+    os.umask(mask)
+    assert (tmp_path / "out" / "slider_meshes").stat().st_mode & 0o777 == 0o777 & ~mask
     np.testing.assert_allclose(model.mesh_scale[0], [2, 2, 2])
     assert model.body("arm").mass[0] == pytest.approx(robot.phi_model[10 * robot.body_names.index("arm")])  # no geom mass
     with pytest.raises(ConfigError, match="must be a folder name"):

@@ -309,6 +309,17 @@ def test_truth_names_checked_against_robot(tmp_path, robot, trajectory, text, ki
     assert err.value.kind == kind
 
 
+def test_simulate_run_names_the_truth_file_of_an_unknown_joint(tmp_path, robot):
+    # a newcomer copies examples/truth_example.yaml for another robot: the refusal names the file
+    from pe_drake.simulation import SimulateOptions, simulate_run
+
+    path = _truth_file(tmp_path, "effects: {viscous: {joint9: 0.1}}")
+    trajectory = Path(__file__).parent / "data" / "panda_optimized.json"
+    with pytest.raises(UnknownNameError, match=r"truth file '.*truth.yaml': unknown joint 'joint9' in effects.viscous") as err:
+        simulate_run(robot, trajectory, SimulateOptions(path))
+    assert err.value.kind == "joint" and "panda_joint1" in err.value.choices
+
+
 def test_example_truth_file_is_valid(robot):
     truth = load_truth(EXAMPLE)
     true = build_true_robot(robot, truth)
@@ -416,3 +427,17 @@ def test_a_run_that_does_not_track_its_trajectory_is_flagged():
     sim["tracking_error_rms"]["b"] = 0.005
     assert not any(line.startswith("warning") for line in SimulatedRun("r", "joint_torque", None,
                                                                         {"simulation": sim}).summary_lines())
+
+
+def test_simulate_says_which_joints_keep_the_model_files_friction():
+    # a truth naming some joints leaves the others at the URDF's <dynamics> (the z1's 1 N·m):
+    # simulated and identified, so the console says so (it was only in .truth.json)
+    from pe_drake.simulation.simulated_run import SimulatedRun
+
+    sim = {"duration": 1.0, "rate_hz": 1000.0, "samples": 1001, "wall_time_s": 0.1,
+           "tracking_error_rms": {"j1": 1e-3, "j2": 1e-3}}
+    effects = {"viscous": {"values": {"j1": 0.3, "j2": 1.0}, "source": {"j1": "truth", "j2": "model file"}},
+               "coulomb": {"values": {"j1": 0.5, "j2": 0.0}, "source": {"j1": "truth", "j2": "model file"}}}
+    lines = SimulatedRun("arm", "joint_torque", None, {"simulation": sim, "effects": effects}).summary_lines()
+    kept = [line for line in lines if "of the model file kept" in line]
+    assert kept == ["note: viscous friction of the model file kept where the truth does not set it: j2 1 N·m·s/rad"]

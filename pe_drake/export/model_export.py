@@ -28,7 +28,7 @@ from pe_drake.identification.drive_terms import filtered_coulomb
 from pe_drake.identification.intake import prepare_measurement
 from pe_drake.identification.measurements import Measurement
 from pe_drake.identification.time_window import TimeWindow
-from pe_drake.io_utils import atomic_write_text
+from pe_drake.io_utils import atomic_write_text, chmod_as_created
 from pe_drake.multibody.robot import Robot
 from pe_drake.multibody.robot_model import RobotModel
 from pe_drake.output_paths import output_file
@@ -140,6 +140,7 @@ def write_folder(folder: Path, files: dict[str, bytes]) -> Path:
     try:
         for name, content in files.items():
             (staging / name).write_bytes(content)
+        chmod_as_created(staging)  # mkdtemp's 0700 would hide the meshes from other users (a simulator's)
         old = None
         if folder.exists():
             old = folder.with_name(f"{staging.name}.old")

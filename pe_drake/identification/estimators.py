@@ -64,7 +64,7 @@ from pe_drake.identification.measurements import (
     Preprocessing,
 )
 from pe_drake.identification.least_squares import ordinary_fit, weighted_fit
-from pe_drake.identification.physical_fit import PhysicalBounds, physical_fit
+from pe_drake.identification.physical_fit import ON_BOUND, PhysicalBounds, physical_fit
 from pe_drake.identification.welded import merge_welded
 from pe_drake.identification.folded_rows import (
     BLOCK,
@@ -436,11 +436,12 @@ def _physical(robot: Robot, base: BaseParameters, layout: DriveLayout, folded: F
     fit = fit._replace(phi=phi, notes=(*group_notes, *fit.notes))
     phi_B = base.base_values(fit.phi)
     notes = list(fit.notes)
+    on_bound = ON_BOUND * max(float(np.max(np.abs(fit.theta))) if len(fit.theta) else 1.0, 1e-9)  # physical_fit's test
     for j, a in zip(merged, fit.theta[layout.count :]):
         name = robot.joint_names[j]
         for base_name, coef in layout.merged[name].items():  # v̇_j = Σ coef_k · (column k of Y_B)
             phi_B[base.base_names.index(base_name)] += a * coef
-        if a > 0:
+        if a > on_bound:  # one on its bound 0 (solver round-off, 1e-11) is noted as such, not as holding a part
             notes.append(f"armature[{name}] {a:.4g} kg·m² (not separately identifiable) holds the part of "
                          f"{', '.join(layout.merged[name])} above what links near the a-priori model hold")
     values = {robot.joint_names[j]: float(a) for j, a in zip(merged, fit.theta[layout.count :])}

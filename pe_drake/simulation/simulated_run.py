@@ -53,6 +53,7 @@ class SimulatedRun:
                         f"{sim['samples']} samples in {sim['wall_time_s']:.2f} s wall time",
                         "tracking error RMS: " + ", ".join(f"{j} {1e3 * e:.3g} {self._unit(j)}"
                                                           for j, e in sim["tracking_error_rms"].items())]
+        lines += self._model_file_friction()
         contacts = {k: c for k, c in sim.get("capsule_contacts", {}).items() if k != "note"}
         lines += [f"warning: the capsules of {pair} overlap by up to {1e3 * c['max_overlap_m']:.3g} mm in "
                   f"{c['from_s']:.3g}-{c['to_s']:.3g} s: {CONTACT_NOTE}" for pair, c in contacts.items()]
@@ -67,6 +68,19 @@ class SimulatedRun:
                      "inertia): raise control.kp and control.kd or lower the friction")
             lines.append(f"warning: {joint} tracks its trajectory to {1e3 * worst:.3g} {self._unit(joint)} RMS: the run "
                          f"is not the planned motion (it may leave the joint limits). {cause}")
+        return lines
+
+    def _model_file_friction(self) -> list[str]:
+        """Joints the truth leaves to the model file's friction: a z1 URDF's 1 N·m on joints a
+        truth does not name was simulated (and identified) without a word on the console."""
+        lines = []
+        for key, unit in (("viscous", "N·m·s/rad"), ("coulomb", "N·m")):
+            table = self.truth.get("effects", {}).get(key, {})
+            kept = {j: v for j, v in table.get("values", {}).items()
+                    if table.get("source", {}).get(j) == "model file" and v > 0}
+            if kept:
+                lines.append(f"note: {key} friction of the model file kept where the truth does not set it: "
+                             + ", ".join(f"{j} {v:.3g}" for j, v in kept.items()) + f" {unit}")
         return lines
 
     def _unit(self, joint: str) -> str:
@@ -156,7 +170,11 @@ def simulate_run(robot: Robot, trajectory: str | Path, options: SimulateOptions,
         raise ConfigError(f"the motion of '{trajectory}' lasts {duration:g} s: simulate at most 3600 s (--duration)")
     # the truth's joint and link names before any work (and before a model's terms are merged
     # into it): a misspelt joint was refused only after "simulating ..." had been printed
-    validate_truth(truth_spec, robot)
+    try:
+        validate_truth(truth_spec, robot)
+    except ConfigError as err:  # UnknownNameError too: its type and fields kept, the file named
+        err.args = (f"truth file '{truth}': {err}",)
+        raise
     sim_model = extra = None
     if model is not None:
         sim_model = load_simulation_model(model, robot)
