@@ -51,13 +51,13 @@ class FrictionVelocity(NamedTuple):
 
 def white_noise_level(x: np.ndarray) -> np.ndarray:
     """White-noise level of a sampled signal per column: second differences remove the smooth
-    motion (median absolute deviation · 1.4826 / √6), shape (T, n) → (n,)."""
+    motion (median absolute deviation · 1.4826 / √6), shape (T, n) → (n,) or (T,) → scalar."""
     d2 = np.diff(x, n=2, axis=0)
     return 1.4826 * np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0) / math.sqrt(6.0)
 
 
 def _quantization_level(x: np.ndarray) -> np.ndarray:
-    """Per column, the smallest nonzero step between samples / √12: the noise of a quantized
+    """The smallest nonzero step between samples / √12 of a signal (T,): the noise of a quantized
     signal (an encoder), which the median of second differences misses when most are zero."""
     d = np.abs(np.diff(x, axis=0))
     d = np.where(d > 0, d, np.inf)
@@ -105,15 +105,15 @@ def friction_velocity(q: np.ndarray, v: np.ndarray | None, rate_hz: float, torqu
         cutoffs.append(top)
     cutoffs.append(math.inf)
     gains = _noise_gains(cutoffs, rate_hz, order, derivative=v is None)
-    sigma = np.maximum(white_noise_level(src), _quantization_level(src))
     dt = 1.0 / rate_hz
     n = src.shape[1]
     out, chosen, noise = np.empty(src.shape), np.empty(n), np.empty(n)
     for j in range(n):  # a joint at a time: a long log's full-rate columns one by one
-        ok = np.flatnonzero(sigma[j] * gains <= NOISE_FRACTION * velocity_scale)
+        sigma = max(float(white_noise_level(src[:, j])), float(_quantization_level(src[:, j])))
+        ok = np.flatnonzero(sigma * gains <= NOISE_FRACTION * velocity_scale)
         k = int(ok[-1]) if ok.size else 0  # the noise grows with the cut-off: the widest that passes
         fc = cutoffs[k]
         x = src[:, j] if not math.isfinite(fc) else design_lowpass(fc, rate_hz, len(src), order, file=file).apply(src[:, j])
         out[:, j] = x if v is not None else differentiate(x[:, None], dt)[:, 0]
-        chosen[j], noise[j] = fc, sigma[j] * gains[k]
+        chosen[j], noise[j] = fc, sigma * gains[k]
     return FrictionVelocity(out, chosen, "measured" if v is not None else "differentiated", noise)
