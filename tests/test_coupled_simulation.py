@@ -23,10 +23,6 @@ from tests.test_identification import OPTIMIZED, random_trajectory
 from tests.test_transmission import RATIOS, motor_truth
 
 NOISE = 0.05  # [N·m] white, at the simulator's 1 kHz
-#: Above the stick of a joint at its reversals (the tanh friction holds it for tens of ms); at
-#: the automatic 4 Hz the filtered Coulomb column misses it (BUILD_NOTES, "Simulated runs
-#: without contact": 0.035-0.18 N·m held out on noise-free data).
-CUTOFF = 50.0  # [Hz]
 TERMS = {"viscous": "viscous", "coulomb": "coulomb", "armature": "armature", "torque_offset": "offset"}
 
 
@@ -61,24 +57,26 @@ def coupled_runs(tmp_path_factory):
     return folder, robot, truth
 
 
-def _floor(count: int) -> float:
+def _floor(count: int, cutoff_hz: float) -> float:
     """RMS of the white noise after validate's low-pass [N·m] (measured, not assumed)."""
     noise = np.random.default_rng(0).normal(0.0, NOISE, count)
-    return float(np.sqrt(np.mean(design_lowpass(CUTOFF, 1000.0, count, 4).apply(noise)[1000:-1000] ** 2)))
+    return float(np.sqrt(np.mean(design_lowpass(cutoff_hz, 1000.0, count, 4).apply(noise)[1000:-1000] ** 2)))
 
 
 @pytest.mark.slow
 def test_simulated_coupled_wrist_is_identified_per_motor(coupled_runs):
-    """Every motor term within 3σ (measured: 2.5σ at most), held-out torques at the filtered
-    noise floor on every joint; the plain UR5 fitted to the same run is far above it on joints
-    5-6 and says why. The forearm's and wrists' capsules overlap on these trajectories (by up to
-    6.7 and 17.8 mm, as the record says): before the simulator left contact out, their penalty
-    force made wrist_1's held-out error 82 N·m."""
+    """At the automatic cut-off (4 Hz): every motor term within 3σ (measured: 1.9σ at most),
+    held-out torques within 4× the filtered noise floor on every joint (measured ≤ 3.1×); the plain
+    UR5 fitted to the same run is far above it on joints 5-6 and says why. The forearm's and
+    wrists' capsules overlap on these trajectories (by up to 6.7 and 17.8 mm, as the record
+    says): before the simulator left contact out, their penalty force made wrist_1's held-out
+    error 82 N·m. Before the Coulomb column's tanh took the unfiltered velocity, this needed
+    --cutoff 50 (at 4 Hz: 0.037-0.18 N·m held out, terms up to 5.2σ off)."""
     folder, robot, truth = coupled_runs
     record = json.loads(truth_path_for(folder / "train.csv").read_text())
     assert "forearm_link-wrist_2_link" in record["simulation"]["capsule_contacts"]
     assert record["effects"]["transmission"]["R"][5][4] == 32.0
-    options = IdentifyOptions(cutoff_hz=CUTOFF)
+    options = IdentifyOptions()  # the automatic cut-off: 4 Hz for this slow motion
     train, held = read_log(folder / "train.csv", robot), read_log(folder / "held.csv", robot)
     fit = identify_model(robot, train, options)
     layout, model = fit.result.drive_layout, fit.result.model
@@ -86,15 +84,18 @@ def test_simulated_coupled_wrist_is_identified_per_motor(coupled_runs):
     for label, term, j in zip(layout.labels, layout.terms, layout.joints):
         x, sd = model.term(term)[j], model.sigma[term][j]
         assert abs(x - truth[term][j]) < 3 * sd, (label, x, truth[term][j], sd)
-    report = validate_model(robot, fit.result, held, ValidateOptions(cutoff_hz=CUTOFF))
-    floor = _floor(len(held.t))
-    assert np.all(report.rms < 1.15 * floor), (report.rms, floor)  # measured: 0.0152-0.0161 against 0.0158
+    assert fit.result.preprocessing.cutoff_hz == 4.0
+    report = validate_model(robot, fit.result, held, ValidateOptions())
+    floor = _floor(len(held.t), report.preprocessing.cutoff_hz)
+    # measured: 0.0060-0.0139 against 0.0045 (noise-free: 0.0045-0.0134 remain at 4 Hz, ≤ 0.0055 at
+    # 25 Hz); with the velocity filtered at 4 Hz inside the tanh, 0.037-0.18 and 5.2σ
+    assert np.all(report.rms < 4 * floor), (report.rms, floor)
     assert not report.coupling
     plain = get_robot("ur5")
     blind = identify_model(plain, read_log(folder / "train.csv", plain), options)
     blind_report = validate_model(plain, blind.result, read_log(folder / "held.csv", plain),
-                                  ValidateOptions(cutoff_hz=CUTOFF))
-    assert np.all(blind_report.rms[4:] > 20 * floor), blind_report.rms  # measured: 1.36 / 1.57 N·m
+                                  ValidateOptions())
+    assert np.all(blind_report.rms[4:] > 20 * floor), blind_report.rms  # measured: 1.36 / 1.60 N·m
     assert any("wrist_2_joint-wrist_3_joint" in w for w in blind.result.coupling), blind.result.coupling
     assert any("wrist_2_joint-wrist_3_joint" in w for w in blind_report.coupling), blind_report.coupling
 

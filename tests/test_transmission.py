@@ -326,7 +326,8 @@ def test_diagnosis_prior_drive_torque_acts_per_motor(optimized):  # noqa: F811
     for seg in split_segments(record, DiagnosisConfig()):
         T = layout.transmission
         w, wd = T.motor_positions(record.v), T.motor_positions(seg.vd)
-        coulomb = record.filtered(np.tanh(w / (np.abs(np.diag(T.R)) * layout.velocity_scale)))[seg.idx]
+        wf = T.motor_positions(record.friction_v)  # the velocity inside tanh: not filtered at the torque cut-off
+        coulomb = record.filtered(np.tanh(wf / (np.abs(np.diag(T.R)) * layout.velocity_scale)))[seg.idx]
         terms = {t: prior.model.term(t) for t in MOTOR_TERMS}  # per motor, motor side
         tau_m = (terms["coulomb"] * coulomb + terms["viscous"] * T.motor_positions(seg.v) + terms["offset"]
                  + terms["armature"] * wd)

@@ -69,7 +69,7 @@ def prior_drive_torque(robot: Robot, prior: IdentificationResult | RobotModel | 
     if layout is None or not layout.count:
         return np.zeros_like(seg.v)
     rec = seg.record
-    coulomb = rec.filtered(coulomb_columns(rec.v, layout))[seg.idx]
+    coulomb = rec.filtered(coulomb_columns(rec.friction_v, layout))[seg.idx]
     return drive_torque(model, layout, seg.v, seg.vd, coulomb)
 
 

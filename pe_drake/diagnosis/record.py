@@ -24,6 +24,7 @@ import numpy as np
 from pe_drake.diagnosis.options import MIN_PERIODS, DiagnosisConfig
 from pe_drake.exceptions import DataError
 from pe_drake.identification.data_checks import check_against_model
+from pe_drake.identification.friction_velocity import friction_velocity, white_noise_level
 from pe_drake.identification.measurements import Measurement, Preprocessing
 from pe_drake.identification.lowpass import EDGE_PERIODS, LowPassFilter, design_lowpass
 from pe_drake.identification.preprocessing import choose_cutoff, decimation_step, resample_uniform
@@ -52,6 +53,9 @@ class Record:
         raw_noise: white-noise level of the raw torque per joint [N·m].
         noise_gain: noise power gain of the zero-phase filter.
         preprocessing: the choices made, as :class:`~pe_drake.identification.measurements.Preprocessing`.
+        friction_v: the velocities inside the Coulomb columns' tanh, (T, n): the recorded v or
+            q differentiated at the widest cut-off their noise allows, not the torque's
+            (:func:`~pe_drake.identification.friction_velocity.friction_velocity`, as identify's).
     """
 
     source: str
@@ -68,6 +72,7 @@ class Record:
     raw_noise: np.ndarray
     noise_gain: float
     preprocessing: Any
+    friction_v: np.ndarray
 
     def filtered(self, x: np.ndarray) -> np.ndarray:
         """The same zero-phase filter as the torque, along time (parallel filtering)."""
@@ -87,10 +92,8 @@ class Record:
 
 
 def raw_noise_level(tau: np.ndarray) -> np.ndarray:
-    """White-noise level of a raw torque per joint [N·m]: second differences remove the smooth
-    motion (median absolute deviation · 1.4826 / √6)."""
-    d2 = np.diff(tau, n=2, axis=0)
-    return 1.4826 * np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0) / math.sqrt(6.0)
+    """White-noise level of a raw torque per joint [N·m] (:func:`white_noise_level`)."""
+    return white_noise_level(tau)
 
 
 def prepare_record(measurement: Measurement, config: DiagnosisConfig) -> Record:
@@ -122,7 +125,9 @@ def prepare_record(measurement: Measurement, config: DiagnosisConfig) -> Record:
         input_rate_hz=1.0 / float(np.median(np.diff(m.t))), resampled=grid.resampled, rate_hz=rate / step,
         trim_s=trim, velocity_source="measured" if m.v is not None else "differentiated",
         acceleration_source="differentiated", samples_in=m.num_samples, samples_out=0)
-    return Record(m.source, t, q, v, vd, tau, lowpass, rate, cutoff, step, trim, raw, gain, info)
+    friction = friction_velocity(signals["q"], signals["v"], rate, cutoff, config.coulomb_velocity_scale,
+                                 FILTER_ORDER, file=m.source)
+    return Record(m.source, t, q, v, vd, tau, lowpass, rate, cutoff, step, trim, raw, gain, info, friction.v)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -174,7 +179,7 @@ def delayed_states(seg: Segment, delay: float, velocity_scale: float) -> tuple[n
     """
     rec = seg.record
     t = seg.t - delay
-    coulomb = rec.filtered(coulomb_column(rec.v, velocity_scale))
+    coulomb = rec.filtered(coulomb_column(rec.friction_v, velocity_scale))
 
     def at(x: np.ndarray) -> np.ndarray:
         return np.column_stack([np.interp(t, rec.t, x[:, j]) for j in range(x.shape[1])])
@@ -193,7 +198,7 @@ def split_segments(record: Record, config: DiagnosisConfig, validation: Record |
     for rec in (record, validation):
         if rec is None:
             continue
-        coulomb = rec.filtered(coulomb_column(rec.v, config.coulomb_velocity_scale))
+        coulomb = rec.filtered(coulomb_column(rec.friction_v, config.coulomb_velocity_scale))
         dtau = np.gradient(rec.tau, 1.0 / rec.rate_hz, axis=0)
         columns[id(rec)] = (coulomb, dtau)
     usable = record.usable()

@@ -39,7 +39,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from pe_drake.exceptions import shorten
-from pe_drake.identification.lowpass import design_lowpass, differentiate
+from pe_drake.identification.friction_velocity import friction_velocity
+from pe_drake.identification.lowpass import design_lowpass
 from pe_drake.identification.preprocessing import resample_uniform
 from pe_drake.multibody.drive_columns import (
     COULOMB_VELOCITY_SCALE,
@@ -348,11 +349,14 @@ def filtered_coulomb(raw, data, velocity_scale: float = COULOMB_VELOCITY_SCALE,
 
     The torque was low-pass filtered, so its friction part is the filtered tanh(v/v_s), not
     tanh of the filtered v: the smoothed sign has content far above the cut-off. This redoes
-    :func:`~pe_drake.identification.preprocessing.preprocess`'s grid and filter on ``raw``
-    (as the diagnosis's records do), computes tanh(v/v_s) at the full rate, filters it with the
-    same filter and picks the samples of ``data``. On a simulated Panda run with 4 Hz cut-off,
-    tanh of the filtered v biased the Coulomb values by up to −25 % and left 0.1-0.4 N·m of
-    residual; with this column the fit reaches the noise floor.
+    :func:`~pe_drake.identification.preprocessing.preprocess`'s grid on ``raw`` (as the
+    diagnosis's records do), computes tanh(v/v_s) at the full rate of the velocity of
+    :func:`~pe_drake.identification.friction_velocity.friction_velocity` (the recorded v, or q
+    differentiated, at the widest cut-off its noise allows: not the torque's, which smears the
+    stick at reversals), filters the column with the torque's filter and picks the samples of
+    ``data``. On a simulated Panda run with 4 Hz cut-off, tanh of the filtered v biased the
+    Coulomb values by up to −25 %; the filtered tanh of the 4 Hz-filtered v still left 0.035-0.18
+    N·m held out on a simulated coupled UR5 (BUILD_NOTES, "The velocity inside the Coulomb column").
 
     Args:
         raw: the measurement as read.
@@ -371,16 +375,12 @@ def filtered_coulomb(raw, data, velocity_scale: float = COULOMB_VELOCITY_SCALE,
     grid = resample_uniform(raw.t, {"q": raw.q, "v": raw.v})
     lowpass = design_lowpass(p.cutoff_hz, grid.rate_hz, len(grid.t), p.filter_order, file=raw.source)
     idx = np.clip(np.rint((data.t - grid.t[0]) / grid.dt).astype(int), 0, len(grid.t) - 1)
-    out = np.empty((len(idx), raw.num_joints))
-
-    def velocity(j):
-        v = grid.signals["v"]
-        return lowpass.apply(v[:, j]) if v is not None else differentiate(lowpass.apply(grid.signals["q"][:, [j]]), grid.dt)[:, 0]
-
+    v = friction_velocity(grid.signals["q"], grid.signals["v"], grid.rate_hz, p.cutoff_hz, velocity_scale,
+                          p.filter_order, file=raw.source).v
     if transmission is not None:  # a motor turns several joints: every joint's full-rate velocity at once
-        w, scale = coulomb_velocities(np.column_stack([velocity(j) for j in range(raw.num_joints)]), velocity_scale,
-                                      transmission)
+        w, scale = coulomb_velocities(v, velocity_scale, transmission)
         return lowpass.apply(coulomb_column(w, scale))[idx]
+    out = np.empty((len(idx), raw.num_joints))
     for j in range(raw.num_joints):  # a joint at a time: a long log's full-rate columns one by one
-        out[:, j] = lowpass.apply(coulomb_column(velocity(j), velocity_scale))[idx]
+        out[:, j] = lowpass.apply(coulomb_column(v[:, j], velocity_scale))[idx]
     return out
