@@ -134,6 +134,20 @@ def test_warm_start_begins_at_the_best_earlier_motion(panda):
     assert m2.cond_total <= m1.cond_total * (1 + 1e-9)
 
 
+def test_a_one_start_sequence_gives_motion_2_a_random_start_beside_the_warm_start(panda):
+    """Repeating motion 1 is a stationary point of the stacked criterion: a lone warm start ended
+    where it began (G1 --quick: motion 2 = motion 1, cond 713.6 -> 713.6)."""
+    events = []
+    result = optimize_sequence(panda, CONFIG, SOLVER, SequenceOptions(
+        motions=3, starts=1, constraints_factory=no_constraints, run=ONE_WORKER), progress=events.append)
+    started = [e for e in events if isinstance(e, StartEvent) and e.kind == "started"]
+    origins = [e.origin.split(",")[0] for e in started]
+    assert origins[0] == "" and origins[1] == "" and origins[2].startswith("from motion 1")  # motion 2: two
+    assert len(started) == 4 and origins[3].startswith("from motion")  # motion 3: the warm start alone
+    m1, m2, _ = result.motions
+    assert len(m2.seeds) == 2 and m2.cond_total <= m1.cond_total * (1 + 1e-9)
+
+
 def test_multistart_in_two_processes_keeps_the_best_and_equals_serial(panda):
     seeds = [3, 4, 5]
     events = []

@@ -1,8 +1,9 @@
 """pe_drake.excitation.sequential_study: the paper's Tables I and II as a library call.
 
 A small G1 study (3 motions, 1 start of 15 IPOPT iterations each, 2 × 4 random candidates)
-feeds every test. With one start per motion, motion i > 1 is solved from the warm start
-alone: the earlier motion whose coefficients give the lowest criterion on the current prior.
+feeds every test. With one start per motion, motion i > 1 is solved from the warm start (the
+earlier motion whose coefficients give the lowest criterion on the current prior; motion 2 also
+from its seed's random start, since repeating motion 1 is a stationary point).
 The solver returns the best feasible point it evaluated, the warm start included (it is an
 earlier motion, feasible under the same constraints), and cond ≤ soft_cond, so cond(C) after
 motion i can never exceed soft_cond of that warm start; for motion 2 the warm start is

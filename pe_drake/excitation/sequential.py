@@ -14,7 +14,9 @@ one is kept.
 Warm start (on by default): the last start of motion i > 1 begins from the earlier motion of
 the sequence whose coefficients give the lowest criterion with the current prior, instead of
 from a random point. Repeating motion 1 leaves cond([C^(1); C^(1)]) = cond(C^(1)), so motion 2
-starts exactly at the prior's cond; on G1 the warm start of motion 3
+starts exactly at the prior's cond, at a stationary point of the criterion: with one start,
+motion 2 gets its seed's random start beside the warm start (a one-start G1 sequence repeated
+motion 1 before, 713.6 → 713.6; now 713.6 → 690.1 → 673.1); on G1 the warm start of motion 3
 ended at cond(C) 202.8 and 212.1 (from motions 1 and 2) where both random starts stopped at
 about 222, above the prior's 217.0 (measured with IPOPT ≤ 150 iterations).
 
@@ -166,8 +168,9 @@ class SequenceOptions:
         stop_on_failure: raise when a motion has no feasible start (else keep its best
             infeasible start and go on).
         warm_start: the last start of motion i > 1 begins from the earlier motion with the
-            lowest criterion on the current prior (its seed stays its label); see the module
-            docstring.
+            lowest criterion on the current prior (its seed stays its label); with one start,
+            motion 2 without prior data adds it as a second start (seed + 1) beside the random
+            one; see the module docstring.
         run: where the starts run (:class:`~pe_drake.excitation.parallel.ExecutorOptions`;
             ``workers`` capped at the starts per motion).
     """
@@ -298,6 +301,12 @@ class _SequenceRun:
         self.say(MotionEvent(i, motions, "started", tuple(seeds)))
         parts = ([self.prior] if self.prior is not None else []) + self.blocks
         C0_i = np.vstack(parts) if parts else None  # Eq. (41): [C^(1); ...; C^(i-1)]
+        if warm_start and len(seeds) == 1 and len(parts) == 1 and self.done:
+            # Motion 2's prior is motion 1 alone: repeating it is a stationary point of the stacked
+            # criterion (cond([C; C]) = cond(C), the gradient motion 1's), so a lone warm start
+            # would end where it began (G1, one start: 713.6 -> 713.6). The seed's random start
+            # is solved too, the warm start beside it keeps "never worse than motion 1".
+            seeds = [seeds[0], seeds[0] + 1]
         guesses, origins = self._warm_start(C0_i, len(seeds)) if warm_start else (None, None)
         ms = solve_multistart(None, self.config, self.solver, MultiStartOptions(
             seeds, C0=C0_i, initial_guesses=guesses, amplitude=amplitude, label=f"motion {i}", origins=origins,
