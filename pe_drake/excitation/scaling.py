@@ -26,6 +26,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from pe_drake.excitation.limit_windows import CachedRows
+
 
 def harmonic_scale(harmonics: int, omega: float, limits) -> np.ndarray:
     """d of alpha = d·beta (module docstring), shape ((2N+1)·n,).
@@ -66,21 +68,17 @@ class _ScaledCost:
         return self.inner.value_and_gradient(np.asarray(x, float) * self.d)[0]
 
 
-class _ScaledRows:
+class _ScaledRows(CachedRows):
     """A constraint evaluator with ``values_and_jacobian(alpha)`` (window rows, sampled
-    constraints) over beta."""
+    constraints) over beta: its rows at d·beta, their Jacobian times d (Drake's marshalling is
+    :class:`~pe_drake.excitation.limit_windows.CachedRows`'s)."""
 
     def __init__(self, inner, d: np.ndarray):
         self.inner, self.d = inner, d
 
-    def __call__(self, x):
-        # pydrake is imported lazily so that `import pe_drake` stays light.
-        from pydrake.autodiffutils import ExtractGradient, ExtractValue, InitializeAutoDiff
-
-        if x.dtype == object:
-            g, J = self.inner.values_and_jacobian(ExtractValue(x).reshape(-1) * self.d)
-            return InitializeAutoDiff(g, (J * self.d) @ ExtractGradient(x)).reshape(-1)
-        return self.inner.values_and_jacobian(np.asarray(x, float) * self.d)[0]
+    def _rows(self, x: np.ndarray, key: bytes) -> tuple[np.ndarray, np.ndarray]:
+        g, J = self.inner.values_and_jacobian(x * self.d)
+        return g, J * self.d
 
 
 class _ScaledAny:
