@@ -1,22 +1,9 @@
-"""Meshcat playback of an exciting trajectory: robot, collision geometry, CoM and support area.
+"""Meshcat playback of an exciting trajectory: robot, collision capsules, CoM and support area.
 
-:func:`play_trajectory` loads the robot named in a ``trajectory.json`` with OBJ visuals
-(:mod:`pe_drake.multibody.meshes`), adds Drake's ``MeshcatVisualizer`` for the illustration geometry
-(Meshcat path ``/drake/visual``) and a second one for the proximity geometry, i.e. the
-collision capsules (``/drake/capsules``, toggled in the Meshcat tree), and records one period
-of the Fourier series (Eq. 50) as a Meshcat animation. The capsules are the ones the run
-checked: the config's ``robot.capsules``, or the file the trajectory records, or the
-``fitted_capsules.yaml`` that ``pe-drake optimize`` wrote beside it. The environment the
-optimizer avoided (the floor of a fixed-base arm and the boxes, ``/drake/environment``) is
-drawn translucent, and the camera is framed on what the robot sweeps
-(:mod:`pe_drake.viewer_scene`). The ground projection of the
-whole-body CoM (``/drake/com_projection``) is animated with it; the support area, the convex
-hull of the feet's support points (``/drake/support_area``), is drawn when the robot config
-has ``support_points``. :func:`write_playback_html` saves the recording as a self-contained
-HTML file that plays offline (Drake's ``Meshcat.StaticHtml``).
-
-This module imports pydrake's geometry (Meshcat) and is imported lazily by the CLI, so
-``import pe_drake`` stays headless.
+:func:`play_trajectory` replays a ``trajectory.json`` (one recording of the whole motion, Eq. 50)
+and :func:`write_plan_playback` a live motion plan; both can save a self-contained offline HTML
+file (``Meshcat.StaticHtml``). What is drawn around the robot lives in :mod:`pe_drake.viewer_scene`.
+Imported lazily by the CLI: it loads pydrake's geometry.
 """
 
 from __future__ import annotations
@@ -39,17 +26,9 @@ from pe_drake.multibody.capsule_fitting import FITTED_CAPSULES_NAME
 from pe_drake.multibody.model_files import is_xacro
 from pe_drake.multibody.registry import builtin_robots, resolve_robot_config, robot_display_name
 from pe_drake.multibody.robot import Robot
-from pe_drake.viewer_scene import (
-    COM_PATH,
-    ENVIRONMENT_PATH,
-    SUPPORT_PATH,
-    com_marker_pose,
-    draw_environment,
-    draw_markers,
-    frame_camera,
-    motion_extent,
-    support_polygon,
-)
+from pe_drake.viewer_scene import (COM_PATH, ENVIRONMENT_PATH, SUPPORT_PATH, com_marker_pose,
+                                   draw_environment, draw_markers, frame_camera, motion_extent,
+                                   support_polygon)
 
 #: Meshcat paths (under ``/drake``) of what this module draws.
 VISUAL_PREFIX = "visual"
@@ -63,27 +42,19 @@ class Playback:
     """A recorded trajectory playback.
 
     Attributes:
-        meshcat: the Meshcat instance holding the scene and recording (keep a reference to
-            keep its server alive).
-        url: Meshcat's web URL.
+        meshcat: the Meshcat instance (keep a reference to keep its server alive).
         html: path of the HTML file written, or None.
         num_frames: recorded frames, the whole motion including both ends.
-        duration: length of the recording: the motion of trajectory.csv (ramps and
-            ``periods`` periods of 2π/ω) [s].
+        duration: length of the motion of trajectory.csv (ramps and periods) [s].
         frames_per_second: recording rate (``num_frames - 1`` frames per motion) [1/s].
-        loops: the animation repeats (a periodic motion without ramps); a motion with ramps
-            plays once and stays at its final rest posture.
-        robot: the :class:`~pe_drake.multibody.robot.Robot` shown.
-        com_xy: ground projection of the whole-body CoM at each frame, shape (num_frames, 2)
-            [m].
-        support_polygon: corners of the support area in world (x, y), counter-clockwise,
-            shape (m, 2) [m]; empty (0, 2) when the robot has no support points.
-        paths: Meshcat paths of the drawn layers: visual, capsules (None when there is no
-            proximity geometry), com, support (None without support points), environment
-            (None when there is no floor or box).
-        camera: (camera position, target) in world, each shape (3,) [m]: framed on ``extent``.
-        extent: (lower, upper) corners of the box the robot sweeps (link origins and
-            capsules over the motion), each shape (3,) [m].
+        loops: the animation repeats (no ramps); with ramps it plays once and holds at rest.
+        com_xy: ground projection of the whole-body CoM per frame, shape (num_frames, 2) [m].
+        support_polygon: support area corners (x, y), counter-clockwise, shape (m, 2) [m];
+            (0, 2) without support points.
+        paths: Meshcat paths of the layers visual, capsules, com, support, environment (None
+            when not drawn).
+        camera: (camera position, target) in world, each shape (3,) [m].
+        extent: (lower, upper) corners of the box the robot sweeps, each shape (3,) [m].
         capsule_file: the capsule file drawn, or None.
     """
 
@@ -115,43 +86,33 @@ def play_trajectory(
     host: str = "localhost",
     trust_xacro: bool = False,
 ) -> Playback:
-    """Records the motion of trajectory.csv (ramp-in, periods, ramp-out, as the trajectory
-    file records them) in Meshcat and optionally writes it as HTML.
+    """Records the whole motion of trajectory.csv in Meshcat and optionally writes it as HTML.
 
-    Never blocks: the Meshcat server lives as long as the returned ``Playback.meshcat``
-    (``pe-drake view`` keeps it until Ctrl-C).
+    Never blocks: the Meshcat server lives as long as the returned ``Playback.meshcat``.
 
     Args:
-        trajectory_json: a ``trajectory.json`` written by ``pe-drake optimize`` or
-            :func:`pe_drake.excitation.trajectory_file.save_trajectory`.
+        trajectory_json: a ``trajectory.json`` written by ``pe-drake optimize``.
         robot: built-in name or URDF/SDF path; default: the robot named in the file.
         config: YAML config of the robot. Without it (and unless ``robot`` names another
-            robot), the excited joints, locked posture, root link, base pose, capsules and
-            environment recorded in the trajectory file are used, so the playback shows
-            the posture and the obstacles the trajectory was optimized for.
+            robot), the joints, locked posture, root link, base pose, capsules and environment
+            recorded in the file are used: the posture and obstacles it was optimized for.
         html: write a self-contained offline HTML playback here (atomically).
-        show_capsules: show the collision capsules at start; they stay in the Meshcat
-            tree either way and can be toggled there.
+        show_capsules: show the collision capsules at start (they can be toggled in Meshcat).
         rate: frames per second of the recording [1/s].
         meshcat: an existing ``pydrake.geometry.Meshcat`` to draw into; default: a new one.
-        trust_xacro: expand a xacro ``robot`` (one the caller names, never one the trajectory
-            file names) with xacro's full Python (``robot.trust_xacro``).
-        host: interface a new Meshcat server listens on: "localhost" (default) or "*" for
-            every interface (others on the network can then watch).
-
-    Returns:
-        The :class:`Playback`.
+        host: interface a new Meshcat server listens on ("*": every interface).
+        trust_xacro: expand a xacro ``robot`` the caller names (never one the file names) with
+            xacro's full Python.
 
     Raises:
         DataError: missing or malformed trajectory file.
-        ConfigError: the robot does not excite the trajectory's joints, or has none of that
-            name (the joints are named), an invalid rate, or a robot that cannot be loaded.
+        ConfigError: an invalid rate, a robot that cannot be loaded or lacks the trajectory's
+            joints (named).
     """
     if not (isinstance(rate, (int, float)) and math.isfinite(rate) and 0 < rate <= 1000):
         raise ConfigError(f"playback rate must be a number of frames per second in (0, 1000], got {rate!r}")
     motion, data = load_motion(trajectory_json)
-    period = motion.duration  # the whole motion of trajectory.csv (ramps and periods)
-    times, fps = frame_times(period, rate)
+    times, fps = frame_times(motion.duration, rate)
 
     meshcat = _prepare_meshcat(meshcat, host="localhost" if html is not None else host)
     rob, environment = _load_robot_with_visualizers(
@@ -166,66 +127,34 @@ def play_trajectory(
     com_xy, support = _record_motion(meshcat, rob, q, fps, loop=loop)
     extent, camera, drawn = _draw_surroundings(meshcat, rob, q, environment)
 
-    html_path = None
-    if html is not None:
-        html_path = Path(html)
-        atomic_write_text(html_path, meshcat.StaticHtml())
-    return Playback(
-        meshcat=meshcat,
-        url=meshcat.web_url(),
-        html=html_path,
-        num_frames=len(times),
-        duration=period,
-        frames_per_second=fps,
-        loops=loop,
-        robot=rob,
-        com_xy=com_xy,
-        support_polygon=support,
-        paths={
-            "visual": f"/drake/{VISUAL_PREFIX}",
-            "capsules": f"/drake/{CAPSULES_PREFIX}" if _has_proximity_geometry(rob.scene_graph) else None,
-            "com": f"/drake/{COM_PATH}",
-            "support": f"/drake/{SUPPORT_PATH}" if len(support) else None,
-            "environment": f"/drake/{ENVIRONMENT_PATH}" if drawn else None,
-        },
-        camera=camera,
-        extent=extent,
-        capsule_file=rob.config.capsules or None,
-    )
+    html_path = None if html is None else _write_html(meshcat, html)
+    paths = {
+        "visual": f"/drake/{VISUAL_PREFIX}",
+        "capsules": None,
+        "com": f"/drake/{COM_PATH}",
+        "support": f"/drake/{SUPPORT_PATH}" if len(support) else None,
+        "environment": f"/drake/{ENVIRONMENT_PATH}" if drawn else None,
+    }
+    if _has_proximity_geometry(rob.scene_graph):
+        paths["capsules"] = f"/drake/{CAPSULES_PREFIX}"
+    return Playback(meshcat=meshcat, url=meshcat.web_url(), html=html_path, num_frames=len(times),
+                    duration=motion.duration, frames_per_second=fps, loops=loop, robot=rob,
+                    com_xy=com_xy, support_polygon=support, paths=paths, camera=camera,
+                    extent=extent, capsule_file=rob.config.capsules or None)
 
 
-def write_playback_html(trajectory_json: str | Path, html_path: str | Path, **kw: Any) -> Path:
-    """Writes a self-contained HTML playback of a trajectory (used by ``pe-drake optimize``).
-
-    Args:
-        trajectory_json: the ``trajectory.json``.
-        html_path: the HTML file to write (atomically).
-        **kw: keyword arguments of :func:`play_trajectory` (``robot``, ``config``,
-            ``show_capsules``, ``rate``, ``meshcat``).
-
-    Returns:
-        The path written.
-
-    Raises:
-        DataError, ConfigError: as :func:`play_trajectory`.
-    """
-    return play_trajectory(trajectory_json, html=html_path, **kw).html
-
-# ---- helpers ------------------------------------------------------------------------------
 def frame_times(duration: float, rate: float) -> tuple[np.ndarray, float]:
     """(frame times [s], frames per second) of a recording of ``duration`` at about ``rate``.
 
-    The recording rate makes frame k fall exactly at t_k = k·T/K, so the clip of a periodic
-    motion ends on the pose it starts with and loops seamlessly.
+    Frame k falls exactly at k·T/K, so a periodic clip ends on its first pose and loops seamlessly.
     """
     num_intervals = max(2, int(round(duration * rate)))
     return np.arange(num_intervals + 1) * (duration / num_intervals), num_intervals / duration
 
 
 def _prepare_meshcat(meshcat: Any, host: str) -> Any:
-    """A new Meshcat listening on ``host`` ("localhost" unless asked otherwise: a playback is
-    not for the whole network), or the given one with our earlier layers and recording
-    deleted."""
+    """A new Meshcat listening on ``host``, or the given one with our earlier layers and
+    recording deleted (recordings merge)."""
     from pydrake.geometry import Meshcat, MeshcatParams  # lazy: pydrake is heavy
 
     if meshcat is None:
@@ -236,7 +165,6 @@ def _prepare_meshcat(meshcat: Any, host: str) -> Any:
             return Meshcat(MeshcatParams(host=host, show_stats_plot=False))
         finally:
             drake_logger.setLevel(level)
-    # A reused instance: drop our earlier layers and recording (recordings merge).
     for path in (VISUAL_PREFIX, CAPSULES_PREFIX, COM_PATH, SUPPORT_PATH, ENVIRONMENT_PATH):
         meshcat.Delete(path)
     meshcat.DeleteRecording()
@@ -244,11 +172,11 @@ def _prepare_meshcat(meshcat: Any, host: str) -> Any:
 
 
 def _record_motion(meshcat, rob, q: np.ndarray, fps: float, loop: bool = True) -> tuple[np.ndarray, np.ndarray]:
-    """Records the frames q as a Meshcat animation with the CoM marker, looping (``loop``)
-    or played once and held at its last frame; leaves the still scene at frame 0.
+    """Records the frames q with the CoM marker, looping or played once and held at its end;
+    leaves the still scene at frame 0.
 
     Returns:
-        (CoM ground projection per frame, shape (len(q), 2) [m]; support polygon, shape (m, 2) [m]).
+        (CoM ground projection per frame, shape (len(q), 2) [m]; support polygon, shape (m, 2)).
     """
     from pydrake.geometry import MeshcatAnimation  # lazy: pydrake is heavy
 
@@ -291,11 +219,7 @@ def _record_motion(meshcat, rob, q: np.ndarray, fps: float, loop: bool = True) -
 
 
 def _draw_surroundings(meshcat, rob, q: np.ndarray, environment):
-    """Draws the environment and frames the camera on the motion.
-
-    Returns:
-        (extent of the motion, (camera position, target), {object: Meshcat path} drawn).
-    """
+    """Draws the environment and frames the camera; returns (extent, camera, {object: path})."""
     extent = motion_extent(rob, q)
     drawn = draw_environment(meshcat, rob, environment, extent)
     return extent, frame_camera(meshcat, extent), drawn
@@ -344,8 +268,8 @@ def _load_robot_with_visualizers(path, data, robot: Robot, config, meshcat, *, f
 
 
 def _visualizer_hook(meshcat, fps: float, show_capsules: bool):
-    """A ``Robot`` builder hook adding Meshcat visualizers: the illustration geometry, and the
-    proximity geometry (capsules) when there is any."""
+    """A ``Robot`` builder hook adding Meshcat visualizers of the illustration geometry and of
+    the proximity geometry (capsules) when there is any."""
     from pydrake.geometry import MeshcatVisualizer, MeshcatVisualizerParams, Rgba, Role  # lazy: pydrake is heavy
 
     def add_visualizers(builder, plant, scene_graph) -> None:
@@ -374,7 +298,7 @@ def _visualizer_hook(meshcat, fps: float, show_capsules: bool):
 
 
 def _has_proximity_geometry(scene_graph) -> bool:
-    """Whether the scene has collision (proximity) geometry: the capsules layer is drawn."""
+    """Whether the scene has proximity geometry (the capsules layer)."""
     from pydrake.geometry import Role  # lazy: pydrake is heavy
 
     return scene_graph.model_inspector().NumGeometriesWithRole(Role.kProximity) > 0
@@ -383,10 +307,9 @@ def _has_proximity_geometry(scene_graph) -> bool:
 def _run_capsule_file(configured: str, data: dict, path, from_file: bool) -> str:
     """The capsule file the run that wrote the trajectory checked, or ``configured``.
 
-    The file the trajectory records (a bare name is the ``fitted_capsules.yaml`` written
-    beside it), else, for a file written before that was recorded, a ``fitted_capsules.yaml``
-    beside it. Without ``--config`` (``from_file``) these win over the robot's default
-    capsules, as the recorded base pose does; with one, its ``robot.capsules`` win.
+    That is the file the trajectory records, else a ``fitted_capsules.yaml`` beside it. Without
+    ``--config`` (``from_file``) it wins over the robot's default capsules; with one,
+    ``robot.capsules`` wins.
     """
     folder = Path(path).resolve().parent
     recorded = data.get("capsules")
@@ -400,18 +323,13 @@ def _run_capsule_file(configured: str, data: dict, path, from_file: bool) -> str
 
 
 def _config_from_file(cfg, data: dict):
-    """The robot config set to what the trajectory file records: its excited joints, locked
-    posture, root link and base pose (limit tables are kept for those joints only)."""
+    """The robot config set to the file's excited joints, locked posture, root link and base
+    pose (limit tables kept for those joints only)."""
     joints = [str(j) for j in data["joints"]]
     keep = set(joints)
     changes: dict[str, Any] = {"joints": joints}
-    for table in (
-        "position_limits",
-        "velocity_limits",
-        "acceleration_limits",
-        "effort_limits",
-        "nominal_positions",
-    ):
+    for table in ("position_limits", "velocity_limits", "acceleration_limits", "effort_limits",
+                  "nominal_positions"):
         changes[table] = {j: v for j, v in getattr(cfg, table).items() if j in keep}
     locked = {j: v for j, v in cfg.locked_positions.items() if j not in keep}
     locked.update({j: float(v) for j, v in (data.get("locked_positions") or {}).items() if j not in keep})
@@ -445,8 +363,7 @@ def _joint_order(path, data: dict, rob) -> np.ndarray:
 
 def write_plan_playback(plan, html_path: str | Path, *, show_capsules: bool = True, rate: float = 30.0) -> Path:
     """Writes the HTML playback of a live :class:`~pe_drake.excitation.motion_plan.MotionPlan`
-    (what ``pe-drake optimize`` shows): its robot config (the capsules it checked, fitted ones
-    included), environment and controller motion, no file re-read."""
+    (``pe-drake optimize``): its robot config, capsules, environment and motion."""
     motion = plan.motion
     times, fps = frame_times(motion.duration, rate)
     meshcat = _prepare_meshcat(None, host="localhost")
@@ -454,6 +371,10 @@ def write_plan_playback(plan, html_path: str | Path, *, show_capsules: bool = Tr
     q = motion.evaluate(times)[0]  # the same config: the same joints in the same order
     _record_motion(meshcat, rob, q, fps, loop=motion.ramp_duration == 0.0)
     _draw_surroundings(meshcat, rob, q, plan.config.environment)
-    path = Path(html_path)
+    return _write_html(meshcat, html_path)
+
+
+def _write_html(meshcat, path: str | Path) -> Path:
+    """Writes the scene and recording as a self-contained offline HTML file, atomically."""
     atomic_write_text(path, meshcat.StaticHtml())
-    return path
+    return Path(path)

@@ -1,16 +1,6 @@
-"""What the Meshcat playback draws around the robot: the environment, the camera, and the ground
-projection of the whole-body CoM with the support area of the feet (:func:`draw_markers`).
-
-:func:`draw_environment` draws the obstacles a config's ``environment`` section names, the
-ones the optimizer kept the capsules away from: the floor of a fixed-base arm (the mounting
-plane of :func:`~pe_drake.excitation.constraints.environment.floor_plane`, a translucent
-square under the robot, Meshcat path ``/drake/environment/floor``) and each box
-(``/drake/environment/boxes/<name>``). :func:`motion_extent` is the box the robot sweeps
-over a motion (link origins and capsules), and :func:`frame_camera` points Meshcat's camera
-at it from a distance that fits it in the view, so a 0.4 m arm fills the frame as a 1.5 m
-humanoid does (Meshcat's default camera is fixed, a few metres out).
-
-Imported lazily by the CLI with :mod:`pe_drake.viewer`, so ``import pe_drake`` stays headless.
+"""What the Meshcat playback draws around the robot: the config's environment (floor and boxes),
+the CoM's ground projection with the feet's support area, and a camera framed on the motion
+(Meshcat's default camera is fixed a few metres out: a 0.4 m arm would be a speck).
 """
 
 from __future__ import annotations
@@ -52,8 +42,6 @@ def draw_environment(meshcat, robot: Robot, environment, extent: tuple[np.ndarra
     """Draws the config's floor (for a fixed-base arm) and boxes, translucent.
 
     Args:
-        meshcat: the ``pydrake.geometry.Meshcat``.
-        robot: the :class:`~pe_drake.multibody.robot.Robot` (its base pose places the floor).
         environment: an :class:`~pe_drake.config.EnvironmentConfig`.
         extent: (lower, upper) corners of what the robot sweeps, each shape (3,) [m]: the
             floor square is centred under it and spans it.
@@ -92,11 +80,9 @@ def draw_environment(meshcat, robot: Robot, environment, extent: tuple[np.ndarra
 
 
 def motion_extent(robot: Robot, q: np.ndarray, max_samples: int = 200) -> tuple[np.ndarray, np.ndarray]:
-    """The axis-aligned box the robot sweeps over the postures q: every body origin and every
-    capsule (its segment ends, grown by its radius), at up to ``max_samples`` of the frames.
+    """The axis-aligned box that body origins and capsules sweep over the postures q.
 
     Args:
-        robot: the :class:`~pe_drake.multibody.robot.Robot`.
         q: postures, shape (T, n) [rad].
         max_samples: frames used, evenly spread (the ends included).
 
@@ -129,13 +115,10 @@ def motion_extent(robot: Robot, q: np.ndarray, max_samples: int = 200) -> tuple[
 def camera_pose(extent: tuple[np.ndarray, np.ndarray], fill: float = 0.9) -> tuple[np.ndarray, np.ndarray]:
     """(camera position, target) in world that fit the box ``extent`` in Meshcat's view.
 
-    The target is the box's centre; the camera looks at it along a fixed direction (front,
-    right, above) from the nearest distance at which every corner c of the box lies within
-    ``fill`` of the half field of view, vertically and horizontally (a browser window is
-    wider than tall, so the vertical angle binds): with c relative to the target, split
-    into its component a along the view direction and its offsets u, v across it, the
-    corner is seen at angle atan(max(|u|, |v|) / (d − a)), so d = max over the corners of
-    a + max(|u|, |v|) / (fill · tan(fov/2)).
+    The camera looks at the box's centre along a fixed direction from the nearest distance d at
+    which every corner (a along the view, offsets u, v across it) is within ``fill`` of the half
+    field of view: d = max over the corners of a + max(|u|, |v|) / (fill · tan(fov/2)) (the
+    vertical angle binds: a browser window is wider than tall).
 
     Args:
         extent: (lower, upper) corners, each shape (3,) [m].
@@ -171,11 +154,8 @@ def _path_name(name: str, index: int) -> str:
 
 
 def support_polygon(rob, plant, plant_context, q0: np.ndarray) -> np.ndarray:
-    """Convex hull (x, y) of the support points in world at q0, shape (m, 2) [m].
-
-    The feet are welded in every built-in config; if an excited joint moves a foot, the area
-    drawn is the one at t = 0.
-    """
+    """Convex hull (x, y) of the support points in world at q0 (the area at t = 0), shape (m, 2)
+    [m]."""
     points = rob.config.support_points or {}
     if not points:
         return np.zeros((0, 2))
@@ -190,14 +170,8 @@ def support_polygon(rob, plant, plant_context, q0: np.ndarray) -> np.ndarray:
 
 
 def convex_hull_2d(points: np.ndarray) -> np.ndarray:
-    """Convex hull of planar points (Andrew's monotone chain).
-
-    Args:
-        points: shape (N, 2).
-
-    Returns:
-        Hull corners counter-clockwise without repetition, shape (m, 2).
-    """
+    """Convex hull of points, shape (N, 2) (Andrew's monotone chain): the corners
+    counter-clockwise without repetition, shape (m, 2)."""
     pts = np.unique(np.asarray(points, float).reshape(-1, 2), axis=0)  # sorted by x, then y
     if len(pts) <= 2:
         return pts
@@ -219,8 +193,7 @@ def _cross(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def draw_markers(meshcat, support: np.ndarray) -> None:
-    """The CoM's ground disc (``/drake/com_projection``) and the support area's polygon and outline
-    (``/drake/support_area``) when it has 3 corners or more."""
+    """Draws the CoM's ground disc, and the support area's polygon and outline (3 corners up)."""
     from pydrake.geometry import Cylinder, Rgba  # lazy: pydrake is heavy
 
     meshcat.Delete(COM_PATH)

@@ -27,7 +27,7 @@ from pe_drake.excitation.ramp import RampedMotion
 from pe_drake.excitation.trajectory_file import save_trajectory
 from pe_drake.multibody.meshes import CACHE_ENV
 from pe_drake.multibody.robot import load_robot
-from pe_drake.viewer import play_trajectory, write_playback_html
+from pe_drake.viewer import play_trajectory
 from pe_drake.viewer_scene import COM_PATH, convex_hull_2d
 
 # ---- reading the HTML -----------------------------------------------------------------------
@@ -332,8 +332,8 @@ def test_capsule_layer_drawn_and_toggleable(panda_traj, tmp_path, monkeypatch):
     monkeypatch.setattr(Robot, "_scene_graph_builder_hook", register)
     for show in (True, False):
         html = tmp_path / f"capsules_{show}.html"
-        playback = write_playback_html(panda_traj[0], html, show_capsules=show, rate=5.0)
-        assert playback == html
+        playback = play_trajectory(panda_traj[0], html=html, show_capsules=show, rate=5.0)
+        assert playback.html == html
         commands = html_commands(html)
         capsules = [
             c for c in commands if c["type"] == "set_object" and c["path"].startswith("/drake/capsules/")
@@ -362,7 +362,7 @@ def test_reused_meshcat_does_not_merge_recordings(panda_traj, tmp_path):
 
 def test_html_written_atomically(panda_traj, tmp_path):
     html = tmp_path / "out" / "play.html"
-    write_playback_html(panda_traj[0], html, rate=5.0)
+    play_trajectory(panda_traj[0], html=html, rate=5.0)
     assert [p.name for p in html.parent.iterdir()] == ["play.html"]
 
 
