@@ -1,8 +1,7 @@
 """Benchmarks that print numbers: ``python -m pe_drake.bench {gradient,identify,diagnose,sensitivity,solve,payload,memory,robots}``.
 
-Each benchmark prints its measurements and ends with one line ``BENCH key=value ...`` so
-scripts can collect it. Timings are wall-clock medians of repeated runs on this machine (``solve``:
-CPU seconds of single runs, :mod:`pe_drake.bench_solve`).
+Each prints its measurements and ends with one line ``BENCH key=value ...`` for scripts.
+Timings are wall-clock medians of repeated runs (``solve``: CPU seconds of single runs).
 """
 
 from __future__ import annotations
@@ -54,11 +53,8 @@ _BENCHMARKS = {
 def median_time(
     function: Callable[[], object], repeats: int = 7, warmup: int = 1, warmup_seconds: float = 1.0
 ) -> float:
-    """Median wall time of ``function()`` over ``repeats`` runs [s], in steady state.
-
-    Runs it ``warmup`` times and for at least ``warmup_seconds`` first: a solver calls the
-    cost hundreds of times in a row, and the first calls pay for cold caches and a CPU that
-    has not yet raised its clock (measured here: up to 2× slower over the first 0.2 s).
+    """Median wall time of ``function()`` over ``repeats`` runs [s], in steady state: after
+    ``warmup`` runs lasting at least ``warmup_seconds`` (cold caches, a CPU not yet at its clock).
     """
     start = time.perf_counter()
     done = 0
@@ -74,9 +70,8 @@ def median_time(
 
 
 def cpu_time_per_call(function: Callable[[], object], calls: int) -> float:
-    """CPU seconds of one ``function()``, from ``time.process_time`` over ``calls`` calls in a
-    row (after a warm-up): on a loaded machine the process's CPU time is disturbed less than a
-    wall-clock median (issue 38)."""
+    """CPU seconds of one ``function()`` over ``calls`` calls after a warm-up (on a loaded
+    machine less disturbed than a wall-clock median)."""
     for _ in range(max(10, calls // 10)):
         function()
     start = time.process_time()
@@ -86,12 +81,9 @@ def cpu_time_per_call(function: Callable[[], object], calls: int) -> float:
 
 
 def bench_gradient(args: argparse.Namespace) -> None:
-    """The paper's problem size: G1's 14 arm joints, N = 10, ω = π/4, T = 40 samples 0.2 s
-    apart (294 variables). Times one cost evaluation, one analytic gradient (value and
-    gradient from scratch), one forward finite-difference gradient, and their difference.
-    Runs as the solvers do: one BLAS thread, freed memory kept for reuse
-    (:mod:`pe_drake.memory`; ``--default-malloc`` leaves glibc's defaults)."""
-
+    """Times the cost, its analytic gradient and a finite-difference one at the paper's size
+    (G1's 14 arm joints, N = 10, ω = π/4, T = 40), as the solvers run (one BLAS thread, freed
+    memory reused unless ``--default-malloc``)."""
     reused = False if args.default_malloc else reuse_freed_memory()
 
     robot = load_robot(args.robot)
@@ -112,27 +104,17 @@ def bench_gradient(args: argparse.Namespace) -> None:
         grad_s = median_time(analytic, repeats=args.repeats)
         grad_cpu_s = cpu_time_per_call(analytic, 20 * args.repeats)
         grad = analytic()
-        h = 1e-6
+        steps = 1e-6 * np.maximum(1.0, np.abs(alpha))
+        units = np.eye(len(alpha))
 
         def forward_difference():
             f0 = problem.value(alpha)
-            out = np.empty_like(alpha)
-            for i in range(len(alpha)):
-                x = alpha.copy()
-                step = h * max(1.0, abs(x[i]))
-                x[i] += step
-                out[i] = (problem.value(x) - f0) / step
-            return out
+            return [(problem.value(alpha + s * e) - f0) / s for s, e in zip(steps, units)]
 
         fd_s = median_time(forward_difference, repeats=1, warmup=0, warmup_seconds=0.0)
         # Accuracy against central differences (forward ones carry O(h) error).
-        central = np.empty_like(alpha)
-        for i in range(len(alpha)):
-            x1, x2 = alpha.copy(), alpha.copy()
-            step = h * max(1.0, abs(alpha[i]))
-            x1[i] += step
-            x2[i] -= step
-            central[i] = (problem.value(x1) - problem.value(x2)) / (2 * step)
+        central = np.array([(problem.value(alpha + s * e) - problem.value(alpha - s * e)) / (2 * s)
+                            for s, e in zip(steps, units)])
     rel_err = float(np.linalg.norm(grad - central) / np.linalg.norm(central))
     print(f"robot {robot.name}: n = {robot.n}, N = 10, T = 40, variables = {problem.num_variables}, "
           f"base parameters = {problem.base.count}, drive terms = {problem.drive.count} ({args.drive_terms}), "
@@ -150,8 +132,6 @@ def bench_gradient(args: argparse.Namespace) -> None:
 
 def bench_identify(args: argparse.Namespace) -> None:
     """Times the identification of 20 s of 1 kHz data of a 7-dof arm (CSV to estimate)."""
-
-
     robot = load_robot(args.robot)
     trajectory_file = Path(__file__).resolve().parent.parent / "tests" / "data" / "panda_optimized.json"
     if robot.name == "panda" and trajectory_file.is_file():
@@ -163,8 +143,7 @@ def bench_identify(args: argparse.Namespace) -> None:
         robot, trajectory, rate_hz=1000.0, duration=20.0, tau_noise_std=0.05, seed=args.seed
     )
     raw_rows = sim.num_samples
-    # Drop v, vd: the user's CSV normally has only q and tau.
-    sim = sim.replace(v=None, vd=None)
+    sim = sim.replace(v=None, vd=None)  # a user's CSV has only q and tau
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "data.csv"
         write_measurement_csv(path, sim)
@@ -191,9 +170,7 @@ def bench_identify(args: argparse.Namespace) -> None:
 
 def bench_trajectory(robot: Robot, seed: int, harmonics: int = 5, period: float = 10.0):
     """A random Fourier trajectory about the nominal posture, as large as the joint limits and
-    self-collision (capsule distance ≥ 2 cm) allow: the simulated robot has the capsules as
-    contact geometry."""
-
+    self-collision (capsule distance ≥ 2 cm: the simulated robot collides) allow."""
     rng = np.random.default_rng(seed)
     n = robot.n
     a, b = rng.uniform(-1, 1, (2, n, harmonics)) / harmonics
@@ -227,11 +204,8 @@ def _capsule_clearance(robot: Robot, q: np.ndarray) -> float:
 
 
 def bench_diagnose(args) -> None:
-    """Diagnosis of 20 s of 1 kHz data on a 7-dof arm (simulated Coulomb + viscous friction
-    on every joint, 3 % inertial error, noise, on a random collision-free trajectory), outputs
-    included; prints the wall time."""
-
-
+    """Times the diagnosis, outputs included, of 20 s of simulated 1 kHz data on a 7-dof arm
+    (Coulomb + viscous friction, 3 % inertial error, noise, a random trajectory)."""
     robot = load_robot(args.robot)
     trajectory = bench_trajectory(robot, args.seed)
     n = robot.n
@@ -262,10 +236,8 @@ def bench_diagnose(args) -> None:
 
 
 def bench_sensitivity(args) -> None:
-    """The diagnosis's false alarms and its smallest effect: 20 clean simulated runs
-    (14 s at 500 Hz, 5 % inertial errors, 0.05 N·m torque noise, 19-bit encoders, seeds
-    seed..seed+19) on ``--trajectory`` (default: a random collision-free one), how many name
-    anything; then a 0.1 N·m offset on every joint in the same conditions, how many are named."""
+    """The diagnosis's false alarms in 20 clean simulated runs of ``--trajectory`` (14 s at
+    500 Hz, 5 % inertial errors, noise), then how many of 0.1 N·m joint offsets it names."""
     robot = load_robot(args.robot)
     trajectory = load_trajectory(args.trajectory)[0] if args.trajectory else bench_trajectory(robot, args.seed)
     noise = NoiseTruth(encoder_counts_per_rev=524288, tau_std=0.05)

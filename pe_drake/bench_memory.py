@@ -1,10 +1,6 @@
 """``python -m pe_drake.bench memory``: peak memory and time of ``identify``, ``validate`` and
-``diagnose`` on Panda logs of 1, 10 and 60 minutes at 1 kHz (``--minutes``).
-
-Each log is one period of a random exciting motion (the model's torques, Coulomb and viscous
-friction, 0.05 N·m of noise drawn afresh for every period) repeated for the duration, written
-as a lab's log is (t, q, tau). Each command runs in its own process through the CLI; its peak
-is that process's maximum resident set size (``getrusage``).
+``diagnose`` on Panda logs of ``--minutes`` at 1 kHz, each command in its own CLI process (its
+peak is that process's maximum resident set size).
 """
 
 from __future__ import annotations
@@ -30,8 +26,8 @@ _PEAK = ("import resource, subprocess, sys; r = subprocess.run(sys.argv[1:]).ret
 
 def write_long_log(path: str | Path, minutes: float, *, rate_hz: float = 1000.0, seed: int = 0,
                    robot_name: str = "panda") -> int:
-    """Writes a ``minutes``-long log (t, q, tau) of a periodic motion, one period at a time (the
-    writer's memory does not grow with the duration). Returns the rows written."""
+    """Writes a ``minutes``-long log (t, q, tau) of a periodic motion with friction and fresh
+    noise per period, one period at a time; returns the rows written."""
     robot = load_robot(robot_name)
     trajectory = bench_trajectory(robot, seed)
     period = 2 * math.pi / trajectory.omega
@@ -52,7 +48,8 @@ def write_long_log(path: str | Path, minutes: float, *, rate_hz: float = 1000.0,
 
 
 def peak_of(argv: list[str]) -> tuple[float, float, int]:
-    """(peak resident memory [MB], wall time [s], exit code) of ``pe-drake argv`` in a new process."""
+    """(peak resident memory [MB], wall time [s], exit code) of ``pe-drake argv`` in a new
+    process."""
     start = time.perf_counter()
     command = [sys.executable, "-c", _PEAK, sys.executable, "-c", "import sys; from pe_drake.cli import main; "
                "sys.exit(main(sys.argv[1:]))", *argv]

@@ -1,13 +1,8 @@
 # ruff: noqa: E501 (URDF/SDF text on one line per link)
-"""Small robots of the kinds issue 37 tried, written as text so that ``python -m pe_drake.bench
-robots`` and the tests can build them without downloads: a SCARA with a vertical prismatic quill
-(URDF or SDF), a two-arm torso on a prismatic lift, a model without any ``<inertial>`` (as
-ROS-Industrial descriptions ship), an arm that can fold onto its base post with a capsule file
-that records its margin, a single vertical lift, and (``bench solve``, issue 38) a 10-joint robot
-nobody tuned pe_drake for: a prismatic lift, a turning torso and two 4-joint arms
-(:func:`write_two_arm_lift_urdf`, loaded with no config, as a user would load an unknown URDF).
-
-Each builder writes the model into ``folder`` and returns its path.
+"""Small unusual robots written as text, so the benchmarks and tests build them without
+downloads: a SCARA, lifts, a model without inertials, a folding arm, a textured xacro, and the
+10-joint two-arm robot nobody tuned pe_drake for (``bench solve``). Each builder writes the model
+into ``folder`` and returns its path.
 """
 
 from __future__ import annotations
@@ -37,9 +32,8 @@ def _fixed(child: str) -> str:
 
 
 def folding_arm(folder: Path, margin: float = 0.05, collision: bool = False) -> tuple[Path, Path]:
-    """A 3-joint arm about x whose hand can fold back onto its base post, and a capsule file that
-    records ``collision_margin`` (as a fitted file does). ``collision``: the URDF has cylinders
-    as collision geometry (capsules can be fitted to them). Returns (urdf, capsule file)."""
+    """A 3-joint arm whose hand can fold onto its base post, and a capsule file recording
+    ``collision_margin``; ``collision``: with collision cylinders. Returns (urdf, capsule file)."""
     shapes = dict(base=(0.325, 0.06, 0.35), l2=(0.15, 0.04, 0.2), hand=(0.08, 0.04, 0.1)) if collision else {}
     inertials = dict(base=(5, "0 0 0.2"), l1=(1.5, "0 0 0.15"), l2=(1.5, "0 0 0.15"), hand=(0.5, "0 0 0.05"))
     links = ['<link name="world"/>'] + [
@@ -70,10 +64,8 @@ def png_1x1() -> bytes:
 
 
 def textured_xacro(folder: Path) -> Path:
-    """:func:`folding_arm` (with collision cylinders) as an Interbotix-style description package:
-    ``arm_description/{package.xml, urdf/arm.urdf.xacro, meshes/skin.png}``, the xacro using a
-    property and a macro, and a material whose ``<texture filename="package://...">`` every
-    link's visual uses (issue 37, item 6). Returns the .urdf.xacro the user names."""
+    """:func:`folding_arm` as a description package ``arm_description/`` whose xacro uses a
+    property and a ``package://`` texture on every visual; returns the .urdf.xacro."""
     package = Path(folder) / "ws" / "arm_description"
     (package / "urdf").mkdir(parents=True, exist_ok=True)
     (package / "meshes").mkdir(exist_ok=True)
@@ -93,7 +85,7 @@ def textured_xacro(folder: Path) -> Path:
 
 
 #: The SCARA's bodies (name, mass [kg], CoM, principal moment [kg·m²]) and joints (name, type,
-#: parent, child, origin, lower, upper): every axis vertical, the quill a prismatic lift.
+#: parent, child, origin, lower, upper): every axis vertical.
 _SCARA_BODIES = (("base", 8.0, "0 0 0.2", 0.1), ("upper", 3.0, "0.2 0 0", 0.02), ("fore", 2.0, "0.15 0 0", 0.01),
                  ("quill", 1.0, "0 0 -0.1", 0.005), ("tool", 0.3, "0 0 -0.02", 0.001))
 _SCARA_JOINTS = (("shoulder", "revolute", "base", "upper", "0 0 0.5", -2.5, 2.5),
@@ -103,8 +95,7 @@ _SCARA_JOINTS = (("shoulder", "revolute", "base", "upper", "0 0 0.5", -2.5, 2.5)
 
 
 def scara(folder: Path, fmt: str = "urdf") -> Path:
-    """A SCARA: two vertical revolute axes, a vertical prismatic quill (it carries its own weight),
-    a vertical wrist and a tool link; every axis parallel to gravity. ``fmt``: "urdf" or "sdf"."""
+    """A SCARA, every axis parallel to gravity, with a prismatic quill; ``fmt``: "urdf" or "sdf"."""
     if fmt == "sdf":
         return _scara_sdf(Path(folder))
     links = ['<link name="world"/>'] + [f'<link name="{n}">{_inertial(m, c, i)}</link>' for n, m, c, i in _SCARA_BODIES]
@@ -137,8 +128,8 @@ def _scara_sdf(folder: Path) -> Path:
 
 
 def dual_arm_lift(folder: Path) -> Path:
-    """A torso on a vertical prismatic lift with two 3-joint arms (shoulder pitch, shoulder roll,
-    elbow), collision cylinders on every link (capsules are fitted to them)."""
+    """A torso on a vertical prismatic lift with two 3-joint arms, collision cylinders on every
+    link."""
     links = ['<link name="world"/>', f'<link name="column">{_inertial(20, "0 0 0.4", 0.5)}{_cylinder(0.4, 0.08, 0.7)}</link>',
              f'<link name="torso">{_inertial(8, "0 0 0.15", 0.1)}{_cylinder(0.15, 0.1, 0.25)}</link>']
     joints = [_fixed("column"),
@@ -210,10 +201,9 @@ def _box_link(name: str, mass: float, centre: str, size: str, inertia: tuple[flo
     )
 
 
-def two_arm_lift_urdf() -> str:
-    """URDF text of the 10-joint two-arm robot (module docstring): joints ``lift``
-    (prismatic, z, 0–0.4 m), ``torso_yaw`` and ``{left,right}_{shoulder_pitch,shoulder_roll,
-    elbow,wrist}``."""
+def write_two_arm_lift_urdf(folder: str | Path) -> Path:
+    """Writes ``two_arm_lift.urdf``: joints ``lift`` (prismatic, z, 0–0.4 m), ``torso_yaw`` and
+    ``{left,right}_{shoulder_pitch,shoulder_roll,elbow,wrist}``."""
     links = [
         _box_link("base", 20.0, "0 0 0.3", "0.4 0.4 0.6", (1.0, 1.0, 1.0)),
         _box_link("carriage", 6.0, "0 0 0.1", "0.3 0.3 0.2", (0.08, 0.06, 0.05)),
@@ -241,11 +231,6 @@ def two_arm_lift_urdf() -> str:
             )
             parent, origin = child, f"0 0 {-length:.3f}"
     body = "\n  ".join(links + joints)
-    return f'<?xml version="1.0"?>\n<robot name="two_arm_lift">\n  {body}\n</robot>\n'
-
-
-def write_two_arm_lift_urdf(folder: str | Path) -> Path:
-    """Writes :func:`two_arm_lift_urdf` as ``two_arm_lift.urdf`` in ``folder``; returns its path."""
     path = Path(folder) / "two_arm_lift.urdf"
-    path.write_text(two_arm_lift_urdf())
+    path.write_text(f'<?xml version="1.0"?>\n<robot name="two_arm_lift">\n  {body}\n</robot>\n')
     return path

@@ -1,9 +1,6 @@
-"""``python -m pe_drake.bench payload``: payload excitation and identification, timed, with errors.
-
-On a true arm that differs from the URDF (inertias ±5 %, Coulomb and viscous friction on every
-joint), random box payloads (0.3–3 kg, CoM up to 0.1 m off the flange axis) on the robot's
-flange, torque noise 0.03–0.05 N·m at 1 kHz: the optimized payload motion, then the paired
-fit (loaded + an unloaded run of the same motion, not sample-aligned) and the loaded run alone.
+"""``python -m pe_drake.bench payload``: payload excitation and identification, timed, with errors
+for random box payloads on a true arm that differs from its URDF: the paired fit (loaded and
+unloaded runs) and the loaded run alone.
 """
 
 from __future__ import annotations

@@ -1,36 +1,19 @@
 """Configuration dataclasses and their YAML loader.
 
-A config file maps onto :class:`Config` through Drake's ``yaml_load_typed`` (unknown keys are
-refused). Drake fills dataclasses by attribute assignment, so these are plain dataclasses
-validated by :func:`validate_config` right after loading (and by every public entry point).
-Units are SI and written next to each field.
+A config file maps onto :class:`Config` through Drake's ``yaml_load_typed``, which fills
+dataclasses by attribute assignment: so they are plain dataclasses, checked by
+:func:`validate_config` after loading (and by every public entry point). Units are SI.
 """
 
-
-
 import dataclasses
-import difflib
 import math
 import re
 from pathlib import Path
-from typing import Any
-
 
 from pe_drake.config_sections import (  # noqa: F401  (re-exported: config.X keeps working)
-    DATA_FORMATS,
-    EFFORT_KINDS,
-    CoMBoxConfig,
-    ControllerConfig,
-    DataConfig,
-    IdentificationConfig,
-    JointMapConfig,
-    TransmissionConfig,
-    NoiseStdConfig,
-    check_finite,
-    check_fraction,
-    validate_identification,
-    validate_log_sections,
-)
+    DATA_FORMATS, EFFORT_KINDS, ControllerConfig, DataConfig, IdentificationConfig, JointMapConfig,
+    NoiseStdConfig, TransmissionConfig, check_choice, check_finite, check_fraction,
+    validate_identification, validate_log_sections)
 from pe_drake.exceptions import ConfigError, shorten
 from pe_drake.yaml_check import key_line, load_yaml_typed
 
@@ -39,55 +22,35 @@ from pe_drake.yaml_check import key_line, load_yaml_typed
 class RobotConfig:
     """Which model to load, which joints to excite, how to hold the rest.
 
+    Joint tables are {joint: value} in [rad] or [m] (per second, s², s³ for rates); a limit
+    table may only tighten the model's limits, or replace a zero placeholder.
+
     Attributes:
-        model: URDF/SDF path, or ``package://example-robot-data/...``. Relative paths are
-            resolved against the config file's folder.
-        joints: the excited joints; empty means every movable joint of the model.
-        locked_positions: posture of the joints that are not excited, {joint: value} [rad or
-            m]; joints not listed are locked at 0 (or the nearest limit).
-        root_link: the link welded to the world; empty means the model's root link.
-        base_position: position of the root link's origin in world [m]. It replaces the
-            origin of a URDF's fixed joint to a ``world`` link (a URDF that is already
-            welded to the world is mounted here too; a movable world joint is refused).
-        base_quaternion_wxyz: orientation of the root link in world (w, x, y, z), e.g.
-            [0, 1, 0, 0] for a ceiling mount; replaces a fixed world joint's rpy likewise.
-        position_limits: {joint: [lower, upper]} [rad or m]: tightens the model's limits, or
-            replaces a zero-width placeholder (lower == upper); a wider range is refused.
-        velocity_limits: {joint: limit} [rad/s or m/s]: tightens the model's limit, or
-            replaces a zero placeholder; a higher value is refused.
-        acceleration_limits: {joint: limit} [rad/s² or m/s²]; unlisted joints get
-            ``default_acceleration_limit``.
-        default_acceleration_limit: [rad/s² or m/s²].
-        effort_limits: {joint: limit} [N·m or N], tightens the model's limits.
-        position_margin: kept away from each position limit [rad or m].
-        velocity_scale: fraction (0, 1] of the velocity limit used.
-        acceleration_scale: fraction (0, 1] of the acceleration limit used.
-        effort_scale: fraction (0, 1] of the effort limit used (torque constraint).
-        nominal_positions: {joint: value} posture of the excited joints the optimizer starts
-            from (q0 of Eq. 50) [rad or m]; unlisted joints start mid-range.
+        model: URDF/SDF path (relative to the config file), or ``package://...``.
+        joints: the excited joints; empty: every movable joint of the model.
+        locked_positions: posture of the other joints; unlisted ones at 0 (or the nearest limit).
+        root_link: the link welded to the world; empty: the model's root link.
+        base_position: the root link's origin in world [m]; replaces a URDF's fixed world joint.
+        base_quaternion_wxyz: the root link's orientation in world, e.g. [0, 1, 0, 0] for a
+            ceiling mount.
+        default_acceleration_limit: for joints not in ``acceleration_limits``.
+        position_margin: kept away from each position limit.
+        velocity_scale, acceleration_scale, effort_scale: fraction (0, 1] of each limit used.
+        nominal_positions: posture the optimizer starts from (q0 of Eq. 50); unlisted joints
+            start mid-range.
         capsules: capsule file for self-collision (relative to the config file), or empty.
-        packages: {package: folder} of the ``package://`` URIs (and xacro ``$(find)``) of
-            the model, relative to the config file; packages not listed are found above the
-            model file, in ROS_PACKAGE_PATH and in AMENT_PREFIX_PATH
-            (pe_drake/multibody/packages.py).
-        support_points: contact points of the feet for the balance constraint, as
-            {link: [[x, y, z], ...]} in the link frame [m]; empty means no balance
-            constraint is available.
-        drive_gains: {joint: k} [N·m/A or N/A]: joint torque per motor current, τ = k·i, for
-            logs with ``current.<joint>`` columns.
-        transmission: gear ratios and coupling of the motors (:class:`TransmissionConfig`): a
-            motor-side log (``q_motor.*``, ``tau_motor.*``) is converted with them.
-        jerk_limits: {joint: limit} [rad/s³ or m/s³]: checked on the exported controller goal
-            (Franka refuses 3750-10000 rad/s³); empty: not checked.
-        notes: what pe_drake chose for a model given without a config (a standing humanoid's
-            excited joints and feet), printed with the robot's notes by every command.
-        trust_xacro: expand a xacro model with xacro's full Python (``$(eval)`` builtins,
-            ``load_yaml``, ``$(env)``); by default those are refused, because a xacro is a program
-            (pe_drake/multibody/xacro_sandbox.py). Set it only for files whose author you trust.
-        assumed: the fields of :data:`SAFE_DEFAULTS` that pe_drake set because no config
-            gave them (a model path given without a config, or with one that leaves them
-            out); the robot prints them once, and an assumed position margin is cut to a
-            quarter of a joint's range where four margins do not fit (a gripper finger).
+        support_points: {link: [[x, y, z], ...]} contact points of the feet in the link frame
+            [m], for the balance constraint.
+        packages: {package: folder} of the model's ``package://`` URIs, relative to the config
+            file; unlisted ones are searched (pe_drake/multibody/packages.py).
+        drive_gains: {joint: k} [N·m/A or N/A], τ = k·i for logs with ``current.*`` columns.
+        jerk_limits: checked on the exported controller goal; empty: not checked.
+        transmission: gear ratios and coupling converting a motor-side log.
+        notes: what pe_drake chose for a model given without a config, printed by every command.
+        assumed: the :data:`SAFE_DEFAULTS` fields pe_drake set because no config gave them; an
+            assumed position margin is cut to a quarter of a joint's range where it does not fit.
+        trust_xacro: expand a xacro with xacro's full Python (``$(eval)``, ``load_yaml``,
+            ``$(env)``), refused by default because a xacro is a program. Only for trusted files.
     """
 
     model: str = ""
@@ -119,13 +82,12 @@ class RobotConfig:
     trust_xacro: bool = False
 
 
-#: The shipped robots' conservative limits (models/panda.yaml, ur5.yaml), given to a model
-#: path without a config that sets them: position margin [rad or m] and velocity fraction.
-#: RobotConfig's own defaults (0 and 1) stay what a config file starts from.
+#: The shipped robots' conservative limits, given to a model path without a config that sets
+#: them: position margin [rad or m] and velocity fraction (a config file starts from 0 and 1).
 SAFE_DEFAULTS = {"position_margin": 0.05, "velocity_scale": 0.8}
 
 
-#: Largest solver.max_iterations: IPOPT and NLopt take a C int (1e35 was an IPOPT option error).
+#: Largest solver.max_iterations: IPOPT and NLopt take a C int.
 MAX_ITERATIONS = 2**31 - 1
 
 
@@ -136,33 +98,23 @@ class ExcitationConfig:
     Attributes:
         harmonics: N in Eq. (50).
         omega: base angular frequency ω [rad/s]; the period is 2π/ω.
-        cost_samples: T, samples of the regressor stacked in C (Eq. 3), evenly spread over
-            one period.
+        cost_samples: T, samples stacked in C (Eq. 3), evenly spread over one period.
         constraint_samples: K, samples where the limits are imposed (Eq. 51).
-        criterion: "soft_cond" (default: a smooth upper bound of cond(C) whose minimizer
-            has a lower cond, reached in fewer iterations), "cond" (Eq. 5 exactly, the
-            paper's), "log_cond", or "dopt" (-log det CᵀC); see
-            :mod:`pe_drake.excitation.criteria`. cond(C) is reported whichever is minimized.
+        criterion: "soft_cond" (a smooth upper bound of cond(C), fewer iterations), "cond"
+            (Eq. 5, the paper's), "log_cond" or "dopt" (-log det CᵀC).
         rest_at_ends: start and end with zero velocity and acceleration.
         amplitude: scale of the random initial coefficients [rad].
         balance_radius: r of Eq. (52) [m]; 0 disables the balance constraint.
         collision_margin: minimum distance between capsules (Eq. 53) [m]; negative disables.
-        torque_limits: also keep the a-priori model's joint torques within the effort
-            limits (``robot.limits.effort_max``: the model's, scaled by ``effort_scale``).
-        seed: random seed of the initial point.
-        periods: N, periods of the optimized path in trajectory.csv (the cost uses one).
-        ramp: trajectory.csv starts and ends at rest: a ramp-in and a ramp-out that are a
-            time scaling of the path (pe_drake/excitation/ramp.py).
-        measurement: what the identification will measure, the rows of C:
-            "joint_torque" (Eq. 1), "base_wrench" (the ground wrench on a robot whose
-            root link stands on the ground: foot force/torque sensors or a force plate) or
-            "both".
-        noise_std: the sensors' noise, :class:`NoiseStdConfig` (row weights).
-        drive_terms: identify's drive terms as columns of C too: "none" (default: the
-            base parameters alone, as in the paper), "friction" (Coulomb, viscous, offset
-            per joint) or "all" (also the armature where separable); see
-            :mod:`pe_drake.excitation.drive_block`. Not with ``base_wrench`` (the ground
-            wrench does not see joint friction).
+        torque_limits: also keep the a-priori model's torques within ``robot.limits.effort_max``.
+        periods: periods of the optimized path in trajectory.csv (the cost uses one).
+        ramp: trajectory.csv starts and ends at rest (a time scaling of the path).
+        measurement: the rows of C: "joint_torque" (Eq. 1), "base_wrench" (the ground wrench on
+            a robot standing on the ground) or "both".
+        noise_std: the sensors' noise (row weights).
+        drive_terms: identify's drive terms as columns of C too: "none" (the paper's),
+            "friction" (Coulomb, viscous, offset) or "all" (also the armature where separable).
+            Not with ``base_wrench``, which does not see joint friction.
     """
 
     harmonics: int = 10
@@ -188,14 +140,12 @@ class SolverConfig:
     """Which solver and its options.
 
     Attributes:
-        name: "ipopt" or "nlopt".
-        algorithm: NLopt algorithm ("LD_SLSQP" or "LD_MMA"); ignored by IPOPT.
+        algorithm: NLopt algorithm; ignored by IPOPT.
         max_iterations: iteration limit (IPOPT) or evaluation limit (NLopt).
         tolerance: relative tolerance.
-        max_time: wall-time limit [s]; 0 means none.
-        verbose: print progress (iteration, cost, worst constraint violation).
-        ipopt_options: further IPOPT options {name: value} set after pe_drake's own (values
-            are written as text: "6", "1e-8", "matching"; numbers are passed as numbers).
+        max_time: wall-time limit [s]; 0: none.
+        ipopt_options: further IPOPT options {name: value as text} set after pe_drake's own
+            (numbers are passed as numbers).
     """
 
     name: str = "ipopt"
@@ -209,13 +159,7 @@ class SolverConfig:
 
 @dataclasses.dataclass
 class BoxConfig:
-    """An axis-aligned box obstacle (a table, a wall) in world.
-
-    Attributes:
-        center: [x, y, z] [m].
-        size: full edge lengths [sx, sy, sz] [m].
-        name: for reports.
-    """
+    """An axis-aligned box obstacle in world: ``center`` [m], full edge lengths ``size`` [m]."""
 
     center: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
     size: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
@@ -224,17 +168,13 @@ class BoxConfig:
 
 @dataclasses.dataclass
 class EnvironmentConfig:
-    """The robot's surroundings, kept ``max(excitation.collision_margin, 0)`` away from every
-    capsule (pe_drake/excitation/constraints/environment.py).
+    """The robot's surroundings, kept ``max(excitation.collision_margin, 0)`` from every capsule.
 
     Attributes:
-        floor: a floor under a fixed-base arm (a robot without ``robot.support_points``);
-            a humanoid's floor is its soles' plane and balance keeps it there.
-        floor_height: z of the floor in world for an upright base [m]; null (the default)
-            means the base's support plane, through the root link's origin. The floor is
-            the mounting plane: normal to the base's z axis (a ceiling for an upside-down
-            base), shifted along that axis by floor_height − base_position z.
-        boxes: obstacles.
+        floor: a floor under a fixed-base arm (a robot without ``robot.support_points``).
+        floor_height: z of the floor in world for an upright base [m]; null: through the root
+            link's origin. The floor is normal to the base's z axis (a ceiling for an
+            upside-down base).
     """
 
     floor: bool = True
@@ -244,22 +184,15 @@ class EnvironmentConfig:
 
 @dataclasses.dataclass
 class ParallelConfig:
-    """Where the independent solves of a multi-start run (``pe-drake optimize``).
-
-    Not frozen: Drake's ``yaml_load_typed`` fills dataclasses by attribute assignment.
+    """Where the independent solves of a multi-start run.
 
     Attributes:
-        executor: "local" (a process pool on this machine) or "ray" (a Ray cluster).
-        address: Ray cluster address, e.g. "10.0.0.1:6379" or "ray://head:10001"; empty:
-            ``ray.init()``'s default (the cluster started on this machine with ``ray start``,
-            else a new local instance).
+        executor: "local" (a process pool) or "ray" (a Ray cluster).
+        address: Ray cluster address, e.g. "ray://head:10001"; empty: ``ray.init()``'s default.
         starts: random starts; start k uses seed ``excitation.seed + k``.
-        workers: starts at once; 0: the cores available (the cluster's CPUs on Ray), at most
-            ``starts``; the local executor never runs more than the cores available.
-        hung_after_s: a worker whose start sends no progress for this long [s] is declared
-            hung: it is stopped, that start fails, the others go on; 0: never. A running
-            solve reports every few seconds. Not checked when the starts run in this
-            process (one worker).
+        workers: starts at once; 0: the cores available, at most ``starts``.
+        hung_after_s: a worker silent this long [s] is stopped and its start fails; 0: never
+            (not checked with one worker, in this process).
     """
 
     executor: str = "local"
@@ -297,13 +230,9 @@ def validate_config(config: Config) -> Config:
         ConfigError: naming the field and the bad value.
     """
     r, e, s = config.robot, config.excitation, config.solver
-    for name, table in (
-        ("robot.velocity_limits", r.velocity_limits),
-        ("robot.acceleration_limits", r.acceleration_limits),
-        ("robot.effort_limits", r.effort_limits),
-    ):
-        for joint, value in table.items():
-            check_finite(f"{name}['{joint}']", value, positive=True)
+    for name in ("velocity_limits", "acceleration_limits", "effort_limits"):
+        for joint, value in getattr(r, name).items():
+            check_finite(f"robot.{name}['{joint}']", value, positive=True)
     for joint, pair in r.position_limits.items():
         if len(pair) != 2:
             raise ConfigError(f"robot.position_limits['{joint}'] must be [lower, upper]")
@@ -341,20 +270,14 @@ def validate_config(config: Config) -> Config:
     if not isinstance(e.cost_samples, int) or e.cost_samples < 1:
         raise ConfigError(f"excitation.cost_samples must be a positive integer, got {e.cost_samples!r}")
     if not isinstance(e.constraint_samples, int) or e.constraint_samples < 2:
-        raise ConfigError(
-            f"excitation.constraint_samples must be an integer >= 2, got {e.constraint_samples!r}"
-        )
-    if e.criterion not in CRITERIA:
-        close = difflib.get_close_matches(str(e.criterion), CRITERIA, n=1)
-        hint = f" (did you mean '{close[0]}'?)" if close else ""
-        raise ConfigError(f"excitation.criterion '{shorten(e.criterion)}' is not one of {', '.join(CRITERIA)}{hint}")
+        raise ConfigError(f"excitation.constraint_samples must be an integer >= 2, "
+                          f"got {e.constraint_samples!r}")
+    check_choice("excitation.criterion", e.criterion, CRITERIA, suggest=True)
     check_finite("excitation.amplitude", e.amplitude, positive=True)
     check_finite("excitation.balance_radius", e.balance_radius, nonneg=True)
     check_finite("excitation.collision_margin", e.collision_margin)
-    if e.measurement not in MEASUREMENTS:
-        raise ConfigError(f"excitation.measurement '{shorten(e.measurement)}' is not one of {', '.join(MEASUREMENTS)}")
-    if e.drive_terms not in ("none", "friction", "all"):
-        raise ConfigError(f"excitation.drive_terms '{shorten(str(e.drive_terms))}' is not one of none, friction, all")
+    check_choice("excitation.measurement", e.measurement, MEASUREMENTS)
+    check_choice("excitation.drive_terms", e.drive_terms, ("none", "friction", "all"))
     if e.drive_terms != "none" and e.measurement == "base_wrench":
         raise ConfigError("excitation.drive_terms (--drive-terms) needs joint-torque rows: the ground wrench "
                           "(measurement: base_wrench) does not see joint friction; use measurement: both "
@@ -365,12 +288,8 @@ def validate_config(config: Config) -> Config:
     for name in ("force", "moment"):
         check_finite(f"excitation.noise_std.{name}", getattr(e.noise_std, name), positive=True)
 
-    if s.name not in SOLVERS:
-        raise ConfigError(f"solver.name '{shorten(s.name)}' is not one of {', '.join(SOLVERS)}")
-    if s.algorithm not in NLOPT_ALGORITHMS:
-        raise ConfigError(
-            f"solver.algorithm '{shorten(s.algorithm)}' is not one of {', '.join(NLOPT_ALGORITHMS)}"
-        )
+    check_choice("solver.name", s.name, SOLVERS)
+    check_choice("solver.algorithm", s.algorithm, NLOPT_ALGORITHMS)
     if isinstance(s.max_iterations, bool) or not isinstance(s.max_iterations, int) or not 1 <= s.max_iterations <= MAX_ITERATIONS:
         raise ConfigError(f"solver.max_iterations must be an integer from 1 to {MAX_ITERATIONS} (the solvers take a "
                           f"32-bit count), got {shorten(repr(s.max_iterations))}")
@@ -421,8 +340,7 @@ def _validate_safety(config: Config) -> None:
 
 
 def _validate_parallel(p: ParallelConfig) -> None:
-    if p.executor not in EXECUTORS:
-        raise ConfigError(f"parallel.executor '{shorten(p.executor)}' is not one of {', '.join(EXECUTORS)}")
+    check_choice("parallel.executor", p.executor, EXECUTORS)
     if p.address and p.executor != "ray":
         raise ConfigError(f"parallel.address '{shorten(p.address)}' needs parallel.executor: ray (it is '{shorten(p.executor)}')")
     if isinstance(p.starts, bool) or not isinstance(p.starts, int) or p.starts < 1:
@@ -433,12 +351,7 @@ def _validate_parallel(p: ParallelConfig) -> None:
 
 
 def load_config(path: str | Path, base: Config | None = None) -> Config:
-    """Reads a YAML config file onto :class:`Config` and validates it.
-
-    Args:
-        path: the YAML file.
-        base: defaults to start from (e.g. a built-in robot's config); keys in the file
-            override them.
+    """Reads a YAML config file onto :class:`Config` (starting from ``base``) and validates it.
 
     Raises:
         ConfigError: missing file, unknown key, wrong type, or invalid value.
@@ -465,8 +378,3 @@ def _resolve_paths(robot: RobotConfig, folder: Path) -> None:
     robot.packages = {
         name: str((folder / Path(value).expanduser()).resolve()) for name, value in robot.packages.items()
     }
-
-
-def to_dict(obj: Any) -> Any:
-    """A dataclass as plain dicts/lists (for JSON reports)."""
-    return dataclasses.asdict(obj)

@@ -1,8 +1,9 @@
-"""The config sections of logs in, motions out, sensor noise and identification (issues 22, 23),
-and the number checks every section uses. :mod:`pe_drake.config` assembles them into ``Config``.
+"""The config sections of logs in, motions out, sensor noise and identification, and the value
+checks every section uses. :mod:`pe_drake.config` assembles them into ``Config``.
 """
 
 import dataclasses
+import difflib
 import math
 from collections.abc import Sequence
 from typing import Any, Optional
@@ -13,17 +14,12 @@ from pe_drake.exceptions import ConfigError, shorten
 
 
 def check_finite(name: str, value: Any, *, positive: bool = False, nonneg: bool = False) -> float:
-    """Checks that a configuration value is a finite number (not a bool).
+    """Checks that a configuration value is a finite number (not a bool); returns it as a float.
 
     Args:
-        name: the field as the user wrote it (e.g. ``excitation.omega`` or ``cutoff_hz``),
-            with its unit when it helps.
-        value: the value to check.
+        name: the field as the user wrote it (``excitation.omega``), with its unit when it helps.
         positive: also require value > 0.
         nonneg: also require value >= 0.
-
-    Returns:
-        The value as a float.
 
     Raises:
         ConfigError: naming the field and the bad value.
@@ -51,12 +47,22 @@ def check_fraction(name: str, value: Any) -> float:
     return value
 
 
+def check_choice(name: str, value: Any, choices: Sequence[str], suggest: bool = False) -> None:
+    """Checks that a configuration value is one of ``choices`` (``suggest``: the closest one).
+
+    Raises:
+        ConfigError: naming the field, the bad value and the choices.
+    """
+    if value in choices:
+        return
+    close = difflib.get_close_matches(str(value), choices, n=1) if suggest else []
+    hint = f" (did you mean '{close[0]}'?)" if close else ""
+    raise ConfigError(f"{name} '{shorten(value)}' is not one of {', '.join(choices)}{hint}")
 
 @dataclasses.dataclass
 class JointMapConfig:
-    """A log's joint names and signs → the robot's: ``strip_prefix`` (``tf_prefix``,
-    ``arm_``) is removed, then ``rename`` {logged: URDF name} applies; the position becomes
-    ``sign·q + offset`` [rad or m] per URDF joint (v, v̇, τ are multiplied by the sign)."""
+    """A log's joint names and signs → the robot's: ``strip_prefix`` is removed, then ``rename``
+    {logged: URDF name} applies; q becomes ``sign·q + offset`` [rad or m] (v, v̇, τ: × sign)."""
 
     strip_prefix: str = ""
     rename: dict[str, str] = dataclasses.field(default_factory=dict)
@@ -73,12 +79,10 @@ class DataConfig:
     """How measured logs are read.
 
     Attributes:
-        format: one of :data:`DATA_FORMATS` (``auto``: a bag, an RTDE CSV by its columns,
-            ``columns`` when given, else pe_drake's CSV).
+        format: one of :data:`DATA_FORMATS` (``auto``: told by the file and ``columns``).
         topic: the bag's JointState topic; empty: the only one.
         effort: a bag's ``effort`` is ``torque`` [N·m] or ``current`` [A] (× robot.drive_gains).
         max_gap_s: longest hole in t interpolated [s]; a longer one splits the run.
-        joint_map: :class:`JointMapConfig`.
         columns: {``t`` | ``q|v|vdot|tau|current.<joint>``: column} for other CSVs.
     """
 
@@ -92,9 +96,8 @@ class DataConfig:
 
 @dataclasses.dataclass
 class ControllerConfig:
-    """The goal ``optimize`` writes for a ros2_control controller: waypoints at
-    ``goal_rate_hz`` [Hz], ``lead_in_s`` [s] added to every ``time_from_start``, the MCAP bag's
-    JointTrajectory ``topic``, ``joint_names`` {URDF joint: the driver's name}."""
+    """The ros2_control goal ``optimize`` writes: waypoints at ``goal_rate_hz`` [Hz], ``lead_in_s``
+    [s] added to every ``time_from_start``, ``joint_names`` {URDF joint: the driver's name}."""
 
     goal_rate_hz: float = 50.0
     lead_in_s: float = 1.0
@@ -104,13 +107,11 @@ class ControllerConfig:
 
 @dataclasses.dataclass
 class TransmissionConfig:
-    """Gear ratios and coupling between motors and joints (``robot.transmission``,
-    :mod:`pe_drake.multibody.transmission`): θ_m = R q, τ = Rᵀ τ_m.
+    """Gear ratios and coupling between motors and joints: θ_m = R q, τ = Rᵀ τ_m.
 
     Attributes:
         ratios: {joint: ratio} [rad of its motor per rad of the joint]; unlisted joints 1.
-        coupling: {joint: {other joint: R entry}}: the motor of ``joint`` also turns with the
-            other joint (θ_m = ratio·q + Σ entry·q_other).
+        coupling: {joint: {other joint: R entry}}: θ_m = ratio·q + Σ entry·q_other.
     """
 
     ratios: dict[str, float] = dataclasses.field(default_factory=dict)
@@ -119,12 +120,7 @@ class TransmissionConfig:
 
 @dataclasses.dataclass
 class CoMBoxConfig:
-    """Where a link's centre of mass may be, in the link's frame (``identification.boxes``).
-
-    Attributes:
-        center: [x, y, z] [m].
-        size: full edge lengths [sx, sy, sz] [m].
-    """
+    """Where a link's CoM may be, in its frame: ``center`` [m], full edge lengths ``size`` [m]."""
 
     center: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
     size: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
@@ -135,14 +131,13 @@ class IdentificationConfig:
     """What ``pe-drake identify`` models and the bounds of its physical fit.
 
     Attributes:
-        drive_terms: "all" (default: Coulomb and viscous friction and a torque offset per
-            joint, and the armature where the kinematics separate it from the link inertias),
-            "friction" (no armature) or "none" (rigid body only); ``--drive-terms`` overrides.
-        coulomb_velocity_scale: v_s of the Coulomb column tanh(v/v_s) [rad/s]; unset: the one
-            default, :data:`pe_drake.multibody.drive_columns.COULOMB_VELOCITY_SCALE`.
+        drive_terms: "all" (Coulomb and viscous friction, a torque offset, and the armature
+            where separable), "friction" (no armature) or "none" (rigid body only).
+        coulomb_velocity_scale: v_s of the Coulomb column tanh(v/v_s) [rad/s]; unset:
+            :data:`pe_drake.multibody.drive_columns.COULOMB_VELOCITY_SCALE`.
         total_mass: [lo, hi] of the summed mass of the moving links [kg]; empty: no bound.
         mass_bounds: {link: [lo, hi]} [kg].
-        boxes: {link: CoM box in the link's frame [m]}: the CoM stays inside.
+        boxes: {link: box the CoM stays in}.
     """
 
     drive_terms: str = "all"
@@ -150,7 +145,6 @@ class IdentificationConfig:
     total_mass: list[float] = dataclasses.field(default_factory=list)
     mass_bounds: dict[str, list[float]] = dataclasses.field(default_factory=dict)
     boxes: dict[str, CoMBoxConfig] = dataclasses.field(default_factory=dict)
-
 
 
 def validate_log_sections(r, d: "DataConfig", c: "ControllerConfig") -> None:
@@ -164,9 +158,8 @@ def validate_log_sections(r, d: "DataConfig", c: "ControllerConfig") -> None:
     for motor, row in r.transmission.coupling.items():
         for joint, value in row.items():
             check_finite(f"robot.transmission.coupling['{motor}']['{joint}']", value)
-    for name, value, choices in (("format", d.format, DATA_FORMATS), ("effort", d.effort, EFFORT_KINDS)):
-        if value not in choices:
-            raise ConfigError(f"data.{name} '{shorten(value)}' is not one of {', '.join(choices)}")
+    check_choice("data.format", d.format, DATA_FORMATS)
+    check_choice("data.effort", d.effort, EFFORT_KINDS)
     check_finite("data.max_gap_s [s]", d.max_gap_s, nonneg=True)
     for joint, value in d.joint_map.sign.items():
         if value not in (1, -1):
@@ -203,22 +196,18 @@ def validate_identification(c: IdentificationConfig) -> None:
             check_finite(f"identification.boxes['{link}'].size", v, nonneg=True)
 
 
-#: Default joint-torque noise σ [N·m], every joint: the order of a joint-torque sensor's
-#: noise after the identification's low-pass filter.
+#: Default joint-torque noise σ [N·m]: a joint-torque sensor's after the low-pass filter.
 DEFAULT_NOISE_STD = 0.05
 
 
 @dataclasses.dataclass
 class NoiseStdConfig:
-    """Sensor noise σ of each measured quantity: the row weights of C.
-
-    Rows divided by their σ make cond(C) independent of units and of the sensor mix.
+    """Sensor noise σ of each measured quantity: the row weights of C (rows divided by their σ
+    make cond(C) independent of units and of the sensor mix).
 
     Attributes:
-        torque: joint-torque noise [N·m or N]: one value for every joint, or {joint: value}
-            (``all`` for the joints not named). It weighs the torque rows against the wrench
-            rows (``measurement: both``), weighs joints against each other, and sets the
-            quality figures ``optimize`` reports (:mod:`pe_drake.excitation.quality`).
+        torque: joint-torque noise [N·m or N]: one value, or {joint: value} (``all`` for the
+            joints not named); also sets the quality figures ``optimize`` reports.
         force: force noise of the ground-wrench sensor [N].
         moment: moment noise of the ground-wrench sensor [N·m].
     """
@@ -229,17 +218,14 @@ class NoiseStdConfig:
 
 
 def noise_vector(noise_std, joint_names: Sequence[str]) -> np.ndarray:
-    """σ_j per joint from the config's ``excitation.noise_std.torque``.
+    """σ_j per joint, shape (n,), from ``excitation.noise_std.torque``.
 
     Args:
-        noise_std: one value for every joint; a {joint: value} table (the key ``all`` sets
-            the joints not named); a sequence with one value per joint; or None
-            (:data:`DEFAULT_NOISE_STD`) [N·m or N].
-        joint_names: the excited joints, length n.
+        noise_std: one value; a {joint: value} table (``all``: the joints not named); one value
+            per joint; or None (:data:`DEFAULT_NOISE_STD`) [N·m or N].
 
     Raises:
-        ConfigError: an unknown joint, a sequence whose length is not n, or a value that is not
-            a positive finite number (naming the joint).
+        ConfigError: an unknown joint, a wrong count, or a value that is not positive (named).
     """
     joints = list(joint_names)
     n = len(joints)

@@ -1,7 +1,5 @@
-"""Exceptions raised by pe_drake.
-
-Every error a user can cause derives from :class:`PeDrakeError`, so a caller (or the CLI)
-can catch one type. Subclasses carry the offending values as attributes.
+"""Exceptions raised by pe_drake: every error a user can cause derives from
+:class:`PeDrakeError`; subclasses carry the offending values as attributes.
 """
 
 from __future__ import annotations
@@ -10,7 +8,7 @@ import re
 from collections.abc import Sequence
 from typing import Any
 
-#: Longest value a message shows whole: a 10 MB YAML scalar was echoed whole in one.
+#: Longest value a message shows whole.
 MAX_SHOWN = 200
 #: A run of this many characters without a space is a value, not prose: cut in any message.
 _LONG_RUN = re.compile(r"\S{%d,}" % (2 * MAX_SHOWN + 1))
@@ -25,11 +23,8 @@ def shorten(value: Any, limit: int = MAX_SHOWN) -> str:
 
 
 class PeDrakeError(Exception):
-    """Root of every pe_drake error.
-
-    A long unbroken run in the message (a value, a key) is cut by :func:`shorten`: the sites
-    that echo values cut them already, this catches the ones they miss (Drake's own text).
-    """
+    """Root of every pe_drake error; a long unbroken run in its message (a value echoed by
+    Drake's own text) is cut by :func:`shorten`."""
 
     def __init__(self, *args: Any):
         super().__init__(*(_LONG_RUN.sub(lambda m: shorten(m.group(0)), a) if isinstance(a, str) else a
@@ -41,41 +36,22 @@ class ConfigError(PeDrakeError, ValueError):
 
 
 class UnknownNameError(ConfigError):
-    """A robot, joint, link or option name is not one of the valid choices.
-
-    Attributes:
-        kind: what was looked up ("robot", "joint", "link", ...).
-        name: the name given.
-        choices: the valid names.
-    """
+    """A robot, joint, link or option name (of ``kind``) is not one of the valid ``choices``."""
 
     def __init__(self, kind: str, name: str, choices: Sequence[str], where: str = ""):
-        self.kind = kind
-        self.name = name
-        self.choices = tuple(choices)
+        self.kind, self.name, self.choices = kind, name, tuple(choices)
         place = f" in {where}" if where else ""
         shown = ", ".join(self.choices[:60]) + (" ..." if len(self.choices) > 60 else "")
         super().__init__(f"unknown {kind} '{shorten(name)}'{place}; valid {kind}s: {shown}")
 
 
 class NotWithinLimitsError(ConfigError):
-    """A value lies outside a joint's limits.
-
-    Attributes:
-        joint: joint name.
-        value: the offending value.
-        lower: lower bound.
-        upper: upper bound.
-    """
+    """A value lies outside a joint's limits [lower, upper]."""
 
     def __init__(self, joint: str, value: float, lower: float, upper: float, what: str = "position"):
-        self.joint = joint
-        self.value = value
-        self.lower = lower
-        self.upper = upper
-        super().__init__(
-            f"joint '{joint}': {what} {value:.6g} is outside its limits [{lower:.6g}, {upper:.6g}]"
-        )
+        self.joint, self.value, self.lower, self.upper = joint, value, lower, upper
+        super().__init__(f"joint '{joint}': {what} {value:.6g} is outside its limits "
+                         f"[{lower:.6g}, {upper:.6g}]")
 
 
 class InfeasibleError(PeDrakeError):
@@ -86,16 +62,10 @@ class DataError(PeDrakeError, ValueError):
     """Measured data is malformed: names the file, column and row where it can."""
 
     def __init__(self, message: str, *, file: str = "", column: str = "", row: int | None = None):
-        self.file = file
-        self.column = column
-        self.row = row
-        where = []
-        if file:
-            where.append(f"file '{file}'")
-        if column:
-            where.append(f"column '{column}'")
-        if row is not None:
-            where.append(f"row {row}")
+        self.file, self.column, self.row = file, column, row
+        where = [f"file '{file}'"] if file else []
+        where += [f"column '{column}'"] if column else []
+        where += [f"row {row}"] if row is not None else []
         prefix = (", ".join(where) + ": ") if where else ""
         super().__init__(prefix + message)
 
@@ -120,11 +90,7 @@ class JointMismatchError(DataError, ConfigError):
 def check_joints(robot, joints: Sequence[str], *, file: str = "", what: str = "the data",
                  any_order: bool = False) -> None:
     """The package's one check that a file's joints are ``robot``'s excited joints (in order,
-    or in ``any_order``).
-
-    Raises:
-        JointMismatchError: they are not.
-    """
+    or in ``any_order``); raises :class:`JointMismatchError` if not."""
     joints = tuple(str(j) for j in joints)
     expected = tuple(robot.joint_names)
     if joints != expected and not (any_order and sorted(joints) == sorted(expected) and len(set(joints)) == len(joints)):
@@ -132,12 +98,8 @@ def check_joints(robot, joints: Sequence[str], *, file: str = "", what: str = "t
 
 
 class NoSolutionFound(PeDrakeError):
-    """The solver did not find a solution that satisfies every constraint.
-
-    Attributes:
-        result: the :class:`~pe_drake.excitation.solve.ExcitationResult` (or solver result) kept
-            for inspection.
-    """
+    """The solver found no solution that satisfies every constraint; ``result`` (the
+    :class:`~pe_drake.excitation.solve.ExcitationResult`) is kept for inspection."""
 
     def __init__(self, message: str, result: Any = None):
         self.result = result
@@ -153,11 +115,7 @@ class MissingDependencyError(PeDrakeError, ImportError):
 
 class OutputWriteError(PeDrakeError, OSError):
     """The outputs could not be written (a full disk, a quota): nothing was half-written, and
-    a solved motion was saved where :attr:`rescued` says (or nowhere: None).
-
-    Attributes:
-        rescued: the file that keeps the solved result, or None.
-    """
+    a solved motion was saved in the file :attr:`rescued` (or nowhere: None)."""
 
     def __init__(self, message: str, rescued: str | None = None):
         self.rescued = rescued

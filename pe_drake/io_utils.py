@@ -1,5 +1,4 @@
-"""Small file helpers: outputs are written whole or not at all; JSON inputs are read with a
-nesting limit."""
+"""File helpers: outputs are written whole or not at all; JSON inputs have a nesting limit."""
 
 from __future__ import annotations
 
@@ -43,9 +42,7 @@ def atomic_write_text(path: str | Path, text: str) -> None:
 
 
 def finite_json(value: Any) -> Any:
-    """``value`` with every non-finite float (inf, NaN) replaced by None, so that ``json.dumps``
-    writes valid JSON (``Infinity`` and ``NaN`` are not JSON); numpy scalars and arrays become
-    Python numbers and lists."""
+    """``value`` with inf and NaN as None (not JSON), numpy values as Python numbers and lists."""
     if isinstance(value, dict):
         return {k: finite_json(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
@@ -58,22 +55,21 @@ def finite_json(value: Any) -> Any:
 
 
 class Terminated(BaseException):
-    """SIGTERM arrived (``timeout``, systemd, CI): raised so that every ``finally`` runs, as
-    for Ctrl-C (a BaseException, like KeyboardInterrupt: no ``except Exception`` swallows it)."""
+    """SIGTERM arrived: raised so that every ``finally`` runs, as for Ctrl-C (a BaseException,
+    like KeyboardInterrupt: no ``except Exception`` swallows it)."""
 
 
 @contextlib.contextmanager
 def terminated_as_exception() -> Iterator[None]:
-    """Within it, SIGTERM raises :class:`Terminated` in this process, so a staged output folder
-    is removed and the lock released as on an exception (the default action kills the process
-    with no cleanup and left ``.staging-*`` folders behind). A forked worker keeps the default
-    action: it has nothing of ours to clean and its pool expects it to die."""
+    """Within it, SIGTERM raises :class:`Terminated` in this process, so staged outputs and the
+    lock are cleaned up as on an exception. A forked worker keeps the default action: it has
+    nothing of ours to clean and its pool expects it to die."""
     if threading.current_thread() is not threading.main_thread():
         yield  # signal handlers can only be set from the main thread
         return
     owner = os.getpid()
 
-    def handler(signum, frame):
+    def handler(_signum, _frame):
         if os.getpid() != owner:
             signal.signal(signal.SIGTERM, signal.SIG_DFL)
             os.kill(os.getpid(), signal.SIGTERM)
@@ -94,8 +90,8 @@ def _umask() -> int:
 
 
 def chmod_as_created(path: str | Path) -> None:
-    """Gives a staged output the mode ``open``/``mkdir`` would have (0666/0777 less the umask):
-    ``mkstemp`` and ``mkdtemp`` make it 0600/0700, which only its owner can read."""
+    """Gives a staged output the mode ``open``/``mkdir`` would have (0666/0777 less the umask),
+    not ``mkstemp``'s 0600."""
     os.chmod(path, (0o777 if Path(path).is_dir() else 0o666) & ~_umask())
 
 
@@ -103,20 +99,13 @@ def chmod_as_created(path: str | Path) -> None:
 def staged_output_dir(out: str | Path, manifest: str = "", own_names: Iterable[str] = ()) -> Iterator[Path]:
     """A temporary folder whose files are moved into ``out`` only if the block succeeds.
 
-    Usage::
-
-        with staged_output_dir(out, "report.json", OPTIMIZE_OUTPUTS) as tmp:
-            write(tmp / "a.csv"); write(tmp / "report.json")
-        # now out/a.csv and out/report.json exist; on an exception neither does.
-
     Args:
         manifest: the run's JSON file that gets ``"outputs"``, the SHA-256 of every other file
             (:mod:`pe_drake.output_set`). The previous run's files of the same names are moved
-            out first, then the manifest is moved in, then the other files: a run killed at any
-            point leaves each file old (with the old manifest) or absent or new (with the new
-            one), so readers that know nothing of the manifest never see old beside new.
-        own_names: every name the command may write: those this run did not write are removed
-            (a reused folder never mixes runs); other files in ``out`` are left alone.
+            out first, then the manifest in, then the other files: a run killed at any point
+            leaves no old file beside a new one.
+        own_names: every name the command may write: those this run did not write are removed;
+            other files in ``out`` are left alone.
     """
     out = Path(out)
     with output_lock(out):
@@ -133,9 +122,8 @@ def staged_output_dir(out: str | Path, manifest: str = "", own_names: Iterable[s
             if manifest in written:
                 add_manifest(tmp, manifest)
             # The previous run's files leave before the new manifest arrives, each by one rename:
-            # a kill from here on leaves every file a controller reads (goal, bag, CSV, URDF)
-            # absent or new, never old beside a new report (issue 34; the manifest alone only
-            # protects pe_drake's own readers).
+            # a controller reading the goal, bag or URDF never sees old beside new (the manifest
+            # alone only protects pe_drake's own readers).
             _retire(out, tmp / ".retired", [n for n in written if n != manifest])
             remove_stale_outputs(out, own_names, written)
             if manifest in written:
@@ -160,17 +148,15 @@ def _retire(out: Path, bin_: Path, names: Iterable[str]) -> None:
 
 
 def final_folder(path: str | Path) -> Path:
-    """The folder a file written at ``path`` ends up in: ``out`` for a file staged in
-    ``out/.staging-*`` by :func:`staged_output_dir`, else its own folder (for paths recorded
-    relative to the output folder)."""
+    """The folder a file written at ``path`` ends up in (``out`` for one staged in
+    ``out/.staging-*``)."""
     parent = Path(path).parent
     return parent.parent if parent.name.startswith(STAGING_PREFIX) else parent
 
 
 def portable_path(target: str | Path, folder: str | Path) -> str:
-    """``target`` relative to ``folder`` (where the file recording it ends up), so that a
-    shared output carries no user name or folder layout of the author's machine; a
-    ``package://`` URI or a built-in name is kept as it is."""
+    """``target`` relative to ``folder``, so that a shared output carries no user name or folder
+    layout; a ``package://`` URI or a built-in name is kept as it is."""
     text = str(target)
     if not text or "://" in text or not os.path.isabs(text):
         return text
@@ -205,10 +191,8 @@ def describe_write_error(err: OSError) -> str:
 
 
 def loads_json(text: str, file: str) -> Any:
-    """``json.loads(text)``, refusing nesting deeper than :data:`MAX_JSON_NESTING`.
-
-    Python's decoder recurses per level (100000 ``[`` is a RecursionError traceback), and a
-    structure parsed a few hundred levels deep still breaks the code that walks it.
+    """``json.loads(text)``, refusing nesting deeper than :data:`MAX_JSON_NESTING` (Python's
+    decoder and the code that walks the result recurse per level).
 
     Raises:
         DataError: "nested too deeply", naming ``file``.

@@ -1,9 +1,6 @@
-"""The size limits on files pe_drake reads, each overridable by an environment variable.
-
-A hostile or broken file must not hang a run or fill the memory (a mesh linked to /dev/zero, a
-10⁶-harmonic trajectory file asked for 15-18 GiB). The defaults hold every real robot and log
-we know of; a lab with a bigger one raises the limit for its runs, e.g.
-``PE_DRAKE_MAX_MESH_MB=1024 pe-drake optimize ...``. Every refusal names its variable.
+"""The size limits on files pe_drake reads, so a hostile or broken file cannot hang a run or fill
+the memory. Each is overridable by the environment variable its refusal names, e.g.
+``PE_DRAKE_MAX_MESH_MB=1024 pe-drake optimize ...``.
 """
 
 from __future__ import annotations
@@ -32,11 +29,8 @@ TRAJECTORY = Limit("PE_DRAKE_MAX_TRAJECTORY_MB", 50, "MB", "a trajectory file")
 
 
 def value(limit: Limit) -> float:
-    """The limit in its unit: the environment's value, or the default.
-
-    Raises:
-        ConfigError: a value that is not a positive number, naming the variable.
-    """
+    """The limit in its unit: the environment's value (ConfigError unless positive), or the
+    default."""
     text = os.environ.get(limit.variable, "").strip()
     if not text:
         return float(limit.default)
@@ -56,14 +50,14 @@ def in_bytes(limit: Limit) -> int:
 
 
 def describe(limit: Limit) -> str:
-    """"the 256 MB limit (PE_DRAKE_MAX_MESH_MB)": for a refusal's message."""
+    """"the 256 MB limit (PE_DRAKE_MAX_MESH_MB raises it)", for a refusal's message."""
     unit = f" {limit.unit}" if limit.unit else ""
     return f"the {value(limit):g}{unit} limit ({limit.variable} raises it)"
 
 
 def input_file_problem(path) -> str | None:
-    """Why ``path`` cannot be read as an input file ("does not exist", or names what it is
-    instead of a regular file: reading a named pipe blocks, a device never ends), or None."""
+    """Why ``path`` cannot be read as an input file (reading a named pipe blocks, a device never
+    ends), or None."""
     import stat
     from pathlib import Path
 

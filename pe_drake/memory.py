@@ -1,16 +1,9 @@
 """Keeping freed memory for reuse, so each cost evaluation does not fault in fresh pages.
 
-One gradient of the excitation cost on G1 allocates a few dozen arrays of 0.3–0.7 MB and
-frees them again. glibc maps allocations above its mmap threshold straight from the kernel
-and hands freed heap tops back above its trim threshold; either way the next evaluation gets
-new pages, which the kernel must fault in and zero. On the 2-core VM we measure on, that was
-a third of the time (``python -m pe_drake.bench gradient``: value 6.5–8.4 → 4.2–5.3 ms,
-value + gradient 13.3–16.0 → 8.7–11.1 ms, three interleaved runs each).
-
-:func:`reuse_freed_memory` raises both thresholds once per process (at most a few hundred
-MB stay mapped after a solve). It is called by the solvers and the benchmark, not on import,
-so importing pe_drake changes nothing; it does nothing where glibc's ``mallopt`` is missing
-(macOS, musl).
+A gradient on G1 allocates and frees dozens of arrays of 0.3–0.7 MB; above glibc's mmap and trim
+thresholds each evaluation gets new pages the kernel must fault in and zero.
+:func:`reuse_freed_memory` raises both thresholds (called by the solvers, not on import; a no-op
+without glibc's ``mallopt``), and :func:`available_bytes` tells what memory is left.
 """
 
 from __future__ import annotations
@@ -27,12 +20,8 @@ _done = False
 
 
 def reuse_freed_memory() -> bool:
-    """Raises glibc's mmap and trim thresholds once per process.
-
-    Returns:
-        True if the thresholds are set (now or by an earlier call), False where ``mallopt``
-        is unavailable.
-    """
+    """Raises glibc's mmap and trim thresholds once per process; False where ``mallopt`` is
+    unavailable."""
     global _done
     if _done:
         return True

@@ -1,10 +1,5 @@
-"""Output paths checked before any work, and a reused output folder kept consistent.
-
-Every command checks the paths it will write first (a solve of minutes must not end in a
-traceback because ``--out`` was read-only), the same way: :func:`check_output_dir` for a
-folder, :func:`check_output_file` for a file. :func:`remove_stale_outputs` deletes the files
-a command writes itself (its own names only, never a user's other files) that the current run
-did not produce, so a reused folder never mixes runs.
+"""Output paths checked before any work (a solve of minutes must not end in a traceback because
+``--out`` was read-only), and a reused output folder kept from mixing runs.
 """
 
 from __future__ import annotations
@@ -19,34 +14,17 @@ from pathlib import Path
 from pe_drake.exceptions import ConfigError
 
 #: Files ``pe-drake optimize`` writes into its output folder.
-OPTIMIZE_OUTPUTS = (
-    "trajectory.json",
-    "trajectory.csv",
-    "trajectory_goal.yaml",
-    "trajectory_goal_bag",
-    "trajectory.png",
-    "playback.html",
-    "report.json",
-    "fitted_capsules.yaml",
-)
-
+OPTIMIZE_OUTPUTS = ("trajectory.json", "trajectory.csv", "trajectory_goal.yaml",
+                    "trajectory_goal_bag", "trajectory.png", "playback.html", "report.json",
+                    "fitted_capsules.yaml")
 
 #: Files ``pe-drake identify`` writes into its output folder.
 IDENTIFY_OUTPUTS = ("identified.json", "residuals.png", "model.urdf", "drive_effects.yaml")
 
 #: Files ``pe-drake diagnose`` writes into its output folder.
-DIAGNOSE_OUTPUTS = (
-    "diagnosis.json",
-    "report.md",
-    "torque_heldout.png",
-    "residual_effects.png",
-    "regimes.png",
-    "gap.png",
-    "unexplained.png",
-    "augmented_model.urdf",
-    "augmented_effects.yaml",
-    "augmented_model.json",
-)
+DIAGNOSE_OUTPUTS = ("diagnosis.json", "report.md", "torque_heldout.png", "residual_effects.png",
+                    "regimes.png", "gap.png", "unexplained.png", "augmented_model.urdf",
+                    "augmented_effects.yaml", "augmented_model.json")
 
 
 def _nearest_existing(path: Path) -> Path:
@@ -69,11 +47,8 @@ def _check_writable_folder(folder: Path, flag: str, target: Path) -> None:
 
 
 def check_output_dir(path: str | Path, flag: str = "--out") -> Path:
-    """Refuses an output folder that is an existing file or cannot be created/written.
-
-    Raises:
-        ConfigError: naming the flag, the path and what is wrong.
-    """
+    """Refuses an output folder that is an existing file or cannot be created or written
+    (ConfigError naming the flag, the path and what is wrong)."""
     path = Path(path)
     if str(path) == "":
         raise ConfigError(f"{flag} is empty")
@@ -84,11 +59,8 @@ def check_output_dir(path: str | Path, flag: str = "--out") -> Path:
 
 
 def check_output_file(path: str | Path, flag: str, suffixes: Iterable[str] = ()) -> Path:
-    """Refuses an output file that is a folder, has the wrong suffix, or cannot be written.
-
-    Raises:
-        ConfigError: naming the flag, the path and what is wrong.
-    """
+    """Refuses an output file that is a folder, has the wrong suffix, or cannot be written
+    (ConfigError naming the flag, the path and what is wrong)."""
     path = Path(path)
     if path.is_dir() or str(path).endswith(("/", os.sep)):
         raise ConfigError(f"{flag} '{path}' is a folder; give a file name")
@@ -102,12 +74,8 @@ def check_output_file(path: str | Path, flag: str, suffixes: Iterable[str] = ())
 
 
 def output_file(folder: str | Path, name: str) -> Path:
-    """``folder/name`` for a result's ``write(folder, name=...)``, refusing a ``folder`` that names
-    the file itself (``run.write("held.csv")`` would write ``held.csv/run.csv``).
-
-    Raises:
-        ConfigError: ``folder`` ends in ``name``'s suffix and is not an existing folder.
-    """
+    """``folder/name`` for a result's ``write(folder, name=...)``; ConfigError for a ``folder``
+    that names the file itself (``run.write("held.csv")``)."""
     folder = Path(folder)
     suffix = Path(name).suffix.lower()
     if suffix and folder.suffix.lower() == suffix and not folder.is_dir():
@@ -117,16 +85,8 @@ def output_file(folder: str | Path, name: str) -> Path:
 
 
 def remove_stale_outputs(folder: str | Path, own_names: Iterable[str], written: Iterable[str]) -> list[str]:
-    """Deletes the command's own output files in ``folder`` that this run did not write.
-
-    Args:
-        folder: the output folder.
-        own_names: every file name the command may write (e.g. :data:`OPTIMIZE_OUTPUTS`).
-        written: the names written by this run.
-
-    Returns:
-        The names removed.
-    """
+    """Deletes the files of ``own_names`` (the command's outputs) in ``folder`` that this run did
+    not write (a user's other files stay); returns the names removed."""
     folder = Path(folder)
     keep = set(written)
     removed = []

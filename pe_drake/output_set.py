@@ -1,13 +1,9 @@
 """An output folder's run: one writer at a time, and a manifest that ties its files together.
 
-Every command that writes a folder (``optimize``, ``identify``, ``diagnose``, the payload
-commands) holds ``<out>/.pe_drake.lock`` while it runs, so a second run on the same folder is
-refused instead of interleaving with the first. Its manifest file (``report.json``,
-``identified.json``, ``diagnosis.json``, ``payload.json``) lists every other file of the run with
-its SHA-256 under ``"outputs"``, and is put in place *first*: a run killed while its files are
-moved in leaves a manifest that no longer matches the folder, and every reader of pe_drake's
-outputs (:func:`check_output_set`) refuses such a set, naming the file that differs, instead of
-replaying a ``trajectory.json`` beside another run's ``trajectory.csv``.
+A command writing a folder holds ``<out>/.pe_drake.lock``, so a second run on it is refused. Its
+manifest file lists every other file of the run with its SHA-256 under ``"outputs"`` and is put
+in place first: a run killed midway leaves a manifest that no longer matches, and every reader
+(:func:`check_output_set`) refuses such a mixed set, naming the file that differs.
 """
 
 from __future__ import annotations
@@ -35,8 +31,8 @@ _held_guard = threading.Lock()
 
 @contextlib.contextmanager
 def output_lock(out: str | Path) -> Iterator[Path]:
-    """Holds ``out``'s lock file for the block (re-entrant in one process). Creates ``out``; the
-    lock file is removed at the end, and ``out`` too when the run left it empty.
+    """Holds ``out``'s lock file for the block (re-entrant in one process), creating ``out`` (and
+    removing it at the end if the run left it empty).
 
     Raises:
         ConfigError: another process holds the lock, or the lock file is not a regular file.
@@ -90,8 +86,7 @@ def _acquire(out: Path) -> int:
 
 
 def file_digests(folder: Path, exclude: str = "") -> dict[str, str]:
-    """SHA-256 of every file under ``folder`` (a folder output such as a bag by its files'
-    relative paths), except ``exclude``; sorted by name."""
+    """{relative path: SHA-256} of every file under ``folder`` except ``exclude``, sorted."""
     digests = {}
     for path in sorted(folder.rglob("*")):
         name = path.relative_to(folder).as_posix()
@@ -118,11 +113,8 @@ def add_manifest(folder: Path, manifest: str) -> None:
 
 
 def check_output_set(path: str | Path) -> None:
-    """Refuses ``path`` when a pe_drake manifest beside it (or ``path`` itself, when it is one)
-    lists it with files that are missing or changed: an interrupted or mixed run.
-
-    A file with no manifest beside it, or one its manifest does not list, is accepted (a file
-    copied elsewhere, or written by an older pe_drake).
+    """Refuses ``path`` when a pe_drake manifest beside it (or ``path`` itself) lists it with
+    files that are missing or changed; a file no manifest lists is accepted.
 
     Raises:
         DataError: naming the manifest and the first file that differs.

@@ -1,9 +1,9 @@
-"""Figures of an optimized trajectory (matplotlib, imported lazily, Agg backend), and the one
-way every pe_drake figure is saved (:func:`save_figure`).
+"""Figures of an optimized trajectory and of a model's prediction, and the one way every
+pe_drake figure is saved (:func:`save_figure`).
 
-The figures here are built on a :class:`matplotlib.figure.Figure` with an Agg canvas, not
-through pyplot: importing pyplot (backend selection, its figure manager) cost 0.4 CPU-s of a
-0.8 CPU-s figure, and nothing here shows a window (issue 38)."""
+Figures are built on a matplotlib ``Figure`` with an Agg canvas (imported lazily), not through
+pyplot, whose import costs half a figure's time; nothing here shows a window.
+"""
 
 from __future__ import annotations
 
@@ -21,19 +21,15 @@ def plot_trajectory(
     """q, v, vdot of every joint against its limits, and the singular-value spectrum of C.
 
     Args:
-        path: PNG file to write.
-        robot: the :class:`~pe_drake.multibody.robot.Robot` (limits, joint names).
         trajectory: the :class:`~pe_drake.excitation.fourier.FourierTrajectory`.
         singular_values: σ of the stacked base regressor, descending.
-        title: figure title.
         note: text printed in the singular-value panel (e.g. the quality figures).
     """
     t = np.linspace(0.0, trajectory.period, 1000)
     q, v, vd = trajectory.evaluate(t)
     lim = robot.limits
-    # Fixed margins: the panels' extents are fixed (limits ±1.15, the same labels on every
-    # robot), so these are the positions constrained layout computed for them (G1, Panda and
-    # UR5 alike), without its 0.45 CPU-s of text measuring per figure (issue 38).
+    # Fixed margins: the panels' extents are the same on every robot, so these are what
+    # constrained layout computes for them, without its costly text measuring per figure.
     fig = _agg_figure(figsize=(13, 8.5))
     axes = fig.subplots(2, 2, gridspec_kw=_TRAJECTORY_MARGINS[bool(title)])
     for ax, x, lo, hi, label in (
@@ -82,11 +78,10 @@ def _agg_figure(**kwargs):
 
 def save_figure(fig, path: str | Path, dpi: int = 80) -> Path:
     """Saves ``fig`` whole or not at all, in the format of ``path``'s suffix (.png, .pdf, .svg),
-    and closes it (a pyplot figure; one from :func:`_agg_figure` has nothing to close).
+    and closes it if pyplot made it.
 
-    The figure is written to a new file of an unpredictable name created exclusively beside
-    ``path`` (a symlink planted at a fixed temporary name cannot redirect the write), then
-    renamed into place.
+    The figure goes to a new, unpredictably named file beside ``path`` (a symlink planted at a
+    fixed temporary name cannot redirect the write), then is renamed into place.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -111,8 +106,7 @@ def save_figure(fig, path: str | Path, dpi: int = 80) -> Path:
 
 def envelope(t: np.ndarray, y: np.ndarray, bins: int = 5000) -> tuple[np.ndarray, np.ndarray]:
     """(t, y) as drawn: a long series as the minimum and maximum of each of ``bins`` bins (the
-    same picture at a figure's resolution, and an hour at 200 Hz is not 720,000 points per
-    line in memory); a short one unchanged."""
+    same picture at a figure's resolution, far fewer points); a short one unchanged."""
     if len(t) <= 4 * bins:
         return t, y
     edges = np.linspace(0, len(t), bins + 1).astype(int)

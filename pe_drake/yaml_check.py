@@ -1,17 +1,9 @@
-"""Checks a YAML file against a dataclass schema before Drake's ``yaml_load_typed`` reads it
-(:func:`load_yaml_typed`, the one reader of YAML files onto dataclasses).
+"""The one reader of YAML files onto dataclasses (:func:`load_yaml_typed`), with a check first.
 
-Drake's loader reports a list where a mapping belongs with a bare ``AssertionError`` and a
-syntax error with the YAML library's traceback, and neither names the line of the key. This
-walks the YAML node tree (which keeps line numbers) beside the dataclass fields and refuses,
-with file, line and dotted key: syntax errors, unknown keys, a mapping/list/scalar in the
-wrong place, and scalars that are not of the field's type (``harmonics: three``). Before the
-schema it refuses what no config holds: nesting deeper than :data:`MAX_NESTING` (PyYAML's
-composer recurses per level: 100000 ``[`` was a RecursionError traceback) and tags that build
-Python objects (``!!python/object/new:``; Drake's loader answered with a raw dict). Echoed
-keys and values are cut at 200 characters (:func:`~pe_drake.exceptions.shorten`), and a file
-over :data:`MAX_YAML_BYTES` is refused unread (PyYAML's pure-Python scanner took 7 s per pass
-over a 10 MB value, and a refused config is read up to three times).
+Drake's ``yaml_load_typed`` answers a misplaced list with a bare ``AssertionError`` and names no
+line. So the YAML node tree (which keeps line numbers) is walked beside the dataclass fields
+first, refusing with file, line and dotted key: syntax errors, unknown keys, wrong shapes and
+types, and what no config holds (deep nesting, Python tags, huge files or alias expansions).
 """
 
 from __future__ import annotations
@@ -30,7 +22,7 @@ _NULLS = ("null", "Null", "NULL", "~", "")
 _BOOLS = ("true", "True", "TRUE", "false", "False", "FALSE")
 #: Deepest nesting of lists and mappings accepted; the deepest config key is 4 levels down.
 MAX_NESTING = 100
-#: Largest YAML file read [bytes]: the largest shipped one (a capsule file) is 5 kB.
+#: Largest YAML file read [bytes] (PyYAML's pure-Python scanner takes seconds per 10 MB).
 MAX_YAML_BYTES = 1024 * 1024
 _PYTHON_TAG = "tag:yaml.org,2002:python/"
 #: Most values a YAML file may hold once its aliases are expanded (the loader and the schema
@@ -138,11 +130,9 @@ def _shape(node) -> str:
 
 
 def check_yaml_file(path: str | Path, schema: type, what: str = "config") -> None:
-    """Refuses a YAML file whose syntax or shape does not fit ``schema`` (a dataclass).
+    """Refuses a YAML file whose syntax or shape does not fit the dataclass ``schema``.
 
     Args:
-        path: the file.
-        schema: the dataclass it maps onto.
         what: what the file is, for messages ("config", "truth", "capsule").
 
     Raises:
@@ -177,9 +167,8 @@ def check_nodes(root, source: str) -> None:
     given twice in one mapping (the loader keeps the last silently) and aliases that expand to
     more than :data:`MAX_EXPANDED_NODES` values.
 
-    Walks the composed tree with a stack (not recursion: that is what failed on deep nesting),
-    each node once: an alias is the same node object as its anchor, so the walk is linear in
-    the file's size (visiting every alias again made a nested-anchor file hang, issue 34).
+    Walks with a stack (recursion fails on deep nesting), each node once (an alias is its
+    anchor's node object), so the walk is linear in the file's size.
 
     Raises:
         ConfigError: naming ``source``, the line and column, and the tag or key.
@@ -271,20 +260,14 @@ def key_line(path: str | Path, dotted_key: str) -> int | None:
 
 
 def load_yaml_typed(path: str | Path, schema: type, defaults: Any = None, what: str = "config") -> Any:
-    """Reads a YAML file onto a dataclass with Drake's ``yaml_load_typed`` (unknown keys refused).
+    """Reads a YAML file onto a dataclass with Drake's ``yaml_load_typed`` (not validated further).
 
     Args:
-        path: the YAML file.
-        schema: the dataclass type the file maps onto.
         defaults: an instance whose values the file's keys override (None: ``schema()``).
         what: what the file is, for messages ("config", "truth", "capsule").
 
-    Returns:
-        The loaded ``schema`` instance (not validated further).
-
     Raises:
-        ConfigError: a missing file, or a file that does not parse or does not match the
-            schema (unknown key, wrong type); the message names the file.
+        ConfigError: a missing file, or one that does not parse or match the schema.
     """
     import yaml  # lazy, with pydrake: keeps `import pe_drake` light
     from pydrake.common.yaml import yaml_load_typed
@@ -293,7 +276,7 @@ def load_yaml_typed(path: str | Path, schema: type, defaults: Any = None, what: 
     problem = limits.input_file_problem(path)
     if problem:
         raise ConfigError(f"{what} file '{path}' {problem}")
-    check_yaml_file(path, schema, what)  # syntax and shape, naming the line and the key
+    check_yaml_file(path, schema, what)
     try:
         return yaml_load_typed(schema=schema, filename=str(path),
                                defaults=defaults if defaults is not None else schema())

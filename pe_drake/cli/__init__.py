@@ -1,8 +1,7 @@
 """Command line: ``pe-drake optimize | view | simulate | identify | validate | diagnose | export``.
 
-Each sub-command parses its arguments here and calls one ``*_command(args) -> int`` function
-in the module that owns the work (imported lazily so ``pe-drake --help`` is instant). Every
-:class:`~pe_drake.exceptions.PeDrakeError` becomes a one-line message and exit code 2.
+Each sub-command's arguments are parsed here, then its ``*_command(args) -> int`` is imported
+lazily and run. Every :class:`~pe_drake.exceptions.PeDrakeError` becomes one line and exit code 2.
 """
 
 from __future__ import annotations
@@ -35,7 +34,7 @@ _FOLDER_COMMANDS = ("optimize", "identify", "diagnose")
 
 
 def add_robot_arguments(parser: argparse.ArgumentParser) -> None:
-    """``--robot`` (required) and ``--config``: what every command that loads a robot takes."""
+    """``--robot``, ``--config`` and ``--trust-xacro``: what every command loading a robot takes."""
     parser.add_argument("--robot", required=True, help="built-in name (panda, ur5, g1) or URDF/SDF path")
     parser.add_argument("--config", help="YAML config overriding the robot's defaults")
     add_trust_xacro_argument(parser)
@@ -229,8 +228,8 @@ def _add_export_command(sub) -> None:
 
 
 def _folder_lock(args) -> contextlib.AbstractContextManager:
-    """The output folder's lock for the whole run of a command that writes one (a second run on
-    the same --out is refused at once, not after its solve)."""
+    """The output folder's lock for the whole run (a second run on it is refused at once, not
+    after its solve)."""
     if args.command not in _FOLDER_COMMANDS:
         return contextlib.nullcontext()
     return output_lock(check_output_dir(args.out))

@@ -1,7 +1,5 @@
-"""``python -m pe_drake.cli <command> ...``: the same as the ``pe-drake`` console script.
-
-For a checkout that is on ``PYTHONPATH`` but not pip-installed (no ``pe-drake`` on ``PATH``).
-"""
+"""``python -m pe_drake.cli <command> ...``: the ``pe-drake`` console script, for a checkout that
+is not pip-installed."""
 
 import sys
 

@@ -11,11 +11,7 @@ from pe_drake.multibody import Robot, resolve_robot_config, robot_display_name
 
 
 def config_from_args(args: argparse.Namespace, adjust: Callable[[Config], Config] | None = None) -> Config:
-    """The config of ``--robot`` with ``--config`` on top, then ``adjust`` (other flags) applied.
-
-    Raises:
-        UnknownNameError, ConfigError: as :func:`~pe_drake.multibody.resolve_robot_config`.
-    """
+    """The config of ``--robot`` with ``--config`` on top, then ``adjust`` (other flags) applied."""
     config = resolve_robot_config(args.robot, getattr(args, "config", None))
     if getattr(args, "trust_xacro", False):  # the user vouches for the xacro they named
         config.robot.trust_xacro = True
@@ -24,24 +20,17 @@ def config_from_args(args: argparse.Namespace, adjust: Callable[[Config], Config
 
 def robot_from_args(args: argparse.Namespace, config: Config | None = None, show_notes: bool = True,
                     show_limit_notes: bool = False) -> Robot:
-    """The :class:`~pe_drake.multibody.robot.Robot` of ``--robot``/``--config``.
+    """The :class:`~pe_drake.multibody.robot.Robot` of ``--robot``/``--config``, printing its notes.
 
     Args:
-        args: parsed arguments with ``robot`` (built-in name or model path) and optionally
-            ``config`` (YAML file).
-        config: the config to build it from, when the command has already resolved (and
-            adjusted) it with :func:`config_from_args`.
-        show_notes: print the robot's notes (``optimize`` prints them with its own progress).
-        show_limit_notes: print the limit margins assumed for a model without a config too (the
-            commands that move the robot; identification does not use the margins).
-
-    Raises:
-        UnknownNameError, ConfigError, NotWithinLimitsError: as :func:`~pe_drake.multibody.robot.load_robot`.
+        config: the config already resolved by :func:`config_from_args`; None: resolve it here.
+        show_notes: print the robot's notes (what the model needed for Drake).
+        show_limit_notes: also print the limit margins assumed for a model without a config.
     """
     config = config if config is not None else config_from_args(args)
     robot = Robot(robot_display_name(args.robot), config.robot)
     notes = robot.notes + (robot.limit_notes if show_limit_notes else [])
-    for note in notes if show_notes else ():  # what the model needed for Drake (mimic, materials, mount)
+    for note in notes if show_notes else ():
         print(f"note: {note}", flush=True)
     return robot
 
@@ -58,8 +47,6 @@ def read_log_from_args(args: argparse.Namespace, robot: Robot, config: Config | 
     # Through the package's lazy export: `pe-drake optimize` loads no identification module.
     return pe_drake.read_measurements(robot, path or args.data, options, format=getattr(args, "format", None),
                     topic=getattr(args, "topic", None), effort=getattr(args, "effort", None))
-
-
 
 
 def export_hint(model, robot: str) -> str:
