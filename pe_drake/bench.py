@@ -37,22 +37,14 @@ from pe_drake.threads import single_threaded_blas
 if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
     from pe_drake.multibody.robot import Robot
 
-# name -> (module, function): each function takes the parsed args and prints its results.
-_BENCHMARKS = {
-    "gradient": ("pe_drake.bench", "bench_gradient"),
-    "identify": ("pe_drake.bench", "bench_identify"),
-    "diagnose": ("pe_drake.bench", "bench_diagnose"),
-    "sensitivity": ("pe_drake.bench", "bench_sensitivity"),
-    "solve": ("pe_drake.bench_solve", "bench_solve"),
-    "payload": ("pe_drake.bench_payload", "bench_payload"),
-    "memory": ("pe_drake.bench_memory", "bench_memory"),
-    "robots": ("pe_drake.bench_robots", "bench_robots"),
-}
+#: Benchmark name -> its module; each module's ``bench_<name>(args)`` prints its results.
+_BENCHMARKS = {name: "pe_drake.bench" for name in ("gradient", "identify", "diagnose",
+                                                   "sensitivity")}
+_BENCHMARKS |= {name: f"pe_drake.bench_{name}" for name in ("solve", "payload", "memory", "robots")}
 
 
-def median_time(
-    function: Callable[[], object], repeats: int = 7, warmup: int = 1, warmup_seconds: float = 1.0
-) -> float:
+def median_time(function: Callable[[], object], repeats: int = 7, warmup: int = 1,
+                warmup_seconds: float = 1.0) -> float:
     """Median wall time of ``function()`` over ``repeats`` runs [s], in steady state: after
     ``warmup`` runs lasting at least ``warmup_seconds`` (cold caches, a CPU not yet at its clock).
     """
@@ -139,9 +131,8 @@ def bench_identify(args: argparse.Namespace) -> None:
     else:
         problem = ExcitationProblem(robot)
         trajectory = problem.trajectory(problem.initial_guess(seed=args.seed))
-    sim = model_measurement(
-        robot, trajectory, rate_hz=1000.0, duration=20.0, tau_noise_std=0.05, seed=args.seed
-    )
+    sim = model_measurement(robot, trajectory, rate_hz=1000.0, duration=20.0, tau_noise_std=0.05,
+                            seed=args.seed)
     raw_rows = sim.num_samples
     sim = sim.replace(v=None, vd=None)  # a user's CSV has only q and tau
     with tempfile.TemporaryDirectory() as tmp:
@@ -160,10 +151,9 @@ def bench_identify(args: argparse.Namespace) -> None:
                 t3 = time.perf_counter()
                 times.append((t3 - t0, t1 - t0, t2 - t1, t3 - t2))
             total, read, prep, est = np.median(np.array(times), axis=0)
-            print(
-                f"{method:9s} total {total:6.2f} s (read {read:.2f}, preprocess {prep:.2f}, "
-                f"regressor + estimate {est:.2f}); {result.samples} samples, cond(W) {result.cond:.4g}"
-            )
+            print(f"{method:9s} total {total:6.2f} s (read {read:.2f}, preprocess {prep:.2f}, "
+                  f"regressor + estimate {est:.2f}); {result.samples} samples, "
+                  f"cond(W) {result.cond:.4g}")
             print(f"BENCH identify_{method}_s={total:.3f}")
     print("target: OLS under 5 s on 2 cores")
 
@@ -267,13 +257,11 @@ def bench_main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--trajectory", default="", help="sensitivity: trajectory.json to simulate (default: random)")
     parser.add_argument("--repeats", type=int, default=51, help="timed runs per median (default: %(default)s)")
-    parser.add_argument(
-        "--default-malloc", action="store_true", help="gradient: keep glibc's malloc thresholds (see pe_drake.memory)"
-    )
-    parser.add_argument(
-        "--max-iterations", type=int, default=None,
-        help="solve: IPOPT budget (default: each robot's config, 300); robots: per robot (default: 60)",
-    )
+    parser.add_argument("--default-malloc", action="store_true",
+                        help="gradient: keep glibc's malloc thresholds (see pe_drake.memory)")
+    parser.add_argument("--max-iterations", type=int, default=None,
+                        help="solve: IPOPT budget (default: each robot's config, 300); robots: per "
+                             "robot (default: 60)")
     parser.add_argument("--robots", default="", help="robots, solve: names or model paths, a,b,c (default: all; "
                         "solve: g1,ur5,two_arm_lift)")
     parser.add_argument("--harmonics", type=int, default=None, help="robots: Fourier harmonics (default: the robot's)")
@@ -287,8 +275,8 @@ def bench_main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.robot is None and args.benchmark != "solve":  # solve: its own list (bench_solve.DEFAULT_ROBOTS)
         args.robot = "g1" if args.benchmark == "gradient" else "panda"
-    module, function = _BENCHMARKS[args.benchmark]
-    getattr(importlib.import_module(module), function)(args)
+    module = importlib.import_module(_BENCHMARKS[args.benchmark])
+    getattr(module, f"bench_{args.benchmark}")(args)
     return 0
 
 

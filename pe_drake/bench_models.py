@@ -31,6 +31,12 @@ def _fixed(child: str) -> str:
     return f'<joint name="fix_{child}" type="fixed"><parent link="world"/><child link="{child}"/></joint>'
 
 
+def _write(folder: str | Path, name: str, text: str) -> Path:
+    path = Path(folder) / name
+    path.write_text(text)
+    return path
+
+
 def folding_arm(folder: Path, margin: float = 0.05, collision: bool = False) -> tuple[Path, Path]:
     """A 3-joint arm whose hand can fold onto its base post, and a capsule file recording
     ``collision_margin``; ``collision``: with collision cylinders. Returns (urdf, capsule file)."""
@@ -79,9 +85,7 @@ def textured_xacro(folder: Path) -> Path:
                         '<xacro:property name="radius" value="0.03"/>'
                         '<material name="skin"><texture filename="package://arm_description/meshes/skin.png"/>'
                         '</material>', 1)
-    path = package / "urdf" / "arm.urdf.xacro"
-    path.write_text(urdf)
-    return path
+    return _write(package / "urdf", "arm.urdf.xacro", urdf)
 
 
 #: The SCARA's bodies (name, mass [kg], CoM, principal moment [kg·m²]) and joints (name, type,
@@ -103,9 +107,8 @@ def scara(folder: Path, fmt: str = "urdf") -> Path:
         _JOINT.format(n=n, t=t, p=p, c=c, o=o, a="0 0 1", lo=lo, hi=hi, e=60 if t == "prismatic" else 40,
                       v=0.5 if t == "prismatic" else 2)
         for n, t, p, c, o, lo, hi in _SCARA_JOINTS]
-    path = Path(folder) / "scara.urdf"
-    path.write_text('<robot name="scara">' + "".join(links + joints) + "</robot>")
-    return path
+    return _write(folder, "scara.urdf",
+                  '<robot name="scara">' + "".join(links + joints) + "</robot>")
 
 
 def _scara_sdf(folder: Path) -> Path:
@@ -122,9 +125,9 @@ def _scara_sdf(folder: Path) -> Path:
         f"<limit><lower>{lo}</lower><upper>{hi}</upper><effort>{60 if t == 'prismatic' else 40}</effort>"
         f"<velocity>{0.5 if t == 'prismatic' else 2}</velocity></limit></axis></joint>"
         for n, t, p, c, _, lo, hi in _SCARA_JOINTS)
-    path = folder / "scara.sdf"
-    path.write_text(f'<?xml version="1.0"?><sdf version="1.7"><model name="scara">{links}{joints}</model></sdf>')
-    return path
+    return _write(folder, "scara.sdf",
+                  f'<?xml version="1.0"?><sdf version="1.7"><model name="scara">{links}{joints}'
+                  "</model></sdf>")
 
 
 def dual_arm_lift(folder: Path) -> Path:
@@ -146,27 +149,23 @@ def dual_arm_lift(folder: Path) -> Path:
                                  e=40, v=2),
                    _JOINT.format(n=f"{side}_elbow", t="revolute", p=f"{side}_upper", c=f"{side}_fore", o="0 0 -0.3",
                                  a="0 1 0", lo=-2.2, hi=0.1, e=30, v=2)]
-    path = Path(folder) / "dual_arm_lift.urdf"
-    path.write_text('<robot name="dual_arm_lift">' + "".join(links + joints) + "</robot>")
-    return path
+    return _write(folder, "dual_arm_lift.urdf",
+                  '<robot name="dual_arm_lift">' + "".join(links + joints) + "</robot>")
 
 
 def vertical_lift(folder: Path) -> Path:
     """One vertical prismatic joint carrying 2 kg (a lift, a quill on its own)."""
-    path = Path(folder) / "lift.urdf"
-    path.write_text(
-        '<robot name="lift"><link name="world"/>' f'<link name="base">{_inertial(5)}</link><link name="carriage">{_inertial(2)}</link>'
+    return _write(
+        folder, "lift.urdf", '<robot name="lift"><link name="world"/>'
+        f'<link name="base">{_inertial(5)}</link><link name="carriage">{_inertial(2)}</link>'
         + _fixed("base") + _JOINT.format(n="lift", t="prismatic", p="base", c="carriage", o="0 0 0.3", a="0 0 1",
                                          lo=-0.2, hi=0.2, e=200, v=0.5) + "</robot>")
-    return path
 
 
 def without_inertials(model: Path, folder: Path) -> Path:
     """A copy of ``model`` with every ``<inertial>`` removed, as ROS-Industrial descriptions ship."""
     text = re.sub(r"<inertial>.*?</inertial>", "", Path(model).read_text(), flags=re.S)
-    path = Path(folder) / f"{Path(model).stem}_no_inertials{Path(model).suffix}"
-    path.write_text(text)
-    return path
+    return _write(folder, f"{Path(model).stem}_no_inertials{Path(model).suffix}", text)
 
 
 #: (name, axis, lower, upper, velocity, effort, child link length [m], radius [m], mass [kg])
@@ -231,6 +230,5 @@ def write_two_arm_lift_urdf(folder: str | Path) -> Path:
             )
             parent, origin = child, f"0 0 {-length:.3f}"
     body = "\n  ".join(links + joints)
-    path = Path(folder) / "two_arm_lift.urdf"
-    path.write_text(f'<?xml version="1.0"?>\n<robot name="two_arm_lift">\n  {body}\n</robot>\n')
-    return path
+    return _write(folder, "two_arm_lift.urdf",
+                  f'<?xml version="1.0"?>\n<robot name="two_arm_lift">\n  {body}\n</robot>\n')

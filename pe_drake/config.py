@@ -137,16 +137,9 @@ class ExcitationConfig:
 
 @dataclasses.dataclass
 class SolverConfig:
-    """Which solver and its options.
-
-    Attributes:
-        algorithm: NLopt algorithm; ignored by IPOPT.
-        max_iterations: iteration limit (IPOPT) or evaluation limit (NLopt).
-        tolerance: relative tolerance.
-        max_time: wall-time limit [s]; 0: none.
-        ipopt_options: further IPOPT options {name: value as text} set after pe_drake's own
-            (numbers are passed as numbers).
-    """
+    """Which solver and its options: ``algorithm`` is NLopt's (ignored by IPOPT),
+    ``max_iterations`` counts evaluations for NLopt, ``tolerance`` is relative, ``max_time`` [s]
+    (0: none), ``ipopt_options`` {name: value as text} apply after pe_drake's own."""
 
     name: str = "ipopt"
     algorithm: str = "LD_SLSQP"
@@ -224,11 +217,8 @@ EXECUTORS = ("local", "ray")
 
 
 def validate_config(config: Config) -> Config:
-    """Checks every number and choice of a config; returns it unchanged.
-
-    Raises:
-        ConfigError: naming the field and the bad value.
-    """
+    """Checks every number and choice of a config (ConfigError naming the field and the bad
+    value); returns it unchanged."""
     r, e, s = config.robot, config.excitation, config.solver
     for name in ("velocity_limits", "acceleration_limits", "effort_limits"):
         for joint, value in getattr(r, name).items():

@@ -14,16 +14,9 @@ from pe_drake.exceptions import ConfigError, shorten
 
 
 def check_finite(name: str, value: Any, *, positive: bool = False, nonneg: bool = False) -> float:
-    """Checks that a configuration value is a finite number (not a bool); returns it as a float.
-
-    Args:
-        name: the field as the user wrote it (``excitation.omega``), with its unit when it helps.
-        positive: also require value > 0.
-        nonneg: also require value >= 0.
-
-    Raises:
-        ConfigError: naming the field and the bad value.
-    """
+    """Checks that a config value is a finite number (not a bool; > 0 if ``positive``, >= 0 if
+    ``nonneg``) and returns it as a float; else a ConfigError naming the field ``name`` (as the
+    user wrote it, with its unit when it helps) and the value."""
     if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
         raise ConfigError(f"{name} must be a number, got {value!r}")
     if not math.isfinite(value):
@@ -36,11 +29,7 @@ def check_finite(name: str, value: Any, *, positive: bool = False, nonneg: bool 
 
 
 def check_fraction(name: str, value: Any) -> float:
-    """Checks that a configuration value lies in (0, 1]; returns it as a float.
-
-    Raises:
-        ConfigError: naming the field and the bad value.
-    """
+    """Checks that a config value lies in (0, 1] (ConfigError naming the field); returns it."""
     value = check_finite(name, value, positive=True)
     if value > 1:
         raise ConfigError(f"{name} must lie in (0, 1], got {value!r}")
@@ -48,11 +37,8 @@ def check_fraction(name: str, value: Any) -> float:
 
 
 def check_choice(name: str, value: Any, choices: Sequence[str], suggest: bool = False) -> None:
-    """Checks that a configuration value is one of ``choices`` (``suggest``: the closest one).
-
-    Raises:
-        ConfigError: naming the field, the bad value and the choices.
-    """
+    """Checks that a config value is one of ``choices``; else a ConfigError naming the field, the
+    value, the choices and (``suggest``) the closest one."""
     if value in choices:
         return
     close = difflib.get_close_matches(str(value), choices, n=1) if suggest else []

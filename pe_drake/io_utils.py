@@ -11,9 +11,9 @@ import shutil
 import signal
 import tempfile
 import threading
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 from pe_drake.exceptions import DataError
 from pe_drake.output_paths import remove_stale_outputs
@@ -26,19 +26,30 @@ MAX_JSON_NESTING = 100
 
 
 def atomic_write_text(path: str | Path, text: str) -> None:
-    """Writes ``text`` to a temporary file beside ``path`` and renames it into place."""
+    """Writes ``text`` to ``path`` whole or not at all (:func:`atomic_write`)."""
+    atomic_write(path, lambda f: f.write(text))
+
+
+def atomic_write(path: str | Path, write: Callable[[IO], object], binary: bool = False,
+                 suffix: str = ".tmp") -> Path:
+    """Calls ``write(file)`` on a new file beside ``path``, then renames it into place.
+
+    The file's name is unpredictable and it is created exclusively, so a symlink planted at a
+    temporary name cannot redirect the write.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=suffix)
     try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
+        with os.fdopen(fd, "wb" if binary else "w") as f:
+            write(f)
         chmod_as_created(tmp)  # mkstemp creates 0600; outputs are ordinary files
         os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise
+    return path
 
 
 def finite_json(value: Any) -> Any:

@@ -7,12 +7,11 @@ pyplot, whose import costs half a figure's time; nothing here shows a window.
 
 from __future__ import annotations
 
-import contextlib
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
+
+from pe_drake.io_utils import atomic_write
 
 
 def plot_trajectory(
@@ -77,31 +76,17 @@ def _agg_figure(**kwargs):
 
 
 def save_figure(fig, path: str | Path, dpi: int = 80) -> Path:
-    """Saves ``fig`` whole or not at all, in the format of ``path``'s suffix (.png, .pdf, .svg),
-    and closes it if pyplot made it.
-
-    The figure goes to a new, unpredictably named file beside ``path`` (a symlink planted at a
-    fixed temporary name cannot redirect the write), then is renamed into place.
-    """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fmt = path.suffix.lower().lstrip(".") or "png"
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=f".tmp.{fmt}")
+    """Saves ``fig`` whole or not at all (:func:`~pe_drake.io_utils.atomic_write`), in the format
+    of ``path``'s suffix (.png, .pdf, .svg), and closes it if pyplot made it."""
+    fmt = Path(path).suffix.lower().lstrip(".") or "png"
     try:
-        with os.fdopen(fd, "wb") as out:
-            fig.savefig(out, dpi=dpi, format=fmt)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
+        return atomic_write(path, lambda out: fig.savefig(out, dpi=dpi, format=fmt), binary=True,
+                            suffix=f".tmp.{fmt}")
     finally:
         if getattr(fig.canvas, "manager", None) is not None:  # made by pyplot: release it there
             import matplotlib.pyplot as plt  # lazy: matplotlib is heavy
 
             plt.close(fig)
-    return path
 
 
 def envelope(t: np.ndarray, y: np.ndarray, bins: int = 5000) -> tuple[np.ndarray, np.ndarray]:

@@ -74,18 +74,10 @@ class Playback:
     capsule_file: str | None = None
 
 
-def play_trajectory(
-    trajectory_json: str | Path,
-    *,
-    robot: str | None = None,
-    config: str | Path | None = None,
-    html: str | Path | None = None,
-    show_capsules: bool = True,
-    rate: float = 30.0,
-    meshcat: Any = None,
-    host: str = "localhost",
-    trust_xacro: bool = False,
-) -> Playback:
+def play_trajectory(trajectory_json: str | Path, *, robot: str | None = None,
+                    config: str | Path | None = None, html: str | Path | None = None,
+                    show_capsules: bool = True, rate: float = 30.0, meshcat: Any = None,
+                    host: str = "localhost", trust_xacro: bool = False) -> Playback:
     """Records the whole motion of trajectory.csv in Meshcat and optionally writes it as HTML.
 
     Never blocks: the Meshcat server lives as long as the returned ``Playback.meshcat``.
@@ -97,7 +89,6 @@ def play_trajectory(
             robot), the joints, locked posture, root link, base pose, capsules and environment
             recorded in the file are used: the posture and obstacles it was optimized for.
         html: write a self-contained offline HTML playback here (atomically).
-        show_capsules: show the collision capsules at start (they can be toggled in Meshcat).
         rate: frames per second of the recording [1/s].
         meshcat: an existing ``pydrake.geometry.Meshcat`` to draw into; default: a new one.
         host: interface a new Meshcat server listens on ("*": every interface).
@@ -115,9 +106,9 @@ def play_trajectory(
     times, fps = frame_times(motion.duration, rate)
 
     meshcat = _prepare_meshcat(meshcat, host="localhost" if html is not None else host)
-    rob, environment = _load_robot_with_visualizers(
-        trajectory_json, data, robot, config, meshcat, fps=fps, show_capsules=show_capsules, trust_xacro=trust_xacro
-    )
+    rob, environment = _load_robot_with_visualizers(trajectory_json, data, robot, config, meshcat,
+                                                    fps=fps, show_capsules=show_capsules,
+                                                    trust_xacro=trust_xacro)
     order = _joint_order(trajectory_json, data, rob)
     check_within_limits(motion, _limits_in_file_order(rob.limits, order), data["joints"], source=str(trajectory_json))
     q = motion.evaluate(times)[0][:, order]
@@ -128,15 +119,14 @@ def play_trajectory(
     extent, camera, drawn = _draw_surroundings(meshcat, rob, q, environment)
 
     html_path = None if html is None else _write_html(meshcat, html)
+    capsules = _has_proximity_geometry(rob.scene_graph)
     paths = {
         "visual": f"/drake/{VISUAL_PREFIX}",
-        "capsules": None,
+        "capsules": f"/drake/{CAPSULES_PREFIX}" if capsules else None,
         "com": f"/drake/{COM_PATH}",
         "support": f"/drake/{SUPPORT_PATH}" if len(support) else None,
         "environment": f"/drake/{ENVIRONMENT_PATH}" if drawn else None,
     }
-    if _has_proximity_geometry(rob.scene_graph):
-        paths["capsules"] = f"/drake/{CAPSULES_PREFIX}"
     return Playback(meshcat=meshcat, url=meshcat.web_url(), html=html_path, num_frames=len(times),
                     duration=motion.duration, frames_per_second=fps, loops=loop, robot=rob,
                     com_xy=com_xy, support_polygon=support, paths=paths, camera=camera,
@@ -274,25 +264,13 @@ def _visualizer_hook(meshcat, fps: float, show_capsules: bool):
 
     def add_visualizers(builder, plant, scene_graph) -> None:
         common = {"publish_period": 1.0 / fps, "delete_on_initialization_event": False}
-        MeshcatVisualizer.AddToBuilder(
-            builder,
-            scene_graph,
-            meshcat,
-            MeshcatVisualizerParams(role=Role.kIllustration, prefix=VISUAL_PREFIX, **common),
-        )
+        params = MeshcatVisualizerParams(role=Role.kIllustration, prefix=VISUAL_PREFIX, **common)
+        MeshcatVisualizer.AddToBuilder(builder, scene_graph, meshcat, params)
         if _has_proximity_geometry(scene_graph):
-            MeshcatVisualizer.AddToBuilder(
-                builder,
-                scene_graph,
-                meshcat,
-                MeshcatVisualizerParams(
-                    role=Role.kProximity,
-                    prefix=CAPSULES_PREFIX,
-                    default_color=Rgba(*_CAPSULE_RGBA),
-                    visible_by_default=show_capsules,
-                    **common,
-                ),
-            )
+            params = MeshcatVisualizerParams(role=Role.kProximity, prefix=CAPSULES_PREFIX,
+                                             default_color=Rgba(*_CAPSULE_RGBA),
+                                             visible_by_default=show_capsules, **common)
+            MeshcatVisualizer.AddToBuilder(builder, scene_graph, meshcat, params)
 
     return add_visualizers
 

@@ -39,18 +39,13 @@ _MIN_RADIUS = 0.05  # [m]: the smallest half-size framed (a point-sized extent)
 
 
 def draw_environment(meshcat, robot: Robot, environment, extent: tuple[np.ndarray, np.ndarray]) -> dict[str, str]:
-    """Draws the config's floor (for a fixed-base arm) and boxes, translucent.
+    """Draws the config's floor (for a fixed-base arm) and boxes, translucent; returns {object
+    name: Meshcat path} drawn ("floor", "box:<name>"), or ConfigError for a malformed box.
 
     Args:
         environment: an :class:`~pe_drake.config.EnvironmentConfig`.
         extent: (lower, upper) corners of what the robot sweeps, each shape (3,) [m]: the
             floor square is centred under it and spans it.
-
-    Returns:
-        {object name: Meshcat path} of what was drawn ("floor", "box:<name>").
-
-    Raises:
-        ConfigError: a malformed box (named by its index).
     """
     from pydrake.geometry import Box as BoxShape  # lazy: pydrake is heavy
     from pydrake.geometry import Rgba
@@ -80,15 +75,8 @@ def draw_environment(meshcat, robot: Robot, environment, extent: tuple[np.ndarra
 
 
 def motion_extent(robot: Robot, q: np.ndarray, max_samples: int = 200) -> tuple[np.ndarray, np.ndarray]:
-    """The axis-aligned box that body origins and capsules sweep over the postures q.
-
-    Args:
-        q: postures, shape (T, n) [rad].
-        max_samples: frames used, evenly spread (the ends included).
-
-    Returns:
-        (lower corner, upper corner) in world, each shape (3,) [m].
-    """
+    """(lower, upper) corners in world, each shape (3,) [m], of the axis-aligned box that body
+    origins and capsules sweep over the postures q, shape (T, n), at ``max_samples`` frames."""
     plant = robot.plant
     context = plant.CreateDefaultContext()
     from pydrake.multibody.tree import BodyIndex  # lazy: pydrake is heavy
@@ -203,12 +191,8 @@ def draw_markers(meshcat, support: np.ndarray) -> None:
         m = len(support)
         vertices = np.c_[support, np.full(m, _GROUND_OFFSET / 2)].T
         faces = np.array([[0, k, k + 1] for k in range(1, m - 1)], np.int32).T
-        meshcat.SetTriangleMesh(
-            f"{SUPPORT_PATH}/area",
-            np.asfortranarray(vertices),
-            np.asfortranarray(faces),
-            Rgba(*_SUPPORT_RGBA),
-        )
+        meshcat.SetTriangleMesh(f"{SUPPORT_PATH}/area", np.asfortranarray(vertices),
+                                np.asfortranarray(faces), Rgba(*_SUPPORT_RGBA))
         outline = np.c_[vertices, vertices[:, :1]]
         meshcat.SetLine(f"{SUPPORT_PATH}/outline", np.asfortranarray(outline), 2.0, Rgba(0.1, 0.5, 0.1, 1.0))
 

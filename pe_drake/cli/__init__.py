@@ -19,16 +19,6 @@ from pe_drake.output_paths import check_output_dir
 from pe_drake.output_set import output_lock
 from pe_drake.threads import single_threaded_blas
 
-_COMMANDS = {
-    "optimize": ("pe_drake.cli.optimize", "optimize_command"),
-    "view": ("pe_drake.cli.view", "view_command"),
-    "simulate": ("pe_drake.cli.simulate", "simulate_command"),
-    "identify": ("pe_drake.cli.identify", "identify_command"),
-    "validate": ("pe_drake.cli.identify", "validate_command"),
-    "diagnose": ("pe_drake.cli.diagnose", "diagnose_command"),
-    "export": ("pe_drake.cli.export", "export_command"),
-}
-
 #: The commands whose --out is a folder of pe_drake's outputs (locked while they run).
 _FOLDER_COMMANDS = ("optimize", "identify", "diagnose")
 
@@ -49,11 +39,8 @@ def add_trust_xacro_argument(parser: argparse.ArgumentParser) -> None:
 
 def add_measurement_argument(parser: argparse.ArgumentParser, what: str) -> None:
     """``--measurement joint_torque | base_wrench | both``; overrides the config's."""
-    parser.add_argument(
-        "--measurement",
-        choices=MEASUREMENTS,
-        help=f"{what} (default: the config's excitation.measurement, joint_torque)",
-    )
+    parser.add_argument("--measurement", choices=MEASUREMENTS,
+                        help=f"{what} (default: the config's excitation.measurement, joint_torque)")
 
 
 def add_log_arguments(parser: argparse.ArgumentParser) -> None:
@@ -73,10 +60,8 @@ def add_window_argument(parser: argparse.ArgumentParser, what: str) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="pe-drake",
-        description="Exciting trajectories, identification and model diagnosis on Drake.",
-    )
+    description = "Exciting trajectories, identification and model diagnosis on Drake."
+    parser = argparse.ArgumentParser(prog="pe-drake", description=description)
     parser.add_argument("--version", action="version", version=f"pe_drake {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     _add_trajectory_commands(sub)
@@ -89,9 +74,8 @@ def _add_trajectory_commands(sub) -> None:
     p = sub.add_parser("optimize", help="optimize an exciting trajectory (min cond of the regressor)")
     add_robot_arguments(p)
     p.add_argument("--solver", choices=["ipopt", "nlopt"], help="optimizer (default: from config, ipopt)")
-    p.add_argument(
-        "--criterion", choices=CRITERIA, help="excitation criterion (default: the config's, soft_cond: a smooth bound of cond)"
-    )
+    p.add_argument("--criterion", choices=CRITERIA, help="excitation criterion (default: the "
+                   "config's, soft_cond: a smooth bound of cond)")
     p.add_argument("--prior", action="append", default=[], metavar="TRAJECTORY_JSON",
                    help="earlier trajectory whose data is reused as C0 (repeatable)")
     p.add_argument("--max-iterations", type=int, help="solver iteration limit")
@@ -238,7 +222,9 @@ def _folder_lock(args) -> contextlib.AbstractContextManager:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    module_name, function_name = _COMMANDS[args.command]
+    # pe_drake.cli.<command>.<command>_command; validate lives with identify.
+    module_name = "pe_drake.cli." + ("identify" if args.command == "validate" else args.command)
+    function_name = f"{args.command}_command"
     if getattr(args, "payload", None) and args.command in ("optimize", "identify"):
         module_name, function_name = "pe_drake.cli.payload", f"payload_{args.command}_command"
     elif args.command == "identify":

@@ -13,20 +13,12 @@ def view_command(args) -> int:
     start = time.perf_counter()
     if args.html:
         check_output_file(args.html, "--html", (".html", ".htm"))  # before any work
-    playback = play_trajectory(
-        args.trajectory,
-        robot=args.robot,
-        config=args.config,
-        html=args.html,
-        show_capsules=not args.no_capsules,
-        rate=args.rate,
-        host=getattr(args, "host", "localhost"),
-        trust_xacro=getattr(args, "trust_xacro", False),
-    )
-    summary = (
-        f"{playback.robot.name}: {playback.num_frames} frames over {playback.duration:.3g} s "
-        f"({playback.frames_per_second:.3g} fps)"
-    )
+    playback = play_trajectory(args.trajectory, robot=args.robot, config=args.config,
+                               html=args.html, show_capsules=not args.no_capsules, rate=args.rate,
+                               host=getattr(args, "host", "localhost"),
+                               trust_xacro=getattr(args, "trust_xacro", False))
+    summary = (f"{playback.robot.name}: {playback.num_frames} frames over "
+               f"{playback.duration:.3g} s ({playback.frames_per_second:.3g} fps)")
     if playback.capsule_file:  # which capsules are shown: the file to check and edit
         shown = "hidden" if args.no_capsules else "shown"
         summary += f"; {len(playback.robot.capsules)} capsules from {playback.capsule_file} ({shown})"
