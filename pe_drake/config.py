@@ -22,41 +22,17 @@ from pe_drake.yaml_check import key_line, load_yaml_typed
 class RobotConfig:
     """Which model to load, which joints to excite, how to hold the rest.
 
-    Joint tables are {joint: value} in [rad] or [m] (per second, s², s³ for rates); a limit
-    table may only tighten the model's limits, or replace a zero placeholder.
-
-    Attributes:
-        model: URDF/SDF path (relative to the config file), or ``package://...``.
-        joints: the excited joints; empty: every movable joint of the model.
-        locked_positions: posture of the other joints; unlisted ones at 0 (or the nearest limit).
-        root_link: the link welded to the world; empty: the model's root link.
-        base_position: the root link's origin in world [m]; replaces a URDF's fixed world joint.
-        base_quaternion_wxyz: the root link's orientation in world, e.g. [0, 1, 0, 0] for a
-            ceiling mount.
-        default_acceleration_limit: for joints not in ``acceleration_limits``.
-        position_margin: kept away from each position limit.
-        velocity_scale, acceleration_scale, effort_scale: fraction (0, 1] of each limit used.
-        nominal_positions: posture the optimizer starts from (q0 of Eq. 50); unlisted joints
-            start mid-range.
-        capsules: capsule file for self-collision (relative to the config file), or empty.
-        support_points: {link: [[x, y, z], ...]} contact points of the feet in the link frame
-            [m], for the balance constraint.
-        packages: {package: folder} of the model's ``package://`` URIs, relative to the config
-            file; unlisted ones are searched (pe_drake/multibody/packages.py).
-        drive_gains: {joint: k} [N·m/A or N/A], τ = k·i for logs with ``current.*`` columns.
-        jerk_limits: checked on the exported controller goal; empty: not checked.
-        transmission: gear ratios and coupling converting a motor-side log.
-        notes: what pe_drake chose for a model given without a config, printed by every command.
-        assumed: the :data:`SAFE_DEFAULTS` fields pe_drake set because no config gave them; an
-            assumed position margin is cut to a quarter of a joint's range where it does not fit.
-        trust_xacro: expand a xacro with xacro's full Python (``$(eval)``, ``load_yaml``,
-            ``$(env)``), refused by default because a xacro is a program. Only for trusted files.
+    Joint tables are {joint: value} in [rad] or [m] (per s, s², s³ for rates); a limit table may
+    only tighten the model's limits, or replace a zero placeholder.
     """
 
-    model: str = ""
-    joints: list[str] = dataclasses.field(default_factory=list)
+    model: str = ""  # URDF/SDF path (relative to the config file) or package://...
+    joints: list[str] = dataclasses.field(default_factory=list)  # excited; empty: every movable one
+    # The other joints' posture; unlisted ones at 0 (or the nearest limit).
     locked_positions: dict[str, float] = dataclasses.field(default_factory=dict)
-    root_link: str = ""
+    root_link: str = ""  # welded to the world; empty: the model's root link
+    # The root link's pose in world [m] (replaces a URDF's fixed world joint; [0, 1, 0, 0]: a
+    # ceiling mount).
     base_position: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
     base_quaternion_wxyz: list[float] = dataclasses.field(
         default_factory=lambda: [1.0, 0.0, 0.0, 0.0]
@@ -64,21 +40,33 @@ class RobotConfig:
     position_limits: dict[str, list[float]] = dataclasses.field(default_factory=dict)
     velocity_limits: dict[str, float] = dataclasses.field(default_factory=dict)
     acceleration_limits: dict[str, float] = dataclasses.field(default_factory=dict)
-    default_acceleration_limit: float = 10.0
-    effort_limits: dict[str, float] = dataclasses.field(default_factory=dict)
-    position_margin: float = 0.0
-    velocity_scale: float = 1.0
+    default_acceleration_limit: float = 10.0  # for joints not in acceleration_limits
+    effort_limits: dict[str, float] = dataclasses.field(default_factory=dict)  # [N·m or N]
+    position_margin: float = 0.0  # kept away from each position limit
+    velocity_scale: float = 1.0  # fraction (0, 1] of each velocity limit used; likewise below
     acceleration_scale: float = 1.0
     effort_scale: float = 1.0
+    # The posture the optimizer starts from (q0 of Eq. 50); unlisted joints start mid-range.
     nominal_positions: dict[str, float] = dataclasses.field(default_factory=dict)
-    capsules: str = ""
+    capsules: str = ""  # capsule file for self-collision (relative to the config file)
+    # {link: [[x, y, z], ...]}: the feet's contact points in the link frame [m], for balance.
     support_points: dict[str, list[list[float]]] = dataclasses.field(default_factory=dict)
+    # {package: folder} of the model's package:// URIs (relative to the config file); others
+    # are searched (pe_drake/multibody/packages.py).
     packages: dict[str, str] = dataclasses.field(default_factory=dict)
+    # {joint: k} [N·m/A or N/A]: τ = k·i, for logs with current.* columns.
     drive_gains: dict[str, float] = dataclasses.field(default_factory=dict)
+    # Checked on the exported controller goal; empty: not checked.
     jerk_limits: dict[str, float] = dataclasses.field(default_factory=dict)
+    # Gear ratios and coupling: a motor-side log is converted with them.
     transmission: TransmissionConfig = dataclasses.field(default_factory=TransmissionConfig)
+    # What pe_drake chose for a model given without a config, printed by every command.
     notes: list[str] = dataclasses.field(default_factory=list)
+    # The SAFE_DEFAULTS fields pe_drake set because no config gave them; an assumed position
+    # margin is cut to a quarter of a joint's range where it does not fit.
     assumed: list[str] = dataclasses.field(default_factory=list)
+    # Expand a xacro with xacro's full Python ($(eval), load_yaml, $(env)): refused by default,
+    # because a xacro is a program. Only for files whose author you trust.
     trust_xacro: bool = False
 
 
@@ -93,45 +81,29 @@ MAX_ITERATIONS = 2**31 - 1
 
 @dataclasses.dataclass
 class ExcitationConfig:
-    """The trajectory and the optimization problem (paper, section IV-A).
+    """The trajectory and the optimization problem (paper, section IV-A)."""
 
-    Attributes:
-        harmonics: N in Eq. (50).
-        omega: base angular frequency ω [rad/s]; the period is 2π/ω.
-        cost_samples: T, samples stacked in C (Eq. 3), evenly spread over one period.
-        constraint_samples: K, samples where the limits are imposed (Eq. 51).
-        criterion: "soft_cond" (a smooth upper bound of cond(C), fewer iterations), "cond"
-            (Eq. 5, the paper's), "log_cond" or "dopt" (-log det CᵀC).
-        rest_at_ends: start and end with zero velocity and acceleration.
-        amplitude: scale of the random initial coefficients [rad].
-        balance_radius: r of Eq. (52) [m]; 0 disables the balance constraint.
-        collision_margin: minimum distance between capsules (Eq. 53) [m]; negative disables.
-        torque_limits: also keep the a-priori model's torques within ``robot.limits.effort_max``.
-        periods: periods of the optimized path in trajectory.csv (the cost uses one).
-        ramp: trajectory.csv starts and ends at rest (a time scaling of the path).
-        measurement: the rows of C: "joint_torque" (Eq. 1), "base_wrench" (the ground wrench on
-            a robot standing on the ground) or "both".
-        noise_std: the sensors' noise (row weights).
-        drive_terms: identify's drive terms as columns of C too: "none" (the paper's),
-            "friction" (Coulomb, viscous, offset) or "all" (also the armature where separable).
-            Not with ``base_wrench``, which does not see joint friction.
-    """
-
-    harmonics: int = 10
-    omega: float = math.pi / 4
-    cost_samples: int = 40
-    constraint_samples: int = 400
+    harmonics: int = 10  # N in Eq. (50)
+    omega: float = math.pi / 4  # base angular frequency ω [rad/s]; the period is 2π/ω
+    cost_samples: int = 40  # T, samples stacked in C (Eq. 3), evenly spread over one period
+    constraint_samples: int = 400  # K, samples where the limits are imposed (Eq. 51)
+    # "soft_cond" (a smooth upper bound of cond(C), fewer iterations), "cond" (Eq. 5, the
+    # paper's), "log_cond" or "dopt" (-log det CᵀC).
     criterion: str = "soft_cond"
-    rest_at_ends: bool = False
-    amplitude: float = 0.05
-    balance_radius: float = 0.0
-    collision_margin: float = -1.0
-    torque_limits: bool = False
+    rest_at_ends: bool = False  # start and end with zero velocity and acceleration
+    amplitude: float = 0.05  # scale of the random initial coefficients [rad]
+    balance_radius: float = 0.0  # r of Eq. (52) [m]; 0 disables the balance constraint
+    collision_margin: float = -1.0  # least capsule distance (Eq. 53) [m]; negative disables
+    torque_limits: bool = False  # keep the a-priori model's torques within robot.limits.effort_max
     seed: int = 0
-    periods: int = 1
-    ramp: bool = True
+    periods: int = 1  # periods of the optimized path in trajectory.csv (the cost uses one)
+    ramp: bool = True  # trajectory.csv starts and ends at rest (a time scaling of the path)
+    # The rows of C: "joint_torque" (Eq. 1), "base_wrench" (the ground wrench on a robot standing
+    # on the ground) or "both".
     measurement: str = "joint_torque"
-    noise_std: NoiseStdConfig = dataclasses.field(default_factory=NoiseStdConfig)
+    noise_std: NoiseStdConfig = dataclasses.field(default_factory=NoiseStdConfig)  # row weights
+    # identify's drive terms as columns of C too: "none" (the paper's), "friction" (Coulomb,
+    # viscous, offset) or "all" (also the armature where separable); not with base_wrench.
     drive_terms: str = "none"
 
 
@@ -161,37 +133,25 @@ class BoxConfig:
 
 @dataclasses.dataclass
 class EnvironmentConfig:
-    """The robot's surroundings, kept ``max(excitation.collision_margin, 0)`` from every capsule.
+    """The robot's surroundings, kept ``max(excitation.collision_margin, 0)`` from every capsule."""
 
-    Attributes:
-        floor: a floor under a fixed-base arm (a robot without ``robot.support_points``).
-        floor_height: z of the floor in world for an upright base [m]; null: through the root
-            link's origin. The floor is normal to the base's z axis (a ceiling for an
-            upside-down base).
-    """
-
-    floor: bool = True
+    floor: bool = True  # a floor under a fixed-base arm (a robot without robot.support_points)
+    # z of the floor in world for an upright base [m]; null: through the root link's origin. The
+    # floor is normal to the base's z axis (a ceiling for an upside-down base).
     floor_height: float | None = None
     boxes: list[BoxConfig] = dataclasses.field(default_factory=list)
 
 
 @dataclasses.dataclass
 class ParallelConfig:
-    """Where the independent solves of a multi-start run.
+    """Where the independent solves of a multi-start run."""
 
-    Attributes:
-        executor: "local" (a process pool) or "ray" (a Ray cluster).
-        address: Ray cluster address, e.g. "ray://head:10001"; empty: ``ray.init()``'s default.
-        starts: random starts; start k uses seed ``excitation.seed + k``.
-        workers: starts at once; 0: the cores available, at most ``starts``.
-        hung_after_s: a worker silent this long [s] is stopped and its start fails; 0: never
-            (not checked with one worker, in this process).
-    """
-
-    executor: str = "local"
-    address: str = ""
-    starts: int = 1
-    workers: int = 0
+    executor: str = "local"  # "local" (a process pool) or "ray" (a Ray cluster)
+    address: str = ""  # Ray cluster address, e.g. "ray://head:10001"; empty: ray.init()'s default
+    starts: int = 1  # random starts; start k uses seed excitation.seed + k
+    workers: int = 0  # starts at once; 0: the cores available, at most starts
+    # A worker silent this long [s] is stopped and its start fails; 0: never (not checked with
+    # one worker, in this process).
     hung_after_s: float = 600.0
 
 

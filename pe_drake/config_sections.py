@@ -62,21 +62,14 @@ EFFORT_KINDS = ("torque", "current")  # what a ROS bag's JointState effort holds
 
 @dataclasses.dataclass
 class DataConfig:
-    """How measured logs are read.
+    """How measured logs are read."""
 
-    Attributes:
-        format: one of :data:`DATA_FORMATS` (``auto``: told by the file and ``columns``).
-        topic: the bag's JointState topic; empty: the only one.
-        effort: a bag's ``effort`` is ``torque`` [N·m] or ``current`` [A] (× robot.drive_gains).
-        max_gap_s: longest hole in t interpolated [s]; a longer one splits the run.
-        columns: {``t`` | ``q|v|vdot|tau|current.<joint>``: column} for other CSVs.
-    """
-
-    format: str = "auto"
-    topic: str = ""
-    effort: str = "torque"
-    max_gap_s: float = 0.02
+    format: str = "auto"  # one of DATA_FORMATS; auto: told by the file and columns
+    topic: str = ""  # the bag's JointState topic; empty: the only one
+    effort: str = "torque"  # a bag's effort: torque [N·m] or current [A] (× robot.drive_gains)
+    max_gap_s: float = 0.02  # longest hole in t interpolated [s]; a longer one splits the run
     joint_map: JointMapConfig = dataclasses.field(default_factory=JointMapConfig)
+    # {t | q|v|vdot|tau|current.<joint>: column} for other CSVs.
     columns: dict[str, str] = dataclasses.field(default_factory=dict)
 
 
@@ -93,14 +86,11 @@ class ControllerConfig:
 
 @dataclasses.dataclass
 class TransmissionConfig:
-    """Gear ratios and coupling between motors and joints: θ_m = R q, τ = Rᵀ τ_m.
+    """Gear ratios and coupling between motors and joints: θ_m = R q, τ = Rᵀ τ_m."""
 
-    Attributes:
-        ratios: {joint: ratio} [rad of its motor per rad of the joint]; unlisted joints 1.
-        coupling: {joint: {other joint: R entry}}: θ_m = ratio·q + Σ entry·q_other.
-    """
-
+    # {joint: ratio} [rad of its motor per rad of the joint]; unlisted joints 1.
     ratios: dict[str, float] = dataclasses.field(default_factory=dict)
+    # {joint: {other joint: R entry}}: θ_m = ratio·q + Σ entry·q_other.
     coupling: dict[str, dict[str, float]] = dataclasses.field(default_factory=dict)
 
 
@@ -114,23 +104,17 @@ class CoMBoxConfig:
 
 @dataclasses.dataclass
 class IdentificationConfig:
-    """What ``pe-drake identify`` models and the bounds of its physical fit.
+    """What ``pe-drake identify`` models and the bounds of its physical fit."""
 
-    Attributes:
-        drive_terms: "all" (Coulomb and viscous friction, a torque offset, and the armature
-            where separable), "friction" (no armature) or "none" (rigid body only).
-        coulomb_velocity_scale: v_s of the Coulomb column tanh(v/v_s) [rad/s]; unset:
-            :data:`pe_drake.multibody.drive_columns.COULOMB_VELOCITY_SCALE`.
-        total_mass: [lo, hi] of the summed mass of the moving links [kg]; empty: no bound.
-        mass_bounds: {link: [lo, hi]} [kg].
-        boxes: {link: box the CoM stays in}.
-    """
-
+    # "all" (Coulomb and viscous friction, a torque offset, and the armature where separable),
+    # "friction" (no armature) or "none" (rigid body only).
     drive_terms: str = "all"
+    # v_s of the Coulomb column tanh(v/v_s) [rad/s]; unset: drive_columns.COULOMB_VELOCITY_SCALE.
     coulomb_velocity_scale: Optional[float] = None  # noqa: UP045 (yaml_load_typed reads the type at run time)
+    # [lo, hi] of the summed mass of the moving links [kg]; empty: no bound.
     total_mass: list[float] = dataclasses.field(default_factory=list)
-    mass_bounds: dict[str, list[float]] = dataclasses.field(default_factory=dict)
-    boxes: dict[str, CoMBoxConfig] = dataclasses.field(default_factory=dict)
+    mass_bounds: dict[str, list[float]] = dataclasses.field(default_factory=dict)  # [lo, hi] [kg]
+    boxes: dict[str, CoMBoxConfig] = dataclasses.field(default_factory=dict)  # where each CoM stays
 
 
 def validate_log_sections(r, d: "DataConfig", c: "ControllerConfig") -> None:
@@ -189,18 +173,13 @@ DEFAULT_NOISE_STD = 0.05
 @dataclasses.dataclass
 class NoiseStdConfig:
     """Sensor noise σ of each measured quantity: the row weights of C (rows divided by their σ
-    make cond(C) independent of units and of the sensor mix).
+    make cond(C) independent of units and of the sensor mix)."""
 
-    Attributes:
-        torque: joint-torque noise [N·m or N]: one value, or {joint: value} (``all`` for the
-            joints not named); also sets the quality figures ``optimize`` reports.
-        force: force noise of the ground-wrench sensor [N].
-        moment: moment noise of the ground-wrench sensor [N·m].
-    """
-
-    torque: dict[str, float] | float = DEFAULT_NOISE_STD  # [N·m]; a Drake yaml union: container type first
-    force: float = 0.5
-    moment: float = 0.05
+    # Joint-torque noise [N·m or N]: one value, or {joint: value} (all: the joints not named);
+    # also sets the quality figures optimize reports. A Drake yaml union: container type first.
+    torque: dict[str, float] | float = DEFAULT_NOISE_STD
+    force: float = 0.5  # of the ground-wrench sensor [N]
+    moment: float = 0.05  # of the ground-wrench sensor [N·m]
 
 
 def noise_vector(noise_std, joint_names: Sequence[str]) -> np.ndarray:

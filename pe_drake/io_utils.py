@@ -94,16 +94,12 @@ def terminated_as_exception() -> Iterator[None]:
         signal.signal(signal.SIGTERM, previous)
 
 
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
 def chmod_as_created(path: str | Path) -> None:
     """Gives a staged output the mode ``open``/``mkdir`` would have (0666/0777 less the umask),
     not ``mkstemp``'s 0600."""
-    os.chmod(path, (0o777 if Path(path).is_dir() else 0o666) & ~_umask())
+    umask = os.umask(0)  # reading the umask sets it: set it back
+    os.umask(umask)
+    os.chmod(path, (0o777 if Path(path).is_dir() else 0o666) & ~umask)
 
 
 @contextlib.contextmanager

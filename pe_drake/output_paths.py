@@ -27,15 +27,8 @@ DIAGNOSE_OUTPUTS = ("diagnosis.json", "report.md", "torque_heldout.png", "residu
                     "augmented_effects.yaml", "augmented_model.json")
 
 
-def _nearest_existing(path: Path) -> Path:
-    for parent in (path, *path.parents):
-        if parent.exists():
-            return parent
-    return Path(".")
-
-
 def _check_writable_folder(folder: Path, flag: str, target: Path) -> None:
-    existing = _nearest_existing(folder)
+    existing = next((p for p in (folder, *folder.parents) if p.exists()), Path("."))
     if not existing.is_dir():
         raise ConfigError(f"{flag} '{target}': '{existing}' is a file, not a folder")
     try:  # os.access says yes to root even on a read-only file system: try it

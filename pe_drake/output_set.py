@@ -128,8 +128,10 @@ def check_output_set(path: str | Path) -> None:
             listed = json.loads(manifest.read_text()).get("outputs")
         except (OSError, ValueError, AttributeError, RecursionError):
             continue  # not one of ours; the reader of that file says what is wrong with it
-        if not isinstance(listed, dict) or (path.name != name and path.name not in _top_names(listed)):
+        if not isinstance(listed, dict):
             continue
+        if path.name != name and path.name not in {other.split("/", 1)[0] for other in listed}:
+            continue  # a folder output (a bag) is listed by its files' paths
         for other, digest in listed.items():
             target = path.parent / other
             why = "is missing" if not target.is_file() else "has changed" if sha256_of(target) != digest else ""
@@ -138,7 +140,3 @@ def check_output_set(path: str | Path) -> None:
                     f"'{target}' {why} since '{manifest}' recorded the run that wrote this folder "
                     "(the run was interrupted, or another run or a person changed it): re-run the "
                     f"command, or copy '{path.name}' out of the folder to use it alone", file=str(path))
-
-
-def _top_names(listed: dict) -> set[str]:
-    return {name.split("/", 1)[0] for name in listed}

@@ -39,39 +39,25 @@ _CAPSULE_RGBA = (1.0, 0.55, 0.0, 0.35)
 
 @dataclasses.dataclass(frozen=True)
 class Playback:
-    """A recorded trajectory playback.
+    """A recorded trajectory playback."""
 
-    Attributes:
-        meshcat: the Meshcat instance (keep a reference to keep its server alive).
-        html: path of the HTML file written, or None.
-        num_frames: recorded frames, the whole motion including both ends.
-        duration: length of the motion of trajectory.csv (ramps and periods) [s].
-        frames_per_second: recording rate (``num_frames - 1`` frames per motion) [1/s].
-        loops: the animation repeats (no ramps); with ramps it plays once and holds at rest.
-        com_xy: ground projection of the whole-body CoM per frame, shape (num_frames, 2) [m].
-        support_polygon: support area corners (x, y), counter-clockwise, shape (m, 2) [m];
-            (0, 2) without support points.
-        paths: Meshcat paths of the layers visual, capsules, com, support, environment (None
-            when not drawn).
-        camera: (camera position, target) in world, each shape (3,) [m].
-        extent: (lower, upper) corners of the box the robot sweeps, each shape (3,) [m].
-        capsule_file: the capsule file drawn, or None.
-    """
-
-    meshcat: Any
+    meshcat: Any  # keep a reference to keep its server alive
     url: str
-    html: Path | None
-    num_frames: int
-    duration: float
-    frames_per_second: float
-    loops: bool
+    html: Path | None  # the HTML file written, or None
+    num_frames: int  # the whole motion including both ends
+    duration: float  # the motion of trajectory.csv (ramps and periods) [s]
+    frames_per_second: float  # num_frames - 1 frames per motion [1/s]
+    loops: bool  # the animation repeats (no ramps); with ramps it plays once and holds at rest
     robot: Any
-    com_xy: np.ndarray
-    support_polygon: np.ndarray
+    com_xy: np.ndarray  # the whole-body CoM's ground projection, shape (num_frames, 2) [m]
+    support_polygon: np.ndarray  # corners (x, y), counter-clockwise, shape (m, 2) [m]; m may be 0
+    # Meshcat paths of the layers visual, capsules, com, support, environment (None: not drawn).
     paths: dict[str, str | None]
+    # (camera position, target), and (lower, upper) corners of the box the robot sweeps, in
+    # world, each shape (3,) [m].
     camera: tuple[np.ndarray, np.ndarray] = (np.zeros(3), np.zeros(3))
     extent: tuple[np.ndarray, np.ndarray] = (np.zeros(3), np.zeros(3))
-    capsule_file: str | None = None
+    capsule_file: str | None = None  # the capsule file drawn
 
 
 def play_trajectory(trajectory_json: str | Path, *, robot: str | None = None,

@@ -101,19 +101,13 @@ def motion_extent(robot: Robot, q: np.ndarray, max_samples: int = 200) -> tuple[
 
 
 def camera_pose(extent: tuple[np.ndarray, np.ndarray], fill: float = 0.9) -> tuple[np.ndarray, np.ndarray]:
-    """(camera position, target) in world that fit the box ``extent`` in Meshcat's view.
+    """(p_WC camera position, p_WT target), each shape (3,) [m], that fit the box ``extent``
+    ((lower, upper) corners [m]) in Meshcat's view.
 
     The camera looks at the box's centre along a fixed direction from the nearest distance d at
     which every corner (a along the view, offsets u, v across it) is within ``fill`` of the half
     field of view: d = max over the corners of a + max(|u|, |v|) / (fill · tan(fov/2)) (the
     vertical angle binds: a browser window is wider than tall).
-
-    Args:
-        extent: (lower, upper) corners, each shape (3,) [m].
-        fill: share of the half field of view the box may span, in (0, 1].
-
-    Returns:
-        (p_WC camera position, p_WT target), each shape (3,) [m].
     """
     lo, hi = (np.asarray(v, float) for v in extent)
     target = (lo + hi) / 2

@@ -47,8 +47,7 @@ def _check_scalar(node, tp, optional: bool, source: str, key: str) -> None:
     import yaml
 
     if not isinstance(node, yaml.ScalarNode):
-        kind = "a list" if isinstance(node, yaml.SequenceNode) else "a mapping"
-        raise ConfigError(f"{_where(source, node, key)}: expected {_kind(tp)}, got {kind}")
+        raise ConfigError(f"{_where(source, node, key)}: expected {_kind(tp)}, got {_shape(node)}")
     value = node.value
     if optional and node.tag.endswith(":null") or (optional and value in _NULLS and node.style is None):
         return
@@ -130,14 +129,8 @@ def _shape(node) -> str:
 
 
 def check_yaml_file(path: str | Path, schema: type, what: str = "config") -> None:
-    """Refuses a YAML file whose syntax or shape does not fit the dataclass ``schema``.
-
-    Args:
-        what: what the file is, for messages ("config", "truth", "capsule").
-
-    Raises:
-        ConfigError: naming the file, the line and the dotted key.
-    """
+    """Refuses a YAML file whose syntax or shape does not fit the dataclass ``schema``: a
+    ConfigError names the file (a ``what`` file: "config", "capsule"), the line and the key."""
     import yaml  # PyYAML, a dependency of pydrake.common.yaml; lazy like pydrake
 
     path = Path(path)
@@ -260,15 +253,8 @@ def key_line(path: str | Path, dotted_key: str) -> int | None:
 
 
 def load_yaml_typed(path: str | Path, schema: type, defaults: Any = None, what: str = "config") -> Any:
-    """Reads a YAML file onto a dataclass with Drake's ``yaml_load_typed`` (not validated further).
-
-    Args:
-        defaults: an instance whose values the file's keys override (None: ``schema()``).
-        what: what the file is, for messages ("config", "truth", "capsule").
-
-    Raises:
-        ConfigError: a missing file, or one that does not parse or match the schema.
-    """
+    """Reads a YAML file onto ``defaults`` (None: ``schema()``) with Drake's ``yaml_load_typed``,
+    not validated further; ConfigError for a missing file or one that does not fit ``schema``."""
     import yaml  # lazy, with pydrake: keeps `import pe_drake` light
     from pydrake.common.yaml import yaml_load_typed
 

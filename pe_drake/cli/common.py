@@ -18,19 +18,17 @@ def config_from_args(args: argparse.Namespace, adjust: Callable[[Config], Config
     return adjust(config) if adjust is not None else config
 
 
-def robot_from_args(args: argparse.Namespace, config: Config | None = None, show_notes: bool = True,
+def robot_from_args(args: argparse.Namespace, config: Config | None = None,
                     show_limit_notes: bool = False) -> Robot:
     """The :class:`~pe_drake.multibody.robot.Robot` of ``--robot``/``--config``, printing its notes.
 
     Args:
         config: the config already resolved by :func:`config_from_args`; None: resolve it here.
-        show_notes: print the robot's notes (what the model needed for Drake).
         show_limit_notes: also print the limit margins assumed for a model without a config.
     """
     config = config if config is not None else config_from_args(args)
     robot = Robot(robot_display_name(args.robot), config.robot)
-    notes = robot.notes + (robot.limit_notes if show_limit_notes else [])
-    for note in notes if show_notes else ():
+    for note in robot.notes + (robot.limit_notes if show_limit_notes else []):
         print(f"note: {note}", flush=True)
     return robot
 
