@@ -275,15 +275,14 @@ def _run_capsule_file(configured: str, data: dict, path, from_file: bool) -> str
     ``--config`` (``from_file``) it wins over the robot's default capsules; with one,
     ``robot.capsules`` wins.
     """
-    folder = Path(path).resolve().parent
-    recorded = data.get("capsules")
-    candidates = [folder / recorded if isinstance(recorded, str) and recorded else None,
-                  folder / FITTED_CAPSULES_NAME if "capsules" not in data else None]
-    # normpath: a recorded '../../models/x.yaml' is printed as the file's own path, not the folder's + '..'
-    found = [os.path.normpath(c) for c in candidates if c is not None and c.is_file()]
     if configured and not from_file:
         return configured
-    return found[0] if found else configured
+    recorded = data.get("capsules", FITTED_CAPSULES_NAME)
+    if not (isinstance(recorded, str) and recorded):
+        return configured
+    candidate = Path(path).resolve().parent / recorded
+    # normpath: a recorded '../../models/x.yaml' is printed as the file's own path
+    return os.path.normpath(candidate) if candidate.is_file() else configured
 
 
 def _config_from_file(cfg, data: dict):
@@ -309,13 +308,10 @@ def _config_from_file(cfg, data: dict):
 
 def _limits_in_file_order(limits, order: np.ndarray):
     """The robot's limits rearranged to the trajectory file's joint order (``order[k]`` is the
-    file column of robot joint k)."""
-    out = {}
-    for name in ("q_lower", "q_upper", "v_max", "vd_max"):
-        values = np.empty(len(order))
-        values[order] = getattr(limits, name)
-        out[name] = values
-    return types.SimpleNamespace(**out)
+    file column of robot joint k, a permutation)."""
+    inverse = np.argsort(order)
+    return types.SimpleNamespace(**{name: np.asarray(getattr(limits, name))[inverse]
+                                    for name in ("q_lower", "q_upper", "v_max", "vd_max")})
 
 
 def _joint_order(path, data: dict, rob) -> np.ndarray:
