@@ -1,4 +1,5 @@
-"""Benchmarks that print numbers: ``python -m pe_drake.bench {gradient,identify,diagnose,sensitivity,solve,payload,memory,robots}``.
+"""Benchmarks that print numbers: ``python -m pe_drake.bench NAME`` (gradient, identify, diagnose,
+sensitivity, solve, payload, memory, robots).
 
 Each prints its measurements and ends with one line ``BENCH key=value ...`` for scripts.
 Timings are wall-clock medians of repeated runs (``solve``: CPU seconds of single runs).
@@ -27,11 +28,11 @@ from pe_drake.excitation.trajectory_file import load_trajectory
 from pe_drake.identification.estimators import identify
 from pe_drake.identification.intake import prepare_measurement, read_robot_measurement
 from pe_drake.identification.measurements import write_measurement_csv
+from pe_drake.memory import reuse_freed_memory
+from pe_drake.multibody.robot import load_robot
 from pe_drake.simulation.simulation import simulate
 from pe_drake.simulation.synthetic import model_measurement
 from pe_drake.simulation.truth import ControlTruth, EffectsTruth, NoiseTruth, Truth
-from pe_drake.memory import reuse_freed_memory
-from pe_drake.multibody.robot import load_robot
 from pe_drake.threads import single_threaded_blas
 
 if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)

@@ -11,9 +11,20 @@ import re
 from pathlib import Path
 
 from pe_drake.config_sections import (  # noqa: F401  (re-exported: config.X keeps working)
-    DATA_FORMATS, EFFORT_KINDS, ControllerConfig, DataConfig, IdentificationConfig, JointMapConfig,
-    NoiseStdConfig, TransmissionConfig, check_choice, check_finite, check_fraction,
-    validate_identification, validate_log_sections)
+    DATA_FORMATS,
+    EFFORT_KINDS,
+    ControllerConfig,
+    DataConfig,
+    IdentificationConfig,
+    JointMapConfig,
+    NoiseStdConfig,
+    TransmissionConfig,
+    check_choice,
+    check_finite,
+    check_fraction,
+    validate_identification,
+    validate_log_sections,
+)
 from pe_drake.exceptions import ConfigError, shorten
 from pe_drake.yaml_check import key_line, load_yaml_typed
 

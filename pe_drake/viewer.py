@@ -26,9 +26,17 @@ from pe_drake.multibody.capsule_fitting import FITTED_CAPSULES_NAME
 from pe_drake.multibody.model_files import is_xacro
 from pe_drake.multibody.registry import builtin_robots, resolve_robot_config, robot_display_name
 from pe_drake.multibody.robot import Robot
-from pe_drake.viewer_scene import (COM_PATH, ENVIRONMENT_PATH, SUPPORT_PATH, com_marker_pose,
-                                   draw_environment, draw_markers, frame_camera, motion_extent,
-                                   support_polygon)
+from pe_drake.viewer_scene import (
+    COM_PATH,
+    ENVIRONMENT_PATH,
+    SUPPORT_PATH,
+    com_marker_pose,
+    draw_environment,
+    draw_markers,
+    frame_camera,
+    motion_extent,
+    support_polygon,
+)
 
 #: Meshcat paths (under ``/drake``) of what this module draws.
 VISUAL_PREFIX = "visual"

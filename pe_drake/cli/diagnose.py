@@ -9,12 +9,11 @@ from pe_drake.cli.common import config_from_args, export_hint, read_log_from_arg
 from pe_drake.diagnosis import DiagnosisConfig, diagnose
 from pe_drake.exceptions import ConfigError
 from pe_drake.identification import load_identified, model_method, unapplied_effects
-from pe_drake.output_paths import check_output_dir
 
 
 def diagnose_command(args) -> int:
     """``pe-drake diagnose``: writes diagnosis.json, report.md, figures and the augmented model."""
-    out = check_output_dir(args.out)  # before any work
+    out = Path(args.out)  # checked and locked by main() before any work
     fraction = getattr(args, "held_out_fraction", None)
     if fraction is not None and not (math.isfinite(fraction) and 0.05 <= fraction <= 0.8):
         raise ConfigError(f"--held-out-fraction must be from 0.05 to 0.8, got {fraction:g}")

@@ -6,18 +6,24 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from pe_drake.cli.common import (config_from_args, export_hint, measurement_from_args,
-                                 read_log_from_args, robot_from_args)
+from pe_drake.cli.common import config_from_args, export_hint, measurement_from_args, read_log_from_args, robot_from_args
 from pe_drake.export import is_simulator_model, validate_exported
-from pe_drake.identification import (IdentifyOptions, TimeWindow, ValidateOptions, identify_model,
-                                     load_identified, unapplied_effects, validate_model)
-from pe_drake.output_paths import check_output_dir, check_output_file
+from pe_drake.identification import (
+    IdentifyOptions,
+    TimeWindow,
+    ValidateOptions,
+    identify_model,
+    load_identified,
+    unapplied_effects,
+    validate_model,
+)
+from pe_drake.output_paths import check_output_file
 
 
 def identify_command(args: argparse.Namespace) -> int:
     """Runs ``pe-drake identify``: identified.json, model.urdf (when physically valid),
     residual plot; nothing is written on error."""
-    out = check_output_dir(args.out)  # before any work
+    out = Path(args.out)  # checked and locked by main() before any work
     config = config_from_args(args)
     options = IdentifyOptions.from_config(
         config, method=args.method, measurement=measurement_from_args(args, config), cutoff_hz=args.cutoff,

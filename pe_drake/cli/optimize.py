@@ -12,7 +12,6 @@ from pe_drake.config import Config, validate_config
 from pe_drake.exceptions import ConfigError
 from pe_drake.excitation import check_csv_size, optimize_motion
 from pe_drake.multibody import robot_display_name
-from pe_drake.output_paths import check_output_dir
 from pe_drake.viewer import write_plan_playback
 
 
@@ -40,7 +39,7 @@ def apply_arguments(config: Config, args: argparse.Namespace) -> Config:
 
 def optimize_command(args: argparse.Namespace) -> int:
     """Runs ``pe-drake optimize``; returns 0 on success, 1 if no valid trajectory was found."""
-    out = check_output_dir(args.out)  # before any work
+    out = Path(args.out)  # checked and locked by main() before any work
     config = config_from_args(args, lambda c: apply_arguments(c, args))
     check_csv_size(config, args.csv_rate)
     say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, flush=True))

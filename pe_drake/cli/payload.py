@@ -5,16 +5,16 @@ from __future__ import annotations
 
 import argparse
 import time
+from pathlib import Path
 
 from pe_drake.cli.common import config_from_args, robot_from_args
 from pe_drake.excitation import optimize_payload, write_payload_plan
 from pe_drake.identification import identify_payload_runs, parse_payload_box
-from pe_drake.output_paths import check_output_dir
 
 
 def payload_optimize_command(args: argparse.Namespace) -> int:
     """Optimizes a payload motion: trajectory.json (with ``payload_link``), trajectory.csv, report.json."""
-    out = check_output_dir(args.out)
+    out = Path(args.out)  # checked and locked by main()
     say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, flush=True))
     config = config_from_args(args)
     robot = robot_from_args(args, config)
@@ -28,7 +28,7 @@ def payload_optimize_command(args: argparse.Namespace) -> int:
 
 def payload_identify_command(args: argparse.Namespace) -> int:
     """Identifies a payload: payload.json (with the vendor formats) and model_with_payload.urdf."""
-    out = check_output_dir(args.out)
+    out = Path(args.out)  # checked and locked by main()
     start = time.perf_counter()
     config = config_from_args(args)
     robot = robot_from_args(args, config)
