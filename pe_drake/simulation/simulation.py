@@ -76,11 +76,7 @@ from pe_drake.multibody.inertia import PARAMETER_NAMES
 from pe_drake.multibody.robot import Robot, load_robot
 from pe_drake.multibody.robot_model import RobotModel
 from pe_drake.multibody.sensors import MeasurementType
-from pe_drake.simulation.truth import (
-    ALL_JOINTS,
-    Truth,
-    load_truth,
-)
+from pe_drake.simulation.truth import Truth, load_truth, make_truth
 from pe_drake.simulation.true_robot import TrueRobot, build_true_robot
 from pe_drake.simulation.wrench_log import recorded_wrench
 
@@ -130,7 +126,7 @@ class TrackingLog:
 def simulate(
     robot_or_name,
     trajectory: FourierTrajectory,
-    truth: Truth | str | Path,
+    truth: Truth | str | Path | None = None,
     duration: float | None = None,
     measurement: str = "joint_torque",
     model: RobotModel | None = None,
@@ -140,11 +136,13 @@ def simulate(
     Args:
         robot_or_name: the a-priori :class:`~pe_drake.multibody.robot.Robot` or a built-in name.
         trajectory: the trajectory to track (joints in the robot's order).
-        truth: a :class:`~pe_drake.simulation.truth.Truth` or the path of a TRUTH.yaml.
+        truth: a :class:`~pe_drake.simulation.truth.Truth` of the robot, or the path of a
+            TRUTH.yaml (None: the model alone, no noise, the default controller).
         duration: simulated time [s]; default one period of the trajectory.
         measurement: what the robot logs: "joint_torque" (tau), "base_wrench" (the ground
             wrench alone, :mod:`pe_drake.simulation.wrench_log`) or "both".
-        model: the robot the truth perturbs (an identified model); default the a-priori one.
+        model: the robot a TRUTH.yaml perturbs (an identified model); default the a-priori one
+            (a :class:`~pe_drake.simulation.truth.Truth` holds its own).
 
     Returns:
         The :class:`SimulationOutput`: the :class:`~pe_drake.identification.measurements.Measurement`
@@ -154,20 +152,23 @@ def simulate(
         ConfigError: a bad truth or duration.
         UnknownNameError: a truth names a joint or link the robot does not have.
         DataError: a trajectory for a different number of joints.
+        ValueError: a :class:`~pe_drake.simulation.truth.Truth` and a ``model`` both given.
     """
     robot = robot_or_name if isinstance(robot_or_name, Robot) else load_robot(robot_or_name)
-    if not isinstance(truth, Truth):
-        truth = load_truth(truth)
+    if isinstance(truth, Truth):
+        if model is not None:
+            raise ValueError("a Truth holds its model: give the model to make_truth or load_truth instead")
+    else:
+        truth = load_truth(truth, robot, model) if truth is not None else make_truth(robot, model=model)
     duration = _check_run(robot, trajectory, truth, duration)
-    true = build_true_robot(robot, truth, model)
+    true = build_true_robot(robot, truth)
     log = track_trajectory(robot, true, trajectory, truth, duration)
     sensors = MeasurementType(measurement)
     data = record_log(robot, truth, log, true.model.torque_delay)
     wrench = (recorded_wrench(true.robot, truth, log.q, log.v, log.tau - true.model.per_joint_model().offset)
               if sensors.wrench else None)
     data = data.replace(tau=data.tau if sensors.torques else None, wrench=wrench)
-    return SimulationOutput(data, {**_truth_dict(robot, truth, true, duration, log, model is not None),
-                               "measurement": sensors.kind})
+    return SimulationOutput(data, {**_truth_dict(robot, truth, true, duration, log), "measurement": sensors.kind})
 
 
 def _check_run(robot: Robot, trajectory: FourierTrajectory, truth: Truth, duration: float | None) -> float:
@@ -179,7 +180,7 @@ def _check_run(robot: Robot, trajectory: FourierTrajectory, truth: Truth, durati
         )
     duration = trajectory.period if duration is None else duration
     duration = check_finite("duration [s]", duration, positive=True)
-    delay = truth.effects.torque_delay
+    delay = truth.model.torque_delay
     if abs(delay) >= duration:
         raise ConfigError(f"effects.torque_delay {delay} s is not shorter than the duration {duration} s")
     return duration
@@ -316,10 +317,8 @@ def record_log(robot: Robot, truth: Truth, log: TrackingLog, delay: float) -> Me
     return Measurement(log.t, q_rec, tau_rec, v_rec, None, robot.joint_names, "")
 
 
-def _truth_dict(robot: Robot, truth: Truth, true: TrueRobot, duration: float, log: TrackingLog,
-                on_model: bool = False) -> dict[str, Any]:
-    """The JSON-ready record of every true value of a run (``<out>.truth.json``); ``on_model``:
-    the truth perturbs an identified model, whose drive terms set every joint."""
+def _truth_dict(robot: Robot, truth: Truth, true: TrueRobot, duration: float, log: TrackingLog) -> dict[str, Any]:
+    """The JSON-ready record of every true value of a run (``<out>.truth.json``)."""
     joints = list(robot.joint_names)
     bodies = robot.body_names
     tracking_rms = np.sqrt(np.mean((log.q - log.q_d) ** 2, axis=0))
@@ -328,10 +327,10 @@ def _truth_dict(robot: Robot, truth: Truth, true: TrueRobot, duration: float, lo
     def per_joint(values):
         return {j: float(x) for j, x in zip(joints, values)}
 
-    e, m = truth.effects, true.model
+    m = true.model
 
-    def source(table):
-        return {j: "truth" if on_model or j in table or ALL_JOINTS in table else "model file" for j in joints}
+    def source(term):
+        return {j: "truth" if j in truth.friction_set.get(term, ()) else "model file" for j in joints}
 
     return {
         "robot": robot.name,
@@ -349,10 +348,10 @@ def _truth_dict(robot: Robot, truth: Truth, true: TrueRobot, duration: float, lo
         ),
         "effects": {
             "viscous": {"unit": "N·m·s/rad", "values": per_joint(m.viscous),
-                        "model_file_damping": per_joint(true.model_damping), "source": source(e.viscous),
+                        "model_file_damping": per_joint(true.model_damping), "source": source("viscous"),
                         "note": "the simulated value: the truth's where it sets the joint, else the model file's"},
             "coulomb": {"unit": "N·m", "values": per_joint(m.coulomb),
-                        "model_file_friction": per_joint(true.model_friction), "source": source(e.coulomb),
+                        "model_file_friction": per_joint(true.model_friction), "source": source("coulomb"),
                         "velocity_scale": m.velocity_scale, "velocity_scale_unit": "rad/s",
                         "model": "coulomb * tanh(v / velocity_scale)"},
             "armature": {"unit": "kg·m²", "values": per_joint(m.armature)},
@@ -371,8 +370,9 @@ def _truth_dict(robot: Robot, truth: Truth, true: TrueRobot, duration: float, lo
                                                "its joint), motor side, acting on the joints through R^T",
                                  "plant_notes": m.plant_notes()}} if m.transmission is not None else {}),
             "payload": {
-                "link": e.payload.link, "mass": e.payload.mass, "com": list(e.payload.com),
-                "inertia_about_com": list(e.payload.inertia),
+                "link": m.payload_link, "mass": m.payload.mass if m.payload is not None else 0.0,
+                "com": (m.payload.com if m.payload is not None else np.zeros(3)).tolist(),
+                "inertia_about_com": (m.payload.inertia_vector if m.payload is not None else np.zeros(6)).tolist(),
                 "phi_about_link_origin": (m.payload.phi if m.payload is not None else np.zeros(10)).tolist(),
                 "units": "kg, m, kg·m²",
             },
