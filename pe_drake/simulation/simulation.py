@@ -73,11 +73,12 @@ from pe_drake.excitation.fourier import FourierTrajectory
 from pe_drake.identification.measurements import Measurement
 from pe_drake.multibody.drive_columns import coulomb_column
 from pe_drake.multibody.inertia import PARAMETER_NAMES
+from pe_drake.multibody.model_plant import APPLIED_FORCE_PORT
 from pe_drake.multibody.robot import Robot, load_robot
 from pe_drake.multibody.robot_model import RobotModel
 from pe_drake.multibody.sensors import MeasurementType
+from pe_drake.simulation.contact import without_contact
 from pe_drake.simulation.truth import Truth, load_truth, make_truth
-from pe_drake.simulation.true_robot import TrueRobot, build_true_robot
 from pe_drake.simulation.wrench_log import recorded_wrench
 
 
@@ -121,6 +122,43 @@ class TrackingLog:
     v: np.ndarray
     tau: np.ndarray
     wall_time: float
+
+
+@dataclasses.dataclass(frozen=True)
+class TrueRobot:
+    """The simulated robot: its model and its Drake plant.
+
+    Attributes:
+        robot: the :class:`~pe_drake.multibody.robot.Robot` (continuous plant) of ``model``
+            (:meth:`~pe_drake.multibody.robot_model.RobotModel.plant`); with pre-sliding
+            friction its diagram exports the input ``applied_generalized_force`` the controller drives.
+        model: the true :class:`~pe_drake.multibody.robot_model.RobotModel` (the truth's).
+    """
+
+    robot: Any
+    model: RobotModel
+
+    def force_input(self):
+        """(port, context) of the applied generalized force the controller sets: the
+        plant's, or the diagram's exported input when the Dahl system adds its torque."""
+        if self.robot.diagram.HasInputPort(APPLIED_FORCE_PORT):  # pre-sliding or prismatic Coulomb friction
+            return self.robot.diagram.GetInputPort(APPLIED_FORCE_PORT), self.robot.context
+        return self.robot.plant.get_applied_generalized_force_input_port(), self.robot.plant_context
+
+
+def build_true_robot(robot: Robot, truth: Truth) -> TrueRobot:
+    """The robot as built of a truth (``truth.model``) in Drake.
+
+    Args:
+        robot: the a-priori :class:`~pe_drake.multibody.robot.Robot` (its config is reloaded; bodies
+            added by its own ``before_finalize`` are not carried over).
+        truth: a :class:`Truth` of this robot.
+
+    The plant applies no contact force (:mod:`pe_drake.simulation.contact`).
+    """
+    plant = truth.model.plant(robot)
+    without_contact(plant)
+    return TrueRobot(plant, truth.model)
 
 
 def simulate(
@@ -222,7 +260,7 @@ def track_trajectory(
 
     Args:
         robot: the a-priori robot (the controller's model with ``control.model: prior``).
-        true: the true robot (:func:`~pe_drake.simulation.true_robot.build_true_robot`).
+        true: the true robot (:func:`build_true_robot`).
         trajectory: the desired motion.
         truth: a validated truth (control, integrator).
         duration: simulated time [s].
@@ -244,8 +282,8 @@ def track_trajectory(
     # the model file's friction the simulated robot keeps, fed forward at v_d (module docstring)
     joint = true.model.per_joint_model()  # through a transmission, the motors' terms per joint
     kept = true.model.transmission is None  # with one the model file's friction is not simulated
-    damping = np.where(kept & np.isclose(joint.viscous, true.model_damping), true.model_damping, 0.0)
-    friction = np.where(kept & np.isclose(joint.coulomb, true.model_friction), true.model_friction, 0.0)
+    damping = np.where(kept & np.isclose(joint.viscous, robot.joint_damping), robot.joint_damping, 0.0)
+    friction = np.where(kept & np.isclose(joint.coulomb, robot.joint_friction), robot.joint_friction, 0.0)
     v_s = true.model.velocity_scale
     simulator = _start_simulator(true, truth, q_d[0], v_d[0], h)
     port, port_context = true.force_input()
@@ -348,10 +386,10 @@ def _truth_dict(robot: Robot, truth: Truth, true: TrueRobot, duration: float, lo
         ),
         "effects": {
             "viscous": {"unit": "N·m·s/rad", "values": per_joint(m.viscous),
-                        "model_file_damping": per_joint(true.model_damping), "source": source("viscous"),
+                        "model_file_damping": per_joint(robot.joint_damping), "source": source("viscous"),
                         "note": "the simulated value: the truth's where it sets the joint, else the model file's"},
             "coulomb": {"unit": "N·m", "values": per_joint(m.coulomb),
-                        "model_file_friction": per_joint(true.model_friction), "source": source("coulomb"),
+                        "model_file_friction": per_joint(robot.joint_friction), "source": source("coulomb"),
                         "velocity_scale": m.velocity_scale, "velocity_scale_unit": "rad/s",
                         "model": "coulomb * tanh(v / velocity_scale)"},
             "armature": {"unit": "kg·m²", "values": per_joint(m.armature)},

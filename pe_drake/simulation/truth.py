@@ -82,26 +82,6 @@ class ControlTruth:
     model: str = "prior"
 
 
-#: The TRUTH.yaml ``effects`` section (key: type). Per-joint tables map a joint name (or
-#: ``all``: every joint not named) to a value; a joint absent from a table gets 0, except for
-#: the friction the model file already has (``viscous``, ``coulomb``), which is kept.
-#: viscous f_v [N·m·s/rad] and coulomb f_c [N·m] (f_c·tanh(v/v_s), v_s =
-#: coulomb_velocity_scale [rad/s]) replace the model file's where set; armature [kg·m²];
-#: torque_offset [N·m] (a constant load the actuator overcomes); torque_delay [s] (the torque
-#: log lags the positions); presliding_friction F_c [N·m] and presliding_stiffness σ0 [N·m/rad]
-#: of the Dahl model (:mod:`pe_drake.multibody.dahl`); payload: a rigid body welded to ``link``,
-#: ``mass`` [kg], ``com`` in the link frame [m], ``inertia`` about its centre of mass in the
-#: link axes [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] [kg·m²] (zeros: a point mass).
-EFFECT_KEYS = {
-    "viscous": dict[str, float], "coulomb": dict[str, float], "coulomb_velocity_scale": float,
-    "armature": dict[str, float], "torque_offset": dict[str, float], "torque_delay": float,
-    "payload": {"link": str, "mass": float, "com": list[float], "inertia": list[float]},
-    "presliding_friction": dict[str, float], "presliding_stiffness": dict[str, float],
-}
-#: A whole TRUTH.yaml (key: type); :class:`Truth`'s attributes and ``effects`` (:data:`EFFECT_KEYS`).
-TRUTH_KEYS = {"seed": int, "inertia_perturbation": float, "effects": EFFECT_KEYS, "noise": NoiseTruth,
-              "control": ControlTruth, "record_velocity": bool, "record_command": bool,
-              "integration_accuracy": float, "integrator": str}
 _JOINT_TABLES = {  # effects table: (unit, non-negative)
     "viscous": ("N·m·s/rad", True),
     "coulomb": ("N·m", True),
@@ -110,6 +90,13 @@ _JOINT_TABLES = {  # effects table: (unit, non-negative)
     "presliding_friction": ("N·m", True),
     "presliding_stiffness": ("N·m/rad", True),
 }
+#: The TRUTH.yaml ``effects`` section (key: type; :func:`make_truth` says what each is).
+EFFECT_KEYS = {**{k: dict[str, float] for k in _JOINT_TABLES}, "coulomb_velocity_scale": float,
+               "torque_delay": float, "payload": {"link": str, "mass": float, "com": list[float], "inertia": list[float]}}
+#: A whole TRUTH.yaml (key: type): :class:`Truth`'s attributes with ``effects`` for ``model``.
+TRUTH_KEYS = {"seed": int, "inertia_perturbation": float, "effects": EFFECT_KEYS, "noise": NoiseTruth,
+              "control": ControlTruth, "record_velocity": bool, "record_command": bool,
+              "integration_accuracy": float, "integrator": str}
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -214,8 +201,15 @@ def make_truth(robot: Robot, effects: Mapping[str, Any] | None = None, *, model:
 
     Args:
         robot: the a-priori robot.
-        effects: a TRUTH.yaml ``effects`` section as data (:data:`EFFECT_KEYS`; missing keys
-            are none).
+        effects: a TRUTH.yaml ``effects`` section as data (:data:`EFFECT_KEYS`, every key
+            optional). Per-joint tables map a joint name (or ``all``: every joint not named) to
+            a value, 0 where absent: ``viscous`` f_v [N·m·s/rad], ``coulomb`` f_c [N·m] (as
+            f_c·tanh(v/v_s), v_s = ``coulomb_velocity_scale`` [rad/s]), ``armature`` [kg·m²],
+            ``torque_offset`` [N·m], ``presliding_friction`` F_c [N·m] and
+            ``presliding_stiffness`` σ0 [N·m/rad] (:mod:`pe_drake.multibody.dahl`);
+            ``torque_delay`` [s] (the torque log lags the positions); ``payload``: a body welded
+            to ``link``, ``mass`` [kg], ``com`` in the link frame [m], ``inertia`` about the
+            centre of mass in the link axes [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] [kg·m²].
         model: the robot the truth perturbs (an identified model); default the a-priori one.
         where: what to name in errors (the file).
         run: the other :class:`Truth` attributes (``seed``, ``noise``, ``control``, ...).
