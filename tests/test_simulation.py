@@ -266,6 +266,17 @@ def test_bad_truth_file(tmp_path, robot, text, match):
         load_truth(_truth_file(tmp_path, text), robot)
 
 
+def test_a_truth_in_code_is_checked_like_a_file(robot):
+    """make_truth reads the effects section straight into the RobotModel, with the file's checks."""
+    with pytest.raises(ConfigError, match="unknown effects key.*viscos"):
+        make_truth(robot, {"viscos": {"all": 0.1}})
+    with pytest.raises(ConfigError, match=r"effects.armature\['all'\].*non-negative"):
+        make_truth(robot, {"armature": {"all": -0.1}})
+    truth = make_truth(robot, {"coulomb": {"panda_joint2": 0.5}, "torque_delay": 0.002})
+    assert truth.model.coulomb[1] == 0.5 and truth.model.torque_delay == 0.002
+    assert truth.friction_set["coulomb"] == {"panda_joint2"} and not truth.friction_set["viscous"]
+
+
 def test_missing_truth_file(tmp_path, robot):
     with pytest.raises(ConfigError, match="does not exist"):
         load_truth(tmp_path / "none.yaml", robot)
