@@ -31,19 +31,17 @@ def main(argv: list[str] | None = None) -> int:
     from pe_drake.diagnosis import diagnose
     from pe_drake.excitation.trajectory_file import load_trajectory
     from pe_drake.simulation.simulation import simulate
-    from pe_drake.simulation.truth import ControlTruth, EffectsTruth, NoiseTruth, PayloadTruth, Truth
+    from pe_drake.simulation.truth import ControlTruth, NoiseTruth, make_truth
     from pe_drake.multibody.robot import load_robot
     from pe_drake.threads import single_threaded_blas
 
     robot = load_robot("panda")
     trajectory, _ = load_trajectory(args.trajectory)
-    truth = Truth(
-        seed=7, inertia_perturbation=0.03,
-        effects=EffectsTruth(
-            coulomb={"all": 0.3, "panda_joint7": 0.1}, viscous={"all": 0.1, "panda_joint7": 0.03},
-            armature={"panda_joint5": 0.05}, torque_offset={"panda_joint2": 0.5},
-            payload=PayloadTruth(link="panda_hand", mass=0.8, com=[0.0, 0.0, 0.1])),
-        noise=NoiseTruth(encoder_counts_per_rev=524288, tau_std=0.02),
+    truth = make_truth(  # the robot as built: truth.model
+        robot, {"coulomb": {"all": 0.3, "panda_joint7": 0.1}, "viscous": {"all": 0.1, "panda_joint7": 0.03},
+                "armature": {"panda_joint5": 0.05}, "torque_offset": {"panda_joint2": 0.5},
+                "payload": {"link": "panda_hand", "mass": 0.8, "com": [0.0, 0.0, 0.1]}},
+        seed=7, inertia_perturbation=0.03, noise=NoiseTruth(encoder_counts_per_rev=524288, tau_std=0.02),
         control=ControlTruth(rate_hz=1000.0),
     )
     print(f"simulating {args.duration:g} s ...", flush=True)

@@ -120,11 +120,11 @@ def simulate_runs(robot, trajectories: dict, duration: float, seed: int, say) ->
     """
     from pe_drake.identification.intake import prepare_measurement
     from pe_drake.simulation.simulation import simulate
-    from pe_drake.simulation.truth import Truth
+    from pe_drake.simulation.truth import NoiseTruth, make_truth
 
-    noisy = Truth(seed=seed, inertia_perturbation=0.1)
-    noisy.noise.tau_std, noisy.noise.force_std, noisy.noise.moment_std = TORQUE_STD, FORCE_STD, MOMENT_STD
-    clean = Truth(seed=seed, inertia_perturbation=0.1)  # the same true robot (same seed)
+    noise = NoiseTruth(tau_std=TORQUE_STD, force_std=FORCE_STD, moment_std=MOMENT_STD)
+    noisy = make_truth(robot, seed=seed, inertia_perturbation=0.1, noise=noise)
+    clean = make_truth(robot, seed=seed, inertia_perturbation=0.1)  # the same true robot (same seed)
     runs = {}
     for name, trajectory in trajectories.items():
         start = time.perf_counter()

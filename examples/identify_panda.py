@@ -40,7 +40,7 @@ def main(argv: list[str] | None = None) -> int:
     from pe_drake.identification.intake import prepare_measurement
     from pe_drake.identification.prediction import predict, robot_torques, torque_errors
     from pe_drake.simulation.simulation import simulate
-    from pe_drake.simulation.truth import Truth
+    from pe_drake.simulation.truth import NoiseTruth, make_truth
     from pe_drake.multibody.robot import load_robot
     from pe_drake.multibody.robot_model import RobotModel
     from pe_drake.threads import single_threaded_blas
@@ -52,9 +52,8 @@ def main(argv: list[str] | None = None) -> int:
     alpha = problem.initial_guess(seed=7, amplitude=2.0)
     random_run = problem.trajectory(scale_into_limits(problem, alpha, 0.9))
 
-    truth = Truth(seed=2, inertia_perturbation=0.1)
-    truth.noise.encoder_counts_per_rev = 524288
-    truth.noise.tau_std = 0.05
+    truth = make_truth(robot, seed=2, inertia_perturbation=0.1,
+                       noise=NoiseTruth(encoder_counts_per_rev=524288, tau_std=0.05))
     runs = {}
     with single_threaded_blas():
         for name, trajectory in (("identification", optimized), ("validation", random_run)):

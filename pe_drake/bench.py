@@ -32,7 +32,7 @@ from pe_drake.memory import reuse_freed_memory
 from pe_drake.multibody.robot import load_robot
 from pe_drake.simulation.simulation import simulate
 from pe_drake.simulation.synthetic import model_measurement
-from pe_drake.simulation.truth import ControlTruth, EffectsTruth, NoiseTruth, Truth
+from pe_drake.simulation.truth import ControlTruth, NoiseTruth, make_truth
 from pe_drake.threads import single_threaded_blas
 
 if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
@@ -200,10 +200,9 @@ def bench_diagnose(args) -> None:
     robot = load_robot(args.robot)
     trajectory = bench_trajectory(robot, args.seed)
     n = robot.n
-    truth = Truth(seed=args.seed, inertia_perturbation=0.03,
-                  effects=EffectsTruth(viscous={"all": 0.1}, coulomb={"all": 0.3}),
-                  noise=NoiseTruth(encoder_counts_per_rev=524288, tau_std=0.02),
-                  control=ControlTruth(rate_hz=1000.0))
+    truth = make_truth(robot, {"viscous": {"all": 0.1}, "coulomb": {"all": 0.3}}, seed=args.seed,
+                       inertia_perturbation=0.03, noise=NoiseTruth(encoder_counts_per_rev=524288, tau_std=0.02),
+                       control=ControlTruth(rate_hz=1000.0))
     start = time.perf_counter()
     data, _ = simulate(robot, trajectory, truth, 20.0)
     sim_s = time.perf_counter() - start
@@ -236,13 +235,13 @@ def bench_sensitivity(args) -> None:
     alarms = []
     with single_threaded_blas():
         for k in range(20):
-            truth = Truth(seed=args.seed + k, inertia_perturbation=0.05, noise=noise, control=control)
+            truth = make_truth(robot, seed=args.seed + k, inertia_perturbation=0.05, noise=noise, control=control)
             data, _ = simulate(robot, trajectory, truth, 14.0)
             found = [f"{e.effect}[{e.joint or e.link}]" for e in diagnose(robot, data).effects]
             alarms.append(found)
             print(f"clean run {k}: " + (", ".join(found) or "nothing named"), flush=True)
-        truth = Truth(seed=args.seed, inertia_perturbation=0.05, noise=noise, control=control,
-                      effects=EffectsTruth(torque_offset={"all": 0.1}))
+        truth = make_truth(robot, {"torque_offset": {"all": 0.1}}, seed=args.seed, inertia_perturbation=0.05,
+                           noise=noise, control=control)
         data, _ = simulate(robot, trajectory, truth, 14.0)
         offsets = {e.joint: e.value for e in diagnose(robot, data).effects if e.effect == "torque_offset"}
     print("0.1 N·m offsets named: " + ", ".join(f"{j} {v:+.4f}" for j, v in offsets.items()))

@@ -71,7 +71,7 @@ def _check_scalar(node, tp, optional: bool, source: str, key: str) -> None:
 def _kind(tp) -> str:
     tp, _ = _strip_optional(tp)
     origin = typing.get_origin(tp)
-    if dataclasses.is_dataclass(tp) or origin is dict:
+    if dataclasses.is_dataclass(tp) or isinstance(tp, dict) or origin is dict:
         return "a mapping"
     if origin is list:
         return "a list"
@@ -83,13 +83,14 @@ def _check_node(node, tp, source: str, key: str) -> None:
 
     tp, optional = _strip_optional(tp)
     origin = typing.get_origin(tp)
-    if dataclasses.is_dataclass(tp):
+    if dataclasses.is_dataclass(tp) or isinstance(tp, dict):  # a dict: {key: type} of a section
         if not isinstance(node, yaml.MappingNode):
             # A whole file that is one scalar is not YAML of ours (a key, a password file named
             # by mistake or on purpose): its content is not echoed.
             got = _shape(node) if key or not isinstance(node, yaml.ScalarNode) else "text that is not YAML keys"
-            raise ConfigError(f"{_where(source, node, key)}: expected a mapping of {tp.__name__} keys, got {got}")
-        hints = typing.get_type_hints(tp)
+            raise ConfigError(f"{_where(source, node, key)}: expected a mapping of "
+                              f"{getattr(tp, '__name__', key.rsplit('.', 1)[-1] or 'top-level')} keys, got {got}")
+        hints = tp if isinstance(tp, dict) else typing.get_type_hints(tp)
         for k_node, v_node in node.value:
             name = k_node.value
             sub = f"{key}.{shorten(name)}" if key else shorten(name)
@@ -129,8 +130,16 @@ def _shape(node) -> str:
 
 
 def check_yaml_file(path: str | Path, schema: type, what: str = "config") -> None:
-    """Refuses a YAML file whose syntax or shape does not fit the dataclass ``schema``: a
-    ConfigError names the file (a ``what`` file: "config", "capsule"), the line and the key."""
+    """Refuses a YAML file whose syntax or shape does not fit ``schema``.
+
+    Args:
+        path: the file.
+        schema: the dataclass it maps onto, or a {key: type} dict (a section without a class).
+        what: what the file is, for messages ("config", "truth", "capsule").
+
+    Raises:
+        ConfigError: naming the file, the line and the dotted key.
+    """
     import yaml  # PyYAML, a dependency of pydrake.common.yaml; lazy like pydrake
 
     path = Path(path)

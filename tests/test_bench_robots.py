@@ -11,7 +11,7 @@ from pe_drake.bench_robots import (
 )
 from pe_drake.multibody.registry import example_robot_data_dir
 from pe_drake.multibody.robot import load_robot
-from pe_drake.simulation.truth import load_truth, validate_truth
+from pe_drake.simulation.truth import load_truth
 
 
 def _table(output: str) -> tuple[list[str], list[str]]:
@@ -76,10 +76,9 @@ def test_the_hidden_friction_is_a_truth_the_simulation_takes(tmp_path):
     robot = load_robot(str(example_robot_data_dir() / "robots/panda_description/urdf/panda.urdf"))
     path = tmp_path / "TRUTH.yaml"
     path.write_text(hidden_friction(robot, 0))
-    truth = validate_truth(load_truth(path), robot)
-    assert set(truth.effects.viscous) == set(robot.joint_names)
-    assert set(truth.effects.coulomb) == set(robot.joint_names)
-    assert truth.effects.coulomb["panda_joint1"] == pytest.approx(0.02 * 87.0)  # 2 % of its effort limit
+    truth = load_truth(path, robot)
+    assert truth.friction_set["viscous"] == truth.friction_set["coulomb"] == set(robot.joint_names)
+    assert truth.model.coulomb[0] == pytest.approx(0.02 * 87.0)  # 2 % of its effort limit
     assert truth.integrator == "radau3"
 
 

@@ -107,13 +107,13 @@ def test_simulated_robot_moves_free_where_its_capsules_overlap():
     overlap is reported."""
     from pe_drake.simulation.contact import capsule_contacts
     from pe_drake.simulation.simulation import build_true_robot, track_trajectory
-    from pe_drake.simulation.truth import EffectsTruth, Truth
+    from pe_drake.simulation.truth import make_truth
 
     robot = get_robot("ur5")
     optimized, _ = load_trajectory(OPTIMIZED)
     trajectory = random_trajectory(robot, optimized, seed=2)
-    truth = Truth(effects=EffectsTruth(viscous={"all": 0.3}, coulomb={"all": 2.0}, armature={"all": 0.1}),
-                  inertia_perturbation=0.0, seed=2)
+    truth = make_truth(robot, {"viscous": {"all": 0.3}, "coulomb": {"all": 2.0}, "armature": {"all": 0.1}},
+                       inertia_perturbation=0.0, seed=2)
     true = build_true_robot(robot, truth)
     log = track_trajectory(robot, true, trajectory, truth, 7.0)
     contacts = {c.pair: c for c in capsule_contacts(robot, log.t, log.q)}

@@ -10,7 +10,7 @@ from pe_drake.exceptions import ConfigError
 from pe_drake.excitation.trajectory_file import load_trajectory
 from pe_drake.multibody.dahl import dahl_friction_system, dahl_state
 from pe_drake.simulation.simulation import simulate
-from pe_drake.simulation.truth import ControlTruth, EffectsTruth, Truth, validate_truth
+from pe_drake.simulation.truth import ControlTruth, make_truth
 from tests.conftest import get_robot
 from tests.test_diagnosis import TRAJECTORY
 
@@ -71,9 +71,9 @@ def test_simulated_robot_carries_the_dahl_torque():
     trajectory, _ = load_trajectory(TRAJECTORY)
     control = ControlTruth(rate_hz=500.0)
     fc, x_p = 0.5, 0.02
-    effects = EffectsTruth(presliding_friction={"panda_joint3": fc}, presliding_stiffness={"panda_joint3": fc / x_p})
-    with_dahl, truth = simulate(robot, trajectory, Truth(control=control, effects=effects), 3.0)
-    without, _ = simulate(robot, trajectory, Truth(control=control), 3.0)
+    effects = {"presliding_friction": {"panda_joint3": fc}, "presliding_stiffness": {"panda_joint3": fc / x_p}}
+    with_dahl, truth = simulate(robot, trajectory, make_truth(robot, effects, control=control), 3.0)
+    without, _ = simulate(robot, trajectory, make_truth(robot, control=control), 3.0)
     extra = with_dahl.tau[:, 2] - without.tau[:, 2]
     z = dahl_state(with_dahl.q[:, 2], x_p)
     assert np.sqrt(np.mean((extra - fc * z) ** 2)) < 0.03 * fc
@@ -82,6 +82,5 @@ def test_simulated_robot_carries_the_dahl_torque():
 
 
 def test_presliding_friction_needs_a_stiffness():
-    truth = Truth(effects=EffectsTruth(presliding_friction={"panda_joint2": 0.3}))
     with pytest.raises(ConfigError, match=r"presliding_stiffness\['panda_joint2'\]"):
-        validate_truth(truth, get_robot("panda"))
+        make_truth(get_robot("panda"), {"presliding_friction": {"panda_joint2": 0.3}})

@@ -29,7 +29,7 @@ from pe_drake.excitation.trajectory_file import load_trajectory
 from pe_drake.identification.measurements import Measurement, write_measurement_csv
 from pe_drake.multibody.inertia import perturb_inertias
 from pe_drake.simulation.simulation import simulate
-from pe_drake.simulation.truth import ControlTruth, EffectsTruth, NoiseTruth, PayloadTruth, Truth
+from pe_drake.simulation.truth import ControlTruth, NoiseTruth, make_truth
 from tests.conftest import get_robot
 
 DATA = Path(__file__).parent / "data"
@@ -43,19 +43,19 @@ DURATION = 14.0  # [s]: 70 % for identification (about one period), 30 % held ou
 CONTROL = ControlTruth(rate_hz=500.0)  # a 500 Hz log halves the simulation time
 NOISE = NoiseTruth(encoder_counts_per_rev=524288, tau_std=0.02)
 
-CASES = {
-    "clean": Truth(seed=3, inertia_perturbation=0.05, noise=NOISE, control=CONTROL),
-    "coulomb": Truth(effects=EffectsTruth(coulomb={"panda_joint3": 0.5}), control=CONTROL),
-    "viscous": Truth(effects=EffectsTruth(viscous={"panda_joint5": 0.2}), control=CONTROL),
-    "armature": Truth(effects=EffectsTruth(armature={"panda_joint4": 0.1}), control=CONTROL),
-    "offset": Truth(effects=EffectsTruth(torque_offset={"panda_joint4": -0.8}), control=CONTROL),
-    "payload": Truth(control=CONTROL, effects=EffectsTruth(payload=PayloadTruth(
+CASES = {  # make_truth's arguments
+    "clean": dict(seed=3, inertia_perturbation=0.05, noise=NOISE, control=CONTROL),
+    "coulomb": dict(effects=dict(coulomb={"panda_joint3": 0.5}), control=CONTROL),
+    "viscous": dict(effects=dict(viscous={"panda_joint5": 0.2}), control=CONTROL),
+    "armature": dict(effects=dict(armature={"panda_joint4": 0.1}), control=CONTROL),
+    "offset": dict(effects=dict(torque_offset={"panda_joint4": -0.8}), control=CONTROL),
+    "payload": dict(control=CONTROL, effects=dict(payload=dict(
         link="panda_hand", mass=1.0, com=[0.02, 0.0, 0.08], inertia=[2e-3, 2e-3, 1e-3, 0.0, 0.0, 0.0]))),
-    "mix": Truth(seed=5, inertia_perturbation=0.03, noise=NOISE, control=CONTROL, effects=EffectsTruth(
+    "mix": dict(seed=5, inertia_perturbation=0.03, noise=NOISE, control=CONTROL, effects=dict(
         viscous={"all": 0.15, "panda_joint5": 0.05, "panda_joint6": 0.05, "panda_joint7": 0.03},
         coulomb={"all": 0.4, "panda_joint5": 0.2, "panda_joint6": 0.2, "panda_joint7": 0.1})),
-    "delay": Truth(effects=EffectsTruth(torque_delay=0.010), control=CONTROL),
-    "armature_joint1": Truth(effects=EffectsTruth(armature={"panda_joint1": 0.2}), control=CONTROL),
+    "delay": dict(effects=dict(torque_delay=0.010), control=CONTROL),
+    "armature_joint1": dict(effects=dict(armature={"panda_joint1": 0.2}), control=CONTROL),
 }
 
 _SIMULATED: dict = {}
@@ -76,7 +76,7 @@ def trajectory():
 def simulated(robot, trajectory, case: str):
     """The simulated run of a case (once per session) and its truth dict."""
     if case not in _SIMULATED:
-        _SIMULATED[case] = simulate(robot, trajectory, CASES[case], DURATION)
+        _SIMULATED[case] = simulate(robot, trajectory, make_truth(robot, **CASES[case]), DURATION)
     return _SIMULATED[case]
 
 
@@ -186,8 +186,8 @@ def test_timing_delay_is_named_and_corrected(robot, trajectory):
 def test_timing_delay_in_a_mix(robot, trajectory):
     """A 5 ms lead of the torque log among Coulomb friction and an offset, with noise and
     inertial errors: all three named within 10 %, nothing else."""
-    truth = Truth(seed=4, inertia_perturbation=0.03, noise=NOISE, control=CONTROL, effects=EffectsTruth(
-        torque_delay=-0.005, torque_offset={"panda_joint4": -0.8}, coulomb={"panda_joint3": 0.5}))
+    truth = make_truth(robot, dict(torque_delay=-0.005, torque_offset={"panda_joint4": -0.8}, coulomb={"panda_joint3": 0.5}),
+                       seed=4, inertia_perturbation=0.03, noise=NOISE, control=CONTROL)
     measurement, _ = simulate(robot, trajectory, truth, DURATION)
     result = diagnose(robot, measurement)
     found = named(result)

@@ -12,15 +12,15 @@ import pytest
 
 from pe_drake.diagnosis.workflow import diagnose
 from pe_drake.simulation.simulation import simulate
-from pe_drake.simulation.truth import EffectsTruth, NoiseTruth, Truth
+from pe_drake.simulation.truth import NoiseTruth, make_truth
 from tests.test_diagnosis import CONTROL, DURATION
 
 NOISE = NoiseTruth(encoder_counts_per_rev=524288, tau_std=0.05)
 
 
 def test_small_offsets_on_every_joint_are_named(panda, diagnosis_trajectory):
-    truth = Truth(seed=100, inertia_perturbation=0.05, noise=NOISE, control=CONTROL,
-                  effects=EffectsTruth(torque_offset={"all": 0.1}))
+    truth = make_truth(panda, {"torque_offset": {"all": 0.1}}, seed=100, inertia_perturbation=0.05, noise=NOISE,
+                       control=CONTROL)
     measurement, _ = simulate(panda, diagnosis_trajectory, truth, DURATION)
     result = diagnose(panda, measurement)
     offsets = {e.joint: e.value for e in result.effects if e.effect == "torque_offset"}
@@ -32,7 +32,7 @@ def test_small_offsets_on_every_joint_are_named(panda, diagnosis_trajectory):
 
 @pytest.mark.parametrize("seed", [101, 102])
 def test_clean_runs_name_nothing(panda, diagnosis_trajectory, seed):
-    truth = Truth(seed=seed, inertia_perturbation=0.05, noise=NOISE, control=CONTROL)
+    truth = make_truth(panda, seed=seed, inertia_perturbation=0.05, noise=NOISE, control=CONTROL)
     measurement, _ = simulate(panda, diagnosis_trajectory, truth, DURATION)
     result = diagnose(panda, measurement)
     assert result.effects == [], [(e.effect, e.joint) for e in result.effects]

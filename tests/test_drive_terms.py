@@ -340,11 +340,10 @@ def test_drive_effects_yaml_is_a_truth_file_for_simulate(optimized, tmp_path):
     result = identify(robot, with_drive(robot, optimized, truth, duration=optimized.period), "physical")
     model = RobotModel.from_dict(result_to_dict(result, robot), robot.body_names)
     (tmp_path / "drive_effects.yaml").write_text(model.effects_yaml())
-    effects = load_truth(tmp_path / "drive_effects.yaml").effects
-    for j, name in enumerate(robot.joint_names):
-        assert effects.coulomb[name] == pytest.approx(result.model.coulomb[j])
-        assert effects.torque_offset[name] == pytest.approx(result.model.offset[j])
-    assert set(effects.armature) == set(robot.joint_names)  # merged ones from the physical fit
+    true = load_truth(tmp_path / "drive_effects.yaml", robot).model  # the robot as built from the file
+    np.testing.assert_allclose(true.coulomb, result.model.coulomb)
+    np.testing.assert_allclose(true.offset, result.model.offset)
+    assert np.all(true.armature > 0)  # every joint's, merged ones from the physical fit
 
 
 def test_ground_wrench_and_torques_separate_every_armature_and_the_physical_fit_runs():

@@ -12,16 +12,16 @@ from pe_drake.diagnosis.holding import HOLDING
 from pe_drake.identification.rest import count_runs, rest_mask
 from pe_drake.diagnosis.workflow import diagnose
 from pe_drake.simulation.simulation import simulate
-from pe_drake.simulation.truth import EffectsTruth, Truth
+from pe_drake.simulation.truth import make_truth
 from tests.held_trajectory import HeldTrajectory
 from tests.test_diagnosis import CONTROL, DURATION, NOISE, named
 
 JOINT, FC, XP = "panda_joint5", 0.5, 0.001  # Dahl F_c [N·m] and x_p [rad]: stiffer than the grid resolves
-DAHL = EffectsTruth(presliding_friction={JOINT: FC}, presliding_stiffness={JOINT: FC / XP})
+DAHL = {"presliding_friction": {JOINT: FC}, "presliding_stiffness": {JOINT: FC / XP}}
 
 
 def _simulate(panda, trajectory, effects):
-    return simulate(panda, trajectory, Truth(control=CONTROL, noise=NOISE, effects=effects), DURATION)[0]
+    return simulate(panda, trajectory, make_truth(panda, effects, control=CONTROL, noise=NOISE), DURATION)[0]
 
 
 def _run(panda, trajectory, effects, validation=None):
@@ -81,6 +81,6 @@ def test_no_holding_torque_without_rests(panda, diagnosis_trajectory):
 
 
 def test_clean_run_that_stops_names_nothing(panda, diagnosis_trajectory):
-    result, _ = _run(panda, HeldTrajectory(diagnosis_trajectory), EffectsTruth())
+    result, _ = _run(panda, HeldTrajectory(diagnosis_trajectory), {})
     assert not result.effects, [*named(result)]
     assert all(r["candidate"] and not r["named"] for r in result.holding_test["joints"])

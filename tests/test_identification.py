@@ -126,12 +126,11 @@ def simulated_runs(optimized, tmp_path_factory):
     """Identification run (optimized trajectory) and validation run (another, random one) of
     a true Panda with ±10 % inertias, encoder quantization and torque noise."""
     from pe_drake.simulation.simulation import simulate
-    from pe_drake.simulation.truth import Truth
+    from pe_drake.simulation.truth import NoiseTruth, make_truth
 
     robot = get_robot("panda")
-    truth = Truth(seed=2, inertia_perturbation=0.1)
-    truth.noise.encoder_counts_per_rev = 524288
-    truth.noise.tau_std = 0.05
+    truth = make_truth(robot, seed=2, inertia_perturbation=0.1,
+                       noise=NoiseTruth(encoder_counts_per_rev=524288, tau_std=0.05))
     folder = tmp_path_factory.mktemp("runs")
     files = {}
     for name, trajectory in (("ident", optimized), ("valid", random_trajectory(robot, optimized, seed=7))):

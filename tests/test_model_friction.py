@@ -18,7 +18,7 @@ from pe_drake.diagnosis import diagnose
 from pe_drake.excitation.trajectory_file import load_trajectory
 from pe_drake.multibody.robot import load_robot
 from pe_drake.simulation.simulation import simulate
-from pe_drake.simulation.truth import ControlTruth, EffectsTruth, NoiseTruth, Truth
+from pe_drake.simulation.truth import ControlTruth, NoiseTruth, make_truth
 from tests.conftest import get_robot
 from tests.test_diagnosis import TRAJECTORY
 
@@ -57,15 +57,15 @@ def test_the_model_files_friction_is_read(damped):
 _RUNS: dict = {}
 
 
-def simulated(robot, trajectory, truth: Truth):
-    """The simulated run of a truth (once per module)."""
+def simulated(robot, trajectory, truth: dict):
+    """The simulated run of a truth (:func:`make_truth`'s arguments; once per module)."""
     key = repr(truth)
     if key not in _RUNS:
-        _RUNS[key] = simulate(robot, trajectory, truth, DURATION)
+        _RUNS[key] = simulate(robot, trajectory, make_truth(robot, **truth), DURATION)
     return _RUNS[key]
 
 
-PLAIN = Truth(seed=2, noise=NOISE, control=CONTROL)
+PLAIN = {"seed": 2, "noise": NOISE, "control": CONTROL}
 
 
 def test_simulate_keeps_the_urdf_damping_and_diagnose_accepts_it(damped, trajectory):
@@ -84,7 +84,7 @@ def test_simulate_keeps_the_urdf_damping_and_diagnose_accepts_it(damped, traject
 def test_the_truths_viscous_friction_replaces_the_urdf_damping(damped, trajectory):
     """A truth that sets a joint's viscous friction is what is simulated there; the other
     joints keep the URDF's damping, and diagnose names only what the URDF lacks."""
-    truth = Truth(seed=4, noise=NOISE, control=CONTROL, effects=EffectsTruth(viscous={"panda_joint4": 1.5}))
+    truth = make_truth(damped, {"viscous": {"panda_joint4": 1.5}}, seed=4, noise=NOISE, control=CONTROL)
     data, record = simulate(damped, trajectory, truth, DURATION)
     viscous = record["effects"]["viscous"]
     assert viscous["values"]["panda_joint4"] == 1.5 and viscous["source"]["panda_joint4"] == "truth"
@@ -141,7 +141,7 @@ def test_a_urdf_with_too_much_friction_gets_negative_corrections(trajectory, tmp
     path.write_text(text)
     robot = load_robot(dataclasses.replace(panda.config, model=str(path)))
     assert robot.joint_friction.tolist() == [1.0] * 7
-    truth = Truth(seed=6, noise=NOISE, control=CONTROL, effects=EffectsTruth(viscous={"all": 0.1}, coulomb={"all": 0.3}))
+    truth = make_truth(robot, {"viscous": {"all": 0.1}, "coulomb": {"all": 0.3}}, seed=6, noise=NOISE, control=CONTROL)
     data, _ = simulate(robot, trajectory, truth, DURATION)
     result = diagnose(robot, data)
     coulomb = {e.joint: e for e in result.effects if e.effect == "coulomb_friction"}

@@ -5,6 +5,8 @@ at other instants. Inverse-dynamics data: no simulator."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -12,7 +14,7 @@ from pe_drake.excitation.payload_motion import optimize_payload_motion
 from pe_drake.identification.payload import PayloadBox, PayloadOptions, identify_payload, payload_errors
 from pe_drake.multibody.inertia import pseudo_inertia
 from pe_drake.multibody.payload import PayloadInertia, box_inertia
-from pe_drake.simulation.payload_synthetic import TrueArm, payload_run, random_box_payload, random_true_arm
+from pe_drake.simulation.payload_synthetic import payload_run, random_box_payload, random_true_arm
 from tests.conftest import get_robot
 
 ROBOTS = {"panda": "panda_link8", "ur5": "tool0"}
@@ -67,7 +69,7 @@ def test_without_unloaded_run_the_arm_model_errors_go_into_the_payload():
     loaded, _ = _runs(name, arm, payload, 0.04, 5, unloaded=False)
     biased = payload_errors(identify_payload(robot, loaded, [], ROBOTS[name]), payload)
     assert biased["mass_sigmas"] > 10 or biased["com_sigmas"] > 10, biased
-    exact_arm = TrueArm(robot.phi_model.copy(), arm.coulomb, arm.viscous)
+    exact_arm = dataclasses.replace(arm, phi=robot.phi_model.copy(), physical=None)
     loaded, _ = _runs(name, exact_arm, payload, 0.04, 5, unloaded=False)
     e = payload_errors(identify_payload(robot, loaded, [], ROBOTS[name]), payload)
     assert e["mass_percent"] < 0.5 and e["com_m"] < 1e-3 and e["inertia_percent_of_max"] < 10, e

@@ -14,7 +14,7 @@ from pe_drake.diagnosis.presliding import DISPLACEMENT_GRID, replace_column
 from pe_drake.diagnosis.regression import Columns
 from pe_drake.diagnosis.workflow import diagnose
 from pe_drake.simulation.simulation import simulate
-from pe_drake.simulation.truth import EffectsTruth, Truth
+from pe_drake.simulation.truth import NoiseTruth, make_truth
 from tests.test_diagnosis import CONTROL, DURATION, NOISE, named
 
 
@@ -50,8 +50,7 @@ def test_replace_column_updates_the_gram_entries():
     [("panda_joint3", 0.5, 0.010, False), ("panda_joint5", 0.3, 0.050, True)],
 )
 def test_presliding_friction_alone_is_named(panda, diagnosis_trajectory, joint, fc, x_p, noise):
-    truth = Truth(control=CONTROL, noise=NOISE if noise else Truth().noise,
-                  effects=EffectsTruth(**_dahl({joint: fc}, {joint: x_p})))
+    truth = make_truth(panda, _dahl({joint: fc}, {joint: x_p}), control=CONTROL, noise=NOISE if noise else NoiseTruth())
     measurement, _ = simulate(panda, diagnosis_trajectory, truth, DURATION)
     result = diagnose(panda, measurement)
     found = named(result)
@@ -72,9 +71,9 @@ def test_presliding_friction_in_a_mix(panda, diagnosis_trajectory):
     another joint, with noise and inertial errors."""
     # joint 1: 0.15, not 0.1: what diagnose names is the correction of the URDF's damping 0.003
     # (issue 21), and 0.097 sat at z 3.98 under the 4.1 bound where 0.1 had just passed
-    effects = EffectsTruth(viscous={"all": 0.1, "panda_joint1": 0.15}, coulomb={"panda_joint1": 0.4},
-                           **_dahl({"panda_joint2": 0.6, "panda_joint4": 0.4}, {"panda_joint2": 0.02, "panda_joint4": 0.03}))
-    truth = Truth(seed=7, inertia_perturbation=0.03, noise=NOISE, control=CONTROL, effects=effects)
+    effects = dict(viscous={"all": 0.1, "panda_joint1": 0.15}, coulomb={"panda_joint1": 0.4},
+                   **_dahl({"panda_joint2": 0.6, "panda_joint4": 0.4}, {"panda_joint2": 0.02, "panda_joint4": 0.03}))
+    truth = make_truth(panda, effects, seed=7, inertia_perturbation=0.03, noise=NOISE, control=CONTROL)
     measurement, _ = simulate(panda, diagnosis_trajectory, truth, DURATION)
     result = diagnose(panda, measurement)
     found = named(result)

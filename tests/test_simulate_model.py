@@ -143,20 +143,18 @@ def test_simulate_refuses_a_file_that_is_not_a_model(tmp_path, capsys):
 
 def test_a_truth_adds_its_effects_to_the_model(tmp_path):
     from pe_drake.exceptions import ConfigError
-    from pe_drake.simulation.true_robot import true_model
-    from pe_drake.simulation.truth import EffectsTruth, Truth
+    from pe_drake.simulation.truth import make_truth
 
     robot = get_robot("panda")
     path, model = augmented_model_file(tmp_path, robot)
     sim = load_simulation_model(path, robot)
-    true = true_model(robot, Truth(effects=EffectsTruth(viscous={"all": 0.1}, torque_delay=0.001)), sim)
+    true = make_truth(robot, {"viscous": {"all": 0.1}, "torque_delay": 0.001}, model=sim).model
     np.testing.assert_allclose(true.viscous, model.viscous + 0.1)
     assert true.torque_delay == pytest.approx(0.003)
     with pytest.raises(ConfigError, match="coulomb_velocity_scale 0.05 rad/s of the truth file differs"):
-        true_model(robot, Truth(effects=EffectsTruth(coulomb={"all": 1.0}, coulomb_velocity_scale=0.05)), sim)
+        make_truth(robot, {"coulomb": {"all": 1.0}, "coulomb_velocity_scale": 0.05}, model=sim)
     with pytest.raises(ConfigError, match="both the truth file and the model"):
-        true_model(robot, Truth(effects=EffectsTruth(presliding_friction={"all": 0.1},
-                                                     presliding_stiffness={"all": 100.0})), sim)
+        make_truth(robot, {"presliding_friction": {"all": 0.1}, "presliding_stiffness": {"all": 100.0}}, model=sim)
 
 
 def test_simulated_parameters_are_valid_and_reproduce_the_model(model_file):

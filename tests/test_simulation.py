@@ -15,8 +15,7 @@ from pe_drake.identification.measurements import read_measurement_csv
 from pe_drake.multibody.inertia import perturb_inertias, phi_to_spatial_inertia
 from pe_drake.multibody.robot import load_robot
 from pe_drake.simulation.simulation import simulate, truth_path_for
-from pe_drake.simulation.true_robot import build_true_robot
-from pe_drake.simulation.truth import PayloadTruth, Truth, load_truth
+from pe_drake.simulation.truth import ControlTruth, NoiseTruth, load_truth, make_truth
 
 DURATION = 1.5  # [s]
 SETTLED = 0.2  # [s] compare after the PD transient (the start is on the trajectory already)
@@ -42,7 +41,7 @@ def trajectory(robot):
 
 
 def _run(robot, trajectory, truth=None, duration=DURATION):
-    return simulate(robot, trajectory, truth or Truth(), duration)
+    return simulate(robot, trajectory, truth, duration)
 
 
 @pytest.fixture(scope="module")
@@ -76,8 +75,7 @@ def test_effect_free_torque_is_inverse_dynamics(robot, trajectory, baseline):
 
 
 def test_viscous_friction_adds_b_v(robot, trajectory, baseline):
-    truth = Truth()
-    truth.effects.viscous = {"all": 0.3, "panda_joint7": 0.05}
+    truth = make_truth(robot, {"viscous": {"all": 0.3, "panda_joint7": 0.05}})
     m, d = _run(robot, trajectory, truth)
     b = np.array([0.3] * 6 + [0.05])
     assert d["effects"]["viscous"]["values"]["panda_joint7"] == 0.05
@@ -90,10 +88,8 @@ def test_viscous_friction_adds_b_v(robot, trajectory, baseline):
 
 
 def test_coulomb_friction_adds_smoothed_sign(robot, trajectory, baseline):
-    truth = Truth()
-    truth.effects.coulomb = {"all": 0.8}
-    truth.effects.coulomb_velocity_scale = 0.02
-    truth.record_velocity = True  # friction follows the actual velocity, not the desired one
+    # record_velocity: friction follows the actual velocity, not the desired one
+    truth = make_truth(robot, {"coulomb": {"all": 0.8}, "coulomb_velocity_scale": 0.02}, record_velocity=True)
     m, _ = _run(robot, trajectory, truth)
     k = _settled(m)
     expected = 0.8 * np.tanh(m.v[k] / 0.02)
@@ -105,8 +101,7 @@ def test_coulomb_friction_adds_smoothed_sign(robot, trajectory, baseline):
 
 
 def test_armature_adds_inertia_times_acceleration(robot, trajectory, baseline):
-    truth = Truth()
-    truth.effects.armature = {"panda_joint1": 0.4, "panda_joint6": 0.1}
+    truth = make_truth(robot, {"armature": {"panda_joint1": 0.4, "panda_joint6": 0.1}})
     m, _ = _run(robot, trajectory, truth)
     _, _, vd = _desired(trajectory, m.t)
     k = _settled(m)
@@ -117,8 +112,7 @@ def test_armature_adds_inertia_times_acceleration(robot, trajectory, baseline):
 
 
 def test_offset_adds_a_constant(robot, trajectory, baseline):
-    truth = Truth()
-    truth.effects.torque_offset = {"panda_joint2": 1.5, "panda_joint5": -0.4}
+    truth = make_truth(robot, {"torque_offset": {"panda_joint2": 1.5, "panda_joint5": -0.4}})
     m, d = _run(robot, trajectory, truth)
     k = _settled(m)
     diff = m.tau[k] - baseline[0].tau[k]
@@ -131,28 +125,21 @@ def test_offset_adds_a_constant(robot, trajectory, baseline):
 def test_torque_is_true_dynamics_at_the_actual_motion(robot, trajectory):
     """Every effect at once: recorded tau = true rigid-body ID + friction + offset, evaluated
     at the simulated motion (v recorded without noise, vd by central differences)."""
-    truth = Truth()
-    truth.seed = 5
-    truth.inertia_perturbation = 0.1
-    truth.effects.viscous = {"all": 0.2}
-    truth.effects.coulomb = {"all": 0.3}
-    truth.effects.armature = {"all": 0.05}
-    truth.effects.torque_offset = {"panda_joint4": -0.5}
-    truth.effects.payload = PayloadTruth("panda_link8", 0.5, [0.0, 0.0, 0.05], [4e-4, 4e-4, 2e-4, 0, 0, 0])
-    truth.record_velocity = True
+    payload = {"link": "panda_link8", "mass": 0.5, "com": [0.0, 0.0, 0.05], "inertia": [4e-4, 4e-4, 2e-4, 0, 0, 0]}
+    truth = make_truth(robot, {"viscous": {"all": 0.2}, "coulomb": {"all": 0.3}, "armature": {"all": 0.05},
+                               "torque_offset": {"panda_joint4": -0.5}, "payload": payload},
+                       seed=5, inertia_perturbation=0.1, record_velocity=True)
     m, _ = _run(robot, trajectory, truth)
-    true = build_true_robot(robot, truth)
     vd = np.gradient(m.v, m.t, axis=0)
-    expected = true.model.torque(robot, m.q, m.v, vd)  # rigid body with payload, rotor inertia, friction, offsets
+    expected = truth.model.torque(robot, m.q, m.v, vd)  # rigid body with payload, rotor inertia, friction, offsets
     error = np.abs(m.tau - expected)[1:-1]  # np.gradient is one-sided at the ends
     assert np.all(np.median(error, axis=0) < 1e-3), np.median(error, axis=0)
     assert np.all(np.percentile(error, 95, axis=0) < 1e-2)
 
 
 def test_payload_changes_torque_like_a_welded_body(robot, trajectory, baseline):
-    truth = Truth()
-    truth.effects.payload = PayloadTruth("panda_link7", 1.2, [0.0, 0.02, 0.15], [2e-3, 2e-3, 1e-3, 0, 0, 0])
-    truth.record_velocity = True
+    payload = {"link": "panda_link7", "mass": 1.2, "com": [0.0, 0.02, 0.15], "inertia": [2e-3, 2e-3, 1e-3, 0, 0, 0]}
+    truth = make_truth(robot, {"payload": payload}, record_velocity=True)
     m, d = _run(robot, trajectory, truth)
 
     def add_payload(plant, scene_graph):  # independent of pe_drake.simulation.simulation
@@ -179,10 +166,7 @@ def test_payload_changes_torque_like_a_welded_body(robot, trajectory, baseline):
 
 
 def test_perturbed_run_matches_true_parameters_of_truth_json(robot, trajectory, baseline):
-    truth = Truth()
-    truth.inertia_perturbation = 0.1
-    truth.seed = 7
-    truth.record_velocity = True
+    truth = make_truth(robot, inertia_perturbation=0.1, seed=7, record_velocity=True)
     m, d = _run(robot, trajectory, truth)
     check = load_robot("panda")
     for name, phi in d["phi_true"].items():
@@ -199,12 +183,10 @@ def test_perturbed_run_matches_true_parameters_of_truth_json(robot, trajectory, 
 
 
 def test_controller_with_the_true_model_tracks_better(robot, trajectory):
-    truth = Truth()
-    truth.inertia_perturbation = 0.2
-    truth.effects.payload = PayloadTruth("panda_link8", 1.0, [0.0, 0.0, 0.05], [0.0] * 6)
+    payload = {"link": "panda_link8", "mass": 1.0, "com": [0.0, 0.0, 0.05]}
     errors = {}
     for model in ("prior", "true"):
-        truth.control.model = model
+        truth = make_truth(robot, {"payload": payload}, inertia_perturbation=0.2, control=ControlTruth(model=model))
         _, d = _run(robot, trajectory, truth, duration=0.5)
         errors[model] = max(d["simulation"]["tracking_error_rms"].values())
     assert errors["true"] < 0.05 * errors["prior"], errors
@@ -229,19 +211,13 @@ def test_perturbation_is_valid_bounded_and_reproducible(robot):
 
 
 def test_truth_seed_reproduces_parameters(robot):
-    truth = Truth()
-    truth.inertia_perturbation = 0.1
-    truth.seed = 11
-    a, b = build_true_robot(robot, truth), build_true_robot(robot, truth)
-    np.testing.assert_array_equal(a.model.phi, b.model.phi)
+    a, b = (make_truth(robot, inertia_perturbation=0.1, seed=11).model for _ in range(2))
+    np.testing.assert_array_equal(a.phi, b.phi)
 
 
 def test_delay_and_noise(robot, trajectory, baseline):
-    truth = Truth()
-    truth.effects.torque_delay = 0.004
-    truth.noise.encoder_counts_per_rev = 2**16
-    truth.noise.tau_std = 0.05
-    truth.record_velocity = True
+    truth = make_truth(robot, {"torque_delay": 0.004}, noise=NoiseTruth(encoder_counts_per_rev=2**16, tau_std=0.05),
+                       record_velocity=True)
     m, d = _run(robot, trajectory, truth)
     m2, _ = _run(robot, trajectory, truth)
     np.testing.assert_array_equal(m.tau, m2.tau)  # noise reproducible from the seed
@@ -285,14 +261,25 @@ def _truth_file(tmp_path: Path, text: str) -> Path:
         ("integrator: euler_forward", "runge_kutta3"),
     ],
 )
-def test_bad_truth_file(tmp_path, text, match):
+def test_bad_truth_file(tmp_path, robot, text, match):
     with pytest.raises(ConfigError, match=match):
-        load_truth(_truth_file(tmp_path, text))
+        load_truth(_truth_file(tmp_path, text), robot)
 
 
-def test_missing_truth_file(tmp_path):
+def test_a_truth_in_code_is_checked_like_a_file(robot):
+    """make_truth reads the effects section straight into the RobotModel, with the file's checks."""
+    with pytest.raises(ConfigError, match="unknown effects key.*viscos"):
+        make_truth(robot, {"viscos": {"all": 0.1}})
+    with pytest.raises(ConfigError, match=r"effects.armature\['all'\].*non-negative"):
+        make_truth(robot, {"armature": {"all": -0.1}})
+    truth = make_truth(robot, {"coulomb": {"panda_joint2": 0.5}, "torque_delay": 0.002})
+    assert truth.model.coulomb[1] == 0.5 and truth.model.torque_delay == 0.002
+    assert truth.friction_set["coulomb"] == {"panda_joint2"} and not truth.friction_set["viscous"]
+
+
+def test_missing_truth_file(tmp_path, robot):
     with pytest.raises(ConfigError, match="does not exist"):
-        load_truth(tmp_path / "none.yaml")
+        load_truth(tmp_path / "none.yaml", robot)
 
 
 @pytest.mark.parametrize(
@@ -303,10 +290,12 @@ def test_missing_truth_file(tmp_path):
     ],
 )
 def test_truth_names_checked_against_robot(tmp_path, robot, trajectory, text, kind, listed):
-    truth = load_truth(_truth_file(tmp_path, text))
+    path = _truth_file(tmp_path, text)
     with pytest.raises(UnknownNameError, match=listed) as err:
-        simulate(robot, trajectory, truth, 0.1)
+        load_truth(path, robot)
     assert err.value.kind == kind
+    with pytest.raises(UnknownNameError, match=r"truth file '.*truth.yaml': unknown"):
+        simulate(robot, trajectory, path, 0.1)
 
 
 def test_simulate_run_names_the_truth_file_of_an_unknown_joint(tmp_path, robot):
@@ -321,10 +310,10 @@ def test_simulate_run_names_the_truth_file_of_an_unknown_joint(tmp_path, robot):
 
 
 def test_example_truth_file_is_valid(robot):
-    truth = load_truth(EXAMPLE)
-    true = build_true_robot(robot, truth)
+    truth = load_truth(EXAMPLE, robot)
     assert truth.inertia_perturbation == pytest.approx(0.1)
-    assert np.all(true.model.viscous > 0) and np.all(true.model.coulomb > 0)
+    assert np.all(truth.model.viscous > 0) and np.all(truth.model.coulomb > 0)
+    assert truth.model.viscous[6] == 0.03 and truth.model.coulomb[0] == 0.4
 
 
 def test_command_writes_csv_and_truth(tmp_path, robot, trajectory, capsys):
@@ -412,7 +401,7 @@ def test_the_controller_feeds_forward_the_model_files_friction():
     assert np.all(icub.joint_damping == 1.0)
     problem = ExcitationProblem(icub, ExcitationConfig(harmonics=3, rest_at_ends=True))
     trajectory = problem.trajectory(problem.initial_guess(seed=1, amplitude=0.2))
-    _, info = simulate(icub, trajectory, Truth(), duration=1.0)
+    _, info = simulate(icub, trajectory, None, duration=1.0)
     worst = max(info["simulation"]["tracking_error_rms"].values())
     assert worst < 0.005, worst  # [rad]; 0.2-0.4 rad before
 

@@ -14,7 +14,7 @@ from pe_drake.identification.intake import prepare_measurement
 from pe_drake.identification.prediction import predict, predict_wrench
 from pe_drake.identification.measurements import measurement_to_csv_text, read_measurement_csv
 from pe_drake.simulation.simulation import simulate
-from pe_drake.simulation.truth import Truth
+from pe_drake.simulation.truth import NoiseTruth, Truth, make_truth
 
 DATA = Path(__file__).parent / "data"
 
@@ -28,8 +28,8 @@ def _run(g1, name: str, truth: Truth, measurement: str, duration: float):
 
 def test_simulated_wrench_is_the_weld_reaction_and_round_trips_through_csv(g1, tmp_path):
     """Noise-free wrench of a short run: the model's wrench at the logged states, offset on top."""
-    truth = Truth(seed=4, inertia_perturbation=0.1)
-    truth.noise.wrench_offset = [0.1, -0.2, 3.0, 0.01, -0.02, 0.03]
+    truth = make_truth(g1, seed=4, inertia_perturbation=0.1,
+                       noise=NoiseTruth(wrench_offset=[0.1, -0.2, 3.0, 0.01, -0.02, 0.03]))
     raw, data, info = _run(g1, "base_wrench", truth, "base_wrench", 1.0)
     assert raw.tau is None and raw.wrench.shape == (raw.num_samples, 6)
     assert info["measurement"] == "base_wrench"
@@ -50,10 +50,9 @@ def test_wrench_identification_predicts_held_out_arm_torques(g1):
     """0.5 N / 0.05 N·m of F/T noise on the wrench-optimized run (one 8 s period); the arm
     torques of another run (the torque-optimized motion), which the wrench never saw, are
     predicted within 5 % of each joint's RMS."""
-    truth = Truth(seed=1, inertia_perturbation=0.1)
-    truth.noise.force_std, truth.noise.moment_std = 0.5, 0.05
+    truth = make_truth(g1, seed=1, inertia_perturbation=0.1, noise=NoiseTruth(force_std=0.5, moment_std=0.05))
     _, data, info = _run(g1, "base_wrench", truth, "base_wrench", 8.0)
-    _, held_out, _ = _run(g1, "joint_torque", Truth(seed=1, inertia_perturbation=0.1), "both", 8.0)
+    _, held_out, _ = _run(g1, "joint_torque", make_truth(g1, seed=1, inertia_perturbation=0.1), "both", 8.0)
     phi_true = np.concatenate([info["phi_true"][b] for b in g1.body_names])
     result = identify(g1, data, "wls", measurement="base_wrench")
     assert result.base.count == 96 and result.channels[-1] == "wrench.mz"

@@ -8,16 +8,16 @@ plus the arm's errors, so what the fit gets wrong is attributable to it.
 
 from __future__ import annotations
 
-import dataclasses
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from pe_drake.identification.measurements import Measurement
-from pe_drake.multibody.drive_columns import COULOMB_VELOCITY_SCALE, coulomb_column
+from pe_drake.multibody.drive_columns import coulomb_column
 from pe_drake.multibody.inertia import perturb_inertias
 from pe_drake.multibody.payload import PayloadInertia, box_inertia, link_columns
 from pe_drake.multibody.regressor import RegressorModel
+from pe_drake.multibody.robot_model import RobotModel
 
 if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
     from pe_drake.multibody.robot import Robot
@@ -39,34 +39,21 @@ def random_box_payload(rng: np.random.Generator, *, mass_range=(0.3, 3.0), size_
     return PayloadInertia(m, com, R @ box_inertia(m, size) @ R.T)
 
 
-@dataclasses.dataclass(frozen=True)
-class TrueArm:
-    """The true arm of a simulated run.
-
-    Attributes:
-        phi: its standard parameters, (10·nb,).
-        coulomb, viscous: per joint [N·m], [N·m·s/rad], (n,).
-        velocity_scale: v_s of f_c·tanh(v/v_s) [rad/s].
-    """
-
-    phi: np.ndarray
-    coulomb: np.ndarray
-    viscous: np.ndarray
-    velocity_scale: float = COULOMB_VELOCITY_SCALE
-
-
 def random_true_arm(robot: Robot, rng: np.random.Generator, *, inertia_error: float = 0.05,
-                    coulomb_range=(0.2, 1.0), viscous_range=(0.05, 0.3)) -> TrueArm:
-    """The a-priori model with every body's inertia perturbed by ``inertia_error``
-    (:func:`~pe_drake.multibody.inertia.perturb_inertias`) and friction on every joint."""
+                    coulomb_range=(0.2, 1.0), viscous_range=(0.05, 0.3)) -> RobotModel:
+    """The true arm as built: the a-priori model with every body's inertia perturbed by
+    ``inertia_error`` (:func:`~pe_drake.multibody.inertia.perturb_inertias`) and Coulomb and
+    viscous friction on every joint (v_s the default)."""
     phi = perturb_inertias(robot.phi_model, inertia_error, rng)
-    return TrueArm(phi, rng.uniform(*coulomb_range, robot.n), rng.uniform(*viscous_range, robot.n))
+    drive = {"coulomb": rng.uniform(*coulomb_range, robot.n), "viscous": rng.uniform(*viscous_range, robot.n)}
+    return RobotModel(robot.joint_names, robot.body_names, phi, drive)
 
 
-def payload_run(robot: Robot, motion, arm: TrueArm, link: str, payload: PayloadInertia | None, *, rate_hz: float = 1000.0,
+def payload_run(robot: Robot, motion, arm: RobotModel, link: str, payload: PayloadInertia | None, *, rate_hz: float = 1000.0,
                 t0: float = 0.0, noise_std=0.04, seed: int = 0, model: RegressorModel | None = None) -> Measurement:
     """One run of ``motion`` (anything with ``evaluate(t)`` and ``duration``/``period``) on the
-    true arm, with ``payload`` on ``link`` (None: unloaded), sampled at ``t0 + k/rate_hz``.
+    true arm (its φ, Coulomb and viscous friction), with ``payload`` on ``link`` (None:
+    unloaded), sampled at ``t0 + k/rate_hz``.
 
     Returns:
         A :class:`Measurement` with exact q, v, vd and noisy torques.

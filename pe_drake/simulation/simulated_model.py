@@ -22,7 +22,7 @@ needs what Drake can build:
   out, are simulated too (``effects.torque_delay``, ``effects.presliding_*``).
 
 A TRUTH.yaml given with ``--model`` adds its effects, noise and control on top
-(:func:`~pe_drake.simulation.true_robot.true_model`).
+(:func:`~pe_drake.simulation.truth.make_truth`).
 """
 
 from __future__ import annotations

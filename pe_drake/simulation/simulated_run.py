@@ -23,7 +23,7 @@ from pe_drake.output_paths import output_file
 from pe_drake.simulation.contact import capsule_contacts
 from pe_drake.simulation.simulated_model import load_simulation_model
 from pe_drake.simulation.simulation import simulate, truth_path_for
-from pe_drake.simulation.truth import Truth, load_truth, validate_truth
+from pe_drake.simulation.truth import make_truth, read_truth_file
 
 _RECORDED = {"joint_torque": "tau", "base_wrench": "wrench", "both": "tau and wrench"}
 #: A joint tracking its trajectory worse than this [rad RMS] gets a warning: more than a
@@ -162,27 +162,24 @@ def simulate_run(robot: Robot, trajectory: str | Path, options: SimulateOptions,
                           "<inertial> in its model) to simulate: simulate --robot the model.urdf of "
                           "identify --method physical (with --truth its drive_effects.yaml)")
     motion, data = load_motion(trajectory)  # validated before any work
-    truth_spec = load_truth(truth) if truth is not None else Truth()
+    spec, where = (read_truth_file(truth), f"truth file '{truth}'") if truth is not None else ({}, "")
     check_joints(robot, data["joints"], file=str(trajectory), what="the trajectory")
     check_within_limits(motion, robot.limits, robot.joint_names, source=str(trajectory))
     duration = options.duration if options.duration is not None else motion.duration
     if not 0 < duration <= 3600:  # the motion's own
         raise ConfigError(f"the motion of '{trajectory}' lasts {duration:g} s: simulate at most 3600 s (--duration)")
-    # the truth's joint and link names before any work (and before a model's terms are merged
-    # into it): a misspelt joint was refused only after "simulating ..." had been printed
-    try:
-        validate_truth(truth_spec, robot)
-    except ConfigError as err:  # UnknownNameError too: its type and fields kept, the file named
-        err.args = (f"truth file '{truth}': {err}",)
-        raise
-    sim_model = extra = None
+    # the truth's values and names before any work (a model's terms are added after): a
+    # misspelt joint was refused only after "simulating ..." had been printed
+    truth_spec = make_truth(robot, where=where, **spec)
+    extra = None
     if model is not None:
         sim_model = load_simulation_model(model, robot)
         extra = {"simulated_model": _model_record(sim_model, str(model))}
+        truth_spec = make_truth(robot, model=sim_model, where=where, **spec)
     if progress is not None:
         progress(f"simulating {robot.name}: {duration:.3g} s of {Path(trajectory).name} "
                  f"(integrator {truth_spec.integrator}) ...")
-    measured, truth_dict = simulate(robot, motion, truth_spec, duration, measurement=measurement, model=sim_model)
+    measured, truth_dict = simulate(robot, motion, truth_spec, duration, measurement=measurement)
     contacts = capsule_contacts(robot, measured.t, measured.q)
     truth_dict["simulation"]["capsule_contacts"] = {
         c.pair: c.to_dict() for c in contacts} | ({"note": CONTACT_NOTE} if contacts else {})

@@ -73,15 +73,12 @@ from pe_drake.excitation.fourier import FourierTrajectory
 from pe_drake.identification.measurements import Measurement
 from pe_drake.multibody.drive_columns import coulomb_column
 from pe_drake.multibody.inertia import PARAMETER_NAMES
+from pe_drake.multibody.model_plant import APPLIED_FORCE_PORT
 from pe_drake.multibody.robot import Robot, load_robot
 from pe_drake.multibody.robot_model import RobotModel
 from pe_drake.multibody.sensors import MeasurementType
-from pe_drake.simulation.truth import (
-    ALL_JOINTS,
-    Truth,
-    load_truth,
-)
-from pe_drake.simulation.true_robot import TrueRobot, build_true_robot
+from pe_drake.simulation.contact import without_contact
+from pe_drake.simulation.truth import Truth, load_truth, make_truth
 from pe_drake.simulation.wrench_log import recorded_wrench
 
 
@@ -127,10 +124,47 @@ class TrackingLog:
     wall_time: float
 
 
+@dataclasses.dataclass(frozen=True)
+class TrueRobot:
+    """The simulated robot: its model and its Drake plant.
+
+    Attributes:
+        robot: the :class:`~pe_drake.multibody.robot.Robot` (continuous plant) of ``model``
+            (:meth:`~pe_drake.multibody.robot_model.RobotModel.plant`); with pre-sliding
+            friction its diagram exports the input ``applied_generalized_force`` the controller drives.
+        model: the true :class:`~pe_drake.multibody.robot_model.RobotModel` (the truth's).
+    """
+
+    robot: Any
+    model: RobotModel
+
+    def force_input(self):
+        """(port, context) of the applied generalized force the controller sets: the
+        plant's, or the diagram's exported input when the Dahl system adds its torque."""
+        if self.robot.diagram.HasInputPort(APPLIED_FORCE_PORT):  # pre-sliding or prismatic Coulomb friction
+            return self.robot.diagram.GetInputPort(APPLIED_FORCE_PORT), self.robot.context
+        return self.robot.plant.get_applied_generalized_force_input_port(), self.robot.plant_context
+
+
+def build_true_robot(robot: Robot, truth: Truth) -> TrueRobot:
+    """The robot as built of a truth (``truth.model``) in Drake.
+
+    Args:
+        robot: the a-priori :class:`~pe_drake.multibody.robot.Robot` (its config is reloaded; bodies
+            added by its own ``before_finalize`` are not carried over).
+        truth: a :class:`Truth` of this robot.
+
+    The plant applies no contact force (:mod:`pe_drake.simulation.contact`).
+    """
+    plant = truth.model.plant(robot)
+    without_contact(plant)
+    return TrueRobot(plant, truth.model)
+
+
 def simulate(
     robot_or_name,
     trajectory: FourierTrajectory,
-    truth: Truth | str | Path,
+    truth: Truth | str | Path | None = None,
     duration: float | None = None,
     measurement: str = "joint_torque",
     model: RobotModel | None = None,
@@ -140,11 +174,13 @@ def simulate(
     Args:
         robot_or_name: the a-priori :class:`~pe_drake.multibody.robot.Robot` or a built-in name.
         trajectory: the trajectory to track (joints in the robot's order).
-        truth: a :class:`~pe_drake.simulation.truth.Truth` or the path of a TRUTH.yaml.
+        truth: a :class:`~pe_drake.simulation.truth.Truth` of the robot, or the path of a
+            TRUTH.yaml (None: the model alone, no noise, the default controller).
         duration: simulated time [s]; default one period of the trajectory.
         measurement: what the robot logs: "joint_torque" (tau), "base_wrench" (the ground
             wrench alone, :mod:`pe_drake.simulation.wrench_log`) or "both".
-        model: the robot the truth perturbs (an identified model); default the a-priori one.
+        model: the robot a TRUTH.yaml perturbs (an identified model); default the a-priori one
+            (a :class:`~pe_drake.simulation.truth.Truth` holds its own).
 
     Returns:
         The :class:`SimulationOutput`: the :class:`~pe_drake.identification.measurements.Measurement`
@@ -154,20 +190,23 @@ def simulate(
         ConfigError: a bad truth or duration.
         UnknownNameError: a truth names a joint or link the robot does not have.
         DataError: a trajectory for a different number of joints.
+        ValueError: a :class:`~pe_drake.simulation.truth.Truth` and a ``model`` both given.
     """
     robot = robot_or_name if isinstance(robot_or_name, Robot) else load_robot(robot_or_name)
-    if not isinstance(truth, Truth):
-        truth = load_truth(truth)
+    if isinstance(truth, Truth):
+        if model is not None:
+            raise ValueError("a Truth holds its model: give the model to make_truth or load_truth instead")
+    else:
+        truth = load_truth(truth, robot, model) if truth is not None else make_truth(robot, model=model)
     duration = _check_run(robot, trajectory, truth, duration)
-    true = build_true_robot(robot, truth, model)
+    true = build_true_robot(robot, truth)
     log = track_trajectory(robot, true, trajectory, truth, duration)
     sensors = MeasurementType(measurement)
     data = record_log(robot, truth, log, true.model.torque_delay)
     wrench = (recorded_wrench(true.robot, truth, log.q, log.v, log.tau - true.model.per_joint_model().offset)
               if sensors.wrench else None)
     data = data.replace(tau=data.tau if sensors.torques else None, wrench=wrench)
-    return SimulationOutput(data, {**_truth_dict(robot, truth, true, duration, log, model is not None),
-                               "measurement": sensors.kind})
+    return SimulationOutput(data, {**_truth_dict(robot, truth, true, duration, log), "measurement": sensors.kind})
 
 
 def _check_run(robot: Robot, trajectory: FourierTrajectory, truth: Truth, duration: float | None) -> float:
@@ -179,7 +218,7 @@ def _check_run(robot: Robot, trajectory: FourierTrajectory, truth: Truth, durati
         )
     duration = trajectory.period if duration is None else duration
     duration = check_finite("duration [s]", duration, positive=True)
-    delay = truth.effects.torque_delay
+    delay = truth.model.torque_delay
     if abs(delay) >= duration:
         raise ConfigError(f"effects.torque_delay {delay} s is not shorter than the duration {duration} s")
     return duration
@@ -221,7 +260,7 @@ def track_trajectory(
 
     Args:
         robot: the a-priori robot (the controller's model with ``control.model: prior``).
-        true: the true robot (:func:`~pe_drake.simulation.true_robot.build_true_robot`).
+        true: the true robot (:func:`build_true_robot`).
         trajectory: the desired motion.
         truth: a validated truth (control, integrator).
         duration: simulated time [s].
@@ -243,8 +282,8 @@ def track_trajectory(
     # the model file's friction the simulated robot keeps, fed forward at v_d (module docstring)
     joint = true.model.per_joint_model()  # through a transmission, the motors' terms per joint
     kept = true.model.transmission is None  # with one the model file's friction is not simulated
-    damping = np.where(kept & np.isclose(joint.viscous, true.model_damping), true.model_damping, 0.0)
-    friction = np.where(kept & np.isclose(joint.coulomb, true.model_friction), true.model_friction, 0.0)
+    damping = np.where(kept & np.isclose(joint.viscous, robot.joint_damping), robot.joint_damping, 0.0)
+    friction = np.where(kept & np.isclose(joint.coulomb, robot.joint_friction), robot.joint_friction, 0.0)
     v_s = true.model.velocity_scale
     simulator = _start_simulator(true, truth, q_d[0], v_d[0], h)
     port, port_context = true.force_input()
@@ -316,10 +355,8 @@ def record_log(robot: Robot, truth: Truth, log: TrackingLog, delay: float) -> Me
     return Measurement(log.t, q_rec, tau_rec, v_rec, None, robot.joint_names, "")
 
 
-def _truth_dict(robot: Robot, truth: Truth, true: TrueRobot, duration: float, log: TrackingLog,
-                on_model: bool = False) -> dict[str, Any]:
-    """The JSON-ready record of every true value of a run (``<out>.truth.json``); ``on_model``:
-    the truth perturbs an identified model, whose drive terms set every joint."""
+def _truth_dict(robot: Robot, truth: Truth, true: TrueRobot, duration: float, log: TrackingLog) -> dict[str, Any]:
+    """The JSON-ready record of every true value of a run (``<out>.truth.json``)."""
     joints = list(robot.joint_names)
     bodies = robot.body_names
     tracking_rms = np.sqrt(np.mean((log.q - log.q_d) ** 2, axis=0))
@@ -328,10 +365,10 @@ def _truth_dict(robot: Robot, truth: Truth, true: TrueRobot, duration: float, lo
     def per_joint(values):
         return {j: float(x) for j, x in zip(joints, values)}
 
-    e, m = truth.effects, true.model
+    m = true.model
 
-    def source(table):
-        return {j: "truth" if on_model or j in table or ALL_JOINTS in table else "model file" for j in joints}
+    def source(term):
+        return {j: "truth" if j in truth.friction_set.get(term, ()) else "model file" for j in joints}
 
     return {
         "robot": robot.name,
@@ -349,10 +386,10 @@ def _truth_dict(robot: Robot, truth: Truth, true: TrueRobot, duration: float, lo
         ),
         "effects": {
             "viscous": {"unit": "N·m·s/rad", "values": per_joint(m.viscous),
-                        "model_file_damping": per_joint(true.model_damping), "source": source(e.viscous),
+                        "model_file_damping": per_joint(robot.joint_damping), "source": source("viscous"),
                         "note": "the simulated value: the truth's where it sets the joint, else the model file's"},
             "coulomb": {"unit": "N·m", "values": per_joint(m.coulomb),
-                        "model_file_friction": per_joint(true.model_friction), "source": source(e.coulomb),
+                        "model_file_friction": per_joint(robot.joint_friction), "source": source("coulomb"),
                         "velocity_scale": m.velocity_scale, "velocity_scale_unit": "rad/s",
                         "model": "coulomb * tanh(v / velocity_scale)"},
             "armature": {"unit": "kg·m²", "values": per_joint(m.armature)},
@@ -371,8 +408,9 @@ def _truth_dict(robot: Robot, truth: Truth, true: TrueRobot, duration: float, lo
                                                "its joint), motor side, acting on the joints through R^T",
                                  "plant_notes": m.plant_notes()}} if m.transmission is not None else {}),
             "payload": {
-                "link": e.payload.link, "mass": e.payload.mass, "com": list(e.payload.com),
-                "inertia_about_com": list(e.payload.inertia),
+                "link": m.payload_link, "mass": m.payload.mass if m.payload is not None else 0.0,
+                "com": (m.payload.com if m.payload is not None else np.zeros(3)).tolist(),
+                "inertia_about_com": (m.payload.inertia_vector if m.payload is not None else np.zeros(6)).tolist(),
                 "phi_about_link_origin": (m.payload.phi if m.payload is not None else np.zeros(10)).tolist(),
                 "units": "kg, m, kg·m²",
             },

@@ -1,29 +1,35 @@
-"""The TRUTH.yaml schema of a simulated run: what the true robot has beyond the a-priori model.
+"""A simulated run's truth: the robot as built (a :class:`~pe_drake.multibody.robot_model.RobotModel`
+around the a-priori or an identified model), sensor noise and the tracking controller.
 
-``pe-drake simulate --truth TRUTH.yaml`` (:mod:`pe_drake.simulation.simulation`) builds
-the true robot from these dataclasses: perturbed inertias, friction, armature, torque offsets
-and delay, a payload, sensor noise and the tracking controller. :func:`load_truth` reads a
-file onto :class:`Truth` with Drake's ``yaml_load_typed`` (unknown keys refused) and
-:func:`validate_truth` checks every number and, given a robot, every joint and link name.
-The sign convention of the effects is in the simulation module's docstring.
+``pe-drake simulate --truth TRUTH.yaml`` (:mod:`pe_drake.simulation.simulation`) reads the file
+with :func:`load_truth`: its shape and types are checked against :data:`TRUTH_KEYS` (file,
+line and dotted key named), then :func:`make_truth` reads its ``effects`` section straight into
+the :class:`~pe_drake.multibody.robot_model.RobotModel` the simulator builds: perturbed
+inertias, friction, armature, torque offsets and delay, pre-sliding friction, a payload. Every
+number is checked and every joint and link name against the robot. The sign convention of the
+effects is in the simulation module's docstring.
 """
-# No ``from __future__ import annotations`` here: yaml_load_typed reads the dataclass field
-# types at run time and cannot resolve string annotations.
+
+from __future__ import annotations
 
 import dataclasses
+import math
+import typing
+from collections.abc import Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from pe_drake import limits
 from pe_drake.config import check_finite
-from pe_drake.yaml_check import load_yaml_typed
-from pe_drake.exceptions import ConfigError, UnknownNameError
-from pe_drake.multibody.inertia import inertia_matrix
-from pe_drake.multibody.payload import PayloadInertia
-from pe_drake.multibody.payload import payload_spatial_inertia
-from pe_drake.multibody.robot_model import COULOMB_VELOCITY_SCALE
+from pe_drake.exceptions import ConfigError, UnknownNameError, shorten
+from pe_drake.multibody.inertia import inertia_matrix, perturb_inertias
+from pe_drake.multibody.payload import PayloadInertia, payload_spatial_inertia
+from pe_drake.multibody.robot_model import COULOMB_VELOCITY_SCALE, FILE_KEYS, RobotModel
+from pe_drake.multibody.transmission import robot_transmission
 from pe_drake.multibody.wrench import WRENCH_COLUMNS
+from pe_drake.yaml_check import check_yaml_file
 
 if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
     from pe_drake.multibody.robot import Robot
@@ -31,61 +37,6 @@ if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
 #: Key of a per-joint table that sets every joint not listed by name.
 ALL_JOINTS = "all"
 CONTROL_MODELS = ("prior", "true")
-
-
-@dataclasses.dataclass
-class PayloadTruth:
-    """A rigid payload welded to a link.
-
-    Attributes:
-        link: link it is welded to (a body moved by the excited joints); empty: no payload.
-        mass: [kg], > 0 when ``link`` is set.
-        com: centre of mass in the link frame, p_LoPcm_L [m].
-        inertia: rotational inertia about its centre of mass in the link axes, I_PPcm_L, as
-            [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] [kg·m²]; zeros give a point mass.
-    """
-
-    link: str = ""
-    mass: float = 0.0
-    com: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
-    inertia: list[float] = dataclasses.field(default_factory=lambda: [0.0] * 6)
-
-
-@dataclasses.dataclass
-class EffectsTruth:
-    """Effects of the true robot beyond its rigid-body dynamics.
-
-    Per-joint tables map a joint name to a value; the key ``all`` sets every joint not named.
-    Joints absent from a table get 0, except for the friction the model file already has
-    (``viscous``, ``coulomb``): that is part of the a-priori model and is kept.
-
-    Attributes:
-        viscous: viscous friction f_v [N·m·s/rad] (Drake joint damping). A joint this table
-            sets (by name or ``all``) has this value instead of the model file's
-            ``<dynamics damping>``; a joint it does not set keeps the model file's.
-        coulomb: Coulomb friction f_c [N·m], smoothed as f_c·tanh(v/v_s) (revolute joints);
-            like ``viscous``, it replaces the model file's ``<dynamics friction>`` where set.
-        coulomb_velocity_scale: v_s [rad/s].
-        armature: reflected rotor inertia I_a [kg·m²], adds I_a·vd.
-        torque_offset: constant torque o [N·m] the actuator must supply (sign convention:
-            :mod:`pe_drake.simulation.simulation`).
-        torque_delay: recorded torque lags the positions by this [s] (negative: leads).
-        payload: see :class:`PayloadTruth`.
-        presliding_friction: Dahl friction level F_c [N·m] (:mod:`pe_drake.multibody.dahl`,
-            a Drake system with one state per joint).
-        presliding_stiffness: its stiffness at rest σ0 [N·m/rad]; the pre-sliding
-            displacement is F_c/σ0. Needed for every joint with ``presliding_friction``.
-    """
-
-    viscous: dict[str, float] = dataclasses.field(default_factory=dict)
-    coulomb: dict[str, float] = dataclasses.field(default_factory=dict)
-    coulomb_velocity_scale: float = COULOMB_VELOCITY_SCALE
-    armature: dict[str, float] = dataclasses.field(default_factory=dict)
-    torque_offset: dict[str, float] = dataclasses.field(default_factory=dict)
-    torque_delay: float = 0.0
-    payload: PayloadTruth = dataclasses.field(default_factory=PayloadTruth)
-    presliding_friction: dict[str, float] = dataclasses.field(default_factory=dict)
-    presliding_stiffness: dict[str, float] = dataclasses.field(default_factory=dict)
 
 
 @dataclasses.dataclass
@@ -131,51 +82,7 @@ class ControlTruth:
     model: str = "prior"
 
 
-@dataclasses.dataclass
-class Truth:
-    """A whole TRUTH.yaml.
-
-    Attributes:
-        seed: seeds the inertial perturbation and, independently, the noise.
-        inertia_perturbation: relative size ε in [0, 0.5] (:func:`pe_drake.multibody.inertia.perturb_inertias`).
-        effects: see :class:`EffectsTruth`.
-        noise: see :class:`NoiseTruth`.
-        control: see :class:`ControlTruth`.
-        record_velocity: also write ``v.<joint>`` columns (true v + noise.v_std).
-        record_command: write the raw command tau_k (held over [t_k, t_k + h), so it leads the
-            positions by half a sample) instead of the centred average (tau_{k-1} + tau_k)/2.
-        integration_accuracy: relative accuracy of Drake's error-controlled integrator.
-        integrator: Drake integration scheme (``GetIntegrationSchemes()``): "runge_kutta3"
-            (fastest for arms), or "radau3" when light joints with Coulomb friction make the
-            dynamics stiff (G1 wrists, 4e-4 kg·m²: 4× faster than runge_kutta3).
-    """
-
-    seed: int = 0
-    inertia_perturbation: float = 0.0
-    effects: EffectsTruth = dataclasses.field(default_factory=EffectsTruth)
-    noise: NoiseTruth = dataclasses.field(default_factory=NoiseTruth)
-    control: ControlTruth = dataclasses.field(default_factory=ControlTruth)
-    record_velocity: bool = False
-    record_command: bool = False
-    integration_accuracy: float = 1e-4
-    integrator: str = "runge_kutta3"
-
-
-def load_truth(path: str | Path) -> Truth:
-    """Reads a TRUTH.yaml onto :class:`Truth` (robot-independent checks included).
-
-    Raises:
-        ConfigError: missing file, unknown key, wrong type or bad value (the field is named).
-    """
-    path = Path(path)
-    truth = load_yaml_typed(path, Truth, Truth(), "truth")
-    try:
-        return validate_truth(truth)
-    except ConfigError as err:
-        raise ConfigError(f"truth file '{path}': {err}") from err
-
-
-_JOINT_TABLES = {  # field: (unit, non-negative)
+_JOINT_TABLES = {  # effects table: (unit, non-negative)
     "viscous": ("N·m·s/rad", True),
     "coulomb": ("N·m", True),
     "armature": ("kg·m²", True),
@@ -183,66 +90,262 @@ _JOINT_TABLES = {  # field: (unit, non-negative)
     "presliding_friction": ("N·m", True),
     "presliding_stiffness": ("N·m/rad", True),
 }
+#: The TRUTH.yaml ``effects`` section (key: type; :func:`make_truth` says what each is).
+EFFECT_KEYS = {**{k: dict[str, float] for k in _JOINT_TABLES}, "coulomb_velocity_scale": float,
+               "torque_delay": float, "payload": {"link": str, "mass": float, "com": list[float], "inertia": list[float]}}
+#: A whole TRUTH.yaml (key: type): :class:`Truth`'s attributes with ``effects`` for ``model``.
+TRUTH_KEYS = {"seed": int, "inertia_perturbation": float, "effects": EFFECT_KEYS, "noise": NoiseTruth,
+              "control": ControlTruth, "record_velocity": bool, "record_command": bool,
+              "integration_accuracy": float, "integrator": str}
 
 
-def validate_truth(truth: Truth, robot: "Robot | None" = None) -> Truth:
-    """Checks a :class:`Truth`; with a robot, also its joint and link names.
+@dataclasses.dataclass(frozen=True, eq=False)
+class Truth:
+    """A simulated run's truth: the robot as built, noise and control (a whole TRUTH.yaml read
+    for one robot: :func:`load_truth`, :func:`make_truth`).
+
+    Attributes:
+        model: the true robot: the a-priori (or an identified) model with the truth's effects,
+            its bodies' parameters perturbed and the payload welded (:func:`make_truth`).
+        noise: see :class:`NoiseTruth`.
+        control: see :class:`ControlTruth`.
+        seed: seeds the inertial perturbation and, independently, the noise.
+        inertia_perturbation: relative size ε in [0, 0.5] of the perturbation in ``model``
+            (:func:`pe_drake.multibody.inertia.perturb_inertias`).
+        record_velocity: also write ``v.<joint>`` columns (true v + noise.v_std).
+        record_command: write the raw command tau_k (held over [t_k, t_k + h), so it leads the
+            positions by half a sample) instead of the centred average (tau_{k-1} + tau_k)/2.
+        integration_accuracy: relative accuracy of Drake's error-controlled integrator.
+        integrator: Drake integration scheme (``GetIntegrationSchemes()``): "runge_kutta3"
+            (fastest for arms), or "radau3" when light joints with Coulomb friction make the
+            dynamics stiff (G1 wrists, 4e-4 kg·m²: 4× faster than runge_kutta3).
+        friction_set: {"viscous" | "coulomb": joints whose friction the truth sets}; the others
+            keep the model file's (every joint around an identified model).
+    """
+
+    model: RobotModel
+    noise: NoiseTruth = dataclasses.field(default_factory=NoiseTruth)
+    control: ControlTruth = dataclasses.field(default_factory=ControlTruth)
+    seed: int = 0
+    inertia_perturbation: float = 0.0
+    record_velocity: bool = False
+    record_command: bool = False
+    integration_accuracy: float = 1e-4
+    integrator: str = "runge_kutta3"
+    friction_set: Mapping[str, frozenset[str]] = dataclasses.field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        _check_run(self.seed, self.inertia_perturbation, self.integration_accuracy, self.integrator)
+        _check_noise_and_control(self.noise, self.control)
+
+
+def load_truth(path: str | Path, robot: Robot, model: RobotModel | None = None) -> Truth:
+    """Reads a TRUTH.yaml for ``robot`` (:func:`read_truth_file`, :func:`make_truth`).
 
     Raises:
-        ConfigError: naming the field and the bad value.
+        ConfigError: missing file, unknown key, wrong type or bad value (file and key named).
         UnknownNameError: a joint or link the robot does not have (valid names listed).
     """
-    _check_run(truth)
-    _check_effects(truth.effects)
-    _check_noise_and_control(truth.noise, truth.control)
-    if robot is not None:
-        _check_names(truth.effects, robot)
-    return truth
+    return make_truth(robot, model=model, where=f"truth file '{path}'", **read_truth_file(path))
 
 
-def _check_run(truth: Truth) -> None:
+def read_truth_file(path: str | Path) -> dict[str, Any]:
+    """A TRUTH.yaml's keys as :func:`make_truth`'s arguments, of :data:`TRUTH_KEYS`' types
+    (the numbers not checked yet).
+
+    Raises:
+        ConfigError: missing file, syntax error, unknown key or wrong type (file, line and key named).
+    """
+    from pydrake.common.yaml import yaml_load  # lazy, like every pydrake import
+
+    path = Path(path)
+    problem = limits.input_file_problem(path)
+    if problem:
+        raise ConfigError(f"truth file '{path}' {problem}")
+    check_yaml_file(path, TRUTH_KEYS, "truth")  # syntax and shape, naming the line and the key
+    return _typed(yaml_load(filename=str(path)) or {}, TRUTH_KEYS, f"truth file '{path}'", "")
+
+
+def _typed(value: Any, schema: Any, where: str, key: str) -> Any:
+    """``value`` (checked by :func:`~pe_drake.yaml_check.check_yaml_file`) as ``schema``'s types,
+    converted as Drake's ``yaml_load_typed`` does (int → float, a number's text → number)."""
+    if isinstance(schema, dict) or dataclasses.is_dataclass(schema):
+        fields = schema if isinstance(schema, dict) else typing.get_type_hints(schema)
+        out = {k: _typed(v, fields[k], where, f"{key}.{k}" if key else k) for k, v in value.items()}
+        return out if isinstance(schema, dict) else schema(**out)
+    origin, args = typing.get_origin(schema), typing.get_args(schema)
+    if origin is list:
+        return [_typed(x, args[0], where, key) for x in value or []]
+    if origin is dict:
+        return {str(k): _typed(v, args[1], where, f"{key}['{k}']") for k, v in value.items()}
+    if schema in (float, int) and type(value) in (int, float, str) and not isinstance(value, bool):
+        return schema(value)
+    if type(value) is schema:
+        return value
+    raise ConfigError(f"{where} does not match the truth format: key '{key}' expects {schema.__name__}, got "
+                      f"{type(value).__name__} {shorten(repr(value))}")
+
+
+def make_truth(robot: Robot, effects: Mapping[str, Any] | None = None, *, model: RobotModel | None = None,
+               where: str = "", **run: Any) -> Truth:
+    """The truth of ``robot``: the robot as built from an ``effects`` section, noise and control.
+
+    The true model is ``model`` (default: the a-priori robot with its model file's friction)
+    with the effects, its bodies' parameters perturbed (``seed``, ``inertia_perturbation``) and
+    the payload welded. The truth's friction replaces the model file's on the joints it sets
+    (by name or ``all``); on an identified ``model`` (``simulate --model``) the truth's per-joint
+    effects add to the model's, its delay too. With a transmission (the model's, or the robot
+    config's ``robot.transmission``) the truth's viscous, coulomb, armature and torque_offset
+    are per motor (named by its joint) and act through R, and the model file's joint friction
+    is not simulated (as ``identify`` fits the motors' terms as the drive's whole friction).
+
+    Args:
+        robot: the a-priori robot.
+        effects: a TRUTH.yaml ``effects`` section as data (:data:`EFFECT_KEYS`, every key
+            optional). Per-joint tables map a joint name (or ``all``: every joint not named) to
+            a value, 0 where absent: ``viscous`` f_v [N·m·s/rad], ``coulomb`` f_c [N·m] (as
+            f_c·tanh(v/v_s), v_s = ``coulomb_velocity_scale`` [rad/s]), ``armature`` [kg·m²],
+            ``torque_offset`` [N·m], ``presliding_friction`` F_c [N·m] and
+            ``presliding_stiffness`` σ0 [N·m/rad] (:mod:`pe_drake.multibody.dahl`);
+            ``torque_delay`` [s] (the torque log lags the positions); ``payload``: a body welded
+            to ``link``, ``mass`` [kg], ``com`` in the link frame [m], ``inertia`` about the
+            centre of mass in the link axes [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] [kg·m²].
+        model: the robot the truth perturbs (an identified model); default the a-priori one.
+        where: what to name in errors (the file).
+        run: the other :class:`Truth` attributes (``seed``, ``noise``, ``control``, ...).
+
+    Raises:
+        ConfigError: a bad value (key, joint and value named); a truth with Coulomb friction of
+            another v_s than the model's, or pre-sliding friction where the model has its own.
+        UnknownNameError: a joint or link the robot does not have (valid names listed).
+    """
+    try:
+        # the run's keys checked before the perturbation draws from the seed
+        truth = Truth(model or RobotModel(robot.joint_names, robot.body_names, robot.phi_model), **run)
+        e = _effects(effects or {})
+        _check_names(e, robot)
+        true, friction_set = _as_built(robot, e, model, truth.seed, truth.inertia_perturbation)
+    except ConfigError as err:  # UnknownNameError too: its type and fields kept, the file named
+        if where:
+            err.args = (f"{where}: {err}",)
+        raise
+    return dataclasses.replace(truth, model=true, friction_set=friction_set)
+
+
+def _effects(data: Mapping[str, Any]) -> dict[str, Any]:
+    """An effects section with every key (:data:`EFFECT_KEYS`), checked without the robot."""
+    unknown = sorted(set(data) - set(EFFECT_KEYS)) + sorted(set(data.get("payload") or {}) - set(EFFECT_KEYS["payload"]))
+    if unknown:
+        raise ConfigError(f"unknown effects key(s) {', '.join(unknown)}; valid keys: {', '.join(EFFECT_KEYS)}, "
+                          f"payload.{{{', '.join(EFFECT_KEYS['payload'])}}}")
+    e = {**{k: {} for k in _JOINT_TABLES}, "coulomb_velocity_scale": COULOMB_VELOCITY_SCALE, "torque_delay": 0.0,
+         **data, "payload": {"link": "", "mass": 0.0, "com": [0.0] * 3, "inertia": [0.0] * 6, **(data.get("payload") or {})}}
+    for field, (unit, nonneg) in _JOINT_TABLES.items():
+        if not isinstance(e[field], Mapping):
+            raise ConfigError(f"effects.{field} must map joint names to values [{unit}], got {shorten(repr(e[field]))}")
+        for joint, value in e[field].items():
+            check_finite(f"effects.{field}['{joint}'] [{unit}]", value, nonneg=nonneg)
+    check_finite("effects.coulomb_velocity_scale [rad/s]", e["coulomb_velocity_scale"], positive=True)
+    check_finite("effects.torque_delay [s]", e["torque_delay"])
+    p = e["payload"]
+    if len(p["com"]) != 3:
+        raise ConfigError(f"effects.payload.com must have 3 numbers [m], got {p['com']}")
+    if len(p["inertia"]) != 6:
+        raise ConfigError(f"effects.payload.inertia must be [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] [kg·m²], got {p['inertia']}")
+    for k, value in enumerate(list(p["com"]) + list(p["inertia"])):
+        check_finite("effects.payload.com" if k < 3 else "effects.payload.inertia", value)
+    check_finite("effects.payload.mass [kg]", p["mass"], nonneg=True)
+    if p["link"] and p["mass"] <= 0:
+        raise ConfigError(f"effects.payload.mass must be positive for a payload on '{p['link']}', got {p['mass']}")
+    if not p["link"] and (p["mass"] != 0 or any(p["inertia"])):
+        raise ConfigError("effects.payload has a mass or inertia but no link: set effects.payload.link")
+    if p["link"]:  # raises when not physically valid
+        payload_spatial_inertia(_payload(p))
+    return e
+
+
+def _payload(p: Mapping[str, Any]) -> PayloadInertia:
+    return PayloadInertia(float(p["mass"]), np.asarray(p["com"], float), inertia_matrix(p["inertia"]))
+
+
+def _check_names(e: Mapping[str, Any], robot: Robot) -> None:
+    """Joint and link names of an effects section against the robot."""
+    for field in _JOINT_TABLES:
+        for joint in e[field]:
+            if joint != ALL_JOINTS and joint not in robot.joint_names:
+                raise UnknownNameError("joint", joint, (*robot.joint_names, ALL_JOINTS), where=f"effects.{field}")
+    link = e["payload"]["link"]
+    if link and link not in robot.body_names:
+        raise UnknownNameError("link", link, robot.body_names, where="effects.payload.link")
+    fc = per_joint_values(e["presliding_friction"], robot.joint_names)
+    sigma0 = per_joint_values(e["presliding_stiffness"], robot.joint_names)
+    for k, name in enumerate(robot.joint_names):
+        if fc[k] > 0 and not sigma0[k] > 0:
+            raise ConfigError(
+                f"effects.presliding_friction['{name}'] = {fc[k]:g} N·m needs a positive "
+                f"effects.presliding_stiffness['{name}'] [N·m/rad] (σ0 of the Dahl model)"
+            )
+
+
+def _as_built(robot: Robot, e: Mapping[str, Any], model: RobotModel | None, seed: int,
+              eps: float) -> tuple[RobotModel, dict[str, frozenset[str]]]:
+    """The true :class:`RobotModel` of a checked effects section (:func:`make_truth`) and the
+    joints whose friction it sets."""
+    joints = robot.joint_names
+    # the truth's tables are named as the model file's (RobotModel's FILE_KEYS)
+    tables = {t: per_joint_values(e[field], joints) for t, field in FILE_KEYS.items()}
+    fc, sigma0 = per_joint_values(e["presliding_friction"], joints), per_joint_values(e["presliding_stiffness"], joints)
+    transmission = robot_transmission(robot) if model is None else model.transmission
+    transmission = None if transmission is None or transmission.identity else transmission
+    v_s, delay = float(e["coulomb_velocity_scale"]), float(e["torque_delay"])
+    friction_set = {k: frozenset(joints if model is not None or ALL_JOINTS in e[k] else set(e[k]) & set(joints))
+                    for k in ("viscous", "coulomb")}
+    if model is None and transmission is None:  # the truth's friction where it sets a joint, else the model file's
+        tables["viscous"], tables["coulomb"] = (
+            per_joint_values(t, joints) if ALL_JOINTS in t else np.array([float(t.get(j, m)) for j, m in zip(joints, x)])
+            for t, x in ((e["viscous"], robot.joint_damping), (e["coulomb"], robot.joint_friction)))
+    phi = robot.phi_model  # with a transmission, the model file's joint friction is not the motors'
+    if model is not None:
+        _check_model_truth(model, tables["coulomb"], fc, v_s)
+        tables = {t: x + model.term(t) for t, x in tables.items()}
+        if np.any(model.presliding > 0):
+            fc, sigma0 = model.presliding, model.presliding_stiffness
+        phi, v_s, delay = model.phi_total, model.velocity_scale, e["torque_delay"] + model.torque_delay
+    rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(2)[0])
+    phi = perturb_inertias(np.asarray(phi, float), eps, rng, body_names=robot.body_names)
+    p = e["payload"]
+    true = RobotModel(joints, robot.body_names, phi, tables, velocity_scale=v_s,
+                      payload=_payload(p) if p["link"] else None, payload_link=p["link"],
+                      torque_delay=float(delay), presliding=fc, presliding_stiffness=sigma0,
+                      notes=model.notes if model is not None else (), transmission=transmission)
+    return true, friction_set
+
+
+def _check_model_truth(model: RobotModel, coulomb: np.ndarray, presliding: np.ndarray, v_s: float) -> None:
+    """One tanh(v/v_s) and one Dahl model per joint are simulated (:func:`make_truth`)."""
+    if np.any(coulomb > 0) and not math.isclose(v_s, model.velocity_scale, rel_tol=1e-12):
+        raise ConfigError(f"effects.coulomb_velocity_scale {v_s:g} rad/s of the truth file differs from the model's "
+                          f"{model.velocity_scale:g} rad/s: one tanh(v/v_s) is simulated; remove the truth's coulomb "
+                          "or set the model's v_s")
+    if np.any(model.presliding > 0) and np.any(presliding > 0):
+        raise ConfigError("both the truth file and the model have pre-sliding friction: one Dahl model per joint is "
+                          "simulated; remove the truth's presliding_*")
+
+
+def _check_run(seed: Any, eps: float, accuracy: float, integrator: str) -> None:
     """Seed, inertial perturbation and integrator."""
-    if isinstance(truth.seed, bool) or not isinstance(truth.seed, int) or truth.seed < 0:
-        raise ConfigError(f"seed must be a non-negative integer, got {truth.seed!r}")
-    eps = check_finite("inertia_perturbation", truth.inertia_perturbation, nonneg=True)
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise ConfigError(f"seed must be a non-negative integer, got {seed!r}")
+    eps = check_finite("inertia_perturbation", eps, nonneg=True)
     if eps > 0.5:
         raise ConfigError(f"inertia_perturbation must lie in [0, 0.5] (relative), got {eps}")
-    check_finite("integration_accuracy", truth.integration_accuracy, positive=True)
-    if truth.integration_accuracy > 1e-2:
-        raise ConfigError(f"integration_accuracy must be at most 1e-2, got {truth.integration_accuracy}")
+    check_finite("integration_accuracy", accuracy, positive=True)
+    if accuracy > 1e-2:
+        raise ConfigError(f"integration_accuracy must be at most 1e-2, got {accuracy}")
     from pydrake.systems.analysis import GetIntegrationSchemes  # lazy: pydrake stays out of `import pe_drake`
 
-    if truth.integrator not in GetIntegrationSchemes():
-        raise ConfigError(
-            f"integrator '{truth.integrator}' is not one of Drake's schemes: "
-            f"{', '.join(GetIntegrationSchemes())}"
-        )
-
-
-def _check_effects(e: EffectsTruth) -> None:
-    """Per-joint tables, Coulomb scale, delay and payload (robot-independent)."""
-    for field, (unit, nonneg) in _JOINT_TABLES.items():
-        table = getattr(e, field)
-        for joint, value in table.items():
-            check_finite(f"effects.{field}['{joint}'] [{unit}]", value, nonneg=nonneg)
-    check_finite("effects.coulomb_velocity_scale [rad/s]", e.coulomb_velocity_scale, positive=True)
-    check_finite("effects.torque_delay [s]", e.torque_delay)
-    p = e.payload
-    if len(p.com) != 3:
-        raise ConfigError(f"effects.payload.com must have 3 numbers [m], got {p.com}")
-    if len(p.inertia) != 6:
-        raise ConfigError(
-            f"effects.payload.inertia must be [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] [kg·m²], got {p.inertia}"
-        )
-    for k, value in enumerate(list(p.com) + list(p.inertia)):
-        check_finite("effects.payload.com" if k < 3 else "effects.payload.inertia", value)
-    check_finite("effects.payload.mass [kg]", p.mass, nonneg=True)
-    if p.link and p.mass <= 0:
-        raise ConfigError(f"effects.payload.mass must be positive for a payload on '{p.link}', got {p.mass}")
-    if not p.link and (p.mass != 0 or any(p.inertia)):
-        raise ConfigError("effects.payload has a mass or inertia but no link: set effects.payload.link")
-    if p.link:  # raises when not physically valid
-        payload_spatial_inertia(PayloadInertia(float(p.mass), np.asarray(p.com, float), inertia_matrix(p.inertia)))
+    if integrator not in GetIntegrationSchemes():
+        raise ConfigError(f"integrator '{integrator}' is not one of Drake's schemes: {', '.join(GetIntegrationSchemes())}")
 
 
 def _check_noise_and_control(n: NoiseTruth, c: ControlTruth) -> None:
@@ -266,29 +369,7 @@ def _check_noise_and_control(n: NoiseTruth, c: ControlTruth) -> None:
         raise ConfigError(f"control.model '{c.model}' is not one of {', '.join(CONTROL_MODELS)}")
 
 
-def _check_names(e: EffectsTruth, robot: "Robot") -> None:
-    """Joint and link names against the robot."""
-    for field in _JOINT_TABLES:
-        for joint in getattr(e, field):
-            if joint != ALL_JOINTS and joint not in robot.joint_names:
-                raise UnknownNameError(
-                    "joint", joint, (*robot.joint_names, ALL_JOINTS), where=f"effects.{field}"
-                )
-    p = e.payload
-    if p.link and p.link not in robot.body_names:
-        raise UnknownNameError("link", p.link, robot.body_names, where="effects.payload.link")
-    fc = per_joint_values(e.presliding_friction, robot.joint_names)
-    sigma0 = per_joint_values(e.presliding_stiffness, robot.joint_names)
-    for k, name in enumerate(robot.joint_names):
-        if fc[k] > 0 and not sigma0[k] > 0:
-            raise ConfigError(
-                f"effects.presliding_friction['{name}'] = {fc[k]:g} N·m needs a positive "
-                f"effects.presliding_stiffness['{name}'] [N·m/rad] (σ0 of the Dahl model)"
-            )
-
-
-
-def per_joint_values(table: dict[str, float], joints: tuple[str, ...]) -> np.ndarray:
+def per_joint_values(table: Mapping[str, float], joints: tuple[str, ...]) -> np.ndarray:
     """Per-joint table (with the ``all`` key) → values in joint order, shape (n,)."""
     default = float(table.get(ALL_JOINTS, 0.0))
     return np.array([float(table.get(j, default)) for j in joints])
