@@ -115,6 +115,13 @@ def _check_node(node, tp, source: str, key: str) -> None:
             _check_node(v_node, value_type, source, f"{key}['{shorten(k_node.value)}']")
     elif tp in (bool, int, float, str):
         if tp is str and isinstance(node, yaml.ScalarNode):
+            kind = node.tag.rsplit(":", 1)[-1]
+            if node.style is None and kind != "str" and not (optional and kind == "null"):
+                # YAML reads an unquoted true, yes, on, 1 or null as another type, which Drake
+                # refuses with a Python type name: say what to write instead.
+                value = shorten(node.value)
+                raise ConfigError(f"{_where(source, node, key)}: expected a string, got '{value}', "
+                                  f"which YAML reads as a {kind}: write it in quotes, \"{value}\"")
             return
         _check_scalar(node, tp, optional, source, key)
 
