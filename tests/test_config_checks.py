@@ -76,14 +76,14 @@ def test_a_bad_value_in_a_config_file_names_the_file_and_line(tmp_path):
 @pytest.mark.parametrize("value, kind", [("true", "bool"), ("on", "bool"), ("1", "int"), ("0.5", "float")])
 def test_an_unquoted_non_string_in_a_string_field_says_to_quote_it(tmp_path, value, kind):
     """`control.model: true` is YAML's boolean: the error says so and what to write, not a Python type."""
-    from pe_drake.simulation.truth import load_truth
+    from pe_drake.simulation.truth import read_truth_file
 
     path = tmp_path / "truth.yaml"
     path.write_text(f"control:\n  model: {value}\n")
     with pytest.raises(ConfigError) as err:
-        load_truth(path)
+        read_truth_file(path)
     message = str(err.value)
     assert f"line 2, key 'control.model': expected a string, got '{value}', which YAML reads as a {kind}" in message
     assert f'write it in quotes, "{value}"' in message
     path.write_text('control:\n  model: "true"\n')  # quoted: the string the truth expects
-    assert load_truth(path).control.model == "true"
+    assert read_truth_file(path)["control"].model == "true"
