@@ -418,6 +418,22 @@ def test_a_run_that_does_not_track_its_trajectory_is_flagged():
                                                                         {"simulation": sim}).summary_lines())
 
 
+def test_a_rotor_inertia_the_controller_lacks_is_named_as_the_tracking_errors_cause():
+    # so101 (a hobby arm): 0.002 kg·m² of armature on 1e-5 kg·m² links lost the gripper by 545 mrad
+    # with a prior-model controller; the warning blamed the friction
+    from pe_drake.simulation.simulated_run import SimulatedRun
+
+    sim = {"duration": 1.0, "rate_hz": 1000.0, "samples": 1001, "wall_time_s": 0.1,
+           "tracking_error_rms": {"a": 0.001, "gripper": 0.545}}
+    effects = {"armature": {"values": {"a": 0.002, "gripper": 0.002}}}
+    truth = {"simulation": sim, "effects": effects, "control": {"model": "prior"}}
+    cause = SimulatedRun("r", "joint_torque", None, truth).summary_lines()[-1]
+    assert "armature (0.002 kg·m² on gripper) is not in the controller's model" in cause
+    assert 'control.model: "true"' in cause and "friction" not in cause
+    truth["control"] = {"model": "true"}  # the controller holds it: friction remains the suspect
+    assert "friction is large" in SimulatedRun("r", "joint_torque", None, truth).summary_lines()[-1]
+
+
 def test_simulate_says_which_joints_keep_the_model_files_friction():
     # a truth naming some joints leaves the others at the URDF's <dynamics> (the z1's 1 N·m):
     # simulated and identified, so the console says so (it was only in .truth.json)

@@ -59,16 +59,26 @@ class SimulatedRun:
                   f"{c['from_s']:.3g}-{c['to_s']:.3g} s: {CONTACT_NOTE}" for pair, c in contacts.items()]
         joint, worst = max(sim["tracking_error_rms"].items(), key=lambda item: item[1])
         if worst > LARGE_TRACKING_ERROR:
-            payload = self.truth.get("effects", {}).get("payload", {})
-            # the controller's model is the a-priori one: a payload it lacks is the likelier cause (issue 37)
-            cause = (f"The truth's payload ({payload['mass']:g} kg on {payload['link']}) is not in the controller's "
-                     "model: raise control.kp and control.kd, or give the controller the payload"
-                     if payload.get("link") else
-                     "The truth's friction is large for the controller (gains kp·M, kd·M scale with the link's "
-                     "inertia): raise control.kp and control.kd or lower the friction")
             lines.append(f"warning: {joint} tracks its trajectory to {1e3 * worst:.3g} {self._unit(joint)} RMS: the run "
-                         f"is not the planned motion (it may leave the joint limits). {cause}")
+                         f"is not the planned motion (it may leave the joint limits). {self._tracking_cause(joint)}")
         return lines
+
+    def _tracking_cause(self, joint: str) -> str:
+        """The likeliest reason a joint does not track: what the truth adds that the controller's
+        model lacks (a payload, a rotor inertia), else the truth's friction."""
+        effects = self.truth.get("effects", {})
+        payload = effects.get("payload", {})
+        prior_control = self.truth.get("control", {}).get("model") == "prior"
+        armature = effects.get("armature", {}).get("values", {}).get(joint, 0.0)
+        if payload.get("link"):  # the controller's model is the a-priori one (issue 37)
+            return (f"The truth's payload ({payload['mass']:g} kg on {payload['link']}) is not in the controller's "
+                    "model: raise control.kp and control.kd, or give the controller the payload")
+        if prior_control and armature > 0:
+            return (f"The truth's armature ({armature:g} kg·m² on {joint}) is not in the controller's model "
+                    "(control.model: prior, gains kp·M, kd·M): raise control.kp and control.kd, or set "
+                    'control.model: "true"')
+        return ("The truth's friction is large for the controller (gains kp·M, kd·M scale with the link's "
+                "inertia): raise control.kp and control.kd or lower the friction")
 
     def _model_file_friction(self) -> list[str]:
         """Joints the truth leaves to the model file's friction: a z1 URDF's 1 N·m on joints a
