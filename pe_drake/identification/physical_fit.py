@@ -202,10 +202,7 @@ def physical_fit(
     # The data term as (x − x0)ᵀ H (x − x0) about its minimizer nearest the prior, x0: the
     # objective is then ~0 where the constraints are inactive, so the solver's relative
     # tolerance resolves the small pulls (about −‖z‖² they would drown in the signal energy).
-    # x0 moves only in the directions the data identify (Z): a cut-off on Rs's singular values
-    # alone kept a rounding direction of the SO-101's merged armatures (1.3e-13 of the largest)
-    # and put 1.5e9 prior magnitudes into it, which made stage 2's Δχ² budget 4e8 (BUILD_NOTES).
-    x0 = x_prior + Z @ np.linalg.lstsq(Rs @ Z, z - Rs @ x_prior, rcond=1e-13)[0]
+    x0 = x_prior + Z @ np.linalg.lstsq(Rs @ Z, z - Rs @ x_prior, rcond=1e-13)[0]  # Z: what the data identify
     iso = np.diag(np.r_[np.ones(len(cols)), np.zeros(d)])
     pull = P_null + prior_weight * iso  # in units of μ, the least determined direction's curvature
     # Stage 1: the best physically valid fit of the data (a pull of null_weight·μ only
@@ -258,7 +255,12 @@ def _data_term(AD: np.ndarray, E: np.ndarray, y: np.ndarray, base_K, cols, D, ex
 def _identified_basis(KD: np.ndarray | None, p: int, inside: list[int], k: int) -> np.ndarray:
     """Orthonormal basis, shape (k, r), of the directions of x = (φ/D, θ/s_e) outside the null space
     of [K D | c_k s_k] (``inside``: the x-indices of the c_k): those the data can identify; the
-    identity without K."""
+    identity without K.
+
+    A cut-off on the data factor's singular values alone (rcond 1e-13) kept a rounding direction
+    of the SO-101's merged armatures (1.3e-13 of the largest) and moved x0 by 1.5e9 prior
+    magnitudes along it: stage 2's Δχ² budget became 4e8 and the fit 100x worse than WLS.
+    """
     if KD is None:
         return np.eye(k)
     _, s, Vt = np.linalg.svd(KD)
