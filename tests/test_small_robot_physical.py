@@ -10,8 +10,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pe_drake.excitation.trajectory_file import load_trajectory
 from pe_drake.exceptions import ConfigError
+from pe_drake.excitation.trajectory_file import load_trajectory
 from pe_drake.identification.estimators import PHYSICAL_WORSE_PERCENT, identify, physical_fit_excess
 from pe_drake.identification.intake import prepare_measurement
 from pe_drake.multibody.drive_columns import COULOMB_VELOCITY_SCALE
