@@ -97,6 +97,10 @@ PHYSICAL_DELTA_CHI2 = 4.0
 #: sensor or current loop resolves finer (a 20-bit converter is 1e-6 of its range), and the SDP
 #: solver (tolerances 1e-10-1e-8) cannot resolve a thinner confidence region.
 PHYSICAL_MIN_RELATIVE_SIGMA = 1e-6
+#: The physical fit names every channel whose residual RMS exceeds the least-squares (WLS) fit's
+#: on the same data by more than this [%] (the 5 % bar of diagnosis.start.START_TOLERANCE_PERCENT):
+#: an SO-101 fit 100x worse than WLS on every joint used to say nothing (the honest-figures rule).
+PHYSICAL_WORSE_PERCENT = 5.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -283,6 +287,10 @@ def _identify(robot: Robot, data: Measurement, method: str, base: BaseParameters
         phi, x = physical.phi, physical.x
     b = base.count
     residual_ss = folded.residual_ss(T, x)
+    if physical is not None:
+        worse = physical_fit_excess(channels, np.sqrt(residual_ss / folded.samples),
+                                         np.sqrt(folded.residual_ss(T, fit.x) / folded.samples))
+        physical = physical._replace(notes=(*physical.notes, *worse))
     layout, theta, sigma = with_known(layout, x[b:], np.sqrt(np.maximum(np.diag(cov)[b:], 0.0)), known)
     drive, drive_sigma = model_tables(layout, theta, sigma, physical.merged_armature if physical is not None else {})
     phi_model = phi if phi is not None else base.closest_standard(x[:b], robot.phi_model)
@@ -446,6 +454,21 @@ def _physical(robot: Robot, base: BaseParameters, layout: DriveLayout, folded: F
                          f"{', '.join(layout.merged[name])} above what links near the a-priori model hold")
     values = {robot.joint_names[j]: float(a) for j, a in zip(merged, fit.theta[layout.count :])}
     return _Physical(fit.phi, np.concatenate([phi_B, fit.theta[: layout.count]]), tuple(notes), values)
+
+
+def physical_fit_excess(channels, rms: np.ndarray, rms_ls: np.ndarray) -> list[str]:
+    """Notes on the channels where the physical fit's residual RMS is above the least-squares fit's
+    on the same rows by more than :data:`PHYSICAL_WORSE_PERCENT`.
+
+    Args:
+        channels: the channel names, length r.
+        rms: the physical fit's residual RMS per channel, shape (r,) [N·m, N].
+        rms_ls: the least-squares (WLS) fit's, shape (r,) [N·m, N].
+    """
+    percent = 100.0 * (np.asarray(rms) / np.maximum(rms_ls, 1e-300) - 1.0)
+    return [f"{name}: residual RMS {a:.4g}, {p:.0f} % above the least-squares (WLS) fit's {a_ls:.4g} on the same "
+            "data (what the physical constraints and bounds cost, or the solver); compare --method wls"
+            for name, p, a, a_ls in zip(channels, percent, rms, rms_ls) if p > PHYSICAL_WORSE_PERCENT]
 
 
 def _in_base(base: BaseParameters, coef: dict[str, float]) -> np.ndarray:

@@ -194,15 +194,15 @@ def physical_fit(
     active = [b for b in range(len(body_names)) if prior[10 * b] > 0] or list(range(len(body_names)))
     cols = np.concatenate([np.arange(10 * b, 10 * b + 10) for b in active])
     D = (_variable_scale(prior, active) if scale is None else np.asarray(scale, float))[cols]
-    s_e, Rs, z, P_null, mu = _data_term(A[:, cols] * D, E, y, base_K, cols, D, extra_in_base,
-                                        len(y) if rows is None else rows)
+    s_e, Rs, z, P_null, mu, Z = _data_term(A[:, cols] * D, E, y, base_K, cols, D, extra_in_base,
+                                           len(y) if rows is None else rows)
     k = len(cols) + d
     H = Rs.T @ Rs
     x_prior = np.concatenate([prior[cols] / D, np.zeros(d)])
     # The data term as (x − x0)ᵀ H (x − x0) about its minimizer nearest the prior, x0: the
     # objective is then ~0 where the constraints are inactive, so the solver's relative
     # tolerance resolves the small pulls (about −‖z‖² they would drown in the signal energy).
-    x0 = x_prior + np.linalg.lstsq(Rs, z - Rs @ x_prior, rcond=1e-13)[0]
+    x0 = x_prior + Z @ np.linalg.lstsq(Rs @ Z, z - Rs @ x_prior, rcond=1e-13)[0]  # Z: what the data identify
     iso = np.diag(np.r_[np.ones(len(cols)), np.zeros(d)])
     pull = P_null + prior_weight * iso  # in units of μ, the least determined direction's curvature
     # Stage 1: the best physically valid fit of the data (a pull of null_weight·μ only
@@ -220,7 +220,7 @@ def physical_fit(
         # Stage 2: the parameters nearest the a-priori model (in the null-space metric) among
         # those whose whitened misfit exceeds stage 1's by at most chi2_tolerance.
         e = sol - x0
-        bound = float(e @ H @ e) + chi2_tolerance
+        bound = float(np.sum((Rs @ e) ** 2)) + chi2_tolerance  # as the cone measures it, not via H = RsᵀRs
         # ‖Rs (x − x0)‖ ≤ √bound as a Lorentz cone [√bound; Rs x − Rs x0]
         cone = (np.vstack([np.zeros((1, k)), Rs]), np.r_[np.sqrt(bound), -Rs @ x0])
         try:
@@ -239,18 +239,37 @@ def physical_fit(
 
 def _data_term(AD: np.ndarray, E: np.ndarray, y: np.ndarray, base_K, cols, D, extra_in_base, rows: int):
     """(drive scales s_e, R, z with ‖[A D | E s_e] x − y‖² = ‖R x − z‖² + const (QR), the
-    null-space projector, μ)."""
+    null-space projector, μ, the identified directions' basis)."""
     norms = np.linalg.norm(E, axis=0)
     s_e = np.where(norms > 0, np.linalg.norm(y) / np.maximum(norms, 1e-300) / max(np.sqrt(rows), 1.0), 1.0)
     k = AD.shape[1] + E.shape[1]
     R = np.linalg.qr(np.column_stack([AD, E * s_e, y]), mode="r")
     Rs, z = R[:k, :k], R[:k, k]
-    KD = None
+    KD, inside = None, sorted((extra_in_base or {}).items())
     if base_K is not None:
-        inside = sorted((extra_in_base or {}).items())
         KD = np.column_stack([base_K[:, cols] * D] + [np.asarray(c, float) * s_e[i] for i, c in inside])
     P_null, mu = _null_pull(Rs.T @ Rs, KD, AD.shape[1], 1.0)
-    return s_e, Rs, z, P_null, mu
+    return s_e, Rs, z, P_null, mu, _identified_basis(KD, AD.shape[1], [AD.shape[1] + i for i, _ in inside], k)
+
+
+def _identified_basis(KD: np.ndarray | None, p: int, inside: list[int], k: int) -> np.ndarray:
+    """Orthonormal basis, shape (k, r), of the directions of x = (φ/D, θ/s_e) outside the null space
+    of [K D | c_k s_k] (``inside``: the x-indices of the c_k): those the data can identify; the
+    identity without K.
+
+    A cut-off on the data factor's singular values alone (rcond 1e-13) kept a rounding direction
+    of the SO-101's merged armatures (1.3e-13 of the largest) and moved x0 by 1.5e9 prior
+    magnitudes along it: stage 2's Δχ² budget became 4e8 and the fit 100x worse than WLS.
+    """
+    if KD is None:
+        return np.eye(k)
+    _, s, Vt = np.linalg.svd(KD)
+    null = Vt[int(np.sum(s > 1e-10 * max(s.max(), 1e-300))) :]  # rank cut as in _null_pull
+    if not len(null):
+        return np.eye(k)
+    N = np.zeros((k, len(null)))  # orthonormal columns: Vt's rows with zeros for the other θ
+    N[:p], N[inside] = null[:, :p].T, null[:, p:].T
+    return np.linalg.svd(N, full_matrices=True)[0][:, len(null) :]
 
 
 class InertiaBlock(NamedTuple):
