@@ -10,16 +10,11 @@ from pe_drake.exceptions import ConfigError
 
 
 def example_robot_data_dir() -> Path:
-    """The ``share/example-robot-data`` folder of the installed ``example-robot-data`` wheel.
-
-    Raises:
-        ConfigError: when the package is not installed.
-    """
-    roots = [sysconfig.get_paths()["purelib"], *sys.path]
-    for root in roots:
+    """The ``share/example-robot-data`` folder of the installed wheel; ConfigError without it."""
+    for root in [sysconfig.get_paths()["purelib"], *sys.path]:
         candidate = Path(root) / "cmeel.prefix" / "share" / "example-robot-data"
         if candidate.is_dir():
             return candidate
     raise ConfigError(
-        "the robot models of 'example-robot-data' are not installed: pip install example-robot-data"
-    )
+        "the robot models of 'example-robot-data' are not installed: "
+        "pip install example-robot-data")

@@ -1,16 +1,10 @@
 """Where ``package://<name>/...`` URIs point: one resolver for Drake's parser, xacro's
 ``$(find <name>)``, capsule fitting and the STL → OBJ visuals.
 
-A package's folder is looked up, first match wins, in:
-
-1. the config's ``robot.packages`` map {name: folder};
-2. the folders above the model file: a folder holding a ``package.xml`` whose ``<name>`` is
-   the package, or a folder named like the package (a ROS source layout,
-   ``my_arm_description/urdf/my_arm.urdf``; Drake 1.51.1 has no upward search);
-3. ``ROS_PACKAGE_PATH`` (ROS 1): each entry is a package or is searched downwards for
-   ``package.xml`` files, as ``rospack`` does;
-4. ``AMENT_PREFIX_PATH`` (ROS 2): ``<prefix>/share/<name>`` of each install prefix;
-5. ``example-robot-data``: the installed wheel's share folder.
+A package's folder is looked up, first match wins, in: the config's ``robot.packages`` map; the
+folders above the model file (a ``package.xml`` naming the package, or a folder of that name;
+Drake 1.51.1 has no upward search); ``ROS_PACKAGE_PATH``, searched downwards as ``rospack``
+does; ``<prefix>/share/<name>`` of each ``AMENT_PREFIX_PATH`` prefix; example-robot-data.
 """
 
 from __future__ import annotations
@@ -44,16 +38,13 @@ def manifest_name(folder: Path) -> str | None:
     return match.group(1) if match else None
 
 
-def package_roots(package: str, model_path: str | Path, packages: Mapping[str, str] | None = None) -> list[Path]:
-    """Candidate folders of a package, best first (see the module docstring for the order).
+def package_roots(package: str, model_path: str | Path,
+                  packages: Mapping[str, str] | None = None) -> list[Path]:
+    """Existing candidate folders of a package, best first (see the module docstring).
 
     Args:
-        package: the package name of a ``package://<package>/...`` URI.
         model_path: the model file the URI appears in (the upward search starts there).
         packages: the config's ``robot.packages`` map {name: folder}, or None.
-
-    Returns:
-        Existing folders; empty when the package is unknown.
     """
     return list(dict.fromkeys(_candidates(package, Path(model_path), packages or {})))
 
@@ -78,11 +69,7 @@ def _candidates(package: str, model_path: Path, packages: Mapping[str, str]) -> 
 
 
 def find_package(package: str, model_path: str | Path, packages: Mapping[str, str] | None = None) -> Path:
-    """The folder of a package (xacro's ``$(find <package>)``).
-
-    Raises:
-        ConfigError: an unknown package, saying where it was looked for.
-    """
+    """The folder of a package (xacro's ``$(find <package>)``); ConfigError when unknown."""
     roots = package_roots(package, model_path, packages)
     if not roots:
         raise ConfigError(unknown_package_message(package, model_path))
@@ -116,8 +103,8 @@ def used_packages(text: str) -> list[str]:
 def found_packages(text: str, model_path: str | Path, packages: Mapping[str, str] | None = None) -> dict[str, str]:
     """{name: folder} of every package the text uses that is found from ``model_path``.
 
-    A file written elsewhere from a model's text (an exported URDF in an output folder) is
-    read with this map as its ``robot.packages``: its URIs then resolve as the model's did.
+    An exported file is read with this map as its ``robot.packages``, so its URIs resolve as the
+    model's did.
     """
     found = {}
     for package in used_packages(text):
@@ -128,12 +115,10 @@ def found_packages(text: str, model_path: str | Path, packages: Mapping[str, str
 
 
 def register_packages(package_map, text: str, model_path: str | Path, packages: Mapping[str, str] | None = None) -> list[str]:
-    """Adds every package the text uses to a Drake ``PackageMap`` (the parser's).
-
-    Packages Drake already knows keep their folder. Unknown ones are left for Drake to report.
+    """Adds every package the text uses and Drake does not know to the parser's ``PackageMap``.
 
     Returns:
-        The packages none of the places knows.
+        The packages none of the places knows (left for Drake to report).
     """
     unknown = []
     for package in used_packages(text):
@@ -153,8 +138,8 @@ def _env_paths(variable: str) -> list[Path]:
 
 @lru_cache(maxsize=32)
 def _ros_package_path_index(entry: str) -> dict[str, str]:
-    """{package name: folder} below one ``ROS_PACKAGE_PATH`` entry (not below a package,
-    nor into hidden folders or folders holding a ``CATKIN_IGNORE`` / ``COLCON_IGNORE``)."""
+    """{package name: folder} below one ``ROS_PACKAGE_PATH`` entry (not below a package, nor
+    into hidden folders or folders holding a ``CATKIN_IGNORE`` / ``COLCON_IGNORE``)."""
     found: dict[str, str] = {}
 
     def walk(folder: Path, depth: int) -> None:

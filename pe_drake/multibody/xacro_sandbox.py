@@ -1,22 +1,12 @@
 """Expanding a xacro file without letting it run code: a xacro is a program.
 
-xacro evaluates ``$(eval …)`` with Python's real builtins (``exec``, ``open``: a shared
-``.urdf.xacro`` ran a shell command as the user), and ``${…}`` expressions may read any file
-(``xacro.load_yaml``) or environment variable (``$(env VAR)``, ``$(optenv VAR)``) into the
-model text, and from there into ``playback.html``. Unless the user trusts the file
-(``--trust-xacro`` or ``robot.trust_xacro: true``), :func:`sandboxed` expands it with:
-
-- ``$(eval …)`` evaluated without any builtins (only xacro's own ``arg``, ``find``,
-  ``dirname``, ``true``/``false`` and the math functions);
-- ``${…}`` without ``load_yaml``, ``abs_filename``, ``type`` and ``vars`` (the last two reach
-  every class of the interpreter);
-- in both, no attribute whose name starts with ``_``, no frame or code attribute and no
-  ``str.format`` (each a known way out of a builtin-free ``eval``);
-- ``$(env)`` / ``$(optenv)`` refused;
-- ``<xacro:include>`` only of files under the xacro's folder, its package's folder and the
-  folders ``$(find …)`` returned.
-
-Each refusal names the construct and says how to trust the file.
+xacro evaluates ``$(eval …)`` with Python's real builtins, and ``${…}`` may read any file
+(``xacro.load_yaml``) or environment variable into the model text, and from there into
+``playback.html``. Unless the user trusts the file (``--trust-xacro``), :func:`sandboxed` expands
+it with ``$(eval …)`` without builtins, ``${…}`` without ``load_yaml``, ``abs_filename``,
+``type`` and ``vars``, no underscore, frame, code or ``str.format`` attribute (known ways out of
+a builtin-free ``eval``), ``$(env)`` refused, and ``<xacro:include>`` only of files under the
+xacro's folder, its package and the folders ``$(find …)`` returned.
 """
 
 from __future__ import annotations
@@ -50,11 +40,7 @@ class XacroRefused(ConfigError):
 
 
 def check_expression(expression: str, where: str) -> None:
-    """Refuses an expression that reaches outside the symbols it is given.
-
-    Raises:
-        XacroRefused: naming the expression and the attribute or name it uses.
-    """
+    """Refuses (:class:`XacroRefused`) an expression that reaches outside its symbols."""
     try:
         tree = ast.parse(expression.strip(), mode="eval")
     except SyntaxError:
@@ -136,7 +122,6 @@ def sandboxed(path: Path, package_root: Path | None, found: list[str]) -> Iterat
     """Within it, ``xacro.process_file`` expands ``path`` as described in the module docstring.
 
     Args:
-        path: the .xacro file (resolved).
         package_root: the folder of the package holding it, or None.
         found: the folders ``$(find …)`` returned; the caller's find appends to it.
 
