@@ -1,20 +1,13 @@
 """The identified robot for a controller and a training config: friction feed-forward, PD gains
 from the identified effective inertia, and randomization ranges from the identification's σ.
 
-- **Feed-forward** (:func:`feedforward_yaml`): per joint τ_f = f_c·tanh(v/v_s) + b·v + τ_0 in the
-  log's sign and units (positive torque drives the joint's positive direction; N·m and rad/s, N
-  and m/s for a prismatic joint), with the ± table form of firmware friction tables.
-- **Gains** (:func:`gains_yaml`): the effective joint inertia J_i(q) = M_ii(q) + armature_i (the
-  mass-matrix diagonal of the identified model, its payload included, over the postures of a
-  motion) and PD gains for a bandwidth ω and damping ratio ζ from the mean J:
-  k_p = J·ω², k_d = 2·ζ·J·ω (the second-order joint J·q̈ + k_d·q̇ + k_p·q = 0).
-- **Randomization** (:func:`sample_models`): per base parameter and drive term the range
-  value ± k·σ, and models drawn from the identification's covariance Σ_B: base parameters
-  φ_B + δ, δ ~ N(0, Σ_B) (an identified.json without it: N(0, diag σ²), said in the file),
-  mapped onto the standard ones by the least change
-  δφ = W Kᵀ (K W Kᵀ)⁺ δ (W weighs each parameter by its size), every body projected onto the
-  physically consistent set where the draw left it (noted); drive terms N(θ, σ²), friction
-  and armature clipped at 0.
+- Feed-forward (:func:`feedforward_yaml`): τ_f = f_c·tanh(v/v_s) + b·v + τ_0 in the log's sign
+  and units, with the ± table form of firmware friction tables.
+- Gains (:func:`gains_yaml`): J_i(q) = M_ii(q) + armature_i over the postures of a motion, and
+  k_p = J·ω², k_d = 2·ζ·J·ω from the mean J.
+- Randomization (:func:`sample_models`): value ± k·σ per base parameter and drive term, and
+  models drawn from Σ_B mapped onto the standard parameters by the least change
+  δφ = W Kᵀ (K W Kᵀ)⁺ δ, each body projected onto the physically consistent set where needed.
 """
 
 from __future__ import annotations
@@ -81,18 +74,15 @@ def feedforward_yaml(robot: Robot, model: RobotModel, check: dict | None = None,
 
 
 def friction_torque(model: RobotModel, v: np.ndarray, coulomb: np.ndarray | None = None) -> np.ndarray:
-    """The feed-forward's friction and offset torque at velocities v (S, n), shape (S, n)
-    (``coulomb``: the Coulomb columns, default tanh(v/v_s))."""
+    """The feed-forward's friction and offset torque at velocities v (S, n), shape (S, n).
+
+    ``coulomb``: the Coulomb columns, default tanh(v/v_s)."""
     column = coulomb_column(v, model.velocity_scale) if coulomb is None else coulomb
     return model.coulomb * column + model.viscous * v + model.offset
 
 
 def effective_inertia(robot: Robot, model: RobotModel, q: np.ndarray) -> np.ndarray:
-    """J_i(q) = M_ii(q) + armature_i at each posture, shape (S, n) [kg·m² or kg].
-
-    Args:
-        q: postures, shape (S, n).
-    """
+    """J_i(q) = M_ii(q) + armature_i at postures q (S, n), shape (S, n) [kg·m² or kg]."""
     q = np.atleast_2d(q)
     zero = np.zeros_like(q)
     rest = model.torque(robot, q, zero, zero, coulomb=False, offset=False)  # gravity alone
@@ -120,13 +110,8 @@ def gains_table(robot: Robot, model: RobotModel, q: np.ndarray, bandwidth_hz: fl
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class SampledModels:
-    """Models drawn from the identification's σ (:func:`sample_models`).
-
-    Attributes:
-        phi: standard parameters per sample, shape (count, 10·nb), physically consistent.
-        drive: {term: per-sample per-joint values, shape (count, n)}.
-        projected: samples in which at least one body was projected onto the consistent set.
-    """
+    """Models drawn from the identification's σ: ``phi`` (count, 10·nb), physically consistent;
+    ``drive`` {term: (count, n)}; ``projected`` samples with a body projected."""
 
     phi: np.ndarray
     drive: dict[str, np.ndarray]
@@ -134,8 +119,7 @@ class SampledModels:
 
 
 def drive_spread(model: RobotModel, term: str) -> np.ndarray:
-    """σ per joint of a drive term, shape (n,): the model's ``sigma``, 0 where it has none (a term
-    not estimated, or taken from the model file, is not randomized)."""
+    """σ per joint of a drive term, shape (n,), 0 where the model has none (not randomized)."""
     return np.nan_to_num(model.sigma.get(term, np.zeros(len(model.joints))), nan=0.0)
 
 
@@ -143,7 +127,6 @@ def sample_models(robot: Robot, model: RobotModel, spread: IdentifiedSpread, cou
     """``count`` models drawn from the identification's σ (module docstring).
 
     Args:
-        model: the identified model (physically consistent).
         spread: its base parameters' σ (:func:`~pe_drake.export.model_source.identified_spread`).
     """
     rng = np.random.default_rng(seed)
@@ -172,8 +155,7 @@ def sample_models(robot: Robot, model: RobotModel, spread: IdentifiedSpread, cou
 
 
 def _covariance_root(spread: IdentifiedSpread) -> np.ndarray:
-    """L with L Lᵀ = Σ_B, (p, p): δ = L z, z ~ N(0, I) has covariance Σ_B (diag σ² without a
-    covariance; a base parameter not identified, σ not finite, is not drawn)."""
+    """L with L Lᵀ = Σ_B, (p, p) (diag σ without a covariance; a σ not finite is not drawn)."""
     sigma = np.where(np.isfinite(spread.sigma), spread.sigma, 0.0)
     if spread.cov is None:
         return np.diag(sigma)
@@ -191,9 +173,9 @@ def _body_record(phi_b: np.ndarray) -> dict:
 
 def randomization(robot: Robot, model: RobotModel, spread: IdentifiedSpread | None, k: float, count: int,
                   seed: int = 0, source: str = "") -> dict:
-    """Ranges value ± k·σ per drive term (friction and armature floored at 0) and base
-    parameter, and ``count`` sampled models (none without ``spread``: the CAD model, a
-    diagnosed model; ``source`` names it)."""
+    """Ranges value ± k·σ per drive term and base parameter, and ``count`` sampled models.
+
+    Without ``spread`` (a CAD or diagnosed model, named by ``source``) only a note."""
     if spread is None:
         return {"note": f"no σ in '{source or 'the CAD model'}': no randomization ranges"}
     drive = {}

@@ -1,12 +1,6 @@
 """The front door of ``pe-drake export``: :func:`export_model` writes the identified robot in the
-format where it is used, and checks it there.
-
-Each format is checked before it is returned: an MJCF is loaded by MuJoCo (when installed) and
-its ``mj_inverse`` compared with pe_drake's rigid + armature + viscous torque of the model on
-random states; a URDF or SDFormat file is loaded back by Drake and its inverse dynamics (rotor
-inertia and damping included) compared the same way. With a held-out run, a model of base
-parameters only reports how much its projection onto physically consistent parameters changes
-the prediction, and the feed-forward reports its gravity + friction error on the run.
+format where it is used, and checks it there (MuJoCo's ``mj_inverse`` for an MJCF, Drake's
+inverse dynamics for a URDF or SDFormat, against the model on random states).
 """
 
 from __future__ import annotations
@@ -41,15 +35,12 @@ CHECK_TOLERANCE = 1e-6
 
 @dataclasses.dataclass(frozen=True)
 class ExportOptions:
-    """What ``export`` writes.
+    """What ``export`` writes (``bandwidth_hz`` [Hz] to ``samples``: gains only).
 
     Attributes:
         to: the format, one of :data:`FORMATS`.
-        bandwidth_hz: closed-loop bandwidth of the PD gains [Hz] (gains).
-        damping_ratio: ζ of the PD gains (gains).
-        sigma_k: randomization ranges value ± k·σ (gains).
-        samples: physically consistent models drawn from σ (gains).
-        seed: of the draws.
+        sigma_k: randomization ranges value ± k·σ.
+        samples: physically consistent models drawn from σ.
         window: the part of the held-out run used (cut after filtering; None: all of it).
         meshdir: mjcf: the folder (beside the file) its visual meshes are written to; "" for
             no geometry.
@@ -82,8 +73,6 @@ class ExportResult:
     """An exported file's text and what it took.
 
     Attributes:
-        format: one of :data:`FORMATS`.
-        text: the file's content.
         model: the model exported (physically consistent).
         source: the model file ("" for the robot's own model: the CAD model).
         unheld: what the format cannot hold of the model, one sentence each.
@@ -112,8 +101,7 @@ class ExportResult:
         return lines
 
     def write(self, folder: str | Path, *, name: str = "") -> list[str]:
-        """Writes the file ``folder/name`` (default ``model`` + the format's suffix) and its mesh
-        folder beside it, whole or not at all.
+        """Writes ``folder/name`` (default ``model`` + suffix) and its mesh folder, whole or not.
 
         Returns:
             The paths written: the file, then the mesh folder (if any).
@@ -133,8 +121,7 @@ class ExportResult:
 
 
 def write_folder(folder: Path, files: dict[str, bytes]) -> Path:
-    """Writes ``files`` into ``folder`` whole: a temporary folder beside it, renamed into place
-    (an older folder of that name is replaced)."""
+    """Writes ``files`` into ``folder`` whole: a temporary folder beside it, renamed into place."""
     folder.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", dir=folder.parent))
     try:
@@ -159,10 +146,8 @@ def export_model(robot: Robot, model: str | Path | None, options: ExportOptions 
     """What ``pe-drake export`` does (module docstring).
 
     Args:
-        robot: the robot the model belongs to.
         model: identified.json (any method) or augmented_model.json; None: the robot's own model.
-        held_out: a raw measured run (:func:`~pe_drake.identification.intake.read_measurements`)
-            to report the projection's and the feed-forward's effect on.
+        held_out: a raw measured run to report the projection's and the feed-forward's effect on.
         progress: called with a line before each slow step (mesh conversion, the checks).
 
     Raises:
@@ -236,8 +221,7 @@ def _mujoco_check(robot: Robot, model: RobotModel, text: str, meshes: dict) -> d
 
 
 def _feedforward_check(robot: Robot, model: RobotModel, data, raw) -> dict:
-    """RMS error [N·m] per joint of the gravity + friction feed-forward and of the whole model on
-    the run (Coulomb columns filtered like the torque, as ``validate``)."""
+    """RMS error [N·m] per joint of the gravity + friction feed-forward and of the whole model."""
     zero = np.zeros_like(data.v)
     coulomb = filtered_coulomb(raw, data, model.velocity_scale)
     friction = friction_torque(model, data.v, coulomb)
