@@ -1,9 +1,7 @@
-"""The identified robot where it is used: MJCF for MuJoCo, URDF/SDFormat for Drake and ROS,
-controller feed-forward, PD gains and randomization ranges (``pe-drake export``), and
-``validate --model`` of such a file in its simulator.
+"""The identified robot where it is used (``pe-drake export``): MJCF, URDF/SDFormat, controller
+feed-forward, PD gains and randomization ranges, and ``validate --model`` of such a file.
 
-Its names load on first use, so ``pe-drake validate`` with an identified.json does not import
-the exporters (nor the diagnosis they draw randomization projections from).
+Its names load on first use: ``validate`` with an identified.json imports no exporter.
 """
 
 from pe_drake.exports import exports_by_module, lazy_exports

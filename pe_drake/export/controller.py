@@ -39,12 +39,8 @@ def _unit(robot: Robot, k: int) -> tuple[str, str]:
 
 
 def feedforward_yaml(robot: Robot, model: RobotModel, check: dict | None = None, source: str = "") -> str:
-    """The friction and offset feed-forward per joint as YAML (module docstring).
-
-    Args:
-        check: figures of the feed-forward on a held-out run, written under ``check``.
-        source: the model file ("": the robot's own model).
-    """
+    """The friction and offset feed-forward per joint as YAML, with ``check`` figures of it on a
+    held-out run; ``source`` names the model file ("": the robot's own model)."""
     joints = {}
     for k, name in enumerate(robot.joint_names):
         force, speed = _unit(robot, k)
@@ -124,11 +120,7 @@ def drive_spread(model: RobotModel, term: str) -> np.ndarray:
 
 
 def sample_models(robot: Robot, model: RobotModel, spread: IdentifiedSpread, count: int, seed: int = 0) -> SampledModels:
-    """``count`` models drawn from the identification's σ (module docstring).
-
-    Args:
-        spread: its base parameters' σ (:func:`~pe_drake.export.model_source.identified_spread`).
-    """
+    """``count`` models drawn from the identification's σ ``spread`` (module docstring)."""
     rng = np.random.default_rng(seed)
     K = spread.K
     root = _covariance_root(spread)

@@ -151,11 +151,8 @@ def reloaded_robot(robot: Robot, text: str, suffix: str):
 def drake_check(robot: Robot, model: RobotModel, text: str, suffix: str, samples: int = 20,
                 tolerance: float = 1e-6) -> float:
     """Largest relative difference between Drake's inverse dynamics of the exported file and
-    pe_drake's rigid + armature + viscous torque of the model, on random states.
-
-    Raises:
-        ConfigError: Drake refuses the file, or the torques differ by more than ``tolerance``.
-    """
+    pe_drake's rigid + armature + viscous torque of the model, on random states; ConfigError when
+    Drake refuses the file or they differ by more than ``tolerance``."""
     try:
         loaded = reloaded_robot(robot, text, suffix)
     except ConfigError as err:

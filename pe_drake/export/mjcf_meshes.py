@@ -53,11 +53,8 @@ def _primitive(shape) -> tuple[str, list[float]] | None:
 
 
 def add_visuals(robot: Robot, bodies: dict[str, ET.Element], asset: ET.Element) -> tuple[dict[str, bytes], list[str]]:
-    """Adds the robot's visual geoms to the MJCF ``bodies`` {name: element} and meshes to ``asset``.
-
-    Returns:
-        ({file name: content} of the mesh folder, notes on what was left out).
-    """
+    """Adds the robot's visual geoms to the MJCF ``bodies`` {name: element} and meshes to ``asset``;
+    returns ({file name: content} of the mesh folder, notes on what was left out)."""
     from pydrake.geometry import Role  # lazy: pydrake is heavy
 
     plant, inspector = robot.plant, robot.scene_graph.model_inspector()

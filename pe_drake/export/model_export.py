@@ -101,11 +101,8 @@ class ExportResult:
         return lines
 
     def write(self, folder: str | Path, *, name: str = "") -> list[str]:
-        """Writes ``folder/name`` (default ``model`` + suffix) and its mesh folder, whole or not.
-
-        Returns:
-            The paths written: the file, then the mesh folder (if any).
-        """
+        """Writes ``folder/name`` (default ``model`` + suffix) and its mesh folder, whole or not;
+        returns the paths written."""
         path = output_file(folder, name or f"model{FORMATS[self.format]}")
         path.parent.mkdir(parents=True, exist_ok=True)
         if not self.meshes:

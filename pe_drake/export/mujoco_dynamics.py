@@ -22,11 +22,8 @@ def import_mujoco():
 
 
 def load_mjcf(path_or_text: str | Path, *, text: bool = False, assets: dict[str, bytes] | None = None):
-    """An ``MjModel`` from an MJCF file (or its text, with its mesh files as ``assets``).
-
-    Raises:
-        ConfigError: MuJoCo refuses the file (its message, with the file).
-    """
+    """An ``MjModel`` from an MJCF file (or its text, with its mesh files as ``assets``);
+    ConfigError with MuJoCo's message when it refuses the file."""
     mujoco = import_mujoco()
     try:
         if text:

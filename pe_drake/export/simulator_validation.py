@@ -71,10 +71,7 @@ def validate_exported(robot: Robot, path: str | Path, measurements: Measurement,
                       options: ValidateOptions | None = None) -> ValidationReport:
     """``validate`` with an exported model file: the run's torques predicted by its simulator.
 
-    Raises:
-        ConfigError: as :func:`simulator_torques`; the wrench is not predicted.
-        DataError: data the checks refuse.
-    """
+    ConfigError as :func:`simulator_torques` or for a wrench; DataError for refused data."""
     options = options or ValidateOptions()
     if options.measurement != "joint_torque":
         raise ConfigError(f"validate --model {Path(path).name} predicts joint torques only; "

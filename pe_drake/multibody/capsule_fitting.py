@@ -18,14 +18,8 @@ import numpy as np
 
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.io_utils import atomic_write_text
-from pe_drake.multibody.capsules import (
-    capsule_pairs,
-    capsule_pose,
-    fit_capsule,
-    joints_apart,
-    load_capsule_file,
-    segment_closest_points,
-)
+from pe_drake.multibody.capsules import (capsule_pairs, capsule_pose, fit_capsule, joints_apart,
+                                         load_capsule_file, segment_closest_points)
 from pe_drake.multibody.link_geometry import Shape, primitive_points, primitive_segment, read_link_shapes
 from pe_drake.multibody.collada_up_axis import oriented_vertices, up_axis_note
 from pe_drake.multibody.mesh_policy import mesh_file_refusal
@@ -67,7 +61,6 @@ class FittedCapsules:
     Attributes:
         path: the capsule file.
         links: links that got a capsule.
-        skipped: {link: reason} for links with shapes but no capsule.
         ignored_pairs: pairs not checked although not adjacent, (capsule, capsule, reason).
         unchecked: what is not checked for collisions, one line each ("link X: mesh Y could
             not be read: reason"); empty when every shape of the model was used.
@@ -79,7 +72,6 @@ class FittedCapsules:
 
     path: Path
     links: tuple[str, ...]
-    skipped: dict[str, str]
     ignored_pairs: tuple = ()
     unchecked: tuple[str, ...] = ()
     sources: dict[str, str] = dataclasses.field(default_factory=dict)
@@ -201,14 +193,14 @@ def fit_capsule_file(
         "# Check them in `pe-drake view` and edit as needed; give the edited file as robot.capsules.",
         "capsules:",
     ]
-    fitted, skipped, unchecked, sources = [], {}, [], {}
+    fitted, unchecked, sources = [], [], {}
     for name, link_shapes in shapes.items():
         if (links is not None and name not in links) or not link_shapes:
             continue
         fit = _fit_link(link_shapes, model_path, cover)
         if not fit.capsules:
-            skipped[name] = "; ".join(fit.replaced + fit.problems) or "no usable shape"
-            unchecked.append(f"link {name}: " + skipped[name])
+            why = "; ".join(fit.replaced + fit.problems) or "no usable shape"
+            unchecked.append(f"link {name}: {why}")
             continue
         if fit.problems:  # a shape of the group the capsules came from: that part is unchecked
             unchecked.append(f"link {name}: " + "; ".join(fit.problems) + " (capsule fitted to its other shapes)")
@@ -234,8 +226,8 @@ def fit_capsule_file(
         )
     atomic_write_text(out_path, "\n".join(lines) + "\n")
     note = up_axis_note(model_path)
-    return FittedCapsules(Path(out_path), tuple(fitted), skipped, unchecked=tuple(unchecked), sources=sources,
-                          notes=(note,) if note else ())
+    return FittedCapsules(Path(out_path), tuple(fitted), unchecked=tuple(unchecked),
+                          sources=sources, notes=(note,) if note else ())
 
 
 def _mirror_symmetric(P: np.ndarray) -> bool:
@@ -291,9 +283,7 @@ def fit_capsules(config, folder: str | Path) -> tuple:
     Returns:
         (the config pointing ``robot.capsules`` at the fitted file, what was fitted), or
         (``config`` itself, None) when the robot has a capsule file or nothing needs one.
-
-    Raises:
-        ConfigError: the model is not a URDF with readable meshes.
+        ConfigError when the model is not a URDF with readable meshes.
     """
     robot, env = config.robot, config.environment
     needs = config.excitation.collision_margin >= 0 or bool(env.boxes) or (env.floor and not robot.support_points)
@@ -399,11 +389,8 @@ def _mirror_pair(a: str, b: str, pairs) -> tuple | None:
 
 
 def _shrunk_radii(caps, pairs, axis, far, fitted, margin) -> tuple:
-    """Radii with which every far pair clears ``margin`` + 1 mm at axis distances ``axis``.
-
-    Returns:
-        (radii, indices of the far pairs that still do not clear).
-    """
+    """(radii, far pairs that still do not clear) with which every far pair clears ``margin``
+    + 1 mm at axis distances ``axis``."""
     radii = fitted.copy()
     floor = SHRINK_FLOOR * fitted
     index = {c.name: k for k, c in enumerate(caps)}

@@ -135,9 +135,6 @@ def register_capsules(plant, scene_graph, path: str | Path) -> tuple[CapsuleInfo
     Call before ``plant.Finalize()``. Excluded from checking: capsules on bodies welded together,
     capsules on bodies joined by one joint (adjacent), and the file's ``ignored_pairs``.
 
-    Returns:
-        One :class:`CapsuleInfo` per capsule, in file order.
-
     Raises:
         ConfigError: see :func:`load_capsule_file`; or a plant without a SceneGraph, or a
             finalized plant.
@@ -192,8 +189,7 @@ def capsule_pairs(scene_graph, capsules: tuple[CapsuleInfo, ...]) -> tuple[tuple
     return tuple(
         (a, b)
         for a, b in itertools.combinations(range(len(capsules)), 2)
-        if not inspector.CollisionFiltered(capsules[a].geometry_id, capsules[b].geometry_id)
-    )
+        if not inspector.CollisionFiltered(capsules[a].geometry_id, capsules[b].geometry_id))
 
 
 def _resolve_ignored_pairs(data: CapsuleFile, infos: list[CapsuleInfo], path) -> set[frozenset[int]]:
@@ -244,10 +240,7 @@ def segment_closest_points(a0: np.ndarray, a1: np.ndarray, b0: np.ndarray,
 
     The points are ``a0 + s·(a1 - a0)`` and ``b0 + t·(b1 - b0)`` (Ericson, *Real-Time
     Collision Detection*, 5.1.9). Both segments must have a positive length (capsules do);
-    for parallel segments one of the closest pairs is returned.
-
-    Returns:
-        s, t in [0, 1], each of shape (...).
+    for parallel segments one of the closest pairs is returned. s, t in [0, 1], shape (...).
     """
     d1, d2, r = a1 - a0, b1 - b0, a0 - b0
     a = np.maximum(np.einsum("...i,...i->...", d1, d1), 1e-300)
@@ -270,9 +263,7 @@ def fit_capsule(points: np.ndarray, axis: np.ndarray | None = None, cover: float
     The axis is ``axis`` or the principal axis of the points; the axis line passes through
     ``through`` or the centre that minimises the radius; the radius covers the fraction
     ``cover`` of the points; the segment is the shortest that contains every covered point.
-
-    Returns:
-        p0, p1: segment ends, each shape (3,) [m]; radius [m].
+    Returns (p0, p1, radius) [m].
     """
     from scipy.optimize import minimize
 

@@ -18,15 +18,9 @@ from pathlib import Path
 import numpy as np
 
 from pe_drake.multibody.link_geometry import read_link_shapes
-from pe_drake.multibody.meshes import (
-    TriangleMesh,
-    default_cache_dir,
-    read_dae_triangles,
-    read_mesh_vertices,
-    resolve_mesh_path,
-    rewrite_visual_meshes,
-    write_obj,
-)
+from pe_drake.multibody.meshes import (TriangleMesh, default_cache_dir, read_dae_triangles,
+                                       read_mesh_vertices, resolve_mesh_path, rewrite_visual_meshes,
+                                       write_obj)
 from pe_drake.multibody.urdf_checks import urdf_tree
 
 #: Slack of a mesh's bounding box when counting the link points it holds [m].

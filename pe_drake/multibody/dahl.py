@@ -19,16 +19,13 @@ from pe_drake.multibody.rotor_coupling import rotor_coupling_system
 
 
 def dahl_state(q: np.ndarray, x_p, z0=0.0) -> np.ndarray:
-    """The normalized Dahl state z = F/F_c along a sampled path, integrated exactly.
+    """The normalized Dahl state z = F/F_c ∈ [−1, 1] along a sampled path, integrated exactly.
 
     Args:
         q: joint positions, shape (T,) or (T, n) [rad or m], monotone between two samples.
         x_p: pre-sliding displacement F_c/σ0 [rad or m], a scalar or shape (n,) (or (G, n)
             for a grid of values, giving (T, G, n)).
         z0: initial state in [−1, 1].
-
-    Returns:
-        z, the shape of q (or (T, G, n) for a grid), each value in [−1, 1].
     """
     q = np.asarray(q, float)
     flat = q.ndim == 1

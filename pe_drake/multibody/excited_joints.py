@@ -77,10 +77,8 @@ def excited_joint_names(cfg: RobotConfig, movable_names: list[str], model_path: 
 
 
 def weld_locked_joints(plant, movable: list, excited: list[str], positions: dict[str, float]) -> dict[str, float]:
-    """Welds every non-excited joint at its locked position (default: 0 clipped to its limits).
-
-    Returns:
-        {joint: locked position} [rad or m].
+    """Welds every non-excited joint at its locked position (default: 0 clipped to its limits);
+    returns {joint: locked position} [rad or m].
 
     Raises:
         NotWithinLimitsError: a locked position outside the joint's limits.

@@ -50,8 +50,7 @@ class ForwardKinematics:
         self._var_outputs = [k for k, (kind, _) in enumerate(outputs) if kind == "var"]
         self._var_steps = [value for kind, value in outputs if kind == "var"]
         self._outputs_are_steps = len(outputs) == ns and all(
-            kind == "var" and value == k for k, (kind, value) in enumerate(outputs)
-        )
+            kind == "var" and value == k for k, (kind, value) in enumerate(outputs))
 
     @staticmethod
     def build(robot: Robot, bodies):

@@ -29,8 +29,7 @@ class PhysicallyInvalidError(PeDrakeError, ValueError):
         super().__init__(
             f"the inertial parameters of {len(self.bodies)} body(ies) are not physically valid: "
             f"{names} (first: {first}); write a physically consistent estimate (method 'physical') "
-            "instead"
-        )
+            "instead")
 
 
 def inertia_matrix(i6: np.ndarray) -> np.ndarray:
@@ -87,6 +86,7 @@ def principal_inertia(phi_b: np.ndarray) -> tuple[float, np.ndarray, np.ndarray,
 
 def pseudo_inertia(phi_b: np.ndarray) -> np.ndarray:
     """J(φ_b) = [[½tr(I)·1 − I, h], [hᵀ, m]] (Wensing et al. 2017), shape (4, 4).
+
     J ⪰ 0 exactly when a non-negative mass density produces the body's mass, first moment
     and inertia about the origin (Drake's physical validity).
     """
@@ -161,8 +161,7 @@ def validity_problems(body_names: Sequence[str], phi: np.ndarray) -> dict[str, s
                 moments = np.linalg.eigvalsh(central_inertia(phi_b)[2])
                 problems[name] = (
                     f"principal moments about the centre of mass {np.array2string(moments, precision=4)} "
-                    "kg·m² are negative or violate the triangle inequality"
-                )
+                    "kg·m² are negative or violate the triangle inequality")
         except (RuntimeError, ValueError) as err:
             problems[name] = str(err).splitlines()[0]
     return problems
@@ -188,10 +187,7 @@ def perturb_inertias(phi: np.ndarray, size: float, rng: int | np.random.Generato
     Args:
         size: ε, relative size in [0, 0.5].
         max_tries: redraws per body before giving up.
-        body_names: the bodies' names, for the error (default: their indices).
-
-    Raises:
-        ConfigError: a bad size, or a body whose inertia cannot be made valid.
+        body_names: the bodies' names, for the ConfigError of a body that cannot be made valid.
     """
     size = check_finite("inertia_perturbation", size, nonneg=True)
     if size > 0.5:

@@ -73,10 +73,7 @@ def _numbers(text: str | None, count: int, default: float) -> list[float]:
 def read_link_shapes(model_path: str | Path) -> dict[str, list[Shape]]:
     """The shapes of every link of a URDF or SDF file, {link: shapes} in file order.
 
-    Raises:
-        ConfigError: another format, unreadable XML, or a size that is not a number; the
-            message names the file and the link.
-    """
+    ConfigError for another format, unreadable XML, or a size that is not a number."""
     model_path = Path(model_path)
     suffix = model_path.suffix.lower()
     if suffix not in (".urdf", ".sdf"):
@@ -138,13 +135,11 @@ def _shape(link: str, tag: str, X, geometry: ET.Element | None, value) -> Shape 
 
 
 def primitive_segment(shape: Shape) -> tuple[np.ndarray, np.ndarray, float]:
-    """The smallest capsule along the primitive's own axis that encloses it, in the link frame.
+    """(p0, p1, radius) [m] of the smallest capsule along the primitive's own axis that encloses
+    it, in the link frame.
 
     A cylinder or capsule keeps its radius, axis and length; a sphere is a zero-length capsule;
     a box becomes the capsule along its longest edge whose end circles hold its corners.
-
-    Returns:
-        p0, p1: segment ends in the link frame, each shape (3,) [m]; radius [m].
     """
     R, p = shape.X_LG[:3, :3], shape.X_LG[:3, 3]
     if shape.kind in ("cylinder", "capsule"):

@@ -77,7 +77,9 @@ def allowed_mesh_roots(model_path: str | Path, text: str, packages: Mapping[str,
     return sorted(set(out))
 
 
-def _is_under(real: str, roots: Iterable[str]) -> bool:
+def is_under(path: str | Path, roots: Iterable[str]) -> bool:
+    """Whether the real path of ``path`` lies under one of the folders ``roots`` (real paths)."""
+    real = os.path.realpath(path)
     return any(real == r or real.startswith(r.rstrip(os.sep) + os.sep) for r in roots)
 
 
@@ -136,9 +138,7 @@ def visual_mesh_refusal(name: str, model_path: str | Path, roots: Iterable[str] 
                         packages: Mapping[str, str] | None = None) -> str | None:
     """Why a visual mesh ``filename`` of a model must not be read, or None.
 
-    Args:
-        roots: :func:`allowed_mesh_roots`, or None to check only the file itself.
-    """
+    ``roots``: :func:`allowed_mesh_roots`, or None to check only the file itself."""
     refusal = name_refusal(name)
     if refusal is not None:
         return refusal
@@ -146,7 +146,7 @@ def visual_mesh_refusal(name: str, model_path: str | Path, roots: Iterable[str] 
         if not os.path.lexists(path):
             continue  # a missing mesh: Drake names it
         refusal = mesh_file_refusal(path)
-        if refusal is None and roots is not None and not _is_under(os.path.realpath(path), roots):
+        if refusal is None and roots is not None and not is_under(path, roots):
             refusal = _outside(name, path)
         refusal = refusal or referenced_file_refusal(Path(path), roots)
         if refusal:
@@ -208,7 +208,7 @@ def _reference_refusal(name: str, mesh: Path, roots: Iterable[str] | None) -> st
             continue  # a missing texture: drawn without it
         refusal = mesh_file_refusal(path, REFERENCE_SUFFIXES, f"the file named by mesh '{mesh.name}',",
                                     "material, texture or buffer")
-        if refusal is None and roots is not None and not _is_under(os.path.realpath(path), roots):
+        if refusal is None and roots is not None and not is_under(path, roots):
             refusal = _outside(name, path, f"the file named by mesh '{mesh.name}'")
         if refusal:
             return refusal

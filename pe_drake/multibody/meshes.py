@@ -43,9 +43,7 @@ class TriangleMesh(NamedTuple):
 def read_stl(path: str | Path) -> TriangleMesh:
     """Reads a binary or ASCII STL file, merging identical vertices and dropping degenerate faces.
 
-    Raises:
-        DataError: missing file, or a file that is neither binary nor ASCII STL.
-    """
+    DataError for a missing file or one that is neither binary nor ASCII STL."""
     path = Path(path)
     return _index_corners(_stl_corners(_stl_bytes(path), path))
 
@@ -149,8 +147,7 @@ def obj_text(mesh: TriangleMesh, comment: str = "") -> str:
     return (
         head
         + ("v %.6g %.6g %.6g\n" * len(v)) % tuple(v.ravel())
-        + ("f %d %d %d\n" * len(f)) % tuple(f.ravel())
-    )
+        + ("f %d %d %d\n" * len(f)) % tuple(f.ravel()))
 
 
 def write_obj(path: str | Path, mesh: TriangleMesh, comment: str = "") -> Path:
@@ -185,10 +182,8 @@ def stl_visuals_to_obj(urdf_text: str, model_path: str | Path, cache_dir: str | 
 
     Only the ``filename`` of ``<mesh>`` inside ``<visual>`` changes, to a ``file://`` URI
     (Drake refuses bare absolute paths in a URDF parsed from a string); every ``<collision>``
-    stays. Meshes that cannot be found are left untouched for Drake to report.
-
-    Raises:
-        DataError: an STL file that exists but is malformed.
+    stays. Meshes that cannot be found are left untouched for Drake to report; a malformed STL
+    raises DataError.
     """
     return rewrite_visual_meshes(urdf_text, model_path, ".stl", lambda source: stl_to_obj(source, cache_dir),
                                  packages)

@@ -20,22 +20,13 @@ from pe_drake.exceptions import ConfigError
 from pe_drake.io_utils import atomic_write_text
 from pe_drake.multibody.example_robot_data import example_robot_data_dir
 from pe_drake.multibody.mesh_policy import allowed_mesh_roots, decoded_character_references, mesh_file_refusal
-from pe_drake.multibody.model_references import (
-    check_every_name,
-    check_mjcf_files,
-    checked_sdf_text,
-    without_refused_textures,
-)
+from pe_drake.multibody.model_references import (check_every_name, check_mjcf_files,
+                                                 checked_sdf_text, without_refused_textures)
 from pe_drake.multibody.collada_up_axis import turned_dae_visuals
 from pe_drake.multibody.meshes import absolute_mesh_paths, default_cache_dir, stl_visuals_to_obj, without_refused_visuals
-from pe_drake.multibody.packages import (
-    find_package,
-    manifest_name,
-    register_packages,
-    resolve_package_uri,
-    unknown_package_message,
-    used_packages,
-)
+from pe_drake.multibody.packages import (find_package, manifest_name, register_packages,
+                                         resolve_package_uri, unknown_package_message,
+                                         used_packages)
 from pe_drake.multibody.urdf_checks import check_joint_types, has_entities
 from pe_drake.multibody.xacro_sandbox import TRUST_HINT, sandboxed
 
@@ -74,7 +65,6 @@ def expand_xacro(path: str | Path, packages: Mapping[str, str] | None = None,
     program: unless ``trust``, it runs in :func:`~pe_drake.multibody.xacro_sandbox.sandboxed`.
 
     Args:
-        packages: the config's ``robot.packages`` map, or None.
         mappings: xacro arguments {name: value} (``xacro file.xacro name:=value``).
         trust: run the file with xacro's full Python (``--trust-xacro``, ``robot.trust_xacro``).
 
@@ -380,9 +370,7 @@ def check_world_joints(plant, models, model_path: Path) -> None:
 def parse_models(plant, text: str, model_path: Path, packages: dict | None = None) -> list:
     """Adds the model to the plant, every ``package://`` it uses registered; returns its instances.
 
-    Raises:
-        ConfigError: an unknown package, or Drake cannot parse it (Drake's message is kept).
-    """
+    ConfigError for an unknown package, or Drake's message when it cannot parse the text."""
     from pydrake.multibody.parsing import Parser  # lazy: pydrake is heavy
 
     parser = Parser(plant)

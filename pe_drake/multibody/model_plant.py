@@ -86,13 +86,9 @@ def add_coulomb_friction(plant, joint, f_c: float, v_s: float) -> None:
     """f_c·tanh(v/v_s) as a Drake DoorHinge whose only non-zero term is its dynamic friction."""
     from pydrake.multibody.tree import DoorHinge, DoorHingeConfig  # lazy: pydrake stays out of `import pe_drake`
 
-    config = DoorHingeConfig()
-    config.spring_constant = 0.0
-    config.catch_torque = 0.0
-    config.static_friction_torque = 0.0
-    config.viscous_friction = 0.0
-    config.dynamic_friction_torque = f_c
-    config.motion_threshold = v_s
+    config = DoorHingeConfig(spring_constant=0.0, catch_torque=0.0, static_friction_torque=0.0,
+                             viscous_friction=0.0, dynamic_friction_torque=f_c,
+                             motion_threshold=v_s)
     plant.AddForceElement(DoorHinge(joint, config))
 
 

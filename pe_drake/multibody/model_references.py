@@ -18,6 +18,7 @@ from pe_drake.exceptions import ConfigError
 from pe_drake.multibody.mesh_policy import (
     MESH_SUFFIXES,
     REFERENCE_SUFFIXES,
+    is_under,
     mesh_file_refusal,
     name_refusal,
     named_files,
@@ -37,11 +38,6 @@ _MJCF_FILE = re.compile(r"(<(\w+)\b[^>]*?(?<![\w:.-])file\s*=\s*)([\"'])(.*?)\3"
 _MJCF_DIR = re.compile(r"<compiler\b[^>]*?(?<![\w:.-])(meshdir|texturedir|assetdir)\s*=\s*([\"'])(.*?)\2", re.S)
 
 
-def _under(path: str | Path, roots: Iterable[str] | None) -> bool:
-    real = os.path.realpath(path)
-    return roots is None or any(real == r or real.startswith(r.rstrip(os.sep) + os.sep) for r in roots)
-
-
 def _named_file(name: str, model_path: Path, packages: Mapping[str, str] | None) -> Path | None:
     found = [p for p in named_files(name, model_path, packages) if os.path.lexists(p)]
     return found[0] if found else None
@@ -57,7 +53,7 @@ def file_refusal(name: str, model_path: Path, roots: Iterable[str] | None, packa
         if not os.path.lexists(path):
             continue  # a missing file: Drake names it
         refusal = mesh_file_refusal(path, suffixes, what, "texture" if suffixes == REFERENCE_SUFFIXES else "model")
-        if refusal is None and not _under(path, roots):
+        if refusal is None and roots is not None and not is_under(path, roots):
             refusal = (f"{what} '{name}' is {os.path.realpath(path)}, outside the model's folder, its packages and "
                        "pe_drake's mesh cache: files are read only from there")
         if refusal:

@@ -40,12 +40,8 @@ def manifest_name(folder: Path) -> str | None:
 
 def package_roots(package: str, model_path: str | Path,
                   packages: Mapping[str, str] | None = None) -> list[Path]:
-    """Existing candidate folders of a package, best first (see the module docstring).
-
-    Args:
-        model_path: the model file the URI appears in (the upward search starts there).
-        packages: the config's ``robot.packages`` map {name: folder}, or None.
-    """
+    """Existing candidate folders of a package, best first (module docstring); the upward
+    search starts at ``model_path``, ``packages`` is the config's ``robot.packages``."""
     return list(dict.fromkeys(_candidates(package, Path(model_path), packages or {})))
 
 
@@ -82,8 +78,7 @@ def unknown_package_message(package: str, model_path: str | Path) -> str:
         f"package '{package}' (used by '{Path(model_path).name}') was not found: looked in robot.packages, "
         f"for a package.xml named '{package}' (or a folder of that name) above the model, in "
         "ROS_PACKAGE_PATH and in AMENT_PREFIX_PATH/share; set robot.packages: "
-        f"{{{package}: /path/to/{package}}} in the config, or source the ROS workspace"
-    )
+        f"{{{package}: /path/to/{package}}} in the config, or source the ROS workspace")
 
 
 def resolve_package_uri(uri: str, model_path: str | Path, packages: Mapping[str, str] | None = None) -> Path | None:
@@ -101,11 +96,8 @@ def used_packages(text: str) -> list[str]:
 
 
 def found_packages(text: str, model_path: str | Path, packages: Mapping[str, str] | None = None) -> dict[str, str]:
-    """{name: folder} of every package the text uses that is found from ``model_path``.
-
-    An exported file is read with this map as its ``robot.packages``, so its URIs resolve as the
-    model's did.
-    """
+    """{name: folder} of every package the text uses that is found from ``model_path``: the
+    ``robot.packages`` of an exported file, so its URIs resolve as the model's did."""
     found = {}
     for package in used_packages(text):
         roots = package_roots(package, model_path, packages)
@@ -115,11 +107,8 @@ def found_packages(text: str, model_path: str | Path, packages: Mapping[str, str
 
 
 def register_packages(package_map, text: str, model_path: str | Path, packages: Mapping[str, str] | None = None) -> list[str]:
-    """Adds every package the text uses and Drake does not know to the parser's ``PackageMap``.
-
-    Returns:
-        The packages none of the places knows (left for Drake to report).
-    """
+    """Adds every package the text uses and Drake does not know to the parser's ``PackageMap``;
+    returns those none of the places knows (left for Drake to report)."""
     unknown = []
     for package in used_packages(text):
         if package_map.Contains(package):

@@ -23,11 +23,7 @@ if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
 
 
 def link_position(robot: Robot, link: str | int) -> int:
-    """Position of ``link`` in ``robot.body_names`` (a name, or that position itself).
-
-    Raises:
-        UnknownNameError: a link that no excited joint moves (the valid names are listed).
-    """
+    """Position of ``link`` (a name, or a position) in ``robot.body_names`` (UnknownNameError)."""
     if isinstance(link, (int, np.integer)):
         if not 0 <= int(link) < robot.num_bodies:
             raise UnknownNameError("link", str(link), list(robot.body_names), where="payload link")

@@ -68,10 +68,8 @@ def example_robot_data_models(name: str, limit: int = 3) -> tuple[str, ...]:
 def resolve_robot_config(robot: str, config_file: str | Path | None = None) -> Config:
     """Config for a robot given by built-in name or model path, with a user file on top.
 
-    Raises:
-        UnknownNameError: an unknown built-in name that is not a file either.
-        ConfigError: a missing model file or a bad config.
-    """
+    UnknownNameError for a name neither built in nor a file; ConfigError for a missing model
+    file or a bad config."""
     if robot in builtin_robots():
         base = builtin_config(robot)
     else:

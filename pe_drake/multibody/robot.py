@@ -139,8 +139,7 @@ class Robot:
             joint = plant.get_joint(index)
             if joint.parent_body().index() == world and joint.child_body().index() == root.index():
                 X_WR = joint.frame_on_parent().GetFixedPoseInBodyFrame().multiply(
-                    joint.frame_on_child().GetFixedPoseInBodyFrame().inverse()
-                )
+                    joint.frame_on_child().GetFixedPoseInBodyFrame().inverse())
                 if not X_WR.IsNearlyEqualTo(pose, 1e-9):
                     xyz = " ".join(f"{v:.4g}" for v in X_WR.translation())
                     rpy = " ".join(f"{v:.4g}" for v in RollPitchYaw(X_WR.rotation()).vector())
@@ -158,8 +157,7 @@ class Robot:
         if plant.num_positions() != len(excited) or plant.num_velocities() != len(excited):
             raise ConfigError(
                 f"after locking, the plant has {plant.num_positions()} positions but "
-                f"{len(excited)} excited joints: is the root link '{self.root_link}' free?"
-            )
+                f"{len(excited)} excited joints: is the root link '{self.root_link}' free?")
         if self._builder_hook is not None:  # e.g. Meshcat visualizers (pe_drake.viewer)
             self._builder_hook(builder, plant, scene_graph)
         self.diagram = builder.Build()
@@ -180,13 +178,10 @@ class Robot:
             if self.config.root_link not in names:
                 raise UnknownNameError("link", self.config.root_link, names, where="robot.root_link")
             return plant.GetBodyByName(self.config.root_link)
-        children = set()
-        for j in plant.GetJointIndices():
-            joint = plant.get_joint(j)
-            if joint.parent_body().index() != plant.world_body().index():
-                children.add(joint.child_body().index())
-        roots = [b for b in bodies if b.index() not in children]
-        return roots[0]
+        world = plant.world_body().index()
+        joints = [plant.get_joint(j) for j in plant.GetJointIndices()]
+        children = {j.child_body().index() for j in joints if j.parent_body().index() != world}
+        return [b for b in bodies if b.index() not in children][0]
 
     def _structure(self) -> None:
         """Tree structure of the excited joints and of the bodies they move."""
@@ -244,26 +239,23 @@ class Robot:
             if actuator.joint().name() in self.joint_names:
                 effort[self.joint_names.index(actuator.joint().name())] = actuator.effort_limit()
         urdf_effort = urdf_joint_efforts(self.model_path)
-        for k, name in enumerate(self.joint_names):
-            if not np.isfinite(effort[k]) and name in urdf_effort:
-                effort[k] = urdf_effort[name]
         vd = np.full(self.n, float(cfg.default_acceleration_limit))
         for k, name in enumerate(self.joint_names):
+            if not np.isfinite(effort[k]):
+                effort[k] = urdf_effort.get(name, effort[k])
             lo[k], hi[k], v[k] = merge_limits(name, (lo[k], hi[k]), v[k], cfg, self.model_path.name)
             vd[k] = cfg.acceleration_limits.get(name, vd[k])
             effort[k] = min(effort[k], cfg.effort_limits.get(name, np.inf))
         margin, notes = position_margins(cfg, self.joint_names, [j.kind for j in self.joints], lo, hi)
         notes += placeholder_velocity_notes(cfg, self.joint_names, [j.kind for j in self.joints], v)
         self.limit_notes = notes  # the margins assumed: optimize and simulate print them
-        lo = lo + margin
-        hi = hi - margin
+        lo, hi = lo + margin, hi - margin
         for k, name in enumerate(self.joint_names):
             if not np.isfinite(lo[k]) or not np.isfinite(hi[k]):
                 raise ConfigError(
                     f"joint '{name}' has no finite position limits: set robot.position_limits['{name}'] "
                     f"[rad or m], or leave it out of robot.joints (a wheel, a continuous joint you do not "
-                    f"want to excite; robot.locked_positions holds it)"
-                )
+                    f"want to excite; robot.locked_positions holds it)")
             if not np.isfinite(v[k]):
                 raise ConfigError(
                     f"joint '{name}' has no velocity limit: set robot.velocity_limits['{name}']")
@@ -272,8 +264,7 @@ class Robot:
                     f"give a real range in robot.position_limits['{name}']")
                 raise InfeasibleError(
                     f"joint '{name}': position range [{lo[k]:.4g}, {hi[k]:.4g}] is empty after a "
-                    f"margin of {margin[k]:g} {joint_unit(self.joints[k].kind)}; {fix}"
-                )
+                    f"margin of {margin[k]:g} {joint_unit(self.joints[k].kind)}; {fix}")
         return Limits(lo, hi, v * cfg.velocity_scale, vd * cfg.acceleration_scale, effort * cfg.effort_scale)
 
     # ---- parameters ---------------------------------------------------------------------

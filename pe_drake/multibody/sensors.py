@@ -90,10 +90,7 @@ def measurement_type(config: ExcitationConfig, kind: str | None = None, joint_na
 
 
 class SensorRows:
-    """The noise-scaled rows A^(t) = diag(1/σ) [Y^(t); Y_0^(t)] of a measurement, and their adjoint.
-
-    Used in place of the joint-torque regressor by the excitation criterion.
-    """
+    """The noise-scaled rows A^(t) = diag(1/σ) [Y^(t); Y_0^(t)] of a measurement, and adjoint."""
 
     def __init__(self, model: RegressorModel, measurement: MeasurementType | None = None):
         self.model = model
@@ -142,10 +139,8 @@ class SensorRows:
                         gap_ratio: float | None = RANK_GAP_RATIO) -> BaseParameters:
         """The base parameters of these rows (their own pivoted QR, Eq. 2).
 
-        Args:
-            rank_tolerance: relative tolerance on R's diagonal (default 1e-8 for joint
-                torques, :data:`WRENCH_RANK_TOLERANCE` with the wrench).
-            gap_ratio: the rank gap of :func:`compute_base_parameters` (None: none).
+        ``rank_tolerance`` defaults to 1e-8 for joint torques, :data:`WRENCH_RANK_TOLERANCE` with
+        the wrench.
         """
         if rank_tolerance is None:
             rank_tolerance = WRENCH_RANK_TOLERANCE if self.measurement.wrench else 1e-8
@@ -159,12 +154,7 @@ class SensorRows:
 def measurement_base_parameters(robot: Robot, measurement: str = "joint_torque",
                                 model: RegressorModel | None = None, *,
                                 rows: SensorRows | None = None) -> BaseParameters:
-    """The base parameters a measurement identifies (Eq. 2 on its rows).
-
-    Args:
-        model: a :class:`RegressorModel` of ``robot`` to reuse.
-        rows: the measurement's rows with their noise weights (default: unit sensor noise).
-    """
+    """The base parameters a measurement identifies (Eq. 2 on its ``rows``, default unit noise)."""
     model = model or (rows.model if rows is not None else RegressorModel(robot))
     if measurement == "joint_torque":
         return compute_base_parameters(robot, model=model)

@@ -193,8 +193,7 @@ def standing_defaults(model_path: str | Path) -> dict | None:
         f"a legged robot without a config: standing on {', '.join(support)} (root link '{roots[0]}' at "
         f"{-z0:.4g} m, legs straight), the {len(arms)} arm joints excited, the other {len(movable) - len(arms)} "
         f"joints locked at zero, CoM within {radius:g} m of the feet's centre, capsules {COLLISION_MARGIN:g} m "
-        "apart; give a config (robot.joints, support_points, base_position) to choose otherwise"
-    )
+        "apart; give a config (robot.joints, support_points, base_position) to choose otherwise")
     turned = up_axis_note(model_path)
     return {
         "robot": {"joints": arms, "base_position": [0.0, 0.0, -z0], "support_points": support,

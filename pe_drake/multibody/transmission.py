@@ -1,18 +1,9 @@
 """Transmissions between motors and joints: gear ratios and a coupling (issue 36).
 
 Motor angles are θ_m = R q, R = diag(ratios) plus the coupling entries, and the joint torques
-are τ = Rᵀ τ_m (the power θ̇_mᵀ τ_m = q̇ᵀ τ). A Stäubli TX40's wrist, with the config
-
-.. code-block:: yaml
-
-    robot:
-      transmission:
-        ratios: {joint_1: 32, joint_2: 32, joint_3: 45, joint_4: -48, joint_5: 45, joint_6: 32}
-        coupling: {joint_6: {joint_5: 32}}   # motor of joint_6: θ_m6 = 32 q6 + 32 q5
-
-has motor 6 turning with joints 5 and 6. Motors are named by the joint their ratio belongs to;
-a joint not in ``ratios`` has ratio 1. A coupled motor's friction and rotor inertia act on every
-joint it turns with (:func:`pe_drake.multibody.drive_columns.drive_columns`).
+are τ = Rᵀ τ_m (the power θ̇_mᵀ τ_m = q̇ᵀ τ); the config (``robot.transmission``) is in the
+README. Motors are named by the joint their ratio belongs to; a joint not in ``ratios`` has
+ratio 1. A coupled motor's friction and rotor inertia act on every joint it turns with.
 """
 
 from __future__ import annotations

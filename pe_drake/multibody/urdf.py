@@ -89,8 +89,7 @@ def urdf_with_inertias(source: str | Path, body_names: Sequence[str], phi: np.nd
     if source.suffix.lower() != ".urdf":
         raise ConfigError(
             f"model export writes URDF files; '{source.name}' is not a .urdf (load the robot from "
-            "its URDF to export an identified model)"
-        )
+            "its URDF to export an identified model)")
     phi = np.asarray(phi, float)
     if check:
         check_physically_valid(body_names, phi)
@@ -104,8 +103,7 @@ def urdf_with_inertias(source: str | Path, body_names: Sequence[str], phi: np.nd
     if missing:
         raise ConfigError(
             f"the URDF '{source.name}' has no link(s) {', '.join(missing)}; bodies added outside the "
-            "file (e.g. a payload) cannot be exported to it"
-        )
+            "file (e.g. a payload) cannot be exported to it")
     for b, name in enumerate(body_names):
         link = links[name]
         children = list(link)
@@ -140,8 +138,7 @@ def urdf_with_inertias(source: str | Path, body_names: Sequence[str], phi: np.nd
     text = without_dangling_transmissions(ET.tostring(root, encoding="unicode"))[0]  # Drake refuses them
     header = (
         '<?xml version="1.0"?>\n'
-        f"<!-- {source.name} with identified inertial parameters (pe_drake) -->\n"
-    )
+        f"<!-- {source.name} with identified inertial parameters (pe_drake) -->\n")
     return header + text + "\n"
 
 
@@ -160,10 +157,7 @@ def _drop_zero_dof_mimics(root: ET.Element) -> None:
 def urdf_text_phi(text: str, body_names: Sequence[str]) -> np.ndarray:
     """Each body's 10 parameters as Drake reads URDF text, shape (10·len(body_names),).
 
-    Raises:
-        ConfigError: Drake refuses the text.
-        UnknownNameError: a body the text does not have.
-    """
+    ConfigError when Drake refuses the text, UnknownNameError for a body it does not have."""
     from pydrake.multibody.parsing import Parser  # lazy: pydrake is heavy
     from pydrake.multibody.plant import MultibodyPlant
 
@@ -191,10 +185,8 @@ def verify_urdf_text(text: str, body_names: Sequence[str], phi: np.ndarray,
                      tolerance: float = 1e-9) -> None:
     """Parses URDF text with Drake and compares each body's parameters with ``phi``.
 
-    Raises:
-        ConfigError: Drake refuses the text, or a body's parameters differ by more than
-            ``tolerance`` relative to the largest parameter of that body.
-    """
+    ConfigError when Drake refuses the text, or a body's parameters differ by more than
+    ``tolerance`` relative to its largest parameter."""
     read, phi = urdf_text_phi(text, body_names), np.asarray(phi, float)
     for b, name in enumerate(body_names):
         got, want = read[10 * b : 10 * b + 10], phi[10 * b : 10 * b + 10]
@@ -202,8 +194,7 @@ def verify_urdf_text(text: str, body_names: Sequence[str], phi: np.ndarray,
         if float(np.max(np.abs(got - want))) > tolerance * scale:
             raise ConfigError(
                 f"the exported URDF does not reproduce body '{name}': Drake reads {got.tolist()}, "
-                f"expected {want.tolist()}"
-            )
+                f"expected {want.tolist()}")
 
 
 def joint_dynamics(text: str, damping: dict[str, float], rotor_inertia: dict[str, float],

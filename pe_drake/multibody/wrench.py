@@ -62,12 +62,8 @@ def root_weld_joint_position(robot: Robot) -> int:
 
 
 def reaction_to_ground_wrench(robot: Robot, reactions) -> np.ndarray:
-    """The ground wrench (:data:`WRENCH_COLUMNS` order, shape (6,)) from Drake's reaction output.
-
-    Args:
-        reactions: the value of ``plant.get_reaction_forces_output_port()``: per joint the
-            spatial force F_CJc_Jc on the child body at the joint's child frame Jc, in Jc.
-    """
+    """The ground wrench (:data:`WRENCH_COLUMNS` order, shape (6,)) from ``reactions``, the value
+    of ``plant.get_reaction_forces_output_port()`` (per joint F_CJc_Jc on the child body)."""
     plant = robot.plant
     position = root_weld_joint_position(robot)
     joint = plant.get_joint(plant.GetJointIndices()[position])
@@ -82,7 +78,8 @@ def reaction_to_ground_wrench(robot: Robot, reactions) -> np.ndarray:
 
 def weld_reaction(robot: Robot, q: np.ndarray, v: np.ndarray, applied: np.ndarray,
                   centred: bool = False) -> np.ndarray:
-    """Drake's reaction at the root weld at states (q, v) (T, n) under applied forces, (T, 6).
+    """Drake's reaction at the root weld at states (q, v) (T, n) under applied forces: the ground
+    wrench per sample, (T, 6) in :data:`WRENCH_COLUMNS` order [N, N·m].
 
     Uses ``robot.plant_context`` (a simulated robot's context keeps its true inertias).
 
@@ -91,9 +88,6 @@ def weld_reaction(robot: Robot, q: np.ndarray, v: np.ndarray, applied: np.ndarra
             sample period that starts at each sample.
         centred: average, at sample k, the reactions under applied[k − 1] and applied[k]
             (centred on t_k, like the logged torque of ``simulate``).
-
-    Returns:
-        Ground wrench per sample, (T, 6), :data:`WRENCH_COLUMNS` order [N, N·m].
     """
     plant, ctx = robot.plant, robot.plant_context
     q, v, applied = (np.atleast_2d(np.asarray(x, float)) for x in (q, v, applied))

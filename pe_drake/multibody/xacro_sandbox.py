@@ -21,6 +21,7 @@ from pathlib import Path
 from pe_drake import limits
 from pe_drake.exceptions import ConfigError
 from pe_drake.limits import input_file_problem
+from pe_drake.multibody.mesh_policy import is_under
 
 #: What the refusals tell the user to do when they trust the file.
 TRUST_HINT = ("a xacro file is a program that pe_drake runs to expand it; if you trust its author, pass "
@@ -103,7 +104,7 @@ def _confined_parse(original: Callable, allowed: list[str]) -> Callable:
     def parse(inp, filename=None):
         if inp is None and filename is not None:
             real = os.path.realpath(filename)
-            if not any(real == r or real.startswith(r.rstrip(os.sep) + os.sep) for r in allowed):
+            if not is_under(real, allowed):
                 raise XacroRefused(
                     f"xacro:include of '{filename}' ({real}) is outside the xacro's folder, its package and the "
                     f"packages it finds; {TRUST_HINT}")
