@@ -135,9 +135,7 @@ def _fit_link(shapes: list[Shape], model_path: Path, cover: float) -> _LinkFit:
         group = [s for s in shapes if s.tag == tag]
         primitives = [s for s in group if s.kind != "mesh"]
         meshes, problems = [], []
-        for s in group:
-            if s.kind != "mesh":
-                continue
+        for s in (s for s in group if s.kind == "mesh"):
             try:
                 meshes.append((s, _mesh_points(s, model_path)))
             except DataError as err:
@@ -153,8 +151,7 @@ def _fit_link(shapes: list[Shape], model_path: Path, cover: float) -> _LinkFit:
                 fit.capsules.append((p0, p1, r, f"{tag} {s.describe()}: encloses it"))
             fit.source = "primitive"
             break
-        points = [p for _, p in meshes] + [primitive_points(s) for s in primitives]
-        P = np.vstack(points)
+        P = np.vstack([p for _, p in meshes] + [primitive_points(s) for s in primitives])
         if len(P) < 4:
             fit.replaced += problems + [f"{tag} shapes have fewer than 4 vertices"]
             continue
@@ -168,9 +165,8 @@ def _fit_link(shapes: list[Shape], model_path: Path, cover: float) -> _LinkFit:
     return fit
 
 
-def fit_capsule_file(
-    model_path: str | Path, out_path: str | Path, links: list[str] | None = None, cover: float = 0.98
-) -> FittedCapsules:
+def fit_capsule_file(model_path: str | Path, out_path: str | Path, links: list[str] | None = None,
+                     cover: float = 0.98) -> FittedCapsules:
     """Fits capsules to the links of a URDF or SDF and writes a capsule file.
 
     Args:
@@ -210,11 +206,10 @@ def fit_capsule_file(
             xyz, rpy, length = capsule_pose(p0, p1)
             length = max(length, 1e-3)  # a sphere: Drake needs a positive length
             cap = name if k == 0 else f"{name}_{k}"
-            lines.append(f"  # {comment}")
-            lines.append(
-                f"  - {{name: {cap}, link: {name}, radius: {r:.4f}, length: {length:.4f},\n"
-                f"     xyz: [{xyz[0]:.4f}, {xyz[1]:.4f}, {xyz[2]:.4f}], rpy: [{rpy[0]:.4f}, {rpy[1]:.4f}, {rpy[2]:.4f}]}}"
-            )
+            lines += [f"  # {comment}",
+                      f"  - {{name: {cap}, link: {name}, radius: {r:.4f}, length: {length:.4f},\n"
+                      f"     xyz: [{xyz[0]:.4f}, {xyz[1]:.4f}, {xyz[2]:.4f}], "
+                      f"rpy: [{rpy[0]:.4f}, {rpy[1]:.4f}, {rpy[2]:.4f}]}}"]
         fitted.append(name)
         sources[name] = fit.source
     if not fitted:
@@ -275,7 +270,7 @@ def _radial_distance(points: np.ndarray, p0: np.ndarray, p1: np.ndarray) -> np.n
 
 
 def fit_capsules(config, folder: str | Path) -> tuple:
-    """Fits capsules when a config needs them but names no capsule file.
+    """Fits capsules when a config needs them but names no capsule file (ConfigError: no model).
 
     Writes ``folder/fitted_capsules.yaml`` (:func:`ignore_touching_pairs` applied) and switches
     self-collision on at :data:`FITTED_COLLISION_MARGIN` when the config leaves it off.
@@ -283,7 +278,6 @@ def fit_capsules(config, folder: str | Path) -> tuple:
     Returns:
         (the config pointing ``robot.capsules`` at the fitted file, what was fitted), or
         (``config`` itself, None) when the robot has a capsule file or nothing needs one.
-        ConfigError when the model is not a URDF with readable meshes.
     """
     robot, env = config.robot, config.environment
     needs = config.excitation.collision_margin >= 0 or bool(env.boxes) or (env.floor and not robot.support_points)

@@ -117,13 +117,10 @@ def _dae_primitives(path: Path) -> tuple[list, float]:
             # a file's content would reach the parse tree and its error messages.
             raise DataError("COLLADA file declares XML entities (<!ENTITY>), which pe_drake does not read", file=str(path))
     try:
-        mesh = collada.Collada(
-            str(path), ignore=[collada.common.DaeUnsupportedError, collada.common.DaeBrokenRefError]
-        )
-        primitives = []
-        if mesh.scene is not None:
-            for geometry in mesh.scene.objects("geometry"):
-                primitives += list(geometry.primitives())
+        ignore = [collada.common.DaeUnsupportedError, collada.common.DaeBrokenRefError]
+        mesh = collada.Collada(str(path), ignore=ignore)
+        geometries = mesh.scene.objects("geometry") if mesh.scene is not None else ()
+        primitives = [p for geometry in geometries for p in geometry.primitives()]
         return primitives, float(mesh.assetInfo.unitmeter or 1.0)
     except Exception as err:  # pycollada raises many types (XML, DaeError, KeyError, ...)
         raise DataError(f"cannot read COLLADA file: {type(err).__name__}: {err}", file=str(path)) from err
@@ -144,10 +141,8 @@ def obj_text(mesh: TriangleMesh, comment: str = "") -> str:
     v = np.asarray(mesh.vertices, float)
     f = np.asarray(mesh.faces, np.int64) + 1  # OBJ indices start at 1
     head = f"# {comment}\n" if comment else ""
-    return (
-        head
-        + ("v %.6g %.6g %.6g\n" * len(v)) % tuple(v.ravel())
-        + ("f %d %d %d\n" * len(f)) % tuple(f.ravel()))
+    vertices = ("v %.6g %.6g %.6g\n" * len(v)) % tuple(v.ravel())
+    return head + vertices + ("f %d %d %d\n" * len(f)) % tuple(f.ravel())
 
 
 def write_obj(path: str | Path, mesh: TriangleMesh, comment: str = "") -> Path:

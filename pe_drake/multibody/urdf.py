@@ -49,17 +49,15 @@ def inertial_element(phi_b: np.ndarray, indent: str = "    ") -> ET.Element:
     return inertial
 
 
-def _resolve_uri(uri: str, model_dir: Path, package_map, source: Path | None = None) -> str:
-    """A mesh or texture URI that works from any folder."""
+def _resolve_uri(uri: str, source: Path, package_map) -> str:
+    """A mesh or texture URI of the URDF ``source`` that works from any folder."""
     if uri.startswith("package://"):
         package = uri[len("package://") :].split("/", 1)[0]
         if package in KNOWN_PACKAGES:
             return uri
-        found = resolve_package_uri(uri, source) if source is not None else None
+        found = resolve_package_uri(uri, source)
         if found is not None:  # pe_drake's resolver: package.xml above the model, ROS paths
             return found.resolve().as_uri()
-        if package_map is None:
-            return uri
         try:
             return "file://" + str(Path(package_map.ResolveUrl(uri)).resolve())
         except Exception:  # unknown package: keep the URI (the caller's package path may know it)
@@ -68,7 +66,7 @@ def _resolve_uri(uri: str, model_dir: Path, package_map, source: Path | None = N
         return uri
     path = Path(uri)
     if not path.is_absolute():
-        path = model_dir / path
+        path = source.parent / path
     return "file://" + str(path.resolve())
 
 
@@ -123,23 +121,17 @@ def urdf_with_inertias(source: str | Path, body_names: Sequence[str], phi: np.nd
         new.tail = tail
         link.insert(position, new)
     _drop_zero_dof_mimics(root)
-    package_map = None
-    try:
-        from pydrake.multibody.parsing import PackageMap  # lazy: pydrake is heavy
+    from pydrake.multibody.parsing import PackageMap  # lazy: pydrake is heavy
 
-        package_map = PackageMap()
-        with contextlib.suppress(Exception):
-            package_map.PopulateFromFolder(str(source.parent))
-    except ImportError:  # pragma: no cover - drake is a dependency
-        package_map = None
+    package_map = PackageMap()
+    with contextlib.suppress(Exception):
+        package_map.PopulateFromFolder(str(source.parent))
     for element in [*root.iter("mesh"), *root.iter("texture")]:  # textures too (issue 37, item 6)
         if element.get("filename"):
-            element.set("filename", _resolve_uri(element.get("filename"), source.parent, package_map, source))
+            element.set("filename", _resolve_uri(element.get("filename"), source, package_map))
     text = without_dangling_transmissions(ET.tostring(root, encoding="unicode"))[0]  # Drake refuses them
-    header = (
-        '<?xml version="1.0"?>\n'
-        f"<!-- {source.name} with identified inertial parameters (pe_drake) -->\n")
-    return header + text + "\n"
+    header = f"<!-- {source.name} with identified inertial parameters (pe_drake) -->\n"
+    return '<?xml version="1.0"?>\n' + header + text + "\n"
 
 
 def _drop_zero_dof_mimics(root: ET.Element) -> None:
