@@ -1,13 +1,7 @@
-"""The identified robot for a controller and a training config: friction feed-forward, PD gains
-from the identified effective inertia, and randomization ranges from the identification's σ.
-
-- Feed-forward (:func:`feedforward_yaml`): τ_f = f_c·tanh(v/v_s) + b·v + τ_0 in the log's sign
-  and units, with the ± table form of firmware friction tables.
-- Gains (:func:`gains_yaml`): J_i(q) = M_ii(q) + armature_i over the postures of a motion, and
-  k_p = J·ω², k_d = 2·ζ·J·ω from the mean J.
-- Randomization (:func:`sample_models`): value ± k·σ per base parameter and drive term, and
-  models drawn from Σ_B mapped onto the standard parameters by the least change
-  δφ = W Kᵀ (K W Kᵀ)⁺ δ, each body projected onto the physically consistent set where needed.
+"""The identified robot for a controller and a training config: friction feed-forward
+τ_f = f_c·tanh(v/v_s) + b·v + τ_0, PD gains k_p = J·ω², k_d = 2·ζ·J·ω from the effective inertia
+J_i(q) = M_ii(q) + armature_i, and randomization ranges and models drawn from the
+identification's σ (mapped onto the standard parameters by δφ = W Kᵀ (K W Kᵀ)⁺ δ).
 """
 
 from __future__ import annotations

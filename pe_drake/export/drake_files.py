@@ -1,12 +1,6 @@
 """The identified robot for Drake and ROS: URDF and SDFormat with inertials, joint friction and
-rotor inertia, checked by loading them back in Drake.
-
-The URDF is the robot's own file with the model written in
-(:meth:`~pe_drake.multibody.robot_model.RobotModel.urdf_text`), or for an SDF robot one written
-from the plant (:mod:`pe_drake.export.urdf_tree`). The SDFormat is written from the plant for any
-robot (:func:`~pe_drake.export.tree.robot_tree`): links at q = 0, excited joints with limits,
-damping, friction and ``drake:rotor_inertia``, locked joints as welds, no geometry. Drake ignores
-the Coulomb ``friction``; offsets, a delay and pre-sliding have no place in either (notes).
+rotor inertia, checked by loading them back in Drake. Drake ignores the Coulomb ``friction``;
+offsets, a delay and pre-sliding have no place in either format (the file's comment says so).
 """
 
 from __future__ import annotations
@@ -103,7 +97,8 @@ def _free_name(name: str, taken: set[str]) -> str:
 
 
 def sdf_text(robot: Robot, model: RobotModel, source: str = "") -> str:
-    """The SDFormat model of the robot with ``model``; ``source`` names the model file."""
+    """The SDFormat model of the robot with ``model`` from its plant (links at q = 0, locked joints
+    as welds, no geometry); ``source`` names the model file."""
     ET.register_namespace("drake", DRAKE_NAMESPACE)
     root = ET.Element("sdf", {"version": "1.9"})
     sdf_model = ET.SubElement(root, "model", {"name": robot.name})

@@ -1,11 +1,9 @@
 """The identified robot as MuJoCo's MJCF: one ``<body>`` per Drake body with its identified
 inertial, the excited joints with their drive terms, the base at its mount pose.
 
-Written from the robot's plant (URDF, xacro and SDF robots alike), each excited joint a ``hinge``
-or ``slide`` with MuJoCo's ``armature`` (Drake's reflected rotor inertia), ``damping`` (viscous
-friction) and ``frictionloss`` f_c: MuJoCo's dry friction is a constraint that holds a joint at
-rest below f_c, not f_c·tanh(v/v_s); the two agree when sliding (|v| ≫ v_s). Inertials are
-explicit (``inertiafromgeom`` false). What MJCF cannot hold is listed in a comment at the top.
+Each excited joint is a ``hinge`` or ``slide`` with MuJoCo's ``armature``, ``damping`` and
+``frictionloss`` f_c: a constraint that holds a joint at rest below f_c, not f_c·tanh(v/v_s); the
+two agree when sliding (|v| ≫ v_s). What MJCF cannot hold is listed in a comment at the top.
 """
 
 from __future__ import annotations

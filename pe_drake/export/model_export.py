@@ -35,25 +35,16 @@ CHECK_TOLERANCE = 1e-6
 
 @dataclasses.dataclass(frozen=True)
 class ExportOptions:
-    """What ``export`` writes (``bandwidth_hz`` [Hz] to ``samples``: gains only).
+    """What ``export`` writes (``bandwidth_hz`` to ``samples``: gains only)."""
 
-    Attributes:
-        to: the format, one of :data:`FORMATS`.
-        sigma_k: randomization ranges value ± k·σ.
-        samples: physically consistent models drawn from σ.
-        window: the part of the held-out run used (cut after filtering; None: all of it).
-        meshdir: mjcf: the folder (beside the file) its visual meshes are written to; "" for
-            no geometry.
-    """
-
-    to: str = "mjcf"
-    bandwidth_hz: float = 10.0
+    to: str = "mjcf"  # one of FORMATS
+    bandwidth_hz: float = 10.0  # [Hz]
     damping_ratio: float = 1.0
-    sigma_k: float = 2.0
-    samples: int = 10
+    sigma_k: float = 2.0  # randomization ranges value ± k·σ
+    samples: int = 10  # physically consistent models drawn from σ
     seed: int = 0
-    window: TimeWindow | None = None
-    meshdir: str = ""
+    window: TimeWindow | None = None  # the part of the held-out run used (cut after filtering)
+    meshdir: str = ""  # mjcf: the folder beside the file for its visual meshes ("": no geometry)
 
     def __post_init__(self):
         if self.meshdir and (Path(self.meshdir).name != self.meshdir or self.meshdir in (".", "..")):
@@ -70,24 +61,16 @@ class ExportOptions:
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class ExportResult:
-    """An exported file's text and what it took.
-
-    Attributes:
-        model: the model exported (physically consistent).
-        source: the model file ("" for the robot's own model: the CAD model).
-        unheld: what the format cannot hold of the model, one sentence each.
-        figures: {name: value} measured while checking (relative torque differences, RMS [N·m]).
-        meshdir: the mesh folder's name beside the file ("" for none); meshes: its files.
-    """
+    """An exported file's text and what it took."""
 
     format: str
     text: str
-    model: RobotModel
-    source: str = ""
-    unheld: tuple[str, ...] = ()
-    figures: dict = dataclasses.field(default_factory=dict)
-    meshdir: str = ""
-    meshes: dict = dataclasses.field(default_factory=dict)
+    model: RobotModel  # the model exported (physically consistent)
+    source: str = ""  # the model file ("": the robot's own, the CAD model)
+    unheld: tuple[str, ...] = ()  # what the format cannot hold of the model, one sentence each
+    figures: dict = dataclasses.field(default_factory=dict)  # {name: value} of the checks
+    meshdir: str = ""  # the mesh folder's name beside the file ("": none)
+    meshes: dict = dataclasses.field(default_factory=dict)  # {file name: content} of that folder
 
     def summary_lines(self) -> list[str]:
         """What the file holds and leaves out, and the checks' figures."""

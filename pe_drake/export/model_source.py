@@ -22,22 +22,14 @@ if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class IdentifiedSpread:
-    """The identification's uncertainty of the base parameters (the drive terms' σ is the
-    model's own ``RobotModel.sigma``).
+    """The identification's uncertainty of the p base parameters (the drive terms' σ is the
+    model's own ``RobotModel.sigma``)."""
 
-    Attributes:
-        K: the base parameters as rows of the standard ones, φ_B = K φ, shape (p, 10·nb).
-        sigma: σ of each base parameter, shape (p,) (inf or NaN: not identified).
-        cov: their covariance, shape (p, p), or None: the base parameters are then drawn
-            independently from σ (``note`` says so).
-        note: what the draws could not use ("" when they use the covariance).
-    """
-
-    K: np.ndarray
-    sigma: np.ndarray
+    K: np.ndarray  # φ_B = K φ, (p, 10·nb)
+    sigma: np.ndarray  # (p,); inf or NaN: not identified
     names: tuple[str, ...] = ()
-    cov: np.ndarray | None = None
-    note: str = ""
+    cov: np.ndarray | None = None  # (p, p); None: drawn independently from σ (``note`` says so)
+    note: str = ""  # what the draws could not use
 
 
 def exported_model(robot: Robot, model: str | Path | None) -> RobotModel:

@@ -15,25 +15,15 @@ if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
 
 
 class TreeBody(NamedTuple):
-    """One body of the exported tree.
-
-    Attributes:
-        parent: its parent's name ("world" for the root).
-        X_PC: pose of the body in its parent at q = 0, (4, 4).
-        X_WC: pose of the body in the world at q = 0, (4, 4).
-        phi: its 10 parameters about its origin in its frame (the model's for a body an excited
-            joint moves, the model file's for the others).
-        joint: index of its excited joint in ``robot.joint_names``, or -1 (a weld).
-        weld_name: the Drake joint that joins it to its parent.
-    """
+    """One body of the exported tree; poses at q = 0."""
 
     name: str
-    parent: str
-    X_PC: np.ndarray
-    X_WC: np.ndarray
-    phi: np.ndarray
-    joint: int
-    weld_name: str
+    parent: str  # "world" for the root
+    X_PC: np.ndarray  # pose in the parent, (4, 4)
+    X_WC: np.ndarray  # pose in the world, (4, 4)
+    phi: np.ndarray  # 10 parameters about its origin (the model's if it moves, else the file's)
+    joint: int  # index of its excited joint in ``robot.joint_names``, or -1 (a weld)
+    weld_name: str  # the Drake joint that joins it to its parent
 
 
 def robot_tree(robot: Robot, model: RobotModel) -> list[TreeBody]:

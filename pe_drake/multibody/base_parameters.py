@@ -26,33 +26,18 @@ if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
 
 @dataclasses.dataclass(frozen=True)
 class BaseParameters:
-    """The base-parameter composition of a robot.
+    """The base-parameter composition of a robot (b base, p standard parameters)."""
 
-    Attributes:
-        independent: indices of the standard parameters kept as base columns, shape (b,).
-        K: φ_B = K φ, shape (b, p).
-        names: standard parameter names, length p.
-        base_names: a readable composition of each base parameter, e.g.
-            ``"Izz.link1 + 1 Iyy.link2 + 0.09 m.link3"``.
-        diag_R: |R_ii| of the pivoted QR (for diagnostics), shape (p,).
-        measurement: the rows they were computed from: "joint_torque" (Eq. 1), or
-            "base_wrench"/"both" (:class:`pe_drake.multibody.sensors.SensorRows`).
-        dropped: the standard parameters whose pivoted columns lay below the rank gap (K maps
-            them onto the kept ones by least squares).
-        dropped_size: their s_i = |R_ii|·‖y_i‖ relative to the largest.
-        rank_gap: smallest kept s_i / largest dropped one; with nothing dropped, the largest
-            ratio between neighbouring sorted s_i (below ``gap_ratio``).
-    """
-
-    independent: np.ndarray
-    K: np.ndarray
-    names: tuple[str, ...]
-    base_names: tuple[str, ...]
+    independent: np.ndarray  # the standard parameters kept as base columns, (b,)
+    K: np.ndarray  # φ_B = K φ, (b, p)
+    names: tuple[str, ...]  # standard parameter names, length p
+    base_names: tuple[str, ...]  # each base parameter as a combination: "Izz.link1 + 0.09 m.link3"
     rank_tolerance: float
-    diag_R: np.ndarray
-    measurement: str = "joint_torque"
-    dropped: tuple[str, ...] = ()
-    dropped_size: tuple[float, ...] = ()
+    diag_R: np.ndarray  # |R_ii| of the pivoted QR, (p,)
+    measurement: str = "joint_torque"  # the rows: "joint_torque" (Eq. 1), "base_wrench" or "both"
+    dropped: tuple[str, ...] = ()  # parameters below the rank gap (K maps them by least squares)
+    dropped_size: tuple[float, ...] = ()  # their s_i = |R_ii|·‖y_i‖ relative to the largest
+    # smallest kept s_i / largest dropped one; with none dropped, the largest neighbour ratio
     rank_gap: float = 1.0
     gap_ratio: float | None = None
 

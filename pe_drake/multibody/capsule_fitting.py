@@ -56,27 +56,16 @@ class CapsuleFittingError(ConfigError):
 
 @dataclasses.dataclass(frozen=True)
 class FittedCapsules:
-    """What :func:`fit_capsule_file` wrote.
-
-    Attributes:
-        path: the capsule file.
-        links: links that got a capsule.
-        ignored_pairs: pairs not checked although not adjacent, (capsule, capsule, reason).
-        unchecked: what is not checked for collisions, one line each ("link X: mesh Y could
-            not be read: reason"); empty when every shape of the model was used.
-        sources: {link: "primitive" | "mesh" | "primitive+mesh"}, what each capsule came from.
-        shrunk: {capsule: (fitted radius, radius used)} [m] for capsules made thinner so that
-            links farther apart than :data:`TOUCHING_JOINTS` joints stay checked.
-        notes: how the meshes were read, when it is not as written (:mod:`collada_up_axis`).
-    """
+    """What :func:`fit_capsule_file` wrote; ``unchecked`` is what is not checked for collisions."""
 
     path: Path
-    links: tuple[str, ...]
-    ignored_pairs: tuple = ()
-    unchecked: tuple[str, ...] = ()
-    sources: dict[str, str] = dataclasses.field(default_factory=dict)
+    links: tuple[str, ...]  # links that got a capsule
+    ignored_pairs: tuple = ()  # (capsule, capsule, reason) not checked although not adjacent
+    unchecked: tuple[str, ...] = ()  # one line each: "link X: mesh Y could not be read: reason"
+    sources: dict[str, str] = dataclasses.field(default_factory=dict)  # "primitive", "mesh", both
+    # {capsule: (fitted, used radius)} [m]: made thinner to keep farther links checked
     shrunk: dict[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
-    notes: tuple[str, ...] = ()
+    notes: tuple[str, ...] = ()  # how the meshes were read, when not as written
 
     def summary(self, first: int = 3) -> str:
         """A one-line account: capsule count and sources, then the unchecked parts."""

@@ -62,25 +62,16 @@ class CapsuleFile:
 
 @dataclasses.dataclass(frozen=True)
 class CapsuleInfo:
-    """A capsule registered in a plant.
-
-    Attributes:
-        link: name of the body B it is fixed to.
-        body_index: Drake ``BodyIndex`` of B, as an int.
-        X_BG: pose of the capsule frame G in B, shape (4, 4) [m].
-        p_BS: the two ends of the capsule's segment in B, shape (2, 3) [m] (the start and end
-            points p_L^(s), p_L^(e) of Eq. 53).
-        geometry_id: Drake ``GeometryId`` of the registered collision geometry.
-    """
+    """A capsule registered in a plant, fixed to body B."""
 
     name: str
-    link: str
-    body_index: int
-    radius: float
-    length: float
-    X_BG: np.ndarray
-    p_BS: np.ndarray
-    geometry_id: object
+    link: str  # B's name
+    body_index: int  # B's Drake ``BodyIndex``
+    radius: float  # [m]
+    length: float  # [m]
+    X_BG: np.ndarray  # pose of the capsule frame G in B, (4, 4) [m]
+    p_BS: np.ndarray  # the segment's ends p_L^(s), p_L^(e) of Eq. 53 in B, (2, 3) [m]
+    geometry_id: object  # Drake ``GeometryId`` of the collision geometry
 
 
 def load_capsule_file(path: str | Path) -> CapsuleFile:

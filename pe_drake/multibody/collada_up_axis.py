@@ -1,11 +1,8 @@
 """Which way is up in a robot's COLLADA meshes: as written, or turned by their ``<up_axis>``.
 
-ROS tools ignore a ``.dae`` file's ``<up_axis>`` (most URDFs are drawn for that), while tools
-built on Assimp turn a ``Y_UP`` mesh so that its y axis becomes z (iCub's meshes are drawn for
-that). So the choice is made per model (:func:`honors_up_axis`): the way that puts more of the
-links' own points (centre of mass, child joint origins) inside their meshes' bounding boxes
-wins. Meshcat draws a DAE as written, so a turned model's visuals become turned OBJ copies
-(:func:`turned_dae_visuals`).
+ROS tools ignore a ``.dae`` file's ``<up_axis>``, while Assimp-based tools turn a ``Y_UP`` mesh
+(iCub's meshes are drawn for that). So the choice is made per model (:func:`honors_up_axis`):
+the way that puts more of the links' own points inside their meshes' bounding boxes wins.
 """
 
 from __future__ import annotations

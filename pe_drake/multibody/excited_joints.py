@@ -14,20 +14,13 @@ from pe_drake.exceptions import ConfigError, NotWithinLimitsError, UnknownNameEr
 
 @dataclasses.dataclass(frozen=True)
 class JointInfo:
-    """One excited joint.
-
-    Attributes:
-        kind: "revolute" or "prismatic".
-        child_body: index (into ``Robot.body_names_all``) of the joint's child body.
-        X_CM: pose of the joint's child frame M in the child body frame C, (4, 4).
-        axis_M: unit joint axis in M, (3,).
-    """
+    """One excited joint."""
 
     name: str
-    kind: str
-    child_body: int
-    X_CM: np.ndarray
-    axis_M: np.ndarray
+    kind: str  # "revolute" or "prismatic"
+    child_body: int  # index into ``Robot.body_names_all`` of the child body C
+    X_CM: np.ndarray  # pose of the joint's child frame M in C, (4, 4)
+    axis_M: np.ndarray  # unit joint axis in M, (3,)
 
 
 def joint_info(joint) -> JointInfo:

@@ -20,23 +20,15 @@ from pe_drake.multibody.urdf_checks import urdf_tree
 
 @dataclasses.dataclass(frozen=True)
 class Shape:
-    """One collision or visual shape of a link.
-
-    Attributes:
-        tag: "collision" or "visual".
-        kind: "mesh", "cylinder", "sphere", "box" or "capsule".
-        X_LG: pose of the shape's frame G in the link frame L, shape (4, 4) [m].
-        size: cylinder/capsule (radius, length), sphere (radius,), box (x, y, z) full edge
-            lengths [m]; empty for a mesh.
-        filename: the mesh's file name or URI as written ("" for a primitive).
-    """
+    """One collision or visual shape of a link."""
 
     link: str
-    tag: str
-    kind: str
-    X_LG: np.ndarray
+    tag: str  # "collision" or "visual"
+    kind: str  # "mesh", "cylinder", "sphere", "box" or "capsule"
+    X_LG: np.ndarray  # pose of the shape's frame G in the link frame L, (4, 4) [m]
+    # cylinder/capsule (radius, length), sphere (radius,), box (x, y, z) edges [m]; mesh: ()
     size: tuple[float, ...] = ()
-    filename: str = ""
+    filename: str = ""  # a mesh's file name or URI as written
     scale: np.ndarray = dataclasses.field(default_factory=lambda: np.ones(3))
 
     def describe(self) -> str:

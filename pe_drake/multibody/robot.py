@@ -39,16 +39,13 @@ from pe_drake.multibody.urdf_checks import urdf_joint_dynamics, urdf_joint_effor
 
 @dataclasses.dataclass(frozen=True)
 class Limits:
-    """Joint limits used by the optimizer, after config overrides and margins.
+    """Joint limits used by the optimizer, after config overrides and margins; each (n,)."""
 
-    All arrays have shape (n,). Units: rad (m), rad/s, rad/s², N·m (N).
-    """
-
-    q_lower: np.ndarray
-    q_upper: np.ndarray
-    v_max: np.ndarray
-    vd_max: np.ndarray
-    effort_max: np.ndarray
+    q_lower: np.ndarray  # [rad or m]
+    q_upper: np.ndarray  # [rad or m]
+    v_max: np.ndarray  # [rad/s or m/s]
+    vd_max: np.ndarray  # [rad/s² or m/s²]
+    effort_max: np.ndarray  # [N·m or N]
 
 
 class Robot:

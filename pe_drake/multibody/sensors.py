@@ -1,10 +1,8 @@
 """What the robot measures: joint torques, the ground wrench, or both.
 
-Each measurement type gives the rows of the identification model y = A(q, v, vdot) φ:
-``joint_torque`` τ = Y φ (Eq. 1, n rows per sample), ``base_wrench`` w = Y_0 φ + w_static
-(:mod:`pe_drake.multibody.wrench`, 6 rows, no joint friction), or ``both`` stacked. Rows are
-divided by their sensor noise σ, so that cond(C) does not depend on units and least squares on
-the scaled rows is the weighted (Gauss–Markov) estimate.
+Each gives the rows of y = A(q, v, vdot) φ: ``joint_torque`` τ = Y φ (Eq. 1), ``base_wrench``
+w = Y_0 φ + w_static (:mod:`pe_drake.multibody.wrench`), or ``both``. Rows are divided by their
+sensor noise σ, so cond(C) does not depend on units and least squares is the weighted estimate.
 """
 
 from __future__ import annotations
@@ -35,16 +33,12 @@ WRENCH_RANK_TOLERANCE = 1e-3
 
 @dataclasses.dataclass(frozen=True)
 class MeasurementType:
-    """A measurement type and its sensor noise σ (the row weights).
-
-    ``torque_std`` [N·m or N] is one value or one per joint; ``force_std`` [N] and ``moment_std``
-    [N·m] are those of the ground-wrench sensor.
-    """
+    """A measurement type and its sensor noise σ (the row weights)."""
 
     kind: str = "joint_torque"
-    torque_std: float | tuple[float, ...] = 1.0  # [N·m]
-    force_std: float = 0.5  # [N]
-    moment_std: float = 0.05  # [N·m]
+    torque_std: float | tuple[float, ...] = 1.0  # [N·m or N], one value or one per joint
+    force_std: float = 0.5  # [N], of the ground-wrench sensor
+    moment_std: float = 0.05  # [N·m], of the ground-wrench sensor
 
     def __post_init__(self):
         if self.kind not in MEASUREMENTS:

@@ -26,13 +26,10 @@ MAX_TRANSMISSION_COND = 1e8
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class Transmission:
-    """θ_m = R q and τ = Rᵀ τ_m for the robot's excited joints ``joints``.
-
-    ``R`` is (n, n) [rad of motor per rad or m of joint], row i the motor of joint i.
-    """
+    """θ_m = R q and τ = Rᵀ τ_m for the robot's excited joints ``joints``."""
 
     joints: tuple[str, ...]
-    R: np.ndarray
+    R: np.ndarray  # (n, n) [rad of motor per rad or m of joint], row i the motor of joint i
 
     @classmethod
     def from_config(cls, ratios: Mapping[str, float], coupling: Mapping[str, Mapping[str, float]],

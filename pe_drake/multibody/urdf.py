@@ -1,10 +1,6 @@
-"""Writing an identified robot model: the original URDF with new ``<inertial>`` elements.
-
-Drake keeps one body per URDF link, so each link moved by an excited joint gets its inertial
-rewritten from its 10 parameters: mass, the centre of mass h/m as origin, and the inertia about
-the centre of mass (parallel-axis theorem). Everything else is kept; ``package://`` URIs that
-Drake's loader does not know, and relative mesh paths, become ``file://`` URIs so the file
-works from any folder.
+"""Writing an identified robot model: the original URDF with new ``<inertial>`` elements (Drake
+keeps one body per link), everything else kept; mesh names Drake's loader does not know become
+``file://`` URIs so the file works from any folder.
 """
 
 from __future__ import annotations
