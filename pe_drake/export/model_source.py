@@ -45,7 +45,10 @@ def exported_model(robot: Robot, model: str | Path | None) -> RobotModel:
     # physically consistent, friction and armature ≥ 0; a transmission's per-motor terms as the
     # joints hold them (a coupled motor's friction and rotor-inertia coupling left out, noted)
     out = load_simulation_model(model, robot).per_joint_model()
-    return dataclasses.replace(out, notes=tuple(_exported(n) for n in out.notes))
+    # the simulator's notes of the same adjustment, in the export's words
+    notes = (n.replace(" is simulated as 0", " is written as 0")
+             .replace("the simulated ", "the exported ") for n in out.notes)
+    return dataclasses.replace(out, notes=tuple(notes))
 
 
 def identified_spread(robot: Robot, model: str | Path | None) -> IdentifiedSpread | None:
@@ -61,11 +64,6 @@ def identified_spread(robot: Robot, model: str | Path | None) -> IdentifiedSprea
         "are drawn independently from their σ, their correlations left out; identify again to draw from it")
     return IdentifiedSpread(np.asarray(result.base.K, float), sigma, tuple(result.base.base_names), result.cov_B,
                             note)
-
-
-def _exported(note: str) -> str:
-    """A simulator's note in the export's words (the same adjustment: 'simulated' → 'exported')."""
-    return note.replace(" is simulated as 0", " is written as 0").replace("the simulated ", "the exported ")
 
 
 def projection_change(robot: Robot, model: str | Path, exported: RobotModel, data) -> np.ndarray | None:

@@ -18,7 +18,7 @@ from pathlib import Path
 
 from pe_drake.exceptions import ConfigError
 from pe_drake.io_utils import atomic_write_text
-from pe_drake.multibody.example_robot_data import example_robot_data_dir
+from pe_drake.multibody.packages import example_robot_data_dir
 from pe_drake.multibody.mesh_policy import allowed_mesh_roots, decoded_character_references, mesh_file_refusal
 from pe_drake.multibody.model_references import (check_every_name, check_mjcf_files,
                                                  checked_sdf_text, without_refused_textures)

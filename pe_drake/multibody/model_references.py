@@ -38,11 +38,6 @@ _MJCF_FILE = re.compile(r"(<(\w+)\b[^>]*?(?<![\w:.-])file\s*=\s*)([\"'])(.*?)\3"
 _MJCF_DIR = re.compile(r"<compiler\b[^>]*?(?<![\w:.-])(meshdir|texturedir|assetdir)\s*=\s*([\"'])(.*?)\2", re.S)
 
 
-def _named_file(name: str, model_path: Path, packages: Mapping[str, str] | None) -> Path | None:
-    found = [p for p in named_files(name, model_path, packages) if os.path.lexists(p)]
-    return found[0] if found else None
-
-
 def file_refusal(name: str, model_path: Path, roots: Iterable[str] | None, packages: Mapping[str, str] | None,
                  suffixes: tuple[str, ...], what: str) -> str | None:
     """Why the file a model names (``what``: "texture", ...) must not be read, or None."""
@@ -121,8 +116,8 @@ def _checked_map(match: re.Match, model_path: Path, roots, packages, notes: list
 
 def _absolute(name: str, model_path: Path, packages: Mapping[str, str] | None) -> str:
     """The checked file of a name as a ``file://`` URI, or the name itself when there is none."""
-    path = _named_file(name, model_path, packages) if name else None
-    return path.resolve().as_uri() if path is not None and os.path.lexists(path) else name
+    found = [p for p in named_files(name, model_path, packages) if os.path.lexists(p)]
+    return found[0].resolve().as_uri() if name and found else name
 
 
 def check_mjcf_files(text: str, model_path: str | Path, roots: Iterable[str] | None) -> None:

@@ -12,18 +12,30 @@ from __future__ import annotations
 import contextlib
 import os
 import re
+import sys
+import sysconfig
 from collections.abc import Iterator, Mapping
 from functools import lru_cache
 from pathlib import Path
 
 from pe_drake.exceptions import ConfigError
-from pe_drake.multibody.example_robot_data import example_robot_data_dir
 
 #: Folder levels searched below each ``ROS_PACKAGE_PATH`` entry.
 ROS_PACKAGE_PATH_DEPTH = 6
 
 _PACKAGE_URI = re.compile(r"package://([^/\"'\s]+)/")
 _NAME = re.compile(r"<name>\s*([^<\s]+)\s*</name>")
+
+
+def example_robot_data_dir() -> Path:
+    """The ``share/example-robot-data`` folder of the installed wheel; ConfigError without it."""
+    for root in [sysconfig.get_paths()["purelib"], *sys.path]:
+        candidate = Path(root) / "cmeel.prefix" / "share" / "example-robot-data"
+        if candidate.is_dir():
+            return candidate
+    raise ConfigError(
+        "the robot models of 'example-robot-data' are not installed: "
+        "pip install example-robot-data")
 
 
 def manifest_name(folder: Path) -> str | None:

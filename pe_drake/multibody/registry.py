@@ -11,8 +11,8 @@ from pathlib import Path
 from pe_drake.config import SAFE_DEFAULTS, Config, RobotConfig, load_config, validate_config
 from pe_drake.exceptions import ConfigError, UnknownNameError
 from pe_drake.limits import input_file_problem
-from pe_drake.multibody.example_robot_data import example_robot_data_dir
 from pe_drake.multibody.model_files import model_stem
+from pe_drake.multibody.packages import example_robot_data_dir
 from pe_drake.multibody.standing_defaults import standing_defaults
 from pe_drake.yaml_check import key_line
 

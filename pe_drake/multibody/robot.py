@@ -125,12 +125,14 @@ class Robot:
         A weld of the root to the world in the model is replaced, so the base pose always is the
         root link's pose in the world.
         """
-        from pydrake.math import RigidTransform, RollPitchYaw  # lazy: pydrake is heavy
+        from pydrake.common.eigen_geometry import Quaternion  # lazy: pydrake is heavy
+        from pydrake.math import RigidTransform, RollPitchYaw
 
         cfg = self.config
         root = self._root_body(plant, models)
+        wxyz = np.asarray(cfg.base_quaternion_wxyz, float)
         p_WR = np.asarray(cfg.base_position, float)
-        pose = RigidTransform(_quaternion(cfg.base_quaternion_wxyz), p_WR)
+        pose = RigidTransform(Quaternion(wxyz / np.linalg.norm(wxyz)), p_WR)
         world = plant.world_body().index()
         for index in list(plant.GetJointIndices()):
             joint = plant.get_joint(index)
@@ -347,13 +349,6 @@ class Robot:
 
     def __repr__(self) -> str:
         return f"Robot('{self.name}', {self.n} joints, {self.num_bodies} moving bodies)"
-
-
-def _quaternion(wxyz):
-    from pydrake.common.eigen_geometry import Quaternion  # lazy: pydrake is heavy
-
-    q = np.asarray(wxyz, float)
-    return Quaternion(q / np.linalg.norm(q))
 
 
 def load_robot(robot: str | Config | RobotConfig, config_file: str | Path | None = None,

@@ -15,10 +15,9 @@ from pathlib import Path
 import numpy as np
 
 from pe_drake.exceptions import ConfigError, UnknownNameError
-from pe_drake.multibody.example_robot_data import example_robot_data_dir
 from pe_drake.multibody.inertia import central_inertia, check_physically_valid, spatial_inertia_to_phi
 from pe_drake.multibody.model_files import single_material_definitions, without_dangling_transmissions
-from pe_drake.multibody.packages import resolve_package_uri
+from pe_drake.multibody.packages import example_robot_data_dir, resolve_package_uri
 
 #: Packages the pe_drake loader always registers; their URIs are kept as they are.
 KNOWN_PACKAGES = ("example-robot-data",)
