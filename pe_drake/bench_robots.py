@@ -36,7 +36,7 @@ from pe_drake.excitation.ramp import check_written_motion
 from pe_drake.excitation.trajectory_file import load_motion
 from pe_drake.identification import IdentifyOptions, identify_model, read_measurements
 from pe_drake.multibody.capsules import load_capsule_file
-from pe_drake.multibody.example_robot_data import example_robot_data_dir
+from pe_drake.multibody.packages import example_robot_data_dir
 from pe_drake.multibody.registry import builtin_robots, resolve_robot_config
 from pe_drake.multibody.robot import Robot
 from pe_drake.simulation import SimulateOptions, simulate_run

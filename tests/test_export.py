@@ -17,7 +17,7 @@ from pe_drake.exceptions import ConfigError
 from pe_drake.export.controller import effective_inertia, gains_table, sample_models
 from pe_drake.export.drake_files import drake_check, sdf_text, urdf_export_text
 from pe_drake.export.model_export import ExportOptions
-from pe_drake.export.mjcf import PAYLOAD_BODY_NAME, mjcf_text
+from pe_drake.export.mjcf import PAYLOAD_BODY_NAME, mjcf_files
 from pe_drake.export.model_source import IdentifiedSpread, random_states
 from pe_drake.multibody.base_parameters import compute_base_parameters
 from pe_drake.multibody.inertia import central_inertia, perturb_inertias, validity_problems
@@ -81,7 +81,7 @@ def test_mjcf_in_mujoco_reproduces_the_model_and_its_inertials(name, slider):
 
     robot = get_robot("panda") if name == "panda" else slider
     terms = identified_terms(robot, 3, "panda_link7" if name == "panda" else "tool")
-    text, unheld = mjcf_text(robot, terms)
+    text, unheld = mjcf_files(robot, terms)[:2]
     assert any("offsets" in u for u in unheld) and any("frictionloss" in u for u in unheld)
     model = load_mjcf(text, text=True)
     q, v, vd = random_states(robot, 30, seed=5)  # held-out states, not those of the export's own check
@@ -125,7 +125,7 @@ def test_frictionloss_holds_below_and_slides_above(slider):
     from pe_drake.export.mujoco_dynamics import load_mjcf
 
     terms = identified_terms(slider, 4)
-    model = load_mjcf(mjcf_text(slider, terms)[0], text=True)
+    model = load_mjcf(mjcf_files(slider, terms).text, text=True)
     model.opt.gravity[:] = 0.0
     k = slider.joint_names.index("tilt")
 
@@ -279,7 +279,7 @@ def test_cli_export_then_validate_in_mujoco_and_drake_agree_on_the_real_run(tmp_
         assert results["mjcf"][joint] == pytest.approx(rms, rel=1e-6)
     # another robot's MJCF: refused, naming the missing joints; nothing half-written
     other = tmp_path / "slider.xml"
-    other.write_text(mjcf_text(slider, identified_terms(slider, 1))[0])
+    other.write_text(mjcf_files(slider, identified_terms(slider, 1)).text)
     code, _, err = run_cli("validate", "--robot", "panda", "--model", other, "--data", REAL, "--window", "15,16")
     assert code == 2 and "has no joint(s) panda_joint1" in err
     code, _, err = run_cli("export", "--robot", "panda", "--to", "mjcf", "--out", tmp_path / "x.urdf")
@@ -294,7 +294,7 @@ def test_simulator_torques_of_exported_files_hold_the_friction(slider, tmp_path)
     q, v, vd = random_states(slider, 10, seed=4)
     want = terms.torque(slider, q, v, vd, coulomb=False, offset=False)
     c = terms.drive["coulomb"]
-    for suffix, text, friction in ((".xml", mjcf_text(slider, terms)[0], c * np.sign(v)),
+    for suffix, text, friction in ((".xml", mjcf_files(slider, terms).text, c * np.sign(v)),
                                    (".urdf", urdf_export_text(slider, terms), c * np.tanh(v / 0.01))):
         path = tmp_path / f"slider{suffix}"
         path.write_text(text)
@@ -352,7 +352,8 @@ def test_identified_models_reproduce_their_own_prediction_in_mujoco(method, tmp_
     held = run(random_trajectory(robot, trajectory, 7), 5)
     change = projection_change(robot, path, terms, held)
     own = predict(robot, load_identified(path, robot), held)
-    mj = mujoco_torques(load_mjcf(mjcf_text(robot, terms)[0], text=True), robot.joint_names, held.q, held.v, held.vd)
+    mj = load_mjcf(mjcf_files(robot, terms).text, text=True)
+    mj = mujoco_torques(mj, robot.joint_names, held.q, held.v, held.vd)
     mj = mj + terms.drive["offset"] + terms.drive["coulomb"] * np.tanh(held.v / terms.velocity_scale)
     if method == "physical":
         assert change is None
@@ -440,7 +441,7 @@ def test_a_point_mass_is_given_the_smallest_inertia_mujoco_accepts(tmp_path):
                                         '</inertial></link>'))
     robot = load_robot(RobotConfig(model=str(path), **MOUNT))
     terms = dataclasses.replace(identified_terms(robot, 15), phi=robot.phi_model)
-    text, unheld = mjcf_text(robot, terms)
+    text, unheld = mjcf_files(robot, terms)[:2]
     assert any(u.startswith("tool_frame: principal moments 0, 0, 0") for u in unheld)
     q, v, vd = random_states(robot, 10, seed=3)
     got = mujoco_torques(load_mjcf(text, text=True), robot.joint_names, q, v, vd)

@@ -1,20 +1,7 @@
-"""The identified robot for a controller and a training config: friction feed-forward, PD gains
-from the identified effective inertia, and randomization ranges from the identification's σ.
-
-- **Feed-forward** (:func:`feedforward_yaml`): per joint τ_f = f_c·tanh(v/v_s) + b·v + τ_0 in the
-  log's sign and units (positive torque drives the joint's positive direction; N·m and rad/s, N
-  and m/s for a prismatic joint), with the ± table form of firmware friction tables.
-- **Gains** (:func:`gains_yaml`): the effective joint inertia J_i(q) = M_ii(q) + armature_i (the
-  mass-matrix diagonal of the identified model, its payload included, over the postures of a
-  motion) and PD gains for a bandwidth ω and damping ratio ζ from the mean J:
-  k_p = J·ω², k_d = 2·ζ·J·ω (the second-order joint J·q̈ + k_d·q̇ + k_p·q = 0).
-- **Randomization** (:func:`sample_models`): per base parameter and drive term the range
-  value ± k·σ, and models drawn from the identification's covariance Σ_B: base parameters
-  φ_B + δ, δ ~ N(0, Σ_B) (an identified.json without it: N(0, diag σ²), said in the file),
-  mapped onto the standard ones by the least change
-  δφ = W Kᵀ (K W Kᵀ)⁺ δ (W weighs each parameter by its size), every body projected onto the
-  physically consistent set where the draw left it (noted); drive terms N(θ, σ²), friction
-  and armature clipped at 0.
+"""The identified robot for a controller and a training config: friction feed-forward
+τ_f = f_c·tanh(v/v_s) + b·v + τ_0, PD gains k_p = J·ω², k_d = 2·ζ·J·ω from the effective inertia
+J_i(q) = M_ii(q) + armature_i, and randomization ranges and models drawn from the
+identification's σ (mapped onto the standard parameters by δφ = W Kᵀ (K W Kᵀ)⁺ δ).
 """
 
 from __future__ import annotations
@@ -46,12 +33,8 @@ def _unit(robot: Robot, k: int) -> tuple[str, str]:
 
 
 def feedforward_yaml(robot: Robot, model: RobotModel, check: dict | None = None, source: str = "") -> str:
-    """The friction and offset feed-forward per joint as YAML (module docstring).
-
-    Args:
-        check: figures of the feed-forward on a held-out run, written under ``check``.
-        source: the model file ("": the robot's own model).
-    """
+    """The friction and offset feed-forward per joint as YAML, with ``check`` figures of it on a
+    held-out run; ``source`` names the model file ("": the robot's own model)."""
     joints = {}
     for k, name in enumerate(robot.joint_names):
         force, speed = _unit(robot, k)
@@ -81,18 +64,15 @@ def feedforward_yaml(robot: Robot, model: RobotModel, check: dict | None = None,
 
 
 def friction_torque(model: RobotModel, v: np.ndarray, coulomb: np.ndarray | None = None) -> np.ndarray:
-    """The feed-forward's friction and offset torque at velocities v (S, n), shape (S, n)
-    (``coulomb``: the Coulomb columns, default tanh(v/v_s))."""
+    """The feed-forward's friction and offset torque at velocities v (S, n), shape (S, n).
+
+    ``coulomb``: the Coulomb columns, default tanh(v/v_s)."""
     column = coulomb_column(v, model.velocity_scale) if coulomb is None else coulomb
     return model.coulomb * column + model.viscous * v + model.offset
 
 
 def effective_inertia(robot: Robot, model: RobotModel, q: np.ndarray) -> np.ndarray:
-    """J_i(q) = M_ii(q) + armature_i at each posture, shape (S, n) [kg·m² or kg].
-
-    Args:
-        q: postures, shape (S, n).
-    """
+    """J_i(q) = M_ii(q) + armature_i at postures q (S, n), shape (S, n) [kg·m² or kg]."""
     q = np.atleast_2d(q)
     zero = np.zeros_like(q)
     rest = model.torque(robot, q, zero, zero, coulomb=False, offset=False)  # gravity alone
@@ -120,13 +100,8 @@ def gains_table(robot: Robot, model: RobotModel, q: np.ndarray, bandwidth_hz: fl
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class SampledModels:
-    """Models drawn from the identification's σ (:func:`sample_models`).
-
-    Attributes:
-        phi: standard parameters per sample, shape (count, 10·nb), physically consistent.
-        drive: {term: per-sample per-joint values, shape (count, n)}.
-        projected: samples in which at least one body was projected onto the consistent set.
-    """
+    """Models drawn from the identification's σ: ``phi`` (count, 10·nb), physically consistent;
+    ``drive`` {term: (count, n)}; ``projected`` samples with a body projected."""
 
     phi: np.ndarray
     drive: dict[str, np.ndarray]
@@ -134,18 +109,12 @@ class SampledModels:
 
 
 def drive_spread(model: RobotModel, term: str) -> np.ndarray:
-    """σ per joint of a drive term, shape (n,): the model's ``sigma``, 0 where it has none (a term
-    not estimated, or taken from the model file, is not randomized)."""
+    """σ per joint of a drive term, shape (n,), 0 where the model has none (not randomized)."""
     return np.nan_to_num(model.sigma.get(term, np.zeros(len(model.joints))), nan=0.0)
 
 
 def sample_models(robot: Robot, model: RobotModel, spread: IdentifiedSpread, count: int, seed: int = 0) -> SampledModels:
-    """``count`` models drawn from the identification's σ (module docstring).
-
-    Args:
-        model: the identified model (physically consistent).
-        spread: its base parameters' σ (:func:`~pe_drake.export.model_source.identified_spread`).
-    """
+    """``count`` models drawn from the identification's σ ``spread`` (module docstring)."""
     rng = np.random.default_rng(seed)
     K = spread.K
     root = _covariance_root(spread)
@@ -172,8 +141,7 @@ def sample_models(robot: Robot, model: RobotModel, spread: IdentifiedSpread, cou
 
 
 def _covariance_root(spread: IdentifiedSpread) -> np.ndarray:
-    """L with L Lᵀ = Σ_B, (p, p): δ = L z, z ~ N(0, I) has covariance Σ_B (diag σ² without a
-    covariance; a base parameter not identified, σ not finite, is not drawn)."""
+    """L with L Lᵀ = Σ_B, (p, p) (diag σ without a covariance; a σ not finite is not drawn)."""
     sigma = np.where(np.isfinite(spread.sigma), spread.sigma, 0.0)
     if spread.cov is None:
         return np.diag(sigma)
@@ -191,9 +159,9 @@ def _body_record(phi_b: np.ndarray) -> dict:
 
 def randomization(robot: Robot, model: RobotModel, spread: IdentifiedSpread | None, k: float, count: int,
                   seed: int = 0, source: str = "") -> dict:
-    """Ranges value ± k·σ per drive term (friction and armature floored at 0) and base
-    parameter, and ``count`` sampled models (none without ``spread``: the CAD model, a
-    diagnosed model; ``source`` names it)."""
+    """Ranges value ± k·σ per drive term and base parameter, and ``count`` sampled models.
+
+    Without ``spread`` (a CAD or diagnosed model, named by ``source``) only a note."""
     if spread is None:
         return {"note": f"no σ in '{source or 'the CAD model'}': no randomization ranges"}
     drive = {}

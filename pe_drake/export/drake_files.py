@@ -1,22 +1,6 @@
 """The identified robot for Drake and ROS: URDF and SDFormat with inertials, joint friction and
-rotor inertia, checked by loading them back in Drake.
-
-- **URDF** (a URDF or xacro robot, as expanded): the robot's own file with the identified
-  ``<inertial>`` elements, ``<dynamics damping friction>`` and the armature as
-  ``drake:rotor_inertia`` of a gear-ratio-1 actuator in a ``<transmission>``, written by the one
-  URDF writer
-  (:meth:`~pe_drake.multibody.robot_model.RobotModel.urdf_text`); everything else of the file is
-  kept. The payload is a link. A robot loaded from SDFormat has no URDF of its own: its URDF is
-  written from the plant (:mod:`pe_drake.export.urdf_tree`).
-- **SDFormat** (any robot: URDF, xacro or SDF): written from pe_drake's plant
-  (:func:`~pe_drake.export.tree.robot_tree`): each link at its pose at q = 0 with its inertial, the
-  root welded to the world at its mount pose, each excited joint with its limits,
-  ``<dynamics><damping><friction>`` and ``drake:rotor_inertia``/``drake:gear_ratio`` (Drake adds
-  gear²·rotor inertia to the joint's mass-matrix diagonal), locked joints as welds. No geometry.
-
-Drake reads damping and rotor inertia; it ignores the Coulomb ``friction``, which pe_drake reads
-from a URDF as the model's friction (``Robot.joint_friction``). Offsets, a delay and pre-sliding
-have no place in either format (notes).
+rotor inertia, checked by loading them back in Drake. Drake ignores the Coulomb ``friction``;
+offsets, a delay and pre-sliding have no place in either format (the file's comment says so).
 """
 
 from __future__ import annotations
@@ -45,8 +29,7 @@ DRAKE_NAMESPACE = "http://drake.mit.edu"
 
 
 def urdf_export_text(robot: Robot, model: RobotModel, source: str = "") -> str:
-    """The robot's URDF with the model's inertials, joint dynamics and payload link
-    (:meth:`RobotModel.urdf_text` for a URDF robot, else written from the plant), headed by a
+    """The robot's URDF with the model's inertials, joint dynamics and payload link, headed by a
     comment naming ``source`` ("": the robot's own model) and what the URDF cannot hold."""
     if Path(robot.model_path).suffix.lower() == ".urdf":
         text = model.urdf_text(robot)
@@ -104,7 +87,7 @@ def _sdf_joint(sdf_model: ET.Element, robot: Robot, model: RobotModel, parent: s
 
 
 def _free_name(name: str, taken: set[str]) -> str:
-    """``name``, or ``name_weld``, ``name_weld_2``, ... when a link or joint already has it; taken then."""
+    """``name``, or ``name_weld``, ``name_weld_2``, ... when taken; added to ``taken``."""
     free, k = name, 1
     while free in taken:
         free = f"{name}_weld" + (f"_{k}" if k > 1 else "")
@@ -114,8 +97,8 @@ def _free_name(name: str, taken: set[str]) -> str:
 
 
 def sdf_text(robot: Robot, model: RobotModel, source: str = "") -> str:
-    """The SDFormat model of the robot with ``model`` (module docstring); ``source`` names the
-    model file in its comment."""
+    """The SDFormat model of the robot with ``model`` from its plant (links at q = 0, locked joints
+    as welds, no geometry); ``source`` names the model file."""
     ET.register_namespace("drake", DRAKE_NAMESPACE)
     root = ET.Element("sdf", {"version": "1.9"})
     sdf_model = ET.SubElement(root, "model", {"name": robot.name})
@@ -148,7 +131,7 @@ def sdf_text(robot: Robot, model: RobotModel, source: str = "") -> str:
 
 def reloaded_robot(robot: Robot, text: str, suffix: str):
     """``robot`` with its model replaced by the exported text (a temporary file), loaded by
-    pe_drake as any robot (SDFormat: its locked joints are welds of the file already)."""
+    pe_drake (SDFormat: its locked joints are welds of the file already)."""
     with tempfile.TemporaryDirectory() as folder:
         path = Path(folder) / f"{robot.name}{suffix}"
         path.write_text(text)
@@ -162,13 +145,9 @@ def reloaded_robot(robot: Robot, text: str, suffix: str):
 
 def drake_check(robot: Robot, model: RobotModel, text: str, suffix: str, samples: int = 20,
                 tolerance: float = 1e-6) -> float:
-    """Largest relative difference between Drake's inverse dynamics of the exported file (rotor
-    inertia and damping included) and pe_drake's rigid + armature + viscous torque of the model,
-    on random states.
-
-    Raises:
-        ConfigError: Drake refuses the file, or the torques differ by more than ``tolerance``.
-    """
+    """Largest relative difference between Drake's inverse dynamics of the exported file and
+    pe_drake's rigid + armature + viscous torque of the model, on random states; ConfigError when
+    Drake refuses the file or they differ by more than ``tolerance``."""
     try:
         loaded = reloaded_robot(robot, text, suffix)
     except ConfigError as err:

@@ -1,23 +1,9 @@
 """The identified robot as MuJoCo's MJCF: one ``<body>`` per Drake body with its identified
 inertial, the excited joints with their drive terms, the base at its mount pose.
 
-Written from the :class:`~pe_drake.multibody.robot.Robot`'s plant, so a URDF, xacro or SDF
-robot gives the same file: each body's pose in its parent at q = 0 (a locked joint is a weld at
-its locked position, as pe_drake's plant has it), each excited joint a ``hinge`` (revolute) or
-``slide`` (prismatic) at the child's joint frame with its axis, ``range`` and
-``actuatorfrcrange`` from the model's limits, and MuJoCo's drive terms:
-
-- ``armature``: added to the joint's mass-matrix diagonal, as Drake's reflected rotor inertia;
-- ``damping``: the viscous friction (MuJoCo's passive force −d·v);
-- ``frictionloss``: the Coulomb friction f_c. MuJoCo's dry friction is a constraint (it holds
-  a joint at rest below f_c), not pe_drake's f_c·tanh(v/v_s): the two agree on a sliding joint
-  (|v| ≫ v_s) and differ near rest.
-
-A motor per joint (``gear`` 1, ``ctrlrange`` the force limit) drives it. The inertials are
-explicit (``inertiafromgeom`` false: never recomputed from geometry); the visuals, with a mesh
-folder, come from :mod:`pe_drake.export.mjcf_meshes`.
-What MJCF cannot hold — torque offsets, the tanh smoothing, a torque delay, pre-sliding
-friction — is listed in a comment at the top and returned as notes.
+Each excited joint is a ``hinge`` or ``slide`` with MuJoCo's ``armature``, ``damping`` and
+``frictionloss`` f_c: a constraint that holds a joint at rest below f_c, not f_c·tanh(v/v_s); the
+two agree when sliding (|v| ≫ v_s). What MJCF cannot hold is listed in a comment at the top.
 """
 
 from __future__ import annotations
@@ -40,8 +26,7 @@ MIN_PRINCIPAL_MOMENT = 1e-12
 
 
 def _inertial(parent: ET.Element, phi_b: np.ndarray) -> str:
-    """``<inertial>`` of a body's 10 parameters (about its origin, in its frame); none for a
-    massless frame (MuJoCo gives it mass 0 like Drake).
+    """``<inertial>`` of a body's 10 parameters; none for a massless frame (mass 0 as in Drake).
 
     MuJoCo refuses a mass whose inertia has a zero principal moment (a point mass, a rod: valid
     in Drake); those moments are raised to :data:`MIN_PRINCIPAL_MOMENT` and a note returned.
@@ -122,15 +107,13 @@ SPRING_FORMATS = ("mjcf",)
 
 
 def spring_held_offsets(model: RobotModel, fmt: str) -> np.ndarray:
-    """The torque offsets a format holds, (n,): in MJCF those of joints with a spring, in its
-    reference angle (k·q + τ₀ = k (q − q_ref), q_ref = −τ₀/k); none has a constant joint
-    torque for the others."""
+    """The torque offsets a format holds, (n,): in MJCF those of joints with a spring, as its
+    reference angle (k·q + τ₀ = k (q − q_ref), q_ref = −τ₀/k)."""
     return np.where(model.spring > 0, model.offset, 0.0) if fmt in SPRING_FORMATS else np.zeros(len(model.joints))
 
 
 def unheld_terms(robot: Robot, model: RobotModel, fmt: str = "mjcf") -> list[str]:
-    """What a format (mjcf, urdf, sdf) cannot hold of the model, one sentence each (the file's
-    comment and the output)."""
+    """What a format (mjcf, urdf, sdf) cannot hold of the model, one sentence each."""
     joints = robot.joint_names
     out = []
     offsets = model.offset - spring_held_offsets(model, fmt)
@@ -151,14 +134,8 @@ def unheld_terms(robot: Robot, model: RobotModel, fmt: str = "mjcf") -> list[str
 
 
 class MJCFFiles(NamedTuple):
-    """An MJCF and its meshes (:func:`mjcf_files`).
-
-    Attributes:
-        text: the MJCF.
-        unheld: what it cannot hold of the model, one sentence each.
-        meshes: {file name: content} of its mesh folder (``meshdir``), empty without visuals.
-        notes: visuals left out, one sentence each.
-    """
+    """An MJCF (``text``), what it cannot hold (``unheld``), the {file name: content} of its mesh
+    folder (``meshes``) and the visuals left out (``notes``), from :func:`mjcf_files`."""
 
     text: str
     unheld: list[str]
@@ -166,12 +143,12 @@ class MJCFFiles(NamedTuple):
     notes: list[str]
 
 
-def mjcf_files(robot: Robot, model: RobotModel, name: str = "", meshdir: str | None = None, source: str = "") -> MJCFFiles:
-    """The MJCF of the robot with ``model`` (module docstring); with ``meshdir`` (a folder name
-    beside the file) its visuals too (:mod:`pe_drake.export.mjcf_meshes`); ``source`` names the
-    model file in its comment ("": the robot's own model)."""
+def mjcf_files(robot: Robot, model: RobotModel, meshdir: str | None = None,
+               source: str = "") -> MJCFFiles:
+    """The MJCF of the robot with ``model``, and with ``meshdir`` (a folder name beside the
+    file) its visuals (:mod:`pe_drake.export.mjcf_meshes`); ``source`` names the model file."""
     unheld = unheld_terms(robot, model)
-    root = ET.Element("mujoco", {"model": name or robot.name})
+    root = ET.Element("mujoco", {"model": robot.name})
     compiler = ET.SubElement(root, "compiler", {"angle": "radian", "inertiafromgeom": "false", "autolimits": "true"})
     gravity = robot.plant.gravity_field().gravity_vector()
     ET.SubElement(root, "option", {"gravity": vector_text(gravity), "integrator": "implicitfast"})
@@ -203,13 +180,3 @@ def mjcf_files(robot: Robot, model: RobotModel, name: str = "", meshdir: str | N
         lines.append("no geometry: inertials are explicit (inertiafromgeom false); add visuals from the robot's model")
     comment = "\n".join("  " + line.replace("--", "- -") for line in lines)
     return MJCFFiles(f"<!--\n{comment}\n-->\n" + ET.tostring(root, encoding="unicode") + "\n", unheld, meshes, notes)
-
-
-def mjcf_text(robot: Robot, model: RobotModel, name: str = "") -> tuple[str, list[str]]:
-    """The MJCF of the robot with ``model``, without geometry.
-
-    Returns:
-        (the file's text, what it cannot hold of the model: one sentence each).
-    """
-    files = mjcf_files(robot, model, name)
-    return files.text, files.unheld

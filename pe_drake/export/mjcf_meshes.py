@@ -1,15 +1,9 @@
 """The robot's visuals in an MJCF: its illustration geometry as MuJoCo geoms, meshes copied into a
 folder beside the file.
 
-The visuals are those pe_drake's plant has (the model's ``<visual>`` elements, each mesh already
-admitted by the read policy of :mod:`pe_drake.multibody.mesh_policy` when the robot was loaded),
-read from the scene graph with their pose in their body. A mesh is checked again with
-:func:`~pe_drake.multibody.mesh_policy.mesh_file_refusal` before it is read: STL and OBJ files are
-copied, COLLADA files (which MuJoCo does not read) converted to OBJ as their vertices are written
-(the ROS convention; a model drawn for a turned ``<up_axis>`` would need turning); other formats
-are left out with a note. Boxes, spheres, cylinders and capsules become MuJoCo primitives.
-Geoms are visual only (``contype``/``conaffinity`` 0, group 1): they do not collide and, with
-``inertiafromgeom`` false, do not change the identified inertials.
+Each mesh is checked again by the read policy (:mod:`pe_drake.multibody.mesh_policy`): STL and OBJ
+files are copied, COLLADA converted to OBJ as its vertices are written (the ROS convention), other
+formats left out with a note. Geoms are visual only (``contype``/``conaffinity`` 0, group 1).
 """
 
 from __future__ import annotations
@@ -59,15 +53,8 @@ def _primitive(shape) -> tuple[str, list[float]] | None:
 
 
 def add_visuals(robot: Robot, bodies: dict[str, ET.Element], asset: ET.Element) -> tuple[dict[str, bytes], list[str]]:
-    """Adds the robot's visual geoms to the MJCF bodies and their meshes to ``asset``.
-
-    Args:
-        bodies: {body name: its ``<body>`` element}.
-        asset: the ``<asset>`` element.
-
-    Returns:
-        ({file name: content} of the mesh folder, notes on what was left out).
-    """
+    """Adds the robot's visual geoms to the MJCF ``bodies`` {name: element} and meshes to ``asset``;
+    returns ({file name: content} of the mesh folder, notes on what was left out)."""
     from pydrake.geometry import Role  # lazy: pydrake is heavy
 
     plant, inspector = robot.plant, robot.scene_graph.model_inspector()

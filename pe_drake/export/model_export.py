@@ -1,12 +1,6 @@
 """The front door of ``pe-drake export``: :func:`export_model` writes the identified robot in the
-format where it is used, and checks it there.
-
-Each format is checked before it is returned: an MJCF is loaded by MuJoCo (when installed) and
-its ``mj_inverse`` compared with pe_drake's rigid + armature + viscous torque of the model on
-random states; a URDF or SDFormat file is loaded back by Drake and its inverse dynamics (rotor
-inertia and damping included) compared the same way. With a held-out run, a model of base
-parameters only reports how much its projection onto physically consistent parameters changes
-the prediction, and the feed-forward reports its gravity + friction error on the run.
+format where it is used, and checks it there (MuJoCo's ``mj_inverse`` for an MJCF, Drake's
+inverse dynamics for a URDF or SDFormat, against the model on random states).
 """
 
 from __future__ import annotations
@@ -41,28 +35,16 @@ CHECK_TOLERANCE = 1e-6
 
 @dataclasses.dataclass(frozen=True)
 class ExportOptions:
-    """What ``export`` writes.
+    """What ``export`` writes (``bandwidth_hz`` to ``samples``: gains only)."""
 
-    Attributes:
-        to: the format, one of :data:`FORMATS`.
-        bandwidth_hz: closed-loop bandwidth of the PD gains [Hz] (gains).
-        damping_ratio: ζ of the PD gains (gains).
-        sigma_k: randomization ranges value ± k·σ (gains).
-        samples: physically consistent models drawn from σ (gains).
-        seed: of the draws.
-        window: the part of the held-out run used (cut after filtering; None: all of it).
-        meshdir: mjcf: the folder (beside the file) its visual meshes are written to; "" for
-            no geometry.
-    """
-
-    to: str = "mjcf"
-    bandwidth_hz: float = 10.0
+    to: str = "mjcf"  # one of FORMATS
+    bandwidth_hz: float = 10.0  # [Hz]
     damping_ratio: float = 1.0
-    sigma_k: float = 2.0
-    samples: int = 10
+    sigma_k: float = 2.0  # randomization ranges value ± k·σ
+    samples: int = 10  # physically consistent models drawn from σ
     seed: int = 0
-    window: TimeWindow | None = None
-    meshdir: str = ""
+    window: TimeWindow | None = None  # the part of the held-out run used (cut after filtering)
+    meshdir: str = ""  # mjcf: the folder beside the file for its visual meshes ("": no geometry)
 
     def __post_init__(self):
         if self.meshdir and (Path(self.meshdir).name != self.meshdir or self.meshdir in (".", "..")):
@@ -79,26 +61,16 @@ class ExportOptions:
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class ExportResult:
-    """An exported file's text and what it took.
-
-    Attributes:
-        format: one of :data:`FORMATS`.
-        text: the file's content.
-        model: the model exported (physically consistent).
-        source: the model file ("" for the robot's own model: the CAD model).
-        unheld: what the format cannot hold of the model, one sentence each.
-        figures: {name: value} measured while checking (relative torque differences, RMS [N·m]).
-        meshdir: the mesh folder's name beside the file ("" for none); meshes: its files.
-    """
+    """An exported file's text and what it took."""
 
     format: str
     text: str
-    model: RobotModel
-    source: str = ""
-    unheld: tuple[str, ...] = ()
-    figures: dict = dataclasses.field(default_factory=dict)
-    meshdir: str = ""
-    meshes: dict = dataclasses.field(default_factory=dict)
+    model: RobotModel  # the model exported (physically consistent)
+    source: str = ""  # the model file ("": the robot's own, the CAD model)
+    unheld: tuple[str, ...] = ()  # what the format cannot hold of the model, one sentence each
+    figures: dict = dataclasses.field(default_factory=dict)  # {name: value} of the checks
+    meshdir: str = ""  # the mesh folder's name beside the file ("": none)
+    meshes: dict = dataclasses.field(default_factory=dict)  # {file name: content} of that folder
 
     def summary_lines(self) -> list[str]:
         """What the file holds and leaves out, and the checks' figures."""
@@ -112,12 +84,8 @@ class ExportResult:
         return lines
 
     def write(self, folder: str | Path, *, name: str = "") -> list[str]:
-        """Writes the file ``folder/name`` (default ``model`` + the format's suffix) and its mesh
-        folder beside it, whole or not at all.
-
-        Returns:
-            The paths written: the file, then the mesh folder (if any).
-        """
+        """Writes ``folder/name`` (default ``model`` + suffix) and its mesh folder, whole or not;
+        returns the paths written."""
         path = output_file(folder, name or f"model{FORMATS[self.format]}")
         path.parent.mkdir(parents=True, exist_ok=True)
         if not self.meshes:
@@ -133,8 +101,7 @@ class ExportResult:
 
 
 def write_folder(folder: Path, files: dict[str, bytes]) -> Path:
-    """Writes ``files`` into ``folder`` whole: a temporary folder beside it, renamed into place
-    (an older folder of that name is replaced)."""
+    """Writes ``files`` into ``folder`` whole: a temporary folder beside it, renamed into place."""
     folder.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", dir=folder.parent))
     try:
@@ -159,10 +126,8 @@ def export_model(robot: Robot, model: str | Path | None, options: ExportOptions 
     """What ``pe-drake export`` does (module docstring).
 
     Args:
-        robot: the robot the model belongs to.
         model: identified.json (any method) or augmented_model.json; None: the robot's own model.
-        held_out: a raw measured run (:func:`~pe_drake.identification.intake.read_measurements`)
-            to report the projection's and the feed-forward's effect on.
+        held_out: a raw measured run to report the projection's and the feed-forward's effect on.
         progress: called with a line before each slow step (mesh conversion, the checks).
 
     Raises:
@@ -236,8 +201,7 @@ def _mujoco_check(robot: Robot, model: RobotModel, text: str, meshes: dict) -> d
 
 
 def _feedforward_check(robot: Robot, model: RobotModel, data, raw) -> dict:
-    """RMS error [N·m] per joint of the gravity + friction feed-forward and of the whole model on
-    the run (Coulomb columns filtered like the torque, as ``validate``)."""
+    """RMS error [N·m] per joint of the gravity + friction feed-forward and of the whole model."""
     zero = np.zeros_like(data.v)
     coulomb = filtered_coulomb(raw, data, model.velocity_scale)
     friction = friction_torque(model, data.v, coulomb)

@@ -1,12 +1,6 @@
 """What every export writes: the robot as built (:class:`~pe_drake.multibody.robot_model.RobotModel`),
-read from a model file in one place, and the identification's spread for randomization.
-
-:func:`exported_model` is the only function of the export stage that reads a model: a
-physically consistent :class:`RobotModel` (:func:`~pe_drake.simulation.simulated_model.load_simulation_model`:
-a model of base parameters only is first projected onto the nearest physically consistent
-parameters, as ``simulate --model`` does; negative friction and armature set to 0, noted), or the
-robot's own (:meth:`RobotModel.from_robot`). The writers take that model and nothing else from the
-file; :func:`identified_spread` adds the base parameters' σ that the randomization draws from.
+read from a model file in one place (:func:`exported_model`), and the identification's spread for
+randomization (:func:`identified_spread`).
 """
 
 from __future__ import annotations
@@ -28,29 +22,19 @@ if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class IdentifiedSpread:
-    """The identification's uncertainty of the base parameters (the drive terms' σ is the
-    model's own ``RobotModel.sigma``).
+    """The identification's uncertainty of the p base parameters (the drive terms' σ is the
+    model's own ``RobotModel.sigma``)."""
 
-    Attributes:
-        K: the base parameters as rows of the standard ones, φ_B = K φ, shape (p, 10·nb).
-        sigma: σ of each base parameter, shape (p,) (inf or NaN: not identified).
-        names: the base parameters' names, length p.
-        cov: their covariance, shape (p, p) (diagonal σ²), or None: a file written before it was
-            stored, whose base parameters are then drawn independently from σ (``note`` says so).
-        note: what the draws could not use ("" when they use the covariance).
-    """
-
-    K: np.ndarray
-    sigma: np.ndarray
+    K: np.ndarray  # φ_B = K φ, (p, 10·nb)
+    sigma: np.ndarray  # (p,); inf or NaN: not identified
     names: tuple[str, ...] = ()
-    cov: np.ndarray | None = None
-    note: str = ""
+    cov: np.ndarray | None = None  # (p, p); None: drawn independently from σ (``note`` says so)
+    note: str = ""  # what the draws could not use
 
 
 def exported_model(robot: Robot, model: str | Path | None) -> RobotModel:
-    """The model to export: that of ``model`` (identified.json of any method or
-    augmented_model.json), physically consistent, or with ``model`` None the robot's own
-    (:meth:`~pe_drake.multibody.robot_model.RobotModel.from_robot`).
+    """The model to export, physically consistent: that of ``model`` (an identified.json of any
+    method or augmented_model.json), projected as ``simulate --model`` does, or the robot's own.
 
     Raises:
         DataError: a model file of another robot, or not one of these files.
@@ -61,12 +45,14 @@ def exported_model(robot: Robot, model: str | Path | None) -> RobotModel:
     # physically consistent, friction and armature ≥ 0; a transmission's per-motor terms as the
     # joints hold them (a coupled motor's friction and rotor-inertia coupling left out, noted)
     out = load_simulation_model(model, robot).per_joint_model()
-    return dataclasses.replace(out, notes=tuple(_exported(n) for n in out.notes))
+    # the simulator's notes of the same adjustment, in the export's words
+    notes = (n.replace(" is simulated as 0", " is written as 0")
+             .replace("the simulated ", "the exported ") for n in out.notes)
+    return dataclasses.replace(out, notes=tuple(notes))
 
 
 def identified_spread(robot: Robot, model: str | Path | None) -> IdentifiedSpread | None:
-    """The base parameters' σ of an identify identified.json, or None (the CAD model, an
-    augmented model: no covariance)."""
+    """The base parameters' σ of an identified.json, or None (the CAD model, an augmented one)."""
     if model is None:
         return None
     result = load_identified(model, robot)
@@ -80,19 +66,10 @@ def identified_spread(robot: Robot, model: str | Path | None) -> IdentifiedSprea
                             note)
 
 
-def _exported(note: str) -> str:
-    """A simulator's note in the export's words (the same adjustment: 'simulated' → 'exported')."""
-    return note.replace(" is simulated as 0", " is written as 0").replace("the simulated ", "the exported ")
-
-
 def projection_change(robot: Robot, model: str | Path, exported: RobotModel, data) -> np.ndarray | None:
-    """RMS [N·m] per joint of the change of the held-out prediction between the model file's own
-    (its base parameters) and the exported model (its consistent φ), or None for a model whose
-    standard parameters are exported as they are.
-
-    Args:
-        data: a preprocessed run (:func:`~pe_drake.identification.intake.prepare_measurement`).
-    """
+    """RMS [N·m] per joint of the change of the prediction on ``data`` (a preprocessed run)
+    between the model file's base parameters and the exported consistent φ, or None when the
+    file's standard parameters are exported as they are."""
     result = load_identified(model, robot)
     if isinstance(result, RobotModel) or result.phi is not None:
         return None
@@ -101,8 +78,7 @@ def projection_change(robot: Robot, model: str | Path, exported: RobotModel, dat
 
 
 def random_states(robot: Robot, samples: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(q, v, v̇), each (samples, n): q inside the limits, |v| up to the velocity limit, |v̇| up to
-    the acceleration limit."""
+    """(q, v, v̇), each (samples, n), uniform within the robot's limits."""
     rng = np.random.default_rng(seed)
     lim = robot.limits
     q = rng.uniform(lim.q_lower, lim.q_upper, (samples, robot.n))

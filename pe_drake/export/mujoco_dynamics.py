@@ -1,10 +1,6 @@
-"""Torques computed by MuJoCo itself from an MJCF file (``validate --model model.xml``, the
-export's checks): ``mj_inverse`` with the model's armature and damping.
-
-MuJoCo's dry friction (``frictionloss``) and joint limits are constraints whose inverse
-dynamics depend on its soft-constraint settings, so they are switched off for ``mj_inverse``;
-a joint that slides meets its ``frictionloss`` as ``frictionloss·sign(v)``, which
-:func:`mujoco_torques` adds on request.
+"""Torques computed by MuJoCo itself from an MJCF file: ``mj_inverse`` with the model's armature
+and damping. Dry friction and joint limits are constraints that depend on MuJoCo's soft-constraint
+settings, so they are switched off; :func:`mujoco_torques` adds ``frictionloss·sign(v)`` on request.
 """
 
 from __future__ import annotations
@@ -17,11 +13,7 @@ from pe_drake.exceptions import ConfigError, MissingDependencyError
 
 
 def import_mujoco():
-    """The ``mujoco`` module.
-
-    Raises:
-        MissingDependencyError: it is not installed (``pip install pe_drake[mujoco]``).
-    """
+    """The ``mujoco`` module; MissingDependencyError when it is not installed."""
     try:
         import mujoco  # lazy: an optional dependency
     except ImportError as err:
@@ -30,11 +22,8 @@ def import_mujoco():
 
 
 def load_mjcf(path_or_text: str | Path, *, text: bool = False, assets: dict[str, bytes] | None = None):
-    """An ``MjModel`` from an MJCF file (or its text, with its mesh files as ``assets``).
-
-    Raises:
-        ConfigError: MuJoCo refuses the file (its message, with the file).
-    """
+    """An ``MjModel`` from an MJCF file (or its text, with its mesh files as ``assets``);
+    ConfigError with MuJoCo's message when it refuses the file."""
     mujoco = import_mujoco()
     try:
         if text:
@@ -46,11 +35,7 @@ def load_mjcf(path_or_text: str | Path, *, text: bool = False, assets: dict[str,
 
 
 def joint_addresses(model, joint_names) -> tuple[np.ndarray, np.ndarray]:
-    """(qpos addresses, dof addresses) of the named 1-dof joints of an MjModel.
-
-    Raises:
-        ConfigError: a joint missing from the model, or not a hinge or slide.
-    """
+    """(qpos addresses, dof addresses) of the named joints; ConfigError unless hinges or slides."""
     mujoco = import_mujoco()
     names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j) for j in range(model.njnt)]
     missing = [j for j in joint_names if j not in names]
@@ -69,14 +54,12 @@ def joint_addresses(model, joint_names) -> tuple[np.ndarray, np.ndarray]:
 
 def mujoco_torques(model, joint_names, q: np.ndarray, v: np.ndarray, vd: np.ndarray, *,
                    sliding_friction: bool = False) -> np.ndarray:
-    """Joint torques MuJoCo's ``mj_inverse`` gives at each sample, shape (S, n) [N·m or N].
+    """Joint torques MuJoCo's ``mj_inverse`` gives at (q, v, vd) (S, n), shape (S, n) [N·m or N].
 
-    Other joints of the model stay at their ``qpos0`` at rest.
+    Other joints of the model stay at their ``qpos0`` at rest; the model's options are restored.
 
     Args:
-        model: an MjModel (:func:`load_mjcf`); its options are left as they were.
         joint_names: the columns of q, v, vd, length n.
-        q, v, vd: each (S, n).
         sliding_friction: add ``frictionloss·sign(v)``, the dry friction of a sliding joint.
     """
     mujoco = import_mujoco()

@@ -1,13 +1,10 @@
 """``pe-drake validate --model model.xml | model.urdf | model.sdf``: an exported model predicts a
 held-out run in the simulator it was exported for.
 
-An MJCF's torques are MuJoCo's own (``mj_inverse`` with armature and damping, plus its dry
-friction on a sliding joint, ``frictionloss·sign(v)``; :mod:`pe_drake.export.mujoco_dynamics`);
-a URDF's or SDFormat's are Drake's inverse dynamics of the file loaded as a robot (rotor
-inertia and damping; a URDF's ``<dynamics friction>`` as pe_drake's f·tanh(v/v_s), an SDFormat
-file's none: Drake ignores it). So the gap
-between a CAD file and the identified one shows in the simulator a user trains in. Offsets and
-whatever else the format cannot hold are not predicted.
+An MJCF's torques are MuJoCo's own (:mod:`pe_drake.export.mujoco_dynamics`, plus
+``frictionloss·sign(v)``); a URDF's or SDFormat's are Drake's inverse dynamics of the file loaded
+as a robot (a URDF's ``<dynamics friction>`` as f·tanh(v/v_s); an SDFormat file's none). Offsets
+and whatever else the format cannot hold are not predicted.
 """
 
 from __future__ import annotations
@@ -74,10 +71,7 @@ def validate_exported(robot: Robot, path: str | Path, measurements: Measurement,
                       options: ValidateOptions | None = None) -> ValidationReport:
     """``validate`` with an exported model file: the run's torques predicted by its simulator.
 
-    Raises:
-        ConfigError: as :func:`simulator_torques`; the wrench is not predicted.
-        DataError: data the checks refuse.
-    """
+    ConfigError as :func:`simulator_torques` or for a wrench; DataError for refused data."""
     options = options or ValidateOptions()
     if options.measurement != "joint_torque":
         raise ConfigError(f"validate --model {Path(path).name} predicts joint torques only; "

@@ -1,9 +1,5 @@
-"""The robot's bodies as the exporters walk them: Drake's tree at q = 0 with the model's inertials.
-
-Read from the :class:`~pe_drake.multibody.robot.Robot`'s plant, so URDF, xacro and SDF robots
-give the same tree: the root welded to the world at its mount pose, a locked joint a weld at its
-locked position, each excited joint at its child's joint frame.
-"""
+"""The robot's bodies as the exporters walk them: Drake's tree at q = 0 with the model's inertials
+(URDF, xacro and SDF robots alike; locked joints are welds at their locked position)."""
 
 from __future__ import annotations
 
@@ -19,30 +15,19 @@ if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
 
 
 class TreeBody(NamedTuple):
-    """One body of the exported tree.
-
-    Attributes:
-        name: the body (link) name.
-        parent: its parent's name ("world" for the root).
-        X_PC: pose of the body in its parent at q = 0, (4, 4).
-        X_WC: pose of the body in the world at q = 0, (4, 4).
-        phi: its 10 parameters about its origin in its frame (the model's for a body an excited
-            joint moves, the model file's for the others).
-        joint: index of its excited joint in ``robot.joint_names``, or -1 (a weld).
-        weld_name: the Drake joint that joins it to its parent (a weld when ``joint`` is -1).
-    """
+    """One body of the exported tree; poses at q = 0."""
 
     name: str
-    parent: str
-    X_PC: np.ndarray
-    X_WC: np.ndarray
-    phi: np.ndarray
-    joint: int
-    weld_name: str
+    parent: str  # "world" for the root
+    X_PC: np.ndarray  # pose in the parent, (4, 4)
+    X_WC: np.ndarray  # pose in the world, (4, 4)
+    phi: np.ndarray  # 10 parameters about its origin (the model's if it moves, else the file's)
+    joint: int  # index of its excited joint in ``robot.joint_names``, or -1 (a weld)
+    weld_name: str  # the Drake joint that joins it to its parent
 
 
 def robot_tree(robot: Robot, model: RobotModel) -> list[TreeBody]:
-    """The bodies of ``robot``'s plant, parents before children (module docstring)."""
+    """The bodies of ``robot``'s plant, parents before children."""
     plant = robot.plant
     context = plant.CreateDefaultContext()
     plant.SetPositions(context, np.zeros(plant.num_positions()))

@@ -1,12 +1,9 @@
 """A URDF written from pe_drake's plant, for a robot that has none of its own (an SDF robot).
 
-URDF puts each joint's frame at its child link's frame; SDFormat (and Drake) let a joint's child
-frame M sit anywhere on its child body C. So each link of the URDF is the joint frame M of the
-body (X_CM from ``Robot.joints``; C itself for a body welded to its parent), its inertial the
-body's re-expressed in M (Drake's ``SpatialInertia.Shift`` and ``ReExpress``: exact), each
-joint's ``<origin>`` the pose of its link in its parent's link at q = 0, the root welded to a
-``world`` link at the mount pose. The drive terms go in by the one URDF dynamics writer
-(:func:`pe_drake.multibody.urdf.joint_dynamics`). No geometry.
+URDF puts each joint's frame at its child link's frame, while Drake lets a joint's child frame M
+sit anywhere on its child body C. So each URDF link is the joint frame M of its body (C for a
+weld), its inertial re-expressed in M (exact), each ``<origin>`` its link's pose in the parent's
+link at q = 0. No geometry.
 """
 
 from __future__ import annotations
@@ -69,8 +66,7 @@ def _joint(robot_el: ET.Element, robot: Robot, name: str, kind: str, parent: str
 
 
 def urdf_from_tree(robot: Robot, model: RobotModel) -> str:
-    """The URDF of the robot with ``model`` (module docstring), the payload a link
-    :data:`~pe_drake.multibody.robot_model.PAYLOAD_BODY_NAME`."""
+    """The URDF of the robot with ``model``, the payload a link ``PAYLOAD_BODY_NAME``."""
     root = ET.Element("robot", {"name": robot.name})
     ET.SubElement(root, "link", {"name": "world"})
     X_CL = {"world": np.eye(4)}  # each body's link frame L in its body frame C

@@ -1,18 +1,12 @@
 """Base inertial parameters, computed numerically (Gautier & Khalil 1990; Eq. 2).
 
-The regressor Y of random states is stacked and factored by QR with column pivoting:
-Y P = Q [R1 R2]. The first b pivoted columns are independent; the rest are combinations of
-them: Y_dep = Y_ind β with β = R1⁻¹ R2. Hence
+The regressor Y of random states is factored by QR with column pivoting, Y P = Q [R1 R2]: the
+first b pivoted columns are independent and Y_dep = Y_ind β with β = R1⁻¹ R2, so
+Y φ = Y_B φ_B with Y_B = Y X and φ_B = K φ, K = [I β] Pᵀ.
 
-    Y φ = Y_ind (φ_ind + β φ_dep) = Y_B φ_B,  Y_B = Y X (X selects the independent columns),
-    φ_B = K φ with K = [I β] Pᵀ.
-
-The rank b is decided twice. |R_ii| ≤ ``rank_tolerance``·|R_00| of the equilibrated columns
-is rounding (an exact combination). Then the data's own scale: s_i = |R_ii|·‖y_i‖, what pivot
-i adds to the rows in the regressor's units (torque per unit parameter). Sorted, real
-directions form a continuum; a jump of more than :data:`RANK_GAP_RATIO` between neighbours
-is a gap, and the directions below it are dropped: the model hardly moves them (a vertical
-axis tilted by µrad because a URDF writes 1.5708 for π/2; BUILD_NOTES.md "Rank from a gap").
+The rank b is decided twice: |R_ii| ≤ ``rank_tolerance``·|R_00| of the equilibrated columns is
+rounding; then, of the sizes s_i = |R_ii|·‖y_i‖ in the rows' units, those below a jump of more
+than :data:`RANK_GAP_RATIO` are dropped (BUILD_NOTES.md "Rank from a gap").
 """
 
 from __future__ import annotations
@@ -32,35 +26,18 @@ if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
 
 @dataclasses.dataclass(frozen=True)
 class BaseParameters:
-    """The base-parameter composition of a robot.
+    """The base-parameter composition of a robot (b base, p standard parameters)."""
 
-    Attributes:
-        independent: indices of the standard parameters kept as base columns, shape (b,).
-        K: φ_B = K φ, shape (b, p).
-        names: standard parameter names, length p.
-        base_names: a readable composition of each base parameter, e.g.
-            ``"Izz.link1 + 1 Iyy.link2 + 0.09 m.link3"``.
-        rank_tolerance: relative tolerance used on R's diagonal.
-        diag_R: |R_ii| of the pivoted QR (for diagnostics), shape (p,).
-        measurement: the rows they were computed from: "joint_torque" (Eq. 1), or
-            "base_wrench"/"both" (:class:`pe_drake.multibody.sensors.SensorRows`).
-        dropped: the standard parameters whose pivoted columns lay below the rank gap (they
-            are not base columns; K maps them onto the kept ones by least squares).
-        dropped_size: their s_i = |R_ii|·‖y_i‖ relative to the largest.
-        rank_gap: smallest kept s_i / largest dropped one; with nothing dropped, the largest
-            ratio between neighbouring sorted s_i (below ``gap_ratio``).
-        gap_ratio: the threshold used (None: no gap test).
-    """
-
-    independent: np.ndarray
-    K: np.ndarray
-    names: tuple[str, ...]
-    base_names: tuple[str, ...]
+    independent: np.ndarray  # the standard parameters kept as base columns, (b,)
+    K: np.ndarray  # φ_B = K φ, (b, p)
+    names: tuple[str, ...]  # standard parameter names, length p
+    base_names: tuple[str, ...]  # each base parameter as a combination: "Izz.link1 + 0.09 m.link3"
     rank_tolerance: float
-    diag_R: np.ndarray
-    measurement: str = "joint_torque"
-    dropped: tuple[str, ...] = ()
-    dropped_size: tuple[float, ...] = ()
+    diag_R: np.ndarray  # |R_ii| of the pivoted QR, (p,)
+    measurement: str = "joint_torque"  # the rows: "joint_torque" (Eq. 1), "base_wrench" or "both"
+    dropped: tuple[str, ...] = ()  # parameters below the rank gap (K maps them by least squares)
+    dropped_size: tuple[float, ...] = ()  # their s_i = |R_ii|·‖y_i‖ relative to the largest
+    # smallest kept s_i / largest dropped one; with none dropped, the largest neighbour ratio
     rank_gap: float = 1.0
     gap_ratio: float | None = None
 
@@ -96,52 +73,39 @@ class BaseParameters:
         return self.K @ phi
 
     def closest_standard(self, phi_B: np.ndarray, phi0: np.ndarray) -> np.ndarray:
-        """The standard parameters closest to ``phi0`` that give ``phi_B``: φ = φ0 + K⁺(φ_B − K φ0),
-        (10·nb,). They predict the same torques (Y φ = Y_B φ_B) but are not physically consistent
-        in general."""
+        """The standard parameters closest to ``phi0`` that give ``phi_B``, (10·nb,).
+
+        φ = φ0 + K⁺(φ_B − K φ0): the same torques, not physically consistent in general."""
         phi0 = np.asarray(phi0, float)
         return phi0 + np.linalg.pinv(self.K) @ (np.asarray(phi_B, float) - self.K @ phi0)
 
 
 #: Two neighbouring sizes s_i = |R_ii|·‖y_i‖ of the sorted base directions further apart than
-#: this are a gap (BUILD_NOTES.md "Rank from a gap"). Shipped robots: at most 28 (G1's arms);
-#: SO-101 with rounded angles: 1.3e5.
+#: this are a gap (BUILD_NOTES.md "Rank from a gap").
 RANK_GAP_RATIO = 1e3
 
 #: Columns smaller than this fraction of the largest are equilibrated to it, not to 1: their
-#: pivots come after the real ones (shipped robots' smallest column: 2.9e-3, G1's arms).
+#: pivots come after the real ones.
 EQUILIBRATION_FLOOR = 1e-4
 
 
-def compute_base_parameters(
-    robot: Robot,
-    *,
-    samples: int | None = None,
-    seed: int = 0,
-    rank_tolerance: float = 1e-8,
-    gap_ratio: float | None = RANK_GAP_RATIO,
-    model: RegressorModel | None = None,
-    rows: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray] | None = None,
-    measurement: str = "joint_torque",
-) -> BaseParameters:
+def compute_base_parameters(robot: Robot, *, samples: int | None = None, seed: int = 0,
+                            rank_tolerance: float = 1e-8,
+                            gap_ratio: float | None = RANK_GAP_RATIO,
+                            model: RegressorModel | None = None,
+                            rows: Callable[..., np.ndarray] | None = None,
+                            measurement: str = "joint_torque") -> BaseParameters:
     """Numerical base parameters of ``robot`` from random states within its limits.
 
     Args:
-        robot: a :class:`~pe_drake.multibody.robot.Robot`.
         samples: number of random states (default: enough for 4× as many rows as params).
-        seed: random seed (the result does not depend on it for generic samples).
         rank_tolerance: |R_ii| ≤ tol·|R_00| (equilibrated columns) counts as zero.
-        gap_ratio: directions below a jump of more than this between neighbouring sizes
-            |R_ii|·‖y_i‖ are dropped (module docstring); None keeps every direction above
+        gap_ratio: the rank gap (module docstring); None keeps every direction above
             ``rank_tolerance``.
         model: an existing :class:`RegressorModel` to reuse.
         rows: the measured rows as a function of (q, v, vdot), shape (T, r, 10·nb); default
-            the joint torques, ``model(q, v, vd)``. The ground wrench has its own base
-            parameters (:class:`pe_drake.multibody.sensors.SensorRows`).
+            the joint torques, ``model(q, v, vd)``.
         measurement: the name of those rows, kept in the result.
-
-    Returns:
-        The :class:`BaseParameters`; ``dropped`` and ``rank_note`` say what the gap dropped.
     """
     model = model or RegressorModel(robot)
     p = model.num_params
@@ -196,8 +160,7 @@ def compute_base_parameters(
 
 
 def _rank_gap(size: np.ndarray, gap_ratio: float | None) -> tuple[np.ndarray, float]:
-    """Pivots below the largest jump between neighbouring sorted sizes, if it exceeds
-    ``gap_ratio`` (else none), and that jump."""
+    """Pivots below the largest jump between sorted sizes if it exceeds ``gap_ratio``, and it."""
     order = np.argsort(-size)
     steps = size[order[:-1]] / size[order[1:]]
     if not len(steps):
@@ -216,16 +179,9 @@ PIVOT_TIE_TOLERANCE = 1e-8
 def pivoted_qr_r(A: np.ndarray, tie_tolerance: float = PIVOT_TIE_TOLERANCE) -> tuple[np.ndarray, np.ndarray]:
     """R and the column order of a Householder QR with column pivoting, A[:, perm] = Q R.
 
-    Like LAPACK's geqp3 (the column with the largest remaining norm goes next), except that
-    near-ties go to the lowest column index. The equilibrated regressor is full of exact
-    ties (every column starts at norm 1; symmetric links give equal columns), and geqp3
-    breaks them by the last bits of rounding: a change of summation order in the regressor
-    once swapped 10 of G1's 90 base parameters and moved cond(C) by 5–70 %. Here the choice
-    depends on the robot and the samples only.
-
-    Args:
-        A: (m, n) matrix.
-        tie_tolerance: relative distance to the largest remaining norm that counts as a tie.
+    Like LAPACK's geqp3, except that near-ties go to the lowest column index: the equilibrated
+    regressor is full of exact ties, and geqp3 breaks them by rounding, so the choice would
+    depend on summation order rather than on the robot and the samples.
 
     Returns:
         (R, perm): R of shape (min(m, n), n), upper triangular in its leading square block;
@@ -258,8 +214,7 @@ def pivoted_qr_r(A: np.ndarray, tie_tolerance: float = PIVOT_TIE_TOLERANCE) -> t
 
 
 def composed_names(K: np.ndarray, names: tuple[str, ...]) -> tuple[str, ...]:
-    """Each base parameter as the combination it is, coefficients to 4 digits; a coefficient
-    that shows as ±1 at that precision is written as a sign alone (Ixx - Iyy, not -1 Ixx)."""
+    """Each base parameter as the combination it is, coefficients to 4 digits (±1 as a sign)."""
     out = []
     for row in K:
         text = ""

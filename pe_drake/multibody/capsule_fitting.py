@@ -1,27 +1,10 @@
 """Capsule files fitted automatically to a URDF's or SDF's link shapes (for robots that ship none).
 
-Each link gets its capsule(s) from its ``<collision>`` shapes, else from its ``<visual>`` ones
-(:mod:`pe_drake.multibody.link_geometry`):
-
-- primitives only (at most :data:`MAX_PRIMITIVE_CAPSULES`): one exact capsule per primitive
-  (:func:`~pe_drake.multibody.link_geometry.primitive_segment`: a cylinder keeps its radius,
-  axis and length, a sphere is a zero-length capsule, a box the capsule along its longest
-  edge that encloses it);
-- meshes, or more primitives: one capsule fitted by
-  :func:`pe_drake.multibody.capsules.fit_capsule` to the pooled mesh vertices (and primitive
-  surface points) in the link frame: the axis is their principal axis, the radius covers 98 %
-  of the mesh vertices and the segment is the shortest that contains them; a link whose
-  points are mirror-symmetric about its x-z plane gets a capsule that is its own mirror image.
-
-Links joined by a joint (adjacent) and links welded together are not checked against each
-other: :func:`~pe_drake.multibody.capsules.register_capsules` filters those pairs. Of the
-others, :func:`ignore_touching_pairs` ignores only pairs at most :data:`TOUCHING_JOINTS`
-joints apart that touch by design; a capsule touching a link farther away is shrunk instead.
-
-Mesh readers: STL (binary and ASCII), OBJ (``v`` lines) and COLLADA ``.dae`` (pycollada,
-node transforms and ``<unit meter>`` applied). A shape that cannot be read is listed in
-:attr:`FittedCapsules.unchecked` ("link X: mesh Y could not be read: reason"): that part of
-the robot is not checked for collisions, and a caller must not report the robot as checked.
+Each link gets capsules from its ``<collision>`` shapes, else its ``<visual>`` ones: one exact
+capsule per primitive (at most :data:`MAX_PRIMITIVE_CAPSULES`), else one capsule fitted to the
+pooled mesh vertices (:func:`~pe_drake.multibody.capsules.fit_capsule`), mirror-symmetric for a
+mirror-symmetric link. A shape that cannot be read is listed in
+:attr:`FittedCapsules.unchecked`: that part of the robot is not checked for collisions.
 """
 
 from __future__ import annotations
@@ -35,14 +18,8 @@ import numpy as np
 
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.io_utils import atomic_write_text
-from pe_drake.multibody.capsules import (
-    capsule_pairs,
-    capsule_pose,
-    fit_capsule,
-    joints_apart,
-    load_capsule_file,
-    segment_closest_points,
-)
+from pe_drake.multibody.capsules import (capsule_pairs, capsule_pose, fit_capsule, joints_apart,
+                                         load_capsule_file, segment_closest_points)
 from pe_drake.multibody.link_geometry import Shape, primitive_points, primitive_segment, read_link_shapes
 from pe_drake.multibody.collada_up_axis import oriented_vertices, up_axis_note
 from pe_drake.multibody.mesh_policy import mesh_file_refusal
@@ -59,8 +36,7 @@ FITTED_COLLISION_MARGIN = 0.01
 #: A link with at most this many primitive shapes (and no mesh) gets one capsule per shape.
 MAX_PRIMITIVE_CAPSULES = 3
 #: A link's points are mirror-symmetric when 90 % of the mirrored points lie within this fraction
-#: of the cloud's size of a point (TALOS's torso, pelvis and head: 1.7-2.5 %; its forearm 30 %,
-#: UR5's upper arm and forearm 3.6 and 5.5 %: left as fitted).
+#: of the cloud's size of a point.
 SYMMETRY_TOLERANCE = 0.03
 #: Pairs at most this many joints apart may touch by design (a link and its grandparent: an
 #: elbow's upper arm and wrist); pairs farther apart are always checked (issue 21).
@@ -71,11 +47,7 @@ SHRINK_FLOOR = 0.5
 
 
 class CapsuleFittingError(ConfigError):
-    """No link of a model has a shape capsules can be fitted to.
-
-    Attributes:
-        unchecked: one line per link whose shapes could not be used.
-    """
+    """No link of a model has a shape capsules can be fitted to (``unchecked`` says why)."""
 
     def __init__(self, message: str, unchecked: tuple[str, ...]):
         self.unchecked = tuple(unchecked)
@@ -84,35 +56,19 @@ class CapsuleFittingError(ConfigError):
 
 @dataclasses.dataclass(frozen=True)
 class FittedCapsules:
-    """What :func:`fit_capsule_file` wrote.
-
-    Attributes:
-        path: the capsule file.
-        links: links that got a capsule.
-        skipped: {link: reason} for links with shapes but no capsule.
-        ignored_pairs: pairs not checked although not adjacent, (capsule, capsule, reason).
-        unchecked: what is not checked for collisions, one line each ("link X: mesh Y could
-            not be read: reason"); empty when every shape of the model was used.
-        sources: {link: "primitive" | "mesh" | "primitive+mesh"}, what each capsule came from.
-        written: whether ``path`` was written (False only for a result built without a file).
-        shrunk: {capsule: (fitted radius, radius used)} [m] for capsules made thinner so that
-            links farther apart than :data:`TOUCHING_JOINTS` joints stay checked.
-        notes: how the meshes were read, when it is not as written (:mod:`collada_up_axis`).
-    """
+    """What :func:`fit_capsule_file` wrote; ``unchecked`` is what is not checked for collisions."""
 
     path: Path
-    links: tuple[str, ...]
-    skipped: dict[str, str]
-    ignored_pairs: tuple = ()
-    unchecked: tuple[str, ...] = ()
-    sources: dict[str, str] = dataclasses.field(default_factory=dict)
-    written: bool = True
+    links: tuple[str, ...]  # links that got a capsule
+    ignored_pairs: tuple = ()  # (capsule, capsule, reason) not checked although not adjacent
+    unchecked: tuple[str, ...] = ()  # one line each: "link X: mesh Y could not be read: reason"
+    sources: dict[str, str] = dataclasses.field(default_factory=dict)  # "primitive", "mesh", both
+    # {capsule: (fitted, used radius)} [m]: made thinner to keep farther links checked
     shrunk: dict[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
-    notes: tuple[str, ...] = ()
+    notes: tuple[str, ...] = ()  # how the meshes were read, when not as written
 
     def summary(self, first: int = 3) -> str:
-        """A one-line account: capsule count and sources, then the count of unchecked parts
-        with the first few and where the full list is (``report.json``'s ``unchecked``)."""
+        """A one-line account: capsule count and sources, then the unchecked parts."""
         kinds = sorted(set(self.sources.values()))
         text = f"{len(self.links)} link(s) with capsules (from {', '.join(kinds) or 'nothing'})"
         if self.unchecked:
@@ -122,8 +78,7 @@ class FittedCapsules:
         return "; ".join([text, *self.notes])
 
     def pairs_summary(self, first: int = 4) -> str:
-        """The ignored pairs, named (the first few, then the count; all of them in
-        ``report.json``'s ``ignored_pairs``), and the shrunk capsules; "" when there are none."""
+        """The ignored pairs (the first few) and the shrunk capsules; "" when there are none."""
         parts = []
         if self.ignored_pairs:
             shown = ", ".join(f"{a}/{b}" for a, b, _ in self.ignored_pairs[:first])
@@ -141,11 +96,7 @@ class FittedCapsules:
 
 
 def _mesh_points(shape: Shape, model_path: Path) -> np.ndarray:
-    """A mesh shape's vertices in the link frame (scale and pose applied).
-
-    Raises:
-        DataError: the file is missing or unreadable.
-    """
+    """A mesh shape's vertices in the link frame; DataError for a missing or unreadable file."""
     path = resolve_mesh_path(shape.filename, model_path, mesh=False)
     if path is None:
         raise DataError("file not found")
@@ -156,14 +107,14 @@ def _mesh_points(shape: Shape, model_path: Path) -> np.ndarray:
     return v @ shape.X_LG[:3, :3].T + shape.X_LG[:3, 3]
 
 
+@dataclasses.dataclass
 class _LinkFit:
     """The capsules of one link: segments (p0, p1, radius, comment), source, problems."""
 
-    def __init__(self):
-        self.capsules: list[tuple[np.ndarray, np.ndarray, float, str]] = []
-        self.source = ""
-        self.problems: list[str] = []  # shapes of the group the capsules came from, not read
-        self.replaced: list[str] = []  # collision shapes not read, replaced by the visual ones
+    capsules: list = dataclasses.field(default_factory=list)
+    source: str = ""
+    problems: list = dataclasses.field(default_factory=list)  # shapes of the used group, not read
+    replaced: list = dataclasses.field(default_factory=list)  # collision shapes not read
 
 
 def _fit_link(shapes: list[Shape], model_path: Path, cover: float) -> _LinkFit:
@@ -173,9 +124,7 @@ def _fit_link(shapes: list[Shape], model_path: Path, cover: float) -> _LinkFit:
         group = [s for s in shapes if s.tag == tag]
         primitives = [s for s in group if s.kind != "mesh"]
         meshes, problems = [], []
-        for s in group:
-            if s.kind != "mesh":
-                continue
+        for s in (s for s in group if s.kind == "mesh"):
             try:
                 meshes.append((s, _mesh_points(s, model_path)))
             except DataError as err:
@@ -191,8 +140,7 @@ def _fit_link(shapes: list[Shape], model_path: Path, cover: float) -> _LinkFit:
                 fit.capsules.append((p0, p1, r, f"{tag} {s.describe()}: encloses it"))
             fit.source = "primitive"
             break
-        points = [p for _, p in meshes] + [primitive_points(s) for s in primitives]
-        P = np.vstack(points)
+        P = np.vstack([p for _, p in meshes] + [primitive_points(s) for s in primitives])
         if len(P) < 4:
             fit.replaced += problems + [f"{tag} shapes have fewer than 4 vertices"]
             continue
@@ -206,19 +154,14 @@ def _fit_link(shapes: list[Shape], model_path: Path, cover: float) -> _LinkFit:
     return fit
 
 
-def fit_capsule_file(
-    model_path: str | Path, out_path: str | Path, links: list[str] | None = None, cover: float = 0.98
-) -> FittedCapsules:
+def fit_capsule_file(model_path: str | Path, out_path: str | Path, links: list[str] | None = None,
+                     cover: float = 0.98) -> FittedCapsules:
     """Fits capsules to the links of a URDF or SDF and writes a capsule file.
 
     Args:
-        model_path: the URDF or SDF.
-        out_path: the capsule file to write (YAML, format of pe_drake/multibody/capsules.py).
+        out_path: the capsule file to write (YAML, format of :mod:`pe_drake.multibody.capsules`).
         links: only these links (default: every link with a shape).
         cover: fraction of each mesh's vertices inside its capsule.
-
-    Returns:
-        A :class:`FittedCapsules`; its ``unchecked`` lists the shapes that could not be used.
 
     Raises:
         ConfigError: not a URDF/SDF, or unreadable XML.
@@ -235,14 +178,14 @@ def fit_capsule_file(
         "# Check them in `pe-drake view` and edit as needed; give the edited file as robot.capsules.",
         "capsules:",
     ]
-    fitted, skipped, unchecked, sources = [], {}, [], {}
+    fitted, unchecked, sources = [], [], {}
     for name, link_shapes in shapes.items():
         if (links is not None and name not in links) or not link_shapes:
             continue
         fit = _fit_link(link_shapes, model_path, cover)
         if not fit.capsules:
-            skipped[name] = "; ".join(fit.replaced + fit.problems) or "no usable shape"
-            unchecked.append(f"link {name}: " + skipped[name])
+            why = "; ".join(fit.replaced + fit.problems) or "no usable shape"
+            unchecked.append(f"link {name}: {why}")
             continue
         if fit.problems:  # a shape of the group the capsules came from: that part is unchecked
             unchecked.append(f"link {name}: " + "; ".join(fit.problems) + " (capsule fitted to its other shapes)")
@@ -252,11 +195,10 @@ def fit_capsule_file(
             xyz, rpy, length = capsule_pose(p0, p1)
             length = max(length, 1e-3)  # a sphere: Drake needs a positive length
             cap = name if k == 0 else f"{name}_{k}"
-            lines.append(f"  # {comment}")
-            lines.append(
-                f"  - {{name: {cap}, link: {name}, radius: {r:.4f}, length: {length:.4f},\n"
-                f"     xyz: [{xyz[0]:.4f}, {xyz[1]:.4f}, {xyz[2]:.4f}], rpy: [{rpy[0]:.4f}, {rpy[1]:.4f}, {rpy[2]:.4f}]}}"
-            )
+            lines += [f"  # {comment}",
+                      f"  - {{name: {cap}, link: {name}, radius: {r:.4f}, length: {length:.4f},\n"
+                      f"     xyz: [{xyz[0]:.4f}, {xyz[1]:.4f}, {xyz[2]:.4f}], "
+                      f"rpy: [{rpy[0]:.4f}, {rpy[1]:.4f}, {rpy[2]:.4f}]}}"]
         fitted.append(name)
         sources[name] = fit.source
     if not fitted:
@@ -268,14 +210,15 @@ def fit_capsule_file(
         )
     atomic_write_text(out_path, "\n".join(lines) + "\n")
     note = up_axis_note(model_path)
-    return FittedCapsules(Path(out_path), tuple(fitted), skipped, unchecked=tuple(unchecked), sources=sources,
-                          notes=(note,) if note else ())
+    return FittedCapsules(Path(out_path), tuple(fitted), unchecked=tuple(unchecked),
+                          sources=sources, notes=(note,) if note else ())
 
 
 def _mirror_symmetric(P: np.ndarray) -> bool:
-    """Whether a link's points are mirror-symmetric about the link frame's x-z plane (y → -y):
-    90 % of the mirrored points have a point within :data:`SYMMETRY_TOLERANCE` of the cloud's
-    size (a quantile: meshes are not sampled symmetrically vertex by vertex)."""
+    """Whether a link's points are mirror-symmetric about the link frame's x-z plane (y → -y).
+
+    A quantile, not the worst point: meshes are not sampled symmetrically vertex by vertex.
+    """
     from scipy.spatial import cKDTree
 
     size = float(np.linalg.norm(P.max(axis=0) - P.min(axis=0)))
@@ -284,13 +227,11 @@ def _mirror_symmetric(P: np.ndarray) -> bool:
 
 
 def _fit_points(P: np.ndarray, cover: float) -> tuple[np.ndarray, np.ndarray, float]:
-    """:func:`fit_capsule`, made mirror-symmetric for a mirror-symmetric link (a torso, a
-    pelvis: issue 21). The quantile radius and the Nelder-Mead centre of a plain fit drift off
-    the plane of symmetry (TALOS's torso capsule sat 12 mm towards the right arm and leant
-    12°). Such a link's capsule axis is turned into the plane (or across it, whichever is
-    nearer) and the best axis line is sought among those that are their own mirror image:
-    in the plane, or across it; the segment ends of an axis across the plane are made
-    symmetric (the longer side kept)."""
+    """:func:`fit_capsule`, made mirror-symmetric for a mirror-symmetric link (issue 21).
+
+    A plain fit drifts off the plane of symmetry, so the axis is turned into the plane (or
+    across it, whichever is nearer) and the best line that is its own mirror image is sought.
+    """
     from scipy.optimize import minimize_scalar
 
     p0, p1, r = fit_capsule(P, cover=cover)
@@ -318,21 +259,14 @@ def _radial_distance(points: np.ndarray, p0: np.ndarray, p1: np.ndarray) -> np.n
 
 
 def fit_capsules(config, folder: str | Path) -> tuple:
-    """Fits capsules when a config needs them (self-collision, the floor, boxes) but names no
-    capsule file: writes ``folder/fitted_capsules.yaml``; pairs touching by design are ignored
-    and capsules too fat for links farther away shrunk (:func:`ignore_touching_pairs`), and self-collision is switched on at
-    ``FITTED_COLLISION_MARGIN`` when the config leaves it off.
+    """Fits capsules when a config needs them but names no capsule file (ConfigError: no model).
 
-    Args:
-        config: a :class:`~pe_drake.config.Config` (not changed).
-        folder: where to write the fitted file.
+    Writes ``folder/fitted_capsules.yaml`` (:func:`ignore_touching_pairs` applied) and switches
+    self-collision on at :data:`FITTED_COLLISION_MARGIN` when the config leaves it off.
 
     Returns:
         (the config pointing ``robot.capsules`` at the fitted file, what was fitted), or
         (``config`` itself, None) when the robot has a capsule file or nothing needs one.
-
-    Raises:
-        ConfigError: the model is not a URDF with readable meshes.
     """
     robot, env = config.robot, config.environment
     needs = config.excitation.collision_margin >= 0 or bool(env.boxes) or (env.floor and not robot.support_points)
@@ -350,8 +284,7 @@ def fit_capsules(config, folder: str | Path) -> tuple:
         excitation=dataclasses.replace(config.excitation, collision_margin=margin if margin >= 0 else FITTED_COLLISION_MARGIN),
     )
     ignored, shrunk = ignore_touching_pairs(config, fitted.path, config.excitation.collision_margin)
-    # The margin travels with the file: passed back as robot.capsules (as the README
-    # advises), it gives the same self-collision check as this run (issue 21).
+    # The margin travels with the file: passed back as robot.capsules, it gives the same check.
     with open(fitted.path, "a") as f:
         f.write("# The self-collision margin these capsules were fitted for and their ignored pairs chosen with [m];\n"
                 "# used when the config sets no excitation.collision_margin.\n"
@@ -360,9 +293,10 @@ def fit_capsules(config, folder: str | Path) -> tuple:
 
 
 def with_file_margin(config):
-    """The config with the capsule file's ``collision_margin`` when the config sets none
-    (negative); a file fitted by an earlier pe_drake (its header, no margin) gets
-    :data:`FITTED_COLLISION_MARGIN`, the margin it was fitted with. ``config`` itself otherwise."""
+    """The config with the capsule file's ``collision_margin`` when the config sets none (< 0).
+
+    A fitted file without a margin (its header says so) gets :data:`FITTED_COLLISION_MARGIN`.
+    """
     if config.excitation.collision_margin >= 0 or not config.robot.capsules:
         return config
     path = Path(config.robot.capsules)
@@ -375,22 +309,14 @@ def with_file_margin(config):
 
 
 def ignore_touching_pairs(config, path: Path, margin: float, samples: int = 200, share: float = 0.95) -> tuple:
-    """Decides, for a fitted capsule file, which pairs touch by design (added to its
-    ``ignored_pairs``) and which capsules are shrunk so that the others stay checked.
+    """Decides which pairs of a fitted capsule file touch by design and which capsules shrink.
 
-    Why per pair by joint distance (issue 21): a fitted capsule of a bulky link (TALOS's torso,
-    radius 0.25 m) reaches the arm links beside it, and ignoring every pair closer than the
-    margin at the nominal posture left the forearms unchecked against the torso. Only links
-    at most :data:`TOUCHING_JOINTS` joints apart (a link and its grandparent: upper arm and
-    wrist, MoveIt's "adjacent"/"default" pairs) may touch by design: closer than ``margin`` at
-    the nominal posture, or in ``share`` of random postures within the limits. A pair farther
-    apart that is closer than ``margin`` at the nominal posture is a capsule too fat for its
-    mesh: the fatter capsule is shrunk to clear it (then the other), each to no less than
-    :data:`SHRINK_FLOOR` of its radius; only a pair that still touches is ignored, with that
-    reason. Left and right stay alike: a capsule and its mirror-named counterpart
-    (:func:`mirror_name`) get the smaller radius of the two, and a pair touching in random
-    postures is ignored only when its mirror pair is ignored too. Adjacent and welded links are filtered anyway
-    (:func:`register_capsules`).
+    Only links at most :data:`TOUCHING_JOINTS` joints apart may touch by design (issue 21):
+    closer than ``margin`` at the nominal posture, or in ``share`` of random postures. A farther
+    pair closer than ``margin`` at the nominal posture has a capsule too fat for its mesh: the
+    fatter one shrinks (down to :data:`SHRINK_FLOOR`) and only a pair that still touches is
+    ignored. Mirror-named capsules keep equal radii, and a pair touching in random postures is
+    ignored only when its mirror pair is too.
 
     Returns:
         (the pairs ignored, as [capsule, capsule, reason]; the capsules shrunk, as
@@ -431,8 +357,7 @@ def ignore_touching_pairs(config, path: Path, margin: float, samples: int = 200,
 
 
 def mirror_name(name: str) -> str:
-    """The name of a link's left/right counterpart: "left" and "right" swapped (any case),
-    else an "l_"/"r_" prefix swapped (iCub); the name itself when it has neither."""
+    """A link's left/right counterpart: "left"/"right" swapped (any case), else "l_"/"r_"."""
     swap = {"left": "right", "right": "left", "Left": "Right", "Right": "Left", "LEFT": "RIGHT", "RIGHT": "LEFT"}
     out = re.sub("left|right|Left|Right|LEFT|RIGHT", lambda m: swap[m.group(0)], name)
     if out == name:
@@ -447,10 +372,8 @@ def _mirror_pair(a: str, b: str, pairs) -> tuple | None:
 
 
 def _shrunk_radii(caps, pairs, axis, far, fitted, margin) -> tuple:
-    """Radii with which every far pair clears ``margin`` (plus 1 mm) at the nominal posture
-    (axis-to-axis distance ``axis``), fatter capsule first, none below :data:`SHRINK_FLOOR`
-    of its fitted radius, mirror-named capsules kept equal. Returns (radii, indices of the far
-    pairs that still do not clear)."""
+    """(radii, far pairs that still do not clear) with which every far pair clears ``margin``
+    + 1 mm at axis distances ``axis``."""
     radii = fitted.copy()
     floor = SHRINK_FLOOR * fitted
     index = {c.name: k for k, c in enumerate(caps)}

@@ -15,14 +15,9 @@ capsule file (YAML) lists the capsules fixed to links and the pairs never to che
       - [left_forearm, left_hand]
 
 As in Drake's ``Capsule``, the axis of a capsule is the z axis of its frame G and the capsule
-is centred on G's origin, so its segment runs from ``p_BGo - L/2·z_G`` to ``p_BGo + L/2·z_G``.
-
-:func:`register_capsules` validates a file against a plant, registers the capsules as Drake
-collision geometry and filters the pairs whose distance never changes or that touch by
-design: both capsules on bodies welded together (for a robot whose non-excited joints are
-locked, e.g. G1's pelvis, torso, head and legs form one welded group), capsules on bodies
-connected by one joint (adjacent), and the file's ``ignored_pairs``. Drake's SceneGraph then
-holds the authoritative list of pairs to check (:func:`capsule_pairs`).
+is centred on G's origin. :func:`register_capsules` registers them as Drake collision geometry
+and filters the pairs that never change distance or touch by design; SceneGraph then holds the
+pairs to check (:func:`capsule_pairs`).
 """
 
 # No `from __future__ import annotations`: yaml_load_typed reads the dataclass field types.
@@ -39,16 +34,10 @@ from pe_drake.exceptions import ConfigError, UnknownNameError
 
 @dataclasses.dataclass
 class CapsuleSpec:
-    """One capsule of a capsule file (the YAML schema).
+    """One capsule of a capsule file (the YAML schema; see the module docstring).
 
-    Attributes:
-        name: unique name; defaults to the link name (``<link>_<i>`` for a second capsule).
-        link: name of the body the capsule is fixed to.
-        radius: [m], > 0.
-        length: distance between the centres of the end spheres [m], > 0.
-        xyz: position of the capsule centre in the link frame [m].
-        rpy: roll-pitch-yaw of the capsule frame in the link frame [rad]; the capsule axis is
-            the z axis of that frame.
+    ``name`` defaults to the link name (``<link>_<i>`` for a second capsule); ``length`` is
+    between the centres of the end spheres [m]; the capsule axis is the z axis of ``rpy``.
     """
 
     name: str = ""
@@ -63,10 +52,7 @@ class CapsuleSpec:
 class CapsuleFile:
     """A capsule file: the capsules and the pairs (capsule or link names) never checked.
 
-    Attributes:
-        collision_margin: the self-collision margin the file was made for [m] (a fitted file
-            records the margin its ``ignored_pairs`` were chosen with); used when the config
-            sets no ``excitation.collision_margin``. None: the config decides alone.
+    ``collision_margin`` [m] is the margin the file was made for, used when the config sets none.
     """
 
     capsules: list[CapsuleSpec] = dataclasses.field(default_factory=list)
@@ -76,39 +62,20 @@ class CapsuleFile:
 
 @dataclasses.dataclass(frozen=True)
 class CapsuleInfo:
-    """A capsule registered in a plant.
-
-    Attributes:
-        name: capsule name.
-        link: name of the body B it is fixed to.
-        body_index: Drake ``BodyIndex`` of B, as an int.
-        radius: [m].
-        length: [m].
-        X_BG: pose of the capsule frame G in B, shape (4, 4) [m].
-        p_BS: the two ends of the capsule's segment in B, shape (2, 3) [m] (the start and end
-            points p_L^(s), p_L^(e) of Eq. 53).
-        geometry_id: Drake ``GeometryId`` of the registered collision geometry.
-    """
+    """A capsule registered in a plant, fixed to body B."""
 
     name: str
-    link: str
-    body_index: int
-    radius: float
-    length: float
-    X_BG: np.ndarray
-    p_BS: np.ndarray
-    geometry_id: object
+    link: str  # B's name
+    body_index: int  # B's Drake ``BodyIndex``
+    radius: float  # [m]
+    length: float  # [m]
+    X_BG: np.ndarray  # pose of the capsule frame G in B, (4, 4) [m]
+    p_BS: np.ndarray  # the segment's ends p_L^(s), p_L^(e) of Eq. 53 in B, (2, 3) [m]
+    geometry_id: object  # Drake ``GeometryId`` of the collision geometry
 
 
 def load_capsule_file(path: str | Path) -> CapsuleFile:
-    """Reads a capsule file and checks its numbers and names (links are checked later,
-    against a plant, by :func:`register_capsules`).
-
-    Args:
-        path: the YAML file.
-
-    Returns:
-        The file's content, with default names filled in.
+    """Reads a capsule file and checks its numbers and names (links are checked later).
 
     Raises:
         ConfigError: missing file, unknown key, a radius or length that is not a positive
@@ -141,8 +108,7 @@ def load_capsule_file(path: str | Path) -> CapsuleFile:
     for name in names:
         if names.count(name) > 1:
             raise ConfigError(
-                f"capsule file '{path}': capsule name '{name}' is used {names.count(name)} times"
-            )
+                f"capsule file '{path}': capsule name '{name}' is used {names.count(name)} times")
     margin = data.collision_margin
     if margin is not None and (isinstance(margin, bool) or not isinstance(margin, (int, float))
                                or not math.isfinite(margin) or margin < 0):
@@ -150,32 +116,20 @@ def load_capsule_file(path: str | Path) -> CapsuleFile:
     for pair in data.ignored_pairs:
         if len(pair) != 2 or pair[0] == pair[1]:
             raise ConfigError(
-                f"capsule file '{path}': ignored_pairs entry {pair!r} must be two different names"
-            )
+                f"capsule file '{path}': ignored_pairs entry {pair!r} must be two different names")
     return data
 
 
 def register_capsules(plant, scene_graph, path: str | Path) -> tuple[CapsuleInfo, ...]:
     """Registers a capsule file's capsules as collision geometry and filters pairs.
 
-    Call before ``plant.Finalize()``. Three kinds of pairs are excluded from collision
-    checking in ``scene_graph``: capsules on bodies welded together (their distance never
-    changes), capsules on bodies connected by one joint (adjacent: they touch at the joint),
-    and the file's ``ignored_pairs``.
-
-    Args:
-        plant: an unfinalized MultibodyPlant registered with ``scene_graph``.
-        scene_graph: its SceneGraph.
-        path: the capsule file.
-
-    Returns:
-        One :class:`CapsuleInfo` per capsule, in file order.
+    Call before ``plant.Finalize()``. Excluded from checking: capsules on bodies welded together,
+    capsules on bodies joined by one joint (adjacent), and the file's ``ignored_pairs``.
 
     Raises:
         ConfigError: see :func:`load_capsule_file`; or a plant without a SceneGraph, or a
             finalized plant.
-        UnknownNameError: a capsule's link, or an ignored-pair name, that does not exist;
-            the message lists the valid names.
+        UnknownNameError: a capsule's link, or an ignored-pair name, that does not exist.
     """
     from pydrake.geometry import Capsule, CollisionFilterDeclaration, GeometrySet
     from pydrake.math import RigidTransform, RollPitchYaw
@@ -195,9 +149,8 @@ def register_capsules(plant, scene_graph, path: str | Path) -> tuple[CapsuleInfo
     infos = []
     for spec in data.capsules:
         if spec.link not in by_name:
-            raise UnknownNameError(
-                "link", spec.link, sorted(by_name), where=f"capsule '{spec.name}' of '{path}'"
-            )
+            where = f"capsule '{spec.name}' of '{path}'"
+            raise UnknownNameError("link", spec.link, sorted(by_name), where=where)
         body = by_name[spec.link]
         X_BG = RigidTransform(RollPitchYaw(spec.rpy), np.asarray(spec.xyz, float))
         geometry_id = plant.RegisterCollisionGeometry(
@@ -205,18 +158,9 @@ def register_capsules(plant, scene_graph, path: str | Path) -> tuple[CapsuleInfo
         )
         X = X_BG.GetAsMatrix4()
         half = 0.5 * spec.length * X[:3, 2]
-        infos.append(
-            CapsuleInfo(
-                name=spec.name,
-                link=spec.link,
-                body_index=int(body.index()),
-                radius=float(spec.radius),
-                length=float(spec.length),
-                X_BG=X,
-                p_BS=np.array([X[:3, 3] - half, X[:3, 3] + half]),
-                geometry_id=geometry_id,
-            )
-        )
+        p_BS = np.array([X[:3, 3] - half, X[:3, 3] + half])
+        infos.append(CapsuleInfo(spec.name, spec.link, int(body.index()), float(spec.radius),
+                                 float(spec.length), X, p_BS, geometry_id))
 
     ignored = _resolve_ignored_pairs(data, infos, path)
     group = _welded_groups(plant)
@@ -225,32 +169,22 @@ def register_capsules(plant, scene_graph, path: str | Path) -> tuple[CapsuleInfo
     for a, b in itertools.combinations(range(len(infos)), 2):
         ga, gb = group[infos[a].body_index], group[infos[b].body_index]
         if ga == gb or frozenset((ga, gb)) in adjacent or frozenset((a, b)) in ignored:
-            manager.Apply(
-                CollisionFilterDeclaration().ExcludeBetween(
-                    GeometrySet(infos[a].geometry_id), GeometrySet(infos[b].geometry_id)
-                )
-            )
+            manager.Apply(CollisionFilterDeclaration().ExcludeBetween(
+                GeometrySet(infos[a].geometry_id), GeometrySet(infos[b].geometry_id)))
     return tuple(infos)
 
 
 def capsule_pairs(scene_graph, capsules: tuple[CapsuleInfo, ...]) -> tuple[tuple[int, int], ...]:
-    """The capsule pairs SceneGraph checks (not filtered), as index pairs (i < j).
-
-    Args:
-        scene_graph: the SceneGraph the capsules were registered in.
-        capsules: the :func:`register_capsules` result.
-    """
+    """The capsule pairs SceneGraph checks (not filtered), as index pairs (i < j)."""
     inspector = scene_graph.model_inspector()
     return tuple(
         (a, b)
         for a, b in itertools.combinations(range(len(capsules)), 2)
-        if not inspector.CollisionFiltered(capsules[a].geometry_id, capsules[b].geometry_id)
-    )
+        if not inspector.CollisionFiltered(capsules[a].geometry_id, capsules[b].geometry_id))
 
 
 def _resolve_ignored_pairs(data: CapsuleFile, infos: list[CapsuleInfo], path) -> set[frozenset[int]]:
-    """ignored_pairs entries → index pairs. A name stands for the capsule of that name and
-    every capsule on the link of that name (a default capsule name is its link's name)."""
+    """ignored_pairs entries → index pairs; a name means a capsule or every capsule of a link."""
     members: dict[str, set[int]] = {}
     for k, c in enumerate(infos):
         members.setdefault(c.name, set()).add(k)
@@ -259,12 +193,8 @@ def _resolve_ignored_pairs(data: CapsuleFile, infos: list[CapsuleInfo], path) ->
     for pair in data.ignored_pairs:
         for name in pair:
             if name not in members:
-                raise UnknownNameError(
-                    "capsule",
-                    name,
-                    sorted(members),
-                    where=f"ignored_pairs of '{path}' (capsule or link names)",
-                )
+                raise UnknownNameError("capsule", name, sorted(members),
+                                       where=f"ignored_pairs of '{path}' (capsule or link names)")
         out.update(frozenset((a, b)) for a in members[pair[0]] for b in members[pair[1]] if a != b)
     return out
 
@@ -295,20 +225,13 @@ def _adjacent_groups(plant, group: dict[int, int]) -> set[frozenset[int]]:
     return out
 
 
-def segment_closest_points(
-    a0: np.ndarray, a1: np.ndarray, b0: np.ndarray, b1: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Closest points of segments [a0, a1] and [b0, b1], batched over leading axes.
+def segment_closest_points(a0: np.ndarray, a1: np.ndarray, b0: np.ndarray,
+                           b1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Closest points of segments [a0, a1] and [b0, b1] (..., 3), batched over leading axes.
 
     The points are ``a0 + s·(a1 - a0)`` and ``b0 + t·(b1 - b0)`` (Ericson, *Real-Time
     Collision Detection*, 5.1.9). Both segments must have a positive length (capsules do);
-    for parallel segments one of the closest pairs is returned.
-
-    Args:
-        a0, a1, b0, b1: segment ends, shape (..., 3) [m].
-
-    Returns:
-        s, t in [0, 1], each of shape (...).
+    for parallel segments one of the closest pairs is returned. s, t in [0, 1], shape (...).
     """
     d1, d2, r = a1 - a0, b1 - b0, a0 - b0
     a = np.maximum(np.einsum("...i,...i->...", d1, d1), 1e-300)
@@ -324,28 +247,14 @@ def segment_closest_points(
     return s, np.clip(t, 0.0, 1.0)
 
 
-def fit_capsule(
-    points: np.ndarray,
-    axis: np.ndarray | None = None,
-    cover: float = 0.98,
-    through: np.ndarray | None = None,
-) -> tuple[np.ndarray, np.ndarray, float]:
-    """A capsule around a point cloud (e.g. a link mesh's vertices in the link frame).
+def fit_capsule(points: np.ndarray, axis: np.ndarray | None = None, cover: float = 0.98,
+                through: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, float]:
+    """A capsule around a point cloud (N, 3) [m], e.g. a link mesh's vertices in the link frame.
 
-    The axis is the given direction, or the principal axis of the points; the axis line
-    passes through the centre that minimises the radius, the radius covers the fraction
-    ``cover`` of the points, and the segment is as short as possible while the capsule
-    contains every covered point.
-
-    Args:
-        points: shape (N, 3) [m].
-        axis: direction of the capsule axis, shape (3,), or None for the principal axis.
-        cover: fraction of the points inside the capsule, in (0, 1].
-        through: a point the axis line must pass through, shape (3,) [m], or None to choose
-            the line that minimises the radius.
-
-    Returns:
-        p0, p1: segment ends, each shape (3,) [m]; radius [m].
+    The axis is ``axis`` or the principal axis of the points; the axis line passes through
+    ``through`` or the centre that minimises the radius; the radius covers the fraction
+    ``cover`` of the points; the segment is the shortest that contains every covered point.
+    Returns (p0, p1, radius) [m].
     """
     from scipy.optimize import minimize
 
@@ -380,11 +289,7 @@ def fit_capsule(
 
 
 def capsule_pose(p0: np.ndarray, p1: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-    """xyz, rpy and length of the capsule whose segment is [p0, p1] (for a capsule file).
-
-    Returns:
-        xyz: centre [m], shape (3,); rpy: [rad], shape (3,), with zero yaw; length [m].
-    """
+    """xyz [m], rpy [rad] (zero yaw) and length [m] of the capsule whose segment is [p0, p1]."""
     p0, p1 = np.asarray(p0, float), np.asarray(p1, float)
     d = p1 - p0
     length = float(np.linalg.norm(d))
@@ -396,9 +301,9 @@ def capsule_pose(p0: np.ndarray, p1: np.ndarray) -> tuple[np.ndarray, np.ndarray
 
 
 def joints_apart(plant, bodies) -> np.ndarray:
-    """How many moving joints separate each pair of ``bodies`` (body indices) in the plant's
-    tree, bodies welded together counting as one; a large number (the body count) when no
-    path joins them. 0 on the diagonal and between welded bodies, 1 for adjacent bodies."""
+    """How many moving joints separate each pair of ``bodies`` (body indices), shape (B, B).
+
+    Bodies welded together count as one; no path gives the body count."""
     group = _welded_groups(plant)
     neighbours: dict[int, set[int]] = {}
     for pair in _adjacent_groups(plant, group):

@@ -1,48 +1,29 @@
 """Which way is up in a robot's COLLADA meshes: as written, or turned by their ``<up_axis>``.
 
-A ``.dae`` file says which of its axes is up (``<up_axis>``, ``Y_UP`` by default). The ROS tools
-(RViz, Gazebo) ignore the tag and use the vertices as written, so most URDFs are drawn for
-that: example-robot-data's TIAGo, Borinot and HexTilt meshes say ``Y_UP`` and fit their links
-only as written. Tools built on Assimp or OpenSceneGraph turn a ``Y_UP`` mesh so that its y
-axis becomes z; iCub's 56 meshes are drawn for that (as written, its thighs lie horizontal and
-its feet point sideways and overlap).
-
-So the choice is made per model, from the model itself (:func:`honors_up_axis`): each mesh
-that says ``Y_UP`` or ``X_UP`` is placed in its link both ways, and the way that puts more of
-the link's own points inside the mesh's bounding box (±:data:`BOX_MARGIN`) wins: the link's
-centre of mass and the origins of its child joints, which a mesh of that link surrounds. The
-mesh readers for capsule fitting and for a humanoid's soles use that choice, and for a model
-whose meshes are turned, the playback's visual DAE meshes are turned OBJ copies
-(:func:`turned_dae_visuals`; Meshcat draws a DAE as written).
+ROS tools ignore a ``.dae`` file's ``<up_axis>``, while Assimp-based tools turn a ``Y_UP`` mesh
+(iCub's meshes are drawn for that). So the choice is made per model (:func:`honors_up_axis`):
+the way that puts more of the links' own points inside their meshes' bounding boxes wins.
 """
 
 from __future__ import annotations
 
 import functools
+import hashlib
 import re
 from pathlib import Path
 
 import numpy as np
 
 from pe_drake.multibody.link_geometry import read_link_shapes
-import hashlib
-
-from pe_drake.multibody.meshes import (
-    TriangleMesh,
-    default_cache_dir,
-    read_dae_triangles,
-    read_mesh_vertices,
-    resolve_mesh_path,
-    rewrite_visual_meshes,
-    write_obj,
-)
+from pe_drake.multibody.meshes import (TriangleMesh, default_cache_dir, read_dae_triangles,
+                                       read_mesh_vertices, resolve_mesh_path, rewrite_visual_meshes,
+                                       write_obj)
 from pe_drake.multibody.urdf_checks import urdf_tree
 
 #: Slack of a mesh's bounding box when counting the link points it holds [m].
 BOX_MARGIN = 0.01
 #: Turning the meshes must hold this many more link points than not turning them, and this
-#: share of them more: a model whose meshes fit either way (few points, symmetric shapes)
-#: keeps the ROS convention.
+#: share of them more; otherwise the model keeps the ROS convention.
 MIN_GAIN_POINTS = 3
 MIN_GAIN_SHARE = 0.2
 
@@ -59,7 +40,7 @@ def up_axis(path: str | Path) -> str:
 
 def to_z_up(vertices: np.ndarray, axis: str) -> np.ndarray:
     """Vertices (V, 3) of a mesh whose up axis is ``axis``, turned so that it points along z
-    (Y_UP: a +90° turn about x, (x, y, z) → (x, −z, y); X_UP: −90° about y, → (−z, y, x))."""
+    (Y_UP: (x, y, z) → (x, −z, y); X_UP: → (−z, y, x))."""
     v = np.asarray(vertices, float)
     if axis == "Y_UP":
         return np.column_stack([v[:, 0], -v[:, 2], v[:, 1]])
@@ -69,8 +50,7 @@ def to_z_up(vertices: np.ndarray, axis: str) -> np.ndarray:
 
 
 def oriented_vertices(path: str | Path, model_path: str | Path) -> np.ndarray:
-    """A mesh's vertices (V, 3) [file units; DAE in m] the way ``model_path`` means them:
-    a COLLADA mesh turned by its ``<up_axis>`` when :func:`honors_up_axis`, else as written."""
+    """A mesh's vertices (V, 3) the way ``model_path`` means them (see :func:`honors_up_axis`)."""
     v = read_mesh_vertices(path)
     if Path(path).suffix.lower() == ".dae" and honors_up_axis(str(model_path)):
         return to_z_up(v, up_axis(path))
@@ -79,8 +59,7 @@ def oriented_vertices(path: str | Path, model_path: str | Path) -> np.ndarray:
 
 @functools.lru_cache(maxsize=32)
 def honors_up_axis(model_path: str) -> bool:
-    """Whether this model's COLLADA meshes are meant turned by their ``<up_axis>`` (module
-    docstring); False for a model with no such mesh or one that is not a URDF."""
+    """Whether this model's COLLADA meshes are meant turned by their ``<up_axis>``."""
     raw, turned, points = link_points_inside(model_path)
     return turned >= raw + max(MIN_GAIN_POINTS, MIN_GAIN_SHARE * points)
 
@@ -96,9 +75,9 @@ def up_axis_note(model_path: str | Path) -> str | None:
 
 @functools.lru_cache(maxsize=32)
 def link_points_inside(model_path: str) -> tuple[int, int, int]:
-    """(link points inside the meshes as written, turned, points counted) over the model's
-    Y_UP/X_UP COLLADA meshes: per link its first collision (else visual) such mesh, and as
-    points its centre of mass and its child joints' origins, in the link frame."""
+    """(link points inside the Y_UP/X_UP COLLADA meshes as written, turned, points counted).
+
+    Per link its first collision (else visual) such mesh, in the link frame."""
     path = Path(model_path)
     if path.suffix.lower() != ".urdf":
         return 0, 0, 0
@@ -131,8 +110,7 @@ def link_points_inside(model_path: str) -> tuple[int, int, int]:
 
 
 def _first_mesh_with_up_axis(link_shapes, model_path: Path):
-    """(file, shape, axis) of a link's first DAE mesh that says Y_UP or X_UP (collision
-    meshes first, as the capsules use them), or None."""
+    """(file, shape, axis) of a link's first DAE mesh that says Y_UP or X_UP, or None."""
     chosen = [s for s in link_shapes if s.tag == "collision"] or [s for s in link_shapes if s.tag == "visual"]
     for s in chosen:
         if s.kind == "mesh" and s.filename.lower().endswith(".dae"):
@@ -154,9 +132,8 @@ def _xyz(origin) -> np.ndarray:
 
 def turned_dae_visuals(urdf_text: str, model_path: str | Path, packages: dict | None = None,
                        cache_dir: str | Path | None = None) -> str:
-    """The URDF text with its ``<visual>`` DAE meshes replaced by OBJ copies turned by their
-    ``<up_axis>`` (cached by content), when :func:`honors_up_axis`; else the text unchanged.
-    Meshcat draws a DAE as written, which for such a model is sideways (iCub's thighs)."""
+    """The URDF text with its ``<visual>`` DAE meshes replaced by turned OBJ copies (cached by
+    content) when :func:`honors_up_axis`; else the text unchanged."""
     if not honors_up_axis(str(model_path)):
         return urdf_text
 

@@ -1,29 +1,13 @@
 """Pre-sliding friction (Dahl 1968): the friction torque of a joint as a state, not a curve.
 
-Around a velocity reversal a Coulomb + viscous model jumps from −F_c to +F_c, while real
-joints first deform elastically (pre-sliding) and the friction builds up over a small
-displacement. The Dahl model describes that with one state F per joint:
+One state F per joint, dF/dt = σ0 · v · (1 − F/F_c · sgn v), with F_c the Coulomb level [N·m]
+and x_p = F_c/σ0 [rad] the pre-sliding displacement. The normalized state z = F/F_c obeys
+dz/dq = (1 − z · sgn(dq)) / x_p: it depends on the path only, and a monotone step Δq is
+integrated exactly (:func:`dahl_state`). In sliding z → sgn v (the Coulomb model); at rest z
+keeps its value, so the friction holds ±F_c where tanh(v/v_s) gives 0.
 
-    dF/dt = σ0 · v · (1 − F/F_c · sgn v)
-
-F_c is the Coulomb level [N·m], σ0 the stiffness at rest [N·m/rad], and x_p = F_c/σ0 [rad]
-the pre-sliding displacement over which F reaches 1 − 1/e of F_c after a reversal. With the
-normalized state z = F/F_c:
-
-    dz/dq = (1 − z · sgn(dq)) / x_p,
-
-so z depends on the path q(t) only (rate-independent hysteresis), and along a monotone step
-Δq it is integrated exactly: z ← s + (z − s)·exp(−|Δq|/x_p), s = sgn Δq
-(:func:`dahl_state`). F = F_c·z is linear in F_c for a given x_p: the diagnosis searches
-over x_p with the linear fit of F_c inside. In sliding z → sgn v, the Coulomb model of
-:mod:`pe_drake.diagnosis.effects`, which is its x_p → 0 limit in sliding only: at rest
-(dq = 0) z keeps the value it had when the joint stopped (±1 after sliding), so the Dahl
-friction holds ±F_c where the Coulomb column tanh(v/v_s) gives 0 (the holding torque of
-:mod:`pe_drake.diagnosis.holding`).
-
-Sign convention (as every effect of :mod:`pe_drake.simulation.simulation`): F is a
-resistive load the actuator must overcome, so the recorded torque holds +F and the joint
-feels −F. :func:`dahl_friction_system` is the Drake system the simulator adds for it.
+Sign convention (as :mod:`pe_drake.simulation.simulation`): F is a resistive load the actuator
+must overcome, so the recorded torque holds +F and the joint feels −F.
 """
 
 from __future__ import annotations
@@ -35,17 +19,13 @@ from pe_drake.multibody.rotor_coupling import rotor_coupling_system
 
 
 def dahl_state(q: np.ndarray, x_p, z0=0.0) -> np.ndarray:
-    """The normalized Dahl state z = F/F_c along a sampled path, integrated exactly.
+    """The normalized Dahl state z = F/F_c ∈ [−1, 1] along a sampled path, integrated exactly.
 
     Args:
-        q: joint positions, shape (T,) or (T, n) [rad or m]; between two samples the joint is
-            taken to move monotonically.
+        q: joint positions, shape (T,) or (T, n) [rad or m], monotone between two samples.
         x_p: pre-sliding displacement F_c/σ0 [rad or m], a scalar or shape (n,) (or (G, n)
             for a grid of values, giving (T, G, n)).
         z0: initial state in [−1, 1].
-
-    Returns:
-        z, the shape of q (or (T, G, n) for a grid), each value in [−1, 1].
     """
     q = np.asarray(q, float)
     flat = q.ndim == 1
@@ -67,22 +47,17 @@ def dahl_friction_system(coulomb: np.ndarray, displacement: np.ndarray, sliding:
     """A Drake ``LeafSystem`` with the Dahl state of every joint.
 
     Input port ``state``: the plant's [q; v], size 2n. Output port ``generalized_force``:
-    −F_c·z (the torque the friction applies to the joints, to add to the plant's applied
-    generalized force). Continuous state z, dz/dt = (v − |v|·z) / x_p, starting at 0.
-    Joints with F_c = 0 carry a state that never matters.
+    −F_c·z, the torque the friction applies to the joints. Continuous state z,
+    dz/dt = (v − |v|·z) / x_p, starting at 0.
 
     Args:
         coulomb: F_c per joint, shape (n,) [N·m].
         displacement: x_p = F_c/σ0 per joint, shape (n,) [rad], > 0.
-        sliding: f_c per joint of a Coulomb friction f_c·tanh(v/v_s) without pre-sliding, shape
-            (n,) [N·m or N] (the simulator's for prismatic joints, which Drake's DoorHinge cannot
-            carry); None: none.
+        sliding: f_c per joint of a Coulomb friction f_c·tanh(v/v_s) without pre-sliding,
+            shape (n,) [N·m or N] (prismatic joints, which Drake's DoorHinge cannot carry).
         velocity_scale: v_s of ``sliding`` [rad/s or m/s].
         drive_force: f(v) → (n,), a further velocity-dependent torque on the joints (a coupled
-            motor's friction through its transmission, ``RobotModel.plant``); None: none.
-
-    Returns:
-        The system (pydrake is imported here so that importing this module stays light).
+            motor's friction through its transmission, ``RobotModel.plant``).
     """
     from pydrake.systems.framework import BasicVector, LeafSystem
 
@@ -119,18 +94,14 @@ def dahl_builder_hook(coulomb: np.ndarray, stiffness: np.ndarray, port_name: str
                       rotor_coupling: np.ndarray | None = None):
     """A ``load_robot`` builder hook that adds :func:`dahl_friction_system` to a robot's diagram.
 
-    The plant's applied generalized force becomes the diagram's exported input ``port_name``
-    (the controller's torque) plus the friction torque −F_c·z.
+    The plant's applied generalized force becomes the exported input ``port_name`` plus −F_c·z.
 
     Args:
         coulomb: F_c per joint, shape (n,) [N·m]; joints with 0 carry no friction.
         stiffness: σ0 per joint, shape (n,) [N·m/rad], > 0 where F_c > 0.
-        port_name: name of the exported input port.
-        sliding, velocity_scale, drive_force: a Coulomb friction without pre-sliding and a further
-            velocity-dependent torque (:func:`dahl_friction_system`).
+        sliding, velocity_scale, drive_force: as :func:`dahl_friction_system`.
         rotor_coupling: the off-diagonal rotor inertia C of a coupled transmission, (n, n)
-            [kg·m²]: the summed torque then passes through
-            :func:`~pe_drake.multibody.rotor_coupling.rotor_coupling_system` (None: no coupling).
+            [kg·m²], applied by :func:`~pe_drake.multibody.rotor_coupling.rotor_coupling_system`.
             The hook's ``systems`` list holds it once built: ``sync`` it with the plant's context.
     """
     coulomb = np.asarray(coulomb, float)

@@ -1,7 +1,5 @@
-"""The excited joints of a robot and the locked rest: the config's joint names checked
-(:func:`excited_joint_names`), every other 1-dof joint welded at its locked position
-(:func:`weld_locked_joints`), and what the regressor needs of each excited joint
-(:class:`JointInfo`, :func:`joint_info`)."""
+"""The excited joints of a robot and the locked rest: the config's joint names checked, every
+other 1-dof joint welded at its locked position, and what the regressor needs of each joint."""
 
 from __future__ import annotations
 
@@ -16,39 +14,25 @@ from pe_drake.exceptions import ConfigError, NotWithinLimitsError, UnknownNameEr
 
 @dataclasses.dataclass(frozen=True)
 class JointInfo:
-    """One excited joint.
-
-    Attributes:
-        name: joint name.
-        kind: "revolute" or "prismatic".
-        child_body: index (into ``Robot.body_names_all``) of the joint's child body.
-        X_CM: pose of the joint's child frame M in the child body frame C, (4, 4).
-        axis_M: unit joint axis in M, (3,).
-    """
+    """One excited joint."""
 
     name: str
-    kind: str
-    child_body: int
-    X_CM: np.ndarray
-    axis_M: np.ndarray
+    kind: str  # "revolute" or "prismatic"
+    child_body: int  # index into ``Robot.body_names_all`` of the child body C
+    X_CM: np.ndarray  # pose of the joint's child frame M in C, (4, 4)
+    axis_M: np.ndarray  # unit joint axis in M, (3,)
 
 
 def joint_info(joint) -> JointInfo:
-    """The :class:`JointInfo` of an excited Drake joint.
-
-    Raises:
-        ConfigError: a joint that is neither revolute nor prismatic.
-    """
+    """The :class:`JointInfo` of an excited Drake joint (ConfigError unless revolute/prismatic)."""
     X_CM = joint.frame_on_child().GetFixedPoseInBodyFrame().GetAsMatrix4()
     if joint.type_name() == "revolute":
         kind, axis = "revolute", np.asarray(joint.revolute_axis(), float)
     elif joint.type_name() == "prismatic":
         kind, axis = "prismatic", np.asarray(joint.translation_axis(), float)
     else:
-        raise ConfigError(
-            f"joint '{joint.name()}' is a {joint.type_name()} joint; only revolute and "
-            "prismatic joints can be excited"
-        )
+        raise ConfigError(f"joint '{joint.name()}' is a {joint.type_name()} joint; only revolute "
+                          "and prismatic joints can be excited")
     return JointInfo(joint.name(), kind, int(joint.child_body().index()), X_CM, axis / np.linalg.norm(axis))
 
 
@@ -61,8 +45,7 @@ def inboard_joint(plant, body):
 
 
 def excited_joint_names(cfg: RobotConfig, movable_names: list[str], model_path: Path) -> list[str]:
-    """The excited joints (default: every 1-dof joint), after checking every joint name the
-    config uses.
+    """The excited joints (default: every 1-dof joint), every joint name of the config checked.
 
     Raises:
         UnknownNameError: a joint the model (or the excited set) does not have.
@@ -87,10 +70,8 @@ def excited_joint_names(cfg: RobotConfig, movable_names: list[str], model_path: 
 
 
 def weld_locked_joints(plant, movable: list, excited: list[str], positions: dict[str, float]) -> dict[str, float]:
-    """Welds every non-excited joint at its locked position (default: 0 clipped to its limits).
-
-    Returns:
-        {joint: locked position} [rad or m].
+    """Welds every non-excited joint at its locked position (default: 0 clipped to its limits);
+    returns {joint: locked position} [rad or m].
 
     Raises:
         NotWithinLimitsError: a locked position outside the joint's limits.

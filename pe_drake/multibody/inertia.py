@@ -1,9 +1,7 @@
 """A body's 10 inertial parameters: names, packing, the parallel-axis theorem, validity.
 
 φ_b = [m, hx, hy, hz, Ixx, Iyy, Izz, Ixy, Ixz, Iyz] with h = m·p_BoBcm_B the first moment and
-I = I_BBo_B the rotational inertia about the body origin Bo, both expressed in the body frame
-B. Every conversion between this vector, 3×3 matrices, Drake's ``SpatialInertia``, the
-centre-of-mass form and the pseudo-inertia lives here, once.
+I = I_BBo_B the rotational inertia about the body origin Bo, both expressed in the body frame B.
 """
 
 from __future__ import annotations
@@ -22,11 +20,7 @@ PARAMETER_NAMES = ("m", "hx", "hy", "hz", "Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iy
 
 
 class PhysicallyInvalidError(PeDrakeError, ValueError):
-    """Inertial parameters that Drake refuses as a rigid body.
-
-    Attributes:
-        bodies: {body name: Drake's reason}.
-    """
+    """Inertial parameters that Drake refuses as a rigid body; ``bodies`` is {name: reason}."""
 
     def __init__(self, bodies: dict[str, str]):
         self.bodies = dict(bodies)
@@ -35,11 +29,7 @@ class PhysicallyInvalidError(PeDrakeError, ValueError):
         super().__init__(
             f"the inertial parameters of {len(self.bodies)} body(ies) are not physically valid: "
             f"{names} (first: {first}); write a physically consistent estimate (method 'physical') "
-            "instead"
-        )
-
-
-# ---- packing --------------------------------------------------------------------------------
+            "instead")
 
 
 def inertia_matrix(i6: np.ndarray) -> np.ndarray:
@@ -57,30 +47,25 @@ def inertia_vector(I: np.ndarray) -> np.ndarray:
 
 
 def parallel_axis(m: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """m (|p|² 1 − p pᵀ): the inertia of a point mass m at p about the origin (parallel-axis
-    theorem, I_Bo = I_Bcm + this); m shape (...), p shape (..., 3) → (..., 3, 3)."""
+    """m (|p|² 1 − p pᵀ), the inertia of a point mass m at p about the origin (parallel-axis
+    theorem); m shape (...), p shape (..., 3) → (..., 3, 3)."""
     m, p = np.asarray(m, float), np.asarray(p, float)
     pp = np.einsum("...i,...i->...", p, p)
     return m[..., None, None] * (pp[..., None, None] * np.eye(3) - p[..., :, None] * p[..., None, :])
 
 
 def phi_from_com(m: np.ndarray, p: np.ndarray, I_cm: np.ndarray) -> np.ndarray:
-    """φ_b from mass, centre of mass p_BoBcm_B and inertia about the centre of mass I_BBcm_B;
-    batched over leading axes: (...), (..., 3), (..., 3, 3) → (..., 10)."""
+    """φ_b from mass, centre of mass p_BoBcm_B and inertia I_BBcm_B; (...), (..., 3),
+    (..., 3, 3) → (..., 10)."""
     m = np.asarray(m, float)
     I_Bo = np.asarray(I_cm, float) + parallel_axis(m, p)
     return np.concatenate([m[..., None], m[..., None] * np.asarray(p, float), inertia_vector(I_Bo)], -1)
 
 
 def central_inertia(phi_b: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
-    """Mass, centre of mass and rotational inertia about the centre of mass of one body.
+    """m [kg], p_BoBcm_B (3,) [m] and I_BBcm_B (3, 3) [kg·m²] of one body's 10 parameters.
 
-    Args:
-        phi_b: the body's 10 parameters (about Bo, in B) [kg, kg·m, kg·m²].
-
-    Returns:
-        (m [kg], p_BoBcm_B shape (3,) [m], I_BBcm_B shape (3, 3) [kg·m²]). A massless body
-        gives a zero centre of mass and its (then required zero) inertia about Bo.
+    A massless body gives a zero centre of mass and its inertia about Bo.
     """
     phi_b = np.asarray(phi_b, float)
     m = float(phi_b[0])
@@ -92,23 +77,18 @@ def central_inertia(phi_b: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
 
 
 def principal_inertia(phi_b: np.ndarray) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, float]:
-    """One body's 10 parameters as (m, p, λ, R, r): mass, centre of mass p = h/m, principal
-    moments λ ≥ 0 and axes R of the inertia about the centre of mass (I_cm = R diag(λ) Rᵀ),
-    and the radius of gyration r = sqrt(tr I_cm / 2m). What inertia perturbations act on."""
+    """(m, p, λ, R, r): mass, centre of mass, principal moments λ ≥ 0 and axes R of I_cm
+    (I_cm = R diag(λ) Rᵀ), and the radius of gyration r = sqrt(tr I_cm / 2m)."""
     m, p, I_cm = central_inertia(phi_b)
     lam, R = np.linalg.eigh(I_cm)
     return m, p, np.maximum(lam, 0.0), R, math.sqrt(max(np.trace(I_cm), 0.0) / (2 * m))
-
-
-# ---- pseudo-inertia (Wensing et al. 2017) ---------------------------------------------------
 
 
 def pseudo_inertia(phi_b: np.ndarray) -> np.ndarray:
     """J(φ_b) = [[½tr(I)·1 − I, h], [hᵀ, m]] (Wensing et al. 2017), shape (4, 4).
 
     J ⪰ 0 exactly when a non-negative mass density produces the body's mass, first moment
-    and inertia about the origin; that is Drake's physical validity (with the triangle
-    inequality of the principal moments).
+    and inertia about the origin (Drake's physical validity).
     """
     phi_b = np.asarray(phi_b, float)
     I = inertia_matrix(phi_b[4:10])
@@ -129,9 +109,6 @@ def phi_from_pseudo_inertia(J: np.ndarray) -> np.ndarray:
     Sigma = J[:3, :3]
     I = np.trace(Sigma) * np.eye(3) - Sigma
     return np.concatenate([[J[3, 3]], J[:3, 3], inertia_vector(I)])
-
-
-# ---- Drake ----------------------------------------------------------------------------------
 
 
 def spatial_inertia_to_phi(M) -> np.ndarray:
@@ -157,18 +134,10 @@ def phi_to_spatial_inertia(phi: np.ndarray, skip_validity_check: bool = True):
 
 
 def validity_problems(body_names: Sequence[str], phi: np.ndarray) -> dict[str, str]:
-    """Bodies whose parameters Drake does not accept, with the reason.
+    """Bodies whose parameters (10·nb,) Drake does not accept, as {body: reason}.
 
-    A body is valid when ``SpatialInertia(m, p, G, skip_validity_check=False)`` can be built
-    (mass ≥ 0, inertia about the centre of mass with non-negative principal moments that
-    satisfy the triangle inequality), or when all its parameters are zero (a massless frame).
-
-    Args:
-        body_names: names of the bodies, length nb.
-        phi: parameters, shape (10·nb,).
-
-    Returns:
-        {body: reason}; empty when every body is valid.
+    A body is valid when ``SpatialInertia(m, p, G, skip_validity_check=False)`` can be built,
+    or when all its parameters are zero (a massless frame).
     """
     phi = np.asarray(phi, float)
     problems: dict[str, str] = {}
@@ -192,56 +161,33 @@ def validity_problems(body_names: Sequence[str], phi: np.ndarray) -> dict[str, s
                 moments = np.linalg.eigvalsh(central_inertia(phi_b)[2])
                 problems[name] = (
                     f"principal moments about the centre of mass {np.array2string(moments, precision=4)} "
-                    "kg·m² are negative or violate the triangle inequality"
-                )
+                    "kg·m² are negative or violate the triangle inequality")
         except (RuntimeError, ValueError) as err:
             problems[name] = str(err).splitlines()[0]
     return problems
 
 
 def check_physically_valid(body_names: Sequence[str], phi: np.ndarray) -> None:
-    """Raises :class:`PhysicallyInvalidError` listing every invalid body (see
-    :func:`validity_problems`)."""
+    """Raises :class:`PhysicallyInvalidError` listing every invalid body."""
     problems = validity_problems(body_names, phi)
     if problems:
         raise PhysicallyInvalidError(problems)
 
 
-# ---- random perturbation (the 'true' robot of simulated runs) --------------------------------
+def perturb_inertias(phi: np.ndarray, size: float, rng: int | np.random.Generator = 0,
+                     max_tries: int = 100, body_names: tuple[str, ...] | None = None) -> np.ndarray:
+    """Random, physically valid perturbation of every body's inertial parameters (10·nb,).
 
-
-def perturb_inertias(
-    phi: np.ndarray, size: float, rng: int | np.random.Generator = 0, max_tries: int = 100,
-    body_names: tuple[str, ...] | None = None,
-) -> np.ndarray:
-    """Random, physically valid perturbation of every body's inertial parameters.
-
-    Per body with mass m > 0 (massless frames are left alone), with U uniform in [-1, 1]
-    drawn independently for each number:
-
-    - m' = m (1 + ε U);
-    - centre of mass p' = p + ε U₃ max(|p|, r), r = √(tr I_cm / 2m) the radius of gyration;
-    - principal moments of the central inertia λ' = λ (1 + ε U₃), redrawn until they satisfy
-      the triangle inequality; principal axes rotated by an angle ε U [rad] about a random
-      axis. A thin rod (λ = (a, a, 0), :func:`mass_on_a_line`) would never satisfy it again:
-      its second moments of mass Σ_i = tr/2 − λ_i ≥ 0 are scaled by (1 + ε U₃) instead
-      (λ_i = Σ_j + Σ_k), which keeps a rod a rod;
-    - rebuilt about the body origin (parallel-axis theorem) and checked with Drake's
-      ``SpatialInertia.IsPhysicallyValid``.
+    Per body with mass m > 0, with U uniform in [-1, 1] drawn for each number: m' = m (1 + ε U);
+    p' = p + ε U₃ max(|p|, r) (r the radius of gyration); principal moments λ' = λ (1 + ε U₃),
+    redrawn until they satisfy the triangle inequality, axes rotated by ε U [rad] about a random
+    axis. A thin rod (:func:`mass_on_a_line`) scales its second moments Σ_i = tr/2 − λ_i instead,
+    which keeps a rod a rod.
 
     Args:
-        phi: parameters, shape (10·nb,) in :data:`PARAMETER_NAMES` order.
         size: ε, relative size in [0, 0.5].
-        rng: seed or numpy Generator.
         max_tries: redraws per body before giving up.
-        body_names: the bodies' names, for the error (default: their indices).
-
-    Returns:
-        Perturbed parameters, shape (10·nb,); equal to phi when size is 0.
-
-    Raises:
-        ConfigError: a bad size, or a body whose inertia cannot be made valid (an invalid
-            a-priori inertia).
+        body_names: the bodies' names, for the ConfigError of a body that cannot be made valid.
     """
     size = check_finite("inertia_perturbation", size, nonneg=True)
     if size > 0.5:
@@ -263,24 +209,19 @@ def perturb_inertias(
                 break
         else:
             name = f"body '{body_names[b]}'" if body_names is not None else f"body {b}"
-            raise ConfigError(
-                f"{name}: could not perturb its inertia into a physically valid one in "
-                f"{max_tries} tries; is the model's inertia valid?"
-            )
+            raise ConfigError(f"{name}: could not perturb its inertia into a physically valid "
+                              f"one in {max_tries} tries; is the model's inertia valid?")
     return out
 
 
 #: A body whose two smallest second moments of mass Σ_i = tr(I_cm)/2 − λ_i are below this
-#: fraction of tr(I_cm)/2 holds its mass on a line (a rod: λ = (a, a, 0)). Relative draws of λ
-#: then meet both binding triangle inequalities with a probability of about that fraction
-#: over ε (zero for an exact rod); a plate (one Σ_i = 0) meets its one in about half the draws.
+#: fraction of tr(I_cm)/2 holds its mass on a line (a rod: λ = (a, a, 0)), where relative draws
+#: of λ almost never meet the triangle inequalities again.
 ROD_TOLERANCE = 1e-3
 
 
 def mass_on_a_line(phi_b: np.ndarray) -> bool:
-    """Whether a body's mass lies (nearly) on a line: a thin rod, whose principal moments
-    meet two triangle inequalities with equality, so that relative perturbations of λ
-    almost never satisfy them again."""
+    """Whether a body's mass lies (nearly) on a line, a thin rod (see :data:`ROD_TOLERANCE`)."""
     _, _, lam, _, _ = principal_inertia(phi_b)
     half_trace = 0.5 * float(lam.sum())
     return half_trace > 0 and float(np.sort(half_trace - lam)[1]) <= ROD_TOLERANCE * half_trace
@@ -288,8 +229,8 @@ def mass_on_a_line(phi_b: np.ndarray) -> bool:
 
 def _perturb_body(phi_b: np.ndarray, eps: float, rng: np.random.Generator,
                   second_moments: bool = False) -> np.ndarray | None:
-    """One draw of :func:`perturb_inertias` for one body (None: it broke the triangle
-    inequality); ``second_moments`` scales Σ = tr/2 − λ instead of λ (a rod: never invalid)."""
+    """One draw of :func:`perturb_inertias` for one body, or None when it broke the triangle
+    inequality; ``second_moments`` scales Σ = tr/2 − λ instead of λ."""
     m, p, lam, R, r_gyr = principal_inertia(phi_b)
     m2 = m * (1 + eps * rng.uniform(-1, 1))
     p2 = p + eps * rng.uniform(-1, 1, 3) * max(np.linalg.norm(p), r_gyr)
@@ -309,8 +250,7 @@ def _perturb_body(phi_b: np.ndarray, eps: float, rng: np.random.Generator,
     return phi_from_com(m2, p2, R2 @ np.diag(lam2) @ R2.T)
 
 
-#: What works on a model whose moving bodies all have zero mass (no ``<inertial>``, as
-#: ROS-Industrial descriptions ship), said up front (issue 37).
+#: What works on a model whose moving bodies all have zero mass (no ``<inertial>``).
 NO_INERTIALS_NOTE = (
     "the model has no inertial parameters (every moving body's mass is 0): optimize, identify (ols, wls, "
     "physical) and diagnose work without them (identify finds them); simulate, the playback's centre of mass, "

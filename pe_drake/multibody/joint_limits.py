@@ -8,8 +8,7 @@ import numpy as np
 from pe_drake.exceptions import ConfigError
 
 #: A model file's velocity limit above this is taken for a placeholder and named (rad/s on a
-#: revolute joint, m/s on a prismatic one): the fastest arm and humanoid joints turn at
-#: 3-30 rad/s (UR wrists 6.3, G1's 20-30), while example-robot-data's finger_edu says 1000.
+#: revolute joint, m/s on a prismatic one): the fastest arm and humanoid joints turn at 3-30 rad/s.
 PLAUSIBLE_VELOCITY = {"revolute": 50.0, "prismatic": 10.0}
 
 #: Units of a joint's position and its first three time derivatives, by joint kind.
@@ -17,8 +16,7 @@ JOINT_UNITS = {"revolute": ("rad", "rad/s", "rad/s²", "rad/s³"), "prismatic": 
 
 
 def joint_unit(kind: str, derivative: int = 0) -> str:
-    """The unit of a joint's position (``derivative`` 0), velocity (1), acceleration (2) or
-    jerk (3): rad… for a revolute joint, m… for a prismatic one."""
+    """The unit of a joint's position (``derivative`` 0), velocity (1), acceleration (2) or jerk."""
     return JOINT_UNITS.get(kind, JOINT_UNITS["revolute"])[derivative]
 
 
@@ -27,24 +25,17 @@ EFFORT_UNITS = {"revolute": "N·m", "prismatic": "N"}
 
 
 def effort_label(kinds) -> str:
-    """The unit of the efforts of joints of ``kinds`` (an iterable of joint kinds), for a line
-    or an axis that shows them all: N·m, N, or both when a robot has both kinds."""
+    """The unit of the efforts of joints of ``kinds``: N·m, N, or both when a robot has both."""
     units = sorted({EFFORT_UNITS.get(k, "N·m") for k in kinds}, reverse=True)
     return units[0] if len(units) == 1 else "N·m; N for prismatic joints"
 
 
 def merge_limits(name: str, model_range, model_velocity: float, cfg, model_file: str = "the model"):
-    """A joint's position range and velocity limit from the model file and the config.
+    """A joint's position range and velocity limit (lower, upper, velocity) from model and config.
 
-    A zero-width model range (lower == upper, a placeholder as in example-robot-data's
-    double pendulum) or a zero velocity limit is replaced by the config's value; a real
-    model limit can only be tightened, and a wider config value is refused.
-
-    Returns:
-        (lower, upper, velocity) [rad or m, rad/s or m/s].
-
-    Raises:
-        ConfigError: the config widens a real model limit (naming both values).
+    A zero-width model range or a zero velocity limit (placeholders) is replaced by the config's
+    value; a real model limit can only be tightened, and a wider config value is refused with a
+    ConfigError naming both values.
     """
     lo, hi = float(model_range[0]), float(model_range[1])
     v = float(model_velocity)
@@ -54,16 +45,14 @@ def merge_limits(name: str, model_range, model_velocity: float, cfg, model_file:
             raise ConfigError(
                 f"robot.position_limits['{name}'] = [{c_lo:g}, {c_hi:g}] is wider than the limits "
                 f"[{lo:g}, {hi:g}] in {model_file}; a config can only tighten a real model limit "
-                "(it replaces zero-width placeholders)"
-            )
+                "(it replaces zero-width placeholders)")
         lo, hi = c_lo, c_hi
     if name in cfg.velocity_limits:
         c_v = float(cfg.velocity_limits[name])
         if v > 0 and c_v > v + 1e-12:
             raise ConfigError(
                 f"robot.velocity_limits['{name}'] = {c_v:g} is above the limit {v:g} in {model_file}; "
-                "a config can only tighten a real model limit (it replaces zero placeholders)"
-            )
+                "a config can only tighten a real model limit (it replaces zero placeholders)")
         v = c_v
     elif v == 0:
         v = np.inf  # a placeholder: refused below as "no velocity limit" unless the config gives one
@@ -71,20 +60,11 @@ def merge_limits(name: str, model_range, model_velocity: float, cfg, model_file:
 
 
 def position_margins(cfg, joint_names, kinds, lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, list[str]]:
-    """The margin kept from each joint's position limits, and the note on assumed defaults.
+    """The margin kept from each joint's position limits (n,) [rad or m], and the note on defaults.
 
-    ``robot.position_margin`` applies to every joint. When pe_drake assumed it
-    (``"position_margin" in robot.assumed``: a model given without a config), a joint whose
-    range is narrower than four margins (a 4 cm gripper finger) keeps a quarter of its range
-    instead, so that the default never empties a range the user did not ask to shrink.
-
-    Args:
-        cfg: the :class:`~pe_drake.config.RobotConfig`.
-        joint_names, kinds: per excited joint, "revolute" or "prismatic".
-        lower, upper: the merged limits, shape (n,) [rad or m].
-
-    Returns:
-        (margins, shape (n,) [rad or m]; one note line naming the assumed defaults, or none).
+    When pe_drake assumed ``robot.position_margin`` (a model without a config), a joint whose
+    range is narrower than four margins keeps a quarter of its range instead, so that the default
+    never empties a range the user did not ask to shrink.
     """
     margin = np.full(len(lower), float(cfg.position_margin))
     width = np.asarray(upper, float) - np.asarray(lower, float)
@@ -111,8 +91,7 @@ def position_margins(cfg, joint_names, kinds, lower: np.ndarray, upper: np.ndarr
 
 def placeholder_velocity_notes(cfg, joint_names, kinds, velocity: np.ndarray) -> list[str]:
     """A note naming the joints whose model velocity limit looks like a placeholder (above
-    :data:`PLAUSIBLE_VELOCITY`, not set in the config): the motion is then bounded by the
-    acceleration limit and the range alone, which a user should know before running it."""
+    :data:`PLAUSIBLE_VELOCITY`, not set in the config): only acceleration and range bound them."""
     high = [(name, v, kind) for name, v, kind in zip(joint_names, velocity, kinds)
             if name not in cfg.velocity_limits and np.isfinite(v) and v > PLAUSIBLE_VELOCITY.get(kind, 50.0)]
     if not high:

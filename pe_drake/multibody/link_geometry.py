@@ -1,14 +1,8 @@
 """The collision and visual shapes of a URDF's or SDF's links, in each link's frame.
 
 :func:`read_link_shapes` lists, per link, every ``<collision>`` and ``<visual>`` element as a
-:class:`Shape`: a mesh (file name and scale) or a primitive (``<cylinder>``, ``<sphere>``,
-``<box>``, ``<capsule>``) with its pose in the link frame. Capsule fitting
-(:mod:`pe_drake.multibody.capsule_fitting`) turns these into capsules. Nothing is loaded
-here; mesh files are resolved and read by the fitting.
-
-SDF: every ``<link>`` of every (nested) ``<model>``; a shape's ``<pose>`` is taken in the link
-frame (``relative_to`` other frames is not followed). ``model://`` URIs are treated like
-``package://`` ones.
+:class:`Shape` (a mesh, or a cylinder, sphere, box or capsule); nothing is loaded here. SDF: a
+shape's ``<pose>`` is taken in the link frame, and ``model://`` URIs are read as ``package://``.
 """
 
 from __future__ import annotations
@@ -23,31 +17,18 @@ import numpy as np
 from pe_drake.exceptions import ConfigError
 from pe_drake.multibody.urdf_checks import urdf_tree
 
-#: Primitive shape kinds and the size numbers each carries.
-PRIMITIVES = {"cylinder": "radius, length", "sphere": "radius", "box": "x, y, z", "capsule": "radius, length"}
-
 
 @dataclasses.dataclass(frozen=True)
 class Shape:
-    """One collision or visual shape of a link.
-
-    Attributes:
-        link: the link's name.
-        tag: "collision" or "visual".
-        kind: "mesh" or one of :data:`PRIMITIVES`.
-        X_LG: pose of the shape's frame G in the link frame L, shape (4, 4) [m].
-        size: cylinder/capsule (radius, length), sphere (radius,), box (x, y, z) full edge
-            lengths [m]; empty for a mesh.
-        filename: the mesh's file name or URI as written ("" for a primitive).
-        scale: the mesh's scale, shape (3,).
-    """
+    """One collision or visual shape of a link."""
 
     link: str
-    tag: str
-    kind: str
-    X_LG: np.ndarray
+    tag: str  # "collision" or "visual"
+    kind: str  # "mesh", "cylinder", "sphere", "box" or "capsule"
+    X_LG: np.ndarray  # pose of the shape's frame G in the link frame L, (4, 4) [m]
+    # cylinder/capsule (radius, length), sphere (radius,), box (x, y, z) edges [m]; mesh: ()
     size: tuple[float, ...] = ()
-    filename: str = ""
+    filename: str = ""  # a mesh's file name or URI as written
     scale: np.ndarray = dataclasses.field(default_factory=lambda: np.ones(3))
 
     def describe(self) -> str:
@@ -82,18 +63,9 @@ def _numbers(text: str | None, count: int, default: float) -> list[float]:
 
 
 def read_link_shapes(model_path: str | Path) -> dict[str, list[Shape]]:
-    """The shapes of every link of a URDF or SDF file, in file order.
+    """The shapes of every link of a URDF or SDF file, {link: shapes} in file order.
 
-    Args:
-        model_path: a ``.urdf`` or ``.sdf`` file.
-
-    Returns:
-        {link name: its shapes} for every link (an empty list for a link without any).
-
-    Raises:
-        ConfigError: another format, unreadable XML, or a size that is not a number; the
-            message names the file and the link.
-    """
+    ConfigError for another format, unreadable XML, or a size that is not a number."""
     model_path = Path(model_path)
     suffix = model_path.suffix.lower()
     if suffix not in (".urdf", ".sdf"):
@@ -152,31 +124,14 @@ def _shape(link: str, tag: str, X, geometry: ET.Element | None, value) -> Shape 
     if g.tag == "box":
         return Shape(link, tag, "box", X, tuple(_numbers(value(g, "size"), 3, 0.0)))
     return None
-    g = geometry[0]
-    if g.tag == "mesh":
-        uri = (g.findtext("uri") or "").strip()
-        if uri.startswith("model://"):
-            uri = "package://" + uri[len("model://") :]
-        return Shape(link, tag, "mesh", X, filename=uri, scale=np.asarray(_numbers(g.findtext("scale"), 3, 1.0)))
-    if g.tag in ("cylinder", "capsule"):
-        return Shape(link, tag, g.tag, X, (float(g.findtext("radius")), float(g.findtext("length"))))
-    if g.tag == "sphere":
-        return Shape(link, tag, "sphere", X, (float(g.findtext("radius")),))
-    if g.tag == "box":
-        return Shape(link, tag, "box", X, tuple(_numbers(g.findtext("size"), 3, 0.0)))
-    return None
 
 
 def primitive_segment(shape: Shape) -> tuple[np.ndarray, np.ndarray, float]:
-    """The smallest capsule of the primitive's own axis that encloses it, in the link frame.
+    """(p0, p1, radius) [m] of the smallest capsule along the primitive's own axis that encloses
+    it, in the link frame.
 
-    A cylinder or capsule keeps its radius, axis and length (a cylinder's rims then lie
-    inside the end spheres); a sphere is a zero-length capsule; a box becomes the capsule
-    along its longest edge with the radius of half the diagonal of its cross-section and the
-    segment of that edge's length (the box's corners lie on the end circles).
-
-    Returns:
-        p0, p1: segment ends in the link frame, each shape (3,) [m]; radius [m].
+    A cylinder or capsule keeps its radius, axis and length; a sphere is a zero-length capsule;
+    a box becomes the capsule along its longest edge whose end circles hold its corners.
     """
     R, p = shape.X_LG[:3, :3], shape.X_LG[:3, 3]
     if shape.kind in ("cylinder", "capsule"):
@@ -195,9 +150,8 @@ def primitive_segment(shape: Shape) -> tuple[np.ndarray, np.ndarray, float]:
 
 
 def primitive_points(shape: Shape, count: int = 16) -> np.ndarray:
-    """Points on the primitive's surface that a capsule enclosing them all encloses the
-    primitive's extremes (box corners, cylinder rims, sphere poles and equator), in the link
-    frame, shape (N, 3) [m]. Used when several shapes of a link are pooled into one capsule."""
+    """Points holding the primitive's extremes (box corners, cylinder rims, sphere poles and
+    equator), in the link frame, shape (N, 3) [m]."""
     R, p = shape.X_LG[:3, :3], shape.X_LG[:3, 3]
     a = np.linspace(0.0, 2 * np.pi, count, endpoint=False)
     ring = np.c_[np.cos(a), np.sin(a), np.zeros_like(a)]

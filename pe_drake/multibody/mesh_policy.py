@@ -2,15 +2,10 @@
 an arbitrary file into ``playback.html`` (Meshcat embeds every visual mesh whole), nor hang a run
 on a named pipe or read ``/dev/zero`` until memory runs out.
 
-A mesh is read only if its real path (symlinks resolved) is a regular file with a mesh suffix,
-at most :data:`MAX_MESH_BYTES`, and, for a model's visuals, lies under the model's folder, the
-root of a package the model uses (and that root's real path, for colcon ``--symlink-install``),
-pe_drake's mesh cache or example-robot-data. A ``package://`` name stays inside its package
-(no ``..`` above the root). The files a mesh names itself (an OBJ's ``mtllib`` and the
-material's ``map_*`` images, a glTF's ``buffers``/``images`` ``uri``, a COLLADA image's
-``init_from``) pass the same checks with their own suffixes: Meshcat embeds them too.
-Names are checked as the XML parser reads them: character references (``&#46;``) are
-decoded first (:func:`decoded_character_references`).
+A mesh is read only if its real path is a regular file with a mesh suffix, within
+:data:`pe_drake.limits.MESH`, and, for a model's visuals, lies under the model's folder, a
+package the model uses, pe_drake's mesh cache or example-robot-data. The files a mesh names
+itself (materials, textures, buffers) pass the same checks: Meshcat embeds them too.
 """
 
 from __future__ import annotations
@@ -31,19 +26,15 @@ from pe_drake.multibody.packages import package_roots, resolve_package_uri, used
 MESH_SUFFIXES = (".stl", ".obj", ".dae", ".gltf", ".glb", ".ply", ".vtk")
 #: Suffixes of the files a mesh may name (materials, textures, glTF buffers).
 REFERENCE_SUFFIXES = (".mtl", ".png", ".jpg", ".jpeg", ".bmp", ".tga", ".gif", ".ktx2", ".webp", ".bin")
-#: Largest mesh file read [bytes] by default (:data:`pe_drake.limits.MESH` overrides it).
-MAX_MESH_BYTES = 256 * 2**20
-
 
 _CHARACTER_REFERENCE = re.compile(r"&#(?:[xX]([0-9a-fA-F]{1,8})|([0-9]{1,10}));")
 _KEPT_ESCAPED = {"<": "&lt;", "&": "&amp;", '"': "&quot;", "'": "&apos;", ">": "&gt;"}
 
 
 def decoded_character_references(text: str) -> str:
-    """XML text with its numeric character references (``&#46;``, ``&#x2e;``) written as the
-    characters they stand for, so that a check of the raw text sees the names the XML parser
-    will read (tinyxml2 decodes them after pe_drake's checks ran). Markup characters and
-    control characters stay escaped."""
+    """XML text with its numeric character references (``&#46;``) decoded, as the parser reads it.
+
+    Markup characters and control characters stay escaped."""
 
     def one(match: re.Match) -> str:
         code = int(match.group(1), 16) if match.group(1) else int(match.group(2))
@@ -57,8 +48,7 @@ def decoded_character_references(text: str) -> str:
 
 def mesh_file_refusal(path: str | Path, suffixes: tuple[str, ...] = MESH_SUFFIXES, what: str = "mesh",
                       kind: str | None = None) -> str | None:
-    """Why the mesh file ``path`` (or, with ``suffixes``, ``what`` and ``kind``, another file a
-    model reads) must not be read (a sentence naming the path and the rule), or None."""
+    """Why the file ``path`` must not be read (a sentence naming it and the rule), or None."""
     real = os.path.realpath(path)
     shown = f"{what} '{path}'" + (f" (-> {real})" if real != os.path.abspath(path) else "")
     if Path(real).suffix.lower() not in suffixes:
@@ -74,11 +64,10 @@ def mesh_file_refusal(path: str | Path, suffixes: tuple[str, ...] = MESH_SUFFIXE
     return None
 
 
-def allowed_mesh_roots(
-    model_path: str | Path, text: str, packages: Mapping[str, str] | None, extra: Iterable[str | Path] = ()
-) -> list[str]:
+def allowed_mesh_roots(model_path: str | Path, text: str, packages: Mapping[str, str] | None,
+                       extra: Iterable[str | Path] = ()) -> list[str]:
     """The real paths under which a model's visual meshes may lie: its folder, the roots of the
-    packages its text uses (each as found and as its real path) and ``extra`` folders."""
+    packages its text uses (as found and as real paths) and ``extra`` folders."""
     roots = [Path(model_path).resolve().parent, *map(Path, extra)]
     for name in used_packages(text):
         roots += package_roots(name, model_path, packages)
@@ -88,7 +77,9 @@ def allowed_mesh_roots(
     return sorted(set(out))
 
 
-def _is_under(real: str, roots: Iterable[str]) -> bool:
+def is_under(path: str | Path, roots: Iterable[str]) -> bool:
+    """Whether the real path of ``path`` lies under one of the folders ``roots`` (real paths)."""
+    real = os.path.realpath(path)
     return any(real == r or real.startswith(r.rstrip(os.sep) + os.sep) for r in roots)
 
 
@@ -101,10 +92,10 @@ def spellings(name: str) -> list[str]:
 
 
 def name_refusal(name: str) -> str | None:
-    """Why a file name a model gives must not be followed whatever it resolves to, or None:
-    a scheme other than ``package://``, ``model://`` and ``file://`` (local, or ``localhost``),
-    or a package path that climbs above its package's root (``package://arm/../../x``),
-    as written or percent-decoded."""
+    """Why a file name a model gives must not be followed whatever it resolves to, or None.
+
+    Refused: a scheme other than ``package://``, ``model://`` and local ``file://``, or a package
+    path that climbs above its package's root, as written or percent-decoded."""
     for spelling in spellings(name):
         match = _SCHEME.match(spelling)
         scheme = match.group(1).lower() if match and len(match.group(1)) > 1 else ""  # "C:" is a drive
@@ -126,9 +117,7 @@ def name_refusal(name: str) -> str | None:
 
 
 def named_files(name: str, model_path: Path, packages: Mapping[str, str] | None) -> list[Path]:
-    """The files a model's file name may be read as (each spelling of :func:`spellings`):
-    ``package://``/``model://`` through the resolver, ``file://`` (with or without
-    ``localhost``), absolute, or relative to the model's folder."""
+    """The files a model's file name may be read as, one per spelling (:func:`spellings`)."""
     out = []
     for spelling in spellings(name):
         match = _SCHEME.match(spelling)
@@ -145,17 +134,11 @@ def named_files(name: str, model_path: Path, packages: Mapping[str, str] | None)
     return out
 
 
-def visual_mesh_refusal(
-    name: str, model_path: str | Path, roots: Iterable[str] | None, packages: Mapping[str, str] | None = None
-) -> str | None:
+def visual_mesh_refusal(name: str, model_path: str | Path, roots: Iterable[str] | None,
+                        packages: Mapping[str, str] | None = None) -> str | None:
     """Why a visual mesh ``filename`` of a model must not be read, or None.
 
-    Args:
-        name: the ``filename`` attribute (``package://``, ``file://``, absolute or relative).
-        model_path: the model file.
-        roots: :func:`allowed_mesh_roots`, or None to check only the file itself.
-        packages: the config's ``robot.packages`` map.
-    """
+    ``roots``: :func:`allowed_mesh_roots`, or None to check only the file itself."""
     refusal = name_refusal(name)
     if refusal is not None:
         return refusal
@@ -163,7 +146,7 @@ def visual_mesh_refusal(
         if not os.path.lexists(path):
             continue  # a missing mesh: Drake names it
         refusal = mesh_file_refusal(path)
-        if refusal is None and roots is not None and not _is_under(os.path.realpath(path), roots):
+        if refusal is None and roots is not None and not is_under(path, roots):
             refusal = _outside(name, path)
         refusal = refusal or referenced_file_refusal(Path(path), roots)
         if refusal:
@@ -177,9 +160,9 @@ def _outside(name: str, path: str | Path, what: str = "mesh") -> str:
 
 
 def referenced_file_refusal(mesh: Path, roots: Iterable[str] | None) -> str | None:
-    """Why a file that the mesh ``mesh`` names must not be read (see the module docstring),
-    or None when every one may. Remembered per file version and roots: a model's meshes are
-    checked twice per load (each visual, then the last pass) and a model is loaded often."""
+    """Why a file that the mesh ``mesh`` names must not be read, or None.
+
+    Remembered per file version and roots: a model's meshes are checked twice per load."""
     roots = tuple(roots) if roots is not None else None
     try:
         info = os.stat(mesh)
@@ -225,7 +208,7 @@ def _reference_refusal(name: str, mesh: Path, roots: Iterable[str] | None) -> st
             continue  # a missing texture: drawn without it
         refusal = mesh_file_refusal(path, REFERENCE_SUFFIXES, f"the file named by mesh '{mesh.name}',",
                                     "material, texture or buffer")
-        if refusal is None and roots is not None and not _is_under(os.path.realpath(path), roots):
+        if refusal is None and roots is not None and not is_under(path, roots):
             refusal = _outside(name, path, f"the file named by mesh '{mesh.name}'")
         if refusal:
             return refusal
@@ -300,9 +283,10 @@ def _dae_images(mesh: Path) -> list[str]:
 
 def without_refused_elements(text: str, elements: re.Pattern, names: re.Pattern, group: int, label: str | None,
                              model_path, roots, packages=None) -> tuple[str, list[str]]:
-    """``text`` without each element (a match of ``elements``) that names a file (group ``group``
-    of a match of ``names`` inside it) which :func:`visual_mesh_refusal` refuses, and a note
-    "<label> dropped: <why>" each (``label`` None: the element match's group 1, its tag)."""
+    """``text`` without each element naming a file :func:`visual_mesh_refusal` refuses, and notes.
+
+    The file name is group ``group`` of a ``names`` match inside the element; the note says
+    "<label> dropped: <why>" (``label`` None: the element match's group 1, its tag)."""
     notes: list[str] = []
 
     def element(match: re.Match) -> str:

@@ -1,10 +1,7 @@
-"""STL → OBJ conversion of URDF visuals, so that Drake's Meshcat can draw them.
+"""Mesh reading (STL, OBJ, COLLADA), mesh-name resolution, and STL → OBJ visuals for Meshcat.
 
-Drake's Meshcat draws .obj/.gltf/.dae visuals only; STL visuals are skipped (BUILD_NOTES.md,
-"Robot descriptions"). :func:`stl_visuals_to_obj` rewrites the ``<visual>`` STL mesh filenames
-of a URDF to OBJ files converted once into a cache folder and reused afterwards; collision
-geometry is left untouched. The reader handles binary and ASCII STL; the writer emits shared
-vertices and triangular faces, without normals (three.js computes flat normals).
+Drake's Meshcat draws .obj/.gltf/.dae visuals only, so :func:`stl_visuals_to_obj` rewrites a
+URDF's ``<visual>`` STL meshes to OBJ files converted once into a cache folder.
 """
 
 from __future__ import annotations
@@ -37,37 +34,25 @@ _ASCII_VERTEX = re.compile(
 
 
 class TriangleMesh(NamedTuple):
-    """An indexed triangle mesh.
-
-    Attributes:
-        vertices: shape (V, 3) [model units, usually m].
-        faces: vertex indices of each triangle, shape (F, 3), counter-clockwise seen from
-            outside.
-    """
+    """An indexed triangle mesh: vertices (V, 3) [model units], faces (F, 3) (counter-clockwise)."""
 
     vertices: np.ndarray
     faces: np.ndarray
 
 
 def read_stl(path: str | Path) -> TriangleMesh:
-    """Reads a binary or ASCII STL file, merging identical vertices.
+    """Reads a binary or ASCII STL file, merging identical vertices and dropping degenerate faces.
 
-    Args:
-        path: the .stl file.
-
-    Returns:
-        The :class:`TriangleMesh`; degenerate triangles (two equal corners) are dropped.
-
-    Raises:
-        DataError: missing file, or a file that is neither binary nor ASCII STL.
-    """
+    DataError for a missing file or one that is neither binary nor ASCII STL."""
     path = Path(path)
+    return _index_corners(_stl_corners(_stl_bytes(path), path))
+
+
+def _stl_bytes(path: Path) -> bytes:
     try:
-        data = path.read_bytes()
+        return path.read_bytes()
     except OSError as err:
         raise DataError(f"cannot read STL file: {err}", file=str(path)) from err
-    corners = _stl_corners(data, path)
-    return _index_corners(corners)
 
 
 def _stl_corners(data: bytes, path: Path) -> np.ndarray:
@@ -101,11 +86,7 @@ def _index_corners(corners: np.ndarray) -> TriangleMesh:
 
 
 def read_mesh_vertices(path: str | Path) -> np.ndarray:
-    """Vertices of an STL, OBJ or COLLADA (.dae) mesh, shape (V, 3) [file units; DAE in m].
-
-    Raises:
-        DataError: an unsupported format or an unreadable file, naming it.
-    """
+    """Vertices of an STL, OBJ or COLLADA (.dae) mesh, shape (V, 3) [file units; DAE in m]."""
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix == ".stl":
@@ -127,12 +108,7 @@ def read_mesh_vertices(path: str | Path) -> np.ndarray:
 
 
 def _dae_primitives(path: Path) -> tuple[list, float]:
-    """(the bound primitives of a COLLADA file's scene, node transforms applied; its metres per
-    unit), read with pycollada.
-
-    Raises:
-        DataError: an unreadable file, naming it.
-    """
+    """The bound primitives of a COLLADA file's scene (node transforms applied), metres per unit."""
     import collada  # lazy: only DAE meshes need it
 
     with open(path, "rb") as f:  # the caller checked it is a regular file of bounded size
@@ -141,13 +117,10 @@ def _dae_primitives(path: Path) -> tuple[list, float]:
             # a file's content would reach the parse tree and its error messages.
             raise DataError("COLLADA file declares XML entities (<!ENTITY>), which pe_drake does not read", file=str(path))
     try:
-        mesh = collada.Collada(
-            str(path), ignore=[collada.common.DaeUnsupportedError, collada.common.DaeBrokenRefError]
-        )
-        primitives = []
-        if mesh.scene is not None:
-            for geometry in mesh.scene.objects("geometry"):
-                primitives += list(geometry.primitives())
+        ignore = [collada.common.DaeUnsupportedError, collada.common.DaeBrokenRefError]
+        mesh = collada.Collada(str(path), ignore=ignore)
+        geometries = mesh.scene.objects("geometry") if mesh.scene is not None else ()
+        primitives = [p for geometry in geometries for p in geometry.primitives()]
         return primitives, float(mesh.assetInfo.unitmeter or 1.0)
     except Exception as err:  # pycollada raises many types (XML, DaeError, KeyError, ...)
         raise DataError(f"cannot read COLLADA file: {type(err).__name__}: {err}", file=str(path)) from err
@@ -168,26 +141,18 @@ def obj_text(mesh: TriangleMesh, comment: str = "") -> str:
     v = np.asarray(mesh.vertices, float)
     f = np.asarray(mesh.faces, np.int64) + 1  # OBJ indices start at 1
     head = f"# {comment}\n" if comment else ""
-    return (
-        head
-        + ("v %.6g %.6g %.6g\n" * len(v)) % tuple(v.ravel())
-        + ("f %d %d %d\n" * len(f)) % tuple(f.ravel())
-    )
+    vertices = ("v %.6g %.6g %.6g\n" * len(v)) % tuple(v.ravel())
+    return head + vertices + ("f %d %d %d\n" * len(f)) % tuple(f.ravel())
 
 
 def write_obj(path: str | Path, mesh: TriangleMesh, comment: str = "") -> Path:
-    """Writes a mesh as OBJ atomically (temporary file, then rename).
-
-    Returns:
-        The path written.
-    """
+    """Writes a mesh as OBJ atomically and returns the path."""
     atomic_write_text(path, obj_text(mesh, comment))
     return Path(path)
 
 
 def default_cache_dir() -> Path:
-    """Folder of converted meshes: ``$PE_DRAKE_MESH_CACHE``, else
-    ``$XDG_CACHE_HOME/pe_drake/meshes``, else ``~/.cache/pe_drake/meshes``."""
+    """Folder of converted meshes: ``$PE_DRAKE_MESH_CACHE``, else the user cache folder."""
     if os.environ.get(CACHE_ENV):
         return Path(os.environ[CACHE_ENV]).expanduser()
     base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
@@ -195,26 +160,9 @@ def default_cache_dir() -> Path:
 
 
 def stl_to_obj(stl_path: str | Path, cache_dir: str | Path | None = None) -> Path:
-    """The OBJ conversion of an STL file, converted on first use and reused afterwards.
-
-    The cached file is ``<cache_dir>/<content hash>/<stem>.obj``: a changed STL gets a new
-    entry, and identical files shared by several models are converted once.
-
-    Args:
-        stl_path: the STL file.
-        cache_dir: where converted meshes live (default: :func:`default_cache_dir`).
-
-    Returns:
-        Path of the OBJ file.
-
-    Raises:
-        DataError: unreadable or malformed STL.
-    """
+    """The OBJ conversion of an STL file, cached as ``<cache_dir>/<content hash>/<stem>.obj``."""
     stl_path = Path(stl_path)
-    try:
-        data = stl_path.read_bytes()
-    except OSError as err:
-        raise DataError(f"cannot read STL file: {err}", file=str(stl_path)) from err
+    data = _stl_bytes(stl_path)
     digest = hashlib.blake2b(data, digest_size=8).hexdigest()
     target = Path(cache_dir or default_cache_dir()) / digest / f"{stl_path.stem}.obj"
     if not target.is_file():
@@ -223,30 +171,14 @@ def stl_to_obj(stl_path: str | Path, cache_dir: str | Path | None = None) -> Pat
     return target
 
 
-def stl_visuals_to_obj(
-    urdf_text: str, model_path: str | Path, cache_dir: str | Path | None = None, packages: dict | None = None
-) -> str:
+def stl_visuals_to_obj(urdf_text: str, model_path: str | Path, cache_dir: str | Path | None = None,
+                       packages: dict | None = None) -> str:
     """Rewrites the STL meshes of a URDF's ``<visual>`` elements to cached OBJ conversions.
 
-    Only the ``filename`` attribute of ``<mesh>`` inside ``<visual>`` changes, to a
-    ``file://`` URI (Drake refuses bare absolute paths in a URDF parsed from a string);
-    ``scale``, origins, materials and every ``<collision>`` stay as they are. Mesh
-    names may be ``package://<pkg>/...`` (``example-robot-data``, or a package whose folder
-    or ``package.xml`` lies above the model), ``file://`` URIs, or paths relative to the
-    model's folder (packages are found by :mod:`pe_drake.multibody.packages`). Meshes that
-    cannot be found are left untouched for Drake to report.
-
-    Args:
-        urdf_text: the URDF's text.
-        model_path: the URDF's path (resolves relative names and package folders).
-        cache_dir: where converted meshes live (default: :func:`default_cache_dir`).
-        packages: the config's ``robot.packages`` map, or None.
-
-    Returns:
-        The rewritten URDF text.
-
-    Raises:
-        DataError: an STL file that exists but is malformed.
+    Only the ``filename`` of ``<mesh>`` inside ``<visual>`` changes, to a ``file://`` URI
+    (Drake refuses bare absolute paths in a URDF parsed from a string); every ``<collision>``
+    stays. Meshes that cannot be found are left untouched for Drake to report; a malformed STL
+    raises DataError.
     """
     return rewrite_visual_meshes(urdf_text, model_path, ".stl", lambda source: stl_to_obj(source, cache_dir),
                                  packages)
@@ -254,9 +186,7 @@ def stl_visuals_to_obj(
 
 def rewrite_visual_meshes(urdf_text: str, model_path: str | Path, suffix: str, convert,
                           packages: dict | None = None) -> str:
-    """Rewrites the ``<visual>`` meshes of a URDF whose names end in ``suffix`` to
-    ``convert(resolved path)`` (a path, as a ``file://`` URI), each file once; see
-    :func:`stl_visuals_to_obj`. Meshes that cannot be found are left untouched."""
+    """Rewrites the ``<visual>`` meshes named ``*suffix`` to ``convert(path)`` (a file:// URI)."""
     model_path = Path(model_path)
     converted: dict[str, str] = {}
 
@@ -265,7 +195,7 @@ def rewrite_visual_meshes(urdf_text: str, model_path: str | Path, suffix: str, c
         if not name.lower().endswith(suffix):
             return match.group(0)
         if name not in converted:
-            source = _resolve_mesh(name, model_path, packages)
+            source = resolve_mesh_path(name, model_path, packages)
             out = convert(source) if source is not None else None
             converted[name] = out.resolve().as_uri() if out is not None else name
         return f"{match.group(1)}{match.group(2)}{converted[name]}{match.group(2)}"
@@ -292,11 +222,10 @@ def read_dae_triangles(path: Path) -> TriangleMesh:
 
 
 def absolute_mesh_paths(urdf_text: str, model_path: str | Path) -> str:
-    """Rewrites relative and absolute mesh and texture filenames (``meshes/base.stl``,
-    ``/opt/meshes/base.stl``) of a URDF to absolute ``file://`` URIs, relative ones against
-    the model file's folder: Drake parses our rewritten text from a string, where a relative
-    name has no folder to resolve against and a bare absolute path is refused ("invalid when
-    parsing a string"). ``package://`` and ``file://`` URIs are left as they are."""
+    """Rewrites a URDF's relative and absolute mesh and texture names to ``file://`` URIs.
+
+    Drake parses our rewritten text from a string, where a relative name has no folder to
+    resolve against and a bare absolute path is refused. Other URIs are left as they are."""
     folder = Path(model_path).resolve().parent
 
     def absolute(match: re.Match) -> str:
@@ -309,25 +238,16 @@ def absolute_mesh_paths(urdf_text: str, model_path: str | Path) -> str:
     return _FILE_NAME.sub(absolute, urdf_text)
 
 
-def resolve_mesh_path(
-    name: str, model_path: str | Path, packages: dict | None = None, *, mesh: bool = True
-) -> Path | None:
-    """The file a URDF mesh filename points to (``package://``, ``file://``, absolute, or
-    relative to the model file's folder), or None when it does not exist.
+def resolve_mesh_path(name: str, model_path: str | Path, packages: dict | None = None, *,
+                      mesh: bool = True) -> Path | None:
+    """The file a URDF mesh filename points to, or None when it does not exist.
 
     Args:
-        name: the ``filename`` attribute.
-        model_path: the URDF it appears in.
-        packages: the config's ``robot.packages`` map, or None (see
-            :func:`~pe_drake.multibody.packages.package_roots`).
+        name: the ``filename`` attribute (``package://``, ``file://``, absolute or relative).
         mesh: the file must pass :func:`~pe_drake.multibody.mesh_policy.mesh_file_refusal`
             (False to resolve a model file's own URI).
     """
-    return _resolve_mesh(name, Path(model_path), packages, mesh)
-
-
-def _resolve_mesh(name: str, model_path: Path, packages: dict | None = None, mesh: bool = True) -> Path | None:
-    """The file a URDF mesh name points to, or None (also for a mesh the policy refuses)."""
+    model_path = Path(model_path)
     if name.startswith("package://"):
         package, _, rest = name[len("package://") :].lstrip("/").partition("/")  # TALOS writes package:///
         for root in package_roots(package, model_path, packages):
@@ -343,13 +263,11 @@ def _resolve_mesh(name: str, model_path: Path, packages: dict | None = None, mes
 
 
 def _present(path: Path, mesh: bool) -> bool:
-    """A regular file; without ``mesh``, anything there (the caller names a pipe or a folder
-    with :func:`~pe_drake.multibody.mesh_policy.mesh_file_refusal` instead of "not found")."""
+    """A regular file; without ``mesh``, anything there (the caller refuses a pipe or a folder)."""
     return path.is_file() if mesh else os.path.lexists(path)
 
 
-
-def without_refused_visuals(urdf_text: str, model_path: str | Path, roots, packages: dict | None = None) -> tuple[str, list[str]]:
-    """The URDF text without the ``<visual>`` elements whose mesh must not be read
-    (:func:`~pe_drake.multibody.mesh_policy.visual_mesh_refusal`), and a note for each."""
+def without_refused_visuals(urdf_text: str, model_path: str | Path, roots,
+                            packages: dict | None = None) -> tuple[str, list[str]]:
+    """The URDF text without the ``<visual>`` elements whose mesh must not be read, and notes."""
     return without_refused_elements(urdf_text, _VISUAL, _MESH_FILENAME, 3, "visual", model_path, roots, packages)

@@ -1,20 +1,8 @@
 """Model files as Drake and pe_drake read them: xacro expanded, package URIs resolved, and the
 URDF constructs Drake refuses pre-processed.
 
-:func:`loadable_model_path` is the one place that turns ``robot.model`` into a file every
-later step (Drake's parser, capsule fitting, effort limits, model export) reads the same way:
-
-- ``.xacro`` files (``my_arm.urdf.xacro``) are expanded with the ``xacro`` package, its
-  ``$(find pkg)`` resolved by :mod:`pe_drake.multibody.packages`;
-- a URDF using packages of the config's ``robot.packages`` map, and every expanded xacro,
-  is written to the cache with its mesh names as absolute ``file://`` URIs (a copy in the
-  cache has no folders above it to search);
-- any other file is used where it is.
-
-:func:`drake_model_text` then prepares the text for Drake's parser (notes say what it changed:
-mimic tags, repeated materials), :func:`parse_models` registers every package the text uses
-in the parser's package map, and :func:`check_world_joints` / :func:`finalize_plant` turn
-structures outside the supported set into a :class:`~pe_drake.exceptions.ConfigError`.
+:func:`loadable_model_path` turns ``robot.model`` into the one file every later step reads;
+:func:`drake_model_text` prepares its text for Drake's parser (notes say what changed).
 """
 
 from __future__ import annotations
@@ -30,24 +18,15 @@ from pathlib import Path
 
 from pe_drake.exceptions import ConfigError
 from pe_drake.io_utils import atomic_write_text
-from pe_drake.multibody.example_robot_data import example_robot_data_dir
+from pe_drake.multibody.packages import example_robot_data_dir
 from pe_drake.multibody.mesh_policy import allowed_mesh_roots, decoded_character_references, mesh_file_refusal
-from pe_drake.multibody.model_references import (
-    check_every_name,
-    check_mjcf_files,
-    checked_sdf_text,
-    without_refused_textures,
-)
+from pe_drake.multibody.model_references import (check_every_name, check_mjcf_files,
+                                                 checked_sdf_text, without_refused_textures)
 from pe_drake.multibody.collada_up_axis import turned_dae_visuals
 from pe_drake.multibody.meshes import absolute_mesh_paths, default_cache_dir, stl_visuals_to_obj, without_refused_visuals
-from pe_drake.multibody.packages import (
-    find_package,
-    manifest_name,
-    register_packages,
-    resolve_package_uri,
-    unknown_package_message,
-    used_packages,
-)
+from pe_drake.multibody.packages import (find_package, manifest_name, register_packages,
+                                         resolve_package_uri, unknown_package_message,
+                                         used_packages)
 from pe_drake.multibody.urdf_checks import check_joint_types, has_entities
 from pe_drake.multibody.xacro_sandbox import TRUST_HINT, sandboxed
 
@@ -82,15 +61,10 @@ def expand_xacro(path: str | Path, packages: Mapping[str, str] | None = None,
                  mappings: Mapping[str, str] | None = None, *, trust: bool = False) -> str:
     """The URDF text of a xacro file.
 
-    ``$(find pkg)`` goes through :func:`~pe_drake.multibody.packages.find_package` (the
-    ``robot.packages`` map, ``package.xml`` above the file, ``ROS_PACKAGE_PATH``,
-    ``AMENT_PREFIX_PATH``) instead of xacro's own ``ament_index`` look-up. A xacro is a
-    program: unless ``trust``, it runs in :func:`~pe_drake.multibody.xacro_sandbox.sandboxed`
-    (no builtins, no ``load_yaml``, no ``$(env)``, includes confined to its packages).
+    ``$(find pkg)`` goes through :func:`~pe_drake.multibody.packages.find_package`. A xacro is a
+    program: unless ``trust``, it runs in :func:`~pe_drake.multibody.xacro_sandbox.sandboxed`.
 
     Args:
-        path: the .xacro file.
-        packages: the config's ``robot.packages`` map, or None.
         mappings: xacro arguments {name: value} (``xacro file.xacro name:=value``).
         trust: run the file with xacro's full Python (``--trust-xacro``, ``robot.trust_xacro``).
 
@@ -131,10 +105,10 @@ def expand_xacro(path: str | Path, packages: Mapping[str, str] | None = None,
 
 
 def resolved_mesh_uris(text: str, model_path: str | Path, packages: Mapping[str, str] | None = None) -> str:
-    """Every mesh and texture name of a URDF as an absolute ``file://`` URI where the file is
-    found (``package://`` through the resolver, relative names against the model's folder);
-    names that cannot be found stay for Drake to report. The names are resolved from the
-    model file the user named, not from the copy in the cache (issue 37, items 6 and 8)."""
+    """Every mesh and texture name of a URDF as an absolute ``file://`` URI where it is found.
+
+    Names are resolved from the model file the user named, not from the copy in the cache; names
+    that cannot be found stay for Drake to report."""
     model_path = Path(model_path).resolve()
 
     def absolute(match: re.Match) -> str:
@@ -154,8 +128,7 @@ def resolved_mesh_uris(text: str, model_path: str | Path, packages: Mapping[str,
 
 
 def cached_model_roots(model_path: str | Path) -> list[str] | None:
-    """The folders a model pe_drake wrote to its cache may read meshes from (those of the file
-    it came from, recorded beside it), or None for a model outside the cache."""
+    """The folders a cached model may read meshes from, or None for a model outside the cache."""
     cache = os.path.realpath(default_cache_dir())
     real = os.path.realpath(model_path)
     if not real.startswith(cache + os.sep):
@@ -175,19 +148,12 @@ def _always_allowed() -> list[str]:
 
 def loadable_model_path(model_path: str | Path, packages: Mapping[str, str] | None = None, *,
                         trust_xacro: bool = False) -> Path:
-    """The file later steps read for a model (see the module docstring).
-
-    Args:
-        model_path: the model file (URDF, SDF or xacro).
-        packages: the config's ``robot.packages`` map, or None.
-        trust_xacro: expand a xacro with xacro's full Python (:func:`expand_xacro`).
+    """The file later steps read for a model.
 
     Returns:
-        ``model_path`` itself, or a URDF in ``<mesh cache>/models/<hash>/<name>.urdf`` with
-        the folders its meshes may come from recorded beside it (:func:`cached_model_roots`).
-
-    Raises:
-        ConfigError: a xacro file that cannot be expanded.
+        ``model_path`` itself, or (for a xacro, or a URDF using ``packages``) a URDF in
+        ``<mesh cache>/models/<hash>/`` with absolute mesh URIs and the folders its meshes may
+        come from recorded beside it (:func:`cached_model_roots`).
     """
     model_path = Path(model_path)
     packages = dict(packages or {})
@@ -212,8 +178,8 @@ def loadable_model_path(model_path: str | Path, packages: Mapping[str, str] | No
 def without_mimic(text: str) -> tuple[str, list[str]]:
     """URDF text without ``<mimic>`` tags, and a note naming the joints that had one.
 
-    Drake refuses a mimic joint whose driver is a 0-dof joint (TALOS's grippers), and a
-    mimic couples joints pe_drake may lock; the joints become independent.
+    Drake refuses a mimic joint driven by a 0-dof joint, and a mimic couples joints pe_drake may
+    lock; the joints become independent.
     """
     joints = []
     for match in re.finditer(r"<joint\b[^>]*?\bname\s*=\s*([\"'])(.*?)\1[^>]*>(.*?)</joint\s*>", text, re.S):
@@ -226,13 +192,10 @@ def without_mimic(text: str) -> tuple[str, list[str]]:
 
 
 def without_dangling_transmissions(text: str) -> tuple[str, list[str]]:
-    """URDF text without the ``<transmission>`` elements that name a joint the file does not
-    define, and a note naming them.
+    """URDF text without ``<transmission>`` elements naming an undefined joint, and a note.
 
-    Drake refuses the whole file ("Transmission specifies joint 'arm_left_1_joint' which does
-    not exist", example-robot-data's ``talos_left_arm.urdf``, cut from the full robot with its
-    transmissions kept); ROS tools skip such a transmission. pe_drake does not read
-    transmissions (gear ratios come from ``robot.transmission``), so nothing else changes.
+    Drake refuses the whole file for one; ROS tools skip it, and pe_drake does not read
+    transmissions (gear ratios come from ``robot.transmission``).
     """
     defined = {m.group(2) for m in re.finditer(r"<joint\b[^>]*?(?<![\w:.-])name\s*=\s*([\"'])(.*?)\1[^>]*?>", text)
                if "type" in m.group(0)}
@@ -253,17 +216,11 @@ def without_dangling_transmissions(text: str) -> tuple[str, list[str]]:
 
 
 def single_material_definitions(text: str) -> tuple[str, list[str]]:
-    """URDF text in which each named material is defined once, at its first use; later
-    definitions of the same name become references ``<material name="..."/>``.
+    """URDF text in which each named material is defined once, at its first use, and notes.
 
-    Drake refuses a repeated definition ("Material 'carbon_fiber' was previously defined",
-    example-robot-data's Kinova JACO2) and a reference that comes before the definition
-    ("Material 'DarkGrey' not previously defined", its TALOS full and box models) or one defined
-    nowhere ('Grey' there), which ROS tools accept. The first definition of a name (its colour
-    or texture) is used at the name's first use; a name defined nowhere is dropped.
-
-    Returns:
-        The text and a note naming the materials whose definitions were moved or dropped.
+    Drake refuses a repeated definition, a reference before the definition and one defined
+    nowhere, which ROS tools accept. Later definitions become references; a name defined nowhere
+    is dropped.
     """
     links = [m.span() for m in _LINK.finditer(text)]
     definitions: dict[str, str] = {}
@@ -327,9 +284,8 @@ def single_material_definitions(text: str) -> tuple[str, list[str]]:
 def drake_model_text(model_path: Path, obj_visuals: bool, packages: dict | None = None) -> tuple[str, list[str]]:
     """The model file's text as Drake parses it, and notes of what was changed for Drake.
 
-    Every file the model names passes the read policy (:mod:`~pe_drake.multibody.mesh_policy`,
-    :mod:`~pe_drake.multibody.model_references`), checked after XML character references are
-    decoded, as Drake's parser will read the names."""
+    Every file the model names passes the read policy (:mod:`~pe_drake.multibody.mesh_policy`),
+    checked after XML character references are decoded, as Drake's parser reads the names."""
     text = decoded_character_references(read_model_text(model_path))
     notes: list[str] = []
     suffix = model_path.suffix.lower()
@@ -363,11 +319,7 @@ def drake_model_text(model_path: Path, obj_visuals: bool, packages: dict | None 
 
 
 def read_model_text(model_path: Path) -> str:
-    """A model file's text, read only if it is a regular file of bounded size.
-
-    Raises:
-        ConfigError: a pipe, a device, a folder or an oversize file, naming it and the limit.
-    """
+    """A model file's text; ConfigError for a pipe, a device, a folder or an oversize file."""
     refusal = mesh_file_refusal(model_path, MODEL_SUFFIXES, "model")
     if refusal is not None:
         raise ConfigError(refusal)
@@ -378,8 +330,7 @@ def read_model_text(model_path: Path) -> str:
 
 
 def _mesh_roots(model_path: Path, text: str, packages: dict | None) -> list[str]:
-    """Where the model's meshes (and the files they name) may lie: for a model pe_drake wrote to
-    its cache, the folders of the file it came from (:func:`cached_model_roots`)."""
+    """Where the model's meshes may lie (for a cached model, those of the file it came from)."""
     cached = cached_model_roots(model_path)
     if cached is not None:
         return cached
@@ -387,11 +338,7 @@ def _mesh_roots(model_path: Path, text: str, packages: dict | None) -> list[str]
 
 
 def finalize_plant(plant, model_path: Path) -> None:
-    """``plant.Finalize()``, with Drake's refusals of structures outside the supported set.
-
-    Raises:
-        ConfigError: a closed kinematic loop, or another structure Drake cannot model.
-    """
+    """``plant.Finalize()``, refusing a closed kinematic loop or another structure Drake refuses."""
     try:
         plant.Finalize()
     except RuntimeError as err:
@@ -405,13 +352,7 @@ def finalize_plant(plant, model_path: Path) -> None:
 
 
 def check_world_joints(plant, models, model_path: Path) -> None:
-    """Refuses a movable joint from the world (a root on a prismatic or revolute joint):
-    pe_drake welds the root link to the world at ``robot.base_position`` /
-    ``base_quaternion_wxyz``.
-
-    Raises:
-        ConfigError: naming the joint and what is supported.
-    """
+    """Refuses a movable joint from the world: pe_drake welds the root link to the world."""
     world = plant.world_body().index()
     for m in models:
         for index in plant.GetJointIndices(m):
@@ -427,15 +368,9 @@ def check_world_joints(plant, models, model_path: Path) -> None:
 
 
 def parse_models(plant, text: str, model_path: Path, packages: dict | None = None) -> list:
-    """Adds the model to the plant; returns its model instances.
+    """Adds the model to the plant, every ``package://`` it uses registered; returns its instances.
 
-    Every ``package://`` the text uses is registered in the parser's package map through
-    :mod:`pe_drake.multibody.packages` (config map, upward search for ``package.xml``,
-    ``ROS_PACKAGE_PATH``, ``AMENT_PREFIX_PATH``, example-robot-data).
-
-    Raises:
-        ConfigError: an unknown package, or Drake cannot parse it (Drake's message is kept).
-    """
+    ConfigError for an unknown package, or Drake's message when it cannot parse the text."""
     from pydrake.multibody.parsing import Parser  # lazy: pydrake is heavy
 
     parser = Parser(plant)

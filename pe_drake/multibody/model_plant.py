@@ -1,8 +1,4 @@
-"""A :class:`~pe_drake.multibody.robot_model.RobotModel` as a Drake plant (:func:`model_plant`): viscous
-friction as joint damping, Coulomb friction a ``DoorHinge`` (:func:`add_coulomb_friction`), the
-armature a rotor inertia (:func:`set_armature`), the payload a welded body, pre-sliding friction,
-a coupled motor's friction and the rotor coupling systems of the plant's diagram
-(:mod:`pe_drake.multibody.dahl`)."""
+"""A :class:`~pe_drake.multibody.robot_model.RobotModel` as a Drake plant (:func:`model_plant`)."""
 
 from __future__ import annotations
 
@@ -23,20 +19,18 @@ APPLIED_FORCE_PORT = "applied_generalized_force"
 
 
 def model_plant(model, robot: Robot):
-    """A :class:`~pe_drake.multibody.robot_model.RobotModel` in Drake (its ``plant``): a continuous
-    :class:`~pe_drake.multibody.robot.Robot` of ``robot``'s config with these inertias, damping,
-    Coulomb ``DoorHinge``, rotor inertia, payload body and, with pre-sliding friction, the Dahl
-    system whose diagram exports the input :data:`APPLIED_FORCE_PORT`. Offsets are not in the plant: add them to its torque.
+    """A :class:`~pe_drake.multibody.robot_model.RobotModel` in Drake (its ``plant``).
 
-    Through a transmission: a motor that turns one joint is that joint's damping R_ii²·F_v,
-    ``DoorHinge`` |R_ii|·F_c and rotor inertia R_ii²·I; a coupled motor's friction is a
-    velocity-dependent generalized force −Rᵀ(F_c tanh(θ̇/(|R_ii| v_s)) + F_v θ̇) of the
-    friction system (exact). The reflected rotor inertia is the block Rᵀ diag(I) R: Drake holds
-    a rotor inertia per joint, so the plant has its diagonal; the coupling's off-diagonal
-    entries C are the diagram's rotor-coupling system, which adds −C q̈ to the applied force
-    with q̈ solved from (M + C) q̈ = … (:mod:`~pe_drake.multibody.rotor_coupling`): the
-    diagram's forward dynamics are exact, the plant's own inverse dynamics and mass matrix
-    lack C (:meth:`plant_notes`; :meth:`torque` has it).
+    A continuous :class:`~pe_drake.multibody.robot.Robot` of ``robot``'s config with these
+    inertias, damping, Coulomb ``DoorHinge``, rotor inertia, payload body and, with pre-sliding
+    friction, the Dahl system whose diagram exports :data:`APPLIED_FORCE_PORT`. Offsets are not in
+    the plant: add them to its torque.
+
+    Through a transmission, a motor that turns one joint is that joint's damping R_ii²·F_v,
+    ``DoorHinge`` |R_ii|·F_c and rotor inertia R_ii²·I; a coupled motor's friction is a generalized
+    force of the friction system, and the off-diagonal rotor inertia C the diagram's rotor-coupling
+    system (:mod:`~pe_drake.multibody.rotor_coupling`): the diagram's forward dynamics are exact,
+    the plant's own inverse dynamics and mass matrix lack C.
 
     Raises:
         ValueError: other joints or bodies than the robot's.
@@ -92,13 +86,9 @@ def add_coulomb_friction(plant, joint, f_c: float, v_s: float) -> None:
     """f_c·tanh(v/v_s) as a Drake DoorHinge whose only non-zero term is its dynamic friction."""
     from pydrake.multibody.tree import DoorHinge, DoorHingeConfig  # lazy: pydrake stays out of `import pe_drake`
 
-    config = DoorHingeConfig()
-    config.spring_constant = 0.0
-    config.catch_torque = 0.0
-    config.static_friction_torque = 0.0
-    config.viscous_friction = 0.0
-    config.dynamic_friction_torque = f_c
-    config.motion_threshold = v_s
+    config = DoorHingeConfig(spring_constant=0.0, catch_torque=0.0, static_friction_torque=0.0,
+                             viscous_friction=0.0, dynamic_friction_torque=f_c,
+                             motion_threshold=v_s)
     plant.AddForceElement(DoorHinge(joint, config))
 
 
@@ -116,8 +106,7 @@ def set_armature(plant, joint, armature: float) -> None:
 
 
 def coupled_friction(model):
-    """f(v): the torque the coupled motors' friction applies to the joints, (n,) (None
-    when no motor is coupled): :func:`model_plant`'s part of the drive beyond ``RobotModel.per_joint_model``."""
+    """f(v): the torque the coupled motors' friction applies to the joints, (n,), or None."""
     T = model.transmission
     single = np.count_nonzero(T.R, axis=1) == 1 if T is not None else None
     if T is None or single.all():

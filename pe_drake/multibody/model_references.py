@@ -2,11 +2,9 @@
 besides its URDF visual meshes: URDF material textures, SDF ``<uri>`` elements and MJCF
 ``file`` attributes.
 
-Meshcat embeds every texture and visual mesh whole in ``playback.html``, and Drake would read a
-named pipe until the run is killed; so a texture, SDF visual or collision whose file is refused
-is dropped with a note, an SDF ``<include>`` or an MJCF asset whose file is refused stops the
-load with the rule it broke. Relative SDF URIs become absolute ``file://`` URIs: Drake parses
-pe_drake's checked text from a string, where a relative name has nothing to resolve against.
+A texture, SDF visual or collision whose file is refused is dropped with a note; an SDF
+``<include>`` or an MJCF asset whose file is refused stops the load. Relative SDF URIs become
+``file://`` URIs: Drake parses the checked text from a string.
 """
 
 from __future__ import annotations
@@ -20,6 +18,7 @@ from pe_drake.exceptions import ConfigError
 from pe_drake.multibody.mesh_policy import (
     MESH_SUFFIXES,
     REFERENCE_SUFFIXES,
+    is_under,
     mesh_file_refusal,
     name_refusal,
     named_files,
@@ -39,16 +38,6 @@ _MJCF_FILE = re.compile(r"(<(\w+)\b[^>]*?(?<![\w:.-])file\s*=\s*)([\"'])(.*?)\3"
 _MJCF_DIR = re.compile(r"<compiler\b[^>]*?(?<![\w:.-])(meshdir|texturedir|assetdir)\s*=\s*([\"'])(.*?)\2", re.S)
 
 
-def _under(path: str | Path, roots: Iterable[str] | None) -> bool:
-    real = os.path.realpath(path)
-    return roots is None or any(real == r or real.startswith(r.rstrip(os.sep) + os.sep) for r in roots)
-
-
-def _named_file(name: str, model_path: Path, packages: Mapping[str, str] | None) -> Path | None:
-    found = [p for p in named_files(name, model_path, packages) if os.path.lexists(p)]
-    return found[0] if found else None
-
-
 def file_refusal(name: str, model_path: Path, roots: Iterable[str] | None, packages: Mapping[str, str] | None,
                  suffixes: tuple[str, ...], what: str) -> str | None:
     """Why the file a model names (``what``: "texture", ...) must not be read, or None."""
@@ -59,7 +48,7 @@ def file_refusal(name: str, model_path: Path, roots: Iterable[str] | None, packa
         if not os.path.lexists(path):
             continue  # a missing file: Drake names it
         refusal = mesh_file_refusal(path, suffixes, what, "texture" if suffixes == REFERENCE_SUFFIXES else "model")
-        if refusal is None and not _under(path, roots):
+        if refusal is None and roots is not None and not is_under(path, roots):
             refusal = (f"{what} '{name}' is {os.path.realpath(path)}, outside the model's folder, its packages and "
                        "pe_drake's mesh cache: files are read only from there")
         if refusal:
@@ -69,9 +58,9 @@ def file_refusal(name: str, model_path: Path, roots: Iterable[str] | None, packa
 
 def without_refused_textures(text: str, model_path: str | Path, roots: Iterable[str] | None,
                              packages: Mapping[str, str] | None = None) -> tuple[str, list[str]]:
-    """URDF text without the ``<texture>`` elements whose image must not be read, and a note
-    each; a material left with neither colour nor texture gets a white one (Drake refuses an
-    empty material definition)."""
+    """URDF text without the ``<texture>`` elements whose image must not be read, and notes.
+
+    A material left with neither colour nor texture gets a white one (Drake refuses it empty)."""
     notes: list[str] = []
 
     def texture(match: re.Match) -> str:
@@ -92,13 +81,8 @@ def without_refused_textures(text: str, model_path: str | Path, roots: Iterable[
 
 def check_every_name(text: str, model_path: str | Path, roots: Iterable[str] | None,
                      packages: Mapping[str, str] | None = None) -> None:
-    """The last check before Drake parses a model's text: every mesh and texture ``filename``
-    and every ``<uri>`` left in it must pass the read policy, wherever it sits (a name the
-    element-by-element checks did not see, e.g. in markup they do not expect, stops the load).
-
-    Raises:
-        ConfigError: naming the file and the rule.
-    """
+    """Refuses (ConfigError) a model text in which any mesh or texture name or ``<uri>`` left
+    fails the read policy: the last check before Drake parses it."""
     model_path = Path(model_path)
     names = [m.group(3) for m in _ANY_FILENAME.finditer(text)] + [m.group(2) for m in _SDF_URI.finditer(text)]
     for name in names:
@@ -111,12 +95,8 @@ def check_every_name(text: str, model_path: str | Path, roots: Iterable[str] | N
 
 def checked_sdf_text(text: str, model_path: str | Path, roots: Iterable[str] | None,
                      packages: Mapping[str, str] | None = None) -> tuple[str, list[str]]:
-    """SDF text with relative ``<uri>`` names made absolute and every visual or collision whose
-    file is refused dropped (a note each).
-
-    Raises:
-        ConfigError: a ``<uri>`` outside a visual or collision (an ``<include>``) that is refused.
-    """
+    """SDF text with relative ``<uri>`` names made absolute and refused visuals and collisions
+    dropped (a note each); ConfigError for an ``<include>``."""
     model_path = Path(model_path)
     text, notes = without_refused_elements(text, _SDF_GEOMETRY, _SDF_URI, 2, None, model_path, roots, packages)
     if _SDF_INCLUDE.search(text):
@@ -135,18 +115,13 @@ def _checked_map(match: re.Match, model_path: Path, roots, packages, notes: list
 
 
 def _absolute(name: str, model_path: Path, packages: Mapping[str, str] | None) -> str:
-    """The checked file of a name as a ``file://`` URI (Drake then reads what was checked), or
-    the name itself when it names no existing file."""
-    path = _named_file(name, model_path, packages) if name else None
-    return path.resolve().as_uri() if path is not None and os.path.lexists(path) else name
+    """The checked file of a name as a ``file://`` URI, or the name itself when there is none."""
+    found = [p for p in named_files(name, model_path, packages) if os.path.lexists(p)]
+    return found[0].resolve().as_uri() if name and found else name
 
 
 def check_mjcf_files(text: str, model_path: str | Path, roots: Iterable[str] | None) -> None:
-    """Refuses an MJCF model any of whose ``file`` attributes names a file the policy refuses.
-
-    Raises:
-        ConfigError: naming the element, the file and the rule.
-    """
+    """Refuses (ConfigError) an MJCF model any of whose ``file`` attributes the policy refuses."""
     model_path = Path(model_path)
     folders = {kind: value for kind, _, value in _MJCF_DIR.findall(text)}
     for match in _MJCF_FILE.finditer(text):

@@ -1,16 +1,10 @@
 """Where ``package://<name>/...`` URIs point: one resolver for Drake's parser, xacro's
 ``$(find <name>)``, capsule fitting and the STL → OBJ visuals.
 
-A package's folder is looked up, first match wins, in:
-
-1. the config's ``robot.packages`` map {name: folder};
-2. the folders above the model file: a folder holding a ``package.xml`` whose ``<name>`` is
-   the package, or a folder named like the package (a ROS source layout,
-   ``my_arm_description/urdf/my_arm.urdf``; Drake 1.51.1 has no upward search);
-3. ``ROS_PACKAGE_PATH`` (ROS 1): each entry is a package or is searched downwards for
-   ``package.xml`` files, as ``rospack`` does;
-4. ``AMENT_PREFIX_PATH`` (ROS 2): ``<prefix>/share/<name>`` of each install prefix;
-5. ``example-robot-data``: the installed wheel's share folder.
+A package's folder is looked up, first match wins, in: the config's ``robot.packages`` map; the
+folders above the model file (a ``package.xml`` naming the package, or a folder of that name;
+Drake 1.51.1 has no upward search); ``ROS_PACKAGE_PATH``, searched downwards as ``rospack``
+does; ``<prefix>/share/<name>`` of each ``AMENT_PREFIX_PATH`` prefix; example-robot-data.
 """
 
 from __future__ import annotations
@@ -18,18 +12,30 @@ from __future__ import annotations
 import contextlib
 import os
 import re
+import sys
+import sysconfig
 from collections.abc import Iterator, Mapping
 from functools import lru_cache
 from pathlib import Path
 
 from pe_drake.exceptions import ConfigError
-from pe_drake.multibody.example_robot_data import example_robot_data_dir
 
 #: Folder levels searched below each ``ROS_PACKAGE_PATH`` entry.
 ROS_PACKAGE_PATH_DEPTH = 6
 
 _PACKAGE_URI = re.compile(r"package://([^/\"'\s]+)/")
 _NAME = re.compile(r"<name>\s*([^<\s]+)\s*</name>")
+
+
+def example_robot_data_dir() -> Path:
+    """The ``share/example-robot-data`` folder of the installed wheel; ConfigError without it."""
+    for root in [sysconfig.get_paths()["purelib"], *sys.path]:
+        candidate = Path(root) / "cmeel.prefix" / "share" / "example-robot-data"
+        if candidate.is_dir():
+            return candidate
+    raise ConfigError(
+        "the robot models of 'example-robot-data' are not installed: "
+        "pip install example-robot-data")
 
 
 def manifest_name(folder: Path) -> str | None:
@@ -44,17 +50,10 @@ def manifest_name(folder: Path) -> str | None:
     return match.group(1) if match else None
 
 
-def package_roots(package: str, model_path: str | Path, packages: Mapping[str, str] | None = None) -> list[Path]:
-    """Candidate folders of a package, best first (see the module docstring for the order).
-
-    Args:
-        package: the package name of a ``package://<package>/...`` URI.
-        model_path: the model file the URI appears in (the upward search starts there).
-        packages: the config's ``robot.packages`` map {name: folder}, or None.
-
-    Returns:
-        Existing folders; empty when the package is unknown.
-    """
+def package_roots(package: str, model_path: str | Path,
+                  packages: Mapping[str, str] | None = None) -> list[Path]:
+    """Existing candidate folders of a package, best first (module docstring); the upward
+    search starts at ``model_path``, ``packages`` is the config's ``robot.packages``."""
     return list(dict.fromkeys(_candidates(package, Path(model_path), packages or {})))
 
 
@@ -78,11 +77,7 @@ def _candidates(package: str, model_path: Path, packages: Mapping[str, str]) -> 
 
 
 def find_package(package: str, model_path: str | Path, packages: Mapping[str, str] | None = None) -> Path:
-    """The folder of a package (xacro's ``$(find <package>)``).
-
-    Raises:
-        ConfigError: an unknown package, saying where it was looked for.
-    """
+    """The folder of a package (xacro's ``$(find <package>)``); ConfigError when unknown."""
     roots = package_roots(package, model_path, packages)
     if not roots:
         raise ConfigError(unknown_package_message(package, model_path))
@@ -95,8 +90,7 @@ def unknown_package_message(package: str, model_path: str | Path) -> str:
         f"package '{package}' (used by '{Path(model_path).name}') was not found: looked in robot.packages, "
         f"for a package.xml named '{package}' (or a folder of that name) above the model, in "
         "ROS_PACKAGE_PATH and in AMENT_PREFIX_PATH/share; set robot.packages: "
-        f"{{{package}: /path/to/{package}}} in the config, or source the ROS workspace"
-    )
+        f"{{{package}: /path/to/{package}}} in the config, or source the ROS workspace")
 
 
 def resolve_package_uri(uri: str, model_path: str | Path, packages: Mapping[str, str] | None = None) -> Path | None:
@@ -114,11 +108,8 @@ def used_packages(text: str) -> list[str]:
 
 
 def found_packages(text: str, model_path: str | Path, packages: Mapping[str, str] | None = None) -> dict[str, str]:
-    """{name: folder} of every package the text uses that is found from ``model_path``.
-
-    A file written elsewhere from a model's text (an exported URDF in an output folder) is
-    read with this map as its ``robot.packages``: its URIs then resolve as the model's did.
-    """
+    """{name: folder} of every package the text uses that is found from ``model_path``: the
+    ``robot.packages`` of an exported file, so its URIs resolve as the model's did."""
     found = {}
     for package in used_packages(text):
         roots = package_roots(package, model_path, packages)
@@ -128,13 +119,8 @@ def found_packages(text: str, model_path: str | Path, packages: Mapping[str, str
 
 
 def register_packages(package_map, text: str, model_path: str | Path, packages: Mapping[str, str] | None = None) -> list[str]:
-    """Adds every package the text uses to a Drake ``PackageMap`` (the parser's).
-
-    Packages Drake already knows keep their folder. Unknown ones are left for Drake to report.
-
-    Returns:
-        The packages none of the places knows.
-    """
+    """Adds every package the text uses and Drake does not know to the parser's ``PackageMap``;
+    returns those none of the places knows (left for Drake to report)."""
     unknown = []
     for package in used_packages(text):
         if package_map.Contains(package):
@@ -153,8 +139,8 @@ def _env_paths(variable: str) -> list[Path]:
 
 @lru_cache(maxsize=32)
 def _ros_package_path_index(entry: str) -> dict[str, str]:
-    """{package name: folder} below one ``ROS_PACKAGE_PATH`` entry (not below a package,
-    nor into hidden folders or folders holding a ``CATKIN_IGNORE`` / ``COLCON_IGNORE``)."""
+    """{package name: folder} below one ``ROS_PACKAGE_PATH`` entry (not below a package, nor
+    into hidden folders or folders holding a ``CATKIN_IGNORE`` / ``COLCON_IGNORE``)."""
     found: dict[str, str] = {}
 
     def walk(folder: Path, depth: int) -> None:

@@ -1,12 +1,8 @@
 """The payload model: the 10 inertial parameters of a rigid object attached to one link.
 
-A payload (a tool, a grasped object) welded to link L adds to L's own parameters
-φ_L = [m, m·c, I_LLo_L] (:data:`pe_drake.multibody.inertia.PARAMETER_NAMES`: mass, first moment
-about the link origin Lo, rotational inertia about Lo, all in L's frame). Its torques are
-therefore L's 10 columns of the rigid-body regressor, τ_payload = Y[:, :, cols(L)] φ_L (Eq. 1).
-The identification workflow (:mod:`pe_drake.identification.payload`), the payload-only
-excitation (:mod:`pe_drake.excitation.payload_motion`) and diagnose's payload test
-(:mod:`pe_drake.diagnosis.payload`) all use :func:`link_columns` and :class:`PayloadInertia`.
+A payload welded to link L adds to L's own parameters φ_L (:data:`PARAMETER_NAMES` order, about
+L's origin, in L's frame), so its torques are L's 10 regressor columns,
+τ_payload = Y[:, :, cols(L)] φ_L (Eq. 1).
 """
 
 from __future__ import annotations
@@ -19,31 +15,22 @@ import numpy as np
 from pe_drake.exceptions import ConfigError, UnknownNameError
 from pe_drake.multibody.base_parameters import BaseParameters, compute_base_parameters
 from pe_drake.multibody.regressor import RegressorModel
-from pe_drake.multibody.inertia import (
-    PARAMETER_NAMES,
-    PARAMS_PER_BODY,
-    inertia_matrix,
-    inertia_vector,
-    parallel_axis,
-    phi_from_com,
-)
+from pe_drake.multibody.inertia import (PARAMETER_NAMES, PARAMS_PER_BODY, inertia_matrix,
+                                        inertia_vector, parallel_axis, phi_from_com)
 
 if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
     from pe_drake.multibody.robot import Robot
 
 
 def link_position(robot: Robot, link: str | int) -> int:
-    """Position of ``link`` in ``robot.body_names`` (a name, or that position itself).
-
-    Raises:
-        UnknownNameError: a link that no excited joint moves (the valid names are listed).
-    """
+    """Position of ``link`` (a name, or a position) in ``robot.body_names`` (UnknownNameError)."""
     if isinstance(link, (int, np.integer)):
         if not 0 <= int(link) < robot.num_bodies:
             raise UnknownNameError("link", str(link), list(robot.body_names), where="payload link")
         return int(link)
     if link not in robot.body_names:
-        raise UnknownNameError("link", link, list(robot.body_names), where="payload link (a body an excited joint moves)")
+        where = "payload link (a body an excited joint moves)"
+        raise UnknownNameError("link", link, list(robot.body_names), where=where)
     return robot.body_names.index(link)
 
 
@@ -59,36 +46,33 @@ def payload_parameter_names(link: str) -> tuple[str, ...]:
 
 
 def payload_base_parameters(robot: Robot, link: str | int, model=None) -> BaseParameters:
-    """The combinations of ``link``'s 10 parameters that this robot's joint torques determine:
-    the base parameters (:func:`~pe_drake.multibody.base_parameters.compute_base_parameters`)
-    of Y_L alone, over random states within the limits. On a robot whose axes are all vertical
-    (a SCARA) Y_L has rank 4 at most: the payload's tilting inertias and the height of its centre
-    of mass never produce a torque, and no motion of that robot can excite them (issue 37).
-    ``K`` maps the 10·nb standard parameters; only ``link``'s columns are non-zero."""
-    cols = link_columns(robot, link)
-    mask = np.zeros(PARAMS_PER_BODY * robot.num_bodies)
-    mask[cols] = 1.0
+    """The base parameters of ``link``'s 10 columns of Y alone, over random states.
 
+    On a robot whose axes are all vertical (a SCARA) they are 4 at most: the payload's tilting
+    inertias and the height of its centre of mass never produce a torque (issue 37). ``K`` maps
+    the 10·nb standard parameters; only ``link``'s columns are non-zero."""
+    mask = np.zeros(PARAMS_PER_BODY * robot.num_bodies)
+    mask[link_columns(robot, link)] = 1.0
     model = model or RegressorModel(robot)
     return compute_base_parameters(robot, model=model, rows=lambda q, v, vd: model(q, v, vd) * mask)
 
 
-def payload_parameter_map(base: BaseParameters, robot: Robot, link: str | int) -> tuple[np.ndarray, np.ndarray]:
-    """(K_L, K_L⁺) of φ_B = K_L φ_L (:func:`payload_base_parameters`): the payload's base
-    parameters from its 10, and the minimum-norm φ_L of given base parameters."""
+def payload_parameter_map(base: BaseParameters, robot: Robot,
+                          link: str | int) -> tuple[np.ndarray, np.ndarray]:
+    """(K_L, K_L⁺) of φ_B = K_L φ_L: the payload's base parameters from its 10, and back."""
     K_L = base.K[:, link_columns(robot, link)]
     return K_L, np.linalg.pinv(K_L)
 
 
 def undetermined_parameters(base: BaseParameters, robot: Robot, link: str | int) -> np.ndarray:
-    """Positions (0..9) of ``link``'s parameters that no combination in ``base`` contains: no
-    motion of the robot tells them (:func:`payload_base_parameters`)."""
+    """Positions (0..9) of ``link``'s parameters that no combination in ``base`` contains."""
     K_L = base.K[:, link_columns(robot, link)]
     return np.flatnonzero(np.abs(K_L).max(axis=0, initial=0.0) == 0.0)
 
 
 def determined_std(J: np.ndarray, K_L: np.ndarray, cov_B: np.ndarray) -> np.ndarray:
-    """σ of the outputs g(φ_L) (rows of their Jacobian J, (k, 10)) from Cov(φ_B) of φ_B = K_L φ_L,
+    """σ of outputs g(φ_L) with Jacobian J (k, 10) from Cov(φ_B) of φ_B = K_L φ_L.
+
     NaN for an output the data do not determine (its row not a combination of K_L's rows)."""
     G, *_ = np.linalg.lstsq(K_L.T, J.T, rcond=None)  # J ≈ Gᵀ K_L
     determined = np.linalg.norm(G.T @ K_L - J, axis=1) <= 1e-9 * np.maximum(np.linalg.norm(J, axis=1), 1e-300)
@@ -98,13 +82,7 @@ def determined_std(J: np.ndarray, K_L: np.ndarray, cov_B: np.ndarray) -> np.ndar
 
 @dataclasses.dataclass(frozen=True)
 class PayloadInertia:
-    """A rigid payload as mass, centre of mass and inertia about it, in one frame.
-
-    Attributes:
-        mass: m [kg].
-        com: centre of mass p_FoPcm_F [m], shape (3,).
-        inertia_about_com: I_PPcm_F [kg·m²], shape (3, 3).
-    """
+    """A rigid payload: mass [kg], centre of mass p_FoPcm_F (3,) [m], I_PPcm_F (3, 3) [kg·m²]."""
 
     mass: float
     com: np.ndarray
@@ -129,22 +107,14 @@ class PayloadInertia:
         return inertia_vector(self.inertia_about_com)
 
     def principal(self) -> tuple[np.ndarray, np.ndarray]:
-        """Principal moments (ascending) and axes R (columns; a rotation, det +1) of the inertia
-        about the centre of mass: I_cm = R diag(λ) Rᵀ."""
+        """Principal moments (ascending) and axes R (a rotation) of I_cm = R diag(λ) Rᵀ."""
         lam, R = np.linalg.eigh(0.5 * (self.inertia_about_com + self.inertia_about_com.T))
         if np.linalg.det(R) < 0:
             R[:, 2] *= -1.0
         return lam, R
 
     def in_frame(self, X_FG: np.ndarray) -> PayloadInertia:
-        """The same payload expressed in frame G, given G's pose in the current frame F.
-
-        Args:
-            X_FG: pose of G in F, (4, 4).
-
-        Returns:
-            mass, p_GoPcm_G = R_GF (p_FoPcm_F − p_FoGo_F) and R_GF I R_FG.
-        """
+        """The same payload expressed in frame G, given G's pose X_FG (4, 4) in the frame F."""
         X_FG = np.asarray(X_FG, float)
         R_FG, p_FG = X_FG[:3, :3], X_FG[:3, 3]
         return PayloadInertia(self.mass, R_FG.T @ (self.com - p_FG), R_FG.T @ self.inertia_about_com @ R_FG)
@@ -153,8 +123,7 @@ class PayloadInertia:
 def central_jacobian(phi: np.ndarray) -> np.ndarray:
     """d(m, c, [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] of I_cm)/dφ, shape (10, 10), at φ (m > 0).
 
-    c = h/m and I_cm = I_o − (|h|² 1 − h hᵀ)/m: the linearization that carries the
-    parameters' covariance to the reported σ of mass, centre of mass and central inertia.
+    c = h/m and I_cm = I_o − (|h|² 1 − h hᵀ)/m: it carries Cov(φ) to the σ of m, c and I_cm.
     """
     phi = np.asarray(phi, float)
     m, h = float(phi[0]), phi[1:4]
@@ -172,18 +141,13 @@ def central_jacobian(phi: np.ndarray) -> np.ndarray:
 
 
 def box_inertia(mass: float, size: np.ndarray) -> np.ndarray:
-    """Inertia about the centre of a solid box of uniform density, in its own axes [kg·m²],
-    (3, 3); ``size`` the full edge lengths [m]."""
+    """Inertia about the centre of a uniform box with edge lengths ``size`` [m], (3, 3) [kg·m²]."""
     a, b, c = np.asarray(size, float)
     return mass / 12.0 * np.diag([b * b + c * c, a * a + c * c, a * a + b * b])
 
 
 def payload_spatial_inertia(payload: PayloadInertia):
-    """A payload's Drake ``SpatialInertia`` about its frame's origin.
-
-    Raises:
-        ConfigError: an inertia that is not physically valid.
-    """
+    """A payload's Drake ``SpatialInertia`` about its frame's origin; ConfigError if invalid."""
     from pydrake.multibody.tree import RotationalInertia, SpatialInertia  # lazy: pydrake stays out of `import pe_drake`
 
     I_PPcm = RotationalInertia(*(float(x) for x in payload.inertia_vector))

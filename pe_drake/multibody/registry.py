@@ -1,10 +1,5 @@
-"""Where robots come from: the built-in robot configs and the model files they point to.
-
-A robot is named either by a built-in name (a ``models/<name>.yaml`` config shipped with
-pe_drake: ``panda``, ``ur5``, ``g1``) or by a URDF/SDF path. Built-in models live in the
-``example-robot-data`` wheel (BUILD_NOTES.md, "Why each dependency") and are referred to as
-``package://example-robot-data/...``.
-"""
+"""Where robots come from: the built-in robot configs (``models/<name>.yaml``: ``panda``,
+``ur5``, ``g1``, whose models are in the ``example-robot-data`` wheel) or a model file path."""
 
 from __future__ import annotations
 
@@ -16,7 +11,8 @@ from pathlib import Path
 from pe_drake.config import SAFE_DEFAULTS, Config, RobotConfig, load_config, validate_config
 from pe_drake.exceptions import ConfigError, UnknownNameError
 from pe_drake.limits import input_file_problem
-from pe_drake.multibody.example_robot_data import example_robot_data_dir
+from pe_drake.multibody.model_files import model_stem
+from pe_drake.multibody.packages import example_robot_data_dir
 from pe_drake.multibody.standing_defaults import standing_defaults
 from pe_drake.yaml_check import key_line
 
@@ -34,32 +30,17 @@ def models_dir() -> Path:
 def builtin_robots() -> tuple[str, ...]:
     """Names of the built-in robot configs (``models/<name>.yaml``)."""
     # A robot config has a top-level "robot:" section; capsule and truth files do not.
-    return tuple(
-        sorted(
-            p.stem
-            for p in models_dir().glob("*.yaml")
-            if re.search(r"^robot:", p.read_text(), flags=re.M)
-        )
-    )
+    return tuple(sorted(p.stem for p in models_dir().glob("*.yaml")
+                        if re.search(r"^robot:", p.read_text(), flags=re.M)))
 
 
 def robot_display_name(robot: str) -> str:
     """The name a robot is shown by: its built-in name, else its model file's stem."""
-    if robot in builtin_robots():
-        return robot
-    name = Path(robot).name  # my_arm.urdf.xacro -> my_arm
-    for suffix in (".urdf.xacro", ".xacro"):
-        if name.lower().endswith(suffix):
-            return name[: -len(suffix)]
-    return Path(robot).stem
+    return robot if robot in builtin_robots() else model_stem(robot)
 
 
 def builtin_config(name: str) -> Config:
-    """The config of a built-in robot.
-
-    Raises:
-        UnknownNameError: listing the built-in names.
-    """
+    """The config of a built-in robot; UnknownNameError listing the built-in names."""
     path = models_dir() / f"{name}.yaml"
     if not path.is_file():
         raise UnknownNameError("robot", name, builtin_robots())
@@ -67,12 +48,10 @@ def builtin_config(name: str) -> Config:
 
 
 def example_robot_data_models(name: str, limit: int = 3) -> tuple[str, ...]:
-    """Paths of example-robot-data's URDFs named like ``name`` (``z1`` → ``.../z1.urdf``), shortest
-    first: what to pass as ``--robot`` when a name was given that is not built in. Empty when the
-    wheel is not installed or has none.
+    """Paths of example-robot-data's URDFs named like ``name`` (``z1`` → ``.../z1.urdf``).
 
-    A user who read that pe_drake was tried on example-robot-data's robots types their names
-    (``--robot ur10``); only panda, ur5 and g1 are built in, the others are taken by path.
+    Shortest first: what to pass as ``--robot`` for a name that is not built in; empty when the
+    wheel is not installed or has none.
     """
     stem = name.strip().lower()
     if not stem or not re.fullmatch(r"[\w.-]+", stem):
@@ -89,14 +68,8 @@ def example_robot_data_models(name: str, limit: int = 3) -> tuple[str, ...]:
 def resolve_robot_config(robot: str, config_file: str | Path | None = None) -> Config:
     """Config for a robot given by built-in name or model path, with a user file on top.
 
-    Args:
-        robot: built-in name, or a URDF/SDF path.
-        config_file: optional YAML file whose keys override the defaults.
-
-    Raises:
-        UnknownNameError: an unknown built-in name that is not a file either.
-        ConfigError: a missing model file or a bad config.
-    """
+    UnknownNameError for a name neither built in nor a file; ConfigError for a missing model
+    file or a bad config."""
     if robot in builtin_robots():
         base = builtin_config(robot)
     else:
@@ -107,16 +80,13 @@ def resolve_robot_config(robot: str, config_file: str | Path | None = None) -> C
         problem = input_file_problem(path)
         if problem:
             raise ConfigError(f"robot model file '{robot}' {problem}")
-        # The shipped robots' margins (SAFE_DEFAULTS), not RobotConfig's 0 and 100 %: an xArm7
-        # optimum otherwise runs at its full 3.14 rad/s on every joint, touching its limits.
+        # The shipped robots' margins (SAFE_DEFAULTS), not RobotConfig's 0 and 100 %.
         base = Config(robot=RobotConfig(model=str(path.resolve()), **SAFE_DEFAULTS, assumed=list(SAFE_DEFAULTS)))
         standing = standing_defaults(path)  # a humanoid: arms excited, standing on its feet
         if standing is not None:
-            base = dataclasses.replace(
-                base,
-                robot=dataclasses.replace(base.robot, **standing["robot"]),
-                excitation=dataclasses.replace(base.excitation, **standing["excitation"]),
-            )
+            robot = dataclasses.replace(base.robot, **standing["robot"])
+            excitation = dataclasses.replace(base.excitation, **standing["excitation"])
+            base = dataclasses.replace(base, robot=robot, excitation=excitation)
     if config_file is not None:
         config = load_config(config_file, base=base)
         # What the user's file sets is theirs, not assumed (a file may set the same value).
@@ -126,7 +96,7 @@ def resolve_robot_config(robot: str, config_file: str | Path | None = None) -> C
 
 
 def resolve_model_path(model: str) -> Path:
-    """The model file of ``robot.model``: a path, or a ``package://example-robot-data/`` URI.
+    """The model file of ``robot.model`` (a path, or a ``package://example-robot-data/`` URI).
 
     Raises:
         ConfigError: an empty name or a missing file (the path is named).

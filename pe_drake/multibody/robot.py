@@ -1,9 +1,8 @@
 """Loading a robot into Drake: excited joints, locked posture, limits, kinematic structure.
 
-:func:`load_robot` turns a built-in name (``panda``, ``ur5``, ``g1``) or a URDF/SDF path into
-a :class:`Robot`: a MultibodyPlant whose generalized positions are exactly the excited joints
-(every other joint is welded at its locked position), with the root link welded to the world,
-the joint limits the optimizer uses, and the tree structure the regressor needs.
+:func:`load_robot` turns a built-in name or a URDF/SDF path into a :class:`Robot`: a
+MultibodyPlant whose positions are exactly the excited joints (every other joint welded), with
+the root link welded to the world.
 """
 
 from __future__ import annotations
@@ -16,11 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from pe_drake.config import Config, RobotConfig, validate_config
-from pe_drake.exceptions import (
-    ConfigError,
-    InfeasibleError,
-    UnknownNameError,
-)
+from pe_drake.exceptions import ConfigError, InfeasibleError, UnknownNameError
 from pe_drake.multibody.capsules import register_capsules
 from pe_drake.multibody.excited_joints import (
     excited_joint_names,
@@ -38,27 +33,19 @@ from pe_drake.multibody.model_files import (
     model_stem,
     parse_models,
 )
-from pe_drake.multibody.registry import (
-    resolve_model_path,
-    resolve_robot_config,
-    robot_display_name,
-)
+from pe_drake.multibody.registry import resolve_model_path, resolve_robot_config, robot_display_name
 from pe_drake.multibody.urdf_checks import urdf_joint_dynamics, urdf_joint_efforts
 
 
 @dataclasses.dataclass(frozen=True)
 class Limits:
-    """Joint limits used by the optimizer, after config overrides and margins.
+    """Joint limits used by the optimizer, after config overrides and margins; each (n,)."""
 
-    All arrays have shape (n,), in the robot's joint order. Units: rad (m), rad/s, rad/s²,
-    N·m (N).
-    """
-
-    q_lower: np.ndarray
-    q_upper: np.ndarray
-    v_max: np.ndarray
-    vd_max: np.ndarray
-    effort_max: np.ndarray
+    q_lower: np.ndarray  # [rad or m]
+    q_upper: np.ndarray  # [rad or m]
+    v_max: np.ndarray  # [rad/s or m/s]
+    vd_max: np.ndarray  # [rad/s² or m/s²]
+    effort_max: np.ndarray  # [N·m or N]
 
 
 class Robot:
@@ -66,12 +53,9 @@ class Robot:
 
     Attributes:
         name: built-in name or model file stem.
-        config: the :class:`RobotConfig` it was built from.
         plant: the finalized MultibodyPlant (continuous, q = excited joints).
         scene_graph: its SceneGraph (collision geometry is our capsules, if any).
-        diagram: plant + scene graph.
         joint_names: excited joints, in the plant's position order.
-        limits: the :class:`Limits` the optimizer uses.
         locked_positions: {joint: value} of every welded (non-excited) joint.
         body_names: bodies moved by at least one excited joint (the regressor's bodies).
         shared_kinematics: the kinematics model the sampled constraints share (None until
@@ -99,8 +83,7 @@ class Robot:
 
     # ---- construction -------------------------------------------------------------------
     def _build(self) -> None:
-        """Parses the model, welds every non-excited joint and the root, finalizes the plant,
-        builds the diagram and reads the kinematic structure and limits."""
+        """Parses the model, welds the locked joints and the root, and builds the plant."""
         from pydrake.multibody.plant import AddMultibodyPlantSceneGraph  # lazy: pydrake is heavy
         from pydrake.systems.framework import DiagramBuilder
 
@@ -114,12 +97,8 @@ class Robot:
         models = parse_models(plant, text, model_path, cfg.packages)
         self.model_path = model_path
 
-        movable = [
-            plant.get_joint(j)
-            for m in models
-            for j in plant.GetJointIndices(m)
-            if plant.get_joint(j).num_positions() == 1
-        ]
+        movable = [plant.get_joint(j) for m in models for j in plant.GetJointIndices(m)]
+        movable = [j for j in movable if j.num_positions() == 1]
         check_world_joints(plant, models, model_path)
         excited = excited_joint_names(cfg, [j.name() for j in movable], model_path)
         self.locked_positions = weld_locked_joints(plant, movable, excited, cfg.locked_positions)
@@ -143,25 +122,23 @@ class Robot:
     def _weld_root(self, plant, models) -> None:
         """Welds the root link to the world at the config's base pose.
 
-        A model that already welds its root to the world (a URDF ``world`` link and a fixed
-        joint) is mounted at the base pose too: that weld is replaced, so
-        ``robot.base_position`` / ``base_quaternion_wxyz`` always are the root link's pose in
-        the world and the world joint's own origin is not used.
+        A weld of the root to the world in the model is replaced, so the base pose always is the
+        root link's pose in the world.
         """
-        from pydrake.math import RigidTransform, RollPitchYaw  # lazy: pydrake is heavy
+        from pydrake.common.eigen_geometry import Quaternion  # lazy: pydrake is heavy
+        from pydrake.math import RigidTransform, RollPitchYaw
 
         cfg = self.config
         root = self._root_body(plant, models)
-        pose = RigidTransform(
-            _quaternion(cfg.base_quaternion_wxyz), np.asarray(cfg.base_position, float)
-        )
+        wxyz = np.asarray(cfg.base_quaternion_wxyz, float)
+        p_WR = np.asarray(cfg.base_position, float)
+        pose = RigidTransform(Quaternion(wxyz / np.linalg.norm(wxyz)), p_WR)
         world = plant.world_body().index()
         for index in list(plant.GetJointIndices()):
             joint = plant.get_joint(index)
             if joint.parent_body().index() == world and joint.child_body().index() == root.index():
                 X_WR = joint.frame_on_parent().GetFixedPoseInBodyFrame().multiply(
-                    joint.frame_on_child().GetFixedPoseInBodyFrame().inverse()
-                )
+                    joint.frame_on_child().GetFixedPoseInBodyFrame().inverse())
                 if not X_WR.IsNearlyEqualTo(pose, 1e-9):
                     xyz = " ".join(f"{v:.4g}" for v in X_WR.translation())
                     rpy = " ".join(f"{v:.4g}" for v in RollPitchYaw(X_WR.rotation()).vector())
@@ -179,8 +156,7 @@ class Robot:
         if plant.num_positions() != len(excited) or plant.num_velocities() != len(excited):
             raise ConfigError(
                 f"after locking, the plant has {plant.num_positions()} positions but "
-                f"{len(excited)} excited joints: is the root link '{self.root_link}' free?"
-            )
+                f"{len(excited)} excited joints: is the root link '{self.root_link}' free?")
         if self._builder_hook is not None:  # e.g. Meshcat visualizers (pe_drake.viewer)
             self._builder_hook(builder, plant, scene_graph)
         self.diagram = builder.Build()
@@ -191,10 +167,8 @@ class Robot:
 
     def _scene_graph_builder_hook(self, plant, scene_graph) -> None:
         """Registers extra geometry before Finalize (capsules; see constraints.collision)."""
-        if self.config.capsules:
-            self.capsules = register_capsules(plant, scene_graph, self.config.capsules)
-        else:
-            self.capsules = ()
+        capsules = self.config.capsules
+        self.capsules = register_capsules(plant, scene_graph, capsules) if capsules else ()
 
     def _root_body(self, plant, models):
         bodies = [plant.get_body(b) for m in models for b in plant.GetBodyIndices(m)]
@@ -203,13 +177,10 @@ class Robot:
             if self.config.root_link not in names:
                 raise UnknownNameError("link", self.config.root_link, names, where="robot.root_link")
             return plant.GetBodyByName(self.config.root_link)
-        children = set()
-        for j in plant.GetJointIndices():
-            joint = plant.get_joint(j)
-            if joint.parent_body().index() != plant.world_body().index():
-                children.add(joint.child_body().index())
-        roots = [b for b in bodies if b.index() not in children]
-        return roots[0]
+        world = plant.world_body().index()
+        joints = [plant.get_joint(j) for j in plant.GetJointIndices()]
+        children = {j.child_body().index() for j in joints if j.parent_body().index() != world}
+        return [b for b in bodies if b.index() not in children][0]
 
     def _structure(self) -> None:
         """Tree structure of the excited joints and of the bodies they move."""
@@ -238,10 +209,7 @@ class Robot:
         self.joint_of_body = np.array([upstream_joint(b) for b in moving])
 
         n = self.n
-        joint_parent = np.full(n, -1)
-        for k, joint in enumerate(self._joints):
-            joint_parent[k] = upstream_joint(joint.parent_body()) if joint.parent_body().index() != 0 else -1
-        self.joint_parent = joint_parent
+        joint_parent = [upstream_joint(joint.parent_body()) for joint in self._joints]
         # anc[l, i]: joint l is a strict ancestor of joint i.
         anc = np.zeros((n, n), bool)
         for i in range(n):
@@ -270,40 +238,32 @@ class Robot:
             if actuator.joint().name() in self.joint_names:
                 effort[self.joint_names.index(actuator.joint().name())] = actuator.effort_limit()
         urdf_effort = urdf_joint_efforts(self.model_path)
-        for k, name in enumerate(self.joint_names):
-            if not np.isfinite(effort[k]) and name in urdf_effort:
-                effort[k] = urdf_effort[name]
         vd = np.full(self.n, float(cfg.default_acceleration_limit))
         for k, name in enumerate(self.joint_names):
+            if not np.isfinite(effort[k]):
+                effort[k] = urdf_effort.get(name, effort[k])
             lo[k], hi[k], v[k] = merge_limits(name, (lo[k], hi[k]), v[k], cfg, self.model_path.name)
             vd[k] = cfg.acceleration_limits.get(name, vd[k])
             effort[k] = min(effort[k], cfg.effort_limits.get(name, np.inf))
         margin, notes = position_margins(cfg, self.joint_names, [j.kind for j in self.joints], lo, hi)
         notes += placeholder_velocity_notes(cfg, self.joint_names, [j.kind for j in self.joints], v)
         self.limit_notes = notes  # the margins assumed: optimize and simulate print them
-        lo = lo + margin
-        hi = hi - margin
+        lo, hi = lo + margin, hi - margin
         for k, name in enumerate(self.joint_names):
             if not np.isfinite(lo[k]) or not np.isfinite(hi[k]):
                 raise ConfigError(
                     f"joint '{name}' has no finite position limits: set robot.position_limits['{name}'] "
                     f"[rad or m], or leave it out of robot.joints (a wheel, a continuous joint you do not "
-                    f"want to excite; robot.locked_positions holds it)"
-                )
+                    f"want to excite; robot.locked_positions holds it)")
             if not np.isfinite(v[k]):
                 raise ConfigError(
-                    f"joint '{name}' has no velocity limit: set robot.velocity_limits['{name}']"
-                )
+                    f"joint '{name}' has no velocity limit: set robot.velocity_limits['{name}']")
             if lo[k] >= hi[k]:
-                fix = (
-                    "reduce robot.position_margin"
-                    if margin[k] > 0
-                    else f"give a real range in robot.position_limits['{name}']"
-                )
+                fix = "reduce robot.position_margin" if margin[k] > 0 else (
+                    f"give a real range in robot.position_limits['{name}']")
                 raise InfeasibleError(
                     f"joint '{name}': position range [{lo[k]:.4g}, {hi[k]:.4g}] is empty after a "
-                    f"margin of {margin[k]:g} {joint_unit(self.joints[k].kind)}; {fix}"
-                )
+                    f"margin of {margin[k]:g} {joint_unit(self.joints[k].kind)}; {fix}")
         return Limits(lo, hi, v * cfg.velocity_scale, vd * cfg.acceleration_scale, effort * cfg.effort_scale)
 
     # ---- parameters ---------------------------------------------------------------------
@@ -329,14 +289,7 @@ class Robot:
 
     # ---- evaluation helpers ---------------------------------------------------------------
     def body_poses(self, q: np.ndarray) -> np.ndarray:
-        """World poses of every plant body at each configuration.
-
-        Args:
-            q: positions, shape (T, n).
-
-        Returns:
-            X_WB, shape (T, num_bodies_all, 4, 4).
-        """
+        """World poses X_WB of every plant body at positions q (T, n), shape (T, nb_all, 4, 4)."""
         plant, ctx = self.plant, self.plant_context
         port = plant.get_body_poses_output_port()
         q = np.atleast_2d(q)
@@ -355,22 +308,18 @@ class Robot:
 
     @cached_property
     def joint_friction(self) -> np.ndarray:
-        """Coulomb friction of each excited joint in the model file, shape (n,) [N·m or N]: a
-        URDF's ``<dynamics friction>``, which Drake's parser ignores; 0 for other formats.
+        """Coulomb friction of each excited joint in the model file, shape (n,) [N·m or N].
 
-        Like the damping it is part of the a-priori model of every command (issue 21): the
-        simulator, the diagnosis and the identification apply it as f·tanh(v/v_s).
+        A URDF's ``<dynamics friction>``, which Drake's parser ignores; 0 for other formats.
         """
         table = urdf_joint_dynamics(self.model_path, "friction")
         return np.array([max(table.get(name, 0.0), 0.0) for name in self.joint_names], float)
 
-    def inverse_dynamics(
-        self, q: np.ndarray, v: np.ndarray, vd: np.ndarray, include_damping: bool = False
-    ) -> np.ndarray:
-        """Drake's inverse dynamics with gravity, shape (T, n) [N·m or N].
+    def inverse_dynamics(self, q: np.ndarray, v: np.ndarray, vd: np.ndarray,
+                         include_damping: bool = False) -> np.ndarray:
+        """Drake's inverse dynamics with gravity for (T, n) arrays, shape (T, n) [N·m or N].
 
         Args:
-            q, v, vd: each (T, n).
             include_damping: keep the model's joint damping (a friction term, not part of the
                 rigid-body regressor); by default it is removed.
         """
@@ -391,8 +340,7 @@ class Robot:
         return tau
 
     def nominal_posture(self) -> np.ndarray:
-        """Posture the optimizer starts from, shape (n,) [rad or m]: ``nominal_positions``
-        of the config where given, else mid-range."""
+        """Posture the optimizer starts from, shape (n,): ``nominal_positions``, else mid-range."""
         q = 0.5 * (self.limits.q_lower + self.limits.q_upper)
         for k, name in enumerate(self.joint_names):
             if name in self.config.nominal_positions:
@@ -403,16 +351,8 @@ class Robot:
         return f"Robot('{self.name}', {self.n} joints, {self.num_bodies} moving bodies)"
 
 
-def _quaternion(wxyz):
-    from pydrake.common.eigen_geometry import Quaternion  # lazy: pydrake is heavy
-
-    q = np.asarray(wxyz, float)
-    return Quaternion(q / np.linalg.norm(q))
-
-
-def load_robot(
-    robot: str | Config | RobotConfig, config_file: str | Path | None = None, **options
-) -> Robot:
+def load_robot(robot: str | Config | RobotConfig, config_file: str | Path | None = None,
+               **options) -> Robot:
     """Loads a robot by built-in name, model path or config.
 
     Args:
@@ -421,11 +361,8 @@ def load_robot(
         **options: passed to :class:`Robot`: ``time_step`` [s] (0: continuous plant),
             ``obj_visuals`` (convert STL visuals to OBJ for Meshcat), ``before_finalize``
             (callback ``f(plant, scene_graph)`` to add bodies, e.g. a payload),
-            ``builder_hook`` (callback ``f(builder, plant, scene_graph)`` after Finalize and
-            before the diagram is built, e.g. to add visualizers).
-
-    Returns:
-        The :class:`Robot`.
+            ``builder_hook`` (callback ``f(builder, plant, scene_graph)`` before the diagram is
+            built, e.g. to add visualizers).
 
     Raises:
         UnknownNameError: unknown robot or joint name (the valid names are listed).

@@ -1,14 +1,9 @@
 """The coupling entries of a reflected rotor inertia, for Drake's continuous plant (issue 36).
 
-A motor that turns several joints (θ_m = R q) adds Rᵀ diag(I_m) R q̈ to the joint torques. Drake
-holds a rotor inertia per joint, the diagonal of that block; its off-diagonal part C is not a
-per-joint element. The true dynamics are (M_d + C) q̈ = u − ID_0(q, v), M_d the plant's mass
-matrix (diagonal rotor inertias included), u the applied generalized force and ID_0 the inverse
-dynamics at q̈ = 0 with the force elements (gravity, damping, ``DoorHinge``). The plant computes
-q̈ = M_d⁻¹(u + f) − …; with f = −C a, a = (M_d + C)⁻¹(u − ID_0), it gives exactly q̈ = a.
-:func:`rotor_coupling_system` is the Drake system that passes u on with f added, evaluated on a
-copy of the plant's context (:meth:`~RotorCoupling.sync` copies its parameters: perturbed
-inertias are set after the diagram is built).
+A motor that turns several joints adds Rᵀ diag(I_m) R q̈ to the joint torques; Drake holds the
+diagonal per joint, not the off-diagonal part C. The true dynamics are (M_d + C) q̈ = u − ID_0,
+M_d the plant's mass matrix and ID_0 the inverse dynamics at q̈ = 0 with the force elements.
+Adding f = −C a, a = (M_d + C)⁻¹(u − ID_0), to u makes the plant give exactly q̈ = a.
 """
 
 from __future__ import annotations
@@ -17,15 +12,16 @@ import numpy as np
 
 
 def rotor_coupling_system(plant, coupling: np.ndarray):
-    """A Drake ``LeafSystem`` with inputs ``state`` ([q; v] of ``plant``) and ``applied`` (u,
-    size n) and the output ``generalized_force`` u − C a (module docstring).
+    """A Drake ``LeafSystem``: inputs ``state`` ([q; v]) and ``applied`` (u, size n), output
+    ``generalized_force`` u − C a (module docstring).
 
     Args:
         plant: the finalized continuous MultibodyPlant whose velocities are the joints'.
         coupling: C, (n, n) [kg·m²], symmetric with a zero diagonal.
 
     Returns:
-        The system; call its ``sync(plant_context)`` once the plant's parameters are set.
+        The system; call its ``sync(plant_context)`` once the plant's parameters are set
+        (perturbed inertias are set after the diagram is built).
     """
     from pydrake.multibody.tree import MultibodyForces  # lazy: pydrake stays out of `import pe_drake`
     from pydrake.systems.framework import BasicVector, LeafSystem

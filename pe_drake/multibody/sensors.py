@@ -1,16 +1,8 @@
 """What the robot measures: joint torques, the ground wrench, or both.
 
-Each measurement type gives the rows of the identification model y = A(q, v, vdot) φ:
-
-- ``joint_torque``: τ = Y φ (Eq. 1), n rows per sample;
-- ``base_wrench``: the ground wrench w = Y_0 φ + w_static (:mod:`pe_drake.multibody.wrench`),
-  6 rows per sample, no joint torque and no joint friction in them: a humanoid without
-  joint-torque sensors identified from foot force/torque sensors or a force plate;
-- ``both``: the two stacked, n + 6 rows.
-
-Rows are divided by their sensor noise σ (``torque_std``, ``force_std``, ``moment_std``), so
-that the excitation criterion cond(C) does not depend on units, and least squares on the
-scaled rows is the weighted (Gauss–Markov) estimate.
+Each gives the rows of y = A(q, v, vdot) φ: ``joint_torque`` τ = Y φ (Eq. 1), ``base_wrench``
+w = Y_0 φ + w_static (:mod:`pe_drake.multibody.wrench`), or ``both``. Rows are divided by their
+sensor noise σ, so cond(C) does not depend on units and least squares is the weighted estimate.
 """
 
 from __future__ import annotations
@@ -33,32 +25,20 @@ if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
 
 __all__ = ["MEASUREMENTS", "WRENCH_RANK_TOLERANCE", "MeasurementType", "SensorRows", "measurement_type"]
 
-#: Relative tolerance on the pivoted-QR diagonal for rows that include the ground wrench.
-#: On G1's arms the wrench rows have numerical rank 97 at the joint-torque tolerance (1e-8),
-#: but the 97th direction (hy of the right minus the left shoulder-pitch link: a first moment
-#: along a pitch axis turns with the link only about that axis, so it adds a nearly constant
-#: moment, nearly the same from either side) has |R_ii|/|R_00| = 1.5e-4 and σ/σ_max = 3.5e-5:
-#: its effect is ~1e-5 N·m for the model's values, far below any force/torque sensor, and kept
-#: in C it pinned cond(C) above 1e5 for every motion tried. The next one is at 0.39, so 1e-3
-#: drops it alone (96 base parameters; 118 with the waist excited).
+#: Relative tolerance on the pivoted-QR diagonal for rows that include the ground wrench. On
+#: G1's arms 1e-8 keeps a direction whose effect (~1e-5 N·m) is far below any force/torque
+#: sensor and that pins cond(C) above 1e5; the next one is at 0.39 (BUILD_NOTES.md).
 WRENCH_RANK_TOLERANCE = 1e-3
 
 
 @dataclasses.dataclass(frozen=True)
 class MeasurementType:
-    """A measurement type and its sensor noise (the row weights).
-
-    Attributes:
-        kind: one of :data:`MEASUREMENTS`.
-        torque_std: joint-torque noise σ_τ [N·m or N], one value or one per joint.
-        force_std: force noise of the ground-wrench sensor σ_f [N].
-        moment_std: moment noise of the ground-wrench sensor σ_m [N·m].
-    """
+    """A measurement type and its sensor noise σ (the row weights)."""
 
     kind: str = "joint_torque"
-    torque_std: float | tuple[float, ...] = 1.0  # [N·m]
-    force_std: float = 0.5  # [N]
-    moment_std: float = 0.05  # [N·m]
+    torque_std: float | tuple[float, ...] = 1.0  # [N·m or N], one value or one per joint
+    force_std: float = 0.5  # [N], of the ground-wrench sensor
+    moment_std: float = 0.05  # [N·m], of the ground-wrench sensor
 
     def __post_init__(self):
         if self.kind not in MEASUREMENTS:
@@ -92,9 +72,9 @@ class MeasurementType:
 
 
 def measurement_type(config: ExcitationConfig, kind: str | None = None, joint_names=None) -> MeasurementType:
-    """The :class:`MeasurementType` of an excitation config (``kind`` overrides its
-    ``measurement``, as ``--measurement`` does); ``joint_names`` resolve a per-joint torque
-    noise table (without them a table needs its ``all`` entry)."""
+    """The :class:`MeasurementType` of an excitation config (``kind`` overrides ``measurement``).
+
+    ``joint_names`` resolve a per-joint torque noise table (without them it needs ``all``)."""
     noise = config.noise_std
     torque = noise.torque
     if isinstance(torque, dict):
@@ -104,15 +84,7 @@ def measurement_type(config: ExcitationConfig, kind: str | None = None, joint_na
 
 
 class SensorRows:
-    """The (noise-scaled) rows of a measurement type and their adjoint.
-
-    Used in place of the joint-torque regressor by the excitation criterion: the rows of
-    sample t are A^(t) = diag(1/σ) [Y^(t); Y_0^(t)] (the parts the measurement has).
-
-    Args:
-        model: the robot's :class:`RegressorModel`.
-        measurement: the :class:`MeasurementType` (default: joint torques, σ = 1).
-    """
+    """The noise-scaled rows A^(t) = diag(1/σ) [Y^(t); Y_0^(t)] of a measurement, and adjoint."""
 
     def __init__(self, model: RegressorModel, measurement: MeasurementType | None = None):
         self.model = model
@@ -129,8 +101,7 @@ class SensorRows:
         return self.model.kinematics(q, v, vd)
 
     def rows(self, kin: Kinematics, scaled: bool = True, columns: np.ndarray | None = None) -> np.ndarray:
-        """A, shape (T, r, 10·nb): joint-torque rows then wrench rows, divided by σ if ``scaled``;
-        only the given ``columns`` (shape (T, r, len(columns))) when given."""
+        """A, shape (T, r, 10·nb) (or (T, r, len(columns))), divided by σ if ``scaled``."""
         parts = []
         if self.measurement.torques:
             parts.append(self.model.regressor(kin, columns))
@@ -143,18 +114,13 @@ class SensorRows:
         """The scaled rows at (q, v, vdot), shape (T, r, 10·nb)."""
         return self.rows(self.kinematics(q, v, vd))
 
-    def pullback(
-        self, kin: Kinematics, Z: np.ndarray, columns: np.ndarray | None = None
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Gradient of Σ_t Z^(t) : A^(t) (scaled rows) with respect to q, v and vdot.
+    def pullback(self, kin: Kinematics, Z: np.ndarray,
+                 columns: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Gradient of Σ_t Z^(t) : A^(t) (scaled rows) with respect to q, v and vdot, each (T, n).
 
         Args:
-            kin: from :meth:`kinematics`.
             Z: weights, shape (T, r, 10·nb), or (T, r, len(columns)) with ``columns``.
             columns: the columns Z is given at (the others are zero).
-
-        Returns:
-            (∂f/∂q, ∂f/∂v, ∂f/∂vdot), each (T, n).
         """
         if not self._unit_scale:
             Z = Z * self.scale[:, None]
@@ -163,46 +129,26 @@ class SensorRows:
         Z_wrench = Z[:, n:] if self.measurement.wrench else None
         return self.model.pullback(kin, Z_tau, Z_wrench, columns)
 
-    def base_parameters(
-        self, *, seed: int = 0, rank_tolerance: float | None = None, gap_ratio: float | None = RANK_GAP_RATIO
-    ) -> BaseParameters:
+    def base_parameters(self, *, seed: int = 0, rank_tolerance: float | None = None,
+                        gap_ratio: float | None = RANK_GAP_RATIO) -> BaseParameters:
         """The base parameters of these rows (their own pivoted QR, Eq. 2).
 
-        The ground wrench identifies more than the joint torques (on G1's arms 96 instead of
-        90: shoulder-link parameters that only load the pelvis); ``both`` gives the union.
-
-        Args:
-            seed: seed of the random states.
-            rank_tolerance: relative tolerance on R's diagonal (default 1e-8 for joint
-                torques, :data:`WRENCH_RANK_TOLERANCE` with the wrench).
-            gap_ratio: the rank gap of :func:`compute_base_parameters` (None: none).
+        ``rank_tolerance`` defaults to 1e-8 for joint torques, :data:`WRENCH_RANK_TOLERANCE` with
+        the wrench.
         """
         if rank_tolerance is None:
             rank_tolerance = WRENCH_RANK_TOLERANCE if self.measurement.wrench else 1e-8
-        robot = self.model.robot
         samples = max(20, int(np.ceil(4 * self.num_params / self.num_rows)))
-        return compute_base_parameters(
-            robot,
-            samples=samples,
-            seed=seed,
-            rank_tolerance=rank_tolerance,
-            gap_ratio=gap_ratio,
-            model=self.model,
-            rows=self,
-            measurement=self.measurement.kind,
-        )
+        return compute_base_parameters(self.model.robot, samples=samples, seed=seed,
+                                       rank_tolerance=rank_tolerance, gap_ratio=gap_ratio,
+                                       model=self.model, rows=self,
+                                       measurement=self.measurement.kind)
 
 
-def measurement_base_parameters(robot: Robot, measurement: str = "joint_torque", model: RegressorModel | None = None, *,
+def measurement_base_parameters(robot: Robot, measurement: str = "joint_torque",
+                                model: RegressorModel | None = None, *,
                                 rows: SensorRows | None = None) -> BaseParameters:
-    """The base parameters a measurement identifies: Eq. (2) on the joint torques, or the
-    ground wrench's rows' own (:meth:`SensorRows.base_parameters`).
-
-    Args:
-        measurement: one of :data:`~pe_drake.config.MEASUREMENTS`.
-        model: a :class:`RegressorModel` of ``robot`` to reuse.
-        rows: the measurement's rows with their noise weights (default: unit sensor noise).
-    """
+    """The base parameters a measurement identifies (Eq. 2 on its ``rows``, default unit noise)."""
     model = model or (rows.model if rows is not None else RegressorModel(robot))
     if measurement == "joint_torque":
         return compute_base_parameters(robot, model=model)

@@ -9,12 +9,10 @@ from __future__ import annotations
 
 import numpy as np
 
-# ---- constant tensors (issue 38) -----------------------------------------------------------
-# Every map in this module is linear or bilinear in its arguments with coefficients 0 and ±1.
-# On the (samples, bodies, ...) arrays of one gradient numpy's per-call overhead, not the
-# arithmetic, was the cost of the slice-by-slice formulas, so each map is one gather and
-# multiply and one matmul with a constant matrix built here (cross products 3× faster). Each
-# entry is the same sum of the same products as the explicit formula: equal up to rounding order.
+# ---- constant tensors -----------------------------------------------------------------------
+# Every map here is linear or bilinear with coefficients 0 and ±1: one gather, multiply and
+# matmul with a constant matrix beats numpy's per-call overhead of slice-by-slice formulas
+# (issue 38). Each entry is the same sum of the same products as the explicit formula.
 
 
 def _levi_civita() -> np.ndarray:
@@ -25,8 +23,7 @@ def _levi_civita() -> np.ndarray:
 
 
 def _spatial_cross_tensor(force: bool) -> np.ndarray:
-    """E with (a × b)_i = Σ_jk E_ijk a_j b_k: a ×m b ([aω × bω; aω × bv + av × bω]) or a ×* f
-    ([aω × n + av × f; aω × f])."""
+    """E with (a × b)_i = Σ_jk E_ijk a_j b_k: a ×m b, or a ×* f when ``force``."""
     eps, E = _levi_civita(), np.zeros((6, 6, 6))
     E[:3, :3, :3] = eps
     if force:
@@ -39,8 +36,7 @@ def _spatial_cross_tensor(force: bool) -> np.ndarray:
 
 
 def _bilinear_terms(E: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(j, k, M) with out = (a[..., j] * b[..., k]) @ M: the non-zero terms of E and the signed
-    sum that collects them into the outputs."""
+    """(j, k, M) with out = (a[..., j] * b[..., k]) @ M: the non-zero terms of E, summed by M."""
     i, j, k = np.nonzero(E)
     M = np.zeros((len(i), E.shape[0]))
     M[np.arange(len(i)), i] = E[i, j, k]
@@ -60,15 +56,13 @@ _SUMMED_FORCE = _FORCE_TENSOR.transpose(0, 2, 1).reshape(6, 36).T
 
 
 def cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """a × b over the last axis (3,), broadcasting; faster than np.cross on small arrays
-    (the six products in one gather and one multiply, issue 38)."""
+    """a × b over the last axis (3,), broadcasting; faster than np.cross on small arrays."""
     x = a[..., _CROSS_LEFT] * b[..., _CROSS_RIGHT]
     return x[..., :3] - x[..., 3:]
 
 
 def rotate(R: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """R @ v for rotations R (..., 3, 3) and vectors v (..., 3), broadcasting over the
-    leading axes; 4–6× faster than einsum on thousands of small matrices."""
+    """R @ v for rotations R (..., 3, 3) and vectors v (..., 3), broadcasting; beats einsum."""
     out = R[..., 0] * v[..., 0, None]
     out += R[..., 1] * v[..., 1, None]
     out += R[..., 2] * v[..., 2, None]
@@ -86,16 +80,9 @@ def cross_force(a: np.ndarray, f: np.ndarray) -> np.ndarray:
 
 
 def inertia_times(x: np.ndarray) -> np.ndarray:
-    """Γ(x): the (6, 10) matrix with M(φ) x = Γ(x) φ for a body-frame spatial inertia M(φ).
+    """Γ(x), (..., 6, 10): M(φ) x = Γ(x) φ for a body-frame spatial inertia M(φ), x (..., 6).
 
-    φ = [m, hx, hy, hz, Ixx, Iyy, Izz, Ixy, Ixz, Iyz] (pe_drake.multibody.robot.PARAMETER_NAMES) and
     M(φ) = [[I, [h]×], [-[h]×, m·1]], so M x = [I xω + h × xv; m xv - h × xω].
-
-    Args:
-        x: shape (..., 6).
-
-    Returns:
-        shape (..., 6, 10).
     """
     return (x @ _GAMMA).reshape(x.shape[:-1] + (6, 10))
 
@@ -118,14 +105,7 @@ def _inertia_times_formula(x: np.ndarray) -> np.ndarray:
 
 
 def inertia_times_diagonal(x: np.ndarray) -> np.ndarray:
-    """Σ_k Γ(x_k)[:, k]: the inertia of unit parameter k applied to its own vector x_k.
-
-    Args:
-        x: shape (..., 10, 6), one motion vector per parameter.
-
-    Returns:
-        shape (..., 6).
-    """
+    """Σ_k Γ(x_k)[:, k], (..., 6): the inertia of unit parameter k on its own x_k (..., 10, 6)."""
     return x.reshape(x.shape[:-2] + (60,)) @ _GAMMA_DIAGONAL
 
 
@@ -152,16 +132,10 @@ def _inertia_times_diagonal_formula(x: np.ndarray) -> np.ndarray:
 
 
 def body_regressor(V: np.ndarray, A: np.ndarray) -> np.ndarray:
-    """Net spatial force on a body as a linear map of its 10 parameters (body coordinates).
+    """Net spatial force on a body as a linear map of its 10 parameters, (..., 6, 10).
 
-    F = M(φ) A + V ×* M(φ) V = [Γ(A) + crf(V) Γ(V)] φ, with V the spatial velocity and A the
-    spatial (Featherstone) acceleration of the body, gravity included as a base acceleration.
-
-    Args:
-        V, A: shape (..., 6).
-
-    Returns:
-        shape (..., 6, 10).
+    F = M(φ) A + V ×* M(φ) V = [Γ(A) + crf(V) Γ(V)] φ, with V (..., 6) the spatial velocity and
+    A the spatial acceleration of the body, gravity included as a base acceleration.
     """
     G_V = inertia_times(V)
     return inertia_times(A) + np.moveaxis(cross_force(V[..., None, :], np.moveaxis(G_V, -1, -2)), -1, -2)
@@ -176,9 +150,8 @@ def skew(x: np.ndarray) -> np.ndarray:
 
 
 def force_transform_matrix(R: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """X* = [[R, [p]× R], [0, R]], (..., 6, 6): a force [n; f] at a body's origin in body
-    coordinates (R = R_WB, p = p_WBo) to world coordinates at the world origin. Its transpose
-    takes a world-origin motion vector to the body: [Rᵀ ω; Rᵀ (v − p × ω)]."""
+    """X* = [[R, [p]× R], [0, R]], (..., 6, 6): a body-origin force [n; f] (R = R_WB, p = p_WBo)
+    to the world origin. Its transpose takes a world-origin motion vector to the body."""
     X = np.zeros(R.shape[:-2] + (6, 6))
     X[..., :3, :3] = R
     X[..., 3:, 3:] = R
@@ -192,15 +165,10 @@ def cross_force_matrix(a: np.ndarray) -> np.ndarray:
 
 
 def summed_cross_force_of(fa: np.ndarray) -> np.ndarray:
-    """Σ_k a_k ×* f_k from the 6 × 6 matrix fᵀ a = Σ_k f_k a_kᵀ, (..., 6, 6) → (..., 6).
-
-    The caller forms fᵀ a with whichever operands it holds contiguously (e.g. Γ(V) wB for the
-    regressor's adjoint): (Σ_k a_k ×* f_k)_i = Σ_jl E_ijl (fᵀ a)_lj, E the force cross tensor.
-    """
+    """Σ_k a_k ×* f_k from the 6 × 6 matrix fᵀ a = Σ_k f_k a_kᵀ, (..., 6, 6) → (..., 6)."""
     return fa.reshape(fa.shape[:-2] + (36,)) @ _SUMMED_FORCE
 
 
-#: Γ(x) = (x @ _GAMMA) reshaped (6, 10); Σ_k Γ(x_k)[:, k] = x (60,) @ _GAMMA_DIAGONAL: both
-#: linear, so built once from unit vectors by the explicit formulas above.
+#: Γ(x) = (x @ _GAMMA) reshaped (6, 10); Σ_k Γ(x_k)[:, k] = x (60,) @ _GAMMA_DIAGONAL.
 _GAMMA = _inertia_times_formula(np.eye(6)).reshape(6, 60)
 _GAMMA_DIAGONAL = _inertia_times_diagonal_formula(np.eye(60).reshape(60, 10, 6))

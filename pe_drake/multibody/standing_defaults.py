@@ -1,23 +1,10 @@
 """Defaults for a legged robot given as a bare model file: excite the arms, stand on the feet.
 
-A humanoid URDF without a config would otherwise be welded at its pelvis with every joint
-excited: the legs swing below the pelvis through the floor, and no candidate posture clears
-(TALOS, Romeo, iCub). A roboticist with a standing humanoid excites its arms while it stands,
-which is what the shipped G1 config does by hand. :func:`standing_defaults` derives that set-up
-from the model's joint names and foot geometry:
-
-- legs: movable joints whose names say hip, knee, ankle, leg, foot or toe; a foot is the
-  child link of the last leg joint of a chain (with the links fixed to it);
-- excited joints: the arm joints (shoulder, elbow, wrist, arm), without grippers and fingers;
-  everything else (legs, trunk, head, hands) is locked at its zero posture (legs straight);
-- the root link's height puts the lowest point of the feet at z = 0, and the corners of each
-  sole (its points within 5 mm of that height) become ``robot.support_points``, so the
-  balance constraint (Eq. 52) keeps the CoM over the feet; self-collision is checked at the
-  paper's 2 cm (Eq. 53).
-
-Only URDF models are read; anything that does not look like a legged robot with arms (fewer
-than two feet or two arm joints, or a root already welded to a ``world`` link) gets None and
-loads as before.
+A humanoid URDF without a config would be welded at its pelvis with its legs swinging through
+the floor. :func:`standing_defaults` derives from the joint names and foot geometry what the
+shipped G1 config does by hand: the arm joints excited (grippers and fingers locked), the rest
+locked at zero, the lowest point of the feet at z = 0 and the sole corners as
+``robot.support_points`` (Eq. 52), self-collision at the paper's 2 cm (Eq. 53).
 """
 
 from __future__ import annotations
@@ -41,7 +28,7 @@ COLLISION_MARGIN = 0.02
 #: Points within this height of a foot's lowest point are its sole [m].
 SOLE_BAND = 0.005
 #: The balance radius (Eq. 52) given to a humanoid without a config [m], widened to take in the
-#: CoM of the starting posture (TALOS stands with it 59 mm in front of its feet's centre).
+#: CoM of the starting posture.
 BALANCE_RADIUS = 0.02
 
 
@@ -106,8 +93,8 @@ def _centre_of_mass(tree: ET.Element, poses: dict[str, np.ndarray]) -> np.ndarra
 
 
 def _balance_radius(support: dict[str, list[list[float]]], poses: dict[str, np.ndarray], com: np.ndarray) -> float:
-    """BALANCE_RADIUS around the support centre, widened to take in the starting posture's CoM
-    plus BALANCE_RADIUS, but never past the feet's bounding box less 1 cm."""
+    """BALANCE_RADIUS around the support centre, widened to take in the starting CoM, but never
+    past the feet's bounding box less 1 cm."""
     corners = np.array([(poses[link] @ np.r_[c, 1.0])[:3] for link, cs in support.items() for c in cs])
     centre = corners.mean(axis=0)
     half = np.minimum(centre[:2] - corners[:, :2].min(axis=0), corners[:, :2].max(axis=0) - centre[:2])
@@ -156,9 +143,9 @@ def _shape_points(shapes, model_path: Path) -> np.ndarray:
 
 
 def _sole(points_R: np.ndarray, X_RL: np.ndarray, z0: float) -> list[list[float]]:
-    """The four corners of the sole (the points within SOLE_BAND of z0) bounding box in the
-    root frame's x-y, at height z0, in the link frame: symmetric feet give symmetric points
-    and the support centre (their centroid) sits under the middle of each sole."""
+    """The four corners of the sole's bounding box (root frame x-y, height z0), in the link frame.
+
+    Symmetric feet give symmetric points, centred under the middle of each sole."""
     sole = points_R[points_R[:, 2] <= z0 + SOLE_BAND]
     (x0, y0), (x1, y1) = sole[:, :2].min(axis=0), sole[:, :2].max(axis=0)
     X_LR = np.linalg.inv(X_RL)
@@ -169,14 +156,10 @@ def _sole(points_R: np.ndarray, X_RL: np.ndarray, z0: float) -> list[list[float]
 def standing_defaults(model_path: str | Path) -> dict | None:
     """The robot and excitation settings of a legged robot standing on its feet, or None.
 
-    Args:
-        model_path: a URDF file (other formats: None).
-
     Returns:
-        {"robot": {joints, base_position, support_points, notes}, "excitation":
-        {balance_radius}} for :class:`~pe_drake.config.RobotConfig` and
-        :class:`~pe_drake.config.ExcitationConfig`, or None when the model does not look
-        like a legged robot with arms.
+        {"robot": {...}, "excitation": {...}} for :class:`~pe_drake.config.RobotConfig` and
+        :class:`~pe_drake.config.ExcitationConfig`, or None for a model that is not a URDF of a
+        legged robot with arms (fewer than two feet or two arm joints, or a welded root).
     """
     model_path = Path(model_path)
     if model_path.suffix.lower() != ".urdf":
@@ -210,8 +193,7 @@ def standing_defaults(model_path: str | Path) -> dict | None:
         f"a legged robot without a config: standing on {', '.join(support)} (root link '{roots[0]}' at "
         f"{-z0:.4g} m, legs straight), the {len(arms)} arm joints excited, the other {len(movable) - len(arms)} "
         f"joints locked at zero, CoM within {radius:g} m of the feet's centre, capsules {COLLISION_MARGIN:g} m "
-        "apart; give a config (robot.joints, support_points, base_position) to choose otherwise"
-    )
+        "apart; give a config (robot.joints, support_points, base_position) to choose otherwise")
     turned = up_axis_note(model_path)
     return {
         "robot": {"joints": arms, "base_position": [0.0, 0.0, -z0], "support_points": support,

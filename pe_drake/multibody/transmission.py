@@ -1,24 +1,9 @@
 """Transmissions between motors and joints: gear ratios and a coupling (issue 36).
 
 Motor angles are θ_m = R q, R = diag(ratios) plus the coupling entries, and the joint torques
-are τ = Rᵀ τ_m (the power θ̇_mᵀ τ_m = q̇ᵀ τ). A Stäubli TX40's wrist, with the config
-
-.. code-block:: yaml
-
-    robot:
-      transmission:
-        ratios: {joint_1: 32, joint_2: 32, joint_3: 45, joint_4: -48, joint_5: 45, joint_6: 32}
-        coupling: {joint_6: {joint_5: 32}}   # motor of joint_6: θ_m6 = 32 q6 + 32 q5
-
-has motor 6 turning with joints 5 and 6. Motors are named by the joint their ratio belongs to.
-A joint not in ``ratios`` has ratio 1 (a direct drive, or a log already on the joint side).
-
-:class:`Transmission` converts motor-side logs to the joint side (the log readers) and gives
-the drive terms that act per motor: friction, offset and rotor inertia act on θ̇_m, θ̈_m and
-reach the joints through Rᵀ, so a coupled motor's friction and rotor inertia act on every joint
-it turns with (the one column builder, :func:`pe_drake.multibody.drive_columns.drive_columns`
-with a layout's ``transmission``). It is one element of the robot model
-(:class:`~pe_drake.multibody.robot_model.RobotModel`'s ``transmission``).
+are τ = Rᵀ τ_m (the power θ̇_mᵀ τ_m = q̇ᵀ τ); the config (``robot.transmission``) is in the
+README. Motors are named by the joint their ratio belongs to; a joint not in ``ratios`` has
+ratio 1. A coupled motor's friction and rotor inertia act on every joint it turns with.
 """
 
 from __future__ import annotations
@@ -41,15 +26,10 @@ MAX_TRANSMISSION_COND = 1e8
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class Transmission:
-    """θ_m = R q and τ = Rᵀ τ_m for the robot's excited joints.
-
-    Attributes:
-        joints: the joint names, length n (motor i is the one of joint i).
-        R: (n, n) [rad of motor per rad or m of joint]: row i the motor of joint i.
-    """
+    """θ_m = R q and τ = Rᵀ τ_m for the robot's excited joints ``joints``."""
 
     joints: tuple[str, ...]
-    R: np.ndarray
+    R: np.ndarray  # (n, n) [rad of motor per rad or m of joint], row i the motor of joint i
 
     @classmethod
     def from_config(cls, ratios: Mapping[str, float], coupling: Mapping[str, Mapping[str, float]],
@@ -106,8 +86,7 @@ class Transmission:
         return np.linalg.solve(self.R.T, np.asarray(tau, float).T).T
 
     def reflected(self, motor_values: np.ndarray) -> np.ndarray:
-        """Rᵀ diag(x) R, (n, n): a per-motor viscous friction or rotor inertia x as the joints
-        see it (its off-diagonal entries are the coupling's)."""
+        """Rᵀ diag(x) R, (n, n): a per-motor friction or rotor inertia x as the joints see it."""
         return self.R.T @ (np.asarray(motor_values, float)[:, None] * self.R)
 
     def to_dict(self) -> dict:
@@ -117,11 +96,7 @@ class Transmission:
 
     @classmethod
     def from_dict(cls, d: Mapping) -> Transmission:
-        """Reads :meth:`to_dict`'s data.
-
-        Raises:
-            KeyError, TypeError, ValueError: a malformed block (the caller names the file).
-        """
+        """Reads :meth:`to_dict`'s data; KeyError, TypeError or ValueError for a malformed block."""
         joints = tuple(str(j) for j in d["joints"])
         R = np.asarray(d["R"], float)
         if R.shape != (len(joints), len(joints)) or not np.all(np.isfinite(R)):
@@ -130,11 +105,7 @@ class Transmission:
 
 
 def robot_transmission(robot: Robot) -> Transmission:
-    """A robot's transmission from its config's ``robot.transmission`` (identity without one).
-
-    Raises:
-        ConfigError: a joint that is not excited, a zero ratio, an R that is singular.
-    """
+    """A robot's transmission from its config's ``robot.transmission`` (identity without one)."""
     t = getattr(getattr(robot, "config", None), "transmission", None)
     if t is None:
         return Transmission(tuple(robot.joint_names), np.eye(robot.n))

@@ -1,21 +1,6 @@
-"""Writing an identified robot model: the original URDF with new ``<inertial>`` elements.
-
-Identified standard parameters belong one-to-one to Drake bodies, and Drake keeps one body
-per URDF link (links joined by fixed joints are welded, not merged), so each link moved by an
-excited joint gets its own inertial rewritten from its 10 parameters
-(:data:`pe_drake.multibody.robot.PARAMETER_NAMES`, about the link origin in the link frame):
-
-- ``<mass value="m"/>``;
-- ``<origin xyz="p_LoLcm" rpy="0 0 0"/>`` with p_LoLcm = h / m;
-- ``<inertia .../>``: the rotational inertia about the centre of mass in the link axes,
-  I_LLcm = I_LLo − m (|p|² 1 − p pᵀ) (parallel-axis theorem).
-
-Everything else (joints, limits, visuals, collisions, transmissions, comments) is kept.
-``package://`` URIs stay as they are when Drake's loader knows the package
-(``example-robot-data``) and become ``file://`` URIs otherwise, as do relative mesh paths, so
-the file works from any folder. Only physically valid parameters are written: every body is
-checked with Drake's ``SpatialInertia`` validity test before writing, and the written text is
-parsed back by Drake and compared with the parameters before it is moved into place.
+"""Writing an identified robot model: the original URDF with new ``<inertial>`` elements (Drake
+keeps one body per link), everything else kept; mesh names Drake's loader does not know become
+``file://`` URIs so the file works from any folder.
 """
 
 from __future__ import annotations
@@ -30,10 +15,9 @@ from pathlib import Path
 import numpy as np
 
 from pe_drake.exceptions import ConfigError, UnknownNameError
-from pe_drake.multibody.example_robot_data import example_robot_data_dir
 from pe_drake.multibody.inertia import central_inertia, check_physically_valid, spatial_inertia_to_phi
 from pe_drake.multibody.model_files import single_material_definitions, without_dangling_transmissions
-from pe_drake.multibody.packages import resolve_package_uri
+from pe_drake.multibody.packages import example_robot_data_dir, resolve_package_uri
 
 #: Packages the pe_drake loader always registers; their URIs are kept as they are.
 KNOWN_PACKAGES = ("example-robot-data",)
@@ -43,43 +27,32 @@ def _fmt(x: float) -> str:
     return repr(float(x)) if x != 0 else "0"
 
 
-def _inertial_element(phi_b: np.ndarray, indent: str) -> ET.Element:
-    m, p, I = central_inertia(phi_b)
+def inertial_element(phi_b: np.ndarray, indent: str = "    ") -> ET.Element:
+    """The ``<inertial>`` element of one body's 10 parameters, indented for a link at ``indent``."""
+    m, p, I = central_inertia(np.asarray(phi_b, float))
     inertial = ET.Element("inertial")
     inertial.text = "\n" + indent + "  "
     origin = ET.SubElement(inertial, "origin", {"xyz": " ".join(_fmt(x) for x in p), "rpy": "0 0 0"})
     origin.tail = "\n" + indent + "  "
     mass = ET.SubElement(inertial, "mass", {"value": _fmt(m)})
     mass.tail = "\n" + indent + "  "
-    inertia = ET.SubElement(
-        inertial,
-        "inertia",
-        {
-            "ixx": _fmt(I[0, 0]), "ixy": _fmt(I[0, 1]), "ixz": _fmt(I[0, 2]),
-            "iyy": _fmt(I[1, 1]), "iyz": _fmt(I[1, 2]), "izz": _fmt(I[2, 2]),
-        },
-    )
+    inertia = ET.SubElement(inertial, "inertia", {
+        "ixx": _fmt(I[0, 0]), "ixy": _fmt(I[0, 1]), "ixz": _fmt(I[0, 2]),
+        "iyy": _fmt(I[1, 1]), "iyz": _fmt(I[1, 2]), "izz": _fmt(I[2, 2]),
+    })
     inertia.tail = "\n" + indent
     return inertial
 
 
-def inertial_element(phi_b: np.ndarray, indent: str = "    ") -> ET.Element:
-    """The ``<inertial>`` element of one body's 10 parameters (about its origin, in its frame),
-    indented for a link at ``indent``."""
-    return _inertial_element(np.asarray(phi_b, float), indent)
-
-
-def _resolve_uri(uri: str, model_dir: Path, package_map, source: Path | None = None) -> str:
-    """A mesh or texture URI that works from any folder (see the module docstring)."""
+def _resolve_uri(uri: str, source: Path, package_map) -> str:
+    """A mesh or texture URI of the URDF ``source`` that works from any folder."""
     if uri.startswith("package://"):
         package = uri[len("package://") :].split("/", 1)[0]
         if package in KNOWN_PACKAGES:
             return uri
-        found = resolve_package_uri(uri, source) if source is not None else None
+        found = resolve_package_uri(uri, source)
         if found is not None:  # pe_drake's resolver: package.xml above the model, ROS paths
             return found.resolve().as_uri()
-        if package_map is None:
-            return uri
         try:
             return "file://" + str(Path(package_map.ResolveUrl(uri)).resolve())
         except Exception:  # unknown package: keep the URI (the caller's package path may know it)
@@ -88,24 +61,18 @@ def _resolve_uri(uri: str, model_dir: Path, package_map, source: Path | None = N
         return uri
     path = Path(uri)
     if not path.is_absolute():
-        path = model_dir / path
+        path = source.parent / path
     return "file://" + str(path.resolve())
 
 
-def urdf_with_inertias(
-    source: str | Path, body_names: Sequence[str], phi: np.ndarray, *, check: bool = True
-) -> str:
+def urdf_with_inertias(source: str | Path, body_names: Sequence[str], phi: np.ndarray, *,
+                       check: bool = True) -> str:
     """The text of a URDF with the inertial of every listed link replaced.
 
     Args:
-        source: the original URDF file.
         body_names: links to rewrite (Drake body names = URDF link names), length nb.
-        phi: their parameters, shape (10·nb,), about each link origin in the link frame
-            [kg, kg·m, kg·m²].
+        phi: their parameters, shape (10·nb,), about each link origin in the link frame.
         check: refuse physically invalid parameters (Drake's test) before writing.
-
-    Returns:
-        The new URDF text.
 
     Raises:
         PhysicallyInvalidError: a body's parameters are not physically valid.
@@ -115,8 +82,7 @@ def urdf_with_inertias(
     if source.suffix.lower() != ".urdf":
         raise ConfigError(
             f"model export writes URDF files; '{source.name}' is not a .urdf (load the robot from "
-            "its URDF to export an identified model)"
-        )
+            "its URDF to export an identified model)")
     phi = np.asarray(phi, float)
     if check:
         check_physically_valid(body_names, phi)
@@ -130,8 +96,7 @@ def urdf_with_inertias(
     if missing:
         raise ConfigError(
             f"the URDF '{source.name}' has no link(s) {', '.join(missing)}; bodies added outside the "
-            "file (e.g. a payload) cannot be exported to it"
-        )
+            "file (e.g. a payload) cannot be exported to it")
     for b, name in enumerate(body_names):
         link = links[name]
         children = list(link)
@@ -147,36 +112,27 @@ def urdf_with_inertias(
             tail = "\n" + indent
             if not before.strip() and "\n" not in before:
                 link.text = "\n" + indent
-        new = _inertial_element(phi[10 * b : 10 * b + 10], indent)
+        new = inertial_element(phi[10 * b : 10 * b + 10], indent)
         new.tail = tail
         link.insert(position, new)
     _drop_zero_dof_mimics(root)
-    package_map = None
-    try:
-        from pydrake.multibody.parsing import PackageMap  # lazy: pydrake is heavy
+    from pydrake.multibody.parsing import PackageMap  # lazy: pydrake is heavy
 
-        package_map = PackageMap()
-        with contextlib.suppress(Exception):
-            package_map.PopulateFromFolder(str(source.parent))
-    except ImportError:  # pragma: no cover - drake is a dependency
-        package_map = None
+    package_map = PackageMap()
+    with contextlib.suppress(Exception):
+        package_map.PopulateFromFolder(str(source.parent))
     for element in [*root.iter("mesh"), *root.iter("texture")]:  # textures too (issue 37, item 6)
         if element.get("filename"):
-            element.set("filename", _resolve_uri(element.get("filename"), source.parent, package_map, source))
+            element.set("filename", _resolve_uri(element.get("filename"), source, package_map))
     text = without_dangling_transmissions(ET.tostring(root, encoding="unicode"))[0]  # Drake refuses them
-    header = (
-        '<?xml version="1.0"?>\n'
-        f"<!-- {source.name} with identified inertial parameters (pe_drake) -->\n"
-    )
-    return header + text + "\n"
+    header = f"<!-- {source.name} with identified inertial parameters (pe_drake) -->\n"
+    return '<?xml version="1.0"?>\n' + header + text + "\n"
 
 
 def _drop_zero_dof_mimics(root: ET.Element) -> None:
     """Removes ``<mimic>`` from fixed joints and from joints mimicking a fixed joint.
 
-    A mimic on a 0-dof joint means nothing, and Drake refuses it ("Joint ... which has 0 DOF
-    cannot mimic ..."): TALOS's grippers, whose joints its reduced model fixes.
-    The other mimic tags are kept for ROS tools.
+    Drake refuses a mimic on a 0-dof joint; the other mimic tags are kept for ROS tools.
     """
     kinds = {j.get("name"): j.get("type") for j in root.iter("joint")}
     for joint in root.iter("joint"):
@@ -186,14 +142,9 @@ def _drop_zero_dof_mimics(root: ET.Element) -> None:
 
 
 def urdf_text_phi(text: str, body_names: Sequence[str]) -> np.ndarray:
-    """Each body's 10 parameters (about its origin, in its frame) as Drake reads URDF text
-    (parsed without a scene graph, as pe_drake loads it: repeated materials kept once),
-    shape (10·len(body_names),).
+    """Each body's 10 parameters as Drake reads URDF text, shape (10·len(body_names),).
 
-    Raises:
-        ConfigError: Drake refuses the text.
-        UnknownNameError: a body the text does not have.
-    """
+    ConfigError when Drake refuses the text, UnknownNameError for a body it does not have."""
     from pydrake.multibody.parsing import Parser  # lazy: pydrake is heavy
     from pydrake.multibody.plant import MultibodyPlant
 
@@ -217,13 +168,12 @@ def urdf_text_phi(text: str, body_names: Sequence[str]) -> np.ndarray:
                            for b in body_names]) if body_names else np.zeros(0)
 
 
-def verify_urdf_text(text: str, body_names: Sequence[str], phi: np.ndarray, tolerance: float = 1e-9) -> None:
-    """Parses URDF text with Drake (:func:`urdf_text_phi`) and compares each body's spatial inertia.
+def verify_urdf_text(text: str, body_names: Sequence[str], phi: np.ndarray,
+                     tolerance: float = 1e-9) -> None:
+    """Parses URDF text with Drake and compares each body's parameters with ``phi``.
 
-    Raises:
-        ConfigError: Drake refuses the text, or a body's parameters differ by more than
-            ``tolerance`` relative to the largest parameter of that body.
-    """
+    ConfigError when Drake refuses the text, or a body's parameters differ by more than
+    ``tolerance`` relative to its largest parameter."""
     read, phi = urdf_text_phi(text, body_names), np.asarray(phi, float)
     for b, name in enumerate(body_names):
         got, want = read[10 * b : 10 * b + 10], phi[10 * b : 10 * b + 10]
@@ -231,18 +181,16 @@ def verify_urdf_text(text: str, body_names: Sequence[str], phi: np.ndarray, tole
         if float(np.max(np.abs(got - want))) > tolerance * scale:
             raise ConfigError(
                 f"the exported URDF does not reproduce body '{name}': Drake reads {got.tolist()}, "
-                f"expected {want.tolist()}"
-            )
+                f"expected {want.tolist()}")
 
 
 def joint_dynamics(text: str, damping: dict[str, float], rotor_inertia: dict[str, float],
                    friction: dict[str, float] | None = None) -> str:
-    """URDF text with each joint's viscous damping [N·m·s/rad] in its ``<dynamics>`` and a
-    rotor inertia [kg·m²] as Drake's ``drake:rotor_inertia`` of a gear-ratio-1 actuator in a
-    ``<transmission>`` (Drake adds rotor_inertia·gear_ratio² to the joint's mass-matrix
-    diagonal: the armature). Coulomb friction [N·m] goes to ``<dynamics friction>``: Drake
-    ignores it, but pe_drake reads it as the model file's friction (``Robot.joint_friction``),
-    so a written value replaces the source URDF's instead of leaving a stale one."""
+    """URDF text with each joint's damping [N·m·s/rad], rotor inertia [kg·m²] and friction [N·m].
+
+    The rotor inertia is Drake's ``drake:rotor_inertia`` of a gear-ratio-1 actuator (the
+    armature). Drake ignores ``<dynamics friction>``, but pe_drake reads it as the model file's
+    friction (``Robot.joint_friction``), so a written value replaces the source's."""
     for name, value in damping.items():
         text = _set_joint_dynamics(text, name, "damping", float(value))
     for name, value in (friction or {}).items():
@@ -267,8 +215,7 @@ def joint_dynamics(text: str, damping: dict[str, float], rotor_inertia: dict[str
 
 
 def payload_link_text(name: str, parent: str, payload) -> str:
-    """URDF text of a link ``name`` holding a :class:`~pe_drake.multibody.payload.PayloadInertia`
-    (expressed in ``parent``'s frame) welded to ``parent``, to insert before ``</robot>``."""
+    """URDF text of a link ``name`` holding a payload (in ``parent``'s frame), welded to it."""
     m, p, I = central_inertia(payload.phi)
     return (f'  <link name="{name}">\n    <inertial>\n'
             f'      <origin xyz="{_num(p[0])} {_num(p[1])} {_num(p[2])}" rpy="0 0 0"/>\n'
@@ -285,7 +232,7 @@ def _num(x) -> str:
 
 
 def _set_joint_dynamics(text: str, joint: str, attribute: str, value: float) -> str:
-    """Sets ``attribute`` (damping, friction) in the joint's <dynamics> element (added when missing)."""
+    """Sets ``attribute`` in the joint's <dynamics> element (added when missing)."""
     pattern = re.compile(r'(<joint\b[^>]*\bname="' + re.escape(joint) + r'"[^>]*>)(.*?)(</joint>)', re.S)
     match = pattern.search(text)
     if match is None:

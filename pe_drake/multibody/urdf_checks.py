@@ -1,5 +1,5 @@
-"""Checks of a user's URDF text before Drake parses it, with messages that say what to change, and
-the joint attributes Drake's parser does not keep (effort limits without an actuator, ``<dynamics friction>``)."""
+"""Checks of a user's URDF text before Drake parses it, with messages that say what to change,
+and the joint attributes Drake's parser does not keep (effort limits, ``<dynamics friction>``)."""
 
 from __future__ import annotations
 
@@ -25,12 +25,8 @@ def urdf_tree(text: str) -> ET.Element:
     """The URDF's element tree as Drake reads it: the ``<!DOCTYPE>`` ignored and its entities
     not expanded (``effort="&foo;"`` is the text '&foo;').
 
-    Python's parser expands a DOCTYPE's entities and fails on external or undefined ones
-    (``undefined entity``) where Drake reads the file: the effort limits read beside Drake then
-    came back empty and a robot with limits was told it had "no effort limit".
-
-    Raises:
-        xml.etree.ElementTree.ParseError: text that is not XML.
+    Python's parser would expand a DOCTYPE's entities and fail on external or undefined ones
+    where Drake reads the file. Raises ``ParseError`` for text that is not XML.
     """
     text = _DOCTYPE.sub(lambda m: "\n" * m.group(0).count("\n"), text)  # newlines kept: line numbers stay
     return ET.fromstring(_ENTITY_REF.sub("&amp;", text))
@@ -42,11 +38,7 @@ def has_entities(text: str) -> bool:
 
 
 def check_joint_types(urdf_text: str, model_path: str | Path) -> None:
-    """Refuses joints pe_drake cannot excite or lock (floating, planar, ball, ...).
-
-    Raises:
-        ConfigError: naming the joint, its type and what is supported.
-    """
+    """Refuses (ConfigError) joints pe_drake cannot excite or lock (floating, planar, ball, ...)."""
     # comments out, newlines kept (line numbers stay right): G1's URDF comments out a floating joint
     urdf_text = re.sub(r"<!--.*?-->", lambda m: "\n" * m.group(0).count("\n"), urdf_text, flags=re.S)
     for match in _JOINT.finditer(urdf_text):
@@ -54,17 +46,14 @@ def check_joint_types(urdf_text: str, model_path: str | Path) -> None:
         kind = attrs.get("type", "")
         if kind and kind not in SUPPORTED_JOINT_TYPES:
             line = urdf_text.count("\n", 0, match.start()) + 1
-            hint = (
-                "For a floating base, delete that joint: the root link is then welded to the world at "
-                "robot.base_position / base_quaternion_wxyz (as G1's pelvis is)"
-                if kind == "floating"
-                else "Replace it by 1-dof joints, or make it fixed to lock it"
-            )
+            hint = ("For a floating base, delete that joint: the root link is then welded to the "
+                    "world at robot.base_position / base_quaternion_wxyz (as G1's pelvis is)"
+                    if kind == "floating" else
+                    "Replace it by 1-dof joints, or make it fixed to lock it")
             raise ConfigError(
-                f"'{Path(model_path).name}', line {line}: joint '{attrs.get('name', '?')}' has type '{kind}'; "
-                f"pe_drake supports {', '.join(SUPPORTED_JOINT_TYPES)} joints (1-dof joints are excited or "
-                f"locked, fixed ones welded). {hint}"
-            )
+                f"'{Path(model_path).name}', line {line}: joint '{attrs.get('name', '?')}' has "
+                f"type '{kind}'; pe_drake supports {', '.join(SUPPORTED_JOINT_TYPES)} joints "
+                f"(1-dof joints are excited or locked, fixed ones welded). {hint}")
 
 
 def urdf_joint_efforts(path: Path) -> dict[str, float]:
@@ -88,8 +77,7 @@ def urdf_joint_efforts(path: Path) -> dict[str, float]:
 
 
 def urdf_joint_dynamics(path: Path, attribute: str) -> dict[str, float]:
-    """{joint: value} of a URDF's ``<dynamics attribute=...>`` ({} for other formats or text
-    that does not parse; Drake reports those itself)."""
+    """{joint: value} of a URDF's ``<dynamics attribute=...>`` ({} for another format, bad text)."""
     if path.suffix.lower() != ".urdf":
         return {}
     try:

@@ -1,18 +1,9 @@
 """The ground wrench of a robot whose root link is welded to the world.
 
-A humanoid standing still with only its upper body moving is a fixed-base robot for the
-purpose of identification: the weld of the pelvis to the world stands for the feet on the
-ground, and the wrench that weld transmits is what foot force/torque sensors or a force plate
-measure. It is the sum of the Newton–Euler wrenches of every body (the six unactuated rows of
-the floating-base equations, Y_0(q, v, vdot) φ; Ayusawa et al.'s references [7], [9]):
-
-    w(t) = Y_0(q, v, vdot) φ + w_static,
-
-with Y_0 the per-body world-frame force blocks side by side
-(:meth:`pe_drake.multibody.regressor.RegressorModel.wrench_regressor`) and w_static the
-constant weight of the bodies no excited joint moves (:func:`static_wrench`). Components are
-those of :data:`WRENCH_COLUMNS`: force [N] and moment about the world origin [N·m], world
-frame, applied by the ground to the robot.
+The weld of a standing humanoid's pelvis stands for the feet on the ground; the wrench it
+transmits is what foot force/torque sensors measure: w = Y_0(q, v, v̇) φ + w_static
+(docs/derivations.md §4a). Components are those of :data:`WRENCH_COLUMNS`: force [N] and moment
+about the world origin [N·m], world frame, applied by the ground to the robot.
 """
 
 from __future__ import annotations
@@ -34,12 +25,7 @@ WRENCH_COLUMNS = ("wrench.fx", "wrench.fy", "wrench.fz", "wrench.mx", "wrench.my
 def static_wrench(robot: Robot) -> np.ndarray:
     """The ground wrench that holds the bodies no excited joint moves, shape (6,) [N, N·m].
 
-    Those bodies (pelvis, torso, legs, ... of a humanoid whose arms are excited) only weigh:
-    force −m g, moment p_WScm × (−m g) about the world origin. Their parameters are not in
-    φ; a constant sensor offset adds to this term and cannot be told from it.
-
-    Args:
-        robot: a :class:`~pe_drake.multibody.robot.Robot`.
+    Those bodies only weigh; a constant sensor offset adds to this term and cannot be told from it.
     """
     plant = robot.plant
     ctx = plant.CreateDefaultContext()  # the static bodies' poses do not depend on q
@@ -63,8 +49,7 @@ def static_wrench(robot: Robot) -> np.ndarray:
 def root_weld_joint_position(robot: Robot) -> int:
     """Position of the root link's weld in ``plant.GetJointIndices()``.
 
-    Drake's reaction-force output is indexed by that position, not by the JointIndex: they
-    differ once joints were removed (every non-excited joint is replaced by a weld).
+    Drake's reaction-force output is indexed by that position, not by the JointIndex.
     """
     plant = robot.plant
     root = plant.GetBodyByName(robot.root_link).index()
@@ -77,16 +62,8 @@ def root_weld_joint_position(robot: Robot) -> int:
 
 
 def reaction_to_ground_wrench(robot: Robot, reactions) -> np.ndarray:
-    """The ground wrench (:data:`WRENCH_COLUMNS` order) from Drake's reaction-force output.
-
-    Args:
-        robot: the :class:`~pe_drake.multibody.robot.Robot` whose plant produced ``reactions``.
-        reactions: the value of ``plant.get_reaction_forces_output_port()``: per joint the
-            spatial force F_CJc_Jc on the child body at the joint's child frame Jc, in Jc.
-
-    Returns:
-        Shape (6,): force [N] and moment about the world origin [N·m], world frame.
-    """
+    """The ground wrench (:data:`WRENCH_COLUMNS` order, shape (6,)) from ``reactions``, the value
+    of ``plant.get_reaction_forces_output_port()`` (per joint F_CJc_Jc on the child body)."""
     plant = robot.plant
     position = root_weld_joint_position(robot)
     joint = plant.get_joint(plant.GetJointIndices()[position])
@@ -99,22 +76,18 @@ def reaction_to_ground_wrench(robot: Robot, reactions) -> np.ndarray:
     return np.concatenate([force, moment])
 
 
-def weld_reaction(robot: Robot, q: np.ndarray, v: np.ndarray, applied: np.ndarray, centred: bool = False) -> np.ndarray:
-    """Drake's reaction at the root weld at states (q, v) under applied joint forces, (T, 6).
+def weld_reaction(robot: Robot, q: np.ndarray, v: np.ndarray, applied: np.ndarray,
+                  centred: bool = False) -> np.ndarray:
+    """Drake's reaction at the root weld at states (q, v) (T, n) under applied forces: the ground
+    wrench per sample, (T, 6) in :data:`WRENCH_COLUMNS` order [N, N·m].
 
     Uses ``robot.plant_context`` (a simulated robot's context keeps its true inertias).
 
     Args:
-        robot: a :class:`~pe_drake.multibody.robot.Robot`.
-        q, v: each (T, n).
-        applied: generalized forces applied at the joints, (T, n) [N·m or N] (held over the
-            sample period that starts at each sample, as a zero-order-hold controller does).
+        applied: generalized forces applied at the joints, (T, n) [N·m or N], held over the
+            sample period that starts at each sample.
         centred: average, at sample k, the reactions under applied[k − 1] and applied[k]
-            (the acceleration jumps at t_k when the command changes; the average is the one
-            centred on t_k, like the logged torque of ``simulate``).
-
-    Returns:
-        Ground wrench per sample, (T, 6), :data:`WRENCH_COLUMNS` order [N, N·m].
+            (centred on t_k, like the logged torque of ``simulate``).
     """
     plant, ctx = robot.plant, robot.plant_context
     q, v, applied = (np.atleast_2d(np.asarray(x, float)) for x in (q, v, applied))
@@ -135,19 +108,10 @@ def weld_reaction(robot: Robot, q: np.ndarray, v: np.ndarray, applied: np.ndarra
 
 
 def weld_reaction_wrench(robot: Robot, q: np.ndarray, v: np.ndarray, vd: np.ndarray) -> np.ndarray:
-    """Drake's reaction at the root weld while the robot moves with (q, v, vdot), (T, 6).
+    """Drake's reaction at the root weld while the robot moves with (q, v, v̇), (T, 6).
 
-    The joints are driven by the inverse-dynamics torques (joint damping included), so that
-    Drake's forward dynamics reproduces vdot; the reaction output of the weld is then the
-    ground wrench. An independent oracle for the wrench rows. Collision geometry in contact
-    adds contact forces to Drake's forward dynamics: use states where none touches.
-
-    Args:
-        robot: a :class:`~pe_drake.multibody.robot.Robot` (its own plant and context are used).
-        q, v, vd: each (T, n).
-
-    Returns:
-        Ground wrench per sample, (T, 6), :data:`WRENCH_COLUMNS` order [N, N·m].
+    The joints are driven by the inverse-dynamics torques, so Drake's forward dynamics
+    reproduces v̇: an independent oracle for the wrench rows. Use states without contact.
     """
     q, v, vd = (np.atleast_2d(np.asarray(x, float)) for x in (q, v, vd))
     return weld_reaction(robot, q, v, robot.inverse_dynamics(q, v, vd, include_damping=True))

@@ -1,22 +1,12 @@
 """Expanding a xacro file without letting it run code: a xacro is a program.
 
-xacro evaluates ``$(eval …)`` with Python's real builtins (``exec``, ``open``: a shared
-``.urdf.xacro`` ran a shell command as the user), and ``${…}`` expressions may read any file
-(``xacro.load_yaml``) or environment variable (``$(env VAR)``, ``$(optenv VAR)``) into the
-model text, and from there into ``playback.html``. Unless the user trusts the file
-(``--trust-xacro`` or ``robot.trust_xacro: true``), :func:`sandboxed` expands it with:
-
-- ``$(eval …)`` evaluated without any builtins (only xacro's own ``arg``, ``find``,
-  ``dirname``, ``true``/``false`` and the math functions);
-- ``${…}`` without ``load_yaml``, ``abs_filename``, ``type`` and ``vars`` (the last two reach
-  every class of the interpreter);
-- in both, no attribute whose name starts with ``_``, no frame or code attribute and no
-  ``str.format`` (each a known way out of a builtin-free ``eval``);
-- ``$(env)`` / ``$(optenv)`` refused;
-- ``<xacro:include>`` only of files under the xacro's folder, its package's folder and the
-  folders ``$(find …)`` returned.
-
-Each refusal names the construct and says how to trust the file.
+xacro evaluates ``$(eval …)`` with Python's real builtins, and ``${…}`` may read any file
+(``xacro.load_yaml``) or environment variable into the model text, and from there into
+``playback.html``. Unless the user trusts the file (``--trust-xacro``), :func:`sandboxed` expands
+it with ``$(eval …)`` without builtins, ``${…}`` without ``load_yaml``, ``abs_filename``,
+``type`` and ``vars``, no underscore, frame, code or ``str.format`` attribute (known ways out of
+a builtin-free ``eval``), ``$(env)`` refused, and ``<xacro:include>`` only of files under the
+xacro's folder, its package and the folders ``$(find …)`` returned.
 """
 
 from __future__ import annotations
@@ -31,6 +21,7 @@ from pathlib import Path
 from pe_drake import limits
 from pe_drake.exceptions import ConfigError
 from pe_drake.limits import input_file_problem
+from pe_drake.multibody.mesh_policy import is_under
 
 #: What the refusals tell the user to do when they trust the file.
 TRUST_HINT = ("a xacro file is a program that pe_drake runs to expand it; if you trust its author, pass "
@@ -50,11 +41,7 @@ class XacroRefused(ConfigError):
 
 
 def check_expression(expression: str, where: str) -> None:
-    """Refuses an expression that reaches outside the symbols it is given.
-
-    Raises:
-        XacroRefused: naming the expression and the attribute or name it uses.
-    """
+    """Refuses (:class:`XacroRefused`) an expression that reaches outside its symbols."""
     try:
         tree = ast.parse(expression.strip(), mode="eval")
     except SyntaxError:
@@ -117,7 +104,7 @@ def _confined_parse(original: Callable, allowed: list[str]) -> Callable:
     def parse(inp, filename=None):
         if inp is None and filename is not None:
             real = os.path.realpath(filename)
-            if not any(real == r or real.startswith(r.rstrip(os.sep) + os.sep) for r in allowed):
+            if not is_under(real, allowed):
                 raise XacroRefused(
                     f"xacro:include of '{filename}' ({real}) is outside the xacro's folder, its package and the "
                     f"packages it finds; {TRUST_HINT}")
@@ -136,7 +123,6 @@ def sandboxed(path: Path, package_root: Path | None, found: list[str]) -> Iterat
     """Within it, ``xacro.process_file`` expands ``path`` as described in the module docstring.
 
     Args:
-        path: the .xacro file (resolved).
         package_root: the folder of the package holding it, or None.
         found: the folders ``$(find …)`` returned; the caller's find appends to it.
 
