@@ -1,16 +1,10 @@
-"""Checks every measured CSV reader shares: the file is UTF-8 text with commas, its numbers
-are numbers, and its time strictly increases.
+"""Checks every measured CSV reader shares: the file is UTF-8 text with commas, its numbers are
+numbers, and its time strictly increases.
 
-- A UTF-16 file (Excel's "Unicode text", Windows tools) failed with a UnicodeDecodeError
-  traceback, and a semicolon- or tab-delimited one (a European Excel export) with "missing
-  columns": :func:`check_text_file` and :func:`delimiter_hint` say what it looks like and how
-  to save it.
-- Python's ``float`` accepts ``0.21_5`` (underscores) and other digits than 0-9, which numpy's
-  parser refuses: the reader's search for the bad field found none and named no row or
-  column. :func:`is_number` is the grammar of a number in a CSV.
-- A logger that writes samples twice (the same stamp, or 1 ns apart) made every real step look
-  like a hole (9,999 "gaps" of a 1 kHz log) or sent the resampling grid to 74 GB:
-  :func:`check_time_order` counts the repeated and decreasing stamps and names the first rows.
+:func:`check_text_file` and :func:`delimiter_hint` name a UTF-16 or a semicolon- or tab-delimited
+file and say how to save it. :func:`is_number` is the grammar of a number in a CSV (Python's
+``float`` also takes ``0.21_5`` and non-ASCII digits, which numpy's parser refuses).
+:func:`check_time_order` counts repeated and decreasing stamps and names the first rows.
 """
 
 from __future__ import annotations
@@ -38,12 +32,8 @@ def is_number(text: str) -> bool:
 
 
 def check_text_file(path: str | Path) -> None:
-    """Refuses a file that is not UTF-8 text: a UTF-16 byte-order mark, NUL bytes, or bytes
-    that do not decode as UTF-8 (in its first 64 kB).
-
-    Raises:
-        DataError: naming the file, what it looks like and how to save it.
-    """
+    """Refuses a file that is not UTF-8 text (a UTF-16 byte-order mark, NUL bytes, or bytes that
+    do not decode as UTF-8 in its first 64 kB), saying what it looks like and how to save it."""
     with open(path, "rb") as f:
         head = f.read(65536)
     looks = next((what for bom, what in _BOMS.items() if head.startswith(bom)), None)
@@ -61,11 +51,7 @@ def check_text_file(path: str | Path) -> None:
 
 
 def delimiter_hint(header: str, file: str) -> None:
-    """Refuses a header that is one column of a semicolon- or tab-delimited file.
-
-    Raises:
-        DataError: naming the delimiter and how to save the file.
-    """
+    """Refuses a header that is one column of a semicolon- or tab-delimited file."""
     if "," in header:
         return
     for mark, name in ((";", "semicolon"), ("\t", "tab")):
@@ -110,9 +96,7 @@ def check_time_order(t: np.ndarray, file: str = "", lines=None, column: str = "t
 
     Args:
         t: the time column, shape (T,) [s].
-        file: the file, for the message.
         lines: the file line of each sample (when the reader knows them).
-        column: the time column's name.
 
     Raises:
         DataError: naming the file, the column and the first bad row (data rows from 1).

@@ -1,9 +1,8 @@
 """Reading pe_drake's measurement CSV in bounded memory, every bad line named.
 
 The file is read once, as a stream of lines: each is checked (length, field count) and its line
-number kept while numpy's C parser turns the stream into the table of the wanted columns, so
-an hour at 1 kHz (3.6 M lines) needs the table and one chunk of lines, not the file's text and
-a Python string per line (1.3 kB per row before, 18× the CSV's size for a decimated fit).
+number kept while numpy's C parser turns chunks of lines into the table of the wanted columns,
+so an hour at 1 kHz needs the table and one chunk, not a Python string per line.
 """
 
 from __future__ import annotations
@@ -17,16 +16,12 @@ from pe_drake import limits
 from pe_drake.exceptions import DataError, shorten
 from pe_drake.identification.csv_checks import SAVE_AS_UTF8, check_text_file, delimiter_hint, is_number
 
-#: The longest line accepted by default [characters]: a log's line is a few hundred; a longer one
-#: is not a log (:data:`pe_drake.limits.CSV_LINE` overrides it).
-MAX_LINE_CHARS = 2**20
-
 #: Lines parsed at once.
 CHUNK_LINES = 50_000
 
 
 def _lines(path: Path, file: str) -> Iterator[tuple[int, str]]:
-    """(line number, text) of every line, refusing one longer than :data:`MAX_LINE_CHARS`."""
+    """(line number, text) of every line, refusing one longer than :data:`pe_drake.limits.CSV_LINE`."""
     longest = limits.in_bytes(limits.CSV_LINE)
     with path.open(encoding="utf-8-sig", newline=None) as f:
         lineno = 0
@@ -34,7 +29,8 @@ def _lines(path: Path, file: str) -> Iterator[tuple[int, str]]:
             try:
                 line = f.readline(longest + 1)
             except UnicodeDecodeError as err:
-                raise DataError(f"not UTF-8 text after line {lineno} ({err.reason}); {SAVE_AS_UTF8}", file=file) from None
+                raise DataError(f"not UTF-8 text after line {lineno} ({err.reason}); {SAVE_AS_UTF8}",
+                                file=file) from None
             if not line:
                 return
             lineno += 1
@@ -49,7 +45,7 @@ def read_header_line(path: Path) -> tuple[int, list[str]]:
 
     Raises:
         DataError: no file, an empty file, text that is not UTF-8, a semicolon- or tab-delimited
-            header (:mod:`~pe_drake.identification.csv_checks`).
+            header.
     """
     file = str(path)
     problem = limits.input_file_problem(path)
@@ -76,8 +72,7 @@ def read_table(path: Path, header_line: int, columns: Sequence[str], wanted: Seq
     """
     file = str(path)
     usecols = [index[c] for c in wanted]
-    # The table is allocated once at the file's line count: numpy's growing result held up to
-    # 2.4× the table while reading (an hour at 1 kHz: 1 GB for a 0.43 GB table).
+    # Allocated once at the file's line count: numpy's growing result holds up to 2.4× the table.
     table = np.empty((_count_lines(path), len(wanted)))
     linenos = np.empty(table.shape[0], dtype=np.int64)
     rows, chunk = 0, []

@@ -1,6 +1,6 @@
 """The one door for measured files: :func:`read_measurements` reads any supported log and runs
-the raw-data checks, so the library refuses what the CLI refuses; :func:`prepare_measurement`
-checks the run against the robot and preprocesses it for a fit or a prediction."""
+the raw-data checks; :func:`prepare_measurement` checks a run against the robot and preprocesses
+it for a fit or a prediction."""
 
 from __future__ import annotations
 
@@ -24,16 +24,15 @@ def read_measurements(robot: Robot, path: str | Path, options: DataConfig | None
     """Reads a measured run of ``robot`` and checks it before any work.
 
     Args:
-        robot: the :class:`~pe_drake.multibody.robot.Robot` (its excited joints, drive gains).
         path: pe_drake's CSV, a ROS 2 bag (folder, ``.db3``, ``.mcap``), a UR RTDE CSV, or a CSV
             read through ``options.columns``.
-        options: the config's ``data`` section (:class:`~pe_drake.config.DataConfig`).
+        options: the config's ``data`` section.
         progress: called with :meth:`~Measurement.summary_lines` once the run is read and checked.
         **changes: fields of ``options`` to override (``format=``, ``topic=``, ``effort=``).
 
     Returns:
         The raw :class:`~pe_drake.identification.measurements.Measurement`, joints in the robot's
-        order, with the ``notes`` reading left (interpolated holes, dropped messages).
+        order, with the ``notes`` reading left.
 
     Raises:
         DataError: an unreadable file, or data that fails the checks (time in ms, positions in
@@ -72,8 +71,6 @@ def prepare_measurement(
     """Checks the joints and torque units and preprocesses for identification.
 
     Args:
-        robot: the robot the data belongs to.
-        measurement: raw data.
         cutoff_hz, fundamental_hz, harmonics, rate_hz: see
             :func:`pe_drake.identification.preprocessing.preprocess` (``rate_hz`` = ``decimate_to_hz``).
         filtering: False uses the data as it is; it must then hold v and vdot (exact,
@@ -83,8 +80,7 @@ def prepare_measurement(
         max_gap_s: longest hole in the time column interpolated [s]; longer ones split the
             run into segments filtered on their own and stacked
             (:func:`~pe_drake.identification.gaps.preprocess_segments`).
-        window: the part of the run kept, taken after the whole run is filtered
-            (:class:`~pe_drake.identification.time_window.TimeWindow`); None: all of it.
+        window: the part of the run kept, taken after the whole run is filtered; None: all.
 
     Raises:
         DataError: other joints than the robot's, missing v/vdot without filtering, torques
@@ -97,10 +93,8 @@ def prepare_measurement(
         data = preprocess_segments(measurement, options, max_gap_s)
     else:
         if measurement.v is None or measurement.vd is None:
-            raise DataError(
-                "without filtering the data must hold v.<joint> and vdot.<joint> columns",
-                file=measurement.source,
-            )
+            raise DataError("without filtering the data must hold v.<joint> and vdot.<joint> columns",
+                            file=measurement.source)
         data = measurement
     if window is not None:
         data = window.apply(data)

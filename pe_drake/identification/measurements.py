@@ -12,13 +12,8 @@ File format (SI units, one row per sample, comma separated, one header line):
   six or none); with them the ``tau.<joint>`` columns may be left out (a robot without
   joint-torque sensors, identified from its feet's force/torque sensors).
 
-Columns may come in any order; columns whose name has none of the prefixes above are ignored.
-Rows are reported as **data rows counted from 1** (the first line after the header is data row
-1); messages also give the line number in the file (data row + 1 when there are no blank lines).
-
-:func:`pe_drake.identification.preprocessing.preprocess` turns a raw recording into what
-identification needs (uniform grid, zero-phase low-pass, derivatives, decimation, trimmed ends);
-:class:`Preprocessing` records what it chose.
+Columns may come in any order; columns with none of the prefixes above are ignored. Messages
+count **data rows from 1** (the first line after the header is data row 1) and give the file line.
 """
 
 from __future__ import annotations
@@ -47,23 +42,14 @@ class Preprocessing:
     """What :func:`~pe_drake.identification.preprocessing.preprocess` chose, for reports.
 
     Attributes:
-        cutoff_hz: low-pass cut-off frequency [Hz].
-        cutoff_source: "argument", "trajectory" (``CUTOFF_FACTOR`` × N·f0) or "spectrum"
-            (``CUTOFF_FACTOR`` × the frequency below which ``ENERGY_FRACTION`` of q's energy
-            lies); constants of :mod:`pe_drake.identification.preprocessing`.
-        filter_order: Butterworth order (the zero-phase filter doubles it).
-        input_rate_hz: median sample rate of the raw data [Hz].
+        cutoff_source: "argument", "trajectory" or "spectrum"
+            (:func:`~pe_drake.identification.preprocessing.choose_cutoff`).
+        input_rate_hz: median sample rate of the raw data [Hz]; rate_hz: of the output [Hz].
         resampled: the raw time was not uniform and was linearly interpolated onto a grid.
-        rate_hz: sample rate of the output [Hz].
         trim_s: time dropped at each end [s].
-        velocity_source: "measured" (filtered ``v.*`` columns) or "differentiated".
-        acceleration_source: "measured" (filtered ``vdot.*`` columns) or "differentiated".
-        samples_in: raw samples.
-        samples_out: output samples.
-        duration_in_s: time span of the raw record [s].
-        duration_out_s: time span of the output (after trimming) [s].
-        segments: records filtered on their own and stacked (a run split at its pauses,
-            :mod:`pe_drake.identification.gaps`).
+        velocity_source, acceleration_source: "measured" (filtered columns) or "differentiated".
+        duration_in_s, duration_out_s: time span of the raw record and of the output [s].
+        segments: records filtered on their own and stacked (:mod:`~pe_drake.identification.gaps`).
     """
 
     cutoff_hz: float
@@ -93,23 +79,18 @@ class Preprocessing:
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class Measurement:
-    """Joint data of one run.
+    """Joint data of one run (units of the module docstring).
 
     Attributes:
         t: time, shape (T,) [s], strictly increasing.
-        q: joint positions, shape (T, n) [rad or m].
-        tau: joint torques the actuators apply, shape (T, n) [N·m or N], or None when only
-            the ground wrench was measured.
-        v: joint velocities, shape (T, n) [rad/s or m/s], or None when not measured.
-        vd: joint accelerations, shape (T, n) [rad/s² or m/s²], or None.
+        q, tau, v, vd: shape (T, n); tau None when only the ground wrench was measured, v and
+            vd None when not measured.
         joints: joint names, length n, in column order of q/tau/v/vd.
         source: file the data came from ("" when built in memory).
         preprocessing: what :func:`~pe_drake.identification.preprocessing.preprocess` did, or
             None for raw data.
-        wrench: the ground wrench, shape (T, 6) [N, N·m] (columns :data:`WRENCH_COLUMNS`),
-            or None.
-        notes: what reading and preprocessing did that a user should know (interpolated
-            gaps, dropped duplicate stamps, currents converted), one sentence each.
+        wrench: the ground wrench, shape (T, 6) (columns :data:`WRENCH_COLUMNS`), or None.
+        notes: what reading and preprocessing did that a user should know, one sentence each.
     """
 
     t: np.ndarray
@@ -187,9 +168,6 @@ class Measurement:
         return [str(path)]
 
 
-# ---- reading and writing -------------------------------------------------------------------
-
-
 def _joint_names(joints) -> tuple[str, ...]:
     names = getattr(joints, "joint_names", joints)  # a Robot or a sequence of names
     if isinstance(names, str):
@@ -205,20 +183,15 @@ def read_measurement_csv(path: str | Path, joints, *, min_rows: int = 10) -> Mea
     """Reads and validates a measurement CSV (format in the module docstring).
 
     Args:
-        path: the CSV file.
         joints: the robot's excited joints (names in the robot's order), or a ``Robot``.
-        min_rows: fewest data rows accepted.
 
     Returns:
         The :class:`Measurement`, joints in the order given (not the file's column order).
 
     Raises:
-        DataError: missing file; empty file; missing column (the expected ones are listed);
-            a ``q.``/``v.``/``vdot.``/``tau.`` column for a joint that is not excited (the
-            valid joints are listed); a column given twice; ``v.``/``vdot.`` for only some
-            joints; a row with the wrong number of fields; a non-numeric, NaN or infinite
-            value (column and data row); duplicated or decreasing time (data row); fewer
-            than ``min_rows`` rows.
+        DataError: a missing or empty file, a missing, unknown or repeated column, ``v.``/
+            ``vdot.`` for only some joints, a bad row or value, time that does not strictly
+            increase, fewer than ``min_rows`` rows: naming the column and the data row.
     """
     path = Path(path)
     joints = _joint_names(joints)
@@ -240,7 +213,7 @@ def read_measurement_csv(path: str | Path, joints, *, min_rows: int = 10) -> Mea
     if table.shape[0] < min_rows:
         raise DataError(f"only {table.shape[0]} data rows; at least {min_rows} are needed", file=file)
     t = table[:, 0]
-    _check_time(t, linenos, file)
+    check_time_order(t, file, linenos)
     n = len(joints)
     # Views into the one table, not copies: an hour at 1 kHz is read at the table's size.
     wrench = table[:, -6:] if has_wrench else None
@@ -261,11 +234,6 @@ def _wrench_block(columns: list[str], file: str) -> bool:
             file=file, column=missing[0],
         )
     return all(present)
-
-
-def _check_time(t: np.ndarray, linenos: np.ndarray, file: str) -> None:
-    """Refuses duplicated (or 1 ns apart) and decreasing time, with counts, data rows and lines."""
-    check_time_order(t, file, linenos)
 
 
 def _column_index(columns: list[str], joints: tuple[str, ...], file: str, tau_required: bool = True) -> dict[str, int]:
@@ -307,11 +275,7 @@ def _optional_block(index: dict[str, int], prefix: str, joints: tuple[str, ...],
 
 
 def measurement_to_csv_text(measurement: Measurement) -> str:
-    """The CSV text of a measurement (format in the module docstring), 10 significant digits.
-
-    Raises:
-        DataError: when a value is NaN or infinite (the file would be refused on reading).
-    """
+    """The CSV text of a measurement, 10 significant digits; DataError for a NaN or inf value."""
     m = measurement
     header = ["t"] + [f"q.{j}" for j in m.joints]
     blocks = [m.t[:, None], m.q]
@@ -334,15 +298,8 @@ def measurement_to_csv_text(measurement: Measurement) -> str:
 
 
 def write_measurement_csv(path: str | Path, measurement: Measurement) -> None:
-    """Writes a measurement CSV atomically (a temporary file renamed into place).
-
-    Raises:
-        DataError: when a value is NaN or infinite.
-    """
+    """Writes a measurement CSV atomically; DataError when a value is NaN or infinite."""
     atomic_write_text(path, measurement_to_csv_text(measurement))
-
-
-# ---- unit check ----------------------------------------------------------------------------
 
 
 def check_torque_units(
@@ -360,10 +317,7 @@ def check_torque_units(
     distal joints are friction-dominated, so their ratio says little about units).
 
     Args:
-        measurement: measured data (``tau`` [N·m]).
         tau_predicted: model torques at the measured samples, shape (T, n) [N·m].
-        max_ratio: accepted factor overall.
-        joint_max_ratio: accepted factor per joint.
 
     Returns:
         The per-joint ratios RMS(measured) / RMS(predicted), shape (n,).
@@ -412,9 +366,7 @@ AMPS_RATIO = (1 / 30, 0.3)
 def amps_hint(measurement: Measurement, ratios: np.ndarray) -> str:
     """A hint when the torques look like motor currents (RMS 1/30-0.3× the model's), else "".
 
-    Args:
-        measurement: the data the ratios belong to.
-        ratios: RMS(measured) / RMS(model) per joint (:func:`check_torque_units`).
+    ``ratios``: RMS(measured) / RMS(model) per joint (:func:`check_torque_units`).
     """
     lo, hi = AMPS_RATIO
     low = [j for j, r in zip(measurement.joints, np.asarray(ratios, float)) if lo <= r <= hi]
