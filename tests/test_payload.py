@@ -127,7 +127,8 @@ def test_exported_urdf_carries_the_payload(name, link, tmp_path):
     robot = get_robot(name)
     p = _payload(11)
     text = urdf_with_payload(robot, p, link)
-    np.testing.assert_allclose(urdf_text_phi(text, [PAYLOAD_LINK_NAME]), p.phi, rtol=1e-9, atol=1e-14)
+    got = urdf_text_phi(text, [PAYLOAD_LINK_NAME])
+    np.testing.assert_allclose(got, p.phi, rtol=1e-9, atol=1e-14)
     path = tmp_path / "with_payload.urdf"
     path.write_text(text)
     loaded = load_robot(dataclasses.replace(robot.config, model=str(path)))  # same joints locked

@@ -39,7 +39,8 @@ def test_simulated_wrench_is_the_weld_reaction_and_round_trips_through_csv(g1, t
     assert back.tau is None and np.allclose(back.wrench, raw.wrench, rtol=1e-9, atol=1e-9)
     # The true model predicts the filtered wrench at the filtered states (offset added).
     phi_true = np.concatenate([info["phi_true"][b] for b in g1.body_names])
-    predicted = ground_wrench(g1, phi_true, data.q, data.v, data.vd) + np.array(truth.noise.wrench_offset)
+    offset = np.array(truth.noise.wrench_offset)
+    predicted = ground_wrench(g1, phi_true, data.q, data.v, data.vd) + offset
     # Up to the low-pass filter's and the central differences' error (measured 0.014 N, N·m;
     # the arms move the wrench by 1-3 N·m, the sensor noise is 0.5 N / 0.05 N·m).
     assert np.abs(predicted - data.wrench).max() < 0.02

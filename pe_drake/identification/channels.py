@@ -47,14 +47,15 @@ def measured_values(robot: Robot, data, measurement: str) -> np.ndarray:
     parts = []
     if kind.torques:
         if data.tau is None:
-            raise DataError(f"measurement '{measurement}' needs the joint torques (tau.<joint> columns); "
-                            "this run has none: use --measurement base_wrench", file=data.source)
+            raise DataError(f"measurement '{measurement}' needs the joint torques (tau.<joint> "
+                            "columns); this run has none: use --measurement base_wrench",
+                            file=data.source)
         parts.append(np.asarray(data.tau, float))
     if kind.wrench:
         wrench = getattr(data, "wrench", None)
         if wrench is None:
             raise DataError(f"measurement '{measurement}' needs the ground wrench (columns "
-                            f"{', '.join(WRENCH_COLUMNS)}); this run has none: use --measurement joint_torque",
-                            file=data.source)
+                            f"{', '.join(WRENCH_COLUMNS)}); this run has none: use --measurement "
+                            "joint_torque", file=data.source)
         parts.append(np.asarray(wrench, float) - static_wrench(robot))
     return np.concatenate(parts, axis=1)

@@ -62,15 +62,9 @@ def delimiter_hint(header: str, file: str) -> None:
 
 
 def first_non_number(rows, columns: dict[int, str]) -> tuple[int, int, str, str] | None:
-    """The first field of the named columns that is not a number.
-
-    Args:
-        rows: (file line number, fields) of each data row, in order.
-        columns: {field index: column name} to check.
-
-    Returns:
-        (data row from 1, file line, column name, the field cut for a message), or None.
-    """
+    """(data row from 1, file line, column name, the field cut for a message) of the first field
+    that is not a number, or None; ``rows``: (file line, fields) of each data row, ``columns``:
+    {field index: column name} to check."""
     for r, (line, fields) in enumerate(rows):
         for k, name in columns.items():
             raw = fields[k].strip() if k < len(fields) else ""
@@ -94,9 +88,7 @@ def check_time_order(t: np.ndarray, file: str = "", lines=None, column: str = "t
     repeat: interpolating across it divides by ~0, and it shrinks the median step so that
     every real step looks like a hole.
 
-    Args:
-        t: the time column, shape (T,) [s].
-        lines: the file line of each sample (when the reader knows them).
+    ``t``: the time column, (T,) [s]; ``lines``: the file line of each sample, when known.
 
     Raises:
         DataError: naming the file, the column and the first bad row (data rows from 1).
@@ -120,8 +112,7 @@ def check_time_order(t: np.ndarray, file: str = "", lines=None, column: str = "t
     k = int(min(repeated[:1].tolist() + back[:1].tolist()))
     fixes = (["drop the repeated rows"] if repeated.size else []) + (
         ["put the rows back in time order (swapped rows, or two logs joined)"] if back.size else [])
-    raise DataError(
-        f"time must strictly increase; the column has {'; and '.join(parts)}; the first: t = {t[k]:.12g} s after "
-        f"t = {t[k - 1]:.12g} s. {' and '.join(fixes).capitalize()}, or fix the logger's time stamps",
-        file=file, column=column, row=k + 1,
-    )
+    fix = " and ".join(fixes).capitalize()
+    raise DataError(f"time must strictly increase; the column has {'; and '.join(parts)}; the "
+                    f"first: t = {t[k]:.12g} s after t = {t[k - 1]:.12g} s. {fix}, or fix the "
+                    "logger's time stamps", file=file, column=column, row=k + 1)

@@ -45,10 +45,12 @@ def check_time_column(t: np.ndarray, source: str = "") -> None:
     step = float(np.median(dt))
     rate = 1.0 / step
     if rate < MIN_RATE_HZ:
-        ms = 0.5 <= step <= 20 and t[-1] - t[0] > 100
-        hint = "; the time column looks like milliseconds: divide it by 1000 to get seconds" if ms else ""
-        raise DataError(f"median time step {step:.4g} s ({rate:.3g} Hz) is too slow for identification "
-                        f"(at least {MIN_RATE_HZ:g} Hz expected){hint}", file=source, column="t")
+        hint = ""
+        if 0.5 <= step <= 20 and t[-1] - t[0] > 100:
+            hint = "; the time column looks like milliseconds: divide it by 1000 to get seconds"
+        raise DataError(f"median time step {step:.4g} s ({rate:.3g} Hz) is too slow for "
+                        f"identification (at least {MIN_RATE_HZ:g} Hz expected){hint}", file=source,
+                        column="t")
 
 
 def check_positions(robot: Robot, q: np.ndarray, source: str = "") -> None:
@@ -84,8 +86,8 @@ def check_positions(robot: Robot, q: np.ndarray, source: str = "") -> None:
     else:
         hint = "; the column looks like degrees: multiply by π/180 to get rad"
     raise DataError(f"position {q[k, j]:.6g} is outside the limits [{lim.q_lower[j]:.4g}, "
-                    f"{lim.q_upper[j]:.4g}] of joint '{name}'{hint}", file=source, column=f"q.{name}",
-                    row=k + 2)  # the header is row 1
+                    f"{lim.q_upper[j]:.4g}] of joint '{name}'{hint}", file=source,
+                    column=f"q.{name}", row=k + 2)  # the header is row 1
 
 
 def check_raw_measurement(robot: Robot, measurement) -> None:
@@ -103,12 +105,8 @@ def check_torque_signs(measured, predicted: np.ndarray, joints, source: str = ""
     near −1. Joints whose predicted RMS is below ``relevant`` × the largest are skipped
     (friction-dominated, the model says little there).
 
-    Args:
-        measured: measured torques, shape (T, n) [N·m].
-        predicted: the a-priori model's torques at the same samples, shape (T, n) [N·m].
-
-    Returns:
-        s per joint, shape (n,) (NaN where skipped).
+    ``measured`` and ``predicted`` (the a-priori model's) are torques, shape (T, n) [N·m];
+    returns s per joint, (n,) (NaN where skipped).
 
     Raises:
         DataError: naming the file and the column, with the similarity.
@@ -122,9 +120,10 @@ def check_torque_signs(measured, predicted: np.ndarray, joints, source: str = ""
     flipped = np.flatnonzero(ok & (s < FLIP_SIMILARITY))
     if len(flipped):
         j = int(flipped[np.argmin(s[flipped])])
-        raise DataError(f"the torque looks sign-flipped: its similarity with the a-priori model's torque is "
-                        f"{s[j]:+.2f} (about +1 expected); negate the column, or check the joint's sign "
-                        "convention and the column order", file=source, column=f"tau.{joints[j]}")
+        raise DataError(f"the torque looks sign-flipped: its similarity with the a-priori "
+                        f"model's torque is {s[j]:+.2f} (about +1 expected); negate the column, or "
+                        "check the joint's sign convention and the column order", file=source,
+                        column=f"tau.{joints[j]}")
     return s
 
 

@@ -18,15 +18,14 @@ import numpy as np
 
 from pe_drake.exceptions import DataError
 from pe_drake.identification.csv_checks import check_time_order
-from pe_drake.identification.measurements import Measurement
-from pe_drake.identification.preprocessing import PreprocessOptions, choose_cutoff, preprocess, resample_uniform
+from pe_drake.identification.measurements import SAMPLE_FIELDS, Measurement
+from pe_drake.identification.preprocessing import (PreprocessOptions, choose_cutoff, preprocess,
+                                                   resample_uniform)
 
 #: Longest hole interpolated [s]; longer ones split the run (config ``data.max_gap_s``).
 MAX_GAP_S = 0.02
 #: A time step longer than this many median steps is a hole.
 HOLE_STEPS = 5.0
-
-_FIELDS = ("t", "q", "tau", "v", "vd", "wrench")
 
 
 class Gaps(NamedTuple):
@@ -57,19 +56,16 @@ def _gap_notes(t: np.ndarray, gaps: Gaps, max_gap_s: float) -> list[str]:
     dt = np.diff(t)
     if gaps.interpolated.size:
         longest = float(dt[gaps.interpolated].max())
-        notes.append(f"{gaps.interpolated.size} hole(s) in the time column of up to {longest * 1e3:.3g} ms "
-                     f"(≤ data.max_gap_s = {max_gap_s * 1e3:.3g} ms) interpolated linearly")
+        notes.append(f"{gaps.interpolated.size} hole(s) in the time column of up to "
+                     f"{longest * 1e3:.3g} ms (≤ data.max_gap_s = {max_gap_s * 1e3:.3g} ms) "
+                     "interpolated linearly")
     if gaps.splits.size:
         where = ", ".join(f"{dt[k]:.4g} s at t = {t[k]:.6g} s" for k in gaps.splits[:5])
         more = f" and {gaps.splits.size - 5} more" if gaps.splits.size > 5 else ""
-        notes.append(f"{gaps.splits.size} pause(s) longer than data.max_gap_s = {max_gap_s * 1e3:.3g} ms "
-                     f"({where}{more}): the run is split into {gaps.splits.size + 1} segments, each filtered "
-                     "on its own")
+        notes.append(f"{gaps.splits.size} pause(s) longer than data.max_gap_s = "
+                     f"{max_gap_s * 1e3:.3g} ms ({where}{more}): the run is split into "
+                     f"{gaps.splits.size + 1} segments, each filtered on its own")
     return notes
-
-
-def _rows(m: Measurement, rows: slice | np.ndarray) -> Measurement:
-    return m.replace(**{f: None if getattr(m, f) is None else getattr(m, f)[rows] for f in _FIELDS})
 
 
 def split_at_pauses(measurement: Measurement, max_gap_s: float = MAX_GAP_S) -> tuple[list[Measurement], list[str]]:
@@ -85,7 +81,7 @@ def split_at_pauses(measurement: Measurement, max_gap_s: float = MAX_GAP_S) -> t
     bounds = [0, *(int(k) + 1 for k in gaps.splits), measurement.num_samples]
     if len(bounds) == 2:
         return [measurement], notes
-    return [_rows(measurement, slice(a, b)) for a, b in zip(bounds[:-1], bounds[1:])], notes
+    return [measurement.take(slice(a, b)) for a, b in zip(bounds[:-1], bounds[1:])], notes
 
 
 def _common_options(segments: list[Measurement], options: PreprocessOptions) -> tuple[PreprocessOptions, str | None]:
@@ -99,9 +95,8 @@ def _common_options(segments: list[Measurement], options: PreprocessOptions) -> 
     return dataclasses.replace(options, cutoff_hz=cutoff.hz, fundamental_hz=None, harmonics=None), cutoff.source
 
 
-def preprocess_segments(
-    measurement: Measurement, options: PreprocessOptions | None = None, max_gap_s: float = MAX_GAP_S
-) -> Measurement:
+def preprocess_segments(measurement: Measurement, options: PreprocessOptions | None = None,
+                        max_gap_s: float = MAX_GAP_S) -> Measurement:
     """:func:`~pe_drake.identification.preprocessing.preprocess` of each segment, stacked.
 
     Every segment gets the same cut-off (the automatic one is chosen on the longest segment)
@@ -137,7 +132,7 @@ def preprocess_segments(
         resampled=any(d.preprocessing.resampled for d in done),
     )
     stacked = {f: None if getattr(done[0], f) is None else np.concatenate([getattr(d, f) for d in done])
-               for f in _FIELDS}
+               for f in SAMPLE_FIELDS}
     return measurement.replace(**stacked, preprocessing=info, notes=tuple(notes))
 
 
@@ -147,7 +142,7 @@ def longest_segment(measurement: Measurement, max_gap_s: float = MAX_GAP_S) -> M
     notes = list(measurement.notes) + notes
     best = max(segments, key=lambda s: s.duration)
     if len(segments) > 1:
-        notes.append(f"the diagnosis uses one contiguous record: the longest segment, {best.duration:.4g} s "
-                     f"from t = {best.t[0]:.6g} s, of {len(segments)} (its held-out split, delay and "
-                     "pre-sliding terms follow time)")
+        notes.append(f"the diagnosis uses one contiguous record: the longest segment, "
+                     f"{best.duration:.4g} s from t = {best.t[0]:.6g} s, of {len(segments)} (its "
+                     "held-out split, delay and pre-sliding terms follow time)")
     return best.replace(notes=tuple(notes))

@@ -35,17 +35,14 @@ if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
     from pe_drake.multibody.robot import Robot
 
 
-def _finite_or_none(x: float) -> float | None:
-    return float(x) if math.isfinite(x) else None
-
-
 def data_used(p: Preprocessing, samples: int) -> dict[str, Any]:
     """How much of the recording the fit used (identified.json's ``data_used``)."""
     # A fit on part of the preprocessed samples (e.g. the first half) used samples / rate of it.
     fitted_s = p.duration_out_s if samples == p.samples_out else samples / p.rate_hz
     return {
         "samples_fitted": int(samples), "samples_recorded": int(p.samples_in),
-        "time_fitted_s": fitted_s, "time_recorded_s": p.duration_in_s, "trimmed_at_each_end_s": p.trim_s,
+        "time_fitted_s": fitted_s, "time_recorded_s": p.duration_in_s,
+        "trimmed_at_each_end_s": p.trim_s,
         "fraction_of_record_time": fitted_s / p.duration_in_s if p.duration_in_s > 0 else None,
         "why_trimmed": "the low-pass filter's edge transient (odd extension) on the accelerations",
     }
@@ -54,12 +51,13 @@ def data_used(p: Preprocessing, samples: int) -> dict[str, Any]:
 def result_to_dict(result: IdentificationResult, robot: Robot, model_file: str | None = None) -> dict[str, Any]:
     """The content of identified.json."""
     base = zip(result.base.base_names, result.phi_B, result.sigma_percent, result.base.independent)
-    channels = result.channels or result.joints  # joint names (torques), then wrench.fx ... wrench.mz
+    channels = result.channels or result.joints  # joints (torques), then wrench.fx ... mz
     out: dict[str, Any] = {
         "robot": result.robot, "method": result.method, "measurement": result.measurement,
         "joints": list(result.joints), "data": result.source, "samples": result.samples,
         "cond": result.cond,
-        "base_parameters": [{"name": name, "value": float(v), "sigma_percent": _finite_or_none(float(sp)),
+        "base_parameters": [{"name": name, "value": float(v),
+                             "sigma_percent": float(sp) if math.isfinite(sp) else None,
                              "column": int(col)} for name, v, sp, col in base],
         "residual_rms": dict(zip(channels, map(float, result.residual_rms))),
         "relative_error": dict(zip(channels, map(float, result.relative_error))),
@@ -128,8 +126,9 @@ def load_identified(path: str | Path, robot: Robot) -> IdentificationResult | Ro
         sigma = np.array([np.inf if e.get("sigma_percent") is None else float(e["sigma_percent"])
                           for e in entries])
     except (KeyError, TypeError, ValueError) as err:
-        raise DataError("not an identified.json written by pe-drake identify nor an augmented_model.json of "
-                        f"pe-drake diagnose ({err!r} missing or malformed)", file=str(path)) from err
+        raise DataError("not an identified.json written by pe-drake identify nor an "
+                        f"augmented_model.json of pe-drake diagnose ({err!r} missing or malformed)",
+                        file=str(path)) from err
     check_joints(robot, joints, file=str(path), what="the model")
     measurement = d.get("measurement", "joint_torque")
     if measurement not in MEASUREMENTS:
@@ -137,8 +136,9 @@ def load_identified(path: str | Path, robot: Robot) -> IdentificationResult | Ro
     base = measurement_base_parameters(robot, measurement)
     channels = channel_names(robot, measurement)
     if not np.array_equal(columns, base.independent):
-        raise DataError(f"the base parameters in the file ({len(columns)}) do not match robot '{robot.name}' "
-                        f"({base.count}); was it identified with another model or config?", file=str(path))
+        raise DataError(f"the base parameters in the file ({len(columns)}) do not match robot "
+                        f"'{robot.name}' ({base.count}); was it identified with another model or "
+                        "config?", file=str(path))
     cov_B = _covariance(d, base.count, str(path))
     try:  # files written before the drive terms have none
         model = RobotModel.from_dict(d, robot.body_names, base=base, phi_prior=robot.phi_model)

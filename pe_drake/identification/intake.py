@@ -31,8 +31,7 @@ def read_measurements(robot: Robot, path: str | Path, options: DataConfig | None
         **changes: fields of ``options`` to override (``format=``, ``topic=``, ``effort=``).
 
     Returns:
-        The raw :class:`~pe_drake.identification.measurements.Measurement`, joints in the robot's
-        order, with the ``notes`` reading left.
+        The raw Measurement, joints in the robot's order, with the ``notes`` reading left.
 
     Raises:
         DataError: an unreadable file, or data that fails the checks (time in ms, positions in
@@ -55,19 +54,11 @@ def read_robot_measurement(robot: Robot, path: str | Path) -> Measurement:
     return read_measurement_csv(path, robot.joint_names, min_rows=30)
 
 
-def prepare_measurement(
-    robot: Robot,
-    measurement: Measurement,
-    *,
-    cutoff_hz: float | None = None,
-    fundamental_hz: float | None = None,
-    harmonics: int | None = None,
-    rate_hz: float | None = DEFAULT_RATE_HZ,
-    filtering: bool = True,
-    check_units: bool = True,
-    max_gap_s: float = MAX_GAP_S,
-    window: TimeWindow | None = None,
-) -> Measurement:
+def prepare_measurement(robot: Robot, measurement: Measurement, *, cutoff_hz: float | None = None,
+                        fundamental_hz: float | None = None, harmonics: int | None = None,
+                        rate_hz: float | None = DEFAULT_RATE_HZ, filtering: bool = True,
+                        check_units: bool = True, max_gap_s: float = MAX_GAP_S,
+                        window: TimeWindow | None = None) -> Measurement:
     """Checks the joints and torque units and preprocesses for identification.
 
     Args:
@@ -78,8 +69,7 @@ def prepare_measurement(
         check_units: compare the torques with the a-priori model (refuses N·mm or kN·m; a
             note when they look like motor currents).
         max_gap_s: longest hole in the time column interpolated [s]; longer ones split the
-            run into segments filtered on their own and stacked
-            (:func:`~pe_drake.identification.gaps.preprocess_segments`).
+            run (:func:`~pe_drake.identification.gaps.preprocess_segments`).
         window: the part of the run kept, taken after the whole run is filtered; None: all.
 
     Raises:
@@ -93,8 +83,8 @@ def prepare_measurement(
         data = preprocess_segments(measurement, options, max_gap_s)
     else:
         if measurement.v is None or measurement.vd is None:
-            raise DataError("without filtering the data must hold v.<joint> and vdot.<joint> columns",
-                            file=measurement.source)
+            raise DataError("without filtering the data must hold v.<joint> and vdot.<joint> "
+                            "columns", file=measurement.source)
         data = measurement
     if window is not None:
         data = window.apply(data)

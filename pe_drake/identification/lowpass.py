@@ -47,8 +47,8 @@ class LowPassFilter:
         # Column by column: scipy's padded copies then cost one column of a long log, not all.
         out = np.empty(x.shape)
         for k in np.ndindex(x.shape[1:]):
-            column = x[(slice(None), *k)]
-            out[(slice(None), *k)] = sosfiltfilt(self.sos, column, padtype="odd", padlen=self.padlen)
+            column = (slice(None), *k)
+            out[column] = sosfiltfilt(self.sos, x[column], padtype="odd", padlen=self.padlen)
         return out
 
     def edge_transient_s(self, tolerance: float = EDGE_TOLERANCE) -> float:

@@ -35,6 +35,8 @@ from pe_drake.output_paths import output_file
 
 #: Column prefixes of the format, in the order written.
 PREFIXES = ("q", "v", "vdot", "tau")
+#: The fields of a :class:`Measurement` with one row per sample.
+SAMPLE_FIELDS = ("t", "q", "tau", "v", "vd", "wrench")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -126,11 +128,9 @@ class Measurement:
                 continue
             value = np.asarray(value, float)
             if value.shape != (t.shape[0], n):
-                raise DataError(
-                    f"{name} has shape {value.shape}, expected ({t.shape[0]}, {n}) for "
-                    f"{t.shape[0]} samples of joints {', '.join(self.joints)}",
-                    file=self.source,
-                )
+                raise DataError(f"{name} has shape {value.shape}, expected ({t.shape[0]}, {n}) for "
+                                f"{t.shape[0]} samples of joints {', '.join(self.joints)}",
+                                file=self.source)
             object.__setattr__(self, name, value)
 
     @property
@@ -155,6 +155,11 @@ class Measurement:
         """A copy with some fields changed (``dataclasses.replace``)."""
         return dataclasses.replace(self, **changes)
 
+    def take(self, rows: slice | np.ndarray) -> Measurement:
+        """The samples ``rows`` (a slice, indices or a mask) of every per-sample field."""
+        return self.replace(**{f: None if getattr(self, f) is None else getattr(self, f)[rows]
+                               for f in SAMPLE_FIELDS})
+
     def summary_lines(self) -> list[str]:
         """The run in one line (file, samples, duration, rate), then what reading it did."""
         return [f"data {self.source}: {self.num_samples} samples, {self.duration:.2f} s at {self.rate_hz:.0f} Hz",
@@ -166,13 +171,6 @@ class Measurement:
         path.parent.mkdir(parents=True, exist_ok=True)
         write_measurement_csv(path, self)
         return [str(path)]
-
-
-def _joint_names(joints) -> tuple[str, ...]:
-    names = getattr(joints, "joint_names", joints)  # a Robot or a sequence of names
-    if isinstance(names, str):
-        raise ConfigError(f"joints must be a sequence of joint names, got the string '{names}'")
-    return tuple(names)
 
 
 def _expected_columns(joints: Sequence[str]) -> list[str]:
@@ -193,15 +191,21 @@ def read_measurement_csv(path: str | Path, joints, *, min_rows: int = 10) -> Mea
             ``vdot.`` for only some joints, a bad row or value, time that does not strictly
             increase, fewer than ``min_rows`` rows: naming the column and the data row.
     """
-    path = Path(path)
-    joints = _joint_names(joints)
-    file = str(path)
+    path, file = Path(path), str(path)
+    joints = getattr(joints, "joint_names", joints)  # a Robot or a sequence of names
+    if isinstance(joints, str):
+        raise ConfigError(f"joints must be a sequence of joint names, got the string '{joints}'")
+    joints = tuple(joints)
     header_line, columns = read_header_line(path)
-    has_wrench = _wrench_block(columns, file)
+    has_wrench = _all_or_none(list(WRENCH_COLUMNS), columns, file,
+                              "ground-wrench columns are incomplete: {} missing; give all of "
+                              + ", ".join(WRENCH_COLUMNS) + " [N, N·m] or none")
     index = _column_index(columns, joints, file, tau_required=not has_wrench)
-    has_tau = _optional_block(index, "tau", joints, file)
-    has_v = _optional_block(index, "v", joints, file)
-    has_vd = _optional_block(index, "vdot", joints, file)
+    has_tau, has_v, has_vd = (
+        _all_or_none([f"{prefix}.{j}" for j in joints], index, file,
+                     f"'{prefix}.' columns are given for some joints but not for {{}}; give them "
+                     "for every joint or for none")
+        for prefix in ("tau", "v", "vdot"))
     wanted = ["t"] + [f"q.{j}" for j in joints]
     for prefix, present in (("tau", has_tau), ("v", has_v), ("vdot", has_vd)):
         if present:
@@ -223,17 +227,13 @@ def read_measurement_csv(path: str | Path, joints, *, min_rows: int = 10) -> Mea
     return Measurement(t, q, tau, v, vd, joints, file, wrench=wrench)
 
 
-def _wrench_block(columns: list[str], file: str) -> bool:
-    """Whether the file has the ground-wrench columns (all six; some of them is an error)."""
-    present = [c in columns for c in WRENCH_COLUMNS]
-    if any(present) and not all(present):
-        missing = [c for c, p in zip(WRENCH_COLUMNS, present) if not p]
-        raise DataError(
-            f"ground-wrench columns are incomplete: {', '.join(missing)} missing; give all of "
-            f"{', '.join(WRENCH_COLUMNS)} [N, N·m] or none",
-            file=file, column=missing[0],
-        )
-    return all(present)
+def _all_or_none(names: list[str], columns, file: str, message: str) -> bool:
+    """Whether the file has every one of ``names`` (not one of them: False; some: DataError with
+    ``message`` formatted with the missing ones)."""
+    missing = [c for c in names if c not in columns]
+    if missing and len(missing) < len(names):
+        raise DataError(message.format(", ".join(missing)), file=file, column=missing[0])
+    return bool(names) and not missing
 
 
 def _column_index(columns: list[str], joints: tuple[str, ...], file: str, tau_required: bool = True) -> dict[str, int]:
@@ -245,33 +245,17 @@ def _column_index(columns: list[str], joints: tuple[str, ...], file: str, tau_re
         index[name] = k
         prefix, dot, joint = name.partition(".")
         if dot and prefix in PREFIXES and joint not in joints:
-            raise DataError(
-                f"'{joint}' is not one of the robot's excited joints; valid joints: "
-                f"{', '.join(joints)} (rename or drop the column)",
-                file=file, column=name,
-            )
+            raise DataError(f"'{joint}' is not one of the robot's excited joints; valid joints: "
+                            f"{', '.join(joints)} (rename or drop the column)", file=file,
+                            column=name)
     required = [c for c in _expected_columns(joints) if tau_required or not c.startswith("tau.")]
     missing = [c for c in required if c not in index]
     if missing:
-        raise DataError(
-            f"missing column(s) {', '.join(missing)}; expected columns: "
-            f"{', '.join(_expected_columns(joints))} (optional: v.<joint>, vdot.<joint>; "
-            f"{', '.join(WRENCH_COLUMNS)}, which make tau.<joint> optional)",
-            file=file, column=missing[0],
-        )
+        raise DataError(f"missing column(s) {', '.join(missing)}; expected columns: "
+                        f"{', '.join(_expected_columns(joints))} (optional: v.<joint>, "
+                        f"vdot.<joint>; {', '.join(WRENCH_COLUMNS)}, which make tau.<joint> "
+                        "optional)", file=file, column=missing[0])
     return index
-
-
-def _optional_block(index: dict[str, int], prefix: str, joints: tuple[str, ...], file: str) -> bool:
-    present = [f"{prefix}.{j}" in index for j in joints]
-    if any(present) and not all(present):
-        missing = [f"{prefix}.{j}" for j, p in zip(joints, present) if not p]
-        raise DataError(
-            f"'{prefix}.' columns are given for some joints but not for {', '.join(missing)}; "
-            "give them for every joint or for none",
-            file=file, column=missing[0],
-        )
-    return all(present) and bool(joints)
 
 
 def measurement_to_csv_text(measurement: Measurement) -> str:
@@ -302,13 +286,8 @@ def write_measurement_csv(path: str | Path, measurement: Measurement) -> None:
     atomic_write_text(path, measurement_to_csv_text(measurement))
 
 
-def check_torque_units(
-    measurement: Measurement,
-    tau_predicted: np.ndarray,
-    *,
-    max_ratio: float = 30.0,
-    joint_max_ratio: float = 300.0,
-) -> np.ndarray:
+def check_torque_units(measurement: Measurement, tau_predicted: np.ndarray, *,
+                       max_ratio: float = 30.0, joint_max_ratio: float = 300.0) -> np.ndarray:
     """Refuses torques that are off by orders of magnitude from a model's prediction.
 
     Compares RMS values (mean included: gravity torques are the bulk of a slow run): all
@@ -316,15 +295,10 @@ def check_torque_units(
     checked only on joints whose predicted RMS is at least 1 % of the largest one (light
     distal joints are friction-dominated, so their ratio says little about units).
 
-    Args:
-        tau_predicted: model torques at the measured samples, shape (T, n) [N·m].
-
-    Returns:
-        The per-joint ratios RMS(measured) / RMS(predicted), shape (n,).
+    Returns the per-joint ratios RMS(measured) / RMS(``tau_predicted`` (T, n) [N·m]), (n,).
 
     Raises:
-        DataError: naming the file and the column, with the likely unit fix (×1000: N·mm;
-            ÷1000: kN·m).
+        DataError: naming the file and the column, with the likely unit fix.
     """
     tau = measurement.tau
     pred = np.asarray(tau_predicted, float)
@@ -341,20 +315,17 @@ def check_torque_units(
         overall = overall_m / overall_p
         if not 1 / max_ratio <= overall <= max_ratio:
             worst = int(np.argmax(np.abs(np.log10(np.maximum(ratios, tiny)))))
-            raise DataError(
-                f"torques are {_factor_text(overall)} the model's prediction over all joints "
-                f"(RMS {overall_m:.4g} vs {overall_p:.4g} N·m); {_unit_hint(overall)}",
-                file=measurement.source, column=f"tau.{measurement.joints[worst]}",
-            )
+            raise DataError(f"torques are {_factor_text(overall)} the model's prediction over all "
+                            f"joints (RMS {overall_m:.4g} vs {overall_p:.4g} N·m); "
+                            f"{_unit_hint(overall)}", file=measurement.source,
+                            column=f"tau.{measurement.joints[worst]}")
     relevant = rms_p >= 0.01 * rms_p.max() if rms_p.max() > 0 else np.zeros_like(rms_p, bool)
     for k in np.nonzero(relevant)[0]:
         r = ratios[k]
         if not 1 / joint_max_ratio <= r <= joint_max_ratio:
-            raise DataError(
-                f"torque is {_factor_text(r)} the model's prediction (RMS {rms_m[k]:.4g} vs "
-                f"{rms_p[k]:.4g} N·m); {_unit_hint(r)}",
-                file=measurement.source, column=f"tau.{measurement.joints[k]}",
-            )
+            raise DataError(f"torque is {_factor_text(r)} the model's prediction (RMS "
+                            f"{rms_m[k]:.4g} vs {rms_p[k]:.4g} N·m); {_unit_hint(r)}",
+                            file=measurement.source, column=f"tau.{measurement.joints[k]}")
     return ratios
 
 

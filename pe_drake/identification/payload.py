@@ -35,16 +35,10 @@ from pe_drake.io_utils import atomic_write_text, finite_json
 from pe_drake.multibody.base_parameters import BaseParameters, compute_base_parameters
 from pe_drake.multibody.drive_columns import COULOMB_VELOCITY_SCALE
 from pe_drake.multibody.inertia import pseudo_inertia, pseudo_inertia_basis
-from pe_drake.multibody.payload import (
-    PayloadInertia,
-    central_jacobian,
-    determined_std,
-    link_position,
-    payload_base_parameters,
-    payload_parameter_map,
-    payload_parameter_names,
-    undetermined_parameters,
-)
+from pe_drake.multibody.payload import (PayloadInertia, central_jacobian, determined_std,
+                                        link_position, payload_base_parameters,
+                                        payload_parameter_map, payload_parameter_names,
+                                        undetermined_parameters)
 from pe_drake.multibody.regressor import RegressorModel
 from pe_drake.multibody.robot_model import RobotModel
 from pe_drake.threads import single_threaded_blas
@@ -55,13 +49,8 @@ if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
 
 @dataclasses.dataclass(frozen=True)
 class PayloadBox:
-    """The object's bounding box in the payload link's frame L.
-
-    Attributes:
-        center: p_LoBo_L, the box centre [m], (3,).
-        size: full edge lengths [m], (3,), each > 0.
-        rotation: R_LB, the box axes in L, (3, 3) (default: L's axes).
-    """
+    """The object's bounding box in the payload link's frame L: centre p_LoBo_L [m], (3,), full
+    edge lengths [m], (3,), each > 0, and axes R_LB, (3, 3) (default: L's axes)."""
 
     center: tuple[float, float, float]
     size: tuple[float, float, float]
@@ -146,16 +135,17 @@ class PayloadResult:
         valid = np.linalg.eigvalsh(pseudo_inertia(self.phi)).min() >= -1e-9 * max(p.mass, 1e-12)
         return {
             "robot": self.robot, "link": self.link,
-            "frame": f"{self.link} (centre of mass from its origin; inertia about the centre of mass, "
-                     f"{self.link}'s axes)",
+            "frame": f"{self.link} (centre of mass from its origin; inertia about the centre of "
+                     f"mass, {self.link}'s axes)",
             "mass": p.mass, "com": p.com.tolist(), "inertia_about_com": p.inertia_vector.tolist(),
             "inertia_order": ["Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz"],
             "mass_std": self.mass_std, "com_std": self.com_std.tolist(),
             "inertia_about_com_std": self.inertia_about_com_std.tolist(),
             "units": {"mass": "kg", "com": "m", "inertia_about_com": "kg*m^2"},
             "phi_about_link_origin": self.phi.tolist(), "physically_valid": bool(valid),
-            "constrained": self.constrained, "drive_terms": self.drive, "noise_std": self.noise_std.tolist(),
-            "loaded_runs": self.loaded_runs, "unloaded_runs": self.unloaded_runs, "samples": self.samples,
+            "constrained": self.constrained, "drive_terms": self.drive,
+            "noise_std": self.noise_std.tolist(), "loaded_runs": self.loaded_runs,
+            "unloaded_runs": self.unloaded_runs, "samples": self.samples,
             "arm_correction_fitted": self.arm_correction is not None, "wall_time_s": self.wall_time,
             "not_determined": list(self.undetermined),
         }
@@ -184,9 +174,10 @@ def arm_parameters(robot: Robot, arm_model=None) -> np.ndarray:
     return arm_model.model.phi  # the standard parameters closest to the prior that give its φ_B
 
 
-def identify_payload(robot: Robot, loaded_runs: Sequence, unloaded_runs: Sequence = (), link: str = "",
-                     arm_model=None, options: PayloadOptions | None = None, *,
-                     base: BaseParameters | None = None, model: RegressorModel | None = None) -> PayloadResult:
+def identify_payload(robot: Robot, loaded_runs: Sequence, unloaded_runs: Sequence = (),
+                     link: str = "", arm_model=None, options: PayloadOptions | None = None, *,
+                     base: BaseParameters | None = None,
+                     model: RegressorModel | None = None) -> PayloadResult:
     """Identifies the payload on ``link`` from loaded (and unloaded) runs (module docstring).
 
     Args:
@@ -216,8 +207,11 @@ def identify_payload(robot: Robot, loaded_runs: Sequence, unloaded_runs: Sequenc
     # (all 10 unless its axes leave some unexcitable, issue 37); the fit solves for those.
     pbase = payload_base_parameters(robot, link, model)
     K_L, K_plus = payload_parameter_map(pbase, robot, link)
+    arm_base = base if with_arm else None
     with single_threaded_blas():  # small blocks: threads only add contention
-        R_joint, S = _compressed_rows(robot, model, runs, phi_arm, pbase, base if with_arm else None, options)
+        blocks = (block for run, loaded in runs for block in
+                  _run_rows(robot, model, run, loaded, phi_arm, pbase, arm_base, options))
+        R_joint, S = compress_joint_rows(blocks)
     n, p = robot.n, R_joint.shape[-1] - 1
     if S * n < 10 * p:
         raise DataError(f"{S} samples × {n} joints = {S * n} equations for {p} unknowns: record longer runs")
@@ -246,12 +240,6 @@ def identify_payload(robot: Robot, loaded_runs: Sequence, unloaded_runs: Sequenc
         wall_time=time.perf_counter() - start,
         undetermined=tuple(payload_parameter_names(link_name)[i] for i in undetermined),
     )
-
-
-def _compressed_rows(robot: Robot, model, runs, phi_arm, pbase, base, options) -> tuple[np.ndarray, int]:
-    """:func:`compress_joint_rows` of every run's rows (:func:`_run_rows`)."""
-    return compress_joint_rows(block for run, loaded in runs
-                               for block in _run_rows(robot, model, run, loaded, phi_arm, pbase, base, options))
 
 
 def _run_rows(robot: Robot, model, run, loaded: bool, phi_arm, pbase, base, options):

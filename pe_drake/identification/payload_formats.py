@@ -141,8 +141,9 @@ def urdf_with_payload(robot: Robot, payload: PayloadInertia, link: str, arm_phi:
     ET.SubElement(inertial, "origin", {"xyz": " ".join(repr(float(x)) for x in payload.com), "rpy": "0 0 0"})
     ET.SubElement(inertial, "mass", {"value": repr(float(payload.mass))})
     I = np.asarray(payload.inertia_about_com, float)
-    entries = {"ixx": (0, 0), "ixy": (0, 1), "ixz": (0, 2), "iyy": (1, 1), "iyz": (1, 2), "izz": (2, 2)}
-    ET.SubElement(inertial, "inertia", {key: repr(float(I[i, j])) for key, (i, j) in entries.items()})
+    entries = {"ixx": (0, 0), "ixy": (0, 1), "ixz": (0, 2), "iyy": (1, 1), "iyz": (1, 2),
+               "izz": (2, 2)}
+    ET.SubElement(inertial, "inertia", {k: repr(float(I[i, j])) for k, (i, j) in entries.items()})
     joint = ET.SubElement(root, "joint", {"name": PAYLOAD_LINK_NAME + "_joint", "type": "fixed"})
     ET.SubElement(joint, "parent", {"link": link})
     ET.SubElement(joint, "child", {"link": PAYLOAD_LINK_NAME})

@@ -16,8 +16,9 @@ from pe_drake.excitation.payload_motion import undetermined_note
 from pe_drake.excitation.trajectory_file import load_trajectory
 from pe_drake.identification.identified_file import load_identified
 from pe_drake.identification.intake import prepare_measurement, read_measurements
-from pe_drake.identification.payload import (PayloadBox, PayloadOptions, PayloadResult, arm_parameters,
-                                             check_payload_trajectory, identify_payload)
+from pe_drake.identification.payload import (PayloadBox, PayloadOptions, PayloadResult,
+                                             arm_parameters, check_payload_trajectory,
+                                             identify_payload)
 from pe_drake.identification.payload_formats import vendor_formats, write_payload_urdf
 from pe_drake.io_utils import finite_json, staged_output_dir
 from pe_drake.multibody.robot import Robot

@@ -19,7 +19,8 @@ if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
     from pe_drake.multibody.robot import Robot
 
 
-def robot_torques(robot: Robot, data: Measurement, phi: np.ndarray, model: RegressorModel | None = None) -> np.ndarray:
+def robot_torques(robot: Robot, data: Measurement, phi: np.ndarray,
+                  model: RegressorModel | None = None) -> np.ndarray:
     """Rigid-body torques Y(q, v, v̇) φ at the samples of ``data``, shape (S, n)."""
     model = model or RegressorModel(robot)
     out = np.empty_like(data.q)

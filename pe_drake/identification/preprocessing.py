@@ -34,7 +34,7 @@ MAX_CUTOFF_FRACTION = 0.4
 ENERGY_FRACTION = 0.999
 #: Relative spread of the time steps above which the data is resampled to a uniform grid.
 UNIFORM_TOLERANCE = 1e-3
-#: Time trimmed at each end of a ground-wrench record, in periods of the cut-off.
+#: Time trimmed at each end of a ground-wrench record by default, in periods of the cut-off.
 TRIM_PERIODS = 2.0
 #: Decimation keeps the output Nyquist frequency at least this factor above the cut-off.
 ALIAS_MARGIN = 1.25
@@ -98,9 +98,8 @@ class UniformSignals:
     signals: dict[str, np.ndarray | None]
 
 
-def resample_uniform(
-    t: np.ndarray, signals: dict[str, np.ndarray | None], tolerance: float = UNIFORM_TOLERANCE
-) -> UniformSignals:
+def resample_uniform(t: np.ndarray, signals: dict[str, np.ndarray | None],
+                     tolerance: float = UNIFORM_TOLERANCE) -> UniformSignals:
     """Puts signals (T, n) on a uniform grid, by linear interpolation when the steps vary.
 
     Args:
@@ -163,27 +162,15 @@ def motion_bandwidth_hz(t: np.ndarray, q: np.ndarray, energy_fraction: float = E
     return float(freqs[min(max(idx), len(freqs) - 1)])
 
 
-def choose_cutoff(
-    t: np.ndarray,
-    q: np.ndarray,
-    rate_hz: float,
-    *,
-    cutoff_hz: float | None = None,
-    fundamental_hz: float | None = None,
-    harmonics: int | None = None,
-    file: str = "",
-) -> Cutoff:
-    """The low-pass cut-off, in order of precedence.
+def choose_cutoff(t: np.ndarray, q: np.ndarray, rate_hz: float, *, cutoff_hz: float | None = None,
+                  fundamental_hz: float | None = None, harmonics: int | None = None,
+                  file: str = "") -> Cutoff:
+    """The low-pass cut-off for positions q (T, n) on the uniform grid t (T,) [s] at ``rate_hz``.
 
-    ``cutoff_hz`` ("argument"); ``CUTOFF_FACTOR`` × ``harmonics`` × ``fundamental_hz``
-    ("trajectory"); else ``CUTOFF_FACTOR`` × :func:`motion_bandwidth_hz` of q ("spectrum").
-    An automatic cut-off is at least ``MIN_CUTOFF_HZ`` and at most ``MAX_CUTOFF_FRACTION`` ×
-    the rate.
-
-    Args:
-        t: uniform time grid, shape (T,) [s].
-        q: positions on that grid, shape (T, n) [rad or m].
-        rate_hz: sample rate of the grid [Hz].
+    In order of precedence: ``cutoff_hz`` ("argument"); ``CUTOFF_FACTOR`` × ``harmonics`` ×
+    ``fundamental_hz`` ("trajectory"); else ``CUTOFF_FACTOR`` × :func:`motion_bandwidth_hz` of q
+    ("spectrum"). An automatic cut-off is at least ``MIN_CUTOFF_HZ`` and at most
+    ``MAX_CUTOFF_FRACTION`` × the rate.
 
     Raises:
         ConfigError: ``cutoff_hz`` at or above the Nyquist frequency (the file is named).
@@ -191,10 +178,8 @@ def choose_cutoff(
     nyquist = 0.5 * rate_hz
     if cutoff_hz is not None:
         if cutoff_hz >= nyquist:
-            raise ConfigError(
-                f"cutoff_hz = {cutoff_hz:g} Hz is not below the Nyquist frequency {nyquist:.4g} Hz "
-                f"of the data in '{file}'"
-            )
+            raise ConfigError(f"cutoff_hz = {cutoff_hz:g} Hz is not below the Nyquist frequency "
+                              f"{nyquist:.4g} Hz of the data in '{file}'")
         return Cutoff(float(cutoff_hz), "argument")
     if fundamental_hz is not None:
         source, highest = "trajectory", harmonics * fundamental_hz
@@ -213,9 +198,8 @@ class Derivatives(NamedTuple):
     acceleration_source: str
 
 
-def fill_derivatives(
-    q: np.ndarray, dt: float, v: np.ndarray | None = None, vd: np.ndarray | None = None
-) -> Derivatives:
+def fill_derivatives(q: np.ndarray, dt: float, v: np.ndarray | None = None,
+                     vd: np.ndarray | None = None) -> Derivatives:
     """Keeps measured v and vd; differentiates q (then v) where they are missing.
 
     Args:
@@ -224,12 +208,8 @@ def fill_derivatives(
     """
     velocity = v if v is not None else differentiate(q, dt)
     acceleration = vd if vd is not None else differentiate(velocity, dt)
-    return Derivatives(
-        velocity,
-        acceleration,
-        "measured" if v is not None else "differentiated",
-        "measured" if vd is not None else "differentiated",
-    )
+    return Derivatives(velocity, acceleration, "measured" if v is not None else "differentiated",
+                       "measured" if vd is not None else "differentiated")
 
 
 def _on_grid(t: np.ndarray, x: np.ndarray, grid: UniformSignals) -> np.ndarray:
@@ -273,16 +253,6 @@ def decimation_step(rate_hz: float, target_hz: float | None, cutoff_hz: float) -
     return step
 
 
-def default_trim_s(lowpass: LowPassFilter, wrench: bool) -> float:
-    """Time dropped at each end when the caller gives none [s].
-
-    Joint torques: what the filter needs (:meth:`LowPassFilter.edge_transient_s`). A ground
-    wrench keeps the conservative ``TRIM_PERIODS`` / cut-off: the arms move it by 1-3 N·m on
-    top of a 300 N weight, and 5 % acceleration error at the ends is more than that can afford.
-    """
-    return TRIM_PERIODS / lowpass.cutoff_hz if wrench else lowpass.edge_transient_s()
-
-
 def trim_indices(t: np.ndarray, trim_s: float, step: int = 1, *, file: str = "") -> np.ndarray:
     """Sorted indices (S,), S ≥ 2, of the samples of the uniform grid t kept: every
     ``step``-th one, ``trim_s`` [s] away from both ends.
@@ -294,11 +264,8 @@ def trim_indices(t: np.ndarray, trim_s: float, step: int = 1, *, file: str = "")
     keep &= (np.arange(len(t)) % step) == 0
     idx = np.nonzero(keep)[0]
     if idx.size < 2:
-        raise DataError(
-            f"nothing left after trimming {trim_s:g} s at each end of a {t[-1] - t[0]:.4g} s record; "
-            "pass a smaller trim_s",
-            file=file,
-        )
+        raise DataError(f"nothing left after trimming {trim_s:g} s at each end of a "
+                        f"{t[-1] - t[0]:.4g} s record; pass a smaller trim_s", file=file)
     return idx
 
 
@@ -306,14 +273,9 @@ def preprocess(measurement: Measurement, options: PreprocessOptions | None = Non
     """Uniform grid, zero-phase low-pass, derivatives, decimation and trimmed ends.
 
     The steps of the module docstring, in order; the same filter runs on q, tau, the ground
-    wrench and measured v/vd, so their phases match.
-
-    Args:
-        measurement: raw data (T ≥ ``MIN_SAMPLES`` samples).
-        **fields: instead of ``options``, its fields by name (``cutoff_hz=8.0``, ...).
-
-    Returns:
-        The processed :class:`Measurement` with v and vd filled and ``preprocessing`` set.
+    wrench and measured v/vd, so their phases match. ``**fields``: instead of ``options``, its
+    fields by name (``cutoff_hz=8.0``, ...). Returns the processed :class:`Measurement` with v
+    and vd filled and ``preprocessing`` set.
 
     Raises:
         ConfigError: a bad option.
@@ -332,7 +294,12 @@ def preprocess(measurement: Measurement, options: PreprocessOptions | None = Non
                            file=m.source)
     lowpass = design_lowpass(cutoff.hz, grid.rate_hz, len(grid.t), opts.filter_order, file=m.source)
     step = decimation_step(grid.rate_hz, opts.decimate_to_hz, cutoff.hz)
-    trim = default_trim_s(lowpass, m.wrench is not None) if opts.trim_s is None else float(opts.trim_s)
+    if opts.trim_s is not None:
+        trim = float(opts.trim_s)
+    elif m.wrench is not None:  # the arms move it by 1-3 N·m on top of a 300 N weight
+        trim = TRIM_PERIODS / lowpass.cutoff_hz
+    else:
+        trim = lowpass.edge_transient_s()
     idx = trim_indices(grid.t, trim, step, file=m.source)
     q, v, vd = _filtered_motion(m, grid, lowpass, idx)
     tau, wrench = (None if x is None else _filtered_columns(m.t, x, grid, lowpass, idx)

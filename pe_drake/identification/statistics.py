@@ -13,7 +13,7 @@ import numpy as np
 
 def integrated_autocorrelation(r: np.ndarray, max_lag_fraction: float = 0.1) -> np.ndarray:
     """τ_int = 1 + 2 Σ ρ_k per column of the residuals r (S, n), summed while ρ_k > 0 up to lag
-    ``max_lag_fraction`` · S: the factor (n,), ≥ 1, by which correlated samples inflate a variance."""
+    ``max_lag_fraction`` · S: the factor (n,), ≥ 1, by which correlation inflates a variance."""
     S = r.shape[0]
     out = np.ones(r.shape[1])
     max_lag = max(1, int(max_lag_fraction * S))

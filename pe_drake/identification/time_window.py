@@ -54,7 +54,7 @@ class TimeWindow:
         return f"{start} to {end}"
 
     def apply(self, data: Measurement) -> Measurement:
-        """The samples of ``data`` (preprocessed or not) inside the window; DataError for fewer than 2."""
+        """The samples of ``data`` (preprocessed or not) inside the window; DataError below 2."""
         t = data.t
         keep = np.ones(t.shape, bool)
         if self.start is not None:
@@ -66,13 +66,10 @@ class TimeWindow:
             raise DataError(f"--window {self} keeps {kept} sample(s) of a run that spans "
                             f"{t[0]:.4g}-{t[-1]:.4g} s (after filtering and trimming)", file=data.source)
 
-        def cut(x):
-            return None if x is None else x[keep]
-
         info = data.preprocessing
         if info is not None:
-            info = dataclasses.replace(info, samples_out=kept, duration_out_s=float(t[keep][-1] - t[keep][0]))
+            span = float(t[keep][-1] - t[keep][0])
+            info = dataclasses.replace(info, samples_out=kept, duration_out_s=span)
         note = (f"--window: {kept} of {t.size} samples kept, {t[keep][0]:.4g}-{t[keep][-1]:.4g} s "
                 "(the whole run was filtered first: no filter edge at the cut)")
-        return data.replace(t=t[keep], q=cut(data.q), tau=cut(data.tau), v=cut(data.v), vd=cut(data.vd),
-                            wrench=cut(data.wrench), preprocessing=info, notes=data.notes + (note,))
+        return data.take(keep).replace(preprocessing=info, notes=data.notes + (note,))

@@ -47,7 +47,7 @@ class WeldedGroups:
     """The rigid groups of a robot's bodies and the merged problem's bodies.
 
     Attributes:
-        kept: the merged problem's bodies (carriers and single bodies), robot body indices, in order.
+        kept: the merged problem's bodies (carriers, single bodies), robot body indices, in order.
         members: {carrier: [(member, L_member)]} of the groups (the carrier not listed).
     """
 

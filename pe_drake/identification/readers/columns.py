@@ -87,7 +87,8 @@ def _check_map(mapping: Mapping[str, str], joints: Sequence[str], columns: Seque
                 raise DataError(f"column '{column}' cannot be used as {key}: {reason}", file=file, column=column)
     missing = [j for j in joints if f"q.{j}" not in mapping]
     if missing:
-        raise DataError(f"data.columns gives no q.<joint> column for {', '.join(missing)}", file=file)
+        raise DataError(f"data.columns gives no q.<joint> column for {', '.join(missing)}",
+                        file=file)
     for j in joints:
         if (f"tau.{j}" in mapping) == (f"current.{j}" in mapping):
             raise DataError(f"data.columns must give exactly one of tau.{j} and current.{j}", file=file)

@@ -18,9 +18,7 @@ def torque_from_current(current: np.ndarray, joints: Sequence[str], gains: Mappi
     """
     missing = [j for j in joints if j not in gains]
     if missing:
-        raise DataError(
-            f"the data holds motor currents ({what}) but robot.drive_gains has no gain for "
-            f"{', '.join(missing)}; give robot.drive_gains: {{joint: k [N·m/A]}} (τ = k·i) in the config",
-            file=source, column=f"current.{missing[0]}",
-        )
+        raise DataError(f"the data holds motor currents ({what}) but robot.drive_gains has no gain "
+                        f"for {', '.join(missing)}; give robot.drive_gains: {{joint: k [N·m/A]}} "
+                        "(τ = k·i) in the config", file=source, column=f"current.{missing[0]}")
     return np.asarray(current, float) * np.array([float(gains[j]) for j in joints])

@@ -90,8 +90,8 @@ def _collect(reader, connections, joints: Sequence[str], joint_map: JointMapConf
     return rows, seen, partial, other
 
 
-def read_joint_state_bag(path: str | Path, joints: Sequence[str], *, topic: str = "", effort: str = "torque",
-                         joint_map: JointMapConfig | None = None,
+def read_joint_state_bag(path: str | Path, joints: Sequence[str], *, topic: str = "",
+                         effort: str = "torque", joint_map: JointMapConfig | None = None,
                          drive_gains: Mapping[str, float] | None = None) -> Measurement:
     """Reads the JointState messages of a bag (module docstring) as a raw :class:`Measurement`.
 
