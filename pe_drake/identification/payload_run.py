@@ -90,7 +90,7 @@ class PayloadIdentification:
         with staged_output_dir(out, "payload.json", ("payload.json", "model_with_payload.urdf")) as tmp:
             d = self.result.to_dict()
             d["vendor"] = self.formats
-            if not urdf:  # an SDF robot: the fit is still written (issue 37: it exited 2 with nothing)
+            if not urdf:  # an SDF robot: the fit is still written (issue 37)
                 d["model_with_payload_urdf"] = f"not written: '{Path(self.robot.model_path).name}' is not a URDF"
             (tmp / "payload.json").write_text(json.dumps(finite_json(d), indent=2))
             if urdf:
