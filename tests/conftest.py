@@ -93,3 +93,16 @@ def diagnosis_trajectory():
     from pe_drake.excitation.trajectory_file import load_trajectory
 
     return load_trajectory(Path(__file__).parent / "data" / "diagnosis_panda_trajectory.json")[0]
+
+
+def ground_wrench(robot, phi, q, v, vd) -> np.ndarray:
+    """The ground wrench a model φ predicts, (S, 6) [N, N·m], static bodies included."""
+    from pe_drake.multibody.regressor import RegressorModel
+    from pe_drake.multibody.wrench import static_wrench
+
+    model = RegressorModel(robot)
+    out = np.empty((q.shape[0], 6))
+    for s in range(0, q.shape[0], 2000):  # bounded memory: (2000, 6, 10·nb) at a time
+        k = slice(s, min(s + 2000, q.shape[0]))
+        out[k] = model.wrench_regressor(model.kinematics(q[k], v[k], vd[k])) @ phi
+    return out + static_wrench(robot)

@@ -351,14 +351,14 @@ def test_ground_wrench_and_torques_separate_every_armature_and_the_physical_fit_
     torque base parameters separate the armatures the torques alone merge (the first joints'),
     and the physical fit recovers an armature it was given (it raised ValueError before:
     the merged armatures were named in the torque-only base parameters)."""
-    from pe_drake.identification.channels import predicted_wrench
+    from tests.conftest import ground_wrench
 
     g1 = get_robot("g1")
     trajectory, _ = load_trajectory(Path(__file__).parent / "data" / "g1_joint_torque_optimized.json")
     data = model_measurement(g1, trajectory, rate_hz=50)
     truth = np.zeros(g1.n)
     truth[g1.joint_names.index("left_elbow_joint")] = 0.03  # [kg·m²]
-    wrench = predicted_wrench(g1, g1.phi_model, data.q, data.v, data.vd)
+    wrench = ground_wrench(g1, g1.phi_model, data.q, data.v, data.vd)
     data = data.replace(tau=data.tau + truth * data.vd, wrench=wrench)
     torque_only = drive_layout(g1, compute_base_parameters(g1), DriveTermOptions("all"))
     assert torque_only.merged  # the shoulders' armatures merge with the torques alone

@@ -18,7 +18,6 @@ from pe_drake.cli import main
 from pe_drake.diagnosis import record
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.excitation.trajectory_file import load_trajectory
-from pe_drake.identification.csv_table import MAX_LINE_CHARS
 from pe_drake.multibody.drive_columns import DriveTermOptions, drive_columns, drive_layout
 from pe_drake.identification.estimators import identify
 from pe_drake.identification.intake import prepare_measurement
@@ -87,7 +86,7 @@ def test_a_line_longer_than_the_limit_is_refused_by_number(tmp_path, monkeypatch
     robot = load_robot("panda")
     header = ",".join(["t"] + [f"q.{j}" for j in robot.joint_names] + [f"tau.{j}" for j in robot.joint_names])
     row = ",".join(["0"] * 15)
-    path.write_text(header + "\n" + row + "\n" + "1" * (MAX_LINE_CHARS + 10) + "\n")
+    path.write_text(header + "\n" + row + "\n" + "1" * (2**20 + 10) + "\n")
     with pytest.raises(DataError, match=r"line 3 is longer than 1,048,576 characters, the 1 MB limit \(PE_DRAKE_MAX_CSV_LINE_MB"):
         read_measurement_csv(path, robot.joint_names)
     monkeypatch.setenv("PE_DRAKE_MAX_CSV_LINE_MB", "2")  # the setting named in the message

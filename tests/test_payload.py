@@ -9,6 +9,7 @@ import json
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from pe_drake.exceptions import ConfigError, DataError, UnknownNameError
 from pe_drake.identification.payload import PayloadBox, PayloadOptions, box_constraint_rows, identify_payload
@@ -18,9 +19,7 @@ from pe_drake.identification.payload_formats import (
     flange_pose_in_link,
     franka_load,
     kuka_load_data,
-    kuka_rotation,
     payload_in_flange,
-    read_urdf_body_phi,
     ur_script,
     urdf_with_payload,
     vendor_formats,
@@ -29,6 +28,7 @@ from pe_drake.multibody.inertia import phi_to_spatial_inertia, spatial_inertia_t
 from pe_drake.multibody.payload import PayloadInertia, box_inertia, central_jacobian, link_columns
 from pe_drake.multibody.regressor import RegressorModel
 from pe_drake.multibody.robot import load_robot
+from pe_drake.multibody.urdf import urdf_text_phi
 from pe_drake.simulation.payload_synthetic import random_box_payload
 from tests.conftest import get_robot, random_postures
 
@@ -113,7 +113,7 @@ def test_flange_frames_and_vendor_conventions():
     np.testing.assert_allclose(args[2], pf.inertia_vector, rtol=1e-5, atol=1e-12)
     assert ur["set_payload"].startswith(f"set_payload({pf.mass:.6g}, [")
     kuka = kuka_load_data(pf)
-    R = kuka_rotation([kuka["A"], kuka["B"], kuka["C"]])
+    R = Rotation.from_euler("ZYX", [kuka["A"], kuka["B"], kuka["C"]], degrees=True).as_matrix()
     rebuilt = R @ np.diag([kuka["JX"], kuka["JY"], kuka["JZ"]]) @ R.T
     np.testing.assert_allclose(rebuilt, pf.inertia_about_com, atol=1e-12)
     np.testing.assert_allclose([kuka["X"], kuka["Y"], kuka["Z"]], 1000 * pf.com, atol=1e-9)
@@ -127,7 +127,8 @@ def test_exported_urdf_carries_the_payload(name, link, tmp_path):
     robot = get_robot(name)
     p = _payload(11)
     text = urdf_with_payload(robot, p, link)
-    np.testing.assert_allclose(read_urdf_body_phi(text, PAYLOAD_LINK_NAME), p.phi, rtol=1e-9, atol=1e-14)
+    got = urdf_text_phi(text, [PAYLOAD_LINK_NAME])
+    np.testing.assert_allclose(got, p.phi, rtol=1e-9, atol=1e-14)
     path = tmp_path / "with_payload.urdf"
     path.write_text(text)
     loaded = load_robot(dataclasses.replace(robot.config, model=str(path)))  # same joints locked

@@ -6,7 +6,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from conftest import random_states
+from conftest import ground_wrench, random_states
 
 from pe_drake.exceptions import ConfigError
 from pe_drake.multibody.base_parameters import RANK_GAP_RATIO
@@ -177,15 +177,16 @@ def test_channels_of_a_run(g1):
     import types
 
     from pe_drake.exceptions import DataError
-    from pe_drake.identification.channels import channel_names, measured_rows, measured_values, predicted_wrench
+    from pe_drake.identification.channels import channel_names, measured_values
 
     q, v, vd = random_states(g1, 4, seed=2)
     model = RegressorModel(g1)
-    wrench = predicted_wrench(g1, g1.phi_model, q, v, vd, model)
+    wrench = ground_wrench(g1, g1.phi_model, q, v, vd)
     tau = model(q, v, vd) @ g1.phi_model
     data = types.SimpleNamespace(q=q, v=v, vd=vd, tau=tau, wrench=wrench, num_samples=4, source="run.csv")
     for kind in MEASUREMENTS:
-        A, y = measured_rows(g1, data, kind, model), measured_values(g1, data, kind)
+        A = SensorRows(model, MeasurementType(kind)).rows(model.kinematics(q, v, vd), scaled=False)
+        y = measured_values(g1, data, kind)
         assert A.shape[:2] == y.shape == (4, len(channel_names(g1, kind)))
         assert np.allclose(A @ g1.phi_model, y, rtol=0, atol=1e-9)
     assert channel_names(g1, "both")[-6:] == WRENCH_COLUMNS

@@ -8,13 +8,17 @@ import numpy as np
 import pytest
 
 from pe_drake.excitation.trajectory_file import load_trajectory
-from pe_drake.identification.channels import predicted_wrench
 from pe_drake.identification.estimators import identify
 from pe_drake.identification.intake import prepare_measurement
 from pe_drake.identification.prediction import predict, predict_wrench
 from pe_drake.identification.measurements import measurement_to_csv_text, read_measurement_csv
 from pe_drake.simulation.simulation import simulate
+<<<<<<< HEAD
 from pe_drake.simulation.truth import NoiseTruth, Truth, make_truth
+=======
+from pe_drake.simulation.truth import Truth
+from tests.conftest import ground_wrench
+>>>>>>> slim-identification
 
 DATA = Path(__file__).parent / "data"
 
@@ -39,7 +43,8 @@ def test_simulated_wrench_is_the_weld_reaction_and_round_trips_through_csv(g1, t
     assert back.tau is None and np.allclose(back.wrench, raw.wrench, rtol=1e-9, atol=1e-9)
     # The true model predicts the filtered wrench at the filtered states (offset added).
     phi_true = np.concatenate([info["phi_true"][b] for b in g1.body_names])
-    predicted = predicted_wrench(g1, phi_true, data.q, data.v, data.vd) + np.array(truth.noise.wrench_offset)
+    offset = np.array(truth.noise.wrench_offset)
+    predicted = ground_wrench(g1, phi_true, data.q, data.v, data.vd) + offset
     # Up to the low-pass filter's and the central differences' error (measured 0.014 N, N·m;
     # the arms move the wrench by 1-3 N·m, the sensor noise is 0.5 N / 0.05 N·m).
     assert np.abs(predicted - data.wrench).max() < 0.02

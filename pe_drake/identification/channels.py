@@ -22,8 +22,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from pe_drake.exceptions import DataError
-from pe_drake.multibody.regressor import RegressorModel
-from pe_drake.multibody.sensors import MeasurementType, SensorRows
+from pe_drake.multibody.sensors import MeasurementType
 from pe_drake.multibody.wrench import WRENCH_COLUMNS, static_wrench
 
 if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
@@ -48,40 +47,15 @@ def measured_values(robot: Robot, data, measurement: str) -> np.ndarray:
     parts = []
     if kind.torques:
         if data.tau is None:
-            raise DataError(
-                f"measurement '{measurement}' needs the joint torques (tau.<joint> columns); this run "
-                "has none: use --measurement base_wrench",
-                file=data.source,
-            )
+            raise DataError(f"measurement '{measurement}' needs the joint torques (tau.<joint> "
+                            "columns); this run has none: use --measurement base_wrench",
+                            file=data.source)
         parts.append(np.asarray(data.tau, float))
     if kind.wrench:
         wrench = getattr(data, "wrench", None)
         if wrench is None:
-            raise DataError(
-                f"measurement '{measurement}' needs the ground wrench (columns {', '.join(WRENCH_COLUMNS)}); "
-                "this run has none: use --measurement joint_torque",
-                file=data.source,
-            )
+            raise DataError(f"measurement '{measurement}' needs the ground wrench (columns "
+                            f"{', '.join(WRENCH_COLUMNS)}); this run has none: use --measurement "
+                            "joint_torque", file=data.source)
         parts.append(np.asarray(wrench, float) - static_wrench(robot))
     return np.concatenate(parts, axis=1)
-
-
-def measured_rows(robot: Robot, data, measurement: str, model: RegressorModel | None = None) -> np.ndarray:
-    """A of every sample, shape (S, r, 10·nb), unscaled (rows in :func:`channel_names` order)."""
-    model = model or RegressorModel(robot)
-    rows = SensorRows(model, MeasurementType(measurement))
-    out = []
-    for s in range(0, data.num_samples, CHUNK):
-        k = slice(s, min(s + CHUNK, data.num_samples))
-        out.append(rows.rows(model.kinematics(data.q[k], data.v[k], data.vd[k]), scaled=False))
-    return np.concatenate(out)
-
-
-def predicted_wrench(robot: Robot, phi: np.ndarray, q: np.ndarray, v: np.ndarray, vd: np.ndarray, model=None) -> np.ndarray:
-    """The ground wrench a model φ predicts, shape (S, 6) [N, N·m] (static bodies included)."""
-    model = model or RegressorModel(robot)
-    out = np.empty((q.shape[0], 6))
-    for s in range(0, q.shape[0], CHUNK):
-        k = slice(s, min(s + CHUNK, q.shape[0]))
-        out[k] = model.wrench_regressor(model.kinematics(q[k], v[k], vd[k])) @ phi
-    return out + static_wrench(robot)

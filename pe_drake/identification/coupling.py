@@ -1,25 +1,16 @@
-"""Does the residual of a fit look like a coupled drive the model lacks (issue 36)?
+"""Does the residual of a fit look like a coupled drive the model lacks?
 
-A motor that turns two joints (a coupled wrist: θ_m = R q with R_ij ≠ 0 off the diagonal) puts
-its friction and rotor inertia on both: the joints' torques hold R_ij R_ik F_v q̇_k and
-R_ij R_ik I_m q̈_k on row j (and the mirror on row k), and the motor's Coulomb friction
-F_c tanh(θ̇_m / v_s) on both rows. Per-joint drive terms cannot hold any of it, so a fit without
-the ``robot.transmission`` leaves it in the residual (on the coupled wrist of issue 36, joints 5
-and 6 came out 7x and 3.5x worse than the authors' model, with no word). :func:`coupled_pairs`
-fits, per pair of joints the model does not couple, these columns to the pair's residual:
-
-- the symmetric viscous and inertial couplings (row j: q̇_k, q̈_k; row k: q̇_j, q̈_j), exact for
-  any ratios;
-- a shared motor's Coulomb friction tanh((q̇_j ± q̇_k)/v_s) on each row, exact for the common
-  differential wrist whose motor turns both joints by the same ratio (Stäubli, many KUKA and
-  ABB wrists); other ratios are covered in part.
+A motor that turns two joints (θ_m = R q with R_ij ≠ 0 off the diagonal) puts its friction and
+rotor inertia on both, which per-joint drive terms cannot hold. :func:`coupled_pairs` fits, per
+pair of joints the model does not couple, to the pair's residual: the symmetric viscous and
+inertial couplings (row j: q̇_k, q̈_k; row k: q̇_j, q̈_j), exact for any ratios, and a shared
+motor's Coulomb friction tanh((q̇_j ± q̇_k)/v_s) on each row, exact for a differential wrist
+whose motor turns both joints by the same ratio.
 
 A pair is named when these explain more than :data:`COUPLING_SHARE_WARNING` of the residual
-energy of *each* of its two joints: a shared motor shows on both, while a large residual of one
-joint alone (the Panda's joint 1 held out) can be fitted in part by the other joint's columns
-and pooled energy would name it (56 % for Panda joints 1-6, joint 6 made worse). By chance, c
-columns explain about c·τ̄/rows of white noise (τ̄ the autocorrelation time of the filtered
-residual): ~14 % on the Panda's 5.5 s held-out part, a few percent on a training run.
+energy of *each* of its joints: a shared motor shows on both, while pooled energy would name a
+pair for one joint's large residual alone. By chance, c columns explain about c·τ̄/rows of
+white noise (τ̄ the residual's autocorrelation time).
 """
 
 from __future__ import annotations
@@ -30,18 +21,16 @@ import numpy as np
 
 from pe_drake.multibody.drive_columns import coulomb_column
 
-#: A pair of joints is named when the coupling columns explain more than this fraction of the
-#: residual energy of each of the two: then most of what the fit leaves on both is a coupled drive.
+#: A pair is named when the coupling columns explain more than this fraction of each joint's
+#: residual energy.
 COUPLING_SHARE_WARNING = 0.5
 
 
 class CoupledPair(NamedTuple):
     """Two joints whose residual looks coupled.
 
-    Attributes:
-        joints: the two joint names.
-        share: the smaller of the two joints' fractions of residual energy the coupling columns explain.
-        rms: their residual RMS [N·m], shape (2,); rms_after: with the coupling columns.
+    ``share``: the smaller of the two joints' fractions of residual energy the coupling columns
+    explain; ``rms``, ``rms_after``: their residual RMS [N·m], (2,), without and with them.
     """
 
     joints: tuple[str, str]
@@ -52,11 +41,9 @@ class CoupledPair(NamedTuple):
 
 def coupled_pairs(joints, v: np.ndarray, vd: np.ndarray, residual: np.ndarray, velocity_scale: float,
                   coupled=None) -> list[CoupledPair]:
-    """The pairs of joints whose residual a coupled drive explains (module docstring), largest
-    share first.
+    """The pairs of joints whose residual a coupled drive explains, largest share first.
 
     Args:
-        joints: the joint names, length n.
         v, vd: joint velocities and accelerations, (S, n) [rad/s, rad/s²].
         residual: measured − predicted joint torques, (S, n) [N·m].
         velocity_scale: v_s of the Coulomb columns [rad/s].

@@ -1,16 +1,10 @@
-"""Checks every measured CSV reader shares: the file is UTF-8 text with commas, its numbers
-are numbers, and its time strictly increases.
+"""Checks every measured CSV reader shares: the file is UTF-8 text with commas, its numbers are
+numbers, and its time strictly increases.
 
-- A UTF-16 file (Excel's "Unicode text", Windows tools) failed with a UnicodeDecodeError
-  traceback, and a semicolon- or tab-delimited one (a European Excel export) with "missing
-  columns": :func:`check_text_file` and :func:`delimiter_hint` say what it looks like and how
-  to save it.
-- Python's ``float`` accepts ``0.21_5`` (underscores) and other digits than 0-9, which numpy's
-  parser refuses: the reader's search for the bad field found none and named no row or
-  column. :func:`is_number` is the grammar of a number in a CSV.
-- A logger that writes samples twice (the same stamp, or 1 ns apart) made every real step look
-  like a hole (9,999 "gaps" of a 1 kHz log) or sent the resampling grid to 74 GB:
-  :func:`check_time_order` counts the repeated and decreasing stamps and names the first rows.
+:func:`check_text_file` and :func:`delimiter_hint` name a UTF-16 or a semicolon- or tab-delimited
+file and say how to save it. :func:`is_number` is the grammar of a number in a CSV (Python's
+``float`` also takes ``0.21_5`` and non-ASCII digits, which numpy's parser refuses).
+:func:`check_time_order` counts repeated and decreasing stamps and names the first rows.
 """
 
 from __future__ import annotations
@@ -38,12 +32,8 @@ def is_number(text: str) -> bool:
 
 
 def check_text_file(path: str | Path) -> None:
-    """Refuses a file that is not UTF-8 text: a UTF-16 byte-order mark, NUL bytes, or bytes
-    that do not decode as UTF-8 (in its first 64 kB).
-
-    Raises:
-        DataError: naming the file, what it looks like and how to save it.
-    """
+    """Refuses a file that is not UTF-8 text (a UTF-16 byte-order mark, NUL bytes, or bytes that
+    do not decode as UTF-8 in its first 64 kB), saying what it looks like and how to save it."""
     with open(path, "rb") as f:
         head = f.read(65536)
     looks = next((what for bom, what in _BOMS.items() if head.startswith(bom)), None)
@@ -61,11 +51,7 @@ def check_text_file(path: str | Path) -> None:
 
 
 def delimiter_hint(header: str, file: str) -> None:
-    """Refuses a header that is one column of a semicolon- or tab-delimited file.
-
-    Raises:
-        DataError: naming the delimiter and how to save the file.
-    """
+    """Refuses a header that is one column of a semicolon- or tab-delimited file."""
     if "," in header:
         return
     for mark, name in ((";", "semicolon"), ("\t", "tab")):
@@ -76,15 +62,9 @@ def delimiter_hint(header: str, file: str) -> None:
 
 
 def first_non_number(rows, columns: dict[int, str]) -> tuple[int, int, str, str] | None:
-    """The first field of the named columns that is not a number.
-
-    Args:
-        rows: (file line number, fields) of each data row, in order.
-        columns: {field index: column name} to check.
-
-    Returns:
-        (data row from 1, file line, column name, the field cut for a message), or None.
-    """
+    """(data row from 1, file line, column name, the field cut for a message) of the first field
+    that is not a number, or None; ``rows``: (file line, fields) of each data row, ``columns``:
+    {field index: column name} to check."""
     for r, (line, fields) in enumerate(rows):
         for k, name in columns.items():
             raw = fields[k].strip() if k < len(fields) else ""
@@ -108,11 +88,7 @@ def check_time_order(t: np.ndarray, file: str = "", lines=None, column: str = "t
     repeat: interpolating across it divides by ~0, and it shrinks the median step so that
     every real step looks like a hole.
 
-    Args:
-        t: the time column, shape (T,) [s].
-        file: the file, for the message.
-        lines: the file line of each sample (when the reader knows them).
-        column: the time column's name.
+    ``t``: the time column, (T,) [s]; ``lines``: the file line of each sample, when known.
 
     Raises:
         DataError: naming the file, the column and the first bad row (data rows from 1).
@@ -136,8 +112,7 @@ def check_time_order(t: np.ndarray, file: str = "", lines=None, column: str = "t
     k = int(min(repeated[:1].tolist() + back[:1].tolist()))
     fixes = (["drop the repeated rows"] if repeated.size else []) + (
         ["put the rows back in time order (swapped rows, or two logs joined)"] if back.size else [])
-    raise DataError(
-        f"time must strictly increase; the column has {'; and '.join(parts)}; the first: t = {t[k]:.12g} s after "
-        f"t = {t[k - 1]:.12g} s. {' and '.join(fixes).capitalize()}, or fix the logger's time stamps",
-        file=file, column=column, row=k + 1,
-    )
+    fix = " and ".join(fixes).capitalize()
+    raise DataError(f"time must strictly increase; the column has {'; and '.join(parts)}; the "
+                    f"first: t = {t[k]:.12g} s after t = {t[k - 1]:.12g} s. {fix}, or fix the "
+                    "logger's time stamps", file=file, column=column, row=k + 1)

@@ -1,9 +1,8 @@
 """Reading pe_drake's measurement CSV in bounded memory, every bad line named.
 
 The file is read once, as a stream of lines: each is checked (length, field count) and its line
-number kept while numpy's C parser turns the stream into the table of the wanted columns, so
-an hour at 1 kHz (3.6 M lines) needs the table and one chunk of lines, not the file's text and
-a Python string per line (1.3 kB per row before, 18× the CSV's size for a decimated fit).
+number kept while numpy's C parser turns chunks of lines into the table of the wanted columns,
+so an hour at 1 kHz needs the table and one chunk, not a Python string per line.
 """
 
 from __future__ import annotations
@@ -14,19 +13,16 @@ from pathlib import Path
 import numpy as np
 
 from pe_drake import limits
-from pe_drake.exceptions import DataError, shorten
-from pe_drake.identification.csv_checks import SAVE_AS_UTF8, check_text_file, delimiter_hint, is_number
-
-#: The longest line accepted by default [characters]: a log's line is a few hundred; a longer one
-#: is not a log (:data:`pe_drake.limits.CSV_LINE` overrides it).
-MAX_LINE_CHARS = 2**20
+from pe_drake.exceptions import DataError
+from pe_drake.identification.csv_checks import (SAVE_AS_UTF8, check_text_file, delimiter_hint,
+                                                first_non_number)
 
 #: Lines parsed at once.
 CHUNK_LINES = 50_000
 
 
 def _lines(path: Path, file: str) -> Iterator[tuple[int, str]]:
-    """(line number, text) of every line, refusing one longer than :data:`MAX_LINE_CHARS`."""
+    """(line number, text) of every line, refusing one longer than ``limits.CSV_LINE``."""
     longest = limits.in_bytes(limits.CSV_LINE)
     with path.open(encoding="utf-8-sig", newline=None) as f:
         lineno = 0
@@ -34,7 +30,8 @@ def _lines(path: Path, file: str) -> Iterator[tuple[int, str]]:
             try:
                 line = f.readline(longest + 1)
             except UnicodeDecodeError as err:
-                raise DataError(f"not UTF-8 text after line {lineno} ({err.reason}); {SAVE_AS_UTF8}", file=file) from None
+                raise DataError(f"not UTF-8 text after line {lineno} ({err.reason}); "
+                                f"{SAVE_AS_UTF8}", file=file) from None
             if not line:
                 return
             lineno += 1
@@ -49,7 +46,7 @@ def read_header_line(path: Path) -> tuple[int, list[str]]:
 
     Raises:
         DataError: no file, an empty file, text that is not UTF-8, a semicolon- or tab-delimited
-            header (:mod:`~pe_drake.identification.csv_checks`).
+            header.
     """
     file = str(path)
     problem = limits.input_file_problem(path)
@@ -65,10 +62,7 @@ def read_header_line(path: Path) -> tuple[int, list[str]]:
 
 def read_table(path: Path, header_line: int, columns: Sequence[str], wanted: Sequence[str],
                index: dict[str, int]) -> tuple[np.ndarray, np.ndarray]:
-    """The ``wanted`` columns of the data rows as floats, and each row's line number.
-
-    Returns:
-        (table (rows, len(wanted)), all finite; line numbers (rows,)).
+    """(table (rows, len(wanted)), all finite; line numbers (rows,)) of the data rows.
 
     Raises:
         DataError: a line with another field count than the header, a value that is not a
@@ -76,8 +70,7 @@ def read_table(path: Path, header_line: int, columns: Sequence[str], wanted: Seq
     """
     file = str(path)
     usecols = [index[c] for c in wanted]
-    # The table is allocated once at the file's line count: numpy's growing result held up to
-    # 2.4× the table while reading (an hour at 1 kHz: 1 GB for a 0.43 GB table).
+    # Allocated once at the file's line count: numpy's growing result holds up to 2.4× the table.
     table = np.empty((_count_lines(path), len(wanted)))
     linenos = np.empty(table.shape[0], dtype=np.int64)
     rows, chunk = 0, []
@@ -87,7 +80,7 @@ def read_table(path: Path, header_line: int, columns: Sequence[str], wanted: Seq
         try:
             part = np.loadtxt(chunk, delimiter=",", usecols=usecols, ndmin=2, dtype=float, comments=None)
         except ValueError:
-            _locate_parse_error(path, header_line, columns, wanted, index)
+            _locate_parse_error(path, header_line, wanted, index)
             raise  # pragma: no cover - _locate_parse_error always raises
         table[rows : rows + len(chunk)] = part
         rows += len(chunk)
@@ -125,18 +118,14 @@ def _count_lines(path: Path) -> int:
     return count
 
 
-def _locate_parse_error(path: Path, header_line: int, columns, wanted, index) -> None:
+def _locate_parse_error(path: Path, header_line: int, wanted, index) -> None:
     """Slow path after a parse failure: the first field that is not a number, by name."""
     file = str(path)
-    row = 0
-    for lineno, line in _lines(path, file):
-        if lineno <= header_line or not line.strip():
-            continue
-        row += 1
-        fields = line.rstrip("\r\n").split(",")
-        for name in wanted:
-            raw = fields[index[name]].strip()
-            if not is_number(raw):  # not float(): it takes "0.21_5", which numpy refused
-                raise DataError(f"'{shorten(raw)}' is not a number (line {lineno} of the file)", file=file,
-                                column=name, row=row)
+    rows = ((lineno, line.rstrip("\r\n").split(",")) for lineno, line in _lines(path, file)
+            if lineno > header_line and line.strip())
+    found = first_non_number(rows, {index[name]: name for name in wanted})
+    if found is not None:
+        row, lineno, name, raw = found
+        raise DataError(f"'{raw}' is not a number (line {lineno} of the file)", file=file,
+                        column=name, row=row)
     raise DataError("could not parse the file as comma-separated numbers", file=file)

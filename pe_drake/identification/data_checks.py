@@ -1,16 +1,10 @@
 """Checks of measured data against the robot and its a-priori model, before identification.
 
-Each refuses with the file, the column and the row, and the likely fix:
-
-- time in milliseconds (a "1 Hz" log of a 1 kHz controller) or a rate too low to identify;
-- repeated (or nearly: 1 ns apart) and decreasing time stamps, counted, with the first rows;
-- (holes in the time column are not refused: short ones are interpolated and pauses split
-  the run into segments, :mod:`pe_drake.identification.gaps`);
-- joint positions far outside the robot's limits, with a degrees hint when q·π/180 fits;
-- a torque column whose sign is flipped against the a-priori model (cosine similarity of the
-  measured and predicted torques near −1).
-
-Row numbers are those of the CSV file: the header is row 1, the first sample row 2.
+Each refuses with the file, the column and the row (the header is row 1), and the likely fix:
+time in milliseconds or a rate too low to identify; repeated or decreasing time stamps; joint
+positions far outside the robot's limits (with a degrees or mm hint); a torque column whose sign
+is flipped against the a-priori model. Holes in the time column are not refused
+(:mod:`pe_drake.identification.gaps`).
 """
 
 from __future__ import annotations
@@ -30,23 +24,14 @@ if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
 
 #: Lowest sample rate accepted [Hz].
 MIN_RATE_HZ = 10.0
-#: A time step longer than this many median steps is a hole (see pe_drake.identification.gaps).
-MAX_GAP_STEPS = 5.0
 #: Slack beyond the position limits before data is refused [rad or m].
 POSITION_SLACK = 0.1
 #: Cosine similarity of measured and model torque below which a column is called flipped.
 FLIP_SIMILARITY = -0.3
 
 
-def _row(index: int) -> int:
-    return int(index) + 2  # header is row 1
-
-
 def check_time_column(t: np.ndarray, source: str = "") -> None:
     """Refuses repeated or decreasing time stamps, time in milliseconds and too low a rate.
-
-    Holes and pauses are not refused: :func:`pe_drake.identification.gaps.preprocess_segments`
-    interpolates the short ones and splits the run at the long ones.
 
     Raises:
         DataError: naming the file, column 't' and the row.
@@ -60,17 +45,12 @@ def check_time_column(t: np.ndarray, source: str = "") -> None:
     step = float(np.median(dt))
     rate = 1.0 / step
     if rate < MIN_RATE_HZ:
-        hint = (
-            "; the time column looks like milliseconds: divide it by 1000 to get seconds"
-            if 0.5 <= step <= 20 and t[-1] - t[0] > 100
-            else ""
-        )
-        raise DataError(
-            f"median time step {step:.4g} s ({rate:.3g} Hz) is too slow for identification "
-            f"(at least {MIN_RATE_HZ:g} Hz expected){hint}",
-            file=source,
-            column="t",
-        )
+        hint = ""
+        if 0.5 <= step <= 20 and t[-1] - t[0] > 100:
+            hint = "; the time column looks like milliseconds: divide it by 1000 to get seconds"
+        raise DataError(f"median time step {step:.4g} s ({rate:.3g} Hz) is too slow for "
+                        f"identification (at least {MIN_RATE_HZ:g} Hz expected){hint}", file=source,
+                        column="t")
 
 
 def check_positions(robot: Robot, q: np.ndarray, source: str = "") -> None:
@@ -99,27 +79,20 @@ def check_positions(robot: Robot, q: np.ndarray, source: str = "") -> None:
     # a prismatic joint's likely unit slip is mm, not degrees (issue 37)
     scaled = q[:, j] / 1000 if prismatic else q[:, j] * math.pi / 180
     slipped = bool(np.all((scaled >= lo[j]) & (scaled <= hi[j]))) and np.abs(q[:, j]).max() > (1.0 if prismatic else 2 * math.pi)
-    hint = (
-        ("; the column looks like mm: divide by 1000 to get m" if prismatic else
-         "; the column looks like degrees: multiply by π/180 to get rad")
-        if slipped
-        else "; check the units (rad or m) and the joint order of the columns"
-    )
-    raise DataError(
-        f"position {q[k, j]:.6g} is outside the limits [{lim.q_lower[j]:.4g}, {lim.q_upper[j]:.4g}] of "
-        f"joint '{name}'{hint}",
-        file=source,
-        column=f"q.{name}",
-        row=_row(k),
-    )
+    if not slipped:
+        hint = "; check the units (rad or m) and the joint order of the columns"
+    elif prismatic:
+        hint = "; the column looks like mm: divide by 1000 to get m"
+    else:
+        hint = "; the column looks like degrees: multiply by π/180 to get rad"
+    raise DataError(f"position {q[k, j]:.6g} is outside the limits [{lim.q_lower[j]:.4g}, "
+                    f"{lim.q_upper[j]:.4g}] of joint '{name}'{hint}", file=source,
+                    column=f"q.{name}", row=k + 2)  # the header is row 1
 
 
 def check_raw_measurement(robot: Robot, measurement) -> None:
-    """Time column and positions of a raw measurement (see the module docstring).
-
-    Raises:
-        DataError: see :func:`check_time_column` and :func:`check_positions`.
-    """
+    """Time column and positions of a raw measurement (:func:`check_time_column`,
+    :func:`check_positions`)."""
     check_time_column(measurement.t, measurement.source)
     check_positions(robot, measurement.q, measurement.source)
 
@@ -132,13 +105,8 @@ def check_torque_signs(measured, predicted: np.ndarray, joints, source: str = ""
     near −1. Joints whose predicted RMS is below ``relevant`` × the largest are skipped
     (friction-dominated, the model says little there).
 
-    Args:
-        measured: measured torques, shape (T, n) [N·m].
-        predicted: the a-priori model's torques at the same samples, shape (T, n) [N·m].
-        joints: joint names, length n.
-
-    Returns:
-        s per joint, shape (n,) (NaN where skipped).
+    ``measured`` and ``predicted`` (the a-priori model's) are torques, shape (T, n) [N·m];
+    returns s per joint, (n,) (NaN where skipped).
 
     Raises:
         DataError: naming the file and the column, with the similarity.
@@ -152,26 +120,16 @@ def check_torque_signs(measured, predicted: np.ndarray, joints, source: str = ""
     flipped = np.flatnonzero(ok & (s < FLIP_SIMILARITY))
     if len(flipped):
         j = int(flipped[np.argmin(s[flipped])])
-        raise DataError(
-            f"the torque looks sign-flipped: its similarity with the a-priori model's torque is {s[j]:+.2f} "
-            "(about +1 expected); negate the column, or check the joint's sign convention and the column order",
-            file=source,
-            column=f"tau.{joints[j]}",
-        )
+        raise DataError(f"the torque looks sign-flipped: its similarity with the a-priori "
+                        f"model's torque is {s[j]:+.2f} (about +1 expected); negate the column, or "
+                        "check the joint's sign convention and the column order", file=source,
+                        column=f"tau.{joints[j]}")
     return s
 
 
 def check_against_model(robot: Robot, prepared) -> np.ndarray:
-    """:func:`check_torque_signs` of preprocessed data against the robot's a-priori model.
-
-    Args:
-        robot: the robot.
-        prepared: a preprocessed :class:`~pe_drake.identification.measurements.Measurement`
-            (v and vdot filled in).
-
-    Returns:
-        The similarity per joint (empty when the data has no torque columns, only a wrench).
-    """
+    """:func:`check_torque_signs` of preprocessed data against the robot's a-priori model: the
+    similarity per joint (empty when the data has no torque columns, only a wrench)."""
     if prepared.tau is None:
         return np.empty(0)
     return check_torque_signs(prepared.tau, a_priori_torque(robot, prepared), prepared.joints, prepared.source)
@@ -179,8 +137,7 @@ def check_against_model(robot: Robot, prepared) -> np.ndarray:
 
 def a_priori_torque(robot: Robot, prepared, coulomb: np.ndarray | None = None) -> np.ndarray:
     """The a-priori model's joint torques at the samples of ``prepared``, (S, n) [N·m]: the
-    model file's inertias and its joint friction d·v + f_c·tanh(v/v_s) (issue 21: xArm7's
-    damping of 10 N·m·s/rad is much of its measured torque).
+    model file's inertias and its joint friction d·v + f_c·tanh(v/v_s).
 
     Args:
         coulomb: the Coulomb columns tanh(v/v_s) at v_s = ``COULOMB_VELOCITY_SCALE``, parallel-
@@ -189,5 +146,5 @@ def a_priori_torque(robot: Robot, prepared, coulomb: np.ndarray | None = None) -
     """
     if coulomb is None:
         coulomb = coulomb_column(prepared.v, COULOMB_VELOCITY_SCALE)
-    return robot_torques(robot, prepared, robot.phi_model) + robot.joint_damping * prepared.v + \
-        robot.joint_friction * coulomb
+    rigid = robot_torques(robot, prepared, robot.phi_model)
+    return rigid + robot.joint_damping * prepared.v + robot.joint_friction * coulomb

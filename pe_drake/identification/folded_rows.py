@@ -1,17 +1,13 @@
 """Least squares on an hour-long run in bounded memory: each channel's regressor rows folded
 into the R factor of their QR, block by block.
 
-For the rows ``F_c`` (all columns identify may use: the standard regressor, the drive
-columns, ...) and measurements ``y_c`` of channel ``c``, the R factor of ``[F_c | y_c]`` has
-the same Gram matrix, ``R_cᵀR_c = [F_c y_c]ᵀ[F_c y_c]``. Every quantity of a least-squares fit
-is a function of that Gram matrix: the solution of the stacked (or per-channel weighted) fit,
-its singular values and column norms, each channel's residual sum of squares and ``W_cᵀW_c``
-(the sandwich covariance), the physical fit's QR. So the fit is run on the folded rows
-(:meth:`FoldedRows.stacked`, (channels · (k+1)) rows instead of samples · channels), equal to
-the fit on the rows up to rounding, while the rows are built ``BLOCK`` samples at a time and
-never held together (at 200 Hz an hour of Panda data is 5 M rows × 100 columns, 4 GB). Only the
-residual's correlation time needs the residual series itself: :func:`residual_series`
-rebuilds the rows block by block for it.
+For the rows ``F_c`` and measurements ``y_c`` of channel ``c``, the R factor of ``[F_c | y_c]``
+has the same Gram matrix, and every quantity of a least-squares fit is a function of that Gram
+matrix (the solution, singular values, column norms, residual sums of squares, ``W_cᵀW_c``, the
+physical fit's QR). So the fit runs on the folded rows ((channels · (k+1)) rows instead of
+samples · channels), equal up to rounding, while the rows are built ``BLOCK`` samples at a time.
+Only the residual's correlation time needs the residual series: :func:`residual_series`
+rebuilds it block by block.
 """
 
 from __future__ import annotations
@@ -66,16 +62,12 @@ class FoldedRows(NamedTuple):
         """(w_c F_c T)ᵀ (w_c F_c T) per channel, shape (r, p, p)."""
         r, k1, _ = self.R.shape
         w = np.ones(r) if weights is None else np.asarray(weights, float)
-        out = []
-        for c in range(r):
-            A = w[c] * self.R[c, :, : k1 - 1] @ T
-            out.append(A.T @ A)
-        return np.array(out)
+        A = [w[c] * self.R[c, :, : k1 - 1] @ T for c in range(r)]
+        return np.array([a.T @ a for a in A])
 
     def with_known_columns(self, theta: np.ndarray) -> FoldedRows:
         """The rows with ``y_c − F_c θ`` as measurements (θ over the folded columns, (k,)):
-        ``[F_c | y_c − F_c θ] = [F_c | y_c] M``, so ``R_c M`` has its Gram matrix (not
-        triangular; nothing here needs it to be)."""
+        ``R_c M`` has the Gram matrix of ``[F_c | y_c] M`` (not triangular; nothing needs it)."""
         R = self.R.copy()
         R[:, :, -1] -= R[:, :, :-1] @ np.asarray(theta, float)
         return FoldedRows(R, self.samples)
@@ -110,7 +102,7 @@ def fold_rows(blocks: RowBlocks) -> FoldedRows:
 
 def residual_series(blocks: RowBlocks, samples: int, T: np.ndarray, x: np.ndarray,
                     weights: np.ndarray | None = None) -> np.ndarray:
-    """The residual w_c (y_c − F_c T x) of every sample, shape (samples, r), rebuilt block by block."""
+    """The residual w_c (y_c − F_c T x) of every sample, (samples, r), rebuilt block by block."""
     theta = T @ x
     out = None
     for rows, F, y in blocks():

@@ -1,21 +1,14 @@
 """The velocity inside the Coulomb column's tanh(v/v_s), as close to the true one as the sensor allows.
 
-The torque is low-pass filtered against its noise, so its friction part is the *filtered*
-tanh(v/v_s) (parallel filtering, Gautier 1997). The v inside the tanh must not be filtered at
-the torque's cut-off: tanh is nonlinear and a joint with tanh friction sticks at each reversal
-(v_s = 0.01 rad/s is a 440 N·m·s/rad damper for a 4.4 N·m elbow friction), for tens of ms a
-4 Hz filter smears out. On a simulated UR5 the elbow's velocity stayed below v_s for 440 ms over
-8 reversals, its 4 Hz-filtered velocity for 166 ms, and the column missed the friction by up to
-0.15 N·m RMS (BUILD_NOTES, "The velocity inside the Coulomb column").
+The torque is low-pass filtered, so its friction part is the *filtered* tanh(v/v_s) (parallel
+filtering, Gautier 1997). The v inside the tanh must not be filtered at the torque's cut-off: tanh
+is nonlinear, and a joint with tanh friction sticks at each reversal for tens of ms that a 4 Hz
+filter smears out (BUILD_NOTES, "The velocity inside the Coulomb column").
 
-:func:`friction_velocity` takes the recorded v when the log has it, else differentiates q, each
-low-passed at the widest cut-off whose velocity noise stays below ``NOISE_FRACTION`` × v_s: the
-noise of the source signal is measured from the data (:func:`white_noise_level`, with the
-encoder's quantization step as a floor), its gain through the filter (and the central difference)
-is computed for each candidate cut-off, and the widest one that keeps the velocity noise under
-that bound wins (unfiltered if the raw velocity already does, never narrower than the torque's).
-A noisy velocity inside tanh blurs it into a wider sigmoid near the reversals: half of v_s is
-a small widening, and more noise than that is worse than the filter's smear.
+:func:`friction_velocity` takes the recorded v, else differentiates q, each low-passed at the
+widest cut-off whose velocity noise (measured from the data, the encoder's quantization step as a
+floor, times the filter's gain) stays below ``NOISE_FRACTION`` × v_s: more noise than that widens
+the tanh near the reversals more than the filter's smear would.
 """
 
 from __future__ import annotations
@@ -93,8 +86,6 @@ def friction_velocity(q: np.ndarray, v: np.ndarray | None, rate_hz: float, torqu
         rate_hz: the grid's rate [Hz].
         torque_cutoff_hz: the torque's low-pass cut-off [Hz]: the narrowest one used.
         velocity_scale: v_s [rad/s].
-        order: Butterworth order of the filters.
-        file: the data file, for messages.
     """
     src = v if v is not None else q
     top = MAX_FRACTION * rate_hz
@@ -113,7 +104,9 @@ def friction_velocity(q: np.ndarray, v: np.ndarray | None, rate_hz: float, torqu
         ok = np.flatnonzero(sigma * gains <= NOISE_FRACTION * velocity_scale)
         k = int(ok[-1]) if ok.size else 0  # the noise grows with the cut-off: the widest that passes
         fc = cutoffs[k]
-        x = src[:, j] if not math.isfinite(fc) else design_lowpass(fc, rate_hz, len(src), order, file=file).apply(src[:, j])
+        x = src[:, j]
+        if math.isfinite(fc):
+            x = design_lowpass(fc, rate_hz, len(src), order, file=file).apply(x)
         out[:, j] = x if v is not None else differentiate(x[:, None], dt)[:, 0]
         chosen[j], noise[j] = fc, sigma * gains[k]
     return FrictionVelocity(out, chosen, "measured" if v is not None else "differentiated", noise)

@@ -1,21 +1,12 @@
 """Holes in a recording's time column: dropped packets are interpolated, pauses split the run.
 
-A real log is rarely one clean uniform record: a 1 kHz controller's logger drops packets
-(the real Panda recording has four 8-9 ms holes in 20 s), and a lab pauses or restarts
-logging between two parts of a run. A *hole* is a time step longer than
-:data:`~pe_drake.identification.data_checks.MAX_GAP_STEPS` median steps;
-
-- a hole of at most ``max_gap_s`` (:data:`MAX_GAP_S`, config ``data.max_gap_s``) is
-  interpolated linearly by the uniform grid of
-  :func:`~pe_drake.identification.preprocessing.resample_uniform`, with a note: at a
-  cut-off of a few Hz, 20 ms of straight line stays far below the filter's own smoothing;
-- a longer one is a pause: the run is split there into *segments*, each filtered,
-  differentiated and trimmed on its own (:func:`preprocess_segments`), and their samples are
-  stacked (the rows of Eq. 4 do not need to be contiguous in time). Interpolating across a
-  pause would invent the motion in between.
-
-The diagnosis assumes one contiguous record (its held-out split, delay and pre-sliding
-terms follow the time axis): :func:`longest_segment` gives it the longest one, with a note.
+A *hole* is a time step longer than :data:`HOLE_STEPS` median steps. One of at most
+``max_gap_s`` (:data:`MAX_GAP_S`, config ``data.max_gap_s``) is interpolated linearly by the
+uniform grid, with a note: at a cut-off of a few Hz, 20 ms of straight line is far below the
+filter's own smoothing. A longer one is a pause: the run is split there into segments, each
+filtered, differentiated and trimmed on its own (:func:`preprocess_segments`), and their samples
+are stacked (the rows of Eq. 4 need not be contiguous in time). The diagnosis assumes one
+contiguous record: :func:`longest_segment` gives it the longest one.
 """
 
 from __future__ import annotations
@@ -27,30 +18,19 @@ import numpy as np
 
 from pe_drake.exceptions import DataError
 from pe_drake.identification.csv_checks import check_time_order
-from pe_drake.identification.measurements import Measurement
-from pe_drake.identification.preprocessing import (
-    PreprocessOptions,
-    choose_cutoff,
-    preprocess,
-    resample_uniform,
-)
+from pe_drake.identification.measurements import SAMPLE_FIELDS, Measurement
+from pe_drake.identification.preprocessing import (PreprocessOptions, choose_cutoff, preprocess,
+                                                   resample_uniform)
 
 #: Longest hole interpolated [s]; longer ones split the run (config ``data.max_gap_s``).
 MAX_GAP_S = 0.02
-#: A time step longer than this many median steps is a hole (as in data_checks).
+#: A time step longer than this many median steps is a hole.
 HOLE_STEPS = 5.0
-
-_FIELDS = ("t", "q", "tau", "v", "vd", "wrench")
 
 
 class Gaps(NamedTuple):
-    """The holes of a time column (:func:`find_gaps`).
-
-    Attributes:
-        step: median time step [s].
-        interpolated: indices k of the holes t[k] → t[k+1] short enough to interpolate.
-        splits: indices k of the pauses t[k] → t[k+1] where the run is split.
-    """
+    """The median time step [s] and the indices k of the holes t[k] → t[k+1]: those short
+    enough to interpolate and the pauses where the run is split (:func:`find_gaps`)."""
 
     step: float
     interpolated: np.ndarray
@@ -58,13 +38,8 @@ class Gaps(NamedTuple):
 
 
 def find_gaps(t: np.ndarray, max_gap_s: float = MAX_GAP_S) -> Gaps:
-    """The holes of ``t`` (module docstring): interpolated ones and pauses.
-
-    Args:
-        t: strictly increasing time, shape (T,) [s].
-        max_gap_s: longest hole interpolated [s]; at least ``HOLE_STEPS`` median steps are
-            always interpolated.
-    """
+    """The holes of strictly increasing ``t`` (T,) [s]: interpolated ones and pauses (longer
+    than ``max_gap_s`` [s] and than ``HOLE_STEPS`` median steps)."""
     t = np.asarray(t, float)
     if len(t) < 3:
         return Gaps(0.0, np.empty(0, int), np.empty(0, int))
@@ -81,33 +56,21 @@ def _gap_notes(t: np.ndarray, gaps: Gaps, max_gap_s: float) -> list[str]:
     dt = np.diff(t)
     if gaps.interpolated.size:
         longest = float(dt[gaps.interpolated].max())
-        notes.append(
-            f"{gaps.interpolated.size} hole(s) in the time column of up to {longest * 1e3:.3g} ms "
-            f"(≤ data.max_gap_s = {max_gap_s * 1e3:.3g} ms) interpolated linearly"
-        )
+        notes.append(f"{gaps.interpolated.size} hole(s) in the time column of up to "
+                     f"{longest * 1e3:.3g} ms (≤ data.max_gap_s = {max_gap_s * 1e3:.3g} ms) "
+                     "interpolated linearly")
     if gaps.splits.size:
         where = ", ".join(f"{dt[k]:.4g} s at t = {t[k]:.6g} s" for k in gaps.splits[:5])
         more = f" and {gaps.splits.size - 5} more" if gaps.splits.size > 5 else ""
-        notes.append(
-            f"{gaps.splits.size} pause(s) longer than data.max_gap_s = {max_gap_s * 1e3:.3g} ms ({where}{more}): "
-            f"the run is split into {gaps.splits.size + 1} segments, each filtered on its own"
-        )
+        notes.append(f"{gaps.splits.size} pause(s) longer than data.max_gap_s = "
+                     f"{max_gap_s * 1e3:.3g} ms ({where}{more}): the run is split into "
+                     f"{gaps.splits.size + 1} segments, each filtered on its own")
     return notes
 
 
-def _rows(m: Measurement, rows: slice | np.ndarray) -> Measurement:
-    return m.replace(**{f: None if getattr(m, f) is None else getattr(m, f)[rows] for f in _FIELDS})
-
-
 def split_at_pauses(measurement: Measurement, max_gap_s: float = MAX_GAP_S) -> tuple[list[Measurement], list[str]]:
-    """The segments between the pauses of a raw measurement, and notes on the holes.
-
-    Args:
-        measurement: raw data (strictly increasing t).
-        max_gap_s: longest hole interpolated [s] (:func:`find_gaps`).
-
-    Returns:
-        (segments in time order, notes); one segment (the measurement itself) without pauses.
+    """(segments between the pauses of a raw measurement in time order, notes on the holes);
+    one segment (the measurement itself) without pauses.
 
     Raises:
         DataError: repeated or decreasing time stamps (counted, not thousands of "holes").
@@ -118,7 +81,7 @@ def split_at_pauses(measurement: Measurement, max_gap_s: float = MAX_GAP_S) -> t
     bounds = [0, *(int(k) + 1 for k in gaps.splits), measurement.num_samples]
     if len(bounds) == 2:
         return [measurement], notes
-    return [_rows(measurement, slice(a, b)) for a, b in zip(bounds[:-1], bounds[1:])], notes
+    return [measurement.take(slice(a, b)) for a, b in zip(bounds[:-1], bounds[1:])], notes
 
 
 def _common_options(segments: list[Measurement], options: PreprocessOptions) -> tuple[PreprocessOptions, str | None]:
@@ -132,23 +95,13 @@ def _common_options(segments: list[Measurement], options: PreprocessOptions) -> 
     return dataclasses.replace(options, cutoff_hz=cutoff.hz, fundamental_hz=None, harmonics=None), cutoff.source
 
 
-def preprocess_segments(
-    measurement: Measurement, options: PreprocessOptions | None = None, max_gap_s: float = MAX_GAP_S
-) -> Measurement:
+def preprocess_segments(measurement: Measurement, options: PreprocessOptions | None = None,
+                        max_gap_s: float = MAX_GAP_S) -> Measurement:
     """:func:`~pe_drake.identification.preprocessing.preprocess` of each segment, stacked.
 
     Every segment gets the same cut-off (the automatic one is chosen on the longest segment)
-    and its own filter, derivatives and trimmed ends. A segment too short for the filter is
-    left out with a note.
-
-    Args:
-        measurement: raw data.
-        options: the preprocessing choices.
-        max_gap_s: longest hole interpolated [s] (:func:`find_gaps`).
-
-    Returns:
-        The processed samples of every segment in time order, with ``notes`` on the holes and
-        ``preprocessing.segments`` set; sample counts and durations are summed over segments.
+    and its own filter, derivatives and trimmed ends; one too short for the filter is left out
+    with a note. Sample counts and durations of ``preprocessing`` are summed over segments.
 
     Raises:
         DataError: no segment is long enough; as ``preprocess``.
@@ -157,8 +110,7 @@ def preprocess_segments(
     segments, notes = split_at_pauses(measurement, max_gap_s)
     notes = list(measurement.notes) + notes
     if len(segments) == 1:
-        out = preprocess(measurement, options)
-        return out.replace(notes=tuple(notes))
+        return preprocess(measurement, options).replace(notes=tuple(notes))
     common, source = _common_options(segments, options)
     done, dropped = [], []
     for k, seg in enumerate(segments):
@@ -180,23 +132,17 @@ def preprocess_segments(
         resampled=any(d.preprocessing.resampled for d in done),
     )
     stacked = {f: None if getattr(done[0], f) is None else np.concatenate([getattr(d, f) for d in done])
-               for f in _FIELDS}
+               for f in SAMPLE_FIELDS}
     return measurement.replace(**stacked, preprocessing=info, notes=tuple(notes))
 
 
 def longest_segment(measurement: Measurement, max_gap_s: float = MAX_GAP_S) -> Measurement:
-    """The longest segment between pauses (for the diagnosis), with notes on what was left out.
-
-    Args:
-        measurement: raw data.
-        max_gap_s: longest hole interpolated [s].
-    """
+    """The longest segment between pauses (for the diagnosis), with notes on what was left out."""
     segments, notes = split_at_pauses(measurement, max_gap_s)
     notes = list(measurement.notes) + notes
     best = max(segments, key=lambda s: s.duration)
     if len(segments) > 1:
-        notes.append(
-            f"the diagnosis uses one contiguous record: the longest segment, {best.duration:.4g} s from "
-            f"t = {best.t[0]:.6g} s, of {len(segments)} (its held-out split, delay and pre-sliding terms follow time)"
-        )
+        notes.append(f"the diagnosis uses one contiguous record: the longest segment, "
+                     f"{best.duration:.4g} s from t = {best.t[0]:.6g} s, of {len(segments)} (its "
+                     "held-out split, delay and pre-sliding terms follow time)")
     return best.replace(notes=tuple(notes))

@@ -1,11 +1,9 @@
 """The identified.json format: an :class:`IdentificationResult` written and read back.
 
-``pe-drake identify`` writes the base parameters (value, relative standard deviation, column
-of the standard parameters each one stands for), the drive terms in their own block
-(``drive_terms``: per joint, Coulomb/viscous friction, offset, armature with value, σ and %σ;
-absent in files of before the drive terms, which load as models without them), the per-joint errors,
-the preprocessing and, for the physical fit, the standard parameters per body; ``pe-drake validate`` and the
-diagnosis read it back with :func:`load_identified`, which checks it belongs to the robot.
+It holds the base parameters (value, relative σ, the standard-parameter column each stands for),
+the drive terms in their own block, the per-channel errors, the preprocessing and, for the
+physical fit, the standard parameters per body; :func:`load_identified` checks that a file
+belongs to the robot (a file without ``drive_terms`` loads as a model without them).
 """
 
 from __future__ import annotations
@@ -37,19 +35,13 @@ if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
     from pe_drake.multibody.robot import Robot
 
 
-def _finite_or_none(x: float) -> float | None:
-    return float(x) if math.isfinite(x) else None
-
-
 def data_used(p: Preprocessing, samples: int) -> dict[str, Any]:
     """How much of the recording the fit used (identified.json's ``data_used``)."""
     # A fit on part of the preprocessed samples (e.g. the first half) used samples / rate of it.
     fitted_s = p.duration_out_s if samples == p.samples_out else samples / p.rate_hz
     return {
-        "samples_fitted": int(samples),
-        "samples_recorded": int(p.samples_in),
-        "time_fitted_s": fitted_s,
-        "time_recorded_s": p.duration_in_s,
+        "samples_fitted": int(samples), "samples_recorded": int(p.samples_in),
+        "time_fitted_s": fitted_s, "time_recorded_s": p.duration_in_s,
         "trimmed_at_each_end_s": p.trim_s,
         "fraction_of_record_time": fitted_s / p.duration_in_s if p.duration_in_s > 0 else None,
         "why_trimmed": "the low-pass filter's edge transient (odd extension) on the accelerations",
@@ -58,29 +50,18 @@ def data_used(p: Preprocessing, samples: int) -> dict[str, Any]:
 
 def result_to_dict(result: IdentificationResult, robot: Robot, model_file: str | None = None) -> dict[str, Any]:
     """The content of identified.json."""
+    base = zip(result.base.base_names, result.phi_B, result.sigma_percent, result.base.independent)
+    channels = result.channels or result.joints  # joints (torques), then wrench.fx ... mz
     out: dict[str, Any] = {
-        "robot": result.robot,
-        "method": result.method,
-        "measurement": result.measurement,
-        "joints": list(result.joints),
-        "data": result.source,
-        "samples": result.samples,
+        "robot": result.robot, "method": result.method, "measurement": result.measurement,
+        "joints": list(result.joints), "data": result.source, "samples": result.samples,
         "cond": result.cond,
-        "base_parameters": [
-            {
-                "name": name,
-                "value": float(v),
-                "sigma_percent": _finite_or_none(float(sp)),
-                "column": int(col),
-            }
-            for name, v, sp, col in zip(
-                result.base.base_names, result.phi_B, result.sigma_percent, result.base.independent
-            )
-        ],
-        # Per channel: joint names (torques), then wrench.fx ... wrench.mz.
-        "residual_rms": dict(zip(result.channels or result.joints, map(float, result.residual_rms))),
-        "relative_error": dict(zip(result.channels or result.joints, map(float, result.relative_error))),
-        "noise_std": dict(zip(result.channels or result.joints, map(float, result.noise_std))),
+        "base_parameters": [{"name": name, "value": float(v),
+                             "sigma_percent": float(sp) if math.isfinite(sp) else None,
+                             "column": int(col)} for name, v, sp, col in base],
+        "residual_rms": dict(zip(channels, map(float, result.residual_rms))),
+        "relative_error": dict(zip(channels, map(float, result.relative_error))),
+        "noise_std": dict(zip(channels, map(float, result.noise_std))),
         "wall_time": result.wall_time,
     }
     if result.preprocessing is not None:
@@ -109,11 +90,9 @@ def result_to_dict(result: IdentificationResult, robot: Robot, model_file: str |
 
 
 def standard_parameters_dict(robot: Robot, phi: np.ndarray) -> dict[str, dict[str, float]]:
-    """{body: {parameter name: value}} (names of ``pe_drake.multibody.robot.PARAMETER_NAMES``)."""
-    return {
-        body: dict(zip(PARAMETER_NAMES, map(float, phi[10 * b : 10 * b + 10])))
-        for b, body in enumerate(robot.body_names)
-    }
+    """{body: {parameter name: value}} (names of ``pe_drake.multibody.inertia.PARAMETER_NAMES``)."""
+    return {body: dict(zip(PARAMETER_NAMES, map(float, phi[10 * b : 10 * b + 10])))
+            for b, body in enumerate(robot.body_names)}
 
 
 def load_identified(path: str | Path, robot: Robot) -> IdentificationResult | RobotModel:
@@ -144,15 +123,12 @@ def load_identified(path: str | Path, robot: Robot) -> IdentificationResult | Ro
         entries = d["base_parameters"]
         phi_B = np.array([float(e["value"]) for e in entries])
         columns = np.array([int(e["column"]) for e in entries])
-        sigma = np.array(
-            [np.inf if e.get("sigma_percent") is None else float(e["sigma_percent"]) for e in entries]
-        )
+        sigma = np.array([np.inf if e.get("sigma_percent") is None else float(e["sigma_percent"])
+                          for e in entries])
     except (KeyError, TypeError, ValueError) as err:
-        raise DataError(
-            "not an identified.json written by pe-drake identify nor an augmented_model.json of pe-drake "
-            f"diagnose ({err!r} missing or malformed)",
-            file=str(path),
-        ) from err
+        raise DataError("not an identified.json written by pe-drake identify nor an "
+                        f"augmented_model.json of pe-drake diagnose ({err!r} missing or malformed)",
+                        file=str(path)) from err
     check_joints(robot, joints, file=str(path), what="the model")
     measurement = d.get("measurement", "joint_torque")
     if measurement not in MEASUREMENTS:
@@ -160,45 +136,33 @@ def load_identified(path: str | Path, robot: Robot) -> IdentificationResult | Ro
     base = measurement_base_parameters(robot, measurement)
     channels = channel_names(robot, measurement)
     if not np.array_equal(columns, base.independent):
-        raise DataError(
-            f"the base parameters in the file ({len(columns)}) do not match robot '{robot.name}' "
-            f"({base.count}); was it identified with another model or config?",
-            file=str(path),
-        )
+        raise DataError(f"the base parameters in the file ({len(columns)}) do not match robot "
+                        f"'{robot.name}' ({base.count}); was it identified with another model or "
+                        "config?", file=str(path))
     cov_B = _covariance(d, base.count, str(path))
     try:  # files written before the drive terms have none
         model = RobotModel.from_dict(d, robot.body_names, base=base, phi_prior=robot.phi_model)
         layout = read_drive_block(d["drive_terms"], robot.joint_names)[0] if d.get("drive_terms") is not None else None
     except (KeyError, TypeError, ValueError, AttributeError) as err:
         raise DataError(f"standard_parameters or drive_terms: {err!r} missing or malformed", file=str(path)) from err
-    if layout is not None:
-        _check_transmission(layout, robot, path)
+    if layout is not None and layout.transmission is not None:
+        _check_transmission(layout.transmission, robot, path)
+    def per_channel(key):
+        return np.array([d.get(key, {}).get(c, np.nan) for c in channels])
+
     return IdentificationResult(
-        robot=d.get("robot", robot.name),
-        method=d.get("method", "ols"),
-        joints=joints,
-        base=base,
-        phi_B=phi_B,
-        sigma_percent=sigma,
-        phi=model.phi if "standard_parameters" in d else None,
-        cond=float(d.get("cond", float("nan"))),
-        residual_rms=np.array([d.get("residual_rms", {}).get(c, np.nan) for c in channels]),
-        relative_error=np.array([d.get("relative_error", {}).get(c, np.nan) for c in channels]),
-        noise_std=np.array([d.get("noise_std", {}).get(c, np.nan) for c in channels]),
-        samples=int(d.get("samples", 0)),
-        source=d.get("data", ""),
-        measurement=measurement,
-        channels=channels,
-        model=model,
-        drive_layout=layout,
-        physical_notes=tuple(d.get("physical_fit_notes", ())),
-        cov_B=cov_B,
+        robot=d.get("robot", robot.name), method=d.get("method", "ols"), joints=joints, base=base,
+        phi_B=phi_B, sigma_percent=sigma, phi=model.phi if "standard_parameters" in d else None,
+        cond=float(d.get("cond", float("nan"))), residual_rms=per_channel("residual_rms"),
+        relative_error=per_channel("relative_error"), noise_std=per_channel("noise_std"),
+        samples=int(d.get("samples", 0)), source=d.get("data", ""), measurement=measurement,
+        channels=channels, model=model, drive_layout=layout,
+        physical_notes=tuple(d.get("physical_fit_notes", ())), cov_B=cov_B,
     )
 
 
 def _covariance(d: dict[str, Any], count: int, path: str) -> np.ndarray | None:
-    """The file's ``base_parameter_covariance``, (count, count), or None (a file written before
-    it was stored), made symmetric.
+    """The file's ``base_parameter_covariance``, (count, count), made symmetric, or None.
 
     Raises:
         DataError: a covariance of another size, or not finite.
@@ -255,13 +219,9 @@ def unapplied_effects(model: IdentificationResult | RobotModel) -> list[str]:
     return notes
 
 
-def _check_transmission(layout, robot: Robot, path) -> None:
-    """Refuses a model fitted through another transmission than the robot's config gives: the
-    config's R converts motor-side logs, the file's R carries its per-motor terms, and the two
-    must be one (a model of per-joint terms goes with any config)."""
-    T = layout.transmission
-    if T is None:
-        return
+def _check_transmission(T, robot: Robot, path) -> None:
+    """Refuses a model fitted through another transmission T than the robot's config gives: the
+    config's R converts motor-side logs, the file's R carries its per-motor terms."""
     mine = robot_transmission(robot)
     if not np.allclose(mine.R, T.R, rtol=1e-12, atol=0.0):
         given = "none (R = I)" if mine.identity else f"R = {mine.R.tolist()}"

@@ -1,6 +1,6 @@
 """The one door for measured files: :func:`read_measurements` reads any supported log and runs
-the raw-data checks, so the library refuses what the CLI refuses; :func:`prepare_measurement`
-checks the run against the robot and preprocesses it for a fit or a prediction."""
+the raw-data checks; :func:`prepare_measurement` checks a run against the robot and preprocesses
+it for a fit or a prediction."""
 
 from __future__ import annotations
 
@@ -24,16 +24,14 @@ def read_measurements(robot: Robot, path: str | Path, options: DataConfig | None
     """Reads a measured run of ``robot`` and checks it before any work.
 
     Args:
-        robot: the :class:`~pe_drake.multibody.robot.Robot` (its excited joints, drive gains).
         path: pe_drake's CSV, a ROS 2 bag (folder, ``.db3``, ``.mcap``), a UR RTDE CSV, or a CSV
             read through ``options.columns``.
-        options: the config's ``data`` section (:class:`~pe_drake.config.DataConfig`).
+        options: the config's ``data`` section.
         progress: called with :meth:`~Measurement.summary_lines` once the run is read and checked.
         **changes: fields of ``options`` to override (``format=``, ``topic=``, ``effort=``).
 
     Returns:
-        The raw :class:`~pe_drake.identification.measurements.Measurement`, joints in the robot's
-        order, with the ``notes`` reading left (interpolated holes, dropped messages).
+        The raw Measurement, joints in the robot's order, with the ``notes`` reading left.
 
     Raises:
         DataError: an unreadable file, or data that fails the checks (time in ms, positions in
@@ -56,24 +54,14 @@ def read_robot_measurement(robot: Robot, path: str | Path) -> Measurement:
     return read_measurement_csv(path, robot.joint_names, min_rows=30)
 
 
-def prepare_measurement(
-    robot: Robot,
-    measurement: Measurement,
-    *,
-    cutoff_hz: float | None = None,
-    fundamental_hz: float | None = None,
-    harmonics: int | None = None,
-    rate_hz: float | None = DEFAULT_RATE_HZ,
-    filtering: bool = True,
-    check_units: bool = True,
-    max_gap_s: float = MAX_GAP_S,
-    window: TimeWindow | None = None,
-) -> Measurement:
+def prepare_measurement(robot: Robot, measurement: Measurement, *, cutoff_hz: float | None = None,
+                        fundamental_hz: float | None = None, harmonics: int | None = None,
+                        rate_hz: float | None = DEFAULT_RATE_HZ, filtering: bool = True,
+                        check_units: bool = True, max_gap_s: float = MAX_GAP_S,
+                        window: TimeWindow | None = None) -> Measurement:
     """Checks the joints and torque units and preprocesses for identification.
 
     Args:
-        robot: the robot the data belongs to.
-        measurement: raw data.
         cutoff_hz, fundamental_hz, harmonics, rate_hz: see
             :func:`pe_drake.identification.preprocessing.preprocess` (``rate_hz`` = ``decimate_to_hz``).
         filtering: False uses the data as it is; it must then hold v and vdot (exact,
@@ -81,10 +69,8 @@ def prepare_measurement(
         check_units: compare the torques with the a-priori model (refuses N·mm or kN·m; a
             note when they look like motor currents).
         max_gap_s: longest hole in the time column interpolated [s]; longer ones split the
-            run into segments filtered on their own and stacked
-            (:func:`~pe_drake.identification.gaps.preprocess_segments`).
-        window: the part of the run kept, taken after the whole run is filtered
-            (:class:`~pe_drake.identification.time_window.TimeWindow`); None: all of it.
+            run (:func:`~pe_drake.identification.gaps.preprocess_segments`).
+        window: the part of the run kept, taken after the whole run is filtered; None: all.
 
     Raises:
         DataError: other joints than the robot's, missing v/vdot without filtering, torques
@@ -97,10 +83,8 @@ def prepare_measurement(
         data = preprocess_segments(measurement, options, max_gap_s)
     else:
         if measurement.v is None or measurement.vd is None:
-            raise DataError(
-                "without filtering the data must hold v.<joint> and vdot.<joint> columns",
-                file=measurement.source,
-            )
+            raise DataError("without filtering the data must hold v.<joint> and vdot.<joint> "
+                            "columns", file=measurement.source)
         data = measurement
     if window is not None:
         data = window.apply(data)

@@ -1,8 +1,6 @@
 """The package's one low-pass filter: a Butterworth design run forward and backward (zero phase)
-with an odd extension of a few cut-off periods at the ends (:func:`design_lowpass`), on q and tau
-alike so torque and motion keep the same phase (step 3 of
-:func:`~pe_drake.identification.preprocessing.preprocess`), and the central differences that
-give v and v̇ from the filtered signals (:func:`differentiate`, step 4)."""
+with an odd extension of a few cut-off periods at the ends (:func:`design_lowpass`), and the
+central differences that give v and v̇ from the filtered signals (:func:`differentiate`)."""
 
 from __future__ import annotations
 
@@ -13,8 +11,7 @@ import numpy as np
 from pe_drake.exceptions import DataError
 
 #: Odd extension at each end of the filtered record, in periods of the cut-off: a short one
-#: leaves edge transients in the twice-differentiated acceleration that reach past the
-#: 2 / cut-off trimmed at each end.
+#: leaves edge transients in the twice-differentiated acceleration past the trimmed ends.
 EDGE_PERIODS = 3.0
 #: The default trim drops the samples where the filter's edge transient on the acceleration
 #: exceeds this fraction of the acceleration at the end (:meth:`LowPassFilter.edge_transient_s`).
@@ -30,8 +27,6 @@ class LowPassFilter:
 
     Attributes:
         sos: second-order sections, shape (⌈order/2⌉, 6).
-        cutoff_hz: cut-off frequency [Hz].
-        rate_hz: sample rate [Hz].
         order: Butterworth order (the zero-phase filter doubles it).
         padlen: samples of odd extension at each end.
     """
@@ -42,11 +37,6 @@ class LowPassFilter:
     order: int
     padlen: int
 
-    @property
-    def min_padlen(self) -> int:
-        """scipy's default extension 3·(2·sections + 1): a record must be longer than this."""
-        return 3 * (2 * len(self.sos) + 1)
-
     def apply(self, x: np.ndarray) -> np.ndarray:
         """Zero-phase filtered x along its first axis (time), same shape (T, ...)."""
         from scipy.signal import sosfiltfilt  # lazy: keeps `import pe_drake` light
@@ -54,24 +44,20 @@ class LowPassFilter:
         x = np.asarray(x, float)
         if x.ndim < 2:
             return sosfiltfilt(self.sos, x, axis=0, padtype="odd", padlen=self.padlen)
-        # Column by column: scipy's padded copies and passes then cost one column of a long
-        # log, not all of them (the same numbers: the columns are filtered independently).
+        # Column by column: scipy's padded copies then cost one column of a long log, not all.
         out = np.empty(x.shape)
         for k in np.ndindex(x.shape[1:]):
-            out[(slice(None), *k)] = sosfiltfilt(self.sos, x[(slice(None), *k)], padtype="odd", padlen=self.padlen)
+            column = (slice(None), *k)
+            out[column] = sosfiltfilt(self.sos, x[column], padtype="odd", padlen=self.padlen)
         return out
 
     def edge_transient_s(self, tolerance: float = EDGE_TOLERANCE) -> float:
         """How far from each end the filter's edge transient spoils the accelerations [s].
 
-        The odd extension continues the value and the slope of a record across its ends but
-        flips its curvature, so the filtered and twice-differentiated acceleration of a
-        record with a constant acceleration a is wrong near the ends. This returns the time
-        from an end beyond which that error (filter and :func:`differentiate` together) stays
-        below ``tolerance`` × |a|: the trim the filter needs. The data elsewhere is
-        untouched by the edges, and dropping more only loses information (on the
-        real Panda recording, 2 / cut-off = 0.5 s at each end raised the held-out RMS of
-        joint 2 from 0.28 to 0.38 N·m).
+        The odd extension continues a record's value and slope across its ends but flips its
+        curvature, so the filtered, twice-differentiated acceleration of a record with constant
+        acceleration a is wrong near the ends. This is the time from an end beyond which that
+        error stays below ``tolerance`` × |a|: dropping more only loses information.
         """
         from scipy.signal import sosfiltfilt  # lazy: keeps `import pe_drake` light
 
@@ -93,29 +79,16 @@ class LowPassFilter:
         return float(np.sum(sosfiltfilt(self.sos, impulse) ** 2))
 
 
-def design_lowpass(
-    cutoff_hz: float,
-    rate_hz: float,
-    num_samples: int,
-    order: int = 4,
-    *,
-    edge_periods: float = EDGE_PERIODS,
-    file: str = "",
-) -> LowPassFilter:
+def design_lowpass(cutoff_hz: float, rate_hz: float, num_samples: int, order: int = 4, *,
+                   edge_periods: float = EDGE_PERIODS, file: str = "") -> LowPassFilter:
     """The package's Butterworth low-pass for a record of ``num_samples`` samples.
 
     The odd extension covers ``edge_periods`` periods of the cut-off (not scipy's default 27
-    samples): the edge transient of the second derivative then dies out within the trimmed
-    ends (10× smaller acceleration errors 0.5 s from the end of 500 Hz data at a 4 Hz
-    cut-off). It is at least scipy's minimum and at most num_samples − 1.
+    samples), so the edge transient of the second derivative dies out within the trimmed ends;
+    it is at least scipy's minimum and at most num_samples − 1.
 
     Args:
         cutoff_hz: cut-off [Hz], below rate_hz / 2.
-        rate_hz: sample rate [Hz].
-        num_samples: length T of the records it will filter.
-        order: Butterworth order.
-        edge_periods: odd extension at each end, in periods of the cut-off.
-        file: the data file, for messages.
 
     Raises:
         DataError: a record too short for the filter (the file is named).

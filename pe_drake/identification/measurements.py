@@ -12,13 +12,8 @@ File format (SI units, one row per sample, comma separated, one header line):
   six or none); with them the ``tau.<joint>`` columns may be left out (a robot without
   joint-torque sensors, identified from its feet's force/torque sensors).
 
-Columns may come in any order; columns whose name has none of the prefixes above are ignored.
-Rows are reported as **data rows counted from 1** (the first line after the header is data row
-1); messages also give the line number in the file (data row + 1 when there are no blank lines).
-
-:func:`pe_drake.identification.preprocessing.preprocess` turns a raw recording into what
-identification needs (uniform grid, zero-phase low-pass, derivatives, decimation, trimmed ends);
-:class:`Preprocessing` records what it chose.
+Columns may come in any order; columns with none of the prefixes above are ignored. Messages
+count **data rows from 1** (the first line after the header is data row 1) and give the file line.
 """
 
 from __future__ import annotations
@@ -40,6 +35,8 @@ from pe_drake.output_paths import output_file
 
 #: Column prefixes of the format, in the order written.
 PREFIXES = ("q", "v", "vdot", "tau")
+#: The fields of a :class:`Measurement` with one row per sample.
+SAMPLE_FIELDS = ("t", "q", "tau", "v", "vd", "wrench")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -47,23 +44,14 @@ class Preprocessing:
     """What :func:`~pe_drake.identification.preprocessing.preprocess` chose, for reports.
 
     Attributes:
-        cutoff_hz: low-pass cut-off frequency [Hz].
-        cutoff_source: "argument", "trajectory" (``CUTOFF_FACTOR`` × N·f0) or "spectrum"
-            (``CUTOFF_FACTOR`` × the frequency below which ``ENERGY_FRACTION`` of q's energy
-            lies); constants of :mod:`pe_drake.identification.preprocessing`.
-        filter_order: Butterworth order (the zero-phase filter doubles it).
-        input_rate_hz: median sample rate of the raw data [Hz].
+        cutoff_source: "argument", "trajectory" or "spectrum"
+            (:func:`~pe_drake.identification.preprocessing.choose_cutoff`).
+        input_rate_hz: median sample rate of the raw data [Hz]; rate_hz: of the output [Hz].
         resampled: the raw time was not uniform and was linearly interpolated onto a grid.
-        rate_hz: sample rate of the output [Hz].
         trim_s: time dropped at each end [s].
-        velocity_source: "measured" (filtered ``v.*`` columns) or "differentiated".
-        acceleration_source: "measured" (filtered ``vdot.*`` columns) or "differentiated".
-        samples_in: raw samples.
-        samples_out: output samples.
-        duration_in_s: time span of the raw record [s].
-        duration_out_s: time span of the output (after trimming) [s].
-        segments: records filtered on their own and stacked (a run split at its pauses,
-            :mod:`pe_drake.identification.gaps`).
+        velocity_source, acceleration_source: "measured" (filtered columns) or "differentiated".
+        duration_in_s, duration_out_s: time span of the raw record and of the output [s].
+        segments: records filtered on their own and stacked (:mod:`~pe_drake.identification.gaps`).
     """
 
     cutoff_hz: float
@@ -93,23 +81,18 @@ class Preprocessing:
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class Measurement:
-    """Joint data of one run.
+    """Joint data of one run (units of the module docstring).
 
     Attributes:
         t: time, shape (T,) [s], strictly increasing.
-        q: joint positions, shape (T, n) [rad or m].
-        tau: joint torques the actuators apply, shape (T, n) [N·m or N], or None when only
-            the ground wrench was measured.
-        v: joint velocities, shape (T, n) [rad/s or m/s], or None when not measured.
-        vd: joint accelerations, shape (T, n) [rad/s² or m/s²], or None.
+        q, tau, v, vd: shape (T, n); tau None when only the ground wrench was measured, v and
+            vd None when not measured.
         joints: joint names, length n, in column order of q/tau/v/vd.
         source: file the data came from ("" when built in memory).
         preprocessing: what :func:`~pe_drake.identification.preprocessing.preprocess` did, or
             None for raw data.
-        wrench: the ground wrench, shape (T, 6) [N, N·m] (columns :data:`WRENCH_COLUMNS`),
-            or None.
-        notes: what reading and preprocessing did that a user should know (interpolated
-            gaps, dropped duplicate stamps, currents converted), one sentence each.
+        wrench: the ground wrench, shape (T, 6) (columns :data:`WRENCH_COLUMNS`), or None.
+        notes: what reading and preprocessing did that a user should know, one sentence each.
     """
 
     t: np.ndarray
@@ -145,11 +128,9 @@ class Measurement:
                 continue
             value = np.asarray(value, float)
             if value.shape != (t.shape[0], n):
-                raise DataError(
-                    f"{name} has shape {value.shape}, expected ({t.shape[0]}, {n}) for "
-                    f"{t.shape[0]} samples of joints {', '.join(self.joints)}",
-                    file=self.source,
-                )
+                raise DataError(f"{name} has shape {value.shape}, expected ({t.shape[0]}, {n}) for "
+                                f"{t.shape[0]} samples of joints {', '.join(self.joints)}",
+                                file=self.source)
             object.__setattr__(self, name, value)
 
     @property
@@ -174,6 +155,11 @@ class Measurement:
         """A copy with some fields changed (``dataclasses.replace``)."""
         return dataclasses.replace(self, **changes)
 
+    def take(self, rows: slice | np.ndarray) -> Measurement:
+        """The samples ``rows`` (a slice, indices or a mask) of every per-sample field."""
+        return self.replace(**{f: None if getattr(self, f) is None else getattr(self, f)[rows]
+                               for f in SAMPLE_FIELDS})
+
     def summary_lines(self) -> list[str]:
         """The run in one line (file, samples, duration, rate), then what reading it did."""
         return [f"data {self.source}: {self.num_samples} samples, {self.duration:.2f} s at {self.rate_hz:.0f} Hz",
@@ -187,16 +173,6 @@ class Measurement:
         return [str(path)]
 
 
-# ---- reading and writing -------------------------------------------------------------------
-
-
-def _joint_names(joints) -> tuple[str, ...]:
-    names = getattr(joints, "joint_names", joints)  # a Robot or a sequence of names
-    if isinstance(names, str):
-        raise ConfigError(f"joints must be a sequence of joint names, got the string '{names}'")
-    return tuple(names)
-
-
 def _expected_columns(joints: Sequence[str]) -> list[str]:
     return ["t"] + [f"q.{j}" for j in joints] + [f"tau.{j}" for j in joints]
 
@@ -205,30 +181,31 @@ def read_measurement_csv(path: str | Path, joints, *, min_rows: int = 10) -> Mea
     """Reads and validates a measurement CSV (format in the module docstring).
 
     Args:
-        path: the CSV file.
         joints: the robot's excited joints (names in the robot's order), or a ``Robot``.
-        min_rows: fewest data rows accepted.
 
     Returns:
         The :class:`Measurement`, joints in the order given (not the file's column order).
 
     Raises:
-        DataError: missing file; empty file; missing column (the expected ones are listed);
-            a ``q.``/``v.``/``vdot.``/``tau.`` column for a joint that is not excited (the
-            valid joints are listed); a column given twice; ``v.``/``vdot.`` for only some
-            joints; a row with the wrong number of fields; a non-numeric, NaN or infinite
-            value (column and data row); duplicated or decreasing time (data row); fewer
-            than ``min_rows`` rows.
+        DataError: a missing or empty file, a missing, unknown or repeated column, ``v.``/
+            ``vdot.`` for only some joints, a bad row or value, time that does not strictly
+            increase, fewer than ``min_rows`` rows: naming the column and the data row.
     """
-    path = Path(path)
-    joints = _joint_names(joints)
-    file = str(path)
+    path, file = Path(path), str(path)
+    joints = getattr(joints, "joint_names", joints)  # a Robot or a sequence of names
+    if isinstance(joints, str):
+        raise ConfigError(f"joints must be a sequence of joint names, got the string '{joints}'")
+    joints = tuple(joints)
     header_line, columns = read_header_line(path)
-    has_wrench = _wrench_block(columns, file)
+    has_wrench = _all_or_none(list(WRENCH_COLUMNS), columns, file,
+                              "ground-wrench columns are incomplete: {} missing; give all of "
+                              + ", ".join(WRENCH_COLUMNS) + " [N, N·m] or none")
     index = _column_index(columns, joints, file, tau_required=not has_wrench)
-    has_tau = _optional_block(index, "tau", joints, file)
-    has_v = _optional_block(index, "v", joints, file)
-    has_vd = _optional_block(index, "vdot", joints, file)
+    has_tau, has_v, has_vd = (
+        _all_or_none([f"{prefix}.{j}" for j in joints], index, file,
+                     f"'{prefix}.' columns are given for some joints but not for {{}}; give them "
+                     "for every joint or for none")
+        for prefix in ("tau", "v", "vdot"))
     wanted = ["t"] + [f"q.{j}" for j in joints]
     for prefix, present in (("tau", has_tau), ("v", has_v), ("vdot", has_vd)):
         if present:
@@ -240,7 +217,7 @@ def read_measurement_csv(path: str | Path, joints, *, min_rows: int = 10) -> Mea
     if table.shape[0] < min_rows:
         raise DataError(f"only {table.shape[0]} data rows; at least {min_rows} are needed", file=file)
     t = table[:, 0]
-    _check_time(t, linenos, file)
+    check_time_order(t, file, linenos)
     n = len(joints)
     # Views into the one table, not copies: an hour at 1 kHz is read at the table's size.
     wrench = table[:, -6:] if has_wrench else None
@@ -250,22 +227,13 @@ def read_measurement_csv(path: str | Path, joints, *, min_rows: int = 10) -> Mea
     return Measurement(t, q, tau, v, vd, joints, file, wrench=wrench)
 
 
-def _wrench_block(columns: list[str], file: str) -> bool:
-    """Whether the file has the ground-wrench columns (all six; some of them is an error)."""
-    present = [c in columns for c in WRENCH_COLUMNS]
-    if any(present) and not all(present):
-        missing = [c for c, p in zip(WRENCH_COLUMNS, present) if not p]
-        raise DataError(
-            f"ground-wrench columns are incomplete: {', '.join(missing)} missing; give all of "
-            f"{', '.join(WRENCH_COLUMNS)} [N, N·m] or none",
-            file=file, column=missing[0],
-        )
-    return all(present)
-
-
-def _check_time(t: np.ndarray, linenos: np.ndarray, file: str) -> None:
-    """Refuses duplicated (or 1 ns apart) and decreasing time, with counts, data rows and lines."""
-    check_time_order(t, file, linenos)
+def _all_or_none(names: list[str], columns, file: str, message: str) -> bool:
+    """Whether the file has every one of ``names`` (not one of them: False; some: DataError with
+    ``message`` formatted with the missing ones)."""
+    missing = [c for c in names if c not in columns]
+    if missing and len(missing) < len(names):
+        raise DataError(message.format(", ".join(missing)), file=file, column=missing[0])
+    return bool(names) and not missing
 
 
 def _column_index(columns: list[str], joints: tuple[str, ...], file: str, tau_required: bool = True) -> dict[str, int]:
@@ -277,41 +245,21 @@ def _column_index(columns: list[str], joints: tuple[str, ...], file: str, tau_re
         index[name] = k
         prefix, dot, joint = name.partition(".")
         if dot and prefix in PREFIXES and joint not in joints:
-            raise DataError(
-                f"'{joint}' is not one of the robot's excited joints; valid joints: "
-                f"{', '.join(joints)} (rename or drop the column)",
-                file=file, column=name,
-            )
+            raise DataError(f"'{joint}' is not one of the robot's excited joints; valid joints: "
+                            f"{', '.join(joints)} (rename or drop the column)", file=file,
+                            column=name)
     required = [c for c in _expected_columns(joints) if tau_required or not c.startswith("tau.")]
     missing = [c for c in required if c not in index]
     if missing:
-        raise DataError(
-            f"missing column(s) {', '.join(missing)}; expected columns: "
-            f"{', '.join(_expected_columns(joints))} (optional: v.<joint>, vdot.<joint>; "
-            f"{', '.join(WRENCH_COLUMNS)}, which make tau.<joint> optional)",
-            file=file, column=missing[0],
-        )
+        raise DataError(f"missing column(s) {', '.join(missing)}; expected columns: "
+                        f"{', '.join(_expected_columns(joints))} (optional: v.<joint>, "
+                        f"vdot.<joint>; {', '.join(WRENCH_COLUMNS)}, which make tau.<joint> "
+                        "optional)", file=file, column=missing[0])
     return index
 
 
-def _optional_block(index: dict[str, int], prefix: str, joints: tuple[str, ...], file: str) -> bool:
-    present = [f"{prefix}.{j}" in index for j in joints]
-    if any(present) and not all(present):
-        missing = [f"{prefix}.{j}" for j, p in zip(joints, present) if not p]
-        raise DataError(
-            f"'{prefix}.' columns are given for some joints but not for {', '.join(missing)}; "
-            "give them for every joint or for none",
-            file=file, column=missing[0],
-        )
-    return all(present) and bool(joints)
-
-
 def measurement_to_csv_text(measurement: Measurement) -> str:
-    """The CSV text of a measurement (format in the module docstring), 10 significant digits.
-
-    Raises:
-        DataError: when a value is NaN or infinite (the file would be refused on reading).
-    """
+    """The CSV text of a measurement, 10 significant digits; DataError for a NaN or inf value."""
     m = measurement
     header = ["t"] + [f"q.{j}" for j in m.joints]
     blocks = [m.t[:, None], m.q]
@@ -334,24 +282,12 @@ def measurement_to_csv_text(measurement: Measurement) -> str:
 
 
 def write_measurement_csv(path: str | Path, measurement: Measurement) -> None:
-    """Writes a measurement CSV atomically (a temporary file renamed into place).
-
-    Raises:
-        DataError: when a value is NaN or infinite.
-    """
+    """Writes a measurement CSV atomically; DataError when a value is NaN or infinite."""
     atomic_write_text(path, measurement_to_csv_text(measurement))
 
 
-# ---- unit check ----------------------------------------------------------------------------
-
-
-def check_torque_units(
-    measurement: Measurement,
-    tau_predicted: np.ndarray,
-    *,
-    max_ratio: float = 30.0,
-    joint_max_ratio: float = 300.0,
-) -> np.ndarray:
+def check_torque_units(measurement: Measurement, tau_predicted: np.ndarray, *,
+                       max_ratio: float = 30.0, joint_max_ratio: float = 300.0) -> np.ndarray:
     """Refuses torques that are off by orders of magnitude from a model's prediction.
 
     Compares RMS values (mean included: gravity torques are the bulk of a slow run): all
@@ -359,18 +295,10 @@ def check_torque_units(
     checked only on joints whose predicted RMS is at least 1 % of the largest one (light
     distal joints are friction-dominated, so their ratio says little about units).
 
-    Args:
-        measurement: measured data (``tau`` [N·m]).
-        tau_predicted: model torques at the measured samples, shape (T, n) [N·m].
-        max_ratio: accepted factor overall.
-        joint_max_ratio: accepted factor per joint.
-
-    Returns:
-        The per-joint ratios RMS(measured) / RMS(predicted), shape (n,).
+    Returns the per-joint ratios RMS(measured) / RMS(``tau_predicted`` (T, n) [N·m]), (n,).
 
     Raises:
-        DataError: naming the file and the column, with the likely unit fix (×1000: N·mm;
-            ÷1000: kN·m).
+        DataError: naming the file and the column, with the likely unit fix.
     """
     tau = measurement.tau
     pred = np.asarray(tau_predicted, float)
@@ -387,20 +315,17 @@ def check_torque_units(
         overall = overall_m / overall_p
         if not 1 / max_ratio <= overall <= max_ratio:
             worst = int(np.argmax(np.abs(np.log10(np.maximum(ratios, tiny)))))
-            raise DataError(
-                f"torques are {_factor_text(overall)} the model's prediction over all joints "
-                f"(RMS {overall_m:.4g} vs {overall_p:.4g} N·m); {_unit_hint(overall)}",
-                file=measurement.source, column=f"tau.{measurement.joints[worst]}",
-            )
+            raise DataError(f"torques are {_factor_text(overall)} the model's prediction over all "
+                            f"joints (RMS {overall_m:.4g} vs {overall_p:.4g} N·m); "
+                            f"{_unit_hint(overall)}", file=measurement.source,
+                            column=f"tau.{measurement.joints[worst]}")
     relevant = rms_p >= 0.01 * rms_p.max() if rms_p.max() > 0 else np.zeros_like(rms_p, bool)
     for k in np.nonzero(relevant)[0]:
         r = ratios[k]
         if not 1 / joint_max_ratio <= r <= joint_max_ratio:
-            raise DataError(
-                f"torque is {_factor_text(r)} the model's prediction (RMS {rms_m[k]:.4g} vs "
-                f"{rms_p[k]:.4g} N·m); {_unit_hint(r)}",
-                file=measurement.source, column=f"tau.{measurement.joints[k]}",
-            )
+            raise DataError(f"torque is {_factor_text(r)} the model's prediction (RMS "
+                            f"{rms_m[k]:.4g} vs {rms_p[k]:.4g} N·m); {_unit_hint(r)}",
+                            file=measurement.source, column=f"tau.{measurement.joints[k]}")
     return ratios
 
 
@@ -412,9 +337,7 @@ AMPS_RATIO = (1 / 30, 0.3)
 def amps_hint(measurement: Measurement, ratios: np.ndarray) -> str:
     """A hint when the torques look like motor currents (RMS 1/30-0.3× the model's), else "".
 
-    Args:
-        measurement: the data the ratios belong to.
-        ratios: RMS(measured) / RMS(model) per joint (:func:`check_torque_units`).
+    ``ratios``: RMS(measured) / RMS(model) per joint (:func:`check_torque_units`).
     """
     lo, hi = AMPS_RATIO
     low = [j for j, r in zip(measurement.joints, np.asarray(ratios, float)) if lo <= r <= hi]

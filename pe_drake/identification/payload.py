@@ -4,21 +4,15 @@ Every run r (loaded or not) gives rows of the linear model (Eq. 4 restricted to 
 
     τ_r − Y_r φ_arm = Y_B,r δ_B + D_r θ + [r loaded] Y_L,r φ_L + ρ_r,
 
-with φ_arm the arm's model (the URDF's or an earlier identification), Y_L the payload link's
-10 columns of the regressor (:mod:`pe_drake.multibody.payload`), D the drive terms
-(:mod:`pe_drake.identification.payload_friction`: Coulomb, viscous, offset per joint), and
-δ_B what the arm model misses in its base parameters (Eq. 2). δ_B and θ are shared by every
-run; φ_L enters the loaded rows only. Y_L = Y_B K_L lies in the span of the base columns, so
-δ_B and φ_L are only separable with unloaded runs: without them δ_B is fixed at 0 and the
-arm's model errors go into the payload. With them (of the same motion), the fit is
-equivalent to regressing the difference of the runs on Y_L, so the arm's errors cancel; the
-runs need not be sample-aligned, since each run's rows stand on their own.
+with φ_arm the arm's model, Y_L the payload link's 10 regressor columns, D the drive terms
+(:mod:`~pe_drake.identification.payload_friction`) and δ_B what the arm model misses in its base
+parameters (Eq. 2), shared by every run. Y_L lies in the span of the base columns, so δ_B and φ_L
+are only separable with unloaded runs (of the same motion, not necessarily sample-aligned):
+without them δ_B is fixed at 0 and the arm's model errors go into the payload.
 
-The fit is weighted per joint (Gautier 1997: σ_j from the ordinary fit's residual), and
-physically consistent: J(φ_L) ⪰ 0 (the payload's pseudo-inertia, Wensing et al. 2017) and,
-given the object's box, its centre of mass and second moments inside the box; solved as an
-SDP with Drake's MathematicalProgram (Clarabel). The σ are from the linearized least-squares
-covariance, carried to mass, centre of mass and central inertia (:func:`central_jacobian`).
+The fit is weighted per joint (Gautier 1997) and physically consistent: J(φ_L) ⪰ 0 (Wensing et
+al. 2017) and, given the object's box, its mass inside the box; an SDP (Clarabel). The σ are the
+linearized least-squares covariance carried to mass, centre of mass and central inertia.
 """
 
 from __future__ import annotations
@@ -41,16 +35,10 @@ from pe_drake.io_utils import atomic_write_text, finite_json
 from pe_drake.multibody.base_parameters import BaseParameters, compute_base_parameters
 from pe_drake.multibody.drive_columns import COULOMB_VELOCITY_SCALE
 from pe_drake.multibody.inertia import pseudo_inertia, pseudo_inertia_basis
-from pe_drake.multibody.payload import (
-    PayloadInertia,
-    central_jacobian,
-    determined_std,
-    link_position,
-    payload_base_parameters,
-    payload_parameter_map,
-    payload_parameter_names,
-    undetermined_parameters,
-)
+from pe_drake.multibody.payload import (PayloadInertia, central_jacobian, determined_std,
+                                        link_position, payload_base_parameters,
+                                        payload_parameter_map, payload_parameter_names,
+                                        undetermined_parameters)
 from pe_drake.multibody.regressor import RegressorModel
 from pe_drake.multibody.robot_model import RobotModel
 from pe_drake.threads import single_threaded_blas
@@ -61,13 +49,8 @@ if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
 
 @dataclasses.dataclass(frozen=True)
 class PayloadBox:
-    """The object's bounding box in the payload link's frame L.
-
-    Attributes:
-        center: p_LoBo_L, the box centre [m], (3,).
-        size: full edge lengths [m], (3,), each > 0.
-        rotation: R_LB, the box axes in L, (3, 3) (default: L's axes).
-    """
+    """The object's bounding box in the payload link's frame L: centre p_LoBo_L [m], (3,), full
+    edge lengths [m], (3,), each > 0, and axes R_LB, (3, 3) (default: L's axes)."""
 
     center: tuple[float, float, float]
     size: tuple[float, float, float]
@@ -90,13 +73,10 @@ class PayloadOptions:
 
     Attributes:
         physical: keep the payload's pseudo-inertia ⪰ 0 (an SDP); False: plain weighted LS.
-        box: the object's :class:`PayloadBox` (centre of mass and mass distribution inside it),
-            or None.
-        drive_terms: the per-joint nuisance terms, a subset of
-            :data:`~pe_drake.identification.payload_friction.FRICTION_TERMS`.
+        box: the object's box (centre of mass and mass distribution inside it), or None.
+        drive_terms: the per-joint nuisance terms, a subset of ``FRICTION_TERMS``.
         coulomb_velocity_scale: v_s of tanh(v/v_s) [rad/s].
-        arm_correction: with unloaded runs, fit δ_B (the arm's base-parameter error); ignored
-            without them.
+        arm_correction: with unloaded runs, fit δ_B (the arm's base-parameter error).
         weighted: weigh joints by their residual σ_j (else every row by 1).
     """
 
@@ -120,8 +100,7 @@ class PayloadResult:
     """An identified payload, in the link's frame L (about its centre of mass for the inertia).
 
     Attributes:
-        robot, link: robot name and the payload link.
-        payload: mass, p_LoPcm_L and I_PPcm_L (:class:`PayloadInertia`).
+        payload: mass, p_LoPcm_L and I_PPcm_L.
         phi: the 10 parameters about Lo in L, (10,).
         cov_phi: their covariance, (10, 10) (linearized LS; the constraint assumed inactive).
         mass_std [kg], com_std (3,) [m], inertia_about_com_std (6,) [kg·m²]: σ of the
@@ -129,9 +108,7 @@ class PayloadResult:
         drive: {``<term>.<joint>``: value} of the nuisance drive terms.
         arm_correction: δ_B (b,) or None (no unloaded runs).
         noise_std: per-joint residual σ_j [N·m], (n,).
-        loaded_runs, unloaded_runs, samples: what was fitted.
         constrained: the physical fit moved the estimate off the unconstrained one.
-        wall_time: [s].
     """
 
     robot: str
@@ -155,28 +132,21 @@ class PayloadResult:
     def to_dict(self) -> dict[str, Any]:
         """The content of payload.json (the project's truth-file convention)."""
         p = self.payload
+        valid = np.linalg.eigvalsh(pseudo_inertia(self.phi)).min() >= -1e-9 * max(p.mass, 1e-12)
         return {
-            "robot": self.robot,
-            "link": self.link,
-            "frame": f"{self.link} (centre of mass from its origin; inertia about the centre of mass, {self.link}'s axes)",
-            "mass": p.mass,
-            "com": p.com.tolist(),
-            "inertia_about_com": p.inertia_vector.tolist(),
+            "robot": self.robot, "link": self.link,
+            "frame": f"{self.link} (centre of mass from its origin; inertia about the centre of "
+                     f"mass, {self.link}'s axes)",
+            "mass": p.mass, "com": p.com.tolist(), "inertia_about_com": p.inertia_vector.tolist(),
             "inertia_order": ["Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz"],
-            "mass_std": self.mass_std,
-            "com_std": self.com_std.tolist(),
+            "mass_std": self.mass_std, "com_std": self.com_std.tolist(),
             "inertia_about_com_std": self.inertia_about_com_std.tolist(),
             "units": {"mass": "kg", "com": "m", "inertia_about_com": "kg*m^2"},
-            "phi_about_link_origin": self.phi.tolist(),
-            "physically_valid": bool(np.linalg.eigvalsh(pseudo_inertia(self.phi)).min() >= -1e-9 * max(p.mass, 1e-12)),
-            "constrained": self.constrained,
-            "drive_terms": self.drive,
-            "noise_std": self.noise_std.tolist(),
-            "loaded_runs": self.loaded_runs,
-            "unloaded_runs": self.unloaded_runs,
-            "samples": self.samples,
-            "arm_correction_fitted": self.arm_correction is not None,
-            "wall_time_s": self.wall_time,
+            "phi_about_link_origin": self.phi.tolist(), "physically_valid": bool(valid),
+            "constrained": self.constrained, "drive_terms": self.drive,
+            "noise_std": self.noise_std.tolist(), "loaded_runs": self.loaded_runs,
+            "unloaded_runs": self.unloaded_runs, "samples": self.samples,
+            "arm_correction_fitted": self.arm_correction is not None, "wall_time_s": self.wall_time,
             "not_determined": list(self.undetermined),
         }
 
@@ -192,7 +162,7 @@ def arm_parameters(robot: Robot, arm_model=None) -> np.ndarray:
     :class:`~pe_drake.multibody.robot_model.RobotModel` (its parameters, payload included)."""
     if arm_model is None:
         return np.asarray(robot.phi_model, float)
-    if isinstance(arm_model, np.ndarray) or isinstance(arm_model, (list, tuple)):
+    if isinstance(arm_model, (np.ndarray, list, tuple)):
         phi = np.asarray(arm_model, float)
         if phi.shape != (10 * robot.num_bodies,):
             raise ConfigError(f"arm model has shape {phi.shape}, expected ({10 * robot.num_bodies},)")
@@ -204,27 +174,17 @@ def arm_parameters(robot: Robot, arm_model=None) -> np.ndarray:
     return arm_model.model.phi  # the standard parameters closest to the prior that give its φ_B
 
 
-def identify_payload(
-    robot: Robot,
-    loaded_runs: Sequence,
-    unloaded_runs: Sequence = (),
-    link: str = "",
-    arm_model=None,
-    options: PayloadOptions | None = None,
-    *,
-    base: BaseParameters | None = None,
-    model: RegressorModel | None = None,
-) -> PayloadResult:
+def identify_payload(robot: Robot, loaded_runs: Sequence, unloaded_runs: Sequence = (),
+                     link: str = "", arm_model=None, options: PayloadOptions | None = None, *,
+                     base: BaseParameters | None = None,
+                     model: RegressorModel | None = None) -> PayloadResult:
     """Identifies the payload on ``link`` from loaded (and unloaded) runs (module docstring).
 
     Args:
         robot: the robot (without the payload).
-        loaded_runs: :class:`~pe_drake.identification.measurements.Measurement` s with v and vd
-            (preprocessed), carrying the payload.
+        loaded_runs: preprocessed Measurements (with v and vd) carrying the payload.
         unloaded_runs: the same motions without it (any number; need not be sample-aligned).
-        link: the payload link (a body in ``robot.body_names``).
         arm_model: see :func:`arm_parameters`.
-        options: :class:`PayloadOptions`.
         base, model: the robot's base parameters and regressor model, to reuse.
 
     Raises:
@@ -247,8 +207,11 @@ def identify_payload(
     # (all 10 unless its axes leave some unexcitable, issue 37); the fit solves for those.
     pbase = payload_base_parameters(robot, link, model)
     K_L, K_plus = payload_parameter_map(pbase, robot, link)
+    arm_base = base if with_arm else None
     with single_threaded_blas():  # small blocks: threads only add contention
-        R_joint, S = _compressed_rows(robot, model, runs, phi_arm, pbase, base if with_arm else None, options)
+        blocks = (block for run, loaded in runs for block in
+                  _run_rows(robot, model, run, loaded, phi_arm, pbase, arm_base, options))
+        R_joint, S = compress_joint_rows(blocks)
     n, p = robot.n, R_joint.shape[-1] - 1
     if S * n < 10 * p:
         raise DataError(f"{S} samples × {n} joints = {S * n} equations for {p} unknowns: record longer runs")
@@ -267,21 +230,16 @@ def identify_payload(
     undetermined = undetermined_parameters(pbase, robot, link)
     cov_phi = K_plus @ cov_B @ K_plus.T
     cov_phi[undetermined, :] = cov_phi[:, undetermined] = np.nan
+    link_name = robot.body_names[link_position(robot, link)]
     return PayloadResult(
-        robot=robot.name, link=robot.body_names[link_position(robot, link)], payload=PayloadInertia.from_phi(phi),
+        robot=robot.name, link=link_name, payload=PayloadInertia.from_phi(phi),
         phi=phi, cov_phi=cov_phi, mass_std=float(std[0]), com_std=std[1:4], inertia_about_com_std=std[4:10],
         drive=dict(zip(drive_names(robot.joint_names, options.drive_terms), map(float, x[nb_arm : nb_arm + nd]))),
         arm_correction=x[:nb_arm] if with_arm else None, noise_std=noise_std,
         loaded_runs=len(loaded_runs), unloaded_runs=len(unloaded_runs), samples=S, constrained=constrained,
         wall_time=time.perf_counter() - start,
-        undetermined=tuple(payload_parameter_names(robot.body_names[link_position(robot, link)])[i] for i in undetermined),
+        undetermined=tuple(payload_parameter_names(link_name)[i] for i in undetermined),
     )
-
-
-def _compressed_rows(robot: Robot, model, runs, phi_arm, pbase, base, options) -> tuple[np.ndarray, int]:
-    """:func:`compress_joint_rows` of every run's rows (:func:`_run_rows`)."""
-    return compress_joint_rows(block for run, loaded in runs
-                               for block in _run_rows(robot, model, run, loaded, phi_arm, pbase, base, options))
 
 
 def _run_rows(robot: Robot, model, run, loaded: bool, phi_arm, pbase, base, options):

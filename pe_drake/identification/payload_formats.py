@@ -1,19 +1,17 @@
 """An identified payload in the formats robot controllers take, in the vendor's flange frame.
 
-The payload is identified in its link's frame L (:mod:`pe_drake.identification.payload`);
-controllers want it in their flange frame F (``panda_link8`` for a Franka, ``tool0`` for a
-UR; any link rigidly attached to L via ``flange``). With X_LF the flange's pose in L,
-p_FoPcm_F = R_FL (p_LoPcm_L − p_LoFo_L) and I_F = R_FL I_L R_LF (about the centre of mass).
+The payload is identified in its link's frame L; controllers want it in their flange frame F
+(``panda_link8`` for a Franka, ``tool0`` for a UR; any link rigidly attached to L). With X_LF the
+flange's pose in L, p_FoPcm_F = R_FL (p_LoPcm_L − p_LoFo_L) and I_F = R_FL I_L R_LF (about the
+centre of mass).
 
 - Franka (libfranka ``Robot::setLoad(load_mass, F_x_Cload, load_inertia)``): mass [kg], the
-  centre of mass in F [m], the 3×3 inertia about the centre of mass in F's axes, column-major
-  (9 numbers) [kg·m²].
-- UR (URScript): ``set_target_payload(m, [cx, cy, cz], [Ixx, Iyy, Izz, Ixy, Ixz, Iyz])`` (the
-  inertia tensor entries about the centre of mass, axes of the tool flange ``tool0``) and the
-  older ``set_payload(m, [cx, cy, cz])``.
+  centre of mass in F [m], the 3×3 inertia about it in F's axes, column-major [kg·m²].
+- UR (URScript): ``set_target_payload(m, [cx, cy, cz], [Ixx, Iyy, Izz, Ixy, Ixz, Iyz])`` (about
+  the centre of mass, axes of ``tool0``) and the older ``set_payload(m, [cx, cy, cz])``.
 - KUKA (KRL ``LOAD_DATA``): M [kg]; CM X, Y, Z [mm] in the flange frame; A, B, C [deg], the
-  principal axes' frame as KUKA's Z-Y'-X'' angles (R = Rz(A) Ry(B) Rx(C)); J X, Y, Z [kg·m²]
-  the principal moments about those axes.
+  principal axes as Z-Y'-X'' angles (R = Rz(A) Ry(B) Rx(C)); J X, Y, Z [kg·m²] the principal
+  moments.
 - URDF: the robot's model with a link ``pe_drake_payload`` welded to L, its inertial the
   payload (verified by parsing it back with Drake).
 """
@@ -59,7 +57,7 @@ def flange_pose_in_link(robot: Robot, link: str, flange: str) -> np.ndarray:
 
     Raises:
         UnknownNameError: an unknown link.
-        ConfigError: the flange is not rigidly attached to the link (another joint between).
+        ConfigError: the flange is not rigidly attached to the link.
     """
     a, b = link_position(robot, link), link_position(robot, flange)
     if robot.joint_of_body[a] != robot.joint_of_body[b]:
@@ -100,15 +98,6 @@ def kuka_angles(R: np.ndarray) -> np.ndarray:
     else:  # gimbal lock: C = 0
         A, C = math.atan2(-R[0, 1], R[1, 1]), 0.0
     return np.degrees([A, B, C])
-
-
-def kuka_rotation(abc_deg) -> np.ndarray:
-    """Rz(A) Ry(B) Rx(C) of KUKA angles [deg] (the inverse of :func:`kuka_angles`)."""
-    A, B, C = np.radians(np.asarray(abc_deg, float))
-    Rz = np.array([[math.cos(A), -math.sin(A), 0], [math.sin(A), math.cos(A), 0], [0, 0, 1]])
-    Ry = np.array([[math.cos(B), 0, math.sin(B)], [0, 1, 0], [-math.sin(B), 0, math.cos(B)]])
-    Rx = np.array([[1, 0, 0], [0, math.cos(C), -math.sin(C)], [0, math.sin(C), math.cos(C)]])
-    return Rz @ Ry @ Rx
 
 
 def kuka_load_data(p: PayloadInertia, index: int = 1) -> dict[str, Any]:
@@ -152,9 +141,9 @@ def urdf_with_payload(robot: Robot, payload: PayloadInertia, link: str, arm_phi:
     ET.SubElement(inertial, "origin", {"xyz": " ".join(repr(float(x)) for x in payload.com), "rpy": "0 0 0"})
     ET.SubElement(inertial, "mass", {"value": repr(float(payload.mass))})
     I = np.asarray(payload.inertia_about_com, float)
-    ET.SubElement(inertial, "inertia", {key: repr(float(I[i, j])) for key, (i, j) in
-                                        {"ixx": (0, 0), "ixy": (0, 1), "ixz": (0, 2), "iyy": (1, 1), "iyz": (1, 2),
-                                         "izz": (2, 2)}.items()})
+    entries = {"ixx": (0, 0), "ixy": (0, 1), "ixz": (0, 2), "iyy": (1, 1), "iyz": (1, 2),
+               "izz": (2, 2)}
+    ET.SubElement(inertial, "inertia", {k: repr(float(I[i, j])) for k, (i, j) in entries.items()})
     joint = ET.SubElement(root, "joint", {"name": PAYLOAD_LINK_NAME + "_joint", "type": "fixed"})
     ET.SubElement(joint, "parent", {"link": link})
     ET.SubElement(joint, "child", {"link": PAYLOAD_LINK_NAME})
@@ -171,14 +160,9 @@ def write_payload_urdf(path: str | Path, robot: Robot, payload: PayloadInertia, 
         ConfigError: Drake refuses the text or reads another inertia.
     """
     text = urdf_with_payload(robot, payload, link, arm_phi)
-    got = read_urdf_body_phi(text, PAYLOAD_LINK_NAME)
+    got = urdf_text_phi(text, [PAYLOAD_LINK_NAME])
     if not np.allclose(got, payload.phi, rtol=1e-9, atol=1e-12 * max(payload.mass, 1.0)):
         raise ConfigError(f"the exported payload link reads back as {got.tolist()}, expected {payload.phi.tolist()}")
     path = Path(path)
     atomic_write_text(path, text)
     return path
-
-
-def read_urdf_body_phi(text: str, body: str) -> np.ndarray:
-    """The 10 parameters (about its origin, in its frame) of one link of URDF text, as Drake reads them."""
-    return urdf_text_phi(text, [body])

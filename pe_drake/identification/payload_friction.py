@@ -1,9 +1,7 @@
 """Per-joint drive terms as nuisance columns of the payload fit: Coulomb, viscous, offset.
 
-τ_drive,j = f_c,j tanh(v_j / v_s) + f_v,j v_j + o_j (the smoothed Coulomb law of the
-simulated true robot, :mod:`pe_drake.simulation.simulation`). They are linear in
-θ = [f_c (n), f_v (n), o (n)], so they enter the payload fit as 3n extra columns shared by
-every run. Their columns come from the one builder, :mod:`pe_drake.multibody.drive_columns`.
+τ_drive,j = f_c,j tanh(v_j / v_s) + f_v,j v_j + o_j is linear in θ = [f_c (n), f_v (n), o (n)]:
+3n extra columns shared by every run, from :mod:`pe_drake.multibody.drive_columns`.
 """
 
 from __future__ import annotations
@@ -17,8 +15,7 @@ FRICTION_TERMS = ("coulomb", "viscous", "offset")
 
 
 def friction_columns(v: np.ndarray, velocity_scale: float, terms=FRICTION_TERMS) -> np.ndarray:
-    """The drive-term regressor, shape (S, n, len(terms)·n): column k·n + j acts on joint j only
-    (:func:`~pe_drake.multibody.drive_columns.drive_columns` with the columns term by term).
+    """The drive-term regressor, shape (S, n, len(terms)·n): column k·n + j acts on joint j only.
 
     Args:
         v: joint velocities, (S, n) [rad/s].

@@ -1,18 +1,14 @@
 """Unknown drive gains from a payload of known mass (Gautier & Briot 2014).
 
-A robot that logs motor currents i_j (or any signal proportional to its torque) measures
-τ_j = k_j i_j with unknown gains k_j. With runs with and without a payload of known mass M on
-link L, every run's rows are
+A robot that logs motor currents i_j measures τ_j = k_j i_j with unknown gains k_j. With runs
+with and without a payload of known mass M on link L, every run's rows are
 
     k_j i_j − Y_B,j φ_B − D_j θ − [loaded] Y_L,j[:, 1:] φ_L[1:] = [loaded] M · Y_L,j[:, 0],
 
-linear in x = [k, φ_B, θ, φ_L[1:]]: without M the system is homogeneous (only ratios are
-identifiable), and the known mass fixes the common scale. The arm's base parameters φ_B, the
-drive terms θ (:mod:`pe_drake.identification.payload_friction`) and the payload's first
-moments and inertia are identified with the gains, so the runs must excite the arm (an arm
-exciting motion, not a payload-only one). The physically consistent fit keeps k ≥ 0 and the
-payload's pseudo-inertia (with m = M) ⪰ 0. A gain whose relative σ exceeds
-``max_sigma_percent`` is reported as one the data cannot separate.
+linear in x = [k, φ_B, θ, φ_L[1:]]: without M only ratios are identifiable, and the known mass
+fixes the common scale. The arm's base parameters, the drive terms and the payload's first and
+second moments are identified with the gains, so the runs must excite the arm. The physical fit
+keeps k ≥ 0 and the payload's pseudo-inertia ⪰ 0.
 """
 
 from __future__ import annotations
@@ -44,13 +40,12 @@ class DriveGainResult:
     """Identified drive gains (τ = k·i) with the arm and payload identified alongside.
 
     Attributes:
-        joints: joint names; gains: k (n,) [N·m per unit of the logged signal]; gains_std: σ (n,).
+        gains: k (n,) [N·m per unit of the logged signal]; gains_std: σ (n,).
         sigma_percent: 100·σ/k (n,).
         not_separable: joints whose gain the data does not determine (σ above the threshold).
         payload: the payload (mass = the given M) in the link's frame.
         phi_B: the arm's base parameters (b,); drive: {``<term>.<joint>``: value} in N·m units.
         constrained: the physical fit (k ≥ 0, J ⪰ 0) moved the estimate.
-        samples, wall_time: samples fitted, [s].
     """
 
     joints: tuple[str, ...]
@@ -66,11 +61,14 @@ class DriveGainResult:
     wall_time: float
 
     def to_dict(self) -> dict[str, Any]:
-        return {"gains": dict(zip(self.joints, map(float, self.gains))),
-                "gains_std": dict(zip(self.joints, map(float, self.gains_std))),
-                "gains_sigma_percent": dict(zip(self.joints, map(float, self.sigma_percent))),
+        def per_joint(x):
+            return dict(zip(self.joints, map(float, x)))
+
+        return {"gains": per_joint(self.gains), "gains_std": per_joint(self.gains_std),
+                "gains_sigma_percent": per_joint(self.sigma_percent),
                 "not_separable": list(self.not_separable), "payload_mass_given": self.payload.mass,
-                "payload_com": self.payload.com.tolist(), "payload_inertia_about_com": self.payload.inertia_vector.tolist(),
+                "payload_com": self.payload.com.tolist(),
+                "payload_inertia_about_com": self.payload.inertia_vector.tolist(),
                 "drive_terms": self.drive, "constrained": self.constrained, "samples": self.samples,
                 "wall_time_s": self.wall_time}
 
@@ -81,15 +79,15 @@ def identify_drive_gains(robot: Robot, loaded_runs: Sequence, unloaded_runs: Seq
     """Identifies the drive gains, the arm and the payload (module docstring).
 
     Args:
-        robot: the robot; link: the payload link; payload_mass: M > 0 [kg], known.
         loaded_runs, unloaded_runs: Measurements whose ``tau`` holds the logged motor signal
             (currents), with v and vd.
-        options: drive terms and Coulomb v_s (:class:`PayloadOptions`; its box is not used).
+        payload_mass: M > 0 [kg], known.
+        options: drive terms and Coulomb v_s (its box is not used).
         max_sigma_percent: a gain with a larger relative σ is reported as not separable.
 
     Raises:
-        ConfigError: a non-positive mass; DataError: no loaded run, or data that does not
-            determine the unknowns.
+        ConfigError: a non-positive mass.
+        DataError: no loaded run, or data that does not determine the unknowns.
     """
     start = time.perf_counter()
     if not (isinstance(payload_mass, (int, float)) and payload_mass > 0):
@@ -140,14 +138,9 @@ def _gain_rows(robot: Robot, model, base, run, loaded: bool, link: str, M: float
 
 
 def _errors_in_variables(R_joint, S: int, x, noise, n: int, iterations: int = 3):
-    """Corrects the attenuation of the gains by the noise of the logged signal in their own
-    columns (errors in variables): E[i_meas²] = i² + σ_i², with σ_i = σ_j / k_j (the residual
-    σ_j of joint j is k_j σ_i), so S·σ_i² is taken off the diagonal of each gain's normal
-    equation (weighted by 1/σ_j). Without it the weakest joint's gain was 0.8 % low, 13 σ.
-
-    Returns:
-        (x, Cov(x)) of the corrected normal equations.
-    """
+    """(x, Cov(x)) corrected for the attenuation of the gains by the noise of the logged signal
+    in their own columns (errors in variables): E[i_meas²] = i² + σ_i², with σ_i = σ_j / k_j, so
+    S·σ_i² is taken off the diagonal of each gain's normal equation (weighted by 1/σ_j)."""
     w = 1.0 / noise
     N = np.einsum("jab,jac->bc", R_joint * w[:, None, None], R_joint * w[:, None, None])
     p = N.shape[0] - 1

@@ -1,8 +1,6 @@
 """The front door of ``pe-drake identify --payload``: :func:`identify_payload_runs` reads the
-loaded (and unloaded) runs, identifies the payload on a link with the arm frozen
-(:func:`~pe_drake.identification.payload.identify_payload`) and returns a
-:class:`PayloadIdentification` that prints the vendor formats and writes payload.json and
-model_with_payload.urdf."""
+runs, identifies the payload with the arm frozen and returns a :class:`PayloadIdentification`
+that prints the vendor formats and writes payload.json and model_with_payload.urdf."""
 
 from __future__ import annotations
 
@@ -16,33 +14,23 @@ from typing import Any
 from pe_drake.exceptions import ConfigError
 from pe_drake.excitation.payload_motion import undetermined_note
 from pe_drake.excitation.trajectory_file import load_trajectory
-from pe_drake.identification.intake import prepare_measurement
 from pe_drake.identification.identified_file import load_identified
-from pe_drake.identification.intake import read_measurements
-from pe_drake.identification.payload import (
-    PayloadBox,
-    PayloadOptions,
-    PayloadResult,
-    arm_parameters,
-    check_payload_trajectory,
-    identify_payload,
-)
+from pe_drake.identification.intake import prepare_measurement, read_measurements
+from pe_drake.identification.payload import (PayloadBox, PayloadOptions, PayloadResult,
+                                             arm_parameters, check_payload_trajectory,
+                                             identify_payload)
 from pe_drake.identification.payload_formats import vendor_formats, write_payload_urdf
 from pe_drake.io_utils import finite_json, staged_output_dir
 from pe_drake.multibody.robot import Robot
 from pe_drake.output_paths import check_output_dir
-
 
 #: The controller whose payload command a flange link's name stands for (the others go to payload.json).
 VENDOR_OF_FLANGE = {"panda_link8": "franka", "tool0": "ur", "iiwa_link_ee": "kuka"}
 
 
 def parse_payload_box(text: str | None) -> PayloadBox | None:
-    """``cx,cy,cz,sx,sy,sz`` [m] in the payload link's frame (None: no box).
-
-    Raises:
-        ConfigError: not six numbers.
-    """
+    """``cx,cy,cz,sx,sy,sz`` [m] in the payload link's frame (None: no box); ConfigError if not six
+    numbers."""
     if not text:
         return None
     try:
@@ -102,7 +90,7 @@ class PayloadIdentification:
         with staged_output_dir(out, "payload.json", ("payload.json", "model_with_payload.urdf")) as tmp:
             d = self.result.to_dict()
             d["vendor"] = self.formats
-            if not urdf:  # an SDF robot: the fit is still written (issue 37: it exited 2 with nothing)
+            if not urdf:  # an SDF robot: the fit is still written (issue 37)
                 d["model_with_payload_urdf"] = f"not written: '{Path(self.robot.model_path).name}' is not a URDF"
             (tmp / "payload.json").write_text(json.dumps(finite_json(d), indent=2))
             if urdf:
@@ -115,9 +103,8 @@ def identify_payload_runs(robot: Robot, loaded: Sequence[str | Path], unloaded: 
                           model: str | Path | None = None, trajectory: str | Path | None = None,
                           cutoff_hz: float | None = None, filtering: bool = True, box: PayloadBox | None = None,
                           flange: str | None = None) -> PayloadIdentification:
-    """What ``pe-drake identify --payload`` does: each run read and checked
-    (:func:`~pe_drake.identification.intake.read_measurements`), preprocessed, and the payload
-    identified with the arm frozen at ``model`` (an identified.json; default the URDF's).
+    """What ``pe-drake identify --payload`` does: each run read, checked and preprocessed, and the
+    payload identified with the arm frozen at ``model`` (an identified.json; default the URDF's).
 
     Raises:
         DataError, ConfigError: unreadable runs, a trajectory for another payload link, a bad box.

@@ -19,10 +19,8 @@ if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
     from pe_drake.multibody.robot import Robot
 
 
-
-def robot_torques(
-    robot: Robot, data: Measurement, phi: np.ndarray, model: RegressorModel | None = None
-) -> np.ndarray:
+def robot_torques(robot: Robot, data: Measurement, phi: np.ndarray,
+                  model: RegressorModel | None = None) -> np.ndarray:
     """Rigid-body torques Y(q, v, v̇) φ at the samples of ``data``, shape (S, n)."""
     model = model or RegressorModel(robot)
     out = np.empty_like(data.q)
@@ -35,10 +33,8 @@ def _chunks(count: int, size: int = 2000) -> list[slice]:
     return [slice(s, min(s + size, count)) for s in range(0, count, size)]
 
 
-def predict(
-    robot: Robot, result: IdentificationResult | RobotModel, data: Measurement, model: RegressorModel | None = None,
-    coulomb: np.ndarray | None = None,
-) -> np.ndarray:
+def predict(robot: Robot, result: IdentificationResult | RobotModel, data: Measurement,
+            model: RegressorModel | None = None, coulomb: np.ndarray | None = None) -> np.ndarray:
     """Torques an identified fit (Y_B φ_B) or a :class:`~pe_drake.multibody.robot_model.RobotModel`
     (Y φ, its payload included) predicts at the samples of ``data``, the drive terms included,
     shape (S, n) (``coulomb``: as in :func:`~pe_drake.identification.estimators.identify`; no delay
@@ -58,36 +54,28 @@ def predict(
     return tau
 
 
-def predict_wrench(
-    robot: Robot, result: IdentificationResult | RobotModel, data: Measurement, model: RegressorModel | None = None
-) -> np.ndarray:
+def predict_wrench(robot: Robot, result: IdentificationResult | RobotModel, data: Measurement,
+                   model: RegressorModel | None = None) -> np.ndarray:
     """The ground wrench an identified fit or a :class:`~pe_drake.multibody.robot_model.RobotModel`
     predicts at the samples of ``data``, (S, 6) [N, N·m] (the a-priori weight of the bodies no
     excited joint moves included; no offset)."""
     model = model or RegressorModel(robot)
-    W = np.concatenate(
-        [model.wrench_regressor(model.kinematics(data.q[r], data.v[r], data.vd[r])) for r in _chunks(data.num_samples)]
-    )
+    W = np.concatenate([model.wrench_regressor(model.kinematics(data.q[r], data.v[r], data.vd[r]))
+                        for r in _chunks(data.num_samples)])
     if isinstance(result, RobotModel):
         return W @ result.phi_total + static_wrench(robot)
     return result.base.reduce(W) @ result.phi_B + static_wrench(robot)
 
 
 class TorqueErrors(NamedTuple):
-    """Per-joint torque errors (:func:`torque_errors`).
-
-    Attributes:
-        rms: RMS of τ_meas − τ_pred, shape (n,) [N·m].
-        relative: 100·‖τ_meas − τ_pred‖/‖τ_meas‖, shape (n,) [%].
-    """
+    """Per-joint RMS of τ_meas − τ_pred (n,) [N·m] and 100·‖τ_meas − τ_pred‖/‖τ_meas‖ (n,) [%]."""
 
     rms: np.ndarray
     relative: np.ndarray
 
 
 def torque_errors(tau_measured: np.ndarray, tau_predicted: np.ndarray) -> TorqueErrors:
-    """Per-joint RMS error [N·m] and relative error 100·‖τ_meas − τ_pred‖/‖τ_meas‖ [%]
-    (:class:`TorqueErrors`; unpacks as (rms, relative))."""
+    """Per-joint :class:`TorqueErrors` (unpacks as (rms, relative))."""
     e = np.asarray(tau_measured) - np.asarray(tau_predicted)
     rms = np.sqrt(np.mean(e**2, axis=0))
     rel = 100.0 * np.linalg.norm(e, axis=0) / np.maximum(np.linalg.norm(tau_measured, axis=0), 1e-300)

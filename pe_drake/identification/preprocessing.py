@@ -1,15 +1,12 @@
 """Preprocessing of a raw recording into what identification needs, as named steps.
 
-:func:`preprocess` chains the steps, each usable on its own (the diagnosis builds its records
-from them too):
+:func:`preprocess` chains the steps, each usable on its own (the diagnosis uses them too):
 
-1. :func:`resample_uniform`: linear interpolation onto a uniform grid when the time steps vary;
+1. :func:`resample_uniform`: linear interpolation onto a uniform grid when the steps vary;
 2. :func:`choose_cutoff`: the low-pass cut-off (argument, trajectory band or spectrum);
-3. :func:`~pe_drake.identification.lowpass.design_lowpass`: the one Butterworth design of the package,
-   run forward and backward (zero phase) with an odd extension of a few cut-off periods at the
-   ends, on q and tau alike so torque and motion keep the same phase;
-4. :func:`fill_derivatives` (:func:`differentiate`): v and vd by central differences of the
-   filtered signals when they were not measured;
+3. :func:`~pe_drake.identification.lowpass.design_lowpass`: the zero-phase Butterworth filter,
+   on q and tau alike so torque and motion keep the same phase;
+4. :func:`fill_derivatives`: v and vd by central differences where they were not measured;
 5. :func:`decimation_step`: keep every k-th sample, alias-free;
 6. :func:`trim_indices`: drop the ends, where the filter and the differences see the edges.
 """
@@ -37,8 +34,7 @@ MAX_CUTOFF_FRACTION = 0.4
 ENERGY_FRACTION = 0.999
 #: Relative spread of the time steps above which the data is resampled to a uniform grid.
 UNIFORM_TOLERANCE = 1e-3
-#: Time trimmed at each end of a ground-wrench record, in periods of the cut-off (and of every
-#: record before the quality figures): :func:`default_trim_s`.
+#: Time trimmed at each end of a ground-wrench record by default, in periods of the cut-off.
 TRIM_PERIODS = 2.0
 #: Decimation keeps the output Nyquist frequency at least this factor above the cut-off.
 ALIAS_MARGIN = 1.25
@@ -56,8 +52,7 @@ class PreprocessOptions:
         harmonics: number of harmonics N of the trajectory (with ``fundamental_hz``).
         decimate_to_hz: wanted output rate [Hz]; None keeps the input rate.
         trim_s: time dropped at each end [s]; None: what the filter needs
-            (:meth:`LowPassFilter.edge_transient_s`, about 0.7 / cut-off for the default
-            4th-order filter).
+            (:meth:`LowPassFilter.edge_transient_s`).
         filter_order: Butterworth order in [1, 10] (the zero-phase filter doubles it).
 
     Raises:
@@ -88,19 +83,12 @@ class PreprocessOptions:
             raise ConfigError(f"filter_order must be an integer in [1, 10], got {order!r}")
 
 
-# ---- (1) uniform grid ------------------------------------------------------------------------
-
-
 @dataclasses.dataclass(frozen=True, eq=False)
 class UniformSignals:
-    """Signals on a uniform time grid (:func:`resample_uniform`).
+    """Signals on a uniform time grid t (T,) [s] of step dt [s] (:func:`resample_uniform`).
 
-    Attributes:
-        t: the grid, shape (T,) [s].
-        dt: its step [s].
-        rate_hz: 1 / dt [Hz].
-        resampled: the input steps were not uniform and the signals were interpolated.
-        signals: {name: shape (T, n) array, or None where the input had None}.
+    ``signals`` maps each name to its (T, n) array (None where the input had None);
+    ``resampled``: the input steps were not uniform and the signals were interpolated.
     """
 
     t: np.ndarray
@@ -110,20 +98,18 @@ class UniformSignals:
     signals: dict[str, np.ndarray | None]
 
 
-def resample_uniform(
-    t: np.ndarray, signals: dict[str, np.ndarray | None], tolerance: float = UNIFORM_TOLERANCE
-) -> UniformSignals:
-    """Puts signals on a uniform grid, by linear interpolation when the steps vary.
+def resample_uniform(t: np.ndarray, signals: dict[str, np.ndarray | None],
+                     tolerance: float = UNIFORM_TOLERANCE) -> UniformSignals:
+    """Puts signals (T, n) on a uniform grid, by linear interpolation when the steps vary.
 
     Args:
         t: strictly increasing time, shape (T,) [s], T ≥ 2.
-        signals: {name: shape (T, n) array or None}.
         tolerance: relative spread of the steps around their median above which the
             signals are interpolated onto a grid at the median step.
 
     Returns:
-        The :class:`UniformSignals`. Without resampling, t and the signals are the input
-        arrays and dt = (t[-1] − t[0]) / (T − 1); with it, dt is the median step.
+        Without resampling, t and the signals are the input arrays and
+        dt = (t[-1] − t[0]) / (T − 1); with it, dt is the median step.
     """
     dt_all = np.diff(t)
     dt = float(np.median(dt_all))
@@ -145,34 +131,19 @@ def _interp_rows(t_new: np.ndarray, t: np.ndarray, x: np.ndarray) -> np.ndarray:
     return x[k] * (1 - w) + x[k + 1] * w
 
 
-# ---- (2) cut-off -----------------------------------------------------------------------------
-
-
 class Cutoff(NamedTuple):
-    """A low-pass cut-off and where it came from.
-
-    Attributes:
-        hz: the cut-off frequency [Hz].
-        source: "argument", "trajectory" or "spectrum" (see :func:`choose_cutoff`).
-    """
+    """A low-pass cut-off [Hz] and its source: "argument", "trajectory" or "spectrum"."""
 
     hz: float
     source: str
 
 
 def motion_bandwidth_hz(t: np.ndarray, q: np.ndarray, energy_fraction: float = ENERGY_FRACTION) -> float:
-    """Frequency below which ``energy_fraction`` of the motion's energy lies, worst joint.
+    """Frequency [Hz] below which ``energy_fraction`` of the motion's energy lies, worst joint.
 
-    Each joint's q is detrended (linear) and Hann-windowed first: a non-periodic record
-    otherwise leaks energy to high frequencies through its end discontinuity.
-
-    Args:
-        t: uniform time grid, shape (T,) [s].
-        q: positions, shape (T, n) [rad].
-        energy_fraction: in (0, 1).
-
-    Returns:
-        The frequency [Hz] (max over joints; 0 for a motionless record).
+    Each joint's q (T, n) on the uniform grid t is detrended (linear) and Hann-windowed
+    first: a non-periodic record otherwise leaks energy to high frequencies through its end
+    discontinuity. 0 for a motionless record.
     """
     from scipy.signal import detrend, get_window  # lazy: keeps `import pe_drake` light
 
@@ -191,30 +162,15 @@ def motion_bandwidth_hz(t: np.ndarray, q: np.ndarray, energy_fraction: float = E
     return float(freqs[min(max(idx), len(freqs) - 1)])
 
 
-def choose_cutoff(
-    t: np.ndarray,
-    q: np.ndarray,
-    rate_hz: float,
-    *,
-    cutoff_hz: float | None = None,
-    fundamental_hz: float | None = None,
-    harmonics: int | None = None,
-    file: str = "",
-) -> Cutoff:
-    """The low-pass cut-off, in order of precedence.
+def choose_cutoff(t: np.ndarray, q: np.ndarray, rate_hz: float, *, cutoff_hz: float | None = None,
+                  fundamental_hz: float | None = None, harmonics: int | None = None,
+                  file: str = "") -> Cutoff:
+    """The low-pass cut-off for positions q (T, n) on the uniform grid t (T,) [s] at ``rate_hz``.
 
-    ``cutoff_hz`` ("argument"); ``CUTOFF_FACTOR`` × ``harmonics`` × ``fundamental_hz``
-    ("trajectory"); else ``CUTOFF_FACTOR`` × :func:`motion_bandwidth_hz` of q ("spectrum").
-    An automatic cut-off is at least ``MIN_CUTOFF_HZ`` and at most ``MAX_CUTOFF_FRACTION`` ×
-    the rate.
-
-    Args:
-        t: uniform time grid, shape (T,) [s].
-        q: positions on that grid, shape (T, n) [rad or m].
-        rate_hz: sample rate of the grid [Hz].
-        cutoff_hz: the user's cut-off [Hz], or None.
-        fundamental_hz, harmonics: the trajectory's band (both or neither).
-        file: the data file, for messages.
+    In order of precedence: ``cutoff_hz`` ("argument"); ``CUTOFF_FACTOR`` × ``harmonics`` ×
+    ``fundamental_hz`` ("trajectory"); else ``CUTOFF_FACTOR`` × :func:`motion_bandwidth_hz` of q
+    ("spectrum"). An automatic cut-off is at least ``MIN_CUTOFF_HZ`` and at most
+    ``MAX_CUTOFF_FRACTION`` × the rate.
 
     Raises:
         ConfigError: ``cutoff_hz`` at or above the Nyquist frequency (the file is named).
@@ -222,33 +178,19 @@ def choose_cutoff(
     nyquist = 0.5 * rate_hz
     if cutoff_hz is not None:
         if cutoff_hz >= nyquist:
-            raise ConfigError(
-                f"cutoff_hz = {cutoff_hz:g} Hz is not below the Nyquist frequency {nyquist:.4g} Hz "
-                f"of the data in '{file}'"
-            )
+            raise ConfigError(f"cutoff_hz = {cutoff_hz:g} Hz is not below the Nyquist frequency "
+                              f"{nyquist:.4g} Hz of the data in '{file}'")
         return Cutoff(float(cutoff_hz), "argument")
     if fundamental_hz is not None:
         source, highest = "trajectory", harmonics * fundamental_hz
     else:
         source, highest = "spectrum", motion_bandwidth_hz(t, q)
-    return Cutoff(min(max(CUTOFF_FACTOR * highest, MIN_CUTOFF_HZ), MAX_CUTOFF_FRACTION * rate_hz), source)
-
-
-# ---- (3) zero-phase low-pass: :mod:`pe_drake.identification.lowpass` -----------------------
-
-
-# ---- (4) derivatives -------------------------------------------------------------------------
+    cutoff = min(max(CUTOFF_FACTOR * highest, MIN_CUTOFF_HZ), MAX_CUTOFF_FRACTION * rate_hz)
+    return Cutoff(cutoff, source)
 
 
 class Derivatives(NamedTuple):
-    """Velocities and accelerations with where they came from.
-
-    Attributes:
-        v: velocities, shape (T, n) [rad/s or m/s].
-        vd: accelerations, shape (T, n) [rad/s² or m/s²].
-        velocity_source: "measured" or "differentiated".
-        acceleration_source: "measured" or "differentiated".
-    """
+    """Velocities and accelerations (T, n), each "measured" or "differentiated"."""
 
     v: np.ndarray
     vd: np.ndarray
@@ -256,25 +198,18 @@ class Derivatives(NamedTuple):
     acceleration_source: str
 
 
-def fill_derivatives(
-    q: np.ndarray, dt: float, v: np.ndarray | None = None, vd: np.ndarray | None = None
-) -> Derivatives:
+def fill_derivatives(q: np.ndarray, dt: float, v: np.ndarray | None = None,
+                     vd: np.ndarray | None = None) -> Derivatives:
     """Keeps measured v and vd; differentiates q (then v) where they are missing.
 
     Args:
         q: filtered positions, shape (T, n) [rad or m], on a uniform grid of step dt [s].
-        dt: the grid step [s].
-        v: filtered measured velocities, shape (T, n), or None.
-        vd: filtered measured accelerations, shape (T, n), or None.
+        v, vd: filtered measured velocities and accelerations, shape (T, n), or None.
     """
     velocity = v if v is not None else differentiate(q, dt)
     acceleration = vd if vd is not None else differentiate(velocity, dt)
-    return Derivatives(
-        velocity,
-        acceleration,
-        "measured" if v is not None else "differentiated",
-        "measured" if vd is not None else "differentiated",
-    )
+    return Derivatives(velocity, acceleration, "measured" if v is not None else "differentiated",
+                       "measured" if vd is not None else "differentiated")
 
 
 def _on_grid(t: np.ndarray, x: np.ndarray, grid: UniformSignals) -> np.ndarray:
@@ -285,14 +220,15 @@ def _on_grid(t: np.ndarray, x: np.ndarray, grid: UniformSignals) -> np.ndarray:
 def _filtered_columns(t: np.ndarray, x: np.ndarray, grid: UniformSignals, lowpass: LowPassFilter,
                       idx: np.ndarray) -> np.ndarray:
     """x (T, k) on the grid, filtered, at the kept samples ``idx``: one column at a time, so a
-    long log costs one full-rate column at once (the same numbers as all columns together)."""
-    return np.column_stack([lowpass.apply(_on_grid(t, x[:, j], grid))[idx] for j in range(x.shape[1])])
+    long log costs one full-rate column at once."""
+    columns = [lowpass.apply(_on_grid(t, x[:, j], grid))[idx] for j in range(x.shape[1])]
+    return np.column_stack(columns)
 
 
 def _filtered_motion(m: Measurement, grid: UniformSignals, lowpass: LowPassFilter,
                      idx: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(q, v, vd) filtered at ``idx``: measured v and vd kept (filtered), the others differentiated
-    at the full rate (:func:`fill_derivatives`), a joint at a time."""
+    """(q, v, vd) filtered at ``idx``: measured v and vd kept (filtered), the others
+    differentiated at the full rate (:func:`fill_derivatives`), a joint at a time."""
     out = np.empty((3, idx.size, m.num_joints))
     for j in range(m.num_joints):
         q = lowpass.apply(grid.signals["q"][:, j])
@@ -303,19 +239,11 @@ def _filtered_motion(m: Measurement, grid: UniformSignals, lowpass: LowPassFilte
     return out[0], out[1], out[2]
 
 
-# ---- (5) decimation and (6) trimmed ends -----------------------------------------------------
-
-
 def decimation_step(rate_hz: float, target_hz: float | None, cutoff_hz: float) -> int:
-    """Keep every k-th sample to get close to ``target_hz``, alias-free.
+    """Keep every k-th sample to get close to ``target_hz`` [Hz], alias-free.
 
     k is reduced until the output Nyquist frequency is at least ``ALIAS_MARGIN`` × the
     cut-off; 1 when ``target_hz`` is None or not below ``rate_hz``.
-
-    Args:
-        rate_hz: input rate [Hz].
-        target_hz: wanted output rate [Hz], or None.
-        cutoff_hz: low-pass cut-off of the data [Hz].
     """
     step = 1
     if target_hz is not None and target_hz < rate_hz:
@@ -325,29 +253,9 @@ def decimation_step(rate_hz: float, target_hz: float | None, cutoff_hz: float) -
     return step
 
 
-def default_trim_s(lowpass: LowPassFilter, wrench: bool) -> float:
-    """Time dropped at each end when the caller gives none [s].
-
-    Joint torques: what the filter needs (:meth:`LowPassFilter.edge_transient_s`, 5 % of the
-    end acceleration). A ground wrench keeps the conservative ``TRIM_PERIODS`` / cut-off:
-    the arms move it by 1-3 N·m on top of a 300 N weight, and whole-body accelerations
-    at 5 % error put 0.25 N of edge transient into it (G1, 1 s run; 0.014 N with this trim),
-    more than the arm signal can afford.
-    """
-    return TRIM_PERIODS / lowpass.cutoff_hz if wrench else lowpass.edge_transient_s()
-
-
 def trim_indices(t: np.ndarray, trim_s: float, step: int = 1, *, file: str = "") -> np.ndarray:
-    """Indices of the samples kept: every ``step``-th one, ``trim_s`` away from both ends.
-
-    Args:
-        t: uniform time grid, shape (T,) [s].
-        trim_s: time dropped at each end [s].
-        step: decimation step (:func:`decimation_step`).
-        file: the data file, for messages.
-
-    Returns:
-        Sorted indices into t, shape (S,), S ≥ 2.
+    """Sorted indices (S,), S ≥ 2, of the samples of the uniform grid t kept: every
+    ``step``-th one, ``trim_s`` [s] away from both ends.
 
     Raises:
         DataError: fewer than two samples left.
@@ -356,36 +264,21 @@ def trim_indices(t: np.ndarray, trim_s: float, step: int = 1, *, file: str = "")
     keep &= (np.arange(len(t)) % step) == 0
     idx = np.nonzero(keep)[0]
     if idx.size < 2:
-        raise DataError(
-            f"nothing left after trimming {trim_s:g} s at each end of a {t[-1] - t[0]:.4g} s record; "
-            "pass a smaller trim_s",
-            file=file,
-        )
+        raise DataError(f"nothing left after trimming {trim_s:g} s at each end of a "
+                        f"{t[-1] - t[0]:.4g} s record; pass a smaller trim_s", file=file)
     return idx
-
-
-# ---- the chain -------------------------------------------------------------------------------
 
 
 def preprocess(measurement: Measurement, options: PreprocessOptions | None = None, **fields) -> Measurement:
     """Uniform grid, zero-phase low-pass, derivatives, decimation and trimmed ends.
 
-    The steps of the module docstring, in order; the filter runs on q, on tau and the ground
-    wrench when the file has them (the same filter: their phases match q's), and on v/vd
-    when the file has them.
-
-    Args:
-        measurement: raw data (T ≥ ``MIN_SAMPLES`` samples).
-        options: the choices (:class:`PreprocessOptions`).
-        **fields: instead of ``options``, its fields by name (``cutoff_hz=8.0``, ...).
-
-    Returns:
-        The processed :class:`Measurement` with v and vd filled and ``preprocessing`` set
-        (cut-off, rates, trim; see :class:`Preprocessing`).
+    The steps of the module docstring, in order; the same filter runs on q, tau, the ground
+    wrench and measured v/vd, so their phases match. ``**fields``: instead of ``options``, its
+    fields by name (``cutoff_hz=8.0``, ...). Returns the processed :class:`Measurement` with v
+    and vd filled and ``preprocessing`` set.
 
     Raises:
-        ConfigError: a bad option (non-positive or above-Nyquist cut-off, only one of
-            fundamental_hz/harmonics, negative trim, ...).
+        ConfigError: a bad option.
         DataError: too few samples, or nothing left after trimming.
     """
     if options is not None and fields:
@@ -397,20 +290,27 @@ def preprocess(measurement: Measurement, options: PreprocessOptions | None = Non
                         file=m.source)
     grid = resample_uniform(m.t, {"q": m.q})
     cutoff = choose_cutoff(grid.t, grid.signals["q"], grid.rate_hz, cutoff_hz=opts.cutoff_hz,
-                           fundamental_hz=opts.fundamental_hz, harmonics=opts.harmonics, file=m.source)
+                           fundamental_hz=opts.fundamental_hz, harmonics=opts.harmonics,
+                           file=m.source)
     lowpass = design_lowpass(cutoff.hz, grid.rate_hz, len(grid.t), opts.filter_order, file=m.source)
     step = decimation_step(grid.rate_hz, opts.decimate_to_hz, cutoff.hz)
-    trim = default_trim_s(lowpass, m.wrench is not None) if opts.trim_s is None else float(opts.trim_s)
+    if opts.trim_s is not None:
+        trim = float(opts.trim_s)
+    elif m.wrench is not None:  # the arms move it by 1-3 N·m on top of a 300 N weight
+        trim = TRIM_PERIODS / lowpass.cutoff_hz
+    else:
+        trim = lowpass.edge_transient_s()
     idx = trim_indices(grid.t, trim, step, file=m.source)
     q, v, vd = _filtered_motion(m, grid, lowpass, idx)
-    tau, wrench = (None if x is None else _filtered_columns(m.t, x, grid, lowpass, idx) for x in (m.tau, m.wrench))
+    tau, wrench = (None if x is None else _filtered_columns(m.t, x, grid, lowpass, idx)
+                   for x in (m.tau, m.wrench))
     info = Preprocessing(
         cutoff_hz=cutoff.hz, cutoff_source=cutoff.source, filter_order=int(opts.filter_order),
-        input_rate_hz=grid.rate_hz, resampled=grid.resampled, rate_hz=grid.rate_hz / step, trim_s=trim,
-        velocity_source="measured" if m.v is not None else "differentiated",
+        input_rate_hz=grid.rate_hz, resampled=grid.resampled, rate_hz=grid.rate_hz / step,
+        trim_s=trim, velocity_source="measured" if m.v is not None else "differentiated",
         acceleration_source="measured" if m.vd is not None else "differentiated",
         samples_in=m.num_samples, samples_out=int(idx.size), duration_in_s=float(m.t[-1] - m.t[0]),
         duration_out_s=float(grid.t[idx[-1]] - grid.t[idx[0]]),
     )
-    return Measurement(grid.t[idx], q, tau, v, vd,
-                       m.joints, m.source, info, wrench=wrench, notes=m.notes)
+    return Measurement(grid.t[idx], q, tau, v, vd, m.joints, m.source, info, wrench=wrench,
+                       notes=m.notes)

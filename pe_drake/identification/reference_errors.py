@@ -1,18 +1,11 @@
-"""Two references every identified model must beat on held-out data (issue 36): the a-priori
-model (the model file's inertias and joint friction, the CAD) and predicting zero torque.
+"""References every identified model must beat on held-out data: the a-priori model (the model
+file's inertias and joint friction) and predicting zero torque.
 
-A fit can be worse than either: on a coupled wrist that pe_drake cannot model, ``validate``
-printed 134-152 % relative error on joint 5 (worse than predicting zero) and ``diagnose``'s
-augmented model was worse there than the CAD model, both without a word. :func:`shortfalls`
-names every channel whose error is worse than a reference's on the same samples, and by how
-much.
-
-Worse means worse beyond the sampling noise of the held-out part: the per-sample difference of
-squared errors d = e_model² − e_ref² has a mean > 0 at least :data:`SIGNIFICANCE` standard
-errors, the standard error inflated by d's integrated autocorrelation time (filtered samples are
-correlated, :mod:`~pe_drake.identification.statistics`). Without it a model equal to the CAD up
-to the estimation noise (a simulated robot whose model file is the truth) would be flagged on
-every joint by a fraction of a percent.
+:func:`shortfalls` names every channel whose error is worse than a reference's on the same
+samples, beyond the sampling noise: the per-sample difference of squared errors
+d = e_model² − e_ref² has a mean > 0 of at least :data:`SIGNIFICANCE` standard errors, inflated
+by d's integrated autocorrelation time (:mod:`~pe_drake.identification.statistics`). Without it a
+model equal to the CAD up to estimation noise would be flagged on every joint.
 """
 
 from __future__ import annotations
@@ -40,9 +33,8 @@ class Shortfall:
 
     Attributes:
         channel: the joint (or ``tau.<joint>``, ``wrench.fx``, ... as the caller names them).
-        reference: ``a_priori``, ``zero`` or ``start`` (:data:`REFERENCE_NAMES`).
-        rms: the model's RMS error [N·m, N].
-        reference_rms: the reference's on the same samples.
+        reference: a key of :data:`REFERENCE_NAMES`.
+        rms, reference_rms: the model's and the reference's RMS error [N·m, N].
         z: mean(e_model² − e_ref²) over its standard error.
         reason: why, when the caller knows ("" otherwise).
     """
@@ -75,8 +67,7 @@ def shortfalls(channels: Sequence[str], measured: np.ndarray, predicted: np.ndar
     """Every channel whose error is significantly worse than a reference's (module docstring).
 
     Args:
-        channels: names, length r.
-        measured, predicted: (S, r).
+        measured, predicted: (S, r), r = len(channels).
         references: {``a_priori`` | ``zero``: the reference's prediction, (S, r), or (S, k)
             for the first k channels only (the a-priori model predicts torques, not a wrench),
             or None (not computed)}.

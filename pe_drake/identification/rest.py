@@ -1,25 +1,16 @@
-"""Samples at rest in ``identify`` (issue 36): kept in the fit or kept out, decided by
-cross-validation.
+"""Samples at rest in ``identify``: kept in the fit or kept out, decided by cross-validation.
 
-A sliding joint's friction is a function of its velocity (the Coulomb column tanh(v/v_s)); a
-stopped one's is not: at rest the torque is gravity plus a holding friction anywhere within
-±F_c, which tanh(0) = 0 reads as none. A least-squares fit then gives that holding torque to
-the gravity parameters: on a real six-joint arm, a 1.4 s final stop in the training part left
-joint 2 at 3.42 N·m held out; cutting the stop out gave 2.00 (the arm's authors drop
-low-velocity rows before fitting).
+A sliding joint's friction is a function of its velocity (tanh(v/v_s)); a stopped one's is not:
+at rest the torque is gravity plus a holding friction anywhere within ±F_c, which tanh(0) = 0
+reads as none, so a least-squares fit gives that holding torque to the gravity parameters.
 
-A joint rests where its filtered |v| stays below ``v_rest`` for at least :func:`min_rest_s`.
-``v_rest`` is :data:`NOISE_SIGMAS` times the velocity noise the encoders leave after the filter
-(:func:`rest_velocity`), and at least :data:`REST_FLOOR`, where the Coulomb column is still
-below 0.25. Its rows (the resting joint's torque equation at those samples; the other joints'
-rows stay) are either kept or kept out of the fit; which, is decided by :data:`REST_CV_FOLDS`-fold
-cross-validation over contiguous parts of the run, on every sample of the held-out part (rests
-included): kept out only if that lowers the mean over joints of the held-out mean-square error
-(:func:`decide_rest`). A run without rests is fitted as before.
-
-The holding torque itself (what a stopped joint keeps, H·z with z the Dahl state) is a history
-term identify does not predict; ``pe-drake diagnose`` tests it (``holding_torque``,
-:mod:`pe_drake.diagnosis.holding`).
+A joint rests where its filtered |v| stays below ``v_rest`` for at least :func:`min_rest_s`;
+``v_rest`` is :data:`NOISE_SIGMAS` times the filtered velocity's encoder noise
+(:func:`rest_velocity`), and at least :data:`REST_FLOOR`. The resting joint's rows at those
+samples are kept out only if that lowers the mean held-out mean-square error over joints in
+:data:`REST_CV_FOLDS`-fold cross-validation over contiguous parts of the run (:func:`decide_rest`).
+The holding torque itself is a history term ``pe-drake diagnose`` tests
+(:mod:`pe_drake.diagnosis.holding`).
 """
 
 from __future__ import annotations
@@ -34,13 +25,11 @@ from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.multibody.drive_columns import COULOMB_VELOCITY_SCALE
 from pe_drake.identification.measurements import Measurement
 
-#: The lowest rest threshold [rad/s or m/s]: a quarter of the Coulomb column's v_s, where
-#: tanh(v/v_s) < 0.25 (the sliding model predicts almost nothing).
+#: The lowest rest threshold [rad/s or m/s], where tanh(v/v_s) < 0.25.
 REST_FLOOR = 0.25 * COULOMB_VELOCITY_SCALE
 #: The rest threshold in standard deviations of the filtered velocity's encoder noise.
 NOISE_SIGMAS = 4.0
-#: Shortest rest [s] (and at least two filter time constants, :func:`min_rest_s`): a velocity
-#: reversal crosses v = 0 in milliseconds, a stop lasts.
+#: Shortest rest [s] (:func:`min_rest_s`): a velocity reversal crosses v = 0 in milliseconds.
 MIN_REST_S = 0.2
 #: Contiguous parts of the run for the cross-validation.
 REST_CV_FOLDS = 4
@@ -49,15 +38,9 @@ REST_CHOICES = ("auto", "keep", "exclude")
 
 
 def rest_mask(v: np.ndarray, rate_hz: float, v_rest: float, min_s: float) -> np.ndarray:
-    """Where a joint rests: |v| < ``v_rest`` for at least ``min_s``.
+    """Where a joint rests, (T,) bool: |v| < ``v_rest`` [rad/s] for at least ``min_s`` [s].
 
-    Args:
-        v: one joint's velocity, (T,) [rad/s], uniformly sampled at ``rate_hz`` [Hz].
-        v_rest: the velocity below which it is still [rad/s].
-        min_s: the shortest rest [s].
-
-    Returns:
-        Boolean mask, (T,).
+    ``v``: one joint's velocity, (T,) [rad/s], uniformly sampled at ``rate_hz`` [Hz].
     """
     still = np.abs(np.asarray(v, float)) < v_rest
     edges = np.flatnonzero(np.diff(np.concatenate([[0], still.astype(np.int8), [0]])))
@@ -81,10 +64,9 @@ def min_rest_s(cutoff_hz: float | None) -> float:
 
 
 def encoder_noise(raw: Measurement) -> np.ndarray:
-    """The position noise of the recorded q per joint, (n,) [rad or m]: from its third
-    differences (Δ³ of white noise has variance 20σ²; a smooth motion adds only q⃛·dt³, 1e-5 rad
-    at 100 Hz). Quantization is taken as the white noise of its step (Δ/√12): a median would
-    read a slow joint's staircase, mostly flat between steps, as noise-free."""
+    """The position noise of the recorded q per joint, (n,) [rad or m], from its third
+    differences (Δ³ of white noise has variance 20σ²; a smooth motion adds only q⃛·dt³). The
+    mean, not a median: a median reads a slow joint's quantized staircase as noise-free."""
     d3 = np.diff(np.asarray(raw.q, float), n=3, axis=0)
     if d3.shape[0] == 0:
         return np.zeros(raw.num_joints)
@@ -119,11 +101,9 @@ class RestDecision:
     Attributes:
         handling: ``none`` (no joint rests), ``kept`` or ``excluded``.
         reason: how it was decided (cross-validation, the user's choice, a fold too short).
-        joints: the joint names, length n.
         seconds: time each joint rests [s], (n,); rests: their number per joint.
         v_rest: the threshold per joint [rad/s].
-        cv_kept, cv_excluded: cross-validated RMS per joint of both choices [N·m] (None when not
-            cross-validated).
+        cv_kept, cv_excluded: cross-validated RMS per joint of both choices [N·m], or None.
         mask: the rows kept out of the fit, (S, n), or None.
     """
 
@@ -180,8 +160,8 @@ def decide_rest(raw: Measurement, data: Measurement, choice: str, fit: FitFuncti
 
     Args:
         raw: the run as recorded (its q's noise sets the threshold).
-        data: as preprocessed for the fit (v filled in).
-        choice: ``auto`` (cross-validation), ``keep`` or ``exclude``.
+        data: as preprocessed for the fit.
+        choice: one of :data:`REST_CHOICES`.
         fit, predict: the fit of a subset of ``data``'s samples and its prediction of others.
 
     Raises:
@@ -205,8 +185,8 @@ def decide_rest(raw: Measurement, data: Measurement, choice: str, fit: FitFuncti
         return RestDecision("kept", f"not cross-validated ({err})", *base)
     ratio = float(np.mean(excluded**2 / np.maximum(kept**2, 1e-300)))
     if ratio < 1.0:
-        return RestDecision("excluded", f"cross-validation: mean-square error × {ratio:.3g}", *base, kept, excluded,
-                            mask)
+        reason = f"cross-validation: mean-square error × {ratio:.3g}"
+        return RestDecision("excluded", reason, *base, kept, excluded, mask)
     return RestDecision("kept", f"cross-validation: keeping them out would give × {ratio:.3g}", *base, kept, excluded)
 
 

@@ -1,10 +1,9 @@
 """Standard deviations of least-squares estimates from filtered, hence correlated, samples.
 
-Low-pass filtering and decimating a record to well above its cut-off leaves neighbouring
-samples correlated, so σ² (WᵀW)⁻¹ understates the variance of the estimate by about the
-integrated autocorrelation time τ_int of the residual (Sokal 1997): a 1 kHz record filtered at
-4 Hz and kept at 200 Hz has τ_int ≈ 10-20. :func:`sandwich_from_grams` inflates each
-channel's contribution by its own τ_int; the diagnosis uses the same :func:`integrated_autocorrelation`.
+Low-pass filtering and decimating a record well above its cut-off leaves neighbouring samples
+correlated, so σ² (WᵀW)⁻¹ understates the variance by about the integrated autocorrelation time
+τ_int of the residual (Sokal 1997). :func:`sandwich_from_grams` inflates each channel's
+contribution by its own τ_int.
 """
 
 from __future__ import annotations
@@ -13,15 +12,8 @@ import numpy as np
 
 
 def integrated_autocorrelation(r: np.ndarray, max_lag_fraction: float = 0.1) -> np.ndarray:
-    """τ_int = 1 + 2 Σ ρ_k per column, summed while ρ_k > 0 (initial positive sequence).
-
-    Args:
-        r: residuals, (S, n).
-        max_lag_fraction: the longest lag summed, as a fraction of S.
-
-    Returns:
-        (n,), ≥ 1: the factor by which correlated samples inflate a variance.
-    """
+    """τ_int = 1 + 2 Σ ρ_k per column of the residuals r (S, n), summed while ρ_k > 0 up to lag
+    ``max_lag_fraction`` · S: the factor (n,), ≥ 1, by which correlation inflates a variance."""
     S = r.shape[0]
     out = np.ones(r.shape[1])
     max_lag = max(1, int(max_lag_fraction * S))
@@ -42,8 +34,7 @@ def sandwich_from_grams(grams: np.ndarray, residual: np.ndarray, cov_unit: np.nd
     """Cov(x̂) = G⁻¹ (Σ_c τ_c s_c² W_cᵀ W_c) G⁻¹ of a least-squares fit, G⁻¹ = ``cov_unit``.
 
     Args:
-        grams: each channel's W_cᵀW_c of the (possibly weighted) regressor, shape (r, p, p)
-            (from the folded rows of :mod:`~pe_drake.identification.folded_rows`).
+        grams: each channel's W_cᵀW_c of the (possibly weighted) regressor, shape (r, p, p).
         residual: its residual y − W x̂, shape (S, r).
         cov_unit: (WᵀW)⁻¹, shape (p, p).
 

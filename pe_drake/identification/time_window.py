@@ -1,12 +1,9 @@
 """A part of a run, by time, taken after the whole run is filtered (``--window START,END``).
 
-Cutting the file first would give the filter two new ends, each with its edge transient (on
-the real Panda recording, a run cut at 70 % and validated alone lost 0.5 s to the trim and
-still showed 0.39 N·m on joint 2 at the cut). Filtering the whole run and keeping the samples
-of the window leaves no edge at the cut: the training and held-out parts of ``diagnose``
-(``--held-out-fraction``) are reproduced by ``identify --window T0,T1`` and ``validate
---window T0,T1`` with the spans ``diagnose`` prints (both ends: diagnose trims 2 / cut-off at
-the run's ends, and an open end takes those samples back).
+Cutting the file first would give the filter two new ends, each with its edge transient;
+filtering the whole run and keeping the window's samples leaves no edge at the cut, so
+``identify --window`` and ``validate --window`` reproduce the training and held-out parts that
+``diagnose`` prints.
 """
 
 from __future__ import annotations
@@ -57,28 +54,22 @@ class TimeWindow:
         return f"{start} to {end}"
 
     def apply(self, data: Measurement) -> Measurement:
-        """The samples of ``data`` (preprocessed or not) inside the window.
-
-        Raises:
-            DataError: fewer than 2 samples inside, naming the run's span.
-        """
+        """The samples of ``data`` (preprocessed or not) inside the window; DataError below 2."""
         t = data.t
         keep = np.ones(t.shape, bool)
         if self.start is not None:
             keep &= t >= self.start
         if self.end is not None:
             keep &= t <= self.end
-        if keep.sum() < 2:
-            raise DataError(f"--window {self} keeps {int(keep.sum())} sample(s) of a run that spans "
+        kept = int(keep.sum())
+        if kept < 2:
+            raise DataError(f"--window {self} keeps {kept} sample(s) of a run that spans "
                             f"{t[0]:.4g}-{t[-1]:.4g} s (after filtering and trimming)", file=data.source)
-        def cut(x):
-            return None if x is None else x[keep]
 
         info = data.preprocessing
         if info is not None:
-            info = dataclasses.replace(info, samples_out=int(keep.sum()),
-                                       duration_out_s=float(t[keep][-1] - t[keep][0]))
-        note = (f"--window: {int(keep.sum())} of {t.size} samples kept, {t[keep][0]:.4g}-{t[keep][-1]:.4g} s "
+            span = float(t[keep][-1] - t[keep][0])
+            info = dataclasses.replace(info, samples_out=kept, duration_out_s=span)
+        note = (f"--window: {kept} of {t.size} samples kept, {t[keep][0]:.4g}-{t[keep][-1]:.4g} s "
                 "(the whole run was filtered first: no filter edge at the cut)")
-        return data.replace(t=t[keep], q=cut(data.q), tau=cut(data.tau), v=cut(data.v), vd=cut(data.vd),
-                            wrench=cut(data.wrench), preprocessing=info, notes=data.notes + (note,))
+        return data.take(keep).replace(preprocessing=info, notes=data.notes + (note,))

@@ -1,20 +1,16 @@
-"""Rigid groups of bodies merged before the physical fit (issue 36).
+"""Rigid groups of bodies merged before the physical fit.
 
 Bodies that no excited joint separates (a link and the tool, flange, sensor and cover links
-welded to it: the same nearest joint upstream, ``Robot.joint_of_body``) move as one body, so
-only their sum is identifiable: body i's regressor columns are the carrier's times the fixed
-map L_i that moves its parameters into the carrier's frame (J_C = X_CB J_B X_CBᵀ for the
-pseudo-inertias, X_CB the weld's homogeneous transform). Fitted as separate bodies, each with
-its own pseudo-inertia constraint, the fit moved mass between them at no cost to the data: the
-~20 links welded to a UR10's wrist went to 2e-5 kg each, every one on its bound.
+welded to it: the same ``Robot.joint_of_body``) move as one body, so only their sum is
+identifiable: body i's regressor columns are the carrier's times the fixed map L_i that moves its
+parameters into the carrier's frame (J_C = X_CB J_B X_CBᵀ). Fitted as separate bodies, the fit
+moved mass between them at no cost to the data.
 
 :func:`merge_welded` builds the problem with one body per group (the carrier, the member
-heaviest in the a-priori model, holding the sum: its regressor columns, its base composition
-K_C, the a-priori sum Σ L_i φ_i as its prior, one pseudo-inertia constraint);
-:meth:`WeldedGroups.split` returns the per-body parameters: each member physically valid,
-their sum the group's, nearest the a-priori values (:func:`nearest_split`, a small SDP), or,
-when the solver finds none, the whole group on the carrier (the others massless; the dynamics
-are the same).
+heaviest a priori, holding the sum); :meth:`WeldedGroups.split` returns per-body parameters, each
+member physically valid, their sum the group's, nearest the a-priori values
+(:func:`nearest_split`, a small SDP), or, when the solver finds none, the whole group on the
+carrier (the others massless; the dynamics are the same).
 """
 
 from __future__ import annotations
@@ -42,7 +38,7 @@ def moved_parameters_map(X: np.ndarray) -> np.ndarray:
 
 
 def _bodies(count: int) -> str:
-    """'body' or 'bodies' after a count: a note reads right for a single welded link (the Z1's)."""
+    """'body' or 'bodies' after a count."""
     return "body" if count == 1 else "bodies"
 
 
@@ -51,8 +47,7 @@ class WeldedGroups:
     """The rigid groups of a robot's bodies and the merged problem's bodies.
 
     Attributes:
-        kept: the bodies of the merged problem (carriers and single bodies), indices into
-            the robot's bodies, in order.
+        kept: the merged problem's bodies (carriers, single bodies), robot body indices, in order.
         members: {carrier: [(member, L_member)]} of the groups (the carrier not listed).
     """
 
@@ -64,8 +59,7 @@ class WeldedGroups:
         return np.concatenate([np.arange(P * b, P * b + P) for b in self.kept]).astype(int)
 
     def names(self, body_names: Sequence[str]) -> list[str]:
-        """The merged problem's body names, a carrier's saying it holds its group (the fit's
-        notes then speak of the group)."""
+        """The merged problem's body names, a carrier's saying it holds its group."""
         counts = {b: len(group) for b, group in self.members.items()}
         return [f"{body_names[b]} (with its {counts[b]} welded {_bodies(counts[b])})" if b in counts
                 else body_names[b] for b in self.kept]
@@ -103,16 +97,15 @@ class WeldedGroups:
         return phi, notes
 
 
-#: The split keeps every member's pseudo-inertia ⪰ this × its a-priori mass × 1 (Drake accepts
-#: each body despite the solver's tolerance): a tenth of the fit's margin (physical_fit.PSD_MARGIN),
-#: since a group on its own boundary leaves the members' sum no more room than that.
+#: The split keeps every member's pseudo-inertia ⪰ this × its a-priori mass × 1 (so Drake accepts
+#: each body despite the solver's tolerance): a tenth of physical_fit.PSD_MARGIN, since a group on
+#: its own boundary leaves the members' sum no more room than that.
 SPLIT_MARGIN = 1e-8
 
 
 def nearest_split(phi_group: np.ndarray, priors: Sequence[np.ndarray], maps: Sequence[np.ndarray]) -> list[np.ndarray] | None:
     """Members' parameters φ_i, each physically valid, with Σ L_i φ_i = φ_group, nearest their
-    a-priori values (in units of the group's a-priori magnitudes: mass, first moments, inertias);
-    None when the SDP finds none.
+    a-priori values (in units of the group's a-priori magnitudes); None when the SDP finds none.
 
     Args:
         phi_group: the group's parameters in the carrier's frame, (10,).

@@ -1,19 +1,15 @@
 """Measured logs of every format read as one :class:`~pe_drake.identification.measurements.Measurement`.
 
-:func:`read_log` dispatches by format (config ``data.format``, ``auto`` by default):
-
-- ``rosbag``: a ROS 2 bag folder, ``.db3`` or ``.mcap`` (:mod:`.rosbag`);
-- ``rtde``: a UR RTDE CSV, recognised by its ``timestamp``/``actual_q_0`` columns (:mod:`.columns`);
-- ``columns``: any CSV through ``data.columns`` (:mod:`.columns`);
-- ``pe_drake``: pe_drake's own CSV (:func:`~pe_drake.identification.measurements.read_measurement_csv`),
-  or with ``current.<joint>`` columns instead of ``tau.<joint>``, or motor-side
-  (``q_motor.<joint>``, ``tau_motor.<joint>``: :mod:`.motor_side`, converted with ``robot.transmission``).
-
-Then ``data.joint_map``'s signs and offsets are applied.
+:func:`read_log` dispatches by format (config ``data.format``, ``auto`` by default): ``rosbag``
+(a ROS 2 bag folder, ``.db3`` or ``.mcap``), ``rtde`` (a UR RTDE CSV, recognised by its
+``timestamp``/``actual_q_0`` columns), ``columns`` (any CSV through ``data.columns``) or
+``pe_drake`` (pe_drake's own CSV, with ``current.<joint>`` columns instead of ``tau.<joint>``, or
+motor-side). Then ``data.joint_map``'s signs and offsets are applied.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -45,23 +41,17 @@ def detect_format(path: str | Path, options: DataConfig) -> str:
 
 
 def read_log(path: str | Path, robot: Robot, options: DataConfig | None = None, **changes) -> Measurement:
-    """Reads a measured log of ``robot``'s excited joints, whatever its format.
+    """Reads a measured log of ``robot``'s excited joints, whatever its format, as a raw
+    :class:`Measurement` (joints in the robot's order).
 
     Args:
-        path: the file or bag folder.
-        robot: the robot (its ``joint_names``; ``config.drive_gains`` for currents).
-        options: how to read it (:class:`~pe_drake.config.DataConfig`, the config's ``data``).
+        options: how to read it (the config's ``data``).
         **changes: fields of ``options`` to override (``topic=``, ``format=``, ``effort=``).
-
-    Returns:
-        The raw :class:`Measurement` (joints in the robot's order), with ``notes``.
 
     Raises:
         DataError: as the format's reader, naming the file, column/topic and row.
         ConfigError: an unknown format.
     """
-    import dataclasses
-
     options = dataclasses.replace(options or DataConfig(), **{k: v for k, v in changes.items() if v is not None})
     joints = tuple(robot.joint_names)
     gains = dict(getattr(getattr(robot, "config", None), "drive_gains", {}) or {})

@@ -1,12 +1,10 @@
-"""Size limits on what a bag makes pe_drake hold in memory (issue 34): a 58 kB zstd-compressed
-MCAP inflated to 1.6 GB in ``rosbags`` (which decompresses each chunk whole, ignoring the size
-the chunk declares), and one JointState of 10⁸ elements took 3.3 GB.
+"""Size limits on what a bag makes pe_drake hold in memory: ``rosbags`` decompresses each chunk
+whole, ignoring the size the chunk declares, so a small compressed MCAP can inflate to GB.
 
-:func:`check_mcap_chunks` walks the records of an ``.mcap`` file (headers only, seeking past
-the payloads) and decompresses each compressed chunk in 16 MB pieces that are counted and
-dropped, so a chunk is refused before ``rosbags`` inflates it: over
-:data:`pe_drake.limits.BAG_CHUNK`, or larger than the size it declares.
-:func:`check_message_size` bounds one serialized message (:data:`pe_drake.limits.BAG_MESSAGE`).
+:func:`check_mcap_chunks` walks the records of an ``.mcap`` file (headers only) and inflates each
+compressed chunk in 16 MB pieces that are counted and dropped, refusing a chunk over
+:data:`pe_drake.limits.BAG_CHUNK` or larger than it declares. :func:`check_message_size` bounds one
+serialized message (:data:`pe_drake.limits.BAG_MESSAGE`).
 """
 
 from __future__ import annotations
@@ -24,11 +22,7 @@ _PIECE = 16 * 2**20
 
 
 def check_message_size(raw: bytes, index: int, topic: str, file: str) -> None:
-    """Refuses a serialized message over :data:`pe_drake.limits.BAG_MESSAGE`.
-
-    Raises:
-        DataError: naming the message, its topic, its size and the limit.
-    """
+    """Refuses a serialized message over :data:`pe_drake.limits.BAG_MESSAGE`, naming it."""
     if len(raw) > limits.in_bytes(limits.BAG_MESSAGE):
         raise DataError(f"message {index} on '{topic}' has {len(raw) / 2**20:.1f} MB; a JointState of a robot "
                         f"is a few kB: over {limits.describe(limits.BAG_MESSAGE)}", file=file)
@@ -36,14 +30,9 @@ def check_message_size(raw: bytes, index: int, topic: str, file: str) -> None:
 
 def check_compressed_bag(path: str | Path) -> None:
     """Refuses a rosbag2 folder compressed per message or per file (``ros2 bag record
-    --compression-mode``) whose zstd data inflates past the limits: rosbags inflates each
-    message, or each whole storage file, without a bound. Messages over
-    :data:`pe_drake.limits.BAG_MESSAGE` and storage files over :data:`pe_drake.limits.BAG_FILE`
-    are refused, counted in pieces that are dropped.
-
-    Raises:
-        DataError: naming the file, the message or the limit.
-    """
+    --compression-mode``) whose zstd data inflates past :data:`pe_drake.limits.BAG_MESSAGE` per
+    message or :data:`pe_drake.limits.BAG_FILE` per storage file (rosbags inflates them
+    without a bound), naming the file."""
     import yaml  # PyYAML, a dependency of pydrake
 
     path = Path(path)
@@ -53,10 +42,10 @@ def check_compressed_bag(path: str | Path) -> None:
         return  # rosbags names what is wrong with it
     mode = str(info.get("compression_mode") or "").lower()
     files = [path / Path(str(name)).name for name in info.get("relative_file_paths") or []]
+    limit = limits.in_bytes(limits.BAG_FILE)
     if mode == "file":
         for part in files:
-            if part.is_file() and _inflated_file_size(part, limits.in_bytes(limits.BAG_FILE) + 1) \
-                    > limits.in_bytes(limits.BAG_FILE):
+            if part.is_file() and _inflated_file_size(part, limit + 1) > limit:
                 raise DataError(f"inflates past {limits.describe(limits.BAG_FILE)} (a decompression bomb?)",
                                 file=str(part))
     elif mode == "message":
@@ -96,12 +85,9 @@ def _check_db3_messages(part: Path) -> None:
 
 
 def check_mcap_chunks(path: str | Path) -> None:
-    """Refuses an MCAP file with a chunk that inflates over :data:`pe_drake.limits.BAG_CHUNK`
-    or over the size it declares (see the module docstring). Other files pass unread.
-
-    Raises:
-        DataError: naming the file, the chunk's offset, its compression and the limit.
-    """
+    """Refuses an MCAP file (or a folder's) with a chunk that inflates over
+    :data:`pe_drake.limits.BAG_CHUNK` or over the size it declares, naming the chunk's offset.
+    Other files pass unread."""
     path = Path(path)
     if path.is_dir():
         for part in sorted(path.glob("*.mcap")):

@@ -1,12 +1,10 @@
 """Controller logs with their own column names: UR RTDE CSV, or any CSV through a column map.
 
-A column map (config ``data.columns``) names, for each of pe_drake's quantities, the file's
-column: ``{t: time, q.<joint>: ..., v.<joint>: ..., tau.<joint>: ...}`` or
-``current.<joint>`` (motor current [A], converted with ``robot.drive_gains``). The delimiter
-is a comma, a semicolon, a tab or spaces (UR's own RTDE writer uses spaces).
-
-Fields known to be wrong for identification are refused by name (:data:`REFUSED`): their
-values have the robot's own model taken out, so no inertia can be identified from them.
+A column map (config ``data.columns``) names the file's column for each of pe_drake's
+quantities: ``{t: time, q.<joint>: ..., v.<joint>: ..., tau.<joint>: ...}`` or ``current.<joint>``
+(motor current [A], converted with ``robot.drive_gains``). The delimiter is a comma, a semicolon,
+a tab or spaces (UR's own RTDE writer). Fields with the robot's own model taken out are refused
+by name (:data:`REFUSED`): no inertia can be identified from them.
 """
 
 from __future__ import annotations
@@ -87,26 +85,20 @@ def _check_map(mapping: Mapping[str, str], joints: Sequence[str], columns: Seque
         for name, reason in REFUSED.items():
             if name in column and quantity in ("tau", "current"):
                 raise DataError(f"column '{column}' cannot be used as {key}: {reason}", file=file, column=column)
-    for quantity in ("q",):
-        missing = [j for j in joints if f"{quantity}.{j}" not in mapping]
-        if missing:
-            raise DataError(f"data.columns gives no q.<joint> column for {', '.join(missing)}", file=file)
+    missing = [j for j in joints if f"q.{j}" not in mapping]
+    if missing:
+        raise DataError(f"data.columns gives no q.<joint> column for {', '.join(missing)}",
+                        file=file)
     for j in joints:
         if (f"tau.{j}" in mapping) == (f"current.{j}" in mapping):
             raise DataError(f"data.columns must give exactly one of tau.{j} and current.{j}", file=file)
 
 
-def read_mapped_csv(
-    path: str | Path,
-    joints: Sequence[str],
-    mapping: Mapping[str, str],
-    drive_gains: Mapping[str, float] | None = None,
-) -> Measurement:
+def read_mapped_csv(path: str | Path, joints: Sequence[str], mapping: Mapping[str, str],
+                    drive_gains: Mapping[str, float] | None = None) -> Measurement:
     """Reads a delimited log through a column map (module docstring).
 
     Args:
-        path: the file.
-        joints: the robot's excited joints.
         mapping: {``t`` | ``<quantity>.<joint>``: column}; ``t`` defaults to a column named
             t, time or timestamp.
         drive_gains: {joint: k [N·m/A]} for ``current.<joint>``.
@@ -160,7 +152,7 @@ def read_mapped_csv(
 
 
 def _check_unique_columns(columns: Sequence[str], used: set[str], file: str) -> None:
-    """Refuses a header naming a used column twice (the reader took the first copy silently)."""
+    """Refuses a header naming a used column twice."""
     twice = [c for c in dict.fromkeys(columns) if c in used and columns.count(c) > 1]
     if twice:
         positions = ", ".join(f"'{c}' (columns {', '.join(str(i + 1) for i, n in enumerate(columns) if n == c)})"
@@ -181,8 +173,7 @@ def _locate_non_utf8(path, file: str) -> None:
 
 
 def _locate_non_number(path, delimiter: str | None, columns: list[str], used: list[str], file: str) -> None:
-    """Raises naming the row, line and column of the first field numpy could not read (its own
-    message counts rows and columns from 0 among the columns read)."""
+    """Raises naming the row, line and column of the first field numpy could not read."""
     with Path(path).open(encoding="utf-8-sig") as f:
         lines = [(n + 1, line) for n, line in enumerate(f) if line.strip()][1:]
     found = first_non_number(((n, _split(line, delimiter)) for n, line in lines),

@@ -11,27 +11,14 @@ from pe_drake.exceptions import DataError
 
 def torque_from_current(current: np.ndarray, joints: Sequence[str], gains: Mapping[str, float], source: str,
                         what: str = "current.<joint> columns") -> np.ndarray:
-    """τ = k_j · i_j per joint.
-
-    Args:
-        current: motor currents, shape (T, n) [A].
-        joints: joint names, length n.
-        gains: {joint: k} [N·m/A] (config ``robot.drive_gains``).
-        source: the data file, for messages.
-        what: where the currents came from, for messages.
-
-    Returns:
-        Joint torques, shape (T, n) [N·m].
+    """Joint torques τ = k_j · i_j [N·m] of motor currents (T, n) [A], gains {joint: k} [N·m/A].
 
     Raises:
-        DataError: a joint without a gain (the missing joints are listed). Identifying
-            unknown gains needs a known payload and is not done here.
+        DataError: a joint without a gain (the missing joints are listed).
     """
     missing = [j for j in joints if j not in gains]
     if missing:
-        raise DataError(
-            f"the data holds motor currents ({what}) but robot.drive_gains has no gain for "
-            f"{', '.join(missing)}; give robot.drive_gains: {{joint: k [N·m/A]}} (τ = k·i) in the config",
-            file=source, column=f"current.{missing[0]}",
-        )
+        raise DataError(f"the data holds motor currents ({what}) but robot.drive_gains has no gain "
+                        f"for {', '.join(missing)}; give robot.drive_gains: {{joint: k [N·m/A]}} "
+                        "(τ = k·i) in the config", file=source, column=f"current.{missing[0]}")
     return np.asarray(current, float) * np.array([float(gains[j]) for j in joints])

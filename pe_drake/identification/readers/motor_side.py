@@ -1,12 +1,10 @@
-"""Motor-side logs: encoder angles and motor torques (or currents) per motor, converted to the
-joint side with the robot's transmission (``robot.transmission``,
-:mod:`pe_drake.multibody.transmission`): q = R⁻¹ θ_m, τ = Rᵀ τ_m.
+"""Motor-side logs converted to the joint side with ``robot.transmission``: q = R⁻¹ θ_m,
+τ = Rᵀ τ_m.
 
 Columns, motors named by their joint: ``q_motor.<joint>`` [rad of the motor], optional
 ``v_motor.<joint>`` and ``vdot_motor.<joint>``, and ``tau_motor.<joint>`` [N·m of the motor] or
-``current.<joint>`` [A] with ``robot.drive_gains`` per motor (τ_m = k·i). A file is joint-side or
-motor-side, never both: ``q.``, ``v.``, ``vdot.`` or ``tau.`` columns beside motor ones are
-refused (which side a torque was measured on decides what friction it holds).
+``current.<joint>`` [A] with ``robot.drive_gains``. A file is joint-side or motor-side, never
+both: which side a torque was measured on decides what friction it holds.
 """
 
 from __future__ import annotations
@@ -30,7 +28,7 @@ def is_motor_side(columns: Sequence[str]) -> bool:
 
 def motor_column_map(columns: Sequence[str], joints: Sequence[str], file: str) -> dict[str, str]:
     """{quantity.joint: column} reading a motor-side log's motor quantities under the joint-side
-    names (module docstring).
+    names.
 
     Raises:
         DataError: joint-side columns beside motor ones, a joint without ``q_motor`` or without
@@ -57,13 +55,9 @@ def motor_column_map(columns: Sequence[str], joints: Sequence[str], file: str) -
 
 def read_motor_side_csv(path: str | Path, joints: Sequence[str], columns: Sequence[str],
                         drive_gains: Mapping[str, float] | None, transmission) -> Measurement:
-    """A motor-side CSV as a joint-side :class:`Measurement` (module docstring).
-
-    Args:
-        transmission: the robot's :class:`~pe_drake.multibody.transmission.Transmission`.
-    """
-    file = str(path)
-    m = read_mapped_csv(path, joints, motor_column_map(columns, joints, file), drive_gains)
+    """A motor-side CSV as a joint-side :class:`Measurement`, converted with the robot's
+    :class:`~pe_drake.multibody.transmission.Transmission`."""
+    m = read_mapped_csv(path, joints, motor_column_map(columns, joints, str(path)), drive_gains)
     T = transmission
 
     def joint_side(x):
@@ -71,5 +65,5 @@ def read_motor_side_csv(path: str | Path, joints: Sequence[str], columns: Sequen
 
     note = ("motor-side log converted to the joint side with robot.transmission (q = R⁻¹ θ_m, τ = Rᵀ τ_m"
             + (", coupled motors included" if T.coupled else "") + ")")
-    return m.replace(q=joint_side(m.q), v=joint_side(m.v), vd=joint_side(m.vd), tau=T.joint_torques(m.tau),
-                     notes=m.notes + (note,))
+    return m.replace(q=joint_side(m.q), v=joint_side(m.v), vd=joint_side(m.vd),
+                     tau=T.joint_torques(m.tau), notes=m.notes + (note,))

@@ -51,8 +51,7 @@ def _pick_topic(connections, topic: str, file: str) -> list:
 
 
 def _check_unique_names(names: list[str], mine: list[tuple[int, int]], index: int, topic: str, file: str) -> None:
-    """Refuses a message naming an excited joint twice: which copy is the joint's is unknown
-    (the second silently won, and a duplicate could stand in for a missing joint)."""
+    """Refuses a message naming an excited joint twice: which copy is the joint's is unknown."""
     if len({c for _, c in mine}) < len(mine):
         twice = sorted({names[i] for i, _ in mine if sum(names[k] == names[i] for k, _ in mine) > 1})
         raise DataError(f"message {index} on '{topic}' names joint(s) {', '.join(repr(n) for n in twice)} more than "
@@ -91,21 +90,14 @@ def _collect(reader, connections, joints: Sequence[str], joint_map: JointMapConf
     return rows, seen, partial, other
 
 
-def read_joint_state_bag(
-    path: str | Path,
-    joints: Sequence[str],
-    *,
-    topic: str = "",
-    effort: str = "torque",
-    joint_map: JointMapConfig | None = None,
-    drive_gains: Mapping[str, float] | None = None,
-) -> Measurement:
+def read_joint_state_bag(path: str | Path, joints: Sequence[str], *, topic: str = "",
+                         effort: str = "torque", joint_map: JointMapConfig | None = None,
+                         drive_gains: Mapping[str, float] | None = None) -> Measurement:
     """Reads the JointState messages of a bag (module docstring) as a raw :class:`Measurement`.
 
     Args:
         path: a bag folder (``metadata.yaml``; split bags are read in order) or its ``.db3`` /
             ``.mcap`` file.
-        joints: the robot's excited joints.
         topic: the JointState topic; empty: the only one.
         effort: ``torque`` [N·m] or ``current`` [A].
         joint_map: logged names → URDF names (signs and offsets are applied by the caller).
@@ -146,8 +138,7 @@ def read_joint_state_bag(
 
 
 def _check_finite(field: str, values: np.ndarray | None, joints, stamps: np.ndarray, file: str) -> None:
-    """Refuses a NaN or infinite value, naming the message's stamp and the joint (a NaN effort
-    was reported as a torque-unit problem further on)."""
+    """Refuses a NaN or infinite value, naming the message's stamp and the joint."""
     if values is None or np.isfinite(values).all():
         return
     row, col = np.argwhere(~np.isfinite(values))[0]
