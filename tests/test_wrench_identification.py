@@ -13,12 +13,8 @@ from pe_drake.identification.intake import prepare_measurement
 from pe_drake.identification.prediction import predict, predict_wrench
 from pe_drake.identification.measurements import measurement_to_csv_text, read_measurement_csv
 from pe_drake.simulation.simulation import simulate
-<<<<<<< HEAD
 from pe_drake.simulation.truth import NoiseTruth, Truth, make_truth
-=======
-from pe_drake.simulation.truth import Truth
 from tests.conftest import ground_wrench
->>>>>>> slim-identification
 
 DATA = Path(__file__).parent / "data"
 
