@@ -1,24 +1,14 @@
-"""The conventional baseline: random feasible motions and a greedy selection (reference [16]).
+"""The conventional baseline (reference [16], section IV-B, Table II): random feasible motions
+and a greedy selection, on the same robot, Fourier series, samples and constraints.
 
-Before optimization-based methods, exciting motions for humanoids were chosen from motions
-generated in advance (Jovic et al., IROS 2015, reference [16] of the paper): draw many random
-trajectories that satisfy the physical conditions, then select the best set of a given size.
-The paper compares its optimized motions with this approach (section IV-B, Table II); this
-module reproduces it on the same robot, Fourier series (N, ω), cost samples and constraints:
+1. Rejection sampling (:func:`generate_candidates`): random coefficients drawn and scaled into
+   the joint limits as the optimizer's initial point (:meth:`ExcitationProblem.initial_guess`);
+   a draw with a negative margin of any sampled constraint at the K samples is rejected.
+2. Greedy selection (:func:`greedy_select`): the lowest cond alone first, then repeatedly the
+   candidate that minimizes cond of the concatenated C (Eq. 41).
 
-1. Rejection sampling (:func:`generate_candidates`): draw random Fourier coefficients and
-   scale them into the joint limits at the K constraint samples exactly as the optimizer's
-   initial point (:meth:`ExcitationProblem.initial_guess`, coefficients ~ N(0, (amplitude/k)²)
-   around the nominal posture, scaled to use at most 90 % of each limit), then reject the
-   draw if any sampled constraint (balance Eq. 52, collision Eq. 53, ...) has a negative
-   margin at the K samples.
-2. Greedy selection (:func:`greedy_select`): the candidate with the lowest cond alone first,
-   then repeatedly the one that minimizes cond of the concatenated C (Eq. 41), up to the
-   motion count.
-
-cond of a concatenation only needs each block's R factor: for C = [C_1; C_2],
-CᵀC = R_1ᵀR_1 + R_2ᵀR_2, so C and [R_1; R_2] have the same singular values. Candidates keep
-their b×b R instead of their (T·n)×b regressor (13 MB instead of 80 MB for 200 G1 motions).
+For C = [C_1; C_2], CᵀC = R_1ᵀR_1 + R_2ᵀR_2, so candidates keep their b×b R factor instead of
+their (T·n)×b regressor: the concatenation has the same singular values.
 """
 
 from __future__ import annotations
@@ -27,7 +17,6 @@ import dataclasses
 import math
 import time
 from collections.abc import Callable, Sequence
-from typing import Any
 
 import numpy as np
 import scipy.linalg
@@ -35,6 +24,7 @@ import scipy.linalg
 from pe_drake.config import Config, ExcitationConfig, validate_config
 from pe_drake.exceptions import ConfigError, InfeasibleError
 from pe_drake.excitation.constraints import constraints_from_config
+from pe_drake.excitation.constraints.base import state_margins
 from pe_drake.excitation.parallel import Executor, ExecutorOptions, TaskFinished, open_executor
 from pe_drake.multibody.robot import Robot
 
@@ -80,11 +70,6 @@ class CandidateSet:
     wall_time: float
     workers: int
 
-    @property
-    def acceptance(self) -> float:
-        """Accepted fraction of the draws."""
-        return len(self.candidates) / self.draws if self.draws else 0.0
-
 
 @dataclasses.dataclass(frozen=True)
 class GreedySelection:
@@ -103,15 +88,8 @@ class GreedySelection:
 
 @dataclasses.dataclass
 class BaselineResult:
-    """Outcome of :func:`random_baseline`.
-
-    Attributes:
-        candidate_set: the accepted random motions.
-        selection: the greedy selection over them.
-        selected: the selected :class:`RandomMotion` objects, in selection order.
-        generation_time: time to draw and check the candidates [s].
-        selection_time: time of the greedy selection [s].
-    """
+    """Outcome of :func:`random_baseline`: the candidates, the greedy selection over them and
+    the selected motions in selection order; ``generation_time``, ``selection_time`` [s]."""
 
     candidate_set: CandidateSet
     selection: GreedySelection
@@ -128,11 +106,7 @@ class BaselineResult:
 class DrawEvent:
     """Progress of :func:`generate_candidates` (after each chunk of draws).
 
-    Attributes:
-        drawn: draws made so far.
-        accepted: of which accepted.
-        wanted: accepted candidates asked for.
-        elapsed: [s].
+    ``wanted``: accepted candidates asked for; ``elapsed`` [s].
     """
 
     drawn: int
@@ -142,13 +116,10 @@ class DrawEvent:
 
     def __str__(self) -> str:
         rate = self.accepted / self.drawn if self.drawn else 0.0
-        return (
-            f"  random candidates: {self.accepted} accepted of {self.drawn} drawn ({100 * rate:.0f} %, "
-            f"{self.wanted} wanted)  {self.elapsed:6.1f} s"
-        )
+        return (f"  random candidates: {self.accepted} accepted of {self.drawn} drawn "
+                f"({100 * rate:.0f} %, {self.wanted} wanted)  {self.elapsed:6.1f} s")
 
 
-# ---- greedy selection -----------------------------------------------------------------------------
 def _cond(s: np.ndarray) -> float:
     return float(s[0] / s[-1]) if s[-1] > 0 else math.inf
 
@@ -161,12 +132,6 @@ def _r_factor(block: np.ndarray) -> np.ndarray:
     return scipy.linalg.qr(block, mode="r", check_finite=False)[0][: block.shape[1]]
 
 
-def stacked_cond(blocks: Sequence[np.ndarray]) -> float:
-    """cond of the vertical concatenation of ``blocks`` (each (m_i, b))."""
-    s = np.linalg.svd(np.vstack([_r_factor(b) for b in blocks]), compute_uv=False)
-    return _cond(s)
-
-
 def greedy_select(blocks: Sequence[np.ndarray], motions: int, C0: np.ndarray | None = None) -> GreedySelection:
     """Greedy choice of ``motions`` blocks minimizing cond of their concatenation.
 
@@ -177,9 +142,6 @@ def greedy_select(blocks: Sequence[np.ndarray], motions: int, C0: np.ndarray | N
         blocks: candidate regressors (or their R factors), each (m_i, b).
         motions: how many to select (at most ``len(blocks)``).
         C0: prior data, shape (m0, b), or None.
-
-    Returns:
-        The :class:`GreedySelection`.
 
     Raises:
         ConfigError: fewer blocks than motions, a motion count below 1, or column counts
@@ -213,45 +175,21 @@ def greedy_select(blocks: Sequence[np.ndarray], motions: int, C0: np.ndarray | N
     return GreedySelection(chosen, [alone[k] for k in chosen], totals)
 
 
-# ---- rejection sampling ---------------------------------------------------------------------------
-def sample_margins(problem, alpha: np.ndarray, constraints: Sequence[Any] = ()) -> dict[str, float]:
-    """Minimum margin of the joint limits and of each constraint at the K constraint samples.
-
-    Returns:
-        {"position", "velocity", "acceleration", <constraint name>: margin}; < 0 is a violation.
-    """
-    q, v, vd = problem.constraint_basis.evaluate_alpha(np.asarray(alpha, float), problem.n)
-    out = _joint_margins(problem.robot.limits, q, v, vd)
-    for c in constraints:
-        out[c.name] = float(np.min(c.margins(q, v, vd)))
-    return out
-
-
-def _joint_margins(lim, q: np.ndarray, v: np.ndarray, vd: np.ndarray) -> dict[str, float]:
-    return {
-        "position": float(np.min(np.minimum(q - lim.q_lower, lim.q_upper - q))),
-        "velocity": float(np.min(lim.v_max - np.abs(v))),
-        "acceleration": float(np.min(lim.vd_max - np.abs(vd))),
-    }
-
-
 def _draw(
     problem, constraints, seed: int, amplitude: float
 ) -> tuple[str, RandomMotion | None, np.ndarray | None]:
     """One draw: ("", candidate, R) if accepted, else (reason, None, None)."""
     alpha = problem.initial_guess(seed, amplitude)
     q, v, vd = problem.constraint_basis.evaluate_alpha(alpha, problem.n)
-    margins = _joint_margins(problem.robot.limits, q, v, vd)
+    margins = state_margins(problem.robot.limits, (), q, v, vd)
     if min(margins.values()) < 0:
         return "joint limits", None, None
     for c in constraints:  # in order: a violated one stops the checks (cheap ones first)
         margins[c.name] = float(np.min(c.margins(q, v, vd)))
         if margins[c.name] < 0:
             return c.name, None, None
-    block = problem.regressor_block(alpha)
-    R = _r_factor(block)
-    cond = _cond(np.linalg.svd(R, compute_uv=False))
-    return "", RandomMotion(int(seed), alpha, cond, margins), R
+    R = _r_factor(problem.regressor_block(alpha))
+    return "", RandomMotion(int(seed), alpha, _cond(np.linalg.svd(R, compute_uv=False)), margins), R
 
 
 @dataclasses.dataclass
@@ -335,7 +273,6 @@ def generate_candidates(
         constraints_factory: ``f(robot, config) -> [SampledConstraint, ...]`` (default
             :func:`pe_drake.excitation.constraints.constraints_from_config`); ignored with an
             open executor.
-        seed: seed of the first draw.
         amplitude: scale of the random coefficients [rad] (default ``config.amplitude``).
         max_draws: give up after this many draws (default 50 × count).
         workers: chunks at once (1: in this process with the "local" executor).
@@ -343,9 +280,6 @@ def generate_candidates(
         address: Ray cluster address (``executor="ray"``).
         progress: callback receiving a :class:`DrawEvent` after each chunk of draws.
         chunk_size: draws per task sent to a worker.
-
-    Returns:
-        The :class:`CandidateSet`.
 
     Raises:
         ConfigError: a count, amplitude, max_draws or chunk size that is not positive.
@@ -424,15 +358,11 @@ def random_baseline(
     *,
     progress: Callable[[DrawEvent], None] | None = None,
 ) -> BaselineResult:
-    """Random feasible candidates (:func:`generate_candidates`), then the greedy selection of
-    ``options.motions`` of them.
+    """Random feasible candidates (:func:`generate_candidates`), then the greedy selection.
 
     Args:
         robot, config, progress: see :func:`generate_candidates`.
         options: the draws and the selection (default :class:`BaselineOptions`).
-
-    Returns:
-        The :class:`BaselineResult`.
     """
     o = options or BaselineOptions()
     motions, candidates = o.motions, o.candidates
@@ -446,11 +376,5 @@ def random_baseline(
     )
     begin = time.perf_counter()
     selection = greedy_select(list(cset.R), motions, o.C0)
-    selection_time = time.perf_counter() - begin
-    return BaselineResult(
-        candidate_set=cset,
-        selection=selection,
-        selected=[cset.candidates[k] for k in selection.indices],
-        generation_time=cset.wall_time,
-        selection_time=selection_time,
-    )
+    return BaselineResult(cset, selection, [cset.candidates[k] for k in selection.indices],
+                          cset.wall_time, time.perf_counter() - begin)
