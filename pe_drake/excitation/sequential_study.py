@@ -81,21 +81,13 @@ class StudyOptions:
             )
 
 
-# IPOPT ≤ 150 iterations per start keeps a motion within about 2 minutes on 2 cores; the
-# config's 300 doubled the time for a 4 % lower cond(C) (README, "Reproducing the paper on G1").
-# Larger random amplitudes give better baseline candidates but are rejected more often (balance,
-# collision): 0.1 rad accepts 1 draw in 3.4, 0.15 rad 1 in 69, 0.2 rad 1 in 3000 (measured).
-FULL = {
-    "starts": 2,
-    "workers": 2,
-    "candidates": 100,
-    "baseline_amplitudes": (0.1, 0.125, 0.15),
-    "max_iterations": 150,
-}
+# IPOPT ≤ 150 iterations keeps a motion within about 2 minutes on 2 cores (README, "Reproducing
+# the paper on G1"); larger baseline amplitudes are rejected far more often (balance, collision).
+FULL = {"starts": 2, "workers": 2, "candidates": 100, "baseline_amplitudes": (0.1, 0.125, 0.15),
+        "max_iterations": 150}
 QUICK = {"starts": 1, "workers": 1, "candidates": 8, "baseline_amplitudes": (0.05, 0.1), "max_iterations": 15}
 
 
-# ---- the run ---------------------------------------------------------------------------------------
 def _running_sigmas(blocks: Sequence[np.ndarray]) -> tuple[list[float], list[float]]:
     """σ_min and σ_max of [B_1; ...; B_i] for i = 1, 2, ...
 
@@ -149,7 +141,6 @@ def run_sequential_study(settings: StudyOptions, *, say: Callable[[str], Any] | 
             posture violates a constraint.
         WorkerError: a start or a chunk of draws failed in a worker, or its worker died.
     """
-
     say = StudyPrinter(say)
     begin = time.perf_counter()
     config = resolve_robot_config(settings.robot, settings.config)
@@ -157,16 +148,12 @@ def run_sequential_study(settings: StudyOptions, *, say: Callable[[str], Any] | 
     if settings.criterion:
         excitation = dataclasses.replace(excitation, criterion=settings.criterion)
     solver = dataclasses.replace(
-        config.solver,
-        verbose=False,
-        max_iterations=settings.max_iterations or config.solver.max_iterations,
-        max_time=settings.max_time or config.solver.max_time,
-    )
+        config.solver, verbose=False, max_time=settings.max_time or config.solver.max_time,
+        max_iterations=settings.max_iterations or config.solver.max_iterations)
     robot = Robot(settings.robot, config.robot)
     workers = settings.workers
-    executor = open_executor(
-        robot, settings.executor, workers, address=settings.ray_address, constraints_factory=constraints_from_config
-    )
+    executor = open_executor(robot, settings.executor, workers, address=settings.ray_address,
+                             constraints_factory=constraints_from_config)
     base = executor.base
     period = 2 * math.pi / excitation.omega
     say(
@@ -205,29 +192,17 @@ def run_sequential_study(settings: StudyOptions, *, say: Callable[[str], Any] | 
 
 def _baseline(settings: StudyOptions, robot: Robot, excitation, executor, say):
     """Table II: random motions under the same constraints, greedy selection ([16])."""
-
-    say(
-        f"baseline: {settings.candidates} feasible random motions at each amplitude "
-        + ", ".join(f"{a:g}" for a in settings.baseline_amplitudes)
-        + " rad"
-    )
+    say(f"baseline: {settings.candidates} feasible random motions at each amplitude "
+        + ", ".join(f"{a:g}" for a in settings.baseline_amplitudes) + " rad")
     sets = []  # (amplitude, CandidateSet)
     for k, amplitude in enumerate(settings.baseline_amplitudes):
-        cset = generate_candidates(
-            robot,
-            excitation,
-            settings.candidates,
-            seed=BASELINE_SEED + k * BASELINE_SEED_BLOCK + settings.seed,
-            amplitude=amplitude,
-            max_draws=400 * settings.candidates,
-            executor=executor,
-            progress=say.draws,
-        )
+        cset = generate_candidates(robot, excitation, settings.candidates,
+                                   seed=BASELINE_SEED + k * BASELINE_SEED_BLOCK + settings.seed,
+                                   amplitude=amplitude, max_draws=400 * settings.candidates,
+                                   executor=executor, progress=say.draws)
         conds = np.array([c.cond for c in cset.candidates])
-        say(
-            f"  amplitude {amplitude:g} rad: {len(conds)} accepted of {cset.draws} draws, "
-            f"cond min {conds.min():.4g}, median {np.median(conds):.4g}, {cset.wall_time:.1f} s"
-        )
+        say(f"  amplitude {amplitude:g} rad: {len(conds)} accepted of {cset.draws} draws, "
+            f"cond min {conds.min():.4g}, median {np.median(conds):.4g}, {cset.wall_time:.1f} s")
         sets.append((amplitude, cset))
     candidates = [(a, c) for a, cset in sets for c in cset.candidates]
     selection = greedy_select([r for _, cset in sets for r in cset.R], settings.motions)
@@ -248,27 +223,18 @@ def _tables(settings, excitation, solver, robot: Robot, base, sequence, selectio
         "joints": list(robot.joint_names),
         "quick": settings.quick,
         "setting": {
-            "harmonics": excitation.harmonics,
-            "omega": excitation.omega,
-            "period_s": period,
+            "harmonics": excitation.harmonics, "omega": excitation.omega, "period_s": period,
             "cost_samples": excitation.cost_samples,
             "cost_sample_spacing_s": period / excitation.cost_samples,
             "constraint_samples": excitation.constraint_samples,
             "constraint_sample_spacing_s": period / excitation.constraint_samples,
             "balance_radius_m": excitation.balance_radius,
             "collision_margin_m": excitation.collision_margin,
-            "constraints": _constraints_text(excitation),
-            "criterion": excitation.criterion,
-            "base_parameters": base.count,
-            "variables": (2 * excitation.harmonics + 1) * robot.n,
-            "solver": solver.name,
-            "max_iterations": solver.max_iterations,
-            "max_time_s": solver.max_time,
-            "motions": settings.motions,
-            "starts": settings.starts,
-            "workers": sequence.workers,
-            "executor": settings.executor,
-            "seed": settings.seed,
+            "constraints": _constraints_text(excitation), "criterion": excitation.criterion,
+            "base_parameters": base.count, "variables": (2 * excitation.harmonics + 1) * robot.n,
+            "solver": solver.name, "max_iterations": solver.max_iterations,
+            "max_time_s": solver.max_time, "motions": settings.motions, "starts": settings.starts,
+            "workers": sequence.workers, "executor": settings.executor, "seed": settings.seed,
         },
         "table1": {
             "motion": [m.index for m in sequence.motions],
@@ -339,23 +305,15 @@ class SequentialStudy:
             if not m.success:
                 continue
             path = out / f"motion_{m.index}" / "trajectory.json"
-            save_trajectory(
-                path, self.robot, m.result.trajectory, cond=m.cond_total, cond_motion=m.cond_motion, motion=m.index
-            )
+            save_trajectory(path, self.robot, m.result.trajectory, cond=m.cond_total,
+                            cond_motion=m.cond_motion, motion=m.index)
             files.append(str(path.relative_to(out)))
         for i, k in enumerate(self.selection.indices, start=1):
             amplitude, cand = self.candidates[k]
             path = out / f"baseline_{i}" / "trajectory.json"
-            save_trajectory(
-                path,
-                self.robot,
-                self.problem.trajectory(cand.alpha),
-                cond=self.selection.cond_total[i - 1],
-                cond_motion=cand.cond,
-                motion=i,
-                baseline_seed=cand.seed,
-                baseline_amplitude=amplitude,
-            )
+            save_trajectory(path, self.robot, self.problem.trajectory(cand.alpha),
+                            cond=self.selection.cond_total[i - 1], cond_motion=cand.cond, motion=i,
+                            baseline_seed=cand.seed, baseline_amplitude=amplitude)
             files.append(str(path.relative_to(out)))
         self.tables["files"] = files
         atomic_write_text(out / "tables.json", json.dumps(self.tables, indent=2) + "\n")
@@ -363,7 +321,6 @@ class SequentialStudy:
         return files
 
 
-# ---- formatting ------------------------------------------------------------------------------------
 def _cond_rows(table: dict, paper: dict) -> list[str]:
     """A table's rows of cond(C^(i)) and cond(C), ours against the paper's, and σ_min(C)."""
     return [_md_row("cond(C^(i)), G1", table["cond_motion"]), _md_row("cond(C^(i)), paper HRP-4", paper["cond_motion"]),
@@ -422,11 +379,9 @@ def format_markdown(t: dict) -> str:
     ]
     loads = t["timing"].get("load_average_1min_after_motion")
     if loads:
-        lines.append(
-            "1-minute load average after each motion: "
-            + ", ".join(f"{x:.2f}" for x in loads)
-            + f" on {t['timing'].get('cpu_count')} cores (other jobs slow the solves down)."
-        )
+        lines.append("1-minute load average after each motion: "
+                     + ", ".join(f"{x:.2f}" for x in loads) + f" on {t['timing'].get('cpu_count')} "
+                     "cores (other jobs slow the solves down).")
     return "\n".join(lines + [""])
 
 
@@ -455,26 +410,19 @@ def format_console(t: dict) -> str:
         f"first motion, baseline / optimized: {r['baseline']:.4g} / {r['optimized']:.4g} = {r['ratio']:.2f}x "
         f"(target >= {r['target']:g}x: {'met' if r['ratio'] >= r['target'] else 'MISSED'}; "
         f"paper {r['paper']:.2f}x)",
-        "wall time per motion: "
-        + ", ".join(f"{x:.1f} s" for x in t1["wall_time_s"])
+        "wall time per motion: " + ", ".join(f"{x:.1f} s" for x in t1["wall_time_s"])
         + f" (target <= {TIME_TARGET:.0f} s: "
-        + ("met" if max(t1["wall_time_s"]) <= TIME_TARGET else "MISSED")
-        + ")",
+        + ("met" if max(t1["wall_time_s"]) <= TIME_TARGET else "MISSED") + ")",
     ]
     totals = t1["cond_total"]
     if len(totals) > 1:
         falls = all(b < a for a, b in zip(totals, totals[1:]))
-        out.append(
-            "cond(C) after each motion: "
-            + " -> ".join(f"{x:.4g}" for x in totals)
-            + f" (target: falls with each motion: {'met' if falls else 'MISSED'})"
-        )
+        out.append("cond(C) after each motion: " + " -> ".join(f"{x:.4g}" for x in totals)
+                   + f" (target: falls with each motion: {'met' if falls else 'MISSED'})")
     if not all(t1["success"]):
-        out.append(
-            "WARNING: motions "
-            + ", ".join(str(i) for i, ok in zip(t1["motion"], t1["success"]) if not ok)
-            + " violate a constraint (no trajectory.json written for them)"
-        )
+        out.append("WARNING: motions "
+                   + ", ".join(str(i) for i, ok in zip(t1["motion"], t1["success"]) if not ok)
+                   + " violate a constraint (no trajectory.json written for them)")
     return "\n".join(out)
 
 
