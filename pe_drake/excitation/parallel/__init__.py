@@ -100,22 +100,20 @@ def open_executor(
     """An executor whose workers each hold a copy of ``robot``.
 
     Args:
-        robot: the :class:`~pe_drake.multibody.robot.Robot`; workers rebuild it from its name
-            and config (construction hooks of this instance are not reproduced).
+        robot: workers rebuild it from its name and config (hooks of this instance are lost).
         executor: "local" (process pool on this machine) or "ray".
         workers: tasks at once (default: the cores available, or the Ray cluster's CPUs),
             capped at ``tasks``. "local" with one worker runs in this process.
         tasks: the most tasks one :meth:`Executor.map` will get (caps the default workers).
-        address: the Ray cluster ("ray" only; "" : ``ray.init()``'s default).
+        address: the Ray cluster ("ray" only).
         base: the base parameters every task uses (default: computed here once, for the
             rows of ``measurement``).
         measurement: the rows of C (``excitation.measurement``) the default base is for.
         constraints_factory: ``f(robot, excitation_config) -> [SampledConstraint, ...]``;
             a module-level function (it is pickled by name).
         start_method: for "local"; see :func:`default_start_method`.
-        hung_after_s: a running task that sends no progress for this long [s] is declared
-            hung and its worker stopped (``parallel.hung_after_s``; 0: never). Not checked
-            when the tasks run in this process (one local worker).
+        hung_after_s: see :class:`ExecutorOptions`; not checked when the tasks run in this
+            process (one local worker).
 
     Raises:
         ConfigError: an unknown executor, a bad worker count or ``hung_after_s``, more Ray

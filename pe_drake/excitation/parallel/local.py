@@ -1,15 +1,11 @@
-"""The local executor: the standard library's process pool, one robot per worker process.
+"""The local executor: ``concurrent.futures.ProcessPoolExecutor``, one robot per worker process.
 
-``concurrent.futures.ProcessPoolExecutor`` with an initializer that builds the worker's robot
-once. What the standard pool does not do is added here: at most ``workers`` tasks are handed
-out at a time, so the tasks in flight are exactly the ones running, and a worker that dies
-(``BrokenProcessPool``) is reported with the task(s) it was running; on an error or Ctrl-C the
-workers are terminated, not left to finish their tasks.
+Added to the standard pool: at most ``workers`` tasks are handed out at a time (the tasks in
+flight are the ones running), a worker that dies is reported with its task, and on an error or
+Ctrl-C the workers are terminated, not left to finish.
 
-Start method: "forkserver" on Linux by default. Drake starts threads, and forking a process
-that has threads can deadlock the child; the fork server is a clean, single-threaded process
-that imports pe_drake once, so a worker starts about as fast as with "fork" and has no
-inherited threads. "spawn" (the default elsewhere) re-imports everything per worker.
+Start method: "forkserver" by default. Drake starts threads, and forking a process with threads
+can deadlock the child; the fork server is single-threaded and imports pe_drake once.
 """
 
 from __future__ import annotations
@@ -84,11 +80,7 @@ class LocalExecutor(RemoteExecutor):
     """Worker processes on this machine (started at the first :meth:`map`, kept until close).
 
     Args:
-        spec: what each worker builds (:class:`RobotSpec`).
-        local: the parent's :class:`WorkerState`.
-        workers: processes.
         start_method: "forkserver", "spawn" or "fork" (default :func:`default_start_method`).
-        hung_after_s: see :class:`~pe_drake.excitation.parallel.base.Executor`.
 
     Raises:
         ConfigError: an unknown start method, a bad ``hung_after_s``.
@@ -125,7 +117,6 @@ class LocalExecutor(RemoteExecutor):
             )
         return self._pool
 
-
     def run(self, pool, fn, payloads, say, labels, keep_lost) -> list:
         return PoolRun(self, fn, payloads, say, labels, keep_lost).run()
 
@@ -153,12 +144,9 @@ class LocalExecutor(RemoteExecutor):
         """After the pool broke: waits until its manager thread has stopped and reaped every
         worker, so that their exit codes are read by that one thread alone.
 
-        Two threads that poll the exit status of one "forkserver" worker at the same time race
-        for the single status the fork server writes, and the loser records 255 (CPython's
-        ``popen_forkserver.Popen.poll``: EOFError → 255; 184 of 200 tries here when two threads
-        join a SIGTERMed worker). Our :meth:`terminate` joining the workers while the broken
-        pool's manager thread joins them too made a worker stopped with SIGTERM look as if it
-        had died on its own, 1 run in 4, and its task was lost instead of run again.
+        Two threads polling one "forkserver" worker race for the single status the fork server
+        writes, and the loser records 255: a worker stopped with SIGTERM would look as if it had
+        died on its own, and its task would be lost instead of run again.
         """
         pool = self._pool
         manager = getattr(pool, "_executor_manager_thread", None)
@@ -205,9 +193,8 @@ class LocalExecutor(RemoteExecutor):
 def _reap(procs: list, timeout: float) -> None:
     """Waits up to ``timeout`` [s] for the idle workers to leave, then kills the rest.
 
-    An idle worker that was stopped (SIGSTOP, a debugger, a frozen container) never reads the
-    pool's shutdown message: ``shutdown(wait=True)`` then waited forever after every start
-    had finished (over 800 s, issue 34). SIGKILL ends a stopped process too.
+    A stopped idle worker (SIGSTOP, a debugger) never reads the pool's shutdown message
+    (issue 34); SIGKILL ends a stopped process too.
     """
     deadline = time.monotonic() + timeout
     for p in procs:
