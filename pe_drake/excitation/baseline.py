@@ -55,11 +55,9 @@ class CandidateSet:
         candidates: accepted motions, in draw order.
         R: their regressors' R factors, shape (M, b, b) (see the module docstring).
         draws: random draws made (accepted + rejected).
-        rejected: {reason: count}; the reason is the first constraint a draw violated
-            ("joint limits", or a sampled constraint's name).
-        amplitude: scale of the random coefficients [rad].
-        wall_time: [s].
-        workers: chunks of draws run at once (1: one after the other).
+        rejected: {reason: count}; the reason is the first constraint a draw violated.
+        amplitude: scale of the random coefficients [rad]; ``wall_time`` [s].
+        workers: chunks of draws run at once.
     """
 
     candidates: list[RandomMotion]
@@ -73,13 +71,8 @@ class CandidateSet:
 
 @dataclasses.dataclass(frozen=True)
 class GreedySelection:
-    """A greedy selection (Table II).
-
-    Attributes:
-        indices: selected candidates, in selection order.
-        cond_each: cond(C^(i)) of each selected block alone.
-        cond_total: cond of the concatenated C after each selection (C0 included if given).
-    """
+    """A greedy selection (Table II): the candidates' ``indices`` in selection order, cond of
+    each alone and of the concatenated C after each (C0 included if given)."""
 
     indices: list[int]
     cond_each: list[float]
@@ -104,10 +97,7 @@ class BaselineResult:
 
 @dataclasses.dataclass(frozen=True)
 class DrawEvent:
-    """Progress of :func:`generate_candidates` (after each chunk of draws).
-
-    ``wanted``: accepted candidates asked for; ``elapsed`` [s].
-    """
+    """Progress of :func:`generate_candidates` after each chunk of draws (``elapsed`` [s])."""
 
     drawn: int
     accepted: int
@@ -140,12 +130,10 @@ def greedy_select(blocks: Sequence[np.ndarray], motions: int, C0: np.ndarray | N
 
     Args:
         blocks: candidate regressors (or their R factors), each (m_i, b).
-        motions: how many to select (at most ``len(blocks)``).
         C0: prior data, shape (m0, b), or None.
 
     Raises:
-        ConfigError: fewer blocks than motions, a motion count below 1, or column counts
-            that differ.
+        ConfigError: fewer blocks than motions, motions below 1, or column counts that differ.
     """
     if not isinstance(motions, int) or motions < 1:
         raise ConfigError(f"motions must be a positive integer, got {motions!r}")
@@ -222,11 +210,8 @@ class _DrawProgress:
 
 
 def _draw_rounds(executor: Executor, config, count, seed, amplitude, max_draws, chunk_size, on_event) -> list:
-    """Draws in rounds until ``count`` are accepted or ``max_draws`` are made; outcomes in draw order.
-
-    Draw d has seed ``seed + d`` whatever chunk or worker runs it, so the accepted set does
-    not depend on scheduling.
-    """
+    """Draws in rounds until ``count`` are accepted or ``max_draws`` are made; outcomes in draw
+    order (draw d has seed ``seed + d`` whatever chunk or worker runs it)."""
     outcomes: list = []
     next_draw = 0
     while next_draw < max_draws:
@@ -247,19 +232,10 @@ def _draw_rounds(executor: Executor, config, count, seed, amplitude, max_draws, 
 
 
 def generate_candidates(
-    robot: Robot,
-    config: ExcitationConfig | None = None,
-    count: int = 200,
-    *,
-    constraints_factory: Callable | None = None,
-    seed: int = 0,
-    amplitude: float | None = None,
-    max_draws: int | None = None,
-    workers: int = 1,
-    executor: str | Executor = "local",
-    address: str = "",
-    progress: Callable[[DrawEvent], None] | None = None,
-    chunk_size: int = 16,
+    robot: Robot, config: ExcitationConfig | None = None, count: int = 200, *,
+    constraints_factory: Callable | None = None, seed: int = 0, amplitude: float | None = None,
+    max_draws: int | None = None, workers: int = 1, executor: str | Executor = "local",
+    address: str = "", progress: Callable[[DrawEvent], None] | None = None, chunk_size: int = 16,
 ) -> CandidateSet:
     """Random motions satisfying every constraint at the K samples (rejection sampling).
 
@@ -269,22 +245,17 @@ def generate_candidates(
     Args:
         robot: the :class:`~pe_drake.multibody.robot.Robot` (ignored with an open executor).
         config: N, ω, T, K and the amplitude (default :class:`ExcitationConfig`).
-        count: accepted candidates wanted.
         constraints_factory: ``f(robot, config) -> [SampledConstraint, ...]`` (default
             :func:`pe_drake.excitation.constraints.constraints_from_config`); ignored with an
             open executor.
         amplitude: scale of the random coefficients [rad] (default ``config.amplitude``).
         max_draws: give up after this many draws (default 50 × count).
-        workers: chunks at once (1: in this process with the "local" executor).
-        executor: "local", "ray", or an open :class:`~pe_drake.excitation.parallel.Executor`.
-        address: Ray cluster address (``executor="ray"``).
-        progress: callback receiving a :class:`DrawEvent` after each chunk of draws.
+        workers, executor, address: see :class:`~pe_drake.excitation.parallel.ExecutorOptions`.
         chunk_size: draws per task sent to a worker.
 
     Raises:
         ConfigError: a count, amplitude, max_draws or chunk size that is not positive.
-        InfeasibleError: fewer than ``count`` draws accepted within ``max_draws`` (the
-            acceptance rate is in the message: lower the amplitude or loosen the constraints).
+        InfeasibleError: fewer than ``count`` draws accepted within ``max_draws``.
     """
     begin = time.perf_counter()
     config = config or ExcitationConfig()
@@ -298,14 +269,13 @@ def generate_candidates(
         raise ConfigError(f"amplitude must be a positive number [rad], got {amplitude!r}")
     own = not isinstance(executor, Executor)
     if own:
-        executor = open_executor(
-            robot, executor, workers, address=address, measurement=config.measurement,
-            constraints_factory=constraints_factory or constraints_from_config,
-        )
+        executor = open_executor(robot, executor, workers, address=address,
+                                 measurement=config.measurement,
+                                 constraints_factory=constraints_factory or constraints_from_config)
     try:
-        outcomes = _draw_rounds(
-            executor, config, count, seed, float(amplitude), max_draws, chunk_size, _DrawProgress(count, begin, progress)
-        )
+        on_event = _DrawProgress(count, begin, progress)
+        outcomes = _draw_rounds(executor, config, count, seed, float(amplitude), max_draws,
+                                chunk_size, on_event)
     finally:
         if own:
             executor.close()
@@ -333,12 +303,10 @@ class BaselineOptions:
     """The random baseline's draws, its selection and where the draws run.
 
     Attributes:
-        motions: how many motions to select (the paper: 3).
-        candidates: accepted random motions to select from.
+        motions: how many motions to select (the paper: 3) from ``candidates`` accepted ones.
         C0: prior data the selection starts from, shape (m0, b), or None.
         constraints_factory, seed, amplitude, max_draws: see :func:`generate_candidates`.
-        run: where the draws run (``workers``, ``executor``, ``address`` of
-            :class:`~pe_drake.excitation.parallel.ExecutorOptions`; default one worker).
+        run: where the draws run (``workers``, ``executor``, ``address``).
     """
 
     motions: int = 3
@@ -351,19 +319,10 @@ class BaselineOptions:
     run: ExecutorOptions = ExecutorOptions(workers=1)
 
 
-def random_baseline(
-    robot: Robot | None,
-    config: ExcitationConfig | None = None,
-    options: BaselineOptions | None = None,
-    *,
-    progress: Callable[[DrawEvent], None] | None = None,
-) -> BaselineResult:
-    """Random feasible candidates (:func:`generate_candidates`), then the greedy selection.
-
-    Args:
-        robot, config, progress: see :func:`generate_candidates`.
-        options: the draws and the selection (default :class:`BaselineOptions`).
-    """
+def random_baseline(robot: Robot | None, config: ExcitationConfig | None = None,
+                    options: BaselineOptions | None = None, *,
+                    progress: Callable[[DrawEvent], None] | None = None) -> BaselineResult:
+    """Random feasible candidates (:func:`generate_candidates`), then the greedy selection."""
     o = options or BaselineOptions()
     motions, candidates = o.motions, o.candidates
     if not isinstance(motions, int) or motions < 1:

@@ -35,7 +35,6 @@ class GoalOptions:
     Attributes:
         rate_hz: waypoint rate [Hz].
         lead_in_s: added to every ``time_from_start`` [s], > 0.
-        topic: JointTrajectory topic of the bag.
         joint_names: {URDF joint: the driver's name} for drivers whose names differ.
         jerk_limits: {URDF joint: limit} [rad/s³]; joints not listed are not checked.
     """
@@ -61,11 +60,7 @@ class GoalOptions:
 
 def check_jerk(motion, joint_names: Sequence[str], jerk_limits: Mapping[str, float]) -> np.ndarray:
     """Peak |jerk| per joint (central difference of the exact acceleration at ``JERK_CHECK_HZ``),
-    shape (n,) [rad/s³]; refuses one above its limit.
-
-    Raises:
-        NotWithinLimitsError: naming the joint, its peak jerk, the limit and the time.
-    """
+    shape (n,) [rad/s³]; NotWithinLimitsError for one above its limit."""
     t = motion.sample_times(JERK_CHECK_HZ)
     jerk = np.gradient(motion.evaluate(t)[2], 1.0 / JERK_CHECK_HZ, axis=0)
     peak = np.abs(jerk).max(axis=0)
@@ -131,20 +126,15 @@ def write_goal_yaml(path: str | Path, motion, joint_names: Sequence[str], option
         joint_names: the URDF's excited joints, in the motion's order.
 
     Raises:
-        NotWithinLimitsError: jerk above ``jerk_limits``.
-        ConfigError: bad options or joint names.
+        NotWithinLimitsError, ConfigError: jerk above ``jerk_limits``; bad options or joints.
     """
     atomic_write_text(path, goal_yaml_text(motion, joint_names, options))
 
 
 def write_goal_bag(path: str | Path, motion, joint_names: Sequence[str], options: GoalOptions | None = None) -> None:
-    """Writes the goal's trajectory as one ``trajectory_msgs/msg/JointTrajectory`` in an MCAP bag
-    folder (``ros2 bag play <path>``) on ``options.topic``.
-
-    Raises:
-        NotWithinLimitsError, ConfigError: as :func:`write_goal_yaml`; ConfigError when
-            ``path`` exists (rosbags refuses to overwrite a bag).
-    """
+    """Writes the goal's trajectory as one ``trajectory_msgs/msg/JointTrajectory`` on
+    ``options.topic`` in an MCAP bag folder; raises as :func:`write_goal_yaml`, and ConfigError
+    when ``path`` exists."""
     from rosbags.rosbag2 import StoragePlugin, Writer  # lazy: keeps `import pe_drake` light
     from rosbags.typesys import Stores, get_typestore
 

@@ -68,7 +68,6 @@ class MotionPlan:
     """An optimized exciting motion and everything ``pe-drake optimize`` writes about it.
 
     Attributes:
-        robot: the :class:`~pe_drake.multibody.robot.Robot` it was solved for.
         config: the resolved config (fitted capsules, chosen nominal posture included).
         problem: the :class:`~pe_drake.excitation.problem.ExcitationProblem` (C0 included).
         constraints: the sampled constraints beyond the joint limits.
@@ -119,17 +118,14 @@ class MotionPlan:
     def write(self, folder: str | Path, *, csv_rate: float = DEFAULT_CSV_RATE,
               playback: Callable[[MotionPlan, Path], None] | None = None, progress: Say | None = None) -> list[str]:
         """Writes trajectory.json/.csv/.png, the controller goal, the fitted capsules and
-        report.json (last) into ``folder``, all or nothing; earlier runs' files of these names
-        that this run does not write are removed, other files are left alone.
+        report.json (last) into ``folder``, all or nothing (earlier runs' files of these names
+        are removed); returns the paths written, sorted by name.
 
         Args:
             csv_rate: rate of trajectory.csv [Hz].
             playback: ``f(plan, html_path)`` writing the Meshcat playback
                 (:func:`~pe_drake.viewer.write_plan_playback`); a failure there is a warning,
                 sent to ``progress``.
-
-        Returns:
-            The paths written, sorted by name.
         """
         say = progress or (lambda _line: None)
         out = check_output_dir(folder)
@@ -209,15 +205,9 @@ def check_csv_size(config: Config, rate: float, max_rows: int = 10_000_000) -> N
         )
 
 
-def optimize_motion(
-    config: Config,
-    *,
-    priors: Sequence[str | Path] = (),
-    executor: Executor | None = None,
-    progress: Say | None = None,
-    name: str | None = None,
-    allow_unchecked: bool = False,
-) -> MotionPlan:
+def optimize_motion(config: Config, *, priors: Sequence[str | Path] = (),
+                    executor: Executor | None = None, progress: Say | None = None,
+                    name: str | None = None, allow_unchecked: bool = False) -> MotionPlan:
     """Optimizes an exciting motion: everything ``pe-drake optimize`` does (module docstring).
 
     Args:
@@ -255,18 +245,14 @@ def optimize_motion(
             workers = min(par.workers, default_workers()) if par.executor == "local" and par.workers else par.workers
             with open_executor(robot, par.executor, workers or None, tasks=par.starts, address=par.address,
                                measurement=config.excitation.measurement, hung_after_s=par.hung_after_s,
-                               constraints_factory=constraints_factory(config)) as own:
+                               constraints_factory=functools.partial(
+                                   constraints_from_config, environment=config.environment)) as own:
                 plan = _plan(config, robot, own, priors, fitted, fitted_text, unchecked, allow_unchecked, start, say)
     except BaseException:
         shutil.rmtree(fit_dir, ignore_errors=True)
         raise
     weakref.finalize(plan, shutil.rmtree, fit_dir, True)
     return plan
-
-
-def constraints_factory(config: Config):
-    """The constraint factory the workers build their constraints with (picklable)."""
-    return functools.partial(constraints_from_config, environment=config.environment)
 
 
 def collision_geometry(config: Config, fit_dir: Path, say: Say) -> tuple[Config, FittedCapsules | None, list[str]]:

@@ -62,11 +62,8 @@ class MotionReport:
 
 
 def assumed_defaults(config: Config, joint_names, kinds=None) -> list[str]:
-    """Limits pe_drake assumed because neither the model nor the config gives them.
-
-    Args:
-        kinds: "revolute" or "prismatic" per joint (None: all revolute), for the units.
-    """
+    """Limits pe_drake assumed because neither the model nor the config gives them (``kinds``:
+    "revolute" or "prismatic" per joint, for the units; None: all revolute)."""
     r = config.robot
     kinds = list(kinds) if kinds is not None else ["revolute"] * len(joint_names)
     missing = {kind: [j for j, k in zip(joint_names, kinds) if k == kind and j not in r.acceleration_limits]

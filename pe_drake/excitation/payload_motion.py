@@ -2,8 +2,9 @@
 
 With the arm's parameters known, a payload run must determine the payload link's 10 regressor
 columns Y_L (:mod:`pe_drake.multibody.payload`). The arm's excitation machinery is reused as it
-is, with those columns as its "base parameters" (:func:`payload_selection`), so the criterion
-and its gradient are those of Y_L; every constraint of the arm applies.
+is, with the combinations of those columns the torques determine as its "base parameters"
+(:func:`~pe_drake.multibody.payload.payload_base_parameters`), so the criterion and its gradient
+are those of Y_L; every constraint of the arm applies.
 
 Expected σ (:func:`expected_payload_std`): Cov(φ_L) = (Y_Lᵀ Σ⁻¹ Y_L)⁻¹ over the whole motion,
 times 2 when an unloaded run of the same motion is fitted with it (the difference of two noisy
@@ -28,7 +29,6 @@ from pe_drake.excitation.ramp import RAMP_DURATIONS, RampedMotion, choose_ramp_d
 from pe_drake.excitation.solve import ExcitationResult, solve_excitation
 from pe_drake.excitation.trajectory_file import save_trajectory, write_motion_csv
 from pe_drake.io_utils import finite_json
-from pe_drake.multibody.base_parameters import BaseParameters
 from pe_drake.multibody.payload import (
     PayloadInertia,
     box_inertia,
@@ -52,13 +52,6 @@ MAX_PAYLOAD_DURATION_S = 15.0
 #: The payload at which expected σ are linearized when none is given: 1 kg, 0.1 m cube,
 #: centre of mass 5 cm from the link origin along z.
 NOMINAL_PAYLOAD = PayloadInertia(1.0, np.array([0.0, 0.0, 0.05]), box_inertia(1.0, [0.1, 0.1, 0.1]))
-
-
-def payload_selection(robot: Robot, link: str, model: RegressorModel | None = None) -> BaseParameters:
-    """The combinations of the payload link's 10 parameters the robot's torques determine, as a
-    :class:`BaseParameters` (φ_B = K φ_L). What no motion of the robot can excite (a SCARA: the
-    tilting inertias) is left out rather than made to blow up cond (issue 37)."""
-    return payload_base_parameters(robot, link, model)
 
 
 def payload_excitation_config(**changes) -> ExcitationConfig:
@@ -185,8 +178,7 @@ def optimize_payload_motion(robot: Robot, link: str, config: ExcitationConfig | 
         raise_on_failure: raise :class:`NoSolutionFound` when no valid motion was found.
 
     Raises:
-        ConfigError: a period that leaves no room for the ramps within ``max_duration``.
-        InfeasibleError: no ramp works.
+        ConfigError, InfeasibleError: no room for the ramps within ``max_duration``; no ramp works.
     """
     start = time.perf_counter()
     config = config or payload_excitation_config()
@@ -197,7 +189,7 @@ def optimize_payload_motion(robot: Robot, link: str, config: ExcitationConfig | 
         raise ConfigError(f"a payload motion of {config.periods} period(s) of {period:.3g} s leaves no room for "
                           f"ramps of at least {RAMP_DURATIONS[0]:g} s within {max_duration:g} s: shorten the period "
                           "(a larger omega) or raise max_duration")
-    problem = ExcitationProblem(robot, config, base=payload_selection(robot, link))
+    problem = ExcitationProblem(robot, config, base=payload_base_parameters(robot, link))
     program = build_excitation_program(problem, list(constraints))
     result = solve_excitation(program, solver)
     if not result.success and raise_on_failure:

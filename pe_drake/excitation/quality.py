@@ -279,8 +279,7 @@ def parameter_covariance(C: np.ndarray, noise_std: np.ndarray, periods: float = 
         noise_std: σ_j, shape (n,).
         periods: P, the recorded information in units of CᵀΣ⁻¹C (may be fractional).
 
-    Returns:
-        Shape (b, b); infinite when C is rank deficient.
+    Returns shape (b, b), infinite when C is rank deficient.
     """
     s, Vt = singular_values_and_vectors(whitened(C, noise_std), vectors=True)
     if s[-1] <= s[0] * 1e-12:
@@ -304,8 +303,7 @@ def prediction_rms(
         row_std: σ of the rows of one sample of C (default ``noise_std``; with the ground
             wrench, its six rows' σ follow).
 
-    Returns:
-        (per joint, shape (n,); over all joints).
+    Returns (per joint, shape (n,); over all joints).
     """
     n = len(noise_std)
     s, Vt = singular_values_and_vectors(whitened(C, noise_std if row_std is None else row_std), vectors=True)
@@ -325,13 +323,9 @@ def d_efficiency(C: np.ndarray, noise_std: np.ndarray, periods: float = 1) -> fl
 
 
 def motion_regressor(problem, alpha: np.ndarray, rate_hz: float = DATA_RATE_HZ) -> np.ndarray:
-    """Rows of C (the measurement's: joint torques, the ground wrench or both; columns the
-    base parameters, then the drive terms), unweighted, of one period of the problem's motion
-    ``alpha`` sampled at ``rate_hz``.
-
-    Returns:
-        Shape (S·r, columns) with S = round(period·rate_hz) samples, rows sample-major.
-    """
+    """Rows of C (the measurement's; columns the base parameters, then the drive terms),
+    unweighted, of one period of motion ``alpha`` sampled at ``rate_hz``: shape (S·r, columns)
+    with S = round(period·rate_hz) samples, rows sample-major."""
     samples = max(int(round(problem.period * rate_hz)), 1)
     basis = FourierBasis(problem.harmonics, problem.omega, sample_times(problem.period, samples))
     q, v, vd = basis.evaluate_alpha(np.asarray(alpha, float), problem.n)
@@ -369,8 +363,7 @@ def reference_states(robot: Robot, count: int = REFERENCE_MOTIONS, seed: int = R
     used to REFERENCE_LIMIT_FRACTION. It depends on the robot only, so two configs of a robot
     are judged on the same motions; the sampled constraints are not imposed.
 
-    Returns:
-        (q, v, vd), each (count·REFERENCE_SAMPLES, n).
+    Returns (q, v, vd), each (count·REFERENCE_SAMPLES, n).
     """
     omega = 2 * math.pi / REFERENCE_PERIOD_S
     basis = FourierBasis(REFERENCE_HARMONICS, omega, sample_times(REFERENCE_PERIOD_S, REFERENCE_SAMPLES))
@@ -420,8 +413,7 @@ def random_feasible_motions(
     is shrunk toward its offsets by RANDOM_SHRINK until it passes, else rejected. At most
     4·count draws are made.
 
-    Returns:
-        ([(seed, alpha), ...] of at most ``count`` motions, number of rejected draws).
+    Returns ([(seed, alpha), ...] of at most ``count`` motions, number of rejected draws).
     """
     found, rejected, n = [], 0, problem.n
     for d in range(4 * count):
@@ -451,15 +443,9 @@ def _figures(label: str, C: np.ndarray, C_ref: np.ndarray, noise: np.ndarray, ro
 
 
 def excitation_quality(
-    problem,
-    alpha: np.ndarray,
-    constraints: Sequence = (),
-    *,
-    noise_std: float | Sequence[float] | None = None,
-    periods: int = 1,
-    rate_hz: float = DATA_RATE_HZ,
-    random_motions: int = RANDOM_MOTIONS,
-    seed: int = RANDOM_SEED,
+    problem, alpha: np.ndarray, constraints: Sequence = (), *,
+    noise_std: float | Sequence[float] | None = None, periods: int = 1,
+    rate_hz: float = DATA_RATE_HZ, random_motions: int = RANDOM_MOTIONS, seed: int = RANDOM_SEED,
     one_blas_thread: bool = True,
 ) -> QualityReport:
     """The quality figures of motion ``alpha`` and of random motions under the same constraints.
@@ -471,8 +457,7 @@ def excitation_quality(
         noise_std: σ [N·m], one value or one per joint (default :data:`DEFAULT_NOISE_STD`).
         periods: P, periods to be recorded.
         rate_hz: rate of the fitted samples [Hz].
-        random_motions: random motions to compare with (0: none).
-        seed: seed of the first random draw.
+        random_motions: random motions to compare with (0: none), from draw ``seed``.
         one_blas_thread: run on one BLAS thread (False: BLAS's own threads).
 
     Raises:

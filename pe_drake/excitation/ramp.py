@@ -37,11 +37,8 @@ MAX_MOTION_S = 7200.0
 
 
 def smootherstep(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """σ(x) = 6x⁵ − 15x⁴ + 10x³ on [0, 1] (clipped outside), its integral S and two derivatives.
-
-    Returns:
-        (S, σ, σ', σ'') at x, each the shape of x; S(x) = ∫₀ˣ σ = x⁶ − 3x⁵ + 5x⁴/2.
-    """
+    """(S, σ, σ', σ'') at x (clipped to [0, 1]): σ(x) = 6x⁵ − 15x⁴ + 10x³ and its integral
+    S(x) = x⁶ − 3x⁵ + 5x⁴/2, each the shape of x."""
     x = np.clip(np.asarray(x, float), 0.0, 1.0)
     x2 = x * x
     S = x2 * x2 * (x2 - 3.0 * x + 2.5)
@@ -177,12 +174,8 @@ class RampedMotion:
 
 
 def ramped_motion_from_dict(path: FourierTrajectory, data: dict, *, source: str = "trajectory.json") -> RampedMotion:
-    """The motion a trajectory.json describes (what optimize wrote to trajectory.csv); a file
-    without ``periods`` and ``ramp_duration`` is one period without ramps.
-
-    Raises:
-        ConfigError: a bad ``periods``, ``ramp_duration`` or ``phase``, naming the file.
-    """
+    """The motion a trajectory.json describes (one period without ramps if it gives none);
+    ConfigError naming the file for a bad ``periods``, ``ramp_duration`` or ``phase``."""
     try:
         motion = RampedMotion(
             path, check_periods(data.get("periods", 1)),
@@ -200,12 +193,8 @@ def ramped_motion_from_dict(path: FourierTrajectory, data: dict, *, source: str 
 
 @dataclasses.dataclass(frozen=True)
 class RampCheck:
-    """Outcome of checking one ramp duration T_r [s] at join phase φ [s].
-
-    Attributes:
-        margins: {limit or constraint: minimum margin over both ramps at the check rate}.
-        worst: name of the most violated (or tightest) entry.
-    """
+    """Outcome of checking one ramp duration T_r [s] at join phase φ [s]: the minimum margin of
+    each limit and constraint over both ramps, and the ``worst`` (most violated) entry."""
 
     ramp_duration: float
     phase: float
@@ -220,12 +209,8 @@ class RampCheck:
 def check_within_limits(
     motion: RampedMotion, limits, joint_names: Sequence[str], *, source: str = "", rate: float = 200.0, slack: float = 1e-3
 ) -> None:
-    """Refuses a motion (e.g. from a hand-edited trajectory.json) that leaves the robot's position
-    or velocity limits, before any work is done with it.
-
-    Raises:
-        NotWithinLimitsError: naming the joint, the quantity, the worst value and the limits.
-    """
+    """Refuses (NotWithinLimitsError) a motion, e.g. from a hand-edited trajectory.json, that
+    leaves the robot's position or velocity limits, before any work is done with it."""
     t = motion.sample_times(min(rate, 1e5 / max(motion.duration, 1e-9)))
     q, v, _ = motion.evaluate(t)
     for what, x, lo, hi in (
@@ -286,12 +271,8 @@ def limit_excess(q: np.ndarray, v: np.ndarray, vd: np.ndarray, limits, digits: i
 
 
 def check_written_motion(motion: RampedMotion, limits, joint_names: Sequence[str], rate: float) -> None:
-    """Refuses a motion whose trajectory.csv at ``rate`` [Hz] would hold a value outside a
-    joint limit (by any amount beyond the limit's float rounding: :func:`limit_excess`).
-
-    Raises:
-        NotWithinLimitsError: naming the joint, the quantity, the value, the excess and the time.
-    """
+    """Refuses (NotWithinLimitsError) a motion whose trajectory.csv at ``rate`` [Hz] would hold a
+    value outside a joint limit beyond the limit's float rounding (:func:`limit_excess`)."""
     t = motion.sample_times(rate)
     worst = None
     for start in range(0, len(t), WRITTEN_CHUNK):  # in chunks: a 1000-period motion has 10⁷ rows
@@ -346,23 +327,14 @@ def phase_candidates(path: FourierTrajectory, limits, count: int = 3, window: fl
 
 
 def choose_ramp_duration(
-    path: FourierTrajectory,
-    limits,
-    constraints: Sequence = (),
-    *,
-    periods: int = 1,
-    durations: Sequence[float] = RAMP_DURATIONS,
-    rate: float = 1000.0,
-    tolerance: float = 1e-6,
+    path: FourierTrajectory, limits, constraints: Sequence = (), *, periods: int = 1,
+    durations: Sequence[float] = RAMP_DURATIONS, rate: float = 1000.0, tolerance: float = 1e-6,
 ) -> tuple[RampedMotion, list[RampCheck]]:
     """The shortest ramp duration of ``durations`` for which every limit and constraint holds
     on both ramps at ``rate``, trying the phases of :func:`phase_candidates` at each.
 
-    Returns:
-        The :class:`RampedMotion` and the checks made (for the report).
-
-    Raises:
-        InfeasibleError: no duration works; names what the longest one violates, by how much.
+    Returns the :class:`RampedMotion` and the checks made; raises InfeasibleError when no
+    duration works.
     """
     checks = []
     phases = phase_candidates(path, limits, rate=rate)

@@ -71,8 +71,7 @@ class SequenceResult:
     Attributes:
         C: the concatenated regressor [prior C0; C^(1); ...], shape (m, b).
         base: the :class:`~pe_drake.multibody.base_parameters.BaseParameters` the columns follow.
-        workers: starts run at once per motion (1: one after the other).
-        wall_time: whole run [s].
+        workers: starts run at once per motion; ``wall_time``: whole run [s].
     """
 
     motions: list[SequenceMotion]
@@ -129,12 +128,11 @@ class SequenceOptions:
         seed: first seed (default ``config.seed``); see :func:`motion_seeds`.
         seeds: explicit seeds, one list per motion (overrides ``seed`` and ``starts``).
         C0: prior data from earlier experiments, shape (m0, b), or None (the paper: O).
-        constraints_factory: ``f(robot, config) -> [SampledConstraint, ...]`` (default
-            :func:`pe_drake.excitation.constraints.constraints_from_config`: balance and collision
-            as the config asks); a module-level function; ignored with an open executor.
+        constraints_factory: ``f(robot, config) -> [SampledConstraint, ...]``, a module-level
+            function (default :func:`~pe_drake.excitation.constraints.constraints_from_config`);
+            ignored with an open executor.
         amplitude: scale of the random initial coefficients [rad] (default ``config.amplitude``).
-        stop_on_failure: raise when a motion has no feasible start (else keep its best
-            infeasible start and go on).
+        stop_on_failure: raise when a motion has no feasible start (else keep its best one).
         warm_start: the last start of motion i > 1 begins from the best earlier motion (its
             seed stays its label); with one start, motion 2 without prior data adds it as a
             second start (seed + 1) beside the random one.
@@ -155,30 +153,23 @@ class SequenceOptions:
 
 
 def optimize_sequence(
-    robot: Robot | None,
-    config: ExcitationConfig | None = None,
-    solver: str | SolverConfig = "ipopt",
-    options: SequenceOptions | None = None,
-    *,
+    robot: Robot | None, config: ExcitationConfig | None = None,
+    solver: str | SolverConfig = "ipopt", options: SequenceOptions | None = None, *,
     progress: Callable[[Any], None] | None = None,
 ) -> SequenceResult:
     """Optimizes ``options.motions`` exciting motions one after the other (module docstring).
 
     Args:
-        robot: the :class:`~pe_drake.multibody.robot.Robot` (ignored, may be None, with an open
-            executor in ``options.run``).
-        config: the excitation problem (default :class:`ExcitationConfig`).
+        robot: ignored, may be None, with an open executor in ``options.run``.
         solver: "ipopt", "nlopt" or a :class:`SolverConfig`.
-        options: the motions, starts and executor (default :class:`SequenceOptions`).
         progress: callback receiving :class:`MotionEvent` and
             :class:`~pe_drake.excitation.multistart.StartEvent` objects.
 
     Raises:
         ConfigError: a motion or start count below 1, seeds that do not match ``motions``,
             or a C0 with the wrong number of columns.
-        NoSolutionFound: a motion has no start that meets every constraint (with
-            ``stop_on_failure``); its ``result`` is the :class:`SequenceResult` so far,
-            the failed motion included.
+        NoSolutionFound: a motion has no feasible start (with ``stop_on_failure``); its
+            ``result`` is the :class:`SequenceResult` so far, the failed motion included.
         WorkerError: a start failed in a worker, or its worker died.
     """
     begin = time.perf_counter()

@@ -75,10 +75,8 @@ class StudyOptions:
         if len(set(self.baseline_amplitudes)) != len(self.baseline_amplitudes):
             raise ConfigError(f"--baseline-amplitudes must differ, got {list(self.baseline_amplitudes)}")
         if self.candidates * len(self.baseline_amplitudes) < self.motions:
-            raise ConfigError(
-                f"--candidates {self.candidates} × {len(self.baseline_amplitudes)} amplitude(s) "
-                f"cannot supply {self.motions} baseline motions"
-            )
+            raise ConfigError(f"--candidates {self.candidates} × {len(self.baseline_amplitudes)} "
+                              f"amplitude(s) cannot supply {self.motions} baseline motions")
 
 
 # IPOPT ≤ 150 iterations keeps a motion within about 2 minutes on 2 cores (README, "Reproducing
@@ -137,8 +135,7 @@ def run_sequential_study(settings: StudyOptions, *, say: Callable[[str], Any] | 
 
     Raises:
         ConfigError, UnknownNameError: a bad config file or value.
-        InfeasibleError: the baseline found too few feasible random motions, or the nominal
-            posture violates a constraint.
+        InfeasibleError: too few feasible random motions, or an infeasible nominal posture.
         WorkerError: a start or a chunk of draws failed in a worker, or its worker died.
     """
     say = StudyPrinter(say)
@@ -210,18 +207,16 @@ def _baseline(settings: StudyOptions, robot: Robot, excitation, executor, say):
 
 
 def _tables(settings, excitation, solver, robot: Robot, base, sequence, selection, candidates, sets, baseline_blocks) -> dict:
-    opt_lo, opt_hi = _running_sigmas([m.block for m in sequence.motions])
+    motions = sequence.motions
+    opt_lo, opt_hi = _running_sigmas([m.block for m in motions])
     bl_lo, bl_hi = _running_sigmas(baseline_blocks)
-    first_opt = sequence.motions[0].cond_motion
-    first_base = selection.cond_each[0]
-    times = [m.wall_time for m in sequence.motions]
+    first_opt, first_base = motions[0].cond_motion, selection.cond_each[0]
+    times = [m.wall_time for m in motions]
     period = 2 * math.pi / excitation.omega
     return {
         "paper": "K. Ayusawa et al., Generating persistently exciting trajectory based on condition "
         "number optimization, ICRA 2017, section IV-B, Tables I and II (HRP-4)",
-        "robot": robot.name,
-        "joints": list(robot.joint_names),
-        "quick": settings.quick,
+        "robot": robot.name, "joints": list(robot.joint_names), "quick": settings.quick,
         "setting": {
             "harmonics": excitation.harmonics, "omega": excitation.omega, "period_s": period,
             "cost_samples": excitation.cost_samples,
@@ -237,24 +232,18 @@ def _tables(settings, excitation, solver, robot: Robot, base, sequence, selectio
             "workers": sequence.workers, "executor": settings.executor, "seed": settings.seed,
         },
         "table1": {
-            "motion": [m.index for m in sequence.motions],
-            "cond_motion": [m.cond_motion for m in sequence.motions],
-            "cond_total": [m.cond_total for m in sequence.motions],
-            "sigma_min_total": opt_lo,
-            "sigma_max_total": opt_hi,
-            "success": [m.success for m in sequence.motions],
-            "message": [m.result.message for m in sequence.motions],
-            "seed": [m.seed for m in sequence.motions],
+            "motion": [m.index for m in motions], "cond_motion": [m.cond_motion for m in motions],
+            "cond_total": [m.cond_total for m in motions], "sigma_min_total": opt_lo,
+            "sigma_max_total": opt_hi, "success": [m.success for m in motions],
+            "message": [m.result.message for m in motions], "seed": [m.seed for m in motions],
             "wall_time_s": times,
-            "starts": [[dataclasses.asdict(s) for s in m.starts] for m in sequence.motions],
+            "starts": [[dataclasses.asdict(s) for s in m.starts] for m in motions],
             "paper_hrp4": PAPER_TABLE_I,
         },
         "table2": {
             "motion": list(range(1, len(selection.indices) + 1)),
-            "cond_motion": list(selection.cond_each),
-            "cond_total": list(selection.cond_total),
-            "sigma_min_total": bl_lo,
-            "sigma_max_total": bl_hi,
+            "cond_motion": list(selection.cond_each), "cond_total": list(selection.cond_total),
+            "sigma_min_total": bl_lo, "sigma_max_total": bl_hi,
             "seed": [candidates[k][1].seed for k in selection.indices],
             "amplitude": [candidates[k][0] for k in selection.indices],
             "candidates": len(candidates),
@@ -295,10 +284,8 @@ class SequentialStudy:
         return format_console(self.tables)
 
     def write(self, out: Path | str) -> list[str]:
-        """Trajectories first, the tables last (each file written atomically); returns the files.
-
-        Motions that violate a constraint get no trajectory.json: one is never handed out.
-        """
+        """Trajectories first (none for a motion that violates a constraint), the tables last,
+        each file written atomically; returns the files."""
         out = Path(out)
         files = []
         for m in self.sequence.motions:

@@ -33,44 +33,29 @@ if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
 OMEGA_RANGE = (2 * np.pi / 600.0, 2 * np.pi / 0.1)
 
 
-def trajectory_to_dict(robot: Robot, trajectory: FourierTrajectory, folder: str | Path | None = None,
-                       **extra: Any) -> dict[str, Any]:
-    """The JSON-ready description of a trajectory on a robot; with ``folder`` (where the file
-    goes), the model's path is recorded relative to it (no user's folder in a shared file)."""
+def save_trajectory(path: str | Path, robot: Robot, trajectory: FourierTrajectory, **extra: Any) -> None:
+    """Writes trajectory.json atomically, the model's and capsules' paths relative to its folder
+    (no user's folder in a shared file)."""
+    folder = final_folder(path)
+    if isinstance(extra.get("capsules"), str):  # relative like the model: view reads it against the folder
+        extra["capsules"] = portable_path(extra["capsules"], folder)
     pose = robot.base_pose
-    return {
-        "robot": robot.name,
-        "model": portable_path(robot.model_path, folder) if folder is not None else str(robot.model_path),
-        "joints": list(robot.joint_names),
-        "omega": trajectory.omega,
-        "harmonics": trajectory.harmonics,
-        "a": trajectory.a.tolist(),
-        "b": trajectory.b.tolist(),
-        "q0": trajectory.q0.tolist(),
-        "duration": trajectory.period,
-        "locked_positions": dict(robot.locked_positions),
-        "root_link": robot.root_link,
+    data = {
+        "robot": robot.name, "model": portable_path(robot.model_path, folder),
+        "joints": list(robot.joint_names), "omega": trajectory.omega,
+        "harmonics": trajectory.harmonics, "a": trajectory.a.tolist(), "b": trajectory.b.tolist(),
+        "q0": trajectory.q0.tolist(), "duration": trajectory.period,
+        "locked_positions": dict(robot.locked_positions), "root_link": robot.root_link,
         "base_pose": {"position": np.asarray(pose.translation()).tolist(),
                       "quaternion_wxyz": pose.rotation().ToQuaternion().wxyz().tolist()},
         **extra,
     }
-
-
-def save_trajectory(path: str | Path, robot: Robot, trajectory: FourierTrajectory, **extra: Any) -> None:
-    """Writes trajectory.json atomically."""
-    folder = final_folder(path)
-    if isinstance(extra.get("capsules"), str):  # relative like the model: view reads it against the folder
-        extra["capsules"] = portable_path(extra["capsules"], folder)
-    data = trajectory_to_dict(robot, trajectory, folder, **extra)
     atomic_write_text(path, json.dumps(data, indent=2))
 
 
 def load_trajectory(path: str | Path) -> tuple[FourierTrajectory, dict[str, Any]]:
-    """Reads trajectory.json: the trajectory and the whole JSON dict.
-
-    Raises:
-        DataError: missing file, missing key, or inconsistent shapes.
-    """
+    """Reads trajectory.json: the trajectory and the whole JSON dict; DataError for a missing
+    file or key, or inconsistent shapes."""
     path = Path(path)
     problem = limits.input_file_problem(path)
     if problem:
@@ -130,11 +115,8 @@ def write_motion_csv(path: str | Path, joints: tuple[str, ...] | list[str], moti
 
 
 def load_motion(path: str | Path) -> tuple[RampedMotion, dict[str, Any]]:
-    """Reads trajectory.json as the motion trajectory.csv holds (ramps and periods included).
-
-    Raises:
-        DataError: see :func:`load_trajectory`; or bad ``periods``/``ramp_duration``/``phase``.
-    """
+    """Reads trajectory.json as the motion trajectory.csv holds (ramps and periods included);
+    DataError as :func:`load_trajectory`, or for a bad ``periods``/``ramp_duration``/``phase``."""
     trajectory, data = load_trajectory(path)
     try:
         return ramped_motion_from_dict(trajectory, data, source=str(path)), data
@@ -154,11 +136,7 @@ def environment_record(environment: EnvironmentConfig) -> dict[str, Any]:
 
 def recorded_environment(data: dict[str, Any], default: EnvironmentConfig, source: str | Path) -> EnvironmentConfig:
     """The environment a trajectory file records (:func:`environment_record`), or ``default``
-    for a file written before it was recorded.
-
-    Raises:
-        DataError: a malformed entry, naming the file and the key.
-    """
+    for a file without one; DataError for a malformed entry."""
     entry = data.get("environment")
     if entry is None:
         return default

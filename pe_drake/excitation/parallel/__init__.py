@@ -20,7 +20,6 @@ from pe_drake.excitation.parallel.base import (
     ConstraintsFactory,
     Executor,
     InProcessExecutor,
-    RemoteTraceback,
     RobotSpec,
     TaskFinished,
     TaskLost,
@@ -31,7 +30,7 @@ from pe_drake.excitation.parallel.base import (
     check_workers,
     default_workers,
 )
-from pe_drake.excitation.parallel.local import LocalExecutor, default_start_method
+from pe_drake.excitation.parallel.local import LocalExecutor
 from pe_drake.excitation.parallel.ray import RayExecutor, cluster_cpus
 from pe_drake.multibody.regressor import RegressorModel
 from pe_drake.multibody.sensors import measurement_base_parameters
@@ -41,24 +40,9 @@ if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
 
 
 __all__ = [
-    "EXECUTORS",
-    "HUNG_AFTER_S",
-    "ConstraintsFactory",
-    "Executor",
-    "ExecutorOptions",
-    "InProcessExecutor",
-    "LocalExecutor",
-    "RayExecutor",
-    "RemoteTraceback",
-    "RobotSpec",
-    "TaskFinished",
-    "TaskLost",
-    "TaskStarted",
-    "WorkerError",
-    "WorkerState",
-    "default_start_method",
-    "default_workers",
-    "open_executor",
+    "HUNG_AFTER_S", "ConstraintsFactory", "Executor", "ExecutorOptions", "InProcessExecutor",
+    "LocalExecutor", "RayExecutor", "RobotSpec", "TaskFinished", "TaskLost", "TaskStarted",
+    "WorkerError", "WorkerState", "default_workers", "open_executor",
 ]
 
 
@@ -74,7 +58,7 @@ class ExecutorOptions:
         address: the Ray cluster ("ray" only; "": ``ray.init()``'s default).
         hung_after_s: a task without progress for this long [s] is declared hung, its worker
             stopped; 0: never.
-        progress_interval: seconds between the progress events of a running solve [s].
+        progress_interval: time between the progress events of a running solve [s].
     """
 
     workers: int | None = None
@@ -85,16 +69,9 @@ class ExecutorOptions:
 
 
 def open_executor(
-    robot: Robot,
-    executor: str = "local",
-    workers: int | None = None,
-    *,
-    tasks: int | None = None,
-    address: str = "",
-    base=None,
-    measurement: str = "joint_torque",
-    constraints_factory: ConstraintsFactory | None = None,
-    start_method: str | None = None,
+    robot: Robot, executor: str = "local", workers: int | None = None, *, tasks: int | None = None,
+    address: str = "", base=None, measurement: str = "joint_torque",
+    constraints_factory: ConstraintsFactory | None = None, start_method: str | None = None,
     hung_after_s: float = HUNG_AFTER_S,
 ) -> Executor:
     """An executor whose workers each hold a copy of ``robot``.
@@ -107,17 +84,16 @@ def open_executor(
         tasks: the most tasks one :meth:`Executor.map` will get (caps the default workers).
         address: the Ray cluster ("ray" only).
         base: the base parameters every task uses (default: computed here once, for the
-            rows of ``measurement``).
-        measurement: the rows of C (``excitation.measurement``) the default base is for.
+            rows of C of ``measurement``).
         constraints_factory: ``f(robot, excitation_config) -> [SampledConstraint, ...]``;
             a module-level function (it is pickled by name).
-        start_method: for "local"; see :func:`default_start_method`.
+        start_method: for "local" (default "forkserver" where available, else "spawn").
         hung_after_s: see :class:`ExecutorOptions`; not checked when the tasks run in this
             process (one local worker).
 
     Raises:
-        ConfigError: an unknown executor, a bad worker count or ``hung_after_s``, more Ray
-            workers than the cluster's CPUs, Ray missing or unreachable.
+        ConfigError: an unknown executor, bad workers or ``hung_after_s``, more Ray workers than
+            the cluster's CPUs, Ray missing or unreachable.
     """
     if executor not in EXECUTORS:
         raise ConfigError(f"executor '{executor}' is not one of {', '.join(EXECUTORS)}")

@@ -77,14 +77,8 @@ def default_start_method() -> str:
 
 
 class LocalExecutor(RemoteExecutor):
-    """Worker processes on this machine (started at the first :meth:`map`, kept until close).
-
-    Args:
-        start_method: "forkserver", "spawn" or "fork" (default :func:`default_start_method`).
-
-    Raises:
-        ConfigError: an unknown start method, a bad ``hung_after_s``.
-    """
+    """Worker processes on this machine (started at the first :meth:`map`, kept until close);
+    ConfigError for an unknown start method or a bad ``hung_after_s``."""
 
     name = "local"
 
@@ -163,22 +157,18 @@ class LocalExecutor(RemoteExecutor):
         else:
             # Before 3.14 the pool has no public handle on its processes (loky and the 3.14
             # pool terminate them the same way).
-            procs = list((getattr(pool, "_processes", None) or {}).values())
+            procs = list(self.processes().values())
             pool.shutdown(wait=False, cancel_futures=True)
             for p in procs:
                 if p.is_alive():
                     p.terminate()
-            for p in procs:
-                p.join(timeout=5)
-                if p.is_alive():  # pragma: no cover - terminate is normally enough
-                    p.kill()
-                    p.join()
+            _reap(procs, 5.0)  # terminate is normally enough
         self.close()
 
     def close(self) -> None:
+        procs = list(self.processes().values())
         pool, self._pool = self._pool, None
         if pool is not None:
-            procs = list((getattr(pool, "_processes", None) or {}).values())
             pool.shutdown(wait=False, cancel_futures=True)
             _reap(procs, CLOSE_TIMEOUT_S)
             manager = getattr(pool, "_executor_manager_thread", None)

@@ -38,11 +38,7 @@ POLL_EVERY_S = 1.0  # how often a running actor is asked for its task's events
 
 
 def import_ray():
-    """The ``ray`` module.
-
-    Raises:
-        ConfigError: Ray is not installed (with the command that installs it).
-    """
+    """The ``ray`` module, or ConfigError with the command that installs it."""
     try:
         import ray  # lazy: an optional, heavy package
     except ImportError as err:
@@ -138,15 +134,8 @@ def start_local(ray, options: dict) -> None:
 
 
 class RayExecutor(RemoteExecutor):
-    """One Ray actor per worker, each holding its robot (created at the first :meth:`map`).
-
-    Args:
-        workers: actors (each reserves one CPU of the cluster).
-        address: the cluster's address ("": ``ray.init()``'s default, see :func:`connect`).
-
-    Raises:
-        ConfigError: Ray is missing, or the cluster cannot be reached.
-    """
+    """One Ray actor per worker (each reserves one CPU), created at the first :meth:`map`, each
+    holding its robot; ConfigError when Ray is missing or ``address`` cannot be reached."""
 
     name = "ray"
 
