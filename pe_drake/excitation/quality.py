@@ -1,16 +1,12 @@
 """What a motion will tell you before you record it: expected parameter and torque errors.
 
-cond(C) depends on the chosen base parameters and their units, so for a torque noise σ_j per
-joint and P recorded periods this module gives figures a user can act on:
-
-- the expected standard deviation of every base parameter, Cov = (CᵀΣ⁻¹C)⁻¹ / P (the weighted
-  least-squares covariance of ``pe-drake identify --method wls``), absolute and in % of its
-  a-priori value; it depends on the basis;
-- basis-free figures: the expected RMS error of the torques predicted on a fixed, seeded
-  reference set of motions (:func:`reference_regressor`; row c_v has variance c_v Cov c_vᵀ,
-  invariant under φ_B → Tφ_B), and ratios of the D-efficiency det(CᵀΣ⁻¹C)^(1/2b);
-- the same for a few random motions under the same constraints, and the ratios ("this motion
-  predicts torques k× better than random motions").
+cond(C) depends on the chosen base parameters and their units; for a torque noise σ_j per joint
+and P recorded periods this module gives the expected standard deviation of every base parameter
+(Cov = (CᵀΣ⁻¹C)⁻¹ / P, the covariance of ``pe-drake identify --method wls``; basis-dependent),
+and basis-free figures: the expected RMS error of the torques predicted on a fixed, seeded
+reference set of motions (row c_v has variance c_v Cov c_vᵀ, invariant under φ_B → Tφ_B) and
+its ratio, and that of the D-efficiency det(CᵀΣ⁻¹C)^(1/2b), to random motions under the same
+constraints ("this motion predicts torques k× better than random motions").
 
 Assumptions (stated in every report): C is the measurement's rows of one period sampled at
 ``rate_hz`` (default :data:`DATA_RATE_HZ`), base parameters then drive terms as columns; the
@@ -260,11 +256,6 @@ def short_composition(name: str, max_chars: int = MAX_COMPOSITION_CHARS,
     return text + (f" … ({more} more)" if more else "")
 
 
-def _check_periods(periods: int) -> None:
-    if isinstance(periods, bool) or not isinstance(periods, (int, np.integer)) or periods < 1:
-        raise ConfigError(f"periods must be a positive integer, got {periods!r}")
-
-
 def whitened(C: np.ndarray, noise_std: np.ndarray) -> np.ndarray:
     """Σ^(-1/2)C: rows of joint j (row index t·n + j) divided by σ_j."""
     n = len(noise_std)
@@ -471,7 +462,8 @@ def excitation_quality(
 def _quality(problem, alpha, constraints, noise_std, periods, rate_hz, random_motions, seed) -> QualityReport:
     """:func:`excitation_quality`'s work (its arguments)."""
     noise = noise_vector(noise_std, problem.robot.joint_names)
-    _check_periods(periods)
+    if isinstance(periods, bool) or not isinstance(periods, (int, np.integer)) or periods < 1:
+        raise ConfigError(f"periods must be a positive integer, got {periods!r}")
     if not (isinstance(rate_hz, (int, float)) and math.isfinite(rate_hz) and rate_hz > 0):
         raise ConfigError(f"rate_hz must be a positive number [Hz], got {rate_hz!r}")
     C_ref = reference_regressor(problem)

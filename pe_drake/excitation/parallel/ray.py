@@ -12,6 +12,7 @@ pe_drake installed in the Python that runs Ray.
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 from typing import Any
@@ -76,8 +77,6 @@ class RobotActor:
         return run_task(self.state, fn, payload, self.worker), self.poll()[1]
 
     def pid(self) -> int:
-        import os
-
         return os.getpid()
 
 
