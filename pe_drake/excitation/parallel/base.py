@@ -43,9 +43,8 @@ class WorkerError(PeDrakeError):
     """A task failed in a worker, or the worker running it died.
 
     Attributes:
-        task: index of the failed task (the first one when several were running in a pool
-            that broke), or None when a worker failed before running any task.
-        tasks: every task that was running when the worker failed.
+        task: index of the failed task (the first of ``tasks``, every task that was running),
+            or None when a worker failed before running any task.
         exception_type: name of the exception raised in the worker ("" when it died).
         remote_traceback: the worker's formatted traceback ("" when it died).
     """

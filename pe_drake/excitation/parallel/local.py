@@ -135,13 +135,10 @@ class LocalExecutor(RemoteExecutor):
         return dict(getattr(self._pool, "_processes", None) or {})
 
     def wait_until_reaped(self, timeout: float = REAP_TIMEOUT_S) -> None:
-        """After the pool broke: waits until its manager thread has stopped and reaped every
-        worker, so that their exit codes are read by that one thread alone.
-
-        Two threads polling one "forkserver" worker race for the single status the fork server
-        writes, and the loser records 255: a worker stopped with SIGTERM would look as if it had
-        died on its own, and its task would be lost instead of run again.
-        """
+        """After the pool broke: waits until its manager thread has reaped every worker, so that
+        their exit codes are read by that one thread alone (two threads polling one "forkserver"
+        worker race for its single status, and the loser records 255: a worker stopped with
+        SIGTERM would look as if it had died on its own)."""
         pool = self._pool
         manager = getattr(pool, "_executor_manager_thread", None)
         if pool is not None and getattr(pool, "_broken", False) and manager is not None:
@@ -199,9 +196,8 @@ class PoolRun:
     """One :meth:`LocalExecutor.run`: hands out the tasks, at most one per worker, and keeps
     every finished one when a worker dies or hangs.
 
-    A dead worker breaks the whole standard pool: the tasks on the other workers fail with it.
-    Those are run again on a new pool (a task's result depends only on its payload); only
-    the task of the worker that died, or hung, is lost. The dead one is told by its exit
+    A dead worker breaks the whole standard pool; the other workers' tasks are run again on a
+    new pool and only the dead (or hung) worker's task is lost. The dead one is told by its exit
     status: the pool and :meth:`LocalExecutor.terminate` stop the others with SIGTERM.
     """
 
