@@ -135,7 +135,9 @@ def test_identify_options_come_from_the_config(tmp_path):
 
 def test_trajectory_files_have_size_and_harmonic_limits(tmp_path):
     """A 10⁶-harmonic file asked for 15-18 GiB of bases; a huge file was read whole."""
-    from pe_drake.excitation.trajectory_file import MAX_HARMONICS
+    from pe_drake import limits
+
+    MAX_HARMONICS = int(limits.value(limits.HARMONICS))
 
     data = json.loads((DATA / "panda_optimized.json").read_text())
     n = len(data["joints"])

@@ -473,9 +473,10 @@ def test_a_local_ray_instance_started_by_pe_drake_listens_on_localhost_only():
         pytest.skip("a Ray cluster runs on this machine: ray.init() would join it")
     script = (
         "import ray\n"
-        "from pe_drake.excitation.parallel.ray import connect, node_addresses\n"
+        "from pe_drake.excitation.parallel.ray import connect\n"
         "assert connect()\n"
-        "print(node_addresses(ray), ray.get_runtime_context().gcs_address)\n"
+        "nodes = [n['NodeManagerAddress'] for n in ray.nodes() if n.get('Alive')]\n"
+        "print(nodes, ray.get_runtime_context().gcs_address)\n"
         "ray.shutdown()\n"
     )
     out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env, timeout=120)

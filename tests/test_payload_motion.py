@@ -9,10 +9,10 @@ import json
 import numpy as np
 import pytest
 
-from pe_drake.excitation.payload_motion import expected_payload_std, payload_excitation_config, payload_selection
+from pe_drake.excitation.payload_motion import expected_payload_std, payload_excitation_config
 from pe_drake.excitation.problem import ExcitationProblem
 from pe_drake.identification.payload import identify_payload
-from pe_drake.multibody.payload import link_columns
+from pe_drake.multibody.payload import link_columns, payload_base_parameters
 from pe_drake.simulation.payload_synthetic import payload_run, random_true_arm
 from tests.conftest import central_gradient, get_robot
 from tests.test_payload_identification import ROBOTS, _plan
@@ -21,7 +21,8 @@ from tests.test_payload_identification import ROBOTS, _plan
 @pytest.mark.parametrize("criterion", ["soft_cond", "dopt", "cond"])
 def test_payload_criterion_is_of_the_link_columns_and_its_gradient_is_right(criterion):
     robot = get_robot("ur5")
-    problem = ExcitationProblem(robot, payload_excitation_config(criterion=criterion), base=payload_selection(robot, "tool0"))
+    config = payload_excitation_config(criterion=criterion)
+    problem = ExcitationProblem(robot, config, base=payload_base_parameters(robot, "tool0"))
     alpha = problem.initial_guess(seed=4, amplitude=0.3)
     q, v, vd = problem.cost_basis.evaluate_alpha(alpha, robot.n)
     Y_L = problem.rows(q, v, vd)[..., link_columns(robot, "tool0")].reshape(-1, 10)  # noise-scaled rows

@@ -1,24 +1,14 @@
-"""The conventional baseline: random feasible motions and a greedy selection (reference [16]).
+"""The conventional baseline (reference [16], section IV-B, Table II): random feasible motions
+and a greedy selection, on the same robot, Fourier series, samples and constraints.
 
-Before optimization-based methods, exciting motions for humanoids were chosen from motions
-generated in advance (Jovic et al., IROS 2015, reference [16] of the paper): draw many random
-trajectories that satisfy the physical conditions, then select the best set of a given size.
-The paper compares its optimized motions with this approach (section IV-B, Table II); this
-module reproduces it on the same robot, Fourier series (N, ω), cost samples and constraints:
+1. Rejection sampling (:func:`generate_candidates`): random coefficients drawn and scaled into
+   the joint limits as the optimizer's initial point (:meth:`ExcitationProblem.initial_guess`);
+   a draw with a negative margin of any sampled constraint at the K samples is rejected.
+2. Greedy selection (:func:`greedy_select`): the lowest cond alone first, then repeatedly the
+   candidate that minimizes cond of the concatenated C (Eq. 41).
 
-1. Rejection sampling (:func:`generate_candidates`): draw random Fourier coefficients and
-   scale them into the joint limits at the K constraint samples exactly as the optimizer's
-   initial point (:meth:`ExcitationProblem.initial_guess`, coefficients ~ N(0, (amplitude/k)²)
-   around the nominal posture, scaled to use at most 90 % of each limit), then reject the
-   draw if any sampled constraint (balance Eq. 52, collision Eq. 53, ...) has a negative
-   margin at the K samples.
-2. Greedy selection (:func:`greedy_select`): the candidate with the lowest cond alone first,
-   then repeatedly the one that minimizes cond of the concatenated C (Eq. 41), up to the
-   motion count.
-
-cond of a concatenation only needs each block's R factor: for C = [C_1; C_2],
-CᵀC = R_1ᵀR_1 + R_2ᵀR_2, so C and [R_1; R_2] have the same singular values. Candidates keep
-their b×b R instead of their (T·n)×b regressor (13 MB instead of 80 MB for 200 G1 motions).
+For C = [C_1; C_2], CᵀC = R_1ᵀR_1 + R_2ᵀR_2, so candidates keep their b×b R factor instead of
+their (T·n)×b regressor: the concatenation has the same singular values.
 """
 
 from __future__ import annotations
@@ -27,7 +17,6 @@ import dataclasses
 import math
 import time
 from collections.abc import Callable, Sequence
-from typing import Any
 
 import numpy as np
 import scipy.linalg
@@ -35,6 +24,7 @@ import scipy.linalg
 from pe_drake.config import Config, ExcitationConfig, validate_config
 from pe_drake.exceptions import ConfigError, InfeasibleError
 from pe_drake.excitation.constraints import constraints_from_config
+from pe_drake.excitation.constraints.base import state_margins
 from pe_drake.excitation.parallel import Executor, ExecutorOptions, TaskFinished, open_executor
 from pe_drake.multibody.robot import Robot
 
@@ -65,11 +55,9 @@ class CandidateSet:
         candidates: accepted motions, in draw order.
         R: their regressors' R factors, shape (M, b, b) (see the module docstring).
         draws: random draws made (accepted + rejected).
-        rejected: {reason: count}; the reason is the first constraint a draw violated
-            ("joint limits", or a sampled constraint's name).
-        amplitude: scale of the random coefficients [rad].
-        wall_time: [s].
-        workers: chunks of draws run at once (1: one after the other).
+        rejected: {reason: count}; the reason is the first constraint a draw violated.
+        amplitude: scale of the random coefficients [rad]; ``wall_time`` [s].
+        workers: chunks of draws run at once.
     """
 
     candidates: list[RandomMotion]
@@ -80,21 +68,11 @@ class CandidateSet:
     wall_time: float
     workers: int
 
-    @property
-    def acceptance(self) -> float:
-        """Accepted fraction of the draws."""
-        return len(self.candidates) / self.draws if self.draws else 0.0
-
 
 @dataclasses.dataclass(frozen=True)
 class GreedySelection:
-    """A greedy selection (Table II).
-
-    Attributes:
-        indices: selected candidates, in selection order.
-        cond_each: cond(C^(i)) of each selected block alone.
-        cond_total: cond of the concatenated C after each selection (C0 included if given).
-    """
+    """A greedy selection (Table II): the candidates' ``indices`` in selection order, cond of
+    each alone and of the concatenated C after each (C0 included if given)."""
 
     indices: list[int]
     cond_each: list[float]
@@ -103,15 +81,8 @@ class GreedySelection:
 
 @dataclasses.dataclass
 class BaselineResult:
-    """Outcome of :func:`random_baseline`.
-
-    Attributes:
-        candidate_set: the accepted random motions.
-        selection: the greedy selection over them.
-        selected: the selected :class:`RandomMotion` objects, in selection order.
-        generation_time: time to draw and check the candidates [s].
-        selection_time: time of the greedy selection [s].
-    """
+    """Outcome of :func:`random_baseline`: the candidates, the greedy selection over them and
+    the selected motions in selection order; ``generation_time``, ``selection_time`` [s]."""
 
     candidate_set: CandidateSet
     selection: GreedySelection
@@ -126,14 +97,7 @@ class BaselineResult:
 
 @dataclasses.dataclass(frozen=True)
 class DrawEvent:
-    """Progress of :func:`generate_candidates` (after each chunk of draws).
-
-    Attributes:
-        drawn: draws made so far.
-        accepted: of which accepted.
-        wanted: accepted candidates asked for.
-        elapsed: [s].
-    """
+    """Progress of :func:`generate_candidates` after each chunk of draws (``elapsed`` [s])."""
 
     drawn: int
     accepted: int
@@ -142,13 +106,10 @@ class DrawEvent:
 
     def __str__(self) -> str:
         rate = self.accepted / self.drawn if self.drawn else 0.0
-        return (
-            f"  random candidates: {self.accepted} accepted of {self.drawn} drawn ({100 * rate:.0f} %, "
-            f"{self.wanted} wanted)  {self.elapsed:6.1f} s"
-        )
+        return (f"  random candidates: {self.accepted} accepted of {self.drawn} drawn "
+                f"({100 * rate:.0f} %, {self.wanted} wanted)  {self.elapsed:6.1f} s")
 
 
-# ---- greedy selection -----------------------------------------------------------------------------
 def _cond(s: np.ndarray) -> float:
     return float(s[0] / s[-1]) if s[-1] > 0 else math.inf
 
@@ -161,12 +122,6 @@ def _r_factor(block: np.ndarray) -> np.ndarray:
     return scipy.linalg.qr(block, mode="r", check_finite=False)[0][: block.shape[1]]
 
 
-def stacked_cond(blocks: Sequence[np.ndarray]) -> float:
-    """cond of the vertical concatenation of ``blocks`` (each (m_i, b))."""
-    s = np.linalg.svd(np.vstack([_r_factor(b) for b in blocks]), compute_uv=False)
-    return _cond(s)
-
-
 def greedy_select(blocks: Sequence[np.ndarray], motions: int, C0: np.ndarray | None = None) -> GreedySelection:
     """Greedy choice of ``motions`` blocks minimizing cond of their concatenation.
 
@@ -175,15 +130,10 @@ def greedy_select(blocks: Sequence[np.ndarray], motions: int, C0: np.ndarray | N
 
     Args:
         blocks: candidate regressors (or their R factors), each (m_i, b).
-        motions: how many to select (at most ``len(blocks)``).
         C0: prior data, shape (m0, b), or None.
 
-    Returns:
-        The :class:`GreedySelection`.
-
     Raises:
-        ConfigError: fewer blocks than motions, a motion count below 1, or column counts
-            that differ.
+        ConfigError: fewer blocks than motions, motions below 1, or column counts that differ.
     """
     if not isinstance(motions, int) or motions < 1:
         raise ConfigError(f"motions must be a positive integer, got {motions!r}")
@@ -213,45 +163,21 @@ def greedy_select(blocks: Sequence[np.ndarray], motions: int, C0: np.ndarray | N
     return GreedySelection(chosen, [alone[k] for k in chosen], totals)
 
 
-# ---- rejection sampling ---------------------------------------------------------------------------
-def sample_margins(problem, alpha: np.ndarray, constraints: Sequence[Any] = ()) -> dict[str, float]:
-    """Minimum margin of the joint limits and of each constraint at the K constraint samples.
-
-    Returns:
-        {"position", "velocity", "acceleration", <constraint name>: margin}; < 0 is a violation.
-    """
-    q, v, vd = problem.constraint_basis.evaluate_alpha(np.asarray(alpha, float), problem.n)
-    out = _joint_margins(problem.robot.limits, q, v, vd)
-    for c in constraints:
-        out[c.name] = float(np.min(c.margins(q, v, vd)))
-    return out
-
-
-def _joint_margins(lim, q: np.ndarray, v: np.ndarray, vd: np.ndarray) -> dict[str, float]:
-    return {
-        "position": float(np.min(np.minimum(q - lim.q_lower, lim.q_upper - q))),
-        "velocity": float(np.min(lim.v_max - np.abs(v))),
-        "acceleration": float(np.min(lim.vd_max - np.abs(vd))),
-    }
-
-
 def _draw(
     problem, constraints, seed: int, amplitude: float
 ) -> tuple[str, RandomMotion | None, np.ndarray | None]:
     """One draw: ("", candidate, R) if accepted, else (reason, None, None)."""
     alpha = problem.initial_guess(seed, amplitude)
     q, v, vd = problem.constraint_basis.evaluate_alpha(alpha, problem.n)
-    margins = _joint_margins(problem.robot.limits, q, v, vd)
+    margins = state_margins(problem.robot.limits, (), q, v, vd)
     if min(margins.values()) < 0:
         return "joint limits", None, None
     for c in constraints:  # in order: a violated one stops the checks (cheap ones first)
         margins[c.name] = float(np.min(c.margins(q, v, vd)))
         if margins[c.name] < 0:
             return c.name, None, None
-    block = problem.regressor_block(alpha)
-    R = _r_factor(block)
-    cond = _cond(np.linalg.svd(R, compute_uv=False))
-    return "", RandomMotion(int(seed), alpha, cond, margins), R
+    R = _r_factor(problem.regressor_block(alpha))
+    return "", RandomMotion(int(seed), alpha, _cond(np.linalg.svd(R, compute_uv=False)), margins), R
 
 
 @dataclasses.dataclass
@@ -284,11 +210,8 @@ class _DrawProgress:
 
 
 def _draw_rounds(executor: Executor, config, count, seed, amplitude, max_draws, chunk_size, on_event) -> list:
-    """Draws in rounds until ``count`` are accepted or ``max_draws`` are made; outcomes in draw order.
-
-    Draw d has seed ``seed + d`` whatever chunk or worker runs it, so the accepted set does
-    not depend on scheduling.
-    """
+    """Draws in rounds until ``count`` are accepted or ``max_draws`` are made; outcomes in draw
+    order (draw d has seed ``seed + d`` whatever chunk or worker runs it)."""
     outcomes: list = []
     next_draw = 0
     while next_draw < max_draws:
@@ -309,19 +232,10 @@ def _draw_rounds(executor: Executor, config, count, seed, amplitude, max_draws, 
 
 
 def generate_candidates(
-    robot: Robot,
-    config: ExcitationConfig | None = None,
-    count: int = 200,
-    *,
-    constraints_factory: Callable | None = None,
-    seed: int = 0,
-    amplitude: float | None = None,
-    max_draws: int | None = None,
-    workers: int = 1,
-    executor: str | Executor = "local",
-    address: str = "",
-    progress: Callable[[DrawEvent], None] | None = None,
-    chunk_size: int = 16,
+    robot: Robot, config: ExcitationConfig | None = None, count: int = 200, *,
+    constraints_factory: Callable | None = None, seed: int = 0, amplitude: float | None = None,
+    max_draws: int | None = None, workers: int = 1, executor: str | Executor = "local",
+    address: str = "", progress: Callable[[DrawEvent], None] | None = None, chunk_size: int = 16,
 ) -> CandidateSet:
     """Random motions satisfying every constraint at the K samples (rejection sampling).
 
@@ -331,26 +245,17 @@ def generate_candidates(
     Args:
         robot: the :class:`~pe_drake.multibody.robot.Robot` (ignored with an open executor).
         config: N, ω, T, K and the amplitude (default :class:`ExcitationConfig`).
-        count: accepted candidates wanted.
         constraints_factory: ``f(robot, config) -> [SampledConstraint, ...]`` (default
             :func:`pe_drake.excitation.constraints.constraints_from_config`); ignored with an
             open executor.
-        seed: seed of the first draw.
         amplitude: scale of the random coefficients [rad] (default ``config.amplitude``).
         max_draws: give up after this many draws (default 50 × count).
-        workers: chunks at once (1: in this process with the "local" executor).
-        executor: "local", "ray", or an open :class:`~pe_drake.excitation.parallel.Executor`.
-        address: Ray cluster address (``executor="ray"``).
-        progress: callback receiving a :class:`DrawEvent` after each chunk of draws.
+        workers, executor, address: see :class:`~pe_drake.excitation.parallel.ExecutorOptions`.
         chunk_size: draws per task sent to a worker.
-
-    Returns:
-        The :class:`CandidateSet`.
 
     Raises:
         ConfigError: a count, amplitude, max_draws or chunk size that is not positive.
-        InfeasibleError: fewer than ``count`` draws accepted within ``max_draws`` (the
-            acceptance rate is in the message: lower the amplitude or loosen the constraints).
+        InfeasibleError: fewer than ``count`` draws accepted within ``max_draws``.
     """
     begin = time.perf_counter()
     config = config or ExcitationConfig()
@@ -364,14 +269,13 @@ def generate_candidates(
         raise ConfigError(f"amplitude must be a positive number [rad], got {amplitude!r}")
     own = not isinstance(executor, Executor)
     if own:
-        executor = open_executor(
-            robot, executor, workers, address=address, measurement=config.measurement,
-            constraints_factory=constraints_factory or constraints_from_config,
-        )
+        executor = open_executor(robot, executor, workers, address=address,
+                                 measurement=config.measurement,
+                                 constraints_factory=constraints_factory or constraints_from_config)
     try:
-        outcomes = _draw_rounds(
-            executor, config, count, seed, float(amplitude), max_draws, chunk_size, _DrawProgress(count, begin, progress)
-        )
+        on_event = _DrawProgress(count, begin, progress)
+        outcomes = _draw_rounds(executor, config, count, seed, float(amplitude), max_draws,
+                                chunk_size, on_event)
     finally:
         if own:
             executor.close()
@@ -399,12 +303,10 @@ class BaselineOptions:
     """The random baseline's draws, its selection and where the draws run.
 
     Attributes:
-        motions: how many motions to select (the paper: 3).
-        candidates: accepted random motions to select from.
+        motions: how many motions to select (the paper: 3) from ``candidates`` accepted ones.
         C0: prior data the selection starts from, shape (m0, b), or None.
         constraints_factory, seed, amplitude, max_draws: see :func:`generate_candidates`.
-        run: where the draws run (``workers``, ``executor``, ``address`` of
-            :class:`~pe_drake.excitation.parallel.ExecutorOptions`; default one worker).
+        run: where the draws run (``workers``, ``executor``, ``address``).
     """
 
     motions: int = 3
@@ -417,23 +319,10 @@ class BaselineOptions:
     run: ExecutorOptions = ExecutorOptions(workers=1)
 
 
-def random_baseline(
-    robot: Robot | None,
-    config: ExcitationConfig | None = None,
-    options: BaselineOptions | None = None,
-    *,
-    progress: Callable[[DrawEvent], None] | None = None,
-) -> BaselineResult:
-    """Random feasible candidates (:func:`generate_candidates`), then the greedy selection of
-    ``options.motions`` of them.
-
-    Args:
-        robot, config, progress: see :func:`generate_candidates`.
-        options: the draws and the selection (default :class:`BaselineOptions`).
-
-    Returns:
-        The :class:`BaselineResult`.
-    """
+def random_baseline(robot: Robot | None, config: ExcitationConfig | None = None,
+                    options: BaselineOptions | None = None, *,
+                    progress: Callable[[DrawEvent], None] | None = None) -> BaselineResult:
+    """Random feasible candidates (:func:`generate_candidates`), then the greedy selection."""
     o = options or BaselineOptions()
     motions, candidates = o.motions, o.candidates
     if not isinstance(motions, int) or motions < 1:
@@ -446,11 +335,5 @@ def random_baseline(
     )
     begin = time.perf_counter()
     selection = greedy_select(list(cset.R), motions, o.C0)
-    selection_time = time.perf_counter() - begin
-    return BaselineResult(
-        candidate_set=cset,
-        selection=selection,
-        selected=[cset.candidates[k] for k in selection.indices],
-        generation_time=cset.wall_time,
-        selection_time=selection_time,
-    )
+    return BaselineResult(cset, selection, [cset.candidates[k] for k in selection.indices],
+                          cset.wall_time, time.perf_counter() - begin)

@@ -1,20 +1,13 @@
 """The optimized motion as a goal a ros2_control joint_trajectory_controller runs as it is.
 
-joint_trajectory_controller (also behind MoveIt's ExecuteTrajectory and UR's passthrough
-controller) takes a ``FollowJointTrajectory`` goal / ``trajectory_msgs/msg/JointTrajectory``
-with positions, velocities and accelerations per point and interpolates between points with
-quintics. At 50 Hz waypoints that reproduces the smooth Fourier motion to far below a
-micro-radian, with a file 20× smaller than the 1 kHz CSV.
+The controller takes a ``FollowJointTrajectory`` goal (positions, velocities, accelerations per
+point) and interpolates with quintics: 50 Hz waypoints reproduce the Fourier motion to far below
+a micro-radian. Point k is the state at t_k = k / rate, with ``time_from_start`` = t_k + lead-in:
+no point at 0, which the controller would not interpolate to (its first segment starts from the
+robot's current state, which must be the motion's start at rest).
 
-Point k is the motion's state at t_k = k / rate (the last point is at the end of the motion,
-at rest), with ``time_from_start`` = t_k + lead-in: no point at 0, which the controller would
-not interpolate to (its first segment starts from the robot's current state, which must be
-the motion's start at rest; the lead-in gives it time to settle there).
-
-- :func:`goal_points`: the waypoints (times, q, v, vd) and a jerk check at 1 kHz;
-- :func:`write_goal_yaml`: ``trajectory_goal.yaml`` for ``ros2 action send_goal``;
-- :func:`write_goal_bag`: the same trajectory as a JointTrajectory message in an MCAP bag
-  for ``ros2 bag play``.
+:func:`write_goal_yaml` writes it for ``ros2 action send_goal``, :func:`write_goal_bag` as an
+MCAP bag for ``ros2 bag play``.
 """
 
 from __future__ import annotations
@@ -42,7 +35,6 @@ class GoalOptions:
     Attributes:
         rate_hz: waypoint rate [Hz].
         lead_in_s: added to every ``time_from_start`` [s], > 0.
-        topic: JointTrajectory topic of the bag.
         joint_names: {URDF joint: the driver's name} for drivers whose names differ.
         jerk_limits: {URDF joint: limit} [rad/s³]; joints not listed are not checked.
     """
@@ -67,20 +59,10 @@ class GoalOptions:
 
 
 def check_jerk(motion, joint_names: Sequence[str], jerk_limits: Mapping[str, float]) -> np.ndarray:
-    """The motion's peak |jerk| per joint at ``JERK_CHECK_HZ``; refuses one above its limit.
-
-    The jerk is the central difference of the exact acceleration at 1 kHz.
-
-    Returns:
-        Peak |jerk| per joint, shape (n,) [rad/s³].
-
-    Raises:
-        NotWithinLimitsError: naming the joint, its peak jerk, the limit and the time.
-    """
-    dt = 1.0 / JERK_CHECK_HZ
+    """Peak |jerk| per joint (central difference of the exact acceleration at ``JERK_CHECK_HZ``),
+    shape (n,) [rad/s³]; NotWithinLimitsError for one above its limit."""
     t = motion.sample_times(JERK_CHECK_HZ)
-    _, _, vd = motion.evaluate(t)
-    jerk = np.gradient(vd, dt, axis=0)
+    jerk = np.gradient(motion.evaluate(t)[2], 1.0 / JERK_CHECK_HZ, axis=0)
     peak = np.abs(jerk).max(axis=0)
     for j, name in enumerate(joint_names):
         limit = jerk_limits.get(name)
@@ -98,8 +80,7 @@ def goal_points(motion, rate_hz: float) -> tuple[np.ndarray, np.ndarray, np.ndar
     count = int(math.ceil(motion.duration * rate_hz - 1e-9))
     t = np.append(np.arange(count) / rate_hz, motion.duration)
     t = np.unique(np.round(t, 12))
-    q, v, vd = motion.evaluate(t)
-    return t, q, v, vd
+    return (t, *motion.evaluate(t))
 
 
 def _names(joint_names: Sequence[str], options: GoalOptions) -> list[str]:
@@ -141,26 +122,19 @@ def write_goal_yaml(path: str | Path, motion, joint_names: Sequence[str], option
     control_msgs/action/FollowJointTrajectory "$(cat trajectory_goal.yaml)"``.
 
     Args:
-        path: the YAML file (written atomically).
         motion: the :class:`~pe_drake.excitation.ramp.RampedMotion` (at rest at both ends).
         joint_names: the URDF's excited joints, in the motion's order.
-        options: :class:`GoalOptions`.
 
     Raises:
-        NotWithinLimitsError: jerk above ``jerk_limits``.
-        ConfigError: bad options or joint names.
+        NotWithinLimitsError, ConfigError: jerk above ``jerk_limits``; bad options or joints.
     """
     atomic_write_text(path, goal_yaml_text(motion, joint_names, options))
 
 
 def write_goal_bag(path: str | Path, motion, joint_names: Sequence[str], options: GoalOptions | None = None) -> None:
-    """Writes the goal's trajectory as one ``trajectory_msgs/msg/JointTrajectory`` in an MCAP bag
-    folder (``ros2 bag play <path>``) on ``options.topic``.
-
-    Raises:
-        NotWithinLimitsError, ConfigError: as :func:`write_goal_yaml`; ConfigError when
-            ``path`` exists (rosbags refuses to overwrite a bag).
-    """
+    """Writes the goal's trajectory as one ``trajectory_msgs/msg/JointTrajectory`` on
+    ``options.topic`` in an MCAP bag folder; raises as :func:`write_goal_yaml`, and ConfigError
+    when ``path`` exists."""
     from rosbags.rosbag2 import StoragePlugin, Writer  # lazy: keeps `import pe_drake` light
     from rosbags.typesys import Stores, get_typestore
 

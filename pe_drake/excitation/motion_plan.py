@@ -1,12 +1,10 @@
-"""The front door of ``pe-drake optimize``: :func:`optimize_motion` does the whole run the paper
-describes, from a resolved config to a :class:`MotionPlan` that writes itself.
+"""The front door of ``pe-drake optimize``: :func:`optimize_motion`, from a resolved config to a
+:class:`MotionPlan` that writes itself.
 
-The steps, in order: capsules fitted when the robot has none (a new config, nothing changed in
-place), the robot built once, a nominal posture chosen when the zero posture collides, the
-problem with the prior motions' data as C0 (Eq. 41), the constraints, the multi-start solve on
-an executor holding that robot, the ramps from and to rest, the quality figures, the
-controller goal and the hardware checks. The Drake plug-in pieces (``build_excitation_program``,
-``solve_excitation``) stay public for users who build their own program.
+The steps: capsules fitted when the robot has none, the robot built once, a nominal posture
+that clears the floor, the problem with the prior motions' data as C0 (Eq. 41), the
+constraints, the multi-start solve, the ramps from and to rest, the quality figures, the
+controller goal and the hardware checks.
 """
 
 from __future__ import annotations
@@ -70,7 +68,6 @@ class MotionPlan:
     """An optimized exciting motion and everything ``pe-drake optimize`` writes about it.
 
     Attributes:
-        robot: the :class:`~pe_drake.multibody.robot.Robot` it was solved for.
         config: the resolved config (fitted capsules, chosen nominal posture included).
         problem: the :class:`~pe_drake.excitation.problem.ExcitationProblem` (C0 included).
         constraints: the sampled constraints beyond the joint limits.
@@ -78,8 +75,7 @@ class MotionPlan:
         motion: ramp-in + periods + ramp-out (None: no valid solution).
         quality: what the motion will tell (None: no valid solution).
         goal_yaml: the FollowJointTrajectory goal's text (None: none, e.g. without ramps).
-        fitted: the capsules fitted to the meshes, with the file's text (or None).
-        report: ``report.json``'s content.
+        fitted: the capsules fitted to the meshes (or None), ``fitted_text`` the file's text.
     """
 
     robot: Robot
@@ -114,8 +110,7 @@ class MotionPlan:
         return self.report.not_valid_for_hardware
 
     def summary_lines(self) -> list[str]:
-        """The solve's outcome, the motion's expected quality and why it must not go to hardware
-        (the progress lines of :func:`optimize_motion` tell each step)."""
+        """The solve's outcome, the motion's expected quality and why it must not go to hardware."""
         lines = [_outcome_line(self.multistart)]
         lines += self.quality.summary_lines() if self.quality is not None else []
         return lines + ([f"not valid for hardware: {self.refusal}"] if self.refusal is not None else [])
@@ -123,17 +118,14 @@ class MotionPlan:
     def write(self, folder: str | Path, *, csv_rate: float = DEFAULT_CSV_RATE,
               playback: Callable[[MotionPlan, Path], None] | None = None, progress: Say | None = None) -> list[str]:
         """Writes trajectory.json/.csv/.png, the controller goal, the fitted capsules and
-        report.json (last) into ``folder``, all or nothing; earlier runs' files of these names
-        that this run does not write are removed, other files are left alone.
+        report.json (last) into ``folder``, all or nothing (earlier runs' files of these names
+        are removed); returns the paths written, sorted by name.
 
         Args:
             csv_rate: rate of trajectory.csv [Hz].
-            playback: ``f(plan, html_path)`` writing the Meshcat playback (the viewer's
-                :func:`~pe_drake.viewer.write_plan_playback`); a failure there is a warning.
-            progress: called with that warning.
-
-        Returns:
-            The paths written, sorted by name.
+            playback: ``f(plan, html_path)`` writing the Meshcat playback
+                (:func:`~pe_drake.viewer.write_plan_playback`); a failure there is a warning,
+                sent to ``progress``.
         """
         say = progress or (lambda _line: None)
         out = check_output_dir(folder)
@@ -200,11 +192,7 @@ class MotionPlan:
 
 
 def check_csv_size(config: Config, rate: float, max_rows: int = 10_000_000) -> None:
-    """Refuses a trajectory.csv too large to write (periods × period × rate, ramps included).
-
-    Raises:
-        ConfigError: naming the rows, the periods and the rate.
-    """
+    """Refuses (ConfigError) a trajectory.csv too large to write (periods × period × rate)."""
     if not (math.isfinite(rate) and 1.0 <= rate <= 10_000.0):
         raise ConfigError(f"--csv-rate must be from 1 to 10000 Hz, got {rate:g}")
     e = config.excitation
@@ -217,15 +205,9 @@ def check_csv_size(config: Config, rate: float, max_rows: int = 10_000_000) -> N
         )
 
 
-def optimize_motion(
-    config: Config,
-    *,
-    priors: Sequence[str | Path] = (),
-    executor: Executor | None = None,
-    progress: Say | None = None,
-    name: str | None = None,
-    allow_unchecked: bool = False,
-) -> MotionPlan:
+def optimize_motion(config: Config, *, priors: Sequence[str | Path] = (),
+                    executor: Executor | None = None, progress: Say | None = None,
+                    name: str | None = None, allow_unchecked: bool = False) -> MotionPlan:
     """Optimizes an exciting motion: everything ``pe-drake optimize`` does (module docstring).
 
     Args:
@@ -263,18 +245,14 @@ def optimize_motion(
             workers = min(par.workers, default_workers()) if par.executor == "local" and par.workers else par.workers
             with open_executor(robot, par.executor, workers or None, tasks=par.starts, address=par.address,
                                measurement=config.excitation.measurement, hung_after_s=par.hung_after_s,
-                               constraints_factory=constraints_factory(config)) as own:
+                               constraints_factory=functools.partial(
+                                   constraints_from_config, environment=config.environment)) as own:
                 plan = _plan(config, robot, own, priors, fitted, fitted_text, unchecked, allow_unchecked, start, say)
     except BaseException:
         shutil.rmtree(fit_dir, ignore_errors=True)
         raise
     weakref.finalize(plan, shutil.rmtree, fit_dir, True)
     return plan
-
-
-def constraints_factory(config: Config):
-    """The constraint factory the workers build their constraints with (picklable)."""
-    return functools.partial(constraints_from_config, environment=config.environment)
 
 
 def collision_geometry(config: Config, fit_dir: Path, say: Say) -> tuple[Config, FittedCapsules | None, list[str]]:
@@ -286,9 +264,8 @@ def collision_geometry(config: Config, fit_dir: Path, say: Say) -> tuple[Config,
     except ConfigError as err:
         if config.excitation.collision_margin >= 0 or config.environment.boxes:
             raise
-        # Only a missing collision geometry turns the floor off: a robot that does not load at all
-        # (a joint without limits) is refused once, by its own error (issue 37: it came twice,
-        # after a stray "the floor is NOT checked").
+        # Only a missing collision geometry turns the floor off: a robot that does not load at
+        # all is refused by its own error (issue 37).
         Robot(robot_display_name(config.robot.model), config.robot)
         say(f"warning: {err}; the floor is NOT checked (environment.floor turned off)")
         config = dataclasses.replace(config, environment=dataclasses.replace(config.environment, floor=False))
@@ -316,12 +293,8 @@ def _robot(config: Config, name: str, say: Say) -> Robot:
 
 
 def prior_regressor(problem: ExcitationProblem, trajectory_json: str | Path) -> np.ndarray:
-    """Stacked rows of C of an earlier motion (for C0, Eq. 41: base regressor, then the drive columns), at the problem's number
-    of cost samples over that motion's own period.
-
-    Raises:
-        DataError: the file's joints differ from the robot's.
-    """
+    """Stacked rows of C of an earlier motion (for C0, Eq. 41), at the problem's number of cost
+    samples over that motion's own period; DataError if the file's joints differ."""
     trajectory, data = load_trajectory(trajectory_json)
     joints = tuple(data["joints"])
     check_joints(problem.robot, joints, file=str(trajectory_json), what="the prior motion")
@@ -446,9 +419,8 @@ def limit_margins(config: Config) -> dict:
 def _controller_goal(motion: RampedMotion, robot: Robot, config: Config, say: Say) -> tuple[str | None, str | None]:
     """(trajectory_goal.yaml's text or None, the reason the motion is refused or None).
 
-    The goal is the FollowJointTrajectory a ros2_control controller runs as it is; a motion
-    without ramps does not start at rest and gets none. A jerk above ``robot.jerk_limits``
-    refuses the whole motion: the CSV would carry the same jerk.
+    A motion without ramps does not start at rest and gets no goal. A jerk above
+    ``robot.jerk_limits`` refuses the whole motion: the CSV would carry the same jerk.
     """
     if motion.ramp_duration <= 0:
         say("no trajectory_goal.yaml: the motion has no ramps, so it does not start at rest")

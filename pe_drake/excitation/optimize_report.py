@@ -14,14 +14,11 @@ from pe_drake.multibody.joint_limits import joint_unit
 class MotionReport:
     """The fields of ``report.json``, in the file's order (see the README's "Outputs").
 
-    ``success``: a valid motion (every limit and constraint holds at 1 kHz); ``converged``:
-    the solver also reached a local optimum (a valid motion may come from a solver stopped at
-    its iteration limit). ``config`` is the resolved config the motion was solved with (fitted capsules and a
-    chosen nominal posture included); ``limit_margins`` the position margin and velocity,
-    acceleration and effort fractions the limits were used with (and which were assumed);
-    ``ramp_margins_1khz`` the smallest margins over the ramps; ``unchecked`` lists what could not be checked for
-    collision; ``ignored_pairs`` the fitted capsule pairs not checked (touching by design) with the reason,
-    ``shrunk_capsules`` the fitted capsules made thinner so that farther links stay checked; ``not_valid_for_hardware`` the reason the motion is refused (None: valid).
+    ``success``: a valid motion (every limit and constraint holds at 1 kHz); ``converged``: the
+    solver also reached a local optimum. ``config``: the resolved config (fitted capsules and
+    nominal posture included); ``unchecked``: what could not be checked for collision;
+    ``ignored_pairs``: capsule pairs not checked (touching by design); ``shrunk_capsules``:
+    fitted capsules made thinner; ``not_valid_for_hardware``: why it is refused (None: valid).
     """
 
     robot: str
@@ -65,11 +62,8 @@ class MotionReport:
 
 
 def assumed_defaults(config: Config, joint_names, kinds=None) -> list[str]:
-    """Limits pe_drake assumed because neither the model nor the config gives them.
-
-    Args:
-        kinds: "revolute" or "prismatic" per joint (None: all revolute), for the units.
-    """
+    """Limits pe_drake assumed because neither the model nor the config gives them (``kinds``:
+    "revolute" or "prismatic" per joint, for the units; None: all revolute)."""
     r = config.robot
     kinds = list(kinds) if kinds is not None else ["revolute"] * len(joint_names)
     missing = {kind: [j for j, k in zip(joint_names, kinds) if k == kind and j not in r.acceleration_limits]

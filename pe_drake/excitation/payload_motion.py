@@ -1,20 +1,14 @@
 """Excitation of a payload alone: a short motion that makes its 10 parameters well determined.
 
-With the arm's parameters known (its model, or an earlier identification), what a payload
-run must determine is the payload link's 10 columns Y_L of the regressor
-(:mod:`pe_drake.multibody.payload`). The machinery of the arm's excitation is reused as it is
-(:class:`~pe_drake.excitation.problem.ExcitationProblem`, its program, constraints and
-solve): the "base parameters" handed to it are the selection of those 10 columns
-(:func:`payload_selection`), so the criterion (cond, or the smooth bound soft_cond,
-:mod:`pe_drake.excitation.criteria`) and its analytic gradient are those of Y_L. The motion
-is short by default (a 6 s period, 5 harmonics; at most 15 s with the ramps from and to
-rest), and every constraint of the arm applies.
+With the arm's parameters known, a payload run must determine the payload link's 10 regressor
+columns Y_L (:mod:`pe_drake.multibody.payload`). The arm's excitation machinery is reused as it
+is, with the combinations of those columns the torques determine as its "base parameters"
+(:func:`~pe_drake.multibody.payload.payload_base_parameters`), so the criterion and its gradient
+are those of Y_L; every constraint of the arm applies.
 
-Expected σ before the run (:func:`expected_payload_std`): Cov(φ_L) = (Y_Lᵀ Σ⁻¹ Y_L)⁻¹ over the
-whole motion at the data rate, times 2 when an unloaded run of the same motion is fitted
-with it (the fit then uses the difference of two runs with the same noise each:
-:mod:`pe_drake.identification.payload`), carried to mass, centre of mass and central
-inertia at a nominal payload.
+Expected σ (:func:`expected_payload_std`): Cov(φ_L) = (Y_Lᵀ Σ⁻¹ Y_L)⁻¹ over the whole motion,
+times 2 when an unloaded run of the same motion is fitted with it (the difference of two noisy
+runs), carried to mass, centre of mass and central inertia at a nominal payload.
 """
 
 from __future__ import annotations
@@ -35,7 +29,6 @@ from pe_drake.excitation.ramp import RAMP_DURATIONS, RampedMotion, choose_ramp_d
 from pe_drake.excitation.solve import ExcitationResult, solve_excitation
 from pe_drake.excitation.trajectory_file import save_trajectory, write_motion_csv
 from pe_drake.io_utils import finite_json
-from pe_drake.multibody.base_parameters import BaseParameters
 from pe_drake.multibody.payload import (
     PayloadInertia,
     box_inertia,
@@ -59,15 +52,6 @@ MAX_PAYLOAD_DURATION_S = 15.0
 #: The payload at which expected σ are linearized when none is given: 1 kg, 0.1 m cube,
 #: centre of mass 5 cm from the link origin along z.
 NOMINAL_PAYLOAD = PayloadInertia(1.0, np.array([0.0, 0.0, 0.05]), box_inertia(1.0, [0.1, 0.1, 0.1]))
-
-
-def payload_selection(robot: Robot, link: str, model: RegressorModel | None = None) -> BaseParameters:
-    """The combinations of the payload link's 10 parameters the robot's torques determine, as a
-    :class:`BaseParameters` (φ_B = K φ_L; all 10 on an arm with axes in every direction): the
-    excitation problem then minimizes the criterion of Y_L K⁺. What no motion of the robot can
-    excite (a SCARA: the tilting inertias, the CoM height) is left out rather than made to blow up
-    cond (issue 37: ``cond(Y_L) inf``); :func:`undetermined_parameters` names it."""
-    return payload_base_parameters(robot, link, model)
 
 
 def payload_excitation_config(**changes) -> ExcitationConfig:
@@ -128,7 +112,6 @@ def expected_payload_std(robot: Robot, link: str, motion, *, noise_std=0.04, nom
     """Expected σ of the payload identified from ``motion`` (module docstring).
 
     Args:
-        robot: the robot; link: the payload link.
         motion: a :class:`~pe_drake.excitation.ramp.RampedMotion` or a FourierTrajectory
             (one period).
         noise_std: torque noise σ_j [N·m], scalar or (n,).
@@ -158,17 +141,8 @@ def expected_payload_std(robot: Robot, link: str, motion, *, noise_std=0.04, nom
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class PayloadMotionPlan:
-    """A payload motion: the optimized path, the controller motion with its ramps, the
-    expected σ and timings.
-
-    Attributes:
-        link: the payload link.
-        result: the :class:`~pe_drake.excitation.solve.ExcitationResult` (cond of Y_L).
-        motion: ramp-in + the periods + ramp-out.
-        expected: :class:`PayloadStd` of the whole motion.
-        wall_time: optimization + ramp choice [s].
-        criterion: the excitation criterion it minimized.
-    """
+    """A payload motion for ``link``: the solve's result (cond of Y_L), the controller motion
+    with its ramps, the expected σ, the criterion minimized and ``wall_time`` [s]."""
 
     link: str
     result: ExcitationResult
@@ -195,7 +169,7 @@ def optimize_payload_motion(robot: Robot, link: str, config: ExcitationConfig | 
     """Optimizes a payload motion for ``link`` (module docstring).
 
     Args:
-        robot: the robot; link: the payload link (a body in ``robot.body_names``).
+        link: the payload link (a body in ``robot.body_names``).
         config: excitation settings (default :func:`payload_excitation_config`).
         solver: "ipopt", "nlopt" or a :class:`SolverConfig` (default IPOPT, 150 iterations).
         constraints: the sampled constraints (collision, balance, ...) as for the arm.
@@ -204,8 +178,7 @@ def optimize_payload_motion(robot: Robot, link: str, config: ExcitationConfig | 
         raise_on_failure: raise :class:`NoSolutionFound` when no valid motion was found.
 
     Raises:
-        ConfigError: a period that leaves no room for the ramps within ``max_duration``.
-        InfeasibleError: no ramp works.
+        ConfigError, InfeasibleError: no room for the ramps within ``max_duration``; no ramp works.
     """
     start = time.perf_counter()
     config = config or payload_excitation_config()
@@ -216,7 +189,7 @@ def optimize_payload_motion(robot: Robot, link: str, config: ExcitationConfig | 
         raise ConfigError(f"a payload motion of {config.periods} period(s) of {period:.3g} s leaves no room for "
                           f"ramps of at least {RAMP_DURATIONS[0]:g} s within {max_duration:g} s: shorten the period "
                           "(a larger omega) or raise max_duration")
-    problem = ExcitationProblem(robot, config, base=payload_selection(robot, link))
+    problem = ExcitationProblem(robot, config, base=payload_base_parameters(robot, link))
     program = build_excitation_program(problem, list(constraints))
     result = solve_excitation(program, solver)
     if not result.success and raise_on_failure:

@@ -32,9 +32,7 @@ def optimize_payload(config: Config, robot: Robot, link: str, *, seed: int | Non
     """A short motion that excites the payload on ``link`` alone, within the arm's limits,
     constraints and noise (:func:`~pe_drake.excitation.payload_motion.optimize_payload_motion`).
 
-    Self-collision is set up as plain ``optimize`` does it (issue 37): a capsule file's
-    recorded ``collision_margin`` applies when the config sets none, and a robot without a
-    capsule file gets capsules fitted to its collision geometry.
+    Self-collision is set up as plain ``optimize`` does it (issue 37).
 
     Raises:
         ConfigError, NoSolutionFound: bad settings, parts of the robot that cannot be checked

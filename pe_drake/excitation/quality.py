@@ -1,36 +1,17 @@
 """What a motion will tell you before you record it: expected parameter and torque errors.
 
-cond(C) depends on which valid set of base parameters is chosen and on their units (the
-same motion has another cond in another QR-pivoted set), so it cannot be compared between
-tools, and it says nothing about what the motion buys. For a torque noise σ_j per joint and
-P recorded periods this module gives figures a user can act on:
+cond(C) depends on the chosen base parameters and their units; for a torque noise σ_j per joint
+and P recorded periods this module gives the expected standard deviation of every base parameter
+(Cov = (CᵀΣ⁻¹C)⁻¹ / P, the covariance of ``pe-drake identify --method wls``; basis-dependent),
+and basis-free figures: the expected RMS error of the torques predicted on a fixed, seeded
+reference set of motions (row c_v has variance c_v Cov c_vᵀ, invariant under φ_B → Tφ_B) and
+its ratio, and that of the D-efficiency det(CᵀΣ⁻¹C)^(1/2b), to random motions under the same
+constraints ("this motion predicts torques k× better than random motions").
 
-- the expected standard deviation of every base parameter, Cov = (CᵀΣ⁻¹C)⁻¹ / P, absolute
-  and in % of its a-priori value. This is the weighted least-squares covariance of
-  ``pe-drake identify --method wls`` (with one σ for every joint it is σ²(CᵀC)⁻¹, the OLS
-  one). It depends on the basis (in pe_drake's base parameters, named as such).
-- figures that are the same in every basis and unit system:
-  * the expected RMS error of the predicted torques on a fixed, seeded reference set of
-    validation motions (:func:`reference_regressor`): for a validation row c_v the error
-    c_v(φ̂ − φ) has variance c_v Cov c_vᵀ, invariant under φ_B → Tφ_B (C → C T⁻¹).
-    (The same error on the motion itself is σ²·b/m for any full-rank motion, so it says
-    nothing.)
-  * ratios of the D-efficiency, the geometric mean of the singular values of Σ^(-1/2)C
-    (det(CᵀΣ⁻¹C)^(1/2b)): a change of basis scales every motion's value by the same
-    |det T|^(-1/b), so their ratio is invariant.
-- the same figures for a few random motions that pass the same constraints (period,
-  harmonics, joint limits at the K samples, and the sampled constraints: balance,
-  collision, torque), and the ratios: "this motion predicts torques k× better than random
-  motions under the same constraints".
-
-Assumptions (stated in every report): C is the measurement's rows (joint torques, the ground
-wrench or both) of one period sampled at ``rate_hz`` (default :data:`DATA_RATE_HZ`, the
-identification's output rate), with the base parameters and (``excitation.drive_terms``) the
-drive terms as columns; the noise is independent between those samples with standard
-deviation σ_j per joint (the ``noise_std`` that identified.json reports is that figure) and
-the config's force/moment σ on wrench rows; a periodic motion recorded for P periods gives P
-times the information of one. The predicted torques on the reference motions are the joint
-torques, whatever is measured.
+Assumptions (stated in every report): C is the measurement's rows of one period sampled at
+``rate_hz`` (default :data:`DATA_RATE_HZ`), base parameters then drive terms as columns; the
+noise is independent between samples, σ_j per joint (identified.json's ``noise_std``) and the
+config's force/moment σ on wrench rows; P periods give P times the information of one.
 """
 
 from __future__ import annotations
@@ -66,9 +47,8 @@ REFERENCE_PERIOD_S = 10.0
 REFERENCE_SAMPLES = 100
 REFERENCE_LIMIT_FRACTION = 0.9
 #: The regressors are sampled at most this fast [Hz] and their information scaled to the data
-#: rate: a motion of N harmonics of ω/2π (well below 5 Hz here) is a band-limited periodic
-#: signal, so CᵀC over one period is proportional to the sample count beyond a few samples per
-#: period of its highest frequency (4× cheaper than 200 Hz for G1).
+#: rate: for a band-limited periodic motion CᵀC over one period is proportional to the sample
+#: count beyond a few samples per period of its highest harmonic.
 SAMPLE_RATE_HZ = 50.0
 #: A base parameter whose a-priori value is below this fraction of the largest one gets no %
 #: (a zero or rounding-level product of inertia would show as 1e8 %).
@@ -84,10 +64,9 @@ RANDOM_SHRINK_STEPS = 10
 
 @dataclasses.dataclass(frozen=True)
 class MotionQuality:
-    """The figures of one motion.
+    """The figures of one motion ("optimized" or "random <seed>").
 
     Attributes:
-        label: "optimized" or "random <seed>".
         cond: cond(C) in pe_drake's base parameters (depends on the basis and units).
         d_efficiency: geometric mean of the singular values of Σ^(-1/2)C over P periods
             (its ratios between motions are basis-free; the value itself is not).
@@ -111,7 +90,6 @@ class QualityReport:
     """Quality figures of a motion, of random motions under the same constraints, and ratios.
 
     Attributes:
-        joints: joint names, length n.
         noise_std: σ_j per joint [N·m or N].
         periods: P, periods recorded.
         rate_hz: rate of the samples assumed [Hz].
@@ -120,8 +98,6 @@ class QualityReport:
         base_names: pe_drake's base parameters, length b.
         prior: their a-priori values (the model's), shape (b,).
         std_percent: the motion's std in % of |prior| (inf where the prior is ~0), shape (b,).
-        motion: the optimized motion's :class:`MotionQuality`.
-        random: the random motions' figures.
         drive_names: the drive terms in C (``excitation.drive_terms``), e.g.
             "coulomb[panda_joint1]"; their std is ``motion.std[b:]``.
         drive_units: their units.
@@ -165,13 +141,10 @@ class QualityReport:
             return float(x) if math.isfinite(x) else None
 
         def motion(m: MotionQuality) -> dict:
-            return {
-                "label": m.label,
-                "cond_pe_drake_basis": num(m.cond),
-                "d_efficiency": num(m.d_efficiency),
-                "prediction_rms": dict(zip(self.joints, map(float, m.prediction_rms))),
-                "prediction_rms_total": float(m.prediction_rms_total),
-            }
+            return {"label": m.label, "cond_pe_drake_basis": num(m.cond),
+                    "d_efficiency": num(m.d_efficiency),
+                    "prediction_rms": dict(zip(self.joints, map(float, m.prediction_rms))),
+                    "prediction_rms_total": float(m.prediction_rms_total)}
 
         return {
             "assumptions": {
@@ -181,13 +154,9 @@ class QualityReport:
                 "samples_per_period": self.samples_per_period,
                 "estimator": "weighted least squares, noise independent between samples",
                 "data": "this motion alone (earlier motions given as prior data are not included)",
-                "reference_set": {
-                    "motions": REFERENCE_MOTIONS,
-                    "seed": REFERENCE_SEED,
-                    "harmonics": REFERENCE_HARMONICS,
-                    "period_s": REFERENCE_PERIOD_S,
-                    "limit_fraction": REFERENCE_LIMIT_FRACTION,
-                },
+                "reference_set": {"motions": REFERENCE_MOTIONS, "seed": REFERENCE_SEED,
+                                  "harmonics": REFERENCE_HARMONICS, "period_s": REFERENCE_PERIOD_S,
+                                  "limit_fraction": REFERENCE_LIMIT_FRACTION},
             },
             "base_parameter_std": [
                 {"name": n, "prior": float(p), "std": float(s), "std_percent": num(pc)}
@@ -251,12 +220,10 @@ class QualityReport:
 
 
 def _times(ratio: float) -> str:
-    """"2.5× better" or, below 1, "8.55× worse": "0.117× better" read as a gain (a Z1 motion of
-    20 NLopt iterations predicted torques 8.5 times worse than a random one)."""
+    """"2.5× better" or, below 1, "8.55× worse" ("0.117× better" read as a gain)."""
     return f"{ratio:.3g}× better" if not ratio < 1 else f"{1 / ratio:.3g}× worse"
 
 
-# ---- inputs ----------------------------------------------------------------------------------------
 #: A term of a printed base-parameter composition below this fraction of its largest
 #: coefficient is left out (a 1e-10 product of inertia from a rounded URDF angle).
 NEGLIGIBLE_COEFFICIENT = 1e-6
@@ -289,12 +256,6 @@ def short_composition(name: str, max_chars: int = MAX_COMPOSITION_CHARS,
     return text + (f" … ({more} more)" if more else "")
 
 
-def _check_periods(periods: int) -> None:
-    if isinstance(periods, bool) or not isinstance(periods, (int, np.integer)) or periods < 1:
-        raise ConfigError(f"periods must be a positive integer, got {periods!r}")
-
-
-# ---- the math ----------------------------------------------------------------------------------------
 def whitened(C: np.ndarray, noise_std: np.ndarray) -> np.ndarray:
     """Σ^(-1/2)C: rows of joint j (row index t·n + j) divided by σ_j."""
     n = len(noise_std)
@@ -309,8 +270,7 @@ def parameter_covariance(C: np.ndarray, noise_std: np.ndarray, periods: float = 
         noise_std: σ_j, shape (n,).
         periods: P, the recorded information in units of CᵀΣ⁻¹C (may be fractional).
 
-    Returns:
-        Shape (b, b); infinite when C is rank deficient.
+    Returns shape (b, b), infinite when C is rank deficient.
     """
     s, Vt = singular_values_and_vectors(whitened(C, noise_std), vectors=True)
     if s[-1] <= s[0] * 1e-12:
@@ -331,11 +291,10 @@ def prediction_rms(
         C_ref: the reference motions' base regressor, (S_ref·n, b), rows sample-major.
         noise_std: σ_j, (n,).
         periods: P, as in :func:`parameter_covariance`.
-        row_std: σ of the rows of one sample of C (default ``noise_std``: C has the joint
-            torques' rows; with the ground wrench, its six rows' σ follow).
+        row_std: σ of the rows of one sample of C (default ``noise_std``; with the ground
+            wrench, its six rows' σ follow).
 
-    Returns:
-        (per joint, shape (n,); over all joints).
+    Returns (per joint, shape (n,); over all joints).
     """
     n = len(noise_std)
     s, Vt = singular_values_and_vectors(whitened(C, noise_std if row_std is None else row_std), vectors=True)
@@ -354,15 +313,10 @@ def d_efficiency(C: np.ndarray, noise_std: np.ndarray, periods: float = 1) -> fl
     return float(math.sqrt(periods) * np.exp(np.mean(np.log(s))))
 
 
-# ---- motions -----------------------------------------------------------------------------------------
 def motion_regressor(problem, alpha: np.ndarray, rate_hz: float = DATA_RATE_HZ) -> np.ndarray:
-    """Rows of C (the measurement's: joint torques, the ground wrench or both; columns the
-    base parameters, then the drive terms), unweighted, of one period of the problem's motion
-    ``alpha`` sampled at ``rate_hz``.
-
-    Returns:
-        Shape (S·r, columns) with S = round(period·rate_hz) samples, rows sample-major.
-    """
+    """Rows of C (the measurement's; columns the base parameters, then the drive terms),
+    unweighted, of one period of motion ``alpha`` sampled at ``rate_hz``: shape (S·r, columns)
+    with S = round(period·rate_hz) samples, rows sample-major."""
     samples = max(int(round(problem.period * rate_hz)), 1)
     basis = FourierBasis(problem.harmonics, problem.omega, sample_times(problem.period, samples))
     q, v, vd = basis.evaluate_alpha(np.asarray(alpha, float), problem.n)
@@ -395,15 +349,12 @@ def torque_rows(problem, q: np.ndarray, v: np.ndarray, vd: np.ndarray) -> np.nda
 def reference_states(robot: Robot, count: int = REFERENCE_MOTIONS, seed: int = REFERENCE_SEED):
     """The fixed reference set: ``count`` random Fourier motions within the robot's limits.
 
-    Motion k draws coefficients a, b ~ N(0, 1/k_h²) (harmonic k_h = 1..REFERENCE_HARMONICS,
-    period REFERENCE_PERIOD_S) from ``default_rng([seed, k])`` around the nominal posture
-    and scales them so that the binding limit (position, velocity or acceleration) is used
-    to REFERENCE_LIMIT_FRACTION. It depends on the robot only (not on the excitation
-    config), so two configs of a robot are judged on the same motions. The sampled
-    constraints (balance, collision) are not imposed: the set covers the joint space.
+    Motion k draws a, b ~ N(0, 1/k_h²) (k_h = 1..REFERENCE_HARMONICS) from
+    ``default_rng([seed, k])`` around the nominal posture, scaled so that the binding limit is
+    used to REFERENCE_LIMIT_FRACTION. It depends on the robot only, so two configs of a robot
+    are judged on the same motions; the sampled constraints are not imposed.
 
-    Returns:
-        (q, v, vd), each (count·REFERENCE_SAMPLES, n).
+    Returns (q, v, vd), each (count·REFERENCE_SAMPLES, n).
     """
     omega = 2 * math.pi / REFERENCE_PERIOD_S
     basis = FourierBasis(REFERENCE_HARMONICS, omega, sample_times(REFERENCE_PERIOD_S, REFERENCE_SAMPLES))
@@ -448,15 +399,12 @@ def random_feasible_motions(
 ) -> tuple[list[tuple[int, np.ndarray]], int]:
     """Random motions of the problem's Fourier series that pass the same constraints.
 
-    Draw ``seed + d`` is the optimizer's random start (``problem.initial_guess``: same
-    harmonics, period, nominal posture and rest conditions), scaled to use the binding
-    joint limit fully at the K constraint samples, as the optimized motion may; if a
-    sampled constraint (balance, collision, torque) fails at the K samples it is shrunk
-    toward its offsets by RANDOM_SHRINK until it passes, else rejected. At most 4·count
-    draws are made.
+    Draw ``seed + d`` is the optimizer's random start (``problem.initial_guess``) scaled to
+    use the binding joint limit fully at the K samples; one that fails a sampled constraint
+    is shrunk toward its offsets by RANDOM_SHRINK until it passes, else rejected. At most
+    4·count draws are made.
 
-    Returns:
-        ([(seed, alpha), ...] of at most ``count`` motions, number of rejected draws).
+    Returns ([(seed, alpha), ...] of at most ``count`` motions, number of rejected draws).
     """
     found, rejected, n = [], 0, problem.n
     for d in range(4 * count):
@@ -474,7 +422,6 @@ def random_feasible_motions(
     return found, rejected
 
 
-# ---- the report ------------------------------------------------------------------------------------------
 def _figures(label: str, C: np.ndarray, C_ref: np.ndarray, noise: np.ndarray, row_std: np.ndarray,
              periods: float) -> MotionQuality:
     """The figures of one motion: C its measurement rows (σ ``row_std`` per sample), C_ref the
@@ -487,41 +434,27 @@ def _figures(label: str, C: np.ndarray, C_ref: np.ndarray, noise: np.ndarray, ro
 
 
 def excitation_quality(
-    problem,
-    alpha: np.ndarray,
-    constraints: Sequence = (),
-    *,
-    noise_std: float | Sequence[float] | None = None,
-    periods: int = 1,
-    rate_hz: float = DATA_RATE_HZ,
-    random_motions: int = RANDOM_MOTIONS,
-    seed: int = RANDOM_SEED,
+    problem, alpha: np.ndarray, constraints: Sequence = (), *,
+    noise_std: float | Sequence[float] | None = None, periods: int = 1,
+    rate_hz: float = DATA_RATE_HZ, random_motions: int = RANDOM_MOTIONS, seed: int = RANDOM_SEED,
     one_blas_thread: bool = True,
 ) -> QualityReport:
     """The quality figures of motion ``alpha`` and of random motions under the same constraints.
 
     Args:
-        problem: the :class:`~pe_drake.excitation.problem.ExcitationProblem` (robot, Fourier
-            series, base parameters, regressor).
+        problem: the :class:`~pe_drake.excitation.problem.ExcitationProblem`.
         alpha: the motion's coefficients, shape ((2N+1)·n,).
         constraints: the sampled constraints the random motions must pass (the optimizer's).
         noise_std: σ [N·m], one value or one per joint (default :data:`DEFAULT_NOISE_STD`).
         periods: P, periods to be recorded.
         rate_hz: rate of the fitted samples [Hz].
-        random_motions: random motions to compare with (0: none).
-        seed: seed of the first random draw.
-        one_blas_thread: run on one BLAS thread (False: BLAS's own threads, as before issue
-            38; ``bench solve``'s old formulation).
-
-    Returns:
-        The :class:`QualityReport`.
+        random_motions: random motions to compare with (0: none), from draw ``seed``.
+        one_blas_thread: run on one BLAS thread (False: BLAS's own threads).
 
     Raises:
         ConfigError: a bad noise_std, periods or rate.
     """
-    # One BLAS thread: OpenBLAS's threads on these few-thousand-row matrices only spin, and
-    # on a loaded 2-core machine G1's report took 17.5 CPU-s with them, 1 CPU-s without
-    # (issue 38, BUILD_NOTES.md).
+    # One BLAS thread: OpenBLAS's threads on these few-thousand-row matrices only spin (issue 38).
     with single_threaded_blas() if one_blas_thread else contextlib.nullcontext():
         return _quality(problem, alpha, constraints, noise_std, periods, rate_hz, random_motions, seed)
 
@@ -529,7 +462,8 @@ def excitation_quality(
 def _quality(problem, alpha, constraints, noise_std, periods, rate_hz, random_motions, seed) -> QualityReport:
     """:func:`excitation_quality`'s work (its arguments)."""
     noise = noise_vector(noise_std, problem.robot.joint_names)
-    _check_periods(periods)
+    if isinstance(periods, bool) or not isinstance(periods, (int, np.integer)) or periods < 1:
+        raise ConfigError(f"periods must be a positive integer, got {periods!r}")
     if not (isinstance(rate_hz, (int, float)) and math.isfinite(rate_hz) and rate_hz > 0):
         raise ConfigError(f"rate_hz must be a positive number [Hz], got {rate_hz!r}")
     C_ref = reference_regressor(problem)
@@ -551,19 +485,11 @@ def _quality(problem, alpha, constraints, noise_std, periods, rate_hz, random_mo
     best_rms = min((m.prediction_rms_total for m in random), default=math.nan)
     best_d = max((m.d_efficiency for m in random), default=math.nan)
     return QualityReport(
-        joints=tuple(problem.robot.joint_names),
-        noise_std=noise,
-        periods=int(periods),
-        rate_hz=float(rate_hz),
-        samples_per_period=max(int(round(problem.period * rate_hz)), 1),
-        base_names=tuple(problem.base.base_names),
-        prior=prior,
-        std_percent=percent,
-        motion=motion,
-        random=random,
-        random_rejected=rejected,
+        joints=tuple(problem.robot.joint_names), noise_std=noise, periods=int(periods),
+        rate_hz=float(rate_hz), samples_per_period=max(int(round(problem.period * rate_hz)), 1),
+        base_names=tuple(problem.base.base_names), prior=prior, std_percent=percent,
+        motion=motion, random=random, random_rejected=rejected,
         prediction_ratio=best_rms / motion.prediction_rms_total if random else math.nan,
         d_efficiency_ratio=motion.d_efficiency / best_d if random and best_d > 0 else math.nan,
-        drive_names=problem.drive.layout.labels,
-        drive_units=problem.drive.layout.units,
+        drive_names=problem.drive.layout.labels, drive_units=problem.drive.layout.units,
     )

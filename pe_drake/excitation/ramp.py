@@ -1,31 +1,17 @@
 """Start and end at rest: the controller motion = ramp-in + N periods + ramp-out.
 
-The optimized path q_F (Eq. 50) is periodic and moves at full speed at t = 0; a robot cannot
-jump to that velocity. The motion sent to the controller is a time scaling of that same path,
+The optimized path q_F (Eq. 50) moves at full speed at t = 0. The motion sent to the controller
+is a time scaling of that same path, q(t) = q_F(s(t)), v = q_F'(s)·ṡ, v̇ = q_F''(s)·ṡ² + q_F'(s)·s̈,
+with ṡ rising from 0 to 1 over the ramp duration T_r by the smootherstep σ(x) = 6x⁵ − 15x⁴ + 10x³
+(x = t/T_r): σ, σ', σ'' vanish at 0 and σ(1) = 1, σ'(1) = σ''(1) = 0, so the motion starts at
+rest and q, v, v̇ and the jerk are continuous at the joins. ∫₀¹σ = 1/2: the ramp-in covers
+s ∈ [−T_r/2, 0]; the ramp-out mirrors it.
 
-    q(t) = q_F(s(t)),   v = q_F'(s)·ṡ,   v̇ = q_F''(s)·ṡ² + q_F'(s)·s̈,
-
-with the path speed ṡ rising from 0 to 1 over the ramp duration T_r by the quintic
-smootherstep σ(x) = 6x⁵ − 15x⁴ + 10x³ (x = t/T_r). Because σ(0) = σ'(0) = σ''(0) = 0 and
-σ(1) = 1, σ'(1) = σ''(1) = 0, the motion starts exactly at rest (v = v̇ = 0), and q, v, v̇
-and even the jerk are continuous where the ramp joins the periodic part. ∫₀¹σ = 1/2, so the
-ramp-in covers s ∈ [−T_r/2, 0] of the (periodic) path and starts at rest at q_F(−T_r/2);
-the ramp-out mirrors it and ends at rest at q_F(N·P + T_r/2).
-
-Every posture of a ramp lies on the optimized path, so position limits, capsule distances,
-the floor and the (quasi-static) balance already hold there; velocities are scaled down by
-ṡ ≤ 1. What is new is the acceleration term q_F'·s̈ (|s̈| ≤ 1.875/T_r) and the torque it
-needs: :func:`choose_ramp_duration` takes the shortest T_r of a short list for which every
-limit and sampled constraint holds at 1 kHz over both ramps, and refuses with the reason
-otherwise.
-
-Layout on the time axis (``RampedMotion.layout``)::
-
-    [0, T_r]               ramp-in  (s from −T_r/2 to 0)
-    [T_r, T_r + N·P]       N periods of the optimized path (s = t − T_r)
-    [T_r + N·P, 2T_r + N·P] ramp-out (s from N·P to N·P + T_r/2)
-
-Before 0 and after the end the motion is at rest at its first / last posture.
+Every posture of a ramp lies on the optimized path, so position limits, collision and the
+quasi-static balance already hold there; what is new is the term q_F'·s̈ (|s̈| ≤ 1.875/T_r):
+:func:`choose_ramp_duration` takes the shortest T_r of a short list for which every limit and
+sampled constraint holds at 1 kHz over both ramps. Time axis (``RampedMotion.layout``):
+[0, T_r] ramp-in, [T_r, T_r + N·P] the periods, then the ramp-out; at rest outside.
 """
 
 from __future__ import annotations
@@ -43,8 +29,6 @@ from pe_drake.excitation.fourier import FourierTrajectory
 
 #: Ramp durations tried in order by :func:`choose_ramp_duration` [s].
 RAMP_DURATIONS = (1.0, 2.0, 3.0, 5.0, 8.0, 13.0)
-#: max |σ'(x)| = 30x²(1−x)² at x = 1/2: the path acceleration is at most this / T_r.
-MAX_SMOOTHERSTEP_SLOPE = 1.875
 #: Longest ramp read from a motion file [s] (optimize writes a few seconds).
 MAX_RAMP_S = 600.0
 #: Longest whole motion read from a motion file [s]: ramps and periods (identification runs
@@ -53,11 +37,8 @@ MAX_MOTION_S = 7200.0
 
 
 def smootherstep(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """σ(x) = 6x⁵ − 15x⁴ + 10x³ on [0, 1] (clipped outside), its integral S and two derivatives.
-
-    Returns:
-        (S, σ, σ', σ'') at x, each the shape of x; S(x) = ∫₀ˣ σ = x⁶ − 3x⁵ + 5x⁴/2.
-    """
+    """(S, σ, σ', σ'') at x (clipped to [0, 1]): σ(x) = 6x⁵ − 15x⁴ + 10x³ and its integral
+    S(x) = x⁶ − 3x⁵ + 5x⁴/2, each the shape of x."""
     x = np.clip(np.asarray(x, float), 0.0, 1.0)
     x2 = x * x
     S = x2 * x2 * (x2 - 3.0 * x + 2.5)
@@ -78,11 +59,7 @@ def _check_positive(name: str, value, *, allow_zero: bool = False) -> float:
 
 
 def check_periods(periods) -> int:
-    """Validates a number of periods (a positive integer, at most 1000).
-
-    Raises:
-        ConfigError: naming the value.
-    """
+    """Validates a number of periods (a positive integer, at most 1000) or raises ConfigError."""
     if isinstance(periods, bool) or not isinstance(periods, (int, np.integer)) or not 1 <= periods <= 1000:
         raise ConfigError(f"periods must be an integer from 1 to 1000, got {periods!r}")
     return int(periods)
@@ -99,13 +76,10 @@ class PathTiming:
 
 @dataclasses.dataclass(frozen=True)
 class RampedMotion:
-    """Ramp-in + ``periods`` periods of ``path`` + ramp-out (module docstring).
+    """Ramp-in + ``periods`` periods of ``path`` (q_F) + ramp-out (module docstring).
 
     Attributes:
-        path: the optimized periodic trajectory q_F.
-        periods: N, whole periods at full speed, >= 1.
-        ramp_duration: T_r [s]; 0 means no ramps (the motion is N periods of the path, which
-            does not start at rest).
+        ramp_duration: T_r [s]; 0: no ramps (N periods of the path, not starting at rest).
         phase: path time φ at which the periodic part starts [s], in [0, P): the periodic
             part is q_F(t − T_r + φ), and both joins sit at the path's phase φ.
     """
@@ -150,11 +124,8 @@ class RampedMotion:
     @property
     def layout(self) -> dict[str, list[float]]:
         """{part: [start, end]} [s]: ``ramp_in``, ``periodic``, ``ramp_out``."""
-        return {
-            "ramp_in": [0.0, self.periodic_start],
-            "periodic": [self.periodic_start, self.periodic_end],
-            "ramp_out": [self.periodic_end, self.duration],
-        }
+        start, end = self.periodic_start, self.periodic_end
+        return {"ramp_in": [0.0, start], "periodic": [start, end], "ramp_out": [end, self.duration]}
 
     def timing(self, t: np.ndarray) -> PathTiming:
         """s(t), ṡ(t), s̈(t) of the time scaling (constant rest outside [0, duration])."""
@@ -198,33 +169,18 @@ class RampedMotion:
 
     def to_dict(self) -> dict:
         """The keys trajectory.json records for the ramp (see :func:`ramped_motion_from_dict`)."""
-        return {
-            "periods": self.periods,
-            "ramp_duration": self.ramp_duration,
-            "phase": self.phase,
-            "motion_duration": self.duration,
-            "layout": self.layout,
-        }
+        return {"periods": self.periods, "ramp_duration": self.ramp_duration, "phase": self.phase,
+                "motion_duration": self.duration, "layout": self.layout}
 
 
 def ramped_motion_from_dict(path: FourierTrajectory, data: dict, *, source: str = "trajectory.json") -> RampedMotion:
-    """The motion a trajectory.json describes: its ``periods`` and ``ramp_duration`` (an older
-    file without them is one period without ramps). ``view`` and ``simulate`` replay this,
-    which is exactly what ``optimize`` wrote to trajectory.csv.
-
-    Raises:
-        ConfigError: a bad ``periods`` or ``ramp_duration`` value, naming the file.
-    """
-    periods = data.get("periods", 1)
-    ramp = data.get("ramp_duration", 0.0)
-    phase = data.get("phase", 0.0)
+    """The motion a trajectory.json describes (one period without ramps if it gives none);
+    ConfigError naming the file for a bad ``periods``, ``ramp_duration`` or ``phase``."""
     try:
         motion = RampedMotion(
-            path,
-            check_periods(periods),
-            _check_positive("ramp_duration", ramp, allow_zero=True),
-            _check_positive("phase", phase, allow_zero=True),
-        )
+            path, check_periods(data.get("periods", 1)),
+            _check_positive("ramp_duration", data.get("ramp_duration", 0.0), allow_zero=True),
+            _check_positive("phase", data.get("phase", 0.0), allow_zero=True))
         # Every reader samples the whole motion: 'ramp_duration: 1e9' asked for 447 GiB.
         for name, value, most in (("ramp_duration", motion.ramp_duration, MAX_RAMP_S),
                                   ("the whole motion (ramps and periods)", motion.duration, MAX_MOTION_S)):
@@ -237,14 +193,8 @@ def ramped_motion_from_dict(path: FourierTrajectory, data: dict, *, source: str 
 
 @dataclasses.dataclass(frozen=True)
 class RampCheck:
-    """Outcome of checking one ramp duration.
-
-    Attributes:
-        ramp_duration: T_r [s].
-        phase: join phase φ [s].
-        margins: {limit or constraint: minimum margin over both ramps at the check rate}.
-        worst: name of the most violated (or tightest) entry.
-    """
+    """Outcome of checking one ramp duration T_r [s] at join phase φ [s]: the minimum margin of
+    each limit and constraint over both ramps, and the ``worst`` (most violated) entry."""
 
     ramp_duration: float
     phase: float
@@ -259,12 +209,8 @@ class RampCheck:
 def check_within_limits(
     motion: RampedMotion, limits, joint_names: Sequence[str], *, source: str = "", rate: float = 200.0, slack: float = 1e-3
 ) -> None:
-    """Refuses a motion (e.g. from a hand-edited trajectory.json) that leaves the robot's position
-    or velocity limits, before any work is done with it.
-
-    Raises:
-        NotWithinLimitsError: naming the joint, the quantity, the worst value and the limits.
-    """
+    """Refuses (NotWithinLimitsError) a motion, e.g. from a hand-edited trajectory.json, that
+    leaves the robot's position or velocity limits, before any work is done with it."""
     t = motion.sample_times(min(rate, 1e5 / max(motion.duration, 1e-9)))
     q, v, _ = motion.evaluate(t)
     for what, x, lo, hi in (
@@ -301,15 +247,9 @@ class LimitExcess(NamedTuple):
 
 def limit_excess(q: np.ndarray, v: np.ndarray, vd: np.ndarray, limits, digits: int = CSV_DIGITS) -> LimitExcess | None:
     """The worst value beyond a joint limit once written with ``digits`` significant digits,
-    or None: no excess beyond :data:`LIMIT_ROUNDING` of the limit (every other excess, 1e-8 rad
-    included, counts).
+    or None: no excess beyond :data:`LIMIT_ROUNDING` of the limit. ``q, v, vd``: shape (T, n).
 
-    Rounding is monotone, so the written extreme of a column is its rounded extreme: only the
-    extremes are rounded.
-
-    Args:
-        q, v, vd: the samples written, shape (T, n).
-        limits: the robot's ``limits``.
+    Rounding is monotone, so only each column's extremes are rounded.
     """
     worst = None
     for name, x, lo, hi in (
@@ -331,12 +271,8 @@ def limit_excess(q: np.ndarray, v: np.ndarray, vd: np.ndarray, limits, digits: i
 
 
 def check_written_motion(motion: RampedMotion, limits, joint_names: Sequence[str], rate: float) -> None:
-    """Refuses a motion whose trajectory.csv at ``rate`` [Hz] would hold a value outside a
-    joint limit (by any amount beyond the limit's float rounding: :func:`limit_excess`).
-
-    Raises:
-        NotWithinLimitsError: naming the joint, the quantity, the value, the excess and the time.
-    """
+    """Refuses (NotWithinLimitsError) a motion whose trajectory.csv at ``rate`` [Hz] would hold a
+    value outside a joint limit beyond the limit's float rounding (:func:`limit_excess`)."""
     t = motion.sample_times(rate)
     worst = None
     for start in range(0, len(t), WRITTEN_CHUNK):  # in chunks: a 1000-period motion has 10⁷ rows
@@ -355,18 +291,8 @@ def check_written_motion(motion: RampedMotion, limits, joint_names: Sequence[str
 
 
 def ramp_margins(motion: RampedMotion, limits, constraints: Sequence = (), rate: float = 1000.0) -> dict[str, float]:
-    """Minimum margin of the joint limits and each sampled constraint over the two ramps.
-
-    Args:
-        motion: the ramped motion.
-        limits: the robot's ``limits`` (q_lower, q_upper, v_max, vd_max arrays of shape (n,)).
-        constraints: :class:`~pe_drake.excitation.constraints.SampledConstraint` objects.
-        rate: check rate [Hz].
-
-    Returns:
-        {"position", "velocity", "acceleration", constraint.name...: minimum margin} in each
-        one's unit; negative is a violation.
-    """
+    """Minimum margin of the joint limits and each sampled constraint over the two ramps
+    checked at ``rate`` [Hz] (:func:`~pe_drake.excitation.constraints.base.state_margins`)."""
     t = motion.sample_times(rate)
     in_ramp = (t <= motion.periodic_start) | (t >= motion.periodic_end)
     return state_margins(limits, constraints, *motion.evaluate(t[in_ramp]))
@@ -401,25 +327,14 @@ def phase_candidates(path: FourierTrajectory, limits, count: int = 3, window: fl
 
 
 def choose_ramp_duration(
-    path: FourierTrajectory,
-    limits,
-    constraints: Sequence = (),
-    *,
-    periods: int = 1,
-    durations: Sequence[float] = RAMP_DURATIONS,
-    rate: float = 1000.0,
-    tolerance: float = 1e-6,
+    path: FourierTrajectory, limits, constraints: Sequence = (), *, periods: int = 1,
+    durations: Sequence[float] = RAMP_DURATIONS, rate: float = 1000.0, tolerance: float = 1e-6,
 ) -> tuple[RampedMotion, list[RampCheck]]:
     """The shortest ramp duration of ``durations`` for which every limit and constraint holds
-    on both ramps at ``rate``; at each duration the join phase 0 is tried first, then the
-    phases of :func:`phase_candidates`.
+    on both ramps at ``rate``, trying the phases of :func:`phase_candidates` at each.
 
-    Returns:
-        The :class:`RampedMotion` and the checks made (for the report).
-
-    Raises:
-        InfeasibleError: no duration works; names the longest one tried and what it
-            violates by how much.
+    Returns the :class:`RampedMotion` and the checks made; raises InfeasibleError when no
+    duration works.
     """
     checks = []
     phases = phase_candidates(path, limits, rate=rate)

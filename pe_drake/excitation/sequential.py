@@ -1,30 +1,14 @@
 """Sequential generation of exciting motions (paper, section IV-B, Table I).
 
-Motion 1 is optimized without prior data (C0 = O in Eq. 41); motion i > 1 is optimized with
-the regressors of the motions before it as prior data,
+Motion 1 is optimized without prior data (C0 = O in Eq. 41); motion i > 1 with the regressors
+of the motions before it as prior data, C0 = [C^(1); ...; C^(i-1)] (C^(i): Ŷ_B of motion i at
+the T cost samples), so each motion excites what the earlier ones left poorly excited. Each
+motion's seeded starts run on an executor (:mod:`pe_drake.excitation.multistart`) and the best
+feasible one is kept.
 
-    C0 = [C^(1); ...; C^(i-1)],   C^(i) = Ŷ_B of motion i at the T cost samples,
-
-so each new motion excites what the earlier ones left poorly excited, and cond of the
-concatenated C falls with each motion even when cond(C^(i)) alone grows. Each motion starts
-from its own seeded random initial point(s); with ``starts > 1`` they are solved in parallel
-(:mod:`pe_drake.excitation.multistart`, on a local process pool or Ray) and the best feasible
-one is kept.
-
-Warm start (on by default): the last start of motion i > 1 begins from the earlier motion of
-the sequence whose coefficients give the lowest criterion with the current prior, instead of
-from a random point. Repeating motion 1 leaves cond([C^(1); C^(1)]) = cond(C^(1)), so motion 2
-starts exactly at the prior's cond, at a stationary point of the criterion: with one start,
-motion 2 gets its seed's random start beside the warm start (a one-start G1 sequence repeated
-motion 1 before, 713.6 → 713.6; now 713.6 → 690.1 → 673.1); on G1 the warm start of motion 3
-ended at cond(C) 202.8 and 212.1 (from motions 1 and 2) where both random starts stopped at
-about 222, above the prior's 217.0 (measured with IPOPT ≤ 150 iterations).
-
-Use it like::
-
-    result = optimize_sequence(robot, config.excitation, config.solver, SequenceOptions(motions=3))
-    for m in result.motions:
-        print(m.index, m.cond_motion, m.cond_total, m.wall_time)
+Warm start (on by default): the last start of motion i > 1 begins from the earlier motion whose
+coefficients give the lowest criterion with the current prior, so a motion is never worse than
+repeating an earlier one.
 """
 
 from __future__ import annotations
@@ -60,8 +44,7 @@ class SequenceMotion:
         block: C^(i), this motion's base regressor at the T cost samples, shape (T·n, b).
         cond_motion: cond(C^(i)), the motion alone (Table I, first row).
         cond_total: cond of the concatenated C = [prior C0; C^(1); ...; C^(i)] (second row).
-        seed: seed of the kept start.
-        seeds: seeds of every start of this motion.
+        seed: seed of the kept start (``seeds``: of every start).
         starts: one :class:`~pe_drake.excitation.multistart.StartSummary` per start.
         wall_time: time spent on this motion, all starts included [s].
     """
@@ -86,12 +69,9 @@ class SequenceResult:
     """Outcome of :func:`optimize_sequence`.
 
     Attributes:
-        motions: one :class:`SequenceMotion` per motion, in order.
         C: the concatenated regressor [prior C0; C^(1); ...], shape (m, b).
-        cond: cond(C).
         base: the :class:`~pe_drake.multibody.base_parameters.BaseParameters` the columns follow.
-        workers: starts run at once per motion (1: one after the other).
-        wall_time: whole run [s].
+        workers: starts run at once per motion; ``wall_time``: whole run [s].
     """
 
     motions: list[SequenceMotion]
@@ -106,22 +86,11 @@ class SequenceResult:
         """Every motion holds every constraint (at 1 kHz)."""
         return bool(self.motions) and all(m.success for m in self.motions)
 
-    def table(self) -> list[tuple[int, float, float]]:
-        """Rows (i, cond(C^(i)), cond(C) after motion i): Table I."""
-        return [(m.index, m.cond_motion, m.cond_total) for m in self.motions]
-
 
 @dataclasses.dataclass(frozen=True)
 class MotionEvent:
-    """Sent to the ``progress`` callback when a motion starts and when it is done.
-
-    Attributes:
-        index: motion i, from 1.
-        motions: motions in the sequence.
-        kind: "started" or "finished".
-        seeds: seeds of its starts.
-        motion: the :class:`SequenceMotion` ("finished" only).
-    """
+    """Sent to ``progress`` when motion ``index`` (from 1) of ``motions`` is "started" or
+    "finished" (then with its :class:`SequenceMotion`)."""
 
     index: int
     motions: int
@@ -134,11 +103,9 @@ class MotionEvent:
             seeds = ", ".join(str(s) for s in self.seeds)
             return f"motion {self.index}/{self.motions}: {len(self.seeds)} start(s), seeds {seeds}"
         m = self.motion
-        state = "ok" if m.success else "FAILED"
-        return (
-            f"motion {self.index}/{self.motions} {state}: cond(C^({m.index})) {m.cond_motion:.4g}, "
-            f"cond(C) {m.cond_total:.4g}, seed {m.seed}, {m.wall_time:.1f} s; {m.result.message}"
-        )
+        return (f"motion {self.index}/{self.motions} {'ok' if m.success else 'FAILED'}: "
+                f"cond(C^({m.index})) {m.cond_motion:.4g}, cond(C) {m.cond_total:.4g}, "
+                f"seed {m.seed}, {m.wall_time:.1f} s; {m.result.message}")
 
 
 def motion_seeds(seed: int, motion: int, starts: int) -> list[int]:
@@ -161,16 +128,14 @@ class SequenceOptions:
         seed: first seed (default ``config.seed``); see :func:`motion_seeds`.
         seeds: explicit seeds, one list per motion (overrides ``seed`` and ``starts``).
         C0: prior data from earlier experiments, shape (m0, b), or None (the paper: O).
-        constraints_factory: ``f(robot, config) -> [SampledConstraint, ...]`` (default
-            :func:`pe_drake.excitation.constraints.constraints_from_config`: balance and collision
-            as the config asks); a module-level function; ignored with an open executor.
+        constraints_factory: ``f(robot, config) -> [SampledConstraint, ...]``, a module-level
+            function (default :func:`~pe_drake.excitation.constraints.constraints_from_config`);
+            ignored with an open executor.
         amplitude: scale of the random initial coefficients [rad] (default ``config.amplitude``).
-        stop_on_failure: raise when a motion has no feasible start (else keep its best
-            infeasible start and go on).
-        warm_start: the last start of motion i > 1 begins from the earlier motion with the
-            lowest criterion on the current prior (its seed stays its label); with one start,
-            motion 2 without prior data adds it as a second start (seed + 1) beside the random
-            one; see the module docstring.
+        stop_on_failure: raise when a motion has no feasible start (else keep its best one).
+        warm_start: the last start of motion i > 1 begins from the best earlier motion (its
+            seed stays its label); with one start, motion 2 without prior data adds it as a
+            second start (seed + 1) beside the random one.
         run: where the starts run (:class:`~pe_drake.excitation.parallel.ExecutorOptions`;
             ``workers`` capped at the starts per motion).
     """
@@ -188,39 +153,25 @@ class SequenceOptions:
 
 
 def optimize_sequence(
-    robot: Robot | None,
-    config: ExcitationConfig | None = None,
-    solver: str | SolverConfig = "ipopt",
-    options: SequenceOptions | None = None,
-    *,
+    robot: Robot | None, config: ExcitationConfig | None = None,
+    solver: str | SolverConfig = "ipopt", options: SequenceOptions | None = None, *,
     progress: Callable[[Any], None] | None = None,
 ) -> SequenceResult:
-    """Optimizes ``options.motions`` exciting motions one after the other (section IV-B).
-
-    Motion i minimizes the criterion of [C0; C^(1); ...; C^(i-1); C^(i)] over its own
-    Fourier coefficients; the earlier blocks are fixed prior data (Eq. 41).
+    """Optimizes ``options.motions`` exciting motions one after the other (module docstring).
 
     Args:
-        robot: the :class:`~pe_drake.multibody.robot.Robot` (ignored, may be None, with an open
-            executor in ``options.run``).
-        config: the excitation problem (default :class:`ExcitationConfig`).
+        robot: ignored, may be None, with an open executor in ``options.run``.
         solver: "ipopt", "nlopt" or a :class:`SolverConfig`.
-        options: the motions, starts and executor (default :class:`SequenceOptions`).
         progress: callback receiving :class:`MotionEvent` and
             :class:`~pe_drake.excitation.multistart.StartEvent` objects.
-
-    Returns:
-        The :class:`SequenceResult`.
 
     Raises:
         ConfigError: a motion or start count below 1, seeds that do not match ``motions``,
             or a C0 with the wrong number of columns.
-        NoSolutionFound: a motion has no start that meets every constraint (with
-            ``stop_on_failure``); its ``result`` is the :class:`SequenceResult` so far,
-            the failed motion included.
+        NoSolutionFound: a motion has no feasible start (with ``stop_on_failure``); its
+            ``result`` is the :class:`SequenceResult` so far, the failed motion included.
         WorkerError: a start failed in a worker, or its worker died.
     """
-
     begin = time.perf_counter()
     config = config or ExcitationConfig()
     o = options or SequenceOptions()
@@ -302,10 +253,9 @@ class _SequenceRun:
         parts = ([self.prior] if self.prior is not None else []) + self.blocks
         C0_i = np.vstack(parts) if parts else None  # Eq. (41): [C^(1); ...; C^(i-1)]
         if warm_start and len(seeds) == 1 and len(parts) == 1 and self.done:
-            # Motion 2's prior is motion 1 alone: repeating it is a stationary point of the stacked
-            # criterion (cond([C; C]) = cond(C), the gradient motion 1's), so a lone warm start
-            # would end where it began (G1, one start: 713.6 -> 713.6). The seed's random start
-            # is solved too, the warm start beside it keeps "never worse than motion 1".
+            # Motion 2's prior is motion 1 alone: repeating it is a stationary point of the
+            # stacked criterion (cond([C; C]) = cond(C)), so a lone warm start would end where it
+            # began. The seed's random start is solved too, beside it.
             seeds = [seeds[0], seeds[0] + 1]
         guesses, origins = self._warm_start(C0_i, len(seeds)) if warm_start else (None, None)
         ms = solve_multistart(None, self.config, self.solver, MultiStartOptions(
@@ -314,17 +264,8 @@ class _SequenceRun:
         self.used = max(self.used, ms.workers)
         block = self.executor.problem(self.config).regressor_block(ms.best.x)
         total = block if C0_i is None else np.vstack([C0_i, block])
-        motion = SequenceMotion(
-            index=i,
-            result=ms.best,
-            block=block,
-            cond_motion=_cond(block),
-            cond_total=_cond(total),
-            seed=ms.seed,
-            seeds=list(seeds),
-            starts=ms.starts,
-            wall_time=time.perf_counter() - start,
-        )
+        motion = SequenceMotion(i, ms.best, block, _cond(block), _cond(total), ms.seed, list(seeds),
+                                ms.starts, time.perf_counter() - start)
         self.blocks.append(block)
         self.done.append(motion)
         self.say(MotionEvent(i, motions, "finished", tuple(seeds), motion))

@@ -75,27 +75,17 @@ class StudyOptions:
         if len(set(self.baseline_amplitudes)) != len(self.baseline_amplitudes):
             raise ConfigError(f"--baseline-amplitudes must differ, got {list(self.baseline_amplitudes)}")
         if self.candidates * len(self.baseline_amplitudes) < self.motions:
-            raise ConfigError(
-                f"--candidates {self.candidates} × {len(self.baseline_amplitudes)} amplitude(s) "
-                f"cannot supply {self.motions} baseline motions"
-            )
+            raise ConfigError(f"--candidates {self.candidates} × {len(self.baseline_amplitudes)} "
+                              f"amplitude(s) cannot supply {self.motions} baseline motions")
 
 
-# IPOPT ≤ 150 iterations per start keeps a motion within about 2 minutes on 2 cores; the
-# config's 300 doubled the time for a 4 % lower cond(C) (README, "Reproducing the paper on G1").
-# Larger random amplitudes give better baseline candidates but are rejected more often (balance,
-# collision): 0.1 rad accepts 1 draw in 3.4, 0.15 rad 1 in 69, 0.2 rad 1 in 3000 (measured).
-FULL = {
-    "starts": 2,
-    "workers": 2,
-    "candidates": 100,
-    "baseline_amplitudes": (0.1, 0.125, 0.15),
-    "max_iterations": 150,
-}
+# IPOPT ≤ 150 iterations keeps a motion within about 2 minutes on 2 cores (README, "Reproducing
+# the paper on G1"); larger baseline amplitudes are rejected far more often (balance, collision).
+FULL = {"starts": 2, "workers": 2, "candidates": 100, "baseline_amplitudes": (0.1, 0.125, 0.15),
+        "max_iterations": 150}
 QUICK = {"starts": 1, "workers": 1, "candidates": 8, "baseline_amplitudes": (0.05, 0.1), "max_iterations": 15}
 
 
-# ---- the run ---------------------------------------------------------------------------------------
 def _running_sigmas(blocks: Sequence[np.ndarray]) -> tuple[list[float], list[float]]:
     """σ_min and σ_max of [B_1; ...; B_i] for i = 1, 2, ...
 
@@ -145,11 +135,9 @@ def run_sequential_study(settings: StudyOptions, *, say: Callable[[str], Any] | 
 
     Raises:
         ConfigError, UnknownNameError: a bad config file or value.
-        InfeasibleError: the baseline found too few feasible random motions, or the nominal
-            posture violates a constraint.
+        InfeasibleError: too few feasible random motions, or an infeasible nominal posture.
         WorkerError: a start or a chunk of draws failed in a worker, or its worker died.
     """
-
     say = StudyPrinter(say)
     begin = time.perf_counter()
     config = resolve_robot_config(settings.robot, settings.config)
@@ -157,16 +145,12 @@ def run_sequential_study(settings: StudyOptions, *, say: Callable[[str], Any] | 
     if settings.criterion:
         excitation = dataclasses.replace(excitation, criterion=settings.criterion)
     solver = dataclasses.replace(
-        config.solver,
-        verbose=False,
-        max_iterations=settings.max_iterations or config.solver.max_iterations,
-        max_time=settings.max_time or config.solver.max_time,
-    )
+        config.solver, verbose=False, max_time=settings.max_time or config.solver.max_time,
+        max_iterations=settings.max_iterations or config.solver.max_iterations)
     robot = Robot(settings.robot, config.robot)
     workers = settings.workers
-    executor = open_executor(
-        robot, settings.executor, workers, address=settings.ray_address, constraints_factory=constraints_from_config
-    )
+    executor = open_executor(robot, settings.executor, workers, address=settings.ray_address,
+                             constraints_factory=constraints_from_config)
     base = executor.base
     period = 2 * math.pi / excitation.omega
     say(
@@ -205,29 +189,17 @@ def run_sequential_study(settings: StudyOptions, *, say: Callable[[str], Any] | 
 
 def _baseline(settings: StudyOptions, robot: Robot, excitation, executor, say):
     """Table II: random motions under the same constraints, greedy selection ([16])."""
-
-    say(
-        f"baseline: {settings.candidates} feasible random motions at each amplitude "
-        + ", ".join(f"{a:g}" for a in settings.baseline_amplitudes)
-        + " rad"
-    )
+    say(f"baseline: {settings.candidates} feasible random motions at each amplitude "
+        + ", ".join(f"{a:g}" for a in settings.baseline_amplitudes) + " rad")
     sets = []  # (amplitude, CandidateSet)
     for k, amplitude in enumerate(settings.baseline_amplitudes):
-        cset = generate_candidates(
-            robot,
-            excitation,
-            settings.candidates,
-            seed=BASELINE_SEED + k * BASELINE_SEED_BLOCK + settings.seed,
-            amplitude=amplitude,
-            max_draws=400 * settings.candidates,
-            executor=executor,
-            progress=say.draws,
-        )
+        cset = generate_candidates(robot, excitation, settings.candidates,
+                                   seed=BASELINE_SEED + k * BASELINE_SEED_BLOCK + settings.seed,
+                                   amplitude=amplitude, max_draws=400 * settings.candidates,
+                                   executor=executor, progress=say.draws)
         conds = np.array([c.cond for c in cset.candidates])
-        say(
-            f"  amplitude {amplitude:g} rad: {len(conds)} accepted of {cset.draws} draws, "
-            f"cond min {conds.min():.4g}, median {np.median(conds):.4g}, {cset.wall_time:.1f} s"
-        )
+        say(f"  amplitude {amplitude:g} rad: {len(conds)} accepted of {cset.draws} draws, "
+            f"cond min {conds.min():.4g}, median {np.median(conds):.4g}, {cset.wall_time:.1f} s")
         sets.append((amplitude, cset))
     candidates = [(a, c) for a, cset in sets for c in cset.candidates]
     selection = greedy_select([r for _, cset in sets for r in cset.R], settings.motions)
@@ -235,60 +207,43 @@ def _baseline(settings: StudyOptions, robot: Robot, excitation, executor, say):
 
 
 def _tables(settings, excitation, solver, robot: Robot, base, sequence, selection, candidates, sets, baseline_blocks) -> dict:
-    opt_lo, opt_hi = _running_sigmas([m.block for m in sequence.motions])
+    motions = sequence.motions
+    opt_lo, opt_hi = _running_sigmas([m.block for m in motions])
     bl_lo, bl_hi = _running_sigmas(baseline_blocks)
-    first_opt = sequence.motions[0].cond_motion
-    first_base = selection.cond_each[0]
-    times = [m.wall_time for m in sequence.motions]
+    first_opt, first_base = motions[0].cond_motion, selection.cond_each[0]
+    times = [m.wall_time for m in motions]
     period = 2 * math.pi / excitation.omega
     return {
         "paper": "K. Ayusawa et al., Generating persistently exciting trajectory based on condition "
         "number optimization, ICRA 2017, section IV-B, Tables I and II (HRP-4)",
-        "robot": robot.name,
-        "joints": list(robot.joint_names),
-        "quick": settings.quick,
+        "robot": robot.name, "joints": list(robot.joint_names), "quick": settings.quick,
         "setting": {
-            "harmonics": excitation.harmonics,
-            "omega": excitation.omega,
-            "period_s": period,
+            "harmonics": excitation.harmonics, "omega": excitation.omega, "period_s": period,
             "cost_samples": excitation.cost_samples,
             "cost_sample_spacing_s": period / excitation.cost_samples,
             "constraint_samples": excitation.constraint_samples,
             "constraint_sample_spacing_s": period / excitation.constraint_samples,
             "balance_radius_m": excitation.balance_radius,
             "collision_margin_m": excitation.collision_margin,
-            "constraints": _constraints_text(excitation),
-            "criterion": excitation.criterion,
-            "base_parameters": base.count,
-            "variables": (2 * excitation.harmonics + 1) * robot.n,
-            "solver": solver.name,
-            "max_iterations": solver.max_iterations,
-            "max_time_s": solver.max_time,
-            "motions": settings.motions,
-            "starts": settings.starts,
-            "workers": sequence.workers,
-            "executor": settings.executor,
-            "seed": settings.seed,
+            "constraints": _constraints_text(excitation), "criterion": excitation.criterion,
+            "base_parameters": base.count, "variables": (2 * excitation.harmonics + 1) * robot.n,
+            "solver": solver.name, "max_iterations": solver.max_iterations,
+            "max_time_s": solver.max_time, "motions": settings.motions, "starts": settings.starts,
+            "workers": sequence.workers, "executor": settings.executor, "seed": settings.seed,
         },
         "table1": {
-            "motion": [m.index for m in sequence.motions],
-            "cond_motion": [m.cond_motion for m in sequence.motions],
-            "cond_total": [m.cond_total for m in sequence.motions],
-            "sigma_min_total": opt_lo,
-            "sigma_max_total": opt_hi,
-            "success": [m.success for m in sequence.motions],
-            "message": [m.result.message for m in sequence.motions],
-            "seed": [m.seed for m in sequence.motions],
+            "motion": [m.index for m in motions], "cond_motion": [m.cond_motion for m in motions],
+            "cond_total": [m.cond_total for m in motions], "sigma_min_total": opt_lo,
+            "sigma_max_total": opt_hi, "success": [m.success for m in motions],
+            "message": [m.result.message for m in motions], "seed": [m.seed for m in motions],
             "wall_time_s": times,
-            "starts": [[dataclasses.asdict(s) for s in m.starts] for m in sequence.motions],
+            "starts": [[dataclasses.asdict(s) for s in m.starts] for m in motions],
             "paper_hrp4": PAPER_TABLE_I,
         },
         "table2": {
             "motion": list(range(1, len(selection.indices) + 1)),
-            "cond_motion": list(selection.cond_each),
-            "cond_total": list(selection.cond_total),
-            "sigma_min_total": bl_lo,
-            "sigma_max_total": bl_hi,
+            "cond_motion": list(selection.cond_each), "cond_total": list(selection.cond_total),
+            "sigma_min_total": bl_lo, "sigma_max_total": bl_hi,
             "seed": [candidates[k][1].seed for k in selection.indices],
             "amplitude": [candidates[k][0] for k in selection.indices],
             "candidates": len(candidates),
@@ -329,33 +284,23 @@ class SequentialStudy:
         return format_console(self.tables)
 
     def write(self, out: Path | str) -> list[str]:
-        """Trajectories first, the tables last (each file written atomically); returns the files.
-
-        Motions that violate a constraint get no trajectory.json: one is never handed out.
-        """
+        """Trajectories first (none for a motion that violates a constraint), the tables last,
+        each file written atomically; returns the files."""
         out = Path(out)
         files = []
         for m in self.sequence.motions:
             if not m.success:
                 continue
             path = out / f"motion_{m.index}" / "trajectory.json"
-            save_trajectory(
-                path, self.robot, m.result.trajectory, cond=m.cond_total, cond_motion=m.cond_motion, motion=m.index
-            )
+            save_trajectory(path, self.robot, m.result.trajectory, cond=m.cond_total,
+                            cond_motion=m.cond_motion, motion=m.index)
             files.append(str(path.relative_to(out)))
         for i, k in enumerate(self.selection.indices, start=1):
             amplitude, cand = self.candidates[k]
             path = out / f"baseline_{i}" / "trajectory.json"
-            save_trajectory(
-                path,
-                self.robot,
-                self.problem.trajectory(cand.alpha),
-                cond=self.selection.cond_total[i - 1],
-                cond_motion=cand.cond,
-                motion=i,
-                baseline_seed=cand.seed,
-                baseline_amplitude=amplitude,
-            )
+            save_trajectory(path, self.robot, self.problem.trajectory(cand.alpha),
+                            cond=self.selection.cond_total[i - 1], cond_motion=cand.cond, motion=i,
+                            baseline_seed=cand.seed, baseline_amplitude=amplitude)
             files.append(str(path.relative_to(out)))
         self.tables["files"] = files
         atomic_write_text(out / "tables.json", json.dumps(self.tables, indent=2) + "\n")
@@ -363,7 +308,6 @@ class SequentialStudy:
         return files
 
 
-# ---- formatting ------------------------------------------------------------------------------------
 def _cond_rows(table: dict, paper: dict) -> list[str]:
     """A table's rows of cond(C^(i)) and cond(C), ours against the paper's, and σ_min(C)."""
     return [_md_row("cond(C^(i)), G1", table["cond_motion"]), _md_row("cond(C^(i)), paper HRP-4", paper["cond_motion"]),
@@ -422,11 +366,9 @@ def format_markdown(t: dict) -> str:
     ]
     loads = t["timing"].get("load_average_1min_after_motion")
     if loads:
-        lines.append(
-            "1-minute load average after each motion: "
-            + ", ".join(f"{x:.2f}" for x in loads)
-            + f" on {t['timing'].get('cpu_count')} cores (other jobs slow the solves down)."
-        )
+        lines.append("1-minute load average after each motion: "
+                     + ", ".join(f"{x:.2f}" for x in loads) + f" on {t['timing'].get('cpu_count')} "
+                     "cores (other jobs slow the solves down).")
     return "\n".join(lines + [""])
 
 
@@ -455,26 +397,19 @@ def format_console(t: dict) -> str:
         f"first motion, baseline / optimized: {r['baseline']:.4g} / {r['optimized']:.4g} = {r['ratio']:.2f}x "
         f"(target >= {r['target']:g}x: {'met' if r['ratio'] >= r['target'] else 'MISSED'}; "
         f"paper {r['paper']:.2f}x)",
-        "wall time per motion: "
-        + ", ".join(f"{x:.1f} s" for x in t1["wall_time_s"])
+        "wall time per motion: " + ", ".join(f"{x:.1f} s" for x in t1["wall_time_s"])
         + f" (target <= {TIME_TARGET:.0f} s: "
-        + ("met" if max(t1["wall_time_s"]) <= TIME_TARGET else "MISSED")
-        + ")",
+        + ("met" if max(t1["wall_time_s"]) <= TIME_TARGET else "MISSED") + ")",
     ]
     totals = t1["cond_total"]
     if len(totals) > 1:
         falls = all(b < a for a, b in zip(totals, totals[1:]))
-        out.append(
-            "cond(C) after each motion: "
-            + " -> ".join(f"{x:.4g}" for x in totals)
-            + f" (target: falls with each motion: {'met' if falls else 'MISSED'})"
-        )
+        out.append("cond(C) after each motion: " + " -> ".join(f"{x:.4g}" for x in totals)
+                   + f" (target: falls with each motion: {'met' if falls else 'MISSED'})")
     if not all(t1["success"]):
-        out.append(
-            "WARNING: motions "
-            + ", ".join(str(i) for i, ok in zip(t1["motion"], t1["success"]) if not ok)
-            + " violate a constraint (no trajectory.json written for them)"
-        )
+        out.append("WARNING: motions "
+                   + ", ".join(str(i) for i, ok in zip(t1["motion"], t1["success"]) if not ok)
+                   + " violate a constraint (no trajectory.json written for them)")
     return "\n".join(out)
 
 

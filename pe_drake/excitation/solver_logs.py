@@ -1,17 +1,11 @@
 """Where IPOPT writes its log files: one folder per process, removed once the process is gone.
 
-IPOPT reports its iteration count through Drake only in its log file (BUILD_NOTES.md), so each
-solve writes one, which is read and deleted after the solve. A worker killed during a solve
-(Ctrl-C, a dead pool's terminate, the OOM killer) never deletes it, and the files lay in the
-system temporary folder, one more per killed worker.
-
-Each process now writes into its own folder ``pe_drake_ipopt_<pid>_*``, holding an exclusive
-``flock`` on the ``.lock`` file inside for as long as it lives. The kernel drops that lock
-when the process dies, however it dies (SIGKILL included), so a folder whose lock can be
-taken is an orphan: no PID is trusted (PIDs are reused, and a container sharing /tmp has its
-own). Orphans are removed by :func:`remove_orphaned_log_folders`, which the local and Ray
-executors call when they close (a killed worker's) and each process calls when it makes its
-own folder (a killed parent's); a process removes its own folder when it exits normally.
+IPOPT reports its iteration count through Drake only in its log file, which a worker killed
+during a solve never deletes. So each process writes into its own folder
+``pe_drake_ipopt_<pid>_*`` and holds an exclusive ``flock`` on its ``.lock`` file while it
+lives; the kernel drops the lock however the process dies, so a folder whose lock can be taken
+is an orphan (no PID is trusted: PIDs are reused). The executors sweep orphans when they close,
+each process when it makes its folder, and a process removes its own when it exits.
 """
 
 from __future__ import annotations
@@ -64,14 +58,8 @@ def new_log_file() -> Path:
 
 
 def remove_orphaned_log_folders(root: str | Path | None = None) -> list[Path]:
-    """Removes the log folders of processes that are gone (module docstring).
-
-    Args:
-        root: the folder to sweep (default: the system temporary folder).
-
-    Returns:
-        The folders removed.
-    """
+    """Removes the log folders of processes that are gone from ``root`` (default: the system
+    temporary folder); returns the folders removed."""
     if fcntl is None:  # pragma: no cover
         return []
     root = Path(root or tempfile.gettempdir())

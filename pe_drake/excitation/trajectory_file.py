@@ -1,16 +1,13 @@
 """Reading and writing ``trajectory.json`` and ``trajectory.csv``.
 
-trajectory.json keys: ``robot``, ``model`` (the model file, relative to the trajectory's folder
-since issue 34; absolute in older files), ``joints``, ``omega`` [rad/s], ``harmonics``, ``a`` and ``b``
-(n × N), ``q0`` (n), ``duration`` [s], ``locked_positions`` {joint: value},
-``base_pose`` {``position``, ``quaternion_wxyz``} of the root link in world, ``root_link``,
-``cond``; q_j(t) = Σ_k a_jk sin(kωt) + b_jk cos(kωt) + q0_j exactly as Eq. (50).
-Written by ``optimize`` since the safety defaults: ``periods``, ``ramp_duration``, ``phase``,
-``motion_duration`` and ``layout`` (time spans of ramp-in, periodic part and ramp-out in
-trajectory.csv; pe_drake/excitation/ramp.py). A file without them is one period, no ramps.
-Written since the playback draws them: ``capsules`` (the capsule file the run checked, a
-bare name for the ``fitted_capsules.yaml`` beside it, or null) and ``environment`` (the
-config's ``environment`` section: ``floor``, ``floor_height``, ``boxes``).
+trajectory.json keys: ``robot``, ``model`` (relative to the file's folder; absolute in older
+files), ``joints``, ``omega`` [rad/s], ``harmonics``, ``a`` and ``b`` (n × N), ``q0`` (n),
+``duration`` [s], ``locked_positions``, ``base_pose`` {``position``, ``quaternion_wxyz``} of
+``root_link`` in world, ``cond``; q_j(t) = Σ_k a_jk sin(kωt) + b_jk cos(kωt) + q0_j (Eq. 50).
+Optional: ``periods``, ``ramp_duration``, ``phase``, ``motion_duration``, ``layout``
+(:mod:`pe_drake.excitation.ramp`; without them: one period, no ramps), ``capsules`` (the
+capsule file the run checked, or null) and ``environment`` (``floor``, ``floor_height``,
+``boxes``).
 """
 
 from __future__ import annotations
@@ -34,54 +31,31 @@ if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
 
 #: Physical range of ω [rad/s]: periods from 0.1 s to 10 minutes.
 OMEGA_RANGE = (2 * np.pi / 600.0, 2 * np.pi / 0.1)
-#: Most harmonics a trajectory file may have (the paper uses 10; 1000 resolve 1 ms on a 1 s period).
-MAX_HARMONICS = 1000
-
-
-def trajectory_to_dict(robot: Robot, trajectory: FourierTrajectory, folder: str | Path | None = None,
-                       **extra: Any) -> dict[str, Any]:
-    """The JSON-ready description of a trajectory on a robot; with ``folder`` (where the file
-    goes), the model's path is recorded relative to it (no user name or folder layout of the
-    author's machine in a shared file)."""
-    pose = robot.base_pose
-    return {
-        "robot": robot.name,
-        "model": portable_path(robot.model_path, folder) if folder is not None else str(robot.model_path),
-        "joints": list(robot.joint_names),
-        "omega": trajectory.omega,
-        "harmonics": trajectory.harmonics,
-        "a": trajectory.a.tolist(),
-        "b": trajectory.b.tolist(),
-        "q0": trajectory.q0.tolist(),
-        "duration": trajectory.period,
-        "locked_positions": dict(robot.locked_positions),
-        "root_link": robot.root_link,
-        "base_pose": {
-            "position": np.asarray(pose.translation()).tolist(),
-            "quaternion_wxyz": np.asarray(pose.rotation().ToQuaternion().wxyz()).tolist(),
-        },
-        **extra,
-    }
 
 
 def save_trajectory(path: str | Path, robot: Robot, trajectory: FourierTrajectory, **extra: Any) -> None:
-    """Writes trajectory.json atomically."""
+    """Writes trajectory.json atomically, the model's and capsules' paths relative to its folder
+    (no user's folder in a shared file)."""
     folder = final_folder(path)
     if isinstance(extra.get("capsules"), str):  # relative like the model: view reads it against the folder
         extra["capsules"] = portable_path(extra["capsules"], folder)
-    data = trajectory_to_dict(robot, trajectory, folder, **extra)
+    pose = robot.base_pose
+    data = {
+        "robot": robot.name, "model": portable_path(robot.model_path, folder),
+        "joints": list(robot.joint_names), "omega": trajectory.omega,
+        "harmonics": trajectory.harmonics, "a": trajectory.a.tolist(), "b": trajectory.b.tolist(),
+        "q0": trajectory.q0.tolist(), "duration": trajectory.period,
+        "locked_positions": dict(robot.locked_positions), "root_link": robot.root_link,
+        "base_pose": {"position": np.asarray(pose.translation()).tolist(),
+                      "quaternion_wxyz": pose.rotation().ToQuaternion().wxyz().tolist()},
+        **extra,
+    }
     atomic_write_text(path, json.dumps(data, indent=2))
 
 
 def load_trajectory(path: str | Path) -> tuple[FourierTrajectory, dict[str, Any]]:
-    """Reads trajectory.json.
-
-    Returns:
-        The trajectory and the whole JSON dict (robot, joints, locked posture, ...).
-
-    Raises:
-        DataError: missing file, missing key, or inconsistent shapes.
-    """
+    """Reads trajectory.json: the trajectory and the whole JSON dict; DataError for a missing
+    file or key, or inconsistent shapes."""
     path = Path(path)
     problem = limits.input_file_problem(path)
     if problem:
@@ -104,11 +78,8 @@ def load_trajectory(path: str | Path) -> tuple[FourierTrajectory, dict[str, Any]
     if isinstance(omega, bool) or not isinstance(omega, (int, float)) or not np.isfinite(omega):
         raise DataError(f"'omega' must be a finite number [rad/s], got {omega!r}", file=str(path))
     if not OMEGA_RANGE[0] <= omega <= OMEGA_RANGE[1]:
-        raise DataError(
-            f"'omega' = {omega!r} rad/s is outside [{OMEGA_RANGE[0]:.4g}, {OMEGA_RANGE[1]:.4g}] "
-            "(periods from 0.1 s to 600 s)",
-            file=str(path),
-        )
+        raise DataError(f"'omega' = {omega!r} rad/s is outside [{OMEGA_RANGE[0]:.4g}, "
+                        f"{OMEGA_RANGE[1]:.4g}] (periods from 0.1 s to 600 s)", file=str(path))
     if not isinstance(data["joints"], list) or not all(isinstance(j, str) for j in data["joints"]):
         raise DataError("'joints' must be a list of joint names", file=str(path))
     arrays = {}
@@ -120,9 +91,8 @@ def load_trajectory(path: str | Path) -> tuple[FourierTrajectory, dict[str, Any]
     a, b, q0 = arrays["a"], arrays["b"], arrays["q0"]
     n = len(data["joints"])
     if a.ndim != 2 or a.shape[0] != n or b.shape != a.shape or q0.shape != (n,):
-        raise DataError(
-            f"a {a.shape}, b {b.shape}, q0 {q0.shape} do not match {n} joints", file=str(path)
-        )
+        raise DataError(f"a {a.shape}, b {b.shape}, q0 {q0.shape} do not match {n} joints",
+                        file=str(path))
     if a.shape[1] > limits.value(limits.HARMONICS):
         raise DataError(f"{a.shape[1]} harmonics; at most {limits.value(limits.HARMONICS):g} are read: "
                         f"{limits.describe(limits.HARMONICS)}", file=str(path))
@@ -145,12 +115,8 @@ def write_motion_csv(path: str | Path, joints: tuple[str, ...] | list[str], moti
 
 
 def load_motion(path: str | Path) -> tuple[RampedMotion, dict[str, Any]]:
-    """Reads trajectory.json as the motion trajectory.csv holds (ramps and periods included):
-    what ``view`` and ``simulate`` replay.
-
-    Raises:
-        DataError: see :func:`load_trajectory`; or bad ``periods``/``ramp_duration``/``phase``.
-    """
+    """Reads trajectory.json as the motion trajectory.csv holds (ramps and periods included);
+    DataError as :func:`load_trajectory`, or for a bad ``periods``/``ramp_duration``/``phase``."""
     trajectory, data = load_trajectory(path)
     try:
         return ramped_motion_from_dict(trajectory, data, source=str(path)), data
@@ -161,21 +127,16 @@ def load_motion(path: str | Path) -> tuple[RampedMotion, dict[str, Any]]:
 def environment_record(environment: EnvironmentConfig) -> dict[str, Any]:
     """The ``environment`` entry of trajectory.json: the obstacles the motion was optimized
     against (what ``pe-drake view`` draws)."""
-    return {
-        "floor": bool(environment.floor),
-        "floor_height": None if environment.floor_height is None else float(environment.floor_height),
-        "boxes": [{"name": b.name, "center": [float(x) for x in b.center], "size": [float(x) for x in b.size]}
-                  for b in environment.boxes],
-    }
+    height = environment.floor_height
+    return {"floor": bool(environment.floor),
+            "floor_height": None if height is None else float(height),
+            "boxes": [{"name": b.name, "center": [float(x) for x in b.center],
+                       "size": [float(x) for x in b.size]} for b in environment.boxes]}
 
 
 def recorded_environment(data: dict[str, Any], default: EnvironmentConfig, source: str | Path) -> EnvironmentConfig:
     """The environment a trajectory file records (:func:`environment_record`), or ``default``
-    for a file written before it was recorded.
-
-    Raises:
-        DataError: a malformed entry, naming the file and the key.
-    """
+    for a file without one; DataError for a malformed entry."""
     entry = data.get("environment")
     if entry is None:
         return default

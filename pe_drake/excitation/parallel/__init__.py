@@ -20,7 +20,6 @@ from pe_drake.excitation.parallel.base import (
     ConstraintsFactory,
     Executor,
     InProcessExecutor,
-    RemoteTraceback,
     RobotSpec,
     TaskFinished,
     TaskLost,
@@ -31,7 +30,7 @@ from pe_drake.excitation.parallel.base import (
     check_workers,
     default_workers,
 )
-from pe_drake.excitation.parallel.local import LocalExecutor, default_start_method
+from pe_drake.excitation.parallel.local import LocalExecutor
 from pe_drake.excitation.parallel.ray import RayExecutor, cluster_cpus
 from pe_drake.multibody.regressor import RegressorModel
 from pe_drake.multibody.sensors import measurement_base_parameters
@@ -41,24 +40,9 @@ if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
 
 
 __all__ = [
-    "EXECUTORS",
-    "HUNG_AFTER_S",
-    "ConstraintsFactory",
-    "Executor",
-    "ExecutorOptions",
-    "InProcessExecutor",
-    "LocalExecutor",
-    "RayExecutor",
-    "RemoteTraceback",
-    "RobotSpec",
-    "TaskFinished",
-    "TaskLost",
-    "TaskStarted",
-    "WorkerError",
-    "WorkerState",
-    "default_start_method",
-    "default_workers",
-    "open_executor",
+    "HUNG_AFTER_S", "ConstraintsFactory", "Executor", "ExecutorOptions", "InProcessExecutor",
+    "LocalExecutor", "RayExecutor", "RobotSpec", "TaskFinished", "TaskLost", "TaskStarted",
+    "WorkerError", "WorkerState", "default_workers", "open_executor",
 ]
 
 
@@ -74,7 +58,7 @@ class ExecutorOptions:
         address: the Ray cluster ("ray" only; "": ``ray.init()``'s default).
         hung_after_s: a task without progress for this long [s] is declared hung, its worker
             stopped; 0: never.
-        progress_interval: seconds between the progress events of a running solve [s].
+        progress_interval: time between the progress events of a running solve [s].
     """
 
     workers: int | None = None
@@ -85,41 +69,31 @@ class ExecutorOptions:
 
 
 def open_executor(
-    robot: Robot,
-    executor: str = "local",
-    workers: int | None = None,
-    *,
-    tasks: int | None = None,
-    address: str = "",
-    base=None,
-    measurement: str = "joint_torque",
-    constraints_factory: ConstraintsFactory | None = None,
-    start_method: str | None = None,
+    robot: Robot, executor: str = "local", workers: int | None = None, *, tasks: int | None = None,
+    address: str = "", base=None, measurement: str = "joint_torque",
+    constraints_factory: ConstraintsFactory | None = None, start_method: str | None = None,
     hung_after_s: float = HUNG_AFTER_S,
 ) -> Executor:
     """An executor whose workers each hold a copy of ``robot``.
 
     Args:
-        robot: the :class:`~pe_drake.multibody.robot.Robot`; workers rebuild it from its name
-            and config (construction hooks of this instance are not reproduced).
+        robot: workers rebuild it from its name and config (hooks of this instance are lost).
         executor: "local" (process pool on this machine) or "ray".
         workers: tasks at once (default: the cores available, or the Ray cluster's CPUs),
             capped at ``tasks``. "local" with one worker runs in this process.
         tasks: the most tasks one :meth:`Executor.map` will get (caps the default workers).
-        address: the Ray cluster ("ray" only; "" : ``ray.init()``'s default).
+        address: the Ray cluster ("ray" only).
         base: the base parameters every task uses (default: computed here once, for the
-            rows of ``measurement``).
-        measurement: the rows of C (``excitation.measurement``) the default base is for.
+            rows of C of ``measurement``).
         constraints_factory: ``f(robot, excitation_config) -> [SampledConstraint, ...]``;
             a module-level function (it is pickled by name).
-        start_method: for "local"; see :func:`default_start_method`.
-        hung_after_s: a running task that sends no progress for this long [s] is declared
-            hung and its worker stopped (``parallel.hung_after_s``; 0: never). Not checked
-            when the tasks run in this process (one local worker).
+        start_method: for "local" (default "forkserver" where available, else "spawn").
+        hung_after_s: see :class:`ExecutorOptions`; not checked when the tasks run in this
+            process (one local worker).
 
     Raises:
-        ConfigError: an unknown executor, a bad worker count or ``hung_after_s``, more Ray
-            workers than the cluster's CPUs, Ray missing or unreachable.
+        ConfigError: an unknown executor, bad workers or ``hung_after_s``, more Ray workers than
+            the cluster's CPUs, Ray missing or unreachable.
     """
     if executor not in EXECUTORS:
         raise ConfigError(f"executor '{executor}' is not one of {', '.join(EXECUTORS)}")

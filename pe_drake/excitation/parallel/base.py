@@ -1,16 +1,12 @@
 """What every executor shares: the worker's state, the task wrapper, errors and events.
 
 An executor runs ``fn(state, payload)`` for many payloads, where ``fn`` is a module-level
-function and ``state`` a :class:`WorkerState`: a robot, its regressor model, the base
-parameters and the constraint sets, built once per worker. Drake plants and contexts do not
-pickle (BUILD_NOTES.md), so a worker rebuilds the robot from a :class:`RobotSpec` (name,
-config, base parameters, constraint factory); tasks carry only seeds, configs, starting
-points and C0 arrays.
+function and ``state`` a :class:`WorkerState` built once per worker. Drake plants do not
+pickle, so a worker rebuilds the robot from a :class:`RobotSpec`; tasks carry only seeds,
+configs, starting points and C0 arrays.
 
-Results come back in payload order whatever the number of workers and the order in which
-tasks finish; BLAS runs single-threaded inside each task, so a task's result depends only on
-its payload: bit for bit in this process and the local pool; on Ray a start's coefficients
-differed, rarely, by up to ~5e-10 rad (README, "Running on a cluster"; cause not found).
+Results come back in payload order; BLAS runs single-threaded in each task, so a task's result
+depends only on its payload (on Ray, rarely, to ~5e-10 rad: README, "Running on a cluster").
 """
 
 from __future__ import annotations
@@ -47,21 +43,14 @@ class WorkerError(PeDrakeError):
     """A task failed in a worker, or the worker running it died.
 
     Attributes:
-        task: index of the failed task (the first one when several were running in a pool
-            that broke), or None when a worker failed before running any task.
-        tasks: every task that was running when the worker failed.
+        task: index of the failed task (the first of ``tasks``, every task that was running),
+            or None when a worker failed before running any task.
         exception_type: name of the exception raised in the worker ("" when it died).
         remote_traceback: the worker's formatted traceback ("" when it died).
     """
 
-    def __init__(
-        self,
-        message: str,
-        task: int | None = None,
-        exception_type: str = "",
-        remote_traceback: str = "",
-        tasks: Sequence[int] = (),
-    ):
+    def __init__(self, message: str, task: int | None = None, exception_type: str = "",
+                 remote_traceback: str = "", tasks: Sequence[int] = ()):
         self.task = task
         self.tasks = tuple(tasks) or (() if task is None else (task,))
         self.exception_type = exception_type
@@ -89,11 +78,9 @@ class TaskStarted:
 
 @dataclasses.dataclass(frozen=True)
 class TaskFinished:
-    """Task ``index`` finished.
+    """Task ``index`` finished with ``value``.
 
     Attributes:
-        index: the task.
-        value: what it returned.
         worker: where it ran ("main", "pid 1234", or "10.0.0.2 pid 1234" on Ray).
         wall_time: its run time in the worker [s].
     """
@@ -106,14 +93,10 @@ class TaskFinished:
 
 @dataclasses.dataclass(frozen=True)
 class TaskLost:
-    """Task ``index`` was lost with its worker: the worker died, or gave no progress for the
-    executor's ``hung_after_s`` and was stopped. What the caller gets instead of a
-    :class:`TaskFinished` when it asked to keep going (``Executor.map(..., keep_lost=True)``).
+    """Task ``index`` was lost with its worker (it died, or hung), for ``reason``; returned
+    instead of a :class:`TaskFinished` by ``Executor.map(..., keep_lost=True)``.
 
     Attributes:
-        index: the task.
-        reason: why, for people ("worker pid 12 gave no progress for 600 s: declared hung,
-            start 1 (seed 8) failed").
         worker: where it ran ("pid 1234"; "" when it was not known).
         wall_time: from handing it out to declaring it lost [s].
     """
@@ -130,11 +113,8 @@ HUNG_AFTER_S = 600.0
 
 
 def check_hung_after(value: Any, name: str = "hung_after_s") -> float:
-    """``value`` as seconds without progress after which a worker is declared hung (0: never).
-
-    Raises:
-        ConfigError: not a finite non-negative number (naming ``name`` and the value).
-    """
+    """``value`` as seconds without progress after which a worker is declared hung (0: never);
+    ConfigError if it is not a finite non-negative number."""
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not value >= 0 or value == float("inf"):
         raise ConfigError(f"{name} must be a non-negative number of seconds (0: never), got {value!r}")
     return float(value)
@@ -177,11 +157,8 @@ class RobotSpec:
     """What a worker needs to rebuild the robot (all picklable).
 
     Attributes:
-        name: the robot's name.
-        config: its :class:`~pe_drake.config.RobotConfig`.
         base: the :class:`~pe_drake.multibody.base_parameters.BaseParameters` every task uses
             (computed once in the parent, so C0 and every result use the same columns).
-        constraints_factory: see :data:`ConstraintsFactory`, or None.
         capsules_text: the capsule file's content (see :meth:`with_capsule_text`), or "".
     """
 
@@ -224,14 +201,8 @@ class RobotSpec:
 
 
 class WorkerState:
-    """A robot, its regressor model and constraint sets, living in one process.
-
-    Attributes:
-        robot: the :class:`~pe_drake.multibody.robot.Robot`.
-        model: its :class:`~pe_drake.multibody.regressor.RegressorModel`.
-        base: the base parameters every task uses.
-        emit: sends an event to the caller's progress callback (dropped on Ray).
-    """
+    """A robot, its regressor model, the base parameters every task uses and constraint sets,
+    living in one process; ``emit`` sends an event to the caller's progress callback."""
 
     def __init__(self, robot: Robot, base, constraints_factory=None, emit=None, model=None):
         self.robot = robot
@@ -271,11 +242,8 @@ def worker_name(host: str = "") -> str:
 
 
 def run_task(state: WorkerState, fn: Callable, payload: Any, worker: str) -> tuple:
-    """Runs one task in a worker; never raises (a failure is returned, packed).
-
-    Returns:
-        ("ok", value, worker, wall_time) or ("error", exception, type name, traceback, worker).
-    """
+    """Runs one task in a worker; never raises: returns ("ok", value, worker, wall_time) or
+    ("error", exception, type name, traceback, worker)."""
     begin = time.perf_counter()
     try:
         # One BLAS thread: the matrices are small, and a task's result must not depend on
@@ -315,11 +283,7 @@ def default_workers() -> int:
 
 
 def check_workers(workers: Any) -> int:
-    """``workers`` as a positive int.
-
-    Raises:
-        ConfigError: not a positive integer.
-    """
+    """``workers`` as a positive int, or ConfigError."""
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ConfigError(f"workers must be a positive integer, got {workers!r}")
     return workers
@@ -330,11 +294,8 @@ class Executor:
 
     Attributes:
         name: "main" (this process), "local" (a process pool) or "ray".
-        workers: how many tasks run at once.
-        base: the base parameters every task uses.
         local: a :class:`WorkerState` in this process (for building problems here).
-        hung_after_s: a running task without progress (no event) for this long is declared
-            hung and its worker stopped [s]; 0: never. Not checked in this process.
+        hung_after_s: see :class:`~pe_drake.excitation.parallel.ExecutorOptions`.
     """
 
     name = "main"
@@ -346,37 +307,28 @@ class Executor:
         self.hung_after_s = check_hung_after(hung_after_s)
 
     def problem(self, config: ExcitationConfig, C0: np.ndarray | None = None):
-        """An :class:`~pe_drake.excitation.problem.ExcitationProblem` in this process, with the
-        executor's base parameters."""
+        """An :class:`~pe_drake.excitation.problem.ExcitationProblem` in this process."""
         return self.local.problem(config, C0)
 
-    def map(
-        self,
-        fn: Callable,
-        payloads: Sequence[Any],
-        progress: Progress | None = None,
-        labels: Sequence[str] | None = None,
-        keep_lost: bool = False,
-    ) -> list[TaskFinished | TaskLost]:
+    def map(self, fn: Callable, payloads: Sequence[Any], progress: Progress | None = None,
+            labels: Sequence[str] | None = None,
+            keep_lost: bool = False) -> list[TaskFinished | TaskLost]:
         """``fn(state, p)`` for every payload, spread over the workers.
 
         Args:
             fn: a module-level function ``fn(state: WorkerState, payload) -> value``.
-            payloads: one per task.
             progress: receives :class:`TaskStarted`, :class:`TaskFinished`,
                 :class:`TaskLost` and whatever the tasks emit (``state.emit``), in this process.
             labels: names of the tasks in error messages (default "task k").
-            keep_lost: a task lost with its worker (the worker died, or hung: see
-                ``hung_after_s``) comes back as a :class:`TaskLost` and the other tasks go
-                on; False: it raises :class:`WorkerError`.
+            keep_lost: a task lost with its worker comes back as a :class:`TaskLost` and the
+                other tasks go on (False: :class:`WorkerError`).
 
         Returns:
-            One :class:`TaskFinished` (or :class:`TaskLost`) per payload, in payload order.
+            One :class:`TaskFinished` (or :class:`TaskLost`) per payload, in order.
 
         Raises:
-            WorkerError: a task raised, or (unless ``keep_lost``) a worker died or hung,
-                naming the task(s) it ran. Every worker is stopped first, as on Ctrl-C
-                (KeyboardInterrupt is re-raised).
+            WorkerError: a task raised, or (unless ``keep_lost``) a worker died or hung; every
+                worker is stopped first, as on Ctrl-C.
         """
         raise NotImplementedError
 
@@ -399,8 +351,7 @@ class RemoteExecutor(Executor):
         raise NotImplementedError
 
     def run(self, targets, fn, payloads, say, labels, keep_lost) -> list:
-        """The tasks on ``targets``: one :class:`TaskFinished` (or :class:`TaskLost`) per
-        payload, in payload order."""
+        """The tasks on ``targets``, results in payload order (see :meth:`Executor.map`)."""
         raise NotImplementedError
 
     def terminate(self) -> None:
@@ -412,24 +363,16 @@ class RemoteExecutor(Executor):
         if not payloads:
             return []
         say = progress or (lambda event: None)
+        labels = [f"task {k}" for k in range(len(payloads))] if labels is None else labels
         try:
-            return self.run(self.targets(), fn, payloads, say, task_labels(len(payloads), labels), keep_lost)
+            return self.run(self.targets(), fn, payloads, say, [str(s) for s in labels], keep_lost)
         except BaseException:
             self.terminate()  # nothing keeps running after an error or Ctrl-C
             raise
 
 
-def task_labels(count: int, labels: Sequence[str] | None) -> list[str]:
-    return [f"task {k}" for k in range(count)] if labels is None else [str(s) for s in labels]
-
-
 class InProcessExecutor(Executor):
-    """Runs the tasks one after the other in this process (one worker, nothing to start).
-
-    A task's exception propagates unchanged.
-    """
-
-    name = "main"
+    """Runs the tasks one after the other in this process; a task's exception propagates."""
 
     def __init__(self, local: WorkerState):
         super().__init__(local, 1, 0.0)  # nothing here could stop a task that hangs

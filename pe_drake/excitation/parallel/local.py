@@ -1,15 +1,11 @@
-"""The local executor: the standard library's process pool, one robot per worker process.
+"""The local executor: ``concurrent.futures.ProcessPoolExecutor``, one robot per worker process.
 
-``concurrent.futures.ProcessPoolExecutor`` with an initializer that builds the worker's robot
-once. What the standard pool does not do is added here: at most ``workers`` tasks are handed
-out at a time, so the tasks in flight are exactly the ones running, and a worker that dies
-(``BrokenProcessPool``) is reported with the task(s) it was running; on an error or Ctrl-C the
-workers are terminated, not left to finish their tasks.
+Added to the standard pool: at most ``workers`` tasks are handed out at a time (the tasks in
+flight are the ones running), a worker that dies is reported with its task, and on an error or
+Ctrl-C the workers are terminated, not left to finish.
 
-Start method: "forkserver" on Linux by default. Drake starts threads, and forking a process
-that has threads can deadlock the child; the fork server is a clean, single-threaded process
-that imports pe_drake once, so a worker starts about as fast as with "fork" and has no
-inherited threads. "spawn" (the default elsewhere) re-imports everything per worker.
+Start method: "forkserver" by default. Drake starts threads, and forking a process with threads
+can deadlock the child; the fork server is single-threaded and imports pe_drake once.
 """
 
 from __future__ import annotations
@@ -81,18 +77,8 @@ def default_start_method() -> str:
 
 
 class LocalExecutor(RemoteExecutor):
-    """Worker processes on this machine (started at the first :meth:`map`, kept until close).
-
-    Args:
-        spec: what each worker builds (:class:`RobotSpec`).
-        local: the parent's :class:`WorkerState`.
-        workers: processes.
-        start_method: "forkserver", "spawn" or "fork" (default :func:`default_start_method`).
-        hung_after_s: see :class:`~pe_drake.excitation.parallel.base.Executor`.
-
-    Raises:
-        ConfigError: an unknown start method, a bad ``hung_after_s``.
-    """
+    """Worker processes on this machine (started at the first :meth:`map`, kept until close);
+    ConfigError for an unknown start method or a bad ``hung_after_s``."""
 
     name = "local"
 
@@ -125,7 +111,6 @@ class LocalExecutor(RemoteExecutor):
             )
         return self._pool
 
-
     def run(self, pool, fn, payloads, say, labels, keep_lost) -> list:
         return PoolRun(self, fn, payloads, say, labels, keep_lost).run()
 
@@ -150,16 +135,10 @@ class LocalExecutor(RemoteExecutor):
         return dict(getattr(self._pool, "_processes", None) or {})
 
     def wait_until_reaped(self, timeout: float = REAP_TIMEOUT_S) -> None:
-        """After the pool broke: waits until its manager thread has stopped and reaped every
-        worker, so that their exit codes are read by that one thread alone.
-
-        Two threads that poll the exit status of one "forkserver" worker at the same time race
-        for the single status the fork server writes, and the loser records 255 (CPython's
-        ``popen_forkserver.Popen.poll``: EOFError → 255; 184 of 200 tries here when two threads
-        join a SIGTERMed worker). Our :meth:`terminate` joining the workers while the broken
-        pool's manager thread joins them too made a worker stopped with SIGTERM look as if it
-        had died on its own, 1 run in 4, and its task was lost instead of run again.
-        """
+        """After the pool broke: waits until its manager thread has reaped every worker, so that
+        their exit codes are read by that one thread alone (two threads polling one "forkserver"
+        worker race for its single status, and the loser records 255: a worker stopped with
+        SIGTERM would look as if it had died on its own)."""
         pool = self._pool
         manager = getattr(pool, "_executor_manager_thread", None)
         if pool is not None and getattr(pool, "_broken", False) and manager is not None:
@@ -175,22 +154,18 @@ class LocalExecutor(RemoteExecutor):
         else:
             # Before 3.14 the pool has no public handle on its processes (loky and the 3.14
             # pool terminate them the same way).
-            procs = list((getattr(pool, "_processes", None) or {}).values())
+            procs = list(self.processes().values())
             pool.shutdown(wait=False, cancel_futures=True)
             for p in procs:
                 if p.is_alive():
                     p.terminate()
-            for p in procs:
-                p.join(timeout=5)
-                if p.is_alive():  # pragma: no cover - terminate is normally enough
-                    p.kill()
-                    p.join()
+            _reap(procs, 5.0)  # terminate is normally enough
         self.close()
 
     def close(self) -> None:
+        procs = list(self.processes().values())
         pool, self._pool = self._pool, None
         if pool is not None:
-            procs = list((getattr(pool, "_processes", None) or {}).values())
             pool.shutdown(wait=False, cancel_futures=True)
             _reap(procs, CLOSE_TIMEOUT_S)
             manager = getattr(pool, "_executor_manager_thread", None)
@@ -205,9 +180,8 @@ class LocalExecutor(RemoteExecutor):
 def _reap(procs: list, timeout: float) -> None:
     """Waits up to ``timeout`` [s] for the idle workers to leave, then kills the rest.
 
-    An idle worker that was stopped (SIGSTOP, a debugger, a frozen container) never reads the
-    pool's shutdown message: ``shutdown(wait=True)`` then waited forever after every start
-    had finished (over 800 s, issue 34). SIGKILL ends a stopped process too.
+    A stopped idle worker (SIGSTOP, a debugger) never reads the pool's shutdown message
+    (issue 34); SIGKILL ends a stopped process too.
     """
     deadline = time.monotonic() + timeout
     for p in procs:
@@ -222,9 +196,8 @@ class PoolRun:
     """One :meth:`LocalExecutor.run`: hands out the tasks, at most one per worker, and keeps
     every finished one when a worker dies or hangs.
 
-    A dead worker breaks the whole standard pool: the tasks on the other workers fail with it.
-    Those are run again on a new pool (a task's result depends only on its payload); only
-    the task of the worker that died, or hung, is lost. The dead one is told by its exit
+    A dead worker breaks the whole standard pool; the other workers' tasks are run again on a
+    new pool and only the dead (or hung) worker's task is lost. The dead one is told by its exit
     status: the pool and :meth:`LocalExecutor.terminate` stop the others with SIGTERM.
     """
 

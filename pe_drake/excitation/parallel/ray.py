@@ -1,22 +1,18 @@
 """The Ray executor: the same tasks on a Ray cluster (one machine or many).
 
-One actor per worker holds its robot (Drake plants do not pickle), built once from the
-:class:`~pe_drake.excitation.parallel.base.RobotSpec`; tasks send it a module-level function
-and a payload (seeds, configs, starting points, C0) and get the value back. At most one task
-per actor is in flight, so a dead actor names the task it ran. Events the tasks emit
-(per-evaluation progress) are fetched from the actor about every second (a second thread
-of the actor answers while the task runs): they reach the caller's ``progress`` and show
-that the task is alive; a task without any for ``hung_after_s`` (counted from its actor's
-first answer) is declared hung and its actor killed. A dead or hung actor is replaced by a new one for the remaining tasks.
+One actor per worker holds its robot, built once from the
+:class:`~pe_drake.excitation.parallel.base.RobotSpec`, and runs one task at a time, so a dead
+actor names its task. The events a task emits are polled about every second (on the actor's
+second thread); a task without any for ``hung_after_s`` (counted from its actor's first answer)
+is declared hung. A dead or hung actor is replaced by a new one for the remaining tasks.
 
-``ray`` is imported lazily (an optional extra: ``pip install "pe_drake[ray]"``). Without an
-address, ``ray.init()`` starts a local instance or joins the cluster started on this machine
-with ``ray start``; with one, it joins that cluster. Every node needs pe_drake installed
-(same version) in the Python that runs Ray.
+``ray`` is imported lazily (``pip install "pe_drake[ray]"``); every node needs the same
+pe_drake installed in the Python that runs Ray.
 """
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 from typing import Any
@@ -43,11 +39,7 @@ POLL_EVERY_S = 1.0  # how often a running actor is asked for its task's events
 
 
 def import_ray():
-    """The ``ray`` module.
-
-    Raises:
-        ConfigError: Ray is not installed (with the command that installs it).
-    """
+    """The ``ray`` module, or ConfigError with the command that installs it."""
     try:
         import ray  # lazy: an optional, heavy package
     except ImportError as err:
@@ -85,8 +77,6 @@ class RobotActor:
         return run_task(self.state, fn, payload, self.worker), self.poll()[1]
 
     def pid(self) -> int:
-        import os
-
         return os.getpid()
 
 
@@ -100,9 +90,8 @@ def cluster_cpus(address: str = "") -> int:
 def connect(address: str = "") -> bool:
     """``ray.init(address)`` unless Ray is already initialized; True if it was called here.
 
-    Without an address, Ray's own rule picks the cluster (``RAY_ADDRESS``, else the one
-    ``ray start`` started on this machine); when there is none, the new local instance
-    listens on 127.0.0.1 only (:func:`start_local`). Joining a cluster is the user's choice.
+    Without an address, Ray's own rule picks the cluster (``RAY_ADDRESS``, else one started on
+    this machine); when there is none, the new local instance listens on 127.0.0.1 only.
     """
     ray = import_ray()
     if ray.is_initialized():
@@ -128,13 +117,9 @@ def existing_cluster(ray) -> bool:
 def start_local(ray, options: dict) -> None:
     """A new local Ray instance that only this machine can reach.
 
-    Ray 2.60 has no public switch for it: ``ray.init(_node_ip_address="127.0.0.1")`` and
-    ``ray start --node-ip-address=127.0.0.1`` turn the loopback address into the machine's
-    (the node showed 192.0.2.2, listening on every interface). The node address comes from
-    ``ray._private.ray_constants.ENABLE_RAY_CLUSTER`` (read as
-    ``RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER`` at import; off, as on macOS, the node is
-    127.0.0.1 and its servers listen there only): it is turned off for this call only, so a
-    cluster joined later in this process is not affected. Verified in BUILD_NOTES.md.
+    Ray has no public switch for it (``_node_ip_address="127.0.0.1"`` is turned into the
+    machine's address); with ``ray_constants.ENABLE_RAY_CLUSTER`` off, as on macOS, the node's
+    servers listen on 127.0.0.1 only. It is turned off for this call only (BUILD_NOTES.md).
     """
     constants = getattr(getattr(ray, "_private", None), "ray_constants", None)
     saved = getattr(constants, "ENABLE_RAY_CLUSTER", None)
@@ -147,23 +132,9 @@ def start_local(ray, options: dict) -> None:
             constants.ENABLE_RAY_CLUSTER = saved
 
 
-def node_addresses(ray) -> list[str]:
-    """The addresses the cluster's live nodes listen on (``NodeManagerAddress``)."""
-    return [n["NodeManagerAddress"] for n in ray.nodes() if n.get("Alive")]
-
-
 class RayExecutor(RemoteExecutor):
-    """One Ray actor per worker, each holding its robot (created at the first :meth:`map`).
-
-    Args:
-        spec: what each actor builds.
-        local: the parent's :class:`~pe_drake.excitation.parallel.base.WorkerState`.
-        workers: actors (each reserves one CPU of the cluster).
-        address: the cluster's address ("" : ``ray.init()``'s default, see the module docstring).
-
-    Raises:
-        ConfigError: Ray is missing, or the cluster cannot be reached.
-    """
+    """One Ray actor per worker (each reserves one CPU), created at the first :meth:`map`, each
+    holding its robot; ConfigError when Ray is missing or ``address`` cannot be reached."""
 
     name = "ray"
 
