@@ -46,11 +46,9 @@ from pe_drake.excitation.stall import CriterionStalled, StallRule
 #: coefficient and dominate IPOPT's linear algebra; 16 instead of 8 took a G1 solve from
 #: 63 to 50 s at an equal cond (40 was faster again but ended 13 % worse).
 SAMPLES_PER_ROW = 16
-#: From this many harmonics the solver works by default in the harmonic coordinates of
-#: :mod:`pe_drake.excitation.scaling` with 12 quasi-Newton pairs (issue 38): on G1 and the
-#: 10-joint two-arm robot (N = 10) its solves were 2.5–3.8× cheaper at 0.86–1.03× the cond;
-#: on the Panda and the UR5 (N = 5) it ended higher on some seeds and was not always faster,
-#: so they solve in alpha itself (BUILD_NOTES.md, "Third round" and "speed38").
+#: From this many harmonics on, the default solves in the coordinates of :mod:`pe_drake.excitation.scaling`
+#: with 12 quasi-Newton pairs (issue 38): 2.5–3.8× cheaper on G1 and the two-arm robot (N = 10); the
+#: Panda and the UR5 (N = 5) ended higher there and solve in alpha (BUILD_NOTES.md, "speed38").
 SCALED_HARMONICS = 8
 #: The stall rule of every IPOPT solve of a built program unless told otherwise (issue 38).
 DEFAULT_STALL = StallRule()
@@ -384,10 +382,9 @@ def build_excitation_program(
             budgets the exchange's re-solves ran out of iterations and the Panda's capsules
             ended 5 mm too close between samples, so every sample is the default.
         smooth_limits: same as ``limits="smooth"`` (kept for existing callers).
-        scaling: the solver's coordinates: "harmonic" (each harmonic's coefficients in units
-            of the amplitude the limits allow it, :mod:`pe_drake.excitation.scaling`), "none"
-            (alpha itself) or "auto" (default: "harmonic" from :data:`SCALED_HARMONICS`
-            harmonics on, else "none").
+        scaling: the solver's coordinates: "harmonic" (each harmonic in units of the amplitude the limits
+            allow it, :mod:`pe_drake.excitation.scaling`), "none" (alpha itself) or "auto" (default:
+            "harmonic" from :data:`SCALED_HARMONICS` harmonics on).
         stall: a :class:`StallRule` ending the solve when the criterion stalls
             (:mod:`pe_drake.excitation.stall`; default :data:`DEFAULT_STALL`), or None to run
             to convergence or ``solver.max_iterations``.
