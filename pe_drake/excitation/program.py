@@ -46,13 +46,12 @@ from pe_drake.excitation.stall import CriterionStalled, StallRule
 #: coefficient and dominate IPOPT's linear algebra; 16 instead of 8 took a G1 solve from
 #: 63 to 50 s at an equal cond (40 was faster again but ended 13 % worse).
 SAMPLES_PER_ROW = 16
-#: Issue 38's formulation, an option (not the default): ``build_excitation_program(problem,
-#: constraints, **FAST)`` with ``solver.ipopt_options: {limited_memory_max_history: 12}``
-#: (:data:`~pe_drake.excitation.solve.FAST_LBFGS_PAIRS`). On G1 and the 10-joint two-arm
-#: robot (N = 10) its solves were 2.5–3.8× cheaper at 0.86–1.03× the cond (3 seeds); on the
-#: Panda and the UR5 (N = 5) it ended higher on some seeds and was not always faster
-#: (BUILD_NOTES.md, "Third round").
-FAST = {"scaling": "harmonic", "stall": StallRule()}
+#: From this many harmonics on, the default solves in the coordinates of :mod:`pe_drake.excitation.scaling`
+#: with 12 quasi-Newton pairs (issue 38): 2.5–3.8× cheaper on G1 and the two-arm robot (N = 10); the
+#: Panda and the UR5 (N = 5) ended higher there and solve in alpha (BUILD_NOTES.md, "speed38").
+SCALED_HARMONICS = 8
+#: The stall rule of every IPOPT solve of a built program unless told otherwise (issue 38).
+DEFAULT_STALL = StallRule()
 
 
 class ExcitationCost:
@@ -358,8 +357,8 @@ def build_excitation_program(
     limits: str = "windows",
     sample_stride: int | None = None,
     smooth_limits: bool = False,
-    scaling: str = "none",
-    stall: StallRule | None = None,
+    scaling: str = "auto",
+    stall: StallRule | None = DEFAULT_STALL,
 ) -> ExcitationProgram:
     """A Drake MathematicalProgram for the excitation problem.
 
@@ -383,12 +382,12 @@ def build_excitation_program(
             budgets the exchange's re-solves ran out of iterations and the Panda's capsules
             ended 5 mm too close between samples, so every sample is the default.
         smooth_limits: same as ``limits="smooth"`` (kept for existing callers).
-        scaling: the solver's coordinates: "none" (default: alpha itself) or "harmonic"
-            (each harmonic's coefficients in units of the amplitude the limits allow it,
-            :mod:`pe_drake.excitation.scaling`; part of :data:`FAST`).
+        scaling: the solver's coordinates: "harmonic" (each harmonic in units of the amplitude the limits
+            allow it, :mod:`pe_drake.excitation.scaling`), "none" (alpha itself) or "auto" (default:
+            "harmonic" from :data:`SCALED_HARMONICS` harmonics on).
         stall: a :class:`StallRule` ending the solve when the criterion stalls
-            (:mod:`pe_drake.excitation.stall`; part of :data:`FAST`), or None (default) to
-            run to convergence or ``solver.max_iterations``.
+            (:mod:`pe_drake.excitation.stall`; default :data:`DEFAULT_STALL`), or None to run
+            to convergence or ``solver.max_iterations``.
 
     Returns:
         The :class:`ExcitationProgram`.
@@ -404,8 +403,10 @@ def build_excitation_program(
     }
     if limits not in adders:
         raise ConfigError(f"unknown joint-limit formulation '{limits}'; valid: {', '.join(adders)}")
-    if scaling not in ("harmonic", "none"):
-        raise ConfigError(f"unknown variable scaling '{scaling}'; valid: harmonic, none")
+    if scaling not in ("harmonic", "none", "auto"):
+        raise ConfigError(f"unknown variable scaling '{scaling}'; valid: harmonic, none, auto")
+    if scaling == "auto":
+        scaling = "harmonic" if problem.harmonics >= SCALED_HARMONICS else "none"
     K = problem.config.constraint_samples
     stride = 1 if sample_stride is None else sample_stride
     if not isinstance(stride, int) or stride < 1 or K % stride:

@@ -36,12 +36,10 @@ from pe_drake.threads import single_threaded_blas
 if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
     from pe_drake.multibody.robot import Robot
 
-#: Quasi-Newton pairs IPOPT keeps (its limited-memory Hessian; IPOPT's default is 6).
-LBFGS_PAIRS = 30
-#: Pairs for the formulation :data:`~pe_drake.excitation.program.FAST` (issue 38): in its
-#: coordinates 12 pairs ended where 30 did, with a factorization up to 4× cheaper on the
-#: two-arm robot.
-FAST_LBFGS_PAIRS = 12
+#: Quasi-Newton pairs IPOPT keeps (its limited-memory Hessian; IPOPT's default is 6), and in the
+#: harmonic coordinates of :mod:`pe_drake.excitation.scaling` (issue 38), where 12 ended where
+#: 30 did with a factorization up to 4× cheaper on the two-arm robot.
+LBFGS_PAIRS, SCALED_LBFGS_PAIRS = 30, 12
 
 
 def option_value(text: str) -> int | float | str:
@@ -506,6 +504,8 @@ def solve_excitation(
     """
     cfg = solver if isinstance(solver, SolverConfig) else SolverConfig(name=solver)
     validate_config(Config(solver=cfg))
+    if program.variable_scale is not None and "limited_memory_max_history" not in cfg.ipopt_options:
+        cfg = dataclasses.replace(cfg, ipopt_options={**cfg.ipopt_options, "limited_memory_max_history": SCALED_LBFGS_PAIRS})
     problem = program.problem
     x0 = problem.initial_guess() if initial_guess is None else np.asarray(initial_guess, float)
     if x0.shape != (problem.num_variables,):
@@ -531,12 +531,12 @@ def solve_excitation(
 
     solved = result.is_success()
     x = np.asarray(result.GetSolution(program.alpha), float)
-    x, margins, fallback = _feasible_fallback(program, x, solved, check, x0)
-    x, scale = keep_strictly_inside(problem, x)
-    if scale < 1.0:
-        margins = check_margins(problem, x, program.constraints, rate=check.rate)
-        fallback += f"; motion scaled by 1 - {1 - scale:.2g} to keep strictly inside the joint limits"
-    with single_threaded_blas():  # BLAS's own threads spin on a loaded machine (BUILD_NOTES.md)
+    with single_threaded_blas():  # BLAS's threads spin on a loaded machine: a G1 fallback's SVD took 0.7 CPU-s on them
+        x, margins, fallback = _feasible_fallback(program, x, solved, check, x0)
+        x, scale = keep_strictly_inside(problem, x)
+        if scale < 1.0:
+            margins = check_margins(problem, x, program.constraints, rate=check.rate)
+            fallback += f"; motion scaled by 1 - {1 - scale:.2g} to keep strictly inside the joint limits"
         cost = problem.evaluate(x)
         cond_motion = _cond(np.linalg.svd(problem.regressor_block(x), compute_uv=False))
     # Nothing outside a joint limit is valid (issue 21): the solver's tolerance applies to
