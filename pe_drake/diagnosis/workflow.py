@@ -447,6 +447,8 @@ def diagnose(robot: Robot, data: Measurement, validation: Measurement | None = N
     check_fits_in_memory(data, validation)
     for note in (*data.notes, *(validation.notes if validation is not None else ())):
         say(f"note: {note}")
+    if isinstance(prior, RobotModel) and prior.presliding is not None and np.any(prior.presliding):
+        say("note: the earlier model's pre-sliding (Dahl) friction is not part of the a-priori model")
     prep = prepare(robot, data, validation, config, say, prior)
     lap("prepare")
     lib = candidate_library(robot, prep, config)
