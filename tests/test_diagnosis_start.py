@@ -85,10 +85,11 @@ def test_real_panda_diagnose_starts_from_identify_and_says_where_it_is_worse():
     tests/test_drive_terms.py): the starting fit is identify's (within 5 % of ``identify``'s
     held-out figures or better on every joint), and every joint where the augmented model is
     more than 5 % worse than it is named with the reason. The augmented (physically consistent)
-    model is within 5 % of identify's WLS or better on every joint but joint 4 (+6 %): identify's
-    WLS holds negative rotor inertias on joints 3-7 that no physical model holds; the joint
-    springs the diagnosis keeps stand in for most of what they held (BUILD_NOTES, branch
-    panda5). No negative mass is named as a payload."""
+    model is within 5 % of identify's WLS or better on every joint (issue 36): identify's WLS
+    holds negative rotor inertias on joints 3-7 that no physical model holds; the joint springs
+    and the pre-sliding friction of joints 6-7 take their place, and joint 4 keeps the viscous
+    friction identify's physical fit keeps (BUILD_NOTES, branches panda5 and panda36). No
+    negative mass is named as a payload."""
     from pe_drake.identification.intake import read_robot_measurement
     from pe_drake.identification.identify_model import IdentifyOptions, identify_model
     from pe_drake.identification.time_window import TimeWindow
@@ -106,12 +107,13 @@ def test_real_panda_diagnose_starts_from_identify_and_says_where_it_is_worse():
     identify_rms = validate_model(robot, model.result, raw, ValidateOptions(window=TimeWindow(*held))).rms
     start = np.array(list(dg.start["held_out_rms"].values()))
     print("identify", identify_rms.round(4), "start", start.round(4), "diagnose", dg.rms_after.round(4))
-    # measured: identify 0.132 0.095 0.082 0.095 0.062 0.022 0.035, start 0.126 0.098 0.075 0.097
-    # 0.063 0.021 0.035, diagnose 0.120 0.096 0.060 0.101 0.063 0.018 0.036 (0.130 0.102 0.079 0.149
-    # 0.057 0.026 0.040 before the springs and the consistent fit)
+    # measured: identify 0.132 0.096 0.082 0.096 0.062 0.021 0.032, start 0.126 0.099 0.074 0.098
+    # 0.062 0.019 0.033, diagnose 0.121 0.096 0.060 0.098 0.061 0.011 0.023 (0.120 0.096 0.060 0.102
+    # 0.062 0.016 0.034 before branch panda36; 0.130 0.102 0.079 0.149 0.057 0.026 0.040 before the
+    # springs and the consistent fit)
     assert np.all(start < 1.05 * identify_rms)
     ratio = dg.rms_after / identify_rms
-    assert np.all(np.delete(ratio, 3) < 1.05) and ratio[3] < 1.10, ratio.round(3)
+    assert np.all(ratio < 1.05), ratio.round(3)
     assert not [e for e in dg.effects if e.effect == "payload" and e.value < 0]
     flagged = {s.channel: s for s in dg.worse if s.reference == "start"}
     for j, name in enumerate(robot.joint_names):

@@ -16,7 +16,7 @@ from pe_drake.simulation.truth import make_truth
 from tests.held_trajectory import HeldTrajectory
 from tests.test_diagnosis import CONTROL, DURATION, NOISE, named
 
-JOINT, FC, XP = "panda_joint5", 0.5, 0.001  # Dahl F_c [N·m] and x_p [rad]: stiffer than the grid resolves
+JOINT, FC, XP = "panda_joint5", 0.5, 0.001  # Dahl F_c [N·m] and x_p [rad]
 DAHL = {"presliding_friction": {JOINT: FC}, "presliding_stiffness": {JOINT: FC / XP}}
 
 
@@ -72,7 +72,11 @@ def test_no_holding_torque_without_rests(panda, diagnosis_trajectory):
     held = _simulate(panda, HeldTrajectory(diagnosis_trajectory, every=2.0), DAHL)
     result, lines = _run(panda, diagnosis_trajectory, DAHL, validation=held)
     assert not any(e.effect == HOLDING for e in result.effects)
-    assert ("coulomb_friction", JOINT) in named(result)
+    found = named(result)  # dry friction: pre-sliding since the grid reaches below 2 mrad (branch panda36)
+    assert {("coulomb_friction", JOINT), ("presliding_friction", JOINT)} & set(found), [*found]
+    if ("presliding_friction", JOINT) in found:
+        dahl = found[("presliding_friction", JOINT)]
+        assert abs(dahl.value - FC) <= 0.1 * FC and 0.5 < dahl.details["presliding_displacement"] / XP < 2.0
     rows = result.holding_test["joints"]
     assert not any(r["candidate"] for r in rows) and all(r["rest_periods_training"] == 0 for r in rows)
     assert all(r["rest_periods_held_out"] >= 2 for r in rows)

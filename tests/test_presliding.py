@@ -64,6 +64,13 @@ def test_presliding_friction_alone_is_named(panda, diagnosis_trajectory, joint, 
     assert not result.unexplained
     j = panda.joint_names.index(joint)
     assert result.rms_after[j] < 0.1 * result.rms_rigid[j]  # the gap closes in the augmented model
+    # validate applies the augmented model's pre-sliding friction: diagnose's held-out figure
+    from pe_drake.identification.time_window import TimeWindow
+    from pe_drake.identification.validate_model import ValidateOptions, validate_model
+
+    held = TimeWindow(float(result.held_out.t[0]), float(result.held_out.t[-1]))
+    rms = validate_model(panda, result.augmented, measurement, ValidateOptions(window=held)).rms
+    assert rms[j] == pytest.approx(result.rms_after[j], rel=0.05, abs=1e-4)  # without it: the whole F_c
 
 
 def test_presliding_friction_in_a_mix(panda, diagnosis_trajectory):

@@ -28,7 +28,7 @@ import numpy as np
 from pe_drake.diagnosis.regression import Fit, Library, Regression, Score
 from pe_drake.exceptions import NoSolutionFound
 from pe_drake.identification.estimators import PHYSICAL_DELTA_CHI2
-from pe_drake.identification.physical_fit import physical_fit
+from pe_drake.identification.physical_fit import ON_BOUND, physical_fit
 
 
 class ConsistentCrossValidation:
@@ -61,6 +61,19 @@ class ConsistentCrossValidation:
         return dataclasses.replace(fit, x=x, rms_train=np.sqrt(rss[0] / reg.train.count),
                                    rms_held=np.sqrt(rss[1] / reg.held.count),
                                    wrss_held=float(np.sum(reg.weights**2 * rss[1])))
+
+    def on_bounds(self, reg: Regression, extra: Sequence[int]) -> list[int] | None:
+        """The columns of ``extra`` that the consistent fit of ``reg``'s training part holds on
+        their physical bound (``identify --method physical``'s test), or None when the solver fails."""
+        found = consistent_fit(reg, [*range(reg.num_base), *extra], self.library, self.K, self.phi_prior,
+                               self.body_names)
+        if found is None:
+            return None
+        theta = found[0][reg.num_base:]
+        tolerance = ON_BOUND * max(float(np.max(np.abs(theta))) if len(theta) else 1.0, 1e-9)
+        cand = self.library.cand_of
+        return [int(c) for c, value in zip(extra, theta)
+                if c in cand and cand[c].nonnegative and value <= cand[c].lower + tolerance]
 
     def fit(self, extra: Sequence[int]) -> Score:
         """The base parameters (as K φ, φ physically consistent) and ``extra`` fitted on each

@@ -50,9 +50,8 @@ REST_VELOCITY = REST_FLOOR
 #: Rests a joint needs in the training data to be a candidate: with one stop, any drift of that
 #: window could pass for a holding torque.
 MIN_REST_PERIODS = 2
-#: x_p of the Dahl state of the column [rad]: the smallest of the pre-sliding grid
-#: (:data:`pe_drake.diagnosis.presliding.DISPLACEMENT_GRID`); a stop after sliding over more
-#: than a few x_p leaves z = ±1 whatever x_p is, and a smaller one follows encoder jitter at rest.
+#: x_p of the Dahl state of the column [rad]: a stop after sliding over more than a few x_p
+#: leaves z = ±1 whatever x_p is, and a smaller one follows encoder jitter at rest.
 HOLDING_DISPLACEMENT = 0.002
 
 

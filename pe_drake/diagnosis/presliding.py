@@ -29,9 +29,11 @@ from pe_drake.multibody.dahl import dahl_state
 
 #: Name of the effect.
 PRESLIDING = "presliding_friction"
-#: Pre-sliding displacements x_p = F_c/σ0 tried [rad]: 2 to 160 mrad, log-spaced (ratio
-#: 1.25), around the range a joint shows (10 to 50 mrad).
-DISPLACEMENT_GRID = 0.002 * 1.25 ** np.arange(20)
+#: Pre-sliding displacements x_p = F_c/σ0 tried [rad]: 0.05 to 160 mrad, log-spaced (ratio
+#: 1.25). The low end is where the Dahl column is the Coulomb column tanh(v/v_s) (v_s = 0.01
+#: rad/s reached at 1 rad/s² after 0.05 mrad), so "the smallest fits best" means Coulomb; a grid
+#: from 2 mrad called the real Panda's joints 4-7 Coulomb at their best x_p of 1-2 mrad.
+DISPLACEMENT_GRID = 0.00005 * 1.25 ** np.arange(37)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

@@ -6,7 +6,7 @@ earlier diagnosis, read by :func:`~pe_drake.identification.identified_file.load_
 Only the nominal comparison (step 1), the payload search's Δφ_B and the augmented model's
 closest standard parameters start from it. The rigid-body and effect fits are of the measured
 torque minus the *model file's* friction, with or without an earlier model
-(:func:`fitted_friction`): a friction named is what the model file lacks, so an earlier
+(:func:`~pe_drake.diagnosis.record.model_file_friction`): a friction named is what the model file lacks, so an earlier
 model's friction is found again as effects when the data show it.
 """
 
@@ -71,14 +71,6 @@ def prior_drive_torque(robot: Robot, prior: IdentificationResult | RobotModel | 
     rec = seg.record
     coulomb = rec.filtered(coulomb_columns(rec.friction_v, layout))[seg.idx]
     return drive_torque(model, layout, seg.v, seg.vd, coulomb)
-
-
-def fitted_friction(robot: Robot, seg: Segment) -> np.ndarray:
-    """The model file's friction (``<dynamics damping, friction>``) along a segment, subtracted
-    from the measured torque before the rigid-body and effect fits, with or without an earlier
-    model (module docstring), (S, n) [N·m]."""
-    viscous, coulomb = np.asarray(robot.joint_damping, float), np.asarray(robot.joint_friction, float)
-    return viscous * seg.v + coulomb * seg.coulomb
 
 
 def model_file_torque(robot: Robot, base, columns, seg: Segment) -> np.ndarray:

@@ -91,11 +91,6 @@ class Record:
         return self.raw_noise * math.sqrt(self.noise_gain)
 
 
-def raw_noise_level(tau: np.ndarray) -> np.ndarray:
-    """White-noise level of a raw torque per joint [N·m] (:func:`white_noise_level`)."""
-    return white_noise_level(tau)
-
-
 def prepare_record(measurement: Measurement, config: DiagnosisConfig) -> Record:
     """Uniform grid, zero-phase filter, derivatives at the full rate (module docstring).
 
@@ -118,7 +113,7 @@ def prepare_record(measurement: Measurement, config: DiagnosisConfig) -> Record:
     vd = np.gradient(v, dt, axis=0)
     step = decimation_step(rate, config.decimate_to_hz, cutoff)
     trim = 2.0 / cutoff
-    raw = raw_noise_level(m.tau)
+    raw = white_noise_level(m.tau)
     gain = lowpass.white_noise_gain()
     info = Preprocessing(
         cutoff_hz=cutoff, cutoff_source=cutoff_source, filter_order=FILTER_ORDER,

@@ -245,7 +245,8 @@ def select(reg: Regression, split: CrossValidation, library: Library, rigid: Fit
     cross-validated error of the physically consistent model (``consistent``,
     :mod:`pe_drake.diagnosis.consistent_cv`; default ``split``), kept and not named."""
     thresholds = selection_thresholds(config, training, held, len(library.candidates) + 1)
-    terms = start_terms(reg, split, library, start.columns, thresholds, config.max_effects) if start is not None else None
+    terms = (start_terms(reg, split, library, start.columns, thresholds, config.max_effects, consistent)
+             if start is not None else None)
     sel = select_effects(reg, split, library, rigid, thresholds, config, terms)
     sel = renamed(reg, split, library, sel) if terms is not None else sel
     sel = kept_by_cross_validation(reg, consistent or split, library, sel)

@@ -4,13 +4,9 @@
 viscous friction and an offset on every joint and the armature of every joint where it is
 separable from the link inertias (:func:`~pe_drake.multibody.drive_columns.drive_layout` with
 the default :class:`~pe_drake.multibody.drive_columns.DriveTermOptions`), with per-joint weights
-iterated to their fixed point (:mod:`pe_drake.identification.least_squares`). The diagnosis
-used to start from the rigid-body fit alone, with Gautier's one step of weights from its OLS
-residual, and then admitted drive terms one at a time against the Bonferroni bound: on the
-shared real Panda recording (70 % training) it kept seven Coulomb frictions and two offsets,
-and its held-out RMS on joints 3, 4 and 6 was 1.4-1.6 times ``identify``'s (0.131 / 0.130 /
-0.034 against 0.082 / 0.095 / 0.022 N·m): the viscous frictions and armatures it left out are
-each below the bound, together they are what joints 3 and 4 need.
+iterated to their fixed point (:mod:`pe_drake.identification.least_squares`): terms each below
+the Bonferroni bound that together are what a joint needs (BUILD_NOTES, "diagnose starts from
+identify").
 
 :func:`starting_fit` is that fit, on the diagnosis's own columns (the same drive columns,
 the Coulomb column parallel-filtered as identify's ``coulomb`` argument, the model file's
@@ -27,6 +23,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from pe_drake.diagnosis.consistent_cv import ConsistentCrossValidation
 from pe_drake.diagnosis.effects import EFFECT_TERMS
 from pe_drake.diagnosis.options import Thresholds
 from pe_drake.diagnosis.regression import Fit, Library, Regression, Scorer, Verdict, accept
@@ -169,27 +166,25 @@ class StartTerms:
 
 
 def start_terms(reg: Regression, split: Scorer, library: Library, columns: tuple[int, ...],
-                thresholds: Thresholds, max_effects: int) -> StartTerms:
+                thresholds: Thresholds, max_effects: int, consistent: ConsistentCrossValidation | None = None,
+                ) -> StartTerms:
     """The starting fit's drive terms a physical model can hold, and which of them are named.
 
-    1. A friction or armature below its bound (armature < 0; a friction below minus the model
-       file's) is held at the bound, as identify's physical fit holds it: the column is left out,
-       the most negative (in σ) first, refitting after each. The others stay in the model:
-       they are identify's fit.
+    1. A friction or armature that identify's physical fit (``consistent``) holds on its bound
+       (armature 0; a friction at minus the model file's) is held there: the column is left
+       out. Not least squares with the negative terms removed one at a time, whose base
+       parameters stand in for them where no bodies can and push other terms negative
+       (BUILD_NOTES, branch panda36); that only when ``consistent`` is None or its solver fails,
+       the most negative (in σ) first. The others stay in the model: they are identify's fit.
     2. Each column kept is named if it passes :func:`~pe_drake.diagnosis.regression.accept`
        against the kept model without it: the forward selection's criteria, the cross-validated
        gain among them, with the other drive terms in (a rotor inertia is tested where identify
        tests it), the largest z first and at most ``max_effects``; the others stay in the model
        unnamed (``kept, not named``, with the criterion they missed).
-
-    Leaving out the terms whose removal lowers the cross-validated error was tried: on the
-    mix of tests/test_presliding.py it dropped joint 2's viscous friction while its Coulomb
-    column stood in for pre-sliding friction, which then took the viscous part (0.70 N·m for
-    0.6), and on the real Panda it left joints 2-5 4-17 % worse than keeping them.
     """
     kept: list[int] = list(columns)
     verdicts: dict[int, Verdict] = {}
-    _hold_at_bounds(reg, split, library, kept, verdicts, thresholds)
+    _hold_at_bounds(reg, split, library, kept, verdicts, thresholds, consistent)
     named: list[int] = []
     for col in kept:
         verdicts[col] = _verdict(reg, split, library, kept, col, thresholds)
@@ -209,8 +204,19 @@ def _verdict(reg: Regression, split: Scorer, library: Library, kept: list[int], 
 
 
 def _hold_at_bounds(reg: Regression, split: Scorer, library: Library, kept: list[int], verdicts: dict[int, Verdict],
-                    thresholds: Thresholds) -> None:
+                    thresholds: Thresholds, consistent: ConsistentCrossValidation | None = None) -> None:
     """Step 1 of :func:`start_terms` (updates ``kept`` and ``verdicts`` in place)."""
+    held = consistent.on_bounds(reg, kept) if consistent is not None else None
+    if held is not None:
+        fit = reg.fit(kept)
+        for col in held:
+            stats = _verdict(reg, split, library, kept, col, thresholds).stats
+            c = library.cand_of[col]
+            verdicts[col] = Verdict(False, f"on its physical bound in the physically consistent starting fit (least "
+                                    f"squares {fit.value(col):.3g} {c.unit}): held at the bound, as identify's "
+                                    "physical fit holds it", "sign", stats)
+        kept[:] = [c for c in kept if c not in held]
+        return
     while kept:
         fit = reg.fit(kept)
         low = {c: (fit.value(c) - library.cand_of[c].lower) / max(fit.std(c), 1e-300) for c in kept

@@ -95,10 +95,10 @@ from pe_drake.diagnosis.payload import (
 from pe_drake.diagnosis.holding import holding_note, holding_report, holding_separability, holding_torque
 from pe_drake.diagnosis.holding_selection import add_friction_pairs
 from pe_drake.diagnosis.presliding import PRESLIDING, PreslidingStep, presliding_effects, presliding_step
-from pe_drake.diagnosis.prior import (fitted_friction, prior_drive_torque, prior_own_parameters,
+from pe_drake.diagnosis.prior import (prior_drive_torque, prior_own_parameters,
                                      prior_parameters, reference_shortfalls)
 from pe_drake.diagnosis.record import (Record, Segment, check_fits_in_memory, check_record_signs,
-                                      delayed_states, prepare_record, split_segments)
+                                      delayed_states, model_file_friction, prepare_record, split_segments)
 from pe_drake.diagnosis.regression import (
     Fit,
     Library,
@@ -258,7 +258,7 @@ def candidate_library(robot: Robot, prep: Prepared, config: DiagnosisConfig) -> 
     sep += holding_separability(robot, prep.training)
     library = Library(prep.base.count, tuple(s.candidate for s in sep if s.separable))
     training, held = prep.training, prep.held
-    reg = Regression(*(library.segment_columns(prep.model, prep.base.independent, seg, fitted_friction(robot, seg))
+    reg = Regression(*(library.segment_columns(prep.model, prep.base.independent, seg, model_file_friction(robot, seg))
                        for seg in (training, held)), library.num_base)
     b = library.num_base
     cond = condition_number(reg.train.gram[:, :b, :b].sum(axis=0))
@@ -379,7 +379,7 @@ def augment(robot: Robot, prep: Prepared, lib: CandidateLibrary, pre: Presliding
     tau_after += augmented.coulomb * (coulomb - coulomb_column(v, config.coulomb_velocity_scale)) + pre.held_torque
     tau_after += holding_torque(pre.regression.held, final, library)  # friction held at rest
     # the linear model's prediction with the final values (a delay by its linearization -d·dτ/dt)
-    ls_pred = pre.regression.held.product(final.columns, final.x) + fitted_friction(robot, held)
+    ls_pred = pre.regression.held.product(final.columns, final.x) + model_file_friction(robot, held)
     return Augmentation(augmented, tau_after, rms(held.tau - tau_after),
                         np.max(np.abs(tau_after - ls_pred), axis=0))
 
@@ -447,6 +447,8 @@ def diagnose(robot: Robot, data: Measurement, validation: Measurement | None = N
     check_fits_in_memory(data, validation)
     for note in (*data.notes, *(validation.notes if validation is not None else ())):
         say(f"note: {note}")
+    if isinstance(prior, RobotModel) and prior.presliding is not None and np.any(prior.presliding):
+        say("note: the earlier model's pre-sliding (Dahl) friction is not part of the a-priori model")
     prep = prepare(robot, data, validation, config, say, prior)
     lap("prepare")
     lib = candidate_library(robot, prep, config)
@@ -487,7 +489,7 @@ def diagnose(robot: Robot, data: Measurement, validation: Measurement | None = N
     say(f"4. augmented Drake model, held-out RMS [{unit}]: " + _fmt_joints(joints, aug.rms))
     worse = reference_shortfalls(robot, prep.base, lib.regression.held, prep.held, aug.tau) + start_shortfalls(
         joints, lib.regression.held.y, start, lib.regression.held.product(start.fit.columns, start.fit.x),
-        pre.regression.held.product(pre.final.columns, pre.final.x), aug.tau - fitted_friction(robot, prep.held),
+        pre.regression.held.product(pre.final.columns, pre.final.x), aug.tau - model_file_friction(robot, prep.held),
         pre.final.columns, lib.library)
     for shortfall in worse:
         say(shortfall.line())

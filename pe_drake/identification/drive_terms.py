@@ -53,6 +53,7 @@ from pe_drake.multibody.drive_columns import (
     drive_columns,
     coulomb_velocities,
 )
+from pe_drake.multibody.dahl import dahl_state
 from pe_drake.multibody.robot_model import RobotModel
 from pe_drake.multibody.transmission import Transmission
 
@@ -383,4 +384,33 @@ def filtered_coulomb(raw, data, velocity_scale: float = COULOMB_VELOCITY_SCALE,
     out = np.empty((len(idx), raw.num_joints))
     for j in range(raw.num_joints):  # a joint at a time: a long log's full-rate columns one by one
         out[:, j] = lowpass.apply(coulomb_column(v[:, j], velocity_scale))[idx]
+    return out
+
+
+def filtered_presliding(raw, data, model: RobotModel) -> np.ndarray | None:
+    """A model's pre-sliding (Dahl) friction F_c·z(q; F_c/σ0) at data's samples, (S, n) [N·m].
+
+    As the diagnosis fits it (:mod:`pe_drake.diagnosis.presliding`): the state along q filtered
+    with the torque's filter at the full rate of ``raw``'s grid, the torque then filtered again
+    (parallel filtering). Unfiltered ``data`` (no ``preprocessing``): the state along its own q.
+
+    Returns:
+        The torques, or None when the model names no pre-sliding friction.
+    """
+    fc, sigma0 = model.presliding, model.presliding_stiffness
+    joints = [j for j in range(len(model.joints)) if fc is not None and fc[j] > 0 and sigma0[j] > 0]
+    if not joints:
+        return None
+    out = np.zeros(data.q.shape)
+    p = data.preprocessing
+    if p is None:
+        for j in joints:
+            out[:, j] = fc[j] * dahl_state(data.q[:, j], fc[j] / sigma0[j])
+        return out
+    grid = resample_uniform(raw.t, {"q": raw.q})
+    lowpass = design_lowpass(p.cutoff_hz, grid.rate_hz, len(grid.t), p.filter_order, file=raw.source)
+    idx = np.clip(np.rint((data.t - grid.t[0]) / grid.dt).astype(int), 0, len(grid.t) - 1)
+    for j in joints:
+        z = dahl_state(lowpass.apply(grid.signals["q"][:, j]), fc[j] / sigma0[j])
+        out[:, j] = fc[j] * lowpass.apply(z)[idx]
     return out

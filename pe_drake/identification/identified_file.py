@@ -203,16 +203,15 @@ def model_method(model: IdentificationResult | RobotModel) -> str:
 
 def unapplied_effects(model: IdentificationResult | RobotModel) -> list[str]:
     """What of a loaded model a prediction of the torque log sample by sample leaves out (validate,
-    ``diagnose --model``): a :class:`~pe_drake.multibody.robot_model.RobotModel`'s time delay,
-    pre-sliding friction and holding torque at rest; nothing of an identified fit."""
+    ``diagnose --model``): a :class:`~pe_drake.multibody.robot_model.RobotModel`'s time delay and
+    holding torque at rest (validate applies its pre-sliding friction, diagnose --model says it
+    does not); nothing of an identified fit."""
     if not isinstance(model, RobotModel):
         return []
     notes = []
     if model.torque_delay != 0.0:
         notes.append(f"the model's time delay {model.torque_delay:.4g} s is not applied (validate pairs samples as "
                      "recorded)")
-    if np.any(model.presliding):
-        notes.append("the model's pre-sliding (Dahl) friction is not applied")
     if np.any(model.holding_torque):
         notes.append("the model's holding torque at rest is not applied ("
                      + ", ".join(f"{j} {x:.3g} N·m" for j, x in zip(model.joints, model.holding_torque) if x) + ")")

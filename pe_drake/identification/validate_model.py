@@ -18,7 +18,7 @@ import numpy as np
 from pe_drake.config import MEASUREMENTS
 from pe_drake.identification.time_window import TimeWindow
 from pe_drake.identification.data_checks import a_priori_torque, check_against_model
-from pe_drake.identification.drive_terms import filtered_coulomb
+from pe_drake.identification.drive_terms import filtered_coulomb, filtered_presliding
 from pe_drake.multibody.drive_columns import COULOMB_VELOCITY_SCALE
 from pe_drake.identification.estimators import IdentificationResult
 from pe_drake.identification.intake import prepare_measurement
@@ -167,6 +167,9 @@ def validate_model(robot: Robot, model: IdentificationResult | RobotModel, measu
     scale = layout.velocity_scale if layout is not None else COULOMB_VELOCITY_SCALE
     transmission = layout.transmission if layout is not None else None
     measured, predicted = prediction(robot, model, data, kind, filtered_coulomb(measurements, data, scale, transmission))
+    dahl = filtered_presliding(measurements, data, model) if as_built and kind.torques else None
+    if dahl is not None:  # diagnose's pre-sliding friction: a state along the run's q (the torque channels first)
+        predicted[:, : robot.n] += dahl
     rms, rel = torque_errors(measured, predicted)
     total = float(100 * np.linalg.norm(measured - predicted) / max(np.linalg.norm(measured), 1e-300))
     names = tuple(kind.row_names(robot.joint_names))
