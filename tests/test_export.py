@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from pe_drake.config import RobotConfig
 from pe_drake.exceptions import ConfigError
@@ -427,6 +428,11 @@ def test_a_diagnosed_model_exports_with_its_payload_as_a_body(tmp_path):
     assert mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_JOINT, 0) == robot.joint_names[0]
     urdf = export_model(robot, path, ExportOptions("urdf"))  # a URDF has no spring: listed
     assert any("joint springs" in u and "panda_joint4" in u for u in urdf.unheld)
+    # pre-sliding friction leaves at its sliding level F_c with the Coulomb friction (joint 1: 0.3)
+    sliding = model.coulomb + model.presliding
+    assert mj.dof_frictionloss[0] == pytest.approx(sliding[0]) and sliding[0] == pytest.approx(model.coulomb[0] + 0.3)
+    feedforward = yaml.safe_load(export_model(robot, path, ExportOptions("feedforward")).text)
+    assert feedforward["joints"]["panda_joint1"]["coulomb"] == pytest.approx(sliding[0])
 
 
 def test_a_point_mass_is_given_the_smallest_inertia_mujoco_accepts(tmp_path):
