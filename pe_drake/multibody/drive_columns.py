@@ -1,8 +1,6 @@
 """The drive columns of the regressor: joint friction, torque offsets and rotor inertia.
 
-The torque an actuator applies is the rigid-body torque plus what the drive itself needs
-(friction, offset, armature). Per joint j, each term is linear in its value θ and adds one column to the
-regressor, on the row of joint j only (``drive_columns``):
+Each drive term of joint j is linear in its value θ and adds one column on the row of joint j:
 
 =============  =====================  ===============  ===========  ==========
 term           column                 unit (revolute)  (prismatic)  sign of θ
@@ -13,31 +11,20 @@ term           column                 unit (revolute)  (prismatic)  sign of θ
 ``armature``   v̇_j                   kg·m²            kg           θ ≥ 0
 =============  =====================  ===============  ===========  ==========
 
-so τ = Y_B φ_B + D θ with W = [Y_B | D]: the drive block is extra columns, whatever way the
-normal equations of W are accumulated. The smoothed sign and its v_s are the diagnosis's
-(:mod:`pe_drake.diagnosis.effects`) and the simulator's ``DoorHinge``. ``identify`` fits them
-(:mod:`pe_drake.identification.drive_terms`); ``optimize`` can put them in C
-(:mod:`pe_drake.excitation.drive_block`).
+so τ = Y_B φ_B + D θ with W = [Y_B | D]. The smoothed sign and its v_s are the diagnosis's and
+the simulator's ``DoorHinge``.
 
-The ground wrench does not see joint friction (it acts between two links of the robot), so
-the drive columns are zero in base-wrench rows. For the armature this is an approximation: a
-rotor of inertia I_r behind a gear ratio G adds I_r·G²·q̈ to the joint torque (the armature)
-but only its own angular-momentum change, I_r·G·q̈, to the wrench on the link holding the
-stator: 1/G of it (1 % for G = 100), neglected.
+The drive columns are zero in base-wrench rows: friction acts between two links. For the
+armature this neglects the rotor's own momentum change, I_r·G·q̈ on the stator's link, 1/G of
+the armature's I_r·G²·q̈ (1 % for G = 100).
 
-**Through a transmission** (``robot.transmission``, :mod:`pe_drake.multibody.transmission`:
-θ_m = R q, τ = Rᵀ τ_m) the terms act per motor: motor i's term has the column of the table
-evaluated on the motor's θ̇_i = (R q̇)_i, θ̈_i (Coulomb: tanh(θ̇_i / (|R_ii| v_s)), the joint's
-v_s carried to the motor by its own ratio) and reaches joint j's row times R_ij, so a coupled
-motor's friction and rotor inertia act on every joint it turns. The layout's ``transmission``
-says so; its values are motor side ([N·m], [N·m·s/rad], [N·m], [kg·m²] of the motor) and the
-motors are named by the joint their ratio belongs to. Without one (or with R = I) a motor is
-its joint and the table holds as written.
+**Through a transmission** (θ_m = R q, τ = Rᵀ τ_m, :mod:`pe_drake.multibody.transmission`) the
+terms are per motor (named by its joint), motor side: motor i's column is the table's on
+θ̇_i = (R q̇)_i, θ̈_i (Coulomb: tanh(θ̇_i / (|R_ii| v_s))) and reaches joint j's row times R_ij.
 
-The armature column v̇_j of a joint whose axis is fixed in the world (the first joint of a
-fixed-base arm) is exactly the column of the base parameter that holds the link inertia
-about that axis: the two are one base parameter (:func:`drive_layout` tests this on random
-states, like the diagnosis's ``separability``), and the armature is reported as merged into it.
+The armature column of a joint whose axis is fixed in the world (the first joint of a fixed-base
+arm) is a column of the rigid-body base parameters: the armature is merged into that base
+parameter (:func:`armature_merges` tests this on random states).
 """
 
 from __future__ import annotations
@@ -56,15 +43,9 @@ from pe_drake.multibody.transmission import Transmission, robot_transmission
 if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
     from pe_drake.multibody.robot import Robot
 
-#: The ``--drive-terms`` choices: no drive terms, Coulomb + viscous + offset, and those with
-#: the armature where the robot's kinematics let it be told from the link inertias.
-DRIVE_TERM_CHOICES = ("none", "friction", "all")
-#: What ``identify`` models unless told otherwise.
-DEFAULT_DRIVE_TERMS = "all"
-#: Terms of each choice, in column order per joint.
+#: Terms of each ``--drive-terms`` choice, in column order per joint.
 TERMS = {"none": (), "friction": ("coulomb", "viscous", "offset"), "all": ("coulomb", "viscous", "offset", "armature")}
-#: Smoothing velocity v_s of the Coulomb column tanh(v/v_s) [rad/s or m/s]; the diagnosis and
-#: the simulator use the same value.
+#: Smoothing velocity v_s of the Coulomb column tanh(v/v_s) [rad/s or m/s].
 COULOMB_VELOCITY_SCALE = 0.01
 #: Terms whose value is physically ≥ 0.
 NONNEGATIVE = ("coulomb", "viscous", "armature")
@@ -83,17 +64,14 @@ class DriveTermOptions:
         terms: "none", "friction" (Coulomb, viscous, offset per joint) or "all" (also the
             armature of every joint where it is separable from the link inertias).
         velocity_scale: v_s of the Coulomb column tanh(v/v_s) [rad/s or m/s].
-
-    Raises:
-        ConfigError: an unknown choice or a non-positive v_s.
     """
 
-    terms: str = DEFAULT_DRIVE_TERMS
+    terms: str = "all"
     velocity_scale: float = COULOMB_VELOCITY_SCALE
 
     def __post_init__(self) -> None:
-        if self.terms not in DRIVE_TERM_CHOICES:
-            raise ConfigError(f"drive terms '{self.terms}' is not one of {', '.join(DRIVE_TERM_CHOICES)}")
+        if self.terms not in TERMS:
+            raise ConfigError(f"drive terms '{self.terms}' is not one of {', '.join(TERMS)}")
         v = self.velocity_scale
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
             raise ConfigError(f"the Coulomb velocity scale must be a positive number [rad/s], got {v!r}")
@@ -103,9 +81,7 @@ def drive_options(value: DriveTermOptions | str | None) -> DriveTermOptions:
     """``value`` as options: None → the default, a string → that choice."""
     if value is None:
         return DriveTermOptions()
-    if isinstance(value, str):
-        return DriveTermOptions(value)
-    return value
+    return DriveTermOptions(value) if isinstance(value, str) else value
 
 
 @dataclasses.dataclass(frozen=True)
@@ -122,8 +98,7 @@ class DriveLayout:
             separable from the rigid-body base parameters (only their sum is identifiable).
         dropped: {label: reason} of columns this data set cannot tell apart (e.g. the Coulomb
             column of a joint that never reverses, which equals its offset column).
-        transmission: the robot's transmission when the terms act per motor (module
-            docstring; ``joints`` then index motors), None when per joint.
+        transmission: set when the terms act per motor (``joints`` then index motors).
         known: labels of the columns whose values are the model file's, not estimated (σ = 0).
     """
 
@@ -163,7 +138,7 @@ def read_drive_block(d: Mapping[str, Any], joint_names: Sequence[str]
                      ) -> tuple[DriveLayout, np.ndarray, np.ndarray, dict[str, float]]:
     """identify's ``drive_terms`` block of identified.json: (the fitted columns, their values θ and
     σ (0 for the model file's), {joint: the physical fit's value} of the armatures merged into base
-    parameters); :func:`model_tables` makes a RobotModel's tables of them.
+    parameters).
 
     Raises:
         KeyError, TypeError, ValueError: a malformed block (the caller names the file).
@@ -219,19 +194,15 @@ def model_tables(layout: DriveLayout, theta: np.ndarray, sigma: np.ndarray,
 
 def drive_layout(robot: Robot, base, options: DriveTermOptions, model=None, *, rows=None, samples: int = 200,
                  seed: int = 1) -> DriveLayout:
-    """The drive columns of ``options`` for ``robot`` (armature: where separable).
+    """The drive columns of ``options`` for ``robot`` (armature: where separable); per motor,
+    with a revolute joint's units, under a ``robot.transmission`` with R ≠ I.
 
     Args:
-        robot: a :class:`~pe_drake.multibody.robot.Robot`.
         base: the :class:`~pe_drake.multibody.base_parameters.BaseParameters` of ``rows``.
-        options: the choice of terms.
         model: a :class:`~pe_drake.multibody.regressor.RegressorModel` to reuse.
         rows: the :class:`~pe_drake.multibody.sensors.SensorRows` fitted (default: the joint
             torques); the ground wrench's rows separate every armature the torques cannot.
         samples, seed: random states of the armature's separability test.
-
-    With a ``robot.transmission`` in the robot's config (R ≠ I) the terms are per motor
-    (module docstring), the motor's units those of a revolute joint.
 
     Raises:
         ConfigError: a ``robot.transmission`` that does not determine the joint angles.
@@ -252,11 +223,9 @@ def armature_merges(robot: Robot, base, model=None, *, rows=None, samples: int =
                     transmission: Transmission | None = None) -> dict[str, dict[str, float]]:
     """{joint (or motor): {base parameter: coefficient}} of the armature columns inside span(Y_B).
 
-    Random states within the robot's limits (as the base parameters use) decide whether
-    *any* motion separates the column v̇_j (a motor's: Rᵀ e_i θ̈_i, :func:`drive_columns`) from
-    the rigid-body columns. ``rows`` (a :class:`~pe_drake.multibody.sensors.SensorRows`,
-    torque channels first) are the rows of Y_B (default: the joint torques); the armature's
-    column is zero in ground-wrench rows.
+    Random states within the robot's limits decide whether *any* motion separates the column
+    from the rigid-body columns. ``rows`` (a :class:`~pe_drake.multibody.sensors.SensorRows`,
+    torque channels first) are the rows of Y_B (default: the joint torques).
     """
     model = model or RegressorModel(robot)
     rng = np.random.default_rng(seed)
@@ -295,13 +264,9 @@ def term_values(term: str, v: np.ndarray, vd: np.ndarray | None, velocity_scale:
     """The column of drive term ``term`` for every joint (module docstring's table), shape of v.
 
     Args:
-        term: one of ``TERMS["all"]``.
         v, vd: joint velocities and accelerations, (S, n) (vd only for the armature).
         velocity_scale: v_s of the Coulomb column [rad/s].
         coulomb: the Coulomb columns to use instead of tanh(v/v_s) (e.g. parallel-filtered).
-
-    Raises:
-        ValueError: an unknown term.
     """
     if term == "coulomb":
         return coulomb_column(v, velocity_scale) if coulomb is None else np.asarray(coulomb, float)
@@ -321,7 +286,6 @@ def drive_columns(v: np.ndarray, vd: np.ndarray, layout: DriveLayout, coulomb: n
 
     Args:
         v, vd: joint velocities and accelerations, each (S, n).
-        layout: the columns (:func:`drive_layout`).
         coulomb: the Coulomb columns to use, (S, n) (e.g. tanh(v/v_s) computed at the full
             rate and filtered like the torque; per motor with a transmission,
             :func:`coulomb_velocities`); default tanh(v/v_s) of ``v``.
@@ -361,17 +325,3 @@ def coulomb_velocities(v: np.ndarray, velocity_scale: float, transmission: Trans
         return np.asarray(v, float), velocity_scale
     return transmission.motor_positions(v), np.abs(np.diag(transmission.R)) * velocity_scale
 
-
-#: The drive terms of one motor, in the order of :func:`motor_drive_columns`.
-MOTOR_TERMS = TERMS["all"]
-
-
-def motor_drive_columns(v: np.ndarray, vd: np.ndarray, transmission: Transmission,
-                        velocity_scale: float = COULOMB_VELOCITY_SCALE) -> np.ndarray:
-    """Every motor's drive terms as joint-side columns, (S, n, 4n): column 4i + k is motor i's
-    term k of :data:`MOTOR_TERMS` (:func:`drive_columns` of a layout with ``transmission``)."""
-    n = len(transmission.joints)
-    cols = [(t, i) for i in range(n) for t in MOTOR_TERMS]
-    layout = DriveLayout(tuple(t for t, _ in cols), tuple(i for _, i in cols), transmission.joints,
-                         tuple(UNITS[t][0] for t, _ in cols), velocity_scale, transmission=transmission)
-    return drive_columns(v, vd, layout)
