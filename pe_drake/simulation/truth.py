@@ -1,13 +1,9 @@
 """A simulated run's truth: the robot as built (a :class:`~pe_drake.multibody.robot_model.RobotModel`
 around the a-priori or an identified model), sensor noise and the tracking controller.
 
-``pe-drake simulate --truth TRUTH.yaml`` (:mod:`pe_drake.simulation.simulation`) reads the file
-with :func:`load_truth`: its shape and types are checked against :data:`TRUTH_KEYS` (file,
-line and dotted key named), then :func:`make_truth` reads its ``effects`` section straight into
-the :class:`~pe_drake.multibody.robot_model.RobotModel` the simulator builds: perturbed
-inertias, friction, armature, torque offsets and delay, pre-sliding friction, a payload. Every
-number is checked and every joint and link name against the robot. The sign convention of the
-effects is in the simulation module's docstring.
+:func:`load_truth` checks a TRUTH.yaml's shape and types against :data:`TRUTH_KEYS` (file, line
+and key named); :func:`make_truth` reads its ``effects`` into the true model, every number and
+name checked against the robot. The effects' sign convention is :mod:`pe_drake.simulation.simulation`'s.
 """
 
 from __future__ import annotations
@@ -51,8 +47,7 @@ class NoiseTruth:
         force_std: white noise on the ground wrench's force [N] (``wrench.f*`` columns).
         moment_std: white noise on the ground wrench's moment [N·m] (``wrench.m*``).
         wrench_offset: constant offset of the force/torque sensor, [fx, fy, fz, mx, my, mz]
-            [N, N·m]; empty means none. Its fz, mx, my cannot be told from the total mass and
-            horizontal centre of mass of the moving bodies (:mod:`pe_drake.identification.channels`).
+            [N, N·m]; empty means none.
     """
 
     encoder_counts_per_rev: int = 0
@@ -101,14 +96,11 @@ TRUTH_KEYS = {"seed": int, "inertia_perturbation": float, "effects": EFFECT_KEYS
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class Truth:
-    """A simulated run's truth: the robot as built, noise and control (a whole TRUTH.yaml read
-    for one robot: :func:`load_truth`, :func:`make_truth`).
+    """A simulated run's truth: the robot as built, noise and control (a whole TRUTH.yaml).
 
     Attributes:
         model: the true robot: the a-priori (or an identified) model with the truth's effects,
             its bodies' parameters perturbed and the payload welded (:func:`make_truth`).
-        noise: see :class:`NoiseTruth`.
-        control: see :class:`ControlTruth`.
         seed: seeds the inertial perturbation and, independently, the noise.
         inertia_perturbation: relative size ε in [0, 0.5] of the perturbation in ``model``
             (:func:`pe_drake.multibody.inertia.perturb_inertias`).
@@ -140,7 +132,7 @@ class Truth:
 
 
 def load_truth(path: str | Path, robot: Robot, model: RobotModel | None = None) -> Truth:
-    """Reads a TRUTH.yaml for ``robot`` (:func:`read_truth_file`, :func:`make_truth`).
+    """Reads a TRUTH.yaml for ``robot``.
 
     Raises:
         ConfigError: missing file, unknown key, wrong type or bad value (file and key named).
@@ -150,8 +142,7 @@ def load_truth(path: str | Path, robot: Robot, model: RobotModel | None = None) 
 
 
 def read_truth_file(path: str | Path) -> dict[str, Any]:
-    """A TRUTH.yaml's keys as :func:`make_truth`'s arguments, of :data:`TRUTH_KEYS`' types
-    (the numbers not checked yet).
+    """A TRUTH.yaml's keys as :func:`make_truth`'s arguments (the numbers not checked yet).
 
     Raises:
         ConfigError: missing file, syntax error, unknown key or wrong type (file, line and key named).
@@ -193,14 +184,12 @@ def make_truth(robot: Robot, effects: Mapping[str, Any] | None = None, *, model:
     The true model is ``model`` (default: the a-priori robot with its model file's friction)
     with the effects, its bodies' parameters perturbed (``seed``, ``inertia_perturbation``) and
     the payload welded. The truth's friction replaces the model file's on the joints it sets
-    (by name or ``all``); on an identified ``model`` (``simulate --model``) the truth's per-joint
-    effects add to the model's, its delay too. With a transmission (the model's, or the robot
-    config's ``robot.transmission``) the truth's viscous, coulomb, armature and torque_offset
-    are per motor (named by its joint) and act through R, and the model file's joint friction
-    is not simulated (as ``identify`` fits the motors' terms as the drive's whole friction).
+    (by name or ``all``); on an identified ``model`` the truth's per-joint effects and delay add
+    to the model's. With a transmission (the model's, or ``robot.transmission``) the truth's
+    viscous, coulomb, armature and torque_offset are per motor and the model file's joint
+    friction is not simulated (``identify`` fits the motors' terms as the drive's whole friction).
 
     Args:
-        robot: the a-priori robot.
         effects: a TRUTH.yaml ``effects`` section as data (:data:`EFFECT_KEYS`, every key
             optional). Per-joint tables map a joint name (or ``all``: every joint not named) to
             a value, 0 where absent: ``viscous`` f_v [N·m·s/rad], ``coulomb`` f_c [N·m] (as
@@ -210,7 +199,6 @@ def make_truth(robot: Robot, effects: Mapping[str, Any] | None = None, *, model:
             ``torque_delay`` [s] (the torque log lags the positions); ``payload``: a body welded
             to ``link``, ``mass`` [kg], ``com`` in the link frame [m], ``inertia`` about the
             centre of mass in the link axes [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] [kg·m²].
-        model: the robot the truth perturbs (an identified model); default the a-priori one.
         where: what to name in errors (the file).
         run: the other :class:`Truth` attributes (``seed``, ``noise``, ``control``, ...).
 
@@ -289,8 +277,7 @@ def _check_names(e: Mapping[str, Any], robot: Robot) -> None:
 
 def _as_built(robot: Robot, e: Mapping[str, Any], model: RobotModel | None, seed: int,
               eps: float) -> tuple[RobotModel, dict[str, frozenset[str]]]:
-    """The true :class:`RobotModel` of a checked effects section (:func:`make_truth`) and the
-    joints whose friction it sets."""
+    """The true model of a checked effects section and the joints whose friction it sets."""
     joints = robot.joint_names
     # the truth's tables are named as the model file's (RobotModel's FILE_KEYS)
     tables = {t: per_joint_values(e[field], joints) for t, field in FILE_KEYS.items()}
@@ -333,7 +320,6 @@ def _check_model_truth(model: RobotModel, coulomb: np.ndarray, presliding: np.nd
 
 
 def _check_run(seed: Any, eps: float, accuracy: float, integrator: str) -> None:
-    """Seed, inertial perturbation and integrator."""
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise ConfigError(f"seed must be a non-negative integer, got {seed!r}")
     eps = check_finite("inertia_perturbation", eps, nonneg=True)
