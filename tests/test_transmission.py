@@ -12,7 +12,6 @@ import pytest
 from pe_drake.config import TransmissionConfig
 from pe_drake.exceptions import ConfigError, DataError, UnknownNameError
 from pe_drake.identification.readers import read_log
-from pe_drake.simulation.synthetic import model_measurement
 from pe_drake.multibody.base_parameters import compute_base_parameters
 from pe_drake.multibody.drive_columns import (
     TERMS,
@@ -24,6 +23,7 @@ from pe_drake.multibody.drive_columns import (
 )
 from pe_drake.multibody.regressor import RegressorModel
 from pe_drake.multibody.transmission import Transmission
+from pe_drake.simulation.synthetic import model_measurement
 from tests.conftest import get_robot
 from tests.test_identification import optimized, random_trajectory  # noqa: F401  (a fixture)
 

@@ -52,8 +52,9 @@ NONNEGATIVE = ("coulomb", "viscous", "armature")
 #: ‖(I − P_B) c‖ / ‖c‖ below which an armature column counts as inside span(Y_B) on random
 #: states: rounding gives ~1e-14, a separable column O(0.1-1).
 SEPARABILITY_TOLERANCE = 1e-6
+#: Unit of each term's value on a revolute and a prismatic joint.
 UNITS = {"coulomb": ("N·m", "N"), "viscous": ("N·m·s/rad", "N·s/m"), "offset": ("N·m", "N"),
-          "armature": ("kg·m²", "kg")}
+         "armature": ("kg·m²", "kg")}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -192,8 +193,7 @@ def model_tables(layout: DriveLayout, theta: np.ndarray, sigma: np.ndarray,
     return drive, sd
 
 
-def drive_layout(robot: Robot, base, options: DriveTermOptions, model=None, *, rows=None, samples: int = 200,
-                 seed: int = 1) -> DriveLayout:
+def drive_layout(robot: Robot, base, options: DriveTermOptions, model=None, *, rows=None) -> DriveLayout:
     """The drive columns of ``options`` for ``robot`` (armature: where separable); per motor,
     with a revolute joint's units, under a ``robot.transmission`` with R ≠ I.
 
@@ -202,7 +202,6 @@ def drive_layout(robot: Robot, base, options: DriveTermOptions, model=None, *, r
         model: a :class:`~pe_drake.multibody.regressor.RegressorModel` to reuse.
         rows: the :class:`~pe_drake.multibody.sensors.SensorRows` fitted (default: the joint
             torques); the ground wrench's rows separate every armature the torques cannot.
-        samples, seed: random states of the armature's separability test.
 
     Raises:
         ConfigError: a ``robot.transmission`` that does not determine the joint angles.
@@ -211,24 +210,23 @@ def drive_layout(robot: Robot, base, options: DriveTermOptions, model=None, *, r
     names = tuple(robot.joint_names)
     transmission = robot_transmission(robot) if terms else None
     transmission = None if transmission is None or transmission.identity else transmission
-    merged = (armature_merges(robot, base, model, rows=rows, samples=samples, seed=seed, transmission=transmission)
-              if "armature" in terms else {})
+    merged = armature_merges(robot, base, model, rows, transmission) if "armature" in terms else {}
     cols = [(t, j) for j in range(robot.n) for t in terms if not (t == "armature" and names[j] in merged)]
     units = tuple(UNITS[t][0 if transmission is not None or robot.joints[j].kind == "revolute" else 1] for t, j in cols)
     return DriveLayout(tuple(t for t, _ in cols), tuple(j for _, j in cols), names, units,
                        float(options.velocity_scale), merged, transmission=transmission)
 
 
-def armature_merges(robot: Robot, base, model=None, *, rows=None, samples: int = 200, seed: int = 1,
+def armature_merges(robot: Robot, base, model=None, rows=None,
                     transmission: Transmission | None = None) -> dict[str, dict[str, float]]:
     """{joint (or motor): {base parameter: coefficient}} of the armature columns inside span(Y_B).
 
-    Random states within the robot's limits decide whether *any* motion separates the column
+    200 random states within the robot's limits decide whether *any* motion separates the column
     from the rigid-body columns. ``rows`` (a :class:`~pe_drake.multibody.sensors.SensorRows`,
     torque channels first) are the rows of Y_B (default: the joint torques).
     """
     model = model or RegressorModel(robot)
-    rng = np.random.default_rng(seed)
+    rng, samples = np.random.default_rng(1), 200
     q = rng.uniform(robot.limits.q_lower, robot.limits.q_upper, (samples, robot.n))
     v = rng.uniform(-1, 1, (samples, robot.n)) * np.minimum(robot.limits.v_max, 3.0)
     vd = rng.uniform(-1, 1, (samples, robot.n)) * np.minimum(robot.limits.vd_max, 10.0)
@@ -286,22 +284,19 @@ def drive_columns(v: np.ndarray, vd: np.ndarray, layout: DriveLayout, coulomb: n
 
     Args:
         v, vd: joint velocities and accelerations, each (S, n).
-        coulomb: the Coulomb columns to use, (S, n) (e.g. tanh(v/v_s) computed at the full
-            rate and filtered like the torque; per motor with a transmission,
-            :func:`coulomb_velocities`); default tanh(v/v_s) of ``v``.
+        coulomb: the Coulomb columns to use, (S, n) (e.g. :func:`coulomb_columns` at the full
+            rate, filtered like the torque); default :func:`coulomb_columns` of ``v``.
         rows: channels per sample (n torques, then the ground wrench, whose rows stay zero);
             default n.
     """
     S, n = v.shape
     out = np.zeros((S, n if rows is None else rows, layout.count))
     T = layout.transmission
-    scale = layout.velocity_scale
     if coulomb is None and "coulomb" in layout.terms:
         coulomb = coulomb_columns(v, layout)
-    if T is not None:  # the motors' velocities and accelerations, each motor's v_s by its own ratio
+    if T is not None:  # the motors' velocities and accelerations
         v, vd = T.motor_positions(v), None if vd is None else T.motor_positions(vd)
-        scale = np.abs(np.diag(T.R)) * layout.velocity_scale
-    values = {t: term_values(t, v, vd, scale, coulomb) for t in set(layout.terms)}
+    values = {t: term_values(t, v, vd, layout.velocity_scale, coulomb) for t in set(layout.terms)}
     for k, (term, j) in enumerate(zip(layout.terms, layout.joints)):
         if T is None:
             out[:, j, k] = values[term][:, j]
@@ -311,16 +306,15 @@ def drive_columns(v: np.ndarray, vd: np.ndarray, layout: DriveLayout, coulomb: n
 
 
 def coulomb_columns(v: np.ndarray, layout: DriveLayout) -> np.ndarray:
-    """The Coulomb columns of a layout, (S, n): tanh(q̇_j / v_s) per joint, or per motor
-    tanh(θ̇_i / (|R_ii| v_s)) of θ̇ = R q̇ through its transmission (:func:`coulomb_velocities`);
-    what :func:`drive_columns` takes as ``coulomb`` (filter them like the torque first)."""
+    """The Coulomb columns of a layout, (S, n), per joint or per motor (module docstring): what
+    :func:`drive_columns` takes as ``coulomb`` (filter them like the torque first)."""
     w, scale = coulomb_velocities(v, layout.velocity_scale, layout.transmission)
     return coulomb_column(w, scale)
 
 
 def coulomb_velocities(v: np.ndarray, velocity_scale: float, transmission: Transmission | None) -> tuple[np.ndarray, np.ndarray]:
-    """(velocities, v_s) whose tanh(v/v_s) are the Coulomb columns: the joints' and v_s, or
-    the motors' θ̇ = R q̇ and |R_ii|·v_s (module docstring), each (S, n) and scalar or (n,)."""
+    """(velocities (S, n), v_s scalar or (n,)) whose tanh(v/v_s) are the Coulomb columns: the
+    joints', or the motors' θ̇ = R q̇ and |R_ii|·v_s."""
     if transmission is None:
         return np.asarray(v, float), velocity_scale
     return transmission.motor_positions(v), np.abs(np.diag(transmission.R)) * velocity_scale

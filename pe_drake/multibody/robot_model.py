@@ -36,11 +36,7 @@ from pe_drake.multibody.drive_columns import (
     model_tables,
     read_drive_block,
 )
-from pe_drake.multibody.inertia import (
-    PARAMETER_NAMES,
-    inertia_matrix,
-    validity_problems,
-)
+from pe_drake.multibody.inertia import PARAMETER_NAMES, inertia_matrix, validity_problems
 from pe_drake.multibody.model_plant import PAYLOAD_BODY_NAME, model_plant
 from pe_drake.multibody.packages import found_packages
 from pe_drake.multibody.payload import PayloadInertia

@@ -18,11 +18,11 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from pe_drake.exceptions import DataError
-from pe_drake.multibody.sensors import measurement_base_parameters
 from pe_drake.identification.identified_file import load_identified
 from pe_drake.identification.physical_fit import physical_fit
 from pe_drake.multibody.inertia import validity_problems
 from pe_drake.multibody.robot_model import RobotModel
+from pe_drake.multibody.sensors import measurement_base_parameters
 
 if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
     from pe_drake.multibody.robot import Robot

@@ -40,7 +40,6 @@ from pe_drake.multibody.drive_columns import coulomb_column
 from pe_drake.multibody.inertia import PARAMETER_NAMES
 from pe_drake.multibody.model_plant import APPLIED_FORCE_PORT
 from pe_drake.multibody.robot import Robot
-from pe_drake.multibody.robot_model import RobotModel
 from pe_drake.multibody.sensors import MeasurementType
 from pe_drake.multibody.wrench import weld_reaction
 from pe_drake.simulation.contact import without_contact
@@ -76,40 +75,28 @@ class TrackingLog:
     wall_time: float
 
 
-@dataclasses.dataclass(frozen=True)
-class TrueRobot:
-    """The simulated robot: the truth's model and its Drake plant (``model.plant``)."""
-
-    robot: Any
-    model: RobotModel
-
-    def force_input(self):
-        """(port, context) of the applied generalized force the controller sets: the diagram's
-        exported input when a system adds its torque (Dahl, prismatic Coulomb), else the plant's."""
-        if self.robot.diagram.HasInputPort(APPLIED_FORCE_PORT):
-            return self.robot.diagram.GetInputPort(APPLIED_FORCE_PORT), self.robot.context
-        return self.robot.plant.get_applied_generalized_force_input_port(), self.robot.plant_context
-
-
-def build_true_robot(robot: Robot, truth: Truth) -> TrueRobot:
-    """The robot as built of a truth in Drake, without contact forces.
+def build_true_robot(robot: Robot, truth: Truth) -> Robot:
+    """The robot as built of a truth in Drake (``truth.model.plant``), without contact forces.
 
     Args:
         robot: the a-priori robot (its config is reloaded; bodies added by its own
             ``before_finalize`` are not carried over).
     """
-    plant = truth.model.plant(robot)
-    without_contact(plant)
-    return TrueRobot(plant, truth.model)
+    true = truth.model.plant(robot)
+    without_contact(true)
+    return true
 
 
-def simulate(
-    robot: Robot,
-    trajectory: FourierTrajectory,
-    truth: Truth | str | Path | None = None,
-    duration: float | None = None,
-    measurement: str = "joint_torque",
-) -> SimulationOutput:
+def _force_input(true: Robot):
+    """(port, context) of the applied generalized force the controller sets: the diagram's
+    exported input when a system adds its torque (Dahl, prismatic Coulomb), else the plant's."""
+    if true.diagram.HasInputPort(APPLIED_FORCE_PORT):
+        return true.diagram.GetInputPort(APPLIED_FORCE_PORT), true.context
+    return true.plant.get_applied_generalized_force_input_port(), true.plant_context
+
+
+def simulate(robot: Robot, trajectory: FourierTrajectory, truth: Truth | str | Path | None = None,
+             duration: float | None = None, measurement: str = "joint_torque") -> SimulationOutput:
     """Simulates a run of the true robot tracking a trajectory; returns what it logs.
 
     Args:
@@ -131,20 +118,18 @@ def simulate(
     true = build_true_robot(robot, truth)
     log = track_trajectory(robot, true, trajectory, truth, duration)
     sensors = MeasurementType(measurement)
-    data = record_log(robot, truth, log, true.model.torque_delay)
-    applied = log.tau - true.model.per_joint_model().offset
-    wrench = recorded_wrench(true.robot, truth, log.q, log.v, applied) if sensors.wrench else None
+    data = record_log(robot, truth, log, truth.model.torque_delay)
+    applied = log.tau - truth.model.per_joint_model().offset
+    wrench = recorded_wrench(true, truth, log.q, log.v, applied) if sensors.wrench else None
     data = data.replace(tau=data.tau if sensors.torques else None, wrench=wrench)
-    return SimulationOutput(data, {**_truth_dict(robot, truth, true, duration, log), "measurement": sensors.kind})
+    return SimulationOutput(data, {**_truth_dict(robot, truth, duration, log), "measurement": sensors.kind})
 
 
 def _check_run(robot: Robot, trajectory: FourierTrajectory, truth: Truth, duration: float | None) -> float:
     """The duration [s] after checking the trajectory's joints and the torque delay."""
     if trajectory.num_joints != robot.n:
-        raise DataError(
-            f"the trajectory has {trajectory.num_joints} joints, robot '{robot.name}' has {robot.n} "
-            f"excited joints ({', '.join(robot.joint_names)})"
-        )
+        raise DataError(f"the trajectory has {trajectory.num_joints} joints, robot '{robot.name}' has "
+                        f"{robot.n} excited joints ({', '.join(robot.joint_names)})")
     duration = trajectory.period if duration is None else duration
     duration = check_finite("duration [s]", duration, positive=True)
     delay = truth.model.torque_delay
@@ -153,11 +138,11 @@ def _check_run(robot: Robot, trajectory: FourierTrajectory, truth: Truth, durati
     return duration
 
 
-def _controller_plant(robot: Robot, true: TrueRobot, model: str):
+def _controller_plant(robot: Robot, true: Robot, model: str):
     """(plant, context) the computed-torque law evaluates: the a-priori or the true model."""
     if model == "prior":
         return robot.plant, robot.plant.CreateDefaultContext()
-    plant, ctx = true.robot.plant, true.robot.plant_context
+    plant, ctx = true.plant, true.plant_context
     ctl_ctx = plant.CreateDefaultContext()
     for b in robot.body_names:  # the default context lacks the perturbed inertias
         body = plant.GetBodyByName(b)
@@ -165,16 +150,16 @@ def _controller_plant(robot: Robot, true: TrueRobot, model: str):
     return plant, ctl_ctx
 
 
-def _start_simulator(true: TrueRobot, truth: Truth, q0: np.ndarray, v0: np.ndarray, h: float):
+def _start_simulator(true: Robot, truth: Truth, q0: np.ndarray, v0: np.ndarray, h: float):
     """A Drake Simulator of the true robot at (q0, v0) with the truth's integrator."""
     from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator  # lazy: pydrake stays out of `import pe_drake`
 
-    plant, ctx = true.robot.plant, true.robot.plant_context
+    plant, ctx = true.plant, true.plant_context
     plant.SetPositions(ctx, q0)
     plant.SetVelocities(ctx, v0)
-    port, port_context = true.force_input()
+    port, port_context = _force_input(true)
     port.FixValue(port_context, np.zeros(len(q0)))
-    simulator = Simulator(true.robot.diagram, true.robot.context)
+    simulator = Simulator(true.diagram, true.context)
     integrator = ResetIntegratorFromFlags(simulator, truth.integrator, h)
     if not integrator.get_fixed_step_mode():  # fixed-step schemes step at 1 / rate_hz
         integrator.set_target_accuracy(truth.integration_accuracy)
@@ -182,9 +167,8 @@ def _start_simulator(true: TrueRobot, truth: Truth, q0: np.ndarray, v0: np.ndarr
     return simulator
 
 
-def track_trajectory(
-    robot: Robot, true: TrueRobot, trajectory: FourierTrajectory, truth: Truth, duration: float
-) -> TrackingLog:
+def track_trajectory(robot: Robot, true: Robot, trajectory: FourierTrajectory, truth: Truth,
+                     duration: float) -> TrackingLog:
     """Runs the computed-torque controller on the true robot (module docstring) for
     ``duration`` [s].
 
@@ -193,7 +177,7 @@ def track_trajectory(
     """
     from pydrake.multibody.tree import MultibodyForces  # lazy: pydrake stays out of `import pe_drake`
 
-    plant, ctx = true.robot.plant, true.robot.plant_context
+    plant, ctx = true.plant, true.plant_context
     ctl_plant, ctl_ctx = _controller_plant(robot, true, truth.control.model)
     forces = MultibodyForces(ctl_plant)
     rate = truth.control.rate_hz
@@ -203,13 +187,13 @@ def track_trajectory(
     q_d, v_d, vd_d = trajectory.evaluate(t)
     kp, kd = truth.control.kp, truth.control.kd
     # the model file's friction the simulated robot keeps, fed forward at v_d (module docstring)
-    joint = true.model.per_joint_model()  # through a transmission, the motors' terms per joint
-    kept = true.model.transmission is None  # with one the model file's friction is not simulated
+    joint = truth.model.per_joint_model()  # through a transmission, the motors' terms per joint
+    kept = truth.model.transmission is None  # with one the model file's friction is not simulated
     damping = np.where(kept & np.isclose(joint.viscous, robot.joint_damping), robot.joint_damping, 0.0)
     friction = np.where(kept & np.isclose(joint.coulomb, robot.joint_friction), robot.joint_friction, 0.0)
-    v_s = true.model.velocity_scale
+    v_s = truth.model.velocity_scale
     simulator = _start_simulator(true, truth, q_d[0], v_d[0], h)
-    port, port_context = true.force_input()
+    port, port_context = _force_input(true)
     q_log, v_log, tau_log = (np.empty((count, robot.n)) for _ in range(3))
     wall = time.perf_counter()
     for k in range(count):
@@ -227,10 +211,9 @@ def track_trajectory(
             port.FixValue(port_context, tau - joint.offset)
             simulator.AdvanceTo(t[k + 1])
             if not np.isfinite(plant.GetPositionsAndVelocities(ctx)).all():
-                raise SimulationError(
-                    f"the simulated state became NaN/inf at t = {t[k + 1]:.4g} s; check the truth "
-                    "file's values (gains, friction, payload) and the model's inertias"
-                )
+                raise SimulationError(f"the simulated state became NaN/inf at t = {t[k + 1]:.4g} s; "
+                                      "check the truth file's values (gains, friction, payload) and "
+                                      "the model's inertias")
     return TrackingLog(t, q_d, q_log, v_log, tau_log, time.perf_counter() - wall)
 
 
@@ -290,12 +273,13 @@ def recorded_wrench(true_robot: Robot, truth: Truth, q: np.ndarray, v: np.ndarra
     offset = np.asarray(noise.wrench_offset, float) if noise.wrench_offset else np.zeros(6)
     return wrench + offset + rng.normal(size=wrench.shape) * std
 
-def _truth_dict(robot: Robot, truth: Truth, true: TrueRobot, duration: float, log: TrackingLog) -> dict[str, Any]:
+def _truth_dict(robot: Robot, truth: Truth, duration: float, log: TrackingLog) -> dict[str, Any]:
     """The JSON-ready record of every true value of a run (``<out>.truth.json``)."""
     joints = list(robot.joint_names)
     bodies = robot.body_names
     tracking_rms = np.sqrt(np.mean((log.q - log.q_d) ** 2, axis=0))
-    m, p = true.model, true.model.payload
+    m = truth.model
+    p = m.payload
 
     def per_joint(values):
         return {j: float(x) for j, x in zip(joints, values)}

@@ -19,17 +19,10 @@ if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
     from pe_drake.multibody.robot import Robot
 
 
-def model_measurement(
-    robot: Robot,
-    trajectory: FourierTrajectory,
-    phi: np.ndarray | None = None,
-    *,
-    rate_hz: float = 200.0,
-    duration: float | None = None,
-    tau_noise_std: float | np.ndarray = 0.0,
-    seed: int = 0,
-    model: RegressorModel | None = None,
-) -> Measurement:
+def model_measurement(robot: Robot, trajectory: FourierTrajectory, phi: np.ndarray | None = None, *,
+                      rate_hz: float = 200.0, duration: float | None = None,
+                      tau_noise_std: float | np.ndarray = 0.0, seed: int = 0,
+                      model: RegressorModel | None = None) -> Measurement:
     """A measurement of ``robot`` following ``trajectory`` with parameters ``phi``, exact v and vd.
 
     Args:
@@ -43,9 +36,8 @@ def model_measurement(
     duration = trajectory.period if duration is None else float(duration)
     t = np.arange(0.0, duration, 1.0 / rate_hz)
     q, v, vd = trajectory.evaluate(t)
-    tau = np.concatenate(
-        [model(q[s : s + 2000], v[s : s + 2000], vd[s : s + 2000]) @ phi for s in range(0, len(t), 2000)]
-    )
+    blocks = range(0, len(t), 2000)
+    tau = np.concatenate([model(q[s : s + 2000], v[s : s + 2000], vd[s : s + 2000]) @ phi for s in blocks])
     rng = np.random.default_rng(seed)
     tau = tau + rng.normal(size=tau.shape) * np.broadcast_to(np.asarray(tau_noise_std, float), (robot.n,))
     return Measurement(t=t, q=q, tau=tau, v=v, vd=vd, joints=robot.joint_names, source="<model>")

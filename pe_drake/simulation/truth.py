@@ -37,52 +37,33 @@ CONTROL_MODELS = ("prior", "true")
 
 @dataclasses.dataclass
 class NoiseTruth:
-    """Sensor imperfections of the log (the controller sees the true state).
+    """Sensor imperfections of the log (the controller sees the true state); white noise std."""
 
-    Attributes:
-        encoder_counts_per_rev: q of revolute joints quantized to 2π/counts [rad]; 0: none.
-        q_std: white noise on q [rad].
-        v_std: white noise on v [rad/s] (only with ``record_velocity``).
-        tau_std: white noise on tau [N·m].
-        force_std: white noise on the ground wrench's force [N] (``wrench.f*`` columns).
-        moment_std: white noise on the ground wrench's moment [N·m] (``wrench.m*``).
-        wrench_offset: constant offset of the force/torque sensor, [fx, fy, fz, mx, my, mz]
-            [N, N·m]; empty means none.
-    """
-
-    encoder_counts_per_rev: int = 0
-    q_std: float = 0.0
-    v_std: float = 0.0
-    tau_std: float = 0.0
-    force_std: float = 0.0
-    moment_std: float = 0.0
+    encoder_counts_per_rev: int = 0  # q of revolute joints quantized to 2π/counts; 0: none
+    q_std: float = 0.0  # [rad]
+    v_std: float = 0.0  # [rad/s] (only with record_velocity)
+    tau_std: float = 0.0  # [N·m]
+    force_std: float = 0.0  # [N] of the ground wrench's force (wrench.f* columns)
+    moment_std: float = 0.0  # [N·m] of the ground wrench's moment (wrench.m*)
+    # constant force/torque sensor offset [fx, fy, fz, mx, my, mz] [N, N·m]; empty: none
     wrench_offset: list[float] = dataclasses.field(default_factory=list)
 
 
 @dataclasses.dataclass
 class ControlTruth:
-    """The tracking controller (computed torque + PD, zero-order hold).
+    """The tracking controller (computed torque + PD, zero-order hold)."""
 
-    Attributes:
-        rate_hz: control and logging rate [Hz].
-        kp: position gain [1/s²] (multiplies the model's mass matrix).
-        kd: velocity gain [1/s].
-        model: "prior" (a-priori rigid-body model, realistic) or "true" (true rigid-body
-            model incl. payload and armature; friction is still left to the feedback).
-    """
-
-    rate_hz: float = 1000.0
-    kp: float = 6400.0
-    kd: float = 160.0
+    rate_hz: float = 1000.0  # control and logging rate [Hz]
+    kp: float = 6400.0  # position gain [1/s²] (times the model's mass matrix)
+    kd: float = 160.0  # velocity gain [1/s]
+    # the rigid-body model: "prior" (a-priori, realistic) or "true" (payload and armature
+    # included; friction is still left to the feedback)
     model: str = "prior"
 
 
 _JOINT_TABLES = {  # effects table: (unit, non-negative)
-    "viscous": ("N·m·s/rad", True),
-    "coulomb": ("N·m", True),
-    "armature": ("kg·m²", True),
-    "torque_offset": ("N·m", False),
-    "presliding_friction": ("N·m", True),
+    "viscous": ("N·m·s/rad", True), "coulomb": ("N·m", True), "armature": ("kg·m²", True),
+    "torque_offset": ("N·m", False), "presliding_friction": ("N·m", True),
     "presliding_stiffness": ("N·m/rad", True),
 }
 #: The TRUTH.yaml ``effects`` section (key: type; :func:`make_truth` says what each is).
@@ -99,18 +80,14 @@ class Truth:
     """A simulated run's truth: the robot as built, noise and control (a whole TRUTH.yaml).
 
     Attributes:
-        model: the true robot: the a-priori (or an identified) model with the truth's effects,
-            its bodies' parameters perturbed and the payload welded (:func:`make_truth`).
+        model: the true robot (:func:`make_truth`).
         seed: seeds the inertial perturbation and, independently, the noise.
-        inertia_perturbation: relative size ε in [0, 0.5] of the perturbation in ``model``
-            (:func:`pe_drake.multibody.inertia.perturb_inertias`).
+        inertia_perturbation: relative size ε in [0, 0.5] of the perturbation in ``model``.
         record_velocity: also write ``v.<joint>`` columns (true v + noise.v_std).
-        record_command: write the raw command tau_k (held over [t_k, t_k + h), so it leads the
-            positions by half a sample) instead of the centred average (tau_{k-1} + tau_k)/2.
-        integration_accuracy: relative accuracy of Drake's error-controlled integrator.
-        integrator: Drake integration scheme (``GetIntegrationSchemes()``): "runge_kutta3"
-            (fastest for arms), or "radau3" when light joints with Coulomb friction make the
-            dynamics stiff (G1 wrists, 4e-4 kg·m²: 4× faster than runge_kutta3).
+        record_command: write the raw command tau_k instead of the centred average
+            (tau_{k-1} + tau_k)/2 (module docstring of :mod:`pe_drake.simulation.simulation`).
+        integrator: a Drake scheme (``GetIntegrationSchemes()``): "runge_kutta3" (fastest for
+            arms) or "radau3" when light joints with Coulomb friction make the dynamics stiff.
         friction_set: {"viscous" | "coulomb": joints whose friction the truth sets}; the others
             keep the model file's (every joint around an identified model).
     """
@@ -131,14 +108,14 @@ class Truth:
         _check_noise_and_control(self.noise, self.control)
 
 
-def load_truth(path: str | Path, robot: Robot, model: RobotModel | None = None) -> Truth:
+def load_truth(path: str | Path, robot: Robot) -> Truth:
     """Reads a TRUTH.yaml for ``robot``.
 
     Raises:
         ConfigError: missing file, unknown key, wrong type or bad value (file and key named).
         UnknownNameError: a joint or link the robot does not have (valid names listed).
     """
-    return make_truth(robot, model=model, where=f"truth file '{path}'", **read_truth_file(path))
+    return make_truth(robot, where=f"truth file '{path}'", **read_truth_file(path))
 
 
 def read_truth_file(path: str | Path) -> dict[str, Any]:
@@ -191,14 +168,8 @@ def make_truth(robot: Robot, effects: Mapping[str, Any] | None = None, *, model:
 
     Args:
         effects: a TRUTH.yaml ``effects`` section as data (:data:`EFFECT_KEYS`, every key
-            optional). Per-joint tables map a joint name (or ``all``: every joint not named) to
-            a value, 0 where absent: ``viscous`` f_v [N·m·s/rad], ``coulomb`` f_c [N·m] (as
-            f_c·tanh(v/v_s), v_s = ``coulomb_velocity_scale`` [rad/s]), ``armature`` [kg·m²],
-            ``torque_offset`` [N·m], ``presliding_friction`` F_c [N·m] and
-            ``presliding_stiffness`` σ0 [N·m/rad] (:mod:`pe_drake.multibody.dahl`);
-            ``torque_delay`` [s] (the torque log lags the positions); ``payload``: a body welded
-            to ``link``, ``mass`` [kg], ``com`` in the link frame [m], ``inertia`` about the
-            centre of mass in the link axes [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] [kg·m²].
+            optional; keys and units in examples/truth_example.yaml). Per-joint tables map a
+            joint name (or ``all``: every joint not named) to a value, 0 where absent.
         where: what to name in errors (the file).
         run: the other :class:`Truth` attributes (``seed``, ``noise``, ``control``, ...).
 
@@ -269,10 +240,8 @@ def _check_names(e: Mapping[str, Any], robot: Robot) -> None:
     sigma0 = per_joint_values(e["presliding_stiffness"], robot.joint_names)
     for k, name in enumerate(robot.joint_names):
         if fc[k] > 0 and not sigma0[k] > 0:
-            raise ConfigError(
-                f"effects.presliding_friction['{name}'] = {fc[k]:g} N·m needs a positive "
-                f"effects.presliding_stiffness['{name}'] [N·m/rad] (σ0 of the Dahl model)"
-            )
+            raise ConfigError(f"effects.presliding_friction['{name}'] = {fc[k]:g} N·m needs a positive "
+                              f"effects.presliding_stiffness['{name}'] [N·m/rad] (σ0 of the Dahl model)")
 
 
 def _as_built(robot: Robot, e: Mapping[str, Any], model: RobotModel | None, seed: int,
@@ -341,9 +310,8 @@ def _check_noise_and_control(n: NoiseTruth, c: ControlTruth) -> None:
     for name in ("q_std", "v_std", "tau_std", "force_std", "moment_std"):
         check_finite(f"noise.{name}", getattr(n, name), nonneg=True)
     if len(n.wrench_offset) not in (0, 6):
-        raise ConfigError(
-            f"noise.wrench_offset must be [fx, fy, fz, mx, my, mz] [N, N·m] (or empty), got {n.wrench_offset!r}"
-        )
+        raise ConfigError("noise.wrench_offset must be [fx, fy, fz, mx, my, mz] [N, N·m] (or empty), "
+                          f"got {n.wrench_offset!r}")
     for k, value in enumerate(n.wrench_offset):
         check_finite(f"noise.wrench_offset[{k}] ({WRENCH_COLUMNS[k]})", value)
     rate = check_finite("control.rate_hz [Hz]", c.rate_hz, positive=True)
