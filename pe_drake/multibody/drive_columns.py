@@ -87,31 +87,21 @@ def drive_options(value: DriveTermOptions | str | None) -> DriveTermOptions:
 
 @dataclasses.dataclass(frozen=True)
 class DriveLayout:
-    """The drive columns of a fit and the armatures left out.
+    """The drive columns of a fit and the armatures left out."""
 
-    Attributes:
-        terms: term of each column ("coulomb", "viscous", "offset", "armature"), length d.
-        joints: joint index of each column, length d.
-        joint_names: the robot's excited joints, length n.
-        units: unit of each column's value.
-        velocity_scale: v_s of the Coulomb columns [rad/s].
-        merged: {joint name: {base parameter: coefficient}} of the armatures that are not
-            separable from the rigid-body base parameters (only their sum is identifiable).
-        dropped: {label: reason} of columns this data set cannot tell apart (e.g. the Coulomb
-            column of a joint that never reverses, which equals its offset column).
-        transmission: set when the terms act per motor (``joints`` then index motors).
-        known: labels of the columns whose values are the model file's, not estimated (σ = 0).
-    """
-
-    terms: tuple[str, ...]
-    joints: tuple[int, ...]
-    joint_names: tuple[str, ...]
-    units: tuple[str, ...]
-    velocity_scale: float = COULOMB_VELOCITY_SCALE
+    terms: tuple[str, ...]  # term of each column, length d
+    joints: tuple[int, ...]  # joint (or motor) index of each column, length d
+    joint_names: tuple[str, ...]  # the robot's excited joints, length n
+    units: tuple[str, ...]  # unit of each column's value
+    velocity_scale: float = COULOMB_VELOCITY_SCALE  # v_s of the Coulomb columns [rad/s]
+    # {joint: {base parameter: coefficient}} of the armatures not separable from the rigid-body
+    # base parameters (only their sum is identifiable)
     merged: dict[str, dict[str, float]] = dataclasses.field(default_factory=dict)
+    # {label: reason} of the columns this data set cannot tell apart (the Coulomb column of a
+    # joint that never reverses equals its offset column)
     dropped: dict[str, str] = dataclasses.field(default_factory=dict)
-    transmission: Transmission | None = None
-    known: tuple[str, ...] = ()
+    transmission: Transmission | None = None  # set when the terms act per motor
+    known: tuple[str, ...] = ()  # labels of the model file's columns, not estimated (σ = 0)
 
     @property
     def count(self) -> int:

@@ -65,29 +65,23 @@ def _per_joint(x, n: int, field: str) -> np.ndarray:
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class RobotModel:
-    """The robot as built (module docstring).
+    """The robot as built (module docstring); per-joint arrays are (n,), absent ones 0.
 
     Attributes:
         joints: the excited joints, velocity order, length n.
         bodies: the bodies they move, the order of ``phi``, length nb.
         phi: standard parameters of the bodies alone (payload apart), shape (10·nb,).
-        drive: {term: per-joint value, shape (n,)} of :data:`DRIVE_TERMS` [units of
-            :data:`~pe_drake.multibody.drive_columns.UNITS`]; an absent term is 0.
-        sigma: {term: σ per joint, (n,)} of the identified drive terms (NaN where not
-            estimated, 0 where taken from the model file); empty when not identified.
-        velocity_scale: v_s of the Coulomb friction tanh(v/v_s) [rad/s].
+        drive: {term: per-joint value} of :data:`DRIVE_TERMS` [units of
+            :data:`~pe_drake.multibody.drive_columns.UNITS`].
+        sigma: {term: σ per joint} of the identified drive terms (NaN where not estimated, 0
+            where taken from the model file).
         payload: a rigid payload welded to ``payload_link`` (its frame), or None.
-        payload_link: the link carrying it ("" for none).
         torque_delay: the torque log lags the positions by this [s].
-        presliding, presliding_stiffness: Dahl F_c [N·m] and σ0 [N·m/rad] per joint, (n,).
-        holding_torque: the friction a stopped joint holds [N·m] (diagnose's ``holding_torque``),
-            (n,); recorded, not applied by :meth:`plant` or :meth:`torque`.
-        physical: whether every body of ``phi`` is physically consistent.
-        notes: what was adjusted or left out, in words.
-        transmission: θ_m = R q of the motors (None: each joint its own drive); with one,
-            ``drive`` and ``sigma`` are per motor, motor side (module docstring).
-        spring: a spring at each joint, torque k·q [N·m/rad or N/m], k ≥ 0, its rest angle in
-            the offset (diagnose's ``joint_stiffness``), (n,); a Drake Revolute/PrismaticSpring.
+        presliding, presliding_stiffness: Dahl F_c [N·m] and σ0 [N·m/rad].
+        holding_torque: the friction a stopped joint holds [N·m]; not applied by :meth:`plant`
+            or :meth:`torque`.
+        transmission: θ_m = R q of the motors; with one, ``drive`` and ``sigma`` are per motor.
+        spring: torque k·q [N·m/rad or N/m], k ≥ 0, its rest angle in the offset.
     """
 
     joints: tuple[str, ...]
@@ -380,10 +374,9 @@ class RobotModel:
             + (f"  # joint springs k·q [N·m/rad], not a TRUTH.yaml effect: {table(self.spring)}\n" if np.any(self.spring) else "")
         )
 
-    def write_urdf(self, path: str | Path, robot: Robot, title: str = "", *, samples: int = 20,
-                   tolerance: float = 1e-6) -> float:
+    def write_urdf(self, path: str | Path, robot: Robot, title: str = "", *, tolerance: float = 1e-6) -> float:
         """Writes :meth:`urdf_text` once Drake reads back every body's inertia and this model's
-        torque without Coulomb friction and offsets on random states.
+        torque without Coulomb friction and offsets on 20 random states.
 
         Returns:
             The largest torque difference [N·m] (0 without drive terms and payload).
@@ -407,9 +400,9 @@ class RobotModel:
                                                     packages=packages))
         finally:
             tmp.unlink(missing_ok=True)
-        rng = np.random.default_rng(0)
-        q = rng.uniform(robot.limits.q_lower, robot.limits.q_upper, (samples, robot.n))
-        v, vd = rng.uniform(-1, 1, (samples, robot.n)), rng.uniform(-3, 3, (samples, robot.n))
+        rng, shape = np.random.default_rng(0), (20, robot.n)
+        q = rng.uniform(robot.limits.q_lower, robot.limits.q_upper, shape)
+        v, vd = rng.uniform(-1, 1, shape), rng.uniform(-3, 3, shape)
         want = self.per_joint_model().nonnegative().torque(robot, q, v, vd, coulomb=False, offset=False)
         got = loaded.inverse_dynamics(q, v, vd, include_damping=True)
         err = float(np.max(np.abs(got - want)))

@@ -36,18 +36,12 @@ def without_contact(robot: Robot) -> None:
 
 @dataclasses.dataclass(frozen=True)
 class CapsuleContact:
-    """Two links whose capsules overlap during a run.
+    """Two links whose capsules overlap during a run."""
 
-    Attributes:
-        pair: "link_a-link_b".
-        depth: the largest overlap [m].
-        start, end: first and last time of the overlap [s].
-    """
-
-    pair: str
-    depth: float
-    start: float
-    end: float
+    pair: str  # "link_a-link_b"
+    depth: float  # the largest overlap [m]
+    start: float  # first time of the overlap [s]
+    end: float  # last time of the overlap [s]
 
     def to_dict(self) -> dict[str, float]:
         return {"max_overlap_m": self.depth, "from_s": self.start, "to_s": self.end}

@@ -8,15 +8,14 @@ plus the arm's errors, so what the fit gets wrong is attributable to it.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from pe_drake.identification.measurements import Measurement
-from pe_drake.multibody.drive_columns import coulomb_column
 from pe_drake.multibody.inertia import perturb_inertias
-from pe_drake.multibody.payload import PayloadInertia, box_inertia, link_columns
-from pe_drake.multibody.regressor import RegressorModel
+from pe_drake.multibody.payload import PayloadInertia, box_inertia
 from pe_drake.multibody.robot_model import RobotModel
 
 if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
@@ -46,20 +45,16 @@ def random_true_arm(robot: Robot, rng: np.random.Generator) -> RobotModel:
     return RobotModel(robot.joint_names, robot.body_names, phi, drive)
 
 
-def payload_run(robot: Robot, motion, arm: RobotModel, link: str, payload: PayloadInertia | None, *, rate_hz: float = 1000.0,
-                t0: float = 0.0, noise_std=0.04, seed: int = 0, model: RegressorModel | None = None) -> Measurement:
+def payload_run(robot: Robot, motion, arm: RobotModel, link: str, payload: PayloadInertia | None, *,
+                rate_hz: float = 1000.0, t0: float = 0.0, noise_std=0.04, seed: int = 0) -> Measurement:
     """One run of ``motion`` (anything with ``evaluate(t)`` and ``duration``/``period``) on the
     true arm with ``payload`` on ``link`` (None: unloaded), sampled at ``t0 + k/rate_hz``: exact
     q, v, vd and noisy torques."""
-    model = model or RegressorModel(robot)
     duration = motion.duration if hasattr(motion, "duration") else motion.period
     t = np.arange(t0, duration, 1.0 / rate_hz)
     q, v, vd = motion.evaluate(t)
-    phi = arm.phi.copy()
-    if payload is not None:
-        phi[link_columns(robot, link)] += payload.phi
-    tau = np.concatenate([model(q[s : s + 2000], v[s : s + 2000], vd[s : s + 2000]) @ phi for s in range(0, t.size, 2000)])
-    tau += arm.coulomb * coulomb_column(v, arm.velocity_scale) + arm.viscous * v
+    loaded = arm if payload is None else dataclasses.replace(arm, payload=payload, payload_link=link)
+    tau = loaded.torque(robot, q, v, vd)
     rng = np.random.default_rng(seed)
     tau += rng.normal(size=tau.shape) * np.broadcast_to(np.asarray(noise_std, float), (robot.n,))
     return Measurement(t=t - t[0], q=q, tau=tau, v=v, vd=vd, joints=robot.joint_names,

@@ -73,23 +73,12 @@ def consistent_model(robot: Robot, model: RobotModel, base=None, sigma_B: np.nda
         return model
     base = base if base is not None else measurement_base_parameters(robot, "joint_torque")
     phi_B = base.K @ model.phi_total if phi_B is None else np.asarray(phi_B, float)
-    phi, armatures, notes = _consistent_parameters(robot, base, phi_B, sigma_B, merged or {})
-    armature = model.armature.copy()
-    for name, value in armatures.items():
-        armature[robot.joint_names.index(name)] += value
-    return dataclasses.replace(model, phi=phi, payload=None, payload_link="",
-                               drive={**model.drive, "armature": armature}, physical=True,
-                               notes=model.notes + tuple(notes))
-
-
-def _consistent_parameters(robot: Robot, base, phi_B: np.ndarray, sigma_B: np.ndarray | None,
-                           merged: dict[str, dict[str, float]]) -> tuple[np.ndarray, dict[str, float], list[str]]:
+    merged = merged or {}
     sigma = np.full(len(phi_B), np.nan) if sigma_B is None else np.asarray(sigma_B, float)
-    scale = np.abs(phi_B).max(initial=1e-12)
     # An exact fit reports σ ≈ 0 and an old file none: weigh those at 1e-4 of their value,
     # floored so that the whitened rows stay within the SDP solver's range.
     sigma = np.where(np.isfinite(sigma) & (sigma > 0), sigma, 1e-4 * np.abs(phi_B))
-    sigma = np.maximum(sigma, 1e-9 * scale)
+    sigma = np.maximum(sigma, 1e-9 * np.abs(phi_B).max(initial=1e-12))
     L = np.diag(1.0 / sigma)
     C = np.zeros((base.count, len(merged)))  # v̇_j = Σ_k C_kj · (base column k): φ_B holds a_j C_j
     for i, joint in enumerate(merged):
@@ -101,9 +90,13 @@ def _consistent_parameters(robot: Robot, base, phi_B: np.ndarray, sigma_B: np.nd
                        extra_in_base={i: C[:, i] for i in range(len(merged))})
     theta = np.asarray(fit.theta, float)
     misfit = np.abs(base.K @ fit.phi + C @ theta - phi_B) / sigma
-    notes = []
+    notes = list(model.notes)
     worst = int(np.argmax(misfit)) if misfit.size else 0
     if misfit.size and misfit[worst] > ATTAINABLE_SIGMA:
         notes.append(f"the model has base parameters only; no physically valid links reproduce them all: "
                      f"the simulated {base.base_names[worst]} is {misfit[worst]:.3g} σ from the file's")
-    return fit.phi, {j: float(a) for j, a in zip(merged, theta)}, notes
+    armature = model.armature.copy()
+    for joint, a in zip(merged, theta):
+        armature[robot.joint_names.index(joint)] += float(a)
+    return dataclasses.replace(model, phi=fit.phi, payload=None, payload_link="",
+                               drive={**model.drive, "armature": armature}, physical=True, notes=tuple(notes))

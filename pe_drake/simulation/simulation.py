@@ -1,10 +1,8 @@
 """Simulated measurements: a perturbed "true" robot tracking a trajectory in Drake.
 
-The true robot is a :class:`~pe_drake.multibody.robot_model.RobotModel` (the truth's) in a
-continuous Drake plant: viscous friction as joint damping, Coulomb friction -f_c·tanh(v/v_s) as
-a ``DoorHinge`` (so the integrator sees it; a discrete plant would need a much smaller step for
-the stiff tanh), armature as a gear-ratio-1 rotor inertia, offsets as a constant generalized
-force, Dahl friction as a Drake system (:mod:`pe_drake.multibody.dahl`), a welded payload.
+The true robot is the truth's :class:`~pe_drake.multibody.robot_model.RobotModel` in a
+continuous plant (:meth:`~pe_drake.multibody.robot_model.RobotModel.plant`): Coulomb friction
+is a ``DoorHinge`` the integrator sees, where a discrete plant would need a far smaller step.
 
 **Sign convention of the recorded torque.** ``tau`` is the torque the actuator applies; the
 effects are loads it overcomes, so once tracking has converged::
@@ -16,10 +14,9 @@ recovers it with its sign. The command tau_k is held over [t_k, t_k + h), so it 
 by h/2: the log records (tau_{k-1} + tau_k)/2, centred on t_k (``record_command: true`` keeps the
 raw command). A torque delay d then gives ``tau_recorded(t) = tau(t - d)``; noise comes last.
 
-Control: computed torque + PD at ``control.rate_hz`` with zero-order hold on the a-priori (or
-true) rigid-body model, plus the model file's joint friction fed forward at the desired velocity
-on the joints where the simulated robot keeps it (README, "Identify, validate, export"): a
-friction the truth sets is the unknown to identify and stays with the feedback.
+Control: computed torque + PD with zero-order hold on the a-priori (or true) rigid-body model,
+plus the model file's friction fed forward at the desired velocity where the simulated robot
+keeps it (README, "Identify, validate, export"); a friction the truth sets is left to feedback.
 """
 
 from __future__ import annotations
@@ -118,7 +115,7 @@ def simulate(robot: Robot, trajectory: FourierTrajectory, truth: Truth | str | P
     true = build_true_robot(robot, truth)
     log = track_trajectory(robot, true, trajectory, truth, duration)
     sensors = MeasurementType(measurement)
-    data = record_log(robot, truth, log, truth.model.torque_delay)
+    data = record_log(robot, truth, log)
     applied = log.tau - truth.model.per_joint_model().offset
     wrench = recorded_wrench(true, truth, log.q, log.v, applied) if sensors.wrench else None
     data = data.replace(tau=data.tau if sensors.torques else None, wrench=wrench)
@@ -217,25 +214,17 @@ def track_trajectory(robot: Robot, true: Robot, trajectory: FourierTrajectory, t
     return TrackingLog(t, q_d, q_log, v_log, tau_log, time.perf_counter() - wall)
 
 
-def recorded_torque(log: TrackingLog, truth: Truth, delay: float) -> np.ndarray:
-    """The torque the log records before noise, (K, n) [N·m]: centred average (or raw command),
-    delayed by ``delay`` [s]."""
-    if truth.record_command:
-        tau_rec = log.tau
-    else:
-        # centred on t_k: the held command leads the positions by h/2 (module docstring)
+def record_log(robot: Robot, truth: Truth, log: TrackingLog) -> Measurement:
+    """What the sensors log: the centred (or raw) command delayed by the torque delay, encoder
+    quantization and white noise (q, tau and v drawn in that order from the truth's seed,
+    independently of the inertial perturbation)."""
+    tau_rec = log.tau
+    if not truth.record_command:  # centred on t_k: the held command leads by h/2 (module docstring)
         tau_rec = log.tau.copy()
         tau_rec[1:] = 0.5 * (log.tau[:-1] + log.tau[1:])
+    delay, t = truth.model.torque_delay, log.t
     if delay != 0:
-        t = log.t
         tau_rec = np.column_stack([np.interp(t - delay, t, tau_rec[:, j]) for j in range(tau_rec.shape[1])])
-    return tau_rec
-
-
-def record_log(robot: Robot, truth: Truth, log: TrackingLog, delay: float) -> Measurement:
-    """What the sensors log: recorded torque, encoder quantization and white noise (q, tau and v
-    drawn in that order from the truth's seed, independently of the inertial perturbation)."""
-    tau_rec = recorded_torque(log, truth, delay)
     rng = np.random.default_rng(np.random.SeedSequence(truth.seed).spawn(2)[1])
     noise = truth.noise
     q_rec = log.q.copy()
@@ -251,7 +240,6 @@ def record_log(robot: Robot, truth: Truth, log: TrackingLog, delay: float) -> Me
     if truth.record_velocity:
         v_rec = log.v + (rng.normal(0.0, noise.v_std, log.v.shape) if noise.v_std > 0 else 0.0)
     return Measurement(log.t, q_rec, tau_rec, v_rec, None, robot.joint_names, "")
-
 
 
 def recorded_wrench(true_robot: Robot, truth: Truth, q: np.ndarray, v: np.ndarray,
@@ -273,13 +261,12 @@ def recorded_wrench(true_robot: Robot, truth: Truth, q: np.ndarray, v: np.ndarra
     offset = np.asarray(noise.wrench_offset, float) if noise.wrench_offset else np.zeros(6)
     return wrench + offset + rng.normal(size=wrench.shape) * std
 
+
 def _truth_dict(robot: Robot, truth: Truth, duration: float, log: TrackingLog) -> dict[str, Any]:
     """The JSON-ready record of every true value of a run (``<out>.truth.json``)."""
-    joints = list(robot.joint_names)
-    bodies = robot.body_names
+    joints, bodies = list(robot.joint_names), robot.body_names
     tracking_rms = np.sqrt(np.mean((log.q - log.q_d) ** 2, axis=0))
-    m = truth.model
-    p = m.payload
+    m, p = truth.model, truth.model.payload
 
     def per_joint(values):
         return {j: float(x) for j, x in zip(joints, values)}
@@ -288,19 +275,15 @@ def _truth_dict(robot: Robot, truth: Truth, duration: float, log: TrackingLog) -
         return {j: "truth" if j in truth.friction_set.get(term, ()) else "model file" for j in joints}
 
     return {
-        "robot": robot.name,
-        "joints": joints,
-        "bodies": list(robot.body_names),
+        "robot": robot.name, "joints": joints, "bodies": list(bodies),
         "parameter_names": list(PARAMETER_NAMES),
         "parameters_frame": "about the body origin, in the body frame; payload lumped into its link",
         "phi_true": {b: m.phi_total[10 * i : 10 * i + 10].tolist() for i, b in enumerate(bodies)},
         "phi_model": {b: robot.phi_model[10 * i : 10 * i + 10].tolist() for i, b in enumerate(bodies)},
-        "seed": truth.seed,
-        "inertia_perturbation": truth.inertia_perturbation,
-        "torque_equation": (
-            "tau_recorded(t) = [ID_rigid_body_true(q, v, vd) + viscous*v + coulomb*tanh(v/"
-            "coulomb_velocity_scale) + presliding*z + armature*vd + torque_offset](t - torque_delay) + noise"
-        ),
+        "seed": truth.seed, "inertia_perturbation": truth.inertia_perturbation,
+        "torque_equation": ("tau_recorded(t) = [ID_rigid_body_true(q, v, vd) + viscous*v + coulomb*tanh(v/"
+                            "coulomb_velocity_scale) + presliding*z + armature*vd + torque_offset]"
+                            "(t - torque_delay) + noise"),
         "effects": {
             "viscous": {"unit": "N·m·s/rad", "values": per_joint(m.viscous),
                         "model_file_damping": per_joint(robot.joint_damping), "source": source("viscous"),
@@ -324,13 +307,11 @@ def _truth_dict(robot: Robot, truth: Truth, duration: float, log: TrackingLog) -
                                  "drive_side": "viscous, coulomb, armature and torque_offset are per motor (named by "
                                                "its joint), motor side, acting on the joints through R^T",
                                  "plant_notes": m.plant_notes()}} if m.transmission is not None else {}),
-            "payload": {
-                "link": m.payload_link, "mass": p.mass if p else 0.0,
-                "com": (p.com if p else np.zeros(3)).tolist(),
-                "inertia_about_com": (p.inertia_vector if p else np.zeros(6)).tolist(),
-                "phi_about_link_origin": (p.phi if p else np.zeros(10)).tolist(),
-                "units": "kg, m, kg·m²",
-            },
+            "payload": {"link": m.payload_link, "mass": p.mass if p else 0.0,
+                        "com": (p.com if p else np.zeros(3)).tolist(),
+                        "inertia_about_com": (p.inertia_vector if p else np.zeros(6)).tolist(),
+                        "phi_about_link_origin": (p.phi if p else np.zeros(10)).tolist(),
+                        "units": "kg, m, kg·m²"},
         },
         "noise": {**dataclasses.asdict(truth.noise),
                   "units": {"q_std": "rad", "v_std": "rad/s", "tau_std": "N·m", "force_std": "N",
@@ -339,12 +320,10 @@ def _truth_dict(robot: Robot, truth: Truth, duration: float, log: TrackingLog) -
                     "units": {"rate_hz": "Hz", "kp": "1/s²", "kd": "1/s"}},
         "record_velocity": truth.record_velocity,
         "torque_recorded": "command tau_k" if truth.record_command else "(tau_{k-1} + tau_k) / 2",
-        "simulation": {
-            "duration": duration, "samples": len(log.t), "rate_hz": truth.control.rate_hz,
-            "integrator": truth.integrator, "accuracy": truth.integration_accuracy,
-            "tracking_error_rms": per_joint(tracking_rms), "tracking_error_unit": "rad",
-            "wall_time_s": log.wall_time,
-        },
+        "simulation": {"duration": duration, "samples": len(log.t), "rate_hz": truth.control.rate_hz,
+                       "integrator": truth.integrator, "accuracy": truth.integration_accuracy,
+                       "tracking_error_rms": per_joint(tracking_rms), "tracking_error_unit": "rad",
+                       "wall_time_s": log.wall_time},
     }
 
 
