@@ -36,6 +36,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from pe_drake.config_sections import check_choice
 from pe_drake.exceptions import ConfigError
 from pe_drake.multibody.regressor import RegressorModel
 from pe_drake.multibody.transmission import Transmission, robot_transmission
@@ -59,20 +60,15 @@ UNITS = {"coulomb": ("N·m", "N"), "viscous": ("N·m·s/rad", "N·s/m"), "offset
 
 @dataclasses.dataclass(frozen=True)
 class DriveTermOptions:
-    """Which drive terms ``identify`` adds.
+    """Which drive terms ``identify`` adds."""
 
-    Attributes:
-        terms: "none", "friction" (Coulomb, viscous, offset per joint) or "all" (also the
-            armature of every joint where it is separable from the link inertias).
-        velocity_scale: v_s of the Coulomb column tanh(v/v_s) [rad/s or m/s].
-    """
-
+    # "none", "friction" (Coulomb, viscous, offset per joint) or "all" (also the armature of
+    # every joint where it is separable from the link inertias)
     terms: str = "all"
-    velocity_scale: float = COULOMB_VELOCITY_SCALE
+    velocity_scale: float = COULOMB_VELOCITY_SCALE  # v_s of tanh(v/v_s) [rad/s or m/s]
 
     def __post_init__(self) -> None:
-        if self.terms not in TERMS:
-            raise ConfigError(f"drive terms '{self.terms}' is not one of {', '.join(TERMS)}")
+        check_choice("drive terms", self.terms, tuple(TERMS))
         v = self.velocity_scale
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
             raise ConfigError(f"the Coulomb velocity scale must be a positive number [rad/s], got {v!r}")
@@ -183,7 +179,8 @@ def model_tables(layout: DriveLayout, theta: np.ndarray, sigma: np.ndarray,
     return drive, sd
 
 
-def drive_layout(robot: Robot, base, options: DriveTermOptions, model=None, *, rows=None) -> DriveLayout:
+def drive_layout(robot: Robot, base, options: DriveTermOptions, model=None, *,
+                 rows=None) -> DriveLayout:
     """The drive columns of ``options`` for ``robot`` (armature: where separable); per motor,
     with a revolute joint's units, under a ``robot.transmission`` with R ≠ I.
 
@@ -192,9 +189,6 @@ def drive_layout(robot: Robot, base, options: DriveTermOptions, model=None, *, r
         model: a :class:`~pe_drake.multibody.regressor.RegressorModel` to reuse.
         rows: the :class:`~pe_drake.multibody.sensors.SensorRows` fitted (default: the joint
             torques); the ground wrench's rows separate every armature the torques cannot.
-
-    Raises:
-        ConfigError: a ``robot.transmission`` that does not determine the joint angles.
     """
     terms = TERMS[options.terms]
     names = tuple(robot.joint_names)
@@ -249,13 +243,8 @@ def coulomb_column(v: np.ndarray, velocity_scale: float) -> np.ndarray:
 
 def term_values(term: str, v: np.ndarray, vd: np.ndarray | None, velocity_scale: float | np.ndarray,
                 coulomb: np.ndarray | None = None) -> np.ndarray:
-    """The column of drive term ``term`` for every joint (module docstring's table), shape of v.
-
-    Args:
-        v, vd: joint velocities and accelerations, (S, n) (vd only for the armature).
-        velocity_scale: v_s of the Coulomb column [rad/s].
-        coulomb: the Coulomb columns to use instead of tanh(v/v_s) (e.g. parallel-filtered).
-    """
+    """The column of drive term ``term`` for every joint (module docstring's table), shape of
+    v (S, n); vd is needed only for the armature, ``coulomb`` replaces tanh(v/v_s)."""
     if term == "coulomb":
         return coulomb_column(v, velocity_scale) if coulomb is None else np.asarray(coulomb, float)
     if term == "viscous":

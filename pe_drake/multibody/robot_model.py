@@ -71,10 +71,9 @@ class RobotModel:
         joints: the excited joints, velocity order, length n.
         bodies: the bodies they move, the order of ``phi``, length nb.
         phi: standard parameters of the bodies alone (payload apart), shape (10·nb,).
-        drive: {term: per-joint value} of :data:`DRIVE_TERMS` [units of
-            :data:`~pe_drake.multibody.drive_columns.UNITS`].
-        sigma: {term: σ per joint} of the identified drive terms (NaN where not estimated, 0
-            where taken from the model file).
+        drive: {term: per-joint value} of :data:`DRIVE_TERMS` [drive_columns.UNITS].
+        sigma: {term: σ per joint} of the identified drive terms (NaN: not estimated, 0: the
+            model file's).
         payload: a rigid payload welded to ``payload_link`` (its frame), or None.
         torque_delay: the torque log lags the positions by this [s].
         presliding, presliding_stiffness: Dahl F_c [N·m] and σ0 [N·m/rad].
@@ -192,13 +191,11 @@ class RobotModel:
     def torque(self, robot: Robot, q: np.ndarray, v: np.ndarray, vd: np.ndarray, *, coulomb: bool = True,
                offset: bool = True, spring: bool | None = None) -> np.ndarray:
         """Inverse dynamics Y(q, v, vd)·phi_total + D(v, vd)·theta, (T, n) [N·m] (no delay, no
-        Dahl state).
+        Dahl state); q, v, vd each (T, n) or (n,).
 
         Args:
-            q, v, vd: each (T, n) or (n,).
             coulomb, offset: include the Coulomb friction and the offsets. Without them the torque
-                is what a simulator file holds as inverse dynamics (rigid + armature + viscous):
-                Drake's URDF/SDFormat and MuJoCo's ``mj_inverse`` of an exported model.
+                is what a simulator file holds as inverse dynamics (rigid + armature + viscous).
             spring: include the joint springs k·q (default: as ``offset``; MuJoCo's joint
                 ``stiffness`` holds them, a URDF does not).
         """
@@ -214,12 +211,8 @@ class RobotModel:
         return out + q * self.spring if (offset if spring is None else spring) else out
 
     def plant(self, robot: Robot):
-        """The model in Drake, a continuous :class:`~pe_drake.multibody.robot.Robot` (offsets
-        not in it; :func:`~pe_drake.multibody.model_plant.model_plant`).
-
-        Raises:
-            ConfigError: a negative friction or armature (:meth:`nonnegative` removes them).
-        """
+        """The model in Drake, a continuous :class:`~pe_drake.multibody.robot.Robot` without the
+        offsets; ConfigError on a negative friction or armature (:meth:`nonnegative`)."""
         return model_plant(self, robot)
 
     def per_joint_model(self) -> RobotModel:
@@ -374,12 +367,11 @@ class RobotModel:
             + (f"  # joint springs k·q [N·m/rad], not a TRUTH.yaml effect: {table(self.spring)}\n" if np.any(self.spring) else "")
         )
 
-    def write_urdf(self, path: str | Path, robot: Robot, title: str = "", *, tolerance: float = 1e-6) -> float:
+    def write_urdf(self, path: str | Path, robot: Robot, title: str = "", *,
+                   tolerance: float = 1e-6) -> float:
         """Writes :meth:`urdf_text` once Drake reads back every body's inertia and this model's
-        torque without Coulomb friction and offsets on 20 random states.
-
-        Returns:
-            The largest torque difference [N·m] (0 without drive terms and payload).
+        torque without Coulomb friction and offsets on 20 random states; returns the largest
+        torque difference [N·m] (0 without drive terms and payload).
 
         Raises:
             PhysicallyInvalidError: a body that is not physically valid (nothing is written).

@@ -46,15 +46,17 @@ def random_true_arm(robot: Robot, rng: np.random.Generator) -> RobotModel:
 
 
 def payload_run(robot: Robot, motion, arm: RobotModel, link: str, payload: PayloadInertia | None, *,
-                rate_hz: float = 1000.0, t0: float = 0.0, noise_std=0.04, seed: int = 0) -> Measurement:
+                rate_hz: float = 1000.0, t0: float = 0.0, noise_std=0.04,
+                seed: int = 0) -> Measurement:
     """One run of ``motion`` (anything with ``evaluate(t)`` and ``duration``/``period``) on the
     true arm with ``payload`` on ``link`` (None: unloaded), sampled at ``t0 + k/rate_hz``: exact
     q, v, vd and noisy torques."""
     duration = motion.duration if hasattr(motion, "duration") else motion.period
     t = np.arange(t0, duration, 1.0 / rate_hz)
     q, v, vd = motion.evaluate(t)
-    loaded = arm if payload is None else dataclasses.replace(arm, payload=payload, payload_link=link)
-    tau = loaded.torque(robot, q, v, vd)
+    if payload is not None:
+        arm = dataclasses.replace(arm, payload=payload, payload_link=link)
+    tau = arm.torque(robot, q, v, vd)
     rng = np.random.default_rng(seed)
     tau += rng.normal(size=tau.shape) * np.broadcast_to(np.asarray(noise_std, float), (robot.n,))
     return Measurement(t=t - t[0], q=q, tau=tau, v=v, vd=vd, joints=robot.joint_names,

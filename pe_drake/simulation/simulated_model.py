@@ -65,9 +65,6 @@ def consistent_model(robot: Robot, model: RobotModel, base=None, sigma_B: np.nda
         merged: {joint: {base parameter: coefficient}} of the armatures inside φ_B: variables
             ≥ 0 of the fit, added to the model's armature.
         phi_B: the base parameters to fit (default K·phi_total; a file's own, to the last digit).
-
-    Raises:
-        NoSolutionFound: the solver failed.
     """
     if model.physical:
         return model
@@ -98,5 +95,5 @@ def consistent_model(robot: Robot, model: RobotModel, base=None, sigma_B: np.nda
     armature = model.armature.copy()
     for joint, a in zip(merged, theta):
         armature[robot.joint_names.index(joint)] += float(a)
-    return dataclasses.replace(model, phi=fit.phi, payload=None, payload_link="",
-                               drive={**model.drive, "armature": armature}, physical=True, notes=tuple(notes))
+    return dataclasses.replace(model, phi=fit.phi, payload=None, payload_link="", physical=True,
+                               drive={**model.drive, "armature": armature}, notes=tuple(notes))

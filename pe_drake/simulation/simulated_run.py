@@ -117,21 +117,14 @@ class SimulatedRun:
 
 @dataclasses.dataclass(frozen=True)
 class SimulateOptions:
-    """What ``simulate`` runs the motion on.
+    """What ``simulate`` runs the motion on."""
 
-    Attributes:
-        truth: the TRUTH.yaml: the robot's perturbation, noise and control (None: none).
-        model: identified.json or augmented_model.json: the simulated robot has its parameters
-            and drive terms instead of the URDF's; ``truth``'s effects, noise and control come
-            on top. Without ``truth``: no noise, the default controller.
-        duration: simulated time [s] (None: the motion's).
-        measurement: "joint_torque", "base_wrench" or "both".
-    """
-
-    truth: str | Path | None = None
+    truth: str | Path | None = None  # TRUTH.yaml: the robot's perturbation, noise and control
+    # identified.json or augmented_model.json: the simulated robot has its parameters and drive
+    # terms, ``truth``'s effects, noise and control on top (without: no noise, default control)
     model: str | Path | None = None
-    duration: float | None = None
-    measurement: str = "joint_torque"
+    duration: float | None = None  # simulated time [s] (None: the motion's)
+    measurement: str = "joint_torque"  # or "base_wrench" or "both"
 
     def __post_init__(self):
         if self.truth is None and self.model is None:
@@ -145,11 +138,8 @@ class SimulateOptions:
 def simulate_run(robot: Robot, trajectory: str | Path, options: SimulateOptions, *,
                  progress: Callable[[str], None] | None = None) -> SimulatedRun:
     """What ``pe-drake simulate`` does: the motion of ``trajectory``'s trajectory.csv (ramps and
-    periods; after its end the robot rests) on the robot perturbed as ``options.truth``
-    (TRUTH.yaml) says, or as ``options.model`` was identified.
-
-    Args:
-        progress: called with a line before the simulation starts (it can take tens of seconds).
+    periods; after its end the robot rests) on the robot of ``options``; ``progress`` gets a
+    line before the simulation starts (it can take tens of seconds).
 
     Raises:
         DataError: a trajectory file for other joints, or outside the robot's limits; a model

@@ -56,29 +56,19 @@ class SimulationOutput(NamedTuple):
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class TrackingLog:
-    """The true state and the controller's commands at the control instants.
+    """The true state and the controller's commands at the K control instants, (K, n)."""
 
-    Attributes:
-        t: control instants, shape (K,) [s].
-        q_d, q, v: desired and true positions, true velocities, (K, n) [rad, rad/s].
-        tau: commands tau_k, each held over [t_k, t_k + h), shape (K, n) [N·m].
-    """
-
-    t: np.ndarray
-    q_d: np.ndarray
-    q: np.ndarray
-    v: np.ndarray
-    tau: np.ndarray
-    wall_time: float
+    t: np.ndarray  # (K,) [s]
+    q_d: np.ndarray  # desired positions [rad]
+    q: np.ndarray  # true positions [rad]
+    v: np.ndarray  # true velocities [rad/s]
+    tau: np.ndarray  # commands tau_k, each held over [t_k, t_k + h) [N·m]
+    wall_time: float  # [s]
 
 
 def build_true_robot(robot: Robot, truth: Truth) -> Robot:
-    """The robot as built of a truth in Drake (``truth.model.plant``), without contact forces.
-
-    Args:
-        robot: the a-priori robot (its config is reloaded; bodies added by its own
-            ``before_finalize`` are not carried over).
-    """
+    """The robot as built of a truth in Drake, without contact forces (``robot``'s config is
+    reloaded: bodies added by its own ``before_finalize`` are not carried over)."""
     true = truth.model.plant(robot)
     without_contact(true)
     return true
@@ -97,7 +87,6 @@ def simulate(robot: Robot, trajectory: FourierTrajectory, truth: Truth | str | P
     """Simulates a run of the true robot tracking a trajectory; returns what it logs.
 
     Args:
-        robot: the a-priori robot.
         truth: a :class:`~pe_drake.simulation.truth.Truth` of the robot, or the path of a
             TRUTH.yaml (None: the model alone, no noise, the default controller).
         duration: simulated time [s]; default one period of the trajectory.
@@ -119,14 +108,15 @@ def simulate(robot: Robot, trajectory: FourierTrajectory, truth: Truth | str | P
     applied = log.tau - truth.model.per_joint_model().offset
     wrench = recorded_wrench(true, truth, log.q, log.v, applied) if sensors.wrench else None
     data = data.replace(tau=data.tau if sensors.torques else None, wrench=wrench)
-    return SimulationOutput(data, {**_truth_dict(robot, truth, duration, log), "measurement": sensors.kind})
+    record = _truth_dict(robot, truth, duration, log)
+    return SimulationOutput(data, {**record, "measurement": sensors.kind})
 
 
 def _check_run(robot: Robot, trajectory: FourierTrajectory, truth: Truth, duration: float | None) -> float:
     """The duration [s] after checking the trajectory's joints and the torque delay."""
     if trajectory.num_joints != robot.n:
-        raise DataError(f"the trajectory has {trajectory.num_joints} joints, robot '{robot.name}' has "
-                        f"{robot.n} excited joints ({', '.join(robot.joint_names)})")
+        raise DataError(f"the trajectory has {trajectory.num_joints} joints, robot '{robot.name}' "
+                        f"has {robot.n} excited joints ({', '.join(robot.joint_names)})")
     duration = trajectory.period if duration is None else duration
     duration = check_finite("duration [s]", duration, positive=True)
     delay = truth.model.torque_delay
@@ -208,9 +198,9 @@ def track_trajectory(robot: Robot, true: Robot, trajectory: FourierTrajectory, t
             port.FixValue(port_context, tau - joint.offset)
             simulator.AdvanceTo(t[k + 1])
             if not np.isfinite(plant.GetPositionsAndVelocities(ctx)).all():
-                raise SimulationError(f"the simulated state became NaN/inf at t = {t[k + 1]:.4g} s; "
-                                      "check the truth file's values (gains, friction, payload) and "
-                                      "the model's inertias")
+                raise SimulationError(f"the simulated state became NaN/inf at t = {t[k + 1]:.4g} "
+                                      "s; check the truth file's values (gains, friction, "
+                                      "payload) and the model's inertias")
     return TrackingLog(t, q_d, q_log, v_log, tau_log, time.perf_counter() - wall)
 
 
@@ -244,13 +234,9 @@ def record_log(robot: Robot, truth: Truth, log: TrackingLog) -> Measurement:
 
 def recorded_wrench(true_robot: Robot, truth: Truth, q: np.ndarray, v: np.ndarray,
                     applied: np.ndarray) -> np.ndarray:
-    """The logged ground wrench, the reaction at the root link's weld (the feet), shape (K, 6)
-    [N, N·m] (``wrench.*`` column order), with the truth's sensor noise and offset.
-
-    Args:
-        q, v: true positions and velocities at the control instants, (K, n).
-        applied: the generalized forces applied over [t_k, t_k + h), (K, n) [N·m].
-    """
+    """The logged ground wrench, the reaction at the root link's weld (the feet), (K, 6)
+    [N, N·m] in ``wrench.*`` column order, with the truth's sensor noise and offset; ``applied``
+    the generalized forces over [t_k, t_k + h), (K, n) [N·m]."""
     # The reaction jumps at t_k when the held command changes: centred on t_k like the torque
     # (unless the truth records the raw command).
     wrench = weld_reaction(true_robot, q, v, applied, centred=not truth.record_command)
@@ -281,9 +267,9 @@ def _truth_dict(robot: Robot, truth: Truth, duration: float, log: TrackingLog) -
         "phi_true": {b: m.phi_total[10 * i : 10 * i + 10].tolist() for i, b in enumerate(bodies)},
         "phi_model": {b: robot.phi_model[10 * i : 10 * i + 10].tolist() for i, b in enumerate(bodies)},
         "seed": truth.seed, "inertia_perturbation": truth.inertia_perturbation,
-        "torque_equation": ("tau_recorded(t) = [ID_rigid_body_true(q, v, vd) + viscous*v + coulomb*tanh(v/"
-                            "coulomb_velocity_scale) + presliding*z + armature*vd + torque_offset]"
-                            "(t - torque_delay) + noise"),
+        "torque_equation": ("tau_recorded(t) = [ID_rigid_body_true(q, v, vd) + viscous*v + "
+                            "coulomb*tanh(v/coulomb_velocity_scale) + presliding*z + armature*vd + "
+                            "torque_offset](t - torque_delay) + noise"),
         "effects": {
             "viscous": {"unit": "N·m·s/rad", "values": per_joint(m.viscous),
                         "model_file_damping": per_joint(robot.joint_damping), "source": source("viscous"),
@@ -320,8 +306,9 @@ def _truth_dict(robot: Robot, truth: Truth, duration: float, log: TrackingLog) -
                     "units": {"rate_hz": "Hz", "kp": "1/s²", "kd": "1/s"}},
         "record_velocity": truth.record_velocity,
         "torque_recorded": "command tau_k" if truth.record_command else "(tau_{k-1} + tau_k) / 2",
-        "simulation": {"duration": duration, "samples": len(log.t), "rate_hz": truth.control.rate_hz,
-                       "integrator": truth.integrator, "accuracy": truth.integration_accuracy,
+        "simulation": {"duration": duration, "samples": len(log.t),
+                       "rate_hz": truth.control.rate_hz, "integrator": truth.integrator,
+                       "accuracy": truth.integration_accuracy,
                        "tracking_error_rms": per_joint(tracking_rms), "tracking_error_unit": "rad",
                        "wall_time_s": log.wall_time},
     }

@@ -3,7 +3,7 @@ around the a-priori or an identified model), sensor noise and the tracking contr
 
 :func:`load_truth` checks a TRUTH.yaml's shape and types against :data:`TRUTH_KEYS` (file, line
 and key named); :func:`make_truth` reads its ``effects`` into the true model, every number and
-name checked against the robot. The effects' sign convention is :mod:`pe_drake.simulation.simulation`'s.
+name checked against the robot. The effects' sign convention is the simulation module's.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from pe_drake import limits
-from pe_drake.config import check_finite
+from pe_drake.config import check_choice, check_finite
 from pe_drake.exceptions import ConfigError, UnknownNameError, shorten
 from pe_drake.multibody.inertia import inertia_matrix, perturb_inertias
 from pe_drake.multibody.payload import PayloadInertia, payload_spatial_inertia
@@ -77,53 +77,66 @@ TRUTH_KEYS = {"seed": int, "inertia_perturbation": float, "effects": EFFECT_KEYS
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class Truth:
-    """A simulated run's truth: the robot as built, noise and control (a whole TRUTH.yaml).
+    """A simulated run's truth: the robot as built, noise and control (a whole TRUTH.yaml)."""
 
-    Attributes:
-        model: the true robot (:func:`make_truth`).
-        seed: seeds the inertial perturbation and, independently, the noise.
-        inertia_perturbation: relative size ε in [0, 0.5] of the perturbation in ``model``.
-        record_velocity: also write ``v.<joint>`` columns (true v + noise.v_std).
-        record_command: write the raw command tau_k instead of the centred average
-            (tau_{k-1} + tau_k)/2 (module docstring of :mod:`pe_drake.simulation.simulation`).
-        integrator: a Drake scheme (``GetIntegrationSchemes()``): "runge_kutta3" (fastest for
-            arms) or "radau3" when light joints with Coulomb friction make the dynamics stiff.
-        friction_set: {"viscous" | "coulomb": joints whose friction the truth sets}; the others
-            keep the model file's (every joint around an identified model).
-    """
-
-    model: RobotModel
+    model: RobotModel  # the true robot (:func:`make_truth`)
     noise: NoiseTruth = dataclasses.field(default_factory=NoiseTruth)
     control: ControlTruth = dataclasses.field(default_factory=ControlTruth)
-    seed: int = 0
-    inertia_perturbation: float = 0.0
-    record_velocity: bool = False
+    seed: int = 0  # seeds the inertial perturbation and, independently, the noise
+    inertia_perturbation: float = 0.0  # relative size ε in [0, 0.5] of the perturbation in model
+    record_velocity: bool = False  # also write v.<joint> columns (true v + noise.v_std)
+    # the raw command tau_k instead of the centred (tau_{k-1} + tau_k)/2 (simulation module)
     record_command: bool = False
     integration_accuracy: float = 1e-4
+    # a Drake scheme: "runge_kutta3" (fastest for arms), "radau3" when light joints with Coulomb
+    # friction make the dynamics stiff
     integrator: str = "runge_kutta3"
+    # {"viscous" | "coulomb": joints whose friction the truth sets}; the others keep the model
+    # file's (every joint around an identified model)
     friction_set: Mapping[str, frozenset[str]] = dataclasses.field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        _check_run(self.seed, self.inertia_perturbation, self.integration_accuracy, self.integrator)
-        _check_noise_and_control(self.noise, self.control)
+        seed, n, c = self.seed, self.noise, self.control
+        if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+            raise ConfigError(f"seed must be a non-negative integer, got {seed!r}")
+        eps = check_finite("inertia_perturbation", self.inertia_perturbation, nonneg=True)
+        if eps > 0.5:
+            raise ConfigError(f"inertia_perturbation must lie in [0, 0.5] (relative), got {eps}")
+        accuracy = check_finite("integration_accuracy", self.integration_accuracy, positive=True)
+        if accuracy > 1e-2:
+            raise ConfigError(f"integration_accuracy must be at most 1e-2, got {accuracy}")
+        from pydrake.systems.analysis import GetIntegrationSchemes  # lazy: pydrake is heavy
+
+        if self.integrator not in GetIntegrationSchemes():
+            raise ConfigError(f"integrator '{self.integrator}' is not one of Drake's schemes: "
+                              f"{', '.join(GetIntegrationSchemes())}")
+        counts = n.encoder_counts_per_rev
+        if isinstance(counts, bool) or not isinstance(counts, int) or counts < 0:
+            raise ConfigError("noise.encoder_counts_per_rev must be a non-negative integer, "
+                              f"got {counts!r}")
+        for name in ("q_std", "v_std", "tau_std", "force_std", "moment_std"):
+            check_finite(f"noise.{name}", getattr(n, name), nonneg=True)
+        if len(n.wrench_offset) not in (0, 6):
+            raise ConfigError("noise.wrench_offset must be [fx, fy, fz, mx, my, mz] [N, N·m] "
+                              f"(or empty), got {n.wrench_offset!r}")
+        for k, value in enumerate(n.wrench_offset):
+            check_finite(f"noise.wrench_offset[{k}] ({WRENCH_COLUMNS[k]})", value)
+        rate = check_finite("control.rate_hz [Hz]", c.rate_hz, positive=True)
+        if rate > 1e5:
+            raise ConfigError(f"control.rate_hz must be at most 100 kHz, got {rate}")
+        check_finite("control.kp [1/s²]", c.kp, nonneg=True)
+        check_finite("control.kd [1/s]", c.kd, nonneg=True)
+        check_choice("control.model", c.model, CONTROL_MODELS)
 
 
 def load_truth(path: str | Path, robot: Robot) -> Truth:
-    """Reads a TRUTH.yaml for ``robot``.
-
-    Raises:
-        ConfigError: missing file, unknown key, wrong type or bad value (file and key named).
-        UnknownNameError: a joint or link the robot does not have (valid names listed).
-    """
+    """Reads a TRUTH.yaml for ``robot``; ConfigError (file and key named) or UnknownNameError."""
     return make_truth(robot, where=f"truth file '{path}'", **read_truth_file(path))
 
 
 def read_truth_file(path: str | Path) -> dict[str, Any]:
-    """A TRUTH.yaml's keys as :func:`make_truth`'s arguments (the numbers not checked yet).
-
-    Raises:
-        ConfigError: missing file, syntax error, unknown key or wrong type (file, line and key named).
-    """
+    """A TRUTH.yaml's keys as :func:`make_truth`'s arguments, the numbers not checked yet
+    (ConfigError naming file, line and key)."""
     from pydrake.common.yaml import yaml_load  # lazy, like every pydrake import
 
     path = Path(path)
@@ -159,23 +172,21 @@ def make_truth(robot: Robot, effects: Mapping[str, Any] | None = None, *, model:
     """The truth of ``robot``: the robot as built from an ``effects`` section, noise and control.
 
     The true model is ``model`` (default: the a-priori robot with its model file's friction)
-    with the effects, its bodies' parameters perturbed (``seed``, ``inertia_perturbation``) and
-    the payload welded. The truth's friction replaces the model file's on the joints it sets
-    (by name or ``all``); on an identified ``model`` the truth's per-joint effects and delay add
-    to the model's. With a transmission (the model's, or ``robot.transmission``) the truth's
+    with the effects, its bodies' parameters perturbed and the payload welded. The truth's
+    friction replaces the model file's on the joints it sets; on an identified ``model`` the
+    truth's per-joint effects and delay add to the model's. With a transmission the truth's
     viscous, coulomb, armature and torque_offset are per motor and the model file's joint
-    friction is not simulated (``identify`` fits the motors' terms as the drive's whole friction).
+    friction is not simulated (``identify`` fits the motors' terms as the whole friction).
 
     Args:
-        effects: a TRUTH.yaml ``effects`` section as data (:data:`EFFECT_KEYS`, every key
-            optional; keys and units in examples/truth_example.yaml). Per-joint tables map a
-            joint name (or ``all``: every joint not named) to a value, 0 where absent.
+        effects: a TRUTH.yaml ``effects`` section as data (keys and units in
+            examples/truth_example.yaml); a per-joint table's ``all`` sets every joint not named.
         where: what to name in errors (the file).
         run: the other :class:`Truth` attributes (``seed``, ``noise``, ``control``, ...).
 
     Raises:
-        ConfigError: a bad value (key, joint and value named); a truth with Coulomb friction of
-            another v_s than the model's, or pre-sliding friction where the model has its own.
+        ConfigError: a bad value (key, joint and value named); Coulomb friction of another v_s
+            than the model's, or pre-sliding friction where the model has its own.
         UnknownNameError: a joint or link the robot does not have (valid names listed).
     """
     try:
@@ -240,8 +251,9 @@ def _check_names(e: Mapping[str, Any], robot: Robot) -> None:
     sigma0 = per_joint_values(e["presliding_stiffness"], robot.joint_names)
     for k, name in enumerate(robot.joint_names):
         if fc[k] > 0 and not sigma0[k] > 0:
-            raise ConfigError(f"effects.presliding_friction['{name}'] = {fc[k]:g} N·m needs a positive "
-                              f"effects.presliding_stiffness['{name}'] [N·m/rad] (σ0 of the Dahl model)")
+            raise ConfigError(f"effects.presliding_friction['{name}'] = {fc[k]:g} N·m needs a "
+                              f"positive effects.presliding_stiffness['{name}'] [N·m/rad] (σ0 of "
+                              "the Dahl model)")
 
 
 def _as_built(robot: Robot, e: Mapping[str, Any], model: RobotModel | None, seed: int,
@@ -286,41 +298,6 @@ def _check_model_truth(model: RobotModel, coulomb: np.ndarray, presliding: np.nd
     if np.any(model.presliding > 0) and np.any(presliding > 0):
         raise ConfigError("both the truth file and the model have pre-sliding friction: one Dahl model per joint is "
                           "simulated; remove the truth's presliding_*")
-
-
-def _check_run(seed: Any, eps: float, accuracy: float, integrator: str) -> None:
-    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        raise ConfigError(f"seed must be a non-negative integer, got {seed!r}")
-    eps = check_finite("inertia_perturbation", eps, nonneg=True)
-    if eps > 0.5:
-        raise ConfigError(f"inertia_perturbation must lie in [0, 0.5] (relative), got {eps}")
-    check_finite("integration_accuracy", accuracy, positive=True)
-    if accuracy > 1e-2:
-        raise ConfigError(f"integration_accuracy must be at most 1e-2, got {accuracy}")
-    from pydrake.systems.analysis import GetIntegrationSchemes  # lazy: pydrake stays out of `import pe_drake`
-
-    if integrator not in GetIntegrationSchemes():
-        raise ConfigError(f"integrator '{integrator}' is not one of Drake's schemes: {', '.join(GetIntegrationSchemes())}")
-
-
-def _check_noise_and_control(n: NoiseTruth, c: ControlTruth) -> None:
-    counts = n.encoder_counts_per_rev
-    if isinstance(counts, bool) or not isinstance(counts, int) or counts < 0:
-        raise ConfigError(f"noise.encoder_counts_per_rev must be a non-negative integer, got {counts!r}")
-    for name in ("q_std", "v_std", "tau_std", "force_std", "moment_std"):
-        check_finite(f"noise.{name}", getattr(n, name), nonneg=True)
-    if len(n.wrench_offset) not in (0, 6):
-        raise ConfigError("noise.wrench_offset must be [fx, fy, fz, mx, my, mz] [N, N·m] (or empty), "
-                          f"got {n.wrench_offset!r}")
-    for k, value in enumerate(n.wrench_offset):
-        check_finite(f"noise.wrench_offset[{k}] ({WRENCH_COLUMNS[k]})", value)
-    rate = check_finite("control.rate_hz [Hz]", c.rate_hz, positive=True)
-    if rate > 1e5:
-        raise ConfigError(f"control.rate_hz must be at most 100 kHz, got {rate}")
-    check_finite("control.kp [1/s²]", c.kp, nonneg=True)
-    check_finite("control.kd [1/s]", c.kd, nonneg=True)
-    if c.model not in CONTROL_MODELS:
-        raise ConfigError(f"control.model '{c.model}' is not one of {', '.join(CONTROL_MODELS)}")
 
 
 def per_joint_values(table: Mapping[str, float], joints: tuple[str, ...]) -> np.ndarray:
