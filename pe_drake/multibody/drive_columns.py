@@ -189,6 +189,9 @@ def drive_layout(robot: Robot, base, options: DriveTermOptions, model=None, *,
         model: a :class:`~pe_drake.multibody.regressor.RegressorModel` to reuse.
         rows: the :class:`~pe_drake.multibody.sensors.SensorRows` fitted (default: the joint
             torques); the ground wrench's rows separate every armature the torques cannot.
+
+    Raises:
+        ConfigError: a ``robot.transmission`` that does not determine the joint angles.
     """
     terms = TERMS[options.terms]
     names = tuple(robot.joint_names)

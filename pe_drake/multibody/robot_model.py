@@ -8,10 +8,9 @@ pre-sliding (Dahl) friction. The torque the actuator applies (the simulator's si
     tau_recorded(t) = [Y(q, v, vd) phi + D(v, vd) theta + F_c z](t - torque_delay)
 
 **Through a transmission** (θ_m = R q, τ = Rᵀ τ_m) the drive terms are each motor's, motor side
-(named by their joint): :meth:`RobotModel.torque` is exact; :meth:`RobotModel.plant` holds the
-diagonal of Rᵀ diag(I_m) R as rotor inertias and its off-diagonal entries as a system of the
-diagram (:mod:`pe_drake.multibody.rotor_coupling`), which the plant's own inverse dynamics and
-mass matrix do not see (:meth:`RobotModel.plant_notes`).
+(named by their joint). :meth:`RobotModel.plant` holds the off-diagonal entries of the reflected
+rotor inertia Rᵀ diag(I_m) R as a system of its diagram, which the plant's own inverse dynamics
+and mass matrix do not see (:meth:`RobotModel.plant_notes`).
 """
 
 from __future__ import annotations
@@ -294,10 +293,10 @@ class RobotModel:
 
         Args:
             bodies: the robot's body names (an OLS/WLS identified.json does not name them).
-            base: the :class:`~pe_drake.multibody.base_parameters.BaseParameters` of the file's
-                measurement, for an identified.json with base parameters only: ``phi`` is then
-                φ0 + K⁺(φ_B − K φ0), the same torques but not physically consistent in general.
-            phi_prior: φ0, (10·nb,).
+            base, phi_prior: for an identified.json with base parameters only, the
+                :class:`~pe_drake.multibody.base_parameters.BaseParameters` of its measurement and
+                φ0 (10·nb,): ``phi`` is then φ0 + K⁺(φ_B − K φ0), the same torques but not
+                physically consistent in general.
 
         Raises:
             KeyError, TypeError, ValueError: a malformed file (the caller names it).

@@ -1,9 +1,8 @@
 """Simulated payload runs from inverse dynamics (no simulator): for tests and the benchmark.
 
-A true arm that differs from the a-priori model (perturbed inertias, Coulomb and viscous
-friction on every joint), a random box-shaped payload, and the loaded and unloaded runs of one
-motion with white torque noise: exactly the model of :mod:`pe_drake.identification.payload`
-plus the arm's errors, so what the fit gets wrong is attributable to it.
+A true arm with perturbed inertias and friction, a random box payload, and loaded and unloaded
+runs with white torque noise: exactly the model of :mod:`pe_drake.identification.payload` plus
+the arm's errors, so what the fit gets wrong is attributable to it.
 """
 
 from __future__ import annotations

@@ -12,7 +12,8 @@ effects are loads it overcomes, so once tracking has converged::
 An offset o is a constant torque -o on the joint; ``tau = Y·phi + f_v·v + f_c·sign(v) + o``
 recovers it with its sign. The command tau_k is held over [t_k, t_k + h), so it leads the motion
 by h/2: the log records (tau_{k-1} + tau_k)/2, centred on t_k (``record_command: true`` keeps the
-raw command). A torque delay d then gives ``tau_recorded(t) = tau(t - d)``; noise comes last.
+raw command). A torque delay d then gives ``tau_recorded(t) = tau(t - d)`` (d > 0: the torque
+log lags the positions); noise comes last.
 
 Control: computed torque + PD with zero-order hold on the a-priori (or true) rigid-body model,
 plus the model file's friction fed forward at the desired velocity where the simulated robot

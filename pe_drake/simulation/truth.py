@@ -102,9 +102,9 @@ class Truth:
         eps = check_finite("inertia_perturbation", self.inertia_perturbation, nonneg=True)
         if eps > 0.5:
             raise ConfigError(f"inertia_perturbation must lie in [0, 0.5] (relative), got {eps}")
-        accuracy = check_finite("integration_accuracy", self.integration_accuracy, positive=True)
-        if accuracy > 1e-2:
-            raise ConfigError(f"integration_accuracy must be at most 1e-2, got {accuracy}")
+        check_finite("integration_accuracy", self.integration_accuracy, positive=True)
+        if self.integration_accuracy > 1e-2:
+            raise ConfigError(f"integration_accuracy must be at most 1e-2, got {self.integration_accuracy}")
         from pydrake.systems.analysis import GetIntegrationSchemes  # lazy: pydrake is heavy
 
         if self.integrator not in GetIntegrationSchemes():
