@@ -120,7 +120,7 @@ def test_simulated_robot_moves_free_where_its_capsules_overlap():
     overlap = contacts["forearm_link-wrist_2_link"]
     assert overlap.depth > 0.005 and overlap.start < 4.5 and overlap.end > 6.5, overlap
     vd = np.gradient(log.v, log.t, axis=0)
-    model = true.model.torque(robot, log.q, log.v, vd)
+    model = truth.model.torque(robot, log.q, log.v, vd)
     held = log.tau[:-1] - 0.5 * (model[1:] + model[:-1])  # tau_k is held over [t_k, t_k+1)
     inside = (log.t[:-1] > overlap.start) & (log.t[:-1] < overlap.end)
     assert np.all(np.sqrt(np.mean(held[inside] ** 2, axis=0)) < 0.01), np.sqrt(np.mean(held[inside] ** 2, axis=0))

@@ -12,12 +12,18 @@ import pytest
 from pe_drake.config import TransmissionConfig
 from pe_drake.exceptions import ConfigError, DataError, UnknownNameError
 from pe_drake.identification.readers import read_log
-from pe_drake.simulation.synthetic import model_measurement
 from pe_drake.multibody.base_parameters import compute_base_parameters
-from pe_drake.multibody.drive_columns import DriveTermOptions, drive_columns, drive_layout
+from pe_drake.multibody.drive_columns import (
+    TERMS,
+    UNITS,
+    DriveLayout,
+    DriveTermOptions,
+    drive_columns,
+    drive_layout,
+)
 from pe_drake.multibody.regressor import RegressorModel
-from pe_drake.multibody.drive_columns import MOTOR_TERMS, motor_drive_columns
 from pe_drake.multibody.transmission import Transmission
+from pe_drake.simulation.synthetic import model_measurement
 from tests.conftest import get_robot
 from tests.test_identification import optimized, random_trajectory  # noqa: F401  (a fixture)
 
@@ -88,6 +94,18 @@ def motor_truth(n: int) -> dict[str, np.ndarray]:
     rng = np.random.default_rng(4)
     return {"coulomb": rng.uniform(0.03, 0.1, n), "viscous": rng.uniform(1e-4, 4e-4, n),
             "offset": rng.uniform(-0.02, 0.02, n), "armature": rng.uniform(3e-5, 1e-4, n)}
+
+
+MOTOR_TERMS = TERMS["all"]
+
+
+def motor_drive_columns(v, vd, transmission):
+    """Every motor's drive terms as joint-side columns, (S, n, 4n): column 4i + k is motor i's
+    term k of MOTOR_TERMS."""
+    cols = [(t, i) for i in range(len(transmission.joints)) for t in MOTOR_TERMS]
+    layout = DriveLayout(tuple(t for t, _ in cols), tuple(i for _, i in cols), transmission.joints,
+                         tuple(UNITS[t][0] for t, _ in cols), transmission=transmission)
+    return drive_columns(v, vd, layout)
 
 
 def coupled_run(robot, trajectory, T, truth, seed):

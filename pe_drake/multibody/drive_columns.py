@@ -1,8 +1,6 @@
 """The drive columns of the regressor: joint friction, torque offsets and rotor inertia.
 
-The torque an actuator applies is the rigid-body torque plus what the drive itself needs
-(friction, offset, armature). Per joint j, each term is linear in its value θ and adds one column to the
-regressor, on the row of joint j only (``drive_columns``):
+Each drive term of joint j is linear in its value θ and adds one column on the row of joint j:
 
 =============  =====================  ===============  ===========  ==========
 term           column                 unit (revolute)  (prismatic)  sign of θ
@@ -13,31 +11,20 @@ term           column                 unit (revolute)  (prismatic)  sign of θ
 ``armature``   v̇_j                   kg·m²            kg           θ ≥ 0
 =============  =====================  ===============  ===========  ==========
 
-so τ = Y_B φ_B + D θ with W = [Y_B | D]: the drive block is extra columns, whatever way the
-normal equations of W are accumulated. The smoothed sign and its v_s are the diagnosis's
-(:mod:`pe_drake.diagnosis.effects`) and the simulator's ``DoorHinge``. ``identify`` fits them
-(:mod:`pe_drake.identification.drive_terms`); ``optimize`` can put them in C
-(:mod:`pe_drake.excitation.drive_block`).
+so τ = Y_B φ_B + D θ with W = [Y_B | D]. The smoothed sign and its v_s are the diagnosis's and
+the simulator's ``DoorHinge``.
 
-The ground wrench does not see joint friction (it acts between two links of the robot), so
-the drive columns are zero in base-wrench rows. For the armature this is an approximation: a
-rotor of inertia I_r behind a gear ratio G adds I_r·G²·q̈ to the joint torque (the armature)
-but only its own angular-momentum change, I_r·G·q̈, to the wrench on the link holding the
-stator: 1/G of it (1 % for G = 100), neglected.
+The drive columns are zero in base-wrench rows: friction acts between two links. For the
+armature this neglects the rotor's own momentum change, I_r·G·q̈ on the stator's link, 1/G of
+the armature's I_r·G²·q̈ (1 % for G = 100).
 
-**Through a transmission** (``robot.transmission``, :mod:`pe_drake.multibody.transmission`:
-θ_m = R q, τ = Rᵀ τ_m) the terms act per motor: motor i's term has the column of the table
-evaluated on the motor's θ̇_i = (R q̇)_i, θ̈_i (Coulomb: tanh(θ̇_i / (|R_ii| v_s)), the joint's
-v_s carried to the motor by its own ratio) and reaches joint j's row times R_ij, so a coupled
-motor's friction and rotor inertia act on every joint it turns. The layout's ``transmission``
-says so; its values are motor side ([N·m], [N·m·s/rad], [N·m], [kg·m²] of the motor) and the
-motors are named by the joint their ratio belongs to. Without one (or with R = I) a motor is
-its joint and the table holds as written.
+**Through a transmission** (θ_m = R q, τ = Rᵀ τ_m, :mod:`pe_drake.multibody.transmission`) the
+terms are per motor (named by its joint), motor side: motor i's column is the table's on
+θ̇_i = (R q̇)_i, θ̈_i (Coulomb: tanh(θ̇_i / (|R_ii| v_s))) and reaches joint j's row times R_ij.
 
-The armature column v̇_j of a joint whose axis is fixed in the world (the first joint of a
-fixed-base arm) is exactly the column of the base parameter that holds the link inertia
-about that axis: the two are one base parameter (:func:`drive_layout` tests this on random
-states, like the diagnosis's ``separability``), and the armature is reported as merged into it.
+The armature column of a joint whose axis is fixed in the world (the first joint of a fixed-base
+arm) is a column of the rigid-body base parameters: the armature is merged into that base
+parameter (:func:`armature_merges` tests this on random states).
 """
 
 from __future__ import annotations
@@ -49,6 +36,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from pe_drake.config_sections import check_choice
 from pe_drake.exceptions import ConfigError
 from pe_drake.multibody.regressor import RegressorModel
 from pe_drake.multibody.transmission import Transmission, robot_transmission
@@ -56,44 +44,31 @@ from pe_drake.multibody.transmission import Transmission, robot_transmission
 if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
     from pe_drake.multibody.robot import Robot
 
-#: The ``--drive-terms`` choices: no drive terms, Coulomb + viscous + offset, and those with
-#: the armature where the robot's kinematics let it be told from the link inertias.
-DRIVE_TERM_CHOICES = ("none", "friction", "all")
-#: What ``identify`` models unless told otherwise.
-DEFAULT_DRIVE_TERMS = "all"
-#: Terms of each choice, in column order per joint.
+#: Terms of each ``--drive-terms`` choice, in column order per joint.
 TERMS = {"none": (), "friction": ("coulomb", "viscous", "offset"), "all": ("coulomb", "viscous", "offset", "armature")}
-#: Smoothing velocity v_s of the Coulomb column tanh(v/v_s) [rad/s or m/s]; the diagnosis and
-#: the simulator use the same value.
+#: Smoothing velocity v_s of the Coulomb column tanh(v/v_s) [rad/s or m/s].
 COULOMB_VELOCITY_SCALE = 0.01
 #: Terms whose value is physically ≥ 0.
 NONNEGATIVE = ("coulomb", "viscous", "armature")
 #: ‖(I − P_B) c‖ / ‖c‖ below which an armature column counts as inside span(Y_B) on random
 #: states: rounding gives ~1e-14, a separable column O(0.1-1).
 SEPARABILITY_TOLERANCE = 1e-6
+#: Unit of each term's value on a revolute and a prismatic joint.
 UNITS = {"coulomb": ("N·m", "N"), "viscous": ("N·m·s/rad", "N·s/m"), "offset": ("N·m", "N"),
-          "armature": ("kg·m²", "kg")}
+         "armature": ("kg·m²", "kg")}
 
 
 @dataclasses.dataclass(frozen=True)
 class DriveTermOptions:
-    """Which drive terms ``identify`` adds.
+    """Which drive terms ``identify`` adds."""
 
-    Attributes:
-        terms: "none", "friction" (Coulomb, viscous, offset per joint) or "all" (also the
-            armature of every joint where it is separable from the link inertias).
-        velocity_scale: v_s of the Coulomb column tanh(v/v_s) [rad/s or m/s].
-
-    Raises:
-        ConfigError: an unknown choice or a non-positive v_s.
-    """
-
-    terms: str = DEFAULT_DRIVE_TERMS
-    velocity_scale: float = COULOMB_VELOCITY_SCALE
+    # "none", "friction" (Coulomb, viscous, offset per joint) or "all" (also the armature of
+    # every joint where it is separable from the link inertias)
+    terms: str = "all"
+    velocity_scale: float = COULOMB_VELOCITY_SCALE  # v_s of tanh(v/v_s) [rad/s or m/s]
 
     def __post_init__(self) -> None:
-        if self.terms not in DRIVE_TERM_CHOICES:
-            raise ConfigError(f"drive terms '{self.terms}' is not one of {', '.join(DRIVE_TERM_CHOICES)}")
+        check_choice("drive terms", self.terms, tuple(TERMS))
         v = self.velocity_scale
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
             raise ConfigError(f"the Coulomb velocity scale must be a positive number [rad/s], got {v!r}")
@@ -103,39 +78,26 @@ def drive_options(value: DriveTermOptions | str | None) -> DriveTermOptions:
     """``value`` as options: None → the default, a string → that choice."""
     if value is None:
         return DriveTermOptions()
-    if isinstance(value, str):
-        return DriveTermOptions(value)
-    return value
+    return DriveTermOptions(value) if isinstance(value, str) else value
 
 
 @dataclasses.dataclass(frozen=True)
 class DriveLayout:
-    """The drive columns of a fit and the armatures left out.
+    """The drive columns of a fit and the armatures left out."""
 
-    Attributes:
-        terms: term of each column ("coulomb", "viscous", "offset", "armature"), length d.
-        joints: joint index of each column, length d.
-        joint_names: the robot's excited joints, length n.
-        units: unit of each column's value.
-        velocity_scale: v_s of the Coulomb columns [rad/s].
-        merged: {joint name: {base parameter: coefficient}} of the armatures that are not
-            separable from the rigid-body base parameters (only their sum is identifiable).
-        dropped: {label: reason} of columns this data set cannot tell apart (e.g. the Coulomb
-            column of a joint that never reverses, which equals its offset column).
-        transmission: the robot's transmission when the terms act per motor (module
-            docstring; ``joints`` then index motors), None when per joint.
-        known: labels of the columns whose values are the model file's, not estimated (σ = 0).
-    """
-
-    terms: tuple[str, ...]
-    joints: tuple[int, ...]
-    joint_names: tuple[str, ...]
-    units: tuple[str, ...]
-    velocity_scale: float = COULOMB_VELOCITY_SCALE
+    terms: tuple[str, ...]  # term of each column, length d
+    joints: tuple[int, ...]  # joint (or motor) index of each column, length d
+    joint_names: tuple[str, ...]  # the robot's excited joints, length n
+    units: tuple[str, ...]  # unit of each column's value
+    velocity_scale: float = COULOMB_VELOCITY_SCALE  # v_s of the Coulomb columns [rad/s]
+    # {joint: {base parameter: coefficient}} of the armatures not separable from the rigid-body
+    # base parameters (only their sum is identifiable)
     merged: dict[str, dict[str, float]] = dataclasses.field(default_factory=dict)
+    # {label: reason} of the columns this data set cannot tell apart (the Coulomb column of a
+    # joint that never reverses equals its offset column)
     dropped: dict[str, str] = dataclasses.field(default_factory=dict)
-    transmission: Transmission | None = None
-    known: tuple[str, ...] = ()
+    transmission: Transmission | None = None  # set when the terms act per motor
+    known: tuple[str, ...] = ()  # labels of the model file's columns, not estimated (σ = 0)
 
     @property
     def count(self) -> int:
@@ -163,7 +125,7 @@ def read_drive_block(d: Mapping[str, Any], joint_names: Sequence[str]
                      ) -> tuple[DriveLayout, np.ndarray, np.ndarray, dict[str, float]]:
     """identify's ``drive_terms`` block of identified.json: (the fitted columns, their values θ and
     σ (0 for the model file's), {joint: the physical fit's value} of the armatures merged into base
-    parameters); :func:`model_tables` makes a RobotModel's tables of them.
+    parameters).
 
     Raises:
         KeyError, TypeError, ValueError: a malformed block (the caller names the file).
@@ -217,21 +179,16 @@ def model_tables(layout: DriveLayout, theta: np.ndarray, sigma: np.ndarray,
     return drive, sd
 
 
-def drive_layout(robot: Robot, base, options: DriveTermOptions, model=None, *, rows=None, samples: int = 200,
-                 seed: int = 1) -> DriveLayout:
-    """The drive columns of ``options`` for ``robot`` (armature: where separable).
+def drive_layout(robot: Robot, base, options: DriveTermOptions, model=None, *,
+                 rows=None) -> DriveLayout:
+    """The drive columns of ``options`` for ``robot`` (armature: where separable); per motor,
+    with a revolute joint's units, under a ``robot.transmission`` with R ≠ I.
 
     Args:
-        robot: a :class:`~pe_drake.multibody.robot.Robot`.
         base: the :class:`~pe_drake.multibody.base_parameters.BaseParameters` of ``rows``.
-        options: the choice of terms.
         model: a :class:`~pe_drake.multibody.regressor.RegressorModel` to reuse.
         rows: the :class:`~pe_drake.multibody.sensors.SensorRows` fitted (default: the joint
             torques); the ground wrench's rows separate every armature the torques cannot.
-        samples, seed: random states of the armature's separability test.
-
-    With a ``robot.transmission`` in the robot's config (R ≠ I) the terms are per motor
-    (module docstring), the motor's units those of a revolute joint.
 
     Raises:
         ConfigError: a ``robot.transmission`` that does not determine the joint angles.
@@ -240,26 +197,23 @@ def drive_layout(robot: Robot, base, options: DriveTermOptions, model=None, *, r
     names = tuple(robot.joint_names)
     transmission = robot_transmission(robot) if terms else None
     transmission = None if transmission is None or transmission.identity else transmission
-    merged = (armature_merges(robot, base, model, rows=rows, samples=samples, seed=seed, transmission=transmission)
-              if "armature" in terms else {})
+    merged = armature_merges(robot, base, model, rows, transmission) if "armature" in terms else {}
     cols = [(t, j) for j in range(robot.n) for t in terms if not (t == "armature" and names[j] in merged)]
     units = tuple(UNITS[t][0 if transmission is not None or robot.joints[j].kind == "revolute" else 1] for t, j in cols)
     return DriveLayout(tuple(t for t, _ in cols), tuple(j for _, j in cols), names, units,
                        float(options.velocity_scale), merged, transmission=transmission)
 
 
-def armature_merges(robot: Robot, base, model=None, *, rows=None, samples: int = 200, seed: int = 1,
+def armature_merges(robot: Robot, base, model=None, rows=None,
                     transmission: Transmission | None = None) -> dict[str, dict[str, float]]:
     """{joint (or motor): {base parameter: coefficient}} of the armature columns inside span(Y_B).
 
-    Random states within the robot's limits (as the base parameters use) decide whether
-    *any* motion separates the column v̇_j (a motor's: Rᵀ e_i θ̈_i, :func:`drive_columns`) from
-    the rigid-body columns. ``rows`` (a :class:`~pe_drake.multibody.sensors.SensorRows`,
-    torque channels first) are the rows of Y_B (default: the joint torques); the armature's
-    column is zero in ground-wrench rows.
+    200 random states within the robot's limits decide whether *any* motion separates the column
+    from the rigid-body columns. ``rows`` (a :class:`~pe_drake.multibody.sensors.SensorRows`,
+    torque channels first) are the rows of Y_B (default: the joint torques).
     """
     model = model or RegressorModel(robot)
-    rng = np.random.default_rng(seed)
+    rng, samples = np.random.default_rng(1), 200
     q = rng.uniform(robot.limits.q_lower, robot.limits.q_upper, (samples, robot.n))
     v = rng.uniform(-1, 1, (samples, robot.n)) * np.minimum(robot.limits.v_max, 3.0)
     vd = rng.uniform(-1, 1, (samples, robot.n)) * np.minimum(robot.limits.vd_max, 10.0)
@@ -292,17 +246,8 @@ def coulomb_column(v: np.ndarray, velocity_scale: float) -> np.ndarray:
 
 def term_values(term: str, v: np.ndarray, vd: np.ndarray | None, velocity_scale: float | np.ndarray,
                 coulomb: np.ndarray | None = None) -> np.ndarray:
-    """The column of drive term ``term`` for every joint (module docstring's table), shape of v.
-
-    Args:
-        term: one of ``TERMS["all"]``.
-        v, vd: joint velocities and accelerations, (S, n) (vd only for the armature).
-        velocity_scale: v_s of the Coulomb column [rad/s].
-        coulomb: the Coulomb columns to use instead of tanh(v/v_s) (e.g. parallel-filtered).
-
-    Raises:
-        ValueError: an unknown term.
-    """
+    """The column of drive term ``term`` for every joint (module docstring's table), shape of
+    v (S, n); vd is needed only for the armature, ``coulomb`` replaces tanh(v/v_s)."""
     if term == "coulomb":
         return coulomb_column(v, velocity_scale) if coulomb is None else np.asarray(coulomb, float)
     if term == "viscous":
@@ -321,23 +266,19 @@ def drive_columns(v: np.ndarray, vd: np.ndarray, layout: DriveLayout, coulomb: n
 
     Args:
         v, vd: joint velocities and accelerations, each (S, n).
-        layout: the columns (:func:`drive_layout`).
-        coulomb: the Coulomb columns to use, (S, n) (e.g. tanh(v/v_s) computed at the full
-            rate and filtered like the torque; per motor with a transmission,
-            :func:`coulomb_velocities`); default tanh(v/v_s) of ``v``.
+        coulomb: the Coulomb columns to use, (S, n) (e.g. :func:`coulomb_columns` at the full
+            rate, filtered like the torque); default :func:`coulomb_columns` of ``v``.
         rows: channels per sample (n torques, then the ground wrench, whose rows stay zero);
             default n.
     """
     S, n = v.shape
     out = np.zeros((S, n if rows is None else rows, layout.count))
     T = layout.transmission
-    scale = layout.velocity_scale
     if coulomb is None and "coulomb" in layout.terms:
         coulomb = coulomb_columns(v, layout)
-    if T is not None:  # the motors' velocities and accelerations, each motor's v_s by its own ratio
+    if T is not None:  # the motors' velocities and accelerations
         v, vd = T.motor_positions(v), None if vd is None else T.motor_positions(vd)
-        scale = np.abs(np.diag(T.R)) * layout.velocity_scale
-    values = {t: term_values(t, v, vd, scale, coulomb) for t in set(layout.terms)}
+    values = {t: term_values(t, v, vd, layout.velocity_scale, coulomb) for t in set(layout.terms)}
     for k, (term, j) in enumerate(zip(layout.terms, layout.joints)):
         if T is None:
             out[:, j, k] = values[term][:, j]
@@ -347,31 +288,16 @@ def drive_columns(v: np.ndarray, vd: np.ndarray, layout: DriveLayout, coulomb: n
 
 
 def coulomb_columns(v: np.ndarray, layout: DriveLayout) -> np.ndarray:
-    """The Coulomb columns of a layout, (S, n): tanh(q̇_j / v_s) per joint, or per motor
-    tanh(θ̇_i / (|R_ii| v_s)) of θ̇ = R q̇ through its transmission (:func:`coulomb_velocities`);
-    what :func:`drive_columns` takes as ``coulomb`` (filter them like the torque first)."""
+    """The Coulomb columns of a layout, (S, n), per joint or per motor (module docstring): what
+    :func:`drive_columns` takes as ``coulomb`` (filter them like the torque first)."""
     w, scale = coulomb_velocities(v, layout.velocity_scale, layout.transmission)
     return coulomb_column(w, scale)
 
 
 def coulomb_velocities(v: np.ndarray, velocity_scale: float, transmission: Transmission | None) -> tuple[np.ndarray, np.ndarray]:
-    """(velocities, v_s) whose tanh(v/v_s) are the Coulomb columns: the joints' and v_s, or
-    the motors' θ̇ = R q̇ and |R_ii|·v_s (module docstring), each (S, n) and scalar or (n,)."""
+    """(velocities (S, n), v_s scalar or (n,)) whose tanh(v/v_s) are the Coulomb columns: the
+    joints', or the motors' θ̇ = R q̇ and |R_ii|·v_s."""
     if transmission is None:
         return np.asarray(v, float), velocity_scale
     return transmission.motor_positions(v), np.abs(np.diag(transmission.R)) * velocity_scale
 
-
-#: The drive terms of one motor, in the order of :func:`motor_drive_columns`.
-MOTOR_TERMS = TERMS["all"]
-
-
-def motor_drive_columns(v: np.ndarray, vd: np.ndarray, transmission: Transmission,
-                        velocity_scale: float = COULOMB_VELOCITY_SCALE) -> np.ndarray:
-    """Every motor's drive terms as joint-side columns, (S, n, 4n): column 4i + k is motor i's
-    term k of :data:`MOTOR_TERMS` (:func:`drive_columns` of a layout with ``transmission``)."""
-    n = len(transmission.joints)
-    cols = [(t, i) for i in range(n) for t in MOTOR_TERMS]
-    layout = DriveLayout(tuple(t for t, _ in cols), tuple(i for _, i in cols), transmission.joints,
-                         tuple(UNITS[t][0] for t, _ in cols), velocity_scale, transmission=transmission)
-    return drive_columns(v, vd, layout)

@@ -1,33 +1,16 @@
-"""The robot as built: one value every stage fits, simulates, diagnoses and writes (issue 33).
+"""The robot as built: one value every stage fits, simulates, diagnoses and writes.
 
-A :class:`RobotModel` is the rigid-body parameters (10 per body,
-:data:`~pe_drake.multibody.inertia.PARAMETER_NAMES`, about each body origin in its frame) plus
-what the drive adds per joint in the one vocabulary of :mod:`pe_drake.multibody.drive_columns`
-(``coulomb``, ``viscous``, ``offset``, ``armature``; each a total: the model file's friction
-included), a payload welded to a link, a time delay of the torque log and pre-sliding (Dahl)
-friction. The torque the actuator applies (the simulator's sign convention)::
+A :class:`RobotModel` is the rigid-body parameters (10 per body about its origin, in its frame)
+plus the drive terms of :mod:`pe_drake.multibody.drive_columns` per joint (each a total: the
+model file's friction included), a payload welded to a link, a time delay of the torque log and
+pre-sliding (Dahl) friction. The torque the actuator applies (the simulator's sign convention)::
 
     tau_recorded(t) = [Y(q, v, vd) phi + D(v, vd) theta + F_c z](t - torque_delay)
 
-with D the drive columns; :meth:`RobotModel.torque` gives the instantaneous part (no delay, no
-Dahl state), :meth:`RobotModel.plant` the Drake plant of all of it: viscous friction as joint
-damping, Coulomb friction a ``DoorHinge`` (f_c·tanh(v/v_s)), armature the rotor inertia of a
-gear-ratio-1 actuator, the payload a welded body and the Dahl friction a Drake system; the
-offsets are a constant generalized force the caller adds.
-
-**Through a transmission** (``robot.transmission``: θ_m = R q, τ = Rᵀ τ_m) the drive terms are
-each motor's, motor side (motors named by their joint), and act on the joints through Rᵀ, a
-coupled motor's on every joint it turns (:mod:`pe_drake.multibody.drive_columns`):
-:meth:`RobotModel.torque` is exact; :meth:`RobotModel.plant` holds all the friction and the
-diagonal of the reflected rotor inertia Rᵀ diag(I_m) R as rotor inertias; its off-diagonal
-(coupling) entries, which Drake's per-joint rotor inertia cannot hold, are a system of the
-plant's diagram (:mod:`pe_drake.multibody.rotor_coupling`), so a simulation has them while the
-plant's own inverse dynamics and mass matrix do not (:meth:`RobotModel.plant_notes`).
-
-Files: :meth:`RobotModel.to_dict` writes one schema (the diagnosis's augmented_model.json);
-:meth:`RobotModel.from_dict` reads it and ``identify``'s identified.json (every method, files of
-before this module included). :meth:`RobotModel.urdf_text` and :meth:`RobotModel.effects_yaml`
-are the one URDF and the one effects-YAML writer.
+**Through a transmission** (θ_m = R q, τ = Rᵀ τ_m) the drive terms are each motor's, motor side
+(named by their joint). :meth:`RobotModel.plant` holds the off-diagonal entries of the reflected
+rotor inertia Rᵀ diag(I_m) R as a system of its diagram, which the plant's own inverse dynamics
+and mass matrix do not see (:meth:`RobotModel.plant_notes`).
 """
 
 from __future__ import annotations
@@ -52,11 +35,7 @@ from pe_drake.multibody.drive_columns import (
     model_tables,
     read_drive_block,
 )
-from pe_drake.multibody.inertia import (
-    PARAMETER_NAMES,
-    inertia_matrix,
-    validity_problems,
-)
+from pe_drake.multibody.inertia import PARAMETER_NAMES, inertia_matrix, validity_problems
 from pe_drake.multibody.model_plant import PAYLOAD_BODY_NAME, model_plant
 from pe_drake.multibody.packages import found_packages
 from pe_drake.multibody.payload import PayloadInertia
@@ -70,8 +49,7 @@ if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
 
 #: The drive terms of a model, in the order of :data:`~pe_drake.multibody.drive_columns.TERMS`.
 DRIVE_TERMS = TERMS["all"]
-#: Keys of the file's per-joint tables, by term, in file order (``offset`` is ``torque_offset``);
-#: a file without a term's table (written before the term existed) loads it as 0.
+#: Keys of the file's per-joint tables, by term, in file order; a missing table loads as 0.
 FILE_KEYS = {"viscous": "viscous", "coulomb": "coulomb", "armature": "armature", "offset": "torque_offset"}
 TORQUE_EQUATION = ("tau_recorded(t) = [ID(q, v, vd) + viscous*v + coulomb*tanh(v/v_s) + armature*vd "
                    "+ offset + joint_stiffness*q](t - time_delay)")
@@ -86,29 +64,22 @@ def _per_joint(x, n: int, field: str) -> np.ndarray:
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class RobotModel:
-    """The robot as built (module docstring).
+    """The robot as built (module docstring); per-joint arrays are (n,), absent ones 0.
 
     Attributes:
         joints: the excited joints, velocity order, length n.
         bodies: the bodies they move, the order of ``phi``, length nb.
         phi: standard parameters of the bodies alone (payload apart), shape (10·nb,).
-        drive: {term: per-joint value, shape (n,)} of :data:`DRIVE_TERMS` [units of
-            :data:`~pe_drake.multibody.drive_columns.UNITS`]; an absent term is 0.
-        sigma: {term: σ per joint, (n,)} of the identified drive terms (NaN where not
-            estimated, 0 where taken from the model file); empty when not identified.
-        velocity_scale: v_s of the Coulomb friction tanh(v/v_s) [rad/s].
+        drive: {term: per-joint value} of :data:`DRIVE_TERMS` [drive_columns.UNITS].
+        sigma: {term: σ per joint} of the identified drive terms (NaN: not estimated, 0: the
+            model file's).
         payload: a rigid payload welded to ``payload_link`` (its frame), or None.
-        payload_link: the link carrying it ("" for none).
         torque_delay: the torque log lags the positions by this [s].
-        presliding, presliding_stiffness: Dahl F_c [N·m] and σ0 [N·m/rad] per joint, (n,).
-        holding_torque: the friction a stopped joint holds [N·m] (diagnose's ``holding_torque``),
-            (n,); recorded, not applied by :meth:`plant` or :meth:`torque`.
-        physical: whether every body of ``phi`` is physically consistent.
-        notes: what was adjusted or left out, in words.
-        transmission: θ_m = R q of the motors (None: each joint its own drive); with one,
-            ``drive`` and ``sigma`` are per motor, motor side (module docstring).
-        spring: a spring at each joint, torque k·q [N·m/rad or N/m], k ≥ 0, its rest angle in
-            the offset (diagnose's ``joint_stiffness``), (n,); a Drake Revolute/PrismaticSpring.
+        presliding, presliding_stiffness: Dahl F_c [N·m] and σ0 [N·m/rad].
+        holding_torque: the friction a stopped joint holds [N·m]; not applied by :meth:`plant`
+            or :meth:`torque`.
+        transmission: θ_m = R q of the motors; with one, ``drive`` and ``sigma`` are per motor.
+        spring: torque k·q [N·m/rad or N/m], k ≥ 0, its rest angle in the offset.
     """
 
     joints: tuple[str, ...]
@@ -158,9 +129,8 @@ class RobotModel:
 
     @classmethod
     def from_robot(cls, robot: Robot) -> RobotModel:
-        """The robot's own model as built (the CAD model): its model file's inertials,
-        ``<dynamics damping friction>`` as viscous and Coulomb friction and its actuators'
-        reflected rotor inertia as armature; no offsets, payload or delay."""
+        """The model file's own model: its inertials, ``<dynamics damping friction>`` and its
+        actuators' reflected rotor inertia as armature."""
         armature = np.zeros(robot.n)
         for a in robot.plant.GetJointActuatorIndices():
             actuator = robot.plant.get_joint_actuator(a)
@@ -170,11 +140,8 @@ class RobotModel:
                  "armature": armature}
         return cls(robot.joint_names, robot.body_names, robot.phi_model, drive)
 
-    # ---- values -------------------------------------------------------------------------------
-
     def term(self, name: str) -> np.ndarray:
-        """The per-joint (per-motor with a transmission) value of drive term ``name``, shape (n,)
-        (zeros when absent)."""
+        """The per-joint (per-motor with a transmission) value of drive term ``name``, (n,)."""
         if name not in DRIVE_TERMS:
             raise ValueError(f"unknown drive term '{name}' (valid: {', '.join(DRIVE_TERMS)})")
         return self.drive.get(name, np.zeros(len(self.joints)))
@@ -194,7 +161,7 @@ class RobotModel:
         return phi
 
     def layout(self) -> DriveLayout:
-        """Every drive term of every joint as drive columns (:func:`~pe_drake.multibody.drive_columns.drive_columns`)."""
+        """Every drive term of every joint as drive columns."""
         cols = [(t, j) for j in range(len(self.joints)) for t in DRIVE_TERMS]
         return DriveLayout(tuple(t for t, _ in cols), tuple(j for _, j in cols), self.joints,
                            tuple(UNITS[t][0] for t, _ in cols), self.velocity_scale, transmission=self.transmission)
@@ -220,19 +187,14 @@ class RobotModel:
             drive[t] = np.maximum(x, 0.0)
         return dataclasses.replace(self, drive=drive, notes=tuple(notes))
 
-    # ---- dynamics -----------------------------------------------------------------------------
-
     def torque(self, robot: Robot, q: np.ndarray, v: np.ndarray, vd: np.ndarray, *, coulomb: bool = True,
                offset: bool = True, spring: bool | None = None) -> np.ndarray:
-        """Inverse dynamics of the model: Y(q, v, vd)·phi_total + D(v, vd)·theta, shape (T, n)
-        [N·m] (no delay, no Dahl state), a block of samples at a time.
+        """Inverse dynamics Y(q, v, vd)·phi_total + D(v, vd)·theta, (T, n) [N·m] (no delay, no
+        Dahl state); q, v, vd each (T, n) or (n,).
 
         Args:
-            robot: the :class:`~pe_drake.multibody.robot.Robot` of the model's joints and bodies.
-            q, v, vd: each (T, n) or (n,).
             coulomb, offset: include the Coulomb friction and the offsets. Without them the torque
-                is what a simulator file holds as inverse dynamics (rigid + armature + viscous):
-                Drake's URDF/SDFormat and MuJoCo's ``mj_inverse`` of an exported model.
+                is what a simulator file holds as inverse dynamics (rigid + armature + viscous).
             spring: include the joint springs k·q (default: as ``offset``; MuJoCo's joint
                 ``stiffness`` holds them, a URDF does not).
         """
@@ -248,22 +210,15 @@ class RobotModel:
         return out + q * self.spring if (offset if spring is None else spring) else out
 
     def plant(self, robot: Robot):
-        """The model in Drake, a continuous :class:`~pe_drake.multibody.robot.Robot` with its damping,
-        Coulomb friction, rotor inertia, payload body and Dahl system
-        (:func:`~pe_drake.multibody.model_plant.model_plant`; offsets are not in it).
-
-        Raises:
-            ValueError: other joints or bodies than the robot's.
-            ConfigError: a negative friction or armature (:meth:`nonnegative` removes them).
-        """
+        """The model in Drake, a continuous :class:`~pe_drake.multibody.robot.Robot` without the
+        offsets; ConfigError on a negative friction or armature (:meth:`nonnegative`)."""
         return model_plant(self, robot)
 
     def per_joint_model(self) -> RobotModel:
-        """This model with per-joint drive terms, what a URDF and Drake's joint elements hold
-        (itself without a transmission): a motor that turns one joint is that joint's viscous
-        R_ii²·F_v and Coulomb |R_ii|·F_c, the offsets are Rᵀ o, the armature the diagonal of
-        Rᵀ diag(I) R; a coupled motor's friction and the off-diagonal rotor inertia are left out,
-        noted (:meth:`plant` applies the friction as a generalized force)."""
+        """This model with per-joint drive terms, what a URDF and Drake's joint elements hold:
+        a motor turning one joint gives it R_ii²·F_v and |R_ii|·F_c, the offsets are Rᵀ o, the
+        armature diag(Rᵀ diag(I) R); a coupled motor's friction and the off-diagonal rotor
+        inertia are left out, noted."""
         T = self.transmission
         if T is None:
             return self
@@ -297,8 +252,6 @@ class RobotModel:
         return [f"the coupled rotor inertia's off-diagonal entries (R^T diag(I) R: {', '.join(pairs)}) are not a per-joint "
                 "rotor inertia: not in a URDF or the exported files; pe_drake's simulator applies them as a force "
                 "system of its Drake diagram"]
-
-    # ---- files --------------------------------------------------------------------------------
 
     def to_dict(self) -> dict[str, Any]:
         """The model as JSON-ready data (augmented_model.json's schema; :meth:`from_dict` reads it)."""
@@ -339,15 +292,11 @@ class RobotModel:
         """Reads :meth:`to_dict`'s data, an augmented_model.json or an identify identified.json.
 
         Args:
-            d: the file's content.
-            bodies: the robot's body names (identified.json names its bodies only in its
-                ``standard_parameters``, absent from an OLS/WLS fit's).
-            base: the :class:`~pe_drake.multibody.base_parameters.BaseParameters` of the file's
-                measurement, for an identified.json with base parameters only: its ``phi`` is
-                then the standard parameters closest to ``phi_prior`` that give them,
-                φ = φ0 + K⁺(φ_B − K φ0), which predicts the same torques (Y φ = Y_B φ_B) but is
-                not physically consistent in general (``physical`` says).
-            phi_prior: φ0, (10·nb,).
+            bodies: the robot's body names (an OLS/WLS identified.json does not name them).
+            base, phi_prior: for an identified.json with base parameters only, the
+                :class:`~pe_drake.multibody.base_parameters.BaseParameters` of its measurement and
+                φ0 (10·nb,): ``phi`` is then φ0 + K⁺(φ_B − K φ0), the same torques but not
+                physically consistent in general.
 
         Raises:
             KeyError, TypeError, ValueError: a malformed file (the caller names it).
@@ -376,10 +325,8 @@ class RobotModel:
 
     def urdf_text(self, robot: Robot, title: str = "") -> str:
         """The robot's URDF with this model's inertials, ``<dynamics damping friction>``, rotor
-        inertias (``drake:rotor_inertia``) and payload link; a negative friction or armature
-        (which Drake cannot hold) is written as 0. Offsets, delay and pre-sliding stay in the
-        effects YAML (:meth:`effects_yaml`). Through a transmission: :meth:`per_joint_model`'s
-        terms (a coupled motor's friction and rotor-inertia coupling are not per joint).
+        inertias and payload link of :meth:`per_joint_model`; a negative friction or armature
+        is written as 0. Offsets, delay and pre-sliding are in :meth:`effects_yaml`.
 
         Raises:
             ConfigError: the robot was not loaded from a URDF.
@@ -397,10 +344,8 @@ class RobotModel:
         return text.replace("with identified inertial parameters (pe_drake)", title) if title else text
 
     def effects_yaml(self, header: str = "") -> str:
-        """What a URDF cannot hold, as a TRUTH.yaml ``effects`` section of ``pe-drake simulate``
-        after the comment lines ``header`` (viscous, coulomb and armature repeat the URDF's;
-        negative values, which the simulator refuses, are left out; through a transmission,
-        :meth:`per_joint_model`'s)."""
+        """What a URDF cannot hold, as a TRUTH.yaml ``effects`` section after the comment lines
+        ``header`` (:meth:`per_joint_model`'s terms; negative values left out)."""
         m = self.per_joint_model().nonnegative()
 
         def table(x, every: bool = False):
@@ -421,14 +366,11 @@ class RobotModel:
             + (f"  # joint springs k·q [N·m/rad], not a TRUTH.yaml effect: {table(self.spring)}\n" if np.any(self.spring) else "")
         )
 
-    def write_urdf(self, path: str | Path, robot: Robot, title: str = "", *, samples: int = 20,
+    def write_urdf(self, path: str | Path, robot: Robot, title: str = "", *,
                    tolerance: float = 1e-6) -> float:
-        """Writes :meth:`urdf_text` after checking that Drake reads back every body's inertia and,
-        with drive terms or a payload, gives this model's torque without Coulomb friction and
-        offsets on random states.
-
-        Returns:
-            The largest torque difference [N·m] (0 without drive terms and payload).
+        """Writes :meth:`urdf_text` once Drake reads back every body's inertia and this model's
+        torque without Coulomb friction and offsets on 20 random states; returns the largest
+        torque difference [N·m] (0 without drive terms and payload).
 
         Raises:
             PhysicallyInvalidError: a body that is not physically valid (nothing is written).
@@ -449,9 +391,9 @@ class RobotModel:
                                                     packages=packages))
         finally:
             tmp.unlink(missing_ok=True)
-        rng = np.random.default_rng(0)
-        q = rng.uniform(robot.limits.q_lower, robot.limits.q_upper, (samples, robot.n))
-        v, vd = rng.uniform(-1, 1, (samples, robot.n)), rng.uniform(-3, 3, (samples, robot.n))
+        rng, shape = np.random.default_rng(0), (20, robot.n)
+        q = rng.uniform(robot.limits.q_lower, robot.limits.q_upper, shape)
+        v, vd = rng.uniform(-1, 1, shape), rng.uniform(-3, 3, shape)
         want = self.per_joint_model().nonnegative().torque(robot, q, v, vd, coulomb=False, offset=False)
         got = loaded.inverse_dynamics(q, v, vd, include_damping=True)
         err = float(np.max(np.abs(got - want)))

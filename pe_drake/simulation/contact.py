@@ -1,15 +1,10 @@
 """The simulated robot moves free of contact; where its capsules would touch, the run says so.
 
-The robot's collision capsules (``robot.capsules``) are a conservative envelope for the
-optimizer's self-collision margin (they cover 98 % of each link's mesh), not the links' contact
-geometry. Drake's continuous plant turns every capsule overlap into a penalty contact force,
-which is no term of any model pe_drake fits: on a UR5 random trajectory (not collision
-constrained) the forearm's and the wrist's capsules overlapped by up to 9.8 mm for 2.7 s and
-the recorded wrist torques carried 132 / 67 N·m RMS of contact force there, the whole of the
-"unexplained" 74-86 N·m held-out errors of issue 36 (BUILD_NOTES, "Simulated runs without
-contact"). So :func:`without_contact` filters every pair of the simulated plant, and
-:func:`capsule_contacts` tells, from the a-priori robot's capsules along the logged motion,
-where a real robot with links of those shapes would have collided.
+The collision capsules (``robot.capsules``) are a conservative envelope for the optimizer's
+self-collision margin, not the links' contact geometry, and Drake's penalty force on their
+overlap is no term of any model pe_drake fits (BUILD_NOTES, "Simulated runs without contact").
+So :func:`without_contact` filters every pair of the simulated plant, and
+:func:`capsule_contacts` tells where a real robot with links of those shapes would collide.
 """
 
 from __future__ import annotations
@@ -29,11 +24,7 @@ CHECK_RATE_HZ = 100.0
 
 def without_contact(robot: Robot) -> None:
     """Filters every collision pair of ``robot``'s SceneGraph in its diagram context, so the
-    plant applies no contact force (the geometry stays, for queries of its own).
-
-    Args:
-        robot: a :class:`~pe_drake.multibody.robot.Robot` whose ``context`` the simulator runs.
-    """
+    plant applies no contact force (the geometry stays, for queries of its own)."""
     from pydrake.geometry import CollisionFilterDeclaration, GeometrySet, Role  # lazy: pydrake is heavy
 
     sg = robot.scene_graph
@@ -45,18 +36,12 @@ def without_contact(robot: Robot) -> None:
 
 @dataclasses.dataclass(frozen=True)
 class CapsuleContact:
-    """Two links whose capsules overlap during a run.
+    """Two links whose capsules overlap during a run."""
 
-    Attributes:
-        pair: "link_a-link_b".
-        depth: the largest overlap [m].
-        start, end: first and last time of the overlap [s].
-    """
-
-    pair: str
-    depth: float
-    start: float
-    end: float
+    pair: str  # "link_a-link_b"
+    depth: float  # the largest overlap [m]
+    start: float  # first time of the overlap [s]
+    end: float  # last time of the overlap [s]
 
     def to_dict(self) -> dict[str, float]:
         return {"max_overlap_m": self.depth, "from_s": self.start, "to_s": self.end}
@@ -64,12 +49,8 @@ class CapsuleContact:
 
 def capsule_contacts(robot: Robot, t: np.ndarray, q: np.ndarray) -> list[CapsuleContact]:
     """The capsule pairs of ``robot`` (the a-priori one: its filters skip adjacent links and the
-    capsule file's ignored pairs) that overlap along the motion, at most :data:`CHECK_RATE_HZ`.
-
-    Args:
-        robot: a :class:`~pe_drake.multibody.robot.Robot`; without capsules the list is empty.
-        t: times, shape (K,) [s]; q: positions, shape (K, n) [rad].
-    """
+    capsule file's ignored pairs) that overlap along the motion, checked at most
+    :data:`CHECK_RATE_HZ`; t (K,) [s], q (K, n) [rad]."""
     if not getattr(robot, "capsules", ()) or len(t) == 0:
         return []
     step = max(1, int(np.floor((len(t) - 1) / max(t[-1] - t[0], 1e-9) / CHECK_RATE_HZ)))

@@ -1,28 +1,12 @@
 """The robot ``pe-drake simulate --model FILE`` simulates: an identified model instead of the URDF's.
 
-``FILE`` is an ``identified.json`` (with its ``drive_terms`` block) or the diagnosis's
-``augmented_model.json``, read with :func:`~pe_drake.identification.identified_file.load_identified`
-(which checks it belongs to the robot and that its output folder is one run). The simulator
-needs what Drake can build:
-
-- **standard parameters that are physically valid per body.** A physical fit and an augmented
-  model carry them (the augmented model's payload lumped into its link). An OLS/WLS fit has
-  only base parameters φ_B = K φ; the minimum-norm φ = φ0 + K⁺(φ_B − K φ0) makes links invalid
-  (on a Panda fit: 7 of 12 bodies with negative principal moments), so the simulated φ is the
-  physically consistent fit of φ_B itself (:func:`~pe_drake.identification.physical_fit.physical_fit`
-  on the rows L K φ = L φ_B, L = diag(1/σ_B), stage 1 only): it reproduces φ_B exactly when a
-  valid φ can, and the prior decides only the directions no motion identifies. An armature
-  that merges into the base parameters (joint 1 of a fixed arm) is a variable ≥ 0 of that fit,
-  like in ``identify --method physical``;
-- **drive terms as the simulator's effects** (:mod:`pe_drake.simulation.simulation`):
-  viscous friction as joint damping, Coulomb friction f_c·tanh(v/v_s) with the model's v_s,
-  armature as rotor inertia, offsets as a constant load. A negative friction or armature (an
-  unconstrained WLS fit of a joint without friction) cannot be simulated and becomes 0, noted.
-  An augmented model's time delay and pre-sliding (Dahl) friction, which ``validate`` leaves
-  out, are simulated too (``effects.torque_delay``, ``effects.presliding_*``).
-
-A TRUTH.yaml given with ``--model`` adds its effects, noise and control on top
-(:func:`~pe_drake.simulation.truth.make_truth`).
+``FILE`` is an ``identified.json`` or the diagnosis's ``augmented_model.json``. Drake needs
+physically valid standard parameters per body: a physical fit and an augmented model carry them;
+for an OLS/WLS fit (base parameters φ_B = K φ only, whose minimum-norm φ makes links invalid)
+the simulated φ is the physically consistent fit of φ_B itself, rows L K φ = L φ_B with
+L = diag(1/σ_B): it reproduces φ_B exactly when a valid φ can, and the prior decides only the
+directions no motion identifies. An armature merged into a base parameter is a variable ≥ 0 of
+that fit. A negative friction or armature cannot be simulated and becomes 0, noted.
 """
 
 from __future__ import annotations
@@ -34,11 +18,11 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from pe_drake.exceptions import DataError
-from pe_drake.multibody.sensors import measurement_base_parameters
 from pe_drake.identification.identified_file import load_identified
 from pe_drake.identification.physical_fit import physical_fit
 from pe_drake.multibody.inertia import validity_problems
 from pe_drake.multibody.robot_model import RobotModel
+from pe_drake.multibody.sensors import measurement_base_parameters
 
 if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
     from pe_drake.multibody.robot import Robot
@@ -48,8 +32,7 @@ ATTAINABLE_SIGMA = 1.0
 
 
 def load_simulation_model(path: str | Path, robot: Robot) -> RobotModel:
-    """Reads identified.json or augmented_model.json as the model to simulate (module docstring):
-    physically consistent, friction and armature ≥ 0.
+    """Reads identified.json or augmented_model.json as the model to simulate (module docstring).
 
     Raises:
         DataError: a file that is not one of these, or one of another robot or joints.
@@ -74,43 +57,25 @@ def consistent_model(robot: Robot, model: RobotModel, base=None, sigma_B: np.nda
                      merged: dict[str, dict[str, float]] | None = None,
                      phi_B: np.ndarray | None = None) -> RobotModel:
     """``model`` with physically consistent standard parameters: itself when it has them, else the
-    physically consistent fit of its base parameters φ_B = K·phi_total, each weighted by 1/σ
-    (module docstring): what Drake can simulate and a model file can hold.
+    physically consistent fit of its base parameters φ_B = K·phi_total (module docstring).
 
     Args:
-        robot: the robot of the model.
-        model: any :class:`~pe_drake.multibody.robot_model.RobotModel`.
         base: the base parameters that identify it (default: the joint torques').
         sigma_B: σ of φ_B, (b,) (default, or where not finite or 0: 1e-4 of each value).
-        merged: {joint: {base parameter: coefficient}} of the armatures inside φ_B (identify's
-            ``merged_into``): variables ≥ 0 of the fit, added to the model's armature.
+        merged: {joint: {base parameter: coefficient}} of the armatures inside φ_B: variables
+            ≥ 0 of the fit, added to the model's armature.
         phi_B: the base parameters to fit (default K·phi_total; a file's own, to the last digit).
-
-    Raises:
-        NoSolutionFound: the solver failed.
     """
     if model.physical:
         return model
     base = base if base is not None else measurement_base_parameters(robot, "joint_torque")
     phi_B = base.K @ model.phi_total if phi_B is None else np.asarray(phi_B, float)
-    phi, armatures, notes = _consistent_parameters(robot, base, phi_B, sigma_B, merged or {})
-    armature = model.armature.copy()
-    for name, value in armatures.items():
-        armature[robot.joint_names.index(name)] += value
-    return dataclasses.replace(model, phi=phi, payload=None, payload_link="",
-                               drive={**model.drive, "armature": armature}, physical=True,
-                               notes=model.notes + tuple(notes))
-
-
-def _consistent_parameters(robot: Robot, base, phi_B: np.ndarray, sigma_B: np.ndarray | None,
-                           merged: dict[str, dict[str, float]]) -> tuple[np.ndarray, dict[str, float], list[str]]:
-    """(φ, {joint: merged armature}, notes) of :func:`consistent_model`."""
+    merged = merged or {}
     sigma = np.full(len(phi_B), np.nan) if sigma_B is None else np.asarray(sigma_B, float)
-    scale = np.abs(phi_B).max(initial=1e-12)
     # An exact fit reports σ ≈ 0 and an old file none: weigh those at 1e-4 of their value,
     # floored so that the whitened rows stay within the SDP solver's range.
     sigma = np.where(np.isfinite(sigma) & (sigma > 0), sigma, 1e-4 * np.abs(phi_B))
-    sigma = np.maximum(sigma, 1e-9 * scale)
+    sigma = np.maximum(sigma, 1e-9 * np.abs(phi_B).max(initial=1e-12))
     L = np.diag(1.0 / sigma)
     C = np.zeros((base.count, len(merged)))  # v̇_j = Σ_k C_kj · (base column k): φ_B holds a_j C_j
     for i, joint in enumerate(merged):
@@ -122,9 +87,13 @@ def _consistent_parameters(robot: Robot, base, phi_B: np.ndarray, sigma_B: np.nd
                        extra_in_base={i: C[:, i] for i in range(len(merged))})
     theta = np.asarray(fit.theta, float)
     misfit = np.abs(base.K @ fit.phi + C @ theta - phi_B) / sigma
-    notes = []
+    notes = list(model.notes)
     worst = int(np.argmax(misfit)) if misfit.size else 0
     if misfit.size and misfit[worst] > ATTAINABLE_SIGMA:
         notes.append(f"the model has base parameters only; no physically valid links reproduce them all: "
                      f"the simulated {base.base_names[worst]} is {misfit[worst]:.3g} σ from the file's")
-    return fit.phi, {j: float(a) for j, a in zip(merged, theta)}, notes
+    armature = model.armature.copy()
+    for joint, a in zip(merged, theta):
+        armature[robot.joint_names.index(joint)] += float(a)
+    return dataclasses.replace(model, phi=fit.phi, payload=None, payload_link="", physical=True,
+                               drive={**model.drive, "armature": armature}, notes=tuple(notes))

@@ -26,8 +26,8 @@ from pe_drake.simulation.simulation import simulate, truth_path_for
 from pe_drake.simulation.truth import make_truth, read_truth_file
 
 _RECORDED = {"joint_torque": "tau", "base_wrench": "wrench", "both": "tau and wrench"}
-#: A joint tracking its trajectory worse than this [rad RMS] gets a warning: more than a
-#: degree, the recorded motion is no longer the one planned (and checked against the limits).
+#: A joint tracking worse than this [rad RMS] gets a warning: the recorded motion is no longer
+#: the one planned (and checked against the limits).
 LARGE_TRACKING_ERROR = 0.02
 #: What a capsule overlap along a simulated run means (:mod:`pe_drake.simulation.contact`).
 CONTACT_NOTE = ("the simulated robot moves through (no contact force); a real robot whose links fill their capsules "
@@ -64,13 +64,12 @@ class SimulatedRun:
         return lines
 
     def _tracking_cause(self, joint: str) -> str:
-        """The likeliest reason a joint does not track: what the truth adds that the controller's
-        model lacks (a payload, a rotor inertia), else the truth's friction."""
+        """The likeliest reason a joint does not track: what the controller's model lacks."""
         effects = self.truth.get("effects", {})
         payload = effects.get("payload", {})
         prior_control = self.truth.get("control", {}).get("model") == "prior"
         armature = effects.get("armature", {}).get("values", {}).get(joint, 0.0)
-        if payload.get("link"):  # the controller's model is the a-priori one (issue 37)
+        if payload.get("link"):
             return (f"The truth's payload ({payload['mass']:g} kg on {payload['link']}) is not in the controller's "
                     "model: raise control.kp and control.kd, or give the controller the payload")
         if prior_control and armature > 0:
@@ -81,8 +80,7 @@ class SimulatedRun:
                 "inertia): raise control.kp and control.kd or lower the friction")
 
     def _model_file_friction(self) -> list[str]:
-        """Joints the truth leaves to the model file's friction: a z1 URDF's 1 N·m on joints a
-        truth does not name was simulated (and identified) without a word on the console."""
+        """Notes on the joints the truth leaves to the model file's friction."""
         lines = []
         for key, unit in (("viscous", "N·m·s/rad"), ("coulomb", "N·m")):
             table = self.truth.get("effects", {}).get(key, {})
@@ -102,11 +100,8 @@ class SimulatedRun:
         return _RECORDED[self.measurement]
 
     def write(self, folder: str | Path, *, name: str = "run.csv") -> list[str]:
-        """Writes the CSV ``folder/name`` and its ``.truth.json`` beside it, both or neither.
-
-        Returns:
-            The paths written: the CSV, then the truth file.
-        """
+        """Writes the CSV ``folder/name`` and its ``.truth.json`` beside it, both or neither;
+        returns their paths."""
         out = output_file(folder, name)
         out.parent.mkdir(parents=True, exist_ok=True)
         csv_text = measurement_to_csv_text(self.data.replace(source=str(out)))
@@ -122,22 +117,14 @@ class SimulatedRun:
 
 @dataclasses.dataclass(frozen=True)
 class SimulateOptions:
-    """What ``simulate`` runs the motion on.
+    """What ``simulate`` runs the motion on."""
 
-    Attributes:
-        truth: the TRUTH.yaml: the robot's perturbation, noise and control (None: none).
-        model: identified.json or augmented_model.json: the simulated robot has its parameters
-            and drive terms instead of the URDF's (:mod:`pe_drake.simulation.simulated_model`);
-            ``truth``'s effects, noise and control come on top. Without ``truth``: no noise,
-            the default controller.
-        duration: simulated time [s] (None: the motion's).
-        measurement: what the CSV records, one of ``MEASUREMENTS``.
-    """
-
-    truth: str | Path | None = None
+    truth: str | Path | None = None  # TRUTH.yaml: the robot's perturbation, noise and control
+    # identified.json or augmented_model.json: the simulated robot has its parameters and drive
+    # terms, ``truth``'s effects, noise and control on top (without: no noise, default control)
     model: str | Path | None = None
-    duration: float | None = None
-    measurement: str = "joint_torque"
+    duration: float | None = None  # simulated time [s] (None: the motion's)
+    measurement: str = "joint_torque"  # or "base_wrench" or "both"
 
     def __post_init__(self):
         if self.truth is None and self.model is None:
@@ -151,12 +138,8 @@ class SimulateOptions:
 def simulate_run(robot: Robot, trajectory: str | Path, options: SimulateOptions, *,
                  progress: Callable[[str], None] | None = None) -> SimulatedRun:
     """What ``pe-drake simulate`` does: the motion of ``trajectory``'s trajectory.csv (ramps and
-    periods; after its end the robot rests) on the robot perturbed as ``options.truth``
-    (TRUTH.yaml) says, or as ``options.model`` was identified.
-
-    Args:
-        options: the :class:`SimulateOptions`.
-        progress: called with a line before the simulation starts (it can take tens of seconds).
+    periods; after its end the robot rests) on the robot of ``options``; ``progress`` gets a
+    line before the simulation starts (it can take tens of seconds).
 
     Raises:
         DataError: a trajectory file for other joints, or outside the robot's limits; a model
@@ -164,7 +147,7 @@ def simulate_run(robot: Robot, trajectory: str | Path, options: SimulateOptions,
         ConfigError: a duration outside (0, 3600] s, a bad truth file, no truth and no model.
         TypeError: ``options`` that is not a :class:`SimulateOptions`.
     """
-    if not isinstance(options, SimulateOptions):  # simulate_run(robot, trajectory, truth) before the one door shape
+    if not isinstance(options, SimulateOptions):
         raise TypeError(f"simulate_run takes SimulateOptions(truth, model=...) as options, got {options!r}")
     truth, model, measurement = options.truth, options.model, options.measurement
     if not np.any(robot.phi_model[0::10] > 0):  # a singular mass matrix; the controller's gains scale with it
@@ -178,8 +161,7 @@ def simulate_run(robot: Robot, trajectory: str | Path, options: SimulateOptions,
     duration = options.duration if options.duration is not None else motion.duration
     if not 0 < duration <= 3600:  # the motion's own
         raise ConfigError(f"the motion of '{trajectory}' lasts {duration:g} s: simulate at most 3600 s (--duration)")
-    # the truth's values and names before any work (a model's terms are added after): a
-    # misspelt joint was refused only after "simulating ..." had been printed
+    # the truth's values and names checked before any work (a model's terms are added after)
     truth_spec = make_truth(robot, where=where, **spec)
     extra = None
     if model is not None:

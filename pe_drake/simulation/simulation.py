@@ -1,60 +1,23 @@
 """Simulated measurements: a perturbed "true" robot tracking a trajectory in Drake.
 
-``pe-drake simulate --robot ROBOT --trajectory DIR/trajectory.json --truth TRUTH.yaml
---out data.csv`` writes what a real robot would log (q and the actuator torque, at the control
-rate, in the format of :mod:`pe_drake.identification.measurements`) and, beside it, ``data.truth.json`` with
-every true value (inertial parameters, effects, noise) so tests can check what identification
-recovers.
+The true robot is the truth's :class:`~pe_drake.multibody.robot_model.RobotModel` in a
+continuous plant (:meth:`~pe_drake.multibody.robot_model.RobotModel.plant`): Coulomb friction
+is a ``DoorHinge`` the integrator sees, where a discrete plant would need a far smaller step.
 
-The true robot is the a-priori model with:
-
-- inertial parameters perturbed per body (:func:`pe_drake.multibody.inertia.perturb_inertias`), each body kept
-  physically valid;
-- viscous friction as Drake joint damping and Coulomb friction (below): the model file's
-  ``<dynamics damping>`` and ``friction`` are part of the a-priori model and are kept, except
-  on the joints where the truth sets that effect (by name or ``all``), whose value replaces
-  the model file's (issue 21: every command starts from the model file's friction; the truth
-  record lists both and which one was simulated);
-- Coulomb friction ``-f_c·tanh(v/v_s)`` as a Drake ``DoorHinge`` force element (its dynamic
-  friction term is exactly this; spring, catch and static terms are zero), so it is part of
-  the continuous dynamics the integrator sees rather than a sampled input;
-- armature (reflected rotor inertia) as the rotor inertia of a Drake ``JointActuator``
-  (gear ratio 1), added when the joint has none;
-- constant torque offsets as a constant generalized force on the joint;
-- pre-sliding (Dahl) friction F_c·z as a small Drake system with one state per joint
-  (:mod:`pe_drake.multibody.dahl`) whose torque adds to the controller's;
-- a payload body welded to a link.
-
-**Sign convention of the recorded torque.** ``tau`` is the torque the actuator applies. The
-effects are resistive loads the actuator must overcome, so once tracking has converged::
+**Sign convention of the recorded torque.** ``tau`` is the torque the actuator applies; the
+effects are loads it overcomes, so once tracking has converged::
 
     tau(t) = ID_rb(q, v, vd) + viscous·v + coulomb·tanh(v/v_s) + F_c·z + armature·vd + offset
 
-with ``ID_rb`` the true rigid-body inverse dynamics (payload and perturbed inertias included).
-An offset o is thus a constant torque -o acting on the joint (a spring or cable preload);
-identification with ``tau = Y·phi + f_v·v + f_c·sign(v) + o`` recovers it with its sign.
-The controller's command tau_k is held over [t_k, t_k + h), so it matches the motion half a
-sample later; the log records the torque averaged over the sample period centred on t_k,
-(tau_{k-1} + tau_k)/2, what a torque sensor with a one-sample averaging window reads. That
-keeps effect-free data free of any timing offset (the raw command is available with
-``record_command: true``). A torque delay d then shifts the recorded torque:
-``tau_recorded(t) = tau(t - d)`` (positive d: the torque log lags the positions), and noise
-is added last.
+An offset o is a constant torque -o on the joint; ``tau = Y·phi + f_v·v + f_c·sign(v) + o``
+recovers it with its sign. The command tau_k is held over [t_k, t_k + h), so it leads the motion
+by h/2: the log records (tau_{k-1} + tau_k)/2, centred on t_k (``record_command: true`` keeps the
+raw command). A torque delay d then gives ``tau_recorded(t) = tau(t - d)`` (d > 0: the torque
+log lags the positions); noise comes last.
 
-Control: computed torque at ``control.rate_hz`` with zero-order hold, ``tau = M(q)(vd_d +
-kp·(q_d - q) + kd·(v_d - v)) + c(q, v) - tau_g(q)`` evaluated with the a-priori rigid-body
-model (``control.model: prior``, what a real controller has) or the true one (``true``), on
-the true state (noise only affects the log), plus the model file's joint friction (its
-``<dynamics damping>`` and ``friction``, part of the a-priori model) at the desired velocity,
-``damping·v_d + friction·tanh(v_d/v_s)``, on the joints where the simulated robot keeps it
-(the truth does not replace it): without it the feedback alone must hold that friction (iCub's
-URDF gives every joint 1 N·m·s/rad: its 0.4 g·m² wrists lagged by 0.2-0.4 rad). A friction the
-truth sets is the unknown to identify and stays with the feedback, as before (fed forward at
-the URDF's value, TIAGo's 1 N·m Coulomb on a light wrist against the truth's 0.13 made the
-M-scaled feedback lose the joint). The controller runs between
-``Simulator.AdvanceTo`` calls and holds its torque on the plant's applied-generalized-force
-input. The plant is continuous (Drake's error-controlled RK3 by default, Radau3 on request):
-the stiff tanh of Coulomb friction would need a much smaller time step in a discrete plant.
+Control: computed torque + PD with zero-order hold on the a-priori (or true) rigid-body model,
+plus the model file's friction fed forward at the desired velocity where the simulated robot
+keeps it (README, "Identify, validate, export"); a friction the truth sets is left to feedback.
 """
 
 from __future__ import annotations
@@ -74,30 +37,19 @@ from pe_drake.identification.measurements import Measurement
 from pe_drake.multibody.drive_columns import coulomb_column
 from pe_drake.multibody.inertia import PARAMETER_NAMES
 from pe_drake.multibody.model_plant import APPLIED_FORCE_PORT
-from pe_drake.multibody.robot import Robot, load_robot
-from pe_drake.multibody.robot_model import RobotModel
+from pe_drake.multibody.robot import Robot
 from pe_drake.multibody.sensors import MeasurementType
+from pe_drake.multibody.wrench import weld_reaction
 from pe_drake.simulation.contact import without_contact
 from pe_drake.simulation.truth import Truth, load_truth, make_truth
-from pe_drake.simulation.wrench_log import recorded_wrench
-
 
 
 class SimulationError(PeDrakeError):
     """The simulation diverged (NaN or infinite state)."""
 
 
-# ---- simulation ------------------------------------------------------------------------------
-
-
 class SimulationOutput(NamedTuple):
-    """What :func:`simulate` returns (unpacks as ``measurement, truth = simulate(...)``).
-
-    Attributes:
-        measurement: the log (t, q, tau at ``control.rate_hz``; v when ``record_velocity``).
-        truth: the JSON-ready truth dict (true parameters per body, effects with units,
-            noise, control, tracking error, wall time).
-    """
+    """What :func:`simulate` returns: the log and the JSON-ready truth record."""
 
     measurement: Measurement
     truth: dict[str, Any]
@@ -105,117 +57,67 @@ class SimulationOutput(NamedTuple):
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class TrackingLog:
-    """The true state and the controller's commands at the control instants
-    (:func:`track_trajectory`).
+    """The true state and the controller's commands at the K control instants, (K, n)."""
 
-    Attributes:
-        t: control instants, shape (K,) [s].
-        q_d: desired positions, shape (K, n) [rad].
-        q, v: true positions and velocities, shape (K, n) [rad, rad/s].
-        tau: commands tau_k, each held over [t_k, t_k + h), shape (K, n) [N·m].
-        wall_time: seconds spent simulating.
-    """
-
-    t: np.ndarray
-    q_d: np.ndarray
-    q: np.ndarray
-    v: np.ndarray
-    tau: np.ndarray
-    wall_time: float
+    t: np.ndarray  # (K,) [s]
+    q_d: np.ndarray  # desired positions [rad]
+    q: np.ndarray  # true positions [rad]
+    v: np.ndarray  # true velocities [rad/s]
+    tau: np.ndarray  # commands tau_k, each held over [t_k, t_k + h) [N·m]
+    wall_time: float  # [s]
 
 
-@dataclasses.dataclass(frozen=True)
-class TrueRobot:
-    """The simulated robot: its model and its Drake plant.
-
-    Attributes:
-        robot: the :class:`~pe_drake.multibody.robot.Robot` (continuous plant) of ``model``
-            (:meth:`~pe_drake.multibody.robot_model.RobotModel.plant`); with pre-sliding
-            friction its diagram exports the input ``applied_generalized_force`` the controller drives.
-        model: the true :class:`~pe_drake.multibody.robot_model.RobotModel` (the truth's).
-    """
-
-    robot: Any
-    model: RobotModel
-
-    def force_input(self):
-        """(port, context) of the applied generalized force the controller sets: the
-        plant's, or the diagram's exported input when the Dahl system adds its torque."""
-        if self.robot.diagram.HasInputPort(APPLIED_FORCE_PORT):  # pre-sliding or prismatic Coulomb friction
-            return self.robot.diagram.GetInputPort(APPLIED_FORCE_PORT), self.robot.context
-        return self.robot.plant.get_applied_generalized_force_input_port(), self.robot.plant_context
+def build_true_robot(robot: Robot, truth: Truth) -> Robot:
+    """The robot as built of a truth in Drake, without contact forces (``robot``'s config is
+    reloaded: bodies added by its own ``before_finalize`` are not carried over)."""
+    true = truth.model.plant(robot)
+    without_contact(true)
+    return true
 
 
-def build_true_robot(robot: Robot, truth: Truth) -> TrueRobot:
-    """The robot as built of a truth (``truth.model``) in Drake.
-
-    Args:
-        robot: the a-priori :class:`~pe_drake.multibody.robot.Robot` (its config is reloaded; bodies
-            added by its own ``before_finalize`` are not carried over).
-        truth: a :class:`Truth` of this robot.
-
-    The plant applies no contact force (:mod:`pe_drake.simulation.contact`).
-    """
-    plant = truth.model.plant(robot)
-    without_contact(plant)
-    return TrueRobot(plant, truth.model)
+def _force_input(true: Robot):
+    """(port, context) of the applied generalized force the controller sets: the diagram's
+    exported input when a system adds its torque (Dahl, prismatic Coulomb), else the plant's."""
+    if true.diagram.HasInputPort(APPLIED_FORCE_PORT):
+        return true.diagram.GetInputPort(APPLIED_FORCE_PORT), true.context
+    return true.plant.get_applied_generalized_force_input_port(), true.plant_context
 
 
-def simulate(
-    robot_or_name,
-    trajectory: FourierTrajectory,
-    truth: Truth | str | Path | None = None,
-    duration: float | None = None,
-    measurement: str = "joint_torque",
-    model: RobotModel | None = None,
-) -> SimulationOutput:
+def simulate(robot: Robot, trajectory: FourierTrajectory, truth: Truth | str | Path | None = None,
+             duration: float | None = None, measurement: str = "joint_torque") -> SimulationOutput:
     """Simulates a run of the true robot tracking a trajectory; returns what it logs.
 
     Args:
-        robot_or_name: the a-priori :class:`~pe_drake.multibody.robot.Robot` or a built-in name.
-        trajectory: the trajectory to track (joints in the robot's order).
         truth: a :class:`~pe_drake.simulation.truth.Truth` of the robot, or the path of a
             TRUTH.yaml (None: the model alone, no noise, the default controller).
         duration: simulated time [s]; default one period of the trajectory.
         measurement: what the robot logs: "joint_torque" (tau), "base_wrench" (the ground
-            wrench alone, :mod:`pe_drake.simulation.wrench_log`) or "both".
-        model: the robot a TRUTH.yaml perturbs (an identified model); default the a-priori one
-            (a :class:`~pe_drake.simulation.truth.Truth` holds its own).
-
-    Returns:
-        The :class:`SimulationOutput`: the :class:`~pe_drake.identification.measurements.Measurement`
-        and the truth dict.
+            wrench alone) or "both".
 
     Raises:
         ConfigError: a bad truth or duration.
         UnknownNameError: a truth names a joint or link the robot does not have.
         DataError: a trajectory for a different number of joints.
-        ValueError: a :class:`~pe_drake.simulation.truth.Truth` and a ``model`` both given.
     """
-    robot = robot_or_name if isinstance(robot_or_name, Robot) else load_robot(robot_or_name)
-    if isinstance(truth, Truth):
-        if model is not None:
-            raise ValueError("a Truth holds its model: give the model to make_truth or load_truth instead")
-    else:
-        truth = load_truth(truth, robot, model) if truth is not None else make_truth(robot, model=model)
+    if not isinstance(truth, Truth):
+        truth = load_truth(truth, robot) if truth is not None else make_truth(robot)
     duration = _check_run(robot, trajectory, truth, duration)
     true = build_true_robot(robot, truth)
     log = track_trajectory(robot, true, trajectory, truth, duration)
     sensors = MeasurementType(measurement)
-    data = record_log(robot, truth, log, true.model.torque_delay)
-    wrench = (recorded_wrench(true.robot, truth, log.q, log.v, log.tau - true.model.per_joint_model().offset)
-              if sensors.wrench else None)
+    data = record_log(robot, truth, log)
+    applied = log.tau - truth.model.per_joint_model().offset
+    wrench = recorded_wrench(true, truth, log.q, log.v, applied) if sensors.wrench else None
     data = data.replace(tau=data.tau if sensors.torques else None, wrench=wrench)
-    return SimulationOutput(data, {**_truth_dict(robot, truth, true, duration, log), "measurement": sensors.kind})
+    record = _truth_dict(robot, truth, duration, log)
+    return SimulationOutput(data, {**record, "measurement": sensors.kind})
 
 
 def _check_run(robot: Robot, trajectory: FourierTrajectory, truth: Truth, duration: float | None) -> float:
     """The duration [s] after checking the trajectory's joints and the torque delay."""
     if trajectory.num_joints != robot.n:
-        raise DataError(
-            f"the trajectory has {trajectory.num_joints} joints, robot '{robot.name}' has {robot.n} "
-            f"excited joints ({', '.join(robot.joint_names)})"
-        )
+        raise DataError(f"the trajectory has {trajectory.num_joints} joints, robot '{robot.name}' "
+                        f"has {robot.n} excited joints ({', '.join(robot.joint_names)})")
     duration = trajectory.period if duration is None else duration
     duration = check_finite("duration [s]", duration, positive=True)
     delay = truth.model.torque_delay
@@ -224,11 +126,11 @@ def _check_run(robot: Robot, trajectory: FourierTrajectory, truth: Truth, durati
     return duration
 
 
-def _controller_plant(robot: Robot, true: TrueRobot, model: str):
+def _controller_plant(robot: Robot, true: Robot, model: str):
     """(plant, context) the computed-torque law evaluates: the a-priori or the true model."""
     if model == "prior":
         return robot.plant, robot.plant.CreateDefaultContext()
-    plant, ctx = true.robot.plant, true.robot.plant_context
+    plant, ctx = true.plant, true.plant_context
     ctl_ctx = plant.CreateDefaultContext()
     for b in robot.body_names:  # the default context lacks the perturbed inertias
         body = plant.GetBodyByName(b)
@@ -236,16 +138,16 @@ def _controller_plant(robot: Robot, true: TrueRobot, model: str):
     return plant, ctl_ctx
 
 
-def _start_simulator(true: TrueRobot, truth: Truth, q0: np.ndarray, v0: np.ndarray, h: float):
+def _start_simulator(true: Robot, truth: Truth, q0: np.ndarray, v0: np.ndarray, h: float):
     """A Drake Simulator of the true robot at (q0, v0) with the truth's integrator."""
     from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator  # lazy: pydrake stays out of `import pe_drake`
 
-    plant, ctx = true.robot.plant, true.robot.plant_context
+    plant, ctx = true.plant, true.plant_context
     plant.SetPositions(ctx, q0)
     plant.SetVelocities(ctx, v0)
-    port, port_context = true.force_input()
+    port, port_context = _force_input(true)
     port.FixValue(port_context, np.zeros(len(q0)))
-    simulator = Simulator(true.robot.diagram, true.robot.context)
+    simulator = Simulator(true.diagram, true.context)
     integrator = ResetIntegratorFromFlags(simulator, truth.integrator, h)
     if not integrator.get_fixed_step_mode():  # fixed-step schemes step at 1 / rate_hz
         integrator.set_target_accuracy(truth.integration_accuracy)
@@ -253,24 +155,17 @@ def _start_simulator(true: TrueRobot, truth: Truth, q0: np.ndarray, v0: np.ndarr
     return simulator
 
 
-def track_trajectory(
-    robot: Robot, true: TrueRobot, trajectory: FourierTrajectory, truth: Truth, duration: float
-) -> TrackingLog:
-    """Runs the computed-torque controller on the true robot (module docstring).
-
-    Args:
-        robot: the a-priori robot (the controller's model with ``control.model: prior``).
-        true: the true robot (:func:`build_true_robot`).
-        trajectory: the desired motion.
-        truth: a validated truth (control, integrator).
-        duration: simulated time [s].
+def track_trajectory(robot: Robot, true: Robot, trajectory: FourierTrajectory, truth: Truth,
+                     duration: float) -> TrackingLog:
+    """Runs the computed-torque controller on the true robot (module docstring) for
+    ``duration`` [s].
 
     Raises:
         SimulationError: the state became NaN or infinite.
     """
     from pydrake.multibody.tree import MultibodyForces  # lazy: pydrake stays out of `import pe_drake`
 
-    plant, ctx = true.robot.plant, true.robot.plant_context
+    plant, ctx = true.plant, true.plant_context
     ctl_plant, ctl_ctx = _controller_plant(robot, true, truth.control.model)
     forces = MultibodyForces(ctl_plant)
     rate = truth.control.rate_hz
@@ -280,13 +175,13 @@ def track_trajectory(
     q_d, v_d, vd_d = trajectory.evaluate(t)
     kp, kd = truth.control.kp, truth.control.kd
     # the model file's friction the simulated robot keeps, fed forward at v_d (module docstring)
-    joint = true.model.per_joint_model()  # through a transmission, the motors' terms per joint
-    kept = true.model.transmission is None  # with one the model file's friction is not simulated
+    joint = truth.model.per_joint_model()  # through a transmission, the motors' terms per joint
+    kept = truth.model.transmission is None  # with one the model file's friction is not simulated
     damping = np.where(kept & np.isclose(joint.viscous, robot.joint_damping), robot.joint_damping, 0.0)
     friction = np.where(kept & np.isclose(joint.coulomb, robot.joint_friction), robot.joint_friction, 0.0)
-    v_s = true.model.velocity_scale
+    v_s = truth.model.velocity_scale
     simulator = _start_simulator(true, truth, q_d[0], v_d[0], h)
-    port, port_context = true.force_input()
+    port, port_context = _force_input(true)
     q_log, v_log, tau_log = (np.empty((count, robot.n)) for _ in range(3))
     wall = time.perf_counter()
     for k in range(count):
@@ -304,40 +199,23 @@ def track_trajectory(
             port.FixValue(port_context, tau - joint.offset)
             simulator.AdvanceTo(t[k + 1])
             if not np.isfinite(plant.GetPositionsAndVelocities(ctx)).all():
-                raise SimulationError(
-                    f"the simulated state became NaN/inf at t = {t[k + 1]:.4g} s; check the truth "
-                    "file's values (gains, friction, payload) and the model's inertias"
-                )
+                raise SimulationError(f"the simulated state became NaN/inf at t = {t[k + 1]:.4g} "
+                                      "s; check the truth file's values (gains, friction, "
+                                      "payload) and the model's inertias")
     return TrackingLog(t, q_d, q_log, v_log, tau_log, time.perf_counter() - wall)
 
 
-def recorded_torque(log: TrackingLog, truth: Truth, delay: float) -> np.ndarray:
-    """The torque the log records, before noise: centred average (or raw command), delayed by
-    ``delay`` [s].
-
-    Returns:
-        Shape (K, n) [N·m].
-    """
-    if truth.record_command:
-        tau_rec = log.tau
-    else:
-        # Torque averaged over the sample period centred on t_k: the command tau_k is held over
-        # [t_k, t_k+h), so on its own it leads the positions by h/2 (see the module docstring).
+def record_log(robot: Robot, truth: Truth, log: TrackingLog) -> Measurement:
+    """What the sensors log: the centred (or raw) command delayed by the torque delay, encoder
+    quantization and white noise (q, tau and v drawn in that order from the truth's seed,
+    independently of the inertial perturbation)."""
+    tau_rec = log.tau
+    if not truth.record_command:  # centred on t_k: the held command leads by h/2 (module docstring)
         tau_rec = log.tau.copy()
         tau_rec[1:] = 0.5 * (log.tau[:-1] + log.tau[1:])
+    delay, t = truth.model.torque_delay, log.t
     if delay != 0:
-        t = log.t
         tau_rec = np.column_stack([np.interp(t - delay, t, tau_rec[:, j]) for j in range(tau_rec.shape[1])])
-    return tau_rec
-
-
-def record_log(robot: Robot, truth: Truth, log: TrackingLog, delay: float) -> Measurement:
-    """What the sensors log: recorded torque, encoder quantization and white noise.
-
-    The noise generator is seeded by the truth's seed (independently of the inertial
-    perturbation); q, tau and v noise are drawn in that order.
-    """
-    tau_rec = recorded_torque(log, truth, delay)
     rng = np.random.default_rng(np.random.SeedSequence(truth.seed).spawn(2)[1])
     noise = truth.noise
     q_rec = log.q.copy()
@@ -355,35 +233,44 @@ def record_log(robot: Robot, truth: Truth, log: TrackingLog, delay: float) -> Me
     return Measurement(log.t, q_rec, tau_rec, v_rec, None, robot.joint_names, "")
 
 
-def _truth_dict(robot: Robot, truth: Truth, true: TrueRobot, duration: float, log: TrackingLog) -> dict[str, Any]:
+def recorded_wrench(true_robot: Robot, truth: Truth, q: np.ndarray, v: np.ndarray,
+                    applied: np.ndarray) -> np.ndarray:
+    """The logged ground wrench, the reaction at the root link's weld (the feet), (K, 6)
+    [N, N·m] in ``wrench.*`` column order, with the truth's sensor noise and offset; ``applied``
+    the generalized forces over [t_k, t_k + h), (K, n) [N·m]."""
+    # The reaction jumps at t_k when the held command changes: centred on t_k like the torque
+    # (unless the truth records the raw command).
+    wrench = weld_reaction(true_robot, q, v, applied, centred=not truth.record_command)
+    noise = truth.noise
+    # Its own random stream: the q, tau and v noise stays as it was.
+    rng = np.random.default_rng(np.random.SeedSequence(truth.seed).spawn(3)[2])
+    std = np.repeat([noise.force_std, noise.moment_std], 3)
+    offset = np.asarray(noise.wrench_offset, float) if noise.wrench_offset else np.zeros(6)
+    return wrench + offset + rng.normal(size=wrench.shape) * std
+
+
+def _truth_dict(robot: Robot, truth: Truth, duration: float, log: TrackingLog) -> dict[str, Any]:
     """The JSON-ready record of every true value of a run (``<out>.truth.json``)."""
-    joints = list(robot.joint_names)
-    bodies = robot.body_names
+    joints, bodies = list(robot.joint_names), robot.body_names
     tracking_rms = np.sqrt(np.mean((log.q - log.q_d) ** 2, axis=0))
-    count, wall, parameter_names = len(log.t), log.wall_time, PARAMETER_NAMES
+    m, p = truth.model, truth.model.payload
 
     def per_joint(values):
         return {j: float(x) for j, x in zip(joints, values)}
-
-    m = true.model
 
     def source(term):
         return {j: "truth" if j in truth.friction_set.get(term, ()) else "model file" for j in joints}
 
     return {
-        "robot": robot.name,
-        "joints": joints,
-        "bodies": list(robot.body_names),
-        "parameter_names": list(parameter_names),
+        "robot": robot.name, "joints": joints, "bodies": list(bodies),
+        "parameter_names": list(PARAMETER_NAMES),
         "parameters_frame": "about the body origin, in the body frame; payload lumped into its link",
         "phi_true": {b: m.phi_total[10 * i : 10 * i + 10].tolist() for i, b in enumerate(bodies)},
         "phi_model": {b: robot.phi_model[10 * i : 10 * i + 10].tolist() for i, b in enumerate(bodies)},
-        "seed": truth.seed,
-        "inertia_perturbation": truth.inertia_perturbation,
-        "torque_equation": (
-            "tau_recorded(t) = [ID_rigid_body_true(q, v, vd) + viscous*v + coulomb*tanh(v/"
-            "coulomb_velocity_scale) + presliding*z + armature*vd + torque_offset](t - torque_delay) + noise"
-        ),
+        "seed": truth.seed, "inertia_perturbation": truth.inertia_perturbation,
+        "torque_equation": ("tau_recorded(t) = [ID_rigid_body_true(q, v, vd) + viscous*v + "
+                            "coulomb*tanh(v/coulomb_velocity_scale) + presliding*z + armature*vd + "
+                            "torque_offset](t - torque_delay) + noise"),
         "effects": {
             "viscous": {"unit": "N·m·s/rad", "values": per_joint(m.viscous),
                         "model_file_damping": per_joint(robot.joint_damping), "source": source("viscous"),
@@ -407,13 +294,11 @@ def _truth_dict(robot: Robot, truth: Truth, true: TrueRobot, duration: float, lo
                                  "drive_side": "viscous, coulomb, armature and torque_offset are per motor (named by "
                                                "its joint), motor side, acting on the joints through R^T",
                                  "plant_notes": m.plant_notes()}} if m.transmission is not None else {}),
-            "payload": {
-                "link": m.payload_link, "mass": m.payload.mass if m.payload is not None else 0.0,
-                "com": (m.payload.com if m.payload is not None else np.zeros(3)).tolist(),
-                "inertia_about_com": (m.payload.inertia_vector if m.payload is not None else np.zeros(6)).tolist(),
-                "phi_about_link_origin": (m.payload.phi if m.payload is not None else np.zeros(10)).tolist(),
-                "units": "kg, m, kg·m²",
-            },
+            "payload": {"link": m.payload_link, "mass": p.mass if p else 0.0,
+                        "com": (p.com if p else np.zeros(3)).tolist(),
+                        "inertia_about_com": (p.inertia_vector if p else np.zeros(6)).tolist(),
+                        "phi_about_link_origin": (p.phi if p else np.zeros(10)).tolist(),
+                        "units": "kg, m, kg·m²"},
         },
         "noise": {**dataclasses.asdict(truth.noise),
                   "units": {"q_std": "rad", "v_std": "rad/s", "tau_std": "N·m", "force_std": "N",
@@ -422,12 +307,11 @@ def _truth_dict(robot: Robot, truth: Truth, true: TrueRobot, duration: float, lo
                     "units": {"rate_hz": "Hz", "kp": "1/s²", "kd": "1/s"}},
         "record_velocity": truth.record_velocity,
         "torque_recorded": "command tau_k" if truth.record_command else "(tau_{k-1} + tau_k) / 2",
-        "simulation": {
-            "duration": duration, "samples": count, "rate_hz": truth.control.rate_hz,
-            "integrator": truth.integrator, "accuracy": truth.integration_accuracy,
-            "tracking_error_rms": per_joint(tracking_rms), "tracking_error_unit": "rad",
-            "wall_time_s": wall,
-        },
+        "simulation": {"duration": duration, "samples": len(log.t),
+                       "rate_hz": truth.control.rate_hz, "integrator": truth.integrator,
+                       "accuracy": truth.integration_accuracy,
+                       "tracking_error_rms": per_joint(tracking_rms), "tracking_error_unit": "rad",
+                       "wall_time_s": log.wall_time},
     }
 
 
@@ -435,5 +319,3 @@ def truth_path_for(out: str | Path) -> Path:
     """``<out stem>.truth.json`` beside the output CSV."""
     out = Path(out)
     return out.parent / f"{out.stem}.truth.json"
-
-

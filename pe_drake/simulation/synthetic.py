@@ -1,9 +1,8 @@
 """Exact measurements from a model, without a simulator: for tests and benchmarks.
 
 The torques are the rigid-body inverse dynamics Y(q, v, v̇) φ of Eq. (1) along a Fourier
-trajectory (Eq. 50), optionally with white noise. Unlike ``pe-drake simulate`` there is no
-tracking error, no integration and no friction: what comes out is exactly the linear model
-identification assumes, so errors can be attributed to the estimator alone.
+trajectory (Eq. 50), optionally with white noise: no tracking error, no integration and no
+friction, so errors can be attributed to the estimator alone.
 """
 
 from __future__ import annotations
@@ -20,43 +19,19 @@ if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
     from pe_drake.multibody.robot import Robot
 
 
-def model_measurement(
-    robot: Robot,
-    trajectory: FourierTrajectory,
-    phi: np.ndarray | None = None,
-    *,
-    rate_hz: float = 200.0,
-    duration: float | None = None,
-    tau_noise_std: float | np.ndarray = 0.0,
-    q_noise_std: float = 0.0,
-    seed: int = 0,
-    model: RegressorModel | None = None,
-) -> Measurement:
-    """A measurement of ``robot`` following ``trajectory`` with parameters ``phi``.
-
-    Args:
-        robot: the robot.
-        trajectory: joint motion (n = robot.n joints).
-        phi: standard parameters (default: the robot's a-priori model).
-        rate_hz: sample rate [Hz].
-        duration: length [s] (default: one period).
-        tau_noise_std: white torque noise standard deviation [N·m], scalar or per joint.
-        q_noise_std: white position noise [rad] (v and vd stay exact).
-        seed: noise seed.
-
-    Returns:
-        A :class:`Measurement` with exact v and vd columns.
-    """
-    model = model or RegressorModel(robot)
+def model_measurement(robot: Robot, trajectory: FourierTrajectory, phi: np.ndarray | None = None, *,
+                      rate_hz: float = 200.0, duration: float | None = None,
+                      tau_noise_std: float | np.ndarray = 0.0, seed: int = 0) -> Measurement:
+    """A measurement of ``robot`` following ``trajectory`` with parameters ``phi`` (default: the
+    a-priori model) for ``duration`` [s] (default: one period), exact v and vd, white torque noise
+    ``tau_noise_std`` [N·m] (scalar or per joint)."""
+    model = RegressorModel(robot)
     phi = robot.phi_model if phi is None else np.asarray(phi, float)
     duration = trajectory.period if duration is None else float(duration)
     t = np.arange(0.0, duration, 1.0 / rate_hz)
     q, v, vd = trajectory.evaluate(t)
-    tau = np.concatenate(
-        [model(q[s : s + 2000], v[s : s + 2000], vd[s : s + 2000]) @ phi for s in range(0, len(t), 2000)]
-    )
+    blocks = [slice(s, s + 2000) for s in range(0, len(t), 2000)]
+    tau = np.concatenate([model(q[k], v[k], vd[k]) @ phi for k in blocks])
     rng = np.random.default_rng(seed)
     tau = tau + rng.normal(size=tau.shape) * np.broadcast_to(np.asarray(tau_noise_std, float), (robot.n,))
-    if q_noise_std:
-        q = q + rng.normal(size=q.shape) * q_noise_std
     return Measurement(t=t, q=q, tau=tau, v=v, vd=vd, joints=robot.joint_names, source="<model>")

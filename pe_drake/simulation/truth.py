@@ -1,13 +1,9 @@
 """A simulated run's truth: the robot as built (a :class:`~pe_drake.multibody.robot_model.RobotModel`
 around the a-priori or an identified model), sensor noise and the tracking controller.
 
-``pe-drake simulate --truth TRUTH.yaml`` (:mod:`pe_drake.simulation.simulation`) reads the file
-with :func:`load_truth`: its shape and types are checked against :data:`TRUTH_KEYS` (file,
-line and dotted key named), then :func:`make_truth` reads its ``effects`` section straight into
-the :class:`~pe_drake.multibody.robot_model.RobotModel` the simulator builds: perturbed
-inertias, friction, armature, torque offsets and delay, pre-sliding friction, a payload. Every
-number is checked and every joint and link name against the robot. The sign convention of the
-effects is in the simulation module's docstring.
+:func:`load_truth` checks a TRUTH.yaml's shape and types against :data:`TRUTH_KEYS` (file, line
+and key named); :func:`make_truth` reads its ``effects`` into the true model, every number and
+name checked against the robot. The effects' sign convention is the simulation module's.
 """
 
 from __future__ import annotations
@@ -22,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from pe_drake import limits
-from pe_drake.config import check_finite
+from pe_drake.config import check_choice, check_finite
 from pe_drake.exceptions import ConfigError, UnknownNameError, shorten
 from pe_drake.multibody.inertia import inertia_matrix, perturb_inertias
 from pe_drake.multibody.payload import PayloadInertia, payload_spatial_inertia
@@ -41,53 +37,33 @@ CONTROL_MODELS = ("prior", "true")
 
 @dataclasses.dataclass
 class NoiseTruth:
-    """Sensor imperfections of the log (the controller sees the true state).
+    """Sensor imperfections of the log (the controller sees the true state); white noise std."""
 
-    Attributes:
-        encoder_counts_per_rev: q of revolute joints quantized to 2π/counts [rad]; 0: none.
-        q_std: white noise on q [rad].
-        v_std: white noise on v [rad/s] (only with ``record_velocity``).
-        tau_std: white noise on tau [N·m].
-        force_std: white noise on the ground wrench's force [N] (``wrench.f*`` columns).
-        moment_std: white noise on the ground wrench's moment [N·m] (``wrench.m*``).
-        wrench_offset: constant offset of the force/torque sensor, [fx, fy, fz, mx, my, mz]
-            [N, N·m]; empty means none. Its fz, mx, my cannot be told from the total mass and
-            horizontal centre of mass of the moving bodies (:mod:`pe_drake.identification.channels`).
-    """
-
-    encoder_counts_per_rev: int = 0
-    q_std: float = 0.0
-    v_std: float = 0.0
-    tau_std: float = 0.0
-    force_std: float = 0.0
-    moment_std: float = 0.0
+    encoder_counts_per_rev: int = 0  # q of revolute joints quantized to 2π/counts; 0: none
+    q_std: float = 0.0  # [rad]
+    v_std: float = 0.0  # [rad/s] (only with record_velocity)
+    tau_std: float = 0.0  # [N·m]
+    force_std: float = 0.0  # [N] of the ground wrench's force (wrench.f* columns)
+    moment_std: float = 0.0  # [N·m] of the ground wrench's moment (wrench.m*)
+    # constant force/torque sensor offset [fx, fy, fz, mx, my, mz] [N, N·m]; empty: none
     wrench_offset: list[float] = dataclasses.field(default_factory=list)
 
 
 @dataclasses.dataclass
 class ControlTruth:
-    """The tracking controller (computed torque + PD, zero-order hold).
+    """The tracking controller (computed torque + PD, zero-order hold)."""
 
-    Attributes:
-        rate_hz: control and logging rate [Hz].
-        kp: position gain [1/s²] (multiplies the model's mass matrix).
-        kd: velocity gain [1/s].
-        model: "prior" (a-priori rigid-body model, realistic) or "true" (true rigid-body
-            model incl. payload and armature; friction is still left to the feedback).
-    """
-
-    rate_hz: float = 1000.0
-    kp: float = 6400.0
-    kd: float = 160.0
+    rate_hz: float = 1000.0  # control and logging rate [Hz]
+    kp: float = 6400.0  # position gain [1/s²] (times the model's mass matrix)
+    kd: float = 160.0  # velocity gain [1/s]
+    # the rigid-body model: "prior" (a-priori, realistic) or "true" (payload and armature
+    # included; friction is still left to the feedback)
     model: str = "prior"
 
 
 _JOINT_TABLES = {  # effects table: (unit, non-negative)
-    "viscous": ("N·m·s/rad", True),
-    "coulomb": ("N·m", True),
-    "armature": ("kg·m²", True),
-    "torque_offset": ("N·m", False),
-    "presliding_friction": ("N·m", True),
+    "viscous": ("N·m·s/rad", True), "coulomb": ("N·m", True), "armature": ("kg·m²", True),
+    "torque_offset": ("N·m", False), "presliding_friction": ("N·m", True),
     "presliding_stiffness": ("N·m/rad", True),
 }
 #: The TRUTH.yaml ``effects`` section (key: type; :func:`make_truth` says what each is).
@@ -101,61 +77,66 @@ TRUTH_KEYS = {"seed": int, "inertia_perturbation": float, "effects": EFFECT_KEYS
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class Truth:
-    """A simulated run's truth: the robot as built, noise and control (a whole TRUTH.yaml read
-    for one robot: :func:`load_truth`, :func:`make_truth`).
+    """A simulated run's truth: the robot as built, noise and control (a whole TRUTH.yaml)."""
 
-    Attributes:
-        model: the true robot: the a-priori (or an identified) model with the truth's effects,
-            its bodies' parameters perturbed and the payload welded (:func:`make_truth`).
-        noise: see :class:`NoiseTruth`.
-        control: see :class:`ControlTruth`.
-        seed: seeds the inertial perturbation and, independently, the noise.
-        inertia_perturbation: relative size ε in [0, 0.5] of the perturbation in ``model``
-            (:func:`pe_drake.multibody.inertia.perturb_inertias`).
-        record_velocity: also write ``v.<joint>`` columns (true v + noise.v_std).
-        record_command: write the raw command tau_k (held over [t_k, t_k + h), so it leads the
-            positions by half a sample) instead of the centred average (tau_{k-1} + tau_k)/2.
-        integration_accuracy: relative accuracy of Drake's error-controlled integrator.
-        integrator: Drake integration scheme (``GetIntegrationSchemes()``): "runge_kutta3"
-            (fastest for arms), or "radau3" when light joints with Coulomb friction make the
-            dynamics stiff (G1 wrists, 4e-4 kg·m²: 4× faster than runge_kutta3).
-        friction_set: {"viscous" | "coulomb": joints whose friction the truth sets}; the others
-            keep the model file's (every joint around an identified model).
-    """
-
-    model: RobotModel
+    model: RobotModel  # the true robot (:func:`make_truth`)
     noise: NoiseTruth = dataclasses.field(default_factory=NoiseTruth)
     control: ControlTruth = dataclasses.field(default_factory=ControlTruth)
-    seed: int = 0
-    inertia_perturbation: float = 0.0
-    record_velocity: bool = False
+    seed: int = 0  # seeds the inertial perturbation and, independently, the noise
+    inertia_perturbation: float = 0.0  # relative size ε in [0, 0.5] of the perturbation in model
+    record_velocity: bool = False  # also write v.<joint> columns (true v + noise.v_std)
+    # the raw command tau_k instead of the centred (tau_{k-1} + tau_k)/2 (simulation module)
     record_command: bool = False
     integration_accuracy: float = 1e-4
+    # a Drake scheme: "runge_kutta3" (fastest for arms), "radau3" when light joints with Coulomb
+    # friction make the dynamics stiff
     integrator: str = "runge_kutta3"
+    # {"viscous" | "coulomb": joints whose friction the truth sets}; the others keep the model
+    # file's (every joint around an identified model)
     friction_set: Mapping[str, frozenset[str]] = dataclasses.field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        _check_run(self.seed, self.inertia_perturbation, self.integration_accuracy, self.integrator)
-        _check_noise_and_control(self.noise, self.control)
+        seed, n, c = self.seed, self.noise, self.control
+        if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+            raise ConfigError(f"seed must be a non-negative integer, got {seed!r}")
+        eps = check_finite("inertia_perturbation", self.inertia_perturbation, nonneg=True)
+        if eps > 0.5:
+            raise ConfigError(f"inertia_perturbation must lie in [0, 0.5] (relative), got {eps}")
+        check_finite("integration_accuracy", self.integration_accuracy, positive=True)
+        if self.integration_accuracy > 1e-2:
+            raise ConfigError(f"integration_accuracy must be at most 1e-2, got {self.integration_accuracy}")
+        from pydrake.systems.analysis import GetIntegrationSchemes  # lazy: pydrake is heavy
+
+        if self.integrator not in GetIntegrationSchemes():
+            raise ConfigError(f"integrator '{self.integrator}' is not one of Drake's schemes: "
+                              f"{', '.join(GetIntegrationSchemes())}")
+        counts = n.encoder_counts_per_rev
+        if isinstance(counts, bool) or not isinstance(counts, int) or counts < 0:
+            raise ConfigError("noise.encoder_counts_per_rev must be a non-negative integer, "
+                              f"got {counts!r}")
+        for name in ("q_std", "v_std", "tau_std", "force_std", "moment_std"):
+            check_finite(f"noise.{name}", getattr(n, name), nonneg=True)
+        if len(n.wrench_offset) not in (0, 6):
+            raise ConfigError("noise.wrench_offset must be [fx, fy, fz, mx, my, mz] [N, N·m] "
+                              f"(or empty), got {n.wrench_offset!r}")
+        for k, value in enumerate(n.wrench_offset):
+            check_finite(f"noise.wrench_offset[{k}] ({WRENCH_COLUMNS[k]})", value)
+        rate = check_finite("control.rate_hz [Hz]", c.rate_hz, positive=True)
+        if rate > 1e5:
+            raise ConfigError(f"control.rate_hz must be at most 100 kHz, got {rate}")
+        check_finite("control.kp [1/s²]", c.kp, nonneg=True)
+        check_finite("control.kd [1/s]", c.kd, nonneg=True)
+        check_choice("control.model", c.model, CONTROL_MODELS)
 
 
-def load_truth(path: str | Path, robot: Robot, model: RobotModel | None = None) -> Truth:
-    """Reads a TRUTH.yaml for ``robot`` (:func:`read_truth_file`, :func:`make_truth`).
-
-    Raises:
-        ConfigError: missing file, unknown key, wrong type or bad value (file and key named).
-        UnknownNameError: a joint or link the robot does not have (valid names listed).
-    """
-    return make_truth(robot, model=model, where=f"truth file '{path}'", **read_truth_file(path))
+def load_truth(path: str | Path, robot: Robot) -> Truth:
+    """Reads a TRUTH.yaml for ``robot``; ConfigError (file and key named) or UnknownNameError."""
+    return make_truth(robot, where=f"truth file '{path}'", **read_truth_file(path))
 
 
 def read_truth_file(path: str | Path) -> dict[str, Any]:
-    """A TRUTH.yaml's keys as :func:`make_truth`'s arguments, of :data:`TRUTH_KEYS`' types
-    (the numbers not checked yet).
-
-    Raises:
-        ConfigError: missing file, syntax error, unknown key or wrong type (file, line and key named).
-    """
+    """A TRUTH.yaml's keys as :func:`make_truth`'s arguments, the numbers not checked yet
+    (ConfigError naming file, line and key)."""
     from pydrake.common.yaml import yaml_load  # lazy, like every pydrake import
 
     path = Path(path)
@@ -191,32 +172,21 @@ def make_truth(robot: Robot, effects: Mapping[str, Any] | None = None, *, model:
     """The truth of ``robot``: the robot as built from an ``effects`` section, noise and control.
 
     The true model is ``model`` (default: the a-priori robot with its model file's friction)
-    with the effects, its bodies' parameters perturbed (``seed``, ``inertia_perturbation``) and
-    the payload welded. The truth's friction replaces the model file's on the joints it sets
-    (by name or ``all``); on an identified ``model`` (``simulate --model``) the truth's per-joint
-    effects add to the model's, its delay too. With a transmission (the model's, or the robot
-    config's ``robot.transmission``) the truth's viscous, coulomb, armature and torque_offset
-    are per motor (named by its joint) and act through R, and the model file's joint friction
-    is not simulated (as ``identify`` fits the motors' terms as the drive's whole friction).
+    with the effects, its bodies' parameters perturbed and the payload welded. The truth's
+    friction replaces the model file's on the joints it sets; on an identified ``model`` the
+    truth's per-joint effects and delay add to the model's. With a transmission the truth's
+    viscous, coulomb, armature and torque_offset are per motor and the model file's joint
+    friction is not simulated (``identify`` fits the motors' terms as the whole friction).
 
     Args:
-        robot: the a-priori robot.
-        effects: a TRUTH.yaml ``effects`` section as data (:data:`EFFECT_KEYS`, every key
-            optional). Per-joint tables map a joint name (or ``all``: every joint not named) to
-            a value, 0 where absent: ``viscous`` f_v [N·m·s/rad], ``coulomb`` f_c [N·m] (as
-            f_c·tanh(v/v_s), v_s = ``coulomb_velocity_scale`` [rad/s]), ``armature`` [kg·m²],
-            ``torque_offset`` [N·m], ``presliding_friction`` F_c [N·m] and
-            ``presliding_stiffness`` σ0 [N·m/rad] (:mod:`pe_drake.multibody.dahl`);
-            ``torque_delay`` [s] (the torque log lags the positions); ``payload``: a body welded
-            to ``link``, ``mass`` [kg], ``com`` in the link frame [m], ``inertia`` about the
-            centre of mass in the link axes [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] [kg·m²].
-        model: the robot the truth perturbs (an identified model); default the a-priori one.
+        effects: a TRUTH.yaml ``effects`` section as data (keys and units in
+            examples/truth_example.yaml); a per-joint table's ``all`` sets every joint not named.
         where: what to name in errors (the file).
         run: the other :class:`Truth` attributes (``seed``, ``noise``, ``control``, ...).
 
     Raises:
-        ConfigError: a bad value (key, joint and value named); a truth with Coulomb friction of
-            another v_s than the model's, or pre-sliding friction where the model has its own.
+        ConfigError: a bad value (key, joint and value named); Coulomb friction of another v_s
+            than the model's, or pre-sliding friction where the model has its own.
         UnknownNameError: a joint or link the robot does not have (valid names listed).
     """
     try:
@@ -281,16 +251,14 @@ def _check_names(e: Mapping[str, Any], robot: Robot) -> None:
     sigma0 = per_joint_values(e["presliding_stiffness"], robot.joint_names)
     for k, name in enumerate(robot.joint_names):
         if fc[k] > 0 and not sigma0[k] > 0:
-            raise ConfigError(
-                f"effects.presliding_friction['{name}'] = {fc[k]:g} N·m needs a positive "
-                f"effects.presliding_stiffness['{name}'] [N·m/rad] (σ0 of the Dahl model)"
-            )
+            raise ConfigError(f"effects.presliding_friction['{name}'] = {fc[k]:g} N·m needs a "
+                              f"positive effects.presliding_stiffness['{name}'] [N·m/rad] (σ0 of "
+                              "the Dahl model)")
 
 
 def _as_built(robot: Robot, e: Mapping[str, Any], model: RobotModel | None, seed: int,
               eps: float) -> tuple[RobotModel, dict[str, frozenset[str]]]:
-    """The true :class:`RobotModel` of a checked effects section (:func:`make_truth`) and the
-    joints whose friction it sets."""
+    """The true model of a checked effects section and the joints whose friction it sets."""
     joints = robot.joint_names
     # the truth's tables are named as the model file's (RobotModel's FILE_KEYS)
     tables = {t: per_joint_values(e[field], joints) for t, field in FILE_KEYS.items()}
@@ -330,43 +298,6 @@ def _check_model_truth(model: RobotModel, coulomb: np.ndarray, presliding: np.nd
     if np.any(model.presliding > 0) and np.any(presliding > 0):
         raise ConfigError("both the truth file and the model have pre-sliding friction: one Dahl model per joint is "
                           "simulated; remove the truth's presliding_*")
-
-
-def _check_run(seed: Any, eps: float, accuracy: float, integrator: str) -> None:
-    """Seed, inertial perturbation and integrator."""
-    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        raise ConfigError(f"seed must be a non-negative integer, got {seed!r}")
-    eps = check_finite("inertia_perturbation", eps, nonneg=True)
-    if eps > 0.5:
-        raise ConfigError(f"inertia_perturbation must lie in [0, 0.5] (relative), got {eps}")
-    check_finite("integration_accuracy", accuracy, positive=True)
-    if accuracy > 1e-2:
-        raise ConfigError(f"integration_accuracy must be at most 1e-2, got {accuracy}")
-    from pydrake.systems.analysis import GetIntegrationSchemes  # lazy: pydrake stays out of `import pe_drake`
-
-    if integrator not in GetIntegrationSchemes():
-        raise ConfigError(f"integrator '{integrator}' is not one of Drake's schemes: {', '.join(GetIntegrationSchemes())}")
-
-
-def _check_noise_and_control(n: NoiseTruth, c: ControlTruth) -> None:
-    counts = n.encoder_counts_per_rev
-    if isinstance(counts, bool) or not isinstance(counts, int) or counts < 0:
-        raise ConfigError(f"noise.encoder_counts_per_rev must be a non-negative integer, got {counts!r}")
-    for name in ("q_std", "v_std", "tau_std", "force_std", "moment_std"):
-        check_finite(f"noise.{name}", getattr(n, name), nonneg=True)
-    if len(n.wrench_offset) not in (0, 6):
-        raise ConfigError(
-            f"noise.wrench_offset must be [fx, fy, fz, mx, my, mz] [N, N·m] (or empty), got {n.wrench_offset!r}"
-        )
-    for k, value in enumerate(n.wrench_offset):
-        check_finite(f"noise.wrench_offset[{k}] ({WRENCH_COLUMNS[k]})", value)
-    rate = check_finite("control.rate_hz [Hz]", c.rate_hz, positive=True)
-    if rate > 1e5:
-        raise ConfigError(f"control.rate_hz must be at most 100 kHz, got {rate}")
-    check_finite("control.kp [1/s²]", c.kp, nonneg=True)
-    check_finite("control.kd [1/s]", c.kd, nonneg=True)
-    if c.model not in CONTROL_MODELS:
-        raise ConfigError(f"control.model '{c.model}' is not one of {', '.join(CONTROL_MODELS)}")
 
 
 def per_joint_values(table: Mapping[str, float], joints: tuple[str, ...]) -> np.ndarray:
