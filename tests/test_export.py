@@ -431,6 +431,10 @@ def test_a_diagnosed_model_exports_with_its_payload_as_a_body(tmp_path):
     # pre-sliding friction leaves at its sliding level F_c with the Coulomb friction (joint 1: 0.3)
     sliding = model.coulomb + model.presliding
     assert mj.dof_frictionloss[0] == pytest.approx(sliding[0]) and sliding[0] == pytest.approx(model.coulomb[0] + 0.3)
+    import xml.etree.ElementTree as ET
+
+    joint1 = next(j for j in ET.fromstring(urdf.text).iter("joint") if j.get("name") == "panda_joint1")
+    assert float(joint1.find("dynamics").get("friction")) == pytest.approx(sliding[0])
     feedforward = yaml.safe_load(export_model(robot, path, ExportOptions("feedforward")).text)
     assert feedforward["joints"]["panda_joint1"]["coulomb"] == pytest.approx(sliding[0])
 

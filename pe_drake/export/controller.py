@@ -13,7 +13,6 @@ import numpy as np
 
 from pe_drake.diagnosis.augmented_model import physically_consistent
 from pe_drake.export.model_source import IdentifiedSpread
-from pe_drake.export.tree import sliding_friction
 from pe_drake.multibody.drive_columns import coulomb_column
 from pe_drake.multibody.inertia import central_inertia, validity_problems
 from pe_drake.multibody.robot_model import DRIVE_TERMS, RobotModel
@@ -39,7 +38,7 @@ def feedforward_yaml(robot: Robot, model: RobotModel, check: dict | None = None,
     joints = {}
     for k, name in enumerate(robot.joint_names):
         force, speed = _unit(robot, k)
-        c = float(sliding_friction(model)[k])  # a pre-sliding friction at its sliding level
+        c = float(model.sliding_friction[k])  # a pre-sliding friction at its sliding level
         b, o = (float(model.term(t)[k]) for t in ("viscous", "offset"))
         joints[name] = {
             "coulomb": c, "viscous": b, "offset": o, "units": f"{force}, {force}/({speed}), {force}",
@@ -70,7 +69,7 @@ def friction_torque(model: RobotModel, v: np.ndarray, coulomb: np.ndarray | None
 
     ``coulomb``: the Coulomb columns, default tanh(v/v_s)."""
     column = coulomb_column(v, model.velocity_scale) if coulomb is None else coulomb
-    return sliding_friction(model) * column + model.viscous * v + model.offset
+    return model.sliding_friction * column + model.viscous * v + model.offset
 
 
 def effective_inertia(robot: Robot, model: RobotModel, q: np.ndarray) -> np.ndarray:

@@ -16,7 +16,7 @@ import numpy as np
 from pe_drake.exceptions import ConfigError
 from pe_drake.export.mjcf import unheld_terms
 from pe_drake.export.model_source import random_states
-from pe_drake.export.tree import number_text, robot_tree, sliding_friction
+from pe_drake.export.tree import number_text, robot_tree
 from pe_drake.export.urdf_tree import urdf_from_tree
 from pe_drake.multibody.inertia import central_inertia
 from pe_drake.multibody.robot import load_robot
@@ -81,7 +81,7 @@ def _sdf_joint(sdf_model: ET.Element, robot: Robot, model: RobotModel, parent: s
             ET.SubElement(limit, tag).text = number_text(value)
     dynamics = ET.SubElement(axis, "dynamics")
     ET.SubElement(dynamics, "damping").text = number_text(model.viscous[k])
-    ET.SubElement(dynamics, "friction").text = number_text(sliding_friction(model)[k])
+    ET.SubElement(dynamics, "friction").text = number_text(model.sliding_friction[k])
     ET.SubElement(el, f"{{{DRAKE_NAMESPACE}}}rotor_inertia").text = number_text(model.armature[k])
     ET.SubElement(el, f"{{{DRAKE_NAMESPACE}}}gear_ratio").text = "1"
 

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 
 from pe_drake.export.mjcf_meshes import add_visuals
-from pe_drake.export.tree import number_text, quaternion_wxyz, robot_tree, sliding_friction, vector_text
+from pe_drake.export.tree import number_text, quaternion_wxyz, robot_tree, vector_text
 from pe_drake.multibody.inertia import central_inertia
 from pe_drake.multibody.robot_model import PAYLOAD_BODY_NAME, RobotModel
 
@@ -58,7 +58,7 @@ def _joint(body_el: ET.Element, robot: Robot, model: RobotModel, k: int) -> None
         "name": info.name, "type": "hinge" if info.kind == "revolute" else "slide",
         "pos": vector_text(X_CM[:3, 3]), "axis": vector_text(X_CM[:3, :3] @ np.asarray(info.axis_M, float)),
         "armature": number_text(model.armature[k]), "damping": number_text(model.viscous[k]),
-        "frictionloss": number_text(sliding_friction(model)[k]),
+        "frictionloss": number_text(model.sliding_friction[k]),
     }
     if model.spring[k] > 0:  # diagnose's joint_stiffness k·q + offset τ₀ = k (q - springref): MuJoCo's spring
         attributes.update(stiffness=number_text(model.spring[k]), springref=number_text(-model.offset[k] / model.spring[k]))
@@ -120,7 +120,7 @@ def unheld_terms(robot: Robot, model: RobotModel, fmt: str = "mjcf") -> list[str
     if np.any(offsets != 0):
         out.append("torque offsets (add them to the control: the format has no constant joint torque): "
                    + ", ".join(f"{j} {x:.4g}" for j, x in zip(joints, offsets) if x != 0))
-    if np.any(sliding_friction(model) > 0) and fmt in _COULOMB:
+    if np.any(model.sliding_friction > 0) and fmt in _COULOMB:
         out.append(f"Coulomb friction f_c*tanh(v/v_s), v_s = {model.velocity_scale:g} rad/s, {_COULOMB[fmt]}")
     if model.torque_delay:
         out.append(f"the torque delay of {model.torque_delay:.4g} s")

@@ -70,11 +70,3 @@ def quaternion_wxyz(X: np.ndarray) -> np.ndarray:
 
     q: Quaternion = RotationMatrix(np.asarray(X, float)[:3, :3]).ToQuaternion()
     return np.asarray(q.wxyz(), float)
-
-
-def sliding_friction(model: RobotModel) -> np.ndarray:
-    """Each joint's dry friction once it slides, shape (n,) [N·m or N]: the Coulomb f_c plus a
-    pre-sliding (Dahl) friction's F_c, its level in sliding. No format has the Dahl transition
-    over x_p = F_c/σ0 after a reversal; left out, a joint whose friction diagnose named as
-    pre-sliding had none (the real Panda's joints 6-7 in MuJoCo: 0.018/0.036 -> 0.155/0.277 N·m)."""
-    return model.coulomb + model.presliding

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from pe_drake.export.tree import number_text, robot_tree, sliding_friction, vector_text
+from pe_drake.export.tree import number_text, robot_tree, vector_text
 from pe_drake.multibody.inertia import phi_to_spatial_inertia, spatial_inertia_to_phi
 from pe_drake.multibody.robot_model import PAYLOAD_BODY_NAME, RobotModel
 from pe_drake.multibody.urdf import inertial_element, joint_dynamics
@@ -88,4 +88,4 @@ def urdf_from_tree(robot: Robot, model: RobotModel) -> str:
     joints = robot.joint_names
     return joint_dynamics(text, dict(zip(joints, map(float, model.viscous))),
                           {j: float(a) for j, a in zip(joints, model.armature) if a > 0},
-                          dict(zip(joints, map(float, sliding_friction(model)))))
+                          dict(zip(joints, map(float, model.sliding_friction))))

@@ -152,6 +152,12 @@ class RobotModel:
     armature = property(lambda self: self.term("armature"), doc="rotor inertia [kg·m²], (n,).")
 
     @property
+    def sliding_friction(self) -> np.ndarray:
+        """Dry friction once a joint slides [N·m], (n,): f_c plus a pre-sliding friction's F_c,
+        what a file without the Dahl transition holds (URDF ``friction``, MJCF ``frictionloss``)."""
+        return self.coulomb + self.presliding
+
+    @property
     def phi_total(self) -> np.ndarray:
         """``phi`` with the payload added to its link, (10·nb,)."""
         phi = self.phi.copy()
@@ -326,7 +332,8 @@ class RobotModel:
     def urdf_text(self, robot: Robot, title: str = "") -> str:
         """The robot's URDF with this model's inertials, ``<dynamics damping friction>``, rotor
         inertias and payload link of :meth:`per_joint_model`; a negative friction or armature
-        is written as 0. Offsets, delay and pre-sliding are in :meth:`effects_yaml`.
+        is written as 0; ``friction`` holds a pre-sliding friction's sliding level. Offsets, delay and
+        pre-sliding are in :meth:`effects_yaml`.
 
         Raises:
             ConfigError: the robot was not loaded from a URDF.
@@ -337,7 +344,7 @@ class RobotModel:
         if m is not None:
             text = joint_dynamics(text, dict(zip(self.joints, map(float, m.viscous))),
                                   {j: float(a) for j, a in zip(self.joints, m.armature) if a > 0},
-                                  dict(zip(self.joints, map(float, m.coulomb))))
+                                  dict(zip(self.joints, map(float, m.sliding_friction))))
         if self.payload is not None:
             head, sep, tail = text.rpartition("</robot>")
             text = head + payload_link_text(PAYLOAD_BODY_NAME, self.payload_link, self.payload) + sep + tail
