@@ -2,8 +2,7 @@
 
 The limits are linear in alpha: :func:`add_joint_limit_constraints` adds them as linear rows on
 every ``stride``-th constraint sample, tightened by :func:`intersample_allowance` so that they
-hold at every instant; :func:`add_smooth_joint_limit_constraints` aggregates them into 6
-smooth-max rows per joint. :func:`joint_limit_violation` measures a point against them.
+hold at every instant. :func:`joint_limit_violation` measures a point against them.
 """
 
 from __future__ import annotations
@@ -11,7 +10,6 @@ from __future__ import annotations
 import numpy as np
 
 from pe_drake.excitation.fourier import FourierBasis, FourierTrajectory
-from pe_drake.excitation.limit_windows import CachedRows
 from pe_drake.excitation.problem import ExcitationProblem, check_variables, rest_constraint_matrix
 
 
@@ -20,13 +18,10 @@ def add_joint_limit_constraints(
 ) -> list:
     """Eq. (51): q, v, vdot within the robot's limits at the K constraint samples (and between).
 
-    Linear in alpha, so added as linear constraints, one per joint and quantity (each touches
-    only that joint's 2N+1 coefficients). IPOPT's cost per iteration grows quickly with the
-    row count (0.5 s at 6K = 2400 rows per joint on G1), so rows are imposed on every
-    ``stride``-th sample with the bound tightened by the largest possible overshoot between
-    rows (:func:`intersample_allowance`): that implies the limits at all K samples and at
-    every instant. The default stride is the largest (≤ 8) whose tightening stays within
-    ``max_conservatism`` of each velocity and acceleration limit.
+    One linear constraint per joint and quantity, on that joint's 2N+1 coefficients, imposed on
+    every ``stride``-th sample with the bound tightened by :func:`intersample_allowance`, so the
+    limits hold at every instant. The default stride is the largest (≤ 8) whose tightening stays
+    within ``max_conservatism`` of each velocity and acceleration limit.
 
     Returns:
         The bindings.
@@ -56,88 +51,11 @@ def add_joint_limit_constraints(
     return bindings
 
 
-class _SmoothMaxLimits(CachedRows):
-    """Every sampled joint limit of Eq. (51), aggregated per joint and bound by a smooth max.
-
-    For joint j and each of q, v, vdot, the K sampled values x_k must stay within
-    [lower, upper]. Instead of 2K linear rows (which make IPOPT's limited-memory steps cost
-    ~0.5 s per iteration at K = 400 on G1), each side becomes one row
-    g = (1/ρ) log Σ_k exp(ρ·(x_k − bound)/s) ≤ 0, with s the limit's scale. Log-sum-exp is
-    convex and never below the maximum, so g ≤ 0 implies every sample is within its limit;
-    it overestimates the maximum by at most log(K)/ρ·s, which ``conservatism`` sets
-    (fraction of s).
-    """
-
-    def __init__(self, problem: ExcitationProblem, conservatism: float = 0.005):
-        lim = problem.robot.limits
-        dq, dv, dvd = intersample_allowance(problem)
-        self.problem = problem
-        basis = problem.constraint_basis
-        K = len(basis.t)
-        self.rho = np.log(2 * K) / conservatism
-        half = 0.5 * (lim.q_upper - lim.q_lower)
-        mid = 0.5 * (lim.q_upper + lim.q_lower)
-        # Normalized quantities y = (x - centre)/scale must satisfy |y| ≤ 1.
-        self.centre = np.stack([mid, np.zeros(problem.n), np.zeros(problem.n)])  # (3, n)
-        self.scale = np.stack([half - dq, lim.v_max - dv, lim.vd_max - dvd])  # (3, n)
-        self.basis = basis
-        self.labels = [
-            f"{what} {side} {name}"
-            for name in problem.robot.joint_names
-            for what in ("position", "velocity", "acceleration")
-            for side in ("upper", "lower")
-        ]
-
-    def _rows(self, alpha: np.ndarray, key: bytes) -> tuple[np.ndarray, np.ndarray]:
-        p, b = self.problem, self.basis
-        n, N = p.n, p.harmonics
-        x = np.stack(b.evaluate_alpha(alpha, n))  # (3, K, n)
-        y = (x - self.centre[:, None, :]) / self.scale[:, None, :]
-        y = np.stack([y, -y], axis=1)  # (3, 2, K, n): upper side, lower side
-        z = self.rho * (y - 1.0)
-        zmax = z.max(axis=2, keepdims=True)
-        e = np.exp(z - zmax)
-        total = e.sum(axis=2, keepdims=True)
-        g = ((zmax + np.log(total)) / self.rho)[:, :, 0, :]  # (3, 2, n)
-        w = e / total  # softmax weights, (3, 2, K, n)
-        sign = np.array([1.0, -1.0])[None, :, None]
-        dg_dx = w * (sign[..., None] / self.scale[:, None, None, :])  # (3, 2, K, n)
-        # ∂x/∂(a, b, q0) of joint j at sample k: rows of the Fourier bases.
-        Sa = np.stack([b.S_q, b.S_v, b.S_vd])  # (3, K, N)
-        Cb = np.stack([b.C_q, b.C_v, b.C_vd])
-        Ja = np.einsum("csKn,cKN->csnN", dg_dx, Sa)
-        Jb = np.einsum("csKn,cKN->csnN", dg_dx, Cb)
-        Jq0 = dg_dx[0].sum(axis=1)  # (2, n): only q depends on q0
-        rows = 6 * n
-        J = np.zeros((n, 3, 2, (2 * N + 1) * n))
-        for j in range(n):
-            J[j, :, :, j * N : (j + 1) * N] = Ja[:, :, j]
-            J[j, :, :, n * N + j * N : n * N + (j + 1) * N] = Jb[:, :, j]
-            J[j, 0, :, 2 * n * N + j] = Jq0[:, j]
-        return g.transpose(2, 0, 1).reshape(rows), J.reshape(rows, -1)
-
-
-def add_smooth_joint_limit_constraints(prog, alpha, problem: ExcitationProblem, conservatism: float = 0.005):
-    """Eq. (51) at the K samples as 6 smooth rows per joint (see :class:`_SmoothMaxLimits`).
-
-    Much faster for IPOPT than :func:`add_joint_limit_constraints` at large K, at the price
-    of keeping ``conservatism`` (fraction of each limit) away from the limits.
-    """
-    check_variables(alpha, problem)
-    evaluator = _SmoothMaxLimits(problem, conservatism)
-    rows = len(evaluator.labels)
-    return prog.AddConstraint(evaluator, np.full(rows, -np.inf), np.zeros(rows), vars=alpha, description="joint limits")
-
-
 def intersample_allowance(problem: ExcitationProblem, stride: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """How far q, v, vdot can overshoot their sampled values between two samples.
+    """How far q, v, vdot can overshoot their samples between two samples, each (n,).
 
-    A smooth f sampled every h exceeds the larger neighbouring sample by at most
-    max|f''|·h²/8. With |vdot| ≤ a_max and Bernstein's inequality for a trigonometric
-    polynomial of degree N (|f'| ≤ Nω·max|f|), the bounds are a_max·h²/8 for q,
-    Nω·a_max·h²/8 for v and (Nω)²·a_max·h²/8 for vdot. The sampled limits are tightened by
-    these, so the limits then hold at every instant, not only at the samples. ``stride``:
-    rows on every stride-th constraint sample (spacing stride·h).
+    a_max·h²/8, Nω·a_max·h²/8 and (Nω)²·a_max·h²/8 for rows on every ``stride``-th constraint
+    sample (spacing h): docs/derivations.md §6.
     """
     h = stride * problem.period / problem.config.constraint_samples
     w_max = problem.harmonics * problem.omega
@@ -159,15 +77,8 @@ def joint_limit_violation(problem: ExcitationProblem, alpha: np.ndarray, basis: 
     basis = basis or problem.constraint_basis
     q, v, vd = basis.evaluate_alpha(np.asarray(alpha, float), problem.n)
     lim = problem.robot.limits
-    return float(
-        max(
-            0.0,
-            np.max(lim.q_lower - q),
-            np.max(q - lim.q_upper),
-            np.max(np.abs(v) - lim.v_max),
-            np.max(np.abs(vd) - lim.vd_max),
-        )
-    )
+    worst = (lim.q_lower - q, q - lim.q_upper, np.abs(v) - lim.v_max, np.abs(vd) - lim.vd_max)
+    return float(max(0.0, *(np.max(x) for x in worst)))
 
 
 #: How far (a fraction of each limit's scale: half the position range, v_max, vd_max)
