@@ -1,23 +1,12 @@
 """Multi-start excitation optimization: many seeded starts, the best feasible one kept.
 
-The excitation cost is non-convex (cond of Eq. 5 has many local minima: G1's first motion
-ended anywhere between 216 and 246 across starts), so several random initial points are
-solved and the best feasible result is kept. Each start is an independent IPOPT/NLopt solve
-run as a task on an executor (:mod:`pe_drake.excitation.parallel`): this process, a local
-process pool, or Ray. Start k's result depends only on its seed, starting point and C0, so
-the kept start does not depend on the executor, the number of workers or the order in which
-starts finish.
-
-Use it like::
-
-    options = MultiStartOptions(seeds=[0, 1, 2, 3], run=ExecutorOptions(workers=2))
-    result = solve_multistart(robot, config.excitation, "ipopt", options)
-    result.best            # the ExcitationResult with the lowest cond among feasible ones
-    for s in result.starts:
-        print(s.seed, s.cond, s.wall_time, s.worker)
-
-or pass an open executor (``ExecutorOptions(executor=open_executor(...))``) to reuse its workers over several calls
-(:func:`pe_drake.excitation.sequential.optimize_sequence` does that for its motions).
+The criterion is non-convex (cond of Eq. 5 has many local minima), so several random initial
+points are solved, each an independent task on an executor (:mod:`pe_drake.excitation.parallel`:
+this process, a local process pool, or Ray). Start k's result depends only on its seed, starting
+point and C0, so the kept start does not depend on the executor, the workers or the order in
+which starts finish. Pass an open executor (``ExecutorOptions(executor=open_executor(...))``) to
+reuse its workers over several calls, as :func:`pe_drake.excitation.sequential.optimize_sequence`
+does.
 """
 
 from __future__ import annotations
@@ -63,14 +52,11 @@ __all__ = [
 class StartEvent:
     """Progress of one start, sent to the ``progress`` callback.
 
-    "started", "finished" and "failed" (its worker died or hung: ``message`` says which) come
-    from the caller's process; "progress" (every ``progress_interval`` seconds of a solve)
-    from the worker.
+    "started", "finished" and "failed" (its worker died or hung) come from the caller's
+    process; "progress" (every ``progress_interval`` seconds of a solve) from the worker.
 
     Attributes:
-        seed: seed of the start.
         kind: "started", "progress", "finished" or "failed".
-        evaluations: cost evaluations so far.
         value: criterion at the last evaluation (inf before the first).
         best_feasible: "progress": best criterion among the points checked at progress
             times that meet every constraint at the samples (inf if none yet);
@@ -78,7 +64,6 @@ class StartEvent:
         violation: worst constraint violation at the last checked point, in the
             constraint's unit.
         elapsed: time since the start began [s].
-        criterion: the criterion minimized (one of :data:`pe_drake.config.CRITERIA`).
         label: a tag set by the caller (e.g. "motion 2").
         message: the solver's message ("finished"), why the start failed ("failed").
         origin: where the start began when not at its seed's random point (e.g. "from
@@ -118,21 +103,12 @@ class StartEvent:
 
 @dataclasses.dataclass(frozen=True)
 class StartSummary:
-    """Outcome of one start.
+    """Outcome of one start (fields as in :class:`~pe_drake.excitation.solve.ExcitationResult`).
 
     Attributes:
-        seed: its seed.
-        success: every constraint holds at 1 kHz (see ExcitationResult.success).
-        fun: criterion value at its solution.
-        cond: cond(C) at its solution (C includes C0).
-        cond_motion: cond of the motion's own regressor.
-        nit: solver iterations (None for NLopt).
-        nfev: cost evaluations.
         wall_time: time of the solve in its worker [s].
-        message: the solver's message.
         worker: where it ran ("main", "pid 1234", "10.0.0.2 pid 1234").
-        task_time: the whole task in its worker: building the problem and its constraints,
-            then the solve [s].
+        task_time: the whole task in its worker (problem, constraints, solve) [s].
         lost: the start has no result: its worker died or hung (``message`` says which).
     """
 
@@ -180,13 +156,7 @@ class MultiStartResult:
     def success(self) -> bool:
         return bool(self.best.success)
 
-    @property
-    def solve_time(self) -> float:
-        """Sum of the starts' solve times [s] (what a serial run would roughly take)."""
-        return float(sum(s.wall_time for s in self.starts))
 
-
-# ---- one start (runs in a worker) ------------------------------------------------------------------
 @dataclasses.dataclass
 class _StartTask:
     seed: int
@@ -266,12 +236,11 @@ def _summary(seed: int, done: TaskFinished | TaskLost) -> StartSummary:
 
 
 def best_index(results: Sequence[Any], criterion: str = "soft_cond") -> int:
-    """Index of the result to keep: the best reported figure among successful ones, else
-    among all (ties: the lowest index); None entries (lost starts) are never kept.
+    """Index of the result to keep: the best figure among successful ones, else among all
+    (ties: the lowest index); None entries (lost starts) are never kept.
 
-    The figure is cond(C) for the cond-like criteria (``cond``, ``soft_cond``, ``log_cond``:
-    soft_cond only bounds cond, and 32 G1 starts kept soft_cond's best at cond 182.88 while
-    another start reached 181.93), else the criterion itself (``dopt``).
+    The figure is cond(C) for the cond-like criteria (soft_cond only bounds cond), else the
+    criterion itself (``dopt``).
 
     Raises:
         ValueError: every entry is None.
@@ -290,10 +259,10 @@ def best_index(results: Sequence[Any], criterion: str = "soft_cond") -> int:
     return min(pool, key=lambda k: (figure(k), k))
 
 
-# ---- many starts ----------------------------------------------------------------------------------
 def _make_tasks(o: MultiStartOptions, config, solver_cfg) -> list[_StartTask]:
     """One task per seed; refuses what does not match (before any worker starts)."""
-    seeds, initial_guesses, origins, interval = [int(s) for s in o.seeds], o.initial_guesses, o.origins, o.run.progress_interval
+    seeds, initial_guesses, origins = [int(s) for s in o.seeds], o.initial_guesses, o.origins
+    interval = o.run.progress_interval
     if not seeds:
         raise ConfigError("multi-start needs at least one seed")
     if len(set(seeds)) != len(seeds):
@@ -401,15 +370,9 @@ def solve_multistart(
     finished ones is kept (``starts[k].lost``, ``results[k]`` None, a "failed" event).
 
     Args:
-        robot: the :class:`~pe_drake.multibody.robot.Robot` (ignored, may be None, with an open
-            executor in ``options.run``).
-        config: the excitation problem (default :class:`ExcitationConfig`).
-        solver: "ipopt", "nlopt" or a :class:`SolverConfig`.
+        robot: ignored (may be None) with an open executor in ``options.run``.
         options: the starts and where they run (default :class:`MultiStartOptions`).
         progress: callback receiving :class:`StartEvent` objects (in this process).
-
-    Returns:
-        A :class:`MultiStartResult`.
 
     Raises:
         ConfigError: no seeds, duplicate seeds, initial guesses that do not match the seeds,

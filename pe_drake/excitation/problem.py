@@ -1,9 +1,8 @@
 """The excitation problem: the cost of Eq. (41) over the Fourier coefficients and its gradient.
 
 :class:`ExcitationProblem` holds what the cost is built from (robot, Fourier bases at the T
-cost and K constraint samples, base parameters, prior data C0) and evaluates cond(C) with its
-analytic gradient (Eq. 49). The Drake program around it is in
-:mod:`pe_drake.excitation.program`, the solve in :mod:`pe_drake.excitation.solve`.
+cost and K constraint samples, base parameters, prior data C0) and evaluates the criterion of C
+with its analytic gradient (Eq. 49; docs/derivations.md).
 """
 
 from __future__ import annotations
@@ -41,8 +40,6 @@ class ExcitationProblem:
     """The excitation cost of Eq. (41) for a robot, with its analytic gradient (Eq. 49).
 
     Args:
-        robot: the :class:`~pe_drake.multibody.robot.Robot`.
-        config: harmonics, ω, sample counts, criterion (:class:`ExcitationConfig`).
         C0: prior data, the stacked rows of C of earlier motions (base regressor, then the
             drive columns), shape (m1, columns).
         base: base parameters to use (computed if not given).
@@ -97,8 +94,7 @@ class ExcitationProblem:
         self.num_evaluations = 0
 
     def with_prior(self, C0: np.ndarray | None) -> ExcitationProblem:
-        """This problem with other prior data C0 (Eq. 41): the robot, bases and base parameters
-        are shared, nothing is rebuilt.
+        """This problem with other prior data C0 (Eq. 41), sharing everything else.
 
         Raises:
             ConfigError: C0 without one column per base parameter and drive term.
@@ -114,7 +110,6 @@ class ExcitationProblem:
         self._cache_key = None
         self._cache = None
 
-    # ---- cost ---------------------------------------------------------------------------
     def trajectory(self, alpha: np.ndarray) -> FourierTrajectory:
         return FourierTrajectory.from_alpha(alpha, self.n, self.harmonics, self.omega)
 
@@ -144,12 +139,10 @@ class ExcitationProblem:
         return evaluate_criterion(self.stacked(alpha), self.config.criterion, gradient=False).value
 
     def evaluate(self, alpha: np.ndarray) -> CostValue:
-        """Criterion and its analytic gradient with respect to alpha.
+        """Criterion and its analytic gradient with respect to alpha (docs/derivations.md).
 
-        The chain: Eq. (17) (or Eq. (16) for the smooth bound) gives dc/dC; its rows for sample t times Xᵀ give Z^(t)
-        (Eqs. 45–46); the regressor's adjoint turns Z into dc/d(q, v, vdot) (Eq. 47); the
-        Fourier map pulls that back to alpha (Eq. 49). Cached on alpha, because Drake's
-        solvers ask for the same point more than once.
+        dc/dC (Eqs. 16–17) → Z^(t) (Eq. 46) → dc/d(q, v, vdot) by the regressor's adjoint
+        (Eq. 47) → alpha (Eq. 49). Cached on alpha: Drake's solvers ask for a point repeatedly.
         """
         alpha = np.asarray(alpha, float)
         key = alpha.tobytes()
@@ -178,7 +171,6 @@ class ExcitationProblem:
         self._cache_key, self._cache = key, out
         return out
 
-    # ---- initial point --------------------------------------------------------------------
     def initial_guess(self, seed: int | None = None, amplitude: float | None = None) -> np.ndarray:
         """A random alpha within the joint limits at the constraint samples.
 
@@ -193,8 +185,9 @@ class ExcitationProblem:
         b = rng.normal(size=(n, N)) * amplitude / k
         q0 = self.robot.nominal_posture().copy()
         alpha = np.concatenate([a.ravel(), b.ravel(), q0])
-        if self.config.rest_at_ends:
-            alpha = _project_rest(self, alpha)
+        if self.config.rest_at_ends:  # the minimal change with A alpha = 0 (q0 does not enter A)
+            A, _ = rest_constraint_matrix(self)
+            alpha = alpha - np.linalg.pinv(A) @ (A @ alpha)
         return scale_into_limits(self, alpha, 0.9)
 
 
@@ -211,25 +204,12 @@ def _check_cost_rows(problem: ExcitationProblem) -> None:
         )
 
 
-def _project_rest(problem: ExcitationProblem, alpha: np.ndarray) -> np.ndarray:
-    A, _ = rest_constraint_matrix(problem)
-    # Minimal change of alpha with A alpha = 0 (q0 does not enter A).
-    return alpha - np.linalg.pinv(A) @ (A @ alpha)
-
-
 def scale_into_limits(problem: ExcitationProblem, alpha: np.ndarray, fraction: float) -> np.ndarray:
-    """Shrinks the motion of alpha to use at most ``fraction`` of each joint limit.
+    """Shrinks the motion of alpha to use at most ``fraction`` (in (0, 1]) of each joint limit.
 
-    Checked at the K constraint samples. q, v and vdot are linear in the sine/cosine coefficients, so one common scale factor
-    (never above 1) keeps the motion's shape; the offsets q0 are kept as they are.
-
-    Args:
-        problem: the :class:`ExcitationProblem` (its robot limits and constraint samples).
-        alpha: Fourier coefficients, shape ((2N+1)·n,).
-        fraction: share of each limit the motion may use, in (0, 1].
-
-    Returns:
-        The scaled alpha, shape ((2N+1)·n,).
+    Checked at the K constraint samples. q, v and vdot are linear in the sine/cosine
+    coefficients, so one common factor (never above 1) keeps the motion's shape; the offsets q0
+    are kept. alpha has shape ((2N+1)·n,).
 
     Raises:
         InfeasibleError: an offset q0 is not strictly inside its joint's position limits.
@@ -274,11 +254,7 @@ def rest_constraint_matrix(problem: ExcitationProblem) -> tuple[np.ndarray, np.n
 
 
 def check_variables(alpha, problem: ExcitationProblem) -> None:
-    """Refuses decision variables that do not match the problem's (2N+1)·n coefficients.
-
-    Raises:
-        ConfigError: ``alpha`` has the wrong length.
-    """
+    """Refuses decision variables that are not the problem's (2N+1)·n coefficients (ConfigError)."""
     if len(alpha) != problem.num_variables:
         raise ConfigError(
             f"alpha has {len(alpha)} variables; the problem needs {problem.num_variables} "

@@ -300,17 +300,15 @@ class ExcitationProgram:
     def own_evaluators(self) -> list[tuple[object, object]]:
         """(binding, Python evaluator) of every row and cost this module added whose
         evaluator has ``values_and_jacobian`` (``value_and_gradient`` for the cost)."""
-        pairs = [(self.cost_binding, self.cost)] if self.cost_binding is not None else []
-        pairs += list(zip(self.sampled_bindings, self.evaluators))
+        pairs = [(self.cost_binding, self.cost), *zip(self.sampled_bindings, self.evaluators)]
         pairs += list(zip(self.limit_bindings, self.limit_evaluators))
         return pairs + list(zip(self.exchange_bindings, self.exchange_evaluators))
 
     def callback_seconds(self) -> float:
         """Time spent so far in this program's own callbacks (cost, joint-limit windows,
         sampled constraints) [s]; the rest of a solve is the solver's own work."""
-        total = self.cost.seconds if self.cost is not None else 0.0
-        total += sum(ev.seconds for ev in self.limit_evaluators)
-        return total + sum(ev.seconds for ev in self.evaluators + self.exchange_evaluators)
+        evaluators = self.limit_evaluators + self.evaluators + self.exchange_evaluators
+        return self.cost.seconds + sum(ev.seconds for ev in evaluators)
 
 
 def build_excitation_program(
