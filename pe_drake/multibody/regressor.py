@@ -1,16 +1,10 @@
 """The joint-torque regressor Y(q, v, vdot) (Eq. 1) and its analytic derivative (Eqs. 45–47).
 
-τ = Y(q, v, vdot) φ, with φ the 10 inertial parameters of every body moved by an excited
-joint (order of :data:`pe_drake.multibody.robot.PARAMETER_NAMES`, bodies in ``Robot.body_names``),
-gravity included.
-
-Drake supplies the kinematics: body poses X_WB at each sample, from which the joint motion
-axes S_i (the columns of the spatial-velocity Jacobian, in world coordinates at the world
-origin) follow. Everything after that is batched numpy over the samples: spatial velocities
-and accelerations, the per-body regressor blocks, and — for the gradient — the reverse
-(adjoint) pass of the same computation. In world-origin coordinates every derivative with
-respect to q_l is a spatial cross product with S_l, which keeps the adjoint short; the
-derivation, and how it maps onto the paper's Eqs. (25)–(40), is in docs/derivations.md.
+τ = Y(q, v, vdot) φ, with φ the 10 inertial parameters of every body moved by an excited joint
+(order of :data:`pe_drake.multibody.robot.PARAMETER_NAMES`, bodies in ``Robot.body_names``),
+gravity included. From the body poses X_WB at each sample, everything is batched numpy over the
+samples in world-origin coordinates, where every derivative with respect to q_l is a spatial
+cross product with S_l: the forward pass and its adjoint are derived in docs/derivations.md.
 """
 
 from __future__ import annotations
@@ -53,8 +47,7 @@ class Kinematics:
         VJ, AJ: spatial velocity and acceleration of each joint's child body, (T, n, 6);
             AJ includes gravity as a base acceleration.
         VB, AB: the same per body in body coordinates at Bo, (T, nb, 6).
-        F_B: per-body regressor blocks in body coordinates, (T, nb, 6, 10):
-            F = Γ(A) + V ×* Γ(V) (:func:`pe_drake.multibody.spatial.body_regressor`).
+        F_B: per-body regressor blocks in body coordinates, (T, nb, 6, 10): F = Γ(A) + V ×* Γ(V).
         F_W: the same in world coordinates at the world origin, (T, nb, 6, 10).
         G_V: Γ(V), the unit-parameter inertias times V, (T, nb, 6, 10).
         X_force: per-body force transforms X* (body at Bo → world at the origin), (T, nb, 6, 6);
@@ -125,28 +118,18 @@ class RegressorModel:
         self._twists_key: tuple | None = None
         self._twists: tuple[np.ndarray, np.ndarray] | None = None
 
-    # ---- forward ------------------------------------------------------------------------
     @property
     def batched_kinematics(self) -> bool:
         """True when :meth:`poses` uses the batched forward kinematics (every joint type of
         the robot handled), False when it falls back to Drake's per-sample queries."""
         return self._fk is not None
 
-    @property
-    def pose_bodies(self) -> list[int]:
-        """Body indices whose poses :meth:`poses` returns, in its order (the moving bodies
-        and the excited joints' child bodies)."""
-        return list(self._bodies_needed)
-
     def poses(self, q: np.ndarray) -> np.ndarray:
         """X_WB of the needed bodies, (T, len(bodies_needed), 4, 4).
 
-        Batched over samples from the joints' fixed frames (Drake's X_PF, X_FM(q), X_MC);
-        falls back to Drake's per-sample queries for joint types it does not handle (or
-        when built with ``batched=False``). With ``keep_last_poses`` (the model of
-        :func:`shared_model`, which the balance, collision and environment constraints
-        share, asking for the same samples in each evaluation) the last result is kept and
-        returned read-only.
+        Batched over samples (Drake's per-sample queries for joint types the batched forward
+        kinematics does not handle, or with ``batched=False``). With ``keep_last_poses`` the
+        last result is kept and returned read-only (:func:`shared_model`).
         """
         if not self._keep:
             return self._fk(q) if self._fk is not None else self.drake_poses(q)
@@ -210,8 +193,7 @@ class RegressorModel:
         q, v, vd = (np.atleast_2d(np.asarray(x, float)) for x in (q, v, vd))
         X = self.poses(q)
         # Joint frames M in world: X_WM = X_WC X_CM.
-        X_WC = X[:, [self._slot[c] for c in self._joint_child]]
-        X_WM = X_WC @ self.X_CM
+        X_WM = X[:, self._joint_child_slots] @ self.X_CM
         u = (X_WM[..., :3, :3] @ self.axis_M[..., None])[..., 0]  # axis in world
         o = X_WM[..., :3, 3]
         S = np.concatenate([u, cross3(o, u)], axis=-1)
@@ -290,7 +272,6 @@ class RegressorModel:
             out[k] = self(q[k], v[k], vd[k])[..., columns]
         return out
 
-    # ---- adjoint ------------------------------------------------------------------------
     def pullback(
         self, kin: Kinematics, Z: np.ndarray | None, Z_wrench: np.ndarray | None = None,
         columns: np.ndarray | None = None,
@@ -405,13 +386,10 @@ def _forces_by_parameter(kin: Kinematics) -> np.ndarray:
 
 
 def shared_model(robot: Robot) -> RegressorModel:
-    """One :class:`RegressorModel` per robot that keeps its last poses, for the sampled
-    constraints (balance, collision, environment) that evaluate the same postures: the
-    forward kinematics runs once per evaluation instead of once per constraint.
-
-    It is stored on the robot as ``robot.shared_kinematics`` (set that attribute before
-    building the constraints to use another model, e.g. ``RegressorModel(robot,
-    batched=False, keep_last_poses=True)`` for Drake's per-sample queries)."""
+    """One :class:`RegressorModel` per robot that keeps its last poses, so the sampled
+    constraints (balance, collision, environment) evaluating the same postures run the forward
+    kinematics once. Stored as ``robot.shared_kinematics`` (set that attribute before building
+    the constraints to use another model, e.g. one with ``batched=False``)."""
     model = getattr(robot, "shared_kinematics", None)
     if model is None:
         model = robot.shared_kinematics = RegressorModel(robot, keep_last_poses=True)
