@@ -99,7 +99,7 @@ def timed_solve(robot: Robot, config, formulation: Formulation, seed: int, max_i
 
 
 def bench_solve(args: argparse.Namespace) -> None:
-    """Prints, per robot, the old and the new formulation's CPU seconds, cond and a ``BENCH`` line."""
+    """Prints, per robot, the old and new formulation's CPU seconds, cond and a ``BENCH`` line."""
     names = [r for r in args.robots.split(",") if r] if args.robots else list(DEFAULT_ROBOTS)
     if args.robot:  # --robot names one robot
         names = [args.robot]

@@ -32,7 +32,7 @@ class CriterionValue:
 
     Attributes:
         value: c.
-        grad: dc/dC, same shape as C.
+        grad: dc/dC, same shape as C (dc/dalpha from :meth:`ExcitationProblem.evaluate`).
         singular_values: σ of C, descending.
     """
 

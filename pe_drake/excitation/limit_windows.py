@@ -93,7 +93,8 @@ class WindowMaxRows(CachedRows):
         newton_steps: Newton refinements of the maximizing instant.
     """
 
-    def __init__(self, k_omega, order, sign, scale, bound, start, stop, grid: int = 24, newton_steps: int = 3):
+    def __init__(self, k_omega, order, sign, scale, bound, start, stop, grid: int = 24,
+                 newton_steps: int = 3):
         self.k_omega = np.asarray(k_omega, float)
         self.order = np.asarray(order, int)
         self.gain = np.asarray(sign, float) / np.asarray(scale, float)  # s/scale per row
@@ -155,10 +156,11 @@ def joint_window_rows(
     order, sign, w = order.ravel(), sign.ravel(), w.ravel()
     bound = np.where(sign > 0, upper[order], lower[order]) - sign * backoff * scale[order]
     width = problem.period / windows
-    rows = WindowMaxRows(
-        np.arange(1, N + 1) * problem.omega, order, sign, scale[order], bound, w * width, (w + 1) * width, grid
-    )
-    idx = np.concatenate([joint * N + np.arange(N), n * N + joint * N + np.arange(N), [2 * n * N + joint]])
+    k_omega = np.arange(1, N + 1) * problem.omega
+    start, stop = w * width, (w + 1) * width
+    rows = WindowMaxRows(k_omega, order, sign, scale[order], bound, start, stop, grid)
+    own = joint * N + np.arange(N)
+    idx = np.concatenate([own, n * N + own, [2 * n * N + joint]])
     return rows, idx
 
 

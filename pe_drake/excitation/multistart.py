@@ -179,7 +179,6 @@ class _Reporter:
         self.count = 0
         self.best = math.inf
         self.value = math.inf
-        self.violation = 0.0
         self.start = self.last = time.perf_counter()
 
     def __call__(self, alpha: np.ndarray, value: float) -> None:
@@ -189,10 +188,11 @@ class _Reporter:
         if now - self.last < self.task.interval:
             return
         self.last = now
-        self.violation = _violation(self.program, alpha)  # checked here only: it costs a constraint evaluation
-        if self.violation < 1e-6:
+        violation = _violation(self.program, alpha)  # only here: it costs a constraint evaluation
+        if violation < 1e-6:
             self.best = min(self.best, self.value)
-        self.emit(_event(self.task, "progress", self.count, self.value, self.best, self.violation, now - self.start))
+        elapsed, task = now - self.start, self.task
+        self.emit(_event(task, "progress", self.count, self.value, self.best, violation, elapsed))
 
 
 def _violation(program, alpha: np.ndarray) -> float:
@@ -248,8 +248,7 @@ def best_index(results: Sequence[Any], criterion: str = "soft_cond") -> int:
     kept = [k for k, r in enumerate(results) if r is not None]
     if not kept:
         raise ValueError("no start has a result")
-    feasible = [k for k in kept if results[k].success]
-    pool = feasible or kept
+    pool = [k for k in kept if results[k].success] or kept
     by_cond = criterion in ("cond", "soft_cond", "log_cond")
 
     def figure(k: int) -> float:
@@ -274,19 +273,12 @@ def _make_tasks(o: MultiStartOptions, config, solver_cfg) -> list[_StartTask]:
     if not interval > 0:
         raise ConfigError(f"progress_interval must be positive [s], got {interval!r}")
     C0 = None if o.C0 is None else np.asarray(o.C0, float)
+    guesses = [None] * len(seeds) if initial_guesses is None else initial_guesses
+    guesses = [None if x is None else np.asarray(x, float) for x in guesses]
+    origins = [""] * len(seeds) if origins is None else [str(x) for x in origins]
     return [
-        _StartTask(
-            seed=s,
-            config=config,
-            solver=solver_cfg,
-            C0=C0,
-            x0=None if initial_guesses is None or initial_guesses[k] is None else np.asarray(initial_guesses[k], float),
-            amplitude=o.amplitude,
-            label=o.label,
-            interval=interval,
-            origin="" if origins is None else str(origins[k]),
-        )
-        for k, s in enumerate(seeds)
+        _StartTask(s, config, solver_cfg, C0, x0, o.amplitude, o.label, interval, origin)
+        for s, x0, origin in zip(seeds, guesses, origins)
     ]
 
 
@@ -314,13 +306,10 @@ class _StartProgress:
                                  worker=event.worker))
         elif isinstance(event, TaskFinished):
             r = event.value
-            self.progress(
-                _event(
-                    self.tasks[event.index], "finished", int(r.nfev), float(r.fun),
-                    float(r.fun) if r.success else math.inf, 0.0 if r.success else math.nan,
-                    float(event.wall_time), message=r.message, worker=event.worker,
-                )
-            )
+            best, violation = (float(r.fun), 0.0) if r.success else (math.inf, math.nan)
+            task, wall = self.tasks[event.index], float(event.wall_time)
+            self.progress(_event(task, "finished", int(r.nfev), float(r.fun), best, violation, wall,
+                                 message=r.message, worker=event.worker))
         else:
             self.progress(event)
 

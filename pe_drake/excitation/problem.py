@@ -8,7 +8,6 @@ with its analytic gradient (Eq. 49; docs/derivations.md).
 from __future__ import annotations
 
 import copy
-import dataclasses
 import math
 from typing import TYPE_CHECKING
 
@@ -16,7 +15,7 @@ import numpy as np
 
 from pe_drake.config import Config, ExcitationConfig, validate_config
 from pe_drake.exceptions import ConfigError, InfeasibleError
-from pe_drake.excitation.criteria import evaluate_criterion
+from pe_drake.excitation.criteria import CriterionValue, evaluate_criterion
 from pe_drake.excitation.drive_block import excitation_drive_block
 from pe_drake.excitation.fourier import FourierBasis, FourierTrajectory, sample_times
 from pe_drake.multibody.base_parameters import BaseParameters
@@ -25,15 +24,6 @@ from pe_drake.multibody.sensors import SensorRows, measurement_base_parameters, 
 
 if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
     from pe_drake.multibody.robot import Robot
-
-
-@dataclasses.dataclass(frozen=True)
-class CostValue:
-    """Value and gradient of the excitation cost at one alpha."""
-
-    value: float
-    grad: np.ndarray
-    singular_values: np.ndarray
 
 
 class ExcitationProblem:
@@ -90,7 +80,7 @@ class ExcitationProblem:
         )
         self.C0 = _checked_prior(C0, self.columns)
         self._cache_key: bytes | None = None
-        self._cache: CostValue | None = None
+        self._cache: CriterionValue | None = None
         self.num_evaluations = 0
 
     def with_prior(self, C0: np.ndarray | None) -> ExcitationProblem:
@@ -138,8 +128,8 @@ class ExcitationProblem:
         """The criterion at alpha (no gradient)."""
         return evaluate_criterion(self.stacked(alpha), self.config.criterion, gradient=False).value
 
-    def evaluate(self, alpha: np.ndarray) -> CostValue:
-        """Criterion and its analytic gradient with respect to alpha (docs/derivations.md).
+    def evaluate(self, alpha: np.ndarray) -> CriterionValue:
+        """Criterion and its analytic gradient with respect to alpha (``grad``, the shape of alpha).
 
         dc/dC (Eqs. 16–17) → Z^(t) (Eq. 46) → dc/d(q, v, vdot) by the regressor's adjoint
         (Eq. 47) → alpha (Eq. 49). Cached on alpha: Drake's solvers ask for a point repeatedly.
@@ -158,7 +148,7 @@ class ExcitationProblem:
         C = block if self.C0 is None else np.vstack([self.C0, block])
         crit = evaluate_criterion(C, self.config.criterion)  # Eq. (17) for cond, (16) for soft_cond
         if not np.isfinite(crit.value):
-            out = CostValue(np.inf, np.zeros_like(alpha), crit.singular_values)
+            out = CriterionValue(np.inf, np.zeros_like(alpha), crit.singular_values)
         else:
             G = crit.grad[C.shape[0] - T * r :].reshape(T, r, self.columns)
             # Eq. (46): Z = X C(C) S^T, zero outside the independent columns: passed as those.
@@ -167,7 +157,7 @@ class ExcitationProblem:
                 v_drive, vd_drive = self.drive.pullback(v, vd, G[..., b:])
                 v_bar, vd_bar = v_bar + v_drive, vd_bar + vd_drive
             grad = self.cost_basis.pullback(q_bar, v_bar, vd_bar)  # Eq. (49)
-            out = CostValue(crit.value, grad, crit.singular_values)
+            out = CriterionValue(crit.value, grad, crit.singular_values)
         self._cache_key, self._cache = key, out
         return out
 

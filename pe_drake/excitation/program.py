@@ -29,7 +29,11 @@ from pe_drake.exceptions import ConfigError
 from pe_drake.excitation.constraints.base import SampledConstraint
 from pe_drake.excitation.fourier import FourierBasis, sample_times
 from pe_drake.excitation.limit_windows import CachedRows, add_window_limit_constraints
-from pe_drake.excitation.limits import add_joint_limit_constraints, add_rest_constraints, joint_limit_violation
+from pe_drake.excitation.limits import (
+    add_joint_limit_constraints,
+    add_rest_constraints,
+    joint_limit_violation,
+)
 from pe_drake.excitation.problem import ExcitationProblem, check_variables
 from pe_drake.excitation.scaling import harmonic_scale
 from pe_drake.excitation.stall import CriterionStalled, StallRule
@@ -352,9 +356,8 @@ def build_excitation_program(
     K = problem.config.constraint_samples
     stride = 1 if sample_stride is None else sample_stride
     if not isinstance(stride, int) or stride < 1 or K % stride:
-        raise ConfigError(
-            f"sample_stride must be a positive integer dividing the {K} constraint samples, got {stride!r}"
-        )
+        raise ConfigError(f"sample_stride must be a positive integer dividing the {K} constraint "
+                          f"samples, got {stride!r}")
     # pydrake is imported lazily so that `import pe_drake` stays light.
     from pydrake.solvers import MathematicalProgram
 
@@ -367,8 +370,9 @@ def build_excitation_program(
     program.cost = ExcitationCost(problem, program.progress, stall)
     program.cost_binding = prog.AddCost(program.cost, vars=alpha, description="excitation")
     if limits == "windows":
-        evaluators = program.limit_evaluators
-        program.limit_bindings = add_window_limit_constraints(prog, alpha, problem, evaluators=evaluators)
+        program.limit_bindings = add_window_limit_constraints(
+            prog, alpha, problem, evaluators=program.limit_evaluators
+        )
     else:
         program.limit_bindings = add_joint_limit_constraints(prog, alpha, problem)
     if problem.config.rest_at_ends:

@@ -54,9 +54,7 @@ class ExcitationResult:
     """Outcome of :func:`solve_excitation`.
 
     Attributes:
-        x: optimal alpha, shape ((2N+1)·n,).
-        trajectory: the :class:`FourierTrajectory` of x.
-        fun: criterion value at x.
+        x: optimal alpha, shape ((2N+1)·n,); ``fun`` the criterion there.
         cond: cond(C) at x (C includes C0).
         cond_motion: cond of this motion's own Ŷ_B.
         success: x is a valid trajectory: every constraint holds at 1 kHz (after an early stop
@@ -65,12 +63,10 @@ class ExcitationResult:
         message: solver status, which constraint fails by how much, or the fallback used.
         status: Drake's solution result name, or "kStalled" (:mod:`pe_drake.excitation.stall`).
         nit: solver iterations (IPOPT: from its log; NLopt: None).
-        nfev: cost evaluations.
         wall_time: [s].
         margins: {constraint: minimum margin at 1 kHz} (negative = violated), in the
             constraint's units (rad, rad/s, rad/s², m, N·m).
         singular_values: σ of C.
-        solver: "ipopt" or "nlopt".
         raw: Drake's MathematicalProgramResult.
         solves: solver runs (1 + the exchange step's re-solves); ``nit`` sums them.
         exchange_samples: instants the exchange step added to the program.
@@ -303,14 +299,12 @@ def shrink_into_limits(problem: ExcitationProblem, alpha: np.ndarray, rate: floa
     q, v, vd = FourierBasis(problem.harmonics, problem.omega, t).evaluate_alpha(alpha, problem.n)
     lim, q0 = problem.robot.limits, alpha[-problem.n :]
     with np.errstate(divide="ignore", invalid="ignore"):
-        ratios = np.concatenate(
-            [
-                np.where(q.max(0) > q0, (lim.q_upper - q0) / (q.max(0) - q0), np.inf),
-                np.where(q.min(0) < q0, (q0 - lim.q_lower) / (q0 - q.min(0)), np.inf),
-                lim.v_max / np.abs(v).max(0),
-                lim.vd_max / np.abs(vd).max(0),
-            ]
-        )
+        ratios = np.concatenate([
+            np.where(q.max(0) > q0, (lim.q_upper - q0) / (q.max(0) - q0), np.inf),
+            np.where(q.min(0) < q0, (q0 - lim.q_lower) / (q0 - q.min(0)), np.inf),
+            lim.v_max / np.abs(v).max(0),
+            lim.vd_max / np.abs(vd).max(0),
+        ])
     scale = min(1.0, float(np.min(ratios)) * (1 - 1e-9))
     out = alpha * scale
     out[-problem.n :] = q0
@@ -478,7 +472,7 @@ def solve_excitation(
             result, note = _solve_with_restarts(program, backend, cfg, x0)
             run = _Run(result, note, _iterations_from_log(backend.log_file), 1, 0)
     wall = time.perf_counter() - start
-    result, stalled, nit = run.result, run.note, run.nit
+    result = run.result
 
     solved = result.is_success()
     x = np.asarray(result.GetSolution(program.alpha), float)
@@ -502,25 +496,13 @@ def solve_excitation(
             else "; FAR FROM CONVERGENCE: the criterion is not finite: not a result"
         )
     return ExcitationResult(
-        x=x,
-        trajectory=problem.trajectory(x),
-        fun=float(cost.value),
-        cond=_cond(cost.singular_values),
-        cond_motion=cond_motion,
-        success=not violated and not far,
-        converged=bool(solved),
-        message=_message(cfg, result, violated, fallback, stalled),
-        status=result.get_solution_result().name,
-        nit=nit,
-        nfev=problem.num_evaluations,
-        wall_time=wall,
-        margins=margins,
-        singular_values=cost.singular_values,
-        solver=cfg.name,
-        raw=result,
-        solves=run.solves,
-        exchange_samples=run.added,
-        callback_seconds=program.callback_seconds() - callbacks_before,
+        x=x, trajectory=problem.trajectory(x), fun=float(cost.value),
+        cond=_cond(cost.singular_values), cond_motion=cond_motion, success=not violated and not far,
+        converged=bool(solved), message=_message(cfg, result, violated, fallback, run.note),
+        status=result.get_solution_result().name, nit=run.nit, nfev=problem.num_evaluations,
+        wall_time=wall, margins=margins, singular_values=cost.singular_values, solver=cfg.name,
+        raw=result, solves=run.solves,
+        exchange_samples=run.added, callback_seconds=program.callback_seconds() - callbacks_before,
         far_from_convergence=far,
     )
 

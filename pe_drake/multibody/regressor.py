@@ -41,12 +41,11 @@ class Kinematics:
     """Kinematic quantities of one batch of samples (world coordinates at the world origin).
 
     Attributes:
-        q, v, vd: joint states, (T, n).
+        v, vd: joint velocities and accelerations, (T, n).
         S: joint motion axes S_i, (T, n, 6).
-        R, p: body rotations R_WB (T, nb, 3, 3) and origins p_WBo (T, nb, 3).
-        VJ, AJ: spatial velocity and acceleration of each joint's child body, (T, n, 6);
-            AJ includes gravity as a base acceleration.
-        VB, AB: the same per body in body coordinates at Bo, (T, nb, 6).
+        VJ: spatial velocity of each joint's child body, (T, n, 6).
+        VB, AB: spatial velocity and acceleration (gravity as a base acceleration) of each body
+            in body coordinates at Bo, (T, nb, 6).
         F_B: per-body regressor blocks in body coordinates, (T, nb, 6, 10): F = Γ(A) + V ×* Γ(V).
         F_W: the same in world coordinates at the world origin, (T, nb, 6, 10).
         G_V: Γ(V), the unit-parameter inertias times V, (T, nb, 6, 10).
@@ -56,14 +55,10 @@ class Kinematics:
         X_motion: X*ᵀ (world-origin motion vectors to each body), contiguous, (T, nb, 6, 6).
     """
 
-    q: np.ndarray
     v: np.ndarray
     vd: np.ndarray
     S: np.ndarray
-    R: np.ndarray
-    p: np.ndarray
     VJ: np.ndarray
-    AJ: np.ndarray
     VB: np.ndarray
     AB: np.ndarray
     F_B: np.ndarray
@@ -224,7 +219,7 @@ class RegressorModel:
         # F_W = X* F_B, computed as its transpose F_Bᵀ X*ᵀ: the (10, 6) layout is the one the
         # regressor (Y = S·F) and its adjoint read as a (10·nb, 6) matrix without a copy.
         F_W = (F_B.swapaxes(-1, -2) @ X_motion).swapaxes(-1, -2)
-        return Kinematics(q, v, vd, S, R, p, VJ, AJ, VB, AB, F_B, F_W, G_V, X_force, VB_cross, X_motion)
+        return Kinematics(v, vd, S, VJ, VB, AB, F_B, F_W, G_V, X_force, VB_cross, X_motion)
 
     def regressor(self, kin: Kinematics, columns: np.ndarray | None = None) -> np.ndarray:
         """Y, shape (T, n, 10·nb): Y[t, i, 10j+k] = [joint i moves body j] S_i · F_jk.

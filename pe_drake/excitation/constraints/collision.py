@@ -239,8 +239,9 @@ class CollisionConstraint(SampledConstraint):
             omega, moment = self._kinematics.twists(q)
         else:
             omega, moment = self._kinematics.joint_twists(X_WH)
+        length = centre_distance[..., None]
         with np.errstate(invalid="ignore", divide="ignore"):
-            normal = np.where(centre_distance[..., None] > 1e-12, diff / centre_distance[..., None], 0.0)
+            normal = np.where(length > 1e-12, diff / length, 0.0)
         return omega, moment, normal
 
     def _soft_min(self, q: np.ndarray, derivatives: bool) -> SampledValues:
@@ -326,5 +327,6 @@ class CollisionConstraint(SampledConstraint):
         a, b = self.pairs[p]
         time = None if t is None else float(np.asarray(t, float).reshape(-1)[k])
         pair = (self.capsules[a].name, self.capsules[b].name)
-        raise PostureInCollisionError(pair, k, time, d[k, p], self.margin, int(bad.any(axis=1).sum()))
+        violations = int(bad.any(axis=1).sum())
+        raise PostureInCollisionError(pair, k, time, d[k, p], self.margin, violations)
 
