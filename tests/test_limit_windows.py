@@ -104,7 +104,6 @@ class _Band(SampledConstraint):
     balance and collision."""
 
     name = "band"
-    unit = "rad"
 
     def __init__(self, n, centre, radius):
         super().__init__(["q0 above", "q0 below"], [-np.inf, -np.inf], [radius, radius])

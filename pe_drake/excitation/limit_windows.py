@@ -18,11 +18,8 @@ functions linear in alpha), far fewer than the sampled rows of
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 
-from pe_drake.exceptions import ConfigError
 from pe_drake.excitation.problem import ExcitationProblem, check_variables
 
 
@@ -50,10 +47,9 @@ def trig_rows(k_omega: np.ndarray, t: np.ndarray, order: np.ndarray) -> np.ndarr
 
 class CachedRows:
     """Constraint rows g(x) and their Jacobian for Drake, evaluated once per point (IPOPT asks for
-    the values and then the Jacobian at the same point), the time spent in ``seconds`` [s];
-    a subclass computes them in ``_rows(x, key)`` (``key``: ``x.tobytes()``)."""
+    the values and then the Jacobian at the same point); a subclass computes them in
+    ``_rows(x, key)`` (``key``: ``x.tobytes()``)."""
 
-    seconds = 0.0
     _key: bytes | None = None
     _value: tuple[np.ndarray, np.ndarray] | None = None
 
@@ -63,10 +59,8 @@ class CachedRows:
         key = x.tobytes()
         if key == self._key and self._value is not None:
             return self._value
-        start = time.perf_counter()
         self._value = self._rows(x, key)
         self._key = key
-        self.seconds += time.perf_counter() - start
         return self._value
 
     def __call__(self, x):
@@ -90,11 +84,12 @@ class WindowMaxRows(CachedRows):
         bound: the limit per row, shape (R,) [unit of the quantity].
         start, stop: each row's window [s], shape (R,).
         grid: search points per window.
-        newton_steps: Newton refinements of the maximizing instant.
     """
 
-    def __init__(self, k_omega, order, sign, scale, bound, start, stop, grid: int = 24,
-                 newton_steps: int = 3):
+    #: Newton refinements of the maximizing instant.
+    newton_steps = 3
+
+    def __init__(self, k_omega, order, sign, scale, bound, start, stop, grid: int = 24):
         self.k_omega = np.asarray(k_omega, float)
         self.order = np.asarray(order, int)
         self.gain = np.asarray(sign, float) / np.asarray(scale, float)  # s/scale per row
@@ -104,7 +99,6 @@ class WindowMaxRows(CachedRows):
         # Both edges are on the grid: a window's maximum may sit on its edge.
         self.t_grid = self.start[:, None] + np.arange(grid) * self.spacing[:, None]  # (R, grid)
         self.grid_rows = trig_rows(self.k_omega, self.t_grid, self.order[:, None]) * self.gain[:, None, None]
-        self.newton_steps = newton_steps
         self.derivative_power = self.k_omega ** (self.order[:, None] + 1)  # (kω)^(m+1) per row, (R, N)
         self.phase_shift = self.order[:, None] * (0.5 * np.pi)  # d^m/dt^m shifts by mπ/2, (R, 1)
 
@@ -165,40 +159,23 @@ def joint_window_rows(
 
 
 def add_window_limit_constraints(
-    prog,
-    alpha,
-    problem: ExcitationProblem,
-    windows: int | None = None,
-    *,
-    grid: int = 24,
-    backoff: float = 1e-4,
-    evaluators: list | None = None,
+    prog, alpha, problem: ExcitationProblem, evaluators: list | None = None
 ) -> list:
-    """Eq. (51) at every instant: one window-maximum row per joint, quantity, side and window.
+    """Eq. (51) at every instant: one window-maximum row per joint, quantity, side and window
+    (2N windows, :func:`joint_window_rows`).
 
     Args:
-        windows: windows per period W (default 2N).
-        grid: search points per window before the Newton refinement.
-        backoff: rows stay this fraction of each limit's scale inside it.
         evaluators: if given, the :class:`WindowMaxRows` of each joint are appended to it
-            (Drake's bindings hide the Python object; its ``seconds`` times the callbacks).
+            (Drake's bindings hide the Python object).
 
     Returns:
-        The bindings, one per joint (6·W rows on that joint's 2N+1 coefficients).
-
-    Raises:
-        ConfigError: windows or grid not a positive integer.
+        The bindings, one per joint (6·2N rows on that joint's 2N+1 coefficients).
     """
     check_variables(alpha, problem)
-    windows = 2 * problem.harmonics if windows is None else windows
-    for label, value in (("windows", windows), ("grid", grid)):
-        if not isinstance(value, (int, np.integer)) or value < 1:
-            raise ConfigError(f"joint-limit {label} must be a positive integer, got {value!r}")
-    if grid < 2:
-        raise ConfigError(f"joint-limit grid must have at least 2 points (the window's edges), got {grid}")
+    windows = 2 * problem.harmonics
     bindings = []
     for j, name in enumerate(problem.robot.joint_names):
-        rows, idx = joint_window_rows(problem, j, windows, grid=grid, backoff=backoff)
+        rows, idx = joint_window_rows(problem, j, windows)
         R = rows.num_rows
         b = prog.AddConstraint(rows, np.full(R, -np.inf), np.zeros(R), vars=alpha[idx])
         b.evaluator().set_description(f"joint limits {name} ({windows} windows)")

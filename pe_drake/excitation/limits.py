@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pe_drake.excitation.fourier import FourierBasis, FourierTrajectory
+from pe_drake.excitation.fourier import FourierTrajectory
 from pe_drake.excitation.problem import ExcitationProblem, check_variables, rest_constraint_matrix
 
 
@@ -72,10 +72,9 @@ def add_rest_constraints(prog, alpha, problem: ExcitationProblem):
     return binding
 
 
-def joint_limit_violation(problem: ExcitationProblem, alpha: np.ndarray, basis: FourierBasis | None = None) -> float:
-    """Worst violation of the joint limits (Eq. 51) at the given samples, in limit units."""
-    basis = basis or problem.constraint_basis
-    q, v, vd = basis.evaluate_alpha(np.asarray(alpha, float), problem.n)
+def joint_limit_violation(problem: ExcitationProblem, alpha: np.ndarray) -> float:
+    """Worst violation of the joint limits (Eq. 51) at the K constraint samples, in limit units."""
+    q, v, vd = problem.constraint_basis.evaluate_alpha(np.asarray(alpha, float), problem.n)
     lim = problem.robot.limits
     worst = (lim.q_lower - q, q - lim.q_upper, np.abs(v) - lim.v_max, np.abs(vd) - lim.vd_max)
     return float(max(0.0, *(np.max(x) for x in worst)))

@@ -58,16 +58,13 @@ class StartEvent:
     Attributes:
         kind: "started", "progress", "finished" or "failed".
         value: criterion at the last evaluation (inf before the first).
-        best_feasible: "progress": best criterion among the points checked at progress
-            times that meet every constraint at the samples (inf if none yet);
-            "finished": the result's criterion if it succeeded, else inf.
-        violation: worst constraint violation at the last checked point, in the
-            constraint's unit.
+        best_feasible: best criterion among the points checked that meet every constraint at
+            the samples ("finished": the result's if it succeeded), else inf.
+        violation: worst constraint violation at the last checked point, in its unit.
         elapsed: time since the start began [s].
         label: a tag set by the caller (e.g. "motion 2").
         message: the solver's message ("finished"), why the start failed ("failed").
-        origin: where the start began when not at its seed's random point (e.g. "from
-            motion 1"); empty otherwise.
+        origin: where the start began when not at its seed's random point ("from motion 1").
         worker: where it ran ("finished" only; e.g. "pid 1234").
     """
 
@@ -131,14 +128,11 @@ class MultiStartResult:
     """Outcome of :func:`solve_multistart`.
 
     Attributes:
-        best: the kept :class:`~pe_drake.excitation.solve.ExcitationResult`: the lowest cond
-            (the criterion for ``dopt``) among the feasible starts, else the lowest among all
-            (then ``success`` is False); see :func:`best_index`.
-        seed: seed of ``best``.
+        best: the kept :class:`~pe_drake.excitation.solve.ExcitationResult` (:func:`best_index`);
+            ``seed`` its seed.
         starts: one summary per start, in the order of the seeds.
         results: every start's ExcitationResult, same order (``raw`` is None for results
-            computed in a worker: Drake results cannot be pickled); None for a start lost
-            with its worker (``starts[k].lost``).
+            computed in a worker); None for a start lost with its worker.
         workers: starts run at once (1: solved one after the other).
         executor: "main" (this process), "local" (process pool) or "ray".
         wall_time: whole call, including worker start-up [s].
@@ -319,20 +313,15 @@ class MultiStartOptions:
     """The starts of :func:`solve_multistart` and where they run.
 
     Attributes:
-        seeds: one start per seed; start k begins at ``problem.initial_guess(seeds[k],
-            amplitude)`` unless ``initial_guesses`` is given.
+        seeds: one start per seed, from ``problem.initial_guess(seed, amplitude)`` unless
+            ``initial_guesses`` (one per seed, None: the seed's random point) says otherwise.
         C0: prior data (Eq. 41), shape (m1, b), in the executor's base parameters.
-        constraints_factory: ``f(robot, config) -> [SampledConstraint, ...]``, called once per
-            worker (e.g. :func:`pe_drake.excitation.constraints.constraints_from_config`); a
-            module-level function. Ignored with an open executor (its factory is used).
-        initial_guesses: explicit initial alphas, one per seed; a None entry keeps that seed's
-            random point.
+        constraints_factory: a module-level ``f(robot, config) -> [SampledConstraint, ...]``,
+            called once per worker; ignored with an open executor (its factory is used).
         amplitude: scale of the random initial coefficients [rad] (default config.amplitude).
         label: copied into the events (e.g. "motion 2").
-        origins: one note per seed saying where an explicit initial guess comes from (e.g.
-            "from motion 1"), copied into its events.
-        run: where the starts run (:class:`~pe_drake.excitation.parallel.ExecutorOptions`;
-            ``workers`` capped at the number of seeds).
+        origins: one note per seed on where its initial guess comes from, for its events.
+        run: where the starts run (``workers`` capped at the number of seeds).
     """
 
     seeds: Sequence[int] = (0, 1)

@@ -74,7 +74,6 @@ class ExcitationCost:
         # (value, alpha) of every evaluated point within the joint limits, and the 8 best
         self._evaluated: list[tuple[float, np.ndarray]] = []
         self._best: list[tuple[float, np.ndarray]] = []
-        self.seconds = 0.0  # time spent in this callback so far [s]
 
     @property
     def candidates(self) -> list[tuple[float, np.ndarray]]:
@@ -122,7 +121,6 @@ class ExcitationCost:
 
     def value_and_gradient(self, alpha: np.ndarray) -> tuple[float, np.ndarray]:
         """The criterion (1e20 where it is not finite) and its gradient at alpha."""
-        start = time.perf_counter()
         alpha = np.asarray(alpha, float)
         out = self.problem.evaluate(alpha)
         value = out.value if np.isfinite(out.value) else 1e20
@@ -132,7 +130,6 @@ class ExcitationCost:
         if np.isfinite(out.value):
             self._lowest = min(self._lowest, float(out.value))
         self.best_history.append(self._lowest)
-        self.seconds += time.perf_counter() - start
         logarithmic = self.problem.config.criterion in ("log_cond", "dopt")
         if self.stall is not None and self.stall_enabled and self.stall.stalled(self.best_history, logarithmic):
             raise CriterionStalled(f"{self.problem.config.criterion} improved by less than "
@@ -146,9 +143,7 @@ class ExcitationCost:
         if x.dtype == object:
             value, grad = self.value_and_gradient(ExtractValue(x).reshape(-1))
             return AutoDiffXd(value, grad @ ExtractGradient(x))
-        start = time.perf_counter()
         value = self.problem.evaluate(np.asarray(x, float)).value
-        self.seconds += time.perf_counter() - start
         return value if np.isfinite(value) else 1e20
 
 
@@ -267,20 +262,13 @@ class ExcitationProgram:
     Attributes:
         prog: the MathematicalProgram (add your own costs/constraints before solving).
         alpha: its decision variables, shape ((2N+1)·n,).
-        problem: the :class:`ExcitationProblem`.
-        constraints: the :class:`SampledConstraint` objects added (balance, collision, ...).
-        evaluators: the Drake evaluator of each of ``constraints``, in order
-            (:class:`SampledConstraintEvaluator`).
+        constraints: the :class:`SampledConstraint` objects added (balance, collision, ...);
+            ``evaluators`` (and ``sampled_bindings``) theirs, in order.
         progress: the ``f(alpha, value)`` called after each cost evaluation, or None.
         cost: the program's :class:`ExcitationCost` (its fallback ``candidates``).
-        limits: how the joint limits were added ("windows" or "sampled").
-        limit_bindings: their Drake bindings.
-        limit_evaluators: the :class:`~pe_drake.excitation.limit_windows.WindowMaxRows` of
-            each joint ("windows"; empty for "sampled": Drake's linear constraints).
-        exchange_bindings / exchange_evaluators: rows added by the exchange step
-            (:func:`pe_drake.excitation.exchange.add_violated_samples`) at instants where a
-            sampled constraint was violated between the samples.
-        cost_binding / sampled_bindings: the Drake bindings of ``cost`` and ``evaluators``.
+        limits: how the joint limits were added ("windows" or "sampled"); ``limit_evaluators``
+            the :class:`~pe_drake.excitation.limit_windows.WindowMaxRows` ("windows" only).
+        exchange_bindings / exchange_evaluators: rows added by the exchange step.
         variable_scale: d of the solver's coordinates beta = alpha / d
             (:mod:`pe_drake.excitation.scaling`), or None to solve in alpha.
     """
@@ -308,11 +296,6 @@ class ExcitationProgram:
         pairs += list(zip(self.limit_bindings, self.limit_evaluators))
         return pairs + list(zip(self.exchange_bindings, self.exchange_evaluators))
 
-    def callback_seconds(self) -> float:
-        """Time spent so far in this program's own callbacks (cost, joint-limit windows,
-        sampled constraints) [s]; the rest of a solve is the solver's own work."""
-        evaluators = self.limit_evaluators + self.evaluators + self.exchange_evaluators
-        return self.cost.seconds + sum(ev.seconds for ev in evaluators)
 
 
 def build_excitation_program(
@@ -370,9 +353,8 @@ def build_excitation_program(
     program.cost = ExcitationCost(problem, program.progress, stall)
     program.cost_binding = prog.AddCost(program.cost, vars=alpha, description="excitation")
     if limits == "windows":
-        program.limit_bindings = add_window_limit_constraints(
-            prog, alpha, problem, evaluators=program.limit_evaluators
-        )
+        evaluators = program.limit_evaluators
+        program.limit_bindings = add_window_limit_constraints(prog, alpha, problem, evaluators)
     else:
         program.limit_bindings = add_joint_limit_constraints(prog, alpha, problem)
     if problem.config.rest_at_ends:

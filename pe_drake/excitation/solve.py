@@ -59,19 +59,14 @@ class ExcitationResult:
         cond_motion: cond of this motion's own Ŷ_B.
         success: x is a valid trajectory: every constraint holds at 1 kHz (after an early stop
             at an infeasible iterate, x is the best feasible point evaluated, if any).
-        converged: the solver reported convergence to a local optimum.
         message: solver status, which constraint fails by how much, or the fallback used.
         status: Drake's solution result name, or "kStalled" (:mod:`pe_drake.excitation.stall`).
         nit: solver iterations (IPOPT: from its log; NLopt: None).
         wall_time: [s].
         margins: {constraint: minimum margin at 1 kHz} (negative = violated), in the
             constraint's units (rad, rad/s, rad/s², m, N·m).
-        singular_values: σ of C.
-        raw: Drake's MathematicalProgramResult.
         solves: solver runs (1 + the exchange step's re-solves); ``nit`` sums them.
         exchange_samples: instants the exchange step added to the program.
-        callback_seconds: time in the program's own callbacks (cost, limits, sampled
-            constraints) during the solve [s]; the rest of ``wall_time`` is the solver's.
         far_from_convergence: see :func:`far_from_convergence`; not a result, so ``success``
             is False whatever the 1 kHz re-check says.
     """
@@ -94,7 +89,6 @@ class ExcitationResult:
     raw: object = None
     solves: int = 1
     exchange_samples: int = 0
-    callback_seconds: float = 0.0
     far_from_convergence: bool = False
 
 
@@ -436,7 +430,6 @@ def solve_excitation(
 
     Args:
         program: from :func:`build_excitation_program` (possibly with user additions).
-        solver: "ipopt", "nlopt", or a :class:`SolverConfig` with options.
         initial_guess: alpha to start from (default: ``problem.initial_guess()``).
         check_rate: rate [Hz] at which the constraints are re-checked after solving.
         tolerance: margin below −tolerance counts as a violation in the re-check.
@@ -462,7 +455,6 @@ def solve_excitation(
     program.cost.reset()
     check = _Check(check_rate, tolerance)
     reuse_freed_memory()  # a third of each evaluation went to faulting in fresh pages
-    callbacks_before = program.callback_seconds()
     start = time.perf_counter()
     # NLopt's C callbacks swallow a Python exception (DRAKE_NOTES.md): the stall rule is IPOPT's.
     with single_threaded_blas(), stall_rule_active(program.cost, cfg.name == "ipopt"):
@@ -502,8 +494,7 @@ def solve_excitation(
         status=result.get_solution_result().name, nit=run.nit, nfev=problem.num_evaluations,
         wall_time=wall, margins=margins, singular_values=cost.singular_values, solver=cfg.name,
         raw=result, solves=run.solves,
-        exchange_samples=run.added, callback_seconds=program.callback_seconds() - callbacks_before,
-        far_from_convergence=far,
+        exchange_samples=run.added, far_from_convergence=far,
     )
 
 

@@ -100,7 +100,6 @@ class BalanceConstraint(SampledConstraint):
     """
 
     name = "balance"
-    unit = "m"
 
     def __init__(self, robot: Robot, radius: float = 0.01, *, smoothing: float = 1e-4):
         """Raises ConfigError: see :func:`support_center`; a radius/smoothing that is not a

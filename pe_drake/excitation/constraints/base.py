@@ -91,13 +91,10 @@ class SampledConstraint(abc.ABC):
     Attributes:
         name: short name used in reports ("balance", "collision", "torque").
         labels: one label per value row (e.g. the capsule pair), length m.
-        lower: shape (m,).
-        upper: shape (m,).
-        unit: unit of the values, for reports ("m", "N·m").
+        lower, upper: shape (m,).
     """
 
     name: str = "constraint"
-    unit: str = ""
 
     def __init__(self, labels: list[str], lower: np.ndarray, upper: np.ndarray):
         self.labels = list(labels)

@@ -104,7 +104,6 @@ class CollisionConstraint(SampledConstraint):
     """
 
     name = "collision"
-    unit = "m"
 
     def __init__(self, robot: Robot, margin: float, *, aggregate: bool = True, smoothing: float = 0.002):
         """Raises ConfigError: no capsules, no pair left to check, or a bad margin/smoothing."""

@@ -128,7 +128,6 @@ class EnvironmentConstraint(SampledConstraint):
     """
 
     name = "environment"
-    unit = "m"
 
     def __init__(
         self,

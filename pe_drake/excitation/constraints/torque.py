@@ -31,7 +31,6 @@ class TorqueConstraint(SampledConstraint):
     """
 
     name = "torque"
-    unit = "N·m"
 
     def __init__(self, robot: Robot, model: RegressorModel | None = None):
         effort = np.asarray(robot.limits.effort_max, float)
