@@ -42,8 +42,7 @@ class BenchRobot:
 
     Attributes:
         name: what ``--robots`` calls it.
-        model: a path under example-robot-data's ``robots/`` folder, a built-in name, or a
-            model file path.
+        model: a path under example-robot-data's ``robots/``, a built-in name, or a model file.
         config: YAML text a user would write for it, put under the bench's caps.
         build: writes the model into the run's folder (then ``model`` is unused).
         simulate_with: writes the model the simulated run comes from, when not the model
@@ -99,21 +98,13 @@ REASON_CHARS = 90
 
 @dataclasses.dataclass(frozen=True)
 class BenchOptions:
-    """The caps of one bench run.
+    """The caps of one bench run (None: the robot's config, the whole written motion)."""
 
-    Attributes:
-        max_iterations: IPOPT iterations per robot.
-        max_time: IPOPT wall-time limit per robot [s].
-        harmonics: Fourier harmonics N; None: the robot's config.
-        duration: simulated seconds; None: the whole written motion (ramps and one period).
-        seed: the truth's seed (inertial error and noise).
-    """
-
-    max_iterations: int = 60
-    max_time: float = 240.0
+    max_iterations: int = 60  # IPOPT iterations per robot
+    max_time: float = 240.0  # IPOPT wall-time limit per robot [s]
     harmonics: int | None = None
-    duration: float | None = None
-    seed: int = 0
+    duration: float | None = None  # simulated [s]
+    seed: int = 0  # the truth's (inertial error and noise)
 
 
 @dataclasses.dataclass
@@ -134,10 +125,6 @@ class Row:
     def cells(self) -> list[str]:
         return [self.robot, self.loads, self.mount, self.capsules, self.valid, self.cond, self.effect,
                 f"{self.seconds:.0f}", self.note]
-
-    def timing(self) -> str:
-        """Seconds per stage, e.g. ``optimize 41, simulate 12, ...``."""
-        return ", ".join(f"{k} {v:.0f}" for k, v in self.stage_seconds.items())
 
 
 def short_reason(err: BaseException | str, limit: int = REASON_CHARS) -> str:
@@ -354,7 +341,8 @@ def bench_robots(args) -> list[Row]:
             row = run_robot(entry, options, Path(tmp))
         rows.append(row)
         print(format_row(row.cells(), WIDTHS), flush=True)
-    print("seconds per stage: " + "; ".join(f"{r.robot}: {r.timing()}" for r in rows))
+    stages = (", ".join(f"{k} {v:.0f}" for k, v in r.stage_seconds.items()) for r in rows)
+    print("seconds per stage: " + "; ".join(f"{r.robot}: {s}" for r, s in zip(rows, stages)))
     valid = sum(r.valid.startswith("yes") for r in rows)
     named = sum(r.effect.startswith("yes") for r in rows)
     print(f"BENCH robots={len(rows)} loaded={sum(r.loads.startswith('yes') for r in rows)} valid={valid} "

@@ -33,8 +33,7 @@ DEFAULT_ROBOTS = ("g1", "ur5", "two_arm_lift")
 
 
 class Formulation(NamedTuple):
-    """How a start is set up: :func:`build_excitation_program` keywords, IPOPT options and
-    :func:`excitation_quality` keywords."""
+    """How a start is set up: keywords of :func:`build_excitation_program`, IPOPT, the report."""
 
     program: dict
     ipopt: dict

@@ -28,13 +28,8 @@ SOFT_COND_POWER = 32
 
 @dataclasses.dataclass(frozen=True)
 class CriterionValue:
-    """A criterion's value, gradient, and the singular values it came from.
-
-    Attributes:
-        value: c.
-        grad: dc/dC, same shape as C (dc/dalpha from :meth:`ExcitationProblem.evaluate`).
-        singular_values: σ of C, descending.
-    """
+    """A criterion's value c, its gradient ``grad`` dc/dC (C's shape; dc/dalpha from
+    :meth:`ExcitationProblem.evaluate`) and the singular values σ of C, descending."""
 
     value: float
     grad: np.ndarray
@@ -42,11 +37,8 @@ class CriterionValue:
 
 
 def evaluate_criterion(C: np.ndarray, criterion: str = "cond", gradient: bool = True) -> CriterionValue:
-    """The criterion of C, shape (m, b) with m ≥ b, and (optionally) dc/dC via Eqs. (16)–(17).
-
-    Returns:
-        A :class:`CriterionValue` (value inf/gradient 0 when C is rank deficient).
-    """
+    """The criterion of C, shape (m, b) with m ≥ b, and (optionally) dc/dC via Eqs. (16)–(17);
+    value inf and gradient 0 when C is rank deficient."""
     m, b = C.shape
     s, Vt = singular_values_and_vectors(C, vectors=gradient)
     value = _value(s, criterion)

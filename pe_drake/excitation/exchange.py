@@ -28,13 +28,9 @@ def add_violated_samples(
 ) -> int:
     """Adds a row at each instant where a sampled constraint is violated (module docstring).
 
-    Args:
-        program: the built program; it gains one binding per constraint with violations
-            (``program.exchange_bindings`` and ``program.exchange_evaluators``).
-        alpha: the point to check, shape ((2N+1)·n,).
-        rate: check rate [Hz] (the instants of ``check_margins``).
-        tolerance: a margin below −tolerance is a violation [constraint's unit].
-        backoff: the added rows stay this far inside the bound [constraint's unit].
+    ``program`` gains one binding per constraint with violations (``exchange_bindings``,
+    ``exchange_evaluators``); a margin below −``tolerance`` at ``rate`` [Hz] is a violation,
+    and the added rows stay ``backoff`` inside the bound (both in the constraint's unit).
 
     Returns:
         The number of instants added (0: nothing violated at ``rate``).

@@ -18,8 +18,7 @@ class FourierTrajectory:
     """A joint trajectory of Eq. (50).
 
     Attributes:
-        a: sine coefficients, shape (n, N) [rad].
-        b: cosine coefficients, shape (n, N) [rad].
+        a, b: sine and cosine coefficients, shape (n, N) [rad].
         q0: offsets, shape (n,) [rad].
         omega: base angular frequency [rad/s].
     """
@@ -74,13 +73,8 @@ class FourierTrajectory:
 
 
 class FourierBasis:
-    """sin/cos values of Eq. (50) and its derivatives at fixed sample times.
-
-    Args:
-        harmonics: N.
-        omega: ω [rad/s].
-        t: sample times, shape (T,) [s].
-    """
+    """sin/cos values of Eq. (50) and its derivatives at sample times t (T,) [s], for N =
+    ``harmonics`` harmonics of ω [rad/s]."""
 
     def __init__(self, harmonics: int, omega: float, t: np.ndarray):
         self.harmonics = harmonics

@@ -6,13 +6,11 @@ row bounds the window's maximum:
     g(alpha) = max over t in [t_w, t_w+1] of  s·(x(t) − bound)/scale  ≤  −backoff,
 
 with s = +1 for the upper and −1 for the lower limit. The maximum is found on a grid of
-``grid`` points per window and refined by Newton steps on x'(t) = 0 in continuous time (x is a
-trigonometric polynomial, so x' and x'' are exact), clamped to the window. By the envelope
-theorem ∂g/∂alpha is the Fourier row at the maximizing instant t*. So the row is exact at every
-instant, not only at samples, and smooth while one peak dominates each window. W defaults to
-2N: a window is then half the period of the highest harmonic, so it rarely holds two competing
-peaks (a kink IPOPT tolerates but converges more slowly on). The rows are convex (a maximum of
-functions linear in alpha), far fewer than the sampled rows of
+``grid`` points per window, refined by Newton steps on x'(t) = 0 (exact for a trigonometric
+polynomial) clamped to the window; by the envelope theorem ∂g/∂alpha is the Fourier row at the
+maximizing instant t*. So the row is exact at every instant, convex, and smooth while one peak
+dominates each window: with W = 2N windows, half a period of the highest harmonic each, two
+competing peaks (a kink) are rare. Far fewer rows than
 :func:`~pe_drake.excitation.limits.add_joint_limit_constraints`.
 """
 

@@ -21,10 +21,7 @@ def add_joint_limit_constraints(
     One linear constraint per joint and quantity, on that joint's 2N+1 coefficients, imposed on
     every ``stride``-th sample with the bound tightened by :func:`intersample_allowance`, so the
     limits hold at every instant. The default stride is the largest (≤ 8) whose tightening stays
-    within ``max_conservatism`` of each velocity and acceleration limit.
-
-    Returns:
-        The bindings.
+    within ``max_conservatism`` of each velocity and acceleration limit. Returns the bindings.
     """
     check_variables(alpha, problem)
     lim = problem.robot.limits
@@ -89,15 +86,11 @@ BOUND_SAMPLES_PER_CYCLE = 2048
 
 
 def path_limit_bounds(trajectory: FourierTrajectory) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Bounds of a periodic path over every instant, not only at samples.
+    """(q_max, q_min, |v|_max, |vd|_max), each (n,), bounding a periodic path at every instant.
 
     Between samples h apart, a smooth periodic x(t) rises above its largest sample by at most
     h²/8·max|x''| (its maximum has x' = 0 and a sample within h/2), and
     max|x''| ≤ Σ_k (kω)^(m+2)·|(a_k, b_k)| for the m-th derivative of Eq. (50).
-
-    Returns:
-        (q_max, q_min, |v|_max, |vd|_max), each shape (n,): q_max ≥ q(t), q_min ≤ q(t),
-        |v(t)| ≤ |v|_max, |vd(t)| ≤ |vd|_max for every t [rad or m, /s, /s²].
     """
     N = max(trajectory.highest_harmonic, 1)
     count = BOUND_SAMPLES_PER_CYCLE * N
@@ -117,16 +110,12 @@ def path_limit_bounds(trajectory: FourierTrajectory) -> tuple[np.ndarray, np.nda
 
 def keep_strictly_inside(problem: ExcitationProblem, alpha: np.ndarray, backoff: float = STRICT_BACKOFF) -> tuple[np.ndarray, float]:
     """alpha with its motion about q0 scaled down, if needed, so that q, v and vd stay
-    ``backoff`` inside every joint limit at every instant (:func:`path_limit_bounds`).
+    ``backoff`` inside every joint limit at every instant (:func:`path_limit_bounds`), and the
+    factor applied (1.0 when the path already holds, or when q0 itself is not inside).
 
     The solver's tolerance and the 1 kHz re-check accept a path a hair (≤ 1e-6) outside a
-    limit; nothing outside a limit may be written, so such a path is pulled in by that hair.
-    q, v and vd are linear in the motion about q0, so one factor does it (the ramps are a
-    time scaling of the path: their postures and speeds follow).
-
-    Returns:
-        (alpha, the factor applied: 1.0 when the path already holds, or when q0 itself is
-        not inside and no factor helps).
+    limit; nothing outside a limit may be written. q, v and vd are linear in the motion about
+    q0, so one factor does it.
     """
     alpha = np.asarray(alpha, float)
     n = problem.n

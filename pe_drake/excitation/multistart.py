@@ -37,15 +37,8 @@ from pe_drake.excitation.program import build_excitation_program
 from pe_drake.excitation.solve import solve_excitation
 from pe_drake.multibody.robot import Robot
 
-__all__ = [
-    "MultiStartOptions",
-    "MultiStartResult",
-    "StartEvent",
-    "StartSummary",
-    "WorkerError",
-    "best_index",
-    "solve_multistart",
-]
+__all__ = ["MultiStartOptions", "MultiStartResult", "StartEvent", "StartSummary", "WorkerError",
+           "best_index", "solve_multistart"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -349,7 +342,6 @@ def solve_multistart(
 
     Args:
         robot: ignored (may be None) with an open executor in ``options.run``.
-        options: the starts and where they run (default :class:`MultiStartOptions`).
         progress: callback receiving :class:`StartEvent` objects (in this process).
 
     Raises:

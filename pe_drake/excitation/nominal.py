@@ -50,22 +50,15 @@ def candidate_postures(robot: Robot) -> Iterator[np.ndarray]:
 
 
 def choose_nominal_posture(robot: Robot, excitation, environment) -> str | None:
-    """Sets ``robot.config.nominal_positions`` to the first candidate posture that clears the
-    floor, the boxes and self-collision, when the config gives no nominal posture and the
-    mid-range one does not clear.
-
-    Args:
-        robot: its config is changed in place, so that worker processes rebuilding it from the
-            config start there too.
-        excitation: the :class:`~pe_drake.config.ExcitationConfig`.
-        environment: the :class:`~pe_drake.config.EnvironmentConfig`, or None.
+    """Sets ``robot.config.nominal_positions`` (in place, so that worker processes rebuilding
+    the robot start there too) to the first candidate posture that clears the floor, the boxes
+    and self-collision, when the config gives none and the mid-range one does not clear.
 
     Returns:
         A note saying which posture was chosen, or None when nothing was changed.
 
     Raises:
-        InfeasibleError: no candidate clears; the message names the joints to set in
-            ``robot.nominal_positions``.
+        InfeasibleError: no candidate clears (the message names the joints to set).
     """
     if robot.config.nominal_positions:
         return None  # the user's posture: the constraints check it and say what is wrong

@@ -36,8 +36,7 @@ class ExcitationProblem:
 
     Attributes:
         num_variables: (2N+1)·n.
-        drive: the drive terms' columns of C (``excitation.drive_terms``;
-            :mod:`pe_drake.excitation.drive_block`), none by default.
+        drive: the drive terms' columns of C (``excitation.drive_terms``), none by default.
         columns: columns of C: the base parameters, then the drive terms.
         cost_basis / constraint_basis: Fourier bases at the T cost / K constraint samples.
     """
@@ -84,11 +83,8 @@ class ExcitationProblem:
         self.num_evaluations = 0
 
     def with_prior(self, C0: np.ndarray | None) -> ExcitationProblem:
-        """This problem with other prior data C0 (Eq. 41), sharing everything else.
-
-        Raises:
-            ConfigError: C0 without one column per base parameter and drive term.
-        """
+        """This problem with other prior data C0 (Eq. 41), sharing everything else (ConfigError:
+        C0 without one column per base parameter and drive term)."""
         other = copy.copy(self)
         other.C0 = _checked_prior(C0, self.columns)
         other.clear_cache()
@@ -171,10 +167,8 @@ class ExcitationProblem:
         amplitude = self.config.amplitude if amplitude is None else amplitude
         n, N = self.n, self.harmonics
         k = np.arange(1, N + 1)
-        a = rng.normal(size=(n, N)) * amplitude / k
-        b = rng.normal(size=(n, N)) * amplitude / k
-        q0 = self.robot.nominal_posture().copy()
-        alpha = np.concatenate([a.ravel(), b.ravel(), q0])
+        a, b = (rng.normal(size=(n, N)) * amplitude / k for _ in range(2))
+        alpha = np.concatenate([a.ravel(), b.ravel(), self.robot.nominal_posture()])
         if self.config.rest_at_ends:  # the minimal change with A alpha = 0 (q0 does not enter A)
             A, _ = rest_constraint_matrix(self)
             alpha = alpha - np.linalg.pinv(A) @ (A @ alpha)

@@ -62,8 +62,7 @@ class ExcitationCost:
         self.problem = problem
         self.on_evaluate = on_evaluate
         self.stall = stall
-        #: the rule acts only inside solve_excitation with IPOPT (which catches its exception;
-        #: NLopt's C callbacks would swallow it), never in a user's own Solve of the program
+        #: set only inside solve_excitation with IPOPT (NLopt's C callbacks swallow exceptions)
         self.stall_enabled = False
         #: the lowest criterion evaluated so far, after each evaluation (the stall rule's
         #: measure; within the limits or not: IPOPT's iterates sit slightly outside them)
@@ -226,14 +225,13 @@ def add_sampled_constraint(
     """Adds lower ≤ g(q(t), v(t), vdot(t)) ≤ upper at the constraint samples (or ``samples``
     evenly spaced ones) as a Drake constraint on alpha with an analytic Jacobian.
 
+    Returns the binding, described by the constraint's name.
+
     Args:
         group: samples per row (:class:`SampledConstraintEvaluator`); default for one-sided
             constraints gcd(K, :data:`SAMPLES_PER_ROW`), else 1.
         tau: smoothing of the grouped rows, in the constraint's unit (0.2 mm for metres:
             conservative by at most τ·log(group) ≈ 0.55 mm).
-
-    Returns:
-        The binding; its evaluator's description is the constraint's name.
     """
     check_variables(alpha, problem)
     return _add_sampled(prog, alpha, problem, constraint, samples, group, tau)[0]
@@ -313,8 +311,7 @@ def build_excitation_program(
     Args:
         constraints: extra sampled constraints (balance, collision, torque); joint limits
             and (if configured) rest at the ends are always added.
-        progress: True to print a progress line every few evaluations, or a callable
-            ``f(alpha, value)``.
+        progress: True to print a progress line every 2 s, or a callable ``f(alpha, value)``.
         limits: how the joint limits (Eq. 51) enter: "windows" (one exact window-maximum row
             per joint, quantity, side and window, :mod:`pe_drake.excitation.limit_windows`) or
             "sampled" (linear rows at every stride-th constraint sample, tightened for the
@@ -341,8 +338,7 @@ def build_excitation_program(
     if not isinstance(stride, int) or stride < 1 or K % stride:
         raise ConfigError(f"sample_stride must be a positive integer dividing the {K} constraint "
                           f"samples, got {stride!r}")
-    # pydrake is imported lazily so that `import pe_drake` stays light.
-    from pydrake.solvers import MathematicalProgram
+    from pydrake.solvers import MathematicalProgram  # lazily, as above
 
     prog = MathematicalProgram()
     alpha = prog.NewContinuousVariables(problem.num_variables, "alpha")

@@ -1,11 +1,10 @@
 """The solver's coordinates: each harmonic's coefficients sized by what the limits allow it.
 
 Harmonic k's coefficient moves the velocity k times and the acceleration k² times as much as the
-first harmonic's, so the curvature along a_k grows with k, and IPOPT's limited-memory Hessian
-(a multiple of the identity at first) spends its iterations learning that spread. In the
-coordinates beta = alpha / d, coefficient a_jk, b_jk is measured in units of the largest
-amplitude joint j's limits allow harmonic k alone, A_jk = min(half the position range,
-v_max/(kω), vdot_max/(kω)²), relative to the first harmonic's (d_jk = A_jk / A_j1; d = 1 for q0).
+first's, a spread of curvature IPOPT's limited-memory Hessian spends iterations learning. In
+beta = alpha / d, a_jk and b_jk are in units of the largest amplitude joint j's limits allow
+harmonic k alone, A_jk = min(half the position range, v_max/(kω), vdot_max/(kω)²), relative to
+the first harmonic's (d_jk = A_jk / A_j1; d = 1 for q0).
 
 pydrake 1.51.1's IpoptSolver ignores ``MathematicalProgram.SetVariableScaling``, so
 :func:`scaled_copy` rebinds every cost and constraint of the program, pe_drake's own and a user's,
@@ -120,8 +119,7 @@ def _rebind(target, binding, ours: dict, beta, d, cost: bool) -> str:
 
 
 def scaled_copy(prog, alpha: np.ndarray, d: np.ndarray, ours: list[tuple[object, object]] = ()) -> ScaledProgram:
-    """``prog`` over beta = alpha / d (module docstring); variables other than alpha keep
-    scale 1.
+    """``prog`` over beta = alpha / d (module docstring); other variables keep scale 1.
 
     Args:
         alpha: its Fourier coefficients, shape ((2N+1)·n,).
@@ -130,8 +128,7 @@ def scaled_copy(prog, alpha: np.ndarray, d: np.ndarray, ours: list[tuple[object,
             values and Jacobians are taken in double and scaled (no AutoDiff on the hot
             path); every other evaluator is evaluated at d·beta through Drake.
     """
-    # pydrake is imported lazily so that `import pe_drake` stays light.
-    from pydrake.solvers import MathematicalProgram
+    from pydrake.solvers import MathematicalProgram  # lazily, as above
 
     original = prog.decision_variables()
     index = {v.get_id(): i for i, v in enumerate(original)}

@@ -161,8 +161,7 @@ def _ipopt_backend(cfg: SolverConfig) -> _Backend:
 
 
 def _nlopt_backend(cfg: SolverConfig) -> _Backend:
-    # pydrake is imported lazily so that `import pe_drake` stays light.
-    from pydrake.solvers import NloptSolver, SolverOptions
+    from pydrake.solvers import NloptSolver, SolverOptions  # lazily, as above
 
     solver, options = NloptSolver(), SolverOptions()
     sid = solver.solver_id()

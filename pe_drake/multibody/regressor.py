@@ -73,7 +73,6 @@ class RegressorModel:
     """Batched regressor of a :class:`~pe_drake.multibody.robot.Robot` and its adjoint.
 
     Args:
-        robot: the robot (its plant supplies body poses).
         batched: use the batched forward kinematics where the joint types allow (False:
             Drake's per-sample queries, e.g. as a reference in tests).
         keep_last_poses: keep the last :meth:`poses` and :meth:`twists` (see
@@ -140,14 +139,11 @@ class RegressorModel:
         return [self._slot[int(b)] for b in bodies]
 
     def joint_twists(self, X_WC: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """World axis ω and moment m = o × ω of each excited joint, each (K, n, 3).
+        """World axis ω and moment m = o × ω of each excited joint, each (K, n, 3), from the
+        poses X_WC (K, n, 4, 4) of the joints' child bodies.
 
         A point c moved by joint k has ∂c/∂q_k = ω_k × c + m_k (a prismatic joint: ω = 0,
         m = its axis).
-
-        Args:
-            X_WC: poses of the joints' child bodies, (K, n, 4, 4) (``poses(q)`` at
-                ``slots(joint child bodies)``).
         """
         X_WM = X_WC @ self.X_CM  # (K, n, 4, 4)
         axis_W = rotate(X_WM[:, :, :3, :3], self.axis_M)
@@ -180,11 +176,7 @@ class RegressorModel:
         return out
 
     def kinematics(self, q: np.ndarray, v: np.ndarray, vd: np.ndarray) -> Kinematics:
-        """Everything the regressor and its derivative need, for T samples.
-
-        Args:
-            q, v, vd: joint positions, velocities, accelerations, each (T, n).
-        """
+        """Everything the regressor and its derivative need, for T samples q, v, vd, each (T, n)."""
         q, v, vd = (np.atleast_2d(np.asarray(x, float)) for x in (q, v, vd))
         X = self.poses(q)
         # Joint frames M in world: X_WM = X_WC X_CM.
@@ -222,13 +214,8 @@ class RegressorModel:
         return Kinematics(v, vd, S, VJ, VB, AB, F_B, F_W, G_V, X_force, VB_cross, X_motion)
 
     def regressor(self, kin: Kinematics, columns: np.ndarray | None = None) -> np.ndarray:
-        """Y, shape (T, n, 10·nb): Y[t, i, 10j+k] = [joint i moves body j] S_i · F_jk.
-
-        Args:
-            kin: from :meth:`kinematics`.
-            columns: compute only these columns (e.g. the base parameters' independent ones):
-                Y[..., columns], shape (T, n, len(columns)).
-        """
+        """Y, shape (T, n, 10·nb): Y[t, i, 10j+k] = [joint i moves body j] S_i · F_jk; with
+        ``columns`` (e.g. the base parameters' independent ones) only Y[..., columns]."""
         F, mask = _forces_by_parameter(kin), self._mask
         if columns is not None:
             F, mask = F[:, columns], mask[:, columns]
@@ -236,14 +223,12 @@ class RegressorModel:
         return (F @ kin.S.swapaxes(-1, -2)).swapaxes(-1, -2) * mask
 
     def wrench_regressor(self, kin: Kinematics, columns: np.ndarray | None = None) -> np.ndarray:
-        """Ground-wrench rows Y_0, shape (T, 6, 10·nb): the per-body Newton–Euler blocks side by side.
+        """Ground-wrench rows Y_0, shape (T, 6, 10·nb) (``columns`` as in :meth:`regressor`).
 
         Y_0[t, :, 10j:10j+10] is body j's world-frame force block F_j (moment about the world
-        origin), rows fx, fy, fz, mx, my, mz (:data:`WRENCH_FROM_SPATIAL`). Y_0 φ is the wrench
-        the ground (the weld of the root link) applies to the moving bodies, gravity included;
-        the bodies no excited joint moves add a constant (:func:`pe_drake.multibody.wrench.static_wrench`).
-        No joint torque and no joint friction enters these rows. ``columns``: only these
-        columns, as in :meth:`regressor`.
+        origin), rows fx, fy, fz, mx, my, mz. Y_0 φ is the wrench the ground (the weld of the root
+        link) applies to the moving bodies, gravity included; the bodies no excited joint moves
+        add a constant (:func:`pe_drake.multibody.wrench.static_wrench`).
         """
         T = kin.F_W.shape[0]
         F = kin.F_W[:, :, WRENCH_FROM_SPATIAL, :]  # (T, nb, 6, 10)
@@ -274,7 +259,6 @@ class RegressorModel:
         """Gradient of f = Σ_t Z^(t) : Y^(t) + Z_0^(t) : Y_0^(t) with respect to q, v and vdot (Eq. 47).
 
         Args:
-            kin: from :meth:`kinematics`.
             Z: weights of the joint-torque rows, shape (T, n, 10·nb) (Eq. 46), or None.
             Z_wrench: weights of the ground-wrench rows (:meth:`wrench_regressor`), shape
                 (T, 6, 10·nb), or None.
@@ -314,7 +298,6 @@ class RegressorModel:
         """Gradient of f = Σ_jk w_jk · F_jk (+ the part already in S_bar) with respect to q, v, vdot.
 
         Args:
-            kin: from :meth:`kinematics`.
             w: weights of the world-frame force blocks, (T, nb, 10, 6) (motion vectors).
             S_bar: ∂f/∂S_i collected so far, (T, n, 6).
         """

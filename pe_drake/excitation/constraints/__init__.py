@@ -25,8 +25,7 @@ def constraints_from_config(robot: Robot, excitation, environment=None) -> list[
     EnvironmentConfig) the floor and boxes. Each is checked at the nominal posture first.
 
     Raises:
-        ConfigError: a constraint is requested but the robot lacks what it needs
-            (support points, a capsule file).
+        ConfigError: the robot lacks what a requested constraint needs (support points, capsules).
         InfeasibleError: the nominal posture already violates a constraint.
     """
     out: list[SampledConstraint] = []

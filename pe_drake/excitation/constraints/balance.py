@@ -31,21 +31,14 @@ if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
 class OutOfBalanceError(InfeasibleError):
     """The centre of mass projects too far from the support centre.
 
-    Attributes:
-        sample: index of the worst sample.
-        time: its time [s], or None when no times were given.
-        offset: horizontal CoM offset from the support centre (x, y) at that sample [m].
-        distance: its norm [m].
-        radius: the allowed radius [m].
-        violations: number of samples outside the radius.
+    Attributes: ``sample`` (the worst), its ``time`` [s] (None without times), the CoM's
+    ``offset`` (x, y) [m] from the support centre there and its norm ``distance`` [m], the
+    allowed ``radius`` [m], and ``violations``, the number of samples outside it.
     """
 
     def __init__(self, sample, time, offset, radius, violations):
-        self.sample = int(sample)
-        self.time = time
-        self.offset = np.asarray(offset, float)
-        self.distance = float(np.linalg.norm(offset))
-        self.radius = float(radius)
+        self.sample, self.time, self.offset = int(sample), time, np.asarray(offset, float)
+        self.distance, self.radius = float(np.linalg.norm(offset)), float(radius)
         self.violations = int(violations)
         when = f"sample {sample}" + (f" (t = {time:.3f} s)" if time is not None else "")
         super().__init__(
@@ -109,9 +102,7 @@ class BalanceConstraint(SampledConstraint):
                 raise ConfigError(f"balance {label} must be a positive number [m], got {value!r}")
         if radius <= smoothing:
             raise ConfigError(f"balance radius {radius} m must exceed the smoothing {smoothing} m")
-        self.robot = robot
-        self.radius = float(radius)
-        self.smoothing = float(smoothing)
+        self.robot, self.radius, self.smoothing = robot, float(radius), float(smoothing)
         self.p_WSc = support_center(robot)
         self._plant = robot.plant
         self._context = robot.plant.CreateDefaultContext()  # ours: other constraints keep their caches

@@ -36,8 +36,7 @@ def robot_capsules(robot: Robot, margin, what: str, fix: str) -> tuple:
 
 
 def check_postures(q: np.ndarray, robot: Robot, what: str) -> np.ndarray:
-    """q as finite postures of the robot's excited joints, shape (K, n) (a single posture (n,)
-    becomes (1, n)).
+    """q as finite postures of the robot's excited joints, shape (K, n) (from (n,) or (K, n)).
 
     Raises:
         ConfigError: another shape, or NaN/infinity; ``what`` names the constraint.

@@ -65,21 +65,14 @@ def _closest_points(a: np.ndarray, b: np.ndarray):
 class PostureInCollisionError(InfeasibleError):
     """Two capsules are closer than the collision margin.
 
-    Attributes:
-        pair: the two capsule names.
-        sample: index of the worst sample.
-        time: its time [s], or None when no times were given.
-        distance: their distance at that sample [m] (negative: penetration).
-        margin: the required distance [m].
-        violations: number of samples closer than the margin.
+    Attributes: the two capsule names ``pair``, the worst ``sample`` and its ``time`` [s] (None
+    without times), their ``distance`` there [m] (negative: penetration), the required
+    ``margin`` [m], and ``violations``, the number of samples closer than it.
     """
 
     def __init__(self, pair, sample, time, distance, margin, violations):
-        self.pair = tuple(pair)
-        self.sample = int(sample)
-        self.time = time
-        self.distance = float(distance)
-        self.margin = float(margin)
+        self.pair, self.sample, self.time = tuple(pair), int(sample), time
+        self.distance, self.margin = float(distance), float(margin)
         self.violations = int(violations)
         when = f"sample {sample}" + (f" (t = {time:.3f} s)" if time is not None else "")
         state = "penetrate by" if distance < 0 else "are"
@@ -111,11 +104,8 @@ class CollisionConstraint(SampledConstraint):
                                   "(format: pe_drake/multibody/capsules.py)")
         if aggregate and (not math.isfinite(smoothing) or smoothing <= 0):
             raise ConfigError(f"collision smoothing must be a positive number [m], got {smoothing!r}")
-        self.robot = robot
-        self.capsules = capsules
-        self.margin = float(margin)
-        self.aggregate = bool(aggregate)
-        self.smoothing = float(smoothing)
+        self.robot, self.capsules, self.margin = robot, capsules, float(margin)
+        self.aggregate, self.smoothing = bool(aggregate), float(smoothing)
         self.pairs = capsule_pairs(robot.scene_graph, capsules)
         if not self.pairs:
             raise ConfigError(

@@ -39,13 +39,8 @@ _GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
 
 @dataclasses.dataclass(frozen=True)
 class Box:
-    """An axis-aligned box obstacle in world.
-
-    Attributes:
-        center: shape (3,) [m].
-        size: full edge lengths (x, y, z), shape (3,) [m], each > 0.
-        name: for reports.
-    """
+    """An axis-aligned box obstacle in world: ``center`` (3,) [m] and full edge lengths
+    ``size`` (x, y, z) [m], each > 0."""
 
     center: np.ndarray
     size: np.ndarray
@@ -117,10 +112,8 @@ class EnvironmentConstraint(SampledConstraint):
     """Capsules at least ``margin`` above the floor and outside each box, at every sample.
 
     Args:
-        margin: required clearance [m], >= 0.
         floor_height: offset h of the floor plane n·p = h in world [m], or None for no floor.
         aggregate: one soft-min row per sample (default) or one row per capsule end / box.
-        smoothing: soft-min length scale [m].
         floor_normal: unit normal n of the floor plane in world, pointing to the robot's side.
 
     Raises:
