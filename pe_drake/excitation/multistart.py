@@ -143,6 +143,11 @@ class MultiStartResult:
     def success(self) -> bool:
         return bool(self.best.success)
 
+    @property
+    def solve_time(self) -> float:
+        """Sum of the starts' solve times [s] (what a serial run would roughly take)."""
+        return float(sum(s.wall_time for s in self.starts))
+
 
 @dataclasses.dataclass
 class _StartTask:

@@ -93,8 +93,7 @@ class ExcitationProblem:
 
     def clear_cache(self) -> None:
         """Forgets the cached evaluation, so the next :meth:`evaluate` computes from scratch."""
-        self._cache_key = None
-        self._cache = None
+        self._cache_key, self._cache = None, None
 
     def trajectory(self, alpha: np.ndarray) -> FourierTrajectory:
         return FourierTrajectory.from_alpha(alpha, self.n, self.harmonics, self.omega)

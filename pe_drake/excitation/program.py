@@ -59,9 +59,7 @@ class ExcitationCost:
     """
 
     def __init__(self, problem: ExcitationProblem, on_evaluate: Callable | None = None, stall: StallRule | None = None):
-        self.problem = problem
-        self.on_evaluate = on_evaluate
-        self.stall = stall
+        self.problem, self.on_evaluate, self.stall = problem, on_evaluate, stall
         #: set only inside solve_excitation with IPOPT (NLopt's C callbacks swallow exceptions)
         self.stall_enabled = False
         #: the lowest criterion evaluated so far, after each evaluation (the stall rule's
@@ -366,13 +364,11 @@ def build_excitation_program(
 class _ProgressPrinter:
     """Prints evaluation count, best criterion so far and the worst constraint violation."""
 
-    def __init__(self, program: ExcitationProgram, every: float = 2.0):
-        self.program = program
-        self.every = every  # [s] between lines
-        self.best = np.inf
-        self.count = 0
-        self.last_print = -np.inf
-        self.start = time.perf_counter()
+    every = 2.0  # [s] between lines
+
+    def __init__(self, program: ExcitationProgram):
+        self.program, self.best, self.count = program, np.inf, 0
+        self.last_print, self.start = -np.inf, time.perf_counter()
 
     def __call__(self, alpha: np.ndarray, value: float) -> None:
         self.count += 1
@@ -384,9 +380,6 @@ class _ProgressPrinter:
             self.best = min(self.best, value)
         if now - self.last_print >= self.every:
             self.last_print = now
-            print(
-                f"  eval {self.count:5d}  {self.program.problem.config.criterion} {value:12.5g}"
-                f"  best feasible {self.best:12.5g}  max violation {violation:9.2e}"
-                f"  {now - self.start:6.1f} s",
-                flush=True,
-            )
+            print(f"  eval {self.count:5d}  {self.program.problem.config.criterion} {value:12.5g}"
+                  f"  best feasible {self.best:12.5g}  max violation {violation:9.2e}"
+                  f"  {now - self.start:6.1f} s", flush=True)

@@ -43,9 +43,9 @@ class Kinematics:
     Attributes:
         v, vd: joint velocities and accelerations, (T, n).
         S: joint motion axes S_i, (T, n, 6).
-        VJ: spatial velocity of each joint's child body, (T, n, 6).
-        VB, AB: spatial velocity and acceleration (gravity as a base acceleration) of each body
-            in body coordinates at Bo, (T, nb, 6).
+        VJ, AJ: spatial velocity and acceleration (gravity as a base acceleration) of each
+            joint's child body, (T, n, 6).
+        VB, AB: the same per body in body coordinates at Bo, (T, nb, 6).
         F_B: per-body regressor blocks in body coordinates, (T, nb, 6, 10): F = Γ(A) + V ×* Γ(V).
         F_W: the same in world coordinates at the world origin, (T, nb, 6, 10).
         G_V: Γ(V), the unit-parameter inertias times V, (T, nb, 6, 10).
@@ -59,6 +59,7 @@ class Kinematics:
     vd: np.ndarray
     S: np.ndarray
     VJ: np.ndarray
+    AJ: np.ndarray
     VB: np.ndarray
     AB: np.ndarray
     F_B: np.ndarray
@@ -211,7 +212,7 @@ class RegressorModel:
         # F_W = X* F_B, computed as its transpose F_Bᵀ X*ᵀ: the (10, 6) layout is the one the
         # regressor (Y = S·F) and its adjoint read as a (10·nb, 6) matrix without a copy.
         F_W = (F_B.swapaxes(-1, -2) @ X_motion).swapaxes(-1, -2)
-        return Kinematics(v, vd, S, VJ, VB, AB, F_B, F_W, G_V, X_force, VB_cross, X_motion)
+        return Kinematics(v, vd, S, VJ, AJ, VB, AB, F_B, F_W, G_V, X_force, VB_cross, X_motion)
 
     def regressor(self, kin: Kinematics, columns: np.ndarray | None = None) -> np.ndarray:
         """Y, shape (T, n, 10·nb): Y[t, i, 10j+k] = [joint i moves body j] S_i · F_jk; with
@@ -241,9 +242,8 @@ class RegressorModel:
 
     def columns(self, q: np.ndarray, v: np.ndarray, vd: np.ndarray, columns, chunk: int = 2000,
                 out: np.ndarray | None = None) -> np.ndarray:
-        """Y(q, v, vdot)[..., columns] (e.g. a base regressor's independent columns), shape
-        (T, n, len(columns)), computed ``chunk`` samples at a time (the kinematics of a whole
-        long segment at once hold tens of kB per sample), into ``out`` when given."""
+        """Y(q, v, vdot)[..., columns], shape (T, n, len(columns)), ``chunk`` samples at a time
+        (the kinematics hold tens of kB per sample), into ``out`` when given."""
         columns = np.asarray(columns)
         if out is None:
             out = np.empty((q.shape[0], q.shape[1] if q.ndim > 1 else 1, columns.size))

@@ -168,10 +168,8 @@ class CollisionConstraint(SampledConstraint):
         self._mask_b = moves[pb].astype(float)
 
     def _joint_body_poses(self, q: np.ndarray, all_joints: bool) -> np.ndarray:
-        """X_WH (K, n, 4, 4) of the joints' child bodies; with ``all_joints`` False only
-        those hosting capsules are filled. One forward-kinematics pass per sample (the
-        per-body reads hit Drake's cache; cheaper than the body-poses port, which copies
-        every body's pose)."""
+        """X_WH (K, n, 4, 4) of the joints' child bodies; with ``all_joints`` False only those
+        hosting capsules are filled (per-body reads: cheaper than copying every body's pose)."""
         if self._kinematics.batched_kinematics:
             return self._kinematics.poses(q)[:, self._joint_slots]
         plant, ctx = self._plant, self._context

@@ -180,10 +180,8 @@ class EnvironmentConstraint(SampledConstraint):
             self._moves = robot.joint_moves_body[:, cols].T.astype(float)  # (C, n)
 
     def _floor_ends(self) -> list[tuple[int, int]]:
-        """(capsule, end) pairs that get a floor row: ends whose height varies by more than
-        the capsule's radius over the joint ranges. An end that stays within a radius of its
-        mounting height is a joint housing turning in place (the base, a shoulder): it sits
-        where it is mounted and cannot be moved off the floor."""
+        """(capsule, end) pairs that get a floor row: ends whose height varies by more than the
+        capsule's radius over the joint ranges (others turn in place where they are mounted)."""
         rng = np.random.default_rng(0)
         lim = self.robot.limits
         lo = np.where(np.isfinite(lim.q_lower), lim.q_lower, -np.pi)
