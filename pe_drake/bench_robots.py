@@ -208,7 +208,7 @@ def hidden_friction(robot: Robot, seed: int) -> str:
     0.02 N·m torque noise and a 19-bit encoder. Integrated with radau3: Coulomb friction on
     light links makes the dynamics stiff."""
     coulomb, viscous = [], []
-    for name, joint, effort in zip(robot.joint_names, robot.joints, robot.limits.effort_max):
+    for name, effort in zip(robot.joint_names, robot.limits.effort_max):
         effort = float(effort) if np.isfinite(effort) and effort > 0 else None
         coulomb.append(f"    {name}: {min(max(0.02 * effort, 0.05), 5.0) if effort else 0.3:.4g}")
         viscous.append(f"    {name}: {min(max(0.01 * effort, 0.02), 2.0) if effort else 0.1:.4g}")

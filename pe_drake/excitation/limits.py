@@ -108,7 +108,9 @@ def path_limit_bounds(trajectory: FourierTrajectory) -> tuple[np.ndarray, np.nda
     return q_hi + slack[0], q_lo - slack[0], v_abs + slack[1], vd_abs + slack[2]
 
 
-def keep_strictly_inside(problem: ExcitationProblem, alpha: np.ndarray, backoff: float = STRICT_BACKOFF) -> tuple[np.ndarray, float]:
+def keep_strictly_inside(
+    problem: ExcitationProblem, alpha: np.ndarray, backoff: float = STRICT_BACKOFF
+) -> tuple[np.ndarray, float]:
     """alpha with its motion about q0 scaled down, if needed, so that q, v and vd stay
     ``backoff`` inside every joint limit at every instant (:func:`path_limit_bounds`), and the
     factor applied (1.0 when the path already holds, or when q0 itself is not inside).

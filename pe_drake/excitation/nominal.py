@@ -88,11 +88,12 @@ def choose_nominal_posture(robot: Robot, excitation, environment) -> str | None:
     if floor_blocks and environment is not None and environment.floor:
         # a robot that hangs below its base (Drake's Acrobot) cannot clear a floor at any posture:
         # moving joints will not help, the floor setting will (issue 37)
+        floor = ("the base's support plane" if environment.floor_height is None
+                 else f"environment.floor_height {environment.floor_height:g} m")
         raise InfeasibleError(
-            f"the floor blocks every one of {tried} candidate postures (mid-range, one or two joints moved): part of "
-            "the robot is below the floor ("
-            + ("the base's support plane" if environment.floor_height is None else
-               f"environment.floor_height {environment.floor_height:g} m") + ") whatever its joints do, as for a robot hanging below its base; set environment.floor_height below its lowest point, "
+            f"the floor blocks every one of {tried} candidate postures (mid-range, one or two joints "
+            f"moved): part of the robot is below the floor ({floor}) whatever its joints do, as for a "
+            "robot hanging below its base; set environment.floor_height below its lowest point, "
             "environment: {floor: false}, or robot.base_pose to raise its base")
     raise InfeasibleError(
         f"none of {tried} candidate postures (mid-range, one or two joints moved) clears the floor, the boxes and "
