@@ -36,7 +36,6 @@ class FlangeAboveTable(SampledConstraint):
     """z of panda_link8's origin ≥ height, via Drake's PositionConstraint."""
 
     name = "flange height"
-    unit = "m"
 
     def __init__(self, robot, height: float = TABLE_HEIGHT):
         from pydrake.multibody.inverse_kinematics import PositionConstraint

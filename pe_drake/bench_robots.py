@@ -1,18 +1,12 @@
 """``python -m pe_drake.bench robots``: every arm and humanoid of example-robot-data through
 the library's front doors, as a user bringing that robot would run it (issue 21).
 
-For each robot: ``resolve_robot_config`` (the model path, the defaults for a robot without a
-config, a small YAML with the bench's caps on top) → ``Robot`` (does it load) →
+For each robot: ``resolve_robot_config`` (the bench's caps on top) → ``Robot`` →
 ``optimize_motion`` (capped: ``--max-iterations``, one start, one period) → the written
-trajectory.json checked against the limits at 1 kHz → ``simulate_run`` with a hidden effect
-(Coulomb + viscous friction on every excited joint, 3 % inertial error, noise, from a
-TRUTH.yaml as ``pe-drake simulate --truth`` reads) → ``read_measurements`` →
-``identify_model`` (WLS) → ``diagnose`` (did it name the hidden friction?). A humanoid
-without a config gets pe_drake's standing defaults (arms excited, trunk and legs locked,
-balance on its feet: :mod:`pe_drake.multibody.standing_defaults`).
-
-It prints one table, one row per robot as it finishes; a stage that fails fills the row's
-``note`` with its reason (one line, shortened) and the bench goes on with the next robot.
+trajectory.json checked at 1 kHz → ``simulate_run`` with hidden Coulomb and viscous friction
+(:func:`hidden_friction`) → ``read_measurements`` → ``identify_model`` (WLS) → ``diagnose``
+(did it name the hidden friction?). It prints one table row per robot as it finishes; a stage
+that fails fills the row's ``note`` with its reason and the bench goes on.
 """
 
 from __future__ import annotations
@@ -48,21 +42,18 @@ class BenchRobot:
 
     Attributes:
         name: what ``--robots`` calls it.
-        model: a path under example-robot-data's ``robots/`` folder, a built-in name, or a
-            model file path.
-        config: YAML text a user would write for it (e.g. which joints are the arm), put
-            under the bench's caps; empty: the defaults for a model without a config.
-        build: writes the model into the run's folder (:mod:`pe_drake.bench_models`: robots of
-            the kinds issue 37 tried, which no package ships).
-        simulate_with: writes the model the simulated run comes from (a model without inertials
-            is identified from a robot that has them).
+        model: a path under example-robot-data's ``robots/``, a built-in name, or a model file.
+        config: YAML text a user would write for it, put under the bench's caps.
+        build: writes the model into the run's folder (then ``model`` is unused).
+        simulate_with: writes the model the simulated run comes from, when not the model
+            itself (a model without inertials is identified from a robot that has them).
     """
 
     name: str
     model: str
     config: str = ""
-    build: Callable[[Path], Path] | None = None  # writes the model into a folder (then ``model`` is unused)
-    simulate_with: Callable[[Path], Path] | None = None  # the robot the run comes from, when not the model itself
+    build: Callable[[Path], Path] | None = None
+    simulate_with: Callable[[Path], Path] | None = None
 
 
 #: TIAGo is a mobile manipulator: its arm is excited, the wheels, torso lift and head locked.
@@ -107,21 +98,13 @@ REASON_CHARS = 90
 
 @dataclasses.dataclass(frozen=True)
 class BenchOptions:
-    """The caps of one bench run.
+    """The caps of one bench run (None: the robot's config, the whole written motion)."""
 
-    Attributes:
-        max_iterations: IPOPT iterations per robot.
-        max_time: IPOPT wall-time limit per robot [s].
-        harmonics: Fourier harmonics N; None: the robot's config.
-        duration: simulated seconds; None: the whole written motion (ramps and one period).
-        seed: the truth's seed (inertial error and noise).
-    """
-
-    max_iterations: int = 60
-    max_time: float = 240.0
+    max_iterations: int = 60  # IPOPT iterations per robot
+    max_time: float = 240.0  # IPOPT wall-time limit per robot [s]
     harmonics: int | None = None
-    duration: float | None = None
-    seed: int = 0
+    duration: float | None = None  # simulated [s]
+    seed: int = 0  # the truth's (inertial error and noise)
 
 
 @dataclasses.dataclass
@@ -143,14 +126,9 @@ class Row:
         return [self.robot, self.loads, self.mount, self.capsules, self.valid, self.cond, self.effect,
                 f"{self.seconds:.0f}", self.note]
 
-    def timing(self) -> str:
-        """Seconds per stage, e.g. ``optimize 41, simulate 12, ...``."""
-        return ", ".join(f"{k} {v:.0f}" for k, v in self.stage_seconds.items())
-
 
 def short_reason(err: BaseException | str, limit: int = REASON_CHARS) -> str:
-    """An error as one line of at most ``limit`` characters, folders left out of file paths
-    (the bench's temporary folders would fill the line)."""
+    """An error as one line of at most ``limit`` characters, folders left out of file paths."""
     text = str(err).strip() or type(err).__name__
     text = re.sub(r"\s+", " ", text)
     text = re.sub(r"(?:/[^\s'\":/]+)+/([^\s'\":/]+)", r"\1", text)
@@ -158,9 +136,8 @@ def short_reason(err: BaseException | str, limit: int = REASON_CHARS) -> str:
 
 
 def select_robots(names: str) -> list[BenchRobot]:
-    """The robots of ``--robots a,b,c`` (empty: all of :data:`ROBOTS`). A name that is not
-    in the list but is a model file's path is run with the defaults for a model without a
-    config.
+    """The robots of ``--robots a,b,c`` (empty: all of :data:`ROBOTS`; a model file's path runs
+    with the defaults).
 
     Raises:
         ValueError: a name that is neither, listing the known names.
@@ -226,15 +203,12 @@ def capsules_of(plan) -> str:
 
 
 def hidden_friction(robot: Robot, seed: int) -> str:
-    """TRUTH.yaml text: Coulomb and viscous friction on every excited joint (prismatic ones
-    included: the simulator carries both since issue 37), sized to the
-    joint's effort limit (2 % and 1 %·s/rad; 0.3 N·m and 0.1 N·m·s/rad without one) so a
-    small servo arm and a 300 N·m UR10 joint both carry a friction a sensor would see,
-    3 % inertial error, 0.02 N·m torque noise and a 19-bit encoder. Integrated with radau3:
-    Coulomb friction on light links makes the dynamics stiff (3 s of SO-101 took 338 s with
-    runge_kutta3, 2.9 s with radau3; the UR3 12.6 s and 5.3 s)."""
+    """TRUTH.yaml text: Coulomb and viscous friction on every excited joint, sized to its effort
+    limit (2 % and 1 %·s/rad; 0.3 N·m and 0.1 N·m·s/rad without one), 3 % inertial error,
+    0.02 N·m torque noise and a 19-bit encoder. Integrated with radau3: Coulomb friction on
+    light links makes the dynamics stiff."""
     coulomb, viscous = [], []
-    for name, joint, effort in zip(robot.joint_names, robot.joints, robot.limits.effort_max):
+    for name, effort in zip(robot.joint_names, robot.limits.effort_max):
         effort = float(effort) if np.isfinite(effort) and effort > 0 else None
         coulomb.append(f"    {name}: {min(max(0.02 * effort, 0.05), 5.0) if effort else 0.3:.4g}")
         viscous.append(f"    {name}: {min(max(0.01 * effort, 0.02), 2.0) if effort else 0.1:.4g}")
@@ -367,7 +341,8 @@ def bench_robots(args) -> list[Row]:
             row = run_robot(entry, options, Path(tmp))
         rows.append(row)
         print(format_row(row.cells(), WIDTHS), flush=True)
-    print("seconds per stage: " + "; ".join(f"{r.robot}: {r.timing()}" for r in rows))
+    stages = (", ".join(f"{k} {v:.0f}" for k, v in r.stage_seconds.items()) for r in rows)
+    print("seconds per stage: " + "; ".join(f"{r.robot}: {s}" for r, s in zip(rows, stages)))
     valid = sum(r.valid.startswith("yes") for r in rows)
     named = sum(r.effect.startswith("yes") for r in rows)
     print(f"BENCH robots={len(rows)} loaded={sum(r.loads.startswith('yes') for r in rows)} valid={valid} "

@@ -1,20 +1,12 @@
 """``python -m pe_drake.bench solve``: CPU seconds and cond of one start, old and new formulation.
 
-For each robot (default: G1, UR5 and the 10-joint two-arm robot with a prismatic lift of
-:mod:`pe_drake.bench_models`, written to a temporary folder and loaded with no config: the
-defaults a user without a config gets, capsules fitted to its shapes as ``pe-drake optimize``
-fits them) one start is solved from the same seed twice, in one run:
-
-- ``old``: the formulation before issue 38 (:data:`OLD`);
-- ``new``: the default, issue 38's (:data:`NEW`: no keyword, no option).
-
-Each is timed in CPU seconds of this process (``time.process_time``, all its threads: a
-loaded machine disturbs CPU time far less than wall time), end to end as ``pe-drake optimize``
-runs one start: the problem (regressor model, base parameters), the sampled constraints, the
-Drake program, the solve with its exchange step, the fallback and the 1 kHz re-check, then the
-quality report of a valid motion (its random motions included). Imports, the model file and
-the fitted capsules are shared and not timed; so are the ramps, plots and files, which
-neither formulation changes. Each robot ends with one ``BENCH`` line.
+For each robot (default: G1, UR5 and the two-arm robot of :mod:`pe_drake.bench_models`, loaded
+with no config as a user without one would) one start is solved from the same seed with the
+formulation before issue 38 (:data:`OLD`) and the default (:data:`NEW`), each timed in CPU
+seconds of this process (``time.process_time``: a loaded machine disturbs it far less than wall
+time), end to end as ``pe-drake optimize`` runs one start: problem, constraints, program, solve
+with its exchange step and re-check, then the quality report of a valid motion. Imports, the
+model and the fitted capsules are shared and not timed. Each robot ends with one ``BENCH`` line.
 """
 
 from __future__ import annotations
@@ -41,8 +33,7 @@ DEFAULT_ROBOTS = ("g1", "ur5", "two_arm_lift")
 
 
 class Formulation(NamedTuple):
-    """How a start is set up: :func:`build_excitation_program` keywords, IPOPT options and
-    :func:`excitation_quality` keywords."""
+    """How a start is set up: keywords of :func:`build_excitation_program`, IPOPT, the report."""
 
     program: dict
     ipopt: dict
@@ -75,8 +66,7 @@ class Run(NamedTuple):
 
 def bench_config(robot: str, folder: Path):
     """(config, name) of a bench robot: a built-in's own config, or a model file's defaults
-    with capsules fitted to its shapes (as ``pe-drake optimize`` does for a robot without a
-    capsule file)."""
+    with capsules fitted to its shapes (as ``pe-drake optimize`` does)."""
     model = str(write_two_arm_lift_urdf(folder)) if robot == "two_arm_lift" else robot
     config = resolve_robot_config(model, None)
     if not config.robot.capsules:
@@ -108,8 +98,7 @@ def timed_solve(robot: Robot, config, formulation: Formulation, seed: int, max_i
 
 
 def bench_solve(args: argparse.Namespace) -> None:
-    """Prints, per robot, the old and the new formulation's CPU seconds and cond (module
-    docstring) and one ``BENCH`` line."""
+    """Prints, per robot, the old and new formulation's CPU seconds, cond and a ``BENCH`` line."""
     names = [r for r in args.robots.split(",") if r] if args.robots else list(DEFAULT_ROBOTS)
     if args.robot:  # --robot names one robot
         names = [args.robot]

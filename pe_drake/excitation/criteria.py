@@ -1,23 +1,14 @@
-"""Excitation criteria of the stacked base regressor C and their gradients dc/dC.
+"""Excitation criteria of the stacked base regressor C and their gradients dc/dC (C's shape).
 
-All of them use the singular values of C and their derivative ∂σ_i/∂C = u_i v_iᵀ (Eq. 16):
+All use the singular values of C and ∂σ_i/∂C = u_i v_iᵀ (Eq. 16); docs/derivations.md §1 derives
+each gradient and says when to use which:
 
-- ``cond``: c = σ_max/σ_min (Eq. 5); dc/dC is Eq. (17). The paper's criterion.
-- ``log_cond``: log σ_max − log σ_min. Same minimizer as cond, but its gradient has the
-  scale of 1 instead of cond, so quasi-Newton steps behave when cond is large (>1e3),
-  e.g. at a poor initial point; prefer it when cond starts above ~1e4.
-- ``soft_cond``: (Σ σ_i^p)^(1/p) · (Σ σ_i^−p)^(1/p) with p = :data:`SOFT_COND_POWER`: a
-  smooth upper bound of cond, cond ≤ c ≤ b^(2/p)·cond (b columns). cond has a kink wherever
-  the largest or the smallest singular value is repeated, which is where its minimizer sits,
-  and quasi-Newton steps creep there; this bound is smooth, weighs the few singular values
-  near either end, and its minimizer has a lower cond, reached in fewer iterations (issue
-  11, BUILD_NOTES.md). dc/dσ_i from the same Eq. (16).
-- ``dopt``: −log det(CᵀC) = −2 Σ log σ_i (D-optimality): maximizes the information in all
-  directions, not only the worst one; smoother (no kink when σ_min is repeated) and it
-  rewards large motion, so it saturates the limits. Prefer it when the goal is low parameter
-  variance overall rather than a well-balanced C.
-
-Gradients are returned with the shape of C.
+- ``cond``: c = σ_max/σ_min (Eq. 5), the paper's criterion; dc/dC is Eq. (17).
+- ``log_cond``: log σ_max − log σ_min: same minimizer, gradient of unit scale.
+- ``soft_cond`` (default): (Σ σ_i^p)^(1/p) · (Σ σ_i^−p)^(1/p), p = :data:`SOFT_COND_POWER`, a
+  smooth upper bound of cond (cond ≤ c ≤ b^(2/p)·cond) without cond's kink where σ_max or
+  σ_min is repeated, which is where cond's minimizer sits.
+- ``dopt``: −log det(CᵀC) = −2 Σ log σ_i (D-optimality).
 """
 
 from __future__ import annotations
@@ -31,20 +22,14 @@ import scipy.linalg
 from pe_drake.config import CRITERIA
 
 #: p of ``soft_cond``: large enough that only the singular values within a few percent of the
-#: extremes weigh (σ_i/σ_max = 0.9 counts 0.9^32 ≈ 3 %), small enough to stay smooth. From
-#: the same G1 start (300 iterations) p = 16 ended at cond 190–208, 32 at 187–188.
+#: extremes weigh (σ_i/σ_max = 0.9 counts 0.9^32 ≈ 3 %), small enough to stay smooth.
 SOFT_COND_POWER = 32
 
 
 @dataclasses.dataclass(frozen=True)
 class CriterionValue:
-    """A criterion's value, gradient, and the singular values it came from.
-
-    Attributes:
-        value: c.
-        grad: dc/dC, same shape as C.
-        singular_values: σ of C, descending.
-    """
+    """A criterion's value c, its gradient ``grad`` dc/dC (C's shape; dc/dalpha from
+    :meth:`ExcitationProblem.evaluate`) and the singular values σ of C, descending."""
 
     value: float
     grad: np.ndarray
@@ -52,16 +37,8 @@ class CriterionValue:
 
 
 def evaluate_criterion(C: np.ndarray, criterion: str = "cond", gradient: bool = True) -> CriterionValue:
-    """The criterion of C and (optionally) its gradient via Eqs. (16)–(17).
-
-    Args:
-        C: the stacked base regressor, shape (m, b) with m ≥ b.
-        criterion: one of :data:`CRITERIA`.
-        gradient: compute dc/dC.
-
-    Returns:
-        A :class:`CriterionValue` (value inf/gradient 0 when C is rank deficient).
-    """
+    """The criterion of C, shape (m, b) with m ≥ b, and (optionally) dc/dC via Eqs. (16)–(17);
+    value inf and gradient 0 when C is rank deficient."""
     m, b = C.shape
     s, Vt = singular_values_and_vectors(C, vectors=gradient)
     value = _value(s, criterion)
@@ -95,16 +72,14 @@ def evaluate_criterion(C: np.ndarray, criterion: str = "cond", gradient: bool = 
 def singular_values_and_vectors(C: np.ndarray, vectors: bool) -> tuple[np.ndarray, np.ndarray | None]:
     """σ (descending) and Vᵀ of C (None without ``vectors``).
 
-    C = QR is backward stable, so the b×b factor R has C's singular values and right
-    vectors: one QR (without Q) and a small SVD, ~25 % cheaper than the SVD of a tall C.
-    (The Gram matrix CᵀC would be cheaper still but squares the conditioning: its σ_min
-    carries a relative error ε·cond², enough to spoil finite-difference checks of cond.)
+    C = QR is backward stable, so the b×b factor R has C's singular values and right vectors:
+    one QR (without Q) and a small SVD. (The Gram matrix CᵀC would square the conditioning.)
     """
     m, b = C.shape
     C = np.asarray(C, float)
     if m > 2 * b:
-        # LAPACK's geqrf and gesdd called directly: scipy.linalg.qr's and numpy.linalg.svd's
-        # argument handling was ~45 µs of a 1.5 ms gradient (issue 38).
+        # LAPACK's geqrf and gesdd called directly: scipy's and numpy's argument handling
+        # was a noticeable share of a gradient.
         qr, _, _, info = _GEQRF(C)
         _check_lapack("geqrf", info)
         R = qr[:b]

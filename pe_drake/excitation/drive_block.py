@@ -1,16 +1,10 @@
 """Identify's drive terms as columns of the excitation's C, with their pullback.
 
-``identify`` fits, besides the base parameters, Coulomb and viscous friction, a torque offset
-and (where separable) the armature of every joint (:mod:`pe_drake.multibody.drive_columns`).
-With ``excitation.drive_terms`` set to ``friction`` or ``all``, a motion is optimized for that
-model: C of Eq. (41) becomes [Ŷ_B | D] with D the drive block at the T cost samples, so
-cond(C) also counts how well the motion tells friction from inertia (a motion that never
-reverses a joint cannot tell its Coulomb friction from its offset: C is singular).
-
-The columns are those of identify: on torque row j, tanh(v_j/v_s), v_j, 1 and v̇_j, times the
-row's noise weight (:class:`~pe_drake.multibody.sensors.SensorRows`); zero on ground-wrench
-rows. (identify filters its Coulomb column like the torque, at the full rate; the cost's
-samples are exact, unfiltered, as for the rigid-body columns.) The gradient adds to the regressor's pullback (Eq. 47) its part through v and v̇:
+With ``excitation.drive_terms`` set to ``friction`` or ``all``, C of Eq. (41) becomes [Ŷ_B | D]
+with D identify's drive columns (:mod:`pe_drake.multibody.drive_columns`) at the T cost samples,
+so cond(C) also counts how well the motion tells friction from inertia. On torque row j they
+are tanh(v_j/v_s), v_j, 1 and v̇_j, times the row's noise weight; zero on ground-wrench rows.
+The gradient adds to the regressor's pullback (Eq. 47) its part through v and v̇:
 
     ∂/∂v_j  tanh(v_j/v_s) = (1 − tanh²(v_j/v_s)) / v_s,   ∂/∂v_j  v_j = 1,   ∂/∂v̇_j  v̇_j = 1.
 """
@@ -38,7 +32,6 @@ class DriveBlock:
     """The drive columns D of C at some samples, and the gradient through them.
 
     Args:
-        layout: the columns (:func:`~pe_drake.multibody.drive_columns.drive_layout`).
         row_scale: each row's weight (the :class:`SensorRows` scale), shape (r,), torque rows first.
     """
 
@@ -54,8 +47,7 @@ class DriveBlock:
 
     def pullback(self, v: np.ndarray, vd: np.ndarray, G: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Gradient of Σ G : D with respect to v and v̇, each (T, n); G has D's shape."""
-        v_bar = np.zeros_like(v)
-        vd_bar = np.zeros_like(vd)
+        v_bar, vd_bar = np.zeros_like(v), np.zeros_like(vd)
         scale = self.layout.velocity_scale
         for k, (term, j) in enumerate(zip(self.layout.terms, self.layout.joints)):
             g = G[:, j, k] * self.row_scale[j]

@@ -1,17 +1,11 @@
 """The exchange step for the sampled constraints: re-check at 1 kHz, add the violated instants.
 
-Balance and self-collision (Eqs. 52–53) are imposed at the K constraint samples (grouped by
-:class:`~pe_drake.excitation.program.SampledConstraintEvaluator`); between two samples they
-can still be violated. After a solve, :func:`add_violated_samples` evaluates every sampled
-constraint at the check rate, finds the instants where its margin has a local minimum below
-zero, and adds one row per such instant to the program (kept ``backoff`` inside the bound, so
-the peak's small drift in the next solve does not reopen the violation). The solver then
-restarts from the current point with what remains of the iteration budget. Semi-infinite
-programming calls this an exchange method: rows are added only where the constraint binds,
-so the program stays small while the result holds at every checked instant.
-
-The joint limits need no exchange: their window rows
-(:mod:`pe_drake.excitation.limit_windows`) are exact at every instant.
+Balance, self-collision and the environment (Eqs. 52–53) are imposed at the K constraint
+samples and can still be violated between them. :func:`add_violated_samples` evaluates every
+sampled constraint at the check rate and adds one row per local minimum of its margin below
+zero (kept ``backoff`` inside the bound); the solver then continues from the current point.
+Semi-infinite programming calls this an exchange method: rows only where the constraint binds.
+The joint limits need none: their window rows are exact at every instant.
 """
 
 from __future__ import annotations
@@ -20,11 +14,6 @@ import numpy as np
 
 from pe_drake.excitation.fourier import FourierBasis
 from pe_drake.excitation.program import ExcitationProgram, SampledConstraintEvaluator
-
-
-def check_times(period: float, rate: float) -> np.ndarray:
-    """The instants of one period at ``rate`` [Hz] (those of ``check_margins``), [s]."""
-    return np.arange(0.0, period, 1.0 / rate)
 
 
 def violated_instants(margin: np.ndarray, tolerance: float) -> np.ndarray:
@@ -37,22 +26,17 @@ def violated_instants(margin: np.ndarray, tolerance: float) -> np.ndarray:
 def add_violated_samples(
     program: ExcitationProgram, alpha: np.ndarray, rate: float = 1000.0, tolerance: float = 1e-6, backoff: float = 1e-4
 ) -> int:
-    """Adds a row at each instant where a sampled constraint is violated (see module docstring).
+    """Adds a row at each instant where a sampled constraint is violated (module docstring).
 
-    Args:
-        program: the built program; it gains one binding per constraint with violations
-            (``program.exchange_bindings``, their evaluators in ``program.exchange_evaluators``,
-            which the fallback to a feasible point also consults).
-        alpha: the point to check, shape ((2N+1)·n,).
-        rate: check rate [Hz].
-        tolerance: a margin below −tolerance is a violation [constraint's unit].
-        backoff: the added rows stay this far inside the bound [constraint's unit].
+    ``program`` gains one binding per constraint with violations (``exchange_bindings``,
+    ``exchange_evaluators``); a margin below −``tolerance`` at ``rate`` [Hz] is a violation,
+    and the added rows stay ``backoff`` inside the bound (both in the constraint's unit).
 
     Returns:
         The number of instants added (0: nothing violated at ``rate``).
     """
     problem = program.problem
-    t = check_times(problem.period, rate)
+    t = np.arange(0.0, problem.period, 1.0 / rate)
     basis = FourierBasis(problem.harmonics, problem.omega, t)
     q, v, vd = basis.evaluate_alpha(np.asarray(alpha, float), problem.n)
     added = 0
@@ -70,6 +54,5 @@ def add_violated_samples(
         program.exchange_evaluators.append(evaluator)
         program.exchange_bindings.append(binding)
         added += len(idx)
-    if program.cost is not None:
-        program.cost.evaluators = program.evaluators + program.exchange_evaluators
+    program.cost.evaluators = program.evaluators + program.exchange_evaluators
     return added

@@ -18,8 +18,7 @@ class FourierTrajectory:
     """A joint trajectory of Eq. (50).
 
     Attributes:
-        a: sine coefficients, shape (n, N) [rad].
-        b: cosine coefficients, shape (n, N) [rad].
+        a, b: sine and cosine coefficients, shape (n, N) [rad].
         q0: offsets, shape (n,) [rad].
         omega: base angular frequency [rad/s].
     """
@@ -74,13 +73,8 @@ class FourierTrajectory:
 
 
 class FourierBasis:
-    """sin/cos values of Eq. (50) and its derivatives at fixed sample times.
-
-    Args:
-        harmonics: N.
-        omega: ω [rad/s].
-        t: sample times, shape (T,) [s].
-    """
+    """sin/cos values of Eq. (50) and its derivatives at sample times t (T,) [s], for N =
+    ``harmonics`` harmonics of ω [rad/s]."""
 
     def __init__(self, harmonics: int, omega: float, t: np.ndarray):
         self.harmonics = harmonics
@@ -89,8 +83,7 @@ class FourierBasis:
         k = np.arange(1, harmonics + 1)
         self.k_omega = k * self.omega  # (N,)
         phase = np.outer(self.t, self.k_omega)  # (T, N)
-        self.sin = np.sin(phase)
-        self.cos = np.cos(phase)
+        self.sin, self.cos = np.sin(phase), np.cos(phase)
         kw, kw2 = self.k_omega, self.k_omega**2
         # Rows are time samples; columns harmonics. q = a·S_q + b·C_q + q0 (per joint).
         self.S_q, self.C_q = self.sin, self.cos
@@ -109,10 +102,8 @@ class FourierBasis:
     def evaluate_alpha(self, alpha: np.ndarray, num_joints: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """q, v, vdot, each (T, n), from the optimization vector."""
         n, N = num_joints, self.harmonics
-        a = alpha[: n * N].reshape(n, N)
-        b = alpha[n * N : 2 * n * N].reshape(n, N)
-        q0 = alpha[2 * n * N :]
-        return self.q(a, b, q0), self.v(a, b), self.vd(a, b)
+        a, b = alpha[: n * N].reshape(n, N), alpha[n * N : 2 * n * N].reshape(n, N)
+        return self.q(a, b, alpha[2 * n * N :]), self.v(a, b), self.vd(a, b)
 
     def pullback(self, q_bar: np.ndarray, v_bar: np.ndarray, vd_bar: np.ndarray) -> np.ndarray:
         """Chain rule of Eq. (49): gradients w.r.t. q, v, vdot (each (T, n)) → w.r.t. alpha."""
@@ -128,9 +119,8 @@ class FourierBasis:
         A_q = np.hstack([self.S_q, self.C_q, ones])
         A_v = np.hstack([self.S_v, self.C_v, zeros])
         A_vd = np.hstack([self.S_vd, self.C_vd, zeros])
-        idx = np.concatenate(
-            [joint * N + np.arange(N), n * N + joint * N + np.arange(N), [2 * n * N + joint]]
-        )
+        own = joint * N + np.arange(N)
+        idx = np.concatenate([own, n * N + own, [2 * n * N + joint]])
         return A_q, A_v, A_vd, idx
 
 

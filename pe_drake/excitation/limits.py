@@ -2,16 +2,14 @@
 
 The limits are linear in alpha: :func:`add_joint_limit_constraints` adds them as linear rows on
 every ``stride``-th constraint sample, tightened by :func:`intersample_allowance` so that they
-hold at every instant; :func:`add_smooth_joint_limit_constraints` aggregates them into 6
-smooth-max rows per joint. :func:`joint_limit_violation` measures a point against them.
+hold at every instant. :func:`joint_limit_violation` measures a point against them.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from pe_drake.excitation.fourier import FourierBasis, FourierTrajectory
-from pe_drake.excitation.limit_windows import CachedRows
+from pe_drake.excitation.fourier import FourierTrajectory
 from pe_drake.excitation.problem import ExcitationProblem, check_variables, rest_constraint_matrix
 
 
@@ -20,16 +18,10 @@ def add_joint_limit_constraints(
 ) -> list:
     """Eq. (51): q, v, vdot within the robot's limits at the K constraint samples (and between).
 
-    Linear in alpha, so added as linear constraints, one per joint and quantity (each touches
-    only that joint's 2N+1 coefficients). IPOPT's cost per iteration grows quickly with the
-    row count (0.5 s at 6K = 2400 rows per joint on G1), so rows are imposed on every
-    ``stride``-th sample with the bound tightened by the largest possible overshoot between
-    rows (:func:`intersample_allowance`): that implies the limits at all K samples and at
-    every instant. The default stride is the largest (≤ 8) whose tightening stays within
-    ``max_conservatism`` of each velocity and acceleration limit.
-
-    Returns:
-        The bindings.
+    One linear constraint per joint and quantity, on that joint's 2N+1 coefficients, imposed on
+    every ``stride``-th sample with the bound tightened by :func:`intersample_allowance`, so the
+    limits hold at every instant. The default stride is the largest (≤ 8) whose tightening stays
+    within ``max_conservatism`` of each velocity and acceleration limit. Returns the bindings.
     """
     check_variables(alpha, problem)
     lim = problem.robot.limits
@@ -56,88 +48,11 @@ def add_joint_limit_constraints(
     return bindings
 
 
-class _SmoothMaxLimits(CachedRows):
-    """Every sampled joint limit of Eq. (51), aggregated per joint and bound by a smooth max.
-
-    For joint j and each of q, v, vdot, the K sampled values x_k must stay within
-    [lower, upper]. Instead of 2K linear rows (which make IPOPT's limited-memory steps cost
-    ~0.5 s per iteration at K = 400 on G1), each side becomes one row
-    g = (1/ρ) log Σ_k exp(ρ·(x_k − bound)/s) ≤ 0, with s the limit's scale. Log-sum-exp is
-    convex and never below the maximum, so g ≤ 0 implies every sample is within its limit;
-    it overestimates the maximum by at most log(K)/ρ·s, which ``conservatism`` sets
-    (fraction of s).
-    """
-
-    def __init__(self, problem: ExcitationProblem, conservatism: float = 0.005):
-        lim = problem.robot.limits
-        dq, dv, dvd = intersample_allowance(problem)
-        self.problem = problem
-        basis = problem.constraint_basis
-        K = len(basis.t)
-        self.rho = np.log(2 * K) / conservatism
-        half = 0.5 * (lim.q_upper - lim.q_lower)
-        mid = 0.5 * (lim.q_upper + lim.q_lower)
-        # Normalized quantities y = (x - centre)/scale must satisfy |y| ≤ 1.
-        self.centre = np.stack([mid, np.zeros(problem.n), np.zeros(problem.n)])  # (3, n)
-        self.scale = np.stack([half - dq, lim.v_max - dv, lim.vd_max - dvd])  # (3, n)
-        self.basis = basis
-        self.labels = [
-            f"{what} {side} {name}"
-            for name in problem.robot.joint_names
-            for what in ("position", "velocity", "acceleration")
-            for side in ("upper", "lower")
-        ]
-
-    def _rows(self, alpha: np.ndarray, key: bytes) -> tuple[np.ndarray, np.ndarray]:
-        p, b = self.problem, self.basis
-        n, N = p.n, p.harmonics
-        x = np.stack(b.evaluate_alpha(alpha, n))  # (3, K, n)
-        y = (x - self.centre[:, None, :]) / self.scale[:, None, :]
-        y = np.stack([y, -y], axis=1)  # (3, 2, K, n): upper side, lower side
-        z = self.rho * (y - 1.0)
-        zmax = z.max(axis=2, keepdims=True)
-        e = np.exp(z - zmax)
-        total = e.sum(axis=2, keepdims=True)
-        g = ((zmax + np.log(total)) / self.rho)[:, :, 0, :]  # (3, 2, n)
-        w = e / total  # softmax weights, (3, 2, K, n)
-        sign = np.array([1.0, -1.0])[None, :, None]
-        dg_dx = w * (sign[..., None] / self.scale[:, None, None, :])  # (3, 2, K, n)
-        # ∂x/∂(a, b, q0) of joint j at sample k: rows of the Fourier bases.
-        Sa = np.stack([b.S_q, b.S_v, b.S_vd])  # (3, K, N)
-        Cb = np.stack([b.C_q, b.C_v, b.C_vd])
-        Ja = np.einsum("csKn,cKN->csnN", dg_dx, Sa)
-        Jb = np.einsum("csKn,cKN->csnN", dg_dx, Cb)
-        Jq0 = dg_dx[0].sum(axis=1)  # (2, n): only q depends on q0
-        rows = 6 * n
-        J = np.zeros((n, 3, 2, (2 * N + 1) * n))
-        for j in range(n):
-            J[j, :, :, j * N : (j + 1) * N] = Ja[:, :, j]
-            J[j, :, :, n * N + j * N : n * N + (j + 1) * N] = Jb[:, :, j]
-            J[j, 0, :, 2 * n * N + j] = Jq0[:, j]
-        return g.transpose(2, 0, 1).reshape(rows), J.reshape(rows, -1)
-
-
-def add_smooth_joint_limit_constraints(prog, alpha, problem: ExcitationProblem, conservatism: float = 0.005):
-    """Eq. (51) at the K samples as 6 smooth rows per joint (see :class:`_SmoothMaxLimits`).
-
-    Much faster for IPOPT than :func:`add_joint_limit_constraints` at large K, at the price
-    of keeping ``conservatism`` (fraction of each limit) away from the limits.
-    """
-    check_variables(alpha, problem)
-    evaluator = _SmoothMaxLimits(problem, conservatism)
-    rows = len(evaluator.labels)
-    return prog.AddConstraint(evaluator, np.full(rows, -np.inf), np.zeros(rows), vars=alpha, description="joint limits")
-
-
 def intersample_allowance(problem: ExcitationProblem, stride: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """How far q, v, vdot can overshoot their sampled values between two samples.
+    """How far q, v, vdot can overshoot their samples between two samples, each (n,).
 
-    A smooth f sampled every h exceeds the larger neighbouring sample by at most
-    max|f''|·h²/8. With |vdot| ≤ a_max and Bernstein's inequality for a trigonometric
-    polynomial of degree N (|f'| ≤ Nω·max|f|), the bounds are a_max·h²/8 for q,
-    Nω·a_max·h²/8 for v and (Nω)²·a_max·h²/8 for vdot. The sampled limits are tightened by
-    these, so the limits then hold at every instant, not only at the samples. ``stride``:
-    rows on every stride-th constraint sample (spacing stride·h).
+    a_max·h²/8, Nω·a_max·h²/8 and (Nω)²·a_max·h²/8 for rows on every ``stride``-th constraint
+    sample (spacing h): docs/derivations.md §6.
     """
     h = stride * problem.period / problem.config.constraint_samples
     w_max = problem.harmonics * problem.omega
@@ -154,20 +69,12 @@ def add_rest_constraints(prog, alpha, problem: ExcitationProblem):
     return binding
 
 
-def joint_limit_violation(problem: ExcitationProblem, alpha: np.ndarray, basis: FourierBasis | None = None) -> float:
-    """Worst violation of the joint limits (Eq. 51) at the given samples, in limit units."""
-    basis = basis or problem.constraint_basis
-    q, v, vd = basis.evaluate_alpha(np.asarray(alpha, float), problem.n)
+def joint_limit_violation(problem: ExcitationProblem, alpha: np.ndarray) -> float:
+    """Worst violation of the joint limits (Eq. 51) at the K constraint samples, in limit units."""
+    q, v, vd = problem.constraint_basis.evaluate_alpha(np.asarray(alpha, float), problem.n)
     lim = problem.robot.limits
-    return float(
-        max(
-            0.0,
-            np.max(lim.q_lower - q),
-            np.max(q - lim.q_upper),
-            np.max(np.abs(v) - lim.v_max),
-            np.max(np.abs(vd) - lim.vd_max),
-        )
-    )
+    worst = (lim.q_lower - q, q - lim.q_upper, np.abs(v) - lim.v_max, np.abs(vd) - lim.vd_max)
+    return float(max(0.0, *(np.max(x) for x in worst)))
 
 
 #: How far (a fraction of each limit's scale: half the position range, v_max, vd_max)
@@ -179,15 +86,11 @@ BOUND_SAMPLES_PER_CYCLE = 2048
 
 
 def path_limit_bounds(trajectory: FourierTrajectory) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Bounds of a periodic path over every instant, not only at samples.
+    """(q_max, q_min, |v|_max, |vd|_max), each (n,), bounding a periodic path at every instant.
 
     Between samples h apart, a smooth periodic x(t) rises above its largest sample by at most
     h²/8·max|x''| (its maximum has x' = 0 and a sample within h/2), and
     max|x''| ≤ Σ_k (kω)^(m+2)·|(a_k, b_k)| for the m-th derivative of Eq. (50).
-
-    Returns:
-        (q_max, q_min, |v|_max, |vd|_max), each shape (n,): q_max ≥ q(t), q_min ≤ q(t),
-        |v(t)| ≤ |v|_max, |vd(t)| ≤ |vd|_max for every t [rad or m, /s, /s²].
     """
     N = max(trajectory.highest_harmonic, 1)
     count = BOUND_SAMPLES_PER_CYCLE * N
@@ -205,18 +108,16 @@ def path_limit_bounds(trajectory: FourierTrajectory) -> tuple[np.ndarray, np.nda
     return q_hi + slack[0], q_lo - slack[0], v_abs + slack[1], vd_abs + slack[2]
 
 
-def keep_strictly_inside(problem: ExcitationProblem, alpha: np.ndarray, backoff: float = STRICT_BACKOFF) -> tuple[np.ndarray, float]:
+def keep_strictly_inside(
+    problem: ExcitationProblem, alpha: np.ndarray, backoff: float = STRICT_BACKOFF
+) -> tuple[np.ndarray, float]:
     """alpha with its motion about q0 scaled down, if needed, so that q, v and vd stay
-    ``backoff`` inside every joint limit at every instant (:func:`path_limit_bounds`).
+    ``backoff`` inside every joint limit at every instant (:func:`path_limit_bounds`), and the
+    factor applied (1.0 when the path already holds, or when q0 itself is not inside).
 
     The solver's tolerance and the 1 kHz re-check accept a path a hair (≤ 1e-6) outside a
-    limit; nothing outside a limit may be written, so such a path is pulled in by that hair.
-    q, v and vd are linear in the motion about q0, so one factor does it (the ramps are a
-    time scaling of the path: their postures and speeds follow).
-
-    Returns:
-        (alpha, the factor applied: 1.0 when the path already holds, or when q0 itself is
-        not inside and no factor helps).
+    limit; nothing outside a limit may be written. q, v and vd are linear in the motion about
+    q0, so one factor does it.
     """
     alpha = np.asarray(alpha, float)
     n = problem.n

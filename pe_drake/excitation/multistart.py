@@ -1,23 +1,12 @@
 """Multi-start excitation optimization: many seeded starts, the best feasible one kept.
 
-The excitation cost is non-convex (cond of Eq. 5 has many local minima: G1's first motion
-ended anywhere between 216 and 246 across starts), so several random initial points are
-solved and the best feasible result is kept. Each start is an independent IPOPT/NLopt solve
-run as a task on an executor (:mod:`pe_drake.excitation.parallel`): this process, a local
-process pool, or Ray. Start k's result depends only on its seed, starting point and C0, so
-the kept start does not depend on the executor, the number of workers or the order in which
-starts finish.
-
-Use it like::
-
-    options = MultiStartOptions(seeds=[0, 1, 2, 3], run=ExecutorOptions(workers=2))
-    result = solve_multistart(robot, config.excitation, "ipopt", options)
-    result.best            # the ExcitationResult with the lowest cond among feasible ones
-    for s in result.starts:
-        print(s.seed, s.cond, s.wall_time, s.worker)
-
-or pass an open executor (``ExecutorOptions(executor=open_executor(...))``) to reuse its workers over several calls
-(:func:`pe_drake.excitation.sequential.optimize_sequence` does that for its motions).
+The criterion is non-convex (cond of Eq. 5 has many local minima), so several random initial
+points are solved, each an independent task on an executor (:mod:`pe_drake.excitation.parallel`:
+this process, a local process pool, or Ray). Start k's result depends only on its seed, starting
+point and C0, so the kept start does not depend on the executor, the workers or the order in
+which starts finish. Pass an open executor (``ExecutorOptions(executor=open_executor(...))``) to
+reuse its workers over several calls, as :func:`pe_drake.excitation.sequential.optimize_sequence`
+does.
 """
 
 from __future__ import annotations
@@ -48,41 +37,27 @@ from pe_drake.excitation.program import build_excitation_program
 from pe_drake.excitation.solve import solve_excitation
 from pe_drake.multibody.robot import Robot
 
-__all__ = [
-    "MultiStartOptions",
-    "MultiStartResult",
-    "StartEvent",
-    "StartSummary",
-    "WorkerError",
-    "best_index",
-    "solve_multistart",
-]
+__all__ = ["MultiStartOptions", "MultiStartResult", "StartEvent", "StartSummary", "WorkerError",
+           "best_index", "solve_multistart"]
 
 
 @dataclasses.dataclass(frozen=True)
 class StartEvent:
     """Progress of one start, sent to the ``progress`` callback.
 
-    "started", "finished" and "failed" (its worker died or hung: ``message`` says which) come
-    from the caller's process; "progress" (every ``progress_interval`` seconds of a solve)
-    from the worker.
+    "started", "finished" and "failed" (its worker died or hung) come from the caller's
+    process; "progress" (every ``progress_interval`` seconds of a solve) from the worker.
 
     Attributes:
-        seed: seed of the start.
         kind: "started", "progress", "finished" or "failed".
-        evaluations: cost evaluations so far.
         value: criterion at the last evaluation (inf before the first).
-        best_feasible: "progress": best criterion among the points checked at progress
-            times that meet every constraint at the samples (inf if none yet);
-            "finished": the result's criterion if it succeeded, else inf.
-        violation: worst constraint violation at the last checked point, in the
-            constraint's unit.
+        best_feasible: best criterion among the points checked that meet every constraint at
+            the samples ("finished": the result's if it succeeded), else inf.
+        violation: worst constraint violation at the last checked point, in its unit.
         elapsed: time since the start began [s].
-        criterion: the criterion minimized (one of :data:`pe_drake.config.CRITERIA`).
         label: a tag set by the caller (e.g. "motion 2").
         message: the solver's message ("finished"), why the start failed ("failed").
-        origin: where the start began when not at its seed's random point (e.g. "from
-            motion 1"); empty otherwise.
+        origin: where the start began when not at its seed's random point ("from motion 1").
         worker: where it ran ("finished" only; e.g. "pid 1234").
     """
 
@@ -118,21 +93,12 @@ class StartEvent:
 
 @dataclasses.dataclass(frozen=True)
 class StartSummary:
-    """Outcome of one start.
+    """Outcome of one start (fields as in :class:`~pe_drake.excitation.solve.ExcitationResult`).
 
     Attributes:
-        seed: its seed.
-        success: every constraint holds at 1 kHz (see ExcitationResult.success).
-        fun: criterion value at its solution.
-        cond: cond(C) at its solution (C includes C0).
-        cond_motion: cond of the motion's own regressor.
-        nit: solver iterations (None for NLopt).
-        nfev: cost evaluations.
         wall_time: time of the solve in its worker [s].
-        message: the solver's message.
         worker: where it ran ("main", "pid 1234", "10.0.0.2 pid 1234").
-        task_time: the whole task in its worker: building the problem and its constraints,
-            then the solve [s].
+        task_time: the whole task in its worker (problem, constraints, solve) [s].
         lost: the start has no result: its worker died or hung (``message`` says which).
     """
 
@@ -155,14 +121,11 @@ class MultiStartResult:
     """Outcome of :func:`solve_multistart`.
 
     Attributes:
-        best: the kept :class:`~pe_drake.excitation.solve.ExcitationResult`: the lowest cond
-            (the criterion for ``dopt``) among the feasible starts, else the lowest among all
-            (then ``success`` is False); see :func:`best_index`.
-        seed: seed of ``best``.
+        best: the kept :class:`~pe_drake.excitation.solve.ExcitationResult` (:func:`best_index`);
+            ``seed`` its seed.
         starts: one summary per start, in the order of the seeds.
         results: every start's ExcitationResult, same order (``raw`` is None for results
-            computed in a worker: Drake results cannot be pickled); None for a start lost
-            with its worker (``starts[k].lost``).
+            computed in a worker); None for a start lost with its worker.
         workers: starts run at once (1: solved one after the other).
         executor: "main" (this process), "local" (process pool) or "ray".
         wall_time: whole call, including worker start-up [s].
@@ -186,7 +149,6 @@ class MultiStartResult:
         return float(sum(s.wall_time for s in self.starts))
 
 
-# ---- one start (runs in a worker) ------------------------------------------------------------------
 @dataclasses.dataclass
 class _StartTask:
     seed: int
@@ -209,7 +171,6 @@ class _Reporter:
         self.count = 0
         self.best = math.inf
         self.value = math.inf
-        self.violation = 0.0
         self.start = self.last = time.perf_counter()
 
     def __call__(self, alpha: np.ndarray, value: float) -> None:
@@ -219,10 +180,11 @@ class _Reporter:
         if now - self.last < self.task.interval:
             return
         self.last = now
-        self.violation = _violation(self.program, alpha)  # checked here only: it costs a constraint evaluation
-        if self.violation < 1e-6:
+        violation = _violation(self.program, alpha)  # only here: it costs a constraint evaluation
+        if violation < 1e-6:
             self.best = min(self.best, self.value)
-        self.emit(_event(self.task, "progress", self.count, self.value, self.best, self.violation, now - self.start))
+        elapsed, task = now - self.start, self.task
+        self.emit(_event(task, "progress", self.count, self.value, self.best, violation, elapsed))
 
 
 def _violation(program, alpha: np.ndarray) -> float:
@@ -266,12 +228,11 @@ def _summary(seed: int, done: TaskFinished | TaskLost) -> StartSummary:
 
 
 def best_index(results: Sequence[Any], criterion: str = "soft_cond") -> int:
-    """Index of the result to keep: the best reported figure among successful ones, else
-    among all (ties: the lowest index); None entries (lost starts) are never kept.
+    """Index of the result to keep: the best figure among successful ones, else among all
+    (ties: the lowest index); None entries (lost starts) are never kept.
 
-    The figure is cond(C) for the cond-like criteria (``cond``, ``soft_cond``, ``log_cond``:
-    soft_cond only bounds cond, and 32 G1 starts kept soft_cond's best at cond 182.88 while
-    another start reached 181.93), else the criterion itself (``dopt``).
+    The figure is cond(C) for the cond-like criteria (soft_cond only bounds cond), else the
+    criterion itself (``dopt``).
 
     Raises:
         ValueError: every entry is None.
@@ -279,8 +240,7 @@ def best_index(results: Sequence[Any], criterion: str = "soft_cond") -> int:
     kept = [k for k, r in enumerate(results) if r is not None]
     if not kept:
         raise ValueError("no start has a result")
-    feasible = [k for k in kept if results[k].success]
-    pool = feasible or kept
+    pool = [k for k in kept if results[k].success] or kept
     by_cond = criterion in ("cond", "soft_cond", "log_cond")
 
     def figure(k: int) -> float:
@@ -290,10 +250,10 @@ def best_index(results: Sequence[Any], criterion: str = "soft_cond") -> int:
     return min(pool, key=lambda k: (figure(k), k))
 
 
-# ---- many starts ----------------------------------------------------------------------------------
 def _make_tasks(o: MultiStartOptions, config, solver_cfg) -> list[_StartTask]:
     """One task per seed; refuses what does not match (before any worker starts)."""
-    seeds, initial_guesses, origins, interval = [int(s) for s in o.seeds], o.initial_guesses, o.origins, o.run.progress_interval
+    seeds, initial_guesses, origins = [int(s) for s in o.seeds], o.initial_guesses, o.origins
+    interval = o.run.progress_interval
     if not seeds:
         raise ConfigError("multi-start needs at least one seed")
     if len(set(seeds)) != len(seeds):
@@ -305,19 +265,12 @@ def _make_tasks(o: MultiStartOptions, config, solver_cfg) -> list[_StartTask]:
     if not interval > 0:
         raise ConfigError(f"progress_interval must be positive [s], got {interval!r}")
     C0 = None if o.C0 is None else np.asarray(o.C0, float)
+    guesses = [None] * len(seeds) if initial_guesses is None else initial_guesses
+    guesses = [None if x is None else np.asarray(x, float) for x in guesses]
+    origins = [""] * len(seeds) if origins is None else [str(x) for x in origins]
     return [
-        _StartTask(
-            seed=s,
-            config=config,
-            solver=solver_cfg,
-            C0=C0,
-            x0=None if initial_guesses is None or initial_guesses[k] is None else np.asarray(initial_guesses[k], float),
-            amplitude=o.amplitude,
-            label=o.label,
-            interval=interval,
-            origin="" if origins is None else str(origins[k]),
-        )
-        for k, s in enumerate(seeds)
+        _StartTask(s, config, solver_cfg, C0, x0, o.amplitude, o.label, interval, origin)
+        for s, x0, origin in zip(seeds, guesses, origins)
     ]
 
 
@@ -345,13 +298,10 @@ class _StartProgress:
                                  worker=event.worker))
         elif isinstance(event, TaskFinished):
             r = event.value
-            self.progress(
-                _event(
-                    self.tasks[event.index], "finished", int(r.nfev), float(r.fun),
-                    float(r.fun) if r.success else math.inf, 0.0 if r.success else math.nan,
-                    float(event.wall_time), message=r.message, worker=event.worker,
-                )
-            )
+            best, violation = (float(r.fun), 0.0) if r.success else (math.inf, math.nan)
+            task, wall = self.tasks[event.index], float(event.wall_time)
+            self.progress(_event(task, "finished", int(r.nfev), float(r.fun), best, violation, wall,
+                                 message=r.message, worker=event.worker))
         else:
             self.progress(event)
 
@@ -361,20 +311,15 @@ class MultiStartOptions:
     """The starts of :func:`solve_multistart` and where they run.
 
     Attributes:
-        seeds: one start per seed; start k begins at ``problem.initial_guess(seeds[k],
-            amplitude)`` unless ``initial_guesses`` is given.
+        seeds: one start per seed, from ``problem.initial_guess(seed, amplitude)`` unless
+            ``initial_guesses`` (one per seed, None: the seed's random point) says otherwise.
         C0: prior data (Eq. 41), shape (m1, b), in the executor's base parameters.
-        constraints_factory: ``f(robot, config) -> [SampledConstraint, ...]``, called once per
-            worker (e.g. :func:`pe_drake.excitation.constraints.constraints_from_config`); a
-            module-level function. Ignored with an open executor (its factory is used).
-        initial_guesses: explicit initial alphas, one per seed; a None entry keeps that seed's
-            random point.
+        constraints_factory: a module-level ``f(robot, config) -> [SampledConstraint, ...]``,
+            called once per worker; ignored with an open executor (its factory is used).
         amplitude: scale of the random initial coefficients [rad] (default config.amplitude).
         label: copied into the events (e.g. "motion 2").
-        origins: one note per seed saying where an explicit initial guess comes from (e.g.
-            "from motion 1"), copied into its events.
-        run: where the starts run (:class:`~pe_drake.excitation.parallel.ExecutorOptions`;
-            ``workers`` capped at the number of seeds).
+        origins: one note per seed on where its initial guess comes from, for its events.
+        run: where the starts run (``workers`` capped at the number of seeds).
     """
 
     seeds: Sequence[int] = (0, 1)
@@ -401,15 +346,8 @@ def solve_multistart(
     finished ones is kept (``starts[k].lost``, ``results[k]`` None, a "failed" event).
 
     Args:
-        robot: the :class:`~pe_drake.multibody.robot.Robot` (ignored, may be None, with an open
-            executor in ``options.run``).
-        config: the excitation problem (default :class:`ExcitationConfig`).
-        solver: "ipopt", "nlopt" or a :class:`SolverConfig`.
-        options: the starts and where they run (default :class:`MultiStartOptions`).
+        robot: ignored (may be None) with an open executor in ``options.run``.
         progress: callback receiving :class:`StartEvent` objects (in this process).
-
-    Returns:
-        A :class:`MultiStartResult`.
 
     Raises:
         ConfigError: no seeds, duplicate seeds, initial guesses that do not match the seeds,

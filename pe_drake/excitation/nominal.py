@@ -1,9 +1,8 @@
 """A nominal posture that clears the floor and the robot itself, for a model without one.
 
-The optimizer starts from the nominal posture (q0 of Eq. 50), and the constraints refuse a
-q0 that already violates them. A user URDF without a config starts mid-range, which for a
-UR arm (limits ±2π) is the zero posture: the wrist hangs below the base plane. Instead of
-refusing it, :func:`choose_nominal_posture` tries a few candidate postures, first match wins:
+The optimizer starts from the nominal posture (q0 of Eq. 50), and the constraints refuse a q0
+that violates them. A model without a config starts mid-range, which for a UR arm (limits ±2π)
+puts the wrist below the base plane, so :func:`choose_nominal_posture` tries, first match wins:
 
 1. the mid-range posture;
 2. one joint moved by ±π/4, ±π/2, ±3π/4 (base side first, within the limits);
@@ -51,32 +50,23 @@ def candidate_postures(robot: Robot) -> Iterator[np.ndarray]:
 
 
 def choose_nominal_posture(robot: Robot, excitation, environment) -> str | None:
-    """Sets ``robot.config.nominal_positions`` to the first candidate posture that clears the
-    floor, the boxes and self-collision, when the config gives no nominal posture and the
-    mid-range one does not clear.
-
-    Args:
-        robot: the :class:`~pe_drake.multibody.robot.Robot` (its config is changed in place,
-            so that worker processes rebuilding it from the config start there too).
-        excitation: the :class:`~pe_drake.config.ExcitationConfig`.
-        environment: the :class:`~pe_drake.config.EnvironmentConfig`, or None.
+    """Sets ``robot.config.nominal_positions`` (in place, so that worker processes rebuilding
+    the robot start there too) to the first candidate posture that clears the floor, the boxes
+    and self-collision, when the config gives none and the mid-range one does not clear.
 
     Returns:
         A note saying which posture was chosen, or None when nothing was changed.
 
     Raises:
-        InfeasibleError: no candidate clears; the message names the joints to set in
-            ``robot.nominal_positions``.
+        InfeasibleError: no candidate clears (the message names the joints to set).
     """
     if robot.config.nominal_positions:
         return None  # the user's posture: the constraints check it and say what is wrong
-    checks = []
     try:
         env = environment_from_config(robot, excitation, environment) if environment is not None else None
     except ConfigError:
         env = None  # no capsules: nothing to clear (the constraint assembly reports it)
-    if env is not None:
-        checks.append(env)
+    checks = [] if env is None else [env]
     if excitation.collision_margin >= 0 and robot.capsules:
         checks.append(CollisionConstraint(robot, excitation.collision_margin))
     if not checks:
@@ -89,7 +79,8 @@ def choose_nominal_posture(robot: Robot, excitation, environment) -> str | None:
             if tried == 1:
                 return None
             robot.config.nominal_positions = {name: float(v) for name, v in zip(robot.joint_names, q)}
-            moved = [f"{n} = {v:.4g}" for n, v, v0 in zip(robot.joint_names, q, robot_mid(robot)) if v != v0]
+            mid = 0.5 * (robot.limits.q_lower + robot.limits.q_upper)
+            moved = [f"{n} = {v:.4g}" for n, v, v0 in zip(robot.joint_names, q, mid) if v != v0]
             return (
                 f"the mid-range posture does not clear the floor/obstacles/self-collision margin; starting from "
                 f"{', '.join(moved)} (others mid-range); set robot.nominal_positions to choose"
@@ -97,22 +88,18 @@ def choose_nominal_posture(robot: Robot, excitation, environment) -> str | None:
     if floor_blocks and environment is not None and environment.floor:
         # a robot that hangs below its base (Drake's Acrobot) cannot clear a floor at any posture:
         # moving joints will not help, the floor setting will (issue 37)
+        floor = ("the base's support plane" if environment.floor_height is None
+                 else f"environment.floor_height {environment.floor_height:g} m")
         raise InfeasibleError(
-            f"the floor blocks every one of {tried} candidate postures (mid-range, one or two joints moved): part of "
-            "the robot is below the floor ("
-            + ("the base's support plane" if environment.floor_height is None else
-               f"environment.floor_height {environment.floor_height:g} m") + ") whatever its joints do, as for a robot hanging below its base; set environment.floor_height below its lowest point, "
+            f"the floor blocks every one of {tried} candidate postures (mid-range, one or two joints "
+            f"moved): part of the robot is below the floor ({floor}) whatever its joints do, as for a "
+            "robot hanging below its base; set environment.floor_height below its lowest point, "
             "environment: {floor: false}, or robot.base_pose to raise its base")
     raise InfeasibleError(
         f"none of {tried} candidate postures (mid-range, one or two joints moved) clears the floor, the boxes and "
         f"the self-collision margin; set robot.nominal_positions for the joints {', '.join(robot.joint_names)} "
         "(e.g. the upper arm raised), or move the obstacles"
     )
-
-
-def robot_mid(robot: Robot) -> np.ndarray:
-    """The mid-range posture, shape (n,)."""
-    return 0.5 * (robot.limits.q_lower + robot.limits.q_upper)
 
 
 def _clears(constraint, q: np.ndarray) -> bool:

@@ -1,15 +1,13 @@
 """The excitation problem: the cost of Eq. (41) over the Fourier coefficients and its gradient.
 
 :class:`ExcitationProblem` holds what the cost is built from (robot, Fourier bases at the T
-cost and K constraint samples, base parameters, prior data C0) and evaluates cond(C) with its
-analytic gradient (Eq. 49). The Drake program around it is in
-:mod:`pe_drake.excitation.program`, the solve in :mod:`pe_drake.excitation.solve`.
+cost and K constraint samples, base parameters, prior data C0) and evaluates the criterion of C
+with its analytic gradient (Eq. 49; docs/derivations.md).
 """
 
 from __future__ import annotations
 
 import copy
-import dataclasses
 import math
 from typing import TYPE_CHECKING
 
@@ -17,7 +15,7 @@ import numpy as np
 
 from pe_drake.config import Config, ExcitationConfig, validate_config
 from pe_drake.exceptions import ConfigError, InfeasibleError
-from pe_drake.excitation.criteria import evaluate_criterion
+from pe_drake.excitation.criteria import CriterionValue, evaluate_criterion
 from pe_drake.excitation.drive_block import excitation_drive_block
 from pe_drake.excitation.fourier import FourierBasis, FourierTrajectory, sample_times
 from pe_drake.multibody.base_parameters import BaseParameters
@@ -28,29 +26,17 @@ if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
     from pe_drake.multibody.robot import Robot
 
 
-@dataclasses.dataclass(frozen=True)
-class CostValue:
-    """Value and gradient of the excitation cost at one alpha."""
-
-    value: float
-    grad: np.ndarray
-    singular_values: np.ndarray
-
-
 class ExcitationProblem:
     """The excitation cost of Eq. (41) for a robot, with its analytic gradient (Eq. 49).
 
     Args:
-        robot: the :class:`~pe_drake.multibody.robot.Robot`.
-        config: harmonics, ω, sample counts, criterion (:class:`ExcitationConfig`).
         C0: prior data, the stacked rows of C of earlier motions (base regressor, then the
             drive columns), shape (m1, columns).
         base: base parameters to use (computed if not given).
 
     Attributes:
         num_variables: (2N+1)·n.
-        drive: the drive terms' columns of C (``excitation.drive_terms``;
-            :mod:`pe_drake.excitation.drive_block`), none by default.
+        drive: the drive terms' columns of C (``excitation.drive_terms``), none by default.
         columns: columns of C: the base parameters, then the drive terms.
         cost_basis / constraint_basis: Fourier bases at the T cost / K constraint samples.
     """
@@ -93,16 +79,12 @@ class ExcitationProblem:
         )
         self.C0 = _checked_prior(C0, self.columns)
         self._cache_key: bytes | None = None
-        self._cache: CostValue | None = None
+        self._cache: CriterionValue | None = None
         self.num_evaluations = 0
 
     def with_prior(self, C0: np.ndarray | None) -> ExcitationProblem:
-        """This problem with other prior data C0 (Eq. 41): the robot, bases and base parameters
-        are shared, nothing is rebuilt.
-
-        Raises:
-            ConfigError: C0 without one column per base parameter and drive term.
-        """
+        """This problem with other prior data C0 (Eq. 41), sharing everything else (ConfigError:
+        C0 without one column per base parameter and drive term)."""
         other = copy.copy(self)
         other.C0 = _checked_prior(C0, self.columns)
         other.clear_cache()
@@ -111,10 +93,8 @@ class ExcitationProblem:
 
     def clear_cache(self) -> None:
         """Forgets the cached evaluation, so the next :meth:`evaluate` computes from scratch."""
-        self._cache_key = None
-        self._cache = None
+        self._cache_key, self._cache = None, None
 
-    # ---- cost ---------------------------------------------------------------------------
     def trajectory(self, alpha: np.ndarray) -> FourierTrajectory:
         return FourierTrajectory.from_alpha(alpha, self.n, self.harmonics, self.omega)
 
@@ -143,13 +123,11 @@ class ExcitationProblem:
         """The criterion at alpha (no gradient)."""
         return evaluate_criterion(self.stacked(alpha), self.config.criterion, gradient=False).value
 
-    def evaluate(self, alpha: np.ndarray) -> CostValue:
-        """Criterion and its analytic gradient with respect to alpha.
+    def evaluate(self, alpha: np.ndarray) -> CriterionValue:
+        """Criterion and its analytic gradient with respect to alpha (``grad``, the shape of alpha).
 
-        The chain: Eq. (17) (or Eq. (16) for the smooth bound) gives dc/dC; its rows for sample t times Xᵀ give Z^(t)
-        (Eqs. 45–46); the regressor's adjoint turns Z into dc/d(q, v, vdot) (Eq. 47); the
-        Fourier map pulls that back to alpha (Eq. 49). Cached on alpha, because Drake's
-        solvers ask for the same point more than once.
+        dc/dC (Eqs. 16–17) → Z^(t) (Eq. 46) → dc/d(q, v, vdot) by the regressor's adjoint
+        (Eq. 47) → alpha (Eq. 49). Cached on alpha: Drake's solvers ask for a point repeatedly.
         """
         alpha = np.asarray(alpha, float)
         key = alpha.tobytes()
@@ -165,7 +143,7 @@ class ExcitationProblem:
         C = block if self.C0 is None else np.vstack([self.C0, block])
         crit = evaluate_criterion(C, self.config.criterion)  # Eq. (17) for cond, (16) for soft_cond
         if not np.isfinite(crit.value):
-            out = CostValue(np.inf, np.zeros_like(alpha), crit.singular_values)
+            out = CriterionValue(np.inf, np.zeros_like(alpha), crit.singular_values)
         else:
             G = crit.grad[C.shape[0] - T * r :].reshape(T, r, self.columns)
             # Eq. (46): Z = X C(C) S^T, zero outside the independent columns: passed as those.
@@ -174,11 +152,10 @@ class ExcitationProblem:
                 v_drive, vd_drive = self.drive.pullback(v, vd, G[..., b:])
                 v_bar, vd_bar = v_bar + v_drive, vd_bar + vd_drive
             grad = self.cost_basis.pullback(q_bar, v_bar, vd_bar)  # Eq. (49)
-            out = CostValue(crit.value, grad, crit.singular_values)
+            out = CriterionValue(crit.value, grad, crit.singular_values)
         self._cache_key, self._cache = key, out
         return out
 
-    # ---- initial point --------------------------------------------------------------------
     def initial_guess(self, seed: int | None = None, amplitude: float | None = None) -> np.ndarray:
         """A random alpha within the joint limits at the constraint samples.
 
@@ -189,12 +166,11 @@ class ExcitationProblem:
         amplitude = self.config.amplitude if amplitude is None else amplitude
         n, N = self.n, self.harmonics
         k = np.arange(1, N + 1)
-        a = rng.normal(size=(n, N)) * amplitude / k
-        b = rng.normal(size=(n, N)) * amplitude / k
-        q0 = self.robot.nominal_posture().copy()
-        alpha = np.concatenate([a.ravel(), b.ravel(), q0])
-        if self.config.rest_at_ends:
-            alpha = _project_rest(self, alpha)
+        a, b = (rng.normal(size=(n, N)) * amplitude / k for _ in range(2))
+        alpha = np.concatenate([a.ravel(), b.ravel(), self.robot.nominal_posture()])
+        if self.config.rest_at_ends:  # the minimal change with A alpha = 0 (q0 does not enter A)
+            A, _ = rest_constraint_matrix(self)
+            alpha = alpha - np.linalg.pinv(A) @ (A @ alpha)
         return scale_into_limits(self, alpha, 0.9)
 
 
@@ -211,25 +187,12 @@ def _check_cost_rows(problem: ExcitationProblem) -> None:
         )
 
 
-def _project_rest(problem: ExcitationProblem, alpha: np.ndarray) -> np.ndarray:
-    A, _ = rest_constraint_matrix(problem)
-    # Minimal change of alpha with A alpha = 0 (q0 does not enter A).
-    return alpha - np.linalg.pinv(A) @ (A @ alpha)
-
-
 def scale_into_limits(problem: ExcitationProblem, alpha: np.ndarray, fraction: float) -> np.ndarray:
-    """Shrinks the motion of alpha to use at most ``fraction`` of each joint limit.
+    """Shrinks the motion of alpha to use at most ``fraction`` (in (0, 1]) of each joint limit.
 
-    Checked at the K constraint samples. q, v and vdot are linear in the sine/cosine coefficients, so one common scale factor
-    (never above 1) keeps the motion's shape; the offsets q0 are kept as they are.
-
-    Args:
-        problem: the :class:`ExcitationProblem` (its robot limits and constraint samples).
-        alpha: Fourier coefficients, shape ((2N+1)·n,).
-        fraction: share of each limit the motion may use, in (0, 1].
-
-    Returns:
-        The scaled alpha, shape ((2N+1)·n,).
+    Checked at the K constraint samples. q, v and vdot are linear in the sine/cosine
+    coefficients, so one common factor (never above 1) keeps the motion's shape; the offsets q0
+    are kept. alpha has shape ((2N+1)·n,).
 
     Raises:
         InfeasibleError: an offset q0 is not strictly inside its joint's position limits.
@@ -274,11 +237,7 @@ def rest_constraint_matrix(problem: ExcitationProblem) -> tuple[np.ndarray, np.n
 
 
 def check_variables(alpha, problem: ExcitationProblem) -> None:
-    """Refuses decision variables that do not match the problem's (2N+1)·n coefficients.
-
-    Raises:
-        ConfigError: ``alpha`` has the wrong length.
-    """
+    """Refuses decision variables that are not the problem's (2N+1)·n coefficients (ConfigError)."""
     if len(alpha) != problem.num_variables:
         raise ConfigError(
             f"alpha has {len(alpha)} variables; the problem needs {problem.num_variables} "

@@ -1,9 +1,8 @@
 """Exciting-trajectory optimization as pieces of a Drake MathematicalProgram.
 
-The problem (Eq. 7): minimize cond(C) (by default through its smooth upper bound
-``soft_cond``, :mod:`pe_drake.excitation.criteria`), C = [C0; Y_B at T samples] (Eq. 41), over the
-Fourier coefficients alpha (Eq. 50), subject to joint limits at K samples (Eq. 51) and any
-sampled constraint (balance Eq. 52, self-collision Eq. 53, ...).
+The problem (Eq. 7): minimize cond(C) (by default its smooth bound ``soft_cond``), C = [C0; Y_B
+at T samples] (Eq. 41), over the Fourier coefficients alpha (Eq. 50), subject to the joint limits
+(Eq. 51) and any sampled constraint (balance Eq. 52, self-collision Eq. 53, ...).
 
 Use it like pink's build/solve split::
 
@@ -21,7 +20,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import sys
 import time
 from collections.abc import Callable
 
@@ -34,7 +32,6 @@ from pe_drake.excitation.limit_windows import CachedRows, add_window_limit_const
 from pe_drake.excitation.limits import (
     add_joint_limit_constraints,
     add_rest_constraints,
-    add_smooth_joint_limit_constraints,
     joint_limit_violation,
 )
 from pe_drake.excitation.problem import ExcitationProblem, check_variables
@@ -42,15 +39,13 @@ from pe_drake.excitation.scaling import harmonic_scale
 from pe_drake.excitation.stall import CriterionStalled, StallRule
 
 #: Samples per row of a one-sided sampled constraint (balance, collision, environment): each
-#: run of this many samples becomes one log-sum-exp row. These rows are dense in every
-#: coefficient and dominate IPOPT's linear algebra; 16 instead of 8 took a G1 solve from
-#: 63 to 50 s at an equal cond (40 was faster again but ended 13 % worse).
+#: run of this many samples becomes one log-sum-exp row (these dense rows dominate IPOPT's
+#: linear algebra; BUILD_NOTES.md has the measurements).
 SAMPLES_PER_ROW = 16
-#: From this many harmonics on, the default solves in the coordinates of :mod:`pe_drake.excitation.scaling`
-#: with 12 quasi-Newton pairs (issue 38): 2.5–3.8× cheaper on G1 and the two-arm robot (N = 10); the
-#: Panda and the UR5 (N = 5) ended higher there and solve in alpha (BUILD_NOTES.md, "speed38").
+#: From this many harmonics on, the default solves in the coordinates of
+#: :mod:`pe_drake.excitation.scaling` (cheaper for N = 10, worse for N = 5: BUILD_NOTES.md).
 SCALED_HARMONICS = 8
-#: The stall rule of every IPOPT solve of a built program unless told otherwise (issue 38).
+#: The stall rule of every IPOPT solve of a built program unless told otherwise.
 DEFAULT_STALL = StallRule()
 
 
@@ -58,42 +53,32 @@ class ExcitationCost:
     """A callable Drake cost: the criterion with our gradient (BUILD_NOTES.md, "Drake facts").
 
     Args:
-        problem: the :class:`ExcitationProblem`.
         on_evaluate: optional ``f(alpha, value)`` called after each evaluation (progress).
         stall: a :class:`~pe_drake.excitation.stall.StallRule`: the callback raises
             :class:`~pe_drake.excitation.stall.CriterionStalled` when it holds; None never.
     """
 
     def __init__(self, problem: ExcitationProblem, on_evaluate: Callable | None = None, stall: StallRule | None = None):
-        self.problem = problem
-        self.on_evaluate = on_evaluate
-        self.stall = stall
-        #: the rule acts only inside solve_excitation with IPOPT (which catches its exception;
-        #: NLopt's C callbacks would swallow it), never in a user's own Solve of the program
+        self.problem, self.on_evaluate, self.stall = problem, on_evaluate, stall
+        #: set only inside solve_excitation with IPOPT (NLopt's C callbacks swallow exceptions)
         self.stall_enabled = False
         #: the lowest criterion evaluated so far, after each evaluation (the stall rule's
-        #: measure of the solver's progress: IPOPT's iterates sit slightly outside the limits
-        #: for long stretches, and the best point within them then lags behind)
+        #: measure; within the limits or not: IPOPT's iterates sit slightly outside them)
         self.best_history: list[float] = []
         self._lowest = np.inf
-        #: The program's sampled-constraint evaluators (set by build_excitation_program);
-        #: each records its violation per evaluated alpha.
+        #: the program's sampled-constraint evaluators; each records its violation per alpha
         self.evaluators: list = []
-        # (value, alpha) of every evaluated point that met the joint limits at the samples,
-        # and the 8 best of them.
+        # (value, alpha) of every evaluated point within the joint limits, and the 8 best
         self._evaluated: list[tuple[float, np.ndarray]] = []
         self._best: list[tuple[float, np.ndarray]] = []
-        #: time spent in this callback so far [s] (benchmarks split callbacks from the solver)
-        self.seconds = 0.0
 
     @property
     def candidates(self) -> list[tuple[float, np.ndarray]]:
         """Fallback points when the solver stops at an infeasible iterate, to try in order.
 
         First the 8 best evaluated points that met the joint limits and every sampled
-        constraint at the samples, then the 8 best that met the joint limits. Ranking by value
-        alone missed the feasible points whenever lower-valued infeasible ones crowded them
-        out (a feasible start, then cheaper iterates in collision).
+        constraint at the samples, then the 8 best that met the joint limits (by value alone,
+        cheaper infeasible iterates would crowd the feasible ones out).
         """
         feasible = []
         for value, alpha in self._evaluated:
@@ -108,8 +93,7 @@ class ExcitationCost:
 
     @property
     def best_value(self) -> float | None:
-        """The lowest criterion among the evaluated points within the joint limits (None
-        before any)."""
+        """The lowest criterion evaluated within the joint limits (None before any)."""
         return self._best[0][0] if self._best else None
 
     def reset(self) -> None:
@@ -122,11 +106,7 @@ class ExcitationCost:
             ev.violations.clear()
 
     def remember(self, alpha: np.ndarray, value: float) -> None:
-        """Keeps (value, alpha) as a fallback candidate if alpha meets the joint limits.
-
-        Called on every evaluation; points with a non-finite value or outside the joint
-        limits at the constraint samples are not kept.
-        """
+        """Keeps (value, alpha) as a fallback candidate if finite and within the joint limits."""
         if not np.isfinite(value) or joint_limit_violation(self.problem, alpha) > 1e-9:
             return
         entry = (value, alpha.copy())
@@ -137,9 +117,7 @@ class ExcitationCost:
             del self._best[8:]
 
     def value_and_gradient(self, alpha: np.ndarray) -> tuple[float, np.ndarray]:
-        """The criterion (1e20 where it is not finite) and its gradient at alpha; the point
-        is remembered as a fallback candidate and reported to ``on_evaluate``."""
-        start = time.perf_counter()
+        """The criterion (1e20 where it is not finite) and its gradient at alpha."""
         alpha = np.asarray(alpha, float)
         out = self.problem.evaluate(alpha)
         value = out.value if np.isfinite(out.value) else 1e20
@@ -149,7 +127,6 @@ class ExcitationCost:
         if np.isfinite(out.value):
             self._lowest = min(self._lowest, float(out.value))
         self.best_history.append(self._lowest)
-        self.seconds += time.perf_counter() - start
         logarithmic = self.problem.config.criterion in ("log_cond", "dopt")
         if self.stall is not None and self.stall_enabled and self.stall.stalled(self.best_history, logarithmic):
             raise CriterionStalled(f"{self.problem.config.criterion} improved by less than "
@@ -163,25 +140,14 @@ class ExcitationCost:
         if x.dtype == object:
             value, grad = self.value_and_gradient(ExtractValue(x).reshape(-1))
             return AutoDiffXd(value, grad @ ExtractGradient(x))
-        start = time.perf_counter()
         value = self.problem.evaluate(np.asarray(x, float)).value
-        self.seconds += time.perf_counter() - start
         return value if np.isfinite(value) else 1e20
 
 
 def add_excitation_cost(prog, alpha, problem: ExcitationProblem, on_evaluate: Callable | None = None):
-    """Adds the excitation criterion of ``problem`` as a cost on ``alpha``.
-
-    Returns:
-        The Drake cost binding.
-    """
-    return _add_cost(prog, alpha, problem, on_evaluate)[0]
-
-
-def _add_cost(prog, alpha, problem, on_evaluate=None, stall=None):
+    """Adds the excitation criterion of ``problem`` as a cost on ``alpha``; returns the binding."""
     check_variables(alpha, problem)
-    cost = ExcitationCost(problem, on_evaluate, stall)
-    return prog.AddCost(cost, vars=alpha, description="excitation"), cost
+    return prog.AddCost(ExcitationCost(problem, on_evaluate), vars=alpha, description="excitation")
 
 
 class SampledConstraintEvaluator(CachedRows):
@@ -191,8 +157,7 @@ class SampledConstraintEvaluator(CachedRows):
     a log-sum-exp over the run: ``upper + τ log Σ exp((g − upper)/τ) ≤ upper`` for an upper
     bound (``lower − τ log Σ exp((lower − g)/τ) ≥ lower`` for a lower bound). It is never
     below the run's maximum (above its minimum), so every sample still meets its bound; the
-    aggregate is conservative by at most τ·log(group). Dense rows are what make IPOPT's
-    iterations expensive, so this cuts the cost per iteration without dropping samples.
+    aggregate is conservative by at most τ·log(group).
     """
 
     def __init__(
@@ -205,8 +170,7 @@ class SampledConstraintEvaluator(CachedRows):
         if group > 1 and not np.all(np.isfinite(lo) ^ np.isfinite(hi)):
             raise ConfigError(f"constraint '{constraint.name}': grouping needs one-sided bounds")
         self.last_violation = 0.0
-        #: worst violation at the samples per evaluated alpha (alpha.tobytes() → value), for
-        #: the solver's fallback to a feasible point (ExcitationCost.candidates)
+        #: worst violation at the samples per evaluated alpha.tobytes() (ExcitationCost.candidates)
         self.violations: dict[bytes, float] = {}
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
@@ -259,21 +223,19 @@ def add_sampled_constraint(
     """Adds lower ≤ g(q(t), v(t), vdot(t)) ≤ upper at the constraint samples (or ``samples``
     evenly spaced ones) as a Drake constraint on alpha with an analytic Jacobian.
 
-    Args:
-        group: samples per row (see :class:`SampledConstraintEvaluator`); default for
-            one-sided constraints gcd(K, :data:`SAMPLES_PER_ROW`) (16 for K = 400, 8 for
-            K = 200), else 1.
-        tau: smoothing of the grouped rows, in the constraint's unit (default 0.2 mm for
-            metres: conservative by at most τ·log(group) ≈ 0.55 mm).
+    Returns the binding, described by the constraint's name.
 
-    Returns:
-        The binding; its evaluator's description is the constraint's name.
+    Args:
+        group: samples per row (:class:`SampledConstraintEvaluator`); default for one-sided
+            constraints gcd(K, :data:`SAMPLES_PER_ROW`), else 1.
+        tau: smoothing of the grouped rows, in the constraint's unit (0.2 mm for metres:
+            conservative by at most τ·log(group) ≈ 0.55 mm).
     """
+    check_variables(alpha, problem)
     return _add_sampled(prog, alpha, problem, constraint, samples, group, tau)[0]
 
 
 def _add_sampled(prog, alpha, problem, constraint, samples=None, group=None, tau=2e-4):
-    check_variables(alpha, problem)
     basis = problem.constraint_basis
     if samples is not None:
         basis = FourierBasis(problem.harmonics, problem.omega, sample_times(problem.period, samples))
@@ -289,7 +251,6 @@ def _add_sampled(prog, alpha, problem, constraint, samples=None, group=None, tau
     return binding, evaluator
 
 
-# ---- build ------------------------------------------------------------------------------
 @dataclasses.dataclass
 class ExcitationProgram:
     """A built Drake program and what it was built from.
@@ -297,21 +258,13 @@ class ExcitationProgram:
     Attributes:
         prog: the MathematicalProgram (add your own costs/constraints before solving).
         alpha: its decision variables, shape ((2N+1)·n,).
-        problem: the :class:`ExcitationProblem`.
-        constraints: the :class:`SampledConstraint` objects added (balance, collision, ...).
-        evaluators: the Drake evaluator of each of ``constraints``, in order
-            (:class:`SampledConstraintEvaluator`).
+        constraints: the :class:`SampledConstraint` objects added (balance, collision, ...);
+            ``evaluators`` (and ``sampled_bindings``) theirs, in order.
         progress: the ``f(alpha, value)`` called after each cost evaluation, or None.
         cost: the program's :class:`ExcitationCost` (its fallback ``candidates``).
-        limits: how the joint limits were added ("windows", "sampled" or "smooth").
-        limit_bindings: their Drake bindings.
-        limit_evaluators: the Python evaluators behind them ("windows": one
-            :class:`~pe_drake.excitation.limit_windows.WindowMaxRows` per joint; empty for
-            "sampled", whose rows are Drake's linear constraints, and "smooth", not timed).
-        exchange_bindings / exchange_evaluators: rows added by the exchange step
-            (:func:`pe_drake.excitation.exchange.add_violated_samples`) at instants where a
-            sampled constraint was violated between the samples.
-        cost_binding / sampled_bindings: the Drake bindings of ``cost`` and ``evaluators``.
+        limits: how the joint limits were added ("windows" or "sampled"); ``limit_evaluators``
+            the :class:`~pe_drake.excitation.limit_windows.WindowMaxRows` ("windows" only).
+        exchange_bindings / exchange_evaluators: rows added by the exchange step.
         variable_scale: d of the solver's coordinates beta = alpha / d
             (:mod:`pe_drake.excitation.scaling`), or None to solve in alpha.
     """
@@ -335,18 +288,10 @@ class ExcitationProgram:
     def own_evaluators(self) -> list[tuple[object, object]]:
         """(binding, Python evaluator) of every row and cost this module added whose
         evaluator has ``values_and_jacobian`` (``value_and_gradient`` for the cost)."""
-        pairs = [(self.cost_binding, self.cost)] if self.cost_binding is not None else []
-        pairs += list(zip(self.sampled_bindings, self.evaluators))
-        if self.limits == "windows":
-            pairs += list(zip(self.limit_bindings, self.limit_evaluators))
+        pairs = [(self.cost_binding, self.cost), *zip(self.sampled_bindings, self.evaluators)]
+        pairs += list(zip(self.limit_bindings, self.limit_evaluators))
         return pairs + list(zip(self.exchange_bindings, self.exchange_evaluators))
 
-    def callback_seconds(self) -> float:
-        """Time spent so far in this program's own callbacks (cost, joint-limit windows,
-        sampled constraints) [s]; the rest of a solve is the solver's own work."""
-        total = self.cost.seconds if self.cost is not None else 0.0
-        total += sum(ev.seconds for ev in self.limit_evaluators)
-        return total + sum(ev.seconds for ev in self.evaluators + self.exchange_evaluators)
 
 
 def build_excitation_program(
@@ -356,53 +301,32 @@ def build_excitation_program(
     progress: bool | Callable = False,
     limits: str = "windows",
     sample_stride: int | None = None,
-    smooth_limits: bool = False,
     scaling: str = "auto",
     stall: StallRule | None = DEFAULT_STALL,
 ) -> ExcitationProgram:
     """A Drake MathematicalProgram for the excitation problem.
 
     Args:
-        problem: the cost definition.
         constraints: extra sampled constraints (balance, collision, torque); joint limits
             and (if configured) rest at the ends are always added.
-        progress: True to print a progress line every few evaluations, or a callable
-            ``f(alpha, value)``.
-        limits: how the joint limits (Eq. 51) enter: "windows" (default; one exact
-            window-maximum row per joint, quantity, side and window,
-            :mod:`pe_drake.excitation.limit_windows`: 5× fewer rows than "sampled" and 3–4×
-            cheaper IPOPT iterations), "sampled" (linear rows at every stride-th constraint
-            sample, tightened for the overshoot between them: the formulation before issue
-            11) or "smooth" (6 smooth-max rows per joint; cheap iterations but many more).
-        sample_stride: the sampled constraints (balance, collision, ...) are imposed at every
-            ``sample_stride``-th constraint sample (default 1: every sample). 2 halves their
-            dense rows and per-sample callbacks, most of an iteration's cost, and leaves the
-            instants in between to the exchange step of
-            :func:`~pe_drake.excitation.solve.solve_excitation`; but with small iteration
-            budgets the exchange's re-solves ran out of iterations and the Panda's capsules
-            ended 5 mm too close between samples, so every sample is the default.
-        smooth_limits: same as ``limits="smooth"`` (kept for existing callers).
-        scaling: the solver's coordinates: "harmonic" (each harmonic in units of the amplitude the limits
-            allow it, :mod:`pe_drake.excitation.scaling`), "none" (alpha itself) or "auto" (default:
-            "harmonic" from :data:`SCALED_HARMONICS` harmonics on).
-        stall: a :class:`StallRule` ending the solve when the criterion stalls
-            (:mod:`pe_drake.excitation.stall`; default :data:`DEFAULT_STALL`), or None to run
+        progress: True to print a progress line every 2 s, or a callable ``f(alpha, value)``.
+        limits: how the joint limits (Eq. 51) enter: "windows" (one exact window-maximum row
+            per joint, quantity, side and window, :mod:`pe_drake.excitation.limit_windows`) or
+            "sampled" (linear rows at every stride-th constraint sample, tightened for the
+            overshoot between them).
+        sample_stride: the sampled constraints are imposed at every ``sample_stride``-th
+            constraint sample (default 1), the instants in between left to the exchange step
+            of :func:`~pe_drake.excitation.solve.solve_excitation`.
+        scaling: the solver's coordinates: "harmonic" (:mod:`pe_drake.excitation.scaling`),
+            "none" (alpha itself) or "auto" ("harmonic" from :data:`SCALED_HARMONICS` on).
+        stall: a :class:`StallRule` ending the solve when the criterion stalls, or None to run
             to convergence or ``solver.max_iterations``.
 
-    Returns:
-        The :class:`ExcitationProgram`.
-
     Raises:
-        ConfigError: an unknown ``limits`` or ``scaling``.
+        ConfigError: an unknown ``limits`` or ``scaling``, a bad ``sample_stride``.
     """
-    limits = "smooth" if smooth_limits else limits
-    adders = {
-        "windows": add_window_limit_constraints,
-        "sampled": add_joint_limit_constraints,
-        "smooth": add_smooth_joint_limit_constraints,
-    }
-    if limits not in adders:
-        raise ConfigError(f"unknown joint-limit formulation '{limits}'; valid: {', '.join(adders)}")
+    if limits not in ("windows", "sampled"):
+        raise ConfigError(f"unknown joint-limit formulation '{limits}'; valid: windows, sampled")
     if scaling not in ("harmonic", "none", "auto"):
         raise ConfigError(f"unknown variable scaling '{scaling}'; valid: harmonic, none, auto")
     if scaling == "auto":
@@ -410,23 +334,23 @@ def build_excitation_program(
     K = problem.config.constraint_samples
     stride = 1 if sample_stride is None else sample_stride
     if not isinstance(stride, int) or stride < 1 or K % stride:
-        raise ConfigError(f"sample_stride must be a positive integer dividing the {K} constraint samples, got {stride!r}")
-    # pydrake is imported lazily so that `import pe_drake` stays light.
-    from pydrake.solvers import MathematicalProgram
+        raise ConfigError(f"sample_stride must be a positive integer dividing the {K} constraint "
+                          f"samples, got {stride!r}")
+    from pydrake.solvers import MathematicalProgram  # lazily, as above
 
     prog = MathematicalProgram()
     alpha = prog.NewContinuousVariables(problem.num_variables, "alpha")
     program = ExcitationProgram(prog, alpha, problem, list(constraints or []), limits=limits)
     if scaling == "harmonic":
         program.variable_scale = harmonic_scale(problem.harmonics, problem.omega, problem.robot.limits)
-    reporter = _ProgressPrinter(program) if progress is True else progress or None
-    program.progress = reporter
-    program.cost_binding, program.cost = _add_cost(prog, alpha, problem, on_evaluate=reporter, stall=stall)
+    program.progress = _ProgressPrinter(program) if progress is True else progress or None
+    program.cost = ExcitationCost(problem, program.progress, stall)
+    program.cost_binding = prog.AddCost(program.cost, vars=alpha, description="excitation")
     if limits == "windows":
-        bindings = add_window_limit_constraints(prog, alpha, problem, evaluators=program.limit_evaluators)
+        evaluators = program.limit_evaluators
+        program.limit_bindings = add_window_limit_constraints(prog, alpha, problem, evaluators)
     else:
-        bindings = adders[limits](prog, alpha, problem)
-    program.limit_bindings = bindings if isinstance(bindings, list) else [bindings]
+        program.limit_bindings = add_joint_limit_constraints(prog, alpha, problem)
     if problem.config.rest_at_ends:
         add_rest_constraints(prog, alpha, problem)
     for c in program.constraints:
@@ -440,14 +364,11 @@ def build_excitation_program(
 class _ProgressPrinter:
     """Prints evaluation count, best criterion so far and the worst constraint violation."""
 
-    def __init__(self, program: ExcitationProgram, every: float = 2.0, stream=None):
-        self.program = program
-        self.every = every
-        self.stream = stream or sys.stdout
-        self.best = np.inf
-        self.count = 0
-        self.last_print = -np.inf
-        self.start = time.perf_counter()
+    every = 2.0  # [s] between lines
+
+    def __init__(self, program: ExcitationProgram):
+        self.program, self.best, self.count = program, np.inf, 0
+        self.last_print, self.start = -np.inf, time.perf_counter()
 
     def __call__(self, alpha: np.ndarray, value: float) -> None:
         self.count += 1
@@ -459,10 +380,6 @@ class _ProgressPrinter:
             self.best = min(self.best, value)
         if now - self.last_print >= self.every:
             self.last_print = now
-            print(
-                f"  eval {self.count:5d}  {self.program.problem.config.criterion} {value:12.5g}"
-                f"  best feasible {self.best:12.5g}  max violation {violation:9.2e}"
-                f"  {now - self.start:6.1f} s",
-                file=self.stream,
-                flush=True,
-            )
+            print(f"  eval {self.count:5d}  {self.program.problem.config.criterion} {value:12.5g}"
+                  f"  best feasible {self.best:12.5g}  max violation {violation:9.2e}"
+                  f"  {now - self.start:6.1f} s", flush=True)

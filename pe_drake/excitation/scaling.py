@@ -1,23 +1,15 @@
-"""The solver's coordinates: each harmonic's coefficients sized by what the limits allow it (issue 38).
+"""The solver's coordinates: each harmonic's coefficients sized by what the limits allow it.
 
-q, v and vdot are linear in alpha (Eq. 50), but harmonic k's coefficient moves the velocity
-k times and the acceleration k² times as much as the first harmonic's: the criterion's and
-the limits' curvature along a_k grows with k, and a quasi-Newton method that starts from a
-multiple of the identity (IPOPT's limited-memory Hessian) spends its iterations learning that
-spread. In the coordinates beta = alpha / d, every coefficient a_jk, b_jk is measured in
-units of the largest amplitude joint j's limits allow harmonic k alone,
-A_jk = min(half the position range, v_max/(kω), vdot_max/(kω)²), relative to the first
-harmonic's (d_jk = A_jk / A_j1; d = 1 for the offsets q0). For G1's arms (N = 10, ω = π/4)
-d spans ~15×; for the Panda (N = 5, ω = 0.63 rad/s) ~2×, where a plain 1/k made its
-starts worse (BUILD_NOTES.md, "Third round").
+Harmonic k's coefficient moves the velocity k times and the acceleration k² times as much as the
+first's, a spread of curvature IPOPT's limited-memory Hessian spends iterations learning. In
+beta = alpha / d, a_jk and b_jk are in units of the largest amplitude joint j's limits allow
+harmonic k alone, A_jk = min(half the position range, v_max/(kω), vdot_max/(kω)²), relative to
+the first harmonic's (d_jk = A_jk / A_j1; d = 1 for q0).
 
-Drake's ``MathematicalProgram.SetVariableScaling`` would say this, but pydrake 1.51.1's
-IpoptSolver ignores it ("IpoptSolver doesn't support the feature of variable scaling"), so
-:func:`scaled_copy` builds the same program over beta for the solver: every cost and
-constraint of the program, pe_drake's own and any a user added, rebound to beta by the chain
-rule alpha = d·beta. The program itself (``program.prog``, ``program.alpha``) is unchanged:
-users keep adding constraints on alpha, and :class:`ScaledResult` answers
-``GetSolution(program.alpha)`` in alpha.
+pydrake 1.51.1's IpoptSolver ignores ``MathematicalProgram.SetVariableScaling``, so
+:func:`scaled_copy` rebinds every cost and constraint of the program, pe_drake's own and a user's,
+to beta by the chain rule alpha = d·beta. The program itself is unchanged, and
+:class:`ScaledResult` answers ``GetSolution(program.alpha)`` in alpha.
 """
 
 from __future__ import annotations
@@ -30,13 +22,8 @@ from pe_drake.excitation.limit_windows import CachedRows
 
 
 def harmonic_scale(harmonics: int, omega: float, limits) -> np.ndarray:
-    """d of alpha = d·beta (module docstring), shape ((2N+1)·n,).
-
-    Args:
-        harmonics: N.
-        omega: ω [rad/s].
-        limits: the robot's joint limits (``q_lower``, ``q_upper``, ``v_max``, ``vd_max``, each (n,)).
-    """
+    """d of alpha = d·beta (module docstring), shape ((2N+1)·n,), for N = ``harmonics``, ω
+    [rad/s] and the robot's joint ``limits``."""
     w = np.arange(1, harmonics + 1) * omega  # kω, (N,)
     half_range = 0.5 * (np.asarray(limits.q_upper, float) - np.asarray(limits.q_lower, float))
     amplitude = np.minimum.reduce([
@@ -52,8 +39,7 @@ def harmonic_scale(harmonics: int, omega: float, limits) -> np.ndarray:
 
 
 class _ScaledCost:
-    """An :class:`~pe_drake.excitation.program.ExcitationCost` (anything with
-    ``value_and_gradient(alpha)``) over beta."""
+    """Anything with ``value_and_gradient(alpha)`` (the ExcitationCost) over beta."""
 
     def __init__(self, inner, d: np.ndarray):
         self.inner, self.d = inner, d
@@ -69,9 +55,8 @@ class _ScaledCost:
 
 
 class _ScaledRows(CachedRows):
-    """A constraint evaluator with ``values_and_jacobian(alpha)`` (window rows, sampled
-    constraints) over beta: its rows at d·beta, their Jacobian times d (Drake's marshalling is
-    :class:`~pe_drake.excitation.limit_windows.CachedRows`'s)."""
+    """A constraint evaluator with ``values_and_jacobian(alpha)`` over beta: its rows at d·beta,
+    their Jacobian times d."""
 
     def __init__(self, inner, d: np.ndarray):
         self.inner, self.d = inner, d
@@ -99,7 +84,8 @@ class ScaledProgram(NamedTuple):
     beta: np.ndarray  # its variables, one per variable of the original program, in its order
     scale: np.ndarray  # d: original variable = d · beta, shape (num_vars,)
     original: np.ndarray  # the original program's variables, in the same order
-    rebound: tuple[str, ...]  # per binding, costs first: "own" (double path), "linear" (A·d) or "eval" (Drake's Eval at d·beta)
+    # per binding, costs first: "own" (double path), "linear" (A·d) or "eval" (Eval at d·beta)
+    rebound: tuple[str, ...]
 
 
 def _rebind(target, binding, ours: dict, beta, d, cost: bool) -> str:
@@ -133,22 +119,16 @@ def _rebind(target, binding, ours: dict, beta, d, cost: bool) -> str:
 
 
 def scaled_copy(prog, alpha: np.ndarray, d: np.ndarray, ours: list[tuple[object, object]] = ()) -> ScaledProgram:
-    """``prog`` over beta = alpha / d (module docstring); variables other than alpha keep
-    scale 1.
+    """``prog`` over beta = alpha / d (module docstring); other variables keep scale 1.
 
     Args:
-        prog: the MathematicalProgram.
         alpha: its Fourier coefficients, shape ((2N+1)·n,).
         d: their scales (:func:`harmonic_scale`), shape ((2N+1)·n,).
         ours: (binding, evaluator object) of pe_drake's own Python evaluators: their
-            values and Jacobians are taken in double and scaled (no AutoDiff arithmetic on
-            the hot path); every other evaluator is evaluated at d·beta through Drake.
-
-    Returns:
-        The :class:`ScaledProgram`.
+            values and Jacobians are taken in double and scaled (no AutoDiff on the hot
+            path); every other evaluator is evaluated at d·beta through Drake.
     """
-    # pydrake is imported lazily so that `import pe_drake` stays light.
-    from pydrake.solvers import MathematicalProgram
+    from pydrake.solvers import MathematicalProgram  # lazily, as above
 
     original = prog.decision_variables()
     index = {v.get_id(): i for i, v in enumerate(original)}
@@ -170,9 +150,8 @@ def scaled_copy(prog, alpha: np.ndarray, d: np.ndarray, ours: list[tuple[object,
 
 
 class ScaledResult:
-    """Drake's result of a :class:`ScaledProgram`'s solve, answering in the original
-    variables: ``GetSolution(v)`` is d·beta for the original program's variables; everything
-    else is Drake's (``raw``)."""
+    """Drake's result of a :class:`ScaledProgram`'s solve, ``GetSolution`` in the original
+    variables (d·beta); everything else is Drake's (``raw``)."""
 
     def __init__(self, raw, scaled: ScaledProgram):
         self.raw, self.scaled = raw, scaled

@@ -1,11 +1,10 @@
 """Where IPOPT writes its log files: one folder per process, removed once the process is gone.
 
-IPOPT reports its iteration count through Drake only in its log file, which a worker killed
-during a solve never deletes. So each process writes into its own folder
-``pe_drake_ipopt_<pid>_*`` and holds an exclusive ``flock`` on its ``.lock`` file while it
-lives; the kernel drops the lock however the process dies, so a folder whose lock can be taken
-is an orphan (no PID is trusted: PIDs are reused). The executors sweep orphans when they close,
-each process when it makes its folder, and a process removes its own when it exits.
+IPOPT reports its iteration count only in its log file, which a worker killed mid-solve never
+deletes. Each process writes into its own folder ``pe_drake_ipopt_<pid>_*`` and holds a ``flock``
+on its ``.lock`` file while it lives (the kernel drops it however the process dies; PIDs are
+reused, so none is trusted): a folder whose lock can be taken is an orphan, swept by the
+executors when they close and by each process when it makes its folder.
 """
 
 from __future__ import annotations

@@ -1,17 +1,12 @@
 """Stopping a solve whose criterion has stalled (issue 38).
 
-IPOPT's own tests never end a G1 or two-arm start: its dual infeasibility stays far above any
-tolerance while the criterion creeps (cond 189 → 188 over the last 100 of 300 iterations on
-G1 in the harmonic coordinates of :mod:`pe_drake.excitation.scaling`), and its "acceptable"
-rule needs every error small at once (it did not fire on G1 either, BUILD_NOTES.md). This
-rule watches the solver's progress: the lowest criterion evaluated so far (not only among
-the points within the joint limits: IPOPT's iterates sit 1e-4–1e-3 outside them for long
-stretches, and that best then lags; on the Panda it ended a start at cond 12.7 instead of
-11). When it has improved by less than ``improvement`` (relative) over the last ``window``
-cost evaluations, the cost callback raises :class:`CriterionStalled`,
-which unwinds Drake's solve; :func:`~pe_drake.excitation.solve.solve_excitation` catches it
-and continues as after an iteration limit (the best valid point evaluated, re-checked at
-1 kHz).
+IPOPT's own tests rarely end a G1 or two-arm start: its dual infeasibility stays far above any
+tolerance while the criterion creeps. This rule watches the lowest criterion evaluated so far
+(within the joint limits or not: IPOPT's iterates sit slightly outside them for long stretches).
+When it has improved by less than ``improvement`` (relative) over the last ``window`` cost
+evaluations, the cost callback raises :class:`CriterionStalled`, which unwinds Drake's solve;
+:func:`~pe_drake.excitation.solve.solve_excitation` catches it and continues as after an
+iteration limit. The defaults were tuned on recorded histories (BUILD_NOTES.md).
 """
 
 from __future__ import annotations
@@ -31,16 +26,8 @@ class CriterionStalled(Exception):
 @dataclasses.dataclass(frozen=True)
 class StallRule:
     """Stop when the lowest criterion evaluated improved by less than ``improvement`` over
-    the last ``window`` evaluations, after at least ``min_evaluations``.
-
-    Replayed on recorded 300-iteration histories (BUILD_NOTES.md, "Third round"): with 40
-    evaluations, 1 % and 150, G1 (6 seeds) would have stopped at 0.93–1.05× the former
-    formulation's 300-iteration cond (mean 0.97) in about half its iterations, the two-arm
-    robot at 0.96–1.06× (mean 1.01). Live, 1 % let the two-arm robot run 157–300 iterations;
-    2 % (the default) stopped it after 141–145 at 1.00–1.03× the former cond. The
-    minimum keeps an early plateau from ending a start (G1 with 20 quasi-Newton pairs paused
-    at cond 218 after 103 iterations; the UR5 at 11.3 after 114 evaluations, ending at 8.9).
-    """
+    the last ``window`` evaluations, after at least ``min_evaluations`` (which keeps an early
+    plateau from ending a start)."""
 
     window: int = 40  # cost evaluations
     improvement: float = 0.02  # relative (for a logarithmic criterion: of its exponential)
@@ -56,8 +43,8 @@ class StallRule:
 
     def stalled(self, best: list[float], logarithmic: bool = False) -> bool:
         """Whether the history ``best`` (the best criterion after each evaluation, inf before
-        the first finite value) has stalled. ``logarithmic``: the
-        criterion is a logarithm (log_cond, dopt), judged on its difference."""
+        the first finite value) has stalled. ``logarithmic``: the criterion is a logarithm
+        (log_cond, dopt), judged on its difference."""
         if len(best) <= max(self.window, self.min_evaluations - 1):
             return False
         now, then = best[-1], best[-1 - self.window]
@@ -73,9 +60,8 @@ class _Status(NamedTuple):
 
 
 class StalledResult:
-    """What a solve ended by :class:`~pe_drake.excitation.stall.CriterionStalled` returns in
-    place of Drake's result: not a success; its solution is the best evaluated point
-    within the joint limits (the fallback re-checks it at 1 kHz)."""
+    """Drake's result in place, for a solve ended by :class:`CriterionStalled`: not a success;
+    its solution is the best evaluated point within the joint limits."""
 
     def __init__(self, alpha: np.ndarray, x: np.ndarray, reason: str):
         self._alpha, self._x, self.reason = alpha, np.asarray(x, float), reason
@@ -100,11 +86,8 @@ class StalledResult:
 
 @contextlib.contextmanager
 def stall_rule_active(cost, enabled: bool):
-    """The stall rule of ``cost`` (an :class:`~pe_drake.excitation.program.ExcitationCost`, or
-    None) acts inside this block only, where the solve catches :class:`CriterionStalled`."""
-    if cost is None:
-        yield
-        return
+    """The stall rule of ``cost`` (an :class:`~pe_drake.excitation.program.ExcitationCost`)
+    acts inside this block only, where the solve catches :class:`CriterionStalled`."""
     cost.stall_enabled = enabled
     try:
         yield

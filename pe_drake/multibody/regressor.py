@@ -1,16 +1,10 @@
 """The joint-torque regressor Y(q, v, vdot) (Eq. 1) and its analytic derivative (Eqs. 45–47).
 
-τ = Y(q, v, vdot) φ, with φ the 10 inertial parameters of every body moved by an excited
-joint (order of :data:`pe_drake.multibody.robot.PARAMETER_NAMES`, bodies in ``Robot.body_names``),
-gravity included.
-
-Drake supplies the kinematics: body poses X_WB at each sample, from which the joint motion
-axes S_i (the columns of the spatial-velocity Jacobian, in world coordinates at the world
-origin) follow. Everything after that is batched numpy over the samples: spatial velocities
-and accelerations, the per-body regressor blocks, and — for the gradient — the reverse
-(adjoint) pass of the same computation. In world-origin coordinates every derivative with
-respect to q_l is a spatial cross product with S_l, which keeps the adjoint short; the
-derivation, and how it maps onto the paper's Eqs. (25)–(40), is in docs/derivations.md.
+τ = Y(q, v, vdot) φ, with φ the 10 inertial parameters of every body moved by an excited joint
+(order of :data:`pe_drake.multibody.robot.PARAMETER_NAMES`, bodies in ``Robot.body_names``),
+gravity included. From the body poses X_WB at each sample, everything is batched numpy over the
+samples in world-origin coordinates, where every derivative with respect to q_l is a spatial
+cross product with S_l: the forward pass and its adjoint are derived in docs/derivations.md.
 """
 
 from __future__ import annotations
@@ -47,14 +41,12 @@ class Kinematics:
     """Kinematic quantities of one batch of samples (world coordinates at the world origin).
 
     Attributes:
-        q, v, vd: joint states, (T, n).
+        v, vd: joint velocities and accelerations, (T, n).
         S: joint motion axes S_i, (T, n, 6).
-        R, p: body rotations R_WB (T, nb, 3, 3) and origins p_WBo (T, nb, 3).
-        VJ, AJ: spatial velocity and acceleration of each joint's child body, (T, n, 6);
-            AJ includes gravity as a base acceleration.
+        VJ, AJ: spatial velocity and acceleration (gravity as a base acceleration) of each
+            joint's child body, (T, n, 6).
         VB, AB: the same per body in body coordinates at Bo, (T, nb, 6).
-        F_B: per-body regressor blocks in body coordinates, (T, nb, 6, 10):
-            F = Γ(A) + V ×* Γ(V) (:func:`pe_drake.multibody.spatial.body_regressor`).
+        F_B: per-body regressor blocks in body coordinates, (T, nb, 6, 10): F = Γ(A) + V ×* Γ(V).
         F_W: the same in world coordinates at the world origin, (T, nb, 6, 10).
         G_V: Γ(V), the unit-parameter inertias times V, (T, nb, 6, 10).
         X_force: per-body force transforms X* (body at Bo → world at the origin), (T, nb, 6, 6);
@@ -63,12 +55,9 @@ class Kinematics:
         X_motion: X*ᵀ (world-origin motion vectors to each body), contiguous, (T, nb, 6, 6).
     """
 
-    q: np.ndarray
     v: np.ndarray
     vd: np.ndarray
     S: np.ndarray
-    R: np.ndarray
-    p: np.ndarray
     VJ: np.ndarray
     AJ: np.ndarray
     VB: np.ndarray
@@ -85,7 +74,6 @@ class RegressorModel:
     """Batched regressor of a :class:`~pe_drake.multibody.robot.Robot` and its adjoint.
 
     Args:
-        robot: the robot (its plant supplies body poses).
         batched: use the batched forward kinematics where the joint types allow (False:
             Drake's per-sample queries, e.g. as a reference in tests).
         keep_last_poses: keep the last :meth:`poses` and :meth:`twists` (see
@@ -125,28 +113,18 @@ class RegressorModel:
         self._twists_key: tuple | None = None
         self._twists: tuple[np.ndarray, np.ndarray] | None = None
 
-    # ---- forward ------------------------------------------------------------------------
     @property
     def batched_kinematics(self) -> bool:
         """True when :meth:`poses` uses the batched forward kinematics (every joint type of
         the robot handled), False when it falls back to Drake's per-sample queries."""
         return self._fk is not None
 
-    @property
-    def pose_bodies(self) -> list[int]:
-        """Body indices whose poses :meth:`poses` returns, in its order (the moving bodies
-        and the excited joints' child bodies)."""
-        return list(self._bodies_needed)
-
     def poses(self, q: np.ndarray) -> np.ndarray:
         """X_WB of the needed bodies, (T, len(bodies_needed), 4, 4).
 
-        Batched over samples from the joints' fixed frames (Drake's X_PF, X_FM(q), X_MC);
-        falls back to Drake's per-sample queries for joint types it does not handle (or
-        when built with ``batched=False``). With ``keep_last_poses`` (the model of
-        :func:`shared_model`, which the balance, collision and environment constraints
-        share, asking for the same samples in each evaluation) the last result is kept and
-        returned read-only.
+        Batched over samples (Drake's per-sample queries for joint types the batched forward
+        kinematics does not handle, or with ``batched=False``). With ``keep_last_poses`` the
+        last result is kept and returned read-only (:func:`shared_model`).
         """
         if not self._keep:
             return self._fk(q) if self._fk is not None else self.drake_poses(q)
@@ -162,14 +140,11 @@ class RegressorModel:
         return [self._slot[int(b)] for b in bodies]
 
     def joint_twists(self, X_WC: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """World axis ω and moment m = o × ω of each excited joint, each (K, n, 3).
+        """World axis ω and moment m = o × ω of each excited joint, each (K, n, 3), from the
+        poses X_WC (K, n, 4, 4) of the joints' child bodies.
 
         A point c moved by joint k has ∂c/∂q_k = ω_k × c + m_k (a prismatic joint: ω = 0,
         m = its axis).
-
-        Args:
-            X_WC: poses of the joints' child bodies, (K, n, 4, 4) (``poses(q)`` at
-                ``slots(joint child bodies)``).
         """
         X_WM = X_WC @ self.X_CM  # (K, n, 4, 4)
         axis_W = rotate(X_WM[:, :, :3, :3], self.axis_M)
@@ -202,16 +177,11 @@ class RegressorModel:
         return out
 
     def kinematics(self, q: np.ndarray, v: np.ndarray, vd: np.ndarray) -> Kinematics:
-        """Everything the regressor and its derivative need, for T samples.
-
-        Args:
-            q, v, vd: joint positions, velocities, accelerations, each (T, n).
-        """
+        """Everything the regressor and its derivative need, for T samples q, v, vd, each (T, n)."""
         q, v, vd = (np.atleast_2d(np.asarray(x, float)) for x in (q, v, vd))
         X = self.poses(q)
         # Joint frames M in world: X_WM = X_WC X_CM.
-        X_WC = X[:, [self._slot[c] for c in self._joint_child]]
-        X_WM = X_WC @ self.X_CM
+        X_WM = X[:, self._joint_child_slots] @ self.X_CM
         u = (X_WM[..., :3, :3] @ self.axis_M[..., None])[..., 0]  # axis in world
         o = X_WM[..., :3, 3]
         S = np.concatenate([u, cross3(o, u)], axis=-1)
@@ -242,16 +212,11 @@ class RegressorModel:
         # F_W = X* F_B, computed as its transpose F_Bᵀ X*ᵀ: the (10, 6) layout is the one the
         # regressor (Y = S·F) and its adjoint read as a (10·nb, 6) matrix without a copy.
         F_W = (F_B.swapaxes(-1, -2) @ X_motion).swapaxes(-1, -2)
-        return Kinematics(q, v, vd, S, R, p, VJ, AJ, VB, AB, F_B, F_W, G_V, X_force, VB_cross, X_motion)
+        return Kinematics(v, vd, S, VJ, AJ, VB, AB, F_B, F_W, G_V, X_force, VB_cross, X_motion)
 
     def regressor(self, kin: Kinematics, columns: np.ndarray | None = None) -> np.ndarray:
-        """Y, shape (T, n, 10·nb): Y[t, i, 10j+k] = [joint i moves body j] S_i · F_jk.
-
-        Args:
-            kin: from :meth:`kinematics`.
-            columns: compute only these columns (e.g. the base parameters' independent ones):
-                Y[..., columns], shape (T, n, len(columns)).
-        """
+        """Y, shape (T, n, 10·nb): Y[t, i, 10j+k] = [joint i moves body j] S_i · F_jk; with
+        ``columns`` (e.g. the base parameters' independent ones) only Y[..., columns]."""
         F, mask = _forces_by_parameter(kin), self._mask
         if columns is not None:
             F, mask = F[:, columns], mask[:, columns]
@@ -259,14 +224,12 @@ class RegressorModel:
         return (F @ kin.S.swapaxes(-1, -2)).swapaxes(-1, -2) * mask
 
     def wrench_regressor(self, kin: Kinematics, columns: np.ndarray | None = None) -> np.ndarray:
-        """Ground-wrench rows Y_0, shape (T, 6, 10·nb): the per-body Newton–Euler blocks side by side.
+        """Ground-wrench rows Y_0, shape (T, 6, 10·nb) (``columns`` as in :meth:`regressor`).
 
         Y_0[t, :, 10j:10j+10] is body j's world-frame force block F_j (moment about the world
-        origin), rows fx, fy, fz, mx, my, mz (:data:`WRENCH_FROM_SPATIAL`). Y_0 φ is the wrench
-        the ground (the weld of the root link) applies to the moving bodies, gravity included;
-        the bodies no excited joint moves add a constant (:func:`pe_drake.multibody.wrench.static_wrench`).
-        No joint torque and no joint friction enters these rows. ``columns``: only these
-        columns, as in :meth:`regressor`.
+        origin), rows fx, fy, fz, mx, my, mz. Y_0 φ is the wrench the ground (the weld of the root
+        link) applies to the moving bodies, gravity included; the bodies no excited joint moves
+        add a constant (:func:`pe_drake.multibody.wrench.static_wrench`).
         """
         T = kin.F_W.shape[0]
         F = kin.F_W[:, :, WRENCH_FROM_SPATIAL, :]  # (T, nb, 6, 10)
@@ -279,9 +242,8 @@ class RegressorModel:
 
     def columns(self, q: np.ndarray, v: np.ndarray, vd: np.ndarray, columns, chunk: int = 2000,
                 out: np.ndarray | None = None) -> np.ndarray:
-        """Y(q, v, vdot)[..., columns] (e.g. a base regressor's independent columns), shape
-        (T, n, len(columns)), computed ``chunk`` samples at a time (the kinematics of a whole
-        long segment at once hold tens of kB per sample), into ``out`` when given."""
+        """Y(q, v, vdot)[..., columns], shape (T, n, len(columns)), ``chunk`` samples at a time
+        (the kinematics hold tens of kB per sample), into ``out`` when given."""
         columns = np.asarray(columns)
         if out is None:
             out = np.empty((q.shape[0], q.shape[1] if q.ndim > 1 else 1, columns.size))
@@ -290,7 +252,6 @@ class RegressorModel:
             out[k] = self(q[k], v[k], vd[k])[..., columns]
         return out
 
-    # ---- adjoint ------------------------------------------------------------------------
     def pullback(
         self, kin: Kinematics, Z: np.ndarray | None, Z_wrench: np.ndarray | None = None,
         columns: np.ndarray | None = None,
@@ -298,7 +259,6 @@ class RegressorModel:
         """Gradient of f = Σ_t Z^(t) : Y^(t) + Z_0^(t) : Y_0^(t) with respect to q, v and vdot (Eq. 47).
 
         Args:
-            kin: from :meth:`kinematics`.
             Z: weights of the joint-torque rows, shape (T, n, 10·nb) (Eq. 46), or None.
             Z_wrench: weights of the ground-wrench rows (:meth:`wrench_regressor`), shape
                 (T, 6, 10·nb), or None.
@@ -338,7 +298,6 @@ class RegressorModel:
         """Gradient of f = Σ_jk w_jk · F_jk (+ the part already in S_bar) with respect to q, v, vdot.
 
         Args:
-            kin: from :meth:`kinematics`.
             w: weights of the world-frame force blocks, (T, nb, 10, 6) (motion vectors).
             S_bar: ∂f/∂S_i collected so far, (T, n, 6).
         """
@@ -405,13 +364,10 @@ def _forces_by_parameter(kin: Kinematics) -> np.ndarray:
 
 
 def shared_model(robot: Robot) -> RegressorModel:
-    """One :class:`RegressorModel` per robot that keeps its last poses, for the sampled
-    constraints (balance, collision, environment) that evaluate the same postures: the
-    forward kinematics runs once per evaluation instead of once per constraint.
-
-    It is stored on the robot as ``robot.shared_kinematics`` (set that attribute before
-    building the constraints to use another model, e.g. ``RegressorModel(robot,
-    batched=False, keep_last_poses=True)`` for Drake's per-sample queries)."""
+    """One :class:`RegressorModel` per robot that keeps its last poses, so the sampled
+    constraints (balance, collision, environment) evaluating the same postures run the forward
+    kinematics once. Stored as ``robot.shared_kinematics`` (set that attribute before building
+    the constraints to use another model, e.g. one with ``batched=False``)."""
     model = getattr(robot, "shared_kinematics", None)
     if model is None:
         model = robot.shared_kinematics = RegressorModel(robot, keep_last_poses=True)

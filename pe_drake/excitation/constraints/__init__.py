@@ -20,15 +20,12 @@ __all__ = ["EnvironmentConstraint", "SampledConstraint", "SampledValues", "const
 def constraints_from_config(robot: Robot, excitation, environment=None) -> list[SampledConstraint]:
     """The sampled constraints an :class:`~pe_drake.config.ExcitationConfig` asks for.
 
-    ``balance_radius > 0`` adds the balance constraint (Eq. 52), ``collision_margin >= 0``
-    the capsule self-collision constraint (Eq. 53), ``torque_limits`` the joint torque limits
-    of the a-priori model, ``environment`` (an EnvironmentConfig) the floor under a fixed-base
-    arm and box obstacles. Each is checked at the nominal posture
-    first, so a posture already out of balance or in collision is refused before solving.
+    ``balance_radius > 0`` adds balance (Eq. 52), ``collision_margin >= 0`` self-collision
+    (Eq. 53), ``torque_limits`` the a-priori model's torque limits, ``environment`` (an
+    EnvironmentConfig) the floor and boxes. Each is checked at the nominal posture first.
 
     Raises:
-        ConfigError: a constraint is requested but the robot lacks what it needs
-            (support points, a capsule file).
+        ConfigError: the robot lacks what a requested constraint needs (support points, capsules).
         InfeasibleError: the nominal posture already violates a constraint.
     """
     out: list[SampledConstraint] = []

@@ -1,21 +1,15 @@
 """Balance: the ground projection of the centre of mass stays near the support centre (Eq. 52).
 
-The paper keeps the estimated centre of total mass, computed from the a-priori (CAD) model,
-within 1 cm of the centre of the support area in the horizontal plane. Here the centre of
-mass is taken over every body of the plant (locked ones included), the moving bodies' CoMs
-from the batched forward kinematics of :class:`~pe_drake.multibody.regressor.RegressorModel`
-(Drake's ``CalcCenterOfMassPositionInWorld`` per sample where that does not apply), and the
-support centre p_WSc is the centroid of the feet's contact points (``robot.support_points``,
-in world). Per sample the constraint is
+The centre of mass of the a-priori model, over every body of the plant, must stay within r of the
+support centre p_WSc (the centroid of ``robot.support_points`` in world) in the horizontal plane.
+Per sample
 
     g(q) = sqrt(|e(q)|² + ε²) <= r,   e(q) = [p_WCcm(q) - p_WSc]_xy,
 
-a distance in metres (well scaled for the solver's absolute constraint tolerance, unlike
-|e|² whose tolerance of 1e-4 m² would be a centimetre); ε = ``smoothing`` keeps it smooth
-at e = 0 and makes it conservative by < ε²/(2r). The Jacobian is
-∂g/∂q = eᵀ·J_xy/g with J the CoM Jacobian (Drake's
-``CalcJacobianCenterOfMassTranslationalVelocity``, built from the joint twists in the batched
-path; q̇ = v for the revolute and prismatic joints excited here).
+a distance in metres (well scaled for the solver's absolute constraint tolerance, unlike |e|²);
+ε = ``smoothing`` keeps it smooth at e = 0, conservative by < ε²/(2r). ∂g/∂q = eᵀ·J_xy/g with J
+the CoM Jacobian, from the batched forward kinematics and joint twists (Drake's per-sample
+queries where those do not apply).
 """
 
 from __future__ import annotations
@@ -37,21 +31,14 @@ if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
 class OutOfBalanceError(InfeasibleError):
     """The centre of mass projects too far from the support centre.
 
-    Attributes:
-        sample: index of the worst sample.
-        time: its time [s], or None when no times were given.
-        offset: horizontal CoM offset from the support centre (x, y) at that sample [m].
-        distance: its norm [m].
-        radius: the allowed radius [m].
-        violations: number of samples outside the radius.
+    Attributes: ``sample`` (the worst), its ``time`` [s] (None without times), the CoM's
+    ``offset`` (x, y) [m] from the support centre there and its norm ``distance`` [m], the
+    allowed ``radius`` [m], and ``violations``, the number of samples outside it.
     """
 
     def __init__(self, sample, time, offset, radius, violations):
-        self.sample = int(sample)
-        self.time = time
-        self.offset = np.asarray(offset, float)
-        self.distance = float(np.linalg.norm(offset))
-        self.radius = float(radius)
+        self.sample, self.time, self.offset = int(sample), time, np.asarray(offset, float)
+        self.distance, self.radius = float(np.linalg.norm(offset)), float(radius)
         self.violations = int(violations)
         when = f"sample {sample}" + (f" (t = {time:.3f} s)" if time is not None else "")
         super().__init__(
@@ -64,10 +51,7 @@ class OutOfBalanceError(InfeasibleError):
 
 
 def support_center(robot: Robot) -> np.ndarray:
-    """p_WSc: centroid of the support (contact) points in world, shape (3,) [m].
-
-    Args:
-        robot: a :class:`~pe_drake.multibody.robot.Robot` whose config has ``support_points``.
+    """p_WSc: centroid of the robot's support (contact) points in world, shape (3,) [m].
 
     Raises:
         ConfigError: no support points, or a support link moved by an excited joint (the
@@ -109,27 +93,16 @@ class BalanceConstraint(SampledConstraint):
     """
 
     name = "balance"
-    unit = "m"
 
     def __init__(self, robot: Robot, radius: float = 0.01, *, smoothing: float = 1e-4):
-        """
-        Args:
-            robot: a :class:`~pe_drake.multibody.robot.Robot` with ``support_points``.
-            radius: allowed horizontal distance r [m], > smoothing (the paper: 0.01).
-            smoothing: ε [m], > 0.
-
-        Raises:
-            ConfigError: see :func:`support_center`; or a radius/smoothing that is not a
-                positive number, or radius <= smoothing.
-        """
+        """Raises ConfigError: see :func:`support_center`; a radius/smoothing that is not a
+        positive number, or radius <= smoothing."""
         for label, value in (("radius", radius), ("smoothing", smoothing)):
             if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
                 raise ConfigError(f"balance {label} must be a positive number [m], got {value!r}")
         if radius <= smoothing:
             raise ConfigError(f"balance radius {radius} m must exceed the smoothing {smoothing} m")
-        self.robot = robot
-        self.radius = float(radius)
-        self.smoothing = float(smoothing)
+        self.robot, self.radius, self.smoothing = robot, float(radius), float(smoothing)
         self.p_WSc = support_center(robot)
         self._plant = robot.plant
         self._context = robot.plant.CreateDefaultContext()  # ours: other constraints keep their caches
@@ -137,12 +110,8 @@ class BalanceConstraint(SampledConstraint):
         super().__init__(["CoM distance from support centre"], [-np.inf], [self.radius])
 
     def _setup_batched(self) -> None:
-        """Mass-weighted body CoMs for the batched forward kinematics (Drake's
-        per-sample CoM and CoM Jacobian took ~12 ms for G1's 400 samples per evaluation).
-
-        The bodies not moved by an excited joint (legs, torso, locked joints) contribute a
-        constant first moment, computed once here at the default context.
-        """
+        """Mass-weighted body CoMs for the batched forward kinematics; the bodies no excited
+        joint moves contribute a constant first moment, computed once here."""
         from pydrake.multibody.tree import BodyIndex  # lazy: pydrake is heavy
 
         robot, plant = self.robot, self._plant
@@ -202,14 +171,8 @@ class BalanceConstraint(SampledConstraint):
         return p, J
 
     def com_offset(self, q: np.ndarray) -> np.ndarray:
-        """Horizontal offset of the whole-robot CoM from the support centre.
-
-        Args:
-            q: joint positions, shape (K, n) or (n,) [rad or m].
-
-        Returns:
-            e = (x, y) offsets, shape (K, 2) [m].
-        """
+        """Horizontal offset e (K, 2) [m] of the whole-robot CoM from the support centre at
+        q (K, n) or (n,)."""
         q = check_postures(q, self.robot, "balance constraint")
         p, _ = self.com(q, jacobian=False)
         return p[:, :2] - self.p_WSc[:2]
@@ -217,16 +180,7 @@ class BalanceConstraint(SampledConstraint):
     def evaluate(
         self, q: np.ndarray, v: np.ndarray, vd: np.ndarray, derivatives: bool = True
     ) -> SampledValues:
-        """g = sqrt(|e|² + ε²) per sample and ∂g/∂q.
-
-        Args:
-            q: joint positions, shape (K, n) [rad or m]; v, vd are not used.
-            derivatives: also compute ∂g/∂q.
-
-        Returns:
-            value (K, 1) [m]; d_q (K, 1, n) [m/rad], empty (K, 1, 0) when ``derivatives`` is
-            False; d_v = d_vd = None.
-        """
+        """g = sqrt(|e|² + ε²) per sample (K, 1) [m] and ∂g/∂q (K, 1, n) (v, vd not used)."""
         q = check_postures(q, self.robot, "balance constraint")
         p, J = self.com(q, jacobian=derivatives)
         e = p[:, :2] - self.p_WSc[:2]
@@ -242,11 +196,8 @@ class BalanceConstraint(SampledConstraint):
         return self.radius - np.linalg.norm(self.com_offset(q), axis=1, keepdims=True)
 
     def check_posture(self, q: np.ndarray, t: np.ndarray | None = None) -> None:
-        """Refuses postures whose CoM projects farther than ``radius`` from the support centre.
-
-        Args:
-            q: joint positions, shape (n,) or (K, n) [rad or m].
-            t: sample times, shape (K,) [s], for the message (optional).
+        """Refuses postures q (n,) or (K, n) whose CoM projects farther than ``radius`` from the
+        support centre; ``t`` (K,) [s] for the message.
 
         Raises:
             OutOfBalanceError: with the worst sample (and time) and its offset in mm.

@@ -1,10 +1,8 @@
 """The sampled-constraint interface every trajectory constraint implements.
 
 A :class:`SampledConstraint` maps joint states at K sample times to m values per sample with
-lower ≤ value ≤ upper, and gives their analytic derivatives with respect to q (and v, vdot
-when it depends on them). :mod:`pe_drake.excitation.program` chains these through the Fourier map
-(Eq. 49) into a Drake constraint on alpha; the members (balance, collision, torque) never see
-alpha.
+lower ≤ value ≤ upper, with analytic derivatives with respect to q (and v, vdot when it depends
+on them). :mod:`pe_drake.excitation.program` chains these through the Fourier map (Eq. 49).
 """
 
 from __future__ import annotations
@@ -38,8 +36,7 @@ def robot_capsules(robot: Robot, margin, what: str, fix: str) -> tuple:
 
 
 def check_postures(q: np.ndarray, robot: Robot, what: str) -> np.ndarray:
-    """q as finite postures of the robot's excited joints, shape (K, n) (a single posture (n,)
-    becomes (1, n)).
+    """q as finite postures of the robot's excited joints, shape (K, n) (from (n,) or (K, n)).
 
     Raises:
         ConfigError: another shape, or NaN/infinity; ``what`` names the constraint.
@@ -59,13 +56,7 @@ def check_postures(q: np.ndarray, robot: Robot, what: str) -> np.ndarray:
 
 def state_margins(limits, constraints, q: np.ndarray, v: np.ndarray, vd: np.ndarray) -> dict[str, float]:
     """Smallest margin of the joint limits (per quantity, the worst joint) and of each sampled
-    constraint over the states given; negative is a violation.
-
-    Args:
-        limits: the robot's ``limits`` (q_lower, q_upper, v_max, vd_max, shape (n,)).
-        constraints: :class:`SampledConstraint` objects.
-        q, v, vd: states, shape (K, n).
-    """
+    constraint over the states q, v, vd, each (K, n); negative is a violation."""
     margins = {
         "position": float(np.min(np.minimum(q - limits.q_lower, limits.q_upper - q))),
         "velocity": float(np.min(limits.v_max - np.abs(v))),
@@ -99,13 +90,10 @@ class SampledConstraint(abc.ABC):
     Attributes:
         name: short name used in reports ("balance", "collision", "torque").
         labels: one label per value row (e.g. the capsule pair), length m.
-        lower: shape (m,).
-        upper: shape (m,).
-        unit: unit of the values, for reports ("m", "N·m").
+        lower, upper: shape (m,).
     """
 
     name: str = "constraint"
-    unit: str = ""
 
     def __init__(self, labels: list[str], lower: np.ndarray, upper: np.ndarray):
         self.labels = list(labels)
@@ -119,12 +107,8 @@ class SampledConstraint(abc.ABC):
 
     @abc.abstractmethod
     def evaluate(self, q: np.ndarray, v: np.ndarray, vd: np.ndarray, derivatives: bool = True) -> SampledValues:
-        """Values (and derivatives unless ``derivatives`` is False) at K samples.
-
-        Args:
-            q, v, vd: joint positions, velocities, accelerations, each (K, n).
-            derivatives: compute d_q/d_v/d_vd (else they may be empty arrays).
-        """
+        """Values at K samples q, v, vd, each (K, n), and the derivatives unless
+        ``derivatives`` is False (then d_q/d_v/d_vd may be empty arrays)."""
 
     def margins(self, q: np.ndarray, v: np.ndarray, vd: np.ndarray) -> np.ndarray:
         """Signed distance to the nearest bound at each sample, shape (K, m); < 0 is a

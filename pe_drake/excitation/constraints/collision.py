@@ -1,47 +1,34 @@
 """Self-collision avoidance between capsules (paper, Eq. 53).
 
-Every capsule pair left after filtering (:func:`pe_drake.multibody.capsules.capsule_pairs`) keeps at
-least ``margin`` between its surfaces at every sample:
+Every capsule pair left after filtering (:func:`pe_drake.multibody.capsules.capsule_pairs`) keeps
+at least ``margin`` between its surfaces at every sample:
 
     d_ij(q) = d_line(p_Li^(s), p_Li^(e), p_Lj^(s), p_Lj^(e)) - r_i - r_j >= margin.
 
-Distances are exact segment-segment distances computed from Drake's body poses; their
-gradients come from the joint twists. With the closest points c_i, c_j and the unit normal
-n = (c_i - c_j)/|c_i - c_j|, the envelope theorem gives, for an excited joint k with world
-axis ω_k through o_k (Plücker moment m_k = o_k × ω_k),
+Distances are exact segment-segment distances (Drake's capsule distance is accurate to ~2e-6 m
+only, which shows in finite differences). With the closest points c_i, c_j and the unit normal
+n = (c_i - c_j)/|c_i - c_j|, the envelope theorem gives, for an excited joint k with world axis
+ω_k through o_k (Plücker moment m_k = o_k × ω_k; for a prismatic joint ω_k = 0, m_k its axis),
 
-    ∂d_ij/∂q_k = [k moves i]·(ω_k·(c_i × n) + n·m_k) - [k moves j]·(ω_k·(c_j × n) + n·m_k)
+    ∂d_ij/∂q_k = [k moves i]·(ω_k·(c_i × n) + n·m_k) - [k moves j]·(ω_k·(c_j × n) + n·m_k).
 
-(for a prismatic joint, ω_k = 0 and m_k is its world axis). Drake's own capsule distance is
-accurate to ~2e-6 m only, which shows in finite differences (BUILD_NOTES.md); this one is
-exact to rounding.
+By default each sample contributes ONE row, a smooth lower bound of the minimum pair distance
+(soft-min, ``h`` = ``smoothing``):
 
-Form of the constraint. By default each sample contributes ONE row, a smooth lower bound of
-the minimum pair distance (soft-min, ``h`` = ``smoothing``):
+    g(q) = -h·log Σ_ij exp(-d_ij(q)/h) <= min_ij d_ij(q),   g(q) >= margin,
 
-    g(q) = -h·log Σ_ij exp(-d_ij(q)/h) <= min_ij d_ij(q),   g(q) >= margin.
+so g >= margin implies every pair is ``margin`` apart, at most h·log P conservative; it keeps
+K dense rows instead of K·P and stays C¹ when the closest pair changes. ``aggregate=False``
+gives the exact per-pair rows.
 
-Because g never exceeds the true minimum, g >= margin implies every pair is at least
-``margin`` apart; g underestimates the minimum by at most h·log(#pairs within a few h of
-it) (≤ h·log P; 1.4 mm for two pairs at h = 2 mm). The alternative, one row per pair per
-sample, gives IPOPT K·P rows (400 × 47 = 18 800 for G1), each dense in all Fourier
-coefficients (the Fourier map couples every sample to every coefficient): a 18 800 × 294
-Jacobian per evaluation, marshalled through AutoDiff, and a KKT system to match, for rows
-that are almost all inactive. The aggregate keeps K rows (400 × 294) and stays C¹ when the
-closest pair changes. ``aggregate=False`` gives the per-pair rows (exact, for small K or
-for diagnosis).
-
-Pruning. A pair whose weight exp(-(d_ij - d_min)/h) is below e^-30 changes neither the
-soft-min nor its gradient at double precision, and most pairs at most samples are that far
-from the closest one. Bounding spheres tell them apart before any segment distance is
-computed: with segment midpoints m, half-lengths l (fixed: capsules are rigid) and radii r,
+Pruning: a pair whose soft-min weight exp(-(d_ij - d_min)/h) is below e^-30 changes nothing at
+double precision. Bounding spheres (segment midpoints m, fixed half-lengths l, radii r) bound
 
     |m_i - m_j| - l_i - l_j - r_i - r_j  <=  d_ij  <=  |m_i - m_j| - r_i - r_j,
 
-so a pair whose lower bound exceeds the smallest upper bound of its sample by 30·h is
-dropped there; the rest (~30 % for the Panda and G1) get exact distances. The minimum
-distance (:meth:`CollisionConstraint.margins`, the 1 kHz re-check) uses the same bounds with
-no slack and stays exact.
+so a pair whose lower bound exceeds its sample's smallest upper bound by 30·h is dropped there
+before any segment distance is computed. The exact minimum (:meth:`CollisionConstraint.margins`)
+uses the same bounds with no slack.
 """
 
 from __future__ import annotations
@@ -78,21 +65,14 @@ def _closest_points(a: np.ndarray, b: np.ndarray):
 class PostureInCollisionError(InfeasibleError):
     """Two capsules are closer than the collision margin.
 
-    Attributes:
-        pair: the two capsule names.
-        sample: index of the worst sample.
-        time: its time [s], or None when no times were given.
-        distance: their distance at that sample [m] (negative: penetration).
-        margin: the required distance [m].
-        violations: number of samples closer than the margin.
+    Attributes: the two capsule names ``pair``, the worst ``sample`` and its ``time`` [s] (None
+    without times), their ``distance`` there [m] (negative: penetration), the required
+    ``margin`` [m], and ``violations``, the number of samples closer than it.
     """
 
     def __init__(self, pair, sample, time, distance, margin, violations):
-        self.pair = tuple(pair)
-        self.sample = int(sample)
-        self.time = time
-        self.distance = float(distance)
-        self.margin = float(margin)
+        self.pair, self.sample, self.time = tuple(pair), int(sample), time
+        self.distance, self.margin = float(distance), float(margin)
         self.violations = int(violations)
         when = f"sample {sample}" + (f" (t = {time:.3f} s)" if time is not None else "")
         state = "penetrate by" if distance < 0 else "are"
@@ -117,28 +97,15 @@ class CollisionConstraint(SampledConstraint):
     """
 
     name = "collision"
-    unit = "m"
 
     def __init__(self, robot: Robot, margin: float, *, aggregate: bool = True, smoothing: float = 0.002):
-        """
-        Args:
-            robot: a :class:`~pe_drake.multibody.robot.Robot` loaded with a capsule file.
-            margin: minimum distance between capsule surfaces [m], >= 0.
-            aggregate: one soft-min row per sample (default) or one row per pair.
-            smoothing: soft-min length scale h [m], > 0 (used when ``aggregate``).
-
-        Raises:
-            ConfigError: no capsules, no pair left to check, or a bad margin/smoothing.
-        """
+        """Raises ConfigError: no capsules, no pair left to check, or a bad margin/smoothing."""
         capsules = robot_capsules(robot, margin, "collision", ": set robot.capsules to a capsule file in its config "
                                   "(format: pe_drake/multibody/capsules.py)")
         if aggregate and (not math.isfinite(smoothing) or smoothing <= 0):
             raise ConfigError(f"collision smoothing must be a positive number [m], got {smoothing!r}")
-        self.robot = robot
-        self.capsules = capsules
-        self.margin = float(margin)
-        self.aggregate = bool(aggregate)
-        self.smoothing = float(smoothing)
+        self.robot, self.capsules, self.margin = robot, capsules, float(margin)
+        self.aggregate, self.smoothing = bool(aggregate), float(smoothing)
         self.pairs = capsule_pairs(robot.scene_graph, capsules)
         if not self.pairs:
             raise ConfigError(
@@ -153,7 +120,6 @@ class CollisionConstraint(SampledConstraint):
             P = len(self.pairs)
             super().__init__(self.pair_names, np.full(P, self.margin), np.full(P, np.inf))
 
-    # ---- set-up -------------------------------------------------------------------------
     def _setup(self) -> None:
         from pydrake.multibody.tree import BodyIndex
 
@@ -201,12 +167,9 @@ class CollisionConstraint(SampledConstraint):
         self._mask_a = moves[pa].astype(float)  # (P, n)
         self._mask_b = moves[pb].astype(float)
 
-    # ---- kinematics ---------------------------------------------------------------------
     def _joint_body_poses(self, q: np.ndarray, all_joints: bool) -> np.ndarray:
-        """X_WH (K, n, 4, 4) of the joints' child bodies; with ``all_joints`` False only
-        those hosting capsules are filled. One forward-kinematics pass per sample (the
-        per-body reads hit Drake's cache; cheaper than the body-poses port, which copies
-        every body's pose)."""
+        """X_WH (K, n, 4, 4) of the joints' child bodies; with ``all_joints`` False only those
+        hosting capsules are filled (per-body reads: cheaper than copying every body's pose)."""
         if self._kinematics.batched_kinematics:
             return self._kinematics.poses(q)[:, self._joint_slots]
         plant, ctx = self._plant, self._context
@@ -257,6 +220,17 @@ class CollisionConstraint(SampledConstraint):
         starts = np.flatnonzero(np.r_[True, k[1:] != k[:-1]])
         return k, p, starts, centre_distance - self._radii[p], c_a, c_b, diff, centre_distance, X_WH
 
+    def _twists_and_normals(self, q, X_WH, diff, centre_distance):
+        """The joints' world axes and moments (K, n, 3) and the pairs' unit normals c_a − c_b."""
+        if self._kinematics.batched_kinematics:  # shared with balance and the floor rows
+            omega, moment = self._kinematics.twists(q)
+        else:
+            omega, moment = self._kinematics.joint_twists(X_WH)
+        length = centre_distance[..., None]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            normal = np.where(length > 1e-12, diff / length, 0.0)
+        return omega, moment, normal
+
     def _soft_min(self, q: np.ndarray, derivatives: bool) -> SampledValues:
         """The aggregate row over the pairs kept by the bounding-sphere test."""
         K = q.shape[0]
@@ -272,12 +246,7 @@ class CollisionConstraint(SampledConstraint):
         value = (d_min - h * np.log(total))[:, None]  # (K, 1)
         if not derivatives:
             return SampledValues(value=value, d_q=np.empty((K, 1, 0)))
-        if self._kinematics.batched_kinematics:  # shared with balance and the floor rows
-            omega, moment = self._kinematics.twists(q)
-        else:
-            omega, moment = self._kinematics.joint_twists(X_WH)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            normal = np.where(centre_distance[:, None] > 1e-12, diff / centre_distance[:, None], 0.0)
+        omega, moment, normal = self._twists_and_normals(q, X_WH, diff, centre_distance)
         # Σ_p w_p ∂d_p/∂q_j = ω_j·A_j + m_j·B_j per sample: the weighted vectors go back to
         # their (sample, pair) places (zero where pruned), then one product per sample
         # contracts over the pairs.
@@ -292,32 +261,17 @@ class CollisionConstraint(SampledConstraint):
         d_q = (omega * np.swapaxes(A, 1, 2)).sum(axis=2) + (moment * np.swapaxes(B, 1, 2)).sum(axis=2)
         return SampledValues(value=value, d_q=d_q[:, None, :])
 
-    # ---- public -------------------------------------------------------------------------
     def distances(self, q: np.ndarray) -> np.ndarray:
-        """Exact distance between the surfaces of each checked capsule pair.
-
-        Args:
-            q: joint positions, shape (K, n) or (n,) [rad or m].
-
-        Returns:
-            shape (K, P) [m], negative when the capsules overlap; columns follow ``pairs``.
-        """
+        """Exact distance between the surfaces of each checked pair at q (K, n) or (n,): shape
+        (K, P) [m], negative when the capsules overlap; columns follow ``pairs``."""
         q = check_postures(q, self.robot, "collision constraint")
         return self._pair_geometry(q, joints=False)[0]
 
     def evaluate(
         self, q: np.ndarray, v: np.ndarray, vd: np.ndarray, derivatives: bool = True
     ) -> SampledValues:
-        """Soft-min distance per sample (or every pair distance), and ∂/∂q.
-
-        Args:
-            q: joint positions, shape (K, n) [rad or m]; v, vd are not used.
-            derivatives: also compute ∂value/∂q.
-
-        Returns:
-            value (K, 1) or (K, P) [m]; d_q (K, 1, n) or (K, P, n) [m/rad], empty (K, m, 0)
-            when ``derivatives`` is False; d_v = d_vd = None.
-        """
+        """Soft-min distance per sample (K, 1), or every pair distance (K, P) [m], and ∂/∂q
+        (v, vd are not used)."""
         q = check_postures(q, self.robot, "collision constraint")
         if self.aggregate:
             return self._soft_min(q, derivatives)
@@ -325,12 +279,7 @@ class CollisionConstraint(SampledConstraint):
         d, c_a, c_b, diff, centre_distance, X_WH = self._pair_geometry(q, joints=derivatives)
         if not derivatives:
             return SampledValues(value=d, d_q=np.empty((K, d.shape[1], 0)))
-        if self._kinematics.batched_kinematics:  # shared with balance and the floor rows
-            omega, moment = self._kinematics.twists(q)
-        else:
-            omega, moment = self._kinematics.joint_twists(X_WH)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            normal = np.where(centre_distance[..., None] > 1e-12, diff / centre_distance[..., None], 0.0)
+        omega, moment, normal = self._twists_and_normals(q, X_WH, diff, centre_distance)
         # ∂d/∂q_k = mask_a·(ω_k·(c_a × n) + n·m_k) - mask_b·(ω_k·(c_b × n) + n·m_k)
         ca_n, cb_n = cross3(c_a, normal), cross3(c_b, normal)  # (K, P, 3)
         mask_a, mask_b = self._mask_a, self._mask_b  # (P, n)
@@ -340,12 +289,8 @@ class CollisionConstraint(SampledConstraint):
         return SampledValues(value=d, d_q=d_q)
 
     def margins(self, q: np.ndarray, v: np.ndarray, vd: np.ndarray) -> np.ndarray:
-        """Exact clearance beyond the margin, min over pairs (aggregate) or per pair.
-
-        Returns:
-            shape (K, 1) or (K, P) [m]; < 0 is a violation. For the aggregate this is the
-            true minimum distance minus ``margin`` (the soft-min constraint is stricter).
-        """
+        """Exact clearance beyond the margin, min over pairs (K, 1) (aggregate) or per pair
+        (K, P) [m]; < 0 is a violation."""
         if not self.aggregate:
             return self.distances(q) - self.margin
         q = check_postures(q, self.robot, "collision constraint")
@@ -355,15 +300,11 @@ class CollisionConstraint(SampledConstraint):
         return np.minimum.reduceat(d, starts)[:, None] - self.margin
 
     def check_posture(self, q: np.ndarray, t: np.ndarray | None = None) -> None:
-        """Refuses postures where a capsule pair is closer than ``margin``.
-
-        Args:
-            q: joint positions, shape (n,) or (K, n) [rad or m].
-            t: sample times, shape (K,) [s], for the message (optional).
+        """Refuses postures q (n,) or (K, n) where a pair is closer than ``margin``; ``t`` (K,)
+        [s] for the message.
 
         Raises:
-            PostureInCollisionError: naming the worst pair, its sample (and time), the
-                distance and how far inside the margin it is.
+            PostureInCollisionError: naming the worst pair, its sample (and time) and distance.
         """
         d = self.distances(q)
         bad = d < self.margin
@@ -372,12 +313,7 @@ class CollisionConstraint(SampledConstraint):
         k, p = np.unravel_index(np.argmin(d), d.shape)
         a, b = self.pairs[p]
         time = None if t is None else float(np.asarray(t, float).reshape(-1)[k])
-        raise PostureInCollisionError(
-            (self.capsules[a].name, self.capsules[b].name),
-            k,
-            time,
-            d[k, p],
-            self.margin,
-            int(bad.any(axis=1).sum()),
-        )
+        pair = (self.capsules[a].name, self.capsules[b].name)
+        violations = int(bad.any(axis=1).sum())
+        raise PostureInCollisionError(pair, k, time, d[k, p], self.margin, violations)
 

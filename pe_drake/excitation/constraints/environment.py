@@ -1,28 +1,19 @@
 """The robot's surroundings: a floor under a fixed-base arm and box obstacles.
 
-Every checked capsule (a segment [p0, p1] swept by a sphere of radius r) keeps ``margin``
-from the floor plane n·p = h (n the unit normal; n = ẑ for an upright base, the base's z
-axis for a wall or ceiling mount: the floor is the mounting plane) and from each box:
+Every checked capsule (a segment [p0, p1] swept by a sphere of radius r) keeps ``margin`` from
+the floor plane n·p = h (n the unit normal: the base's z axis, so the floor is the mounting
+plane) and from each box:
 
-    floor:  n·p_e − r − h >= margin   for both segment ends e (a segment's lowest point is
-            an end, so this is exact and smooth);
+    floor:  n·p_e − r − h >= margin   for both segment ends e (exact: a segment's lowest point
+            is an end);
     box:    min_s sd_box(p0 + s·(p1 − p0)) − r >= margin,
 
-with sd_box the signed distance of a point to the box (negative inside). sd_box is convex
-in the point and the segment is affine in s, so the minimum over s ∈ [0, 1] is found by a
-golden-section search; by the envelope theorem its derivative is n·∂p(s*)/∂q, n the box's
-outward normal at the closest point. The segment ends and ∂p/∂q come from the batched
-forward kinematics and joint twists of :func:`~pe_drake.multibody.regressor.shared_model`
-(Drake's point positions and translational Jacobians per sample where that does not apply;
-q̇ = v for the revolute and prismatic joints excited here).
-
-A capsule whose height never changes with q (the base, and a shoulder turning about a
-vertical axis) gets no floor row: it sits where it is mounted. Capsules welded to the world
-get no row at all.
-
-As in :mod:`pe_drake.excitation.constraints.collision`, each sample contributes one row by
-default, a smooth lower bound of the minimum clearance (soft-min with length scale h_s):
-g = −h_s·log Σ exp(−d_i/h_s) <= min_i d_i, so g >= margin implies every row holds.
+with sd_box the signed distance to the box (negative inside), convex in the point, so the
+minimum over s ∈ [0, 1] is found by a golden-section search; by the envelope theorem its
+derivative is n·∂p(s*)/∂q, n the box's outward normal at the closest point. Capsules whose
+height never changes with q get no floor row; capsules welded to the world get no row at all.
+As in :mod:`~pe_drake.excitation.constraints.collision`, each sample contributes one soft-min
+row by default.
 """
 
 from __future__ import annotations
@@ -48,13 +39,8 @@ _GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
 
 @dataclasses.dataclass(frozen=True)
 class Box:
-    """An axis-aligned box obstacle in world.
-
-    Attributes:
-        center: shape (3,) [m].
-        size: full edge lengths (x, y, z), shape (3,) [m], each > 0.
-        name: for reports.
-    """
+    """An axis-aligned box obstacle in world: ``center`` (3,) [m] and full edge lengths
+    ``size`` (x, y, z) [m], each > 0."""
 
     center: np.ndarray
     size: np.ndarray
@@ -63,11 +49,7 @@ class Box:
     @staticmethod
     def from_spec(spec, index: int = 0) -> Box:
         """A box from a config entry {center: [x, y, z], size: [sx, sy, sz]} (or an object
-        with those attributes).
-
-        Raises:
-            ConfigError: naming the entry and the bad value.
-        """
+        with those attributes); ConfigError names the entry and the bad value."""
         get = spec.get if isinstance(spec, dict) else (lambda k, d=None: getattr(spec, k, d))
         where = f"environment.boxes[{index}]"
         values = {}
@@ -86,15 +68,8 @@ class Box:
 
 
 def box_signed_distance(p: np.ndarray, center: np.ndarray, half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Signed distance of points to an axis-aligned box (negative inside) and its gradient.
-
-    Args:
-        p: points, shape (..., 3) [m].
-        center, half: box centre and half sizes, broadcastable to p [m].
-
-    Returns:
-        sd shape (...), and the unit outward normal ∂sd/∂p shape (..., 3).
-    """
+    """Signed distance (...) of points p (..., 3) to an axis-aligned box (negative inside) and
+    the unit outward normal ∂sd/∂p (..., 3); ``center``, ``half`` (sizes) broadcast to p [m]."""
     rel = p - center
     sign = np.where(rel >= 0, 1.0, -1.0)
     over = np.abs(rel) - half  # (..., 3)
@@ -111,11 +86,8 @@ def box_signed_distance(p: np.ndarray, center: np.ndarray, half: np.ndarray) -> 
 
 
 def segment_box_distance(p0: np.ndarray, p1: np.ndarray, center: np.ndarray, half: np.ndarray, iterations: int = 60):
-    """min over s ∈ [0, 1] of the box signed distance of p0 + s(p1 − p0), batched.
-
-    Returns:
-        (distance, s*, normal at the closest point), shapes (...), (...), (..., 3).
-    """
+    """min over s ∈ [0, 1] of the box signed distance of p0 + s(p1 − p0), batched: (distance,
+    s*, normal at the closest point), shapes (...), (...), (..., 3)."""
     lo = np.zeros(p0.shape[:-1])
     hi = np.ones_like(lo)
 
@@ -140,22 +112,15 @@ class EnvironmentConstraint(SampledConstraint):
     """Capsules at least ``margin`` above the floor and outside each box, at every sample.
 
     Args:
-        robot: a :class:`~pe_drake.multibody.robot.Robot` with capsules.
-        margin: required clearance [m], >= 0.
-        floor_height: offset h of the floor plane n·p = h in world [m] (its z for an
-            upright floor), or None for no floor.
-        boxes: :class:`Box` obstacles.
+        floor_height: offset h of the floor plane n·p = h in world [m], or None for no floor.
         aggregate: one soft-min row per sample (default) or one row per capsule end / box.
-        smoothing: soft-min length scale [m].
-        floor_normal: unit normal n of the floor plane in world, pointing to the robot's side
-            (default +z).
+        floor_normal: unit normal n of the floor plane in world, pointing to the robot's side.
 
     Raises:
         ConfigError: no capsules, nothing to check, or bad numbers.
     """
 
     name = "environment"
-    unit = "m"
 
     def __init__(
         self,
@@ -204,9 +169,7 @@ class EnvironmentConstraint(SampledConstraint):
         self._bodies = sorted({c.body_index for c in self.capsules})
         self._frames = [plant.get_body(body_index(b)).body_frame() for b in self._bodies]
         self._slot = [self._bodies.index(c.body_index) for c in self.capsules]
-        # The batched path (Drake's per-sample point Jacobians took half of a
-        # Panda solve): capsule ends from the shared forward kinematics, their Jacobians from
-        # the joint twists.
+        # Batched: capsule ends from the shared forward kinematics, Jacobians from the twists.
         model = shared_model(robot)
         self._model = model if model.batched_kinematics else None
         if self._model is not None:
@@ -217,10 +180,8 @@ class EnvironmentConstraint(SampledConstraint):
             self._moves = robot.joint_moves_body[:, cols].T.astype(float)  # (C, n)
 
     def _floor_ends(self) -> list[tuple[int, int]]:
-        """(capsule, end) pairs that get a floor row: ends whose height varies by more than
-        the capsule's radius over the joint ranges. An end that stays within a radius of its
-        mounting height is a joint housing turning in place (the base, a shoulder): it sits
-        where it is mounted and cannot be moved off the floor."""
+        """(capsule, end) pairs that get a floor row: ends whose height varies by more than the
+        capsule's radius over the joint ranges (others turn in place where they are mounted)."""
         rng = np.random.default_rng(0)
         lim = self.robot.limits
         lo = np.where(np.isfinite(lim.q_lower), lim.q_lower, -np.pi)
@@ -269,14 +230,8 @@ class EnvironmentConstraint(SampledConstraint):
         return p, J
 
     def clearances(self, q: np.ndarray, derivatives: bool = False):
-        """Clearance of every row (capsule end above the floor, capsule outside a box) [m].
-
-        Args:
-            q: shape (K, n) or (n,) [rad or m].
-
-        Returns:
-            d (K, R) and, with ``derivatives``, ∂d/∂q (K, R, n) (else None).
-        """
+        """Clearance d (K, R) [m] of every row (capsule end above the floor, capsule outside a
+        box) at q (K, n) or (n,), and with ``derivatives`` ∂d/∂q (K, R, n) (else None)."""
         q = check_postures(q, self.robot, "environment constraint")
         # The floor rows need only ∂z/∂q; the full Jacobian of every end is built for boxes.
         z_gradient_only = derivatives and not self.boxes and self._model is not None
@@ -323,11 +278,7 @@ class EnvironmentConstraint(SampledConstraint):
         return (d.min(axis=1, keepdims=True) if self.aggregate else d) - self.margin
 
     def check_posture(self, q: np.ndarray) -> None:
-        """Refuses a (nominal) posture already closer than ``margin`` to the floor or a box.
-
-        Raises:
-            InfeasibleError: naming the capsule, the obstacle and the clearance.
-        """
+        """Refuses a posture closer than ``margin`` to the floor or a box (InfeasibleError)."""
         d = self.clearances(q)[0]
         k, r = np.unravel_index(int(np.argmin(d)), d.shape)
         if d[k, r] < self.margin:
@@ -340,13 +291,9 @@ class EnvironmentConstraint(SampledConstraint):
 
 def standing_plane(robot: Robot, normal: np.ndarray, mounting_plane: float, tolerance: float = 0.02) -> float:
     """Where a robot on a pedestal stands: the lowest point, along the floor normal n, of the
-    capsules that no excited joint moves (a pedestal, a torso welded to the base), when the
-    axis of one reaches more than ``tolerance`` [m] below the mounting plane; else
-    ``mounting_plane``.
-
-    A dual-arm robot such as Baxter has its root link at the torso and its pedestal below:
-    the mounting plane through the root link would cut the arms' workspace in half, while
-    the real floor is under the pedestal.
+    capsules no excited joint moves, when the axis of one reaches more than ``tolerance`` [m]
+    below the mounting plane; else ``mounting_plane``. (Baxter's root link is its torso: the
+    plane through it would cut the arms' workspace in half.)
     """
     moving = {int(b) for b in robot.body_indices}
     fixed = [c for c in getattr(robot, "capsules", ()) or () if c.body_index not in moving]
@@ -365,21 +312,9 @@ def standing_plane(robot: Robot, normal: np.ndarray, mounting_plane: float, tole
 
 
 def environment_from_config(robot: Robot, excitation, environment) -> EnvironmentConstraint | None:
-    """The floor/box constraint a config asks for, or None.
+    """The floor/box constraint a config asks for (:func:`floor_plane`), or None.
 
-    The floor applies to a fixed-base arm (no ``robot.support_points``) when
-    ``environment.floor`` is true. It is the mounting plane: normal to the base's z axis
-    (n = R_WB ẑ: up for an upright base, down for a ceiling mount, horizontal on a wall),
-    through the root link's origin p_WBo shifted along n by ``environment.floor_height −
-    p_WBo,z`` (0 when null). For an upright base that is the plane z = floor_height (or the
-    base's z); a ceiling-mounted arm stays below its ceiling. The clearance is
-    ``max(excitation.collision_margin, 0)``. With ``floor_height`` null, a robot whose fixed
-    parts (a pedestal) reach below that plane stands on them (:func:`standing_plane`).
-
-    Args:
-        robot: the :class:`~pe_drake.multibody.robot.Robot`.
-        excitation: its :class:`~pe_drake.config.ExcitationConfig`.
-        environment: an :class:`~pe_drake.config.EnvironmentConfig`.
+    The clearance is ``max(excitation.collision_margin, 0)``.
 
     Raises:
         ConfigError: a floor or boxes are asked for but the robot has no capsules.
@@ -394,11 +329,13 @@ def environment_from_config(robot: Robot, excitation, environment) -> Environmen
 
 
 def floor_plane(robot: Robot, environment) -> tuple[np.ndarray, float] | None:
-    """The floor plane n·p = h of :func:`environment_from_config` (what the optimizer checks
-    and the playback draws), or None: no floor, or a robot on its own feet.
+    """The floor plane n·p = h in world (unit normal n (3,), offset h [m]) that the optimizer
+    checks and the playback draws, or None: no floor, or a robot on its feet (support points).
 
-    Returns:
-        (unit normal n, shape (3,); offset h [m]) in world, or None.
+    The mounting plane: normal to the base's z axis (n = R_WB ẑ: up for an upright base, down
+    for a ceiling mount), through the root link's origin p_WBo shifted along n by
+    ``environment.floor_height − p_WBo,z`` (0 when null). With ``floor_height`` null, a robot
+    whose fixed parts reach below that plane stands on them (:func:`standing_plane`).
     """
     if not environment.floor or getattr(robot.config, "support_points", None):
         return None

@@ -1,13 +1,8 @@
-"""Joint torque limits from the a-priori model: |τ_j(t)| ≤ effort limit of joint j.
+"""Joint torque limits from the a-priori model: |τ_j(t)| ≤ ``robot.limits.effort_max[j]``.
 
-τ(q, v, v̇) = Y(q, v, v̇) φ_model (Eq. 1 with the a-priori parameters, gravity included; the
-model file's joint damping is left out like everywhere in the regressor). The limit is the
-robot's ``limits.effort_max``: the model file's effort limits, tightened by the config's
-``effort_limits`` and ``effort_scale`` (a safety margin).
-
-Derivatives: for joint j, ∂τ_j(t)/∂(q, v, v̇)(t) is the regressor adjoint (Eq. 47) with the
-weights Z(t) = e_j ⊗ φ_model, one reverse pass per joint for all samples at once (samples
-are independent).
+τ(q, v, v̇) = Y(q, v, v̇) φ_model (Eq. 1 with the a-priori parameters, gravity included, joint
+damping left out as everywhere in the regressor). ∂τ_j/∂(q, v, v̇) is the regressor adjoint
+(Eq. 47) with the weights Z(t) = e_j ⊗ φ_model: one reverse pass per joint for all samples.
 """
 
 from __future__ import annotations
@@ -31,16 +26,11 @@ class TorqueLimitError(InfeasibleError):
 class TorqueConstraint(SampledConstraint):
     """−effort_j ≤ τ_j(q, v, v̇) ≤ effort_j at each sample (N·m or N).
 
-    Args:
-        robot: the robot (its a-priori parameters and effort limits).
-        model: a :class:`RegressorModel` to reuse.
-
     Raises:
         ConfigError: a joint without an effort limit (give ``robot.effort_limits``).
     """
 
     name = "torque"
-    unit = "N·m"
 
     def __init__(self, robot: Robot, model: RegressorModel | None = None):
         effort = np.asarray(robot.limits.effort_max, float)
@@ -62,9 +52,7 @@ class TorqueConstraint(SampledConstraint):
         if not derivatives:
             return SampledValues(tau, np.empty(0))
         K, n = tau.shape
-        d_q = np.empty((K, n, n))
-        d_v = np.empty((K, n, n))
-        d_vd = np.empty((K, n, n))
+        d_q, d_v, d_vd = np.empty((3, K, n, n))
         for j in range(n):
             Z = np.zeros_like(Y)
             Z[:, j, :] = self.phi
