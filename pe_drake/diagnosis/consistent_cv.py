@@ -1,21 +1,12 @@
-"""The cross-validated error of the physically consistent model (issue 36).
+"""The cross-validated error of the physically consistent model.
 
-The selection's fits (:class:`~pe_drake.diagnosis.regression.Regression`) are unconstrained
-least squares of the base parameters; the augmented model the diagnosis delivers is
-physically consistent (every body's pseudo-inertia ⪰ 0, friction, armature and spring ≥ their
-bounds). A term the data need can look useless to the least-squares fit, whose base parameters
-absorb it in a combination no set of bodies can hold, and be what the consistent model needs:
-on the shared real Panda recording the joint-4 spring lowers the least-squares fit's
-cross-validated error by 2.6 % and the consistent model's held-out error by a third, where
-without it the consistent fit moves link masses to stand in for it (BUILD_NOTES, "diagnose
-within 5 % of identify on the real Panda").
-
-:class:`ConsistentCrossValidation` scores a set of columns as the cross-validation does
-(:class:`~pe_drake.diagnosis.selection.CrossValidation`: fitted on each fold's fit part,
-scored on its selection part), with identification's physical fit
-(:func:`~pe_drake.identification.physical_fit.physical_fit`, the one SDP) in place of least
-squares: the fold's weighted Gram matrix folded into as many rows as it has columns, the base
-parameters as K φ, the drive columns with their physical lower bounds.
+The selection's fits are unconstrained least squares; the augmented model the diagnosis
+delivers is physically consistent. A term the data need can look useless to the least-squares
+fit, whose base parameters absorb it in a combination no set of bodies can hold (BUILD_NOTES,
+"diagnose within 5 % of identify on the real Panda"). :class:`ConsistentCrossValidation` scores
+a set of columns as the cross-validation does, with identification's physical fit (the one SDP)
+in place of least squares: the fold's weighted Gram matrix folded into as many rows as it has
+columns, the base parameters as K φ, the drive columns with their physical lower bounds.
 """
 
 from __future__ import annotations
@@ -32,16 +23,8 @@ from pe_drake.identification.physical_fit import ON_BOUND, physical_fit
 
 
 class ConsistentCrossValidation:
-    """The physically consistent fit of each fold, scored on its selection part.
-
-    Args:
-        folds: the cross-validation's regressions (:attr:`CrossValidation.folds`), their
-            ``held`` the folds' selection parts.
-        library: the columns' meaning (their physical lower bounds).
-        K: the base composition φ_B = K φ, (b, 10·nb).
-        phi_prior: the a-priori standard parameters, (10·nb,).
-        body_names: the bodies of φ.
-    """
+    """The physically consistent fit of each fold (``folds``: the cross-validation's
+    regressions), scored on its selection part; K (b, 10·nb), phi_prior (10·nb,)."""
 
     def __init__(self, folds: Sequence[Regression], library: Library, K: np.ndarray, phi_prior: np.ndarray,
                  body_names: Sequence[str]):
@@ -99,16 +82,12 @@ def consistent_fit(reg: Regression, cols: Sequence[int], library: Library, K: np
                    body_names: Sequence[str], *, delivered: bool = False) -> tuple[np.ndarray, np.ndarray] | None:
     """The physically consistent fit of ``cols`` (the base parameters first) on ``reg``'s
     training moments with its weights: ([K φ, θ] in the order of ``cols``, φ), or None when
-    the solver fails.
+    the solver fails; θ at least each column's physical bound.
 
-    φ is physically consistent (the one SDP of
-    :func:`~pe_drake.identification.physical_fit.physical_fit`), θ at least each column's
-    physical bound (friction, armature, spring). The cross-validation scores stage 1, the best
-    consistent fit; the model delivered (``delivered``) is stage 2's, as ``identify --method
-    physical``'s: among the fits whose whitened χ² is within
-    :data:`~pe_drake.identification.estimators.PHYSICAL_DELTA_CHI2` of stage 1's, the one
-    nearest the a-priori model (stage 1 alone put 9.5 kg on the real Panda's link 3, CAD 3.2;
-    stage 2 5.2 kg)."""
+    The cross-validation scores stage 1, the best consistent fit; the model ``delivered`` is
+    stage 2's, as ``identify --method physical``'s: within
+    :data:`~pe_drake.identification.estimators.PHYSICAL_DELTA_CHI2` of stage 1's χ², the fit
+    nearest the a-priori model."""
     cols, w2, b = list(cols), reg.weights**2, reg.num_base
     G = np.einsum("j,jpq->pq", w2, reg.train.gram[:, cols][:, :, cols])
     g = np.einsum("j,jp->p", w2, reg.train.rhs[:, cols])
@@ -118,10 +97,9 @@ def consistent_fit(reg: Regression, cols: Sequence[int], library: Library, K: np
     R = (V * np.sqrt(np.maximum(ev, 0.0))).T
     lower = np.array([library.cand_of[c].lower if c in library.cand_of and library.cand_of[c].nonnegative
                       else -np.inf for c in cols[b:]])
-    # Stage 2's budget in whitened units without identify's correlation inflation τ̄ (the
-    # residual's): where the residual is model error, not noise, τ̄ is large (72 in the delay case of
-    # tests/test_diagnosis.py) and the inflated budget let stage 2 move what the data determine
-    # (the delay 10.0 → 9.75 ms, held-out RMS 3-7× the least-squares fit's).
+    # Stage 2's budget without identify's correlation inflation τ̄: where the residual is model
+    # error, not noise, τ̄ is large and an inflated budget lets stage 2 move what the data determine.
+
     chi2 = PHYSICAL_DELTA_CHI2 if delivered else 0.0
     try:
         fit = physical_fit(R[:, :b] @ K, R[:, -1], np.asarray(phi_prior, float), list(body_names),
