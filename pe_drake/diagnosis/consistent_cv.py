@@ -39,8 +39,7 @@ class ConsistentCrossValidation:
         if found is None:
             return fit
         x, cols = found[0], list(fit.columns)
-        rss = [np.maximum(c.yy - 2 * c.rhs[:, cols] @ x + np.einsum("p,jpq,q->j", x, c.gram[:, cols][:, :, cols], x),
-                          0.0) for c in (reg.train, reg.held)]
+        rss = [np.maximum(reg.rss(c, cols, x), 0.0) for c in (reg.train, reg.held)]
         return dataclasses.replace(fit, x=x, rms_train=np.sqrt(rss[0] / reg.train.count),
                                    rms_held=np.sqrt(rss[1] / reg.held.count),
                                    wrss_held=float(np.sum(reg.weights**2 * rss[1])))
@@ -70,9 +69,7 @@ class ConsistentCrossValidation:
                 f = reg.fit(extra)
                 rss_j, w = f.rms_held**2 * reg.held.count, float(f.wrss_held)
             else:
-                G, r = reg.held.gram[:, cols][:, :, cols], reg.held.rhs[:, cols]
-                x = fit[0]
-                rss_j = np.maximum(reg.held.yy - 2 * r @ x + np.einsum("p,jpq,q->j", x, G, x), 0.0)
+                rss_j = np.maximum(reg.rss(reg.held, cols, fit[0]), 0.0)
                 w = float(np.sum(reg.weights**2 * rss_j))
             rss, count, wrss = rss + rss_j, count + reg.held.count, wrss + w
         return Score(np.sqrt(rss / count), wrss)

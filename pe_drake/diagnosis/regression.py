@@ -76,8 +76,8 @@ class Regression:
         G = np.einsum("j,jpq->pq", w2, Gj)
         g = np.einsum("j,jp->p", w2, self.train.rhs[:, cols])
         x, Hinv = solve_normal_equations(G, g)
-        rss_tr = self._rss(self.train, cols, x)
-        rss_ho = self._rss(self.held, cols, x)
+        rss_tr = self.rss(self.train, cols, x)
+        rss_ho = self.rss(self.held, cols, x)
         S_tr, S_ho = self.train.count, self.held.count
         var_j = np.maximum(rss_tr, 0.0) / max(S_tr - len(cols) / len(w2), 1.0)
         # Sandwich: Var x = H⁻¹ (Σ_j w_j⁴ s_j τ_j G_j) H⁻¹ with s_j the joint's residual variance.
@@ -86,7 +86,8 @@ class Regression:
                    np.sqrt(np.maximum(rss_ho, 0) / S_ho), float(np.sum(w2 * rss_ho)))
 
     @staticmethod
-    def _rss(c: Columns, cols: list[int], x: np.ndarray) -> np.ndarray:
+    def rss(c: Columns, cols: list[int], x: np.ndarray) -> np.ndarray:
+        """Per-joint residual sum of squares of the columns ``cols`` at ``x`` from the moments."""
         G = c.gram[:, cols][:, :, cols]
         r = c.rhs[:, cols]
         return c.yy - 2 * r @ x + np.einsum("p,jpq,q->j", x, G, x)
