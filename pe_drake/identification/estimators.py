@@ -9,26 +9,16 @@ linear model of Eq. (4),
 and solved by one of three estimators:
 
 - ``ols``: ordinary least squares, φ_B = W⁺ τ (Eq. 4);
-- ``wls``: weighted least squares with per-joint noise weights (Gautier 1997): the
-  residual of joint j gives σ_j² = ‖ρ_j‖² / (S − b/n), rows of joint j are divided by σ_j,
-  and the weighted problem is solved again, until σ_j is that of the weighted fit's own
-  residual (:mod:`pe_drake.identification.least_squares`; one step for a rigid-body-only fit
-  whose OLS residual is mostly friction); the default;
-- ``physical``: the standard parameters φ (10 per body) with every body's pseudo-inertia
-  J(φ_b) ⪰ 0 (Wensing, Kim & Slotine 2017: the body is realizable by a positive mass
-  density, which is Drake's physical-validity condition), friction and armature ≥ 0 and the
-  user's mass and CoM bounds, weighted as WLS and pulled toward the a-priori model only in the
-  directions no motion identifies (:mod:`pe_drake.identification.physical_fit`).
+- ``wls`` (the default): weighted least squares with per-joint noise weights (Gautier 1997),
+  iterated to their fixed point (:mod:`pe_drake.identification.least_squares`);
+- ``physical``: the standard parameters φ with every body's pseudo-inertia J(φ_b) ⪰ 0,
+  friction and armature ≥ 0 and the user's mass and CoM bounds, weighted as WLS
+  (:mod:`pe_drake.identification.physical_fit`).
 
-By default the regressor carries a drive block: Coulomb and viscous friction and a
-torque offset per joint, and the rotor inertia (armature) where it is separable from the link
-inertias, W = [Y_B | D] (:mod:`pe_drake.identification.drive_terms`); the ground-wrench rows
-of D are zero.
-
-The relative standard deviation of each base parameter, %σ = 100·√(Σ_ii)/|φ_B,i|, tells how
-well the data determined it. Σ is σ² (WᵀW)⁻¹ with each channel's contribution inflated by the
-integrated autocorrelation time of its residual (filtered samples are not independent;
-`pe_drake.identification.statistics.sandwich_from_grams`), weighted rows for WLS.
+By default the regressor carries a drive block W = [Y_B | D]
+(:mod:`pe_drake.identification.drive_terms`); the ground-wrench rows of D are zero. The
+relative standard deviation %σ = 100·√(Σ_ii)/|φ_B,i| of each base parameter uses the sandwich
+covariance inflated by each channel's residual autocorrelation time.
 """
 
 from __future__ import annotations
@@ -50,7 +40,6 @@ from pe_drake.identification.drive_terms import (
     unphysical_drive_terms,
     with_known,
 )
-from pe_drake.multibody.drive_columns import model_tables
 from pe_drake.multibody.drive_columns import (
     TERMS,
     DriveLayout,
@@ -58,11 +47,9 @@ from pe_drake.multibody.drive_columns import (
     drive_columns,
     drive_layout,
     drive_options,
+    model_tables,
 )
-from pe_drake.identification.measurements import (
-    Measurement,
-    Preprocessing,
-)
+from pe_drake.identification.measurements import Measurement, Preprocessing
 from pe_drake.identification.least_squares import ordinary_fit, weighted_fit
 from pe_drake.identification.physical_fit import ON_BOUND, PhysicalBounds, physical_fit
 from pe_drake.identification.welded import merge_welded
@@ -94,12 +81,10 @@ FRICTION_SHARE_WARNING = 0.5
 #: of the data by at most this over the unconstrained optimum (physical_fit's stage 2).
 PHYSICAL_DELTA_CHI2 = 4.0
 #: The physical fit's σ_c is at least this fraction of the channel's RMS torque: no torque
-#: sensor or current loop resolves finer (a 20-bit converter is 1e-6 of its range), and the SDP
-#: solver (tolerances 1e-10-1e-8) cannot resolve a thinner confidence region.
+#: sensor resolves finer, and the SDP solver cannot resolve a thinner confidence region.
 PHYSICAL_MIN_RELATIVE_SIGMA = 1e-6
 #: The physical fit names every channel whose residual RMS exceeds the least-squares (WLS) fit's
-#: on the same data by more than this [%] (the 5 % bar of diagnosis.start.START_TOLERANCE_PERCENT):
-#: an SO-101 fit 100x worse than WLS on every joint used to say nothing (the honest-figures rule).
+#: on the same data by more than this [%].
 PHYSICAL_WORSE_PERCENT = 5.0
 
 
@@ -108,9 +93,6 @@ class IdentificationResult:
     """An identified model.
 
     Attributes:
-        robot: robot name.
-        method: "ols", "wls" or "physical".
-        joints: excited joints, in column order.
         base: the base-parameter composition (Eq. 2) the estimate refers to.
         phi_B: identified base parameters, shape (b,).
         sigma_percent: relative standard deviation of each base parameter [%], shape (b,).
@@ -121,30 +103,17 @@ class IdentificationResult:
         relative_error: per-channel 100·‖ρ_c‖/‖y_c‖ [%].
         noise_std: per-channel σ_c: the OLS residual's for ``ols``; for ``wls`` and
             ``physical`` the σ_c of the WLS weights 1/σ_c (``residual_rms`` is the fit's own).
-        samples: S, samples used (after preprocessing).
-        preprocessing: what :func:`pe_drake.identification.preprocessing.preprocess` did (or None).
         wall_time: seconds spent in the estimator (regressor included).
-        source: the data file.
-        measurement: "joint_torque", "base_wrench" or "both": the channels identified from.
         channels: the channel of each entry of residual_rms, relative_error and noise_std:
             joint names (torques), then :data:`~pe_drake.multibody.wrench.WRENCH_COLUMNS`.
-        model: the robot as built this fit gives (:class:`~pe_drake.multibody.robot_model.RobotModel`):
-            ``phi``, or for base parameters only the standard parameters closest to the
-            a-priori model that give them (φ0 + K⁺(φ_B − K φ0)), and the drive terms with their σ.
-        drive_layout: the fitted drive columns (which terms, the armatures merged into base
-            parameters, the columns the data dropped, those kept from the model file), or None
-            (a model without them, e.g. an identified.json of before the drive terms).
-        physical_notes: what the physical fit says about its result (parameters on a bound,
-            far from the a-priori model).
+        model: the robot as built this fit gives: ``phi``, or for base parameters only the
+            standard parameters closest to the a-priori model that give them, and the drive
+            terms with their σ.
+        drive_layout: the fitted drive columns, or None (a model without them).
         friction_share: for a fit without drive terms, the fraction of the OLS residual's
             energy that Coulomb + viscous friction and offsets would explain (None otherwise).
-        weight_iterations: the WLS's weighted solves (0 for OLS, 1 for Gautier's one step;
-            :func:`~pe_drake.identification.least_squares.weighted_fit`).
-        weights_converged: the WLS weights reached their fixed point.
-        cov_B: covariance of ``phi_B``, shape (b, b) (its diagonal is σ²: ``sigma_percent``), or
-            None (an identified.json written before it was stored, an augmented model).
-        coupling: warnings of joints whose residual looks like a coupled drive the model lacks
-            (:mod:`~pe_drake.identification.coupling`; set by ``identify_model``).
+        cov_B: covariance of ``phi_B``, shape (b, b), or None (an older identified.json).
+        coupling: warnings of joints whose residual looks like a coupled drive the model lacks.
     """
 
     robot: str
@@ -214,23 +183,16 @@ def identify(
     parameters).
 
     Args:
-        robot: the robot.
         data: preprocessed data (:func:`~pe_drake.identification.intake.prepare_measurement`), with v and vd.
-        method: "wls" (the default), "ols" or "physical".
         base: the base composition (default: the measurement's, :func:`measurement_base_parameters`).
         prior: a-priori standard parameters for ``physical`` (default: the robot's model).
-        model: a :class:`RegressorModel` to reuse.
-        measurement: the channels to fit (:mod:`pe_drake.identification.channels`):
-            "joint_torque", "base_wrench" (the ground wrench alone) or "both" (WLS weighs
-            every channel by its residual).
-        drive_terms: friction, offset and armature columns per joint
-            (:mod:`pe_drake.identification.drive_terms`; default "all"). The ground wrench does
-            not see them: none with ``measurement="base_wrench"``.
-        bounds: the user's bounds of the ``physical`` fit (:class:`PhysicalBounds`).
+        measurement: the channels to fit: "joint_torque", "base_wrench" (the ground wrench
+            alone) or "both".
+        drive_terms: friction, offset and armature columns per joint (default "all"; none with
+            ``measurement="base_wrench"``).
         coulomb: the Coulomb columns to use, (S, n) (e.g. tanh(v/v_s) filtered like the
             torque); default tanh(v/v_s) of ``data.v``.
-        rest: the joint-torque rows kept out of the fit, (S, n) bool (a joint at rest,
-            :mod:`~pe_drake.identification.rest`), or None.
+        rest: the joint-torque rows kept out of the fit, (S, n) bool (a joint at rest), or None.
 
     Raises:
         ConfigError: unknown method or measurement, bounds naming unknown links.
@@ -279,8 +241,7 @@ def _identify(robot: Robot, data: Measurement, method: str, base: BaseParameters
         # Stage 2 of the fit stays in the 95 % confidence region of this estimate: whitened
         # rows count τ̄ times for correlated samples (statistics.sandwich_from_grams).
         tau_bar = float(np.mean(integrated_autocorrelation(fit.residual)))
-        # σ_c ≥ 1e-6 RMS: noise-free data's σ (1e-12) left stage 2's region too thin for the SDP
-        # solver, which failed and kept stage 1's masses (a UR10's upper arm 113 kg for 12.1 kg).
+        # σ_c ≥ 1e-6 RMS: noise-free data's σ left stage 2's region too thin for the SDP solver
         sigma = np.maximum(fit.noise_std, PHYSICAL_MIN_RELATIVE_SIGMA * np.sqrt(folded.measured_ss() / folded.samples))
         physical = _physical(robot, base, layout, folded, cols, keep, layouts.armature, 1.0 / sigma,
                              prior, bounds, tau_bar * PHYSICAL_DELTA_CHI2)
@@ -457,14 +418,9 @@ def _physical(robot: Robot, base: BaseParameters, layout: DriveLayout, folded: F
 
 
 def physical_fit_excess(channels, rms: np.ndarray, rms_ls: np.ndarray) -> list[str]:
-    """Notes on the channels where the physical fit's residual RMS is above the least-squares fit's
-    on the same rows by more than :data:`PHYSICAL_WORSE_PERCENT`.
+    """Notes on the channels where the physical fit's residual RMS ``rms`` (r,) is above the
+    least-squares fit's ``rms_ls`` on the same rows by more than :data:`PHYSICAL_WORSE_PERCENT`."""
 
-    Args:
-        channels: the channel names, length r.
-        rms: the physical fit's residual RMS per channel, shape (r,) [N·m, N].
-        rms_ls: the least-squares (WLS) fit's, shape (r,) [N·m, N].
-    """
     percent = 100.0 * (np.asarray(rms) / np.maximum(rms_ls, 1e-300) - 1.0)
     return [f"{name}: residual RMS {a:.4g}, {p:.0f} % above the least-squares (WLS) fit's {a_ls:.4g} on the same "
             "data (what the physical constraints and bounds cost, or the solver); compare --method wls"
