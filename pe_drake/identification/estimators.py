@@ -341,8 +341,7 @@ def _row_blocks(robot: Robot, data: Measurement, measurement: str, model: Regres
     def blocks():
         for s in range(0, data.num_samples, BLOCK):
             k = slice(s, min(s + BLOCK, data.num_samples))
-            part = data.replace(**{f: None if getattr(data, f) is None else getattr(data, f)[k]
-                                   for f in ("t", "q", "tau", "v", "vd", "wrench")})
+            part = data.take(k)
             sign = None if coulomb is None else coulomb[k]
             F = [rows.rows(model.kinematics(part.q, part.v, part.vd), scaled=False)]
             F += [drive_columns(part.v, part.vd, layout, sign, rows=r) for layout in layouts]
