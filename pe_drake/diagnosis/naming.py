@@ -28,9 +28,7 @@ class Naming:
             then the named ones (``time_delay`` included), in selection order.
         cumulative: [(step label, per-joint held-out RMS)] nominal → rigid → each effect.
         last_fit: the fit with every named effect (the last cumulative step).
-        effects: the :class:`~pe_drake.diagnosis.result.NamedEffect`s.
         series: held-out residual of each effect's joint without it and with all named.
-        rejected: every candidate tried and not named, with its z and the reason.
     """
 
     effect_cols: list[int]
@@ -74,8 +72,8 @@ def _named(reg: Regression, library: Library, final: Fit, effect_cols: list[int]
     res_final = reg.residual("held-out", reg.fit(unnamed + effect_cols))
     for k, col in enumerate(effect_cols):
         without = reg.fit(unnamed + [x for x in effect_cols if x != col])
-        value = final.value(col)
-        std = final.std(col)
+        value, std = final.value(col), final.std(col)
+
         if col == library.timing_col:
             named.append(time_delay_effect(value, std, per_joint(joints, reg.contribution_rms("held-out", final, col)),
                                            per_joint(joints, fits_cum[k].rms_held),
