@@ -212,9 +212,6 @@ def physically_consistent(body_names, phi: np.ndarray, margin: float = 1e-9) -> 
     return phi, projected
 
 
-# ---- files ----------------------------------------------------------------------------------
-
-
 def write_augmented_model(folder: str | Path, robot: Robot, model: RobotModel) -> list[Path]:
     """Writes the augmented model's files into ``folder`` (module docstring); a robot not loaded
     from a URDF gets only the YAML and JSON files. Returns the paths written.

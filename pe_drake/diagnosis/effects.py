@@ -170,9 +170,6 @@ def separability(robot: Robot, base, candidates: Sequence[Candidate], *, model=N
     return out
 
 
-# ---- a-priori uncertainty and the payload pattern --------------------------------------------
-
-
 def prior_parameter_covariance(robot: Robot, relative: float = PRIOR_RELATIVE_UNCERTAINTY, *,
                                samples: int = 400, seed: int = 0) -> np.ndarray:
     """Covariance Σ_φ (10·nb, 10·nb), block diagonal, of the standard parameters of an a-priori

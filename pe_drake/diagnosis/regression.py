@@ -24,8 +24,6 @@ from pe_drake.diagnosis.record import Segment
 from pe_drake.identification.least_squares import solve_normal_equations
 from pe_drake.identification.statistics import integrated_autocorrelation
 
-# ---- columns and fits ------------------------------------------------------------------------
-
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class Fit:
@@ -111,9 +109,6 @@ def condition_number(G: np.ndarray) -> float:
     return float(np.sqrt(w.max() / w.min())) if w.min() > 0 else float("inf")
 
 
-# ---- the library's columns -------------------------------------------------------------------
-
-
 @dataclasses.dataclass(frozen=True)
 class Library:
     """Where the separable candidates and the timing nuisance sit among the columns: the b
@@ -172,9 +167,6 @@ class Library:
                           else effect_column(c.effect, q, v, vd, c.joint))
             out[self.num_base + k] = (c.joint, values)
         return out
-
-
-# ---- stepwise selection ----------------------------------------------------------------------
 
 
 class Verdict(NamedTuple):
@@ -365,9 +357,6 @@ def _backward_check(reg: Regression, library: Library, selected: list[int], curr
         current = reg.fit(selected)
         steps.append(("-", worst, None))
     return current
-
-
-# ---- residual analysis (steps 1 and 5) -------------------------------------------------------
 
 
 def rms(x: np.ndarray) -> np.ndarray:

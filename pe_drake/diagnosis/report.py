@@ -186,9 +186,6 @@ def plot_unexplained(path: Path, result) -> Path:
     return save_figure(fig, path)
 
 
-# ---- markdown ---------------------------------------------------------------------------------
-
-
 def _table(header: list[str], rows: list[list[Any]]) -> str:
     out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for r in rows:

@@ -143,9 +143,6 @@ class IdentificationResult:
     coupling: tuple[str, ...] = ()
 
 
-# ---- estimators ------------------------------------------------------------------------------
-
-
 def _check_rows(data: Measurement, count: int, channels: int) -> None:
     rows = data.num_samples * channels
     need = MIN_ROWS_PER_PARAMETER * count
