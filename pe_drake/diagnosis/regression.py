@@ -229,9 +229,7 @@ def accept(col: int, fit: Fit, trial: Score, before: Score, library: Library, th
     stats.update(rms_before=r0, rms_after=r1, relative_gain=1 - r1 / r0 if r0 > 0 else 0.0,
                  explained_rms=explained, relevance=float(relevance[j]))
     # A correction of a model file's friction (lower < 0) is checked against its bound in the
-    # backward pass, with every effect in: while other joints' frictions are still missing, a
-    # lone Coulomb column also takes its joint's viscous deficit and overshoots a URDF whose
-    # friction is too high (TALOS writes damping 1, friction 1 on every arm joint; issue 21).
+    # backward pass, with every effect in: alone, it also takes its joint's missing terms.
     if c.nonnegative and c.lower == 0 and value < 0:
         return Verdict(False, f"physically implausible sign ({value:.3g} {c.unit})", "sign", stats)
     if z < z_min:

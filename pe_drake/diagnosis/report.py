@@ -75,16 +75,13 @@ def plot_torques(path: Path, result) -> Path:
     return save_figure(fig, path)
 
 
+_REGIME_LABELS = {"v": "v [rad/s]", "vd": "v̇ [rad/s²]", "q": "q [rad]", "dtau": "dτ/dt [N·m/s]"}
+
+
 def _regime_signal(result, regime: str, joint: int) -> tuple[np.ndarray, str]:
     seg = result.held_out
-    if regime == "v":
-        return seg.v[:, joint], "v [rad/s]"
-    if regime == "vd":
-        return seg.vd[:, joint], "v̇ [rad/s²]"
-    if regime == "q":
-        return seg.q[:, joint], "q [rad]"
-    if regime == "dtau":
-        return seg.dtau[:, joint], "dτ/dt [N·m/s]"
+    if regime in _REGIME_LABELS:
+        return getattr(seg, regime)[:, joint], _REGIME_LABELS[regime]
     return seg.t, "t [s]"
 
 
@@ -333,11 +330,6 @@ def _effects_section(r) -> list[str]:
                          [[d["effect"], d.get("joint") or d.get("link", ""),
                            f"{_g(d['value'])} {d['unit']}" if d.get("value") is not None else "",
                            _statistic(d), d["test"], d["reason"]] for d in near_misses(decisions, 6)]), ""]
-    elif r.rejected:
-        lines += ["Strongest candidates not named:", ""]
-        lines += [_table(["effect", "joint", "value", "z", "reason"],
-                         [[x["effect"], x["joint"], f"{_g(x['value'])} {x['unit']}", _g(x["z"], 2), x["reason"]]
-                          for x in r.rejected[:6]]), ""]
     return lines + ["![residuals](residual_effects.png)", ""]
 
 

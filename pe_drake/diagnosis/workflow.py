@@ -73,8 +73,6 @@ from pe_drake.multibody.regressor import RegressorModel
 from pe_drake.multibody.robot import Robot
 from pe_drake.multibody.robot_model import RobotModel
 
-# ---- preparation -----------------------------------------------------------------------------
-
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class Prepared:
@@ -125,9 +123,6 @@ def prepare(robot: Robot, data: Measurement, validation: Measurement | None, con
                     np.asarray(phi, float), prior)
 
 
-# ---- 1. nominal ------------------------------------------------------------------------------
-
-
 @dataclasses.dataclass(frozen=True, eq=False)
 class Nominal:
     """The a-priori model along the held-out motion (step 1): torque, residual (S, n) and RMS
@@ -153,9 +148,6 @@ def nominal(robot: Robot, prep: Prepared, regression: Regression) -> Nominal:
         np.concatenate([training.q, held.q]), np.concatenate([training.v, held.v]),
         np.concatenate([training.vd, held.vd]), np.concatenate([training.t, held.t]), joints)
     return Nominal(tau_nom_ho, res_ho, rms(held.tau - tau_nom_ho), regimes)
-
-
-# ---- candidate library -----------------------------------------------------------------------
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -186,9 +178,6 @@ def candidate_library(robot: Robot, prep: Prepared, config: DiagnosisConfig) -> 
     return CandidateLibrary(sep, library, reg)
 
 
-# ---- 2. rigid-body re-identification ---------------------------------------------------------
-
-
 def rigid_reidentification(reg: Regression, training: Segment) -> Fit:
     """WLS of the base parameters alone with Gautier's per-joint weights (step 2).
 
@@ -203,9 +192,6 @@ def rigid_reidentification(reg: Regression, training: Segment) -> Fit:
     rigid = reg.fit([])
     reg.inflation = integrated_autocorrelation(reg.residual("training", rigid))
     return rigid
-
-
-# ---- payload and the rigid-body report -------------------------------------------------------
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -232,9 +218,6 @@ def payload_step(robot: Robot, prep: Prepared, lib: CandidateLibrary, sel: Selec
                        not_separable_report(lib.separability, base, change))
 
 
-# ---- 4. augmented model ----------------------------------------------------------------------
-
-
 @dataclasses.dataclass(frozen=True, eq=False)
 class Augmentation:
     """The augmented Drake model on the held-out data (step 4).
@@ -255,9 +238,8 @@ def augment(robot: Robot, prep: Prepared, lib: CandidateLibrary, pre: Presliding
             config: DiagnosisConfig) -> Augmentation:
     """The named effects added to the model in Drake, its held-out torque and the gap."""
     held, library = prep.held, lib.library
-    # the model is physically consistent: the base parameters and drive terms of the consistent
-    # fit of the selected columns (the model the selection's last pass scored), not a projection
-    # of the least-squares base parameters with its drive terms kept (diagnosis/consistent_cv.py)
+    # the model is the consistent fit of the selected columns (the one the selection's last pass
+    # scored), not a projection of the least-squares base parameters (diagnosis/consistent_cv.py)
     fit = consistent_fit(pre.regression, pre.final.columns, library, prep.base.K, prep.phi_prior, robot.body_names,
                          delivered=True)
     final = pre.final if fit is None else dataclasses.replace(pre.final, x=fit[0])
@@ -276,9 +258,8 @@ def augment(robot: Robot, prep: Prepared, lib: CandidateLibrary, pre: Presliding
                                 cov_B=pay.change.cov_B, time_delay=delay, presliding=presliding,
                                 phi_prior=prior_own_parameters(robot, prep.prior),
                                 phi_consistent=fit[1] if fit is not None else None)
-    # Drake's torque at the held-out samples (along the motion `delay` earlier when a time delay
-    # is named), its Coulomb term filtered like the measured torque (the parallel-filtered
-    # column; the rest of the torque is smooth within the pass band).
+    # Drake's torque at the held-out samples (along the motion `delay` earlier), its Coulomb term
+    # filtered like the measured torque (the rest of the torque is smooth within the pass band)
     q, v, vd, coulomb = (delayed_states(held, delay, config.coulomb_velocity_scale) if delay
                          else (held.q, held.v, held.vd, held.coulomb))
     tau_after = augmented.plant(robot).inverse_dynamics(q, v, vd, include_damping=True) + augmented.offset
@@ -288,9 +269,6 @@ def augment(robot: Robot, prep: Prepared, lib: CandidateLibrary, pre: Presliding
     ls_pred = pre.regression.held.product(final.columns, final.x) + model_file_friction(robot, held)
     return Augmentation(augmented, tau_after, rms(held.tau - tau_after),
                         np.max(np.abs(tau_after - ls_pred), axis=0))
-
-
-# ---- 5. unexplained --------------------------------------------------------------------------
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -310,9 +288,6 @@ def unexplained(robot: Robot, prep: Prepared, lib: CandidateLibrary, sel: Select
     found = unexplained_joints(held.tau - aug.tau, held, sel.thresholds.unexplained, held.record.noise_floor,
                                nom.rms, robot.joint_names, timing)
     return Unexplained(timing, found)
-
-
-# ---- the workflow ----------------------------------------------------------------------------
 
 
 def diagnose(robot: Robot, data: Measurement, validation: Measurement | None = None,

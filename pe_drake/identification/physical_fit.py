@@ -182,8 +182,7 @@ def physical_fit(
     x0 = x_prior + Z @ np.linalg.lstsq(Rs @ Z, z - Rs @ x_prior, rcond=1e-13)[0]  # Z: what the data identify
     iso = np.diag(np.r_[np.ones(len(cols)), np.zeros(d)])
     pull = P_null + prior_weight * iso  # in units of μ, the least determined direction's curvature
-    # Stage 1: the best physically valid fit of the data (a pull of null_weight·μ only
-    # selects among equally good fits).
+    # Stage 1: the best physically valid fit (the pull only selects among equally good fits)
     Q = 2.0 * (H + NULL_WEIGHT * mu * pull)
     c = -2.0 * H @ x0 - 2.0 * NULL_WEIGHT * mu * pull @ x_prior
     # the margin is per kg of the prior's mass; a massless prior (no inertials): per 1 kg
