@@ -24,21 +24,12 @@ import numpy as np
 from pe_drake.diagnosis.augmented_model import augmented_model
 from pe_drake.diagnosis.consistent_cv import ConsistentCrossValidation, consistent_fit
 from pe_drake.diagnosis.decisions import decision_list
-from pe_drake.diagnosis.effects import (
-    Separability,
-    joint_candidates,
-    prior_parameter_covariance,
-    separability,
-)
+from pe_drake.diagnosis.effects import (Separability, joint_candidates, prior_parameter_covariance,
+                                        separability)
 from pe_drake.diagnosis.naming import Naming, name_effects
 from pe_drake.diagnosis.options import MAX_COND, DiagnosisConfig
-from pe_drake.diagnosis.payload import (
-    BaseChange,
-    PayloadOutcome,
-    not_separable_report,
-    payload_search,
-    rigid_report,
-)
+from pe_drake.diagnosis.payload import (BaseChange, PayloadOutcome, not_separable_report,
+                                        payload_search, rigid_report)
 from pe_drake.diagnosis.holding import holding_note, holding_report, holding_separability, holding_torque
 from pe_drake.diagnosis.holding_selection import add_friction_pairs
 from pe_drake.diagnosis.presliding import PRESLIDING, PreslidingStep, presliding_effects, presliding_step
@@ -46,17 +37,9 @@ from pe_drake.diagnosis.prior import (prior_drive_torque, prior_own_parameters,
                                      prior_parameters, reference_shortfalls)
 from pe_drake.diagnosis.record import (Record, Segment, check_fits_in_memory, check_record_signs,
                                       delayed_states, model_file_friction, prepare_record, split_segments)
-from pe_drake.diagnosis.regression import (
-    Fit,
-    Library,
-    Regression,
-    Selection,
-    condition_number,
-    integrated_autocorrelation,
-    regime_analysis,
-    rms,
-    unexplained_joints,
-)
+from pe_drake.diagnosis.regression import (Fit, Library, Regression, Selection, condition_number,
+                                           integrated_autocorrelation, regime_analysis, rms,
+                                           unexplained_joints)
 from pe_drake.diagnosis.selection import (CrossValidation, InternalSplit, internal_split,
                                          say_selection, select, timing_report)
 from pe_drake.diagnosis.report import decision_summary

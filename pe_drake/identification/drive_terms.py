@@ -27,17 +27,9 @@ from pe_drake.exceptions import shorten
 from pe_drake.identification.friction_velocity import friction_velocity
 from pe_drake.identification.lowpass import design_lowpass
 from pe_drake.identification.preprocessing import resample_uniform
-from pe_drake.multibody.drive_columns import (
-    COULOMB_VELOCITY_SCALE,
-    NONNEGATIVE,
-    TERMS,
-    UNITS,
-    DriveLayout,
-    coulomb_column,
-    model_tables,
-    drive_columns,
-    coulomb_velocities,
-)
+from pe_drake.multibody.drive_columns import (COULOMB_VELOCITY_SCALE, NONNEGATIVE, TERMS, UNITS,
+                                              DriveLayout, coulomb_column, model_tables,
+                                              drive_columns, coulomb_velocities)
 from pe_drake.multibody.dahl import dahl_state
 from pe_drake.multibody.robot_model import RobotModel
 from pe_drake.multibody.transmission import Transmission

@@ -32,34 +32,17 @@ import numpy as np
 
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.identification.channels import channel_names, measured_values
-from pe_drake.identification.drive_terms import (
-    layout_torque,
-    model_file_terms,
-    model_file_terms_lost,
-    separable_on_data,
-    unphysical_drive_terms,
-    with_known,
-)
-from pe_drake.multibody.drive_columns import (
-    TERMS,
-    DriveLayout,
-    DriveTermOptions,
-    drive_columns,
-    drive_layout,
-    drive_options,
-    model_tables,
-)
+from pe_drake.identification.drive_terms import (layout_torque, model_file_terms,
+                                                 model_file_terms_lost, separable_on_data,
+                                                 unphysical_drive_terms, with_known)
+from pe_drake.multibody.drive_columns import (TERMS, DriveLayout, DriveTermOptions, drive_columns,
+                                              drive_layout, drive_options, model_tables)
 from pe_drake.identification.measurements import Measurement, Preprocessing
 from pe_drake.identification.least_squares import ordinary_fit, weighted_fit
 from pe_drake.identification.physical_fit import ON_BOUND, PhysicalBounds, physical_fit
 from pe_drake.identification.welded import merge_welded
-from pe_drake.identification.folded_rows import (
-    BLOCK,
-    FoldedRows,
-    column_map,
-    fold_rows,
-    known_columns_removed,
-)
+from pe_drake.identification.folded_rows import (BLOCK, FoldedRows, column_map, fold_rows,
+                                                 known_columns_removed)
 from pe_drake.identification.statistics import integrated_autocorrelation
 from pe_drake.multibody.base_parameters import BaseParameters
 from pe_drake.multibody.regressor import RegressorModel
