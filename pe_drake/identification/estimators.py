@@ -239,31 +239,15 @@ def _identify(robot: Robot, data: Measurement, method: str, base: BaseParameters
                        layout.velocity_scale, notes=physical.notes if physical is not None else (),
                        transmission=layout.transmission)
     return IdentificationResult(
-        robot=robot.name,
-        method=method,
-        joints=tuple(robot.joint_names),
-        base=base,
-        phi_B=x[:b],
-        sigma_percent=_sigma_percent(x[:b], cov[:b, :b]),
-        phi=phi,
-        cond=ols.cond,
+        robot=robot.name, method=method, joints=tuple(robot.joint_names), base=base, phi_B=x[:b],
+        sigma_percent=_sigma_percent(x[:b], cov[:b, :b]), phi=phi, cond=ols.cond,
         residual_rms=np.sqrt(residual_ss / folded.samples),
         relative_error=100.0 * np.sqrt(residual_ss) / np.maximum(np.sqrt(folded.measured_ss()), 1e-300),
-        noise_std=fit.noise_std,
-        weight_iterations=fit.iterations,
-        weights_converged=fit.converged,
-        samples=folded.samples,
-        preprocessing=data.preprocessing,
-        wall_time=time.perf_counter() - start,
-        source=data.source,
-        measurement=measurement,
-        channels=channels,
-        model=model,
-        drive_layout=layout,
-        physical_notes=physical.notes if physical is not None else (),
-        friction_share=share,
-        cov_B=cov[:b, :b],
-    )
+        noise_std=fit.noise_std, weight_iterations=fit.iterations, weights_converged=fit.converged,
+        samples=folded.samples, preprocessing=data.preprocessing, wall_time=time.perf_counter() - start,
+        source=data.source, measurement=measurement, channels=channels, model=model, drive_layout=layout,
+        physical_notes=physical.notes if physical is not None else (), friction_share=share,
+        cov_B=cov[:b, :b])
 
 
 class _Layouts(NamedTuple):
