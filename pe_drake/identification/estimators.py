@@ -145,20 +145,11 @@ def _sigma_percent(x: np.ndarray, cov: np.ndarray) -> np.ndarray:
         return np.where(np.abs(x) > 0, 100.0 * sd / np.abs(x), np.inf)
 
 
-def identify(
-    robot: Robot,
-    data: Measurement,
-    method: str = "wls",
-    *,
-    base: BaseParameters | None = None,
-    prior: np.ndarray | None = None,
-    model: RegressorModel | None = None,
-    measurement: str = "joint_torque",
-    drive_terms: DriveTermOptions | str | None = None,
-    bounds: PhysicalBounds | None = None,
-    coulomb: np.ndarray | None = None,
-    rest: np.ndarray | None = None,
-) -> IdentificationResult:
+def identify(robot: Robot, data: Measurement, method: str = "wls", *, base: BaseParameters | None = None,
+             prior: np.ndarray | None = None, model: RegressorModel | None = None,
+             measurement: str = "joint_torque", drive_terms: DriveTermOptions | str | None = None,
+             bounds: PhysicalBounds | None = None, coulomb: np.ndarray | None = None,
+             rest: np.ndarray | None = None) -> IdentificationResult:
     """Identifies the base parameters and the drive terms (and, for ``physical``, the standard
     parameters).
 

@@ -119,24 +119,13 @@ class PhysicalFit(NamedTuple):
     notes: tuple[str, ...]
 
 
-def physical_fit(
-    A: np.ndarray,
-    y: np.ndarray,
-    prior: np.ndarray,
-    body_names: Sequence[str],
-    *,
-    extra: np.ndarray | None = None,
-    extra_lower: np.ndarray | None = None,
-    extra_names: Sequence[str] = (),
-    bounds: PhysicalBounds | None = None,
-    base_K: np.ndarray | None = None,
-    extra_in_base: dict[int, np.ndarray] | None = None,
-    scale: np.ndarray | None = None,
-    prior_weight: float = PRIOR_WEIGHT,
-    chi2_tolerance: float = CHI2_TOLERANCE,
-    margin: float = PSD_MARGIN,
-    rows: int | None = None,
-) -> PhysicalFit:
+def physical_fit(A: np.ndarray, y: np.ndarray, prior: np.ndarray, body_names: Sequence[str], *,
+                 extra: np.ndarray | None = None, extra_lower: np.ndarray | None = None,
+                 extra_names: Sequence[str] = (), bounds: PhysicalBounds | None = None,
+                 base_K: np.ndarray | None = None, extra_in_base: dict[int, np.ndarray] | None = None,
+                 scale: np.ndarray | None = None, prior_weight: float = PRIOR_WEIGHT,
+                 chi2_tolerance: float = CHI2_TOLERANCE, margin: float = PSD_MARGIN,
+                 rows: int | None = None) -> PhysicalFit:
     """The SDP of the module docstring.
 
     Args:
