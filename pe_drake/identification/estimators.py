@@ -145,18 +145,14 @@ def _sigma_percent(x: np.ndarray, cov: np.ndarray) -> np.ndarray:
         return np.where(np.abs(x) > 0, 100.0 * sd / np.abs(x), np.inf)
 
 
-def identify(robot: Robot, data: Measurement, method: str = "wls", *, base: BaseParameters | None = None,
-             prior: np.ndarray | None = None, model: RegressorModel | None = None,
-             measurement: str = "joint_torque", drive_terms: DriveTermOptions | str | None = None,
-             bounds: PhysicalBounds | None = None, coulomb: np.ndarray | None = None,
-             rest: np.ndarray | None = None) -> IdentificationResult:
+def identify(robot: Robot, data: Measurement, method: str = "wls", *, measurement: str = "joint_torque",
+             drive_terms: DriveTermOptions | str | None = None, bounds: PhysicalBounds | None = None,
+             coulomb: np.ndarray | None = None, rest: np.ndarray | None = None) -> IdentificationResult:
     """Identifies the base parameters and the drive terms (and, for ``physical``, the standard
     parameters).
 
     Args:
         data: preprocessed data (:func:`~pe_drake.identification.intake.prepare_measurement`), with v and vd.
-        base: the base composition (default: the measurement's, :func:`measurement_base_parameters`).
-        prior: a-priori standard parameters for ``physical`` (default: the robot's model).
         measurement: the channels to fit: "joint_torque", "base_wrench" (the ground wrench
             alone) or "both".
         drive_terms: friction, offset and armature columns per joint (default "all"; none with
@@ -175,16 +171,16 @@ def identify(robot: Robot, data: Measurement, method: str = "wls", *, base: Base
     if data.v is None or data.vd is None:
         raise DataError("the data has no velocities/accelerations; preprocess it first", file=data.source)
     with single_threaded_blas():  # thousands of small QRs: BLAS threads only contend (threads.py)
-        return _identify(robot, data, method, base, prior, model, measurement, drive_terms, bounds, coulomb, rest)
+        return _identify(robot, data, method, measurement, drive_terms, bounds, coulomb, rest)
 
 
-def _identify(robot: Robot, data: Measurement, method: str, base: BaseParameters | None, prior: np.ndarray | None,
-              model: RegressorModel | None, measurement: str, drive_terms, bounds: PhysicalBounds | None,
-              coulomb: np.ndarray | None, rest: np.ndarray | None = None) -> IdentificationResult:
+def _identify(robot: Robot, data: Measurement, method: str, measurement: str, drive_terms,
+              bounds: PhysicalBounds | None, coulomb: np.ndarray | None,
+              rest: np.ndarray | None) -> IdentificationResult:
     """:func:`identify` after its checks."""
     start = time.perf_counter()
-    model = model or RegressorModel(robot)
-    base = base or measurement_base_parameters(robot, measurement, model)
+    model = RegressorModel(robot)
+    base = measurement_base_parameters(robot, measurement, model)
     channels = channel_names(robot, measurement)
     measured_values(robot, data, measurement)  # refuses data without the channels, naming them
     layouts = _layouts(robot, measurement, drive_options(drive_terms), method, model)
@@ -208,14 +204,13 @@ def _identify(robot: Robot, data: Measurement, method: str, base: BaseParameters
                            iterate=share is None or share <= FRICTION_SHARE_WARNING)
     x, cov, phi, physical = fit.x, fit.cov, None, None
     if method == "physical":
-        prior = robot.phi_model if prior is None else np.asarray(prior, float)
         # Stage 2 of the fit stays in the 95 % confidence region of this estimate: whitened
         # rows count τ̄ times for correlated samples (statistics.sandwich_from_grams).
         tau_bar = float(np.mean(integrated_autocorrelation(fit.residual)))
         # σ_c ≥ 1e-6 RMS: noise-free data's σ left stage 2's region too thin for the SDP solver
         sigma = np.maximum(fit.noise_std, PHYSICAL_MIN_RELATIVE_SIGMA * np.sqrt(folded.measured_ss() / folded.samples))
         physical = _physical(robot, base, layout, folded, cols, keep, layouts.armature, 1.0 / sigma,
-                             prior, bounds, tau_bar * PHYSICAL_DELTA_CHI2)
+                             robot.phi_model, bounds, tau_bar * PHYSICAL_DELTA_CHI2)
         phi, x = physical.phi, physical.x
     b = base.count
     residual_ss = folded.residual_ss(T, x)
