@@ -155,10 +155,10 @@ def conditional_parameters(K: np.ndarray, phi_prior: np.ndarray, Sigma_phi: np.n
 
 
 def physical_parameters(K: np.ndarray, phi_prior: np.ndarray, Sigma_phi: np.ndarray, phi_B: np.ndarray,
-                        H: np.ndarray, *, prior_weight: float = 1e-6, margin: float = 1e-7) -> np.ndarray:
+                        H: np.ndarray) -> np.ndarray:
     """Physically consistent φ (p,) whose base parameters match φ_B (b,) as well as possible.
 
-    min (Kφ - φ_B)ᵀ H (Kφ - φ_B) + the a-priori pull  s.t.  J(φ_b) ⪰ ``margin``·m_b·1: the
+    min (Kφ - φ_B)ᵀ H (Kφ - φ_B) + the a-priori pull  s.t.  J(φ_b) ⪰ ε·m_b·1: the
     identification's SDP (:func:`pe_drake.identification.physical_fit.physical_fit`) with
     LᵀL = H (the information matrix of φ_B, (b, b)), the variables scaled by the a-priori
     standard deviations, so the pull toward φ_prior is measured in them. Massless bodies stay
@@ -180,7 +180,7 @@ def physical_parameters(K: np.ndarray, phi_prior: np.ndarray, Sigma_phi: np.ndar
     # H is the information matrix of φ_B, so the misfit is a χ²: the pull toward the prior may
     # raise it by 1 (a one-σ move), the augmented model's torque stays the fit's.
     fit = physical_fit(L @ K, L @ phi_B, np.asarray(phi_prior, float), names, base_K=K, scale=d if active else None,
-                       prior_weight=prior_weight, margin=margin, chi2_tolerance=1.0)
+                       chi2_tolerance=1.0)
     return fit.phi
 
 

@@ -88,17 +88,11 @@ class Candidate:
         return f"{self.effect}[{self.joint_name}]"
 
 
-def joint_candidates(robot: Robot, effects: Sequence[str] = JOINT_EFFECTS,
-                     start: tuple[np.ndarray, np.ndarray] | None = None) -> list[Candidate]:
-    """Every per-joint effect on every joint (Coulomb friction on revolute joints only).
-
-    Args:
-        start: (viscous, Coulomb) per joint the fits start from (a friction's ``lower`` is
-            minus it); default the model file's (``Robot.joint_damping``, ``joint_friction``).
-    """
+def joint_candidates(robot: Robot, effects: Sequence[str] = JOINT_EFFECTS) -> list[Candidate]:
+    """Every per-joint effect on every joint (Coulomb friction on revolute joints only); a
+    friction's ``lower`` is minus the model file's."""
     out = []
-    viscous, coulomb = (robot.joint_damping, robot.joint_friction) if start is None else start
-    model_file = {"viscous_friction": viscous, "coulomb_friction": coulomb}
+    model_file = {"viscous_friction": robot.joint_damping, "coulomb_friction": robot.joint_friction}
     for effect in effects:
         if effect not in JOINT_EFFECTS:
             raise UnknownNameError("effect", effect, JOINT_EFFECTS)

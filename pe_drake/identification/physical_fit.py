@@ -314,8 +314,8 @@ def scaled_factor(R_joint: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.nd
 
 
 def factored_sdp(R_joint: np.ndarray, w: np.ndarray, x_ls: np.ndarray, blocks: Sequence[InertiaBlock], *,
-                 lower: np.ndarray | None = None, rows: Sequence[tuple[np.ndarray, float, float]] = (),
-                 what: str = "fit", advice: str = "", tolerances: Sequence[float] = SDP_TOLERANCES) -> np.ndarray:
+                 lower: np.ndarray | None = None, what: str = "fit",
+                 tolerances: Sequence[float] = SDP_TOLERANCES) -> np.ndarray:
     """min Σ_j w_j² ‖A_j x − y_j‖² under :func:`solve_sdp`'s constraints (given in x), from the
     per-joint factors R_j of [A_j y_j], (n, p+1, p+1) (:func:`~pe_drake.identification.least_squares.
     compress_joint_rows`), from the unconstrained ``x_ls``; solved in u = D x, D the column norms."""
@@ -323,7 +323,7 @@ def factored_sdp(R_joint: np.ndarray, w: np.ndarray, x_ls: np.ndarray, blocks: S
     d = 1.0 / D  # x = d ⊙ u
     scaled = [b._replace(scale=b.scale * d[b.start : b.start + len(b.scale)]) for b in blocks]
     u = solve_sdp(2.0 * Ra.T @ Ra, -2.0 * Ra.T @ z, scaled, x_ls * D, lower=None if lower is None else lower * D,
-                  rows=[(a * d, lo, hi) for a, lo, hi in rows], what=what, advice=advice, tolerances=tolerances)
+                  what=what, tolerances=tolerances)
     return u / D
 
 
