@@ -132,8 +132,7 @@ def _parabola_vertex(u: np.ndarray, f: np.ndarray) -> float:
 def _with_dahl(regression, column: int, joint: int, train_values: np.ndarray, held_values: np.ndarray):
     reg = type(regression)(replace_column(regression.train, column, joint, train_values),
                            replace_column(regression.held, column, joint, held_values),
-                           regression.num_base)
-    reg.set_weights(regression.weights)
+                           regression.num_base, regression.weights)
     reg.inflation = regression.inflation
     return reg
 

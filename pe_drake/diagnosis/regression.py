@@ -54,12 +54,12 @@ class Fit:
 class Regression:
     """Fits of subsets of columns from per-joint Gram matrices (fast repeated refits)."""
 
-    def __init__(self, train: Columns, held: Columns, num_base: int):
+    def __init__(self, train: Columns, held: Columns, num_base: int, weights: np.ndarray | None = None):
         self.train = train
         self.held = held
         self.num_base = num_base
         n = train.gram.shape[0]
-        self.weights = np.ones(n)
+        self.weights = np.ones(n) if weights is None else np.asarray(weights, float)
         self.inflation = np.ones(n)  # integrated autocorrelation time per joint
 
     def set_weights(self, weights: np.ndarray) -> None:

@@ -137,9 +137,7 @@ class CrossValidation:
             sel, guard = Moments.of_rows(total, fold.selection_rows), Moments.of_rows(total, fold.guard_rows)
             fit = Moments(total.gram - sel.gram - guard.gram, total.rhs - sel.rhs - guard.rhs,
                           total.yy - sel.yy - guard.yy, total.count - sel.count - guard.count)
-            r = Regression(fit, sel, reg.num_base)
-            r.set_weights(reg.weights)
-            out.append(r)
+            out.append(Regression(fit, sel, reg.num_base, reg.weights))
         return cls(out)
 
     def fit(self, extra: Sequence[int]) -> Score:
@@ -175,9 +173,7 @@ def split_with_column(cv: CrossValidation, columns: Columns, split: InternalSpli
             rhs[:, index] = 0.0
             rhs[joint, index] = sum(values[s] @ y[s] for s in rows)
             parts.append(Moments(gram, rhs, moments.yy, moments.count))
-        r = Regression(parts[0], parts[1], reg.num_base)
-        r.set_weights(reg.weights)
-        out.append(r)
+        out.append(Regression(parts[0], parts[1], reg.num_base, reg.weights))
     return CrossValidation(out)
 
 
