@@ -381,23 +381,18 @@ def _bound_rows(k: int, D: np.ndarray, active: list[int], names: list[str], boun
 def fit_notes(phi: np.ndarray, prior: np.ndarray, theta: np.ndarray, lower: np.ndarray, extra_names: list[str],
               body_names: list[str], bounds: PhysicalBounds, margin: float = PSD_MARGIN) -> list[str]:
     """Parameters of a physical fit on a bound or far from the a-priori model, in words."""
-    notes = []
+    def mass_on_bound(what: str, m: float, lo: float, hi: float) -> list[str]:
+        return [f"{what} {m:.4g} kg is on its {side} bound {value:g} kg"
+                for value, side in ((lo, "lower"), (hi, "upper")) if abs(m - value) <= ON_BOUND * max(hi, 1.0)]
+
     masses = phi[0::10]
-    total = float(masses.sum())
-    if bounds.total_mass is not None:
-        lo, hi = bounds.total_mass
-        for value, side in ((lo, "lower"), (hi, "upper")):
-            if abs(total - value) <= ON_BOUND * max(hi, 1.0):
-                notes.append(f"total mass {total:.4g} kg is on its {side} bound {value:g} kg")
+    notes = [] if bounds.total_mass is None else mass_on_bound("total mass", float(masses.sum()), *bounds.total_mass)
     for b, name in enumerate(body_names):
         m0, m = prior[10 * b], masses[b]
         if m0 <= 0:
             continue
         if name in bounds.mass_bounds:
-            lo, hi = bounds.mass_bounds[name]
-            for value, side in ((lo, "lower"), (hi, "upper")):
-                if abs(m - value) <= ON_BOUND * max(hi, 1.0):
-                    notes.append(f"{name}: mass {m:.4g} kg is on its {side} bound {value:g} kg")
+            notes += mass_on_bound(f"{name}: mass", m, *bounds.mass_bounds[name])
         if name in bounds.boxes:
             box = bounds.boxes[name]
             com = phi[10 * b + 1 : 10 * b + 4] / max(m, 1e-300)
