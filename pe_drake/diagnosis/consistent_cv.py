@@ -32,9 +32,8 @@ class ConsistentCrossValidation:
         self.phi_prior, self.body_names = np.asarray(phi_prior, float), list(body_names)
 
     def final(self, reg: Regression, fit: Fit) -> Fit:
-        """``fit`` (of ``reg``, the whole training segment) with the values of the consistent fit
-        of its columns and their residuals; σ stays the least-squares one (the significance
-        test's). Unchanged when the solver fails."""
+        """``fit`` (of ``reg``) with the consistent fit's values and residuals, its σ kept (the
+        significance test's); unchanged when the solver fails."""
         found = consistent_fit(reg, fit.columns, self.library, self.K, self.phi_prior, self.body_names, delivered=True)
         if found is None:
             return fit
@@ -58,9 +57,8 @@ class ConsistentCrossValidation:
                 if c in cand and cand[c].nonnegative and value <= cand[c].lower + tolerance]
 
     def fit(self, extra: Sequence[int]) -> Score:
-        """The base parameters (as K φ, φ physically consistent) and ``extra`` fitted on each
-        fold's fit part, scored on its selection part (a fold whose SDP fails is scored by
-        its least-squares fit)."""
+        """The consistent fit of the base parameters and ``extra`` on each fold's fit part, scored
+        on its selection part (a fold whose SDP fails: by its least-squares fit)."""
         rss, count, wrss = 0.0, 0, 0.0
         for reg in self.folds:
             cols = list(range(reg.num_base)) + [int(c) for c in extra]

@@ -63,8 +63,7 @@ def holding_candidates(robot: Robot, training) -> list[Candidate]:
 
 
 def holding_separability(robot: Robot, training) -> list[Separability]:
-    """:func:`holding_candidates` as separable: a column of the history is never a function of
-    the state, so no rigid-body column can hold it."""
+    """:func:`holding_candidates` as separable: a column of the history is no rigid-body column."""
     return [Separability(c, 1.0, True, {}) for c in holding_candidates(robot, training)]
 
 
@@ -82,8 +81,7 @@ def holding_torque(columns, fit, library) -> np.ndarray:
 
 def holding_report(training, held, library, pre, effects: Sequence, joints: Sequence[str]) -> dict[str, Any]:
     """The ``holding_test`` of diagnosis.json: per joint, its rests in both parts and, for the
-    candidates, the held-out RMS at rest without and with the holding torque (``pre``: the
-    pre-sliding step, its final regression and fit)."""
+    candidates, the held-out RMS at rest without and with the holding torque."""
 
     regression, final = pre.regression, pre.final
     named = {f"{e.effect}[{e.joint}]" for e in effects}

@@ -64,8 +64,7 @@ def name_effects(robot: Robot, reg: Regression, library: Library, sel: Selection
 
 def _named(reg: Regression, library: Library, final: Fit, effect_cols: list[int], fits_cum: list[Fit], robot: Robot,
            config: DiagnosisConfig, unnamed: list[int]) -> tuple[list[NamedEffect], list[dict[str, Any]]]:
-    """Each effect with its value, and the fits with everything but it (the ``unnamed`` terms
-    in) for its plot."""
+    """Each effect with its value, and the residual without it (``unnamed`` in) for its plot."""
     joints = robot.joint_names
     named: list[NamedEffect] = []
     series: list[dict[str, Any]] = []

@@ -122,8 +122,7 @@ def search_presliding(regression, extra: list[int], column: int, joint: int, tra
 
 
 def _parabola_vertex(u: np.ndarray, f: np.ndarray) -> float:
-    """exp of the vertex of the parabola through (u_k, f_k), k = 0..2 (u = log x_p), kept
-    within [u_0, u_2]."""
+    """exp of the vertex of the parabola through (u_k, f_k), u = log x_p, kept in [u_0, u_2]."""
     c2, c1, _ = np.polyfit(u, f, 2)
     vertex = -c1 / (2 * c2) if c2 > 0 else u[1]
     return float(np.exp(np.clip(vertex, u[0], u[2])))
@@ -158,8 +157,7 @@ class PreslidingStep:
     dropped: tuple[int, ...] = ()
 
     def series(self, series: list[dict[str, Any]], joints: Sequence[str]) -> list[dict[str, Any]]:
-        """The residual-plot entries with each accepted joint's Coulomb entry turned into its
-        pre-sliding one (residual after: with the Dahl column), or one added."""
+        """The residual-plot entries with each accepted joint's Coulomb entry made its pre-sliding one."""
         if not self.fits:
             return series
         after = self.regression.residual("held-out", self.final)
@@ -178,8 +176,7 @@ class PreslidingStep:
         return next(r for r in self.report if r["joint"] == joint)
 
     def not_named(self, min_statistic: float = 4.0) -> list[dict[str, Any]]:
-        """The tested joints that came close (statistic ≥ ``min_statistic``), as entries of the
-        diagnosis's ``rejected`` list."""
+        """The tested joints that came close, as entries of the diagnosis's ``rejected`` list."""
         return [{"effect": PRESLIDING, "joint": r["joint"], "value": r["coulomb"], "unit": "N·m",
                  "z": float(np.sqrt(max(r["statistic"], 0.0))), "reason": r["reason"],
                  "presliding_displacement": r["displacement"]}
@@ -267,8 +264,7 @@ def _drop_stand_ins(reg, extra: list[int], col: int, joint: int, library, thresh
 
 
 def _column_at(prep, joint: int, resting: bool = False) -> Callable[[float], tuple[np.ndarray, np.ndarray]]:
-    """x_p → the joint's filtered Dahl column on the training and held-out samples (zero at
-    rest when ``resting``)."""
+    """x_p → the joint's filtered Dahl columns on the training and held-out samples."""
 
     def at(x_p: float) -> tuple[np.ndarray, np.ndarray]:
         out = []

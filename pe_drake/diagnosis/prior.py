@@ -25,9 +25,8 @@ if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
 
 
 def prior_parameters(robot: Robot, prior: IdentificationResult | RobotModel | None) -> np.ndarray:
-    """The a-priori standard parameters, (10·nb,): the model file's, or an earlier model's own
-    (physical fits, augmented_model.json) or, for a base-parameter fit, the ones closest to the
-    model file's that give its base parameters."""
+    """The a-priori standard parameters, (10·nb,): the model file's, an earlier model's own, or
+    for a base-parameter fit the ones closest to the model file's that give its base parameters."""
     if prior is None:
         return np.asarray(robot.phi_model, float)
     phi = _own_parameters(prior)
@@ -35,8 +34,7 @@ def prior_parameters(robot: Robot, prior: IdentificationResult | RobotModel | No
 
 
 def _own_parameters(prior: IdentificationResult | RobotModel) -> np.ndarray | None:
-    """The standard parameters an earlier model holds as its own: a RobotModel's (its payload added),
-    a physical fit's; None for a base-parameter fit."""
+    """An earlier model's own standard parameters (its payload added); None for a base-parameter fit."""
     return prior.phi_total if isinstance(prior, RobotModel) else prior.phi
 
 
@@ -72,7 +70,6 @@ def model_file_torque(robot: Robot, base, columns, seg: Segment) -> np.ndarray:
 
 
 def reference_shortfalls(robot: Robot, base, columns, seg: Segment, tau: np.ndarray) -> list[Shortfall]:
-    """The joints whose torque ``tau`` along ``seg`` (the augmented model's on the held-out part)
-    is worse than the model file's (:func:`model_file_torque`) or than predicting zero."""
+    """The joints whose torque ``tau`` along ``seg`` is worse than the model file's or than zero."""
     references = {"a_priori": model_file_torque(robot, base, columns, seg), "zero": np.zeros_like(tau)}
     return shortfalls(robot.joint_names, seg.tau, tau, references)

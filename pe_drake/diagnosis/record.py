@@ -195,9 +195,8 @@ def split_segments(record: Record, config: DiagnosisConfig, validation: Record |
 
 
 def _split_time(record: Record, usable: np.ndarray, fraction: float, gap: float) -> float:
-    """Where the held-out part starts: the last ``fraction`` of the record, moved (when the
-    record is long enough for both parts) so that neither part is shorter than MIN_PERIODS
-    periods of the cut-off (2 % to spare)."""
+    """Where the held-out part starts: the last ``fraction``, moved (when the record is long
+    enough) so that neither part is shorter than MIN_PERIODS periods of the cut-off."""
     t = record.t
     split = t[0] + (1.0 - fraction) * (t[-1] - t[0])
     if len(usable) < 2:

@@ -187,8 +187,7 @@ class Verdict(NamedTuple):
 
 
 class Score(NamedTuple):
-    """How a set of columns predicts data it was not fitted on: per-joint RMS [N·m] and the
-    weighted residual sum of squares."""
+    """How a set of columns predicts data it was not fitted on (RMS [N·m], weighted RSS)."""
 
     rms_held: np.ndarray
     wrss_held: float
@@ -201,9 +200,8 @@ class Scorer(Protocol):
 
 
 def accept(col: int, fit: Fit, trial: Score, before: Score, library: Library, thresholds: Thresholds) -> Verdict:
-    """Criteria (a)-(d) for adding column ``col``: (a), (b) on ``fit`` (the whole training
-    segment), (c), (d) on the cross-validated scores ``trial`` (with it) and ``before``
-    (without), never on the held-out data."""
+    """Criteria (a)-(d) for adding column ``col``: (a), (b) on ``fit`` (the training segment),
+    (c), (d) on the cross-validated scores ``trial`` (with it) and ``before`` (without)."""
     value, std = fit.value(col), fit.std(col)
     z = abs(value) / max(std, 1e-300)
     z_min, relevance, gain_min = thresholds.z_min, thresholds.relevance, thresholds.min_heldout_gain
@@ -334,8 +332,7 @@ def select_effects(reg: Regression, split: Scorer, library: Library, rigid: Fit,
 
 def _backward_check(reg: Regression, library: Library, selected: list[int], current: Fit, z_min: float,
                     rejected: dict[int, str], steps: list, verdicts: dict[int, Verdict], kept: Sequence[int] = ()) -> Fit:
-    """Drops, one at a time, the columns no longer plausible and significant with the others
-    (in place), except ``kept``; returns the last fit."""
+    """Drops (in place) the columns no longer plausible and significant, except ``kept``."""
     cand_of = library.cand_of
     while selected:
         worst, worst_z = None, np.inf
@@ -416,8 +413,7 @@ def _regime_masks(q: np.ndarray, v: np.ndarray, vd: np.ndarray, t: np.ndarray) -
 
 def unexplained_joints(residual: np.ndarray, held: Segment, thresholds: np.ndarray, noise_floor: np.ndarray,
                        rms_nominal: np.ndarray, joints: Sequence[str], timing: dict[str, Any]) -> dict[str, Any]:
-    """Joints whose held-out residual stays above their threshold, with the signals it
-    correlates with (step 5)."""
+    """Joints whose held-out residual stays above their threshold, with its signature (step 5)."""
     out = {}
     rms_j = rms(residual)
     t = held.t

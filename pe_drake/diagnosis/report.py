@@ -185,9 +185,7 @@ def plot_unexplained(path: Path, result) -> Path:
 
 def _table(header: list[str], rows: list[list[Any]]) -> str:
     out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    for r in rows:
-        out.append("| " + " | ".join(str(x) for x in r) + " |")
-    return "\n".join(out)
+    return "\n".join(out + ["| " + " | ".join(str(x) for x in r) + " |" for r in rows])
 
 
 def _g(x: float, digits: int = 3) -> str:
@@ -206,19 +204,14 @@ def _header(r) -> list[str]:
     tr, ho = r.training, r.held_out
     rec = tr.record
     return [
-        f"# Diagnosis of `{r.robot.name}`",
-        "",
+        f"# Diagnosis of `{r.robot.name}`", "",
         f"- data: `{rec.source}`, {rec.rate_hz:.4g} Hz, zero-phase low-pass at {rec.cutoff_hz:.3g} Hz, "
         f"fitted at {rec.rate_hz / rec.step:.4g} Hz",
         f"- training: {tr.t[0]:.2f}–{tr.t[-1]:.2f} s ({tr.num_samples} samples); held-out: "
         f"{ho.t[0]:.2f}–{ho.t[-1]:.2f} s ({ho.num_samples} samples)"
         + (f" of `{ho.record.source}`" if ho.record is not rec else " (the end of the same record)"),
         "- all RMS values are on the held-out data [N·m]; the noise floor is the raw torque's white noise "
-        "after the filter",
-        "",
-        "## Summary",
-        "",
-    ]
+        "after the filter", "", "## Summary", ""]
 
 
 def _summary(r) -> list[str]:
@@ -251,11 +244,10 @@ def _summary(r) -> list[str]:
 
 def _cumulative(r) -> list[str]:
     lines = ["![held-out gap](gap.png)", "", "## Cumulative held-out RMS per joint [N·m]", ""]
-    header = ["step", *r.joints]
     rows = [[s] + [_g(v) for v in rms] for s, rms in r.cumulative]
     rows.append(["augmented Drake model"] + [_g(v) for v in r.rms_after])
     rows.append(["noise floor"] + [_g(v) for v in r.noise_floor])
-    return lines + [_table(header, rows), ""]
+    return lines + [_table(["step", *r.joints], rows), ""]
 
 
 def _nominal_section(r) -> list[str]:
@@ -345,8 +337,7 @@ def decision_summary(decisions: Sequence[dict[str, Any]]) -> str:
 
 
 def near_misses(decisions: Sequence[dict[str, Any]], count: int = 8) -> list[dict[str, Any]]:
-    """The rejected candidates closest to being selected: the largest z relative to z_min (or
-    statistic relative to threshold) first."""
+    """The rejected candidates closest to being selected, the largest z / z_min first."""
     def closeness(d: dict[str, Any]) -> float:
         if d.get("test") == "sign":  # a negative friction or armature is far from being named
             return 0.0

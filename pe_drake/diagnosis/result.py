@@ -132,8 +132,7 @@ class DiagnosisResult:
         return per_joint(self.joints, x)
 
     def summary_lines(self) -> list[str]:
-        """The held-out RMS nominal → augmented, the effects named and what is left (the
-        progress lines of :func:`~pe_drake.diagnosis.workflow.diagnose` tell each step)."""
+        """The held-out RMS nominal → augmented, the effects named and what is left."""
         def rms(x) -> str:
             return ", ".join(f"{j} {v:.3g}" for j, v in self.per_joint(x).items())
 

@@ -58,8 +58,7 @@ class Moments:
 
 @dataclasses.dataclass(frozen=True)
 class Fold:
-    """One fold of the cross-validation: runs of training samples fitted, predicted, and in
-    neither (the guards)."""
+    """One fold: runs of training samples fitted, predicted, and in neither (the guards)."""
 
     fit_rows: tuple[slice, ...]
     selection_rows: tuple[slice, ...]
@@ -141,8 +140,7 @@ class CrossValidation:
         return cls(out)
 
     def fit(self, extra: Sequence[int]) -> Score:
-        """The base parameters and ``extra`` fitted on each fold's fit part, scored on its
-        selection part: per-joint RMS and weighted RSS over all selection parts together."""
+        """The base parameters and ``extra`` fitted on each fold's fit part, scored on its selection part."""
         rss, count, wrss = 0.0, 0, 0.0
         for r in self.folds:
             f = r.fit(extra)
@@ -188,9 +186,8 @@ def selection_thresholds(config: DiagnosisConfig, training: Segment, held: Segme
 def select(reg: Regression, split: CrossValidation, library: Library, rigid: Fit, training: Segment, held: Segment,
            config: DiagnosisConfig, start: StartingFit | None = None,
            consistent: ConsistentCrossValidation | None = None) -> Selection:
-    """The thresholds, the starting fit's terms (:func:`~pe_drake.diagnosis.start.start_terms`),
-    forward selection and backward check, then the terms that lower the cross-validated error
-    of the physically consistent model (``consistent``; default ``split``), kept and not named."""
+    """The thresholds, the starting fit's terms, forward selection and backward check, then the
+    terms kept, not named, that lower the consistent model's cross-validated error."""
     thresholds = selection_thresholds(config, training, held, len(library.candidates) + 1)
     terms = (start_terms(reg, split, library, start.columns, thresholds, config.max_effects, consistent)
              if start is not None else None)
@@ -287,8 +284,8 @@ def say_selection(say: Callable[[str], None], sel: Selection, library: Library, 
 
 
 def rejected_list(reg: Regression, library: Library, sel: Selection) -> list[dict[str, Any]]:
-    """Every candidate tried and not named, with its statistic z (with the selected effects, on
-    the whole training segment) and the reason, strongest first."""
+    """Every candidate tried and not named, with its z (with the selected effects) and the
+    reason, strongest first."""
     out = []
     for col, reason in sel.rejected.items():
         if col == library.timing_col or col in sel.selected:

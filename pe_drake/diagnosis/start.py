@@ -66,9 +66,8 @@ def identify_columns(robot: Robot, base, model, library: Library) -> tuple[int, 
 
 
 def starting_fit(reg: Regression, columns: tuple[int, ...]) -> StartingFit:
-    """The base parameters and ``columns`` with identify's iterated per-joint weights
-    (:func:`~pe_drake.identification.least_squares.weighted_fit`'s rule: σ_j² = RSS_j /
-    (S − p/n) of the weighted fit itself). Leaves ``reg``'s weights unchanged."""
+    """The base parameters and ``columns`` with identify's iterated per-joint weights (σ_j² =
+    RSS_j / (S − p/n) of the weighted fit itself); ``reg``'s weights are left unchanged."""
     saved = reg.weights
     S, n = reg.train.count, len(reg.weights)
     dof_scale = np.sqrt(S / max(S - (reg.num_base + len(columns)) / n, 1.0))

@@ -256,8 +256,7 @@ def augment(robot: Robot, prep: Prepared, lib: CandidateLibrary, pre: Presliding
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class Unexplained:
-    """What the augmented model leaves (step 5): the timing report, {joint: details} above
-    the threshold."""
+    """What the augmented model leaves (step 5): the timing report, {joint: details}."""
 
     timing: dict[str, Any]
     joints: dict[str, dict[str, Any]]

@@ -40,8 +40,7 @@ if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
 
 def layout_torque(layout: DriveLayout, theta: np.ndarray, v: np.ndarray, vd: np.ndarray,
                   coulomb: np.ndarray | None = None) -> np.ndarray:
-    """D θ of ``layout``'s columns at the samples, shape (S, n) [N·m], a block of samples at a
-    time (D of a long log is large)."""
+    """D θ of ``layout``'s columns at the samples, (S, n) [N·m], a block of samples at a time."""
     out = np.empty(np.shape(v))
     for s in range(0, out.shape[0], 20000):
         k = slice(s, s + 20000)
@@ -71,9 +70,8 @@ def layout_values(model: RobotModel, layout: DriveLayout) -> tuple[np.ndarray, n
 
 def drive_torque(model: RobotModel, layout: DriveLayout | None, v: np.ndarray, vd: np.ndarray,
                  coulomb: np.ndarray | None = None) -> np.ndarray | None:
-    """The fitted drive terms' torque D θ, (S, n) [N·m]: ``layout``'s columns of ``model`` (the
-    armatures merged into base parameters left out: the base parameters hold them), or None
-    when the fit has no drive columns."""
+    """The fitted drive terms' torque D θ, (S, n) [N·m] (the merged armatures are in the base
+    parameters), or None when the fit has no drive columns."""
     if layout is None or not layout.count:
         return None
     return layout_torque(layout, layout_values(model, layout)[0], v, vd, coulomb)
@@ -339,7 +337,6 @@ def filtered_presliding(raw, data, model: RobotModel) -> np.ndarray | None:
     """A model's pre-sliding (Dahl) friction F_c·z(q; F_c/σ0) at data's samples, (S, n) [N·m],
     filtered as the diagnosis fits it (unfiltered ``data``: the state along its own q), or None
     when the model names no pre-sliding friction."""
-
     fc, sigma0 = model.presliding, model.presliding_stiffness
     joints = [j for j in range(len(model.joints)) if fc is not None and fc[j] > 0 and sigma0[j] > 0]
     if not joints:

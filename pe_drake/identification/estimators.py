@@ -261,8 +261,7 @@ def _layouts(robot: Robot, measurement: str, options: DriveTermOptions, method: 
 
 
 def _armature_layout(drive: DriveLayout, joints: list[int]) -> DriveLayout:
-    """Armature columns of ``joints`` (the merged ones: variables of the physical fit; a motor's
-    through the transmission)."""
+    """Armature columns of ``joints`` (the merged ones: variables of the physical fit)."""
     return DriveLayout(("armature",) * len(joints), tuple(joints), drive.joint_names,
                        tuple("kg·m²" for _ in joints), drive.velocity_scale, transmission=drive.transmission)
 
@@ -283,8 +282,7 @@ def _row_blocks(robot: Robot, data: Measurement, measurement: str, model: Regres
                 coulomb: np.ndarray | None, known: tuple[DriveLayout, np.ndarray] | None = None,
                 rest: np.ndarray | None = None):
     """The rows [Y | drive | armature | friction] and y of ``data``, BLOCK samples at a time
-    (y of the torques without the model file's ``known`` friction; the torque rows ``rest``
-    zero: a zero row adds nothing to a least-squares fit)."""
+    (y without the model file's ``known`` friction; the torque rows ``rest`` zero)."""
     rows = SensorRows(model, MeasurementType(measurement))
     r = len(channel_names(robot, measurement))
 
@@ -310,9 +308,8 @@ def _row_blocks(robot: Robot, data: Measurement, measurement: str, model: Regres
 
 def _friction_share(folded: FoldedRows, cols: _Columns, layouts: _Layouts, residual_ss: np.ndarray,
                     torques: int) -> float | None:
-    """For a rigid-body-only fit: the fraction of the residual energy of its first ``torques``
-    channels (the joint torques; a wrench's N and N·m are not added in) that friction and
-    offsets would explain (None when the fit has drive terms or measures no torques)."""
+    """For a rigid-body-only fit: the fraction of the residual energy of its ``torques`` joint
+    torque channels that friction and offsets would explain (else None)."""
     if not layouts.friction.count:
         return None
     _, keep = separable_on_data(folded.stacked(cols.base)[0], folded.stacked(cols.friction)[0], layouts.friction)
@@ -333,9 +330,8 @@ class _Physical(NamedTuple):
 def _physical(robot: Robot, base: BaseParameters, layout: DriveLayout, folded: FoldedRows, cols: _Columns, keep: list[int],
               armature: DriveLayout, w: np.ndarray, prior: np.ndarray, bounds: PhysicalBounds | None,
               chi2_tolerance: float) -> _Physical:
-    """The physical fit with the drive terms; the armatures that merge into base parameters
-    are variables ≥ 0 of the fit too, so the part of a merged base parameter above what a
-    physical link near its a-priori model holds goes to the rotor, not into link masses."""
+    """The physical fit with the drive terms; the merged armatures are variables ≥ 0 too, so
+    what a merged base parameter holds beyond physical links goes to the rotor."""
     merged = [robot.joint_names.index(j) for j in layout.merged]
     extra = _armature_layout(layout, merged)
     A, yw = folded.stacked(cols.standard, w)
@@ -385,9 +381,8 @@ def _in_base(base: BaseParameters, coef: dict[str, float]) -> np.ndarray:
 
 
 def fit_warnings(result: IdentificationResult) -> list[str]:
-    """What a reader of the fit must know: the physical fit's bounds and moves, least-squares
-    drive terms that are negative beyond their σ, and a rigid-body-only fit of data whose
-    residual is mostly friction."""
+    """What a reader of the fit must know: the physical fit's notes, negative drive terms, and
+    a rigid-body-only fit whose residual is mostly friction."""
     out = [f"physical fit: {note}" for note in result.physical_notes]
     if result.method != "physical" and result.drive_layout is not None:
         out += unphysical_drive_terms(result.model, result.drive_layout)

@@ -56,8 +56,7 @@ ON_BOUND = 1e-5
 
 @dataclasses.dataclass(frozen=True)
 class LinkBox:
-    """Where a link's centre of mass may be, in the link's frame: center [m], full edge lengths
-    size [m]."""
+    """Where a link's centre of mass may be, in the link's frame: center, edge lengths [m]."""
 
     center: tuple[float, float, float]
     size: tuple[float, float, float]
@@ -317,8 +316,7 @@ def factored_sdp(R_joint: np.ndarray, w: np.ndarray, x_ls: np.ndarray, blocks: S
                  lower: np.ndarray | None = None, what: str = "fit",
                  tolerances: Sequence[float] = SDP_TOLERANCES) -> np.ndarray:
     """min Σ_j w_j² ‖A_j x − y_j‖² under :func:`solve_sdp`'s constraints (given in x), from the
-    per-joint factors R_j of [A_j y_j], (n, p+1, p+1) (:func:`~pe_drake.identification.least_squares.
-    compress_joint_rows`), from the unconstrained ``x_ls``; solved in u = D x, D the column norms."""
+    per-joint factors R_j (n, p+1, p+1) and the unconstrained ``x_ls``; solved in u = D x."""
     Ra, z, D = scaled_factor(R_joint, w)
     d = 1.0 / D  # x = d ⊙ u
     scaled = [b._replace(scale=b.scale * d[b.start : b.start + len(b.scale)]) for b in blocks]
@@ -348,8 +346,7 @@ def _null_pull(H: np.ndarray, KD: np.ndarray | None, p: int) -> tuple[np.ndarray
 
 
 def _bound_rows(k: int, D: np.ndarray, active: list[int], names: list[str], bounds: PhysicalBounds) -> list:
-    """The user's mass, total-mass and CoM-box constraints on the scaled variables x, as rows
-    (a, lo, hi) of lo ≤ a·x ≤ hi."""
+    """The user's bounds on the scaled variables x, as rows (a, lo, hi) of lo ≤ a·x ≤ hi."""
     where = {b: i for i, b in enumerate(active)}
     rows = []
 
@@ -414,8 +411,7 @@ def fit_notes(phi: np.ndarray, prior: np.ndarray, theta: np.ndarray, lower: np.n
 
 
 def _variable_scale(prior: np.ndarray, active: list[int]) -> np.ndarray:
-    """Per-variable scale, shape (10·nb,), that makes the prior about 1 in magnitude per body
-    block (mass; first moments; inertia): better numerics for the SDP."""
+    """Per-variable scale (10·nb,) that makes the prior about 1 per body block (SDP numerics)."""
     scale = np.ones(prior.size)
     for b in active:
         m = prior[10 * b]
