@@ -394,7 +394,6 @@ def regime_analysis(residual, q, v, vd, t, joints) -> dict[str, Any]:
 def _regime_masks(q: np.ndarray, v: np.ndarray, vd: np.ndarray, t: np.ndarray) -> list[tuple[str, str, np.ndarray]]:
     """(regime, bin, mask) of one joint's samples: velocity sign (|v| ≤ 5 % of max: v ≈ 0),
     speed, acceleration and position terciles, time quarters."""
-
     vmax = float(np.max(np.abs(v))) or 1.0
     still = np.abs(v) <= 0.05 * vmax
     masks = [("velocity sign", "v < 0", (v < 0) & ~still), ("velocity sign", "v ≈ 0", still),

@@ -78,13 +78,8 @@ class LinkBox:
 
 @dataclasses.dataclass(frozen=True)
 class PhysicalBounds:
-    """The user's bounds of the physical fit (config ``identification``).
-
-    Attributes:
-        total_mass: (lo, hi) of the summed mass of the moving bodies [kg], or None.
-        mass_bounds: {body: (lo, hi)} [kg].
-        boxes: {body: :class:`LinkBox`}: the body's CoM stays inside.
-    """
+    """The user's bounds of the physical fit (config ``identification``): (lo, hi) of the moving
+    bodies' total mass [kg] or None, {body: (lo, hi)} [kg], {body: :class:`LinkBox` of its CoM}."""
 
     total_mass: tuple[float, float] | None = None
     mass_bounds: dict[str, tuple[float, float]] = dataclasses.field(default_factory=dict)

@@ -37,10 +37,8 @@ from pe_drake.plots import plot_prediction
 
 @dataclasses.dataclass(frozen=True)
 class ValidateOptions:
-    """How ``validate`` reads the run: the channels to predict, the cut-off [Hz] (None: from
-    the data), the longest hole interpolated [s], the part of the run predicted (cut after
-    filtering; None: all of it) and whether it is filtered (False: the torques as recorded,
-    which then needs v.* and vdot.* columns, as ``identify --no-filter``)."""
+    """How ``validate`` reads the run (cut-off [Hz], longest hole interpolated [s]; unfiltered:
+    the torques as recorded, which then need v.* and vdot.* columns)."""
 
     measurement: str = "joint_torque"
     cutoff_hz: float | None = None
