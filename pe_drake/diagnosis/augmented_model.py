@@ -68,7 +68,8 @@ def augmented_model(robot: Robot, base, phi_B: np.ndarray, Sigma_phi: np.ndarray
     """
     phi0 = robot.phi_model if phi_prior is None else np.asarray(phi_prior, float)
     n = robot.n
-    drive = {"viscous": np.array(robot.joint_damping, float), "coulomb": np.array(robot.joint_friction, float),
+    drive = {"viscous": np.array(robot.joint_damping, float),
+             "coulomb": np.array(robot.joint_friction, float),
              "armature": np.zeros(n), "offset": np.zeros(n)}
     holding, spring = np.zeros(n), np.zeros(n)
     for cand, value in effects.values():
@@ -110,11 +111,12 @@ def augmented_model(robot: Robot, base, phi_B: np.ndarray, Sigma_phi: np.ndarray
         phi = np.asarray(phi_consistent, float)
     elif empty or invalid:
         H = np.linalg.pinv(cov_B) if cov_B is not None else np.eye(len(phi_B))
-        phi, _ = physically_consistent(robot.body_names, physical_parameters(base.K, phi0, Sigma_phi, target, H))
+        phi = physical_parameters(base.K, phi0, Sigma_phi, target, H)
+        phi, _ = physically_consistent(robot.body_names, phi)
         notes.append(
-            "the a-priori model has no inertial parameters (every mass 0): the model holds the physically "
-            "consistent fit of the re-identified base parameters nearest zero (what the data do not "
-            "determine stays small)" if empty else
+            "the a-priori model has no inertial parameters (every mass 0): the model holds the "
+            "physically consistent fit of the re-identified base parameters nearest zero (what the "
+            "data do not determine stays small)" if empty else
             "the parameters closest to the a-priori model are not physically valid for "
             + ", ".join(invalid) + "; the model holds a physically consistent fit of the base parameters "
             f"(largest base-parameter change {float(np.max(np.abs(base.K @ phi - target))):.3g})")
@@ -218,7 +220,7 @@ def write_augmented_model(folder: str | Path, robot: Robot, model: RobotModel) -
     data = model.to_dict()
     if Path(robot.model_path).suffix.lower() == ".urdf":
         path = folder / "augmented_model.urdf"
-        data["urdf_check_max_abs_torque"] = model.write_urdf(path, robot, URDF_TITLE, tolerance=1e-6)
+        data["urdf_check_max_abs_torque"] = model.write_urdf(path, robot, URDF_TITLE)
         written.append(path)
 
     else:

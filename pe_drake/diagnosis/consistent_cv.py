@@ -93,7 +93,7 @@ def consistent_fit(reg: Regression, cols: Sequence[int], library: Library, K: np
     lower = np.array([library.cand_of[c].lower if c in library.cand_of and library.cand_of[c].nonnegative
                       else -np.inf for c in cols[b:]])
     # Stage 2's budget without identify's correlation inflation τ̄: where the residual is model
-    # error, not noise, τ̄ is large and an inflated budget lets stage 2 move what the data determine.
+    # error, not noise, τ̄ is large and an inflated budget moves what the data determine.
 
     chi2 = PHYSICAL_DELTA_CHI2 if delivered else 0.0
     try:

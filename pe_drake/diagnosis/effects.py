@@ -53,9 +53,9 @@ STIFFNESS = "joint_stiffness"
 STIFFNESS_UNITS = ("N·m/rad", "N/m")
 
 #: The signal against which each effect's residual is plotted (the regime that exposes it).
-EXPOSING_REGIME = {"coulomb_friction": "v", "viscous_friction": "v", "armature": "vd", "torque_offset": "t",
-                   "joint_stiffness": "q", "payload": "q", "time_delay": "dtau", "presliding_friction": "v",
-                   "holding_torque": "v"}
+EXPOSING_REGIME = {"coulomb_friction": "v", "viscous_friction": "v", "armature": "vd",
+                   "torque_offset": "t", "joint_stiffness": "q", "payload": "q",
+                   "time_delay": "dtau", "presliding_friction": "v", "holding_torque": "v"}
 
 
 @dataclasses.dataclass(frozen=True)

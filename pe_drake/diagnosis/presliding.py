@@ -157,7 +157,7 @@ class PreslidingStep:
     dropped: tuple[int, ...] = ()
 
     def series(self, series: list[dict[str, Any]], joints: Sequence[str]) -> list[dict[str, Any]]:
-        """The residual-plot entries with each accepted joint's Coulomb entry made its pre-sliding one."""
+        """The residual-plot entries, an accepted joint's Coulomb entry made its pre-sliding one."""
         if not self.fits:
             return series
         after = self.regression.residual("held-out", self.final)

@@ -34,7 +34,7 @@ def prior_parameters(robot: Robot, prior: IdentificationResult | RobotModel | No
 
 
 def _own_parameters(prior: IdentificationResult | RobotModel) -> np.ndarray | None:
-    """An earlier model's own standard parameters (its payload added); None for a base-parameter fit."""
+    """An earlier model's own standard parameters (payload added); None for a base-parameter fit."""
     return prior.phi_total if isinstance(prior, RobotModel) else prior.phi
 
 
@@ -64,7 +64,7 @@ def prior_drive_torque(robot: Robot, prior: IdentificationResult | RobotModel | 
 
 def model_file_torque(robot: Robot, base, columns, seg: Segment) -> np.ndarray:
     """The model file's (CAD) torque along a segment, (S, n) [N·m]: Y φ_model from the base
-    regressor ``columns`` of ``seg`` plus its friction; the reference the augmented model must beat."""
+    regressor ``columns`` of ``seg`` plus its friction (the reference to beat)."""
 
     return columns.product(range(base.count), base.base_values(robot.phi_model)) + model_file_friction(robot, seg)
 

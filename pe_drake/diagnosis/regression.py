@@ -54,7 +54,7 @@ class Fit:
 class Regression:
     """Fits of subsets of columns from per-joint Gram matrices (fast repeated refits)."""
 
-    def __init__(self, train: Columns, held: Columns, num_base: int, weights: np.ndarray | None = None):
+    def __init__(self, train: Columns, held: Columns, num_base: int, weights=None):
         self.train = train
         self.held = held
         self.num_base = num_base

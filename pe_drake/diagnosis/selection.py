@@ -140,7 +140,7 @@ class CrossValidation:
         return cls(out)
 
     def fit(self, extra: Sequence[int]) -> Score:
-        """The base parameters and ``extra`` fitted on each fold's fit part, scored on its selection part."""
+        """The base parameters and ``extra`` fitted on each fold's fit part, scored on the rest."""
         rss, count, wrss = 0.0, 0, 0.0
         for r in self.folds:
             f = r.fit(extra)

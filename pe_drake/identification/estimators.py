@@ -145,9 +145,10 @@ def _sigma_percent(x: np.ndarray, cov: np.ndarray) -> np.ndarray:
         return np.where(np.abs(x) > 0, 100.0 * sd / np.abs(x), np.inf)
 
 
-def identify(robot: Robot, data: Measurement, method: str = "wls", *, measurement: str = "joint_torque",
-             drive_terms: DriveTermOptions | str | None = None, bounds: PhysicalBounds | None = None,
-             coulomb: np.ndarray | None = None, rest: np.ndarray | None = None) -> IdentificationResult:
+def identify(robot: Robot, data: Measurement, method: str = "wls", *,
+             measurement: str = "joint_torque", drive_terms: DriveTermOptions | str | None = None,
+             bounds: PhysicalBounds | None = None, coulomb: np.ndarray | None = None,
+             rest: np.ndarray | None = None) -> IdentificationResult:
     """Identifies the base parameters and the drive terms (and, for ``physical``, the standard
     parameters).
 
@@ -230,8 +231,9 @@ def _identify(robot: Robot, data: Measurement, method: str, measurement: str, dr
         residual_rms=np.sqrt(residual_ss / folded.samples),
         relative_error=100.0 * np.sqrt(residual_ss) / np.maximum(np.sqrt(folded.measured_ss()), 1e-300),
         noise_std=fit.noise_std, weight_iterations=fit.iterations, weights_converged=fit.converged,
-        samples=folded.samples, preprocessing=data.preprocessing, wall_time=time.perf_counter() - start,
-        source=data.source, measurement=measurement, channels=channels, model=model, drive_layout=layout,
+        samples=folded.samples, preprocessing=data.preprocessing,
+        wall_time=time.perf_counter() - start, source=data.source, measurement=measurement,
+        channels=channels, model=model, drive_layout=layout,
         physical_notes=physical.notes if physical is not None else (), friction_share=share,
         cov_B=cov[:b, :b])
 

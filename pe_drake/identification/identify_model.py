@@ -282,11 +282,13 @@ def _rest_decision(robot: Robot, raw: Measurement, data: Measurement, options: I
     method = "ols" if options.method == "ols" else "wls"
 
     def fit(idx, mask):
-        return identify(robot, data.take(idx), method, measurement=options.measurement, drive_terms=options.drive,
-                        coulomb=None if coulomb is None else coulomb[idx], rest=mask)
+        part = None if coulomb is None else coulomb[idx]
+        return identify(robot, data.take(idx), method, measurement=options.measurement,
+                        drive_terms=options.drive, coulomb=part, rest=mask)
 
     def predicted(result, idx):
-        return predict(robot, result, data.take(idx), coulomb=None if coulomb is None else coulomb[idx])
+        part = None if coulomb is None else coulomb[idx]
+        return predict(robot, result, data.take(idx), coulomb=part)
 
     return decide_rest(raw, data, options.rest, fit, predicted)
 

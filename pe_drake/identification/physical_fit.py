@@ -116,7 +116,8 @@ class PhysicalFit(NamedTuple):
 def physical_fit(A: np.ndarray, y: np.ndarray, prior: np.ndarray, body_names: Sequence[str], *,
                  extra: np.ndarray | None = None, extra_lower: np.ndarray | None = None,
                  extra_names: Sequence[str] = (), bounds: PhysicalBounds | None = None,
-                 base_K: np.ndarray | None = None, extra_in_base: dict[int, np.ndarray] | None = None,
+                 base_K: np.ndarray | None = None,
+                 extra_in_base: dict[int, np.ndarray] | None = None,
                  scale: np.ndarray | None = None, prior_weight: float = PRIOR_WEIGHT,
                  chi2_tolerance: float = CHI2_TOLERANCE, margin: float = PSD_MARGIN,
                  rows: int | None = None) -> PhysicalFit:
@@ -375,10 +376,12 @@ def fit_notes(phi: np.ndarray, prior: np.ndarray, theta: np.ndarray, lower: np.n
     """Parameters of a physical fit on a bound or far from the a-priori model, in words."""
     def mass_on_bound(what: str, m: float, lo: float, hi: float) -> list[str]:
         return [f"{what} {m:.4g} kg is on its {side} bound {value:g} kg"
-                for value, side in ((lo, "lower"), (hi, "upper")) if abs(m - value) <= ON_BOUND * max(hi, 1.0)]
+                for value, side in ((lo, "lower"), (hi, "upper"))
+                if abs(m - value) <= ON_BOUND * max(hi, 1.0)]
 
     masses = phi[0::10]
-    notes = [] if bounds.total_mass is None else mass_on_bound("total mass", float(masses.sum()), *bounds.total_mass)
+    total = bounds.total_mass
+    notes = [] if total is None else mass_on_bound("total mass", float(masses.sum()), *total)
     for b, name in enumerate(body_names):
         m0, m = prior[10 * b], masses[b]
         if m0 <= 0:

@@ -113,11 +113,12 @@ class ValidationReport:
         folder, written = Path(folder), []
         try:
             if json_name:
-                atomic_write_text(folder / json_name, json.dumps(self.to_dict(model, data), indent=2))
+                text = json.dumps(self.to_dict(model, data), indent=2)
+                atomic_write_text(folder / json_name, text)
                 written.append(str(folder / json_name))
             if plot_name:
-                plot_prediction(folder / plot_name, self.robot, self.t, self.measured, self.predicted,
-                                self.relative, self.names)
+                plot_prediction(folder / plot_name, self.robot, self.t, self.measured,
+                                self.predicted, self.relative, self.names)
                 written.append(str(folder / plot_name))
         except BaseException:
             for path in written:
