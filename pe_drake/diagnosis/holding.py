@@ -82,19 +82,17 @@ def holding_torque(columns, fit, library) -> np.ndarray:
 def holding_report(training, held, library, pre, effects: Sequence, joints: Sequence[str]) -> dict[str, Any]:
     """The ``holding_test`` of diagnosis.json: per joint, its rests in both parts and, for the
     candidates, the held-out RMS at rest without and with the holding torque."""
-
     regression, final = pre.regression, pre.final
     named = {f"{e.effect}[{e.joint}]" for e in effects}
     rows = []
     for j, name in enumerate(joints):
         tr, ho = segment_rests(training, j), segment_rests(held, j)
+        col = library.col_of.get(f"{HOLDING}[{name}]")
         row = {"joint": name, "rest_periods_training": count_runs(tr),
                "rest_time_training_s": float(tr.mean() * training.duration) if tr.size else 0.0,
                "rest_periods_held_out": count_runs(ho),
-               "rest_time_held_out_s": float(ho.mean() * held.duration) if ho.size else 0.0}
-        col = library.col_of.get(f"{HOLDING}[{name}]")
-        row["candidate"] = col is not None
-        row["named"] = f"{HOLDING}[{name}]" in named
+               "rest_time_held_out_s": float(ho.mean() * held.duration) if ho.size else 0.0,
+               "candidate": col is not None, "named": f"{HOLDING}[{name}]" in named}
         if col is None:
             row["reason"] = f"{row['rest_periods_training']} rests in the training data (< {MIN_REST_PERIODS})"
         elif np.any(ho):

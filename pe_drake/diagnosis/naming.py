@@ -92,9 +92,7 @@ def _named(reg: Regression, library: Library, final: Fit, effect_cols: list[int]
         named.append(NamedEffect(
             c.effect, c.joint_name, "", float(value), c.unit, float(std), float(abs(value) / max(std, 1e-300)),
             per_joint(joints, fits_cum[k].rms_held), per_joint(joints, fits_cum[k + 1].rms_held), details))
-        series.append({
-            "label": c.label, "effect": c.effect, "joint": c.joint, "regime": EXPOSING_REGIME[c.effect],
-            "before": reg.residual("held-out", without)[:, c.joint],
-            "after": res_final[:, c.joint],
-        })
+        series.append({"label": c.label, "effect": c.effect, "joint": c.joint,
+                       "regime": EXPOSING_REGIME[c.effect],
+                       "before": reg.residual("held-out", without)[:, c.joint], "after": res_final[:, c.joint]})
     return named, series

@@ -172,7 +172,8 @@ class DiagnosisResult:
                      "cutoff_hz": rec_tr.cutoff_hz, "full_rate_hz": rec_tr.rate_hz,
                      "fitted_rate_hz": rec_tr.rate_hz / rec_tr.step},
             "effects": [e.as_dict() for e in self.effects],
-            "rms_nominal": self.per_joint(self.rms_nominal), "rms_rigid": self.per_joint(self.rms_rigid),
+            "rms_nominal": self.per_joint(self.rms_nominal),
+            "rms_rigid": self.per_joint(self.rms_rigid),
             "rms_after": self.per_joint(self.rms_after),
             "gap_closed": {j: _closed(a, b, c) for j, a, b, c
                            in zip(self.joints, self.rms_nominal, self.rms_rigid, self.rms_after)},

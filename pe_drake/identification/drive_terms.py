@@ -99,15 +99,13 @@ def drive_block(model: RobotModel, layout: DriveLayout, physical: bool) -> dict[
         "motors": table, "transmission": T.to_dict(), "joint_side": joint_side(layout, theta),
         "motor_coulomb_model": "coulomb * tanh(theta_dot_m / (|R_ii| velocity_scale)), theta_dot_m = R v; "
                                "every term acts on the joints through R^T"}
-    return {
-        **side,
-        "velocity_scale": layout.velocity_scale,
-        "coulomb_model": "coulomb * tanh(v / velocity_scale)",
-        "torque_equation": "tau = Y_B(q, v, vd) phi_B + coulomb*tanh(v/v_s) + viscous*v + offset + armature*vd",
-        "friction": "viscous and coulomb are each joint's total friction; 'source: model file' marks a value "
-                    "kept from the model file's <dynamics> (not estimated)",
-        "dropped": dict(layout.dropped),
-    }
+    return {**side, "velocity_scale": layout.velocity_scale,
+            "coulomb_model": "coulomb * tanh(v / velocity_scale)",
+            "torque_equation": "tau = Y_B(q, v, vd) phi_B + coulomb*tanh(v/v_s) + viscous*v + offset "
+                               "+ armature*vd",
+            "friction": "viscous and coulomb are each joint's total friction; 'source: model file' marks "
+                        "a value kept from the model file's <dynamics> (not estimated)",
+            "dropped": dict(layout.dropped)}
 
 
 def joint_side(layout: DriveLayout, theta: np.ndarray) -> dict[str, Any]:

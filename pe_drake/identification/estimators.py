@@ -1,12 +1,8 @@
 """Identification of the inertial parameters from measured joint data.
 
-The measured torques of S samples of n joints (or the ground wrench, or both: the
-``measurement`` of :mod:`pe_drake.identification.channels`) are stacked into the
-linear model of Eq. (4),
-
-    τ = Y_B(q, v, v̇) φ_B + ρ,          W = [Y_B(1); …; Y_B(S)]  (S·n × b),
-
-and solved by one of three estimators:
+The measured torques of S samples of n joints (or the ground wrench, or both) are stacked into
+the linear model of Eq. (4), τ = Y_B(q, v, v̇) φ_B + ρ, W = [Y_B(1); …; Y_B(S)] (S·n × b),
+solved by one of three estimators:
 
 - ``ols``: ordinary least squares, φ_B = W⁺ τ (Eq. 4);
 - ``wls`` (the default): weighted least squares with per-joint noise weights (Gautier 1997),
