@@ -20,7 +20,6 @@ def add_friction_pairs(reg: Regression, split: Scorer, library: Library, sel: Se
     selected and both pass :func:`~pe_drake.diagnosis.regression.accept` together (each
     against the fit without the pair), at most ``max_effects`` in all; updates ``reg``'s
     autocorrelation inflation like the forward selection does."""
-
     selected, order, rejected, steps = list(sel.selected), list(sel.order), dict(sel.rejected), list(sel.steps)
     verdicts = dict(sel.verdicts)
     current, current_split = sel.final, split.fit(list(sel.selected))

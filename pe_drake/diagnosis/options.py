@@ -124,7 +124,6 @@ class Thresholds:
                   num_tests: int) -> Thresholds:
         """The thresholds from the noise floor and torque spread per joint, (n,) [N·m], and the
         number of candidate columns tested (Bonferroni)."""
-
         n = len(spread)
         resolution = config.resolution_fraction * float(np.max(spread))
         relevance = np.maximum.reduce([config.noise_factor * noise_floor, config.min_effect_fraction * spread,

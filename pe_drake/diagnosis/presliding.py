@@ -294,7 +294,6 @@ def presliding_effects(effects: Sequence[NamedEffect], step: PreslidingStep, lib
                        joints: Sequence[str]) -> list[NamedEffect]:
     """The named effects with each accepted joint's pre-sliding friction (F_c [N·m]; σ0 and x_p
     in the details) in place of its ``coulomb_friction``, without the effects it stood in for."""
-
     dropped = {library.cand_of[c].label for c in step.dropped if c in library.cand_of}
     out = [_refitted(e, step, library) for e in effects if f"{e.effect}[{e.joint}]" not in dropped]
     for f in step.fits:

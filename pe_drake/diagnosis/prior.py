@@ -65,7 +65,6 @@ def prior_drive_torque(robot: Robot, prior: IdentificationResult | RobotModel | 
 def model_file_torque(robot: Robot, base, columns, seg: Segment) -> np.ndarray:
     """The model file's (CAD) torque along a segment, (S, n) [N·m]: Y φ_model from the base
     regressor ``columns`` of ``seg`` plus its friction (the reference to beat)."""
-
     return columns.product(range(base.count), base.base_values(robot.phi_model)) + model_file_friction(robot, seg)
 
 

@@ -261,5 +261,4 @@ def check_fits_in_memory(data: Measurement, validation: Measurement | None = Non
 def model_file_friction(robot: Robot, seg: Segment) -> np.ndarray:
     """The friction the model file holds, d·v + f_c·tanh(v/v_s), along a segment, (S, n) [N·m]
     (``friction``, which Drake ignores, is part of the a-priori model as in ``identify``)."""
-
     return robot.joint_damping * seg.v + robot.joint_friction * seg.coulomb

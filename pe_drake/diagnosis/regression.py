@@ -361,8 +361,7 @@ def rms(x: np.ndarray) -> np.ndarray:
 
 def corr(a: np.ndarray, b: np.ndarray) -> float:
     """Pearson correlation of two series (0 when either is constant)."""
-    a = a - a.mean()
-    b = b - b.mean()
+    a, b = a - a.mean(), b - b.mean()
     d = math.sqrt(float(a @ a) * float(b @ b))
     return float(a @ b / d) if d > 0 else 0.0
 

@@ -145,7 +145,6 @@ class DiagnosisResult:
     def write(self, folder: str | Path) -> list[str]:
         """Writes diagnosis.json, report.md, the figures and the augmented model files into
         ``folder``, all or nothing (staged, then moved into place); returns the paths written."""
-
         out = check_output_dir(folder)
         with staged_output_dir(out, "diagnosis.json", DIAGNOSE_OUTPUTS) as tmp:
             written = self._write_files(tmp)

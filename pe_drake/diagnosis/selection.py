@@ -207,7 +207,6 @@ def kept_by_cross_validation(reg: Regression, split: Scorer, library: Library, s
     Greedy, the largest drop of the weighted cross-validated residual first, each held to
     criteria (c)-(d).
     """
-
     t = sel.thresholds
     selected, unnamed, verdicts, rejected = list(sel.selected), list(sel.unnamed), dict(sel.verdicts), dict(sel.rejected)
     pool = [c for c, cand in library.cand_of.items() if c not in selected and cand.effect in JOINT_EFFECTS]

@@ -151,7 +151,6 @@ def start_terms(reg: Regression, split: Scorer, library: Library, columns: tuple
        against the kept model without it, the largest z first and at most ``max_effects``; the
        others stay in the model unnamed.
     """
-
     kept: list[int] = list(columns)
     verdicts: dict[int, Verdict] = {}
     _hold_at_bounds(reg, split, library, kept, verdicts, thresholds, consistent)

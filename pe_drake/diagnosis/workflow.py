@@ -383,7 +383,6 @@ class _Laps:
 
 def _unexplained_line(robot: Robot, left: dict[str, dict[str, Any]]) -> str:
     """Step 5's line: each joint's unexplained held-out RMS in its effort unit."""
-
     kinds = {info.name: info.kind for info in robot.joints}
     if not left:
         return "5. nothing left unexplained above the thresholds"

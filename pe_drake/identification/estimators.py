@@ -363,7 +363,6 @@ def _physical(robot: Robot, base: BaseParameters, layout: DriveLayout, folded: F
 def physical_fit_excess(channels, rms: np.ndarray, rms_ls: np.ndarray) -> list[str]:
     """Notes on the channels where the physical fit's residual RMS ``rms`` (r,) is above the
     least-squares fit's ``rms_ls`` on the same rows by more than :data:`PHYSICAL_WORSE_PERCENT`."""
-
     percent = 100.0 * (np.asarray(rms) / np.maximum(rms_ls, 1e-300) - 1.0)
     return [f"{name}: residual RMS {a:.4g}, {p:.0f} % above the least-squares (WLS) fit's {a_ls:.4g} on the same "
             "data (what the physical constraints and bounds cost, or the solver); compare --method wls"

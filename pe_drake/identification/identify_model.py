@@ -296,7 +296,6 @@ def _rest_decision(robot: Robot, raw: Measurement, data: Measurement, options: I
 def _model_parameters(robot: Robot, result: IdentificationResult) -> tuple[np.ndarray | None, str]:
     """Standard parameters for model.urdf (None: none physically valid) and a note on them: the
     physical fit's, or the a-priori model moved to the identified base parameters when valid."""
-
     if result.phi is not None:
         return result.phi, ""
     candidate = result.model.phi  # the a-priori model moved to the base parameters

@@ -90,8 +90,7 @@ def compress_joint_rows(blocks) -> tuple[np.ndarray, int]:
     """Per joint j, the triangular factor R_j of [A_j  y_j] over blocks (A (s, n, p), y (s, n)),
     shape (n, p+1, p+1), and the total number of samples: ‖A_j x − y_j‖² = ‖R_j [x; −1]‖², so
     the weighted fits and the residuals need nothing else."""
-    R = None
-    S = 0
+    R, S = None, 0
     for A, y in blocks:
         S += A.shape[0]
         block = np.concatenate([A, y[..., None]], axis=-1).transpose(1, 0, 2)  # (n, s, p+1)
@@ -117,7 +116,6 @@ def weighted_fit_from_factors(R_joint: np.ndarray, S: int, weighted: bool) -> tu
     """OLS, per-joint σ_j from its residual, then Gautier's one WLS step with rows / σ_j
     (``weighted``; else OLS), from the per-joint factors R_joint (n, p+1, p+1) of S samples
     (:func:`compress_joint_rows`): (x, Cov(x), σ_j)."""
-
     n, _, p1 = R_joint.shape
     p = p1 - 1
     x, _ = lstsq_from_factors(R_joint.reshape(-1, p1))
