@@ -24,9 +24,15 @@ import numpy as np
 from pe_drake.diagnosis.effects import EFFECT_TERMS, STIFFNESS
 from pe_drake.identification.physical_fit import physical_fit
 from pe_drake.io_utils import atomic_write_text
-from pe_drake.multibody.inertia import (central_inertia, inertia_matrix, inertia_vector,
-                                        phi_from_com, phi_from_pseudo_inertia, pseudo_inertia,
-                                        validity_problems)
+from pe_drake.multibody.inertia import (
+    central_inertia,
+    inertia_matrix,
+    inertia_vector,
+    phi_from_com,
+    phi_from_pseudo_inertia,
+    pseudo_inertia,
+    validity_problems,
+)
 from pe_drake.multibody.payload import PayloadInertia
 from pe_drake.multibody.robot_model import RobotModel
 

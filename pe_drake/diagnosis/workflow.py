@@ -59,13 +59,9 @@ from pe_drake.multibody.robot_model import RobotModel
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class Prepared:
-    """The filtered records, their two parts and the base regressor on each.
-
-    Attributes:
-        phi_B_prior: the a-priori model's base parameters K φ_prior, (b,).
-        phi_prior: the a-priori standard parameters (the model file's, or ``prior``'s), (10·nb,).
-        prior: the earlier model started from (``diagnose --model``), or None.
-    """
+    """The filtered records, their two parts and the base regressor on each; ``phi_prior``
+    (10·nb,): the a-priori standard parameters (the model file's, or those of the earlier model
+    ``prior``, ``diagnose --model``), ``phi_B_prior`` = K φ_prior (b,)."""
 
     record: Record
     validation: Record | None
@@ -162,11 +158,8 @@ def candidate_library(robot: Robot, prep: Prepared, config: DiagnosisConfig) -> 
 
 
 def rigid_reidentification(reg: Regression, training: Segment) -> Fit:
-    """WLS of the base parameters alone with Gautier's per-joint weights (step 2).
-
-    Sets the regression's weights and its autocorrelation inflation (from the rigid fit's
-    training residual), which the later fits keep.
-    """
+    """WLS of the base parameters alone with Gautier's per-joint weights (step 2); sets the
+    regression's weights and autocorrelation inflation, which the later fits keep."""
     ols = reg.fit([])
     spread_tr = np.std(training.tau, axis=0)
     sigma = np.maximum(ols.rms_train, np.maximum(training.record.noise_floor, 1e-6 * spread_tr + 1e-12))
