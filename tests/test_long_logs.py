@@ -124,7 +124,7 @@ def test_diagnose_keeps_single_joint_columns_once_and_long_ones_in_float32(monke
         x = rng.normal(size=b + 1 + n)
         np.testing.assert_allclose(cols.product(range(b + 1 + n), x), full @ x, rtol=0, atol=1e-5)
         np.testing.assert_allclose(cols.joint_dot(1, y[:, 1]), y[:, 1] @ full[:, 1, :], rtol=1e-6, atol=1e-5)
-        np.testing.assert_allclose(cols.dense(), full, atol=1e-6)
+        np.testing.assert_allclose(cols.block(slice(None)), full, atol=1e-6)
 
 
 class _Hour:

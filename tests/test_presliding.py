@@ -25,23 +25,23 @@ def _dahl(fc: dict, x_p: dict) -> dict:
 def test_replace_column_updates_the_gram_entries():
     rng = np.random.default_rng(0)
     A, y = rng.normal(size=(50, 3, 5)), rng.normal(size=(50, 3))
-    cols = Columns.stack(A[:, :, :3], A[:, :, 3:], y)
+    cols = Columns.from_matrix(A, y)
     new = rng.normal(size=50)
     out = replace_column(cols, 4, 1, new)
     B = A.copy()
     B[:, :, 4] = 0.0
     B[:, 1, 4] = new
-    ref = Columns.stack(B[:, :, :3], B[:, :, 3:], y)
+    ref = Columns.from_matrix(B, y)
     np.testing.assert_allclose(out.gram, ref.gram, atol=1e-12)
     np.testing.assert_allclose(out.rhs, ref.rhs, atol=1e-12)
-    np.testing.assert_allclose(out.dense(), B)
+    np.testing.assert_allclose(out.block(slice(None)), B)
     assert out.A is cols.A  # shared, not copied
     x = rng.normal(size=5)
     np.testing.assert_allclose(out.product(range(5), x), B @ x, atol=1e-12)
     twice = replace_column(out, 3, 2, new)  # a second column on another joint
     B[:, :, 3] = 0.0
     B[:, 2, 3] = new
-    np.testing.assert_allclose(twice.gram, Columns.stack(B[:, :, :3], B[:, :, 3:], y).gram, atol=1e-12)
+    np.testing.assert_allclose(twice.gram, Columns.from_matrix(B, y).gram, atol=1e-12)
     assert DISPLACEMENT_GRID[0] < 0.01 and DISPLACEMENT_GRID[-1] > 0.05  # covers 10-50 mrad
 
 

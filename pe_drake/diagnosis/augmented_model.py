@@ -1,29 +1,21 @@
 """The a-priori model with the diagnosed effects added: a
-:class:`~pe_drake.multibody.robot_model.RobotModel` (:func:`augmented_model`), whose ``plant`` is
-the model in Drake and whose writers give the files.
+:class:`~pe_drake.multibody.robot_model.RobotModel` (:func:`augmented_model`), and its files.
 
 The re-identified base parameters φ_B fix only K φ. The standard parameters written are the
 a-priori ones moved as little as the a-priori uncertainty allows (the conditional mean of a
-Gaussian prior, Σ_φ from :func:`pe_drake.diagnosis.effects.prior_parameter_covariance`):
+Gaussian prior):
 
     φ = φ_prior + Σ_φ Kᵀ (K Σ_φ Kᵀ)⁺ (φ_B - K φ_prior - K_L φ_payload)
 
-so K (φ + φ_payload on link L) = φ_B. A body whose result is not physically valid is projected
-onto the nearest physically consistent one (its 4×4 pseudo-inertia made positive
-semidefinite, Wensing et al. 2017); that is noted in the model, as the torque then differs
-slightly from the fit.
-
-Files (:func:`write_augmented_model`): ``augmented_model.urdf`` (new inertials, joint
-damping, ``drake:rotor_inertia`` in a transmission, the payload link; loadable with Drake and
-by ``load_robot``), ``augmented_effects.yaml`` (Coulomb friction and offsets, which a URDF
-cannot hold, in the TRUTH.yaml schema of ``pe-drake simulate``) and ``augmented_model.json``
-(everything, machine-readable).
+so K (φ + φ_payload on link L) = φ_B; when that is not physically valid, a physically consistent
+fit (pseudo-inertia ⪰ 0, Wensing et al. 2017), noted in the model. Files
+(:func:`write_augmented_model`): ``augmented_model.urdf``, ``augmented_effects.yaml`` (what a
+URDF cannot hold, in the TRUTH.yaml schema of ``pe-drake simulate``), ``augmented_model.json``.
 """
 
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -62,37 +54,29 @@ def augmented_model(robot: Robot, base, phi_B: np.ndarray, Sigma_phi: np.ndarray
              time_delay: float = 0.0,
              presliding: dict[int, tuple[float, float]] | None = None,
              phi_prior: np.ndarray | None = None,
-             friction_start: tuple[np.ndarray, np.ndarray] | None = None,
              phi_consistent: np.ndarray | None = None) -> RobotModel:
     """The :class:`~pe_drake.multibody.robot_model.RobotModel` of a diagnosis fit (module docstring).
 
     Args:
-        robot: the a-priori robot.
-        base: its base parameters.
         phi_B: re-identified base parameters, (b,).
         Sigma_phi: a-priori covariance of the standard parameters, (10·nb, 10·nb).
-        payload_phi: Δφ_L of a named payload about its link's origin (10,), or None.
-        effects: {label: (Candidate, value)} of the named per-joint effects. A named
-            viscous or Coulomb friction is what the model file lacks: it adds to the model
-            file's damping and friction (the a-priori model the diagnosis starts from).
+        payload_phi: Δφ_L of a named payload about ``payload_link``'s origin (10,), or None.
+        effects: {label: (Candidate, value)} of the named per-joint effects; a named friction
+            adds to the model file's damping and friction.
         velocity_scale: v_s of the Coulomb friction [rad/s].
-        payload_link: the link whose frame ``payload_phi`` is expressed in.
-        cov_B: covariance of φ_B, (b, b): weighs the base parameters when the conditional
-            parameters are not physically valid and a physically consistent fit is needed.
+        cov_B: covariance of φ_B, (b, b): weighs the base parameters when a physically
+            consistent fit is needed.
         time_delay: a named ``time_delay`` [s] (0: none).
         presliding: {joint index: (F_c [N·m], σ0 [N·m/rad])} of the named pre-sliding friction.
-        phi_prior: the a-priori standard parameters the closest ones are sought from
-            (None: the robot's model file's; ``diagnose --model``: the earlier model's).
-        friction_start: (viscous, Coulomb) per joint a named friction adds to (default the
-            model file's, which the workflow always passes, also with an earlier model).
+        phi_prior: the a-priori standard parameters (None: the robot's model file's).
         phi_consistent: physically consistent standard parameters with K φ = ``phi_B`` (the
             diagnosis's consistent fit): the model's, unless a payload body is split off them.
     """
     phi0 = robot.phi_model if phi_prior is None else np.asarray(phi_prior, float)
     n = robot.n
-    start = (robot.joint_damping, robot.joint_friction) if friction_start is None else friction_start
-    drive = {"viscous": np.array(start[0], float), "coulomb": np.array(start[1], float), "armature": np.zeros(n),
-             "offset": np.zeros(n)}
+    drive = {"viscous": np.array(robot.joint_damping, float),
+             "coulomb": np.array(robot.joint_friction, float),
+             "armature": np.zeros(n), "offset": np.zeros(n)}
     holding, spring = np.zeros(n), np.zeros(n)
     for cand, value in effects.values():
         if cand.effect == "holding_torque":
@@ -128,20 +112,17 @@ def augmented_model(robot: Robot, base, phi_B: np.ndarray, Sigma_phi: np.ndarray
     target = phi_B - base.K @ phi_payload_full
     phi = conditional_parameters(base.K, phi0, Sigma_phi, target)
     invalid = validity_problems(robot.body_names, phi)
+    empty = not np.any(phi0[0::10] > 0)  # no inertials at all: only the data (issue 37)
     if phi_consistent is not None and not link:  # already the consistent fit of the data
         phi = np.asarray(phi_consistent, float)
-    elif not np.any(phi0[0::10] > 0):  # no inertials at all: nothing to move, only the data (issue 37)
+    elif empty or invalid:
         H = np.linalg.pinv(cov_B) if cov_B is not None else np.eye(len(phi_B))
         phi = physical_parameters(base.K, phi0, Sigma_phi, target, H)
         phi, _ = physically_consistent(robot.body_names, phi)
-        notes.append("the a-priori model has no inertial parameters (every mass 0): the model holds the "
-                     "physically consistent fit of the re-identified base parameters nearest zero (what the "
-                     "data do not determine stays small)")
-    elif invalid:
-        H = np.linalg.pinv(cov_B) if cov_B is not None else np.eye(len(phi_B))
-        phi = physical_parameters(base.K, phi0, Sigma_phi, target, H)
-        phi, projected = physically_consistent(robot.body_names, phi)
         notes.append(
+            "the a-priori model has no inertial parameters (every mass 0): the model holds the "
+            "physically consistent fit of the re-identified base parameters nearest zero (what the "
+            "data do not determine stays small)" if empty else
             "the parameters closest to the a-priori model are not physically valid for "
             + ", ".join(invalid) + "; the model holds a physically consistent fit of the base parameters "
             f"(largest base-parameter change {float(np.max(np.abs(base.K @ phi - target))):.3g})")
@@ -182,25 +163,14 @@ def conditional_parameters(K: np.ndarray, phi_prior: np.ndarray, Sigma_phi: np.n
 
 
 def physical_parameters(K: np.ndarray, phi_prior: np.ndarray, Sigma_phi: np.ndarray, phi_B: np.ndarray,
-                        H: np.ndarray, *, prior_weight: float = 1e-6, margin: float = 1e-7) -> np.ndarray:
-    """Physically consistent φ whose base parameters match φ_B as well as possible.
+                        H: np.ndarray) -> np.ndarray:
+    """Physically consistent φ (p,) whose base parameters match φ_B (b,) as well as possible.
 
-    min (Kφ - φ_B)ᵀ H (Kφ - φ_B) + the a-priori pull  s.t.  J(φ_b) ⪰ ``margin``·m_b·1: the
-    identification's SDP (:func:`pe_drake.identification.physical_fit.physical_fit`, one
-    implementation for both stages) with the data term ‖L K φ − L φ_B‖², LᵀL = H, and the
-    variables scaled by the a-priori standard deviations D (floored as in
-    :func:`conditional_parameters`), so the pull toward φ_prior in the directions K does not
-    see is measured in a-priori standard deviations. Massless bodies stay massless.
-
-    Args:
-        K: φ_B = K φ, (b, p).
-        phi_prior: a-priori parameters, (p,).
-        Sigma_phi: their covariance, (p, p).
-        phi_B: base parameters to match, (b,).
-        H: weight of the base-parameter mismatch (the information matrix of φ_B), (b, b).
-
-    Returns:
-        φ, (p,).
+    min (Kφ - φ_B)ᵀ H (Kφ - φ_B) + the a-priori pull  s.t.  J(φ_b) ⪰ ε·m_b·1: the
+    identification's SDP (:func:`pe_drake.identification.physical_fit.physical_fit`) with
+    LᵀL = H (the information matrix of φ_B, (b, b)), the variables scaled by the a-priori
+    standard deviations, so the pull toward φ_prior is measured in them. Massless bodies stay
+    massless.
 
     Raises:
         NoSolutionFound: the solver failed.
@@ -218,17 +188,13 @@ def physical_parameters(K: np.ndarray, phi_prior: np.ndarray, Sigma_phi: np.ndar
     # H is the information matrix of φ_B, so the misfit is a χ²: the pull toward the prior may
     # raise it by 1 (a one-σ move), the augmented model's torque stays the fit's.
     fit = physical_fit(L @ K, L @ phi_B, np.asarray(phi_prior, float), names, base_K=K, scale=d if active else None,
-                       prior_weight=prior_weight, margin=margin, chi2_tolerance=1.0)
+                       chi2_tolerance=1.0)
     return fit.phi
 
 
 def physically_consistent(body_names, phi: np.ndarray, margin: float = 1e-9) -> tuple[np.ndarray, list[str]]:
-    """Projects invalid bodies onto physically consistent ones (pseudo-inertia ⪰ 0).
-
-    The pseudo-inertia J = [[½ tr(I)·1 - I, h], [hᵀ, m]] of a body is positive semidefinite
-    exactly when the body is physically consistent (Wensing, Kim, Slotine 2017); its negative
-    eigenvalues are raised to ``margin`` × its largest one (the nearest PSD matrix in the
-    Frobenius norm, made strictly valid).
+    """Projects invalid bodies onto physically consistent ones: the negative eigenvalues of the
+    pseudo-inertia (Wensing, Kim, Slotine 2017) raised to ``margin`` × its largest one.
 
     Returns:
         (φ, names of the projected bodies).
@@ -248,30 +214,21 @@ def physically_consistent(body_names, phi: np.ndarray, margin: float = 1e-9) -> 
     return phi, projected
 
 
-# ---- files ----------------------------------------------------------------------------------
-
-
-def write_augmented_model(folder: str | Path, robot: Robot, model: RobotModel, *, verify: bool = True) -> list[Path]:
-    """Writes the augmented model's files into ``folder`` (module docstring).
-
-    The URDF is checked by :meth:`~pe_drake.multibody.robot_model.RobotModel.write_urdf`
-    (Drake's inverse dynamics of the file against the model's, Coulomb and offsets aside).
-
-    Returns:
-        The paths written. A robot not loaded from a URDF gets only the YAML and JSON files.
+def write_augmented_model(folder: str | Path, robot: Robot, model: RobotModel) -> list[Path]:
+    """Writes the augmented model's files into ``folder`` (module docstring); a robot not loaded
+    from a URDF gets only the YAML and JSON files. Returns the paths written.
 
     Raises:
-        ConfigError: the written URDF does not reproduce the model.
+        ConfigError: the written URDF does not reproduce the model (Drake's inverse dynamics).
     """
     folder = Path(folder)
     written = []
     data = model.to_dict()
     if Path(robot.model_path).suffix.lower() == ".urdf":
         path = folder / "augmented_model.urdf"
-        err = model.write_urdf(path, robot, URDF_TITLE, tolerance=1e-6 if verify else math.inf)
-        if verify:
-            data["urdf_check_max_abs_torque"] = err
+        data["urdf_check_max_abs_torque"] = model.write_urdf(path, robot, URDF_TITLE)
         written.append(path)
+
     else:
         data["urdf"] = f"not written: '{Path(robot.model_path).name}' is not a URDF"
     atomic_write_text(folder / "augmented_effects.yaml", model.effects_yaml(EFFECTS_HEADER))

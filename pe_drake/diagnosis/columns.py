@@ -2,9 +2,7 @@
 
 The base regressor and the timing nuisance act on every joint and are stored as (S, n, D);
 the candidates act on one joint each and are kept as one series on their joint
-(``overrides``): a Panda's 28 candidate columns as (S, n, 28) were a third of an hour's memory.
-A long segment keeps its stored columns in float32, its Gram matrices summed in float64 before
-the rounding, so every fit is the float64 one.
+(``overrides``), which saves memory on long logs.
 """
 
 from __future__ import annotations
@@ -15,9 +13,9 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-#: A segment whose stored columns would take more than this in float64 keeps them in float32
-#: (half the memory of an hour-long log); its Gram matrices are summed in float64 before the
-#: rounding, so every fit is unchanged and only residuals carry the ~1e-7 relative rounding.
+#: A segment whose stored columns would take more than this in float64 keeps them in float32;
+#: its Gram matrices are summed in float64 before the rounding, so every fit is unchanged and
+#: only residuals carry the ~1e-7 relative rounding.
 LONG_LOG_BYTES = 512e6
 
 
@@ -26,13 +24,10 @@ class Columns:
     """Every column of one segment: base regressor, candidates, timing nuisance.
 
     Attributes:
-        A: the stored columns, (S, n, D): those that act on every joint (the base regressor and
-            the timing nuisance), in float32 for a long log (:data:`LONG_LOG_BYTES`).
+        A: the stored columns, (S, n, D): those that act on every joint, in float32 for a long
+            log (:data:`LONG_LOG_BYTES`).
         y: the target, the measured torque, (S, n).
-        gram: per-joint A_jᵀ A_j of every column, (n, P, P), summed in float64.
-        rhs: per-joint A_jᵀ y_j, (n, P).
-        yy: per-joint y_jᵀ y_j, (n,).
-        count: S.
+        gram, rhs, yy: per-joint A_jᵀ A_j (n, P, P), A_jᵀ y_j (n, P), y_jᵀ y_j (n,).
         overrides: {column: (joint, values (S,))}: columns that act on one joint only (the
             candidates, a pre-sliding trial), zero on every other; they win over ``A``'s.
         stored: the column of each of A's, (D,); None: A holds every column in order.
@@ -118,20 +113,6 @@ class Columns:
             block[:, c] = values if j == joint else 0.0
         return block
 
-    def dense(self) -> np.ndarray:
-        """Every column with the overrides applied, (S, n, P) (a copy: for tests and small data)."""
-        A = np.zeros((self.count, self.y.shape[1], self.num_columns))
-        A[:, :, list(self.position)] = self.A
-        for c, (j, values) in self.overrides.items():
-            A[:, :, c] = 0.0
-            A[:, j, c] = values
-        return A
-
-    @classmethod
-    def stack(cls, Y_B: np.ndarray, extra: np.ndarray, y: np.ndarray) -> Columns:
-        """The base regressor (S, n, b) and the extra columns (S, n, E) against the torque y."""
-        return cls.from_matrix(np.concatenate([Y_B, extra], axis=2), y)
-
     @classmethod
     def from_matrix(cls, A: np.ndarray, y: np.ndarray) -> Columns:
         """The columns A (S, n, P) against the torque y (S, n)."""
@@ -143,16 +124,13 @@ class Columns:
     @classmethod
     def assemble(cls, y: np.ndarray, num_columns: int, stored: Sequence[int],
                  fill: Callable[[slice, np.ndarray], None], single: dict, chunk: int = 4000) -> Columns:
-        """The columns of a segment built a block of samples at a time.
+        """The P = ``num_columns`` columns of a segment built a block of samples at a time.
 
         Args:
-            y: the torque, (S, n).
-            num_columns: P.
             stored: the columns that act on every joint, kept in ``A``.
             fill: ``fill(rows, out)`` writes those columns of the samples ``rows`` into ``out``,
                 (len(rows), n, len(stored)), float64.
             single: {column: (joint, values (S,))}, the columns that act on one joint.
-            chunk: samples per block.
         """
         S, n = y.shape
         stored = [int(c) for c in stored]

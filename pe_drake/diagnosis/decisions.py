@@ -1,29 +1,14 @@
-"""Every candidate's decision with its statistics (diagnosis.json's ``decisions``, issue 23).
+"""Every candidate's decision with its statistics (diagnosis.json's ``decisions``).
 
 One entry per candidate the diagnosis considered: each per-joint effect of the library, the
 timing column, the pre-sliding test of each joint and the payload search. ``decision`` is
-``selected``, ``rejected``, ``kept, not named`` (:data:`~pe_drake.diagnosis.options.KEPT`: a drive term of the starting fit, identify's, kept
-in the model because it improves the cross-validated error but not named: ``test`` and
-``reason`` say which criterion it missed), ``not separable`` or ``not tried``; ``test`` names
-the criterion that decided a rejection:
-
-- ``sign``: a friction or armature came out negative (criterion (a));
-- ``z``: |θ| / σ_θ below the Bonferroni bound ``z_min`` on the training segment (b);
-- ``gain``: the relative gain of its joint's cross-validated RMS below ``min_heldout_gain`` (c);
-- ``other_joints``: the weighted cross-validated residual over all joints grows (c);
-- ``relevance``: the cross-validated RMS it explains is below the relevance threshold (d);
-- ``backward``: selected, then no longer significant once the others were in;
-- ``replaced``: selected, then dropped because pre-sliding friction took its place;
-- ``separability``: no motion separates it from the rigid-body terms;
-- ``presliding``: the pre-sliding tests (likelihood ratio ``statistic`` ≥ ``threshold``,
-  cross-validated gain, x_p above the Coulomb limit, F_c > 0; ``reason`` lists what failed);
-- ``payload``: the payload search's χ² test (``decision`` of ``payload_test``).
-
-``selection_rms_before``/``selection_rms_after`` are the cross-validated RMS (over the folds'
-selection parts, :mod:`pe_drake.diagnosis.selection`) of its joint without and with it. The
-statistics of a rejected candidate are those of the trial that decided it (its last one);
-those of a selected candidate are the trial that added it, with ``z`` from the final fit on the
-whole training segment.
+``selected``, ``rejected``, ``kept, not named`` (:data:`~pe_drake.diagnosis.options.KEPT`),
+``not separable`` or ``not tried``; ``test`` names the criterion that decided a rejection
+(``sign``, ``z``, ``gain``, ``other_joints``, ``relevance`` of criteria (a)-(d); ``backward``,
+``replaced`` by pre-sliding friction, ``separability``, ``presliding``, ``payload``).
+``selection_rms_before``/``_after`` are the cross-validated RMS of its joint without and with
+it; the statistics are those of the trial that decided it (a selected one's ``z`` from the final
+fit).
 """
 
 from __future__ import annotations

@@ -13,22 +13,12 @@ effect                 column c_j             unit (revolute)    unit (prismatic
 ``joint_stiffness``    q_j                    N·m/rad            N/m                 θ ≥ 0
 =====================  ====================  =================  ==================  ==========
 
-The columns carry the sign convention of :mod:`pe_drake.multibody.robot_model`: τ is the torque the
-actuator applies, so a resistive load adds to it. ``coulomb_friction`` uses the same smoothed
-sign as the simulator's Drake ``DoorHinge`` (:func:`~pe_drake.multibody.drive_columns.coulomb_column`); the data are
-low-pass filtered, so the columns are filtered in parallel with the torque (Gautier 1997,
-"parallel filtering") by the caller.
-
-Whether an effect can be told apart from the rigid-body terms at all is a property of the
-robot, not of the data: :func:`separability` projects each column onto the span of Y_B over
-random states. An armature on a first, vertical joint gives the column v̇_1, which is exactly
-the column of the base parameter that holds that link's inertia about the axis, so the two
-are one base parameter and only their sum is identifiable.
-
-``payload``, an unmodelled mass on one link, changes that link's 10 inertial parameters, whose
-columns lie inside span(Y_B): it is not a column but a pattern in the re-identified base
-parameters, Δφ_B = φ_B - K φ_prior ≈ K_L Δφ_L (Eq. 2), large and localized on one link
-compared with the a-priori uncertainty of every link (:func:`fit_payload`).
+τ is the torque the actuator applies (:mod:`pe_drake.multibody.robot_model`), so a resistive
+load adds to it; the caller filters the columns in parallel with the torque (Gautier 1997).
+:func:`separability` tells whether any motion separates an effect from the rigid-body terms (an
+armature on a first, vertical joint is one base parameter with that link's inertia).
+``payload`` is not a column but a pattern in the re-identified base parameters,
+Δφ_B = φ_B - K φ_prior ≈ K_L Δφ_L (Eq. 2), localized on one link (:func:`fit_payload`).
 """
 
 from __future__ import annotations
@@ -50,34 +40,22 @@ if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
 
 #: Per-joint effects of the library, in the order they are listed in reports.
 JOINT_EFFECTS = ("coulomb_friction", "viscous_friction", "armature", "torque_offset", "joint_stiffness")
-#: All effect names (``payload`` is a link effect).
-EFFECT_NAMES = (*JOINT_EFFECTS, "payload", "time_delay")
 
 #: Default relative a-priori uncertainty of every inertial parameter (CAD-level accuracy).
 PRIOR_RELATIVE_UNCERTAINTY = 0.10
 
-#: The drive term (:mod:`pe_drake.multibody.drive_columns`) of each per-joint effect: its column,
-#: unit and sign come from there.
+#: The drive term (:mod:`pe_drake.multibody.drive_columns`) of each per-joint effect.
 EFFECT_TERMS = {"coulomb_friction": "coulomb", "viscous_friction": "viscous", "armature": "armature",
                 "torque_offset": "offset"}
-#: A spring at the joint (a cable or hose package, a balancer, a torque sensor whose zero moves
-#: with the angle): a torque k·q_j, k ≥ 0 for a passive spring, its rest angle held by the joint's
-#: torque offset. Not a drive term of ``identify``: its unit and sign are the library's own.
+#: A spring at the joint (cables, a balancer): k·q_j, k ≥ 0, its rest angle held by the joint's
+#: torque offset. Not a drive term of ``identify``.
 STIFFNESS = "joint_stiffness"
 STIFFNESS_UNITS = ("N·m/rad", "N/m")
 
 #: The signal against which each effect's residual is plotted (the regime that exposes it).
-EXPOSING_REGIME = {
-    "coulomb_friction": "v",
-    "viscous_friction": "v",
-    "armature": "vd",
-    "torque_offset": "t",
-    "joint_stiffness": "q",
-    "payload": "q",
-    "time_delay": "dtau",
-    "presliding_friction": "v",
-    "holding_torque": "v",
-}
+EXPOSING_REGIME = {"coulomb_friction": "v", "viscous_friction": "v", "armature": "vd",
+                   "torque_offset": "t", "joint_stiffness": "q", "payload": "q",
+                   "time_delay": "dtau", "presliding_friction": "v", "holding_torque": "v"}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -85,13 +63,9 @@ class Candidate:
     """One per-joint effect of the library on one joint.
 
     Attributes:
-        effect: one of :data:`JOINT_EFFECTS`.
-        joint: index of the joint in the robot's order.
-        joint_name: its name.
-        unit: unit of the value θ.
         nonnegative: a physically meaningful value is ≥ ``lower`` (friction, armature).
         lower: that bound: 0, or for friction minus the model file's value on the joint (the
-            value is what the model file lacks, the total d + θ must be ≥ 0; issue 21).
+            value is what the model file lacks, the total d + θ must be ≥ 0).
     """
 
     effect: str
@@ -106,20 +80,11 @@ class Candidate:
         return f"{self.effect}[{self.joint_name}]"
 
 
-def joint_candidates(robot: Robot, effects: Sequence[str] = JOINT_EFFECTS,
-                     start: tuple[np.ndarray, np.ndarray] | None = None) -> list[Candidate]:
-    """Every per-joint effect on every excited joint (Coulomb friction on revolute joints: the
-    augmented Drake model, like the simulator, holds it as a revolute ``DoorHinge``).
-
-    Args:
-        robot: a :class:`~pe_drake.multibody.robot.Robot`.
-        effects: names from :data:`JOINT_EFFECTS`.
-        start: (viscous, Coulomb) per joint the fits start from (a friction's ``lower`` is
-            minus it); default the model file's (``Robot.joint_damping``, ``joint_friction``).
-    """
+def joint_candidates(robot: Robot, effects: Sequence[str] = JOINT_EFFECTS) -> list[Candidate]:
+    """Every per-joint effect on every joint (Coulomb friction on revolute joints only); a
+    friction's ``lower`` is minus the model file's."""
     out = []
-    viscous, coulomb = (robot.joint_damping, robot.joint_friction) if start is None else start
-    model_file = {"viscous_friction": viscous, "coulomb_friction": coulomb}
+    model_file = {"viscous_friction": robot.joint_damping, "coulomb_friction": robot.joint_friction}
     for effect in effects:
         if effect not in JOINT_EFFECTS:
             raise UnknownNameError("effect", effect, JOINT_EFFECTS)
@@ -135,17 +100,7 @@ def joint_candidates(robot: Robot, effects: Sequence[str] = JOINT_EFFECTS,
 
 def effect_column(effect: str, q: np.ndarray, v: np.ndarray, vd: np.ndarray, joint: int,
                   velocity_scale: float = COULOMB_VELOCITY_SCALE) -> np.ndarray:
-    """The torque per unit value of one effect on one joint, over samples.
-
-    Args:
-        effect: one of :data:`JOINT_EFFECTS`.
-        q, v, vd: joint positions, velocities, accelerations, each (T, n).
-        joint: joint index.
-        velocity_scale: v_s of the Coulomb column [rad/s].
-
-    Returns:
-        Shape (T,): the effect's torque on ``joint`` per unit θ (other joints get none).
-    """
+    """The torque per unit value of one effect on ``joint``, (T,), from q, v, vd (T, n)."""
     if effect == STIFFNESS:
         return np.asarray(q, float)[:, joint].copy()
     if effect not in EFFECT_TERMS:
@@ -158,12 +113,9 @@ class Separability:
     """How far a candidate's column lies from the span of the base regressor.
 
     Attributes:
-        candidate: the candidate.
-        residual: ‖(I - P_B) c‖ / ‖c‖ over random states: 0 when the column is a combination
-            of the base-parameter columns, 1 when orthogonal to all of them.
-        separable: residual above the tolerance.
+        residual: ‖(I - P_B) c‖ / ‖c‖ over random states (0: inside span(Y_B)).
         merged_with: when not separable, the base parameters the column is made of
-            {name: coefficient}; the value then only adds to those base parameters.
+            {name: coefficient}.
     """
 
     candidate: Candidate
@@ -174,20 +126,8 @@ class Separability:
 
 def separability(robot: Robot, base, candidates: Sequence[Candidate], *, model=None, samples: int = 200,
                  seed: int = 1, tolerance: float = 1e-6) -> list[Separability]:
-    """Whether each candidate can be told apart from the rigid-body terms (structural test).
-
-    The test uses random states within the robot's limits (as the base parameters do), so it
-    says whether *any* motion can separate the effect, independently of the recorded one.
-
-    Args:
-        robot: a :class:`~pe_drake.multibody.robot.Robot`.
-        base: its :class:`~pe_drake.multibody.base_parameters.BaseParameters`.
-        candidates: the candidates to test.
-        model: an existing :class:`~pe_drake.multibody.regressor.RegressorModel`.
-        samples: random states.
-        seed: their seed.
-        tolerance: relative residual below which a column counts as inside span(Y_B).
-    """
+    """Whether any motion can tell each candidate apart from the rigid-body terms, on random
+    states within the robot's limits (``tolerance``: the relative residual inside span(Y_B))."""
     model = model or RegressorModel(robot)
     rng = np.random.default_rng(seed)
     lo, hi = robot.limits.q_lower, robot.limits.q_upper
@@ -216,29 +156,12 @@ def separability(robot: Robot, base, candidates: Sequence[Candidate], *, model=N
     return out
 
 
-# ---- a-priori uncertainty and the payload pattern --------------------------------------------
-
-
 def prior_parameter_covariance(robot: Robot, relative: float = PRIOR_RELATIVE_UNCERTAINTY, *,
                                samples: int = 400, seed: int = 0) -> np.ndarray:
-    """Covariance of the standard parameters of an a-priori model accurate to ``relative``.
-
-    The model is the one of :func:`pe_drake.multibody.inertia.perturb_inertias`: every body's mass,
-    principal moments and centre of mass (relative to max(|p|, radius of gyration)) uniformly
-    within ±``relative``, its principal axes rotated by up to ``relative`` rad about a random
-    axis, draws that break the triangle inequality redrawn. Bodies are independent; each
-    body's 10×10 block is estimated from ``samples`` vectorized draws (the map to the
-    parameters about the body origin is not linear).
-
-    Args:
-        robot: a :class:`~pe_drake.multibody.robot.Robot` (its ``phi_model`` is the a-priori model).
-        relative: ε in (0, 0.5].
-        samples: number of draws per body.
-        seed: their seed.
-
-    Returns:
-        Σ_φ, shape (10·nb, 10·nb), block diagonal.
-    """
+    """Covariance Σ_φ (10·nb, 10·nb), block diagonal, of the standard parameters of an a-priori
+    model accurate to ``relative`` ε in (0, 0.5], the perturbation of
+    :func:`pe_drake.multibody.inertia.perturb_inertias`; each body's block from ``samples``
+    draws (the map to the parameters about the body origin is not linear)."""
     rng = np.random.default_rng(seed)
     phi = np.asarray(robot.phi_model, float)
     nb = phi.size // 10
@@ -280,11 +203,8 @@ def _perturbation_draws(phi_b: np.ndarray, eps: float, count: int, rng: np.rando
 
 
 def payload_groups(robot: Robot, base) -> list[tuple[int, int, tuple[str, ...]]]:
-    """Link groups where an added mass is identifiable from the base parameters.
-
-    A group is every body rigidly attached to one joint's child link. The payload's mass must
-    be separable from the group's other parameters in K (its column is not a combination of
-    the link's other 9 columns), else it would only be an inertia change.
+    """Link groups (the bodies rigidly attached to one joint's child link) whose added mass is
+    separable in K from the link's other 9 parameters.
 
     Returns:
         [(joint index, body index of the child link, names of the group's bodies)].
@@ -314,14 +234,14 @@ def fit_payload(delta_B: np.ndarray, C: np.ndarray, K_L: np.ndarray) -> tuple[np
         K_L: the link's columns of K, (b, 10).
 
     Returns:
-        (x shape (10,), its covariance (10, 10) (pseudo-inverse where K_L is rank deficient),
-        the residual χ² (Δφ_B - K_L x)ᵀ C⁻¹ (Δφ_B - K_L x)).
+        (x (10,), its covariance (10, 10) (pseudo-inverse where K_L is rank deficient), the χ²
+        of the residual).
     """
     L = _whitener(C)
     A = L @ K_L
     y = L @ delta_B
-    info = A.T @ A
-    cov = np.linalg.pinv(info, rcond=1e-10)
+    cov = np.linalg.pinv(A.T @ A, rcond=1e-10)
+
     x = cov @ A.T @ y
     r = y - A @ x
     return x, cov, float(r @ r)

@@ -1,31 +1,12 @@
 """Holding torque at rest: the friction a stopped joint keeps, which no friction curve predicts.
 
-A sliding joint's friction is a function of its velocity (the Coulomb column tanh(v/v_s) of
-:mod:`pe_drake.diagnosis.effects`), a stopped one's is not: at v = 0 the friction takes
-whatever value in [−F_s, F_s] holds the joint (F_s the static friction), and tanh(0) = 0
-predicts none of it. What a stopped joint holds depends on how it got there, so a model that
-predicts it must use the history. The Dahl model (:mod:`pe_drake.multibody.dahl`) does:
-its state z freezes when the joint stops, at the value it had (±1 after a stop from sliding,
-less after a small overshoot), so F·z keeps the friction loaded while the joint rests. This
-is why the Coulomb column is the x_p → 0 limit of the Dahl model only in sliding: at rest
-the limit of z is the sign of the last motion, not 0.
-
-The candidate ``holding_torque`` of a joint is the column
-
-    h(t) = m(t) · z(t; x_p),   x_p = :data:`HOLDING_DISPLACEMENT`,
-
-with m the joint's rest mask (filtered |v| < :data:`REST_VELOCITY` for at least
-:func:`min_rest_s`) and z the Dahl state along the filtered q, both at the full rate, their
-product filtered like the torque (parallel filtering, Gautier 1997) and decimated like the
-other columns (:func:`holding_column`). Its value H [N·m] is the friction level the joint
-holds at rest: the predicted holding torque is H·z, |H·z| ≤ H, and H is a lower bound on the
-static friction (the friction held the joint). It enters the stepwise selection like every
-candidate (criteria (a)-(d) of :mod:`pe_drake.diagnosis.workflow`, H ≥ 0: the friction stays
-loaded against the approach), but only on joints with at least :data:`MIN_REST_PERIODS` rests
-in the training data (:func:`holding_candidates`): without rests its column is zero and the
-report says so (:func:`holding_report`). When the pre-sliding step names a joint's Dahl
-friction, whose state carries the torque at rest too, a holding torque it makes
-insignificant is dropped with the other stand-ins.
+At v = 0 friction takes whatever value in [−F_s, F_s] holds the joint, which depends on how it
+stopped; the Dahl state z (:mod:`pe_drake.multibody.dahl`) freezes when the joint stops, so the
+candidate ``holding_torque`` is the column h(t) = m(t) · z(t; :data:`HOLDING_DISPLACEMENT`),
+m the joint's rest mask, both at the full rate, their product filtered like the torque
+(:func:`holding_column`). Its value H ≥ 0 [N·m] is a lower bound on the static friction. It is
+a candidate only on joints with :data:`MIN_REST_PERIODS` rests in the training data. The
+method is in the README's "Diagnosing a model".
 """
 
 from __future__ import annotations
@@ -42,10 +23,8 @@ from pe_drake.multibody.dahl import dahl_state
 if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
     from pe_drake.multibody.robot import Robot
 
-#: Name of the effect.
 HOLDING = "holding_torque"
-#: A joint is at rest where its filtered |v| is below this [rad/s or m/s] (identify's floor,
-#: :mod:`pe_drake.identification.rest`, which shares the rest mask).
+#: A joint is at rest where its filtered |v| is below this [rad/s or m/s] (identify's floor).
 REST_VELOCITY = REST_FLOOR
 #: Rests a joint needs in the training data to be a candidate: with one stop, any drift of that
 #: window could pass for a holding torque.
@@ -84,9 +63,7 @@ def holding_candidates(robot: Robot, training) -> list[Candidate]:
 
 
 def holding_separability(robot: Robot, training) -> list[Separability]:
-    """:func:`holding_candidates` as separable: a column of the history is never a function of
-    the state, so no rigid-body column can hold it (the structural test of
-    :func:`~pe_drake.diagnosis.effects.separability` draws random states)."""
+    """:func:`holding_candidates` as separable: a column of the history is no rigid-body column."""
     return [Separability(c, 1.0, True, {}) for c in holding_candidates(robot, training)]
 
 
@@ -104,27 +81,18 @@ def holding_torque(columns, fit, library) -> np.ndarray:
 
 def holding_report(training, held, library, pre, effects: Sequence, joints: Sequence[str]) -> dict[str, Any]:
     """The ``holding_test`` of diagnosis.json: per joint, its rests in both parts and, for the
-    candidates, the held-out RMS at rest without and with the holding torque.
-
-    Args:
-        training, held: the two segments.
-        library: the regression's columns (:class:`~pe_drake.diagnosis.regression.Library`).
-        pre: the pre-sliding step (its final regression and fit).
-        effects: the named :class:`~pe_drake.diagnosis.result.NamedEffect` list.
-        joints: joint names.
-    """
+    candidates, the held-out RMS at rest without and with the holding torque."""
     regression, final = pre.regression, pre.final
     named = {f"{e.effect}[{e.joint}]" for e in effects}
     rows = []
     for j, name in enumerate(joints):
         tr, ho = segment_rests(training, j), segment_rests(held, j)
+        col = library.col_of.get(f"{HOLDING}[{name}]")
         row = {"joint": name, "rest_periods_training": count_runs(tr),
                "rest_time_training_s": float(tr.mean() * training.duration) if tr.size else 0.0,
                "rest_periods_held_out": count_runs(ho),
-               "rest_time_held_out_s": float(ho.mean() * held.duration) if ho.size else 0.0}
-        col = library.col_of.get(f"{HOLDING}[{name}]")
-        row["candidate"] = col is not None
-        row["named"] = f"{HOLDING}[{name}]" in named
+               "rest_time_held_out_s": float(ho.mean() * held.duration) if ho.size else 0.0,
+               "candidate": col is not None, "named": f"{HOLDING}[{name}]" in named}
         if col is None:
             row["reason"] = f"{row['rest_periods_training']} rests in the training data (< {MIN_REST_PERIODS})"
         elif np.any(ho):

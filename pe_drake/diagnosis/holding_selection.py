@@ -1,15 +1,10 @@
 """The holding torque in the effect selection: tried together with its joint's Coulomb friction.
 
-A joint that slides and stops carries its friction in two columns: the Coulomb column
-tanh(v/v_s) while it slides and the holding column (:mod:`pe_drake.diagnosis.holding`) while
-it rests. The forward selection adds one column at a time, and with only one of the two in
-the model the other's torque stays in the residual, whose long correlated stretches (a whole
-rest) inflate every σ: on a simulated Panda run with Dahl friction of 0.5 N·m and stops,
-neither passed alone (z = 3.4 and 1.6 against a bound of 4.2), while the pair removes 90 %
-of the joint's held-out RMS. :func:`add_friction_pairs` tries, after the selection, the pair
-on each joint where neither was named, and keeps it when each column passes the selection's
-own acceptance test (:func:`pe_drake.diagnosis.regression.accept`, its gain and relevance on
-the training data's cross-validation) with the other in.
+A joint that slides and stops carries its friction in two columns (Coulomb while it slides,
+holding while it rests). The forward selection adds one column at a time, and with only one of
+the two in, the other's torque stays in the residual, whose long correlated stretches inflate
+every σ, so neither may pass alone. :func:`add_friction_pairs` tries the pair on each joint
+where neither was named.
 """
 
 from __future__ import annotations
@@ -23,16 +18,8 @@ from pe_drake.diagnosis.regression import Library, Regression, Scorer, Selection
 def add_friction_pairs(reg: Regression, split: Scorer, library: Library, sel: Selection, max_effects: int) -> Selection:
     """``sel`` with (coulomb_friction, holding_torque) of every joint where neither was
     selected and both pass :func:`~pe_drake.diagnosis.regression.accept` together (each
-    against the fit without the pair); updates ``reg``'s autocorrelation inflation like the
-    forward selection does.
-
-    Args:
-        reg: the selection's regression.
-        split: its cross-validation of the training data (the gain and relevance tests).
-        library: its columns.
-        sel: the forward selection and backward check.
-        max_effects: at most this many effects in all.
-    """
+    against the fit without the pair), at most ``max_effects`` in all; updates ``reg``'s
+    autocorrelation inflation like the forward selection does."""
     selected, order, rejected, steps = list(sel.selected), list(sel.order), dict(sel.rejected), list(sel.steps)
     verdicts = dict(sel.verdicts)
     current, current_split = sel.final, split.fit(list(sel.selected))

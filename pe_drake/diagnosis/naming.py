@@ -28,9 +28,7 @@ class Naming:
             then the named ones (``time_delay`` included), in selection order.
         cumulative: [(step label, per-joint held-out RMS)] nominal → rigid → each effect.
         last_fit: the fit with every named effect (the last cumulative step).
-        effects: the :class:`~pe_drake.diagnosis.result.NamedEffect`s.
         series: held-out residual of each effect's joint without it and with all named.
-        rejected: every candidate tried and not named, with its z and the reason.
     """
 
     effect_cols: list[int]
@@ -66,16 +64,15 @@ def name_effects(robot: Robot, reg: Regression, library: Library, sel: Selection
 
 def _named(reg: Regression, library: Library, final: Fit, effect_cols: list[int], fits_cum: list[Fit], robot: Robot,
            config: DiagnosisConfig, unnamed: list[int]) -> tuple[list[NamedEffect], list[dict[str, Any]]]:
-    """Each effect with its value, and the fits with everything but it (the ``unnamed`` terms
-    in) for its plot."""
+    """Each effect with its value, and the residual without it (``unnamed`` in) for its plot."""
     joints = robot.joint_names
     named: list[NamedEffect] = []
     series: list[dict[str, Any]] = []
     res_final = reg.residual("held-out", reg.fit(unnamed + effect_cols))
     for k, col in enumerate(effect_cols):
         without = reg.fit(unnamed + [x for x in effect_cols if x != col])
-        value = final.value(col)
-        std = final.std(col)
+        value, std = final.value(col), final.std(col)
+
         if col == library.timing_col:
             named.append(time_delay_effect(value, std, per_joint(joints, reg.contribution_rms("held-out", final, col)),
                                            per_joint(joints, fits_cum[k].rms_held),
@@ -95,9 +92,7 @@ def _named(reg: Regression, library: Library, final: Fit, effect_cols: list[int]
         named.append(NamedEffect(
             c.effect, c.joint_name, "", float(value), c.unit, float(std), float(abs(value) / max(std, 1e-300)),
             per_joint(joints, fits_cum[k].rms_held), per_joint(joints, fits_cum[k + 1].rms_held), details))
-        series.append({
-            "label": c.label, "effect": c.effect, "joint": c.joint, "regime": EXPOSING_REGIME[c.effect],
-            "before": reg.residual("held-out", without)[:, c.joint],
-            "after": res_final[:, c.joint],
-        })
+        series.append({"label": c.label, "effect": c.effect, "joint": c.joint,
+                       "regime": EXPOSING_REGIME[c.effect],
+                       "before": reg.residual("held-out", without)[:, c.joint], "after": res_final[:, c.joint]})
     return named, series

@@ -24,8 +24,7 @@ TIMING = "time_delay"
 #: The decision of a starting-fit drive term kept in the model but not named (diagnosis/decisions.py).
 KEPT = "kept, not named"
 #: Largest condition number of the (column-scaled) training regressor the diagnosis accepts
-#: (optimized trajectories give about 10; above this some base parameters are barely excited
-#: and effects cannot be told apart from them reliably).
+#: (optimized trajectories give about 10).
 MAX_COND = 1e4
 #: Shortest part (training or held-out), in periods of the cut-off frequency: about 2 × this
 #: many independent samples of filtered noise.
@@ -48,12 +47,8 @@ class DiagnosisConfig:
 
     Attributes:
         holdout_fraction: fraction of the record held out at its end when no validation file
-            is given, in (0.05, 0.8).
+            is given.
         cutoff_hz: low-pass cut-off [Hz]; None: from the data's spectrum (preprocess).
-        decimate_to_hz: rate of the samples fitted [Hz].
-        coulomb_velocity_scale: v_s of tanh(v / v_s) [rad/s].
-        effects: per-joint effects of the library to try.
-        payload: look for a payload.
         timing_check: use the timing-offset nuisance column.
         alpha: family-wise probability of naming an effect that is not there.
         min_heldout_gain: relative RMS reduction an effect must bring on its joint, on data
@@ -70,9 +65,8 @@ class DiagnosisConfig:
         payload_alpha: false-alarm probability of the payload test.
         payload_min_prior_sigmas: a payload's mass must exceed this many a-priori standard
             deviations of its link's mass.
-        max_effects: at most this many effects are named.
         max_gap_s: holes in the time column up to this are interpolated [s]; a run paused for
-            longer is diagnosed on its longest segment (the config's ``data.max_gap_s``).
+            longer is diagnosed on its longest segment.
     """
 
     holdout_fraction: float = 0.3
@@ -116,7 +110,6 @@ class Thresholds:
 
     Attributes:
         z_min: two-sided Bonferroni bound of the significance test, |θ| / σ_θ ≥ z_min.
-        min_heldout_gain: relative cross-validated RMS reduction an effect must bring on its joint.
         relevance: cross-validated RMS an effect must explain on its joint, (n,) [N·m].
         unexplained: held-out residual RMS above which a joint is unexplained, (n,) [N·m].
     """
@@ -129,14 +122,8 @@ class Thresholds:
     @classmethod
     def from_data(cls, config: DiagnosisConfig, noise_floor: np.ndarray, spread: np.ndarray,
                   num_tests: int) -> Thresholds:
-        """The thresholds of the workflow's module docstring.
-
-        Args:
-            config: the options.
-            noise_floor: filtered white-noise level per joint, (n,) [N·m].
-            spread: torque standard deviation per joint, (n,) [N·m].
-            num_tests: candidate columns tested (Bonferroni).
-        """
+        """The thresholds from the noise floor and torque spread per joint, (n,) [N·m], and the
+        number of candidate columns tested (Bonferroni)."""
         n = len(spread)
         resolution = config.resolution_fraction * float(np.max(spread))
         relevance = np.maximum.reduce([config.noise_factor * noise_floor, config.min_effect_fraction * spread,

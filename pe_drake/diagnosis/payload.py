@@ -3,11 +3,10 @@ and the change of the base parameters that non-separable effects merge into.
 
 The change Δφ_B = φ_B - K φ_prior has covariance C = K Σ_φ Kᵀ + Cov(φ_B) under "the
 a-priori model is right to within Σ_φ" (:class:`BaseChange`). A payload is one link's 10
-parameters explaining it (GLS, :func:`pe_drake.diagnosis.effects.fit_payload`), named when its
-mass change is positive (a negative one is reported as what it is: the link is lighter than the
-a-priori model, not a payload), the χ² gain passes ``payload_alpha``, the mass change exceeds ``payload_min_prior_sigmas``
-a-priori standard deviations of the link's mass and 3 of its own, and what is left is
-consistent with the a-priori uncertainty (:func:`payload_search`).
+parameters explaining it (GLS), named when its mass change is positive, the χ² gain passes
+``payload_alpha``, the mass change exceeds ``payload_min_prior_sigmas`` a-priori standard
+deviations of the link's mass and 3 of its own, and what is left is consistent with the
+a-priori uncertainty (:func:`payload_search`).
 """
 
 from __future__ import annotations
@@ -30,12 +29,9 @@ if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class BaseChange:
-    """The re-identified base parameters and their change from the a-priori model.
+    """The re-identified base parameters φ_B (b,) and their change from K φ_prior (b,).
 
     Attributes:
-        phi_B: re-identified base parameters, (b,).
-        phi_B_prior: the a-priori model's, K φ_prior, (b,).
-        cov_B: covariance of ``phi_B``, (b, b).
         Sigma_phi: a-priori covariance of the standard parameters, (p, p).
         C_prior: K Σ_φ Kᵀ, (b, b).
         C: C_prior + cov_B, the covariance of Δφ_B under "no change", (b, b).
@@ -63,13 +59,8 @@ class BaseChange:
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class PayloadOutcome:
-    """The payload search.
-
-    Attributes:
-        report: what diagnosis.json's ``payload_test`` holds (links tried, χ², decision).
-        effect: the payload as a :class:`~pe_drake.diagnosis.result.NamedEffect`, or None.
-        delta_phi: its 10 parameter changes Δφ_L about the link origin, or None.
-    """
+    """The payload search: diagnosis.json's ``payload_test``, the named payload or None, and its
+    10 parameter changes Δφ_L about the link origin or None."""
 
     report: dict[str, Any]
     effect: NamedEffect | None
@@ -86,16 +77,8 @@ class _LinkFit:
 
 def payload_search(robot: Robot, base, change: BaseChange, config: DiagnosisConfig,
                    rms_held: np.ndarray) -> PayloadOutcome:
-    """The payload test of the module docstring.
-
-    Args:
-        robot: the a-priori :class:`~pe_drake.multibody.robot.Robot`.
-        base: its :class:`~pe_drake.multibody.base_parameters.BaseParameters`.
-        change: the re-identified base parameters against the a-priori ones.
-        config: ``prior_uncertainty``, ``payload_alpha``, ``payload_min_prior_sigmas``.
-        rms_held: per-joint held-out RMS of the last fit [N·m] (the payload is within the
-            rigid-body step, so before and after are the same).
-    """
+    """The payload test of the module docstring (``rms_held``: per-joint held-out RMS of the
+    last fit [N·m], before and after alike: the payload is within the rigid-body step)."""
     joints = robot.joint_names
     chi2_0 = chi2(change.delta_B, change.C)
     report: dict[str, Any] = {"searched": True, "chi2_before": chi2_0, "dof": int(base.count),
@@ -108,11 +91,9 @@ def payload_search(robot: Robot, base, change: BaseChange, config: DiagnosisConf
     # Links whose fit is as good within χ²₁(95 %) explain the change equally well (a mass on
     # the axis of joint k moves the same whether it rides on link k or on the link before):
     # name the most distal one, where payloads are carried, and list the others.
-    first_best = None
-    for f in fits:
-        if first_best is None or f.entry["gain"] > first_best.entry["gain"]:
-            first_best = f
+    first_best = max(fits, key=lambda f: f.entry["gain"])  # the first of equal gains, as max gives
     tie = first_best.entry["gain"] - chi2_quantile(0.95, 1)
+
     equivalent = [f for f in fits if f.entry["gain"] >= tie]
     best = max(equivalent, key=lambda f: f.joint)
     entry = best.entry

@@ -1,17 +1,11 @@
 """Pre-sliding friction in the diagnosis: a search over the pre-sliding displacement.
 
-The Dahl model (:mod:`pe_drake.multibody.dahl`) gives the friction torque F_c·z(q; x_p):
-linear in F_c, nonlinear in x_p = F_c/σ0. Where the selection named ``coulomb_friction`` on
-a joint, its column tanh(v/v_s) is replaced by the parallel-filtered Dahl column z(q; x_p)
-for every x_p of :data:`DISPLACEMENT_GRID`, the whole model is refitted (base parameters and
-every named effect: the linear fit inside the search), and the x_p with the lowest weighted
-training residual wins. In sliding the Coulomb model is the x_p → 0 limit, so there the two
-are nested (at rest they are not: the Dahl state keeps ±1 where tanh(v/v_s) is 0, the
-holding torque of :mod:`pe_drake.diagnosis.holding`; on a joint whose holding torque is
-named the Dahl column is zero at rest, so that it models the motion only): the workflow
-names ``presliding_friction`` instead of ``coulomb_friction`` when the residual drop is
-significant (a likelihood-ratio test with the autocorrelation-inflated noise of the joint)
-and the held-out residual of the joint drops too.
+The Dahl model (:mod:`pe_drake.multibody.dahl`) gives the friction torque F_c·z(q; x_p), linear
+in F_c, nonlinear in x_p = F_c/σ0: each joint's Coulomb column is replaced by the
+parallel-filtered Dahl column for every x_p of :data:`DISPLACEMENT_GRID`, the whole model is
+refitted, and the x_p with the lowest weighted training residual wins. In sliding the Coulomb
+model is the x_p → 0 limit (at rest the Dahl state keeps ±1: on a joint with a named holding
+torque the Dahl column is zero at rest). The method is in the README's "Diagnosing a model".
 """
 
 from __future__ import annotations
@@ -27,12 +21,10 @@ from pe_drake.diagnosis.result import NamedEffect, per_joint
 from pe_drake.diagnosis.selection import split_with_column
 from pe_drake.multibody.dahl import dahl_state
 
-#: Name of the effect.
 PRESLIDING = "presliding_friction"
 #: Pre-sliding displacements x_p = F_c/σ0 tried [rad]: 0.05 to 160 mrad, log-spaced (ratio
-#: 1.25). The low end is where the Dahl column is the Coulomb column tanh(v/v_s) (v_s = 0.01
-#: rad/s reached at 1 rad/s² after 0.05 mrad), so "the smallest fits best" means Coulomb; a grid
-#: from 2 mrad called the real Panda's joints 4-7 Coulomb at their best x_p of 1-2 mrad.
+#: 1.25). At the low end the Dahl column is the Coulomb column tanh(v/v_s) (v_s = 0.01 rad/s
+#: reached at 1 rad/s² after 0.05 mrad), so "the smallest fits best" means Coulomb.
 DISPLACEMENT_GRID = 0.00005 * 1.25 ** np.arange(37)
 
 
@@ -41,17 +33,13 @@ class PreslidingFit:
     """The best pre-sliding model of one joint.
 
     Attributes:
-        joint: joint index.
         column: the library column (the joint's Coulomb column) it replaces.
-        displacement: x_p [rad] of the best fit.
-        coulomb: F_c [N·m] there.
-        coulomb_std: its standard deviation [N·m].
+        displacement: x_p [rad] of the best fit; ``coulomb``: F_c [N·m] there.
         stiffness: σ0 = F_c / x_p [N·m/rad].
         rss: training residual sum of squares of the joint over the grid, shape (G,).
         rss_coulomb: the same with the Coulomb column.
         rss_best: the same at ``displacement`` (refined between grid points).
         held_values: the Dahl column at ``displacement`` on the held-out samples, (S,).
-        fit: the refit with the best Dahl column (a ``Fit`` of the workflow's regression).
         regression: the regression holding the Dahl column in place of the Coulomb one.
     """
 
@@ -59,7 +47,6 @@ class PreslidingFit:
     column: int
     displacement: float
     coulomb: float
-    coulomb_std: float
     stiffness: float
     rss: np.ndarray
     rss_coulomb: float
@@ -71,13 +58,10 @@ class PreslidingFit:
 
 def dahl_columns(record, joint: int, grid: np.ndarray = DISPLACEMENT_GRID, moving: np.ndarray | None = None) -> np.ndarray:
     """The normalized Dahl state of one joint for every x_p of ``grid``, integrated and filtered
-    like the torque (parallel filtering) at the record's full rate, at every ``record.step``-th
-    sample (the segments' samples are among them), shape (⌈T/step⌉, G). With ``moving`` (a
-    full-rate mask, (T,)) the state is zero outside it: the joint's rests belong to its named
-    holding torque (:mod:`pe_drake.diagnosis.holding`), the Dahl column to its motion.
+    like the torque at the record's full rate, at every ``record.step``-th sample, shape
+    (⌈T/step⌉, G); zero outside ``moving`` (a full-rate mask, (T,)) when given.
 
-    The state follows the record's filtered q (a noisy q would reverse at every sample). One
-    joint at a time: all of them at the full rate held 1.1 kB per sample of a 7-joint log.
+    The state follows the record's filtered q (a noisy q would reverse at every sample).
     """
     z = dahl_state(record.q[:, joint], np.asarray(grid, float))  # (T, G)
     if moving is not None:
@@ -90,8 +74,7 @@ def dahl_columns(record, joint: int, grid: np.ndarray = DISPLACEMENT_GRID, movin
 
 def replace_column(columns, index: int, joint: int, values: np.ndarray):
     """The segment's columns with column ``index`` set to ``values`` on ``joint`` (zero on the
-    other joints), its Gram entries updated (the others are unchanged); ``A`` is shared, the new
-    column kept beside it (``Columns.overrides``): a copy of A per trial held 2-8 copies of it."""
+    other joints), its Gram entries updated; ``A`` is shared, the new column kept beside it."""
     values = np.asarray(values, float)
     row = np.zeros(columns.rhs.shape)
     row[joint] = columns.joint_dot(joint, values)
@@ -108,22 +91,14 @@ def replace_column(columns, index: int, joint: int, values: np.ndarray):
 def search_presliding(regression, extra: list[int], column: int, joint: int, train_dahl: np.ndarray,
                       held_dahl: np.ndarray, grid: np.ndarray = DISPLACEMENT_GRID,
                       column_at: Callable[[float], tuple[np.ndarray, np.ndarray]] | None = None) -> PreslidingFit:
-    """The x_p that fits best when the joint's Coulomb column becomes the Dahl column.
+    """The x_p that fits best when the joint's Coulomb column ``column`` becomes the Dahl column.
 
     Args:
-        regression: the workflow's regression (``train``/``held`` columns, ``weights``,
-            ``inflation``, ``fit(extra)``).
         extra: the fitted columns besides the base parameters (``column`` among them).
-        column: the joint's Coulomb column (its slot).
-        joint: joint index.
         train_dahl, held_dahl: the joint's Dahl columns at the training / held-out samples,
-            (S, G) each.
-        grid: x_p values [rad], (G,).
+            (S, G) each, for the x_p of ``grid`` [rad].
         column_at: x_p → (training, held-out) Dahl columns; when given, the best grid point
             is refined by the vertex of a parabola through it and its neighbours (in log x_p).
-
-    Returns:
-        The :class:`PreslidingFit` (its regression holds the best column, A included).
     """
     base_fit = regression.fit(extra)
     rss_coulomb = float(base_fit.rms_train[joint] ** 2 * regression.train.count)
@@ -141,14 +116,13 @@ def search_presliding(regression, extra: list[int], column: int, joint: int, tra
             x_p, tr, ho = x_ref, tr_ref, ho_ref
     reg = _with_dahl(regression, column, joint, tr, ho)
     fit = reg.fit(extra)
-    fc, sd = fit.value(column), fit.std(column)
-    return PreslidingFit(joint, column, x_p, float(fc), float(sd), float(fc / x_p), rss, rss_coulomb, fit, reg,
+    fc = fit.value(column)
+    return PreslidingFit(joint, column, x_p, float(fc), float(fc / x_p), rss, rss_coulomb, fit, reg,
                          float(fit.rms_train[joint] ** 2 * reg.train.count), ho)
 
 
 def _parabola_vertex(u: np.ndarray, f: np.ndarray) -> float:
-    """exp of the vertex of the parabola through (u_k, f_k), k = 0..2 (u = log x_p), kept
-    within [u_0, u_2]."""
+    """exp of the vertex of the parabola through (u_k, f_k), u = log x_p, kept in [u_0, u_2]."""
     c2, c1, _ = np.polyfit(u, f, 2)
     vertex = -c1 / (2 * c2) if c2 > 0 else u[1]
     return float(np.exp(np.clip(vertex, u[0], u[2])))
@@ -157,22 +131,20 @@ def _parabola_vertex(u: np.ndarray, f: np.ndarray) -> float:
 def _with_dahl(regression, column: int, joint: int, train_values: np.ndarray, held_values: np.ndarray):
     reg = type(regression)(replace_column(regression.train, column, joint, train_values),
                            replace_column(regression.held, column, joint, held_values),
-                           regression.num_base)
-    reg.set_weights(regression.weights)
+                           regression.num_base, regression.weights)
     reg.inflation = regression.inflation
     return reg
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class PreslidingStep:
-    """The pre-sliding test of every joint where Coulomb friction was named.
+    """The pre-sliding test of every joint with a Coulomb slot.
 
     Attributes:
         fits: the accepted :class:`PreslidingFit`, one per joint.
         report: per tested joint {joint, displacement, coulomb, stiffness, statistic,
             threshold, heldout_rms_coulomb, heldout_rms_presliding, named, reason}.
         regression: the regression with the accepted Dahl columns in place of the Coulomb ones.
-        final: its fit with every selected column.
         held_torque: the accepted Dahl torques F_c·z on the held-out samples, (S, n) [N·m].
         dropped: selected columns dropped because the Dahl column took their place.
     """
@@ -185,8 +157,7 @@ class PreslidingStep:
     dropped: tuple[int, ...] = ()
 
     def series(self, series: list[dict[str, Any]], joints: Sequence[str]) -> list[dict[str, Any]]:
-        """The residual-plot entries with each accepted joint's Coulomb entry turned into its
-        pre-sliding one (residual after: with the Dahl column), or one added."""
+        """The residual-plot entries, an accepted joint's Coulomb entry made its pre-sliding one."""
         if not self.fits:
             return series
         after = self.regression.residual("held-out", self.final)
@@ -202,12 +173,10 @@ class PreslidingStep:
         return out
 
     def report_entry(self, joint: str) -> dict[str, Any]:
-        """The test of one joint (by name)."""
         return next(r for r in self.report if r["joint"] == joint)
 
     def not_named(self, min_statistic: float = 4.0) -> list[dict[str, Any]]:
-        """The tested joints that came close (statistic ≥ ``min_statistic``), as entries of the
-        diagnosis's ``rejected`` list."""
+        """The tested joints that came close, as entries of the diagnosis's ``rejected`` list."""
         return [{"effect": PRESLIDING, "joint": r["joint"], "value": r["coulomb"], "unit": "N·m",
                  "z": float(np.sqrt(max(r["statistic"], 0.0))), "reason": r["reason"],
                  "presliding_displacement": r["displacement"]}
@@ -215,16 +184,11 @@ class PreslidingStep:
 
 
 def presliding_step(prep, lib, sel, config, split, consistent=None) -> PreslidingStep:
-    """Tries the Dahl column in each joint's Coulomb slot (replacing a named Coulomb column, or
-    added) and keeps it when the joint's training residual drops significantly
-    (likelihood ratio ≥ z_min², the selection's Bonferroni bound squared, with the joint's
-    autocorrelation-inflated noise), its cross-validated RMS on the training segment (``split``,
-    :class:`pe_drake.diagnosis.selection.CrossValidation`; never the held-out data) drops by
-    ``min_heldout_gain``, and x_p is not the grid's smallest value (the Coulomb limit in
-    sliding). Effects of that joint that are no longer significant with it (e.g. a viscous
-    friction that stood in for it) are dropped. With ``consistent``
-    (:class:`~pe_drake.diagnosis.consistent_cv.ConsistentCrossValidation`) the final values are
-    its consistent fit's, the augmented model's (as ``sel.final``'s)."""
+    """Tries the Dahl column in each joint's Coulomb slot and keeps it when the joint's training
+    residual drops significantly (likelihood ratio ≥ z_min², with the joint's autocorrelation-
+    inflated noise), its cross-validated RMS (``split``) drops by ``min_heldout_gain``, and x_p
+    is not the grid's smallest (the Coulomb limit). The joint's effects no longer significant
+    with it are dropped. With ``consistent`` the final values are its consistent fit's."""
     reg, library, extra = lib.regression, lib.library, list(sel.selected)
     cache: dict = {}  # (id(record), joint) -> its filtered Dahl columns (dahl_columns)
     report, fits = [], []
@@ -300,8 +264,7 @@ def _drop_stand_ins(reg, extra: list[int], col: int, joint: int, library, thresh
 
 
 def _column_at(prep, joint: int, resting: bool = False) -> Callable[[float], tuple[np.ndarray, np.ndarray]]:
-    """x_p → the joint's filtered Dahl column on the training and held-out samples (zero at
-    rest when ``resting``)."""
+    """x_p → the joint's filtered Dahl columns on the training and held-out samples."""
 
     def at(x_p: float) -> tuple[np.ndarray, np.ndarray]:
         out = []
@@ -329,9 +292,8 @@ def _dahl_at(cache: dict, seg, joint: int, resting: bool = False) -> np.ndarray:
 
 def presliding_effects(effects: Sequence[NamedEffect], step: PreslidingStep, library,
                        joints: Sequence[str]) -> list[NamedEffect]:
-    """The named effects with each accepted joint's pre-sliding friction (value F_c [N·m]; σ0
-    and x_p in the details) in place of its ``coulomb_friction``, or added; the effects it
-    stood in for are left out."""
+    """The named effects with each accepted joint's pre-sliding friction (F_c [N·m]; σ0 and x_p
+    in the details) in place of its ``coulomb_friction``, without the effects it stood in for."""
     dropped = {library.cand_of[c].label for c in step.dropped if c in library.cand_of}
     out = [_refitted(e, step, library) for e in effects if f"{e.effect}[{e.joint}]" not in dropped]
     for f in step.fits:
@@ -344,8 +306,8 @@ def presliding_effects(effects: Sequence[NamedEffect], step: PreslidingStep, lib
                    "model": "Dahl: dF/dt = stiffness·v·(1 − F/value·sgn v)",
                    "replaces": "coulomb_friction" if old else "",
                    "displacement_grid": [float(x) for x in DISPLACEMENT_GRID]}
-        tested = next(r for r in step.report if r["joint"] == name)
-        before = old[0].heldout_rms_before if old else per_joint(joints, tested["heldout_rms_all_before"])
+        before = (old[0].heldout_rms_before if old
+                  else per_joint(joints, step.report_entry(name)["heldout_rms_all_before"]))
         out.append(NamedEffect(PRESLIDING, name, "", float(fc), "N·m", float(sd), float(abs(fc) / max(sd, 1e-300)),
                                before, per_joint(joints, step.final.rms_held), details))
     return out

@@ -1,16 +1,10 @@
 """Data preparation of the diagnosis: one filtered full-rate record per file, then its parts.
 
-The measurement is brought to a uniform grid and low-pass filtered with a zero-phase
-Butterworth (same filter on q and τ, as :func:`pe_drake.identification.measurements.preprocess`);
-v, v̇ by central differences; then decimated to about ``decimate_to_hz``. The noise floor of
-each joint is the raw torque's white-noise level (median absolute second difference / √6 ·
-1.4826) times the filter's noise gain. Without a validation record the last
-``holdout_fraction`` is held out, with a gap of 2 / cut-off between the two parts so the
-zero-phase filter does not leak across (:func:`split_segments`).
-
-:func:`prepare_record` is built from identification's preprocessing steps
-(:mod:`pe_drake.identification.preprocessing`: the uniform grid, the cut-off, the one
-Butterworth design, the decimation step), so both stages filter alike.
+The measurement is put on a uniform grid and filtered by identification's preprocessing steps
+(zero-phase Butterworth on q and τ, v̇ by central differences), so both stages filter alike;
+the noise floor is the raw torque's white-noise level times the filter's noise gain. Without a
+validation record the last ``holdout_fraction`` is held out, with a gap of 2 / cut-off between
+the parts so the zero-phase filter does not leak across (:func:`split_segments`).
 """
 
 from __future__ import annotations
@@ -43,19 +37,12 @@ class Record:
     """One measurement file at its full (uniform) rate after zero-phase filtering.
 
     Attributes:
-        source: file name.
         t, q, v, vd, tau: filtered full-rate signals, (T,) and (T, n).
-        lowpass: the zero-phase Butterworth filter applied to q and tau.
-        rate_hz: full rate [Hz].
-        cutoff_hz: cut-off [Hz].
-        step: decimation step.
         trim_s: time dropped at each end [s].
         raw_noise: white-noise level of the raw torque per joint [N·m].
         noise_gain: noise power gain of the zero-phase filter.
-        preprocessing: the choices made, as :class:`~pe_drake.identification.measurements.Preprocessing`.
-        friction_v: the velocities inside the Coulomb columns' tanh, (T, n): the recorded v or
-            q differentiated at the widest cut-off their noise allows, not the torque's
-            (:func:`~pe_drake.identification.friction_velocity.friction_velocity`, as identify's).
+        friction_v: the velocities inside the Coulomb columns' tanh, (T, n), as identify's
+            (:func:`~pe_drake.identification.friction_velocity.friction_velocity`).
     """
 
     source: str
@@ -92,12 +79,7 @@ class Record:
 
 
 def prepare_record(measurement: Measurement, config: DiagnosisConfig) -> Record:
-    """Uniform grid, zero-phase filter, derivatives at the full rate (module docstring).
-
-    Raises:
-        DataError: too few samples for the filter, from the file named.
-        ConfigError: a cut-off at or above the Nyquist frequency.
-    """
+    """Uniform grid, zero-phase filter, derivatives at the full rate (module docstring)."""
     m = measurement
     if m.num_samples < 30:
         raise DataError(f"only {m.num_samples} samples; the diagnosis needs at least 30", file=m.source)
@@ -131,7 +113,6 @@ class Segment:
 
     Attributes:
         name: "training" or "held-out".
-        record: the :class:`Record` the samples come from.
         idx: their indices into the record's full-rate arrays, (S,).
         coulomb: parallel-filtered Coulomb columns tanh(v/v_s) per joint, (S, n).
         dtau: time derivative of the filtered measured torque, (S, n) [N·m/s].
@@ -166,12 +147,8 @@ def _segment(name: str, record: Record, idx: np.ndarray, coulomb_full: np.ndarra
 
 
 def delayed_states(seg: Segment, delay: float, velocity_scale: float) -> tuple[np.ndarray, ...]:
-    """The motion a torque log lagging by ``delay`` [s] pairs with each sample (``time_delay``).
-
-    Returns:
-        q, v, vd and the parallel-filtered Coulomb column tanh(v/v_s) at t − delay, each
-        (S, n), interpolated from the record's full-rate filtered signals.
-    """
+    """q, v, vd and the filtered Coulomb column at t − ``delay`` [s], each (S, n): the motion a
+    torque log lagging by ``delay`` pairs with each sample."""
     rec = seg.record
     t = seg.t - delay
     coulomb = rec.filtered(coulomb_column(rec.friction_v, velocity_scale))
@@ -184,11 +161,7 @@ def delayed_states(seg: Segment, delay: float, velocity_scale: float) -> tuple[n
 
 def split_segments(record: Record, config: DiagnosisConfig, validation: Record | None = None,
                    ) -> tuple[Segment, Segment]:
-    """Training and held-out segments (module docstring).
-
-    Raises:
-        DataError: a part too short to be used.
-    """
+    """Training and held-out segments (module docstring)."""
     columns = {}
     for rec in (record, validation):
         if rec is None:
@@ -222,10 +195,8 @@ def split_segments(record: Record, config: DiagnosisConfig, validation: Record |
 
 
 def _split_time(record: Record, usable: np.ndarray, fraction: float, gap: float) -> float:
-    """Where the held-out part starts: the last ``fraction`` of the record, moved (when the
-    record is long enough for both parts) so that neither part is shorter than it needs
-    (MIN_PERIODS periods of the cut-off, 2 % to spare). A short run such as the README's
-    simulated 12 s Panda run then still splits."""
+    """Where the held-out part starts: the last ``fraction``, moved (when the record is long
+    enough) so that neither part is shorter than MIN_PERIODS periods of the cut-off."""
     t = record.t
     split = t[0] + (1.0 - fraction) * (t[-1] - t[0])
     if len(usable) < 2:
@@ -256,21 +227,15 @@ def _short_part_advice(seg: Segment, other: Segment, need: float, config: Diagno
 
 def check_record_signs(robot: Robot, record: Record) -> None:
     """The torque-sign check of :func:`~pe_drake.identification.data_checks.check_against_model`
-    on the diagnosis's own filtered record (its decimated samples away from the edges), so a
-    file is filtered once.
-
-    Raises:
-        DataError: a sign-flipped torque column, naming the file and the column.
-    """
+    on the diagnosis's own filtered record, so a file is filtered once."""
     idx = record.usable()
     check_against_model(robot, Measurement(record.t[idx], record.q[idx], record.tau[idx], record.v[idx],
                                            record.vd[idx], robot.joint_names, record.source))
 
 
-#: What diagnose holds per fitted sample (it fits at 200 Hz at most), measured on 7-joint Panda
-#: logs at 1 kHz: 6.7 kB on 10 minutes (1053 MB peak, float64 columns), rounded up; an hour
-#: needs less, 4.8 kB (3714 MB, its columns in float32: ``columns.LONG_LOG_BYTES``), so the
-#: estimate errs on the safe side there. And its fixed part [bytes].
+#: What diagnose holds per fitted sample of a 7-joint log (it fits at 200 Hz at most), rounded
+#: up from the peak on 10 minutes (a longer log's float32 columns need less), and its fixed
+#: part [bytes].
 DIAGNOSE_BYTES_PER_SAMPLE = 7.0e3
 DIAGNOSE_BASE_BYTES = 0.25e9
 FIT_RATE_HZ = 200.0
@@ -278,11 +243,7 @@ FIT_RATE_HZ = 200.0
 
 def check_fits_in_memory(data: Measurement, validation: Measurement | None = None,
                          available: int | None = None) -> None:
-    """Refuses, before any work, a run diagnose would need more memory for than is available.
-
-    Raises:
-        DataError: naming the duration, the estimate and what the machine has.
-    """
+    """Refuses, before any work, a run diagnose would need more memory for than is available."""
     available = available_bytes() if available is None else available
     samples = sum(m.duration * min(m.rate_hz, FIT_RATE_HZ) for m in (data, validation) if m is not None)
     per_sample = DIAGNOSE_BYTES_PER_SAMPLE * max(data.num_joints, 1) / 7.0
@@ -298,10 +259,6 @@ def check_fits_in_memory(data: Measurement, validation: Measurement | None = Non
 
 
 def model_file_friction(robot: Robot, seg: Segment) -> np.ndarray:
-    """The friction the model file holds, d·v + f_c·tanh(v/v_s), along a segment, (S, n) [N·m].
-
-    ``<dynamics damping>`` (Drake's joint damping) and ``friction`` (which Drake ignores) are
-    part of the a-priori model (issue 21, as in ``simulate`` and ``identify``); the Coulomb
-    term is the segment's parallel-filtered column, like the measured torque.
-    """
+    """The friction the model file holds, d·v + f_c·tanh(v/v_s), along a segment, (S, n) [N·m]
+    (``friction``, which Drake ignores, is part of the a-priori model as in ``identify``)."""
     return robot.joint_damping * seg.v + robot.joint_friction * seg.coulomb

@@ -1,12 +1,9 @@
 """The regression of the measured torque on the base regressor and the library's columns.
 
-The candidate columns of :mod:`pe_drake.diagnosis.effects` and the timing nuisance -dτ/dt are
-appended to the base regressor (:class:`Library`); :class:`Regression` refits any subset of
-them from per-joint Gram matrices (WLS with Gautier's per-joint weights, sandwich covariance
-inflated by the :func:`integrated_autocorrelation` time of each joint's residual);
-:func:`select_effects` runs the forward stepwise selection and the backward check of the
-workflow's criteria (a)-(d) (:func:`accept`). The residual analysis of steps 1 and 5
-(:func:`regime_analysis`, :func:`unexplained_joints`) closes the module.
+:class:`Regression` refits any subset of columns from per-joint Gram matrices (WLS, sandwich
+covariance inflated by each joint's autocorrelation time); :func:`select_effects` runs the
+stepwise selection on criteria (a)-(d) (:func:`accept`); then the residual analysis of steps 1
+and 5.
 """
 
 from __future__ import annotations
@@ -27,8 +24,6 @@ from pe_drake.diagnosis.record import Segment
 from pe_drake.identification.least_squares import solve_normal_equations
 from pe_drake.identification.statistics import integrated_autocorrelation
 
-# ---- columns and fits ------------------------------------------------------------------------
-
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class Fit:
@@ -38,8 +33,6 @@ class Fit:
         columns: indices of the fitted columns (base parameters first).
         x: their values, shape (len(columns),).
         cov: their covariance (sandwich, autocorrelation-inflated).
-        rms_train: per-joint RMS residual on the training segment.
-        rms_held: per-joint RMS residual on the held-out segment.
         wrss_held: held-out residual sum of squares weighted like the fit.
     """
 
@@ -51,11 +44,9 @@ class Fit:
     wrss_held: float
 
     def value(self, column: int) -> float:
-        """The fitted value of one column."""
         return float(self.x[self.columns.index(column)])
 
     def std(self, column: int) -> float:
-        """The standard deviation of one column's value."""
         k = self.columns.index(column)
         return math.sqrt(max(float(self.cov[k, k]), 0.0))
 
@@ -63,14 +54,13 @@ class Fit:
 class Regression:
     """Fits of subsets of columns from per-joint Gram matrices (fast repeated refits)."""
 
-    def __init__(self, train: Columns, held: Columns, num_base: int):
+    def __init__(self, train: Columns, held: Columns, num_base: int, weights=None):
         self.train = train
         self.held = held
         self.num_base = num_base
         n = train.gram.shape[0]
-        self.weights = np.ones(n)
+        self.weights = np.ones(n) if weights is None else np.asarray(weights, float)
         self.inflation = np.ones(n)  # integrated autocorrelation time per joint
-        self.scale = np.ones(train.gram.shape[1])
 
     def set_weights(self, weights: np.ndarray) -> None:
         """Per-joint weights of the WLS, (n,)."""
@@ -84,18 +74,18 @@ class Regression:
         G = np.einsum("j,jpq->pq", w2, Gj)
         g = np.einsum("j,jp->p", w2, self.train.rhs[:, cols])
         x, Hinv = solve_normal_equations(G, g)
-        rss_tr = self._rss(self.train, cols, x)
-        rss_ho = self._rss(self.held, cols, x)
+        rss_tr = self.rss(self.train, cols, x)
+        rss_ho = self.rss(self.held, cols, x)
         S_tr, S_ho = self.train.count, self.held.count
         var_j = np.maximum(rss_tr, 0.0) / max(S_tr - len(cols) / len(w2), 1.0)
         # Sandwich: Var x = H⁻¹ (Σ_j w_j⁴ s_j τ_j G_j) H⁻¹ with s_j the joint's residual variance.
         meat = np.einsum("j,jpq->pq", w2**2 * var_j * self.inflation, Gj)
-        cov = Hinv @ meat @ Hinv
-        return Fit(tuple(cols), x, cov, np.sqrt(np.maximum(rss_tr, 0) / S_tr),
+        return Fit(tuple(cols), x, Hinv @ meat @ Hinv, np.sqrt(np.maximum(rss_tr, 0) / S_tr),
                    np.sqrt(np.maximum(rss_ho, 0) / S_ho), float(np.sum(w2 * rss_ho)))
 
     @staticmethod
-    def _rss(c: Columns, cols: list[int], x: np.ndarray) -> np.ndarray:
+    def rss(c: Columns, cols: list[int], x: np.ndarray) -> np.ndarray:
+        """Per-joint residual sum of squares of the columns ``cols`` at ``x`` from the moments."""
         G = c.gram[:, cols][:, :, cols]
         r = c.rhs[:, cols]
         return c.yy - 2 * r @ x + np.einsum("p,jpq,q->j", x, G, x)
@@ -119,25 +109,16 @@ def condition_number(G: np.ndarray) -> float:
     return float(np.sqrt(w.max() / w.min())) if w.min() > 0 else float("inf")
 
 
-# ---- the library's columns -------------------------------------------------------------------
-
-
 @dataclasses.dataclass(frozen=True)
 class Library:
-    """Where the separable candidates and the timing nuisance sit among the columns.
-
-    Attributes:
-        num_base: b, the base-parameter columns come first.
-        candidates: the separable candidates, columns b … b + len - 1.
-        timing_col: the timing nuisance's column, b + len(candidates).
-    """
+    """Where the separable candidates and the timing nuisance sit among the columns: the b
+    base-parameter columns, the candidates at b … b + len - 1, the timing column last."""
 
     num_base: int
     candidates: tuple[Candidate, ...]
 
     @property
     def timing_col(self) -> int:
-        """The timing nuisance's column."""
         return self.num_base + len(self.candidates)
 
     @functools.cached_property
@@ -154,26 +135,14 @@ class Library:
         """The candidate's label, or ``time_delay`` for the timing column."""
         return TIMING if col == self.timing_col else self.cand_of[col].label
 
-    @property
-    def extra_count(self) -> int:
-        """Columns beside the base regressor: the candidates and the timing nuisance."""
-        return len(self.candidates) + 1
-
-    @property
-    def stored_columns(self) -> list[int]:
-        """The columns that act on every joint: the base regressor and the timing nuisance."""
-        return [*range(self.num_base), self.timing_col]
-
     def segment_columns(self, model, independent: np.ndarray, seg: Segment,
                         known: np.ndarray | None = None) -> Columns:
         """A segment's base regressor (``model``'s ``independent`` columns), timing nuisance and
-        candidate columns, built a block of samples at a time (a long log's columns are never
-        held twice, nor in float64: :data:`~pe_drake.diagnosis.columns.LONG_LOG_BYTES`).
+        candidate columns, built a block of samples at a time (never held twice, nor in float64).
 
         Args:
             known: torque the a-priori model already holds outside the regressor (the model
-                file's friction), (S, n) [N·m]: the fit is of the measured torque minus it,
-                so the candidates are what the model file lacks.
+                file's friction), (S, n) [N·m]: the fit is of the measured torque minus it.
         """
         b = self.num_base
         q, v, vd, dtau = seg.q, seg.v, seg.vd, seg.dtau
@@ -183,8 +152,9 @@ class Library:
             out[:, :, b] = -dtau[rows]  # the timing nuisance: tau_rec(t) ≈ tau(t) - d·dtau/dt
 
         y = seg.tau if known is None else seg.tau - known
-        return Columns.assemble(y, b + self.extra_count, self.stored_columns, fill,
-                                self.single_joint_columns(seg))
+        # the columns acting on every joint are stored whole: the base regressor and timing
+        return Columns.assemble(y, b + len(self.candidates) + 1, [*range(b), self.timing_col],
+                                fill, self.single_joint_columns(seg))
 
     def single_joint_columns(self, seg: Segment) -> dict[int, tuple[int, np.ndarray]]:
         """{column: (joint, values (S,))}: each candidate's column on its own joint."""
@@ -199,22 +169,15 @@ class Library:
         return out
 
 
-# ---- stepwise selection ----------------------------------------------------------------------
-
-
 class Verdict(NamedTuple):
     """The decision on one column tried in the forward selection.
 
     Attributes:
-        accepted: whether it passes criteria (a)-(d).
-        reason: why not ("" when accepted).
         test: the criterion it fails: ``sign``, ``z``, ``gain``, ``other_joints``,
-            ``relevance``, or ``max_effects`` (it passed when the selection was already full;
-            "" when accepted).
-        stats: its statistics: ``z`` (whole training segment), the cross-validated RMS
-            (over the folds' selection parts) before/after on its joint (``rms_before``,
-            ``rms_after`` [N·m], all joints for the timing column), ``relative_gain``,
-            ``explained_rms`` [N·m], ``wrss_gain``.
+            ``relevance``, or ``max_effects`` (passed when the selection was full); "" if accepted.
+        stats: ``z`` (whole training segment), the cross-validated RMS before/after on its
+            joint (``rms_before``, ``rms_after`` [N·m], all joints for the timing column),
+            ``relative_gain``, ``explained_rms`` [N·m], ``wrss_gain``.
     """
 
     accepted: bool
@@ -224,12 +187,7 @@ class Verdict(NamedTuple):
 
 
 class Score(NamedTuple):
-    """How a set of columns predicts data it was not fitted on (the selection's gain test).
-
-    Attributes:
-        rms_held: per-joint RMS residual on those data [N·m].
-        wrss_held: their residual sum of squares weighted like the fit.
-    """
+    """How a set of columns predicts data it was not fitted on (RMS [N·m], weighted RSS)."""
 
     rms_held: np.ndarray
     wrss_held: float
@@ -238,25 +196,12 @@ class Score(NamedTuple):
 class Scorer(Protocol):
     """What scores a set of columns on data it was not fitted on (the cross-validation)."""
 
-    def fit(self, extra: Sequence[int]) -> Score:
-        """The base parameters and the ``extra`` columns, scored."""
+    def fit(self, extra: Sequence[int]) -> Score: ...
 
 
 def accept(col: int, fit: Fit, trial: Score, before: Score, library: Library, thresholds: Thresholds) -> Verdict:
-    """Criteria (a)-(d) of the workflow's module docstring for adding one column.
-
-    (a) and (b) are judged on the whole training segment; (c) and (d) on the selection parts
-    of the training segment's blocked cross-validation (:mod:`pe_drake.diagnosis.selection`),
-    never on the held-out data, which stay for the figures reported.
-
-    Args:
-        col: the column tried.
-        fit: the fit with it on the whole training segment (value, σ).
-        trial: the cross-validated score with it.
-        before: the same without it.
-        library: the columns' meaning.
-        thresholds: significance, gain and relevance to reach.
-    """
+    """Criteria (a)-(d) for adding column ``col``: (a), (b) on ``fit`` (the training segment),
+    (c), (d) on the cross-validated scores ``trial`` (with it) and ``before`` (without)."""
     value, std = fit.value(col), fit.std(col)
     z = abs(value) / max(std, 1e-300)
     z_min, relevance, gain_min = thresholds.z_min, thresholds.relevance, thresholds.min_heldout_gain
@@ -282,9 +227,7 @@ def accept(col: int, fit: Fit, trial: Score, before: Score, library: Library, th
     stats.update(rms_before=r0, rms_after=r1, relative_gain=1 - r1 / r0 if r0 > 0 else 0.0,
                  explained_rms=explained, relevance=float(relevance[j]))
     # A correction of a model file's friction (lower < 0) is checked against its bound in the
-    # backward pass, with every effect in: while other joints' frictions are still missing, a
-    # lone Coulomb column also takes its joint's viscous deficit and overshoots a URDF whose
-    # friction is too high (TALOS writes damping 1, friction 1 on every arm joint; issue 21).
+    # backward pass, with every effect in: alone, it also takes its joint's missing terms.
     if c.nonnegative and c.lower == 0 and value < 0:
         return Verdict(False, f"physically implausible sign ({value:.3g} {c.unit})", "sign", stats)
     if z < z_min:
@@ -305,22 +248,16 @@ class Selection:
     """The outcome of the stepwise selection.
 
     Attributes:
-        selected: the columns kept (effects and possibly the timing nuisance).
-        order: the same in the order they were added.
-        final: the fit with ``selected`` on the whole training segment (held-out figures).
-        rejected: {column: reason} of the columns tried and not kept.
-        thresholds: what the columns were held to.
-        steps: ("+" or "-", column, the fit after an addition or None) per addition or
-            removal, in order, for the progress report.
-        verdicts: {column: the :class:`Verdict` that decided it}: for a selected column the
-            one of its addition (its ``z`` then updated from ``final``), for a rejected one its
-            last trial, for one dropped in the backward check test ``backward``.
-
-        unnamed: the starting fit's drive terms kept in the model but not named
-            (:func:`~pe_drake.diagnosis.start.start_terms`), then ``kept_cv``; in ``selected``
-            and ``order``.
+        selected: the columns kept (effects and possibly the timing nuisance); ``order``: the
+            same in the order they were added.
+        final: the fit with ``selected`` on the whole training segment.
+        steps: ("+" or "-", column, the fit after an addition or None) in order.
+        verdicts: {column: the :class:`Verdict` that decided it}: a selected column's addition
+            (its ``z`` then from ``final``), a rejected one's last trial, test ``backward``.
+        unnamed: the starting fit's drive terms kept but not named, then ``kept_cv``; in
+            ``selected`` and ``order``.
         kept_cv: the candidates kept, not named, because they lower the cross-validated error
-            of the consistent model (:func:`~pe_drake.diagnosis.selection.kept_by_cross_validation`).
+            of the consistent model.
     """
 
     selected: list[int]
@@ -336,25 +273,15 @@ class Selection:
 
 def select_effects(reg: Regression, split: Scorer, library: Library, rigid: Fit, thresholds: Thresholds,
                    config: DiagnosisConfig, start: Any = None) -> Selection:
-    """Forward stepwise selection, then a backward check (workflow step 3), on the training
-    segment alone.
+    """Forward stepwise selection, then a backward check (step 3), on the training segment.
 
     Args:
-        reg: the regression on the whole training segment (its held-out part is not looked at
-            here): values, σ and the autocorrelation inflation.
-        split: the blocked cross-validation of the training segment
-            (:class:`pe_drake.diagnosis.selection.CrossValidation`, ``fit(extra)`` → a
-            :class:`Score`): the gain and relevance tests, and the order of the additions.
-        library: the columns' meaning.
-        rigid: the rigid-body fit of ``reg``.
-        thresholds: what the columns are held to.
-        config: ``max_effects`` and ``timing_check``.
+        reg: the regression on the training segment (values, σ); each accepted column
+            re-estimates its autocorrelation inflation, which it keeps.
+        split: the blocked cross-validation of the training segment: the gain and relevance tests.
         start: the starting fit's drive terms (:class:`~pe_drake.diagnosis.start.StartTerms`),
             or None: the forward selection starts from them, the backward check keeps them,
             the ones it left out are not tried again, and ``max_effects`` counts the others.
-
-    Each accepted column re-estimates the autocorrelation inflation of ``reg`` from the new
-    residual (the regression keeps it for the fits that follow).
     """
     kept = list(start.kept) if start is not None else []
     selected: list[int] = list(kept)
@@ -379,12 +306,9 @@ def select_effects(reg: Regression, split: Scorer, library: Library, rigid: Fit,
             if not verdict.accepted:
                 rejected[col] = verdict.reason
                 continue
-            # Order of the additions: the largest drop of the weighted training residual (the
-            # largest partial F, classical forward stepwise) among the columns that pass; the
-            # cross-validation only gates. Its scores come from fits on two thirds of the run
-            # and are noisier: ordered by them, the mix of tests/test_presliding.py took
-            # Coulomb friction first as a stand-in for pre-sliding friction and lost a viscous
-            # friction in the backward check.
+            # Order of the additions: the largest drop of the weighted training residual
+            # (largest partial F) among the columns that pass; the noisier cross-validated
+            # scores only gate (ordered by them, Coulomb stood in for pre-sliding friction).
             gain = float(np.sum(reg.weights**2 * (current.rms_train**2 - fit.rms_train**2)) * reg.train.count)
             if gain > best_gain:
                 best, best_fits, best_gain = col, (fit, trial), gain
@@ -408,9 +332,7 @@ def select_effects(reg: Regression, split: Scorer, library: Library, rigid: Fit,
 
 def _backward_check(reg: Regression, library: Library, selected: list[int], current: Fit, z_min: float,
                     rejected: dict[int, str], steps: list, verdicts: dict[int, Verdict], kept: Sequence[int] = ()) -> Fit:
-    """Drops, one at a time, the columns no longer plausible and significant with the others
-    (updates ``selected``, ``rejected``, ``steps`` and ``verdicts`` in place); returns the last fit.
-    The starting fit's terms ``kept`` were decided by the cross-validation and stay."""
+    """Drops (in place) the columns no longer plausible and significant, except ``kept``."""
     cand_of = library.cand_of
     while selected:
         worst, worst_z = None, np.inf
@@ -432,9 +354,6 @@ def _backward_check(reg: Regression, library: Library, selected: list[int], curr
     return current
 
 
-# ---- residual analysis (steps 1 and 5) -------------------------------------------------------
-
-
 def rms(x: np.ndarray) -> np.ndarray:
     """Root mean square along the first axis."""
     return np.sqrt(np.mean(np.asarray(x) ** 2, axis=0))
@@ -442,21 +361,17 @@ def rms(x: np.ndarray) -> np.ndarray:
 
 def corr(a: np.ndarray, b: np.ndarray) -> float:
     """Pearson correlation of two series (0 when either is constant)."""
-    a = a - a.mean()
-    b = b - b.mean()
+    a, b = a - a.mean(), b - b.mean()
     d = math.sqrt(float(a @ a) * float(b @ b))
     return float(a @ b / d) if d > 0 else 0.0
 
 
 def regime_analysis(residual, q, v, vd, t, joints) -> dict[str, Any]:
-    """Mean and RMS of a residual per joint in each regime (step 1).
-
-    Regimes: velocity sign (v < 0, |v| ≤ 5 % of max |v|, v > 0), speed (|v| terciles),
-    acceleration (v̇ terciles), position (q terciles), time (quarters of the record).
+    """Mean and RMS of a residual per joint in each regime of :func:`_regime_masks` (step 1).
 
     Returns:
         {joint: {"overall": {...}, "regimes": [{"regime", "bin", "count", "mean", "rms"}],
-        "strongest": the bin whose mean departs most from the overall mean}}.
+        "strongest": the bin whose mean departs most from the overall mean, correlations}}.
     """
     out = {}
     for j, name in enumerate(joints):
@@ -476,7 +391,8 @@ def regime_analysis(residual, q, v, vd, t, joints) -> dict[str, Any]:
 
 
 def _regime_masks(q: np.ndarray, v: np.ndarray, vd: np.ndarray, t: np.ndarray) -> list[tuple[str, str, np.ndarray]]:
-    """(regime, bin, sample mask) of one joint's samples, in the order of the report."""
+    """(regime, bin, mask) of one joint's samples: velocity sign (|v| ≤ 5 % of max: v ≈ 0),
+    speed, acceleration and position terciles, time quarters."""
     vmax = float(np.max(np.abs(v))) or 1.0
     still = np.abs(v) <= 0.05 * vmax
     masks = [("velocity sign", "v < 0", (v < 0) & ~still), ("velocity sign", "v ≈ 0", still),
@@ -495,8 +411,7 @@ def _regime_masks(q: np.ndarray, v: np.ndarray, vd: np.ndarray, t: np.ndarray) -
 
 def unexplained_joints(residual: np.ndarray, held: Segment, thresholds: np.ndarray, noise_floor: np.ndarray,
                        rms_nominal: np.ndarray, joints: Sequence[str], timing: dict[str, Any]) -> dict[str, Any]:
-    """Joints whose held-out residual stays above their threshold, with the signals it
-    correlates with (step 5)."""
+    """Joints whose held-out residual stays above their threshold, with its signature (step 5)."""
     out = {}
     rms_j = rms(residual)
     t = held.t

@@ -55,10 +55,6 @@ def write_report(folder: str | Path, result, model_files: list[Path]) -> list[Pa
     return figures
 
 
-def _save(fig, path: Path) -> Path:
-    return save_figure(fig, path)
-
-
 def plot_torques(path: Path, result) -> Path:
     """torque_heldout.png: measured and model torques on the held-out data, per joint."""
     plt = _plt()
@@ -76,19 +72,16 @@ def plot_torques(path: Path, result) -> Path:
     axes[0].legend(fontsize=7, ncol=4, loc="upper right")
     axes[-1].set_xlabel("t [s] (held-out data)")
     fig.suptitle("Measured vs model torque on the held-out data")
-    return _save(fig, path)
+    return save_figure(fig, path)
+
+
+_REGIME_LABELS = {"v": "v [rad/s]", "vd": "v̇ [rad/s²]", "q": "q [rad]", "dtau": "dτ/dt [N·m/s]"}
 
 
 def _regime_signal(result, regime: str, joint: int) -> tuple[np.ndarray, str]:
     seg = result.held_out
-    if regime == "v":
-        return seg.v[:, joint], "v [rad/s]"
-    if regime == "vd":
-        return seg.vd[:, joint], "v̇ [rad/s²]"
-    if regime == "q":
-        return seg.q[:, joint], "q [rad]"
-    if regime == "dtau":
-        return seg.dtau[:, joint], "dτ/dt [N·m/s]"
+    if regime in _REGIME_LABELS:
+        return getattr(seg, regime)[:, joint], _REGIME_LABELS[regime]
     return seg.t, "t [s]"
 
 
@@ -124,7 +117,7 @@ def plot_effect_residuals(path: Path, result) -> Path:
         ax.tick_params(labelsize=7)
         ax.legend(fontsize=6, markerscale=5)
     fig.suptitle("Residual against the regime that exposes each effect: before and after")
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_regimes(path: Path, result) -> Path:
@@ -145,7 +138,7 @@ def plot_regimes(path: Path, result) -> Path:
             ax.text(k, j, f"{M[j, k]:.2g}", ha="center", va="center", fontsize=5)
     fig.colorbar(im, ax=ax, label="mean residual / RMS residual of the joint")
     ax.set_title("Step 1: a-priori model residual (measured - model) per regime, mean [N·m]")
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_gap(path: Path, result) -> Path:
@@ -165,7 +158,7 @@ def plot_gap(path: Path, result) -> Path:
     ax.set_ylabel("held-out RMS [N·m]")
     ax.legend(fontsize=7)
     ax.set_title("Held-out gap per joint")
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_unexplained(path: Path, result) -> Path:
@@ -187,17 +180,12 @@ def plot_unexplained(path: Path, result) -> Path:
             ax.tick_params(labelsize=7)
             ax.axhline(0, color="k", lw=0.5)
     fig.suptitle("Unexplained residual (augmented model) against time and dτ/dt")
-    return _save(fig, path)
-
-
-# ---- markdown ---------------------------------------------------------------------------------
+    return save_figure(fig, path)
 
 
 def _table(header: list[str], rows: list[list[Any]]) -> str:
     out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    for r in rows:
-        out.append("| " + " | ".join(str(x) for x in r) + " |")
-    return "\n".join(out)
+    return "\n".join(out + ["| " + " | ".join(str(x) for x in r) + " |" for r in rows])
 
 
 def _g(x: float, digits: int = 3) -> str:
@@ -216,26 +204,20 @@ def _header(r) -> list[str]:
     tr, ho = r.training, r.held_out
     rec = tr.record
     return [
-        f"# Diagnosis of `{r.robot.name}`",
-        "",
+        f"# Diagnosis of `{r.robot.name}`", "",
         f"- data: `{rec.source}`, {rec.rate_hz:.4g} Hz, zero-phase low-pass at {rec.cutoff_hz:.3g} Hz, "
         f"fitted at {rec.rate_hz / rec.step:.4g} Hz",
         f"- training: {tr.t[0]:.2f}–{tr.t[-1]:.2f} s ({tr.num_samples} samples); held-out: "
         f"{ho.t[0]:.2f}–{ho.t[-1]:.2f} s ({ho.num_samples} samples)"
         + (f" of `{ho.record.source}`" if ho.record is not rec else " (the end of the same record)"),
         "- all RMS values are on the held-out data [N·m]; the noise floor is the raw torque's white noise "
-        "after the filter",
-        "",
-        "## Summary",
-        "",
-    ]
+        "after the filter", "", "## Summary", ""]
 
 
 def _summary(r) -> list[str]:
     lines = []
     if r.effects:
-        lines.append("Named effects:")
-        lines.append("")
+        lines += ["Named effects:", ""]
         lines.append(_table(["effect", "joint / link", "value", "± std", "unit", "z"],
                             [[e.effect, e.joint or e.link or "all joints", _g(e.value, 4), _g(e.std, 2), e.unit, _g(e.z, 3)]
                              for e in r.effects]))
@@ -250,25 +232,22 @@ def _summary(r) -> list[str]:
     lines.append("")
     for ns in r.not_separable:
         if abs(ns.get("z_vs_prior", 0.0)) >= 5:
-            lines.append(f"Not separable but notable: {ns['effect']} of `{ns['joint']}` cannot be told apart from "
-                         f"the rigid-body terms; the base parameter(s) it merges with changed as much as "
-                         f"{_g(ns['implied_value_if_all'])} {ns['unit']} of it would ({_g(ns['z_vs_prior'])} × the "
-                         "a-priori uncertainty). See section 3.")
-            lines.append("")
+            lines += [f"Not separable but notable: {ns['effect']} of `{ns['joint']}` cannot be told apart from "
+                      f"the rigid-body terms; the base parameter(s) it merges with changed as much as "
+                      f"{_g(ns['implied_value_if_all'])} {ns['unit']} of it would ({_g(ns['z_vs_prior'])} × the "
+                      "a-priori uncertainty). See section 3.", ""]
     if r.unexplained:
-        lines.append("Unexplained: " + "; ".join(f"`{j}` {u['rms']:.3g} N·m ({u['hint']})"
-                                                 for j, u in r.unexplained.items()))
-        lines.append("")
+        lines += ["Unexplained: " + "; ".join(f"`{j}` {u['rms']:.3g} N·m ({u['hint']})"
+                                              for j, u in r.unexplained.items()), ""]
     return lines
 
 
 def _cumulative(r) -> list[str]:
     lines = ["![held-out gap](gap.png)", "", "## Cumulative held-out RMS per joint [N·m]", ""]
-    header = ["step", *r.joints]
     rows = [[s] + [_g(v) for v in rms] for s, rms in r.cumulative]
     rows.append(["augmented Drake model"] + [_g(v) for v in r.rms_after])
     rows.append(["noise floor"] + [_g(v) for v in r.noise_floor])
-    return lines + [_table(header, rows), ""]
+    return lines + [_table(["step", *r.joints], rows), ""]
 
 
 def _nominal_section(r) -> list[str]:
@@ -288,23 +267,20 @@ def _nominal_section(r) -> list[str]:
 
 def _rigid_section(r) -> list[str]:
     lines = ["## 2. Rigid-body re-identification", ""]
-    lines.append(f"{r.rigid['count']} base parameters re-identified by weighted least squares. The largest "
-                 "changes from the a-priori model, in standard deviations of the a-priori uncertainty "
-                 f"({100 * r.config.prior_uncertainty:g} % per parameter) plus the estimate's:")
-    lines.append("")
-    lines.append(_table(["base parameter", "a-priori", "identified", "± std", "z vs prior"],
-                        [[f"`{p['name'][:90]}`", _g(p["prior"], 4), _g(p["identified"], 4), _g(p["std"], 2),
-                          _g(p["z_vs_prior"], 3)] for p in r.rigid["base_parameters"][:8]]))
-    lines.append("")
+    lines += [f"{r.rigid['count']} base parameters re-identified by weighted least squares. The largest "
+              "changes from the a-priori model, in standard deviations of the a-priori uncertainty "
+              f"({100 * r.config.prior_uncertainty:g} % per parameter) plus the estimate's:", ""]
+    lines += [_table(["base parameter", "a-priori", "identified", "± std", "z vs prior"],
+                     [[f"`{p['name'][:90]}`", _g(p["prior"], 4), _g(p["identified"], 4), _g(p["std"], 2),
+                       _g(p["z_vs_prior"], 3)] for p in r.rigid["base_parameters"][:8]]), ""]
     pt = r.payload_test
     if pt.get("searched"):
-        lines.append(f"Payload search: χ² of the change vs the a-priori uncertainty {pt['chi2_before']:.3g} "
-                     f"({pt['dof']} dof); {pt.get('decision', '')}"
-                     + (f" (best link {pt['best_link']})" if pt.get("best_link") and "no payload" in
-                        pt.get("decision", "") else "")
-                     + (f"; explained as well on {', '.join(pt['equivalent_links'])} (a mass on a joint's "
-                        "axis moves the same on either link)" if pt.get("equivalent_links") else "") + ".")
-        lines.append("")
+        lines += [f"Payload search: χ² of the change vs the a-priori uncertainty {pt['chi2_before']:.3g} "
+                  f"({pt['dof']} dof); {pt.get('decision', '')}"
+                  + (f" (best link {pt['best_link']})" if pt.get("best_link") and "no payload" in
+                     pt.get("decision", "") else "")
+                  + (f"; explained as well on {', '.join(pt['equivalent_links'])} (a mass on a joint's "
+                     "axis moves the same on either link)" if pt.get("equivalent_links") else "") + ".", ""]
     return lines
 
 
@@ -319,18 +295,16 @@ def _effects_section(r) -> list[str]:
                          f"{_g(before)} → {_g(after)}" if before is not None else "(within the rigid step)"])
         lines += [_table(["effect", "joint / link", "value", "z", "held-out RMS of its joint"], rows), ""]
     split = r.selection
-    lines.append("Selection: forward stepwise on the training data alone, each effect physically plausible, "
-                 "significant after correcting for correlated samples, lowering its joint's cross-validated RMS "
-                 f"on the training data by ≥ {100 * r.config.min_heldout_gain:g} % and larger than "
-                 f"max({r.config.noise_factor:g} × noise floor, {100 * r.config.min_effect_fraction:g} % of the "
-                 "joint's torque spread); the held-out data give only the figures reported."
-                 + (f" Selection parts: {split['method']}, blocks of {_g(split['block_s'])} s, "
-                    f"{_g(split['guard_s'])} s between a fold's fit and selection parts." if split else ""))
-    lines.append("")
+    lines += ["Selection: forward stepwise on the training data alone, each effect physically plausible, "
+              "significant after correcting for correlated samples, lowering its joint's cross-validated RMS "
+              f"on the training data by ≥ {100 * r.config.min_heldout_gain:g} % and larger than "
+              f"max({r.config.noise_factor:g} × noise floor, {100 * r.config.min_effect_fraction:g} % of the "
+              "joint's torque spread); the held-out data give only the figures reported."
+              + (f" Selection parts: {split['method']}, blocks of {_g(split['block_s'])} s, "
+                 f"{_g(split['guard_s'])} s between a fold's fit and selection parts." if split else ""), ""]
     if r.not_separable:
-        lines.append("Not separable from the rigid-body terms (not named; only their sum with a base parameter "
-                     "is identifiable):")
-        lines.append("")
+        lines += ["Not separable from the rigid-body terms (not named; only their sum with a base parameter "
+                  "is identifiable):", ""]
         for ns in r.not_separable:
             merged = ", ".join(f"`{k}`" for k in ns["merged_with"])
             extra = ""
@@ -344,18 +318,10 @@ def _effects_section(r) -> list[str]:
     if decisions:
         lines += [f"Decisions: {decision_summary(decisions)} (every one in diagnosis.json `decisions`). "
                   "Closest to being named:", ""]
-        lines.append(_table(["effect", "joint", "value", "statistic", "test", "reason"],
-                            [[d["effect"], d.get("joint") or d.get("link", ""),
-                              f"{_g(d['value'])} {d['unit']}" if d.get("value") is not None else "",
-                              _statistic(d), d["test"], d["reason"]] for d in near_misses(decisions, 6)]))
-        lines.append("")
-    elif r.rejected:
-        lines.append("Strongest candidates not named:")
-        lines.append("")
-        lines.append(_table(["effect", "joint", "value", "z", "reason"],
-                            [[x["effect"], x["joint"], f"{_g(x['value'])} {x['unit']}", _g(x["z"], 2), x["reason"]]
-                             for x in r.rejected[:6]]))
-        lines.append("")
+        lines += [_table(["effect", "joint", "value", "statistic", "test", "reason"],
+                         [[d["effect"], d.get("joint") or d.get("link", ""),
+                           f"{_g(d['value'])} {d['unit']}" if d.get("value") is not None else "",
+                           _statistic(d), d["test"], d["reason"]] for d in near_misses(decisions, 6)]), ""]
     return lines + ["![residuals](residual_effects.png)", ""]
 
 
@@ -371,8 +337,7 @@ def decision_summary(decisions: Sequence[dict[str, Any]]) -> str:
 
 
 def near_misses(decisions: Sequence[dict[str, Any]], count: int = 8) -> list[dict[str, Any]]:
-    """The rejected candidates closest to being selected: the largest z relative to z_min (or
-    statistic relative to threshold) first."""
+    """The rejected candidates closest to being selected, the largest z / z_min first."""
     def closeness(d: dict[str, Any]) -> float:
         if d.get("test") == "sign":  # a negative friction or armature is far from being named
             return 0.0
@@ -397,24 +362,21 @@ def _statistic(d: dict[str, Any]) -> str:
 
 def _augmented_section(r, model_files: list[str]) -> list[str]:
     lines = ["## 4. Augmented model in Drake", ""]
-    lines.append("The re-identified rigid-body parameters and the named effects, added to the Drake model (joint "
-                 "damping, rotor inertia, welded payload body, Coulomb friction as a `DoorHinge` force element, "
-                 "offsets as a generalized force); its inverse dynamics along the held-out motion:")
-    lines.append("")
-    lines.append(_table(["joint", "a-priori", "rigid", "augmented", "gap closed"],
-                        [[j, _g(a), _g(b), _g(c), f"{100 * (1 - (c / a) ** 2):.1f} %" if a > 0 else "–"]
-                         for j, a, b, c in zip(r.joints, r.rms_nominal, r.rms_rigid, r.rms_after)]))
-    lines.append("")
+    lines += ["The re-identified rigid-body parameters and the named effects, added to the Drake model (joint "
+              "damping, rotor inertia, welded payload body, Coulomb friction as a `DoorHinge` force element, "
+              "offsets as a generalized force); its inverse dynamics along the held-out motion:", ""]
+    lines += [_table(["joint", "a-priori", "rigid", "augmented", "gap closed"],
+                     [[j, _g(a), _g(b), _g(c), f"{100 * (1 - (c / a) ** 2):.1f} %" if a > 0 else "–"]
+                      for j, a, b, c in zip(r.joints, r.rms_nominal, r.rms_rigid, r.rms_after)]), ""]
     lines.append("(gap closed: share of the a-priori model's held-out mean-square error removed.) Drake vs the "
                  "least-squares prediction: max " + _g(float(np.max(r.drake_check)), 2) + " N·m.")
     for note in r.augmented.notes:
         lines.append(f"- note: {note}")
     lines.append("")
     if model_files:
-        lines.append("Files: " + ", ".join(f"`{f}`" for f in model_files)
-                     + " (the URDF holds inertias, damping, rotor inertia and the payload; the YAML the Coulomb "
-                       "friction and offsets, in the schema of `pe-drake simulate --truth`).")
-        lines.append("")
+        lines += ["Files: " + ", ".join(f"`{f}`" for f in model_files)
+                  + " (the URDF holds inertias, damping, rotor inertia and the payload; the YAML the Coulomb "
+                    "friction and offsets, in the schema of `pe-drake simulate --truth`).", ""]
     return lines + ["![torques](torque_heldout.png)", ""]
 
 
@@ -427,14 +389,12 @@ def _unexplained_section(r, figures: list[str]) -> list[str]:
         if "unexplained.png" in figures:
             lines += ["![unexplained](unexplained.png)", ""]
     else:
-        lines.append("Every joint's held-out residual is below max("
-                     f"{r.config.noise_factor:g} × noise floor, {100 * r.config.unexplained_fraction:g} % of its "
-                     "torque spread).")
-        lines.append("")
+        lines += ["Every joint's held-out residual is below max("
+                  f"{r.config.noise_factor:g} × noise floor, {100 * r.config.unexplained_fraction:g} % of its "
+                  "torque spread).", ""]
     t = r.timing
     if t.get("checked"):
         state = "named as time_delay" if t.get("needed") else "not named"
-        lines.append(f"Timing check: a torque/position offset of {1e3 * t['offset_s']:+.3g} ± {1e3 * t['std_s']:.2g} ms "
-                     f"fits the data ({state}; a logging offset, corrected for in the augmented model).")
-        lines.append("")
+        lines += [f"Timing check: a torque/position offset of {1e3 * t['offset_s']:+.3g} ± {1e3 * t['std_s']:.2g} ms "
+                  f"fits the data ({state}; a logging offset, corrected for in the augmented model).", ""]
     return lines

@@ -31,13 +31,8 @@ def per_joint(joints: Sequence[str], x) -> dict[str, float]:
 
 def time_delay_effect(value: float, std: float, contribution_rms: dict[str, float], before: dict[str, float],
                       after: dict[str, float]) -> NamedEffect:
-    """The named ``time_delay``: d [s] of τ_rec(t) = τ(t − d) (positive: the torque log lags).
-
-    Args:
-        value, std: d and its standard deviation [s].
-        contribution_rms: held-out RMS of the −d·dτ/dt term per joint [N·m].
-        before, after: held-out RMS per joint before and after it was added [N·m].
-    """
+    """The named ``time_delay``: d [s] of τ_rec(t) = τ(t − d) (positive: the torque log lags);
+    ``contribution_rms``: held-out RMS of the −d·dτ/dt term per joint [N·m]."""
     details = {"convention": "tau_recorded(t) = tau(t - time_delay): positive when the torque log lags "
                              "the positions",
                "contribution_rms": contribution_rms,
@@ -52,16 +47,11 @@ class NamedEffect:
     """An effect the diagnosis names.
 
     Attributes:
-        effect: ``coulomb_friction``, ``viscous_friction``, ``armature``, ``torque_offset``,
-            ``holding_torque``, ``presliding_friction``, ``time_delay`` or ``payload``.
-        joint: the joint (per-joint effects) or "" (payload).
-        link: the link (payload) or "".
+        joint, link: the joint (per-joint effects) or the link (payload), the other "".
         value: identified value in ``unit`` (payload: the added mass).
-        unit: unit of ``value``.
-        std: its standard deviation (autocorrelation-inflated).
         z: |value| / std of the fitted increment (per-joint effects) or the mass (payload).
-        heldout_rms_before: per-joint held-out RMS before the effect was added [N·m].
-        heldout_rms_after: the same after.
+        heldout_rms_before, heldout_rms_after: per-joint held-out RMS before and after the
+            effect was added [N·m].
         details: effect-specific extras (payload centre of mass, welded bodies, χ² values).
     """
 
@@ -94,40 +84,18 @@ class DiagnosisResult:
     """Everything the diagnosis found (JSON via :meth:`to_json_dict`; files via :meth:`write`).
 
     Attributes:
-        robot: the a-priori :class:`~pe_drake.multibody.robot.Robot`.
-        joints: excited joints.
-        config: the :class:`~pe_drake.diagnosis.options.DiagnosisConfig` used.
-        training, held_out: the two :class:`~pe_drake.diagnosis.record.Segment`s.
         effects: the :class:`NamedEffect`s, in the order they were selected (payload last).
         rms_nominal, rms_rigid, rms_after: per-joint held-out RMS [N·m] of the a-priori model,
             after rigid-body re-identification, and of the augmented Drake model.
         cumulative: [(step label, per-joint held-out RMS)] nominal → rigid → each effect.
-        unexplained: {joint: details} of joints the effects do not explain.
-        not_separable: effects that cannot be told apart from rigid-body terms.
         rejected: every candidate tried and not named, with its statistic z and the reason
-            (strongest first); the separable candidates are all tried.
-        regimes: nominal residual per joint and regime.
-        rigid: the rigid-body step's base parameters against the a-priori model.
-        payload_test: the payload search (best link, χ² values, decision).
-        timing: the timing-offset nuisance (estimated offset [s], whether it was needed).
+            (strongest first).
         predictions: held-out torques {"measured", "nominal", "rigid", "after"}, each (S, n).
-        residual_series: held-out residuals before/after each named effect, for plots.
-        augmented: the augmented :class:`~pe_drake.multibody.robot_model.RobotModel`.
         drake_check: max |Drake augmented torque - least-squares prediction| per joint [N·m].
-        timings: wall time per step [s].
         noise_floor: filtered white-noise level of the held-out torque per joint [N·m].
         thresholds: held-out residual RMS above which a joint is unexplained [N·m].
-        decisions: every candidate considered with its decision, the test that decided it and
-            its statistics (:mod:`pe_drake.diagnosis.decisions`).
-        selection: how the training data were split for the selection (the held-out data
-            only give the figures reported).
-        holding_test: the holding-torque test per joint (:mod:`pe_drake.diagnosis.holding`):
-            rest periods of both parts, decision and reason.
         worse: the joints whose augmented model is worse on the held-out part than the model
-            file's (CAD) or than predicting zero
-            (:class:`~pe_drake.identification.reference_errors.Shortfall`), or than the starting
-            fit (identify's, :mod:`pe_drake.diagnosis.start`), each with its reason.
-        start: the starting fit (:meth:`~pe_drake.diagnosis.start.StartingFit.as_dict`).
+            file's, than predicting zero or than the starting fit, each with its reason.
     """
 
     robot: Robot
@@ -161,12 +129,10 @@ class DiagnosisResult:
     start: dict[str, Any] = dataclasses.field(default_factory=dict)
 
     def per_joint(self, x: np.ndarray) -> dict[str, float]:
-        """{joint: value} of a per-joint array."""
         return per_joint(self.joints, x)
 
     def summary_lines(self) -> list[str]:
-        """The held-out RMS nominal → augmented, the effects named and what is left (the
-        progress lines of :func:`~pe_drake.diagnosis.workflow.diagnose` tell each step)."""
+        """The held-out RMS nominal → augmented, the effects named and what is left."""
         def rms(x) -> str:
             return ", ".join(f"{j} {v:.3g}" for j, v in self.per_joint(x).items())
 
@@ -178,12 +144,7 @@ class DiagnosisResult:
 
     def write(self, folder: str | Path) -> list[str]:
         """Writes diagnosis.json, report.md, the figures and the augmented model files into
-        ``folder``, all or nothing (staged, then moved into place; earlier runs' files of these
-        names that this run does not write are removed).
-
-        Returns:
-            The paths written (diagnosis.json, report.md, the figures, the model files).
-        """
+        ``folder``, all or nothing (staged, then moved into place); returns the paths written."""
         out = check_output_dir(folder)
         with staged_output_dir(out, "diagnosis.json", DIAGNOSE_OUTPUTS) as tmp:
             written = self._write_files(tmp)
@@ -202,39 +163,26 @@ class DiagnosisResult:
         """The content of diagnosis.json."""
         rec_tr, rec_ho = self.training.record, self.held_out.record
         return {
-            "robot": self.robot.name,
-            "joints": list(self.joints),
+            "robot": self.robot.name, "joints": list(self.joints),
             "units": {"torque": "N·m (N for prismatic joints)", "rms": "N·m"},
-            "data": {
-                "training": _segment_info(self.training),
-                "held_out": _segment_info(self.held_out),
-                "validation_file": rec_ho.source if rec_ho is not rec_tr else None,
-                "cutoff_hz": rec_tr.cutoff_hz,
-                "full_rate_hz": rec_tr.rate_hz,
-                "fitted_rate_hz": rec_tr.rate_hz / rec_tr.step,
-            },
+            "data": {"training": _segment_info(self.training),
+                     "held_out": _segment_info(self.held_out),
+                     "validation_file": rec_ho.source if rec_ho is not rec_tr else None,
+                     "cutoff_hz": rec_tr.cutoff_hz, "full_rate_hz": rec_tr.rate_hz,
+                     "fitted_rate_hz": rec_tr.rate_hz / rec_tr.step},
             "effects": [e.as_dict() for e in self.effects],
             "rms_nominal": self.per_joint(self.rms_nominal),
             "rms_rigid": self.per_joint(self.rms_rigid),
             "rms_after": self.per_joint(self.rms_after),
-            "gap_closed": {
-                j: _closed(a, b, c) for j, a, b, c in zip(self.joints, self.rms_nominal, self.rms_rigid,
-                                                           self.rms_after)
-            },
+            "gap_closed": {j: _closed(a, b, c) for j, a, b, c
+                           in zip(self.joints, self.rms_nominal, self.rms_rigid, self.rms_after)},
             "cumulative": [{"step": s, "rms": self.per_joint(r)} for s, r in self.cumulative],
-            "unexplained": self.unexplained,
-            "noise_floor": self.per_joint(self.noise_floor),
+            "unexplained": self.unexplained, "noise_floor": self.per_joint(self.noise_floor),
             "unexplained_threshold": self.per_joint(self.thresholds),
             "not_separable": self.not_separable,
-            "rejected": self.rejected,
-            "decisions": self.decisions,
-            "selection": self.selection,
-            "regimes": self.regimes,
-            "rigid": self.rigid,
-            "payload_test": self.payload_test,
-            "timing": self.timing,
-            "holding_test": self.holding_test,
-            "starting_fit": self.start,
+            "rejected": self.rejected, "decisions": self.decisions, "selection": self.selection,
+            "regimes": self.regimes, "rigid": self.rigid, "payload_test": self.payload_test,
+            "timing": self.timing, "holding_test": self.holding_test, "starting_fit": self.start,
             "worse_than_references": shortfall_report(self.worse, ("a_priori", "zero", "start")),
             "drake_check_max_abs": self.per_joint(self.drake_check),
             "config": {k: (list(v) if isinstance(v, tuple) else v)

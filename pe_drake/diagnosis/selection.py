@@ -1,38 +1,21 @@
 """The effect selection on the training data alone: its blocked cross-validation.
 
-The held-out data (the default held-out tail or the ``--validation`` run) are never looked at
-by the selection: they give only the figures reported (held-out RMS lines, the cumulative
-table, the augmented model). The gain and relevance tests of the selection (criteria (c)-(d)
-of :mod:`pe_drake.diagnosis.workflow`) need data the trial fit has not seen, so the training
-segment is cut into blocks for a blocked ("hv-block", Racine 2000) cross-validation
-(:func:`internal_split`, :class:`CrossValidation`):
+The held-out data are never looked at by the selection: they give only the figures reported.
+The gain and relevance tests (criteria (c)-(d)) need data the trial fit has not seen, so the
+training segment is cut into blocks for a blocked ("hv-block", Racine 2000) cross-validation:
 
-- **alternating blocks**, ``FOLDS`` = 3 classes in turn (block k is in class k mod 3). In
-  fold f the blocks of class f are the selection part and the rest the fit part; a column's
-  score is the residual of the three folds' selection parts together, so every training
-  sample is predicted once by a fit that has not seen it. Blocks rather than the training
-  segment's last part, so that each part covers the whole motion (every regime of every
-  joint, the whole period of an optimized trajectory) and a slow drift (temperature,
-  friction warming up) falls on both alike; three folds rather than one selection part,
-  because one fit on two thirds of a short run identifies the 40-odd base parameters less well
-  than the whole run, and a single selection part of a 9 s run is two blocks: with one fold
-  the mix of tests/test_presliding.py lost viscous friction on two joints.
-- each block is ``BLOCK_PERIODS`` periods of the cut-off long (10: about 20 independent
-  samples of filtered noise per block, the count a part of the training/held-out split must
-  at least have, :data:`~pe_drake.diagnosis.options.MIN_PERIODS`), shorter only when the
-  training segment would otherwise hold fewer than two blocks of each class;
-- a fold's fit part leaves out the samples within 1 / cut-off of its selection part: the
-  zero-phase filter's noise correlation does not reach across (the same gap as between the
-  training and held-out parts, 2 / cut-off in all). The filtered noise's integrated
-  correlation time is 1 / (the filter's noise gain) full-rate samples, about 1 / (2 × cut-off)
-  s, so the guard is about two of them and a block about twenty. The residual of a missing
-  effect stays correlated for longer, which is what the gain test should see: a column fitted
-  on the fit part lowers the selection part's residual only if it models something both
-  parts share.
+- ``FOLDS`` = 3 classes of alternating blocks (block k in class k mod 3); fold f predicts the
+  blocks of class f from a fit of the rest, so every training sample is predicted once.
+  Blocks, so that each part covers the whole motion and a slow drift falls on both alike;
+  three folds, because one fit on two thirds of a short run identifies the base parameters
+  less well than the whole run.
+- a block is ``BLOCK_PERIODS`` periods of the cut-off (about 20 independent samples of
+  filtered noise), shorter only to keep two blocks of each class;
+- a fold's fit part leaves out the samples within 1 / cut-off of its selection part (about two
+  correlation times of the zero-phase filter's noise): a column fitted on the fit part lowers
+  the selection part's residual only if it models something both parts share.
 
-The significance test (criteria (a)-(b)) uses the fit on the whole training segment, with the
-autocorrelation-inflated σ; the selected effects are then refitted on the whole training
-segment (``Selection.final``).
+The significance test (criteria (a)-(b)) uses the fit on the whole training segment.
 """
 
 from __future__ import annotations
@@ -52,22 +35,15 @@ from pe_drake.diagnosis.regression import (Columns, Fit, Library, Regression, Sc
 from pe_drake.diagnosis.start import StartingFit, start_terms
 from pe_drake.exceptions import DataError
 
-#: Length of a block of the internal split, in periods of the cut-off (module docstring).
-BLOCK_PERIODS = 10.0
+BLOCK_PERIODS = 10.0  # length of a block of the internal split, in periods of the cut-off
 #: Folds of the cross-validation: block k is in the selection part of fold k mod FOLDS.
 FOLDS = 3
 
 
 @dataclasses.dataclass(frozen=True)
 class Moments:
-    """What a fit needs of a set of samples: per-joint Gram matrices, right-hand sides, yᵀy.
-
-    Attributes:
-        gram: per-joint A_jᵀ A_j, (n, P, P).
-        rhs: per-joint A_jᵀ y_j, (n, P).
-        yy: per-joint y_jᵀ y_j, (n,).
-        count: number of samples.
-    """
+    """What a fit needs of a set of samples: per-joint A_jᵀ A_j (n, P, P), A_jᵀ y_j (n, P),
+    y_jᵀ y_j (n,) and the sample count."""
 
     gram: np.ndarray
     rhs: np.ndarray
@@ -82,8 +58,7 @@ class Moments:
 
 @dataclasses.dataclass(frozen=True)
 class Fold:
-    """One fold of the cross-validation: runs of training samples fitted, predicted, and in
-    neither (the guards)."""
+    """One fold: runs of training samples fitted, predicted, and in neither (the guards)."""
 
     fit_rows: tuple[slice, ...]
     selection_rows: tuple[slice, ...]
@@ -96,13 +71,7 @@ def _count(rows: Sequence[slice]) -> int:
 
 @dataclasses.dataclass(frozen=True)
 class InternalSplit:
-    """The training segment's folds (module docstring).
-
-    Attributes:
-        folds: the :class:`Fold`s.
-        block_s: block length [s].
-        guard_s: a fold's fit part keeps this far from its selection part [s].
-    """
+    """The training segment's folds, block length and guard [s] (module docstring)."""
 
     folds: tuple[Fold, ...]
     block_s: float
@@ -118,11 +87,7 @@ class InternalSplit:
 
 
 def internal_split(training: Segment) -> InternalSplit:
-    """The blocks and folds of the training segment (module docstring).
-
-    Raises:
-        DataError: a training segment too short for the folds.
-    """
+    """The blocks and folds of the training segment (module docstring)."""
     t = training.t
     cutoff = training.record.cutoff_hz
     duration = float(t[-1] - t[0])
@@ -155,12 +120,7 @@ def _runs(mask: np.ndarray) -> tuple[slice, ...]:
 
 
 class CrossValidation:
-    """The folds' regressions (fit part against selection part, moments only) and their score.
-
-    Attributes:
-        folds: one :class:`~pe_drake.diagnosis.regression.Regression` per fold, its ``held``
-            the fold's selection part.
-    """
+    """The folds' regressions (``held``: the fold's selection part, moments only), scored."""
 
     def __init__(self, folds: Sequence[Regression]):
         self.folds = list(folds)
@@ -176,14 +136,11 @@ class CrossValidation:
             sel, guard = Moments.of_rows(total, fold.selection_rows), Moments.of_rows(total, fold.guard_rows)
             fit = Moments(total.gram - sel.gram - guard.gram, total.rhs - sel.rhs - guard.rhs,
                           total.yy - sel.yy - guard.yy, total.count - sel.count - guard.count)
-            r = Regression(fit, sel, reg.num_base)
-            r.set_weights(reg.weights)
-            out.append(r)
+            out.append(Regression(fit, sel, reg.num_base, reg.weights))
         return cls(out)
 
     def fit(self, extra: Sequence[int]) -> Score:
-        """The base parameters and ``extra`` fitted on each fold's fit part, scored on its
-        selection part: per-joint RMS and weighted RSS over all selection parts together."""
+        """The base parameters and ``extra`` fitted on each fold's fit part, scored on the rest."""
         rss, count, wrss = 0.0, 0, 0.0
         for r in self.folds:
             f = r.fit(extra)
@@ -195,17 +152,9 @@ class CrossValidation:
 
 def split_with_column(cv: CrossValidation, columns: Columns, split: InternalSplit, index: int, joint: int,
                       values: np.ndarray) -> CrossValidation:
-    """``cv`` with column ``index`` set to ``values`` on ``joint`` (zero on the other joints),
-    as :func:`pe_drake.diagnosis.presliding.replace_column` does to the whole segment.
-
-    Args:
-        cv: the cross-validation (:meth:`CrossValidation.of`).
-        columns: the whole training segment's columns (overrides applied), which ``cv`` was
-            built from.
-        split: its folds.
-        index, joint: the column and its joint.
-        values: the new column on the training samples, (S,).
-    """
+    """``cv`` with column ``index`` set to ``values`` (S,) on ``joint`` (zero on the other
+    joints), as :func:`pe_drake.diagnosis.presliding.replace_column` does to ``columns``, the
+    whole training segment's columns ``cv`` was built from."""
     values = np.asarray(values, float)
     block = columns.joint_block(joint)  # (S, P), earlier replaced columns included
     y = columns.y[:, joint]
@@ -222,9 +171,7 @@ def split_with_column(cv: CrossValidation, columns: Columns, split: InternalSpli
             rhs[:, index] = 0.0
             rhs[joint, index] = sum(values[s] @ y[s] for s in rows)
             parts.append(Moments(gram, rhs, moments.yy, moments.count))
-        r = Regression(parts[0], parts[1], reg.num_base)
-        r.set_weights(reg.weights)
-        out.append(r)
+        out.append(Regression(parts[0], parts[1], reg.num_base, reg.weights))
     return CrossValidation(out)
 
 
@@ -239,11 +186,8 @@ def selection_thresholds(config: DiagnosisConfig, training: Segment, held: Segme
 def select(reg: Regression, split: CrossValidation, library: Library, rigid: Fit, training: Segment, held: Segment,
            config: DiagnosisConfig, start: StartingFit | None = None,
            consistent: ConsistentCrossValidation | None = None) -> Selection:
-    """The thresholds, the starting fit's drive terms a physical model holds and the
-    cross-validation keeps (:func:`~pe_drake.diagnosis.start.start_terms`), then forward
-    selection and backward check on the training data, then the terms that lower the
-    cross-validated error of the physically consistent model (``consistent``,
-    :mod:`pe_drake.diagnosis.consistent_cv`; default ``split``), kept and not named."""
+    """The thresholds, the starting fit's terms, forward selection and backward check, then the
+    terms kept, not named, that lower the consistent model's cross-validated error."""
     thresholds = selection_thresholds(config, training, held, len(library.candidates) + 1)
     terms = (start_terms(reg, split, library, start.columns, thresholds, config.max_effects, consistent)
              if start is not None else None)
@@ -256,20 +200,12 @@ def select(reg: Regression, split: CrossValidation, library: Library, rigid: Fit
 
 def kept_by_cross_validation(reg: Regression, split: Scorer, library: Library, sel: Selection) -> Selection:
     """The per-joint candidates that lower the cross-validated error of the model without
-    reaching the significance bound, kept in the model and not named (issue 36: a term is kept
-    in the model when it improves the cross-validated error; it is named only when it is also
-    significant).
+    reaching the significance bound, kept in the model and not named.
 
-    ``split`` scores the model the diagnosis delivers: the physically consistent fit
-    (:class:`~pe_drake.diagnosis.consistent_cv.ConsistentCrossValidation`), which holds every
-    friction, armature and spring at its bound; so a term the least-squares fit takes negative is
-    tried again here at its bound or above. Greedy, the largest drop of the weighted
-    cross-validated residual first, each held to criteria (c)-(d) of the selection
-    (:func:`~pe_drake.diagnosis.regression.accept`): the joint's cross-validated gain
-    ``min_heldout_gain``, no growth of the weighted residual over all joints, the relevance
-    bound. On the real Panda the joint springs of joints 3, 4 and 7 (z 3.9, 3.4, 2.2 against the
-    bound 4.2) are such terms: without them the consistent model moves link masses to stand in
-    for them (BUILD_NOTES).
+    ``split`` scores the model the diagnosis delivers (the physically consistent fit, every
+    term at its bound or above, so a term the least-squares fit takes negative is tried again).
+    Greedy, the largest drop of the weighted cross-validated residual first, each held to
+    criteria (c)-(d).
     """
     t = sel.thresholds
     selected, unnamed, verdicts, rejected = list(sel.selected), list(sel.unnamed), dict(sel.verdicts), dict(sel.rejected)
@@ -347,8 +283,8 @@ def say_selection(say: Callable[[str], None], sel: Selection, library: Library, 
 
 
 def rejected_list(reg: Regression, library: Library, sel: Selection) -> list[dict[str, Any]]:
-    """Every candidate tried and not named, with its statistic z (with the selected effects, on
-    the whole training segment) and the reason, strongest first."""
+    """Every candidate tried and not named, with its z (with the selected effects) and the
+    reason, strongest first."""
     out = []
     for col, reason in sel.rejected.items():
         if col == library.timing_col or col in sel.selected:

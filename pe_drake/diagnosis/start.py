@@ -1,19 +1,8 @@
-"""The diagnosis's starting fit: ``identify``'s fit on the diagnosis's training part (issue 36).
+"""The diagnosis's starting fit: ``identify``'s fit on the diagnosis's training part.
 
-``identify`` (default drive terms, WLS) fits the base parameters together with a Coulomb, a
-viscous friction and an offset on every joint and the armature of every joint where it is
-separable from the link inertias (:func:`~pe_drake.multibody.drive_columns.drive_layout` with
-the default :class:`~pe_drake.multibody.drive_columns.DriveTermOptions`), with per-joint weights
-iterated to their fixed point (:mod:`pe_drake.identification.least_squares`): terms each below
-the Bonferroni bound that together are what a joint needs (BUILD_NOTES, "diagnose starts from
-identify").
-
-:func:`starting_fit` is that fit, on the diagnosis's own columns (the same drive columns,
-the Coulomb column parallel-filtered as identify's ``coulomb`` argument, the model file's
-friction subtracted as identify's ``known`` terms) and with identify's weight rule (the same
-tolerance, iteration limit and σ floor). It is the figure the augmented model is held to
-(:func:`start_shortfalls`): a joint whose augmented model is worse on the held-out part than
-the starting fit is named in the output and in diagnosis.json with the reason.
+:func:`starting_fit` is identify's default fit (the base parameters with its default drive
+terms, WLS with per-joint weights iterated to their fixed point) on the diagnosis's own columns.
+It is the figure the augmented model is held to (:func:`start_shortfalls`).
 """
 
 from __future__ import annotations
@@ -35,8 +24,7 @@ if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
     from pe_drake.multibody.robot import Robot
 
 #: A joint whose augmented model is this much worse than the starting fit [%] is named even when
-#: the held-out part is too short for the difference to be significant (issue 36's bar: within
-#: 5 % of identify's figures; on the real Panda joint 4 was 36 % worse at z 1.4).
+#: the held-out part is too short for the difference to be significant (issue 36's bar).
 START_TOLERANCE_PERCENT = 5.0
 
 #: A term of the starting fit this many σ below its physical bound is named in the reason.
@@ -52,10 +40,8 @@ class StartingFit:
 
     Attributes:
         columns: the library columns of identify's drive terms (base parameters not included).
-        fit: the weighted fit of the base parameters and those columns.
         weights: its per-joint weights 1/σ_j at the fixed point, (n,).
         iterations: the weighted solves.
-        converged: the weights reached their fixed point.
     """
 
     columns: tuple[int, ...]
@@ -80,9 +66,8 @@ def identify_columns(robot: Robot, base, model, library: Library) -> tuple[int, 
 
 
 def starting_fit(reg: Regression, columns: tuple[int, ...]) -> StartingFit:
-    """The base parameters and ``columns`` with identify's iterated per-joint weights
-    (:func:`~pe_drake.identification.least_squares.weighted_fit`'s rule: σ_j² = RSS_j /
-    (S − p/n) of the weighted fit itself). Leaves ``reg``'s weights unchanged."""
+    """The base parameters and ``columns`` with identify's iterated per-joint weights (σ_j² =
+    RSS_j / (S − p/n) of the weighted fit itself); ``reg``'s weights are left unchanged."""
     saved = reg.weights
     S, n = reg.train.count, len(reg.weights)
     dof_scale = np.sqrt(S / max(S - (reg.num_base + len(columns)) / n, 1.0))
@@ -114,18 +99,13 @@ def below_bound(fit: Fit, col: int, library: Library) -> bool:
 def start_shortfalls(joints, y: np.ndarray, start: StartingFit, start_pred: np.ndarray, selected_pred: np.ndarray,
                      tau_after: np.ndarray, final_columns, library: Library) -> list[Shortfall]:
     """The joints whose augmented model is worse on the held-out part than the starting fit,
-    each with the reason: the starting fit's drive terms the selection left out, or the
-    physically consistent model (armature ≥ 0, the closest physically valid inertias) when the
-    selection's own least-squares fit is not worse.
+    each with the reason (drive terms the selection left out, or the physically consistent model).
 
     Args:
-        joints: the joint names.
         y: the held-out torque the columns fit (measured minus the model file's friction), (S, n).
-        start: the starting fit; start_pred: its torque on the held-out part, (S, n).
+        start_pred: the starting fit's torque on the held-out part, (S, n).
         selected_pred: the selected effects' least-squares torque there, (S, n).
         tau_after: the augmented model's (Drake), minus the model file's friction, (S, n).
-        final_columns: the selected fit's columns.
-        library: the columns' meaning.
     """
     found = shortfalls(joints, y, tau_after, {"start": start_pred}, START_TOLERANCE_PERCENT)
     if not found:
@@ -151,14 +131,8 @@ def start_shortfalls(joints, y: np.ndarray, start: StartingFit, start_pred: np.n
 
 @dataclasses.dataclass(frozen=True)
 class StartTerms:
-    """Which of the starting fit's drive terms the diagnosis keeps, and which it names.
-
-    Attributes:
-        kept: the columns kept in the model (those a physical model can hold).
-        named: those of ``kept`` that also pass criteria (a)-(d) against the starting model
-            without them: named as effects.
-        verdicts: {column: the :class:`~pe_drake.diagnosis.regression.Verdict` that decided it}.
-    """
+    """Which of the starting fit's drive terms the diagnosis keeps (a physical model can hold
+    them), which it names (they pass criteria (a)-(d)), and the verdict on each column."""
 
     kept: tuple[int, ...]
     named: tuple[int, ...]
@@ -171,16 +145,11 @@ def start_terms(reg: Regression, split: Scorer, library: Library, columns: tuple
     """The starting fit's drive terms a physical model can hold, and which of them are named.
 
     1. A friction or armature that identify's physical fit (``consistent``) holds on its bound
-       (armature 0; a friction at minus the model file's) is held there: the column is left
-       out. Not least squares with the negative terms removed one at a time, whose base
-       parameters stand in for them where no bodies can and push other terms negative
-       (BUILD_NOTES, branch panda36); that only when ``consistent`` is None or its solver fails,
-       the most negative (in σ) first. The others stay in the model: they are identify's fit.
+       is held there: the column is left out (only when ``consistent`` is None or its solver
+       fails, the negative terms are removed one at a time, the most negative in σ first).
     2. Each column kept is named if it passes :func:`~pe_drake.diagnosis.regression.accept`
-       against the kept model without it: the forward selection's criteria, the cross-validated
-       gain among them, with the other drive terms in (a rotor inertia is tested where identify
-       tests it), the largest z first and at most ``max_effects``; the others stay in the model
-       unnamed (``kept, not named``, with the criterion they missed).
+       against the kept model without it, the largest z first and at most ``max_effects``; the
+       others stay in the model unnamed.
     """
     kept: list[int] = list(columns)
     verdicts: dict[int, Verdict] = {}

@@ -1,68 +1,15 @@
 """Diagnosis: where the a-priori model and the measurement disagree, which effect is missing.
 
-``pe-drake diagnose --robot ROBOT --data ident.csv [--validation other.csv] --out DIR``
-
-1. **Nominal comparison.** The a-priori model's torque along the measured motion (Drake's
-   inverse dynamics = Y φ_prior, plus the model file's joint friction: ``<dynamics damping>``
-   as d·v and ``friction`` as f_c·tanh(v/v_s)) against the measured torque, per joint and per
-   regime (velocity sign, speed, acceleration, position, time). Every later fit is of the
-   measured torque minus that friction, so an effect named is what the model file lacks (a
-   viscous friction on top of its damping; its details give the total).
-2. **Rigid-body re-identification** of the base parameters alone (WLS, Gautier's per-joint
-   weights), reported as its own step: inertial errors are not a missing effect.
-3. **Effects.** Candidate columns of :mod:`pe_drake.diagnosis.effects` are appended to the base
-   regressor and selected by forward stepwise regression. A candidate is named only if, fitted
-   with the rigid-body parameters on the training data, (a) its value is physically plausible
-   (friction, armature ≥ 0), (b) it is significant: |θ| / σ_θ ≥ z, with σ_θ from the sandwich
-   covariance inflated by the integrated autocorrelation time of the joint's residual (filtered
-   samples are not independent) and z the two-sided Bonferroni bound for ``alpha`` over all
-   candidates, (c) it lowers the cross-validated RMS of its joint by at least
-   ``min_heldout_gain`` (relative) and the weighted cross-validated residual overall (a blocked
-   3-fold cross-validation of the training part, :mod:`pe_drake.diagnosis.selection`: the
-   held-out data are never looked at by the selection, only reported), and (d) what it
-   explains there is relevant: √(RMS_before² - RMS_after²) ≥ max(``noise_factor`` × noise floor,
-   ``min_effect_fraction`` × the joint's torque spread, ``resolution_fraction`` × the largest
-   joint's spread) (a value that is large only because the column is nearly collinear with
-   rigid-body terms on this motion explains little).
-   A backward pass drops effects that no longer pass (a)–(b) once the others are in.
-   Effects that no motion can separate from the rigid-body terms are reported as such with
-   the base parameter they merge into. A **payload** is sought in the re-identified base
-   parameters: Δφ_B = φ_B - K φ_prior explained by one link's 10 parameters (GLS with the
-   covariance C = K Σ_φ Kᵀ + Cov(φ_B), Σ_φ the a-priori uncertainty, default 10 %), named
-   when the χ² gain passes ``payload_alpha``, the mass change exceeds
-   ``payload_min_prior_sigmas`` a-priori standard deviations of the link's mass and 3 of its
-   own, and what is left is consistent with the a-priori uncertainty (localized).
-   A timing offset between the torque and position logs enters the selection as the column
-   -dτ/dt (τ_rec(t) ≈ τ(t) - d τ̇) with the same criteria (b)-(d) over all joints; when it
-   passes it is named ``time_delay`` (d in seconds, the unit of ``simulate``'s
-   ``torque_delay``) and the augmented model pairs each torque sample with the motion d
-   earlier. Without the column the library would absorb a delay into other effects.
-   Joints that rest in the training data get a ``holding_torque`` candidate (friction held at
-   rest, :mod:`pe_drake.diagnosis.holding`; with Coulomb friction: ``holding_selection``).
-4. **Augmented model.** The selected effects are added to the model in Drake (joint damping,
-   rotor inertia, a welded payload body, Coulomb friction as a ``DoorHinge`` force element,
-   offsets as a generalized force, a time delay as the motion interpolated at t − d;
-   :mod:`pe_drake.diagnosis.augmented_model`), the held-out torque is
-   recomputed with Drake's inverse dynamics, and the gap before and after is reported.
-5. **Unexplained.** Joints whose held-out residual stays above max(``noise_factor`` × noise
-   floor, ``unexplained_fraction`` × the joint's torque spread, ``resolution_fraction`` × the
-   largest joint's spread) are listed with the signals their residual correlates with.
-
-Data preparation (:mod:`pe_drake.diagnosis.record`): the measurement is brought to a uniform grid and low-pass filtered with a
-zero-phase Butterworth (:func:`pe_drake.identification.measurements.preprocess`, same filter on q and τ);
-v, v̇ by central differences; then decimated to about ``decimate_to_hz``. The Coulomb column
-tanh(v/v_s) has content far above the cut-off, so it is computed at the full rate and filtered
-with the same filter as τ before decimation (parallel filtering, Gautier 1997), as is the
-augmented model's Drake torque. The noise floor of each joint is the raw torque's white-noise
-level (median absolute second difference / √6 · 1.4826) times the filter's noise gain.
-Without ``--validation`` the last ``holdout_fraction`` of the record is held out, with a gap
-of 2 / cut-off between the two parts so the zero-phase filter does not leak across.
-
-:func:`diagnose` runs these steps in order, one function each: :func:`prepare`,
-:func:`nominal`, :func:`candidate_library`, :func:`rigid_reidentification`,
-:func:`select` (thresholds and stepwise selection, :mod:`pe_drake.diagnosis.regression`),
-:func:`name_effects`, :func:`payload_step` (:mod:`pe_drake.diagnosis.payload`),
-:func:`augment`, :func:`unexplained`; each returns a small frozen dataclass.
+``pe-drake diagnose --robot ROBOT --data ident.csv [--validation other.csv] --out DIR``; the
+method and its criteria (a)-(d) are described in the README's "Diagnosing a model".
+:func:`diagnose` runs the steps in order, one function each: :func:`prepare` (records,
+:mod:`pe_drake.diagnosis.record`), 1. :func:`nominal` (the a-priori model plus the model file's
+friction against the measured torque; every later fit is of the measured torque minus that
+friction), :func:`candidate_library`, 2. :func:`rigid_reidentification`, 3. the selection
+(:mod:`pe_drake.diagnosis.selection`, :mod:`pe_drake.diagnosis.regression`), the naming, the
+payload step (:mod:`pe_drake.diagnosis.payload`), 4. :func:`augment` (the effects in Drake,
+:mod:`pe_drake.diagnosis.augmented_model`) and 5. :func:`unexplained`; each returns a small
+frozen dataclass.
 """
 
 from __future__ import annotations
@@ -77,21 +24,12 @@ import numpy as np
 from pe_drake.diagnosis.augmented_model import augmented_model
 from pe_drake.diagnosis.consistent_cv import ConsistentCrossValidation, consistent_fit
 from pe_drake.diagnosis.decisions import decision_list
-from pe_drake.diagnosis.effects import (
-    Separability,
-    joint_candidates,
-    prior_parameter_covariance,
-    separability,
-)
+from pe_drake.diagnosis.effects import (Separability, joint_candidates, prior_parameter_covariance,
+                                        separability)
 from pe_drake.diagnosis.naming import Naming, name_effects
 from pe_drake.diagnosis.options import MAX_COND, DiagnosisConfig
-from pe_drake.diagnosis.payload import (
-    BaseChange,
-    PayloadOutcome,
-    not_separable_report,
-    payload_search,
-    rigid_report,
-)
+from pe_drake.diagnosis.payload import (BaseChange, PayloadOutcome, not_separable_report,
+                                        payload_search, rigid_report)
 from pe_drake.diagnosis.holding import holding_note, holding_report, holding_separability, holding_torque
 from pe_drake.diagnosis.holding_selection import add_friction_pairs
 from pe_drake.diagnosis.presliding import PRESLIDING, PreslidingStep, presliding_effects, presliding_step
@@ -99,17 +37,9 @@ from pe_drake.diagnosis.prior import (prior_drive_torque, prior_own_parameters,
                                      prior_parameters, reference_shortfalls)
 from pe_drake.diagnosis.record import (Record, Segment, check_fits_in_memory, check_record_signs,
                                       delayed_states, model_file_friction, prepare_record, split_segments)
-from pe_drake.diagnosis.regression import (
-    Fit,
-    Library,
-    Regression,
-    Selection,
-    condition_number,
-    integrated_autocorrelation,
-    regime_analysis,
-    rms,
-    unexplained_joints,
-)
+from pe_drake.diagnosis.regression import (Fit, Library, Regression, Selection, condition_number,
+                                           integrated_autocorrelation, regime_analysis, rms,
+                                           unexplained_joints)
 from pe_drake.diagnosis.selection import (CrossValidation, InternalSplit, internal_split,
                                          say_selection, select, timing_report)
 from pe_drake.diagnosis.report import decision_summary
@@ -126,24 +56,12 @@ from pe_drake.multibody.regressor import RegressorModel
 from pe_drake.multibody.robot import Robot
 from pe_drake.multibody.robot_model import RobotModel
 
-# ---- preparation -----------------------------------------------------------------------------
-
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class Prepared:
-    """The filtered records, their two parts and the base regressor on each.
-
-    Attributes:
-        record: the data's :class:`~pe_drake.diagnosis.record.Record`.
-        validation: the validation file's, or None.
-        training, held: the two :class:`~pe_drake.diagnosis.record.Segment`s.
-        model: the robot's regressor model.
-        base: its base parameters.
-        phi_B_prior: the a-priori model's base parameters K φ_prior, (b,).
-        internal: the training part's fit/selection split (:mod:`pe_drake.diagnosis.selection`).
-        phi_prior: the a-priori standard parameters (the model file's, or ``prior``'s), (10·nb,).
-        prior: the earlier model started from (``diagnose --model``), or None.
-    """
+    """The filtered records, their two parts and the base regressor on each; ``phi_prior``
+    (10·nb,): the a-priori standard parameters (the model file's, or those of the earlier model
+    ``prior``, ``diagnose --model``), ``phi_B_prior`` = K φ_prior (b,)."""
 
     record: Record
     validation: Record | None
@@ -159,11 +77,7 @@ class Prepared:
 
 def prepare(robot: Robot, data: Measurement, validation: Measurement | None, config: DiagnosisConfig,
             say: Callable[[str], None], prior: IdentificationResult | RobotModel | None = None) -> Prepared:
-    """Records, training and held-out parts, the base regressor on each (data preparation).
-
-    Raises:
-        DataError: a run too short for the filter, the parts or the number of unknowns.
-    """
+    """Records, training and held-out parts, the base regressor on each (data preparation)."""
     record = prepare_record(data, config)
     vrecord = prepare_record(validation, config) if validation is not None else None
     for r in (record, vrecord):  # sign-flipped torque columns, on the record filtered once
@@ -188,19 +102,10 @@ def prepare(robot: Robot, data: Measurement, validation: Measurement | None, con
                     np.asarray(phi, float), prior)
 
 
-# ---- 1. nominal ------------------------------------------------------------------------------
-
-
 @dataclasses.dataclass(frozen=True, eq=False)
 class Nominal:
-    """The a-priori model along the measured motion (step 1).
-
-    Attributes:
-        tau_held: its torque on the held-out part, (S, n) [N·m].
-        residual_held: measured minus model on the held-out part, (S, n) [N·m].
-        rms: per-joint held-out RMS of that residual [N·m].
-        regimes: :func:`~pe_drake.diagnosis.regression.regime_analysis` of both parts.
-    """
+    """The a-priori model along the held-out motion (step 1): torque, residual (S, n) and RMS
+    (n,) [N·m], and the regimes of both parts."""
 
     tau_held: np.ndarray
     residual_held: np.ndarray
@@ -209,12 +114,7 @@ class Nominal:
 
 
 def nominal(robot: Robot, prep: Prepared, regression: Regression) -> Nominal:
-    """Y φ_prior plus the model file's joint friction against the measured torque (the base
-    regressor from ``regression``'s columns).
-
-    Raises:
-        DataError: torques in the wrong units (naming the file and column).
-    """
+    """Y φ_prior plus the model file's joint friction against the measured torque."""
     training, held, joints = prep.training, prep.held, robot.joint_names
     base = range(prep.base.count)
     tau_nom_tr, tau_nom_ho = (c.product(base, prep.phi_B_prior) + prior_drive_torque(robot, prep.prior, s)
@@ -229,18 +129,9 @@ def nominal(robot: Robot, prep: Prepared, regression: Regression) -> Nominal:
     return Nominal(tau_nom_ho, res_ho, rms(held.tau - tau_nom_ho), regimes)
 
 
-# ---- candidate library -----------------------------------------------------------------------
-
-
 @dataclasses.dataclass(frozen=True, eq=False)
 class CandidateLibrary:
-    """The library's columns beside the base regressor.
-
-    Attributes:
-        separability: every candidate's structural test.
-        library: where the separable candidates and the timing nuisance sit.
-        regression: the regression on both parts.
-    """
+    """Every candidate's separability test, the library and the regression on both parts."""
 
     separability: list[Separability]
     library: Library
@@ -248,11 +139,7 @@ class CandidateLibrary:
 
 
 def candidate_library(robot: Robot, prep: Prepared, config: DiagnosisConfig) -> CandidateLibrary:
-    """The separable candidates' columns appended to the base regressor.
-
-    Raises:
-        DataError: the training part does not excite every base parameter.
-    """
+    """The separable candidates' columns appended to the base regressor."""
     candidates = joint_candidates(robot, config.effects)  # friction as corrections of the model file's
     sep = separability(robot, prep.base, candidates, model=prep.model)
     sep += holding_separability(robot, prep.training)
@@ -270,15 +157,9 @@ def candidate_library(robot: Robot, prep: Prepared, config: DiagnosisConfig) -> 
     return CandidateLibrary(sep, library, reg)
 
 
-# ---- 2. rigid-body re-identification ---------------------------------------------------------
-
-
 def rigid_reidentification(reg: Regression, training: Segment) -> Fit:
-    """WLS of the base parameters alone with Gautier's per-joint weights (step 2).
-
-    Sets the regression's weights and its autocorrelation inflation (from the rigid fit's
-    training residual), which the later fits keep.
-    """
+    """WLS of the base parameters alone with Gautier's per-joint weights (step 2); sets the
+    regression's weights and autocorrelation inflation, which the later fits keep."""
     ols = reg.fit([])
     spread_tr = np.std(training.tau, axis=0)
     sigma = np.maximum(ols.rms_train, np.maximum(training.record.noise_floor, 1e-6 * spread_tr + 1e-12))
@@ -289,22 +170,10 @@ def rigid_reidentification(reg: Regression, training: Segment) -> Fit:
     return rigid
 
 
-# ---- 3. effects ------------------------------------------------------------------------------
-
-
-# ---- payload and the rigid-body report -------------------------------------------------------
-
-
 @dataclasses.dataclass(frozen=True, eq=False)
 class PayloadStep:
-    """The base-parameter change of the final fit and what it says.
-
-    Attributes:
-        change: the re-identified base parameters against the a-priori ones.
-        outcome: the payload search (``{"searched": False}`` when switched off).
-        rigid: the rigid-body report.
-        not_separable: the effects that merge with base parameters.
-    """
+    """The base-parameter change of the final fit, the payload search, the rigid-body report
+    and the effects that merge with base parameters."""
 
     change: BaseChange
     outcome: PayloadOutcome
@@ -325,15 +194,11 @@ def payload_step(robot: Robot, prep: Prepared, lib: CandidateLibrary, sel: Selec
                        not_separable_report(lib.separability, base, change))
 
 
-# ---- 4. augmented model ----------------------------------------------------------------------
-
-
 @dataclasses.dataclass(frozen=True, eq=False)
 class Augmentation:
     """The augmented Drake model on the held-out data (step 4).
 
     Attributes:
-        model: the augmented :class:`~pe_drake.multibody.robot_model.RobotModel`.
         tau: its torque along the held-out motion, (S, n) [N·m].
         rms: per-joint held-out RMS of measured minus that torque [N·m].
         drake_check: max |Drake torque - least-squares prediction| per joint [N·m].
@@ -349,9 +214,8 @@ def augment(robot: Robot, prep: Prepared, lib: CandidateLibrary, pre: Presliding
             config: DiagnosisConfig) -> Augmentation:
     """The named effects added to the model in Drake, its held-out torque and the gap."""
     held, library = prep.held, lib.library
-    # the model is physically consistent: the base parameters and drive terms of the consistent
-    # fit of the selected columns (the model the selection's last pass scored), not a projection
-    # of the least-squares base parameters with its drive terms kept (diagnosis/consistent_cv.py)
+    # the model is the consistent fit of the selected columns (the one the selection's last pass
+    # scored), not a projection of the least-squares base parameters (diagnosis/consistent_cv.py)
     fit = consistent_fit(pre.regression, pre.final.columns, library, prep.base.K, prep.phi_prior, robot.body_names,
                          delivered=True)
     final = pre.final if fit is None else dataclasses.replace(pre.final, x=fit[0])
@@ -370,9 +234,8 @@ def augment(robot: Robot, prep: Prepared, lib: CandidateLibrary, pre: Presliding
                                 cov_B=pay.change.cov_B, time_delay=delay, presliding=presliding,
                                 phi_prior=prior_own_parameters(robot, prep.prior),
                                 phi_consistent=fit[1] if fit is not None else None)
-    # Drake's torque at the held-out samples (along the motion `delay` earlier when a time delay
-    # is named), its Coulomb term filtered like the measured torque (the parallel-filtered
-    # column; the rest of the torque is smooth within the pass band).
+    # Drake's torque at the held-out samples (along the motion `delay` earlier), its Coulomb term
+    # filtered like the measured torque (the rest of the torque is smooth within the pass band)
     q, v, vd, coulomb = (delayed_states(held, delay, config.coulomb_velocity_scale) if delay
                          else (held.q, held.v, held.vd, held.coulomb))
     tau_after = augmented.plant(robot).inverse_dynamics(q, v, vd, include_damping=True) + augmented.offset
@@ -384,17 +247,9 @@ def augment(robot: Robot, prep: Prepared, lib: CandidateLibrary, pre: Presliding
                         np.max(np.abs(tau_after - ls_pred), axis=0))
 
 
-# ---- 5. unexplained --------------------------------------------------------------------------
-
-
 @dataclasses.dataclass(frozen=True, eq=False)
 class Unexplained:
-    """What the augmented model leaves (step 5).
-
-    Attributes:
-        timing: :func:`timing_report`.
-        joints: {joint: details} of the joints above their threshold.
-    """
+    """What the augmented model leaves (step 5): the timing report, {joint: details}."""
 
     timing: dict[str, Any]
     joints: dict[str, dict[str, Any]]
@@ -410,27 +265,19 @@ def unexplained(robot: Robot, prep: Prepared, lib: CandidateLibrary, sel: Select
     return Unexplained(timing, found)
 
 
-# ---- the workflow ----------------------------------------------------------------------------
-
-
 def diagnose(robot: Robot, data: Measurement, validation: Measurement | None = None,
              options: DiagnosisConfig | None = None, *, prior: IdentificationResult | RobotModel | None = None,
              progress: Callable[[str], None] | None = None) -> DiagnosisResult:
     """Runs the five steps of the module docstring.
 
     Args:
-        robot: the a-priori :class:`~pe_drake.multibody.robot.Robot`.
         data: the measured run, raw (:func:`~pe_drake.identification.intake.read_measurements`):
             a run paused for longer than ``options.max_gap_s`` is diagnosed on its longest segment.
         validation: another run to hold out; None: the last ``holdout_fraction`` of ``data``.
-        options: the :class:`~pe_drake.diagnosis.options.DiagnosisConfig`.
         prior: an earlier model to start from instead of the model file's parameters
             (:func:`~pe_drake.identification.identified_file.load_identified`: identified.json
             or augmented_model.json): its parameters and drive terms are the a-priori model.
         progress: called with one line per step (e.g. ``print``).
-
-    Returns:
-        The :class:`~pe_drake.diagnosis.result.DiagnosisResult`.
 
     Raises:
         DataError: joints that differ from the robot's, a run too short, torques in the
@@ -528,7 +375,7 @@ class _Laps:
 
 
 def _unexplained_line(robot: Robot, left: dict[str, dict[str, Any]]) -> str:
-    """Step 5's line: each joint's unexplained held-out RMS in its effort unit (N·m or N)."""
+    """Step 5's line: each joint's unexplained held-out RMS in its effort unit."""
     kinds = {info.name: info.kind for info in robot.joints}
     if not left:
         return "5. nothing left unexplained above the thresholds"

@@ -1,33 +1,18 @@
 """Drive terms of the identification model: joint friction, torque offsets and rotor inertia.
 
-The torque an actuator applies is the rigid-body torque plus what the drive itself needs
-(friction, offset, armature): per joint, Coulomb tanh(v/v_s), viscous v, offset 1 and armature
-v̇ columns on that joint's row (:mod:`pe_drake.multibody.drive_columns`), so τ = Y_B φ_B + D θ.
-This module holds what identify does with them: the fitted values and their σ (a
-:class:`~pe_drake.multibody.robot_model.RobotModel`'s, over the fit's columns), the model file's
-friction, the data's separability, the outputs.
+Per joint, Coulomb tanh(v/v_s), viscous v, offset 1 and armature v̇ columns on that joint's row
+(:mod:`pe_drake.multibody.drive_columns`), so τ = Y_B φ_B + D θ. This module holds what identify
+does with them: the fitted values and their σ, the model file's friction, the data's
+separability, the outputs.
 
 **The model file's friction** (a URDF's ``<dynamics damping>`` and ``friction``) is part of the
-a-priori model (issue 21). A viscous or Coulomb column the fit has estimates the joint's *total*
-friction (least squares gives the same total whether the model file's value is subtracted
-first or not, and the physical fit's bound θ ≥ 0 is on the total), which is what identified.json,
-model.urdf (``damping``, ``friction``) and drive_effects.yaml hold. A term the fit does not have
-(``--drive-terms none``, or a joint the model file gives friction the chosen terms leave out)
-keeps the model file's value (:func:`model_file_terms`): it is subtracted from the measured
-torque before the fit and is a drive term with ``"source": "model file"`` and σ = 0. The
-diagnosis names only what the model file lacks and gives the same total in its details.
+a-priori model. A fitted viscous or Coulomb column estimates the joint's *total* friction; a
+term the fit does not have keeps the model file's value (:func:`model_file_terms`): subtracted
+from the measured torque before the fit, a drive term with ``"source": "model file"``, σ = 0.
 
-**Through a transmission** (``robot.transmission``) the terms are each motor's, motor side,
-acting on the joints through Rᵀ (:mod:`pe_drake.multibody.drive_columns`); identified.json
-holds them under ``motors`` with the ``transmission`` and their ``joint_side`` view
-(:func:`joint_side`: each motor's Coulomb friction on every joint it turns, Rᵀ o, and the
-viscous friction and rotor inertia as the matrices Rᵀ diag(x) R, whose off-diagonal entries
-are the coupling's). The model file's joint friction is then not used: the motors' terms are
-the drive's whole friction.
-
-The ground wrench does not see joint friction, so the drive columns are zero in base-wrench
-rows; an armature whose column lies in span(Y_B) is merged into a base parameter
-(:func:`~pe_drake.multibody.drive_columns.drive_layout`).
+**Through a transmission** the terms are each motor's, acting on the joints through Rᵀ;
+identified.json holds them under ``motors`` with their ``joint_side`` view (:func:`joint_side`),
+and the model file's joint friction is not used.
 """
 
 from __future__ import annotations
@@ -42,17 +27,9 @@ from pe_drake.exceptions import shorten
 from pe_drake.identification.friction_velocity import friction_velocity
 from pe_drake.identification.lowpass import design_lowpass
 from pe_drake.identification.preprocessing import resample_uniform
-from pe_drake.multibody.drive_columns import (
-    COULOMB_VELOCITY_SCALE,
-    NONNEGATIVE,
-    TERMS,
-    UNITS,
-    DriveLayout,
-    coulomb_column,
-    model_tables,
-    drive_columns,
-    coulomb_velocities,
-)
+from pe_drake.multibody.drive_columns import (COULOMB_VELOCITY_SCALE, NONNEGATIVE, TERMS, UNITS,
+                                              DriveLayout, coulomb_column, model_tables,
+                                              drive_columns, coulomb_velocities)
 from pe_drake.multibody.dahl import dahl_state
 from pe_drake.multibody.robot_model import RobotModel
 from pe_drake.multibody.transmission import Transmission
@@ -63,8 +40,7 @@ if TYPE_CHECKING:  # the type only: no import at run time (cost, cycles)
 
 def layout_torque(layout: DriveLayout, theta: np.ndarray, v: np.ndarray, vd: np.ndarray,
                   coulomb: np.ndarray | None = None) -> np.ndarray:
-    """D θ of ``layout``'s columns at the samples, shape (S, n) [N·m], a block of samples at a
-    time (D of an hour at 200 Hz is 0.85 GB)."""
+    """D θ of ``layout``'s columns at the samples, (S, n) [N·m], a block of samples at a time."""
     out = np.empty(np.shape(v))
     for s in range(0, out.shape[0], 20000):
         k = slice(s, s + 20000)
@@ -94,9 +70,8 @@ def layout_values(model: RobotModel, layout: DriveLayout) -> tuple[np.ndarray, n
 
 def drive_torque(model: RobotModel, layout: DriveLayout | None, v: np.ndarray, vd: np.ndarray,
                  coulomb: np.ndarray | None = None) -> np.ndarray | None:
-    """The fitted drive terms' torque D θ, (S, n) [N·m]: ``layout``'s columns of ``model`` (the
-    armatures merged into base parameters left out: the base parameters hold them), or None
-    when the fit has no drive columns."""
+    """The fitted drive terms' torque D θ, (S, n) [N·m] (the merged armatures are in the base
+    parameters), or None when the fit has no drive columns."""
     if layout is None or not layout.count:
         return None
     return layout_torque(layout, layout_values(model, layout)[0], v, vd, coulomb)
@@ -124,15 +99,13 @@ def drive_block(model: RobotModel, layout: DriveLayout, physical: bool) -> dict[
         "motors": table, "transmission": T.to_dict(), "joint_side": joint_side(layout, theta),
         "motor_coulomb_model": "coulomb * tanh(theta_dot_m / (|R_ii| velocity_scale)), theta_dot_m = R v; "
                                "every term acts on the joints through R^T"}
-    return {
-        **side,
-        "velocity_scale": layout.velocity_scale,
-        "coulomb_model": "coulomb * tanh(v / velocity_scale)",
-        "torque_equation": "tau = Y_B(q, v, vd) phi_B + coulomb*tanh(v/v_s) + viscous*v + offset + armature*vd",
-        "friction": "viscous and coulomb are each joint's total friction; 'source: model file' marks a value "
-                    "kept from the model file's <dynamics> (not estimated)",
-        "dropped": dict(layout.dropped),
-    }
+    return {**side, "velocity_scale": layout.velocity_scale,
+            "coulomb_model": "coulomb * tanh(v / velocity_scale)",
+            "torque_equation": "tau = Y_B(q, v, vd) phi_B + coulomb*tanh(v/v_s) + viscous*v + offset "
+                               "+ armature*vd",
+            "friction": "viscous and coulomb are each joint's total friction; 'source: model file' marks "
+                        "a value kept from the model file's <dynamics> (not estimated)",
+            "dropped": dict(layout.dropped)}
 
 
 def joint_side(layout: DriveLayout, theta: np.ndarray) -> dict[str, Any]:
@@ -157,12 +130,7 @@ def joint_side(layout: DriveLayout, theta: np.ndarray) -> dict[str, Any]:
 def model_file_terms(robot: Robot, layout: DriveLayout) -> tuple[DriveLayout, np.ndarray] | None:
     """The model file's friction that ``layout`` does not estimate, as columns (labels in their
     ``known``) and values (module docstring), or None when there is none (always with a
-    transmission: the motors' terms are the drive's whole friction).
-
-    Args:
-        robot: the a-priori robot (``joint_damping``, ``joint_friction``).
-        layout: the drive columns the fit estimates.
-    """
+    transmission)."""
     if layout.transmission is not None:
         return None
     fitted = set(zip(layout.terms, layout.joints))
@@ -180,16 +148,11 @@ def model_file_terms(robot: Robot, layout: DriveLayout) -> tuple[DriveLayout, np
 def model_file_terms_lost(robot: Robot, kept: DriveLayout, asked: DriveLayout,
                           known: tuple[DriveLayout, np.ndarray] | None
                           ) -> tuple[tuple[DriveLayout, np.ndarray] | None, np.ndarray]:
-    """The model file's friction once the data has dropped some of the columns ``asked``.
-
-    A column the data cannot separate (a joint that never moves or never reverses) keeps the
-    model file's value, as a term the fit was never asked for does: subtracted from the
-    torque, σ = 0.
+    """The model file's friction once the data has dropped some of the columns ``asked``: a
+    column the data cannot separate keeps the model file's value.
 
     Args:
-        robot: the a-priori robot.
         kept: the columns the data separates (:func:`separable_on_data`).
-        asked: the columns asked for.
         known: :func:`model_file_terms` of ``asked`` (already subtracted from the torque).
 
     Returns:
@@ -205,10 +168,8 @@ def model_file_terms_lost(robot: Robot, kept: DriveLayout, asked: DriveLayout,
     return after, lost
 
 
-#: A least-squares friction or armature this many σ below zero is reported as unphysical: σ is
-#: the correlation-inflated one (statistics.sandwich_from_grams), so a term whose true value is
-#: 0 is named with a one-sided chance of 0.13 % (2.5 % that one of the Panda's 19 friction
-#: and armature terms is).
+#: A least-squares friction or armature this many σ (correlation-inflated) below zero is
+#: reported as unphysical: a term whose true value is 0 is named with a one-sided chance of 0.13 %.
 UNPHYSICAL_SIGMAS = 3.0
 
 
@@ -250,16 +211,8 @@ DATA_COLLINEARITY = 1e-8
 
 
 def separable_on_data(W_base: np.ndarray, D: np.ndarray, layout: DriveLayout) -> tuple[DriveLayout, list[int]]:
-    """The drive columns this data set can tell apart from the others.
-
-    Args:
-        W_base: the base regressor's rows, shape (rows, b).
-        D: the drive columns on the same rows, shape (rows, d).
-        layout: their layout.
-
-    Returns:
-        (the layout of the kept columns, their indices into D).
-    """
+    """The drive columns D (rows, d) this data set can tell apart from the others and the base
+    regressor's rows W_base (rows, b): (the layout of the kept columns, their indices into D)."""
     b = W_base.shape[1]
     keep = list(range(D.shape[1]))
     reasons: dict[str, str] = {}
@@ -286,8 +239,7 @@ def separable_on_data(W_base: np.ndarray, D: np.ndarray, layout: DriveLayout) ->
     return layout.without(keep, reasons), keep
 
 
-#: Why the armature of a joint along gravity is left out (issue 37: identify reported an armature of
-#: −offset/g on a vertical lift, and the carried mass biased by offset/g).
+#: Why the armature of a joint along gravity is left out.
 ARMATURE_ALONG_GRAVITY = (
     "a joint along gravity (a vertical lift): the weight it carries has the column g + z̈, so the armature's z̈ "
     "and the offset's constant span only two directions with it; the offset is kept (a counterweight, spring or "
@@ -350,25 +302,17 @@ def filtered_coulomb(raw, data, velocity_scale: float = COULOMB_VELOCITY_SCALE,
 
     The torque was low-pass filtered, so its friction part is the filtered tanh(v/v_s), not
     tanh of the filtered v: the smoothed sign has content far above the cut-off. This redoes
-    :func:`~pe_drake.identification.preprocessing.preprocess`'s grid on ``raw`` (as the
-    diagnosis's records do), computes tanh(v/v_s) at the full rate of the velocity of
-    :func:`~pe_drake.identification.friction_velocity.friction_velocity` (the recorded v, or q
-    differentiated, at the widest cut-off its noise allows: not the torque's, which smears the
-    stick at reversals), filters the column with the torque's filter and picks the samples of
-    ``data``. On a simulated Panda run with 4 Hz cut-off, tanh of the filtered v biased the
-    Coulomb values by up to −25 %; the filtered tanh of the 4 Hz-filtered v still left 0.035-0.18
-    N·m held out on a simulated coupled UR5 (BUILD_NOTES, "The velocity inside the Coulomb column").
+    the preprocessing grid on ``raw``, computes tanh(v/v_s) at the full rate of the velocity of
+    :func:`~pe_drake.identification.friction_velocity.friction_velocity` (not the torque's
+    cut-off, which smears the stick at reversals), filters it with the torque's filter and picks
+    the samples of ``data`` (``preprocess(raw, ...)``'s result).
 
     Args:
-        raw: the measurement as read.
-        data: ``preprocess(raw, ...)``'s result (its ``preprocessing`` names the filter).
         velocity_scale: v_s [rad/s].
-        transmission: the motors' columns instead, tanh(θ̇_i / (|R_ii| v_s)) of θ̇ = R q̇ (a
-            layout's ``transmission``).
+        transmission: the motors' columns instead, tanh(θ̇_i / (|R_ii| v_s)) of θ̇ = R q̇.
 
     Returns:
-        The columns at data's samples, or None when ``data`` was not preprocessed (exact data:
-        tanh(v/v_s) of its v is the column).
+        The columns at data's samples, or None when ``data`` was not preprocessed.
     """
     p = data.preprocessing
     if p is None:
@@ -388,15 +332,9 @@ def filtered_coulomb(raw, data, velocity_scale: float = COULOMB_VELOCITY_SCALE,
 
 
 def filtered_presliding(raw, data, model: RobotModel) -> np.ndarray | None:
-    """A model's pre-sliding (Dahl) friction F_c·z(q; F_c/σ0) at data's samples, (S, n) [N·m].
-
-    As the diagnosis fits it (:mod:`pe_drake.diagnosis.presliding`): the state along q filtered
-    with the torque's filter at the full rate of ``raw``'s grid, the torque then filtered again
-    (parallel filtering). Unfiltered ``data`` (no ``preprocessing``): the state along its own q.
-
-    Returns:
-        The torques, or None when the model names no pre-sliding friction.
-    """
+    """A model's pre-sliding (Dahl) friction F_c·z(q; F_c/σ0) at data's samples, (S, n) [N·m],
+    filtered as the diagnosis fits it (unfiltered ``data``: the state along its own q), or None
+    when the model names no pre-sliding friction."""
     fc, sigma0 = model.presliding, model.presliding_stiffness
     joints = [j for j in range(len(model.joints)) if fc is not None and fc[j] > 0 and sigma0[j] > 0]
     if not joints:

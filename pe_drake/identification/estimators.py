@@ -1,34 +1,20 @@
 """Identification of the inertial parameters from measured joint data.
 
-The measured torques of S samples of n joints (or the ground wrench, or both: the
-``measurement`` of :mod:`pe_drake.identification.channels`) are stacked into the
-linear model of Eq. (4),
-
-    τ = Y_B(q, v, v̇) φ_B + ρ,          W = [Y_B(1); …; Y_B(S)]  (S·n × b),
-
-and solved by one of three estimators:
+The measured torques of S samples of n joints (or the ground wrench, or both) are stacked into
+the linear model of Eq. (4), τ = Y_B(q, v, v̇) φ_B + ρ, W = [Y_B(1); …; Y_B(S)] (S·n × b),
+solved by one of three estimators:
 
 - ``ols``: ordinary least squares, φ_B = W⁺ τ (Eq. 4);
-- ``wls``: weighted least squares with per-joint noise weights (Gautier 1997): the
-  residual of joint j gives σ_j² = ‖ρ_j‖² / (S − b/n), rows of joint j are divided by σ_j,
-  and the weighted problem is solved again, until σ_j is that of the weighted fit's own
-  residual (:mod:`pe_drake.identification.least_squares`; one step for a rigid-body-only fit
-  whose OLS residual is mostly friction); the default;
-- ``physical``: the standard parameters φ (10 per body) with every body's pseudo-inertia
-  J(φ_b) ⪰ 0 (Wensing, Kim & Slotine 2017: the body is realizable by a positive mass
-  density, which is Drake's physical-validity condition), friction and armature ≥ 0 and the
-  user's mass and CoM bounds, weighted as WLS and pulled toward the a-priori model only in the
-  directions no motion identifies (:mod:`pe_drake.identification.physical_fit`).
+- ``wls`` (the default): weighted least squares with per-joint noise weights (Gautier 1997),
+  iterated to their fixed point (:mod:`pe_drake.identification.least_squares`);
+- ``physical``: the standard parameters φ with every body's pseudo-inertia J(φ_b) ⪰ 0,
+  friction and armature ≥ 0 and the user's mass and CoM bounds, weighted as WLS
+  (:mod:`pe_drake.identification.physical_fit`).
 
-By default the regressor carries a drive block: Coulomb and viscous friction and a
-torque offset per joint, and the rotor inertia (armature) where it is separable from the link
-inertias, W = [Y_B | D] (:mod:`pe_drake.identification.drive_terms`); the ground-wrench rows
-of D are zero.
-
-The relative standard deviation of each base parameter, %σ = 100·√(Σ_ii)/|φ_B,i|, tells how
-well the data determined it. Σ is σ² (WᵀW)⁻¹ with each channel's contribution inflated by the
-integrated autocorrelation time of its residual (filtered samples are not independent;
-`pe_drake.identification.statistics.sandwich_from_grams`), weighted rows for WLS.
+By default the regressor carries a drive block W = [Y_B | D]
+(:mod:`pe_drake.identification.drive_terms`); the ground-wrench rows of D are zero. The
+relative standard deviation %σ = 100·√(Σ_ii)/|φ_B,i| of each base parameter uses the sandwich
+covariance inflated by each channel's residual autocorrelation time.
 """
 
 from __future__ import annotations
@@ -42,37 +28,17 @@ import numpy as np
 
 from pe_drake.exceptions import ConfigError, DataError
 from pe_drake.identification.channels import channel_names, measured_values
-from pe_drake.identification.drive_terms import (
-    layout_torque,
-    model_file_terms,
-    model_file_terms_lost,
-    separable_on_data,
-    unphysical_drive_terms,
-    with_known,
-)
-from pe_drake.multibody.drive_columns import model_tables
-from pe_drake.multibody.drive_columns import (
-    TERMS,
-    DriveLayout,
-    DriveTermOptions,
-    drive_columns,
-    drive_layout,
-    drive_options,
-)
-from pe_drake.identification.measurements import (
-    Measurement,
-    Preprocessing,
-)
+from pe_drake.identification.drive_terms import (layout_torque, model_file_terms,
+                                                 model_file_terms_lost, separable_on_data,
+                                                 unphysical_drive_terms, with_known)
+from pe_drake.multibody.drive_columns import (TERMS, DriveLayout, DriveTermOptions, drive_columns,
+                                              drive_layout, drive_options, model_tables)
+from pe_drake.identification.measurements import Measurement, Preprocessing
 from pe_drake.identification.least_squares import ordinary_fit, weighted_fit
 from pe_drake.identification.physical_fit import ON_BOUND, PhysicalBounds, physical_fit
 from pe_drake.identification.welded import merge_welded
-from pe_drake.identification.folded_rows import (
-    BLOCK,
-    FoldedRows,
-    column_map,
-    fold_rows,
-    known_columns_removed,
-)
+from pe_drake.identification.folded_rows import (BLOCK, FoldedRows, column_map, fold_rows,
+                                                 known_columns_removed)
 from pe_drake.identification.statistics import integrated_autocorrelation
 from pe_drake.multibody.base_parameters import BaseParameters
 from pe_drake.multibody.regressor import RegressorModel
@@ -94,12 +60,10 @@ FRICTION_SHARE_WARNING = 0.5
 #: of the data by at most this over the unconstrained optimum (physical_fit's stage 2).
 PHYSICAL_DELTA_CHI2 = 4.0
 #: The physical fit's σ_c is at least this fraction of the channel's RMS torque: no torque
-#: sensor or current loop resolves finer (a 20-bit converter is 1e-6 of its range), and the SDP
-#: solver (tolerances 1e-10-1e-8) cannot resolve a thinner confidence region.
+#: sensor resolves finer, and the SDP solver cannot resolve a thinner confidence region.
 PHYSICAL_MIN_RELATIVE_SIGMA = 1e-6
 #: The physical fit names every channel whose residual RMS exceeds the least-squares (WLS) fit's
-#: on the same data by more than this [%] (the 5 % bar of diagnosis.start.START_TOLERANCE_PERCENT):
-#: an SO-101 fit 100x worse than WLS on every joint used to say nothing (the honest-figures rule).
+#: on the same data by more than this [%].
 PHYSICAL_WORSE_PERCENT = 5.0
 
 
@@ -108,9 +72,6 @@ class IdentificationResult:
     """An identified model.
 
     Attributes:
-        robot: robot name.
-        method: "ols", "wls" or "physical".
-        joints: excited joints, in column order.
         base: the base-parameter composition (Eq. 2) the estimate refers to.
         phi_B: identified base parameters, shape (b,).
         sigma_percent: relative standard deviation of each base parameter [%], shape (b,).
@@ -121,30 +82,17 @@ class IdentificationResult:
         relative_error: per-channel 100·‖ρ_c‖/‖y_c‖ [%].
         noise_std: per-channel σ_c: the OLS residual's for ``ols``; for ``wls`` and
             ``physical`` the σ_c of the WLS weights 1/σ_c (``residual_rms`` is the fit's own).
-        samples: S, samples used (after preprocessing).
-        preprocessing: what :func:`pe_drake.identification.preprocessing.preprocess` did (or None).
         wall_time: seconds spent in the estimator (regressor included).
-        source: the data file.
-        measurement: "joint_torque", "base_wrench" or "both": the channels identified from.
         channels: the channel of each entry of residual_rms, relative_error and noise_std:
             joint names (torques), then :data:`~pe_drake.multibody.wrench.WRENCH_COLUMNS`.
-        model: the robot as built this fit gives (:class:`~pe_drake.multibody.robot_model.RobotModel`):
-            ``phi``, or for base parameters only the standard parameters closest to the
-            a-priori model that give them (φ0 + K⁺(φ_B − K φ0)), and the drive terms with their σ.
-        drive_layout: the fitted drive columns (which terms, the armatures merged into base
-            parameters, the columns the data dropped, those kept from the model file), or None
-            (a model without them, e.g. an identified.json of before the drive terms).
-        physical_notes: what the physical fit says about its result (parameters on a bound,
-            far from the a-priori model).
+        model: the robot as built this fit gives: ``phi``, or for base parameters only the
+            standard parameters closest to the a-priori model that give them, and the drive
+            terms with their σ.
+        drive_layout: the fitted drive columns, or None (a model without them).
         friction_share: for a fit without drive terms, the fraction of the OLS residual's
             energy that Coulomb + viscous friction and offsets would explain (None otherwise).
-        weight_iterations: the WLS's weighted solves (0 for OLS, 1 for Gautier's one step;
-            :func:`~pe_drake.identification.least_squares.weighted_fit`).
-        weights_converged: the WLS weights reached their fixed point.
-        cov_B: covariance of ``phi_B``, shape (b, b) (its diagonal is σ²: ``sigma_percent``), or
-            None (an identified.json written before it was stored, an augmented model).
-        coupling: warnings of joints whose residual looks like a coupled drive the model lacks
-            (:mod:`~pe_drake.identification.coupling`; set by ``identify_model``).
+        cov_B: covariance of ``phi_B``, shape (b, b), or None (an older identified.json).
+        coupling: warnings of joints whose residual looks like a coupled drive the model lacks.
     """
 
     robot: str
@@ -174,9 +122,6 @@ class IdentificationResult:
     coupling: tuple[str, ...] = ()
 
 
-# ---- estimators ------------------------------------------------------------------------------
-
-
 def _check_rows(data: Measurement, count: int, channels: int) -> None:
     rows = data.num_samples * channels
     need = MIN_ROWS_PER_PARAMETER * count
@@ -196,41 +141,22 @@ def _sigma_percent(x: np.ndarray, cov: np.ndarray) -> np.ndarray:
         return np.where(np.abs(x) > 0, 100.0 * sd / np.abs(x), np.inf)
 
 
-def identify(
-    robot: Robot,
-    data: Measurement,
-    method: str = "wls",
-    *,
-    base: BaseParameters | None = None,
-    prior: np.ndarray | None = None,
-    model: RegressorModel | None = None,
-    measurement: str = "joint_torque",
-    drive_terms: DriveTermOptions | str | None = None,
-    bounds: PhysicalBounds | None = None,
-    coulomb: np.ndarray | None = None,
-    rest: np.ndarray | None = None,
-) -> IdentificationResult:
+def identify(robot: Robot, data: Measurement, method: str = "wls", *,
+             measurement: str = "joint_torque", drive_terms: DriveTermOptions | str | None = None,
+             bounds: PhysicalBounds | None = None, coulomb: np.ndarray | None = None,
+             rest: np.ndarray | None = None) -> IdentificationResult:
     """Identifies the base parameters and the drive terms (and, for ``physical``, the standard
     parameters).
 
     Args:
-        robot: the robot.
         data: preprocessed data (:func:`~pe_drake.identification.intake.prepare_measurement`), with v and vd.
-        method: "wls" (the default), "ols" or "physical".
-        base: the base composition (default: the measurement's, :func:`measurement_base_parameters`).
-        prior: a-priori standard parameters for ``physical`` (default: the robot's model).
-        model: a :class:`RegressorModel` to reuse.
-        measurement: the channels to fit (:mod:`pe_drake.identification.channels`):
-            "joint_torque", "base_wrench" (the ground wrench alone) or "both" (WLS weighs
-            every channel by its residual).
-        drive_terms: friction, offset and armature columns per joint
-            (:mod:`pe_drake.identification.drive_terms`; default "all"). The ground wrench does
-            not see them: none with ``measurement="base_wrench"``.
-        bounds: the user's bounds of the ``physical`` fit (:class:`PhysicalBounds`).
+        measurement: the channels to fit: "joint_torque", "base_wrench" (the ground wrench
+            alone) or "both".
+        drive_terms: friction, offset and armature columns per joint (default "all"; none with
+            ``measurement="base_wrench"``).
         coulomb: the Coulomb columns to use, (S, n) (e.g. tanh(v/v_s) filtered like the
             torque); default tanh(v/v_s) of ``data.v``.
-        rest: the joint-torque rows kept out of the fit, (S, n) bool (a joint at rest,
-            :mod:`~pe_drake.identification.rest`), or None.
+        rest: the joint-torque rows kept out of the fit, (S, n) bool (a joint at rest), or None.
 
     Raises:
         ConfigError: unknown method or measurement, bounds naming unknown links.
@@ -242,16 +168,16 @@ def identify(
     if data.v is None or data.vd is None:
         raise DataError("the data has no velocities/accelerations; preprocess it first", file=data.source)
     with single_threaded_blas():  # thousands of small QRs: BLAS threads only contend (threads.py)
-        return _identify(robot, data, method, base, prior, model, measurement, drive_terms, bounds, coulomb, rest)
+        return _identify(robot, data, method, measurement, drive_terms, bounds, coulomb, rest)
 
 
-def _identify(robot: Robot, data: Measurement, method: str, base: BaseParameters | None, prior: np.ndarray | None,
-              model: RegressorModel | None, measurement: str, drive_terms, bounds: PhysicalBounds | None,
-              coulomb: np.ndarray | None, rest: np.ndarray | None = None) -> IdentificationResult:
+def _identify(robot: Robot, data: Measurement, method: str, measurement: str, drive_terms,
+              bounds: PhysicalBounds | None, coulomb: np.ndarray | None,
+              rest: np.ndarray | None) -> IdentificationResult:
     """:func:`identify` after its checks."""
     start = time.perf_counter()
-    model = model or RegressorModel(robot)
-    base = base or measurement_base_parameters(robot, measurement, model)
+    model = RegressorModel(robot)
+    base = measurement_base_parameters(robot, measurement, model)
     channels = channel_names(robot, measurement)
     measured_values(robot, data, measurement)  # refuses data without the channels, naming them
     layouts = _layouts(robot, measurement, drive_options(drive_terms), method, model)
@@ -275,15 +201,13 @@ def _identify(robot: Robot, data: Measurement, method: str, base: BaseParameters
                            iterate=share is None or share <= FRICTION_SHARE_WARNING)
     x, cov, phi, physical = fit.x, fit.cov, None, None
     if method == "physical":
-        prior = robot.phi_model if prior is None else np.asarray(prior, float)
         # Stage 2 of the fit stays in the 95 % confidence region of this estimate: whitened
         # rows count τ̄ times for correlated samples (statistics.sandwich_from_grams).
         tau_bar = float(np.mean(integrated_autocorrelation(fit.residual)))
-        # σ_c ≥ 1e-6 RMS: noise-free data's σ (1e-12) left stage 2's region too thin for the SDP
-        # solver, which failed and kept stage 1's masses (a UR10's upper arm 113 kg for 12.1 kg).
+        # σ_c ≥ 1e-6 RMS: noise-free data's σ left stage 2's region too thin for the SDP solver
         sigma = np.maximum(fit.noise_std, PHYSICAL_MIN_RELATIVE_SIGMA * np.sqrt(folded.measured_ss() / folded.samples))
         physical = _physical(robot, base, layout, folded, cols, keep, layouts.armature, 1.0 / sigma,
-                             prior, bounds, tau_bar * PHYSICAL_DELTA_CHI2)
+                             robot.phi_model, bounds, tau_bar * PHYSICAL_DELTA_CHI2)
         phi, x = physical.phi, physical.x
     b = base.count
     residual_ss = folded.residual_ss(T, x)
@@ -298,31 +222,16 @@ def _identify(robot: Robot, data: Measurement, method: str, base: BaseParameters
                        layout.velocity_scale, notes=physical.notes if physical is not None else (),
                        transmission=layout.transmission)
     return IdentificationResult(
-        robot=robot.name,
-        method=method,
-        joints=tuple(robot.joint_names),
-        base=base,
-        phi_B=x[:b],
-        sigma_percent=_sigma_percent(x[:b], cov[:b, :b]),
-        phi=phi,
-        cond=ols.cond,
+        robot=robot.name, method=method, joints=tuple(robot.joint_names), base=base, phi_B=x[:b],
+        sigma_percent=_sigma_percent(x[:b], cov[:b, :b]), phi=phi, cond=ols.cond,
         residual_rms=np.sqrt(residual_ss / folded.samples),
         relative_error=100.0 * np.sqrt(residual_ss) / np.maximum(np.sqrt(folded.measured_ss()), 1e-300),
-        noise_std=fit.noise_std,
-        weight_iterations=fit.iterations,
-        weights_converged=fit.converged,
-        samples=folded.samples,
-        preprocessing=data.preprocessing,
-        wall_time=time.perf_counter() - start,
-        source=data.source,
-        measurement=measurement,
-        channels=channels,
-        model=model,
-        drive_layout=layout,
-        physical_notes=physical.notes if physical is not None else (),
-        friction_share=share,
-        cov_B=cov[:b, :b],
-    )
+        noise_std=fit.noise_std, weight_iterations=fit.iterations, weights_converged=fit.converged,
+        samples=folded.samples, preprocessing=data.preprocessing,
+        wall_time=time.perf_counter() - start, source=data.source, measurement=measurement,
+        channels=channels, model=model, drive_layout=layout,
+        physical_notes=physical.notes if physical is not None else (), friction_share=share,
+        cov_B=cov[:b, :b])
 
 
 class _Layouts(NamedTuple):
@@ -350,8 +259,7 @@ def _layouts(robot: Robot, measurement: str, options: DriveTermOptions, method: 
 
 
 def _armature_layout(drive: DriveLayout, joints: list[int]) -> DriveLayout:
-    """Armature columns of ``joints`` (the merged ones: variables of the physical fit; a motor's
-    through the transmission)."""
+    """Armature columns of ``joints`` (the merged ones: variables of the physical fit)."""
     return DriveLayout(("armature",) * len(joints), tuple(joints), drive.joint_names,
                        tuple("kg·m²" for _ in joints), drive.velocity_scale, transmission=drive.transmission)
 
@@ -372,16 +280,14 @@ def _row_blocks(robot: Robot, data: Measurement, measurement: str, model: Regres
                 coulomb: np.ndarray | None, known: tuple[DriveLayout, np.ndarray] | None = None,
                 rest: np.ndarray | None = None):
     """The rows [Y | drive | armature | friction] and y of ``data``, BLOCK samples at a time
-    (y of the torques without the model file's ``known`` friction; the torque rows ``rest``
-    zero: a zero row adds nothing to a least-squares fit)."""
+    (y without the model file's ``known`` friction; the torque rows ``rest`` zero)."""
     rows = SensorRows(model, MeasurementType(measurement))
     r = len(channel_names(robot, measurement))
 
     def blocks():
         for s in range(0, data.num_samples, BLOCK):
             k = slice(s, min(s + BLOCK, data.num_samples))
-            part = data.replace(**{f: None if getattr(data, f) is None else getattr(data, f)[k]
-                                   for f in ("t", "q", "tau", "v", "vd", "wrench")})
+            part = data.take(k)
             sign = None if coulomb is None else coulomb[k]
             F = [rows.rows(model.kinematics(part.q, part.v, part.vd), scaled=False)]
             F += [drive_columns(part.v, part.vd, layout, sign, rows=r) for layout in layouts]
@@ -400,9 +306,8 @@ def _row_blocks(robot: Robot, data: Measurement, measurement: str, model: Regres
 
 def _friction_share(folded: FoldedRows, cols: _Columns, layouts: _Layouts, residual_ss: np.ndarray,
                     torques: int) -> float | None:
-    """For a rigid-body-only fit: the fraction of the residual energy of its first ``torques``
-    channels (the joint torques; a wrench's N and N·m are not added in) that friction and
-    offsets would explain (None when the fit has drive terms or measures no torques)."""
+    """For a rigid-body-only fit: the fraction of the residual energy of its ``torques`` joint
+    torque channels that friction and offsets would explain (else None)."""
     if not layouts.friction.count:
         return None
     _, keep = separable_on_data(folded.stacked(cols.base)[0], folded.stacked(cols.friction)[0], layouts.friction)
@@ -423,9 +328,8 @@ class _Physical(NamedTuple):
 def _physical(robot: Robot, base: BaseParameters, layout: DriveLayout, folded: FoldedRows, cols: _Columns, keep: list[int],
               armature: DriveLayout, w: np.ndarray, prior: np.ndarray, bounds: PhysicalBounds | None,
               chi2_tolerance: float) -> _Physical:
-    """The physical fit with the drive terms; the armatures that merge into base parameters
-    are variables ≥ 0 of the fit too, so the part of a merged base parameter above what a
-    physical link near its a-priori model holds goes to the rotor, not into link masses."""
+    """The physical fit with the drive terms; the merged armatures are variables ≥ 0 too, so
+    what a merged base parameter holds beyond physical links goes to the rotor."""
     merged = [robot.joint_names.index(j) for j in layout.merged]
     extra = _armature_layout(layout, merged)
     A, yw = folded.stacked(cols.standard, w)
@@ -457,14 +361,8 @@ def _physical(robot: Robot, base: BaseParameters, layout: DriveLayout, folded: F
 
 
 def physical_fit_excess(channels, rms: np.ndarray, rms_ls: np.ndarray) -> list[str]:
-    """Notes on the channels where the physical fit's residual RMS is above the least-squares fit's
-    on the same rows by more than :data:`PHYSICAL_WORSE_PERCENT`.
-
-    Args:
-        channels: the channel names, length r.
-        rms: the physical fit's residual RMS per channel, shape (r,) [N·m, N].
-        rms_ls: the least-squares (WLS) fit's, shape (r,) [N·m, N].
-    """
+    """Notes on the channels where the physical fit's residual RMS ``rms`` (r,) is above the
+    least-squares fit's ``rms_ls`` on the same rows by more than :data:`PHYSICAL_WORSE_PERCENT`."""
     percent = 100.0 * (np.asarray(rms) / np.maximum(rms_ls, 1e-300) - 1.0)
     return [f"{name}: residual RMS {a:.4g}, {p:.0f} % above the least-squares (WLS) fit's {a_ls:.4g} on the same "
             "data (what the physical constraints and bounds cost, or the solver); compare --method wls"
@@ -480,9 +378,8 @@ def _in_base(base: BaseParameters, coef: dict[str, float]) -> np.ndarray:
 
 
 def fit_warnings(result: IdentificationResult) -> list[str]:
-    """What a reader of the fit must know: the physical fit's bounds and moves, least-squares
-    drive terms that are negative beyond their σ, and a rigid-body-only fit of data whose
-    residual is mostly friction."""
+    """What a reader of the fit must know: the physical fit's notes, negative drive terms, and
+    a rigid-body-only fit whose residual is mostly friction."""
     out = [f"physical fit: {note}" for note in result.physical_notes]
     if result.method != "physical" and result.drive_layout is not None:
         out += unphysical_drive_terms(result.model, result.drive_layout)

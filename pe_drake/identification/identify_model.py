@@ -1,8 +1,6 @@
-"""The front doors of ``pe-drake identify`` and ``pe-drake validate``: :func:`identify_model`
-and :func:`validate_model` take a raw measured run (:func:`~pe_drake.identification.intake.read_measurements`)
-and do what the commands do, checks included: preprocessing with the gap setting, the
-torque-sign check against the a-priori model, the fit with its drive terms (Eq. 4), the
-physically valid standard parameters for ``model.urdf``, and the prediction of another run.
+"""The front door of ``pe-drake identify``: :func:`identify_model` takes a raw measured run and
+does what the command does, checks included: preprocessing, the torque-sign check, the fit with
+its drive terms (Eq. 4) and the physically valid standard parameters for ``model.urdf``.
 """
 
 from __future__ import annotations
@@ -49,17 +47,14 @@ class IdentifyOptions:
     """How ``identify`` fits (one frozen record; :meth:`from_config` reads the config's sections).
 
     Attributes:
-        method: "wls" (the default), "ols" or "physical".
         measurement: the channels to fit: "joint_torque", "base_wrench" or "both".
         cutoff_hz: low-pass cut-off [Hz] (None: from ``trajectory`` or the data).
         trajectory: the trajectory.json that was run: its highest harmonic sets the cut-off.
         filtering: False uses the data as it is (exact data with v.* and vdot.* columns).
-        drive: the drive terms (friction, offsets, armature).
-        bounds: the physical fit's mass and CoM bounds.
         max_gap_s: holes in the time column up to this are interpolated [s].
         window: the part of the run fitted, cut after filtering (None: all of it).
         rest: the joint-torque rows of a joint at rest: ``auto`` (kept out of the fit if
-            cross-validation says so), ``keep`` or ``exclude`` (:mod:`~pe_drake.identification.rest`).
+            cross-validation says so), ``keep`` or ``exclude``.
     """
 
     method: str = "wls"
@@ -100,8 +95,6 @@ class IdentifiedModel:
     """An identified model and the data it came from; :meth:`write` writes ``identify``'s files.
 
     Attributes:
-        robot: the robot.
-        result: the :class:`~pe_drake.identification.estimators.IdentificationResult`.
         raw: the measured run as read; data: as preprocessed for the fit.
         coulomb: the parallel-filtered Coulomb columns (None without filtering).
         phi: physically valid standard parameters for model.urdf (None: none).
@@ -147,16 +140,8 @@ class IdentifiedModel:
 
     def write(self, folder: str | Path, *, progress: Callable[[str], None] | None = None) -> list[str]:
         """Writes identified.json, residuals.png and, when physically valid, model.urdf and
-        drive_effects.yaml into ``folder``, all or nothing (earlier runs' files of these names
-        that this run does not write are removed).
-
-        Args:
-            progress: called with the note on model.urdf (what it leaves out, or why it is not
-                written), when there is one; identified.json records it as ``note``.
-
-        Returns:
-            The paths written.
-        """
+        drive_effects.yaml into ``folder``, all or nothing; returns the paths written.
+        ``progress`` is called with the note on model.urdf, when there is one."""
         out, robot, result = check_output_dir(folder), self.robot, self.result
         note, written = self.note, ["identified.json", "residuals.png"]
         with staged_output_dir(out, "identified.json", IDENTIFY_OUTPUTS) as tmp:
@@ -238,9 +223,7 @@ def identify_model(robot: Robot, measurements: Measurement, options: IdentifyOpt
     """What ``pe-drake identify`` does, from a raw measured run to an :class:`IdentifiedModel`.
 
     Args:
-        robot: the a-priori robot.
         measurements: the raw run (:func:`~pe_drake.identification.intake.read_measurements`).
-        options: the :class:`IdentifyOptions` (default: WLS with every drive term).
         progress: called with the :meth:`~IdentifiedModel.summary_lines` once the fit is done.
 
     Raises:
@@ -298,26 +281,21 @@ def _rest_decision(robot: Robot, raw: Measurement, data: Measurement, options: I
         return None
     method = "ols" if options.method == "ols" else "wls"
 
-    def part(idx):
-        return data.replace(**{f: None if getattr(data, f) is None else getattr(data, f)[idx]
-                               for f in ("t", "q", "tau", "v", "vd", "wrench")})
-
     def fit(idx, mask):
-        return identify(robot, part(idx), method, measurement=options.measurement, drive_terms=options.drive,
-                        coulomb=None if coulomb is None else coulomb[idx], rest=mask)
+        part = None if coulomb is None else coulomb[idx]
+        return identify(robot, data.take(idx), method, measurement=options.measurement,
+                        drive_terms=options.drive, coulomb=part, rest=mask)
 
     def predicted(result, idx):
-        return predict(robot, result, part(idx), coulomb=None if coulomb is None else coulomb[idx])
+        part = None if coulomb is None else coulomb[idx]
+        return predict(robot, result, data.take(idx), coulomb=part)
 
     return decide_rest(raw, data, options.rest, fit, predicted)
 
 
 def _model_parameters(robot: Robot, result: IdentificationResult) -> tuple[np.ndarray | None, str]:
-    """Standard parameters for model.urdf (None: none physically valid) and a note on them.
-
-    The physical method gives them; for least squares the a-priori model is moved to the
-    identified base parameters, and kept only when that is physically valid.
-    """
+    """Standard parameters for model.urdf (None: none physically valid) and a note on them: the
+    physical fit's, or the a-priori model moved to the identified base parameters when valid."""
     if result.phi is not None:
         return result.phi, ""
     candidate = result.model.phi  # the a-priori model moved to the base parameters

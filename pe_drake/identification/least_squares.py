@@ -2,23 +2,11 @@
 
 - :func:`ordinary_fit`: Eq. (4), φ_B = W⁺ τ, with the residual's per-channel σ_c.
 - :func:`weighted_fit`: weighted least squares with per-channel noise weights (Gautier 1997),
-  the rows of channel c divided by σ_c. Gautier takes σ_c from the OLS residual, one step;
-  here the weights are iterated until σ_c is the residual σ of the weighted fit itself (the
-  fixed point is the maximum-likelihood estimate of φ_B and of every channel's noise variance
-  under independent Gaussian noise per channel, up to the S − p/r degrees-of-freedom
-  correction). On data where one joint's model is much better than another's, the OLS σ of the
-  good joint is inflated by the errors OLS makes in the parameters it shares with the louder
-  ones, and the one step leaves it under-weighted: on the real Panda recording (`identify
-  --window ,14.445`, validated on 14.95–20.495 s) the one step predicts joint 6's held-out
-  torque at 0.054 N·m and the fixed point at 0.022 N·m (12 solves; the other joints move by
-  −1 to +9 %). On data with the same noise on every joint the two agree.
-
-The fixed point takes the residual for noise. A rigid-body-only fit of a robot whose torque
-is mostly friction has a residual that is mostly friction, and reweighting would weight each
-joint by how little friction it has: on the real Panda (first half, checked on the second)
-joint 4 went from 0.53 to 1.07 N·m. identify therefore keeps the one step when friction and
-offsets would explain more than half of the OLS residual (``iterate=False``; the fit's
-friction warning says so).
+  the rows of channel c divided by σ_c, iterated until σ_c is the residual σ of the weighted
+  fit itself (the maximum-likelihood estimate under independent Gaussian noise per channel):
+  Gautier's one step from the OLS σ under-weights a joint the model fits much better than the
+  others. The fixed point takes the residual for noise, so identify keeps the one step when
+  friction and offsets would explain more than half of the OLS residual (``iterate=False``).
 
 Both solve through QR then the SVD of R (:func:`solve_least_squares`) and give the sandwich
 covariance of :func:`~pe_drake.identification.statistics.sandwich_from_grams`.
@@ -36,7 +24,7 @@ from pe_drake.identification.statistics import sandwich_from_grams
 
 #: The weights' fixed point is reached when no σ_c changes by more than this (relative).
 WEIGHT_TOLERANCE = 1e-3
-#: At most this many reweighted solves (the real Panda's converge in 12-20, simulated data in 2-3).
+#: At most this many reweighted solves (the real Panda's converge in 12-20).
 MAX_WEIGHT_ITERATIONS = 50
 #: σ_c is kept above this fraction of the largest: a channel the model fits exactly (noiseless
 #: data) would otherwise get an infinite weight.
@@ -51,10 +39,9 @@ class LeastSquaresFit(NamedTuple):
         cov: their covariance, (WᵀW)⁻¹ (Σ_c τ_c s_c² W_cᵀW_c) (WᵀW)⁻¹ (weighted rows for WLS).
         cond: cond(W) of the regressor solved (the weighted one for WLS).
         noise_std: per-channel σ_c, (r,): OLS, its residual's; WLS, the σ_c whose weights 1/σ_c
-            ``x`` was solved with (at the fixed point, also the residual's).
+            ``x`` was solved with.
         residual: the (weighted, for WLS) residual of every sample, (S, r).
         iterations: the weighted solves (0 for OLS, 1 for Gautier's one step).
-        converged: the weights reached their fixed point (False for OLS and the one step).
     """
 
     x: np.ndarray
@@ -103,8 +90,7 @@ def compress_joint_rows(blocks) -> tuple[np.ndarray, int]:
     """Per joint j, the triangular factor R_j of [A_j  y_j] over blocks (A (s, n, p), y (s, n)),
     shape (n, p+1, p+1), and the total number of samples: ‖A_j x − y_j‖² = ‖R_j [x; −1]‖², so
     the weighted fits and the residuals need nothing else."""
-    R = None
-    S = 0
+    R, S = None, 0
     for A, y in blocks:
         S += A.shape[0]
         block = np.concatenate([A, y[..., None]], axis=-1).transpose(1, 0, 2)  # (n, s, p+1)
@@ -127,14 +113,9 @@ def lstsq_from_factors(R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def weighted_fit_from_factors(R_joint: np.ndarray, S: int, weighted: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """OLS, per-joint σ_j from its residual, then Gautier's one WLS step with rows / σ_j, from
-    per-joint factors: (x, Cov(x), σ_j).
-
-    Args:
-        R_joint: per-joint factors of [A_j y_j], (n, p+1, p+1) (:func:`compress_joint_rows`).
-        S: samples behind them.
-        weighted: weigh by 1/σ_j (else OLS).
-    """
+    """OLS, per-joint σ_j from its residual, then Gautier's one WLS step with rows / σ_j
+    (``weighted``; else OLS), from the per-joint factors R_joint (n, p+1, p+1) of S samples
+    (:func:`compress_joint_rows`): (x, Cov(x), σ_j)."""
     n, _, p1 = R_joint.shape
     p = p1 - 1
     x, _ = lstsq_from_factors(R_joint.reshape(-1, p1))

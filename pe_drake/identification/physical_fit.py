@@ -16,19 +16,13 @@ inertias), N_D the projector onto the φ-part of the null space of [K·D | c_k] 
 composition, φ_B = K φ; c_k: the base-parameter expression of a merged armature): the
 directions of φ no motion can identify, where the prior decides. μ is the smallest non-zero
 eigenvalue of f's Hessian and λ = ``prior_weight`` (1e-6) only makes stage 2 strictly convex.
-A single stage with the pull in the objective either lets masses drift where constraints tie
-null directions to the data (weight 1e-4: 31 kg for the real Panda's 16.8 kg CAD) or biases
-what the data determines (weight 1: 5e-5 relative base-parameter error on noise-free data of
-a Panda with ±10 % inertias, against 3e-8); BUILD_NOTES.md has the figures. Bodies whose a-priori mass is zero stay at zero.
+A single stage with the pull in the objective either lets masses drift or biases what the data
+determine (BUILD_NOTES.md has the figures). Bodies whose a-priori mass is zero stay at zero.
+The CoM box is linear in the first moments h = m c (link frame, [m]): box_lo·m ≤ h ≤ box_hi·m.
 
-The CoM box of a link is a linear constraint on its first moments h = m c (in the link frame,
-about its origin, [m]): box_lo·m ≤ h ≤ box_hi·m keeps c in the box for any m > 0.
-
-Both the identification (``identify --method physical``) and the diagnosis's augmented model
-use :func:`physical_fit`; the payload and drive-gain fits use :func:`factored_sdp` with their
-blocks. All go through :func:`solve_sdp`, the package's one SDP, and
-:func:`add_pseudo_inertia_constraint`, its one pseudo-inertia LMI (tests/test_layout.py
-holds it); they raise :class:`~pe_drake.exceptions.NoSolutionFound`.
+:func:`physical_fit` serves ``identify --method physical`` and the diagnosis; the payload and
+drive-gain fits use :func:`factored_sdp`. All go through :func:`solve_sdp`, the package's one
+SDP, and :func:`add_pseudo_inertia_constraint`, its one pseudo-inertia LMI.
 """
 
 from __future__ import annotations
@@ -53,8 +47,7 @@ PRIOR_WEIGHT = 1e-6
 #: The fit keeps J(φ_b) ⪰ PSD_MARGIN · m_b,prior · I so that the result passes Drake's
 #: validity test despite the SDP solver's tolerance.
 PSD_MARGIN = 1e-7
-#: A mass that moved by more than this fraction of its a-priori value is reported
-#: ("moved far"): 5 × the 10 % accuracy the diagnosis assumes of a CAD model.
+#: A mass that moved by more than this fraction of its a-priori value is reported ("moved far").
 FAR_FROM_PRIOR = 0.5
 #: A variable within this fraction of its bound's scale counts as on the bound (the solver's
 #: tolerance is 1e-10; its result sits within ~1e-7 of an active bound).
@@ -63,12 +56,7 @@ ON_BOUND = 1e-5
 
 @dataclasses.dataclass(frozen=True)
 class LinkBox:
-    """Where a link's centre of mass may be, in the link's frame.
-
-    Attributes:
-        center: [x, y, z] [m].
-        size: full edge lengths [sx, sy, sz] [m], each ≥ 0.
-    """
+    """Where a link's centre of mass may be, in the link's frame: center, edge lengths [m]."""
 
     center: tuple[float, float, float]
     size: tuple[float, float, float]
@@ -90,13 +78,8 @@ class LinkBox:
 
 @dataclasses.dataclass(frozen=True)
 class PhysicalBounds:
-    """The user's bounds of the physical fit (config ``identification``).
-
-    Attributes:
-        total_mass: (lo, hi) of the summed mass of the moving bodies [kg], or None.
-        mass_bounds: {body: (lo, hi)} [kg].
-        boxes: {body: :class:`LinkBox`}: the body's CoM stays inside.
-    """
+    """The user's bounds of the physical fit (config ``identification``): (lo, hi) of the moving
+    bodies' total mass [kg] or None, {body: (lo, hi)} [kg], {body: :class:`LinkBox` of its CoM}."""
 
     total_mass: tuple[float, float] | None = None
     mass_bounds: dict[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
@@ -122,63 +105,41 @@ class PhysicalBounds:
 
 
 class PhysicalFit(NamedTuple):
-    """Result of :func:`physical_fit`.
-
-    Attributes:
-        phi: standard parameters, shape (10·nb,), physically valid.
-        theta: drive terms, shape (d,).
-        notes: parameters on a bound or far from the a-priori model, in words.
-    """
+    """Result of :func:`physical_fit`: φ (10·nb,) physically valid, the drive terms θ (d,), and
+    the parameters on a bound or far from the a-priori model, in words."""
 
     phi: np.ndarray
     theta: np.ndarray
     notes: tuple[str, ...]
 
 
-def physical_fit(
-    A: np.ndarray,
-    y: np.ndarray,
-    prior: np.ndarray,
-    body_names: Sequence[str],
-    *,
-    extra: np.ndarray | None = None,
-    extra_lower: np.ndarray | None = None,
-    extra_names: Sequence[str] = (),
-    bounds: PhysicalBounds | None = None,
-    base_K: np.ndarray | None = None,
-    extra_in_base: dict[int, np.ndarray] | None = None,
-    scale: np.ndarray | None = None,
-    prior_weight: float = PRIOR_WEIGHT,
-    null_weight: float = NULL_WEIGHT,
-    chi2_tolerance: float = CHI2_TOLERANCE,
-    margin: float = PSD_MARGIN,
-    rows: int | None = None,
-) -> PhysicalFit:
+def physical_fit(A: np.ndarray, y: np.ndarray, prior: np.ndarray, body_names: Sequence[str], *,
+                 extra: np.ndarray | None = None, extra_lower: np.ndarray | None = None,
+                 extra_names: Sequence[str] = (), bounds: PhysicalBounds | None = None,
+                 base_K: np.ndarray | None = None,
+                 extra_in_base: dict[int, np.ndarray] | None = None,
+                 scale: np.ndarray | None = None, prior_weight: float = PRIOR_WEIGHT,
+                 chi2_tolerance: float = CHI2_TOLERANCE, margin: float = PSD_MARGIN,
+                 rows: int | None = None) -> PhysicalFit:
     """The SDP of the module docstring.
 
     Args:
         A: weighted standard-parameter regressor, shape (rows, 10·nb).
         y: weighted measurements, shape (rows,).
         prior: a-priori parameters, shape (10·nb,).
-        body_names: the bodies, for bounds and messages.
         extra: weighted drive columns E, shape (rows, d), or None.
         extra_lower: lower bound of each drive term (0 or -inf), shape (d,).
-        extra_names: their labels, for notes.
-        bounds: the user's bounds.
         base_K: the base composition K (b, 10·nb) whose null space gets the a-priori pull;
             None: the numerical null space of A.
         extra_in_base: {k: c_k} for drive columns inside span(Y_B): column k = Y_B c_k
-            (a merged armature). The φ-part of the directions along which such a column
-            trades against φ gets the a-priori pull too, so a merged combination's excess over
-            the a-priori links goes to the drive term (≥ 0), not into the links.
-        scale: per-variable scale D of φ, shape (10·nb,) (the pull is measured in units of
-            D); default the a-priori magnitudes per body block.
+            (a merged armature): a merged combination's excess over the a-priori links goes
+            to the drive term (≥ 0), not into the links.
+        scale: per-variable scale D of φ, shape (10·nb,); default the a-priori magnitudes per
+            body block.
         prior_weight: λ / μ.
-        null_weight: stage 1's pull / μ (module docstring).
         chi2_tolerance: Δχ² of stage 2; 0 skips it.
         margin: ε of the pseudo-inertia constraint.
-        rows: the rows ``A`` stands for when it is folded (:mod:`~pe_drake.identification.folded_rows`:
-            the same Gram matrix in fewer rows); default ``len(y)``.
+        rows: the rows ``A`` stands for when it is folded; default ``len(y)``.
 
     Raises:
         NoSolutionFound: the solver failed (e.g. bounds that contradict each other or the data).
@@ -205,10 +166,9 @@ def physical_fit(
     x0 = x_prior + Z @ np.linalg.lstsq(Rs @ Z, z - Rs @ x_prior, rcond=1e-13)[0]  # Z: what the data identify
     iso = np.diag(np.r_[np.ones(len(cols)), np.zeros(d)])
     pull = P_null + prior_weight * iso  # in units of μ, the least determined direction's curvature
-    # Stage 1: the best physically valid fit of the data (a pull of null_weight·μ only
-    # selects among equally good fits).
-    Q = 2.0 * (H + null_weight * mu * pull)
-    c = -2.0 * H @ x0 - 2.0 * null_weight * mu * pull @ x_prior
+    # Stage 1: the best physically valid fit (the pull only selects among equally good fits)
+    Q = 2.0 * (H + NULL_WEIGHT * mu * pull)
+    c = -2.0 * H @ x0 - 2.0 * NULL_WEIGHT * mu * pull @ x_prior
     # the margin is per kg of the prior's mass; a massless prior (no inertials): per 1 kg
     blocks = [InertiaBlock(10 * i, D[10 * i : 10 * i + 10], margin * (prior[10 * b] or 1.0)) for i, b in enumerate(active)]
     lower_x = np.r_[np.full(len(cols), -np.inf), lower / s_e]
@@ -248,18 +208,15 @@ def _data_term(AD: np.ndarray, E: np.ndarray, y: np.ndarray, base_K, cols, D, ex
     KD, inside = None, sorted((extra_in_base or {}).items())
     if base_K is not None:
         KD = np.column_stack([base_K[:, cols] * D] + [np.asarray(c, float) * s_e[i] for i, c in inside])
-    P_null, mu = _null_pull(Rs.T @ Rs, KD, AD.shape[1], 1.0)
+    P_null, mu = _null_pull(Rs.T @ Rs, KD, AD.shape[1])
     return s_e, Rs, z, P_null, mu, _identified_basis(KD, AD.shape[1], [AD.shape[1] + i for i, _ in inside], k)
 
 
 def _identified_basis(KD: np.ndarray | None, p: int, inside: list[int], k: int) -> np.ndarray:
     """Orthonormal basis, shape (k, r), of the directions of x = (φ/D, θ/s_e) outside the null space
     of [K D | c_k s_k] (``inside``: the x-indices of the c_k): those the data can identify; the
-    identity without K.
-
-    A cut-off on the data factor's singular values alone (rcond 1e-13) kept a rounding direction
-    of the SO-101's merged armatures (1.3e-13 of the largest) and moved x0 by 1.5e9 prior
-    magnitudes along it: stage 2's Δχ² budget became 4e8 and the fit 100x worse than WLS.
+    identity without K (a cut-off on the data factor's singular values alone kept rounding
+    directions of merged armatures).
     """
     if KD is None:
         return np.eye(k)
@@ -295,8 +252,7 @@ def add_pseudo_inertia_constraint(prog, x, block: InertiaBlock) -> None:
 
 
 #: Clarabel's gap and feasibility tolerances, tried in turn: the tight one first; when it stalls
-#: (kSolverSpecificError: insufficient progress near the optimum, seen on a diagnosis's augmented
-#: model of a well-tracked run) the looser one, still far below the data's σ.
+#: (insufficient progress near the optimum) the looser one, still far below the data's σ.
 SDP_TOLERANCES = (1e-10, 1e-8)
 
 
@@ -353,25 +309,25 @@ def scaled_factor(R_joint: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.nd
 
 
 def factored_sdp(R_joint: np.ndarray, w: np.ndarray, x_ls: np.ndarray, blocks: Sequence[InertiaBlock], *,
-                 lower: np.ndarray | None = None, rows: Sequence[tuple[np.ndarray, float, float]] = (),
-                 what: str = "fit", advice: str = "", tolerances: Sequence[float] = SDP_TOLERANCES) -> np.ndarray:
+                 lower: np.ndarray | None = None, what: str = "fit",
+                 tolerances: Sequence[float] = SDP_TOLERANCES) -> np.ndarray:
     """min Σ_j w_j² ‖A_j x − y_j‖² under :func:`solve_sdp`'s constraints (given in x), from the
-    per-joint factors R_j of [A_j y_j], (n, p+1, p+1) (:func:`~pe_drake.identification.least_squares.
-    compress_joint_rows`), from the unconstrained ``x_ls``; solved in u = D x, D the column norms."""
+    per-joint factors R_j (n, p+1, p+1) and the unconstrained ``x_ls``; solved in u = D x."""
     Ra, z, D = scaled_factor(R_joint, w)
     d = 1.0 / D  # x = d ⊙ u
     scaled = [b._replace(scale=b.scale * d[b.start : b.start + len(b.scale)]) for b in blocks]
     u = solve_sdp(2.0 * Ra.T @ Ra, -2.0 * Ra.T @ z, scaled, x_ls * D, lower=None if lower is None else lower * D,
-                  rows=[(a * d, lo, hi) for a, lo, hi in rows], what=what, advice=advice, tolerances=tolerances)
+                  what=what, tolerances=tolerances)
     return u / D
 
 
-def _null_pull(H: np.ndarray, KD: np.ndarray | None, p: int, weight: float) -> tuple[np.ndarray, float]:
+def _null_pull(H: np.ndarray, KD: np.ndarray | None, p: int) -> tuple[np.ndarray, float]:
     """(projector onto the unidentifiable directions of the first p variables, μ)."""
     w = np.linalg.eigvalsh(H[:p, :p])
     tol = 1e-10 * max(w.max(), 1e-300)
     determined = w[w > tol]
-    mu = weight * (float(determined.min()) if determined.size else 1.0)
+    mu = float(determined.min()) if determined.size else 1.0
+
     if KD is None:
         w, V = np.linalg.eigh(H[:p, :p])
         N = V[:, w <= tol]
@@ -386,8 +342,7 @@ def _null_pull(H: np.ndarray, KD: np.ndarray | None, p: int, weight: float) -> t
 
 
 def _bound_rows(k: int, D: np.ndarray, active: list[int], names: list[str], bounds: PhysicalBounds) -> list:
-    """The user's mass, total-mass and CoM-box constraints on the scaled variables x, as rows
-    (a, lo, hi) of lo ≤ a·x ≤ hi."""
+    """The user's bounds on the scaled variables x, as rows (a, lo, hi) of lo ≤ a·x ≤ hi."""
     where = {b: i for i, b in enumerate(active)}
     rows = []
 
@@ -419,23 +374,20 @@ def _bound_rows(k: int, D: np.ndarray, active: list[int], names: list[str], boun
 def fit_notes(phi: np.ndarray, prior: np.ndarray, theta: np.ndarray, lower: np.ndarray, extra_names: list[str],
               body_names: list[str], bounds: PhysicalBounds, margin: float = PSD_MARGIN) -> list[str]:
     """Parameters of a physical fit on a bound or far from the a-priori model, in words."""
-    notes = []
+    def mass_on_bound(what: str, m: float, lo: float, hi: float) -> list[str]:
+        return [f"{what} {m:.4g} kg is on its {side} bound {value:g} kg"
+                for value, side in ((lo, "lower"), (hi, "upper"))
+                if abs(m - value) <= ON_BOUND * max(hi, 1.0)]
+
     masses = phi[0::10]
-    total = float(masses.sum())
-    if bounds.total_mass is not None:
-        lo, hi = bounds.total_mass
-        for value, side in ((lo, "lower"), (hi, "upper")):
-            if abs(total - value) <= ON_BOUND * max(hi, 1.0):
-                notes.append(f"total mass {total:.4g} kg is on its {side} bound {value:g} kg")
+    total = bounds.total_mass
+    notes = [] if total is None else mass_on_bound("total mass", float(masses.sum()), *total)
     for b, name in enumerate(body_names):
         m0, m = prior[10 * b], masses[b]
         if m0 <= 0:
             continue
         if name in bounds.mass_bounds:
-            lo, hi = bounds.mass_bounds[name]
-            for value, side in ((lo, "lower"), (hi, "upper")):
-                if abs(m - value) <= ON_BOUND * max(hi, 1.0):
-                    notes.append(f"{name}: mass {m:.4g} kg is on its {side} bound {value:g} kg")
+            notes += mass_on_bound(f"{name}: mass", m, *bounds.mass_bounds[name])
         if name in bounds.boxes:
             box = bounds.boxes[name]
             com = phi[10 * b + 1 : 10 * b + 4] / max(m, 1e-300)
@@ -457,8 +409,7 @@ def fit_notes(phi: np.ndarray, prior: np.ndarray, theta: np.ndarray, lower: np.n
 
 
 def _variable_scale(prior: np.ndarray, active: list[int]) -> np.ndarray:
-    """Per-variable scale, shape (10·nb,), that makes the prior about 1 in magnitude per body
-    block (mass; first moments; inertia): better numerics for the SDP."""
+    """Per-variable scale (10·nb,) that makes the prior about 1 per body block (SDP numerics)."""
     scale = np.ones(prior.size)
     for b in active:
         m = prior[10 * b]

@@ -37,10 +37,8 @@ from pe_drake.plots import plot_prediction
 
 @dataclasses.dataclass(frozen=True)
 class ValidateOptions:
-    """How ``validate`` reads the run: the channels to predict, the cut-off [Hz] (None: from
-    the data), the longest hole interpolated [s], the part of the run predicted (cut after
-    filtering; None: all of it) and whether it is filtered (False: the torques as recorded,
-    which then needs v.* and vdot.* columns, as ``identify --no-filter``)."""
+    """How ``validate`` reads the run (cut-off [Hz], longest hole interpolated [s]; unfiltered:
+    the torques as recorded, which then need v.* and vdot.* columns)."""
 
     measurement: str = "joint_torque"
     cutoff_hz: float | None = None
@@ -56,13 +54,11 @@ class ValidationReport:
     Attributes:
         names: the channels ("tau.<joint>", "wrench.fx", ...).
         rms: RMS error per channel [N·m, N]; relative: per channel [%]; relative_total [%].
-        preprocessing: what was done to the run (cut-off, trim, rates), printed first.
-        worse: the channels worse than the a-priori model (torques) or than predicting zero
-            (:mod:`~pe_drake.identification.reference_errors`), printed last.
+        worse: the channels worse than the a-priori model (torques) or than predicting zero.
         model_measurement: what an identified model was fitted to (a ``MEASUREMENTS`` name),
             or for a model file (``validate --model model.xml``) the file and its simulator.
         coupling: the warning of joints whose held-out residual looks like a coupled drive the
-            model lacks (:mod:`~pe_drake.identification.coupling`), printed last.
+            model lacks.
     """
 
     robot: str
@@ -108,32 +104,21 @@ class ValidationReport:
             "coupling_warnings": list(self.coupling),
         }
 
-    def write_json(self, path: str | Path, model: str | Path = "", data: str | Path = "") -> None:
-        atomic_write_text(path, json.dumps(self.to_dict(model, data), indent=2))
-
-    def plot(self, path: str | Path) -> Path:
-        return plot_prediction(path, self.robot, self.t, self.measured, self.predicted, self.relative, self.names)
-
     def write(self, folder: str | Path, *, json_name: str | Path | None = "validation.json",
               plot_name: str | Path | None = "validation.png", model: str | Path = "",
               data: str | Path = "") -> list[str]:
         """Writes ``validate --json`` and ``--plot`` into ``folder`` (a name may be a path;
-        None: not written): both or neither (a full disk after the JSON left it without its
-        figure).
-
-        Args:
-            model, data: the model file and the run, as given (recorded in the JSON).
-
-        Returns:
-            The paths written.
-        """
+        None: not written), both or neither; ``model``, ``data``: the files as given, recorded
+        in the JSON. Returns the paths written."""
         folder, written = Path(folder), []
         try:
             if json_name:
-                self.write_json(folder / json_name, model=model, data=data)
+                text = json.dumps(self.to_dict(model, data), indent=2)
+                atomic_write_text(folder / json_name, text)
                 written.append(str(folder / json_name))
             if plot_name:
-                self.plot(folder / plot_name)
+                plot_prediction(folder / plot_name, self.robot, self.t, self.measured,
+                                self.predicted, self.relative, self.names)
                 written.append(str(folder / plot_name))
         except BaseException:
             for path in written:
@@ -148,11 +133,10 @@ def validate_model(robot: Robot, model: IdentificationResult | RobotModel, measu
     """What ``pe-drake validate`` does: the run preprocessed and checked, predicted by ``model``.
 
     Args:
-        robot: the robot.
-        model: a loaded model (:func:`~pe_drake.identification.identified_file.load_identified`): an
-            identified fit or a :class:`~pe_drake.multibody.robot_model.RobotModel` (the diagnosis's).
+        model: a loaded model (:func:`~pe_drake.identification.identified_file.load_identified`).
         measurements: the raw run (:func:`~pe_drake.identification.intake.read_measurements`).
         progress: called with the :meth:`~ValidationReport.summary_lines` once predicted.
+
 
     Raises:
         DataError: data the checks refuse (sign-flipped torque, missing channels, ...).
