@@ -226,14 +226,16 @@ def test_full_disk_at_the_cli_is_one_line_and_exit_1(tmp_path, monkeypatch, caps
 def test_validate_writes_its_json_and_figure_both_or_neither(tmp_path, monkeypatch, capsys):
     """A full disk while the figure is written left validation.json without it."""
     from pe_drake.identification.measurements import write_measurement_csv
-    from pe_drake.identification.validate_model import ValidationReport
+    import importlib
+
+    validate_module = importlib.import_module("pe_drake.identification.validate_model")
 
     robot = load_robot("panda")
     trajectory, _ = load_trajectory(DATA / "panda_optimized.json")
     data = model_measurement(robot, trajectory, rate_hz=200.0, duration=8.0, tau_noise_std=0.05, seed=1)
     identify_model(robot, data, IdentifyOptions(method="ols")).write(tmp_path / "model")
     write_measurement_csv(tmp_path / "run.csv", data)
-    monkeypatch.setattr(ValidationReport, "plot", _full_disk)
+    monkeypatch.setattr(validate_module, "plot_prediction", _full_disk)  # the figure
     code = main(["validate", "--robot", "panda", "--model", str(tmp_path / "model" / "identified.json"),
                  "--data", str(tmp_path / "run.csv"), "--json", str(tmp_path / "v.json"), "--plot", str(tmp_path / "v.png")])
     assert code == 1 and "no space left" in capsys.readouterr().err
