@@ -349,3 +349,13 @@ def test_the_floor_refusal_names_the_keys_that_raise_a_hanging_robot(tmp_path):
         choose_nominal_posture(Robot("acrobot", config.robot), config.excitation, config.environment)
     assert "base_pose" not in str(refusal.value) and "environment.floor_height" in str(refusal.value)
     choose_nominal_posture(Robot("acrobot", config.robot), config.excitation, EnvironmentConfig(floor_height=0.0))
+
+
+def test_the_export_hint_keeps_the_runs_config():
+    """Newcomer pass (Alexander's lower body on a raised base): identify's hint dropped --config,
+    and the export it suggested put the base back at the URDF's pose without a word."""
+    from pe_drake.cli.common import export_hint
+
+    hint = export_hint("out/identified.json", "robot.urdf", "rig.yaml")
+    assert "--robot robot.urdf --config rig.yaml --to" in hint
+    assert "--config" not in export_hint("out/identified.json", "panda")
