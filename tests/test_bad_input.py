@@ -123,3 +123,25 @@ def test_one_joint_check_names_the_file_the_missing_and_extra_joints_and_the_rob
         check_joints(robot, ["j3", "j1", "j2"])
     with pytest.raises(JointMismatchError):
         check_joints(robot, ["j1", "j1", "j2", "j3"], any_order=True)
+
+
+def test_a_config_exciting_fewer_built_in_joints_drops_the_built_in_entries_of_the_others(tmp_path):
+    """Newcomer pass: README's config example (4 of the Panda's joints) was refused for
+    'panda_joint5' in robot.acceleration_limits, an entry of models/panda.yaml the user never
+    wrote; an entry the user writes for a locked joint is still refused."""
+    from pe_drake.exceptions import UnknownNameError
+    from pe_drake.multibody.registry import resolve_robot_config
+    from pe_drake.multibody.robot import Robot
+
+    four = ("robot:\n  joints: [panda_joint1, panda_joint2, panda_joint3, panda_joint4]\n"
+            "  locked_positions: {panda_joint5: 0.0, panda_joint6: 1.57, panda_joint7: 0.78}\n")
+    cfg = tmp_path / "four.yaml"
+    cfg.write_text(four + "  acceleration_limits: {panda_joint1: 5.0}\n")
+    config = resolve_robot_config("panda", cfg)
+    assert config.robot.acceleration_limits == {"panda_joint1": 5.0, "panda_joint2": 7.5, "panda_joint3": 10.0,
+                                                "panda_joint4": 12.5}
+    assert set(config.robot.nominal_positions) <= set(config.robot.joints)
+    assert list(Robot("panda", config.robot).joint_names) == config.robot.joints
+    cfg.write_text(four + "  acceleration_limits: {panda_joint5: 5.0}\n")
+    with pytest.raises(UnknownNameError, match="'panda_joint5' in robot.acceleration_limits"):
+        Robot("panda", resolve_robot_config("panda", cfg).robot)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 
 import numpy as np
 import pytest
@@ -155,6 +156,10 @@ def test_report_of_a_motion(small_problem, motion):
     better = dataclasses.replace(report, prediction_ratio=2.5)
     assert "predicts torques 2.5× better" in better.summary_lines()[-1]
     assert f"{1 / report.prediction_ratio:.3g}× worse than 3 random motions" in report.figure_note()
+    # Alexander's lower body: every random draw failed the constraints and the comparison the
+    # progress line announced was left out without a word
+    none = dataclasses.replace(report, random=[], random_rejected=20, prediction_ratio=math.nan)
+    assert "all 20 random draws failed the same constraints" in none.summary_lines()[-1]
 
 
 def test_sampled_rate_gives_the_data_rate_figures(small_problem, motion):

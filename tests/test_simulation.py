@@ -412,7 +412,8 @@ def test_a_run_that_does_not_track_its_trajectory_is_flagged():
     sim = {"duration": 1.0, "rate_hz": 1000.0, "samples": 1001, "wall_time_s": 0.1,
            "tracking_error_rms": {"a": 0.001, "b": 0.15}}
     lines = SimulatedRun("r", "joint_torque", None, {"simulation": sim}).summary_lines()
-    assert lines[-1].startswith("warning: b tracks its trajectory to 150 mrad RMS") and "control.kp" in lines[-1]
+    assert lines[-1].startswith("warning: b tracks its trajectory to 150 mrad RMS")
+    assert "control.kp and control.kd in the truth file" in lines[-1]  # not the config: a newcomer looked there
     sim["tracking_error_rms"]["b"] = 0.005
     assert not any(line.startswith("warning") for line in SimulatedRun("r", "joint_torque", None,
                                                                         {"simulation": sim}).summary_lines())

@@ -330,3 +330,32 @@ def test_payload_identification_on_an_sdf_robot_writes_payload_json(tmp_path, ca
     assert "model_with_payload.urdf not written" in capsys.readouterr().out
     assert abs(_strict_json(tmp_path / "p" / "payload.json")["mass"] - 0.5) < 0.05
     assert not (tmp_path / "p" / "model_with_payload.urdf").exists()
+
+
+def test_the_floor_refusal_names_the_keys_that_raise_a_hanging_robot(tmp_path):
+    """Newcomer pass (Alexander's lower body): the refusal said "robot.base_pose to raise its
+    base", a key that does not exist, and raising the base alone keeps the floor at the base's
+    plane; robot.base_position with environment.floor_height clears it."""
+    from pe_drake.config import Config, EnvironmentConfig, RobotConfig
+    from pe_drake.exceptions import InfeasibleError
+    from pe_drake.excitation.nominal import choose_nominal_posture
+    from pe_drake.multibody.capsule_fitting import fit_capsules
+
+    limits = dict(position_limits={"shoulder": [-3.0, 3.0], "elbow": [-2.5, 2.5]},
+                  velocity_limits={"shoulder": 3.0, "elbow": 3.0})
+    raised = RobotConfig(model=_acrobot(), base_position=[0.0, 0.0, 5.0], **limits)
+    config, _ = fit_capsules(Config(robot=raised), tmp_path / "fit")
+    with pytest.raises(InfeasibleError, match="robot.base_position") as refusal:
+        choose_nominal_posture(Robot("acrobot", config.robot), config.excitation, config.environment)
+    assert "base_pose" not in str(refusal.value) and "environment.floor_height" in str(refusal.value)
+    choose_nominal_posture(Robot("acrobot", config.robot), config.excitation, EnvironmentConfig(floor_height=0.0))
+
+
+def test_the_export_hint_keeps_the_runs_config():
+    """Newcomer pass (Alexander's lower body on a raised base): identify's hint dropped --config,
+    and the export it suggested put the base back at the URDF's pose without a word."""
+    from pe_drake.cli.common import export_hint
+
+    hint = export_hint("out/identified.json", "robot.urdf", "rig.yaml")
+    assert "--robot robot.urdf --config rig.yaml --to" in hint
+    assert "--config" not in export_hint("out/identified.json", "panda")

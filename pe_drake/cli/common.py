@@ -47,7 +47,9 @@ def read_log_from_args(args: argparse.Namespace, robot: Robot, config: Config | 
                     topic=getattr(args, "topic", None), effort=getattr(args, "effort", None))
 
 
-def export_hint(model, robot: str) -> str:
-    """Where the model goes next: the ``pe-drake export`` command line for it."""
-    return (f"use it in a simulator or controller: pe-drake export {model} --robot {robot} "
+def export_hint(model, robot: str, config: str | None = None) -> str:
+    """Where the model goes next: the ``pe-drake export`` command line for it (with the run's
+    ``--config``: without it the export would load another robot, e.g. the base at its URDF pose)."""
+    config_flag = f" --config {config}" if config else ""
+    return (f"use it in a simulator or controller: pe-drake export {model} --robot {robot}{config_flag} "
             "--to mjcf|urdf|sdf|feedforward|gains --out FILE")

@@ -36,5 +36,5 @@ def diagnose_command(args) -> int:
               "is not one; augmented_model.json and augmented_effects.yaml hold the augmented model (load the robot "
               "from a URDF to get the file)")
     if any(Path(w).name == "augmented_model.json" for w in written):
-        print(export_hint(out / "augmented_model.json", args.robot))
+        print(export_hint(out / "augmented_model.json", args.robot, getattr(args, "config", None)))
     return 0

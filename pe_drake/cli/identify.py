@@ -35,7 +35,7 @@ def identify_command(args: argparse.Namespace) -> int:
         print(line, flush=True)
     written = model.write(out, progress=print)  # the note on model.urdf, if any
     print(f"wrote {out}/" + ", ".join(Path(p).name for p in written))
-    print(export_hint(out / "identified.json", args.robot))
+    print(export_hint(out / "identified.json", args.robot, getattr(args, "config", None)))
     return 0
 
 

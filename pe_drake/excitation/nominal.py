@@ -93,8 +93,9 @@ def choose_nominal_posture(robot: Robot, excitation, environment) -> str | None:
         raise InfeasibleError(
             f"the floor blocks every one of {tried} candidate postures (mid-range, one or two joints "
             f"moved): part of the robot is below the floor ({floor}) whatever its joints do, as for a "
-            "robot hanging below its base; set environment.floor_height below its lowest point, "
-            "environment: {floor: false}, or robot.base_pose to raise its base")
+            "robot hanging below its base; raise the base with robot.base_position (world [m]) and set "
+            "environment.floor_height (world z [m]) below its lowest point (without floor_height the floor "
+            "stays at the base's plane wherever the base is), or set environment: {floor: false}")
     raise InfeasibleError(
         f"none of {tried} candidate postures (mid-range, one or two joints moved) clears the floor, the boxes and "
         f"the self-collision margin; set robot.nominal_positions for the joints {', '.join(robot.joint_names)} "

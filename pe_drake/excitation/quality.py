@@ -216,6 +216,10 @@ class QualityReport:
                 f"(RMS {best:.3g} N·m): predicts torques {_times(self.prediction_ratio)}, "
                 f"D-efficiency {self.d_efficiency_ratio:.3g}×"
             )
+        elif self.random_rejected:
+            # the progress line announced the comparison: say why it is missing
+            lines.append(f"  vs random motions: none compared, all {self.random_rejected} random draws failed the "
+                         "same constraints even when shrunk")
         return lines
 
 

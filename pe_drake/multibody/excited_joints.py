@@ -44,6 +44,10 @@ def inboard_joint(plant, body):
     return None
 
 
+#: The ``robot`` tables keyed by excited joint name.
+PER_JOINT_TABLES = ("position_limits", "velocity_limits", "acceleration_limits", "effort_limits", "nominal_positions")
+
+
 def excited_joint_names(cfg: RobotConfig, movable_names: list[str], model_path: Path) -> list[str]:
     """The excited joints (default: every 1-dof joint), every joint name of the config checked.
 
@@ -62,7 +66,7 @@ def excited_joint_names(cfg: RobotConfig, movable_names: list[str], model_path: 
             raise UnknownNameError("joint", j, movable_names, where="robot.locked_positions")
         if j in excited:
             raise ConfigError(f"joint '{j}' is both excited and in robot.locked_positions")
-    for table in ("position_limits", "velocity_limits", "acceleration_limits", "effort_limits", "nominal_positions"):
+    for table in PER_JOINT_TABLES:
         for j in getattr(cfg, table):
             if j not in excited:
                 raise UnknownNameError("joint", j, excited, where=f"robot.{table} (excited joints)")

@@ -11,6 +11,7 @@ from pathlib import Path
 from pe_drake.config import SAFE_DEFAULTS, Config, RobotConfig, load_config, validate_config
 from pe_drake.exceptions import ConfigError, UnknownNameError
 from pe_drake.limits import input_file_problem
+from pe_drake.multibody.excited_joints import PER_JOINT_TABLES
 from pe_drake.multibody.model_files import model_stem
 from pe_drake.multibody.packages import example_robot_data_dir
 from pe_drake.multibody.standing_defaults import standing_defaults
@@ -91,8 +92,30 @@ def resolve_robot_config(robot: str, config_file: str | Path | None = None) -> C
         config = load_config(config_file, base=base)
         # What the user's file sets is theirs, not assumed (a file may set the same value).
         config.robot.assumed = [k for k in config.robot.assumed if key_line(config_file, f"robot.{k}") is None]
+        if key_line(config_file, "robot.joints") is not None:
+            drop_entries_of_unexcited_joints(config.robot, config_file)
         return config
     return validate_config(base)
+
+
+def drop_entries_of_unexcited_joints(robot: RobotConfig, config_file: str | Path) -> None:
+    """Drops the per-joint table entries the user's file did not write for joints its
+    ``robot.joints`` no longer excites.
+
+    The file's tables are merged onto the built-in ones (models/panda.yaml limits all 7 joints),
+    so a config exciting 4 of the Panda's joints was refused for panda_joint5 in
+    robot.acceleration_limits, a line the user never wrote. Entries the file writes stay, and are
+    refused as before when their joint is not excited.
+
+    Args:
+        robot: the merged robot section, changed in place.
+        config_file: the user's YAML file.
+    """
+    for table in PER_JOINT_TABLES:
+        values = getattr(robot, table)
+        for joint in [j for j in values if j not in robot.joints]:
+            if key_line(config_file, f"robot.{table}.{joint}") is None:
+                del values[joint]
 
 
 def resolve_model_path(model: str) -> Path:

@@ -71,13 +71,13 @@ class SimulatedRun:
         armature = effects.get("armature", {}).get("values", {}).get(joint, 0.0)
         if payload.get("link"):
             return (f"The truth's payload ({payload['mass']:g} kg on {payload['link']}) is not in the controller's "
-                    "model: raise control.kp and control.kd, or give the controller the payload")
+                    "model: raise control.kp and control.kd in the truth file, or give the controller the payload")
         if prior_control and armature > 0:
             return (f"The truth's armature ({armature:g} kg·m² on {joint}) is not in the controller's model "
-                    "(control.model: prior, gains kp·M, kd·M): raise control.kp and control.kd, or set "
+                    "(control.model: prior, gains kp·M, kd·M): raise control.kp and control.kd in the truth file, or set "
                     'control.model: "true"')
         return ("The truth's friction is large for the controller (gains kp·M, kd·M scale with the link's "
-                "inertia): raise control.kp and control.kd or lower the friction")
+                "inertia): raise control.kp and control.kd in the truth file or lower the friction")
 
     def _model_file_friction(self) -> list[str]:
         """Notes on the joints the truth leaves to the model file's friction."""
