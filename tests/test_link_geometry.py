@@ -62,6 +62,25 @@ def test_sdf_primitives_are_read(tmp_path):
     assert caps[0].xyz == pytest.approx([0, 0, 0.1], abs=1e-4)
 
 
+@pytest.mark.parametrize("fmt, geometry", [
+    ("urdf", '<cylinder length="0.3"/>'),
+    ("sdf", "<sphere></sphere>"),
+])
+def test_a_primitive_without_its_size_is_a_config_error_naming_it(tmp_path, fmt, geometry):
+    """A <cylinder> without radius was a float(None) TypeError traceback out of `optimize`."""
+    from pe_drake.exceptions import ConfigError
+    from pe_drake.multibody.link_geometry import read_link_shapes
+
+    path = tmp_path / f"m.{fmt}"
+    if fmt == "urdf":
+        path.write_text(f'<robot name="m"><link name="a"><collision><geometry>{geometry}</geometry></collision></link></robot>')
+    else:
+        path.write_text(f'<sdf version="1.7"><model name="m"><link name="a"><collision name="c"><geometry>{geometry}'
+                        "</geometry></collision></link></model></sdf>")
+    with pytest.raises(ConfigError, match=r"link 'a': bad <collision> geometry: <(cylinder|sphere)> has no radius"):
+        read_link_shapes(path)
+
+
 def test_dae_only_robot_gets_capsules_and_unreadable_meshes_are_unchecked(tmp_path):
     """Fails on the old code: DAE meshes were not read and the robot got no capsule at all."""
     dae = example_robot_data_dir() / "robots/kinova_description/meshes/forearm.dae"

@@ -112,15 +112,22 @@ def _shape(link: str, tag: str, X, geometry: ET.Element | None, value) -> Shape 
     if geometry is None or len(geometry) == 0:
         return None
     g = geometry[0]
+
+    def size(key: str) -> float:
+        text = value(g, key)
+        if text is None:  # float(None) is a TypeError: the caller names link and file for a ValueError
+            raise ValueError(f"<{g.tag}> has no {key}")
+        return float(text)
+
     if g.tag == "mesh":
         uri = (value(g, "filename") or value(g, "uri") or "").strip()
         if uri.startswith("model://"):
             uri = "package://" + uri[len("model://") :]
         return Shape(link, tag, "mesh", X, filename=uri, scale=np.asarray(_numbers(value(g, "scale"), 3, 1.0)))
     if g.tag in ("cylinder", "capsule"):
-        return Shape(link, tag, g.tag, X, (float(value(g, "radius")), float(value(g, "length"))))
+        return Shape(link, tag, g.tag, X, (size("radius"), size("length")))
     if g.tag == "sphere":
-        return Shape(link, tag, "sphere", X, (float(value(g, "radius")),))
+        return Shape(link, tag, "sphere", X, (size("radius"),))
     if g.tag == "box":
         return Shape(link, tag, "box", X, tuple(_numbers(value(g, "size"), 3, 0.0)))
     return None
