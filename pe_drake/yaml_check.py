@@ -121,7 +121,8 @@ def _check_node(node, tp, source: str, key: str) -> None:
                 # refuses with a Python type name: say what to write instead.
                 value = shorten(node.value)
                 raise ConfigError(f"{_where(source, node, key)}: expected a string, got '{value}', "
-                                  f"which YAML reads as a {kind}: write it in quotes, \"{value}\"")
+                                  f"which YAML reads as {'an' if kind[0] in 'aeiou' else 'a'} {kind}: "
+                                  f"write it in quotes, \"{value}\"")
             return
         _check_scalar(node, tp, optional, source, key)
 

@@ -83,7 +83,7 @@ def test_an_unquoted_non_string_in_a_string_field_says_to_quote_it(tmp_path, val
     with pytest.raises(ConfigError) as err:
         read_truth_file(path)
     message = str(err.value)
-    assert f"line 2, key 'control.model': expected a string, got '{value}', which YAML reads as a {kind}" in message
+    assert f"line 2, key 'control.model': expected a string, got '{value}', which YAML reads as {'an' if kind == 'int' else 'a'} {kind}" in message
     assert f'write it in quotes, "{value}"' in message
     path.write_text('control:\n  model: "true"\n')  # quoted: the string the truth expects
     assert read_truth_file(path)["control"].model == "true"
