@@ -52,6 +52,13 @@ def _check_scalar(node, tp, optional: bool, source: str, key: str) -> None:
     if optional and node.tag.endswith(":null") or (optional and value in _NULLS and node.style is None):
         return
     ok = True
+    if tp is str and node.style is None and not node.tag.endswith(":str"):
+        # YAML reads an unquoted true, yes, on, 1 or null as another type, which Drake refuses
+        # with a Python type name: say what to write instead.
+        kind = node.tag.rsplit(":", 1)[-1]
+        raise ConfigError(f"{_where(source, node, key)}: expected a string, got '{shorten(value)}', "
+                          f"which YAML reads as {'an' if kind[0] in 'aeiou' else 'a'} {kind}: "
+                          f"write it in quotes, \"{shorten(value)}\"")
     if tp is bool:
         ok = value in _BOOLS
     elif tp is int:
@@ -114,16 +121,6 @@ def _check_node(node, tp, source: str, key: str) -> None:
         for k_node, v_node in node.value:
             _check_node(v_node, value_type, source, f"{key}['{shorten(k_node.value)}']")
     elif tp in (bool, int, float, str):
-        if tp is str and isinstance(node, yaml.ScalarNode):
-            kind = node.tag.rsplit(":", 1)[-1]
-            if node.style is None and kind != "str" and not (optional and kind == "null"):
-                # YAML reads an unquoted true, yes, on, 1 or null as another type, which Drake
-                # refuses with a Python type name: say what to write instead.
-                value = shorten(node.value)
-                raise ConfigError(f"{_where(source, node, key)}: expected a string, got '{value}', "
-                                  f"which YAML reads as {'an' if kind[0] in 'aeiou' else 'a'} {kind}: "
-                                  f"write it in quotes, \"{value}\"")
-            return
         _check_scalar(node, tp, optional, source, key)
 
 
