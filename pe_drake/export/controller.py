@@ -38,8 +38,8 @@ def feedforward_yaml(robot: Robot, model: RobotModel, check: dict | None = None,
     joints = {}
     for k, name in enumerate(robot.joint_names):
         force, speed = _unit(robot, k)
-        c = float(model.sliding_friction[k])  # a pre-sliding friction at its sliding level
-        b, o = (float(model.term(t)[k]) for t in ("viscous", "offset"))
+        # a pre-sliding friction enters at its sliding level (RobotModel.sliding_friction)
+        c, b, o = (float(x[k]) for x in (model.sliding_friction, model.viscous, model.offset))
         joints[name] = {
             "coulomb": c, "viscous": b, "offset": o, "units": f"{force}, {force}/({speed}), {force}",
             # firmware tables with separate signs: the identified model is symmetric
